@@ -1,0 +1,302 @@
+"""The Gaussian distribution: validated mean and covariance, sampling, marginals,
+conditioning (Lemma 7.1 of the lecture) and sensor fusion.
+
+References
+----------
+F. Gustafsson, G. Hendeby, *Parameter Estimation using Nonlinear Transformations*,
+Sensor Fusion lecture notes (Lemma 7.1 and the sensor fusion formula).
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import Iterable, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .errors import CovarianceError, ShapeError, SingularMatrixError
+
+__all__ = ["Gaussian", "fuse", "as_covariance", "as_vector"]
+
+#: Relative tolerance of the symmetry and positive-semi-definiteness checks.
+SYMMETRY_RTOL = 1e-10
+PSD_RTOL = 1e-10
+
+_PSD_MODES = ("raise", "clip", "jitter")
+
+
+def as_vector(x: ArrayLike, name: str, dim: int | None = None) -> np.ndarray:
+    """Return ``x`` as a finite 1-D float array, or raise a :class:`ShapeError` naming ``name``."""
+    arr = np.asarray(x, dtype=float)
+    if arr.ndim == 0:
+        arr = arr.reshape(1)
+    if arr.ndim != 1:
+        raise ShapeError(f"{name} must be a vector (1-D), got shape {arr.shape}")
+    if dim is not None and arr.shape[0] != dim:
+        raise ShapeError(f"{name} must have length {dim}, got {arr.shape[0]}")
+    if not np.all(np.isfinite(arr)):
+        raise ShapeError(f"{name} contains NaN or inf: {arr}")
+    return arr
+
+
+def as_covariance(
+    P: ArrayLike, name: str, dim: int | None = None, psd: str = "raise"
+) -> np.ndarray:
+    """Validate a covariance matrix and return it as a float array.
+
+    Parameters
+    ----------
+    P : array_like
+        A scalar (for dimension 1) or a square matrix.
+    name : str
+        The argument name used in error messages.
+    dim : int, optional
+        The required dimension.
+    psd : {"raise", "clip", "jitter"}
+        What to do with a matrix that is not positive semi-definite: raise a
+        :class:`CovarianceError`; clip negative eigenvalues to zero (with a warning
+        that gives the clipped mass); or add ``eps * I`` (with a warning that gives eps).
+
+    Raises
+    ------
+    ShapeError, CovarianceError
+    """
+    if psd not in _PSD_MODES:
+        raise ValueError(f"psd must be one of {_PSD_MODES}, got {psd!r}")
+    arr = np.asarray(P, dtype=float)
+    if arr.ndim == 0:
+        arr = arr.reshape(1, 1)
+    if arr.ndim != 2 or arr.shape[0] != arr.shape[1]:
+        raise ShapeError(f"{name} must be a square matrix, got shape {arr.shape}")
+    if dim is not None and arr.shape[0] != dim:
+        raise ShapeError(f"{name} must be {dim}x{dim}, got {arr.shape[0]}x{arr.shape[1]}")
+    if not np.all(np.isfinite(arr)):
+        raise CovarianceError(f"{name} contains NaN or inf")
+    scale = max(float(np.max(np.abs(arr))), np.finfo(float).tiny)
+    asym = float(np.max(np.abs(arr - arr.T)))
+    if asym > SYMMETRY_RTOL * scale:
+        raise CovarianceError(
+            f"{name} is not symmetric: max |P - P^T| = {asym:.3g} (scale {scale:.3g})"
+        )
+    arr = 0.5 * (arr + arr.T)  # remove rounding-level asymmetry only (checked above)
+    eig = np.linalg.eigvalsh(arr) if arr.size else np.zeros(0)
+    tol = PSD_RTOL * scale
+    if eig.size and eig[0] < -tol:
+        if psd == "raise":
+            raise CovarianceError(
+                f"{name} is not positive semi-definite: smallest eigenvalue {eig[0]:.6g}"
+                " (use psd='clip' or psd='jitter' to repair it explicitly)"
+            )
+        if psd == "clip":
+            w, V = np.linalg.eigh(arr)
+            clipped = float(-np.sum(w[w < 0]))
+            w = np.clip(w, 0.0, None)
+            arr = (V * w) @ V.T
+            arr = 0.5 * (arr + arr.T)
+            warnings.warn(
+                f"{name}: clipped negative eigenvalues to 0 (clipped mass {clipped:.3g})",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+        else:
+            eps = float(-eig[0] + tol)
+            arr = arr + eps * np.eye(arr.shape[0])
+            warnings.warn(f"{name}: added jitter eps = {eps:.3g} times I", RuntimeWarning, stacklevel=3)
+    return arr
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.3g}"
+
+
+class Gaussian:
+    """A multivariate Gaussian N(mean, cov), immutable and validated.
+
+    Parameters
+    ----------
+    mean : array_like, shape (n,)
+    cov : array_like, shape (n, n)
+        Symmetric positive semi-definite covariance (a scalar is accepted for n = 1).
+    psd : {"raise", "clip", "jitter"}, default "raise"
+        Repair policy for a covariance that is not PSD; see :func:`as_covariance`.
+
+    Examples
+    --------
+    >>> Gaussian([95.1, 95.1], [[954, -854], [-854, 954]])
+    N([95.1, 95.1], [[954, -854], [-854, 954]])
+    """
+
+    __slots__ = ("_mean", "_cov")
+
+    def __init__(self, mean: ArrayLike, cov: ArrayLike, psd: str = "raise") -> None:
+        m = as_vector(mean, "mean")
+        P = as_covariance(cov, "cov", dim=m.shape[0], psd=psd)
+        m.setflags(write=False)
+        P.setflags(write=False)
+        object.__setattr__(self, "_mean", m)
+        object.__setattr__(self, "_cov", P)
+
+    def __setattr__(self, key, value):  # immutable
+        raise AttributeError("Gaussian is immutable")
+
+    @classmethod
+    def from_std(cls, mean: ArrayLike, std: ArrayLike) -> "Gaussian":
+        """Build N(mean, diag(std**2)) from standard deviations."""
+        s = as_vector(std, "std")
+        if np.any(s < 0):
+            raise CovarianceError(f"std must be non-negative, got {s}")
+        return cls(mean, np.diag(s**2))
+
+    @property
+    def mean(self) -> np.ndarray:
+        """The mean vector, shape (n,)."""
+        return self._mean
+
+    @property
+    def cov(self) -> np.ndarray:
+        """The covariance matrix, shape (n, n)."""
+        return self._cov
+
+    @property
+    def dim(self) -> int:
+        """The dimension n."""
+        return int(self._mean.shape[0])
+
+    def sqrt_cov(self) -> np.ndarray:
+        """A square root L with L Lᵀ = cov: Cholesky, or eigh for a singular PSD cov."""
+        return matrix_sqrt(self._cov)
+
+    def sample(self, n: int, rng: np.random.Generator | int | None = None) -> np.ndarray:
+        """Draw ``n`` samples, shape (n, dim), from a seeded generator."""
+        if not isinstance(n, (int, np.integer)) or n < 1:
+            raise ValueError(f"n must be a positive integer, got {n!r}")
+        gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        z = gen.standard_normal((int(n), self.dim))
+        return self._mean + z @ self.sqrt_cov().T
+
+    def _index(self, idx: Iterable[int] | int, name: str = "idx") -> np.ndarray:
+        ix = np.atleast_1d(np.asarray(idx))
+        if ix.dtype.kind not in "iu":
+            raise ShapeError(f"{name} must hold integer indices, got {ix}")
+        if ix.size == 0:
+            raise ShapeError(f"{name} must not be empty")
+        if np.any(ix < -self.dim) or np.any(ix >= self.dim):
+            raise ShapeError(f"{name} {ix.tolist()} out of range for dimension {self.dim}")
+        ix = np.where(ix < 0, ix + self.dim, ix)
+        if len(set(ix.tolist())) != ix.size:
+            raise ShapeError(f"{name} has duplicate indices: {ix.tolist()}")
+        return ix
+
+    def marginal(self, idx: Sequence[int] | int) -> "Gaussian":
+        """The marginal distribution of the components ``idx``."""
+        ix = self._index(idx)
+        return Gaussian(self._mean[ix], self._cov[np.ix_(ix, ix)])
+
+    def condition(self, idx: Sequence[int] | int, value: ArrayLike) -> "Gaussian":
+        """Condition on observed components (Lemma 7.1).
+
+        With x the components not in ``idx`` and y those in ``idx``,
+        x̂ = x̂₀ + P^{xy}(P^{yy})⁻¹(y − ŷ), Cov = P^{xx} − P^{xy}(P^{yy})⁻¹P^{yx}.
+
+        Returns
+        -------
+        Gaussian
+            The distribution of the remaining components, in their original order.
+
+        Raises
+        ------
+        SingularMatrixError
+            If P^{yy} is singular.
+        """
+        iy = self._index(idx)
+        ix = np.setdiff1d(np.arange(self.dim), iy)
+        if ix.size == 0:
+            raise ShapeError("condition: idx covers every component; nothing is left")
+        y = as_vector(value, "value", dim=iy.size)
+        Pyy = self._cov[np.ix_(iy, iy)]
+        Pxy = self._cov[np.ix_(ix, iy)]
+        K = solve_psd(Pyy, Pxy.T, "P^yy").T
+        mean = self._mean[ix] + K @ (y - self._mean[iy])
+        cov = self._cov[np.ix_(ix, ix)] - K @ Pxy.T
+        return Gaussian(mean, 0.5 * (cov + cov.T), psd="clip" if _tiny_negative(cov) else "raise")
+
+    def __repr__(self) -> str:
+        m = ", ".join(_fmt(x) for x in self._mean)
+        rows = ", ".join("[" + ", ".join(_fmt(x) for x in r) + "]" for r in self._cov)
+        return f"N([{m}], [{rows}])"
+
+    def _repr_latex_(self) -> str:
+        m = r" \\ ".join(_fmt(x) for x in self._mean)
+        P = r" \\ ".join(" & ".join(_fmt(x) for x in r) for r in self._cov)
+        return (
+            r"$\mathcal{N}\left(\begin{bmatrix}" + m + r"\end{bmatrix},\ "
+            r"\begin{bmatrix}" + P + r"\end{bmatrix}\right)$"
+        )
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Gaussian):
+            return NotImplemented
+        return bool(np.array_equal(self._mean, other._mean) and np.array_equal(self._cov, other._cov))
+
+    def __hash__(self) -> int:
+        return hash((self._mean.tobytes(), self._cov.tobytes()))
+
+
+def _tiny_negative(P: np.ndarray) -> bool:
+    # Schur complements can dip below zero by rounding; report it rather than fail.
+    eig = np.linalg.eigvalsh(0.5 * (P + P.T))
+    scale = max(float(np.max(np.abs(P))), np.finfo(float).tiny)
+    return bool(eig[0] < -PSD_RTOL * scale and eig[0] > -1e-8 * scale)
+
+
+def matrix_sqrt(P: np.ndarray) -> np.ndarray:
+    """A square root L of a PSD matrix with L Lᵀ = P.
+
+    Cholesky when P is positive definite; otherwise the symmetric eigen-decomposition
+    (singular PSD covariances, e.g. an input with zero variance).
+    """
+    try:
+        return np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        w, V = np.linalg.eigh(P)
+        return V * np.sqrt(np.clip(w, 0.0, None))
+
+
+def solve_psd(A: np.ndarray, B: np.ndarray, name: str) -> np.ndarray:
+    """Solve A X = B for a symmetric positive definite A, or raise naming ``name``."""
+    scale = max(float(np.max(np.abs(A))), np.finfo(float).tiny) if A.size else 1.0
+    cond = np.linalg.cond(A) if A.size else 1.0
+    if not np.isfinite(cond) or cond > 1e13:
+        raise SingularMatrixError(f"{name} is singular (condition number {cond:.3g}, scale {scale:.3g})")
+    return np.linalg.solve(A, B)
+
+
+def fuse(*gaussians: Gaussian) -> Gaussian:
+    """Fuse independent estimates of the same quantity (the sensor fusion formula).
+
+    P = (Σ_k P_k⁻¹)⁻¹,  x̂ = P Σ_k P_k⁻¹ x̂_k.
+
+    Raises
+    ------
+    ShapeError
+        If fewer than one estimate is given or the dimensions differ.
+    SingularMatrixError
+        If a covariance is singular.
+    """
+    if len(gaussians) == 0:
+        raise ShapeError("fuse needs at least one Gaussian")
+    if not all(isinstance(g, Gaussian) for g in gaussians):
+        raise TypeError("fuse takes Gaussian arguments")
+    n = gaussians[0].dim
+    if any(g.dim != n for g in gaussians):
+        raise ShapeError(f"fuse: dimensions differ: {[g.dim for g in gaussians]}")
+    info = np.zeros((n, n))
+    vec = np.zeros(n)
+    for k, g in enumerate(gaussians):
+        Pinv = solve_psd(g.cov, np.eye(n), f"covariance of estimate {k}")
+        info += Pinv
+        vec += Pinv @ g.mean
+    P = np.linalg.inv(info)
+    P = 0.5 * (P + P.T)
+    return Gaussian(P @ vec, P)

@@ -1,0 +1,290 @@
+"""Symbolic models y = g(u, v) and the detection of their noise structure.
+
+The structure follows Straka & Havlík (2024), eqs. (1), (3), (4):
+
+- ``"additive"``: g = f(u) + B v with a constant matrix B (B = I in (4)); a model
+  without noise symbols is also additive (noise-free).
+- ``"multiplicative"``: g = f(u) + π(u) γ(v) (3).
+- ``"general"``: anything else (1).
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+from typing import Iterable, Sequence
+
+import sympy as sp
+
+from .errors import ModelError
+
+__all__ = ["Model"]
+
+
+def _as_symbols(items: Iterable | None, what: str) -> tuple[sp.Symbol, ...]:
+    if items is None:
+        return ()
+    if isinstance(items, (sp.Basic, str)):
+        items = [items]
+    out = []
+    for s in items:
+        if isinstance(s, str):
+            s = sp.Symbol(s, real=True)
+        if not isinstance(s, sp.Symbol):
+            raise ModelError(f"{what} must be sympy Symbols, got {s!r} ({type(s).__name__})")
+        out.append(s)
+    return tuple(out)
+
+
+def _as_exprs(items) -> tuple[sp.Expr, ...]:
+    if isinstance(items, sp.MatrixBase):
+        items = list(items)
+    elif isinstance(items, sp.Basic):
+        items = [items]
+    out = []
+    for e in items:
+        if isinstance(e, str):
+            raise ModelError(
+                "outputs must be sympy expressions, not strings (use symmon.modelfile to parse text safely)"
+            )
+        try:
+            e = sp.sympify(e, strict=True)  # numbers and sympy objects only, never text
+        except sp.SympifyError as exc:
+            raise ModelError(f"output {e!r} is not a sympy expression") from exc
+        out.append(e)
+    if not out:
+        raise ModelError("a model needs at least one output")
+    return tuple(out)
+
+
+class Model:
+    """A nonlinear transformation y = g(u, v) declared with sympy.
+
+    Parameters
+    ----------
+    inputs : sequence of sympy.Symbol
+        The random inputs u (the state).
+    outputs : sequence of sympy.Expr
+        The components of g.
+    noise : sequence of sympy.Symbol, optional
+        The noise symbols v, independent of u and zero mean.
+    name : str, optional
+    angles : iterable of sympy.Symbol or int, optional
+        Output indices (or input symbols) that are angles; see :mod:`symmon.angles`.
+
+    Raises
+    ------
+    ModelError
+        On duplicate symbols, symbols used in both inputs and noise, or outputs that
+        use symbols that are declared neither as inputs nor as noise.
+
+    Examples
+    --------
+    >>> import sympy as sp
+    >>> x, y = sp.symbols("x y")
+    >>> Model([x, y], [sp.sqrt(x**2 + y**2), sp.atan2(y, x)]).structure
+    'additive'
+    """
+
+    def __init__(
+        self,
+        inputs: Sequence[sp.Symbol],
+        outputs: Sequence[sp.Expr] | sp.Expr,
+        noise: Sequence[sp.Symbol] | None = None,
+        name: str | None = None,
+        angles: Iterable | None = None,
+    ) -> None:
+        u = _as_symbols(inputs, "inputs")
+        v = _as_symbols(noise, "noise")
+        if not u:
+            raise ModelError("a model needs at least one input symbol")
+        for group, what in ((u, "inputs"), (v, "noise")):
+            dup = {s for s in group if group.count(s) > 1}
+            if dup:
+                raise ModelError(f"duplicate symbols in {what}: {sorted(map(str, dup))}")
+        both = set(u) & set(v)
+        if both:
+            raise ModelError(f"symbols declared both as inputs and noise: {sorted(map(str, both))}")
+        g = _as_exprs(outputs)
+        known = set(u) | set(v)
+        for i, e in enumerate(g):
+            unknown = e.free_symbols - known
+            if unknown:
+                raise ModelError(
+                    f"output {i} ({e}) uses unknown symbols {sorted(map(str, unknown))}; "
+                    f"declared inputs {[str(s) for s in u]}, noise {[str(s) for s in v]}"
+                )
+        self._u = u
+        self._v = v
+        self._g = g
+        self._name = name
+        self._angles = self._resolve_angles(angles)
+
+    def _resolve_angles(self, angles) -> tuple[frozenset[int], frozenset[int]]:
+        out_idx: set[int] = set()
+        in_idx: set[int] = set()
+        for a in angles or ():
+            if isinstance(a, int):
+                if not 0 <= a < len(self._g):
+                    raise ModelError(f"angle output index {a} out of range for {len(self._g)} outputs")
+                out_idx.add(a)
+            elif isinstance(a, sp.Symbol) and a in self._u:
+                in_idx.add(self._u.index(a))
+            else:
+                raise ModelError(
+                    f"angles must be output indices or input symbols, got {a!r}"
+                )
+        return frozenset(out_idx), frozenset(in_idx)
+
+    # --- basic properties -------------------------------------------------
+    @property
+    def inputs(self) -> tuple[sp.Symbol, ...]:
+        """The input symbols u."""
+        return self._u
+
+    @property
+    def noise(self) -> tuple[sp.Symbol, ...]:
+        """The noise symbols v (possibly empty)."""
+        return self._v
+
+    @property
+    def outputs(self) -> tuple[sp.Expr, ...]:
+        """The output expressions g."""
+        return self._g
+
+    @property
+    def name(self) -> str:
+        return self._name or "model"
+
+    @property
+    def n_u(self) -> int:
+        return len(self._u)
+
+    @property
+    def n_v(self) -> int:
+        return len(self._v)
+
+    @property
+    def n_y(self) -> int:
+        return len(self._g)
+
+    @property
+    def angle_outputs(self) -> frozenset[int]:
+        """Indices of the outputs that are angles."""
+        return self._angles[0]
+
+    @property
+    def angle_inputs(self) -> frozenset[int]:
+        """Indices of the inputs that are angles."""
+        return self._angles[1]
+
+    def with_angles(self, angles: Iterable) -> "Model":
+        """The same model with angle declarations replaced by ``angles``."""
+        return Model(self._u, self._g, self._v, self._name, angles)
+
+    # --- noise structure --------------------------------------------------
+    @cached_property
+    def _split(self) -> tuple[str, sp.Matrix | None, sp.Matrix | None, sp.Matrix | None]:
+        if not self._v:
+            return "additive", sp.Matrix(self._g), sp.zeros(self.n_y, 0), sp.zeros(0, 1)
+        vset = set(self._v)
+        uset = set(self._u)
+        # Constant Jacobian in v means g = f(u) + B v.
+        Jv = sp.Matrix(self._g).jacobian(sp.Matrix(self._v))
+        if all(not (e.free_symbols & (vset | uset)) for e in Jv):
+            f = sp.Matrix(self._g).subs({s: 0 for s in self._v})
+            return "additive", f, Jv, sp.Matrix(self._v)
+        gammas: list[sp.Expr] = []
+        rows: list[dict[int, sp.Expr]] = []
+        f_parts: list[sp.Expr] = []
+        for e in self._g:
+            ex = sp.expand(e, power_exp=True, mul=True, multinomial=True, deep=False, log=False)
+            f_i = sp.Integer(0)
+            row: dict[int, sp.Expr] = {}
+            for term in sp.Add.make_args(ex):
+                u_part, v_part = sp.Integer(1), sp.Integer(1)
+                for fac in sp.Mul.make_args(term):
+                    syms = fac.free_symbols
+                    if syms & vset and syms & uset:
+                        return "general", None, None, None
+                    if syms & vset:
+                        v_part *= fac
+                    else:
+                        u_part *= fac
+                if v_part == 1:
+                    f_i += u_part
+                    continue
+                # Normalise the sign so that γ and −γ are one column.
+                coeff, v_core = v_part.as_coeff_Mul()
+                u_part *= coeff
+                if v_core not in gammas:
+                    gammas.append(v_core)
+                k = gammas.index(v_core)
+                row[k] = row.get(k, sp.Integer(0)) + u_part
+            f_parts.append(f_i)
+            rows.append(row)
+        pi = sp.Matrix(self.n_y, len(gammas), lambda i, k: rows[i].get(k, sp.Integer(0)))
+        return "multiplicative", sp.Matrix(f_parts), pi, sp.Matrix(gammas)
+
+    @property
+    def structure(self) -> str:
+        """``"additive"``, ``"multiplicative"`` or ``"general"``, found symbolically."""
+        return self._split[0]
+
+    def _require(self, what: str):
+        if self.structure == "general":
+            raise ModelError(f"{what} is not defined for a model with general (non-separable) noise")
+
+    @property
+    def f(self) -> sp.Matrix:
+        """f(u) of g = f(u) + π(u)γ(v) (the whole g for a noise-free model)."""
+        self._require("f")
+        return self._split[1]
+
+    @property
+    def pi(self) -> sp.Matrix:
+        """π(u), shape (n_y, n_γ); a constant matrix B for additive noise."""
+        self._require("pi")
+        return self._split[2]
+
+    @property
+    def gamma(self) -> sp.Matrix:
+        """γ(v), shape (n_γ, 1). It need not be zero mean: the measures recentre it."""
+        self._require("gamma")
+        return self._split[3]
+
+    # --- transformations of the model --------------------------------------
+    def noise_free(self) -> "Model":
+        """The model with every noise symbol set to zero (keeps inputs and angles)."""
+        g = [e.subs({s: 0 for s in self._v}) for e in self._g]
+        return Model(self._u, g, None, self._name, self._angle_args())
+
+    def _angle_args(self) -> list:
+        return sorted(self.angle_outputs) + [self._u[i] for i in sorted(self.angle_inputs)]
+
+    def subs(self, values: dict) -> "Model":
+        """Substitute parameter values (not inputs or noise) into the outputs."""
+        return Model(self._u, [e.subs(values) for e in self._g], self._v, self._name, self._angle_args())
+
+    # --- display -----------------------------------------------------------
+    def __repr__(self) -> str:
+        parts = [f"inputs={[str(s) for s in self._u]}"]
+        if self._v:
+            parts.append(f"noise={[str(s) for s in self._v]}")
+        parts.append(f"outputs={[str(e) for e in self._g]}")
+        return f"Model({self.name!r}, " + ", ".join(parts) + f", structure={self.structure!r})"
+
+    def _repr_latex_(self) -> str:
+        args = ", ".join(sp.latex(s) for s in self._u + self._v)
+        body = r" \\ ".join(sp.latex(e) for e in self._g)
+        return (
+            r"$g(" + args + r") = \begin{bmatrix}" + body + r"\end{bmatrix}"
+            + r"\quad\text{(" + self.structure + r" noise)}$"
+        )
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Model):
+            return NotImplemented
+        return (self._u, self._v, self._g, self._angles) == (other._u, other._v, other._g, other._angles)
+
+    def __hash__(self) -> int:
+        return hash((self._u, self._v, self._g, self._angles))
