@@ -1,0 +1,30 @@
+"""symmon: nonlinear transformations of random variables.
+
+Models are declared with sympy, compiled with CasADi (exact derivatives, batched
+evaluation, C code), and their moments computed by TT1, TT2, the unscented family,
+Gauss–Hermite, Monte Carlo and exact polynomial moments.
+"""
+
+from . import errors as errors
+from .errors import SymmonError as SymmonError
+from .gaussian import Gaussian as Gaussian
+from .gaussian import fuse as fuse
+from .model import Model as Model
+from .moments import JointMoments as JointMoments
+from .propagate import propagate as propagate
+from .propagate import propagate_many as propagate_many
+from .transforms import TT1 as TT1
+from .transforms import TT2 as TT2
+from .transforms import UT as UT
+from .transforms import Exact as Exact
+from .transforms import GaussHermite as GaussHermite
+from .transforms import MonteCarlo as MonteCarlo
+from .transforms import Transform as Transform
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "errors", "SymmonError", "Gaussian", "fuse", "Model", "JointMoments",
+    "propagate", "propagate_many",
+    "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Transform",
+]

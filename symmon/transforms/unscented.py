@@ -1,0 +1,120 @@
+"""The unscented transform (UT) and its presets ut1, ut2 and cubature.
+
+With n = dim w and λ = α²(n + κ) − n, the sigma points are μ and μ ± √(n + λ)·Lᵢ
+(Lᵢ the columns of a square root of P), with mean weights w₀ = λ/(n + λ),
+wᵢ = 1/(2(n + λ)) and covariance weight w₀ᶜ = w₀ + 1 − α² + β.
+
+References
+----------
+S. J. Julier, J. K. Uhlmann, "Unscented filtering and nonlinear estimation",
+Proc. IEEE 92(3), 2004. doi:10.1109/JPROC.2003.823141
+R. van der Merwe, *Sigma-point Kalman filters for probabilistic inference in dynamic
+state-space models*, PhD thesis, OGI, 2004 (the scaled UT).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from ..errors import SymmonError
+from .base import BatchMoments, Transform, batch_sqrt, weighted_moments
+
+__all__ = ["UT"]
+
+
+@dataclass(frozen=True)
+class UT(Transform):
+    """The scaled unscented transform.
+
+    Parameters
+    ----------
+    alpha : float, default 1
+        Spread of the sigma points (α > 0).
+    beta : float, default 0
+        Prior knowledge of the distribution (β = 2 is optimal for a Gaussian).
+    kappa : float or None, default None
+        Secondary scaling; ``None`` means κ = 3 − n (the ut1 rule), resolved per model.
+
+    Examples
+    --------
+    >>> UT.ut1(), UT.ut2(), UT.cubature()
+    (UT(alpha=1.0, beta=0.0, kappa=None), UT(alpha=0.001, beta=2.0, kappa=0.0), UT(alpha=1.0, beta=0.0, kappa=0.0))
+    """
+
+    alpha: float = 1.0
+    beta: float = 0.0
+    kappa: float | None = None
+
+    exact_degree: ClassVar[float] = 3
+    name: ClassVar[str] = "ut"
+
+    def __post_init__(self) -> None:
+        for k in ("alpha", "beta") + (("kappa",) if self.kappa is not None else ()):
+            v = getattr(self, k)
+            if not np.isfinite(v):
+                raise SymmonError(f"UT {k} must be finite, got {v}")
+            object.__setattr__(self, k, float(v))
+        if self.alpha <= 0:
+            raise SymmonError(f"UT alpha must be positive, got {self.alpha}")
+
+    @classmethod
+    def ut1(cls) -> "UT":
+        """SigSys 'ut1': α = 1, β = 0, κ = 3 − n."""
+        return cls(1.0, 0.0, None)
+
+    @classmethod
+    def ut2(cls) -> "UT":
+        """SigSys 'ut2': α = 10⁻³, β = 2, κ = 0."""
+        return cls(1e-3, 2.0, 0.0)
+
+    @classmethod
+    def cubature(cls) -> "UT":
+        """The cubature rule ('ct'): α = 1, β = 0, κ = 0."""
+        return cls(1.0, 0.0, 0.0)
+
+    def weights(self, n: int) -> tuple[np.ndarray, np.ndarray, float]:
+        """Mean weights, covariance weights and the scale √(n + λ) for dimension n."""
+        kappa = 3.0 - n if self.kappa is None else self.kappa
+        lam = self.alpha**2 * (n + kappa) - n
+        if n + lam <= 0:
+            raise SymmonError(
+                f"UT with alpha={self.alpha}, kappa={kappa} gives n + lambda = {n + lam:.3g} <= 0 "
+                f"for n = {n}: choose a larger kappa"
+            )
+        wm = np.full(2 * n + 1, 1.0 / (2 * (n + lam)))
+        wm[0] = lam / (n + lam)
+        wc = wm.copy()
+        wc[0] += 1 - self.alpha**2 + self.beta
+        return wm, wc, float(np.sqrt(n + lam))
+
+    def sigma_points(self, means: np.ndarray, covs: np.ndarray) -> np.ndarray:
+        """Sigma points (K, 2n + 1, n): μ, μ + c·Lᵢ, then μ − c·Lᵢ."""
+        K, n = means.shape
+        _, _, c = self.weights(n)
+        L = batch_sqrt(covs)  # (K, n, n), columns are the directions
+        D = c * np.swapaxes(L, 1, 2)  # rows = columns of L
+        return np.concatenate([means[:, None, :], means[:, None, :] + D, means[:, None, :] - D], axis=1)
+
+    def batch(self, cm, means, covs, angles=frozenset()):
+        K, n = means.shape
+        wm, wc, _ = self.weights(n)
+        X = self.sigma_points(means, covs)
+        Y = cm.eval_g(X.reshape(K * (2 * n + 1), n)).reshape(K, 2 * n + 1, -1)
+        mean, cov, cross = weighted_moments(Y, X, means, wm, wc, angles)
+        info = {"evaluations": K * (2 * n + 1), "sigma_points": X, "transformed_points": Y}
+        if np.any(wc < 0):
+            eig_min = np.linalg.eigvalsh(cov)[:, 0]
+            scale = np.abs(cov).max(axis=(1, 2)) + np.finfo(float).tiny
+            if np.any(eig_min < -1e-10 * scale):
+                warnings.warn(
+                    f"{self!r}: a negative sigma-point weight (w0c = {wc[0]:.3g}) made the "
+                    f"covariance indefinite (smallest eigenvalue {eig_min.min():.3g}); it is "
+                    "returned as computed, not repaired",
+                    RuntimeWarning, stacklevel=4,
+                )
+                info["indefinite"] = True
+        return BatchMoments(mean, cov, cross, info=info)
