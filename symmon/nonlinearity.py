@@ -1,0 +1,309 @@
+"""Measures of nonlinearity (MoN): Liu–Li's MSE-based MoN and the unitless normalised MoN.
+
+With Σ_gg = Cov g, Σ_gu = Cov(g, u), Σ_uu = Cov u and Σ_c = Cov_v(E[g | v]),
+
+    M² = tr(W (Σ_gg − Σ_c − Σ_gu Σ_uu⁻¹ Σ_ug)).
+
+Σ_c is 0 without noise, B Σ_vv Bᵀ for additive noise g = f(u) + B v (29), and
+π̄ Σ_γγ π̄ᵀ for multiplicative noise g = f(u) + π(u)γ(v) (28).  For general noise the
+minimising n of (23) is n(v) = E[g | v] − E g (REFERENCE.md; our derivation, checked in
+``derivations/general_noise.py``), and Σ_c is computed by nested integration.
+
+TT1 gives M = 0 by construction: TT1 *is* the best affine approximation at the mean, so
+its residual D is exactly zero.  Use TT2 (closed form D ≈ ½[tr(H_i P H_j P)]), UT,
+Gauss–Hermite or Monte Carlo.
+
+References
+----------
+O. Straka, J. Havlík, "Design of unitless normalized measure of nonlinearity for state
+estimation", FUSION 2024. arXiv:2410.13539
+Y. Liu, X. R. Li, "Measure of nonlinearity for estimation", IEEE Trans. Signal Process.
+63(9), 2015. doi:10.1109/TSP.2015.2405495
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import sympy as sp
+
+from . import weights as _weights
+from .compile import compile_model
+from .gaussian import Gaussian
+from .model import Model
+from .moments import JointMoments
+from .propagate import compiled, joint_input, propagate
+from .transforms import TT1, TT2, UT, GaussHermite, MonteCarlo, Transform
+from .transforms.base import batch_sqrt
+from .transforms.montecarlo import Stats, jackknife, merge_all
+from .transforms.quadrature import standard_rule
+
+__all__ = ["NonlinearityMeasure", "nonlinearity", "compare", "format_table", "mon_from_moments"]
+
+#: Condition number above which Σ_uu is treated as singular (pseudo-inverse on its range).
+SINGULAR_COND = 1e12
+
+
+@dataclass(frozen=True, eq=False)
+class NonlinearityMeasure:
+    """A measure of nonlinearity and its parts.
+
+    ``float(m)`` is the value M = √max(M², 0).
+
+    Attributes
+    ----------
+    value : float
+    squared : float
+        M² = J_Ab + J_n − E‖g‖²_W (25); may be slightly negative from Monte Carlo noise.
+    J_Ab : float
+        The deterministic part (26): tr(W(Σ_gg − Σ_gu Σ_uu⁻¹ Σ_ug)).
+    J_n : float
+        The stochastic part: E‖g‖²_W − tr(W Σ_c) (27).
+    weight : ndarray
+        The weight matrix W used, in the original units.
+    weight_name : str
+    transform : Transform
+    structure : str
+    stderr : float or None
+        Monte Carlo standard error of the value (jackknife over the sample groups,
+        Σ_c held fixed).
+    moments : JointMoments
+    residual_cov : ndarray
+        D = Σ_gg − Σ_c − Σ_gu Σ_uu⁻¹ Σ_ug.
+    notes : tuple of str
+        Remarks, e.g. that Σ_uu was singular and its pseudo-inverse was used.
+    """
+
+    value: float
+    squared: float
+    J_Ab: float
+    J_n: float
+    weight: np.ndarray
+    weight_name: str
+    transform: Transform
+    structure: str
+    moments: JointMoments
+    residual_cov: np.ndarray
+    stderr: float | None = None
+    notes: tuple[str, ...] = ()
+    info: Mapping[str, Any] = field(default_factory=dict)
+
+    def __float__(self) -> float:
+        return float(self.value)
+
+    def __repr__(self) -> str:
+        se = f" ± {self.stderr:.2g}" if self.stderr is not None else ""
+        return f"NonlinearityMeasure({self.value:.6g}{se}, weight={self.weight_name!r}, transform={self.transform!r})"
+
+    def _repr_latex_(self) -> str:
+        se = rf" \pm {self.stderr:.2g}" if self.stderr is not None else ""
+        return (
+            rf"$M_{{\text{{{self.weight_name}}}}} = {self.value:.6g}{se}"
+            rf"\quad\text{{({self.structure} noise, {type(self.transform).__name__})}}$"
+        )
+
+
+def _inv_uu(Suu: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
+    cond = np.linalg.cond(Suu)
+    if np.isfinite(cond) and cond < SINGULAR_COND:
+        return np.linalg.inv(Suu), ()
+    w = np.linalg.eigvalsh(Suu)
+    rank = int(np.sum(w > w[-1] * 1e-12))
+    note = (
+        f"Σ_uu is singular (rank {rank} of {Suu.shape[0]}): the pseudo-inverse was used, "
+        "i.e. the best affine fit on the informative subspace of u"
+    )
+    return np.linalg.pinv(Suu, rcond=1e-12, hermitian=True), (note,)
+
+
+def mon_from_moments(Sgg, Sgu, Suu, weight="full", Sc=None, mean=None):
+    """The MoN from the moments (26)–(29); see :func:`nonlinearity`.
+
+    Returns
+    -------
+    dict with ``squared``, ``J_Ab``, ``J_n``, ``W``, ``label``, ``D``, ``notes``.
+    """
+    Sgg = np.atleast_2d(np.asarray(Sgg, dtype=float))
+    Sgu = np.atleast_2d(np.asarray(Sgu, dtype=float))
+    Suu = np.atleast_2d(np.asarray(Suu, dtype=float))
+    Sc = np.zeros_like(Sgg) if Sc is None else np.atleast_2d(np.asarray(Sc, dtype=float))
+    Suu_inv, notes = _inv_uu(Suu)
+    W, label = _weights.resolve(weight, Sgg)
+    lin = Sgu @ Suu_inv @ Sgu.T
+    J_Ab = float(np.trace(W @ (Sgg - lin)))
+    mu = np.zeros(Sgg.shape[0]) if mean is None else np.asarray(mean, dtype=float)
+    Eg2 = float(np.trace(W @ (Sgg + np.outer(mu, mu))))
+    J_n = Eg2 - float(np.trace(W @ Sc))
+    D = Sgg - Sc - lin
+    return {"squared": J_Ab + J_n - Eg2, "J_Ab": J_Ab, "J_n": J_n, "W": W, "label": label, "D": D, "notes": notes}
+
+
+# --------------------------------------------------------------------------- Σ_c = Cov(E[g|v])
+def _aux_moments(exprs: Sequence[sp.Expr], syms: Sequence[sp.Symbol], dist: Gaussian, transform: Transform):
+    cm = compile_model(list(exprs), list(syms))
+    b = transform.batch(cm, dist.mean[None], dist.cov[None])
+    return b.mean[0], b.cov[0]
+
+
+def _cond_cov(model: Model, u: Gaussian, v: Gaussian | None, transform: Transform) -> np.ndarray:
+    ny = model.n_y
+    if model.n_v == 0:
+        return np.zeros((ny, ny))
+    if model.structure == "additive":
+        B = np.array(model.pi.tolist(), dtype=float)
+        return B @ v.cov @ B.T
+    if model.structure == "multiplicative":
+        pi = model.pi
+        if pi.shape[1] == 0:
+            return np.zeros((ny, ny))
+        pi_mean, _ = _aux_moments(list(pi), model.inputs, u, transform)
+        pibar = pi_mean.reshape(pi.shape)  # sympy matrices flatten row-major
+        _, Sgam = _aux_moments(list(model.gamma), model.noise, v, transform)
+        return pibar @ Sgam @ pibar.T
+    return _cond_cov_general(model, u, v, transform)
+
+
+def _outer_rule(transform: Transform, v: Gaussian) -> tuple[np.ndarray, np.ndarray]:
+    """Points and weights of the outer integral over v for nested integration."""
+    L = batch_sqrt(v.cov[None])[0]
+    if isinstance(transform, UT):
+        wm, _, c = transform.weights(v.dim)
+        D = c * L.T
+        return np.vstack([v.mean, v.mean + D, v.mean - D]), wm
+    order = transform.order if isinstance(transform, GaussHermite) else 5
+    Z, w = standard_rule(v.dim, order, v.dim > 4)
+    return v.mean + Z @ L.T, w
+
+
+def _cond_cov_general(model: Model, u: Gaussian, v: Gaussian, transform: Transform) -> np.ndarray:
+    cm = compiled(model)
+    nu, nv = model.n_u, model.n_v
+    if isinstance(transform, MonteCarlo):
+        return _cond_cov_mc(cm, u, v, transform)
+    # Nested rule: the inner transform over u at each outer point of v (one batch).
+    inner = transform if not isinstance(transform, TT1) else TT2()
+    V, w = _outer_rule(transform, v)
+    J = V.shape[0]
+    means = np.hstack([np.tile(u.mean, (J, 1)), V])
+    covs = np.zeros((J, nu + nv, nu + nv))
+    covs[:, :nu, :nu] = u.cov
+    cond_means = inner.batch(cm, means, covs).mean  # E[g | v_j]
+    m = w @ cond_means
+    R = cond_means - m
+    return np.einsum("j,ji,jk->ik", w, R, R)
+
+
+#: Inner samples per outer noise sample in the nested Monte Carlo of general noise.
+MC_INNER = 64
+
+
+def _cond_cov_mc(cm, u: Gaussian, v: Gaussian, mc: MonteCarlo) -> np.ndarray:
+    n_outer = max(2, mc.n // MC_INNER)
+    gen = np.random.default_rng(np.random.SeedSequence(mc.seed).spawn(mc.groups + 1)[-1])
+    Lu, Lv = batch_sqrt(u.cov[None])[0], batch_sqrt(v.cov[None])[0]
+    sums = []
+    step = max(1, 65536 // MC_INNER)
+    for start in range(0, n_outer, step):
+        k = min(step, n_outer - start)
+        V = v.mean + gen.standard_normal((k, v.dim)) @ Lv.T
+        U = u.mean + gen.standard_normal((k, MC_INNER, u.dim)) @ Lu.T
+        W = np.concatenate([U, np.repeat(V[:, None, :], MC_INNER, axis=1)], axis=2)
+        Y = cm.eval_g(W.reshape(-1, W.shape[2])).reshape(k, MC_INNER, -1)
+        mean_v = Y.mean(axis=1)
+        var_in = np.einsum("kmi,kmj->kij", Y - mean_v[:, None], Y - mean_v[:, None]) / (MC_INNER - 1)
+        sums.append((Stats.of(mean_v), var_in.sum(axis=0), k))
+    st = merge_all([s[0] for s in sums])
+    mean_inner_cov = sum(s[1] for s in sums) / st.n
+    # Cov of the inner sample means overstates Cov(E[g|v]) by E[Cov(g|v)]/MC_INNER.
+    return st.cov - mean_inner_cov / MC_INNER
+
+
+# --------------------------------------------------------------------------- public API
+def nonlinearity(model: Model, u: Gaussian, v: Gaussian | None = None, weight="full",
+                 transform: Transform | None = None) -> NonlinearityMeasure:
+    """The measure of nonlinearity of y = g(u, v).
+
+    Parameters
+    ----------
+    model : Model
+    u : Gaussian
+    v : Gaussian, optional
+        Required when the model has noise symbols.
+    weight : {"full", "diag", "liu-li", "liu-li-raw"}, ndarray or weights.GeneralWeight
+        ``"full"``: W = Σ_gg⁻¹/n_y (43); ``"diag"``: W = diag(diag Σ_gg)⁻¹/n_y (42);
+        ``"liu-li"``: W = I/tr Σ_gg, the normalised MoN (8); ``"liu-li-raw"``: W = I, the
+        raw MSE MoN (6) (it has units); a matrix W̄ in base units, checked against the
+        set (41); or :func:`symmon.weights.general`.  The first two and the last two
+        options are unitless and lie in [0, 1].
+    transform : Transform, default ``TT2()``
+        TT1 gives 0 by construction (see the module notes).
+
+    Returns
+    -------
+    NonlinearityMeasure
+
+    Examples
+    --------
+    >>> import sympy as sp, symmon as sm
+    >>> x = sp.Symbol("x")
+    >>> round(float(sm.nonlinearity(sm.Model([x], [x**2]), sm.Gaussian([0.0], [[1.0]]))), 12)
+    1.0
+    """
+    tr = transform if transform is not None else TT2()
+    m = propagate(model, u, v, tr)
+    Sc = _cond_cov(model, u, v, tr)
+    parts = mon_from_moments(m.cov, m.cross_cov, u.cov, weight, Sc, m.mean)
+    stderr = None
+    if isinstance(tr, MonteCarlo):
+        stderr = _mc_stderr(m, model, weight, Sc)
+    sq = parts["squared"]
+    return NonlinearityMeasure(
+        value=float(np.sqrt(max(sq, 0.0))), squared=sq, J_Ab=parts["J_Ab"], J_n=parts["J_n"],
+        weight=parts["W"], weight_name=parts["label"], transform=tr, structure=model.structure,
+        moments=m, residual_cov=parts["D"], stderr=stderr, notes=parts["notes"],
+    )
+
+
+def _mc_stderr(m: JointMoments, model: Model, weight, Sc: np.ndarray) -> float:
+    ny, nu = model.n_y, model.n_u
+    groups = m.info["groups"]
+
+    def value(s: Stats) -> float:
+        C = s.cov
+        p = mon_from_moments(C[:ny, :ny], C[:ny, ny:ny + nu], C[ny:ny + nu, ny:ny + nu], weight, Sc)
+        return np.sqrt(max(p["squared"], 0.0))
+
+    return float(jackknife(groups, value))
+
+
+def compare(model: Model, u: Gaussian, v: Gaussian | None = None, weight="full",
+            transforms: Sequence[Transform] | None = None) -> list[dict]:
+    """The MoN by every transform, as rows of a table.
+
+    Returns
+    -------
+    list of dict
+        Keys ``transform``, ``value``, ``stderr`` (Monte Carlo only) and ``evaluations``.
+    """
+    if transforms is None:
+        transforms = [TT1(), TT2(), UT.ut1(), UT.cubature(), GaussHermite(5), MonteCarlo(10**5, seed=0)]
+    rows = []
+    for t in transforms:
+        res = nonlinearity(model, u, v, weight, t)
+        rows.append({
+            "transform": repr(t), "value": res.value, "stderr": res.stderr,
+            "evaluations": res.moments.info.get("evaluations"),
+        })
+    return rows
+
+
+def format_table(rows: list[dict]) -> str:
+    """A plain-text table of :func:`compare` rows."""
+    lines = [f"{'transform':<60} {'MoN':>12} {'MC s.e.':>10}"]
+    for r in rows:
+        se = f"{r['stderr']:.2g}" if r["stderr"] is not None else "-"
+        lines.append(f"{r['transform'][:60]:<60} {r['value']:>12.6g} {se:>10}")
+    return "\n".join(lines)
+
