@@ -130,8 +130,9 @@ class Gaussian:
     __slots__ = ("_mean", "_cov")
 
     def __init__(self, mean: ArrayLike, cov: ArrayLike, psd: str = "raise") -> None:
-        m = as_vector(mean, "mean")
-        P = as_covariance(cov, "cov", dim=m.shape[0], psd=psd)
+        # Copy: freezing below must not make the caller's array read-only.
+        m = as_vector(mean, "mean").copy()
+        P = as_covariance(cov, "cov", dim=m.shape[0], psd=psd).copy()
         m.setflags(write=False)
         P.setflags(write=False)
         object.__setattr__(self, "_mean", m)
