@@ -178,10 +178,10 @@ class Gaussian:
 
     def _index(self, idx: Iterable[int] | int, name: str = "idx") -> np.ndarray:
         ix = np.atleast_1d(np.asarray(idx))
+        if ix.size == 0:  # before the dtype check: np.asarray([]) is float
+            raise ShapeError(f"{name} must not be empty")
         if ix.dtype.kind not in "iu":
             raise ShapeError(f"{name} must hold integer indices, got {ix}")
-        if ix.size == 0:
-            raise ShapeError(f"{name} must not be empty")
         if np.any(ix < -self.dim) or np.any(ix >= self.dim):
             raise ShapeError(f"{name} {ix.tolist()} out of range for dimension {self.dim}")
         ix = np.where(ix < 0, ix + self.dim, ix)
