@@ -207,20 +207,25 @@ _lock = threading.Lock()
 CFLAGS = ("-O2", "-fPIC", "-shared", "-fno-fast-math")
 
 
+def _warn_no_compiler(stacklevel: int) -> None:
+    """Warn, once per process, that the CasADi VM is used instead of compiled C."""
+    global _warned_no_compiler
+    with _lock:
+        if not _warned_no_compiler:
+            _warned_no_compiler = True
+            warnings.warn(
+                "symmon: no C compiler found (or SYMMON_NO_COMPILE set); using CasADi's "
+                "virtual machine, which is several times slower",
+                RuntimeWarning,
+                stacklevel=stacklevel + 1,
+            )
+
+
 def _compile_function(f: ca.Function) -> ca.Function:
     """Compile ``f`` to a shared library (cached by content hash); fall back to ``f``."""
-    global _warned_no_compiler
     cc = _compiler()
     if cc is None:
-        with _lock:
-            if not _warned_no_compiler:
-                _warned_no_compiler = True
-                warnings.warn(
-                    "symmon: no C compiler found (or SYMMON_NO_COMPILE set); using CasADi's "
-                    "virtual machine, which is several times slower",
-                    RuntimeWarning,
-                    stacklevel=3,
-                )
+        _warn_no_compiler(stacklevel=3)
         return f
     gen = ca.CodeGenerator(f.name() + ".c", {"with_header": False})
     gen.add(f)
@@ -338,6 +343,9 @@ class CompiledModel:
         self.hess = ca.Function(f"{tag}_H", [w], [H], ["w"], ["H"])
         self.gjh = ca.Function(f"{tag}_gJH", [w], [y, J, H], ["w"], ["y", "J", "H"])
         self.compiled = has_compiler() if compiled is None else compiled
+        if compiled is None and not self.compiled:
+            # The default asked for C but none is available: say so (once per process).
+            _warn_no_compiler(stacklevel=2)
         self._batch_g = _Batched(self.g, self.compiled)
         self._batch_gjh = _Batched(self.gjh, self.compiled)
 
