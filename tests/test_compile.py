@@ -1,0 +1,213 @@
+"""sympy → CasADi conversion, CasADi derivatives, compiled vs VM evaluation, the C cache."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+import sympy as sp
+
+from symmon.compile import CompiledModel, to_casadi
+from symmon.errors import UnsupportedFunctionError
+
+#: Elementary functions in double precision: a few ulps, relative.
+EVAL_RTOL = 1e-12
+#: Derivatives: CasADi AD against sympy's symbolic diff evaluated numerically.
+DERIV_RTOL = 1e-10
+
+ROOT = Path(__file__).resolve().parents[1]
+
+x, y, z = sp.symbols("x y z", real=True)
+SYMS = (x, y, z)
+
+# (sympy expression, numpy function of (x, y, z), sampler of valid points)
+_POS = lambda r, n: np.column_stack([r.uniform(0.2, 3.0, n), r.uniform(0.2, 3.0, n), r.uniform(0.2, 3.0, n)])  # noqa: E731
+_ANY = lambda r, n: r.uniform(-3.0, 3.0, (n, 3))  # noqa: E731
+_UNIT = lambda r, n: r.uniform(-0.95, 0.95, (n, 3))  # noqa: E731
+
+CASES = {
+    "add": (x + y - z + 2, lambda a, b, c: a + b - c + 2, _ANY),
+    "mul": (3 * x * y * z, lambda a, b, c: 3 * a * b * c, _ANY),
+    "div": (x / (y + 4), lambda a, b, c: a / (b + 4), _ANY),
+    "int_pow": (x**3 - y**-2, lambda a, b, c: a**3 - b**-2.0, _POS),
+    "rational_pow": (x ** sp.Rational(2, 3) + y ** sp.Rational(-3, 2), lambda a, b, c: a ** (2 / 3) + b**-1.5, _POS),
+    "symbolic_pow": (x**y, lambda a, b, c: a**b, _POS),
+    "sqrt": (sp.sqrt(x**2 + y**2) + 1 / sp.sqrt(z), lambda a, b, c: np.sqrt(a**2 + b**2) + 1 / np.sqrt(c), _POS),
+    "exp": (sp.exp(-x * y), lambda a, b, c: np.exp(-a * b), _ANY),
+    "log": (sp.log(x) + sp.log(y, 10), lambda a, b, c: np.log(a) + np.log10(b), _POS),
+    "trig": (sp.sin(x) * sp.cos(y) + sp.tan(z), lambda a, b, c: np.sin(a) * np.cos(b) + np.tan(c), _UNIT),
+    "reciprocal_trig": (sp.cot(x) + sp.sec(y) + sp.csc(z), lambda a, b, c: 1 / np.tan(a) + 1 / np.cos(b) + 1 / np.sin(c), _POS),
+    "inverse_trig": (sp.asin(x) + sp.acos(y) + sp.atan(3 * z), lambda a, b, c: np.arcsin(a) + np.arccos(b) + np.arctan(3 * c), _UNIT),
+    "atan2": (sp.atan2(y, x), lambda a, b, c: np.arctan2(b, a), _ANY),
+    "hyperbolic": (sp.sinh(x) + sp.cosh(y) * sp.tanh(z), lambda a, b, c: np.sinh(a) + np.cosh(b) * np.tanh(c), _ANY),
+    "inverse_hyperbolic": (sp.asinh(x) + sp.acosh(y + 4) + sp.atanh(z / 4), lambda a, b, c: np.arcsinh(a) + np.arccosh(b + 4) + np.arctanh(c / 4), _ANY),
+    "abs_sign": (sp.Abs(x) * sp.sign(y), lambda a, b, c: np.abs(a) * np.sign(b), _ANY),
+    "min_max": (sp.Max(x, y, z) - sp.Min(x, 2 * y), lambda a, b, c: np.maximum(np.maximum(a, b), c) - np.minimum(a, 2 * b), _ANY),
+    "piecewise": (
+        sp.Piecewise((x**2, x < 0), (sp.sin(y), (x < 1) & (y > 0)), (z, True)),
+        lambda a, b, c: np.where(a < 0, a**2, np.where((a < 1) & (b > 0), np.sin(b), c)),
+        _ANY,
+    ),
+    "constants": (sp.pi * x + sp.E + sp.Rational(1, 3), lambda a, b, c: np.pi * a + np.e + 1 / 3, _ANY),
+    "erf_floor": (sp.erf(x) + sp.floor(y) + sp.ceiling(z), lambda a, b, c: __import__("scipy.special").special.erf(a) + np.floor(b) + np.ceil(c), _ANY),
+}
+
+
+@pytest.fixture(scope="module")
+def points_rng():
+    return np.random.default_rng(1)
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_converter_against_numpy(case, points_rng):
+    expr, ref, sampler = CASES[case]
+    W = sampler(points_rng, 200)
+    cm = CompiledModel([expr], SYMS, name=f"conv_{case}", compiled=False)
+    got = cm.eval_g(W)[:, 0]
+    np.testing.assert_allclose(got, ref(W[:, 0], W[:, 1], W[:, 2]), rtol=EVAL_RTOL, atol=1e-14)
+
+
+@pytest.mark.parametrize(
+    ("expr", "name"),
+    [(sp.gamma(x), "gamma"), (sp.besselj(0, x), "besselj"), (sp.zeta(x), "zeta"), (x + sp.I, "ImaginaryUnit")],
+)
+def test_unsupported_function_is_named(expr, name):
+    with pytest.raises(UnsupportedFunctionError, match=name):
+        CompiledModel([expr], [x], compiled=False)
+
+
+def test_unsupported_function_is_a_model_error():
+    with pytest.raises(ValueError):
+        CompiledModel([sp.loggamma(x)], [x], compiled=False)
+
+
+def test_to_casadi_rejects_undeclared_symbols():
+    import casadi as ca
+
+    with pytest.raises(UnsupportedFunctionError, match="unknown symbol y"):
+        to_casadi([x + y], [x], ca.SX.sym("w", 1))
+
+
+# --------------------------------------------------------------------------- derivatives
+DERIV_MODELS = {
+    "polar": [sp.sqrt(x**2 + y**2), sp.atan2(y, x)],
+    "mixed": [sp.sin(x) * y + sp.exp(sp.Rational(1, 10) * z), x * y * z / (1 + y**2), sp.log(1 + x**2) * sp.cos(z)],
+}
+
+
+@pytest.mark.parametrize("name", sorted(DERIV_MODELS))
+def test_casadi_derivatives_match_sympy(name, points_rng):
+    exprs = DERIV_MODELS[name]
+    cm = CompiledModel(exprs, SYMS, name=f"deriv_{name}", compiled=False)
+    W = points_rng.uniform(0.3, 2.0, (25, 3))
+    y_ca, J_ca, H_ca = cm.eval_gjh(W)
+    G = sp.Matrix(exprs)
+    Jsym = G.jacobian(SYMS)
+    Hsym = [sp.hessian(e, SYMS) for e in exprs]
+    f_g = sp.lambdify(SYMS, G, "numpy")
+    f_J = sp.lambdify(SYMS, Jsym, "numpy")
+    f_H = sp.lambdify(SYMS, Hsym, "numpy")
+    for k, w in enumerate(W):
+        np.testing.assert_allclose(y_ca[k], np.asarray(f_g(*w), float).ravel(), rtol=DERIV_RTOL)
+        np.testing.assert_allclose(J_ca[k], np.asarray(f_J(*w), float), rtol=DERIV_RTOL, atol=1e-13)
+        np.testing.assert_allclose(H_ca[k], np.asarray(f_H(*w), float), rtol=DERIV_RTOL, atol=1e-13)
+
+
+def test_eval_gjh_layout_is_row_major_per_point():
+    # Asymmetric Jacobian and Hessian entries catch a transposed reshape.
+    cm = CompiledModel([x**2 * y, 5 * z + x * z**3], SYMS, name="layout", compiled=False)
+    _, J, H = cm.eval_gjh(np.array([[1.0, 2.0, 3.0]]))
+    np.testing.assert_array_equal(J[0], [[4.0, 1.0, 0.0], [27.0, 0.0, 5.0 + 27.0]])
+    np.testing.assert_array_equal(H[0, 0], [[4.0, 2.0, 0.0], [2.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    np.testing.assert_array_equal(H[0, 1], [[0.0, 0.0, 27.0], [0.0, 0.0, 0.0], [27.0, 0.0, 18.0]])
+
+
+# --------------------------------------------------------------------------- compiled vs VM
+@pytest.mark.parametrize("n_points", [1, 7, 8192 + 5])  # exact-size map, and chunks plus a padded tail
+def test_compiled_and_vm_agree(n_points, points_rng):
+    exprs = DERIV_MODELS["mixed"]
+    c = CompiledModel(exprs, SYMS, name="cmp_c", compiled=True)
+    vm = CompiledModel(exprs, SYMS, name="cmp_vm", compiled=False)
+    if not c.compiled:
+        pytest.skip("no C compiler")
+    W = points_rng.uniform(0.3, 2.0, (n_points, 3))
+    np.testing.assert_allclose(c.eval_g(W), vm.eval_g(W), rtol=EVAL_RTOL)
+    for a, b in zip(c.eval_gjh(W[:50]), vm.eval_gjh(W[:50])):
+        np.testing.assert_allclose(a, b, rtol=EVAL_RTOL, atol=1e-14)
+
+
+def test_batch_shape_is_checked():
+    from symmon.errors import ShapeError
+
+    cm = CompiledModel([x * y], [x, y], name="shape", compiled=False)
+    with pytest.raises(ShapeError, match=r"batch must have shape \(N, 2\)"):
+        cm.eval_g(np.zeros((4, 3)))
+
+
+# --------------------------------------------------------------------------- subprocesses
+def _run(script: str, env_extra: dict[str, str], *args: str) -> subprocess.CompletedProcess:
+    env = dict(os.environ)
+    env.update(env_extra)
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(script), *args], env=env, capture_output=True, text=True, timeout=120)
+
+
+def test_no_compile_warns_exactly_once(tmp_path):
+    script = """
+    import warnings
+    import numpy as np, sympy as sp, symmon as sm
+    x, y = sp.symbols("x y")
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        u = sm.Gaussian([1.0, 2.0], np.eye(2))
+        sm.propagate(sm.Model([x, y], [x * y]), u, transform=sm.UT.ut1())
+        sm.propagate(sm.Model([x, y], [x + sp.sin(y)]), u, transform=sm.GaussHermite(3))
+    msgs = [str(w.message) for w in rec if issubclass(w.category, RuntimeWarning)]
+    print(len(rec), len(msgs))
+    print(msgs[0] if msgs else "")
+    """
+    res = _run(script, {"SYMMON_NO_COMPILE": "1", "SYMMON_CACHE": str(tmp_path)})
+    assert res.returncode == 0, res.stderr
+    counts, message = res.stdout.splitlines()[:2]
+    assert counts == "1 1"
+    assert "no C compiler" in message and "SYMMON_NO_COMPILE" in message
+    assert not list(tmp_path.glob("*.so"))
+
+
+def test_disk_cache_is_keyed_by_content_and_reused(tmp_path):
+    from symmon.compile import has_compiler
+
+    if not has_compiler():
+        pytest.skip("no C compiler")
+    script = """
+    import sys
+    import numpy as np, sympy as sp, symmon as sm, symmon.compile as sc
+    x, y = sp.symbols("x y")
+    u = sm.Gaussian([1.0, 2.0], np.eye(2))
+    run = sc.subprocess.run
+    if sys.argv[-1] == "second":  # a cache hit must not run the compiler again
+        def fail(*a, **k):
+            raise AssertionError("compiler invoked despite a cached library")
+        sc.subprocess.run = fail
+    m = sm.propagate(sm.Model([x, y], [x * y, sp.exp(x)]), u, transform=sm.UT.ut1())
+    print(repr(m.mean.tolist()))
+    if sys.argv[-1] == "second":  # different content: a new library
+        sc.subprocess.run = run
+        sm.propagate(sm.Model([x, y], [x * y, sp.exp(y)]), u, transform=sm.UT.ut1())
+    """
+    env = {"SYMMON_CACHE": str(tmp_path)}
+    first = _run(script, env, "first")
+    assert first.returncode == 0, first.stderr
+    libs = {p.name: p.stat().st_mtime_ns for p in tmp_path.glob("*.so")}
+    assert libs, "no shared library in the cache"
+    second = _run(script, env, "second")
+    assert second.returncode == 0, second.stderr
+    assert second.stdout == first.stdout
+    after = {p.name: p.stat().st_mtime_ns for p in tmp_path.glob("*.so")}
+    assert {k: after[k] for k in libs} == libs  # reused, not rewritten
+    assert len(after) > len(libs)
