@@ -38,6 +38,10 @@ class JointMoments:
         Standard errors of ``mean``, ``cov`` and ``cross_cov`` (Monte Carlo only).
     info : mapping
         Transform-specific details (number of evaluations, samples, warnings).
+    input_cov : ndarray, shape (n_u, n_u)
+        Cov u as the transform sees it: ``input.cov`` for the deterministic rules, the
+        sample covariance for Monte Carlo (regressions must use it, or the sampling
+        error of Σ_gu does not cancel and biases the residual).
     """
 
     mean: np.ndarray
@@ -48,9 +52,12 @@ class JointMoments:
     noise_cross_cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     stderr: Mapping[str, np.ndarray] | None = None
     info: Mapping[str, Any] = field(default_factory=dict)
+    input_cov: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        for name in ("mean", "cov", "cross_cov", "noise_cross_cov"):
+        if self.input_cov is None:
+            object.__setattr__(self, "input_cov", self.input.cov)
+        for name in ("mean", "cov", "cross_cov", "noise_cross_cov", "input_cov"):
             arr = np.array(getattr(self, name), dtype=float)
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)

@@ -254,7 +254,7 @@ def nonlinearity(model: Model, u: Gaussian, v: Gaussian | None = None, weight="f
     tr = transform if transform is not None else TT2()
     m = propagate(model, u, v, tr)
     Sc = _cond_cov(model, u, v, tr)
-    parts = mon_from_moments(m.cov, m.cross_cov, u.cov, weight, Sc, m.mean)
+    parts = mon_from_moments(m.cov, m.cross_cov, m.input_cov, weight, Sc, m.mean)
     stderr = None
     if isinstance(tr, MonteCarlo):
         stderr = _mc_stderr(m, model, weight, Sc)

@@ -28,6 +28,7 @@ class BatchMoments:
     cross: np.ndarray
     stderr: dict | None = None
     info: dict | None = None
+    input_cov: np.ndarray | None = None  # Cov w as the transform sees it (MC: the sample covariance)
 
 
 class Transform:

@@ -240,6 +240,7 @@ class MonteCarlo(Transform):
             stderr={k: np.stack([o.stderr[k] for o in outs]) for k in outs[0].stderr},
             info={"groups": [o.info["groups"] for o in outs], "n_samples": outs[0].info["n_samples"],
                   "evaluations": sum(o.info["evaluations"] for o in outs)},
+            input_cov=np.stack([o.input_cov for o in outs]),
         )
 
     def _single(self, cm, mean, cov, angles):
@@ -264,4 +265,4 @@ class MonteCarlo(Transform):
             "cross": se[ny + ny * ny:].reshape(ny, nw),
         }
         info = {"groups": groups, "n_samples": total.n, "evaluations": total.n}
-        return BatchMoments(mu, C[:ny, :ny], C[:ny, ny:], stderr=stderr, info=info)
+        return BatchMoments(mu, C[:ny, :ny], C[:ny, ny:], stderr=stderr, info=info, input_cov=C[ny:, ny:])

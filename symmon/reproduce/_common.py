@@ -1,0 +1,31 @@
+"""Shared pieces of the reproduction commands: progress bars and the plotting backend."""
+
+from __future__ import annotations
+
+import sys
+from typing import Iterable, TypeVar
+
+T = TypeVar("T")
+
+
+def progress_bar(items: Iterable[T], desc: str, enabled: bool = True, total: int | None = None) -> Iterable[T]:
+    """Wrap ``items`` in a tqdm bar, hidden when disabled or when stderr is not a terminal."""
+    if not enabled or not sys.stderr.isatty():
+        return items
+    try:
+        from tqdm import tqdm
+    except ImportError:  # the bar is a convenience; the run does not need it
+        return items
+    return tqdm(items, desc=desc, total=total, leave=False)
+
+
+def pyplot():
+    """matplotlib.pyplot on the non-interactive Agg backend (a clear error if missing)."""
+    try:
+        import matplotlib
+    except ImportError as exc:
+        raise RuntimeError("plots need matplotlib: pip install 'symmon[plot]'") from exc
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
