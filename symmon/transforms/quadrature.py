@@ -88,6 +88,12 @@ class GaussHermite(Transform):
 
     @property
     def exact_degree(self) -> float:  # type: ignore[override]
+        """Degree of exactness: 2·order − 1 per coordinate for the tensor grid; total
+        degree 2·level − 1, level = (order + 1) // 2, for the sparse grid.  With
+        ``sparse=None`` the tensor value is given (the grid is tensor up to 4 dimensions).
+        """
+        if self.sparse:
+            return 2 * ((self.order + 1) // 2) - 1
         return 2 * self.order - 1
 
     def batch(self, cm, means, covs, angles=frozenset()):
