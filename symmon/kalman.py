@@ -105,6 +105,8 @@ class KalmanResult:
             idx = np.arange(n)[block]
         else:
             idx = np.asarray(block)
+            if idx.ndim == 1 and idx.size == 0:
+                idx = idx.astype(int)  # np.asarray([]) is float; report it as empty below
             if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer):
                 raise ShapeError(f"{name} must be a slice or a 1-D sequence of integers, got {block!r}")
         if idx.size == 0:
