@@ -6,11 +6,20 @@ Gauss–Hermite, Monte Carlo and exact polynomial moments.
 """
 
 from . import errors as errors
+from . import kalman as kalman
+from . import mmse as mmse
+from . import problems as problems
+from . import weights as weights
+from .codegen import export_c as export_c
 from .errors import SymmonError as SymmonError
 from .gaussian import Gaussian as Gaussian
 from .gaussian import fuse as fuse
+from .kalman import KalmanFilter as KalmanFilter
 from .model import Model as Model
 from .moments import JointMoments as JointMoments
+from .nonlinearity import NonlinearityMeasure as NonlinearityMeasure
+from .nonlinearity import compare as compare
+from .nonlinearity import nonlinearity as nonlinearity
 from .propagate import propagate as propagate
 from .propagate import propagate_many as propagate_many
 from .transforms import TT1 as TT1
@@ -24,7 +33,9 @@ from .transforms import Transform as Transform
 __version__ = "0.1.0"
 
 __all__ = [
-    "errors", "SymmonError", "Gaussian", "fuse", "Model", "JointMoments",
+    "errors", "kalman", "mmse", "problems", "weights", "export_c",
+    "SymmonError", "Gaussian", "fuse", "KalmanFilter", "Model", "JointMoments",
+    "NonlinearityMeasure", "nonlinearity", "compare",
     "propagate", "propagate_many",
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Transform",
 ]

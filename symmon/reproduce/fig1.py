@@ -23,8 +23,8 @@ from ._common import progress_bar, pyplot
 
 __all__ = ["run", "curves", "ALPHAS", "UNIT_SIZES"]
 
-#: α grid of Figure 1, [1e-4, 1e2].
-ALPHAS = np.logspace(-4, 2, 31)
+#: α grid of Figure 1, [1e-4, 1e2], with the α = 0.17 that the text quotes.
+ALPHAS = np.unique(np.append(np.logspace(-4, 2, 31), 0.17))
 #: Bearing unit sizes in rad: from 0.1 nrad to 10 Grad.
 UNIT_SIZES = np.logspace(-10, 10, 81)
 
