@@ -1,0 +1,975 @@
+"""Safe model files: a TOML format and a whitelist expression parser.
+
+A model file declares a :class:`~symmon.model.Model`, the Gaussian of its inputs and,
+when the model has noise symbols, the Gaussian of the noise::
+
+    # Straka & Havlik (2024), eq. (14) and (16)
+    name = "polar"
+    inputs = ["x", "y"]                  # identifiers, in the order of u
+    outputs = ["sqrt(x**2 + y**2)", "atan2(y, x)"]
+    angles = [1]                         # optional: output indices or input names
+
+    [params]                             # optional: named constants for the expressions
+    alpha = 0.17
+
+    [u]
+    mean = [1, 10]
+    cov = [["alpha", 0], [0, "100*alpha"]]   # or std = [...]; a scalar cov for 1-D
+
+    [units]                              # optional: pint unit strings (not checked here)
+    x = "km"
+    y = "km"
+    "outputs[0]" = "km"
+    "outputs[1]" = "rad"
+
+Top-level keys: ``name``, ``inputs`` and ``outputs`` and the ``[u]`` table are required;
+``noise`` (names of the noise symbols v), ``angles``, ``[params]``, ``[v]`` and ``[units]``
+are optional, except that ``[v]`` is required exactly when ``noise`` is given. The tables
+``[u]`` and ``[v]`` take ``mean`` and one of ``cov`` (a matrix, or a scalar for one
+dimension) or ``std`` (a vector of standard deviations). Their numbers may be TOML numbers
+or strings holding a constant expression (``"100*sqrt(2)"``, ``"pi/4"``, ``"100*alpha"``).
+``[units]`` keys are input or noise names, or ``"outputs[i]"`` for the i-th output.
+
+Expressions are read by :func:`parse_expression`, which parses the text into a Python
+syntax tree and builds sympy objects node by node from a small whitelist; text from a file
+is never executed or handed to sympy's string parser. Accepted:
+
+- names: the declared input and noise symbols, the ``[params]`` constants, and the
+  constants ``pi`` and ``e`` (also spelled ``E``, as sympy prints it);
+- int and float literals (integers up to 1e15 in absolute value);
+- binary ``+ - * / **``, unary ``-`` and ``+``, parentheses;
+- calls with positional arguments of the functions in :data:`FUNCTIONS`:
+
+  ==========================================================  =========
+  function                                                    arguments
+  ==========================================================  =========
+  sqrt, exp, log, sin, cos, tan, asin, acos, atan              1
+  sinh, cosh, tanh, asinh, acosh, atanh                        1
+  abs / Abs, sign                                              1
+  atan2 (atan2(y, x), the angle of the point (x, y))           2
+  hypot (hypot(a, b) = sqrt(a**2 + b**2))                      2
+  min / Min, max / Max                                         2 or more
+  ==========================================================  =========
+
+Everything else is refused with a :class:`ModelFileError` giving the source, the line, the
+column and the reason: attributes, subscripts, lambdas, comprehensions, strings, bytes,
+f-strings, dunder names, keyword and starred arguments, comparisons, boolean operators,
+conditional expressions, assignment expressions, unknown names and functions, wrong
+arities, exponents above 64 in absolute value or containing a power themselves, numbers
+that would grow past 100 digits, expressions longer than 2000 characters or nested more
+than 50 levels deep, and results that are complex or not finite.
+"""
+
+# Security note: this module does not use eval, exec, compile, sympify or parse_expr;
+# the only parser applied to file text is ast.parse, and its tree is walked by hand.
+
+from __future__ import annotations
+
+import ast
+import json
+import keyword
+import math
+import os
+import re
+import unicodedata
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+import sympy as sp
+from sympy.printing.str import StrPrinter
+
+from .errors import ModelError, SymmonError
+from .gaussian import Gaussian
+from .model import Model
+
+try:
+    import tomllib as _toml
+except ModuleNotFoundError:  # Python 3.10: the same parser ships as the tomli package
+    try:
+        import tomli as _toml  # type: ignore[no-redef]
+    except ModuleNotFoundError:
+        _toml = None  # type: ignore[assignment]
+
+__all__ = [
+    "ModelFileError",
+    "ModelSpec",
+    "parse_expression",
+    "load_model_file",
+    "dump_model_file",
+    "FUNCTIONS",
+    "CONSTANTS",
+    "MAX_EXPRESSION_LENGTH",
+    "MAX_DEPTH",
+    "MAX_EXPONENT",
+    "MAX_INTEGER_LITERAL",
+    "MAX_RESULT_DIGITS",
+    "MAX_FILE_BYTES",
+]
+
+#: Longest expression text accepted, in characters (checked before parsing).
+MAX_EXPRESSION_LENGTH = 2000
+#: Deepest nesting accepted: brackets in the text, and levels of the syntax tree
+#: (a chain ``a + b - c + ...`` or ``a * b / c ...`` counts as one level).
+MAX_DEPTH = 50
+#: Largest absolute value of a numeric exponent.
+MAX_EXPONENT = 64
+#: Largest absolute value of an integer literal (and of an integer parameter).
+MAX_INTEGER_LITERAL = 10**15
+#: Largest number of decimal digits of an exact number produced while building.
+MAX_RESULT_DIGITS = 100
+#: Largest model file read, in bytes.
+MAX_FILE_BYTES = 1_000_000
+
+
+class ModelFileError(ModelError):
+    """A model file or an expression text is invalid or refused.
+
+    Parameters
+    ----------
+    message : str
+        The full message; it names the file or source and, for expressions, the line
+        and column.
+    source, line, column, reason : optional
+        The parts of the message, kept as attributes for programs.
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        source: str | None = None,
+        line: int | None = None,
+        column: int | None = None,
+        reason: str | None = None,
+    ) -> None:
+        super().__init__(message)
+        self.source = source
+        self.line = line
+        self.column = column
+        self.reason = reason
+
+    def __reduce__(self):
+        # Keep the keyword-only attributes when the error is pickled (multiprocessing).
+        return (_rebuild_error, (self.args[0], self.__dict__))
+
+
+def _rebuild_error(message: str, state: dict) -> ModelFileError:
+    err = ModelFileError(message)
+    err.__dict__.update(state)
+    return err
+
+
+# --------------------------------------------------------------------------------------
+# The whitelist
+# --------------------------------------------------------------------------------------
+
+
+def _hypot(a: sp.Expr, b: sp.Expr) -> sp.Expr:
+    return sp.sqrt(a**2 + b**2)
+
+
+@dataclass(frozen=True)
+class _Function:
+    build: Callable[..., sp.Expr]
+    min_args: int
+    max_args: int | None  # None: any number from min_args on
+
+    def arity(self) -> str:
+        if self.max_args is None:
+            return f"{self.min_args} or more arguments"
+        n = self.min_args
+        return f"{n} argument" + ("" if n == 1 else "s")
+
+
+_UNARY = {
+    "sqrt": sp.sqrt, "exp": sp.exp, "log": sp.log,
+    "sin": sp.sin, "cos": sp.cos, "tan": sp.tan,
+    "asin": sp.asin, "acos": sp.acos, "atan": sp.atan,
+    "sinh": sp.sinh, "cosh": sp.cosh, "tanh": sp.tanh,
+    "asinh": sp.asinh, "acosh": sp.acosh, "atanh": sp.atanh,
+    "abs": sp.Abs, "Abs": sp.Abs, "sign": sp.sign,
+}
+
+#: The functions an expression may call: name -> (sympy builder, min and max arity).
+FUNCTIONS: Mapping[str, _Function] = {
+    **{name: _Function(fn, 1, 1) for name, fn in _UNARY.items()},
+    "atan2": _Function(sp.atan2, 2, 2),
+    "hypot": _Function(_hypot, 2, 2),
+    "min": _Function(sp.Min, 2, None), "Min": _Function(sp.Min, 2, None),
+    "max": _Function(sp.Max, 2, None), "Max": _Function(sp.Max, 2, None),
+}
+
+#: Named constants; ``E`` is how sympy prints Euler's number, so dumped files read back.
+CONSTANTS: Mapping[str, sp.Expr] = {"pi": sp.pi, "e": sp.E, "E": sp.E}
+
+#: Names a model file may not declare: they would shadow a function or a constant.
+_RESERVED = frozenset(FUNCTIONS) | frozenset(CONSTANTS)
+
+# Reasons for the syntax the parser refuses, by syntax-tree node type.
+_REFUSED_NODES: dict[type, str] = {
+    ast.Attribute: "attribute access is not allowed",
+    ast.Subscript: "subscripts are not allowed",
+    ast.Slice: "slices are not allowed",
+    ast.Lambda: "lambda functions are not allowed",
+    ast.ListComp: "comprehensions are not allowed",
+    ast.SetComp: "comprehensions are not allowed",
+    ast.DictComp: "comprehensions are not allowed",
+    ast.GeneratorExp: "comprehensions are not allowed",
+    ast.JoinedStr: "f-strings are not allowed",
+    ast.FormattedValue: "f-strings are not allowed",
+    ast.Compare: "comparisons are not allowed",
+    ast.BoolOp: "boolean operators (and, or) are not allowed",
+    ast.IfExp: "conditional expressions (x if c else y) are not allowed",
+    ast.NamedExpr: "assignment expressions (:=) are not allowed",
+    ast.Starred: "starred arguments are not allowed",
+    ast.List: "lists are not allowed",
+    ast.Tuple: "tuples are not allowed",
+    ast.Set: "sets are not allowed",
+    ast.Dict: "dicts are not allowed",
+    ast.Await: "await is not allowed",
+}
+
+_BINOP_NAMES: dict[type, str] = {
+    ast.FloorDiv: "//", ast.Mod: "%", ast.MatMult: "@", ast.LShift: "<<",
+    ast.RShift: ">>", ast.BitOr: "|", ast.BitXor: "^", ast.BitAnd: "&",
+}
+
+_NEWLINE = r"\r\n|\r|\n"  # Python's line ends, as the tokenizer sees them
+
+
+# --------------------------------------------------------------------------------------
+# The parser
+# --------------------------------------------------------------------------------------
+
+
+class _Refused(Exception):
+    """Internal: a refusal at a position (line and 0-based byte offset of the expression)."""
+
+    def __init__(self, reason: str, lineno: int = 1, col: int = 0, *, char_col: bool = False):
+        super().__init__(reason)
+        self.reason = reason
+        self.lineno = lineno
+        self.col = col
+        self.char_col = char_col  # True when col already counts characters
+
+
+class _Builder:
+    """Build a sympy expression from a syntax tree, refusing anything off the whitelist."""
+
+    def __init__(self, names: Mapping[str, sp.Expr]) -> None:
+        self.names = names
+
+    # -- entry -------------------------------------------------------------------------
+    def build(self, node: ast.AST, depth: int) -> sp.Expr:
+        if depth > MAX_DEPTH:
+            raise self._at(node, f"expression nested too deeply (more than {MAX_DEPTH} levels)")
+        if isinstance(node, ast.Constant):
+            return self._constant(node)
+        if isinstance(node, ast.Name):
+            return self._name(node)
+        if isinstance(node, ast.UnaryOp):
+            return self._unary(node, depth)
+        if isinstance(node, ast.BinOp):
+            return self._binop(node, depth)
+        if isinstance(node, ast.Call):
+            return self._call(node, depth)
+        reason = _REFUSED_NODES.get(type(node), f"Python syntax '{type(node).__name__}' is not allowed")
+        raise self._at(node, reason)
+
+    @staticmethod
+    def _at(node: ast.AST, reason: str) -> _Refused:
+        return _Refused(reason, getattr(node, "lineno", 1), getattr(node, "col_offset", 0))
+
+    # -- leaves --------------------------------------------------------------------------
+    def _constant(self, node: ast.Constant) -> sp.Expr:
+        v = node.value
+        if isinstance(v, bool) or v is None or v is Ellipsis:
+            raise self._at(node, f"the constant {v!r} is not allowed; only numbers are")
+        if isinstance(v, (str, bytes)):
+            kind = "string" if isinstance(v, str) else "bytes"
+            raise self._at(node, f"{kind} literals are not allowed")
+        if isinstance(v, int):
+            if abs(v) > MAX_INTEGER_LITERAL:
+                raise self._at(node, f"integer literal too large (more than {MAX_INTEGER_LITERAL:.0e} in absolute value)")
+            return sp.Integer(v)
+        if isinstance(v, float):
+            if not math.isfinite(v):
+                raise self._at(node, "float literal is not finite")
+            return sp.Float(v)
+        raise self._at(node, f"{type(v).__name__} literals are not allowed")
+
+    def _name(self, node: ast.Name) -> sp.Expr:
+        name = node.id
+        if name.startswith("__"):
+            raise self._at(node, f"dunder names such as {name!r} are not allowed")
+        if name in self.names:
+            return self.names[name]
+        if name in CONSTANTS:
+            return CONSTANTS[name]
+        if name in FUNCTIONS:
+            raise self._at(node, f"the function {name!r} must be called, e.g. {name}(x)")
+        known = sorted(set(self.names) | set(CONSTANTS))
+        raise self._at(node, f"unknown name {name!r}; known names: {', '.join(known)}")
+
+    # -- operators -----------------------------------------------------------------------
+    def _unary(self, node: ast.UnaryOp, depth: int) -> sp.Expr:
+        if isinstance(node.op, ast.USub):
+            return self._checked(node, sp.Mul(sp.Integer(-1), self.build(node.operand, depth + 1)))
+        if isinstance(node.op, ast.UAdd):
+            return self.build(node.operand, depth + 1)
+        op = "not" if isinstance(node.op, ast.Not) else "~"
+        raise self._at(node, f"the operator {op!r} is not allowed")
+
+    def _binop(self, node: ast.BinOp, depth: int) -> sp.Expr:
+        if isinstance(node.op, (ast.Add, ast.Sub)):
+            # A long sum is a left-leaning chain; walk it iteratively and build one Add.
+            terms = self._chain(node, (ast.Add, ast.Sub), ast.Sub, depth)
+            return self._checked(node, sp.Add(*[sp.Mul(sp.Integer(-1), t) if neg else t for t, neg in terms]))
+        if isinstance(node.op, (ast.Mult, ast.Div)):
+            factors = self._chain(node, (ast.Mult, ast.Div), ast.Div, depth)
+            return self._checked(
+                node, sp.Mul(*[sp.Pow(f, sp.Integer(-1)) if inv else f for f, inv in factors])
+            )
+        if isinstance(node.op, ast.Pow):
+            return self._pow(node, depth)
+        op = _BINOP_NAMES.get(type(node.op), type(node.op).__name__)
+        raise self._at(node, f"the operator {op!r} is not allowed")
+
+    def _chain(self, node: ast.BinOp, ops: tuple, inverse: type, depth: int) -> list[tuple[sp.Expr, bool]]:
+        """The operands of a left-leaning chain of ``ops``, each with True if inverted."""
+        spine: list[tuple[ast.AST, bool]] = []
+        cur: ast.AST = node
+        while isinstance(cur, ast.BinOp) and isinstance(cur.op, ops):
+            spine.append((cur.right, isinstance(cur.op, inverse)))
+            cur = cur.left
+        lead: list[tuple[sp.Expr, bool]] = []
+        if inverse is ast.Div and isinstance(cur, ast.UnaryOp) and isinstance(cur.op, ast.USub):
+            # Python reads "-(a - b)*c" as (-(a - b))*c, and sympy would distribute that -1
+            # into the sum. sympy prints the product -1*(a - b)*c that way, so keep the -1
+            # as a factor of the whole product (the same value): printed text reads back as is.
+            lead = [(sp.Integer(-1), False)]
+            cur = cur.operand
+            depth += 1
+        spine.append((cur, False))
+        spine.reverse()  # source order, so the first refusal is the leftmost one
+        return lead + [(self.build(sub, depth + 1), flag) for sub, flag in spine]
+
+    def _pow(self, node: ast.BinOp, depth: int) -> sp.Expr:
+        exp_node = node.right
+        literal = _literal_number(exp_node)
+        if literal is not None and abs(literal) > MAX_EXPONENT:
+            raise self._at(exp_node, f"exponent {literal!r} too large (limit {MAX_EXPONENT} in absolute value)")
+        for sub in ast.walk(exp_node):
+            if isinstance(sub, ast.BinOp) and isinstance(sub.op, ast.Pow):
+                raise self._at(sub, "power towers are not allowed: an exponent may not contain '**' (use exp())")
+        base = self.build(node.left, depth + 1)
+        expo = self.build(exp_node, depth + 1)
+        if expo.is_Number and abs(expo) > MAX_EXPONENT:
+            raise self._at(exp_node, f"exponent {expo} too large (limit {MAX_EXPONENT} in absolute value)")
+        if base.is_Rational and expo.is_Number:
+            # A numeric power is computed exactly by sympy: bound its size first.
+            p, q = base.as_numer_denom()
+            digits = abs(float(expo)) * max(_digits(p), _digits(q))
+            if digits > MAX_RESULT_DIGITS:
+                raise self._at(node, f"numeric power too large (about {digits:.0f} digits; limit {MAX_RESULT_DIGITS})")
+        return self._checked(node, sp.Pow(base, expo))
+
+    # -- calls ---------------------------------------------------------------------------
+    def _call(self, node: ast.Call, depth: int) -> sp.Expr:
+        func = node.func
+        if not isinstance(func, ast.Name):
+            reason = _REFUSED_NODES.get(type(func), "only the listed functions may be called, by name")
+            raise self._at(func, reason)
+        name = func.id
+        if name.startswith("__"):
+            raise self._at(func, f"dunder names such as {name!r} are not allowed")
+        if name not in FUNCTIONS:
+            raise self._at(func, f"unknown function {name!r}; allowed functions: {', '.join(sorted(FUNCTIONS))}")
+        if node.keywords:
+            raise self._at(node.keywords[0], f"keyword arguments are not allowed (in a call of {name})")
+        for arg in node.args:
+            if isinstance(arg, ast.Starred):
+                raise self._at(arg, f"starred arguments are not allowed (in a call of {name})")
+        spec = FUNCTIONS[name]
+        n = len(node.args)
+        if n < spec.min_args or (spec.max_args is not None and n > spec.max_args):
+            raise self._at(node, f"wrong number of arguments: {name} takes {spec.arity()}, got {n}")
+        args = [self.build(a, depth + 1) for a in node.args]
+        return self._checked(node, spec.build(*args))
+
+    # -- results -------------------------------------------------------------------------
+    def _checked(self, node: ast.AST, expr: sp.Expr) -> sp.Expr:
+        # Depth is bounded, so re-walking each node's result costs at most MAX_DEPTH passes.
+        for atom in sp.preorder_traversal(expr):
+            if atom in (sp.zoo, sp.nan, sp.oo, sp.S.NegativeInfinity):
+                raise self._at(node, f"the expression is not finite ({expr})")
+            if atom == sp.I:
+                raise self._at(node, f"the expression is complex ({expr})")
+            if isinstance(atom, sp.Rational) and max(_digits(atom.p), _digits(atom.q)) > MAX_RESULT_DIGITS:
+                # Exact big numbers make sympy's simplifications (roots, logs) slow.
+                raise self._at(node, f"number too large (more than {MAX_RESULT_DIGITS} digits)")
+        return expr
+
+
+def _literal_number(node: ast.AST) -> int | float | None:
+    """The value of a literal number, possibly signed, or None."""
+    sign = 1
+    while isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
+        sign = -sign if isinstance(node.op, ast.USub) else sign
+        node = node.operand
+    if isinstance(node, ast.Constant) and isinstance(node.value, (int, float)) and not isinstance(node.value, bool):
+        return sign * node.value
+    return None
+
+
+def _digits(n: int | sp.Integer) -> float:
+    """Number of decimal digits of an integer, from its bit length (no conversion to text)."""
+    return max(int(abs(n)).bit_length(), 1) * math.log10(2)
+
+
+def _nesting_error(text: str) -> _Refused | None:
+    """Refuse bracket nesting deeper than MAX_DEPTH before the parser sees it."""
+    depth = 0
+    line, col = 1, 0
+    i = 0
+    while i < len(text):
+        ch = text[i]
+        if ch in "([{":
+            depth += 1
+            if depth > MAX_DEPTH:
+                return _Refused(
+                    f"expression nested too deeply (more than {MAX_DEPTH} levels of brackets)",
+                    line, col, char_col=True,
+                )
+        elif ch in ")]}":
+            depth -= 1
+        if ch == "\r" and text[i + 1 : i + 2] == "\n":
+            i += 1
+        if ch in "\r\n":
+            line, col = line + 1, 0
+        else:
+            col += 1
+        i += 1
+    return None
+
+
+def _char_position(text: str, index: int) -> tuple[int, int]:
+    """Line (1-based) and 0-based character column of ``text[index]``."""
+    before = re.split(_NEWLINE, text[:index])
+    return len(before), len(before[-1])
+
+
+def parse_expression(
+    text: str,
+    symbols: Mapping[str, sp.Expr],
+    *,
+    source: str = "<expr>",
+    line_offset: int = 0,
+    col_offset: int = 0,
+) -> sp.Expr:
+    """Parse an expression text into sympy through a whitelist, never executing it.
+
+    Parameters
+    ----------
+    text : str
+        The expression, e.g. ``"sqrt(x**2 + y**2)"``. It may span lines.
+    symbols : mapping of str to sympy.Expr
+        The names the expression may use: symbols, and constants (sympy numbers) that
+        stand for their value. They shadow the built-in constants ``pi``, ``e`` and ``E``.
+    source : str, default "<expr>"
+        Where the text comes from, for error messages (a file name and key).
+    line_offset : int, default 0
+        Added to the line numbers in error messages (the line of the text in its file,
+        minus one).
+    col_offset : int, default 0
+        Added to the column numbers of the first line in error messages.
+
+    Returns
+    -------
+    sympy.Expr
+
+    Raises
+    ------
+    ModelFileError
+        For anything outside the whitelist of the module docstring; the message is
+        ``"<source>, line L, column C: <reason>"`` with 1-based line and column.
+    TypeError
+        If ``text`` is not a string or ``symbols`` maps to something that is not sympy.
+
+    Examples
+    --------
+    >>> import sympy as sp
+    >>> x, y = sp.symbols("x y", real=True)
+    >>> parse_expression("hypot(x, y) + atan2(y, x)", {"x": x, "y": y})
+    sqrt(x**2 + y**2) + atan2(y, x)
+    >>> parse_expression("x.__class__", {"x": x})
+    Traceback (most recent call last):
+        ...
+    symmon.modelfile.ModelFileError: <expr>, line 1, column 1: attribute access is not allowed
+    """
+    if not isinstance(text, str):
+        raise TypeError(f"text must be a str, got {type(text).__name__}")
+    names: dict[str, sp.Expr] = {}
+    for key, value in symbols.items():
+        if not isinstance(key, str) or not isinstance(value, sp.Basic):
+            raise TypeError(f"symbols must map names (str) to sympy objects, got {key!r}: {value!r}")
+        names[key] = value
+    try:
+        return _parse(text, names)
+    except _Refused as r:
+        if r.char_col:
+            col = r.col
+        else:
+            lines = re.split(_NEWLINE, text)
+            line_text = lines[r.lineno - 1] if 0 < r.lineno <= len(lines) else ""
+            # ast columns count UTF-8 bytes; report characters.
+            col = len(line_text.encode("utf-8")[: r.col].decode("utf-8", errors="ignore"))
+        line = r.lineno + line_offset
+        column = col + 1 + (col_offset if r.lineno == 1 else 0)
+        raise ModelFileError(
+            f"{source}, line {line}, column {column}: {r.reason}",
+            source=source, line=line, column=column, reason=r.reason,
+        ) from None
+
+
+def _parse(text: str, names: Mapping[str, sp.Expr]) -> sp.Expr:
+    if len(text) > MAX_EXPRESSION_LENGTH:
+        line, col = _char_position(text, MAX_EXPRESSION_LENGTH)
+        raise _Refused(
+            f"expression too long ({len(text)} characters; the limit is {MAX_EXPRESSION_LENGTH})",
+            line, col, char_col=True,
+        )
+    nesting = _nesting_error(text)
+    if nesting is not None:
+        raise nesting
+    try:
+        with warnings.catch_warnings():
+            # Invalid escapes in (refused) strings warn while parsing; the refusal says enough.
+            warnings.simplefilter("ignore")
+            tree = ast.parse(text, mode="eval")
+    except SyntaxError as exc:
+        line = exc.lineno or 1
+        col = (exc.offset or 1) - 1
+        raise _Refused(f"invalid syntax: {exc.msg}", line, max(col, 0), char_col=True) from None
+    except (RecursionError, MemoryError):
+        raise _Refused("expression too complex to parse (nested too deeply)", 1, 0, char_col=True) from None
+    except ValueError as exc:  # e.g. null bytes on some Python versions
+        raise _Refused(f"invalid syntax: {exc}", 1, 0, char_col=True) from None
+    try:
+        return _Builder(names).build(tree.body, 1)
+    except RecursionError:
+        raise _Refused("expression too complex (nested too deeply)", 1, 0, char_col=True) from None
+
+
+# --------------------------------------------------------------------------------------
+# Model files
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """A model read from a model file, with the distributions of its inputs and noise.
+
+    Attributes
+    ----------
+    model : Model
+    u : Gaussian
+        The distribution of the inputs, in the order of ``model.inputs``.
+    v : Gaussian or None
+        The distribution of the noise, in the order of ``model.noise``; None without noise.
+    units : dict of str to str
+        Pint unit strings by input or noise name, and by ``"outputs[i]"``.
+    path : pathlib.Path
+        The file the spec was read from.
+    """
+
+    model: Model
+    u: Gaussian
+    v: Gaussian | None = None
+    units: dict[str, str] = field(default_factory=dict)
+    path: Path = Path("<memory>")
+
+
+_TOP_KEYS = ("name", "inputs", "noise", "outputs", "angles", "params", "u", "v", "units")
+_REQUIRED_KEYS = ("name", "inputs", "outputs", "u")
+_GAUSS_KEYS = ("mean", "cov", "std")
+_EVALF_DIGITS = 30
+_OUTPUT_UNIT = r"outputs\[(0|[1-9][0-9]*)\]"
+
+
+class _Context:
+    """Reading state of one file: its path and raw text, for messages and positions."""
+
+    def __init__(self, path: Path, raw: str) -> None:
+        self.path = path
+        self.raw = raw
+
+    def error(self, where: str, message: str) -> ModelFileError:
+        prefix = f"{self.path}: {where}: " if where else f"{self.path}: "
+        return ModelFileError(prefix + message, source=str(self.path), reason=message)
+
+    def locate(self, text: str, anchor: str) -> tuple[int, int]:
+        """Line offset and column offset of ``text`` in the file, searched after ``anchor``.
+
+        tomllib gives no positions for values; searching the raw text (first as a quoted
+        string, then bare) is a best effort, and (0, 0), positions within the expression,
+        when it fails.
+        """
+        m = re.search(anchor, self.raw, flags=re.MULTILINE)
+        if not text or m is None:
+            return 0, 0
+        found = [i + 1 for q in ('"', "'") if (i := self.raw.find(q + text + q, m.end())) >= 0]
+        if not found:
+            found = [i for i in [self.raw.find(text, m.end())] if i >= 0]
+        if not found:
+            return 0, 0
+        line, col = _char_position(self.raw, min(found))
+        return line - 1, col
+
+
+def _read(path: Path) -> str:
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read(MAX_FILE_BYTES + 1)
+    except FileNotFoundError:
+        raise ModelFileError(f"{path}: model file not found", source=str(path), reason="not found") from None
+    except PermissionError:
+        raise ModelFileError(
+            f"{path}: model file cannot be read (permission denied)", source=str(path), reason="permission denied"
+        ) from None
+    except OSError as exc:
+        raise ModelFileError(f"{path}: model file cannot be read: {exc.strerror or exc}", source=str(path)) from None
+    if len(data) > MAX_FILE_BYTES:
+        raise ModelFileError(f"{path}: model file larger than {MAX_FILE_BYTES} bytes", source=str(path))
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ModelFileError(f"{path}: model file is not UTF-8 text (byte {exc.start})", source=str(path)) from None
+
+
+def _check_keys(ctx: _Context, table: Mapping, allowed: Sequence[str], required: Sequence[str], where: str) -> None:
+    extra = sorted(set(table) - set(allowed))
+    missing = [k for k in required if k not in table]
+    if extra or missing:
+        parts = []
+        if missing:
+            parts.append(f"missing key(s) {missing}")
+        if extra:
+            parts.append(f"unknown key(s) {extra}")
+        raise ctx.error(where, "; ".join(parts) + f"; allowed keys: {', '.join(allowed)}")
+
+
+def _names(ctx: _Context, value: Any, key: str, seen: dict[str, str]) -> list[str]:
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise ctx.error(key, f"must be a list of names (strings), got {value!r}")
+    for name in value:
+        _check_name(ctx, name, key, seen)
+    return list(value)
+
+
+def _check_name(ctx: _Context, name: str, key: str, seen: dict[str, str]) -> None:
+    if not name.isidentifier() or keyword.iskeyword(name):
+        raise ctx.error(key, f"{name!r} is not a valid identifier")
+    if unicodedata.normalize("NFKC", name) != name:
+        # The Python parser normalises identifiers, so this name could never be used.
+        raise ctx.error(key, f"{name!r} is not in Unicode NFKC form; write it as {unicodedata.normalize('NFKC', name)!r}")
+    if name.startswith("__"):
+        raise ctx.error(key, f"{name!r}: names starting with '__' are not allowed")
+    if name in _RESERVED:
+        raise ctx.error(key, f"{name!r} is reserved (a function or constant of the expression language)")
+    if name in seen:
+        raise ctx.error(key, f"duplicate name {name!r} (already declared in {seen[name]})")
+    seen[name] = key
+
+
+def _number(ctx: _Context, value: Any, where: str, params: Mapping[str, sp.Expr], anchor: str) -> float:
+    if isinstance(value, bool):
+        raise ctx.error(where, f"must be a number, got the boolean {value!r}")
+    if isinstance(value, (int, float)):
+        x = float(value)
+    elif isinstance(value, str):
+        line_off, col_off = ctx.locate(value, anchor)
+        expr = parse_expression(
+            value, params, source=f"{ctx.path}: {where}", line_offset=line_off, col_offset=col_off
+        )
+        if expr.free_symbols:
+            raise ctx.error(where, f"{value!r} must be a constant expression, it uses {sorted(map(str, expr.free_symbols))}")
+        try:
+            # Extra digits, so that the conversion to float rounds once, correctly.
+            x = float(expr.evalf(_EVALF_DIGITS))
+        except TypeError:
+            raise ctx.error(where, f"{value!r} is not a real number ({expr.evalf()})") from None
+    else:
+        raise ctx.error(where, f"must be a number or a constant expression string, got {value!r}")
+    if not math.isfinite(x):
+        raise ctx.error(where, f"must be finite, got {value!r}")
+    return x
+
+
+def _gaussian(ctx: _Context, table: Any, key: str, dim: int, params: Mapping[str, sp.Expr], what: str) -> Gaussian:
+    where = f"[{key}]"
+    if not isinstance(table, dict):
+        raise ctx.error(where, f"must be a table with keys {', '.join(_GAUSS_KEYS)}, got {table!r}")
+    _check_keys(ctx, table, _GAUSS_KEYS, ("mean",), where)
+    if ("cov" in table) == ("std" in table):
+        raise ctx.error(where, "give exactly one of 'cov' (covariance) or 'std' (standard deviations)")
+    anchor = rf"^\s*\[{key}\]"
+
+    def vector(value: Any, name: str) -> np.ndarray:
+        items = value if isinstance(value, list) else [value]
+        return np.array([_number(ctx, x, f"{where}.{name}[{i}]", params, anchor) for i, x in enumerate(items)])
+
+    mean = vector(table["mean"], "mean")
+    if mean.shape[0] != dim:
+        raise ctx.error(where, f"mean has length {mean.shape[0]} but there are {dim} {what}")
+    try:
+        if "std" in table:
+            std = vector(table["std"], "std")
+            if std.shape[0] != dim:
+                raise ctx.error(where, f"std has length {std.shape[0]} but there are {dim} {what}")
+            return Gaussian.from_std(mean, std)
+        cov_in = table["cov"]
+        if isinstance(cov_in, list):
+            if not all(isinstance(row, list) for row in cov_in):
+                raise ctx.error(where, f"cov must be a matrix (a list of rows), got {cov_in!r}")
+            if len(cov_in) != dim or any(len(row) != dim for row in cov_in):
+                shape = f"{len(cov_in)} rows of lengths {[len(r) for r in cov_in]}"
+                raise ctx.error(where, f"cov must be {dim}x{dim} for {dim} {what}, got {shape}")
+            cov = np.array(
+                [[_number(ctx, x, f"{where}.cov[{i}][{j}]", params, anchor) for j, x in enumerate(row)]
+                 for i, row in enumerate(cov_in)]
+            ).reshape(dim, dim)
+        else:
+            if dim != 1:
+                raise ctx.error(where, f"a scalar cov is only allowed in one dimension; there are {dim} {what}")
+            cov = np.array([[_number(ctx, cov_in, f"{where}.cov", params, anchor)]])
+        return Gaussian(mean, cov)
+    except ModelFileError:
+        raise
+    except SymmonError as exc:  # ShapeError, CovarianceError from Gaussian
+        raise ctx.error(where, f"{type(exc).__name__}: {exc}") from None
+
+
+def load_model_file(path: str | os.PathLike) -> ModelSpec:
+    """Read a model file (TOML) into a :class:`ModelSpec`.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    ModelSpec
+
+    Raises
+    ------
+    ModelFileError
+        With the file name, for a missing or unreadable file, invalid TOML (with its
+        line and column), missing or unknown keys, wrong types, invalid or duplicate
+        names, refused expressions (with line and column), dimension mismatches, and
+        ``noise`` without ``[v]`` (or ``[v]`` without ``noise``).
+    ImportError
+        On Python 3.10 without the ``tomli`` package.
+
+    Examples
+    --------
+    >>> from pathlib import Path
+    >>> spec = load_model_file(Path(__file__).parents[1] / "examples" / "polar.toml")  # doctest: +SKIP
+    >>> spec.model.outputs  # doctest: +SKIP
+    (sqrt(x**2 + y**2), atan2(y, x))
+    """
+    if _toml is None:
+        raise ImportError("reading model files on Python 3.10 needs the 'tomli' package (pip install tomli)")
+    path = Path(path)
+    raw = _read(path)
+    ctx = _Context(path, raw)
+    try:
+        doc = _toml.loads(raw)
+    except _toml.TOMLDecodeError as exc:
+        # The message of tomllib ends with "(at line L, column C)".
+        raise ModelFileError(f"{path}: invalid TOML: {exc}", source=str(path), reason=str(exc)) from None
+    _check_keys(ctx, doc, _TOP_KEYS, _REQUIRED_KEYS, "")
+
+    name = doc["name"]
+    if not isinstance(name, str) or not name.strip():
+        raise ctx.error("name", f"must be a non-empty string, got {name!r}")
+
+    seen: dict[str, str] = {}
+    input_names = _names(ctx, doc["inputs"], "inputs", seen)
+    if not input_names:
+        raise ctx.error("inputs", "at least one input is required")
+    noise_names = _names(ctx, doc.get("noise", []), "noise", seen)
+
+    params: dict[str, sp.Expr] = {}
+    raw_params = doc.get("params", {})
+    if not isinstance(raw_params, dict):
+        raise ctx.error("params", f"must be a table of numbers, got {raw_params!r}")
+    for pname, value in raw_params.items():
+        _check_name(ctx, pname, "[params]", seen)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ctx.error(f"[params].{pname}", f"must be a number, got {value!r}")
+        if isinstance(value, int):
+            if abs(value) > MAX_INTEGER_LITERAL:
+                raise ctx.error(f"[params].{pname}", f"integer too large (more than {MAX_INTEGER_LITERAL:.0e})")
+            params[pname] = sp.Integer(value)
+        else:
+            if not math.isfinite(value):
+                raise ctx.error(f"[params].{pname}", f"must be finite, got {value!r}")
+            params[pname] = sp.Float(value)
+
+    u_syms = [sp.Symbol(n, real=True) for n in input_names]
+    v_syms = [sp.Symbol(n, real=True) for n in noise_names]
+    env: dict[str, sp.Expr] = {**params, **{s.name: s for s in u_syms + v_syms}}
+
+    outputs_raw = doc["outputs"]
+    if not isinstance(outputs_raw, list) or not outputs_raw or not all(isinstance(o, str) for o in outputs_raw):
+        raise ctx.error("outputs", f"must be a non-empty list of expression strings, got {outputs_raw!r}")
+    outputs = []
+    for i, text in enumerate(outputs_raw):
+        line_off, col_off = ctx.locate(text, r"^\s*outputs\s*=")
+        outputs.append(
+            parse_expression(text, env, source=f"{path}: outputs[{i}]", line_offset=line_off, col_offset=col_off)
+        )
+
+    angles_raw = doc.get("angles", [])
+    if not isinstance(angles_raw, list):
+        raise ctx.error("angles", f"must be a list of output indices or input names, got {angles_raw!r}")
+    angles: list[int | sp.Symbol] = []
+    for a in angles_raw:
+        if isinstance(a, int) and not isinstance(a, bool):
+            if not 0 <= a < len(outputs):
+                raise ctx.error("angles", f"output index {a} out of range for {len(outputs)} outputs")
+            angles.append(a)
+        elif isinstance(a, str) and a in input_names:
+            angles.append(u_syms[input_names.index(a)])
+        else:
+            raise ctx.error("angles", f"{a!r} is neither an output index nor an input name ({', '.join(input_names)})")
+
+    try:
+        model = Model(u_syms, outputs, noise=v_syms or None, name=name, angles=angles)
+    except ModelError as exc:
+        raise ctx.error("model", str(exc)) from None
+
+    u = _gaussian(ctx, doc["u"], "u", len(u_syms), params, "inputs")
+    v = None
+    if noise_names and "v" not in doc:
+        raise ctx.error("[v]", f"noise {noise_names} is declared, so a [v] table (its Gaussian) is required")
+    if "v" in doc:
+        if not noise_names:
+            raise ctx.error("[v]", "a [v] table needs noise symbols: declare them with noise = [...] and use them in outputs")
+        v = _gaussian(ctx, doc["v"], "v", len(v_syms), params, "noise symbols")
+
+    units_raw = doc.get("units", {})
+    if not isinstance(units_raw, dict):
+        raise ctx.error("units", f"must be a table of unit strings, got {units_raw!r}")
+    units: dict[str, str] = {}
+    for key, unit in units_raw.items():
+        m = re.fullmatch(_OUTPUT_UNIT, key)
+        if m is not None:
+            if int(m.group(1)) >= len(outputs):
+                raise ctx.error("[units]", f"{key!r}: there are only {len(outputs)} outputs")
+        elif key not in input_names and key not in noise_names:
+            raise ctx.error(
+                "[units]", f"unknown key {key!r}; allowed: input and noise names, or 'outputs[i]' for an output"
+            )
+        if not isinstance(unit, str) or not unit.strip():
+            raise ctx.error(f"[units].{key}", f"must be a non-empty unit string, got {unit!r}")
+        units[key] = unit
+    return ModelSpec(model=model, u=u, v=v, units=units, path=path)
+
+
+# --------------------------------------------------------------------------------------
+# Writing
+# --------------------------------------------------------------------------------------
+
+
+class _FilePrinter(StrPrinter):
+    """sympy's str printer, with floats written so that they read back bit for bit."""
+
+    def _print_Float(self, expr: sp.Float) -> str:
+        if expr._prec <= 53:
+            return repr(float(expr))
+        return super()._print_Float(expr)
+
+
+def _toml_str(s: str) -> str:
+    # JSON string escapes are a subset of TOML basic-string escapes.
+    return json.dumps(s, ensure_ascii=False)
+
+
+def _toml_float(x: float) -> str:
+    return repr(float(x))
+
+
+def _toml_key(k: str) -> str:
+    return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else _toml_str(k)
+
+
+def _gaussian_table(key: str, g: Gaussian) -> list[str]:
+    mean = ", ".join(_toml_float(x) for x in g.mean)
+    rows = ", ".join("[" + ", ".join(_toml_float(x) for x in row) + "]" for row in g.cov)
+    return [f"[{key}]", f"mean = [{mean}]", f"cov = [{rows}]", ""]
+
+
+def dump_model_file(spec: ModelSpec) -> str:
+    """Write a :class:`ModelSpec` as model-file TOML text that :func:`load_model_file` reads back.
+
+    Expressions are written with sympy's string printer (floats with all their digits)
+    and checked by parsing them back; parameters appear substituted by their values.
+
+    Parameters
+    ----------
+    spec : ModelSpec
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    ModelFileError
+        If a name cannot be written (not an identifier, or reserved) or an output
+        would not read back as the same expression.
+    """
+    model = spec.model
+    names = [s.name for s in model.inputs + model.noise]
+    seen: dict[str, str] = {}
+    ctx = _Context(spec.path, "")
+    for n in names:
+        _check_name(ctx, n, "dump", seen)
+    env = {s.name: s for s in model.inputs + model.noise}
+    printer = _FilePrinter()
+    out_texts = []
+    for i, expr in enumerate(model.outputs):
+        text = printer.doprint(expr)
+        again = parse_expression(text, env, source=f"dump: outputs[{i}]")
+        if again != expr:
+            raise ModelFileError(
+                f"dump: outputs[{i}] would not read back unchanged: {expr} was written as {text!r}, read as {again}",
+                source="dump", reason="round trip",
+            )
+        out_texts.append(text)
+
+    lines = [f"name = {_toml_str(model.name)}"]
+    lines.append("inputs = [" + ", ".join(_toml_str(s.name) for s in model.inputs) + "]")
+    if model.noise:
+        lines.append("noise = [" + ", ".join(_toml_str(s.name) for s in model.noise) + "]")
+    lines.append("outputs = [")
+    lines.extend(f"    {_toml_str(t)}," for t in out_texts)
+    lines.append("]")
+    angles = [str(i) for i in sorted(model.angle_outputs)]
+    angles += [_toml_str(model.inputs[i].name) for i in sorted(model.angle_inputs)]
+    if angles:
+        lines.append("angles = [" + ", ".join(angles) + "]")
+    lines.append("")
+    lines.extend(_gaussian_table("u", spec.u))
+    if spec.v is not None:
+        lines.extend(_gaussian_table("v", spec.v))
+    if spec.units:
+        lines.append("[units]")
+        lines.extend(f"{_toml_key(k)} = {_toml_str(v)}" for k, v in spec.units.items())
+        lines.append("")
+    return "\n".join(lines)
