@@ -110,6 +110,7 @@ def _run_group(cm: CompiledModel, job: _Job) -> Stats:
     else:
         gen = np.random.default_rng(job.seed)
     acc = Stats(0, np.zeros(0), np.zeros((0, 0)))
+    shift = None
     done = 0
     while done < job.n:
         m = min(job.chunk, job.n - done)
@@ -134,10 +135,15 @@ def _run_group(cm: CompiledModel, job: _Job) -> Stats:
         if job.angles:
             idx = list(job.angles)
             Y[:, idx] = job.ref[idx] + wrap_angle(Y[:, idx] - job.ref[idx])
-        s = Stats.of(np.hstack([Y, W]))
+        Z = np.hstack([Y, W])
+        if shift is None:
+            # Centre every chunk on the group's first sample: a large offset in y (|E y| ≫ std)
+            # would otherwise cost its digits in the means that Chan's merge subtracts.
+            shift = Z[0].copy()
+        s = Stats.of(Z - shift)
         acc = s if acc.n == 0 else merge(acc, s)
         done += m
-    return acc
+    return Stats(acc.n, acc.mean + shift, acc.m2)
 
 
 def _run_group_remote(outputs, symbols, job: _Job) -> Stats:
