@@ -172,7 +172,7 @@ def test_cross_cov_shape_and_blocks() -> None:
 @pytest.mark.parametrize("run", [0, 3])
 def test_batched_filter_equals_single_runs(run: int) -> None:
     kf = cv_model()
-    states, ys = kf.simulate(30, [0.0, 1.0], np.random.default_rng(3), runs=4)
+    _, ys = kf.simulate(30, [0.0, 1.0], np.random.default_rng(3), runs=4)
     batch = kf.filter(ys, [0.0, 1.0], np.eye(2))
     single = kf.filter(ys[run], [0.0, 1.0], np.eye(2))
     assert batch.x.shape == (4, 30, 2) and batch.P.shape == (30, 2, 2)
