@@ -753,6 +753,65 @@ def _gaussian(ctx: _Context, table: Any, key: str, dim: int, params: Mapping[str
         raise ctx.error(where, f"{type(exc).__name__}: {exc}") from None
 
 
+def _params(ctx: _Context, table: Any, seen: dict[str, str]) -> dict[str, sp.Expr]:
+    """The [params] table as sympy numbers, by name."""
+    if not isinstance(table, dict):
+        raise ctx.error("params", f"must be a table of numbers, got {table!r}")
+    params: dict[str, sp.Expr] = {}
+    for name, value in table.items():
+        _check_name(ctx, name, "[params]", seen)
+        where = f"[params].{name}"
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ctx.error(where, f"must be a number, got {value!r}")
+        if isinstance(value, int):
+            if abs(value) > MAX_INTEGER_LITERAL:
+                raise ctx.error(where, f"integer too large (more than {MAX_INTEGER_LITERAL:.0e})")
+            params[name] = sp.Integer(value)
+        else:
+            if not math.isfinite(value):
+                raise ctx.error(where, f"must be finite, got {value!r}")
+            params[name] = sp.Float(value)
+    return params
+
+
+def _angles(ctx: _Context, value: Any, n_outputs: int, inputs: list[sp.Symbol]) -> list[int | sp.Symbol]:
+    """The angles list as output indices and input symbols, for :class:`Model`."""
+    if not isinstance(value, list):
+        raise ctx.error("angles", f"must be a list of output indices or input names, got {value!r}")
+    by_name = {s.name: s for s in inputs}
+    angles: list[int | sp.Symbol] = []
+    for a in value:
+        if isinstance(a, int) and not isinstance(a, bool):
+            if not 0 <= a < n_outputs:
+                raise ctx.error("angles", f"output index {a} out of range for {n_outputs} outputs")
+            angles.append(a)
+        elif isinstance(a, str) and a in by_name:
+            angles.append(by_name[a])
+        else:
+            raise ctx.error("angles", f"{a!r} is neither an output index nor an input name ({', '.join(by_name)})")
+    return angles
+
+
+def _units(ctx: _Context, table: Any, n_outputs: int, names: list[str]) -> dict[str, str]:
+    """The [units] table, keys checked against the declared names and the outputs."""
+    if not isinstance(table, dict):
+        raise ctx.error("units", f"must be a table of unit strings, got {table!r}")
+    units: dict[str, str] = {}
+    for key, unit in table.items():
+        m = re.fullmatch(_OUTPUT_UNIT, key)
+        if m is not None:
+            if int(m.group(1)) >= n_outputs:
+                raise ctx.error("[units]", f"{key!r}: there are only {n_outputs} outputs")
+        elif key not in names:
+            raise ctx.error(
+                "[units]", f"unknown key {key!r}; allowed: input and noise names, or 'outputs[i]' for an output"
+            )
+        if not isinstance(unit, str) or not unit.strip():
+            raise ctx.error(f"[units].{key}", f"must be a non-empty unit string, got {unit!r}")
+        units[key] = unit
+    return units
+
+
 def load_model_file(path: str | os.PathLike) -> ModelSpec:
     """Read a model file (TOML) into a :class:`ModelSpec`.
 
@@ -776,10 +835,23 @@ def load_model_file(path: str | os.PathLike) -> ModelSpec:
 
     Examples
     --------
-    >>> from pathlib import Path
-    >>> spec = load_model_file(Path(__file__).parents[1] / "examples" / "polar.toml")  # doctest: +SKIP
-    >>> spec.model.outputs  # doctest: +SKIP
+    >>> import tempfile
+    >>> text = '''
+    ... name = "polar"
+    ... inputs = ["x", "y"]
+    ... outputs = ["hypot(x, y)", "atan2(y, x)"]
+    ... [u]
+    ... mean = [1, 10]
+    ... std = [0.5, 5]
+    ... '''
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     path = Path(tmp) / "polar.toml"
+    ...     _ = path.write_text(text, encoding="utf-8")
+    ...     spec = load_model_file(path)
+    >>> spec.model.outputs
     (sqrt(x**2 + y**2), atan2(y, x))
+    >>> spec.u
+    N([1, 10], [[0.25, 0], [0, 25]])
     """
     if _toml is None:
         raise ImportError("reading model files on Python 3.10 needs the 'tomli' package (pip install tomli)")
@@ -803,22 +875,7 @@ def load_model_file(path: str | os.PathLike) -> ModelSpec:
         raise ctx.error("inputs", "at least one input is required")
     noise_names = _names(ctx, doc.get("noise", []), "noise", seen)
 
-    params: dict[str, sp.Expr] = {}
-    raw_params = doc.get("params", {})
-    if not isinstance(raw_params, dict):
-        raise ctx.error("params", f"must be a table of numbers, got {raw_params!r}")
-    for pname, value in raw_params.items():
-        _check_name(ctx, pname, "[params]", seen)
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ctx.error(f"[params].{pname}", f"must be a number, got {value!r}")
-        if isinstance(value, int):
-            if abs(value) > MAX_INTEGER_LITERAL:
-                raise ctx.error(f"[params].{pname}", f"integer too large (more than {MAX_INTEGER_LITERAL:.0e})")
-            params[pname] = sp.Integer(value)
-        else:
-            if not math.isfinite(value):
-                raise ctx.error(f"[params].{pname}", f"must be finite, got {value!r}")
-            params[pname] = sp.Float(value)
+    params = _params(ctx, doc.get("params", {}), seen)
 
     u_syms = [sp.Symbol(n, real=True) for n in input_names]
     v_syms = [sp.Symbol(n, real=True) for n in noise_names]
@@ -834,20 +891,7 @@ def load_model_file(path: str | os.PathLike) -> ModelSpec:
             parse_expression(text, env, source=f"{path}: outputs[{i}]", line_offset=line_off, col_offset=col_off)
         )
 
-    angles_raw = doc.get("angles", [])
-    if not isinstance(angles_raw, list):
-        raise ctx.error("angles", f"must be a list of output indices or input names, got {angles_raw!r}")
-    angles: list[int | sp.Symbol] = []
-    for a in angles_raw:
-        if isinstance(a, int) and not isinstance(a, bool):
-            if not 0 <= a < len(outputs):
-                raise ctx.error("angles", f"output index {a} out of range for {len(outputs)} outputs")
-            angles.append(a)
-        elif isinstance(a, str) and a in input_names:
-            angles.append(u_syms[input_names.index(a)])
-        else:
-            raise ctx.error("angles", f"{a!r} is neither an output index nor an input name ({', '.join(input_names)})")
-
+    angles = _angles(ctx, doc.get("angles", []), len(outputs), u_syms)
     try:
         model = Model(u_syms, outputs, noise=v_syms or None, name=name, angles=angles)
     except ModelError as exc:
@@ -862,22 +906,7 @@ def load_model_file(path: str | os.PathLike) -> ModelSpec:
             raise ctx.error("[v]", "a [v] table needs noise symbols: declare them with noise = [...] and use them in outputs")
         v = _gaussian(ctx, doc["v"], "v", len(v_syms), params, "noise symbols")
 
-    units_raw = doc.get("units", {})
-    if not isinstance(units_raw, dict):
-        raise ctx.error("units", f"must be a table of unit strings, got {units_raw!r}")
-    units: dict[str, str] = {}
-    for key, unit in units_raw.items():
-        m = re.fullmatch(_OUTPUT_UNIT, key)
-        if m is not None:
-            if int(m.group(1)) >= len(outputs):
-                raise ctx.error("[units]", f"{key!r}: there are only {len(outputs)} outputs")
-        elif key not in input_names and key not in noise_names:
-            raise ctx.error(
-                "[units]", f"unknown key {key!r}; allowed: input and noise names, or 'outputs[i]' for an output"
-            )
-        if not isinstance(unit, str) or not unit.strip():
-            raise ctx.error(f"[units].{key}", f"must be a non-empty unit string, got {unit!r}")
-        units[key] = unit
+    units = _units(ctx, doc.get("units", {}), len(outputs), input_names + noise_names)
     return ModelSpec(model=model, u=u, v=v, units=units, path=path)
 
 
@@ -933,6 +962,20 @@ def dump_model_file(spec: ModelSpec) -> str:
     ModelFileError
         If a name cannot be written (not an identifier, or reserved) or an output
         would not read back as the same expression.
+
+    Examples
+    --------
+    >>> x = sp.Symbol("x", real=True)
+    >>> print(dump_model_file(ModelSpec(Model([x], [x**2 / 2]), Gaussian([0], 1))), end="")
+    name = "model"
+    inputs = ["x"]
+    outputs = [
+        "x**2/2",
+    ]
+    <BLANKLINE>
+    [u]
+    mean = [0.0]
+    cov = [[1.0]]
     """
     model = spec.model
     names = [s.name for s in model.inputs + model.noise]

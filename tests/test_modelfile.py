@@ -12,6 +12,8 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 import pytest
 import sympy as sp
 
@@ -637,3 +639,26 @@ def test_bad_file(tmp_path, text, fragment):
     msg = str(info.value)
     assert msg.startswith(str(path) + ": ")
     assert fragment in msg
+
+
+# --------------------------------------------------------------------------------------
+# Fuzzing: any text is either parsed or refused with a ModelFileError, never anything else
+# --------------------------------------------------------------------------------------
+
+_TOKENS = [
+    "x", "y", "z", "pi", "e", "E", "0", "1", "2.5", "1e300", "64", "65", "10**15",
+    "+", "-", "*", "/", "**", "(", ")", ",", " ", "sqrt", "atan2", "log", "max", "hypot",
+    "'", "[", "]", ".", "__class__", "lambda", ":", "=", "<", "if", "else", "\n", "#", "@", "%",
+]
+
+
+@settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.one_of(st.text(max_size=40), st.lists(st.sampled_from(_TOKENS), max_size=25).map("".join)))
+def test_fuzz_only_model_file_errors(text):
+    try:
+        result = parse_expression(text, SYMBOLS)
+    except ModelFileError as exc:
+        assert re.search(r", line \d+, column \d+: ", str(exc))
+    else:
+        assert isinstance(result, sp.Expr)
+        assert result.free_symbols <= {x, y}
