@@ -135,9 +135,11 @@ def mon_from_moments(Sgg, Sgu, Suu, weight="full", Sc=None, mean=None):
     J_Ab = float(np.trace(W @ (Sgg - lin)))
     mu = np.zeros(Sgg.shape[0]) if mean is None else np.asarray(mean, dtype=float)
     Eg2 = float(np.trace(W @ (Sgg + np.outer(mu, mu))))
-    J_n = Eg2 - float(np.trace(W @ Sc))
+    WSc = float(np.trace(W @ Sc))
     D = Sgg - Sc - lin
-    return {"squared": J_Ab + J_n - Eg2, "J_Ab": J_Ab, "J_n": J_n, "W": W, "label": label, "D": D, "notes": notes}
+    # M² = J_Ab + J_n − E‖g‖²_W (25) = J_Ab − tr(W Σ_c): the E‖g‖²_W terms cancel
+    # analytically; adding and subtracting them would lose every digit when |E g| ≫ σ.
+    return {"squared": J_Ab - WSc, "J_Ab": J_Ab, "J_n": Eg2 - WSc, "W": W, "label": label, "D": D, "notes": notes}
 
 
 # --------------------------------------------------------------------------- Σ_c = Cov(E[g|v])
