@@ -20,7 +20,8 @@ def fig1_rows(tmp_path_factory):
     paths = fig1.run(out, samples=SAMPLES, progress=False, alphas=np.array([1e-3, 0.17, 10.0]))
     assert [p.name for p in paths] == ["fig1.png", "fig1.csv"]
     assert paths[0].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    return list(csv.DictReader(paths[1].open()))
+    with paths[1].open() as fh:
+        return list(csv.DictReader(fh))
 
 
 def test_fig1_claim_at_alpha_017(fig1_rows):
@@ -42,7 +43,8 @@ def test_fig1_band_contains_both_units(fig1_rows):
 def fig2_rows(tmp_path_factory):
     out = tmp_path_factory.mktemp("fig2")
     paths = fig2.run(out, samples=SAMPLES, progress=False, alphas=np.array([0.1, 10.0]))
-    return list(csv.DictReader(paths[1].open()))
+    with paths[1].open() as fh:
+        return list(csv.DictReader(fh))
 
 
 def test_fig2_bot_mons_coincide(fig2_rows):
