@@ -6,7 +6,9 @@ Gauss–Hermite, Monte Carlo and exact polynomial moments.
 """
 
 from . import errors as errors
+from . import estimation as estimation
 from . import kalman as kalman
+from . import modelfile as modelfile
 from . import mmse as mmse
 from . import problems as problems
 from . import weights as weights
@@ -16,6 +18,7 @@ from .gaussian import Gaussian as Gaussian
 from .gaussian import fuse as fuse
 from .kalman import KalmanFilter as KalmanFilter
 from .model import Model as Model
+from .modelfile import load_model_file as load_model_file
 from .moments import JointMoments as JointMoments
 from .nonlinearity import NonlinearityMeasure as NonlinearityMeasure
 from .nonlinearity import compare as compare
@@ -33,7 +36,8 @@ from .transforms import Transform as Transform
 __version__ = "0.1.0"
 
 __all__ = [
-    "errors", "kalman", "mmse", "problems", "weights", "export_c",
+    "errors", "estimation", "kalman", "modelfile", "mmse", "problems", "weights", "export_c",
+    "load_model_file",
     "SymmonError", "Gaussian", "fuse", "KalmanFilter", "Model", "JointMoments",
     "NonlinearityMeasure", "nonlinearity", "compare",
     "propagate", "propagate_many",
