@@ -78,7 +78,10 @@ def weighted_moments(Y: np.ndarray, X: np.ndarray, mx: np.ndarray, wm: np.ndarra
     -------
     mean (K, n_y), cov (K, n_y, n_y), cross (K, n_y, n_w)
     """
-    mean = np.einsum("n,kni->ki", wm, Y)
+    # Weights sum to 1: centring on the first point keeps digits when the weights are
+    # large and of both signs (ut2's are about ±1e6), so a constant output stays exact.
+    Y0 = Y[:, 0, :]
+    mean = Y0 + np.einsum("n,kni->ki", wm, Y - Y0[:, None, :])
     if angles:
         idx = sorted(angles)
         s = np.einsum("n,kni->ki", wm, np.sin(Y[..., idx]))
