@@ -1,30 +1,84 @@
-"""The ``symmon`` command.
+"""The ``symmon`` command: model files in, moments, measures of nonlinearity and reports out.
 
-Exit codes: 0 on success, 2 on a usage error, 1 on a model or input error (the message
-goes to stderr).  Every output file is written atomically.
+A user who never writes Python declares a model in a TOML file (:mod:`symmon.modelfile`)
+and runs, e.g.::
+
+    symmon propagate examples/polar.toml --transform ut1 --json
+    symmon nonlinearity examples/gmti.toml --weight full --alpha-sweep 0.01:100:9 --csv mon.csv
+    symmon compare examples/polar.toml
+
+Exit codes: 0 on success, 2 on a usage error (bad options; argparse prints the usage),
+1 on a model or input error (a bad model file, a singular covariance, an unwritable output
+path, ...), 130 when interrupted. Error messages go to stderr, results to stdout. Every
+output file is written atomically through :mod:`symmon.io` (temporary file, then rename),
+so an existing file is replaced whole or left untouched. Progress bars (tqdm) go to stderr
+and are hidden when stderr is not a terminal or with ``--no-progress``.
+
+:func:`main` returns the exit code instead of exiting, so it can be called in-process.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from .errors import SymmonError
 
-__all__ = ["main", "transform_from_name", "TRANSFORM_NAMES"]
+__all__ = ["main", "transform_from_name", "TRANSFORM_NAMES", "WEIGHT_NAMES", "FIGURES"]
 
-TRANSFORM_NAMES = ("tt1", "tt2", "ut1", "ut2", "ct", "gh", "mc", "qmc")
+#: Short names of the transforms, in the order ``compare`` lists them.
+TRANSFORM_NAMES = ("tt1", "tt2", "ut1", "ut2", "ct", "gh", "qmc", "mc")
 WEIGHT_NAMES = ("full", "diag", "liu-li", "liu-li-raw")
 FIGURES = ("fig1", "fig2", "radar", "mmse")
 
+_EXAMPLES = {
+    "propagate": ["symmon propagate examples/polar.toml --transform ut1 --json",
+                  "symmon propagate examples/bot.toml --transform mc --samples 100000 --seed 1"],
+    "nonlinearity": ["symmon nonlinearity examples/polar.toml --weight full --transform tt2",
+                     "symmon nonlinearity examples/gmti.toml --weight full --transform mc --samples 100000 "
+                     "--alpha-sweep 0.01:100:9 --csv mon.csv --plot mon.png"],
+    "compare": ["symmon compare examples/polar.toml --samples 100000",
+                "symmon compare examples/rdcos.toml --weight diag --json"],
+    "prove-invariance": ["symmon prove-invariance examples/polar.toml --weight full"],
+    "reproduce": ["symmon reproduce fig1 --samples 10000000 --out results",
+                  "symmon reproduce all --samples 100000"],
+    "derive": ["symmon derive --all --out derivations.md", "symmon derive --list"],
+    "codegen": ["symmon codegen examples/gmti.toml -o build/gmti"],
+}
+
+
+class _UsageError(Exception):
+    """A combination of options that argparse cannot check by itself (exit code 2)."""
+
 
 def transform_from_name(name: str, samples: int = 10**6, seed: int = 0, order: int = 5):
-    """A transform from its short name (``tt1``, ``tt2``, ``ut1``, ``ut2``, ``ct``, ``gh``, ``mc``, ``qmc``)."""
+    """A transform from its short name.
+
+    Parameters
+    ----------
+    name : {"tt1", "tt2", "ut1", "ut2", "ct", "gh", "mc", "qmc"}
+        TT1/TT2 (first/second-order Taylor), the unscented presets ``UT.ut1`` / ``UT.ut2``,
+        the cubature rule ``UT.cubature``, Gauss-Hermite, plain and quasi Monte Carlo.
+    samples, seed : int
+        Monte Carlo sample count and seed (``mc`` and ``qmc`` only).
+    order : int
+        Gauss-Hermite order per dimension (``gh`` only).
+
+    Returns
+    -------
+    Transform
+
+    Raises
+    ------
+    SymmonError
+        For an unknown name.
+    """
     from . import transforms as t
 
     table: dict[str, Callable] = {
@@ -44,24 +98,43 @@ def _load(path: str):
     return load_model_file(path)
 
 
-def _arr(a) -> list:
-    return np.asarray(a).tolist()
+def _jsonable(a: Any) -> Any:
+    """Arrays and floats as JSON values; NaN and inf become null (strict JSON has neither)."""
+    if a is None:
+        return None
+    if isinstance(a, (list, tuple)):
+        return [_jsonable(x) for x in a]
+    arr = np.asarray(a)
+    if arr.ndim == 0:
+        x = arr.item()
+        if isinstance(x, float) and not math.isfinite(x):
+            return None
+        return x
+    return [_jsonable(x) for x in arr]
+
+
+def _print_json(obj: dict) -> None:
+    print(json.dumps(obj, indent=2, allow_nan=False))
 
 
 # --------------------------------------------------------------------------- commands
-def cmd_propagate(args) -> int:
+def cmd_propagate(args: argparse.Namespace) -> int:
+    """``symmon propagate``: E y, Cov y and Cov(y, u) by one transform."""
     from .propagate import propagate
 
     spec = _load(args.file)
     tr = transform_from_name(args.transform, args.samples, args.seed, args.order)
     m = propagate(spec.model, spec.u, spec.v, tr)
     if args.json:
-        out = {"model": spec.model.name, "transform": repr(tr), "mean": _arr(m.mean),
-               "cov": _arr(m.cov), "cross_cov": _arr(m.cross_cov)}
-        if m.stderr is not None:
-            out["stderr"] = {k: _arr(v) for k, v in m.stderr.items()}
-        print(json.dumps(out, indent=2))
-    else:
+        out = {
+            "model": spec.model.name, "inputs": [str(s) for s in spec.model.inputs],
+            "outputs": [str(e) for e in spec.model.outputs], "transform": repr(tr),
+            "mean": _jsonable(m.mean), "cov": _jsonable(m.cov), "cross_cov": _jsonable(m.cross_cov),
+            "stderr": None if m.stderr is None else {k: _jsonable(v) for k, v in m.stderr.items()},
+        }
+        _print_json(out)
+        return 0
+    with np.printoptions(precision=8, suppress=False):
         print(f"{spec.model.name} by {tr!r}")
         print(f"E y  = {m.mean}")
         print(f"Cov y =\n{m.cov}")
@@ -71,45 +144,67 @@ def cmd_propagate(args) -> int:
     return 0
 
 
-def _parse_sweep(text: str) -> np.ndarray:
+def _sweep(text: str) -> np.ndarray:
+    """argparse type of ``--alpha-sweep A:B:N``: N log-spaced scalings from A to B."""
     parts = text.split(":")
     if len(parts) != 3:
-        raise SymmonError(f"--alpha-sweep must be A:B:N (log-spaced from A to B), got {text!r}")
+        raise argparse.ArgumentTypeError(f"must be A:B:N (N log-spaced alphas from A to B), got {text!r}")
     try:
         a, b, n = float(parts[0]), float(parts[1]), int(parts[2])
-    except ValueError as exc:
-        raise SymmonError(f"--alpha-sweep must be A:B:N with numbers, got {text!r}") from exc
-    if a <= 0 or b <= 0 or n < 1:
-        raise SymmonError(f"--alpha-sweep needs A, B > 0 and N >= 1, got {text!r}")
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be A:B:N with numbers A, B and an integer N, got {text!r}") from None
+    if not (math.isfinite(a) and math.isfinite(b)) or a <= 0 or b <= 0 or n < 1:
+        raise argparse.ArgumentTypeError(f"needs finite A, B > 0 and N >= 1, got {text!r}")
     return np.logspace(np.log10(a), np.log10(b), n)
 
 
-def cmd_nonlinearity(args) -> int:
+def _positive_int(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
+    return n
+
+
+def _measure_json(res) -> dict:
+    return {"value": res.value, "squared": res.squared, "J_Ab": res.J_Ab, "J_n": res.J_n,
+            "stderr": _jsonable(res.stderr), "weight": res.weight_name, "structure": res.structure,
+            "transform": repr(res.transform), "notes": list(res.notes)}
+
+
+def cmd_nonlinearity(args: argparse.Namespace) -> int:
+    """``symmon nonlinearity``: the MoN of a model file, once or over a sweep of α."""
     from .gaussian import Gaussian
     from .io import save_figure, write_csv
     from .nonlinearity import nonlinearity
     from .reproduce._common import progress_bar, pyplot
 
+    if args.alpha_sweep is None and (args.plot or args.csv):
+        raise _UsageError("--plot and --csv need --alpha-sweep")
     spec = _load(args.file)
     tr = transform_from_name(args.transform, args.samples, args.seed, args.order)
     if args.alpha_sweep is None:
-        if args.plot or args.csv:
-            raise SymmonError("--plot and --csv need --alpha-sweep")
         res = nonlinearity(spec.model, spec.u, spec.v, args.weight, tr)
+        if args.json:
+            _print_json({"model": spec.model.name, **_measure_json(res)})
+            return 0
         se = f" ± {res.stderr:.2g} (MC standard error)" if res.stderr is not None else ""
         print(f"{spec.model.name}: MoN[{args.weight}] by {tr!r} = {res.value:.6g}{se}")
         for note in res.notes:
             print(f"note: {note}")
         return 0
-    alphas = _parse_sweep(args.alpha_sweep)
-    rows = []
-    for a in progress_bar(alphas, "alpha sweep", not args.no_progress):
-        u = Gaussian(spec.u.mean, a * spec.u.cov)
-        res = nonlinearity(spec.model, u, spec.v, args.weight, tr)
+    # Σ_uu ← α Σ_uu, as in the papers' figures (the noise covariance is kept).
+    rows, notes = [], []
+    for a in progress_bar(args.alpha_sweep, "alpha sweep", not args.no_progress):
+        res = nonlinearity(spec.model, Gaussian(spec.u.mean, a * spec.u.cov), spec.v, args.weight, tr)
         rows.append((float(a), res.value, res.stderr if res.stderr is not None else float("nan")))
-        print(f"alpha={a:.4g}  MoN={res.value:.6g}")
+        notes.extend(n for n in res.notes if n not in notes)
+    # Compute everything first, then write: a failure midway leaves no partial file.
+    written = []
     if args.csv:
-        write_csv(args.csv, ["alpha", "mon", "stderr"], rows)
+        written.append(write_csv(args.csv, ["alpha", "mon", "stderr"], rows))
     if args.plot:
         plt = pyplot()
         fig, ax = plt.subplots(figsize=(6, 4))
@@ -118,158 +213,234 @@ def cmd_nonlinearity(args) -> int:
         ax.set_ylabel(f"MoN ({args.weight}, {args.transform})")
         ax.set_title(spec.model.name)
         fig.tight_layout()
-        save_figure(fig, args.plot, dpi=120)
-        plt.close(fig)
+        try:
+            written.append(save_figure(fig, args.plot, dpi=120))
+        finally:
+            plt.close(fig)
+    if args.json:
+        _print_json({"model": spec.model.name, "weight": args.weight, "transform": repr(tr),
+                     "alpha": [r[0] for r in rows], "mon": [r[1] for r in rows],
+                     "stderr": _jsonable([r[2] for r in rows]), "notes": notes,
+                     "files": [str(p) for p in written]})
+        return 0
+    for a, value, se in rows:
+        print(f"alpha={a:.4g}  MoN={value:.6g}" + ("" if math.isnan(se) else f" ± {se:.2g}"))
+    for note in notes:
+        print(f"note: {note}")
+    for p in written:
+        print(f"wrote {p}")
     return 0
 
 
-def cmd_compare(args) -> int:
-    from .nonlinearity import compare, format_table
-    from .propagate import propagate
+def cmd_compare(args: argparse.Namespace) -> int:
+    """``symmon compare``: the MoN and the moments by every transform, as one table."""
+    from .nonlinearity import nonlinearity
+    from .reproduce._common import progress_bar
 
     spec = _load(args.file)
-    names = ["tt1", "tt2", "ut1", "ut2", "ct", "gh", "qmc", "mc"]
-    trs = [transform_from_name(n, args.samples, args.seed, args.order) for n in names]
-    print(f"{spec.model.name}: MoN with weight {args.weight!r}")
-    print(format_table(compare(spec.model, spec.u, spec.v, args.weight, trs)))
-    print("\nmoments:")
-    for n, t in zip(names, trs):
-        m = propagate(spec.model, spec.u, spec.v, t)
-        print(f"{n:>4}: E y = {np.array2string(m.mean, precision=6)}  diag Cov y = {np.array2string(np.diag(m.cov), precision=6)}")
+    rows = []
+    for name in progress_bar(TRANSFORM_NAMES, "transforms", not args.no_progress):
+        tr = transform_from_name(name, args.samples, args.seed, args.order)
+        res = nonlinearity(spec.model, spec.u, spec.v, args.weight, tr)
+        m = res.moments
+        rows.append({"name": name, "transform": repr(tr), "mon": res.value, "stderr": res.stderr,
+                     "evaluations": m.info.get("evaluations"), "mean": m.mean, "cov": m.cov,
+                     "cross_cov": m.cross_cov, "notes": res.notes})
+    if args.json:
+        _print_json({"model": spec.model.name, "weight": args.weight, "rows": [
+            {k: (_jsonable(v) if k not in ("name", "transform", "evaluations") else v) for k, v in r.items()}
+            for r in rows]})
+        return 0
+    print(f"{spec.model.name}: MoN with weight {args.weight!r} and moments by every transform")
+    print(f"{'':>4} {'MoN':>10} {'MC s.e.':>8} {'E y':>30} {'diag Cov y':>30}")
+    for r in rows:
+        se = f"{r['stderr']:.2g}" if r["stderr"] is not None else "-"
+        ey = np.array2string(r["mean"], precision=5, separator=", ")
+        dc = np.array2string(np.diag(r["cov"]), precision=5, separator=", ")
+        print(f"{r['name']:>4} {r['mon']:>10.5g} {se:>8} {ey:>30} {dc:>30}")
+    print("\ntransforms:")
+    for r in rows:
+        print(f"{r['name']:>4}: {r['transform']}")
+    notes = sorted({n for r in rows for n in r["notes"]})
+    for note in notes:
+        print(f"note: {note}")
     return 0
 
 
-def cmd_prove(args) -> int:
+def cmd_prove(args: argparse.Namespace) -> int:
+    """``symmon prove-invariance``: the symbolic unit-invariance proof of the MoN."""
     from .units import prove_invariance
 
     spec = _load(args.file)
     proof = prove_invariance(spec.model, args.weight)
     print(proof)
+    # liu-li and liu-li-raw are known not to be invariant: a "does not hold" is the expected answer.
     return 0 if proof.holds or args.weight in ("liu-li", "liu-li-raw") else 1
 
 
-def cmd_reproduce(args) -> int:
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    """``symmon reproduce``: a figure of the papers as PNG + CSV."""
     import importlib
 
     which = FIGURES if args.figure == "all" else (args.figure,)
     out = Path(args.out)
     for name in which:
         mod = importlib.import_module(f".reproduce.{name}", __package__)
-        kwargs = {"seed": args.seed, "progress": not args.no_progress}
+        kwargs: dict[str, Any] = {"seed": args.seed, "progress": not args.no_progress}
         if args.samples is not None:
             kwargs["runs" if name == "mmse" else "samples"] = args.samples
-        paths = mod.run(out, **kwargs)
-        for p in paths:
+        for p in mod.run(out, **kwargs):
             print(f"wrote {p}")
     return 0
 
 
-def cmd_derive(args) -> int:
+def cmd_derive(args: argparse.Namespace) -> int:
+    """``symmon derive``: run derivation scripts and write a Markdown report."""
     from . import derive
     from .io import atomic_write_text
 
+    if args.list:
+        for name in derive.available():
+            print(name)
+        return 0
     names = None if args.all or not args.name else [args.name]
     results = derive.run(names)
-    report = derive.report_markdown(results)
-    atomic_write_text(args.out, report)
-    failed = [r.name for r in results if not r.passed]
+    path = atomic_write_text(args.out, derive.report_markdown(results))
     for r in results:
         print(f"{'PASS' if r.passed else 'FAIL'}  {r.name}: {r.title}")
-    print(f"wrote {args.out}")
-    return 1 if failed else 0
+    print(f"wrote {path}")
+    return 0 if all(r.passed for r in results) else 1
 
 
-def cmd_codegen(args) -> int:
+def cmd_codegen(args: argparse.Namespace) -> int:
+    """``symmon codegen``: standalone C code for g, J and the TT2 and UT moments."""
     from .codegen import export_c
 
     spec = _load(args.file)
-    Path(args.output).mkdir(parents=True, exist_ok=True)
-    for p in export_c(spec.model, args.output):
+    for p in export_c(spec.model, args.output, args.name):
         print(f"wrote {p}")
     return 0
 
 
 # --------------------------------------------------------------------------- parser
 def _parser() -> argparse.ArgumentParser:
+    summary = "\n".join(f"  {ex}" for exs in _EXAMPLES.values() for ex in exs)
     p = argparse.ArgumentParser(
         prog="symmon",
         description="Nonlinear transformations of random variables: moments, measures of "
-        "nonlinearity, unit invariance, and the papers' figures.",
-        epilog="Example: symmon reproduce fig1   (Figure 1 of Straka & Havlik 2024 into ./results)",
+        "nonlinearity, unit invariance, C code and the papers' figures, from TOML model files "
+        "(see symmon.modelfile for the format; examples/ holds the papers' models).",
+        epilog=f"examples:\n{summary}\n\nexit codes: 0 success, 1 model or input error, 2 usage error",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    from . import __version__
+
+    p.add_argument("--version", action="version", version=f"symmon {__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    def add(name, help_, example):
-        sp = sub.add_parser(name, help=help_, description=help_, epilog=f"Example: {example}",
+    def add(name: str, help_: str) -> argparse.ArgumentParser:
+        examples = "\n".join(f"  {ex}" for ex in _EXAMPLES[name])
+        sp = sub.add_parser(name, help=help_, description=help_, epilog=f"examples:\n{examples}",
                             formatter_class=argparse.RawDescriptionHelpFormatter)
+        sp.set_defaults(subparser=sp)
         return sp
 
-    def transform_opts(sp, default="tt2"):
-        sp.add_argument("--transform", choices=TRANSFORM_NAMES, default=default)
-        sp.add_argument("--samples", type=int, default=10**6, help="Monte Carlo samples")
-        sp.add_argument("--seed", type=int, default=0)
-        sp.add_argument("--order", type=int, default=5, help="Gauss-Hermite order")
+    def transform_opts(sp: argparse.ArgumentParser, samples: int) -> None:
+        sp.add_argument("--transform", choices=TRANSFORM_NAMES, default="tt2",
+                        help="tt1/tt2: Taylor; ut1/ut2/ct: unscented and cubature; gh: Gauss-Hermite; "
+                        "mc/qmc: (quasi) Monte Carlo (default tt2)")
+        sp.add_argument("--samples", type=_positive_int, default=samples,
+                        help=f"Monte Carlo samples (default {samples})")
+        sp.add_argument("--seed", type=int, default=0, help="Monte Carlo seed (default 0)")
+        sp.add_argument("--order", type=_positive_int, default=5, help="Gauss-Hermite order (default 5)")
 
-    sp = add("propagate", "moments of a model file by a transform", "symmon propagate examples/polar.toml --transform ut1 --json")
-    sp.add_argument("file")
-    transform_opts(sp)
-    sp.add_argument("--json", action="store_true", help="print JSON")
+    def weight_opt(sp: argparse.ArgumentParser) -> None:
+        sp.add_argument("--weight", choices=WEIGHT_NAMES, default="full",
+                        help="full (43), diag (42), liu-li (8), liu-li-raw (6) (default full)")
+
+    sp = add("propagate", "moments of a model file by a transform: E y, Cov y, Cov(y, u)")
+    sp.add_argument("file", help="TOML model file")
+    transform_opts(sp, 10**6)
+    sp.add_argument("--json", action="store_true", help="print JSON (full float precision)")
     sp.set_defaults(func=cmd_propagate)
 
-    sp = add("nonlinearity", "the measure of nonlinearity of a model file",
-             "symmon nonlinearity examples/gmti.toml --weight full --transform mc --alpha-sweep 0.1:10:11 --csv mon.csv --plot mon.png")
-    sp.add_argument("file")
-    sp.add_argument("--weight", choices=WEIGHT_NAMES, default="full")
-    transform_opts(sp)
-    sp.add_argument("--alpha-sweep", metavar="A:B:N", help="scale the input covariance by N log-spaced alphas")
-    sp.add_argument("--plot", metavar="PNG")
-    sp.add_argument("--csv", metavar="CSV")
-    sp.add_argument("--no-progress", action="store_true")
+    sp = add("nonlinearity", "the measure of nonlinearity (MoN) of a model file")
+    sp.add_argument("file", help="TOML model file")
+    weight_opt(sp)
+    transform_opts(sp, 10**6)
+    sp.add_argument("--alpha-sweep", metavar="A:B:N", type=_sweep,
+                    help="scale the input covariance by N log-spaced alphas from A to B")
+    sp.add_argument("--plot", metavar="PNG", help="with --alpha-sweep: write the MoN curve (atomically)")
+    sp.add_argument("--csv", metavar="CSV", help="with --alpha-sweep: write alpha, mon, stderr (atomically)")
+    sp.add_argument("--json", action="store_true", help="print JSON")
+    sp.add_argument("--no-progress", action="store_true", help="no progress bar")
     sp.set_defaults(func=cmd_nonlinearity)
 
-    sp = add("compare", "the MoN and the moments by every transform", "symmon compare examples/polar.toml --samples 100000")
-    sp.add_argument("file")
-    sp.add_argument("--weight", choices=WEIGHT_NAMES, default="full")
-    sp.add_argument("--samples", type=int, default=10**5)
-    sp.add_argument("--seed", type=int, default=0)
-    sp.add_argument("--order", type=int, default=5)
+    sp = add("compare", "the MoN and the moments by every transform, as a table")
+    sp.add_argument("file", help="TOML model file")
+    weight_opt(sp)
+    sp.add_argument("--samples", type=_positive_int, default=10**5, help="Monte Carlo samples (default 100000)")
+    sp.add_argument("--seed", type=int, default=0, help="Monte Carlo seed (default 0)")
+    sp.add_argument("--order", type=_positive_int, default=5, help="Gauss-Hermite order (default 5)")
+    sp.add_argument("--json", action="store_true", help="print JSON")
+    sp.add_argument("--no-progress", action="store_true", help="no progress bar")
     sp.set_defaults(func=cmd_compare)
 
-    sp = add("prove-invariance", "prove the unit invariance of the MoN symbolically (TT2 closed form)",
-             "symmon prove-invariance examples/polar.toml --weight full")
-    sp.add_argument("file")
-    sp.add_argument("--weight", choices=WEIGHT_NAMES, default="full")
+    sp = add("prove-invariance", "prove the unit invariance of the MoN symbolically (TT2 closed form); "
+             "exit code 1 if a unit-invariant weight fails")
+    sp.add_argument("file", help="TOML model file")
+    weight_opt(sp)
     sp.set_defaults(func=cmd_prove)
 
-    sp = add("reproduce", "reproduce a figure of the papers (PNG + CSV)", "symmon reproduce fig1 --samples 10000000 --out results")
+    sp = add("reproduce", "reproduce a figure of the papers (PNG + CSV)")
     sp.add_argument("figure", choices=FIGURES + ("all",))
-    sp.add_argument("--samples", type=int, default=None,
+    sp.add_argument("--samples", type=_positive_int, default=None,
                     help="Monte Carlo samples (default 10^6; the paper used 10^7); for mmse: runs")
-    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     sp.add_argument("--out", default="results", help="output directory (default ./results)")
-    sp.add_argument("--no-progress", action="store_true")
+    sp.add_argument("--no-progress", action="store_true", help="no progress bar")
     sp.set_defaults(func=cmd_reproduce)
 
-    sp = add("derive", "run the derivation scripts and write a Markdown report", "symmon derive --all --out derivations.md")
+    sp = add("derive", "run the derivation scripts (derivations/) and write a Markdown report")
     g = sp.add_mutually_exclusive_group()
-    g.add_argument("--all", action="store_true")
-    g.add_argument("name", nargs="?")
-    sp.add_argument("--out", default="derivations-report.md")
+    g.add_argument("--all", action="store_true", help="run every derivation (the default)")
+    g.add_argument("--list", action="store_true", help="list the derivation names and exit")
+    g.add_argument("name", nargs="?", help="one derivation, by name (see --list)")
+    sp.add_argument("--out", default="derivations-report.md", help="report file (default derivations-report.md)")
     sp.set_defaults(func=cmd_derive)
 
-    sp = add("codegen", "export standalone C code (g, J, TT2 and UT moments)", "symmon codegen examples/gmti.toml -o build/gmti")
-    sp.add_argument("file")
-    sp.add_argument("-o", "--output", required=True)
+    sp = add("codegen", "export standalone C code (g, J, TT2 and UT moments)")
+    sp.add_argument("file", help="TOML model file")
+    sp.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory (created if missing)")
+    sp.add_argument("--name", default=None, help="C prefix and file name (default: the model's name)")
     sp.set_defaults(func=cmd_codegen)
     return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the ``symmon`` command; returns the exit code."""
+    """Run the ``symmon`` command and return its exit code.
+
+    Parameters
+    ----------
+    argv : sequence of str, optional
+        The arguments after the program name; ``sys.argv[1:]`` when omitted.
+
+    Returns
+    -------
+    int
+        0 on success, 1 on a model or input error, 2 on a usage error, 130 if interrupted.
+    """
     parser = _parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version (0) and usage errors (2); argparse printed them
+        return exc.code if isinstance(exc.code, int) else 2
     try:
         return int(args.func(args))
+    except _UsageError as exc:
+        args.subparser.print_usage(sys.stderr)
+        print(f"symmon {args.command}: error: {exc}", file=sys.stderr)
+        return 2
     except (SymmonError, OSError) as exc:
         print(f"symmon: error: {exc}", file=sys.stderr)
         return 1
