@@ -302,9 +302,12 @@ def test_ut_agrees_with_filterpy(name, alpha, beta, kappa):
     Ysig = cm.eval_g(sig)
     fm, fC = unscented_transform(Ysig, pts.Wm, pts.Wc)
     fX = np.einsum("k,ki,kj->ij", pts.Wc, Ysig - fm, sig - mu)
-    assert_close(m, fm, PEER_RTOL, "mean")
-    assert_close(C, fC, PEER_RTOL, "cov")
-    assert_close(X, fX, PEER_RTOL, "cross")
+    # FilterPy sums Σ w·Y directly; with α = 1e-3 its weights are ~1e6 and it rounds at
+    # ~eps/α² relative, while symmon centres on the middle point first.
+    rtol = max(PEER_RTOL, 10 * np.finfo(float).eps / alpha**2)
+    assert_close(m, fm, rtol, "mean")
+    assert_close(C, fC, rtol, "cov")
+    assert_close(X, fX, rtol, "cross")
 
 
 # =========================================================================== Monte Carlo
