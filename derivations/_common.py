@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass, field
-from typing import Callable, Iterable, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import sympy as sp
@@ -190,11 +190,3 @@ def mc_within(samples: np.ndarray, target: float, extra: float = 0.0,
     se = float(samples.std(ddof=1) / np.sqrt(samples.size))
     ok = abs(mean - target) <= sigmas * se + extra
     return ok, f"MC {mean:.6g} vs {target:.6g}, |diff| = {abs(mean - target):.3g}, {sigmas:g} SE = {sigmas * se:.3g}"
-
-
-def product(items: Iterable[sp.Expr]) -> sp.Expr:
-    """Product of sympy expressions (1 for none)."""
-    out: sp.Expr = sp.Integer(1)
-    for it in items:
-        out = out * it
-    return out

@@ -60,7 +60,7 @@ def check() -> Result:
     Pxx, Pxy, Pyy = S[:2, :2], S[:2, 2:], S[2:, 2:]
     m = matrix_symbols("m", 3, 1)
     w = matrix_symbols("w", 3, 1)                   # the point [x; y]
-    dx, dy = w[:2, :] - m[:2, :], w[2:, :] - m[2:, :]
+    dy = w[2:, :] - m[2:, :]
     xc = m[:2, :] + Pxy * Pyy.inv() * dy
     Pc = Pxx - Pxy * Pyy.inv() * Pxy.T
     joint_q = ((w - m).T * S.inv() * (w - m))[0]
