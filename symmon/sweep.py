@@ -1,0 +1,305 @@
+"""Sweeps: the MoN and the moments over an α grid or along a trajectory, local or on Dask.
+
+Straka & Havlík (2024) plot each MoN against a covariance scale α (Figures 1 and 2: the input
+covariance is α·P, (14) and (44)), and a filter asks for it at every state of a trajectory.
+Both are a list of K input Gaussians N(m_k, P_k) with one model, so both go through one
+kernel here:
+
+* a deterministic transform (TT2, UT, Gauss–Hermite, Exact) on a noise-free model evaluates
+  all K Gaussians in a single batched call (:func:`symmon.propagate_many`), then the MoN
+  (26)–(29) of each from its moments;
+* Monte Carlo (and any model with noise) runs one :func:`symmon.nonlinearity` per Gaussian,
+  on a Dask cluster when ``client`` or ``scheduler`` is given.  Every task recompiles the
+  model on its worker (sympy expressions travel, CasADi functions never do) and returns
+  plain arrays.
+
+**Common random numbers.**  Monte Carlo draws standard normals z from the seed and maps them
+to w = m + L z with L Lᵀ = P.  With the same seed for every k (``crn=True``, the default)
+the K estimates share their z: at α the samples are m + √α L₁ z, so the Monte Carlo error
+is a smooth function of α and differences between adjacent grid points are far more
+accurate than each value.  ``crn=False`` gives each k its own stream
+(``SeedSequence(seed).spawn(K)``): independent errors, e.g. to average over the grid.
+
+A distributed sweep returns the same numbers as the local one, bit for bit: each task is
+the same computation on the same seed, and the results are collected in grid order.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .errors import ModelError, ShapeError, SymmonError
+from .gaussian import Gaussian, as_covariance, as_vector
+from .model import Model
+from .nonlinearity import mon_from_moments, nonlinearity
+from .propagate import propagate_many
+from .transforms import TT2, MonteCarlo, Transform
+
+__all__ = ["SweepResult", "sweep_alpha", "sweep_states"]
+
+
+@dataclass(frozen=True, eq=False)
+class SweepResult:
+    """The MoN and the moments at each point of a sweep.
+
+    Attributes
+    ----------
+    param : ndarray (K,)
+        The α values (:func:`sweep_alpha`) or the state indices (:func:`sweep_states`).
+    value : ndarray (K,)
+        The MoN M = √max(M², 0).
+    squared : ndarray (K,)
+        M² (25); Monte Carlo noise can make it slightly negative.
+    stderr : ndarray (K,) or None
+        Monte Carlo standard error of ``value`` (delete-one-group jackknife); ``None`` for
+        deterministic transforms.
+    mean : ndarray (K, n_y)
+    cov : ndarray (K, n_y, n_y)
+    cross_cov : ndarray (K, n_y, n_u)
+        E y, Cov y and Cov(y, u) at each point.
+    moment_stderr : dict or None
+        Monte Carlo standard errors ``"mean"``, ``"cov"``, ``"cross_cov"`` with the shapes
+        above; ``None`` for deterministic transforms.
+    weight_name : str
+    transform : Transform
+        The transform as given (with its client, if any).
+    """
+
+    param: np.ndarray
+    value: np.ndarray
+    squared: np.ndarray
+    stderr: np.ndarray | None
+    mean: np.ndarray
+    cov: np.ndarray
+    cross_cov: np.ndarray
+    moment_stderr: dict[str, np.ndarray] | None
+    weight_name: str
+    transform: Transform
+
+    def __len__(self) -> int:
+        return int(self.param.shape[0])
+
+    def __repr__(self) -> str:
+        return (f"SweepResult(K={len(self)}, weight={self.weight_name!r}, transform={self.transform!r}, "
+                f"value=[{self.value.min():.4g} … {self.value.max():.4g}])")
+
+
+# --------------------------------------------------------------------------- validation
+def _check_model(model: Any) -> Model:
+    if not isinstance(model, Model):
+        raise TypeError(f"model must be a symmon.Model, got {type(model).__name__}")
+    return model
+
+
+def _check_transform(transform: Any) -> Transform:
+    if transform is None:
+        return TT2()
+    if isinstance(transform, type) and issubclass(transform, Transform):
+        raise TypeError(f"transform: pass an instance, e.g. {transform.__name__}(), not the class")
+    if not isinstance(transform, Transform):
+        raise TypeError(f"transform must be a symmon transform (TT2, UT, MonteCarlo, ...), got {transform!r}")
+    return transform
+
+
+def _check_dask(client: Any, scheduler: Any) -> None:
+    if client is not None and scheduler is not None:
+        raise SymmonError("pass either client or scheduler, not both")
+    if scheduler is not None and not isinstance(scheduler, str):
+        raise SymmonError(f"scheduler must be a Dask scheduler name such as 'processes', got {scheduler!r}")
+
+
+def _check_alphas(alphas: ArrayLike) -> np.ndarray:
+    a = np.asarray(alphas, dtype=float)
+    if a.ndim != 1 or a.size == 0:
+        raise ShapeError(f"alphas must be a non-empty 1-D array, got shape {a.shape}")
+    if not np.all(np.isfinite(a)) or np.any(a <= 0):
+        raise SymmonError(f"alphas must be finite and positive, got {a.tolist()}")
+    return a
+
+
+# --------------------------------------------------------------------------- one point
+def _point(model: Model, mean: np.ndarray, cov: np.ndarray, v: Gaussian | None, weight: Any,
+           transform: Transform) -> dict[str, Any]:
+    """The MoN and moments of one input Gaussian, as plain arrays (cheap to ship back)."""
+    res = nonlinearity(model, Gaussian(mean, cov), v, weight, transform)
+    m = res.moments
+    return {
+        "value": res.value, "squared": res.squared, "stderr": res.stderr, "weight_name": res.weight_name,
+        "mean": m.mean, "cov": m.cov, "cross_cov": m.cross_cov, "moment_stderr": m.stderr,
+    }
+
+
+def _local(transform: Transform, distributed: bool) -> Transform:
+    """The transform a task runs: never nested Dask; one thread per task on a cluster."""
+    if not isinstance(transform, MonteCarlo):
+        return transform
+    if distributed:
+        # The cluster supplies the parallelism; threads per task would oversubscribe the cores.
+        # The result does not depend on the thread count (groups merge in a fixed order).
+        return dataclasses.replace(transform, client=None, scheduler=None, workers=1)
+    return transform
+
+
+def _run_points(model: Model, means: np.ndarray, covs: np.ndarray, v: Gaussian | None, weight: Any,
+                transforms: Sequence[Transform], client: Any, scheduler: str | None) -> list[dict[str, Any]]:
+    if client is None and scheduler is None:
+        return [_point(model, m, P, v, weight, t) for m, P, t in zip(means, covs, transforms)]
+    try:
+        import dask
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        raise SymmonError("a distributed sweep needs the 'dask' extra: pip install symmon[dask]") from exc
+    # The model travels as sympy (it pickles); each worker compiles it once and caches it.
+    tasks = [dask.delayed(_point, pure=False)(model, m, P, v, weight, t) for m, P, t in zip(means, covs, transforms)]
+    if client is not None:
+        return list(client.gather(client.compute(tasks)))
+    return list(dask.compute(*tasks, scheduler=scheduler))
+
+
+def _sweep(model: Model, param: np.ndarray, means: np.ndarray, covs: np.ndarray, v: Gaussian | None,
+           weight: Any, transform: Transform, client: Any, scheduler: str | None, crn: bool) -> SweepResult:
+    if model.n_v and v is None:
+        raise ModelError(f"the model has noise symbols {list(map(str, model.noise))}: pass v=Gaussian(...)")
+    if not model.n_v and v is not None:
+        raise ModelError("v was given but the model declares no noise symbols")
+    K = means.shape[0]
+    is_mc = isinstance(transform, MonteCarlo)
+    if not is_mc and model.n_v == 0:
+        return _batched(model, param, means, covs, weight, transform)
+    distributed = client is not None or scheduler is not None
+    base = _local(transform, distributed)
+    if is_mc and not crn:
+        # Independent streams, one per point, reproducible from the one seed.
+        seeds = [int(s.generate_state(1, np.uint64)[0]) for s in np.random.SeedSequence(transform.seed).spawn(K)]
+        transforms = [dataclasses.replace(base, seed=s) for s in seeds]
+    else:
+        transforms = [base] * K
+    pts = _run_points(model, means, covs, v, weight, transforms, client, scheduler)
+    mse = None
+    if is_mc:
+        mse = {k: np.stack([p["moment_stderr"][k] for p in pts]) for k in ("mean", "cov", "cross_cov")}
+    return SweepResult(
+        param=param,
+        value=np.array([p["value"] for p in pts]),
+        squared=np.array([p["squared"] for p in pts]),
+        stderr=np.array([p["stderr"] for p in pts], dtype=float) if is_mc else None,
+        mean=np.stack([p["mean"] for p in pts]),
+        cov=np.stack([p["cov"] for p in pts]),
+        cross_cov=np.stack([p["cross_cov"] for p in pts]),
+        moment_stderr=mse, weight_name=pts[0]["weight_name"], transform=transform,
+    )
+
+
+def _batched(model: Model, param: np.ndarray, means: np.ndarray, covs: np.ndarray, weight: Any,
+             transform: Transform) -> SweepResult:
+    """A deterministic transform on a noise-free model: one batched evaluation of all points."""
+    b = propagate_many(model, means, covs, transform)
+    parts = [mon_from_moments(b.cov[k], b.cross[k], covs[k], weight, None, b.mean[k]) for k in range(means.shape[0])]
+    sq = np.array([p["squared"] for p in parts])
+    return SweepResult(
+        param=param, value=np.sqrt(np.maximum(sq, 0.0)), squared=sq, stderr=None,
+        mean=b.mean, cov=b.cov, cross_cov=b.cross, moment_stderr=None,
+        weight_name=parts[0]["label"], transform=transform,
+    )
+
+
+# --------------------------------------------------------------------------- public API
+def sweep_alpha(model: Model, u: Gaussian, alphas: ArrayLike, weight="full", transform: Transform | None = None,
+                v: Gaussian | None = None, client: Any = None, scheduler: str | None = None,
+                crn: bool = True) -> SweepResult:
+    """The MoN and the moments of y = g(u, v) with u ~ N(ū, α P) over a grid of α.
+
+    The scaling of the input covariance by α is that of (14) and (44) in Straka & Havlík
+    (2024); the noise v is not scaled.
+
+    Parameters
+    ----------
+    model : Model
+    u : Gaussian
+        N(ū, P): the distribution at α = 1.
+    alphas : array_like (K,)
+        Positive covariance scales.
+    weight : str, ndarray or weights.GeneralWeight
+        As in :func:`symmon.nonlinearity` (default ``"full"``, W = Σ_gg⁻¹/n_y (43)).
+    transform : Transform, default ``TT2()``
+        With :class:`~symmon.MonteCarlo`, every α uses the transform's seed (common random
+        numbers) unless ``crn=False``.
+    v : Gaussian, optional
+        The noise, required when the model has noise symbols.
+    client : dask.distributed.Client, optional
+        Run one task per α on the cluster (Monte Carlo, or models with noise).
+    scheduler : str, optional
+        A local Dask scheduler instead: ``"threads"``, ``"processes"`` or ``"synchronous"``.
+    crn : bool, default True
+        Common random numbers across α; ``False``: independent streams per α.
+
+    Returns
+    -------
+    SweepResult
+        ``param`` holds the α values.
+
+    Examples
+    --------
+    >>> import numpy as np, sympy as sp, symmon as sm
+    >>> from symmon.sweep import sweep_alpha
+    >>> x = sp.Symbol("x")
+    >>> r = sweep_alpha(sm.Model([x], [x**2]), sm.Gaussian([1.0], [[1.0]]), [0.5, 1.0, 2.0])
+    >>> np.round(r.squared, 12)  # M² = 2α / (4 + 2α) for x² with x ~ N(1, α)
+    array([0.2       , 0.33333333, 0.5       ])
+    """
+    model = _check_model(model)
+    tr = _check_transform(transform)
+    _check_dask(client, scheduler)
+    if not isinstance(u, Gaussian):
+        raise TypeError(f"u must be a symmon.Gaussian, got {type(u).__name__}")
+    if u.dim != model.n_u:
+        raise ShapeError(f"u has dimension {u.dim} but the model has {model.n_u} inputs")
+    a = _check_alphas(alphas)
+    means = np.tile(u.mean, (a.size, 1))
+    covs = a[:, None, None] * u.cov[None]
+    return _sweep(model, a, means, covs, v, weight, tr, client, scheduler, crn)
+
+
+def sweep_states(model: Model, means: ArrayLike, covs: ArrayLike, transform: Transform | None = None,
+                 weight="full", v: Gaussian | None = None, client: Any = None, scheduler: str | None = None,
+                 crn: bool = True) -> SweepResult:
+    """The MoN and the moments at each state N(m_k, P_k) of a trajectory.
+
+    Parameters
+    ----------
+    model : Model
+    means : array_like (K, n_u)
+    covs : array_like (K, n_u, n_u)
+    transform : Transform, default ``TT2()``
+        Deterministic transforms on a noise-free model evaluate all K states in one batched
+        call (locally: it is cheaper than shipping them); Monte Carlo runs one task per
+        state, distributed when ``client`` or ``scheduler`` is given.
+    weight : str, ndarray or weights.GeneralWeight
+        As in :func:`symmon.nonlinearity`.
+    v : Gaussian, optional
+        The noise, the same at every state.
+    client, scheduler, crn
+        As in :func:`sweep_alpha`.
+
+    Returns
+    -------
+    SweepResult
+        ``param`` holds the state indices 0, …, K − 1.
+    """
+    model = _check_model(model)
+    tr = _check_transform(transform)
+    _check_dask(client, scheduler)
+    M = np.asarray(means, dtype=float)
+    P = np.asarray(covs, dtype=float)
+    if M.ndim != 2 or M.shape[1] != model.n_u or M.shape[0] == 0:
+        raise ShapeError(f"means must have shape (K, {model.n_u}) with K >= 1, got {M.shape}")
+    if P.shape != (M.shape[0], model.n_u, model.n_u):
+        raise ShapeError(f"covs must have shape {(M.shape[0], model.n_u, model.n_u)}, got {P.shape}")
+    for k in range(M.shape[0]):
+        as_vector(M[k], f"means[{k}]")
+        as_covariance(P[k], f"covs[{k}]")
+    return _sweep(model, np.arange(M.shape[0], dtype=float), M, P, v, weight, tr, client, scheduler, crn)
