@@ -11,6 +11,7 @@ from . import kalman as kalman
 from . import modelfile as modelfile
 from . import mmse as mmse
 from . import problems as problems
+from . import sweep as sweep
 from . import weights as weights
 from .codegen import export_c as export_c
 from .errors import SymmonError as SymmonError
@@ -32,11 +33,12 @@ from .transforms import Exact as Exact
 from .transforms import GaussHermite as GaussHermite
 from .transforms import MonteCarlo as MonteCarlo
 from .transforms import Transform as Transform
+from .transforms.quadrature import quadrature_error as quadrature_error
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "errors", "estimation", "kalman", "modelfile", "mmse", "problems", "weights", "export_c",
+    "errors", "estimation", "sweep", "quadrature_error", "kalman", "modelfile", "mmse", "problems", "weights", "export_c",
     "load_model_file",
     "SymmonError", "Gaussian", "fuse", "KalmanFilter", "Model", "JointMoments",
     "NonlinearityMeasure", "nonlinearity", "compare",
