@@ -1,0 +1,322 @@
+"""The ``symmon`` command: same numbers as the Python API, help, exit codes and output files.
+
+Most tests call :func:`symmon.cli.main` in-process (it returns the exit code) and read
+stdout/stderr with ``capsys``; two run the installed console script as a subprocess.
+"""
+
+from __future__ import annotations
+
+import csv
+import importlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import symmon as sm
+from symmon import cli
+from symmon.modelfile import load_model_file
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+DERIVATIONS = Path(__file__).resolve().parent.parent / "derivations"
+#: The CLI prints floats with repr precision through JSON, so it must agree with the API
+#: to rounding: both run the same deterministic computation (seeded for Monte Carlo).
+CLI_API_RTOL = 1e-12
+CLI_API_ATOL = 1e-12
+#: Small Monte Carlo runs keep the tests fast; the comparison is exact, not statistical.
+MC_SAMPLES = 2000
+SUBCOMMANDS = ("propagate", "nonlinearity", "compare", "prove-invariance", "reproduce", "derive", "codegen")
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def run(capsys, *argv: str) -> tuple[int, str, str]:
+    code = cli.main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def api_transform(name: str) -> sm.Transform:
+    return cli.transform_from_name(name, samples=MC_SAMPLES, seed=3)
+
+
+def assert_close(actual, expected) -> None:
+    np.testing.assert_allclose(np.asarray(actual, dtype=float), expected, rtol=CLI_API_RTOL, atol=CLI_API_ATOL)
+
+
+def no_temp_files(directory: Path) -> bool:
+    return not [p for p in directory.iterdir() if p.name.endswith(".tmp")]
+
+
+# --------------------------------------------------------------------------- same numbers as the API
+@pytest.mark.parametrize("example", ["polar", "bot", "gmti", "rdcos", "radar"])
+@pytest.mark.parametrize("transform", ["tt2", "ut1", "mc"])
+def test_propagate_json_equals_the_python_api(capsys, example, transform):
+    path = EXAMPLES / f"{example}.toml"
+    code, out, err = run(capsys, "propagate", path, "--transform", transform,
+                         "--samples", MC_SAMPLES, "--seed", 3, "--json")
+    assert (code, err) == (0, "")
+    got = json.loads(out)
+    spec = load_model_file(path)
+    m = sm.propagate(spec.model, spec.u, spec.v, api_transform(transform))
+    assert got["model"] == spec.model.name
+    assert_close(got["mean"], m.mean)
+    assert_close(got["cov"], m.cov)
+    assert_close(got["cross_cov"], m.cross_cov)
+    assert (got["stderr"] is None) == (m.stderr is None)
+    if m.stderr is not None:
+        assert_close(got["stderr"]["mean"], m.stderr["mean"])
+
+
+@pytest.mark.parametrize("weight", ["full", "diag", "liu-li", "liu-li-raw"])
+def test_nonlinearity_json_equals_the_python_api(capsys, weight):
+    path = EXAMPLES / "gmti.toml"
+    code, out, _ = run(capsys, "nonlinearity", path, "--weight", weight, "--transform", "ut1", "--json")
+    assert code == 0
+    got = json.loads(out)
+    spec = load_model_file(path)
+    res = sm.nonlinearity(spec.model, spec.u, spec.v, weight, sm.UT.ut1())
+    assert_close([got["value"], got["squared"], got["J_Ab"], got["J_n"]], [res.value, res.squared, res.J_Ab, res.J_n])
+    assert got["stderr"] is None
+
+
+def test_nonlinearity_text_output_has_the_value_and_its_standard_error(capsys):
+    path = EXAMPLES / "polar.toml"
+    code, out, _ = run(capsys, "nonlinearity", path, "--transform", "mc", "--samples", MC_SAMPLES, "--seed", 3)
+    spec = load_model_file(path)
+    res = sm.nonlinearity(spec.model, spec.u, None, "full", api_transform("mc"))
+    assert code == 0
+    assert f"= {res.value:.6g} ± {res.stderr:.2g} (MC standard error)" in out
+
+
+def test_compare_prints_every_transform(capsys):
+    code, out, err = run(capsys, "compare", EXAMPLES / "polar.toml", "--samples", MC_SAMPLES)
+    assert (code, err) == (0, "")
+    rows = {line.split()[0] for line in out.splitlines()[2:2 + len(cli.TRANSFORM_NAMES)]}
+    assert rows == set(cli.TRANSFORM_NAMES)
+    for name in cli.TRANSFORM_NAMES:
+        assert f"{name:>4}: {cli.transform_from_name(name, MC_SAMPLES)!r}" in out
+
+
+def test_compare_json_equals_nonlinearity_per_transform(capsys):
+    path = EXAMPLES / "bot.toml"
+    code, out, _ = run(capsys, "compare", path, "--weight", "diag", "--samples", MC_SAMPLES, "--seed", 3, "--json")
+    assert code == 0
+    rows = json.loads(out)["rows"]
+    assert [r["name"] for r in rows] == list(cli.TRANSFORM_NAMES)
+    spec = load_model_file(path)
+    for r in rows:
+        res = sm.nonlinearity(spec.model, spec.u, spec.v, "diag", api_transform(r["name"]))
+        assert_close([r["mon"], *r["mean"]], [res.value, *res.moments.mean])
+
+
+# --------------------------------------------------------------------------- help
+def test_top_level_help_lists_every_subcommand(capsys):
+    code, out, _ = run(capsys, "--help")
+    assert code == 0
+    for name in SUBCOMMANDS:
+        assert f"\n    {name}" in out          # the command list
+        assert f"symmon {name} " in out        # and an example of it
+
+
+@pytest.mark.parametrize("name", SUBCOMMANDS)
+def test_every_subcommand_help_has_an_example(capsys, name):
+    code, out, _ = run(capsys, name, "--help")
+    assert code == 0
+    assert f"usage: symmon {name}" in out
+    examples = out.split("examples:\n", 1)[1]
+    assert examples.lstrip().startswith(f"symmon {name} ")
+
+
+# --------------------------------------------------------------------------- exit codes
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        ([], "the following arguments are required: COMMAND"),
+        (["frobnicate"], "invalid choice: 'frobnicate'"),
+        (["propagate"], "the following arguments are required: file"),
+        (["propagate", EXAMPLES / "polar.toml", "--transform", "ekf"], "invalid choice: 'ekf'"),
+        (["propagate", EXAMPLES / "polar.toml", "--samples", "0"], "must be a positive integer, got '0'"),
+        (["nonlinearity", EXAMPLES / "polar.toml", "--weight", "max"], "invalid choice: 'max'"),
+        (["nonlinearity", EXAMPLES / "polar.toml", "--alpha-sweep", "1:2"], "must be A:B:N"),
+        (["nonlinearity", EXAMPLES / "polar.toml", "--alpha-sweep", "0:2:3"], "needs finite A, B > 0"),
+        (["nonlinearity", EXAMPLES / "polar.toml", "--csv", "out.csv"], "--plot and --csv need --alpha-sweep"),
+        (["derive", "--all", "remarks"], "not allowed with argument"),
+        (["codegen", EXAMPLES / "polar.toml"], "the following arguments are required: -o/--output"),
+    ],
+)
+def test_usage_errors_exit_2_with_the_usage_on_stderr(capsys, argv, message):
+    code, out, err = run(capsys, *argv)
+    assert code == 2
+    assert out == ""
+    assert "usage: symmon" in err and message in err
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["propagate", "{tmp}/missing.toml"], "missing.toml: model file not found"),
+        (["nonlinearity", "{tmp}/bad.toml"], "unknown function 'system'"),
+        (["compare", "{tmp}"], "model file cannot be read"),
+        (["derive", "no_such_derivation"], "unknown derivation name(s) ['no_such_derivation']"),
+        (["nonlinearity", "{tmp}/lin.toml"], "Σ_gg is singular"),
+    ],
+)
+def test_model_errors_exit_1_with_the_message_on_stderr(capsys, tmp_path, argv, message):
+    (tmp_path / "bad.toml").write_text('name = "bad"\ninputs = ["x"]\noutputs = ["system(x)"]\n[u]\nmean = [0]\ncov = 1\n')
+    (tmp_path / "lin.toml").write_text(
+        'name = "lin"\ninputs = ["x", "y"]\noutputs = ["x + y", "2*x + 2*y"]\n[u]\nmean = [0, 0]\nstd = [1, 1]\n')
+    argv = [str(a).replace("{tmp}", str(tmp_path)) for a in argv]
+    code, out, err = run(capsys, *argv)
+    assert code == 1
+    assert out == ""
+    assert err.startswith("symmon: error: ") and message in err
+
+
+# --------------------------------------------------------------------------- output files
+def test_alpha_sweep_writes_csv_and_png_atomically(capsys, tmp_path):
+    csv_path, png_path = tmp_path / "mon.csv", tmp_path / "mon.png"
+    csv_path.write_text("old contents\n")               # replaced whole, never appended to
+    code, out, err = run(capsys, "nonlinearity", EXAMPLES / "polar.toml", "--weight", "diag",
+                         "--alpha-sweep", "0.01:100:5", "--csv", csv_path, "--plot", png_path)
+    assert code == 0
+    assert err == ""                                     # no progress bar: stderr is not a terminal
+    with open(csv_path, newline="") as fh:
+        rows = list(csv.reader(fh))
+    assert rows[0] == ["alpha", "mon", "stderr"]
+    spec = load_model_file(EXAMPLES / "polar.toml")
+    alphas = np.logspace(-2, 2, 5)
+    assert_close([float(r[0]) for r in rows[1:]], alphas)
+    expected = [sm.nonlinearity(spec.model, sm.Gaussian(spec.u.mean, a * spec.u.cov), None, "diag").value
+                for a in alphas]
+    assert_close([float(r[1]) for r in rows[1:]], expected)
+    assert png_path.read_bytes().startswith(PNG_MAGIC)
+    assert f"wrote {csv_path}" in out and f"wrote {png_path}" in out
+    assert no_temp_files(tmp_path)
+
+
+def test_a_sweep_that_fails_midway_writes_nothing(capsys, tmp_path, monkeypatch):
+    nl = importlib.import_module("symmon.nonlinearity")   # the package attribute is the function
+
+    csv_path = tmp_path / "mon.csv"
+    csv_path.write_text("previous results\n")
+    real, calls = nl.nonlinearity, []
+
+    def failing(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise sm.errors.SingularMatrixError("injected failure at the third alpha")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(nl, "nonlinearity", failing)
+    code, _, err = run(capsys, "nonlinearity", EXAMPLES / "polar.toml", "--alpha-sweep", "0.1:10:4",
+                       "--csv", csv_path, "--plot", tmp_path / "mon.png")
+    assert code == 1 and "injected failure at the third alpha" in err
+    assert csv_path.read_text() == "previous results\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mon.csv"]
+
+
+def test_reproduce_writes_png_and_csv(capsys, tmp_path):
+    code, out, _ = run(capsys, "reproduce", "fig1", "--samples", MC_SAMPLES, "--out", tmp_path, "--no-progress")
+    assert code == 0
+    assert (tmp_path / "fig1.png").read_bytes().startswith(PNG_MAGIC)
+    header = (tmp_path / "fig1.csv").read_text().splitlines()[0].split(",")
+    assert header[0] == "alpha" and "liu_rad" in header
+    assert f"wrote {tmp_path / 'fig1.png'}" in out
+    assert no_temp_files(tmp_path)
+
+
+TINY_DERIVATION = '''
+from _common import Result
+NAME = "{name}"
+TITLE = "two plus two"
+SOURCE = "arithmetic"
+def check():
+    return Result(name=NAME, title=TITLE, source=SOURCE, passed=(2 + 2 == {value}),
+                  details=["2 + 2 == {value}"], latex=["2 + 2 = {value}"])
+'''
+
+
+@pytest.fixture
+def derivations(tmp_path, monkeypatch):
+    """A derivations directory with the real helper and two one-line checks (fast)."""
+    d = tmp_path / "derivations"
+    d.mkdir()
+    shutil.copy(DERIVATIONS / "_common.py", d / "_common.py")
+    (d / "sums.py").write_text(TINY_DERIVATION.format(name="sums", value=4))
+    (d / "wrong.py").write_text(TINY_DERIVATION.format(name="wrong", value=5))
+    monkeypatch.setenv("SYMMON_DERIVATIONS", str(d))
+    return d
+
+
+def test_derive_name_writes_the_markdown_report(capsys, tmp_path, derivations):
+    report = tmp_path / "report.md"
+    code, out, _ = run(capsys, "derive", "sums", "--out", report)
+    assert code == 0
+    text = report.read_text()
+    assert text.startswith("# symmon derivations")
+    assert "1 of 1 checks passed." in text and "## PASS `sums`: two plus two" in text
+    assert "PASS  sums: two plus two" in out
+
+
+def test_derive_all_fails_with_exit_1_when_a_check_fails(capsys, tmp_path, derivations):
+    report = tmp_path / "report.md"
+    code, out, _ = run(capsys, "derive", "--all", "--out", report)
+    assert code == 1
+    assert "1 of 2 checks passed." in report.read_text()
+    assert "FAIL  wrong" in out
+
+
+def test_derive_list(capsys, derivations):
+    assert run(capsys, "derive", "--list") == (0, "sums\nwrong\n", "")
+
+
+def test_codegen_writes_c(capsys, tmp_path):
+    outdir = tmp_path / "build" / "polar"                 # created if missing
+    code, out, _ = run(capsys, "codegen", EXAMPLES / "polar.toml", "-o", outdir)
+    assert code == 0
+    assert sorted(p.name for p in outdir.iterdir()) == ["polar.c", "polar.h"]
+    header = (outdir / "polar.h").read_text()
+    for fn in ("polar_g", "polar_tt2", "polar_ut"):
+        assert fn in header
+    assert f"wrote {outdir / 'polar.c'}" in out
+
+
+@pytest.mark.parametrize(("weight", "verdict"), [("full", "holds"), ("diag", "holds"), ("liu-li-raw", "fails")])
+def test_prove_invariance(capsys, weight, verdict):
+    units = pytest.importorskip("symmon.units")
+    if not hasattr(units, "prove_invariance"):
+        pytest.skip("symmon.units.prove_invariance is not written yet")
+    spec = load_model_file(EXAMPLES / "polar.toml")
+    proof = units.prove_invariance(spec.model, weight, mean=spec.u.mean, cov=spec.u.cov)
+    code, out, _ = run(capsys, "prove-invariance", EXAMPLES / "polar.toml", "--weight", weight, "--numeric")
+    assert code == 0                       # liu-li-raw is known not to be invariant: not an error
+    assert proof.holds == (verdict == "holds")
+    assert f"with weight '{weight}' (tt2): {verdict}" in out
+
+
+# --------------------------------------------------------------------------- the installed command
+SYMMON = Path(sys.executable).with_name("symmon")
+
+
+@pytest.mark.skipif(not SYMMON.exists(), reason="the console script is not installed (pip install -e .)")
+def test_console_script_prints_json(tmp_path):
+    proc = subprocess.run([str(SYMMON), "propagate", str(EXAMPLES / "radar.toml"), "--transform", "ut1", "--json"],
+                          capture_output=True, text=True, cwd=tmp_path, env={**os.environ, "MPLBACKEND": "Agg"},
+                          check=False)
+    assert proc.returncode == 0, proc.stderr
+    spec = load_model_file(EXAMPLES / "radar.toml")
+    assert_close(json.loads(proc.stdout)["mean"], sm.propagate(spec.model, spec.u, transform=sm.UT.ut1()).mean)
+
+
+@pytest.mark.skipif(not SYMMON.exists(), reason="the console script is not installed (pip install -e .)")
+def test_console_script_exit_code_1_on_a_missing_file(tmp_path):
+    proc = subprocess.run([str(SYMMON), "compare", "nope.toml"], capture_output=True, text=True, cwd=tmp_path,
+                          check=False)
+    assert proc.returncode == 1
+    assert proc.stdout == ""
+    assert proc.stderr == "symmon: error: nope.toml: model file not found\n"
