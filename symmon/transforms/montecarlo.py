@@ -104,7 +104,8 @@ class _Job:
 def _run_group(cm: CompiledModel, job: _Job) -> Stats:
     d = job.mean.shape[0]
     if job.qmc:
-        from scipy.stats import norm, qmc
+        from scipy.special import ndtri
+        from scipy.stats import qmc
 
         engine = qmc.Sobol(d, scramble=True, seed=np.random.default_rng(job.seed))
     else:
@@ -120,7 +121,8 @@ def _run_group(cm: CompiledModel, job: _Job) -> Stats:
                 warnings.filterwarnings("ignore", message="The balance properties")
                 U = engine.random(m)
             eps = np.finfo(float).eps
-            Zs = norm.ppf(np.clip(U, eps, 1 - eps))
+            # ndtri is what norm.ppf evaluates (bit for bit), without its ~2x argument-checking overhead.
+            Zs = ndtri(np.clip(U, eps, 1 - eps))
         else:
             Zs = gen.standard_normal((m, d))
         W = job.mean + Zs @ job.L.T
