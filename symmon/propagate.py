@@ -8,7 +8,7 @@ from scipy.linalg import block_diag
 
 from .compile import CompiledModel, compile_model
 from .errors import ModelError, ShapeError
-from .gaussian import Gaussian, as_covariance, as_vector
+from .gaussian import PSD_RTOL, SYMMETRY_RTOL, Gaussian, as_covariance, as_vector
 from .model import Model
 from .moments import JointMoments
 from .transforms import UT, Transform
@@ -118,7 +118,23 @@ def propagate_many(model: Model, means: ArrayLike, covs: ArrayLike, transform: T
         raise ShapeError(f"means must have shape (K, {model.n_u}), got {M.shape}")
     if P.shape != (M.shape[0], model.n_u, model.n_u):
         raise ShapeError(f"covs must have shape {(M.shape[0], model.n_u, model.n_u)}, got {P.shape}")
-    for k in range(M.shape[0]):
+    _validate_batch(M, P)
+    return tr.batch(compiled(model), M, P, model.angle_outputs)
+
+
+def _validate_batch(M: np.ndarray, P: np.ndarray) -> None:
+    """Batched checks of K means and covariances; the per-state checks only name the culprit."""
+    if M.shape[0] == 0:
+        raise ShapeError("means must hold at least one state")
+    finite = np.isfinite(M).all() and np.isfinite(P).all()
+    scale = np.maximum(np.abs(P).max(axis=(1, 2)), np.finfo(float).tiny)
+    asym = np.abs(P - P.transpose(0, 2, 1)).max(axis=(1, 2))
+    ok = finite and np.all(asym <= SYMMETRY_RTOL * scale)
+    if ok:
+        eig_min = np.linalg.eigvalsh(0.5 * (P + P.transpose(0, 2, 1)))[:, 0]
+        ok = bool(np.all(eig_min >= -PSD_RTOL * scale))
+    if ok:
+        return
+    for k in range(M.shape[0]):  # slow path: find and name the first bad state
         as_vector(M[k], f"means[{k}]")
         as_covariance(P[k], f"covs[{k}]")
-    return tr.batch(compiled(model), M, P, model.angle_outputs)
