@@ -16,6 +16,27 @@ def _fmt_arr(a: np.ndarray) -> str:
     return np.array2string(np.asarray(a), precision=4, suppress_small=False)
 
 
+def latex_number(x: float, digits: int = 4) -> str:
+    """A float as LaTeX math: ``1.5 \\cdot 10^{-7}`` rather than Python's ``1.5e-07``."""
+    x = float(x)
+    if np.isnan(x):
+        return r"\mathrm{NaN}"
+    if np.isinf(x):
+        return r"\infty" if x > 0 else r"-\infty"
+    text = f"{x:.{digits}g}"
+    if "e" not in text:
+        return text
+    mantissa, exponent = text.split("e")
+    return rf"{mantissa} \cdot 10^{{{int(exponent)}}}"
+
+
+def latex_text(s: str) -> str:
+    """Escape LaTeX's special characters for use inside ``\\text{...}``."""
+    table = {"\\": r"\textbackslash{}", "{": r"\{", "}": r"\}", "$": r"\$", "&": r"\&", "#": r"\#",
+             "%": r"\%", "_": r"\_", "^": r"\^{}", "~": r"\~{}"}
+    return "".join(table.get(c, c) for c in s)
+
+
 @dataclass(frozen=True, eq=False)
 class JointMoments:
     """E y, Cov y and Cov(y, u) of y = g(u, v), with what produced them.
@@ -85,11 +106,11 @@ class JointMoments:
         def mat(a: np.ndarray) -> str:
             a = np.atleast_2d(a)
             return r"\begin{bmatrix}" + r" \\ ".join(
-                " & ".join(f"{x:.4g}" for x in row) for row in a
+                " & ".join(latex_number(x) for x in row) for row in a
             ) + r"\end{bmatrix}"
 
         return (
             r"$\mathsf{E}\,y = " + mat(self.mean[:, None]) + r",\ \operatorname{Cov} y = "
             + mat(self.cov) + r",\ \operatorname{Cov}(y, u) = " + mat(self.cross_cov)
-            + r"\quad\text{(" + repr(self.transform).replace("_", r"\_") + r")}$"
+            + r"\quad\text{(" + latex_text(repr(self.transform)) + r")}$"
         )
