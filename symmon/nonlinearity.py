@@ -33,7 +33,7 @@ from . import weights as _weights
 from .compile import compile_model
 from .gaussian import Gaussian
 from .model import Model
-from .moments import JointMoments
+from .moments import JointMoments, latex_number, latex_text
 from .propagate import compiled, joint_input, propagate
 from .transforms import TT1, TT2, UT, GaussHermite, MonteCarlo, Transform
 from .transforms.base import batch_sqrt
@@ -98,9 +98,9 @@ class NonlinearityMeasure:
         return f"NonlinearityMeasure({self.value:.6g}{se}, weight={self.weight_name!r}, transform={self.transform!r})"
 
     def _repr_latex_(self) -> str:
-        se = rf" \pm {self.stderr:.2g}" if self.stderr is not None else ""
+        se = rf" \pm {latex_number(self.stderr, 2)}" if self.stderr is not None else ""
         return (
-            rf"$M_{{\text{{{self.weight_name}}}}} = {self.value:.6g}{se}"
+            rf"$M_{{\text{{{latex_text(self.weight_name)}}}}} = {latex_number(self.value, 6)}{se}"
             rf"\quad\text{{({self.structure} noise, {type(self.transform).__name__})}}$"
         )
 
