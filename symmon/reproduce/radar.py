@@ -39,12 +39,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import sympy as sp
 
 from .. import estimation
 from ..gaussian import Gaussian
 from ..io import save_figure, write_csv
 from ..model import Model
+from ..problems import radar_h, radar_hinv
 from ..propagate import compiled
 from ..transforms import TT1, UT
 
@@ -65,19 +65,13 @@ ELLIPSE_LEVEL = 0.95
 
 def hinv_model(p: tuple[float, float]) -> Model:
     """x = h⁻¹(y) = p + [r cos φ, r sin φ] (the lecture's ``hinv``), inputs (r, φ)."""
-    r, phi = sp.symbols("r phi", real=True)
-    p1, p2 = (sp.Float(float(c)) for c in p)
-    return Model([r, phi], [p1 + r * sp.cos(phi), p2 + r * sp.sin(phi)], name="radar_hinv")
+    return radar_hinv(p)
 
 
 def h_model(p: tuple[float, float]) -> Model:
     """y = [hypot(x − p) + e_r; atan2(x₂ − p₂, x₁ − p₁) + e_φ], the lecture's ``g`` without the
     pass-through of x (the joint [x; y] is built by :func:`symmon.estimation.indirect`)."""
-    x1, x2, er, ephi = sp.symbols("x1 x2 e_r e_phi", real=True)
-    p1, p2 = (sp.Float(float(c)) for c in p)
-    r = sp.sqrt((x1 - p1) ** 2 + (x2 - p2) ** 2)
-    phi = sp.atan2(x2 - p2, x1 - p1)
-    return Model([x1, x2], [r + er, phi + ephi], noise=[er, ephi], name="radar_h", angles=[1])
+    return radar_h(p)
 
 
 def measurement(sensor: int) -> Gaussian:
