@@ -43,12 +43,17 @@ def derivations_dir() -> Path:
     Returns
     -------
     pathlib.Path
-        ``$SYMMON_DERIVATIONS`` if set, else ``derivations/`` next to the package.
+        ``$SYMMON_DERIVATIONS`` if set, else ``derivations/`` next to the package (a
+        source checkout or an editable install), else ``./derivations``.
     """
     env = os.environ.get(ENV_VAR)
     if env:
         return Path(env).expanduser().resolve()
-    return Path(__file__).resolve().parent.parent / "derivations"
+    beside = Path(__file__).resolve().parent.parent / "derivations"
+    if beside.is_dir():
+        return beside
+    # An installed (non-editable) package has no scripts beside it: use a checkout's.
+    return Path.cwd() / "derivations"
 
 
 def available() -> list[str]:
@@ -126,6 +131,11 @@ def run(names: Sequence[str] | None = None) -> list[Any]:
         (a :class:`symmon.SymmonError`) for a name that is not an available script.
     """
     known = available()
+    if not known:
+        raise SymmonError(
+            f"no derivation scripts found in {derivations_dir()}: run from a symmon source "
+            f"checkout or set ${ENV_VAR} to its derivations/ directory"
+        )
     if isinstance(names, str):
         names = [names]
     selected = list(known if names is None else names)
