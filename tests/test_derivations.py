@@ -115,3 +115,12 @@ def test_directory_override_and_failures(monkeypatch: pytest.MonkeyPatch, tmp_pa
     proc = subprocess.run([sys.executable, str(tmp_path / "false_claim.py")], cwd=tmp_path,
                           capture_output=True, text=True, timeout=SCRIPT_TIMEOUT_S)
     assert proc.returncode == 1 and "[FAILED]" in proc.stdout
+
+
+def test_no_scripts_found_is_a_clear_error(tmp_path, monkeypatch):
+    from symmon import derive
+    from symmon.errors import SymmonError
+
+    monkeypatch.setenv(derive.ENV_VAR, str(tmp_path))
+    with pytest.raises(SymmonError, match="no derivation scripts found"):
+        derive.run(None)
