@@ -265,6 +265,16 @@ class Model:
         """Substitute parameter values (not inputs or noise) into the outputs."""
         return Model(self._u, [e.subs(values) for e in self._g], self._v, self._name, self._angle_args())
 
+    def change_units(self, S_u=None, o_u=None, S_y=None, o_y=None, S_v=None) -> "Model":
+        """The same relation in new units: ḡ(ū, v̄) = S_y⁻¹(g(S_u ū + o_u, S_v v̄) − o_y) (18), (20).
+
+        See :func:`symmon.units.change_units` for the conventions (S maps new-unit numbers
+        to old-unit numbers).
+        """
+        from .units import change_units  # units imports model: import here to avoid a cycle
+
+        return change_units(self, S_u=S_u, o_u=o_u, S_y=S_y, o_y=o_y, S_v=S_v)
+
     # --- display -----------------------------------------------------------
     def __repr__(self) -> str:
         parts = [f"inputs={[str(s) for s in self._u]}"]
