@@ -834,6 +834,10 @@ def _weight_label(weight: Any) -> str:
             raise SymmonError(f"unknown weight {weight!r}: use one of {WEIGHTS}, a sympy Matrix W̄ or a callable")
         return weight
     if isinstance(weight, sp.MatrixBase):
+        if weight.rows != weight.cols or (weight - weight.T).applyfunc(sp.simplify) != sp.zeros(*weight.shape):
+            raise SymmonError(f"weight W̄ must be a symmetric matrix, got {weight.tolist()}")
+        if not weight.free_symbols and not weight.is_positive_definite:
+            raise SymmonError("weight W̄ must be positive definite (41)")
         return "matrix W̄ (38)"
     if callable(weight):
         return "callable W̄ (38), (41)"
