@@ -12,7 +12,9 @@ from . import modelfile as modelfile
 from . import mmse as mmse
 from . import problems as problems
 from . import sweep as sweep
+from . import units as units
 from . import weights as weights
+from . import codegen as codegen
 from .codegen import export_c as export_c
 from .errors import SymmonError as SymmonError
 from .gaussian import Gaussian as Gaussian
@@ -38,7 +40,7 @@ from .transforms.quadrature import quadrature_error as quadrature_error
 __version__ = "0.1.0"
 
 __all__ = [
-    "errors", "estimation", "sweep", "quadrature_error", "kalman", "modelfile", "mmse", "problems", "weights", "export_c",
+    "errors", "estimation", "sweep", "units", "quadrature_error", "kalman", "modelfile", "mmse", "problems", "weights", "codegen", "export_c",
     "load_model_file",
     "SymmonError", "Gaussian", "fuse", "KalmanFilter", "Model", "JointMoments",
     "NonlinearityMeasure", "nonlinearity", "compare",
