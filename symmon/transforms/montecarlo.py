@@ -45,7 +45,8 @@ class Stats:
     @classmethod
     def of(cls, Z: np.ndarray) -> "Stats":
         """Statistics of the rows of Z (N, d)."""
-        mean = Z.mean(axis=0)
+        # A BLAS product: numpy's axis-0 reduction of a narrow (N, d) array is ~10x slower.
+        mean = np.ones(Z.shape[0]) @ Z / Z.shape[0]
         D = Z - mean
         return cls(Z.shape[0], mean, D.T @ D)
 
