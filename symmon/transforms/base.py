@@ -13,6 +13,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from ..angles import wrap_angle  # re-exported: defined beside the other angle helpers
 from ..compile import CompiledModel
 from ..gaussian import matrix_sqrt
 
@@ -45,13 +46,6 @@ class Transform:
     def batch(self, cm: CompiledModel, means: np.ndarray, covs: np.ndarray,
               angles: frozenset[int] = frozenset()) -> BatchMoments:
         raise NotImplementedError  # pragma: no cover - abstract
-
-
-def wrap_angle(a: np.ndarray) -> np.ndarray:
-    """Wrap angles to (−π, π]."""
-    out = np.mod(a + np.pi, 2 * np.pi) - np.pi
-    # np.mod maps +π to −π; keep +π, which is the closed end of (−π, π].
-    return np.where(out == -np.pi, np.pi, out)
 
 
 def batch_sqrt(covs: np.ndarray) -> np.ndarray:
