@@ -13,6 +13,7 @@ from __future__ import annotations
 from functools import cached_property
 from typing import Iterable, Sequence
 
+import numpy as np
 import sympy as sp
 
 from .errors import ModelError
@@ -122,8 +123,13 @@ class Model:
     def _resolve_angles(self, angles) -> tuple[frozenset[int], frozenset[int]]:
         out_idx: set[int] = set()
         in_idx: set[int] = set()
-        for a in angles or ():
-            if isinstance(a, int):
+        if angles is None:
+            angles = ()
+        elif isinstance(angles, (int, np.integer, sp.Symbol)):
+            angles = (angles,)  # a single declaration, e.g. angles=1
+        for a in angles:
+            if isinstance(a, (int, np.integer)) and not isinstance(a, (bool, np.bool_)):
+                a = int(a)  # numpy indices too; bool is an int but never an index
                 if not 0 <= a < len(self._g):
                     raise ModelError(f"angle output index {a} out of range for {len(self._g)} outputs")
                 out_idx.add(a)
