@@ -15,6 +15,7 @@ from typing import Iterable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .angles import angle_indices, innovation, unwrap_near, wrap_components
 from .errors import CovarianceError, ShapeError, SingularMatrixError
 
 __all__ = ["Gaussian", "fuse", "as_covariance", "as_vector"]
@@ -57,6 +58,12 @@ def as_covariance(
         What to do with a matrix that is not positive semi-definite: raise a
         :class:`CovarianceError`; clip negative eigenvalues to zero (with a warning
         that gives the clipped mass); or add ``eps * I`` (with a warning that gives eps).
+
+    Notes
+    -----
+    Asymmetry up to ``SYMMETRY_RTOL`` times the largest entry (rounding) is removed by
+    P ← (P + Pᵀ)/2; anything larger raises, so a covariance is never symmetrized beyond
+    rounding without an error.  The repairs ``"clip"`` and ``"jitter"`` always warn.
 
     Raises
     ------
@@ -194,11 +201,24 @@ class Gaussian:
         ix = self._index(idx)
         return Gaussian(self._mean[ix], self._cov[np.ix_(ix, ix)])
 
-    def condition(self, idx: Sequence[int] | int, value: ArrayLike) -> "Gaussian":
+    def condition(self, idx: Sequence[int] | int, value: ArrayLike,
+                  angles: Iterable[int] | None = None) -> "Gaussian":
         """Condition on observed components (Lemma 7.1).
 
         With x the components not in ``idx`` and y those in ``idx``,
         x̂ = x̂₀ + P^{xy}(P^{yy})⁻¹(y − ŷ), Cov = P^{xx} − P^{xy}(P^{yy})⁻¹P^{yx}.
+
+        Parameters
+        ----------
+        idx : int or sequence of int
+            The observed components.
+        value : array_like, shape (len(idx),)
+            Their observed values.
+        angles : iterable of int, optional
+            Components (indices into this Gaussian, observed or not) that are angles.
+            The innovation y − ŷ of an observed angle is wrapped to (−π, π] (an angle
+            measured at +3.1 with a prediction at −3.1 is 0.083 rad away, not 6.2), and
+            the conditional mean of an unobserved angle is returned wrapped.
 
         Returns
         -------
@@ -215,10 +235,12 @@ class Gaussian:
         if ix.size == 0:
             raise ShapeError("condition: idx covers every component; nothing is left")
         y = as_vector(value, "value", dim=iy.size)
+        ang = set(angle_indices(angles, self.dim, "angles"))
         Pyy = self._cov[np.ix_(iy, iy)]
         Pxy = self._cov[np.ix_(ix, iy)]
         K = solve_psd(Pyy, Pxy.T, "P^yy").T
-        mean = self._mean[ix] + K @ (y - self._mean[iy])
+        nu = innovation(y, self._mean[iy], [k for k, i in enumerate(iy) if i in ang])
+        mean = wrap_components(self._mean[ix] + K @ nu, [k for k, i in enumerate(ix) if i in ang])
         cov = self._cov[np.ix_(ix, ix)] - K @ Pxy.T
         return Gaussian(mean, 0.5 * (cov + cov.T), psd="clip" if _tiny_negative(cov) else "raise")
 
@@ -273,10 +295,19 @@ def solve_psd(A: np.ndarray, B: np.ndarray, name: str) -> np.ndarray:
     return np.linalg.solve(A, B)
 
 
-def fuse(*gaussians: Gaussian) -> Gaussian:
+def fuse(*gaussians: Gaussian, angles: Iterable[int] | None = None) -> Gaussian:
     """Fuse independent estimates of the same quantity (the sensor fusion formula).
 
     P = (Σ_k P_k⁻¹)⁻¹,  x̂ = P Σ_k P_k⁻¹ x̂_k.
+
+    Parameters
+    ----------
+    *gaussians : Gaussian
+        The estimates, all of the same dimension.
+    angles : iterable of int, optional
+        Components that are angles.  Each estimate's angles are first moved by multiples
+        of 2π to within π of the first estimate's (x̂₁ + wrap(x̂_k − x̂₁): the innovation
+        is wrapped), and the fused angles are returned wrapped to (−π, π].
 
     Raises
     ------
@@ -284,6 +315,12 @@ def fuse(*gaussians: Gaussian) -> Gaussian:
         If fewer than one estimate is given or the dimensions differ.
     SingularMatrixError
         If a covariance is singular.
+
+    Examples
+    --------
+    >>> g = fuse(Gaussian([3.1], [[0.01]]), Gaussian([-3.1], [[0.01]]), angles=[0])
+    >>> round(abs(float(g.mean[0])), 6)   # π, not 0
+    3.141593
     """
     if len(gaussians) == 0:
         raise ShapeError("fuse needs at least one Gaussian")
@@ -292,12 +329,14 @@ def fuse(*gaussians: Gaussian) -> Gaussian:
     n = gaussians[0].dim
     if any(g.dim != n for g in gaussians):
         raise ShapeError(f"fuse: dimensions differ: {[g.dim for g in gaussians]}")
+    ang = angle_indices(angles, n, "angles")
+    ref = gaussians[0].mean
     info = np.zeros((n, n))
     vec = np.zeros(n)
     for k, g in enumerate(gaussians):
         Pinv = solve_psd(g.cov, np.eye(n), f"covariance of estimate {k}")
         info += Pinv
-        vec += Pinv @ g.mean
+        vec += Pinv @ unwrap_near(g.mean, ref, ang)
     P = np.linalg.inv(info)
     P = 0.5 * (P + P.T)
-    return Gaussian(P @ vec, P)
+    return Gaussian(wrap_components(P @ vec, ang), P)
