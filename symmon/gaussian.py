@@ -276,14 +276,39 @@ def _tiny_negative(P: np.ndarray) -> bool:
 def matrix_sqrt(P: np.ndarray) -> np.ndarray:
     """A square root L of a PSD matrix with L Lᵀ = P.
 
-    Cholesky when P is positive definite; otherwise the symmetric eigen-decomposition
-    (singular PSD covariances, e.g. an input with zero variance).
+    Cholesky when P is positive definite.  For a singular PSD P (an input with zero
+    variance, perfectly correlated inputs) the Cholesky recursion is continued with zero
+    columns where the pivot vanishes: the limit of the Cholesky factors of P + εI as
+    ε → 0, so the points of UT, Gauss–Hermite and Monte Carlo do not jump when a variance
+    reaches 0, and the rule on the informative subspace is the rule of the reduced
+    problem.  If that fails (P indefinite beyond rounding), the symmetric
+    eigen-decomposition with negative eigenvalues clipped to 0 is used.
     """
     try:
         return np.linalg.cholesky(P)
     except np.linalg.LinAlgError:
+        L = _semidefinite_cholesky(P)
+        if L is not None:
+            return L
         w, V = np.linalg.eigh(P)
         return V * np.sqrt(np.clip(w, 0.0, None))
+
+
+def _semidefinite_cholesky(P: np.ndarray) -> np.ndarray | None:
+    """Cholesky with zero pivots allowed, or None when L Lᵀ does not reproduce P."""
+    n = P.shape[0]
+    scale = max(float(np.max(np.abs(np.diag(P)))), np.finfo(float).tiny) if n else 1.0
+    tol = 10 * n * np.finfo(float).eps * scale  # a pivot at rounding level is a zero
+    L = np.zeros_like(P, dtype=float)
+    for j in range(n):
+        d = P[j, j] - L[j, :j] @ L[j, :j]
+        if d <= tol:
+            continue  # no variance left in this coordinate: a zero column
+        L[j, j] = np.sqrt(d)
+        L[j + 1:, j] = (P[j + 1:, j] - L[j + 1:, :j] @ L[j, :j]) / L[j, j]
+    if np.max(np.abs(L @ L.T - P), initial=0.0) > 1e3 * tol:
+        return None
+    return L
 
 
 def solve_psd(A: np.ndarray, B: np.ndarray, name: str) -> np.ndarray:
