@@ -182,5 +182,5 @@ ORIGIN = sm.Gaussian([0.0, 0.0], np.eye(2))
 )
 def test_derivative_error_names_output_and_point(tr, outputs, i):
     m = sm.Model([x, y], outputs, name="bad_singular")
-    with pytest.raises(DerivativeError, match=rf"Jacobian of output {i} is NaN or inf at the point \(x=0, y=0\)"):
+    with pytest.raises(DerivativeError, match=rf"Jacobian of output {i} \(.+\) is NaN or inf at the point \(x=0, y=0\)"):
         sm.propagate(m, ORIGIN, transform=tr)

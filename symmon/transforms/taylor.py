@@ -29,8 +29,9 @@ def _check_finite(cm: CompiledModel, means: np.ndarray, arr: np.ndarray, what: s
     if bad.any():
         k, i = np.argwhere(bad)[0]
         point = ", ".join(f"{s}={x:.6g}" for s, x in zip(cm.symbols, means[k]))
+        expr = cm.source_exprs[i] if i < len(cm.source_exprs) else "?"
         raise DerivativeError(
-            f"the {what} of output {i} is NaN or inf at the point ({point}); the function is "
+            f"the {what} of output {i} ({expr}) is NaN or inf at the point ({point}); the function is "
             "not differentiable there (e.g. sqrt at 0 or atan2(0, 0)): use a sampling "
             "transform (UT, Gauss-Hermite, Monte Carlo) or move the expansion point"
         )
