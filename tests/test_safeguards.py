@@ -1,0 +1,290 @@
+"""Covariance safeguards and degenerate cases (issue 8): explicit, never silent.
+
+- ``Gaussian(psd=...)``: raise (default), clip with the clipped mass, or jitter with ε.
+- The UT's negative weights: a covariance that is not PSD is reported and returned as
+  computed.
+- Monte Carlo's shifted sums: a large offset in y costs no digits.
+- Singular Σ_uu (pseudo-inverse, said in ``.notes``) and singular Σ_gg (W^full refused
+  with the null combination named).
+- TT1/TT2 refuse NaN derivatives, naming the output and the point.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import symmon as sm
+from symmon.errors import CovarianceError, DerivativeError, SingularMatrixError
+from symmon.gaussian import PSD_RTOL, matrix_sqrt
+
+#: Closed forms and exact identities agree to rounding.
+EXACT_TOL = 1e-12
+#: The issue's bound for Monte Carlo with an offset of 1e8 in y (same seed): the offset
+#: output is rounded to ulp(1e8) ≈ 1.5e-8 per sample, i.e. 1.5e-10 relative to σ = 100.
+OFFSET_RTOL = 1e-9
+#: Rotations/reductions that map rule points onto rule points: rounding only.
+REDUCTION_TOL = 1e-9
+#: Monte Carlo bound: 5 standard errors (seeded generator).
+N_SE = 5
+
+x, y, z = sp.symbols("x y z", real=True)
+
+
+# --------------------------------------------------------------------------- Gaussian(psd=...)
+INDEFINITE = np.array([[1.0, 2.0], [2.0, 1.0]])  # eigenvalues 3 and −1
+
+
+def test_psd_default_raises():
+    with pytest.raises(CovarianceError, match=r"not positive semi-definite: smallest eigenvalue -1.*psd='clip'"):
+        sm.Gaussian([0.0, 0.0], INDEFINITE)
+
+
+def test_psd_clip_warns_with_the_clipped_mass_and_clips():
+    """Eigenvalues (3, −1) → (3, 0): P = 3 v vᵀ with v = (1, 1)/√2, i.e. 1.5 · ones; the
+    clipped mass is the sum of the negative eigenvalues' magnitudes, 1."""
+    with pytest.warns(RuntimeWarning, match=r"clipped negative eigenvalues to 0 \(clipped mass 1\)"):
+        g = sm.Gaussian([0.0, 0.0], INDEFINITE, psd="clip")
+    assert g.cov == pytest.approx(1.5 * np.ones((2, 2)), abs=EXACT_TOL)
+
+
+def test_psd_jitter_warns_with_eps_and_is_positive_definite():
+    with pytest.warns(RuntimeWarning, match=r"added jitter eps = ([0-9.e+-]+) times I") as rec:
+        g = sm.Gaussian([0.0, 0.0], INDEFINITE, psd="jitter")
+    eps_reported = float(re.search(r"eps = ([0-9.e+-]+)", str(rec[0].message)).group(1))
+    added = g.cov - INDEFINITE
+    eps = added[0, 0]
+    assert added == pytest.approx(eps * np.eye(2), abs=EXACT_TOL)  # εI, nothing else
+    assert eps == pytest.approx(eps_reported, rel=5e-3)  # the message rounds to 3 digits
+    assert eps == pytest.approx(1.0 + PSD_RTOL * 2.0, rel=EXACT_TOL)  # −λ_min plus the tolerance
+    assert np.linalg.eigvalsh(g.cov)[0] > 0
+    np.linalg.cholesky(g.cov)  # positive definite: Cholesky succeeds
+
+
+def test_psd_unknown_mode():
+    with pytest.raises(ValueError, match="psd must be one of"):
+        sm.Gaussian([0.0], [[1.0]], psd="fix")
+
+
+def test_asymmetry_beyond_rounding_raises():
+    """No silent symmetrization: only rounding-level asymmetry is averaged away."""
+    with pytest.raises(CovarianceError, match="not symmetric"):
+        sm.Gaussian([0.0, 0.0], [[1.0, 0.1], [0.0, 1.0]])
+
+
+@pytest.mark.parametrize("mode", ["clip", "jitter"])
+def test_psd_repair_is_silent_only_when_nothing_is_repaired(mode):
+    """A PSD matrix passes unchanged through every mode (filterwarnings=error checks it)."""
+    P = np.array([[2.0, 1.0], [1.0, 2.0]])
+    assert np.array_equal(sm.Gaussian([0.0, 0.0], P, psd=mode).cov, P)
+
+
+# --------------------------------------------------------------------------- UT negative weights
+def _sum_of_squares(n: int) -> tuple[sm.Model, sm.Gaussian]:
+    xs = sp.symbols(f"x0:{n}", real=True)
+    return sm.Model(list(xs), [sum(s**2 for s in xs)]), sm.Gaussian(np.zeros(n), np.eye(n))
+
+
+def _ut_cov_identity(ut: sm.UT, n: int, Y: np.ndarray) -> np.ndarray:
+    """Σ_k wᶜ_k (Y_k − ȳ)(Y_k − ȳ)ᵀ written as S + (β − α²) d dᵀ with e_k = Y_k − Y_0,
+    S = Σ_{k≥1} w_k e_k e_kᵀ, d = Σ_{k≥1} w_k e_k (using Σ wᵐ = 1, wᶜ_0 = wᵐ_0 + 1 − α² + β).
+    It is PSD whenever β ≥ α²; only β < α² with Σ_{k≥1} w_k > 1 can make it indefinite."""
+    wm, _, _ = ut.weights(n)
+    e = Y[1:] - Y[0]
+    S = np.einsum("k,ki,kj->ij", wm[1:], e, e)
+    d = wm[1:] @ e
+    return S + (ut.beta - ut.alpha**2) * np.outer(d, d)
+
+
+@pytest.mark.parametrize("n", [4, 5, 8])
+def test_ut1_large_n_negative_variance_warns_and_is_returned_as_computed(n):
+    """ut1 (κ = 3 − n < 0 for n > 3) on y = ‖u‖², u ~ N(0, I): the points ±√3 eᵢ give
+    ȳ = n (exact) and Var y = n(3 − n) < 0, against the true 2n.  The UT warns and returns
+    exactly that number, neither clipped nor symmetrized."""
+    model, u = _sum_of_squares(n)
+    with pytest.warns(RuntimeWarning, match=r"negative sigma-point weight .* returned as computed, not repaired"):
+        m = sm.propagate(model, u, transform=sm.UT.ut1())
+    assert m.mean[0] == pytest.approx(n, rel=EXACT_TOL)
+    assert m.cov[0, 0] == pytest.approx(n * (3 - n), rel=EXACT_TOL)
+    assert m.info["indefinite"] is True
+    Y = m.info["transformed_points"][0]
+    assert m.cov == pytest.approx(_ut_cov_identity(sm.UT.ut1(), n, Y), rel=1e-10)
+    with pytest.raises(CovarianceError, match="not positive semi-definite"):
+        m.y  # the Gaussian of y refuses it unless a repair is asked for explicitly
+
+
+def test_custom_kappa_indefinite_matrix_warns():
+    """UT(α=1, β=0, κ=−5), n = 6, y = (x₀², x₁²): points ±e_i, weights ½, w₀ = −5.
+    S = I and d = (1, 1), so Cov y = S − d dᵀ = [[0, −1], [−1, 0]] (eigenvalues ±1)."""
+    xs = sp.symbols("x0:6", real=True)
+    model = sm.Model(list(xs), [xs[0] ** 2, xs[1] ** 2])
+    ut = sm.UT(1.0, 0.0, -5.0)
+    with pytest.warns(RuntimeWarning, match=r"w0c = -5.*smallest eigenvalue -1"):
+        m = sm.propagate(model, sm.Gaussian(np.zeros(6), np.eye(6)), transform=ut)
+    assert m.cov == pytest.approx(np.array([[0.0, -1.0], [-1.0, 0.0]]), abs=EXACT_TOL)
+    assert np.array_equal(m.cov, m.cov.T)  # symmetric as computed, not by a repair
+
+
+@pytest.mark.parametrize("n", [5, 20])
+def test_ut2_negative_weight_but_psd_no_warning(n):
+    """ut2 has w₀ = 1 − 1/α² ≈ −10⁶ for every n, but β = 2 ≥ α², so its covariance
+    S + (β − α²) d dᵀ is PSD in exact arithmetic: no warning.  For y = ‖u‖² it is
+    α²n² + (β − α²)n² = βn² (against the true 2n)."""
+    model, u = _sum_of_squares(n)
+    m = sm.propagate(model, u, transform=sm.UT.ut2())  # filterwarnings=error: no warning
+    assert m.cov[0, 0] == pytest.approx(2.0 * n**2, rel=1e-8)  # w₀ ≈ −1e6 costs ~6 digits
+    assert "indefinite" not in m.info
+
+
+# --------------------------------------------------------------------------- MC offsets
+R = sp.sqrt(x**2 + y**2)
+U_FAR = sm.Gaussian([1e4, 0.0], np.diag([100.0**2, 100.0**2]))  # a range of about 1e4, σ = 100
+MC_OFFSET = sm.MonteCarlo(40_000, seed=7, groups=4, chunk=1024)  # many chunks: Chan merges
+
+
+@pytest.fixture(scope="module")
+def offset_moments():
+    return {
+        off: sm.propagate(sm.Model([x, y], [R + off, x * y / 1e4 + off]), U_FAR, transform=MC_OFFSET)
+        for off in (0.0, -1e4, 1e8)
+    }
+
+
+@pytest.mark.parametrize("offset, rtol", [(1e8, OFFSET_RTOL), (-1e4, EXACT_TOL * 100)])
+def test_mc_offset_loses_no_digits(offset_moments, offset, rtol):
+    """Same seed: y + 1e8 gives Cov y and Cov(y, u) unchanged to 1e-9 relative, and the
+    range (about 1e4) agrees with range − 1e4 to rounding: no digits are lost to E y."""
+    a, b = offset_moments[0.0], offset_moments[offset]
+    assert np.abs(b.cov - a.cov).max() < rtol * np.abs(a.cov).max()
+    assert np.abs(b.cross_cov - a.cross_cov).max() < rtol * np.abs(a.cross_cov).max()
+    assert np.abs((b.mean - offset) - a.mean).max() < rtol * max(abs(offset), 1e4)
+
+
+def test_naive_sums_would_lose_the_digits():
+    """The check above can fail: E y² − (E y)² in double precision at y ≈ 1e8 with σ = 100
+    has an error of about ulp(1e16) ≈ 2 per sample, far beyond 1e-9 relative of σ² = 1e4."""
+    gen = np.random.default_rng(0)
+    w = U_FAR.sample(40_000, gen)
+    yv = np.hypot(w[:, 0], w[:, 1]) + 1e8
+    naive = np.mean(yv**2) - np.mean(yv) ** 2
+    good = np.var(yv)
+    assert abs(naive - good) > OFFSET_RTOL * good * 1e3
+
+
+# --------------------------------------------------------------------------- singular Σ_uu
+Z_VALUE = 2.0
+P_XY = np.array([[0.5, 0.1], [0.1, 0.3]])
+FULL = sm.Model([x, y, z], [x * y + z * x, sp.sqrt(x**2 + y**2) + z**2])
+REDUCED = sm.Model([x, y], [e.subs(z, Z_VALUE) for e in FULL.outputs])
+U_SING = sm.Gaussian([1.0, 2.0, Z_VALUE], np.block([[P_XY, np.zeros((2, 1))], [np.zeros((1, 3))]]))
+U_RED = sm.Gaussian([1.0, 2.0], P_XY)
+
+#: Perfectly correlated inputs: y = x + 1 almost surely; the reduced model is g(x, x + 1).
+CORR = sm.Model([x, y], [x * y, sp.exp(y / 4) + x**2])
+CORR_RED = sm.Model([x], [e.subs(y, x + 1) for e in CORR.outputs])
+U_CORR = sm.Gaussian([1.0, 2.0], 0.3 * np.ones((2, 2)))
+U_CORR_RED = sm.Gaussian([1.0], [[0.3]])
+
+# The rules whose points on the informative subspace are those of the reduced problem:
+# TT2 (derivatives), Gauss–Hermite (a zero column of the square root collapses its axis),
+# and ut1 (its spread √(n + λ) = √3 does not depend on n, and the collapsed points add
+# their weights 1/6 each to the centre's, which is what w₀ = (3 − n)/3 does for n − 1).
+REDUCIBLE = [pytest.param(sm.TT2(), id="tt2"), pytest.param(sm.GaussHermite(5), id="gh5"),
+             pytest.param(sm.UT.ut1(), id="ut1")]
+CASES = {
+    "zero-variance": (FULL, U_SING, REDUCED, U_RED, "rank 2 of 3"),
+    "correlated": (CORR, U_CORR, CORR_RED, U_CORR_RED, "rank 1 of 2"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+@pytest.mark.parametrize("transform", REDUCIBLE)
+@pytest.mark.parametrize("weight", ["full", "diag", "liu-li"])
+def test_singular_input_cov_uses_the_pseudo_inverse(case, transform, weight):
+    """Σ_uu singular: M² uses Σ_gu Σ_uu⁺ Σ_ug, the best affine fit on the informative
+    subspace, says so in ``.notes``, and equals the MoN of the reduced model."""
+    model, u, red_model, u_red, rank = CASES[case]
+    a = sm.nonlinearity(model, u, weight=weight, transform=transform)
+    b = sm.nonlinearity(red_model, u_red, weight=weight, transform=transform)
+    assert a.value == pytest.approx(b.value, abs=REDUCTION_TOL)
+    assert a.residual_cov == pytest.approx(b.residual_cov, abs=REDUCTION_TOL * np.abs(b.moments.cov).max())
+    assert any("Σ_uu is singular" in n and "pseudo-inverse" in n and rank in n for n in a.notes)
+    assert b.notes == ()
+
+
+@pytest.mark.parametrize("transform", REDUCIBLE)
+def test_zero_variance_input_cross_cov(transform):
+    """Cov(y, z) = 0 for the constant input, and Cov(y, [x, y]) is the reduced model's."""
+    a = sm.propagate(FULL, U_SING, transform=transform)
+    b = sm.propagate(REDUCED, U_RED, transform=transform)
+    assert np.array_equal(a.cross_cov[:, 2], np.zeros(2))
+    assert a.cross_cov[:, :2] == pytest.approx(b.cross_cov, rel=REDUCTION_TOL)
+
+
+def test_singular_input_cov_monte_carlo():
+    mc = sm.MonteCarlo(10**5, seed=11)
+    a = sm.nonlinearity(FULL, U_SING, transform=mc)
+    b = sm.nonlinearity(REDUCED, U_RED, transform=mc)
+    assert abs(a.value - b.value) < N_SE * np.hypot(a.stderr, b.stderr)
+    assert any("pseudo-inverse" in n for n in a.notes)
+
+
+def test_singular_sqrt_is_the_limit_of_cholesky():
+    """The square root of a singular PSD matrix continues Cholesky (zero columns), so a
+    rule does not jump when a variance reaches 0."""
+    P = U_SING.cov
+    L = matrix_sqrt(P)
+    assert L @ L.T == pytest.approx(P, abs=EXACT_TOL)
+    assert L[:2, :2] == pytest.approx(np.linalg.cholesky(P_XY), abs=EXACT_TOL)
+    assert np.array_equal(L[2], np.zeros(3)) and np.array_equal(L[:, 2], np.zeros(3))
+    eps = 1e-14
+    assert L == pytest.approx(np.linalg.cholesky(P + eps * np.eye(3)), abs=1e-6)
+
+
+def test_indefinite_sqrt_falls_back_to_clipped_eigen():
+    L = matrix_sqrt(np.array([[1.0, 2.0], [2.0, 1.0]]))
+    assert L @ L.T == pytest.approx(1.5 * np.ones((2, 2)), abs=EXACT_TOL)
+
+
+# --------------------------------------------------------------------------- singular Σ_gg
+@pytest.mark.parametrize("transform", [sm.TT2(), sm.UT.ut1(), sm.MonteCarlo(20_000, seed=2)],
+                         ids=["tt2", "ut1", "mc"])
+def test_singular_output_cov_full_weight_names_the_combination(transform):
+    """y = (x, y, x + y): y₀ + y₁ − y₂ has no variance, so W^full = Σ_gg⁻¹/n_y (43) does
+    not exist; the error names that combination (up to sign and normalisation)."""
+    model = sm.Model([x, y], [x, y, x + y])
+    u = sm.Gaussian([1.0, 2.0], [[1.0, 0.2], [0.2, 0.5]])
+    with pytest.raises(SingularMatrixError, match="has no variance") as exc:
+        sm.nonlinearity(model, u, weight="full", transform=transform)
+    terms = dict((int(i), float(c)) for c, i in re.findall(r"([-0-9.e+]+)\*y(\d)", str(exc.value)))
+    v = np.array([terms.get(i, 0.0) for i in range(3)])
+    expected = np.array([1.0, 1.0, -1.0]) / np.sqrt(3)
+    assert min(np.abs(v - expected).max(), np.abs(v + expected).max()) < 1e-3  # printed to 3 digits
+    # the diagonal weight needs only the variances and works
+    assert float(sm.nonlinearity(model, u, weight="diag", transform=transform)) >= 0
+
+
+# --------------------------------------------------------------------------- NaN derivatives
+@pytest.mark.parametrize("transform", [sm.TT1(), sm.TT2()], ids=["tt1", "tt2"])
+@pytest.mark.parametrize(
+    "outputs, index, text",
+    [([sp.sqrt(x**2 + y**2)], 0, r"sqrt\(x\*\*2 \+ y\*\*2\)"), ([x + y, sp.atan2(y, x)], 1, r"atan2\(y, x\)")],
+    ids=["sqrt", "atan2"],
+)
+def test_nan_derivative_names_output_and_point(transform, outputs, index, text):
+    model = sm.Model([x, y], outputs)
+    u = sm.Gaussian([0.0, 0.0], np.eye(2))
+    with pytest.raises(DerivativeError, match=rf"output {index} \({text}\) is NaN or inf at the point \(x=0, y=0\)"):
+        sm.propagate(model, u, transform=transform)
+    with pytest.raises(DerivativeError, match=rf"output {index}"):
+        sm.nonlinearity(model, u, transform=transform)
+
+
+def test_sampling_rules_work_at_the_singular_point():
+    """The remedy the error suggests: the UT never differentiates."""
+    m = sm.propagate(sm.Model([x, y], [sp.sqrt(x**2 + y**2)]), sm.Gaussian([0.0, 0.0], np.eye(2)),
+                     transform=sm.UT.cubature())
+    assert m.mean[0] == pytest.approx(np.sqrt(2.0), rel=EXACT_TOL)  # all four points at radius √2
