@@ -5,6 +5,7 @@ evaluation, C code), and their moments computed by TT1, TT2, the unscented famil
 Gauss–Hermite, Monte Carlo and exact polynomial moments.
 """
 
+from . import angles as angles
 from . import errors as errors
 from . import estimation as estimation
 from . import kalman as kalman
@@ -40,7 +41,7 @@ from .transforms.quadrature import quadrature_error as quadrature_error
 __version__ = "0.1.0"
 
 __all__ = [
-    "errors", "estimation", "sweep", "units", "quadrature_error", "kalman", "modelfile", "mmse", "problems", "weights", "codegen", "export_c",
+    "angles", "errors", "estimation", "sweep", "units", "quadrature_error", "kalman", "modelfile", "mmse", "problems", "weights", "codegen", "export_c",
     "load_model_file",
     "SymmonError", "Gaussian", "fuse", "KalmanFilter", "Model", "JointMoments",
     "NonlinearityMeasure", "nonlinearity", "compare",
