@@ -28,7 +28,7 @@ from symmon.problems import gmti
 from symmon.propagate import compiled
 from symmon.sweep import sweep_alpha
 from symmon.transforms import montecarlo
-from symmon.transforms.montecarlo import Stats, merge_all
+from symmon.transforms.montecarlo import Stats, group_generator, merge_all
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -143,7 +143,7 @@ def test_merged_group_statistics_equal_the_concatenated_samples():
     L = np.linalg.cholesky(cov)
     parts = []
     for n_g, seed in zip(tr.sizes(), np.random.SeedSequence(7).spawn(5)):
-        W = mean + np.random.default_rng(seed).standard_normal((n_g, 2)) @ L.T
+        W = mean + group_generator(seed).standard_normal((n_g, 2)) @ L.T
         parts.append(np.hstack([cm.eval_g(W), W]))
     whole = Stats.of(np.vstack(parts))
     merged = merge_all(groups)

@@ -31,7 +31,7 @@ from ..compile import CHUNK, CompiledModel, compile_model
 from ..errors import SamplingError, SymmonError
 from .base import BatchMoments, Transform, batch_sqrt, wrap_angle
 
-__all__ = ["MonteCarlo", "Stats", "merge", "merge_all", "jackknife"]
+__all__ = ["MonteCarlo", "Stats", "merge", "merge_all", "jackknife", "group_generator"]
 
 
 @dataclass(frozen=True)
@@ -43,12 +43,18 @@ class Stats:
     m2: np.ndarray
 
     @classmethod
-    def of(cls, Z: np.ndarray) -> "Stats":
-        """Statistics of the rows of Z (N, d)."""
+    def of(cls, Z: np.ndarray, ones: np.ndarray | None = None, overwrite: bool = False) -> "Stats":
+        """Statistics of the rows of Z (N, d), in two passes (mean, then centred products).
+
+        ``ones`` (a vector of N ones) and ``overwrite=True`` (centre Z in place) let a hot
+        loop reuse its buffers.
+        """
+        n = Z.shape[0]
         # A BLAS product: numpy's axis-0 reduction of a narrow (N, d) array is ~10x slower.
-        mean = np.ones(Z.shape[0]) @ Z / Z.shape[0]
-        D = Z - mean
-        return cls(Z.shape[0], mean, D.T @ D)
+        mean = (np.ones(n) if ones is None else ones) @ Z / n
+        D = Z if overwrite else Z.copy()
+        D -= mean
+        return cls(n, mean, D.T @ D)
 
     @property
     def cov(self) -> np.ndarray:
@@ -86,6 +92,12 @@ def jackknife(groups: Sequence[Stats], fn: Callable[[Stats], np.ndarray]) -> np.
     return np.sqrt((G - 1) / G * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0))
 
 
+def group_generator(seed: np.random.SeedSequence) -> np.random.Generator:
+    """The generator of one group: SFC64, NumPy's fastest bit generator of full statistical
+    quality (its normals cost ~20 % less than PCG64's, the largest single cost per sample)."""
+    return np.random.Generator(np.random.SFC64(seed))
+
+
 def _group_sizes(n: int, G: int) -> list[int]:
     return [n // G + (1 if g < n % G else 0) for g in range(G)]
 
@@ -110,7 +122,7 @@ def _run_group(cm: CompiledModel, job: _Job) -> Stats:
 
         engine = qmc.Sobol(d, scramble=True, seed=np.random.default_rng(job.seed))
     else:
-        gen = np.random.default_rng(job.seed)
+        gen = group_generator(job.seed)
     acc = Stats(0, np.zeros(0), np.zeros((0, 0)))
     shift = None
     done = 0
@@ -139,12 +151,17 @@ def _run_group(cm: CompiledModel, job: _Job) -> Stats:
         if job.angles:
             idx = list(job.angles)
             Y[:, idx] = job.ref[idx] + wrap_angle(Y[:, idx] - job.ref[idx])
-        Z = np.hstack([Y, W])
         if shift is None:
             # Centre every chunk on the group's first sample: a large offset in y (|E y| ≫ std)
-            # would otherwise cost its digits in the means that Chan's merge subtracts.
-            shift = Z[0].copy()
-        s = Stats.of(Z - shift)
+            # would otherwise cost its digits in the sums and in Chan's merge.
+            shift = np.concatenate([Y[0], W[0]])
+            buf = np.empty((job.chunk, Y.shape[1] + W.shape[1]))
+            ones = np.ones(job.chunk)
+        Z = buf[:m]
+        Z[:, : Y.shape[1]] = Y
+        Z[:, Y.shape[1]:] = W
+        Z -= shift
+        s = Stats.of(Z, ones[:m], overwrite=True)
         acc = s if acc.n == 0 else merge(acc, s)
         done += m
     return Stats(acc.n, acc.mean + shift, acc.m2)
