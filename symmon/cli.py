@@ -85,8 +85,8 @@ def transform_from_name(name: str, samples: int = 10**6, seed: int = 0, order: i
     table: dict[str, Callable] = {
         "tt1": t.TT1, "tt2": t.TT2, "ut1": t.UT.ut1, "ut2": t.UT.ut2, "ct": t.UT.cubature,
         "gh": lambda: t.GaussHermite(order),
-        "mc": lambda: t.MonteCarlo(samples, seed=seed),
-        "qmc": lambda: t.MonteCarlo(samples, seed=seed, qmc=True),
+        "mc": lambda: t.MonteCarlo(samples, seed=seed, progress=True),
+        "qmc": lambda: t.MonteCarlo(samples, seed=seed, qmc=True, progress=True),
     }
     if name not in table:
         raise SymmonError(f"unknown transform {name!r}; use one of {TRANSFORM_NAMES}")

@@ -29,6 +29,7 @@ import numpy as np
 
 from ..compile import CHUNK, CompiledModel, compile_model
 from ..errors import SamplingError, SymmonError
+from ..progress import progress_bar
 from .base import BatchMoments, Transform, batch_sqrt, wrap_angle
 
 __all__ = ["MonteCarlo", "Stats", "merge", "merge_all", "jackknife", "group_generator"]
@@ -195,6 +196,8 @@ class MonteCarlo(Transform):
         Run the groups on a Dask cluster.
     scheduler : str, optional
         A Dask scheduler name (``"threads"``, ``"processes"``, ``"synchronous"``).
+    progress : bool
+        Show a progress bar over the groups (on a terminal only).
     """
 
     n: int = 100_000
@@ -205,6 +208,7 @@ class MonteCarlo(Transform):
     workers: int | None = None
     client: Any = field(default=None, compare=False, repr=False)
     scheduler: str | None = None
+    progress: bool = field(default=False, compare=False, repr=False)
 
     exact_degree: ClassVar[float] = 0
     name: ClassVar[str] = "mc"
@@ -245,9 +249,10 @@ class MonteCarlo(Transform):
             return self._dask(cm, jobs)
         workers = self.workers or min(os.cpu_count() or 1, len(jobs))
         if workers == 1:
-            return [_run_group(cm, j) for j in jobs]
+            return [_run_group(cm, j) for j in progress_bar(jobs, "Monte Carlo groups", self.progress)]
         with ThreadPoolExecutor(workers) as pool:
-            return list(pool.map(lambda j: _run_group(cm, j), jobs))
+            done = pool.map(lambda j: _run_group(cm, j), jobs)
+            return list(progress_bar(done, "Monte Carlo groups", self.progress, total=len(jobs)))
 
     def _dask(self, cm: CompiledModel, jobs: list[_Job]) -> list[Stats]:
         try:
