@@ -563,10 +563,10 @@ def inner_product(xhat: ArrayLike, yhat: ArrayLike, Pxy: ArrayLike) -> Result:
     return bilinear(np.eye(x.shape[-1]), x, y, Pxy)
 
 
-def _difference(
+def _joint_pair(
     xhat: ArrayLike, yhat: ArrayLike, Pxx: ArrayLike, Pyy: ArrayLike, Pxy: ArrayLike
-) -> tuple[np.ndarray, np.ndarray]:
-    """Estimate and error covariance of x - y (eq. (36)), after checking the joint covariance."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Validated estimates and covariances of two jointly Gaussian vectors of one dimension."""
     x = _as_vec(xhat, "xhat")
     n = x.shape[-1]
     y = _as_vec(yhat, "yhat", n)
@@ -578,6 +578,14 @@ def _difference(
         ("xhat", x.shape[:-1]), ("yhat", y.shape[:-1]),
         ("Pxx", Px.shape[:-2]), ("Pyy", Py.shape[:-2]), ("Pxy", Pc.shape[:-2]),
     )
+    return x, y, Px, Py, Pc
+
+
+def _difference(
+    xhat: ArrayLike, yhat: ArrayLike, Pxx: ArrayLike, Pyy: ArrayLike, Pxy: ArrayLike
+) -> tuple[np.ndarray, np.ndarray]:
+    """Estimate and error covariance of x - y (eq. (36)), after checking the joint covariance."""
+    x, y, Px, Py, Pc = _joint_pair(xhat, yhat, Pxx, Pyy, Pxy)
     Pd = Px + Py - Pc - np.swapaxes(Pc, -1, -2)
     return x - y, Pd
 
@@ -713,17 +721,7 @@ def cosine_angle(
     ValueError
         If a denominator is zero (x or y is the origin with certainty).
     """
-    x = _as_vec(xhat, "xhat")
-    n = x.shape[-1]
-    y = _as_vec(yhat, "yhat", n)
-    Px = _as_cov(Pxx, "Pxx", n)
-    Py = _as_cov(Pyy, "Pyy", n)
-    Pc = _as_cross(Pxy, "Pxy", n, n)
-    _joint_cov(Px, Py, Pc)
-    _batch(
-        ("xhat", x.shape[:-1]), ("yhat", y.shape[:-1]),
-        ("Pxx", Px.shape[:-2]), ("Pyy", Py.shape[:-2]), ("Pxy", Pc.shape[:-2]),
-    )
+    x, y, Px, Py, Pc = _joint_pair(xhat, yhat, Pxx, Pyy, Pxy)
     num = np.sum(x * y, axis=-1) + np.trace(Pc, axis1=-2, axis2=-1)
     den2 = (np.sum(x * x, axis=-1) + np.trace(Px, axis1=-2, axis2=-1)) * (
         np.sum(y * y, axis=-1) + np.trace(Py, axis1=-2, axis2=-1)
