@@ -17,6 +17,7 @@ from numpy.typing import ArrayLike
 
 from .angles import angle_indices, innovation, unwrap_near, wrap_components
 from .errors import CovarianceError, ShapeError, SingularMatrixError
+from .latex import latex_number
 
 __all__ = ["Gaussian", "fuse", "as_covariance", "as_vector"]
 
@@ -250,8 +251,8 @@ class Gaussian:
         return f"N([{m}], [{rows}])"
 
     def _repr_latex_(self) -> str:
-        m = r" \\ ".join(_fmt(x) for x in self._mean)
-        P = r" \\ ".join(" & ".join(_fmt(x) for x in r) for r in self._cov)
+        m = r" \\ ".join(latex_number(x, 3) for x in self._mean)
+        P = r" \\ ".join(" & ".join(latex_number(x, 3) for x in r) for r in self._cov)
         return (
             r"$\mathcal{N}\left(\begin{bmatrix}" + m + r"\end{bmatrix},\ "
             r"\begin{bmatrix}" + P + r"\end{bmatrix}\right)$"

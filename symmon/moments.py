@@ -8,33 +8,13 @@ from typing import Any, Mapping
 import numpy as np
 
 from .gaussian import Gaussian
+from .latex import latex_number, latex_text
 
 __all__ = ["JointMoments"]
 
 
 def _fmt_arr(a: np.ndarray) -> str:
     return np.array2string(np.asarray(a), precision=4, suppress_small=False)
-
-
-def latex_number(x: float, digits: int = 4) -> str:
-    """A float as LaTeX math: ``1.5 \\cdot 10^{-7}`` rather than Python's ``1.5e-07``."""
-    x = float(x)
-    if np.isnan(x):
-        return r"\mathrm{NaN}"
-    if np.isinf(x):
-        return r"\infty" if x > 0 else r"-\infty"
-    text = f"{x:.{digits}g}"
-    if "e" not in text:
-        return text
-    mantissa, exponent = text.split("e")
-    return rf"{mantissa} \cdot 10^{{{int(exponent)}}}"
-
-
-def latex_text(s: str) -> str:
-    """Escape LaTeX's special characters for use inside ``\\text{...}``."""
-    table = {"\\": r"\textbackslash{}", "{": r"\{", "}": r"\}", "$": r"\$", "&": r"\&", "#": r"\#",
-             "%": r"\%", "_": r"\_", "^": r"\^{}", "~": r"\~{}"}
-    return "".join(table.get(c, c) for c in s)
 
 
 @dataclass(frozen=True, eq=False)

@@ -33,7 +33,8 @@ from . import weights as _weights
 from .compile import compile_model
 from .gaussian import Gaussian
 from .model import Model
-from .moments import JointMoments, latex_number, latex_text
+from .latex import latex_number, latex_text
+from .moments import JointMoments
 from .propagate import compiled, joint_input, propagate
 from .transforms import TT1, TT2, UT, GaussHermite, MonteCarlo, Transform
 from .transforms.base import batch_sqrt

@@ -125,3 +125,10 @@ def test_invariance_proof(weight, verdict, nonzero):
     assert s.startswith(r"$M^2(\mathbf{g}, \mathbf{u}) - M^2(\bar{\mathbf{g}}, \bar{\mathbf{u}}) = ")
     assert s.endswith(rf"\quad\text{{({verdict})}}$")
     assert (r"= 0\quad" not in s) == nonzero
+
+
+def test_gaussian_latex_writes_small_numbers_as_powers_of_ten():
+    import symmon as sm
+
+    text = sm.Gaussian([1e-7, 2.0], [[1e-7, 0.0], [0.0, 1.0]])._repr_latex_()
+    assert r"1 \cdot 10^{-7}" in text and "e-07" not in text
