@@ -9,6 +9,7 @@ content hash; otherwise CasADi's virtual machine is used, with a warning given o
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import shutil
@@ -41,11 +42,13 @@ _UNARY = {
 }
 
 
-def _cot(a):
-    return 1 / ca.tan(a)
+_UNARY_EXTRA = {sp.cot: lambda a: 1 / ca.tan(a), sp.sec: lambda a: 1 / ca.cos(a), sp.csc: lambda a: 1 / ca.sin(a)}
 
-
-_UNARY_EXTRA = {sp.cot: _cot, sp.sec: lambda a: 1 / ca.cos(a), sp.csc: lambda a: 1 / ca.sin(a)}
+#: n-ary sympy heads folded left to right with a binary CasADi operation.
+_NARY = {
+    sp.Add: lambda a, b: a + b, sp.Mul: lambda a, b: a * b,
+    sp.Max: ca.fmax, sp.Min: ca.fmin, sp.And: ca.logic_and, sp.Or: ca.logic_or,
+}
 
 
 def to_casadi(exprs: Sequence[sp.Expr], symbols: Sequence[sp.Symbol], xs: ca.SX) -> list[ca.SX]:
@@ -90,18 +93,9 @@ def _convert(e: sp.Basic, walk: Callable):
         return ca.SX(np.e)
     if e.is_Symbol:
         raise UnsupportedFunctionError(f"unknown symbol {e} in expression")
-    if isinstance(e, sp.Add):
-        args = [walk(a) for a in e.args]
-        out = args[0]
-        for a in args[1:]:
-            out = out + a
-        return out
-    if isinstance(e, sp.Mul):
-        args = [walk(a) for a in e.args]
-        out = args[0]
-        for a in args[1:]:
-            out = out * a
-        return out
+    op = _NARY.get(e.func)
+    if op is not None:
+        return functools.reduce(op, [walk(a) for a in e.args])
     if isinstance(e, sp.Pow):
         base, ex = e.args
         b = walk(base)
@@ -123,13 +117,6 @@ def _convert(e: sp.Basic, walk: Callable):
         return ca.log(walk(e.args[0]))
     if isinstance(e, sp.atan2):
         return ca.atan2(walk(e.args[0]), walk(e.args[1]))
-    if isinstance(e, (sp.Max, sp.Min)):
-        op = ca.fmax if isinstance(e, sp.Max) else ca.fmin
-        args = [walk(a) for a in e.args]
-        out = args[0]
-        for a in args[1:]:
-            out = op(out, a)
-        return out
     if isinstance(e, sp.Piecewise):
         # Build from the last branch backwards; if_else is short-circuit-free in SX,
         # but derivatives of the branch not taken do not leak (CASADI-NOTES).
@@ -153,18 +140,6 @@ def _convert(e: sp.Basic, walk: Callable):
         a, b = walk(e.lhs), walk(e.rhs)
         ops = {"<": a < b, "<=": a <= b, ">": a > b, ">=": a >= b, "==": a == b, "!=": a != b}
         return ops[e.rel_op]
-    if isinstance(e, sp.And):
-        args = [walk(a) for a in e.args]
-        out = args[0]
-        for a in args[1:]:
-            out = ca.logic_and(out, a)
-        return out
-    if isinstance(e, sp.Or):
-        args = [walk(a) for a in e.args]
-        out = args[0]
-        for a in args[1:]:
-            out = ca.logic_or(out, a)
-        return out
     if isinstance(e, sp.Not):
         return ca.logic_not(walk(e.args[0]))
     if e == sp.true:
@@ -265,7 +240,6 @@ class _Batched:
         self.n_in = f.size1_in(0)
         self.out_shapes = [f.size_out(i) for i in range(f.n_out())]
         self._maps: dict[int, ca.Function] = {}
-        self._local = threading.local()
 
     def _mapped(self, n: int) -> ca.Function:
         fm = self._maps.get(n)
