@@ -170,11 +170,9 @@ def _cond_cov(model: Model, u: Gaussian, v: Gaussian | None, transform: Transfor
 
 def _outer_rule(transform: Transform, v: Gaussian) -> tuple[np.ndarray, np.ndarray]:
     """Points and weights of the outer integral over v for nested integration."""
-    L = batch_sqrt(v.cov[None])[0]
     if isinstance(transform, UT):
-        wm, _, c = transform.weights(v.dim)
-        D = c * L.T
-        return np.vstack([v.mean, v.mean + D, v.mean - D]), wm
+        return transform.sigma_points(v.mean[None], v.cov[None])[0], transform.weights(v.dim)[0]
+    L = batch_sqrt(v.cov[None])[0]
     order = transform.order if isinstance(transform, GaussHermite) else 5
     Z, w = standard_rule(v.dim, order, v.dim > 4)
     return v.mean + Z @ L.T, w
