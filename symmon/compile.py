@@ -27,7 +27,7 @@ import sympy as sp
 
 from .errors import ShapeError, UnsupportedFunctionError
 
-__all__ = ["to_casadi", "CompiledModel", "compile_model", "cache_dir", "has_compiler"]
+__all__ = ["to_casadi", "CompiledModel", "compile_model", "cache_dir", "has_compiler", "build_shared_library"]
 
 #: Rows per batched call of a mapped function; memory per call stays flat.
 CHUNK = 8192
@@ -196,20 +196,24 @@ def _warn_no_compiler(stacklevel: int) -> None:
             )
 
 
-def _compile_function(f: ca.Function) -> ca.Function:
-    """Compile ``f`` to a shared library (cached by content hash); fall back to ``f``."""
+def build_shared_library(code: str, stem: str, stacklevel: int = 2) -> Path | None:
+    """Compile C source to a shared library, cached on disk by content hash.
+
+    Returns the path of the library, or None (after a warning) when no compiler is
+    available or the compilation fails (``stacklevel`` as in ``warnings.warn``, counted
+    from this function).  The cache key covers the source, the flags,
+    the CasADi version and the compiler, and the library is moved into place atomically,
+    so concurrent processes see all of it or nothing.
+    """
     cc = _compiler()
     if cc is None:
-        _warn_no_compiler(stacklevel=3)
-        return f
-    gen = ca.CodeGenerator(f.name() + ".c", {"with_header": False})
-    gen.add(f)
-    code = gen.dump()
+        _warn_no_compiler(stacklevel=stacklevel)
+        return None
     key = hashlib.sha256(
         (code + " ".join(CFLAGS) + ca.__version__ + cc).encode()
     ).hexdigest()[:24]
     d = cache_dir()
-    so = d / f"{f.name()}_{key}.so"
+    so = d / f"{stem}_{key}.so"
     if not so.exists():
         d.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryDirectory(dir=d) as tmp:
@@ -222,12 +226,25 @@ def _compile_function(f: ca.Function) -> ca.Function:
             )
             if res.returncode != 0:
                 warnings.warn(
-                    f"symmon: compiling {f.name()} failed, using the CasADi VM:\n{res.stderr[-2000:]}",
-                    RuntimeWarning, stacklevel=3,
+                    f"symmon: compiling {stem} failed, using the CasADi VM:\n{res.stderr[-2000:]}",
+                    RuntimeWarning, stacklevel=stacklevel,
                 )
-                return f
-            os.replace(out, so)  # atomic: concurrent processes see all or nothing
-    return ca.external(f.name(), str(so))
+                return None
+            os.replace(out, so)
+    return so
+
+
+def generated_c(f: ca.Function) -> str:
+    """CasADi's C source of ``f`` (no header, no main)."""
+    gen = ca.CodeGenerator(f.name() + ".c", {"with_header": False})
+    gen.add(f)
+    return gen.dump()
+
+
+def _compile_function(f: ca.Function) -> ca.Function:
+    """Compile ``f`` to a shared library (cached by content hash); fall back to ``f``."""
+    so = build_shared_library(generated_c(f), f.name(), stacklevel=4)
+    return f if so is None else ca.external(f.name(), str(so))
 
 
 # --------------------------------------------------------------------------- compiled model
@@ -305,7 +322,7 @@ class CompiledModel:
         self.source_exprs = tuple(outputs)
         self.n_w = len(self.symbols)
         self.n_y = len(outputs)
-        tag = _c_name(name)
+        self.tag = tag = _c_name(name)
         w = ca.SX.sym("w", self.n_w)
         y = ca.densify(ca.vertcat(*to_casadi(outputs, self.symbols, w)))
         self.w_sx, self.y_sx = w, y

@@ -1,0 +1,177 @@
+"""The compiled sampling kernel of Monte Carlo.
+
+For a chunk of standard normal rows z, one compiled C loop writes the rows
+
+    a = [g(w) − s_y;  w − s_w;  1],   w = m + L z,
+
+where s is the shift that keeps the digits (see :mod:`.montecarlo`), and angle outputs
+are first unwrapped around a reference: y_i ← r_i + wrap(y_i − r_i).  NumPy is then left
+one product per chunk, AᵀA, which holds the count, the sums and the cross-products.
+Fusing the affine map, the evaluation and the centring saves three passes over the
+chunk, and the loop is called through ctypes, which releases the GIL, so that threads
+run the evaluation in parallel (CasADi's own call holds it).
+
+The math of the kernel is a CasADi function built from the model's SX graph, and C code
+is generated from it by CasADi; only the row loop around it is written here.  Without a
+C compiler the same CasADi function is evaluated by CasADi's virtual machine.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import threading
+import weakref
+from typing import Sequence
+
+import casadi as ca
+import numpy as np
+
+from ..compile import CompiledModel, build_shared_library, generated_c
+from ..errors import ShapeError, SymmonError
+
+__all__ = ["SampleKernel", "sample_kernel"]
+
+# The row loop: one call of CasADi's generated function per row, its arguments set by
+# pointer arithmetic.  casadi_int is CasADi's default, long long.
+_DRIVER = """
+/* symmon: rows of z in, rows of out out; p is shared by every row. */
+CASADI_SYMBOL_EXPORT int {name}_rows(const casadi_real* z, const casadi_real* p,
+    casadi_real* out, casadi_int n, casadi_int* iw, casadi_real* w) {{
+  const casadi_real* arg[{sz_arg}];
+  casadi_real* res[{sz_res}];
+  casadi_int i;
+  arg[1] = p;
+  for (i = 0; i < n; ++i) {{
+    arg[0] = z + i * {n_z};
+    res[0] = out + i * {n_out};
+    if ({name}(arg, res, iw, w, 0)) return 1;
+  }}
+  return 0;
+}}
+"""
+
+
+def _wrap(a: ca.SX) -> ca.SX:
+    """wrap_angle in SX: (a + π) mod 2π − π, with −π mapped to +π."""
+    b = a + np.pi
+    out = b - 2 * np.pi * ca.floor(b / (2 * np.pi)) - np.pi
+    return ca.if_else(out == -np.pi, np.pi, out)
+
+
+class SampleKernel:
+    """z ↦ [g(m + L z) − s_y; m + L z − s_w; 1] on the rows of a chunk.
+
+    Parameters
+    ----------
+    cm : CompiledModel
+    angles : indices of the outputs that are angles (unwrapped around ``ref``)
+
+    Notes
+    -----
+    The parameters of a call are packed as p = [m, vec(L) (column-major), s, ref].
+    """
+
+    def __init__(self, cm: CompiledModel, angles: Sequence[int] = ()) -> None:
+        nw, ny = cm.n_w, cm.n_y
+        self.n_w, self.n_y = nw, ny
+        self.n_out = ny + nw + 1
+        self.n_p = nw + nw * nw + (ny + nw) + ny
+        z = ca.SX.sym("z", nw)
+        p = ca.SX.sym("p", self.n_p)
+        m = p[:nw]
+        L = ca.reshape(p[nw: nw + nw * nw], nw, nw)
+        s = p[nw + nw * nw: nw + nw * nw + ny + nw]
+        ref = p[nw + nw * nw + ny + nw:]
+        w = m + ca.mtimes(L, z)
+        y = ca.substitute(cm.y_sx, cm.w_sx, w)
+        if angles:
+            y = ca.vertcat(*[ref[i] + _wrap(y[i] - ref[i]) if i in angles else y[i] for i in range(ny)])
+        out = ca.densify(ca.vertcat(y - s[:ny], w - s[ny:], 1))
+        tag = "_".join(["mc", *map(str, sorted(angles))])
+        self.f = ca.Function(f"{cm.tag}_{tag}", [z, p], [out], ["z", "p"], ["a"])
+        self._lib = self._load() if cm.compiled else None
+        self._maps: dict[int, ca.Function] = {}
+        self._lock = threading.Lock()
+
+    @property
+    def compiled(self) -> bool:
+        """True when the kernel runs as compiled C (else CasADi's virtual machine)."""
+        return self._lib is not None
+
+    def _load(self):
+        f = self.f
+        name = f.name()
+        code = generated_c(f) + _DRIVER.format(
+            name=name, sz_arg=max(f.sz_arg(), 2), sz_res=max(f.sz_res(), 1),
+            n_z=self.n_w, n_out=self.n_out,
+        )
+        so = build_shared_library(code, name, stacklevel=4)
+        if so is None:
+            return None
+        lib = ctypes.CDLL(str(so))
+        rows = getattr(lib, f"{name}_rows")
+        rows.argtypes = [ctypes.c_void_p] * 3 + [ctypes.c_longlong] + [ctypes.c_void_p] * 2
+        rows.restype = ctypes.c_int
+        return rows
+
+    def params(self, mean: np.ndarray, L: np.ndarray, shift: np.ndarray, ref: np.ndarray) -> np.ndarray:
+        """Pack the parameters of a call."""
+        return np.concatenate([mean, np.asarray(L, dtype=float).ravel(order="F"), shift, ref])
+
+    def workspace(self) -> tuple[np.ndarray, np.ndarray]:
+        """Work arrays for one thread (integer, real)."""
+        return np.zeros(max(self.f.sz_iw(), 1), dtype=np.int64), np.zeros(max(self.f.sz_w(), 1))
+
+    def __call__(self, Z: np.ndarray, p: np.ndarray, out: np.ndarray,
+                 work: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        """Write the rows for ``Z`` (N, n_w) into ``out`` (N, n_w + n_y + 1).
+
+        Both must be C-contiguous float64; ``p`` comes from :meth:`params`.
+        """
+        N = Z.shape[0]
+        if Z.shape != (N, self.n_w) or out.shape != (N, self.n_out) or p.shape != (self.n_p,):
+            raise ShapeError(
+                f"sampling kernel: need Z (N, {self.n_w}), p ({self.n_p},) and out (N, {self.n_out}); "
+                f"got Z {Z.shape}, p {p.shape}, out {out.shape}"
+            )
+        for name, a in (("Z", Z), ("p", p), ("out", out)):
+            if a.dtype != np.float64 or not a.flags.c_contiguous or (name == "out" and not a.flags.writeable):
+                raise ShapeError(f"sampling kernel: {name} must be a C-contiguous float64 array"
+                                 + (" that can be written" if name == "out" else ""))
+        if N == 0:
+            return
+        if self._lib is not None:
+            iw, w = work if work is not None else self.workspace()
+            if (iw.dtype != np.int64 or w.dtype != np.float64 or iw.size < self.f.sz_iw()
+                    or w.size < self.f.sz_w() or not (iw.flags.c_contiguous and w.flags.c_contiguous)):
+                raise ShapeError("sampling kernel: the work arrays must come from workspace()")
+            if self._lib(Z.ctypes.data, p.ctypes.data, out.ctypes.data, N, iw.ctypes.data, w.ctypes.data):
+                raise SymmonError(f"the compiled sampling kernel {self.f.name()} returned an error")
+            return
+        fb, ev = self._mapped(N).buffer()
+        fb.set_arg(0, memoryview(Z))
+        fb.set_arg(1, memoryview(p))
+        fb.set_res(0, memoryview(out))
+        ev()
+
+    def _mapped(self, N: int) -> ca.Function:
+        with self._lock:
+            fm = self._maps.get(N)
+            if fm is None:
+                fm = self._maps[N] = self.f.map(f"{self.f.name()}_map{N}", "serial", N, [1], [])
+            return fm
+
+
+_kernels: "weakref.WeakKeyDictionary[CompiledModel, dict[tuple[int, ...], SampleKernel]]" = weakref.WeakKeyDictionary()
+_kernels_lock = threading.Lock()
+
+
+def sample_kernel(cm: CompiledModel, angles: Sequence[int] = ()) -> SampleKernel:
+    """The kernel of ``cm`` for these angle outputs, built once per model and angle set."""
+    key = tuple(sorted(angles))
+    with _kernels_lock:
+        per_model = _kernels.setdefault(cm, {})
+        k = per_model.get(key)
+        if k is None:
+            k = per_model[key] = SampleKernel(cm, key)
+        return k

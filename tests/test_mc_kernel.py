@@ -1,0 +1,123 @@
+"""The compiled sampling kernel of Monte Carlo: the same numbers as the plain path.
+
+Reference: w = m + Z Lᵀ with NumPy, g by the model's batched evaluator, angles unwrapped
+with ``wrap_angle``.  The kernel reorders the same arithmetic (L z summed in C instead
+of BLAS), so the tolerance is rounding: a few ulps of the scale of each column.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import symmon as sm
+from symmon.angles import wrap_angle
+from symmon.compile import CompiledModel, has_compiler
+from symmon.errors import SamplingError, ShapeError
+from symmon.problems import bot, gmti
+from symmon.propagate import compiled
+from symmon.transforms.mc_kernel import SampleKernel, _wrap, sample_kernel
+
+#: A reordered sum of 4 products and one evaluation of g: a few ulps of the column scale.
+ROUNDING = 1e-13
+
+PROBLEM = gmti(1.0)
+
+
+def reference(cm, Z, mean, L, shift, ref, angles):
+    W = mean + Z @ L.T
+    Y = cm.eval_g(W)
+    for i in angles:
+        Y[:, i] = ref[i] + wrap_angle(Y[:, i] - ref[i])
+    return np.column_stack([Y - shift[: cm.n_y], W - shift[cm.n_y:], np.ones(len(Z))])
+
+
+def assert_rows_close(A, B):
+    scale = np.maximum(np.abs(B).max(axis=0), 1.0)
+    np.testing.assert_array_less(np.abs(A - B), np.broadcast_to(ROUNDING * scale, A.shape))
+
+
+@pytest.mark.parametrize("angles", [(), (1,)], ids=["plain", "bearing-wrapped"])
+@pytest.mark.parametrize("vm", [False, True], ids=["compiled", "vm"])
+def test_kernel_rows_equal_the_plain_computation(angles, vm):
+    cm = compiled(PROBLEM.model)
+    if vm:
+        cm = CompiledModel(cm.source_exprs, cm.symbols, name="kernel_vm", compiled=False)
+    k = SampleKernel(cm, angles)
+    assert k.compiled == (not vm and has_compiler())
+    rng = np.random.default_rng(0)
+    Z = rng.standard_normal((1000, cm.n_w))
+    mean, L = PROBLEM.u.mean, np.linalg.cholesky(PROBLEM.u.cov)
+    shift = rng.standard_normal(cm.n_y + cm.n_w)
+    # A reference bearing opposite the true one: every sample crosses the cut and is unwrapped.
+    ref = cm.eval_g(mean[None])[0] + np.array([0.0, np.pi, 0.0])
+    A = np.empty((len(Z), k.n_out))
+    k(Z, k.params(mean, L, shift, ref), A)
+    assert_rows_close(A, reference(cm, Z, mean, L, shift, ref, angles))
+    if angles:
+        y1 = A[:, 1] + shift[1]
+        assert np.all(np.abs(y1 - ref[1]) <= np.pi)
+
+
+def test_wrap_in_the_kernel_is_wrap_angle():
+    import casadi as ca
+
+    a = ca.SX.sym("a")
+    f = ca.Function("w", [a], [_wrap(a)])
+    x = np.concatenate([np.linspace(-20, 20, 4001), np.pi * np.arange(-7, 8), [np.nextafter(np.pi, 4)]])
+    got = np.array(f.map(len(x))(x[None])).ravel()
+    # Floor-based and np.mod agree except by rounding in (a + π) mod 2π; both give (−π, π].
+    np.testing.assert_allclose(got, wrap_angle(x), rtol=0, atol=8 * np.finfo(float).eps * 20)
+    assert np.all((got > -np.pi) & (got <= np.pi))
+
+
+def test_monte_carlo_on_the_vm_equals_the_compiled_kernel():
+    cm = compiled(PROBLEM.model)
+    vm = CompiledModel(cm.source_exprs, cm.symbols, name="mc_vm", compiled=False)
+    mc = sm.MonteCarlo(20_000, seed=3, groups=4, workers=1)
+    a = mc.batch(cm, PROBLEM.u.mean[None], PROBLEM.u.cov[None])
+    b = mc.batch(vm, PROBLEM.u.mean[None], PROBLEM.u.cov[None])
+    for name in ("mean", "cov", "cross"):
+        x, y = getattr(a, name), getattr(b, name)
+        np.testing.assert_allclose(x, y, rtol=0, atol=1e-12 * max(np.abs(y).max(), 1.0), err_msg=name)
+
+
+def test_kernels_are_built_once_per_model_and_angle_set():
+    cm = compiled(bot(1.0).model)
+    assert sample_kernel(cm, (0,)) is sample_kernel(cm, [0])
+    assert sample_kernel(cm, ()) is not sample_kernel(cm, (0,))
+
+
+@pytest.mark.parametrize("case", ["Z", "p", "out", "fortran", "float32", "readonly", "work"])
+def test_kernel_rejects_bad_arrays(case):
+    cm = compiled(PROBLEM.model)
+    k = sample_kernel(cm)
+    Z, out = np.zeros((8, cm.n_w)), np.zeros((8, k.n_out))
+    p = k.params(PROBLEM.u.mean, np.eye(cm.n_w), np.zeros(cm.n_y + cm.n_w), np.zeros(cm.n_y))
+    work = None
+    if case == "Z":
+        Z = np.zeros((8, cm.n_w + 1))
+    elif case == "p":
+        p = p[:-1]
+    elif case == "out":
+        out = np.zeros((7, k.n_out))
+    elif case == "fortran":
+        Z = np.asfortranarray(Z)
+    elif case == "float32":
+        Z = Z.astype(np.float32)
+    elif case == "readonly":
+        out.flags.writeable = False
+    elif case == "work":
+        if not k.compiled:
+            pytest.skip("the VM takes no work arrays")
+        work = (np.zeros(k.f.sz_iw() + 1, dtype=np.int32), np.zeros(0))
+    with pytest.raises(ShapeError, match="sampling kernel"):
+        k(Z, p, out, work)
+
+
+def test_overflowing_second_moments_are_reported():
+    x = sp.Symbol("x", real=True)
+    model = sm.Model([x], [1e200 * x])
+    with pytest.raises(SamplingError, match="overflow"):
+        sm.propagate(model, sm.Gaussian([0.0], [[1.0]]), transform=sm.MonteCarlo(1000, seed=0, groups=2))
