@@ -1,14 +1,15 @@
 """Monte Carlo moments: single-pass, chunked, compiled, with error bars.
 
 Samples are split into G independent *groups* (shards), each with its own stream from
-``numpy.random.SeedSequence(seed).spawn(G)``.  A group draws its samples chunk by chunk,
-evaluates g with the compiled batched function, and keeps only sufficient statistics
-(count, mean and centred cross-products of z = [y; w]), merged exactly with Chan's
-formula.  Memory is independent of n, the result does not depend on the chunk size
-(beyond rounding), and the groups can run on threads or on a Dask cluster with the same
-result.  Standard errors come from the delete-one-group jackknife; with ``qmc=True`` each
-group is an independently scrambled Sobol' sequence, so the same jackknife gives
-randomised-QMC error bars.
+``numpy.random.SeedSequence(seed).spawn(G)``.  A group draws its samples chunk by chunk;
+one compiled C loop (:mod:`.mc_kernel`) maps the normals to w = m + L z, evaluates g and
+centres the rows, and one product AᵀA per chunk gives its count, sums and cross-products.
+Only these sufficient statistics are kept, merged exactly with Chan's formula.  Memory is
+independent of n, the result does not depend on the chunk size (beyond rounding), and
+the groups can run on threads (the kernel releases the GIL) or on a Dask cluster with the
+same result.  Standard errors come from the delete-one-group jackknife; with
+``qmc=True`` each group is an independently scrambled Sobol' sequence, so the same
+jackknife gives randomised-QMC error bars.
 
 References
 ----------
@@ -223,7 +224,7 @@ class MonteCarlo(Transform):
     groups : int
         Independent shards; the jackknife over them gives the error bars.
     chunk : int
-        Samples per compiled evaluation (memory per thread ~ chunk · dim · 8 bytes · 4).
+        Samples per compiled kernel call (memory per thread ~ chunk · (2 n_w + n_y + 1) · 8 bytes).
     workers : int or None
         Threads (``None``: the number of CPUs, at most ``groups``).
     client : dask.distributed.Client, optional
