@@ -38,7 +38,7 @@ from .moments import JointMoments
 from .propagate import compiled, joint_input, propagate
 from .transforms import TT1, TT2, UT, GaussHermite, MonteCarlo, Transform
 from .transforms.base import batch_sqrt
-from .transforms.montecarlo import Stats, jackknife, merge_all
+from .transforms.montecarlo import Stats, jackknife, merge_all, moments_of
 from .transforms.quadrature import standard_rule
 
 __all__ = ["NonlinearityMeasure", "nonlinearity", "compare", "format_table", "mon_from_moments"]
@@ -271,9 +271,12 @@ def _mc_stderr(m: JointMoments, model: Model, weight, Sc: np.ndarray) -> float:
     ny, nu = model.n_y, model.n_u
     groups = m.info["groups"]
 
+    nw = model.n_u + model.n_v
+    angles = sorted(model.angle_outputs)
+
     def value(s: Stats) -> float:
-        C = s.cov
-        p = mon_from_moments(C[:ny, :ny], C[:ny, ny:ny + nu], C[ny:ny + nu, ny:ny + nu], weight, Sc)
+        _, cyy, cyw, cww = moments_of(s, ny, nw, angles)
+        p = mon_from_moments(cyy, cyw[:, :nu], cww[:nu, :nu], weight, Sc)
         return np.sqrt(max(p["squared"], 0.0))
 
     return float(jackknife(groups, value))

@@ -248,6 +248,44 @@ def test_mc_and_deterministic_agree_at_the_cut(mc_moments):
     assert abs(m.cov[1, 1] - gh.cov[1, 1]) < N_SE * m.stderr["cov"][1, 1]
 
 
+def _mc_samples(tr: sm.MonteCarlo, u: sm.Gaussian) -> np.ndarray:
+    """The inputs MonteCarlo draws: one SFC64 stream per group from SeedSequence.spawn."""
+    from symmon.transforms.montecarlo import group_generator
+
+    L = np.linalg.cholesky(u.cov)
+    seeds = np.random.SeedSequence(tr.seed).spawn(tr.groups)
+    Z = [group_generator(s).standard_normal((n, u.dim)) for n, s in zip(tr.sizes(), seeds)]
+    return u.mean + np.concatenate(Z) @ L.T
+
+
+def test_mc_angle_mean_is_the_circular_mean_of_its_samples():
+    """As in the UT and Gauss–Hermite rules: the mean is atan2(mean sin, mean cos) and the
+    variance is taken about it, with wrapped residuals.  The samples are rebuilt from the
+    seed; the estimator differs from Σ wrap(b − μ)²/(n − 1) by δ²/(n − 1) (δ the linear
+    minus the circular mean, ~1e-5 here), far below EXACT_TOL."""
+    u = sm.Gaussian(CUT + [0.0, 30.0], P_XY)
+    tr = sm.MonteCarlo(40_000, seed=5, groups=4, chunk=2**14, workers=1)
+    m = sm.propagate(polar([1]), u, transform=tr)
+    W = _mc_samples(tr, u)
+    b = np.arctan2(W[:, 1], W[:, 0])
+    mu = np.arctan2(np.sin(b).mean(), np.cos(b).mean())
+    e = wrap_angle(b - mu)
+    r = np.hypot(W[:, 0], W[:, 1])
+    assert abs(float(angle_diff(m.mean[1], mu))) < EXACT_TOL
+    assert m.cov[1, 1] == pytest.approx(e @ e / (len(e) - 1), rel=EXACT_TOL * 100)
+    assert m.cov[0, 1] == pytest.approx(np.cov(r, e)[0, 1], rel=1e-9)
+    # The linear mean of the unwrapped samples is a different number (third order).
+    assert abs(float(angle_diff(np.mean(mu + e), mu))) > 1e3 * EXACT_TOL
+
+
+def test_mc_angle_error_bar_at_the_cut_is_not_2pi():
+    """Left-out groups put the mean on both sides of ±π: the jackknife must unwrap them."""
+    m = sm.propagate(polar([1]), sm.Gaussian(CUT, P_XY), transform=sm.MonteCarlo(20_000, seed=2))
+    sd = np.sqrt(m.cov[1, 1] / 20_000)
+    assert abs(abs(m.mean[1]) - np.pi) < 5 * sd  # the mean itself sits on the cut
+    assert 0.2 * sd < m.stderr["mean"][1] < 5 * sd
+
+
 # --------------------------------------------------------------------------- MoN across the cut
 def _bot_states():
     """BOT z = atan2(x, y): (−ε, −500) is just across the cut; rotated by π: (ε, 500)."""

@@ -28,9 +28,11 @@ PROBLEM = gmti(1.0)
 def reference(cm, Z, mean, L, shift, ref, angles):
     W = mean + Z @ L.T
     Y = cm.eval_g(W)
-    for i in angles:
+    A = list(angles)
+    for i in A:
         Y[:, i] = ref[i] + wrap_angle(Y[:, i] - ref[i])
-    return np.column_stack([Y - shift[: cm.n_y], W - shift[cm.n_y:], np.ones(len(Z))])
+    z = np.column_stack([Y, W, np.sin(Y[:, A]), np.cos(Y[:, A])])
+    return np.column_stack([z - shift, np.ones(len(Z))])
 
 
 def assert_rows_close(A, B):
@@ -49,7 +51,8 @@ def test_kernel_rows_equal_the_plain_computation(angles, vm):
     rng = np.random.default_rng(0)
     Z = rng.standard_normal((1000, cm.n_w))
     mean, L = PROBLEM.u.mean, np.linalg.cholesky(PROBLEM.u.cov)
-    shift = rng.standard_normal(cm.n_y + cm.n_w)
+    shift = rng.standard_normal(cm.n_y + cm.n_w + 2 * len(angles))
+    assert k.n_out == len(shift) + 1
     # A reference bearing opposite the true one: every sample crosses the cut and is unwrapped.
     ref = cm.eval_g(mean[None])[0] + np.array([0.0, np.pi, 0.0])
     A = np.empty((len(Z), k.n_out))
@@ -94,7 +97,7 @@ def test_kernel_rejects_bad_arrays(case):
     cm = compiled(PROBLEM.model)
     k = sample_kernel(cm)
     Z, out = np.zeros((8, cm.n_w)), np.zeros((8, k.n_out))
-    p = k.params(PROBLEM.u.mean, np.eye(cm.n_w), np.zeros(cm.n_y + cm.n_w), np.zeros(cm.n_y))
+    p = k.params(PROBLEM.u.mean, np.eye(cm.n_w), np.zeros(k.n_z), np.zeros(cm.n_y))
     work = None
     if case == "Z":
         Z = np.zeros((8, cm.n_w + 1))

@@ -4,8 +4,9 @@ For a chunk of standard normal rows z, one compiled C loop writes the rows
 
     a = [g(w) − s_y;  w − s_w;  1],   w = m + L z,
 
-where s is the shift that keeps the digits (see :mod:`.montecarlo`), and angle outputs
-are first unwrapped around a reference: y_i ← r_i + wrap(y_i − r_i).  NumPy is then left
+where s is the shift that keeps the digits (see :mod:`.montecarlo`).  Angle outputs are
+first unwrapped around a reference, y_i ← r_i + wrap(y_i − r_i), and their sines and
+cosines are appended before the 1 (for the circular mean).  NumPy is then left
 one product per chunk, AᵀA, which holds the count, the sums and the cross-products.
 Fusing the affine map, the evaluation and the centring saves three passes over the
 chunk, and the loop is called through ctypes, which releases the GIL, so that threads
@@ -59,35 +60,43 @@ def _wrap(a: ca.SX) -> ca.SX:
 
 
 class SampleKernel:
-    """z ↦ [g(m + L z) − s_y; m + L z − s_w; 1] on the rows of a chunk.
+    """z ↦ a = [g(w) − s_y; w − s_w; sin y_A − s_sin; cos y_A − s_cos; 1], w = m + L z,
+    on the rows of a chunk.
 
     Parameters
     ----------
     cm : CompiledModel
-    angles : indices of the outputs that are angles (unwrapped around ``ref``)
+    angles : indices A of the outputs that are angles.  They are unwrapped around
+        ``ref``, and their sines and cosines are appended (all sines, then all cosines),
+        so that the sample statistics give the circular mean as well.
 
     Notes
     -----
-    The parameters of a call are packed as p = [m, vec(L) (column-major), s, ref].
+    The parameters of a call are packed as p = [m, vec(L) (column-major), s, ref], with
+    s of length ``n_z`` = n_y + n_w + 2|A|; rows have ``n_out`` = n_z + 1 columns.
     """
 
     def __init__(self, cm: CompiledModel, angles: Sequence[int] = ()) -> None:
         nw, ny = cm.n_w, cm.n_y
-        self.n_w, self.n_y = nw, ny
-        self.n_out = ny + nw + 1
-        self.n_p = nw + nw * nw + (ny + nw) + ny
+        angles = tuple(sorted(angles))
+        self.n_w, self.n_y, self.angles = nw, ny, angles
+        self.n_z = ny + nw + 2 * len(angles)
+        self.n_out = self.n_z + 1
+        self.n_p = nw + nw * nw + self.n_z + ny
         z = ca.SX.sym("z", nw)
         p = ca.SX.sym("p", self.n_p)
         m = p[:nw]
         L = ca.reshape(p[nw: nw + nw * nw], nw, nw)
-        s = p[nw + nw * nw: nw + nw * nw + ny + nw]
-        ref = p[nw + nw * nw + ny + nw:]
+        s = p[nw + nw * nw: nw + nw * nw + self.n_z]
+        ref = p[nw + nw * nw + self.n_z:]
         w = m + ca.mtimes(L, z)
         y = ca.substitute(cm.y_sx, cm.w_sx, w)
         if angles:
             y = ca.vertcat(*[ref[i] + _wrap(y[i] - ref[i]) if i in angles else y[i] for i in range(ny)])
-        out = ca.densify(ca.vertcat(y - s[:ny], w - s[ny:], 1))
-        tag = "_".join(["mc", *map(str, sorted(angles))])
+        ya = ca.vertcat(*[y[i] for i in angles]) if angles else ca.SX(0, 1)
+        zfull = ca.vertcat(y, w, ca.sin(ya), ca.cos(ya))
+        out = ca.densify(ca.vertcat(zfull - s, 1))
+        tag = "_".join(["mc", *map(str, angles)])
         self.f = ca.Function(f"{cm.tag}_{tag}", [z, p], [out], ["z", "p"], ["a"])
         self._lib = self._load() if cm.compiled else None
         self._maps: dict[int, ca.Function] = {}

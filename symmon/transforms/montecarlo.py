@@ -34,7 +34,7 @@ from ..progress import progress_bar
 from .base import BatchMoments, Transform, batch_sqrt, wrap_angle
 from .mc_kernel import sample_kernel
 
-__all__ = ["MonteCarlo", "Stats", "merge", "merge_all", "jackknife", "group_generator"]
+__all__ = ["MonteCarlo", "Stats", "merge", "merge_all", "jackknife", "group_generator", "moments_of"]
 
 
 @dataclass(frozen=True)
@@ -117,6 +117,30 @@ class _Job:
     angles: tuple[int, ...]
 
 
+def moments_of(s: Stats, ny: int, nw: int, angles: Sequence[int] = ()
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """E y, Cov y, Cov(y, w) and Cov w from the statistics of z = [y; w; sin y_A; cos y_A].
+
+    An angle output's mean is the circular mean atan2(mean sin y, mean cos y), wrapped to
+    (−π, π], as in the UT and Gauss–Hermite rules, and its variance is taken about that
+    mean: Cov y + δδᵀ, with δ the (wrapped) difference of the linear mean of the
+    unwrapped samples and the circular mean.  δ is of third order in the spread
+    (−E e³/6 for a residual e), so the correction is of sixth order.
+    """
+    C = s.cov
+    mean = s.mean[:ny].copy()
+    cov = C[:ny, :ny].copy()
+    A = list(angles)
+    if A:
+        k, o = len(A), ny + nw
+        circ = wrap_angle(np.arctan2(s.mean[o: o + k], s.mean[o + k: o + 2 * k]))
+        delta = np.zeros(ny)
+        delta[A] = wrap_angle(mean[A] - circ)
+        cov += np.outer(delta, delta)
+        mean[A] = circ
+    return mean, cov, C[:ny, ny: ny + nw], C[ny: ny + nw, ny: ny + nw]
+
+
 def _raw_stats(S: np.ndarray) -> Stats:
     """Statistics of the rows z of A = [z, 1] from S = AᵀA (count, sums, cross-products)."""
     d = S.shape[0] - 1
@@ -125,14 +149,14 @@ def _raw_stats(S: np.ndarray) -> Stats:
     return Stats(int(round(n)), mean, S[:d, :d] - np.outer(S[:d, d], mean))
 
 
-def _sampling_error(A: np.ndarray, shift: np.ndarray, ny: int, m: int, done: int) -> SamplingError:
+def _sampling_error(A: np.ndarray, shift: np.ndarray, ny: int, nw: int, m: int, done: int) -> SamplingError:
     bad = ~np.isfinite(A).all(axis=1)
     if not bad.any():
         return SamplingError(
             f"Monte Carlo: the second moments of g overflow in a chunk of {m} samples "
             f"({done + m} drawn so far in this group): |y| is beyond ~1e154"
         )
-    first = A[np.argmax(bad), ny:-1] + shift[ny:]
+    first = A[np.argmax(bad), ny: ny + nw] + shift[ny: ny + nw]
     return SamplingError(
         f"Monte Carlo: g is NaN or inf at {int(bad.sum())} of {m} samples in a chunk "
         f"({done + m} drawn so far in this group); first bad sample w = {first.tolist()}"
@@ -161,7 +185,7 @@ def _run_group(cm: CompiledModel, job: _Job) -> Stats:
         gen = group_generator(job.seed)
     Zbuf = np.empty((job.chunk, d))
     Abuf = np.empty((job.chunk, kernel.n_out))
-    shift = np.zeros(ny + d)
+    shift = np.zeros(kernel.n_z)
     p = kernel.params(job.mean, job.L, shift, job.ref)
     acc: Stats | None = None
     done = 0
@@ -188,7 +212,7 @@ def _run_group(cm: CompiledModel, job: _Job) -> Stats:
             S = A.T @ A
         # One small check per chunk; the per-row scan only on failure.
         if not np.isfinite(S).all():
-            raise _sampling_error(A, shift, ny, m, done)
+            raise _sampling_error(A, shift, ny, d, m, done)
         s = _raw_stats(S)
         if acc is None:
             # Later chunks are centred on this chunk's mean: re-express it on that shift.
@@ -269,7 +293,8 @@ class MonteCarlo(Transform):
 
     def group_stats(self, cm: CompiledModel, mean: np.ndarray, cov: np.ndarray,
                     angles: frozenset[int] = frozenset()) -> list[Stats]:
-        """The statistics of z = [y; w] for each group, in group order."""
+        """The statistics of z = [y; w; sin y_A; cos y_A] for each group, in group order
+        (A: the angle outputs, unwrapped around g(E w); see :func:`moments_of`)."""
         L = batch_sqrt(cov[None])[0]
         ref = cm.eval_g(mean[None])[0] if angles else np.zeros(cm.n_y)
         seeds = np.random.SeedSequence(self.seed).spawn(self.groups)
@@ -313,23 +338,20 @@ class MonteCarlo(Transform):
     def _single(self, cm, mean, cov, angles):
         groups = self.group_stats(cm, mean, cov, angles)
         total = merge_all(groups)
-        ny = cm.n_y
+        ny, nw, A = cm.n_y, cm.n_w, sorted(angles)
+        mu, Cyy, Cyw, Cww = moments_of(total, ny, nw, A)
 
         def parts(s: Stats) -> np.ndarray:
-            C = s.cov
-            return np.concatenate([s.mean[:ny], C[:ny, :ny].ravel(), C[:ny, ny:].ravel()])
+            m, c, x, _ = moments_of(s, ny, nw, A)
+            # An angle's mean near ±π must not jump by 2π between the left-out groups.
+            m[A] = wrap_angle(m[A] - mu[A])
+            return np.concatenate([m, c.ravel(), x.ravel()])
 
         se = jackknife(groups, parts)
-        nw = cm.n_w
-        C = total.cov
-        mu = total.mean[:ny].copy()
-        if angles:
-            idx = sorted(angles)
-            mu[idx] = wrap_angle(mu[idx])
         stderr = {
             "mean": se[:ny],
             "cov": se[ny: ny + ny * ny].reshape(ny, ny),
             "cross": se[ny + ny * ny:].reshape(ny, nw),
         }
         info = {"groups": groups, "n_samples": total.n, "evaluations": total.n}
-        return BatchMoments(mu, C[:ny, :ny], C[:ny, ny:], stderr=stderr, info=info, input_cov=C[ny:, ny:])
+        return BatchMoments(mu, Cyy, Cyw, stderr=stderr, info=info, input_cov=Cww)
