@@ -7,6 +7,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .errors import ShapeError
 from .gaussian import Gaussian
 from .latex import latex_number, latex_text
 
@@ -43,6 +44,9 @@ class JointMoments:
         Cov u as the transform sees it: ``input.cov`` for the deterministic rules, the
         sample covariance for Monte Carlo (regressions must use it, or the sampling
         error of Σ_gu does not cancel and biases the residual).
+    angles, input_angles : frozenset of int
+        The model's angle outputs and angle inputs (``Model(..., angles=...)``); see
+        :attr:`joint_angles` and :meth:`condition`.
     """
 
     mean: np.ndarray
@@ -54,8 +58,12 @@ class JointMoments:
     stderr: Mapping[str, np.ndarray] | None = None
     info: Mapping[str, Any] = field(default_factory=dict)
     input_cov: np.ndarray | None = None
+    angles: frozenset[int] = frozenset()
+    input_angles: frozenset[int] = frozenset()
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "angles", frozenset(int(i) for i in self.angles))
+        object.__setattr__(self, "input_angles", frozenset(int(i) for i in self.input_angles))
         if self.input_cov is None:
             object.__setattr__(self, "input_cov", self.input.cov)
         for name in ("mean", "cov", "cross_cov", "noise_cross_cov", "input_cov"):
@@ -75,6 +83,45 @@ class JointMoments:
         mean = np.concatenate([u.mean, self.mean])
         cov = np.block([[u.cov, self.cross_cov.T], [self.cross_cov, self.cov]])
         return Gaussian(mean, cov)
+
+    @property
+    def joint_angles(self) -> list[int]:
+        """The components of :attr:`joint`, [u; y], that are angles, for
+        ``joint.condition(..., angles=...)`` and ``sm.fuse(..., angles=...)``."""
+        n_u = self.input.dim
+        return sorted(self.input_angles) + [n_u + i for i in sorted(self.angles)]
+
+    def condition(self, y_observed) -> Gaussian:
+        """The Gaussian of u given an observed y (Lemma 7.1 on :attr:`joint`).
+
+        x̂ = E u + Cov(u, y) (Cov y)⁻¹ (y − E y), Cov = Cov u − Cov(u, y) (Cov y)⁻¹ Cov(y, u),
+        with the innovation of an angle output wrapped to (−π, π] and an angle input's
+        mean returned wrapped.  This is the update step of the indirect approach.
+
+        Parameters
+        ----------
+        y_observed : array_like, shape (n_y,)
+
+        Raises
+        ------
+        ShapeError
+            If ``y_observed`` does not have n_y components.
+        SingularMatrixError
+            If Cov y is singular.
+
+        Examples
+        --------
+        >>> import numpy as np, sympy as sp, symmon as sm
+        >>> x = sp.Symbol("x")
+        >>> m = sm.propagate(sm.Model([x], [2 * x]), sm.Gaussian([0.0], [[1.0]]), transform=sm.TT1())
+        >>> m.condition([2.0]).mean.tolist()   # y = 2x is exact: x = 1, with no variance left
+        [1.0]
+        """
+        n_u, n_y = self.input.dim, self.mean.shape[0]
+        y = np.asarray(y_observed, dtype=float)
+        if y.shape != (n_y,):
+            raise ShapeError(f"y_observed must have shape ({n_y},) (one value per output), got {y.shape}")
+        return self.joint.condition(list(range(n_u, n_u + n_y)), y, angles=self.joint_angles)
 
     def __repr__(self) -> str:
         s = f"JointMoments(by {self.transform!r},\n  mean={_fmt_arr(self.mean)},\n  cov={_fmt_arr(self.cov)},\n  cross_cov={_fmt_arr(self.cross_cov)}"

@@ -93,6 +93,7 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, transform: T
     return JointMoments(
         mean=b.mean[0], cov=b.cov[0], cross_cov=b.cross[0][:, :nu], input=u, transform=tr,
         noise_cross_cov=b.cross[0][:, nu:], stderr=stderr, info=info, input_cov=input_cov,
+        angles=model.angle_outputs, input_angles=model.angle_inputs,
     )
 
 
