@@ -41,7 +41,8 @@ def check() -> Result:
     ck.claim("E|x| -> 2 sigma phi(0) = sigma sqrt(2/pi) at mu = 0", is_zero(formula.subs(mu, 0) - sigma * sp.sqrt(2 / sp.pi)))
     worst = 0.0
     for m, s in POINTS:
-        dens = lambda t: t * stats.norm.pdf(t, m, s)
+        def dens(t, m=m, s=s):
+            return t * stats.norm.pdf(t, m, s)
         q = integrate.quad(dens, 0, np.inf, epsabs=1e-13)[0] - integrate.quad(dens, -np.inf, 0, epsabs=1e-13)[0]
         worst = max(worst, abs(q - lemma1(m, s)))
     ck.claim(f"quadrature agrees at {len(POINTS)} points within {QUAD_TOL:g}", worst < QUAD_TOL, f"max |diff| = {worst:.2e}")

@@ -214,7 +214,7 @@ def _check_name(name: str, from_model: bool) -> str:
 def _wrapper_code(fs: dict[str, ca.Function]) -> tuple[str, str]:
     """Plain-signature wrappers with work arrays of fixed size, and their prototypes."""
     src, proto = [], []
-    for key, f in fs.items():
+    for f in fs.values():
         fname = f.name()
         ins = [f.name_in(i) for i in range(f.n_in())]
         outs = [f.name_out(i) for i in range(f.n_out())]

@@ -35,7 +35,7 @@ from .gaussian import Gaussian
 from .model import Model
 from .latex import latex_number, latex_text
 from .moments import JointMoments
-from .propagate import compiled, joint_input, propagate
+from .propagate import compiled, propagate
 from .transforms import TT1, TT2, UT, GaussHermite, MonteCarlo, Transform
 from .transforms.base import batch_sqrt
 from .transforms.montecarlo import Stats, jackknife, merge_all, moments_of
