@@ -43,7 +43,7 @@ CASADI_SYMBOL_EXPORT int {name}_rows(const casadi_real* z, const casadi_real* p,
   casadi_int i;
   arg[1] = p;
   for (i = 0; i < n; ++i) {{
-    arg[0] = z + i * {n_z};
+    arg[0] = z + i * {n_in};
     res[0] = out + i * {n_out};
     if ({name}(arg, res, iw, w, 0)) return 1;
   }}
@@ -112,7 +112,7 @@ class SampleKernel:
         name = f.name()
         code = generated_c(f) + _DRIVER.format(
             name=name, sz_arg=max(f.sz_arg(), 2), sz_res=max(f.sz_res(), 1),
-            n_z=self.n_w, n_out=self.n_out,
+            n_in=self.n_w, n_out=self.n_out,
         )
         so = build_shared_library(code, name, stacklevel=4)
         if so is None:
@@ -133,9 +133,10 @@ class SampleKernel:
 
     def __call__(self, Z: np.ndarray, p: np.ndarray, out: np.ndarray,
                  work: tuple[np.ndarray, np.ndarray] | None = None) -> None:
-        """Write the rows for ``Z`` (N, n_w) into ``out`` (N, n_w + n_y + 1).
+        """Write the rows for ``Z`` (N, n_w) into ``out`` (N, ``n_out``).
 
-        Both must be C-contiguous float64; ``p`` comes from :meth:`params`.
+        Both must be C-contiguous float64; ``p`` comes from :meth:`params`, ``work``
+        from :meth:`workspace` (one per thread; made on the fly if omitted).
         """
         N = Z.shape[0]
         if Z.shape != (N, self.n_w) or out.shape != (N, self.n_out) or p.shape != (self.n_p,):
