@@ -9,10 +9,11 @@ and runs, e.g.::
 
 Exit codes: 0 on success, 2 on a usage error (bad options; argparse prints the usage),
 1 on a model or input error (a bad model file, a singular covariance, an unwritable output
-path, ...), 130 when interrupted. Error messages go to stderr, results to stdout. Every
-output file is written atomically through :mod:`symmon.io` (temporary file, then rename),
-so an existing file is replaced whole or left untouched. Progress bars (tqdm) go to stderr
-and are hidden when stderr is not a terminal or with ``--no-progress``.
+path, ...), 130 when interrupted, 141 when the reader of stdout goes away (``| head``).
+Error messages go to stderr, results to stdout. Every output file is written atomically
+through :mod:`symmon.io` (temporary file, then rename), so an existing file is replaced
+whole or left untouched. Progress bars (tqdm) go to stderr and are hidden when stderr is
+not a terminal or with ``--no-progress``.
 
 :func:`main` returns the exit code instead of exiting, so it can be called in-process.
 """
@@ -20,11 +21,13 @@ and are hidden when stderr is not a terminal or with ``--no-progress``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
+import os
 import sys
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -39,7 +42,8 @@ FIGURES = ("fig1", "fig2", "radar", "mmse")
 
 _EXAMPLES = {
     "propagate": ["symmon propagate examples/polar.toml --transform ut1 --json",
-                  "symmon propagate examples/bot.toml --transform mc --samples 100000 --seed 1"],
+                  "symmon propagate examples/bot.toml --transform mc --samples 100000 --seed 1",
+                  "symmon propagate examples/gmti.toml --transform mc --samples 1000000000 --dask tcp://scheduler:8786"],
     "nonlinearity": ["symmon nonlinearity examples/polar.toml --weight full --transform tt2",
                      "symmon nonlinearity examples/gmti.toml --weight full --transform mc --samples 100000 "
                      "--alpha-sweep 0.01:100:9 --csv mon.csv --plot mon.png"],
@@ -58,7 +62,9 @@ class _UsageError(Exception):
     """A combination of options that argparse cannot check by itself (exit code 2)."""
 
 
-def transform_from_name(name: str, samples: int = 10**6, seed: int = 0, order: int = 5):
+def transform_from_name(name: str, samples: int = 10**6, seed: int = 0, order: int = 5,
+                        workers: int | None = None, scheduler: str | None = None, client: Any = None,
+                        groups: int = 16):
     """A transform from its short name.
 
     Parameters
@@ -70,6 +76,10 @@ def transform_from_name(name: str, samples: int = 10**6, seed: int = 0, order: i
         Monte Carlo sample count and seed (``mc`` and ``qmc`` only).
     order : int
         Gauss-Hermite order per dimension (``gh`` only).
+    workers, scheduler, client, groups
+        Where Monte Carlo runs (``mc`` and ``qmc`` only): threads, a local Dask scheduler
+        name, or a ``dask.distributed.Client``, and in how many independent groups (one
+        task each; see :class:`symmon.MonteCarlo`).
 
     Returns
     -------
@@ -82,15 +92,55 @@ def transform_from_name(name: str, samples: int = 10**6, seed: int = 0, order: i
     """
     from . import transforms as t
 
+    run_on = {"workers": workers, "scheduler": scheduler, "client": client, "groups": groups}
     table: dict[str, Callable] = {
         "tt1": t.TT1, "tt2": t.TT2, "ut1": t.UT.ut1, "ut2": t.UT.ut2, "ct": t.UT.cubature,
         "gh": lambda: t.GaussHermite(order),
-        "mc": lambda: t.MonteCarlo(samples, seed=seed, progress=True),
-        "qmc": lambda: t.MonteCarlo(samples, seed=seed, qmc=True, progress=True),
+        "mc": lambda: t.MonteCarlo(samples, seed=seed, progress=True, **run_on),
+        "qmc": lambda: t.MonteCarlo(samples, seed=seed, qmc=True, progress=True, **run_on),
     }
     if name not in table:
         raise SymmonError(f"unknown transform {name!r}; use one of {TRANSFORM_NAMES}")
     return table[name]()
+
+
+#: Local Dask schedulers that ``--dask`` accepts by name; anything else is an address.
+DASK_LOCAL = ("threads", "processes", "synchronous")
+#: Seconds to wait for a Dask scheduler at ``--dask ADDRESS``.
+DASK_CONNECT_TIMEOUT = 10
+
+
+@contextlib.contextmanager
+def _mc_backend(args: argparse.Namespace) -> Iterator[dict[str, Any]]:
+    """The Monte Carlo execution settings of ``--workers`` and ``--dask``; a Client to a
+    ``--dask`` address is connected for the command and closed after it."""
+    target = getattr(args, "dask", None)
+    settings: dict[str, Any] = {"workers": getattr(args, "workers", None), "scheduler": None, "client": None,
+                                "groups": getattr(args, "groups", 16)}
+    if target is None:
+        yield settings
+        return
+    if target in DASK_LOCAL:
+        settings["scheduler"] = target
+        yield settings
+        return
+    if "://" not in target and ":" not in target:
+        raise _UsageError(f"--dask takes {', '.join(DASK_LOCAL)} or a scheduler address such as "
+                          f"tcp://host:8786, not {target!r}")
+    try:
+        from dask.distributed import Client
+    except ImportError as exc:
+        raise SymmonError("--dask ADDRESS needs the 'dask' extra: pip install 'symmon[dask]'") from exc
+    try:
+        client = Client(target, timeout=DASK_CONNECT_TIMEOUT)
+    except OSError as exc:  # includes TimeoutError
+        raise SymmonError(f"cannot reach the Dask scheduler at {target} "
+                          f"within {DASK_CONNECT_TIMEOUT} s: {exc}") from exc
+    try:
+        settings["client"] = client
+        yield settings
+    finally:
+        client.close()
 
 
 def _load(path: str):
@@ -124,8 +174,9 @@ def cmd_propagate(args: argparse.Namespace) -> int:
     from .propagate import propagate
 
     spec = _load(args.file)
-    tr = transform_from_name(args.transform, args.samples, args.seed, args.order)
-    m = propagate(spec.model, spec.u, spec.v, tr)
+    with _mc_backend(args) as run_on:
+        tr = transform_from_name(args.transform, args.samples, args.seed, args.order, **run_on)
+        m = propagate(spec.model, spec.u, spec.v, tr)
     if args.json:
         out = {
             "model": spec.model.name, "inputs": [str(s) for s in spec.model.inputs],
@@ -177,15 +228,20 @@ def _measure_json(res) -> dict:
 
 def cmd_nonlinearity(args: argparse.Namespace) -> int:
     """``symmon nonlinearity``: the MoN of a model file, once or over a sweep of α."""
+    if args.alpha_sweep is None and (args.plot or args.csv):
+        raise _UsageError("--plot and --csv need --alpha-sweep")
+    with _mc_backend(args) as run_on:
+        return _nonlinearity(args, run_on)
+
+
+def _nonlinearity(args: argparse.Namespace, run_on: dict[str, Any]) -> int:
     from .gaussian import Gaussian
     from .io import save_figure, write_csv
     from .nonlinearity import nonlinearity
     from .reproduce._common import progress_bar, pyplot
 
-    if args.alpha_sweep is None and (args.plot or args.csv):
-        raise _UsageError("--plot and --csv need --alpha-sweep")
     spec = _load(args.file)
-    tr = transform_from_name(args.transform, args.samples, args.seed, args.order)
+    tr = transform_from_name(args.transform, args.samples, args.seed, args.order, **run_on)
     if args.alpha_sweep is None:
         res = nonlinearity(spec.model, spec.u, spec.v, args.weight, tr)
         if args.json:
@@ -240,13 +296,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     spec = _load(args.file)
     rows = []
-    for name in progress_bar(TRANSFORM_NAMES, "transforms", not args.no_progress):
-        tr = transform_from_name(name, args.samples, args.seed, args.order)
-        res = nonlinearity(spec.model, spec.u, spec.v, args.weight, tr)
-        m = res.moments
-        rows.append({"name": name, "transform": repr(tr), "mon": res.value, "stderr": res.stderr,
-                     "evaluations": m.info.get("evaluations"), "mean": m.mean, "cov": m.cov,
-                     "cross_cov": m.cross_cov, "notes": res.notes})
+    with _mc_backend(args) as run_on:
+        for name in progress_bar(TRANSFORM_NAMES, "transforms", not args.no_progress):
+            tr = transform_from_name(name, args.samples, args.seed, args.order, **run_on)
+            res = nonlinearity(spec.model, spec.u, spec.v, args.weight, tr)
+            m = res.moments
+            rows.append({"name": name, "transform": repr(tr), "mon": res.value, "stderr": res.stderr,
+                         "evaluations": m.info.get("evaluations"), "mean": m.mean, "cov": m.cov,
+                         "cross_cov": m.cross_cov, "notes": res.notes})
     if args.json:
         _print_json({"model": spec.model.name, "weight": args.weight, "rows": [
             {k: (_jsonable(v) if k not in ("name", "transform", "evaluations") else v) for k, v in r.items()}
@@ -359,6 +416,17 @@ def _parser() -> argparse.ArgumentParser:
                         help=f"Monte Carlo samples (default {samples})")
         sp.add_argument("--seed", type=int, default=0, help="Monte Carlo seed (default 0)")
         sp.add_argument("--order", type=_positive_int, default=5, help="Gauss-Hermite order (default 5)")
+        run_opts(sp)
+
+    def run_opts(sp: argparse.ArgumentParser) -> None:
+        sp.add_argument("--groups", type=_positive_int, default=16,
+                        help="Monte Carlo groups: independent streams, one task each; the error bars "
+                        "come from them (default 16, at least 2)")
+        sp.add_argument("--workers", type=_positive_int, default=None,
+                        help="Monte Carlo threads (default: the number of CPUs)")
+        sp.add_argument("--dask", metavar="TARGET", default=None,
+                        help=f"run the Monte Carlo groups on Dask: {', '.join(DASK_LOCAL)}, or a scheduler "
+                        "address such as tcp://host:8786 (needs the 'dask' extra); same result for the same seed")
 
     def weight_opt(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("--weight", choices=WEIGHT_NAMES, default="full",
@@ -388,6 +456,7 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("--samples", type=_positive_int, default=10**5, help="Monte Carlo samples (default 100000)")
     sp.add_argument("--seed", type=int, default=0, help="Monte Carlo seed (default 0)")
     sp.add_argument("--order", type=_positive_int, default=5, help="Gauss-Hermite order (default 5)")
+    run_opts(sp)
     sp.add_argument("--json", action="store_true", help="print JSON")
     sp.add_argument("--no-progress", action="store_true", help="no progress bar")
     sp.set_defaults(func=cmd_compare)
@@ -436,7 +505,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     Returns
     -------
     int
-        0 on success, 1 on a model or input error, 2 on a usage error, 130 if interrupted.
+        0 on success, 1 on a model or input error, 2 on a usage error, 130 if interrupted,
+        141 if the reader of stdout went away.
     """
     parser = _parser()
     try:
@@ -444,7 +514,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exc:  # --help, --version (0) and usage errors (2); argparse printed them
         return exc.code if isinstance(exc.code, int) else 2
     try:
-        return int(args.func(args))
+        code = int(args.func(args))
+        sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+        return code
+    except BrokenPipeError:
+        # The reader of stdout went away (``| head``): stop quietly, like other tools.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except _UsageError as exc:
         args.subparser.print_usage(sys.stderr)
         print(f"symmon {args.command}: error: {exc}", file=sys.stderr)

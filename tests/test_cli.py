@@ -320,3 +320,91 @@ def test_console_script_exit_code_1_on_a_missing_file(tmp_path):
     assert proc.returncode == 1
     assert proc.stdout == ""
     assert proc.stderr == "symmon: error: nope.toml: model file not found\n"
+
+
+# --------------------------------------------------------------------------- where Monte Carlo runs
+def _mc_json(capsys, *extra: str) -> dict:
+    code, out, err = run(capsys, "propagate", EXAMPLES / "gmti.toml", "--transform", "mc",
+                         "--samples", MC_SAMPLES, "--seed", 3, "--json", *extra)
+    assert code == 0, err
+    return json.loads(out)
+
+
+def _numbers(res: dict) -> dict:
+    return {k: v for k, v in res.items() if k != "transform"}
+
+
+@pytest.mark.parametrize("extra, setting", [
+    (("--workers", "1"), "workers=1"), (("--workers", "3"), "workers=3"),
+    (("--dask", "synchronous"), "scheduler='synchronous'"), (("--dask", "threads"), "scheduler='threads'"),
+], ids=lambda e: " ".join(e) if isinstance(e, tuple) else "")
+def test_monte_carlo_backends_give_the_same_numbers(capsys, extra, setting):
+    """Threads or a local Dask scheduler: the same groups, merged in the same order."""
+    res = _mc_json(capsys, *extra)
+    assert setting in res["transform"]  # the option reached MonteCarlo
+    assert _numbers(res) == _numbers(_mc_json(capsys))
+
+
+def test_dask_scheduler_address_gives_the_same_numbers(capsys):
+    distributed = pytest.importorskip("dask.distributed")
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                  dashboard_address=None) as cluster:
+        with distributed.Client(cluster) as watcher:
+            remote = _mc_json(capsys, "--dask", cluster.scheduler_address)
+            # the groups ran as tasks on the cluster
+            assert "run_group_remote" in watcher.run_on_scheduler(
+                lambda dask_scheduler: list(dask_scheduler.task_prefixes))
+    assert _numbers(remote) == _numbers(_mc_json(capsys))
+
+
+def test_dask_target_that_is_neither_a_scheduler_nor_an_address(capsys):
+    code, _, err = run(capsys, "propagate", EXAMPLES / "gmti.toml", "--transform", "mc", "--dask", "cluster")
+    assert code == 2
+    assert "--dask takes threads, processes, synchronous or a scheduler address" in err
+    assert "not 'cluster'" in err
+
+
+def test_unreachable_dask_scheduler_is_an_input_error(capsys, monkeypatch):
+    pytest.importorskip("dask.distributed")
+    monkeypatch.setattr(cli, "DASK_CONNECT_TIMEOUT", 1)
+    code, _, err = run(capsys, "nonlinearity", EXAMPLES / "gmti.toml", "--transform", "mc",
+                       "--samples", MC_SAMPLES, "--dask", "tcp://127.0.0.1:9")
+    assert code == 1
+    assert "cannot reach the Dask scheduler at tcp://127.0.0.1:9 within 1 s" in err
+
+
+def test_workers_must_be_positive(capsys):
+    code, _, err = run(capsys, "compare", EXAMPLES / "gmti.toml", "--workers", "0")
+    assert code == 2 and "--workers" in err
+
+
+def test_groups_reach_monte_carlo_and_are_checked(capsys):
+    res = _mc_json(capsys, "--groups", "4")
+    assert "groups=4" in res["transform"]
+    # fewer groups, a different split of the same seed: different (valid) numbers
+    assert res["mean"] != _mc_json(capsys)["mean"]
+    code, _, err = run(capsys, "propagate", EXAMPLES / "gmti.toml", "--transform", "mc", "--groups", "1")
+    assert code == 1 and "groups >= 2" in err
+
+
+def test_closed_stdout_stops_quietly(capsys, monkeypatch):
+    """``symmon ... | head``: the reader goes away; exit 141 with nothing on stderr."""
+    r, w = os.pipe()
+    os.close(r)  # nobody reads: every write to w fails with EPIPE
+
+    class ClosedPipe:
+        def write(self, text):
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def flush(self):
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def fileno(self):
+            return w
+
+    monkeypatch.setattr(sys, "stdout", ClosedPipe())
+    code = cli.main(["propagate", str(EXAMPLES / "polar.toml"), "--transform", "tt2"])
+    monkeypatch.undo()
+    os.close(w)
+    assert code == 141
+    assert capsys.readouterr().err == ""
