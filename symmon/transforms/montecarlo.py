@@ -169,7 +169,7 @@ def _run_group(cm: CompiledModel, job: _Job) -> Stats:
     Each chunk is centred on a shift s: the first chunk on its first sample, the later
     ones on the first chunk's mean.  A large offset (|E y| ≫ std) would otherwise cost its
     digits, and with the centred rows the raw cross-products AᵀA of a chunk lose nothing
-    in M2 = Σ zzᵀ − n z̄z̄ᵀ (|z̄| ≈ σ/√chunk, a ninetieth of σ at the default chunk).
+    in M2 = Σ zzᵀ − n z̄z̄ᵀ (|z̄| ≈ σ·√(2/chunk): σ/64 at the default chunk).
     Chunks are merged with Chan's formula.
     """
     d = job.mean.shape[0]
