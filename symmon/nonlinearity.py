@@ -38,7 +38,15 @@ from .moments import JointMoments
 from .propagate import compiled, propagate
 from .transforms import TT1, TT2, UT, GaussHermite, MonteCarlo, Transform
 from .transforms.base import batch_sqrt
-from .transforms.montecarlo import Stats, jackknife, merge_all, moments_of
+from .transforms.montecarlo import (
+    Stats,
+    group_generator,
+    group_sizes,
+    jackknife_se,
+    leave_one_out,
+    merge_all,
+    moments_of,
+)
 from .transforms.quadrature import standard_rule
 
 __all__ = ["NonlinearityMeasure", "nonlinearity", "compare", "format_table", "mon_from_moments"]
@@ -68,8 +76,9 @@ class NonlinearityMeasure:
     transform : Transform
     structure : str
     stderr : float or None
-        Monte Carlo standard error of the value (jackknife over the sample groups,
-        Σ_c held fixed).
+        Monte Carlo standard error of the value: the delete-one-group jackknife, with
+        each group left out of the moments and of Σ_c (whose Monte Carlo estimate, nested
+        for general noise, has its own error).
     moments : JointMoments
     residual_cov : ndarray
         D = Σ_gg − Σ_c − Σ_gu Σ_uu⁻¹ Σ_ug.
@@ -181,8 +190,6 @@ def _outer_rule(transform: Transform, v: Gaussian) -> tuple[np.ndarray, np.ndarr
 def _cond_cov_general(model: Model, u: Gaussian, v: Gaussian, transform: Transform) -> np.ndarray:
     cm = compiled(model)
     nu, nv = model.n_u, model.n_v
-    if isinstance(transform, MonteCarlo):
-        return _cond_cov_mc(cm, u, v, transform)
     # Nested rule: the inner transform over u at each outer point of v (one batch).
     inner = transform if not isinstance(transform, TT1) else TT2()
     V, w = _outer_rule(transform, v)
@@ -200,25 +207,71 @@ def _cond_cov_general(model: Model, u: Gaussian, v: Gaussian, transform: Transfo
 MC_INNER = 64
 
 
-def _cond_cov_mc(cm, u: Gaussian, v: Gaussian, mc: MonteCarlo) -> np.ndarray:
-    n_outer = max(2, mc.n // MC_INNER)
-    gen = np.random.default_rng(np.random.SeedSequence(mc.seed).spawn(mc.groups + 1)[-1])
+def _nested_groups(cm, u: Gaussian, v: Gaussian, mc: MonteCarlo) -> list[tuple[Stats, np.ndarray]]:
+    """Nested Monte Carlo for Σ_c = Cov(E[g | v]), in ``mc.groups`` independent groups.
+
+    Each outer sample of v gets MC_INNER samples of u.  A group keeps the statistics of
+    the inner means and the sum of the inner covariances; its streams are the children
+    of the one ``SeedSequence(seed)`` child that the outer Monte Carlo does not use.
+    """
+    G = mc.groups
+    n_outer = max(2 * G, mc.n // MC_INNER)
+    seeds = np.random.SeedSequence(mc.seed).spawn(G + 1)[-1].spawn(G)
     Lu, Lv = batch_sqrt(u.cov[None])[0], batch_sqrt(v.cov[None])[0]
-    sums = []
     step = max(1, 65536 // MC_INNER)
-    for start in range(0, n_outer, step):
-        k = min(step, n_outer - start)
-        V = v.mean + gen.standard_normal((k, v.dim)) @ Lv.T
-        U = u.mean + gen.standard_normal((k, MC_INNER, u.dim)) @ Lu.T
-        W = np.concatenate([U, np.repeat(V[:, None, :], MC_INNER, axis=1)], axis=2)
-        Y = cm.eval_g(W.reshape(-1, W.shape[2])).reshape(k, MC_INNER, -1)
-        mean_v = Y.mean(axis=1)
-        var_in = np.einsum("kmi,kmj->kij", Y - mean_v[:, None], Y - mean_v[:, None]) / (MC_INNER - 1)
-        sums.append((Stats.of(mean_v), var_in.sum(axis=0), k))
-    st = merge_all([s[0] for s in sums])
-    mean_inner_cov = sum(s[1] for s in sums) / st.n
+    groups = []
+    for n_g, seed in zip(group_sizes(n_outer, G), seeds):
+        gen = group_generator(seed)
+        stats, var_sum = [], 0.0
+        for start in range(0, n_g, step):
+            k = min(step, n_g - start)
+            V = v.mean + gen.standard_normal((k, v.dim)) @ Lv.T
+            U = u.mean + gen.standard_normal((k, MC_INNER, u.dim)) @ Lu.T
+            W = np.concatenate([U, np.repeat(V[:, None, :], MC_INNER, axis=1)], axis=2)
+            Y = cm.eval_g(W.reshape(-1, W.shape[2])).reshape(k, MC_INNER, -1)
+            mean_v = Y.mean(axis=1)
+            R = Y - mean_v[:, None]
+            var_sum = var_sum + np.einsum("kmi,kmj->ij", R, R) / (MC_INNER - 1)
+            stats.append(Stats.of(mean_v))
+        groups.append((merge_all(stats), var_sum))
+    return groups
+
+
+def _sc_nested(groups: Sequence[tuple[Stats, np.ndarray]]) -> np.ndarray:
+    st = merge_all([g[0] for g in groups])
+    mean_inner_cov = sum(g[1] for g in groups) / st.n
     # Cov of the inner sample means overstates Cov(E[g|v]) by E[Cov(g|v)]/MC_INNER.
     return st.cov - mean_inner_cov / MC_INNER
+
+
+def _cond_cov_mc(model: Model, u: Gaussian, v: Gaussian | None, mc: MonteCarlo) -> tuple[np.ndarray, np.ndarray]:
+    """Σ_c by Monte Carlo, and its value with each group left out, shape (G, n_y, n_y).
+
+    The leave-one-out values let the jackknife of the MoN see the error of Σ_c as well
+    as that of the moments (group i is left out of both).
+    """
+    G = mc.groups
+    if model.n_v == 0 or model.structure == "additive":
+        Sc = _cond_cov(model, u, v, mc)  # exact: no sampling error
+        return Sc, np.repeat(Sc[None], G, axis=0)
+    if model.structure == "multiplicative":
+        pi = model.pi
+        if pi.shape[1] == 0:
+            Sc = np.zeros((model.n_y, model.n_y))
+            return Sc, np.repeat(Sc[None], G, axis=0)
+        n_pi, n_gam = pi.shape[0] * pi.shape[1], len(model.gamma)
+        gp = mc.group_stats(compile_model(list(pi), list(model.inputs)), u.mean, u.cov)
+        gg = mc.group_stats(compile_model(list(model.gamma), list(model.noise)), v.mean, v.cov)
+
+        def sc(sp_: Stats, sg: Stats) -> np.ndarray:
+            pibar = sp_.mean[:n_pi].reshape(pi.shape)  # sympy matrices flatten row-major
+            return pibar @ sg.cov[:n_gam, :n_gam] @ pibar.T
+
+        loo = [sc(a, b) for a, b in zip(leave_one_out(gp), leave_one_out(gg))]
+        return sc(merge_all(gp), merge_all(gg)), np.array(loo)
+    nested = _nested_groups(compiled(model), u, v, mc)
+    loo = [_sc_nested([g for j, g in enumerate(nested) if j != i]) for i in range(G)]
+    return _sc_nested(nested), np.array(loo)
 
 
 # --------------------------------------------------------------------------- public API
@@ -254,11 +307,13 @@ def nonlinearity(model: Model, u: Gaussian, v: Gaussian | None = None, weight="f
     """
     tr = transform if transform is not None else TT2()
     m = propagate(model, u, v, tr)
-    Sc = _cond_cov(model, u, v, tr)
-    parts = mon_from_moments(m.cov, m.cross_cov, m.input_cov, weight, Sc, m.mean)
     stderr = None
     if isinstance(tr, MonteCarlo):
-        stderr = _mc_stderr(m, model, weight, Sc)
+        Sc, Sc_loo = _cond_cov_mc(model, u, v, tr)
+        stderr = _mc_stderr(m, model, weight, Sc_loo)
+    else:
+        Sc = _cond_cov(model, u, v, tr)
+    parts = mon_from_moments(m.cov, m.cross_cov, m.input_cov, weight, Sc, m.mean)
     sq = parts["squared"]
     return NonlinearityMeasure(
         value=float(np.sqrt(max(sq, 0.0))), squared=sq, J_Ab=parts["J_Ab"], J_n=parts["J_n"],
@@ -267,19 +322,17 @@ def nonlinearity(model: Model, u: Gaussian, v: Gaussian | None = None, weight="f
     )
 
 
-def _mc_stderr(m: JointMoments, model: Model, weight, Sc: np.ndarray) -> float:
+def _mc_stderr(m: JointMoments, model: Model, weight, Sc_loo: np.ndarray) -> float:
+    """Jackknife standard error of the MoN: group i is left out of the moments and of Σ_c."""
     ny, nu = model.n_y, model.n_u
-    groups = m.info["groups"]
-
     nw = model.n_u + model.n_v
     angles = sorted(model.angle_outputs)
-
-    def value(s: Stats) -> float:
+    vals = []
+    for s, Sc in zip(leave_one_out(m.info["groups"]), Sc_loo):
         _, cyy, cyw, cww = moments_of(s, ny, nw, angles)
         p = mon_from_moments(cyy, cyw[:, :nu], cww[:nu, :nu], weight, Sc)
-        return np.sqrt(max(p["squared"], 0.0))
-
-    return float(jackknife(groups, value))
+        vals.append(np.sqrt(max(p["squared"], 0.0)))
+    return float(jackknife_se(np.array(vals)))
 
 
 def compare(model: Model, u: Gaussian, v: Gaussian | None = None, weight="full",

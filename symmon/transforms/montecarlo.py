@@ -34,7 +34,8 @@ from ..progress import progress_bar
 from .base import BatchMoments, Transform, batch_sqrt, wrap_angle
 from .mc_kernel import sample_kernel
 
-__all__ = ["MonteCarlo", "Stats", "merge", "merge_all", "jackknife", "group_generator", "moments_of"]
+__all__ = ["MonteCarlo", "Stats", "merge", "merge_all", "jackknife", "jackknife_se", "leave_one_out",
+           "group_generator", "group_sizes", "moments_of"]
 
 
 @dataclass(frozen=True)
@@ -86,13 +87,25 @@ def merge_all(stats: Sequence[Stats]) -> Stats:
     return out
 
 
-def jackknife(groups: Sequence[Stats], fn: Callable[[Stats], np.ndarray]) -> np.ndarray:
-    """Delete-one-group jackknife standard error of ``fn(merged statistics)``."""
-    G = len(groups)
+def leave_one_out(groups: Sequence[Stats]) -> list[Stats]:
+    """The merged statistics of all groups but group i, for each i."""
+    if len(groups) < 2:
+        raise SymmonError("the jackknife needs at least 2 groups")
+    return [merge_all([g for j, g in enumerate(groups) if j != i]) for i in range(len(groups))]
+
+
+def jackknife_se(loo: np.ndarray) -> np.ndarray:
+    """Delete-one-group jackknife standard error from the G leave-one-out values (rows)."""
+    loo = np.asarray(loo, dtype=float)
+    G = loo.shape[0]
     if G < 2:
         raise SymmonError("the jackknife needs at least 2 groups")
-    loo = np.array([np.asarray(fn(merge_all([g for j, g in enumerate(groups) if j != i]))) for i in range(G)])
     return np.sqrt((G - 1) / G * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0))
+
+
+def jackknife(groups: Sequence[Stats], fn: Callable[[Stats], np.ndarray]) -> np.ndarray:
+    """Delete-one-group jackknife standard error of ``fn(merged statistics)``."""
+    return jackknife_se(np.array([np.asarray(fn(s)) for s in leave_one_out(groups)]))
 
 
 def group_generator(seed: np.random.SeedSequence) -> np.random.Generator:
@@ -101,7 +114,8 @@ def group_generator(seed: np.random.SeedSequence) -> np.random.Generator:
     return np.random.Generator(np.random.SFC64(seed))
 
 
-def _group_sizes(n: int, G: int) -> list[int]:
+def group_sizes(n: int, G: int) -> list[int]:
+    """n split over G groups as evenly as possible (the first n mod G get one more)."""
     return [n // G + (1 if g < n % G else 0) for g in range(G)]
 
 
@@ -289,7 +303,7 @@ class MonteCarlo(Transform):
         if self.qmc:
             m = max(1, int(round(np.log2(self.n / self.groups))))
             return [2**m] * self.groups
-        return _group_sizes(int(self.n), int(self.groups))
+        return group_sizes(int(self.n), int(self.groups))
 
     def group_stats(self, cm: CompiledModel, mean: np.ndarray, cov: np.ndarray,
                     angles: frozenset[int] = frozenset()) -> list[Stats]:
