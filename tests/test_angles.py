@@ -446,3 +446,17 @@ def test_joint_moments_condition_checks_the_observation():
     m = sm.propagate(polar([1]), sm.Gaussian(CUT, P_XY), transform=sm.UT.ut1())
     with pytest.raises(ShapeError, match=r"y_observed must have shape \(2,\)"):
         m.condition([1000.0])
+
+
+def test_quadrature_error_estimate_flags_a_bearing_that_reaches_the_origin():
+    """README, known limitations: with u ~ N([−2, 0.3], I) the input reaches the sensor,
+    the wrapped bearing jumps inside the domain and Gauss–Hermite does not converge.  Its
+    two-order error estimate says so; at the well-posed cut (σ/r = 0.1) it is tiny."""
+    gh = sm.GaussHermite(10, sparse=False, error_estimate=True)
+    near = sm.propagate(polar([1]), sm.Gaussian([-2.0, 0.3], np.eye(2)), transform=gh)
+    mc = sm.propagate(polar([1]), sm.Gaussian([-2.0, 0.3], np.eye(2)), transform=sm.MonteCarlo(10**6, seed=1))
+    err = abs(float(angle_diff(near.mean[1], mc.mean[1])))
+    assert err > N_SE * mc.stderr["mean"][1]  # Gauss–Hermite is visibly wrong here
+    assert near.info["error_estimate"]["mean"][0][1] > 0.3 * err  # and its estimate sees it
+    far = sm.propagate(polar([1]), sm.Gaussian(CUT, P_XY), transform=gh)
+    assert far.info["error_estimate"]["mean"][0][1] < 1e-6
