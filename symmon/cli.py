@@ -112,8 +112,8 @@ DASK_CONNECT_TIMEOUT = 10
 
 @contextlib.contextmanager
 def _mc_backend(args: argparse.Namespace) -> Iterator[dict[str, Any]]:
-    """The Monte Carlo execution settings of ``--workers`` and ``--dask``; a Client to a
-    ``--dask`` address is connected for the command and closed after it."""
+    """The Monte Carlo settings of ``--workers``, ``--groups`` and ``--dask``; a Client to
+    a ``--dask`` address is connected for the command and closed after it."""
     target = getattr(args, "dask", None)
     settings: dict[str, Any] = {"workers": getattr(args, "workers", None), "scheduler": None, "client": None,
                                 "groups": getattr(args, "groups", 16)}
@@ -124,7 +124,7 @@ def _mc_backend(args: argparse.Namespace) -> Iterator[dict[str, Any]]:
         settings["scheduler"] = target
         yield settings
         return
-    if "://" not in target and ":" not in target:
+    if ":" not in target:  # an address has a port, tcp://host:8786 or host:8786
         raise _UsageError(f"--dask takes {', '.join(DASK_LOCAL)} or a scheduler address such as "
                           f"tcp://host:8786, not {target!r}")
     try:
