@@ -241,6 +241,19 @@ assert np.trace(indirect.posterior.cov) < np.trace(prior.cov)
 assert np.linalg.norm(indirect.posterior.mean - [100.0, 100.0]) < 10.0
 
 # %% [markdown]
+# The first indirect step by hand: propagate the prior and the noise through h, then condition
+# on the measurement. The moments carry the model's angle declaration, so
+# `JointMoments.condition` wraps the bearing's innovation by itself.
+
+# %%
+m1 = sm.propagate(hs[0], prior, v=sm.Gaussian([0.0, 0.0], ys[0].cov), transform=sm.UT.ut1())
+by_hand = m1.condition(ys[0].mean)
+print("by hand:", by_hand, " joint angles:", m1.joint_angles)
+assert m1.joint_angles == [3]  # [x1, x2, range, bearing]
+assert np.allclose(by_hand.mean, indirect.posteriors[0].mean, rtol=EXACT_TOL, atol=0)
+assert np.allclose(by_hand.cov, indirect.posteriors[0].cov, rtol=EXACT_TOL, atol=0)
+
+# %% [markdown]
 # ## 7. An MMSE estimator of a distance
 #
 # Given a Kalman estimate N(x̂, P), the MMSE estimate of |aᵀx + b| is E|aᵀx + b| in closed
