@@ -171,10 +171,15 @@ def _cond_cov(model: Model, u: Gaussian, v: Gaussian | None, transform: Transfor
         if pi.shape[1] == 0:
             return np.zeros((ny, ny))
         pi_mean, _ = _aux_moments(list(pi), model.inputs, u, transform)
-        pibar = pi_mean.reshape(pi.shape)  # sympy matrices flatten row-major
         _, Sgam = _aux_moments(list(model.gamma), model.noise, v, transform)
-        return pibar @ Sgam @ pibar.T
+        return _pi_sgam_pi(pi, pi_mean, Sgam)
     return _cond_cov_general(model, u, v, transform)
+
+
+def _pi_sgam_pi(pi: sp.Matrix, pi_mean: np.ndarray, Sgam: np.ndarray) -> np.ndarray:
+    """(28): Σ_c = π̄ Σ_γγ π̄ᵀ, from E π flattened as sympy flattens a matrix (row-major)."""
+    pibar = pi_mean.reshape(pi.shape)
+    return pibar @ Sgam @ pibar.T
 
 
 def _outer_rule(transform: Transform, v: Gaussian) -> tuple[np.ndarray, np.ndarray]:
@@ -251,21 +256,18 @@ def _cond_cov_mc(model: Model, u: Gaussian, v: Gaussian | None, mc: MonteCarlo) 
     as that of the moments (group i is left out of both).
     """
     G = mc.groups
-    if model.n_v == 0 or model.structure == "additive":
-        Sc = _cond_cov(model, u, v, mc)  # exact: no sampling error
+    exact = model.n_v == 0 or model.structure == "additive" or (
+        model.structure == "multiplicative" and model.pi.shape[1] == 0)
+    if exact:
+        Sc = _cond_cov(model, u, v, mc)  # no sampling error
         return Sc, np.repeat(Sc[None], G, axis=0)
     if model.structure == "multiplicative":
-        pi = model.pi
-        if pi.shape[1] == 0:
-            Sc = np.zeros((model.n_y, model.n_y))
-            return Sc, np.repeat(Sc[None], G, axis=0)
-        n_pi, n_gam = pi.shape[0] * pi.shape[1], len(model.gamma)
+        pi, n_pi, n_gam = model.pi, len(model.pi), len(model.gamma)
         gp = mc.group_stats(compile_model(list(pi), list(model.inputs)), u.mean, u.cov)
         gg = mc.group_stats(compile_model(list(model.gamma), list(model.noise)), v.mean, v.cov)
 
         def sc(sp_: Stats, sg: Stats) -> np.ndarray:
-            pibar = sp_.mean[:n_pi].reshape(pi.shape)  # sympy matrices flatten row-major
-            return pibar @ sg.cov[:n_gam, :n_gam] @ pibar.T
+            return _pi_sgam_pi(pi, moments_of(sp_, n_pi, model.n_u)[0], moments_of(sg, n_gam, model.n_v)[1])
 
         loo = [sc(a, b) for a, b in zip(leave_one_out(gp), leave_one_out(gg))]
         return sc(merge_all(gp), merge_all(gg)), np.array(loo)
