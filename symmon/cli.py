@@ -114,9 +114,8 @@ DASK_CONNECT_TIMEOUT = 10
 def _mc_backend(args: argparse.Namespace) -> Iterator[dict[str, Any]]:
     """The Monte Carlo settings of ``--workers``, ``--groups`` and ``--dask``; a Client to
     a ``--dask`` address is connected for the command and closed after it."""
-    target = getattr(args, "dask", None)
-    settings: dict[str, Any] = {"workers": getattr(args, "workers", None), "scheduler": None, "client": None,
-                                "groups": getattr(args, "groups", 16)}
+    target = args.dask
+    settings: dict[str, Any] = {"workers": args.workers, "scheduler": None, "client": None, "groups": args.groups}
     if target is None:
         yield settings
         return
@@ -412,13 +411,14 @@ def _parser() -> argparse.ArgumentParser:
         sp.add_argument("--transform", choices=TRANSFORM_NAMES, default="tt2",
                         help="tt1/tt2: Taylor; ut1/ut2/ct: unscented and cubature; gh: Gauss-Hermite; "
                         "mc/qmc: (quasi) Monte Carlo (default tt2)")
+        rule_opts(sp, samples)
+
+    def rule_opts(sp: argparse.ArgumentParser, samples: int) -> None:
+        """The settings of the Monte Carlo and Gauss-Hermite rules, and where MC runs."""
         sp.add_argument("--samples", type=_positive_int, default=samples,
                         help=f"Monte Carlo samples (default {samples})")
         sp.add_argument("--seed", type=int, default=0, help="Monte Carlo seed (default 0)")
         sp.add_argument("--order", type=_positive_int, default=5, help="Gauss-Hermite order (default 5)")
-        run_opts(sp)
-
-    def run_opts(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("--groups", type=_positive_int, default=16,
                         help="Monte Carlo groups: independent streams, one task each; the error bars "
                         "come from them (default 16, at least 2)")
@@ -453,10 +453,7 @@ def _parser() -> argparse.ArgumentParser:
     sp = add("compare", "the MoN and the moments by every transform, as a table")
     sp.add_argument("file", help="TOML model file")
     weight_opt(sp)
-    sp.add_argument("--samples", type=_positive_int, default=10**5, help="Monte Carlo samples (default 100000)")
-    sp.add_argument("--seed", type=int, default=0, help="Monte Carlo seed (default 0)")
-    sp.add_argument("--order", type=_positive_int, default=5, help="Gauss-Hermite order (default 5)")
-    run_opts(sp)
+    rule_opts(sp, 10**5)
     sp.add_argument("--json", action="store_true", help="print JSON")
     sp.add_argument("--no-progress", action="store_true", help="no progress bar")
     sp.set_defaults(func=cmd_compare)
