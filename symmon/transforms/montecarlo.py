@@ -47,17 +47,12 @@ class Stats:
     m2: np.ndarray
 
     @classmethod
-    def of(cls, Z: np.ndarray, ones: np.ndarray | None = None, overwrite: bool = False) -> "Stats":
-        """Statistics of the rows of Z (N, d), in two passes (mean, then centred products).
-
-        ``ones`` (a vector of N ones) and ``overwrite=True`` (centre Z in place) let a hot
-        loop reuse its buffers.
-        """
+    def of(cls, Z: np.ndarray) -> "Stats":
+        """Statistics of the rows of Z (N, d), in two passes (mean, then centred products)."""
         n = Z.shape[0]
         # A BLAS product: numpy's axis-0 reduction of a narrow (N, d) array is ~10x slower.
-        mean = (np.ones(n) if ones is None else ones) @ Z / n
-        D = Z if overwrite else Z.copy()
-        D -= mean
+        mean = np.ones(n) @ Z / n
+        D = Z - mean
         return cls(n, mean, D.T @ D)
 
     @property
