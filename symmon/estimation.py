@@ -37,7 +37,7 @@ from .gaussian import Gaussian, as_covariance, as_vector, fuse
 from .model import Model
 from .moments import JointMoments
 from .propagate import propagate
-from .transforms import Transform, wrap_angle
+from .transforms import Transform
 
 try:  # the linear filter lives in its own module; re-exported here as the issue asks
     from .kalman import KalmanFilter
@@ -174,15 +174,10 @@ def _condition(model: Model, joint: Gaussian, y: np.ndarray, name: str) -> Gauss
     """Lemma 7.1 on the y-block of ``joint``, with wrapped innovations for angle outputs."""
     n_x, n_y = model.n_u, model.n_y
     iy = np.arange(n_x, n_x + n_y)
-    value = y
-    if model.angle_outputs:
-        # Condition on ŷ + wrap(y − ŷ): an angle 2π away from ŷ is the same measurement.
-        idx = sorted(model.angle_outputs)
-        y_hat = joint.mean[iy]
-        value = y.copy()
-        value[idx] = y_hat[idx] + wrap_angle(y[idx] - y_hat[idx])
+    # An angle 2π away from ŷ is the same measurement: Gaussian.condition wraps y − ŷ.
+    angles = [n_x + j for j in sorted(model.angle_outputs)]
     try:
-        return joint.condition(iy, value)
+        return joint.condition(iy, y, angles=angles)
     except SingularMatrixError as exc:
         raise SingularMatrixError(
             f"{name}: the innovation covariance P^yy of the joint NLT is singular; give the "
