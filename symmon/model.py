@@ -120,6 +120,48 @@ class Model:
         self._name = name
         self._angles = self._resolve_angles(angles)
 
+    @classmethod
+    def from_function(cls, fn, inputs, noise=None, angles=None, name: str | None = None,
+                      args=()) -> "Model":
+        """Trace a NumPy-style Python function into a Model.
+
+        The function is called once on symbolic inputs (see :mod:`symmon.tracing`):
+        arithmetic, indexing, ``np.array([...])``, matrix products and the NumPy functions
+        of :data:`symmon.tracing.SUPPORTED` (``np.sqrt``, ``np.arctan2``, ``np.exp``,
+        ``np.sin``, ...) become the same sympy expressions a declaration would hold.
+
+        Parameters
+        ----------
+        fn : callable
+            ``fn(x, *args)``, or ``fn(x, v, *args)`` when ``noise`` is given; FilterPy's
+            ``hx(x)`` and ``fx(x, dt)`` (with ``args=(dt,)``) work as written.
+        inputs, noise : sequence of str or sympy.Symbol
+            Names of the components of ``x`` and of the noise ``v``.
+        angles, name
+            As for :class:`Model`.
+        args : sequence
+            Further numeric arguments of ``fn``.
+
+        Raises
+        ------
+        UnsupportedFunctionError
+            Naming an operation that cannot be traced (``float(x[0])``, ``math.sqrt``, a
+            branch on an input, an unsupported NumPy function).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> def hx(x):
+        ...     return np.array([np.hypot(x[0], x[1]), np.arctan2(x[1], x[0])])
+        >>> Model.from_function(hx, inputs=["x", "y"], angles=[1]).outputs
+        (sqrt(x**2 + y**2), atan2(y, x))
+        """
+        from .tracing import trace
+
+        u, v, g = trace(fn, inputs, noise, args)
+        label = name if name is not None else getattr(fn, "__name__", None)
+        return cls(u, g, v, label, angles)
+
     def _resolve_angles(self, angles) -> tuple[frozenset[int], frozenset[int]]:
         out_idx: set[int] = set()
         in_idx: set[int] = set()

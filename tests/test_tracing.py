@@ -1,0 +1,140 @@
+"""Model.from_function: NumPy-style (FilterPy) model functions traced into sympy models."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import symmon as sm
+from symmon.errors import ModelError, UnsupportedFunctionError
+from symmon.tracing import SUPPORTED, Traced, trace
+
+#: Sympy and NumPy evaluate the same expression in a different order: a few ulps.
+ROUNDING_RTOL = 1e-12
+#: Two models with the same expressions give the same TT2 moments bit for bit, up to the
+#: rounding of the constants' decimal form (none here).
+EXACT_RTOL = 1e-12
+
+SENSOR = (1.0, 2.5)
+DT = 0.1
+
+
+def hx_range_bearing(x):
+    """FilterPy-style measurement function of a constant-velocity state [px, vx, py, vy]."""
+    dx = x[0] - SENSOR[0]
+    dy = x[2] - SENSOR[1]
+    return np.array([np.sqrt(dx**2 + dy**2), np.arctan2(dy, dx)])
+
+
+def fx_cv(x, dt):
+    """FilterPy-style motion function: F @ x."""
+    F = np.array([[1, dt, 0, 0], [0, 1, 0, 0], [0, 0, 1, dt], [0, 0, 0, 1]])
+    return F @ x
+
+
+STATE = ["px", "vx", "py", "vy"]
+
+
+def test_range_bearing_equals_the_sympy_declaration():
+    px, vx, py, vy = sp.symbols(STATE, real=True)
+    declared = [sp.sqrt((px - 1) ** 2 + (py - sp.Rational(5, 2)) ** 2), sp.atan2(py - sp.Rational(5, 2), px - 1)]
+    m = sm.Model.from_function(hx_range_bearing, inputs=STATE, angles=[1])
+    assert m.inputs == (px, vx, py, vy)
+    assert [sp.simplify(a - b) for a, b in zip(m.outputs, declared)] == [0, 0]
+    assert m.angle_outputs == frozenset({1}) and m.name == "hx_range_bearing"
+
+
+@pytest.mark.parametrize("point", [[3.0, 0.2, -4.0, 1.0], [-0.5, 1.0, 7.25, -2.0], [1e3, 0.0, 1e-3, 5.0]])
+def test_traced_model_evaluates_like_the_function(point):
+    m = sm.Model.from_function(hx_range_bearing, inputs=STATE)
+    subs = dict(zip(m.inputs, point))
+    got = np.array([float(e.evalf(subs=subs)) for e in m.outputs])
+    np.testing.assert_allclose(got, hx_range_bearing(np.array(point)), rtol=ROUNDING_RTOL)
+
+
+def test_motion_function_with_args_keeps_the_float_constant():
+    m = sm.Model.from_function(fx_cv, inputs=STATE, args=(DT,))
+    px, vx, py, vy = m.inputs
+    assert m.outputs[1] == vx and m.outputs[3] == vy
+    coeff = m.outputs[0].coeff(vx)
+    assert coeff == sp.Rational(1, 10) and float(coeff) == DT  # as written, and the same double
+    x = np.array([1.0, 2.0, 3.0, 4.0])
+    got = [float(e.subs(dict(zip(m.inputs, x)))) for e in m.outputs]
+    np.testing.assert_allclose(got, fx_cv(x, DT), rtol=ROUNDING_RTOL)
+
+
+def test_moments_of_traced_and_declared_models_agree():
+    px, vx, py, vy = sp.symbols(STATE, real=True)
+    declared = sm.Model([px, vx, py, vy], [sp.sqrt((px - 1) ** 2 + (py - sp.Rational(5, 2)) ** 2),
+                                           sp.atan2(py - sp.Rational(5, 2), px - 1)])
+    traced = sm.Model.from_function(hx_range_bearing, inputs=STATE)
+    u = sm.Gaussian([10.0, 1.0, 6.0, -1.0], np.diag([1.0, 0.1, 2.0, 0.1]))
+    for t in (sm.TT2(), sm.UT.ut1()):
+        a, b = sm.propagate(declared, u, transform=t), sm.propagate(traced, u, transform=t)
+        np.testing.assert_allclose(b.mean, a.mean, rtol=EXACT_RTOL)
+        np.testing.assert_allclose(b.cov, a.cov, rtol=EXACT_RTOL)
+
+
+def test_noise_argument_and_structure():
+    def hx_noisy(x, v):
+        return np.array([np.hypot(x[0], x[1]) * (1 + v[0]), np.arctan2(x[1], x[0]) + v[1]])
+
+    m = sm.Model.from_function(hx_noisy, inputs=["x", "y"], noise=["e_r", "e_b"])
+    assert m.noise == sp.symbols("e_r e_b", real=True)
+    assert m.structure == "multiplicative"
+
+
+@pytest.mark.parametrize("fn, expected", [
+    (lambda x: np.exp(x[0]) * np.log(x[1]), lambda a, b: sp.exp(a) * sp.log(b)),
+    (lambda x: np.sin(x) ** 2, lambda a, b: [sp.sin(a) ** 2, sp.sin(b) ** 2]),
+    (lambda x: np.maximum(x[0], 2) - np.abs(x[1]), lambda a, b: sp.Max(a, 2) - sp.Abs(b)),
+    (lambda x: x.sum() / 2, lambda a, b: (a + b) / 2),
+    (lambda x: np.dot(x, x), lambda a, b: a**2 + b**2),
+    (lambda x: 2.0 ** x[0], lambda a, b: 2 ** a),
+    (lambda x: -x[1] + 3, lambda a, b: 3 - b),
+    (lambda x: np.tanh(x[0] / x[1]), lambda a, b: sp.tanh(a / b)),
+    (lambda x: 7, lambda a, b: 7),
+])
+def test_supported_operations(fn, expected):
+    _, _, got = trace(fn, ["a", "b"])
+    a, b = sp.symbols("a b", real=True)
+    want = expected(a, b)
+    want = list(want) if isinstance(want, list) else [want]
+    assert [sp.simplify(g - w) for g, w in zip(got, want)] == [0] * len(want)
+
+
+@pytest.mark.parametrize("fn, name", [
+    (lambda x: float(x[0]), "converting an input to a number"),
+    (lambda x: math.sqrt(x[0]), "converting an input to a number"),
+    (lambda x: x[0] if x[0] > 0 else -x[0], "comparison or branch"),
+    (lambda x: np.fmod(x[0], 2.0), "np.fmod"),
+    (lambda x: x[0] // 2, "floor division"),
+    (lambda x: np.mod(x[0], 2.0), "np.remainder"),
+    (lambda x: np.add.accumulate(x[0]), "np.add.accumulate"),
+])
+def test_unsupported_operation_is_named(fn, name):
+    with pytest.raises(UnsupportedFunctionError, match=name):
+        sm.Model.from_function(fn, inputs=["a", "b"])
+
+
+def test_bad_functions_and_names():
+    with pytest.raises(ModelError, match="callable"):
+        trace(3, ["a"])
+    with pytest.raises(ModelError, match="no outputs"):
+        trace(lambda x: np.array([]), ["a"])
+    with pytest.raises(ModelError, match="at least one input"):
+        trace(lambda x: x, [])
+    with pytest.raises(ModelError, match="non-finite"):
+        trace(lambda x: x[0] * np.inf, ["a"])
+    with pytest.raises(ModelError, match="must be sympy Symbols"):
+        trace(lambda x: x, [1.5])
+
+
+def test_traced_value_is_not_a_number():
+    t = Traced(sp.Symbol("a"))
+    with pytest.raises(UnsupportedFunctionError):
+        bool(t)
+    assert "np.arctan2" in SUPPORTED and "np.sqrt" in SUPPORTED
