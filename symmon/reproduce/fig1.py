@@ -19,7 +19,7 @@ from ..nonlinearity import mon_from_moments
 from ..problems import polar
 from ..propagate import propagate
 from ..transforms import TT2, UT, MonteCarlo
-from ._common import progress_bar, pyplot
+from ._common import ALPHA_LABEL, figure_style, progress_bar, pyplot, samples_text
 
 __all__ = ["run", "curves", "ALPHAS", "UNIT_SIZES"]
 
@@ -82,22 +82,36 @@ def run(outdir: str | Path = "results", samples: int = 10**6, seed: int = 0, pro
             "liu_rad_tt2", "liu_deg_tt2", "liu_rad_ut", "liu_deg_ut"]
     csv = write_csv(outdir / "fig1.csv", cols, zip(*[c[k] for k in cols]))
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    ax.fill_between(c["alpha"], c["band_lo"], c["band_hi"], color="0.85", label="any bearing unit (0.1 nrad … 10 Grad)")
-    ax.semilogx(c["alpha"], c["liu_rad"], "b-", label="Liu–Li normalised, bearing in rad (MC)")
-    ax.semilogx(c["alpha"], c["liu_deg"], "r-", label="Liu–Li normalised, bearing in deg (MC)")
-    ax.semilogx(c["alpha"], c["liu_rad_tt2"], "b:", label="… rad, TT2")
-    ax.semilogx(c["alpha"], c["liu_deg_tt2"], "r:", label="… deg, TT2")
-    ax.semilogx(c["alpha"], c["liu_rad_ut"], "b--", lw=0.8, label="… rad, UT")
-    ax.semilogx(c["alpha"], c["liu_deg_ut"], "r--", lw=0.8, label="… deg, UT")
-    ax.semilogx(c["alpha"], c["full"], "g-", lw=2, label="unitless, $W^{full}$ (any unit)")
-    ax.axvline(0.17, color="k", lw=0.5, ls="-.")
-    ax.set_xlabel(r"$\alpha$")
-    ax.set_ylabel("MoN")
-    ax.set_ylim(0, 1.02)
-    ax.set_title(f"Figure 1: polar example (14)–(16), MC {samples:.0e} samples")
-    ax.legend(fontsize=7, loc="upper left")
-    fig.tight_layout()
+    with figure_style():
+        fig = _plot(plt, c, samples)
     png = save_figure(fig, outdir / "fig1.png", dpi=150)
     plt.close(fig)
     return [png, csv]
+
+
+def _plot(plt, c: dict[str, np.ndarray], samples: int):
+    """Figure 1 from the curves: MC with ±2 SE bands, TT2 and UT beside, α = 0.17 marked."""
+    fig, ax = plt.subplots(figsize=(11, 4.8))
+    a = c["alpha"]
+    ax.fill_between(a, c["band_lo"], c["band_hi"], color="0.88", lw=0,
+                    label="Liu–Li, any bearing unit from 0.1 nrad to 10 Grad")
+    for unit, color in (("rad", "tab:blue"), ("deg", "tab:red")):
+        mc, se = c[f"liu_{unit}"], c[f"liu_{unit}_se"]
+        ax.fill_between(a, mc - 2 * se, mc + 2 * se, color=color, alpha=0.25, lw=0)
+        ax.semilogx(a, mc, "-", color=color, label=f"Liu–Li, bearing in {unit}: Monte Carlo (band ±2 SE)")
+        ax.semilogx(a, c[f"liu_{unit}_tt2"], ":", color=color, label=f"Liu–Li, bearing in {unit}: TT2")
+        ax.semilogx(a, c[f"liu_{unit}_ut"], "--", color=color, lw=0.8,
+                    label=f"Liu–Li, bearing in {unit}: unscented transform")
+    ax.semilogx(a, c["full"], "-", color="tab:green", lw=2,
+                label="unitless, $W^{full}$ (43): the same in every unit (Monte Carlo)")
+    ax.axvline(0.17, color="k", lw=0.6, ls="-.")
+    ax.annotate(r"$\alpha = 0.17$: the values" "\n" "quoted in Sec. II-B", (0.17, 0.99), xytext=(-4, 0),
+                textcoords="offset points", fontsize=7, va="top", ha="right")
+    ax.set_xlabel(ALPHA_LABEL + r", $P_0 = \mathrm{diag}(1, 100)$ km$^2$")
+    ax.set_ylabel("normalised measure of nonlinearity (unitless, 0 = linear)")
+    ax.set_ylim(0, 1.02)
+    ax.set_title("Figure 1: the Liu–Li MoN (8) depends on the bearing unit; the unitless MoN does not\n"
+                 f"polar example (14)–(16), Monte Carlo with {samples_text(samples)} samples per α")
+    ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5))
+    fig.tight_layout()
+    return fig

@@ -19,7 +19,7 @@ from ..problems import GMTI_UNITS, RDCOS_UNITS, bot, gmti, rdcos
 from ..propagate import propagate
 from ..transforms import TT2, UT, MonteCarlo
 from ..transforms.montecarlo import jackknife
-from ._common import progress_bar, pyplot
+from ._common import ALPHA_LABEL, figure_style, progress_bar, pyplot, samples_text
 
 __all__ = ["run", "curves", "ALPHAS", "PROBLEMS"]
 
@@ -95,24 +95,46 @@ def run(outdir: str | Path = "results", samples: int = 10**6, seed: int = 0, pro
             for name in c for i in range(len(c[name]["alpha"]))]
     csv = write_csv(outdir / "fig2.csv", ["problem", "alpha"] + keys, rows)
     plt = pyplot()
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4), sharey=True)
-    alt = {"BOT": "", "GMTI": "[km, deg, km/h]", "RDCOS": "[km, −]"}
-    for ax, name in zip(axes, c):
-        v = c[name]
-        ax.semilogx(v["alpha"], v["full"], "g-", lw=2, label="unitless $W^{full}$ (MC)")
-        ax.semilogx(v["alpha"], v["diag"], "r-", lw=2, label="unitless $W^{diag}$ (MC)")
-        ax.semilogx(v["alpha"], v["orig"], "b-", label="orig (8), SI units (MC)")
-        if alt[name]:
-            ax.semilogx(v["alpha"], v["orig_alt"], "b--", label=f"orig (8), {alt[name]} (MC)")
-        ax.semilogx(v["alpha"], v["full_tt2"], "g:", label="$W^{full}$, TT2")
-        ax.semilogx(v["alpha"], v["full_ut"], "g-.", lw=0.8, label="$W^{full}$, UT")
-        ax.set_title(name)
-        ax.set_xlabel(r"$\alpha$")
-        ax.set_ylim(bottom=0)
-    axes[0].set_ylabel("MoN")
-    axes[1].legend(fontsize=7, loc="upper left")
-    fig.suptitle(f"Figure 2: BOT (45), GMTI (46), RDCOS (47); MC {samples:.0e} samples")
-    fig.tight_layout()
+    with figure_style():
+        fig = _plot(plt, c, samples)
     png = save_figure(fig, outdir / "fig2.png", dpi=150)
     plt.close(fig)
     return [png, csv]
+
+
+#: The second unit set of each problem (Sec. V), for the legends.
+ALT_UNITS = {"BOT": "", "GMTI": "km, deg, km/h", "RDCOS": "km, –"}
+SI_UNITS = {"BOT": "rad", "GMTI": "m, rad, m/s", "RDCOS": "m, –"}
+
+
+def _plot(plt, c: dict[str, dict[str, np.ndarray]], samples: int):
+    """Figure 2: one panel per problem, MC curves with ±2 SE bands, TT2 and UT beside."""
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.6), sharey=True)
+    for ax, name in zip(axes, c):
+        v = c[name]
+        a = v["alpha"]
+        for key, color, label in (("full", "tab:green", "unitless, $W^{full}$ (43)"),
+                                  ("diag", "tab:red", "unitless, $W^{diag}$ (42)"),
+                                  ("orig", "tab:blue", f"original (8), in [{SI_UNITS[name]}]")):
+            se = v[f"{key}_se"]
+            ax.fill_between(a, v[key] - 2 * se, v[key] + 2 * se, color=color, alpha=0.25, lw=0)
+            ax.semilogx(a, v[key], "-", color=color, lw=2 if key != "orig" else 1.2,
+                        label=f"{label}: Monte Carlo (band ±2 SE)")
+        if ALT_UNITS[name]:
+            ax.semilogx(a, v["orig_alt"], "--", color="tab:blue",
+                        label=f"original (8), in [{ALT_UNITS[name]}]: Monte Carlo")
+        ax.semilogx(a, v["full_tt2"], ":", color="tab:green", lw=1.5, label="unitless, $W^{full}$: TT2")
+        ax.semilogx(a, v["full_ut"], "-.", color="tab:green", lw=0.8,
+                    label="unitless, $W^{full}$: unscented transform")
+        ax.set_title({"BOT": "BOT (45)", "GMTI": "GMTI (46)", "RDCOS": "RDCOS (47)"}[name])
+        ax.set_xlabel(ALPHA_LABEL)
+        ax.set_ylim(bottom=0)
+        if name == "BOT":
+            ax.text(0.03, 0.97, "scalar output: the three MoNs coincide\n(one curve hides the others)",
+                    transform=ax.transAxes, fontsize=7, va="top")
+        ax.legend(loc="upper left", bbox_to_anchor=(0.0, 0.86) if name == "BOT" else (0.0, 1.0), fontsize=6.5)
+    axes[0].set_ylabel("measure of nonlinearity (unitless)")
+    fig.suptitle("Figure 2: MoNs of the state (44) scaled by α, Monte Carlo with "
+                 f"{samples_text(samples)} samples per point")
+    fig.tight_layout()
+    return fig

@@ -86,6 +86,7 @@ import numpy as np
 from .. import mmse
 from ..io import save_figure, write_csv
 from ..kalman import KalmanFilter
+from ._common import figure_style
 
 __all__ = [
     "ScalarCase",
@@ -275,8 +276,8 @@ def _figure_abs(plt: Any, title: str, cases: tuple, results: dict[str, dict[str,
         ax.plot(k, data["rmse_simple"], "--", label="simple |plug-in|")
         ax.plot(k, data["rmse_optimal_predicted"], ":", color="gray", label="optimal, predicted")
         ax.set_title(f"case {case.name}: {case.params}", fontsize=8)
-        ax.set_xlabel("k")
-        ax.set_ylabel("RMSE")
+        ax.set_xlabel("time step k")
+        ax.set_ylabel("RMSE of the distance estimate\n(over the Monte Carlo runs)")
     axes.ravel()[0].legend(fontsize=8)
     fig.suptitle(title)
     return fig
@@ -293,18 +294,21 @@ def _figure_sec7(plt: Any, results: dict[str, dict[str, np.ndarray]]) -> Any:
         row[0].plot(k, data["example_range_composite"], label="composite")
         row[0].plot(k, data["example_range_simple"], "--", label="simple")
         row[0].set_title(f"{case.name}: range, one run", fontsize=9)
+        row[0].set_ylabel("range to the origin")
         for ax, q, label in zip(row[1:], ("range", "bearing", "cosine"), ("range", "bearing [rad]", "cos angle(x_k, x_{k-1})")):
             ax.plot(k, data[f"{q}_composite"], label="composite")
             ax.plot(k, data[f"{q}_simple"], "--", label="simple")
             ax.set_title(f"{case.name}: RMSE of {label}", fontsize=9)
+            ax.set_ylabel(f"RMSE of the {label} estimate")
         for ax in row:
-            ax.set_xlabel("k")
+            ax.set_xlabel("time step k")
         row[0].legend(fontsize=8)
         row[1].legend(fontsize=8)
     fig.suptitle("Section 7: motion in a plane; " + "; ".join(f"{c.name}: {c.params}" for c in SEC7_CASES), fontsize=9)
     return fig
 
 
+@figure_style()
 def run(outdir: Path, runs: int = 1000, seed: int = 0, progress: bool = True) -> list[Path]:
     """Run the Section 4.3.1, 4.3.2 and 7 simulations and write tables and plots.
 

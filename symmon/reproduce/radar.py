@@ -47,6 +47,7 @@ from ..model import Model
 from ..problems import radar_h, radar_hinv
 from ..propagate import compiled
 from ..transforms import TT1, UT
+from ._common import figure_style
 
 __all__ = ["run", "SENSORS", "RANGE_VAR", "BEARING_VAR", "PRIOR", "hinv_model", "h_model", "measurement"]
 
@@ -109,6 +110,7 @@ def _figure(ncols: int = 1):
     return fig, axes
 
 
+@figure_style()
 def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = True) -> list[Path]:
     """Reproduce the lecture's radar example: Monte Carlo, direct UT, indirect TT1.
 
@@ -155,7 +157,8 @@ def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = Tru
         _sensors(ax)
         for X, c in zip(x_samples, colors):
             ax.plot(X[:, 0], X[:, 1], ".", color=c, markersize=1, alpha=0.3)
-        ax.set(title="Monte Carlo samples of x = h⁻¹(y)", xlabel="x₁", ylabel="x₂", aspect="equal")
+        ax.set(title=f"Monte Carlo samples of x = h⁻¹(y), {samples:,} per sensor", xlabel="position x₁ (length unit of r)",
+               ylabel="position x₂ (length unit of r)", aspect="equal")
         written.append(save_figure(fig, outdir / "radar_mc.png", dpi=110))
         bar.update()
 
@@ -169,8 +172,8 @@ def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = Tru
             ax_y.plot(e[:, 0], e[:, 1], "-", color=c)
             S = m.info["sigma_points"][0]
             ax_y.plot(S[:, 0], S[:, 1], mk, color=c)
-        ax_y.set(title=f"y = (r, φ), {ELLIPSE_LEVEL:.0%} ellipses and sigma points", xlabel="r",
-                 ylabel="φ [rad]")
+        ax_y.set(title=f"y = (r, φ), {ELLIPSE_LEVEL:.0%} confidence ellipses and sigma points", xlabel="range r (the lecture gives no unit)",
+                 ylabel="bearing φ [rad]")
         _sensors(ax_x)
         for g, m, c, mk in zip(res_d.estimates, res_d.moments, colors, ("x", "d")):
             e = _ellipse(g)
@@ -179,7 +182,8 @@ def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = Tru
             ax_x.plot(fS[:, 0], fS[:, 1], mk, color=c)
         e = _ellipse(res_d.fused)
         ax_x.plot(e[:, 0], e[:, 1], "-", color="r")
-        ax_x.set(title="h⁻¹ of the sigma points, N(x̂ₖ, Pₖ), fused (red)", xlabel="x₁", ylabel="x₂",
+        ax_x.set(title=f"h⁻¹ of the sigma points, N(x̂ₖ, Pₖ), fused (red); {ELLIPSE_LEVEL:.0%} ellipses",
+                 xlabel="position x₁ (length unit of r)", ylabel="position x₂ (length unit of r)",
                  aspect="equal")
         written.append(save_figure(fig, outdir / "radar_direct_ut.png", dpi=110))
         bar.update()
@@ -206,7 +210,8 @@ def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = Tru
             ax.plot(e[:, 0], e[:, 1], "-", color=c, label=label)
             ax.plot(*g.mean, "+", color=c)
         ax.legend(loc="lower center")
-        ax.set(title="Indirect approach with TT1", xlabel="x₁", ylabel="x₂", aspect="equal")
+        ax.set(title=f"Indirect approach with TT1: {ELLIPSE_LEVEL:.0%} confidence ellipses",
+               xlabel="position x₁ (length unit of r)", ylabel="position x₂ (length unit of r)", aspect="equal")
         written.append(save_figure(fig, outdir / "radar_indirect_tt1.png", dpi=110))
         bar.update()
 
