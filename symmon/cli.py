@@ -362,7 +362,7 @@ def cmd_derive(args: argparse.Namespace) -> int:
     from .io import atomic_write_text
 
     if args.list:
-        for name in derive.available():
+        for name in derive.require_available():
             print(name)
         return 0
     names = None if args.all or not args.name else [args.name]

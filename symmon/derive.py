@@ -70,6 +70,27 @@ def available() -> list[str]:
     return sorted(p.stem for p in directory.glob("*.py") if not p.stem.startswith("_"))
 
 
+def require_available() -> list[str]:
+    """Like :func:`available`, but an empty list is an error that says where scripts were looked for.
+
+    Raises
+    ------
+    SymmonError
+        When no derivation script is found.
+    """
+    known = available()
+    if not known:
+        here = Path(__file__).resolve().parent.parent / "derivations"
+        raise SymmonError(
+            f"no derivation scripts found: looked in ${ENV_VAR} (unset), {here} (beside the "
+            f"package) and {Path.cwd() / 'derivations'} (the current directory). Run from a "
+            f"symmon source checkout or set ${ENV_VAR} to its derivations/ directory"
+            if not os.environ.get(ENV_VAR) else
+            f"no derivation scripts found in ${ENV_VAR} = {derivations_dir()}"
+        )
+    return known
+
+
 def _load_module(unique_name: str, path: Path) -> ModuleType:
     spec = importlib.util.spec_from_file_location(unique_name, path)
     if spec is None or spec.loader is None:  # pragma: no cover - only for unreadable files
@@ -130,12 +151,7 @@ def run(names: Sequence[str] | None = None) -> list[Any]:
     ValueError
         (a :class:`symmon.SymmonError`) for a name that is not an available script.
     """
-    known = available()
-    if not known:
-        raise SymmonError(
-            f"no derivation scripts found in {derivations_dir()}: run from a symmon source "
-            f"checkout or set ${ENV_VAR} to its derivations/ directory"
-        )
+    known = require_available()
     if isinstance(names, str):
         names = [names]
     selected = list(known if names is None else names)

@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from symmon import derive
+from symmon.errors import SymmonError
 
 DERIVATIONS = Path(__file__).resolve().parents[1] / "derivations"
 SCRIPTS = sorted(p for p in DERIVATIONS.glob("*.py") if not p.stem.startswith("_"))
@@ -124,3 +125,16 @@ def test_no_scripts_found_is_a_clear_error(tmp_path, monkeypatch):
     monkeypatch.setenv(derive.ENV_VAR, str(tmp_path))
     with pytest.raises(SymmonError, match="no derivation scripts found"):
         derive.run(None)
+
+
+def test_list_without_scripts_is_an_error_naming_the_places(tmp_path, monkeypatch, capsys):
+    """Outside a checkout `symmon derive --list` says where it looked and exits 1."""
+    from symmon import cli
+
+    monkeypatch.setenv("SYMMON_DERIVATIONS", str(tmp_path))
+    assert cli.main(["derive", "--list"]) == 1
+    assert f"no derivation scripts found in $SYMMON_DERIVATIONS = {tmp_path}" in capsys.readouterr().err
+    monkeypatch.delenv("SYMMON_DERIVATIONS")
+    monkeypatch.setattr(derive, "available", lambda: [])
+    with pytest.raises(SymmonError, match=r"beside the package.*the current directory"):
+        derive.require_available()
