@@ -16,6 +16,8 @@ from . import sweep as sweep
 from . import units as units
 from . import weights as weights
 from . import codegen as codegen
+from .advise import Advice as Advice
+from .advise import advise as advise
 from .codegen import export_c as export_c
 from .errors import SymmonError as SymmonError
 from .gaussian import Gaussian as Gaussian
@@ -45,6 +47,6 @@ __all__ = [
     "load_model_file",
     "SymmonError", "Gaussian", "fuse", "KalmanFilter", "Model", "JointMoments",
     "NonlinearityMeasure", "nonlinearity", "compare",
-    "propagate", "propagate_many",
+    "propagate", "propagate_many", "advise", "Advice",
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Transform",
 ]

@@ -1,0 +1,297 @@
+"""Which transform is good enough here? The moments of every candidate against a reference.
+
+A measure of nonlinearity exists to choose an estimator.  :func:`advise` computes the
+moments of y = g(u, v) by each candidate transform (TT1, TT2, the unscented family,
+Gauss–Hermite, Monte Carlo), compares them with the most accurate affordable reference,
+and picks the cheapest candidate whose error is within a tolerance.
+
+The reference is Gauss–Hermite of order 7 (a sparse grid above 4 dimensions) when its
+two-order error estimate (order 9, :func:`symmon.quadrature_error`) shows it converged to
+well within the tolerance; otherwise Monte Carlo, whose jackknife standard error bounds
+the reference's own error.
+
+The error is unitless, like the normalised MoN of Straka & Havlík (2024): differences are
+measured in the reference's own standard deviations,
+
+    e = max( ‖L_y⁻¹ Δμ‖, ‖L_y⁻¹ ΔΣ_yy L_y⁻ᵀ‖₂, ‖L_y⁻¹ ΔΣ_yu L_u⁻ᵀ‖₂ ),
+
+with L_y L_yᵀ = Cov y and L_u L_uᵀ = Cov u of the reference, so e = 0.01 means the mean is
+off by 1 % of a standard deviation, or the covariance by 1 % relative.  It does not change
+with the units of u or y.
+
+The cost of a candidate is counted in evaluations of g: TT1 needs g and J (1 + n_w),
+TT2 g, J and H (1 + n_w + n_w(n_w + 1)/2), the unscented family 2 n_w + 1 points,
+Gauss–Hermite its nodes and Monte Carlo its samples; the measured time is reported
+beside.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from .angles import wrap_angle
+from .errors import SymmonError
+from .gaussian import Gaussian
+from .model import Model
+from .moments import JointMoments
+from .nonlinearity import nonlinearity
+from .propagate import propagate
+from .transforms import TT1, TT2, UT, GaussHermite, MonteCarlo, Transform
+from .transforms.quadrature import SPARSE_ABOVE, standard_rule
+
+__all__ = ["advise", "Advice", "moment_error", "CANDIDATES", "cost"]
+
+#: The candidates, by name, in the order of the table.
+CANDIDATES: tuple[tuple[str, Transform], ...] = (
+    ("TT1", TT1()),
+    ("TT2", TT2()),
+    ("UT ut1", UT.ut1()),
+    ("UT ut2", UT.ut2()),
+    ("cubature", UT.cubature()),
+    ("Gauss-Hermite 3", GaussHermite(3)),
+    ("Gauss-Hermite 5", GaussHermite(5)),
+    ("Monte Carlo 1e5", MonteCarlo(10**5, seed=0)),
+)
+
+#: The reference Gauss–Hermite order (its error estimate uses order + 2).
+REFERENCE_ORDER = 7
+#: The reference must be this many times more accurate than the tolerance.
+REFERENCE_MARGIN = 10.0
+#: Above this many nodes the Gauss–Hermite reference is not affordable: Monte Carlo instead.
+MAX_REFERENCE_NODES = 200_000
+
+
+def _whitener(C: np.ndarray, what: str) -> np.ndarray:
+    """A matrix A with A C Aᵀ = I on the range of C (pseudo-inverse square root).
+
+    The eigen-decomposition is of the correlation matrix, so that the rank decision does
+    not depend on the units of the components.
+    """
+    d = np.sqrt(np.clip(np.diag(C), 0.0, None))
+    live = d > 0
+    if not live.any():
+        raise SymmonError(f"the reference {what} is zero: the error cannot be measured in its units")
+    D = np.zeros_like(d)
+    D[live] = 1.0 / d[live]
+    R = D[:, None] * C * D[None, :]
+    lam, V = np.linalg.eigh((R + R.T) / 2)
+    keep = lam > lam.max() * 1e-12
+    return (V[:, keep] / np.sqrt(lam[keep])).T * D[None, :]
+
+
+def moment_error(m: JointMoments, ref: JointMoments) -> float:
+    """The unitless error of the moments ``m`` against ``ref`` (module notes).
+
+    Parameters
+    ----------
+    m, ref : JointMoments
+        Of the same model and input.
+
+    Returns
+    -------
+    float
+        max of the whitened mean, covariance and cross-covariance differences.
+    """
+    Ay = _whitener(ref.cov, "covariance Cov y")
+    Au = _whitener(ref.input.cov, "input covariance Cov u")
+    dmu = m.mean - ref.mean
+    if ref.angles:
+        idx = sorted(ref.angles)
+        dmu[idx] = wrap_angle(dmu[idx])
+    e_mean = np.linalg.norm(Ay @ dmu)
+    e_cov = np.linalg.norm(Ay @ (m.cov - ref.cov) @ Ay.T, 2)
+    e_cross = np.linalg.norm(Ay @ (m.cross_cov - ref.cross_cov) @ Au.T, 2)
+    return float(max(e_mean, e_cov, e_cross))
+
+
+def _error_bound(ref: JointMoments, err: dict[str, np.ndarray]) -> float:
+    """The unitless size of an error bound given entrywise (mean, cov, cross_cov)."""
+    Ay = _whitener(ref.cov, "covariance Cov y")
+    Au = _whitener(ref.input.cov, "input covariance Cov u")
+    e_mean = np.linalg.norm(Ay @ np.abs(err["mean"]))
+    # |A E Aᵀ|₂ ≤ ‖ |A| |E| |A|ᵀ ‖₂ for an entrywise bound |E|.
+    e_cov = np.linalg.norm(np.abs(Ay) @ np.abs(err["cov"]) @ np.abs(Ay).T, 2)
+    e_cross = np.linalg.norm(np.abs(Ay) @ np.abs(err["cross_cov"]) @ np.abs(Au).T, 2)
+    return float(max(e_mean, e_cov, e_cross))
+
+
+def _nodes(transform: GaussHermite, n_w: int) -> int:
+    sparse = transform.sparse if transform.sparse is not None else n_w > SPARSE_ABOVE
+    if not sparse and transform.order ** n_w > MAX_REFERENCE_NODES:
+        return transform.order ** n_w
+    return len(standard_rule(n_w, transform.order, bool(sparse))[1])
+
+
+def cost(transform: Transform, n_w: int) -> int:
+    """The cost of ``transform`` in evaluations of g (module notes)."""
+    if isinstance(transform, TT1):
+        return 1 + n_w
+    if isinstance(transform, TT2):
+        return 1 + n_w + n_w * (n_w + 1) // 2
+    if isinstance(transform, UT):
+        return 2 * n_w + 1
+    if isinstance(transform, GaussHermite):
+        return _nodes(transform, n_w)
+    if isinstance(transform, MonteCarlo):
+        return int(transform.n)
+    raise SymmonError(f"no cost model for {transform!r}")
+
+
+@dataclass(frozen=True)
+class Advice:
+    """The result of :func:`advise`.
+
+    Attributes
+    ----------
+    rows : list of dict
+        One per candidate: ``name``, ``transform``, ``error`` (unitless, module notes),
+        ``mon`` (the MoN it gives), ``cost`` (evaluations of g), ``seconds`` and
+        ``within_tol``.
+    reference : str
+        The reference transform.
+    reference_error : float
+        A bound on the reference's own error, in the same unitless measure.
+    reference_mon : float
+        The MoN by the reference.
+    choice : Transform or None
+        The cheapest candidate within ``tol``; None when none is.
+    tol : float
+    weight : str
+    notes : tuple of str
+    """
+
+    rows: list[dict]
+    reference: str
+    reference_error: float
+    reference_mon: float
+    choice: Transform | None
+    choice_name: str | None
+    tol: float
+    weight: Any
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def table(self) -> str:
+        """A plain-text table of the candidates."""
+        lines = [f"{'transform':<17} {'error':>9} {'MoN':>9} {'cost (g evals)':>15} {'time':>9}  within tol"]
+        for r in self.rows:
+            mark = "yes" if r["within_tol"] else "no"
+            if r["name"] == self.choice_name:
+                mark += "  <- choice"
+            lines.append(f"{r['name']:<17} {r['error']:>9.2e} {r['mon']:>9.4f} {r['cost']:>15,d} "
+                         f"{r['seconds'] * 1e3:>7.1f}ms  {mark}")
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        head = (f"advice for tol = {self.tol:g} (unitless error of the moments; MoN weight {self.weight!r})\n"
+                f"reference: {self.reference}, its own error ≤ {self.reference_error:.1e}, "
+                f"MoN {self.reference_mon:.4f}\n")
+        choice = (f"choice: {self.choice_name}" if self.choice_name is not None
+                  else "choice: none of the candidates is within tol")
+        return head + self.table + "\n" + choice + "".join(f"\nnote: {n}" for n in self.notes)
+
+    def __repr__(self) -> str:
+        return f"Advice(choice={self.choice_name!r}, tol={self.tol:g}, reference={self.reference!r})"
+
+
+def _reference(model: Model, u: Gaussian, v: Gaussian | None, tol: float, samples: int, seed: int
+               ) -> tuple[Transform, JointMoments, float, list[str]]:
+    notes: list[str] = []
+    n_w = model.n_u + model.n_v
+    gh = GaussHermite(REFERENCE_ORDER, error_estimate=True)
+    nodes = _nodes(GaussHermite(REFERENCE_ORDER + 2), n_w)
+    if nodes <= MAX_REFERENCE_NODES:
+        ref = propagate(model, u, v, gh)
+        est = ref.info["error_estimate"]
+        bound = _error_bound(ref, {"mean": est["mean"][0], "cov": est["cov"][0],
+                                   "cross_cov": est["cross"][0][:, :model.n_u]})
+        if bound <= tol / REFERENCE_MARGIN:
+            return GaussHermite(REFERENCE_ORDER), ref, bound, notes
+        notes.append(f"Gauss-Hermite {REFERENCE_ORDER} did not converge (error estimate {bound:.1e}): "
+                     "Monte Carlo is the reference")
+    else:
+        notes.append(f"Gauss-Hermite {REFERENCE_ORDER + 2} needs {nodes:,} nodes: Monte Carlo is the reference")
+    mc = MonteCarlo(samples, seed=seed)
+    ref = propagate(model, u, v, mc)
+    bound = 2.0 * _error_bound(ref, ref.stderr)
+    if bound > tol:
+        notes.append(f"the Monte Carlo reference is only good to {bound:.1e} (2 SE) > tol: "
+                     "raise samples to resolve tol")
+    return mc, ref, bound, notes
+
+
+def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = 1e-3, weight: Any = "full",
+           candidates: Sequence[tuple[str, Transform]] | None = None, samples: int = 10**6,
+           seed: int = 0) -> Advice:
+    """Estimate the error of each candidate transform's moments and pick the cheapest within ``tol``.
+
+    Parameters
+    ----------
+    model : Model
+    u : Gaussian
+    v : Gaussian, optional
+        Required when the model has noise symbols.
+    tol : float, default 1e-3
+        Largest acceptable unitless error (module notes): 1e-3 is a thousandth of a
+        standard deviation in the mean, or 0.1 % in the covariances.
+    weight : str or ndarray, default "full"
+        The MoN weight reported beside each candidate (as in :func:`symmon.nonlinearity`).
+    candidates : sequence of (name, Transform), optional
+        Default :data:`CANDIDATES`.
+    samples, seed : int
+        Of the Monte Carlo reference, when Gauss–Hermite does not converge.
+
+    Returns
+    -------
+    Advice
+
+    Examples
+    --------
+    >>> import sympy as sp, symmon as sm
+    >>> x = sp.Symbol("x")
+    >>> a = sm.advise(sm.Model([x], [3 * x + 1]), sm.Gaussian([1.0], [[0.5]]))
+    >>> a.choice_name
+    'TT1'
+    """
+    if not isinstance(model, Model):
+        raise TypeError(f"model must be a symmon.Model, got {type(model).__name__}")
+    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not (0 < tol < 1):
+        raise SymmonError(f"tol must be a number in (0, 1), got {tol!r}")
+    cands = list(CANDIDATES if candidates is None else candidates)
+    if not cands:
+        raise SymmonError("candidates is empty")
+    n_w = model.n_u + model.n_v
+    ref_t, ref, ref_err, notes = _reference(model, u, v, tol, samples, seed)
+    ref_mon = nonlinearity(model, u, v, weight, ref_t).value
+    rows = []
+    for name, t in cands:
+        if isinstance(t, GaussHermite) and _nodes(t, n_w) > MAX_REFERENCE_NODES:
+            notes.append(f"{name} skipped: {_nodes(t, n_w):,} nodes")
+            continue
+        t0 = time.perf_counter()
+        try:
+            res = nonlinearity(model, u, v, weight, t)
+        except SymmonError as exc:  # e.g. TT at a point where g is not differentiable
+            notes.append(f"{name} failed: {exc}")
+            continue
+        seconds = time.perf_counter() - t0
+        err = moment_error(res.moments, ref)
+        rows.append({"name": name, "transform": t, "error": err, "mon": res.value, "cost": cost(t, n_w),
+                     "seconds": seconds, "within_tol": err + ref_err <= tol})
+    # Ties in cost go to the earlier candidate: the choice must not depend on timing noise.
+    ok = [(r["cost"], i) for i, r in enumerate(rows) if r["within_tol"]]
+    best = rows[min(ok)[1]] if ok else None
+    return Advice(rows, _describe(ref_t), ref_err, ref_mon, best["transform"] if best else None,
+                  best["name"] if best else None, float(tol), weight, tuple(notes))
+
+
+def _describe(t: Transform) -> str:
+    if isinstance(t, GaussHermite):
+        return f"Gauss-Hermite {t.order}"
+    if isinstance(t, MonteCarlo):
+        return f"Monte Carlo {t.n:.0e} samples (seed {t.seed})"
+    return repr(t)
