@@ -52,8 +52,11 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
+import itertools
+import math
 import threading
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import casadi as ca
@@ -214,9 +217,12 @@ class _CompiledStep:
                     sorted(angle_states), sorted(h.angle_outputs)))
         name = "sm_nkf_" + hashlib.sha1(key.encode()).hexdigest()[:12]
         self.f = _step_function(f, h, transform, angle_states, name)
-        self.n, self.n_y = f.n_u, h.n_y
+        self.n, self.n_y = n, n_y = f.n_u, h.n_y
+        self._shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n),
+                        "innovation": (n_y,), "S": (n_y, n_y)}
         # Without a compiler, compiled() has already warned (once) while the step was built.
         self._run = self._load() if has_compiler() else None
+        self._local = threading.local()
 
     def _load(self):
         f = self.f
@@ -234,6 +240,14 @@ class _CompiledStep:
         run.restype = ctypes.c_int
         return run
 
+    def _workspace(self) -> tuple[int, int]:
+        """Addresses of this thread's work arrays (integer, real), made once per thread."""
+        ws = getattr(self._local, "ws", None)
+        if ws is None:
+            ws = self._local.ws = (np.zeros(max(self.f.sz_iw(), 1), dtype=np.int64),
+                                   np.zeros(max(self.f.sz_w(), 1)))
+        return ws[0].ctypes.data, ws[1].ctypes.data
+
     @property
     def is_compiled(self) -> bool:
         return self._run is not None
@@ -243,24 +257,29 @@ class _CompiledStep:
         """Run the bank: x0 (n,) or (runs, n), P0 (n, n) or (runs, n, n), Y (runs, K, n_y)."""
         runs, K = Y.shape[:2]
         n, n_y = self.n, self.n_y
-        shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n),
-                  "innovation": (n_y,), "S": (n_y, n_y)}
-        out = {k: np.empty((runs, K) + s) for k, s in shapes.items()}
+        shapes = self._shapes
+        sizes = [runs * K * math.prod(s) for s in shapes.values()]
+        # One block for all outputs and one for the inputs: a few pointers per call.
+        buf = np.empty(sum(sizes))
+        ends = list(itertools.accumulate(sizes))
+        out = {k: buf[e - z: e].reshape((runs, K) + s) for (k, s), z, e in zip(shapes.items(), sizes, ends)}
         # CasADi is column-major: the symmetric P, Q, R, S need no transposition, and a C
         # row (runs, n) is a column-major (n, runs).
         Y = np.ascontiguousarray(Y, dtype=float)
-        Q, R = np.ascontiguousarray(Q, dtype=float), np.ascontiguousarray(R, dtype=float)
-        x0 = np.ascontiguousarray(x0, dtype=float)
-        P0 = np.ascontiguousarray(P0, dtype=float)
         if use_c and self._run is not None:
-            iw = np.zeros(max(self.f.sz_iw(), 1), dtype=np.int64)
-            w = np.zeros(max(self.f.sz_w(), 1))
-            err = self._run(x0.ctypes.data, n if x0.ndim == 2 else 0, P0.ctypes.data,
-                            n * n if P0.ndim == 3 else 0, Y.ctypes.data, Q.ctypes.data, R.ctypes.data,
-                            *(out[k].ctypes.data for k in _OUTPUTS), runs, K, iw.ctypes.data, w.ctypes.data)
+            parts = [np.ravel(a) for a in (x0, P0, Q, R)]
+            inp = np.concatenate(parts).astype(float, copy=False)
+            at = [8 * i for i in itertools.accumulate([0] + [a.size for a in parts])]  # byte offsets
+            a_in, a_out = inp.ctypes.data, buf.ctypes.data
+            iw, w = self._workspace()
+            err = self._run(a_in, n if np.ndim(x0) == 2 else 0, a_in + at[1], n * n if np.ndim(P0) == 3 else 0,
+                            Y.ctypes.data, a_in + at[2], a_in + at[3],
+                            *(a_out + 8 * int(e - z) for z, e in zip(sizes, ends)), runs, K, iw, w)
             if err:
                 raise SymmonError(f"the compiled filter step {self.f.name()} returned an error")
             return out
+        x0, P0 = np.asarray(x0, dtype=float), np.asarray(P0, dtype=float)
+        Q, R = np.asarray(Q, dtype=float), np.asarray(R, dtype=float)
         # CasADi's VM: one mapped call per step over all runs, through buffers.
         fm = self.f.map(runs, "serial") if runs > 1 else self.f
         fb, ev = fm.buffer()
@@ -516,12 +535,12 @@ class NonlinearKalmanFilter:
         object.__setattr__(self, "R", _readonly(R))
         object.__setattr__(self, "transform", transform)
 
-    @property
+    @cached_property
     def angle_states(self) -> frozenset[int]:
         """State components that are angles: f's angle outputs and f's or h's angle inputs."""
         return frozenset(self.f_model.angle_outputs | self.f_model.angle_inputs | self.h_model.angle_inputs)
 
-    @property
+    @cached_property
     def method(self) -> str:
         """The filter's name: EKF, EKF2, UKF(...), CKF or GHKF(order=...)."""
         return _method(self.transform)
@@ -594,6 +613,8 @@ class NonlinearKalmanFilter:
                 f"{self.method}: the filter produced NaN or inf at {where} (the innovation "
                 "covariance S is singular or a covariance lost positive definiteness)"
             )
-        arrays = {k: _readonly(v if runs is not None else v[0]) for k, v in out.items()}
+        arrays = {k: v if runs is not None else v[0] for k, v in out.items()}
+        for v in arrays.values():
+            v.flags.writeable = False  # fresh arrays of this call: frozen, not copied
         return NonlinearKalmanResult(**arrays, angle_states=tuple(sorted(self.angle_states)),
                                      method=self.method)
