@@ -5,14 +5,14 @@ noise symbols the noises are additive, x_{k+1} = f(x_k) + w_k and y_k = h(x_k) +
 time update is a nonlinear transformation (NLT) of the dynamics and the measurement update
 is the indirect step of Gustafsson & Hendeby (Lemma 7.1), so the transform picks the filter:
 
-========================  =====================================================
-transform                 filter
-========================  =====================================================
-``TT1()``                 extended Kalman filter (EKF)
-``TT2()``                 second-order EKF
-``UT(alpha, beta, kappa)`` unscented Kalman filter (UKF); ``UT.cubature()``: CKF
-``GaussHermite(order)``   Gauss–Hermite Kalman filter
-========================  =====================================================
+============================  =====================================================
+transform                     filter
+============================  =====================================================
+``TT1()``                     extended Kalman filter (EKF)
+``TT2()``                     second-order EKF
+``UT(alpha, beta, kappa)``    unscented Kalman filter (UKF); ``UT.cubature()``: CKF
+``GaussHermite(order)``       Gauss–Hermite Kalman filter
+============================  =====================================================
 
 With noise symbols (general noise) the rule runs on the augmented vector [x; w] with
 covariance blkdiag(P, Q) (resp. [x; e], blkdiag(P⁻, R)); with additive noise Q and R are
@@ -611,7 +611,8 @@ class NonlinearKalmanFilter:
             where = f"step {k}" if runs is None else f"run {r}, step {k}"
             raise SymmonError(
                 f"{self.method}: the filter produced NaN or inf at {where} (the innovation "
-                "covariance S is singular or a covariance lost positive definiteness)"
+                "covariance S is singular, a covariance lost positive definiteness, or a "
+                "derivative is undefined there, e.g. sqrt at 0 or atan2(0, 0))"
             )
         arrays = {k: v if runs is not None else v[0] for k, v in out.items()}
         for v in arrays.values():

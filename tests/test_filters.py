@@ -337,6 +337,14 @@ def test_bad_inputs_raise_clear_errors(scalar_models, call, error, match):
         call(model)
 
 
+def test_ekf_at_a_non_differentiable_point_raises():
+    """The range's Jacobian is NaN at the origin (CasADi gives 0/0): an error, not a number."""
+    f, h = cv_models()
+    ekf = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, sm.TT1())
+    with pytest.raises(SymmonError, match=r"NaN or inf at run 1, step 0 .*derivative is undefined"):
+        ekf.filter(np.ones((2, 3, 2)), np.array([[1.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]]), np.eye(4))
+
+
 def test_old_name_is_an_alias():
     assert est.NonlinearKalmanFilter is sm.NonlinearKalmanFilter
     assert est.NonlinearKalmanResult is NonlinearKalmanResult
