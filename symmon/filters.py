@@ -136,8 +136,9 @@ def _moments(model: Model, m: ca.SX, C: ca.SX, transform: Transform, angles: fro
     if isinstance(transform, TT2):
         return _tt2_sx(cm.gjh, cm.n_y, m, C, sorted(angles))
     if isinstance(transform, TT1):
-        JC = ca.mtimes(cm.jac(m), C)
-        return _wrap_some(cm.g(m), angles), ca.mtimes(JC, cm.jac(m).T), JC
+        J = cm.jac(m)
+        JC = ca.mtimes(J, C)
+        return _wrap_some(cm.g(m), angles), ca.mtimes(JC, J.T), JC
     return _point_moments(cm.g, m, C, transform, angles)
 
 
