@@ -305,6 +305,22 @@ def test_chi2_bounds_equal_scipy(bank_result):
     assert "CKF" in repr(res) and "runs=6" in repr(res) and "interval" in repr(t)
 
 
+def test_linear_gaussian_bank_is_consistent():
+    """On a linear-Gaussian model the filter is exact: E NEES = n and E NIS = n_y.  The
+    per-run time averages are independent across runs; their mean is tested to 5 SE."""
+    px, py, vx, vy = X = sp.symbols("px py vx vy", real=True)
+    f = sm.Model(X, list(sp.Matrix(F_CV) * sp.Matrix(X)), name="cv_lin")
+    h = sm.Model(X, [px, py], name="pos")
+    R = np.diag([0.5, 0.3])
+    kf = sm.KalmanFilter(F_CV, Q_CV, np.eye(2, 4), R)
+    xs, ys = kf.simulate(30, X0.mean, np.random.default_rng(8), P0=X0.cov, runs=200)
+    res = sm.NonlinearKalmanFilter(f, h, Q_CV, R, sm.UT.cubature()).filter(ys, X0)
+    for stat, d in ((res.nees(xs), 4), (res.nis(), 2)):
+        per_run = stat.mean(axis=1)
+        assert abs(per_run.mean() - d) < 5 * per_run.std(ddof=1) / np.sqrt(per_run.size)
+    assert np.mean(res.anees(xs).inside) > 0.8  # 95 % intervals, 30 steps
+
+
 # --------------------------------------------------------------------------- errors
 @pytest.fixture(scope="module")
 def scalar_models():
