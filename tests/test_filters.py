@@ -216,6 +216,19 @@ def test_general_noise_equals_augmented_steps(track, transform):
         assert rel_err(res.P[k], x.cov) < SAME_FILTER_RTOL
 
 
+@pytest.mark.parametrize("transform", [sm.TT2(), sm.GaussHermite(3), sm.GaussHermite(3, sparse=True)], ids=repr)
+def test_additive_noise_equals_nlt_steps(track, transform):
+    """Additive noise: the compiled filter equals estimation.predict/update step by step."""
+    _, ys = track
+    f, h = cv_models(tag="_steps")
+    res = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, transform).filter(ys[:15], X0)
+    x = X0
+    for k, y in enumerate(ys[:15]):
+        x = est.update(h, est.predict(f, x, Q_CV, transform), y, R_RB, transform)
+        assert rel_err(res.x[k], x.mean) < SAME_FILTER_RTOL
+        assert rel_err(res.P[k], x.cov) < SAME_FILTER_RTOL
+
+
 # --------------------------------------------------------------------------- banks
 @pytest.fixture(scope="module")
 def bank():
