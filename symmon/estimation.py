@@ -12,7 +12,8 @@ Measurements are y_k = h(x, e_k) (additive: y_k = h(x) + e_k), e_k ~ N(0, R_k) i
   x̂ = x̂₀ + P^{xy}(P^{yy})⁻¹(y − ŷ), Cov = P^{xx} − P^{xy}(P^{yy})⁻¹P^{yx}.
 - **Nonlinear Kalman filters**: the time update is an NLT of the dynamics and the measurement
   update is the indirect step above, so the transform picks the filter: TT1 gives the EKF,
-  TT2 the second-order EKF and the UT the UKF (Gustafsson & Hendeby, 2012).
+  TT2 the second-order EKF and the UT the UKF (Gustafsson & Hendeby, 2012).  The filter
+  that runs them over a sequence, compiled to C, is :class:`symmon.filters.NonlinearKalmanFilter`.
 
 References
 ----------

@@ -317,7 +317,7 @@ def _compiled_step(f: Model, h: Model, transform: Transform, angle_states: froze
 
 
 # --------------------------------------------------------------------------- results
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ConsistencyTest:
     """An averaged NEES or NIS with its two-sided χ² acceptance interval.
 
