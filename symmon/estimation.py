@@ -12,7 +12,8 @@ Measurements are y_k = h(x, e_k) (additive: y_k = h(x) + e_k), e_k ~ N(0, R_k) i
   x̂ = x̂₀ + P^{xy}(P^{yy})⁻¹(y − ŷ), Cov = P^{xx} − P^{xy}(P^{yy})⁻¹P^{yx}.
 - **Nonlinear Kalman filters**: the time update is an NLT of the dynamics and the measurement
   update is the indirect step above, so the transform picks the filter: TT1 gives the EKF,
-  TT2 the second-order EKF and the UT the UKF (Gustafsson & Hendeby, 2012).
+  TT2 the second-order EKF and the UT the UKF (Gustafsson & Hendeby, 2012).  The filter
+  that runs them over a sequence, compiled to C, is :class:`symmon.filters.NonlinearKalmanFilter`.
 
 References
 ----------
@@ -470,110 +471,10 @@ def update(
     return _condition(model_h, _joint(model_h, x, Rm, transform), yv, "update")
 
 
-@dataclass(frozen=True, eq=False)
-class NonlinearKalmanResult:
-    """Output of :meth:`NonlinearKalmanFilter.filter` (the shapes of :class:`KalmanResult`).
+def __getattr__(name: str):
+    """The nonlinear filters moved to :mod:`symmon.filters`; their old names still work."""
+    if name in ("NonlinearKalmanFilter", "NonlinearKalmanResult"):
+        from . import filters
 
-    Attributes
-    ----------
-    x : ndarray, shape (K, n)
-        Filtered means x̂_{k|k}.
-    P : ndarray, shape (K, n, n)
-        Filtered covariances P_{k|k}.
-    x_pred : ndarray, shape (K, n)
-        Predicted means x̂_{k|k−1}.
-    P_pred : ndarray, shape (K, n, n)
-        Predicted covariances P_{k|k−1}.
-    """
-
-    x: np.ndarray
-    P: np.ndarray
-    x_pred: np.ndarray
-    P_pred: np.ndarray
-
-    def estimate(self, k: int) -> Gaussian:
-        """N(x̂_{k|k}, P_{k|k}) at step k (0-based)."""
-        return Gaussian(self.x[k], self.P[k])
-
-
-@dataclass(frozen=True, eq=False)
-class NonlinearKalmanFilter:
-    """A Kalman filter whose prediction and update are NLTs: TT1 = EKF, TT2, UT = UKF.
-
-    x_{k+1} = f(x_k, w_k), y_k = h(x_k, e_k); without noise symbols the noises are additive.
-
-    Parameters
-    ----------
-    f_model : Model
-        The dynamics (n inputs, n outputs).
-    h_model : Model
-        The measurement model (n inputs, n_y outputs; angle outputs wrap the innovation).
-    Q : array_like
-        Process noise covariance (Cov w, or additive (n, n)).
-    R : array_like
-        Measurement noise covariance (Cov e, or additive (n_y, n_y)).
-    transform : Transform, default ``UT.ut1()``
-        Used for both steps.
-
-    Examples
-    --------
-    >>> import sympy as sp, symmon as sm
-    >>> x = sp.symbols("x")
-    >>> ekf = NonlinearKalmanFilter(sm.Model([x], [x]), sm.Model([x], [x]), [[1.0]], [[1.0]], sm.TT1())
-    >>> res = ekf.filter([[1.0]], sm.Gaussian([0.0], [[1.0]]))
-    >>> round(float(res.x[0, 0]), 12), round(float(res.P[0, 0, 0]), 12)
-    (0.666666666667, 0.666666666667)
-    """
-
-    f_model: Model
-    h_model: Model
-    Q: np.ndarray
-    R: np.ndarray
-    transform: Transform | None = None
-
-    def __post_init__(self) -> None:
-        f = _check_model(self.f_model, "f_model")
-        h = _check_model(self.h_model, "h_model")
-        if f.n_y != f.n_u:
-            raise ShapeError(f"f_model must map the state to itself: {f.n_u} inputs, {f.n_y} outputs")
-        if h.n_u != f.n_u:
-            raise ShapeError(f"h_model has {h.n_u} inputs but f_model has {f.n_u} states")
-        Q = as_covariance(self.Q, "Q", dim=f.n_v if f.n_v else f.n_u)
-        R = _noise_cov(h, self.R, "R")
-        if self.transform is not None and not isinstance(self.transform, Transform):
-            raise TypeError(f"transform must be a symmon transform, got {self.transform!r}")
-        object.__setattr__(self, "Q", _readonly(Q))
-        object.__setattr__(self, "R", _readonly(R))
-
-    def filter(self, ys: ArrayLike, x0: Gaussian) -> NonlinearKalmanResult:
-        """Predict, then update, for each measurement (the convention of :class:`KalmanFilter`).
-
-        Parameters
-        ----------
-        ys : array_like, shape (K, n_y)
-            Measurements y_1 … y_K.
-        x0 : Gaussian
-            The state x_0 before the first prediction.
-
-        Returns
-        -------
-        NonlinearKalmanResult
-        """
-        n, n_y = self.f_model.n_u, self.h_model.n_y
-        _check_gaussian(x0, "x0", dim=n)
-        Y = np.asarray(ys, dtype=float)
-        if Y.ndim != 2 or Y.shape[1] != n_y or Y.shape[0] == 0:
-            raise ShapeError(f"ys must have shape (K, {n_y}) with K >= 1, got {Y.shape}")
-        if not np.all(np.isfinite(Y)):
-            raise ShapeError("ys contains NaN or inf")
-        K = Y.shape[0]
-        xs, Ps = np.empty((K, n)), np.empty((K, n, n))
-        xps, Pps = np.empty((K, n)), np.empty((K, n, n))
-        x = x0
-        for k in range(K):
-            x_pred = predict(self.f_model, x, self.Q, self.transform)
-            joint = _joint(self.h_model, x_pred, self.R, self.transform)
-            x = _condition(self.h_model, joint, Y[k], f"ys[{k}]")
-            xps[k], Pps[k] = x_pred.mean, x_pred.cov
-            xs[k], Ps[k] = x.mean, x.cov
-        return NonlinearKalmanResult(_readonly(xs), _readonly(Ps), _readonly(xps), _readonly(Pps))
+        return getattr(filters, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .errors import CovarianceError, ShapeError
-from .gaussian import as_covariance
+from .gaussian import Gaussian, as_covariance
 
 __all__ = ["KalmanFilter", "KalmanResult"]
 
@@ -214,7 +214,7 @@ class KalmanFilter:
             raise ShapeError("x0 contains NaN or inf")
         return arr
 
-    def filter(self, ys: ArrayLike, x0: ArrayLike, P0: ArrayLike) -> KalmanResult:
+    def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None) -> KalmanResult:
         """Run the filter over the measurements ``ys``.
 
         Each step predicts, then updates with the Joseph form
@@ -225,10 +225,12 @@ class KalmanFilter:
         ----------
         ys : array_like, shape (K, n_y) or (N, K, n_y)
             Measurements :math:`y_1, \\dots, y_K`; a leading axis filters N independent runs.
-        x0 : array_like, shape (n,) or (N, n)
-            Mean of the initial state :math:`x_0` (before the first prediction).
-        P0 : array_like, shape (n, n)
-            Covariance of :math:`x_0`, symmetric PSD (zero for a known initial state).
+        x0 : Gaussian, or array_like of shape (n,) or (N, n)
+            The initial state :math:`x_0` (before the first prediction), or its mean with ``P0``
+            (the signature of :meth:`symmon.NonlinearKalmanFilter.filter`).
+        P0 : array_like, shape (n, n), optional
+            Covariance of :math:`x_0` when ``x0`` is a mean, symmetric PSD (zero for a known
+            initial state).
 
         Returns
         -------
@@ -246,6 +248,10 @@ class KalmanFilter:
         if not np.all(np.isfinite(Y)):
             raise ShapeError("ys contains NaN or inf")
         batch = Y.shape[0] if Y.ndim == 3 else None
+        if isinstance(x0, Gaussian) == (P0 is not None):
+            raise ShapeError("give x0 as a Gaussian, or its mean together with P0")
+        if isinstance(x0, Gaussian):
+            x0, P0 = x0.mean, x0.cov
         x = self._initial_mean(x0, batch)
         if batch is not None:
             x = np.broadcast_to(x, (batch, self.n))

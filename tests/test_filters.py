@@ -1,0 +1,379 @@
+"""The compiled nonlinear Kalman filters (symmon.filters): FilterPy's EKF and UKF, angles,
+general noise, filter banks and the NEES/NIS consistency statistics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import sympy as sp
+from filterpy.kalman import ExtendedKalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter
+from scipy import stats
+
+import symmon as sm
+from symmon import estimation as est
+from symmon.errors import ShapeError, SymmonError
+from symmon.filters import NonlinearKalmanResult, _compiled_step
+
+#: Two implementations of the same filter in double precision, over tens of steps: the
+#: order of the sums differs, so rounding (1e-16 per operation) grows by the conditioning
+#: of S and P over the steps; 1e-9 leaves a wide margin over the 1e-13 observed.
+SAME_FILTER_RTOL = 1e-9
+#: The same compiled C code on the same numbers (bank against single runs).
+SAME_CODE_RTOL = 1e-12
+
+DT = 1.0
+F_CV = np.array([[1, 0, DT, 0], [0, 1, 0, DT], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
+Q_CV = 0.05 * np.kron(np.array([[DT**3 / 3, DT**2 / 2], [DT**2 / 2, DT]]), np.eye(2))
+R_RB = np.diag([0.5**2, 0.02**2])
+
+
+def rel_err(a: np.ndarray, b: np.ndarray) -> float:
+    """max |a − b| relative to max |b|."""
+    return float(np.max(np.abs(np.asarray(a) - b)) / np.max(np.abs(b)))
+
+
+def wrap(a):
+    return np.mod(np.asarray(a) + np.pi, 2 * np.pi) - np.pi
+
+
+def cv_models(rotation: float = 0.0, angles: bool = True, tag: str = ""):
+    """Constant velocity and range–bearing from the origin, the bearing measured from the
+    direction ``rotation`` (a sensor frame rotated by it)."""
+    px, py, vx, vy = sp.symbols("px py vx vy", real=True)
+    X = [px, py, vx, vy]
+    f = sm.Model(X, list(sp.Matrix(F_CV) * sp.Matrix(X)), name="cv" + tag)
+    c, s = np.cos(rotation), np.sin(rotation)
+    bearing = sp.atan2(-s * px + c * py, c * px + s * py) if rotation else sp.atan2(py, px)
+    h = sm.Model(X, [sp.sqrt(px**2 + py**2), bearing], name=f"rb{tag}", angles=[1] if angles else None)
+    return f, h
+
+
+def simulate(x0: np.ndarray, K: int, seed: int, runs: int | None = None):
+    """True states and range–bearing measurements of the CV model."""
+    rng = np.random.default_rng(seed)
+    lead = () if runs is None else (runs,)
+    x = np.broadcast_to(x0, lead + (4,)).copy()
+    Lq, Lr = np.linalg.cholesky(Q_CV), np.linalg.cholesky(R_RB)
+    xs, ys = np.empty(lead + (K, 4)), np.empty(lead + (K, 2))
+    for k in range(K):
+        x = x @ F_CV.T + rng.standard_normal(lead + (4,)) @ Lq.T
+        xs[..., k, :] = x
+        y = np.stack([np.hypot(x[..., 0], x[..., 1]), np.arctan2(x[..., 1], x[..., 0])], axis=-1)
+        ys[..., k, :] = y + rng.standard_normal(lead + (2,)) @ Lr.T
+    ys[..., 1] = wrap(ys[..., 1])
+    return xs, ys
+
+
+X0 = sm.Gaussian([20.0, 5.0, -1.0, 0.5], np.diag([1.0, 1.0, 0.1, 0.1]))
+
+
+@pytest.fixture(scope="module")
+def track():
+    return simulate(X0.mean, 40, seed=1)
+
+
+# --------------------------------------------------------------------------- FilterPy
+def hx(x):
+    return np.array([np.hypot(x[0], x[1]), np.arctan2(x[1], x[0])])
+
+
+def residual_z(a, b):
+    d = np.asarray(a, dtype=float) - b
+    d[1] = wrap(d[1])
+    return d
+
+
+def z_mean(sigmas, Wm):
+    """The circular mean of the bearing, as symmon's (centred on the first point)."""
+    r = sigmas[0, 0] + Wm @ (sigmas[:, 0] - sigmas[0, 0])
+    return np.array([r, np.arctan2(Wm @ np.sin(sigmas[:, 1]), Wm @ np.cos(sigmas[:, 1]))])
+
+
+@pytest.mark.parametrize("alpha, beta, kappa", [(1.0, 2.0, 0.0), (0.5, 2.0, 1.0), (1.0, 0.0, 0.0)])
+def test_ukf_equals_filterpy(track, alpha, beta, kappa):
+    _, ys = track
+    f, h = cv_models()
+    res = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, sm.UT(alpha, beta, kappa)).filter(ys, X0)
+    ukf = UnscentedKalmanFilter(4, 2, DT, hx, lambda x, dt: F_CV @ x,
+                                MerweScaledSigmaPoints(4, alpha, beta, kappa),
+                                z_mean_fn=z_mean, residual_z=residual_z)
+    ukf.x, ukf.P, ukf.Q, ukf.R = X0.mean.copy(), X0.cov.copy(), Q_CV, R_RB
+    xs, Ps, nus, Ss = [], [], [], []
+    for y in ys:
+        ukf.predict()
+        ukf.update(y)
+        xs.append(ukf.x.copy()), Ps.append(ukf.P.copy()), nus.append(ukf.y.copy()), Ss.append(ukf.S.copy())
+    for got, want in ((res.x, xs), (res.P, Ps), (res.innovation, nus), (res.S, Ss)):
+        assert rel_err(got, np.array(want)) < SAME_FILTER_RTOL
+
+
+def test_ekf_equals_filterpy(track):
+    _, ys = track
+    f, h = cv_models()
+    res = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, sm.TT1()).filter(ys, X0)
+    ekf = ExtendedKalmanFilter(4, 2)
+    ekf.x, ekf.P, ekf.F, ekf.Q, ekf.R = X0.mean.copy(), X0.cov.copy(), F_CV, Q_CV, R_RB
+
+    def H_jac(x):
+        r2 = x[0] ** 2 + x[1] ** 2
+        r = np.sqrt(r2)
+        return np.array([[x[0] / r, x[1] / r, 0, 0], [-x[1] / r2, x[0] / r2, 0, 0]])
+
+    xs, Ps, nus = [], [], []
+    for y in ys:
+        ekf.predict()
+        ekf.update(y, H_jac, hx, residual=residual_z)
+        xs.append(ekf.x.copy()), Ps.append(ekf.P.copy()), nus.append(ekf.y.copy())
+    for got, want in ((res.x, xs), (res.P, Ps), (res.innovation, nus)):
+        assert rel_err(got, np.array(want)) < SAME_FILTER_RTOL
+
+
+# --------------------------------------------------------------------------- angles
+@pytest.fixture(scope="module")
+def behind():
+    """A target behind the sensor moving along the negative x axis: the bearing flips about ±π."""
+    x0 = np.array([-30.0, 0.2, 0.5, 0.0])
+    _, ys = simulate(x0, 10, seed=2)
+    assert np.any(ys[:, 1] > 3.0) and np.any(ys[:, 1] < -3.0)
+    return sm.Gaussian(x0, np.diag([1.0, 1.0, 0.1, 0.1])), ys
+
+
+@pytest.mark.parametrize("transform", [sm.TT1(), sm.TT2(), sm.UT.ut1(), sm.UT.cubature(), sm.GaussHermite(3)],
+                         ids=repr)
+def test_bearing_across_pi_equals_rotated_sensor_frame(behind, transform):
+    """Measured from a frame rotated by π/2 the bearing stays far from ±π; the states and
+    covariances (the same coordinates) must not notice the difference."""
+    x0, ys = behind
+    phi = np.pi / 2
+    f, h = cv_models(tag="_seam")
+    fr, hr = cv_models(phi, tag="_rot")
+    yr = ys.copy()
+    yr[:, 1] = wrap(ys[:, 1] - phi)
+    res = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, transform).filter(ys, x0)
+    rot = sm.NonlinearKalmanFilter(fr, hr, Q_CV, R_RB, transform).filter(yr, x0)
+    assert np.all(np.abs(yr[:, 1]) < 2.0)
+    assert rel_err(res.x, rot.x) < SAME_FILTER_RTOL and rel_err(res.P, rot.P) < SAME_FILTER_RTOL
+    np.testing.assert_allclose(res.innovation, rot.innovation, atol=SAME_FILTER_RTOL)
+    # Undeclared, the bearing innovation jumps by 2π and the estimate runs away.
+    _, raw = cv_models(angles=False, tag="_raw")
+    off = sm.NonlinearKalmanFilter(f, raw, Q_CV, R_RB, transform).filter(ys, x0)
+    assert np.max(np.abs(off.x - res.x)) > 1.0
+
+
+@pytest.fixture(scope="module")
+def heading():
+    """A heading θ turning at rate ω, seen as a unit vector: θ passes ±π."""
+    th, om = sp.symbols("theta omega", real=True)
+    K = 12
+    rng = np.random.default_rng(5)
+    truth = np.column_stack([wrap(2.6 + 0.15 * np.arange(1, K + 1)), np.full(K, 0.15)])
+    ys = np.column_stack([np.cos(truth[:, 0]), np.sin(truth[:, 0])]) + 0.05 * rng.standard_normal((K, 2))
+    return th, om, truth, ys
+
+
+@pytest.mark.parametrize("transform", [sm.TT1(), sm.UT.ut1(), sm.GaussHermite(3)], ids=repr)
+def test_angle_state_across_pi_equals_shifted_state(heading, transform):
+    """The heading state estimated through ±π equals that of the heading shifted by −π
+    (which stays far from ±π), shifted back; ANEES/NEES wrap the heading error."""
+    th, om, truth, ys = heading
+    phi = np.pi
+    Q, R = np.diag([1e-3, 1e-4]), 0.05**2 * np.eye(2)
+    x0 = sm.Gaussian([2.6, 0.1], np.diag([0.05, 0.01]))
+    f = sm.Model([th, om], [th + om, om], name="turn", angles=[0])
+    h = sm.Model([th, om], [sp.cos(th), sp.sin(th)], name="unit")
+    h_shift = sm.Model([th, om], [sp.cos(th + phi), sp.sin(th + phi)], name="unit_shift")
+    res = sm.NonlinearKalmanFilter(f, h, Q, R, transform).filter(ys, x0)
+    x0s = sm.Gaussian(x0.mean - [phi, 0.0], x0.cov)
+    shifted = sm.NonlinearKalmanFilter(f, h_shift, Q, R, transform).filter(ys, x0s)
+    assert np.all(np.abs(shifted.x[:, 0]) < 2.5) and np.ptp(res.x[:, 0]) > 6.0  # res wraps, shifted not
+    np.testing.assert_allclose(wrap(res.x[:, 0] - phi - shifted.x[:, 0]), 0.0, atol=SAME_FILTER_RTOL)
+    assert rel_err(res.P, shifted.P) < SAME_FILTER_RTOL
+    truth_s = truth - [phi, 0.0]
+    np.testing.assert_allclose(res.nees(truth), shifted.nees(truth_s), rtol=SAME_FILTER_RTOL)
+    assert res.angle_states == (0,)
+
+
+# --------------------------------------------------------------------------- general noise
+@pytest.mark.parametrize("transform", [sm.TT1(), sm.TT2(), sm.UT.ut1(), sm.GaussHermite(3)], ids=repr)
+def test_general_noise_equals_augmented_steps(track, transform):
+    """Noise inside f and h: the compiled filter equals the augmented-state NLT steps of
+    symmon.estimation (predict/update on [x; w] and [x; e], numpy transforms)."""
+    _, ys = track
+    px, py, vx, vy, a1, a2, er, eb = sp.symbols("px py vx vy a1 a2 e_r e_b", real=True)
+    X = [px, py, vx, vy]
+    f = sm.Model(X, [px + DT * vx + DT**2 / 2 * a1, py + DT * vy + DT**2 / 2 * a2, vx + DT * a1, vy + DT * a2],
+                 noise=[a1, a2], name="cv_accel")
+    h = sm.Model(X, [sp.sqrt(px**2 + py**2) * sp.exp(er), sp.atan2(py + 0.1 * eb * px, px) + eb],
+                 noise=[er, eb], name="rb_general", angles=[1])
+    assert h.structure == "general"
+    Qw, Re = 0.05 * np.eye(2), np.diag([0.02**2, 0.02**2])
+    ys = ys[:15]
+    res = sm.NonlinearKalmanFilter(f, h, Qw, Re, transform).filter(ys, X0)
+    x = X0
+    for k, y in enumerate(ys):
+        x = est.update(h, est.predict(f, x, Qw, transform), y, Re, transform)
+        assert rel_err(res.x[k], x.mean) < SAME_FILTER_RTOL
+        assert rel_err(res.P[k], x.cov) < SAME_FILTER_RTOL
+
+
+@pytest.mark.parametrize("transform", [sm.TT2(), sm.GaussHermite(3), sm.GaussHermite(3, sparse=True)], ids=repr)
+def test_additive_noise_equals_nlt_steps(track, transform):
+    """Additive noise: the compiled filter equals estimation.predict/update step by step."""
+    _, ys = track
+    f, h = cv_models(tag="_steps")
+    res = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, transform).filter(ys[:15], X0)
+    x = X0
+    for k, y in enumerate(ys[:15]):
+        x = est.update(h, est.predict(f, x, Q_CV, transform), y, R_RB, transform)
+        assert rel_err(res.x[k], x.mean) < SAME_FILTER_RTOL
+        assert rel_err(res.P[k], x.cov) < SAME_FILTER_RTOL
+
+
+# --------------------------------------------------------------------------- banks
+@pytest.fixture(scope="module")
+def bank():
+    xs, ys = simulate(X0.mean, 25, seed=3, runs=6)
+    return xs, ys
+
+
+@pytest.mark.parametrize("transform", [sm.TT1(), sm.UT.ut1()], ids=repr)
+def test_bank_equals_single_runs(bank, transform):
+    _, ys = bank
+    f, h = cv_models()
+    nkf = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, transform)
+    res = nkf.filter(ys, X0)
+    assert res.x.shape == (6, 25, 4) and res.P.shape == (6, 25, 4, 4) and res.S.shape == (6, 25, 2, 2)
+    means = X0.mean + np.arange(6)[:, None] * [0.5, -0.5, 0.0, 0.1]
+    per_run = nkf.filter(ys, means, X0.cov)
+    for r in range(6):
+        one = nkf.filter(ys[r], X0)
+        for name in ("x", "P", "x_pred", "P_pred", "innovation", "S"):
+            np.testing.assert_allclose(getattr(res, name)[r], getattr(one, name), rtol=SAME_CODE_RTOL, atol=0)
+        mine = nkf.filter(ys[r], sm.Gaussian(means[r], X0.cov))
+        np.testing.assert_allclose(per_run.x[r], mine.x, rtol=SAME_CODE_RTOL, atol=0)
+    assert res.estimate(3, run=2) == sm.Gaussian(res.x[2, 3], res.P[2, 3])
+
+
+def test_compiled_step_equals_casadi_vm(bank):
+    """The C run loop and CasADi's virtual machine (the fallback without a compiler)."""
+    _, ys = bank
+    f, h = cv_models()
+    nkf = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, sm.UT.ut1())
+    step = _compiled_step(f, h, nkf.transform, nkf.angle_states)
+    assert step.is_compiled
+    c = step(X0.mean, X0.cov, ys, Q_CV, R_RB)
+    vm = step(X0.mean, X0.cov, ys, Q_CV, R_RB, use_c=False)
+    for name in c:
+        np.testing.assert_allclose(c[name], vm[name], rtol=SAME_CODE_RTOL, atol=1e-15)
+
+
+def test_linear_kalman_filter_takes_a_gaussian_x0():
+    """KalmanFilter.filter(ys, x0) with x0 a Gaussian, the NonlinearKalmanFilter signature."""
+    kf = sm.KalmanFilter(F_CV, Q_CV, np.eye(2, 4), np.eye(2))
+    ys = np.random.default_rng(0).standard_normal((5, 2))
+    a, b = kf.filter(ys, X0), kf.filter(ys, X0.mean, X0.cov)
+    np.testing.assert_array_equal(a.x, b.x)
+    np.testing.assert_array_equal(a.P, b.P)
+    with pytest.raises(ShapeError, match="Gaussian, or its mean together with P0"):
+        kf.filter(ys, X0, X0.cov)
+
+
+# --------------------------------------------------------------------------- consistency
+@pytest.fixture(scope="module")
+def bank_result(bank):
+    xs, ys = bank
+    f, h = cv_models()
+    return xs, sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, sm.UT.cubature()).filter(ys, X0)
+
+
+def test_nees_and_nis_equal_direct_computation(bank_result):
+    xs, res = bank_result
+    nees, nis = res.nees(xs), res.nis()
+    assert nees.shape == nis.shape == (6, 25)
+    for r in range(6):
+        for k in range(25):
+            e = xs[r, k] - res.x[r, k]
+            assert nees[r, k] == pytest.approx(e @ np.linalg.inv(res.P[r, k]) @ e, rel=SAME_FILTER_RTOL)
+            nu = res.innovation[r, k]
+            assert nis[r, k] == pytest.approx(nu @ np.linalg.inv(res.S[r, k]) @ nu, rel=SAME_FILTER_RTOL)
+    single = NonlinearKalmanResult(res.x[0], res.P[0], res.x_pred[0], res.P_pred[0], res.innovation[0], res.S[0])
+    np.testing.assert_array_equal(single.nees(xs[0]), nees[0])
+
+
+def test_chi2_bounds_equal_scipy(bank_result):
+    """R runs at a step: R·ANEES ~ χ²(R n); one run over K steps: K·ANEES ~ χ²(K n)."""
+    xs, res = bank_result
+    t = res.anees(xs, confidence=0.99)
+    assert t.value.shape == (25,) and t.dof == 6 * 4
+    np.testing.assert_allclose(t.value, res.nees(xs).mean(axis=0), rtol=SAME_CODE_RTOL)
+    assert (t.lower, t.upper) == pytest.approx(tuple(stats.chi2.ppf([0.005, 0.995], 24) / 6), rel=SAME_CODE_RTOL)
+    np.testing.assert_array_equal(t.inside, (t.value >= t.lower) & (t.value <= t.upper))
+    n = res.anis()
+    assert n.dof == 6 * 2
+    assert (n.lower, n.upper) == pytest.approx(tuple(stats.chi2.ppf([0.025, 0.975], 12) / 6), rel=SAME_CODE_RTOL)
+    single = NonlinearKalmanResult(res.x[0], res.P[0], res.x_pred[0], res.P_pred[0], res.innovation[0], res.S[0])
+    s = single.anis()
+    assert s.value.shape == () and s.dof == 25 * 2
+    assert s.value == pytest.approx(res.nis()[0].mean(), rel=SAME_CODE_RTOL)
+    assert "CKF" in repr(res) and "runs=6" in repr(res) and "interval" in repr(t)
+
+
+def test_linear_gaussian_bank_is_consistent():
+    """On a linear-Gaussian model the filter is exact: E NEES = n and E NIS = n_y.  The
+    per-run time averages are independent across runs; their mean is tested to 5 SE."""
+    px, py, vx, vy = X = sp.symbols("px py vx vy", real=True)
+    f = sm.Model(X, list(sp.Matrix(F_CV) * sp.Matrix(X)), name="cv_lin")
+    h = sm.Model(X, [px, py], name="pos")
+    R = np.diag([0.5, 0.3])
+    kf = sm.KalmanFilter(F_CV, Q_CV, np.eye(2, 4), R)
+    xs, ys = kf.simulate(30, X0.mean, np.random.default_rng(8), P0=X0.cov, runs=200)
+    res = sm.NonlinearKalmanFilter(f, h, Q_CV, R, sm.UT.cubature()).filter(ys, X0)
+    for stat, d in ((res.nees(xs), 4), (res.nis(), 2)):
+        per_run = stat.mean(axis=1)
+        assert abs(per_run.mean() - d) < 5 * per_run.std(ddof=1) / np.sqrt(per_run.size)
+    assert np.mean(res.anees(xs).inside) > 0.8  # 95 % intervals, 30 steps
+
+
+# --------------------------------------------------------------------------- errors
+@pytest.fixture(scope="module")
+def scalar_models():
+    x = sp.Symbol("x", real=True)
+    return sm.Model([x], [x], name="ident"), x
+
+
+@pytest.mark.parametrize(
+    "call, error, match",
+    [
+        (lambda m: sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]], sm.MonteCarlo(n=100)), SymmonError,
+         "TT1, TT2, UT or GaussHermite"),
+        (lambda m: sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]]).filter([[1.0]], sm.Gaussian([0.0], [[1.0]]), [[1.0]]),
+         ShapeError, "P0 must not be given"),
+        (lambda m: sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]]).filter([[1.0]], [0.0]), TypeError,
+         "together with P0"),
+        (lambda m: sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]]).filter(np.ones((3, 2, 1)), np.zeros((2, 1)), [[1.0]]),
+         ShapeError, r"x0 must have shape \(1,\) or \(3, 1\)"),
+        (lambda m: sm.NonlinearKalmanFilter(m, m, [[0.0]], [[0.0]], sm.TT1()).filter([[1.0], [2.0]], sm.Gaussian([0.0], [[0.0]])),
+         SymmonError, "NaN or inf at step 0"),
+        (lambda m: sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]]).filter([[1.0]], sm.Gaussian([0.0], [[1.0]])).nees([1.0]),
+         ShapeError, "x_true must have the shape of x"),
+        (lambda m: sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]]).filter([[1.0]], sm.Gaussian([0.0], [[1.0]])).anis(1.5),
+         SymmonError, "confidence must lie in"),
+    ],
+)
+def test_bad_inputs_raise_clear_errors(scalar_models, call, error, match):
+    model, _ = scalar_models
+    with pytest.raises(error, match=match):
+        call(model)
+
+
+def test_ekf_at_a_non_differentiable_point_raises():
+    """The range's Jacobian is NaN at the origin (CasADi gives 0/0): an error, not a number."""
+    f, h = cv_models()
+    ekf = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, sm.TT1())
+    with pytest.raises(SymmonError, match=r"NaN or inf at run 1, step 0 .*derivative is undefined"):
+        ekf.filter(np.ones((2, 3, 2)), np.array([[1.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]]), np.eye(4))
+
+
+def test_old_name_is_an_alias():
+    assert est.NonlinearKalmanFilter is sm.NonlinearKalmanFilter
+    assert est.NonlinearKalmanResult is NonlinearKalmanResult
