@@ -45,7 +45,7 @@ html_title = f"symmon {release}"
 # API reference: one page per public name of symmon.__all__ (docs/reference/api.md).
 autosummary_generate = True
 autosummary_imported_members = False
-autodoc_default_options = {"members": True, "show-inheritance": True}
+autodoc_default_options = {"members": True, "undoc-members": True, "show-inheritance": True}
 autodoc_typehints = "none"               # numpydoc's Parameters sections carry the types
 numpydoc_show_class_members = False      # autosummary lists members; avoid duplicate stubs
 numpydoc_class_members_toctree = False
