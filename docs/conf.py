@@ -35,14 +35,14 @@ extensions = [
 ]
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
-exclude_patterns = ["_build", "data", "**/README.md"]
+exclude_patterns = ["_build", "data"]
 myst_enable_extensions = ["dollarmath", "colon_fence"]
 myst_heading_anchors = 3
 
 html_theme = "furo"
 html_title = f"symmon {release}"
 
-# API reference: one page per public name of symmon.__all__ (docs/reference/api.md).
+# API reference: one page per public name of symmon.__all__ (docs/reference/api.rst, written below).
 autosummary_generate = True
 autosummary_imported_members = False
 autodoc_default_options = {"members": True, "undoc-members": True, "show-inheritance": True}
