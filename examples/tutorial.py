@@ -103,6 +103,27 @@ for name in ("TT2", "UT (ut1)", "UT (ut2)", "cubature"):
     assert moments["TT1"].mean[0] < moments[name].mean[0] < mc.mean[0] + MC_SIGMAS * se[0], name
 
 # %% [markdown]
+# ### Which transform to choose?
+#
+# The table shows the usual picture: TT1 misses the curvature, the second-order methods
+# (TT2, the unscented family) move towards the truth, Gauss–Hermite and Monte Carlo get it.
+# How far the cheap transforms can be trusted depends on how nonlinear g is over the spread
+# of u, which is what the measure of nonlinearity of the next section quantifies: near 0,
+# TT1 (the EKF's linearisation) is enough; as it grows use TT2, the UT or Gauss–Hermite,
+# and check them against Monte Carlo with `sm.compare` (or `symmon compare FILE`) and
+# Gauss–Hermite's own error estimate, `sm.GaussHermite(order, error_estimate=True)`.
+# The user guide's page "Transforms, and how to choose one" (docs/guide/transforms.md) gives
+# the details; note that the UT is not a good tool to *measure* nonlinearity in several
+# dimensions (its sigma points miss the off-diagonal Hessian terms).
+
+# %%
+# Gauss-Hermite's error estimate (order 7 against order 9) bounds its distance to Monte Carlo here.
+gh_check = sm.propagate(polar, u, transform=sm.GaussHermite(7, error_estimate=True))
+gh_err = gh_check.info["error_estimate"]["mean"][0]
+print("Gauss-Hermite 7 error estimate of the mean:", gh_err)
+assert abs(gh_check.mean[0] - mc.mean[0]) <= gh_err[0] + MC_SIGMAS * se[0]
+
+# %% [markdown]
 # ## 3. The measure of nonlinearity, and why units matter (α = 0.17)
 #
 # The MoN compares g with its best affine fit, weighted by W. The paper's weight

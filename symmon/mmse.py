@@ -5,19 +5,19 @@ e.g. :class:`symmon.kalman.KalmanFilter`), the MMSE estimate of a function :math
 conditional mean :math:`E[f(x)]` with :math:`x \\sim N(\\hat x, P)` (the second stage). For the
 functions below that mean has a closed form:
 
-========================  =====================================================  ==============
-function                  MMSE estimate                                          paper
-========================  =====================================================  ==============
-:func:`abs_value`         :math:`\\mu(1-2\\Phi(-\\mu/\\sigma)) + 2\\sigma\\varphi(\\mu/\\sigma)`  Lemma 1
-:func:`abs_linear`        Lemma 1 with :math:`\\mu = a^T\\hat x + b,\\ \\sigma^2 = a^T P a`    Theorem 1
-:func:`distance_on_line`  :math:`|x - c|`                                          Example 1
-:func:`point_line_distance`  :math:`|a x_1 + b x_2 + c| / \\sqrt{a^2 + b^2}`        Example 2
-:func:`point_plane_distance` the same in 3-D                                      Example 3
-:func:`quadratic`         :math:`\\hat x^T A \\hat x + \\mathrm{tr}(AP) + b^T\\hat x + c`  Theorem 2
-:func:`bilinear`          :math:`\\hat x^T B \\hat y + \\mathrm{tr}(B P_{yx})`        Theorem 3
-:func:`inner_product`     :math:`\\hat x^T \\hat y + \\mathrm{tr} P_{xy}`            Example 4
-:func:`squared_distance`  :math:`\\|\\hat x - \\hat y\\|^2 + \\mathrm{tr}(P_{xx}+P_{yy}-P_{xy}-P_{yx})`  Example 4
-========================  =====================================================  ==============
+============================  ========================================================================  =========
+function                      MMSE estimate                                                             paper
+============================  ========================================================================  =========
+:func:`abs_value`             :math:`\\mu(1-2\\Phi(-\\mu/\\sigma)) + 2\\sigma\\varphi(\\mu/\\sigma)`            Lemma 1
+:func:`abs_linear`            Lemma 1 with :math:`\\mu = a^T\\hat x + b,\\ \\sigma^2 = a^T P a`             Theorem 1
+:func:`distance_on_line`      :math:`|x - c|`                                                           Example 1
+:func:`point_line_distance`   :math:`|a x_1 + b x_2 + c| / \\sqrt{a^2 + b^2}`                            Example 2
+:func:`point_plane_distance`  the same in 3-D                                                           Example 3
+:func:`quadratic`             :math:`\\hat x^T A \\hat x + \\mathrm{tr}(AP) + b^T\\hat x + c`               Theorem 2
+:func:`bilinear`              :math:`\\hat x^T B \\hat y + \\mathrm{tr}(B P_{yx})`                         Theorem 3
+:func:`inner_product`         :math:`\\hat x^T \\hat y + \\mathrm{tr} P_{xy}`                              Example 4
+:func:`squared_distance`      :math:`\\|\\hat x - \\hat y\\|^2 + \\mathrm{tr}(P_{xx}+P_{yy}-P_{xy}-P_{yx})`  Example 4
+============================  ========================================================================  =========
 
 The MSE of each estimate (its conditional variance :math:`E f^2 - (E f)^2`) is given by the
 ``*_mse`` companions. :func:`range`, :func:`bearing` and :func:`cosine_angle` are the paper's
