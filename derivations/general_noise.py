@@ -35,7 +35,7 @@ from _common import Checker, Result, gaussian_expectation, is_zero, main, mc_wit
 
 NAME = "general_noise"
 TITLE = "General-noise MoN: n(v) = E[g|v] - E g and its closed-form M^2 (beyond the paper)"
-SOURCE = "REFERENCE.md 'General noise, beyond the paper'; Straka & Havlik (11), (23)-(29)"
+SOURCE = "docs/guide/nonlinearity.md (general noise, our derivation); Straka & Havlik (11), (23)-(29)"
 
 SEED = 20240711
 N_MC = 400_000           # per half (fit / evaluate)

@@ -17,7 +17,7 @@ from _common import Checker, Result, gaussian_expectation, is_zero, lower_triang
 
 NAME = "mmse_theorem2"
 TITLE = "Theorem 2: E[x^T A x] = x_hat^T A x_hat + tr(AP) and its MSE"
-SOURCE = "Shin et al., Math. Probl. Eng. 2020, 9141735, Theorem 2, eqs. (25)-(27); REFERENCE.md"
+SOURCE = "Shin et al., Math. Probl. Eng. 2020, 9141735, Theorem 2, eqs. (25)-(27)"
 
 
 def check() -> Result:

@@ -6,7 +6,7 @@ second-order expansion of each output around mu is
     g_i(u) ~ g_i(mu) + J_i d + 1/2 d^T H_i d,   d = L z,
 
 a polynomial in z whose moments follow exactly from Isserlis' theorem. The script
-computes them and compares with the TT2 formulas (REFERENCE.md, "TT2"; lecture,
+computes them and compares with the TT2 formulas (docs/guide/transforms.md, "TT2"; lecture,
 Gustafsson & Hendeby, NLT):
 
     E g_i          = g_i(mu) + 1/2 tr(H_i P)
@@ -23,7 +23,7 @@ from _common import Checker, Result, gaussian_expectation, is_zero, lower_triang
 
 NAME = "tt2_moments"
 TITLE = "TT2 mean, covariance and cross-covariance from Gaussian moment identities"
-SOURCE = "Gustafsson & Hendeby, NLT lecture (TT1/TT2); REFERENCE.md 'TT2'"
+SOURCE = "Gustafsson & Hendeby, NLT lecture (TT1/TT2); docs/guide/transforms.md 'TT2'"
 
 N_U = 2
 N_Y = 2

@@ -21,7 +21,7 @@ from _common import Checker, Result, gaussian_expectation, is_zero, lower_triang
 
 NAME = "tt2_mon"
 TITLE = "TT2 closed-form MoN: D = 1/2 [tr(H_i P H_j P)] (exact for quadratic g)"
-SOURCE = "REFERENCE.md 'TT2 closed form'; Straka & Havlik (29), (43)"
+SOURCE = "docs/guide/nonlinearity.md (TT2 closed form); Straka & Havlik (29), (43)"
 
 N = 2
 GH_NODES = 60
