@@ -11,7 +11,8 @@ from .errors import ModelError, ShapeError
 from .gaussian import PSD_RTOL, SYMMETRY_RTOL, Gaussian, as_covariance, as_vector
 from .model import Model
 from .moments import JointMoments
-from .transforms import UT, Transform
+from .transforms import UT, MonteCarlo, Transform
+from .transforms.base import BatchMoments, batch_sqrt, check_moments_finite, likely_angles, warn_angle_cut
 
 __all__ = ["propagate", "propagate_many", "compiled", "joint_input"]
 
@@ -81,7 +82,7 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, transform: T
     """
     tr = _check_transform(transform)
     mw, Pw = joint_input(model, u, v)
-    b = tr.batch(compiled(model), mw[None], Pw[None], model.angle_outputs)
+    b = _checked_batch(model, tr, mw[None], Pw[None])
     nu = model.n_u
     stderr = None
     if b.stderr is not None:
@@ -120,7 +121,26 @@ def propagate_many(model: Model, means: ArrayLike, covs: ArrayLike, transform: T
     if P.shape != (M.shape[0], model.n_u, model.n_u):
         raise ShapeError(f"covs must have shape {(M.shape[0], model.n_u, model.n_u)}, got {P.shape}")
     _validate_batch(M, P)
-    return tr.batch(compiled(model), M, P, model.angle_outputs)
+    return _checked_batch(model, tr, M, P)
+
+
+#: Pilot samples per Gaussian that look for an undeclared angle across its cut under
+#: Monte Carlo, whose kernel keeps statistics only (seeded apart from the run's streams).
+ANGLE_PILOT = 1000
+
+
+def _checked_batch(model: Model, tr: Transform, means: np.ndarray, covs: np.ndarray) -> BatchMoments:
+    """``tr.batch`` with the final guard: a NaN or inf moment is an error, never a number."""
+    cm = compiled(model)
+    if isinstance(tr, MonteCarlo) and likely_angles(cm, model.angle_outputs):
+        Z = np.random.default_rng(0).standard_normal((ANGLE_PILOT, means.shape[1]))
+        X = means[:, None, :] + np.einsum("kij,nj->kni", batch_sqrt(covs), Z)
+        Y = cm.eval_g(X.reshape(-1, X.shape[2])).reshape(X.shape[0], ANGLE_PILOT, -1)
+        warn_angle_cut(cm, Y, model.angle_outputs, tr)
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported just below
+        b = tr.batch(cm, means, covs, model.angle_outputs)
+    check_moments_finite(cm, b, means, tr)
+    return b
 
 
 def _validate_batch(M: np.ndarray, P: np.ndarray) -> None:

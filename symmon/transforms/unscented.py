@@ -21,7 +21,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..errors import SymmonError
-from .base import BatchMoments, Transform, batch_sqrt, weighted_moments
+from .base import BatchMoments, Transform, batch_sqrt, evaluate_points, weighted_moments
 
 __all__ = ["UT"]
 
@@ -103,7 +103,7 @@ class UT(Transform):
         K, n = means.shape
         wm, wc, _ = self.weights(n)
         X = self.sigma_points(means, covs)
-        Y = cm.eval_g(X.reshape(K * (2 * n + 1), n)).reshape(K, 2 * n + 1, -1)
+        Y = evaluate_points(cm, X, self, angles)
         mean, cov, cross = weighted_moments(Y, X, means, wm, wc, angles)
         info = {"evaluations": K * (2 * n + 1), "sigma_points": X, "transformed_points": Y}
         if np.any(wc < 0):
