@@ -185,8 +185,8 @@ def likely_angles(cm: CompiledModel, declared: frozenset[int]) -> dict[int, floa
         terms = [t for t in sp.Add.make_args(e) if t.has(sp.atan2)]
         if len(terms) != 1:
             continue
-        c, rest = terms[0].as_coeff_Mul()
-        if isinstance(rest, sp.atan2) and c != 0:
+        c, rest = terms[0].as_independent(*terms[0].free_symbols, as_Add=False)
+        if isinstance(rest, sp.atan2) and c.is_number and c != 0:
             out[i] = float(abs(c)) * np.pi
     return out
 
