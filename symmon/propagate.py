@@ -132,12 +132,12 @@ ANGLE_PILOT = 1000
 def _checked_batch(model: Model, tr: Transform, means: np.ndarray, covs: np.ndarray) -> BatchMoments:
     """``tr.batch`` with the final guard: a NaN or inf moment is an error, never a number."""
     cm = compiled(model)
-    if isinstance(tr, MonteCarlo) and likely_angles(cm, model.angle_outputs):
-        Z = np.random.default_rng(0).standard_normal((ANGLE_PILOT, means.shape[1]))
-        X = means[:, None, :] + np.einsum("kij,nj->kni", batch_sqrt(covs), Z)
-        Y = cm.eval_g(X.reshape(-1, X.shape[2])).reshape(X.shape[0], ANGLE_PILOT, -1)
-        warn_angle_cut(cm, Y, model.angle_outputs, tr)
     with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported just below
+        if isinstance(tr, MonteCarlo) and likely_angles(cm, model.angle_outputs):
+            Z = np.random.default_rng(0).standard_normal((ANGLE_PILOT, means.shape[1]))
+            X = means[:, None, :] + np.einsum("kij,nj->kni", batch_sqrt(covs), Z)
+            Y = cm.eval_g(X.reshape(-1, X.shape[2])).reshape(X.shape[0], ANGLE_PILOT, -1)
+            warn_angle_cut(cm, Y, model.angle_outputs, tr)
         b = tr.batch(cm, means, covs, model.angle_outputs)
     check_moments_finite(cm, b, means, tr)
     return b

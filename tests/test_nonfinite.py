@@ -269,14 +269,22 @@ _UNARY = [sp.sqrt, sp.log, sp.exp, sp.sin, sp.Abs, lambda a: 1 / a, lambda a: a*
 _BINARY = [lambda a, b: a + b, lambda a, b: a * b, lambda a, b: a / b, sp.atan2]
 
 
+def _apply(f, *args):
+    """f(*args), or the first argument when sympy cannot even build it (exp(exp(1e160)))."""
+    try:
+        return f(*args)
+    except (OverflowError, ValueError):
+        return args[0]
+
+
 def _expr(depth: int):
     if depth == 0:
         return _LEAVES
     sub = _expr(depth - 1)
     return st.one_of(
         sub,
-        st.tuples(st.sampled_from(_UNARY), sub).map(lambda t: t[0](t[1])),
-        st.tuples(st.sampled_from(_BINARY), sub, sub).map(lambda t: t[0](t[1], t[2])),
+        st.tuples(st.sampled_from(_UNARY), sub).map(lambda t: _apply(*t)),
+        st.tuples(st.sampled_from(_BINARY), sub, sub).map(lambda t: _apply(*t)),
     )
 
 

@@ -43,7 +43,10 @@ class Transform:
 
     Subclasses are frozen dataclasses that implement :meth:`batch` and declare
     ``exact_degree``: the polynomial degree of g up to which the mean is exact for a
-    Gaussian input.
+    Gaussian input.  A rule that evaluates g at points does so through
+    :func:`evaluate_points`, so a NaN or inf of g is reported with the point; the front
+    ends (:func:`symmon.propagate`, :func:`symmon.propagate_many`) then refuse any moment
+    that is not finite (:func:`check_moments_finite`).
     """
 
     exact_degree: ClassVar[float] = 0
