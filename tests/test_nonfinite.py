@@ -300,16 +300,25 @@ _MAGNITUDE = st.sampled_from([0.0, 1e-300, 1e-3, 1.0, 10.0, 1e150, 1e300])
     std=st.tuples(_MAGNITUDE, _MAGNITUDE),
     rho=st.floats(-0.99, 0.99),
     transform=st.sampled_from(_TRANSFORMS),
+    weight=st.sampled_from(["full", "diag", "liu-li", "liu-li-raw"]),
 )
-def test_fuzz_moments_are_finite_or_a_symmon_error(out, mean, std, rho, transform):
+def test_fuzz_moments_are_finite_or_a_symmon_error(out, mean, std, rho, transform, weight):
+    """Moments, then the MoN: each is finite or a SymmonError (never NaN, inf, or another
+    exception or RuntimeWarning, which filterwarnings=error turns into a failure)."""
     s = np.array(std)
     with np.errstate(over="ignore"):  # a variance of 1e600 is inf: the Gaussian must refuse it
         P = np.array([[s[0] ** 2, rho * s[0] * s[1]], [rho * s[0] * s[1], s[1] ** 2]])
-    try:
-        u = sm.Gaussian(mean, P)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", AngleWarning)  # the property here is finiteness
-            m = sm.propagate(sm.Model([x, y], [out]), u, transform=transform)
-    except SymmonError:
-        return
-    assert np.isfinite(m.mean).all() and np.isfinite(m.cov).all() and np.isfinite(m.cross_cov).all()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", AngleWarning)  # the property here is finiteness
+        try:
+            u = sm.Gaussian(mean, P)
+            model = sm.Model([x, y], [out])
+            m = sm.propagate(model, u, transform=transform)
+        except SymmonError:
+            return
+        assert np.isfinite(m.mean).all() and np.isfinite(m.cov).all() and np.isfinite(m.cross_cov).all()
+        try:
+            mon = sm.nonlinearity(model, u, weight=weight, transform=transform)
+        except SymmonError:
+            return
+    assert np.isfinite(mon.value) and np.isfinite(mon.squared)
