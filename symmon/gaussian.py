@@ -247,6 +247,7 @@ class Gaussian:
         ix = self._index(idx)
         return Gaussian(self._mean[ix], self._cov[np.ix_(ix, ix)])
 
+    @np.errstate(over="ignore", invalid="ignore")  # an overflowing mean is refused by Gaussian()
     def condition(self, idx: Sequence[int] | int, value: ArrayLike,
                   angles: Iterable[int] | None = None) -> "Gaussian":
         """Condition on observed components (Lemma 7.1).
@@ -456,10 +457,16 @@ def fuse(*gaussians: Gaussian, angles: Iterable[int] | None = None) -> Gaussian:
     ref = gaussians[0].mean
     info = np.zeros((n, n))
     vec = np.zeros(n)
-    for k, g in enumerate(gaussians):
-        Pinv = solve_psd(g.cov, np.eye(n), f"covariance of estimate {k}")
-        info += Pinv
-        vec += Pinv @ unwrap_near(g.mean, ref, ang)
+    with np.errstate(over="ignore", invalid="ignore"):  # a covariance near 1e-308: checked below
+        for k, g in enumerate(gaussians):
+            Pinv = solve_psd(g.cov, np.eye(n), f"covariance of estimate {k}")
+            info += Pinv
+            vec += Pinv @ unwrap_near(g.mean, ref, ang)
+    if not (np.all(np.isfinite(info)) and np.all(np.isfinite(vec))):
+        smallest = min(float(np.min(np.diag(g.cov))) for g in gaussians)
+        raise CovarianceError(
+            f"fuse: the information sum of P_k^-1 overflows (smallest variance {smallest:.3g}): rescale the units"
+        )
     P = np.linalg.inv(info)
-    P = 0.5 * (P + P.T)
+    P = 0.5 * P + 0.5 * P.T
     return Gaussian(wrap_components(P @ vec, ang), P)
