@@ -167,6 +167,14 @@ class Gaussian:
     psd : {"raise", "clip", "jitter"}, default "raise"
         Repair policy for a covariance that is not PSD; see :func:`as_covariance`.
 
+    Raises
+    ------
+    ShapeError
+        For an empty, non-numeric or non-finite mean (a 400-digit integer included).
+    CovarianceError
+        For a covariance that is not numeric, finite, symmetric or PSD, or whose
+        eigen-decomposition fails (entries at the ends of the float range).
+
     Examples
     --------
     >>> Gaussian([95.1, 95.1], [[954, -854], [-854, 954]])

@@ -72,6 +72,19 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, transform: T
     -------
     JointMoments
 
+    Raises
+    ------
+    NonFiniteError
+        If g is NaN or inf at a point the transform evaluates (naming the output and the
+        point), or a moment overflows: a non-finite moment is never returned.  TT1/TT2
+        raise a DerivativeError and Monte Carlo a SamplingError in the same cases.
+
+    Warns
+    -----
+    AngleWarning
+        Once per model and output, for an atan2 output not declared in ``angles=`` whose
+        points (or, for Monte Carlo, pilot samples) lie on both sides of its cut at ±π.
+
     Examples
     --------
     >>> import sympy as sp, symmon as sm
