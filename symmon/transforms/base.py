@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import ClassVar
 
 import numpy as np
@@ -124,15 +125,15 @@ def evaluate_points(cm: CompiledModel, X: np.ndarray, transform: "Transform",
         Naming the transform, the output and the point.
     """
     K, N, n = X.shape
-    if not np.all(np.isfinite(X)):
+    if not np.isfinite(X).all():
         k, j = np.argwhere(~np.isfinite(X).all(axis=2))[0]
         raise NonFiniteError(
             f"{transform!r}: point {j} of the rule, ({_point_str(cm, X[k, j])}), overflows: the input "
             "mean and spread put it beyond 1.8e308; rescale the units of the inputs"
         )
     Y = cm.eval_g(X.reshape(K * N, n)).reshape(K, N, -1)
-    bad = ~np.isfinite(Y)
-    if bad.any():
+    if not np.isfinite(Y).all():
+        bad = ~np.isfinite(Y)
         k, j, i = np.argwhere(bad)[0]
         raise NonFiniteError(
             f"{transform!r}: {_output_str(cm, i)} is {Y[k, j, i]} at the point "
@@ -156,6 +157,8 @@ def check_moments_finite(cm: CompiledModel, b: BatchMoments, means: np.ndarray, 
     NonFiniteError
         Naming the transform, the moment, the output and the input mean.
     """
+    if np.isfinite(b.mean).all() and np.isfinite(b.cov).all() and np.isfinite(b.cross).all():
+        return
     for label, arr in (("E y", b.mean), ("Cov y", b.cov), ("Cov(y, w)", b.cross)):
         bad = ~np.isfinite(arr)
         if bad.any():
@@ -181,8 +184,13 @@ def likely_angles(cm: CompiledModel, declared: frozenset[int]) -> dict[int, floa
     number c (a unit change, e.g. to degrees: the cut is then at ±|c|π) and possibly
     plus terms without atan2 (additive noise).
     """
+    return _likely_angles(tuple(cm.source_exprs), frozenset(declared))
+
+
+@lru_cache(maxsize=256)  # a filter calls this at every step with the same model
+def _likely_angles(exprs: tuple, declared: frozenset[int]) -> dict[int, float]:
     out = {}
-    for i, e in enumerate(cm.source_exprs):
+    for i, e in enumerate(exprs):
         if i in declared or not isinstance(e, sp.Basic):
             continue
         terms = [t for t in sp.Add.make_args(e) if t.has(sp.atan2)]
@@ -211,13 +219,14 @@ def warn_angle_cut(cm: CompiledModel, Y: np.ndarray, angles: frozenset[int], tra
         key = (cm.source_exprs, cm.symbols, i)
         if key in _ANGLE_WARNED:
             continue
-        th = np.sort(wrap_angle(Y[:, :, i] * (np.pi / half)), axis=1)
-        if th.shape[1] < 2:
-            continue
+        th = wrap_angle(Y[:, :, i] * (np.pi / half))
+        both = (th.max(axis=1) > np.pi / 2) & (th.min(axis=1) < -np.pi / 2)
+        if not both.any():
+            continue  # the common case, decided without sorting
+        th = np.sort(th[both], axis=1)
         inner = np.diff(th, axis=1).max(axis=1)
         across = 2 * np.pi - (th[:, -1] - th[:, 0])
-        both = (th[:, -1] > np.pi / 2) & (th[:, 0] < -np.pi / 2)
-        hit = both & (inner > across)
+        hit = inner > across
         if hit.any():
             _ANGLE_WARNED.add(key)
             k = int(np.argmax(hit))
