@@ -12,7 +12,7 @@ from .gaussian import PSD_RTOL, SYMMETRY_RTOL, Gaussian, as_covariance, as_vecto
 from .model import Model
 from .moments import JointMoments
 from .transforms import UT, MonteCarlo, Transform
-from .transforms.base import BatchMoments, batch_sqrt, check_moments_finite, likely_angles, warn_angle_cut
+from .transforms.base import BatchMoments, check_moments_finite, pilot_angle_cut
 
 __all__ = ["propagate", "propagate_many", "compiled", "joint_input"]
 
@@ -137,20 +137,12 @@ def propagate_many(model: Model, means: ArrayLike, covs: ArrayLike, transform: T
     return _checked_batch(model, tr, M, P)
 
 
-#: Pilot samples per Gaussian that look for an undeclared angle across its cut under
-#: Monte Carlo, whose kernel keeps statistics only (seeded apart from the run's streams).
-ANGLE_PILOT = 1000
-
-
 def _checked_batch(model: Model, tr: Transform, means: np.ndarray, covs: np.ndarray) -> BatchMoments:
     """``tr.batch`` with the final guard: a NaN or inf moment is an error, never a number."""
     cm = compiled(model)
     with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported just below
-        if isinstance(tr, MonteCarlo) and likely_angles(cm, model.angle_outputs):
-            Z = np.random.default_rng(0).standard_normal((ANGLE_PILOT, means.shape[1]))
-            X = means[:, None, :] + np.einsum("kij,nj->kni", batch_sqrt(covs), Z)
-            Y = cm.eval_g(X.reshape(-1, X.shape[2])).reshape(X.shape[0], ANGLE_PILOT, -1)
-            warn_angle_cut(cm, Y, model.angle_outputs, tr)
+        if isinstance(tr, MonteCarlo):  # its kernel keeps no samples to check the angles on
+            pilot_angle_cut(cm, means, covs, model.angle_outputs, tr)
         b = tr.batch(cm, means, covs, model.angle_outputs)
     check_moments_finite(cm, b, means, tr)
     return b

@@ -23,7 +23,7 @@ from ..gaussian import matrix_sqrt
 
 __all__ = [
     "Transform", "BatchMoments", "wrap_angle", "weighted_moments", "batch_sqrt",
-    "evaluate_points", "check_moments_finite", "likely_angles", "warn_angle_cut",
+    "evaluate_points", "check_moments_finite", "likely_angles", "warn_angle_cut", "pilot_angle_cut",
 ]
 
 
@@ -239,3 +239,21 @@ def warn_angle_cut(cm: CompiledModel, Y: np.ndarray, angles: frozenset[int], tra
                 f"Model(..., angles=[{i}]) to get circular moments",
                 AngleWarning, stacklevel=5,
             )
+
+
+#: Pilot samples per Gaussian for :func:`pilot_angle_cut`.
+ANGLE_PILOT = 1000
+
+
+def pilot_angle_cut(cm: CompiledModel, means: np.ndarray, covs: np.ndarray, angles: frozenset[int],
+                    transform: object) -> None:
+    """:func:`warn_angle_cut` on ANGLE_PILOT samples of each Gaussian, for a rule that
+    keeps statistics only (Monte Carlo).  The pilot has its own fixed seed, apart from
+    the rule's streams, so the rule's numbers do not change; it costs nothing for a model
+    without undeclared atan2 outputs."""
+    if not likely_angles(cm, angles):
+        return
+    Z = np.random.default_rng(0).standard_normal((ANGLE_PILOT, means.shape[1]))
+    X = means[:, None, :] + np.einsum("kij,nj->kni", batch_sqrt(covs), Z)
+    Y = cm.eval_g(X.reshape(-1, X.shape[2])).reshape(X.shape[0], ANGLE_PILOT, -1)
+    warn_angle_cut(cm, Y, angles, transform)
