@@ -101,7 +101,7 @@ def as_covariance(
             f"{name} is not symmetric: max |P - P^T| = {asym:.3g} (scale {scale:.3g})"
         )
     # Remove rounding-level asymmetry only (checked above).  Halving first cannot
-    # overflow (P + Pᵀ is inf for entries near 1.8e308) and gives the same bits.
+    # overflow (P + Pᵀ is inf for entries near 1.8e308) and gives the same bits, subnormals aside.
     arr = 0.5 * arr + 0.5 * arr.T
     eig = _eigvalsh(arr, name)
     tol = PSD_RTOL * scale
@@ -116,7 +116,7 @@ def as_covariance(
             clipped = float(-np.sum(w[w < 0]))
             w = np.clip(w, 0.0, None)
             arr = (V * w) @ V.T
-            arr = 0.5 * (arr + arr.T)
+            arr = 0.5 * arr + 0.5 * arr.T
             warnings.warn(
                 f"{name}: clipped negative eigenvalues to 0 (clipped mass {clipped:.3g})",
                 RuntimeWarning,
