@@ -16,6 +16,12 @@ angles (``Model(..., angles={i})``, output indices or input symbols) and then:
   its prediction is the same measurement (:meth:`symmon.Gaussian.condition`,
   :func:`symmon.fuse`, both with ``angles=...``).
 
+An output that looks like an angle (atan2, possibly scaled or plus noise) but is not
+declared is checked: when the points of UT or Gauss–Hermite, or a pilot sample under
+Monte Carlo, lie on both sides of its cut, an :class:`~symmon.errors.AngleWarning` names
+the output and ``angles=`` (once per model and output; see
+:func:`symmon.transforms.base.warn_angle_cut`).
+
 This module holds the numerical pieces; it depends only on numpy so that the Gaussian
 and the transforms can both use it.
 

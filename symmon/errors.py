@@ -16,6 +16,10 @@ __all__ = [
     "SamplingError",
     "SingularMatrixError",
     "DerivativeError",
+    "NonFiniteError",
+    "ResourceError",
+    "ArgumentError",
+    "AngleWarning",
 ]
 
 
@@ -49,3 +53,21 @@ class SamplingError(SymmonError):
 
 class DerivativeError(SymmonError):
     """A derivative is NaN or inf at the expansion point."""
+
+
+class NonFiniteError(SymmonError):
+    """A moment or a measure would be NaN or inf: g is not finite at a point a rule
+    evaluates, or the moments themselves overflow.  Never returned as a number."""
+
+
+class ResourceError(SymmonError):
+    """A computation would exceed a declared size limit (e.g. quadrature nodes)."""
+
+
+class ArgumentError(SymmonError):
+    """An argument has a value of the wrong kind (e.g. an invalid seed)."""
+
+
+class AngleWarning(RuntimeWarning):
+    """An output that looks like an angle (atan2) is not declared with ``angles=`` and
+    its evaluated points lie on both sides of the cut at ±π: its moments are wrong."""

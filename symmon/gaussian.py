@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .angles import angle_indices, innovation, unwrap_near, wrap_components
-from .errors import CovarianceError, ShapeError, SingularMatrixError
+from .errors import ArgumentError, CovarianceError, ShapeError, SingularMatrixError, SymmonError
 from .latex import latex_number
 
 __all__ = ["Gaussian", "fuse", "as_covariance", "as_vector"]
@@ -28,9 +28,21 @@ PSD_RTOL = 1e-10
 _PSD_MODES = ("raise", "clip", "jitter")
 
 
+def _float_array(x: ArrayLike, name: str, error: type[SymmonError]) -> np.ndarray:
+    """``x`` as a float array; a value that is not a number or overflows a float (a
+    400-digit integer) raises ``error`` naming ``name`` instead of numpy's TypeError or
+    Python's OverflowError."""
+    try:
+        return np.asarray(x, dtype=float)
+    except OverflowError as exc:
+        raise error(f"{name} holds a number too large for a float (|x| > {np.finfo(float).max:.3g}): {exc}") from None
+    except (TypeError, ValueError) as exc:
+        raise error(f"{name} must hold real numbers: {exc}") from None
+
+
 def as_vector(x: ArrayLike, name: str, dim: int | None = None) -> np.ndarray:
     """Return ``x`` as a finite 1-D float array, or raise a :class:`ShapeError` naming ``name``."""
-    arr = np.asarray(x, dtype=float)
+    arr = _float_array(x, name, ShapeError)
     if arr.ndim == 0:
         arr = arr.reshape(1)
     if arr.ndim != 1:
@@ -72,7 +84,7 @@ def as_covariance(
     """
     if psd not in _PSD_MODES:
         raise ValueError(f"psd must be one of {_PSD_MODES}, got {psd!r}")
-    arr = np.asarray(P, dtype=float)
+    arr = _float_array(P, name, CovarianceError)
     if arr.ndim == 0:
         arr = arr.reshape(1, 1)
     if arr.ndim != 2 or arr.shape[0] != arr.shape[1]:
@@ -82,13 +94,16 @@ def as_covariance(
     if not np.all(np.isfinite(arr)):
         raise CovarianceError(f"{name} contains NaN or inf")
     scale = max(float(np.max(np.abs(arr))), np.finfo(float).tiny)
-    asym = float(np.max(np.abs(arr - arr.T)))
+    with np.errstate(over="ignore"):  # |P - Pᵀ| = inf for entries ±1e308: asymmetric all the same
+        asym = float(np.max(np.abs(arr - arr.T)))
     if asym > SYMMETRY_RTOL * scale:
         raise CovarianceError(
             f"{name} is not symmetric: max |P - P^T| = {asym:.3g} (scale {scale:.3g})"
         )
-    arr = 0.5 * (arr + arr.T)  # remove rounding-level asymmetry only (checked above)
-    eig = np.linalg.eigvalsh(arr) if arr.size else np.zeros(0)
+    # Remove rounding-level asymmetry only (checked above).  Halving first cannot
+    # overflow (P + Pᵀ is inf for entries near 1.8e308) and gives the same bits, subnormals aside.
+    arr = 0.5 * arr + 0.5 * arr.T
+    eig = _eigvalsh(arr, name)
     tol = PSD_RTOL * scale
     if eig.size and eig[0] < -tol:
         if psd == "raise":
@@ -101,7 +116,7 @@ def as_covariance(
             clipped = float(-np.sum(w[w < 0]))
             w = np.clip(w, 0.0, None)
             arr = (V * w) @ V.T
-            arr = 0.5 * (arr + arr.T)
+            arr = 0.5 * arr + 0.5 * arr.T
             warnings.warn(
                 f"{name}: clipped negative eigenvalues to 0 (clipped mass {clipped:.3g})",
                 RuntimeWarning,
@@ -112,6 +127,29 @@ def as_covariance(
             arr = arr + eps * np.eye(arr.shape[0])
             warnings.warn(f"{name}: added jitter eps = {eps:.3g} times I", RuntimeWarning, stacklevel=3)
     return arr
+
+
+def _eigvalsh(P: np.ndarray, name: str) -> np.ndarray:
+    """Eigenvalues of a symmetric P, or a :class:`CovarianceError` naming ``name`` when
+    LAPACK fails ("Eigenvalues did not converge") or overflows on extreme entries."""
+    if not P.size:
+        return np.zeros(0)
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            eig = np.linalg.eigvalsh(P)
+    except np.linalg.LinAlgError as exc:
+        eig = np.array([np.nan])
+        reason = str(exc)
+    else:
+        reason = "non-finite eigenvalues"
+    if not np.all(np.isfinite(eig)):
+        mag = np.abs(P[P != 0])
+        span = f"{mag.min():.3g} to {mag.max():.3g}" if mag.size else "0"
+        raise CovarianceError(
+            f"{name}: the eigen-decomposition failed ({reason}); its entries range over "
+            f"{span} in magnitude, beyond what double precision can decompose: rescale the units"
+        )
+    return eig
 
 
 def _fmt(x: float) -> str:
@@ -129,6 +167,14 @@ class Gaussian:
     psd : {"raise", "clip", "jitter"}, default "raise"
         Repair policy for a covariance that is not PSD; see :func:`as_covariance`.
 
+    Raises
+    ------
+    ShapeError
+        For an empty, non-numeric or non-finite mean (a 400-digit integer included).
+    CovarianceError
+        For a covariance that is not numeric, finite, symmetric or PSD, or whose
+        eigen-decomposition fails (entries at the ends of the float range).
+
     Examples
     --------
     >>> Gaussian([95.1, 95.1], [[954, -854], [-854, 954]])
@@ -140,6 +186,8 @@ class Gaussian:
     def __init__(self, mean: ArrayLike, cov: ArrayLike, psd: str = "raise") -> None:
         # Copy: freezing below must not make the caller's array read-only.
         m = as_vector(mean, "mean").copy()
+        if m.size == 0:
+            raise ShapeError("mean is empty: a Gaussian needs at least one component")
         P = as_covariance(cov, "cov", dim=m.shape[0], psd=psd).copy()
         m.setflags(write=False)
         P.setflags(write=False)
@@ -155,7 +203,12 @@ class Gaussian:
         s = as_vector(std, "std")
         if np.any(s < 0):
             raise CovarianceError(f"std must be non-negative, got {s}")
-        return cls(mean, np.diag(s**2))
+        with np.errstate(over="ignore"):
+            var = s**2
+        if not np.all(np.isfinite(var)):
+            i = int(np.argmax(~np.isfinite(var)))
+            raise CovarianceError(f"std[{i}] = {s[i]:.3g}: its square, the variance, overflows a float")
+        return cls(mean, np.diag(var))
 
     @property
     def mean(self) -> np.ndarray:
@@ -178,9 +231,9 @@ class Gaussian:
 
     def sample(self, n: int, rng: np.random.Generator | int | None = None) -> np.ndarray:
         """Draw ``n`` samples, shape (n, dim), from a seeded generator."""
-        if not isinstance(n, (int, np.integer)) or n < 1:
-            raise ValueError(f"n must be a positive integer, got {n!r}")
-        gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise ArgumentError(f"n must be a positive integer, got {n!r}")
+        gen = as_generator(rng)
         z = gen.standard_normal((int(n), self.dim))
         return self._mean + z @ self.sqrt_cov().T
 
@@ -202,6 +255,7 @@ class Gaussian:
         ix = self._index(idx)
         return Gaussian(self._mean[ix], self._cov[np.ix_(ix, ix)])
 
+    @np.errstate(over="ignore", invalid="ignore")  # an overflowing mean is refused by Gaussian()
     def condition(self, idx: Sequence[int] | int, value: ArrayLike,
                   angles: Iterable[int] | None = None) -> "Gaussian":
         """Condition on observed components (Lemma 7.1).
@@ -242,8 +296,7 @@ class Gaussian:
         K = solve_psd(Pyy, Pxy.T, "P^yy").T
         nu = innovation(y, self._mean[iy], [k for k, i in enumerate(iy) if i in ang])
         mean = wrap_components(self._mean[ix] + K @ nu, [k for k, i in enumerate(ix) if i in ang])
-        cov = self._cov[np.ix_(ix, ix)] - K @ Pxy.T
-        return Gaussian(mean, 0.5 * (cov + cov.T), psd="clip" if _tiny_negative(cov) else "raise")
+        return Gaussian(mean, _schur_complement(self._cov[np.ix_(ix, ix)], K @ Pxy.T))
 
     def __repr__(self) -> str:
         m = ", ".join(_fmt(x) for x in self._mean)
@@ -267,11 +320,56 @@ class Gaussian:
         return hash((self._mean.tobytes(), self._cov.tobytes()))
 
 
-def _tiny_negative(P: np.ndarray) -> bool:
-    # Schur complements can dip below zero by rounding; report it rather than fail.
-    eig = np.linalg.eigvalsh(0.5 * (P + P.T))
-    scale = max(float(np.max(np.abs(P))), np.finfo(float).tiny)
-    return bool(eig[0] < -PSD_RTOL * scale and eig[0] > -1e-8 * scale)
+def as_generator(rng: np.random.Generator | int | None, name: str = "rng") -> np.random.Generator:
+    """A ``numpy.random.Generator`` from a generator, a non-negative integer seed or None.
+
+    Raises
+    ------
+    ArgumentError
+        For anything else (a negative seed, a float, a string), naming ``name``.
+    """
+    if isinstance(rng, np.random.Generator):
+        return rng
+    if rng is not None and (isinstance(rng, (bool, np.bool_)) or not isinstance(rng, (int, np.integer)) or rng < 0):
+        raise ArgumentError(f"{name} must be a numpy Generator, a non-negative integer seed or None, got {rng!r}")
+    return np.random.default_rng(rng)
+
+
+#: Negative eigenvalues of a Schur complement P_xx − P_xy P_yy⁻¹ P_yx down to −SCHUR_RTOL
+#: times the size of the terms it subtracts are rounding, and are set to 0.
+SCHUR_RTOL = 1e-8
+
+
+def _schur_complement(Pxx: np.ndarray, sub: np.ndarray) -> np.ndarray:
+    """P_xx − sub with sub = P_xy P_yy⁻¹ P_yx, symmetric and PSD up to rounding.
+
+    The difference of two nearly equal matrices (an observation that pins the state
+    down: a posterior near 0) carries the rounding of its *terms*, not of its tiny
+    result.  That rounding is the relative error of P_yy (moments from a transform are
+    accurate to ~1e-12, the ut2 weights of ±1e6 cost six digits) amplified by
+    cond(P_yy) ≤ 1e13 (:func:`solve_psd`), so eigenvalues down to
+    −SCHUR_RTOL · max(‖P_xx‖, ‖sub‖) are rounding and clipped to 0; anything more
+    negative means the joint covariance was not PSD, and raises.
+
+    Raises
+    ------
+    CovarianceError
+        If the complement has an eigenvalue below −SCHUR_RTOL times its terms' scale.
+    """
+    cov = Pxx - sub
+    cov = 0.5 * cov + 0.5 * cov.T
+    w, V = np.linalg.eigh(cov)
+    if w[0] >= -PSD_RTOL * max(float(np.max(np.abs(cov))), np.finfo(float).tiny):
+        return cov  # PSD as it stands (within the Gaussian's own tolerance)
+    scale = max(float(np.max(np.abs(Pxx))), float(np.max(np.abs(sub))), np.finfo(float).tiny)
+    if w[0] < -SCHUR_RTOL * scale:
+        raise CovarianceError(
+            f"the conditional covariance P_xx - P_xy P_yy^-1 P_yx is not positive semi-definite: "
+            f"smallest eigenvalue {w[0]:.3g}, beyond rounding of its terms (scale {scale:.3g}); "
+            "the joint covariance is not PSD"
+        )
+    cov = (V * np.clip(w, 0.0, None)) @ V.T
+    return 0.5 * cov + 0.5 * cov.T
 
 
 def matrix_sqrt(P: np.ndarray) -> np.ndarray:
@@ -288,11 +386,19 @@ def matrix_sqrt(P: np.ndarray) -> np.ndarray:
     try:
         return np.linalg.cholesky(P)
     except np.linalg.LinAlgError:
+        pass
+    with np.errstate(over="ignore", invalid="ignore"):  # extreme entries: checked below
         L = _semidefinite_cholesky(P)
         if L is not None:
             return L
-        w, V = np.linalg.eigh(P)
-        return V * np.sqrt(np.clip(w, 0.0, None))
+        try:
+            w, V = np.linalg.eigh(P)
+        except np.linalg.LinAlgError as exc:
+            raise CovarianceError(f"no square root of the covariance: the eigen-decomposition failed ({exc})") from None
+        L = V * np.sqrt(np.clip(w, 0.0, None))
+    if not np.all(np.isfinite(L)):
+        raise CovarianceError("no square root of the covariance: its eigen-decomposition is not finite")
+    return L
 
 
 def _semidefinite_cholesky(P: np.ndarray) -> np.ndarray | None:
@@ -359,10 +465,16 @@ def fuse(*gaussians: Gaussian, angles: Iterable[int] | None = None) -> Gaussian:
     ref = gaussians[0].mean
     info = np.zeros((n, n))
     vec = np.zeros(n)
-    for k, g in enumerate(gaussians):
-        Pinv = solve_psd(g.cov, np.eye(n), f"covariance of estimate {k}")
-        info += Pinv
-        vec += Pinv @ unwrap_near(g.mean, ref, ang)
+    with np.errstate(over="ignore", invalid="ignore"):  # a covariance near 1e-308: checked below
+        for k, g in enumerate(gaussians):
+            Pinv = solve_psd(g.cov, np.eye(n), f"covariance of estimate {k}")
+            info += Pinv
+            vec += Pinv @ unwrap_near(g.mean, ref, ang)
+    if not (np.all(np.isfinite(info)) and np.all(np.isfinite(vec))):
+        smallest = min(float(np.min(np.diag(g.cov))) for g in gaussians)
+        raise CovarianceError(
+            f"fuse: the information sum of P_k^-1 overflows (smallest variance {smallest:.3g}): rescale the units"
+        )
     P = np.linalg.inv(info)
-    P = 0.5 * (P + P.T)
+    P = 0.5 * P + 0.5 * P.T
     return Gaussian(wrap_components(P @ vec, ang), P)

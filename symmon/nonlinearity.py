@@ -31,6 +31,7 @@ import sympy as sp
 
 from . import weights as _weights
 from .compile import compile_model
+from .errors import NonFiniteError
 from .gaussian import Gaussian
 from .model import Model
 from .latex import latex_number, latex_text
@@ -128,12 +129,19 @@ def _inv_uu(Suu: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
     return np.linalg.pinv(Suu, rcond=1e-12, hermitian=True), (note,)
 
 
+@np.errstate(over="ignore", divide="ignore", invalid="ignore")  # a non-finite result raises below
 def mon_from_moments(Sgg, Sgu, Suu, weight="full", Sc=None, mean=None):
     """The MoN from the moments (26)–(29); see :func:`nonlinearity`.
 
     Returns
     -------
     dict with ``squared``, ``J_Ab``, ``J_n``, ``W``, ``label``, ``D``, ``notes``.
+
+    Raises
+    ------
+    NonFiniteError
+        If M², J_Ab or J_n is NaN or inf (moments at the edge of the float range: the
+        inverse of a subnormal Σ_uu, a weight that overflows).
     """
     Sgg = np.atleast_2d(np.asarray(Sgg, dtype=float))
     Sgu = np.atleast_2d(np.asarray(Sgu, dtype=float))
@@ -149,6 +157,12 @@ def mon_from_moments(Sgg, Sgu, Suu, weight="full", Sc=None, mean=None):
     D = Sgg - Sc - lin
     # M² = J_Ab + J_n − E‖g‖²_W (25) = J_Ab − tr(W Σ_c): the E‖g‖²_W terms cancel
     # analytically; adding and subtracting them would lose every digit when |E g| ≫ σ.
+    if not np.isfinite([J_Ab - WSc, J_Ab, Eg2 - WSc]).all():
+        raise NonFiniteError(
+            f"the MoN with weight {label!r} is not finite (M² = {J_Ab - WSc:.3g}, J_Ab = {J_Ab:.3g}, "
+            f"J_n = {Eg2 - WSc:.3g}): the moments (largest |Σ_gg| {np.max(np.abs(Sgg)):.3g}, smallest "
+            f"variance in Σ_uu {np.min(np.diag(Suu)):.3g}) are at the edge of the float range; rescale the units"
+        )
     return {"squared": J_Ab - WSc, "J_Ab": J_Ab, "J_n": Eg2 - WSc, "W": W, "label": label, "D": D, "notes": notes}
 
 
@@ -315,7 +329,12 @@ def nonlinearity(model: Model, u: Gaussian, v: Gaussian | None = None, weight="f
         stderr = _mc_stderr(m, model, weight, Sc_loo)
     else:
         Sc = _cond_cov(model, u, v, tr)
-    parts = mon_from_moments(m.cov, m.cross_cov, m.input_cov, weight, Sc, m.mean)
+    try:
+        parts = mon_from_moments(m.cov, m.cross_cov, m.input_cov, weight, Sc, m.mean)
+    except NonFiniteError as exc:
+        raise NonFiniteError(f"{tr!r}: {exc}") from None
+    if stderr is not None and not np.isfinite(stderr):
+        raise NonFiniteError(f"{tr!r}: the standard error of the MoN is {stderr}")
     sq = parts["squared"]
     return NonlinearityMeasure(
         value=float(np.sqrt(max(sq, 0.0))), squared=sq, J_Ab=parts["J_Ab"], J_n=parts["J_n"],

@@ -11,7 +11,8 @@ from .errors import ModelError, ShapeError
 from .gaussian import PSD_RTOL, SYMMETRY_RTOL, Gaussian, as_covariance, as_vector
 from .model import Model
 from .moments import JointMoments
-from .transforms import UT, Transform
+from .transforms import UT, MonteCarlo, Transform
+from .transforms.base import BatchMoments, check_moments_finite, pilot_angle_cut
 
 __all__ = ["propagate", "propagate_many", "compiled", "joint_input"]
 
@@ -71,6 +72,19 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, transform: T
     -------
     JointMoments
 
+    Raises
+    ------
+    NonFiniteError
+        If g is NaN or inf at a point the transform evaluates (naming the output and the
+        point), or a moment overflows: a non-finite moment is never returned.  TT1/TT2
+        raise a DerivativeError and Monte Carlo a SamplingError in the same cases.
+
+    Warns
+    -----
+    AngleWarning
+        Once per model and output, for an atan2 output not declared in ``angles=`` whose
+        points (or, for Monte Carlo, pilot samples) lie on both sides of its cut at ±π.
+
     Examples
     --------
     >>> import sympy as sp, symmon as sm
@@ -81,7 +95,7 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, transform: T
     """
     tr = _check_transform(transform)
     mw, Pw = joint_input(model, u, v)
-    b = tr.batch(compiled(model), mw[None], Pw[None], model.angle_outputs)
+    b = _checked_batch(model, tr, mw[None], Pw[None])
     nu = model.n_u
     stderr = None
     if b.stderr is not None:
@@ -120,7 +134,18 @@ def propagate_many(model: Model, means: ArrayLike, covs: ArrayLike, transform: T
     if P.shape != (M.shape[0], model.n_u, model.n_u):
         raise ShapeError(f"covs must have shape {(M.shape[0], model.n_u, model.n_u)}, got {P.shape}")
     _validate_batch(M, P)
-    return tr.batch(compiled(model), M, P, model.angle_outputs)
+    return _checked_batch(model, tr, M, P)
+
+
+def _checked_batch(model: Model, tr: Transform, means: np.ndarray, covs: np.ndarray) -> BatchMoments:
+    """``tr.batch`` with the final guard: a NaN or inf moment is an error, never a number."""
+    cm = compiled(model)
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported just below
+        if isinstance(tr, MonteCarlo):  # its kernel keeps no samples to check the angles on
+            pilot_angle_cut(cm, means, covs, model.angle_outputs, tr)
+        b = tr.batch(cm, means, covs, model.angle_outputs)
+    check_moments_finite(cm, b, means, tr)
+    return b
 
 
 def _validate_batch(M: np.ndarray, P: np.ndarray) -> None:
@@ -129,11 +154,15 @@ def _validate_batch(M: np.ndarray, P: np.ndarray) -> None:
         raise ShapeError("means must hold at least one state")
     finite = np.isfinite(M).all() and np.isfinite(P).all()
     scale = np.maximum(np.abs(P).max(axis=(1, 2)), np.finfo(float).tiny)
-    asym = np.abs(P - P.transpose(0, 2, 1)).max(axis=(1, 2))
-    ok = finite and np.all(asym <= SYMMETRY_RTOL * scale)
-    if ok:
-        eig_min = np.linalg.eigvalsh(0.5 * (P + P.transpose(0, 2, 1)))[:, 0]
-        ok = bool(np.all(eig_min >= -PSD_RTOL * scale))
+    with np.errstate(over="ignore", invalid="ignore"):  # entries near 1.8e308: the slow path names them
+        asym = np.abs(P - P.transpose(0, 2, 1)).max(axis=(1, 2))
+        ok = finite and np.all(asym <= SYMMETRY_RTOL * scale)
+        if ok:
+            try:
+                eig_min = np.linalg.eigvalsh(0.5 * P + 0.5 * P.transpose(0, 2, 1))[:, 0]
+                ok = bool(np.all(eig_min >= -PSD_RTOL * scale))
+            except np.linalg.LinAlgError:
+                ok = False
     if ok:
         return
     for k in range(M.shape[0]):  # slow path: find and name the first bad state

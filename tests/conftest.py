@@ -44,3 +44,14 @@ def random_spd(rng: np.random.Generator, n: int, scale: float = 1.0) -> np.ndarr
     """A random symmetric positive definite matrix with eigenvalues in [0.1, 1]·scale."""
     Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
     return scale * (Q * rng.uniform(0.1, 1.0, n)) @ Q.T
+
+
+@pytest.fixture(autouse=True)
+def _fresh_angle_warnings():
+    """Each test starts (and leaves) with no AngleWarning issued: the warning comes once
+    per model and output in a process, which would make a test depend on the ones before."""
+    from symmon.transforms.base import _ANGLE_WARNED
+
+    _ANGLE_WARNED.clear()
+    yield
+    _ANGLE_WARNED.clear()

@@ -27,7 +27,7 @@ from symmon.angles import (
     wrap_angle,
     wrap_components,
 )
-from symmon.errors import ModelError, ShapeError, SymmonError
+from symmon.errors import AngleWarning, ModelError, ShapeError, SymmonError
 from symmon.problems import GMTI_SENSOR, bot, gmti
 
 #: Rotation by π maps rule points onto rule points: only rounding differs.  The moments
@@ -178,8 +178,10 @@ def test_model_bad_angle_declarations(angles):
 @pytest.fixture(scope="module")
 def mc_moments():
     u_cut, u_rot = sm.Gaussian(CUT, P_XY), sm.Gaussian(ROT, P_XY)
+    with pytest.warns(AngleWarning, match=r"output 1 \(atan2\(y, x\)\).*angles=\[1\]"):
+        plain_cut = sm.propagate(polar(), u_cut, transform=MC)  # undeclared across the cut
     return {
-        "plain_cut": sm.propagate(polar(), u_cut, transform=MC),
+        "plain_cut": plain_cut,
         "plain_rot": sm.propagate(polar(), u_rot, transform=MC),
         "angle_cut": sm.propagate(polar([1]), u_cut, transform=MC),
         "reference_rot": sm.propagate(polar([1]), u_rot, transform=REFERENCE),
@@ -224,8 +226,10 @@ def test_declared_transform_equals_its_rotated_self(transform):
 
 @pytest.mark.parametrize("transform", [p for p in DETERMINISTIC if p.id != "tt2"])
 def test_sampling_rules_without_declaration_are_wrong(transform):
-    """Without the declaration the points straddle the cut and the variance is O(1) rad²."""
-    a = sm.propagate(polar(), sm.Gaussian(CUT, P_XY), transform=transform)
+    """Without the declaration the points straddle the cut and the variance is O(1) rad²;
+    an AngleWarning says so."""
+    with pytest.warns(AngleWarning, match=r"output 1 \(atan2\(y, x\)\).*angles=\[1\]"):
+        a = sm.propagate(polar(), sm.Gaussian(CUT, P_XY), transform=transform)
     b = sm.propagate(polar(), sm.Gaussian(ROT, P_XY), transform=transform)
     assert a.cov[1, 1] > 100 * b.cov[1, 1]
 
@@ -330,10 +334,15 @@ def test_mon_across_the_cut_equals_rotated(name, alpha, transform):
 @pytest.fixture(scope="module")
 def mc_mons():
     mc = sm.MonteCarlo(10**5, seed=5)
-    return {
-        (name, declared, where): _mon(name, 1.0, mc, declared, where)
-        for name in PROBLEMS for declared, where in ((True, "cut"), (True, "rot"), (False, "cut"))
-    }
+    out = {}
+    for name in PROBLEMS:
+        for declared, where in ((True, "cut"), (True, "rot"), (False, "cut")):
+            if declared:
+                out[(name, declared, where)] = _mon(name, 1.0, mc, declared, where)
+                continue
+            with pytest.warns(AngleWarning, match="angles="):  # undeclared across the cut
+                out[(name, declared, where)] = _mon(name, 1.0, mc, declared, where)
+    return out
 
 
 @pytest.mark.parametrize("name", sorted(PROBLEMS))
@@ -420,7 +429,8 @@ def test_joint_moments_carry_the_angle_declarations():
     m = sm.propagate(polar([1]), sm.Gaussian(CUT, P_XY), transform=sm.UT.ut1())
     assert m.angles == frozenset({1}) and m.input_angles == frozenset()
     assert m.joint_angles == [3]  # [u; y] = [x, y, r, θ]
-    assert sm.propagate(polar(), sm.Gaussian(CUT, P_XY), transform=sm.UT.ut1()).joint_angles == []
+    with pytest.warns(AngleWarning):  # undeclared, at the cut
+        assert sm.propagate(polar(), sm.Gaussian(CUT, P_XY), transform=sm.UT.ut1()).joint_angles == []
 
 
 def test_joint_moments_condition_at_the_cut_equals_the_rotated_geometry():

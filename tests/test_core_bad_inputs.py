@@ -8,6 +8,7 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import (
+    ArgumentError,
     CovarianceError,
     DerivativeError,
     ModelError,
@@ -184,3 +185,84 @@ def test_derivative_error_names_output_and_point(tr, outputs, i):
     m = sm.Model([x, y], outputs, name="bad_singular")
     with pytest.raises(DerivativeError, match=rf"Jacobian of output {i} \(.+\) is NaN or inf at the point \(x=0, y=0\)"):
         sm.propagate(m, ORIGIN, transform=tr)
+
+
+# --------------------------------------------------------------------------- tracebacks that escaped (issue 13)
+BIG = 10**400  # a Python int no float can hold
+
+
+@pytest.mark.parametrize(
+    ("mean", "cov", "err", "match"),
+    [
+        ([BIG], [[1.0]], ShapeError, r"mean holds a number too large for a float"),
+        ([0.0], [[BIG]], CovarianceError, r"cov holds a number too large for a float"),
+        (["a"], [[1.0]], ShapeError, r"mean must hold real numbers"),
+        ([0.0], [["a"]], CovarianceError, r"cov must hold real numbers"),
+        ([], [], ShapeError, r"mean is empty: a Gaussian needs at least one component"),
+        ([], [[]], ShapeError, r"mean is empty"),
+    ],
+)
+def test_gaussian_refuses_what_numpy_and_python_raised(mean, cov, err, match):
+    with pytest.raises(err, match=match):
+        sm.Gaussian(mean, cov)
+
+
+@pytest.mark.parametrize("rng", [-1, 1.5, "seed", True])
+def test_sample_refuses_a_bad_seed(rng):
+    with pytest.raises(ArgumentError, match=r"rng must be a numpy Generator, a non-negative integer seed or None"):
+        U.sample(3, rng=rng)
+
+
+@pytest.mark.parametrize("n", [0, -1, 2.0, True])
+def test_sample_refuses_a_bad_count(n):
+    with pytest.raises(ArgumentError, match="n must be a positive integer"):
+        U.sample(n, rng=0)
+
+
+def test_sample_accepts_a_seed_and_a_generator_alike():
+    a = U.sample(4, rng=7)
+    b = U.sample(4, rng=np.random.default_rng(7))
+    assert np.array_equal(a, b)
+
+
+def test_from_std_refuses_a_variance_that_overflows():
+    with pytest.raises(CovarianceError, match=r"std\[1\] = 1e\+160: its square, the variance, overflows"):
+        sm.Gaussian.from_std([0.0, 0.0], [1.0, 1e160])
+
+
+def test_covariance_near_the_float_maximum_is_symmetrised_without_overflow():
+    """(P + Pᵀ)/2 overflowed to inf for 1e308; halving first keeps the entry."""
+    assert sm.Gaussian([0.0], [[1e308]]).cov[0, 0] == 1e308
+
+
+@pytest.mark.parametrize("v", [1e308, 1.7e308])
+def test_covariance_whose_eigen_decomposition_fails_is_refused(v):
+    """A rank-one matrix of entries near the float maximum: LAPACK's eigenvalues overflow."""
+    with pytest.raises(CovarianceError, match=r"cov: the eigen-decomposition failed .* rescale the units"):
+        sm.Gaussian([0.0, 0.0], [[v, v], [v, v]])
+
+
+def test_asymmetry_that_overflows_is_still_asymmetry():
+    with pytest.raises(CovarianceError, match="not symmetric"):
+        sm.Gaussian([0.0, 0.0], [[1e308, -1e308], [1e308, 1e308]])
+
+
+def _no_convergence(*args, **kwargs):
+    raise np.linalg.LinAlgError("Eigenvalues did not converge")
+
+
+def test_lapack_failure_in_validation_is_a_covariance_error(monkeypatch):
+    """LAPACK's own failure (seen for extreme std) becomes a CovarianceError naming cov."""
+    monkeypatch.setattr(np.linalg, "eigvalsh", _no_convergence)
+    with pytest.raises(CovarianceError, match=r"cov: the eigen-decomposition failed \(Eigenvalues did not converge\)"):
+        sm.Gaussian([0.0, 0.0], [[1e300, 0.0], [0.0, 1e-300]])
+
+
+def test_lapack_failure_in_the_square_root_is_a_covariance_error(monkeypatch):
+    """Cholesky fails on a singular P, the semidefinite Cholesky on an indefinite one: the
+    last resort, eigh, failing too is reported, not raised as LinAlgError."""
+    from symmon.gaussian import matrix_sqrt
+
+    monkeypatch.setattr(np.linalg, "eigh", _no_convergence)
+    with pytest.raises(CovarianceError, match=r"no square root of the covariance.*did not converge"):
+        matrix_sqrt(np.array([[1.0, 2.0], [2.0, 1.0]]))

@@ -230,3 +230,24 @@ def test_fuse_bad_inputs():
         sm.fuse(sm.Gaussian([0.0], [[1.0]]), sm.Gaussian([0.0, 0.0], np.eye(2)))
     with pytest.raises(SingularMatrixError, match="estimate 1"):
         sm.fuse(sm.Gaussian([0.0, 0.0], np.eye(2)), sm.Gaussian([0.0, 0.0], np.ones((2, 2))))
+
+
+# --------------------------------------------------------------------------- the float range (issue 13)
+@pytest.mark.parametrize("var", [1e-308, 1e-320])
+def test_fuse_refuses_an_information_that_overflows(var):
+    """P⁻¹ = 1e308 twice is inf: a clear error, not a RuntimeWarning and a NaN."""
+    with pytest.raises(CovarianceError, match=r"fuse: the information .* overflows \(smallest variance"):
+        sm.fuse(sm.Gaussian([0.0], [[var]]), sm.Gaussian([1.0], [[var]]))
+
+
+def test_fuse_near_the_float_maximum_is_exact():
+    g = sm.fuse(sm.Gaussian([0.0], [[1e308]]), sm.Gaussian([1.0], [[1e308]]))
+    assert g.cov[0, 0] == pytest.approx(5e307, rel=1e-15)  # (2/1e308)⁻¹, rounded twice
+    assert g.mean[0] == pytest.approx(0.5, rel=1e-15)
+
+
+def test_condition_whose_mean_overflows_is_refused():
+    """K = P_xy / P_yy ≈ 1e154 times an innovation of 1e300 is inf."""
+    g = sm.Gaussian([0.0, 0.0], [[1.0, 1e-154], [1e-154, 1e-308]])
+    with pytest.raises(ShapeError, match="mean contains NaN or inf"):
+        g.condition([1], [1e300])

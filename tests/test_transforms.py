@@ -467,3 +467,20 @@ def test_ut1_weights_use_kappa_3_minus_n(n):
     assert c == pytest.approx(np.sqrt(3.0), rel=1e-15)
     assert wm.sum() == pytest.approx(1.0, rel=1e-15)
     np.testing.assert_array_equal(wm, wc)
+
+
+# --------------------------------------------------------------------------- extreme settings (issue 13)
+@pytest.mark.parametrize(("alpha", "kappa"), [(1e160, None), (1e300, 0.0), (1e100, 1e300)])
+def test_ut_whose_weights_overflow_is_refused(alpha, kappa):
+    """α² (n + κ) overflowed: Python's OverflowError, or inf weights and NaN moments."""
+    x = sp.Symbol("x")
+    with pytest.raises(sm.SymmonError, match=r"UT with alpha=.* gives lambda = .* = inf .*overflow"):
+        sm.propagate(sm.Model([x], [x**2]), sm.Gaussian([1.0], [[1.0]]), transform=sm.UT(alpha=alpha, kappa=kappa))
+
+
+def test_propagate_many_refuses_covariances_that_overflow_the_checks():
+    """|P − Pᵀ| = inf for ±1e308: refused as asymmetric, with no RuntimeWarning on the way."""
+    x, y = sp.symbols("x y")
+    P = np.array([[[1e308, -1e308], [1e308, 1e308]]])
+    with pytest.raises(sm.SymmonError, match=r"covs\[0\] is not symmetric"):
+        sm.propagate_many(sm.Model([x, y], [x * y]), np.zeros((1, 2)), P, transform=sm.UT.ut1())

@@ -8,16 +8,23 @@ and covariances (K, n_w, n_w).  It returns the mean (K, n_y), the covariance
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import ClassVar
 
 import numpy as np
+import sympy as sp
 
 from ..angles import wrap_angle  # re-exported: defined beside the other angle helpers
 from ..compile import CompiledModel
+from ..errors import AngleWarning, NonFiniteError
 from ..gaussian import matrix_sqrt
 
-__all__ = ["Transform", "BatchMoments", "wrap_angle", "weighted_moments", "batch_sqrt"]
+__all__ = [
+    "Transform", "BatchMoments", "wrap_angle", "weighted_moments", "batch_sqrt",
+    "evaluate_points", "check_moments_finite", "likely_angles", "warn_angle_cut", "pilot_angle_cut",
+]
 
 
 @dataclass(frozen=True)
@@ -37,7 +44,10 @@ class Transform:
 
     Subclasses are frozen dataclasses that implement :meth:`batch` and declare
     ``exact_degree``: the polynomial degree of g up to which the mean is exact for a
-    Gaussian input.
+    Gaussian input.  A rule that evaluates g at points does so through
+    :func:`evaluate_points`, so a NaN or inf of g is reported with the point; the front
+    ends (:func:`symmon.propagate`, :func:`symmon.propagate_many`) then refuse any moment
+    that is not finite (:func:`check_moments_finite`).
     """
 
     exact_degree: ClassVar[float] = 0
@@ -89,3 +99,161 @@ def weighted_moments(Y: np.ndarray, X: np.ndarray, mx: np.ndarray, wm: np.ndarra
     cross = np.einsum("n,kni,knj->kij", wc, R, D)
     return mean, cov, cross
 
+
+
+def _point_str(cm: CompiledModel, w: np.ndarray) -> str:
+    return ", ".join(f"{sym}={x:.6g}" for sym, x in zip(cm.symbols, w))
+
+
+def _output_str(cm: CompiledModel, i: int) -> str:
+    return f"output {i} ({cm.source_exprs[i]})" if i < len(cm.source_exprs) else f"output {i}"
+
+
+def evaluate_points(cm: CompiledModel, X: np.ndarray, transform: "Transform",
+                    angles: frozenset[int] = frozenset()) -> np.ndarray:
+    """g at the points X (K, N, n_w) of a rule, shape (K, N, n_y): finite, or an error.
+
+    A single NaN or inf among the transformed points makes every moment NaN or inf,
+    so the first point where g is not finite is reported instead (the sampling
+    counterpart is Monte Carlo's :class:`~symmon.errors.SamplingError`).  Outputs that
+    look like undeclared angles are checked for points on both sides of their cut
+    (:func:`warn_angle_cut`).
+
+    Raises
+    ------
+    NonFiniteError
+        Naming the transform, the output and the point.
+    """
+    K, N, n = X.shape
+    if not np.isfinite(X).all():
+        k, j = np.argwhere(~np.isfinite(X).all(axis=2))[0]
+        raise NonFiniteError(
+            f"{transform!r}: point {j} of the rule, ({_point_str(cm, X[k, j])}), overflows: the input "
+            "mean and spread put it beyond 1.8e308; rescale the units of the inputs"
+        )
+    Y = cm.eval_g(X.reshape(K * N, n)).reshape(K, N, -1)
+    if not np.isfinite(Y).all():
+        bad = ~np.isfinite(Y)
+        k, j, i = np.argwhere(bad)[0]
+        raise NonFiniteError(
+            f"{transform!r}: {_output_str(cm, i)} is {Y[k, j, i]} at the point "
+            f"({_point_str(cm, X[k, j])}), point {j} of {N} of the rule, at {int(bad[k].any(axis=1).sum())} "
+            "of its points in all: E y and Cov y would be NaN or inf.  The input distribution "
+            "reaches where g is not defined (e.g. sqrt of a negative number): move the mean, "
+            "shrink the covariance or change the model"
+        )
+    warn_angle_cut(cm, Y, angles, transform)
+    return Y
+
+
+def check_moments_finite(cm: CompiledModel, b: BatchMoments, means: np.ndarray, transform: "Transform") -> None:
+    """Raise if any moment of a batch is NaN or inf (every transform's final guard).
+
+    With g finite at every point the moments can still overflow: |g| beyond ~1e154
+    makes its square, and Cov y, inf.
+
+    Raises
+    ------
+    NonFiniteError
+        Naming the transform, the moment, the output and the input mean.
+    """
+    if np.isfinite(b.mean).all() and np.isfinite(b.cov).all() and np.isfinite(b.cross).all():
+        return
+    for label, arr in (("E y", b.mean), ("Cov y", b.cov), ("Cov(y, w)", b.cross)):
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            idx = np.argwhere(bad)[0]
+            k, i = idx[0], idx[1]
+            entry = ", ".join(str(int(j)) for j in idx[1:])
+            raise NonFiniteError(
+                f"{transform!r}: {label}[{entry}] is {arr[tuple(idx)]} ({_output_str(cm, i)}) for the input "
+                f"mean ({_point_str(cm, means[k])}): the moments overflow (|g| beyond ~1e154 has an "
+                "infinite square, or g is not finite where the rule looks): rescale the units"
+            )
+
+
+# --------------------------------------------------------------------------- undeclared angles
+#: (outputs, symbols, output index) already warned about: one AngleWarning per model and output.
+_ANGLE_WARNED: set[tuple] = set()
+
+
+def likely_angles(cm: CompiledModel, declared: frozenset[int]) -> dict[int, float]:
+    """Outputs that look like angles but are not declared: index → half-period of the cut.
+
+    An output looks like an angle when its expression is atan2(·, ·), possibly times a
+    number c (a unit change, e.g. to degrees: the cut is then at ±|c|π) and possibly
+    plus terms without atan2 (additive noise).
+    """
+    return _likely_angles(tuple(cm.source_exprs), frozenset(declared))
+
+
+@lru_cache(maxsize=256)  # a filter calls this at every step with the same model
+def _likely_angles(exprs: tuple, declared: frozenset[int]) -> dict[int, float]:
+    out = {}
+    for i, e in enumerate(exprs):
+        if i in declared or not isinstance(e, sp.Basic):
+            continue
+        terms = [t for t in sp.Add.make_args(e) if t.has(sp.atan2)]
+        if len(terms) != 1:
+            continue
+        c, rest = terms[0].as_independent(*terms[0].free_symbols, as_Add=False)
+        if isinstance(rest, sp.atan2) and c.is_number and c != 0:
+            out[i] = float(abs(c)) * np.pi
+    return out
+
+
+def warn_angle_cut(cm: CompiledModel, Y: np.ndarray, angles: frozenset[int], transform: object) -> None:
+    """Warn once per model and output when an undeclared angle's points straddle its cut.
+
+    The points of state k straddle the cut at ±π when some lie above π/2, some below
+    −π/2, and the widest gap between them on the circle is not the one across ±π:
+    they form one cluster through ±π, which as real numbers has a mean near 0 and a
+    variance near π², both wrong.
+
+    Parameters
+    ----------
+    Y : (K, N, n_y)
+        Transformed points (or samples) of each state.
+    """
+    for i, half in likely_angles(cm, angles).items():
+        key = (cm.source_exprs, cm.symbols, i)
+        if key in _ANGLE_WARNED:
+            continue
+        th = wrap_angle(Y[:, :, i] * (np.pi / half))
+        both = (th.max(axis=1) > np.pi / 2) & (th.min(axis=1) < -np.pi / 2)
+        if not both.any():
+            continue  # the common case, decided without sorting
+        th = np.sort(th[both], axis=1)
+        inner = np.diff(th, axis=1).max(axis=1)
+        across = 2 * np.pi - (th[:, -1] - th[:, 0])
+        hit = inner > across
+        if hit.any():
+            _ANGLE_WARNED.add(key)
+            k = int(np.argmax(hit))
+            above = int(np.sum(th[k] > np.pi / 2))
+            below = int(np.sum(th[k] < -np.pi / 2))
+            warnings.warn(
+                f"{_output_str(cm, i)} looks like an angle but is not declared, and the points of "
+                f"{transform!r} lie on both sides of its cut at ±{half:.6g} ({above} above, {below} "
+                "below): its mean and covariance mix values a full turn apart.  Declare it with "
+                f"Model(..., angles=[{i}]) to get circular moments",
+                AngleWarning, stacklevel=5,
+            )
+
+
+#: Pilot samples per Gaussian for :func:`pilot_angle_cut`.
+ANGLE_PILOT = 1000
+
+
+def pilot_angle_cut(cm: CompiledModel, means: np.ndarray, covs: np.ndarray, angles: frozenset[int],
+                    transform: object) -> None:
+    """:func:`warn_angle_cut` on ANGLE_PILOT samples of each Gaussian, for a rule that
+    keeps statistics only (Monte Carlo).  The pilot has its own fixed seed, apart from
+    the rule's streams, so the rule's numbers do not change; it costs nothing for a model
+    without undeclared atan2 outputs."""
+    if not likely_angles(cm, angles):
+        return
+    Z = np.random.default_rng(0).standard_normal((ANGLE_PILOT, means.shape[1]))
+    X = means[:, None, :] + np.einsum("kij,nj->kni", batch_sqrt(covs), Z)
+    Y = cm.eval_g(X.reshape(-1, X.shape[2])).reshape(X.shape[0], ANGLE_PILOT, -1)
+    warn_angle_cut(cm, Y, angles, transform)

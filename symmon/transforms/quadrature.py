@@ -29,16 +29,22 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..errors import SymmonError
-from .base import BatchMoments, Transform, batch_sqrt, weighted_moments, wrap_angle
+from ..errors import ResourceError, SymmonError
+from .base import BatchMoments, Transform, batch_sqrt, evaluate_points, weighted_moments, wrap_angle
 
-__all__ = ["GaussHermite", "standard_rule", "quadrature_error", "ERROR_SAFETY"]
+__all__ = ["GaussHermite", "standard_rule", "rule_size", "quadrature_error", "ERROR_SAFETY", "MAX_NODES"]
 
 #: Above this dimension the default grid is sparse.
 SPARSE_ABOVE = 4
 
 #: Factor on |Q_p − Q_{p+2}|: it bounds |Q_p − I| once |Q_{p+2} − I| ≤ |Q_p − I| / 2.
 ERROR_SAFETY = 2.0
+
+#: The largest rule allowed: order^dim nodes for the tensor grid, the sum of the
+#: combination technique's tensor grids for the sparse one.  Each node costs a row of
+#: dim floats for the points and an evaluation of g, per Gaussian of the batch, so
+#: 10^6 nodes are ~8·dim MB per array; a larger rule raises before it is built.
+MAX_NODES = 10**6
 
 
 @lru_cache(maxsize=64)
@@ -54,15 +60,71 @@ def _tensor(orders: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
     return X, W
 
 
+def _level_tuples(dim: int, max_sum: int):
+    """Tuples of ``dim`` positive integers with sum ≤ max_sum, in lexicographic order
+    (those of itertools.product, without visiting the level^dim others)."""
+    if dim == 0:
+        yield ()
+        return
+    for first in range(1, max_sum - dim + 2):
+        for rest in _level_tuples(dim - 1, max_sum - first):
+            yield (first,) + rest
+
+
+def rule_size(dim: int, order: int, sparse: bool) -> int:
+    """The number of nodes the rule is built from, without building it.
+
+    ``order**dim`` for the tensor grid; for the sparse grid the total size of the
+    combination technique's tensor grids (an upper bound of the merged node count),
+    counted level by level: the number of ways to reach each level sum, weighted by
+    the grid sizes Π (2 lₖ − 1).
+    """
+    if not sparse:
+        return order**dim
+    level = (order + 1) // 2
+    q = dim + level - 1
+    ways = {0: 1}  # level sum → Σ Π (2 lₖ − 1) over the tuples of the dimensions so far
+    for _ in range(dim):
+        nxt: dict[int, int] = {}
+        for s, c in ways.items():
+            for lv in range(1, level + 1):
+                if s + lv <= q:
+                    nxt[s + lv] = nxt.get(s + lv, 0) + c * (2 * lv - 1)
+        ways = nxt
+    return sum(c for s, c in ways.items() if s >= q - dim + 1)
+
+
+def _check_size(dim: int, order: int, sparse: bool) -> None:
+    size = rule_size(dim, order, sparse)
+    if size <= MAX_NODES:
+        return
+    kind = "sparse (Smolyak)" if sparse else "tensor"
+    hint = "a lower order, UT (2n + 1 points) or Monte Carlo"
+    if not sparse:
+        hint = f"sparse=True ({rule_size(dim, order, True)} nodes), " + hint
+    raise ResourceError(
+        f"the Gauss-Hermite {kind} grid of order {order} in {dim} dimensions has {size} nodes, "
+        f"above the limit MAX_NODES = {MAX_NODES}: use {hint}"
+    )
+
+
 @lru_cache(maxsize=64)
 def standard_rule(dim: int, order: int, sparse: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Nodes (N, dim) and weights (N,) for N(0, I_dim)."""
+    """Nodes (N, dim) and weights (N,) for N(0, I_dim).
+
+    Raises
+    ------
+    ResourceError
+        If the rule has more than ``MAX_NODES`` nodes (:func:`rule_size`), before any
+        of them is built.
+    """
+    _check_size(dim, order, sparse)
     if not sparse:
         return _tensor((order,) * dim)
     level = (order + 1) // 2
     q = dim + level - 1
     acc: dict[tuple, float] = {}
-    for levels in itertools.product(range(1, level + 1), repeat=dim):
+    for levels in _level_tuples(dim, q):
         s = sum(levels)
         if not q - dim + 1 <= s <= q:
             continue
@@ -83,6 +145,9 @@ class GaussHermite(Transform):
     ----------
     order : int, default 5
         Points per dimension of the one-dimensional rule (exact to degree 2·order − 1).
+        The tensor grid has order^n nodes; a rule of more than ``MAX_NODES`` = 10^6
+        nodes (tensor or sparse) raises a :class:`~symmon.errors.ResourceError` before
+        it is built.
     sparse : bool or None
         Use a Smolyak sparse grid; ``None`` picks it above 4 dimensions.
     error_estimate : bool, default False
@@ -127,10 +192,10 @@ class GaussHermite(Transform):
         K, n = means.shape
         sparse = bool(n > SPARSE_ABOVE if self.sparse is None else self.sparse)
         L = batch_sqrt(covs)
-        mean, cov, cross, evals = _rule_moments(cm, means, L, int(self.order), sparse, angles)
+        mean, cov, cross, evals = _rule_moments(cm, means, L, int(self.order), sparse, angles, self)
         info: dict[str, Any] = {"evaluations": evals, "sparse": sparse}
         if self.error_estimate:
-            m2, c2, x2, e2 = _rule_moments(cm, means, L, int(self.order) + 2, sparse, angles)
+            m2, c2, x2, e2 = _rule_moments(cm, means, L, int(self.order) + 2, sparse, angles, self)
             dm = mean - m2
             if angles:
                 idx = sorted(angles)
@@ -145,13 +210,13 @@ class GaussHermite(Transform):
 
 
 def _rule_moments(cm, means: np.ndarray, L: np.ndarray, order: int, sparse: bool,
-                  angles: frozenset[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+                  angles: frozenset[int], transform: Transform) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Mean, covariance, cross-covariance and the number of evaluations of one rule."""
     K, n = means.shape
     Z, w = standard_rule(n, order, sparse)
     X = means[:, None, :] + np.einsum("kij,nj->kni", L, Z)
     N = Z.shape[0]
-    Y = cm.eval_g(X.reshape(K * N, n)).reshape(K, N, -1)
+    Y = evaluate_points(cm, X, transform, angles)
     mean, cov, cross = weighted_moments(Y, X, means, w, w, angles)
     return mean, cov, cross, K * N
 

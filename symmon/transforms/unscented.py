@@ -21,7 +21,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..errors import SymmonError
-from .base import BatchMoments, Transform, batch_sqrt, weighted_moments
+from .base import BatchMoments, Transform, batch_sqrt, evaluate_points, weighted_moments
 
 __all__ = ["UT"]
 
@@ -79,7 +79,14 @@ class UT(Transform):
     def weights(self, n: int) -> tuple[np.ndarray, np.ndarray, float]:
         """Mean weights, covariance weights and the scale √(n + λ) for dimension n."""
         kappa = 3.0 - n if self.kappa is None else self.kappa
-        lam = self.alpha**2 * (n + kappa) - n
+        with np.errstate(over="ignore"):  # α beyond ~1e154: α² is inf, refused just below
+            a2 = np.float64(self.alpha) ** 2
+            lam = a2 * (n + kappa) - n
+        if not np.isfinite(lam) or not np.isfinite(a2):
+            raise SymmonError(
+                f"UT with alpha={self.alpha}, kappa={kappa} gives lambda = alpha^2 (n + kappa) - n = {lam} "
+                f"for n = {n}: the sigma points and weights overflow; choose a moderate alpha and kappa (the presets use alpha = 1e-3 and 1)"
+            )
         if n + lam <= 0:
             raise SymmonError(
                 f"UT with alpha={self.alpha}, kappa={kappa} gives n + lambda = {n + lam:.3g} <= 0 "
@@ -88,7 +95,7 @@ class UT(Transform):
         wm = np.full(2 * n + 1, 1.0 / (2 * (n + lam)))
         wm[0] = lam / (n + lam)
         wc = wm.copy()
-        wc[0] += 1 - self.alpha**2 + self.beta
+        wc[0] += 1 - a2 + self.beta
         return wm, wc, float(np.sqrt(n + lam))
 
     def sigma_points(self, means: np.ndarray, covs: np.ndarray) -> np.ndarray:
@@ -103,7 +110,7 @@ class UT(Transform):
         K, n = means.shape
         wm, wc, _ = self.weights(n)
         X = self.sigma_points(means, covs)
-        Y = cm.eval_g(X.reshape(K * (2 * n + 1), n)).reshape(K, 2 * n + 1, -1)
+        Y = evaluate_points(cm, X, self, angles)
         mean, cov, cross = weighted_moments(Y, X, means, wm, wc, angles)
         info = {"evaluations": K * (2 * n + 1), "sigma_points": X, "transformed_points": Y}
         if np.any(wc < 0):
