@@ -81,7 +81,8 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, transform: T
     """
     tr = _check_transform(transform)
     mw, Pw = joint_input(model, u, v)
-    b = tr.batch(compiled(model), mw[None], Pw[None], model.angle_outputs)
+    cm = compiled(model)
+    b = tr.batch(cm, mw[None], Pw[None], model.angle_outputs)
     nu = model.n_u
     stderr = None
     if b.stderr is not None:
@@ -89,6 +90,8 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, transform: T
     info = dict(b.info or {})
     if "groups" in info:
         info["groups"] = info["groups"][0]
+    # "compiled", "vm" or "vm (C build running)": CompiledModel.evaluator, docs/compile.md.
+    info["evaluator"] = cm.evaluator
     input_cov = None if b.input_cov is None else b.input_cov[0][:nu, :nu]
     return JointMoments(
         mean=b.mean[0], cov=b.cov[0], cross_cov=b.cross[0][:, :nu], input=u, transform=tr,

@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import sympy as sp
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy import special
 
 from symmon.compile import CompiledModel, to_casadi
@@ -187,18 +189,18 @@ def test_disk_cache_is_keyed_by_content_and_reused(tmp_path):
         pytest.skip("no C compiler")
     script = """
     import sys
-    import numpy as np, sympy as sp, symmon as sm, symmon.compile as sc
+    import numpy as np, sympy as sp, symmon as sm, symmon.ccache as sc
     x, y = sp.symbols("x y")
     u = sm.Gaussian([1.0, 2.0], np.eye(2))
-    run = sc.subprocess.run
+    run = sc._run_compiler
     if sys.argv[-1] == "second":  # a cache hit must not run the compiler again
         def fail(*a, **k):
             raise AssertionError("compiler invoked despite a cached library")
-        sc.subprocess.run = fail
+        sc._run_compiler = fail
     m = sm.propagate(sm.Model([x, y], [x * y, sp.exp(x)]), u, transform=sm.UT.ut1())
     print(repr(m.mean.tolist()))
     if sys.argv[-1] == "second":  # different content: a new library
-        sc.subprocess.run = run
+        sc._run_compiler = run
         sm.propagate(sm.Model([x, y], [x * y, sp.exp(y)]), u, transform=sm.UT.ut1())
     """
     env = {"SYMMON_CACHE": str(tmp_path)}
@@ -212,3 +214,27 @@ def test_disk_cache_is_keyed_by_content_and_reused(tmp_path):
     after = {p.name: p.stat().st_mtime_ns for p in tmp_path.glob("*.so")}
     assert {k: after[k] for k in libs} == libs  # reused, not rewritten
     assert len(after) > len(libs)
+
+
+# --------------------------------------------------------------------------- names
+@pytest.mark.parametrize("name", ["polar (rad)", "a_", "range & bearing", "a__b", "9", "", "Ångström", "null", "jac"])
+def test_ordinary_names_compile(name):
+    """Issue 13: these crashed in CasADi ("non-consecutive underscores")."""
+    import symmon as sm
+
+    model = sm.Model([x, y], [x * y, x + y], name=name)
+    m = sm.propagate(model, sm.Gaussian([1.0, 2.0], np.eye(2)), transform=sm.TT2())
+    np.testing.assert_allclose(m.mean, [2.0, 3.0], rtol=EVAL_RTOL)
+    assert model.name == (name or "model")
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.text(st.characters(blacklist_categories=("Cs",)), max_size=80))
+def test_any_text_is_a_valid_function_name(text):
+    from symmon.cnames import HASH_DIGITS, MAX_STEM, c_identifier, is_casadi_name
+
+    tag = c_identifier(text)
+    assert is_casadi_name(tag) and len(tag) <= MAX_STEM + 1 + HASH_DIGITS
+    assert c_identifier(text + "!") != tag  # unique through the hash of the original
+    cm = CompiledModel([x * y], [x, y], name=text, compiled=False)  # CasADi accepts every name
+    assert cm.name == text and cm.g.name() == f"{cm.tag}_g"
