@@ -19,11 +19,12 @@ everything between "here is C source" and "here is a loaded library":
   inside the cache.  On KeyboardInterrupt or SIGTERM the whole group (``cc1``, ``as``)
   is killed and the directory removed; at interpreter exit, so is any background build.
 - **Policy** (``$SYMMON_COMPILE``): ``auto`` (default) compiles C of up to
-  :data:`BACKGROUND_BYTES` at once, and larger C in a background thread while CasADi's
-  virtual machine evaluates; ``sync`` always waits for the compiler; ``background``
-  always builds in the background; ``never`` uses the virtual machine only (as does
+  :data:`BACKGROUND_BYTES` at once with -O2, and larger C in a background thread (-O1,
+  or -O0 above :data:`HUGE_BYTES`) while CasADi's virtual machine evaluates, then swaps
+  the library in; ``sync`` always waits for the compiler (-O2); ``background`` always
+  builds in the background; ``never`` uses the virtual machine only (as does
   ``SYMMON_NO_COMPILE=1``).  ``docs/compile.md`` gives the measurements behind the
-  threshold.
+  thresholds.
 """
 
 from __future__ import annotations
@@ -61,8 +62,12 @@ CFLAGS = ("-fPIC", "-shared", "-fno-fast-math", "-ffp-contract=off")
 OPT_SYNC = "-O2"
 OPT_BACKGROUND = "-O1"
 #: Generated C larger than this (bytes) is compiled in the background under the ``auto``
-#: policy: gcc -O2 needs about a second for it (docs/compile.md, "Threshold").
-BACKGROUND_BYTES = 200_000
+#: policy: gcc -O2 takes 1-4 s for it on 2 busy cores (docs/compile.md, "Threshold").
+BACKGROUND_BYTES = 64_000
+#: Above this size gcc -O1 takes minutes (its time grows faster than the code) while
+#: -O0 takes seconds and still evaluates 3-4x faster than the VM: background at -O0.
+OPT_HUGE = "-O0"
+HUGE_BYTES = 300_000
 MODES = ("auto", "sync", "background", "never")
 
 _lock = threading.Lock()
@@ -239,8 +244,10 @@ class BuildError(RuntimeError):
     """The compiler failed (its message holds the end of the compiler's output)."""
 
 
-#: Compiler process groups running now, with their temporary directories.
+#: Compiler process groups running now, with their temporary directories, and the
+#: number of threads between "about to start a compiler" and its registration here.
 _running: dict[subprocess.Popen, Path] = {}
+_starting = 0
 _shutting_down = False
 
 
@@ -254,11 +261,14 @@ def _kill(p: subprocess.Popen) -> None:
     p.wait()
 
 
+def _compiling() -> bool:
+    with _lock:
+        return bool(_running) or _starting > 0
+
+
 def _on_sigterm(signum, frame) -> None:
     """SIGTERM while symmon compiles: exit through Python, so the compiler is killed."""
-    with _lock:
-        busy = bool(_running)
-    if busy:
+    if _compiling():
         raise SystemExit(128 + signum)
     # No compile runs: behave as if this handler were not here.
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
@@ -274,11 +284,21 @@ def _catch_sigterm() -> None:
 
 def _run_compiler(cmd: list[str], tmp: Path) -> None:
     """Run ``cmd`` in its own session; kill the group if this thread is interrupted."""
-    p = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                         stderr=subprocess.STDOUT, text=True, errors="replace",
-                         start_new_session=True, cwd=tmp)
+    global _starting
     with _lock:
-        _running[p] = tmp
+        if _shutting_down:
+            raise BuildError("the interpreter is exiting")
+        _starting += 1
+    p = None
+    try:
+        p = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                             stderr=subprocess.STDOUT, text=True, errors="replace",
+                             start_new_session=True, cwd=tmp)
+    finally:
+        with _lock:
+            _starting -= 1
+            if p is not None:
+                _running[p] = tmp
     try:
         out, _ = p.communicate()
     except BaseException:  # KeyboardInterrupt, SystemExit from SIGTERM: no orphan cc1
@@ -291,11 +311,22 @@ def _run_compiler(cmd: list[str], tmp: Path) -> None:
         raise BuildError(f"{shlex.join(cmd[:1])} exited with status {p.returncode}:\n{out[-2000:]}")
 
 
+#: Seconds the exit handler waits for a compiler that is being started.
+_EXIT_GRACE = 5.0
+
+
 @atexit.register
 def _kill_running() -> None:
     """At exit: kill background compiles and remove their temporary directories."""
     global _shutting_down
-    _shutting_down = True
+    with _lock:
+        _shutting_down = True
+    deadline = time.monotonic() + _EXIT_GRACE
+    while time.monotonic() < deadline:
+        with _lock:
+            if not _starting:
+                break
+        time.sleep(0.01)
     with _lock:
         running = list(_running.items())
     for p, tmp in running:
@@ -303,10 +334,25 @@ def _kill_running() -> None:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+#: A build directory this old was left by a process killed with SIGKILL: remove it.
+STALE_BUILD_SECONDS = 24 * 3600
+
+
+def _remove_stale_builds(d: Path) -> None:
+    now = time.time()
+    for old in d.glob(".build-*"):
+        try:
+            if now - old.stat().st_mtime > STALE_BUILD_SECONDS:
+                shutil.rmtree(old, ignore_errors=True)
+        except OSError:
+            pass
+
+
 def _build(code: str, so: Path, opt: str) -> None:
     """Compile ``code`` into the cache entry ``so`` and its checksum, atomically."""
     cc = _compiler()
     assert cc is not None
+    _remove_stale_builds(so.parent)
     tmp = Path(tempfile.mkdtemp(prefix=".build-", dir=so.parent))
     try:
         (tmp / "f.c").write_text(code)
@@ -403,17 +449,23 @@ class NativeLibrary(Generic[T]):
         if mode == "never" or _compiler() is None:
             self._done.set()
             return
-        background = mode == "background" or (mode == "auto" and self.code_bytes > BACKGROUND_BYTES)
-        opt = OPT_SYNC
-        if background:
-            opt = OPT_BACKGROUND
+        # A verified library of any optimisation level costs nothing to load: take the best.
+        for opt in (OPT_SYNC, OPT_BACKGROUND, OPT_HUGE):
             so = _entry(code, stem, opt)
             if so.exists() and _verify(so) is None:
-                background = False  # cached: loading costs nothing, no thread needed
+                try:
+                    self._obj, self._state = load(so), "compiled"
+                except (OSError, RuntimeError):
+                    continue  # rebuilt below, with a warning
+                log.info("symmon: %s: compiled C (%s) loaded from the cache", stem, opt)
+                self._done.set()
+                return
+        background = mode == "background" or (mode == "auto" and self.code_bytes > BACKGROUND_BYTES)
         if not background:
-            self._sync(code, opt, load, stacklevel + 1)
+            self._sync(code, OPT_SYNC, load, stacklevel + 1)
             self._done.set()
             return
+        opt = OPT_BACKGROUND if self.code_bytes <= HUGE_BYTES else OPT_HUGE
         self._state = "building"
         _catch_sigterm()
         log.info("symmon: %s: %d bytes of C; evaluating on CasADi's VM while it compiles (%s) "
@@ -441,16 +493,16 @@ class NativeLibrary(Generic[T]):
         except BaseException as exc:  # a thread must not die with a traceback on stderr
             with self._lock:
                 self._state = "vm"
-            self._done.set()
             if not _shutting_down:
                 log.warning("symmon: background compile of %s failed; staying on CasADi's VM: %s",
                             self.stem, exc)
+            self._done.set()
             return
         with self._lock:
             self._obj, self._state = obj, "compiled"
-        self._done.set()
         log.info("symmon: %s: background C build done in %.1f s; now evaluating compiled code",
                  self.stem, time.perf_counter() - t0)
+        self._done.set()
 
     def get(self) -> T | None:
         """The loaded object, or None to use CasADi's virtual machine."""

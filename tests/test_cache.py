@@ -191,3 +191,101 @@ def test_key_covers_the_compiler_version_and_target(monkeypatch):
     monkeypatch.setattr(cc, "_compiler_identity", lambda cmd: "gcc 99\nriscv64-linux-gnu")
     assert cc._entry("int f(void) { return 1; }", "f", "-O2").name != before
     assert "riscv64" not in before and cc._compiler_identity.__name__ == "<lambda>"
+
+
+# --------------------------------------------------------------------------- interrupts
+FAKE_CC = """#!/bin/sh
+# A compiler that never finishes: it records its pid and that of a child (like cc1), then waits.
+case "$1" in --version) echo "fake-cc 1.0"; exit 0;; -dumpmachine) echo "x86_64-fake-linux-gnu"; exit 0;; esac
+echo $$ > "$FAKE_CC_DIR/driver.pid"
+sleep 600 &
+echo $! > "$FAKE_CC_DIR/child.pid"
+wait
+"""
+
+# Starts a compile with the fake compiler; in the background mode it then waits for it.
+SLOW_SCRIPT = """
+import logging, sys, time
+import numpy as np, sympy as sp
+from symmon.compile import CompiledModel
+logging.basicConfig(level=logging.INFO, format="%(name)s %(message)s")
+x, y = sp.symbols("x y", real=True)
+cm = CompiledModel([x * y], [x, y], name="slow", compiled=True)
+print(cm.eval_g(np.ones((3, 2))).ravel().tolist(), cm.evaluator, flush=True)
+if sys.argv[1] == "sleep":  # until SIGTERM
+    time.sleep(600)
+if sys.argv[1] == "exit":  # until the test says so, then exit normally
+    sys.stdin.readline()
+"""
+
+
+def alive(pid: int) -> bool:
+    """True if the process exists and is not a zombie."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except FileNotFoundError:
+        return False
+    return fields[0] != "Z"
+
+
+def start_slow_compile(tmp_path: Path, mode: str, arg: str) -> tuple[subprocess.Popen, Path, list[int]]:
+    """A Python compiling with the fake compiler; returns once the compiler's child runs."""
+    fake = tmp_path / "fake-cc"
+    fake.write_text(FAKE_CC)
+    fake.chmod(0o755)
+    cache = tmp_path / "cache"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("SYMMON_")}
+    env.update(CC=str(fake), FAKE_CC_DIR=str(tmp_path), SYMMON_CACHE=str(cache), SYMMON_COMPILE=mode,
+               PYTHONPATH=str(ROOT) + os.pathsep + env.get("PYTHONPATH", ""))
+    p = subprocess.Popen([sys.executable, "-c", textwrap.dedent(SLOW_SCRIPT), arg], env=env, text=True,
+                         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + SUBPROCESS_TIMEOUT
+    while not (tmp_path / "child.pid").exists() or not (tmp_path / "child.pid").read_text().strip():
+        assert p.poll() is None, p.communicate()
+        assert time.monotonic() < deadline, "the fake compiler did not start"
+        time.sleep(0.05)
+    pids = [int((tmp_path / f).read_text()) for f in ("driver.pid", "child.pid")]
+    assert all(alive(pid) for pid in pids)
+    assert list(cache.glob(".build-*"))  # the compile's temporary directory exists now
+    return p, cache, pids
+
+
+def assert_cleaned_up(cache: Path, pids: list[int]) -> None:
+    deadline = time.monotonic() + 10
+    while any(alive(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.05)  # SIGKILL is asynchronous
+    assert not any(alive(pid) for pid in pids), "the compiler or its child survived"
+    assert not list(cache.glob(".build-*")), "the temporary directory survived"
+
+
+needs_proc = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+
+
+@needs_proc
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_signal_during_a_compile_kills_the_compiler(tmp_path, sig):
+    p, cache, pids = start_slow_compile(tmp_path, "sync", "-")
+    p.send_signal(sig)
+    out, err = p.communicate(timeout=SUBPROCESS_TIMEOUT)
+    assert p.returncode != 0 and out == ""
+    if sig == signal.SIGTERM:
+        assert p.returncode == 128 + signal.SIGTERM, err
+    else:
+        assert "KeyboardInterrupt" in err
+    assert_cleaned_up(cache, pids)
+
+
+@needs_proc
+@pytest.mark.parametrize("how", ["exit", "sleep"])
+def test_background_compile_is_killed_at_exit(tmp_path, how):
+    p, cache, pids = start_slow_compile(tmp_path, "background", how)
+    if how == "exit":
+        p.stdin.write("done\n")
+        p.stdin.flush()
+    else:
+        p.send_signal(signal.SIGTERM)  # the default action would leave the compiler running
+    out, err = p.communicate(timeout=SUBPROCESS_TIMEOUT)
+    assert out == "[1.0, 1.0, 1.0] vm (C build running)\n"
+    assert p.returncode == (0 if how == "exit" else 128 + signal.SIGTERM), err
+    assert "evaluating on CasADi's VM while it compiles" in err
+    assert_cleaned_up(cache, pids)

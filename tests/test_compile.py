@@ -24,6 +24,8 @@ EVAL_RTOL = 1e-12
 DERIV_RTOL = 1e-10
 
 ROOT = Path(__file__).resolve().parents[1]
+#: Seconds for a subprocess or a background build of a small model.
+SUBPROCESS_TIMEOUT = 120
 
 x, y, z = sp.symbols("x y z", real=True)
 SYMS = (x, y, z)
@@ -238,3 +240,104 @@ def test_any_text_is_a_valid_function_name(text):
     assert c_identifier(text + "!") != tag  # unique through the hash of the original
     cm = CompiledModel([x * y], [x, y], name=text, compiled=False)  # CasADi accepts every name
     assert cm.name == text and cm.g.name() == f"{cm.tag}_g"
+
+
+# --------------------------------------------------------------------------- compile policy
+#: The VM and the compiled row loop run the same operations in the same order, and the
+#: build disables FMA contraction: equal to the last bit, asked to 1e-15 relative.
+VM_C_RTOL = 1e-15
+
+
+@pytest.fixture
+def fresh_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("SYMMON_CACHE", str(tmp_path))
+    return tmp_path
+
+
+def _count_builds(monkeypatch) -> list[list[str]]:
+    import symmon.ccache as cc
+
+    calls: list[list[str]] = []
+    real = cc._run_compiler
+
+    def counting(cmd, tmp):
+        calls.append(cmd)
+        return real(cmd, tmp)
+
+    monkeypatch.setattr(cc, "_run_compiler", counting)
+    return calls
+
+
+@pytest.mark.parametrize("mode", ["sync", "background"])
+def test_vm_and_compiled_agree_to_the_last_bits(mode, fresh_cache, monkeypatch, points_rng):
+    from symmon.compile import has_compiler
+
+    if not has_compiler():
+        pytest.skip("no C compiler")
+    monkeypatch.setenv("SYMMON_COMPILE", mode)
+    exprs = DERIV_MODELS["mixed"] + DERIV_MODELS["polar"]
+    c = CompiledModel(exprs, SYMS, name=f"bits_{mode}", compiled=True)
+    vm = CompiledModel(exprs, SYMS, name=f"bits_{mode}_vm", compiled=False)
+    W = points_rng.uniform(0.3, 2.0, (8192 + 7, 3))
+    first = (c.eval_g(W[:5]), *c.eval_gjh(W[:5]))
+    assert c.evaluator == ("compiled" if mode == "sync" else "vm (C build running)")
+    assert c.wait_compiled(SUBPROCESS_TIMEOUT) == "compiled" and vm.evaluator == "none"
+    for a, b in zip(first, (c.eval_g(W[:5]), *c.eval_gjh(W[:5]))):  # before and after the swap
+        np.testing.assert_allclose(a, b, rtol=VM_C_RTOL, atol=0)
+    np.testing.assert_allclose(c.eval_g(W), vm.eval_g(W), rtol=VM_C_RTOL, atol=0)
+    for a, b in zip(c.eval_gjh(W), vm.eval_gjh(W)):
+        np.testing.assert_allclose(a, b, rtol=VM_C_RTOL, atol=0)
+    assert vm.evaluator == "vm"
+
+
+def test_one_compile_whatever_the_batch_sizes(fresh_cache, monkeypatch, points_rng):
+    from symmon.compile import has_compiler
+
+    if not has_compiler():
+        pytest.skip("no C compiler")
+    monkeypatch.setenv("SYMMON_COMPILE", "sync")
+    builds = _count_builds(monkeypatch)
+    c = CompiledModel(DERIV_MODELS["mixed"], SYMS, name="sizes", compiled=True)
+    vm = CompiledModel(DERIV_MODELS["mixed"], SYMS, name="sizes_vm", compiled=False)
+    for n in (1, 2, 3, 7, 100, 1000, 8192, 8193, 20000):
+        W = points_rng.uniform(0.3, 2.0, (n, 3))
+        np.testing.assert_allclose(c.eval_g(W), vm.eval_g(W), rtol=VM_C_RTOL, atol=0)
+    assert len(builds) == 1 and c.evaluator == "compiled"
+
+
+def test_never_uses_the_vm(fresh_cache, monkeypatch):
+    monkeypatch.setenv("SYMMON_COMPILE", "never")
+    builds = _count_builds(monkeypatch)
+    cm = CompiledModel([x * y], [x, y], name="never", compiled=False)
+    cm.eval_g(np.ones((4, 2)))
+    assert cm.evaluator == "vm" and not builds and not list(fresh_cache.iterdir())
+
+
+def test_background_build_is_logged(fresh_cache, monkeypatch, caplog):
+    from symmon.compile import has_compiler
+
+    if not has_compiler():
+        pytest.skip("no C compiler")
+    monkeypatch.setenv("SYMMON_COMPILE", "background")
+    caplog.set_level("INFO", logger="symmon")
+    cm = CompiledModel([x * y, sp.sin(x)], [x, y], name="logged", compiled=True)
+    cm.eval_g(np.ones((2, 2)))
+    assert cm.wait_compiled(SUBPROCESS_TIMEOUT) == "compiled"
+    text = caplog.text
+    assert "evaluating on CasADi's VM while it compiles" in text and "background C build done" in text
+
+
+def test_bad_compile_mode_is_named(monkeypatch):
+    from symmon.ccache import compile_mode
+    from symmon.errors import SymmonError
+
+    monkeypatch.setenv("SYMMON_COMPILE", "fast")
+    with pytest.raises(SymmonError, match="SYMMON_COMPILE must be one of auto, sync, background, never"):
+        compile_mode()
+
+
+def test_propagate_reports_the_evaluator():
+    import symmon as sm
+
+    m = sm.propagate(sm.Model([x, y], [x * y]), sm.Gaussian([1.0, 2.0], np.eye(2)), transform=sm.UT.ut1())
+    assert m.info["evaluator"] in ("compiled", "vm")
