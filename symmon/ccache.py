@@ -447,6 +447,8 @@ class NativeLibrary(Generic[T]):
         self._done = threading.Event()  # set when no build is pending
         mode = compile_mode()
         if mode == "never" or _compiler() is None:
+            log.info("symmon: %s: evaluating on CasADi's VM (SYMMON_COMPILE=%s, compiler %s)",
+                     stem, mode, "found" if _compiler() else "not found")
             self._done.set()
             return
         # A verified library of any optimisation level costs nothing to load: take the best.

@@ -15,6 +15,7 @@ from __future__ import annotations
 import ctypes
 import functools
 import hashlib
+import logging
 import threading
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -29,6 +30,8 @@ from .errors import ShapeError, UnsupportedFunctionError
 
 __all__ = ["to_casadi", "CompiledModel", "compile_model", "cache_dir", "has_compiler", "build_shared_library",
            "generated_c", "rows_c"]
+
+log = logging.getLogger(__name__)
 
 #: Rows per batched call of a mapped function; memory per call stays flat.
 CHUNK = 8192
@@ -251,6 +254,8 @@ class _Batched:
         outs = [np.empty((N, k)) for k in self.out_nnz]
         if N == 0:
             return outs
+        if not self.used and not self._compiled:
+            log.info("symmon: %s: evaluating on CasADi's VM (no compiled C wanted or available)", self._f.name())
         self.used = True
         native = self._native()
         rows = native.get() if native is not None else None
