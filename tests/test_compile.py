@@ -341,3 +341,20 @@ def test_propagate_reports_the_evaluator():
 
     m = sm.propagate(sm.Model([x, y], [x * y]), sm.Gaussian([1.0, 2.0], np.eye(2)), transform=sm.UT.ut1())
     assert m.info["evaluator"] in ("compiled", "vm")
+
+
+@pytest.mark.parametrize("command", [["propagate", "--transform", "ut1"], ["nonlinearity", "--weight", "full", "--transform", "tt2"],
+                                     ["compare", "--samples", "1000"], ["codegen", "-o", "OUT"]],
+                         ids=lambda c: c[0])
+@pytest.mark.parametrize("name", ["polar (rad)", "a_", "range & bearing"])
+def test_every_command_takes_an_ordinary_name(tmp_path, command, name, capsys):
+    """Issue 13: these names crashed every command with CasADi's "Function name is not valid"."""
+    from symmon.cli import main
+
+    toml = (ROOT / "examples" / "polar.toml").read_text()
+    model_file = tmp_path / "m.toml"
+    model_file.write_text(toml.replace('name = "polar"', f'name = "{name}"'))
+    args = [a.replace("OUT", str(tmp_path / "out")) for a in command]
+    assert main([args[0], str(model_file), *args[1:]]) == 0
+    out = capsys.readouterr().out
+    assert name in out or command[0] == "codegen"
