@@ -289,6 +289,12 @@ class CompiledModel:
         w ↦ ∂g/∂w, shape (n_y, n_w).
     hess : casadi.Function
         w ↦ stacked Hessians ∂²g_i/∂w², shape (n_y·n_w, n_w) (row block i is H_i).
+    name : str
+        The name as given (any text); ``tag`` is the C identifier made of it
+        (:func:`symmon.cnames.c_identifier`) that prefixes every function name.
+    compiled : bool
+        Whether compiled C is wanted (and a compiler available); :attr:`evaluator` says
+        what actually ran.
     """
 
     def __init__(self, outputs: Sequence[sp.Expr], symbols: Sequence[sp.Symbol], name: str = "g",

@@ -18,22 +18,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import sympy as sp
 
 import symmon.ccache as cc
-from symmon.compile import CompiledModel, has_compiler
-from symmon.errors import SymmonError
+from symmon.compile import has_compiler
 
 ROOT = Path(__file__).resolve().parents[1]
-#: The VM and compiled C evaluate the same operations in the same order without FMA:
-#: they agree to the last bit, asked here to 1e-15 relative.
-VM_C_RTOL = 1e-15
 #: Seconds a subprocess gets to start, compile a tiny model, or die after a signal.
 SUBPROCESS_TIMEOUT = 120
 
 needs_cc = pytest.mark.skipif(not has_compiler(), reason="no C compiler")
-
-x, y = sp.symbols("x y", real=True)
 
 # Evaluates a model compiled under the name "cachetest" (argv[1] picks its outputs) and
 # prints its values and the evaluator that ran.
