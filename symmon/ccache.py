@@ -51,7 +51,7 @@ import casadi as ca
 from .errors import SymmonError
 
 __all__ = ["cache_dir", "has_compiler", "compile_mode", "build_shared_library", "NativeLibrary",
-           "BACKGROUND_BYTES", "CFLAGS"]
+           "catch_sigterm", "BACKGROUND_BYTES", "CFLAGS"]
 
 log = logging.getLogger(__name__)
 
@@ -275,8 +275,14 @@ def _on_sigterm(signum, frame) -> None:
     os.kill(os.getpid(), signal.SIGTERM)
 
 
-def _catch_sigterm() -> None:
-    """Turn SIGTERM into SystemExit while compiles run (only over the default action)."""
+def catch_sigterm() -> None:
+    """Turn SIGTERM into SystemExit while compiles run (only over the default action).
+
+    Installed from the main thread only (Python's rule).  When no compile runs the
+    handler restores the default action and re-sends the signal, so the process ends as
+    it would have; a compile running in any thread makes it raise ``SystemExit(143)``,
+    whose exit handlers kill the compiler's process group.
+    """
     if threading.current_thread() is threading.main_thread() \
             and signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
         signal.signal(signal.SIGTERM, _on_sigterm)
@@ -407,7 +413,7 @@ def build_shared_library(code: str, stem: str, stacklevel: int = 2) -> Path | No
     if not has_compiler():
         warn_no_compiler(stacklevel=stacklevel + 1)
         return None
-    _catch_sigterm()
+    catch_sigterm()
     try:
         return _load_or_build(code, stem, OPT_SYNC, lambda p: p,
                               lambda msg: warnings.warn(msg, RuntimeWarning, stacklevel=stacklevel + 2))
@@ -469,14 +475,14 @@ class NativeLibrary(Generic[T]):
             return
         opt = OPT_BACKGROUND if self.code_bytes <= HUGE_BYTES else OPT_HUGE
         self._state = "building"
-        _catch_sigterm()
+        catch_sigterm()
         log.info("symmon: %s: %d bytes of C; evaluating on CasADi's VM while it compiles (%s) "
                  "in the background", stem, self.code_bytes, opt)
         threading.Thread(target=self._background, args=(code, opt, load), daemon=True,
                          name=f"symmon-cc-{stem}").start()
 
     def _sync(self, code: str, opt: str, load: Callable[[Path], T], stacklevel: int) -> None:
-        _catch_sigterm()
+        catch_sigterm()
         t0 = time.perf_counter()
         try:
             obj = _load_or_build(code, self.stem, opt, load,

@@ -237,6 +237,9 @@ def start_slow_compile(tmp_path: Path, mode: str, arg: str) -> tuple[subprocess.
         assert p.poll() is None, p.communicate()
         assert time.monotonic() < deadline, "the fake compiler did not start"
         time.sleep(0.05)
+    # The fake compiler runs before Popen has returned in the parent; a signal inside Popen
+    # itself would lose the child's pid (a window of microseconds for a real Ctrl-C).
+    time.sleep(1.0)
     pids = [int((tmp_path / f).read_text()) for f in ("driver.pid", "child.pid")]
     assert all(alive(pid) for pid in pids)
     assert list(cache.glob(".build-*"))  # the compile's temporary directory exists now
@@ -282,3 +285,15 @@ def test_background_compile_is_killed_at_exit(tmp_path, how):
     assert p.returncode == (0 if how == "exit" else 128 + signal.SIGTERM), err
     assert "evaluating on CasADi's VM while it compiles" in err
     assert_cleaned_up(cache, pids)
+
+
+@needs_proc
+def test_sigterm_handler_is_transparent_without_a_compile(tmp_path):
+    """The CLI installs the handler for good: with no compile running, SIGTERM acts as before."""
+    script = "import sys, time; from symmon.ccache import catch_sigterm; catch_sigterm(); print('ready', flush=True); time.sleep(600)"
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    p = subprocess.Popen([sys.executable, "-c", script], env=env, stdout=subprocess.PIPE, text=True)
+    assert p.stdout.readline() == "ready\n"
+    p.send_signal(signal.SIGTERM)
+    p.communicate(timeout=SUBPROCESS_TIMEOUT)
+    assert p.returncode == -signal.SIGTERM
