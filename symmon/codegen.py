@@ -295,8 +295,10 @@ def export_c(model: Model, outdir: str | Path, name: str | None = None, *, ut: U
     outdir : str or Path
         Output directory (created if missing).
     name : str, optional
-        Base name of the files and prefix of the C functions (a C identifier);
-        default: the model's name made into an identifier.
+        Base name of the files and prefix of the C functions: a C identifier that CasADi
+        accepts (ASCII letter first, then letters, digits and single underscores, no
+        trailing underscore, at most 63 characters); default: the readable part of the
+        model's name (:func:`symmon.cnames.c_identifier`), which may be any text.
     ut : UT, default ``UT.ut1()``
         The unscented-transform settings (α, β, κ) baked into ``NAME_ut``.
     cse : bool, default True
@@ -306,12 +308,14 @@ def export_c(model: Model, outdir: str | Path, name: str | None = None, *, ut: U
     -------
     list of Path
         ``[NAME.c, NAME.h]``, written atomically.  The header starts with a comment
-        describing every function's inputs and outputs (column-major double arrays).
+        describing every function's inputs and outputs (column-major double arrays);
+        the model and symbol names in it are escaped (:func:`symmon.cnames.comment_text`)
+        so that no name can end the comment.
 
     Raises
     ------
     SymmonError
-        If ``name`` is not a C identifier or ``ut`` is not a :class:`symmon.UT`.
+        If ``name`` is not such an identifier or ``ut`` is not a :class:`symmon.UT`.
 
     Notes
     -----

@@ -406,3 +406,13 @@ def test_free_text_model_names_export(tmp_path, name):
 def test_explicit_name_must_suit_casadi(tmp_path, name):
     with pytest.raises(SymmonError, match="name must be a C identifier"):
         export_c(polar_model(), tmp_path, name=name)
+
+
+@needs_gcc
+@pytest.mark.skipif(shutil.which("nm") is None, reason="nm not found")
+def test_hostile_symbol_names_cannot_inject_code(tmp_path):
+    """Symbol names are listed in the header comment too (w = [...])."""
+    a, b = sp.Symbol(PAYLOAD), sp.Symbol("b??/\n#define x")
+    _, h_path = export_c(sm.Model([a, b], [a * b], name="sym"), tmp_path)
+    assert INJECTED not in _defined_symbols(_compile_probe(tmp_path, h_path))
+    assert "w = [*\\/ int symmon_injected(void)" in h_path.read_text()
