@@ -148,8 +148,7 @@ def _private_dir() -> Path:
     global _private
     with _lock:
         if _private is None:
-            _private = Path(tempfile.mkdtemp(prefix="symmon-cache-"))
-            atexit.register(shutil.rmtree, _private, True)
+            _private = Path(tempfile.mkdtemp(prefix="symmon-cache-"))  # removed by _at_exit
         return _private
 
 
@@ -322,8 +321,9 @@ _EXIT_GRACE = 5.0
 
 
 @atexit.register
-def _kill_running() -> None:
-    """At exit: kill background compiles and remove their temporary directories."""
+def _at_exit() -> None:
+    """At exit: kill background compiles, remove their temporary directories, then the
+    private cache directory if one was made."""
     global _shutting_down
     with _lock:
         _shutting_down = True
@@ -338,6 +338,8 @@ def _kill_running() -> None:
     for p, tmp in running:
         _kill(p)
         shutil.rmtree(tmp, ignore_errors=True)
+    if _private is not None:
+        shutil.rmtree(_private, ignore_errors=True)
 
 
 #: A build directory this old was left by a process killed with SIGKILL: remove it.
