@@ -31,6 +31,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
+from .ccache import catch_sigterm
 from .errors import SymmonError
 
 __all__ = ["main", "transform_from_name", "TRANSFORM_NAMES", "WEIGHT_NAMES", "FIGURES"]
@@ -510,6 +511,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version (0) and usage errors (2); argparse printed them
         return exc.code if isinstance(exc.code, int) else 2
+    catch_sigterm()  # SIGTERM during a compile exits through Python, which kills the compiler
     try:
         code = int(args.func(args))
         sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit

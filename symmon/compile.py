@@ -1,33 +1,37 @@
 """sympy → CasADi SX, exact derivatives, batched evaluation and C code generation.
 
 Only g is converted from sympy; the Jacobian and the Hessians are built by CasADi's
-automatic differentiation (exact, no finite differences).  Batches are evaluated
-with ``Function.map`` through zero-copy buffers.  When a C compiler is available the
-mapped functions are generated as C, compiled with ``-O2`` and cached on disk under a
-content hash; otherwise CasADi's virtual machine is used, with a warning given once.
+automatic differentiation (exact, no finite differences).  When a C compiler is
+available each function is generated as C with a row loop around it, compiled once
+(whatever the batch sizes) and cached on disk (:mod:`symmon.ccache`: checksums, the
+compile policy, background builds for large code); otherwise, and while a background
+build runs, CasADi's virtual machine evaluates ``Function.map`` through zero-copy
+buffers, with a warning given once when no compiler is found.  ``docs/compile.md``
+describes the cache, the policy and its measured threshold.
 """
 
 from __future__ import annotations
 
+import ctypes
 import functools
 import hashlib
-import os
-import shutil
-import subprocess
-import tempfile
+import logging
 import threading
-import warnings
-from functools import lru_cache
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import casadi as ca
 import numpy as np
 import sympy as sp
 
+from .ccache import NativeLibrary, build_shared_library, cache_dir, has_compiler, warn_no_compiler
+from .cnames import c_identifier
 from .errors import ShapeError, UnsupportedFunctionError
 
-__all__ = ["to_casadi", "CompiledModel", "compile_model", "cache_dir", "has_compiler", "build_shared_library"]
+__all__ = ["to_casadi", "CompiledModel", "compile_model", "cache_dir", "has_compiler", "build_shared_library",
+           "generated_c", "rows_c"]
+
+log = logging.getLogger(__name__)
 
 #: Rows per batched call of a mapped function; memory per call stays flat.
 CHUNK = 8192
@@ -157,83 +161,7 @@ def _convert(e: sp.Basic, walk: Callable):
     )
 
 
-# --------------------------------------------------------------------------- C cache
-def cache_dir() -> Path:
-    """Directory of the compiled-function cache (``$SYMMON_CACHE`` or ~/.cache/symmon)."""
-    d = os.environ.get("SYMMON_CACHE")
-    path = Path(d) if d else Path.home() / ".cache" / "symmon"
-    return path
-
-
-@lru_cache(maxsize=1)
-def _compiler() -> str | None:
-    if os.environ.get("SYMMON_NO_COMPILE"):
-        return None
-    return os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
-
-
-def has_compiler() -> bool:
-    """True when a C compiler is found and compilation is not disabled."""
-    return _compiler() is not None
-
-
-_warned_no_compiler = False
-_lock = threading.Lock()
-CFLAGS = ("-O2", "-fPIC", "-shared", "-fno-fast-math")
-
-
-def _warn_no_compiler(stacklevel: int) -> None:
-    """Warn, once per process, that the CasADi VM is used instead of compiled C."""
-    global _warned_no_compiler
-    with _lock:
-        if not _warned_no_compiler:
-            _warned_no_compiler = True
-            warnings.warn(
-                "symmon: no C compiler found (or SYMMON_NO_COMPILE set); using CasADi's "
-                "virtual machine, which is several times slower",
-                RuntimeWarning,
-                stacklevel=stacklevel + 1,
-            )
-
-
-def build_shared_library(code: str, stem: str, stacklevel: int = 2) -> Path | None:
-    """Compile C source to a shared library, cached on disk by content hash.
-
-    Returns the path of the library, or None (after a warning) when no compiler is
-    available or the compilation fails (``stacklevel`` as in ``warnings.warn``, counted
-    from this function).  The cache key covers the source, the flags,
-    the CasADi version and the compiler, and the library is moved into place atomically,
-    so concurrent processes see all of it or nothing.
-    """
-    cc = _compiler()
-    if cc is None:
-        _warn_no_compiler(stacklevel=stacklevel)
-        return None
-    key = hashlib.sha256(
-        (code + " ".join(CFLAGS) + ca.__version__ + cc).encode()
-    ).hexdigest()[:24]
-    d = cache_dir()
-    so = d / f"{stem}_{key}.so"
-    if not so.exists():
-        d.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(dir=d) as tmp:
-            src = Path(tmp) / "f.c"
-            src.write_text(code)
-            out = Path(tmp) / "f.so"
-            res = subprocess.run(
-                [cc, *CFLAGS, str(src), "-o", str(out), "-lm"],
-                capture_output=True, text=True,
-            )
-            if res.returncode != 0:
-                warnings.warn(
-                    f"symmon: compiling {stem} failed, using the CasADi VM:\n{res.stderr[-2000:]}",
-                    RuntimeWarning, stacklevel=stacklevel,
-                )
-                return None
-            os.replace(out, so)
-    return so
-
-
+# --------------------------------------------------------------------------- C code
 def generated_c(f: ca.Function) -> str:
     """CasADi's C source of ``f`` (no header, no main)."""
     gen = ca.CodeGenerator(f.name() + ".c", {"with_header": False})
@@ -241,65 +169,112 @@ def generated_c(f: ca.Function) -> str:
     return gen.dump()
 
 
-def _compile_function(f: ca.Function) -> ca.Function:
-    """Compile ``f`` to a shared library (cached by content hash); fall back to ``f``."""
-    so = build_shared_library(generated_c(f), f.name(), stacklevel=4)
-    return f if so is None else ca.external(f.name(), str(so))
+# The row loop around CasADi's generated function: row i of x in, row i of each output
+# out (outputs are dense, so each has a fixed number of nonzeros per row).
+_ROWS = """
+/* symmon: f on each row of x; out[k] holds output k of row i at i * nnz_k. */
+CASADI_SYMBOL_EXPORT int {name}_rows(const casadi_real* x, casadi_real** out, casadi_int n,
+    casadi_int* iw, casadi_real* w) {{
+  const casadi_real* arg[{sz_arg}];
+  casadi_real* res[{sz_res}];
+  casadi_int i;
+  for (i = 0; i < n; ++i) {{
+    arg[0] = x + i * {n_in};
+{set_res}
+    if ({name}(arg, res, iw, w, 0)) return 1;
+  }}
+  return 0;
+}}
+"""
+
+
+def rows_c(f: ca.Function) -> str:
+    """C source of ``f`` plus ``NAME_rows``, which evaluates f on each row of a batch."""
+    set_res = "\n".join(f"    res[{k}] = out[{k}] + i * {f.nnz_out(k)};" for k in range(f.n_out()))
+    return generated_c(f) + _ROWS.format(name=f.name(), sz_arg=max(f.sz_arg(), 1),
+                                         sz_res=max(f.sz_res(), f.n_out()), n_in=f.nnz_in(0),
+                                         set_res=set_res)
+
+
+def _load_rows(name: str) -> Callable[[Path], Callable]:
+    """Loader of ``NAME_rows`` from a library (for :class:`NativeLibrary`)."""
+    def load(path: Path):
+        rows = getattr(ctypes.CDLL(str(path)), f"{name}_rows")
+        rows.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_void_p]
+        rows.restype = ctypes.c_int
+        return rows
+    return load
 
 
 # --------------------------------------------------------------------------- compiled model
 class _Batched:
-    """Evaluate a Function of one (n_in,) input on batches of rows, through buffers."""
+    """Evaluate a Function of one (n_in,) input on batches of rows, through buffers.
+
+    Compiled: one C library per function whatever the batch sizes (a row loop called
+    through ctypes, which releases the GIL).  On CasADi's VM: maps of power-of-two
+    sizes up to CHUNK, at most 14 per function, so no batch is padded.
+    """
 
     def __init__(self, f: ca.Function, compiled: bool) -> None:
         self._f = f
         self._compiled = compiled
         self.n_in = f.size1_in(0)
-        self.out_shapes = [f.size_out(i) for i in range(f.n_out())]
+        self.out_nnz = [f.nnz_out(i) for i in range(f.n_out())]
         self._maps: dict[int, ca.Function] = {}
+        self._lock = threading.Lock()
+        self.native: NativeLibrary | None = None
+        self.used = False
 
-    def _mapped(self, n: int) -> ca.Function:
-        fm = self._maps.get(n)
-        if fm is None:
-            fm = self._f.map(f"{self._f.name()}_map{n}", "serial", n, [], [])
-            if self._compiled:
-                fm = _compile_function(fm)
-            self._maps[n] = fm
-        return fm
+    def _native(self) -> NativeLibrary | None:
+        """The compiled library, started on first use (stack: __call__ ← eval_* ← caller)."""
+        if self._compiled and self.native is None:
+            with self._lock:
+                if self.native is None:
+                    self.native = NativeLibrary(rows_c(self._f), self._f.name(), _load_rows(self._f.name()),
+                                                stacklevel=5)
+        return self.native
+
+    def _vm_map(self, n: int) -> ca.Function:
+        with self._lock:
+            fm = self._maps.get(n)
+            if fm is None:
+                fm = self._maps[n] = self._f.map(f"{self._f.name()}_map{n}", "serial", n, [], [])
+            return fm
+
+    @property
+    def evaluator(self) -> str:
+        """The evaluator of the latest call (see :attr:`CompiledModel.evaluator`)."""
+        return "vm" if self.native is None else self.native.evaluator
 
     def __call__(self, X: np.ndarray) -> list[np.ndarray]:
         X = np.ascontiguousarray(X, dtype=float)
         if X.ndim != 2 or X.shape[1] != self.n_in:
             raise ShapeError(f"batch must have shape (N, {self.n_in}), got {X.shape}")
         N = X.shape[0]
-        outs = [np.empty((N, r * c)) for r, c in self.out_shapes]
+        outs = [np.empty((N, k)) for k in self.out_nnz]
         if N == 0:
             return outs
-        # Small batches get an exact-size map (cached); large ones go in fixed chunks.
-        size = N if N <= CHUNK else CHUNK
-        fm = self._mapped(size)
-        fb, ev = fm.buffer()
+        if not self.used and not self._compiled:
+            log.info("symmon: %s: evaluating on CasADi's VM (no compiled C wanted or available)", self._f.name())
+        self.used = True
+        native = self._native()
+        rows = native.get() if native is not None else None
+        if rows is not None:
+            iw = np.empty(max(self._f.sz_iw(), 1), dtype=np.int64)
+            w = np.empty(max(self._f.sz_w(), 1))
+            ptrs = (ctypes.c_void_p * len(outs))(*[o.ctypes.data for o in outs])
+            if rows(X.ctypes.data, ptrs, N, iw.ctypes.data, w.ctypes.data):
+                raise RuntimeError(f"the compiled function {self._f.name()} returned an error")
+            return outs
         start = 0
-        pad_in = None
         while start < N:
-            stop = min(start + size, N)
-            if stop - start == size:
-                fb.set_arg(0, memoryview(X[start:stop]))
-                res = [o[start:stop] for o in outs]
-                for i, r in enumerate(res):
-                    fb.set_res(i, memoryview(r))
-                ev()
-            else:
-                pad_in = np.zeros((size, self.n_in))
-                pad_in[: stop - start] = X[start:stop]
-                pad_out = [np.empty((size, o.shape[1])) for o in outs]
-                fb.set_arg(0, memoryview(pad_in))
-                for i, r in enumerate(pad_out):
-                    fb.set_res(i, memoryview(r))
-                ev()
-                for o, p in zip(outs, pad_out):
-                    o[start:stop] = p[: stop - start]
-            start = stop
+            size = min(CHUNK, 1 << ((N - start).bit_length() - 1))
+            fb, ev = self._vm_map(size).buffer()
+            fb.set_arg(0, memoryview(X[start:start + size]))
+            for i, o in enumerate(outs):
+                fb.set_res(i, memoryview(o[start:start + size]))
+            ev()
+            start += size
         return outs
 
 
@@ -314,6 +289,12 @@ class CompiledModel:
         w ↦ ∂g/∂w, shape (n_y, n_w).
     hess : casadi.Function
         w ↦ stacked Hessians ∂²g_i/∂w², shape (n_y·n_w, n_w) (row block i is H_i).
+    name : str
+        The name as given (any text); ``tag`` is the C identifier made of it
+        (:func:`symmon.cnames.c_identifier`) that prefixes every function name.
+    compiled : bool
+        Whether compiled C is wanted (and a compiler available); :attr:`evaluator` says
+        what actually ran.
     """
 
     def __init__(self, outputs: Sequence[sp.Expr], symbols: Sequence[sp.Symbol], name: str = "g",
@@ -322,7 +303,8 @@ class CompiledModel:
         self.source_exprs = tuple(outputs)
         self.n_w = len(self.symbols)
         self.n_y = len(outputs)
-        self.tag = tag = _c_name(name)
+        self.name = name
+        self.tag = tag = "sm_" + c_identifier(name)
         w = ca.SX.sym("w", self.n_w)
         y = ca.densify(ca.vertcat(*to_casadi(outputs, self.symbols, w)))
         self.w_sx, self.y_sx = w, y
@@ -336,9 +318,43 @@ class CompiledModel:
         self.compiled = has_compiler() if compiled is None else compiled
         if compiled is None and not self.compiled:
             # The default asked for C but none is available: say so (once per process).
-            _warn_no_compiler(stacklevel=2)
+            warn_no_compiler(stacklevel=2)
         self._batch_g = _Batched(self.g, self.compiled)
         self._batch_gjh = _Batched(self.gjh, self.compiled)
+        self._kernels: list[NativeLibrary] = []
+
+    def native_library(self, code: str, stem: str, load: Callable[[Path], Any], stacklevel: int = 2) -> NativeLibrary:
+        """A :class:`~symmon.ccache.NativeLibrary` of extra C code for this model (e.g.
+        the Monte Carlo kernel), built by the compile policy and counted in
+        :attr:`evaluator`."""
+        lib = NativeLibrary(code, stem, load, stacklevel=stacklevel + 1)
+        with _cache_lock:
+            self._kernels.append(lib)
+        return lib
+
+    @property
+    def evaluator(self) -> str:
+        """Which evaluator the model's functions used in their latest calls.
+
+        ``"compiled"`` when all ran as compiled C, ``"vm (C build running)"`` when one
+        ran on CasADi's virtual machine while its C is built in the background,
+        ``"vm"`` when one ran on the VM for good (no compiler, ``SYMMON_COMPILE=never``
+        or a failed build), and ``"none"`` before any evaluation.
+        """
+        with _cache_lock:
+            states = {b.evaluator for b in (self._batch_g, self._batch_gjh) if b.used}
+            states |= {lib.evaluator for lib in self._kernels}
+        for s in ("vm (C build running)", "vm", "compiled"):
+            if s in states:
+                return s
+        return "none"
+
+    def wait_compiled(self, timeout: float | None = None) -> str:
+        """Wait for the background C builds started so far; return :attr:`evaluator`."""
+        libs = [b.native for b in (self._batch_g, self._batch_gjh) if b.native is not None] + self._kernels
+        for lib in libs:
+            lib.wait(timeout)
+        return self.evaluator
 
     def eval_g(self, W: np.ndarray) -> np.ndarray:
         """g at each row of W (N, n_w) → (N, n_y)."""
@@ -357,11 +373,6 @@ class CompiledModel:
         J = J.reshape(N, self.n_w, self.n_y).transpose(0, 2, 1)
         H = H.reshape(N, self.n_w, self.n_y, self.n_w).transpose(0, 2, 3, 1)
         return y, J, H
-
-
-def _c_name(name: str) -> str:
-    safe = "".join(ch if ch.isalnum() else "_" for ch in name)
-    return "sm_" + safe[:40]
 
 
 _cache: dict[tuple, CompiledModel] = {}

@@ -103,6 +103,8 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, transform: T
     info = dict(b.info or {})
     if "groups" in info:
         info["groups"] = info["groups"][0]
+    # "compiled", "vm" or "vm (C build running)": CompiledModel.evaluator, docs/compile.md.
+    info["evaluator"] = compiled(model).evaluator
     input_cov = None if b.input_cov is None else b.input_cov[0][:nu, :nu]
     return JointMoments(
         mean=b.mean[0], cov=b.cov[0], cross_cov=b.cross[0][:, :nu], input=u, transform=tr,

@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import sympy as sp
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import symmon as sm
 from symmon.codegen import export_c, moment_functions
@@ -328,3 +330,89 @@ def test_bad_ut_is_rejected(tmp_path):
 def test_non_model_is_rejected(tmp_path):
     with pytest.raises(TypeError, match="model"):
         export_c("polar", tmp_path)
+
+
+# --------------------------------------------------------------------------- hostile names
+#: Pieces that try to leave the header comment: close it, open another, splice lines
+#: (backslash-newline, the trigraph ??/), start a preprocessor line, or hide in non-ASCII.
+HOSTILE = ["*/", "/*", "*", "/", "\\", "\n", "\r", "??/", "??", "?", "#define symmon_injected 1\n",
+           "//", '"', "'", "\u2028", "é", "\x00", "\t", " "]
+INJECTED = "symmon_injected"
+PAYLOAD = f"*/ int {INJECTED}(void) {{ return 42; }} /*"
+
+
+def _defined_symbols(obj: Path) -> set[str]:
+    res = subprocess.run(["nm", "--defined-only", "-j", str(obj)], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    return set(res.stdout.split())
+
+
+def _compile_probe(tmp_path: Path, header: Path) -> Path:
+    """An object file of a C file that includes the header (trigraphs on, as in C89)."""
+    probe = tmp_path / "probe.c"
+    probe.write_text(f'#include "{header.name}"\nint probe(void) {{ return 0; }}\n')
+    obj = tmp_path / "probe.o"
+    res = subprocess.run([GCC, "-std=c99", "-trigraphs", "-c", str(probe), "-o", str(obj)],
+                         capture_output=True, text=True, cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    return obj
+
+
+@needs_gcc
+@pytest.mark.skipif(shutil.which("nm") is None, reason="nm not found")
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(parts=st.lists(st.one_of(st.sampled_from(HOSTILE), st.text(max_size=6)), max_size=8),
+       where=st.integers(0, 8))
+def test_hostile_model_name_cannot_inject_code(tmp_path_factory, parts, where):
+    tmp_path = tmp_path_factory.mktemp("hostile")
+    parts.insert(min(where, len(parts)), PAYLOAD)
+    name = "".join(parts)
+    x, y = sp.symbols("x y", real=True)
+    model = sm.Model([x, y], [sp.sqrt(x**2 + y**2), sp.atan2(y, x)], name=name)
+    c_path, h_path = export_c(model, tmp_path)
+    text = h_path.read_text()
+    comment = text[: text.index("*/") + 2]
+    # The first "*/" closes symmon's own comment, after its last line; nothing escapes it.
+    assert comment.startswith("/*\n") and comment.endswith("gcc -O2 -c NAME.c\n */")
+    assert comment.count("/*") == 1 and "??" not in comment and comment.isascii()
+    assert all(not ln.endswith("\\") for ln in comment.splitlines())
+    assert INJECTED not in _defined_symbols(_compile_probe(tmp_path, h_path))
+    assert model.name == name  # shown as written
+
+
+@needs_gcc
+def test_the_issue_name_gives_no_symbol(tmp_path):
+    """The name of the report (issue 12) through the CLI: the header defines nothing."""
+    from symmon.cli import main
+
+    toml = (Path(__file__).resolve().parents[1] / "examples" / "polar.toml").read_text()
+    name = "aaaa" * 10 + f" {PAYLOAD} "
+    model_file = tmp_path / "m.toml"
+    model_file.write_text(toml.replace('name = "polar"', f'name = "{name}"'))
+    assert main(["codegen", str(model_file), "-o", str(tmp_path / "out")]) == 0
+    header, = (tmp_path / "out").glob("*.h")
+    assert INJECTED not in _defined_symbols(_compile_probe(tmp_path / "out", header))
+
+
+@pytest.mark.parametrize("name", ["polar (rad)", "a_", "range & bearing", "_", "9lives", "Ångström", "casadi"])
+def test_free_text_model_names_export(tmp_path, name):
+    x, y = sp.symbols("x y", real=True)
+    paths = export_c(sm.Model([x, y], [x * y], name=name), tmp_path)
+    prefix = paths[0].stem
+    assert prefix.isidentifier() and prefix.isascii() and "__" not in prefix and not prefix.endswith("_")
+
+
+@pytest.mark.parametrize("name", ["a__b", "a_", "_a", "casadi_f", "x" * 64])
+def test_explicit_name_must_suit_casadi(tmp_path, name):
+    with pytest.raises(SymmonError, match="name must be a C identifier"):
+        export_c(polar_model(), tmp_path, name=name)
+
+
+@needs_gcc
+@pytest.mark.skipif(shutil.which("nm") is None, reason="nm not found")
+def test_hostile_symbol_names_cannot_inject_code(tmp_path):
+    """Symbol names are listed in the header comment too (w = [...])."""
+    a, b = sp.Symbol(PAYLOAD), sp.Symbol("b??/\n#define x")
+    _, h_path = export_c(sm.Model([a, b], [a * b], name="sym"), tmp_path)
+    assert INJECTED not in _defined_symbols(_compile_probe(tmp_path, h_path))
+    assert "w = [*\\/ int symmon_injected(void)" in h_path.read_text()

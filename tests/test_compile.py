@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import sympy as sp
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy import special
 
 from symmon.compile import CompiledModel, to_casadi
@@ -22,6 +24,8 @@ EVAL_RTOL = 1e-12
 DERIV_RTOL = 1e-10
 
 ROOT = Path(__file__).resolve().parents[1]
+#: Seconds for a subprocess or a background build of a small model.
+SUBPROCESS_TIMEOUT = 120
 
 x, y, z = sp.symbols("x y z", real=True)
 SYMS = (x, y, z)
@@ -187,18 +191,18 @@ def test_disk_cache_is_keyed_by_content_and_reused(tmp_path):
         pytest.skip("no C compiler")
     script = """
     import sys
-    import numpy as np, sympy as sp, symmon as sm, symmon.compile as sc
+    import numpy as np, sympy as sp, symmon as sm, symmon.ccache as sc
     x, y = sp.symbols("x y")
     u = sm.Gaussian([1.0, 2.0], np.eye(2))
-    run = sc.subprocess.run
+    run = sc._run_compiler
     if sys.argv[-1] == "second":  # a cache hit must not run the compiler again
         def fail(*a, **k):
             raise AssertionError("compiler invoked despite a cached library")
-        sc.subprocess.run = fail
+        sc._run_compiler = fail
     m = sm.propagate(sm.Model([x, y], [x * y, sp.exp(x)]), u, transform=sm.UT.ut1())
     print(repr(m.mean.tolist()))
     if sys.argv[-1] == "second":  # different content: a new library
-        sc.subprocess.run = run
+        sc._run_compiler = run
         sm.propagate(sm.Model([x, y], [x * y, sp.exp(y)]), u, transform=sm.UT.ut1())
     """
     env = {"SYMMON_CACHE": str(tmp_path)}
@@ -212,3 +216,145 @@ def test_disk_cache_is_keyed_by_content_and_reused(tmp_path):
     after = {p.name: p.stat().st_mtime_ns for p in tmp_path.glob("*.so")}
     assert {k: after[k] for k in libs} == libs  # reused, not rewritten
     assert len(after) > len(libs)
+
+
+# --------------------------------------------------------------------------- names
+@pytest.mark.parametrize("name", ["polar (rad)", "a_", "range & bearing", "a__b", "9", "", "Ångström", "null", "jac"])
+def test_ordinary_names_compile(name):
+    """Issue 13: these crashed in CasADi ("non-consecutive underscores")."""
+    import symmon as sm
+
+    model = sm.Model([x, y], [x * y, x + y], name=name)
+    m = sm.propagate(model, sm.Gaussian([1.0, 2.0], np.eye(2)), transform=sm.TT2())
+    np.testing.assert_allclose(m.mean, [2.0, 3.0], rtol=EVAL_RTOL)
+    assert model.name == (name or "model")
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.text(st.characters(blacklist_categories=("Cs",)), max_size=80))
+def test_any_text_is_a_valid_function_name(text):
+    from symmon.cnames import HASH_DIGITS, MAX_STEM, c_identifier, is_casadi_name
+
+    tag = c_identifier(text)
+    assert is_casadi_name(tag) and len(tag) <= MAX_STEM + 1 + HASH_DIGITS
+    assert c_identifier(text + "!") != tag  # unique through the hash of the original
+    cm = CompiledModel([x * y], [x, y], name=text, compiled=False)  # CasADi accepts every name
+    assert cm.name == text and cm.g.name() == f"{cm.tag}_g"
+
+
+# --------------------------------------------------------------------------- compile policy
+#: The VM and the compiled row loop run the same operations in the same order, and the
+#: build disables FMA contraction: equal to the last bit, asked to 1e-15 relative.
+VM_C_RTOL = 1e-15
+
+
+@pytest.fixture
+def fresh_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("SYMMON_CACHE", str(tmp_path))
+    return tmp_path
+
+
+def _count_builds(monkeypatch) -> list[list[str]]:
+    import symmon.ccache as cc
+
+    calls: list[list[str]] = []
+    real = cc._run_compiler
+
+    def counting(cmd, tmp):
+        calls.append(cmd)
+        return real(cmd, tmp)
+
+    monkeypatch.setattr(cc, "_run_compiler", counting)
+    return calls
+
+
+@pytest.mark.parametrize("mode", ["sync", "background"])
+def test_vm_and_compiled_agree_to_the_last_bits(mode, fresh_cache, monkeypatch, points_rng):
+    from symmon.compile import has_compiler
+
+    if not has_compiler():
+        pytest.skip("no C compiler")
+    monkeypatch.setenv("SYMMON_COMPILE", mode)
+    exprs = DERIV_MODELS["mixed"] + DERIV_MODELS["polar"]
+    c = CompiledModel(exprs, SYMS, name=f"bits_{mode}", compiled=True)
+    vm = CompiledModel(exprs, SYMS, name=f"bits_{mode}_vm", compiled=False)
+    W = points_rng.uniform(0.3, 2.0, (8192 + 7, 3))
+    first = (c.eval_g(W[:5]), *c.eval_gjh(W[:5]))
+    assert c.evaluator == ("compiled" if mode == "sync" else "vm (C build running)")
+    assert c.wait_compiled(SUBPROCESS_TIMEOUT) == "compiled" and vm.evaluator == "none"
+    for a, b in zip(first, (c.eval_g(W[:5]), *c.eval_gjh(W[:5]))):  # before and after the swap
+        np.testing.assert_allclose(a, b, rtol=VM_C_RTOL, atol=0)
+    np.testing.assert_allclose(c.eval_g(W), vm.eval_g(W), rtol=VM_C_RTOL, atol=0)
+    for a, b in zip(c.eval_gjh(W), vm.eval_gjh(W)):
+        np.testing.assert_allclose(a, b, rtol=VM_C_RTOL, atol=0)
+    assert vm.evaluator == "vm"
+
+
+def test_one_compile_whatever_the_batch_sizes(fresh_cache, monkeypatch, points_rng):
+    from symmon.compile import has_compiler
+
+    if not has_compiler():
+        pytest.skip("no C compiler")
+    monkeypatch.setenv("SYMMON_COMPILE", "sync")
+    builds = _count_builds(monkeypatch)
+    c = CompiledModel(DERIV_MODELS["mixed"], SYMS, name="sizes", compiled=True)
+    vm = CompiledModel(DERIV_MODELS["mixed"], SYMS, name="sizes_vm", compiled=False)
+    for n in (1, 2, 3, 7, 100, 1000, 8192, 8193, 20000):
+        W = points_rng.uniform(0.3, 2.0, (n, 3))
+        np.testing.assert_allclose(c.eval_g(W), vm.eval_g(W), rtol=VM_C_RTOL, atol=0)
+    assert len(builds) == 1 and c.evaluator == "compiled"
+
+
+def test_never_uses_the_vm(fresh_cache, monkeypatch):
+    monkeypatch.setenv("SYMMON_COMPILE", "never")
+    builds = _count_builds(monkeypatch)
+    cm = CompiledModel([x * y], [x, y], name="never", compiled=False)
+    cm.eval_g(np.ones((4, 2)))
+    assert cm.evaluator == "vm" and not builds and not list(fresh_cache.iterdir())
+
+
+def test_background_build_is_logged(fresh_cache, monkeypatch, caplog):
+    from symmon.compile import has_compiler
+
+    if not has_compiler():
+        pytest.skip("no C compiler")
+    monkeypatch.setenv("SYMMON_COMPILE", "background")
+    caplog.set_level("INFO", logger="symmon")
+    cm = CompiledModel([x * y, sp.sin(x)], [x, y], name="logged", compiled=True)
+    cm.eval_g(np.ones((2, 2)))
+    assert cm.wait_compiled(SUBPROCESS_TIMEOUT) == "compiled"
+    text = caplog.text
+    assert "evaluating on CasADi's VM while it compiles" in text and "background C build done" in text
+
+
+def test_bad_compile_mode_is_named(monkeypatch):
+    from symmon.ccache import compile_mode
+    from symmon.errors import SymmonError
+
+    monkeypatch.setenv("SYMMON_COMPILE", "fast")
+    with pytest.raises(SymmonError, match="SYMMON_COMPILE must be one of auto, sync, background, never"):
+        compile_mode()
+
+
+def test_propagate_reports_the_evaluator():
+    import symmon as sm
+
+    m = sm.propagate(sm.Model([x, y], [x * y]), sm.Gaussian([1.0, 2.0], np.eye(2)), transform=sm.UT.ut1())
+    assert m.info["evaluator"] in ("compiled", "vm")
+
+
+@pytest.mark.parametrize("command", [["propagate", "--transform", "ut1"], ["nonlinearity", "--weight", "full", "--transform", "tt2"],
+                                     ["compare", "--samples", "1000"], ["codegen", "-o", "OUT"]],
+                         ids=lambda c: c[0])
+@pytest.mark.parametrize("name", ["polar (rad)", "a_", "range & bearing"])
+def test_every_command_takes_an_ordinary_name(tmp_path, command, name, capsys):
+    """Issue 13: these names crashed every command with CasADi's "Function name is not valid"."""
+    from symmon.cli import main
+
+    toml = (ROOT / "examples" / "polar.toml").read_text()
+    model_file = tmp_path / "m.toml"
+    model_file.write_text(toml.replace('name = "polar"', f'name = "{name}"'))
+    args = [a.replace("OUT", str(tmp_path / "out")) for a in command]
+    assert main([args[0], str(model_file), *args[1:]]) == 0
+    out = capsys.readouterr().out
+    assert name in out or command[0] == "codegen"

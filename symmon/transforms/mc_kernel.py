@@ -14,7 +14,8 @@ run the evaluation in parallel (CasADi's own call holds it).
 
 The math of the kernel is a CasADi function built from the model's SX graph, and C code
 is generated from it by CasADi; only the row loop around it is written here.  Without a
-C compiler the same CasADi function is evaluated by CasADi's virtual machine.
+C compiler, and while a large kernel is compiled in the background (docs/compile.md),
+the same CasADi function is evaluated by CasADi's virtual machine.
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ from typing import Sequence
 import casadi as ca
 import numpy as np
 
-from ..compile import CompiledModel, build_shared_library, generated_c
+from ..ccache import NativeLibrary
+from ..compile import CompiledModel, generated_c
 from ..errors import ShapeError, SymmonError
 
 __all__ = ["SampleKernel", "sample_kernel"]
@@ -98,30 +100,32 @@ class SampleKernel:
         out = ca.densify(ca.vertcat(zfull - s, 1))
         tag = "_".join(["mc", *map(str, angles)])
         self.f = ca.Function(f"{cm.tag}_{tag}", [z, p], [out], ["z", "p"], ["a"])
-        self._lib = self._load() if cm.compiled else None
+        self._native = self._start(cm) if cm.compiled else None
         self._maps: dict[int, ca.Function] = {}
         self._lock = threading.Lock()
 
     @property
     def compiled(self) -> bool:
-        """True when the kernel runs as compiled C (else CasADi's virtual machine)."""
-        return self._lib is not None
+        """True when the kernel runs as compiled C now (else CasADi's virtual machine,
+        for good or while its C is built in the background)."""
+        return self._native is not None and self._native.get() is not None
 
-    def _load(self):
+    def _start(self, cm: CompiledModel) -> NativeLibrary:
+        """The kernel's C library, built (now or in the background) by the compile policy."""
         f = self.f
         name = f.name()
         code = generated_c(f) + _DRIVER.format(
             name=name, sz_arg=max(f.sz_arg(), 2), sz_res=max(f.sz_res(), 1),
             n_in=self.n_w, n_out=self.n_out,
         )
-        so = build_shared_library(code, name, stacklevel=4)
-        if so is None:
-            return None
-        lib = ctypes.CDLL(str(so))
-        rows = getattr(lib, f"{name}_rows")
-        rows.argtypes = [ctypes.c_void_p] * 3 + [ctypes.c_longlong] + [ctypes.c_void_p] * 2
-        rows.restype = ctypes.c_int
-        return rows
+
+        def load(so):
+            rows = getattr(ctypes.CDLL(str(so)), f"{name}_rows")
+            rows.argtypes = [ctypes.c_void_p] * 3 + [ctypes.c_longlong] + [ctypes.c_void_p] * 2
+            rows.restype = ctypes.c_int
+            return rows
+
+        return cm.native_library(code, name, load, stacklevel=5)
 
     def params(self, mean: np.ndarray, L: np.ndarray, shift: np.ndarray, ref: np.ndarray) -> np.ndarray:
         """Pack the parameters of a call."""
@@ -150,12 +154,13 @@ class SampleKernel:
                                  + (" that can be written" if name == "out" else ""))
         if N == 0:
             return
-        if self._lib is not None:
+        rows = self._native.get() if self._native is not None else None
+        if rows is not None:
             iw, w = work if work is not None else self.workspace()
             if (iw.dtype != np.int64 or w.dtype != np.float64 or iw.size < self.f.sz_iw()
                     or w.size < self.f.sz_w() or not (iw.flags.c_contiguous and w.flags.c_contiguous)):
                 raise ShapeError("sampling kernel: the work arrays must come from workspace()")
-            if self._lib(Z.ctypes.data, p.ctypes.data, out.ctypes.data, N, iw.ctypes.data, w.ctypes.data):
+            if rows(Z.ctypes.data, p.ctypes.data, out.ctypes.data, N, iw.ctypes.data, w.ctypes.data):
                 raise SymmonError(f"the compiled sampling kernel {self.f.name()} returned an error")
             return
         fb, ev = self._mapped(N).buffer()

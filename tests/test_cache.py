@@ -1,0 +1,299 @@
+"""The on-disk C cache heals, its directory is safe, compiles can be interrupted (issues 12, 13).
+
+Most checks run a fresh Python in a subprocess: the compiler choice is cached per process,
+warnings are given once per process, and signals must reach a process of their own.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import stat
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import symmon.ccache as cc
+from symmon.compile import has_compiler
+
+ROOT = Path(__file__).resolve().parents[1]
+#: Seconds a subprocess gets to start, compile a tiny model, or die after a signal.
+SUBPROCESS_TIMEOUT = 120
+
+needs_cc = pytest.mark.skipif(not has_compiler(), reason="no C compiler")
+
+# Evaluates a model compiled under the name "cachetest" (argv[1] picks its outputs) and
+# prints its values and the evaluator that ran.
+SCRIPT = """
+import sys
+import numpy as np, sympy as sp
+from symmon.compile import CompiledModel
+x, y = sp.symbols("x y", real=True)
+shift = int(sys.argv[1]) if len(sys.argv) > 1 else 0
+cm = CompiledModel([x * y + shift, sp.exp(x)], [x, y], name="cachetest", compiled=True)
+print(repr(cm.eval_g(np.array([[1.0, 2.0], [3.0, 4.0]])).tolist()))
+print(cm.evaluator)
+"""
+EXPECTED = repr([[2.0, float(np.exp(1.0))], [12.0, float(np.exp(3.0))]])
+
+
+def run(env_extra: dict[str, str], *args: str, script: str = SCRIPT) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("SYMMON_", "XDG_CACHE"))}
+    env.update(env_extra)
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(script), *args], env=env,
+                          capture_output=True, text=True, timeout=SUBPROCESS_TIMEOUT)
+
+
+def libraries(d: Path) -> list[Path]:
+    return sorted(d.glob("sm_cachetest_*_g_*.so"))
+
+
+
+
+# --------------------------------------------------------------------------- damaged entries
+@pytest.fixture(scope="module")
+def built(tmp_path_factory) -> dict[str, Path]:
+    """A cache holding the model, and one holding the model plus 1 under the same symbols."""
+    if not has_compiler():
+        pytest.skip("no C compiler")
+    dirs = {}
+    for shift in ("0", "1"):
+        d = dirs[shift] = tmp_path_factory.mktemp(f"cache{shift}")
+        res = run({"SYMMON_CACHE": str(d)}, shift)
+        assert res.returncode == 0, res.stderr
+        assert res.stdout.splitlines()[1] == "compiled"
+    assert res.stdout.splitlines()[0] != EXPECTED
+    return dirs
+
+
+def sidecar(so: Path) -> Path:
+    return so.with_name(so.name + ".sha256")
+
+
+@pytest.mark.parametrize("damage", ["truncate", "empty", "swap", "swap-with-checksum", "no-checksum"])
+def test_damaged_entry_is_rebuilt(tmp_path, built, damage):
+    shutil.copytree(built["0"], tmp_path, dirs_exist_ok=True)
+    so, = libraries(tmp_path)
+    digest = sidecar(so).read_text()
+    plus_one, = libraries(built["1"])
+    if damage == "truncate":  # was a Bus error (exit 135) on every later run
+        so.write_bytes(so.read_bytes()[: so.stat().st_size // 2])
+    elif damage == "empty":
+        so.write_bytes(b"")
+    elif damage == "no-checksum":
+        sidecar(so).unlink()
+    else:  # a valid library with the same symbol that adds 1: was loaded silently
+        so.write_bytes(plus_one.read_bytes())
+        if damage == "swap-with-checksum":  # the pair copied under this entry's name
+            sidecar(so).write_text(sidecar(plus_one).read_text())
+    res = run({"SYMMON_CACHE": str(tmp_path)})
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.splitlines() == [EXPECTED, "compiled"]
+    assert "is damaged" in res.stderr and "rebuilding" in res.stderr
+    assert libraries(tmp_path) == [so] and sidecar(so).read_text() == digest
+    assert not list(tmp_path.glob(".build-*"))
+
+
+def test_verified_entry_loads_quietly(built):
+    res = run({"SYMMON_CACHE": str(built["0"])})
+    assert res.returncode == 0 and res.stdout.splitlines() == [EXPECTED, "compiled"] and res.stderr == ""
+
+
+# --------------------------------------------------------------------------- the directory
+def _fallback_run(env: dict[str, str]) -> subprocess.CompletedProcess:
+    res = run(env)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.splitlines()[0] == EXPECTED
+    return res
+
+
+@needs_cc
+def test_unwritable_directory_falls_back(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("a file where the cache's parent should be")
+    res = _fallback_run({"SYMMON_CACHE": str(blocker / "cache")})
+    assert res.stdout.splitlines()[1] == "compiled"
+    assert "not using the cache directory" in res.stderr and "cannot be created" in res.stderr
+
+
+@needs_cc
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into a read-only directory")
+def test_read_only_directory_falls_back(tmp_path):
+    d = tmp_path / "ro"
+    d.mkdir(mode=0o500)
+    res = _fallback_run({"SYMMON_CACHE": str(d)})
+    assert "not writable" in res.stderr and not list(d.iterdir())
+
+
+@needs_cc
+def test_world_writable_directory_is_refused(tmp_path):
+    d = tmp_path / "shared"
+    d.mkdir()
+    d.chmod(0o777)
+    res = _fallback_run({"SYMMON_CACHE": str(d)})
+    assert "world-writable" in res.stderr and not list(d.iterdir())
+
+
+@needs_cc
+@pytest.mark.skipif(os.geteuid() != 0, reason="needs root to give a directory to another user")
+def test_directory_of_another_user_is_refused(tmp_path):
+    d = tmp_path / "theirs"
+    d.mkdir(mode=0o755)
+    os.chown(d, 65534, 65534)
+    res = _fallback_run({"SYMMON_CACHE": str(d)})
+    assert "belongs to another user" in res.stderr and not list(d.iterdir())
+
+
+@needs_cc
+def test_directory_is_created_private(tmp_path):
+    d = tmp_path / "a" / "cache"
+    res = run({"SYMMON_CACHE": str(d)})
+    assert res.returncode == 0 and res.stdout.splitlines() == [EXPECTED, "compiled"], res.stderr
+    assert stat.S_IMODE(d.stat().st_mode) == 0o700
+
+
+@needs_cc
+@pytest.mark.skipif(Path("/.cache").exists(), reason="/.cache exists already")
+def test_empty_home_does_not_create_a_root_cache(tmp_path):
+    res = run({"HOME": "", "TMPDIR": str(tmp_path)})
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.splitlines() == [EXPECTED, "compiled"] and res.stderr == ""
+    assert not Path("/.cache").exists()
+    assert not list(tmp_path.iterdir())  # the private directory is removed at exit
+
+
+def test_cache_dir_follows_xdg_and_home(tmp_path, monkeypatch):
+    monkeypatch.delenv("SYMMON_CACHE", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert cc.cache_dir() == tmp_path / "xdg" / "symmon"
+    monkeypatch.setenv("XDG_CACHE_HOME", "relative")
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert cc.cache_dir() == tmp_path / "home" / ".cache" / "symmon"
+
+
+@needs_cc
+def test_key_covers_the_compiler_version_and_target(monkeypatch):
+    before = cc._entry("int f(void) { return 1; }", "f", "-O2").name
+    monkeypatch.setattr(cc, "_compiler_identity", lambda cmd: "gcc 99\nriscv64-linux-gnu")
+    assert cc._entry("int f(void) { return 1; }", "f", "-O2").name != before
+    assert "riscv64" not in before and cc._compiler_identity.__name__ == "<lambda>"
+
+
+# --------------------------------------------------------------------------- interrupts
+FAKE_CC = """#!/bin/sh
+# A compiler that never finishes: it records its pid and that of a child (like cc1), then waits.
+case "$1" in --version) echo "fake-cc 1.0"; exit 0;; -dumpmachine) echo "x86_64-fake-linux-gnu"; exit 0;; esac
+echo $$ > "$FAKE_CC_DIR/driver.pid"
+sleep 600 &
+echo $! > "$FAKE_CC_DIR/child.pid"
+wait
+"""
+
+# Starts a compile with the fake compiler; in the background mode it then waits for it.
+SLOW_SCRIPT = """
+import logging, sys, time
+import numpy as np, sympy as sp
+from symmon.compile import CompiledModel
+logging.basicConfig(level=logging.INFO, format="%(name)s %(message)s")
+x, y = sp.symbols("x y", real=True)
+cm = CompiledModel([x * y], [x, y], name="slow", compiled=True)
+print(cm.eval_g(np.ones((3, 2))).ravel().tolist(), cm.evaluator, flush=True)
+if sys.argv[1] == "sleep":  # until SIGTERM
+    time.sleep(600)
+if sys.argv[1] == "exit":  # until the test says so, then exit normally
+    sys.stdin.readline()
+"""
+
+
+def alive(pid: int) -> bool:
+    """True if the process exists and is not a zombie."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except FileNotFoundError:
+        return False
+    return fields[0] != "Z"
+
+
+def start_slow_compile(tmp_path: Path, mode: str, arg: str) -> tuple[subprocess.Popen, Path, list[int]]:
+    """A Python compiling with the fake compiler; returns once the compiler's child runs."""
+    fake = tmp_path / "fake-cc"
+    fake.write_text(FAKE_CC)
+    fake.chmod(0o755)
+    cache = tmp_path / "cache"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("SYMMON_")}
+    env.update(CC=str(fake), FAKE_CC_DIR=str(tmp_path), SYMMON_CACHE=str(cache), SYMMON_COMPILE=mode,
+               PYTHONPATH=str(ROOT) + os.pathsep + env.get("PYTHONPATH", ""))
+    p = subprocess.Popen([sys.executable, "-c", textwrap.dedent(SLOW_SCRIPT), arg], env=env, text=True,
+                         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + SUBPROCESS_TIMEOUT
+    while not (tmp_path / "child.pid").exists() or not (tmp_path / "child.pid").read_text().strip():
+        assert p.poll() is None, p.communicate()
+        assert time.monotonic() < deadline, "the fake compiler did not start"
+        time.sleep(0.05)
+    # The fake compiler runs before Popen has returned in the parent; a signal inside Popen
+    # itself would lose the child's pid (a window of microseconds for a real Ctrl-C).
+    time.sleep(1.0)
+    pids = [int((tmp_path / f).read_text()) for f in ("driver.pid", "child.pid")]
+    assert all(alive(pid) for pid in pids)
+    assert list(cache.glob(".build-*"))  # the compile's temporary directory exists now
+    return p, cache, pids
+
+
+def assert_cleaned_up(cache: Path, pids: list[int]) -> None:
+    deadline = time.monotonic() + 10
+    while any(alive(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.05)  # SIGKILL is asynchronous
+    assert not any(alive(pid) for pid in pids), "the compiler or its child survived"
+    assert not list(cache.glob(".build-*")), "the temporary directory survived"
+
+
+needs_proc = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+
+
+@needs_proc
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_signal_during_a_compile_kills_the_compiler(tmp_path, sig):
+    p, cache, pids = start_slow_compile(tmp_path, "sync", "-")
+    p.send_signal(sig)
+    out, err = p.communicate(timeout=SUBPROCESS_TIMEOUT)
+    assert p.returncode != 0 and out == ""
+    if sig == signal.SIGTERM:
+        assert p.returncode == 128 + signal.SIGTERM, err
+    else:
+        assert "KeyboardInterrupt" in err
+    assert_cleaned_up(cache, pids)
+
+
+@needs_proc
+@pytest.mark.parametrize("how", ["exit", "sleep"])
+def test_background_compile_is_killed_at_exit(tmp_path, how):
+    p, cache, pids = start_slow_compile(tmp_path, "background", how)
+    if how == "exit":
+        p.stdin.write("done\n")
+        p.stdin.flush()
+    else:
+        p.send_signal(signal.SIGTERM)  # the default action would leave the compiler running
+    out, err = p.communicate(timeout=SUBPROCESS_TIMEOUT)
+    assert out == "[1.0, 1.0, 1.0] vm (C build running)\n"
+    assert p.returncode == (0 if how == "exit" else 128 + signal.SIGTERM), err
+    assert "evaluating on CasADi's VM while it compiles" in err
+    assert_cleaned_up(cache, pids)
+
+
+@needs_proc
+def test_sigterm_handler_is_transparent_without_a_compile(tmp_path):
+    """The CLI installs the handler for good: with no compile running, SIGTERM acts as before."""
+    script = "import sys, time; from symmon.ccache import catch_sigterm; catch_sigterm(); print('ready', flush=True); time.sleep(600)"
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    p = subprocess.Popen([sys.executable, "-c", script], env=env, stdout=subprocess.PIPE, text=True)
+    assert p.stdout.readline() == "ready\n"
+    p.send_signal(signal.SIGTERM)
+    p.communicate(timeout=SUBPROCESS_TIMEOUT)
+    assert p.returncode == -signal.SIGTERM
