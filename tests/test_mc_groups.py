@@ -1,0 +1,139 @@
+"""Monte Carlo groups at scale: the O(G) jackknife equals the brute-force one (issue 12).
+
+The delete-one-group statistics are the merged total with one group taken out (Chan's
+merge run backwards).  The reference kept here is the definition: merge the other G − 1
+groups, for each of the G groups (O(G²)).  Both are exact formulas evaluated in a
+different order, so they agree to rounding; 1e-10 of each entry's scale leaves a margin
+of ~10⁵ over the ~1e-15 per operation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import symmon as sm
+from symmon.errors import SymmonError
+from symmon.angles import wrap_angle
+from symmon.nonlinearity import MC_INNER, _cond_cov_mc, _nested_groups, mon_from_moments
+from symmon.propagate import compiled
+from symmon.transforms.montecarlo import (
+    Stats,
+    jackknife_se,
+    leave_one_out,
+    leave_one_out_stack,
+    merge_all,
+    moments_of,
+)
+
+#: Reverse merge vs merging the others: both exact, rounding only (see the module notes).
+LOO_RTOL = 1e-10
+
+x, y, v1 = sp.symbols("x y v1", real=True)
+
+
+def reference_leave_one_out(groups: list[Stats]) -> list[Stats]:
+    """The definition, O(G²): merge every group but group i, for each i."""
+    return [merge_all([g for j, g in enumerate(groups) if j != i]) for i in range(len(groups))]
+
+
+def assert_stats_close(got: Stats, want: Stats) -> None:
+    """Equal counts; mean within LOO_RTOL of |mean| + σ, M2 within LOO_RTOL of √(M2_ii M2_jj)."""
+    assert got.n == want.n
+    sd = np.sqrt(np.diag(want.m2))
+    np.testing.assert_array_less(np.abs(got.mean - want.mean), LOO_RTOL * (np.abs(want.mean) + sd / np.sqrt(want.n)))
+    np.testing.assert_array_less(np.abs(got.m2 - want.m2), LOO_RTOL * np.outer(sd, sd))
+
+
+def _random_groups(G: int, seed: int) -> list[Stats]:
+    """G groups of unequal sizes, correlated columns and a large offset (|mean| ≫ σ)."""
+    rng = np.random.default_rng(seed)
+    A = np.array([[1.0, 0.0, 0.0], [0.8, 0.3, 0.0], [-2.0, 0.5, 1e-3]])
+    return [Stats.of(rng.normal(size=(int(n), 3)) @ A.T + [1e4, -3.0, 0.2])
+            for n in rng.integers(2, 50, size=G)]
+
+
+@pytest.mark.parametrize("G", [2, 3, 17, 200])
+def test_leave_one_out_equals_merging_the_other_groups(G):
+    groups = _random_groups(G, seed=G)
+    got = leave_one_out(groups)
+    for a, b in zip(got, reference_leave_one_out(groups)):
+        assert_stats_close(a, b)
+    # The stack holds the same numbers, and takes the total when the caller has it.
+    stack = leave_one_out_stack(groups, merge_all(groups))
+    np.testing.assert_array_equal(stack.n, [s.n for s in got])
+    np.testing.assert_array_equal(stack.m2, np.stack([s.m2 for s in got]))
+
+
+def test_leave_one_out_needs_two_groups_with_samples_outside_each():
+    one = _random_groups(1, seed=0)
+    with pytest.raises(SymmonError, match="at least 2 groups"):
+        leave_one_out(one)
+    empty = Stats(0, np.zeros(3), np.zeros((3, 3)))
+    with pytest.raises(SymmonError, match="samples outside every group"):
+        leave_one_out([one[0], empty])
+
+
+def test_stacked_moments_equal_the_moments_of_each():
+    """moments_of on a stack (leading axis G) is moments_of on each, angles included."""
+    groups = [Stats.of(np.random.default_rng(s).normal(size=(40, 6))) for s in range(5)]
+    stack = leave_one_out_stack(groups)
+    batched = moments_of(stack, 2, 2, [1])
+    for i, s in enumerate(leave_one_out(groups)):
+        for got, want in zip(batched, moments_of(s, 2, 2, [1])):
+            np.testing.assert_array_equal(got[i], want)
+
+
+def _reference_moment_se(groups: list[Stats], ny: int, nw: int, angles: list[int]) -> np.ndarray:
+    """The jackknife of (E y, Cov y, Cov(y, w)) as it was computed group by group."""
+    mu = moments_of(merge_all(groups), ny, nw, angles)[0]
+    rows = []
+    for s in reference_leave_one_out(groups):
+        m, c, xc, _ = moments_of(s, ny, nw, angles)
+        m[angles] = wrap_angle(m[angles] - mu[angles])
+        rows.append(np.concatenate([m, c.ravel(), xc.ravel()]))
+    return jackknife_se(np.array(rows))
+
+
+@pytest.mark.parametrize("mean", [[-1.0, 0.01], [1.0, 0.5]], ids=["bearing-at-the-cut", "bearing-inside"])
+def test_monte_carlo_error_bars_equal_the_brute_force_jackknife(mean):
+    """With an angle output (circular mean): at the cut ±π the left-out means fall on
+    both sides of it, which the jackknife must unwrap."""
+    polar = sm.Model([x, y], [sp.sqrt(x**2 + y**2), sp.atan2(y, x)], angles=[1], name="mc_groups_polar")
+    u = sm.Gaussian(mean, 0.3 * np.eye(2))
+    m = sm.propagate(polar, u, transform=sm.MonteCarlo(30_000, seed=4, groups=23))
+    want = _reference_moment_se(m.info["groups"], 2, 2, [1])
+    got = np.concatenate([m.stderr["mean"], m.stderr["cov"].ravel(), m.stderr["cross_cov"].ravel()])
+    np.testing.assert_allclose(got, want, rtol=LOO_RTOL)
+
+
+def test_mon_error_bar_equals_the_brute_force_jackknife():
+    """The MoN's error bar: group i left out of the moments, O(G), equals the definition."""
+    polar = sm.Model([x, y], [sp.sqrt(x**2 + y**2), sp.atan2(y, x)], angles=[1], name="mc_groups_polar")
+    u = sm.Gaussian([-1.0, 0.01], 0.3 * np.eye(2))
+    res = sm.nonlinearity(polar, u, transform=sm.MonteCarlo(30_000, seed=4, groups=23))
+    vals = []
+    for s in reference_leave_one_out(res.moments.info["groups"]):
+        _, cyy, cyw, cww = moments_of(s, 2, 2, [1])
+        vals.append(np.sqrt(mon_from_moments(cyy, cyw, cww, "full")["squared"]))
+    assert res.stderr == pytest.approx(float(jackknife_se(np.array(vals))), rel=LOO_RTOL)
+
+
+def test_nested_sigma_c_left_out_equals_the_brute_force_one():
+    """General noise: Σ_c with group i left out of the nested Monte Carlo (O(G)) equals
+    Σ_c recomputed from the other groups."""
+    model = sm.Model([x], [sp.sin(x + v1) + x * v1**2], noise=[v1], name="mc_groups_general")
+    u, v = sm.Gaussian([0.4], [[0.5]]), sm.Gaussian([0.0], [[0.3]])
+    mc = sm.MonteCarlo(40_000, seed=6, groups=9)
+    Sc, loo = _cond_cov_mc(model, u, v, mc)
+    nested = _nested_groups(compiled(model), u, v, mc)
+
+    def sc(parts):
+        st = merge_all([p[0] for p in parts])
+        return st.cov - sum(p[1] for p in parts) / st.n / MC_INNER
+
+    np.testing.assert_array_equal(Sc, sc(nested))
+    for i in range(mc.groups):
+        want = sc([g for j, g in enumerate(nested) if j != i])
+        np.testing.assert_allclose(loo[i], want, rtol=LOO_RTOL)
