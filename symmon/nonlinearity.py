@@ -47,6 +47,8 @@ from .transforms.montecarlo import (
     leave_one_out_stack,
     merge_all,
     moments_of,
+    run_groups,
+    stop_point,
 )
 from .transforms.quadrature import standard_rule
 
@@ -219,28 +221,39 @@ def _nested_groups(cm, u: Gaussian, v: Gaussian, mc: MonteCarlo) -> list[tuple[S
     Each outer sample of v gets MC_INNER samples of u.  A group keeps the statistics of
     the inner means and the sum of the inner covariances; its streams are the children
     of the one ``SeedSequence(seed)`` child that the outer Monte Carlo does not use.
+    The groups run on the engine's threads (:func:`~symmon.transforms.montecarlo.run_groups`):
+    the same result for any thread count, and Ctrl-C stops them within a chunk.
     """
     G = mc.groups
     n_outer = max(2 * G, mc.n // MC_INNER)
     seeds = np.random.SeedSequence(mc.seed).spawn(G + 1)[-1].spawn(G)
     Lu, Lv = batch_sqrt(u.cov[None])[0], batch_sqrt(v.cov[None])[0]
+
+    def group(job: tuple[int, np.random.SeedSequence], stop) -> tuple[Stats, np.ndarray]:
+        return _nested_group(cm, u, v, Lu, Lv, *job, stop)
+
+    return run_groups(group, list(zip(group_sizes(n_outer, G), seeds)), mc.thread_count(),
+                      "nested Monte Carlo groups", mc.progress)
+
+
+def _nested_group(cm, u: Gaussian, v: Gaussian, Lu: np.ndarray, Lv: np.ndarray, n_g: int,
+                  seed: np.random.SeedSequence, stop) -> tuple[Stats, np.ndarray]:
+    """One group of :func:`_nested_groups`: n_g outer samples, in chunks."""
+    gen = group_generator(seed)
     step = max(1, 65536 // MC_INNER)
-    groups = []
-    for n_g, seed in zip(group_sizes(n_outer, G), seeds):
-        gen = group_generator(seed)
-        stats, var_sum = [], 0.0
-        for start in range(0, n_g, step):
-            k = min(step, n_g - start)
-            V = v.mean + gen.standard_normal((k, v.dim)) @ Lv.T
-            U = u.mean + gen.standard_normal((k, MC_INNER, u.dim)) @ Lu.T
-            W = np.concatenate([U, np.repeat(V[:, None, :], MC_INNER, axis=1)], axis=2)
-            Y = cm.eval_g(W.reshape(-1, W.shape[2])).reshape(k, MC_INNER, -1)
-            mean_v = Y.mean(axis=1)
-            R = Y - mean_v[:, None]
-            var_sum = var_sum + np.einsum("kmi,kmj->ij", R, R) / (MC_INNER - 1)
-            stats.append(Stats.of(mean_v))
-        groups.append((merge_all(stats), var_sum))
-    return groups
+    stats, var_sum = [], 0.0
+    for start in range(0, n_g, step):
+        stop_point(stop)
+        k = min(step, n_g - start)
+        V = v.mean + gen.standard_normal((k, v.dim)) @ Lv.T
+        U = u.mean + gen.standard_normal((k, MC_INNER, u.dim)) @ Lu.T
+        W = np.concatenate([U, np.repeat(V[:, None, :], MC_INNER, axis=1)], axis=2)
+        Y = cm.eval_g(W.reshape(-1, W.shape[2])).reshape(k, MC_INNER, -1)
+        mean_v = Y.mean(axis=1)
+        R = Y - mean_v[:, None]
+        var_sum = var_sum + np.einsum("kmi,kmj->ij", R, R) / (MC_INNER - 1)
+        stats.append(Stats.of(mean_v))
+    return merge_all(stats), var_sum
 
 
 def _sc_nested(st: Stats, var_sum: np.ndarray) -> np.ndarray:

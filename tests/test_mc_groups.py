@@ -9,6 +9,14 @@ of ~10⁵ over the ~1e-15 per operation.
 
 from __future__ import annotations
 
+import signal
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from pathlib import Path
+
 import numpy as np
 import pytest
 import sympy as sp
@@ -25,7 +33,11 @@ from symmon.transforms.montecarlo import (
     leave_one_out_stack,
     merge_all,
     moments_of,
+    run_groups,
+    stop_point,
 )
+
+ROOT = Path(__file__).resolve().parents[1]
 
 #: Reverse merge vs merging the others: both exact, rounding only (see the module notes).
 LOO_RTOL = 1e-10
@@ -137,3 +149,71 @@ def test_nested_sigma_c_left_out_equals_the_brute_force_one():
     for i in range(mc.groups):
         want = sc([g for j, g in enumerate(nested) if j != i])
         np.testing.assert_allclose(loo[i], want, rtol=LOO_RTOL)
+
+
+# --------------------------------------------------------------------------- stopping (issue 12)
+#: The interrupted run would take minutes (10¹¹ samples); a stop waits for one chunk per
+#: thread (milliseconds), so this bound only separates "stopped" from "ran on".
+STOP_WITHIN_S = 20
+
+_INTERRUPTED_RUN = textwrap.dedent(
+    """
+    import sys, threading
+    sys.path.insert(0, sys.argv[1])
+    from symmon import cli
+    from symmon.transforms import montecarlo
+
+    run_group, started = montecarlo._run_group, threading.Event()
+
+    def announcing(cm, job, stop=None):  # tell the test when sampling has begun
+        if not started.is_set():
+            started.set()
+            print("sampling", flush=True)
+        return run_group(cm, job, stop)
+
+    montecarlo._run_group = announcing
+    sys.exit(cli.main(sys.argv[2:]))
+    """
+)
+
+
+@pytest.mark.parametrize("args", [
+    ("nonlinearity", "--groups", "16"),
+    ("propagate", "--groups", "3", "--workers", "1"),
+], ids=["threads", "one-thread"])
+def test_ctrl_c_stops_a_long_monte_carlo_run(args):
+    """SIGINT during sampling: the CLI exits 130 without waiting for the groups."""
+    cmd, *opts = args
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _INTERRUPTED_RUN, str(ROOT), cmd, str(ROOT / "examples" / "gmti.toml"),
+         "--transform", "mc", "--samples", "100000000000", *opts],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "sampling"
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=STOP_WITHIN_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert "interrupted" in err
+
+
+def test_a_failing_group_stops_the_others():
+    """One group raises: the running groups end at their next chunk, queued ones never
+    start, and the caller gets the group's error."""
+    finished = []
+
+    def group(j: int, stop: threading.Event) -> int:
+        if j == 0:
+            raise SymmonError("group 0 fails")
+        for _ in range(STOP_WITHIN_S * 1000):  # "chunks" of 1 ms
+            stop_point(stop)
+            time.sleep(1e-3)
+        finished.append(j)
+        return j
+
+    with pytest.raises(SymmonError, match="group 0 fails"):
+        run_groups(group, list(range(20)), workers=3)
+    assert finished == []

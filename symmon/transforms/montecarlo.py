@@ -21,10 +21,11 @@ A. B. Owen, "Scrambling Sobol' and Niederreiter-Xing points", J. Complexity 14, 
 from __future__ import annotations
 
 import os
+import threading
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, Callable, ClassVar, Sequence
+from typing import Any, Callable, ClassVar, Sequence, TypeVar
 
 import numpy as np
 
@@ -35,8 +36,7 @@ from .base import BatchMoments, Transform, batch_sqrt, wrap_angle
 from .mc_kernel import sample_kernel
 
 __all__ = ["MonteCarlo", "Stats", "merge", "merge_all", "jackknife", "jackknife_se", "leave_one_out",
-           "leave_one_out_stack",
-           "group_generator", "group_sizes", "moments_of"]
+           "leave_one_out_stack", "group_generator", "group_sizes", "moments_of", "run_groups", "stop_point"]
 
 
 @dataclass(frozen=True)
@@ -156,6 +156,44 @@ def group_sizes(n: int, G: int) -> list[int]:
     return [n // G + (1 if g < n % G else 0) for g in range(G)]
 
 
+J = TypeVar("J")
+R = TypeVar("R")
+
+
+class _Stopped(Exception):
+    """A group saw the stop event: the run was interrupted, or another group failed."""
+
+
+def stop_point(stop: threading.Event | None) -> None:
+    """End the calling group if the run is being stopped (called once per chunk)."""
+    if stop is not None and stop.is_set():
+        raise _Stopped
+
+
+def run_groups(fn: Callable[[J, threading.Event], R], jobs: Sequence[J], workers: int,
+               desc: str = "Monte Carlo groups", progress: bool = False) -> list[R]:
+    """``fn(job, stop)`` for each job on ``workers`` threads; the results in job order.
+
+    ``fn`` calls :func:`stop_point` once per chunk.  When the calling thread is
+    interrupted (Ctrl-C: KeyboardInterrupt) or a group raises, the stop event is set:
+    the running groups end at their next chunk, the queued ones never start, and the
+    exception propagates, within about one chunk's time instead of the remaining groups'.
+    """
+    stop = threading.Event()
+    if workers == 1:
+        return [fn(j, stop) for j in progress_bar(jobs, desc, progress)]
+    pool = ThreadPoolExecutor(workers)
+    try:
+        futures = [pool.submit(fn, j, stop) for j in jobs]
+        return [f.result() for f in progress_bar(futures, desc, progress, total=len(futures))]
+    except BaseException:
+        stop.set()
+        raise
+    finally:
+        # Drop the queued groups; the running ones see `stop` within a chunk.
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
 @dataclass(frozen=True)
 class _Job:
     mean: np.ndarray
@@ -215,14 +253,15 @@ def _sampling_error(A: np.ndarray, shift: np.ndarray, ny: int, nw: int, m: int, 
     )
 
 
-def _run_group(cm: CompiledModel, job: _Job) -> Stats:
+def _run_group(cm: CompiledModel, job: _Job, stop: threading.Event | None = None) -> Stats:
     """One group: draw, evaluate with the compiled kernel, accumulate (count, mean, M2).
 
     Each chunk is centred on a shift s: the first chunk on its first sample, the later
     ones on the first chunk's mean.  A large offset (|E y| ≫ std) would otherwise cost its
     digits, and with the centred rows the raw cross-products AᵀA of a chunk lose nothing
     in M2 = Σ zzᵀ − n z̄z̄ᵀ (|z̄| ≈ σ·√(2/chunk): σ/64 at the default chunk).
-    Chunks are merged with Chan's formula.
+    Chunks are merged with Chan's formula.  ``stop`` (see :func:`run_groups`) is checked
+    before each chunk.
     """
     d = job.mean.shape[0]
     ny = cm.n_y
@@ -242,6 +281,7 @@ def _run_group(cm: CompiledModel, job: _Job) -> Stats:
     acc: Stats | None = None
     done = 0
     while done < job.n:
+        stop_point(stop)
         m = min(job.chunk, job.n - done)
         Z, A = Zbuf[:m], Abuf[:m]
         if job.qmc:
@@ -359,12 +399,12 @@ class MonteCarlo(Transform):
         ]
         if self.client is not None or self.scheduler is not None:
             return self._dask(cm, jobs)
-        workers = self.workers or min(os.cpu_count() or 1, len(jobs))
-        if workers == 1:
-            return [_run_group(cm, j) for j in progress_bar(jobs, "Monte Carlo groups", self.progress)]
-        with ThreadPoolExecutor(workers) as pool:
-            done = pool.map(lambda j: _run_group(cm, j), jobs)
-            return list(progress_bar(done, "Monte Carlo groups", self.progress, total=len(jobs)))
+        return run_groups(lambda j, stop: _run_group(cm, j, stop), jobs, self.thread_count(),
+                          progress=self.progress)
+
+    def thread_count(self) -> int:
+        """Threads for the groups: ``workers``, or the number of CPUs, at most ``groups``."""
+        return self.workers or min(os.cpu_count() or 1, int(self.groups))
 
     def _dask(self, cm: CompiledModel, jobs: list[_Job]) -> list[Stats]:
         try:
@@ -373,7 +413,12 @@ class MonteCarlo(Transform):
             raise SymmonError("the Dask path needs the 'dask' extra: pip install symmon[dask]") from exc
         tasks = [dask.delayed(_run_group_remote)(cm.source_exprs, cm.symbols, j) for j in jobs]
         if self.client is not None:
-            return list(self.client.gather(self.client.compute(tasks)))
+            futures = self.client.compute(tasks)
+            try:
+                return list(self.client.gather(futures))
+            except BaseException:  # interrupted: free the cluster of this run's groups
+                self.client.cancel(futures)
+                raise
         return list(dask.compute(*tasks, scheduler=self.scheduler))
 
     def batch(self, cm, means, covs, angles=frozenset()):
