@@ -9,7 +9,9 @@ of ~10⁵ over the ~1e-15 per operation.
 
 from __future__ import annotations
 
+import contextlib
 import signal
+import socket
 import subprocess
 import sys
 import textwrap
@@ -22,12 +24,17 @@ import pytest
 import sympy as sp
 
 import symmon as sm
-from symmon.errors import SymmonError
+from symmon import cli
 from symmon.angles import wrap_angle
+from symmon.errors import SymmonError
 from symmon.nonlinearity import MC_INNER, _cond_cov_mc, _nested_groups, mon_from_moments
 from symmon.propagate import compiled
 from symmon.transforms.montecarlo import (
+    MAX_CHUNK,
+    MAX_GROUPS,
+    MAX_SAMPLES,
     Stats,
+    connect_dask,
     jackknife_se,
     leave_one_out,
     leave_one_out_stack,
@@ -217,3 +224,75 @@ def test_a_failing_group_stops_the_others():
     with pytest.raises(SymmonError, match="group 0 fails"):
         run_groups(group, list(range(20)), workers=3)
     assert finished == []
+
+
+# --------------------------------------------------------------------------- validation (issue 13)
+@pytest.mark.parametrize(("kw", "match"), [
+    (dict(seed=-1), "seed must be a non-negative integer or None, got -1"),
+    (dict(seed=0.5), "seed must be a non-negative integer or None, got 0.5"),
+    (dict(seed=True), "seed must be a non-negative integer or None, got True"),
+    (dict(groups=MAX_GROUPS + 1, n=10**7), r"groups = 100001 is above the limit 10\*\*5"),
+    (dict(n=MAX_SAMPLES + 1), r"n = 9007199254740993 is above the limit 2\*\*53"),
+    (dict(chunk=MAX_CHUNK + 1), r"chunk = 1048577 is above the limit 2\*\*20"),
+    (dict(n=2**40, groups=16, qmc=True), r"at most 2\*\*30 points per group, .* needs 68719476736"),
+    (dict(workers=True), "workers must be >= 1, got True"),
+])
+def test_monte_carlo_limits(kw, match):
+    """Each setting is checked when the transform is made, before any work or memory."""
+    with pytest.raises(SymmonError, match=match):
+        sm.MonteCarlo(**kw)
+
+
+def test_the_limits_themselves_are_accepted():
+    sm.MonteCarlo(n=MAX_SAMPLES, groups=MAX_GROUPS, chunk=MAX_CHUNK, seed=np.uint64(2**63))
+    sm.MonteCarlo(n=2**34, groups=16, qmc=True)  # 2**30 per group
+
+
+def test_seed_none_draws_a_seed_that_repeats_the_run():
+    polar = sm.Model([x, y], [sp.sqrt(x**2 + y**2)], name="mc_groups_seed")
+    u = sm.Gaussian([1.0, 2.0], np.eye(2))
+    fresh = sm.MonteCarlo(2_000, seed=None, groups=4)
+    assert isinstance(fresh.seed, int) and fresh.seed >= 0 and f"seed={fresh.seed}" in repr(fresh)
+    again = sm.propagate(polar, u, transform=sm.MonteCarlo(2_000, seed=fresh.seed, groups=4))
+    np.testing.assert_array_equal(sm.propagate(polar, u, transform=fresh).cov, again.cov)
+
+
+def test_a_group_smaller_than_a_chunk_allocates_only_its_samples():
+    """chunk is a cap per kernel call, not an allocation: 2**20 rows for 100 samples would
+    be ~100 MB per thread; the result is the same as with the default chunk."""
+    polar = sm.Model([x, y], [sp.sqrt(x**2 + y**2)], name="mc_groups_seed")
+    u = sm.Gaussian([1.0, 2.0], np.eye(2))
+    big = sm.propagate(polar, u, transform=sm.MonteCarlo(400, seed=1, groups=4, chunk=MAX_CHUNK))
+    small = sm.propagate(polar, u, transform=sm.MonteCarlo(400, seed=1, groups=4))
+    np.testing.assert_array_equal(big.cov, small.cov)
+
+
+@pytest.fixture
+def silent_server():
+    """A TCP server that accepts connections and never says a word, on a thread."""
+    srv = socket.create_server(("127.0.0.1", 0))
+    accepted: list[socket.socket] = []
+
+    def serve() -> None:
+        with contextlib.suppress(OSError):  # the fixture closed the socket
+            while True:
+                accepted.append(srv.accept()[0])
+
+    threading.Thread(target=serve, daemon=True).start()
+    yield f"tcp://127.0.0.1:{srv.getsockname()[1]}"
+    srv.close()
+    for c in accepted:
+        c.close()
+
+
+def test_a_scheduler_that_never_answers_times_out(silent_server, capsys, monkeypatch):
+    """distributed's own timeout covers the TCP connection, not the handshake after it:
+    without connect_dask this call would wait forever (it is bounded by the timeouts)."""
+    pytest.importorskip("distributed")
+    with pytest.raises(SymmonError, match="accepted but nothing answered in another 0.5 s"):
+        connect_dask(silent_server, timeout=0.5)
+    monkeypatch.setattr(cli, "DASK_CONNECT_TIMEOUT", 0.5)
+    code = cli.main(["propagate", str(ROOT / "examples" / "gmti.toml"), "--transform", "mc",
+                     "--samples", "1000", "--dask", silent_server])
+    assert code == 1
+    assert f"cannot reach the Dask scheduler at {silent_server} within 0.5 s" in capsys.readouterr().err

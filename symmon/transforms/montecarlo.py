@@ -20,6 +20,7 @@ A. B. Owen, "Scrambling Sobol' and Niederreiter-Xing points", J. Complexity 14, 
 
 from __future__ import annotations
 
+import asyncio
 import os
 import threading
 import warnings
@@ -36,7 +37,7 @@ from .base import BatchMoments, Transform, batch_sqrt, wrap_angle
 from .mc_kernel import sample_kernel
 
 __all__ = ["MonteCarlo", "Stats", "merge", "merge_all", "jackknife", "jackknife_se", "leave_one_out",
-           "leave_one_out_stack", "group_generator", "group_sizes", "moments_of", "run_groups", "stop_point"]
+           "leave_one_out_stack", "group_generator", "group_sizes", "moments_of", "run_groups", "stop_point", "connect_dask"]
 
 
 @dataclass(frozen=True)
@@ -159,6 +160,17 @@ def group_sizes(n: int, G: int) -> list[int]:
 J = TypeVar("J")
 R = TypeVar("R")
 
+#: Most samples in a run: counts and the sums of a chunk stay exact in double precision.
+MAX_SAMPLES = 2**53
+#: Most groups: the jackknife keeps G stacks of d×d statistics (d = n_y + n_w + 2·angles) and
+#: each group costs ~0.1 ms of bookkeeping; past a few hundred groups the error bars gain
+#: nothing, so 10⁵ keeps memory and time on the samples, not on the bookkeeping.
+MAX_GROUPS = 10**5
+#: Most samples per kernel call: a thread's buffers are chunk·(2 n_w + n_y + 1)·8 bytes.
+MAX_CHUNK = 2**20
+#: Most points per group with qmc=True: SciPy's Sobol' engine draws at most 2³⁰ (30 bits).
+MAX_QMC_GROUP = 2**30
+
 
 class _Stopped(Exception):
     """A group saw the stop event: the run was interrupted, or another group failed."""
@@ -274,8 +286,9 @@ def _run_group(cm: CompiledModel, job: _Job, stop: threading.Event | None = None
         engine = qmc.Sobol(d, scramble=True, seed=np.random.default_rng(job.seed))
     else:
         gen = group_generator(job.seed)
-    Zbuf = np.empty((job.chunk, d))
-    Abuf = np.empty((job.chunk, kernel.n_out))
+    rows = min(job.chunk, job.n)  # a group smaller than a chunk needs no more
+    Zbuf = np.empty((rows, d))
+    Abuf = np.empty((rows, kernel.n_out))
     shift = np.zeros(kernel.n_z)
     p = kernel.params(job.mean, job.L, shift, job.ref)
     acc: Stats | None = None
@@ -319,9 +332,60 @@ def _run_group(cm: CompiledModel, job: _Job, stop: threading.Event | None = None
     return Stats(acc.n, acc.mean + shift, acc.m2)
 
 
+def _is_int(v: Any) -> bool:
+    """An integer, numpy's included, and not a bool."""
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
 def _run_group_remote(outputs, symbols, job: _Job) -> Stats:
     # Workers compile the model themselves: CasADi functions are not shipped.
     return _run_group(compile_model(outputs, symbols), job)
+
+
+def connect_dask(address: str, timeout: float = 10.0) -> Any:
+    """A ``dask.distributed.Client`` to the scheduler at ``address``, or a clear error
+    within about ``timeout`` seconds.
+
+    ``Client(address, timeout=...)`` bounds the TCP connection but not distributed's
+    handshake after it: a server that accepts the connection and never answers (a wrong
+    port, a hung scheduler) would hold it forever.  So the handshake is tried first, in
+    its own event loop on a helper thread: ``timeout`` for the connection (as a closed
+    port gets), then as long again for the answer.
+
+    Raises
+    ------
+    SymmonError
+        The 'dask' extra is missing, or no scheduler answered at ``address`` in time.
+    """
+    try:
+        from distributed import Client
+        from distributed.comm import connect
+        from distributed.security import Security
+    except ImportError as exc:
+        raise SymmonError(f"a Dask scheduler address ({address}) needs the 'dask' extra: "
+                          "pip install 'symmon[dask]'") from exc
+
+    async def handshake() -> None:
+        comm = await connect(address, timeout=timeout, **Security().get_connection_args("client"))
+        await comm.close()
+
+    def probe() -> None:
+        # A refused or unresolvable address fails inside connect() after `timeout`, first.
+        asyncio.run(asyncio.wait_for(handshake(), 2 * timeout))
+
+    reach = f"cannot reach the Dask scheduler at {address} within {timeout:g} s"
+    with ThreadPoolExecutor(1) as pool:  # a thread: the caller may be inside an event loop
+        try:
+            pool.submit(probe).result()
+        except asyncio.TimeoutError as exc:
+            raise SymmonError(f"{reach}: the connection was accepted but nothing answered in "
+                              f"another {timeout:g} s (is a Dask scheduler listening there?)") from exc
+        except (OSError, ValueError) as exc:  # refused, unresolvable, malformed address
+            raise SymmonError(f"{reach}: {exc}") from exc
+    try:
+        return Client(address, timeout=timeout)
+    except OSError as exc:
+        raise SymmonError(f"{reach}: {exc}") from exc
 
 
 @dataclass(frozen=True)
@@ -331,16 +395,20 @@ class MonteCarlo(Transform):
     Parameters
     ----------
     n : int
-        Number of samples (with ``qmc=True``, rounded to ``groups`` times a power of 2).
-    seed : int
-        Seed of ``numpy.random.SeedSequence``; the same seed gives the same result
-        whatever the chunk size, the number of threads, or a Dask cluster.
+        Number of samples, 2·groups to 2⁵³ (with ``qmc=True``, rounded to ``groups`` times
+        a power of 2, at most 2³⁰ per group).
+    seed : int or None
+        Seed of ``numpy.random.SeedSequence``, a non-negative integer; the same seed gives
+        the same result whatever the chunk size, the number of threads, or a Dask
+        cluster.  ``None`` draws a fresh seed from the OS, kept in ``seed`` (and shown by
+        ``repr``) so the run can be repeated.
     qmc : bool
         Scrambled Sobol' points through the inverse normal CDF instead of pseudo-random.
     groups : int
-        Independent shards; the jackknife over them gives the error bars.
+        Independent shards, 2 to 10⁵; the jackknife over them gives the error bars.
     chunk : int
-        Samples per compiled kernel call (memory per thread ~ chunk · (2 n_w + n_y + 1) · 8 bytes).
+        Samples per compiled kernel call, at most 2²⁰ (memory per thread
+        ~ chunk · (2 n_w + n_y + 1) · 8 bytes).
     workers : int or None
         Threads (``None``: the number of CPUs, at most ``groups``).
     client : dask.distributed.Client, optional
@@ -352,7 +420,7 @@ class MonteCarlo(Transform):
     """
 
     n: int = 100_000
-    seed: int = 0
+    seed: int | None = 0
     qmc: bool = False
     groups: int = 16
     chunk: int = CHUNK
@@ -365,16 +433,31 @@ class MonteCarlo(Transform):
     name: ClassVar[str] = "mc"
 
     def __post_init__(self) -> None:
-        for k in ("n", "groups", "chunk"):
+        limits = (
+            ("n", MAX_SAMPLES, "2**53, where sample counts stop being exact in double precision"),
+            ("groups", MAX_GROUPS, "10**5: more groups only add bookkeeping, not better error bars"),
+            ("chunk", MAX_CHUNK, "2**20 samples per kernel call (a thread's buffers grow with it)"),
+        )
+        for k, most, why in limits:
             v = getattr(self, k)
-            if not isinstance(v, (int, np.integer)) or v < 1:
+            if not _is_int(v) or v < 1:
                 raise SymmonError(f"MonteCarlo {k} must be a positive integer, got {v!r}")
+            if v > most:
+                raise SymmonError(f"MonteCarlo {k} = {v} is above the limit {why}")
         if self.groups < 2:
             raise SymmonError("MonteCarlo needs groups >= 2 for its error bars")
         if self.n < 2 * self.groups:
             raise SymmonError(f"MonteCarlo n = {self.n} is too small for {self.groups} groups (need >= {2 * self.groups})")
-        if self.workers is not None and self.workers < 1:
-            raise SymmonError(f"workers must be >= 1, got {self.workers}")
+        if self.qmc and self.sizes()[0] > MAX_QMC_GROUP:
+            raise SymmonError(f"MonteCarlo with qmc=True draws at most 2**30 points per group, "
+                              f"but n = {self.n} over {self.groups} groups needs {self.sizes()[0]}: use more groups")
+        if self.seed is None:
+            # Fresh entropy, kept: the run can be repeated with the seed that repr shows.
+            object.__setattr__(self, "seed", int(np.random.SeedSequence().entropy))
+        elif not _is_int(self.seed) or self.seed < 0:
+            raise SymmonError(f"MonteCarlo seed must be a non-negative integer or None, got {self.seed!r}")
+        if self.workers is not None and (not _is_int(self.workers) or self.workers < 1):
+            raise SymmonError(f"workers must be >= 1, got {self.workers!r}")
 
     def sizes(self) -> list[int]:
         """Samples per group (QMC: a power of two each)."""
