@@ -296,3 +296,13 @@ def test_a_scheduler_that_never_answers_times_out(silent_server, capsys, monkeyp
                      "--samples", "1000", "--dask", silent_server])
     assert code == 1
     assert f"cannot reach the Dask scheduler at {silent_server} within 0.5 s" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("workers", [2, 5])
+def test_nested_monte_carlo_on_threads_equals_one_thread(workers):
+    """General noise: the nested groups run on the engine's threads, same numbers."""
+    model = sm.Model([x], [sp.sin(x + v1) + x * v1**2], noise=[v1], name="mc_groups_general")
+    u, v = sm.Gaussian([0.4], [[0.5]]), sm.Gaussian([0.0], [[0.3]])
+    one = sm.nonlinearity(model, u, v, transform=sm.MonteCarlo(60_000, seed=8, groups=7, workers=1))
+    many = sm.nonlinearity(model, u, v, transform=sm.MonteCarlo(60_000, seed=8, groups=7, workers=workers))
+    assert (many.squared, many.stderr) == (one.squared, one.stderr)
