@@ -35,6 +35,7 @@ from symmon.transforms.montecarlo import (
     MAX_SAMPLES,
     Stats,
     connect_dask,
+    dask_compute,
     jackknife_se,
     leave_one_out,
     leave_one_out_stack,
@@ -306,3 +307,24 @@ def test_nested_monte_carlo_on_threads_equals_one_thread(workers):
     one = sm.nonlinearity(model, u, v, transform=sm.MonteCarlo(60_000, seed=8, groups=7, workers=1))
     many = sm.nonlinearity(model, u, v, transform=sm.MonteCarlo(60_000, seed=8, groups=7, workers=workers))
     assert (many.squared, many.stderr) == (one.squared, one.stderr)
+
+
+def test_an_interrupted_dask_run_cancels_its_pending_tasks():
+    """Ctrl-C while gathering from a cluster: the futures are cancelled, the interrupt propagates."""
+
+    class Client:
+        cancelled = None
+
+        def compute(self, tasks):
+            return [f"future-{t}" for t in tasks]
+
+        def gather(self, futures):
+            raise KeyboardInterrupt
+
+        def cancel(self, futures):
+            self.cancelled = futures
+
+    client = Client()
+    with pytest.raises(KeyboardInterrupt):
+        dask_compute(["a", "b"], client)
+    assert client.cancelled == ["future-a", "future-b"]

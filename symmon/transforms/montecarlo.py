@@ -37,7 +37,8 @@ from .base import BatchMoments, Transform, batch_sqrt, wrap_angle
 from .mc_kernel import sample_kernel
 
 __all__ = ["MonteCarlo", "Stats", "merge", "merge_all", "jackknife", "jackknife_se", "leave_one_out",
-           "leave_one_out_stack", "group_generator", "group_sizes", "moments_of", "run_groups", "stop_point", "connect_dask"]
+           "leave_one_out_stack", "group_generator", "group_sizes", "moments_of", "run_groups", "stop_point", "connect_dask",
+           "dask_compute"]
 
 
 @dataclass(frozen=True)
@@ -342,6 +343,22 @@ def _run_group_remote(outputs, symbols, job: _Job) -> Stats:
     return _run_group(compile_model(outputs, symbols), job)
 
 
+def dask_compute(tasks: Sequence[Any], client: Any = None, scheduler: str | None = None) -> list:
+    """The results of Dask delayed ``tasks``, in order, on ``client`` or else on the local
+    ``scheduler``.  On a client, an interrupt (or any error) cancels the tasks still
+    pending, so the cluster does not go on with a run nobody waits for."""
+    if client is not None:
+        futures = client.compute(list(tasks))
+        try:
+            return list(client.gather(futures))
+        except BaseException:
+            client.cancel(futures)
+            raise
+    import dask
+
+    return list(dask.compute(*tasks, scheduler=scheduler))
+
+
 def connect_dask(address: str, timeout: float = 10.0) -> Any:
     """A ``dask.distributed.Client`` to the scheduler at ``address``, or a clear error
     within about ``timeout`` seconds.
@@ -495,14 +512,7 @@ class MonteCarlo(Transform):
         except ImportError as exc:  # pragma: no cover - depends on the environment
             raise SymmonError("the Dask path needs the 'dask' extra: pip install symmon[dask]") from exc
         tasks = [dask.delayed(_run_group_remote)(cm.source_exprs, cm.symbols, j) for j in jobs]
-        if self.client is not None:
-            futures = self.client.compute(tasks)
-            try:
-                return list(self.client.gather(futures))
-            except BaseException:  # interrupted: free the cluster of this run's groups
-                self.client.cancel(futures)
-                raise
-        return list(dask.compute(*tasks, scheduler=self.scheduler))
+        return dask_compute(tasks, self.client, self.scheduler)
 
     def batch(self, cm, means, covs, angles=frozenset()):
         outs = [self._single(cm, m, P, angles) for m, P in zip(means, covs)]
