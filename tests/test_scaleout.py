@@ -75,7 +75,7 @@ def local():
 def _quiet_distributed():
     """Ignore the one known-harmless distributed warning, during start-up and shutdown only.
 
-    With the dashboard off and random ports no warning fires here; on a slow file system
+    With the web server on a free port no warning fires here; on a slow file system
     distributed warns that creating its scratch directories takes long.  The filter is
     local to these calls: the tests themselves run under pytest's ``error`` filter.
     """
@@ -88,7 +88,9 @@ def _quiet_distributed():
 def client():
     distributed = pytest.importorskip("dask.distributed")
     with _quiet_distributed():
-        cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
+        # ":0": a free port.  None still starts the scheduler's HTTP server on 8787, which
+        # another run on the machine may hold ("Port 8787 is already in use" warning).
+        cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0")
         cl = distributed.Client(cluster)
     yield cl
     with _quiet_distributed():
