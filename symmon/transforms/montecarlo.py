@@ -37,8 +37,19 @@ from .base import BatchMoments, Transform, batch_sqrt, wrap_angle
 from .mc_kernel import sample_kernel
 
 __all__ = ["MonteCarlo", "Stats", "merge", "merge_all", "jackknife", "jackknife_se", "leave_one_out",
-           "leave_one_out_stack", "group_generator", "group_sizes", "moments_of", "run_groups", "stop_point", "connect_dask",
-           "dask_compute"]
+           "leave_one_out_stack", "group_generator", "group_sizes", "moments_of", "run_groups", "stop_point",
+           "dask_compute", "connect_dask", "MAX_SAMPLES", "MAX_GROUPS", "MAX_CHUNK", "MAX_QMC_GROUP"]
+
+#: Most samples in a run: counts and the sums of a chunk stay exact in double precision.
+MAX_SAMPLES = 2**53
+#: Most groups: the jackknife keeps G stacks of d×d statistics (d = n_y + n_w + 2·angles) and
+#: each group costs ~0.1 ms of bookkeeping; past a few hundred groups the error bars gain
+#: little (their own relative error is ~1/√(2G)), so 10⁵ keeps memory and time on the samples.
+MAX_GROUPS = 10**5
+#: Most samples per kernel call: a thread's buffers are chunk·(2 n_w + n_y + 1)·8 bytes.
+MAX_CHUNK = 2**20
+#: Most points per group with qmc=True: SciPy's Sobol' engine draws at most 2³⁰ (30 bits).
+MAX_QMC_GROUP = 2**30
 
 
 @dataclass(frozen=True)
@@ -160,17 +171,6 @@ def group_sizes(n: int, G: int) -> list[int]:
 
 J = TypeVar("J")
 R = TypeVar("R")
-
-#: Most samples in a run: counts and the sums of a chunk stay exact in double precision.
-MAX_SAMPLES = 2**53
-#: Most groups: the jackknife keeps G stacks of d×d statistics (d = n_y + n_w + 2·angles) and
-#: each group costs ~0.1 ms of bookkeeping; past a few hundred groups the error bars gain
-#: nothing, so 10⁵ keeps memory and time on the samples, not on the bookkeeping.
-MAX_GROUPS = 10**5
-#: Most samples per kernel call: a thread's buffers are chunk·(2 n_w + n_y + 1)·8 bytes.
-MAX_CHUNK = 2**20
-#: Most points per group with qmc=True: SciPy's Sobol' engine draws at most 2³⁰ (30 bits).
-MAX_QMC_GROUP = 2**30
 
 
 class _Stopped(Exception):
@@ -473,6 +473,8 @@ class MonteCarlo(Transform):
             object.__setattr__(self, "seed", int(np.random.SeedSequence().entropy))
         elif not _is_int(self.seed) or self.seed < 0:
             raise SymmonError(f"MonteCarlo seed must be a non-negative integer or None, got {self.seed!r}")
+        else:
+            object.__setattr__(self, "seed", int(self.seed))  # numpy integers too: one repr, one hash
         if self.workers is not None and (not _is_int(self.workers) or self.workers < 1):
             raise SymmonError(f"workers must be >= 1, got {self.workers!r}")
 
