@@ -1,4 +1,6 @@
-"""Monte Carlo groups at scale: the O(G) jackknife equals the brute-force one (issue 12).
+"""Monte Carlo groups at scale (issues 12 and 13): the O(G) jackknife equals the brute-force
+one; Ctrl-C or a failing group stops a run at the next chunk; the settings have declared
+limits; a Dask scheduler that never answers times out.
 
 The delete-one-group statistics are the merged total with one group taken out (Chan's
 merge run backwards).  The reference kept here is the definition: merge the other G − 1
