@@ -23,6 +23,7 @@ Y. Liu, X. R. Li, "Measure of nonlinearity for estimation", IEEE Trans. Signal P
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
@@ -229,7 +230,7 @@ def _nested_groups(cm, u: Gaussian, v: Gaussian, mc: MonteCarlo) -> list[tuple[S
     seeds = np.random.SeedSequence(mc.seed).spawn(G + 1)[-1].spawn(G)
     Lu, Lv = batch_sqrt(u.cov[None])[0], batch_sqrt(v.cov[None])[0]
 
-    def group(job: tuple[int, np.random.SeedSequence], stop) -> tuple[Stats, np.ndarray]:
+    def group(job: tuple[int, np.random.SeedSequence], stop: threading.Event) -> tuple[Stats, np.ndarray]:
         return _nested_group(cm, u, v, Lu, Lv, *job, stop)
 
     return run_groups(group, list(zip(group_sizes(n_outer, G), seeds)), mc.thread_count(),
@@ -237,7 +238,7 @@ def _nested_groups(cm, u: Gaussian, v: Gaussian, mc: MonteCarlo) -> list[tuple[S
 
 
 def _nested_group(cm, u: Gaussian, v: Gaussian, Lu: np.ndarray, Lv: np.ndarray, n_g: int,
-                  seed: np.random.SeedSequence, stop) -> tuple[Stats, np.ndarray]:
+                  seed: np.random.SeedSequence, stop: threading.Event | None) -> tuple[Stats, np.ndarray]:
     """One group of :func:`_nested_groups`: n_g outer samples, in chunks."""
     gen = group_generator(seed)
     step = max(1, 65536 // MC_INNER)
