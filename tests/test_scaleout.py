@@ -177,7 +177,10 @@ def test_merge_of_any_sharding_equals_the_whole(cuts, seed):
     merged, whole = merge_all(shards), Stats.of(Z)
     assert merged.n == whole.n
     np.testing.assert_allclose(merged.mean, whole.mean, rtol=REORDER_RTOL, atol=1e-15)
-    np.testing.assert_allclose(merged.m2, whole.m2, rtol=REORDER_RTOL)
+    # Rounding is relative to √(M2_ii M2_jj), not to the entry: a sample cross-product near
+    # 0 (columns scaled by 20 and 1e-2) carries the rounding of the large terms it sums.
+    sd = np.sqrt(np.diag(whole.m2))
+    np.testing.assert_array_less(np.abs(merged.m2 - whole.m2), REORDER_RTOL * np.outer(sd, sd))
 
 
 # --------------------------------------------------------------------------- chunking and memory
