@@ -127,15 +127,9 @@ def _mc_backend(args: argparse.Namespace) -> Iterator[dict[str, Any]]:
     if ":" not in target:  # an address has a port, tcp://host:8786 or host:8786
         raise _UsageError(f"--dask takes {', '.join(DASK_LOCAL)} or a scheduler address such as "
                           f"tcp://host:8786, not {target!r}")
-    try:
-        from dask.distributed import Client
-    except ImportError as exc:
-        raise SymmonError("--dask ADDRESS needs the 'dask' extra: pip install 'symmon[dask]'") from exc
-    try:
-        client = Client(target, timeout=DASK_CONNECT_TIMEOUT)
-    except OSError as exc:  # includes TimeoutError
-        raise SymmonError(f"cannot reach the Dask scheduler at {target} "
-                          f"within {DASK_CONNECT_TIMEOUT} s: {exc}") from exc
+    from .transforms.montecarlo import connect_dask
+
+    client = connect_dask(target, DASK_CONNECT_TIMEOUT)  # bounds the handshake too
     try:
         settings["client"] = client
         yield settings

@@ -23,6 +23,7 @@ Y. Liu, X. R. Li, "Measure of nonlinearity for estimation", IEEE Trans. Signal P
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
@@ -45,8 +46,11 @@ from .transforms.montecarlo import (
     group_sizes,
     jackknife_se,
     leave_one_out,
+    leave_one_out_stack,
     merge_all,
     moments_of,
+    run_groups,
+    stop_point,
 )
 from .transforms.quadrature import standard_rule
 
@@ -232,33 +236,44 @@ def _nested_groups(cm, u: Gaussian, v: Gaussian, mc: MonteCarlo) -> list[tuple[S
     Each outer sample of v gets MC_INNER samples of u.  A group keeps the statistics of
     the inner means and the sum of the inner covariances; its streams are the children
     of the one ``SeedSequence(seed)`` child that the outer Monte Carlo does not use.
+    The groups run on the engine's threads (:func:`~symmon.transforms.montecarlo.run_groups`):
+    the same result for any thread count, and Ctrl-C stops them within a chunk.
     """
     G = mc.groups
     n_outer = max(2 * G, mc.n // MC_INNER)
     seeds = np.random.SeedSequence(mc.seed).spawn(G + 1)[-1].spawn(G)
     Lu, Lv = batch_sqrt(u.cov[None])[0], batch_sqrt(v.cov[None])[0]
+
+    def group(job: tuple[int, np.random.SeedSequence], stop: threading.Event) -> tuple[Stats, np.ndarray]:
+        return _nested_group(cm, u, v, Lu, Lv, *job, stop)
+
+    return run_groups(group, list(zip(group_sizes(n_outer, G), seeds)), mc.thread_count(),
+                      "nested Monte Carlo groups", mc.progress)
+
+
+def _nested_group(cm, u: Gaussian, v: Gaussian, Lu: np.ndarray, Lv: np.ndarray, n_g: int,
+                  seed: np.random.SeedSequence, stop: threading.Event | None) -> tuple[Stats, np.ndarray]:
+    """One group of :func:`_nested_groups`: n_g outer samples, in chunks."""
+    gen = group_generator(seed)
     step = max(1, 65536 // MC_INNER)
-    groups = []
-    for n_g, seed in zip(group_sizes(n_outer, G), seeds):
-        gen = group_generator(seed)
-        stats, var_sum = [], 0.0
-        for start in range(0, n_g, step):
-            k = min(step, n_g - start)
-            V = v.mean + gen.standard_normal((k, v.dim)) @ Lv.T
-            U = u.mean + gen.standard_normal((k, MC_INNER, u.dim)) @ Lu.T
-            W = np.concatenate([U, np.repeat(V[:, None, :], MC_INNER, axis=1)], axis=2)
-            Y = cm.eval_g(W.reshape(-1, W.shape[2])).reshape(k, MC_INNER, -1)
-            mean_v = Y.mean(axis=1)
-            R = Y - mean_v[:, None]
-            var_sum = var_sum + np.einsum("kmi,kmj->ij", R, R) / (MC_INNER - 1)
-            stats.append(Stats.of(mean_v))
-        groups.append((merge_all(stats), var_sum))
-    return groups
+    stats, var_sum = [], 0.0
+    for start in range(0, n_g, step):
+        stop_point(stop)
+        k = min(step, n_g - start)
+        V = v.mean + gen.standard_normal((k, v.dim)) @ Lv.T
+        U = u.mean + gen.standard_normal((k, MC_INNER, u.dim)) @ Lu.T
+        W = np.concatenate([U, np.repeat(V[:, None, :], MC_INNER, axis=1)], axis=2)
+        Y = cm.eval_g(W.reshape(-1, W.shape[2])).reshape(k, MC_INNER, -1)
+        mean_v = Y.mean(axis=1)
+        R = Y - mean_v[:, None]
+        var_sum = var_sum + np.einsum("kmi,kmj->ij", R, R) / (MC_INNER - 1)
+        stats.append(Stats.of(mean_v))
+    return merge_all(stats), var_sum
 
 
-def _sc_nested(groups: Sequence[tuple[Stats, np.ndarray]]) -> np.ndarray:
-    st = merge_all([g[0] for g in groups])
-    mean_inner_cov = sum(g[1] for g in groups) / st.n
+def _sc_nested(st: Stats, var_sum: np.ndarray) -> np.ndarray:
+    """Σ_c from the statistics of the inner means and the sum of the inner covariances."""
+    mean_inner_cov = var_sum / st.n
     # Cov of the inner sample means overstates Cov(E[g|v]) by E[Cov(g|v)]/MC_INNER.
     return st.cov - mean_inner_cov / MC_INNER
 
@@ -267,7 +282,8 @@ def _cond_cov_mc(model: Model, u: Gaussian, v: Gaussian | None, mc: MonteCarlo) 
     """Σ_c by Monte Carlo, and its value with each group left out, shape (G, n_y, n_y).
 
     The leave-one-out values let the jackknife of the MoN see the error of Σ_c as well
-    as that of the moments (group i is left out of both).
+    as that of the moments (group i is left out of both).  Each is the total with one
+    group taken out (:func:`~symmon.transforms.montecarlo.leave_one_out`): O(G) in all.
     """
     G = mc.groups
     exact = model.n_v == 0 or model.structure == "additive" or (
@@ -283,11 +299,14 @@ def _cond_cov_mc(model: Model, u: Gaussian, v: Gaussian | None, mc: MonteCarlo) 
         def sc(sp_: Stats, sg: Stats) -> np.ndarray:
             return _pi_sgam_pi(pi, moments_of(sp_, n_pi, model.n_u)[0], moments_of(sg, n_gam, model.n_v)[1])
 
-        loo = [sc(a, b) for a, b in zip(leave_one_out(gp), leave_one_out(gg))]
-        return sc(merge_all(gp), merge_all(gg)), np.array(loo)
+        tp, tg = merge_all(gp), merge_all(gg)
+        loo = [sc(a, b) for a, b in zip(leave_one_out(gp, tp), leave_one_out(gg, tg))]
+        return sc(tp, tg), np.array(loo)
     nested = _nested_groups(compiled(model), u, v, mc)
-    loo = [_sc_nested([g for j, g in enumerate(nested) if j != i]) for i in range(G)]
-    return _sc_nested(nested), np.array(loo)
+    stats = [g[0] for g in nested]
+    total, var_sum = merge_all(stats), sum(g[1] for g in nested)
+    loo = [_sc_nested(s, var_sum - g[1]) for s, g in zip(leave_one_out(stats, total), nested)]
+    return _sc_nested(total, var_sum), np.array(loo)
 
 
 # --------------------------------------------------------------------------- public API
@@ -347,11 +366,11 @@ def _mc_stderr(m: JointMoments, model: Model, weight, Sc_loo: np.ndarray) -> flo
     """Jackknife standard error of the MoN: group i is left out of the moments and of Σ_c."""
     ny, nu = model.n_y, model.n_u
     nw = model.n_u + model.n_v
-    angles = sorted(model.angle_outputs)
+    loo = leave_one_out_stack(m.info["groups"])
+    _, cyy, cyw, cww = moments_of(loo, ny, nw, sorted(model.angle_outputs))
     vals = []
-    for s, Sc in zip(leave_one_out(m.info["groups"]), Sc_loo):
-        _, cyy, cyw, cww = moments_of(s, ny, nw, angles)
-        p = mon_from_moments(cyy, cyw[:, :nu], cww[:nu, :nu], weight, Sc)
+    for i, Sc in enumerate(Sc_loo):
+        p = mon_from_moments(cyy[i], cyw[i, :, :nu], cww[i, :nu, :nu], weight, Sc)
         vals.append(np.sqrt(max(p["squared"], 0.0)))
     return float(jackknife_se(np.array(vals)))
 

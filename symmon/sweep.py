@@ -39,6 +39,7 @@ from .model import Model
 from .nonlinearity import mon_from_moments, nonlinearity
 from .propagate import propagate_many
 from .transforms import TT2, MonteCarlo, Transform
+from .transforms.montecarlo import dask_compute
 
 __all__ = ["SweepResult", "sweep_alpha", "sweep_states"]
 
@@ -155,9 +156,7 @@ def _run_points(model: Model, means: np.ndarray, covs: np.ndarray, v: Gaussian |
         raise SymmonError("a distributed sweep needs the 'dask' extra: pip install symmon[dask]") from exc
     # The model travels as sympy (it pickles); each worker compiles it once and caches it.
     tasks = [dask.delayed(_point, pure=False)(model, m, P, v, weight, t) for m, P, t in zip(means, covs, transforms)]
-    if client is not None:
-        return list(client.gather(client.compute(tasks)))
-    return list(dask.compute(*tasks, scheduler=scheduler))
+    return dask_compute(tasks, client, scheduler)  # an interrupt cancels the pending points
 
 
 def _sweep(model: Model, param: np.ndarray, means: np.ndarray, covs: np.ndarray, v: Gaussian | None,

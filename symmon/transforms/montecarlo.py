@@ -20,11 +20,13 @@ A. B. Owen, "Scrambling Sobol' and Niederreiter-Xing points", J. Complexity 14, 
 
 from __future__ import annotations
 
+import asyncio
 import os
+import threading
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, Callable, ClassVar, Sequence
+from typing import Any, Callable, ClassVar, Sequence, TypeVar
 
 import numpy as np
 
@@ -35,14 +37,30 @@ from .base import BatchMoments, Transform, batch_sqrt, wrap_angle
 from .mc_kernel import sample_kernel
 
 __all__ = ["MonteCarlo", "Stats", "merge", "merge_all", "jackknife", "jackknife_se", "leave_one_out",
-           "group_generator", "group_sizes", "moments_of"]
+           "leave_one_out_stack", "group_generator", "group_sizes", "moments_of", "run_groups", "stop_point",
+           "dask_compute", "connect_dask", "MAX_SAMPLES", "MAX_GROUPS", "MAX_CHUNK", "MAX_QMC_GROUP"]
+
+#: Most samples in a run: counts and the sums of a chunk stay exact in double precision.
+MAX_SAMPLES = 2**53
+#: Most groups: the jackknife keeps G stacks of d×d statistics (d = n_y + n_w + 2·angles) and
+#: each group costs ~0.1 ms of bookkeeping; past a few hundred groups the error bars gain
+#: little (their own relative error is ~1/√(2G)), so 10⁵ keeps memory and time on the samples.
+MAX_GROUPS = 10**5
+#: Most samples per kernel call: a thread's buffers are chunk·(2 n_w + n_y + 1)·8 bytes.
+MAX_CHUNK = 2**20
+#: Most points per group with qmc=True: SciPy's Sobol' engine draws at most 2³⁰ (30 bits).
+MAX_QMC_GROUP = 2**30
 
 
 @dataclass(frozen=True)
 class Stats:
-    """Sufficient statistics of a sample of vectors: count, mean and M2 = Σ (z − z̄)(z − z̄)ᵀ."""
+    """Sufficient statistics of a sample of vectors: count, mean and M2 = Σ (z − z̄)(z − z̄)ᵀ.
 
-    n: int
+    Or of a stack of G samples (:func:`leave_one_out_stack`): n (G,), mean (G, d),
+    m2 (G, d, d); :attr:`cov` and :func:`moments_of` work on both.
+    """
+
+    n: int | np.ndarray
     mean: np.ndarray
     m2: np.ndarray
 
@@ -58,7 +76,7 @@ class Stats:
     @property
     def cov(self) -> np.ndarray:
         """The unbiased sample covariance."""
-        return self.m2 / (self.n - 1)
+        return self.m2 / (np.asarray(self.n, dtype=float) - 1)[..., None, None]
 
 
 def merge(a: Stats, b: Stats) -> Stats:
@@ -75,18 +93,54 @@ def merge(a: Stats, b: Stats) -> Stats:
 
 
 def merge_all(stats: Sequence[Stats]) -> Stats:
-    """Merge a sequence of statistics, left to right (a fixed order: reproducible)."""
+    """Merge a sequence of statistics, left to right (a fixed order: reproducible).
+
+    O(G) merges of O(d²) each; the order fixes the rounding, so the result is the same
+    bit for bit wherever the groups ran.
+    """
     out = stats[0]
     for s in stats[1:]:
         out = merge(out, s)
     return out
 
 
-def leave_one_out(groups: Sequence[Stats]) -> list[Stats]:
-    """The merged statistics of all groups but group i, for each i."""
+def leave_one_out_stack(groups: Sequence[Stats], total: Stats | None = None) -> Stats:
+    """The merged statistics of all groups but group i, for each i, as one stack, in O(G).
+
+    Chan's merge run backwards: the total (n, x̄, M2) minus group i (nᵢ, x̄ᵢ, M2ᵢ) is
+
+        n₋ᵢ = n − nᵢ,   x̄₋ᵢ = x̄ − (nᵢ/n₋ᵢ)(x̄ᵢ − x̄),
+        M2₋ᵢ = M2 − M2ᵢ − (nᵢ n / n₋ᵢ)(x̄ᵢ − x̄)(x̄ᵢ − x̄)ᵀ,
+
+    the last term being nᵢ n₋ᵢ/n (x̄ᵢ − x̄₋ᵢ)(x̄ᵢ − x̄₋ᵢ)ᵀ with x̄ᵢ − x̄₋ᵢ = (n/n₋ᵢ)(x̄ᵢ − x̄).
+    All groups at once, as (G, d) and (G, d, d) arrays.  Group i is a 1/G share of the
+    total, so the subtraction loses no significant digits (the test compares it with
+    merging the other G − 1 groups, to 1e-10).
+
+    Parameters
+    ----------
+    groups : sequence of Stats
+    total : Stats, optional
+        ``merge_all(groups)``, if the caller has it already.
+    """
     if len(groups) < 2:
         raise SymmonError("the jackknife needs at least 2 groups")
-    return [merge_all([g for j, g in enumerate(groups) if j != i]) for i in range(len(groups))]
+    total = merge_all(groups) if total is None else total
+    n_i = np.array([g.n for g in groups], dtype=np.int64)
+    n_out = total.n - n_i
+    if np.any(n_out < 1):
+        raise SymmonError("the jackknife needs samples outside every group: all samples are in one group")
+    diff = np.stack([g.mean for g in groups]) - total.mean
+    mean_out = total.mean - diff * (n_i / n_out)[:, None]
+    m2_out = (total.m2 - np.stack([g.m2 for g in groups])
+              - (n_i * (total.n / n_out))[:, None, None] * diff[:, :, None] * diff[:, None, :])
+    return Stats(n_out, mean_out, m2_out)
+
+
+def leave_one_out(groups: Sequence[Stats], total: Stats | None = None) -> list[Stats]:
+    """The merged statistics of all groups but group i, for each i (see :func:`leave_one_out_stack`)."""
+    s = leave_one_out_stack(groups, total)
+    return [Stats(int(n), mu, m2) for n, mu, m2 in zip(s.n, s.mean, s.m2)]
 
 
 def jackknife_se(loo: np.ndarray) -> np.ndarray:
@@ -98,9 +152,10 @@ def jackknife_se(loo: np.ndarray) -> np.ndarray:
     return np.sqrt((G - 1) / G * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0))
 
 
-def jackknife(groups: Sequence[Stats], fn: Callable[[Stats], np.ndarray]) -> np.ndarray:
-    """Delete-one-group jackknife standard error of ``fn(merged statistics)``."""
-    return jackknife_se(np.array([np.asarray(fn(s)) for s in leave_one_out(groups)]))
+def jackknife(groups: Sequence[Stats], fn: Callable[[Stats], np.ndarray], total: Stats | None = None) -> np.ndarray:
+    """Delete-one-group jackknife standard error of ``fn(merged statistics)``
+    (``total``: ``merge_all(groups)``, if the caller has it already)."""
+    return jackknife_se(np.array([np.asarray(fn(s)) for s in leave_one_out(groups, total)]))
 
 
 def group_generator(seed: np.random.SeedSequence) -> np.random.Generator:
@@ -112,6 +167,44 @@ def group_generator(seed: np.random.SeedSequence) -> np.random.Generator:
 def group_sizes(n: int, G: int) -> list[int]:
     """n split over G groups as evenly as possible (the first n mod G get one more)."""
     return [n // G + (1 if g < n % G else 0) for g in range(G)]
+
+
+J = TypeVar("J")
+R = TypeVar("R")
+
+
+class _Stopped(Exception):
+    """A group saw the stop event: the run was interrupted, or another group failed."""
+
+
+def stop_point(stop: threading.Event | None) -> None:
+    """End the calling group if the run is being stopped (called once per chunk)."""
+    if stop is not None and stop.is_set():
+        raise _Stopped
+
+
+def run_groups(fn: Callable[[J, threading.Event], R], jobs: Sequence[J], workers: int,
+               desc: str = "Monte Carlo groups", progress: bool = False) -> list[R]:
+    """``fn(job, stop)`` for each job on ``workers`` threads; the results in job order.
+
+    ``fn`` calls :func:`stop_point` once per chunk.  When the calling thread is
+    interrupted (Ctrl-C: KeyboardInterrupt) or a group raises, the stop event is set:
+    the running groups end at their next chunk, the queued ones never start, and the
+    exception propagates, within about one chunk's time instead of the remaining groups'.
+    """
+    stop = threading.Event()
+    if workers == 1:
+        return [fn(j, stop) for j in progress_bar(jobs, desc, progress)]
+    pool = ThreadPoolExecutor(workers)
+    try:
+        futures = [pool.submit(fn, j, stop) for j in jobs]
+        return [f.result() for f in progress_bar(futures, desc, progress, total=len(futures))]
+    except BaseException:
+        stop.set()
+        raise
+    finally:
+        # Drop the queued groups; the running ones see `stop` within a chunk.
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 @dataclass(frozen=True)
@@ -128,7 +221,8 @@ class _Job:
 
 def moments_of(s: Stats, ny: int, nw: int, angles: Sequence[int] = ()
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """E y, Cov y, Cov(y, w) and Cov w from the statistics of z = [y; w; sin y_A; cos y_A].
+    """E y, Cov y, Cov(y, w) and Cov w from the statistics of z = [y; w; sin y_A; cos y_A]
+    (of one sample, or of each of a stack: then every result has a leading axis G).
 
     An angle output's mean is the circular mean atan2(mean sin y, mean cos y), wrapped to
     (−π, π], as in the UT and Gauss–Hermite rules, and its variance is taken about that
@@ -137,17 +231,17 @@ def moments_of(s: Stats, ny: int, nw: int, angles: Sequence[int] = ()
     (−E e³/6 for a residual e), so the correction is of sixth order.
     """
     C = s.cov
-    mean = s.mean[:ny].copy()
-    cov = C[:ny, :ny].copy()
+    mean = s.mean[..., :ny].copy()
+    cov = C[..., :ny, :ny].copy()
     A = list(angles)
     if A:
         k, o = len(A), ny + nw
-        circ = wrap_angle(np.arctan2(s.mean[o: o + k], s.mean[o + k: o + 2 * k]))
-        delta = np.zeros(ny)
-        delta[A] = wrap_angle(mean[A] - circ)
-        cov += np.outer(delta, delta)
-        mean[A] = circ
-    return mean, cov, C[:ny, ny: ny + nw], C[ny: ny + nw, ny: ny + nw]
+        circ = wrap_angle(np.arctan2(s.mean[..., o: o + k], s.mean[..., o + k: o + 2 * k]))
+        delta = np.zeros_like(mean)
+        delta[..., A] = wrap_angle(mean[..., A] - circ)
+        cov += delta[..., :, None] * delta[..., None, :]
+        mean[..., A] = circ
+    return mean, cov, C[..., :ny, ny: ny + nw], C[..., ny: ny + nw, ny: ny + nw]
 
 
 def _raw_stats(S: np.ndarray) -> Stats:
@@ -172,14 +266,15 @@ def _sampling_error(A: np.ndarray, shift: np.ndarray, ny: int, nw: int, m: int, 
     )
 
 
-def _run_group(cm: CompiledModel, job: _Job) -> Stats:
+def _run_group(cm: CompiledModel, job: _Job, stop: threading.Event | None = None) -> Stats:
     """One group: draw, evaluate with the compiled kernel, accumulate (count, mean, M2).
 
     Each chunk is centred on a shift s: the first chunk on its first sample, the later
     ones on the first chunk's mean.  A large offset (|E y| ≫ std) would otherwise cost its
     digits, and with the centred rows the raw cross-products AᵀA of a chunk lose nothing
     in M2 = Σ zzᵀ − n z̄z̄ᵀ (|z̄| ≈ σ·√(2/chunk): σ/64 at the default chunk).
-    Chunks are merged with Chan's formula.
+    Chunks are merged with Chan's formula.  ``stop`` (see :func:`run_groups`) is checked
+    before each chunk.
     """
     d = job.mean.shape[0]
     ny = cm.n_y
@@ -192,13 +287,15 @@ def _run_group(cm: CompiledModel, job: _Job) -> Stats:
         engine = qmc.Sobol(d, scramble=True, seed=np.random.default_rng(job.seed))
     else:
         gen = group_generator(job.seed)
-    Zbuf = np.empty((job.chunk, d))
-    Abuf = np.empty((job.chunk, kernel.n_out))
+    rows = min(job.chunk, job.n)  # a group smaller than a chunk needs no more
+    Zbuf = np.empty((rows, d))
+    Abuf = np.empty((rows, kernel.n_out))
     shift = np.zeros(kernel.n_z)
     p = kernel.params(job.mean, job.L, shift, job.ref)
     acc: Stats | None = None
     done = 0
     while done < job.n:
+        stop_point(stop)
         m = min(job.chunk, job.n - done)
         Z, A = Zbuf[:m], Abuf[:m]
         if job.qmc:
@@ -236,9 +333,76 @@ def _run_group(cm: CompiledModel, job: _Job) -> Stats:
     return Stats(acc.n, acc.mean + shift, acc.m2)
 
 
+def _is_int(v: Any) -> bool:
+    """An integer, numpy's included, and not a bool."""
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
 def _run_group_remote(outputs, symbols, job: _Job) -> Stats:
     # Workers compile the model themselves: CasADi functions are not shipped.
     return _run_group(compile_model(outputs, symbols), job)
+
+
+def dask_compute(tasks: Sequence[Any], client: Any = None, scheduler: str | None = None) -> list:
+    """The results of Dask delayed ``tasks``, in order, on ``client`` or else on the local
+    ``scheduler``.  On a client, an interrupt (or any error) cancels the tasks still
+    pending, so the cluster does not go on with a run nobody waits for."""
+    if client is not None:
+        futures = client.compute(list(tasks))
+        try:
+            return list(client.gather(futures))
+        except BaseException:
+            client.cancel(futures)
+            raise
+    import dask
+
+    return list(dask.compute(*tasks, scheduler=scheduler))
+
+
+def connect_dask(address: str, timeout: float = 10.0) -> Any:
+    """A ``dask.distributed.Client`` to the scheduler at ``address``, or a clear error
+    within about ``timeout`` seconds.
+
+    ``Client(address, timeout=...)`` bounds the TCP connection but not distributed's
+    handshake after it: a server that accepts the connection and never answers (a wrong
+    port, a hung scheduler) would hold it forever.  So the handshake is tried first, in
+    its own event loop on a helper thread: ``timeout`` for the connection (as a closed
+    port gets), then as long again for the answer.
+
+    Raises
+    ------
+    SymmonError
+        The 'dask' extra is missing, or no scheduler answered at ``address`` in time.
+    """
+    try:
+        from distributed import Client
+        from distributed.comm import connect
+        from distributed.security import Security
+    except ImportError as exc:
+        raise SymmonError(f"a Dask scheduler address ({address}) needs the 'dask' extra: "
+                          "pip install 'symmon[dask]'") from exc
+
+    async def handshake() -> None:
+        comm = await connect(address, timeout=timeout, **Security().get_connection_args("client"))
+        await comm.close()
+
+    def probe() -> None:
+        # A refused or unresolvable address fails inside connect() after `timeout`, first.
+        asyncio.run(asyncio.wait_for(handshake(), 2 * timeout))
+
+    reach = f"cannot reach the Dask scheduler at {address} within {timeout:g} s"
+    with ThreadPoolExecutor(1) as pool:  # a thread: the caller may be inside an event loop
+        try:
+            pool.submit(probe).result()
+        except asyncio.TimeoutError as exc:
+            raise SymmonError(f"{reach}: the connection was accepted but nothing answered in "
+                              f"another {timeout:g} s (is a Dask scheduler listening there?)") from exc
+        except (OSError, ValueError) as exc:  # refused, unresolvable, malformed address
+            raise SymmonError(f"{reach}: {exc}") from exc
+    try:
+        return Client(address, timeout=timeout)
+    except OSError as exc:
+        raise SymmonError(f"{reach}: {exc}") from exc
 
 
 @dataclass(frozen=True)
@@ -248,16 +412,20 @@ class MonteCarlo(Transform):
     Parameters
     ----------
     n : int
-        Number of samples (with ``qmc=True``, rounded to ``groups`` times a power of 2).
-    seed : int
-        Seed of ``numpy.random.SeedSequence``; the same seed gives the same result
-        whatever the chunk size, the number of threads, or a Dask cluster.
+        Number of samples, 2·groups to 2⁵³ (with ``qmc=True``, rounded to ``groups`` times
+        a power of 2, at most 2³⁰ per group).
+    seed : int or None
+        Seed of ``numpy.random.SeedSequence``, a non-negative integer; the same seed gives
+        the same result whatever the chunk size, the number of threads, or a Dask
+        cluster.  ``None`` draws a fresh seed from the OS, kept in ``seed`` (and shown by
+        ``repr``) so the run can be repeated.
     qmc : bool
         Scrambled Sobol' points through the inverse normal CDF instead of pseudo-random.
     groups : int
-        Independent shards; the jackknife over them gives the error bars.
+        Independent shards, 2 to 10⁵; the jackknife over them gives the error bars.
     chunk : int
-        Samples per compiled kernel call (memory per thread ~ chunk · (2 n_w + n_y + 1) · 8 bytes).
+        Samples per compiled kernel call, at most 2²⁰ (memory per thread
+        ~ chunk · (2 n_w + n_y + 1) · 8 bytes).
     workers : int or None
         Threads (``None``: the number of CPUs, at most ``groups``).
     client : dask.distributed.Client, optional
@@ -269,7 +437,7 @@ class MonteCarlo(Transform):
     """
 
     n: int = 100_000
-    seed: int = 0
+    seed: int | None = 0
     qmc: bool = False
     groups: int = 16
     chunk: int = CHUNK
@@ -282,16 +450,33 @@ class MonteCarlo(Transform):
     name: ClassVar[str] = "mc"
 
     def __post_init__(self) -> None:
-        for k in ("n", "groups", "chunk"):
+        limits = (
+            ("n", MAX_SAMPLES, "2**53, where sample counts stop being exact in double precision"),
+            ("groups", MAX_GROUPS, "10**5: more groups only add bookkeeping, not better error bars"),
+            ("chunk", MAX_CHUNK, "2**20 samples per kernel call (a thread's buffers grow with it)"),
+        )
+        for k, most, why in limits:
             v = getattr(self, k)
-            if not isinstance(v, (int, np.integer)) or v < 1:
+            if not _is_int(v) or v < 1:
                 raise SymmonError(f"MonteCarlo {k} must be a positive integer, got {v!r}")
+            if v > most:
+                raise SymmonError(f"MonteCarlo {k} = {v} is above the limit {why}")
         if self.groups < 2:
             raise SymmonError("MonteCarlo needs groups >= 2 for its error bars")
         if self.n < 2 * self.groups:
             raise SymmonError(f"MonteCarlo n = {self.n} is too small for {self.groups} groups (need >= {2 * self.groups})")
-        if self.workers is not None and self.workers < 1:
-            raise SymmonError(f"workers must be >= 1, got {self.workers}")
+        if self.qmc and self.sizes()[0] > MAX_QMC_GROUP:
+            raise SymmonError(f"MonteCarlo with qmc=True draws at most 2**30 points per group, "
+                              f"but n = {self.n} over {self.groups} groups needs {self.sizes()[0]}: use more groups")
+        if self.seed is None:
+            # Fresh entropy, kept: the run can be repeated with the seed that repr shows.
+            object.__setattr__(self, "seed", int(np.random.SeedSequence().entropy))
+        elif not _is_int(self.seed) or self.seed < 0:
+            raise SymmonError(f"MonteCarlo seed must be a non-negative integer or None, got {self.seed!r}")
+        else:
+            object.__setattr__(self, "seed", int(self.seed))  # numpy integers too: one repr, one hash
+        if self.workers is not None and (not _is_int(self.workers) or self.workers < 1):
+            raise SymmonError(f"workers must be >= 1, got {self.workers!r}")
 
     def sizes(self) -> list[int]:
         """Samples per group (QMC: a power of two each)."""
@@ -316,12 +501,12 @@ class MonteCarlo(Transform):
         ]
         if self.client is not None or self.scheduler is not None:
             return self._dask(cm, jobs)
-        workers = self.workers or min(os.cpu_count() or 1, len(jobs))
-        if workers == 1:
-            return [_run_group(cm, j) for j in progress_bar(jobs, "Monte Carlo groups", self.progress)]
-        with ThreadPoolExecutor(workers) as pool:
-            done = pool.map(lambda j: _run_group(cm, j), jobs)
-            return list(progress_bar(done, "Monte Carlo groups", self.progress, total=len(jobs)))
+        return run_groups(lambda j, stop: _run_group(cm, j, stop), jobs, self.thread_count(),
+                          progress=self.progress)
+
+    def thread_count(self) -> int:
+        """Threads for the groups: ``workers``, or the number of CPUs, at most ``groups``."""
+        return self.workers or min(os.cpu_count() or 1, int(self.groups))
 
     def _dask(self, cm: CompiledModel, jobs: list[_Job]) -> list[Stats]:
         try:
@@ -329,9 +514,7 @@ class MonteCarlo(Transform):
         except ImportError as exc:  # pragma: no cover - depends on the environment
             raise SymmonError("the Dask path needs the 'dask' extra: pip install symmon[dask]") from exc
         tasks = [dask.delayed(_run_group_remote)(cm.source_exprs, cm.symbols, j) for j in jobs]
-        if self.client is not None:
-            return list(self.client.gather(self.client.compute(tasks)))
-        return list(dask.compute(*tasks, scheduler=self.scheduler))
+        return dask_compute(tasks, self.client, self.scheduler)
 
     def batch(self, cm, means, covs, angles=frozenset()):
         outs = [self._single(cm, m, P, angles) for m, P in zip(means, covs)]
@@ -350,13 +533,12 @@ class MonteCarlo(Transform):
         ny, nw, A = cm.n_y, cm.n_w, sorted(angles)
         mu, Cyy, Cyw, Cww = moments_of(total, ny, nw, A)
 
-        def parts(s: Stats) -> np.ndarray:
-            m, c, x, _ = moments_of(s, ny, nw, A)
-            # An angle's mean near ±π must not jump by 2π between the left-out groups.
-            m[A] = wrap_angle(m[A] - mu[A])
-            return np.concatenate([m, c.ravel(), x.ravel()])
-
-        se = jackknife(groups, parts)
+        # The jackknife of (E y, Cov y, Cov(y, w)), all left-out groups at once.
+        m, c, x, _ = moments_of(leave_one_out_stack(groups, total), ny, nw, A)
+        # An angle's mean near ±π must not jump by 2π between the left-out groups.
+        m[:, A] = wrap_angle(m[:, A] - mu[A])
+        G = len(groups)
+        se = jackknife_se(np.concatenate([m, c.reshape(G, -1), x.reshape(G, -1)], axis=1))
         stderr = {
             "mean": se[:ny],
             "cov": se[ny: ny + ny * ny].reshape(ny, ny),
