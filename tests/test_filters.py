@@ -377,3 +377,72 @@ def test_ekf_at_a_non_differentiable_point_raises():
 def test_old_name_is_an_alias():
     assert est.NonlinearKalmanFilter is sm.NonlinearKalmanFilter
     assert est.NonlinearKalmanResult is NonlinearKalmanResult
+
+
+# --------------------------------------------------------------------------- adaptive
+def linear_models():
+    """Constant velocity observed in position: f and h linear."""
+    px, py, vx, vy = sp.symbols("px py vx vy", real=True)
+    X = [px, py, vx, vy]
+    return (sm.Model(X, list(sp.Matrix(F_CV) * sp.Matrix(X)), name="cv_lin"),
+            sm.Model(X, [px, py], name="pos_lin"))
+
+
+def test_adaptive_on_a_linear_model_picks_the_ekf_at_every_step(bank):
+    f, h = linear_models()
+    X, _ = bank
+    rng = np.random.default_rng(3)
+    ys = X[..., :2] + rng.standard_normal(X[..., :2].shape) * 0.5
+    R = 0.25 * np.eye(2)
+    res = sm.NonlinearKalmanFilter(f, h, Q_CV, R, sm.Adaptive(tol=1e-6)).filter(ys, X0)
+    ekf = sm.NonlinearKalmanFilter(f, h, Q_CV, R, sm.TT1()).filter(ys, X0)
+    assert res.choices.shape == ys.shape[:2]
+    assert set(res.choices.ravel()) == {"EKF"}
+    # The same compiled EKF step on the same numbers, one step per call.
+    assert rel_err(res.x, ekf.x) < SAME_CODE_RTOL and rel_err(res.P, ekf.P) < SAME_CODE_RTOL
+
+
+def test_adaptive_on_a_strongly_nonlinear_prior_leaves_the_taylor_filters():
+    # Range and bearing of a target 3 m away with a 10 m position uncertainty: the range
+    # and bearing are far from linear over the prior.
+    f, h = cv_models()
+    x0 = sm.Gaussian([3.0, 0.0, 0.0, 0.0], np.diag([100.0, 100.0, 0.1, 0.1]))
+    res = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, sm.Adaptive(tol=1e-2)).filter([[3.1, 0.05]], x0)
+    assert res.choices.shape == (1,)
+    assert res.choices[0] not in ("EKF", "EKF2")
+
+
+def test_adaptive_bank_decides_per_run_as_single_runs(bank):
+    # A near and a far start: the runs of a bank decide independently, each on its own prior.
+    f, h = cv_models()
+    _, ys = bank
+    means = np.array([[3.0, 1.0, -0.2, 0.1], [200.0, 50.0, -1.0, 0.5]])
+    P0 = np.diag([4.0, 4.0, 0.1, 0.1])
+    kf = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, sm.Adaptive(tol=1e-2))
+    both = kf.filter(ys[:2], means, P0)
+    assert both.choices.shape == (2, ys.shape[1])
+    for r in range(2):
+        one = kf.filter(ys[r], means[r], P0)
+        assert one.choices.shape == (ys.shape[1],)
+        np.testing.assert_array_equal(both.choices[r], one.choices)
+        assert rel_err(both.x[r], one.x) < SAME_CODE_RTOL
+    assert set(both.choices[0]) != set(both.choices[1])
+    assert "Adaptive(tol=0.01" in both.method
+
+
+def test_bank_takes_one_initial_covariance_per_run(bank):
+    f, h = cv_models()
+    _, ys = bank
+    P0s = np.stack([np.diag([1.0, 1.0, 0.1, 0.1]), np.diag([9.0, 4.0, 0.2, 0.3])])
+    kf = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, sm.UT.cubature())
+    both = kf.filter(ys[:2], X0.mean, P0s)
+    for r in range(2):
+        assert rel_err(both.P[r], kf.filter(ys[r], X0.mean, P0s[r]).P) < SAME_CODE_RTOL
+
+
+@pytest.mark.parametrize("kwargs, match", [({"tol": 0.0}, "tol"), ({"tol": True}, "tol"),
+                                           ({"candidates": ()}, "empty"),
+                                           ({"candidates": (sm.MonteCarlo(1000),)}, "TT1, TT2, UT")])
+def test_adaptive_bad_options(kwargs, match):
+    with pytest.raises(SymmonError, match=match):
+        sm.Adaptive(**kwargs)
