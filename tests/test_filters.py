@@ -446,3 +446,104 @@ def test_bank_takes_one_initial_covariance_per_run(bank):
 def test_adaptive_bad_options(kwargs, match):
     with pytest.raises(SymmonError, match=match):
         sm.Adaptive(**kwargs)
+
+
+# --------------------------------------------------------------------------- scenario files, symmon filter
+from pathlib import Path  # noqa: E402
+
+from symmon import cli  # noqa: E402
+from symmon.filterfile import load_filter_file, run_bank, simulate as simulate_spec  # noqa: E402
+from symmon.modelfile import ModelFileError  # noqa: E402
+
+EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "rb_close.toml"
+SCENARIO = """
+name = "lin"
+states = ["p", "v"]
+dynamics = ["p + T*v", "v"]
+measurements = ["p"]
+steps = 30
+[params]
+T = 0.5
+[Q]
+cov = [["0.01*T**3/3", "0.01*T**2/2"], ["0.01*T**2/2", "0.01*T"]]
+[R]
+std = [0.3]
+[x0]
+mean = [0, 1]
+std = [1, 0.5]
+"""
+
+
+def test_scenario_file_is_read_into_models_and_covariances(tmp_path):
+    path = tmp_path / "lin.toml"
+    path.write_text(SCENARIO)
+    spec = load_filter_file(path)
+    p, v = spec.f.inputs
+    assert spec.f.outputs == (p + 0.5 * v, v) and spec.h.outputs == (p,)
+    np.testing.assert_allclose(spec.Q, 0.01 * np.array([[0.5**3 / 3, 0.5**2 / 2], [0.5**2 / 2, 0.5]]), rtol=1e-15)
+    assert spec.R.tolist() == [[0.09]] and spec.steps == 30
+    assert spec.x0 == sm.Gaussian([0.0, 1.0], np.diag([1.0, 0.25]))
+    rb = load_filter_file(EXAMPLE)
+    assert rb.h.angle_outputs == frozenset({1})
+
+
+def test_simulated_linear_bank_is_consistent(tmp_path):
+    """The scenario's simulation and a linear Kalman filter: mean NEES n and NIS n_y within
+    5 standard errors (the run averages are independent, ~χ²(n)/n per step)."""
+    path = tmp_path / "lin.toml"
+    path.write_text(SCENARIO)
+    spec = load_filter_file(path)
+    runs = 200
+    xs, ys = simulate_spec(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, runs, seed=4)
+    (row,) = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, ["ekf"])
+    nees, nis = row.result.nees(xs), row.result.nis()
+    for stat, d in ((nees, 2), (nis, 1)):
+        per_run = stat.mean(axis=1)  # independent across runs
+        assert abs(per_run.mean() - d) < 5 * per_run.std(ddof=1) / np.sqrt(runs)
+    np.testing.assert_allclose(row.rmse, np.sqrt(np.mean((xs - row.result.x) ** 2, axis=0)), rtol=1e-12)
+
+
+@pytest.mark.parametrize("edit, match", [
+    (("steps = 30", "steps = 0"), "steps"),
+    (('dynamics = ["p + T*v", "v"]', 'dynamics = ["p + T*v"]'), "one expression per state"),
+    (('measurements = ["p"]', 'measurements = ["__import__(1)"]'), "measurements"),
+    (("[R]\nstd = [0.3]", "[R]\nmean = [0]\nstd = [0.3]"), "not a mean"),
+    (('name = "lin"', 'name = "lin"\nangles = [3]'), "angles"),
+])
+def test_bad_scenario_files_name_the_fault(tmp_path, edit, match):
+    path = tmp_path / "bad.toml"
+    path.write_text(SCENARIO.replace(*edit))
+    with pytest.raises(ModelFileError, match=match):
+        load_filter_file(path)
+
+
+def test_cli_filter_prints_consistency_and_writes_the_plot(capsys, tmp_path):
+    png = tmp_path / "nees.png"
+    code = cli.main(["filter", str(EXAMPLE), "--runs", "20", "--filters", "ekf,ukf,adaptive", "--plot", str(png)])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "ANEES" in out and "ekf" in out and "adaptive" in out and f"wrote {png}" in out
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_cli_filter_json_equals_the_api(capsys):
+    import json
+
+    assert cli.main(["filter", str(EXAMPLE), "--runs", "10", "--seed", "2", "--filters", "ukf", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    spec = load_filter_file(EXAMPLE)
+    xs, ys = simulate_spec(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, 10, seed=2)
+    res = sm.NonlinearKalmanFilter(spec.f, spec.h, spec.Q, spec.R, sm.UT.ut1()).filter(ys, spec.x0)
+    (row,) = out["filters"]
+    np.testing.assert_allclose(row["anees"], res.anees(xs).value, rtol=1e-12)
+    np.testing.assert_allclose(row["anis"], res.anis().value, rtol=1e-12)
+    assert out["runs"] == 10 and out["steps"] == spec.steps
+
+
+@pytest.mark.parametrize("argv, match", [(["--filters", "ekf,foo"], "must be distinct names"),
+                                         (["--runs", "0"], "positive integer"),
+                                         (["--tol", "1.5"], "number in \\(0, 1\\)")])
+def test_cli_filter_bad_options_are_usage_errors(capsys, argv, match):
+    assert cli.main(["filter", str(EXAMPLE), *argv]) == 2
+    assert __import__("re").search(match, capsys.readouterr().err)
