@@ -28,7 +28,8 @@ def rows(path):
 
 def test_writes_the_figures_and_tables(outdir):
     names = sorted(p.name for p in outdir.iterdir())
-    assert names == ["tracking_bot.png", "tracking_rb.png", "tracking_steps.csv", "tracking_summary.csv"]
+    assert names == ["tracking_bot.png", "tracking_events.csv", "tracking_rb.png", "tracking_steps.csv",
+                     "tracking_summary.csv"]
     for png in ("tracking_bot.png", "tracking_rb.png"):
         assert (outdir / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -76,3 +77,10 @@ def test_legs_of_the_observer_shift_truth_and_estimates_alike():
 def test_bad_runs():
     with pytest.raises(SymmonError, match="runs"):
         tracking.run("unused", runs=1)
+
+
+def test_event_table_rows_are_ekf_failures(outdir):
+    for r in rows(outdir / "tracking_events.csv"):
+        assert float(r["ekf_nees"]) > tracking.EVENT_NEES
+        assert 0.0 <= float(r["mon_k"]) <= 1.0 and 0.0 <= float(r["mon_k_quantile"]) <= 1.0
+        assert r["adaptive_choice"] in {"EKF", "EKF2", "CKF", "GHKF(order=3)"}

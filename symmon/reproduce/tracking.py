@@ -21,8 +21,12 @@ prior N(x̂_{k|k−1}, P_{k|k−1}) and e ~ N(0, R), over the first :data:`MON_R
 
 Files written to ``outdir``: ``tracking_bot.png``, ``tracking_rb.png`` (ANEES, ANIS,
 position RMSE, MoN and the adaptive filter's choices on one time axis),
-``tracking_summary.csv`` (one row per scenario and filter) and ``tracking_steps.csv``
-(one row per scenario and step).
+``tracking_summary.csv`` (one row per scenario and filter), ``tracking_steps.csv``
+(one row per scenario and step) and ``tracking_events.csv``: each run whose EKF NEES
+exceeds :data:`EVENT_NEES`, with the first such step, that run's MoN there and two steps
+before, where that MoN lies among the per-run MoN values of the first :data:`MON_RUNS`
+runs at all steps (its quantile), the adaptive filter's choice and NEES there, and the
+true range.
 
 NEES and NIS are averaged over the runs at each step and compared with their two-sided
 95 % χ² intervals (Bar-Shalom, Li & Kirubarajan 2001, §5.4.2).
@@ -58,6 +62,9 @@ TOL = 1e-2
 MON_RUNS = 100
 #: Confidence of the χ² intervals.
 CONFIDENCE = 0.95
+#: A run "loses consistency" at the first step where its EKF NEES exceeds this (the 95 %
+#: point of χ²(4) is 9.5; 30 is beyond the 99.999 % point, 27.9).
+EVENT_NEES = 30.0
 
 
 @dataclass(frozen=True)
@@ -193,7 +200,28 @@ def study(sc: Scenario, runs: int, seed: int, progress: bool = True) -> dict[str
     if ekf is not None:
         out["mon"] = mon_along(sc, ekf["result"], m, noisy=True)
         out["mon_clean"] = mon_along(sc, ekf["result"], m, noisy=False)
+        out["events"] = _events(sc, ekf["result"], xs, out["filters"].get("adaptive"), out["mon"])
     return out
+
+
+def _events(sc: Scenario, ekf: NonlinearKalmanResult, xs: np.ndarray, adaptive: dict | None,
+            mon: np.ndarray) -> list[list]:
+    """Each run whose EKF NEES exceeds :data:`EVENT_NEES`: the first such step, the MoN of
+    that run at its EKF prior there and two steps before, the share of the per-run MoN
+    values ``mon`` (all runs and steps) below it, and the adaptive filter's choice."""
+    nees = ekf.nees(xs)
+    v = Gaussian(np.zeros(sc.h.n_y), sc.R)
+    rows = []
+    for r in np.flatnonzero((nees > EVENT_NEES).any(axis=1)):
+        k = int(np.argmax(nees[r] > EVENT_NEES))
+        mons = [nonlinearity(sc.h_noisy, Gaussian(ekf.x_pred[r, j], ekf.P_pred[r, j]), v, "full").value
+                if j >= 0 else float("nan") for j in (k - 2, k - 1, k)]
+        choice = "" if adaptive is None else str(adaptive["result"].choices[r, k])
+        ad_nees = float("nan") if adaptive is None else float(adaptive["result"].nees(xs)[r, k])
+        rng = float(np.hypot(*xs[r, k, :2]))
+        rows.append([sc.name, int(r), k + 1, float(nees[r, k]), *mons, float(np.mean(mon < mons[-1])),
+                     choice, ad_nees, rng])
+    return rows
 
 
 def _plot(sc: Scenario, st: dict[str, Any], runs: int, path: Path) -> Path:
@@ -266,10 +294,11 @@ def run(outdir: Path, runs: int = 500, seed: int = 0, progress: bool = True) -> 
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     seeds = np.random.SeedSequence(seed).spawn(2)
-    summary, steps, figures = [], [], []
+    summary, steps, figures, events = [], [], [], []
     for sc, ss in zip(scenarios(), seeds):
         st = study(sc, runs, int(ss.generate_state(1)[0]), progress)
         figures.append(_plot(sc, st, runs, outdir / f"tracking_{sc.name}.png"))
+        events += st.get("events", [])
         for name, d in st["filters"].items():
             a, b, res = d["anees"], d["anis"], d["result"]
             choices = "" if res.choices is None else " ".join(
@@ -298,4 +327,7 @@ def run(outdir: Path, runs: int = 500, seed: int = 0, progress: bool = True) -> 
     step_header = ["scenario", "k"] + [f"{n}_{s}" for n in names for s in ("anees", "anis", "rmse")]
     step_header += ["mon_median", "mon_clean_median", "adaptive_share_not_ekf"]
     files.append(write_csv(outdir / "tracking_steps.csv", step_header, [r for _, r in steps]))
+    files.append(write_csv(outdir / "tracking_events.csv",
+                           ["scenario", "run", "k", "ekf_nees", "mon_k_minus_2", "mon_k_minus_1", "mon_k",
+                            "mon_k_quantile", "adaptive_choice", "adaptive_nees", "true_range"], events))
     return figures + files
