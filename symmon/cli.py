@@ -421,6 +421,8 @@ def cmd_filter(args: argparse.Namespace) -> int:
     """``symmon filter``: a bank of runs of each filter on a scenario; ANEES, ANIS, RMSE."""
     from .filterfile import load_filter_file, run_bank, simulate
 
+    if args.seed < 0:
+        raise _UsageError(f"--seed must be a non-negative integer, got {args.seed}")
     spec = load_filter_file(args.file)
     xs, ys = simulate(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
     rows = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, args.filters, args.tol, args.confidence)

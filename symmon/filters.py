@@ -493,9 +493,8 @@ class Adaptive:
       mean ½ tr(H_i P) and the covariance ½ tr(H_i P H_j P) of the TT2 MoN): no
       quadrature at all when the model is nearly linear over the prior;
     - the other candidates' errors by their distance to ``reference`` (Gauss–Hermite of
-      order 5), computed only for the runs where TT1 failed; ``reference`` is the
-      two-order error estimate of the lower orders (GH3 against GH5, cf.
-      :func:`symmon.quadrature_error`).
+      order 5), computed only for the runs where TT1 failed; for GH3 this is its
+      two-order error estimate (GH3 against GH5, cf. :func:`symmon.quadrature_error`).
 
     When no candidate is within ``tol``, the most expensive one is used.  The step runs
     the compiled filter step (both updates) of the more expensive of the two choices, and
@@ -565,23 +564,19 @@ def _decide(model: Model, m: np.ndarray, C: np.ndarray, add: np.ndarray | None, 
 
     ``add`` is the additive noise covariance (added to Cov g), None with noise symbols.
     """
-    from .propagate import compiled as _cm
-
-    cm = _cm(model)
-    R = m.shape[0]
+    cm = compiled(model)
     plus = (lambda c: c) if add is None else (lambda c: c + add)
     t1 = TT1().batch(cm, m, C, angles)
-    t2 = TT2().batch(cm, m, C, angles)
     Aw = _whiteners(C)
-    choice = np.full(R, len(order) - 1)
-    mean, cov = np.empty_like(t1.mean), np.empty_like(t1.cov)
-    open_ = np.ones(R, dtype=bool)
-    for i, t in enumerate(order):
-        if isinstance(t, TT1):
-            ok = _distance(t1, t2, _whiteners(plus(t2.cov)), Aw, angles) <= tol
-            choice[ok & open_] = i
-            mean[ok & open_], cov[ok & open_] = t1.mean[ok & open_], plus(t1.cov)[ok & open_]
-            open_ &= ~ok
+    choice = np.full(m.shape[0], len(order) - 1)
+    mean, cov = t1.mean.copy(), plus(t1.cov)  # overwritten unless TT1 is the choice or the fallback
+    open_ = np.ones(m.shape[0], dtype=bool)
+    i1 = next((i for i, t in enumerate(order) if isinstance(t, TT1)), None)
+    if i1 is not None:  # TT1 is the cheapest: its closed-form test comes first
+        t2 = TT2().batch(cm, m, C, angles)
+        ok = _distance(t1, t2, _whiteners(plus(t2.cov)), Aw, angles) <= tol
+        choice[ok] = i1
+        open_ = ~ok
     rest = np.flatnonzero(open_)
     if rest.size:
         ms, Cs, Aws = m[rest], C[rest], Aw[rest]

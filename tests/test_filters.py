@@ -543,7 +543,24 @@ def test_cli_filter_json_equals_the_api(capsys):
 
 @pytest.mark.parametrize("argv, match", [(["--filters", "ekf,foo"], "must be distinct names"),
                                          (["--runs", "0"], "positive integer"),
-                                         (["--tol", "1.5"], "number in \\(0, 1\\)")])
+                                         (["--tol", "1.5"], "number in \\(0, 1\\)"),
+                                         (["--seed", "-1"], "non-negative")])
 def test_cli_filter_bad_options_are_usage_errors(capsys, argv, match):
     assert cli.main(["filter", str(EXAMPLE), *argv]) == 2
     assert __import__("re").search(match, capsys.readouterr().err)
+
+
+def test_adaptive_distance_is_the_unitless_error_of_advise():
+    """The batched distance of the adaptive rule equals sm.advise's moment_error."""
+    from symmon.advise import moment_error
+    from symmon.filters import _distance, _whiteners
+    from symmon.propagate import compiled
+
+    _, h = cv_models()
+    u = sm.Gaussian([3.0, 1.0, -0.5, 0.2], np.diag([4.0, 9.0, 0.1, 0.2]) + 0.5)
+    a, b = sm.propagate(h, u, None, sm.UT.cubature()), sm.propagate(h, u, None, sm.GaussHermite(5))
+    cm, angles = compiled(h), frozenset(h.angle_outputs)
+    ba = sm.UT.cubature().batch(cm, u.mean[None], u.cov[None], angles)
+    bb = sm.GaussHermite(5).batch(cm, u.mean[None], u.cov[None], angles)
+    d = _distance(ba, bb, _whiteners(bb.cov), _whiteners(u.cov[None]), angles)[0]
+    assert d == pytest.approx(moment_error(a, b), rel=1e-10)
