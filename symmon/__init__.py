@@ -24,6 +24,7 @@ from .gaussian import Gaussian as Gaussian
 from .gaussian import fuse as fuse
 from .kalman import KalmanFilter as KalmanFilter
 from .filters import NonlinearKalmanFilter as NonlinearKalmanFilter
+from .filters import Adaptive as Adaptive
 from .model import Model as Model
 from .modelfile import load_model_file as load_model_file
 from .moments import JointMoments as JointMoments
@@ -50,5 +51,5 @@ __all__ = [
     "NonlinearityMeasure", "nonlinearity", "compare",
     "propagate", "propagate_many", "advise", "Advice",
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Transform",
-    "NonlinearKalmanFilter",
+    "NonlinearKalmanFilter", "Adaptive",
 ]

@@ -39,7 +39,7 @@ __all__ = ["main", "transform_from_name", "TRANSFORM_NAMES", "WEIGHT_NAMES", "FI
 #: Short names of the transforms, in the order ``compare`` lists them.
 TRANSFORM_NAMES = ("tt1", "tt2", "ut1", "ut2", "ct", "gh", "qmc", "mc")
 WEIGHT_NAMES = ("full", "diag", "liu-li", "liu-li-raw")
-FIGURES = ("fig1", "fig2", "radar", "mmse")
+FIGURES = ("fig1", "fig2", "radar", "mmse", "tracking")
 
 _EXAMPLES = {
     "propagate": ["symmon propagate examples/polar.toml --transform ut1 --json",
@@ -56,6 +56,10 @@ _EXAMPLES = {
                   "symmon reproduce all --samples 100000"],
     "derive": ["symmon derive --all --out derivations.md", "symmon derive --list"],
     "codegen": ["symmon codegen examples/gmti.toml -o build/gmti"],
+    "filter": ["symmon filter examples/rb_close.toml --runs 500 --plot nees.png",
+               "symmon filter examples/rb_close.toml --filters ekf,ukf,adaptive --tol 0.01 --json"],
+    "advise": ["symmon advise examples/bot.toml --tol 0.001",
+               "symmon advise examples/polar.toml --weight diag --json"],
 }
 
 
@@ -344,8 +348,10 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     for name in which:
         mod = importlib.import_module(f".reproduce.{name}", __package__)
         kwargs: dict[str, Any] = {"seed": args.seed, "progress": not args.no_progress}
-        if args.samples is not None:
+        if args.samples is not None and name != "tracking":
             kwargs["runs" if name == "mmse" else "samples"] = args.samples
+        if args.runs is not None and name in ("mmse", "tracking"):
+            kwargs["runs"] = args.runs
         for p in mod.run(out, **kwargs):
             print(f"wrote {p}")
     return 0
@@ -376,6 +382,131 @@ def cmd_codegen(args: argparse.Namespace) -> int:
     spec = _load(args.file)
     for p in export_c(spec.model, args.output, args.name):
         print(f"wrote {p}")
+    return 0
+
+
+# --------------------------------------------------------------------------- filter and advise
+_DEFAULT_FILTERS = "ekf,ekf2,ukf,ckf,gh,adaptive"
+
+
+def _filter_names(text: str) -> list[str]:
+    """argparse type of ``--filters``: known, distinct short names."""
+    from .filterfile import FILTERS
+
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    known = tuple(FILTERS) + ("adaptive",)
+    bad = [t for t in names if t not in known]
+    if not names or bad or len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(f"must be distinct names among {', '.join(known)}, got {text!r}")
+    return names
+
+
+def _unit_interval(text: str) -> float:
+    """argparse type of a number in (0, 1)."""
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number in (0, 1), got {text!r}") from None
+    if not 0.0 < x < 1.0:
+        raise argparse.ArgumentTypeError(f"must be a number in (0, 1), got {text!r}")
+    return x
+
+
+def cmd_filter(args: argparse.Namespace) -> int:
+    """``symmon filter``: a bank of runs of each filter on a scenario; ANEES, ANIS, RMSE."""
+    from .filterfile import load_filter_file, run_bank, simulate
+
+    if args.seed < 0:
+        raise _UsageError(f"--seed must be a non-negative integer, got {args.seed}")
+    spec = load_filter_file(args.file)
+    xs, ys = simulate(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
+    rows = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, args.filters, args.tol, args.confidence)
+    states = [str(s) for s in spec.f.inputs]
+    written = [_filter_plot(spec, rows, states, args.plot)] if args.plot else []
+    if args.json:
+        _print_json({"scenario": spec.name, "runs": args.runs, "steps": spec.steps, "seed": args.seed,
+                     "states": states, "filters": [_bank_json(r) for r in rows],
+                     "files": [str(p) for p in written]})
+        return 0
+    ok = [r for r in rows if r.result is not None]
+    if ok:
+        a, b = ok[0].anees, ok[0].anis
+        print(f"{spec.name}: {args.runs} runs of {spec.steps} steps (seed {args.seed}); per-step averages over the "
+              f"runs with {a.confidence:.0%} chi-square intervals: ANEES [{a.lower:.3g}, {a.upper:.3g}] "
+              f"(n = {len(states)}), ANIS [{b.lower:.3g}, {b.upper:.3g}] (n_y = {spec.h.n_y})")
+    print(f"{'filter':<9} {'ANEES':>9} {'inside':>7} {'ANIS':>9} {'inside':>7}  RMSE ({', '.join(states)})")
+    for r in rows:
+        if r.result is None:
+            print(f"{r.name:<9} failed: {r.error}")
+            continue
+        rmse = np.sqrt(np.mean(r.rmse**2, axis=0))
+        print(f"{r.name:<9} {float(np.mean(r.anees.value)):>9.4g} {float(np.mean(r.anees.inside)):>7.0%} "
+              f"{float(np.mean(r.anis.value)):>9.4g} {float(np.mean(r.anis.inside)):>7.0%}  "
+              + ", ".join(f"{v:.4g}" for v in rmse))
+    print("ANEES, ANIS: time averages of the per-step values; inside: the share of steps inside the interval; "
+          "RMSE: over runs and steps")
+    for p in written:
+        print(f"wrote {p}")
+    return 0
+
+
+def _bank_json(r) -> dict:
+    if r.result is None:
+        return {"name": r.name, "error": r.error}
+    out = {"name": r.name, "method": r.result.method,
+           "anees": _jsonable(r.anees.value), "anis": _jsonable(r.anis.value),
+           "anees_bounds": [r.anees.lower, r.anees.upper], "anis_bounds": [r.anis.lower, r.anis.upper],
+           "rmse": _jsonable(r.rmse)}
+    if r.result.choices is not None:
+        names, counts = np.unique(r.result.choices, return_counts=True)
+        out["choices"] = {str(k): int(v) for k, v in zip(names, counts)}
+    return out
+
+
+def _filter_plot(spec, rows, states: list[str], path: str) -> Path:
+    """NEES, NIS (log scale, with the χ² intervals) and RMSE per step, one line per filter."""
+    from .io import save_figure
+    from .reproduce._common import figure_style, pyplot
+
+    plt = pyplot()
+    with figure_style():
+        fig, axes = plt.subplots(3, 1, figsize=(7, 8), sharex=True)
+        try:
+            k = np.arange(1, spec.steps + 1)
+            for r in rows:
+                if r.result is None:
+                    continue
+                axes[0].semilogy(k, r.anees.value, label=r.name)
+                axes[1].semilogy(k, r.anis.value, label=r.name)
+                axes[2].semilogy(k, np.sqrt(np.sum(r.rmse**2, axis=1)), label=r.name)
+            ok = [r for r in rows if r.result is not None]
+            if ok:
+                for ax, t, what in ((axes[0], ok[0].anees, "NEES"), (axes[1], ok[0].anis, "NIS")):
+                    ax.axhspan(t.lower, t.upper, color="0.85", label=f"{t.confidence:.0%} interval")
+                    ax.set_ylabel(f"average {what}")
+            axes[0].set_title(f"{spec.name}: {ok[0].result.runs if ok else 0} Monte Carlo runs")
+            axes[2].set_ylabel(f"RMSE of ({', '.join(states)})\n(norm over components)")
+            axes[2].set_xlabel("step k")
+            axes[0].legend(ncol=3)
+            fig.tight_layout()
+            return save_figure(fig, path)
+        finally:
+            plt.close(fig)
+
+
+def cmd_advise(args: argparse.Namespace) -> int:
+    """``symmon advise``: the advice of :func:`symmon.advise` for a model file."""
+    from .advise import advise
+
+    spec = _load(args.file)
+    a = advise(spec.model, spec.u, spec.v, tol=args.tol, weight=args.weight, samples=args.samples, seed=args.seed)
+    if args.json:
+        _print_json({"model": spec.model.name, "tol": a.tol, "weight": args.weight, "choice": a.choice_name,
+                     "reference": a.reference, "reference_error": a.reference_error,
+                     "reference_mon": a.reference_mon, "notes": list(a.notes),
+                     "rows": [{k: (repr(v) if k == "transform" else v) for k, v in r.items()} for r in a.rows]})
+        return 0
+    print(f"{spec.model.name}: {a}")
     return 0
 
 
@@ -468,6 +599,8 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     sp.add_argument("--out", default="results", help="output directory (default ./results)")
     sp.add_argument("--no-progress", action="store_true", help="no progress bar")
+    sp.add_argument("--runs", type=_positive_int, default=None,
+                    help="Monte Carlo runs of mmse and tracking (default: theirs, 1000 and 500)")
     sp.set_defaults(func=cmd_reproduce)
 
     sp = add("derive", "run the derivation scripts (derivations/) and write a Markdown report")
@@ -483,6 +616,33 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory (created if missing)")
     sp.add_argument("--name", default=None, help="C prefix and file name (default: the model's name)")
     sp.set_defaults(func=cmd_codegen)
+
+    sp = add("filter", "Monte Carlo runs of nonlinear Kalman filters on a filter scenario file: "
+             "NEES, NIS (with chi-square bounds) and RMSE")
+    sp.add_argument("file", help="TOML filter scenario (see symmon.filterfile)")
+    sp.add_argument("--runs", type=_positive_int, default=100, help="Monte Carlo runs (default 100)")
+    sp.add_argument("--seed", type=int, default=0, help="seed of the truth and measurements (default 0)")
+    sp.add_argument("--filters", type=_filter_names, default=_filter_names(_DEFAULT_FILTERS),
+                    help=f"comma-separated: ekf, ekf2, ukf, ckf, gh, adaptive (default {_DEFAULT_FILTERS})")
+    sp.add_argument("--tol", type=_unit_interval, default=1e-2,
+                    help="the adaptive filter's tolerance (unitless moment error, default 0.01)")
+    sp.add_argument("--confidence", type=_unit_interval, default=0.95,
+                    help="of the chi-square intervals (default 0.95)")
+    sp.add_argument("--plot", metavar="PNG", help="write NEES, NIS and RMSE over time (atomically)")
+    sp.add_argument("--json", action="store_true", help="print JSON")
+    sp.set_defaults(func=cmd_filter)
+
+    sp = add("advise", "which transform is good enough for a model file: every candidate's moment "
+             "error against a reference, its MoN and cost, and the cheapest within tol")
+    sp.add_argument("file", help="TOML model file")
+    sp.add_argument("--tol", type=_unit_interval, default=1e-3,
+                    help="largest unitless moment error (default 0.001)")
+    weight_opt(sp)
+    sp.add_argument("--samples", type=_positive_int, default=10**6,
+                    help="samples of the Monte Carlo reference, when Gauss-Hermite does not converge (default 10^6)")
+    sp.add_argument("--seed", type=int, default=0, help="seed of the Monte Carlo reference (default 0)")
+    sp.add_argument("--json", action="store_true", help="print JSON")
+    sp.set_defaults(func=cmd_advise)
     return p
 
 

@@ -75,7 +75,7 @@ from .propagate import compiled
 from .transforms import TT1, TT2, UT, GaussHermite, Transform
 from .transforms.quadrature import SPARSE_ABOVE, standard_rule
 
-__all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest"]
+__all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest", "Adaptive"]
 
 #: Names of the outputs of the step function, in order.
 _OUTPUTS = ("x", "P", "x_pred", "P_pred", "innovation", "S")
@@ -397,6 +397,9 @@ class NonlinearKalmanResult:
         State components that are angles (their estimation errors are wrapped).
     method : str
         The filter, e.g. ``"UKF(alpha=1, beta=0, kappa=None)"``.
+    choices : ndarray of str, shape (K,) or (R, K), or None
+        For an :class:`Adaptive` filter: the filter used at each step (of each run), e.g.
+        ``"EKF"`` or ``"CKF"``; None for a fixed transform.
     """
 
     x: np.ndarray
@@ -407,6 +410,7 @@ class NonlinearKalmanResult:
     S: np.ndarray
     angle_states: tuple[int, ...] = ()
     method: str = ""
+    choices: np.ndarray | None = None
 
     @property
     def runs(self) -> int | None:
@@ -464,6 +468,185 @@ class NonlinearKalmanResult:
                 f"mean NIS {float(self.nis().mean()):.4g} (expected {n_y}))")
 
 
+
+# --------------------------------------------------------------------------- adaptive
+@dataclass(frozen=True)
+class Adaptive:
+    """A filter option that picks, at each step of each run, the cheapest adequate transform.
+
+    Pass it as the ``transform`` of :class:`NonlinearKalmanFilter`.  At step k the filter
+    decides twice, on the Gaussians the step transforms:
+
+    1. the time update: f at N(x̂_{k−1|k−1}, P_{k−1|k−1}) (with N(0, Q) appended for
+       general noise);
+    2. the measurement update: h at the prior N(x⁻, P⁻) that the transform chosen in 1
+       predicts.
+
+    Each decision takes the candidates in the order of their cost in evaluations of g
+    (:func:`symmon.advise.cost`, ties to the earlier candidate) and picks the first whose
+    estimated error is at most ``tol``, in the unitless measure of
+    :func:`symmon.advise.moment_error`, with the covariance that the filter compares the
+    moments with (P⁻ = Cov f + Q in the time update, S = Cov h + R in the measurement
+    update) as the unit:
+
+    - TT1's error is estimated by its distance to TT2, whose terms are closed forms (the
+      mean ½ tr(H_i P) and the covariance ½ tr(H_i P H_j P) of the TT2 MoN): no
+      quadrature at all when the model is nearly linear over the prior;
+    - the other candidates' errors by their distance to ``reference`` (Gauss–Hermite of
+      order 5), computed only for the runs where TT1 failed; for GH3 this is its
+      two-order error estimate (GH3 against GH5, cf. :func:`symmon.quadrature_error`).
+
+    When no candidate is within ``tol``, the most expensive one is used.  The step runs
+    the compiled filter step (both updates) of the more expensive of the two choices, and
+    that choice is recorded in :attr:`NonlinearKalmanResult.choices` per step and per run:
+    the runs of a bank decide independently, each on its own prior.
+
+    Limitation: TT1's test sees only second-order terms.  Where the Hessian of g vanishes
+    at the mean but higher derivatives do not (an odd function at its centre) TT1 passes
+    the test although it may be off; the advice of :func:`symmon.advise` against a
+    converged reference catches that case.
+
+    Parameters
+    ----------
+    tol : float, default 0.01
+        Largest acceptable unitless error, in (0, 1).
+    candidates : tuple of TT1, TT2, UT or GaussHermite
+        Default TT1 (EKF), TT2 (second-order EKF), ``UT.cubature()`` (CKF) and
+        GaussHermite(3).
+    reference : UT or GaussHermite, default GaussHermite(5)
+    """
+
+    tol: float = 1e-2
+    candidates: tuple = (TT1(), TT2(), UT.cubature(), GaussHermite(3))
+    reference: Transform = GaussHermite(5)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.tol, bool) or not isinstance(self.tol, (int, float)) or not 0 < self.tol < 1:
+            raise SymmonError(f"tol must be a number in (0, 1), got {self.tol!r}")
+        cands = tuple(self.candidates)
+        if not cands:
+            raise SymmonError("candidates is empty")
+        for t in cands + (self.reference,):
+            if not isinstance(t, (TT1, TT2, UT, GaussHermite)):
+                raise SymmonError(f"Adaptive candidates and reference must be TT1, TT2, UT or GaussHermite, got {t!r}")
+        object.__setattr__(self, "candidates", cands)
+
+    def __repr__(self) -> str:
+        return f"Adaptive(tol={self.tol:g}, candidates=[{', '.join(_method(t) for t in self.candidates)}])"
+
+
+def _whiteners(C: np.ndarray) -> np.ndarray:
+    """Batched A with A C Aᵀ = I on the range of each C (R, d, d)."""
+    d = np.sqrt(np.clip(np.einsum("...ii->...i", C), 0.0, None))
+    D = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
+    Rm = D[:, :, None] * C * D[:, None, :]  # the correlation: the rank test ignores units
+    lam, V = np.linalg.eigh(0.5 * (Rm + np.swapaxes(Rm, 1, 2)))
+    inv = np.where(lam > lam[:, -1:] * 1e-12, 1.0 / np.sqrt(np.clip(lam, 1e-300, None)), 0.0)
+    return np.swapaxes(V * inv[:, None, :], 1, 2) * D[:, None, :]
+
+
+def _distance(a, b, Ay: np.ndarray, Aw: np.ndarray, angles: frozenset[int]) -> np.ndarray:
+    """The unitless distance of batch moments a and b (advise.moment_error, batched)."""
+    dmu = a.mean - b.mean
+    if angles:
+        idx = sorted(angles)
+        dmu[:, idx] = wrap_angle(dmu[:, idx])
+    AyT = np.swapaxes(Ay, 1, 2)
+    e_mean = np.linalg.norm(np.einsum("rij,rj->ri", Ay, dmu), axis=-1)
+    e_cov = np.linalg.norm(Ay @ (a.cov - b.cov) @ AyT, 2, axis=(1, 2))
+    e_cross = np.linalg.norm(Ay @ (a.cross - b.cross) @ np.swapaxes(Aw, 1, 2), 2, axis=(1, 2))
+    return np.maximum(e_mean, np.maximum(e_cov, e_cross))
+
+
+def _decide(model: Model, m: np.ndarray, C: np.ndarray, add: np.ndarray | None, angles: frozenset[int],
+            order: list[Transform], reference: Transform, tol: float):
+    """Index (into ``order``) of each run's choice, and the mean and covariance it gives.
+
+    ``add`` is the additive noise covariance (added to Cov g), None with noise symbols.
+    """
+    cm = compiled(model)
+    plus = (lambda c: c) if add is None else (lambda c: c + add)
+    t1 = TT1().batch(cm, m, C, angles)
+    Aw = _whiteners(C)
+    choice = np.full(m.shape[0], len(order) - 1)
+    mean, cov = t1.mean.copy(), plus(t1.cov)  # overwritten unless TT1 is the choice or the fallback
+    open_ = np.ones(m.shape[0], dtype=bool)
+    i1 = next((i for i, t in enumerate(order) if isinstance(t, TT1)), None)
+    if i1 is not None:  # TT1 is the cheapest: its closed-form test comes first
+        t2 = TT2().batch(cm, m, C, angles)
+        ok = _distance(t1, t2, _whiteners(plus(t2.cov)), Aw, angles) <= tol
+        choice[ok] = i1
+        open_ = ~ok
+    rest = np.flatnonzero(open_)
+    if rest.size:
+        ms, Cs, Aws = m[rest], C[rest], Aw[rest]
+        ref = reference.batch(cm, ms, Cs, angles)
+        Ay = _whiteners(plus(ref.cov))
+        left = np.ones(rest.size, dtype=bool)
+        for i, t in enumerate(order):
+            if isinstance(t, TT1):
+                continue
+            b = t.batch(cm, ms, Cs, angles)
+            ok = (_distance(b, ref, Ay, Aws, angles) <= tol) & left
+            if i == len(order) - 1:
+                ok = left  # the most expensive candidate is the fallback
+            choice[rest[ok]] = i
+            mean[rest[ok]], cov[rest[ok]] = b.mean[ok], plus(b.cov)[ok]
+            left &= ~ok
+    return choice, mean, cov
+
+
+def _adaptive_run(kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: np.ndarray, P0: np.ndarray):
+    """The adaptive filter (:class:`Adaptive`) on a bank Y (R, K, n_y): outputs and choices."""
+    ad: Adaptive = kf.transform
+    f, h = kf.f_model, kf.h_model
+    runs, K = Y.shape[:2]
+    n, n_y = f.n_u, h.n_y
+    from .advise import cost
+
+    order = sorted(ad.candidates, key=lambda t: cost(t, n))  # stable: ties keep the given order
+    names = np.array([_method(t) for t in order])
+    steps = [_compiled_step(f, h, t, kf.angle_states) for t in order]
+    shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n), "innovation": (n_y,), "S": (n_y, n_y)}
+    out = {key: np.full((runs, K) + s, np.nan) for key, s in shapes.items()}  # NaN after a failure
+    chosen = np.empty((runs, K), dtype=int)
+    x = np.ascontiguousarray(np.broadcast_to(x0, (runs, n)), dtype=float)
+    P = np.ascontiguousarray(np.broadcast_to(P0, (runs, n, n)), dtype=float)
+    states, y_angles = kf.angle_states, frozenset(h.angle_outputs)
+    for k in range(K):
+        if f.n_v:
+            nq = f.n_v
+            m = np.concatenate([x, np.zeros((runs, nq))], axis=1)
+            C = np.zeros((runs, n + nq, n + nq))
+            C[:, :n, :n], C[:, n:, n:] = P, kf.Q
+            cf, xp, Pp = _decide(f, m, C, None, states, order, ad.reference, ad.tol)
+        else:
+            cf, xp, Pp = _decide(f, x, P, kf.Q, states, order, ad.reference, ad.tol)
+        if states:
+            idx = sorted(states)
+            xp[:, idx] = wrap_angle(xp[:, idx])
+        Pp = 0.5 * (Pp + np.swapaxes(Pp, 1, 2))
+        if h.n_v:
+            nr = h.n_v
+            m = np.concatenate([xp, np.zeros((runs, nr))], axis=1)
+            C = np.zeros((runs, n + nr, n + nr))
+            C[:, :n, :n], C[:, n:, n:] = Pp, kf.R
+            ch = _decide(h, m, C, None, y_angles, order, ad.reference, ad.tol)[0]
+        else:
+            ch = _decide(h, xp, Pp, kf.R, y_angles, order, ad.reference, ad.tol)[0]
+        c = np.maximum(cf, ch)
+        chosen[:, k] = c
+        for i in np.unique(c):
+            sel = np.flatnonzero(c == i)
+            o = steps[i](x[sel], P[sel], Y[sel, k:k + 1], kf.Q, kf.R)
+            for key, v in o.items():
+                out[key][sel, k] = v[:, 0]
+        x, P = out["x"][:, k].copy(), out["P"][:, k].copy()
+        if not (np.isfinite(x).all() and np.isfinite(P).all()):
+            break  # the caller names the run and step
+    return out, names[chosen]
+
+
 # --------------------------------------------------------------------------- the filter
 def _method(transform: Transform) -> str:
     if isinstance(transform, TT2):
@@ -494,8 +677,8 @@ class NonlinearKalmanFilter:
         Process noise covariance (Cov w, or additive (n, n)).
     R : array_like
         Measurement noise covariance (Cov e, or additive (n_y, n_y)).
-    transform : TT1, TT2, UT or GaussHermite, default ``UT.ut1()``
-        Used for both steps.
+    transform : TT1, TT2, UT, GaussHermite or Adaptive, default ``UT.ut1()``
+        Used for both steps; :class:`Adaptive` picks one per step and run.
 
     Examples
     --------
@@ -526,9 +709,9 @@ class NonlinearKalmanFilter:
         Q = as_covariance(self.Q, "Q", dim=f.n_v if f.n_v else f.n_u)
         R = _noise_cov(h, self.R, "R")
         transform = UT.ut1() if self.transform is None else self.transform
-        if not isinstance(transform, Transform):
+        if not isinstance(transform, (Transform, Adaptive)):
             raise TypeError(f"transform must be a symmon transform, got {transform!r}")
-        if not isinstance(transform, (TT1, TT2, UT, GaussHermite)):
+        if not isinstance(transform, (TT1, TT2, UT, GaussHermite, Adaptive)):
             raise SymmonError(
                 f"transform must be TT1, TT2, UT or GaussHermite for a Kalman filter, got {transform!r}"
             )
@@ -543,7 +726,9 @@ class NonlinearKalmanFilter:
 
     @cached_property
     def method(self) -> str:
-        """The filter's name: EKF, EKF2, UKF(...), CKF or GHKF(order=...)."""
+        """The filter's name: EKF, EKF2, UKF(...), CKF, GHKF(order=...) or Adaptive(...)."""
+        if isinstance(self.transform, Adaptive):
+            return repr(self.transform)
         return _method(self.transform)
 
     def _compiled(self) -> _CompiledStep:
@@ -568,6 +753,11 @@ class NonlinearKalmanFilter:
             raise ShapeError(f"x0 must have shape {want}, got {m.shape}")
         if not np.all(np.isfinite(m)):
             raise ShapeError("x0 contains NaN or inf")
+        C = np.asarray(P0, dtype=float)
+        if runs is not None and C.shape == (runs, n, n):  # one covariance per run
+            for r in range(runs):
+                as_covariance(C[r], f"P0[{r}]", dim=n)
+            return m, C
         return m, as_covariance(P0, "P0", dim=n)
 
     def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None) -> NonlinearKalmanResult:
@@ -581,8 +771,9 @@ class NonlinearKalmanFilter:
         x0 : Gaussian, or array_like of shape (n,) or (R, n)
             The state x_0 before the first prediction: a Gaussian, or its mean (one for all
             runs, or one per run) with ``P0``.
-        P0 : array_like, shape (n, n), optional
-            Covariance of x_0 when ``x0`` is a mean.
+        P0 : array_like, shape (n, n) or (R, n, n), optional
+            Covariance of x_0 when ``x0`` is a mean (one for all runs, or one per run: a
+            bank continued after a known jump of the state, e.g. an observer's manoeuvre).
 
         Returns
         -------
@@ -605,7 +796,12 @@ class NonlinearKalmanFilter:
             raise ShapeError("ys contains NaN or inf")
         runs = Y.shape[0] if Y.ndim == 3 else None
         m0, C0 = self._initial(x0, P0, runs)
-        out = self._compiled()(m0, C0, Y.reshape((runs or 1,) + Y.shape[-2:]), self.Q, self.R)
+        Yb = Y.reshape((runs or 1,) + Y.shape[-2:])
+        choices = None
+        if isinstance(self.transform, Adaptive):
+            out, choices = _adaptive_run(self, Yb, m0, C0)
+        else:
+            out = self._compiled()(m0, C0, Yb, self.Q, self.R)
         bad = ~np.isfinite(out["x"]).all(axis=-1) | ~np.isfinite(out["P"]).all(axis=(-1, -2))
         if bad.any():
             r, k = np.argwhere(bad)[0]
@@ -618,5 +814,8 @@ class NonlinearKalmanFilter:
         arrays = {k: v if runs is not None else v[0] for k, v in out.items()}
         for v in arrays.values():
             v.flags.writeable = False  # fresh arrays of this call: frozen, not copied
+        if choices is not None:
+            choices = choices if runs is not None else choices[0]
+            choices.flags.writeable = False
         return NonlinearKalmanResult(**arrays, angle_states=tuple(sorted(self.angle_states)),
-                                     method=self.method)
+                                     method=self.method, choices=choices)

@@ -377,3 +377,190 @@ def test_ekf_at_a_non_differentiable_point_raises():
 def test_old_name_is_an_alias():
     assert est.NonlinearKalmanFilter is sm.NonlinearKalmanFilter
     assert est.NonlinearKalmanResult is NonlinearKalmanResult
+
+
+# --------------------------------------------------------------------------- adaptive
+def linear_models():
+    """Constant velocity observed in position: f and h linear."""
+    px, py, vx, vy = sp.symbols("px py vx vy", real=True)
+    X = [px, py, vx, vy]
+    return (sm.Model(X, list(sp.Matrix(F_CV) * sp.Matrix(X)), name="cv_lin"),
+            sm.Model(X, [px, py], name="pos_lin"))
+
+
+def test_adaptive_on_a_linear_model_picks_the_ekf_at_every_step(bank):
+    f, h = linear_models()
+    X, _ = bank
+    rng = np.random.default_rng(3)
+    ys = X[..., :2] + rng.standard_normal(X[..., :2].shape) * 0.5
+    R = 0.25 * np.eye(2)
+    res = sm.NonlinearKalmanFilter(f, h, Q_CV, R, sm.Adaptive(tol=1e-6)).filter(ys, X0)
+    ekf = sm.NonlinearKalmanFilter(f, h, Q_CV, R, sm.TT1()).filter(ys, X0)
+    assert res.choices.shape == ys.shape[:2]
+    assert set(res.choices.ravel()) == {"EKF"}
+    # The same compiled EKF step on the same numbers, one step per call.
+    assert rel_err(res.x, ekf.x) < SAME_CODE_RTOL and rel_err(res.P, ekf.P) < SAME_CODE_RTOL
+
+
+def test_adaptive_on_a_strongly_nonlinear_prior_leaves_the_taylor_filters():
+    # Range and bearing of a target 3 m away with a 10 m position uncertainty: the range
+    # and bearing are far from linear over the prior.
+    f, h = cv_models()
+    x0 = sm.Gaussian([3.0, 0.0, 0.0, 0.0], np.diag([100.0, 100.0, 0.1, 0.1]))
+    res = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, sm.Adaptive(tol=1e-2)).filter([[3.1, 0.05]], x0)
+    assert res.choices.shape == (1,)
+    assert res.choices[0] not in ("EKF", "EKF2")
+
+
+def test_adaptive_bank_decides_per_run_as_single_runs(bank):
+    # A near and a far start: the runs of a bank decide independently, each on its own prior.
+    f, h = cv_models()
+    _, ys = bank
+    means = np.array([[3.0, 1.0, -0.2, 0.1], [200.0, 50.0, -1.0, 0.5]])
+    P0 = np.diag([4.0, 4.0, 0.1, 0.1])
+    kf = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, sm.Adaptive(tol=1e-2))
+    both = kf.filter(ys[:2], means, P0)
+    assert both.choices.shape == (2, ys.shape[1])
+    for r in range(2):
+        one = kf.filter(ys[r], means[r], P0)
+        assert one.choices.shape == (ys.shape[1],)
+        np.testing.assert_array_equal(both.choices[r], one.choices)
+        assert rel_err(both.x[r], one.x) < SAME_CODE_RTOL
+    assert set(both.choices[0]) != set(both.choices[1])
+    assert "Adaptive(tol=0.01" in both.method
+
+
+def test_bank_takes_one_initial_covariance_per_run(bank):
+    f, h = cv_models()
+    _, ys = bank
+    P0s = np.stack([np.diag([1.0, 1.0, 0.1, 0.1]), np.diag([9.0, 4.0, 0.2, 0.3])])
+    kf = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, sm.UT.cubature())
+    both = kf.filter(ys[:2], X0.mean, P0s)
+    for r in range(2):
+        assert rel_err(both.P[r], kf.filter(ys[r], X0.mean, P0s[r]).P) < SAME_CODE_RTOL
+
+
+@pytest.mark.parametrize("kwargs, match", [({"tol": 0.0}, "tol"), ({"tol": True}, "tol"),
+                                           ({"candidates": ()}, "empty"),
+                                           ({"candidates": (sm.MonteCarlo(1000),)}, "TT1, TT2, UT")])
+def test_adaptive_bad_options(kwargs, match):
+    with pytest.raises(SymmonError, match=match):
+        sm.Adaptive(**kwargs)
+
+
+# --------------------------------------------------------------------------- scenario files, symmon filter
+from pathlib import Path  # noqa: E402
+
+from symmon import cli  # noqa: E402
+from symmon.filterfile import load_filter_file, run_bank, simulate as simulate_spec  # noqa: E402
+from symmon.modelfile import ModelFileError  # noqa: E402
+
+EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "rb_close.toml"
+SCENARIO = """
+name = "lin"
+states = ["p", "v"]
+dynamics = ["p + T*v", "v"]
+measurements = ["p"]
+steps = 30
+[params]
+T = 0.5
+[Q]
+cov = [["0.01*T**3/3", "0.01*T**2/2"], ["0.01*T**2/2", "0.01*T"]]
+[R]
+std = [0.3]
+[x0]
+mean = [0, 1]
+std = [1, 0.5]
+"""
+
+
+def test_scenario_file_is_read_into_models_and_covariances(tmp_path):
+    path = tmp_path / "lin.toml"
+    path.write_text(SCENARIO)
+    spec = load_filter_file(path)
+    p, v = spec.f.inputs
+    assert spec.f.outputs == (p + 0.5 * v, v) and spec.h.outputs == (p,)
+    np.testing.assert_allclose(spec.Q, 0.01 * np.array([[0.5**3 / 3, 0.5**2 / 2], [0.5**2 / 2, 0.5]]), rtol=1e-15)
+    assert spec.R.tolist() == [[0.09]] and spec.steps == 30
+    assert spec.x0 == sm.Gaussian([0.0, 1.0], np.diag([1.0, 0.25]))
+    rb = load_filter_file(EXAMPLE)
+    assert rb.h.angle_outputs == frozenset({1})
+
+
+def test_simulated_linear_bank_is_consistent(tmp_path):
+    """The scenario's simulation and a linear Kalman filter: mean NEES n and NIS n_y within
+    5 standard errors (the run averages are independent, ~χ²(n)/n per step)."""
+    path = tmp_path / "lin.toml"
+    path.write_text(SCENARIO)
+    spec = load_filter_file(path)
+    runs = 200
+    xs, ys = simulate_spec(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, runs, seed=4)
+    (row,) = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, ["ekf"])
+    nees, nis = row.result.nees(xs), row.result.nis()
+    for stat, d in ((nees, 2), (nis, 1)):
+        per_run = stat.mean(axis=1)  # independent across runs
+        assert abs(per_run.mean() - d) < 5 * per_run.std(ddof=1) / np.sqrt(runs)
+    np.testing.assert_allclose(row.rmse, np.sqrt(np.mean((xs - row.result.x) ** 2, axis=0)), rtol=1e-12)
+
+
+@pytest.mark.parametrize("edit, match", [
+    (("steps = 30", "steps = 0"), "steps"),
+    (('dynamics = ["p + T*v", "v"]', 'dynamics = ["p + T*v"]'), "one expression per state"),
+    (('measurements = ["p"]', 'measurements = ["__import__(1)"]'), "measurements"),
+    (("[R]\nstd = [0.3]", "[R]\nmean = [0]\nstd = [0.3]"), "not a mean"),
+    (('name = "lin"', 'name = "lin"\nangles = [3]'), "angles"),
+])
+def test_bad_scenario_files_name_the_fault(tmp_path, edit, match):
+    path = tmp_path / "bad.toml"
+    path.write_text(SCENARIO.replace(*edit))
+    with pytest.raises(ModelFileError, match=match):
+        load_filter_file(path)
+
+
+def test_cli_filter_prints_consistency_and_writes_the_plot(capsys, tmp_path):
+    png = tmp_path / "nees.png"
+    code = cli.main(["filter", str(EXAMPLE), "--runs", "20", "--filters", "ekf,ukf,adaptive", "--plot", str(png)])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "ANEES" in out and "ekf" in out and "adaptive" in out and f"wrote {png}" in out
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_cli_filter_json_equals_the_api(capsys):
+    import json
+
+    assert cli.main(["filter", str(EXAMPLE), "--runs", "10", "--seed", "2", "--filters", "ukf", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    spec = load_filter_file(EXAMPLE)
+    xs, ys = simulate_spec(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, 10, seed=2)
+    res = sm.NonlinearKalmanFilter(spec.f, spec.h, spec.Q, spec.R, sm.UT.ut1()).filter(ys, spec.x0)
+    (row,) = out["filters"]
+    np.testing.assert_allclose(row["anees"], res.anees(xs).value, rtol=1e-12)
+    np.testing.assert_allclose(row["anis"], res.anis().value, rtol=1e-12)
+    assert out["runs"] == 10 and out["steps"] == spec.steps
+
+
+@pytest.mark.parametrize("argv, match", [(["--filters", "ekf,foo"], "must be distinct names"),
+                                         (["--runs", "0"], "positive integer"),
+                                         (["--tol", "1.5"], "number in \\(0, 1\\)"),
+                                         (["--seed", "-1"], "non-negative")])
+def test_cli_filter_bad_options_are_usage_errors(capsys, argv, match):
+    assert cli.main(["filter", str(EXAMPLE), *argv]) == 2
+    assert __import__("re").search(match, capsys.readouterr().err)
+
+
+def test_adaptive_distance_is_the_unitless_error_of_advise():
+    """The batched distance of the adaptive rule equals sm.advise's moment_error."""
+    from symmon.advise import moment_error
+    from symmon.filters import _distance, _whiteners
+    from symmon.propagate import compiled
+
+    _, h = cv_models()
+    u = sm.Gaussian([3.0, 1.0, -0.5, 0.2], np.diag([4.0, 9.0, 0.1, 0.2]) + 0.5)
+    a, b = sm.propagate(h, u, None, sm.UT.cubature()), sm.propagate(h, u, None, sm.GaussHermite(5))
+    cm, angles = compiled(h), frozenset(h.angle_outputs)
+    ba = sm.UT.cubature().batch(cm, u.mean[None], u.cov[None], angles)
+    bb = sm.GaussHermite(5).batch(cm, u.mean[None], u.cov[None], angles)
+    d = _distance(ba, bb, _whiteners(bb.cov), _whiteners(u.cov[None]), angles)[0]
+    assert d == pytest.approx(moment_error(a, b), rel=1e-10)
