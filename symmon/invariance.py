@@ -828,8 +828,11 @@ def _counterexample_rule(model: Model, weight: Any, label: str, wp: _WeightPart,
                          mu: sp.Matrix, P: sp.Matrix, R: sp.Matrix) -> dict:
     """The same with the moments of a point rule, computed by :func:`symmon.nonlinearity` (double precision)."""
     from .nonlinearity import nonlinearity
+    from .transforms import UT, GaussHermite, MonteCarlo
     from .units import change_gaussian, change_units
 
+    if isinstance(transform, str):  # a name: the family's default rule
+        transform = {"ut": UT.ut1(), "gh": GaussHermite(), "mc": MonteCarlo(n=10**5, seed=0)}[transform]
     sc = _scales(model)
     plain = model.with_angles([])  # the lemma assumes outputs that are not wrapped
     f = lambda M: np.array(M.evalf(), dtype=float)  # noqa: E731 - a one-line conversion
