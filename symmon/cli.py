@@ -331,7 +331,8 @@ def cmd_prove(args: argparse.Namespace) -> int:
     spec = _load(args.file)
     # --numeric: the file's distributions, made exact: a proof for this u (and v) only.
     moments = dict(mean=spec.u.mean, cov=spec.u.cov, noise_cov=None if spec.v is None else spec.v.cov) if args.numeric else {}
-    proof = prove_invariance(spec.model, args.weight, route=args.route, budget=args.budget, progress=True, **moments)
+    proof = prove_invariance(spec.model, args.weight, route=args.route, budget=args.budget, progress=True,
+                             at=(spec.u, spec.v), **moments)  # a refutation at the file's distribution
     print(proof)
     # liu-li and liu-li-raw are known not to be invariant: a "does not hold" is the expected answer.
     return 0 if proof.holds or args.weight in ("liu-li", "liu-li-raw") else 1

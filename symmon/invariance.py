@@ -884,6 +884,7 @@ def prove_invariance(
     route: str = "lemmas",
     budget: float = DIRECT_BUDGET_S,
     progress: bool = False,
+    at: tuple[Gaussian, ...] | None = None,
 ) -> InvarianceProof:
     """Prove (or disprove) the unit invariance (21), (34) of the MoN of ``model``.
 
@@ -925,6 +926,9 @@ def prove_invariance(
         Seconds allowed to the direct route.
     progress : bool
         Print what is being done to stderr.
+    at : (Gaussian,) or (Gaussian, Gaussian), optional
+        u (and v) at which a symbolic proof checks the composition and, when it fails, gives
+        its counterexample (default: a rational point). Ignored when ``mean`` is numeric.
 
     Returns
     -------
@@ -975,7 +979,17 @@ def prove_invariance(
             raise SymmonError(f"lemma {lem.name} did not reduce: the proof cannot be made\n{lem}")
     numeric = not (mu.free_symbols or P.free_symbols or R.free_symbols)
     _say(progress, f"per-model checks of {model.name!r}: composition" + (" and regularity at the given mean" if numeric else ""))
-    point = (mu, P, R) if numeric else _rational_point(model)
+    if numeric:
+        point = (mu, P, R)
+    else:
+        point = _rational_point(model)
+        if at is not None:
+            if not (isinstance(at, tuple) and at and all(isinstance(d, Gaussian) or d is None for d in at)
+                    and isinstance(at[0], Gaussian)):
+                raise SymmonError(f"at must be a tuple (u,) or (u, v) of Gaussians, got {at!r}")
+            given = _moments_args(model, at[0].mean, at[0].cov, at[1].cov if len(at) > 1 and at[1] is not None else None)
+            if not any(M.free_symbols for M in given):  # a model with noise needs v too
+                point = given
     _check_composition(model, point[0], tname)
     assumptions = ["positive diagonal S_u, S_v, S_y; any offsets o_u, o_y"]
     if numeric and tname == "tt2":
@@ -991,7 +1005,7 @@ def prove_invariance(
     if wp.lemma.holds:
         holds, diff, cex = True, sp.Integer(0), None
     else:
-        _say(progress, "the weight lemma fails: counterexample at " + ("the given mean" if numeric else "a rational point"))
+        _say(progress, "the weight lemma fails: counterexample at " + ("the given distribution" if numeric or at is not None else "a rational point"))
         holds, diff = False, wp.difference
         cex = (_counterexample_tt2(model, weight, label, wp, *point) if tname == "tt2"
                else _counterexample_rule(model, weight, label, wp, transform, *point))

@@ -220,3 +220,11 @@ def test_cli_lemma_route_names_the_lemmas(capsys):
     out, _ = capsys.readouterr()
     assert code == 0
     assert "holds" in out and "by the lemmas: tt2-equivariance, weight-diag (n_y=3)" in out
+
+
+def test_symbolic_proof_refuted_at_a_given_distribution():
+    proof = units.prove_invariance(POLAR, "liu-li", at=(U_POLAR,))
+    assert proof.symbols["mean"].free_symbols  # the statement stays symbolic
+    np.testing.assert_allclose(np.array(proof.counterexample["mean"], dtype=float).ravel(), U_POLAR.mean)
+    with pytest.raises(SymmonError, match="at must be"):
+        units.prove_invariance(POLAR, "liu-li", at=U_POLAR)
