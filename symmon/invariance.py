@@ -991,7 +991,10 @@ def prove_invariance(
             if not any(M.free_symbols for M in given):  # a model with noise needs v too
                 point = given
     _check_composition(model, point[0], tname)
-    assumptions = ["positive diagonal S_u, S_v, S_y; any offsets o_u, o_y"]
+    # The TT2 and 'full' lemmas hold for any invertible scales; (42), W̄ and the Cholesky
+    # factor of the point rules need positive diagonal ones.
+    scales = "any invertible" if tname == "tt2" and label == "full" else "positive diagonal"
+    assumptions = [f"{scales} S_u, S_v, S_y; any offsets o_u, o_y"]
     if numeric and tname == "tt2":
         with mpmath.workdps(_DPS):
             Sgg, _ = _tt2_numeric(_jets(model.inputs, model.noise, model.outputs), model.n_u, model.n_v, mu, P, R)
