@@ -2,12 +2,19 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
 import pytest
 import sympy as sp
 
 import symmon as sm
 from symmon.errors import ModelError
 
+ROOT = Path(__file__).resolve().parents[1]
 x, y, z = sp.symbols("x y z", real=True)
 v1, v2 = sp.symbols("v1 v2", real=True)
 
@@ -83,6 +90,78 @@ def test_general_structure(g):
         _ = m.pi
     with pytest.raises(ModelError, match="general"):
         _ = m.gamma
+
+
+def _separable_form_equals_g(m: sm.Model, rng) -> bool:
+    """f + π γ = g at random points (exact rationals): the form is an identity, not an approximation."""
+    g = sp.Matrix(m.outputs)
+    form = m.f + m.pi * m.gamma
+    for _ in range(3):
+        point = {s: sp.Rational(int(rng.integers(1, 9)), int(rng.integers(1, 5))) for s in m.inputs + m.noise}
+        if any(sp.nsimplify(a.xreplace(point) - b.xreplace(point)) != 0 for a, b in zip(g, form)):
+            return False
+    return True
+
+
+@pytest.mark.parametrize(
+    ("g", "n_gamma"),
+    [
+        ((x + y + v1) ** 5, 5),                       # v1, …, v1⁵
+        (sp.exp(x + v1) * y, 1),                      # exp(x) y · exp(v1)
+        (2 ** (x - v1) + x, 1),                       # 2^x · 2^(−v1)
+        ((x * v1 + y) ** 3 * sp.sin(x), 3),
+        ((x + v1) ** 2 - v1**2, 1),                   # the v1² terms cancel: γ = [v1]
+        ((x + v1) * (y + v2) * (1 + v1 * v2), 4),    # the v-only factor 1 + v1 v2 is kept whole
+        (sp.sqrt(x) * (v1 + v2) ** 2, 1),             # a u-free factor stays one γ
+    ],
+)
+def test_multiplicative_forms_are_read_off_without_expanding(rng, g, n_gamma):
+    m = sm.Model([x, y], [g, x * y], noise=[v1, v2])
+    assert m.structure == "multiplicative"
+    assert m.gamma.shape[0] == n_gamma
+    assert _separable_form_equals_g(m, rng)
+    assert "without expanding" in m.structure_note
+
+
+@pytest.mark.parametrize(
+    ("g", "note"),
+    [
+        (sp.sin(x * v1), "sin(v1*x) mixes u and v"),
+        (x / (x + v1), r"1/(v1 + x) mixes u and v"),
+        (x**v1, "x**v1 mixes u and v"),
+        ((x + v1) ** 5000, "more than 2000 terms"),
+    ],
+)
+def test_general_structure_says_why(g, note):
+    m = sm.Model([x], [g], noise=[v1])
+    assert m.structure == "general"
+    assert note in m.structure_note
+
+
+def test_additive_and_noise_free_notes():
+    assert sm.Model([x], [x**2]).structure_note == "no noise symbols"
+    assert "constant" in sm.Model([x], [x**2 + 3 * v1], noise=[v1]).structure_note
+
+
+def test_large_power_is_classified_and_measured_quickly(tmp_path):
+    """(a+b+c+d+f+g+h+v)⁶⁴: 65 terms in γ = v^k, not the C(71, 7) ≈ 10⁹ of a full expansion.
+
+    Run in a subprocess so that a regression (a multinomial expansion) hangs only it; the
+    timeout is generous (no timing assertion: the first run also compiles C code).
+    """
+    code = textwrap.dedent("""
+        import numpy as np, sympy as sp, symmon as sm
+        a, b, c, d, f, g, h, v = sp.symbols("a b c d f g h v", real=True)
+        m = sm.Model([a, b, c, d, f, g, h], [(a + b + c + d + f + g + h + v) ** 64], noise=[v])
+        print(m.structure, m.gamma.shape[0], m.gamma[0] == v**64)
+        u = sm.Gaussian(np.full(7, 1 / 7), 1e-4 * np.eye(7))
+        r = sm.nonlinearity(m, u, sm.Gaussian([0.0], [[1e-4]]), transform=sm.TT2())
+        print(0.0 < float(r) < 1.0)
+    """)
+    env = {**os.environ, "SYMMON_CACHE": str(tmp_path), "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, env=env, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["multiplicative", "64", "True", "True"]
 
 
 def test_noise_free_drops_noise_and_keeps_angles():
