@@ -741,7 +741,7 @@ def _number(ctx: _Context, value: Any, where: str, params: Mapping[str, sp.Expr]
         try:
             x = float(value)
         except OverflowError:  # an integer past the float range (TOML integers are unbounded here)
-            raise ctx.error(where, f"integer too large for a float ({_digits(value):.0f} digits)") from None
+            raise ctx.error(where, "integer too large for a float (beyond ±1.8e308)") from None
     elif isinstance(value, str):
         line_off, col_off = ctx.locate(value, anchor)
         expr = parse_expression(
