@@ -158,6 +158,9 @@ def _mc_backend(args: argparse.Namespace) -> Iterator[dict[str, Any]]:
     except OSError as exc:  # includes TimeoutError
         raise SymmonError(f"cannot reach the Dask scheduler at {target} "
                           f"within {DASK_CONNECT_TIMEOUT} s: {exc}") from exc
+    except Exception as exc:  # tls:// without a TLS configuration, ucx:// without ucx-py, ...
+        raise SymmonError(f"cannot connect to the Dask scheduler at {target}: "
+                          f"{type(exc).__name__}: {exc}") from exc
     try:
         settings["client"] = client
         yield settings

@@ -57,7 +57,17 @@ f-strings, dunder names, keyword and starred arguments, comparisons, boolean ope
 conditional expressions, assignment expressions, unknown names and functions, wrong
 arities, exponents above 64 in absolute value or containing a power themselves, numbers
 that would grow past 100 digits, expressions longer than 2000 characters or nested more
-than 50 levels deep, and results that are complex or not finite.
+than 50 levels deep, and results that are complex or not finite, including constants
+that are complex without showing it (``acos(2)``, ``(-8)**(1/3)``) or that overflow a
+double (``exp(710)``).
+
+Hostile files are bounded too: only a regular file is read (a FIFO, device or directory
+is refused before it is opened, so reading never blocks), of at most
+:data:`MAX_FILE_BYTES` bytes; names have at most :data:`MAX_NAME_LENGTH` characters (the
+model's name printable ones); a model has at most :data:`MAX_SYMBOLS` inputs and noise
+symbols and :data:`MAX_OUTPUTS` outputs; TOML integers past the float range and arrays
+nested too deeply are refused. The time a C compiler takes on a large model is not
+bounded here but where models are turned into C code.
 """
 
 # Security note: this module does not use eval, exec, compile, sympify or parse_expr;
@@ -128,9 +138,8 @@ MAX_RESULT_DIGITS = 100
 MAX_FILE_BYTES = 1_000_000
 #: Longest name (of the model, an input, a noise symbol or a parameter), in characters.
 MAX_NAME_LENGTH = 100
-#: Most inputs and noise symbols together, and most outputs, of a model file. The cost of
-#: compiling a large model (C compiler time) is bounded by the compile policy of
-#: :mod:`symmon.compile`, not here.
+#: Most inputs and noise symbols together, and most outputs, of a model file. The time a
+#: C compiler takes on a large model is bounded where models are turned into C code.
 MAX_SYMBOLS = 100
 MAX_OUTPUTS = 100
 
