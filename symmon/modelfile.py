@@ -281,6 +281,7 @@ class _Builder:
 
     def __init__(self, names: Mapping[str, sp.Expr]) -> None:
         self.names = names
+        self.checked: set[sp.Basic] = set()  # results of _checked, finite and real
 
     # -- entry -------------------------------------------------------------------------
     def build(self, node: ast.AST, depth: int) -> sp.Expr:
@@ -426,8 +427,13 @@ class _Builder:
 
     # -- results -------------------------------------------------------------------------
     def _checked(self, node: ast.AST, expr: sp.Expr) -> sp.Expr:
-        # Depth is bounded, so re-walking each node's result costs at most MAX_DEPTH passes.
-        for atom in sp.preorder_traversal(expr):
+        # Subtrees already checked are skipped: a deep expression is walked about once, not
+        # once per level (sympy may still rebuild a node, which is then walked again).
+        walk = sp.preorder_traversal(expr)
+        for atom in walk:
+            if atom in self.checked:
+                walk.skip()
+                continue
             if atom in (sp.zoo, sp.nan, sp.oo, sp.S.NegativeInfinity):
                 raise self._at(node, f"the expression is not finite ({expr})")
             if atom == sp.I:
@@ -440,6 +446,7 @@ class _Builder:
             value = expr.evalf(15)
             if not (value.is_Number and math.isfinite(float(value))):
                 raise self._at(node, f"the constant {expr} is not a finite real number in double precision ({value})")
+        self.checked.add(expr)
         return expr
 
 
