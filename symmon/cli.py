@@ -132,6 +132,8 @@ MAX_GROUPS = 1024
 MAX_WORKERS = 1024
 #: Points of ``--alpha-sweep``: each is a full MoN computation.
 MAX_SWEEP_POINTS = 1000
+#: Fewest ``reproduce --samples``: two per Monte Carlo group of the figures (16 groups).
+REPRODUCE_MIN_SAMPLES = 32
 #: Seconds to wait for a Dask scheduler at ``--dask ADDRESS``.
 DASK_CONNECT_TIMEOUT = 10
 
@@ -601,8 +603,9 @@ def _parser() -> argparse.ArgumentParser:
 
     sp = add("reproduce", "reproduce a figure of the papers (PNG + CSV)")
     sp.add_argument("figure", choices=FIGURES + ("all",))
-    sp.add_argument("--samples", type=_samples, default=None,
-                    help="Monte Carlo samples (default 10^6; the paper used 10^7); for mmse: runs")
+    sp.add_argument("--samples", type=_int_in(REPRODUCE_MIN_SAMPLES, MAX_SAMPLES), default=None,
+                    help=f"Monte Carlo samples, at least {REPRODUCE_MIN_SAMPLES} (default 10^6; the paper "
+                    "used 10^7); for mmse: runs")
     sp.add_argument("--seed", type=_seed, default=0, help="seed, >= 0 (default 0)")
     sp.add_argument("--out", type=_output_path, default="results", help="output directory (default ./results)")
     sp.add_argument("--no-progress", action="store_true", help="no progress bar")

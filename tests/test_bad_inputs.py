@@ -526,6 +526,13 @@ def test_valid_dask_targets_are_accepted(address):
     assert cli._dask_target(address) == address
 
 
+@pytest.mark.parametrize("figure", ["fig1", "radar", "mmse"])
+def test_reproduce_with_too_few_samples_is_a_usage_error(capsys, figure):
+    code, out, err = run_cli(capsys, "reproduce", figure, "--samples", "1")
+    assert (code, out) == (2, "")
+    assert f"argument --samples: must be an integer >= {cli.REPRODUCE_MIN_SAMPLES}, got '1'" in err
+
+
 def test_derive_out_empty_is_a_usage_error(capsys):
     code, out, err = run_cli(capsys, "derive", "--out", "")
     assert (code, out) == (2, "")
