@@ -19,8 +19,8 @@ limits (:data:`MAX_SAMPLES`, :data:`MAX_ORDER`, :data:`MAX_GROUPS`, :data:`MAX_W
 ``--plot`` a figure format matplotlib writes, and output paths must name regular files (or
 directories) that can be written. Error messages go to stderr, results to stdout. Every
 output file is written atomically through :mod:`symmon.io` (temporary file, then rename),
-so an existing file is replaced whole or left untouched. Progress bars (tqdm) go to stderr and are hidden when stderr is
-not a terminal or with ``--no-progress``.
+so an existing file is replaced whole or left untouched. Progress bars (tqdm) go to stderr
+and are hidden when stderr is not a terminal or with ``--no-progress``.
 
 :func:`main` returns the exit code instead of exiting, so it can be called in-process.
 """
@@ -299,7 +299,7 @@ def _dask_target(text: str) -> str:
             ipaddress.IPv6Address(host[1:-1])
         except ValueError:
             raise argparse.ArgumentTypeError(f"invalid IPv6 host {host!r} {form}") from None
-    elif not re.fullmatch(r"[A-Za-z0-9]([A-Za-z0-9.-]*[A-Za-z0-9])?", host):
+    elif not re.fullmatch(r"[A-Za-z0-9_]([A-Za-z0-9_.-]*[A-Za-z0-9_])?", host):  # '_': container names
         raise argparse.ArgumentTypeError(f"invalid host {host!r} {form}")
     if not (port.isascii() and port.isdigit() and len(port) <= 5 and 1 <= int(port) <= 65535):
         raise argparse.ArgumentTypeError(f"the port must be a number from 1 to 65535, got {port!r} {form}")
@@ -668,7 +668,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("symmon: interrupted; no output file was half-written", file=sys.stderr)
         return 130
     except Exception as exc:  # a bug, or an input no check foresaw: one line, the traceback on request
-        if os.environ.get("SYMMON_DEBUG"):
+        if os.environ.get("SYMMON_DEBUG", "0") not in ("", "0"):
             traceback.print_exc()
         what = "out of memory" if isinstance(exc, MemoryError) else " ".join(str(exc).split())
         print(f"symmon: internal error: {type(exc).__name__}: {what} "

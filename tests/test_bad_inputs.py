@@ -521,6 +521,7 @@ def test_hostile_options_are_usage_errors_found_before_any_work(capsys, monkeypa
 
 
 @pytest.mark.parametrize("address", ["tcp://127.0.0.1:8786", "scheduler.example.org:8786", "tls://[::1]:8786",
+                                     "tcp://dask_scheduler:8786",
                                      "ucx://10.0.0.1:13337", "inproc://192.0.2.2/11485/1", "processes"])
 def test_valid_dask_targets_are_accepted(address):
     assert cli._dask_target(address) == address
@@ -630,10 +631,7 @@ def test_an_unexpected_exception_is_one_line_unless_debugging(capsys, monkeypatc
 
     parser = cli._parser
     monkeypatch.setattr(cli, "_parser", lambda: _with_func(parser(), broken))
-    if debug:
-        monkeypatch.setenv("SYMMON_DEBUG", "1")
-    else:
-        monkeypatch.delenv("SYMMON_DEBUG", raising=False)
+    monkeypatch.setenv("SYMMON_DEBUG", "1" if debug else "0")
     code, out, err = run_cli(capsys, "propagate", EXAMPLES / "polar.toml")
     assert (code, out) == (1, "")
     last = "symmon: internal error: RuntimeError: an unforeseen failure (set SYMMON_DEBUG=1 for the traceback)\n"
