@@ -132,7 +132,7 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
     try:
         # mkstemp creates 0600; give the file the mode of the target, or the umask default.
         try:
-            mode = stat.S_IMODE(real.stat().st_mode)
+            mode = real.stat().st_mode & 0o777  # rwx bits only: never copy setuid/setgid
         except FileNotFoundError:
             umask = os.umask(0)
             os.umask(umask)
