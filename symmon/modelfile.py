@@ -721,7 +721,7 @@ def _check_keys(ctx: _Context, table: Mapping, allowed: Sequence[str], required:
         if missing:
             parts.append(f"missing key(s) {missing}")
         if extra:
-            parts.append(f"unknown key(s) {extra}")
+            parts.append(f"unknown key(s) {_short(extra, 200)}")
         raise ctx.error(where, "; ".join(parts) + f"; allowed keys: {', '.join(allowed)}")
 
 
@@ -868,8 +868,8 @@ def _units(ctx: _Context, table: Any, n_outputs: int, names: list[str]) -> dict[
     for key, unit in table.items():
         m = re.fullmatch(_OUTPUT_UNIT, key)
         if m is not None:
-            if int(m.group(1)) >= n_outputs:
-                raise ctx.error("[units]", f"{key!r}: there are only {n_outputs} outputs")
+            if len(m.group(1)) > len(str(n_outputs)) or int(m.group(1)) >= n_outputs:  # length first: no huge int()
+                raise ctx.error("[units]", f"{_short(key)}: there are only {n_outputs} outputs")
         elif key not in names:
             raise ctx.error(
                 "[units]", f"unknown key {key!r}; allowed: input and noise names, or 'outputs[i]' for an output"

@@ -404,6 +404,13 @@ def test_huge_numbers_and_deep_toml_are_refused(tmp_path, table, match):
         load_model_file(path)
 
 
+def test_a_huge_output_index_in_units_is_refused(tmp_path):
+    path = tmp_path / "m.toml"
+    path.write_text(model_text(extra=f'[units]\n"outputs[{"9" * 5000}]" = "m"\n'))
+    with pytest.raises(ModelFileError, match=r"\[units\]: 'outputs\[9999.*there are only 1 outputs"):
+        load_model_file(path)
+
+
 @pytest.mark.parametrize(
     ("text", "match"),
     [
