@@ -441,11 +441,14 @@ class _Builder:
             if isinstance(atom, sp.Rational) and max(_digits(atom.p), _digits(atom.q)) > MAX_RESULT_DIGITS:
                 # Exact big numbers make sympy's simplifications (roots, logs) slow.
                 raise self._at(node, f"number too large (more than {MAX_RESULT_DIGITS} digits)")
+            if isinstance(atom, sp.Float) and not math.isfinite(float(atom)):
+                # sympy evaluates functions of floats itself, e.g. cosh(cosh(64.0)) = 1e(1e27).
+                raise self._at(node, f"the number {str(sp.Float(atom, 4))} is not finite in double precision")
         if not expr.free_symbols and not expr.is_Number:
             # A constant such as acos(2) or (-8)**(1/3) is complex without containing I.
             value = expr.evalf(15)
             if not (value.is_Number and math.isfinite(float(value))):
-                raise self._at(node, f"the constant {expr} is not a finite real number in double precision ({value})")
+                raise self._at(node, f"the constant {expr} is not a finite real number in double precision ({str(value)})")
         self.checked.add(expr)
         return expr
 

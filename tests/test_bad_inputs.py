@@ -418,8 +418,12 @@ def test_a_huge_output_index_in_units_is_refused(tmp_path):
         ("x + (-8)**(1/3)", r"the constant 2\*\(-1\)\*\*\(1/3\) is not a finite real number"),
         ("x*exp(710)", r"the constant exp\(710\) is not a finite real number in double precision"),
         ("min(x, y, log(-1))", "the expression is complex"),
+        ("cosh(cosh((4.0)**3))", r"the number 3.104e\+1353945419820308977744228072 is not finite in double precision"),
+        ("x*1e308*10.0", r"the number 1.000e\+309 is not finite in double precision"),
+        ("x*exp(exp(exp(exp(5))))", r"the constant exp\(exp\(exp\(5\)\)\) is not a finite real number"),
     ],
-    ids=["max-acos", "cube-root-of-negative", "overflowing-constant", "min-log"],
+    ids=["max-acos", "cube-root-of-negative", "overflowing-constant", "min-log", "float-cosh", "float-product",
+         "exp-tower"],
 )
 def test_constants_that_are_complex_or_overflow_are_refused(text, match):
     with pytest.raises(ModelFileError, match=match):
