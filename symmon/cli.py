@@ -352,6 +352,8 @@ def cmd_nonlinearity(args: argparse.Namespace) -> int:
     if args.alpha_sweep is None and (args.plot or args.csv):
         raise _UsageError("--plot and --csv need --alpha-sweep")
     _check_output_files(args.csv, args.plot)
+    if args.csv and args.plot and os.path.realpath(args.csv) == os.path.realpath(args.plot):
+        raise _UsageError(f"--csv and --plot name the same file: {args.csv}")
     if args.plot and importlib.util.find_spec("matplotlib") is None:
         raise SymmonError("--plot needs matplotlib: pip install 'symmon[plot]'")
     with _mc_backend(args) as run_on:

@@ -583,6 +583,14 @@ def test_derive_report_into_a_directory_is_refused_before_running(capsys, tmp_pa
     assert code == 1 and "is a directory" in err
 
 
+def test_csv_and_plot_on_the_same_file_is_a_usage_error(capsys, tmp_path, no_computation):
+    target = tmp_path / "out.png"
+    code, out, err = run_cli(capsys, "nonlinearity", EXAMPLES / "polar.toml", "--alpha-sweep", "0.1:1:2",
+                             "--csv", target, "--plot", target)
+    assert (code, out) == (2, "")
+    assert f"--csv and --plot name the same file: {target}" in err
+
+
 @pytest.mark.skipif(not hasattr(os, "symlink"), reason="needs symbolic links")
 def test_a_symlinked_output_is_followed_and_the_link_kept(tmp_path):
     target = tmp_path / "real.csv"
