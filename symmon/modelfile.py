@@ -772,7 +772,7 @@ def _number(ctx: _Context, value: Any, where: str, params: Mapping[str, sp.Expr]
             # Extra digits, so that the conversion to float rounds once, correctly.
             x = float(expr.evalf(_EVALF_DIGITS))
         except (TypeError, OverflowError):
-            raise ctx.error(where, f"{_short(value)} is not a real number ({expr.evalf()})") from None
+            raise ctx.error(where, f"{_short(value)} is not a real number ({str(expr.evalf())})") from None
     else:
         raise ctx.error(where, f"must be a number or a constant expression string, got {_short(value)}")
     if not math.isfinite(x):
