@@ -9,11 +9,18 @@ and runs, e.g.::
 
 Exit codes: 0 on success, 2 on a usage error (bad options; argparse prints the usage),
 1 on a model or input error (a bad model file, a singular covariance, an unwritable output
-path, ...), 130 when interrupted, 141 when the reader of stdout goes away (``| head``).
-Error messages go to stderr, results to stdout. Every output file is written atomically
-through :mod:`symmon.io` (temporary file, then rename), so an existing file is replaced
-whole or left untouched. Progress bars (tqdm) go to stderr and are hidden when stderr is
-not a terminal or with ``--no-progress``.
+path, a result that is not finite, ...), 130 when interrupted, 141 when the reader of stdout
+goes away (``| head``). An unexpected exception is reported in one line with exit code 1;
+set the environment variable ``SYMMON_DEBUG=1`` to see its traceback.
+
+Options are checked when they are parsed, before any computation: the sizes have declared
+limits (:data:`MAX_SAMPLES`, :data:`MAX_ORDER`, :data:`MAX_GROUPS`, :data:`MAX_WORKERS`,
+:data:`MAX_SWEEP_POINTS`), a ``--dask`` address must have a known scheme, a host and a port,
+``--plot`` a figure format matplotlib writes, and output paths must name regular files (or
+directories) that can be written. Error messages go to stderr, results to stdout. Every
+output file is written atomically through :mod:`symmon.io` (temporary file, then rename),
+so an existing file is replaced whole or left untouched. Progress bars (tqdm) go to stderr
+and are hidden when stderr is not a terminal or with ``--no-progress``.
 
 :func:`main` returns the exit code instead of exiting, so it can be called in-process.
 """
@@ -22,10 +29,14 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib.util
+import ipaddress
 import json
 import math
 import os
+import re
 import sys
+import traceback
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
@@ -111,6 +122,23 @@ def transform_from_name(name: str, samples: int = 10**6, seed: int = 0, order: i
 
 #: Local Dask schedulers that ``--dask`` accepts by name; anything else is an address.
 DASK_LOCAL = ("threads", "processes", "synchronous")
+#: Network schemes of a ``--dask`` address (besides in-process ``inproc://``).
+DASK_SCHEMES = ("tcp", "tls", "ucx")
+
+# Declared limits of the options: past them a run would not fit in memory or in a day.
+#: Monte Carlo samples (``--samples``); samples are drawn in chunks, so this bounds time only.
+MAX_SAMPLES = 10**12
+#: Largest seed (``--seed``): numpy's SeedSequence takes non-negative integers.
+MAX_SEED = 2**64 - 1
+#: Gauss-Hermite points per dimension (``--order``).
+MAX_ORDER = 100
+#: Monte Carlo groups (``--groups``) and threads (``--workers``).
+MAX_GROUPS = 1024
+MAX_WORKERS = 1024
+#: Points of ``--alpha-sweep``: each is a full MoN computation.
+MAX_SWEEP_POINTS = 1000
+#: Fewest ``reproduce --samples``: two per Monte Carlo group of the figures (16 groups).
+REPRODUCE_MIN_SAMPLES = 32
 #: Seconds to wait for a Dask scheduler at ``--dask ADDRESS``.
 DASK_CONNECT_TIMEOUT = 10
 
@@ -128,12 +156,16 @@ def _mc_backend(args: argparse.Namespace) -> Iterator[dict[str, Any]]:
         settings["scheduler"] = target
         yield settings
         return
-    if ":" not in target:  # an address has a port, tcp://host:8786 or host:8786
-        raise _UsageError(f"--dask takes {', '.join(DASK_LOCAL)} or a scheduler address such as "
-                          f"tcp://host:8786, not {target!r}")
+    # An address, checked by _dask_target when the arguments were parsed.
     from .transforms.montecarlo import connect_dask
 
-    client = connect_dask(target, DASK_CONNECT_TIMEOUT)  # bounds the handshake too
+    try:
+        client = connect_dask(target, DASK_CONNECT_TIMEOUT)  # bounds the handshake too
+    except SymmonError:
+        raise
+    except Exception as exc:  # tls:// without a TLS configuration, ucx:// without ucx-py, ...
+        raise SymmonError(f"cannot connect to the Dask scheduler at {target}: "
+                          f"{type(exc).__name__}: {exc}") from exc
     try:
         settings["client"] = client
         yield settings
@@ -162,6 +194,16 @@ def _jsonable(a: Any) -> Any:
     return [_jsonable(x) for x in arr]
 
 
+def _finite(name: str, value: Any) -> Any:
+    """``value``, after checking that every number in it is finite (None passes).
+
+    A NaN or inf is an error, never a printed result: the command exits 1 naming the quantity.
+    """
+    if value is not None and not np.all(np.isfinite(np.asarray(value, dtype=float))):
+        raise SymmonError(f"{name} is not finite (it contains NaN or inf); no result is printed")
+    return value
+
+
 def _print_json(obj: dict) -> None:
     print(json.dumps(obj, indent=2, allow_nan=False))
 
@@ -175,6 +217,9 @@ def cmd_propagate(args: argparse.Namespace) -> int:
     with _mc_backend(args) as run_on:
         tr = transform_from_name(args.transform, args.samples, args.seed, args.order, **run_on)
         m = propagate(spec.model, spec.u, spec.v, tr)
+    for name, value in (("E y", m.mean), ("Cov y", m.cov), ("Cov(y, u)", m.cross_cov),
+                        *((f"the standard error of {k}", v) for k, v in (m.stderr or {}).items())):
+        _finite(name, value)
     if args.json:
         out = {
             "model": spec.model.name, "inputs": [str(s) for s in spec.model.inputs],
@@ -205,17 +250,81 @@ def _sweep(text: str) -> np.ndarray:
         raise argparse.ArgumentTypeError(f"must be A:B:N with numbers A, B and an integer N, got {text!r}") from None
     if not (math.isfinite(a) and math.isfinite(b)) or a <= 0 or b <= 0 or n < 1:
         raise argparse.ArgumentTypeError(f"needs finite A, B > 0 and N >= 1, got {text!r}")
+    if n > MAX_SWEEP_POINTS:
+        raise argparse.ArgumentTypeError(f"N must be at most {MAX_SWEEP_POINTS}, got {text!r}")
     return np.logspace(np.log10(a), np.log10(b), n)
 
 
-def _positive_int(text: str) -> int:
+def _int_in(lo: int, hi: int) -> Callable[[str], int]:
+    """argparse type: an integer from ``lo`` to ``hi``; the bound keeps memory and time in reach."""
+    def parse(text: str) -> int:
+        what = "a positive integer" if lo == 1 else f"an integer >= {lo}"
+        try:
+            n = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
+        if n < lo:
+            raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
+        if n > hi:
+            raise argparse.ArgumentTypeError(f"must be at most {hi:,}, got {text!r}")
+        return n
+
+    return parse
+
+
+_samples = _int_in(1, MAX_SAMPLES)
+_seed = _int_in(0, MAX_SEED)
+
+
+def _dask_target(text: str) -> str:
+    """argparse type of ``--dask``: a local scheduler name or a scheduler address.
+
+    An address is ``[tcp|tls|ucx://]host:port`` with a port from 1 to 65535 (a bracketed
+    IPv6 host is allowed), or an in-process ``inproc://host/pid/n`` address.
+    """
+    if text in DASK_LOCAL:
+        return text
+    scheme, sep, rest = text.partition("://")
+    if not sep:
+        scheme, rest = "tcp", text
+    if scheme == "inproc" and re.fullmatch(r"[^/\s]+/[0-9]+/[0-9]+", rest):
+        return text
+    usage = (f"--dask takes {', '.join(DASK_LOCAL)} or a scheduler address such as tcp://host:8786, "
+             f"not {text!r}")
+    form = f"in {text!r} (an address is [{'|'.join(DASK_SCHEMES)}://]host:port)"
+    if scheme not in DASK_SCHEMES:
+        raise argparse.ArgumentTypeError(f"unknown scheme {scheme!r} {form}")
+    host, colon, port = rest.rpartition(":")
+    if not colon or not host:
+        raise argparse.ArgumentTypeError(usage)
+    if host.startswith("[") and host.endswith("]"):
+        try:
+            ipaddress.IPv6Address(host[1:-1])
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid IPv6 host {host!r} {form}") from None
+    elif not re.fullmatch(r"[A-Za-z0-9_]([A-Za-z0-9_.-]*[A-Za-z0-9_])?", host):  # '_': container names
+        raise argparse.ArgumentTypeError(f"invalid host {host!r} {form}")
+    if not (port.isascii() and port.isdigit() and len(port) <= 5 and 1 <= int(port) <= 65535):
+        raise argparse.ArgumentTypeError(f"the port must be a number from 1 to 65535, got {port!r} {form}")
+    return text
+
+
+def _output_path(text: str) -> str:
+    """argparse type of an output file or directory: not empty (checked on disk later)."""
+    if not text:
+        raise argparse.ArgumentTypeError("must be a file name, got an empty string")
+    return text
+
+
+def _plot_path(text: str) -> str:
+    """argparse type of ``--plot``: a file name whose suffix is a format matplotlib writes."""
+    from .io import OutputPathError, plot_format
+
     try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
-    return n
+        plot_format(_output_path(text))
+    except OutputPathError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
 
 
 def _measure_json(res) -> dict:
@@ -224,10 +333,32 @@ def _measure_json(res) -> dict:
             "transform": repr(res.transform), "notes": list(res.notes)}
 
 
+def _finite_measure(res, where: str):
+    """The MoN result ``res``, after checking that its numbers are finite."""
+    for name, value in (("the MoN", res.value), ("the squared MoN", res.squared), ("J_Ab", res.J_Ab),
+                        ("J_n", res.J_n), ("the standard error of the MoN", res.stderr)):
+        _finite(name + where, value)
+    return res
+
+
+def _check_output_files(*paths: str | None) -> None:
+    """Refuse output files that cannot be written, before any computation."""
+    from .io import check_output_file
+
+    for p in paths:
+        if p is not None:
+            check_output_file(p)
+
+
 def cmd_nonlinearity(args: argparse.Namespace) -> int:
     """``symmon nonlinearity``: the MoN of a model file, once or over a sweep of α."""
     if args.alpha_sweep is None and (args.plot or args.csv):
         raise _UsageError("--plot and --csv need --alpha-sweep")
+    _check_output_files(args.csv, args.plot)
+    if args.csv and args.plot and os.path.realpath(args.csv) == os.path.realpath(args.plot):
+        raise _UsageError(f"--csv and --plot name the same file: {args.csv}")
+    if args.plot and importlib.util.find_spec("matplotlib") is None:
+        raise SymmonError("--plot needs matplotlib: pip install 'symmon[plot]'")
     with _mc_backend(args) as run_on:
         return _nonlinearity(args, run_on)
 
@@ -241,7 +372,7 @@ def _nonlinearity(args: argparse.Namespace, run_on: dict[str, Any]) -> int:
     spec = _load(args.file)
     tr = transform_from_name(args.transform, args.samples, args.seed, args.order, **run_on)
     if args.alpha_sweep is None:
-        res = nonlinearity(spec.model, spec.u, spec.v, args.weight, tr)
+        res = _finite_measure(nonlinearity(spec.model, spec.u, spec.v, args.weight, tr), "")
         if args.json:
             _print_json({"model": spec.model.name, **_measure_json(res)})
             return 0
@@ -254,7 +385,8 @@ def _nonlinearity(args: argparse.Namespace, run_on: dict[str, Any]) -> int:
     rows, notes = [], []
     for a in progress_bar(args.alpha_sweep, "alpha sweep", not args.no_progress):
         res = nonlinearity(spec.model, Gaussian(spec.u.mean, a * spec.u.cov), spec.v, args.weight, tr)
-        rows.append((float(a), res.value, res.stderr if res.stderr is not None else float("nan")))
+        _finite_measure(res, f" at alpha={a:.6g}")
+        rows.append((float(a), res.value, res.stderr))  # stderr None: not a Monte Carlo transform
         notes.extend(n for n in res.notes if n not in notes)
     # Compute everything first, then write: a failure midway leaves no partial file.
     written = []
@@ -279,7 +411,7 @@ def _nonlinearity(args: argparse.Namespace, run_on: dict[str, Any]) -> int:
                      "files": [str(p) for p in written]})
         return 0
     for a, value, se in rows:
-        print(f"alpha={a:.4g}  MoN={value:.6g}" + ("" if math.isnan(se) else f" ± {se:.2g}"))
+        print(f"alpha={a:.4g}  MoN={value:.6g}" + ("" if se is None else f" ± {se:.2g}"))
     for note in notes:
         print(f"note: {note}")
     for p in written:
@@ -297,8 +429,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
     with _mc_backend(args) as run_on:
         for name in progress_bar(TRANSFORM_NAMES, "transforms", not args.no_progress):
             tr = transform_from_name(name, args.samples, args.seed, args.order, **run_on)
-            res = nonlinearity(spec.model, spec.u, spec.v, args.weight, tr)
+            res = _finite_measure(nonlinearity(spec.model, spec.u, spec.v, args.weight, tr), f" by {name}")
             m = res.moments
+            for what, value in (("E y", m.mean), ("Cov y", m.cov), ("Cov(y, u)", m.cross_cov)):
+                _finite(f"{what} by {name}", value)
             rows.append({"name": name, "transform": repr(tr), "mon": res.value, "stderr": res.stderr,
                          "evaluations": m.info.get("evaluations"), "mean": m.mean, "cov": m.cov,
                          "cross_cov": m.cross_cov, "notes": res.notes})
@@ -339,9 +473,10 @@ def cmd_prove(args: argparse.Namespace) -> int:
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
     """``symmon reproduce``: a figure of the papers as PNG + CSV."""
-    import importlib
+    from .io import check_output_dir
 
     which = FIGURES if args.figure == "all" else (args.figure,)
+    check_output_dir(args.out)
     out = Path(args.out)
     for name in which:
         mod = importlib.import_module(f".reproduce.{name}", __package__)
@@ -358,12 +493,13 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 def cmd_derive(args: argparse.Namespace) -> int:
     """``symmon derive``: run derivation scripts and write a Markdown report."""
     from . import derive
-    from .io import atomic_write_text
+    from .io import atomic_write_text, check_output_file
 
     if args.list:
         for name in derive.require_available():
             print(name)
         return 0
+    check_output_file(args.out)
     names = None if args.all or not args.name else [args.name]
     results = derive.run(names)
     path = atomic_write_text(args.out, derive.report_markdown(results))
@@ -376,7 +512,9 @@ def cmd_derive(args: argparse.Namespace) -> int:
 def cmd_codegen(args: argparse.Namespace) -> int:
     """``symmon codegen``: standalone C code for g, J and the TT2 and UT moments."""
     from .codegen import export_c
+    from .io import check_output_dir
 
+    check_output_dir(args.output)
     spec = _load(args.file)
     for p in export_c(spec.model, args.output, args.name):
         print(f"wrote {p}")
@@ -539,16 +677,17 @@ def _parser() -> argparse.ArgumentParser:
 
     def rule_opts(sp: argparse.ArgumentParser, samples: int) -> None:
         """The settings of the Monte Carlo and Gauss-Hermite rules, and where MC runs."""
-        sp.add_argument("--samples", type=_positive_int, default=samples,
+        sp.add_argument("--samples", type=_samples, default=samples,
                         help=f"Monte Carlo samples (default {samples})")
-        sp.add_argument("--seed", type=int, default=0, help="Monte Carlo seed (default 0)")
-        sp.add_argument("--order", type=_positive_int, default=5, help="Gauss-Hermite order (default 5)")
-        sp.add_argument("--groups", type=_positive_int, default=16,
+        sp.add_argument("--seed", type=_seed, default=0, help="Monte Carlo seed, >= 0 (default 0)")
+        sp.add_argument("--order", type=_int_in(1, MAX_ORDER), default=5,
+                        help=f"Gauss-Hermite order, at most {MAX_ORDER} (default 5)")
+        sp.add_argument("--groups", type=_int_in(1, MAX_GROUPS), default=16,
                         help="Monte Carlo groups: independent streams, one task each; the error bars "
                         "come from them (default 16, at least 2)")
-        sp.add_argument("--workers", type=_positive_int, default=None,
+        sp.add_argument("--workers", type=_int_in(1, MAX_WORKERS), default=None,
                         help="Monte Carlo threads (default: the number of CPUs)")
-        sp.add_argument("--dask", metavar="TARGET", default=None,
+        sp.add_argument("--dask", metavar="TARGET", type=_dask_target, default=None,
                         help=f"run the Monte Carlo groups on Dask: {', '.join(DASK_LOCAL)}, or a scheduler "
                         "address such as tcp://host:8786 (needs the 'dask' extra); same result for the same seed")
 
@@ -568,8 +707,10 @@ def _parser() -> argparse.ArgumentParser:
     transform_opts(sp, 10**6)
     sp.add_argument("--alpha-sweep", metavar="A:B:N", type=_sweep,
                     help="scale the input covariance by N log-spaced alphas from A to B")
-    sp.add_argument("--plot", metavar="PNG", help="with --alpha-sweep: write the MoN curve (atomically)")
-    sp.add_argument("--csv", metavar="CSV", help="with --alpha-sweep: write alpha, mon, stderr (atomically)")
+    sp.add_argument("--plot", metavar="PNG", type=_plot_path,
+                    help="with --alpha-sweep: write the MoN curve (atomically; .png, .pdf, .svg, ...)")
+    sp.add_argument("--csv", metavar="CSV", type=_output_path,
+                    help="with --alpha-sweep: write alpha, mon, stderr (atomically)")
     sp.add_argument("--json", action="store_true", help="print JSON")
     sp.add_argument("--no-progress", action="store_true", help="no progress bar")
     sp.set_defaults(func=cmd_nonlinearity)
@@ -597,10 +738,11 @@ def _parser() -> argparse.ArgumentParser:
 
     sp = add("reproduce", "reproduce a figure of the papers (PNG + CSV)")
     sp.add_argument("figure", choices=FIGURES + ("all",))
-    sp.add_argument("--samples", type=_positive_int, default=None,
-                    help="Monte Carlo samples (default 10^6; the paper used 10^7); for mmse: runs")
-    sp.add_argument("--seed", type=int, default=0, help="seed (default 0)")
-    sp.add_argument("--out", default="results", help="output directory (default ./results)")
+    sp.add_argument("--samples", type=_int_in(REPRODUCE_MIN_SAMPLES, MAX_SAMPLES), default=None,
+                    help=f"Monte Carlo samples, at least {REPRODUCE_MIN_SAMPLES} (default 10^6; the paper "
+                    "used 10^7); for mmse: runs")
+    sp.add_argument("--seed", type=_seed, default=0, help="seed, >= 0 (default 0)")
+    sp.add_argument("--out", type=_output_path, default="results", help="output directory (default ./results)")
     sp.add_argument("--no-progress", action="store_true", help="no progress bar")
     sp.add_argument("--runs", type=_positive_int, default=None,
                     help="Monte Carlo runs of mmse and tracking (default: theirs, 1000 and 500)")
@@ -611,12 +753,14 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--all", action="store_true", help="run every derivation (the default)")
     g.add_argument("--list", action="store_true", help="list the derivation names and exit")
     g.add_argument("name", nargs="?", help="one derivation, by name (see --list)")
-    sp.add_argument("--out", default="derivations-report.md", help="report file (default derivations-report.md)")
+    sp.add_argument("--out", type=_output_path, default="derivations-report.md",
+                    help="report file (default derivations-report.md)")
     sp.set_defaults(func=cmd_derive)
 
     sp = add("codegen", "export standalone C code (g, J, TT2 and UT moments)")
     sp.add_argument("file", help="TOML model file")
-    sp.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory (created if missing)")
+    sp.add_argument("-o", "--output", type=_output_path, required=True, metavar="DIR",
+                    help="output directory (created if missing)")
     sp.add_argument("--name", default=None, help="C prefix and file name (default: the model's name)")
     sp.set_defaults(func=cmd_codegen)
 
@@ -660,8 +804,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     Returns
     -------
     int
-        0 on success, 1 on a model or input error, 2 on a usage error, 130 if interrupted,
-        141 if the reader of stdout went away.
+        0 on success, 1 on a model or input error (or an unexpected exception, reported in
+        one line; ``SYMMON_DEBUG=1`` prints its traceback), 2 on a usage error, 130 if
+        interrupted, 141 if the reader of stdout went away.
     """
     parser = _parser()
     try:
@@ -687,6 +832,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("symmon: interrupted; no output file was half-written", file=sys.stderr)
         return 130
+    except Exception as exc:  # a bug, or an input no check foresaw: one line, the traceback on request
+        if os.environ.get("SYMMON_DEBUG", "0") not in ("", "0"):
+            traceback.print_exc()
+        what = "out of memory" if isinstance(exc, MemoryError) else " ".join(str(exc).split())
+        print(f"symmon: internal error: {type(exc).__name__}: {what} "
+              "(set SYMMON_DEBUG=1 for the traceback)", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -57,7 +57,17 @@ f-strings, dunder names, keyword and starred arguments, comparisons, boolean ope
 conditional expressions, assignment expressions, unknown names and functions, wrong
 arities, exponents above 64 in absolute value or containing a power themselves, numbers
 that would grow past 100 digits, expressions longer than 2000 characters or nested more
-than 50 levels deep, and results that are complex or not finite.
+than 50 levels deep, and results that are complex or not finite, including constants
+that are complex without showing it (``acos(2)``, ``(-8)**(1/3)``) or that overflow a
+double (``exp(710)``).
+
+Hostile files are bounded too: only a regular file is read (a FIFO, device or directory
+is refused before it is opened, so reading never blocks), of at most
+:data:`MAX_FILE_BYTES` bytes; names have at most :data:`MAX_NAME_LENGTH` characters (the
+model's name printable ones); a model has at most :data:`MAX_SYMBOLS` inputs and noise
+symbols and :data:`MAX_OUTPUTS` outputs; TOML integers past the float range and arrays
+nested too deeply are refused. The time a C compiler takes on a large model is not
+bounded here but where models are turned into C code.
 """
 
 # Security note: this module does not use eval, exec, compile, sympify or parse_expr;
@@ -71,6 +81,7 @@ import keyword
 import math
 import os
 import re
+import stat
 import unicodedata
 import warnings
 from dataclasses import dataclass, field
@@ -107,6 +118,9 @@ __all__ = [
     "MAX_INTEGER_LITERAL",
     "MAX_RESULT_DIGITS",
     "MAX_FILE_BYTES",
+    "MAX_NAME_LENGTH",
+    "MAX_SYMBOLS",
+    "MAX_OUTPUTS",
 ]
 
 #: Longest expression text accepted, in characters (checked before parsing).
@@ -122,6 +136,12 @@ MAX_INTEGER_LITERAL = 10**15
 MAX_RESULT_DIGITS = 100
 #: Largest model file read, in bytes.
 MAX_FILE_BYTES = 1_000_000
+#: Longest name (of the model, an input, a noise symbol or a parameter), in characters.
+MAX_NAME_LENGTH = 100
+#: Most inputs and noise symbols together, and most outputs, of a model file. The time a
+#: C compiler takes on a large model is bounded where models are turned into C code.
+MAX_SYMBOLS = 100
+MAX_OUTPUTS = 100
 
 
 class ModelFileError(ModelError):
@@ -261,6 +281,7 @@ class _Builder:
 
     def __init__(self, names: Mapping[str, sp.Expr]) -> None:
         self.names = names
+        self.checked: set[sp.Basic] = set()  # results of _checked, finite and real
 
     # -- entry -------------------------------------------------------------------------
     def build(self, node: ast.AST, depth: int) -> sp.Expr:
@@ -398,12 +419,21 @@ class _Builder:
         if n < spec.min_args or (spec.max_args is not None and n > spec.max_args):
             raise self._at(node, f"wrong number of arguments: {name} takes {spec.arity()}, got {n}")
         args = [self.build(a, depth + 1) for a in node.args]
-        return self._checked(node, spec.build(*args))
+        try:
+            result = spec.build(*args)
+        except (ValueError, TypeError) as exc:  # e.g. max of a complex constant: "not comparable"
+            raise self._at(node, f"{name}: {exc}") from None
+        return self._checked(node, result)
 
     # -- results -------------------------------------------------------------------------
     def _checked(self, node: ast.AST, expr: sp.Expr) -> sp.Expr:
-        # Depth is bounded, so re-walking each node's result costs at most MAX_DEPTH passes.
-        for atom in sp.preorder_traversal(expr):
+        # Subtrees already checked are skipped: a deep expression is walked about once, not
+        # once per level (sympy may still rebuild a node, which is then walked again).
+        walk = sp.preorder_traversal(expr)
+        for atom in walk:
+            if atom in self.checked:
+                walk.skip()
+                continue
             if atom in (sp.zoo, sp.nan, sp.oo, sp.S.NegativeInfinity):
                 raise self._at(node, f"the expression is not finite ({expr})")
             if atom == sp.I:
@@ -411,6 +441,15 @@ class _Builder:
             if isinstance(atom, sp.Rational) and max(_digits(atom.p), _digits(atom.q)) > MAX_RESULT_DIGITS:
                 # Exact big numbers make sympy's simplifications (roots, logs) slow.
                 raise self._at(node, f"number too large (more than {MAX_RESULT_DIGITS} digits)")
+            if isinstance(atom, sp.Float) and not math.isfinite(float(atom)):
+                # sympy evaluates functions of floats itself, e.g. cosh(cosh(64.0)) = 1e(1e27).
+                raise self._at(node, f"the number {str(sp.Float(atom, 4))} is not finite in double precision")
+        if not expr.free_symbols and not expr.is_Number:
+            # A constant such as acos(2) or (-8)**(1/3) is complex without containing I.
+            value = expr.evalf(15)
+            if not (value.is_Number and math.isfinite(float(value))):
+                raise self._at(node, f"the constant {expr} is not a finite real number in double precision ({str(value)})")
+        self.checked.add(expr)
         return expr
 
 
@@ -631,23 +670,50 @@ class _Context:
 
 
 def _read(path: Path) -> str:
+    """The text of a model file: a regular UTF-8 file of at most MAX_FILE_BYTES bytes.
+
+    A FIFO, device or directory is refused from its ``stat`` before it is opened (opening
+    a FIFO for reading blocks until a writer comes); the file is then opened without
+    blocking and checked again on the open descriptor, in case it was swapped meanwhile.
+    """
+    def fail(reason: str) -> ModelFileError:
+        return ModelFileError(f"{path}: {reason}", source=str(path), reason=reason)
+
     try:
-        with open(path, "rb") as fh:
+        _check_regular(os.stat(path), fail)
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
+        with os.fdopen(fd, "rb") as fh:
+            _check_regular(os.fstat(fh.fileno()), fail)
             data = fh.read(MAX_FILE_BYTES + 1)
     except FileNotFoundError:
-        raise ModelFileError(f"{path}: model file not found", source=str(path), reason="not found") from None
+        raise fail("model file not found") from None
     except PermissionError:
-        raise ModelFileError(
-            f"{path}: model file cannot be read (permission denied)", source=str(path), reason="permission denied"
-        ) from None
+        raise fail("model file cannot be read (permission denied)") from None
     except OSError as exc:
-        raise ModelFileError(f"{path}: model file cannot be read: {exc.strerror or exc}", source=str(path)) from None
+        raise fail(f"model file cannot be read: {exc.strerror or exc}") from None
     if len(data) > MAX_FILE_BYTES:
-        raise ModelFileError(f"{path}: model file larger than {MAX_FILE_BYTES} bytes", source=str(path))
+        raise fail(f"model file larger than {MAX_FILE_BYTES} bytes")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise ModelFileError(f"{path}: model file is not UTF-8 text (byte {exc.start})", source=str(path)) from None
+        raise fail(f"model file is not UTF-8 text (byte {exc.start})") from None
+
+
+def _check_regular(st: os.stat_result, fail: Callable[[str], ModelFileError]) -> None:
+    """Refuse a file that is not regular, or too large, from its stat."""
+    if stat.S_ISDIR(st.st_mode):
+        raise fail("model file cannot be read: it is a directory")
+    if not stat.S_ISREG(st.st_mode):
+        kind = "a FIFO" if stat.S_ISFIFO(st.st_mode) else "a device, socket or other special file"
+        raise fail(f"model file cannot be read: it is {kind}, not a regular file")
+    if st.st_size > MAX_FILE_BYTES:
+        raise fail(f"model file larger than {MAX_FILE_BYTES} bytes ({st.st_size} bytes)")
+
+
+def _short(value: Any, limit: int = 80) -> str:
+    """``repr(value)``, cut to ``limit`` characters: hostile values make long messages."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _check_keys(ctx: _Context, table: Mapping, allowed: Sequence[str], required: Sequence[str], where: str) -> None:
@@ -658,19 +724,21 @@ def _check_keys(ctx: _Context, table: Mapping, allowed: Sequence[str], required:
         if missing:
             parts.append(f"missing key(s) {missing}")
         if extra:
-            parts.append(f"unknown key(s) {extra}")
+            parts.append(f"unknown key(s) {_short(extra, 200)}")
         raise ctx.error(where, "; ".join(parts) + f"; allowed keys: {', '.join(allowed)}")
 
 
 def _names(ctx: _Context, value: Any, key: str, seen: dict[str, str]) -> list[str]:
     if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-        raise ctx.error(key, f"must be a list of names (strings), got {value!r}")
+        raise ctx.error(key, f"must be a list of names (strings), got {_short(value)}")
     for name in value:
         _check_name(ctx, name, key, seen)
     return list(value)
 
 
 def _check_name(ctx: _Context, name: str, key: str, seen: dict[str, str]) -> None:
+    if len(name) > MAX_NAME_LENGTH:
+        raise ctx.error(key, f"{_short(name)}: names are at most {MAX_NAME_LENGTH} characters long")
     if not name.isidentifier() or keyword.iskeyword(name):
         raise ctx.error(key, f"{name!r} is not a valid identifier")
     if unicodedata.normalize("NFKC", name) != name:
@@ -687,32 +755,35 @@ def _check_name(ctx: _Context, name: str, key: str, seen: dict[str, str]) -> Non
 
 def _number(ctx: _Context, value: Any, where: str, params: Mapping[str, sp.Expr], anchor: str) -> float:
     if isinstance(value, bool):
-        raise ctx.error(where, f"must be a number, got the boolean {value!r}")
+        raise ctx.error(where, f"must be a number, got the boolean {_short(value)}")
     if isinstance(value, (int, float)):
-        x = float(value)
+        try:
+            x = float(value)
+        except OverflowError:  # an integer past the float range (TOML integers are unbounded here)
+            raise ctx.error(where, "integer too large for a float (beyond ±1.8e308)") from None
     elif isinstance(value, str):
         line_off, col_off = ctx.locate(value, anchor)
         expr = parse_expression(
             value, params, source=f"{ctx.path}: {where}", line_offset=line_off, col_offset=col_off
         )
         if expr.free_symbols:
-            raise ctx.error(where, f"{value!r} must be a constant expression, it uses {sorted(map(str, expr.free_symbols))}")
+            raise ctx.error(where, f"{_short(value)} must be a constant expression, it uses {sorted(map(str, expr.free_symbols))}")
         try:
             # Extra digits, so that the conversion to float rounds once, correctly.
             x = float(expr.evalf(_EVALF_DIGITS))
-        except TypeError:
-            raise ctx.error(where, f"{value!r} is not a real number ({expr.evalf()})") from None
+        except (TypeError, OverflowError):
+            raise ctx.error(where, f"{_short(value)} is not a real number ({str(expr.evalf())})") from None
     else:
-        raise ctx.error(where, f"must be a number or a constant expression string, got {value!r}")
+        raise ctx.error(where, f"must be a number or a constant expression string, got {_short(value)}")
     if not math.isfinite(x):
-        raise ctx.error(where, f"must be finite, got {value!r}")
+        raise ctx.error(where, f"must be finite, got {_short(value)}")
     return x
 
 
 def _gaussian(ctx: _Context, table: Any, key: str, dim: int, params: Mapping[str, sp.Expr], what: str) -> Gaussian:
     where = f"[{key}]"
     if not isinstance(table, dict):
-        raise ctx.error(where, f"must be a table with keys {', '.join(_GAUSS_KEYS)}, got {table!r}")
+        raise ctx.error(where, f"must be a table with keys {', '.join(_GAUSS_KEYS)}, got {_short(table)}")
     _check_keys(ctx, table, _GAUSS_KEYS, ("mean",), where)
     if ("cov" in table) == ("std" in table):
         raise ctx.error(where, "give exactly one of 'cov' (covariance) or 'std' (standard deviations)")
@@ -734,7 +805,7 @@ def _gaussian(ctx: _Context, table: Any, key: str, dim: int, params: Mapping[str
         cov_in = table["cov"]
         if isinstance(cov_in, list):
             if not all(isinstance(row, list) for row in cov_in):
-                raise ctx.error(where, f"cov must be a matrix (a list of rows), got {cov_in!r}")
+                raise ctx.error(where, f"cov must be a matrix (a list of rows), got {_short(cov_in)}")
             if len(cov_in) != dim or any(len(row) != dim for row in cov_in):
                 shape = f"{len(cov_in)} rows of lengths {[len(r) for r in cov_in]}"
                 raise ctx.error(where, f"cov must be {dim}x{dim} for {dim} {what}, got {shape}")
@@ -756,20 +827,20 @@ def _gaussian(ctx: _Context, table: Any, key: str, dim: int, params: Mapping[str
 def _params(ctx: _Context, table: Any, seen: dict[str, str]) -> dict[str, sp.Expr]:
     """The [params] table as sympy numbers, by name."""
     if not isinstance(table, dict):
-        raise ctx.error("params", f"must be a table of numbers, got {table!r}")
+        raise ctx.error("params", f"must be a table of numbers, got {_short(table)}")
     params: dict[str, sp.Expr] = {}
     for name, value in table.items():
         _check_name(ctx, name, "[params]", seen)
         where = f"[params].{name}"
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ctx.error(where, f"must be a number, got {value!r}")
+            raise ctx.error(where, f"must be a number, got {_short(value)}")
         if isinstance(value, int):
             if abs(value) > MAX_INTEGER_LITERAL:
                 raise ctx.error(where, f"integer too large (more than {MAX_INTEGER_LITERAL:.0e})")
             params[name] = sp.Integer(value)
         else:
             if not math.isfinite(value):
-                raise ctx.error(where, f"must be finite, got {value!r}")
+                raise ctx.error(where, f"must be finite, got {_short(value)}")
             params[name] = sp.Float(value)
     return params
 
@@ -777,7 +848,7 @@ def _params(ctx: _Context, table: Any, seen: dict[str, str]) -> dict[str, sp.Exp
 def _angles(ctx: _Context, value: Any, n_outputs: int, inputs: list[sp.Symbol]) -> list[int | sp.Symbol]:
     """The angles list as output indices and input symbols, for :class:`Model`."""
     if not isinstance(value, list):
-        raise ctx.error("angles", f"must be a list of output indices or input names, got {value!r}")
+        raise ctx.error("angles", f"must be a list of output indices or input names, got {_short(value)}")
     by_name = {s.name: s for s in inputs}
     angles: list[int | sp.Symbol] = []
     for a in value:
@@ -788,26 +859,26 @@ def _angles(ctx: _Context, value: Any, n_outputs: int, inputs: list[sp.Symbol]) 
         elif isinstance(a, str) and a in by_name:
             angles.append(by_name[a])
         else:
-            raise ctx.error("angles", f"{a!r} is neither an output index nor an input name ({', '.join(by_name)})")
+            raise ctx.error("angles", f"{_short(a)} is neither an output index nor an input name ({', '.join(by_name)})")
     return angles
 
 
 def _units(ctx: _Context, table: Any, n_outputs: int, names: list[str]) -> dict[str, str]:
     """The [units] table, keys checked against the declared names and the outputs."""
     if not isinstance(table, dict):
-        raise ctx.error("units", f"must be a table of unit strings, got {table!r}")
+        raise ctx.error("units", f"must be a table of unit strings, got {_short(table)}")
     units: dict[str, str] = {}
     for key, unit in table.items():
         m = re.fullmatch(_OUTPUT_UNIT, key)
         if m is not None:
-            if int(m.group(1)) >= n_outputs:
-                raise ctx.error("[units]", f"{key!r}: there are only {n_outputs} outputs")
+            if len(m.group(1)) > len(str(n_outputs)) or int(m.group(1)) >= n_outputs:  # length first: no huge int()
+                raise ctx.error("[units]", f"{_short(key)}: there are only {n_outputs} outputs")
         elif key not in names:
             raise ctx.error(
                 "[units]", f"unknown key {key!r}; allowed: input and noise names, or 'outputs[i]' for an output"
             )
         if not isinstance(unit, str) or not unit.strip():
-            raise ctx.error(f"[units].{key}", f"must be a non-empty unit string, got {unit!r}")
+            raise ctx.error(f"[units].{key}", f"must be a non-empty unit string, got {_short(unit)}")
         units[key] = unit
     return units
 
@@ -863,17 +934,28 @@ def load_model_file(path: str | os.PathLike) -> ModelSpec:
     except _toml.TOMLDecodeError as exc:
         # The message of tomllib ends with "(at line L, column C)".
         raise ModelFileError(f"{path}: invalid TOML: {exc}", source=str(path), reason=str(exc)) from None
+    except ValueError as exc:  # an integer of more than 4300 digits
+        raise ModelFileError(f"{path}: invalid TOML: {exc}", source=str(path), reason=str(exc)) from None
+    except RecursionError:
+        reason = "arrays or tables nested too deeply"
+        raise ModelFileError(f"{path}: invalid TOML: {reason}", source=str(path), reason=reason) from None
     _check_keys(ctx, doc, _TOP_KEYS, _REQUIRED_KEYS, "")
 
     name = doc["name"]
     if not isinstance(name, str) or not name.strip():
         raise ctx.error("name", f"must be a non-empty string, got {name!r}")
+    if len(name) > MAX_NAME_LENGTH or not name.isprintable():
+        # The name is printed in reports and written into generated C comments.
+        raise ctx.error("name", f"must be at most {MAX_NAME_LENGTH} printable characters (no control characters)")
 
     seen: dict[str, str] = {}
     input_names = _names(ctx, doc["inputs"], "inputs", seen)
     if not input_names:
         raise ctx.error("inputs", "at least one input is required")
     noise_names = _names(ctx, doc.get("noise", []), "noise", seen)
+    if len(input_names) + len(noise_names) > MAX_SYMBOLS:
+        raise ctx.error("inputs", f"{len(input_names)} inputs and {len(noise_names)} noise symbols: "
+                        f"at most {MAX_SYMBOLS} in all are accepted")
 
     params = _params(ctx, doc.get("params", {}), seen)
 
@@ -883,7 +965,9 @@ def load_model_file(path: str | os.PathLike) -> ModelSpec:
 
     outputs_raw = doc["outputs"]
     if not isinstance(outputs_raw, list) or not outputs_raw or not all(isinstance(o, str) for o in outputs_raw):
-        raise ctx.error("outputs", f"must be a non-empty list of expression strings, got {outputs_raw!r}")
+        raise ctx.error("outputs", f"must be a non-empty list of expression strings, got {_short(outputs_raw)}")
+    if len(outputs_raw) > MAX_OUTPUTS:
+        raise ctx.error("outputs", f"{len(outputs_raw)} outputs: at most {MAX_OUTPUTS} are accepted")
     outputs = []
     for i, text in enumerate(outputs_raw):
         line_off, col_off = ctx.locate(text, r"^\s*outputs\s*=")

@@ -8,6 +8,7 @@ model file executed.
 from __future__ import annotations
 
 import builtins
+import dataclasses
 import importlib
 import os
 import re
@@ -379,3 +380,287 @@ def test_model_error_in_a_valid_file_is_exit_1(capsys, tmp_path):
     code, out, err = run_cli(capsys, "propagate", path)
     assert (code, out) == (1, "")
     assert "not positive semi-definite" in err
+
+
+# --------------------------------------------------------------------------- hostile input (issue 13)
+BIG = "1" + "0" * 400  # a 401-digit TOML integer: past the float range
+
+
+@pytest.mark.parametrize(
+    ("table", "match"),
+    [
+        (f"mean = [{BIG}, 2]\ncov = [[1, 0], [0, 1]]\n", r"\[u\]\.mean\[0\]: integer too large for a float \(beyond ±1.8e308\)"),
+        (f"mean = [1, 2]\ncov = [[{BIG}, 0], [0, 1]]\n", r"\[u\]\.cov\[0\]\[0\]: integer too large for a float"),
+        (f"mean = [1, 2]\nstd = [1, {BIG}]\n", r"\[u\]\.std\[1\]: integer too large for a float"),
+        (f"mean = [1, 2]\nstd = [1, {'9' * 5000}]\n", "invalid TOML: Exceeds the limit"),
+        ("mean = [1, 2]\nstd = " + "[" * 5000 + "]" * 5000 + "\n", "invalid TOML: arrays or tables nested too deeply"),
+    ],
+    ids=["mean", "cov", "std", "5000-digits", "deep-arrays"],
+)
+def test_huge_numbers_and_deep_toml_are_refused(tmp_path, table, match):
+    path = tmp_path / "m.toml"
+    path.write_text(f'name = "m"\ninputs = ["x", "y"]\noutputs = ["x*y"]\n[u]\n{table}')
+    with pytest.raises(ModelFileError, match=match):
+        load_model_file(path)
+
+
+def test_a_huge_output_index_in_units_is_refused(tmp_path):
+    path = tmp_path / "m.toml"
+    path.write_text(model_text(extra=f'[units]\n"outputs[{"9" * 5000}]" = "m"\n'))
+    with pytest.raises(ModelFileError, match=r"\[units\]: 'outputs\[9999.*there are only 1 outputs"):
+        load_model_file(path)
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ("max(x, acos(2))", r"column 8: the constant acos\(2\) is not a finite real number .*I\)"),
+        ("x + (-8)**(1/3)", r"the constant 2\*\(-1\)\*\*\(1/3\) is not a finite real number"),
+        ("x*exp(710)", r"the constant exp\(710\) is not a finite real number in double precision"),
+        ("min(x, y, log(-1))", "the expression is complex"),
+        ("cosh(cosh((4.0)**3))", r"the number 3.104e\+1353945419820308977744228072 is not finite in double precision"),
+        ("x*1e308*10.0", r"the number 1.000e\+309 is not finite in double precision"),
+        ("x*exp(exp(exp(exp(5))))", r"the constant exp\(exp\(exp\(5\)\)\) is not a finite real number"),
+    ],
+    ids=["max-acos", "cube-root-of-negative", "overflowing-constant", "min-log", "float-cosh", "float-product",
+         "exp-tower"],
+)
+def test_constants_that_are_complex_or_overflow_are_refused(text, match):
+    with pytest.raises(ModelFileError, match=match):
+        sm.modelfile.parse_expression(text, {"x": x, "y": y})
+
+
+def test_complex_constant_through_the_command_exits_1(capsys, tmp_path):
+    path = tmp_path / "m.toml"
+    path.write_text(model_text(output='"max(x, acos(2))"'))
+    code, out, err = run_cli(capsys, "propagate", path)
+    assert (code, out) == (1, "")
+    assert err.startswith("symmon: error: ") and "acos(2)" in err
+
+
+def _load_in_thread(path: Path) -> BaseException | None:
+    """Load a model file in a daemon thread: a file that blocks must fail the test, not hang it."""
+    import threading
+
+    box: list[BaseException | None] = []
+
+    def target():
+        try:
+            load_model_file(path)
+            box.append(None)
+        except BaseException as exc:  # noqa: BLE001 - handed to the test
+            box.append(exc)
+
+    t = threading.Thread(target=target, daemon=True)
+    t.start()
+    t.join(60)  # a guard against hanging, not a timing assertion: a refusal is immediate
+    assert box, "loading the file blocked"
+    return box[0]
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+def test_a_fifo_model_file_is_refused_without_blocking(tmp_path):
+    fifo = tmp_path / "model.toml"
+    os.mkfifo(fifo)  # nobody writes to it: opening it for reading the usual way blocks
+    exc = _load_in_thread(fifo)
+    assert isinstance(exc, ModelFileError)
+    assert "model.toml: model file cannot be read: it is a FIFO, not a regular file" in str(exc)
+
+
+def test_a_device_model_file_is_refused():
+    with pytest.raises(ModelFileError, match="/dev/zero: .*it is a device, socket or other special file"):
+        load_model_file("/dev/zero")
+
+
+def test_an_oversize_model_file_is_refused_before_it_is_read(tmp_path):
+    path = tmp_path / "big.toml"
+    with open(path, "wb") as fh:  # a sparse file: large, but nothing to read
+        fh.truncate(sm.modelfile.MAX_FILE_BYTES + 1)
+    with pytest.raises(ModelFileError, match=rf"larger than {sm.modelfile.MAX_FILE_BYTES} bytes"):
+        load_model_file(path)
+
+
+@pytest.mark.parametrize(
+    ("head", "match"),
+    [
+        (f'name = "m"\ninputs = {[f"x{i}" for i in range(101)]}\noutputs = ["x0"]\n'.replace("'", '"'),
+         "101 inputs and 0 noise symbols: at most 100 in all"),
+        ('name = "m"\ninputs = ["x"]\noutputs = [' + ", ".join(['"x"'] * 101) + "]\n", "101 outputs: at most 100"),
+        ('name = "m"\ninputs = ["' + "a" * 101 + '"]\noutputs = ["x"]\n', "names are at most 100 characters long"),
+        ('name = "m\\u001b[2J"\ninputs = ["x"]\noutputs = ["x"]\n', "name: must be at most 100 printable characters"),
+        ('name = "' + "m" * 101 + '"\ninputs = ["x"]\noutputs = ["x"]\n', "name: must be at most 100 printable"),
+    ],
+    ids=["inputs", "outputs", "long-symbol", "escape-in-name", "long-name"],
+)
+def test_declared_size_limits_of_a_model_file(tmp_path, head, match):
+    path = tmp_path / "m.toml"
+    path.write_text(head + "[u]\nmean = [0]\ncov = 1\n")
+    with pytest.raises(ModelFileError, match=re.escape(match)):
+        load_model_file(path)
+
+
+@pytest.mark.parametrize(
+    ("argv", "match"),
+    [
+        (["--seed", "-1"], "argument --seed: must be an integer >= 0, got '-1'"),
+        (["--seed", str(2**64)], "argument --seed: must be at most"),
+        (["--order", "1000000"], f"argument --order: must be at most {cli.MAX_ORDER}, got '1000000'"),
+        (["--samples", str(10 * cli.MAX_SAMPLES)], "argument --samples: must be at most"),
+        (["--groups", "100000"], f"argument --groups: must be at most {cli.MAX_GROUPS:,}"),
+        (["--workers", "100000"], f"argument --workers: must be at most {cli.MAX_WORKERS:,}"),
+        (["--alpha-sweep", "0.1:10:10000000000"], f"N must be at most {cli.MAX_SWEEP_POINTS}"),
+        (["--alpha-sweep", "0.1:10:3", "--plot", "out.xyz"], "argument --plot: cannot write a figure as 'xyz'"),
+        (["--alpha-sweep", "0.1:10:3", "--plot", ""], "argument --plot: must be a file name, got an empty string"),
+        (["--alpha-sweep", "0.1:10:3", "--csv", ""], "argument --csv: must be a file name, got an empty string"),
+        (["--dask", "127.0.0.1:"], "the port must be a number from 1 to 65535, got ''"),
+        (["--dask", "tcp://127.0.0.1:abc"], "the port must be a number from 1 to 65535, got 'abc'"),
+        (["--dask", "tcp://127.0.0.1:65536"], "got '65536'"),
+        (["--dask", "tcp://127.0.0.1:0"], "got '0'"),
+        (["--dask", "foo://127.0.0.1:8786"], "unknown scheme 'foo'"),
+        (["--dask", "tcp://:8786"], "--dask takes threads, processes, synchronous or a scheduler address"),
+        (["--dask", "tcp://bad_host!:8786"], "invalid host 'bad_host!'"),
+        (["--dask", "tcp://[::1:8786"], "invalid host '[::1'"),
+    ],
+    ids=lambda a: " ".join(a) if isinstance(a, list) else None,
+)
+def test_hostile_options_are_usage_errors_found_before_any_work(capsys, monkeypatch, argv, match):
+    nl = importlib.import_module("symmon.nonlinearity")
+    monkeypatch.setattr(nl, "nonlinearity", lambda *a, **k: pytest.fail("the computation started"))
+    code, out, err = run_cli(capsys, "nonlinearity", EXAMPLES / "polar.toml", "--transform", "mc", *argv)
+    assert (code, out) == (2, "")
+    assert "usage: symmon nonlinearity" in err and match in err
+
+
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1:8786", "scheduler.example.org:8786", "tls://[::1]:8786",
+                                     "tcp://dask_scheduler:8786",
+                                     "ucx://10.0.0.1:13337", "inproc://192.0.2.2/11485/1", "processes"])
+def test_valid_dask_targets_are_accepted(address):
+    assert cli._dask_target(address) == address
+
+
+@pytest.mark.parametrize("figure", ["fig1", "radar", "mmse"])
+def test_reproduce_with_too_few_samples_is_a_usage_error(capsys, figure):
+    code, out, err = run_cli(capsys, "reproduce", figure, "--samples", "1")
+    assert (code, out) == (2, "")
+    assert f"argument --samples: must be an integer >= {cli.REPRODUCE_MIN_SAMPLES}, got '1'" in err
+
+
+def test_derive_out_empty_is_a_usage_error(capsys):
+    code, out, err = run_cli(capsys, "derive", "--out", "")
+    assert (code, out) == (2, "")
+    assert "argument --out: must be a file name" in err
+
+
+@pytest.fixture
+def no_computation(monkeypatch):
+    nl = importlib.import_module("symmon.nonlinearity")
+    monkeypatch.setattr(nl, "nonlinearity", lambda *a, **k: pytest.fail("the computation started"))
+
+
+@pytest.mark.parametrize("kind", ["directory", "fifo", "device"])
+def test_output_that_is_not_a_regular_file_is_refused_before_any_work(capsys, tmp_path, no_computation, kind):
+    if kind == "directory":
+        target, what = tmp_path / "out", "a directory"
+        target.mkdir()
+    elif kind == "fifo":
+        if not hasattr(os, "mkfifo"):
+            pytest.skip("needs FIFOs")
+        target, what = tmp_path / "out", "a FIFO"
+        os.mkfifo(target)
+    else:
+        target, what = Path(os.devnull), "a character device"
+    code, out, err = run_cli(capsys, "nonlinearity", EXAMPLES / "polar.toml", "--alpha-sweep", "0.1:1:2",
+                             "--csv", target)
+    assert (code, out) == (1, "")
+    assert f"output file {target} is {what}; only regular files are written" in err
+    assert [p.name for p in tmp_path.iterdir()] == ([] if kind == "device" else ["out"])
+
+
+def test_derive_report_into_a_directory_is_refused_before_running(capsys, tmp_path, monkeypatch):
+    derive = importlib.import_module("symmon.derive")
+    monkeypatch.setattr(derive, "run", lambda *a, **k: pytest.fail("the derivations ran"))
+    code, _, err = run_cli(capsys, "derive", "--out", tmp_path)
+    assert code == 1 and "is a directory" in err
+
+
+def test_csv_and_plot_on_the_same_file_is_a_usage_error(capsys, tmp_path, no_computation):
+    target = tmp_path / "out.png"
+    code, out, err = run_cli(capsys, "nonlinearity", EXAMPLES / "polar.toml", "--alpha-sweep", "0.1:1:2",
+                             "--csv", target, "--plot", target)
+    assert (code, out) == (2, "")
+    assert f"--csv and --plot name the same file: {target}" in err
+
+
+@pytest.mark.skipif(not hasattr(os, "symlink"), reason="needs symbolic links")
+def test_a_symlinked_output_is_followed_and_the_link_kept(tmp_path):
+    target = tmp_path / "real.csv"
+    target.write_text("old\n")
+    target.chmod(0o640)
+    link = tmp_path / "link.csv"
+    link.symlink_to(target.name)
+    assert sio.write_csv(link, ["a"], [[1.5]]) == link
+    assert link.is_symlink() and os.readlink(link) == target.name
+    assert target.read_text() == "a\n1.5\n"
+    assert (target.stat().st_mode & 0o777) == 0o640        # the permission bits are kept
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link.csv", "real.csv"]
+
+
+def test_api_writes_refuse_devices_and_empty_names():
+    with pytest.raises(sio.OutputPathError, match="is a character device"):
+        sio.atomic_write_bytes(os.devnull, b"x")
+    with pytest.raises(sio.OutputPathError, match="output file name is empty"):
+        sio.atomic_write_text("", "x")
+
+
+def test_a_non_finite_result_is_not_printed(capsys, monkeypatch):
+    # Whatever the transform returns, the command prints no NaN: it names the quantity and exits 1.
+    prop = importlib.import_module("symmon.propagate")
+    real = prop.propagate
+
+    def nan_cov(*args, **kwargs):
+        m = real(*args, **kwargs)
+        bad = m.cov.copy()
+        bad[0, 0] = np.nan
+        return dataclasses.replace(m, cov=bad)
+
+    monkeypatch.setattr(prop, "propagate", nan_cov)
+    for extra in ([], ["--json"]):
+        code, out, err = run_cli(capsys, "propagate", EXAMPLES / "polar.toml", *extra)
+        assert (code, out) == (1, "")
+        assert "symmon: error: Cov y is not finite" in err
+
+
+def test_a_nan_mon_is_not_printed(capsys, monkeypatch):
+    nl = importlib.import_module("symmon.nonlinearity")
+    real = nl.nonlinearity
+
+    def nan_value(*args, **kwargs):
+        return dataclasses.replace(real(*args, **kwargs), value=float("nan"))
+
+    monkeypatch.setattr(nl, "nonlinearity", nan_value)
+    code, out, err = run_cli(capsys, "nonlinearity", EXAMPLES / "polar.toml", "--alpha-sweep", "0.1:1:2")
+    assert (code, out) == (1, "")
+    assert "symmon: error: the MoN at alpha=0.1 is not finite" in err
+
+
+@pytest.mark.parametrize("debug", [False, True])
+def test_an_unexpected_exception_is_one_line_unless_debugging(capsys, monkeypatch, debug):
+    def broken(args):
+        raise RuntimeError("an unforeseen\nfailure")
+
+    parser = cli._parser
+    monkeypatch.setattr(cli, "_parser", lambda: _with_func(parser(), broken))
+    monkeypatch.setenv("SYMMON_DEBUG", "1" if debug else "0")
+    code, out, err = run_cli(capsys, "propagate", EXAMPLES / "polar.toml")
+    assert (code, out) == (1, "")
+    last = "symmon: internal error: RuntimeError: an unforeseen failure (set SYMMON_DEBUG=1 for the traceback)\n"
+    assert err.endswith(last)
+    assert ("Traceback (most recent call last)" in err) == debug
+
+
+def _with_func(parser, func):
+    parser.set_defaults(func=func)
+    for action in parser._subparsers._group_actions:
+        for sub in action.choices.values():
+            sub.set_defaults(func=func)
+    return parser

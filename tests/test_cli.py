@@ -373,6 +373,15 @@ def test_unreachable_dask_scheduler_is_an_input_error(capsys, monkeypatch):
     assert "cannot reach the Dask scheduler at tcp://127.0.0.1:9 within 1 s" in err
 
 
+def test_dask_address_that_cannot_connect_is_an_input_error(capsys):
+    # tls:// needs a TLS configuration: the connection fails before any network traffic.
+    pytest.importorskip("dask.distributed")
+    code, out, err = run(capsys, "propagate", EXAMPLES / "polar.toml", "--transform", "mc",
+                         "--samples", MC_SAMPLES, "--dask", "tls://127.0.0.1:9")
+    assert (code, out) == (1, "")
+    assert err.startswith("symmon: error: cannot connect to the Dask scheduler at tls://127.0.0.1:9: ")
+
+
 def test_workers_must_be_positive(capsys):
     code, _, err = run(capsys, "compare", EXAMPLES / "gmti.toml", "--workers", "0")
     assert code == 2 and "--workers" in err
