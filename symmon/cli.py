@@ -134,6 +134,8 @@ MAX_SEED = 2**64 - 1
 MAX_ORDER = 100
 #: Monte Carlo groups (``--groups``) and threads (``--workers``).
 MAX_GROUPS = 1024
+#: Most Monte Carlo runs of a filter study (each run keeps its whole trajectory).
+MAX_RUNS = 10**5
 MAX_WORKERS = 1024
 #: Points of ``--alpha-sweep``: each is a full MoN computation.
 MAX_SWEEP_POINTS = 1000
@@ -552,8 +554,6 @@ def cmd_filter(args: argparse.Namespace) -> int:
     """``symmon filter``: a bank of runs of each filter on a scenario; ANEES, ANIS, RMSE."""
     from .filterfile import load_filter_file, run_bank, simulate
 
-    if args.seed < 0:
-        raise _UsageError(f"--seed must be a non-negative integer, got {args.seed}")
     spec = load_filter_file(args.file)
     xs, ys = simulate(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
     rows = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, args.filters, args.tol, args.confidence)
@@ -744,7 +744,7 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("--seed", type=_seed, default=0, help="seed, >= 0 (default 0)")
     sp.add_argument("--out", type=_output_path, default="results", help="output directory (default ./results)")
     sp.add_argument("--no-progress", action="store_true", help="no progress bar")
-    sp.add_argument("--runs", type=_positive_int, default=None,
+    sp.add_argument("--runs", type=_int_in(1, MAX_RUNS), default=None,
                     help="Monte Carlo runs of mmse and tracking (default: theirs, 1000 and 500)")
     sp.set_defaults(func=cmd_reproduce)
 
@@ -767,15 +767,15 @@ def _parser() -> argparse.ArgumentParser:
     sp = add("filter", "Monte Carlo runs of nonlinear Kalman filters on a filter scenario file: "
              "NEES, NIS (with chi-square bounds) and RMSE")
     sp.add_argument("file", help="TOML filter scenario (see symmon.filterfile)")
-    sp.add_argument("--runs", type=_positive_int, default=100, help="Monte Carlo runs (default 100)")
-    sp.add_argument("--seed", type=int, default=0, help="seed of the truth and measurements (default 0)")
+    sp.add_argument("--runs", type=_int_in(1, MAX_RUNS), default=100, help="Monte Carlo runs (default 100)")
+    sp.add_argument("--seed", type=_seed, default=0, help="seed of the truth and measurements, >= 0 (default 0)")
     sp.add_argument("--filters", type=_filter_names, default=_filter_names(_DEFAULT_FILTERS),
                     help=f"comma-separated: ekf, ekf2, ukf, ckf, gh, adaptive (default {_DEFAULT_FILTERS})")
     sp.add_argument("--tol", type=_unit_interval, default=1e-2,
                     help="the adaptive filter's tolerance (unitless moment error, default 0.01)")
     sp.add_argument("--confidence", type=_unit_interval, default=0.95,
                     help="of the chi-square intervals (default 0.95)")
-    sp.add_argument("--plot", metavar="PNG", help="write NEES, NIS and RMSE over time (atomically)")
+    sp.add_argument("--plot", metavar="PNG", type=_plot_path, help="write NEES, NIS and RMSE over time (atomically)")
     sp.add_argument("--json", action="store_true", help="print JSON")
     sp.set_defaults(func=cmd_filter)
 
@@ -785,9 +785,9 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("--tol", type=_unit_interval, default=1e-3,
                     help="largest unitless moment error (default 0.001)")
     weight_opt(sp)
-    sp.add_argument("--samples", type=_positive_int, default=10**6,
+    sp.add_argument("--samples", type=_samples, default=10**6,
                     help="samples of the Monte Carlo reference, when Gauss-Hermite does not converge (default 10^6)")
-    sp.add_argument("--seed", type=int, default=0, help="seed of the Monte Carlo reference (default 0)")
+    sp.add_argument("--seed", type=_seed, default=0, help="seed of the Monte Carlo reference, >= 0 (default 0)")
     sp.add_argument("--json", action="store_true", help="print JSON")
     sp.set_defaults(func=cmd_advise)
     return p

@@ -544,7 +544,7 @@ def test_cli_filter_json_equals_the_api(capsys):
 @pytest.mark.parametrize("argv, match", [(["--filters", "ekf,foo"], "must be distinct names"),
                                          (["--runs", "0"], "positive integer"),
                                          (["--tol", "1.5"], "number in \\(0, 1\\)"),
-                                         (["--seed", "-1"], "non-negative")])
+                                         (["--seed", "-1"], "must be an integer >= 0")])
 def test_cli_filter_bad_options_are_usage_errors(capsys, argv, match):
     assert cli.main(["filter", str(EXAMPLE), *argv]) == 2
     assert __import__("re").search(match, capsys.readouterr().err)

@@ -259,6 +259,12 @@ def test_bearing_with_additive_noise_warns():
         sm.propagate(model, sm.Gaussian(CUT, P_XY), v=sm.Gaussian([0.0], [[1e-4]]), transform=sm.UT.cubature())
 
 
+def test_output_mixing_bearing_with_its_own_arguments_is_not_guessed():
+    """range + bearing (a full S_y of a unit change): the jump is not at ±π, so no warning."""
+    model = sm.Model([x, y], [sp.sqrt(x**2 + y**2) + 0.5 * sp.atan2(y, x)])
+    sm.propagate(model, sm.Gaussian(CUT, P_XY), transform=sm.UT.ut1())
+
+
 def test_angle_warning_is_a_runtime_warning():
     assert issubclass(AngleWarning, RuntimeWarning)
 

@@ -197,9 +197,23 @@ def _likely_angles(exprs: tuple, declared: frozenset[int]) -> dict[int, float]:
         if len(terms) != 1:
             continue
         c, rest = terms[0].as_independent(*terms[0].free_symbols, as_Add=False)
-        if isinstance(rest, sp.atan2) and c.is_number and c != 0:
+        if isinstance(rest, sp.atan2) and c.is_number and c != 0 and _additive_rest(e - terms[0], terms[0]):
             out[i] = float(abs(c)) * np.pi
     return out
+
+
+def _additive_rest(others: sp.Expr, angle: sp.Expr) -> bool:
+    """True when ``others`` is a constant or affine in symbols the angle does not use.
+
+    Additive noise shifts the cut only a little; a term in the angle's own arguments (a
+    unit change mixing range and bearing, say) moves it anywhere, and then no cut is guessed.
+    """
+    syms = others.free_symbols
+    if not syms:
+        return True
+    if syms & angle.free_symbols:
+        return False
+    return all(sp.diff(others, a, b) == 0 for a in syms for b in syms)
 
 
 def warn_angle_cut(cm: CompiledModel, Y: np.ndarray, angles: frozenset[int], transform: object) -> None:
