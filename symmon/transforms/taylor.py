@@ -18,7 +18,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..compile import CompiledModel
-from ..errors import DerivativeError
+from ..errors import DerivativeError, SymmonError
 from .base import BatchMoments, Transform, wrap_angle
 
 __all__ = ["TT1", "TT2"]
@@ -42,19 +42,33 @@ def _check_finite(cm: CompiledModel, means: np.ndarray, arr: np.ndarray, owner: 
         )
 
 
-def second_order_terms(cm: CompiledModel, H_nz: np.ndarray, covs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def second_order_terms(cm: CompiledModel, H_nz: np.ndarray, covs: np.ndarray,
+                       method: str | None = None) -> tuple[np.ndarray, np.ndarray]:
     """½ tr(H_i P) (K, n_y) and ½ tr(H_i P H_j P) (K, n_y, n_y) from the Hessian nonzeros.
 
-    Two exact evaluations, chosen by cost.  Sparse: with S_i the support of H_i (s inputs
-    at most), tr(H_i P H_j P) = tr(B_i P[S_i, S_j] B_j P[S_j, S_i]) with the blocks
-    B_i = H_i[S_i, S_i], in n_y² s³ operations.  Dense: H_i P for each i, then the
-    Frobenius products ⟨H_i P, (H_j P)ᵀ⟩, in n_y n³ + n_y² n² operations.
+    Two exact evaluations of the TT2 terms (Gustafsson & Hendeby 2012, eqs. for the
+    second-order EKF).  ``"blocks"``: with S_i the support of H_i (s inputs at most),
+    tr(H_i P H_j P) = tr(B_i P[S_i, S_j] B_j P[S_j, S_i]) with the blocks
+    B_i = H_i[S_i, S_i], in n_y² s³ operations.  ``"dense"``: H_i P for each i, then the
+    Frobenius products ⟨H_i P, (H_j P)ᵀ⟩, in n_y n³ + n_y² n² operations.  The default
+    takes the cheaper one.
+
+    Parameters
+    ----------
+    cm : CompiledModel
+    H_nz : (K, nnz) Hessian nonzeros, laid out by ``cm.hess_index``
+    covs : (K, n_w, n_w)
+    method : {"blocks", "dense"}, optional
     """
     K, n = covs.shape[0], cm.n_w
     ny, s = cm.hess_support.shape
     if s == 0:  # affine g: no second-order terms
         return np.zeros((K, ny)), np.zeros((K, ny, ny))
-    if ny * ny * s**3 <= ny * n**3 + ny * ny * n * n:
+    if method is None:
+        method = "blocks" if ny * ny * s**3 <= ny * n**3 + ny * ny * n * n else "dense"
+    if method not in ("blocks", "dense"):
+        raise SymmonError(f"method must be 'blocks' or 'dense', got {method!r}")
+    if method == "blocks":
         B = cm.hessian_blocks(H_nz)  # (K, ny, s, s)
         flat = cm.hess_support.ravel()
         # Q[k, i, a, j, b] = P[S_i[a], S_j[b]]; padded entries meet zero rows of B.
