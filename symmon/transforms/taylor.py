@@ -71,13 +71,13 @@ def second_order_terms(cm: CompiledModel, H_nz: np.ndarray, covs: np.ndarray,
     if method == "blocks":
         B = cm.hessian_blocks(H_nz)  # (K, ny, s, s)
         flat = cm.hess_support.ravel()
-        # Q[k, i, a, j, b] = P[S_i[a], S_j[b]]; padded entries meet zero rows of B.
-        Q = covs[:, flat[:, None], flat[None, :]].reshape(K, ny, s, ny, s).transpose(0, 1, 3, 2, 4)
-        R = np.matmul(B[:, :, None], Q)  # R[k, i, j] = B_i P[S_i, S_j]
-        diag = np.arange(ny)
-        first = np.einsum("kiaa->ki", R[:, diag, diag])
+        # Rows of block i of Q = P[S, S]: Q[k, i, a, (j, b)] = P[S_i[a], S_j[b]]; padded
+        # entries meet zero rows of B.
+        Q = covs[:, flat[:, None], flat[None, :]].reshape(K, ny, s, ny * s)
+        R = np.matmul(B, Q).reshape(K, ny, s, ny, s)  # R[k, i, :, j, :] = B_i P[S_i, S_j]
+        first = np.einsum("kiaia->ki", R)
         # tr(R_ij R_ji) = Σ_ac R_ij[a, c] R_ji[c, a]
-        second = np.einsum("kijac,kjica->kij", R, R, optimize=True)
+        second = (R * R.transpose(0, 3, 4, 1, 2)).sum(axis=(2, 4))
     else:
         HP = np.matmul(cm.dense_hessians(H_nz), covs[:, None])  # (K, ny, n, n)
         first = np.einsum("kiaa->ki", HP)
