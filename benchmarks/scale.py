@@ -26,6 +26,7 @@ import argparse
 import json
 import os
 import platform
+import signal
 import subprocess
 import sys
 import tempfile
@@ -114,16 +115,6 @@ def run_case(kind: str, n: int) -> dict:
     gen.add(cm.derivs.map(f"{cm.derivs.name()}_map1", "serial", 1, [], []))
     res["c_bytes"] = len(gen.dump())
 
-    tt2, ut, mc = sm.TT2(), sm.UT.ut1(), sm.MonteCarlo(n=MC_SAMPLES, seed=0)
-    for key, tr in (("tt2", tt2), ("ut", ut), ("mc", mc)):
-        ref, res[f"{key}_first_s"] = _timed(lambda tr=tr: sm.propagate(model, u, transform=tr))
-        res[f"{key}_warm_s"] = _best(lambda tr=tr: sm.propagate(model, u, transform=tr))
-        if key == "ut":
-            ut_ref = ref
-    res["tt2_first_s"] += res["build_s"]  # the first TT2 call builds the model's functions
-    sm.nonlinearity(model, u, weight="full", transform=tt2)
-    res["mon_warm_s"] = _best(lambda: sm.nonlinearity(model, u, weight="full", transform=tt2))
-
     # Peers: the model as a vectorised NumPy function.
     f = sp.lambdify(model.inputs, list(model.outputs), "numpy")
 
@@ -136,12 +127,6 @@ def run_case(kind: str, n: int) -> dict:
         sig = points.sigma_points(u.mean, u.cov)
         return unscented_transform(g_np(sig), points.Wm, points.Wc)
 
-    fp_mean, fp_cov = filterpy_ut()
-    res["filterpy_ut_s"] = _best(filterpy_ut)
-    lin = [i for i in range(model.n_y) if i not in model.angle_outputs]  # FilterPy: arithmetic mean
-    res["filterpy_ut_rel_diff"] = float(max(
-        np.abs(fp_mean[lin] - ut_ref.mean[lin]).max() / np.abs(ut_ref.mean[lin]).max(),
-        np.abs(fp_cov[np.ix_(lin, lin)] - ut_ref.cov[np.ix_(lin, lin)]).max() / np.abs(ut_ref.cov).max()))
     rng = np.random.default_rng(1)
     L = np.linalg.cholesky(u.cov)
 
@@ -150,22 +135,44 @@ def run_case(kind: str, n: int) -> dict:
         Y = g_np(X)
         return Y.mean(axis=0), np.cov(Y, rowvar=False)
 
-    res["numpy_mc_s"] = _best(numpy_mc)
+    tt2, ut, mc = sm.TT2(), sm.UT.ut1(), sm.MonteCarlo(n=MC_SAMPLES, seed=0)
+    for key, tr in (("tt2", tt2), ("ut", ut), ("mc", mc)):
+        ref, res[f"{key}_first_s"] = _timed(lambda tr=tr: sm.propagate(model, u, transform=tr))
+        res[f"{key}_warm_s"] = _best(lambda tr=tr: sm.propagate(model, u, transform=tr))
+        if key == "tt2":
+            res["tt2_first_s"] += res["build_s"]  # the first TT2 call builds the model's functions
+            sm.nonlinearity(model, u, weight="full", transform=tt2)
+            res["mon_warm_s"] = _best(lambda: sm.nonlinearity(model, u, weight="full", transform=tt2))
+        if key == "ut":
+            fp_mean, fp_cov = filterpy_ut()
+            res["filterpy_ut_s"] = _best(filterpy_ut)
+            lin = [i for i in range(model.n_y) if i not in model.angle_outputs]  # FilterPy: arithmetic mean
+            res["filterpy_ut_rel_diff"] = float(max(
+                np.abs(fp_mean[lin] - ref.mean[lin]).max() / np.abs(ref.mean[lin]).max(),
+                np.abs(fp_cov[np.ix_(lin, lin)] - ref.cov[np.ix_(lin, lin)]).max() / np.abs(ref.cov).max()))
+            res["numpy_mc_s"] = _best(numpy_mc)
+        print(json.dumps(res), flush=True)  # partial results, kept if a later stage times out
     return res
 
 
 # --------------------------------------------------------------------------- driver
 def _run_child(kind: str, n: int, timeout: float) -> dict:
     with tempfile.TemporaryDirectory(prefix=f"symmon-scale-{kind}{n}-") as cache:
-        env = dict(os.environ, SYMMON_CACHE=cache, PYTHONPATH=str(ROOT))
+        # One BLAS thread: on a shared 2-core machine, spinning BLAS threads of several
+        # processes cost more than they gain at these sizes (same setting for the peers).
+        env = dict(os.environ, SYMMON_CACHE=cache, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1")
+        proc = subprocess.Popen([sys.executable, __file__, "--case", kind, str(n)], env=env, text=True,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
         try:
-            out = subprocess.run([sys.executable, __file__, "--case", kind, str(n)], env=env, timeout=timeout,
-                                 capture_output=True, text=True)
+            out, err = proc.communicate(timeout=timeout)
         except subprocess.TimeoutExpired:
-            return {"kind": kind, "n": n, "timeout": timeout}
-    if out.returncode != 0:
-        return {"kind": kind, "n": n, "error": out.stderr[-2000:]}
-    return json.loads(out.stdout.strip().splitlines()[-1])
+            os.killpg(proc.pid, signal.SIGKILL)  # the child and its compiler
+            out, _ = proc.communicate()
+            lines = out.strip().splitlines()
+            return {**(json.loads(lines[-1]) if lines else {"kind": kind, "n": n}), "timeout": timeout}
+    if proc.returncode != 0:
+        return {"kind": kind, "n": n, "error": err[-2000:]}
+    return json.loads(out.strip().splitlines()[-1])
 
 
 COLUMNS = [  # (key, header, unit)
@@ -209,7 +216,8 @@ def markdown(rows: list[dict], argv: list[str]) -> str:
         "compile cache: *first* includes building the CasADi functions and compiling their C (for TT2 also "
         "the symbolic derivatives); *warm* is the best of up to 7 repeats. MC: 10⁵ samples. FilterPy: "
         "`MerweScaledSigmaPoints(n, 1, 0, 3 − n)` + `unscented_transform` on the model lambdified to "
-        "NumPy; NumPy MC: sample, evaluate the lambdified model, `np.cov`. Times in ms unless marked s.",
+        "NumPy; NumPy MC: sample, evaluate the lambdified model, `np.cov`. All processes run with "
+        "`OPENBLAS_NUM_THREADS=1`. Times in ms unless marked s.",
         "",
     ]
     for kind in MODELS:
@@ -221,14 +229,17 @@ def markdown(rows: list[dict], argv: list[str]) -> str:
                       f"{h} ({u})" for _, h, u in COLUMNS) + " | UT ratio FilterPy/symmon | MC ratio NumPy/symmon |",
                   "|" + "---|" * (len(COLUMNS) + 6)]
         for r in sub:
-            if "timeout" in r or "error" in r:
+            if "error" in r or "nnz_J" not in r:
                 why = f"timed out after {r['timeout']:.0f} s" if "timeout" in r else "failed"
                 lines.append(f"| {r['n']} | {why} |" + " |" * (len(COLUMNS) + 4))
                 continue
             cells = [_fmt(r.get(k), u) for k, _, u in COLUMNS]
+            ratios = [f"{r[a] / r[b]:.1f}×" if r.get(a) and r.get(b) else "—"
+                      for a, b in (("filterpy_ut_s", "ut_warm_s"), ("numpy_mc_s", "mc_warm_s"))]
+            note = f" (timed out after {r['timeout']:.0f} s: — not reached)" if "timeout" in r else ""
             lines.append(
-                f"| {r['n']} | {r['nnz_J']} | {r['nnz_H']} | {r['c_bytes'] / 1e3:.0f} | " + " | ".join(cells)
-                + f" | {r['filterpy_ut_s'] / r['ut_warm_s']:.1f}× | {r['numpy_mc_s'] / r['mc_warm_s']:.1f}× |")
+                f"| {r['n']}{note} | {r['nnz_J']} | {r['nnz_H']} | {r['c_bytes'] / 1e3:.0f} | " + " | ".join(cells)
+                + f" | {ratios[0]} | {ratios[1]} |")
         exps = [(h, slope(sub, k)) for k, h, _ in COLUMNS] + [("derivative C size", slope(sub, "c_bytes"))]
         lines += ["", "Growth exponent p of cost ∝ nᵖ (least squares over n ≥ 16): " + "; ".join(
             f"{h} {p:.2f}" for h, p in exps if p is not None) + ".", ""]
@@ -261,10 +272,11 @@ def plot(rows: list[dict], path: Path) -> None:
 
     fig, axes = plt.subplots(1, len(MODELS), figsize=(12, 4.8), sharey=True)
     for ax, kind in zip(axes, MODELS):
-        sub = sorted((r for r in rows if r["kind"] == kind and "tt2_warm_s" in r), key=lambda r: r["n"])
+        sub = sorted((r for r in rows if r["kind"] == kind), key=lambda r: r["n"])
         ns = [r["n"] for r in sub]
         for key, label, _ in COLUMNS:
-            ax.loglog(ns, [r[key] for r in sub], "o-" if "first" not in key else "s--", label=label, ms=4)
+            pts = [(r["n"], r[key]) for r in sub if r.get(key)]
+            ax.loglog(*zip(*pts), "o-" if "first" not in key else "s--", label=label, ms=4) if pts else None
         ax.set_title(f"{kind} model")
         ax.set_xlabel("n (states)")
         ax.set_xticks(ns, [str(v) for v in ns])
