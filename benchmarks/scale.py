@@ -304,7 +304,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="n = 8, 16, 32 only")
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds per (model, n) process")
-    ap.add_argument("--no-write", action="store_true", help="print the tables, do not touch RESULTS.md")
+    ap.add_argument("--no-write", action="store_true", help="print the tables; write neither RESULTS.md, scale.json nor scale.png")
     ap.add_argument("--only", nargs=2, metavar=("KIND", "N"), action="append",
                     help="run only these cases and merge them into benchmarks/scale.json")
     ap.add_argument("--report-only", action="store_true",
@@ -316,7 +316,7 @@ def main(argv: list[str] | None = None) -> None:
         return
     if args.report_only:
         rows = json.loads((HERE / "scale.json").read_text())
-        write_results(markdown(rows, ["--report-only"]), HERE / "RESULTS.md")
+        write_results(markdown(rows, []), HERE / "RESULTS.md")
         plot(rows, HERE / "scale.png")
         return
     ns = [8, 16, 32] if args.quick else [8, 16, 32, 64, 128]
@@ -329,8 +329,8 @@ def main(argv: list[str] | None = None) -> None:
         print(json.dumps(r), flush=True)
     text = markdown(rows, [a for a in (argv if argv is not None else sys.argv[1:])])
     print(text)
-    (HERE / "scale.json").write_text(json.dumps(rows, indent=1))
     if not args.no_write:
+        (HERE / "scale.json").write_text(json.dumps(rows, indent=1))
         write_results(text, HERE / "RESULTS.md")
         plot(rows, HERE / "scale.png")
 
