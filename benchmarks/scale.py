@@ -279,11 +279,12 @@ def write_results(text: str, path: Path) -> None:
 
 def plot(rows: list[dict], path: Path) -> None:
     import matplotlib
+    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(MODELS), figsize=(12, 4.8), sharey=True)
+    fig, axes = plt.subplots(1, len(MODELS), figsize=(12, 5.4), sharey=True)
     for ax, kind in zip(axes, MODELS):
         sub = sorted((r for r in rows if r["kind"] == kind), key=lambda r: r["n"])
         ns = [r["n"] for r in sub]
@@ -292,11 +293,13 @@ def plot(rows: list[dict], path: Path) -> None:
             ax.loglog(*zip(*pts), "o-" if "first" not in key else "s--", label=label, ms=4) if pts else None
         ax.set_title(f"{kind} model")
         ax.set_xlabel("n (states)")
+        ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
         ax.set_xticks(ns, [str(v) for v in ns])
         ax.grid(True, which="both", alpha=0.3)
     axes[0].set_ylabel("time (s)")
-    axes[-1].legend(fontsize=7, loc="upper left")
-    fig.tight_layout()
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=8, loc="lower center", ncol=5)
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
     fig.savefig(path, dpi=110)
 
 

@@ -46,8 +46,8 @@ def second_order_terms(cm: CompiledModel, H_nz: np.ndarray, covs: np.ndarray,
                        method: str | None = None) -> tuple[np.ndarray, np.ndarray]:
     """½ tr(H_i P) (K, n_y) and ½ tr(H_i P H_j P) (K, n_y, n_y) from the Hessian nonzeros.
 
-    Two exact evaluations of the TT2 terms (Gustafsson & Hendeby 2012, eqs. for the
-    second-order EKF).  ``"blocks"``: with S_i the support of H_i (s inputs at most),
+    Two exact evaluations of the second-order terms of TT2 (module docstring;
+    Gustafsson & Hendeby 2012).  ``"blocks"``: with S_i the support of H_i (s inputs at most),
     tr(H_i P H_j P) = tr(B_i P[S_i, S_j] B_j P[S_j, S_i]) with the blocks
     B_i = H_i[S_i, S_i], in n_y² s³ operations.  ``"dense"``: H_i P for each i, then the
     Frobenius products ⟨H_i P, (H_j P)ᵀ⟩, in n_y n³ + n_y² n² operations.  The default
