@@ -10,6 +10,10 @@ code-size tests; the timings are in ``benchmarks/scale.py``.
 
 from __future__ import annotations
 
+import ctypes
+import shutil
+import subprocess
+
 import casadi as ca
 import numpy as np
 import pytest
@@ -181,3 +185,28 @@ def test_exported_code_grows_with_the_nonzeros(tmp_path):
 
     size = {n: export_c(sparse_ring(n), tmp_path / str(n))[0].stat().st_size for n in (16, 32)}
     assert size[32] < 3 * size[16], size
+
+
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc not found")
+def test_compiled_block_path_matches_propagate(tmp_path):
+    """The C of the block path (ring model), compiled by gcc and called through ctypes."""
+    from symmon.codegen import export_c
+
+    n = 12
+    model = sparse_ring(n)
+    c_file, _ = export_c(model, tmp_path, name="ring", ut=sm.UT.cubature())
+    so = tmp_path / "libring.so"
+    subprocess.run(["gcc", "-O2", "-shared", "-fPIC", str(c_file), "-o", str(so), "-lm"], check=True,
+                   capture_output=True)
+    dll = ctypes.CDLL(str(so))
+    m, P = _gaussian(n, np.random.default_rng(3))
+    ptr = ctypes.POINTER(ctypes.c_double)
+    for fn, tr in (("ring_tt2_eval", sm.TT2()), ("ring_ut_eval", sm.UT.cubature())):
+        outs = [np.full(k, np.nan) for k in (n, n * n, n * n)]
+        # Column-major arrays: P is symmetric, the outputs are read back in Fortran order.
+        args = [np.ascontiguousarray(m), np.ascontiguousarray(P.T)] + outs
+        assert getattr(dll, fn)(*[a.ctypes.data_as(ptr) for a in args]) == 0
+        ref = sm.propagate(model, sm.Gaussian(m, P), transform=tr)
+        for got, want in zip(outs, (ref.mean, ref.cov, ref.cross_cov)):
+            got = got.reshape(np.shape(want), order="F")
+            np.testing.assert_allclose(got, want, rtol=SUM_RTOL, atol=SUM_RTOL * np.abs(want).max())
