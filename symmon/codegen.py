@@ -6,8 +6,10 @@ standard library), so it compiles with ``gcc -O2 -c`` on a machine without CasAD
 for an embedded filter.  For a model with noise symbols every function works on the
 joint vector w = [u; v], with a joint (block-diagonal) covariance supplied by the caller.
 
-The moment maps are single CasADi SX functions of the input mean and covariance,
-(m, P) ↦ (E y, Cov y, Cov(y, w)):
+The moment maps are CasADi MX functions of the input mean and covariance,
+(m, P) ↦ (E y, Cov y, Cov(y, w)): SX functions of g and of the nonzeros of its
+derivatives, wrapped in MX matrix nodes (products with P, the Cholesky factor, the
+map over sigma points), so the C has loops and grows with the nonzeros, not with n⁴:
 
 - **TT2** (Gustafsson & Hendeby 2012, REFERENCE.md "Nonlinear transformations"):
   E y_i ≈ g_i(m) + ½ tr(H_i P), Cov(y_i, y_j) ≈ J_i P J_jᵀ + ½ tr(H_i P H_j P),
@@ -32,6 +34,7 @@ from __future__ import annotations
 
 import tempfile
 from pathlib import Path
+from typing import Callable
 
 import casadi as ca
 import numpy as np
@@ -55,78 +58,142 @@ def _wrap_sx(a: ca.SX) -> ca.SX:
     return ca.if_else(out == -np.pi, np.pi, out)
 
 
-def _chol_lower_sx(P: ca.SX) -> ca.SX:
+def _chol_lower(P: ca.MX) -> ca.MX:
     """Lower Cholesky factor L (L Lᵀ = P) of a symbolic matrix, reading its lower triangle.
 
+    Column j is one call of a step function of (L, P, j): n calls of one piece of C,
+    each O(n²) work, instead of the n³/6 scalar operations of an unrolled factor (and
+    j is an argument, so that no per-column constant is folded into the code).
     A zero pivot gives a zero column, so a positive *semi*definite P with an exactly
     zero variance still works; a negative pivot gives NaN (sqrt of a negative number),
-    which propagates to every output rather than silently producing a wrong factor.
+    which reaches the outputs rather than silently producing a wrong factor.
     """
     n = P.shape[0]
-    L = [[ca.SX(0) for _ in range(n)] for _ in range(n)]
-    for j in range(n):
-        s = P[j, j]
-        for k in range(j):
-            s = s - L[j][k] * L[j][k]
-        d = ca.sqrt(s)
-        L[j][j] = d
-        for i in range(j + 1, n):
-            t = P[i, j]
-            for k in range(j):
-                t = t - L[i][k] * L[j][k]
-            # if_else does not leak the 0/0 of the branch not taken (CASADI-NOTES).
-            L[i][j] = ca.if_else(d > 0, t / d, 0)
-    return ca.vertcat(*[ca.horzcat(*row) for row in L])
+    L, Pj, j = ca.MX.sym("L", n, n), ca.MX.sym("P", n, n), ca.MX.sym("j")
+    idx = ca.DM(np.arange(n, dtype=float))
+    e = ca.if_else(idx == j, 1, 0)  # e_j
+    v = ca.mtimes(Pj, e) - ca.mtimes(L, ca.mtimes(e.T, L).T)  # P[:, j] − L L[j, :]ᵀ
+    d = ca.sqrt(ca.dot(e, v))
+    # if_else does not leak the 0/0 of the branch not taken (CASADI-NOTES).
+    col = ca.if_else(ca.logic_and(idx > j, d > 0), v / d, 0) + d * e
+    step = ca.Function("chol_step", [L, Pj, j], [L + ca.mtimes(col, e.T)])
+    out = ca.MX.zeros(n, n)
+    for k in range(n):
+        out = step(out, P, k)
+    return out
 
 
-def _tt2_sx(gjh: ca.Function, n_y: int, m: ca.SX, P: ca.SX, angles: list[int]):
-    """TT2 moments of g at (m, P), REFERENCE.md "TT2" (Gustafsson & Hendeby 2012)."""
-    y, J, H = gjh(m)
-    n = m.shape[0]
-    # Row block i of H is the Hessian H_i (n × n), as in CompiledModel.hess.
-    HP = [H[i * n:(i + 1) * n, :] @ P for i in range(n_y)]
-    JP = J @ P
-    cov = JP @ J.T
-    mean = ca.vertcat(*[y[i] + 0.5 * ca.trace(HP[i]) for i in range(n_y)])
-    second = ca.SX(n_y, n_y)
-    for i in range(n_y):
-        for j in range(n_y):
-            second[i, j] = 0.5 * ca.sum1(ca.sum2(HP[i] * HP[j].T))  # tr(H_i P H_j P)
-    cov = cov + second
+def _densified(name: str, w: ca.SX, expr: ca.SX, out: str, opts: dict) -> ca.Function:
+    """w ↦ expr as a dense output: the SX function computes the nonzeros only and an MX
+    densify node writes the zeros in a loop (not one line of C per zero entry)."""
+    f = ca.Function(f"{name}_nz", [w], [expr], opts)
+    wm = ca.MX.sym("w", w.shape[0])
+    return ca.Function(name, [wm], [ca.densify(f(wm))], ["w"], [out])
+
+
+def _hessian_supports(cm) -> list[np.ndarray]:
+    """S_i: the inputs on which the Hessian of output i is supported."""
+    out, rows, cols = cm.hess_index
+    return [np.union1d(rows[out == i], cols[out == i]) for i in range(cm.n_y)]
+
+
+def _block_terms(n: int, n_y: int, s: int) -> Callable[[ca.MX, ca.MX, ca.DM], tuple[ca.MX, ca.MX]]:
+    """(B, P, sel) ↦ (½ tr(H_i P), ½ tr(H_i P H_j P)) from the s × s Hessian blocks.
+
+    B = [B_1 … B_{n_y}] (s × n_y s) holds B_i = H_i[S_i, S_i] (zero-padded to s) and
+    sel (1 × n_y s) the inputs S_i.  With E the one-hot selection of sel, Q = Eᵀ P E
+    has the blocks Q_ij = P[S_i, S_j], and with Rᵀ = [Q_{:,1} B_1 … Q_{:,n_y} B_{n_y}]
+    (one map over the outputs), tr(H_i P H_j P) = tr(R_ij R_ji) is the sum over block
+    (j, i) of Rᵀ ∘ R.  Every step is a dense loop: no sparsity pattern or index list
+    longer than n_y·s is written into the C code.
+    """
+    m = n_y * s
+    B, P, sel = ca.MX.sym("B", s, m), ca.MX.sym("P", n, n), ca.MX.sym("sel", 1, m)
+    ids = ca.MX.sym("ids", n)
+    # sel and ids = 0…n−1 are arguments: the n × n_y s selection is computed at run
+    # time, where constant operands would be folded into a stored matrix.
+    E = ca.if_else(ca.repmat(ids, 1, m) == ca.repmat(sel, n, 1), 1, 0)
+    Q = ca.mtimes(ca.mtimes(P, E).T, E)
+    X, Bi = ca.MX.sym("X", m, s), ca.MX.sym("Bi", s, s)
+    Rt = ca.Function("block_times", [X, Bi], [ca.mtimes(X, Bi)]).map(n_y)(Q, B)
+
+    def block_sums(Z: ca.MX, rows: int) -> ca.MX:
+        """(n_y s × rows) ↦ (n_y × rows): sums over the s rows of each block."""
+        return ca.reshape(ca.sum1(ca.reshape(Z, s, n_y * rows)), n_y, rows)
+
+    half_tr = 0.5 * block_sums(ca.diag(Rt), 1)  # tr(Q_ii B_i)
+    half_tr2 = 0.5 * block_sums(block_sums(Rt * Rt.T, m).T, n_y)
+    f = ca.Function("tt2_blocks", [B, P, sel, ids], [half_tr, half_tr2])
+    return lambda B_, P_, sel_: f(B_, P_, sel_, ca.DM(np.arange(n, dtype=float)))
+
+
+def _tt2_mx(cm, m: ca.MX, P: ca.MX, angles: list[int]):
+    """TT2 moments of g at (m, P) (Gustafsson & Hendeby 2012).
+
+    g, J and the Hessians are SX functions of their nonzeros; the products with P are
+    MX matrix nodes, so the generated C loops over them instead of unrolling n_y² n²
+    scalar products.  Hessians supported on few inputs go through their blocks
+    (:func:`_block_terms`, memory (n_y s)²); dense ones through H_i P per output
+    (memory n_y n²), whichever is smaller.
+    """
+    w, y = cm.w_sx, cm.y_sx
+    n, n_y = cm.n_w, cm.n_y
+    H = [ca.hessian(y[i], w)[0] for i in range(n_y)]
+    S = cm.hess_support
+    s = S.shape[1]
+    blocks = (n_y * s) ** 2 <= n_y * n * n
+    if blocks:
+        sizes = [len(a) for a in _hessian_supports(cm)]
+        B = ca.horzcat(*[ca.densify(ca.diagcat(H[i][list(map(int, S[i, :k])), list(map(int, S[i, :k]))],
+                                               ca.SX(s - k, s - k))) for i, k in enumerate(sizes)])
+    else:
+        B = ca.vertcat(*H)
+    derivs = ca.Function("derivs", [w], [y, ca.jacobian(y, w), B])
+    y_m, J, Hm = derivs(m)
+    J = ca.densify(J)  # a dense product: no n × n sparsity pattern of P in the C code
+    JP = ca.mtimes(J, P)
+    cov = ca.mtimes(JP, J.T)
+    if s == 0:
+        half_tr, half_tr2 = ca.MX(n_y, 1), ca.MX(n_y, n_y)
+    elif blocks:
+        half_tr, half_tr2 = _block_terms(n, n_y, s)(Hm, P, ca.DM(S.reshape(1, -1).astype(float)))
+    else:
+        # Dense blocks, dense products: no n × n sparsity patterns in the C code.
+        HP = [ca.mtimes(ca.densify(Hm[i * n:(i + 1) * n, :]), P) for i in range(n_y)]
+        half_tr = 0.5 * ca.vertcat(*[ca.trace(a) for a in HP])
+        F = ca.horzcat(*[ca.vec(a) for a in HP])
+        Ft = ca.horzcat(*[ca.vec(a.T) for a in HP])
+        half_tr2 = 0.5 * ca.mtimes(F.T, Ft)  # ⟨H_i P, (H_j P)ᵀ⟩ = tr(H_i P H_j P)
+    mean = y_m + half_tr
     if angles:
-        mean = ca.vertcat(*[_wrap_sx(mean[i]) if i in angles else mean[i] for i in range(n_y)])
-    return mean, cov, JP
+        mean[angles] = _wrap_sx(mean[angles])
+    return mean, cov + half_tr2, JP
 
 
-def _ut_sx(g: ca.Function, n_y: int, m: ca.SX, P: ca.SX, ut: UT, angles: list[int]):
-    """UT moments of g at (m, P) with sigma points from a symbolic Cholesky factor."""
+def _ut_mx(g: ca.Function, n_y: int, m: ca.MX, P: ca.MX, ut: UT, angles: list[int]):
+    """UT moments of g at (m, P) with sigma points from a symbolic Cholesky factor.
+
+    g is mapped over the 2n + 1 sigma points (one loop in C) and the weighted sums are
+    matrix products, as in :func:`symmon.transforms.base.weighted_moments`.
+    """
     n = m.shape[0]
     wm_a, wc_a, c = ut.weights(n)
-    # Plain floats: numpy scalars times SX would try numpy broadcasting.
-    wm, wc = [float(a) for a in wm_a], [float(a) for a in wc_a]
-    L = _chol_lower_sx(P)
-    D = [ca.SX.zeros(n, 1)] + [c * L[:, i] for i in range(n)] + [-c * L[:, i] for i in range(n)]
-    Y = [g(m + d) for d in D]
-    mean = sum((wm[k] * Y[k] for k in range(1, len(Y))), wm[0] * Y[0])
+    N = 2 * n + 1
+    L = _chol_lower(P)
+    D = c * ca.horzcat(ca.MX.zeros(n, 1), L, -L)
+    X = ca.repmat(m, 1, N) + D
+    Y = g.map(N)(X)
+    wm = ca.DM(wm_a)
+    # Centred on the first point, as in weighted_moments (the weights may be large, of both signs).
+    Y0 = Y[:, 0]
+    mean = Y0 + ca.mtimes(Y - ca.repmat(Y0, 1, N), wm)
     if angles:
-        parts = []
-        for i in range(n_y):
-            if i in angles:
-                s = sum(wm[k] * ca.sin(Y[k][i]) for k in range(len(Y)))
-                co = sum(wm[k] * ca.cos(Y[k][i]) for k in range(len(Y)))
-                parts.append(ca.atan2(s, co))
-            else:
-                parts.append(mean[i])
-        mean = ca.vertcat(*parts)
-    R = []
-    for Yk in Y:
-        r = Yk - mean
-        if angles:
-            r = ca.vertcat(*[_wrap_sx(r[i]) if i in angles else r[i] for i in range(n_y)])
-        R.append(r)
-    cov = sum((wc[k] * (R[k] @ R[k].T) for k in range(1, len(R))), wc[0] * (R[0] @ R[0].T))
-    cross = sum((wc[k] * (R[k] @ D[k].T) for k in range(1, len(R))), wc[0] * (R[0] @ D[0].T))
-    return mean, cov, cross
+        mean[angles] = ca.atan2(ca.mtimes(ca.sin(Y[angles, :]), wm), ca.mtimes(ca.cos(Y[angles, :]), wm))
+    R = Y - ca.repmat(mean, 1, N)
+    if angles:
+        R[angles, :] = _wrap_sx(R[angles, :])
+    RW = ca.mtimes(R, ca.diag(ca.DM(wc_a)))
+    return mean, ca.mtimes(RW, R.T), ca.mtimes(RW, D.T)
 
 
 # --------------------------------------------------------------------------- public API
@@ -140,7 +207,7 @@ def _check_ut(ut) -> UT:
 
 def moment_functions(model: Model, ut: UT | None = None, name: str | None = None,
                      cse: bool = True) -> dict[str, ca.Function]:
-    """The CasADi SX functions that :func:`export_c` generates C code for.
+    """The CasADi functions that :func:`export_c` generates C code for.
 
     Parameters
     ----------
@@ -177,19 +244,16 @@ def moment_functions(model: Model, ut: UT | None = None, name: str | None = None
     w, y = cm.w_sx, cm.y_sx
     n, n_y = cm.n_w, cm.n_y
     opts = {"cse": bool(cse)}
-    J = ca.densify(ca.jacobian(y, w))
-    H = ca.densify(ca.vertcat(*[ca.hessian(y[i], w)[0] for i in range(n_y)]))
     g = ca.Function(f"{prefix}_g", [w], [y], ["w"], ["y"], opts)
-    gjh = ca.Function("gjh", [w], [y, J, H])
-    m = ca.SX.sym("m", n)
-    P = ca.SX.sym("P", n, n)
+    m = ca.MX.sym("m", n)
+    P = ca.MX.sym("P", n, n)
     angles = sorted(model.angle_outputs)
     out = {
         "g": g,
-        "jac": ca.Function(f"{prefix}_jac", [w], [J], ["w"], ["J"], opts),
+        "jac": _densified(f"{prefix}_jac", w, ca.jacobian(y, w), "J", opts),
     }
-    for key, moments in (("tt2", _tt2_sx(gjh, n_y, m, P, angles)),
-                         ("ut", _ut_sx(g, n_y, m, P, ut, angles))):
+    for key, moments in (("tt2", _tt2_mx(cm, m, P, angles)),
+                         ("ut", _ut_mx(g, n_y, m, P, ut, angles))):
         mean, cov, cross = (ca.densify(a) for a in moments)
         out[key] = ca.Function(f"{prefix}_{key}", [m, P], [mean, cov, cross],
                                ["m", "P"], ["mean", "cov", "cross"], opts)

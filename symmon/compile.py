@@ -281,14 +281,27 @@ class _Batched:
 class CompiledModel:
     """CasADi functions of a model, with respect to w = [u; v].
 
+    The derivatives are kept sparse: the compiled function returns only the structural
+    nonzeros of J and of the lower triangles of the Hessians, so the generated code grows
+    with those nonzeros, not with n_y·n_w².  Products with a covariance are left to
+    batched NumPy (:mod:`symmon.transforms.taylor`).
+
     Attributes
     ----------
     g : casadi.Function
         w ↦ g(w), shape (n_y,).
     jac : casadi.Function
-        w ↦ ∂g/∂w, shape (n_y, n_w).
-    hess : casadi.Function
-        w ↦ stacked Hessians ∂²g_i/∂w², shape (n_y·n_w, n_w) (row block i is H_i).
+        w ↦ ∂g/∂w, a sparse (n_y, n_w) matrix.
+    derivs : casadi.Function
+        w ↦ (g(w), the nonzeros of J, the nonzeros of the Hessians' lower triangles),
+        laid out by ``jac_index`` and ``hess_index``.
+    jac_index : (rows, cols)
+        Output and input index of each Jacobian nonzero.
+    hess_index : (outputs, rows, cols)
+        Output i and entry (a, b), a ≥ b, of H_i = ∂²g_i/∂w² for each Hessian nonzero.
+    hess_support : (n_y, s) int array
+        Row i lists S_i, the inputs on which H_i is supported (padded with 0 to the
+        largest size s; padded entries carry zero blocks).
     name : str
         The name as given (any text); ``tag`` is the C identifier made of it
         (:func:`symmon.cnames.c_identifier`) that prefixes every function name.
@@ -308,19 +321,31 @@ class CompiledModel:
         w = ca.SX.sym("w", self.n_w)
         y = ca.densify(ca.vertcat(*to_casadi(outputs, self.symbols, w)))
         self.w_sx, self.y_sx = w, y
-        # Buffers carry nonzeros only: densify so that every output has a fixed layout.
-        J = ca.densify(ca.jacobian(y, w))
-        H = ca.densify(ca.vertcat(*[ca.hessian(y[i], w)[0] for i in range(self.n_y)]))
+        J = ca.jacobian(y, w)
+        # Hessians are symmetric: keep the lower triangle of each.
+        H = [ca.tril(ca.hessian(y[i], w)[0]) for i in range(self.n_y)]
+        jr, jc = J.sparsity().get_triplet()
+        self.jac_index = (np.array(jr, dtype=np.intp), np.array(jc, dtype=np.intp))
+        trip = [h.sparsity().get_triplet() for h in H]
+        self.hess_index = (
+            np.array([i for i, (r, _) in enumerate(trip) for _ in r], dtype=np.intp),
+            np.array([a for r, _ in trip for a in r], dtype=np.intp),
+            np.array([b for _, c in trip for b in c], dtype=np.intp),
+        )
+        self._hess_layout()
         self.g = ca.Function(f"{tag}_g", [w], [y], ["w"], ["y"])
         self.jac = ca.Function(f"{tag}_J", [w], [J], ["w"], ["J"])
-        self.hess = ca.Function(f"{tag}_H", [w], [H], ["w"], ["H"])
-        self.gjh = ca.Function(f"{tag}_gJH", [w], [y, J, H], ["w"], ["y", "J", "H"])
+        # Buffers carry nonzeros only: the outputs are dense columns of nonzeros.
+        H_nz = ca.vertcat(ca.SX(0, 1), *[_nonzeros(h) for h in H])
+        # CSE merges the subexpressions that g, J and the Hessians share (~15% less C).
+        self.derivs = ca.Function(f"{tag}_gJH", [w], [y, _nonzeros(J), H_nz],
+                                  ["w"], ["y", "J_nz", "H_nz"], {"cse": True})
         self.compiled = has_compiler() if compiled is None else compiled
         if compiled is None and not self.compiled:
             # The default asked for C but none is available: say so (once per process).
             warn_no_compiler(stacklevel=2)
         self._batch_g = _Batched(self.g, self.compiled)
-        self._batch_gjh = _Batched(self.gjh, self.compiled)
+        self._batch_derivs = _Batched(self.derivs, self.compiled)
         self._kernels: list[NativeLibrary] = []
 
     def native_library(self, code: str, stem: str, load: Callable[[Path], Any], stacklevel: int = 2) -> NativeLibrary:
@@ -342,7 +367,7 @@ class CompiledModel:
         or a failed build), and ``"none"`` before any evaluation.
         """
         with _cache_lock:
-            states = {b.evaluator for b in (self._batch_g, self._batch_gjh) if b.used}
+            states = {b.evaluator for b in (self._batch_g, self._batch_derivs) if b.used}
             states |= {lib.evaluator for lib in self._kernels}
         for s in ("vm (C build running)", "vm", "compiled"):
             if s in states:
@@ -351,28 +376,79 @@ class CompiledModel:
 
     def wait_compiled(self, timeout: float | None = None) -> str:
         """Wait for the background C builds started so far; return :attr:`evaluator`."""
-        libs = [b.native for b in (self._batch_g, self._batch_gjh) if b.native is not None] + self._kernels
+        libs = [b.native for b in (self._batch_g, self._batch_derivs) if b.native is not None] + self._kernels
         for lib in libs:
             lib.wait(timeout)
         return self.evaluator
 
+    def _hess_layout(self) -> None:
+        """Supports S_i of the Hessians and where each nonzero goes in the blocks H_i[S_i, S_i]."""
+        out, rows, cols = self.hess_index
+        supports = [np.union1d(rows[out == i], cols[out == i]) for i in range(self.n_y)]
+        s = max((len(S) for S in supports), default=0)
+        self.hess_support = np.zeros((self.n_y, s), dtype=np.intp)
+        pos = np.zeros((self.n_w, self.n_y), dtype=np.intp)  # pos[a, i]: place of a in S_i
+        for i, S in enumerate(supports):
+            self.hess_support[i, : len(S)] = S
+            pos[S, i] = np.arange(len(S))
+        a, b = pos[rows, out], pos[cols, out]
+        # Flat positions in an (n_y, s, s) array of blocks, and of the mirrored entries.
+        self._block_at = (out * s + a) * s + b
+        self._block_at_t = (out * s + b) * s + a
+
+    # ------------------------------------------------------------------ evaluation
     def eval_g(self, W: np.ndarray) -> np.ndarray:
         """g at each row of W (N, n_w) → (N, n_y)."""
         return self._batch_g(W)[0]
 
+    def eval_derivatives(self, W: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """g and the structural nonzeros of J and of the Hessians at each row of W.
+
+        Returns
+        -------
+        y : (N, n_y); J_nz : (N, nnz J) laid out by ``jac_index``;
+        H_nz : (N, nnz tril H) laid out by ``hess_index``
+        """
+        y, J_nz, H_nz = self._batch_derivs(W)
+        return y, J_nz, H_nz
+
+    def dense_jacobian(self, J_nz: np.ndarray) -> np.ndarray:
+        """(N, n_y, n_w) Jacobians from their nonzeros (N, nnz J)."""
+        J = np.zeros((J_nz.shape[0], self.n_y, self.n_w))
+        J[:, self.jac_index[0], self.jac_index[1]] = J_nz
+        return J
+
+    def dense_hessians(self, H_nz: np.ndarray) -> np.ndarray:
+        """(N, n_y, n_w, n_w) Hessians from their lower-triangle nonzeros (N, nnz)."""
+        out, rows, cols = self.hess_index
+        H = np.zeros((H_nz.shape[0], self.n_y, self.n_w, self.n_w))
+        H[:, out, rows, cols] = H_nz
+        H[:, out, cols, rows] = H_nz
+        return H
+
+    def hessian_blocks(self, H_nz: np.ndarray) -> np.ndarray:
+        """(N, n_y, s, s) blocks H_i[S_i, S_i], S_i the rows of ``hess_support``."""
+        s = self.hess_support.shape[1]
+        B = np.zeros((H_nz.shape[0], self.n_y * s * s))
+        B[:, self._block_at] = H_nz
+        B[:, self._block_at_t] = H_nz
+        return B.reshape(-1, self.n_y, s, s)
+
     def eval_gjh(self, W: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """g, J and the Hessians at each row of W.
+        """g, J and the Hessians at each row of W, dense (for small models and checks).
 
         Returns
         -------
         y : (N, n_y); J : (N, n_y, n_w); H : (N, n_y, n_w, n_w)
         """
-        y, J, H = self._batch_gjh(W)
-        N = W.shape[0]
-        # CasADi is column-major: a (r, c) output arrives as c blocks of r.
-        J = J.reshape(N, self.n_w, self.n_y).transpose(0, 2, 1)
-        H = H.reshape(N, self.n_w, self.n_y, self.n_w).transpose(0, 2, 3, 1)
-        return y, J, H
+        y, J_nz, H_nz = self.eval_derivatives(W)
+        return y, self.dense_jacobian(J_nz), self.dense_hessians(H_nz)
+
+
+def _nonzeros(x: ca.SX) -> ca.SX:
+    """The structural nonzeros of ``x`` as a column (column-major order, as ``get_triplet``)."""
+    # A fully dense matrix's ``nz[:]`` keeps its shape: reshape to a column.
+    return ca.reshape(x.nz[:], -1, 1)
 
 
 _cache: dict[tuple, CompiledModel] = {}

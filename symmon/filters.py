@@ -50,6 +50,8 @@ models", FUSION 2015 (wrapped residuals).
 
 from __future__ import annotations
 
+import functools
+
 import ctypes
 import hashlib
 import itertools
@@ -65,7 +67,7 @@ from numpy.typing import ArrayLike
 from scipy import stats
 
 from .angles import wrap_angle
-from .codegen import _chol_lower_sx, _tt2_sx, _wrap_sx
+from .codegen import _wrap_sx
 from .compile import build_shared_library, generated_c, has_compiler
 from .errors import ShapeError, SymmonError
 from .estimation import _check_gaussian, _check_model, _noise_cov, _readonly
@@ -130,11 +132,67 @@ def _point_moments(g: ca.Function, m: ca.SX, C: ca.SX, transform: Transform, ang
     return mean, cov, cross
 
 
+def _chol_lower_sx(P: ca.SX) -> ca.SX:
+    """Lower Cholesky factor L (L Lᵀ = P) of a symbolic matrix, reading its lower triangle.
+
+    A zero pivot gives a zero column, so a positive *semi*definite P with an exactly
+    zero variance still works; a negative pivot gives NaN (sqrt of a negative number),
+    which propagates to every output rather than silently producing a wrong factor.
+    """
+    n = P.shape[0]
+    L = [[ca.SX(0) for _ in range(n)] for _ in range(n)]
+    for j in range(n):
+        s = P[j, j]
+        for k in range(j):
+            s = s - L[j][k] * L[j][k]
+        d = ca.sqrt(s)
+        L[j][j] = d
+        for i in range(j + 1, n):
+            t = P[i, j]
+            for k in range(j):
+                t = t - L[i][k] * L[j][k]
+            # if_else does not leak the 0/0 of the branch not taken (an SX if_else evaluates both branches but keeps the chosen one).
+            L[i][j] = ca.if_else(d > 0, t / d, 0)
+    return ca.vertcat(*[ca.horzcat(*row) for row in L])
+
+
+@functools.lru_cache(maxsize=64)
+def _gjh_sx(cm) -> ca.Function:
+    """w ↦ (g, J, stacked dense Hessians) of a compiled model, for symbolic use in a step."""
+    w, y = cm.w_sx, cm.y_sx
+    H = ca.vertcat(*[ca.densify(ca.hessian(y[i], w)[0]) for i in range(cm.n_y)])
+    return ca.Function(f"{cm.tag}_gjh_sx", [w], [y, ca.densify(ca.jacobian(y, w)), H])
+
+
+def _tt2_sx(cm, m: ca.SX, P: ca.SX, angles: list[int]):
+    """TT2 moments of g at (m, P) as one SX expression (Gustafsson & Hendeby 2012).
+
+    The filter step is small (n ≤ ~10), so the products with P are written out in SX
+    and compiled together with the rest of the step.
+    """
+    n_y = cm.n_y
+    y, J, H = _gjh_sx(cm)(m)
+    n = m.shape[0]
+    # Row block i of H is the Hessian H_i (n × n).
+    HP = [H[i * n:(i + 1) * n, :] @ P for i in range(n_y)]
+    JP = J @ P
+    cov = JP @ J.T
+    mean = ca.vertcat(*[y[i] + 0.5 * ca.trace(HP[i]) for i in range(n_y)])
+    second = ca.SX(n_y, n_y)
+    for i in range(n_y):
+        for j in range(n_y):
+            second[i, j] = 0.5 * ca.sum1(ca.sum2(HP[i] * HP[j].T))  # tr(H_i P H_j P)
+    cov = cov + second
+    if angles:
+        mean = ca.vertcat(*[_wrap_sx(mean[i]) if i in angles else mean[i] for i in range(n_y)])
+    return mean, cov, JP
+
+
 def _moments(model: Model, m: ca.SX, C: ca.SX, transform: Transform, angles: frozenset[int]):
     """E g, Cov g, Cov(g, w) of the model's g at w ~ N(m, C) for the filter's transform."""
     cm = compiled(model)
     if isinstance(transform, TT2):
-        return _tt2_sx(cm.gjh, cm.n_y, m, C, sorted(angles))
+        return _tt2_sx(cm, m, C, sorted(angles))
     if isinstance(transform, TT1):
         J = cm.jac(m)
         JC = ca.mtimes(J, C)

@@ -18,16 +18,21 @@ from typing import ClassVar
 import numpy as np
 
 from ..compile import CompiledModel
-from ..errors import DerivativeError
+from ..errors import DerivativeError, SymmonError
 from .base import BatchMoments, Transform, wrap_angle
 
 __all__ = ["TT1", "TT2"]
 
 
-def _check_finite(cm: CompiledModel, means: np.ndarray, arr: np.ndarray, what: str) -> None:
-    bad = ~np.isfinite(arr.reshape(arr.shape[0], arr.shape[1], -1)).all(axis=2)
+def _check_finite(cm: CompiledModel, means: np.ndarray, arr: np.ndarray, owner: np.ndarray, what: str) -> None:
+    """Raise DerivativeError naming the output and point of the first non-finite entry.
+
+    ``arr`` is (K, m) and ``owner[c]`` the output to which column c belongs.
+    """
+    bad = ~np.isfinite(arr)
     if bad.any():
-        k, i = np.argwhere(bad)[0]
+        k, c = np.argwhere(bad)[0]
+        i = int(owner[c])
         point = ", ".join(f"{s}={x:.6g}" for s, x in zip(cm.symbols, means[k]))
         expr = cm.source_exprs[i] if i < len(cm.source_exprs) else "?"
         raise DerivativeError(
@@ -37,18 +42,64 @@ def _check_finite(cm: CompiledModel, means: np.ndarray, arr: np.ndarray, what: s
         )
 
 
+def second_order_terms(cm: CompiledModel, H_nz: np.ndarray, covs: np.ndarray,
+                       method: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """½ tr(H_i P) (K, n_y) and ½ tr(H_i P H_j P) (K, n_y, n_y) from the Hessian nonzeros.
+
+    Two exact evaluations of the second-order terms of TT2 (module docstring;
+    Gustafsson & Hendeby 2012).  ``"blocks"``: with S_i the support of H_i (s inputs at most),
+    tr(H_i P H_j P) = tr(B_i P[S_i, S_j] B_j P[S_j, S_i]) with the blocks
+    B_i = H_i[S_i, S_i], in n_y² s³ operations.  ``"dense"``: H_i P for each i, then the
+    Frobenius products ⟨H_i P, (H_j P)ᵀ⟩, in n_y n³ + n_y² n² operations.  The default
+    takes the cheaper one.
+
+    Parameters
+    ----------
+    cm : CompiledModel
+    H_nz : (K, nnz) Hessian nonzeros, laid out by ``cm.hess_index``
+    covs : (K, n_w, n_w)
+    method : {"blocks", "dense"}, optional
+    """
+    K, n = covs.shape[0], cm.n_w
+    ny, s = cm.hess_support.shape
+    if s == 0:  # affine g: no second-order terms
+        return np.zeros((K, ny)), np.zeros((K, ny, ny))
+    if method is None:
+        method = "blocks" if ny * ny * s**3 <= ny * n**3 + ny * ny * n * n else "dense"
+    if method not in ("blocks", "dense"):
+        raise SymmonError(f"method must be 'blocks' or 'dense', got {method!r}")
+    if method == "blocks":
+        B = cm.hessian_blocks(H_nz)  # (K, ny, s, s)
+        flat = cm.hess_support.ravel()
+        # Rows of block i of Q = P[S, S]: Q[k, i, a, (j, b)] = P[S_i[a], S_j[b]]; padded
+        # entries meet zero rows of B.
+        Q = covs[:, flat[:, None], flat[None, :]].reshape(K, ny, s, ny * s)
+        R = np.matmul(B, Q).reshape(K, ny, s, ny, s)  # R[k, i, :, j, :] = B_i P[S_i, S_j]
+        first = np.einsum("kiaia->ki", R)
+        # tr(R_ij R_ji) = Σ_ac R_ij[a, c] R_ji[c, a]
+        second = (R * R.transpose(0, 3, 4, 1, 2)).sum(axis=(2, 4))
+    else:
+        HP = np.matmul(cm.dense_hessians(H_nz), covs[:, None])  # (K, ny, n, n)
+        first = np.einsum("kiaa->ki", HP)
+        F = HP.reshape(K, ny, n * n)
+        Ft = HP.transpose(0, 1, 3, 2).reshape(K, ny, n * n)
+        second = np.matmul(F, Ft.transpose(0, 2, 1))
+    return 0.5 * first, 0.5 * second
+
+
 def _taylor(cm: CompiledModel, means: np.ndarray, covs: np.ndarray, angles, second: bool):
-    y, J, H = cm.eval_gjh(means)
-    _check_finite(cm, means, y[:, :, None], "value")
-    _check_finite(cm, means, J, "Jacobian")
-    JP = np.einsum("kij,kjl->kil", J, covs)
-    cov = np.einsum("kil,kjl->kij", JP, J)
+    y, J_nz, H_nz = cm.eval_derivatives(means)
+    _check_finite(cm, means, y, np.arange(cm.n_y), "value")
+    _check_finite(cm, means, J_nz, cm.jac_index[0], "Jacobian")
+    J = cm.dense_jacobian(J_nz)
+    JP = np.matmul(J, covs)
+    cov = np.matmul(JP, J.transpose(0, 2, 1))
     mean = y.copy()
     if second:
-        _check_finite(cm, means, H, "Hessian")
-        HP = np.einsum("kiab,kbc->kiac", H, covs)
-        mean = mean + 0.5 * np.einsum("kiaa->ki", HP)
-        cov = cov + 0.5 * np.einsum("kiab,kjba->kij", HP, HP)
+        _check_finite(cm, means, H_nz, cm.hess_index[0], "Hessian")
+        half_tr, half_tr2 = second_order_terms(cm, H_nz, covs)
+        mean = mean + half_tr
+        cov = cov + half_tr2
     if angles:
         idx = sorted(angles)
         mean[:, idx] = wrap_angle(mean[:, idx])
