@@ -17,7 +17,7 @@ from symmon.compile import CompiledModel, has_compiler
 from symmon.errors import SamplingError, ShapeError
 from symmon.problems import bot, gmti
 from symmon.propagate import compiled
-from symmon.transforms.mc_kernel import SampleKernel, _wrap, sample_kernel
+from symmon.transforms.mc_kernel import FUSE_MAX_NW, SampleKernel, _wrap, sample_kernel
 
 #: A reordered sum of 4 products and one evaluation of g: a few ulps of the column scale.
 ROUNDING = 1e-13
@@ -61,6 +61,26 @@ def test_kernel_rows_equal_the_plain_computation(angles, vm):
     if angles:
         y1 = A[:, 1] + shift[1]
         assert np.all(np.abs(y1 - ref[1]) <= np.pi)
+
+
+@pytest.mark.parametrize("vm", [False, True], ids=["compiled", "vm"])
+def test_large_model_maps_by_blas_and_gives_the_same_rows(vm):
+    """Above FUSE_MAX_NW inputs w = m + L z is a BLAS product: same rows, C free of n_w² terms."""
+    n = FUSE_MAX_NW + 4
+    x = sp.symbols(f"x0:{n}", real=True)
+    out = [sp.sqrt(x[i] ** 2 + x[(i + 1) % n] ** 2 + 1) + sp.sin(x[i] * x[(i + 2) % n]) for i in range(n)]
+    cm = CompiledModel(out, x, name="kernel_blas", compiled=not vm and has_compiler())
+    k = SampleKernel(cm, ())
+    assert not k.fused and k.f.size1_in(1) == k.n_z + cm.n_y  # the kernel's parameters hold no m, L
+    rng = np.random.default_rng(1)
+    Z = rng.standard_normal((700, n))
+    mean = rng.standard_normal(n)
+    L = np.linalg.cholesky(0.2 * np.eye(n) + 0.05)
+    shift = rng.standard_normal(k.n_z)
+    ref = cm.eval_g(mean[None])[0]
+    A = np.empty((len(Z), k.n_out))
+    k(Z, k.params(mean, L, shift, ref), A)
+    assert_rows_close(A, reference(cm, Z, mean, L, shift, ref, ()))
 
 
 def test_wrap_in_the_kernel_is_wrap_angle():

@@ -32,7 +32,10 @@ from ..ccache import NativeLibrary
 from ..compile import CompiledModel, generated_c
 from ..errors import ShapeError, SymmonError
 
-__all__ = ["SampleKernel", "sample_kernel"]
+__all__ = ["SampleKernel", "sample_kernel", "FUSE_MAX_NW"]
+
+#: Largest n_w whose affine map w = m + L z is compiled into the kernel (its C grows as n_w²).
+FUSE_MAX_NW = 16
 
 # The row loop: one call of CasADi's generated function per row, its arguments set by
 # pointer arithmetic.  casadi_int is CasADi's default, long long.
@@ -75,7 +78,9 @@ class SampleKernel:
     Notes
     -----
     The parameters of a call are packed as p = [m, vec(L) (column-major), s, ref], with
-    s of length ``n_z`` = n_y + n_w + 2|A|; rows have ``n_out`` = n_z + 1 columns.
+    s of length ``n_z`` = n_y + n_w + 2|A|; rows have ``n_out`` = n_z + 1 columns.  Above
+    :data:`FUSE_MAX_NW` inputs the map w = m + L z is a NumPy (BLAS) product per call and
+    the compiled function takes w and [s, ref], so its code grows with g, not with n_w².
     """
 
     def __init__(self, cm: CompiledModel, angles: Sequence[int] = ()) -> None:
@@ -85,13 +90,21 @@ class SampleKernel:
         self.n_z = ny + nw + 2 * len(angles)
         self.n_out = self.n_z + 1
         self.n_p = nw + nw * nw + self.n_z + ny
+        # Small models fuse the affine map into the kernel (one pass over the chunk); above
+        # FUSE_MAX_NW its n_w² terms would dominate the generated C, so w = m + L z is one
+        # BLAS product per chunk instead and the kernel starts at w.
+        self.fused = nw <= FUSE_MAX_NW
         z = ca.SX.sym("z", nw)
-        p = ca.SX.sym("p", self.n_p)
-        m = p[:nw]
-        L = ca.reshape(p[nw: nw + nw * nw], nw, nw)
-        s = p[nw + nw * nw: nw + nw * nw + self.n_z]
-        ref = p[nw + nw * nw + self.n_z:]
-        w = m + ca.mtimes(L, z)
+        p = ca.SX.sym("p", self.n_p if self.fused else self.n_z + ny)
+        if self.fused:
+            m = p[:nw]
+            L = ca.reshape(p[nw: nw + nw * nw], nw, nw)
+            q = p[nw + nw * nw:]
+            w = m + ca.mtimes(L, z)
+        else:
+            q, w = p, z
+        s = q[: self.n_z]
+        ref = q[self.n_z:]
         y = ca.substitute(cm.y_sx, cm.w_sx, w)
         if angles:
             y = ca.vertcat(*[ref[i] + _wrap(y[i] - ref[i]) if i in angles else y[i] for i in range(ny)])
@@ -154,6 +167,12 @@ class SampleKernel:
                                  + (" that can be written" if name == "out" else ""))
         if N == 0:
             return
+        if not self.fused:
+            nw = self.n_w
+            L = p[nw: nw + nw * nw].reshape(nw, nw, order="F")
+            Z = Z @ L.T
+            Z += p[:nw]
+            p = p[nw + nw * nw:]
         rows = self._native.get() if self._native is not None else None
         if rows is not None:
             iw, w = work if work is not None else self.workspace()
