@@ -19,8 +19,9 @@ limits (:data:`MAX_SAMPLES`, :data:`MAX_ORDER`, :data:`MAX_GROUPS`, :data:`MAX_W
 ``--plot`` a figure format matplotlib writes, and output paths must name regular files (or
 directories) that can be written. Error messages go to stderr, results to stdout. Every
 output file is written atomically through :mod:`symmon.io` (temporary file, then rename),
-so an existing file is replaced whole or left untouched. Progress bars (tqdm) go to stderr
-and are hidden when stderr is not a terminal or with ``--no-progress``.
+so an existing file is replaced whole or left untouched. Progress goes to stderr: a bar on a
+terminal, a line every few seconds otherwise (:mod:`symmon.progress`); ``--quiet`` hides it.
+Counts (``--samples``, ``--runs``, ...) may be written ``1e6`` when they are integers.
 
 :func:`main` returns the exit code instead of exiting, so it can be called in-process.
 """
@@ -37,6 +38,7 @@ import os
 import re
 import sys
 import traceback
+from decimal import Decimal, InvalidOperation
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
@@ -44,6 +46,7 @@ import numpy as np
 
 from .ccache import catch_sigterm
 from .errors import SymmonError
+from .progress import LINE_INTERVAL, silenced
 
 __all__ = ["main", "transform_from_name", "TRANSFORM_NAMES", "WEIGHT_NAMES", "FIGURES"]
 
@@ -257,14 +260,32 @@ def _sweep(text: str) -> np.ndarray:
     return np.logspace(np.log10(a), np.log10(b), n)
 
 
+def _count(text: str) -> int | None:
+    """The integer that ``text`` writes, in plain or scientific notation (``1e6``), else None.
+
+    Exact decimal arithmetic: ``1.5e0`` is not an integer and ``1e6`` is exactly 10⁶.
+    """
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        d = Decimal(text.strip())
+    except InvalidOperation:
+        return None
+    if not d.is_finite() or d != d.to_integral_value() or d.adjusted() > 100:  # 1e999999 stays a string
+        return None
+    return int(d)
+
+
 def _int_in(lo: int, hi: int) -> Callable[[str], int]:
-    """argparse type: an integer from ``lo`` to ``hi``; the bound keeps memory and time in reach."""
+    """argparse type: an integer from ``lo`` to ``hi``, also in scientific notation (``1e6``);
+    the bound keeps memory and time in reach."""
     def parse(text: str) -> int:
         what = "a positive integer" if lo == 1 else f"an integer >= {lo}"
-        try:
-            n = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
+        n = _count(text)
+        if n is None:
+            raise argparse.ArgumentTypeError(f"must be {what} (1e6 is allowed), got {text!r}")
         if n < lo:
             raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
         if n > hi:
@@ -691,6 +712,11 @@ def _parser() -> argparse.ArgumentParser:
                         help=f"run the Monte Carlo groups on Dask: {', '.join(DASK_LOCAL)}, or a scheduler "
                         "address such as tcp://host:8786 (needs the 'dask' extra); same result for the same seed")
 
+    def quiet_opt(sp: argparse.ArgumentParser) -> None:
+        sp.add_argument("-q", "--quiet", "--no-progress", dest="no_progress", action="store_true",
+                        help="no progress on stderr (otherwise a bar on a terminal, a line every "
+                        f"{LINE_INTERVAL:g} s elsewhere)")
+
     def weight_opt(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("--weight", choices=WEIGHT_NAMES, default="full",
                         help="full (43), diag (42), liu-li (8), liu-li-raw (6) (default full)")
@@ -699,6 +725,7 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("file", help="TOML model file")
     transform_opts(sp, 10**6)
     sp.add_argument("--json", action="store_true", help="print JSON (full float precision)")
+    quiet_opt(sp)
     sp.set_defaults(func=cmd_propagate)
 
     sp = add("nonlinearity", "the measure of nonlinearity (MoN) of a model file")
@@ -712,7 +739,7 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("--csv", metavar="CSV", type=_output_path,
                     help="with --alpha-sweep: write alpha, mon, stderr (atomically)")
     sp.add_argument("--json", action="store_true", help="print JSON")
-    sp.add_argument("--no-progress", action="store_true", help="no progress bar")
+    quiet_opt(sp)
     sp.set_defaults(func=cmd_nonlinearity)
 
     sp = add("compare", "the MoN and the moments by every transform, as a table")
@@ -720,7 +747,7 @@ def _parser() -> argparse.ArgumentParser:
     weight_opt(sp)
     rule_opts(sp, 10**5)
     sp.add_argument("--json", action="store_true", help="print JSON")
-    sp.add_argument("--no-progress", action="store_true", help="no progress bar")
+    quiet_opt(sp)
     sp.set_defaults(func=cmd_compare)
 
     sp = add("prove-invariance", "prove the unit invariance of the MoN symbolically (TT2 closed form); "
@@ -743,7 +770,7 @@ def _parser() -> argparse.ArgumentParser:
                     "used 10^7); for mmse: runs")
     sp.add_argument("--seed", type=_seed, default=0, help="seed, >= 0 (default 0)")
     sp.add_argument("--out", type=_output_path, default="results", help="output directory (default ./results)")
-    sp.add_argument("--no-progress", action="store_true", help="no progress bar")
+    quiet_opt(sp)
     sp.add_argument("--runs", type=_int_in(1, MAX_RUNS), default=None,
                     help="Monte Carlo runs of mmse and tracking (default: theirs, 1000 and 500)")
     sp.set_defaults(func=cmd_reproduce)
@@ -815,7 +842,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exc.code if isinstance(exc.code, int) else 2
     catch_sigterm()  # SIGTERM during a compile exits through Python, which kills the compiler
     try:
-        code = int(args.func(args))
+        with silenced() if getattr(args, "no_progress", False) else contextlib.nullcontext():
+            code = int(args.func(args))
         sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
         return code
     except BrokenPipeError:

@@ -417,3 +417,33 @@ def test_closed_stdout_stops_quietly(capsys, monkeypatch):
     os.close(w)
     assert code == 141
     assert capsys.readouterr().err == ""
+
+
+# --------------------------------------------------------------------------- counts and progress
+@pytest.mark.parametrize(("text", "value"), [("1e6", 10**6), ("1E3", 1000), ("2.5e3", 2500), ("100", 100),
+                                             ("1e12", 10**12)])
+def test_counts_accept_integral_scientific_notation(text, value):
+    assert cli._parser().parse_args(["propagate", "m.toml", "--samples", text]).samples == value
+
+
+@pytest.mark.parametrize(("text", "message"), [("1.5e0", "must be a positive integer (1e6 is allowed), got '1.5e0'"),
+                                                ("1e-3", "got '1e-3'"), ("nan", "got 'nan'"), ("inf", "got 'inf'"),
+                                                ("1e13", "must be at most 1,000,000,000,000, got '1e13'"),
+                                                ("0e0", "must be a positive integer, got '0e0'")])
+def test_counts_refuse_fractions_and_keep_the_limits(capsys, text, message):
+    code, _, err = run(capsys, "propagate", EXAMPLES / "polar.toml", "--samples", text)
+    assert code == 2 and "argument --samples: must be" in err and message in err
+
+
+@pytest.mark.parametrize("quiet", [False, True])
+def test_long_runs_report_progress_lines_unless_quiet(capsys, monkeypatch, quiet):
+    from symmon import progress
+
+    monkeypatch.setattr(progress, "LINE_INTERVAL", 0.0)  # every item is "a few seconds" later
+    code, out, err = run(capsys, "nonlinearity", EXAMPLES / "polar.toml", "--alpha-sweep", "0.1:10:3",
+                         *(["--quiet"] if quiet else []))
+    assert code == 0 and out.count("alpha=") == 3
+    if quiet:
+        assert err == ""
+    else:
+        assert err.splitlines() == [f"alpha sweep: {k}/3 done after 0 s" for k in (1, 2, 3)]
