@@ -213,6 +213,74 @@ def _print_json(obj: dict) -> None:
     print(json.dumps(obj, indent=2, allow_nan=False))
 
 
+# --------------------------------------------------------------------------- units
+#: Widest expression printed in an output table; longer ones are cut with "…" (``--json`` has them whole).
+EXPR_WIDTH = 60
+
+
+def _units_of(spec) -> dict[str, Any]:
+    """The file's ``[units]`` by role: a unit (or None) per output, input and noise symbol."""
+    m, units = spec.model, spec.units
+    return {"outputs": [units.get(f"outputs[{i}]") for i in range(m.n_y)],
+            "inputs": {str(s): units.get(str(s)) for s in m.inputs},
+            "noise": {str(s): units.get(str(s)) for s in m.noise}}
+
+
+def _label(name: str, unit: str | None) -> str:
+    return f"{name} [{unit}]" if unit else name
+
+
+def _short(text: str, width: int = EXPR_WIDTH) -> str:
+    return text if len(text) <= width else text[:width - 1] + "…"
+
+
+def _num(x: float) -> str:
+    """One number format for every table: 6 significant digits, exponent only when needed."""
+    return f"{x:.6g}"
+
+
+def _grid(title: str, rows: Sequence[str], cols: Sequence[str], values: np.ndarray) -> list[str]:
+    """A labelled matrix: a header of column labels, then one labelled line per row."""
+    first = max(len(r) for r in rows)
+    cells = [[_num(v) for v in row] for row in np.atleast_2d(values)]
+    widths = [max(len(c), *(len(r[j]) for r in cells)) for j, c in enumerate(cols)]
+    lines = [title, " " * first + "".join(f"  {c:>{w}}" for c, w in zip(cols, widths))]
+    lines += [f"{r:<{first}}" + "".join(f"  {c:>{w}}" for c, w in zip(cells_r, widths))
+              for r, cells_r in zip(rows, cells)]
+    return lines
+
+
+def _moments_text(spec, m) -> list[str]:
+    """E y with its standard deviation and unit per output, then Cov y and Cov(y, u), labelled."""
+    units = _units_of(spec)
+    ys = [f"y[{i}]" for i in range(spec.model.n_y)]
+    sd = np.sqrt(np.clip(np.diag(m.cov), 0.0, None))
+    se = None if m.stderr is None else np.asarray(m.stderr["mean"], dtype=float)
+    head = ["output", "E y", "sd", *(["MC s.e."] if se is not None else []), "unit", "expression"]
+    rows = [[y, _num(m.mean[i]), _num(sd[i]), *([_num(se[i])] if se is not None else []),
+             units["outputs"][i] or "-", _short(str(e))] for i, (y, e) in enumerate(zip(ys, spec.model.outputs))]
+    widths = [max(len(r[j]) for r in [head, *rows]) for j in range(len(head))]
+    lines = ["  ".join(f"{c:<{w}}" if j in (0, len(head) - 2, len(head) - 1) else f"{c:>{w}}"
+                       for j, (c, w) in enumerate(zip(r, widths))).rstrip() for r in [head, *rows]]
+    ylab = [_label(y, u) for y, u in zip(ys, units["outputs"])]
+    ulab = [_label(k, u) for k, u in units["inputs"].items()]
+    lines += _grid("Cov y (entry i, j in the unit of y[i] times that of y[j]):", ylab, ylab, m.cov)
+    lines += _grid("Cov(y, u) (entry i, j in the unit of y[i] times that of u[j]):", ylab, ulab, m.cross_cov)
+    if not any(units["outputs"]) and not any(units["inputs"].values()):
+        lines.append("(the file has no [units] table: the numbers are in the model's own units)")
+    return lines
+
+
+def _mon_unit(spec, weight: str) -> str:
+    """What the MoN is measured in: nothing, except for the raw Liu–Li MoN (6) (W = I)."""
+    if weight != "liu-li-raw":
+        return "unitless"
+    units = [u or "?" for u in _units_of(spec)["outputs"]]
+    if len(set(units)) == 1 and units[0] != "?":
+        return units[0]  # √tr of a covariance of outputs that share one unit
+    return "mixed units of y: " + ", ".join(units)
+
+
 # --------------------------------------------------------------------------- commands
 def cmd_propagate(args: argparse.Namespace) -> int:
     """``symmon propagate``: E y, Cov y and Cov(y, u) by one transform."""
@@ -228,19 +296,14 @@ def cmd_propagate(args: argparse.Namespace) -> int:
     if args.json:
         out = {
             "model": spec.model.name, "inputs": [str(s) for s in spec.model.inputs],
-            "outputs": [str(e) for e in spec.model.outputs], "transform": repr(tr),
+            "outputs": [str(e) for e in spec.model.outputs], "units": _units_of(spec), "transform": repr(tr),
             "mean": _jsonable(m.mean), "cov": _jsonable(m.cov), "cross_cov": _jsonable(m.cross_cov),
             "stderr": None if m.stderr is None else {k: _jsonable(v) for k, v in m.stderr.items()},
         }
         _print_json(out)
         return 0
-    with np.printoptions(precision=8, suppress=False):
-        print(f"{spec.model.name} by {tr!r}")
-        print(f"E y  = {m.mean}")
-        print(f"Cov y =\n{m.cov}")
-        print(f"Cov(y, u) =\n{m.cross_cov}")
-        if m.stderr is not None:
-            print(f"standard error of E y = {m.stderr['mean']}")
+    print(f"{spec.model.name} by {tr!r}")
+    print("\n".join(_moments_text(spec, m)))
     return 0
 
 
@@ -394,13 +457,14 @@ def _nonlinearity(args: argparse.Namespace, run_on: dict[str, Any]) -> int:
 
     spec = _load(args.file)
     tr = transform_from_name(args.transform, args.samples, args.seed, args.order, **run_on)
+    unit = _mon_unit(spec, args.weight)
     if args.alpha_sweep is None:
         res = _finite_measure(nonlinearity(spec.model, spec.u, spec.v, args.weight, tr), "")
         if args.json:
-            _print_json({"model": spec.model.name, **_measure_json(res)})
+            _print_json({"model": spec.model.name, **_measure_json(res), "unit": unit})
             return 0
         se = f" ± {res.stderr:.2g} (MC standard error)" if res.stderr is not None else ""
-        print(f"{spec.model.name}: MoN[{args.weight}] by {tr!r} = {res.value:.6g}{se}")
+        print(f"{spec.model.name}: MoN[{args.weight}] by {tr!r} = {res.value:.6g}{se} ({unit})")
         for note in res.notes:
             print(f"note: {note}")
         return 0
@@ -419,8 +483,8 @@ def _nonlinearity(args: argparse.Namespace, run_on: dict[str, Any]) -> int:
         plt = pyplot()
         fig, ax = plt.subplots(figsize=(6, 4))
         ax.semilogx([r[0] for r in rows], [r[1] for r in rows], "o-")
-        ax.set_xlabel(r"$\alpha$ (input covariance scale)")
-        ax.set_ylabel(f"MoN ({args.weight}, {args.transform})")
+        ax.set_xlabel(r"$\alpha$ (input covariance scale, unitless)")
+        ax.set_ylabel(f"MoN ({args.weight}, {args.transform}) [{unit}]")
         ax.set_title(spec.model.name)
         fig.tight_layout()
         try:
@@ -430,9 +494,10 @@ def _nonlinearity(args: argparse.Namespace, run_on: dict[str, Any]) -> int:
     if args.json:
         _print_json({"model": spec.model.name, "weight": args.weight, "transform": repr(tr),
                      "alpha": [r[0] for r in rows], "mon": [r[1] for r in rows],
-                     "stderr": _jsonable([r[2] for r in rows]), "notes": notes,
+                     "stderr": _jsonable([r[2] for r in rows]), "unit": unit, "notes": notes,
                      "files": [str(p) for p in written]})
         return 0
+    print(f"{spec.model.name}: MoN[{args.weight}] by {tr!r} ({unit}) over alpha, the scale of Cov u")
     for a, value, se in rows:
         print(f"alpha={a:.4g}  MoN={value:.6g}" + ("" if se is None else f" ± {se:.2g}"))
     for note in notes:

@@ -447,3 +447,51 @@ def test_long_runs_report_progress_lines_unless_quiet(capsys, monkeypatch, quiet
         assert err == ""
     else:
         assert err.splitlines() == [f"alpha sweep: {k}/3 done after 0 s" for k in (1, 2, 3)]
+
+
+# --------------------------------------------------------------------------- units
+def test_propagate_prints_a_labelled_table_with_the_files_units(capsys):
+    path = EXAMPLES / "gmti.toml"
+    code, out, err = run(capsys, "propagate", path)
+    assert (code, err) == (0, "")
+    spec = load_model_file(path)
+    m = sm.propagate(spec.model, spec.u, spec.v, sm.TT2())
+    lines = out.splitlines()
+    assert lines[1].split() == ["output", "E", "y", "sd", "unit", "expression"]
+    for i, unit in enumerate(["m", "rad", "m/s"]):
+        cells = lines[2 + i].split()
+        assert cells[0] == f"y[{i}]" and cells[3] == unit
+        np.testing.assert_allclose([float(cells[1]), float(cells[2])], [m.mean[i], np.sqrt(m.cov[i, i])],
+                                   rtol=5e-6)  # printed to 6 significant digits
+    assert "Cov y (entry i, j in the unit of y[i] times that of y[j]):" in out
+    assert lines[lines.index("Cov(y, u) (entry i, j in the unit of y[i] times that of u[j]):") + 1].split() == [
+        "x", "[m]", "y", "[m]", "vx", "[m/s]", "vy", "[m/s]"]
+    row = next(line for line in lines if line.startswith("y[1] [rad]") and len(line.split()) == 6)
+    np.testing.assert_allclose([float(c) for c in row.split()[2:]], m.cross_cov[1], rtol=5e-6, atol=1e-12)
+
+
+def test_propagate_json_carries_the_units(capsys):
+    code, out, _ = run(capsys, "propagate", EXAMPLES / "rdcos.toml", "--json")
+    assert code == 0
+    assert json.loads(out)["units"] == {"outputs": ["m", "dimensionless"],
+                                        "inputs": {"x": "m", "y": "m", "vx": "m/s", "vy": "m/s"}, "noise": {}}
+
+
+def test_propagate_without_units_says_so(capsys, tmp_path):
+    path = tmp_path / "plain.toml"
+    path.write_text('name = "plain"\ninputs = ["x"]\noutputs = ["x**2"]\n[u]\nmean = [1]\ncov = [[0.5]]\n', encoding="utf-8")
+    code, out, _ = run(capsys, "propagate", path)
+    assert code == 0 and out.splitlines()[2].split()[3] == "-"
+    assert "has no [units] table" in out
+    code, out, _ = run(capsys, "propagate", path, "--json")
+    assert json.loads(out)["units"] == {"outputs": [None], "inputs": {"x": None}, "noise": {}}
+
+
+@pytest.mark.parametrize(("example", "weight", "unit"), [("gmti", "full", "unitless"), ("gmti", "liu-li", "unitless"),
+                                                         ("radar", "liu-li-raw", "m"),
+                                                         ("gmti", "liu-li-raw", "mixed units of y: m, rad, m/s")])
+def test_nonlinearity_says_the_unit_of_the_mon(capsys, example, weight, unit):
+    code, out, _ = run(capsys, "nonlinearity", EXAMPLES / f"{example}.toml", "--weight", weight)
+    assert code == 0 and out.rstrip().endswith(f"({unit})")
+    code, out, _ = run(capsys, "nonlinearity", EXAMPLES / f"{example}.toml", "--weight", weight, "--json")
+    assert json.loads(out)["unit"] == unit
