@@ -524,18 +524,32 @@ def cmd_compare(args: argparse.Namespace) -> int:
             rows.append({"name": name, "transform": repr(tr), "mon": res.value, "stderr": res.stderr,
                          "evaluations": m.info.get("evaluations"), "mean": m.mean, "cov": m.cov,
                          "cross_cov": m.cross_cov, "notes": res.notes})
+    for r in rows:
+        r["relative_stderr"] = _relative(r["stderr"], r["mon"])
+        r["flagged"] = r["relative_stderr"] is not None and r["relative_stderr"] > FLAG_RELATIVE_STDERR
     if args.json:
-        _print_json({"model": spec.model.name, "weight": args.weight, "rows": [
-            {k: (_jsonable(v) if k not in ("name", "transform", "evaluations") else v) for k, v in r.items()}
+        _print_json({"model": spec.model.name, "weight": args.weight, "flag_relative_stderr": FLAG_RELATIVE_STDERR,
+                     "units": _units_of(spec), "rows": [
+            {k: (_jsonable(v) if k not in ("name", "transform", "evaluations", "flagged") else v) for k, v in r.items()}
             for r in rows]})
         return 0
-    print(f"{spec.model.name}: MoN with weight {args.weight!r} and moments by every transform")
-    print(f"{'':>4} {'MoN':>10} {'MC s.e.':>8} {'E y':>30} {'diag Cov y':>30}")
+    print(f"{spec.model.name}: MoN with weight {args.weight!r} ({_mon_unit(spec, args.weight)}) "
+          "and the moments by every transform")
+    units = _units_of(spec)["outputs"]
+    head = ["", "MoN", "MC s.e.", "s.e./MoN",
+            *(_label(f"E y[{i}]", u) for i, u in enumerate(units)), *(_label(f"sd y[{i}]", u) for i, u in enumerate(units))]
+    table = [head]
     for r in rows:
-        se = f"{r['stderr']:.2g}" if r["stderr"] is not None else "-"
-        ey = np.array2string(r["mean"], precision=5, separator=", ")
-        dc = np.array2string(np.diag(r["cov"]), precision=5, separator=", ")
-        print(f"{r['name']:>4} {r['mon']:>10.5g} {se:>8} {ey:>30} {dc:>30}")
+        rel = r["relative_stderr"]
+        table.append([r["name"], _num(r["mon"]), "-" if r["stderr"] is None else _num(r["stderr"]),
+                      "-" if rel is None else f"{100 * rel:.2g}%" + (" !" if r["flagged"] else ""),
+                      *map(_num, r["mean"]), *map(_num, np.sqrt(np.clip(np.diag(r["cov"]), 0.0, None)))])
+    widths = [max(len(t[j]) for t in table) for j in range(len(head))]
+    for t in table:
+        print("  ".join(f"{c:>{w}}" for c, w in zip(t, widths)))
+    if any(r["flagged"] for r in rows):
+        print(f"! the Monte Carlo error bar exceeds {FLAG_RELATIVE_STDERR:.0%} of the MoN: "
+              "that row is noise, not a value; raise --samples")
     print("\ntransforms:")
     for r in rows:
         print(f"{r['name']:>4}: {r['transform']}")
@@ -543,6 +557,17 @@ def cmd_compare(args: argparse.Namespace) -> int:
     for note in notes:
         print(f"note: {note}")
     return 0
+
+
+#: ``compare`` flags a row whose Monte Carlo standard error exceeds this share of its MoN.
+FLAG_RELATIVE_STDERR = 0.10
+
+
+def _relative(stderr: float | None, value: float) -> float | None:
+    """stderr / |value| (inf for a zero value with an error bar), None without an error bar."""
+    if stderr is None:
+        return None
+    return stderr / abs(value) if value != 0 else (0.0 if stderr == 0 else math.inf)
 
 
 def cmd_prove(args: argparse.Namespace) -> int:

@@ -495,3 +495,31 @@ def test_nonlinearity_says_the_unit_of_the_mon(capsys, example, weight, unit):
     assert code == 0 and out.rstrip().endswith(f"({unit})")
     code, out, _ = run(capsys, "nonlinearity", EXAMPLES / f"{example}.toml", "--weight", weight, "--json")
     assert json.loads(out)["unit"] == unit
+
+
+def test_compare_flags_rows_whose_error_bar_exceeds_ten_percent(capsys):
+    # 40 samples: the Monte Carlo rows of polar are noise (error bars of 18 % and 34 %).
+    code, out, _ = run(capsys, "compare", EXAMPLES / "polar.toml", "--samples", "40", "--json")
+    assert code == 0
+    rows = {r["name"]: r for r in json.loads(out)["rows"]}
+    for r in rows.values():
+        rel = None if r["stderr"] is None else r["stderr"] / abs(r["mon"])
+        assert r["relative_stderr"] == rel and r["flagged"] == (rel is not None and rel > cli.FLAG_RELATIVE_STDERR)
+    assert rows["mc"]["flagged"] and not rows["gh"]["flagged"]
+    code, out, _ = run(capsys, "compare", EXAMPLES / "polar.toml", "--samples", "40")
+    flagged = [line.split()[0] for line in out.splitlines()[2:10] if line.endswith(" !") or " ! " in line]
+    assert flagged == [n for n, r in rows.items() if r["flagged"]]
+    assert "! the Monte Carlo error bar exceeds 10% of the MoN" in out
+
+
+def test_compare_prints_one_number_format_with_units(capsys):
+    code, out, _ = run(capsys, "compare", EXAMPLES / "gmti.toml", "--samples", MC_SAMPLES)
+    assert code == 0
+    lines = out.splitlines()
+    assert lines[1].split()[:4] == ["MoN", "MC", "s.e.", "s.e./MoN"] and "E y[0] [m]" in lines[1]
+    assert "sd y[2] [m/s]" in lines[1]
+    for line in lines[2:10]:
+        for cell in line.split()[1:]:
+            if cell not in ("-", "!") and not cell.endswith("%"):
+                assert cell == f"{float(cell):.6g}"  # every number printed to 6 significant digits
+    assert "! the Monte Carlo" not in out  # 2000 samples: every error bar is below 10 %
