@@ -572,16 +572,57 @@ def _relative(stderr: float | None, value: float) -> float | None:
 
 def cmd_prove(args: argparse.Namespace) -> int:
     """``symmon prove-invariance``: the symbolic unit-invariance proof of the MoN."""
+    from .io import atomic_write_text
     from .units import prove_invariance
 
+    _check_output_files(args.out)
     spec = _load(args.file)
     # --numeric: the file's distributions, made exact: a proof for this u (and v) only.
     moments = dict(mean=spec.u.mean, cov=spec.u.cov, noise_cov=None if spec.v is None else spec.v.cov) if args.numeric else {}
     proof = prove_invariance(spec.model, args.weight, route=args.route, budget=args.budget, progress=True,
                              at=(spec.u, spec.v), **moments)  # a refutation at the file's distribution
-    print(proof)
+    print(proof if proof.holds else _refutation_text(proof, args.out))
+    if args.out:
+        print(f"wrote {atomic_write_text(args.out, _proof_report(proof))}")
     # liu-li and liu-li-raw are known not to be invariant: a "does not hold" is the expected answer.
     return 0 if proof.holds or args.weight in ("liu-li", "liu-li-raw") else 1
+
+
+def _refutation_text(proof, out: str | None) -> str:
+    """A failed proof in a few lines: the counterexample (where the two sides differ, and by
+    how much) instead of the whole difference, which ``--out`` writes."""
+    import sympy as sp
+
+    from .invariance import _show_point
+
+    lines = [f"{proof.statement} with weight {proof.weight!r} ({proof.transform}): fails [{proof.seconds:.2f} s]"]
+    cex = proof.counterexample or {}
+    if "lhs" in cex:
+        lhs, rhs = float(cex["lhs"]), float(cex["rhs"])
+        rel = f" ({100 * abs(lhs - rhs) / abs(lhs):.2g} % of M²)" if lhs else ""
+        lines.append(f"  counterexample: M² = {_num(lhs)} in the old units and {_num(rhs)} in the new units, "
+                     f"a difference of {_num(lhs - rhs)}{rel}")
+        lines.append(f"  at {_show_point(cex)}")
+    elif "difference" in cex:
+        lines.append(f"  counterexample: M²(g, u) − M²(ḡ, ū) = {_num(float(cex['difference']))} at a rational point")
+    size = sp.count_ops(proof.difference)
+    where = f"written to {out}" if out else "--out FILE writes it"
+    lines.append(f"  M²(g, u) − M²(ḡ, ū) is a nonzero expression of {size} operations ({where})")
+    if proof.lemmas:
+        lines.append("  by the lemmas: " + ", ".join(proof.lemmas))
+    if proof.assumptions:
+        lines.append("  assuming: " + "; ".join(proof.assumptions))
+    return "\n".join(lines)
+
+
+def _proof_report(proof) -> str:
+    """Everything a proof found, whole: the verdict, M² on both sides, their difference and
+    the counterexample point with every value."""
+    lines = [str(proof), "", f"M²(g, u) = {proof.lhs}", "", f"M²(ḡ, ū) = {proof.rhs}", "",
+             f"M²(g, u) − M²(ḡ, ū) = {proof.difference}"]
+    if proof.counterexample:
+        lines += ["", "counterexample:"] + [f"  {k} = {v}" for k, v in proof.counterexample.items()]
+    return "\n".join(lines) + "\n"
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
@@ -851,6 +892,8 @@ def _parser() -> argparse.ArgumentParser:
                          "symbolically (small models only, stopped after --budget)")
     sp.add_argument("--budget", type=float, default=10.0, metavar="SECONDS",
                     help="wall-clock limit of the direct route (default 10)")
+    sp.add_argument("--out", type=_output_path, default=None, metavar="FILE",
+                    help="write the whole proof: M² in both units, their difference and the counterexample")
     sp.set_defaults(func=cmd_prove)
 
     sp = add("reproduce", "reproduce a figure of the papers (PNG + CSV)")

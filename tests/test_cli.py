@@ -523,3 +523,30 @@ def test_compare_prints_one_number_format_with_units(capsys):
             if cell not in ("-", "!") and not cell.endswith("%"):
                 assert cell == f"{float(cell):.6g}"  # every number printed to 6 significant digits
     assert "! the Monte Carlo" not in out  # 2000 samples: every error bar is below 10 %
+
+
+# --------------------------------------------------------------------------- failed proofs
+def test_a_failed_proof_prints_a_short_counterexample_and_out_writes_it_whole(capsys, tmp_path):
+    from symmon.units import prove_invariance
+
+    spec = load_model_file(EXAMPLES / "gmti.toml")
+    proof = prove_invariance(spec.model, "liu-li", at=(spec.u, spec.v))
+    out_file = tmp_path / "proof.txt"
+    code, out, _ = run(capsys, "prove-invariance", EXAMPLES / "gmti.toml", "--weight", "liu-li", "--out", out_file)
+    assert code == 0  # liu-li is known not to be invariant
+    lhs, rhs = float(proof.counterexample["lhs"]), float(proof.counterexample["rhs"])
+    assert "with weight 'liu-li' (tt2): fails" in out
+    assert (f"counterexample: M² = {lhs:.6g} in the old units and {rhs:.6g} in the new units, "
+            f"a difference of {lhs - rhs:.6g}") in out
+    assert "at S_u = diag(2, 1/3, 5, 1/7)" in out and "mean = [500, 500, 5, 87/10]" in out
+    assert str(proof.difference) not in out  # 125 operations: only in the file
+    assert f"(written to {out_file})" in out and f"wrote {out_file}" in out
+    text = out_file.read_text(encoding="utf-8")
+    assert f"M²(g, u) − M²(ḡ, ū) = {proof.difference}\n" in text
+    assert f"M²(g, u) = {proof.lhs}\n" in text and "counterexample:\n" in text
+    assert no_temp_files(tmp_path)
+
+
+def test_a_failed_proof_without_out_says_how_to_get_the_expression(capsys):
+    code, out, _ = run(capsys, "prove-invariance", EXAMPLES / "polar.toml", "--weight", "liu-li-raw")
+    assert code == 0 and "--out FILE writes it" in out and len(out.splitlines()) == 6
