@@ -50,6 +50,8 @@ from .progress import LINE_INTERVAL, silenced
 
 __all__ = ["main", "transform_from_name", "TRANSFORM_NAMES", "WEIGHT_NAMES", "FIGURES"]
 
+#: The paper whose equation numbers the help cites.
+SH24 = "Straka & Havlík 2024"
 #: Short names of the transforms, in the order ``compare`` lists them.
 TRANSFORM_NAMES = ("tt1", "tt2", "ut1", "ut2", "ct", "gh", "qmc", "mc")
 WEIGHT_NAMES = ("full", "diag", "liu-li", "liu-li-raw")
@@ -850,7 +852,9 @@ def _parser() -> argparse.ArgumentParser:
 
     def weight_opt(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("--weight", choices=WEIGHT_NAMES, default="full",
-                        help="full (43), diag (42), liu-li (8), liu-li-raw (6) (default full)")
+                        help=f"full: W = Σ_gg⁻¹/n_y, {SH24}, eq. (43); diag: W = diag(Σ_gg)⁻¹/n_y, eq. (42); "
+                        "liu-li: the normalised Liu–Li MoN, eq. (8); liu-li-raw: the Liu–Li MSE MoN, eq. (6), "
+                        "which has the outputs' units (default full)")
 
     sp = add("propagate", "moments of a model file by a transform: E y, Cov y, Cov(y, u)")
     sp.add_argument("file", help="TOML model file")
@@ -881,8 +885,9 @@ def _parser() -> argparse.ArgumentParser:
     quiet_opt(sp)
     sp.set_defaults(func=cmd_compare)
 
-    sp = add("prove-invariance", "prove the unit invariance of the MoN symbolically (TT2 closed form); "
-             "exit code 1 if a unit-invariant weight fails")
+    sp = add("prove-invariance", "prove the unit invariance of the MoN symbolically (TT2 closed form) under "
+             f"the change of units of {SH24}, eq. (18); exit code 1 if a unit-invariant weight fails; a failure "
+             "prints a counterexample")
     sp.add_argument("file", help="TOML model file")
     weight_opt(sp)
     sp.add_argument("--numeric", action="store_true",
@@ -896,7 +901,10 @@ def _parser() -> argparse.ArgumentParser:
                     help="write the whole proof: M² in both units, their difference and the counterexample")
     sp.set_defaults(func=cmd_prove)
 
-    sp = add("reproduce", "reproduce a figure of the papers (PNG + CSV)")
+    sp = add("reproduce", f"reproduce a figure of the papers (PNG + CSV): fig1 and fig2 of {SH24}; radar: the "
+             "radar example of Gustafsson & Hendeby's lecture 'Parameter Estimation using Nonlinear "
+             "Transformations'; mmse: Shin et al. 2020, Sections 4.3 and 7; tracking: EKF consistency against "
+             "the MoN (docs/tracking.md)")
     sp.add_argument("figure", choices=FIGURES + ("all",))
     sp.add_argument("--samples", type=_int_in(REPRODUCE_MIN_SAMPLES, MAX_SAMPLES), default=None,
                     help=f"Monte Carlo samples, at least {REPRODUCE_MIN_SAMPLES} (default 10^6; the paper "

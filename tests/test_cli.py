@@ -550,3 +550,12 @@ def test_a_failed_proof_prints_a_short_counterexample_and_out_writes_it_whole(ca
 def test_a_failed_proof_without_out_says_how_to_get_the_expression(capsys):
     code, out, _ = run(capsys, "prove-invariance", EXAMPLES / "polar.toml", "--weight", "liu-li-raw")
     assert code == 0 and "--out FILE writes it" in out and len(out.splitlines()) == 6
+
+
+@pytest.mark.parametrize("name", ["nonlinearity", "compare", "prove-invariance", "advise"])
+def test_help_names_the_paper_of_each_equation_number(capsys, name):
+    code, out, _ = run(capsys, name, "--help")
+    text = " ".join(out.split())
+    assert code == 0 and "Straka & Havlík 2024, eq. (43)" in text
+    for eq in ("(42)", "(8)", "(6)"):
+        assert f"eq. {eq}" in text
