@@ -19,8 +19,9 @@ limits (:data:`MAX_SAMPLES`, :data:`MAX_ORDER`, :data:`MAX_GROUPS`, :data:`MAX_W
 ``--plot`` a figure format matplotlib writes, and output paths must name regular files (or
 directories) that can be written. Error messages go to stderr, results to stdout. Every
 output file is written atomically through :mod:`symmon.io` (temporary file, then rename),
-so an existing file is replaced whole or left untouched. Progress bars (tqdm) go to stderr
-and are hidden when stderr is not a terminal or with ``--no-progress``.
+so an existing file is replaced whole or left untouched. Progress goes to stderr: a bar on a
+terminal, a line every few seconds otherwise (:mod:`symmon.progress`); ``--quiet`` hides it.
+Counts (``--samples``, ``--runs``, ...) may be written ``1e6`` when they are integers.
 
 :func:`main` returns the exit code instead of exiting, so it can be called in-process.
 """
@@ -37,6 +38,7 @@ import os
 import re
 import sys
 import traceback
+from decimal import Decimal, InvalidOperation
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
@@ -44,9 +46,12 @@ import numpy as np
 
 from .ccache import catch_sigterm
 from .errors import SymmonError
+from .progress import LINE_INTERVAL, silenced
 
 __all__ = ["main", "transform_from_name", "TRANSFORM_NAMES", "WEIGHT_NAMES", "FIGURES"]
 
+#: The paper whose equation numbers the help cites.
+SH24 = "Straka & Havlík 2024"
 #: Short names of the transforms, in the order ``compare`` lists them.
 TRANSFORM_NAMES = ("tt1", "tt2", "ut1", "ut2", "ct", "gh", "qmc", "mc")
 WEIGHT_NAMES = ("full", "diag", "liu-li", "liu-li-raw")
@@ -210,6 +215,74 @@ def _print_json(obj: dict) -> None:
     print(json.dumps(obj, indent=2, allow_nan=False))
 
 
+# --------------------------------------------------------------------------- units
+#: Widest expression printed in an output table; longer ones are cut with "…" (``--json`` has them whole).
+EXPR_WIDTH = 60
+
+
+def _units_of(spec) -> dict[str, Any]:
+    """The file's ``[units]`` by role: a unit (or None) per output, input and noise symbol."""
+    m, units = spec.model, spec.units
+    return {"outputs": [units.get(f"outputs[{i}]") for i in range(m.n_y)],
+            "inputs": {str(s): units.get(str(s)) for s in m.inputs},
+            "noise": {str(s): units.get(str(s)) for s in m.noise}}
+
+
+def _label(name: str, unit: str | None) -> str:
+    return f"{name} [{unit}]" if unit else name
+
+
+def _short(text: str, width: int = EXPR_WIDTH) -> str:
+    return text if len(text) <= width else text[:width - 1] + "…"
+
+
+def _num(x: float) -> str:
+    """One number format for every table: 6 significant digits, exponent only when needed."""
+    return f"{x:.6g}"
+
+
+def _grid(title: str, rows: Sequence[str], cols: Sequence[str], values: np.ndarray) -> list[str]:
+    """A labelled matrix: a header of column labels, then one labelled line per row."""
+    first = max(len(r) for r in rows)
+    cells = [[_num(v) for v in row] for row in np.atleast_2d(values)]
+    widths = [max(len(c), *(len(r[j]) for r in cells)) for j, c in enumerate(cols)]
+    lines = [title, " " * first + "".join(f"  {c:>{w}}" for c, w in zip(cols, widths))]
+    lines += [f"{r:<{first}}" + "".join(f"  {c:>{w}}" for c, w in zip(cells_r, widths))
+              for r, cells_r in zip(rows, cells)]
+    return lines
+
+
+def _moments_text(spec, m) -> list[str]:
+    """E y with its standard deviation and unit per output, then Cov y and Cov(y, u), labelled."""
+    units = _units_of(spec)
+    ys = [f"y[{i}]" for i in range(spec.model.n_y)]
+    sd = np.sqrt(np.clip(np.diag(m.cov), 0.0, None))
+    se = None if m.stderr is None else np.asarray(m.stderr["mean"], dtype=float)
+    head = ["output", "E y", "sd", *(["MC s.e."] if se is not None else []), "unit", "expression"]
+    rows = [[y, _num(m.mean[i]), _num(sd[i]), *([_num(se[i])] if se is not None else []),
+             units["outputs"][i] or "-", _short(str(e))] for i, (y, e) in enumerate(zip(ys, spec.model.outputs))]
+    widths = [max(len(r[j]) for r in [head, *rows]) for j in range(len(head))]
+    lines = ["  ".join(f"{c:<{w}}" if j in (0, len(head) - 2, len(head) - 1) else f"{c:>{w}}"
+                       for j, (c, w) in enumerate(zip(r, widths))).rstrip() for r in [head, *rows]]
+    ylab = [_label(y, u) for y, u in zip(ys, units["outputs"])]
+    ulab = [_label(k, u) for k, u in units["inputs"].items()]
+    lines += _grid("Cov y (entry i, j in the unit of y[i] times that of y[j]):", ylab, ylab, m.cov)
+    lines += _grid("Cov(y, u) (entry i, j in the unit of y[i] times that of u[j]):", ylab, ulab, m.cross_cov)
+    if not any(units["outputs"]) and not any(units["inputs"].values()):
+        lines.append("(the file has no [units] table: the numbers are in the model's own units)")
+    return lines
+
+
+def _mon_unit(spec, weight: str) -> str:
+    """What the MoN is measured in: nothing, except for the raw Liu–Li MoN (6) (W = I)."""
+    if weight != "liu-li-raw":
+        return "unitless"
+    units = [u or "?" for u in _units_of(spec)["outputs"]]
+    if len(set(units)) == 1 and units[0] != "?":
+        return units[0]  # √tr of a covariance of outputs that share one unit
+    return "mixed units of y: " + ", ".join(units)
+
+
 # --------------------------------------------------------------------------- commands
 def cmd_propagate(args: argparse.Namespace) -> int:
     """``symmon propagate``: E y, Cov y and Cov(y, u) by one transform."""
@@ -225,19 +298,14 @@ def cmd_propagate(args: argparse.Namespace) -> int:
     if args.json:
         out = {
             "model": spec.model.name, "inputs": [str(s) for s in spec.model.inputs],
-            "outputs": [str(e) for e in spec.model.outputs], "transform": repr(tr),
+            "outputs": [str(e) for e in spec.model.outputs], "units": _units_of(spec), "transform": repr(tr),
             "mean": _jsonable(m.mean), "cov": _jsonable(m.cov), "cross_cov": _jsonable(m.cross_cov),
             "stderr": None if m.stderr is None else {k: _jsonable(v) for k, v in m.stderr.items()},
         }
         _print_json(out)
         return 0
-    with np.printoptions(precision=8, suppress=False):
-        print(f"{spec.model.name} by {tr!r}")
-        print(f"E y  = {m.mean}")
-        print(f"Cov y =\n{m.cov}")
-        print(f"Cov(y, u) =\n{m.cross_cov}")
-        if m.stderr is not None:
-            print(f"standard error of E y = {m.stderr['mean']}")
+    print(f"{spec.model.name} by {tr!r}")
+    print("\n".join(_moments_text(spec, m)))
     return 0
 
 
@@ -257,14 +325,32 @@ def _sweep(text: str) -> np.ndarray:
     return np.logspace(np.log10(a), np.log10(b), n)
 
 
+def _count(text: str) -> int | None:
+    """The integer that ``text`` writes, in plain or scientific notation (``1e6``), else None.
+
+    Exact decimal arithmetic: ``1.5e0`` is not an integer and ``1e6`` is exactly 10⁶.
+    """
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        d = Decimal(text.strip())
+    except InvalidOperation:
+        return None
+    if not d.is_finite() or d != d.to_integral_value() or d.adjusted() > 100:  # 1e999999 stays a string
+        return None
+    return int(d)
+
+
 def _int_in(lo: int, hi: int) -> Callable[[str], int]:
-    """argparse type: an integer from ``lo`` to ``hi``; the bound keeps memory and time in reach."""
+    """argparse type: an integer from ``lo`` to ``hi``, also in scientific notation (``1e6``);
+    the bound keeps memory and time in reach."""
     def parse(text: str) -> int:
         what = "a positive integer" if lo == 1 else f"an integer >= {lo}"
-        try:
-            n = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
+        n = _count(text)
+        if n is None:
+            raise argparse.ArgumentTypeError(f"must be {what} (1e6 is allowed), got {text!r}")
         if n < lo:
             raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
         if n > hi:
@@ -373,13 +459,14 @@ def _nonlinearity(args: argparse.Namespace, run_on: dict[str, Any]) -> int:
 
     spec = _load(args.file)
     tr = transform_from_name(args.transform, args.samples, args.seed, args.order, **run_on)
+    unit = _mon_unit(spec, args.weight)
     if args.alpha_sweep is None:
         res = _finite_measure(nonlinearity(spec.model, spec.u, spec.v, args.weight, tr), "")
         if args.json:
-            _print_json({"model": spec.model.name, **_measure_json(res)})
+            _print_json({"model": spec.model.name, **_measure_json(res), "unit": unit})
             return 0
         se = f" ± {res.stderr:.2g} (MC standard error)" if res.stderr is not None else ""
-        print(f"{spec.model.name}: MoN[{args.weight}] by {tr!r} = {res.value:.6g}{se}")
+        print(f"{spec.model.name}: MoN[{args.weight}] by {tr!r} = {res.value:.6g}{se} ({unit})")
         for note in res.notes:
             print(f"note: {note}")
         return 0
@@ -398,8 +485,8 @@ def _nonlinearity(args: argparse.Namespace, run_on: dict[str, Any]) -> int:
         plt = pyplot()
         fig, ax = plt.subplots(figsize=(6, 4))
         ax.semilogx([r[0] for r in rows], [r[1] for r in rows], "o-")
-        ax.set_xlabel(r"$\alpha$ (input covariance scale)")
-        ax.set_ylabel(f"MoN ({args.weight}, {args.transform})")
+        ax.set_xlabel(r"$\alpha$ (input covariance scale, unitless)")
+        ax.set_ylabel(f"MoN ({args.weight}, {args.transform}) [{unit}]")
         ax.set_title(spec.model.name)
         fig.tight_layout()
         try:
@@ -409,9 +496,10 @@ def _nonlinearity(args: argparse.Namespace, run_on: dict[str, Any]) -> int:
     if args.json:
         _print_json({"model": spec.model.name, "weight": args.weight, "transform": repr(tr),
                      "alpha": [r[0] for r in rows], "mon": [r[1] for r in rows],
-                     "stderr": _jsonable([r[2] for r in rows]), "notes": notes,
+                     "stderr": _jsonable([r[2] for r in rows]), "unit": unit, "notes": notes,
                      "files": [str(p) for p in written]})
         return 0
+    print(f"{spec.model.name}: MoN[{args.weight}] by {tr!r} ({unit}) over alpha, the scale of Cov u")
     for a, value, se in rows:
         print(f"alpha={a:.4g}  MoN={value:.6g}" + ("" if se is None else f" ± {se:.2g}"))
     for note in notes:
@@ -438,18 +526,32 @@ def cmd_compare(args: argparse.Namespace) -> int:
             rows.append({"name": name, "transform": repr(tr), "mon": res.value, "stderr": res.stderr,
                          "evaluations": m.info.get("evaluations"), "mean": m.mean, "cov": m.cov,
                          "cross_cov": m.cross_cov, "notes": res.notes})
+    for r in rows:
+        r["relative_stderr"] = _relative(r["stderr"], r["mon"])
+        r["flagged"] = r["relative_stderr"] is not None and r["relative_stderr"] > FLAG_RELATIVE_STDERR
     if args.json:
-        _print_json({"model": spec.model.name, "weight": args.weight, "rows": [
-            {k: (_jsonable(v) if k not in ("name", "transform", "evaluations") else v) for k, v in r.items()}
+        _print_json({"model": spec.model.name, "weight": args.weight, "flag_relative_stderr": FLAG_RELATIVE_STDERR,
+                     "units": _units_of(spec), "rows": [
+            {k: (_jsonable(v) if k not in ("name", "transform", "evaluations", "flagged") else v) for k, v in r.items()}
             for r in rows]})
         return 0
-    print(f"{spec.model.name}: MoN with weight {args.weight!r} and moments by every transform")
-    print(f"{'':>4} {'MoN':>10} {'MC s.e.':>8} {'E y':>30} {'diag Cov y':>30}")
+    print(f"{spec.model.name}: MoN with weight {args.weight!r} ({_mon_unit(spec, args.weight)}) "
+          "and the moments by every transform")
+    units = _units_of(spec)["outputs"]
+    head = ["", "MoN", "MC s.e.", "s.e./MoN",
+            *(_label(f"E y[{i}]", u) for i, u in enumerate(units)), *(_label(f"sd y[{i}]", u) for i, u in enumerate(units))]
+    table = [head]
     for r in rows:
-        se = f"{r['stderr']:.2g}" if r["stderr"] is not None else "-"
-        ey = np.array2string(r["mean"], precision=5, separator=", ")
-        dc = np.array2string(np.diag(r["cov"]), precision=5, separator=", ")
-        print(f"{r['name']:>4} {r['mon']:>10.5g} {se:>8} {ey:>30} {dc:>30}")
+        rel = r["relative_stderr"]
+        table.append([r["name"], _num(r["mon"]), "-" if r["stderr"] is None else _num(r["stderr"]),
+                      "-" if rel is None else f"{100 * rel:.2g}%" + (" !" if r["flagged"] else ""),
+                      *map(_num, r["mean"]), *map(_num, np.sqrt(np.clip(np.diag(r["cov"]), 0.0, None)))])
+    widths = [max(len(t[j]) for t in table) for j in range(len(head))]
+    for t in table:
+        print("  ".join(f"{c:>{w}}" for c, w in zip(t, widths)))
+    if any(r["flagged"] for r in rows):
+        print(f"! the Monte Carlo error bar exceeds {FLAG_RELATIVE_STDERR:.0%} of the MoN: "
+              "that row is noise, not a value; raise --samples")
     print("\ntransforms:")
     for r in rows:
         print(f"{r['name']:>4}: {r['transform']}")
@@ -459,18 +561,70 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return 0
 
 
+#: ``compare`` flags a row whose Monte Carlo standard error exceeds this share of its MoN.
+FLAG_RELATIVE_STDERR = 0.10
+
+
+def _relative(stderr: float | None, value: float) -> float | None:
+    """stderr / |value| (inf for a zero value with an error bar), None without an error bar."""
+    if stderr is None:
+        return None
+    return stderr / abs(value) if value != 0 else (0.0 if stderr == 0 else math.inf)
+
+
 def cmd_prove(args: argparse.Namespace) -> int:
     """``symmon prove-invariance``: the symbolic unit-invariance proof of the MoN."""
+    from .io import atomic_write_text
     from .units import prove_invariance
 
+    _check_output_files(args.out)
     spec = _load(args.file)
     # --numeric: the file's distributions, made exact: a proof for this u (and v) only.
     moments = dict(mean=spec.u.mean, cov=spec.u.cov, noise_cov=None if spec.v is None else spec.v.cov) if args.numeric else {}
     proof = prove_invariance(spec.model, args.weight, route=args.route, budget=args.budget, progress=True,
                              at=(spec.u, spec.v), **moments)  # a refutation at the file's distribution
-    print(proof)
+    print(proof if proof.holds else _refutation_text(proof, args.out))
+    if args.out:
+        print(f"wrote {atomic_write_text(args.out, _proof_report(proof))}")
     # liu-li and liu-li-raw are known not to be invariant: a "does not hold" is the expected answer.
     return 0 if proof.holds or args.weight in ("liu-li", "liu-li-raw") else 1
+
+
+def _refutation_text(proof, out: str | None) -> str:
+    """A failed proof in a few lines: the counterexample (where the two sides differ, and by
+    how much) instead of the whole difference, which ``--out`` writes."""
+    import sympy as sp
+
+    from .invariance import _show_point
+
+    lines = [f"{proof.statement} with weight {proof.weight!r} ({proof.transform}): fails [{proof.seconds:.2f} s]"]
+    cex = proof.counterexample or {}
+    if "lhs" in cex:
+        lhs, rhs = float(cex["lhs"]), float(cex["rhs"])
+        rel = f" ({100 * abs(lhs - rhs) / abs(lhs):.2g} % of M²)" if lhs else ""
+        lines.append(f"  counterexample: M² = {_num(lhs)} in the old units and {_num(rhs)} in the new units, "
+                     f"a difference of {_num(lhs - rhs)}{rel}")
+        lines.append(f"  at {_show_point(cex)}")
+    elif "difference" in cex:
+        lines.append(f"  counterexample: M²(g, u) − M²(ḡ, ū) = {_num(float(cex['difference']))} at a rational point")
+    size = sp.count_ops(proof.difference)
+    where = f"written to {out}" if out else "--out FILE writes it"
+    lines.append(f"  M²(g, u) − M²(ḡ, ū) is a nonzero expression of {size} operations ({where})")
+    if proof.lemmas:
+        lines.append("  by the lemmas: " + ", ".join(proof.lemmas))
+    if proof.assumptions:
+        lines.append("  assuming: " + "; ".join(proof.assumptions))
+    return "\n".join(lines)
+
+
+def _proof_report(proof) -> str:
+    """Everything a proof found, whole: the verdict, M² on both sides, their difference and
+    the counterexample point with every value."""
+    lines = [str(proof), "", f"M²(g, u) = {proof.lhs}", "", f"M²(ḡ, ū) = {proof.rhs}", "",
+             f"M²(g, u) − M²(ḡ, ū) = {proof.difference}"]
+    if proof.counterexample:
+        lines += ["", "counterexample:"] + [f"  {k} = {v}" for k, v in proof.counterexample.items()]
+    return "\n".join(lines) + "\n"
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
@@ -691,14 +845,22 @@ def _parser() -> argparse.ArgumentParser:
                         help=f"run the Monte Carlo groups on Dask: {', '.join(DASK_LOCAL)}, or a scheduler "
                         "address such as tcp://host:8786 (needs the 'dask' extra); same result for the same seed")
 
+    def quiet_opt(sp: argparse.ArgumentParser) -> None:
+        sp.add_argument("-q", "--quiet", "--no-progress", dest="no_progress", action="store_true",
+                        help="no progress on stderr (otherwise a bar on a terminal, a line every "
+                        f"{LINE_INTERVAL:g} s elsewhere)")
+
     def weight_opt(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("--weight", choices=WEIGHT_NAMES, default="full",
-                        help="full (43), diag (42), liu-li (8), liu-li-raw (6) (default full)")
+                        help=f"full: W = Σ_gg⁻¹/n_y, {SH24}, eq. (43); diag: W = diag(Σ_gg)⁻¹/n_y, eq. (42); "
+                        "liu-li: the normalised Liu–Li MoN, eq. (8); liu-li-raw: the Liu–Li MSE MoN, eq. (6), "
+                        "which has the outputs' units (default full)")
 
     sp = add("propagate", "moments of a model file by a transform: E y, Cov y, Cov(y, u)")
     sp.add_argument("file", help="TOML model file")
     transform_opts(sp, 10**6)
     sp.add_argument("--json", action="store_true", help="print JSON (full float precision)")
+    quiet_opt(sp)
     sp.set_defaults(func=cmd_propagate)
 
     sp = add("nonlinearity", "the measure of nonlinearity (MoN) of a model file")
@@ -712,7 +874,7 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("--csv", metavar="CSV", type=_output_path,
                     help="with --alpha-sweep: write alpha, mon, stderr (atomically)")
     sp.add_argument("--json", action="store_true", help="print JSON")
-    sp.add_argument("--no-progress", action="store_true", help="no progress bar")
+    quiet_opt(sp)
     sp.set_defaults(func=cmd_nonlinearity)
 
     sp = add("compare", "the MoN and the moments by every transform, as a table")
@@ -720,11 +882,12 @@ def _parser() -> argparse.ArgumentParser:
     weight_opt(sp)
     rule_opts(sp, 10**5)
     sp.add_argument("--json", action="store_true", help="print JSON")
-    sp.add_argument("--no-progress", action="store_true", help="no progress bar")
+    quiet_opt(sp)
     sp.set_defaults(func=cmd_compare)
 
-    sp = add("prove-invariance", "prove the unit invariance of the MoN symbolically (TT2 closed form); "
-             "exit code 1 if a unit-invariant weight fails")
+    sp = add("prove-invariance", "prove the unit invariance of the MoN symbolically (TT2 closed form) under "
+             f"the change of units of {SH24}, eq. (18); exit code 1 if a unit-invariant weight fails; a failure "
+             "prints a counterexample")
     sp.add_argument("file", help="TOML model file")
     weight_opt(sp)
     sp.add_argument("--numeric", action="store_true",
@@ -734,16 +897,21 @@ def _parser() -> argparse.ArgumentParser:
                          "symbolically (small models only, stopped after --budget)")
     sp.add_argument("--budget", type=float, default=10.0, metavar="SECONDS",
                     help="wall-clock limit of the direct route (default 10)")
+    sp.add_argument("--out", type=_output_path, default=None, metavar="FILE",
+                    help="write the whole proof: M² in both units, their difference and the counterexample")
     sp.set_defaults(func=cmd_prove)
 
-    sp = add("reproduce", "reproduce a figure of the papers (PNG + CSV)")
+    sp = add("reproduce", f"reproduce a figure of the papers (PNG + CSV): fig1 and fig2 of {SH24}; radar: the "
+             "radar example of Gustafsson & Hendeby's lecture 'Parameter Estimation using Nonlinear "
+             "Transformations'; mmse: Shin et al. 2020, Sections 4.3 and 7; tracking: EKF consistency against "
+             "the MoN (docs/tracking.md)")
     sp.add_argument("figure", choices=FIGURES + ("all",))
     sp.add_argument("--samples", type=_int_in(REPRODUCE_MIN_SAMPLES, MAX_SAMPLES), default=None,
                     help=f"Monte Carlo samples, at least {REPRODUCE_MIN_SAMPLES} (default 10^6; the paper "
                     "used 10^7); for mmse: runs")
     sp.add_argument("--seed", type=_seed, default=0, help="seed, >= 0 (default 0)")
     sp.add_argument("--out", type=_output_path, default="results", help="output directory (default ./results)")
-    sp.add_argument("--no-progress", action="store_true", help="no progress bar")
+    quiet_opt(sp)
     sp.add_argument("--runs", type=_int_in(1, MAX_RUNS), default=None,
                     help="Monte Carlo runs of mmse and tracking (default: theirs, 1000 and 500)")
     sp.set_defaults(func=cmd_reproduce)
@@ -815,7 +983,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exc.code if isinstance(exc.code, int) else 2
     catch_sigterm()  # SIGTERM during a compile exits through Python, which kills the compiler
     try:
-        code = int(args.func(args))
+        with silenced() if getattr(args, "no_progress", False) else contextlib.nullcontext():
+            code = int(args.func(args))
         sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
         return code
     except BrokenPipeError:

@@ -2,8 +2,8 @@
 
 The structure follows Straka & Havlík (2024), eqs. (1), (3), (4):
 
-- ``"additive"``: g = f(u) + B v with a constant matrix B (B = I in (4)); a model
-  without noise symbols is also additive (noise-free).
+- ``"none"``: no noise symbols (noise-free); g = f(u), with an empty π and γ.
+- ``"additive"``: g = f(u) + B v with a constant matrix B (B = I in (4)).
 - ``"multiplicative"``: g = f(u) + π(u) γ(v) (3).
 - ``"general"``: anything else (1).
 
@@ -188,7 +188,7 @@ class Model:
     >>> import sympy as sp
     >>> x, y = sp.symbols("x y")
     >>> Model([x, y], [sp.sqrt(x**2 + y**2), sp.atan2(y, x)]).structure
-    'additive'
+    'none'
     """
 
     def __init__(
@@ -338,7 +338,7 @@ class Model:
     @cached_property
     def _split(self) -> tuple[str, sp.Matrix | None, sp.Matrix | None, sp.Matrix | None, str]:
         if not self._v:
-            return "additive", sp.Matrix(self._g), sp.zeros(self.n_y, 0), sp.zeros(0, 1), "no noise symbols"
+            return "none", sp.Matrix(self._g), sp.zeros(self.n_y, 0), sp.zeros(0, 1), "no noise symbols"
         vset = set(self._v)
         uset = set(self._u)
         # Constant Jacobian in v means g = f(u) + B v (cheap: no expansion).
@@ -376,7 +376,7 @@ class Model:
 
     @property
     def structure(self) -> str:
-        """``"additive"``, ``"multiplicative"`` or ``"general"``, found symbolically.
+        """``"none"`` (noise-free), ``"additive"``, ``"multiplicative"`` or ``"general"``, found symbolically.
 
         ``"multiplicative"`` is exact: f + π γ equals g identically (it is built from g's own
         terms). ``"general"`` means that no separable form was found, or that it would be too
@@ -448,7 +448,7 @@ class Model:
         body = r" \\ ".join(sp.latex(e) for e in self._g)
         return (
             r"$g(" + args + r") = \begin{bmatrix}" + body + r"\end{bmatrix}"
-            + r"\quad\text{(" + self.structure + r" noise)}$"
+            + r"\quad\text{(" + (f"{self.structure} noise" if self._v else "noise-free") + r")}$"
         )
 
     def __eq__(self, other: object) -> bool:

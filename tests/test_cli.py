@@ -417,3 +417,145 @@ def test_closed_stdout_stops_quietly(capsys, monkeypatch):
     os.close(w)
     assert code == 141
     assert capsys.readouterr().err == ""
+
+
+# --------------------------------------------------------------------------- counts and progress
+@pytest.mark.parametrize(("text", "value"), [("1e6", 10**6), ("1E3", 1000), ("2.5e3", 2500), ("100", 100),
+                                             ("1e12", 10**12)])
+def test_counts_accept_integral_scientific_notation(text, value):
+    assert cli._parser().parse_args(["propagate", "m.toml", "--samples", text]).samples == value
+
+
+@pytest.mark.parametrize(("text", "message"), [("1.5e0", "must be a positive integer (1e6 is allowed), got '1.5e0'"),
+                                                ("1e-3", "got '1e-3'"), ("nan", "got 'nan'"), ("inf", "got 'inf'"),
+                                                ("1e13", "must be at most 1,000,000,000,000, got '1e13'"),
+                                                ("0e0", "must be a positive integer, got '0e0'")])
+def test_counts_refuse_fractions_and_keep_the_limits(capsys, text, message):
+    code, _, err = run(capsys, "propagate", EXAMPLES / "polar.toml", "--samples", text)
+    assert code == 2 and "argument --samples: must be" in err and message in err
+
+
+@pytest.mark.parametrize("quiet", [False, True])
+def test_long_runs_report_progress_lines_unless_quiet(capsys, monkeypatch, quiet):
+    from symmon import progress
+
+    monkeypatch.setattr(progress, "LINE_INTERVAL", 0.0)  # every item is "a few seconds" later
+    code, out, err = run(capsys, "nonlinearity", EXAMPLES / "polar.toml", "--alpha-sweep", "0.1:10:3",
+                         *(["--quiet"] if quiet else []))
+    assert code == 0 and out.count("alpha=") == 3
+    if quiet:
+        assert err == ""
+    else:
+        assert err.splitlines() == [f"alpha sweep: {k}/3 done after 0 s" for k in (1, 2, 3)]
+
+
+# --------------------------------------------------------------------------- units
+def test_propagate_prints_a_labelled_table_with_the_files_units(capsys):
+    path = EXAMPLES / "gmti.toml"
+    code, out, err = run(capsys, "propagate", path)
+    assert (code, err) == (0, "")
+    spec = load_model_file(path)
+    m = sm.propagate(spec.model, spec.u, spec.v, sm.TT2())
+    lines = out.splitlines()
+    assert lines[1].split() == ["output", "E", "y", "sd", "unit", "expression"]
+    for i, unit in enumerate(["m", "rad", "m/s"]):
+        cells = lines[2 + i].split()
+        assert cells[0] == f"y[{i}]" and cells[3] == unit
+        np.testing.assert_allclose([float(cells[1]), float(cells[2])], [m.mean[i], np.sqrt(m.cov[i, i])],
+                                   rtol=5e-6)  # printed to 6 significant digits
+    assert "Cov y (entry i, j in the unit of y[i] times that of y[j]):" in out
+    assert lines[lines.index("Cov(y, u) (entry i, j in the unit of y[i] times that of u[j]):") + 1].split() == [
+        "x", "[m]", "y", "[m]", "vx", "[m/s]", "vy", "[m/s]"]
+    row = next(line for line in lines if line.startswith("y[1] [rad]") and len(line.split()) == 6)
+    np.testing.assert_allclose([float(c) for c in row.split()[2:]], m.cross_cov[1], rtol=5e-6, atol=1e-12)
+
+
+def test_propagate_json_carries_the_units(capsys):
+    code, out, _ = run(capsys, "propagate", EXAMPLES / "rdcos.toml", "--json")
+    assert code == 0
+    assert json.loads(out)["units"] == {"outputs": ["m", "dimensionless"],
+                                        "inputs": {"x": "m", "y": "m", "vx": "m/s", "vy": "m/s"}, "noise": {}}
+
+
+def test_propagate_without_units_says_so(capsys, tmp_path):
+    path = tmp_path / "plain.toml"
+    path.write_text('name = "plain"\ninputs = ["x"]\noutputs = ["x**2"]\n[u]\nmean = [1]\ncov = [[0.5]]\n', encoding="utf-8")
+    code, out, _ = run(capsys, "propagate", path)
+    assert code == 0 and out.splitlines()[2].split()[3] == "-"
+    assert "has no [units] table" in out
+    code, out, _ = run(capsys, "propagate", path, "--json")
+    assert json.loads(out)["units"] == {"outputs": [None], "inputs": {"x": None}, "noise": {}}
+
+
+@pytest.mark.parametrize(("example", "weight", "unit"), [("gmti", "full", "unitless"), ("gmti", "liu-li", "unitless"),
+                                                         ("radar", "liu-li-raw", "m"),
+                                                         ("gmti", "liu-li-raw", "mixed units of y: m, rad, m/s")])
+def test_nonlinearity_says_the_unit_of_the_mon(capsys, example, weight, unit):
+    code, out, _ = run(capsys, "nonlinearity", EXAMPLES / f"{example}.toml", "--weight", weight)
+    assert code == 0 and out.rstrip().endswith(f"({unit})")
+    code, out, _ = run(capsys, "nonlinearity", EXAMPLES / f"{example}.toml", "--weight", weight, "--json")
+    assert json.loads(out)["unit"] == unit
+
+
+def test_compare_flags_rows_whose_error_bar_exceeds_ten_percent(capsys):
+    # 40 samples: the Monte Carlo rows of polar are noise (error bars of 18 % and 34 %).
+    code, out, _ = run(capsys, "compare", EXAMPLES / "polar.toml", "--samples", "40", "--json")
+    assert code == 0
+    rows = {r["name"]: r for r in json.loads(out)["rows"]}
+    for r in rows.values():
+        rel = None if r["stderr"] is None else r["stderr"] / abs(r["mon"])
+        assert r["relative_stderr"] == rel and r["flagged"] == (rel is not None and rel > cli.FLAG_RELATIVE_STDERR)
+    assert rows["mc"]["flagged"] and not rows["gh"]["flagged"]
+    code, out, _ = run(capsys, "compare", EXAMPLES / "polar.toml", "--samples", "40")
+    flagged = [line.split()[0] for line in out.splitlines()[2:10] if line.endswith(" !") or " ! " in line]
+    assert flagged == [n for n, r in rows.items() if r["flagged"]]
+    assert "! the Monte Carlo error bar exceeds 10% of the MoN" in out
+
+
+def test_compare_prints_one_number_format_with_units(capsys):
+    code, out, _ = run(capsys, "compare", EXAMPLES / "gmti.toml", "--samples", MC_SAMPLES)
+    assert code == 0
+    lines = out.splitlines()
+    assert lines[1].split()[:4] == ["MoN", "MC", "s.e.", "s.e./MoN"] and "E y[0] [m]" in lines[1]
+    assert "sd y[2] [m/s]" in lines[1]
+    for line in lines[2:10]:
+        for cell in line.split()[1:]:
+            if cell not in ("-", "!") and not cell.endswith("%"):
+                assert cell == f"{float(cell):.6g}"  # every number printed to 6 significant digits
+    assert "! the Monte Carlo" not in out  # 2000 samples: every error bar is below 10 %
+
+
+# --------------------------------------------------------------------------- failed proofs
+def test_a_failed_proof_prints_a_short_counterexample_and_out_writes_it_whole(capsys, tmp_path):
+    from symmon.units import prove_invariance
+
+    spec = load_model_file(EXAMPLES / "gmti.toml")
+    proof = prove_invariance(spec.model, "liu-li", at=(spec.u, spec.v))
+    out_file = tmp_path / "proof.txt"
+    code, out, _ = run(capsys, "prove-invariance", EXAMPLES / "gmti.toml", "--weight", "liu-li", "--out", out_file)
+    assert code == 0  # liu-li is known not to be invariant
+    lhs, rhs = float(proof.counterexample["lhs"]), float(proof.counterexample["rhs"])
+    assert "with weight 'liu-li' (tt2): fails" in out
+    assert (f"counterexample: M² = {lhs:.6g} in the old units and {rhs:.6g} in the new units, "
+            f"a difference of {lhs - rhs:.6g}") in out
+    assert "at S_u = diag(2, 1/3, 5, 1/7)" in out and "mean = [500, 500, 5, 87/10]" in out
+    assert str(proof.difference) not in out  # 125 operations: only in the file
+    assert f"(written to {out_file})" in out and f"wrote {out_file}" in out
+    text = out_file.read_text(encoding="utf-8")
+    assert f"M²(g, u) − M²(ḡ, ū) = {proof.difference}\n" in text
+    assert f"M²(g, u) = {proof.lhs}\n" in text and "counterexample:\n" in text
+    assert no_temp_files(tmp_path)
+
+
+def test_a_failed_proof_without_out_says_how_to_get_the_expression(capsys):
+    code, out, _ = run(capsys, "prove-invariance", EXAMPLES / "polar.toml", "--weight", "liu-li-raw")
+    assert code == 0 and "--out FILE writes it" in out and len(out.splitlines()) == 6
+
+
+@pytest.mark.parametrize("name", ["nonlinearity", "compare", "prove-invariance", "advise"])
+def test_help_names_the_paper_of_each_equation_number(capsys, name):
+    code, out, _ = run(capsys, name, "--help")
+    text = " ".join(out.split())
+    assert code == 0 and "Straka & Havlík 2024, eq. (43)" in text
+    for eq in ("(42)", "(8)", "(6)"):
+        assert f"eq. {eq}" in text

@@ -56,7 +56,7 @@ def test_model():
     assert_well_formed(s)
     assert s.startswith("$g(x, y) = ")
     assert r"\sqrt{x^{2} + y^{2}}" in s and r"\operatorname{atan}_{2}{\left(y,x \right)}" in s
-    assert r"\text{(additive noise)}" in s
+    assert r"\text{(noise-free)}" in s
 
 
 def test_model_with_noise_names_its_structure():
@@ -103,7 +103,7 @@ def test_nonlinearity_measure():
     s = res._repr_latex_()
     assert_well_formed(s)
     assert s.startswith(r"$M_{\text{full}} = " + latex_number(res.value, 6))
-    assert r"\text{(additive noise, TT2)}" in s
+    assert rf"\text{{({POLAR.structure} noise, TT2)}}" in s  # 'none' since noise-free models say so
     assert r"\pm" not in s
 
 

@@ -24,9 +24,10 @@ def _zero(expr) -> bool:
 
 
 # --------------------------------------------------------------------------- structure
-def test_noise_free_model_is_additive_with_empty_noise_part():
+def test_noise_free_model_has_structure_none_and_an_empty_noise_part():
     m = sm.Model([x, y], [sp.sqrt(x**2 + y**2), sp.atan2(y, x)])
-    assert m.structure == "additive"
+    assert m.structure == "none"
+    assert "structure='none'" in repr(m)
     assert m.f == sp.Matrix([sp.sqrt(x**2 + y**2), sp.atan2(y, x)])
     assert m.pi.shape == (2, 0)
     assert m.gamma.shape == (0, 1)

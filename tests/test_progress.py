@@ -1,14 +1,16 @@
-"""Progress bars: shown on a terminal, hidden otherwise, and never change a result."""
+"""Progress: a bar on a terminal, a line every few seconds otherwise, and never a changed result."""
 
 from __future__ import annotations
 
 import io
+import itertools
 
 import numpy as np
 import sympy as sp
 
 import symmon as sm
-from symmon.progress import progress_bar
+from symmon import progress
+from symmon.progress import progress_bar, silenced
 
 
 class _Tty(io.StringIO):
@@ -18,13 +20,30 @@ class _Tty(io.StringIO):
 
 def test_bar_only_on_a_terminal(monkeypatch):
     items = [1, 2, 3]
-    assert progress_bar(items, "x") is items  # pytest's stderr is not a terminal
-    monkeypatch.setattr("sys.stderr", _Tty())
     from tqdm import tqdm
 
+    assert not isinstance(progress_bar(items, "x"), tqdm)  # pytest's stderr is not a terminal
+    monkeypatch.setattr("sys.stderr", _Tty())
     bar = progress_bar(items, "x")
     assert isinstance(bar, tqdm) and list(bar) == items
     assert progress_bar(items, "x", enabled=False) is items
+    with silenced():
+        assert progress_bar(items, "x") is items
+    assert isinstance(progress_bar(items, "x"), tqdm)  # silenced only inside the block
+
+
+def test_lines_when_stderr_is_not_a_terminal(capsys):
+    ticks = itertools.count(0.0, 2.0)  # a clock that advances 2 s per item
+    out = list(progress._lines(range(7), "fig2: sweep", 7, 5.0, clock=lambda: next(ticks)))
+    assert out == list(range(7))
+    # Start at t=0; items end at t=2, 4, ...: a line once 5 s have passed since the last one.
+    assert capsys.readouterr().err.splitlines() == ["fig2: sweep: 3/7 done after 6 s",
+                                                     "fig2: sweep: 6/7 done after 12 s"]
+
+
+def test_a_quick_loop_prints_nothing(capsys):
+    assert list(progress_bar(range(5), "quick")) == list(range(5))
+    assert capsys.readouterr().err == ""
 
 
 def test_monte_carlo_progress_does_not_change_the_result(monkeypatch):
