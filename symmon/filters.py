@@ -50,9 +50,8 @@ models", FUSION 2015 (wrapped residuals).
 
 from __future__ import annotations
 
-import functools
-
 import ctypes
+import functools
 import hashlib
 import itertools
 import math
