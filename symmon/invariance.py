@@ -53,7 +53,9 @@ import sympy as sp
 from .errors import ModelError, ShapeError, SingularMatrixError, SymmonError
 from .gaussian import Gaussian
 from .model import Model
-from .units import WEIGHTS, _changed_parts, _inverse, _Relation
+from .units import _changed_parts, _inverse, _Relation, _sympify_entry
+from .weights import NAMED as WEIGHTS
+from .weights import weighted_trace
 
 __all__ = [
     "InvarianceProof",
@@ -339,15 +341,8 @@ def _general_weight(weight: Any, Sgg: sp.Matrix, sigma: Sequence[sp.Expr]) -> sp
 
 def _m2(weight: Any, Sgg: sp.Matrix, D: sp.Matrix, sigma: Sequence[sp.Expr] | None = None) -> sp.Expr:
     """M² = tr(W D) for the weight rule evaluated on Σ_gg, (29) with (6), (8), (42), (43), (38)."""
-    n = Sgg.rows
-    if weight == "full":
-        return sp.cancel(Sgg.LUsolve(D).trace() / n)  # (43): W = Σ_gg⁻¹ / n_y
-    if weight == "diag":
-        return sp.cancel(sum((D[i, i] / Sgg[i, i] for i in range(n)), sp.Integer(0)) / n)  # (42)
-    if weight == "liu-li":
-        return sp.cancel(D.trace() / Sgg.trace())  # (8) squared: W = I / tr Σ_gg
-    if weight == "liu-li-raw":
-        return sp.cancel(D.trace())  # (6): W = I
+    if isinstance(weight, str):
+        return sp.cancel(weighted_trace(weight, Sgg, D))
     W = _general_weight(weight, Sgg, sigma)
     return sp.cancel((W * D).trace())
 

@@ -55,9 +55,6 @@ __all__ = [
     "prove_matrix_invariance",
 ]
 
-#: Names of the weights understood by the proofs (same names as ``symmon.nonlinearity``).
-WEIGHTS = ("full", "diag", "liu-li", "liu-li-raw")
-
 #: Relative tolerance of the numeric positive-definiteness and affinity checks.
 _PD_RTOL = 1e-12
 
