@@ -203,6 +203,9 @@ class Lemma:
     def holds(self) -> bool:
         return all(ok for _, ok in self.claims)
 
+    def __repr__(self) -> str:
+        return f"Lemma({self.name!r}, holds={self.holds})"
+
     def __str__(self) -> str:
         lines = [f"Lemma {self.name}: {self.statement} (assuming {self.assumptions})"]
         lines += [f"  [{'PASS' if ok else 'FAIL'}] {what}" for what, ok in self.claims]
