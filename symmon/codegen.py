@@ -9,7 +9,7 @@ joint vector w = [u; v], with a joint (block-diagonal) covariance supplied by th
 The moment maps are single CasADi SX functions of the input mean and covariance,
 (m, P) ↦ (E y, Cov y, Cov(y, w)):
 
-- **TT2** (Gustafsson & Hendeby 2012, REFERENCE.md "Nonlinear transformations"):
+- **TT2** (Gustafsson & Hendeby, the lecture [GH] of docs/reference/references.md):
   E y_i ≈ g_i(m) + ½ tr(H_i P), Cov(y_i, y_j) ≈ J_i P J_jᵀ + ½ tr(H_i P H_j P),
   Cov(y, w) ≈ J P.
 - **UT** (scaled unscented transform, α, β, κ fixed at export time): sigma points
@@ -74,13 +74,13 @@ def _chol_lower_sx(P: ca.SX) -> ca.SX:
             t = P[i, j]
             for k in range(j):
                 t = t - L[i][k] * L[j][k]
-            # if_else does not leak the 0/0 of the branch not taken (CASADI-NOTES).
+            # if_else: the 0/0 of the branch not taken (a zero pivot) does not reach L.
             L[i][j] = ca.if_else(d > 0, t / d, 0)
     return ca.vertcat(*[ca.horzcat(*row) for row in L])
 
 
 def _tt2_sx(gjh: ca.Function, n_y: int, m: ca.SX, P: ca.SX, angles: list[int]):
-    """TT2 moments of g at (m, P), REFERENCE.md "TT2" (Gustafsson & Hendeby 2012)."""
+    """TT2 moments of g at (m, P) (Gustafsson & Hendeby [GH]; docs/guide/transforms.md)."""
     y, J, H = gjh(m)
     n = m.shape[0]
     # Row block i of H is the Hessian H_i (n × n), as in CompiledModel.hess.
@@ -320,9 +320,11 @@ def export_c(model: Model, outdir: str | Path, name: str | None = None, *, ut: U
     Notes
     -----
     The C functions compute what :func:`symmon.propagate` computes with
-    ``TT2()`` and ``ut``, except that the UT always uses a Cholesky factor (Python falls
-    back to an eigen-decomposition for singular P) and no warning is given for an
-    indefinite covariance from a negative weight.  TT2 follows REFERENCE.md ("TT2");
+    ``TT2()`` and ``ut``, except that the UT's Cholesky factor gives a zero column only
+    at an exactly zero pivot and NaN for a P that is not PSD, where
+    :func:`symmon.gaussian.matrix_sqrt` also treats pivots at rounding level as zero and
+    falls back to an eigen-decomposition, and no warning is given for an indefinite covariance
+    from a negative weight.  TT2 is the one of docs/guide/transforms.md;
     for a model with noise the caller supplies the joint covariance of w = [u; v].
 
     Examples

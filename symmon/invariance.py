@@ -275,7 +275,8 @@ def _tt2_moments(model: Model | _Relation, mu: sp.Matrix, P: sp.Matrix, R: sp.Ma
 
     w = [u; v] ~ N([μ; 0], blkdiag(P, R)). TT2 gives Σ_gg ≈ J P_w Jᵀ + ½[tr(H_i P_w H_j P_w)]
     and Σ_gu ≈ J_u P. The residual is D = Σ_gg − Cov(E[g | v]) − Σ_gu Σ_uu⁻¹ Σ_ug
-    (REFERENCE.md, general noise); Cov(E[g | v]) is TT2 of g(μ, ·) in v, which vanishes for
+    (Straka & Havlík 2024, Sec. III, with n(v) = E[g | v] − E g for general noise: see
+    docs/guide/nonlinearity.md); Cov(E[g | v]) is TT2 of g(μ, ·) in v, which vanishes for
     a noise-free model, so that D = Σ_gg − Σ_gu Σ_uu⁻¹ Σ_ug and, for additive noise,
     D = ½[tr(H_i P H_j P)] (29).
     """

@@ -6,7 +6,7 @@ A change of units is the affine map (18) of Straka & Havlík (2024)::
 
 where the barred quantities are expressed in the *new* units and the plain ones in the
 *old* units.  The same physical relation in the new units is (20), (35a) (with the
-erratum S_v⁻¹, o_v → S_y⁻¹, o_y of REFERENCE.md)::
+erratum S_v⁻¹, o_v → S_y⁻¹, o_y: erratum 1 of docs/reference/errata.md)::
 
     ḡ(ū, v̄) = S_y⁻¹ (g(S_u ū + o_u, S_v v̄) − o_y).
 
