@@ -22,13 +22,14 @@ def test_implementation_modules_stay_importable():
 
 
 def test_split_modules_keep_the_old_import_paths():
-    from symmon import expressions, invariance, modelfile, physical_units, units
+    from symmon import expressions, invariance, lemmas, modelfile, physical_units, units
 
     assert modelfile.parse_expression is expressions.parse_expression
     assert modelfile.ModelFileError is expressions.ModelFileError
     assert units.with_units is physical_units.with_units
     assert units.UnitModel is physical_units.UnitModel
     assert units.prove_invariance is invariance.prove_invariance
+    assert invariance.lemma_weight is lemmas.lemma_weight and invariance.Lemma is lemmas.Lemma
 
 
 def _results():
