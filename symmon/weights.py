@@ -109,6 +109,10 @@ class GeneralWeight:
             raise SymmonError("Y of (41) is not positive definite: reduce the off-diagonal entries")
         return V @ Y @ V.T
 
+    def __repr__(self) -> str:
+        off = "" if self.offdiag is None else f", offdiag={np.round(self.offdiag, 6).tolist()}"
+        return f"GeneralWeight(alphas={self.alphas}{off})"
+
 
 def general(alphas: ArrayLike, offdiag: ArrayLike | None = None) -> GeneralWeight:
     """A general unitless weight W̄ of the set (41).

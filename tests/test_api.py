@@ -49,6 +49,8 @@ def _results():
                          "KalmanResult(steps=3, n=2, n_y=2, last x̂ [0, 0], last std [0.571, 0.571])"),
         "KalmanResult bank": (kf.filter(np.zeros((4, 3, 2)), np.zeros(2), np.eye(2)),
                               "KalmanResult(runs=4, steps=3, n=2, n_y=2)"),
+        "GeneralWeight": (sm.weights.general([0.5, 0.5], [[0.0, 0.1], [0.1, 0.0]]),
+                          "GeneralWeight(alphas=(0.5, 0.5), offdiag=[[0.0, 0.1], [0.1, 0.0]])"),
         "Lemma": (invariance.lemma_cholesky(), "Lemma('cholesky-equivariance', holds=True)"),
         "UnitModel": (units.with_units(polar, {"x": "m", "y": "m"}, ["m", "rad"]),
                       "UnitModel('polar', inputs={'x': 'meter', 'y': 'meter'}, outputs={'y0': 'meter', 'y1': 'radian'})"),
