@@ -478,7 +478,7 @@ def parse_expression(
     >>> parse_expression("x.__class__", {"x": x})
     Traceback (most recent call last):
         ...
-    symmon.modelfile.ModelFileError: <expr>, line 1, column 1: attribute access is not allowed
+    symmon.expressions.ModelFileError: <expr>, line 1, column 1: attribute access is not allowed
     """
     if not isinstance(text, str):
         raise TypeError(f"text must be a str, got {type(text).__name__}")
