@@ -39,6 +39,7 @@ Estimation", FUSION 2024, arXiv:2410.13539, Sections III–IV, eqs. (18)–(21),
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
@@ -688,6 +689,10 @@ def _moments_args(model: Model, mean: Any, cov: Any, noise_cov: Any) -> tuple[sp
 # --------------------------------------------------------------------------------------
 # The direct route, guarded
 # --------------------------------------------------------------------------------------
+#: Code the direct route's alarm may interrupt: sympy, mpmath and symmon itself.
+_INTERRUPTIBLE = tuple(os.path.dirname(m.__file__) + os.sep for m in (sp, mpmath, sys.modules[__package__]))
+
+
 class _OutOfTime(BaseException):
     """The budget is spent. A BaseException: sympy catches Exception in places, and must
     not swallow the alarm."""
@@ -709,10 +714,13 @@ def _deadline(seconds: float) -> Iterator[Callable[[], None]]:
         return
 
     def handler(signum, frame):  # noqa: ARG001 - the signal handler signature
-        raise _OutOfTime
+        # Interrupt only the proof's own code: raised elsewhere (e.g. in a garbage-collector
+        # callback) the exception would be ignored and the alarm lost.
+        if frame is not None and frame.f_code.co_filename.startswith(_INTERRUPTIBLE):
+            raise _OutOfTime
 
     old = signal.signal(signal.SIGALRM, handler)
-    # Repeat the alarm until it is cleared, in case one is lost where it cannot act.
+    # Repeat the alarm every 0.1 s until it is cleared: a skipped one comes again.
     signal.setitimer(signal.ITIMER_REAL, seconds, 0.1)
     try:
         yield check
