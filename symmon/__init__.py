@@ -16,6 +16,8 @@ from . import sweep as sweep
 from . import units as units
 from . import weights as weights
 from . import codegen as codegen
+from . import filters as filters
+from . import transforms as transforms
 from .advise import Advice as Advice
 from .advise import advise as advise
 from .codegen import export_c as export_c
@@ -45,7 +47,8 @@ from .transforms.quadrature import quadrature_error as quadrature_error
 __version__ = "0.1.0"
 
 __all__ = [
-    "angles", "errors", "estimation", "sweep", "units", "quadrature_error", "kalman", "modelfile", "mmse", "problems", "weights", "codegen", "export_c",
+    "angles", "errors", "estimation", "filters", "sweep", "units", "quadrature_error", "kalman",
+    "modelfile", "mmse", "problems", "transforms", "weights", "codegen", "export_c",
     "load_model_file",
     "SymmonError", "Gaussian", "fuse", "KalmanFilter", "Model", "JointMoments",
     "NonlinearityMeasure", "nonlinearity", "compare",
@@ -53,3 +56,9 @@ __all__ = [
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Transform",
     "NonlinearKalmanFilter", "Adaptive",
 ]
+
+
+def __dir__() -> list[str]:
+    # The public names only: implementation modules (compile, io, latex, progress, ...) stay
+    # importable as symmon.compile etc. but are not listed (PEP 562).
+    return sorted([*__all__, "__version__"])

@@ -11,7 +11,7 @@ The moment maps are CasADi MX functions of the input mean and covariance,
 derivatives, wrapped in MX matrix nodes (products with P, the Cholesky factor, the
 map over sigma points), so the C has loops and grows with the nonzeros, not with n⁴:
 
-- **TT2** (Gustafsson & Hendeby 2012, REFERENCE.md "Nonlinear transformations"):
+- **TT2** (Gustafsson & Hendeby, the lecture [GH] of docs/reference/references.md):
   E y_i ≈ g_i(m) + ½ tr(H_i P), Cov(y_i, y_j) ≈ J_i P J_jᵀ + ½ tr(H_i P H_j P),
   Cov(y, w) ≈ J P.
 - **UT** (scaled unscented transform, α, β, κ fixed at export time): sigma points
@@ -74,7 +74,7 @@ def _chol_lower(P: ca.MX) -> ca.MX:
     e = ca.if_else(idx == j, 1, 0)  # e_j
     v = ca.mtimes(Pj, e) - ca.mtimes(L, ca.mtimes(e.T, L).T)  # P[:, j] − L L[j, :]ᵀ
     d = ca.sqrt(ca.dot(e, v))
-    # if_else does not leak the 0/0 of the branch not taken (CASADI-NOTES).
+    # if_else: the 0/0 of the branch not taken (a zero pivot) does not reach L.
     col = ca.if_else(ca.logic_and(idx > j, d > 0), v / d, 0) + d * e
     step = ca.Function("chol_step", [L, Pj, j], [L + ca.mtimes(col, e.T)])
     out = ca.MX.zeros(n, n)
@@ -384,9 +384,11 @@ def export_c(model: Model, outdir: str | Path, name: str | None = None, *, ut: U
     Notes
     -----
     The C functions compute what :func:`symmon.propagate` computes with
-    ``TT2()`` and ``ut``, except that the UT always uses a Cholesky factor (Python falls
-    back to an eigen-decomposition for singular P) and no warning is given for an
-    indefinite covariance from a negative weight.  TT2 follows REFERENCE.md ("TT2");
+    ``TT2()`` and ``ut``, except that the UT's Cholesky factor gives a zero column only
+    at an exactly zero pivot and NaN for a P that is not PSD, where
+    :func:`symmon.gaussian.matrix_sqrt` also treats pivots at rounding level as zero and
+    falls back to an eigen-decomposition, and no warning is given for an indefinite covariance
+    from a negative weight.  TT2 is the one of docs/guide/transforms.md;
     for a model with noise the caller supplies the joint covariance of w = [u; v].
 
     Examples

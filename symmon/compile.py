@@ -123,7 +123,7 @@ def _convert(e: sp.Basic, walk: Callable):
         return ca.atan2(walk(e.args[0]), walk(e.args[1]))
     if isinstance(e, sp.Piecewise):
         # Build from the last branch backwards; if_else is short-circuit-free in SX,
-        # but derivatives of the branch not taken do not leak (CASADI-NOTES).
+        # but derivatives of the branch not taken do not leak into the result.
         out = None
         for expr, cond in reversed(e.args):
             val = walk(expr)

@@ -87,6 +87,9 @@ class DirectResult:
     fused: Gaussian
     moments: tuple[JointMoments, ...]
 
+    def __repr__(self) -> str:
+        return f"DirectResult(estimates={len(self.estimates)}, fused={self.fused!r})"
+
 
 @dataclass(frozen=True, eq=False)
 class IndirectResult:
@@ -111,6 +114,9 @@ class IndirectResult:
     def posterior(self) -> Gaussian:
         """The posterior after the last measurement."""
         return self.posteriors[-1]
+
+    def __repr__(self) -> str:
+        return f"IndirectResult(measurements={len(self.posteriors)}, posterior={self.posterior!r})"
 
 
 # --------------------------------------------------------------------------- helpers

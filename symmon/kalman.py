@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .errors import CovarianceError, ShapeError
-from .gaussian import Gaussian, as_covariance
+from .gaussian import Gaussian, _fmt, as_covariance, matrix_sqrt
 
 __all__ = ["KalmanFilter", "KalmanResult"]
 
@@ -58,12 +58,6 @@ def _readonly(a: np.ndarray) -> np.ndarray:
     a = np.array(a, dtype=float)  # own copy, so freezing it cannot affect the caller
     a.flags.writeable = False
     return a
-
-
-def _psd_sqrt(P: np.ndarray) -> np.ndarray:
-    """A factor L with L Lᵀ = P that also works for singular P (Cholesky would fail)."""
-    w, V = np.linalg.eigh(P)
-    return V * np.sqrt(np.clip(w, 0.0, None))
 
 
 @dataclass(frozen=True, eq=False)
@@ -142,8 +136,15 @@ class KalmanResult:
         b = self._block_index(block_b, "block_b")
         return self.P[:, a[:, None], b[None, :]]
 
+    def __repr__(self) -> str:
+        K, n = self.P.shape[0], self.n
+        runs = f"runs={self.x.shape[0]}, " if self.x.ndim == 3 else ""
+        last = "" if runs else (f", last x̂ [{', '.join(_fmt(v) for v in self.x[-1])}]"
+                                f", last std [{', '.join(_fmt(v) for v in np.sqrt(np.diag(self.P[-1])))}]")
+        return f"KalmanResult({runs}steps={K}, n={n}, n_y={self.gain.shape[-1]}{last})"
 
-@dataclass(frozen=True, eq=False)
+
+@dataclass(frozen=True, eq=False, repr=False)
 class KalmanFilter:
     """Kalman filter for a linear-Gaussian state-space model (eqs. (1), (3) of the paper).
 
@@ -213,6 +214,9 @@ class KalmanFilter:
         if not np.all(np.isfinite(arr)):
             raise ShapeError("x0 contains NaN or inf")
         return arr
+
+    def __repr__(self) -> str:
+        return f"KalmanFilter(n={self.n}, n_y={self.n_y})"
 
     def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None) -> KalmanResult:
         """Run the filter over the measurements ``ys``.
@@ -328,13 +332,13 @@ class KalmanFilter:
         lead = () if runs is None else (int(runs),)
         n, n_y = self.n, self.n_y
         if P0 is not None:
-            L0 = _psd_sqrt(as_covariance(P0, "P0", dim=n))
+            L0 = matrix_sqrt(as_covariance(P0, "P0", dim=n))
             x = x + rng.standard_normal(lead + (n,)) @ L0.T
         else:
             x = np.broadcast_to(x, lead + (n,))
         # Draw all noise at once (fixed order: process, then measurement) for reproducibility.
-        w = rng.standard_normal(lead + (int(K), n)) @ _psd_sqrt(self.Q).T
-        v = rng.standard_normal(lead + (int(K), n_y)) @ np.linalg.cholesky(self.R).T
+        w = rng.standard_normal(lead + (int(K), n)) @ matrix_sqrt(self.Q).T
+        v = rng.standard_normal(lead + (int(K), n_y)) @ matrix_sqrt(self.R).T
         states = np.empty(lead + (int(K), n))
         for k in range(int(K)):
             x = x @ self.F.T + w[..., k, :]

@@ -20,7 +20,7 @@ function                      MMSE estimate                                     
 ============================  ========================================================================  =========
 
 The MSE of each estimate (its conditional variance :math:`E f^2 - (E f)^2`) is given by the
-``*_mse`` companions. :func:`range`, :func:`bearing` and :func:`cosine_angle` are the paper's
+``*_mse`` companions. :func:`norm` (the paper's *range*), :func:`bearing` and :func:`cosine_angle` are the paper's
 *composite* estimators (Section 6): each inner linear, bilinear or quadratic form of a composite
 function is replaced by its MMSE estimate. They are not the MMSE estimates of the composite
 function; they agree with it to first order in :math:`P` only.
@@ -65,7 +65,7 @@ __all__ = [
     "inner_product",
     "squared_distance",
     "squared_distance_mse",
-    "range",
+    "norm",
     "bearing",
     "cosine_angle",
 ]
@@ -625,13 +625,14 @@ def squared_distance_mse(
 # ------------------------------------------------------- composite estimators (Section 6)
 
 
-def range_(xhat: ArrayLike, P: ArrayLike) -> Result:
-    """Composite estimate of the range :math:`\\|x\\|` (Section 6.2, eq. (53)):
+def norm(xhat: ArrayLike, P: ArrayLike) -> Result:
+    """Composite estimate of the norm :math:`\\|x\\|`, the paper's *range* (Section 6.2, eq. (53)):
     :math:`\\sqrt{\\hat x^T \\hat x + \\mathrm{tr}\\,P}`.
 
     The squared norm inside the root is replaced by its MMSE estimate (Theorem 2 with A = I).
     By Jensen's inequality it over-estimates :math:`E\\|x\\|`, while the plug-in
-    :math:`\\|\\hat x\\|` under-estimates it; it is exported as ``symmon.mmse.range``.
+    :math:`\\|\\hat x\\|` under-estimates it. (It is not called ``range``, which would
+    shadow the builtin.)
 
     Parameters
     ----------
@@ -644,14 +645,11 @@ def range_(xhat: ArrayLike, P: ArrayLike) -> Result:
 
     Examples
     --------
-    >>> range([3.0, 4.0], np.zeros((2, 2)))
+    >>> norm([3.0, 4.0], np.zeros((2, 2)))
     5.0
     """
     x, Pm = _gauss(xhat, P)
     return _out(np.sqrt(np.sum(x * x, axis=-1) + np.trace(Pm, axis1=-2, axis2=-1)))
-
-
-range = range_  # the public name; the module uses no builtin range below this line
 
 
 def bearing(xhat: ArrayLike, P: ArrayLike) -> Result:

@@ -9,16 +9,50 @@ W = S_y⁻¹ W̄ S_y⁻¹ (38), with S_y = diag(√diag Σ_gg).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Mapping
 
 import numpy as np
+import sympy as sp
 from numpy.typing import ArrayLike
 
 from .errors import ShapeError, SingularMatrixError, SymmonError
 
-__all__ = ["NAMED", "GeneralWeight", "general", "base_scale", "check_admissible", "resolve"]
+__all__ = ["NAMED", "NAMED_WEIGHTS", "NamedWeight", "GeneralWeight", "general", "base_scale",
+           "check_admissible", "resolve", "weighted_trace"]
 
-#: Names accepted by :func:`symmon.nonlinearity`.
-NAMED = ("full", "diag", "liu-li", "liu-li-raw")
+
+@dataclass(frozen=True)
+class NamedWeight:
+    """A weight rule known by name: W as a function of the output covariance Σ_gg.
+
+    Attributes
+    ----------
+    name : str
+    equation : str
+        Its equation in Straka & Havlík (2024).
+    formula : str
+        W in terms of Σ_gg and the number of outputs n_y.
+    unit_invariant : bool
+        Whether the measure with this weight is invariant to changes of units (Sec. IV);
+        Liu and Li's weights (6), (8) are not.
+    """
+
+    name: str
+    equation: str
+    formula: str
+    unit_invariant: bool
+
+
+#: The named weights, the one table used by the measures, the proofs and the command line.
+NAMED_WEIGHTS: Mapping[str, NamedWeight] = {w.name: w for w in (
+    NamedWeight("full", "(43)", "W = Σ_gg⁻¹ / n_y", True),
+    NamedWeight("diag", "(42)", "W = diag(diag Σ_gg)⁻¹ / n_y", True),
+    NamedWeight("liu-li", "(8)", "W = I / tr Σ_gg", False),
+    NamedWeight("liu-li-raw", "(6)", "W = I", False),
+)}
+
+#: Names accepted by :func:`symmon.nonlinearity` and :func:`symmon.units.prove_invariance`.
+NAMED = tuple(NAMED_WEIGHTS)
 
 #: Tolerance of the normalisation tr(W̄ Σ_ḡḡ) = 1 of the set (41).
 NORMALIZATION_TOL = 1e-8
@@ -74,6 +108,10 @@ class GeneralWeight:
         if np.linalg.eigvalsh(Y)[0] <= 0:
             raise SymmonError("Y of (41) is not positive definite: reduce the off-diagonal entries")
         return V @ Y @ V.T
+
+    def __repr__(self) -> str:
+        off = "" if self.offdiag is None else f", offdiag={np.round(self.offdiag, 6).tolist()}"
+        return f"GeneralWeight(alphas={self.alphas}{off})"
 
 
 def general(alphas: ArrayLike, offdiag: ArrayLike | None = None) -> GeneralWeight:
@@ -154,3 +192,34 @@ def resolve(weight, Sgg: np.ndarray) -> tuple[np.ndarray, str]:
         label = "matrix"
     check_admissible(Wbar, corr)
     return Sinv @ Wbar @ Sinv, label  # (38)
+
+
+def weighted_trace(name: str, Sgg: Any, D: Any) -> Any:
+    """M² = tr(W D) (29) for the named weight W of Σ_gg, without forming W.
+
+    Works on numpy arrays and on sympy matrices alike (the proofs of
+    :mod:`symmon.invariance` call it with symbols); :func:`resolve` gives the same W.
+
+    Parameters
+    ----------
+    name : {"full", "diag", "liu-li", "liu-li-raw"}
+    Sgg, D : ndarray or sympy Matrix, shape (n_y, n_y)
+        The output covariance Σ_gg and the matrix D of the measure.
+
+    Examples
+    --------
+    >>> float(weighted_trace("diag", np.diag([4.0, 1.0]), np.diag([2.0, 1.0])))
+    0.75
+    """
+    n = Sgg.shape[0]
+    d = [D[i, i] for i in range(n)]
+    if name == "full":  # (43): W = Σ_gg⁻¹ / n_y
+        X = Sgg.LUsolve(D) if isinstance(Sgg, sp.MatrixBase) else np.linalg.solve(Sgg, D)
+        return sum(X[i, i] for i in range(n)) / n
+    if name == "diag":  # (42): W = diag(diag Σ_gg)⁻¹ / n_y
+        return sum(d[i] / Sgg[i, i] for i in range(n)) / n
+    if name == "liu-li":  # (8) squared: W = I / tr Σ_gg
+        return sum(d) / sum(Sgg[i, i] for i in range(n))
+    if name == "liu-li-raw":  # (6): W = I
+        return sum(d)
+    raise SymmonError(f"unknown weight {name!r}: use one of {NAMED}")

@@ -7,6 +7,7 @@ about; the per-model proof is run on the example models, its refutations are che
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,7 @@ import sympy as sp
 from conftest import random_spd
 
 import symmon as sm
-from symmon import cli, invariance, units
+from symmon import cli, invariance, lemmas, units
 from symmon.errors import SingularMatrixError, SymmonError
 from symmon.modelfile import load_model_file
 
@@ -43,11 +44,11 @@ def test_lemma_holds_claim_by_claim(lemma):
 def test_the_lemma_checker_rejects_wrong_identities():
     """The reductions the lemmas rest on can say no: a dropped S or a wrong Hessian map."""
     A, S, J, P = (sp.MatrixSymbol(n, 3, 3) for n in "ASJP")
-    assert invariance._is_zero_matrix((A * J * S) * (S.I * P * S.I.T) * (A * J * S).T - A * J * P * J.T * A.T)
-    assert not invariance._is_zero_matrix((A * J) * (S.I * P * S.I.T) * (A * J).T - A * J * P * J.T * A.T)
+    assert lemmas._is_zero_matrix((A * J * S) * (S.I * P * S.I.T) * (A * J * S).T - A * J * P * J.T * A.T)
+    assert not lemmas._is_zero_matrix((A * J) * (S.I * P * S.I.T) * (A * J).T - A * J * P * J.T * A.T)
     H = sp.MatrixSymbol("H", 3, 3)
-    assert invariance._reduce(sp.Trace(S.T * H * S * S.I * P * S.I.T) - sp.Trace(H * P)) == 0
-    assert invariance._reduce(sp.Trace(S * H * S * S.I * P * S.I.T) - sp.Trace(H * P)) != 0
+    assert lemmas._reduce(sp.Trace(S.T * H * S * S.I * P * S.I.T) - sp.Trace(H * P)) == 0
+    assert lemmas._reduce(sp.Trace(S * H * S * S.I * P * S.I.T) - sp.Trace(H * P)) != 0
 
 
 @pytest.mark.parametrize(("weight", "holds"), [("full", True), ("diag", True), ("liu-li", False), ("liu-li-raw", False)])
@@ -228,3 +229,19 @@ def test_symbolic_proof_refuted_at_a_given_distribution():
     np.testing.assert_allclose(np.array(proof.counterexample["mean"], dtype=float).ravel(), U_POLAR.mean)
     with pytest.raises(SymmonError, match="at must be"):
         units.prove_invariance(POLAR, "liu-li", at=U_POLAR)
+
+
+def test_direct_route_alarm_spares_foreign_code_and_interrupts_sympy():
+    # Raised in foreign code (a gc callback, say) the alarm would be ignored and lost: it waits.
+    spin_until = time.perf_counter() + 0.3
+    with invariance._deadline(0.05) as check:
+        while time.perf_counter() < spin_until:
+            pass
+        with pytest.raises(invariance._OutOfTime):
+            check()
+    # Inside sympy it interrupts (the timer repeats until it lands there).
+    x = sp.Symbol("x")
+    with pytest.raises(invariance._OutOfTime):
+        with invariance._deadline(0.05):
+            while True:
+                sp.expand((x + 1) ** 3)

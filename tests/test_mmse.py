@@ -336,7 +336,7 @@ def test_range_composite_vs_monte_carlo(scale: float, agrees: bool) -> None:
     xhat, P = np.array([0.6, 0.8]), scale * np.array([[1.0, 0.2], [0.2, 0.5]])
     x = plane_samples(xhat, P, 11)
     mean, se = mc_mean_se(np.linalg.norm(x, axis=1))
-    gap = abs(mmse.range(xhat, P) - mean)
+    gap = abs(mmse.norm(xhat, P) - mean)
     assert (gap <= MC_SIGMAS * se) is agrees, (gap, se)
 
 
@@ -365,21 +365,21 @@ def test_cosine_angle_composite_vs_monte_carlo(scale: float, agrees: bool) -> No
 def test_range_composite_exceeds_mmse_at_origin() -> None:
     # x ~ N(0, s^2 I_2): E||x|| = s sqrt(pi/2) (Rayleigh) while the composite gives s sqrt(2).
     s2 = 2.0
-    assert mmse.range([0.0, 0.0], s2 * np.eye(2)) == pytest.approx(math.sqrt(2 * s2), rel=EXACT_RTOL)
-    assert mmse.range([0.0, 0.0], s2 * np.eye(2)) > math.sqrt(s2) * math.sqrt(math.pi / 2)
+    assert mmse.norm([0.0, 0.0], s2 * np.eye(2)) == pytest.approx(math.sqrt(2 * s2), rel=EXACT_RTOL)
+    assert mmse.norm([0.0, 0.0], s2 * np.eye(2)) > math.sqrt(s2) * math.sqrt(math.pi / 2)
 
 
 def test_composites_reduce_to_plug_in_without_uncertainty() -> None:
     x, y, Z = np.array([3.0, 4.0]), np.array([-4.0, 3.0]), np.zeros((2, 2))
-    assert mmse.range(x, Z) == 5.0
+    assert mmse.norm(x, Z) == 5.0
     assert mmse.bearing(x, Z) == pytest.approx(math.atan2(4.0, 3.0), rel=EXACT_RTOL)
     assert mmse.cosine_angle(x, y, Z, Z, Z) == pytest.approx(0.0, abs=EXACT_ATOL)
 
 
-def test_module_exports_range_as_public_name() -> None:
-    assert "range" in mmse.__all__
+def test_module_exports_norm_and_leaves_the_builtin_range_alone() -> None:
+    assert "norm" in mmse.__all__ and not hasattr(mmse, "range")
     assert all(hasattr(mmse, name) for name in mmse.__all__)
-    assert mmse.range([1.0, 0.0], np.zeros((2, 2))) == 1.0
+    assert mmse.norm([1.0, 0.0], np.zeros((2, 2))) == 1.0
 
 
 # ---------------------------------------------------------------------- bad input
@@ -428,8 +428,8 @@ BAD_INPUTS = [
     ("squared_distance joint", lambda: mmse.squared_distance([0.0, 0.0], [1.0, 1.0], GOOD_P2, GOOD_P2, 2.0 * GOOD_P2), CovarianceError, "joint"),
     ("squared_distance Pyy", lambda: mmse.squared_distance([0.0, 0.0], [1.0, 1.0], GOOD_P2, NOT_PSD, np.zeros((2, 2))), CovarianceError, "Pyy"),
     ("squared_distance_mse Pxx", lambda: mmse.squared_distance_mse([0.0, 0.0], [1.0, 1.0], np.eye(3), GOOD_P2, np.zeros((2, 2))), ShapeError, "Pxx"),
-    ("range P", lambda: mmse.range([1.0, 0.0], NOT_PSD), CovarianceError, "P"),
-    ("range xhat nan", lambda: mmse.range([np.nan, 0.0], GOOD_P2), ShapeError, "xhat"),
+    ("range P", lambda: mmse.norm([1.0, 0.0], NOT_PSD), CovarianceError, "P"),
+    ("range xhat nan", lambda: mmse.norm([np.nan, 0.0], GOOD_P2), ShapeError, "xhat"),
     ("bearing 3-D", lambda: mmse.bearing([1.0, 0.0, 0.0], np.eye(3)), ShapeError, "xhat"),
     ("bearing origin", lambda: mmse.bearing([0.0, 0.0], GOOD_P2), ValueError, "origin"),
     ("cosine joint", lambda: mmse.cosine_angle([1.0, 0.0], [0.0, 1.0], GOOD_P2, GOOD_P2, 3.0 * GOOD_P2), CovarianceError, "joint"),

@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 import pytest
 import sympy as sp
 
+import symmon.expressions as expressions
 import symmon.modelfile as modelfile
 from symmon.errors import ModelError
 from symmon.gaussian import Gaussian
@@ -37,7 +38,8 @@ from symmon.model import Model
 #: Numbers that come out of one float operation (e.g. 100 * 0.17) are compared this tightly.
 EXACT_RTOL = 1e-12
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
-MODULE_SOURCE = Path(modelfile.__file__)
+#: The modules that read file text: the TOML schema and the expression parser.
+MODULE_SOURCES = (Path(modelfile.__file__), Path(expressions.__file__))
 
 #: Names the parser module must never call on file text.
 FORBIDDEN_CALLS = ("eval", "exec", "compile", "sympify", "parse_expr")
@@ -257,19 +259,21 @@ def test_tripwire_sees_forbidden_calls(action, label):
     assert [c[0] for c in calls] == [label]
 
 
-def test_module_never_names_forbidden_functions():
-    tree = ast.parse(MODULE_SOURCE.read_text(encoding="utf-8"))
+@pytest.mark.parametrize("source", MODULE_SOURCES, ids=lambda p: p.name)
+def test_module_never_names_forbidden_functions(source):
+    tree = ast.parse(source.read_text(encoding="utf-8"))
     used = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
     used |= {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute)}
     used |= {a.name.split(".")[-1] for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) for a in n.names}
     assert used.isdisjoint(FORBIDDEN_CALLS)
 
 
-def test_grep_finds_forbidden_names_only_in_a_comment():
+@pytest.mark.parametrize("source", MODULE_SOURCES, ids=lambda p: p.name)
+def test_grep_finds_forbidden_names_only_in_a_comment(source):
     # ast.parse's mode="eval" is a string argument, not a call of eval.
     pattern = re.compile(r"\b(" + "|".join(FORBIDDEN_CALLS) + r")\b")
     hits = [
-        line for line in MODULE_SOURCE.read_text(encoding="utf-8").splitlines()
+        line for line in source.read_text(encoding="utf-8").splitlines()
         if pattern.search(line) and 'ast.parse(text, mode="eval")' not in line
     ]
     assert hits and all(h.lstrip().startswith("#") for h in hits)

@@ -45,7 +45,7 @@ fig8   0.01, 0.01    0.1, 0.1    (0, 10)     0.1 I   points far apart (Figure 8)
 
 **Section 7**: the two coordinates of Section 4.3.2 become the position :math:`x_k \\in R^2`
 of one object (rho = 0.5, K = 100). Estimated: range :math:`\\|x_k\\|` (composite
-:func:`symmon.mmse.range` vs :math:`\\|\\hat x_k\\|`), bearing :math:`\\operatorname{atan2}(x_2,
+:func:`symmon.mmse.norm` vs :math:`\\|\\hat x_k\\|`), bearing :math:`\\operatorname{atan2}(x_2,
 x_1)` (composite = simple, :func:`symmon.mmse.bearing`; errors wrapped to :math:`(-\\pi, \\pi]`),
 and the cosine of the angle between :math:`x_k` and :math:`x_{k-1}` (composite
 :func:`symmon.mmse.cosine_angle` vs the plug-in). The pair :math:`(x_k, x_{k-1})` is estimated
@@ -239,7 +239,7 @@ def _sec7(case: PlaneCase, runs: int, rng: np.random.Generator) -> dict[str, np.
     true_range = np.linalg.norm(x, axis=-1)
     true_bearing = np.arctan2(x[..., 1], x[..., 0])
     true_cos = cos(x, y)
-    range_c = mmse.range(xh, Pxx)
+    range_c = mmse.norm(xh, Pxx)
     range_s = np.linalg.norm(xh, axis=-1)
     bearing_c = mmse.bearing(xh, Pxx)
     bearing_s = np.arctan2(xh[..., 1], xh[..., 0])
