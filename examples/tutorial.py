@@ -67,7 +67,7 @@ u = sm.Gaussian([1.0, 10.0], alpha * np.diag([1.0, 100.0]))
 polar, u
 
 # %%
-assert polar.structure == "additive"              # no noise symbols: y = g(u)
+assert polar.structure == "none"                  # no noise symbols: y = g(u)
 assert polar._repr_latex_().startswith("$g(x, y) = ")
 assert r"\mathcal{N}" in u._repr_latex_()
 
