@@ -554,7 +554,7 @@ def _distance(a, b, Ay: np.ndarray, Aw: np.ndarray, angles: frozenset[int]) -> n
     AyT = np.swapaxes(Ay, 1, 2)
     e_mean = np.linalg.norm(np.einsum("rij,rj->ri", Ay, dmu), axis=-1)
     e_cov = np.linalg.norm(Ay @ (a.cov - b.cov) @ AyT, 2, axis=(1, 2))
-    e_cross = np.linalg.norm(Ay @ (a.cross - b.cross) @ np.swapaxes(Aw, 1, 2), 2, axis=(1, 2))
+    e_cross = np.linalg.norm(Ay @ (a.cross_cov - b.cross_cov) @ np.swapaxes(Aw, 1, 2), 2, axis=(1, 2))
     return np.maximum(e_mean, np.maximum(e_cov, e_cross))
 
 

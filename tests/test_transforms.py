@@ -58,7 +58,7 @@ def batch1(tr, cm, mean, cov):
     """Moments of one Gaussian through the batch API: mean, cov, cross, stderr."""
     b = tr.batch(cm, np.asarray(mean, float)[None], np.asarray(cov, float)[None])
     se = None if b.stderr is None else {k: v[0] for k, v in b.stderr.items()}
-    return b.mean[0], b.cov[0], b.cross[0], se
+    return b.mean[0], b.cov[0], b.cross_cov[0], se
 
 
 # =========================================================================== lecture radar
@@ -202,7 +202,7 @@ def test_every_transform_is_exact_for_affine_models(problem):
     floor = 1e-12 * max(1.0, float(np.abs(cov).max()), float(np.abs(mean).max()))
     np.testing.assert_array_less(np.abs(m - mean), N_SE * se["mean"] + floor)
     np.testing.assert_array_less(np.abs(C - cov), N_SE * se["cov"] + floor)
-    np.testing.assert_array_less(np.abs(X - cross), N_SE * se["cross"] + floor)
+    np.testing.assert_array_less(np.abs(X - cross), N_SE * se["cross_cov"] + floor)
 
 
 # =========================================================================== declared degree

@@ -74,7 +74,7 @@ def _liu_se(m, Suu) -> tuple[float, float]:
             C = S @ s.cov @ S
             return np.sqrt(max(mon_from_moments(C[:2, :2], C[:2, 2:], C[2:, 2:], "liu-li")["squared"], 0))
 
-        res.append(float(jackknife(m.info["groups"], val)))
+        res.append(float(jackknife(m.replicates, val)))
     return res[0], res[1]
 
 

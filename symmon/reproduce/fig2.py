@@ -53,7 +53,7 @@ def _stderr(m, ny: int, weight: str) -> float:
         C = s.cov
         return _value(C[:ny, :ny], C[:ny, ny:], C[ny:, ny:], weight)
 
-    return float(jackknife(m.info["groups"], val))
+    return float(jackknife(m.replicates, val))
 
 
 def curves(alphas=ALPHAS, samples: int = 10**6, seed: int = 0, progress: bool = True) -> dict[str, dict[str, np.ndarray]]:

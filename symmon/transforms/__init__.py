@@ -1,6 +1,6 @@
 """The transforms: one module per family, each returns moments for a batch of Gaussians."""
 
-from .base import BatchMoments as BatchMoments
+from .base import Moments as Moments
 from .base import Transform as Transform
 from .base import wrap_angle as wrap_angle
 from .exact import Exact as Exact
@@ -10,4 +10,4 @@ from .taylor import TT1 as TT1
 from .taylor import TT2 as TT2
 from .unscented import UT as UT
 
-__all__ = ["Transform", "BatchMoments", "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "wrap_angle"]
+__all__ = ["Transform", "Moments", "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "wrap_angle"]
