@@ -73,7 +73,6 @@ from .gaussian import Gaussian, as_covariance
 from .model import Model
 from .propagate import compiled
 from .transforms import TT1, TT2, UT, GaussHermite, Transform
-from .transforms.quadrature import SPARSE_ABOVE, standard_rule
 
 __all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest", "Adaptive"]
 
@@ -91,13 +90,10 @@ def _wrap_some(v: ca.SX, idx: frozenset[int]) -> ca.SX:
 
 def _unit_points(transform: Transform, d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Points z (N, d) for N(0, I_d), mean weights and covariance weights of a point rule."""
-    if isinstance(transform, UT):
-        wm, wc, c = transform.weights(d)
-        Z = np.vstack([np.zeros(d), c * np.eye(d), -c * np.eye(d)])
-        return Z, wm, wc
-    sparse = d > SPARSE_ABOVE if transform.sparse is None else bool(transform.sparse)
-    Z, w = standard_rule(d, int(transform.order), sparse)
-    return Z, w, w
+    rule = transform.unit_rule(d)
+    if rule is None:
+        raise SymmonError(f"{transform!r} is not a point rule: a filter cannot compile its moments")
+    return rule
 
 
 def _point_moments(g: ca.Function, m: ca.SX, C: ca.SX, transform: Transform, angles: frozenset[int]):

@@ -223,6 +223,8 @@ DEGREE_CASES = {
     "cubature": (sm.UT.cubature(), U2, (MU2, P2), [U2[0] ** 3, U2[0] * U2[1] ** 2], [U2[0] ** 2 * U2[1] ** 2, U2[1] ** 4], "mean"),
     "gh2": (sm.GaussHermite(2, sparse=False), U2, (MU2, P2), [U2[0] ** 3, U2[0] ** 2 * U2[1]], [U2[0] ** 4], "mean"),
     "gh3": (sm.GaussHermite(3, sparse=False), U2, (MU2, P2), [U2[0] ** 5, U2[0] ** 3 * U2[1] ** 2], [U2[1] ** 6], "mean"),
+    "ct5": (sm.transforms.Cubature5(), U2, (MU2, P2), [U2[0] ** 5, U2[0] ** 3 * U2[1] ** 2],
+            [U2[0] ** 6, U2[0] ** 2 * U2[1] ** 4], "mean"),
     "gh5_sparse": (
         sm.GaussHermite(5, sparse=True), U5, (MU5, P5),
         [U5[0] * U5[1] * U5[2] * U5[3] * U5[4], U5[0] ** 3 * U5[1] * U5[4]],

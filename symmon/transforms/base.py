@@ -95,6 +95,8 @@ class Transform(ABC):
     - :meth:`nested_inner`: the transform used inside a nested rule, where a rule that
       cannot see curvature (TT1) would give Cov E[g | v] no inner part;
     - :meth:`cost`: evaluations of g for one Gaussian of dimension n_w;
+    - :meth:`unit_rule`: for a point rule, its points and weights for N(0, I) (the
+      filters compile them into their steps);
     - :meth:`check_angles`: the undeclared-angle check for rules that keep no points.
 
     A rule that evaluates g at points does so through :func:`evaluate_points`, so a
@@ -124,6 +126,11 @@ class Transform(ABC):
     def cost(self, n_w: int) -> int:
         """Evaluations of g for one Gaussian of dimension ``n_w``."""
         raise NotImplementedError(f"{type(self).__name__} declares no cost model")
+
+    def unit_rule(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Points z (N, n) for N(0, I_n), mean weights and covariance weights, for a rule
+        whose moments are weighted sums over the points m + L z; ``None`` otherwise."""
+        return None
 
     def outer_rule(self, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Points (J, n) and weights (J,) of the outer integral over N(mean, cov) in a

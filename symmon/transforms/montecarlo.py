@@ -532,8 +532,8 @@ class MonteCarlo(Transform):
         return group_sizes(int(self.n), int(self.groups))
 
     def cost(self, n_w: int) -> int:
-        """``n`` samples, whatever the dimension."""
-        return int(self.n)
+        """The samples drawn (``n``, rounded with ``qmc=True``), whatever the dimension."""
+        return sum(self.sizes())
 
     def check_angles(self, cm, means, covs, angles):
         """The kernel keeps no samples: check a pilot sample (:func:`pilot_angle_cut`)."""

@@ -199,6 +199,11 @@ class GaussHermite(Transform):
 
         return nodes(int(self.order)) + (nodes(int(self.order) + 2) if self.error_estimate else 0)
 
+    def unit_rule(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The nodes for N(0, I_n) (sparse as :meth:`moments` picks it) and the weights, twice."""
+        Z, w = standard_rule(n, int(self.order), self._sparse(n))
+        return Z, w, w
+
     def outer_rule(self, mean, cov):
         """This order's nodes and weights over N(mean, cov), sparse above 4 dimensions."""
         n = mean.shape[0]

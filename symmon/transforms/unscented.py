@@ -110,6 +110,11 @@ class UT(Transform):
         """2 n_w + 1 sigma points."""
         return 2 * n_w + 1
 
+    def unit_rule(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The sigma points of N(0, I_n): 0, then +c eᵢ, then −c eᵢ; mean and covariance weights."""
+        wm, wc, c = self.weights(n)
+        return np.vstack([np.zeros(n), c * np.eye(n), -c * np.eye(n)]), wm, wc
+
     def outer_rule(self, mean, cov):
         """The sigma points and mean weights over N(mean, cov)."""
         return self.sigma_points(mean[None], cov[None])[0], self.weights(mean.shape[0])[0]
