@@ -159,3 +159,17 @@ def test_moments_one_spelling():
     assert set(m.stderr) == set(b.stderr) == {"mean", "cov", "cross_cov"}
     assert len(m.replicates) == 4 and m.replicates is m.info["groups"]
     np.testing.assert_array_equal(m.cross_cov, b.cross_cov[0])
+
+
+def test_a_filter_compiles_any_point_rule_from_its_declared_points():
+    """Cubature5 is Gauss–Hermite 3 in one dimension: the Kalman filters built from their
+    declared unit rules agree to rounding."""
+    x = sp.Symbol("x", real=True)
+    f = sm.Model([x], [x + 0.1 * sp.sin(x)], name="arch_kf_f")
+    h = sm.Model([x], [x**2 / 4 + x], name="arch_kf_h")
+    ys = np.array([[0.3], [0.8], [1.1], [0.9]])
+    x0 = sm.Gaussian([0.2], [[0.5]])
+    a = sm.NonlinearKalmanFilter(f, h, [[0.01]], [[0.1]], Cubature5()).filter(ys, x0)
+    b = sm.NonlinearKalmanFilter(f, h, [[0.01]], [[0.1]], sm.GaussHermite(3)).filter(ys, x0)
+    np.testing.assert_allclose(a.x, b.x, rtol=1e-12)
+    np.testing.assert_allclose(a.P, b.P, rtol=1e-12)

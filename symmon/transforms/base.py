@@ -88,6 +88,7 @@ class Transform(ABC):
 
     - ``exact_degree``: the polynomial degree of g up to which the mean is exact for a
       Gaussian input (the covariance is exact to half of it);
+    - ``taylor_order``: 1 or 2 for a Taylor rule (the filters build its closed forms);
     - ``stochastic``: the result is random, with ``replicates`` for the error bars
       (then :meth:`replicate_stats` and :meth:`nested_stats` are implemented);
     - :meth:`outer_rule`: points and weights over a Gaussian for the outer integral of
@@ -108,6 +109,9 @@ class Transform(ABC):
     exact_degree: ClassVar[float] = 0
     name: ClassVar[str] = "transform"
     stochastic: ClassVar[bool] = False
+    #: The order of a Taylor rule (1: TT1, 2: TT2), whose moments are closed forms in
+    #: J and H at the mean; ``None`` for other rules.
+    taylor_order: ClassVar[int | None] = None
 
     @abstractmethod
     def moments(self, cm: CompiledModel, means: np.ndarray, covs: np.ndarray,

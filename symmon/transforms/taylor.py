@@ -65,6 +65,7 @@ class TT1(Transform):
 
     exact_degree: ClassVar[float] = 1
     name: ClassVar[str] = "tt1"
+    taylor_order: ClassVar[int | None] = 1
 
     def moments(self, cm, means, covs, angles=frozenset(), executor=None):
         return _taylor(cm, means, covs, angles, second=False)
@@ -85,6 +86,7 @@ class TT2(Transform):
 
     exact_degree: ClassVar[float] = 2
     name: ClassVar[str] = "tt2"
+    taylor_order: ClassVar[int | None] = 2
 
     def moments(self, cm, means, covs, angles=frozenset(), executor=None):
         return _taylor(cm, means, covs, angles, second=True)
