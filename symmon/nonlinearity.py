@@ -38,7 +38,7 @@ from .latex import latex_number, latex_text
 from .moments import JointMoments
 from .propagate import compiled, propagate
 from .transforms import TT2, Transform
-from .transforms.montecarlo import MC_INNER, Stats, jackknife_se, leave_one_out, leave_one_out_stack, merge_all, moments_of
+from .transforms.montecarlo import MC_INNER, Stats, jackknife, leave_one_out, merge_all, moments_of
 from .transforms.registry import compare_set
 
 __all__ = ["NonlinearityMeasure", "nonlinearity", "compare", "format_table", "mon_from_moments"]
@@ -303,13 +303,13 @@ def _mc_stderr(m: JointMoments, model: Model, weight, Sc: np.ndarray, Sc_loo: np
     nw = model.n_u + model.n_v
     if Sc_loo is None:
         Sc_loo = np.repeat(Sc[None], len(m.replicates), axis=0)
-    loo = leave_one_out_stack(m.replicates)
-    _, cyy, cyw, cww = moments_of(loo, ny, nw, sorted(model.angle_outputs))
-    vals = []
-    for i, Sc in enumerate(Sc_loo):
-        p = mon_from_moments(cyy[i], cyw[i, :, :nu], cww[i, :nu, :nu], weight, Sc)
-        vals.append(np.sqrt(max(p["squared"], 0.0)))
-    return float(jackknife_se(np.array(vals)))
+
+    def values(loo: Stats) -> np.ndarray:
+        _, cyy, cyw, cww = moments_of(loo, ny, nw, sorted(model.angle_outputs))
+        return np.array([np.sqrt(max(mon_from_moments(cyy[i], cyw[i, :, :nu], cww[i, :nu, :nu], weight, S)["squared"], 0.0))
+                         for i, S in enumerate(Sc_loo)])
+
+    return float(jackknife(m.replicates, values))
 
 
 def compare(model: Model, u: Gaussian, v: Gaussian | None = None, weight="full",

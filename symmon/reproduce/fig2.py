@@ -49,9 +49,8 @@ def _row(m, Suu, scale) -> dict[str, float]:
 
 
 def _stderr(m, ny: int, weight: str) -> float:
-    def val(s):
-        C = s.cov
-        return _value(C[:ny, :ny], C[:ny, ny:], C[ny:, ny:], weight)
+    def val(loo):
+        return np.array([_value(C[:ny, :ny], C[:ny, ny:], C[ny:, ny:], weight) for C in loo.cov])
 
     return float(jackknife(m.replicates, val))
 

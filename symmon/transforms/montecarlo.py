@@ -153,9 +153,21 @@ def jackknife_se(loo: np.ndarray) -> np.ndarray:
 
 
 def jackknife(groups: Sequence[Stats], fn: Callable[[Stats], np.ndarray], total: Stats | None = None) -> np.ndarray:
-    """Delete-one-group jackknife standard error of ``fn(merged statistics)``
-    (``total``: ``merge_all(groups)``, if the caller has it already)."""
-    return jackknife_se(np.array([np.asarray(fn(s)) for s in leave_one_out(groups, total)]))
+    """Delete-one-group jackknife standard error of an estimate computed from the merged
+    statistics: the one jackknife of every Monte Carlo error bar (moments, MoN, figures).
+
+    Parameters
+    ----------
+    groups : sequence of Stats
+        The replicates (``Moments.replicates`` or ``JointMoments.replicates``).
+    fn : callable
+        Called once on the stack of the G leave-one-out statistics
+        (:func:`leave_one_out_stack`: n (G,), mean (G, d), m2 (G, d, d)); returns the
+        estimate for each, with a leading axis G.
+    total : Stats, optional
+        ``merge_all(groups)``, if the caller has it already.
+    """
+    return jackknife_se(np.asarray(fn(leave_one_out_stack(groups, total)), dtype=float))
 
 
 def group_generator(seed: np.random.SeedSequence) -> np.random.Generator:
@@ -517,7 +529,7 @@ class MonteCarlo(Transform):
             raise SymmonError(f"MonteCarlo seed must be a non-negative integer or None, got {self.seed!r}")
         else:
             object.__setattr__(self, "seed", int(self.seed))  # numpy integers too: one repr, one hash
-        self.executor  # validates workers
+        Executor(self.workers)  # refuses a bad worker count now, not at the first run
 
     @property
     def executor(self) -> Executor:
@@ -590,12 +602,15 @@ class MonteCarlo(Transform):
         ny, nw, A = cm.n_y, cm.n_w, sorted(angles)
         mu, Cyy, Cyw, Cww = moments_of(total, ny, nw, A)
 
-        # The jackknife of (E y, Cov y, Cov(y, w)), all left-out groups at once.
-        m, c, x, _ = moments_of(leave_one_out_stack(groups, total), ny, nw, A)
-        # An angle's mean near ±π must not jump by 2π between the left-out groups.
-        m[:, A] = wrap_angle(m[:, A] - mu[A])
-        G = len(groups)
-        se = jackknife_se(np.concatenate([m, c.reshape(G, -1), x.reshape(G, -1)], axis=1))
+        def flat(loo: Stats) -> np.ndarray:
+            # (E y, Cov y, Cov(y, w)) of every left-out set, as rows.
+            m, c, x, _ = moments_of(loo, ny, nw, A)
+            # An angle's mean near ±π must not jump by 2π between the left-out groups.
+            m[:, A] = wrap_angle(m[:, A] - mu[A])
+            G = m.shape[0]
+            return np.concatenate([m, c.reshape(G, -1), x.reshape(G, -1)], axis=1)
+
+        se = jackknife(groups, flat, total)
         stderr = {
             "mean": se[:ny],
             "cov": se[ny: ny + ny * ny].reshape(ny, ny),
