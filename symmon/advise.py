@@ -41,7 +41,6 @@ from .moments import JointMoments
 from .nonlinearity import nonlinearity
 from .propagate import propagate
 from .transforms import TT1, TT2, UT, GaussHermite, MonteCarlo, Transform
-from .transforms.quadrature import SPARSE_ABOVE, standard_rule
 
 __all__ = ["advise", "Advice", "moment_error", "CANDIDATES", "cost"]
 
@@ -119,26 +118,13 @@ def _error_bound(ref: JointMoments, err: dict[str, np.ndarray]) -> float:
     return float(max(e_mean, e_cov, e_cross))
 
 
-def _nodes(transform: GaussHermite, n_w: int) -> int:
-    sparse = transform.sparse if transform.sparse is not None else n_w > SPARSE_ABOVE
-    if not sparse and transform.order ** n_w > MAX_REFERENCE_NODES:
-        return transform.order ** n_w
-    return len(standard_rule(n_w, transform.order, bool(sparse))[1])
-
-
 def cost(transform: Transform, n_w: int) -> int:
-    """The cost of ``transform`` in evaluations of g (module notes)."""
-    if isinstance(transform, TT1):
-        return 1 + n_w
-    if isinstance(transform, TT2):
-        return 1 + n_w + n_w * (n_w + 1) // 2
-    if isinstance(transform, UT):
-        return 2 * n_w + 1
-    if isinstance(transform, GaussHermite):
-        return _nodes(transform, n_w)
-    if isinstance(transform, MonteCarlo):
-        return int(transform.n)
-    raise SymmonError(f"no cost model for {transform!r}")
+    """The cost of ``transform`` in evaluations of g (module notes): its declared
+    :meth:`~symmon.Transform.cost`."""
+    try:
+        return int(transform.cost(n_w))
+    except NotImplementedError:
+        raise SymmonError(f"no cost model for {transform!r}") from None
 
 
 @dataclass(frozen=True)
@@ -199,18 +185,18 @@ class Advice:
 
 
 def _reference(model: Model, u: Gaussian, v: Gaussian | None, tol: float, samples: int, seed: int
-               ) -> tuple[Transform, JointMoments, float, list[str]]:
+               ) -> tuple[Transform, str, JointMoments, float, list[str]]:
     notes: list[str] = []
     n_w = model.n_u + model.n_v
     gh = GaussHermite(REFERENCE_ORDER, error_estimate=True)
-    nodes = _nodes(GaussHermite(REFERENCE_ORDER + 2), n_w)
+    nodes = GaussHermite(REFERENCE_ORDER + 2).cost(n_w)
     if nodes <= MAX_REFERENCE_NODES:
         ref = propagate(model, u, v, gh)
         est = ref.info["error_estimate"]
         bound = _error_bound(ref, {"mean": est["mean"][0], "cov": est["cov"][0],
-                                   "cross_cov": est["cross"][0][:, :model.n_u]})
+                                   "cross_cov": est["cross_cov"][0][:, :model.n_u]})
         if bound <= tol / REFERENCE_MARGIN:
-            return GaussHermite(REFERENCE_ORDER), ref, bound, notes
+            return GaussHermite(REFERENCE_ORDER), f"Gauss-Hermite {REFERENCE_ORDER}", ref, bound, notes
         notes.append(f"Gauss-Hermite {REFERENCE_ORDER} did not converge (error estimate {bound:.1e}): "
                      "Monte Carlo is the reference")
     else:
@@ -221,7 +207,7 @@ def _reference(model: Model, u: Gaussian, v: Gaussian | None, tol: float, sample
     if bound > tol:
         notes.append(f"the Monte Carlo reference is only good to {bound:.1e} (2 SE) > tol: "
                      "raise samples to resolve tol")
-    return mc, ref, bound, notes
+    return mc, f"Monte Carlo {mc.n:.0e} samples (seed {mc.seed})", ref, bound, notes
 
 
 def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = 1e-3, weight: Any = "full",
@@ -265,12 +251,12 @@ def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = 1e
     if not cands:
         raise SymmonError("candidates is empty")
     n_w = model.n_u + model.n_v
-    ref_t, ref, ref_err, notes = _reference(model, u, v, tol, samples, seed)
+    ref_t, ref_name, ref, ref_err, notes = _reference(model, u, v, tol, samples, seed)
     ref_mon = nonlinearity(model, u, v, weight, ref_t).value
     rows = []
     for name, t in cands:
-        if isinstance(t, GaussHermite) and _nodes(t, n_w) > MAX_REFERENCE_NODES:
-            notes.append(f"{name} skipped: {_nodes(t, n_w):,} nodes")
+        if not t.stochastic and cost(t, n_w) > MAX_REFERENCE_NODES:
+            notes.append(f"{name} skipped: {cost(t, n_w):,} nodes")
             continue
         t0 = time.perf_counter()
         try:
@@ -285,13 +271,6 @@ def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = 1e
     # Ties in cost go to the earlier candidate: the choice must not depend on timing noise.
     ok = [(r["cost"], i) for i, r in enumerate(rows) if r["within_tol"]]
     best = rows[min(ok)[1]] if ok else None
-    return Advice(rows, _describe(ref_t), ref_err, ref_mon, best["transform"] if best else None,
+    return Advice(rows, ref_name, ref_err, ref_mon, best["transform"] if best else None,
                   best["name"] if best else None, float(tol), weight, tuple(notes))
 
-
-def _describe(t: Transform) -> str:
-    if isinstance(t, GaussHermite):
-        return f"Gauss-Hermite {t.order}"
-    if isinstance(t, MonteCarlo):
-        return f"Monte Carlo {t.n:.0e} samples (seed {t.seed})"
-    return repr(t)

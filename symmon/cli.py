@@ -52,8 +52,6 @@ __all__ = ["main", "transform_from_name", "TRANSFORM_NAMES", "WEIGHT_NAMES", "FI
 
 #: The paper whose equation numbers the help cites.
 SH24 = "Straka & Havlík 2024"
-#: Short names of the transforms, in the order ``compare`` lists them.
-TRANSFORM_NAMES = ("tt1", "tt2", "ut1", "ut2", "ct", "gh", "qmc", "mc")
 WEIGHT_NAMES = ("full", "diag", "liu-li", "liu-li-raw")
 FIGURES = ("fig1", "fig2", "radar", "mmse", "tracking")
 
@@ -86,13 +84,14 @@ class _UsageError(Exception):
 def transform_from_name(name: str, samples: int = 10**6, seed: int = 0, order: int = 5,
                         workers: int | None = None, scheduler: str | None = None, client: Any = None,
                         groups: int = 16):
-    """A transform from its short name.
+    """A transform from its registered short name (:mod:`symmon.transforms.registry`),
+    with a progress bar for Monte Carlo.
 
     Parameters
     ----------
-    name : {"tt1", "tt2", "ut1", "ut2", "ct", "gh", "mc", "qmc"}
-        TT1/TT2 (first/second-order Taylor), the unscented presets ``UT.ut1`` / ``UT.ut2``,
-        the cubature rule ``UT.cubature``, Gauss-Hermite, plain and quasi Monte Carlo.
+    name : str
+        One of :data:`TRANSFORM_NAMES`: ``tt1``, ``tt2``, ``ut1``, ``ut2``, ``ct``, ``gh``,
+        ``qmc``, ``mc`` and any rule registered since.
     samples, seed : int
         Monte Carlo sample count and seed (``mc`` and ``qmc`` only).
     order : int
@@ -111,18 +110,22 @@ def transform_from_name(name: str, samples: int = 10**6, seed: int = 0, order: i
     SymmonError
         For an unknown name.
     """
-    from . import transforms as t
+    from .transforms.registry import make
 
-    run_on = {"workers": workers, "scheduler": scheduler, "client": client, "groups": groups}
-    table: dict[str, Callable] = {
-        "tt1": t.TT1, "tt2": t.TT2, "ut1": t.UT.ut1, "ut2": t.UT.ut2, "ct": t.UT.cubature,
-        "gh": lambda: t.GaussHermite(order),
-        "mc": lambda: t.MonteCarlo(samples, seed=seed, progress=True, **run_on),
-        "qmc": lambda: t.MonteCarlo(samples, seed=seed, qmc=True, progress=True, **run_on),
-    }
-    if name not in table:
-        raise SymmonError(f"unknown transform {name!r}; use one of {TRANSFORM_NAMES}")
-    return table[name]()
+    return make(name, samples=samples, seed=seed, order=order, groups=groups, workers=workers,
+                scheduler=scheduler, client=client, progress=True)
+
+
+def _transform_names() -> tuple[str, ...]:
+    from .transforms.registry import names  # imports the transforms: only when needed
+
+    return names()
+
+
+def __getattr__(attr: str) -> Any:
+    if attr == "TRANSFORM_NAMES":  # short names of the transforms, in the order ``compare`` lists them
+        return _transform_names()
+    raise AttributeError(f"module {__name__!r} has no attribute {attr!r}")
 
 
 #: Local Dask schedulers that ``--dask`` accepts by name; anything else is an address.
@@ -517,14 +520,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
     spec = _load(args.file)
     rows = []
     with _mc_backend(args) as run_on:
-        for name in progress_bar(TRANSFORM_NAMES, "transforms", not args.no_progress):
+        for name in progress_bar(_transform_names(), "transforms", not args.no_progress):
             tr = transform_from_name(name, args.samples, args.seed, args.order, **run_on)
             res = _finite_measure(nonlinearity(spec.model, spec.u, spec.v, args.weight, tr), f" by {name}")
             m = res.moments
             for what, value in (("E y", m.mean), ("Cov y", m.cov), ("Cov(y, u)", m.cross_cov)):
                 _finite(f"{what} by {name}", value)
             rows.append({"name": name, "transform": repr(tr), "mon": res.value, "stderr": res.stderr,
-                         "evaluations": m.info.get("evaluations"), "mean": m.mean, "cov": m.cov,
+                         "evaluations": m.evaluations, "mean": m.mean, "cov": m.cov,
                          "cross_cov": m.cross_cov, "notes": res.notes})
     for r in rows:
         r["relative_stderr"] = _relative(r["stderr"], r["mon"])
@@ -824,7 +827,7 @@ def _parser() -> argparse.ArgumentParser:
         return sp
 
     def transform_opts(sp: argparse.ArgumentParser, samples: int) -> None:
-        sp.add_argument("--transform", choices=TRANSFORM_NAMES, default="tt2",
+        sp.add_argument("--transform", choices=_transform_names(), default="tt2",
                         help="tt1/tt2: Taylor; ut1/ut2/ct: unscented and cubature; gh: Gauss-Hermite; "
                         "mc/qmc: (quasi) Monte Carlo (default tt2)")
         rule_opts(sp, samples)

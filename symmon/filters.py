@@ -74,7 +74,6 @@ from .gaussian import Gaussian, as_covariance
 from .model import Model
 from .propagate import compiled
 from .transforms import TT1, TT2, UT, GaussHermite, Transform
-from .transforms.quadrature import SPARSE_ABOVE, standard_rule
 
 __all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest", "Adaptive"]
 
@@ -92,13 +91,10 @@ def _wrap_some(v: ca.SX, idx: frozenset[int]) -> ca.SX:
 
 def _unit_points(transform: Transform, d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Points z (N, d) for N(0, I_d), mean weights and covariance weights of a point rule."""
-    if isinstance(transform, UT):
-        wm, wc, c = transform.weights(d)
-        Z = np.vstack([np.zeros(d), c * np.eye(d), -c * np.eye(d)])
-        return Z, wm, wc
-    sparse = d > SPARSE_ABOVE if transform.sparse is None else bool(transform.sparse)
-    Z, w = standard_rule(d, int(transform.order), sparse)
-    return Z, w, w
+    rule = transform.unit_rule(d)
+    if rule is None:
+        raise SymmonError(f"{transform!r} is not a point rule: a filter cannot compile its moments")
+    return rule
 
 
 def _point_moments(g: ca.Function, m: ca.SX, C: ca.SX, transform: Transform, angles: frozenset[int]):
@@ -190,9 +186,9 @@ def _tt2_sx(cm, m: ca.SX, P: ca.SX, angles: list[int]):
 def _moments(model: Model, m: ca.SX, C: ca.SX, transform: Transform, angles: frozenset[int]):
     """E g, Cov g, Cov(g, w) of the model's g at w ~ N(m, C) for the filter's transform."""
     cm = compiled(model)
-    if isinstance(transform, TT2):
+    if transform.taylor_order == 2:
         return _tt2_sx(cm, m, C, sorted(angles))
-    if isinstance(transform, TT1):
+    if transform.taylor_order == 1:
         J = cm.jac(m)
         JC = ca.mtimes(J, C)
         return _wrap_some(cm.g(m), angles), ca.mtimes(JC, J.T), JC
@@ -584,8 +580,9 @@ class Adaptive:
         if not cands:
             raise SymmonError("candidates is empty")
         for t in cands + (self.reference,):
-            if not isinstance(t, (TT1, TT2, UT, GaussHermite)):
-                raise SymmonError(f"Adaptive candidates and reference must be TT1, TT2, UT or GaussHermite, got {t!r}")
+            if not _filterable(t):
+                raise SymmonError(f"Adaptive candidates and reference must be TT1, TT2, UT or GaussHermite "
+                                  f"(a Taylor or point rule), got {t!r}")
         object.__setattr__(self, "candidates", cands)
 
     def __repr__(self) -> str:
@@ -611,7 +608,7 @@ def _distance(a, b, Ay: np.ndarray, Aw: np.ndarray, angles: frozenset[int]) -> n
     AyT = np.swapaxes(Ay, 1, 2)
     e_mean = np.linalg.norm(np.einsum("rij,rj->ri", Ay, dmu), axis=-1)
     e_cov = np.linalg.norm(Ay @ (a.cov - b.cov) @ AyT, 2, axis=(1, 2))
-    e_cross = np.linalg.norm(Ay @ (a.cross - b.cross) @ np.swapaxes(Aw, 1, 2), 2, axis=(1, 2))
+    e_cross = np.linalg.norm(Ay @ (a.cross_cov - b.cross_cov) @ np.swapaxes(Aw, 1, 2), 2, axis=(1, 2))
     return np.maximum(e_mean, np.maximum(e_cov, e_cross))
 
 
@@ -628,7 +625,7 @@ def _decide(model: Model, m: np.ndarray, C: np.ndarray, add: np.ndarray | None, 
     choice = np.full(m.shape[0], len(order) - 1)
     mean, cov = t1.mean.copy(), plus(t1.cov)  # overwritten unless TT1 is the choice or the fallback
     open_ = np.ones(m.shape[0], dtype=bool)
-    i1 = next((i for i, t in enumerate(order) if isinstance(t, TT1)), None)
+    i1 = next((i for i, t in enumerate(order) if t.taylor_order == 1), None)
     if i1 is not None:  # TT1 is the cheapest: its closed-form test comes first
         t2 = TT2().batch(cm, m, C, angles)
         ok = _distance(t1, t2, _whiteners(plus(t2.cov)), Aw, angles) <= tol
@@ -641,7 +638,7 @@ def _decide(model: Model, m: np.ndarray, C: np.ndarray, add: np.ndarray | None, 
         Ay = _whiteners(plus(ref.cov))
         left = np.ones(rest.size, dtype=bool)
         for i, t in enumerate(order):
-            if isinstance(t, TT1):
+            if t.taylor_order == 1:
                 continue
             b = t.batch(cm, ms, Cs, angles)
             ok = (_distance(b, ref, Ay, Aws, angles) <= tol) & left
@@ -705,14 +702,19 @@ def _adaptive_run(kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: np.ndarray, P0
 
 
 # --------------------------------------------------------------------------- the filter
+def _filterable(transform: Any) -> bool:
+    """A rule a filter can compile: a Taylor rule or a point rule (declared capabilities)."""
+    return isinstance(transform, Transform) and (transform.taylor_order is not None or transform.unit_rule(1) is not None)
+
+
 def _method(transform: Transform) -> str:
-    if isinstance(transform, TT2):
-        return "EKF2"
-    if isinstance(transform, TT1):
-        return "EKF"
+    if transform.taylor_order is not None:
+        return "EKF" if transform.taylor_order == 1 else "EKF2"
     if isinstance(transform, UT):
         return "CKF" if transform == UT.cubature() else "UKF" + repr(transform)[2:]
-    return f"GHKF(order={transform.order})"
+    if isinstance(transform, GaussHermite):
+        return f"GHKF(order={transform.order})"
+    return f"KF({transform!r})"  # another point rule
 
 
 @dataclass(frozen=True, eq=False)
@@ -768,9 +770,10 @@ class NonlinearKalmanFilter:
         transform = UT.ut1() if self.transform is None else self.transform
         if not isinstance(transform, (Transform, Adaptive)):
             raise TypeError(f"transform must be a symmon transform, got {transform!r}")
-        if not isinstance(transform, (TT1, TT2, UT, GaussHermite, Adaptive)):
+        if not (isinstance(transform, Adaptive) or _filterable(transform)):
             raise SymmonError(
-                f"transform must be TT1, TT2, UT or GaussHermite for a Kalman filter, got {transform!r}"
+                f"transform must be TT1, TT2, UT or GaussHermite (a Taylor or point rule) for a Kalman filter, "
+                f"got {transform!r}"
             )
         object.__setattr__(self, "Q", _readonly(Q))
         object.__setattr__(self, "R", _readonly(R))

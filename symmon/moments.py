@@ -1,9 +1,10 @@
-"""JointMoments: the result of a nonlinear transformation of a Gaussian."""
+"""JointMoments: the result of a nonlinear transformation of a Gaussian, the single-point
+view of a transform's batched :class:`~symmon.transforms.base.Moments`."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -37,9 +38,15 @@ class JointMoments:
     noise_cross_cov : ndarray, shape (n_y, n_v)
         Cov(y, v) (empty for a noise-free model).
     stderr : mapping or None
-        Standard errors of ``mean``, ``cov`` and ``cross_cov`` (Monte Carlo only).
+        Standard errors of ``mean``, ``cov`` and ``cross_cov`` (stochastic transforms only).
     info : mapping
-        Transform-specific details (number of evaluations, samples, warnings).
+        A read-only view of the details: ``evaluations``, ``evaluator``, ``groups`` (the
+        replicates) and the rule's own (``sigma_points``, ``error_estimate``, ...).
+    replicates : list or None
+        The independent replicates behind ``stderr`` (Monte Carlo groups: their
+        statistics of [y; w]), for :func:`~symmon.transforms.montecarlo.jackknife`.
+    evaluations : int
+        Evaluations of g.
     input_cov : ndarray, shape (n_u, n_u)
         Cov u as the transform sees it: ``input.cov`` for the deterministic rules, the
         sample covariance for Monte Carlo (regressions must use it, or the sampling
@@ -60,6 +67,29 @@ class JointMoments:
     input_cov: np.ndarray | None = None
     angles: frozenset[int] = frozenset()
     input_angles: frozenset[int] = frozenset()
+    replicates: Sequence[Any] | None = None
+    evaluations: int = 0
+
+    @classmethod
+    def of(cls, b: Any, u: Gaussian, n_u: int, transform: Any, angles: frozenset[int] = frozenset(),
+           input_angles: frozenset[int] = frozenset(), **details: Any) -> "JointMoments":
+        """The first Gaussian of a batch result ``b`` (:class:`~symmon.transforms.base.Moments`)
+        of w = [u; v], with Cov(y, w) split into its u- and v-blocks."""
+        def first(d: Mapping[str, np.ndarray] | None) -> dict | None:
+            if d is None:
+                return None
+            return {"mean": d["mean"][0], "cov": d["cov"][0], "cross_cov": d["cross_cov"][0][:, :n_u]}
+
+        replicates = None if b.replicates is None else b.replicates[0]
+        info = {**b.details, "evaluations": b.evaluations, **details}
+        if replicates is not None:
+            info["groups"] = replicates
+        return cls(
+            mean=b.mean[0], cov=b.cov[0], cross_cov=b.cross_cov[0][:, :n_u], input=u, transform=transform,
+            noise_cross_cov=b.cross_cov[0][:, n_u:], stderr=first(b.stderr), info=info,
+            input_cov=None if b.input_cov is None else b.input_cov[0][:n_u, :n_u],
+            angles=angles, input_angles=input_angles, replicates=replicates, evaluations=b.evaluations,
+        )
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "angles", frozenset(int(i) for i in self.angles))

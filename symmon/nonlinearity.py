@@ -23,7 +23,6 @@ Y. Liu, X. R. Li, "Measure of nonlinearity for estimation", IEEE Trans. Signal P
 
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
@@ -38,21 +37,9 @@ from .model import Model
 from .latex import latex_number, latex_text
 from .moments import JointMoments
 from .propagate import compiled, propagate
-from .transforms import TT1, TT2, UT, GaussHermite, MonteCarlo, Transform
-from .transforms.base import batch_sqrt
-from .transforms.montecarlo import (
-    Stats,
-    group_generator,
-    group_sizes,
-    jackknife_se,
-    leave_one_out,
-    leave_one_out_stack,
-    merge_all,
-    moments_of,
-    run_groups,
-    stop_point,
-)
-from .transforms.quadrature import standard_rule
+from .transforms import TT2, Transform
+from .transforms.montecarlo import MC_INNER, Stats, jackknife, leave_one_out, merge_all, moments_of
+from .transforms.registry import compare_set
 
 __all__ = ["NonlinearityMeasure", "nonlinearity", "compare", "format_table", "mon_from_moments"]
 
@@ -173,7 +160,7 @@ def mon_from_moments(Sgg, Sgu, Suu, weight="full", Sc=None, mean=None):
 # --------------------------------------------------------------------------- Σ_c = Cov(E[g|v])
 def _aux_moments(exprs: Sequence[sp.Expr], syms: Sequence[sp.Symbol], dist: Gaussian, transform: Transform):
     cm = compile_model(list(exprs), list(syms))
-    b = transform.batch(cm, dist.mean[None], dist.cov[None])
+    b = transform.moments(cm, dist.mean[None], dist.cov[None])
     return b.mean[0], b.cov[0]
 
 
@@ -200,75 +187,20 @@ def _pi_sgam_pi(pi: sp.Matrix, pi_mean: np.ndarray, Sgam: np.ndarray) -> np.ndar
     return pibar @ Sgam @ pibar.T
 
 
-def _outer_rule(transform: Transform, v: Gaussian) -> tuple[np.ndarray, np.ndarray]:
-    """Points and weights of the outer integral over v for nested integration."""
-    if isinstance(transform, UT):
-        return transform.sigma_points(v.mean[None], v.cov[None])[0], transform.weights(v.dim)[0]
-    L = batch_sqrt(v.cov[None])[0]
-    order = transform.order if isinstance(transform, GaussHermite) else 5
-    Z, w = standard_rule(v.dim, order, v.dim > 4)
-    return v.mean + Z @ L.T, w
-
-
 def _cond_cov_general(model: Model, u: Gaussian, v: Gaussian, transform: Transform) -> np.ndarray:
     cm = compiled(model)
     nu, nv = model.n_u, model.n_v
     # Nested rule: the inner transform over u at each outer point of v (one batch).
-    inner = transform if not isinstance(transform, TT1) else TT2()
-    V, w = _outer_rule(transform, v)
+    inner = transform.nested_inner()
+    V, w = transform.outer_rule(v.mean, v.cov)
     J = V.shape[0]
     means = np.hstack([np.tile(u.mean, (J, 1)), V])
     covs = np.zeros((J, nu + nv, nu + nv))
     covs[:, :nu, :nu] = u.cov
-    cond_means = inner.batch(cm, means, covs).mean  # E[g | v_j]
+    cond_means = inner.moments(cm, means, covs).mean  # E[g | v_j]
     m = w @ cond_means
     R = cond_means - m
     return np.einsum("j,ji,jk->ik", w, R, R)
-
-
-#: Inner samples per outer noise sample in the nested Monte Carlo of general noise.
-MC_INNER = 64
-
-
-def _nested_groups(cm, u: Gaussian, v: Gaussian, mc: MonteCarlo) -> list[tuple[Stats, np.ndarray]]:
-    """Nested Monte Carlo for Σ_c = Cov(E[g | v]), in ``mc.groups`` independent groups.
-
-    Each outer sample of v gets MC_INNER samples of u.  A group keeps the statistics of
-    the inner means and the sum of the inner covariances; its streams are the children
-    of the one ``SeedSequence(seed)`` child that the outer Monte Carlo does not use.
-    The groups run on the engine's threads (:func:`~symmon.transforms.montecarlo.run_groups`):
-    the same result for any thread count, and Ctrl-C stops them within a chunk.
-    """
-    G = mc.groups
-    n_outer = max(2 * G, mc.n // MC_INNER)
-    seeds = np.random.SeedSequence(mc.seed).spawn(G + 1)[-1].spawn(G)
-    Lu, Lv = batch_sqrt(u.cov[None])[0], batch_sqrt(v.cov[None])[0]
-
-    def group(job: tuple[int, np.random.SeedSequence], stop: threading.Event) -> tuple[Stats, np.ndarray]:
-        return _nested_group(cm, u, v, Lu, Lv, *job, stop)
-
-    return run_groups(group, list(zip(group_sizes(n_outer, G), seeds)), mc.thread_count(),
-                      "nested Monte Carlo groups", mc.progress)
-
-
-def _nested_group(cm, u: Gaussian, v: Gaussian, Lu: np.ndarray, Lv: np.ndarray, n_g: int,
-                  seed: np.random.SeedSequence, stop: threading.Event | None) -> tuple[Stats, np.ndarray]:
-    """One group of :func:`_nested_groups`: n_g outer samples, in chunks."""
-    gen = group_generator(seed)
-    step = max(1, 65536 // MC_INNER)
-    stats, var_sum = [], 0.0
-    for start in range(0, n_g, step):
-        stop_point(stop)
-        k = min(step, n_g - start)
-        V = v.mean + gen.standard_normal((k, v.dim)) @ Lv.T
-        U = u.mean + gen.standard_normal((k, MC_INNER, u.dim)) @ Lu.T
-        W = np.concatenate([U, np.repeat(V[:, None, :], MC_INNER, axis=1)], axis=2)
-        Y = cm.eval_g(W.reshape(-1, W.shape[2])).reshape(k, MC_INNER, -1)
-        mean_v = Y.mean(axis=1)
-        R = Y - mean_v[:, None]
-        var_sum = var_sum + np.einsum("kmi,kmj->ij", R, R) / (MC_INNER - 1)
-        stats.append(Stats.of(mean_v))
-    return merge_all(stats), var_sum
 
 
 def _sc_nested(st: Stats, var_sum: np.ndarray) -> np.ndarray:
@@ -278,23 +210,23 @@ def _sc_nested(st: Stats, var_sum: np.ndarray) -> np.ndarray:
     return st.cov - mean_inner_cov / MC_INNER
 
 
-def _cond_cov_mc(model: Model, u: Gaussian, v: Gaussian | None, mc: MonteCarlo) -> tuple[np.ndarray, np.ndarray]:
-    """Σ_c by Monte Carlo, and its value with each group left out, shape (G, n_y, n_y).
+def _cond_cov_mc(model: Model, u: Gaussian, v: Gaussian | None, tr: Transform,
+                 executor: Any = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Σ_c by a stochastic transform, and its value with each replicate left out, shape
+    (G, n_y, n_y), or ``None`` when Σ_c is a closed form (no sampling error).
 
     The leave-one-out values let the jackknife of the MoN see the error of Σ_c as well
-    as that of the moments (group i is left out of both).  Each is the total with one
-    group taken out (:func:`~symmon.transforms.montecarlo.leave_one_out`): O(G) in all.
+    as that of the moments (replicate i is left out of both).  Each is the total with one
+    replicate taken out (:func:`~symmon.transforms.montecarlo.leave_one_out`): O(G) in all.
     """
-    G = mc.groups
     exact = model.n_v == 0 or model.structure == "additive" or (
         model.structure == "multiplicative" and model.pi.shape[1] == 0)
     if exact:
-        Sc = _cond_cov(model, u, v, mc)  # no sampling error
-        return Sc, np.repeat(Sc[None], G, axis=0)
+        return _cond_cov(model, u, v, tr), None
     if model.structure == "multiplicative":
         pi, n_pi, n_gam = model.pi, len(model.pi), len(model.gamma)
-        gp = mc.group_stats(compile_model(list(pi), list(model.inputs)), u.mean, u.cov)
-        gg = mc.group_stats(compile_model(list(model.gamma), list(model.noise)), v.mean, v.cov)
+        gp = tr.replicate_stats(compile_model(list(pi), list(model.inputs)), u.mean, u.cov, executor=executor)
+        gg = tr.replicate_stats(compile_model(list(model.gamma), list(model.noise)), v.mean, v.cov, executor=executor)
 
         def sc(sp_: Stats, sg: Stats) -> np.ndarray:
             return _pi_sgam_pi(pi, moments_of(sp_, n_pi, model.n_u)[0], moments_of(sg, n_gam, model.n_v)[1])
@@ -302,7 +234,7 @@ def _cond_cov_mc(model: Model, u: Gaussian, v: Gaussian | None, mc: MonteCarlo) 
         tp, tg = merge_all(gp), merge_all(gg)
         loo = [sc(a, b) for a, b in zip(leave_one_out(gp, tp), leave_one_out(gg, tg))]
         return sc(tp, tg), np.array(loo)
-    nested = _nested_groups(compiled(model), u, v, mc)
+    nested = tr.nested_stats(compiled(model), u.mean, u.cov, v.mean, v.cov, executor)
     stats = [g[0] for g in nested]
     total, var_sum = merge_all(stats), sum(g[1] for g in nested)
     loo = [_sc_nested(s, var_sum - g[1]) for s, g in zip(leave_one_out(stats, total), nested)]
@@ -311,7 +243,7 @@ def _cond_cov_mc(model: Model, u: Gaussian, v: Gaussian | None, mc: MonteCarlo) 
 
 # --------------------------------------------------------------------------- public API
 def nonlinearity(model: Model, u: Gaussian, v: Gaussian | None = None, weight="full",
-                 transform: Transform | None = None) -> NonlinearityMeasure:
+                 transform: Transform | None = None, executor: Any = None) -> NonlinearityMeasure:
     """The measure of nonlinearity of y = g(u, v).
 
     Parameters
@@ -328,6 +260,8 @@ def nonlinearity(model: Model, u: Gaussian, v: Gaussian | None = None, weight="f
         options are unitless and lie in [0, 1].
     transform : Transform, default ``TT2()``
         TT1 gives 0 by construction (see the module notes).
+    executor : Executor, optional
+        Where a stochastic transform's replicates run (:func:`symmon.propagate`).
 
     Returns
     -------
@@ -341,11 +275,11 @@ def nonlinearity(model: Model, u: Gaussian, v: Gaussian | None = None, weight="f
     1.0
     """
     tr = transform if transform is not None else TT2()
-    m = propagate(model, u, v, tr)
+    m = propagate(model, u, v, tr, executor)
     stderr = None
-    if isinstance(tr, MonteCarlo):
-        Sc, Sc_loo = _cond_cov_mc(model, u, v, tr)
-        stderr = _mc_stderr(m, model, weight, Sc_loo)
+    if tr.stochastic:
+        Sc, Sc_loo = _cond_cov_mc(model, u, v, tr, executor)
+        stderr = _mc_stderr(m, model, weight, Sc, Sc_loo)
     else:
         Sc = _cond_cov(model, u, v, tr)
     try:
@@ -362,17 +296,20 @@ def nonlinearity(model: Model, u: Gaussian, v: Gaussian | None = None, weight="f
     )
 
 
-def _mc_stderr(m: JointMoments, model: Model, weight, Sc_loo: np.ndarray) -> float:
-    """Jackknife standard error of the MoN: group i is left out of the moments and of Σ_c."""
+def _mc_stderr(m: JointMoments, model: Model, weight, Sc: np.ndarray, Sc_loo: np.ndarray | None) -> float:
+    """Jackknife standard error of the MoN: replicate i is left out of the moments and of
+    Σ_c (``Sc_loo``; ``None``: Σ_c has no sampling error)."""
     ny, nu = model.n_y, model.n_u
     nw = model.n_u + model.n_v
-    loo = leave_one_out_stack(m.info["groups"])
-    _, cyy, cyw, cww = moments_of(loo, ny, nw, sorted(model.angle_outputs))
-    vals = []
-    for i, Sc in enumerate(Sc_loo):
-        p = mon_from_moments(cyy[i], cyw[i, :, :nu], cww[i, :nu, :nu], weight, Sc)
-        vals.append(np.sqrt(max(p["squared"], 0.0)))
-    return float(jackknife_se(np.array(vals)))
+    if Sc_loo is None:
+        Sc_loo = np.repeat(Sc[None], len(m.replicates), axis=0)
+
+    def values(loo: Stats) -> np.ndarray:
+        _, cyy, cyw, cww = moments_of(loo, ny, nw, sorted(model.angle_outputs))
+        return np.array([np.sqrt(max(mon_from_moments(cyy[i], cyw[i, :, :nu], cww[i, :nu, :nu], weight, S)["squared"], 0.0))
+                         for i, S in enumerate(Sc_loo)])
+
+    return float(jackknife(m.replicates, values))
 
 
 def compare(model: Model, u: Gaussian, v: Gaussian | None = None, weight="full",
@@ -385,13 +322,13 @@ def compare(model: Model, u: Gaussian, v: Gaussian | None = None, weight="full",
         Keys ``transform``, ``value``, ``stderr`` (Monte Carlo only) and ``evaluations``.
     """
     if transforms is None:
-        transforms = [TT1(), TT2(), UT.ut1(), UT.cubature(), GaussHermite(5), MonteCarlo(10**5, seed=0)]
+        transforms = compare_set()
     rows = []
     for t in transforms:
         res = nonlinearity(model, u, v, weight, t)
         rows.append({
             "transform": repr(t), "value": res.value, "stderr": res.stderr,
-            "evaluations": res.moments.info.get("evaluations"),
+            "evaluations": res.moments.evaluations,
         })
     return rows
 

@@ -11,8 +11,8 @@ from .errors import ModelError, ShapeError
 from .gaussian import PSD_RTOL, SYMMETRY_RTOL, Gaussian, as_covariance, as_vector
 from .model import Model
 from .moments import JointMoments
-from .transforms import UT, MonteCarlo, Transform
-from .transforms.base import BatchMoments, check_moments_finite, pilot_angle_cut
+from .transforms import UT, Transform
+from .transforms.base import Moments, check_moments_finite
 
 __all__ = ["propagate", "propagate_many", "compiled", "joint_input"]
 
@@ -53,7 +53,8 @@ def joint_input(model: Model, u: Gaussian, v: Gaussian | None) -> tuple[np.ndarr
     return np.concatenate([u.mean, v.mean]), block_diag(u.cov, v.cov)
 
 
-def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, transform: Transform | None = None) -> JointMoments:
+def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, transform: Transform | None = None,
+              executor=None) -> JointMoments:
     """E y, Cov y and Cov(y, u) of y = g(u, v) by a transform.
 
     Parameters
@@ -67,6 +68,9 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, transform: T
         TT1(), TT2(), UT(...), GaussHermite(...), MonteCarlo(...) or Exact().
         With noise, the transform is applied to w = [u; v] with a block-diagonal
         covariance and ``cross_cov`` is the u-block of Cov(y, w).
+    executor : Executor, optional
+        Where a stochastic transform's replicates run (threads, Dask, progress);
+        default: the transform's own.  It never changes the numbers.
 
     Returns
     -------
@@ -95,25 +99,14 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, transform: T
     """
     tr = _check_transform(transform)
     mw, Pw = joint_input(model, u, v)
-    b = _checked_batch(model, tr, mw[None], Pw[None])
-    nu = model.n_u
-    stderr = None
-    if b.stderr is not None:
-        stderr = {"mean": b.stderr["mean"][0], "cov": b.stderr["cov"][0], "cross_cov": b.stderr["cross"][0][:, :nu]}
-    info = dict(b.info or {})
-    if "groups" in info:
-        info["groups"] = info["groups"][0]
+    b = _checked_batch(model, tr, mw[None], Pw[None], executor)
     # "compiled", "vm" or "vm (C build running)": CompiledModel.evaluator, docs/compile.md.
-    info["evaluator"] = compiled(model).evaluator
-    input_cov = None if b.input_cov is None else b.input_cov[0][:nu, :nu]
-    return JointMoments(
-        mean=b.mean[0], cov=b.cov[0], cross_cov=b.cross[0][:, :nu], input=u, transform=tr,
-        noise_cross_cov=b.cross[0][:, nu:], stderr=stderr, info=info, input_cov=input_cov,
-        angles=model.angle_outputs, input_angles=model.angle_inputs,
-    )
+    return JointMoments.of(b, u, model.n_u, tr, model.angle_outputs, model.angle_inputs,
+                           evaluator=compiled(model).evaluator)
 
 
-def propagate_many(model: Model, means: ArrayLike, covs: ArrayLike, transform: Transform | None = None):
+def propagate_many(model: Model, means: ArrayLike, covs: ArrayLike, transform: Transform | None = None,
+                   executor=None) -> Moments:
     """Moments for K noise-free input Gaussians at once (one batched evaluation).
 
     Parameters
@@ -121,10 +114,13 @@ def propagate_many(model: Model, means: ArrayLike, covs: ArrayLike, transform: T
     means : (K, n_u)
     covs : (K, n_u, n_u)
 
+    executor : Executor, optional
+        As in :func:`propagate`.
+
     Returns
     -------
-    BatchMoments
-        ``mean`` (K, n_y), ``cov`` (K, n_y, n_y), ``cross`` (K, n_y, n_u).
+    Moments
+        ``mean`` (K, n_y), ``cov`` (K, n_y, n_y), ``cross_cov`` (K, n_y, n_u).
     """
     tr = _check_transform(transform)
     if model.n_v:
@@ -136,16 +132,15 @@ def propagate_many(model: Model, means: ArrayLike, covs: ArrayLike, transform: T
     if P.shape != (M.shape[0], model.n_u, model.n_u):
         raise ShapeError(f"covs must have shape {(M.shape[0], model.n_u, model.n_u)}, got {P.shape}")
     _validate_batch(M, P)
-    return _checked_batch(model, tr, M, P)
+    return _checked_batch(model, tr, M, P, executor)
 
 
-def _checked_batch(model: Model, tr: Transform, means: np.ndarray, covs: np.ndarray) -> BatchMoments:
-    """``tr.batch`` with the final guard: a NaN or inf moment is an error, never a number."""
+def _checked_batch(model: Model, tr: Transform, means: np.ndarray, covs: np.ndarray, executor) -> Moments:
+    """``tr.moments`` with the final guard: a NaN or inf moment is an error, never a number."""
     cm = compiled(model)
     with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported just below
-        if isinstance(tr, MonteCarlo):  # its kernel keeps no samples to check the angles on
-            pilot_angle_cut(cm, means, covs, model.angle_outputs, tr)
-        b = tr.batch(cm, means, covs, model.angle_outputs)
+        tr.check_angles(cm, means, covs, model.angle_outputs)
+        b = tr.moments(cm, means, covs, model.angle_outputs, executor)
     check_moments_finite(cm, b, means, tr)
     return b
 

@@ -38,8 +38,8 @@ from .gaussian import Gaussian, as_covariance, as_vector
 from .model import Model
 from .nonlinearity import mon_from_moments, nonlinearity
 from .propagate import propagate_many
-from .transforms import TT2, MonteCarlo, Transform
-from .transforms.montecarlo import dask_compute
+from .transforms import TT2, Transform
+from .transforms.montecarlo import Executor, dask_compute
 
 __all__ = ["SweepResult", "sweep_alpha", "sweep_states"]
 
@@ -125,9 +125,9 @@ def _check_alphas(alphas: ArrayLike) -> np.ndarray:
 
 # --------------------------------------------------------------------------- one point
 def _point(model: Model, mean: np.ndarray, cov: np.ndarray, v: Gaussian | None, weight: Any,
-           transform: Transform) -> dict[str, Any]:
+           transform: Transform, executor: Executor | None) -> dict[str, Any]:
     """The MoN and moments of one input Gaussian, as plain arrays (cheap to ship back)."""
-    res = nonlinearity(model, Gaussian(mean, cov), v, weight, transform)
+    res = nonlinearity(model, Gaussian(mean, cov), v, weight, transform, executor)
     m = res.moments
     return {
         "value": res.value, "squared": res.squared, "stderr": res.stderr, "weight_name": res.weight_name,
@@ -135,27 +135,20 @@ def _point(model: Model, mean: np.ndarray, cov: np.ndarray, v: Gaussian | None, 
     }
 
 
-def _local(transform: Transform, distributed: bool) -> Transform:
-    """The transform a task runs: never nested Dask; one thread per task on a cluster."""
-    if not isinstance(transform, MonteCarlo):
-        return transform
-    if distributed:
-        # The cluster supplies the parallelism; threads per task would oversubscribe the cores.
-        # The result does not depend on the thread count (groups merge in a fixed order).
-        return dataclasses.replace(transform, client=None, scheduler=None, workers=1)
-    return transform
 
 
 def _run_points(model: Model, means: np.ndarray, covs: np.ndarray, v: Gaussian | None, weight: Any,
-                transforms: Sequence[Transform], client: Any, scheduler: str | None) -> list[dict[str, Any]]:
+                transforms: Sequence[Transform], client: Any, scheduler: str | None,
+                executor: Executor | None) -> list[dict[str, Any]]:
     if client is None and scheduler is None:
-        return [_point(model, m, P, v, weight, t) for m, P, t in zip(means, covs, transforms)]
+        return [_point(model, m, P, v, weight, t, executor) for m, P, t in zip(means, covs, transforms)]
     try:
         import dask
     except ImportError as exc:  # pragma: no cover - depends on the environment
         raise SymmonError("a distributed sweep needs the 'dask' extra: pip install symmon[dask]") from exc
     # The model travels as sympy (it pickles); each worker compiles it once and caches it.
-    tasks = [dask.delayed(_point, pure=False)(model, m, P, v, weight, t) for m, P, t in zip(means, covs, transforms)]
+    tasks = [dask.delayed(_point, pure=False)(model, m, P, v, weight, t, executor)
+             for m, P, t in zip(means, covs, transforms)]
     return dask_compute(tasks, client, scheduler)  # an interrupt cancels the pending points
 
 
@@ -166,18 +159,20 @@ def _sweep(model: Model, param: np.ndarray, means: np.ndarray, covs: np.ndarray,
     if not model.n_v and v is not None:
         raise ModelError("v was given but the model declares no noise symbols")
     K = means.shape[0]
-    is_mc = isinstance(transform, MonteCarlo)
+    is_mc = transform.stochastic
     if not is_mc and model.n_v == 0:
         return _batched(model, param, means, covs, weight, transform)
-    distributed = client is not None or scheduler is not None
-    base = _local(transform, distributed)
+    # A task on a cluster runs its replicates on one thread: the cluster supplies the
+    # parallelism, and the result does not depend on the thread count (groups merge in a
+    # fixed order).  Locally the transform's own executor applies.
+    executor = Executor(workers=1) if client is not None or scheduler is not None else None
     if is_mc and not crn:
         # Independent streams, one per point, reproducible from the one seed.
         seeds = [int(s.generate_state(1, np.uint64)[0]) for s in np.random.SeedSequence(transform.seed).spawn(K)]
-        transforms = [dataclasses.replace(base, seed=s) for s in seeds]
+        transforms = [dataclasses.replace(transform, seed=s) for s in seeds]
     else:
-        transforms = [base] * K
-    pts = _run_points(model, means, covs, v, weight, transforms, client, scheduler)
+        transforms = [transform] * K
+    pts = _run_points(model, means, covs, v, weight, transforms, client, scheduler, executor)
     mse = None
     if is_mc:
         mse = {k: np.stack([p["moment_stderr"][k] for p in pts]) for k in ("mean", "cov", "cross_cov")}
@@ -197,11 +192,11 @@ def _batched(model: Model, param: np.ndarray, means: np.ndarray, covs: np.ndarra
              transform: Transform) -> SweepResult:
     """A deterministic transform on a noise-free model: one batched evaluation of all points."""
     b = propagate_many(model, means, covs, transform)
-    parts = [mon_from_moments(b.cov[k], b.cross[k], covs[k], weight, None, b.mean[k]) for k in range(means.shape[0])]
+    parts = [mon_from_moments(b.cov[k], b.cross_cov[k], covs[k], weight, None, b.mean[k]) for k in range(means.shape[0])]
     sq = np.array([p["squared"] for p in parts])
     return SweepResult(
         param=param, value=np.sqrt(np.maximum(sq, 0.0)), squared=sq, stderr=None,
-        mean=b.mean, cov=b.cov, cross_cov=b.cross, moment_stderr=None,
+        mean=b.mean, cov=b.cov, cross_cov=b.cross_cov, moment_stderr=None,
         weight_name=parts[0]["label"], transform=transform,
     )
 

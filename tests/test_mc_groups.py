@@ -29,7 +29,7 @@ import symmon as sm
 from symmon import cli
 from symmon.angles import wrap_angle
 from symmon.errors import SymmonError
-from symmon.nonlinearity import MC_INNER, _cond_cov_mc, _nested_groups, mon_from_moments
+from symmon.nonlinearity import MC_INNER, _cond_cov_mc, mon_from_moments
 from symmon.propagate import compiled
 from symmon.transforms.montecarlo import (
     MAX_CHUNK,
@@ -149,7 +149,7 @@ def test_nested_sigma_c_left_out_equals_the_brute_force_one():
     u, v = sm.Gaussian([0.4], [[0.5]]), sm.Gaussian([0.0], [[0.3]])
     mc = sm.MonteCarlo(40_000, seed=6, groups=9)
     Sc, loo = _cond_cov_mc(model, u, v, mc)
-    nested = _nested_groups(compiled(model), u, v, mc)
+    nested = mc.nested_stats(compiled(model), u.mean, u.cov, v.mean, v.cov)
 
     def sc(parts):
         st = merge_all([p[0] for p in parts])

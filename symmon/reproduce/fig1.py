@@ -70,11 +70,11 @@ def _liu_se(m, Suu) -> tuple[float, float]:
     for size in (1.0, np.pi / 180):
         S = np.diag([1.0, 1.0 / size, 1.0, 1.0])
 
-        def val(s, S=S):
-            C = S @ s.cov @ S
-            return np.sqrt(max(mon_from_moments(C[:2, :2], C[:2, 2:], C[2:, 2:], "liu-li")["squared"], 0))
+        def val(loo, S=S):
+            return np.array([np.sqrt(max(mon_from_moments(C[:2, :2], C[:2, 2:], C[2:, 2:], "liu-li")["squared"], 0))
+                             for C in S @ loo.cov @ S])
 
-        res.append(float(jackknife(m.info["groups"], val)))
+        res.append(float(jackknife(m.replicates, val)))
     return res[0], res[1]
 
 

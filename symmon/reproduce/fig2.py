@@ -49,11 +49,10 @@ def _row(m, Suu, scale) -> dict[str, float]:
 
 
 def _stderr(m, ny: int, weight: str) -> float:
-    def val(s):
-        C = s.cov
-        return _value(C[:ny, :ny], C[:ny, ny:], C[ny:, ny:], weight)
+    def val(loo):
+        return np.array([_value(C[:ny, :ny], C[:ny, ny:], C[ny:, ny:], weight) for C in loo.cov])
 
-    return float(jackknife(m.info["groups"], val))
+    return float(jackknife(m.replicates, val))
 
 
 def curves(alphas=ALPHAS, samples: int = 10**6, seed: int = 0, progress: bool = True) -> dict[str, dict[str, np.ndarray]]:

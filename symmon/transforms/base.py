@@ -9,9 +9,10 @@ and covariances (K, n_w, n_w).  It returns the mean (K, n_y), the covariance
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 import sympy as sp
@@ -22,40 +23,144 @@ from ..errors import AngleWarning, NonFiniteError
 from ..gaussian import matrix_sqrt
 
 __all__ = [
-    "Transform", "BatchMoments", "wrap_angle", "weighted_moments", "batch_sqrt",
+    "Transform", "Moments", "wrap_angle", "weighted_moments", "batch_sqrt",
     "evaluate_points", "check_moments_finite", "likely_angles", "warn_angle_cut", "pilot_angle_cut",
 ]
 
 
 @dataclass(frozen=True)
-class BatchMoments:
-    """Moments of a batch: mean (K, n_y), cov (K, n_y, n_y), cross (K, n_y, n_w)."""
+class Moments:
+    """The moments of a batch of K Gaussians of w, the one result every transform returns.
+
+    Attributes
+    ----------
+    mean : ndarray (K, n_y)
+        E y.
+    cov : ndarray (K, n_y, n_y)
+        Cov y.
+    cross_cov : ndarray (K, n_y, n_w)
+        Cov(y, w).
+    input_cov : ndarray (K, n_w, n_w) or None
+        Cov w as the transform sees it (Monte Carlo: the sample covariance); ``None``
+        means the covariances passed in.
+    stderr : dict or None
+        Standard errors of ``mean``, ``cov`` and ``cross_cov``, the same keys and shapes
+        (stochastic transforms only).
+    replicates : list or None
+        For each Gaussian of the batch, the independent replicates (Monte Carlo groups:
+        :class:`~symmon.transforms.montecarlo.Stats`) that the error bars come from;
+        :func:`~symmon.transforms.montecarlo.jackknife` takes one such list.
+    evaluations : int
+        Evaluations of g (points, samples or expansion points) for the whole batch.
+    details : dict
+        Rule-specific extras: ``sigma_points`` and ``transformed_points`` (UT),
+        ``sparse`` and ``error_estimate`` (Gauss–Hermite), ``indefinite`` (UT),
+        ``n_samples`` (Monte Carlo).
+    """
 
     mean: np.ndarray
     cov: np.ndarray
-    cross: np.ndarray
+    cross_cov: np.ndarray
+    input_cov: np.ndarray | None = None
     stderr: dict | None = None
-    info: dict | None = None
-    input_cov: np.ndarray | None = None  # Cov w as the transform sees it (MC: the sample covariance)
+    replicates: list | None = None
+    evaluations: int = 0
+    details: dict = field(default_factory=dict)
+
+    @property
+    def info(self) -> dict:
+        """A read-only compatibility view: ``details`` with ``evaluations`` and, for
+        replicates, ``groups`` (one list per Gaussian)."""
+        out = dict(self.details)
+        out["evaluations"] = self.evaluations
+        if self.replicates is not None:
+            out["groups"] = self.replicates
+        return out
 
 
-class Transform:
-    """Base class of the transforms: immutable settings plus a batched kernel.
+class Transform(ABC):
+    """An abstract moment transform: immutable settings, a batched kernel and declared
+    capabilities.
 
-    Subclasses are frozen dataclasses that implement :meth:`batch` and declare
-    ``exact_degree``: the polynomial degree of g up to which the mean is exact for a
-    Gaussian input.  A rule that evaluates g at points does so through
-    :func:`evaluate_points`, so a NaN or inf of g is reported with the point; the front
-    ends (:func:`symmon.propagate`, :func:`symmon.propagate_many`) then refuse any moment
+    Subclasses are frozen dataclasses that implement :meth:`moments` and declare what
+    the rest of symmon needs to know about them, so that no caller tests for a concrete
+    class (docs/architecture.md):
+
+    - ``exact_degree``: the polynomial degree of g up to which the mean is exact for a
+      Gaussian input (the covariance is exact to half of it);
+    - ``taylor_order``: 1 or 2 for a Taylor rule (the filters build its closed forms);
+    - ``stochastic``: the result is random, with ``replicates`` for the error bars
+      (then :meth:`replicate_stats` and :meth:`nested_stats` are implemented);
+    - :meth:`outer_rule`: points and weights over a Gaussian for the outer integral of
+      a conditional expectation (nested integration);
+    - :meth:`nested_inner`: the transform used inside a nested rule, where a rule that
+      cannot see curvature (TT1) would give Cov E[g | v] no inner part;
+    - :meth:`cost`: evaluations of g for one Gaussian of dimension n_w;
+    - :meth:`unit_rule`: for a point rule, its points and weights for N(0, I) (the
+      filters compile them into their steps);
+    - :meth:`check_angles`: the undeclared-angle check for rules that keep no points.
+
+    A rule that evaluates g at points does so through :func:`evaluate_points`, so a
+    NaN or inf of g is reported with the point; the front ends
+    (:func:`symmon.propagate`, :func:`symmon.propagate_many`) then refuse any moment
     that is not finite (:func:`check_moments_finite`).
     """
 
     exact_degree: ClassVar[float] = 0
     name: ClassVar[str] = "transform"
+    stochastic: ClassVar[bool] = False
+    #: The order of a Taylor rule (1: TT1, 2: TT2), whose moments are closed forms in
+    #: J and H at the mean; ``None`` for other rules.
+    taylor_order: ClassVar[int | None] = None
+
+    @abstractmethod
+    def moments(self, cm: CompiledModel, means: np.ndarray, covs: np.ndarray,
+                angles: frozenset[int] = frozenset(), executor: Any = None) -> Moments:
+        """The moments of y = g(w) for the K Gaussians N(means[k], covs[k]).
+
+        ``executor`` (:class:`~symmon.transforms.execution.Executor`) says where the
+        work runs; deterministic rules ignore it.
+        """
 
     def batch(self, cm: CompiledModel, means: np.ndarray, covs: np.ndarray,
-              angles: frozenset[int] = frozenset()) -> BatchMoments:
-        raise NotImplementedError  # pragma: no cover - abstract
+              angles: frozenset[int] = frozenset()) -> Moments:
+        """:meth:`moments` with the default executor (the older name)."""
+        return self.moments(cm, means, covs, angles)
+
+    def cost(self, n_w: int) -> int:
+        """Evaluations of g for one Gaussian of dimension ``n_w``."""
+        raise NotImplementedError(f"{type(self).__name__} declares no cost model")
+
+    def unit_rule(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Points z (N, n) for N(0, I_n), mean weights and covariance weights, for a rule
+        whose moments are weighted sums over the points m + L z; ``None`` otherwise."""
+        return None
+
+    def outer_rule(self, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Points (J, n) and weights (J,) of the outer integral over N(mean, cov) in a
+        nested rule.  Default: the Gauss–Hermite rule of order 5 (tensor up to 4
+        dimensions, sparse above), exact to degree 9 per coordinate."""
+        from .quadrature import GaussHermite  # quadrature builds on this module
+
+        return GaussHermite(5).outer_rule(mean, cov)
+
+    def nested_inner(self) -> "Transform":
+        """The transform for the inner integral of a nested rule (default: itself)."""
+        return self
+
+    def check_angles(self, cm: CompiledModel, means: np.ndarray, covs: np.ndarray, angles: frozenset[int]) -> None:
+        """Warn about undeclared angles straddling their cut.  Point rules check their
+        points in :func:`evaluate_points`; nothing more to do by default."""
+
+    def replicate_stats(self, cm: CompiledModel, mean: np.ndarray, cov: np.ndarray,
+                        angles: frozenset[int] = frozenset(), executor: Any = None) -> list:
+        """Independent replicates of the statistics of [y; w] (stochastic transforms)."""
+        raise NotImplementedError(f"{type(self).__name__} is not stochastic")
+
+    def nested_stats(self, cm: CompiledModel, u_mean: np.ndarray, u_cov: np.ndarray, v_mean: np.ndarray,
+                     v_cov: np.ndarray, executor: Any = None) -> list:
+        """Replicates of a nested estimate of Cov_v E[g | v] (stochastic transforms)."""
+        raise NotImplementedError(f"{type(self).__name__} is not stochastic")
 
 
 def batch_sqrt(covs: np.ndarray) -> np.ndarray:
@@ -146,7 +251,7 @@ def evaluate_points(cm: CompiledModel, X: np.ndarray, transform: "Transform",
     return Y
 
 
-def check_moments_finite(cm: CompiledModel, b: BatchMoments, means: np.ndarray, transform: "Transform") -> None:
+def check_moments_finite(cm: CompiledModel, b: Moments, means: np.ndarray, transform: "Transform") -> None:
     """Raise if any moment of a batch is NaN or inf (every transform's final guard).
 
     With g finite at every point the moments can still overflow: |g| beyond ~1e154
@@ -157,9 +262,9 @@ def check_moments_finite(cm: CompiledModel, b: BatchMoments, means: np.ndarray, 
     NonFiniteError
         Naming the transform, the moment, the output and the input mean.
     """
-    if np.isfinite(b.mean).all() and np.isfinite(b.cov).all() and np.isfinite(b.cross).all():
+    if np.isfinite(b.mean).all() and np.isfinite(b.cov).all() and np.isfinite(b.cross_cov).all():
         return
-    for label, arr in (("E y", b.mean), ("Cov y", b.cov), ("Cov(y, w)", b.cross)):
+    for label, arr in (("E y", b.mean), ("Cov y", b.cov), ("Cov(y, w)", b.cross_cov)):
         bad = ~np.isfinite(arr)
         if bad.any():
             idx = np.argwhere(bad)[0]

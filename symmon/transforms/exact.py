@@ -13,7 +13,7 @@ import numpy as np
 import sympy as sp
 
 from ..errors import ModelError
-from .base import BatchMoments, Transform, batch_sqrt
+from .base import Moments, Transform, batch_sqrt
 
 __all__ = ["Exact"]
 
@@ -49,7 +49,11 @@ class Exact(Transform):
     exact_degree: ClassVar[float] = float("inf")
     name: ClassVar[str] = "exact"
 
-    def batch(self, cm, means, covs, angles=frozenset()):
+    def cost(self, n_w: int) -> int:
+        """No evaluations of g: the moments are symbolic."""
+        return 0
+
+    def moments(self, cm, means, covs, angles=frozenset(), executor=None):
         if angles:
             raise ModelError("Exact moments are not defined for angle outputs (wrapping is not polynomial)")
         exprs = [sp.sympify(e) for e in cm.source_exprs]
@@ -76,4 +80,4 @@ class Exact(Transform):
             out_m.append(m)
             out_c.append(C)
             out_x.append(X)
-        return BatchMoments(np.array(out_m), np.array(out_c), np.array(out_x), info={"evaluations": 0})
+        return Moments(np.array(out_m), np.array(out_c), np.array(out_x), evaluations=0)

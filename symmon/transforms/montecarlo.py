@@ -33,12 +33,12 @@ import numpy as np
 from ..compile import CHUNK, CompiledModel, compile_model
 from ..errors import SamplingError, SymmonError
 from ..progress import progress_bar
-from .base import BatchMoments, Transform, batch_sqrt, wrap_angle
+from .base import Moments, Transform, batch_sqrt, pilot_angle_cut, wrap_angle
 from .mc_kernel import sample_kernel
 
 __all__ = ["MonteCarlo", "Stats", "merge", "merge_all", "jackknife", "jackknife_se", "leave_one_out",
            "leave_one_out_stack", "group_generator", "group_sizes", "moments_of", "run_groups", "stop_point",
-           "dask_compute", "connect_dask", "MAX_SAMPLES", "MAX_GROUPS", "MAX_CHUNK", "MAX_QMC_GROUP"]
+           "dask_compute", "connect_dask", "Executor", "MC_INNER", "MAX_SAMPLES", "MAX_GROUPS", "MAX_CHUNK", "MAX_QMC_GROUP"]
 
 #: Most samples in a run: counts and the sums of a chunk stay exact in double precision.
 MAX_SAMPLES = 2**53
@@ -153,9 +153,21 @@ def jackknife_se(loo: np.ndarray) -> np.ndarray:
 
 
 def jackknife(groups: Sequence[Stats], fn: Callable[[Stats], np.ndarray], total: Stats | None = None) -> np.ndarray:
-    """Delete-one-group jackknife standard error of ``fn(merged statistics)``
-    (``total``: ``merge_all(groups)``, if the caller has it already)."""
-    return jackknife_se(np.array([np.asarray(fn(s)) for s in leave_one_out(groups, total)]))
+    """Delete-one-group jackknife standard error of an estimate computed from the merged
+    statistics: the one jackknife of every Monte Carlo error bar (moments, MoN, figures).
+
+    Parameters
+    ----------
+    groups : sequence of Stats
+        The replicates (``Moments.replicates`` or ``JointMoments.replicates``).
+    fn : callable
+        Called once on the stack of the G leave-one-out statistics
+        (:func:`leave_one_out_stack`: n (G,), mean (G, d), m2 (G, d, d)); returns the
+        estimate for each, with a leading axis G.
+    total : Stats, optional
+        ``merge_all(groups)``, if the caller has it already.
+    """
+    return jackknife_se(np.asarray(fn(leave_one_out_stack(groups, total)), dtype=float))
 
 
 def group_generator(seed: np.random.SeedSequence) -> np.random.Generator:
@@ -406,6 +418,50 @@ def connect_dask(address: str, timeout: float = 10.0) -> Any:
 
 
 @dataclass(frozen=True)
+class Executor:
+    """Where a stochastic transform's replicates run: apart from the method, so that
+    the same ``MonteCarlo`` gives the same numbers wherever it runs.
+
+    Parameters
+    ----------
+    workers : int or None
+        Threads (``None``: the number of CPUs, at most the number of replicates).
+    client : dask.distributed.Client, optional
+        Run the replicates on a Dask cluster.
+    scheduler : str, optional
+        A local Dask scheduler name (``"threads"``, ``"processes"``, ``"synchronous"``).
+    progress : bool
+        Show a progress bar over the replicates (on a terminal only).
+    """
+
+    workers: int | None = None
+    client: Any = field(default=None, repr=False)
+    scheduler: str | None = None
+    progress: bool = False
+
+    def __post_init__(self) -> None:
+        if self.workers is not None and (not _is_int(self.workers) or self.workers < 1):
+            raise SymmonError(f"workers must be >= 1, got {self.workers!r}")
+
+    @property
+    def distributed(self) -> bool:
+        """True when the work goes to Dask."""
+        return self.client is not None or self.scheduler is not None
+
+    def threads(self, jobs: int) -> int:
+        """Threads for ``jobs`` replicates: ``workers``, or the number of CPUs, at most ``jobs``."""
+        return self.workers or min(os.cpu_count() or 1, int(jobs))
+
+    def run(self, fn: Callable[[J, threading.Event], R], jobs: Sequence[J], desc: str) -> list[R]:
+        """``fn(job, stop)`` for each job on this executor's threads (:func:`run_groups`)."""
+        return run_groups(fn, jobs, self.threads(len(jobs)), desc, self.progress)
+
+
+#: Inner samples per outer noise sample in the nested Monte Carlo of Cov_v E[g | v].
+MC_INNER = 64
+
+
+@dataclass(frozen=True)
 class MonteCarlo(Transform):
     """Monte Carlo moments with standard errors.
 
@@ -426,14 +482,11 @@ class MonteCarlo(Transform):
     chunk : int
         Samples per compiled kernel call, at most 2²⁰ (memory per thread
         ~ chunk · (2 n_w + n_y + 1) · 8 bytes).
-    workers : int or None
-        Threads (``None``: the number of CPUs, at most ``groups``).
-    client : dask.distributed.Client, optional
-        Run the groups on a Dask cluster.
-    scheduler : str, optional
-        A Dask scheduler name (``"threads"``, ``"processes"``, ``"synchronous"``).
-    progress : bool
-        Show a progress bar over the groups (on a terminal only).
+    workers, client, scheduler, progress
+        The default :class:`Executor` (where the groups run), for calls that pass none
+        (``propagate(..., executor=...)`` overrides it).  They are not part of the
+        method: they do not change the numbers, and two transforms that differ only in
+        them compare equal.
     """
 
     n: int = 100_000
@@ -441,13 +494,14 @@ class MonteCarlo(Transform):
     qmc: bool = False
     groups: int = 16
     chunk: int = CHUNK
-    workers: int | None = None
+    workers: int | None = field(default=None, compare=False)
     client: Any = field(default=None, compare=False, repr=False)
-    scheduler: str | None = None
+    scheduler: str | None = field(default=None, compare=False)
     progress: bool = field(default=False, compare=False, repr=False)
 
     exact_degree: ClassVar[float] = 0
     name: ClassVar[str] = "mc"
+    stochastic: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
         limits = (
@@ -475,8 +529,12 @@ class MonteCarlo(Transform):
             raise SymmonError(f"MonteCarlo seed must be a non-negative integer or None, got {self.seed!r}")
         else:
             object.__setattr__(self, "seed", int(self.seed))  # numpy integers too: one repr, one hash
-        if self.workers is not None and (not _is_int(self.workers) or self.workers < 1):
-            raise SymmonError(f"workers must be >= 1, got {self.workers!r}")
+        Executor(self.workers)  # refuses a bad worker count now, not at the first run
+
+    @property
+    def executor(self) -> Executor:
+        """The default executor, from ``workers``, ``client``, ``scheduler`` and ``progress``."""
+        return Executor(self.workers, self.client, self.scheduler, self.progress)
 
     def sizes(self) -> list[int]:
         """Samples per group (QMC: a power of two each)."""
@@ -485,10 +543,19 @@ class MonteCarlo(Transform):
             return [2**m] * self.groups
         return group_sizes(int(self.n), int(self.groups))
 
+    def cost(self, n_w: int) -> int:
+        """The samples drawn (``n``, rounded with ``qmc=True``), whatever the dimension."""
+        return sum(self.sizes())
+
+    def check_angles(self, cm, means, covs, angles):
+        """The kernel keeps no samples: check a pilot sample (:func:`pilot_angle_cut`)."""
+        pilot_angle_cut(cm, means, covs, angles, self)
+
     def group_stats(self, cm: CompiledModel, mean: np.ndarray, cov: np.ndarray,
-                    angles: frozenset[int] = frozenset()) -> list[Stats]:
+                    angles: frozenset[int] = frozenset(), executor: Executor | None = None) -> list[Stats]:
         """The statistics of z = [y; w; sin y_A; cos y_A] for each group, in group order
         (A: the angle outputs, unwrapped around g(E w); see :func:`moments_of`)."""
+        ex = executor or self.executor
         L = batch_sqrt(cov[None])[0]
         ref = cm.eval_g(mean[None])[0] if angles else np.zeros(cm.n_y)
         seeds = np.random.SeedSequence(self.seed).spawn(self.groups)
@@ -499,50 +566,102 @@ class MonteCarlo(Transform):
             _Job(mean, L, n_g, s, self.qmc, chunk, ref, tuple(sorted(angles)))
             for n_g, s in zip(self.sizes(), seeds)
         ]
-        if self.client is not None or self.scheduler is not None:
-            return self._dask(cm, jobs)
-        return run_groups(lambda j, stop: _run_group(cm, j, stop), jobs, self.thread_count(),
-                          progress=self.progress)
+        if ex.distributed:
+            return self._dask(cm, jobs, ex)
+        return ex.run(lambda j, stop: _run_group(cm, j, stop), jobs, "Monte Carlo groups")
+
+    replicate_stats = group_stats
 
     def thread_count(self) -> int:
-        """Threads for the groups: ``workers``, or the number of CPUs, at most ``groups``."""
-        return self.workers or min(os.cpu_count() or 1, int(self.groups))
+        """Threads for the groups by default: ``workers``, or the number of CPUs, at most ``groups``."""
+        return self.executor.threads(self.groups)
 
-    def _dask(self, cm: CompiledModel, jobs: list[_Job]) -> list[Stats]:
+    def _dask(self, cm: CompiledModel, jobs: list[_Job], ex: Executor) -> list[Stats]:
         try:
             import dask
         except ImportError as exc:  # pragma: no cover - depends on the environment
             raise SymmonError("the Dask path needs the 'dask' extra: pip install symmon[dask]") from exc
         tasks = [dask.delayed(_run_group_remote)(cm.source_exprs, cm.symbols, j) for j in jobs]
-        return dask_compute(tasks, self.client, self.scheduler)
+        return dask_compute(tasks, ex.client, ex.scheduler)
 
-    def batch(self, cm, means, covs, angles=frozenset()):
-        outs = [self._single(cm, m, P, angles) for m, P in zip(means, covs)]
-        return BatchMoments(
+    def moments(self, cm, means, covs, angles=frozenset(), executor=None):
+        outs = [self._single(cm, m, P, angles, executor) for m, P in zip(means, covs)]
+        return Moments(
             np.stack([o.mean for o in outs]), np.stack([o.cov for o in outs]),
-            np.stack([o.cross for o in outs]),
-            stderr={k: np.stack([o.stderr[k] for o in outs]) for k in outs[0].stderr},
-            info={"groups": [o.info["groups"] for o in outs], "n_samples": outs[0].info["n_samples"],
-                  "evaluations": sum(o.info["evaluations"] for o in outs)},
+            np.stack([o.cross_cov for o in outs]),
             input_cov=np.stack([o.input_cov for o in outs]),
+            stderr={k: np.stack([o.stderr[k] for o in outs]) for k in outs[0].stderr},
+            replicates=[o.replicates[0] for o in outs],
+            evaluations=sum(o.evaluations for o in outs),
+            details={"n_samples": outs[0].details["n_samples"]},
         )
 
-    def _single(self, cm, mean, cov, angles):
-        groups = self.group_stats(cm, mean, cov, angles)
+    def _single(self, cm, mean, cov, angles, executor) -> Moments:
+        groups = self.group_stats(cm, mean, cov, angles, executor)
         total = merge_all(groups)
         ny, nw, A = cm.n_y, cm.n_w, sorted(angles)
         mu, Cyy, Cyw, Cww = moments_of(total, ny, nw, A)
 
-        # The jackknife of (E y, Cov y, Cov(y, w)), all left-out groups at once.
-        m, c, x, _ = moments_of(leave_one_out_stack(groups, total), ny, nw, A)
-        # An angle's mean near ±π must not jump by 2π between the left-out groups.
-        m[:, A] = wrap_angle(m[:, A] - mu[A])
-        G = len(groups)
-        se = jackknife_se(np.concatenate([m, c.reshape(G, -1), x.reshape(G, -1)], axis=1))
+        def flat(loo: Stats) -> np.ndarray:
+            # (E y, Cov y, Cov(y, w)) of every left-out set, as rows.
+            m, c, x, _ = moments_of(loo, ny, nw, A)
+            # An angle's mean near ±π must not jump by 2π between the left-out groups.
+            m[:, A] = wrap_angle(m[:, A] - mu[A])
+            G = m.shape[0]
+            return np.concatenate([m, c.reshape(G, -1), x.reshape(G, -1)], axis=1)
+
+        se = jackknife(groups, flat, total)
         stderr = {
             "mean": se[:ny],
             "cov": se[ny: ny + ny * ny].reshape(ny, ny),
-            "cross": se[ny + ny * ny:].reshape(ny, nw),
+            "cross_cov": se[ny + ny * ny:].reshape(ny, nw),
         }
-        info = {"groups": groups, "n_samples": total.n, "evaluations": total.n}
-        return BatchMoments(mu, Cyy, Cyw, stderr=stderr, info=info, input_cov=Cww)
+        return Moments(mu, Cyy, Cyw, input_cov=Cww, stderr=stderr, replicates=[groups],
+                       evaluations=total.n, details={"n_samples": total.n})
+
+    def nested_stats(self, cm, u_mean, u_cov, v_mean, v_cov, executor=None) -> list[tuple[Stats, np.ndarray]]:
+        """Nested Monte Carlo for Σ_c = Cov_v E[g | v], in ``groups`` independent groups.
+
+        Each outer sample of v gets MC_INNER samples of u.  A group keeps the statistics
+        of the inner means and the sum of the inner covariances; its streams are the
+        children of the one ``SeedSequence(seed)`` child that the moments do not use.
+        The groups run on the executor's threads (:func:`run_groups`): the same result
+        for any thread count, and Ctrl-C stops them within a chunk.
+
+        Returns
+        -------
+        list of (Stats, ndarray)
+            Per group: the statistics of the inner means and the sum of the inner
+            sample covariances.
+        """
+        ex = executor or self.executor
+        G = self.groups
+        n_outer = max(2 * G, self.n // MC_INNER)
+        seeds = np.random.SeedSequence(self.seed).spawn(G + 1)[-1].spawn(G)
+        Lu, Lv = batch_sqrt(u_cov[None])[0], batch_sqrt(v_cov[None])[0]
+
+        def group(job: tuple[int, np.random.SeedSequence], stop: threading.Event) -> tuple[Stats, np.ndarray]:
+            return _nested_group(cm, u_mean, Lu, v_mean, Lv, *job, stop)
+
+        return ex.run(group, list(zip(group_sizes(n_outer, G), seeds)), "nested Monte Carlo groups")
+
+
+def _nested_group(cm: CompiledModel, u_mean: np.ndarray, Lu: np.ndarray, v_mean: np.ndarray, Lv: np.ndarray,
+                  n_g: int, seed: np.random.SeedSequence, stop: threading.Event | None) -> tuple[Stats, np.ndarray]:
+    """One group of :meth:`MonteCarlo.nested_stats`: n_g outer samples, in chunks."""
+    gen = group_generator(seed)
+    step = max(1, 65536 // MC_INNER)
+    stats, var_sum = [], 0.0
+    n_u, n_v = u_mean.shape[0], v_mean.shape[0]
+    for start in range(0, n_g, step):
+        stop_point(stop)
+        k = min(step, n_g - start)
+        V = v_mean + gen.standard_normal((k, n_v)) @ Lv.T
+        U = u_mean + gen.standard_normal((k, MC_INNER, n_u)) @ Lu.T
+        W = np.concatenate([U, np.repeat(V[:, None, :], MC_INNER, axis=1)], axis=2)
+        Y = cm.eval_g(W.reshape(-1, W.shape[2])).reshape(k, MC_INNER, -1)
+        mean_v = Y.mean(axis=1)
+        R = Y - mean_v[:, None]
+        var_sum = var_sum + np.einsum("kmi,kmj->ij", R, R) / (MC_INNER - 1)
+        stats.append(Stats.of(mean_v))
+    return merge_all(stats), var_sum

@@ -6,7 +6,7 @@ combination technique with rules of order 1, 3, 5, ... and is exact for total de
 2·level − 1, with p^d replaced by a number of points polynomial in d.
 
 Error estimate from two orders: with ``error_estimate=True`` the rule of order p + 2 is
-evaluated as well and ``info["error_estimate"]`` holds ``ERROR_SAFETY · |Q_p − Q_{p+2}|``
+evaluated as well and ``details["error_estimate"]`` holds ``ERROR_SAFETY · |Q_p − Q_{p+2}|``
 for the mean, covariance and cross-covariance.  Writing e_p = Q_p − I for the error of the
 order-p rule, |e_p| ≤ |Q_p − Q_{p+2}| + |e_{p+2}|; whenever the rule has started to
 converge, |e_{p+2}| ≤ |e_p| / 2, and then |e_p| ≤ 2 |Q_p − Q_{p+2}|.  For a polynomial g
@@ -30,7 +30,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..errors import ResourceError, SymmonError
-from .base import BatchMoments, Transform, batch_sqrt, evaluate_points, weighted_moments, wrap_angle
+from .base import Moments, Transform, batch_sqrt, evaluate_points, weighted_moments, wrap_angle
 
 __all__ = ["GaussHermite", "standard_rule", "rule_size", "quadrature_error", "ERROR_SAFETY", "MAX_NODES"]
 
@@ -152,7 +152,7 @@ class GaussHermite(Transform):
         Use a Smolyak sparse grid; ``None`` picks it above 4 dimensions.
     error_estimate : bool, default False
         Also evaluate the rule of order ``order + 2`` and report
-        ``info["error_estimate"] = {"mean", "cov", "cross"}``, each
+        ``info["error_estimate"] = {"mean", "cov", "cross_cov"}``, each
         ``ERROR_SAFETY · |Q_order − Q_{order+2}|`` with the batch shapes (see the module
         notes for when it is a bound).  The moments returned are those of ``order``.
 
@@ -188,12 +188,34 @@ class GaussHermite(Transform):
             return 2 * ((self.order + 1) // 2) - 1
         return 2 * self.order - 1
 
-    def batch(self, cm, means, covs, angles=frozenset()):
+    def _sparse(self, n: int) -> bool:
+        return bool(n > SPARSE_ABOVE if self.sparse is None else self.sparse)
+
+    def cost(self, n_w: int) -> int:
+        """The nodes of the rule (and of the order + 2 rule with ``error_estimate``);
+        a tensor grid is counted without being built."""
+        def nodes(order: int) -> int:
+            return order**n_w if not self._sparse(n_w) else len(standard_rule(n_w, order, True)[1])
+
+        return nodes(int(self.order)) + (nodes(int(self.order) + 2) if self.error_estimate else 0)
+
+    def unit_rule(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The nodes for N(0, I_n) (sparse as :meth:`moments` picks it) and the weights, twice."""
+        Z, w = standard_rule(n, int(self.order), self._sparse(n))
+        return Z, w, w
+
+    def outer_rule(self, mean, cov):
+        """This order's nodes and weights over N(mean, cov), sparse above 4 dimensions."""
+        n = mean.shape[0]
+        Z, w = standard_rule(n, int(self.order), n > SPARSE_ABOVE)
+        return mean + Z @ batch_sqrt(cov[None])[0].T, w
+
+    def moments(self, cm, means, covs, angles=frozenset(), executor=None):
         K, n = means.shape
-        sparse = bool(n > SPARSE_ABOVE if self.sparse is None else self.sparse)
+        sparse = self._sparse(n)
         L = batch_sqrt(covs)
         mean, cov, cross, evals = _rule_moments(cm, means, L, int(self.order), sparse, angles, self)
-        info: dict[str, Any] = {"evaluations": evals, "sparse": sparse}
+        info: dict[str, Any] = {"sparse": sparse}
         if self.error_estimate:
             m2, c2, x2, e2 = _rule_moments(cm, means, L, int(self.order) + 2, sparse, angles, self)
             dm = mean - m2
@@ -203,10 +225,10 @@ class GaussHermite(Transform):
             info["error_estimate"] = {
                 "mean": ERROR_SAFETY * np.abs(dm),
                 "cov": ERROR_SAFETY * np.abs(cov - c2),
-                "cross": ERROR_SAFETY * np.abs(cross - x2),
+                "cross_cov": ERROR_SAFETY * np.abs(cross - x2),
             }
-            info["evaluations"] = evals + e2
-        return BatchMoments(mean, cov, cross, info=info)
+            evals += e2
+        return Moments(mean, cov, cross, evaluations=evals, details=info)
 
 
 def _rule_moments(cm, means: np.ndarray, L: np.ndarray, order: int, sparse: bool,
@@ -257,4 +279,4 @@ def quadrature_error(model, u, v=None, order: int = 5, sparse: bool | None = Non
     m = propagate(model, u, v, GaussHermite(order, sparse, error_estimate=True))
     est = m.info["error_estimate"]
     nu = model.n_u
-    return m, {"mean": est["mean"][0], "cov": est["cov"][0], "cross_cov": est["cross"][0][:, :nu]}
+    return m, {"mean": est["mean"][0], "cov": est["cov"][0], "cross_cov": est["cross_cov"][0][:, :nu]}

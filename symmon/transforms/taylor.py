@@ -19,7 +19,7 @@ import numpy as np
 
 from ..compile import CompiledModel
 from ..errors import DerivativeError, SymmonError
-from .base import BatchMoments, Transform, wrap_angle
+from .base import Moments, Transform, wrap_angle
 
 __all__ = ["TT1", "TT2"]
 
@@ -103,7 +103,7 @@ def _taylor(cm: CompiledModel, means: np.ndarray, covs: np.ndarray, angles, seco
     if angles:
         idx = sorted(angles)
         mean[:, idx] = wrap_angle(mean[:, idx])
-    return BatchMoments(mean, cov, JP, info={"evaluations": means.shape[0]})
+    return Moments(mean, cov, JP, evaluations=means.shape[0])
 
 
 @dataclass(frozen=True)
@@ -116,9 +116,19 @@ class TT1(Transform):
 
     exact_degree: ClassVar[float] = 1
     name: ClassVar[str] = "tt1"
+    taylor_order: ClassVar[int | None] = 1
 
-    def batch(self, cm, means, covs, angles=frozenset()):
+    def moments(self, cm, means, covs, angles=frozenset(), executor=None):
         return _taylor(cm, means, covs, angles, second=False)
+
+    def cost(self, n_w: int) -> int:
+        """g and J: 1 + n_w (a forward-mode Jacobian costs about one evaluation per column)."""
+        return 1 + n_w
+
+    def nested_inner(self) -> Transform:
+        """TT2: TT1's E[g | v] is g at the mean of u, blind to the curvature in u that
+        the inner integral of a nested rule is there to see."""
+        return TT2()
 
 
 @dataclass(frozen=True)
@@ -127,6 +137,11 @@ class TT2(Transform):
 
     exact_degree: ClassVar[float] = 2
     name: ClassVar[str] = "tt2"
+    taylor_order: ClassVar[int | None] = 2
 
-    def batch(self, cm, means, covs, angles=frozenset()):
+    def moments(self, cm, means, covs, angles=frozenset(), executor=None):
         return _taylor(cm, means, covs, angles, second=True)
+
+    def cost(self, n_w: int) -> int:
+        """g, J and the n_w(n_w + 1)/2 distinct second derivatives."""
+        return 1 + n_w + n_w * (n_w + 1) // 2

@@ -21,7 +21,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..errors import SymmonError
-from .base import BatchMoments, Transform, batch_sqrt, evaluate_points, weighted_moments
+from .base import Moments, Transform, batch_sqrt, evaluate_points, weighted_moments
 
 __all__ = ["UT"]
 
@@ -106,13 +106,26 @@ class UT(Transform):
         D = c * np.swapaxes(L, 1, 2)  # rows = columns of L
         return np.concatenate([means[:, None, :], means[:, None, :] + D, means[:, None, :] - D], axis=1)
 
-    def batch(self, cm, means, covs, angles=frozenset()):
+    def cost(self, n_w: int) -> int:
+        """2 n_w + 1 sigma points."""
+        return 2 * n_w + 1
+
+    def unit_rule(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The sigma points of N(0, I_n): 0, then +c eᵢ, then −c eᵢ; mean and covariance weights."""
+        wm, wc, c = self.weights(n)
+        return np.vstack([np.zeros(n), c * np.eye(n), -c * np.eye(n)]), wm, wc
+
+    def outer_rule(self, mean, cov):
+        """The sigma points and mean weights over N(mean, cov)."""
+        return self.sigma_points(mean[None], cov[None])[0], self.weights(mean.shape[0])[0]
+
+    def moments(self, cm, means, covs, angles=frozenset(), executor=None):
         K, n = means.shape
         wm, wc, _ = self.weights(n)
         X = self.sigma_points(means, covs)
         Y = evaluate_points(cm, X, self, angles)
         mean, cov, cross = weighted_moments(Y, X, means, wm, wc, angles)
-        info = {"evaluations": K * (2 * n + 1), "sigma_points": X, "transformed_points": Y}
+        info = {"sigma_points": X, "transformed_points": Y}
         if np.any(wc < 0):
             eig_min = np.linalg.eigvalsh(cov)[:, 0]
             scale = np.abs(cov).max(axis=(1, 2)) + np.finfo(float).tiny
@@ -124,4 +137,4 @@ class UT(Transform):
                     RuntimeWarning, stacklevel=4,
                 )
                 info["indefinite"] = True
-        return BatchMoments(mean, cov, cross, info=info)
+        return Moments(mean, cov, cross, evaluations=K * (2 * n + 1), details=info)

@@ -1,0 +1,126 @@
+"""The registry of transform names and presets: what ``--transform`` accepts and what
+``compare`` lists.
+
+A preset is a short name, a one-line summary and a factory that builds the transform
+from the options a front end can set (samples, seed, order, groups and where Monte
+Carlo runs); each factory takes the options it needs and ignores the others.  A new
+rule registers itself with :func:`register` in its own module (docs/architecture.md).
+
+Examples
+--------
+>>> from symmon.transforms.registry import make, names
+>>> names()[:5]
+('tt1', 'tt2', 'ut1', 'ut2', 'ct')
+>>> make("gh", order=3)
+GaussHermite(order=3, sparse=None, error_estimate=False)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+from ..errors import SymmonError
+from .base import Transform
+from .montecarlo import MonteCarlo
+from .quadrature import GaussHermite
+from .taylor import TT1, TT2
+from .unscented import UT
+
+__all__ = ["Preset", "register", "make", "names", "presets", "compare_set", "COMPARE"]
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A named transform: ``factory(**options)`` builds it (see :func:`make`)."""
+
+    name: str
+    summary: str
+    factory: Callable[..., Transform]
+
+
+_PRESETS: dict[str, Preset] = {}
+
+
+def register(name: str, summary: str, factory: Callable[..., Transform]) -> Preset:
+    """Add a preset under ``name`` (lower case, no spaces), listed after those before it.
+
+    ``factory`` is called with the keyword options of :func:`make`, so it must accept
+    ``**options`` and take from them only what it needs.
+
+    Raises
+    ------
+    SymmonError
+        If the name is taken or not a lower-case word.
+    """
+    if not (isinstance(name, str) and name and name == name.lower() and name.isidentifier()):
+        raise SymmonError(f"a transform name must be a lower-case word, got {name!r}")
+    if name in _PRESETS:
+        raise SymmonError(f"the transform name {name!r} is already registered ({_PRESETS[name].summary})")
+    preset = Preset(name, summary, factory)
+    _PRESETS[name] = preset
+    return preset
+
+
+def names() -> tuple[str, ...]:
+    """The registered names, in registration order (the order ``compare`` lists them)."""
+    return tuple(_PRESETS)
+
+
+def presets() -> tuple[Preset, ...]:
+    """The registered presets, in registration order."""
+    return tuple(_PRESETS.values())
+
+
+def make(name: str, *, samples: int = 10**6, seed: int = 0, order: int = 5, groups: int = 16,
+         workers: int | None = None, scheduler: str | None = None, client: Any = None,
+         progress: bool = False) -> Transform:
+    """The transform registered as ``name``, built with the options it uses.
+
+    Parameters
+    ----------
+    name : str
+        One of :func:`names`.
+    samples, seed, groups : int
+        Monte Carlo sample count, seed and number of independent groups.
+    order : int
+        Gauss–Hermite order per dimension.
+    workers, scheduler, client, progress
+        Where Monte Carlo runs by default (:class:`~symmon.transforms.montecarlo.Executor`).
+
+    Raises
+    ------
+    SymmonError
+        For an unknown name.
+    """
+    if name not in _PRESETS:
+        raise SymmonError(f"unknown transform {name!r}; use one of {names()}")
+    return _PRESETS[name].factory(samples=samples, seed=seed, order=order, groups=groups, workers=workers,
+                                  scheduler=scheduler, client=client, progress=progress)
+
+
+def _mc(qmc: bool) -> Callable[..., Transform]:
+    def factory(samples: int, seed: int, groups: int, workers: int | None, scheduler: str | None,
+                client: Any, progress: bool, **_: Any) -> Transform:
+        return MonteCarlo(samples, seed=seed, qmc=qmc, groups=groups, workers=workers, scheduler=scheduler,
+                          client=client, progress=progress)
+
+    return factory
+
+
+register("tt1", "first-order Taylor (the EKF's linearisation)", lambda **_: TT1())
+register("tt2", "second-order Taylor", lambda **_: TT2())
+register("ut1", "unscented transform, alpha = 1, beta = 0, kappa = 3 - n", lambda **_: UT.ut1())
+register("ut2", "unscented transform, alpha = 1e-3, beta = 2, kappa = 0", lambda **_: UT.ut2())
+register("ct", "the third-degree cubature rule (2n points)", lambda **_: UT.cubature())
+register("gh", "Gauss-Hermite quadrature of a given order", lambda order, **_: GaussHermite(order))
+register("qmc", "randomised quasi-Monte Carlo (scrambled Sobol' groups)", _mc(True))
+register("mc", "Monte Carlo with jackknife standard errors", _mc(False))
+
+#: The names :func:`symmon.compare` uses by default, with ``samples=10**5``.
+COMPARE = ("tt1", "tt2", "ut1", "ct", "gh", "mc")
+
+
+def compare_set() -> list[Transform]:
+    """The transforms :func:`symmon.compare` uses by default (:data:`COMPARE`)."""
+    return [make(n, samples=10**5) for n in COMPARE]
