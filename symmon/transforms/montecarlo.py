@@ -205,8 +205,8 @@ def run_groups(fn: Callable[[J, threading.Event], R], jobs: Sequence[J], workers
     exception propagates, within about one chunk's time instead of the remaining groups'.
     """
     stop = threading.Event()
-    if workers == 1:
-        return [fn(j, stop) for j in progress_bar(jobs, desc, progress)]
+    # Even one worker runs off the main thread: the main thread then only waits, where a
+    # Ctrl-C is always seen at once (inline, a SIGINT was sometimes lost in the kernel loop).
     pool = ThreadPoolExecutor(workers)
     try:
         futures = [pool.submit(fn, j, stop) for j in jobs]
