@@ -6,8 +6,8 @@ With Σ_gg = Cov g, Σ_gu = Cov(g, u), Σ_uu = Cov u and Σ_c = Cov_v(E[g | v]),
 
 Σ_c is 0 without noise, B Σ_vv Bᵀ for additive noise g = f(u) + B v (29), and
 π̄ Σ_γγ π̄ᵀ for multiplicative noise g = f(u) + π(u)γ(v) (28).  For general noise the
-minimising n of (23) is n(v) = E[g | v] − E g (REFERENCE.md; our derivation, checked in
-``derivations/general_noise.py``), and Σ_c is computed by nested integration.
+minimising n of (23) is n(v) = E[g | v] − E g (our derivation under the paper's assumptions
+A1, A2, docs/guide/nonlinearity.md; checked in ``derivations/general_noise.py``), and Σ_c is computed by nested integration.
 
 TT1 gives M = 0 by construction: TT1 *is* the best affine approximation at the mean, so
 its residual D is exactly zero.  Use TT2 (closed form D ≈ ½[tr(H_i P H_j P)]), UT,

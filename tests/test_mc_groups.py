@@ -239,11 +239,18 @@ def test_a_failing_group_stops_the_others():
     (dict(chunk=MAX_CHUNK + 1), r"chunk = 1048577 is above the limit 2\*\*20"),
     (dict(n=2**40, groups=16, qmc=True), r"at most 2\*\*30 points per group, .* needs 68719476736"),
     (dict(workers=True), "workers must be >= 1, got True"),
+    (dict(n=1.5e5 + 0.5), "n must be a positive integer, got 150000.5"),
 ])
 def test_monte_carlo_limits(kw, match):
     """Each setting is checked when the transform is made, before any work or memory."""
     with pytest.raises(SymmonError, match=match):
         sm.MonteCarlo(**kw)
+
+
+def test_an_integral_float_count_is_a_count():
+    """MonteCarlo(n=1e6) is the integer 10**6 (issue 16): same transform, same numbers."""
+    mc = sm.MonteCarlo(n=1e6, groups=16.0)
+    assert mc == sm.MonteCarlo(n=10**6) and type(mc.n) is int and type(mc.groups) is int
 
 
 def test_the_limits_themselves_are_accepted():

@@ -468,7 +468,7 @@ class MonteCarlo(Transform):
     Parameters
     ----------
     n : int
-        Number of samples, 2·groups to 2⁵³ (with ``qmc=True``, rounded to ``groups`` times
+        Number of samples (an integral float such as 1e6 is accepted), 2·groups to 2⁵³ (with ``qmc=True``, rounded to ``groups`` times
         a power of 2, at most 2³⁰ per group).
     seed : int or None
         Seed of ``numpy.random.SeedSequence``, a non-negative integer; the same seed gives
@@ -511,6 +511,9 @@ class MonteCarlo(Transform):
         )
         for k, most, why in limits:
             v = getattr(self, k)
+            if isinstance(v, float) and v.is_integer():  # 1e6 is a count too
+                v = int(v)
+                object.__setattr__(self, k, v)
             if not _is_int(v) or v < 1:
                 raise SymmonError(f"MonteCarlo {k} must be a positive integer, got {v!r}")
             if v > most:
