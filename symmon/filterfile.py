@@ -49,7 +49,7 @@ from .angles import wrap_angle
 from .filters import Adaptive
 from .gaussian import Gaussian
 from .model import Model
-from .modelfile import (ModelFileError, _check_keys, _Context, _gaussian, _names, _params, _read, _toml,
+from .modelfile import (ModelFileError, _check_keys, _Context, _gaussian, _names, _params, read_toml,
                         parse_expression)
 from .propagate import compiled
 from .transforms import TT1, TT2, UT, GaussHermite
@@ -129,15 +129,7 @@ def load_filter_file(path: str | os.PathLike) -> FilterSpec:
         With the file name, for the same faults as :func:`symmon.modelfile.load_model_file`,
         and for a dynamics whose length is not the number of states, or a bad ``steps``.
     """
-    if _toml is None:
-        raise ImportError("reading scenario files on Python 3.10 needs the 'tomli' package (pip install tomli)")
-    path = Path(path)
-    raw = _read(path)
-    ctx = _Context(path, raw)
-    try:
-        doc = _toml.loads(raw)
-    except _toml.TOMLDecodeError as exc:
-        raise ModelFileError(f"{path}: invalid TOML: {exc}", source=str(path), reason=str(exc)) from None
+    path, ctx, doc = read_toml(path, "scenario files")
     _check_keys(ctx, doc, _KEYS, _REQUIRED, "")
     name = doc["name"]
     if not isinstance(name, str) or not name.strip():

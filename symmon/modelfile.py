@@ -381,6 +381,27 @@ def _units(ctx: _Context, table: Any, n_outputs: int, names: list[str]) -> dict[
     return units
 
 
+def read_toml(path: str | Path, what: str) -> tuple[Path, "_Context", dict]:
+    """Read and parse a TOML file with the checks of :func:`load_model_file`.
+
+    Returns the path, the error context (file name, line numbers) and the document.
+    """
+    if _toml is None:
+        raise ImportError(f"reading {what} on Python 3.10 needs the 'tomli' package (pip install tomli)")
+    path = Path(path)
+    raw = _read(path)
+    ctx = _Context(path, raw)
+    try:
+        doc = _toml.loads(raw)
+    except (_toml.TOMLDecodeError, ValueError) as exc:  # ValueError: an integer of over 4300 digits
+        # The message of tomllib ends with "(at line L, column C)".
+        raise ModelFileError(f"{path}: invalid TOML: {exc}", source=str(path), reason=str(exc)) from None
+    except RecursionError:
+        reason = "arrays or tables nested too deeply"
+        raise ModelFileError(f"{path}: invalid TOML: {reason}", source=str(path), reason=reason) from None
+    return path, ctx, doc
+
+
 def load_model_file(path: str | os.PathLike) -> ModelSpec:
     """Read a model file (TOML) into a :class:`ModelSpec`.
 
@@ -422,21 +443,7 @@ def load_model_file(path: str | os.PathLike) -> ModelSpec:
     >>> spec.u
     N([1, 10], [[0.25, 0], [0, 25]])
     """
-    if _toml is None:
-        raise ImportError("reading model files on Python 3.10 needs the 'tomli' package (pip install tomli)")
-    path = Path(path)
-    raw = _read(path)
-    ctx = _Context(path, raw)
-    try:
-        doc = _toml.loads(raw)
-    except _toml.TOMLDecodeError as exc:
-        # The message of tomllib ends with "(at line L, column C)".
-        raise ModelFileError(f"{path}: invalid TOML: {exc}", source=str(path), reason=str(exc)) from None
-    except ValueError as exc:  # an integer of more than 4300 digits
-        raise ModelFileError(f"{path}: invalid TOML: {exc}", source=str(path), reason=str(exc)) from None
-    except RecursionError:
-        reason = "arrays or tables nested too deeply"
-        raise ModelFileError(f"{path}: invalid TOML: {reason}", source=str(path), reason=reason) from None
+    path, ctx, doc = read_toml(path, "model files")
     _check_keys(ctx, doc, _TOP_KEYS, _REQUIRED_KEYS, "")
 
     name = doc["name"]
