@@ -15,6 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from symmon.reproduce import fig1, fig2
+
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
 DATA = ROOT / "docs" / "data"
@@ -30,8 +32,11 @@ def readme() -> str:
 
 
 def rows(name: str) -> list[dict[str, str]]:
+    """The rows of a committed CSV, by the short keys of its module's COLUMNS."""
+    columns = {"fig1.csv": fig1.COLUMNS, "fig2.csv": fig2.COLUMNS}[name]
+    by_header = {v: k for k, v in columns.items()}
     with open(DATA / name, newline="", encoding="utf-8") as fh:
-        return list(csv.DictReader(fh))
+        return [{by_header[h]: v for h, v in r.items()} for r in csv.DictReader(fh)]
 
 
 def printed(value: float, text: str) -> str:

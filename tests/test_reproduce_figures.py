@@ -20,8 +20,16 @@ def fig1_rows(tmp_path_factory):
     paths = fig1.run(out, samples=SAMPLES, progress=False, alphas=np.array([1e-3, 0.17, 10.0]))
     assert [p.name for p in paths] == ["fig1.png", "fig1.csv"]
     assert paths[0].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    with paths[1].open() as fh:
-        return list(csv.DictReader(fh))
+    return keyed(paths[1], fig1.COLUMNS)
+
+
+def keyed(path, columns: dict[str, str]) -> list[dict[str, str]]:
+    """The CSV's rows by the short keys of ``columns`` (the headers are descriptive)."""
+    with path.open(newline="", encoding="utf-8") as fh:
+        reader = csv.DictReader(fh)
+        assert reader.fieldnames == list(columns.values())
+        by_header = {v: k for k, v in columns.items()}
+        return [{by_header[h]: v for h, v in r.items()} for r in reader]
 
 
 def test_fig1_claim_at_alpha_017(fig1_rows):
@@ -43,8 +51,16 @@ def test_fig1_band_contains_both_units(fig1_rows):
 def fig2_rows(tmp_path_factory):
     out = tmp_path_factory.mktemp("fig2")
     paths = fig2.run(out, samples=SAMPLES, progress=False, alphas=np.array([0.1, 10.0]))
-    with paths[1].open() as fh:
-        return list(csv.DictReader(fh))
+    return keyed(paths[1], fig2.COLUMNS)
+
+
+def test_csv_headers_say_what_each_column_holds():
+    for columns in (fig1.COLUMNS, fig2.COLUMNS):
+        assert len(set(columns.values())) == len(columns)
+        for key, header in columns.items():
+            assert "," not in header and len(header) > len(key)
+            if key.endswith("_se"):
+                assert header.endswith("standard error")
 
 
 def test_fig2_bot_mons_coincide(fig2_rows):

@@ -23,12 +23,29 @@ from ..propagate import propagate
 from ..transforms import TT2, UT, MonteCarlo
 from ._common import ALPHA_LABEL, figure_style, progress_bar, pyplot, samples_text
 
-__all__ = ["run", "curves", "ALPHAS", "UNIT_SIZES"]
+__all__ = ["run", "curves", "ALPHAS", "UNIT_SIZES", "COLUMNS"]
 
 #: α grid of Figure 1, [1e-4, 1e2], with the α = 0.17 that the text quotes.
 ALPHAS = np.unique(np.append(np.logspace(-4, 2, 31), 0.17))
 #: Bearing unit sizes in rad: from 0.1 nrad to 10 Grad.
 UNIT_SIZES = np.logspace(-10, 10, 81)
+
+
+#: The CSV's columns: key of :func:`curves` → header that says what the column holds.
+COLUMNS = {
+    "alpha": "alpha (scale of the input covariance: P = alpha P0)",
+    "liu_rad": "Liu-Li normalised MoN (8) with the bearing in rad: Monte Carlo",
+    "liu_rad_se": "Liu-Li normalised MoN (8) with the bearing in rad: Monte Carlo standard error",
+    "liu_deg": "Liu-Li normalised MoN (8) with the bearing in deg: Monte Carlo",
+    "liu_deg_se": "Liu-Li normalised MoN (8) with the bearing in deg: Monte Carlo standard error",
+    "band_lo": "Liu-Li normalised MoN (8): least over bearing units 0.1 nrad to 10 Grad (Monte Carlo)",
+    "band_hi": "Liu-Li normalised MoN (8): greatest over bearing units 0.1 nrad to 10 Grad (Monte Carlo)",
+    "full": "unitless MoN with W^full (43): Monte Carlo",
+    "liu_rad_tt2": "Liu-Li normalised MoN (8) with the bearing in rad: TT2",
+    "liu_deg_tt2": "Liu-Li normalised MoN (8) with the bearing in deg: TT2",
+    "liu_rad_ut": "Liu-Li normalised MoN (8) with the bearing in rad: unscented transform ut1",
+    "liu_deg_ut": "Liu-Li normalised MoN (8) with the bearing in deg: unscented transform ut1",
+}
 
 
 def _scaled(m, size: float):
@@ -84,9 +101,7 @@ def run(outdir: str | Path = "results", samples: int = 10**6, seed: int = 0, pro
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     c = curves(alphas, samples, seed, progress)
-    cols = ["alpha", "liu_rad", "liu_rad_se", "liu_deg", "liu_deg_se", "band_lo", "band_hi", "full",
-            "liu_rad_tt2", "liu_deg_tt2", "liu_rad_ut", "liu_deg_ut"]
-    csv = write_csv(outdir / "fig1.csv", cols, zip(*[c[k] for k in cols]))
+    csv = write_csv(outdir / "fig1.csv", list(COLUMNS.values()), zip(*[c[k] for k in COLUMNS]))
     plt = pyplot()
     with figure_style():
         fig = _plot(plt, c, samples)

@@ -21,7 +21,7 @@ from ..transforms import TT2, UT, MonteCarlo
 from ..transforms.montecarlo import jackknife
 from ._common import ALPHA_LABEL, figure_style, progress_bar, pyplot, samples_text
 
-__all__ = ["run", "curves", "ALPHAS", "PROBLEMS"]
+__all__ = ["run", "curves", "ALPHAS", "PROBLEMS", "COLUMNS"]
 
 #: α grid of Figure 2, [1e-1, 1e1].
 ALPHAS = np.logspace(-1, 1, 21)
@@ -31,6 +31,28 @@ PROBLEMS = {
     "BOT": (bot, (1.0,)),
     "GMTI": (gmti, GMTI_UNITS["km-deg-kmh"]),
     "RDCOS": (rdcos, (RDCOS_UNITS["km"], 1.0)),
+}
+
+
+#: The CSV's columns: key of :func:`curves` → header that says what the column holds.
+#: "SI units" are [rad] for BOT, [m, rad, m/s] for GMTI, [m, -] for RDCOS; the second set
+#: is [km, deg, km/h] for GMTI and [km, -] for RDCOS (Sec. V).
+COLUMNS = {
+    "problem": "problem: BOT (45) / GMTI (46) / RDCOS (47)",
+    "alpha": "alpha (scale of the state covariance (44))",
+    "full": "unitless MoN with W^full (43): Monte Carlo",
+    "full_se": "unitless MoN with W^full (43): Monte Carlo standard error",
+    "diag": "unitless MoN with W^diag (42): Monte Carlo",
+    "diag_se": "unitless MoN with W^diag (42): Monte Carlo standard error",
+    "orig": "original normalised MoN (8) in SI units: Monte Carlo",
+    "orig_se": "original normalised MoN (8) in SI units: Monte Carlo standard error",
+    "orig_alt": "original normalised MoN (8) in the second unit set: Monte Carlo",
+    "full_tt2": "unitless MoN with W^full (43): TT2",
+    "diag_tt2": "unitless MoN with W^diag (42): TT2",
+    "orig_tt2": "original normalised MoN (8) in SI units: TT2",
+    "full_ut": "unitless MoN with W^full (43): unscented transform ut1",
+    "diag_ut": "unitless MoN with W^diag (42): unscented transform ut1",
+    "orig_ut": "original normalised MoN (8) in SI units: unscented transform ut1",
 }
 
 
@@ -88,11 +110,10 @@ def run(outdir: str | Path = "results", samples: int = 10**6, seed: int = 0, pro
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     c = curves(alphas, samples, seed, progress)
-    keys = ["full", "full_se", "diag", "diag_se", "orig", "orig_se", "orig_alt",
-            "full_tt2", "diag_tt2", "orig_tt2", "full_ut", "diag_ut", "orig_ut"]
+    keys = list(COLUMNS)[2:]
     rows = [[name, c[name]["alpha"][i]] + [c[name][k][i] for k in keys]
             for name in c for i in range(len(c[name]["alpha"]))]
-    csv = write_csv(outdir / "fig2.csv", ["problem", "alpha"] + keys, rows)
+    csv = write_csv(outdir / "fig2.csv", list(COLUMNS.values()), rows)
     plt = pyplot()
     with figure_style():
         fig = _plot(plt, c, samples)
