@@ -443,7 +443,8 @@ def test_joint_moments_condition_at_the_cut_equals_the_rotated_geometry():
     y_cut = np.array([1010.0, float(wrap_angle(0.05 + np.pi))])  # −3.09, the prediction is ≈ +π
     a, b = at_cut.condition(y_cut), rotated.condition(y_rot)
     np.testing.assert_allclose(a.mean, -b.mean, rtol=ROTATION_TOL)
-    np.testing.assert_allclose(a.cov, b.cov, rtol=ROTATION_TOL)
+    # The off-diagonal is 0 up to rounding (its sign is noise): compare at the matrix's scale.
+    np.testing.assert_allclose(a.cov, b.cov, rtol=ROTATION_TOL, atol=ROTATION_TOL * np.abs(b.cov).max())
     # by hand, with the declaration passed explicitly: the same Gaussian
     explicit = at_cut.joint.condition([2, 3], y_cut, angles=at_cut.joint_angles)
     np.testing.assert_array_equal(a.mean, explicit.mean)
