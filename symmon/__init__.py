@@ -42,6 +42,9 @@ from .transforms import Exact as Exact
 from .transforms import GaussHermite as GaussHermite
 from .transforms import MonteCarlo as MonteCarlo
 from .transforms import Transform as Transform
+from .transforms import Moments as Moments
+from .transforms import Cubature5 as Cubature5
+from .transforms import Executor as Executor
 from .transforms.quadrature import quadrature_error as quadrature_error
 
 __version__ = "0.1.0"
@@ -53,7 +56,7 @@ __all__ = [
     "SymmonError", "Gaussian", "fuse", "KalmanFilter", "Model", "JointMoments",
     "NonlinearityMeasure", "nonlinearity", "compare",
     "propagate", "propagate_many", "advise", "Advice",
-    "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Transform",
+    "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Cubature5", "Transform", "Moments", "Executor",
     "NonlinearKalmanFilter", "Adaptive",
 ]
 
