@@ -28,6 +28,7 @@ beside.
 from __future__ import annotations
 
 import time
+from types import SimpleNamespace
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -42,7 +43,7 @@ from .nonlinearity import nonlinearity
 from .propagate import propagate
 from .transforms import TT1, TT2, UT, GaussHermite, MonteCarlo, Transform
 
-__all__ = ["advise", "Advice", "moment_error", "CANDIDATES", "cost"]
+__all__ = ["advise", "Advice", "moment_error", "moment_distance", "whiteners", "CANDIDATES", "cost"]
 
 #: The candidates, by name, in the order of the table.
 CANDIDATES: tuple[tuple[str, Transform], ...] = (
@@ -64,22 +65,46 @@ REFERENCE_MARGIN = 10.0
 MAX_REFERENCE_NODES = 200_000
 
 
-def _whitener(C: np.ndarray, what: str) -> np.ndarray:
-    """A matrix A with A C Aᵀ = I on the range of C (pseudo-inverse square root).
+def whiteners(C: np.ndarray) -> np.ndarray:
+    """Batched A_k with A_k C_k A_kᵀ = I on the range of each C_k (K, d, d).
 
-    The eigen-decomposition is of the correlation matrix, so that the rank decision does
-    not depend on the units of the components.
+    A pseudo-inverse square root: rows for the null space of C_k are zero.  The
+    eigen-decomposition is of the correlation matrix, so that the rank decision does not
+    depend on the units of the components.
     """
-    d = np.sqrt(np.clip(np.diag(C), 0.0, None))
-    live = d > 0
-    if not live.any():
-        raise SymmonError(f"the reference {what} is zero: the error cannot be measured in its units")
-    D = np.zeros_like(d)
-    D[live] = 1.0 / d[live]
-    R = D[:, None] * C * D[None, :]
-    lam, V = np.linalg.eigh((R + R.T) / 2)
-    keep = lam > lam.max() * 1e-12
-    return (V[:, keep] / np.sqrt(lam[keep])).T * D[None, :]
+    d = np.sqrt(np.clip(np.einsum("...ii->...i", C), 0.0, None))
+    D = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
+    Rm = D[:, :, None] * C * D[:, None, :]
+    lam, V = np.linalg.eigh(0.5 * (Rm + np.swapaxes(Rm, 1, 2)))
+    inv = np.where(lam > lam[:, -1:] * 1e-12, 1.0 / np.sqrt(np.clip(lam, 1e-300, None)), 0.0)
+    return np.swapaxes(V * inv[:, None, :], 1, 2) * D[:, None, :]
+
+
+def moment_distance(a: Any, b: Any, Ay: np.ndarray, Aw: np.ndarray, angles: frozenset[int]) -> np.ndarray:
+    """The unitless distance (module notes) of batched moments ``a`` and ``b`` (K,).
+
+    ``a`` and ``b`` have ``mean`` (K, n_y), ``cov`` (K, n_y, n_y) and ``cross_cov``
+    (K, n_y, n_w); ``Ay`` and ``Aw`` are :func:`whiteners` of Cov y and of the input
+    covariance; angle outputs' mean differences are wrapped.
+    """
+    dmu = a.mean - b.mean
+    if angles:
+        idx = sorted(angles)
+        dmu[:, idx] = wrap_angle(dmu[:, idx])
+    e_mean = np.linalg.norm(np.einsum("rij,rj->ri", Ay, dmu), axis=-1)
+    e_cov = np.linalg.norm(Ay @ (a.cov - b.cov) @ np.swapaxes(Ay, 1, 2), 2, axis=(1, 2))
+    e_cross = np.linalg.norm(Ay @ (a.cross_cov - b.cross_cov) @ np.swapaxes(Aw, 1, 2), 2, axis=(1, 2))
+    return np.maximum(e_mean, np.maximum(e_cov, e_cross))
+
+
+def _reference_whiteners(ref: JointMoments) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`whiteners` of the reference's Cov y and Cov u; an error if either is zero."""
+    out = []
+    for C, what in ((ref.cov, "covariance Cov y"), (ref.input.cov, "input covariance Cov u")):
+        if not (np.diag(C) > 0).any():
+            raise SymmonError(f"the reference {what} is zero: the error cannot be measured in its units")
+        out.append(whiteners(C[None]))
+    return out[0], out[1]
 
 
 def moment_error(m: JointMoments, ref: JointMoments) -> float:
@@ -95,22 +120,17 @@ def moment_error(m: JointMoments, ref: JointMoments) -> float:
     float
         max of the whitened mean, covariance and cross-covariance differences.
     """
-    Ay = _whitener(ref.cov, "covariance Cov y")
-    Au = _whitener(ref.input.cov, "input covariance Cov u")
-    dmu = m.mean - ref.mean
-    if ref.angles:
-        idx = sorted(ref.angles)
-        dmu[idx] = wrap_angle(dmu[idx])
-    e_mean = np.linalg.norm(Ay @ dmu)
-    e_cov = np.linalg.norm(Ay @ (m.cov - ref.cov) @ Ay.T, 2)
-    e_cross = np.linalg.norm(Ay @ (m.cross_cov - ref.cross_cov) @ Au.T, 2)
-    return float(max(e_mean, e_cov, e_cross))
+    Ay, Au = _reference_whiteners(ref)
+
+    def one(x: JointMoments) -> SimpleNamespace:  # a batch of one
+        return SimpleNamespace(mean=x.mean[None], cov=x.cov[None], cross_cov=x.cross_cov[None])
+
+    return float(moment_distance(one(m), one(ref), Ay, Au, ref.angles)[0])
 
 
 def _error_bound(ref: JointMoments, err: dict[str, np.ndarray]) -> float:
     """The unitless size of an error bound given entrywise (mean, cov, cross_cov)."""
-    Ay = _whitener(ref.cov, "covariance Cov y")
-    Au = _whitener(ref.input.cov, "input covariance Cov u")
+    Ay, Au = (A[0] for A in _reference_whiteners(ref))
     e_mean = np.linalg.norm(Ay @ np.abs(err["mean"]))
     # |A E Aᵀ|₂ ≤ ‖ |A| |E| |A|ᵀ ‖₂ for an entrywise bound |E|.
     e_cov = np.linalg.norm(np.abs(Ay) @ np.abs(err["cov"]) @ np.abs(Ay).T, 2)

@@ -65,6 +65,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy import stats
 
+from .advise import cost, moment_distance, whiteners
 from .angles import wrap_angle
 from .codegen import _wrap_sx
 from .compile import build_shared_library, generated_c, has_compiler
@@ -589,29 +590,6 @@ class Adaptive:
         return f"Adaptive(tol={self.tol:g}, candidates=[{', '.join(_method(t) for t in self.candidates)}])"
 
 
-def _whiteners(C: np.ndarray) -> np.ndarray:
-    """Batched A with A C Aᵀ = I on the range of each C (R, d, d)."""
-    d = np.sqrt(np.clip(np.einsum("...ii->...i", C), 0.0, None))
-    D = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
-    Rm = D[:, :, None] * C * D[:, None, :]  # the correlation: the rank test ignores units
-    lam, V = np.linalg.eigh(0.5 * (Rm + np.swapaxes(Rm, 1, 2)))
-    inv = np.where(lam > lam[:, -1:] * 1e-12, 1.0 / np.sqrt(np.clip(lam, 1e-300, None)), 0.0)
-    return np.swapaxes(V * inv[:, None, :], 1, 2) * D[:, None, :]
-
-
-def _distance(a, b, Ay: np.ndarray, Aw: np.ndarray, angles: frozenset[int]) -> np.ndarray:
-    """The unitless distance of batch moments a and b (advise.moment_error, batched)."""
-    dmu = a.mean - b.mean
-    if angles:
-        idx = sorted(angles)
-        dmu[:, idx] = wrap_angle(dmu[:, idx])
-    AyT = np.swapaxes(Ay, 1, 2)
-    e_mean = np.linalg.norm(np.einsum("rij,rj->ri", Ay, dmu), axis=-1)
-    e_cov = np.linalg.norm(Ay @ (a.cov - b.cov) @ AyT, 2, axis=(1, 2))
-    e_cross = np.linalg.norm(Ay @ (a.cross_cov - b.cross_cov) @ np.swapaxes(Aw, 1, 2), 2, axis=(1, 2))
-    return np.maximum(e_mean, np.maximum(e_cov, e_cross))
-
-
 def _decide(model: Model, m: np.ndarray, C: np.ndarray, add: np.ndarray | None, angles: frozenset[int],
             order: list[Transform], reference: Transform, tol: float):
     """Index (into ``order``) of each run's choice, and the mean and covariance it gives.
@@ -621,27 +599,27 @@ def _decide(model: Model, m: np.ndarray, C: np.ndarray, add: np.ndarray | None, 
     cm = compiled(model)
     plus = (lambda c: c) if add is None else (lambda c: c + add)
     t1 = TT1().batch(cm, m, C, angles)
-    Aw = _whiteners(C)
+    Aw = whiteners(C)
     choice = np.full(m.shape[0], len(order) - 1)
     mean, cov = t1.mean.copy(), plus(t1.cov)  # overwritten unless TT1 is the choice or the fallback
     open_ = np.ones(m.shape[0], dtype=bool)
     i1 = next((i for i, t in enumerate(order) if t.taylor_order == 1), None)
     if i1 is not None:  # TT1 is the cheapest: its closed-form test comes first
         t2 = TT2().batch(cm, m, C, angles)
-        ok = _distance(t1, t2, _whiteners(plus(t2.cov)), Aw, angles) <= tol
+        ok = moment_distance(t1, t2, whiteners(plus(t2.cov)), Aw, angles) <= tol
         choice[ok] = i1
         open_ = ~ok
     rest = np.flatnonzero(open_)
     if rest.size:
         ms, Cs, Aws = m[rest], C[rest], Aw[rest]
         ref = reference.batch(cm, ms, Cs, angles)
-        Ay = _whiteners(plus(ref.cov))
+        Ay = whiteners(plus(ref.cov))
         left = np.ones(rest.size, dtype=bool)
         for i, t in enumerate(order):
             if t.taylor_order == 1:
                 continue
             b = t.batch(cm, ms, Cs, angles)
-            ok = (_distance(b, ref, Ay, Aws, angles) <= tol) & left
+            ok = (moment_distance(b, ref, Ay, Aws, angles) <= tol) & left
             if i == len(order) - 1:
                 ok = left  # the most expensive candidate is the fallback
             choice[rest[ok]] = i
@@ -656,7 +634,6 @@ def _adaptive_run(kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: np.ndarray, P0
     f, h = kf.f_model, kf.h_model
     runs, K = Y.shape[:2]
     n, n_y = f.n_u, h.n_y
-    from .advise import cost
 
     order = sorted(ad.candidates, key=lambda t: cost(t, n))  # stable: ties keep the given order
     names = np.array([_method(t) for t in order])

@@ -552,8 +552,7 @@ def test_cli_filter_bad_options_are_usage_errors(capsys, argv, match):
 
 def test_adaptive_distance_is_the_unitless_error_of_advise():
     """The batched distance of the adaptive rule equals sm.advise's moment_error."""
-    from symmon.advise import moment_error
-    from symmon.filters import _distance, _whiteners
+    from symmon.advise import moment_distance, moment_error, whiteners
     from symmon.propagate import compiled
 
     _, h = cv_models()
@@ -562,5 +561,5 @@ def test_adaptive_distance_is_the_unitless_error_of_advise():
     cm, angles = compiled(h), frozenset(h.angle_outputs)
     ba = sm.UT.cubature().batch(cm, u.mean[None], u.cov[None], angles)
     bb = sm.GaussHermite(5).batch(cm, u.mean[None], u.cov[None], angles)
-    d = _distance(ba, bb, _whiteners(bb.cov), _whiteners(u.cov[None]), angles)[0]
+    d = moment_distance(ba, bb, whiteners(bb.cov), whiteners(u.cov[None]), angles)[0]
     assert d == pytest.approx(moment_error(a, b), rel=1e-10)
