@@ -37,12 +37,14 @@ from __future__ import annotations
 
 from typing import Iterable
 
+import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
 from .errors import ShapeError, SymmonError
 
 __all__ = [
+    "wrap_casadi",
     "wrap_angle",
     "angle_diff",
     "circular_mean",
@@ -68,6 +70,18 @@ def wrap_angle(a: ArrayLike) -> np.ndarray:
     out = np.mod(np.asarray(a, dtype=float) + np.pi, 2 * np.pi) - np.pi
     # np.mod maps +π to −π; keep +π, which is the closed end of (−π, π].
     return np.where(out == -np.pi, np.pi, out)
+
+
+def wrap_casadi(a: ca.SX | ca.MX) -> ca.SX | ca.MX:
+    """:func:`wrap_angle` in a CasADi graph (generated C, compiled kernels and filter steps).
+
+    A floor-based mod, as ``np.mod``: (a + π) − 2π ⌊(a + π)/2π⌋ − π, with −π mapped to +π,
+    the closed end of (−π, π].
+    """
+    two_pi = 2 * np.pi
+    s = a + np.pi
+    out = s - two_pi * ca.floor(s / two_pi) - np.pi
+    return ca.if_else(out == -np.pi, np.pi, out)
 
 
 def angle_diff(a: ArrayLike, b: ArrayLike) -> np.ndarray:

@@ -39,6 +39,7 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
+from .angles import wrap_casadi
 from .cnames import c_identifier, comment_text, is_casadi_name
 from .errors import SymmonError
 from .io import atomic_write_text
@@ -49,15 +50,6 @@ from .transforms import UT
 __all__ = ["export_c", "moment_functions"]
 
 # --------------------------------------------------------------------------- SX building blocks
-def _wrap_sx(a: ca.SX) -> ca.SX:
-    """Wrap to (−π, π] like :func:`symmon.transforms.base.wrap_angle` (floor-based mod)."""
-    two_pi = 2 * np.pi
-    s = a + np.pi
-    out = s - two_pi * ca.floor(s / two_pi) - np.pi
-    # The floor-based mod maps +π to −π; keep +π, the closed end of (−π, π].
-    return ca.if_else(out == -np.pi, np.pi, out)
-
-
 def _chol_lower(P: ca.MX) -> ca.MX:
     """Lower Cholesky factor L (L Lᵀ = P) of a symbolic matrix, reading its lower triangle.
 
@@ -166,7 +158,7 @@ def _tt2_mx(cm, m: ca.MX, P: ca.MX, angles: list[int]):
         half_tr2 = 0.5 * ca.mtimes(F.T, Ft)  # ⟨H_i P, (H_j P)ᵀ⟩ = tr(H_i P H_j P)
     mean = y_m + half_tr
     if angles:
-        mean[angles] = _wrap_sx(mean[angles])
+        mean[angles] = wrap_casadi(mean[angles])
     return mean, cov + half_tr2, JP
 
 
@@ -191,7 +183,7 @@ def _ut_mx(g: ca.Function, n_y: int, m: ca.MX, P: ca.MX, ut: UT, angles: list[in
         mean[angles] = ca.atan2(ca.mtimes(ca.sin(Y[angles, :]), wm), ca.mtimes(ca.cos(Y[angles, :]), wm))
     R = Y - ca.repmat(mean, 1, N)
     if angles:
-        R[angles, :] = _wrap_sx(R[angles, :])
+        R[angles, :] = wrap_casadi(R[angles, :])
     RW = ca.mtimes(R, ca.diag(ca.DM(wc_a)))
     return mean, ca.mtimes(RW, R.T), ca.mtimes(RW, D.T)
 

@@ -66,8 +66,7 @@ from numpy.typing import ArrayLike
 from scipy import stats
 
 from .advise import cost, moment_distance, whiteners
-from .angles import wrap_angle
-from .codegen import _wrap_sx
+from .angles import wrap_angle, wrap_casadi
 from .compile import build_shared_library, generated_c, has_compiler
 from .errors import ShapeError, SymmonError
 from .estimation import _check_gaussian, _check_model, _noise_cov, _readonly
@@ -87,7 +86,7 @@ def _wrap_some(v: ca.SX, idx: frozenset[int]) -> ca.SX:
     """``v`` with the components ``idx`` wrapped to (−π, π]."""
     if not idx:
         return v
-    return ca.vertcat(*[_wrap_sx(v[i]) if i in idx else v[i] for i in range(v.shape[0])])
+    return ca.vertcat(*[wrap_casadi(v[i]) if i in idx else v[i] for i in range(v.shape[0])])
 
 
 def _unit_points(transform: Transform, d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -180,7 +179,7 @@ def _tt2_sx(cm, m: ca.SX, P: ca.SX, angles: list[int]):
             second[i, j] = 0.5 * ca.sum1(ca.sum2(HP[i] * HP[j].T))  # tr(H_i P H_j P)
     cov = cov + second
     if angles:
-        mean = ca.vertcat(*[_wrap_sx(mean[i]) if i in angles else mean[i] for i in range(n_y)])
+        mean = ca.vertcat(*[wrap_casadi(mean[i]) if i in angles else mean[i] for i in range(n_y)])
     return mean, cov, JP
 
 

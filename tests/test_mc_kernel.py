@@ -17,7 +17,8 @@ from symmon.compile import CompiledModel, has_compiler
 from symmon.errors import SamplingError, ShapeError
 from symmon.problems import bot, gmti
 from symmon.propagate import compiled
-from symmon.transforms.mc_kernel import FUSE_MAX_NW, SampleKernel, _wrap, sample_kernel
+from symmon.angles import wrap_casadi
+from symmon.transforms.mc_kernel import FUSE_MAX_NW, SampleKernel, sample_kernel
 
 #: A reordered sum of 4 products and one evaluation of g: a few ulps of the column scale.
 ROUNDING = 1e-13
@@ -87,7 +88,7 @@ def test_wrap_in_the_kernel_is_wrap_angle():
     import casadi as ca
 
     a = ca.SX.sym("a")
-    f = ca.Function("w", [a], [_wrap(a)])
+    f = ca.Function("w", [a], [wrap_casadi(a)])
     x = np.concatenate([np.linspace(-20, 20, 4001), np.pi * np.arange(-7, 8), [np.nextafter(np.pi, 4)]])
     got = np.array(f.map(len(x))(x[None])).ravel()
     # Floor-based and np.mod agree except by rounding in (a + π) mod 2π; both give (−π, π].

@@ -28,6 +28,7 @@ from typing import Sequence
 import casadi as ca
 import numpy as np
 
+from ..angles import wrap_casadi
 from ..ccache import NativeLibrary
 from ..compile import CompiledModel, generated_c
 from ..errors import ShapeError, SymmonError
@@ -55,13 +56,6 @@ CASADI_SYMBOL_EXPORT int {name}_rows(const casadi_real* z, const casadi_real* p,
   return 0;
 }}
 """
-
-
-def _wrap(a: ca.SX) -> ca.SX:
-    """wrap_angle in SX: (a + π) mod 2π − π, with −π mapped to +π."""
-    b = a + np.pi
-    out = b - 2 * np.pi * ca.floor(b / (2 * np.pi)) - np.pi
-    return ca.if_else(out == -np.pi, np.pi, out)
 
 
 class SampleKernel:
@@ -107,7 +101,7 @@ class SampleKernel:
         ref = q[self.n_z:]
         y = ca.substitute(cm.y_sx, cm.w_sx, w)
         if angles:
-            y = ca.vertcat(*[ref[i] + _wrap(y[i] - ref[i]) if i in angles else y[i] for i in range(ny)])
+            y = ca.vertcat(*[ref[i] + wrap_casadi(y[i] - ref[i]) if i in angles else y[i] for i in range(ny)])
         ya = ca.vertcat(*[y[i] for i in angles]) if angles else ca.SX(0, 1)
         zfull = ca.vertcat(y, w, ca.sin(ya), ca.cos(ya))
         out = ca.densify(ca.vertcat(zfull - s, 1))
