@@ -30,7 +30,9 @@ from .filters import Adaptive as Adaptive
 from .model import Model as Model
 from .modelfile import load_model_file as load_model_file
 from .moments import JointMoments as JointMoments
-from .nonlinearity import NonlinearityMeasure as NonlinearityMeasure
+from .measure import MonParts as MonParts
+from .measure import NonlinearityMeasure as NonlinearityMeasure
+from .measure import mon_from_moments as mon_from_moments
 from .nonlinearity import compare as compare
 from .nonlinearity import nonlinearity as nonlinearity
 from .propagate import propagate as propagate
@@ -54,7 +56,7 @@ __all__ = [
     "modelfile", "mmse", "problems", "transforms", "weights", "codegen", "export_c",
     "load_model_file",
     "SymmonError", "Gaussian", "fuse", "KalmanFilter", "Model", "JointMoments",
-    "NonlinearityMeasure", "nonlinearity", "compare",
+    "NonlinearityMeasure", "MonParts", "mon_from_moments", "nonlinearity", "compare",
     "propagate", "propagate_many", "advise", "Advice",
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Cubature5", "Transform", "Moments", "Executor",
     "NonlinearKalmanFilter", "Adaptive",

@@ -211,10 +211,8 @@ def _reference(model: Model, u: Gaussian, v: Gaussian | None, tol: float, sample
     gh = GaussHermite(REFERENCE_ORDER, error_estimate=True)
     nodes = GaussHermite(REFERENCE_ORDER + 2).cost(n_w)
     if nodes <= MAX_REFERENCE_NODES:
-        ref = propagate(model, u, v, gh)
-        est = ref.info["error_estimate"]
-        bound = _error_bound(ref, {"mean": est["mean"][0], "cov": est["cov"][0],
-                                   "cross_cov": est["cross_cov"][0][:, :model.n_u]})
+        ref = propagate(model, u, v, transform=gh)
+        bound = _error_bound(ref, ref.error)
         if bound <= tol / REFERENCE_MARGIN:
             return GaussHermite(REFERENCE_ORDER), f"Gauss-Hermite {REFERENCE_ORDER}", ref, bound, notes
         notes.append(f"Gauss-Hermite {REFERENCE_ORDER} did not converge (error estimate {bound:.1e}): "
@@ -222,7 +220,7 @@ def _reference(model: Model, u: Gaussian, v: Gaussian | None, tol: float, sample
     else:
         notes.append(f"Gauss-Hermite {REFERENCE_ORDER + 2} needs {nodes:,} nodes: Monte Carlo is the reference")
     mc = MonteCarlo(samples, seed=seed)
-    ref = propagate(model, u, v, mc)
+    ref = propagate(model, u, v, transform=mc)
     bound = 2.0 * _error_bound(ref, ref.stderr)
     if bound > tol:
         notes.append(f"the Monte Carlo reference is only good to {bound:.1e} (2 SE) > tol: "
@@ -272,7 +270,7 @@ def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = 1e
         raise SymmonError("candidates is empty")
     n_w = model.n_u + model.n_v
     ref_t, ref_name, ref, ref_err, notes = _reference(model, u, v, tol, samples, seed)
-    ref_mon = nonlinearity(model, u, v, weight, ref_t).value
+    ref_mon = nonlinearity(model, u, v, weight=weight, transform=ref_t).value
     rows = []
     for name, t in cands:
         if not t.stochastic and cost(t, n_w) > MAX_REFERENCE_NODES:
@@ -280,7 +278,7 @@ def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = 1e
             continue
         t0 = time.perf_counter()
         try:
-            res = nonlinearity(model, u, v, weight, t)
+            res = nonlinearity(model, u, v, weight=weight, transform=t)
         except SymmonError as exc:  # e.g. TT at a point where g is not differentiable
             notes.append(f"{name} failed: {exc}")
             continue

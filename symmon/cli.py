@@ -81,11 +81,8 @@ class _UsageError(Exception):
     """A combination of options that argparse cannot check by itself (exit code 2)."""
 
 
-def transform_from_name(name: str, samples: int = 10**6, seed: int = 0, order: int = 5,
-                        workers: int | None = None, scheduler: str | None = None, client: Any = None,
-                        groups: int = 16):
-    """A transform from its registered short name (:mod:`symmon.transforms.registry`),
-    with a progress bar for Monte Carlo.
+def transform_from_name(name: str, samples: int = 10**6, seed: int = 0, order: int = 5, groups: int = 16):
+    """A transform from its registered short name (:mod:`symmon.transforms.registry`).
 
     Parameters
     ----------
@@ -96,10 +93,9 @@ def transform_from_name(name: str, samples: int = 10**6, seed: int = 0, order: i
         Monte Carlo sample count and seed (``mc`` and ``qmc`` only).
     order : int
         Gauss-Hermite order per dimension (``gh`` only).
-    workers, scheduler, client, groups
-        Where Monte Carlo runs (``mc`` and ``qmc`` only): threads, a local Dask scheduler
-        name, or a ``dask.distributed.Client``, and in how many independent groups (one
-        task each; see :class:`symmon.MonteCarlo`).
+    groups : int
+        In how many independent groups Monte Carlo runs (``mc`` and ``qmc`` only; see
+        :class:`symmon.MonteCarlo`).  Where they run is the command's executor.
 
     Returns
     -------
@@ -112,8 +108,7 @@ def transform_from_name(name: str, samples: int = 10**6, seed: int = 0, order: i
     """
     from .transforms.registry import make
 
-    return make(name, samples=samples, seed=seed, order=order, groups=groups, workers=workers,
-                scheduler=scheduler, client=client, progress=True)
+    return make(name, samples=samples, seed=seed, order=order, groups=groups)
 
 
 def _transform_names() -> tuple[str, ...]:
@@ -154,17 +149,14 @@ DASK_CONNECT_TIMEOUT = 10
 
 
 @contextlib.contextmanager
-def _mc_backend(args: argparse.Namespace) -> Iterator[dict[str, Any]]:
-    """The Monte Carlo settings of ``--workers``, ``--groups`` and ``--dask``; a Client to
-    a ``--dask`` address is connected for the command and closed after it."""
+def _executor(args: argparse.Namespace) -> Iterator[Any]:
+    """The :class:`~symmon.Executor` of ``--workers`` and ``--dask``, with progress; a
+    Client to a ``--dask`` address is connected for the command and closed after it."""
+    from .transforms.montecarlo import Executor
+
     target = args.dask
-    settings: dict[str, Any] = {"workers": args.workers, "scheduler": None, "client": None, "groups": args.groups}
-    if target is None:
-        yield settings
-        return
-    if target in DASK_LOCAL:
-        settings["scheduler"] = target
-        yield settings
+    if target is None or target in DASK_LOCAL:
+        yield Executor(workers=args.workers, scheduler=target, progress=True)
         return
     # An address, checked by _dask_target when the arguments were parsed.
     from .transforms.montecarlo import connect_dask
@@ -177,8 +169,7 @@ def _mc_backend(args: argparse.Namespace) -> Iterator[dict[str, Any]]:
         raise SymmonError(f"cannot connect to the Dask scheduler at {target}: "
                           f"{type(exc).__name__}: {exc}") from exc
     try:
-        settings["client"] = client
-        yield settings
+        yield Executor(workers=args.workers, client=client, progress=True)
     finally:
         client.close()
 
@@ -292,9 +283,9 @@ def cmd_propagate(args: argparse.Namespace) -> int:
     from .propagate import propagate
 
     spec = _load(args.file)
-    with _mc_backend(args) as run_on:
-        tr = transform_from_name(args.transform, args.samples, args.seed, args.order, **run_on)
-        m = propagate(spec.model, spec.u, spec.v, tr)
+    tr = transform_from_name(args.transform, args.samples, args.seed, args.order, args.groups)
+    with _executor(args) as ex:
+        m = propagate(spec.model, spec.u, spec.v, transform=tr, executor=ex)
     for name, value in (("E y", m.mean), ("Cov y", m.cov), ("Cov(y, u)", m.cross_cov),
                         *((f"the standard error of {k}", v) for k, v in (m.stderr or {}).items())):
         _finite(name, value)
@@ -450,21 +441,22 @@ def cmd_nonlinearity(args: argparse.Namespace) -> int:
         raise _UsageError(f"--csv and --plot name the same file: {args.csv}")
     if args.plot and importlib.util.find_spec("matplotlib") is None:
         raise SymmonError("--plot needs matplotlib: pip install 'symmon[plot]'")
-    with _mc_backend(args) as run_on:
-        return _nonlinearity(args, run_on)
+    with _executor(args) as ex:
+        return _nonlinearity(args, ex)
 
 
-def _nonlinearity(args: argparse.Namespace, run_on: dict[str, Any]) -> int:
+def _nonlinearity(args: argparse.Namespace, ex: Any) -> int:
     from .gaussian import Gaussian
     from .io import save_figure, write_csv
     from .nonlinearity import nonlinearity
     from .reproduce._common import progress_bar, pyplot
 
     spec = _load(args.file)
-    tr = transform_from_name(args.transform, args.samples, args.seed, args.order, **run_on)
+    tr = transform_from_name(args.transform, args.samples, args.seed, args.order, args.groups)
     unit = _mon_unit(spec, args.weight)
     if args.alpha_sweep is None:
-        res = _finite_measure(nonlinearity(spec.model, spec.u, spec.v, args.weight, tr), "")
+        res = _finite_measure(nonlinearity(spec.model, spec.u, spec.v, weight=args.weight, transform=tr,
+                                           executor=ex), "")
         if args.json:
             _print_json({"model": spec.model.name, **_measure_json(res), "unit": unit})
             return 0
@@ -476,7 +468,8 @@ def _nonlinearity(args: argparse.Namespace, run_on: dict[str, Any]) -> int:
     # Σ_uu ← α Σ_uu, as in the papers' figures (the noise covariance is kept).
     rows, notes = [], []
     for a in progress_bar(args.alpha_sweep, "alpha sweep", not args.no_progress):
-        res = nonlinearity(spec.model, Gaussian(spec.u.mean, a * spec.u.cov), spec.v, args.weight, tr)
+        res = nonlinearity(spec.model, Gaussian(spec.u.mean, a * spec.u.cov), spec.v, weight=args.weight,
+                           transform=tr, executor=ex)
         _finite_measure(res, f" at alpha={a:.6g}")
         rows.append((float(a), res.value, res.stderr))  # stderr None: not a Monte Carlo transform
         notes.extend(n for n in res.notes if n not in notes)
@@ -519,10 +512,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     spec = _load(args.file)
     rows = []
-    with _mc_backend(args) as run_on:
+    with _executor(args) as ex:
         for name in progress_bar(_transform_names(), "transforms", not args.no_progress):
-            tr = transform_from_name(name, args.samples, args.seed, args.order, **run_on)
-            res = _finite_measure(nonlinearity(spec.model, spec.u, spec.v, args.weight, tr), f" by {name}")
+            tr = transform_from_name(name, args.samples, args.seed, args.order, args.groups)
+            res = _finite_measure(nonlinearity(spec.model, spec.u, spec.v, weight=args.weight, transform=tr,
+                                               executor=ex), f" by {name}")
             m = res.moments
             for what, value in (("E y", m.mean), ("Cov y", m.cov), ("Cov(y, u)", m.cross_cov)):
                 _finite(f"{what} by {name}", value)

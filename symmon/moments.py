@@ -39,6 +39,9 @@ class JointMoments:
         Cov(y, v) (empty for a noise-free model).
     stderr : mapping or None
         Standard errors of ``mean``, ``cov`` and ``cross_cov`` (stochastic transforms only).
+    error : mapping or None
+        An error bound of ``mean``, ``cov`` and ``cross_cov`` (Gauss–Hermite with
+        ``error_estimate=True``, :func:`symmon.quadrature_error`).
     info : mapping
         A read-only view of the details: ``evaluations``, ``evaluator``, ``groups`` (the
         replicates) and the rule's own (``sigma_points``, ``error_estimate``, ...).
@@ -63,6 +66,7 @@ class JointMoments:
     transform: Any
     noise_cross_cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     stderr: Mapping[str, np.ndarray] | None = None
+    error: Mapping[str, np.ndarray] | None = None
     info: Mapping[str, Any] = field(default_factory=dict)
     input_cov: np.ndarray | None = None
     angles: frozenset[int] = frozenset()
@@ -76,19 +80,18 @@ class JointMoments:
         """The first Gaussian of a batch result ``b`` (:class:`~symmon.transforms.base.Moments`)
         of w = [u; v], with Cov(y, w) split into its u- and v-blocks."""
         def first(d: Mapping[str, np.ndarray] | None) -> dict | None:
-            if d is None:
-                return None
-            return {"mean": d["mean"][0], "cov": d["cov"][0], "cross_cov": d["cross_cov"][0][:, :n_u]}
+            return None if d is None else {"mean": d["mean"][0], "cov": d["cov"][0], "cross_cov": d["cross_cov"][0]}
 
-        replicates = None if b.replicates is None else b.replicates[0]
-        info = {**b.details, "evaluations": b.evaluations, **details}
+        s = b.split(n_u)
+        replicates = None if s.replicates is None else s.replicates[0]
+        info = {**s.info, **details}
         if replicates is not None:
             info["groups"] = replicates
         return cls(
-            mean=b.mean[0], cov=b.cov[0], cross_cov=b.cross_cov[0][:, :n_u], input=u, transform=transform,
-            noise_cross_cov=b.cross_cov[0][:, n_u:], stderr=first(b.stderr), info=info,
-            input_cov=None if b.input_cov is None else b.input_cov[0][:n_u, :n_u],
-            angles=angles, input_angles=input_angles, replicates=replicates, evaluations=b.evaluations,
+            mean=s.mean[0], cov=s.cov[0], cross_cov=s.cross_cov[0], input=u, transform=transform,
+            noise_cross_cov=s.noise_cross_cov[0], stderr=first(s.stderr), error=first(s.error), info=info,
+            input_cov=None if s.input_cov is None else s.input_cov[0],
+            angles=angles, input_angles=input_angles, replicates=replicates, evaluations=s.evaluations,
         )
 
     def __post_init__(self) -> None:

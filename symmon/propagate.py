@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.linalg import block_diag
@@ -11,10 +14,11 @@ from .errors import ModelError, ShapeError
 from .gaussian import PSD_RTOL, SYMMETRY_RTOL, Gaussian, as_covariance, as_vector
 from .model import Model
 from .moments import JointMoments
-from .transforms import UT, Transform
+from .transforms import Transform
 from .transforms.base import Moments, check_moments_finite
+from .transforms.registry import default_transform
 
-__all__ = ["propagate", "propagate_many", "compiled", "joint_input"]
+__all__ = ["propagate", "propagate_many", "compiled", "joint_input", "input_batch", "check_transform"]
 
 
 def compiled(model: Model) -> CompiledModel:
@@ -24,9 +28,11 @@ def compiled(model: Model) -> CompiledModel:
     return compile_model(model.outputs, model.inputs + model.noise, model.name)
 
 
-def _check_transform(transform) -> Transform:
+def check_transform(transform: Any) -> Transform:
+    """``transform``, or the default (TT2, :func:`~symmon.transforms.registry.default_transform`)
+    for ``None``; a class or a non-transform is a TypeError."""
     if transform is None:
-        return UT.ut1()
+        return default_transform()
     if isinstance(transform, type) and issubclass(transform, Transform):
         raise TypeError(f"pass a transform instance, e.g. {transform.__name__}(), not the class")
     if not isinstance(transform, Transform):
@@ -53,8 +59,8 @@ def joint_input(model: Model, u: Gaussian, v: Gaussian | None) -> tuple[np.ndarr
     return np.concatenate([u.mean, v.mean]), block_diag(u.cov, v.cov)
 
 
-def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, transform: Transform | None = None,
-              executor=None) -> JointMoments:
+def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, *, transform: Transform | None = None,
+              executor: Any = None) -> JointMoments:
     """E y, Cov y and Cov(y, u) of y = g(u, v) by a transform.
 
     Parameters
@@ -64,8 +70,11 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, transform: T
         The input distribution.
     v : Gaussian, optional
         The noise distribution (required when the model has noise symbols).
-    transform : Transform, default ``UT.ut1()``
-        TT1(), TT2(), UT(...), GaussHermite(...), MonteCarlo(...) or Exact().
+    transform : Transform, default ``TT2()``
+        TT1(), TT2(), UT(...), GaussHermite(...), MonteCarlo(...), Exact() or any
+        registered rule (docs/architecture.md).  The default is the same for
+        :func:`propagate_many`, :func:`symmon.nonlinearity` and the sweeps; docs/guide/transforms.md
+        says why it is TT2.
         With noise, the transform is applied to w = [u; v] with a block-diagonal
         covariance and ``cross_cov`` is the u-block of Cov(y, w).
     executor : Executor, optional
@@ -97,7 +106,7 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, transform: T
     >>> float(m.mean[0]), float(m.cov[0, 0])
     (2.0, 6.0)
     """
-    tr = _check_transform(transform)
+    tr = check_transform(transform)
     mw, Pw = joint_input(model, u, v)
     b = _checked_batch(model, tr, mw[None], Pw[None], executor)
     # "compiled", "vm" or "vm (C build running)": CompiledModel.evaluator, docs/compile.md.
@@ -105,34 +114,90 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, transform: T
                            evaluator=compiled(model).evaluator)
 
 
-def propagate_many(model: Model, means: ArrayLike, covs: ArrayLike, transform: Transform | None = None,
-                   executor=None) -> Moments:
-    """Moments for K noise-free input Gaussians at once (one batched evaluation).
+def input_batch(model: Model, u: Any, v: Any = None) -> tuple[np.ndarray, np.ndarray]:
+    """Means (K, n_w) and block-diagonal covariances (K, n_w, n_w) of K Gaussians of
+    w = [u; v], validated against the model (the batch of :func:`propagate_many`)."""
+    if isinstance(u, Gaussian):
+        raise TypeError("u is one Gaussian: use propagate, or pass a list of Gaussians")
+    if isinstance(u, list) and not u:
+        raise ShapeError("u must hold at least one Gaussian")
+    if isinstance(u, (list, tuple)) and u and all(isinstance(g, Gaussian) for g in u):
+        for k, g in enumerate(u):
+            if g.dim != model.n_u:
+                raise ShapeError(f"u[{k}] has dimension {g.dim} but the model has {model.n_u} inputs")
+        M = np.array([g.mean for g in u])
+        P = np.array([g.cov for g in u])
+    elif isinstance(u, tuple) and len(u) == 2:
+        M = np.asarray(u[0], dtype=float)
+        P = np.asarray(u[1], dtype=float)
+        if M.ndim != 2 or M.shape[1] != model.n_u:
+            raise ShapeError(f"means must have shape (K, {model.n_u}), got {M.shape}")
+        if P.shape != (M.shape[0], model.n_u, model.n_u):
+            raise ShapeError(f"covs must have shape {(M.shape[0], model.n_u, model.n_u)}, got {P.shape}")
+        _validate_batch(M, P)
+    else:
+        raise TypeError("u must be a list of K Gaussians or a pair (means (K, n_u), covs (K, n_u, n_u)), "
+                        f"got {type(u).__name__}")
+    K = M.shape[0]
+    if model.n_v == 0:
+        if v is not None:
+            raise ModelError("v was given but the model declares no noise symbols")
+        return M, P
+    if v is None:
+        raise ModelError(f"the model has noise symbols {list(map(str, model.noise))}: pass v=Gaussian(...)")
+    vs = [v] * K if isinstance(v, Gaussian) else list(v) if isinstance(v, (list, tuple)) else None
+    if vs is None or len(vs) != K or not all(isinstance(g, Gaussian) for g in vs):
+        raise TypeError(f"v must be a Gaussian or a list of {K} Gaussians, one per input")
+    for k, g in enumerate(vs):
+        if g.dim != model.n_v:
+            raise ShapeError(f"v[{k}] has dimension {g.dim} but the model has {model.n_v} noise symbols")
+    n_u, n_w = model.n_u, model.n_u + model.n_v
+    Mw = np.hstack([M, np.array([g.mean for g in vs])])
+    Pw = np.zeros((K, n_w, n_w))
+    Pw[:, :n_u, :n_u] = P
+    Pw[:, n_u:, n_u:] = np.array([g.cov for g in vs])
+    return Mw, Pw
+
+
+def propagate_many(model: Model, u: Any, v: Any = None, *, transform: Transform | None = None,
+                   executor: Any = None) -> Moments:
+    """:func:`propagate` for K input Gaussians at once (one batched evaluation).
 
     Parameters
     ----------
-    means : (K, n_u)
-    covs : (K, n_u, n_u)
-
+    model : Model
+    u : list of Gaussian, or (means, covs)
+        K input Gaussians, or their means (K, n_u) and covariances (K, n_u, n_u) (checked
+        with array operations: the fast way to pass many).
+    v : Gaussian or list of Gaussian, optional
+        The noise: one Gaussian for every input, or one per input (required when the
+        model has noise symbols).
+    transform : Transform, default ``TT2()``
+        As in :func:`propagate`.
     executor : Executor, optional
         As in :func:`propagate`.
 
     Returns
     -------
     Moments
-        ``mean`` (K, n_y), ``cov`` (K, n_y, n_y), ``cross_cov`` (K, n_y, n_u).
+        ``mean`` (K, n_y), ``cov`` (K, n_y, n_y), ``cross_cov`` Cov(y, u) (K, n_y, n_u),
+        ``noise_cross_cov`` Cov(y, v) (K, n_y, n_v) and ``input_cov`` as
+        :class:`~symmon.JointMoments` holds them, batched.
+
+    Examples
+    --------
+    >>> import numpy as np, sympy as sp, symmon as sm
+    >>> x = sp.Symbol("x")
+    >>> b = sm.propagate_many(sm.Model([x], [x**2]), [sm.Gaussian([0.0], [[1.0]]), sm.Gaussian([1.0], [[2.0]])])
+    >>> b.mean[:, 0]  # E x² = m² + P
+    array([1., 3.])
     """
-    tr = _check_transform(transform)
-    if model.n_v:
-        raise ModelError("propagate_many takes noise-free models; stack the noise into the inputs")
-    M = np.asarray(means, dtype=float)
-    P = np.asarray(covs, dtype=float)
-    if M.ndim != 2 or M.shape[1] != model.n_u:
-        raise ShapeError(f"means must have shape (K, {model.n_u}), got {M.shape}")
-    if P.shape != (M.shape[0], model.n_u, model.n_u):
-        raise ShapeError(f"covs must have shape {(M.shape[0], model.n_u, model.n_u)}, got {P.shape}")
-    _validate_batch(M, P)
-    return _checked_batch(model, tr, M, P, executor)
+    tr = check_transform(transform)
+    M, P = input_batch(model, u, v)
+    b = _checked_batch(model, tr, M, P, executor)
+    if b.input_cov is None:  # as JointMoments: always Cov u, here the covariances passed in
+        b = replace(b, input_cov=P)
+    return b.split(model.n_u)
 
 
 def _checked_batch(model: Model, tr: Transform, means: np.ndarray, covs: np.ndarray, executor) -> Moments:

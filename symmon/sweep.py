@@ -9,7 +9,7 @@ kernel here:
   all K Gaussians in a single batched call (:func:`symmon.propagate_many`), then the MoN
   (26)–(29) of each from its moments;
 * Monte Carlo (and any model with noise) runs one :func:`symmon.nonlinearity` per Gaussian,
-  on a Dask cluster when ``client`` or ``scheduler`` is given.  Every task recompiles the
+  on Dask when the executor names a ``client`` or a ``scheduler``.  Every task recompiles the
   model on its worker (sympy expressions travel, CasADi functions never do) and returns
   plain arrays.
 
@@ -33,12 +33,12 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .errors import ModelError, ShapeError, SymmonError
-from .gaussian import Gaussian, as_covariance, as_vector
+from .errors import ShapeError, SymmonError
+from .gaussian import Gaussian
 from .model import Model
 from .nonlinearity import mon_from_moments, nonlinearity
-from .propagate import propagate_many
-from .transforms import TT2, Transform
+from .propagate import check_transform, input_batch, propagate_many
+from .transforms import Transform
 from .transforms.montecarlo import Executor, dask_compute
 
 __all__ = ["SweepResult", "sweep_alpha", "sweep_states"]
@@ -97,21 +97,10 @@ def _check_model(model: Any) -> Model:
     return model
 
 
-def _check_transform(transform: Any) -> Transform:
-    if transform is None:
-        return TT2()
-    if isinstance(transform, type) and issubclass(transform, Transform):
-        raise TypeError(f"transform: pass an instance, e.g. {transform.__name__}(), not the class")
-    if not isinstance(transform, Transform):
-        raise TypeError(f"transform must be a symmon transform (TT2, UT, MonteCarlo, ...), got {transform!r}")
-    return transform
-
-
-def _check_dask(client: Any, scheduler: Any) -> None:
-    if client is not None and scheduler is not None:
-        raise SymmonError("pass either client or scheduler, not both")
-    if scheduler is not None and not isinstance(scheduler, str):
-        raise SymmonError(f"scheduler must be a Dask scheduler name such as 'processes', got {scheduler!r}")
+def _check_executor(executor: Any) -> Executor | None:
+    if executor is not None and not isinstance(executor, Executor):
+        raise TypeError(f"executor must be a symmon.Executor, got {executor!r}")
+    return executor
 
 
 def _check_alphas(alphas: ArrayLike) -> np.ndarray:
@@ -127,7 +116,7 @@ def _check_alphas(alphas: ArrayLike) -> np.ndarray:
 def _point(model: Model, mean: np.ndarray, cov: np.ndarray, v: Gaussian | None, weight: Any,
            transform: Transform, executor: Executor | None) -> dict[str, Any]:
     """The MoN and moments of one input Gaussian, as plain arrays (cheap to ship back)."""
-    res = nonlinearity(model, Gaussian(mean, cov), v, weight, transform, executor)
+    res = nonlinearity(model, Gaussian(mean, cov), v, weight=weight, transform=transform, executor=executor)
     m = res.moments
     return {
         "value": res.value, "squared": res.squared, "stderr": res.stderr, "weight_name": res.weight_name,
@@ -138,41 +127,46 @@ def _point(model: Model, mean: np.ndarray, cov: np.ndarray, v: Gaussian | None, 
 
 
 def _run_points(model: Model, means: np.ndarray, covs: np.ndarray, v: Gaussian | None, weight: Any,
-                transforms: Sequence[Transform], client: Any, scheduler: str | None,
-                executor: Executor | None) -> list[dict[str, Any]]:
-    if client is None and scheduler is None:
+                transforms: Sequence[Transform], executor: Executor | None) -> list[dict[str, Any]]:
+    if executor is None or not executor.distributed:
         return [_point(model, m, P, v, weight, t, executor) for m, P, t in zip(means, covs, transforms)]
     try:
         import dask
     except ImportError as exc:  # pragma: no cover - depends on the environment
         raise SymmonError("a distributed sweep needs the 'dask' extra: pip install symmon[dask]") from exc
     # The model travels as sympy (it pickles); each worker compiles it once and caches it.
-    tasks = [dask.delayed(_point, pure=False)(model, m, P, v, weight, t, executor)
+    # A task on a cluster runs its replicates on one thread: the cluster supplies the
+    # parallelism, and the result does not depend on the thread count (groups merge in a
+    # fixed order).
+    tasks = [dask.delayed(_point, pure=False)(model, m, P, v, weight, t, Executor(workers=1))
              for m, P, t in zip(means, covs, transforms)]
-    return dask_compute(tasks, client, scheduler)  # an interrupt cancels the pending points
+    return dask_compute(tasks, executor.client, executor.scheduler)  # an interrupt cancels the pending points
 
 
-def _sweep(model: Model, param: np.ndarray, means: np.ndarray, covs: np.ndarray, v: Gaussian | None,
-           weight: Any, transform: Transform, client: Any, scheduler: str | None, crn: bool) -> SweepResult:
-    if model.n_v and v is None:
-        raise ModelError(f"the model has noise symbols {list(map(str, model.noise))}: pass v=Gaussian(...)")
-    if not model.n_v and v is not None:
-        raise ModelError("v was given but the model declares no noise symbols")
+def _sweep(model: Model, param: np.ndarray | None, u: Any, v: Gaussian | None, weight: Any,
+           transform: Any, executor: Any, crn: bool) -> SweepResult:
+    """The sweep over the K input Gaussians ``u`` (:func:`~symmon.propagate.input_batch`);
+    ``param`` defaults to their indices."""
+    if not isinstance(model, Model):
+        raise TypeError(f"model must be a symmon.Model, got {type(model).__name__}")
+    transform = check_transform(transform)
+    executor = _check_executor(executor)
+    if v is not None and not isinstance(v, Gaussian):
+        raise TypeError(f"v must be a symmon.Gaussian (the same noise at every point), got {type(v).__name__}")
+    W, Pw = input_batch(model, u, v)
+    means, covs = W[:, :model.n_u], Pw[:, :model.n_u, :model.n_u]
     K = means.shape[0]
+    param = np.arange(K, dtype=float) if param is None else param
     is_mc = transform.stochastic
     if not is_mc and model.n_v == 0:
         return _batched(model, param, means, covs, weight, transform)
-    # A task on a cluster runs its replicates on one thread: the cluster supplies the
-    # parallelism, and the result does not depend on the thread count (groups merge in a
-    # fixed order).  Locally the transform's own executor applies.
-    executor = Executor(workers=1) if client is not None or scheduler is not None else None
     if is_mc and not crn:
         # Independent streams, one per point, reproducible from the one seed.
         seeds = [int(s.generate_state(1, np.uint64)[0]) for s in np.random.SeedSequence(transform.seed).spawn(K)]
         transforms = [dataclasses.replace(transform, seed=s) for s in seeds]
     else:
         transforms = [transform] * K
-    pts = _run_points(model, means, covs, v, weight, transforms, client, scheduler, executor)
+    pts = _run_points(model, means, covs, v, weight, transforms, executor)
     mse = None
     if is_mc:
         mse = {k: np.stack([p["moment_stderr"][k] for p in pts]) for k in ("mean", "cov", "cross_cov")}
@@ -191,19 +185,19 @@ def _sweep(model: Model, param: np.ndarray, means: np.ndarray, covs: np.ndarray,
 def _batched(model: Model, param: np.ndarray, means: np.ndarray, covs: np.ndarray, weight: Any,
              transform: Transform) -> SweepResult:
     """A deterministic transform on a noise-free model: one batched evaluation of all points."""
-    b = propagate_many(model, means, covs, transform)
+    b = propagate_many(model, (means, covs), transform=transform)
     parts = [mon_from_moments(b.cov[k], b.cross_cov[k], covs[k], weight, None, b.mean[k]) for k in range(means.shape[0])]
-    sq = np.array([p["squared"] for p in parts])
+    sq = np.array([p.squared for p in parts])
     return SweepResult(
         param=param, value=np.sqrt(np.maximum(sq, 0.0)), squared=sq, stderr=None,
         mean=b.mean, cov=b.cov, cross_cov=b.cross_cov, moment_stderr=None,
-        weight_name=parts[0]["label"], transform=transform,
+        weight_name=parts[0].weight_name, transform=transform,
     )
 
 
 # --------------------------------------------------------------------------- public API
-def sweep_alpha(model: Model, u: Gaussian, alphas: ArrayLike, weight="full", transform: Transform | None = None,
-                v: Gaussian | None = None, client: Any = None, scheduler: str | None = None,
+def sweep_alpha(model: Model, u: Gaussian, alphas: ArrayLike, v: Gaussian | None = None, *,
+                weight: Any = "full", transform: Transform | None = None, executor: Executor | None = None,
                 crn: bool = True) -> SweepResult:
     """The MoN and the moments of y = g(u, v) with u ~ N(ū, α P) over a grid of α.
 
@@ -217,17 +211,17 @@ def sweep_alpha(model: Model, u: Gaussian, alphas: ArrayLike, weight="full", tra
         N(ū, P): the distribution at α = 1.
     alphas : array_like (K,)
         Positive covariance scales.
+    v : Gaussian, optional
+        The noise, required when the model has noise symbols.
     weight : str, ndarray or weights.GeneralWeight
         As in :func:`symmon.nonlinearity` (default ``"full"``, W = Σ_gg⁻¹/n_y (43)).
     transform : Transform, default ``TT2()``
-        With :class:`~symmon.MonteCarlo`, every α uses the transform's seed (common random
-        numbers) unless ``crn=False``.
-    v : Gaussian, optional
-        The noise, required when the model has noise symbols.
-    client : dask.distributed.Client, optional
-        Run one task per α on the cluster (Monte Carlo, or models with noise).
-    scheduler : str, optional
-        A local Dask scheduler instead: ``"threads"``, ``"processes"`` or ``"synchronous"``.
+        As in :func:`symmon.nonlinearity`.  With :class:`~symmon.MonteCarlo`, every α uses
+        the transform's seed (common random numbers) unless ``crn=False``.
+    executor : Executor, optional
+        Where the points run: with a Dask ``client`` or ``scheduler``, one task per α
+        (Monte Carlo, or models with noise; each task runs its groups on one thread);
+        otherwise locally, with the executor's threads for the Monte Carlo groups.
     crn : bool, default True
         Common random numbers across α; ``False``: independent streams per α.
 
@@ -245,9 +239,8 @@ def sweep_alpha(model: Model, u: Gaussian, alphas: ArrayLike, weight="full", tra
     >>> np.round(r.squared, 12)  # M² = 2α / (4 + 2α) for x² with x ~ N(1, α)
     array([0.2       , 0.33333333, 0.5       ])
     """
-    model = _check_model(model)
-    tr = _check_transform(transform)
-    _check_dask(client, scheduler)
+    if not isinstance(model, Model):
+        raise TypeError(f"model must be a symmon.Model, got {type(model).__name__}")
     if not isinstance(u, Gaussian):
         raise TypeError(f"u must be a symmon.Gaussian, got {type(u).__name__}")
     if u.dim != model.n_u:
@@ -255,45 +248,30 @@ def sweep_alpha(model: Model, u: Gaussian, alphas: ArrayLike, weight="full", tra
     a = _check_alphas(alphas)
     means = np.tile(u.mean, (a.size, 1))
     covs = a[:, None, None] * u.cov[None]
-    return _sweep(model, a, means, covs, v, weight, tr, client, scheduler, crn)
+    return _sweep(model, a, (means, covs), v, weight, transform, executor, crn)
 
 
-def sweep_states(model: Model, means: ArrayLike, covs: ArrayLike, transform: Transform | None = None,
-                 weight="full", v: Gaussian | None = None, client: Any = None, scheduler: str | None = None,
+def sweep_states(model: Model, u: Any, v: Gaussian | None = None, *, weight: Any = "full",
+                 transform: Transform | None = None, executor: Executor | None = None,
                  crn: bool = True) -> SweepResult:
     """The MoN and the moments at each state N(m_k, P_k) of a trajectory.
 
     Parameters
     ----------
     model : Model
-    means : array_like (K, n_u)
-    covs : array_like (K, n_u, n_u)
-    transform : Transform, default ``TT2()``
-        Deterministic transforms on a noise-free model evaluate all K states in one batched
-        call (locally: it is cheaper than shipping them); Monte Carlo runs one task per
-        state, distributed when ``client`` or ``scheduler`` is given.
-    weight : str, ndarray or weights.GeneralWeight
-        As in :func:`symmon.nonlinearity`.
+    u : list of Gaussian, or (means, covs)
+        The K states, as in :func:`symmon.propagate_many`: Gaussians, or their means
+        (K, n_u) and covariances (K, n_u, n_u).
     v : Gaussian, optional
         The noise, the same at every state.
-    client, scheduler, crn
-        As in :func:`sweep_alpha`.
+    weight, transform, executor, crn
+        As in :func:`sweep_alpha`.  A deterministic transform on a noise-free model
+        evaluates all K states in one batched call, always locally (it is cheaper than
+        shipping them).
 
     Returns
     -------
     SweepResult
         ``param`` holds the state indices 0, …, K − 1.
     """
-    model = _check_model(model)
-    tr = _check_transform(transform)
-    _check_dask(client, scheduler)
-    M = np.asarray(means, dtype=float)
-    P = np.asarray(covs, dtype=float)
-    if M.ndim != 2 or M.shape[1] != model.n_u or M.shape[0] == 0:
-        raise ShapeError(f"means must have shape (K, {model.n_u}) with K >= 1, got {M.shape}")
-    if P.shape != (M.shape[0], model.n_u, model.n_u):
-        raise ShapeError(f"covs must have shape {(M.shape[0], model.n_u, model.n_u)}, got {P.shape}")
-    for k in range(M.shape[0]):
-        as_vector(M[k], f"means[{k}]")
-        as_covariance(P[k], f"covs[{k}]")
-    return _sweep(model, np.arange(M.shape[0], dtype=float), M, P, v, weight, tr, client, scheduler, crn)
+    return _sweep(model, None, u, v, weight, transform, executor, crn)

@@ -268,7 +268,7 @@ def test_mc_angle_mean_is_the_circular_mean_of_its_samples():
     seed; the estimator differs from Σ wrap(b − μ)²/(n − 1) by δ²/(n − 1) (δ the linear
     minus the circular mean, ~1e-5 here), far below EXACT_TOL."""
     u = sm.Gaussian(CUT + [0.0, 30.0], P_XY)
-    tr = sm.MonteCarlo(40_000, seed=5, groups=4, chunk=2**14, workers=1)
+    tr = sm.MonteCarlo(40_000, seed=5, groups=4, chunk=2**14)
     m = sm.propagate(polar([1]), u, transform=tr)
     W = _mc_samples(tr, u)
     b = np.arctan2(W[:, 1], W[:, 0])

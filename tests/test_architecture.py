@@ -3,6 +3,7 @@ and the declared degree of every registered rule checked against exact moments."
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 
 import numpy as np
@@ -13,7 +14,7 @@ import symmon as sm
 from symmon import cli
 from symmon.compile import CompiledModel
 from symmon.errors import SymmonError
-from symmon.nonlinearity import _cond_cov_general
+from symmon.conditional import _general_cov
 from symmon.propagate import compiled
 from symmon.transforms import Cubature5, Executor, Transform
 from symmon.transforms.registry import make, names, presets, register
@@ -68,7 +69,7 @@ def test_every_registered_rule_declares_its_cost_and_counts_it(name):
     """The declared cost (advise's cost model) is the evaluations of g one Gaussian takes:
     the points of a point rule or the samples, and for a Taylor rule its one point plus
     the derivatives (each counted as evaluations of g)."""
-    tr = make(name, samples=2_000, groups=4, workers=1)
+    tr = make(name, samples=2_000, groups=4)
     m = sm.propagate(sm.Model(list(X), [X[0] * sp.sin(X[1])], name="arch_cost"), sm.Gaussian(MU, P), transform=tr)
     assert m.evaluations == m.info["evaluations"] > 0
     if tr.stochastic or tr.unit_rule(2) is not None:
@@ -92,8 +93,8 @@ def test_cubature5_nested_rule_for_general_noise_is_exact_for_polynomials():
     u_, v_ = sp.symbols("u_ v_", real=True)
     model = sm.Model([u_], [u_**2 * v_**2 + v_], noise=[v_], name="arch_general")
     u, v = sm.Gaussian([0.5], [[0.4]]), sm.Gaussian([0.2], [[0.3]])
-    got = _cond_cov_general(model, u, v, Cubature5())
-    want = _cond_cov_general(model, u, v, sm.GaussHermite(5))
+    got = _general_cov(model, u, v, Cubature5())
+    want = _general_cov(model, u, v, sm.GaussHermite(5))
     np.testing.assert_allclose(got, want, rtol=EXACT_RTOL)
 
 
@@ -103,8 +104,10 @@ def test_transform_is_abstract():
 
 
 def test_execution_settings_are_not_part_of_the_method():
-    assert sm.MonteCarlo(workers=1) == sm.MonteCarlo(workers=4)
-    assert hash(sm.MonteCarlo(workers=1, scheduler="threads")) == hash(sm.MonteCarlo())
+    """Where Monte Carlo runs is an Executor passed to propagate, never a field of the method."""
+    assert not {"workers", "client", "scheduler", "progress"} & {f.name for f in dataclasses.fields(sm.MonteCarlo)}
+    with pytest.raises(TypeError):
+        sm.MonteCarlo(workers=4)
     assert sm.MonteCarlo(seed=1) != sm.MonteCarlo(seed=2)
 
 
@@ -153,7 +156,7 @@ def test_a_point_rule_declares_its_unit_points_and_a_taylor_rule_none():
 def test_moments_one_spelling():
     """The batched result and its single-point view use the same keys."""
     model = sm.Model(list(X), [X[0] * X[1]], name="arch_keys")
-    mc = sm.MonteCarlo(4_000, seed=1, groups=4, workers=1)
+    mc = sm.MonteCarlo(4_000, seed=1, groups=4)
     m = sm.propagate(model, sm.Gaussian(MU, P), transform=mc)
     b = mc.moments(compiled(model), MU[None], P[None])
     assert set(m.stderr) == set(b.stderr) == {"mean", "cov", "cross_cov"}

@@ -635,7 +635,7 @@ def test_a_nan_mon_is_not_printed(capsys, monkeypatch):
     real = nl.nonlinearity
 
     def nan_value(*args, **kwargs):
-        return dataclasses.replace(real(*args, **kwargs), value=float("nan"))
+        return dataclasses.replace(real(*args, **kwargs), squared=float("nan"))
 
     monkeypatch.setattr(nl, "nonlinearity", nan_value)
     code, out, err = run_cli(capsys, "nonlinearity", EXAMPLES / "polar.toml", "--alpha-sweep", "0.1:1:2")

@@ -557,7 +557,7 @@ def test_adaptive_distance_is_the_unitless_error_of_advise():
 
     _, h = cv_models()
     u = sm.Gaussian([3.0, 1.0, -0.5, 0.2], np.diag([4.0, 9.0, 0.1, 0.2]) + 0.5)
-    a, b = sm.propagate(h, u, None, sm.UT.cubature()), sm.propagate(h, u, None, sm.GaussHermite(5))
+    a, b = sm.propagate(h, u, None, transform=sm.UT.cubature()), sm.propagate(h, u, None, transform=sm.GaussHermite(5))
     cm, angles = compiled(h), frozenset(h.angle_outputs)
     ba = sm.UT.cubature().batch(cm, u.mean[None], u.cov[None], angles)
     bb = sm.GaussHermite(5).batch(cm, u.mean[None], u.cov[None], angles)

@@ -29,7 +29,9 @@ import symmon as sm
 from symmon import cli
 from symmon.angles import wrap_angle
 from symmon.errors import SymmonError
-from symmon.nonlinearity import MC_INNER, _cond_cov_mc, mon_from_moments
+from symmon.conditional import conditional_cov_replicates
+from symmon.measure import mon_from_moments
+from symmon.transforms.montecarlo import MC_INNER
 from symmon.propagate import compiled
 from symmon.transforms.montecarlo import (
     MAX_CHUNK,
@@ -138,7 +140,7 @@ def test_mon_error_bar_equals_the_brute_force_jackknife():
     vals = []
     for s in reference_leave_one_out(res.moments.info["groups"]):
         _, cyy, cyw, cww = moments_of(s, 2, 2, [1])
-        vals.append(np.sqrt(mon_from_moments(cyy, cyw, cww, "full")["squared"]))
+        vals.append(mon_from_moments(cyy, cyw, cww, "full").value)
     assert res.stderr == pytest.approx(float(jackknife_se(np.array(vals))), rel=LOO_RTOL)
 
 
@@ -148,7 +150,7 @@ def test_nested_sigma_c_left_out_equals_the_brute_force_one():
     model = sm.Model([x], [sp.sin(x + v1) + x * v1**2], noise=[v1], name="mc_groups_general")
     u, v = sm.Gaussian([0.4], [[0.5]]), sm.Gaussian([0.0], [[0.3]])
     mc = sm.MonteCarlo(40_000, seed=6, groups=9)
-    Sc, loo = _cond_cov_mc(model, u, v, mc)
+    Sc, loo = conditional_cov_replicates(model, u, v, mc)
     nested = mc.nested_stats(compiled(model), u.mean, u.cov, v.mean, v.cov)
 
     def sc(parts):
@@ -238,13 +240,19 @@ def test_a_failing_group_stops_the_others():
     (dict(n=MAX_SAMPLES + 1), r"n = 9007199254740993 is above the limit 2\*\*53"),
     (dict(chunk=MAX_CHUNK + 1), r"chunk = 1048577 is above the limit 2\*\*20"),
     (dict(n=2**40, groups=16, qmc=True), r"at most 2\*\*30 points per group, .* needs 68719476736"),
-    (dict(workers=True), "workers must be >= 1, got True"),
     (dict(n=1.5e5 + 0.5), "n must be a positive integer, got 150000.5"),
 ])
 def test_monte_carlo_limits(kw, match):
     """Each setting is checked when the transform is made, before any work or memory."""
     with pytest.raises(SymmonError, match=match):
         sm.MonteCarlo(**kw)
+
+
+@pytest.mark.parametrize("workers", [0, True, 2.5])
+def test_executor_refuses_a_bad_thread_count(workers):
+    """Where the groups run is the executor's setting (no longer the transform's)."""
+    with pytest.raises(SymmonError, match=f"workers must be >= 1, got {workers!r}"):
+        sm.Executor(workers=workers)
 
 
 def test_an_integral_float_count_is_a_count():
@@ -313,8 +321,9 @@ def test_nested_monte_carlo_on_threads_equals_one_thread(workers):
     """General noise: the nested groups run on the engine's threads, same numbers."""
     model = sm.Model([x], [sp.sin(x + v1) + x * v1**2], noise=[v1], name="mc_groups_general")
     u, v = sm.Gaussian([0.4], [[0.5]]), sm.Gaussian([0.0], [[0.3]])
-    one = sm.nonlinearity(model, u, v, transform=sm.MonteCarlo(60_000, seed=8, groups=7, workers=1))
-    many = sm.nonlinearity(model, u, v, transform=sm.MonteCarlo(60_000, seed=8, groups=7, workers=workers))
+    mc = sm.MonteCarlo(60_000, seed=8, groups=7)
+    one = sm.nonlinearity(model, u, v, transform=mc, executor=sm.Executor(workers=1))
+    many = sm.nonlinearity(model, u, v, transform=mc, executor=sm.Executor(workers=workers))
     assert (many.squared, many.stderr) == (one.squared, one.stderr)
 
 

@@ -99,7 +99,7 @@ def test_wrap_in_the_kernel_is_wrap_angle():
 def test_monte_carlo_on_the_vm_equals_the_compiled_kernel():
     cm = compiled(PROBLEM.model)
     vm = CompiledModel(cm.source_exprs, cm.symbols, name="mc_vm", compiled=False)
-    mc = sm.MonteCarlo(20_000, seed=3, groups=4, workers=1)
+    mc = sm.MonteCarlo(20_000, seed=3, groups=4)
     a = mc.batch(cm, PROBLEM.u.mean[None], PROBLEM.u.cov[None])
     b = mc.batch(vm, PROBLEM.u.mean[None], PROBLEM.u.cov[None])
     for name in ("mean", "cov", "cross_cov"):

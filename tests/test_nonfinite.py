@@ -74,7 +74,7 @@ def test_second_output_and_two_inputs_are_named():
 def test_propagate_many_and_nonlinearity_refuse_too():
     model = sm.Model([x], [sp.sqrt(x)])
     with pytest.raises(NonFiniteError, match="sqrt"):
-        sm.propagate_many(model, [[4.0], [-1.0]], [[[1.0]], [[1.0]]], transform=sm.UT.ut1())
+        sm.propagate_many(model, ([[4.0], [-1.0]], [[[1.0]], [[1.0]]]), transform=sm.UT.ut1())
     with pytest.raises(NonFiniteError, match="sqrt"):
         sm.nonlinearity(model, sm.Gaussian([-1.0], [[1.0]]), transform=sm.GaussHermite(3))
 

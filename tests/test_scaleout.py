@@ -101,20 +101,20 @@ def client():
 
 # --------------------------------------------------------------------------- Dask = single process
 def test_local_cluster_equals_single_process(client, local):
-    got = sm.propagate(PROBLEM.model, PROBLEM.u, transform=dataclasses.replace(MC, client=client))
+    got = sm.propagate(PROBLEM.model, PROBLEM.u, transform=MC, executor=sm.Executor(client=client))
     assert got.info["n_samples"] == local.info["n_samples"] == MC.n
     assert_identical(got, local)
 
 
 @pytest.mark.parametrize("scheduler", ["synchronous", "threads", "processes"])
 def test_dask_schedulers_equal_single_process(scheduler, local):
-    got = sm.propagate(PROBLEM.model, PROBLEM.u, transform=dataclasses.replace(MC, scheduler=scheduler))
+    got = sm.propagate(PROBLEM.model, PROBLEM.u, transform=MC, executor=sm.Executor(scheduler=scheduler))
     assert_identical(got, local)
 
 
 @pytest.mark.parametrize("workers", [1, 2, 5])
 def test_thread_count_does_not_change_the_result(workers, local):
-    got = sm.propagate(PROBLEM.model, PROBLEM.u, transform=dataclasses.replace(MC, workers=workers))
+    got = sm.propagate(PROBLEM.model, PROBLEM.u, transform=MC, executor=sm.Executor(workers=workers))
     assert_identical(got, local)
 
 
@@ -122,7 +122,7 @@ def test_local_cluster_alpha_sweep_equals_local_sweep(client):
     alphas = [0.3, 1.0, 3.0]
     tr = sm.MonteCarlo(4 * 10**4, seed=2, groups=8)
     here = sweep_alpha(PROBLEM.model, PROBLEM.u, alphas, transform=tr)
-    there = sweep_alpha(PROBLEM.model, PROBLEM.u, alphas, transform=tr, client=client)
+    there = sweep_alpha(PROBLEM.model, PROBLEM.u, alphas, transform=tr, executor=sm.Executor(client=client))
     for k in ("value", "squared", "stderr", "mean", "cov", "cross_cov"):
         np.testing.assert_array_equal(getattr(there, k), getattr(here, k), err_msg=k)
 
@@ -138,7 +138,7 @@ def test_remote_tasks_receive_no_casadi_objects(monkeypatch, local):
         return original(outputs, symbols, job)
 
     monkeypatch.setattr(montecarlo, "_run_group_remote", recording)
-    got = sm.propagate(PROBLEM.model, PROBLEM.u, transform=dataclasses.replace(MC, scheduler="synchronous"))
+    got = sm.propagate(PROBLEM.model, PROBLEM.u, transform=MC, executor=sm.Executor(scheduler="synchronous"))
     assert len(shipped) == MC.groups
     assert all(b"casadi" not in blob for blob in shipped)
     assert_identical(got, local)
@@ -154,7 +154,7 @@ def test_merged_group_statistics_equal_the_concatenated_samples():
     model = sm.Model([x, y], [x * y + sp.sin(x), y**2 - x], name="scaleout_merge")
     mean = np.array([0.4, -1.0])
     cov = np.array([[0.5, 0.2], [0.2, 0.8]])
-    tr = sm.MonteCarlo(30_011, seed=7, groups=5, chunk=1000, workers=1)
+    tr = sm.MonteCarlo(30_011, seed=7, groups=5, chunk=1000)
     cm = compiled(model)
     groups = tr.group_stats(cm, mean, cov)
     L = np.linalg.cholesky(cov)
@@ -187,7 +187,7 @@ def test_merge_of_any_sharding_equals_the_whole(cuts, seed):
 @pytest.mark.parametrize("qmc", [False, True], ids=["plain", "qmc"])
 @pytest.mark.parametrize("chunk", [512, 3000, 8192])
 def test_chunk_size_does_not_change_the_result(qmc, chunk):
-    base = dict(n=2**16, seed=4, groups=4, qmc=qmc, workers=1)
+    base = dict(n=2**16, seed=4, groups=4, qmc=qmc)
     one_shot = sm.propagate(PROBLEM.model, PROBLEM.u, transform=sm.MonteCarlo(**base, chunk=2**16))
     chunked = sm.propagate(PROBLEM.model, PROBLEM.u, transform=sm.MonteCarlo(**base, chunk=chunk))
     assert_equal_to_rounding(chunked, one_shot)

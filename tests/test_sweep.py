@@ -103,7 +103,7 @@ def test_dask_alpha_sweep_equals_local(scheduler):
     tr = sm.MonteCarlo(20_000, seed=3, groups=8)
     alphas = [0.2, 1.0, 5.0]
     here = sweep_alpha(p.model, p.u, alphas, transform=tr)
-    there = sweep_alpha(p.model, p.u, alphas, transform=tr, scheduler=scheduler)
+    there = sweep_alpha(p.model, p.u, alphas, transform=tr, executor=sm.Executor(scheduler=scheduler))
     for k in ("value", "squared", "stderr", "mean", "cov", "cross_cov"):
         np.testing.assert_array_equal(getattr(there, k), getattr(here, k), err_msg=k)
 
@@ -114,7 +114,7 @@ def test_alpha_sweep_with_noise_equals_per_alpha_nonlinearity():
     u = sm.Gaussian([0.5, 1.0], [[0.3, 0.05], [0.05, 0.2]])
     v = sm.Gaussian([0.0], [[0.1]])
     alphas = [0.5, 2.0]
-    r = sweep_alpha(model, u, alphas, transform=sm.GaussHermite(5), v=v, scheduler="synchronous")
+    r = sweep_alpha(model, u, alphas, v, transform=sm.GaussHermite(5), executor=sm.Executor(scheduler="synchronous"))
     for k, a in enumerate(alphas):
         one = sm.nonlinearity(model, sm.Gaussian(u.mean, a * u.cov), v, transform=sm.GaussHermite(5))
         np.testing.assert_allclose(r.value[k], one.value, rtol=CLOSED_RTOL)
@@ -132,7 +132,7 @@ def _trajectory(K: int = 6):
 def test_state_sweep_batched_equals_per_state_nonlinearity(transform):
     p = gmti(1.0)
     means, covs = _trajectory()
-    r = sweep_states(p.model, means, covs, transform)
+    r = sweep_states(p.model, (means, covs), transform=transform)
     np.testing.assert_array_equal(r.param, np.arange(len(means)))
     for k in range(len(means)):
         one = sm.nonlinearity(p.model, sm.Gaussian(means[k], covs[k]), transform=transform)
@@ -145,7 +145,7 @@ def test_monte_carlo_state_sweep_distributed_equals_per_state():
     p = gmti(1.0)
     means, covs = _trajectory(3)
     tr = sm.MonteCarlo(10_000, seed=8, groups=4)
-    r = sweep_states(p.model, means, covs, tr, scheduler="threads")
+    r = sweep_states(p.model, (means, covs), transform=tr, executor=sm.Executor(scheduler="threads"))
     for k in range(3):
         one = sm.nonlinearity(p.model, sm.Gaussian(means[k], covs[k]), transform=tr)
         assert r.value[k] == one.value and r.stderr[k] == one.stderr
@@ -163,9 +163,11 @@ def test_bad_alphas(alphas, err):
 
 def test_bad_arguments():
     with pytest.raises(SymmonError, match="client or scheduler"):
-        sweep_alpha(SQUARE, U1, [1.0], client=object(), scheduler="threads")
+        sm.Executor(client=object(), scheduler="threads")
     with pytest.raises(SymmonError, match="scheduler"):
-        sweep_alpha(SQUARE, U1, [1.0], scheduler=3)
+        sm.Executor(scheduler=3)
+    with pytest.raises(TypeError, match="executor"):
+        sweep_alpha(SQUARE, U1, [1.0], executor="threads")
     with pytest.raises(TypeError, match="instance"):
         sweep_alpha(SQUARE, U1, [1.0], transform=sm.TT2)
     with pytest.raises(TypeError, match="model"):
@@ -175,10 +177,10 @@ def test_bad_arguments():
     with pytest.raises(ModelError, match="no noise"):
         sweep_alpha(SQUARE, U1, [1.0], v=sm.Gaussian([0.0], [[1.0]]))
     with pytest.raises(ShapeError, match="means"):
-        sweep_states(SQUARE, np.zeros((2, 2)), np.zeros((2, 1, 1)))
+        sweep_states(SQUARE, (np.zeros((2, 2)), np.zeros((2, 1, 1))))
     with pytest.raises(ShapeError, match="covs"):
-        sweep_states(SQUARE, np.zeros((2, 1)), np.zeros((3, 1, 1)))
+        sweep_states(SQUARE, (np.zeros((2, 1)), np.zeros((3, 1, 1))))
     e = sp.Symbol("e", real=True)
     noisy = sm.Model([x], [x + e], noise=[e], name="sweep_needs_v")
     with pytest.raises(ModelError, match="noise symbols"):
-        sweep_states(noisy, np.zeros((1, 1)), np.ones((1, 1, 1)))
+        sweep_states(noisy, (np.zeros((1, 1)), np.ones((1, 1, 1))))

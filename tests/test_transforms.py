@@ -166,7 +166,7 @@ ALL_TRANSFORMS = {
     "gh_sparse": sm.GaussHermite(3, sparse=True),
     "exact": sm.Exact(),
 }
-MC = sm.MonteCarlo(n=64 * 64, seed=3, groups=64, workers=1)
+MC = sm.MonteCarlo(n=64 * 64, seed=3, groups=64)
 
 
 @st.composite
@@ -347,9 +347,10 @@ def test_monte_carlo_within_5_se_of_exact(tr, poly_model, poly_exact):
 def test_monte_carlo_chunking_and_workers_do_not_change_the_result(qmc, poly_model):
     u = sm.Gaussian(POLY_MU, POLY_P)
     base = dict(n=2**14, seed=5, groups=4, qmc=qmc)
-    one_shot = sm.propagate(poly_model, u, transform=sm.MonteCarlo(**base, chunk=2**14, workers=1))
+    one_shot = sm.propagate(poly_model, u, transform=sm.MonteCarlo(**base, chunk=2**14), executor=sm.Executor(1))
     for kw in (dict(chunk=100, workers=1), dict(chunk=1000, workers=2), dict(chunk=2**14, workers=4)):
-        other = sm.propagate(poly_model, u, transform=sm.MonteCarlo(**base, **kw))
+        other = sm.propagate(poly_model, u, transform=sm.MonteCarlo(**base, chunk=kw["chunk"]),
+                             executor=sm.Executor(kw["workers"]))
         for name in ("mean", "cov", "cross_cov"):
             assert_close(getattr(other, name), getattr(one_shot, name), REORDER_RTOL, f"{name} {kw}")
 
@@ -396,7 +397,7 @@ def test_monte_carlo_offset_keeps_the_covariance():
 def test_monte_carlo_nan_raises_with_the_count():
     x = sp.Symbol("x", real=True)
     n_group = 1600
-    tr = sm.MonteCarlo(n=2 * n_group, seed=3, groups=2, chunk=n_group, workers=1)
+    tr = sm.MonteCarlo(n=2 * n_group, seed=3, groups=2, chunk=n_group)
     mean, sd = 0.5, 1.0
     # The count the first group must report: its samples are reproducible from the seed.
     z = group_generator(np.random.SeedSequence(3).spawn(2)[0]).standard_normal((n_group, 1))
@@ -485,4 +486,4 @@ def test_propagate_many_refuses_covariances_that_overflow_the_checks():
     x, y = sp.symbols("x y")
     P = np.array([[[1e308, -1e308], [1e308, 1e308]]])
     with pytest.raises(sm.SymmonError, match=r"covs\[0\] is not symmetric"):
-        sm.propagate_many(sm.Model([x, y], [x * y]), np.zeros((1, 2)), P, transform=sm.UT.ut1())
+        sm.propagate_many(sm.Model([x, y], [x * y]), (np.zeros((1, 2)), P), transform=sm.UT.ut1())

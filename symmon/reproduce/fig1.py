@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import AngleWarning
 from ..io import save_figure, write_csv
-from ..nonlinearity import mon_from_moments
+from ..measure import mon_from_moments
 from ..problems import polar
 from ..propagate import propagate
 from ..transforms import TT2, UT, MonteCarlo
@@ -70,11 +70,11 @@ def curves(alphas=ALPHAS, samples: int = 10**6, seed: int = 0, progress: bool = 
                 m = propagate(prob.model, prob.u, transform=tr)
             for unit, size in (("rad", 1.0), ("deg", np.pi / 180)):
                 Sgg, Sgu = _scaled(m, size)
-                out[f"liu_{unit}{suffix}"][i] = np.sqrt(max(mon_from_moments(Sgg, Sgu, m.input_cov, "liu-li")["squared"], 0))
+                out[f"liu_{unit}{suffix}"][i] = mon_from_moments(Sgg, Sgu, m.input_cov, "liu-li").value
             if suffix == "":
-                band = [np.sqrt(max(mon_from_moments(*_scaled(m, s), m.input_cov, "liu-li")["squared"], 0)) for s in UNIT_SIZES]
+                band = [mon_from_moments(*_scaled(m, s), m.input_cov, "liu-li").value for s in UNIT_SIZES]
                 out["band_lo"][i], out["band_hi"][i] = min(band), max(band)
-                out["full"][i] = np.sqrt(max(mon_from_moments(m.cov, m.cross_cov, m.input_cov, "full")["squared"], 0))
+                out["full"][i] = mon_from_moments(m.cov, m.cross_cov, m.input_cov, "full").value
                 out["liu_rad_se"][i], out["liu_deg_se"][i] = _liu_se(m, m.input_cov)
     out["alpha"] = np.asarray(alphas, dtype=float)
     return out
@@ -88,7 +88,7 @@ def _liu_se(m, Suu) -> tuple[float, float]:
         S = np.diag([1.0, 1.0 / size, 1.0, 1.0])
 
         def val(loo, S=S):
-            return np.array([np.sqrt(max(mon_from_moments(C[:2, :2], C[:2, 2:], C[2:, 2:], "liu-li")["squared"], 0))
+            return np.array([mon_from_moments(C[:2, :2], C[:2, 2:], C[2:, 2:], "liu-li").value
                              for C in S @ loo.cov @ S])
 
         res.append(float(jackknife(m.replicates, val)))

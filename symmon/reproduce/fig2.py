@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io import save_figure, write_csv
-from ..nonlinearity import mon_from_moments
+from ..measure import mon_from_moments
 from ..problems import GMTI_UNITS, RDCOS_UNITS, bot, gmti, rdcos
 from ..propagate import propagate
 from ..transforms import TT2, UT, MonteCarlo
@@ -57,7 +57,7 @@ COLUMNS = {
 
 
 def _value(Sgg, Sgu, Suu, weight) -> float:
-    return float(np.sqrt(max(mon_from_moments(Sgg, Sgu, Suu, weight)["squared"], 0.0)))
+    return float(mon_from_moments(Sgg, Sgu, Suu, weight).value)
 
 
 def _row(m, Suu, scale) -> dict[str, float]:

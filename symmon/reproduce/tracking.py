@@ -174,7 +174,7 @@ def mon_along(sc: Scenario, res: NonlinearKalmanResult, runs: int, noisy: bool) 
     out = np.empty((runs, sc.steps))
     for r in range(runs):
         for k in range(sc.steps):
-            out[r, k] = nonlinearity(model, Gaussian(res.x_pred[r, k], res.P_pred[r, k]), v, "full").value
+            out[r, k] = nonlinearity(model, Gaussian(res.x_pred[r, k], res.P_pred[r, k]), v, weight="full").value
     return out
 
 
@@ -214,7 +214,7 @@ def _events(sc: Scenario, ekf: NonlinearKalmanResult, xs: np.ndarray, adaptive: 
     rows = []
     for r in np.flatnonzero((nees > EVENT_NEES).any(axis=1)):
         k = int(np.argmax(nees[r] > EVENT_NEES))
-        mons = [nonlinearity(sc.h_noisy, Gaussian(ekf.x_pred[r, j], ekf.P_pred[r, j]), v, "full").value
+        mons = [nonlinearity(sc.h_noisy, Gaussian(ekf.x_pred[r, j], ekf.P_pred[r, j]), v, weight="full").value
                 if j >= 0 else float("nan") for j in (k - 2, k - 1, k)]
         choice = "" if adaptive is None else str(adaptive["result"].choices[r, k])
         ad_nees = float("nan") if adaptive is None else float(adaptive["result"].nees(xs)[r, k])

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import warnings
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from typing import Any, ClassVar
 
@@ -46,6 +46,10 @@ class Moments:
     stderr : dict or None
         Standard errors of ``mean``, ``cov`` and ``cross_cov``, the same keys and shapes
         (stochastic transforms only).
+    error : dict or None
+        An error bound of a deterministic rule's ``mean``, ``cov`` and ``cross_cov``, the
+        same keys and shapes (Gauss–Hermite with ``error_estimate=True``: the two-order
+        estimate, :func:`symmon.quadrature_error`).
     replicates : list or None
         For each Gaussian of the batch, the independent replicates (Monte Carlo groups:
         :class:`~symmon.transforms.montecarlo.Stats`) that the error bars come from;
@@ -54,8 +58,9 @@ class Moments:
         Evaluations of g (points, samples or expansion points) for the whole batch.
     details : dict
         Rule-specific extras: ``sigma_points`` and ``transformed_points`` (UT),
-        ``sparse`` and ``error_estimate`` (Gauss–Hermite), ``indefinite`` (UT),
-        ``n_samples`` (Monte Carlo).
+        ``sparse`` (Gauss–Hermite), ``indefinite`` (UT), ``n_samples`` (Monte Carlo).
+    noise_cross_cov : ndarray (K, n_y, n_v) or None
+        Set by :meth:`split`: Cov(y, v), the noise block of Cov(y, w).
     """
 
     mean: np.ndarray
@@ -66,16 +71,35 @@ class Moments:
     replicates: list | None = None
     evaluations: int = 0
     details: dict = field(default_factory=dict)
+    error: dict | None = None
+    noise_cross_cov: np.ndarray | None = None
 
     @property
     def info(self) -> dict:
-        """A read-only compatibility view: ``details`` with ``evaluations`` and, for
-        replicates, ``groups`` (one list per Gaussian)."""
+        """A read-only compatibility view: ``details`` with ``evaluations``, for
+        replicates ``groups`` (one list per Gaussian) and ``error_estimate`` (``error``)."""
         out = dict(self.details)
         out["evaluations"] = self.evaluations
         if self.replicates is not None:
             out["groups"] = self.replicates
+        if self.error is not None:
+            out["error_estimate"] = self.error
         return out
+
+    def split(self, n_u: int) -> "Moments":
+        """The moments of y with u = w[:n_u] as the input: ``cross_cov``, its standard
+        error and error bound become Cov(y, u), ``input_cov`` Cov u, and the rest of
+        Cov(y, w) goes to ``noise_cross_cov`` (as :class:`~symmon.JointMoments` holds them)."""
+        def u_block(d: dict | None) -> dict | None:
+            return None if d is None else {**d, "cross_cov": d["cross_cov"][:, :, :n_u]}
+
+        if self.noise_cross_cov is not None:
+            raise ValueError("these moments are already split")
+        return replace(
+            self, cross_cov=self.cross_cov[:, :, :n_u], noise_cross_cov=self.cross_cov[:, :, n_u:],
+            input_cov=None if self.input_cov is None else self.input_cov[:, :n_u, :n_u],
+            stderr=u_block(self.stderr), error=u_block(self.error),
+        )
 
 
 class Transform(ABC):

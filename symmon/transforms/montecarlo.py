@@ -442,6 +442,10 @@ class Executor:
     def __post_init__(self) -> None:
         if self.workers is not None and (not _is_int(self.workers) or self.workers < 1):
             raise SymmonError(f"workers must be >= 1, got {self.workers!r}")
+        if self.client is not None and self.scheduler is not None:
+            raise SymmonError("pass either client or scheduler, not both")
+        if self.scheduler is not None and not isinstance(self.scheduler, str):
+            raise SymmonError(f"scheduler must be a Dask scheduler name such as 'processes', got {self.scheduler!r}")
 
     @property
     def distributed(self) -> bool:
@@ -482,11 +486,10 @@ class MonteCarlo(Transform):
     chunk : int
         Samples per compiled kernel call, at most 2²⁰ (memory per thread
         ~ chunk · (2 n_w + n_y + 1) · 8 bytes).
-    workers, client, scheduler, progress
-        The default :class:`Executor` (where the groups run), for calls that pass none
-        (``propagate(..., executor=...)`` overrides it).  They are not part of the
-        method: they do not change the numbers, and two transforms that differ only in
-        them compare equal.
+
+    Where the groups run (threads, Dask, progress) is not part of the method: pass an
+    :class:`Executor` to :func:`symmon.propagate` (``executor=``); the numbers do not
+    depend on it.
     """
 
     n: int = 100_000
@@ -494,10 +497,6 @@ class MonteCarlo(Transform):
     qmc: bool = False
     groups: int = 16
     chunk: int = CHUNK
-    workers: int | None = field(default=None, compare=False)
-    client: Any = field(default=None, compare=False, repr=False)
-    scheduler: str | None = field(default=None, compare=False)
-    progress: bool = field(default=False, compare=False, repr=False)
 
     exact_degree: ClassVar[float] = 0
     name: ClassVar[str] = "mc"
@@ -532,12 +531,6 @@ class MonteCarlo(Transform):
             raise SymmonError(f"MonteCarlo seed must be a non-negative integer or None, got {self.seed!r}")
         else:
             object.__setattr__(self, "seed", int(self.seed))  # numpy integers too: one repr, one hash
-        Executor(self.workers)  # refuses a bad worker count now, not at the first run
-
-    @property
-    def executor(self) -> Executor:
-        """The default executor, from ``workers``, ``client``, ``scheduler`` and ``progress``."""
-        return Executor(self.workers, self.client, self.scheduler, self.progress)
 
     def sizes(self) -> list[int]:
         """Samples per group (QMC: a power of two each)."""
@@ -558,7 +551,7 @@ class MonteCarlo(Transform):
                     angles: frozenset[int] = frozenset(), executor: Executor | None = None) -> list[Stats]:
         """The statistics of z = [y; w; sin y_A; cos y_A] for each group, in group order
         (A: the angle outputs, unwrapped around g(E w); see :func:`moments_of`)."""
-        ex = executor or self.executor
+        ex = executor or Executor()
         L = batch_sqrt(cov[None])[0]
         ref = cm.eval_g(mean[None])[0] if angles else np.zeros(cm.n_y)
         seeds = np.random.SeedSequence(self.seed).spawn(self.groups)
@@ -574,10 +567,6 @@ class MonteCarlo(Transform):
         return ex.run(lambda j, stop: _run_group(cm, j, stop), jobs, "Monte Carlo groups")
 
     replicate_stats = group_stats
-
-    def thread_count(self) -> int:
-        """Threads for the groups by default: ``workers``, or the number of CPUs, at most ``groups``."""
-        return self.executor.threads(self.groups)
 
     def _dask(self, cm: CompiledModel, jobs: list[_Job], ex: Executor) -> list[Stats]:
         try:
@@ -637,7 +626,7 @@ class MonteCarlo(Transform):
             Per group: the statistics of the inner means and the sum of the inner
             sample covariances.
         """
-        ex = executor or self.executor
+        ex = executor or Executor()
         G = self.groups
         n_outer = max(2 * G, self.n // MC_INNER)
         seeds = np.random.SeedSequence(self.seed).spawn(G + 1)[-1].spawn(G)

@@ -6,7 +6,7 @@ combination technique with rules of order 1, 3, 5, ... and is exact for total de
 2·level − 1, with p^d replaced by a number of points polynomial in d.
 
 Error estimate from two orders: with ``error_estimate=True`` the rule of order p + 2 is
-evaluated as well and ``details["error_estimate"]`` holds ``ERROR_SAFETY · |Q_p − Q_{p+2}|``
+evaluated as well and the result's ``error`` holds ``ERROR_SAFETY · |Q_p − Q_{p+2}|``
 for the mean, covariance and cross-covariance.  Writing e_p = Q_p − I for the error of the
 order-p rule, |e_p| ≤ |Q_p − Q_{p+2}| + |e_{p+2}|; whenever the rule has started to
 converge, |e_{p+2}| ≤ |e_p| / 2, and then |e_p| ≤ 2 |Q_p − Q_{p+2}|.  For a polynomial g
@@ -25,12 +25,15 @@ import itertools
 from dataclasses import dataclass
 from functools import lru_cache
 from math import comb
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
 from ..errors import ResourceError, SymmonError
 from .base import Moments, Transform, batch_sqrt, evaluate_points, weighted_moments, wrap_angle
+
+if TYPE_CHECKING:
+    from ..moments import JointMoments
 
 __all__ = ["GaussHermite", "standard_rule", "rule_size", "quadrature_error", "ERROR_SAFETY", "MAX_NODES"]
 
@@ -151,10 +154,10 @@ class GaussHermite(Transform):
     sparse : bool or None
         Use a Smolyak sparse grid; ``None`` picks it above 4 dimensions.
     error_estimate : bool, default False
-        Also evaluate the rule of order ``order + 2`` and report
-        ``info["error_estimate"] = {"mean", "cov", "cross_cov"}``, each
-        ``ERROR_SAFETY · |Q_order − Q_{order+2}|`` with the batch shapes (see the module
-        notes for when it is a bound).  The moments returned are those of ``order``.
+        Also evaluate the rule of order ``order + 2`` and report the result's
+        ``error = {"mean", "cov", "cross_cov"}``, each ``ERROR_SAFETY · |Q_order −
+        Q_{order+2}|`` (see the module notes for when it is a bound).  The moments
+        returned are those of ``order``.
 
     Examples
     --------
@@ -162,7 +165,7 @@ class GaussHermite(Transform):
     >>> x = sp.Symbol("x")
     >>> m = sm.propagate(sm.Model([x], [x**6]), sm.Gaussian([0.0], [[1.0]]),
     ...                  transform=sm.GaussHermite(3, error_estimate=True))
-    >>> round(float(m.mean[0]), 10), round(float(m.info["error_estimate"]["mean"][0, 0]), 10)  # E x⁶ = 15
+    >>> round(float(m.mean[0]), 10), round(float(m.error["mean"][0]), 10)  # E x⁶ = 15
     (9.0, 12.0)
     """
 
@@ -216,19 +219,20 @@ class GaussHermite(Transform):
         L = batch_sqrt(covs)
         mean, cov, cross, evals = _rule_moments(cm, means, L, int(self.order), sparse, angles, self)
         info: dict[str, Any] = {"sparse": sparse}
+        error = None
         if self.error_estimate:
             m2, c2, x2, e2 = _rule_moments(cm, means, L, int(self.order) + 2, sparse, angles, self)
             dm = mean - m2
             if angles:
                 idx = sorted(angles)
                 dm[:, idx] = wrap_angle(dm[:, idx])
-            info["error_estimate"] = {
+            error = {
                 "mean": ERROR_SAFETY * np.abs(dm),
                 "cov": ERROR_SAFETY * np.abs(cov - c2),
                 "cross_cov": ERROR_SAFETY * np.abs(cross - x2),
             }
             evals += e2
-        return Moments(mean, cov, cross, evaluations=evals, details=info)
+        return Moments(mean, cov, cross, evaluations=evals, details=info, error=error)
 
 
 def _rule_moments(cm, means: np.ndarray, L: np.ndarray, order: int, sparse: bool,
@@ -243,8 +247,11 @@ def _rule_moments(cm, means: np.ndarray, L: np.ndarray, order: int, sparse: bool
     return mean, cov, cross, K * N
 
 
-def quadrature_error(model, u, v=None, order: int = 5, sparse: bool | None = None):
+def quadrature_error(model, u, v=None, order: int = 5, sparse: bool | None = None) -> "JointMoments":
     """Gauss–Hermite moments of order ``order`` with their error estimate from order + 2.
+
+    The same as ``propagate(model, u, v, transform=GaussHermite(order, sparse,
+    error_estimate=True))``.
 
     Parameters
     ----------
@@ -259,24 +266,19 @@ def quadrature_error(model, u, v=None, order: int = 5, sparse: bool | None = Non
 
     Returns
     -------
-    moments : JointMoments
-        The order-``order`` moments (as ``propagate(..., GaussHermite(order))``).
-    error : dict
-        ``"mean"`` (n_y,), ``"cov"`` (n_y, n_y) and ``"cross_cov"`` (n_y, n_u):
-        ``ERROR_SAFETY · |Q_order − Q_{order+2}|``, a bound on the error of ``moments``
-        once the rule converges (module notes).
+    JointMoments
+        The order-``order`` moments; ``error`` holds ``"mean"`` (n_y,), ``"cov"``
+        (n_y, n_y) and ``"cross_cov"`` (n_y, n_u): ``ERROR_SAFETY · |Q_order −
+        Q_{order+2}|``, a bound on their error once the rule converges (module notes).
 
     Examples
     --------
     >>> import sympy as sp, symmon as sm
     >>> x = sp.Symbol("x")
-    >>> m, err = quadrature_error(sm.Model([x], [x**4]), sm.Gaussian([0.0], [[1.0]]), order=2)
-    >>> round(float(m.mean[0]), 10), round(float(err["mean"][0]), 10)  # E x⁴ = 3; 2 points give 1
+    >>> m = quadrature_error(sm.Model([x], [x**4]), sm.Gaussian([0.0], [[1.0]]), order=2)
+    >>> round(float(m.mean[0]), 10), round(float(m.error["mean"][0]), 10)  # E x⁴ = 3; 2 points give 1
     (1.0, 4.0)
     """
     from ..propagate import propagate  # the front end sits above the transforms
 
-    m = propagate(model, u, v, GaussHermite(order, sparse, error_estimate=True))
-    est = m.info["error_estimate"]
-    nu = model.n_u
-    return m, {"mean": est["mean"][0], "cov": est["cov"][0], "cross_cov": est["cross_cov"][0][:, :nu]}
+    return propagate(model, u, v, transform=GaussHermite(order, sparse, error_estimate=True))
