@@ -199,7 +199,7 @@ def _header_comment(model: Model, prefix: str, fs: dict[str, ca.Function], ut: T
         "  triangle through a Cholesky factor: P must be positive (semi)definite, otherwise the",
         f"  outputs are NaN); mean[{n_y}] = E y; cov: {n_y} x {n_y} Cov y; cross: {n_y} x {n_w} Cov(y, w).",
         "  TT2: mean_i = g_i(m) + tr(H_i P)/2, cov = J P J' + [tr(H_i P H_j P)/2], cross = J P.",
-        f"  ut: {ut.settings(n_w)} (fixed at export), {n_points} points m + L z_k, L L' = P.",
+        f"  ut: {comment_text(ut.settings(n_w))} (fixed at export), {n_points} points m + L z_k, L L' = P.",
     ]
     if angles:
         lines.append(f"  Outputs {angles} (0-based) are angles: wrapped means, circular ut mean.")
