@@ -13,7 +13,7 @@ Each function takes the mean m and covariance P as CasADi symbols and returns
 The formulas (docs/guide/transforms.md):
 
 - **TT1**: E y ≈ g(m), Cov y ≈ J P Jᵀ, Cov(y, w) ≈ J P;
-- **TT2** (Gustafsson & Hendeby 2012, Sec. III): E y_i ≈ g_i(m) + ½ tr(H_i P),
+- **TT2** (Gustafsson & Hendeby 2012): E y_i ≈ g_i(m) + ½ tr(H_i P),
   Cov(y_i, y_j) ≈ J_i P J_jᵀ + ½ tr(H_i P H_j P), Cov(y, w) ≈ J P;
 - **point rules** (any transform with :meth:`~symmon.transforms.base.Transform.unit_rule`:
   the UT family, Gauss–Hermite, the fifth-degree cubature): points m + L z_k with L the
@@ -153,7 +153,7 @@ def _block_terms(kind: type, n: int, n_y: int, s: int) -> ca.Function:
 
 
 def tt2_moments(cm: CompiledModel, m: Sym, P: Sym, angles: Iterable[int] = ()) -> tuple[Sym, Sym, Sym]:
-    """TT2 moments of g at (m, P) (Gustafsson & Hendeby 2012, Sec. III).
+    """TT2 moments of g at (m, P) (Gustafsson & Hendeby 2012).
 
     g, J and the Hessians come from one SX function of w; the second-order terms go
     through the Hessian blocks (:func:`_block_terms`, (n_y s)² entries) or through H_i P
