@@ -29,7 +29,7 @@ or h declared as angles) get the same treatment in the time update, and x⁺ is 
 
 The whole step, from the sigma points (or the Taylor terms) to the wrapped update, is one
 CasADi function of (x, P, y, Q, R), built from the models' SX graphs with a symbolic Cholesky
-factor.  Its C code is compiled once (cached on disk), and a C loop around it runs all the
+factor (the moment formulas of :mod:`symmon.symbolic_moments`, in SX).  Its C code is compiled once (cached on disk), and a C loop around it runs all the
 steps of all the runs of a filter bank in one call.
 
 References
@@ -51,7 +51,6 @@ models", FUSION 2015 (wrapped residuals).
 from __future__ import annotations
 
 import ctypes
-import functools
 import hashlib
 import itertools
 import math
@@ -66,13 +65,14 @@ from numpy.typing import ArrayLike
 from scipy import stats
 
 from .advise import cost, moment_distance, whiteners
-from .angles import wrap_angle, wrap_casadi
+from .angles import wrap_angle
 from .compile import build_shared_library, generated_c, has_compiler
 from .errors import ShapeError, SymmonError
 from .estimation import _check_gaussian, _check_model, _noise_cov, _readonly
 from .gaussian import Gaussian, as_covariance
 from .model import Model
 from .propagate import compiled
+from .symbolic_moments import moments, wrap_entries
 from .transforms import TT1, TT2, UT, GaussHermite, Transform
 
 __all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest", "Adaptive"]
@@ -81,120 +81,7 @@ __all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest", 
 _OUTPUTS = ("x", "P", "x_pred", "P_pred", "innovation", "S")
 
 
-# --------------------------------------------------------------------------- moments in SX
-def _wrap_some(v: ca.SX, idx: frozenset[int]) -> ca.SX:
-    """``v`` with the components ``idx`` wrapped to (−π, π]."""
-    if not idx:
-        return v
-    return ca.vertcat(*[wrap_casadi(v[i]) if i in idx else v[i] for i in range(v.shape[0])])
-
-
-def _unit_points(transform: Transform, d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Points z (N, d) for N(0, I_d), mean weights and covariance weights of a point rule."""
-    rule = transform.unit_rule(d)
-    if rule is None:
-        raise SymmonError(f"{transform!r} is not a point rule: a filter cannot compile its moments")
-    return rule
-
-
-def _point_moments(g: ca.Function, m: ca.SX, C: ca.SX, transform: Transform, angles: frozenset[int]):
-    """E g, Cov g and Cov(g, w) of w ~ N(m, C) by a point rule (UT or Gauss–Hermite).
-
-    The points are m + L z with L the symbolic lower Cholesky factor of C.  The mean is
-    centred on the first point (as :func:`symmon.transforms.base.weighted_moments`), which
-    keeps digits when the weights are large and of both signs; angle outputs get the
-    circular mean and wrapped residuals.
-    """
-    Z, wm, wc = _unit_points(transform, m.shape[0])
-    L = _chol_lower_sx(C)
-    D = [ca.mtimes(L, ca.DM(z)) for z in Z]
-    Y = [g(m + d) for d in D]
-    wm, wc = [float(a) for a in wm], [float(a) for a in wc]  # SX times numpy scalars misbehaves
-    mean = Y[0] + sum((wm[k] * (Y[k] - Y[0]) for k in range(1, len(Y))), ca.SX.zeros(Y[0].shape))
-    if angles:
-        parts = []
-        for i in range(mean.shape[0]):
-            if i in angles:
-                s = sum(wm[k] * ca.sin(Y[k][i]) for k in range(len(Y)))
-                c = sum(wm[k] * ca.cos(Y[k][i]) for k in range(len(Y)))
-                parts.append(ca.atan2(s, c))
-            else:
-                parts.append(mean[i])
-        mean = ca.vertcat(*parts)
-    R = [_wrap_some(Yk - mean, angles) for Yk in Y]
-    cov = sum((wc[k] * ca.mtimes(R[k], R[k].T) for k in range(len(R))), ca.SX.zeros(mean.shape[0], mean.shape[0]))
-    cross = sum((wc[k] * ca.mtimes(R[k], D[k].T) for k in range(len(R))), ca.SX.zeros(mean.shape[0], m.shape[0]))
-    return mean, cov, cross
-
-
-def _chol_lower_sx(P: ca.SX) -> ca.SX:
-    """Lower Cholesky factor L (L Lᵀ = P) of a symbolic matrix, reading its lower triangle.
-
-    A zero pivot gives a zero column, so a positive *semi*definite P with an exactly
-    zero variance still works; a negative pivot gives NaN (sqrt of a negative number),
-    which propagates to every output rather than silently producing a wrong factor.
-    """
-    n = P.shape[0]
-    L = [[ca.SX(0) for _ in range(n)] for _ in range(n)]
-    for j in range(n):
-        s = P[j, j]
-        for k in range(j):
-            s = s - L[j][k] * L[j][k]
-        d = ca.sqrt(s)
-        L[j][j] = d
-        for i in range(j + 1, n):
-            t = P[i, j]
-            for k in range(j):
-                t = t - L[i][k] * L[j][k]
-            # if_else does not leak the 0/0 of the branch not taken (an SX if_else evaluates both branches but keeps the chosen one).
-            L[i][j] = ca.if_else(d > 0, t / d, 0)
-    return ca.vertcat(*[ca.horzcat(*row) for row in L])
-
-
-@functools.lru_cache(maxsize=64)
-def _gjh_sx(cm) -> ca.Function:
-    """w ↦ (g, J, stacked dense Hessians) of a compiled model, for symbolic use in a step."""
-    w, y = cm.w_sx, cm.y_sx
-    H = ca.vertcat(*[ca.densify(ca.hessian(y[i], w)[0]) for i in range(cm.n_y)])
-    return ca.Function(f"{cm.tag}_gjh_sx", [w], [y, ca.densify(ca.jacobian(y, w)), H])
-
-
-def _tt2_sx(cm, m: ca.SX, P: ca.SX, angles: list[int]):
-    """TT2 moments of g at (m, P) as one SX expression (Gustafsson & Hendeby 2012).
-
-    The filter step is small (n ≤ ~10), so the products with P are written out in SX
-    and compiled together with the rest of the step.
-    """
-    n_y = cm.n_y
-    y, J, H = _gjh_sx(cm)(m)
-    n = m.shape[0]
-    # Row block i of H is the Hessian H_i (n × n).
-    HP = [H[i * n:(i + 1) * n, :] @ P for i in range(n_y)]
-    JP = J @ P
-    cov = JP @ J.T
-    mean = ca.vertcat(*[y[i] + 0.5 * ca.trace(HP[i]) for i in range(n_y)])
-    second = ca.SX(n_y, n_y)
-    for i in range(n_y):
-        for j in range(n_y):
-            second[i, j] = 0.5 * ca.sum1(ca.sum2(HP[i] * HP[j].T))  # tr(H_i P H_j P)
-    cov = cov + second
-    if angles:
-        mean = ca.vertcat(*[wrap_casadi(mean[i]) if i in angles else mean[i] for i in range(n_y)])
-    return mean, cov, JP
-
-
-def _moments(model: Model, m: ca.SX, C: ca.SX, transform: Transform, angles: frozenset[int]):
-    """E g, Cov g, Cov(g, w) of the model's g at w ~ N(m, C) for the filter's transform."""
-    cm = compiled(model)
-    if transform.taylor_order == 2:
-        return _tt2_sx(cm, m, C, sorted(angles))
-    if transform.taylor_order == 1:
-        J = cm.jac(m)
-        JC = ca.mtimes(J, C)
-        return _wrap_some(cm.g(m), angles), ca.mtimes(JC, J.T), JC
-    return _point_moments(cm.g, m, C, transform, angles)
-
-
+# --------------------------------------------------------------------------- the step
 def _sym(A: ca.SX) -> ca.SX:
     return 0.5 * (A + A.T)
 
@@ -208,24 +95,25 @@ def _step_function(f: Model, h: Model, transform: Transform, angle_states: froze
     Q, R = ca.SX.sym("Q", nq, nq), ca.SX.sym("R", nr, nr)
     # Time update: the NLT of f, on [x; w] with general noise.
     if f.n_v:
-        mean, cov, _ = _moments(f, ca.vertcat(x, ca.SX.zeros(nq)), ca.diagcat(P, Q), transform, angle_states)
+        mean, cov, _ = moments(compiled(f), ca.vertcat(x, ca.SX.zeros(nq)), ca.diagcat(P, Q), transform,
+                               angle_states)
     else:
-        mean, cov, _ = _moments(f, x, P, transform, angle_states)
+        mean, cov, _ = moments(compiled(f), x, P, transform, angle_states)
         cov = cov + Q
-    x_pred, P_pred = _wrap_some(mean, angle_states), _sym(cov)
+    x_pred, P_pred = wrap_entries(mean, angle_states), _sym(cov)
     # Measurement update: the NLT of h at N(x⁻, P⁻), then Lemma 7.1.
     y_angles = frozenset(h.angle_outputs)
     if h.n_v:
-        y_hat, S, cross = _moments(h, ca.vertcat(x_pred, ca.SX.zeros(nr)), ca.diagcat(P_pred, R),
-                                   transform, y_angles)
+        y_hat, S, cross = moments(compiled(h), ca.vertcat(x_pred, ca.SX.zeros(nr)), ca.diagcat(P_pred, R),
+                                  transform, y_angles)
         cross = cross[:, :n]
     else:
-        y_hat, S, cross = _moments(h, x_pred, P_pred, transform, y_angles)
+        y_hat, S, cross = moments(compiled(h), x_pred, P_pred, transform, y_angles)
         S = S + R
     S = _sym(S)
-    nu = _wrap_some(y - y_hat, y_angles)
+    nu = wrap_entries(y - y_hat, y_angles)
     gain = ca.solve(S, cross).T  # K = P^{xy} S⁻¹, S symmetric
-    x_new = _wrap_some(x_pred + ca.mtimes(gain, nu), angle_states)
+    x_new = wrap_entries(x_pred + ca.mtimes(gain, nu), angle_states)
     P_new = _sym(P_pred - ca.mtimes(ca.mtimes(gain, S), gain.T))
     outs = [ca.densify(a) for a in (x_new, P_new, x_pred, P_pred, nu, S)]
     return ca.Function(name, [x, P, y, Q, R], outs, ["x", "P", "y", "Q", "R"],
@@ -586,7 +474,7 @@ class Adaptive:
         object.__setattr__(self, "candidates", cands)
 
     def __repr__(self) -> str:
-        return f"Adaptive(tol={self.tol:g}, candidates=[{', '.join(_method(t) for t in self.candidates)}])"
+        return f"Adaptive(tol={self.tol:g}, candidates=[{', '.join(t.filter_label() for t in self.candidates)}])"
 
 
 def _decide(model: Model, m: np.ndarray, C: np.ndarray, add: np.ndarray | None, angles: frozenset[int],
@@ -635,7 +523,7 @@ def _adaptive_run(kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: np.ndarray, P0
     n, n_y = f.n_u, h.n_y
 
     order = sorted(ad.candidates, key=lambda t: cost(t, n))  # stable: ties keep the given order
-    names = np.array([_method(t) for t in order])
+    names = np.array([t.filter_label() for t in order])
     steps = [_compiled_step(f, h, t, kf.angle_states) for t in order]
     shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n), "innovation": (n_y,), "S": (n_y, n_y)}
     out = {key: np.full((runs, K) + s, np.nan) for key, s in shapes.items()}  # NaN after a failure
@@ -681,16 +569,6 @@ def _adaptive_run(kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: np.ndarray, P0
 def _filterable(transform: Any) -> bool:
     """A rule a filter can compile: a Taylor rule or a point rule (declared capabilities)."""
     return isinstance(transform, Transform) and (transform.taylor_order is not None or transform.unit_rule(1) is not None)
-
-
-def _method(transform: Transform) -> str:
-    if transform.taylor_order is not None:
-        return "EKF" if transform.taylor_order == 1 else "EKF2"
-    if isinstance(transform, UT):
-        return "CKF" if transform == UT.cubature() else "UKF" + repr(transform)[2:]
-    if isinstance(transform, GaussHermite):
-        return f"GHKF(order={transform.order})"
-    return f"KF({transform!r})"  # another point rule
 
 
 @dataclass(frozen=True, eq=False)
@@ -765,7 +643,7 @@ class NonlinearKalmanFilter:
         """The filter's name: EKF, EKF2, UKF(...), CKF, GHKF(order=...) or Adaptive(...)."""
         if isinstance(self.transform, Adaptive):
             return repr(self.transform)
-        return _method(self.transform)
+        return self.transform.filter_label()
 
     def _compiled(self) -> _CompiledStep:
         if self._step is None:

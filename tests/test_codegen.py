@@ -327,6 +327,27 @@ def test_bad_ut_is_rejected(tmp_path):
         export_c(polar_model(), tmp_path, ut=sm.TT2())
 
 
+@pytest.mark.parametrize("ut", ["ut1", sm.TT1(), sm.MonteCarlo(n=100, seed=0)], ids=repr)
+def test_ut_must_be_a_point_rule(tmp_path, ut):
+    with pytest.raises(SymmonError, match="ut must be a point rule"):
+        export_c(polar_model(), tmp_path, ut=ut)
+
+
+@pytest.mark.parametrize("case", ["gmti-corr", "polar", "polar-noise"])
+def test_any_point_rule_exports(case):
+    """The ut map of a rule that is not a UT: Gauss–Hermite of order 3, from its declared points."""
+    tr = sm.GaussHermite(3)
+    model, mw, Pw, expected = _propagate(case, tr)
+    got = [np.array(a) for a in moment_functions(model, ut=tr)["ut"](mw, Pw)]
+    for a, b, what in zip(got, expected, ("mean", "cov", "cross")):
+        assert_close(a.reshape(np.shape(b)), b, what)
+
+
+def test_header_names_any_point_rule(tmp_path):
+    _, h = export_c(polar_model(), tmp_path, ut=sm.GaussHermite(3))
+    assert "ut: GaussHermite(order=3" in h.read_text() and "9 points" in h.read_text()
+
+
 def test_non_model_is_rejected(tmp_path):
     with pytest.raises(TypeError, match="model"):
         export_c("polar", tmp_path)

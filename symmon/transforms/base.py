@@ -123,6 +123,8 @@ class Transform(ABC):
     - :meth:`unit_rule`: for a point rule, its points and weights for N(0, I) (the
       filters compile them into their steps);
     - :meth:`check_angles`: the undeclared-angle check for rules that keep no points.
+    - :meth:`filter_label`: the name of the Kalman filter built on the rule (EKF, UKF, ...);
+    - :meth:`settings`: the rule's settings in words for a dimension (generated-code headers).
 
     A rule that evaluates g at points does so through :func:`evaluate_points`, so a
     NaN or inf of g is reported with the point; the front ends
@@ -159,6 +161,16 @@ class Transform(ABC):
         """Points z (N, n) for N(0, I_n), mean weights and covariance weights, for a rule
         whose moments are weighted sums over the points m + L z; ``None`` otherwise."""
         return None
+
+    def filter_label(self) -> str:
+        """The name of the Kalman filter whose time and measurement updates use this rule
+        (:class:`symmon.NonlinearKalmanFilter`); default ``KF(<repr>)``."""
+        return f"KF({self!r})"
+
+    def settings(self, n: int) -> str:
+        """The rule's settings in words for dimension ``n``, with any dimension-dependent
+        default resolved (the header of :func:`symmon.codegen.export_c`); default: repr."""
+        return repr(self)
 
     def outer_rule(self, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Points (J, n) and weights (J,) of the outer integral over N(mean, cov) in a

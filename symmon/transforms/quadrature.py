@@ -202,6 +202,10 @@ class GaussHermite(Transform):
 
         return nodes(int(self.order)) + (nodes(int(self.order) + 2) if self.error_estimate else 0)
 
+    def filter_label(self) -> str:
+        """The Gauss–Hermite Kalman filter, ``GHKF(order=…)``."""
+        return f"GHKF(order={self.order})"
+
     def unit_rule(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The nodes for N(0, I_n) (sparse as :meth:`moments` picks it) and the weights, twice."""
         Z, w = standard_rule(n, int(self.order), self._sparse(n))

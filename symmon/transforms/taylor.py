@@ -125,6 +125,10 @@ class TT1(Transform):
         """g and J: 1 + n_w (a forward-mode Jacobian costs about one evaluation per column)."""
         return 1 + n_w
 
+    def filter_label(self) -> str:
+        """The extended Kalman filter."""
+        return "EKF"
+
     def nested_inner(self) -> Transform:
         """TT2: TT1's E[g | v] is g at the mean of u, blind to the curvature in u that
         the inner integral of a nested rule is there to see."""
@@ -141,6 +145,10 @@ class TT2(Transform):
 
     def moments(self, cm, means, covs, angles=frozenset(), executor=None):
         return _taylor(cm, means, covs, angles, second=True)
+
+    def filter_label(self) -> str:
+        """The second-order extended Kalman filter."""
+        return "EKF2"
 
     def cost(self, n_w: int) -> int:
         """g, J and the n_w(n_w + 1)/2 distinct second derivatives."""

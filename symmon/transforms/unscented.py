@@ -98,6 +98,15 @@ class UT(Transform):
         wc[0] += 1 - a2 + self.beta
         return wm, wc, float(np.sqrt(n + lam))
 
+    def filter_label(self) -> str:
+        """``CKF`` for the cubature rule, ``UKF(alpha=…, beta=…, kappa=…)`` otherwise."""
+        return "CKF" if self == UT.cubature() else "UKF" + repr(self)[2:]
+
+    def settings(self, n: int) -> str:
+        """α, β and κ, with κ = 3 − n resolved for ``kappa=None``."""
+        kappa = 3.0 - n if self.kappa is None else self.kappa
+        return f"alpha = {self.alpha!r}, beta = {self.beta!r}, kappa = {kappa!r}"
+
     def sigma_points(self, means: np.ndarray, covs: np.ndarray) -> np.ndarray:
         """Sigma points (K, 2n + 1, n): μ, μ + c·Lᵢ, then μ − c·Lᵢ."""
         K, n = means.shape

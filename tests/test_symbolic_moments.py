@@ -1,0 +1,188 @@
+"""The CasADi moment formulas of symmon.symbolic_moments, in SX and in MX.
+
+The Cholesky factor against NumPy's (positive definite, semidefinite with a zero variance,
+indefinite, a non-symmetric input), built four ways: in SX, in MX, MX expanded to SX, and
+an MX function called on SX symbols (the two ways an MX graph reaches a filter's SX step).
+The moments against the NumPy transforms of symmon.transforms, and the filter names that
+the transforms declare.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import pytest
+import sympy as sp
+
+import symmon as sm
+from symmon.errors import SymmonError
+from symmon.gaussian import matrix_sqrt
+from symmon.propagate import compiled
+from symmon.symbolic_moments import _tt2_derivatives, chol_lower, moments, unit_rule
+from symmon.transforms.cubature5 import Cubature5
+
+#: Two implementations of the same Cholesky algorithm in double precision that sum in a
+#: different order: each entry differs by rounding, about n·ε·κ(P) relative to max |L|
+#: (≈ 10 · 2.2e-16 · 6 for the matrices below, whose eigenvalues lie in [n, ~6n]);
+#: 1e-12 leaves a margin of about 50× over that bound (observed: ≤ 1e-15).
+CHOL_RTOL = 1e-12
+#: The same closed forms (TT1, TT2, weighted sums over the same points) evaluated by a
+#: CasADi graph and by batched NumPy in a different order of operations: rounding,
+#: relative to each array's scale.
+MOMENT_RTOL = 1e-10
+
+BUILDS = ["sx", "mx", "mx-expanded", "mx-called-on-sx"]
+
+
+def chol_function(n: int, build: str) -> ca.Function:
+    """P ↦ chol_lower(P) as a CasADi function, built one of the four ways."""
+    if build == "sx":
+        P = ca.SX.sym("P", n, n)
+        return ca.Function("chol", [P], [chol_lower(P)])
+    P = ca.MX.sym("P", n, n)
+    f = ca.Function("chol", [P], [chol_lower(P)])
+    if build == "mx-expanded":
+        return f.expand()
+    if build == "mx-called-on-sx":
+        Ps = ca.SX.sym("P", n, n)
+        return ca.Function("chol_sx", [Ps], [f(Ps)], {"cse": True})  # as the filter step: CSE on
+    return f
+
+
+def spd(n: int, rng: np.random.Generator) -> np.ndarray:
+    """A random symmetric positive definite matrix with eigenvalues in [n, ~6n]."""
+    A = rng.standard_normal((n, n))
+    return A @ A.T + n * np.eye(n)
+
+
+def rel(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.max(np.abs(a - b)) / np.max(np.abs(b)))
+
+
+# --------------------------------------------------------------------------- Cholesky
+@pytest.mark.parametrize("build", BUILDS)
+@pytest.mark.parametrize("n", range(1, 11))
+def test_cholesky_equals_numpy(n, build):
+    rng = np.random.default_rng(100 + n)
+    f = chol_function(n, build)
+    for _ in range(3):
+        P = spd(n, rng)
+        assert rel(f(P).full(), np.linalg.cholesky(P)) <= CHOL_RTOL
+
+
+@pytest.mark.parametrize("build", BUILDS)
+@pytest.mark.parametrize("n", range(1, 11))
+def test_cholesky_of_a_zero_variance_has_a_zero_row_and_column(n, build):
+    """A positive semidefinite P with P[z, z] = 0 (and its row and column): the factor of
+    the other entries, with zeros at z, as matrix_sqrt continues a singular Cholesky."""
+    rng = np.random.default_rng(200 + n)
+    f = chol_function(n, build)
+    P = spd(n, rng)
+    z = int(rng.integers(n))
+    P[z, :] = P[:, z] = 0.0
+    L = f(P).full()
+    assert np.all(L[z, :] == 0) and np.all(L[:, z] == 0)
+    if n > 1:
+        keep = np.delete(np.arange(n), z)
+        assert rel(L[np.ix_(keep, keep)], np.linalg.cholesky(P[np.ix_(keep, keep)])) <= CHOL_RTOL
+        assert rel(L, matrix_sqrt(P)) <= CHOL_RTOL
+
+
+@pytest.mark.parametrize("build", BUILDS)
+def test_cholesky_of_an_indefinite_matrix_is_nan(build):
+    """The negative pivot of column 1 gives NaN there (in MX the dense update L + c e_jᵀ
+    spreads it over row 1, 0·NaN; SX folds the product with the constant e_j)."""
+    L = chol_function(2, build)(np.array([[1.0, 2.0], [2.0, 1.0]])).full()
+    assert L[0, 0] == 1.0 and L[0, 1] == 0.0 and np.isnan(L[1, 1])
+
+
+@pytest.mark.parametrize("build", BUILDS)
+def test_cholesky_reads_the_lower_triangle(build):
+    rng = np.random.default_rng(7)
+    P = spd(5, rng)
+    garbled = np.tril(P) + np.triu(rng.standard_normal((5, 5)), 1)
+    assert rel(chol_function(5, build)(garbled).full(), np.linalg.cholesky(P)) <= CHOL_RTOL
+
+
+# --------------------------------------------------------------------------- moments
+def blocks_model() -> sm.Model:
+    """Ten inputs, Hessians on two inputs each: TT2 takes the Hessian blocks."""
+    x = sp.symbols("x0:10", real=True)
+    return sm.Model(list(x), [sp.atan2(x[1], x[0]), sp.sqrt(x[2] ** 2 + x[3] ** 2 + 1), x[4] * x[5],
+                              sp.sin(x[6]) * x[7]], name="symmom_blocks", angles=[0])
+
+
+def dense_model() -> sm.Model:
+    """Three inputs, Hessians on all of them: TT2 takes H_i P per output."""
+    x, y, z = sp.symbols("x y z", real=True)
+    return sm.Model([x, y, z], [sp.atan2(y, x) + z**2 / 10, x * y * z], name="symmom_dense", angles=[0])
+
+
+def gaussian(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    m = rng.uniform(0.5, 1.5, n)
+    m[:2] = [1.0, 0.7]  # the angle output atan2(·, ·) stays far from its cut at ±π
+    A = rng.standard_normal((n, n)) / np.sqrt(n)
+    return m, 0.05 * (A @ A.T) + 0.01 * np.eye(n)
+
+
+TRANSFORMS = [sm.TT1(), sm.TT2(), sm.UT.ut1(), sm.UT(1.0, 2.0, 0.0), sm.UT.cubature(), sm.GaussHermite(3),
+              Cubature5()]
+
+
+@pytest.mark.parametrize("kind", [ca.SX, ca.MX], ids=["sx", "mx"])
+@pytest.mark.parametrize("transform", TRANSFORMS, ids=repr)
+@pytest.mark.parametrize("factory", [blocks_model, dense_model], ids=["blocks", "dense"])
+def test_moments_equal_the_numpy_transforms(factory, transform, kind):
+    model = factory()
+    cm = compiled(model)
+    angles = frozenset(model.angle_outputs)
+    m, P = gaussian(cm.n_w, 3)
+    ms, Ps = kind.sym("m", cm.n_w), kind.sym("P", cm.n_w, cm.n_w)
+    f = ca.Function("moments", [ms, Ps], list(moments(cm, ms, Ps, transform, angles)))
+    ref = transform.moments(cm, m[None], P[None], angles)
+    for got, want in zip(f(m, P), (ref.mean[0], ref.cov[0], ref.cross_cov[0])):
+        got = np.array(ca.densify(got)).reshape(want.shape)
+        np.testing.assert_allclose(got, want, rtol=MOMENT_RTOL, atol=MOMENT_RTOL * np.abs(want).max())
+
+
+def test_both_tt2_paths_are_exercised():
+    assert _tt2_derivatives(compiled(blocks_model()))[1] is True
+    assert _tt2_derivatives(compiled(dense_model()))[1] is False
+
+
+def test_the_circular_mean_crosses_the_cut():
+    """An angle output near ±π: the weighted circular mean and wrapped residuals (SX, MX)
+    equal the UT's, where a plain weighted mean would be near 0."""
+    x, y = sp.symbols("x y", real=True)
+    model = sm.Model([x, y], [sp.atan2(y, x)], name="symmom_cut", angles=[0])
+    cm = compiled(model)
+    m, P = np.array([-1.0, 1e-3]), np.diag([0.01, 0.04])
+    ref = sm.UT.ut1().moments(cm, m[None], P[None], frozenset({0}))
+    assert abs(ref.mean[0, 0]) > 3.0  # the mean sits at the cut
+    for kind in (ca.SX, ca.MX):
+        ms, Ps = kind.sym("m", 2), kind.sym("P", 2, 2)
+        f = ca.Function("ut", [ms, Ps], list(moments(cm, ms, Ps, sm.UT.ut1(), [0])))
+        mean, cov, _ = (np.array(ca.densify(a)) for a in f(m, P))
+        np.testing.assert_allclose(mean.ravel(), ref.mean[0], rtol=MOMENT_RTOL)
+        np.testing.assert_allclose(cov, ref.cov[0], rtol=MOMENT_RTOL)
+
+
+@pytest.mark.parametrize("transform", [sm.TT2(), sm.MonteCarlo(n=100, seed=0), "ut1"], ids=repr)
+def test_a_rule_without_points_is_refused(transform):
+    with pytest.raises(SymmonError, match="not a point rule"):
+        unit_rule(transform, 2)
+
+
+# --------------------------------------------------------------------------- filter names
+@pytest.mark.parametrize("transform, label", [
+    (sm.TT1(), "EKF"), (sm.TT2(), "EKF2"), (sm.UT.cubature(), "CKF"),
+    (sm.UT(1.0, 2.0, 0.0), "UKF(alpha=1.0, beta=2.0, kappa=0.0)"), (sm.UT.ut1(), "UKF(alpha=1.0, beta=0.0, kappa=None)"),
+    (sm.GaussHermite(3), "GHKF(order=3)"), (Cubature5(), "KF(Cubature5())"),
+])
+def test_each_rule_declares_its_filter_name(transform, label):
+    assert transform.filter_label() == label
+    x = sp.Symbol("x", real=True)
+    kf = sm.NonlinearKalmanFilter(sm.Model([x], [x], name="symmom_f"), sm.Model([x], [x], name="symmom_h"),
+                                  [[1.0]], [[1.0]], transform)
+    assert kf.method == label
