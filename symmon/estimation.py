@@ -40,18 +40,10 @@ from .moments import JointMoments
 from .propagate import propagate
 from .transforms import Transform
 
-try:  # the linear filter lives in its own module; re-exported here as the issue asks
-    from .kalman import KalmanFilter
-except ImportError:  # pragma: no cover - only while symmon.kalman is being written
-    KalmanFilter = None  # type: ignore[assignment,misc]
-
 __all__ = [
     "fuse",
-    "KalmanFilter",
     "DirectResult",
     "IndirectResult",
-    "NonlinearKalmanFilter",
-    "NonlinearKalmanResult",
     "direct",
     "indirect",
     "predict",
@@ -478,9 +470,14 @@ def update(
 
 
 def __getattr__(name: str):
-    """The nonlinear filters moved to :mod:`symmon.filters`; their old names still work."""
+    """The filters live in :mod:`symmon.filters` and :mod:`symmon.kalman`; their old names
+    here still work."""
     if name in ("NonlinearKalmanFilter", "NonlinearKalmanResult"):
         from . import filters
 
         return getattr(filters, name)
+    if name == "KalmanFilter":
+        from . import kalman
+
+        return kalman.KalmanFilter
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

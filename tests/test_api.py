@@ -9,6 +9,7 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import ModelError, ShapeError
+from symmon.propagate import compiled
 from symmon.sweep import sweep_alpha, sweep_states
 from symmon.transforms.registry import DEFAULT, default_transform, make
 
@@ -156,3 +157,10 @@ def test_quadrature_error_is_propagate_with_the_two_order_estimate():
         np.testing.assert_array_equal(q.error[name], p.error[name])
     assert q.error["cross_cov"].shape == q.cross_cov.shape == (2, 2)
     assert sm.propagate(NOISY, u, v, transform=sm.GaussHermite(3)).error is None
+
+
+def test_batched_moments_print_their_shape_not_their_arrays():
+    b = sm.propagate_many(NOISY, US, VS[0], transform=sm.MonteCarlo(4_000, seed=1, groups=4))
+    assert repr(b) == "Moments(K=3, n_y=2, n_u=2, n_v=1, evaluations=12000, with stderr)"
+    raw = sm.TT2().moments(compiled(PLAIN), US[0].mean[None], US[0].cov[None])
+    assert repr(raw) == "Moments(K=1, n_y=2, n_w=2, evaluations=1)"

@@ -86,6 +86,14 @@ class Moments:
             out["error_estimate"] = self.error
         return out
 
+    def __repr__(self) -> str:
+        K, n_y = self.mean.shape
+        n_x = self.cross_cov.shape[2]
+        inputs = f"n_u={n_x}, n_v={self.noise_cross_cov.shape[2]}" if self.noise_cross_cov is not None else f"n_w={n_x}"
+        extras = [name for name in ("stderr", "error") if getattr(self, name) is not None]
+        return (f"Moments(K={K}, n_y={n_y}, {inputs}, evaluations={self.evaluations}"
+                + "".join(f", with {e}" for e in extras) + ")")
+
     def split(self, n_u: int) -> "Moments":
         """The moments of y with u = w[:n_u] as the input: ``cross_cov``, its standard
         error and error bound become Cov(y, u), ``input_cov`` Cov u, and the rest of
