@@ -44,7 +44,7 @@ for name, t in transforms.items():
     if isinstance(t, sm.GaussHermite):
         est = [sm.propagate(prob.model, sm.Gaussian(m, P), transform=sm.GaussHermite(t.order, error_estimate=True))
                for m, P in zip(means, covs)]
-        rel = np.array([e.info["error_estimate"]["cov"][0][1, 1] / e.cov[1, 1] for e in est])
+        rel = np.array([e.error["cov"][1, 1] / e.cov[1, 1] for e in est])
         ax1.plot(alphas, rel, ls="--", color=line.get_color(), label=f"{name}: its error estimate")
     print(f"{name:>9}: relative error of Var(bearing) at α = {alphas[-1]:g}: {err[-1]:.3f}")
 ax1.fill_between(alphas, 1e-5, 2 * ref_se / ref_var, color="0.85", label="MC 2 s.e.")
