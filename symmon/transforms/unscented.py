@@ -41,8 +41,10 @@ class UT(Transform):
 
     Examples
     --------
-    >>> UT.ut1(), UT.ut2(), UT.cubature()
-    (UT(alpha=1.0, beta=0.0, kappa=None), UT(alpha=0.001, beta=2.0, kappa=0.0), UT(alpha=1.0, beta=0.0, kappa=0.0))
+    >>> UT.ut1(), UT.ut2(), UT.cubature()  # the named rules print as their constructors
+    (UT.ut1(), UT.ut2(), UT.cubature())
+    >>> UT(alpha=0.5, beta=2.0), UT(0.5, 2.0, 1.0)  # no kappa: κ = 3 − n
+    (UT(alpha=0.5, beta=2.0), UT(alpha=0.5, beta=2.0, kappa=1.0))
     """
 
     alpha: float = 1.0
@@ -60,6 +62,13 @@ class UT(Transform):
             object.__setattr__(self, k, float(v))
         if self.alpha <= 0:
             raise SymmonError(f"UT alpha must be positive, got {self.alpha}")
+
+    def __repr__(self) -> str:
+        for preset in ("ut1", "ut2", "cubature"):
+            if self == getattr(UT, preset)():
+                return f"UT.{preset}()"
+        kappa = "" if self.kappa is None else f", kappa={self.kappa!r}"
+        return f"UT(alpha={self.alpha!r}, beta={self.beta!r}{kappa})"
 
     @classmethod
     def ut1(cls) -> "UT":
@@ -100,7 +109,9 @@ class UT(Transform):
 
     def filter_label(self) -> str:
         """``CKF`` for the cubature rule, ``UKF(alpha=…, beta=…, kappa=…)`` otherwise."""
-        return "CKF" if self == UT.cubature() else "UKF" + repr(self)[2:]
+        if self == UT.cubature():
+            return "CKF"
+        return f"UKF(alpha={self.alpha!r}, beta={self.beta!r}, kappa={self.kappa!r})"
 
     def settings(self, n: int) -> str:
         """α, β and κ, with κ = 3 − n resolved for ``kappa=None``."""
