@@ -111,8 +111,8 @@ def bench_ut(model: sm.Model, K: int, repeats: int) -> dict:
     M, P = random_states(K)
     ut = sm.UT.ut1()
     cm = compiled(model)
-    first, t_full, res = best_of(lambda: sm.propagate_many(model, M, P, ut), repeats)
-    _, t_kernel, _ = best_of(lambda: ut.batch(cm, M, P, model.angle_outputs), repeats)
+    first, t_full, res = best_of(lambda: sm.propagate_many(model, (M, P), transform=ut), repeats)
+    _, t_kernel, _ = best_of(lambda: ut.moments(cm, M, P, model.angle_outputs), repeats)
     n = 4
     # ut1: α = 1, β = 0, κ = 3 − n, the same λ and weights as symmon's UT.ut1().
     points = MerweScaledSigmaPoints(n, alpha=1.0, beta=0.0, kappa=3.0 - n)
@@ -131,7 +131,7 @@ def bench_ut(model: sm.Model, K: int, repeats: int) -> dict:
     _, t_peer, (pm, pc, px) = best_of(filterpy_loop, max(1, repeats // 2))
     return {
         "K": K, "first": first, "symmon": t_full, "kernel": t_kernel, "peer": t_peer,
-        "diff": {"mean": rel_diff(res.mean, pm), "cov": rel_diff(res.cov, pc), "cross": rel_diff(res.cross, px)},
+        "diff": {"mean": rel_diff(res.mean, pm), "cov": rel_diff(res.cov, pc), "cross": rel_diff(res.cross_cov, px)},
     }
 
 
@@ -143,8 +143,8 @@ def bench_tt2(model: sm.Model, K: int, subset: int, repeats: int) -> dict:
     M, P = random_states(K, seed=2)
     tt2 = sm.TT2()
     cm = compiled(model)
-    first, t_full, res = best_of(lambda: sm.propagate_many(model, M, P, tt2), repeats)
-    _, t_kernel, _ = best_of(lambda: tt2.batch(cm, M, P, model.angle_outputs), repeats)
+    first, t_full, res = best_of(lambda: sm.propagate_many(model, (M, P), transform=tt2), repeats)
+    _, t_kernel, _ = best_of(lambda: tt2.moments(cm, M, P, model.angle_outputs), repeats)
     sx, sy, sz = SENSOR
     # soerp's N() integrates the pdf numerically for its moments (~0.5 s per variable):
     # create four standard normals once and shift/scale them per state (exact in soerp).
@@ -199,7 +199,7 @@ def bench_mc(model: sm.Model, n: int, repeats: int) -> dict:
         _, t, mon = best_of(lambda: sm.nonlinearity(model, u, weight="full", transform=tr), repeats)
         out[key] = {"t": t, "n": int(mon.moments.info["n_samples"]), "res": mon.moments, "mon": mon}
     # The same plain MC on one thread: what the thread pool buys on this machine.
-    _, t1, _ = best_of(lambda: sm.nonlinearity(model, u, transform=sm.MonteCarlo(n, seed=0, workers=1)), repeats)
+    _, t1, _ = best_of(lambda: sm.nonlinearity(model, u, transform=sm.MonteCarlo(n, seed=0), executor=sm.Executor(workers=1)), repeats)
     out["mc1"] = {"t": t1, "n": out["mc"]["n"]}
 
     def numpy_mon():
