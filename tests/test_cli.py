@@ -353,7 +353,7 @@ def test_monte_carlo_backends_give_the_same_numbers(capsys, monkeypatch, extra, 
 def test_dask_scheduler_address_gives_the_same_numbers(capsys):
     distributed = pytest.importorskip("dask.distributed")
     with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
-                                  dashboard_address=None) as cluster:
+                                  dashboard_address=":0") as cluster:
         with distributed.Client(cluster) as watcher:
             remote = _mc_json(capsys, "--dask", cluster.scheduler_address)
             # the groups ran as tasks on the cluster
