@@ -1,166 +1,71 @@
-"""One public API (issue 14, item 8): one default transform, one argument order,
-``propagate_many`` mirroring ``propagate``, typed results."""
+"""The public surface of the package: what ``dir(symmon)`` lists, and the import paths kept."""
 
-from __future__ import annotations
-
-import numpy as np
-import pytest
-import sympy as sp
+import importlib
 
 import symmon as sm
-from symmon.errors import ModelError, ShapeError
-from symmon.propagate import compiled
-from symmon.sweep import sweep_alpha, sweep_states
-from symmon.transforms.registry import DEFAULT, default_transform, make
 
-# Batched and one-at-a-time evaluations of the same formula differ only in the order of
-# BLAS sums: rounding, relative to the largest entry.
-BATCH_RTOL = 1e-12
-EXACT_TOL = 1e-10
-
-x, y, e = sp.symbols("x y e", real=True)
-PLAIN = sm.Model([x, y], [x * y + sp.sin(x), y**2], name="api_plain")
-NOISY = sm.Model([x, y], [x * sp.exp(e) + y, y * e], noise=[e], name="api_noisy")
-US = [sm.Gaussian([0.3, -1.0], [[0.4, 0.1], [0.1, 0.2]]), sm.Gaussian([1.0, 2.0], [[0.1, 0.0], [0.0, 0.3]]),
-      sm.Gaussian([-0.5, 0.5], [[1.0, -0.3], [-0.3, 0.5]])]
-VS = [sm.Gaussian([0.0], [[0.05]]), sm.Gaussian([0.1], [[0.2]]), sm.Gaussian([-0.2], [[0.01]])]
+#: Modules that implement the package but are not part of its interface.
+IMPLEMENTATION = ("compile", "io", "latex", "progress", "ccache", "cnames")
 
 
-def _close(a, b, what=""):
-    a, b = np.asarray(a), np.asarray(b)
-    np.testing.assert_allclose(a, b, rtol=0, atol=BATCH_RTOL * max(np.abs(b).max(), 1.0), err_msg=what)
+def test_dir_lists_the_public_names_only():
+    listed = dir(sm)
+    assert not set(IMPLEMENTATION) & set(listed)
+    assert set(sm.__all__) <= set(listed)
+    assert all(hasattr(sm, name) for name in sm.__all__)
 
 
-# --------------------------------------------------------------------------- one default
-def test_the_default_transform_is_tt2_everywhere():
-    assert DEFAULT == "tt2" and default_transform() == sm.TT2() == make("tt2")
-    u = US[0]
-    assert sm.propagate(PLAIN, u).transform == sm.TT2()
-    assert sm.nonlinearity(PLAIN, u).transform == sm.TT2()
-    assert sweep_alpha(PLAIN, u, [1.0]).transform == sm.TT2()
-    assert sweep_states(PLAIN, US).transform == sm.TT2()
-    by_default = sm.propagate_many(PLAIN, US)
-    by_name = sm.propagate_many(PLAIN, US, transform=sm.TT2())
-    np.testing.assert_array_equal(by_default.cov, by_name.cov)
-    assert sm.nonlinearity(PLAIN, u).value == sm.nonlinearity(PLAIN, u, transform=sm.TT2()).value
+def test_implementation_modules_stay_importable():
+    for name in IMPLEMENTATION:
+        module = importlib.import_module(f"symmon.{name}")
+        assert getattr(sm, name) is module
 
 
-# --------------------------------------------------------------------------- one argument order
-@pytest.mark.parametrize("call", [
-    lambda: sm.propagate(PLAIN, US[0], None, sm.TT2()),
-    lambda: sm.propagate_many(PLAIN, US, None, sm.TT2()),
-    lambda: sm.nonlinearity(PLAIN, US[0], None, "full"),
-    lambda: sm.compare(PLAIN, US[0], None, "full"),
-    lambda: sweep_alpha(PLAIN, US[0], [1.0], None, "full"),
-    lambda: sweep_states(PLAIN, US, None, "full"),
-], ids=["propagate", "propagate_many", "nonlinearity", "compare", "sweep_alpha", "sweep_states"])
-def test_options_after_the_noise_are_keywords(call):
-    """(model, inputs, v) positionally, then weight, transform and executor by name: a
-    transform passed where v goes is a clear TypeError, not a noise Gaussian."""
-    with pytest.raises(TypeError, match="positional"):
-        call()
+def test_split_modules_keep_the_old_import_paths():
+    from symmon import expressions, invariance, lemmas, modelfile, physical_units, units
+
+    assert modelfile.parse_expression is expressions.parse_expression
+    assert modelfile.ModelFileError is expressions.ModelFileError
+    assert units.with_units is physical_units.with_units
+    assert units.UnitModel is physical_units.UnitModel
+    assert units.prove_invariance is invariance.prove_invariance
+    assert invariance.lemma_weight is lemmas.lemma_weight and invariance.Lemma is lemmas.Lemma
+    measure = importlib.import_module("symmon.measure")
+    nonlinearity = importlib.import_module("symmon.nonlinearity")  # sm.nonlinearity is the function
+    assert nonlinearity.mon_from_moments is measure.mon_from_moments is sm.mon_from_moments
+    assert nonlinearity.NonlinearityMeasure is measure.NonlinearityMeasure is sm.NonlinearityMeasure
 
 
-# --------------------------------------------------------------------------- propagate_many
-@pytest.mark.parametrize("transform", [sm.TT2(), sm.UT.ut1(), sm.GaussHermite(3)], ids=repr)
-def test_propagate_many_equals_propagate_per_gaussian(transform):
-    b = sm.propagate_many(PLAIN, US, transform=transform)
-    arrays = sm.propagate_many(PLAIN, (np.array([u.mean for u in US]), np.array([u.cov for u in US])),
-                               transform=transform)
-    for k, u in enumerate(US):
-        m = sm.propagate(PLAIN, u, transform=transform)
-        for name in ("mean", "cov", "cross_cov", "input_cov"):
-            _close(getattr(b, name)[k], getattr(m, name), f"{name}[{k}]")
-            _close(getattr(arrays, name)[k], getattr(m, name), f"{name}[{k}] from arrays")
-    assert b.noise_cross_cov.shape == (3, 2, 0)
+def _results():
+    import numpy as np
+    import sympy as sp
+
+    from symmon import estimation, invariance, units
+
+    x, y = sp.symbols("x y", real=True)
+    kf = sm.KalmanFilter(np.eye(2), 0.1 * np.eye(2), np.eye(2), np.eye(2))
+    polar = sm.Model([x, y], [sp.sqrt(x**2 + y**2), sp.atan2(y, x)], name="polar")
+    line = sm.Model([x], [2 * x])
+    return {
+        "Gaussian": (sm.Gaussian([1.0, 2.0], np.eye(2)), "N([1, 2], [[1, 0], [0, 1]])"),
+        "KalmanFilter": (kf, "KalmanFilter(n=2, n_y=2)"),
+        "KalmanResult": (kf.filter(np.zeros((3, 2)), np.zeros(2), np.eye(2)),
+                         "KalmanResult(steps=3, n=2, n_y=2, last x̂ [0, 0], last std [0.571, 0.571])"),
+        "KalmanResult bank": (kf.filter(np.zeros((4, 3, 2)), np.zeros(2), np.eye(2)),
+                              "KalmanResult(runs=4, steps=3, n=2, n_y=2)"),
+        "GeneralWeight": (sm.weights.general([0.5, 0.5], [[0.0, 0.1], [0.1, 0.0]]),
+                          "GeneralWeight(alphas=(0.5, 0.5), offdiag=[[0.0, 0.1], [0.1, 0.0]])"),
+        "Lemma": (invariance.lemma_cholesky(), "Lemma('cholesky-equivariance', holds=True)"),
+        "UnitModel": (units.with_units(polar, {"x": "m", "y": "m"}, ["m", "rad"]),
+                      "UnitModel('polar', inputs={'x': 'meter', 'y': 'meter'}, outputs={'y0': 'meter', 'y1': 'radian'})"),
+        "DirectResult": (estimation.direct(line, [sm.Gaussian([2.0], [[1.0]])], sm.UT.ut1()),
+                         "DirectResult(estimates=1, fused=N([4], [[4]]))"),
+        "IndirectResult": (estimation.indirect(line, sm.Gaussian([0.0], [[1.0]]), [[2.0]], noise=[[1.0]],
+                                               transform=sm.UT.ut1()),
+                           "IndirectResult(measurements=1, posterior=N([0.8], [[0.2]]))"),
+    }
 
 
-@pytest.mark.parametrize("per_input", [False, True], ids=["one v", "a v per input"])
-def test_propagate_many_takes_the_noise_like_propagate(per_input):
-    v = VS if per_input else VS[0]
-    b = sm.propagate_many(NOISY, US, v, transform=sm.UT.ut1())
-    assert b.cross_cov.shape == (3, 2, 2) and b.noise_cross_cov.shape == (3, 2, 1)
-    for k, u in enumerate(US):
-        m = sm.propagate(NOISY, u, VS[k] if per_input else VS[0], transform=sm.UT.ut1())
-        for name in ("mean", "cov", "cross_cov", "noise_cross_cov", "input_cov"):
-            _close(getattr(b, name)[k], getattr(m, name), f"{name}[{k}]")
-
-
-def test_propagate_many_monte_carlo_splits_its_error_bars_like_propagate():
-    mc = sm.MonteCarlo(4_000, seed=3, groups=4)
-    b = sm.propagate_many(NOISY, US[:1], VS[0], transform=mc)
-    m = sm.propagate(NOISY, US[0], VS[0], transform=mc)
-    for name in ("mean", "cov", "cross_cov"):
-        _close(b.stderr[name][0], m.stderr[name], name)
-    assert b.input_cov.shape == (1, 2, 2)
-
-
-@pytest.mark.parametrize("u, v, err, match", [
-    (US[0], None, TypeError, "one Gaussian: use propagate"),
-    ([], None, ShapeError, "at least one"),
-    ("means", None, TypeError, "list of K Gaussians"),
-    ([US[0], sm.Gaussian([0.0], [[1.0]])], None, ShapeError, r"u\[1\] has dimension 1"),
-    (US, VS[:2], TypeError, "list of 3 Gaussians"),
-    (US, [sm.Gaussian([0.0, 0.0], np.eye(2))] * 3, ShapeError, r"v\[0\] has dimension 2"),
-])
-def test_propagate_many_bad_batches(u, v, err, match):
-    with pytest.raises(err, match=match):
-        sm.propagate_many(NOISY, u, v if v is not None else VS[0])
-
-
-def test_propagate_many_refuses_noise_for_a_noise_free_model():
-    with pytest.raises(ModelError, match="no noise"):
-        sm.propagate_many(PLAIN, US, VS[0])
-
-
-def test_moments_split_once():
-    b = sm.propagate_many(NOISY, US, VS[0])
-    with pytest.raises(ValueError, match="already split"):
-        b.split(2)
-
-
-def test_sweep_states_takes_gaussians_or_arrays():
-    a = sweep_states(PLAIN, US, transform=sm.UT.ut1())
-    b = sweep_states(PLAIN, (np.array([u.mean for u in US]), np.array([u.cov for u in US])), transform=sm.UT.ut1())
-    np.testing.assert_array_equal(a.squared, b.squared)
-    np.testing.assert_array_equal(a.param, [0.0, 1.0, 2.0])
-    for k, u in enumerate(US):
-        assert a.squared[k] == pytest.approx(sm.nonlinearity(PLAIN, u, transform=sm.UT.ut1()).squared,
-                                             rel=BATCH_RTOL, abs=BATCH_RTOL)
-
-
-# --------------------------------------------------------------------------- typed results
-def test_mon_from_moments_is_the_measure_without_its_context():
-    res = sm.nonlinearity(PLAIN, US[2], weight="diag", transform=sm.GaussHermite(4))
-    m = res.moments
-    parts = sm.mon_from_moments(m.cov, m.cross_cov, m.input_cov, "diag", None, m.mean)
-    assert isinstance(parts, sm.MonParts) and isinstance(res, sm.MonParts)
-    assert (parts.squared, parts.J_Ab, parts.J_n, parts.weight_name) == (res.squared, res.J_Ab, res.J_n, "diag")
-    np.testing.assert_array_equal(parts.residual_cov, res.residual_cov)
-    assert float(parts) == parts.value == pytest.approx(np.sqrt(parts.squared), rel=EXACT_TOL)
-    assert repr(parts).startswith("MonParts(") and "diag" in repr(parts)
-
-
-def test_a_negative_squared_mon_has_value_zero():
-    parts = sm.mon_from_moments([[1.0]], [[1.0]], [[1.0 + 1e-9]], "liu-li-raw")  # M² = 1 − 1/(1 + 1e-9) > 0
-    assert parts.value > 0
-    neg = sm.mon_from_moments([[1.0]], [[1.0]], [[1.0 - 1e-9]], "liu-li-raw")  # M² < 0: Monte Carlo-like noise
-    assert neg.squared < 0 and neg.value == 0.0
-
-
-def test_quadrature_error_is_propagate_with_the_two_order_estimate():
-    u, v = US[0], VS[1]
-    q = sm.quadrature_error(NOISY, u, v, order=3)
-    p = sm.propagate(NOISY, u, v, transform=sm.GaussHermite(3, error_estimate=True))
-    assert isinstance(q, sm.JointMoments) and q.transform == p.transform
-    for name in ("mean", "cov", "cross_cov"):
-        np.testing.assert_array_equal(q.error[name], p.error[name])
-    assert q.error["cross_cov"].shape == q.cross_cov.shape == (2, 2)
-    assert sm.propagate(NOISY, u, v, transform=sm.GaussHermite(3)).error is None
-
-
-def test_batched_moments_print_their_shape_not_their_arrays():
-    b = sm.propagate_many(NOISY, US, VS[0], transform=sm.MonteCarlo(4_000, seed=1, groups=4))
-    assert repr(b) == "Moments(K=3, n_y=2, n_u=2, n_v=1, evaluations=12000, with stderr)"
-    raw = sm.TT2().moments(compiled(PLAIN), US[0].mean[None], US[0].cov[None])
-    assert repr(raw) == "Moments(K=1, n_y=2, n_w=2, evaluations=1)"
+def test_results_print_readably():
+    for name, (obj, expected) in _results().items():
+        assert repr(obj) == expected, name
