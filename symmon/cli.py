@@ -152,14 +152,14 @@ DASK_CONNECT_TIMEOUT = 10
 def _executor(args: argparse.Namespace) -> Iterator[Any]:
     """The :class:`~symmon.Executor` of ``--workers`` and ``--dask``, with progress; a
     Client to a ``--dask`` address is connected for the command and closed after it."""
-    from .transforms.montecarlo import Executor
+    from .transforms.executor import Executor
 
     target = args.dask
     if target is None or target in DASK_LOCAL:
         yield Executor(workers=args.workers, scheduler=target, progress=True)
         return
     # An address, checked by _dask_target when the arguments were parsed.
-    from .transforms.montecarlo import connect_dask
+    from .transforms.executor import connect_dask
 
     try:
         client = connect_dask(target, DASK_CONNECT_TIMEOUT)  # bounds the handshake too

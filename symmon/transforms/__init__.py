@@ -6,7 +6,7 @@ from .base import Transform as Transform
 from .base import wrap_angle as wrap_angle
 from .cubature5 import Cubature5 as Cubature5
 from .exact import Exact as Exact
-from .montecarlo import Executor as Executor
+from .executor import Executor as Executor
 from .montecarlo import MonteCarlo as MonteCarlo
 from .quadrature import GaussHermite as GaussHermite
 from .taylor import TT1 as TT1
