@@ -1,5 +1,6 @@
 """The transforms: one module per family, each returns moments for a batch of Gaussians
-(docs/architecture.md); :mod:`.registry` names them."""
+(docs/architecture.md); :mod:`.registry` names them.  The stochastic ones keep their group
+statistics with :mod:`.stats` and run where an :mod:`.executor` says."""
 
 from .base import Moments as Moments
 from .base import Transform as Transform
