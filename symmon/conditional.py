@@ -27,7 +27,8 @@ from .gaussian import Gaussian
 from .model import Model
 from .propagate import compiled
 from .transforms import Transform
-from .transforms.montecarlo import MC_INNER, Stats, leave_one_out, merge_all, moments_of
+from .transforms.montecarlo import MC_INNER
+from .transforms.stats import Stats, leave_one_out, merge_all, moments_of
 
 __all__ = ["conditional_cov", "conditional_cov_replicates"]
 
@@ -92,7 +93,7 @@ def conditional_cov_replicates(model: Model, u: Gaussian, v: Gaussian | None, tr
 
     The leave-one-out values let the jackknife of the MoN see the error of Σ_c as well
     as that of the moments (replicate i is left out of both).  Each is the total with one
-    replicate taken out (:func:`~symmon.transforms.montecarlo.leave_one_out`): O(G) in all.
+    replicate taken out (:func:`~symmon.transforms.stats.leave_one_out`): O(G) in all.
     """
     exact = model.n_v == 0 or model.structure == "additive" or (
         model.structure == "multiplicative" and model.pi.shape[1] == 0)

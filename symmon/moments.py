@@ -47,7 +47,7 @@ class JointMoments:
         replicates) and the rule's own (``sigma_points``, ``error_estimate``, ...).
     replicates : list or None
         The independent replicates behind ``stderr`` (Monte Carlo groups: their
-        statistics of [y; w]), for :func:`~symmon.transforms.montecarlo.jackknife`.
+        statistics of [y; w]), for :func:`~symmon.transforms.stats.jackknife`.
     evaluations : int
         Evaluations of g.
     input_cov : ndarray, shape (n_u, n_u)

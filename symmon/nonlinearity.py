@@ -30,7 +30,7 @@ from .model import Model
 from .moments import JointMoments
 from .propagate import check_transform, propagate
 from .transforms import Transform
-from .transforms.montecarlo import Stats, jackknife, moments_of
+from .transforms.stats import Stats, jackknife, moments_of
 from .transforms.registry import compare_set
 
 __all__ = ["NonlinearityMeasure", "MonParts", "nonlinearity", "compare", "format_table", "mon_from_moments"]

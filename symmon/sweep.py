@@ -39,7 +39,7 @@ from .model import Model
 from .nonlinearity import mon_from_moments, nonlinearity
 from .propagate import check_transform, input_batch, propagate_many
 from .transforms import Transform
-from .transforms.montecarlo import Executor, dask_compute
+from .transforms.executor import Executor, dask_compute
 
 __all__ = ["SweepResult", "sweep_alpha", "sweep_states"]
 

@@ -81,7 +81,7 @@ def curves(alphas=ALPHAS, samples: int = 10**6, seed: int = 0, progress: bool = 
 
 
 def _liu_se(m, Suu) -> tuple[float, float]:
-    from ..transforms.montecarlo import jackknife
+    from ..transforms.stats import jackknife
 
     res = []
     for size in (1.0, np.pi / 180):

@@ -18,7 +18,7 @@ from ..measure import mon_from_moments
 from ..problems import GMTI_UNITS, RDCOS_UNITS, bot, gmti, rdcos
 from ..propagate import propagate
 from ..transforms import TT2, UT, MonteCarlo
-from ..transforms.montecarlo import jackknife
+from ..transforms.stats import jackknife
 from ._common import ALPHA_LABEL, figure_style, progress_bar, pyplot, samples_text
 
 __all__ = ["run", "curves", "ALPHAS", "PROBLEMS", "COLUMNS"]

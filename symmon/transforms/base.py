@@ -52,8 +52,8 @@ class Moments:
         estimate, :func:`symmon.quadrature_error`).
     replicates : list or None
         For each Gaussian of the batch, the independent replicates (Monte Carlo groups:
-        :class:`~symmon.transforms.montecarlo.Stats`) that the error bars come from;
-        :func:`~symmon.transforms.montecarlo.jackknife` takes one such list.
+        :class:`~symmon.transforms.stats.Stats`) that the error bars come from;
+        :func:`~symmon.transforms.stats.jackknife` takes one such list.
     evaluations : int
         Evaluations of g (points, samples or expansion points) for the whole batch.
     details : dict
@@ -152,7 +152,7 @@ class Transform(ABC):
                 angles: frozenset[int] = frozenset(), executor: Any = None) -> Moments:
         """The moments of y = g(w) for the K Gaussians N(means[k], covs[k]).
 
-        ``executor`` (:class:`~symmon.transforms.execution.Executor`) says where the
+        ``executor`` (:class:`~symmon.transforms.executor.Executor`) says where the
         work runs; deterministic rules ignore it.
         """
 

@@ -20,25 +20,27 @@ A. B. Owen, "Scrambling Sobol' and Niederreiter-Xing points", J. Complexity 14, 
 
 from __future__ import annotations
 
-import asyncio
-import os
 import threading
 import warnings
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
-from typing import Any, Callable, ClassVar, Sequence, TypeVar
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 
 from ..compile import CHUNK, CompiledModel, compile_model
 from ..errors import SamplingError, SymmonError
-from ..progress import progress_bar
 from .base import Moments, Transform, batch_sqrt, pilot_angle_cut, wrap_angle
+from .executor import Executor, _is_int, dask_compute, stop_point
 from .mc_kernel import sample_kernel
+from .stats import Stats, _raw_stats, jackknife, merge, merge_all, moments_of
 
-__all__ = ["MonteCarlo", "Stats", "merge", "merge_all", "jackknife", "jackknife_se", "leave_one_out",
-           "leave_one_out_stack", "group_generator", "group_sizes", "moments_of", "run_groups", "stop_point",
-           "dask_compute", "connect_dask", "Executor", "MC_INNER", "MAX_SAMPLES", "MAX_GROUPS", "MAX_CHUNK", "MAX_QMC_GROUP"]
+# The group statistics (.stats) and where the groups run (.executor) once lived here:
+# their names still import from this module.
+from .executor import connect_dask, run_groups  # noqa: F401
+from .stats import jackknife_se, leave_one_out, leave_one_out_stack  # noqa: F401
+
+__all__ = ["MonteCarlo", "group_generator", "group_sizes", "MC_INNER", "MAX_SAMPLES", "MAX_GROUPS", "MAX_CHUNK",
+           "MAX_QMC_GROUP"]
 
 #: Most samples in a run: counts and the sums of a chunk stay exact in double precision.
 MAX_SAMPLES = 2**53
@@ -52,124 +54,6 @@ MAX_CHUNK = 2**20
 MAX_QMC_GROUP = 2**30
 
 
-@dataclass(frozen=True)
-class Stats:
-    """Sufficient statistics of a sample of vectors: count, mean and M2 = Σ (z − z̄)(z − z̄)ᵀ.
-
-    Or of a stack of G samples (:func:`leave_one_out_stack`): n (G,), mean (G, d),
-    m2 (G, d, d); :attr:`cov` and :func:`moments_of` work on both.
-    """
-
-    n: int | np.ndarray
-    mean: np.ndarray
-    m2: np.ndarray
-
-    @classmethod
-    def of(cls, Z: np.ndarray) -> "Stats":
-        """Statistics of the rows of Z (N, d), in two passes (mean, then centred products)."""
-        n = Z.shape[0]
-        # A BLAS product: numpy's axis-0 reduction of a narrow (N, d) array is ~10x slower.
-        mean = np.ones(n) @ Z / n
-        D = Z - mean
-        return cls(n, mean, D.T @ D)
-
-    @property
-    def cov(self) -> np.ndarray:
-        """The unbiased sample covariance."""
-        return self.m2 / (np.asarray(self.n, dtype=float) - 1)[..., None, None]
-
-
-def merge(a: Stats, b: Stats) -> Stats:
-    """Merge two sets of statistics exactly (Chan, Golub & LeVeque)."""
-    if a.n == 0:
-        return b
-    if b.n == 0:
-        return a
-    n = a.n + b.n
-    delta = b.mean - a.mean
-    mean = a.mean + delta * (b.n / n)
-    m2 = a.m2 + b.m2 + np.outer(delta, delta) * (a.n * b.n / n)
-    return Stats(n, mean, m2)
-
-
-def merge_all(stats: Sequence[Stats]) -> Stats:
-    """Merge a sequence of statistics, left to right (a fixed order: reproducible).
-
-    O(G) merges of O(d²) each; the order fixes the rounding, so the result is the same
-    bit for bit wherever the groups ran.
-    """
-    out = stats[0]
-    for s in stats[1:]:
-        out = merge(out, s)
-    return out
-
-
-def leave_one_out_stack(groups: Sequence[Stats], total: Stats | None = None) -> Stats:
-    """The merged statistics of all groups but group i, for each i, as one stack, in O(G).
-
-    Chan's merge run backwards: the total (n, x̄, M2) minus group i (nᵢ, x̄ᵢ, M2ᵢ) is
-
-        n₋ᵢ = n − nᵢ,   x̄₋ᵢ = x̄ − (nᵢ/n₋ᵢ)(x̄ᵢ − x̄),
-        M2₋ᵢ = M2 − M2ᵢ − (nᵢ n / n₋ᵢ)(x̄ᵢ − x̄)(x̄ᵢ − x̄)ᵀ,
-
-    the last term being nᵢ n₋ᵢ/n (x̄ᵢ − x̄₋ᵢ)(x̄ᵢ − x̄₋ᵢ)ᵀ with x̄ᵢ − x̄₋ᵢ = (n/n₋ᵢ)(x̄ᵢ − x̄).
-    All groups at once, as (G, d) and (G, d, d) arrays.  Group i is a 1/G share of the
-    total, so the subtraction loses no significant digits (the test compares it with
-    merging the other G − 1 groups, to 1e-10).
-
-    Parameters
-    ----------
-    groups : sequence of Stats
-    total : Stats, optional
-        ``merge_all(groups)``, if the caller has it already.
-    """
-    if len(groups) < 2:
-        raise SymmonError("the jackknife needs at least 2 groups")
-    total = merge_all(groups) if total is None else total
-    n_i = np.array([g.n for g in groups], dtype=np.int64)
-    n_out = total.n - n_i
-    if np.any(n_out < 1):
-        raise SymmonError("the jackknife needs samples outside every group: all samples are in one group")
-    diff = np.stack([g.mean for g in groups]) - total.mean
-    mean_out = total.mean - diff * (n_i / n_out)[:, None]
-    m2_out = (total.m2 - np.stack([g.m2 for g in groups])
-              - (n_i * (total.n / n_out))[:, None, None] * diff[:, :, None] * diff[:, None, :])
-    return Stats(n_out, mean_out, m2_out)
-
-
-def leave_one_out(groups: Sequence[Stats], total: Stats | None = None) -> list[Stats]:
-    """The merged statistics of all groups but group i, for each i (see :func:`leave_one_out_stack`)."""
-    s = leave_one_out_stack(groups, total)
-    return [Stats(int(n), mu, m2) for n, mu, m2 in zip(s.n, s.mean, s.m2)]
-
-
-def jackknife_se(loo: np.ndarray) -> np.ndarray:
-    """Delete-one-group jackknife standard error from the G leave-one-out values (rows)."""
-    loo = np.asarray(loo, dtype=float)
-    G = loo.shape[0]
-    if G < 2:
-        raise SymmonError("the jackknife needs at least 2 groups")
-    return np.sqrt((G - 1) / G * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0))
-
-
-def jackknife(groups: Sequence[Stats], fn: Callable[[Stats], np.ndarray], total: Stats | None = None) -> np.ndarray:
-    """Delete-one-group jackknife standard error of an estimate computed from the merged
-    statistics: the one jackknife of every Monte Carlo error bar (moments, MoN, figures).
-
-    Parameters
-    ----------
-    groups : sequence of Stats
-        The replicates (``Moments.replicates`` or ``JointMoments.replicates``).
-    fn : callable
-        Called once on the stack of the G leave-one-out statistics
-        (:func:`leave_one_out_stack`: n (G,), mean (G, d), m2 (G, d, d)); returns the
-        estimate for each, with a leading axis G.
-    total : Stats, optional
-        ``merge_all(groups)``, if the caller has it already.
-    """
-    return jackknife_se(np.asarray(fn(leave_one_out_stack(groups, total)), dtype=float))
-
-
 def group_generator(seed: np.random.SeedSequence) -> np.random.Generator:
     """The generator of one group: SFC64, NumPy's fastest bit generator of full statistical
     quality (its normals cost ~20 % less than PCG64's, the largest single cost per sample)."""
@@ -179,44 +63,6 @@ def group_generator(seed: np.random.SeedSequence) -> np.random.Generator:
 def group_sizes(n: int, G: int) -> list[int]:
     """n split over G groups as evenly as possible (the first n mod G get one more)."""
     return [n // G + (1 if g < n % G else 0) for g in range(G)]
-
-
-J = TypeVar("J")
-R = TypeVar("R")
-
-
-class _Stopped(Exception):
-    """A group saw the stop event: the run was interrupted, or another group failed."""
-
-
-def stop_point(stop: threading.Event | None) -> None:
-    """End the calling group if the run is being stopped (called once per chunk)."""
-    if stop is not None and stop.is_set():
-        raise _Stopped
-
-
-def run_groups(fn: Callable[[J, threading.Event], R], jobs: Sequence[J], workers: int,
-               desc: str = "Monte Carlo groups", progress: bool = False) -> list[R]:
-    """``fn(job, stop)`` for each job on ``workers`` threads; the results in job order.
-
-    ``fn`` calls :func:`stop_point` once per chunk.  When the calling thread is
-    interrupted (Ctrl-C: KeyboardInterrupt) or a group raises, the stop event is set:
-    the running groups end at their next chunk, the queued ones never start, and the
-    exception propagates, within about one chunk's time instead of the remaining groups'.
-    """
-    stop = threading.Event()
-    # Even one worker runs off the main thread: the main thread then only waits, where a
-    # Ctrl-C is always seen at once (inline, a SIGINT was sometimes lost in the kernel loop).
-    pool = ThreadPoolExecutor(workers)
-    try:
-        futures = [pool.submit(fn, j, stop) for j in jobs]
-        return [f.result() for f in progress_bar(futures, desc, progress, total=len(futures))]
-    except BaseException:
-        stop.set()
-        raise
-    finally:
-        # Drop the queued groups; the running ones see `stop` within a chunk.
-        pool.shutdown(wait=True, cancel_futures=True)
 
 
 @dataclass(frozen=True)
@@ -229,39 +75,6 @@ class _Job:
     chunk: int
     ref: np.ndarray  # reference output for angle unwrapping
     angles: tuple[int, ...]
-
-
-def moments_of(s: Stats, ny: int, nw: int, angles: Sequence[int] = ()
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """E y, Cov y, Cov(y, w) and Cov w from the statistics of z = [y; w; sin y_A; cos y_A]
-    (of one sample, or of each of a stack: then every result has a leading axis G).
-
-    An angle output's mean is the circular mean atan2(mean sin y, mean cos y), wrapped to
-    (−π, π], as in the UT and Gauss–Hermite rules, and its variance is taken about that
-    mean: Cov y + δδᵀ, with δ the (wrapped) difference of the linear mean of the
-    unwrapped samples and the circular mean.  δ is of third order in the spread
-    (−E e³/6 for a residual e), so the correction is of sixth order.
-    """
-    C = s.cov
-    mean = s.mean[..., :ny].copy()
-    cov = C[..., :ny, :ny].copy()
-    A = list(angles)
-    if A:
-        k, o = len(A), ny + nw
-        circ = wrap_angle(np.arctan2(s.mean[..., o: o + k], s.mean[..., o + k: o + 2 * k]))
-        delta = np.zeros_like(mean)
-        delta[..., A] = wrap_angle(mean[..., A] - circ)
-        cov += delta[..., :, None] * delta[..., None, :]
-        mean[..., A] = circ
-    return mean, cov, C[..., :ny, ny: ny + nw], C[..., ny: ny + nw, ny: ny + nw]
-
-
-def _raw_stats(S: np.ndarray) -> Stats:
-    """Statistics of the rows z of A = [z, 1] from S = AᵀA (count, sums, cross-products)."""
-    d = S.shape[0] - 1
-    n = S[d, d]
-    mean = S[:d, d] / n
-    return Stats(int(round(n)), mean, S[:d, :d] - np.outer(S[:d, d], mean))
 
 
 def _sampling_error(A: np.ndarray, shift: np.ndarray, ny: int, nw: int, m: int, done: int) -> SamplingError:
@@ -285,7 +98,7 @@ def _run_group(cm: CompiledModel, job: _Job, stop: threading.Event | None = None
     ones on the first chunk's mean.  A large offset (|E y| ≫ std) would otherwise cost its
     digits, and with the centred rows the raw cross-products AᵀA of a chunk lose nothing
     in M2 = Σ zzᵀ − n z̄z̄ᵀ (|z̄| ≈ σ·√(2/chunk): σ/64 at the default chunk).
-    Chunks are merged with Chan's formula.  ``stop`` (see :func:`run_groups`) is checked
+    Chunks are merged with Chan's formula.  ``stop`` (see :func:`~.executor.run_groups`) is checked
     before each chunk.
     """
     d = job.mean.shape[0]
@@ -345,121 +158,9 @@ def _run_group(cm: CompiledModel, job: _Job, stop: threading.Event | None = None
     return Stats(acc.n, acc.mean + shift, acc.m2)
 
 
-def _is_int(v: Any) -> bool:
-    """An integer, numpy's included, and not a bool."""
-    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
-
-
 def _run_group_remote(outputs, symbols, job: _Job) -> Stats:
     # Workers compile the model themselves: CasADi functions are not shipped.
     return _run_group(compile_model(outputs, symbols), job)
-
-
-def dask_compute(tasks: Sequence[Any], client: Any = None, scheduler: str | None = None) -> list:
-    """The results of Dask delayed ``tasks``, in order, on ``client`` or else on the local
-    ``scheduler``.  On a client, an interrupt (or any error) cancels the tasks still
-    pending, so the cluster does not go on with a run nobody waits for."""
-    if client is not None:
-        futures = client.compute(list(tasks))
-        try:
-            return list(client.gather(futures))
-        except BaseException:
-            client.cancel(futures)
-            raise
-    import dask
-
-    return list(dask.compute(*tasks, scheduler=scheduler))
-
-
-def connect_dask(address: str, timeout: float = 10.0) -> Any:
-    """A ``dask.distributed.Client`` to the scheduler at ``address``, or a clear error
-    within about ``timeout`` seconds.
-
-    ``Client(address, timeout=...)`` bounds the TCP connection but not distributed's
-    handshake after it: a server that accepts the connection and never answers (a wrong
-    port, a hung scheduler) would hold it forever.  So the handshake is tried first, in
-    its own event loop on a helper thread: ``timeout`` for the connection (as a closed
-    port gets), then as long again for the answer.
-
-    Raises
-    ------
-    SymmonError
-        The 'dask' extra is missing, or no scheduler answered at ``address`` in time.
-    """
-    try:
-        from distributed import Client
-        from distributed.comm import connect
-        from distributed.security import Security
-    except ImportError as exc:
-        raise SymmonError(f"a Dask scheduler address ({address}) needs the 'dask' extra: "
-                          "pip install 'symmon[dask]'") from exc
-
-    async def handshake() -> None:
-        comm = await connect(address, timeout=timeout, **Security().get_connection_args("client"))
-        await comm.close()
-
-    def probe() -> None:
-        # A refused or unresolvable address fails inside connect() after `timeout`, first.
-        asyncio.run(asyncio.wait_for(handshake(), 2 * timeout))
-
-    reach = f"cannot reach the Dask scheduler at {address} within {timeout:g} s"
-    with ThreadPoolExecutor(1) as pool:  # a thread: the caller may be inside an event loop
-        try:
-            pool.submit(probe).result()
-        except asyncio.TimeoutError as exc:
-            raise SymmonError(f"{reach}: the connection was accepted but nothing answered in "
-                              f"another {timeout:g} s (is a Dask scheduler listening there?)") from exc
-        except (OSError, ValueError) as exc:  # refused, unresolvable, malformed address
-            raise SymmonError(f"{reach}: {exc}") from exc
-    try:
-        return Client(address, timeout=timeout)
-    except OSError as exc:
-        raise SymmonError(f"{reach}: {exc}") from exc
-
-
-@dataclass(frozen=True)
-class Executor:
-    """Where a stochastic transform's replicates run: apart from the method, so that
-    the same ``MonteCarlo`` gives the same numbers wherever it runs.
-
-    Parameters
-    ----------
-    workers : int or None
-        Threads (``None``: the number of CPUs, at most the number of replicates).
-    client : dask.distributed.Client, optional
-        Run the replicates on a Dask cluster.
-    scheduler : str, optional
-        A local Dask scheduler name (``"threads"``, ``"processes"``, ``"synchronous"``).
-    progress : bool
-        Show a progress bar over the replicates (on a terminal only).
-    """
-
-    workers: int | None = None
-    client: Any = field(default=None, repr=False)
-    scheduler: str | None = None
-    progress: bool = False
-
-    def __post_init__(self) -> None:
-        if self.workers is not None and (not _is_int(self.workers) or self.workers < 1):
-            raise SymmonError(f"workers must be >= 1, got {self.workers!r}")
-        if self.client is not None and self.scheduler is not None:
-            raise SymmonError("pass either client or scheduler, not both")
-        if self.scheduler is not None and not isinstance(self.scheduler, str):
-            raise SymmonError(f"scheduler must be a Dask scheduler name such as 'processes', got {self.scheduler!r}")
-
-    @property
-    def distributed(self) -> bool:
-        """True when the work goes to Dask."""
-        return self.client is not None or self.scheduler is not None
-
-    def threads(self, jobs: int) -> int:
-        """Threads for ``jobs`` replicates: ``workers``, or the number of CPUs, at most ``jobs``."""
-        return self.workers or min(os.cpu_count() or 1, int(jobs))
-
-    def run(self, fn: Callable[[J, threading.Event], R], jobs: Sequence[J], desc: str) -> list[R]:
-        """``fn(job, stop)`` for each job on this executor's threads (:func:`run_groups`)."""
-        return run_groups(fn, jobs, self.threads(len(jobs)), desc, self.progress)
-
 
 #: Inner samples per outer noise sample in the nested Monte Carlo of Cov_v E[g | v].
 MC_INNER = 64
@@ -488,7 +189,7 @@ class MonteCarlo(Transform):
         ~ chunk · (2 n_w + n_y + 1) · 8 bytes).
 
     Where the groups run (threads, Dask, progress) is not part of the method: pass an
-    :class:`Executor` to :func:`symmon.propagate` (``executor=``); the numbers do not
+    :class:`~symmon.Executor` to :func:`symmon.propagate` (``executor=``); the numbers do not
     depend on it.
     """
 
@@ -550,7 +251,7 @@ class MonteCarlo(Transform):
     def group_stats(self, cm: CompiledModel, mean: np.ndarray, cov: np.ndarray,
                     angles: frozenset[int] = frozenset(), executor: Executor | None = None) -> list[Stats]:
         """The statistics of z = [y; w; sin y_A; cos y_A] for each group, in group order
-        (A: the angle outputs, unwrapped around g(E w); see :func:`moments_of`)."""
+        (A: the angle outputs, unwrapped around g(E w); see :func:`~.stats.moments_of`)."""
         ex = executor or Executor()
         L = batch_sqrt(cov[None])[0]
         ref = cm.eval_g(mean[None])[0] if angles else np.zeros(cm.n_y)
@@ -617,7 +318,7 @@ class MonteCarlo(Transform):
         Each outer sample of v gets MC_INNER samples of u.  A group keeps the statistics
         of the inner means and the sum of the inner covariances; its streams are the
         children of the one ``SeedSequence(seed)`` child that the moments do not use.
-        The groups run on the executor's threads (:func:`run_groups`): the same result
+        The groups run on the executor's threads (:func:`~.executor.run_groups`): the same result
         for any thread count, and Ctrl-C stops them within a chunk.
 
         Returns

@@ -86,7 +86,7 @@ def make(name: str, *, samples: int = 10**6, seed: int = 0, order: int = 5, grou
         Gauss–Hermite order per dimension.
 
     Where Monte Carlo runs is not an option of the transform: pass an
-    :class:`~symmon.transforms.montecarlo.Executor` to :func:`symmon.propagate`.
+    :class:`~symmon.transforms.executor.Executor` to :func:`symmon.propagate`.
 
     Raises
     ------

@@ -1,0 +1,173 @@
+"""Where work runs, apart from the method: threads that stop together, or Dask.
+
+An :class:`Executor` says where a stochastic transform's replicates run (threads, a
+local Dask scheduler or a Dask cluster) and whether a progress bar shows; the method
+(:class:`~symmon.transforms.montecarlo.MonteCarlo`) fixes the numbers, which do not depend
+on it.  :func:`run_groups` runs the replicates on threads and stops them all, within a
+chunk, on Ctrl-C or on the first failure; :func:`dask_compute` and :func:`connect_dask`
+are the Dask side.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence, TypeVar
+
+import numpy as np
+
+from ..errors import SymmonError
+from ..progress import progress_bar
+
+__all__ = ["Executor", "run_groups", "stop_point", "dask_compute", "connect_dask"]
+
+J = TypeVar("J")
+R = TypeVar("R")
+
+
+class _Stopped(Exception):
+    """A group saw the stop event: the run was interrupted, or another group failed."""
+
+
+def stop_point(stop: threading.Event | None) -> None:
+    """End the calling group if the run is being stopped (called once per chunk)."""
+    if stop is not None and stop.is_set():
+        raise _Stopped
+
+
+def run_groups(fn: Callable[[J, threading.Event], R], jobs: Sequence[J], workers: int,
+               desc: str = "Monte Carlo groups", progress: bool = False) -> list[R]:
+    """``fn(job, stop)`` for each job on ``workers`` threads; the results in job order.
+
+    ``fn`` calls :func:`stop_point` once per chunk.  When the calling thread is
+    interrupted (Ctrl-C: KeyboardInterrupt) or a group raises, the stop event is set:
+    the running groups end at their next chunk, the queued ones never start, and the
+    exception propagates, within about one chunk's time instead of the remaining groups'.
+    """
+    stop = threading.Event()
+    # Even one worker runs off the main thread: the main thread then only waits, where a
+    # Ctrl-C is always seen at once (inline, a SIGINT was sometimes lost in the kernel loop).
+    pool = ThreadPoolExecutor(workers)
+    try:
+        futures = [pool.submit(fn, j, stop) for j in jobs]
+        return [f.result() for f in progress_bar(futures, desc, progress, total=len(futures))]
+    except BaseException:
+        stop.set()
+        raise
+    finally:
+        # Drop the queued groups; the running ones see `stop` within a chunk.
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _is_int(v: Any) -> bool:
+    """An integer, numpy's included, and not a bool."""
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+def dask_compute(tasks: Sequence[Any], client: Any = None, scheduler: str | None = None) -> list:
+    """The results of Dask delayed ``tasks``, in order, on ``client`` or else on the local
+    ``scheduler``.  On a client, an interrupt (or any error) cancels the tasks still
+    pending, so the cluster does not go on with a run nobody waits for."""
+    if client is not None:
+        futures = client.compute(list(tasks))
+        try:
+            return list(client.gather(futures))
+        except BaseException:
+            client.cancel(futures)
+            raise
+    import dask
+
+    return list(dask.compute(*tasks, scheduler=scheduler))
+
+
+def connect_dask(address: str, timeout: float = 10.0) -> Any:
+    """A ``dask.distributed.Client`` to the scheduler at ``address``, or a clear error
+    within about ``timeout`` seconds.
+
+    ``Client(address, timeout=...)`` bounds the TCP connection but not distributed's
+    handshake after it: a server that accepts the connection and never answers (a wrong
+    port, a hung scheduler) would hold it forever.  So the handshake is tried first, in
+    its own event loop on a helper thread: ``timeout`` for the connection (as a closed
+    port gets), then as long again for the answer.
+
+    Raises
+    ------
+    SymmonError
+        The 'dask' extra is missing, or no scheduler answered at ``address`` in time.
+    """
+    try:
+        from distributed import Client
+        from distributed.comm import connect
+        from distributed.security import Security
+    except ImportError as exc:
+        raise SymmonError(f"a Dask scheduler address ({address}) needs the 'dask' extra: "
+                          "pip install 'symmon[dask]'") from exc
+
+    async def handshake() -> None:
+        comm = await connect(address, timeout=timeout, **Security().get_connection_args("client"))
+        await comm.close()
+
+    def probe() -> None:
+        # A refused or unresolvable address fails inside connect() after `timeout`, first.
+        asyncio.run(asyncio.wait_for(handshake(), 2 * timeout))
+
+    reach = f"cannot reach the Dask scheduler at {address} within {timeout:g} s"
+    with ThreadPoolExecutor(1) as pool:  # a thread: the caller may be inside an event loop
+        try:
+            pool.submit(probe).result()
+        except asyncio.TimeoutError as exc:
+            raise SymmonError(f"{reach}: the connection was accepted but nothing answered in "
+                              f"another {timeout:g} s (is a Dask scheduler listening there?)") from exc
+        except (OSError, ValueError) as exc:  # refused, unresolvable, malformed address
+            raise SymmonError(f"{reach}: {exc}") from exc
+    try:
+        return Client(address, timeout=timeout)
+    except OSError as exc:
+        raise SymmonError(f"{reach}: {exc}") from exc
+
+
+@dataclass(frozen=True)
+class Executor:
+    """Where a stochastic transform's replicates run: apart from the method, so that
+    the same ``MonteCarlo`` gives the same numbers wherever it runs.
+
+    Parameters
+    ----------
+    workers : int or None
+        Threads (``None``: the number of CPUs, at most the number of replicates).
+    client : dask.distributed.Client, optional
+        Run the replicates on a Dask cluster.
+    scheduler : str, optional
+        A local Dask scheduler name (``"threads"``, ``"processes"``, ``"synchronous"``).
+    progress : bool
+        Show a progress bar over the replicates (on a terminal only).
+    """
+
+    workers: int | None = None
+    client: Any = field(default=None, repr=False)
+    scheduler: str | None = None
+    progress: bool = False
+
+    def __post_init__(self) -> None:
+        if self.workers is not None and (not _is_int(self.workers) or self.workers < 1):
+            raise SymmonError(f"workers must be >= 1, got {self.workers!r}")
+        if self.client is not None and self.scheduler is not None:
+            raise SymmonError("pass either client or scheduler, not both")
+        if self.scheduler is not None and not isinstance(self.scheduler, str):
+            raise SymmonError(f"scheduler must be a Dask scheduler name such as 'processes', got {self.scheduler!r}")
+
+    @property
+    def distributed(self) -> bool:
+        """True when the work goes to Dask."""
+        return self.client is not None or self.scheduler is not None
+
+    def threads(self, jobs: int) -> int:
+        """Threads for ``jobs`` replicates: ``workers``, or the number of CPUs, at most ``jobs``."""
+        return self.workers or min(os.cpu_count() or 1, int(jobs))
+
+    def run(self, fn: Callable[[J, threading.Event], R], jobs: Sequence[J], desc: str) -> list[R]:
+        """``fn(job, stop)`` for each job on this executor's threads (:func:`run_groups`)."""
+        return run_groups(fn, jobs, self.threads(len(jobs)), desc, self.progress)
