@@ -79,6 +79,16 @@ def cmd_nonlinearity(args: argparse.Namespace) -> int:
         return _nonlinearity(args, ex)
 
 
+def _sweep_header(weight: str, transform: str, unit: str) -> list[str]:
+    """Column names of the α-sweep CSV that say what each column holds."""
+    from .weights import NAMED_WEIGHTS
+
+    w = NAMED_WEIGHTS[weight]
+    mon = f"MoN with weight {w.name} {w.equation}: {w.formula}, by {transform} [{unit}]"
+    return ["alpha (scale of the input covariance: P = alpha P0)", mon,
+            "Monte Carlo standard error of the MoN (empty for a deterministic transform)"]
+
+
 def _nonlinearity(args: argparse.Namespace, ex: Any) -> int:
     from .gaussian import Gaussian
     from .io import save_figure, write_csv
@@ -110,7 +120,7 @@ def _nonlinearity(args: argparse.Namespace, ex: Any) -> int:
     # Compute everything first, then write: a failure midway leaves no partial file.
     written = []
     if args.csv:
-        written.append(write_csv(args.csv, ["alpha", "mon", "stderr"], rows))
+        written.append(write_csv(args.csv, _sweep_header(args.weight, args.transform, unit), rows))
     if args.plot:
         plt = pyplot()
         fig, ax = plt.subplots(figsize=(6, 4))

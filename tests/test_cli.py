@@ -187,7 +187,10 @@ def test_alpha_sweep_writes_csv_and_png_atomically(capsys, tmp_path):
     assert err == ""                                     # no progress bar: stderr is not a terminal
     with open(csv_path, newline="") as fh:
         rows = list(csv.reader(fh))
-    assert rows[0] == ["alpha", "mon", "stderr"]
+    assert rows[0] == ["alpha (scale of the input covariance: P = alpha P0)",
+                       "MoN with weight diag (42): W = diag(diag Σ_gg)⁻¹ / n_y, by tt2 [unitless]",
+                       "Monte Carlo standard error of the MoN (empty for a deterministic transform)"]
+    assert all(r[2] == "" for r in rows[1:])
     spec = load_model_file(EXAMPLES / "polar.toml")
     alphas = np.logspace(-2, 2, 5)
     assert_close([float(r[0]) for r in rows[1:]], alphas)
