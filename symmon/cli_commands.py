@@ -288,7 +288,7 @@ def cmd_filter(args: argparse.Namespace) -> int:
     written = [_filter_plot(spec, rows, states, args.plot)] if args.plot else []
     if args.json:
         _print_json({"scenario": spec.name, "runs": args.runs, "steps": spec.steps, "seed": args.seed,
-                     "states": states, "filters": [_bank_json(r) for r in rows],
+                     "states": states, "units": spec.units, "filters": [_bank_json(r) for r in rows],
                      "files": [str(p) for p in written]})
         return 0
     ok = [r for r in rows if r.result is not None]
@@ -297,7 +297,8 @@ def cmd_filter(args: argparse.Namespace) -> int:
         print(f"{spec.name}: {args.runs} runs of {spec.steps} steps (seed {args.seed}); per-step averages over the "
               f"runs with {a.confidence:.0%} chi-square intervals: ANEES [{a.lower:.3g}, {a.upper:.3g}] "
               f"(n = {len(states)}), ANIS [{b.lower:.3g}, {b.upper:.3g}] (n_y = {spec.h.n_y})")
-    print(f"{'filter':<9} {'ANEES':>9} {'inside':>7} {'ANIS':>9} {'inside':>7}  RMSE ({', '.join(states)})")
+    labelled = [f"{s} [{spec.unit(s)}]" if spec.unit(s) else s for s in states]
+    print(f"{'filter':<9} {'ANEES':>9} {'inside':>7} {'ANIS':>9} {'inside':>7}  RMSE ({', '.join(labelled)})")
     for r in rows:
         if r.result is None:
             print(f"{r.name:<9} failed: {r.error}")

@@ -187,9 +187,15 @@ def _filter_plot(spec, rows, states: list[str], path: str) -> Path:
     from .io import save_figure
     from .reproduce._common import figure_style, pyplot
 
+    # One RMSE panel per unit: a norm over components is only meaningful in one unit.
+    # Without [units], one panel over all the states, as the scenario declares no units.
+    by_unit: dict[str | None, list[int]] = {}
+    for i, s in enumerate(states):
+        by_unit.setdefault(spec.unit(s), []).append(i)
+    groups = list(by_unit.items()) if spec.units else [(None, list(range(len(states))))]
     plt = pyplot()
     with figure_style():
-        fig, axes = plt.subplots(3, 1, figsize=(7, 8), sharex=True)
+        fig, axes = plt.subplots(2 + len(groups), 1, figsize=(7, 5 + 2.5 * len(groups)), sharex=True)
         try:
             k = np.arange(1, spec.steps + 1)
             for r in rows:
@@ -197,15 +203,18 @@ def _filter_plot(spec, rows, states: list[str], path: str) -> Path:
                     continue
                 axes[0].semilogy(k, r.anees.value, label=r.name)
                 axes[1].semilogy(k, r.anis.value, label=r.name)
-                axes[2].semilogy(k, np.sqrt(np.sum(r.rmse**2, axis=1)), label=r.name)
+                for ax, (_, idx) in zip(axes[2:], groups):
+                    ax.semilogy(k, np.sqrt(np.sum(r.rmse[:, idx] ** 2, axis=1)), label=r.name)
             ok = [r for r in rows if r.result is not None]
             if ok:
                 for ax, t, what in ((axes[0], ok[0].anees, "NEES"), (axes[1], ok[0].anis, "NIS")):
                     ax.axhspan(t.lower, t.upper, color="0.85", label=f"{t.confidence:.0%} interval")
                     ax.set_ylabel(f"average {what}")
             axes[0].set_title(f"{spec.name}: {ok[0].result.runs if ok else 0} Monte Carlo runs")
-            axes[2].set_ylabel(f"RMSE of ({', '.join(states)})\n(norm over components)")
-            axes[2].set_xlabel("step k")
+            for ax, (unit, idx) in zip(axes[2:], groups):
+                unit_text = f" [{unit}]" if unit else ("" if spec.units else " (no units declared)")
+                ax.set_ylabel(f"RMSE of ({', '.join(states[i] for i in idx)}){unit_text}\n(norm over components)")
+            axes[-1].set_xlabel("step k")
             axes[0].legend(ncol=3)
             fig.tight_layout()
             return save_figure(fig, path)

@@ -26,10 +26,30 @@ e_k ~ N(0, R), the prior N(x̄_0, P_0) and the number of steps::
     mean = [-20, 50, 0, -2]
     std = [2, 2, 0.2, 0.2]
 
+**Non-additive noise.**  ``process_noise`` and ``measurement_noise`` name noise symbols
+that the dynamics and the measurements may use: then x_k = f(x_{k−1}, w_k) and
+y_k = h(x_k, e_k), and ``[Q]`` and ``[R]`` are the covariances of those symbols, so a noise
+may enter nonlinearly or with fewer components than the states::
+
+    states = ["x", "v"]
+    process_noise = ["a"]                                   # one acceleration noise
+    dynamics = ["x + T*v + T**2/2*a", "v + T*a"]
+    measurement_noise = ["r"]
+    measurements = ["hypot(x, 10) * exp(r)"]                # a multiplicative range error
+    [Q]
+    std = [0.5]
+    [R]
+    std = [0.01]
+
+**Units.**  An optional ``[units]`` table gives pint unit strings of states (by name) and
+measurements (``"measurements[i]"``); ``symmon filter`` prints them and its plot shows
+the RMSE of the states of each unit on its own axis.
+
 Every expression and number is read by the same whitelist parser as a model file
 (:func:`symmon.modelfile.parse_expression`): nothing in the file is executed.  Keys:
 ``name``, ``states``, ``dynamics``, ``measurements``, ``steps``, ``[Q]``, ``[R]`` and
-``[x0]`` are required; ``angles``, ``state_angles`` and ``[params]`` are optional.
+``[x0]`` are required; ``angles``, ``state_angles``, ``process_noise``,
+``measurement_noise``, ``[params]`` and ``[units]`` are optional.
 
 :func:`simulate` draws the true states and the measurements of a bank of runs with a
 seed, and :data:`FILTERS` names the filters that ``symmon filter`` runs.
@@ -38,7 +58,7 @@ seed, and :data:`FILTERS` names the filters that ``symmon filter`` runs.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -61,7 +81,8 @@ FILTERS = {"ekf": TT1(), "ekf2": TT2(), "ukf": UT.ut1(), "ckf": UT.cubature(), "
 #: Largest number of steps of a scenario (the bank holds runs × steps × n² numbers).
 MAX_STEPS = 100_000
 
-_KEYS = ("name", "states", "dynamics", "measurements", "angles", "state_angles", "steps", "params", "Q", "R", "x0")
+_KEYS = ("name", "states", "dynamics", "measurements", "angles", "state_angles", "steps", "params", "Q", "R", "x0",
+         "process_noise", "measurement_noise", "units")
 _REQUIRED = ("name", "states", "dynamics", "measurements", "steps", "Q", "R", "x0")
 
 
@@ -82,13 +103,17 @@ class FilterSpec:
     ----------
     name : str
     f, h : Model
-        The dynamics (states → states) and the measurement (states → measurements).
+        The dynamics (states → states) and the measurement (states → measurements), with
+        their noise symbols when the file names them.
     Q, R : ndarray
-        Additive process and measurement noise covariances.
+        Process and measurement noise covariances: of the additive noises, or of the
+        noise symbols of ``f`` and ``h``.
     x0 : Gaussian
         The prior of the filters and the distribution of the true x_0.
     steps : int
     path : Path
+    units : dict of str to str
+        Unit strings by state name or ``"measurements[i]"`` (empty: none declared).
     """
 
     name: str
@@ -99,6 +124,11 @@ class FilterSpec:
     x0: Gaussian
     steps: int
     path: Path = Path("<memory>")
+    units: dict[str, str] = field(default_factory=dict)
+
+    def unit(self, key: str) -> str | None:
+        """The unit of a state name or of ``"measurements[i]"``, if declared."""
+        return self.units.get(key)
 
 
 def _expressions(ctx: _Context, doc: dict, key: str, env: dict, path: Path) -> list[sp.Expr]:
@@ -138,13 +168,16 @@ def load_filter_file(path: str | os.PathLike) -> FilterSpec:
     state_names = _names(ctx, doc["states"], "states", seen)
     if not state_names:
         raise ctx.error("states", "at least one state is required")
+    W = [sp.Symbol(s, real=True) for s in _names(ctx, doc.get("process_noise", []), "process_noise", seen)]
+    E = [sp.Symbol(s, real=True) for s in _names(ctx, doc.get("measurement_noise", []), "measurement_noise", seen)]
     params = _params(ctx, doc.get("params", {}), seen)
     X = [sp.Symbol(s, real=True) for s in state_names]
     env: dict[str, Any] = {**params, **{s.name: s for s in X}}
-    dyn = _expressions(ctx, doc, "dynamics", env, path)
+    # Each noise is visible only where it belongs: w in the dynamics, e in the measurements.
+    dyn = _expressions(ctx, doc, "dynamics", {**env, **{s.name: s for s in W}}, path)
     if len(dyn) != len(X):
         raise ctx.error("dynamics", f"must have one expression per state ({len(X)}), got {len(dyn)}")
-    meas = _expressions(ctx, doc, "measurements", env, path)
+    meas = _expressions(ctx, doc, "measurements", {**env, **{s.name: s for s in E}}, path)
     steps = doc["steps"]
     if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= MAX_STEPS:
         raise ctx.error("steps", f"must be an integer in [1, {MAX_STEPS}], got {steps!r}")
@@ -156,20 +189,37 @@ def load_filter_file(path: str | os.PathLike) -> FilterSpec:
     if not isinstance(state_angles, list) or not all(a in state_names for a in state_angles):
         raise ctx.error("state_angles", f"must be a list of state names ({', '.join(state_names)}), got {state_angles!r}")
     by_name = dict(zip(state_names, X))
-    f = Model(X, dyn, name=f"{name}_f", angles=[by_name[a] for a in state_angles] or None)
-    h = Model(X, meas, name=f"{name}_h", angles=list(angles) or None)
-    Q = _noise(ctx, doc, "Q", len(X), params)
-    R = _noise(ctx, doc, "R", len(meas), params)
+    f = Model(X, dyn, noise=W or None, name=f"{name}_f", angles=[by_name[a] for a in state_angles] or None)
+    h = Model(X, meas, noise=E or None, name=f"{name}_h", angles=list(angles) or None)
+    Q = _noise(ctx, doc, "Q", len(W) or len(X), params)
+    R = _noise(ctx, doc, "R", len(E) or len(meas), params)
     x0 = _gaussian(ctx, doc["x0"], "x0", len(X), params, "states")
-    return FilterSpec(name, f, h, Q, R, x0, int(steps), path)
+    units = _units(ctx, doc.get("units", {}), state_names, len(meas))
+    return FilterSpec(name, f, h, Q, R, x0, int(steps), path, units)
+
+
+def _units(ctx: _Context, table: Any, states: list[str], n_meas: int) -> dict[str, str]:
+    """The [units] table: keys are state names or ``"measurements[i]"``."""
+    if not isinstance(table, dict):
+        raise ctx.error("units", f"must be a table of unit strings, got {table!r}")
+    allowed = set(states) | {f"measurements[{i}]" for i in range(n_meas)}
+    for key, unit in table.items():
+        if key not in allowed:
+            raise ctx.error("[units]", f"unknown key {key!r}; allowed: state names or 'measurements[i]' "
+                                       f"with i < {n_meas}")
+        if not isinstance(unit, str) or not unit.strip():
+            raise ctx.error(f"[units].{key}", f"must be a non-empty unit string, got {unit!r}")
+    return dict(table)
 
 
 def simulate(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, steps: int, runs: int,
              seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """True states and measurements of ``runs`` independent runs.
 
-    x_0 ~ x0, x_k = f(x_{k−1}) + w_k, y_k = h(x_k) + e_k for k = 1 … ``steps``; angle
-    states and angle measurements are wrapped to (−π, π].
+    x_0 ~ x0, x_k = f(x_{k−1}) + w_k, y_k = h(x_k) + e_k for k = 1 … ``steps``, with
+    w_k ~ N(0, Q) and e_k ~ N(0, R); for a model with noise symbols the noise is its
+    argument instead, x_k = f(x_{k−1}, w_k) and y_k = h(x_k, e_k).  Angle states and
+    angle measurements are wrapped to (−π, π].
 
     Returns
     -------
@@ -179,16 +229,22 @@ def simulate(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, ste
     rng = np.random.default_rng(seed)
     n, n_y = f.n_u, h.n_y
     cf, ch = compiled(f), compiled(h)
-    Lq, Lr = Gaussian(np.zeros(n), Q).sqrt_cov(), Gaussian(np.zeros(n_y), R).sqrt_cov()  # PSD allowed
+    nq, nr = f.n_v or n, h.n_v or n_y
+    Lq, Lr = Gaussian(np.zeros(nq), Q).sqrt_cov(), Gaussian(np.zeros(nr), R).sqrt_cov()  # PSD allowed
     x = x0.mean + rng.standard_normal((runs, n)) @ x0.sqrt_cov().T
     s_angles = sorted(f.angle_outputs | f.angle_inputs | h.angle_inputs)
     y_angles = sorted(h.angle_outputs)
     xs, ys = np.empty((runs, steps, n)), np.empty((runs, steps, n_y))
+
+    def step(c, model: Model, z: np.ndarray, L: np.ndarray) -> np.ndarray:
+        noise = rng.standard_normal((runs, L.shape[0])) @ L.T
+        return c.eval_g(np.hstack([z, noise])) if model.n_v else c.eval_g(z) + noise
+
     for k in range(steps):
-        x = cf.eval_g(x) + rng.standard_normal((runs, n)) @ Lq.T
+        x = step(cf, f, x, Lq)
         if s_angles:
             x[:, s_angles] = wrap_angle(x[:, s_angles])
-        y = ch.eval_g(x) + rng.standard_normal((runs, n_y)) @ Lr.T
+        y = step(ch, h, x, Lr)
         if y_angles:
             y[:, y_angles] = wrap_angle(y[:, y_angles])
         xs[:, k], ys[:, k] = x, y
