@@ -26,7 +26,6 @@ from .weights import NAMED as WEIGHTS
 __all__ = ["prove_matrix_invariance"]
 
 
-
 def _matrix_counterexample(d: sp.Expr, explicit: dict, scales: str, seed: int = 0) -> dict:
     """An exact rational point (moments positive definite, scales invertible) where d ≠ 0."""
     rng = np.random.default_rng(seed)
