@@ -230,6 +230,7 @@ def prove_invariance(
     if route == "direct":
         if tname != "tt2":
             raise SymmonError(f"the direct route works on the TT2 closed form only, got transform {tname!r}")
+        # The size limit is read here: symmon.invariance.DIRECT_MAX_SIZE is the setting users know.
         return _prove_direct(model, weight, label, mu, P, R, budget, progress, t0, DIRECT_MAX_SIZE)
     if tname != "tt2" and model.n_v and model.structure != "additive":
         raise SymmonError(
@@ -255,6 +256,7 @@ def prove_invariance(
             given = _moments_args(model, at[0].mean, at[0].cov, at[1].cov if len(at) > 1 and at[1] is not None else None)
             if not any(M.free_symbols for M in given):  # a model with noise needs v too
                 point = given
+    # The builder of ḡ this module imports is the one checked (a test replaces it here).
     _check_composition(model, point[0], tname, _changed_parts)
     # The TT2 and 'full' lemmas hold for any invertible scales; (42), W̄ and the Cholesky
     # factor of the point rules need positive diagonal ones.

@@ -144,7 +144,8 @@ def _close(a: mpmath.matrix, b: mpmath.matrix) -> bool:
     return all(abs(x - y) <= _AGREE_RTOL * scale for x, y in zip(a, b))
 
 
-def _check_composition(model: Model, point: sp.Matrix, tname: str, changed_parts: Callable = _changed_parts) -> None:
+def _check_composition(model: Model, point: sp.Matrix, tname: str,
+                       changed_parts: Callable = _changed_parts) -> None:
     """ḡ built by change_units is g composed with the unit change: check it at one point.
 
     At rational scales, offsets and point (the model's mean mapped to the new units), the

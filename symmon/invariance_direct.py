@@ -140,7 +140,8 @@ def direct_size(model: Model) -> int:
 
 
 def _prove_direct(model: Model, weight: Any, label: str, mu: sp.Matrix, P: sp.Matrix, R: sp.Matrix,
-                  budget: float, progress: bool, t0: float, max_size: int = DIRECT_MAX_SIZE) -> InvarianceProof:
+                  budget: float, progress: bool, t0: float,
+                  max_size: int = DIRECT_MAX_SIZE) -> InvarianceProof:
     """The direct route within ``budget`` seconds, for models of size at most ``max_size``."""
     size = direct_size(model)
     hint = ("use the lemma route (route='lemmas'; on the command line drop --route direct), which "
