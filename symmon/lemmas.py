@@ -2,7 +2,7 @@
 
 Each lemma is a statement about every model of a size (matrix symbols), cross-checked on
 explicit generic matrices; :func:`symmon.units.prove_invariance` combines them with a
-cheap per-model check (:mod:`symmon.invariance`):
+cheap per-model check (:mod:`symmon.invariance_check`):
 
 - :func:`lemma_tt2`: the TT2 moments map under the change of units (18) by A = S_y⁻¹;
 - :func:`lemma_cholesky`, :func:`lemma_point_rule`: the points of the UT family,

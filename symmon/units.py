@@ -23,7 +23,8 @@ Contents
   scale matrices and offsets come from pint, never from a table. Defined in
   :mod:`symmon.physical_units` and re-exported here.
 - :func:`prove_invariance`, :func:`prove_matrix_invariance`: the symbolic proofs of unit
-  invariance, defined in :mod:`symmon.invariance` and re-exported here.
+  invariance, defined in :mod:`symmon.invariance` and :mod:`symmon.invariance_matrix` and
+  re-exported here.
 
 References
 ----------
