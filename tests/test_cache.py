@@ -355,8 +355,8 @@ def test_build_into_a_private_directory_is_killed_at_exit(tmp_path):
     assert not list(tmp.iterdir()) and not list(shared.iterdir())
 
 
-# The real compiler, held until the test creates $FAKE_CC_DIR/gate (at most 2 minutes), so
-# that the Python which started the build has exited before the build ends.
+# A compiler, held until the test creates $FAKE_CC_DIR/gate (at most 2 minutes), so that
+# the Python which started the build has exited before the build ends.
 GATED_CC = """#!/bin/sh
 case "$1" in --version|-dumpmachine) exec REAL "$@";; esac
 n=0
@@ -364,32 +364,68 @@ while [ ! -e "$FAKE_CC_DIR/gate" ] && [ $n -lt 1200 ]; do sleep 0.1; n=$((n + 1)
 exec REAL "$@"
 """
 
+# A compiler that fails with a message.
+BROKEN_CC = """#!/bin/sh
+case "$1" in --version) echo "broken-cc 1.0"; exit 0;; -dumpmachine) echo "x86_64-broken-linux-gnu"; exit 0;; esac
+echo "broken-cc: error: f.c: cannot compile this" >&2
+exit 1
+"""
+
+
+def exit_before_the_build_ends(tmp_path: Path, compiler: str, runs: int = 1) -> tuple[dict[str, str], Path]:
+    """Run SLOW_SCRIPT ``runs`` times in the background mode with ``compiler`` held by a
+    gate until the runs have ended normally; then open the gate and wait for the build
+    directories to go.  Returns the environment and the cache directory."""
+    cache = tmp_path / "cache"
+    env = slow_env(tmp_path, GATED_CC.replace("REAL", compiler), "background", cache)
+    for _ in range(runs):
+        # A build holding the run's stdout or stderr would make this wait for the build
+        # too (and time out, the gate being closed).
+        res = subprocess.run([sys.executable, "-c", textwrap.dedent(SLOW_SCRIPT), "-"], env=env,
+                             capture_output=True, text=True, timeout=SUBPROCESS_TIMEOUT)
+        assert res.returncode == 0 and res.stdout == "[1.0, 1.0, 1.0] vm (C build running)\n", res.stderr
+        assert "continues after exit" in res.stderr
+    assert len(list(cache.glob(".build-*/f.c"))) == runs and not list(cache.glob("*.so*"))
+    (tmp_path / "gate").touch()
+    deadline = time.monotonic() + SUBPROCESS_TIMEOUT
+    while list(cache.glob(".build-*")) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not list(cache.glob(".build-*")), "the build did not end"
+    return env, cache
+
 
 @needs_cc
 def test_normal_exit_lets_the_background_build_fill_the_cache(tmp_path):
     real = shutil.which("gcc") or shutil.which("cc")
     if real is None:
         pytest.skip("no gcc or cc on PATH")
-    cache = tmp_path / "cache"
-    env = slow_env(tmp_path, GATED_CC.replace("REAL", real), "background", cache)
-    script = textwrap.dedent(SLOW_SCRIPT)
-    # The run ends while its build waits; a build holding the run's stdout or stderr
-    # would make this wait for the build too (and time out, the gate being closed).
-    first = subprocess.run([sys.executable, "-c", script, "-"], env=env, capture_output=True, text=True,
-                           timeout=SUBPROCESS_TIMEOUT)
-    assert first.returncode == 0 and first.stdout == "[1.0, 1.0, 1.0] vm (C build running)\n", first.stderr
-    assert "continues after exit" in first.stderr
-    assert list(cache.glob(".build-*/f.c")) and not list(cache.glob("*.so*"))
-    (tmp_path / "gate").touch()
-    deadline = time.monotonic() + SUBPROCESS_TIMEOUT
-    while (not list(cache.glob("*.so.sha256")) or list(cache.glob(".build-*"))) and time.monotonic() < deadline:
-        time.sleep(0.1)
+    # Two runs, whose builds race to install the same entry when the gate opens.
+    env, cache = exit_before_the_build_ends(tmp_path, real, runs=2)
     so, = cache.glob("*.so")
-    assert cc._verify(so) is None and not list(cache.glob(".build-*"))
-    again = subprocess.run([sys.executable, "-c", script, "-"], env=env, capture_output=True, text=True,
-                           timeout=SUBPROCESS_TIMEOUT)
+    assert cc._verify(so) is None and sorted(cache.iterdir()) == [so, sidecar(so)]
+    again = subprocess.run([sys.executable, "-c", textwrap.dedent(SLOW_SCRIPT), "-"], env=env,
+                           capture_output=True, text=True, timeout=SUBPROCESS_TIMEOUT)
     assert again.returncode == 0 and again.stdout == "[1.0, 1.0, 1.0] compiled\n", again.stderr
     assert "loaded from the cache" in again.stderr
+
+
+def test_failed_build_after_exit_leaves_nothing(tmp_path):
+    broken = tmp_path / "broken-cc"
+    broken.write_text(BROKEN_CC)
+    broken.chmod(0o755)
+    _, cache = exit_before_the_build_ends(tmp_path, str(broken))
+    assert not list(cache.iterdir())
+
+
+def test_failed_build_is_reported_and_leaves_nothing(tmp_path):
+    cache = tmp_path / "cache"
+    env = slow_env(tmp_path, BROKEN_CC, "sync", cache)
+    res = subprocess.run([sys.executable, "-c", textwrap.dedent(SLOW_SCRIPT), "-"], env=env,
+                         capture_output=True, text=True, timeout=SUBPROCESS_TIMEOUT)
+    assert res.returncode == 0 and res.stdout == "[1.0, 1.0, 1.0] vm\n", res.stderr
+    assert "compiling sm_slow" in res.stderr and "failed, using the CasADi VM" in res.stderr
+    assert "fake-cc exited with status 1:\nbroken-cc: error: f.c: cannot compile this" in res.stderr
+    assert not list(cache.iterdir())
 
 
 @needs_proc
