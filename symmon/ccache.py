@@ -15,9 +15,13 @@ everything between "here is C source" and "here is a loaded library":
   is loaded its sha256 is checked against the file beside it (which names the entry, so
   a pair copied under another key fails too); a mismatch, a missing checksum or a load
   failure gives a warning and a rebuild.
-- **Compiler runs** happen in a new session (process group) in a temporary directory
-  inside the cache.  On KeyboardInterrupt or SIGTERM the whole group (``cc1``, ``as``)
-  is killed and the directory removed; at interpreter exit, so is any background build.
+- **Builds**: each runs as one build process (:mod:`symmon.ccbuild`: the compiler, then
+  the checksum and the atomic install) in a new session (process group) and in a
+  temporary directory inside the cache.  On KeyboardInterrupt or SIGTERM the whole group
+  (``cc1``, ``as``) is killed and the directory removed.  A background build still
+  running when the interpreter exits normally is left to finish: it installs its library
+  for the next run.  After an interrupt, and into a private temporary cache directory,
+  it is killed at exit instead.
 - **Policy** (``$SYMMON_COMPILE``): ``auto`` (default) compiles C of up to
   :data:`BACKGROUND_BYTES` at once with -O2, and larger C in a background thread (-O1,
   or -O0 above :data:`HUGE_BYTES`) while CasADi's virtual machine evaluates, then swaps
@@ -38,6 +42,7 @@ import shutil
 import signal
 import stat
 import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -48,6 +53,8 @@ from typing import Callable, Generic, TypeVar
 
 import casadi as ca
 
+from . import ccbuild
+from .ccbuild import checksum_path, sha256_file
 from .errors import SymmonError
 
 __all__ = ["cache_dir", "has_compiler", "compile_mode", "build_shared_library", "NativeLibrary",
@@ -203,35 +210,23 @@ def cache_dir() -> Path:
 
 
 # --------------------------------------------------------------------------- entries
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def _checksum_path(so: Path) -> Path:
-    return so.with_name(so.name + ".sha256")
-
-
 def _verify(so: Path) -> str | None:
     """Why the entry ``so`` must not be loaded (None when its checksum matches)."""
     try:
-        recorded = _checksum_path(so).read_text().split()
+        recorded = checksum_path(so).read_text().split()
     except OSError:
         return "its checksum file is missing"
     if len(recorded) != 2 or recorded[1] != so.name:
         return "its checksum file is malformed or names another entry"
     try:
-        actual = _sha256(so)
+        actual = sha256_file(so)
     except OSError as exc:
         return f"it cannot be read ({exc.strerror or exc})"
     return None if actual == recorded[0] else "its sha256 does not match the checksum beside it"
 
 
 def _remove_entry(so: Path) -> None:
-    for p in (so, _checksum_path(so)):
+    for p in (so, checksum_path(so)):
         try:
             p.unlink()
         except FileNotFoundError:
@@ -243,15 +238,19 @@ class BuildError(RuntimeError):
     """The compiler failed (its message holds the end of the compiler's output)."""
 
 
-#: Compiler process groups running now, with their temporary directories, and the
-#: number of threads between "about to start a compiler" and its registration here.
+#: Build process groups running now, with their temporary directories; the number of
+#: threads between "about to start a build" and its registration here; and background
+#: threads that have not registered their build yet.
 _running: dict[subprocess.Popen, Path] = {}
 _starting = 0
+_preparing: set[threading.Thread] = set()
 _shutting_down = False
+#: Set by the handlers of :func:`catch_sigterm`: SIGINT or SIGTERM reached this process.
+_interrupted = False
 
 
 def _kill(p: subprocess.Popen) -> None:
-    """Kill the compiler's whole process group (cc1, as, ...) and reap the driver."""
+    """Kill the build's whole process group (build process, cc1, as, ...) and reap it."""
     if p.returncode is None:
         try:
             os.killpg(p.pid, signal.SIGKILL)  # start_new_session: the group id is the pid
@@ -262,33 +261,64 @@ def _kill(p: subprocess.Popen) -> None:
 
 def _compiling() -> bool:
     with _lock:
-        return bool(_running) or _starting > 0
+        return bool(_running or _preparing) or _starting > 0
 
 
 def _on_sigterm(signum, frame) -> None:
     """SIGTERM while symmon compiles: exit through Python, so the compiler is killed."""
+    global _interrupted
     if _compiling():
+        _interrupted = True
         raise SystemExit(128 + signum)
     # No compile runs: behave as if this handler were not here.
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     os.kill(os.getpid(), signal.SIGTERM)
 
 
-def catch_sigterm() -> None:
-    """Turn SIGTERM into SystemExit while compiles run (only over the default action).
+def _on_sigint(signum, frame) -> None:
+    """Ctrl-C: note it for the exit handler, then raise KeyboardInterrupt as Python does."""
+    global _interrupted
+    _interrupted = True
+    signal.default_int_handler(signum, frame)
 
-    Installed from the main thread only (Python's rule).  When no compile runs the
-    handler restores the default action and re-sends the signal, so the process ends as
-    it would have; a compile running in any thread makes it raise ``SystemExit(143)``,
-    whose exit handlers kill the compiler's process group.
+
+def _was_interrupted() -> bool:
+    """Whether this process ends because of Ctrl-C or SIGTERM rather than normally.
+
+    The exit status is not visible to an exit handler, hence the flag set by the signal
+    handlers: it also counts a KeyboardInterrupt that the program caught before exiting
+    (the ``symmon`` command returns 130).  A KeyboardInterrupt that ended the program
+    while another SIGINT handler was installed shows in ``sys.last_value``.
     """
-    if threading.current_thread() is threading.main_thread() \
-            and signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+    return _interrupted or isinstance(getattr(sys, "last_value", None), KeyboardInterrupt)
+
+
+def catch_sigterm() -> None:
+    """Turn SIGTERM into SystemExit while compiles run, and note SIGINT.
+
+    Installed from the main thread only (Python's rule), and only over the default
+    handlers.  When no compile runs the SIGTERM handler restores the default action and
+    re-sends the signal, so the process ends as it would have; a compile running in any
+    thread makes it raise ``SystemExit(143)``, whose exit handlers kill the build's
+    process group.  The SIGINT handler raises KeyboardInterrupt as before, and marks the
+    process as interrupted: its background builds are then killed at exit too.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return
+    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
         signal.signal(signal.SIGTERM, _on_sigterm)
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _on_sigint)
 
 
 def _run_compiler(cmd: list[str], tmp: Path) -> None:
-    """Run ``cmd`` in its own session; kill the group if this thread is interrupted."""
+    """Run the build process ``cmd`` in its own session; kill the group if this thread
+    is interrupted.
+
+    Its stdin is /dev/null and its stdout a pipe that it writes to only when it fails,
+    so it needs nothing from this process: when this process exits normally, the build
+    runs on (a new session has no controlling terminal, hence no SIGHUP).
+    """
     global _starting
     with _lock:
         if _shutting_down:
@@ -304,6 +334,7 @@ def _run_compiler(cmd: list[str], tmp: Path) -> None:
             _starting -= 1
             if p is not None:
                 _running[p] = tmp
+                _preparing.discard(threading.current_thread())
     try:
         out, _ = p.communicate()
     except BaseException:  # KeyboardInterrupt, SystemExit from SIGTERM: no orphan cc1
@@ -313,31 +344,46 @@ def _run_compiler(cmd: list[str], tmp: Path) -> None:
         with _lock:
             _running.pop(p, None)
     if p.returncode != 0:
-        raise BuildError(f"{shlex.join(cmd[:1])} exited with status {p.returncode}:\n{out[-2000:]}")
+        raise BuildError(out.strip() or f"the build process exited with status {p.returncode}")
 
 
-#: Seconds the exit handler waits for a compiler that is being started.
+#: Seconds the exit handler waits for builds that are being started.
 _EXIT_GRACE = 5.0
+
+
+def _wait_until(done: Callable[[], bool], deadline: float) -> None:
+    while time.monotonic() < deadline:
+        with _lock:
+            if done():
+                return
+        time.sleep(0.01)
 
 
 @atexit.register
 def _at_exit() -> None:
-    """At exit: kill background compiles, remove their temporary directories, then the
-    private cache directory if one was made."""
+    """At exit: kill the builds that must not outlive this process, remove their
+    temporary directories, then the private cache directory if one was made.
+
+    After a normal exit a build still running (a background build) is left to finish
+    and install its library for the next run.  After an interrupt every build is killed,
+    as is a build into the private directory, which nobody would read.
+    """
     global _shutting_down
+    interrupted = _was_interrupted()
+    deadline = time.monotonic() + _EXIT_GRACE
+    if not interrupted:  # a run that ends at once has started background builds: let them start
+        _wait_until(lambda: not _preparing and not _starting, deadline)
     with _lock:
         _shutting_down = True
-    deadline = time.monotonic() + _EXIT_GRACE
-    while time.monotonic() < deadline:
-        with _lock:
-            if not _starting:
-                break
-        time.sleep(0.01)
+    _wait_until(lambda: not _starting, deadline)
     with _lock:
         running = list(_running.items())
     for p, tmp in running:
-        _kill(p)
-        shutil.rmtree(tmp, ignore_errors=True)
+        if interrupted or (_private is not None and tmp.parent == _private):
+            _kill(p)
+            shutil.rmtree(tmp, ignore_errors=True)
+        else:
+            log.info("symmon: a C build (%s) continues after exit, to fill the cache", tmp)
     if _private is not None:
         shutil.rmtree(_private, ignore_errors=True)
 
@@ -357,20 +403,23 @@ def _remove_stale_builds(d: Path) -> None:
 
 
 def _build(code: str, so: Path, opt: str) -> None:
-    """Compile ``code`` into the cache entry ``so`` and its checksum, atomically."""
+    """Compile ``code`` into the cache entry ``so`` and its checksum, atomically.
+
+    A build process (:mod:`symmon.ccbuild`) runs the compiler and installs the entry
+    itself, so that a background build can finish after this process has exited.
+    """
     cc = _compiler()
     assert cc is not None
+    if not sys.executable:
+        raise BuildError("no Python executable (sys.executable is empty) to run the build")
     _remove_stale_builds(so.parent)
     tmp = Path(tempfile.mkdtemp(prefix=".build-", dir=so.parent))
     try:
         (tmp / "f.c").write_text(code)
-        _run_compiler([*cc, opt, *CFLAGS, "f.c", "-o", "f.so", "-lm"], tmp)
-        # The checksum first: a reader that sees the new library sees its checksum.
-        (tmp / "f.sha256").write_text(f"{_sha256(tmp / 'f.so')}  {so.name}\n")
-        os.replace(tmp / "f.sha256", _checksum_path(so))
-        os.replace(tmp / "f.so", so)
+        _run_compiler([sys.executable, "-I", ccbuild.__file__, str(tmp), str(so),
+                       *cc, opt, *CFLAGS, "f.c", "-o", "f.so", "-lm"], tmp)
     finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        shutil.rmtree(tmp, ignore_errors=True)  # the build process removed it, unless killed
 
 
 def _entry(code: str, stem: str, opt: str) -> Path:
@@ -480,8 +529,11 @@ class NativeLibrary(Generic[T]):
         catch_sigterm()
         log.info("symmon: %s: %d bytes of C; evaluating on CasADi's VM while it compiles (%s) "
                  "in the background", stem, self.code_bytes, opt)
-        threading.Thread(target=self._background, args=(code, opt, load), daemon=True,
-                         name=f"symmon-cc-{stem}").start()
+        thread = threading.Thread(target=self._background, args=(code, opt, load), daemon=True,
+                                  name=f"symmon-cc-{stem}")
+        with _lock:
+            _preparing.add(thread)
+        thread.start()
 
     def _sync(self, code: str, opt: str, load: Callable[[Path], T], stacklevel: int) -> None:
         catch_sigterm()
@@ -506,13 +558,15 @@ class NativeLibrary(Generic[T]):
             if not _shutting_down:
                 log.warning("symmon: background compile of %s failed; staying on CasADi's VM: %s",
                             self.stem, exc)
+        else:
+            with self._lock:
+                self._obj, self._state = obj, "compiled"
+            log.info("symmon: %s: background C build done in %.1f s; now evaluating compiled code",
+                     self.stem, time.perf_counter() - t0)
+        finally:
+            with _lock:  # when no build process was needed (another process built the entry)
+                _preparing.discard(threading.current_thread())
             self._done.set()
-            return
-        with self._lock:
-            self._obj, self._state = obj, "compiled"
-        log.info("symmon: %s: background C build done in %.1f s; now evaluating compiled code",
-                 self.stem, time.perf_counter() - t0)
-        self._done.set()
 
     def get(self) -> T | None:
         """The loaded object, or None to use CasADi's virtual machine."""

@@ -198,15 +198,24 @@ wait
 
 # Starts a compile with the fake compiler; in the background mode it then waits for it.
 SLOW_SCRIPT = """
-import logging, sys, time
+import logging, signal, sys, time
 import numpy as np, sympy as sp
 from symmon.compile import CompiledModel
 logging.basicConfig(level=logging.INFO, format="%(name)s %(message)s")
+if sys.argv[1] == "own-handler":  # a program with its own SIGINT handler: symmon keeps it
+    def own(signum, frame):
+        raise KeyboardInterrupt
+    signal.signal(signal.SIGINT, own)
 x, y = sp.symbols("x y", real=True)
 cm = CompiledModel([x * y], [x, y], name="slow", compiled=True)
 print(cm.eval_g(np.ones((3, 2))).ravel().tolist(), cm.evaluator, flush=True)
-if sys.argv[1] == "sleep":  # until SIGTERM
+if sys.argv[1] in ("sleep", "own-handler"):  # until SIGTERM or SIGINT
     time.sleep(600)
+if sys.argv[1] == "catch":  # until SIGINT, then exit with 130 as the symmon command does
+    try:
+        time.sleep(600)
+    except KeyboardInterrupt:
+        sys.exit(130)
 if sys.argv[1] == "exit":  # until the test says so, then exit normally
     sys.stdin.readline()
 """
@@ -221,15 +230,26 @@ def alive(pid: int) -> bool:
     return fields[0] != "Z"
 
 
-def start_slow_compile(tmp_path: Path, mode: str, arg: str) -> tuple[subprocess.Popen, Path, list[int]]:
-    """A Python compiling with the fake compiler; returns once the compiler's child runs."""
+def slow_env(tmp_path: Path, compiler: str, mode: str, cache: Path) -> dict[str, str]:
+    """The environment of SLOW_SCRIPT: ``compiler`` (a script text) as $CC."""
     fake = tmp_path / "fake-cc"
-    fake.write_text(FAKE_CC)
+    fake.write_text(compiler)
     fake.chmod(0o755)
-    cache = tmp_path / "cache"
     env = {k: v for k, v in os.environ.items() if not k.startswith("SYMMON_")}
     env.update(CC=str(fake), FAKE_CC_DIR=str(tmp_path), SYMMON_CACHE=str(cache), SYMMON_COMPILE=mode,
                PYTHONPATH=str(ROOT) + os.pathsep + env.get("PYTHONPATH", ""))
+    return env
+
+
+def start_slow_compile(tmp_path: Path, mode: str, arg: str, cache: Path | None = None,
+                       **env_extra: str) -> tuple[subprocess.Popen, Path, list[int]]:
+    """A Python compiling with the fake compiler; returns once the compiler's child runs.
+
+    ``cache`` is where the build directory must appear (default: ``$SYMMON_CACHE``).
+    """
+    env = slow_env(tmp_path, FAKE_CC, mode, tmp_path / "cache")
+    env.update(env_extra)
+    cache = Path(env["SYMMON_CACHE"]) if cache is None else cache
     p = subprocess.Popen([sys.executable, "-c", textwrap.dedent(SLOW_SCRIPT), arg], env=env, text=True,
                          stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.monotonic() + SUBPROCESS_TIMEOUT
@@ -242,15 +262,19 @@ def start_slow_compile(tmp_path: Path, mode: str, arg: str) -> tuple[subprocess.
     time.sleep(1.0)
     pids = [int((tmp_path / f).read_text()) for f in ("driver.pid", "child.pid")]
     assert all(alive(pid) for pid in pids)
-    assert list(cache.glob(".build-*"))  # the compile's temporary directory exists now
+    assert list(cache.glob("**/.build-*/f.c"))  # the compile's temporary directory exists now
     return p, cache, pids
 
 
-def assert_cleaned_up(cache: Path, pids: list[int]) -> None:
+def assert_dead(pids: list[int]) -> None:
     deadline = time.monotonic() + 10
     while any(alive(pid) for pid in pids) and time.monotonic() < deadline:
         time.sleep(0.05)  # SIGKILL is asynchronous
     assert not any(alive(pid) for pid in pids), "the compiler or its child survived"
+
+
+def assert_cleaned_up(cache: Path, pids: list[int]) -> None:
+    assert_dead(pids)
     assert not list(cache.glob(".build-*")), "the temporary directory survived"
 
 
@@ -272,19 +296,136 @@ def test_signal_during_a_compile_kills_the_compiler(tmp_path, sig):
 
 
 @needs_proc
-@pytest.mark.parametrize("how", ["exit", "sleep"])
-def test_background_compile_is_killed_at_exit(tmp_path, how):
-    p, cache, pids = start_slow_compile(tmp_path, "background", how)
-    if how == "exit":
-        p.stdin.write("done\n")
-        p.stdin.flush()
-    else:
-        p.send_signal(signal.SIGTERM)  # the default action would leave the compiler running
+@pytest.mark.parametrize("how", ["SIGTERM", "SIGINT", "SIGINT-caught", "SIGINT-own-handler"])
+def test_interrupt_kills_the_background_build(tmp_path, how):
+    """An interrupted run leaves no build behind, whether or not the program catches it."""
+    arg = {"SIGTERM": "sleep", "SIGINT": "sleep", "SIGINT-caught": "catch", "SIGINT-own-handler": "own-handler"}[how]
+    p, cache, pids = start_slow_compile(tmp_path, "background", arg)
+    p.send_signal(signal.SIGTERM if how == "SIGTERM" else signal.SIGINT)
     out, err = p.communicate(timeout=SUBPROCESS_TIMEOUT)
     assert out == "[1.0, 1.0, 1.0] vm (C build running)\n"
-    assert p.returncode == (0 if how == "exit" else 128 + signal.SIGTERM), err
+    # SIGTERM's default action would leave the compiler running; an uncaught
+    # KeyboardInterrupt ends Python with SIGINT.
+    expected = {"SIGTERM": 128 + signal.SIGTERM, "SIGINT-caught": 130}.get(how, -signal.SIGINT)
+    assert p.returncode == expected, err
     assert "evaluating on CasADi's VM while it compiles" in err
     assert_cleaned_up(cache, pids)
+    assert not list(cache.glob("*.so*"))
+
+
+def session_of(pid: int) -> tuple[int, int, int]:
+    """(parent pid, session id, controlling terminal) of a process, from /proc."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return int(fields[1]), int(fields[3]), int(fields[4])
+
+
+@needs_proc
+def test_normal_exit_leaves_the_background_build_running(tmp_path):
+    """The build process outlives the Python: its own session, no terminal, stdin /dev/null."""
+    p, cache, pids = start_slow_compile(tmp_path, "background", "exit")
+    out, err = p.communicate("done\n", timeout=SUBPROCESS_TIMEOUT)
+    assert p.returncode == 0 and out == "[1.0, 1.0, 1.0] vm (C build running)\n", err
+    builder, _, _ = session_of(pids[0])
+    try:
+        assert all(alive(pid) for pid in pids)
+        assert session_of(builder)[1:] == (builder, 0)  # a session leader without a terminal
+        assert "ccbuild.py" in Path(f"/proc/{builder}/cmdline").read_text()
+        assert os.readlink(f"/proc/{builder}/fd/0") == os.devnull
+        assert list(cache.glob(".build-*/f.c"))
+    finally:
+        os.killpg(builder, signal.SIGKILL)  # the fake compiler would wait for 10 minutes
+    assert_dead(pids)
+
+
+@needs_proc
+def test_build_into_a_private_directory_is_killed_at_exit(tmp_path):
+    """Nobody would read a private temporary cache: a normal exit kills its builds too."""
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o777)  # refused: the cache goes to a private directory under TMPDIR
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    p, _, pids = start_slow_compile(tmp_path, "background", "exit", cache=tmp,
+                                    SYMMON_CACHE=str(shared), TMPDIR=str(tmp))
+    private, = tmp.glob("symmon-cache-*")
+    assert list(private.glob(".build-*/f.c"))
+    out, err = p.communicate("done\n", timeout=SUBPROCESS_TIMEOUT)
+    assert p.returncode == 0 and "world-writable" in err
+    assert_dead(pids)
+    assert not list(tmp.iterdir()) and not list(shared.iterdir())
+
+
+# A compiler, held until the test creates $FAKE_CC_DIR/gate (at most 2 minutes), so that
+# the Python which started the build has exited before the build ends.
+GATED_CC = """#!/bin/sh
+case "$1" in --version|-dumpmachine) exec REAL "$@";; esac
+n=0
+while [ ! -e "$FAKE_CC_DIR/gate" ] && [ $n -lt 1200 ]; do sleep 0.1; n=$((n + 1)); done
+exec REAL "$@"
+"""
+
+# A compiler that fails with a message.
+BROKEN_CC = """#!/bin/sh
+case "$1" in --version) echo "broken-cc 1.0"; exit 0;; -dumpmachine) echo "x86_64-broken-linux-gnu"; exit 0;; esac
+echo "broken-cc: error: f.c: cannot compile this" >&2
+exit 1
+"""
+
+
+def exit_before_the_build_ends(tmp_path: Path, compiler: str, runs: int = 1) -> tuple[dict[str, str], Path]:
+    """Run SLOW_SCRIPT ``runs`` times in the background mode with ``compiler`` held by a
+    gate until the runs have ended normally; then open the gate and wait for the build
+    directories to go.  Returns the environment and the cache directory."""
+    cache = tmp_path / "cache"
+    env = slow_env(tmp_path, GATED_CC.replace("REAL", compiler), "background", cache)
+    for _ in range(runs):
+        # A build holding the run's stdout or stderr would make this wait for the build
+        # too (and time out, the gate being closed).
+        res = subprocess.run([sys.executable, "-c", textwrap.dedent(SLOW_SCRIPT), "-"], env=env,
+                             capture_output=True, text=True, timeout=SUBPROCESS_TIMEOUT)
+        assert res.returncode == 0 and res.stdout == "[1.0, 1.0, 1.0] vm (C build running)\n", res.stderr
+        assert "continues after exit" in res.stderr
+    assert len(list(cache.glob(".build-*/f.c"))) == runs and not list(cache.glob("*.so*"))
+    (tmp_path / "gate").touch()
+    deadline = time.monotonic() + SUBPROCESS_TIMEOUT
+    while list(cache.glob(".build-*")) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not list(cache.glob(".build-*")), "the build did not end"
+    return env, cache
+
+
+@needs_cc
+def test_normal_exit_lets_the_background_build_fill_the_cache(tmp_path):
+    real = shutil.which("gcc") or shutil.which("cc")
+    if real is None:
+        pytest.skip("no gcc or cc on PATH")
+    # Two runs, whose builds race to install the same entry when the gate opens.
+    env, cache = exit_before_the_build_ends(tmp_path, real, runs=2)
+    so, = cache.glob("*.so")
+    assert cc._verify(so) is None and sorted(cache.iterdir()) == [so, sidecar(so)]
+    again = subprocess.run([sys.executable, "-c", textwrap.dedent(SLOW_SCRIPT), "-"], env=env,
+                           capture_output=True, text=True, timeout=SUBPROCESS_TIMEOUT)
+    assert again.returncode == 0 and again.stdout == "[1.0, 1.0, 1.0] compiled\n", again.stderr
+    assert "loaded from the cache" in again.stderr
+
+
+def test_failed_build_after_exit_leaves_nothing(tmp_path):
+    broken = tmp_path / "broken-cc"
+    broken.write_text(BROKEN_CC)
+    broken.chmod(0o755)
+    _, cache = exit_before_the_build_ends(tmp_path, str(broken))
+    assert not list(cache.iterdir())
+
+
+def test_failed_build_is_reported_and_leaves_nothing(tmp_path):
+    cache = tmp_path / "cache"
+    env = slow_env(tmp_path, BROKEN_CC, "sync", cache)
+    res = subprocess.run([sys.executable, "-c", textwrap.dedent(SLOW_SCRIPT), "-"], env=env,
+                         capture_output=True, text=True, timeout=SUBPROCESS_TIMEOUT)
+    assert res.returncode == 0 and res.stdout == "[1.0, 1.0, 1.0] vm\n", res.stderr
+    assert "compiling sm_slow" in res.stderr and "failed, using the CasADi VM" in res.stderr
+    assert "fake-cc exited with status 1:\nbroken-cc: error: f.c: cannot compile this" in res.stderr
+    assert not list(cache.iterdir())
 
 
 @needs_proc
