@@ -163,22 +163,24 @@ def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = Tru
         bar.update()
 
         # Direct approach with UT (ut1), as SigSys uteval(y, hinv, 'ut1', [], p).
-        res_d = estimation.direct(None, list(zip(hinvs, ys)), transform=UT.ut1())
+        ut = UT.ut1()
+        res_d = estimation.direct(None, list(zip(hinvs, ys)), transform=ut)
+        # The sigma points of each y and their images under h⁻¹ (the rule's public points).
+        sigma = [ut.sigma_points(y.mean[None], y.cov[None])[0] for y in ys]
+        images = [compiled(m).eval_g(S) for m, S in zip(hinvs, sigma)]
         rows += [_row("Nhat1", "direct ut1", res_d.estimates[0]), _row("Nhat2", "direct ut1", res_d.estimates[1]),
                  _row("fused", "direct ut1 + fusion", res_d.fused)]
         fig, (ax_y, ax_x) = _figure(2)
-        for y, m, c, mk in zip(ys, res_d.moments, colors, ("x", "d")):
+        for y, S, c, mk in zip(ys, sigma, colors, ("x", "d")):
             e = _ellipse(y)
             ax_y.plot(e[:, 0], e[:, 1], "-", color=c)
-            S = m.info["sigma_points"][0]
             ax_y.plot(S[:, 0], S[:, 1], mk, color=c)
         ax_y.set(title=f"y = (r, φ), {ELLIPSE_LEVEL:.0%} confidence ellipses and sigma points", xlabel="range r (the lecture gives no unit)",
                  ylabel="bearing φ [rad]")
         _sensors(ax_x)
-        for g, m, c, mk in zip(res_d.estimates, res_d.moments, colors, ("x", "d")):
+        for g, fS, c, mk in zip(res_d.estimates, images, colors, ("x", "d")):
             e = _ellipse(g)
             ax_x.plot(e[:, 0], e[:, 1], "-", color=c)
-            fS = m.info["transformed_points"][0]
             ax_x.plot(fS[:, 0], fS[:, 1], mk, color=c)
         e = _ellipse(res_d.fused)
         ax_x.plot(e[:, 0], e[:, 1], "-", color="r")
