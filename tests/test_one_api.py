@@ -8,7 +8,7 @@ import pytest
 import sympy as sp
 
 import symmon as sm
-from symmon.errors import ModelError, ShapeError
+from symmon.errors import ModelError, ShapeError, SymmonError
 from symmon.propagate import compiled
 from symmon.sweep import sweep_alpha, sweep_states
 from symmon.transforms.registry import DEFAULT, default_transform, make
@@ -164,3 +164,48 @@ def test_batched_moments_print_their_shape_not_their_arrays():
     assert repr(b) == "Moments(K=3, n_y=2, n_u=2, n_v=1, evaluations=12000, with stderr)"
     raw = sm.TT2().moments(compiled(PLAIN), US[0].mean[None], US[0].cov[None])
     assert repr(raw) == "Moments(K=1, n_y=2, n_w=2, evaluations=1)"
+
+
+# --------------------------------------------------------------------------- fuzzing the batch
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+from hypothesis.extra import numpy as hnp  # noqa: E402
+
+FUZZ = dict(derandomize=True, database=None, deadline=None, max_examples=150,
+            suppress_health_check=[HealthCheck.too_slow])
+ODD = st.one_of(st.floats(-1e3, 1e3), st.sampled_from([np.nan, np.inf, -np.inf, 0.0, 1e300, -1e-300]))
+
+
+@st.composite
+def batches(draw):
+    """(means, covs) pairs near and off the valid ones: wrong shapes, odd numbers,
+    asymmetric or indefinite covariances, or lists of Gaussians of mixed dimension."""
+    K = draw(st.integers(0, 3))
+    n = draw(st.sampled_from([2, 2, 2, 1, 3]))
+    kind = draw(st.sampled_from(["arrays", "gaussians"]))
+    if kind == "gaussians":
+        out = []
+        for _ in range(K):
+            d = draw(st.sampled_from([2, 2, 1]))
+            A = draw(hnp.arrays(float, (d, d), elements=st.floats(-2, 2)))
+            out.append(sm.Gaussian(draw(hnp.arrays(float, d, elements=st.floats(-5, 5))), A @ A.T + np.eye(d)))
+        return out
+    means = draw(hnp.arrays(float, (K, n), elements=ODD))
+    A = draw(hnp.arrays(float, (K, n, n), elements=ODD))
+    with np.errstate(all="ignore"):  # inf · 0 in the product: a NaN entry, one of the bad inputs
+        covs = A @ np.swapaxes(A, 1, 2) if draw(st.booleans()) else A  # PSD, or anything
+    return (means, covs)
+
+
+@settings(**FUZZ)
+@given(u=batches(), noise=st.sampled_from([None, "one", "per input", "wrong"]))
+def test_propagate_many_refuses_a_bad_batch_clearly_or_returns_finite_moments(u, noise):
+    model = NOISY if noise is not None else PLAIN
+    K = len(u) if isinstance(u, list) else len(u[0])
+    v = {None: None, "one": VS[0], "per input": [VS[0]] * K, "wrong": [VS[0]] * (K + 1)}[noise]
+    try:
+        b = sm.propagate_many(model, u, v, transform=sm.UT.ut1())
+    except (SymmonError, TypeError):
+        return  # a named fault: a shape, a covariance, a non-finite number, a missing noise
+    assert b.mean.shape == (K, 2) and b.cov.shape == (K, 2, 2) and b.cross_cov.shape == (K, 2, 2)
+    assert np.isfinite(b.mean).all() and np.isfinite(b.cov).all() and np.isfinite(b.cross_cov).all()
