@@ -338,10 +338,12 @@ def _parser() -> argparse.ArgumentParser:
         sp.set_defaults(subparser=sp)
         return sp
 
+    from .transforms.registry import DEFAULT  # the API's default transform is the command's
+
     def transform_opts(sp: argparse.ArgumentParser, samples: int) -> None:
-        sp.add_argument("--transform", choices=_transform_names(), default="tt2",
+        sp.add_argument("--transform", choices=_transform_names(), default=DEFAULT,
                         help="tt1/tt2: Taylor; ut1/ut2/ct: unscented and cubature; gh: Gauss-Hermite; "
-                        "mc/qmc: (quasi) Monte Carlo (default tt2)")
+                        f"mc/qmc: (quasi) Monte Carlo (default {DEFAULT}, as in the Python API)")
         rule_opts(sp, samples)
 
     def rule_opts(sp: argparse.ArgumentParser, samples: int) -> None:
