@@ -38,7 +38,15 @@ from .gaussian import Gaussian, as_covariance, as_vector, fuse
 from .model import Model
 from .moments import JointMoments
 from .propagate import propagate
-from .transforms import Transform
+from .transforms import UT, Transform
+
+
+
+def _estimator_transform(transform: Transform | None) -> Transform:
+    """The estimators' default is the UKF's rule, ``UT.ut1()`` (the lecture's ``'ut1'``),
+    not the moments' default TT2: an estimator's defaults follow the filters'."""
+    return UT.ut1() if transform is None else transform
+
 
 __all__ = [
     "fuse",
@@ -160,10 +168,10 @@ def _joint(model: Model, x: Gaussian, R: np.ndarray, transform: Transform | None
     jm = _joint_model(model)
     n_x = model.n_u
     if model.n_v:
-        m = propagate(jm, x, Gaussian(np.zeros(model.n_v), R), transform=transform)
+        m = propagate(jm, x, Gaussian(np.zeros(model.n_v), R), transform=_estimator_transform(transform))
         cov = np.array(m.cov)
     else:
-        m = propagate(jm, x, transform=transform)
+        m = propagate(jm, x, transform=_estimator_transform(transform))
         cov = np.array(m.cov)
         cov[n_x:, n_x:] += R
     return Gaussian(m.mean, 0.5 * (cov + cov.T))
@@ -260,7 +268,7 @@ def direct(
                 f"measurements[{k}] has dimension {y.dim} but the inverse model {model.name!r} "
                 f"has {model.n_u} inputs {[str(s) for s in model.inputs]}"
             )
-        m = propagate(model, y, transform=transform)
+        m = propagate(model, y, transform=_estimator_transform(transform))
         moments.append(m)
         estimates.append(m.y)
     n = {g.dim for g in estimates}
@@ -423,10 +431,10 @@ def predict(model_f: Model, x: Gaussian, Q: ArrayLike, transform: Transform | No
     dim = model_f.n_v if model_f.n_v else model_f.n_u
     Qm = as_covariance(Q, "Q", dim=dim)
     if model_f.n_v:
-        m = propagate(model_f, x, Gaussian(np.zeros(dim), Qm), transform=transform)
+        m = propagate(model_f, x, Gaussian(np.zeros(dim), Qm), transform=_estimator_transform(transform))
         cov = np.array(m.cov)
     else:
-        m = propagate(model_f, x, transform=transform)
+        m = propagate(model_f, x, transform=_estimator_transform(transform))
         cov = m.cov + Qm
     return Gaussian(m.mean, 0.5 * (cov + cov.T))
 

@@ -209,3 +209,18 @@ def test_propagate_many_refuses_a_bad_batch_clearly_or_returns_finite_moments(u,
         return  # a named fault: a shape, a covariance, a non-finite number, a missing noise
     assert b.mean.shape == (K, 2) and b.cov.shape == (K, 2, 2) and b.cross_cov.shape == (K, 2, 2)
     assert np.isfinite(b.mean).all() and np.isfinite(b.cov).all() and np.isfinite(b.cross_cov).all()
+
+
+def test_estimators_and_filters_default_to_the_ukf_rule():
+    """The moments default to TT2; the estimators and the filters keep the UKF's UT.ut1()."""
+    est = sm.estimation
+    lin, sq = sm.Model([x], [2 * x], name="api_lin"), sm.Model([x], [sp.sin(x) + x**2], name="api_sq")  # UT ≠ TT2 here
+    prior, y1 = sm.Gaussian([0.5], [[0.4]]), sm.Gaussian([1.0], [[0.3]])
+    ut = sm.UT.ut1()
+    assert est.direct(sq, [y1]).fused == est.direct(sq, [y1], transform=ut).fused
+    assert est.indirect(sq, prior, [[1.0]], noise=[[0.3]]).posterior == \
+        est.indirect(sq, prior, [[1.0]], noise=[[0.3]], transform=ut).posterior
+    assert est.predict(sq, prior, [[0.1]]) == est.predict(sq, prior, [[0.1]], transform=ut)
+    assert est.update(sq, prior, [1.0], [[0.3]]) == est.update(sq, prior, [1.0], [[0.3]], transform=ut)
+    assert est.predict(sq, prior, [[0.1]]) != est.predict(sq, prior, [[0.1]], transform=sm.TT2())
+    assert sm.NonlinearKalmanFilter(lin, sq, [[0.1]], [[0.3]]).method == "UKF(alpha=1.0, beta=0.0, kappa=None)"
