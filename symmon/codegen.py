@@ -119,7 +119,7 @@ def moment_functions(model: Model, ut: Transform | None = None, name: str | None
     angles = sorted(model.angle_outputs)
     out = {
         "g": g,
-        "jac": _densified(f"{prefix}_jac", w, ca.jacobian(y, w), "J", opts),
+        "jac": _densified(f"{prefix}_jac", w, cm.J_sx, "J", opts),
     }
     for key, moments in (("tt2", tt2_moments(cm, m, P, angles)),
                          ("ut", point_moments(g, m, P, ut, angles))):

@@ -292,6 +292,9 @@ class CompiledModel:
         w ↦ g(w), shape (n_y,).
     jac : casadi.Function
         w ↦ ∂g/∂w, a sparse (n_y, n_w) matrix.
+    w_sx, y_sx, J_sx, H_sx : casadi.SX
+        The symbols w, and g, J and the full Hessians (a list) as expressions of them,
+        for graphs built on the model (:mod:`symmon.symbolic_moments`).
     derivs : casadi.Function
         w ↦ (g(w), the nonzeros of J, the nonzeros of the Hessians' lower triangles),
         laid out by ``jac_index`` and ``hess_index``.
@@ -321,9 +324,12 @@ class CompiledModel:
         w = ca.SX.sym("w", self.n_w)
         y = ca.densify(ca.vertcat(*to_casadi(outputs, self.symbols, w)))
         self.w_sx, self.y_sx = w, y
-        J = ca.jacobian(y, w)
-        # Hessians are symmetric: keep the lower triangle of each.
-        H = [ca.tril(ca.hessian(y[i], w)[0]) for i in range(self.n_y)]
+        # J and the Hessians as SX of w, built once: the evaluators below and the symbolic
+        # moments of the filter step and export_c (symmon.symbolic_moments) use them.
+        self.J_sx = J = ca.jacobian(y, w)
+        self.H_sx = [ca.hessian(y[i], w)[0] for i in range(self.n_y)]
+        # Hessians are symmetric: evaluate the lower triangle of each.
+        H = [ca.tril(h) for h in self.H_sx]
         jr, jc = J.sparsity().get_triplet()
         self.jac_index = (np.array(jr, dtype=np.intp), np.array(jc, dtype=np.intp))
         trip = [h.sparsity().get_triplet() for h in H]

@@ -110,7 +110,7 @@ def _tt2_derivatives(cm: CompiledModel) -> tuple[ca.Function, bool, np.ndarray]:
     """
     w, y = cm.w_sx, cm.y_sx
     n, n_y = cm.n_w, cm.n_y
-    H = [ca.hessian(y[i], w)[0] for i in range(n_y)]
+    H = cm.H_sx
     S = cm.hess_support
     s = S.shape[1]
     blocks = (n_y * s) ** 2 <= n_y * n * n
@@ -122,7 +122,7 @@ def _tt2_derivatives(cm: CompiledModel) -> tuple[ca.Function, bool, np.ndarray]:
                          for i, k in enumerate(sizes)])
     else:
         B = ca.vertcat(*H)
-    return ca.Function("derivs", [w], [y, ca.jacobian(y, w), B]), blocks, S
+    return ca.Function("derivs", [w], [y, cm.J_sx, B]), blocks, S
 
 
 def _block_terms(kind: type, n: int, n_y: int, s: int) -> ca.Function:
