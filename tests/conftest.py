@@ -12,6 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import sympy as sp
+from hypothesis import settings
+
+# Every property test sees the same examples on every run (no example database, a seed
+# derived from the test): a suite that passed once passes again, and a rare input that
+# makes sympy or a solver slow cannot turn up on one CI run only.
+settings.register_profile("symmon", derandomize=True, database=None)
+settings.load_profile("symmon")
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # run from a checkout without `pip install -e .`

@@ -276,11 +276,20 @@ _BINARY = [lambda a, b: a + b, lambda a, b: a * b, lambda a, b: a / b, sp.atan2]
 
 
 def _apply(f, *args):
-    """f(*args), or the first argument when sympy cannot even build it (exp(exp(1e160)))."""
+    """f(*args), or the first argument when sympy cannot even build it (exp(exp(1e160))) or
+    builds a number beyond the float range: mpmath's exponents are unbounded, so exp(1e160)
+    is a number, and sin of it would ask sympy for 10^160 digits of π (a hang, not a test)."""
     try:
-        return f(*args)
+        r = f(*args)
     except (OverflowError, ValueError):
         return args[0]
+    if r.is_number and not r.free_symbols:
+        try:
+            if not np.isfinite(complex(r)):
+                return args[0]
+        except (TypeError, OverflowError):
+            return args[0]
+    return r
 
 
 def _expr(depth: int):
@@ -299,7 +308,8 @@ _TRANSFORMS = [sm.TT1(), sm.TT2(), sm.UT.ut1(), sm.UT.ut2(), sm.UT.cubature(), s
 _MAGNITUDE = st.sampled_from([0.0, 1e-300, 1e-3, 1.0, 10.0, 1e150, 1e300])
 
 
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=40, deadline=None, derandomize=True, database=None,
+          suppress_health_check=[HealthCheck.too_slow])
 @given(
     out=_expr(2).filter(lambda e: e.free_symbols and not e.has(sp.zoo, sp.nan, sp.oo, -sp.oo)),
     mean=st.tuples(st.floats(-5, 5), st.floats(-5, 5)),
