@@ -170,7 +170,7 @@ class _CompiledStep:
                  use_c: bool = True) -> dict[str, np.ndarray]:
         """Run the bank: x0 (n,) or (runs, n), P0 (n, n) or (runs, n, n), Y (runs, K, n_y)."""
         runs, K = Y.shape[:2]
-        n, n_y = self.n, self.n_y
+        n = self.n
         shapes = self._shapes
         sizes = [runs * K * math.prod(s) for s in shapes.values()]
         # One block for all outputs and one for the inputs: a few pointers per call.

@@ -69,7 +69,7 @@ from .angles import wrap_angle
 from .filters import Adaptive
 from .gaussian import Gaussian
 from .model import Model
-from .modelfile import (ModelFileError, _check_keys, _Context, _gaussian, _names, _params, read_toml,
+from .modelfile import (ModelFileError, _check_keys, _Context, _gaussian, _names, _params, _units, read_toml,
                         parse_expression)
 from .propagate import compiled
 from .transforms import TT1, TT2, UT, GaussHermite
@@ -194,22 +194,8 @@ def load_filter_file(path: str | os.PathLike) -> FilterSpec:
     Q = _noise(ctx, doc, "Q", len(W) or len(X), params)
     R = _noise(ctx, doc, "R", len(E) or len(meas), params)
     x0 = _gaussian(ctx, doc["x0"], "x0", len(X), params, "states")
-    units = _units(ctx, doc.get("units", {}), state_names, len(meas))
+    units = _units(ctx, doc.get("units", {}), len(meas), state_names, indexed="measurements", named="state names")
     return FilterSpec(name, f, h, Q, R, x0, int(steps), path, units)
-
-
-def _units(ctx: _Context, table: Any, states: list[str], n_meas: int) -> dict[str, str]:
-    """The [units] table: keys are state names or ``"measurements[i]"``."""
-    if not isinstance(table, dict):
-        raise ctx.error("units", f"must be a table of unit strings, got {table!r}")
-    allowed = set(states) | {f"measurements[{i}]" for i in range(n_meas)}
-    for key, unit in table.items():
-        if key not in allowed:
-            raise ctx.error("[units]", f"unknown key {key!r}; allowed: state names or 'measurements[i]' "
-                                       f"with i < {n_meas}")
-        if not isinstance(unit, str) or not unit.strip():
-            raise ctx.error(f"[units].{key}", f"must be a non-empty unit string, got {unit!r}")
-    return dict(table)
 
 
 def simulate(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, steps: int, runs: int,

@@ -166,7 +166,7 @@ def _prove_direct(model: Model, weight: Any, label: str, mu: sp.Matrix, P: sp.Ma
 def _direct(model: Model, weight: Any, label: str, mu: sp.Matrix, P: sp.Matrix, R: sp.Matrix,
             progress: bool, check: Callable[[], None], t0: float) -> InvarianceProof:
     """M² built symbolically twice (TT2 closed form, derivatives from sympy) and subtracted."""
-    nu, ny, nv = model.n_u, model.n_y, model.n_v
+    ny, nv = model.n_y, model.n_v
     s_u = [sp.Symbol(f"s_{s.name}", positive=True) for s in model.inputs]
     o_u = [sp.Symbol(f"o_{s.name}", real=True) for s in model.inputs]
     s_y = [sp.Symbol(f"s_y{i + 1}", positive=True) for i in range(ny)]

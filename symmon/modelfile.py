@@ -134,7 +134,8 @@ _TOP_KEYS = ("name", "inputs", "noise", "outputs", "angles", "params", "u", "v",
 _REQUIRED_KEYS = ("name", "inputs", "outputs", "u")
 _GAUSS_KEYS = ("mean", "cov", "std")
 _EVALF_DIGITS = 30
-_OUTPUT_UNIT = r"outputs\[(0|[1-9][0-9]*)\]"
+#: ``{indexed}[i]``: the key of the i-th output in a [units] table.
+_INDEXED_UNIT = r"{indexed}\[(0|[1-9][0-9]*)\]"
 
 
 class _Context:
@@ -361,19 +362,21 @@ def _angles(ctx: _Context, value: Any, n_outputs: int, inputs: list[sp.Symbol]) 
     return angles
 
 
-def _units(ctx: _Context, table: Any, n_outputs: int, names: list[str]) -> dict[str, str]:
-    """The [units] table, keys checked against the declared names and the outputs."""
+def _units(ctx: _Context, table: Any, n_outputs: int, names: list[str], indexed: str = "outputs",
+           named: str = "input and noise names") -> dict[str, str]:
+    """The [units] table: keys are declared ``names`` or ``{indexed}[i]`` for output i
+    (model files: ``outputs[i]``; scenario files: ``measurements[i]``)."""
     if not isinstance(table, dict):
         raise ctx.error("units", f"must be a table of unit strings, got {_short(table)}")
     units: dict[str, str] = {}
     for key, unit in table.items():
-        m = re.fullmatch(_OUTPUT_UNIT, key)
+        m = re.fullmatch(_INDEXED_UNIT.format(indexed=indexed), key)
         if m is not None:
             if len(m.group(1)) > len(str(n_outputs)) or int(m.group(1)) >= n_outputs:  # length first: no huge int()
-                raise ctx.error("[units]", f"{_short(key)}: there are only {n_outputs} outputs")
+                raise ctx.error("[units]", f"{_short(key)}: there are only {n_outputs} {indexed}")
         elif key not in names:
             raise ctx.error(
-                "[units]", f"unknown key {key!r}; allowed: input and noise names, or 'outputs[i]' for an output"
+                "[units]", f"unknown key {key!r}; allowed: {named}, or '{indexed}[i]' for an output"
             )
         if not isinstance(unit, str) or not unit.strip():
             raise ctx.error(f"[units].{key}", f"must be a non-empty unit string, got {_short(unit)}")

@@ -6,7 +6,6 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
 from scipy.linalg import block_diag
 
 from .compile import CompiledModel, compile_model
@@ -40,18 +39,23 @@ def check_transform(transform: Any) -> Transform:
     return transform
 
 
+def _check_noise_given(model: Model, v: Any) -> None:
+    """v is given exactly when the model has noise symbols."""
+    if model.n_v == 0 and v is not None:
+        raise ModelError("v was given but the model declares no noise symbols")
+    if model.n_v and v is None:
+        raise ModelError(f"the model has noise symbols {list(map(str, model.noise))}: pass v=Gaussian(...)")
+
+
 def joint_input(model: Model, u: Gaussian, v: Gaussian | None) -> tuple[np.ndarray, np.ndarray]:
     """Mean and block-diagonal covariance of w = [u; v], validated against the model."""
     if not isinstance(u, Gaussian):
         raise TypeError(f"u must be a symmon.Gaussian, got {type(u).__name__}")
     if u.dim != model.n_u:
         raise ShapeError(f"u has dimension {u.dim} but the model has {model.n_u} inputs {list(map(str, model.inputs))}")
+    _check_noise_given(model, v)
     if model.n_v == 0:
-        if v is not None:
-            raise ModelError("v was given but the model declares no noise symbols")
         return u.mean.copy(), u.cov.copy()
-    if v is None:
-        raise ModelError(f"the model has noise symbols {list(map(str, model.noise))}: pass v=Gaussian(...)")
     if not isinstance(v, Gaussian):
         raise TypeError(f"v must be a symmon.Gaussian, got {type(v).__name__}")
     if v.dim != model.n_v:
@@ -139,12 +143,9 @@ def input_batch(model: Model, u: Any, v: Any = None) -> tuple[np.ndarray, np.nda
         raise TypeError("u must be a list of K Gaussians or a pair (means (K, n_u), covs (K, n_u, n_u)), "
                         f"got {type(u).__name__}")
     K = M.shape[0]
+    _check_noise_given(model, v)
     if model.n_v == 0:
-        if v is not None:
-            raise ModelError("v was given but the model declares no noise symbols")
         return M, P
-    if v is None:
-        raise ModelError(f"the model has noise symbols {list(map(str, model.noise))}: pass v=Gaussian(...)")
     vs = [v] * K if isinstance(v, Gaussian) else list(v) if isinstance(v, (list, tuple)) else None
     if vs is None or len(vs) != K or not all(isinstance(g, Gaussian) for g in vs):
         raise TypeError(f"v must be a Gaussian or a list of {K} Gaussians, one per input")

@@ -124,8 +124,6 @@ def _point(model: Model, mean: np.ndarray, cov: np.ndarray, v: Gaussian | None, 
     }
 
 
-
-
 def _run_points(model: Model, means: np.ndarray, covs: np.ndarray, v: Gaussian | None, weight: Any,
                 transforms: Sequence[Transform], executor: Executor | None) -> list[dict[str, Any]]:
     if executor is None or not executor.distributed:
@@ -147,19 +145,18 @@ def _sweep(model: Model, param: np.ndarray | None, u: Any, v: Gaussian | None, w
            transform: Any, executor: Any, crn: bool) -> SweepResult:
     """The sweep over the K input Gaussians ``u`` (:func:`~symmon.propagate.input_batch`);
     ``param`` defaults to their indices."""
-    if not isinstance(model, Model):
-        raise TypeError(f"model must be a symmon.Model, got {type(model).__name__}")
+    model = _check_model(model)
     transform = check_transform(transform)
     executor = _check_executor(executor)
     if v is not None and not isinstance(v, Gaussian):
         raise TypeError(f"v must be a symmon.Gaussian (the same noise at every point), got {type(v).__name__}")
+    is_mc = transform.stochastic
+    if not is_mc and model.n_v == 0:
+        return _batched(model, param, u, v, weight, transform)
     W, Pw = input_batch(model, u, v)
     means, covs = W[:, :model.n_u], Pw[:, :model.n_u, :model.n_u]
     K = means.shape[0]
     param = np.arange(K, dtype=float) if param is None else param
-    is_mc = transform.stochastic
-    if not is_mc and model.n_v == 0:
-        return _batched(model, param, means, covs, weight, transform)
     if is_mc and not crn:
         # Independent streams, one per point, reproducible from the one seed.
         seeds = [int(s.generate_state(1, np.uint64)[0]) for s in np.random.SeedSequence(transform.seed).spawn(K)]
@@ -182,11 +179,14 @@ def _sweep(model: Model, param: np.ndarray | None, u: Any, v: Gaussian | None, w
     )
 
 
-def _batched(model: Model, param: np.ndarray, means: np.ndarray, covs: np.ndarray, weight: Any,
+def _batched(model: Model, param: np.ndarray | None, u: Any, v: Gaussian | None, weight: Any,
              transform: Transform) -> SweepResult:
-    """A deterministic transform on a noise-free model: one batched evaluation of all points."""
-    b = propagate_many(model, (means, covs), transform=transform)
-    parts = [mon_from_moments(b.cov[k], b.cross_cov[k], covs[k], weight, None, b.mean[k]) for k in range(means.shape[0])]
+    """A deterministic transform on a noise-free model: one batched evaluation of all points
+    (:func:`~symmon.propagate_many` validates the batch)."""
+    b = propagate_many(model, u, v, transform=transform)
+    K = b.mean.shape[0]
+    param = np.arange(K, dtype=float) if param is None else param
+    parts = [mon_from_moments(b.cov[k], b.cross_cov[k], b.input_cov[k], weight, None, b.mean[k]) for k in range(K)]
     sq = np.array([p.squared for p in parts])
     return SweepResult(
         param=param, value=np.sqrt(np.maximum(sq, 0.0)), squared=sq, stderr=None,
@@ -239,8 +239,7 @@ def sweep_alpha(model: Model, u: Gaussian, alphas: ArrayLike, v: Gaussian | None
     >>> np.round(r.squared, 12)  # M² = 2α / (4 + 2α) for x² with x ~ N(1, α)
     array([0.2       , 0.33333333, 0.5       ])
     """
-    if not isinstance(model, Model):
-        raise TypeError(f"model must be a symmon.Model, got {type(model).__name__}")
+    model = _check_model(model)
     if not isinstance(u, Gaussian):
         raise TypeError(f"u must be a symmon.Gaussian, got {type(u).__name__}")
     if u.dim != model.n_u:
