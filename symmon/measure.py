@@ -19,7 +19,7 @@ Y. Liu, X. R. Li, "Measure of nonlinearity for estimation", IEEE Trans. Signal P
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, Mapping
 
 import numpy as np
@@ -108,9 +108,7 @@ class NonlinearityMeasure(MonParts):
     @classmethod
     def of(cls, parts: MonParts, **context: Any) -> "NonlinearityMeasure":
         """``parts`` with the transform, structure, moments and error bar that produced them."""
-        return cls(squared=parts.squared, J_Ab=parts.J_Ab, J_n=parts.J_n, weight=parts.weight,
-                   weight_name=parts.weight_name, residual_cov=parts.residual_cov, notes=parts.notes,
-                   **context)
+        return cls(**{f.name: getattr(parts, f.name) for f in fields(MonParts)}, **context)
 
     def __repr__(self) -> str:
         se = f" ± {self.stderr:.2g}" if self.stderr is not None else ""
