@@ -305,6 +305,8 @@ class CompiledModel:
     hess_support : (n_y, s) int array
         Row i lists S_i, the inputs on which H_i is supported (padded with 0 to the
         largest size s; padded entries carry zero blocks).
+    hess_support_size : (n_y,) int array
+        |S_i|, the unpadded length of row i of ``hess_support``.
     name : str
         The name as given (any text); ``tag`` is the C identifier made of it
         (:func:`symmon.cnames.c_identifier`) that prefixes every function name.
@@ -391,7 +393,8 @@ class CompiledModel:
         """Supports S_i of the Hessians and where each nonzero goes in the blocks H_i[S_i, S_i]."""
         out, rows, cols = self.hess_index
         supports = [np.union1d(rows[out == i], cols[out == i]) for i in range(self.n_y)]
-        s = max((len(S) for S in supports), default=0)
+        self.hess_support_size = np.array([len(S) for S in supports], dtype=np.intp)
+        s = max(self.hess_support_size, default=0)
         self.hess_support = np.zeros((self.n_y, s), dtype=np.intp)
         pos = np.zeros((self.n_w, self.n_y), dtype=np.intp)  # pos[a, i]: place of a in S_i
         for i, S in enumerate(supports):

@@ -115,8 +115,7 @@ def _tt2_derivatives(cm: CompiledModel) -> tuple[ca.Function, bool, np.ndarray]:
     s = S.shape[1]
     blocks = (n_y * s) ** 2 <= n_y * n * n
     if blocks:
-        out, rows, cols = cm.hess_index
-        sizes = [len(np.union1d(rows[out == i], cols[out == i])) for i in range(n_y)]
+        sizes = [int(k) for k in cm.hess_support_size]
         sel = [[int(a) for a in S[i, :k]] for i, k in enumerate(sizes)]
         B = ca.horzcat(*[ca.densify(ca.diagcat(H[i][sel[i], sel[i]], ca.SX(s - k, s - k)))
                          for i, k in enumerate(sizes)])
