@@ -44,7 +44,7 @@ import sympy as sp  # noqa: E402
 
 import symmon as sm  # noqa: E402
 from symmon.io import atomic_write_text  # noqa: E402
-from symmon.propagate import compiled  # noqa: E402
+from symmon.compile import compiled  # noqa: E402
 
 SENSOR = (1e3, 1e3, 1e3)
 MEAN0 = np.array([500.0, 500.0, 5.0, 8.7])
@@ -229,7 +229,7 @@ def bench_accuracy(n_ref: int, alphas=(0.1, 1.0, 10.0)) -> list[dict]:
     Returns one row per (problem, α, method) with the value, |error|, the MC reference's
     standard error, and the time relative to the reference run.
     """
-    from symmon.problems import bot, gmti, rdcos
+    from symmon.core.problems import bot, gmti, rdcos
 
     methods = [("TT2", sm.TT2()), ("UT ut1", sm.UT.ut1()), ("cubature", sm.UT.cubature()),
                ("GH 3", sm.GaussHermite(3)), ("GH 5", sm.GaussHermite(5)),

@@ -103,7 +103,7 @@ def run_case(kind: str, n: int) -> dict:
     from filterpy.kalman import MerweScaledSigmaPoints, unscented_transform
 
     import symmon as sm
-    from symmon.propagate import compiled
+    from symmon.compile import compiled
 
     warnings.simplefilter("ignore")  # ut1's negative centre weight warns for n > 3
     res: dict = {"kind": kind, "n": n}

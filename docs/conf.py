@@ -120,7 +120,7 @@ if not _api.exists() or _api.read_text(encoding="utf-8") != _api_page():
 def _skip_reexports(app, what, name, obj, skip, options):
     """In a module's page, skip what the package exports at the top: it has its own page.
 
-    ``symmon.kalman.KalmanFilter`` is ``symmon.KalmanFilter``; documenting it twice gives
+    ``symmon.filters.linear.KalmanFilter`` is ``symmon.KalmanFilter``; documenting it twice gives
     Sphinx two descriptions of one object.
     """
     if what == "module" and any(obj is getattr(symmon, n) for n in _TOP_LEVEL):

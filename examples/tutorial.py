@@ -43,7 +43,7 @@ import numpy as np
 import sympy as sp
 
 import symmon as sm
-from symmon.nonlinearity import format_table
+from symmon.measures.mon import format_table
 
 #: Monte Carlo checks: |estimate − reference| ≤ MC_SIGMAS standard errors.
 MC_SIGMAS = 5.0

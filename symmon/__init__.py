@@ -3,51 +3,54 @@
 Models are declared with sympy, compiled with CasADi (exact derivatives, batched
 evaluation, C code), and their moments computed by TT1, TT2, the unscented family,
 Gauss–Hermite, Monte Carlo and exact polynomial moments.
+
+This module is the package's one face: every public name is re-exported here from its
+home subpackage (docs/architecture.md lists the layers and where new code goes).
 """
 
-from . import angles as angles
 from . import errors as errors
-from . import estimation as estimation
-from . import kalman as kalman
-from . import modelfile as modelfile
-from . import mmse as mmse
-from . import problems as problems
-from . import sweep as sweep
-from . import units as units
-from . import weights as weights
-from . import codegen as codegen
-from . import filters as filters
 from . import transforms as transforms
-from .advise import Advice as Advice
-from .advise import advise as advise
+from . import codegen as codegen
+from . import estimation as estimation
+from . import filters as filters
+from . import units as units
+from .core import angles as angles
+from .core import problems as problems
+from .estimation import mmse as mmse
+from .files import modelfile as modelfile
+from .filters import linear as kalman
+from .measures import sweep as sweep
+from .measures import weights as weights
 from .codegen import export_c as export_c
+from .core import Gaussian as Gaussian
+from .core import Model as Model
+from .core import fuse as fuse
 from .errors import SymmonError as SymmonError
-from .gaussian import Gaussian as Gaussian
-from .gaussian import fuse as fuse
-from .kalman import KalmanFilter as KalmanFilter
-from .filters import NonlinearKalmanFilter as NonlinearKalmanFilter
+from .files import load_model_file as load_model_file
 from .filters import Adaptive as Adaptive
-from .model import Model as Model
-from .modelfile import load_model_file as load_model_file
-from .moments import JointMoments as JointMoments
-from .measure import MonParts as MonParts
-from .measure import NonlinearityMeasure as NonlinearityMeasure
-from .measure import mon_from_moments as mon_from_moments
-from .nonlinearity import compare as compare
-from .nonlinearity import nonlinearity as nonlinearity
-from .propagate import propagate as propagate
-from .propagate import propagate_many as propagate_many
+from .filters import KalmanFilter as KalmanFilter
+from .filters import NonlinearKalmanFilter as NonlinearKalmanFilter
+from .measures import Advice as Advice
+from .measures import MonParts as MonParts
+from .measures import NonlinearityMeasure as NonlinearityMeasure
+from .measures import advise as advise
+from .measures import compare as compare
+from .measures import mon_from_moments as mon_from_moments
+from .measures import nonlinearity as nonlinearity
+from .propagation import JointMoments as JointMoments
+from .propagation import propagate as propagate
+from .propagation import propagate_many as propagate_many
+from .propagation import quadrature_error as quadrature_error
 from .transforms import TT1 as TT1
 from .transforms import TT2 as TT2
 from .transforms import UT as UT
+from .transforms import Cubature5 as Cubature5
 from .transforms import Exact as Exact
+from .transforms import Executor as Executor
 from .transforms import GaussHermite as GaussHermite
+from .transforms import Moments as Moments
 from .transforms import MonteCarlo as MonteCarlo
 from .transforms import Transform as Transform
-from .transforms import Moments as Moments
-from .transforms import Cubature5 as Cubature5
-from .transforms import Executor as Executor
-from .transforms.quadrature import quadrature_error as quadrature_error
 
 __version__ = "0.1.0"
 
@@ -64,6 +67,6 @@ __all__ = [
 
 
 def __dir__() -> list[str]:
-    # The public names only: implementation modules (compile, io, latex, progress, ...) stay
-    # importable as symmon.compile etc. but are not listed (PEP 562).
+    # The public names only: the subpackages (core, compile, propagation, ...) stay importable
+    # as symmon.core etc. but are not listed (PEP 562).
     return sorted([*__all__, "__version__"])

@@ -19,6 +19,11 @@ __all__ = [
     "NonFiniteError",
     "ResourceError",
     "ArgumentError",
+    "ModelFileError",
+    "UnitError",
+    "OutputPathError",
+    "UsageError",
+    "BuildError",
     "AngleWarning",
 ]
 
@@ -66,6 +71,62 @@ class ResourceError(SymmonError):
 
 class ArgumentError(SymmonError):
     """An argument has a value of the wrong kind (e.g. an invalid seed)."""
+
+
+class ModelFileError(ModelError):
+    """A model file or an expression text is invalid or refused.
+
+    Parameters
+    ----------
+    message : str
+        The full message; it names the file or source and, for expressions, the line
+        and column.
+    source, line, column, reason : optional
+        The parts of the message, kept as attributes for programs.
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        source: str | None = None,
+        line: int | None = None,
+        column: int | None = None,
+        reason: str | None = None,
+    ) -> None:
+        super().__init__(message)
+        self.source = source
+        self.line = line
+        self.column = column
+        self.reason = reason
+
+    def __reduce__(self):
+        # Keep the keyword-only attributes when the error is pickled (multiprocessing).
+        return (_rebuild_error, (self.args[0], self.__dict__))
+
+
+def _rebuild_error(message: str, state: dict) -> ModelFileError:
+    err = ModelFileError(message)
+    err.__dict__.update(state)
+    return err
+
+
+class UnitError(ModelError):
+    """An unknown unit, incompatible dimensions, or a unit declaration that does not fit the model."""
+
+
+class OutputPathError(SymmonError):
+    """An output path is empty or names something that is not a regular file."""
+
+
+class UsageError(SymmonError):
+    """A combination of command-line options that argparse cannot check by itself (exit code 2)."""
+
+
+class BuildError(RuntimeError):
+    """The C compiler failed (its message holds the end of the compiler's output).
+
+    Not a :class:`SymmonError`: the input was fine, the build environment was not."""
 
 
 class AngleWarning(RuntimeWarning):

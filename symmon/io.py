@@ -18,7 +18,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from .errors import SymmonError
+from .errors import OutputPathError
 
 __all__ = [
     "OutputPathError",
@@ -35,10 +35,6 @@ __all__ = [
 #: Figure formats :func:`save_figure` writes: those matplotlib writes with Pillow alone
 #: (pgf needs LaTeX; avif and webp depend on how Pillow was built).
 PLOT_FORMATS = ("png", "pdf", "svg", "svgz", "eps", "ps", "jpg", "jpeg", "tif", "tiff")
-
-
-class OutputPathError(SymmonError):
-    """An output path is empty or names something that is not a regular file."""
 
 
 def _kind(mode: int) -> str:

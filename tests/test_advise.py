@@ -7,7 +7,7 @@ import pytest
 import sympy as sp
 
 import symmon as sm
-from symmon.advise import CANDIDATES, moment_error
+from symmon.measures.advice import CANDIDATES, moment_error
 from symmon.errors import SymmonError
 
 #: The unitless error of an exact transform is rounding only.
@@ -83,7 +83,7 @@ EXAMPLES = __import__("pathlib").Path(__file__).resolve().parent.parent / "examp
 def test_cli_advise_json_equals_the_api(capsys):
     import json
 
-    from symmon import cli
+    from symmon.cli import parser as cli
 
     code = cli.main(["advise", str(EXAMPLES / "bot.toml"), "--tol", "0.001", "--weight", "diag", "--json"])
     out = json.loads(capsys.readouterr().out)
@@ -99,7 +99,7 @@ def test_cli_advise_json_equals_the_api(capsys):
 
 
 def test_cli_advise_prints_the_table_and_refuses_a_bad_tol(capsys):
-    from symmon import cli
+    from symmon.cli import parser as cli
 
     assert cli.main(["advise", str(EXAMPLES / "bot.toml")]) == 0
     out = capsys.readouterr().out

@@ -18,7 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import symmon as sm
-from symmon.angles import (
+from symmon.core.angles import (
     angle_diff,
     angle_indices,
     circular_mean,
@@ -28,7 +28,7 @@ from symmon.angles import (
     wrap_components,
 )
 from symmon.errors import AngleWarning, ModelError, ShapeError, SymmonError
-from symmon.problems import GMTI_SENSOR, bot, gmti
+from symmon.core.problems import GMTI_SENSOR, bot, gmti
 
 #: Rotation by π maps rule points onto rule points: only rounding differs.  The moments
 #: are O(1e-2..1e3), so 1e-9 (relative, or absolute for MoN values in [0, 1]) is rounding

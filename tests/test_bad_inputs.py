@@ -20,7 +20,7 @@ import pytest
 import sympy as sp
 
 import symmon as sm
-from symmon import cli
+from symmon.cli import parser as cli
 from symmon import io as sio
 from symmon.errors import (
     CovarianceError,
@@ -32,7 +32,7 @@ from symmon.errors import (
     SymmonError,
     UnsupportedFunctionError,
 )
-from symmon.modelfile import ModelFileError, load_model_file
+from symmon.files.modelfile import ModelFileError, load_model_file
 
 x, y, z = sp.symbols("x y z", real=True)
 e1, e2 = sp.symbols("e1 e2", real=True)
@@ -205,7 +205,7 @@ def no_code_runs(monkeypatch):
     for target, name in [(builtins, "eval"), (builtins, "exec"), (os, "system"),
                          (importlib.import_module("sympy.parsing.sympy_parser"), "parse_expr")]:
         monkeypatch.setattr(target, name, forbidden)
-    for module in (sp, importlib.import_module("sympy.core.sympify"), importlib.import_module("symmon.model")):
+    for module in (sp, importlib.import_module("sympy.core.sympify"), importlib.import_module("symmon.core.model")):
         if hasattr(module, "sympify"):
             monkeypatch.setattr(module, "sympify", sympify_no_text)
 
@@ -535,7 +535,7 @@ def test_declared_size_limits_of_a_model_file(tmp_path, head, match):
     ids=lambda a: " ".join(a) if isinstance(a, list) else None,
 )
 def test_hostile_options_are_usage_errors_found_before_any_work(capsys, monkeypatch, argv, match):
-    nl = importlib.import_module("symmon.nonlinearity")
+    nl = importlib.import_module("symmon.measures.mon")
     monkeypatch.setattr(nl, "nonlinearity", lambda *a, **k: pytest.fail("the computation started"))
     code, out, err = run_cli(capsys, "nonlinearity", EXAMPLES / "polar.toml", "--transform", "mc", *argv)
     assert (code, out) == (2, "")
@@ -564,7 +564,7 @@ def test_derive_out_empty_is_a_usage_error(capsys):
 
 @pytest.fixture
 def no_computation(monkeypatch):
-    nl = importlib.import_module("symmon.nonlinearity")
+    nl = importlib.import_module("symmon.measures.mon")
     monkeypatch.setattr(nl, "nonlinearity", lambda *a, **k: pytest.fail("the computation started"))
 
 
@@ -625,7 +625,7 @@ def test_api_writes_refuse_devices_and_empty_names():
 
 def test_a_non_finite_result_is_not_printed(capsys, monkeypatch):
     # Whatever the transform returns, the command prints no NaN: it names the quantity and exits 1.
-    prop = importlib.import_module("symmon.propagate")
+    prop = importlib.import_module("symmon.propagation.front")
     real = prop.propagate
 
     def nan_cov(*args, **kwargs):
@@ -642,7 +642,7 @@ def test_a_non_finite_result_is_not_printed(capsys, monkeypatch):
 
 
 def test_a_nan_mon_is_not_printed(capsys, monkeypatch):
-    nl = importlib.import_module("symmon.nonlinearity")
+    nl = importlib.import_module("symmon.measures.mon")
     real = nl.nonlinearity
 
     def nan_value(*args, **kwargs):

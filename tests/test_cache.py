@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import symmon.ccache as cc
+import symmon.compile.ccache as cc
 from symmon.compile import has_compiler
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -431,7 +431,7 @@ def test_failed_build_is_reported_and_leaves_nothing(tmp_path):
 @needs_proc
 def test_sigterm_handler_is_transparent_without_a_compile(tmp_path):
     """The CLI installs the handler for good: with no compile running, SIGTERM acts as before."""
-    script = "import sys, time; from symmon.ccache import catch_sigterm; catch_sigterm(); print('ready', flush=True); time.sleep(600)"
+    script = "import sys, time; from symmon.compile.ccache import catch_sigterm; catch_sigterm(); print('ready', flush=True); time.sleep(600)"
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     p = subprocess.Popen([sys.executable, "-c", script], env=env, stdout=subprocess.PIPE, text=True)
     assert p.stdout.readline() == "ready\n"

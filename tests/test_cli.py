@@ -19,8 +19,10 @@ import numpy as np
 import pytest
 
 import symmon as sm
-from symmon import cli
-from symmon.modelfile import load_model_file
+from symmon.cli import parser as cli
+from symmon.cli import commands as cli_commands
+from symmon.cli import options as cli_options
+from symmon.files.modelfile import load_model_file
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 DERIVATIONS = Path(__file__).resolve().parent.parent / "derivations"
@@ -41,7 +43,7 @@ def run(capsys, *argv: str) -> tuple[int, str, str]:
 
 
 def api_transform(name: str) -> sm.Transform:
-    return cli.transform_from_name(name, samples=MC_SAMPLES, seed=3)
+    return cli_options.transform_from_name(name, samples=MC_SAMPLES, seed=3)
 
 
 def assert_close(actual, expected) -> None:
@@ -96,10 +98,10 @@ def test_nonlinearity_text_output_has_the_value_and_its_standard_error(capsys):
 def test_compare_prints_every_transform(capsys):
     code, out, err = run(capsys, "compare", EXAMPLES / "polar.toml", "--samples", MC_SAMPLES)
     assert (code, err) == (0, "")
-    rows = {line.split()[0] for line in out.splitlines()[2:2 + len(cli.TRANSFORM_NAMES)]}
-    assert rows == set(cli.TRANSFORM_NAMES)
-    for name in cli.TRANSFORM_NAMES:
-        assert f"{name:>4}: {cli.transform_from_name(name, MC_SAMPLES)!r}" in out
+    rows = {line.split()[0] for line in out.splitlines()[2:2 + len(cli_options.transform_names())]}
+    assert rows == set(cli_options.transform_names())
+    for name in cli_options.transform_names():
+        assert f"{name:>4}: {cli_options.transform_from_name(name, MC_SAMPLES)!r}" in out
 
 
 def test_compare_json_equals_nonlinearity_per_transform(capsys):
@@ -107,7 +109,7 @@ def test_compare_json_equals_nonlinearity_per_transform(capsys):
     code, out, _ = run(capsys, "compare", path, "--weight", "diag", "--samples", MC_SAMPLES, "--seed", 3, "--json")
     assert code == 0
     rows = json.loads(out)["rows"]
-    assert [r["name"] for r in rows] == list(cli.TRANSFORM_NAMES)
+    assert [r["name"] for r in rows] == list(cli_options.transform_names())
     spec = load_model_file(path)
     for r in rows:
         res = sm.nonlinearity(spec.model, spec.u, spec.v, weight="diag", transform=api_transform(r["name"]))
@@ -203,7 +205,7 @@ def test_alpha_sweep_writes_csv_and_png_atomically(capsys, tmp_path):
 
 
 def test_a_sweep_that_fails_midway_writes_nothing(capsys, tmp_path, monkeypatch):
-    nl = importlib.import_module("symmon.nonlinearity")   # the package attribute is the function
+    nl = importlib.import_module("symmon.measures.mon")   # the package attribute is the function
 
     csv_path = tmp_path / "mon.csv"
     csv_path.write_text("previous results\n")
@@ -345,7 +347,7 @@ def _numbers(res: dict) -> dict:
 ], ids=lambda e: " ".join(e) if isinstance(e, tuple) else "")
 def test_monte_carlo_backends_give_the_same_numbers(capsys, monkeypatch, extra, setting):
     """Threads or a local Dask scheduler: the same groups, merged in the same order."""
-    prop = importlib.import_module("symmon.propagate")  # the package re-exports the function under this name
+    prop = importlib.import_module("symmon.propagation.front")  # the package re-exports the function under this name
     seen, real = [], prop.propagate
     monkeypatch.setattr(prop, "propagate", lambda *a, **k: seen.append(k["executor"]) or real(*a, **k))
     res = _mc_json(capsys, *extra)
@@ -374,7 +376,7 @@ def test_dask_target_that_is_neither_a_scheduler_nor_an_address(capsys):
 
 def test_unreachable_dask_scheduler_is_an_input_error(capsys, monkeypatch):
     pytest.importorskip("dask.distributed")
-    monkeypatch.setattr(cli, "DASK_CONNECT_TIMEOUT", 1)
+    monkeypatch.setattr(cli_options, "DASK_CONNECT_TIMEOUT", 1)
     code, _, err = run(capsys, "nonlinearity", EXAMPLES / "gmti.toml", "--transform", "mc",
                        "--samples", MC_SAMPLES, "--dask", "tcp://127.0.0.1:9")
     assert code == 1
@@ -512,7 +514,7 @@ def test_compare_flags_rows_whose_error_bar_exceeds_ten_percent(capsys):
     rows = {r["name"]: r for r in json.loads(out)["rows"]}
     for r in rows.values():
         rel = None if r["stderr"] is None else r["stderr"] / abs(r["mon"])
-        assert r["relative_stderr"] == rel and r["flagged"] == (rel is not None and rel > cli.FLAG_RELATIVE_STDERR)
+        assert r["relative_stderr"] == rel and r["flagged"] == (rel is not None and rel > cli_commands.FLAG_RELATIVE_STDERR)
     assert rows["mc"]["flagged"] and not rows["gh"]["flagged"]
     code, out, _ = run(capsys, "compare", EXAMPLES / "polar.toml", "--samples", "40")
     flagged = [line.split()[0] for line in out.splitlines()[2:10] if line.endswith(" !") or " ! " in line]

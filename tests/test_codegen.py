@@ -1,7 +1,7 @@
 """C export: the generated code compiles without CasADi and reproduces symmon's numbers.
 
 The exported library is compiled with gcc in a temporary directory, loaded with ctypes and
-compared with :func:`symmon.propagate` (TT2, UT) and the compiled CasADi model (g, J).
+compared with :func:`symmon.propagation.front` (TT2, UT) and the compiled CasADi model (g, J).
 Models: GMTI, Straka & Havlík (2024) eq. (46) with s = [1e3, 1e3, 1e3]; the polar model
 (bearing declared as an angle); polar with multiplicative range noise (w = [u; v]).
 """
@@ -20,9 +20,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import symmon as sm
-from symmon.codegen import export_c, moment_functions
+from symmon.codegen.export import export_c, moment_functions
 from symmon.errors import SymmonError
-from symmon.propagate import compiled
+from symmon.compile import compiled
 
 #: C and Python evaluate the same expression graphs in a different order of operations:
 #: the results agree to rounding, relative to the scale of each array.
@@ -404,7 +404,7 @@ def test_hostile_model_name_cannot_inject_code(tmp_path_factory, parts, where):
 @needs_gcc
 def test_the_issue_name_gives_no_symbol(tmp_path):
     """The name of the report (issue 12) through the CLI: the header defines nothing."""
-    from symmon.cli import main
+    from symmon.cli.parser import main
 
     toml = (Path(__file__).resolve().parents[1] / "examples" / "polar.toml").read_text()
     name = "aaaa" * 10 + f" {PAYLOAD} "

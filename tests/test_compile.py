@@ -191,7 +191,7 @@ def test_disk_cache_is_keyed_by_content_and_reused(tmp_path):
         pytest.skip("no C compiler")
     script = """
     import sys
-    import numpy as np, sympy as sp, symmon as sm, symmon.ccache as sc
+    import numpy as np, sympy as sp, symmon as sm, symmon.compile.ccache as sc
     x, y = sp.symbols("x y")
     u = sm.Gaussian([1.0, 2.0], np.eye(2))
     run = sc._run_compiler
@@ -233,7 +233,7 @@ def test_ordinary_names_compile(name):
 @settings(max_examples=40, deadline=None)
 @given(st.text(st.characters(blacklist_categories=("Cs",)), max_size=80))
 def test_any_text_is_a_valid_function_name(text):
-    from symmon.cnames import HASH_DIGITS, MAX_STEM, c_identifier, is_casadi_name
+    from symmon.compile.cnames import HASH_DIGITS, MAX_STEM, c_identifier, is_casadi_name
 
     tag = c_identifier(text)
     assert is_casadi_name(tag) and len(tag) <= MAX_STEM + 1 + HASH_DIGITS
@@ -255,7 +255,7 @@ def fresh_cache(tmp_path, monkeypatch):
 
 
 def _count_builds(monkeypatch) -> list[list[str]]:
-    import symmon.ccache as cc
+    import symmon.compile.ccache as cc
 
     calls: list[list[str]] = []
     real = cc._run_compiler
@@ -328,7 +328,7 @@ def test_background_build_is_logged(fresh_cache, monkeypatch, caplog):
 
 
 def test_bad_compile_mode_is_named(monkeypatch):
-    from symmon.ccache import compile_mode
+    from symmon.compile.ccache import compile_mode
     from symmon.errors import SymmonError
 
     monkeypatch.setenv("SYMMON_COMPILE", "fast")
@@ -349,7 +349,7 @@ def test_propagate_reports_the_evaluator():
 @pytest.mark.parametrize("name", ["polar (rad)", "a_", "range & bearing"])
 def test_every_command_takes_an_ordinary_name(tmp_path, command, name, capsys):
     """Issue 13: these names crashed every command with CasADi's "Function name is not valid"."""
-    from symmon.cli import main
+    from symmon.cli.parser import main
 
     toml = (ROOT / "examples" / "polar.toml").read_text()
     model_file = tmp_path / "m.toml"

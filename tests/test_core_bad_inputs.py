@@ -260,7 +260,7 @@ def test_lapack_failure_in_validation_is_a_covariance_error(monkeypatch):
 def test_lapack_failure_in_the_square_root_is_a_covariance_error(monkeypatch):
     """Cholesky fails on a singular P, the semidefinite Cholesky on an indefinite one: the
     last resort, eigh, failing too is reported, not raised as LinAlgError."""
-    from symmon.gaussian import matrix_sqrt
+    from symmon.core.gaussian import matrix_sqrt
 
     monkeypatch.setattr(np.linalg, "eigh", _no_convergence)
     with pytest.raises(CovarianceError, match=r"no square root of the covariance.*did not converge"):

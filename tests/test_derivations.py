@@ -129,7 +129,7 @@ def test_no_scripts_found_is_a_clear_error(tmp_path, monkeypatch):
 
 def test_list_without_scripts_is_an_error_naming_the_places(tmp_path, monkeypatch, capsys):
     """Outside a checkout `symmon derive --list` says where it looked and exits 1."""
-    from symmon import cli
+    from symmon.cli import parser as cli
 
     monkeypatch.setenv("SYMMON_DERIVATIONS", str(tmp_path))
     assert cli.main(["derive", "--list"]) == 1

@@ -13,7 +13,7 @@ import pytest
 import sympy as sp
 
 import symmon as sm
-from symmon.moments import latex_number, latex_text
+from symmon.propagation.joint import latex_number, latex_text
 
 x, y = sp.symbols("x y", real=True)
 e_r, e_p = sp.symbols("e_r e_p", real=True)

@@ -14,9 +14,9 @@ import pytest
 import sympy as sp
 
 import symmon as sm
-from symmon import estimation as est
+from symmon.estimation import nlt as est
 from symmon.errors import ModelError, ShapeError, SingularMatrixError
-from symmon.kalman import KalmanFilter
+from symmon.filters.linear import KalmanFilter
 from symmon.reproduce import radar
 
 #: Closed forms and algebraically equal filters in double precision (a few 2x2..4x4 solves).
@@ -137,7 +137,7 @@ def test_direct_fusion_equals_covariance_form_update(sensors):
 
 def test_reexports():
     assert est.fuse is sm.fuse
-    assert est.KalmanFilter is KalmanFilter
+    assert sm.filters.KalmanFilter is KalmanFilter is sm.KalmanFilter
 
 
 # --------------------------------------------------------------------------- linear models
@@ -200,7 +200,7 @@ def test_nonlinear_filter_on_linear_model_is_the_kalman_filter(cv_system, transf
     F, Q, H, R, kf, ys = cv_system
     x0, P0 = np.array([0.2, 0.8]), np.diag([1.0, 0.5])
     ref = kf.filter(ys, x0, P0)
-    nkf = est.NonlinearKalmanFilter(linear_model(F, "cv_f"), linear_model(H, "cv_h"), Q, R, transform)
+    nkf = sm.NonlinearKalmanFilter(linear_model(F, "cv_f"), linear_model(H, "cv_h"), Q, R, transform)
     res = nkf.filter(ys, sm.Gaussian(x0, P0))
     for got, want in ((res.x, ref.x), (res.P, ref.P), (res.x_pred, ref.x_pred), (res.P_pred, ref.P_pred)):
         np.testing.assert_allclose(got, want, rtol=CLOSED_FORM_RTOL, atol=CLOSED_FORM_RTOL)
@@ -277,7 +277,7 @@ def test_filter_wraps_angle_innovations(bearing):
     wrapped, _ = bearing
     x1, x2 = wrapped.inputs
     f = sm.Model([x1, x2], [x1, x2], name="static")
-    nkf = est.NonlinearKalmanFilter(f, wrapped, 1e-6 * np.eye(2), [[1e-4]], sm.TT1())
+    nkf = sm.NonlinearKalmanFilter(f, wrapped, 1e-6 * np.eye(2), [[1e-4]], sm.TT1())
     ys = np.array([[-np.pi + 0.01], [np.pi - 0.005]])
     res = nkf.filter(ys, sm.Gaussian([-10.0, 0.05], np.eye(2)))
     assert np.all(np.linalg.norm(res.x - [-10.0, 0.05], axis=1) < 1.0)
@@ -381,12 +381,12 @@ def small_models():
         (lambda m: est.predict(m["f_rect"], sm.Gaussian([0.0, 1.0], np.eye(2)), np.eye(2)), ShapeError,
          "map the state to itself"),
         (lambda m: est.predict(m["f1"], [0.0], [[1.0]]), TypeError, "x must be a symmon.Gaussian"),
-        (lambda m: est.NonlinearKalmanFilter(m["f1"], m["h2"], [[1.0]], np.eye(2)), ShapeError, "h_model has 2 inputs"),
-        (lambda m: est.NonlinearKalmanFilter(m["f1"], m["f1"], [[1.0]], [[1.0]], transform="ut"), TypeError,
+        (lambda m: sm.NonlinearKalmanFilter(m["f1"], m["h2"], [[1.0]], np.eye(2)), ShapeError, "h_model has 2 inputs"),
+        (lambda m: sm.NonlinearKalmanFilter(m["f1"], m["f1"], [[1.0]], [[1.0]], transform="ut"), TypeError,
          "symmon transform"),
-        (lambda m: est.NonlinearKalmanFilter(m["f1"], m["f1"], [[1.0]], [[1.0]]).filter([1.0, 2.0], sm.Gaussian([0.0], [[1.0]])),
+        (lambda m: sm.NonlinearKalmanFilter(m["f1"], m["f1"], [[1.0]], [[1.0]]).filter([1.0, 2.0], sm.Gaussian([0.0], [[1.0]])),
          ShapeError, r"ys must have shape \(K, 1\)"),
-        (lambda m: est.NonlinearKalmanFilter(m["f1"], m["f1"], [[1.0]], [[1.0]]).filter([[1.0]], sm.Gaussian([0.0, 0.0], np.eye(2))),
+        (lambda m: sm.NonlinearKalmanFilter(m["f1"], m["f1"], [[1.0]], [[1.0]]).filter([[1.0]], sm.Gaussian([0.0, 0.0], np.eye(2))),
          ShapeError, "x0 has dimension 2, expected 1"),
     ],
 )

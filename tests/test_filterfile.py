@@ -9,9 +9,9 @@ import pytest
 import sympy as sp
 
 import symmon as sm
-from symmon import cli
-from symmon.filterfile import load_filter_file, run_bank, simulate
-from symmon.modelfile import ModelFileError
+from symmon.cli import parser as cli
+from symmon.files.filterfile import load_filter_file, run_bank, simulate
+from symmon.files.modelfile import ModelFileError
 
 # A constant-velocity target driven by one acceleration noise a (x_k = f(x, a): the noise
 # enters through G = [T²/2, T], with fewer components than the states) and seen with one

@@ -10,9 +10,9 @@ from filterpy.kalman import ExtendedKalmanFilter, MerweScaledSigmaPoints, Unscen
 from scipy import stats
 
 import symmon as sm
-from symmon import estimation as est
+from symmon.estimation import nlt as est
 from symmon.errors import ShapeError, SymmonError
-from symmon.filters import NonlinearKalmanResult, _compiled_step
+from symmon.filters.nonlinear import NonlinearKalmanResult, _compiled_step
 
 #: Two implementations of the same filter in double precision, over tens of steps: the
 #: order of the sums differs, so rounding (1e-16 per operation) grows by the conditioning
@@ -374,9 +374,10 @@ def test_ekf_at_a_non_differentiable_point_raises():
         ekf.filter(np.ones((2, 3, 2)), np.array([[1.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]]), np.eye(4))
 
 
-def test_old_name_is_an_alias():
-    assert est.NonlinearKalmanFilter is sm.NonlinearKalmanFilter
-    assert est.NonlinearKalmanResult is NonlinearKalmanResult
+def test_the_filters_have_one_home():
+    assert sm.filters.NonlinearKalmanFilter is sm.NonlinearKalmanFilter
+    assert sm.filters.NonlinearKalmanResult is NonlinearKalmanResult
+    assert not hasattr(sm.estimation, "NonlinearKalmanFilter")  # no alias left in estimation
 
 
 # --------------------------------------------------------------------------- adaptive
@@ -451,9 +452,9 @@ def test_adaptive_bad_options(kwargs, match):
 # --------------------------------------------------------------------------- scenario files, symmon filter
 from pathlib import Path  # noqa: E402
 
-from symmon import cli  # noqa: E402
-from symmon.filterfile import load_filter_file, run_bank, simulate as simulate_spec  # noqa: E402
-from symmon.modelfile import ModelFileError  # noqa: E402
+from symmon.cli import parser as cli  # noqa: E402
+from symmon.files.filterfile import load_filter_file, run_bank, simulate as simulate_spec  # noqa: E402
+from symmon.files.modelfile import ModelFileError  # noqa: E402
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "rb_close.toml"
 SCENARIO = """
@@ -552,8 +553,8 @@ def test_cli_filter_bad_options_are_usage_errors(capsys, argv, match):
 
 def test_adaptive_distance_is_the_unitless_error_of_advise():
     """The batched distance of the adaptive rule equals sm.advise's moment_error."""
-    from symmon.advise import moment_distance, moment_error, whiteners
-    from symmon.propagate import compiled
+    from symmon.measures.advice import moment_distance, moment_error, whiteners
+    from symmon.compile import compiled
 
     _, h = cv_models()
     u = sm.Gaussian([3.0, 1.0, -0.5, 0.2], np.diag([4.0, 9.0, 0.1, 0.2]) + 0.5)

@@ -1,6 +1,6 @@
 """Fuzzing the model-file parser and the ``symmon`` command with hostile input (issue 13).
 
-Hypothesis generates expression texts from the grammar of :mod:`symmon.modelfile` (and
+Hypothesis generates expression texts from the grammar of :mod:`symmon.files.modelfile` (and
 around it: unknown names and functions, refused syntax, huge or odd numbers, deep nesting,
 unicode) and model files that follow its TOML schema loosely (hostile names, wrong
 lengths, odd numbers, unknown keys, truncated text). The properties:
@@ -29,9 +29,9 @@ import sympy as sp
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from symmon import cli
+from symmon.cli import parser as cli
 from symmon.errors import SymmonError
-from symmon.modelfile import FUNCTIONS, load_model_file, parse_expression
+from symmon.files.modelfile import FUNCTIONS, load_model_file, parse_expression
 
 #: Reproducible and bounded: the same examples on every run, no deadline per example.
 FUZZ = dict(derandomize=True, database=None, deadline=None,

@@ -1,4 +1,4 @@
-"""Unit invariance from lemmas (symmon.invariance), (18)–(21), (29), (34)–(43).
+"""Unit invariance from lemmas (symmon.units.proofs), (18)–(21), (29), (34)–(43).
 
 Each lemma is checked to hold, to be able to fail, and against the transform code it is
 about; the per-model proof is run on the example models, its refutations are checked against
@@ -16,9 +16,11 @@ import sympy as sp
 from conftest import random_spd
 
 import symmon as sm
-from symmon import cli, invariance, lemmas, units
+from symmon.cli import parser as cli
+from symmon.units import direct, lemmas, proofs as invariance
+from symmon import units
 from symmon.errors import SingularMatrixError, SymmonError
-from symmon.modelfile import load_model_file
+from symmon.files.modelfile import load_model_file
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 #: Moments of a model and of its unit-changed copy, in double precision: a few products and
@@ -173,12 +175,12 @@ def test_singular_sigma_gg_at_the_given_mean_is_an_error():
 
 def test_a_wrong_changed_model_is_caught(monkeypatch):
     """The per-model check compares ḡ with the chain rule: a ḡ that forgets o_y fails it."""
-    real = invariance._changed_parts
+    real = invariance.changed_parts
 
     def forgets_offset(model, Su, ou, Sy, oy, Sv, suffix):
         return real(model, Su, ou, Sy, sp.zeros(*oy.shape), Sv, suffix)
 
-    monkeypatch.setattr(invariance, "_changed_parts", forgets_offset)
+    monkeypatch.setattr(invariance, "changed_parts", forgets_offset)
     with pytest.raises(SymmonError, match="not g composed"):
         units.prove_invariance(POLAR, "full")
 
@@ -234,14 +236,14 @@ def test_symbolic_proof_refuted_at_a_given_distribution():
 def test_direct_route_alarm_spares_foreign_code_and_interrupts_sympy():
     # Raised in foreign code (a gc callback, say) the alarm would be ignored and lost: it waits.
     spin_until = time.perf_counter() + 0.3
-    with invariance._deadline(0.05) as check:
+    with direct._deadline(0.05) as check:
         while time.perf_counter() < spin_until:
             pass
-        with pytest.raises(invariance._OutOfTime):
+        with pytest.raises(direct._OutOfTime):
             check()
     # Inside sympy it interrupts (the timer repeats until it lands there).
     x = sp.Symbol("x")
-    with pytest.raises(invariance._OutOfTime):
-        with invariance._deadline(0.05):
+    with pytest.raises(direct._OutOfTime):
+        with direct._deadline(0.05):
             while True:
                 sp.expand((x + 1) ** 3)

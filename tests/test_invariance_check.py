@@ -8,7 +8,7 @@ import pytest
 import sympy as sp
 
 import symmon as sm
-from symmon.invariance_check import _jets, _rational_point, _tt2_numeric
+from symmon.units.check import _jets, _rational_point, _tt2_numeric
 
 # Both sides evaluate one closed form; the float64 side rounds, relative to the largest entry.
 FLOAT_RTOL = 1e-12

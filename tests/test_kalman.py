@@ -1,4 +1,4 @@
-"""Tests of symmon.kalman.KalmanFilter.
+"""Tests of symmon.filters.linear.KalmanFilter.
 
 - A scalar case computed by hand (fractions).
 - Steady state against the discrete algebraic Riccati equation (scipy) and Remark 2 of the
@@ -19,7 +19,7 @@ import pytest
 from scipy.linalg import solve_discrete_are
 
 from symmon.errors import CovarianceError, ShapeError
-from symmon.kalman import KalmanFilter
+from symmon.filters.linear import KalmanFilter
 
 EXACT_RTOL = 1e-12  # hand-computed fractions: rounding only
 RICCATI_RTOL = 1e-10  # brief: steady state to 1e-10
@@ -181,7 +181,7 @@ def test_batched_filter_equals_single_runs(run: int) -> None:
 
 
 def test_covariances_are_exactly_symmetric() -> None:
-    # Downstream validators (symmon.mmse) reject asymmetric covariances; rounding in
+    # Downstream validators (symmon.estimation.mmse) reject asymmetric covariances; rounding in
     # F P F^T and the Joseph update must not leave any.
     kf = KalmanFilter(
         F=np.array([[0.9, 0.2, 0.0], [-0.1, 1.0, 0.3], [0.05, 0.0, 0.7]]),

@@ -26,28 +26,17 @@ import pytest
 import sympy as sp
 
 import symmon as sm
-from symmon import cli
-from symmon.angles import wrap_angle
+from symmon.cli import parser as cli
+from symmon.cli import options as cli_options
+from symmon.core.angles import wrap_angle
 from symmon.errors import SymmonError
-from symmon.conditional import conditional_cov_replicates
-from symmon.measure import mon_from_moments
+from symmon.measures.conditional import conditional_cov_replicates
+from symmon.measures.formula import mon_from_moments
 from symmon.transforms.montecarlo import MC_INNER
-from symmon.propagate import compiled
-from symmon.transforms.montecarlo import (
-    MAX_CHUNK,
-    MAX_GROUPS,
-    MAX_SAMPLES,
-    Stats,
-    connect_dask,
-    dask_compute,
-    jackknife_se,
-    leave_one_out,
-    leave_one_out_stack,
-    merge_all,
-    moments_of,
-    run_groups,
-    stop_point,
-)
+from symmon.compile import compiled
+from symmon.transforms.executor import connect_dask, dask_compute, run_groups, stop_point
+from symmon.transforms.montecarlo import MAX_CHUNK, MAX_GROUPS, MAX_SAMPLES
+from symmon.transforms.stats import Stats, jackknife_se, leave_one_out, leave_one_out_stack, merge_all, moments_of
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -309,7 +298,7 @@ def test_a_scheduler_that_never_answers_times_out(silent_server, capsys, monkeyp
     pytest.importorskip("distributed")
     with pytest.raises(SymmonError, match="accepted but nothing answered in another 0.5 s"):
         connect_dask(silent_server, timeout=0.5)
-    monkeypatch.setattr(cli, "DASK_CONNECT_TIMEOUT", 0.5)
+    monkeypatch.setattr(cli_options, "DASK_CONNECT_TIMEOUT", 0.5)
     code = cli.main(["propagate", str(ROOT / "examples" / "gmti.toml"), "--transform", "mc",
                      "--samples", "1000", "--dask", silent_server])
     assert code == 1

@@ -12,12 +12,12 @@ import pytest
 import sympy as sp
 
 import symmon as sm
-from symmon.angles import wrap_angle
+from symmon.core.angles import wrap_angle
 from symmon.compile import CompiledModel, has_compiler
 from symmon.errors import SamplingError, ShapeError
-from symmon.problems import bot, gmti
-from symmon.propagate import compiled
-from symmon.angles import wrap_casadi
+from symmon.core.problems import bot, gmti
+from symmon.compile import compiled
+from symmon.core.angles import wrap_casadi
 from symmon.transforms.mc_kernel import FUSE_MAX_NW, SampleKernel, sample_kernel
 
 #: A reordered sum of 4 products and one evaluation of g: a few ulps of the column scale.

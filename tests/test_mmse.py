@@ -1,4 +1,4 @@
-"""Tests of symmon.mmse against independent methods.
+"""Tests of symmon.estimation.mmse against independent methods.
 
 - Lemma 1 against scipy.integrate.quad (1e-8).
 - Theorems 2 and 3 and the MSE formulas against tensor Gauss-Hermite quadrature, which is
@@ -21,7 +21,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import integrate, stats
 
-from symmon import mmse
+from symmon.estimation import mmse
 from symmon.errors import CovarianceError, ShapeError
 
 QUAD_RTOL = 1e-8  # Lemma 1 vs adaptive quadrature (brief: 1e-8)

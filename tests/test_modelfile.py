@@ -1,4 +1,4 @@
-"""Tests of symmon.modelfile: the whitelist expression parser and the TOML model files."""
+"""Tests of symmon.files.modelfile: the whitelist expression parser and the TOML model files."""
 
 from __future__ import annotations
 
@@ -17,11 +17,11 @@ from hypothesis import strategies as st
 import pytest
 import sympy as sp
 
-import symmon.expressions as expressions
-import symmon.modelfile as modelfile
+import symmon.files.expressions as expressions
+import symmon.files.modelfile as modelfile
 from symmon.errors import ModelError
-from symmon.gaussian import Gaussian
-from symmon.modelfile import (
+from symmon.core.gaussian import Gaussian
+from symmon.files.modelfile import (
     MAX_DEPTH,
     MAX_EXPONENT,
     MAX_EXPRESSION_LENGTH,
@@ -33,7 +33,7 @@ from symmon.modelfile import (
     load_model_file,
     parse_expression,
 )
-from symmon.model import Model
+from symmon.core.model import Model
 
 #: Numbers that come out of one float operation (e.g. 100 * 0.17) are compared this tightly.
 EXACT_RTOL = 1e-12

@@ -23,7 +23,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import symmon as sm
-from symmon import cli
+from symmon.cli import parser as cli
 from symmon.errors import (
     AngleWarning,
     CovarianceError,
@@ -32,10 +32,10 @@ from symmon.errors import (
     SamplingError,
     SymmonError,
 )
-from symmon.gaussian import PSD_RTOL, SCHUR_RTOL
-from symmon.sweep import sweep_alpha
-from symmon.transforms import quadrature
-from symmon.transforms.quadrature import MAX_NODES, rule_size, standard_rule
+from symmon.core.gaussian import PSD_RTOL, SCHUR_RTOL
+from symmon.measures.sweep import sweep_alpha
+from symmon.transforms import nodes, quadrature
+from symmon.transforms.nodes import MAX_NODES, rule_size, standard_rule
 
 x, y = sp.symbols("x y", real=True)
 
@@ -152,7 +152,7 @@ def test_tensor_grid_beyond_the_limit_is_refused_before_it_is_built(monkeypatch)
     def never(*args):
         raise AssertionError("the grid was built")
 
-    monkeypatch.setattr(quadrature, "_tensor", never)
+    monkeypatch.setattr(nodes, "_tensor", never)
     standard_rule.cache_clear()
     assert 5**12 > MAX_NODES
     syms = sp.symbols("a0:12")

@@ -13,11 +13,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import symmon as sm
-from symmon import weights
+from symmon.measures import weights
 from symmon.errors import SingularMatrixError, SymmonError
-from symmon.conditional import _general_cov, conditional_cov
-from symmon.measure import mon_from_moments
-from symmon.problems import bot, gmti, polar, rdcos
+from symmon.measures.conditional import _general_cov, conditional_cov
+from symmon.measures.formula import mon_from_moments
+from symmon.core.problems import bot, gmti, polar, rdcos
 
 #: Closed forms and exact rescalings agree to rounding.
 EXACT_TOL = 1e-10

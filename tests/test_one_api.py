@@ -9,8 +9,8 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import ModelError, ShapeError, SymmonError
-from symmon.propagate import compiled
-from symmon.sweep import sweep_alpha, sweep_states
+from symmon.compile import compiled
+from symmon.measures.sweep import sweep_alpha, sweep_states
 from symmon.transforms.registry import DEFAULT, default_transform, make
 
 # Batched and one-at-a-time evaluations of the same formula differ only in the order of

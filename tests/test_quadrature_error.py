@@ -14,7 +14,8 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import SymmonError
-from symmon.transforms.quadrature import ERROR_SAFETY, quadrature_error
+from symmon.propagation import quadrature_error
+from symmon.transforms.quadrature import ERROR_SAFETY
 
 #: Closed forms and exact rules agree to rounding of sums of O(10²) terms.
 CLOSED_RTOL = 1e-10

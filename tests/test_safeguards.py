@@ -19,7 +19,7 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import CovarianceError, DerivativeError, SingularMatrixError
-from symmon.gaussian import PSD_RTOL, matrix_sqrt
+from symmon.core.gaussian import PSD_RTOL, matrix_sqrt
 
 #: Closed forms and exact identities agree to rounding.
 EXACT_TOL = 1e-12

@@ -21,7 +21,7 @@ import sympy as sp
 
 import symmon as sm
 from symmon.compile import CompiledModel
-from symmon.propagate import compiled
+from symmon.compile import compiled
 from symmon.transforms.taylor import second_order_terms
 
 #: Both evaluations sum the same products in a different order: rounding only.
@@ -162,7 +162,7 @@ def radar_and_quadratic(n: int) -> sm.Model:
 @pytest.mark.parametrize("factory", [sparse_ring, radar_and_quadratic], ids=["blocks", "dense"])
 def test_exported_moment_maps_match_propagate(factory):
     """The MX moment maps of export_c: the block path (ring) and the dense path (radar)."""
-    from symmon.codegen import moment_functions
+    from symmon.codegen.export import moment_functions
 
     n = 12
     model = factory(n)
@@ -181,7 +181,7 @@ def test_exported_moment_maps_match_propagate(factory):
 def test_exported_code_grows_with_the_nonzeros(tmp_path):
     """export_c's C of the ring model: MX loops, so doubling n less than triples it
     (the unrolled SX products with P grew like n_y² n², 16× per doubling)."""
-    from symmon.codegen import export_c
+    from symmon.codegen.export import export_c
 
     size = {n: export_c(sparse_ring(n), tmp_path / str(n))[0].stat().st_size for n in (16, 32)}
     assert size[32] < 3 * size[16], size
@@ -190,7 +190,7 @@ def test_exported_code_grows_with_the_nonzeros(tmp_path):
 @pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc not found")
 def test_compiled_block_path_matches_propagate(tmp_path):
     """The C of the block path (ring model), compiled by gcc and called through ctypes."""
-    from symmon.codegen import export_c
+    from symmon.codegen.export import export_c
 
     n = 12
     model = sparse_ring(n)

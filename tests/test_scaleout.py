@@ -24,11 +24,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import symmon as sm
-from symmon.problems import gmti
-from symmon.propagate import compiled
-from symmon.sweep import sweep_alpha
+from symmon.core.problems import gmti
+from symmon.compile import compiled
+from symmon.measures.sweep import sweep_alpha
 from symmon.transforms import montecarlo
-from symmon.transforms.montecarlo import Stats, group_generator, merge_all
+from symmon.transforms.montecarlo import group_generator
+from symmon.transforms.stats import Stats, merge_all
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -9,8 +9,8 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import ModelError, ShapeError, SymmonError
-from symmon.problems import gmti, polar
-from symmon.sweep import SweepResult, sweep_alpha, sweep_states
+from symmon.core.problems import gmti, polar
+from symmon.measures.sweep import SweepResult, sweep_alpha, sweep_states
 
 #: Closed forms and batched-vs-single evaluations: rounding of short sums.
 CLOSED_RTOL = 1e-10

@@ -1,4 +1,4 @@
-"""The CasADi moment formulas of symmon.symbolic_moments, in SX and in MX.
+"""The CasADi moment formulas of symmon.codegen.symbolic, in SX and in MX.
 
 The Cholesky factor against NumPy's (positive definite, semidefinite with a zero variance,
 indefinite, a non-symmetric input), built four ways: in SX, in MX, MX expanded to SX, and
@@ -16,9 +16,9 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import SymmonError
-from symmon.gaussian import matrix_sqrt
-from symmon.propagate import compiled
-from symmon.symbolic_moments import _tt2_derivatives, chol_lower, moments, unit_rule
+from symmon.core.gaussian import matrix_sqrt
+from symmon.compile import compiled
+from symmon.codegen.symbolic import _tt2_derivatives, chol_lower, moments, unit_rule
 from symmon.transforms.cubature5 import Cubature5
 
 #: Two implementations of the same Cholesky algorithm in double precision that sum in a

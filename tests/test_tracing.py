@@ -10,7 +10,7 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import ModelError, UnsupportedFunctionError
-from symmon.tracing import SUPPORTED, Traced, trace
+from symmon.core.tracing import SUPPORTED, Traced, trace
 
 #: Sympy and NumPy evaluate the same expression in a different order: a few ulps.
 ROUNDING_RTOL = 1e-12

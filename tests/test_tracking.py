@@ -7,7 +7,7 @@ import csv
 import numpy as np
 import pytest
 
-from symmon import cli
+from symmon.cli import parser as cli
 from symmon.errors import SymmonError
 from symmon.reproduce import tracking
 

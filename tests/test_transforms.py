@@ -15,8 +15,9 @@ from hypothesis.extra.numpy import arrays
 import symmon as sm
 from symmon.compile import CompiledModel
 from symmon.errors import SamplingError
-from symmon.transforms.montecarlo import Stats, group_generator, merge, merge_all
-from symmon.transforms.quadrature import standard_rule
+from symmon.transforms.montecarlo import group_generator
+from symmon.transforms.stats import Stats, merge, merge_all
+from symmon.transforms.nodes import standard_rule
 
 from conftest import radar_model, random_spd
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import sympy as sp
 
-from symmon import weights
+from symmon.measures import weights
 from symmon.errors import SymmonError
 from symmon.units import prove_matrix_invariance
 

@@ -17,9 +17,9 @@ import numpy as np
 
 from ..errors import AngleWarning
 from ..io import save_figure, write_csv
-from ..measure import mon_from_moments
-from ..problems import polar
-from ..propagate import propagate
+from ..measures.formula import mon_from_moments
+from ..core.problems import polar
+from ..propagation.front import propagate
 from ..transforms import TT2, UT, MonteCarlo
 from ._common import ALPHA_LABEL, figure_style, progress_bar, pyplot, samples_text
 

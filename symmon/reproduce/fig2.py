@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from ..io import save_figure, write_csv
-from ..measure import mon_from_moments
-from ..problems import GMTI_UNITS, RDCOS_UNITS, bot, gmti, rdcos
-from ..propagate import propagate
+from ..measures.formula import mon_from_moments
+from ..core.problems import GMTI_UNITS, RDCOS_UNITS, bot, gmti, rdcos
+from ..propagation.front import propagate
 from ..transforms import TT2, UT, MonteCarlo
 from ..transforms.stats import jackknife
 from ._common import ALPHA_LABEL, figure_style, progress_bar, pyplot, samples_text

@@ -1,8 +1,8 @@
 """Reproduce the simulations of the distance paper (Sections 4.3.1, 4.3.2 and 7).
 
 Each experiment is two-stage, as in the paper: a Kalman filter
-(:class:`symmon.kalman.KalmanFilter`) gives :math:`\\hat x_k, P_k`, and a second stage turns them
-into a distance or angle estimate. The optimal (MMSE, :mod:`symmon.mmse`) or composite estimator
+(:class:`symmon.filters.linear.KalmanFilter`) gives :math:`\\hat x_k, P_k`, and a second stage turns them
+into a distance or angle estimate. The optimal (MMSE, :mod:`symmon.estimation.mmse`) or composite estimator
 is compared with the simple plug-in estimator :math:`f(\\hat x_k)` by the RMSE over Monte Carlo
 runs at each time step, and by the average of that RMSE over a time interval (the paper's
 "average RMSE"). All runs are simulated and filtered at once (the filter covariances do not
@@ -45,10 +45,10 @@ fig8   0.01, 0.01    0.1, 0.1    (0, 10)     0.1 I   points far apart (Figure 8)
 
 **Section 7**: the two coordinates of Section 4.3.2 become the position :math:`x_k \\in R^2`
 of one object (rho = 0.5, K = 100). Estimated: range :math:`\\|x_k\\|` (composite
-:func:`symmon.mmse.norm` vs :math:`\\|\\hat x_k\\|`), bearing :math:`\\operatorname{atan2}(x_2,
-x_1)` (composite = simple, :func:`symmon.mmse.bearing`; errors wrapped to :math:`(-\\pi, \\pi]`),
+:func:`symmon.estimation.mmse.norm` vs :math:`\\|\\hat x_k\\|`), bearing :math:`\\operatorname{atan2}(x_2,
+x_1)` (composite = simple, :func:`symmon.estimation.mmse.bearing`; errors wrapped to :math:`(-\\pi, \\pi]`),
 and the cosine of the angle between :math:`x_k` and :math:`x_{k-1}` (composite
-:func:`symmon.mmse.cosine_angle` vs the plug-in). The pair :math:`(x_k, x_{k-1})` is estimated
+:func:`symmon.estimation.mmse.cosine_angle` vs the plug-in). The pair :math:`(x_k, x_{k-1})` is estimated
 jointly given :math:`y_{1:k}` by a Kalman filter on the augmented state
 :math:`[x_k; x_{k-1}]`, whose cross-covariance block gives :math:`P_{xy}`; this is the exact
 conditional distribution (fixed-lag smoothing of :math:`x_{k-1}`), where the paper's eq. (55)
@@ -70,7 +70,7 @@ Outputs (in ``outdir``): ``mmse_sec431_rmse.csv``, ``mmse_sec432_rmse.csv``,
 ``mmse_sec7_rmse.csv`` (RMSE per time step), ``mmse_summary.csv`` (average RMSEs over
 ``k_from..k_to``; ``avg_rmse_proposed`` is the optimal MMSE estimator in Section 4.3 and the
 composite one in Section 7) and one PNG per section. The Section 4.3 tables also give the *predicted* RMSE: the root of the run-average
-of the closed-form conditional MSE (:func:`symmon.mmse.abs_linear_mse`; for the simple estimator
+of the closed-form conditional MSE (:func:`symmon.estimation.mmse.abs_linear_mse`; for the simple estimator
 plus its squared distance from the MMSE estimate), a check of the MSE formulas.
 """
 
@@ -83,9 +83,9 @@ from typing import Any
 
 import numpy as np
 
-from .. import mmse
+from ..estimation import mmse
 from ..io import save_figure, write_csv
-from ..kalman import KalmanFilter
+from ..filters.linear import KalmanFilter
 from ._common import figure_style
 
 __all__ = [

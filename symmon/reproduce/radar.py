@@ -40,12 +40,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import estimation
-from ..gaussian import Gaussian
+from ..estimation import nlt as estimation
+from ..core.gaussian import Gaussian
 from ..io import save_figure, write_csv
-from ..model import Model
-from ..problems import radar_h, radar_hinv
-from ..propagate import compiled
+from ..core.model import Model
+from ..core.problems import radar_h, radar_hinv
+from ..compile import compiled
 from ..transforms import TT1, UT
 from ._common import figure_style
 

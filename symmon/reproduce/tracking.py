@@ -41,20 +41,20 @@ from typing import Any
 import numpy as np
 import sympy as sp
 
-from ..angles import wrap_angle
+from ..core.angles import wrap_angle
 from ..errors import SymmonError
-from ..filterfile import filter_transform
-from ..filters import NonlinearKalmanFilter, NonlinearKalmanResult
-from ..gaussian import Gaussian
+from ..files.filterfile import filter_transform
+from ..filters.nonlinear import NonlinearKalmanFilter, NonlinearKalmanResult
+from ..core.gaussian import Gaussian
 from ..io import save_figure, write_csv
-from ..model import Model
-from ..nonlinearity import nonlinearity
-from ..propagate import compiled
+from ..core.model import Model
+from ..measures.mon import nonlinearity
+from ..compile import compiled
 from ._common import figure_style, progress_bar
 
 __all__ = ["run", "Scenario", "scenarios", "FILTER_NAMES", "MON_RUNS", "TOL"]
 
-#: The filters compared, by their names in :data:`symmon.filterfile.FILTERS`.
+#: The filters compared, by their names in :data:`symmon.files.filterfile.FILTERS`.
 FILTER_NAMES = ("ekf", "ekf2", "ukf", "ckf", "gh", "adaptive")
 #: The adaptive filter's tolerance (unitless moment error).
 TOL = 1e-2

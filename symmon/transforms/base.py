@@ -17,10 +17,11 @@ from typing import Any, ClassVar
 import numpy as np
 import sympy as sp
 
-from ..angles import wrap_angle  # re-exported: defined beside the other angle helpers
-from ..compile import CompiledModel
+from ..core.angles import wrap_angle  # re-exported: defined beside the other angle helpers
+from ..compile.compiled import CompiledModel
 from ..errors import AngleWarning, NonFiniteError
-from ..gaussian import matrix_sqrt
+from ..core.gaussian import matrix_sqrt
+from .nodes import SPARSE_ABOVE, standard_rule
 
 __all__ = [
     "Transform", "Moments", "wrap_angle", "weighted_moments", "batch_sqrt",
@@ -184,9 +185,9 @@ class Transform(ABC):
         """Points (J, n) and weights (J,) of the outer integral over N(mean, cov) in a
         nested rule.  Default: the Gauss–Hermite rule of order 5 (tensor up to 4
         dimensions, sparse above), exact to degree 9 per coordinate."""
-        from .quadrature import GaussHermite  # quadrature builds on this module
-
-        return GaussHermite(5).outer_rule(mean, cov)
+        n = mean.shape[0]
+        Z, w = standard_rule(n, 5, n > SPARSE_ABOVE)
+        return mean + Z @ batch_sqrt(cov[None])[0].T, w
 
     def nested_inner(self) -> "Transform":
         """The transform for the inner integral of a nested rule (default: itself)."""

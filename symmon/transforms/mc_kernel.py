@@ -28,9 +28,9 @@ from typing import Sequence
 import casadi as ca
 import numpy as np
 
-from ..angles import wrap_casadi
-from ..ccache import NativeLibrary
-from ..compile import CompiledModel, generated_c
+from ..core.angles import wrap_casadi
+from ..compile.ccache import NativeLibrary
+from ..compile.compiled import CompiledModel, generated_c
 from ..errors import ShapeError, SymmonError
 
 __all__ = ["SampleKernel", "sample_kernel", "FUSE_MAX_NW"]

@@ -27,17 +27,12 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..compile import CHUNK, CompiledModel, compile_model
+from ..compile.compiled import CHUNK, CompiledModel, compile_model
 from ..errors import SamplingError, SymmonError
 from .base import Moments, Transform, batch_sqrt, pilot_angle_cut, wrap_angle
 from .executor import Executor, _is_int, dask_compute, stop_point
 from .mc_kernel import sample_kernel
 from .stats import Stats, _raw_stats, jackknife, merge, merge_all, moments_of
-
-# The group statistics (.stats) and where the groups run (.executor) once lived here:
-# their names still import from this module.
-from .executor import connect_dask, run_groups  # noqa: F401
-from .stats import jackknife_se, leave_one_out, leave_one_out_stack  # noqa: F401
 
 __all__ = ["MonteCarlo", "group_generator", "group_sizes", "MC_INNER", "MAX_SAMPLES", "MAX_GROUPS", "MAX_CHUNK",
            "MAX_QMC_GROUP"]

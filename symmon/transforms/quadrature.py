@@ -21,124 +21,20 @@ grids", J. Econometrics 144(1), 2008. doi:10.1016/j.jeconom.2007.12.004
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
-from functools import lru_cache
-from math import comb
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
-from ..errors import ResourceError, SymmonError
+from ..errors import SymmonError
+from .nodes import MAX_NODES, SPARSE_ABOVE, rule_size, standard_rule
 from .base import Moments, Transform, batch_sqrt, evaluate_points, weighted_moments, wrap_angle
 
-if TYPE_CHECKING:
-    from ..moments import JointMoments
+__all__ = ["GaussHermite", "standard_rule", "rule_size", "ERROR_SAFETY", "MAX_NODES"]
 
-__all__ = ["GaussHermite", "standard_rule", "rule_size", "quadrature_error", "ERROR_SAFETY", "MAX_NODES"]
-
-#: Above this dimension the default grid is sparse.
-SPARSE_ABOVE = 4
 
 #: Factor on |Q_p − Q_{p+2}|: it bounds |Q_p − I| once |Q_{p+2} − I| ≤ |Q_p − I| / 2.
 ERROR_SAFETY = 2.0
-
-#: The largest rule allowed: order^dim nodes for the tensor grid, the sum of the
-#: combination technique's tensor grids for the sparse one.  Each node costs a row of
-#: dim floats for the points and an evaluation of g, per Gaussian of the batch, so
-#: 10^6 nodes are ~8·dim MB per array; a larger rule raises before it is built.
-MAX_NODES = 10**6
-
-
-@lru_cache(maxsize=64)
-def _rule_1d(order: int) -> tuple[np.ndarray, np.ndarray]:
-    x, w = np.polynomial.hermite_e.hermegauss(order)
-    return x, w / np.sqrt(2 * np.pi)
-
-
-def _tensor(orders: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
-    rules = [_rule_1d(p) for p in orders]
-    X = np.array(list(itertools.product(*[r[0] for r in rules])))
-    W = np.prod(np.array(list(itertools.product(*[r[1] for r in rules]))), axis=1)
-    return X, W
-
-
-def _level_tuples(dim: int, max_sum: int):
-    """Tuples of ``dim`` positive integers with sum ≤ max_sum, in lexicographic order
-    (those of itertools.product, without visiting the level^dim others)."""
-    if dim == 0:
-        yield ()
-        return
-    for first in range(1, max_sum - dim + 2):
-        for rest in _level_tuples(dim - 1, max_sum - first):
-            yield (first,) + rest
-
-
-def rule_size(dim: int, order: int, sparse: bool) -> int:
-    """The number of nodes the rule is built from, without building it.
-
-    ``order**dim`` for the tensor grid; for the sparse grid the total size of the
-    combination technique's tensor grids (an upper bound of the merged node count),
-    counted level by level: the number of ways to reach each level sum, weighted by
-    the grid sizes Π (2 lₖ − 1).
-    """
-    if not sparse:
-        return order**dim
-    level = (order + 1) // 2
-    q = dim + level - 1
-    ways = {0: 1}  # level sum → Σ Π (2 lₖ − 1) over the tuples of the dimensions so far
-    for _ in range(dim):
-        nxt: dict[int, int] = {}
-        for s, c in ways.items():
-            for lv in range(1, level + 1):
-                if s + lv <= q:
-                    nxt[s + lv] = nxt.get(s + lv, 0) + c * (2 * lv - 1)
-        ways = nxt
-    return sum(c for s, c in ways.items() if s >= q - dim + 1)
-
-
-def _check_size(dim: int, order: int, sparse: bool) -> None:
-    size = rule_size(dim, order, sparse)
-    if size <= MAX_NODES:
-        return
-    kind = "sparse (Smolyak)" if sparse else "tensor"
-    hint = "a lower order, UT (2n + 1 points) or Monte Carlo"
-    if not sparse:
-        hint = f"sparse=True ({rule_size(dim, order, True)} nodes), " + hint
-    raise ResourceError(
-        f"the Gauss-Hermite {kind} grid of order {order} in {dim} dimensions has {size} nodes, "
-        f"above the limit MAX_NODES = {MAX_NODES}: use {hint}"
-    )
-
-
-@lru_cache(maxsize=64)
-def standard_rule(dim: int, order: int, sparse: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Nodes (N, dim) and weights (N,) for N(0, I_dim).
-
-    Raises
-    ------
-    ResourceError
-        If the rule has more than ``MAX_NODES`` nodes (:func:`rule_size`), before any
-        of them is built.
-    """
-    _check_size(dim, order, sparse)
-    if not sparse:
-        return _tensor((order,) * dim)
-    level = (order + 1) // 2
-    q = dim + level - 1
-    acc: dict[tuple, float] = {}
-    for levels in _level_tuples(dim, q):
-        s = sum(levels)
-        if not q - dim + 1 <= s <= q:
-            continue
-        coef = (-1) ** (q - s) * comb(dim - 1, q - s)
-        X, W = _tensor(tuple(2 * l - 1 for l in levels))
-        for x, w in zip(np.round(X, 14), W):
-            key = tuple(x + 0.0)  # +0.0 folds -0.0 into 0.0
-            acc[key] = acc.get(key, 0.0) + coef * w
-    keys = [k for k, w in acc.items() if w != 0.0]
-    return np.array(keys), np.array([acc[k] for k in keys])
-
 
 @dataclass(frozen=True)
 class GaussHermite(Transform):
@@ -249,40 +145,3 @@ def _rule_moments(cm, means: np.ndarray, L: np.ndarray, order: int, sparse: bool
     Y = evaluate_points(cm, X, transform, angles)
     mean, cov, cross = weighted_moments(Y, X, means, w, w, angles)
     return mean, cov, cross, K * N
-
-
-def quadrature_error(model, u, v=None, order: int = 5, sparse: bool | None = None) -> "JointMoments":
-    """Gauss–Hermite moments of order ``order`` with their error estimate from order + 2.
-
-    The same as ``propagate(model, u, v, transform=GaussHermite(order, sparse,
-    error_estimate=True))``.
-
-    Parameters
-    ----------
-    model : Model
-    u : Gaussian
-    v : Gaussian, optional
-        Required when the model has noise symbols.
-    order : int
-        The order of the rule whose moments and error are returned.
-    sparse : bool or None
-        As in :class:`GaussHermite`.
-
-    Returns
-    -------
-    JointMoments
-        The order-``order`` moments; ``error`` holds ``"mean"`` (n_y,), ``"cov"``
-        (n_y, n_y) and ``"cross_cov"`` (n_y, n_u): ``ERROR_SAFETY · |Q_order −
-        Q_{order+2}|``, a bound on their error once the rule converges (module notes).
-
-    Examples
-    --------
-    >>> import sympy as sp, symmon as sm
-    >>> x = sp.Symbol("x")
-    >>> m = quadrature_error(sm.Model([x], [x**4]), sm.Gaussian([0.0], [[1.0]]), order=2)
-    >>> round(float(m.mean[0]), 10), round(float(m.error["mean"][0]), 10)  # E x⁴ = 3; 2 points give 1
-    (1.0, 4.0)
-    """
-    from ..propagate import propagate  # the front end sits above the transforms
-
-    return propagate(model, u, v, transform=GaussHermite(order, sparse, error_estimate=True))

@@ -17,7 +17,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..compile import CompiledModel
+from ..compile.compiled import CompiledModel
 from ..errors import DerivativeError, SymmonError
 from .base import Moments, Transform, wrap_angle
 

@@ -1,0 +1,345 @@
+"""The commands of ``symmon``: one function per subcommand, ``cmd_<name>(args) -> exit code``.
+
+:mod:`symmon.cli` parses the options (checked before any computation) and calls one of these;
+they load the model file, compute, and print or write through :mod:`symmon.cli.output`.
+The heavy modules are imported inside each command, so ``symmon --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import UsageError
+from .options import FIGURES, executor_of, transform_from_name, transform_names
+from .output import (
+    _bank_json,
+    _filter_plot,
+    _finite,
+    _finite_measure,
+    _jsonable,
+    _label,
+    _measure_json,
+    _moments_text,
+    _mon_unit,
+    _num,
+    _print_json,
+    _proof_report,
+    _refutation_text,
+    _units_of,
+)
+from ..errors import SymmonError
+
+#: ``compare`` flags a row whose Monte Carlo standard error exceeds this share of its MoN.
+FLAG_RELATIVE_STDERR = 0.10
+
+
+def _load(path: str):
+    from ..files.modelfile import load_model_file
+
+    return load_model_file(path)
+
+
+def _check_output_files(*paths: str | None) -> None:
+    """Refuse output files that cannot be written, before any computation."""
+    from ..io import check_output_file
+
+    for p in paths:
+        if p is not None:
+            check_output_file(p)
+
+
+def cmd_propagate(args: argparse.Namespace) -> int:
+    """``symmon propagate``: E y, Cov y and Cov(y, u) by one transform."""
+    from ..propagation.front import propagate
+
+    spec = _load(args.file)
+    tr = transform_from_name(args.transform, args.samples, args.seed, args.order, args.groups)
+    with executor_of(args) as ex:
+        m = propagate(spec.model, spec.u, spec.v, transform=tr, executor=ex)
+    for name, value in (("E y", m.mean), ("Cov y", m.cov), ("Cov(y, u)", m.cross_cov),
+                        *((f"the standard error of {k}", v) for k, v in (m.stderr or {}).items())):
+        _finite(name, value)
+    if args.json:
+        out = {
+            "model": spec.model.name, "inputs": [str(s) for s in spec.model.inputs],
+            "outputs": [str(e) for e in spec.model.outputs], "units": _units_of(spec), "transform": repr(tr),
+            "mean": _jsonable(m.mean), "cov": _jsonable(m.cov), "cross_cov": _jsonable(m.cross_cov),
+            "stderr": None if m.stderr is None else {k: _jsonable(v) for k, v in m.stderr.items()},
+        }
+        _print_json(out)
+        return 0
+    print(f"{spec.model.name} by {tr!r}")
+    print("\n".join(_moments_text(spec, m)))
+    return 0
+
+
+def cmd_nonlinearity(args: argparse.Namespace) -> int:
+    """``symmon nonlinearity``: the MoN of a model file, once or over a sweep of α."""
+    if args.alpha_sweep is None and (args.plot or args.csv):
+        raise UsageError("--plot and --csv need --alpha-sweep")
+    _check_output_files(args.csv, args.plot)
+    if args.csv and args.plot and os.path.realpath(args.csv) == os.path.realpath(args.plot):
+        raise UsageError(f"--csv and --plot name the same file: {args.csv}")
+    if args.plot and importlib.util.find_spec("matplotlib") is None:
+        raise SymmonError("--plot needs matplotlib: pip install 'symmon[plot]'")
+    with executor_of(args) as ex:
+        return _nonlinearity(args, ex)
+
+
+def _sweep_header(weight: str, transform: str, unit: str) -> list[str]:
+    """Column names of the α-sweep CSV that say what each column holds."""
+    from ..measures.weights import NAMED_WEIGHTS
+
+    w = NAMED_WEIGHTS[weight]
+    mon = f"MoN with weight {w.name} {w.equation}: {w.formula}, by {transform} [{unit}]"
+    return ["alpha (scale of the input covariance: P = alpha P0)", mon,
+            "Monte Carlo standard error of the MoN (empty for a deterministic transform)"]
+
+
+def _nonlinearity(args: argparse.Namespace, ex: Any) -> int:
+    from ..core.gaussian import Gaussian
+    from ..io import save_figure, write_csv
+    from ..measures.mon import nonlinearity
+    from ..reproduce._common import progress_bar, pyplot
+
+    spec = _load(args.file)
+    tr = transform_from_name(args.transform, args.samples, args.seed, args.order, args.groups)
+    unit = _mon_unit(spec, args.weight)
+    if args.alpha_sweep is None:
+        res = _finite_measure(nonlinearity(spec.model, spec.u, spec.v, weight=args.weight, transform=tr,
+                                           executor=ex), "")
+        if args.json:
+            _print_json({"model": spec.model.name, **_measure_json(res), "unit": unit})
+            return 0
+        se = f" ± {res.stderr:.2g} (MC standard error)" if res.stderr is not None else ""
+        print(f"{spec.model.name}: MoN[{args.weight}] by {tr!r} = {res.value:.6g}{se} ({unit})")
+        for note in res.notes:
+            print(f"note: {note}")
+        return 0
+    # Σ_uu ← α Σ_uu, as in the papers' figures (the noise covariance is kept).
+    rows, notes = [], []
+    for a in progress_bar(args.alpha_sweep, "alpha sweep", not args.no_progress):
+        res = nonlinearity(spec.model, Gaussian(spec.u.mean, a * spec.u.cov), spec.v, weight=args.weight,
+                           transform=tr, executor=ex)
+        _finite_measure(res, f" at alpha={a:.6g}")
+        rows.append((float(a), res.value, res.stderr))  # stderr None: not a Monte Carlo transform
+        notes.extend(n for n in res.notes if n not in notes)
+    # Compute everything first, then write: a failure midway leaves no partial file.
+    written = []
+    if args.csv:
+        written.append(write_csv(args.csv, _sweep_header(args.weight, args.transform, unit), rows))
+    if args.plot:
+        plt = pyplot()
+        fig, ax = plt.subplots(figsize=(6, 4))
+        ax.semilogx([r[0] for r in rows], [r[1] for r in rows], "o-")
+        ax.set_xlabel(r"$\alpha$ (input covariance scale, unitless)")
+        ax.set_ylabel(f"MoN ({args.weight}, {args.transform}) [{unit}]")
+        ax.set_title(spec.model.name)
+        fig.tight_layout()
+        try:
+            written.append(save_figure(fig, args.plot, dpi=120))
+        finally:
+            plt.close(fig)
+    if args.json:
+        _print_json({"model": spec.model.name, "weight": args.weight, "transform": repr(tr),
+                     "alpha": [r[0] for r in rows], "mon": [r[1] for r in rows],
+                     "stderr": _jsonable([r[2] for r in rows]), "unit": unit, "notes": notes,
+                     "files": [str(p) for p in written]})
+        return 0
+    print(f"{spec.model.name}: MoN[{args.weight}] by {tr!r} ({unit}) over alpha, the scale of Cov u")
+    for a, value, se in rows:
+        print(f"alpha={a:.4g}  MoN={value:.6g}" + ("" if se is None else f" ± {se:.2g}"))
+    for note in notes:
+        print(f"note: {note}")
+    for p in written:
+        print(f"wrote {p}")
+    return 0
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    """``symmon compare``: the MoN and the moments by every transform, as one table."""
+    from ..measures.mon import nonlinearity
+    from ..reproduce._common import progress_bar
+
+    spec = _load(args.file)
+    rows = []
+    with executor_of(args) as ex:
+        for name in progress_bar(transform_names(), "transforms", not args.no_progress):
+            tr = transform_from_name(name, args.samples, args.seed, args.order, args.groups)
+            res = _finite_measure(nonlinearity(spec.model, spec.u, spec.v, weight=args.weight, transform=tr,
+                                               executor=ex), f" by {name}")
+            m = res.moments
+            for what, value in (("E y", m.mean), ("Cov y", m.cov), ("Cov(y, u)", m.cross_cov)):
+                _finite(f"{what} by {name}", value)
+            rows.append({"name": name, "transform": repr(tr), "mon": res.value, "stderr": res.stderr,
+                         "evaluations": m.evaluations, "mean": m.mean, "cov": m.cov,
+                         "cross_cov": m.cross_cov, "notes": res.notes})
+    for r in rows:
+        r["relative_stderr"] = _relative(r["stderr"], r["mon"])
+        r["flagged"] = r["relative_stderr"] is not None and r["relative_stderr"] > FLAG_RELATIVE_STDERR
+    if args.json:
+        _print_json({"model": spec.model.name, "weight": args.weight, "flag_relative_stderr": FLAG_RELATIVE_STDERR,
+                     "units": _units_of(spec), "rows": [
+            {k: (_jsonable(v) if k not in ("name", "transform", "evaluations", "flagged") else v) for k, v in r.items()}
+            for r in rows]})
+        return 0
+    print(f"{spec.model.name}: MoN with weight {args.weight!r} ({_mon_unit(spec, args.weight)}) "
+          "and the moments by every transform")
+    units = _units_of(spec)["outputs"]
+    head = ["", "MoN", "MC s.e.", "s.e./MoN",
+            *(_label(f"E y[{i}]", u) for i, u in enumerate(units)), *(_label(f"sd y[{i}]", u) for i, u in enumerate(units))]
+    table = [head]
+    for r in rows:
+        rel = r["relative_stderr"]
+        table.append([r["name"], _num(r["mon"]), "-" if r["stderr"] is None else _num(r["stderr"]),
+                      "-" if rel is None else f"{100 * rel:.2g}%" + (" !" if r["flagged"] else ""),
+                      *map(_num, r["mean"]), *map(_num, np.sqrt(np.clip(np.diag(r["cov"]), 0.0, None)))])
+    widths = [max(len(t[j]) for t in table) for j in range(len(head))]
+    for t in table:
+        print("  ".join(f"{c:>{w}}" for c, w in zip(t, widths)))
+    if any(r["flagged"] for r in rows):
+        print(f"! the Monte Carlo error bar exceeds {FLAG_RELATIVE_STDERR:.0%} of the MoN: "
+              "that row is noise, not a value; raise --samples")
+    print("\ntransforms:")
+    for r in rows:
+        print(f"{r['name']:>4}: {r['transform']}")
+    notes = sorted({n for r in rows for n in r["notes"]})
+    for note in notes:
+        print(f"note: {note}")
+    return 0
+
+
+def _relative(stderr: float | None, value: float) -> float | None:
+    """stderr / |value| (inf for a zero value with an error bar), None without an error bar."""
+    if stderr is None:
+        return None
+    return stderr / abs(value) if value != 0 else (0.0 if stderr == 0 else math.inf)
+
+
+def cmd_prove(args: argparse.Namespace) -> int:
+    """``symmon prove-invariance``: the symbolic unit-invariance proof of the MoN."""
+    from ..io import atomic_write_text
+    from ..units import prove_invariance
+
+    _check_output_files(args.out)
+    spec = _load(args.file)
+    # --numeric: the file's distributions, made exact: a proof for this u (and v) only.
+    moments = dict(mean=spec.u.mean, cov=spec.u.cov, noise_cov=None if spec.v is None else spec.v.cov) if args.numeric else {}
+    proof = prove_invariance(spec.model, args.weight, route=args.route, budget=args.budget, progress=True,
+                             at=(spec.u, spec.v), **moments)  # a refutation at the file's distribution
+    print(proof if proof.holds else _refutation_text(proof, args.out))
+    if args.out:
+        print(f"wrote {atomic_write_text(args.out, _proof_report(proof))}")
+    # liu-li and liu-li-raw are known not to be invariant: a "does not hold" is the expected answer.
+    return 0 if proof.holds or args.weight in ("liu-li", "liu-li-raw") else 1
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    """``symmon reproduce``: a figure of the papers as PNG + CSV."""
+    from ..io import check_output_dir
+
+    which = FIGURES if args.figure == "all" else (args.figure,)
+    check_output_dir(args.out)
+    out = Path(args.out)
+    for name in which:
+        mod = importlib.import_module(f"symmon.reproduce.{name}")
+        kwargs: dict[str, Any] = {"seed": args.seed, "progress": not args.no_progress}
+        if args.samples is not None and name != "tracking":
+            kwargs["runs" if name == "mmse" else "samples"] = args.samples
+        if args.runs is not None and name in ("mmse", "tracking"):
+            kwargs["runs"] = args.runs
+        for p in mod.run(out, **kwargs):
+            print(f"wrote {p}")
+    return 0
+
+
+def cmd_derive(args: argparse.Namespace) -> int:
+    """``symmon derive``: run derivation scripts and write a Markdown report."""
+    from .. import derive
+    from ..io import atomic_write_text, check_output_file
+
+    if args.list:
+        for name in derive.require_available():
+            print(name)
+        return 0
+    check_output_file(args.out)
+    names = None if args.all or not args.name else [args.name]
+    results = derive.run(names)
+    path = atomic_write_text(args.out, derive.report_markdown(results))
+    for r in results:
+        print(f"{'PASS' if r.passed else 'FAIL'}  {r.name}: {r.title}")
+    print(f"wrote {path}")
+    return 0 if all(r.passed for r in results) else 1
+
+
+def cmd_codegen(args: argparse.Namespace) -> int:
+    """``symmon codegen``: standalone C code for g, J and the TT2 and UT moments."""
+    from ..codegen.export import export_c
+    from ..io import check_output_dir
+
+    check_output_dir(args.output)
+    spec = _load(args.file)
+    for p in export_c(spec.model, args.output, args.name):
+        print(f"wrote {p}")
+    return 0
+
+
+def cmd_filter(args: argparse.Namespace) -> int:
+    """``symmon filter``: a bank of runs of each filter on a scenario; ANEES, ANIS, RMSE."""
+    from ..files.filterfile import load_filter_file, run_bank, simulate
+
+    spec = load_filter_file(args.file)
+    xs, ys = simulate(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
+    rows = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, args.filters, args.tol, args.confidence)
+    states = [str(s) for s in spec.f.inputs]
+    written = [_filter_plot(spec, rows, states, args.plot)] if args.plot else []
+    if args.json:
+        _print_json({"scenario": spec.name, "runs": args.runs, "steps": spec.steps, "seed": args.seed,
+                     "states": states, "units": spec.units, "filters": [_bank_json(r) for r in rows],
+                     "files": [str(p) for p in written]})
+        return 0
+    ok = [r for r in rows if r.result is not None]
+    if ok:
+        a, b = ok[0].anees, ok[0].anis
+        print(f"{spec.name}: {args.runs} runs of {spec.steps} steps (seed {args.seed}); per-step averages over the "
+              f"runs with {a.confidence:.0%} chi-square intervals: ANEES [{a.lower:.3g}, {a.upper:.3g}] "
+              f"(n = {len(states)}), ANIS [{b.lower:.3g}, {b.upper:.3g}] (n_y = {spec.h.n_y})")
+    labelled = [f"{s} [{spec.unit(s)}]" if spec.unit(s) else s for s in states]
+    print(f"{'filter':<9} {'ANEES':>9} {'inside':>7} {'ANIS':>9} {'inside':>7}  RMSE ({', '.join(labelled)})")
+    for r in rows:
+        if r.result is None:
+            print(f"{r.name:<9} failed: {r.error}")
+            continue
+        rmse = np.sqrt(np.mean(r.rmse**2, axis=0))
+        print(f"{r.name:<9} {float(np.mean(r.anees.value)):>9.4g} {float(np.mean(r.anees.inside)):>7.0%} "
+              f"{float(np.mean(r.anis.value)):>9.4g} {float(np.mean(r.anis.inside)):>7.0%}  "
+              + ", ".join(f"{v:.4g}" for v in rmse))
+    print("ANEES, ANIS: time averages of the per-step values; inside: the share of steps inside the interval; "
+          "RMSE: over runs and steps")
+    for p in written:
+        print(f"wrote {p}")
+    return 0
+
+
+def cmd_advise(args: argparse.Namespace) -> int:
+    """``symmon advise``: the advice of :func:`symmon.advise` for a model file."""
+    from ..measures.advice import advise
+
+    spec = _load(args.file)
+    a = advise(spec.model, spec.u, spec.v, tol=args.tol, weight=args.weight, samples=args.samples, seed=args.seed)
+    if args.json:
+        _print_json({"model": spec.model.name, "tol": a.tol, "weight": args.weight, "choice": a.choice_name,
+                     "reference": a.reference, "reference_error": a.reference_error,
+                     "reference_mon": a.reference_mon, "notes": list(a.notes),
+                     "rows": [{k: (repr(v) if k == "transform" else v) for k, v in r.items()} for r in a.rows]})
+        return 0
+    print(f"{spec.model.name}: {a}")
+    return 0

@@ -1,0 +1,244 @@
+"""The moment formulas as CasADi graphs: one construction for the C export and the filters.
+
+Each function takes the mean m and covariance P as CasADi symbols and returns
+(E y, Cov y, Cov(y, w)) as expressions of the same type, SX or MX:
+
+- :func:`export_c <symmon.codegen.export_c>` builds them in **MX**: the products with P,
+  the Cholesky factor and the map over the points are matrix nodes, so the C code has
+  loops and grows with the nonzeros of the derivatives, not with n_y² n²;
+- the compiled filter step (:mod:`symmon.filters.step`) builds them in **SX**: the same
+  helper functions are then inlined, the constant one-hot selections fold away, and the
+  whole predict + update step is one straight-line SX function.
+
+The formulas (docs/guide/transforms.md):
+
+- **TT1**: E y ≈ g(m), Cov y ≈ J P Jᵀ, Cov(y, w) ≈ J P;
+- **TT2** (Gustafsson & Hendeby 2012): E y_i ≈ g_i(m) + ½ tr(H_i P),
+  Cov(y_i, y_j) ≈ J_i P J_jᵀ + ½ tr(H_i P H_j P), Cov(y, w) ≈ J P;
+- **point rules** (any transform with :meth:`~symmon.transforms.base.Transform.unit_rule`:
+  the UT family, Gauss–Hermite, the fifth-degree cubature): points m + L z_k with L the
+  lower Cholesky factor of P (:func:`chol_lower`), E y = Σ wᵐ_k g(m + L z_k), Cov y and
+  Cov(y, w) the wᶜ-weighted sums of the residual products, as
+  :func:`symmon.transforms.base.weighted_moments` computes them in NumPy.
+
+Outputs declared as angles get a wrapped mean (TT1, TT2), or the weighted circular mean
+atan2(Σ wᵐ_k sin y_k, Σ wᵐ_k cos y_k) and wrapped residuals (point rules; Crouse 2015).
+
+References
+----------
+F. Gustafsson, G. Hendeby, "Some relations between extended and unscented Kalman
+filters", IEEE Trans. Signal Process. 60(2), 2012. doi:10.1109/TSP.2011.2172431
+D. F. Crouse, "Cubature/unscented/sigma point Kalman filtering with angular measurement
+models", FUSION 2015.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Iterable, Union
+
+import casadi as ca
+import numpy as np
+
+from ..core.angles import wrap_casadi
+from ..compile.compiled import CompiledModel
+from ..errors import SymmonError
+from ..transforms.base import Transform
+
+__all__ = ["chol_lower", "tt1_moments", "tt2_moments", "point_moments", "moments", "wrap_entries", "unit_rule"]
+
+#: A symbolic matrix: SX (inlined, straight-line code) or MX (matrix nodes, loops in C).
+Sym = Union[ca.SX, ca.MX]
+
+
+def chol_lower(P: Sym) -> Sym:
+    """Lower Cholesky factor L (L Lᵀ = P) of a symbolic matrix, reading its lower triangle.
+
+    Column j is one call of a step function of (L, P, j) that subtracts the projections
+    on the columns before j: in MX, n calls of one piece of C, each O(n²) work, instead of
+    the n³/6 scalar operations of an unrolled factor (j is an argument, so that no
+    per-column constant is folded into the code); in SX the calls are inlined with j a
+    constant, and the one-hot selections fold to the unrolled factor.
+
+    A zero pivot gives a zero column, so a positive *semi*definite P with an exactly zero
+    variance still works (the limit of chol(P + εI), as
+    :func:`symmon.core.gaussian.matrix_sqrt`); a negative pivot gives NaN (the square root of
+    a negative number), which reaches the outputs rather than a silently wrong factor.
+    """
+    kind = type(P)
+    n = P.shape[0]
+    L, Pj, j = kind.sym("L", n, n), kind.sym("P", n, n), kind.sym("j")
+    idx = ca.DM(np.arange(n, dtype=float))
+    e = ca.if_else(idx == j, 1, 0)  # e_j
+    below = ca.if_else(idx > j, 1, 0)  # rows i > j
+    v = ca.mtimes(Pj, e) - ca.mtimes(L, ca.mtimes(e.T, L).T)  # P[:, j] − L L[j, :]ᵀ
+    d = ca.sqrt(ca.dot(e, v))
+    # if_else: the 0/0 of the branch not taken (a zero pivot) does not reach L.
+    col = ca.if_else(d > 0, below * v / d, 0) + d * e
+    step = ca.Function("chol_step", [L, Pj, j], [L + ca.mtimes(col, e.T)])
+    out = kind.zeros(n, n)
+    for k in range(n):
+        out = step(out, P, k)
+    return out
+
+
+def wrap_entries(v: Sym, idx: Iterable[int]) -> Sym:
+    """``v`` with the rows ``idx`` wrapped to (−π, π] (:func:`symmon.core.angles.wrap_casadi`)."""
+    rows = sorted(idx)
+    if not rows:
+        return v
+    out = v[:, :]  # a copy: the slice assignment below must not change the caller's v
+    out[rows, :] = wrap_casadi(v[rows, :])
+    return out
+
+
+def tt1_moments(cm: CompiledModel, m: Sym, P: Sym, angles: Iterable[int] = ()) -> tuple[Sym, Sym, Sym]:
+    """TT1 moments of g at (m, P): g(m) (angle outputs wrapped), J P Jᵀ and J P."""
+    # A dense J: the product loops over it, with no sparsity pattern of J P in the C code.
+    J = ca.densify(cm.jac(m))
+    JP = ca.mtimes(J, P)
+    return wrap_entries(cm.g(m), angles), ca.mtimes(JP, J.T), JP
+
+
+@functools.lru_cache(maxsize=64)
+def _tt2_derivatives(cm: CompiledModel) -> tuple[ca.Function, bool, np.ndarray]:
+    """w ↦ (g, J, Hessian blocks or stacked Hessians), whether blocks, the supports S.
+
+    Hessians supported on few inputs are kept as their s × s blocks B_i = H_i[S_i, S_i]
+    (zero-padded to s, concatenated: s × n_y s), dense ones stacked (n_y n × n):
+    whichever has fewer entries, (n_y s)² against n_y n².
+    """
+    w, y = cm.w_sx, cm.y_sx
+    n, n_y = cm.n_w, cm.n_y
+    H = cm.H_sx
+    S = cm.hess_support
+    s = S.shape[1]
+    blocks = (n_y * s) ** 2 <= n_y * n * n
+    if blocks:
+        sizes = [int(k) for k in cm.hess_support_size]
+        sel = [[int(a) for a in S[i, :k]] for i, k in enumerate(sizes)]
+        B = ca.horzcat(*[ca.densify(ca.diagcat(H[i][sel[i], sel[i]], ca.SX(s - k, s - k)))
+                         for i, k in enumerate(sizes)])
+    else:
+        B = ca.vertcat(*H)
+    return ca.Function("derivs", [w], [y, cm.J_sx, B]), blocks, S
+
+
+def _block_terms(kind: type, n: int, n_y: int, s: int) -> ca.Function:
+    """(B, P, sel, ids) ↦ (½ tr(H_i P), ½ tr(H_i P H_j P)) from the s × s Hessian blocks.
+
+    B = [B_1 … B_{n_y}] (s × n_y s) holds the blocks and sel (1 × n_y s) the inputs S_i.
+    With E the one-hot selection of sel, Q = Eᵀ P E has the blocks Q_ij = P[S_i, S_j],
+    and with Rᵀ = [Q_{:,1} B_1 … Q_{:,n_y} B_{n_y}] (one map over the outputs),
+    tr(H_i P H_j P) = tr(R_ij R_ji) is the sum over block (j, i) of Rᵀ ∘ R.  In MX every
+    step is a dense loop: no sparsity pattern or index list longer than n_y·s is written
+    into the C code (sel and ids = 0…n−1 are arguments, so the selection is computed at
+    run time rather than folded into a stored matrix); in SX they are constants and fold.
+    """
+    m = n_y * s
+    B, P, sel, ids = kind.sym("B", s, m), kind.sym("P", n, n), kind.sym("sel", 1, m), kind.sym("ids", n)
+    E = ca.if_else(ca.repmat(ids, 1, m) == ca.repmat(sel, n, 1), 1, 0)
+    Q = ca.mtimes(ca.mtimes(P, E).T, E)
+    X, Bi = kind.sym("X", m, s), kind.sym("Bi", s, s)
+    Rt = ca.Function("block_times", [X, Bi], [ca.mtimes(X, Bi)]).map(n_y)(Q, B)
+
+    def block_sums(Z: Sym, rows: int) -> Sym:
+        """(n_y s × rows) ↦ (n_y × rows): sums over the s rows of each block."""
+        return ca.reshape(ca.sum1(ca.reshape(Z, s, n_y * rows)), n_y, rows)
+
+    half_tr = 0.5 * block_sums(ca.diag(Rt), 1)  # tr(Q_ii B_i)
+    half_tr2 = 0.5 * block_sums(block_sums(Rt * Rt.T, m).T, n_y)
+    return ca.Function("tt2_blocks", [B, P, sel, ids], [half_tr, half_tr2])
+
+
+def tt2_moments(cm: CompiledModel, m: Sym, P: Sym, angles: Iterable[int] = ()) -> tuple[Sym, Sym, Sym]:
+    """TT2 moments of g at (m, P) (Gustafsson & Hendeby 2012).
+
+    g, J and the Hessians come from one SX function of w; the second-order terms go
+    through the Hessian blocks (:func:`_block_terms`, (n_y s)² entries) or through H_i P
+    per output (n_y n² entries), whichever is smaller.
+    """
+    kind = type(P)
+    n, n_y = cm.n_w, cm.n_y
+    derivs, blocks, S = _tt2_derivatives(cm)
+    s = S.shape[1]
+    y_m, J, Hm = derivs(m)
+    J = ca.densify(J)  # a dense product: no n × n sparsity pattern of P in the C code
+    JP = ca.mtimes(J, P)
+    cov = ca.mtimes(JP, J.T)
+    if s == 0:  # affine g
+        half_tr, half_tr2 = kind(n_y, 1), kind(n_y, n_y)
+    elif blocks:
+        half_tr, half_tr2 = _block_terms(kind, n, n_y, s)(
+            Hm, P, ca.DM(S.reshape(1, -1).astype(float)), ca.DM(np.arange(n, dtype=float)))
+    else:
+        HP = [ca.mtimes(ca.densify(Hm[i * n:(i + 1) * n, :]), P) for i in range(n_y)]
+        half_tr = 0.5 * ca.vertcat(*[ca.trace(a) for a in HP])
+        F = ca.horzcat(*[ca.vec(a) for a in HP])
+        Ft = ca.horzcat(*[ca.vec(a.T) for a in HP])
+        half_tr2 = 0.5 * ca.mtimes(F.T, Ft)  # ⟨H_i P, (H_j P)ᵀ⟩ = tr(H_i P H_j P)
+    return wrap_entries(y_m + half_tr, angles), cov + half_tr2, JP
+
+
+def unit_rule(transform: Transform, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points z (N, n) for N(0, I_n), mean and covariance weights of a point rule.
+
+    Raises
+    ------
+    SymmonError
+        If ``transform`` declares no points (:meth:`Transform.unit_rule` is None).
+    """
+    rule = transform.unit_rule(n) if isinstance(transform, Transform) else None
+    if rule is None:
+        raise SymmonError(f"{transform!r} is not a point rule (it declares no unit_rule): "
+                          "its moments cannot be compiled as weighted sums over points")
+    return rule
+
+
+def _offsets(L: Sym, Z: np.ndarray) -> Sym:
+    """D = L Zᵀ (n × N), the offsets of the points from the mean."""
+    kind = type(L)
+    N, n = Z.shape
+    c = Z[1, 0] if N == 2 * n + 1 else 0.0
+    if c > 0 and np.array_equal(Z, np.vstack([np.zeros(n), c * np.eye(n), -c * np.eye(n)])):
+        # The UT's points 0, ±c eᵢ: a concatenation, no n × N constant in the C code.
+        return c * ca.horzcat(kind.zeros(n, 1), L, -L)
+    # Zᵀ without its zeros, added into a dense zero: the C code holds no sparsity
+    # pattern of the n × N product.
+    return ca.mac(L, ca.sparsify(ca.DM(Z.T)), kind.zeros(n, N))
+
+
+def point_moments(g: ca.Function, m: Sym, P: Sym, transform: Transform,
+                  angles: Iterable[int] = ()) -> tuple[Sym, Sym, Sym]:
+    """E g, Cov g and Cov(g, w) of w ~ N(m, P) by a point rule.
+
+    g is mapped over the N points m + L z_k (one loop in MX), and the weighted sums are
+    matrix products.  The mean is centred on the first point, as
+    :func:`symmon.transforms.base.weighted_moments`: that keeps digits when the weights
+    are large and of both signs (ut2's are about ±1e6).
+    """
+    Z, wm_a, wc_a = unit_rule(transform, m.shape[0])
+    N = Z.shape[0]
+    D = _offsets(chol_lower(P), np.asarray(Z, dtype=float))
+    Y = g.map(N)(ca.repmat(m, 1, N) + D)
+    wm = ca.DM(np.asarray(wm_a, dtype=float))
+    Y0 = Y[:, 0]
+    mean = Y0 + ca.mtimes(Y - ca.repmat(Y0, 1, N), wm)
+    rows = sorted(angles)
+    if rows:
+        mean[rows] = ca.atan2(ca.mtimes(ca.sin(Y[rows, :]), wm), ca.mtimes(ca.cos(Y[rows, :]), wm))
+    R = wrap_entries(Y - ca.repmat(mean, 1, N), rows)
+    RW = ca.mtimes(R, ca.diag(ca.DM(np.asarray(wc_a, dtype=float))))
+    return mean, ca.mtimes(RW, R.T), ca.mtimes(RW, D.T)
+
+
+def moments(cm: CompiledModel, m: Sym, P: Sym, transform: Transform,
+            angles: Iterable[int] = ()) -> tuple[Sym, Sym, Sym]:
+    """E g, Cov g and Cov(g, w) of w ~ N(m, P) by ``transform``, chosen by its declared
+    capabilities: a Taylor rule (``taylor_order`` 1 or 2) or a point rule (``unit_rule``)."""
+    order = transform.taylor_order
+    if order == 1:
+        return tt1_moments(cm, m, P, angles)
+    if order == 2:
+        return tt2_moments(cm, m, P, angles)
+    return point_moments(cm.g, m, P, transform, angles)

@@ -1,0 +1,581 @@
+"""The C compiler, the on-disk cache of shared libraries, and the compile policy.
+
+symmon generates C code with CasADi and compiles it into a shared library, once per
+content: the library is cached on disk and loaded by later runs.  This module owns
+everything between "here is C source" and "here is a loaded library":
+
+- **Cache directory** (:func:`cache_dir`): ``$SYMMON_CACHE``, else
+  ``$XDG_CACHE_HOME/symmon``, else ``$HOME/.cache/symmon``.  It is created mode 0700.
+  A directory that is world-writable or belongs to another user is refused, and so is
+  one that cannot be created or written; symmon then uses a private temporary
+  directory for the rest of the process (removed at exit), with a warning.
+- **Entries**: ``STEM_KEY.so`` and, beside it, ``STEM_KEY.so.sha256`` in
+  ``sha256sum`` format.  KEY hashes the source, the flags, the CasADi version and the
+  compiler's path, ``--version`` output and target (``-dumpmachine``).  Before a library
+  is loaded its sha256 is checked against the file beside it (which names the entry, so
+  a pair copied under another key fails too); a mismatch, a missing checksum or a load
+  failure gives a warning and a rebuild.
+- **Builds**: each runs as one build process (:mod:`symmon.compile.ccbuild`: the compiler, then
+  the checksum and the atomic install) in a new session (process group) and in a
+  temporary directory inside the cache.  On KeyboardInterrupt or SIGTERM the whole group
+  (``cc1``, ``as``) is killed and the directory removed.  A background build still
+  running when the interpreter exits normally is left to finish: it installs its library
+  for the next run.  After an interrupt, and into a private temporary cache directory,
+  it is killed at exit instead.
+- **Policy** (``$SYMMON_COMPILE``): ``auto`` (default) compiles C of up to
+  :data:`BACKGROUND_BYTES` at once with -O2, and larger C in a background thread (-O1,
+  or -O0 above :data:`HUGE_BYTES`) while CasADi's virtual machine evaluates, then swaps
+  the library in; ``sync`` always waits for the compiler (-O2); ``background`` always
+  builds in the background; ``never`` uses the virtual machine only (as does
+  ``SYMMON_NO_COMPILE=1``).  ``docs/compile.md`` gives the measurements behind the
+  thresholds.
+"""
+
+from __future__ import annotations
+
+import atexit
+import hashlib
+import logging
+import os
+import shlex
+import shutil
+import signal
+import stat
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import warnings
+from functools import lru_cache
+from pathlib import Path
+from typing import Callable, Generic, TypeVar
+
+import casadi as ca
+
+from . import ccbuild
+from .ccbuild import checksum_path, sha256_file
+from ..errors import BuildError, SymmonError
+
+__all__ = ["cache_dir", "has_compiler", "compile_mode", "build_shared_library", "NativeLibrary",
+           "catch_sigterm", "BACKGROUND_BYTES", "CFLAGS"]
+
+log = logging.getLogger(__name__)
+
+#: Flags of every build.  No -ffast-math (it breaks NaN) and no FMA contraction, so that
+#: compiled code rounds like CasADi's virtual machine.
+CFLAGS = ("-fPIC", "-shared", "-fno-fast-math", "-ffp-contract=off")
+#: Optimisation of a build that the caller waits for, and of a background build.
+OPT_SYNC = "-O2"
+OPT_BACKGROUND = "-O1"
+#: Generated C larger than this (bytes) is compiled in the background under the ``auto``
+#: policy: gcc -O2 takes 1-4 s for it on 2 busy cores (docs/compile.md, "Threshold").
+BACKGROUND_BYTES = 64_000
+#: Above this size gcc -O1 takes minutes (its time grows faster than the code) while
+#: -O0 takes seconds and still evaluates 3-4x faster than the VM: background at -O0.
+OPT_HUGE = "-O0"
+HUGE_BYTES = 300_000
+MODES = ("auto", "sync", "background", "never")
+
+_lock = threading.Lock()
+_warned: set[str] = set()
+
+
+def _warn_once(key: str, message: str, stacklevel: int) -> None:
+    """``warnings.warn`` a RuntimeWarning once per process for ``key``."""
+    with _lock:
+        if key in _warned:
+            return
+        _warned.add(key)
+    warnings.warn(message, RuntimeWarning, stacklevel=stacklevel + 1)
+
+
+# --------------------------------------------------------------------------- policy and compiler
+def compile_mode() -> str:
+    """The compile policy: ``$SYMMON_COMPILE`` (auto, sync, background, never).
+
+    ``SYMMON_NO_COMPILE`` set to anything non-empty means ``never``.
+
+    Raises
+    ------
+    SymmonError
+        If ``SYMMON_COMPILE`` holds another value.
+    """
+    if os.environ.get("SYMMON_NO_COMPILE"):
+        return "never"
+    mode = os.environ.get("SYMMON_COMPILE", "auto").strip().lower() or "auto"
+    if mode not in MODES:
+        raise SymmonError(f"SYMMON_COMPILE must be one of {', '.join(MODES)}, got {mode!r}")
+    return mode
+
+
+@lru_cache(maxsize=1)
+def _compiler() -> tuple[str, ...] | None:
+    """The compiler command: ``$CC`` (split like a shell would), else gcc, else cc."""
+    cc = os.environ.get("CC", "").strip()
+    if cc:
+        return tuple(shlex.split(cc))
+    found = shutil.which("gcc") or shutil.which("cc")
+    return (found,) if found else None
+
+
+@lru_cache(maxsize=4)
+def _compiler_identity(cc: tuple[str, ...]) -> str:
+    """``cc --version`` and ``cc -dumpmachine`` output, once per process (part of the key)."""
+    parts = []
+    for flag in ("--version", "-dumpmachine"):
+        try:
+            res = subprocess.run([*cc, flag], capture_output=True, text=True, timeout=60,
+                                 stdin=subprocess.DEVNULL)
+            parts.append(f"{res.returncode}\n{res.stdout}")
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            parts.append(f"error {exc}")
+    return "\n".join(parts)
+
+
+def has_compiler() -> bool:
+    """True when a C compiler is found and compilation is not disabled."""
+    return compile_mode() != "never" and _compiler() is not None
+
+
+def warn_no_compiler(stacklevel: int) -> None:
+    """Warn, once per process, that CasADi's virtual machine is used instead of C."""
+    _warn_once("no-compiler",
+               "symmon: no C compiler found (or SYMMON_NO_COMPILE / SYMMON_COMPILE=never set); "
+               "using CasADi's virtual machine, which is several times slower",
+               stacklevel=stacklevel + 1)
+
+
+# --------------------------------------------------------------------------- cache directory
+_private: Path | None = None
+
+
+def _private_dir() -> Path:
+    """A temporary directory of this process only (mode 0700), removed at exit."""
+    global _private
+    with _lock:
+        if _private is None:
+            _private = Path(tempfile.mkdtemp(prefix="symmon-cache-"))  # removed by _at_exit
+        return _private
+
+
+def _configured_dir() -> Path | None:
+    """The directory the environment asks for, or None when it names none."""
+    for var, sub in (("SYMMON_CACHE", ()), ("XDG_CACHE_HOME", ("symmon",)), ("HOME", (".cache", "symmon"))):
+        value = os.environ.get(var, "")
+        # An empty or relative HOME must not put the cache in / or in the working directory.
+        if value and os.path.isabs(value):
+            return Path(value, *sub)
+        if var == "SYMMON_CACHE" and value:
+            return Path(value).absolute()
+    return None
+
+
+def _refusal(d: Path) -> str | None:
+    """Why ``d`` cannot hold the cache (None if it can); creates it mode 0700."""
+    try:
+        d.mkdir(mode=0o700, parents=True, exist_ok=True)
+        st = d.stat()
+    except OSError as exc:
+        return f"it cannot be created ({exc.strerror or exc})"
+    if not stat.S_ISDIR(st.st_mode):
+        return "it is not a directory"
+    # Anyone who can write here can plant a library that this process would load.
+    if st.st_mode & stat.S_IWOTH:
+        return "it is world-writable"
+    if st.st_uid != os.geteuid():
+        return f"it belongs to another user (uid {st.st_uid})"
+    if not os.access(d, os.W_OK | os.X_OK):
+        return "it is not writable"
+    return None
+
+
+def cache_dir() -> Path:
+    """The directory of the compiled-library cache, checked (see the module docstring).
+
+    Falls back, with a warning once per directory, to a private temporary directory
+    when the configured one is unusable, and silently when the environment names none
+    (``HOME`` empty or unset and no ``SYMMON_CACHE``).
+    """
+    d = _configured_dir()
+    if d is None:
+        return _private_dir()
+    why = _refusal(d)
+    if why is None:
+        return d
+    fallback = _private_dir()
+    _warn_once(f"dir:{d}", f"symmon: not using the cache directory {d}: {why}; "
+               f"compiled code goes to {fallback} for this process only", stacklevel=3)
+    return fallback
+
+
+# --------------------------------------------------------------------------- entries
+def _verify(so: Path) -> str | None:
+    """Why the entry ``so`` must not be loaded (None when its checksum matches)."""
+    try:
+        recorded = checksum_path(so).read_text().split()
+    except OSError:
+        return "its checksum file is missing"
+    if len(recorded) != 2 or recorded[1] != so.name:
+        return "its checksum file is malformed or names another entry"
+    try:
+        actual = sha256_file(so)
+    except OSError as exc:
+        return f"it cannot be read ({exc.strerror or exc})"
+    return None if actual == recorded[0] else "its sha256 does not match the checksum beside it"
+
+
+def _remove_entry(so: Path) -> None:
+    for p in (so, checksum_path(so)):
+        try:
+            p.unlink()
+        except FileNotFoundError:
+            pass
+
+
+# --------------------------------------------------------------------------- compiler runs
+#: Build process groups running now, with their temporary directories; the number of
+#: threads between "about to start a build" and its registration here; and background
+#: threads that have not registered their build yet.
+_running: dict[subprocess.Popen, Path] = {}
+_starting = 0
+_preparing: set[threading.Thread] = set()
+_shutting_down = False
+#: Set by the handlers of :func:`catch_sigterm`: SIGINT or SIGTERM reached this process.
+_interrupted = False
+
+
+def _kill(p: subprocess.Popen) -> None:
+    """Kill the build's whole process group (build process, cc1, as, ...) and reap it."""
+    if p.returncode is None:
+        try:
+            os.killpg(p.pid, signal.SIGKILL)  # start_new_session: the group id is the pid
+        except (ProcessLookupError, PermissionError):
+            pass
+    p.wait()
+
+
+def _compiling() -> bool:
+    with _lock:
+        return bool(_running or _preparing) or _starting > 0
+
+
+def _on_sigterm(signum, frame) -> None:
+    """SIGTERM while symmon compiles: exit through Python, so the compiler is killed."""
+    global _interrupted
+    if _compiling():
+        _interrupted = True
+        raise SystemExit(128 + signum)
+    # No compile runs: behave as if this handler were not here.
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    os.kill(os.getpid(), signal.SIGTERM)
+
+
+def _on_sigint(signum, frame) -> None:
+    """Ctrl-C: note it for the exit handler, then raise KeyboardInterrupt as Python does."""
+    global _interrupted
+    _interrupted = True
+    signal.default_int_handler(signum, frame)
+
+
+def _was_interrupted() -> bool:
+    """Whether this process ends because of Ctrl-C or SIGTERM rather than normally.
+
+    The exit status is not visible to an exit handler, hence the flag set by the signal
+    handlers: it also counts a KeyboardInterrupt that the program caught before exiting
+    (the ``symmon`` command returns 130).  A KeyboardInterrupt that ended the program
+    while another SIGINT handler was installed shows in ``sys.last_value``.
+    """
+    return _interrupted or isinstance(getattr(sys, "last_value", None), KeyboardInterrupt)
+
+
+def catch_sigterm() -> None:
+    """Turn SIGTERM into SystemExit while compiles run, and note SIGINT.
+
+    Installed from the main thread only (Python's rule), and only over the default
+    handlers.  When no compile runs the SIGTERM handler restores the default action and
+    re-sends the signal, so the process ends as it would have; a compile running in any
+    thread makes it raise ``SystemExit(143)``, whose exit handlers kill the build's
+    process group.  The SIGINT handler raises KeyboardInterrupt as before, and marks the
+    process as interrupted: its background builds are then killed at exit too.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return
+    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, _on_sigterm)
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _on_sigint)
+
+
+def _run_compiler(cmd: list[str], tmp: Path) -> None:
+    """Run the build process ``cmd`` in its own session; kill the group if this thread
+    is interrupted.
+
+    Its stdin is /dev/null and its stdout a pipe that it writes to only when it fails,
+    so it needs nothing from this process: when this process exits normally, the build
+    runs on (a new session has no controlling terminal, hence no SIGHUP).
+    """
+    global _starting
+    with _lock:
+        if _shutting_down:
+            raise BuildError("the interpreter is exiting")
+        _starting += 1
+    p = None
+    try:
+        p = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                             stderr=subprocess.STDOUT, text=True, errors="replace",
+                             start_new_session=True, cwd=tmp)
+    finally:
+        with _lock:
+            _starting -= 1
+            if p is not None:
+                _running[p] = tmp
+                _preparing.discard(threading.current_thread())
+    try:
+        out, _ = p.communicate()
+    except BaseException:  # KeyboardInterrupt, SystemExit from SIGTERM: no orphan cc1
+        _kill(p)
+        raise
+    finally:
+        with _lock:
+            _running.pop(p, None)
+    if p.returncode != 0:
+        raise BuildError(out.strip() or f"the build process exited with status {p.returncode}")
+
+
+#: Seconds the exit handler waits for builds that are being started.
+_EXIT_GRACE = 5.0
+
+
+def _wait_until(done: Callable[[], bool], deadline: float) -> None:
+    while time.monotonic() < deadline:
+        with _lock:
+            if done():
+                return
+        time.sleep(0.01)
+
+
+@atexit.register
+def _at_exit() -> None:
+    """At exit: kill the builds that must not outlive this process, remove their
+    temporary directories, then the private cache directory if one was made.
+
+    After a normal exit a build still running (a background build) is left to finish
+    and install its library for the next run.  After an interrupt every build is killed,
+    as is a build into the private directory, which nobody would read.
+    """
+    global _shutting_down
+    interrupted = _was_interrupted()
+    deadline = time.monotonic() + _EXIT_GRACE
+    if not interrupted:  # a run that ends at once has started background builds: let them start
+        _wait_until(lambda: not _preparing and not _starting, deadline)
+    with _lock:
+        _shutting_down = True
+    _wait_until(lambda: not _starting, deadline)
+    with _lock:
+        running = list(_running.items())
+    for p, tmp in running:
+        if interrupted or (_private is not None and tmp.parent == _private):
+            _kill(p)
+            shutil.rmtree(tmp, ignore_errors=True)
+        else:
+            log.info("symmon: a C build (%s) continues after exit, to fill the cache", tmp)
+    if _private is not None:
+        shutil.rmtree(_private, ignore_errors=True)
+
+
+#: A build directory this old was left by a process killed with SIGKILL: remove it.
+STALE_BUILD_SECONDS = 24 * 3600
+
+
+def _remove_stale_builds(d: Path) -> None:
+    now = time.time()
+    for old in d.glob(".build-*"):
+        try:
+            if now - old.stat().st_mtime > STALE_BUILD_SECONDS:
+                shutil.rmtree(old, ignore_errors=True)
+        except OSError:
+            pass
+
+
+def _build(code: str, so: Path, opt: str) -> None:
+    """Compile ``code`` into the cache entry ``so`` and its checksum, atomically.
+
+    A build process (:mod:`symmon.compile.ccbuild`) runs the compiler and installs the entry
+    itself, so that a background build can finish after this process has exited.
+    """
+    cc = _compiler()
+    assert cc is not None
+    if not sys.executable:
+        raise BuildError("no Python executable (sys.executable is empty) to run the build")
+    _remove_stale_builds(so.parent)
+    tmp = Path(tempfile.mkdtemp(prefix=".build-", dir=so.parent))
+    try:
+        (tmp / "f.c").write_text(code)
+        _run_compiler([sys.executable, "-I", ccbuild.__file__, str(tmp), str(so),
+                       *cc, opt, *CFLAGS, "f.c", "-o", "f.so", "-lm"], tmp)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)  # the build process removed it, unless killed
+
+
+def _entry(code: str, stem: str, opt: str) -> Path:
+    """The cache path of ``code`` compiled with ``opt`` (not necessarily present)."""
+    cc = _compiler()
+    assert cc is not None
+    key = hashlib.sha256("\0".join(
+        [code, opt, *CFLAGS, ca.__version__, shlex.join(cc), _compiler_identity(cc)]).encode()
+    ).hexdigest()[:24]
+    return cache_dir() / f"{stem}_{key}.so"
+
+
+T = TypeVar("T")
+
+
+def _load_or_build(code: str, stem: str, opt: str, load: Callable[[Path], T], warn: Callable[[str], None]) -> T:
+    """Load the verified cache entry of ``code``; build it when missing or bad.
+
+    A bad entry (checksum or load failure) is reported through ``warn``, removed and
+    rebuilt once.  Raises BuildError, or OSError/RuntimeError from ``load``.
+    """
+    so = _entry(code, stem, opt)
+    if so.exists():
+        why = _verify(so)
+        if why is None:
+            try:
+                return load(so)
+            except (OSError, RuntimeError) as exc:
+                why = f"loading it failed ({exc})"
+        warn(f"symmon: the cached library {so} is damaged ({why}); rebuilding it")
+        _remove_entry(so)
+    _build(code, so, opt)
+    return load(so)
+
+
+def build_shared_library(code: str, stem: str, stacklevel: int = 2) -> Path | None:
+    """Compile C source to a verified shared library in the cache, now.
+
+    Returns its path, or None after a warning when no compiler is available or the
+    build fails (``stacklevel`` as in ``warnings.warn``, counted from this function).
+    """
+    if not has_compiler():
+        warn_no_compiler(stacklevel=stacklevel + 1)
+        return None
+    catch_sigterm()
+    try:
+        return _load_or_build(code, stem, OPT_SYNC, lambda p: p,
+                              lambda msg: warnings.warn(msg, RuntimeWarning, stacklevel=stacklevel + 2))
+    except BuildError as exc:
+        warnings.warn(f"symmon: compiling {stem} failed, using the CasADi VM:\n{exc}", RuntimeWarning,
+                      stacklevel=stacklevel)
+        return None
+
+
+# --------------------------------------------------------------------------- a library in use
+class NativeLibrary(Generic[T]):
+    """The compiled form of one generated C source, as the policy provides it.
+
+    :meth:`get` returns the loaded object (``load(path)``), or None while the caller
+    must use CasADi's virtual machine: no compiler, ``never`` policy, a failed build, or
+    a background build still running.  A background build swaps the object in under a
+    lock when it is ready; each :meth:`get` sees either the old or the new state.
+
+    Parameters
+    ----------
+    code : str
+        Complete C source.
+    stem : str
+        A C identifier naming the library (the file name starts with it).
+    load : callable
+        Path of a verified library → the object callers use (e.g. a ctypes function).
+    stacklevel : int
+        For the warnings of a build the caller waits for, counted from the constructor.
+    """
+
+    def __init__(self, code: str, stem: str, load: Callable[[Path], T], stacklevel: int = 2) -> None:
+        self.stem = stem
+        self.code_bytes = len(code.encode())
+        self._obj: T | None = None
+        self._state = "vm"
+        self._lock = threading.Lock()
+        self._done = threading.Event()  # set when no build is pending
+        mode = compile_mode()
+        if mode == "never" or _compiler() is None:
+            log.info("symmon: %s: evaluating on CasADi's VM (SYMMON_COMPILE=%s, compiler %s)",
+                     stem, mode, "found" if _compiler() else "not found")
+            self._done.set()
+            return
+        # A verified library of any optimisation level costs nothing to load: take the best.
+        for opt in (OPT_SYNC, OPT_BACKGROUND, OPT_HUGE):
+            so = _entry(code, stem, opt)
+            if so.exists() and _verify(so) is None:
+                try:
+                    self._obj, self._state = load(so), "compiled"
+                except (OSError, RuntimeError):
+                    continue  # rebuilt below, with a warning
+                log.info("symmon: %s: compiled C (%s) loaded from the cache", stem, opt)
+                self._done.set()
+                return
+        background = mode == "background" or (mode == "auto" and self.code_bytes > BACKGROUND_BYTES)
+        if not background:
+            self._sync(code, OPT_SYNC, load, stacklevel + 1)
+            self._done.set()
+            return
+        opt = OPT_BACKGROUND if self.code_bytes <= HUGE_BYTES else OPT_HUGE
+        self._state = "building"
+        catch_sigterm()
+        log.info("symmon: %s: %d bytes of C; evaluating on CasADi's VM while it compiles (%s) "
+                 "in the background", stem, self.code_bytes, opt)
+        thread = threading.Thread(target=self._background, args=(code, opt, load), daemon=True,
+                                  name=f"symmon-cc-{stem}")
+        with _lock:
+            _preparing.add(thread)
+        thread.start()
+
+    def _sync(self, code: str, opt: str, load: Callable[[Path], T], stacklevel: int) -> None:
+        catch_sigterm()
+        t0 = time.perf_counter()
+        try:
+            obj = _load_or_build(code, self.stem, opt, load,
+                                 lambda msg: warnings.warn(msg, RuntimeWarning, stacklevel=stacklevel + 2))
+        except (BuildError, OSError, RuntimeError) as exc:
+            warnings.warn(f"symmon: compiling {self.stem} failed, using the CasADi VM:\n{exc}",
+                          RuntimeWarning, stacklevel=stacklevel + 1)
+            return
+        self._obj, self._state = obj, "compiled"
+        log.info("symmon: %s: compiled C ready in %.2f s (%s)", self.stem, time.perf_counter() - t0, opt)
+
+    def _background(self, code: str, opt: str, load: Callable[[Path], T]) -> None:
+        t0 = time.perf_counter()
+        try:
+            obj = _load_or_build(code, self.stem, opt, load, log.warning)
+        except BaseException as exc:  # a thread must not die with a traceback on stderr
+            with self._lock:
+                self._state = "vm"
+            if not _shutting_down:
+                log.warning("symmon: background compile of %s failed; staying on CasADi's VM: %s",
+                            self.stem, exc)
+        else:
+            with self._lock:
+                self._obj, self._state = obj, "compiled"
+            log.info("symmon: %s: background C build done in %.1f s; now evaluating compiled code",
+                     self.stem, time.perf_counter() - t0)
+        finally:
+            with _lock:  # when no build process was needed (another process built the entry)
+                _preparing.discard(threading.current_thread())
+            self._done.set()
+
+    def get(self) -> T | None:
+        """The loaded object, or None to use CasADi's virtual machine."""
+        with self._lock:
+            return self._obj
+
+    @property
+    def evaluator(self) -> str:
+        """``"compiled"``, ``"vm"`` or ``"vm (C build running)"``."""
+        with self._lock:
+            return {"compiled": "compiled", "vm": "vm", "building": "vm (C build running)"}[self._state]
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Wait for a background build to end; True when compiled code is in use."""
+        self._done.wait(timeout)
+        return self.get() is not None

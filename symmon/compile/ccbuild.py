@@ -1,0 +1,90 @@
+"""The build process of one cache entry: run the compiler, install the library.
+
+:mod:`symmon.compile.ccache` runs this file as a script, with the same Python, in a new session
+(process group) and in the entry's temporary build directory::
+
+    python -I ccbuild.py BUILD_DIR TARGET CC ARG...
+
+It runs ``CC ARG...`` in ``BUILD_DIR`` (which holds ``f.c``; the command writes
+``f.so``), installs ``f.so`` as ``TARGET`` with its checksum (:func:`install`), and
+removes ``BUILD_DIR`` whether the build succeeded or not.  Because the whole build
+happens in this process, a background build can outlive the Python that started it:
+after a normal exit it still fills the cache for the next run, while an interrupt kills
+its process group (compiler included).  On failure it writes the reason to its stdout,
+for the caller (if it is still there).
+
+The script imports only the standard library (it starts in milliseconds), and ``-I``
+keeps symmon's own directory off ``sys.path`` (``symmon/io.py`` would shadow ``io``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shlex
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+#: Characters of the compiler's output kept in the failure message.
+OUTPUT_TAIL = 2000
+
+
+def sha256_file(path: Path) -> str:
+    """The sha256 hex digest of the file ``path``."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def checksum_path(so: Path) -> Path:
+    """The checksum file beside the library ``so`` (``sha256sum`` format)."""
+    return so.with_name(so.name + ".sha256")
+
+
+def install(built: Path, so: Path) -> None:
+    """Move the library ``built`` to the cache entry ``so``, with its checksum, atomically.
+
+    The checksum is written beside ``built`` (same file system as the entry) and moved
+    into place first: a reader that sees the new library sees its checksum.  Two
+    processes installing the same entry each move complete files, the last one wins.
+    """
+    staged = checksum_path(built)
+    staged.write_text(f"{sha256_file(built)}  {so.name}\n")
+    os.replace(staged, checksum_path(so))
+    os.replace(built, so)
+
+
+def _report(message: str) -> None:
+    """Write ``message`` to stdout unbuffered; nobody may read it any more (parent gone)."""
+    try:
+        os.write(sys.stdout.fileno(), message.encode(errors="replace"))
+    except (OSError, ValueError):
+        pass
+
+
+def main(argv: list[str]) -> int:
+    """Build and install; return the exit status (0 when the entry is installed)."""
+    build_dir, target, cmd = Path(argv[0]), Path(argv[1]), argv[2:]
+    try:
+        # The compiler writes into a pipe that this process reads to its end: it never
+        # gets SIGPIPE, even when the process that started this build has exited.
+        res = subprocess.run(cmd, cwd=build_dir, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                             stderr=subprocess.STDOUT, text=True, errors="replace")
+        if res.returncode != 0:
+            _report(f"{shlex.join(cmd[:1])} exited with status {res.returncode}:\n{res.stdout[-OUTPUT_TAIL:]}")
+            return 1
+        install(build_dir / "f.so", target)
+        return 0
+    except OSError as exc:
+        _report(f"the build of {target.name} failed: {exc}")
+        return 1
+    finally:
+        shutil.rmtree(build_dir, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,484 @@
+"""sympy → CasADi SX, exact derivatives, batched evaluation and C code generation.
+
+Only g is converted from sympy; the Jacobian and the Hessians are built by CasADi's
+automatic differentiation (exact, no finite differences).  When a C compiler is
+available each function is generated as C with a row loop around it, compiled once
+(whatever the batch sizes) and cached on disk (:mod:`symmon.compile.ccache`: checksums, the
+compile policy, background builds for large code); otherwise, and while a background
+build runs, CasADi's virtual machine evaluates ``Function.map`` through zero-copy
+buffers, with a warning given once when no compiler is found.  ``docs/compile.md``
+describes the cache, the policy and its measured threshold.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import hashlib
+import logging
+import threading
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import casadi as ca
+import numpy as np
+import sympy as sp
+
+from .ccache import NativeLibrary, build_shared_library, cache_dir, has_compiler, warn_no_compiler
+from .cnames import c_identifier
+from ..core.model import Model
+from ..errors import ShapeError, UnsupportedFunctionError
+
+__all__ = ["to_casadi", "CompiledModel", "compile_model", "compiled", "cache_dir", "has_compiler", "build_shared_library",
+           "generated_c", "rows_c"]
+
+log = logging.getLogger(__name__)
+
+#: Rows per batched call of a mapped function; memory per call stays flat.
+CHUNK = 8192
+
+_UNARY = {
+    sp.sin: ca.sin, sp.cos: ca.cos, sp.tan: ca.tan,
+    sp.asin: ca.asin, sp.acos: ca.acos, sp.atan: ca.atan,
+    sp.sinh: ca.sinh, sp.cosh: ca.cosh, sp.tanh: ca.tanh,
+    sp.asinh: ca.asinh, sp.acosh: ca.acosh, sp.atanh: ca.atanh,
+    sp.exp: ca.exp, sp.Abs: ca.fabs, sp.sign: ca.sign,
+    sp.floor: ca.floor, sp.ceiling: ca.ceil, sp.erf: ca.erf,
+}
+
+
+_UNARY_EXTRA = {sp.cot: lambda a: 1 / ca.tan(a), sp.sec: lambda a: 1 / ca.cos(a), sp.csc: lambda a: 1 / ca.sin(a)}
+
+#: n-ary sympy heads folded left to right with a binary CasADi operation.
+_NARY = {
+    sp.Add: lambda a, b: a + b, sp.Mul: lambda a, b: a * b,
+    sp.Max: ca.fmax, sp.Min: ca.fmin, sp.And: ca.logic_and, sp.Or: ca.logic_or,
+}
+
+
+def to_casadi(exprs: Sequence[sp.Expr], symbols: Sequence[sp.Symbol], xs: ca.SX) -> list[ca.SX]:
+    """Convert sympy expressions to CasADi SX by a memoised tree walk.
+
+    Parameters
+    ----------
+    exprs : sequence of sympy.Expr
+    symbols : sequence of sympy.Symbol
+        The symbols, in the order of the entries of ``xs``.
+    xs : casadi.SX
+        A column of SX symbols, one per entry of ``symbols``.
+
+    Raises
+    ------
+    UnsupportedFunctionError
+        Naming the sympy function that has no CasADi counterpart.
+    """
+    memo: dict[sp.Basic, ca.SX] = {s: xs[i] for i, s in enumerate(symbols)}
+
+    def walk(e: sp.Basic):
+        hit = memo.get(e)
+        if hit is not None:
+            return hit
+        out = _convert(e, walk)
+        memo[e] = out
+        return out
+
+    return [walk(sp.sympify(e)) for e in exprs]
+
+
+def _convert(e: sp.Basic, walk: Callable):
+    if e.is_Number:
+        if e.is_real is False or not e.is_finite:
+            if e in (sp.oo, -sp.oo):
+                return ca.SX(float(e))
+            raise UnsupportedFunctionError(f"cannot compile the number {e}")
+        return ca.SX(float(e))
+    if e is sp.pi or e == sp.pi:
+        return ca.SX(np.pi)
+    if e == sp.E:
+        return ca.SX(np.e)
+    if e.is_Symbol:
+        raise UnsupportedFunctionError(f"unknown symbol {e} in expression")
+    op = _NARY.get(e.func)
+    if op is not None:
+        return functools.reduce(op, [walk(a) for a in e.args])
+    if isinstance(e, sp.Pow):
+        base, ex = e.args
+        b = walk(base)
+        if ex == sp.Rational(1, 2):
+            return ca.sqrt(b)
+        if ex == -sp.Rational(1, 2):
+            return 1 / ca.sqrt(b)
+        if ex.is_Integer:
+            k = int(ex)
+            if k == -1:
+                return 1 / b
+            return ca.constpow(b, k) if k >= 0 else 1 / ca.constpow(b, -k)
+        if ex.is_Number:
+            return ca.constpow(b, float(ex))
+        return ca.power(b, walk(ex))
+    if isinstance(e, sp.log):
+        if len(e.args) == 2:
+            return ca.log(walk(e.args[0])) / ca.log(walk(e.args[1]))
+        return ca.log(walk(e.args[0]))
+    if isinstance(e, sp.atan2):
+        return ca.atan2(walk(e.args[0]), walk(e.args[1]))
+    if isinstance(e, sp.Piecewise):
+        # Build from the last branch backwards; if_else is short-circuit-free in SX,
+        # but derivatives of the branch not taken do not leak into the result.
+        out = None
+        for expr, cond in reversed(e.args):
+            val = walk(expr)
+            if cond == sp.true:
+                out = val
+            else:
+                if out is None:
+                    out = ca.SX(np.nan)
+                out = ca.if_else(walk(cond), val, out)
+        return out
+    if isinstance(e, sp.Heaviside):
+        x = walk(e.args[0])
+        return ca.if_else(x > 0, 1, ca.if_else(x < 0, 0, 0.5))
+    if isinstance(e, sp.Mod):
+        a, b = walk(e.args[0]), walk(e.args[1])
+        return a - b * ca.floor(a / b)
+    if isinstance(e, sp.core.relational.Relational):
+        a, b = walk(e.lhs), walk(e.rhs)
+        ops = {"<": a < b, "<=": a <= b, ">": a > b, ">=": a >= b, "==": a == b, "!=": a != b}
+        return ops[e.rel_op]
+    if isinstance(e, sp.Not):
+        return ca.logic_not(walk(e.args[0]))
+    if e == sp.true:
+        return ca.SX(1)
+    if e == sp.false:
+        return ca.SX(0)
+    fn = _UNARY.get(e.func) or _UNARY_EXTRA.get(e.func)
+    if fn is not None and len(e.args) == 1:
+        return fn(walk(e.args[0]))
+    name = getattr(e.func, "__name__", type(e).__name__)
+    raise UnsupportedFunctionError(
+        f"cannot compile function {name!r} in {e}: supported are + - * / **, sqrt, exp, log, "
+        "trig and inverse trig, atan2, hyperbolic, Abs, sign, floor, ceiling, erf, Min/Max, "
+        "Mod, Heaviside and Piecewise"
+    )
+
+
+# --------------------------------------------------------------------------- C code
+def generated_c(f: ca.Function) -> str:
+    """CasADi's C source of ``f`` (no header, no main)."""
+    gen = ca.CodeGenerator(f.name() + ".c", {"with_header": False})
+    gen.add(f)
+    return gen.dump()
+
+
+# The row loop around CasADi's generated function: row i of x in, row i of each output
+# out (outputs are dense, so each has a fixed number of nonzeros per row).
+_ROWS = """
+/* symmon: f on each row of x; out[k] holds output k of row i at i * nnz_k. */
+CASADI_SYMBOL_EXPORT int {name}_rows(const casadi_real* x, casadi_real** out, casadi_int n,
+    casadi_int* iw, casadi_real* w) {{
+  const casadi_real* arg[{sz_arg}];
+  casadi_real* res[{sz_res}];
+  casadi_int i;
+  for (i = 0; i < n; ++i) {{
+    arg[0] = x + i * {n_in};
+{set_res}
+    if ({name}(arg, res, iw, w, 0)) return 1;
+  }}
+  return 0;
+}}
+"""
+
+
+def rows_c(f: ca.Function) -> str:
+    """C source of ``f`` plus ``NAME_rows``, which evaluates f on each row of a batch."""
+    set_res = "\n".join(f"    res[{k}] = out[{k}] + i * {f.nnz_out(k)};" for k in range(f.n_out()))
+    return generated_c(f) + _ROWS.format(name=f.name(), sz_arg=max(f.sz_arg(), 1),
+                                         sz_res=max(f.sz_res(), f.n_out()), n_in=f.nnz_in(0),
+                                         set_res=set_res)
+
+
+def _load_rows(name: str) -> Callable[[Path], Callable]:
+    """Loader of ``NAME_rows`` from a library (for :class:`NativeLibrary`)."""
+    def load(path: Path):
+        rows = getattr(ctypes.CDLL(str(path)), f"{name}_rows")
+        rows.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_void_p]
+        rows.restype = ctypes.c_int
+        return rows
+    return load
+
+
+# --------------------------------------------------------------------------- compiled model
+class _Batched:
+    """Evaluate a Function of one (n_in,) input on batches of rows, through buffers.
+
+    Compiled: one C library per function whatever the batch sizes (a row loop called
+    through ctypes, which releases the GIL).  On CasADi's VM: maps of power-of-two
+    sizes up to CHUNK, at most 14 per function, so no batch is padded.
+    """
+
+    def __init__(self, f: ca.Function, compiled: bool) -> None:
+        self._f = f
+        self._compiled = compiled
+        self.n_in = f.size1_in(0)
+        self.out_nnz = [f.nnz_out(i) for i in range(f.n_out())]
+        self._maps: dict[int, ca.Function] = {}
+        self._lock = threading.Lock()
+        self.native: NativeLibrary | None = None
+        self.used = False
+
+    def _native(self) -> NativeLibrary | None:
+        """The compiled library, started on first use (stack: __call__ ← eval_* ← caller)."""
+        if self._compiled and self.native is None:
+            with self._lock:
+                if self.native is None:
+                    self.native = NativeLibrary(rows_c(self._f), self._f.name(), _load_rows(self._f.name()),
+                                                stacklevel=5)
+        return self.native
+
+    def _vm_map(self, n: int) -> ca.Function:
+        with self._lock:
+            fm = self._maps.get(n)
+            if fm is None:
+                fm = self._maps[n] = self._f.map(f"{self._f.name()}_map{n}", "serial", n, [], [])
+            return fm
+
+    @property
+    def evaluator(self) -> str:
+        """The evaluator of the latest call (see :attr:`CompiledModel.evaluator`)."""
+        return "vm" if self.native is None else self.native.evaluator
+
+    def __call__(self, X: np.ndarray) -> list[np.ndarray]:
+        X = np.ascontiguousarray(X, dtype=float)
+        if X.ndim != 2 or X.shape[1] != self.n_in:
+            raise ShapeError(f"batch must have shape (N, {self.n_in}), got {X.shape}")
+        N = X.shape[0]
+        outs = [np.empty((N, k)) for k in self.out_nnz]
+        if N == 0:
+            return outs
+        if not self.used and not self._compiled:
+            log.info("symmon: %s: evaluating on CasADi's VM (no compiled C wanted or available)", self._f.name())
+        self.used = True
+        native = self._native()
+        rows = native.get() if native is not None else None
+        if rows is not None:
+            iw = np.empty(max(self._f.sz_iw(), 1), dtype=np.int64)
+            w = np.empty(max(self._f.sz_w(), 1))
+            ptrs = (ctypes.c_void_p * len(outs))(*[o.ctypes.data for o in outs])
+            if rows(X.ctypes.data, ptrs, N, iw.ctypes.data, w.ctypes.data):
+                raise RuntimeError(f"the compiled function {self._f.name()} returned an error")
+            return outs
+        start = 0
+        while start < N:
+            size = min(CHUNK, 1 << ((N - start).bit_length() - 1))
+            fb, ev = self._vm_map(size).buffer()
+            fb.set_arg(0, memoryview(X[start:start + size]))
+            for i, o in enumerate(outs):
+                fb.set_res(i, memoryview(o[start:start + size]))
+            ev()
+            start += size
+        return outs
+
+
+class CompiledModel:
+    """CasADi functions of a model, with respect to w = [u; v].
+
+    The derivatives are kept sparse: the compiled function returns only the structural
+    nonzeros of J and of the lower triangles of the Hessians, so the generated code grows
+    with those nonzeros, not with n_y·n_w².  Products with a covariance are left to
+    batched NumPy (:mod:`symmon.transforms.taylor`).
+
+    Attributes
+    ----------
+    g : casadi.Function
+        w ↦ g(w), shape (n_y,).
+    jac : casadi.Function
+        w ↦ ∂g/∂w, a sparse (n_y, n_w) matrix.
+    w_sx, y_sx, J_sx, H_sx : casadi.SX
+        The symbols w, and g, J and the full Hessians (a list) as expressions of them,
+        for graphs built on the model (:mod:`symmon.codegen.symbolic`).
+    derivs : casadi.Function
+        w ↦ (g(w), the nonzeros of J, the nonzeros of the Hessians' lower triangles),
+        laid out by ``jac_index`` and ``hess_index``.
+    jac_index : (rows, cols)
+        Output and input index of each Jacobian nonzero.
+    hess_index : (outputs, rows, cols)
+        Output i and entry (a, b), a ≥ b, of H_i = ∂²g_i/∂w² for each Hessian nonzero.
+    hess_support : (n_y, s) int array
+        Row i lists S_i, the inputs on which H_i is supported (padded with 0 to the
+        largest size s; padded entries carry zero blocks).
+    hess_support_size : (n_y,) int array
+        |S_i|, the unpadded length of row i of ``hess_support``.
+    name : str
+        The name as given (any text); ``tag`` is the C identifier made of it
+        (:func:`symmon.compile.cnames.c_identifier`) that prefixes every function name.
+    compiled : bool
+        Whether compiled C is wanted (and a compiler available); :attr:`evaluator` says
+        what actually ran.
+    """
+
+    def __init__(self, outputs: Sequence[sp.Expr], symbols: Sequence[sp.Symbol], name: str = "g",
+                 compiled: bool | None = None) -> None:
+        self.symbols = tuple(symbols)
+        self.source_exprs = tuple(outputs)
+        self.n_w = len(self.symbols)
+        self.n_y = len(outputs)
+        self.name = name
+        self.tag = tag = "sm_" + c_identifier(name)
+        w = ca.SX.sym("w", self.n_w)
+        y = ca.densify(ca.vertcat(*to_casadi(outputs, self.symbols, w)))
+        self.w_sx, self.y_sx = w, y
+        # J and the Hessians as SX of w, built once: the evaluators below and the symbolic
+        # moments of the filter step and export_c (symmon.codegen.symbolic) use them.
+        self.J_sx = J = ca.jacobian(y, w)
+        self.H_sx = [ca.hessian(y[i], w)[0] for i in range(self.n_y)]
+        # Hessians are symmetric: evaluate the lower triangle of each.
+        H = [ca.tril(h) for h in self.H_sx]
+        jr, jc = J.sparsity().get_triplet()
+        self.jac_index = (np.array(jr, dtype=np.intp), np.array(jc, dtype=np.intp))
+        trip = [h.sparsity().get_triplet() for h in H]
+        self.hess_index = (
+            np.array([i for i, (r, _) in enumerate(trip) for _ in r], dtype=np.intp),
+            np.array([a for r, _ in trip for a in r], dtype=np.intp),
+            np.array([b for _, c in trip for b in c], dtype=np.intp),
+        )
+        self._hess_layout()
+        self.g = ca.Function(f"{tag}_g", [w], [y], ["w"], ["y"])
+        self.jac = ca.Function(f"{tag}_J", [w], [J], ["w"], ["J"])
+        # Buffers carry nonzeros only: the outputs are dense columns of nonzeros.
+        H_nz = ca.vertcat(ca.SX(0, 1), *[_nonzeros(h) for h in H])
+        # CSE merges the subexpressions that g, J and the Hessians share (~15% less C).
+        self.derivs = ca.Function(f"{tag}_gJH", [w], [y, _nonzeros(J), H_nz],
+                                  ["w"], ["y", "J_nz", "H_nz"], {"cse": True})
+        self.compiled = has_compiler() if compiled is None else compiled
+        if compiled is None and not self.compiled:
+            # The default asked for C but none is available: say so (once per process).
+            warn_no_compiler(stacklevel=2)
+        self._batch_g = _Batched(self.g, self.compiled)
+        self._batch_derivs = _Batched(self.derivs, self.compiled)
+        self._kernels: list[NativeLibrary] = []
+
+    def native_library(self, code: str, stem: str, load: Callable[[Path], Any], stacklevel: int = 2) -> NativeLibrary:
+        """A :class:`~symmon.compile.ccache.NativeLibrary` of extra C code for this model (e.g.
+        the Monte Carlo kernel), built by the compile policy and counted in
+        :attr:`evaluator`."""
+        lib = NativeLibrary(code, stem, load, stacklevel=stacklevel + 1)
+        with _cache_lock:
+            self._kernels.append(lib)
+        return lib
+
+    @property
+    def evaluator(self) -> str:
+        """Which evaluator the model's functions used in their latest calls.
+
+        ``"compiled"`` when all ran as compiled C, ``"vm (C build running)"`` when one
+        ran on CasADi's virtual machine while its C is built in the background,
+        ``"vm"`` when one ran on the VM for good (no compiler, ``SYMMON_COMPILE=never``
+        or a failed build), and ``"none"`` before any evaluation.
+        """
+        with _cache_lock:
+            states = {b.evaluator for b in (self._batch_g, self._batch_derivs) if b.used}
+            states |= {lib.evaluator for lib in self._kernels}
+        for s in ("vm (C build running)", "vm", "compiled"):
+            if s in states:
+                return s
+        return "none"
+
+    def wait_compiled(self, timeout: float | None = None) -> str:
+        """Wait for the background C builds started so far; return :attr:`evaluator`."""
+        libs = [b.native for b in (self._batch_g, self._batch_derivs) if b.native is not None] + self._kernels
+        for lib in libs:
+            lib.wait(timeout)
+        return self.evaluator
+
+    def _hess_layout(self) -> None:
+        """Supports S_i of the Hessians and where each nonzero goes in the blocks H_i[S_i, S_i]."""
+        out, rows, cols = self.hess_index
+        supports = [np.union1d(rows[out == i], cols[out == i]) for i in range(self.n_y)]
+        self.hess_support_size = np.array([len(S) for S in supports], dtype=np.intp)
+        s = max(self.hess_support_size, default=0)
+        self.hess_support = np.zeros((self.n_y, s), dtype=np.intp)
+        pos = np.zeros((self.n_w, self.n_y), dtype=np.intp)  # pos[a, i]: place of a in S_i
+        for i, S in enumerate(supports):
+            self.hess_support[i, : len(S)] = S
+            pos[S, i] = np.arange(len(S))
+        a, b = pos[rows, out], pos[cols, out]
+        # Flat positions in an (n_y, s, s) array of blocks, and of the mirrored entries.
+        self._block_at = (out * s + a) * s + b
+        self._block_at_t = (out * s + b) * s + a
+
+    # ------------------------------------------------------------------ evaluation
+    def eval_g(self, W: np.ndarray) -> np.ndarray:
+        """g at each row of W (N, n_w) → (N, n_y)."""
+        return self._batch_g(W)[0]
+
+    def eval_derivatives(self, W: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """g and the structural nonzeros of J and of the Hessians at each row of W.
+
+        Returns
+        -------
+        y : (N, n_y); J_nz : (N, nnz J) laid out by ``jac_index``;
+        H_nz : (N, nnz tril H) laid out by ``hess_index``
+        """
+        y, J_nz, H_nz = self._batch_derivs(W)
+        return y, J_nz, H_nz
+
+    def dense_jacobian(self, J_nz: np.ndarray) -> np.ndarray:
+        """(N, n_y, n_w) Jacobians from their nonzeros (N, nnz J)."""
+        J = np.zeros((J_nz.shape[0], self.n_y, self.n_w))
+        J[:, self.jac_index[0], self.jac_index[1]] = J_nz
+        return J
+
+    def dense_hessians(self, H_nz: np.ndarray) -> np.ndarray:
+        """(N, n_y, n_w, n_w) Hessians from their lower-triangle nonzeros (N, nnz)."""
+        out, rows, cols = self.hess_index
+        H = np.zeros((H_nz.shape[0], self.n_y, self.n_w, self.n_w))
+        H[:, out, rows, cols] = H_nz
+        H[:, out, cols, rows] = H_nz
+        return H
+
+    def hessian_blocks(self, H_nz: np.ndarray) -> np.ndarray:
+        """(N, n_y, s, s) blocks H_i[S_i, S_i], S_i the rows of ``hess_support``."""
+        s = self.hess_support.shape[1]
+        B = np.zeros((H_nz.shape[0], self.n_y * s * s))
+        B[:, self._block_at] = H_nz
+        B[:, self._block_at_t] = H_nz
+        return B.reshape(-1, self.n_y, s, s)
+
+    def eval_gjh(self, W: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """g, J and the Hessians at each row of W, dense (for small models and checks).
+
+        Returns
+        -------
+        y : (N, n_y); J : (N, n_y, n_w); H : (N, n_y, n_w, n_w)
+        """
+        y, J_nz, H_nz = self.eval_derivatives(W)
+        return y, self.dense_jacobian(J_nz), self.dense_hessians(H_nz)
+
+
+def _nonzeros(x: ca.SX) -> ca.SX:
+    """The structural nonzeros of ``x`` as a column (column-major order, as ``get_triplet``)."""
+    # A fully dense matrix's ``nz[:]`` keeps its shape: reshape to a column.
+    return ca.reshape(x.nz[:], -1, 1)
+
+
+_cache: dict[tuple, CompiledModel] = {}
+_cache_lock = threading.Lock()
+
+
+def compile_model(outputs: Sequence[sp.Expr], symbols: Sequence[sp.Symbol], name: str = "g") -> CompiledModel:
+    """A :class:`CompiledModel`, cached per (outputs, symbols) in this process."""
+    key = (tuple(outputs), tuple(symbols))
+    with _cache_lock:
+        cm = _cache.get(key)
+        if cm is None:
+            digest = hashlib.sha1(repr(key).encode()).hexdigest()[:10]
+            cm = CompiledModel(outputs, symbols, name=f"{name}_{digest}")
+            _cache[key] = cm
+    return cm
+
+
+def compiled(model: Model) -> CompiledModel:
+    """The compiled CasADi functions of ``model`` with respect to w = [u; v] (cached)."""
+    if not isinstance(model, Model):
+        raise TypeError(f"expected a symmon.Model, got {type(model).__name__}")
+    return compile_model(model.outputs, model.inputs + model.noise, model.name)

@@ -1,0 +1,452 @@
+"""Symbolic models y = g(u, v) and the detection of their noise structure.
+
+The structure follows Straka & Havlík (2024), eqs. (1), (3), (4):
+
+- ``"none"``: no noise symbols (noise-free); g = f(u), with an empty π and γ.
+- ``"additive"``: g = f(u) + B v with a constant matrix B (B = I in (4)).
+- ``"multiplicative"``: g = f(u) + π(u) γ(v) (3).
+- ``"general"``: anything else (1).
+
+The split is read off the expression tree (sums, products, integer powers by the multinomial
+theorem over the u- and v-groups, exp of sums), never by expanding powers of the u-part, so
+(a + … + h + v)⁶⁴ is split into 65 terms in a fraction of a second.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+from typing import Iterable, Sequence
+
+import numpy as np
+import sympy as sp
+from sympy.ntheory.multinomial import multinomial_coefficients
+
+from ..errors import ModelError
+from .affine import changed_model, offset_vector, scale_matrix
+from .symbols import as_symbols
+from .tracing import trace
+
+__all__ = ["Model"]
+
+
+def _as_exprs(items) -> tuple[sp.Expr, ...]:
+    if isinstance(items, sp.MatrixBase):
+        items = list(items)
+    elif isinstance(items, sp.Basic):
+        items = [items]
+    out = []
+    for e in items:
+        if isinstance(e, str):
+            raise ModelError(
+                "outputs must be sympy expressions, not strings (use symmon.files.modelfile to parse text safely)"
+            )
+        try:
+            e = sp.sympify(e, strict=True)  # numbers and sympy objects only, never text
+        except sp.SympifyError as exc:
+            raise ModelError(f"output {e!r} is not a sympy expression") from exc
+        out.append(e)
+    if not out:
+        raise ModelError("a model needs at least one output")
+    return tuple(out)
+
+
+#: Largest number of terms f + Σ π_k γ_k that the structure detection builds for one output.
+MAX_SEPARABLE_TERMS = 2000
+
+
+class _TooLarge(Exception):
+    """The separable form exists (or may) but has more than MAX_SEPARABLE_TERMS terms."""
+
+
+def _short(e: sp.Expr, n: int = 60) -> str:
+    text = str(e)
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+Groups = dict  # {γ(v) normalised: π(u)}, with γ = 1 for the part f(u)
+
+
+def _add_to(out: Groups, v_part: sp.Expr, u_part: sp.Expr) -> None:
+    # Normalise the sign and the number of γ so that γ and −2γ are one column.
+    coeff, v_core = v_part.as_coeff_Mul()
+    out[v_core] = out.get(v_core, sp.Integer(0)) + coeff * u_part
+
+
+def _times(a: Groups, b: Groups) -> Groups:
+    if len(a) * len(b) > MAX_SEPARABLE_TERMS:
+        raise _TooLarge(MAX_SEPARABLE_TERMS)
+    out: Groups = {}
+    for va, ua in a.items():
+        for vb, ub in b.items():
+            _add_to(out, va * vb, ua * ub)
+    return out
+
+
+def _separate(e: sp.Expr, uset: set, vset: set) -> Groups | sp.Expr:
+    """e = Σ_k π_k(u) γ_k(v) read off e's own tree, without expanding powers of u-only parts.
+
+    Sums and products are split term by term; a positive integer power of a separable sum is
+    multiplied out in γ only (π stays a power of the u-part: (a + … + h + v)⁶⁴ gives 65
+    terms, not the C(71, 7) of a full multinomial expansion); exp and constant bases with a sum
+    in the exponent split into products; a power of a single product splits where sympy's
+    ``expand_power_base`` says it is valid. Returns the groups {γ: π}, or the subexpression
+    that mixes u and v (a mixed function argument or an inverse of a mixed sum).
+
+    Raises
+    ------
+    _TooLarge
+        The form would have more than MAX_SEPARABLE_TERMS terms.
+    """
+    syms = e.free_symbols
+    if not syms & vset:
+        return {sp.Integer(1): e}
+    if not syms & uset:
+        out: Groups = {}
+        _add_to(out, e, sp.Integer(1))
+        return out
+    if e.is_Add or e.is_Mul:
+        parts = [_separate(a, uset, vset) for a in e.args]
+        for p in parts:
+            if isinstance(p, sp.Basic):
+                return p
+        acc: Groups = parts[0]
+        for p in parts[1:]:
+            if e.is_Add:
+                for v_core, u_part in p.items():
+                    acc[v_core] = acc.get(v_core, sp.Integer(0)) + u_part
+                if len(acc) > MAX_SEPARABLE_TERMS:
+                    raise _TooLarge(MAX_SEPARABLE_TERMS)
+            else:
+                acc = _times(acc, p)
+        return acc
+    if isinstance(e, sp.exp) or (e.is_Pow and not e.base.free_symbols and e.exp.is_Add):
+        # exp(a(u) + b(v)) = exp(a) exp(b); c^(a + b) = c^a c^b.
+        base, expo = (sp.E, e.args[0]) if isinstance(e, sp.exp) else e.args
+        u_terms, v_terms = [], []
+        for t in sp.Add.make_args(expo):
+            if t.free_symbols & uset and t.free_symbols & vset:
+                return e
+            (v_terms if t.free_symbols & vset else u_terms).append(t)
+        return {sp.Pow(base, sp.Add(*v_terms)): sp.Pow(base, sp.Add(*u_terms))}
+    if e.is_Pow:
+        base, n = e.args
+        inner = _separate(base, uset, vset)
+        if isinstance(inner, sp.Basic):
+            return inner if inner != base else e
+        if n.is_Integer and n > 0:
+            m = len(inner)
+            if m > 1 and sp.binomial(int(n) + m - 1, m - 1) > MAX_SEPARABLE_TERMS:
+                raise _TooLarge(MAX_SEPARABLE_TERMS)
+            # The multinomial theorem over the m groups: (Σ π_j γ_j)ⁿ = Σ_k c_k Π π_j^k_j Π γ_j^k_j.
+            gam, pis = list(inner), list(inner.values())
+            out = {}
+            for k, c in multinomial_coefficients(m, int(n)).items():
+                _add_to(out, sp.Mul(*[g**kj for g, kj in zip(gam, k)]), c * sp.Mul(*[p**kj for p, kj in zip(pis, k)]))
+            return out
+        split = sp.expand_power_base(e, deep=False)
+        if split != e and split.is_Mul:
+            return _separate(split, uset, vset)
+        return e
+    return e
+
+
+class Model:
+    """A nonlinear transformation y = g(u, v) declared with sympy.
+
+    Parameters
+    ----------
+    inputs : sequence of sympy.Symbol
+        The random inputs u (the state).
+    outputs : sequence of sympy.Expr
+        The components of g.
+    noise : sequence of sympy.Symbol, optional
+        The noise symbols v, independent of u and zero mean.
+    name : str, optional
+    angles : iterable of sympy.Symbol or int, optional
+        Output indices (or input symbols) that are angles; see :mod:`symmon.core.angles`.
+
+    Raises
+    ------
+    ModelError
+        On duplicate symbols, symbols used in both inputs and noise, or outputs that
+        use symbols that are declared neither as inputs nor as noise.
+
+    Examples
+    --------
+    >>> import sympy as sp
+    >>> x, y = sp.symbols("x y")
+    >>> Model([x, y], [sp.sqrt(x**2 + y**2), sp.atan2(y, x)]).structure
+    'none'
+    """
+
+    def __init__(
+        self,
+        inputs: Sequence[sp.Symbol],
+        outputs: Sequence[sp.Expr] | sp.Expr,
+        noise: Sequence[sp.Symbol] | None = None,
+        name: str | None = None,
+        angles: Iterable | None = None,
+    ) -> None:
+        u = as_symbols(inputs, "inputs")
+        v = as_symbols(noise, "noise")
+        if not u:
+            raise ModelError("a model needs at least one input symbol")
+        for group, what in ((u, "inputs"), (v, "noise")):
+            dup = {s for s in group if group.count(s) > 1}
+            if dup:
+                raise ModelError(f"duplicate symbols in {what}: {sorted(map(str, dup))}")
+        both = set(u) & set(v)
+        if both:
+            raise ModelError(f"symbols declared both as inputs and noise: {sorted(map(str, both))}")
+        g = _as_exprs(outputs)
+        known = set(u) | set(v)
+        for i, e in enumerate(g):
+            unknown = e.free_symbols - known
+            if unknown:
+                raise ModelError(
+                    f"output {i} ({e}) uses unknown symbols {sorted(map(str, unknown))}; "
+                    f"declared inputs {[str(s) for s in u]}, noise {[str(s) for s in v]}"
+                )
+        self._u = u
+        self._v = v
+        self._g = g
+        self._name = name
+        self._angles = self._resolve_angles(angles)
+
+    @classmethod
+    def from_function(cls, fn, inputs, noise=None, angles=None, name: str | None = None,
+                      args=()) -> "Model":
+        """Trace a NumPy-style Python function into a Model.
+
+        The function is called once on symbolic inputs (see :mod:`symmon.core.tracing`):
+        arithmetic, indexing, ``np.array([...])``, matrix products and the NumPy functions
+        of :data:`symmon.core.tracing.SUPPORTED` (``np.sqrt``, ``np.arctan2``, ``np.exp``,
+        ``np.sin``, ...) become the same sympy expressions a declaration would hold.
+
+        Parameters
+        ----------
+        fn : callable
+            ``fn(x, *args)``, or ``fn(x, v, *args)`` when ``noise`` is given; FilterPy's
+            ``hx(x)`` and ``fx(x, dt)`` (with ``args=(dt,)``) work as written.
+        inputs, noise : sequence of str or sympy.Symbol
+            Names of the components of ``x`` and of the noise ``v``.
+        angles, name
+            As for :class:`Model`.
+        args : sequence
+            Further numeric arguments of ``fn``.
+
+        Raises
+        ------
+        UnsupportedFunctionError
+            Naming an operation that cannot be traced (``float(x[0])``, ``math.sqrt``, a
+            branch on an input, an unsupported NumPy function).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> def hx(x):
+        ...     return np.array([np.hypot(x[0], x[1]), np.arctan2(x[1], x[0])])
+        >>> Model.from_function(hx, inputs=["x", "y"], angles=[1]).outputs
+        (sqrt(x**2 + y**2), atan2(y, x))
+        """
+        u, v, g = trace(fn, inputs, noise, args)
+        label = name if name is not None else getattr(fn, "__name__", None)
+        return cls(u, g, v, label, angles)
+
+    def _resolve_angles(self, angles) -> tuple[frozenset[int], frozenset[int]]:
+        out_idx: set[int] = set()
+        in_idx: set[int] = set()
+        if angles is None:
+            angles = ()
+        elif isinstance(angles, (int, np.integer, sp.Symbol)):
+            angles = (angles,)  # a single declaration, e.g. angles=1
+        for a in angles:
+            if isinstance(a, (int, np.integer)) and not isinstance(a, (bool, np.bool_)):
+                a = int(a)  # numpy indices too; bool is an int but never an index
+                if not 0 <= a < len(self._g):
+                    raise ModelError(f"angle output index {a} out of range for {len(self._g)} outputs")
+                out_idx.add(a)
+            elif isinstance(a, sp.Symbol) and a in self._u:
+                in_idx.add(self._u.index(a))
+            else:
+                raise ModelError(
+                    f"angles must be output indices or input symbols, got {a!r}"
+                )
+        return frozenset(out_idx), frozenset(in_idx)
+
+    # --- basic properties -------------------------------------------------
+    @property
+    def inputs(self) -> tuple[sp.Symbol, ...]:
+        """The input symbols u."""
+        return self._u
+
+    @property
+    def noise(self) -> tuple[sp.Symbol, ...]:
+        """The noise symbols v (possibly empty)."""
+        return self._v
+
+    @property
+    def outputs(self) -> tuple[sp.Expr, ...]:
+        """The output expressions g."""
+        return self._g
+
+    @property
+    def name(self) -> str:
+        return self._name or "model"
+
+    @property
+    def n_u(self) -> int:
+        return len(self._u)
+
+    @property
+    def n_v(self) -> int:
+        return len(self._v)
+
+    @property
+    def n_y(self) -> int:
+        return len(self._g)
+
+    @property
+    def angle_outputs(self) -> frozenset[int]:
+        """Indices of the outputs that are angles."""
+        return self._angles[0]
+
+    @property
+    def angle_inputs(self) -> frozenset[int]:
+        """Indices of the inputs that are angles."""
+        return self._angles[1]
+
+    def with_angles(self, angles: Iterable) -> "Model":
+        """The same model with angle declarations replaced by ``angles``."""
+        return Model(self._u, self._g, self._v, self._name, angles)
+
+    # --- noise structure --------------------------------------------------
+    @cached_property
+    def _split(self) -> tuple[str, sp.Matrix | None, sp.Matrix | None, sp.Matrix | None, str]:
+        if not self._v:
+            return "none", sp.Matrix(self._g), sp.zeros(self.n_y, 0), sp.zeros(0, 1), "no noise symbols"
+        vset = set(self._v)
+        uset = set(self._u)
+        # Constant Jacobian in v means g = f(u) + B v (cheap: no expansion).
+        Jv = sp.Matrix(self._g).jacobian(sp.Matrix(self._v))
+        if all(not (e.free_symbols & (vset | uset)) for e in Jv):
+            f = sp.Matrix(self._g).subs({s: 0 for s in self._v})
+            return "additive", f, Jv, sp.Matrix(self._v), "the Jacobian in v is constant"
+        gammas: dict[sp.Expr, int] = {}
+        rows: list[dict[int, sp.Expr]] = []
+        f_parts: list[sp.Expr] = []
+        for e in self._g:
+            try:
+                groups = _separate(e, uset, vset)
+            except _TooLarge as exc:
+                return "general", None, None, None, (
+                    f"a separable form f(u) + π(u)γ(v) of {_short(e)} would have more than {exc.args[0]} "
+                    "terms: treated as general noise, whose formulas hold for every g"
+                )
+            if isinstance(groups, sp.Basic):
+                return "general", None, None, None, (
+                    f"no separable form f(u) + π(u)γ(v) found: {_short(groups)} mixes u and v "
+                    "(general noise, whose formulas hold for every g)"
+                )
+            f_parts.append(groups.pop(sp.Integer(1), sp.Integer(0)))
+            row: dict[int, sp.Expr] = {}
+            for v_core, u_part in groups.items():
+                if u_part == 0:  # terms that cancelled, e.g. (x + v)² − v²
+                    continue
+                k = gammas.setdefault(v_core, len(gammas))
+                row[k] = u_part
+            rows.append(row)
+        pi = sp.Matrix(self.n_y, len(gammas), lambda i, k: rows[i].get(k, sp.Integer(0)))
+        return "multiplicative", sp.Matrix(f_parts), pi, sp.Matrix(list(gammas)), (
+            f"g = f(u) + π(u)γ(v) with {len(gammas)} components of γ, read off term by term without expanding")
+
+    @property
+    def structure(self) -> str:
+        """``"none"`` (noise-free), ``"additive"``, ``"multiplicative"`` or ``"general"``, found symbolically.
+
+        ``"multiplicative"`` is exact: f + π γ equals g identically (it is built from g's own
+        terms). ``"general"`` means that no separable form was found, or that it would be too
+        large (:attr:`structure_note` says which); the general-noise formulas hold for every g,
+        so this costs speed, never correctness.
+        """
+        return self._split[0]
+
+    @property
+    def structure_note(self) -> str:
+        """How :attr:`structure` was decided, e.g. which factor mixes u and v."""
+        return self._split[4]
+
+    def _require(self, what: str):
+        if self.structure == "general":
+            raise ModelError(f"{what} is not defined for a model with general (non-separable) noise")
+
+    @property
+    def f(self) -> sp.Matrix:
+        """f(u) of g = f(u) + π(u)γ(v) (the whole g for a noise-free model)."""
+        self._require("f")
+        return self._split[1]
+
+    @property
+    def pi(self) -> sp.Matrix:
+        """π(u), shape (n_y, n_γ); a constant matrix B for additive noise."""
+        self._require("pi")
+        return self._split[2]
+
+    @property
+    def gamma(self) -> sp.Matrix:
+        """γ(v), shape (n_γ, 1). It need not be zero mean: the measures recentre it."""
+        self._require("gamma")
+        return self._split[3]
+
+    # --- transformations of the model --------------------------------------
+    def noise_free(self) -> "Model":
+        """The model with every noise symbol set to zero (keeps inputs and angles)."""
+        g = [e.subs({s: 0 for s in self._v}) for e in self._g]
+        return Model(self._u, g, None, self._name, self._angle_args())
+
+    def _angle_args(self) -> list:
+        return sorted(self.angle_outputs) + [self._u[i] for i in sorted(self.angle_inputs)]
+
+    def subs(self, values: dict) -> "Model":
+        """Substitute parameter values (not inputs or noise) into the outputs."""
+        return Model(self._u, [e.subs(values) for e in self._g], self._v, self._name, self._angle_args())
+
+    def change_units(self, S_u=None, o_u=None, S_y=None, o_y=None, S_v=None, *, suffix: str = "_bar") -> "Model":
+        """The same relation in new units: ḡ(ū, v̄) = S_y⁻¹(g(S_u ū + o_u, S_v v̄) − o_y) (18), (20).
+
+        See :func:`symmon.units.change_units` for the arguments and conventions (S maps
+        new-unit numbers to old-unit numbers).
+        """
+        Su = scale_matrix(S_u, self.n_u, "S_u")
+        ou = offset_vector(o_u, self.n_u, "o_u")
+        Sy = scale_matrix(S_y, self.n_y, "S_y")
+        oy = offset_vector(o_y, self.n_y, "o_y")
+        Sv = scale_matrix(S_v, self.n_v, "S_v") if self.n_v else sp.zeros(0, 0)
+        if self.n_v == 0 and S_v is not None:
+            raise ModelError("S_v was given but the model declares no noise symbols")
+        u_new, g_bar, v_new, angles = changed_model(self, Su, ou, Sy, oy, Sv, suffix)
+        return Model(u_new, g_bar, v_new or None, self._name, angles or None)
+
+    # --- display -----------------------------------------------------------
+    def __repr__(self) -> str:
+        parts = [f"inputs={[str(s) for s in self._u]}"]
+        if self._v:
+            parts.append(f"noise={[str(s) for s in self._v]}")
+        parts.append(f"outputs={[str(e) for e in self._g]}")
+        return f"Model({self.name!r}, " + ", ".join(parts) + f", structure={self.structure!r})"
+
+    def _repr_latex_(self) -> str:
+        args = ", ".join(sp.latex(s) for s in self._u + self._v)
+        body = r" \\ ".join(sp.latex(e) for e in self._g)
+        return (
+            r"$g(" + args + r") = \begin{bmatrix}" + body + r"\end{bmatrix}"
+            + r"\quad\text{(" + (f"{self.structure} noise" if self._v else "noise-free") + r")}$"
+        )
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Model):
+            return NotImplemented
+        return (self._u, self._v, self._g, self._angles) == (other._u, other._v, other._g, other._angles)
+
+    def __hash__(self) -> int:
+        return hash((self._u, self._v, self._g, self._angles))

@@ -1,0 +1,295 @@
+"""Filter scenario files: a state-space model, its noises and a prior, in TOML.
+
+A scenario declares the dynamics f and the measurement h of a filtering problem with
+additive noise, x_k = f(x_{k−1}) + w_k, y_k = h(x_k) + e_k, w_k ~ N(0, Q),
+e_k ~ N(0, R), the prior N(x̄_0, P_0) and the number of steps::
+
+    # A constant-velocity target seen by a range-bearing sensor at the origin.
+    name = "rb-cv"
+    states = ["px", "py", "vx", "vy"]
+    dynamics = ["px + T*vx", "py + T*vy", "vx", "vy"]      # f
+    measurements = ["hypot(px, py)", "atan2(py, px)"]       # h
+    angles = [1]                  # optional: measurement indices that are angles
+    state_angles = []             # optional: state names that are angles (e.g. a heading)
+    steps = 40
+
+    [params]                      # optional: named constants
+    T = 1.0
+
+    [Q]                           # process noise: cov (a matrix) or std (a vector)
+    std = [0.1, 0.1, 0.05, 0.05]
+
+    [R]
+    std = [1.0, 0.01]
+
+    [x0]                          # the prior of the filters; each run's true x_0 is drawn from it
+    mean = [-20, 50, 0, -2]
+    std = [2, 2, 0.2, 0.2]
+
+**Non-additive noise.**  ``process_noise`` and ``measurement_noise`` name noise symbols
+that the dynamics and the measurements may use: then x_k = f(x_{k−1}, w_k) and
+y_k = h(x_k, e_k), and ``[Q]`` and ``[R]`` are the covariances of those symbols, so a noise
+may enter nonlinearly or with fewer components than the states::
+
+    states = ["x", "v"]
+    process_noise = ["a"]                                   # one acceleration noise
+    dynamics = ["x + T*v + T**2/2*a", "v + T*a"]
+    measurement_noise = ["r"]
+    measurements = ["hypot(x, 10) * exp(r)"]                # a multiplicative range error
+    [Q]
+    std = [0.5]
+    [R]
+    std = [0.01]
+
+**Units.**  An optional ``[units]`` table gives pint unit strings of states (by name) and
+measurements (``"measurements[i]"``); ``symmon filter`` prints them and its plot shows
+the RMSE of the states of each unit on its own axis.
+
+Every expression and number is read by the same whitelist parser as a model file
+(:func:`symmon.files.modelfile.parse_expression`): nothing in the file is executed.  Keys:
+``name``, ``states``, ``dynamics``, ``measurements``, ``steps``, ``[Q]``, ``[R]`` and
+``[x0]`` are required; ``angles``, ``state_angles``, ``process_noise``,
+``measurement_noise``, ``[params]`` and ``[units]`` are optional.
+
+:func:`simulate` draws the true states and the measurements of a bank of runs with a
+seed, and :data:`FILTERS` names the filters that ``symmon filter`` runs.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import sympy as sp
+
+from ..core.angles import wrap_angle
+from ..errors import SymmonError
+from ..filters import Adaptive, NonlinearKalmanFilter
+from ..core.gaussian import Gaussian
+from ..core.model import Model
+from .modelfile import (
+    ModelFileError,
+    _check_keys,
+    _Context,
+    _gaussian,
+    _names,
+    _params,
+    _units,
+    read_toml,
+    parse_expression,
+)
+from ..compile import compiled
+from ..transforms import TT1, TT2, UT, GaussHermite
+
+__all__ = ["FilterSpec", "load_filter_file", "simulate", "FILTERS", "filter_transform", "run_bank", "BankSummary"]
+
+#: The filters of ``symmon filter`` and ``symmon reproduce tracking``, by short name.
+FILTERS = {"ekf": TT1(), "ekf2": TT2(), "ukf": UT.ut1(), "ckf": UT.cubature(), "gh": GaussHermite(3)}
+#: Largest number of steps of a scenario (the bank holds runs × steps × n² numbers).
+MAX_STEPS = 100_000
+
+_KEYS = ("name", "states", "dynamics", "measurements", "angles", "state_angles", "steps", "params", "Q", "R", "x0",
+         "process_noise", "measurement_noise", "units")
+_REQUIRED = ("name", "states", "dynamics", "measurements", "steps", "Q", "R", "x0")
+
+
+def filter_transform(name: str, tol: float = 1e-2):
+    """The transform of a filter by short name: a key of :data:`FILTERS`, or ``"adaptive"``."""
+    if name == "adaptive":
+        return Adaptive(tol=tol)
+    if name not in FILTERS:
+        raise ModelFileError(f"unknown filter {name!r}; known: {', '.join(FILTERS)}, adaptive")
+    return FILTERS[name]
+
+
+@dataclass(frozen=True)
+class FilterSpec:
+    """A filter scenario read by :func:`load_filter_file`.
+
+    Attributes
+    ----------
+    name : str
+    f, h : Model
+        The dynamics (states → states) and the measurement (states → measurements), with
+        their noise symbols when the file names them.
+    Q, R : ndarray
+        Process and measurement noise covariances: of the additive noises, or of the
+        noise symbols of ``f`` and ``h``.
+    x0 : Gaussian
+        The prior of the filters and the distribution of the true x_0.
+    steps : int
+    path : Path
+    units : dict of str to str
+        Unit strings by state name or ``"measurements[i]"`` (empty: none declared).
+    """
+
+    name: str
+    f: Model
+    h: Model
+    Q: np.ndarray
+    R: np.ndarray
+    x0: Gaussian
+    steps: int
+    path: Path = Path("<memory>")
+    units: dict[str, str] = field(default_factory=dict)
+
+    def unit(self, key: str) -> str | None:
+        """The unit of a state name or of ``"measurements[i]"``, if declared."""
+        return self.units.get(key)
+
+
+def _expressions(ctx: _Context, doc: dict, key: str, env: dict, path: Path) -> list[sp.Expr]:
+    raw = doc[key]
+    if not isinstance(raw, list) or not raw or not all(isinstance(o, str) for o in raw):
+        raise ctx.error(key, f"must be a non-empty list of expression strings, got {raw!r}")
+    out = []
+    for i, text in enumerate(raw):
+        line_off, col_off = ctx.locate(text, rf"^\s*{key}\s*=")
+        out.append(parse_expression(text, env, source=f"{path}: {key}[{i}]", line_offset=line_off, col_offset=col_off))
+    return out
+
+
+def _noise(ctx: _Context, doc: dict, key: str, dim: int, params: dict) -> np.ndarray:
+    table = doc[key]
+    if isinstance(table, dict) and "mean" in table:
+        raise ctx.error(f"[{key}]", "a noise covariance takes cov or std, not a mean (the noise has mean 0)")
+    with_mean = {**table, "mean": [0] * dim} if isinstance(table, dict) else table
+    return _gaussian(ctx, with_mean, key, dim, params, "components").cov
+
+
+def load_filter_file(path: str | os.PathLike) -> FilterSpec:
+    """Read a filter scenario (module notes).
+
+    Raises
+    ------
+    ModelFileError
+        With the file name, for the same faults as :func:`symmon.files.modelfile.load_model_file`,
+        and for a dynamics whose length is not the number of states, or a bad ``steps``.
+    """
+    path, ctx, doc = read_toml(path, "scenario files")
+    _check_keys(ctx, doc, _KEYS, _REQUIRED, "")
+    name = doc["name"]
+    if not isinstance(name, str) or not name.strip():
+        raise ctx.error("name", f"must be a non-empty string, got {name!r}")
+    seen: dict[str, str] = {}
+    state_names = _names(ctx, doc["states"], "states", seen)
+    if not state_names:
+        raise ctx.error("states", "at least one state is required")
+    W = [sp.Symbol(s, real=True) for s in _names(ctx, doc.get("process_noise", []), "process_noise", seen)]
+    E = [sp.Symbol(s, real=True) for s in _names(ctx, doc.get("measurement_noise", []), "measurement_noise", seen)]
+    params = _params(ctx, doc.get("params", {}), seen)
+    X = [sp.Symbol(s, real=True) for s in state_names]
+    env: dict[str, Any] = {**params, **{s.name: s for s in X}}
+    # Each noise is visible only where it belongs: w in the dynamics, e in the measurements.
+    dyn = _expressions(ctx, doc, "dynamics", {**env, **{s.name: s for s in W}}, path)
+    if len(dyn) != len(X):
+        raise ctx.error("dynamics", f"must have one expression per state ({len(X)}), got {len(dyn)}")
+    meas = _expressions(ctx, doc, "measurements", {**env, **{s.name: s for s in E}}, path)
+    steps = doc["steps"]
+    if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= MAX_STEPS:
+        raise ctx.error("steps", f"must be an integer in [1, {MAX_STEPS}], got {steps!r}")
+    angles = doc.get("angles", [])
+    if not isinstance(angles, list) or not all(isinstance(a, int) and not isinstance(a, bool)
+                                               and 0 <= a < len(meas) for a in angles):
+        raise ctx.error("angles", f"must be a list of measurement indices in [0, {len(meas)}), got {angles!r}")
+    state_angles = doc.get("state_angles", [])
+    if not isinstance(state_angles, list) or not all(a in state_names for a in state_angles):
+        raise ctx.error("state_angles", f"must be a list of state names ({', '.join(state_names)}), got {state_angles!r}")
+    by_name = dict(zip(state_names, X))
+    f = Model(X, dyn, noise=W or None, name=f"{name}_f", angles=[by_name[a] for a in state_angles] or None)
+    h = Model(X, meas, noise=E or None, name=f"{name}_h", angles=list(angles) or None)
+    Q = _noise(ctx, doc, "Q", len(W) or len(X), params)
+    R = _noise(ctx, doc, "R", len(E) or len(meas), params)
+    x0 = _gaussian(ctx, doc["x0"], "x0", len(X), params, "states")
+    units = _units(ctx, doc.get("units", {}), len(meas), state_names, indexed="measurements", named="state names")
+    return FilterSpec(name, f, h, Q, R, x0, int(steps), path, units)
+
+
+def simulate(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, steps: int, runs: int,
+             seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """True states and measurements of ``runs`` independent runs.
+
+    x_0 ~ x0, x_k = f(x_{k−1}) + w_k, y_k = h(x_k) + e_k for k = 1 … ``steps``, with
+    w_k ~ N(0, Q) and e_k ~ N(0, R); for a model with noise symbols the noise is its
+    argument instead, x_k = f(x_{k−1}, w_k) and y_k = h(x_k, e_k).  Angle states and
+    angle measurements are wrapped to (−π, π].
+
+    Returns
+    -------
+    xs : ndarray, shape (runs, steps, n)
+    ys : ndarray, shape (runs, steps, n_y)
+    """
+    rng = np.random.default_rng(seed)
+    n, n_y = f.n_u, h.n_y
+    cf, ch = compiled(f), compiled(h)
+    nq, nr = f.n_v or n, h.n_v or n_y
+    Lq, Lr = Gaussian(np.zeros(nq), Q).sqrt_cov(), Gaussian(np.zeros(nr), R).sqrt_cov()  # PSD allowed
+    x = x0.mean + rng.standard_normal((runs, n)) @ x0.sqrt_cov().T
+    s_angles = sorted(f.angle_outputs | f.angle_inputs | h.angle_inputs)
+    y_angles = sorted(h.angle_outputs)
+    xs, ys = np.empty((runs, steps, n)), np.empty((runs, steps, n_y))
+
+    def step(c, model: Model, z: np.ndarray, L: np.ndarray) -> np.ndarray:
+        noise = rng.standard_normal((runs, L.shape[0])) @ L.T
+        return c.eval_g(np.hstack([z, noise])) if model.n_v else c.eval_g(z) + noise
+
+    for k in range(steps):
+        x = step(cf, f, x, Lq)
+        if s_angles:
+            x[:, s_angles] = wrap_angle(x[:, s_angles])
+        y = step(ch, h, x, Lr)
+        if y_angles:
+            y[:, y_angles] = wrap_angle(y[:, y_angles])
+        xs[:, k], ys[:, k] = x, y
+    return xs, ys
+
+
+@dataclass(frozen=True)
+class BankSummary:
+    """One filter on a bank of runs: the per-step consistency statistics and RMSE.
+
+    Attributes
+    ----------
+    name : str
+    result : NonlinearKalmanResult or None
+        None when the filter failed (``error`` says why).
+    anees, anis : ConsistencyTest or None
+        Averages over the runs at each step, with their χ² intervals.
+    rmse : ndarray, shape (K, n)
+        Root mean square error of each state component over the runs, per step.
+    error : str or None
+    """
+
+    name: str
+    result: Any
+    anees: Any
+    anis: Any
+    rmse: np.ndarray | None
+    error: str | None = None
+
+
+def run_bank(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, xs: np.ndarray, ys: np.ndarray,
+             names: list[str], tol: float = 1e-2, confidence: float = 0.95) -> list[BankSummary]:
+    """Run the named filters (:func:`filter_transform`) on the bank ``ys`` with truth ``xs``.
+
+    A filter that fails (NaN: it diverged) is reported with its error instead of stopping
+    the others.
+    """
+    out = []
+    for name in names:
+        kf = NonlinearKalmanFilter(f, h, Q, R, filter_transform(name, tol))
+        try:
+            res = kf.filter(ys, x0)
+        except SymmonError as exc:
+            out.append(BankSummary(name, None, None, None, None, str(exc)))
+            continue
+        e = xs - res.x
+        if res.angle_states:
+            idx = list(res.angle_states)
+            e[..., idx] = wrap_angle(e[..., idx])
+        rmse = np.sqrt(np.mean(e**2, axis=0))
+        out.append(BankSummary(name, res, res.anees(xs, confidence), res.anis(confidence), rmse))
+    return out

@@ -1,0 +1,14 @@
+"""Kalman filters: the linear filter (:mod:`.linear`) and the nonlinear family compiled to C
+(:mod:`.nonlinear`: EKF, second-order EKF, UKF, CKF, Gauss–Hermite), their compiled step
+(:mod:`.step`), results with NEES/NIS (:mod:`.results`) and the adaptive strategy
+(:mod:`.adaptive`)."""
+
+from .adaptive import Adaptive as Adaptive
+from .linear import KalmanFilter as KalmanFilter
+from .linear import KalmanResult as KalmanResult
+from .nonlinear import NonlinearKalmanFilter as NonlinearKalmanFilter
+from .results import ConsistencyTest as ConsistencyTest
+from .results import NonlinearKalmanResult as NonlinearKalmanResult
+
+__all__ = ["KalmanFilter", "KalmanResult", "NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest",
+           "Adaptive"]

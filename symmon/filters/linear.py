@@ -1,0 +1,342 @@
+"""Linear-Gaussian Kalman filter: the first stage of the two-stage MMSE estimators.
+
+The model is (eq. (1) of the distance paper)
+
+.. math::
+
+    x_{k+1} = F x_k + w_k,\\qquad y_{k+1} = H x_{k+1} + v_{k+1},
+    \\qquad w_k \\sim N(0, Q),\\ v_k \\sim N(0, R),
+
+with the initial state :math:`x_0 \\sim N(\\hat x_0, P_0)` independent of the noises.
+The filter (eq. (3)) gives the Kalman estimate :math:`\\hat x_k` and its error covariance
+:math:`P_k`; the closed-form estimators of :mod:`symmon.estimation.mmse` (the second stage) take them
+as input. The covariances do not depend on the data, so many Monte Carlo runs of the same
+model are filtered at once: ``ys`` may carry a leading batch axis.
+
+References
+----------
+M. Song, W. Choi, V. Shin, "Minimum Mean Square Error Estimation of Distance Functions under
+the Kalman Filtering Framework" (the distance paper), eqs. (1) and (3).
+P. S. Maybeck, *Stochastic Models, Estimation and Control*, vol. 1 (Joseph form).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence, Union
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ..core.checks import readonly
+from ..errors import CovarianceError, ShapeError
+from ..core.gaussian import Gaussian, as_covariance, matrix_sqrt
+
+__all__ = ["KalmanFilter", "KalmanResult"]
+
+Block = Union[Sequence[int], slice]
+
+
+def _as_matrix(M: ArrayLike, name: str, shape: tuple[int | None, int | None]) -> np.ndarray:
+    """Return ``M`` as a finite 2-D float array of the given shape (None: any size)."""
+    arr = np.asarray(M, dtype=float)
+    if arr.ndim == 0:
+        arr = arr.reshape(1, 1)  # a scalar is a 1x1 model
+    if arr.ndim != 2:
+        raise ShapeError(f"{name} must be a 2-D matrix, got shape {arr.shape}")
+    for axis, want in enumerate(shape):
+        if want is not None and arr.shape[axis] != want:
+            raise ShapeError(
+                f"{name} must have shape {tuple('*' if s is None else s for s in shape)}, "
+                f"got {arr.shape}"
+            )
+    if not np.all(np.isfinite(arr)):
+        raise ShapeError(f"{name} contains NaN or inf")
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class KalmanResult:
+    """Output of :meth:`KalmanFilter.filter`.
+
+    Shapes below are for one run; with a batch of ``N`` runs the means get a leading axis
+    ``N`` (``x`` is ``(N, K, n)``) while the covariances, which do not depend on the data,
+    keep the shapes below.
+
+    Attributes
+    ----------
+    x : ndarray, shape (K, n)
+        Filtered means :math:`\\hat x_{k|k}`, k = 1..K.
+    P : ndarray, shape (K, n, n)
+        Filtered error covariances :math:`P_{k|k}`.
+    x_pred : ndarray, shape (K, n)
+        Predicted means :math:`\\hat x_{k|k-1}`.
+    P_pred : ndarray, shape (K, n, n)
+        Predicted error covariances :math:`P_{k|k-1}`.
+    gain : ndarray, shape (K, n, n_y)
+        Kalman gains :math:`K_k`.
+    """
+
+    x: np.ndarray
+    P: np.ndarray
+    x_pred: np.ndarray
+    P_pred: np.ndarray
+    gain: np.ndarray
+
+    @property
+    def n(self) -> int:
+        """State dimension."""
+        return int(self.P.shape[-1])
+
+    def _block_index(self, block: Block, name: str) -> np.ndarray:
+        n = self.n
+        if isinstance(block, slice):
+            idx = np.arange(n)[block]
+        else:
+            idx = np.asarray(block)
+            if idx.ndim == 1 and idx.size == 0:
+                idx = idx.astype(int)  # np.asarray([]) is float; report it as empty below
+            if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer):
+                raise ShapeError(f"{name} must be a slice or a 1-D sequence of integers, got {block!r}")
+        if idx.size == 0:
+            raise ShapeError(f"{name} selects no state component")
+        if np.any(idx < -n) or np.any(idx >= n):
+            raise ShapeError(f"{name} has an index outside the state of dimension {n}: {block!r}")
+        return idx
+
+    def cross_cov(self, block_a: Block, block_b: Block) -> np.ndarray:
+        """Sub-blocks ``P_k[a][:, b]`` of the filtered covariances.
+
+        The composite estimators of :mod:`symmon.estimation.mmse` (Theorem 3, Example 7) need the
+        error cross-covariance :math:`P_{xy}` of two state blocks, e.g. two objects stacked
+        in one state vector.
+
+        Parameters
+        ----------
+        block_a, block_b : slice or sequence of int
+            State components of the two blocks.
+
+        Returns
+        -------
+        ndarray, shape (K, len(a), len(b))
+
+        Examples
+        --------
+        >>> kf = KalmanFilter(np.eye(2), 0.1 * np.eye(2), np.eye(2), np.eye(2))
+        >>> res = kf.filter(np.zeros((3, 2)), np.zeros(2), np.eye(2))
+        >>> res.cross_cov([0], [1]).shape
+        (3, 1, 1)
+        """
+        a = self._block_index(block_a, "block_a")
+        b = self._block_index(block_b, "block_b")
+        return self.P[:, a[:, None], b[None, :]]
+
+    def __repr__(self) -> str:
+        K, n = self.P.shape[0], self.n
+        runs = f"runs={self.x.shape[0]}, " if self.x.ndim == 3 else ""
+        last = "" if runs else (f", last x̂ [{', '.join(format(v, '.3g') for v in self.x[-1])}]"
+                                f", last std [{', '.join(format(v, '.3g') for v in np.sqrt(np.diag(self.P[-1])))}]")
+        return f"KalmanResult({runs}steps={K}, n={n}, n_y={self.gain.shape[-1]}{last})"
+
+
+@dataclass(frozen=True, eq=False, repr=False)
+class KalmanFilter:
+    """Kalman filter for a linear-Gaussian state-space model (eqs. (1), (3) of the paper).
+
+    Parameters
+    ----------
+    F : array_like, shape (n, n)
+        State transition matrix.
+    Q : array_like, shape (n, n)
+        Process noise covariance, symmetric positive semi-definite (singular allowed: a
+        component without process noise is a fixed point).
+    H : array_like, shape (n_y, n)
+        Measurement matrix.
+    R : array_like, shape (n_y, n_y)
+        Measurement noise covariance, symmetric positive *definite*: the gain inverts
+        ``H P Hᵀ + R``, which a singular R can make singular.
+
+    Raises
+    ------
+    ShapeError
+        A matrix has the wrong shape or non-finite entries.
+    CovarianceError
+        Q is not symmetric PSD or R is not symmetric positive definite.
+
+    Examples
+    --------
+    >>> kf = KalmanFilter(F=1.0, Q=1.0, H=1.0, R=1.0)
+    >>> res = kf.filter([[1.0]], x0=[0.0], P0=[[1.0]])
+    >>> round(float(res.x[0, 0]), 12), round(float(res.P[0, 0, 0]), 12)
+    (0.666666666667, 0.666666666667)
+    """
+
+    F: np.ndarray
+    Q: np.ndarray
+    H: np.ndarray
+    R: np.ndarray
+
+    def __post_init__(self) -> None:
+        F = _as_matrix(self.F, "F", (None, None))
+        n = F.shape[0]
+        if F.shape != (n, n):
+            raise ShapeError(f"F must be square, got shape {F.shape}")
+        H = _as_matrix(self.H, "H", (None, n))
+        n_y = H.shape[0]
+        Q = as_covariance(self.Q, "Q", dim=n)
+        R = as_covariance(self.R, "R", dim=n_y)
+        if np.linalg.eigvalsh(R)[0] <= 0.0:
+            raise CovarianceError("R must be positive definite (the innovation covariance is inverted)")
+        for name, value in (("F", F), ("Q", Q), ("H", H), ("R", R)):
+            object.__setattr__(self, name, readonly(value))
+
+    @property
+    def n(self) -> int:
+        """State dimension."""
+        return int(self.F.shape[0])
+
+    @property
+    def n_y(self) -> int:
+        """Measurement dimension."""
+        return int(self.H.shape[0])
+
+    def _initial_mean(self, x0: ArrayLike, batch: int | None) -> np.ndarray:
+        arr = np.asarray(x0, dtype=float)
+        ok = arr.shape == (self.n,) or (batch is not None and arr.shape == (batch, self.n))
+        if not ok:
+            want = f"({self.n},)" + ("" if batch is None else f" or ({batch}, {self.n})")
+            raise ShapeError(f"x0 must have shape {want}, got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ShapeError("x0 contains NaN or inf")
+        return arr
+
+    def __repr__(self) -> str:
+        return f"KalmanFilter(n={self.n}, n_y={self.n_y})"
+
+    def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None) -> KalmanResult:
+        """Run the filter over the measurements ``ys``.
+
+        Each step predicts, then updates with the Joseph form
+        :math:`P = (I - KH) P^- (I - KH)^T + K R K^T`, which stays symmetric PSD under
+        rounding (the short form :math:`(I - KH)P^-` does not).
+
+        Parameters
+        ----------
+        ys : array_like, shape (K, n_y) or (N, K, n_y)
+            Measurements :math:`y_1, \\dots, y_K`; a leading axis filters N independent runs.
+        x0 : Gaussian, or array_like of shape (n,) or (N, n)
+            The initial state :math:`x_0` (before the first prediction), or its mean with ``P0``
+            (the signature of :meth:`symmon.NonlinearKalmanFilter.filter`).
+        P0 : array_like, shape (n, n), optional
+            Covariance of :math:`x_0` when ``x0`` is a mean, symmetric PSD (zero for a known
+            initial state).
+
+        Returns
+        -------
+        KalmanResult
+
+        Raises
+        ------
+        ShapeError, CovarianceError
+        """
+        Y = np.asarray(ys, dtype=float)
+        if Y.ndim not in (2, 3) or Y.shape[-1] != self.n_y or Y.shape[-2] == 0:
+            raise ShapeError(
+                f"ys must have shape (K, {self.n_y}) or (N, K, {self.n_y}) with K >= 1, got {Y.shape}"
+            )
+        if not np.all(np.isfinite(Y)):
+            raise ShapeError("ys contains NaN or inf")
+        batch = Y.shape[0] if Y.ndim == 3 else None
+        if isinstance(x0, Gaussian) == (P0 is not None):
+            raise ShapeError("give x0 as a Gaussian, or its mean together with P0")
+        if isinstance(x0, Gaussian):
+            x0, P0 = x0.mean, x0.cov
+        x = self._initial_mean(x0, batch)
+        if batch is not None:
+            x = np.broadcast_to(x, (batch, self.n))
+        P = as_covariance(P0, "P0", dim=self.n)
+
+        K = Y.shape[-2]
+        n, n_y = self.n, self.n_y
+        F, Q, H, R = self.F, self.Q, self.H, self.R
+        eye = np.eye(n)
+        lead = () if batch is None else (batch,)
+        xs = np.empty(lead + (K, n))
+        xps = np.empty(lead + (K, n))
+        Ps = np.empty((K, n, n))
+        Pps = np.empty((K, n, n))
+        gains = np.empty((K, n, n_y))
+        for k in range(K):
+            x_pred = x @ F.T
+            P_pred = F @ P @ F.T + Q
+            P_pred = 0.5 * (P_pred + P_pred.T)
+            S = H @ P_pred @ H.T + R
+            # K = P⁻Hᵀ S⁻¹ via a solve (S symmetric), not an explicit inverse.
+            G = np.linalg.solve(S, H @ P_pred).T
+            innov = Y[..., k, :] - x_pred @ H.T
+            x = x_pred + innov @ G.T
+            IKH = eye - G @ H
+            P = IKH @ P_pred @ IKH.T + G @ R @ G.T
+            P = 0.5 * (P + P.T)
+            xs[..., k, :] = x
+            xps[..., k, :] = x_pred
+            Ps[k], Pps[k], gains[k] = P, P_pred, G
+        return KalmanResult(
+            x=readonly(xs), P=readonly(Ps), x_pred=readonly(xps), P_pred=readonly(Pps),
+            gain=readonly(gains),
+        )
+
+    def simulate(
+        self,
+        K: int,
+        x0: ArrayLike,
+        rng: np.random.Generator,
+        *,
+        P0: ArrayLike | None = None,
+        runs: int | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Draw true states and measurements from the model.
+
+        Parameters
+        ----------
+        K : int
+            Number of time steps (K >= 1).
+        x0 : array_like, shape (n,)
+            Initial state, or its mean if ``P0`` is given.
+        rng : numpy.random.Generator
+            Source of all random numbers.
+        P0 : array_like, shape (n, n), optional
+            Covariance of a random initial state; ``None`` means ``x0`` is known exactly.
+        runs : int, optional
+            Number of independent runs; adds a leading axis to the outputs.
+
+        Returns
+        -------
+        states : ndarray, shape (K, n) or (runs, K, n)
+            True states :math:`x_1, \\dots, x_K`.
+        measurements : ndarray, shape (K, n_y) or (runs, K, n_y)
+            Measurements :math:`y_1, \\dots, y_K`.
+        """
+        if isinstance(K, bool) or not isinstance(K, (int, np.integer)) or K < 1:
+            raise ValueError(f"K must be a positive integer, got {K!r}")
+        if runs is not None and (isinstance(runs, bool) or not isinstance(runs, (int, np.integer)) or runs < 1):
+            raise ValueError(f"runs must be a positive integer or None, got {runs!r}")
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+        x = self._initial_mean(x0, None)
+        lead = () if runs is None else (int(runs),)
+        n, n_y = self.n, self.n_y
+        if P0 is not None:
+            L0 = matrix_sqrt(as_covariance(P0, "P0", dim=n))
+            x = x + rng.standard_normal(lead + (n,)) @ L0.T
+        else:
+            x = np.broadcast_to(x, lead + (n,))
+        # Draw all noise at once (fixed order: process, then measurement) for reproducibility.
+        w = rng.standard_normal(lead + (int(K), n)) @ matrix_sqrt(self.Q).T
+        v = rng.standard_normal(lead + (int(K), n_y)) @ matrix_sqrt(self.R).T
+        states = np.empty(lead + (int(K), n))
+        for k in range(int(K)):
+            x = x @ self.F.T + w[..., k, :]
+            states[..., k, :] = x
+        meas = states @ self.H.T + v
+        return states, meas

@@ -1,0 +1,235 @@
+"""Nonlinear Kalman filters compiled to C: EKF, second-order EKF, UKF, CKF and Gauss–Hermite.
+
+The model is x_{k+1} = f(x_k, w_k), y_k = h(x_k, e_k), w_k ~ N(0, Q), e_k ~ N(0, R); without
+noise symbols the noises are additive, x_{k+1} = f(x_k) + w_k and y_k = h(x_k) + e_k.  The
+time update is a nonlinear transformation (NLT) of the dynamics and the measurement update
+is the indirect step of Gustafsson & Hendeby (Lemma 7.1), so the transform picks the filter:
+
+============================  =====================================================
+transform                     filter
+============================  =====================================================
+``TT1()``                     extended Kalman filter (EKF)
+``TT2()``                     second-order EKF
+``UT(alpha, beta, kappa)``    unscented Kalman filter (UKF); ``UT.cubature()``: CKF
+``GaussHermite(order)``       Gauss–Hermite Kalman filter
+============================  =====================================================
+
+With noise symbols (general noise) the rule runs on the augmented vector [x; w] with
+covariance blkdiag(P, Q) (resp. [x; e], blkdiag(P⁻, R)); with additive noise Q and R are
+added to the covariances.
+
+Angles: the outputs of h that the model declares as angles get a circular mean
+atan2(Σ wᵢ sin, Σ wᵢ cos) (point rules) or a wrapped mean (TT1, TT2), wrapped residuals and a
+wrapped innovation; the *angle states* (the outputs of f declared as angles, or the inputs of f
+or h declared as angles) get the same treatment in the time update, and x⁺ is wrapped.
+
+This module holds the filter, :class:`NonlinearKalmanFilter`; the parts are in their own
+modules, and their public names are re-exported here:
+
+- :mod:`symmon.filters.step`: one predict + update step as a CasADi function, compiled to C
+  once (cached on disk), with a C loop that runs all the steps of all the runs of a filter
+  bank in one call;
+- :mod:`symmon.filters.results`: :class:`NonlinearKalmanResult`, NEES and NIS, and
+  :class:`ConsistencyTest` (their χ² acceptance intervals);
+- :mod:`symmon.filters.adaptive`: :class:`Adaptive`, the filter that picks the cheapest adequate
+  transform at each step of each run.
+
+References
+----------
+F. Gustafsson, G. Hendeby, "Some relations between extended and unscented Kalman filters",
+IEEE Trans. Signal Process. 60(2), 2012. doi:10.1109/TSP.2011.2172431
+S. J. Julier, J. K. Uhlmann, "Unscented filtering and nonlinear estimation", Proc. IEEE 92(3),
+2004. doi:10.1109/JPROC.2003.823141
+I. Arasaratnam, S. Haykin, "Cubature Kalman filters", IEEE Trans. Autom. Control 54(6), 2009.
+doi:10.1109/TAC.2009.2019800
+K. Ito, K. Xiong, "Gaussian filters for nonlinear filtering problems", IEEE Trans. Autom.
+Control 45(5), 2000 (the Gauss–Hermite filter). doi:10.1109/9.855552
+Y. Bar-Shalom, X. R. Li, T. Kirubarajan, *Estimation with Applications to Tracking and
+Navigation*, Wiley, 2001, §5.4 (NEES, NIS and their χ² tests).
+D. F. Crouse, "Cubature/unscented/sigma point Kalman filtering with angular measurement
+models", FUSION 2015 (wrapped residuals).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .adaptive import Adaptive, _adaptive_run
+from ..errors import ShapeError, SymmonError
+from ..core.checks import check_gaussian, check_model, noise_cov, readonly
+from .results import ConsistencyTest, NonlinearKalmanResult
+from .step import _CompiledStep, _compiled_step, _filterable
+from ..core.gaussian import Gaussian, as_covariance
+from ..core.model import Model
+from ..transforms import UT, Transform
+
+__all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest", "Adaptive"]
+
+
+@dataclass(frozen=True, eq=False)
+class NonlinearKalmanFilter:
+    """A Kalman filter whose prediction and update are NLTs, compiled to C.
+
+    x_{k+1} = f(x_k, w_k), y_k = h(x_k, e_k); without noise symbols the noises are additive.
+    TT1 gives the EKF, TT2 the second-order EKF, the UT the UKF (``UT.cubature()`` the CKF)
+    and Gauss–Hermite the Gauss–Hermite filter (module notes).
+
+    Parameters
+    ----------
+    f_model : Model
+        The dynamics (n inputs, n outputs).  Outputs or inputs declared as angles are angle
+        states.
+    h_model : Model
+        The measurement model (n inputs, n_y outputs; angle outputs wrap the innovation).
+    Q : array_like
+        Process noise covariance (Cov w, or additive (n, n)).
+    R : array_like
+        Measurement noise covariance (Cov e, or additive (n_y, n_y)).
+    transform : TT1, TT2, UT, GaussHermite or Adaptive, default ``UT.ut1()``
+        Used for both steps; :class:`Adaptive` picks one per step and run.
+
+    Examples
+    --------
+    >>> import sympy as sp, symmon as sm
+    >>> x = sp.symbols("x")
+    >>> ekf = sm.NonlinearKalmanFilter(sm.Model([x], [x]), sm.Model([x], [x]), [[1.0]], [[1.0]], sm.TT1())
+    >>> res = ekf.filter([[1.0]], sm.Gaussian([0.0], [[1.0]]))
+    >>> round(float(res.x[0, 0]), 12), round(float(res.P[0, 0, 0]), 12)
+    (0.666666666667, 0.666666666667)
+    >>> ekf.filter([[[1.0]], [[2.0]]], sm.Gaussian([0.0], [[1.0]])).x.shape   # a bank of 2 runs
+    (2, 1, 1)
+    """
+
+    f_model: Model
+    h_model: Model
+    Q: np.ndarray
+    R: np.ndarray
+    transform: Transform | None = None
+    _step: Any = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        f = check_model(self.f_model, "f_model")
+        h = check_model(self.h_model, "h_model")
+        if f.n_y != f.n_u:
+            raise ShapeError(f"f_model must map the state to itself: {f.n_u} inputs, {f.n_y} outputs")
+        if h.n_u != f.n_u:
+            raise ShapeError(f"h_model has {h.n_u} inputs but f_model has {f.n_u} states")
+        Q = as_covariance(self.Q, "Q", dim=f.n_v if f.n_v else f.n_u)
+        R = noise_cov(h, self.R, "R")
+        transform = UT.ut1() if self.transform is None else self.transform
+        if not isinstance(transform, (Transform, Adaptive)):
+            raise TypeError(f"transform must be a symmon transform, got {transform!r}")
+        if not (isinstance(transform, Adaptive) or _filterable(transform)):
+            raise SymmonError(
+                f"transform must be TT1, TT2, UT or GaussHermite (a Taylor or point rule) for a Kalman filter, "
+                f"got {transform!r}"
+            )
+        object.__setattr__(self, "Q", readonly(Q))
+        object.__setattr__(self, "R", readonly(R))
+        object.__setattr__(self, "transform", transform)
+
+    @cached_property
+    def angle_states(self) -> frozenset[int]:
+        """State components that are angles: f's angle outputs and f's or h's angle inputs."""
+        return frozenset(self.f_model.angle_outputs | self.f_model.angle_inputs | self.h_model.angle_inputs)
+
+    @cached_property
+    def method(self) -> str:
+        """The filter's name: EKF, EKF2, UKF(...), CKF, GHKF(order=...) or Adaptive(...)."""
+        if isinstance(self.transform, Adaptive):
+            return repr(self.transform)
+        return self.transform.filter_label()
+
+    def _compiled(self) -> _CompiledStep:
+        if self._step is None:
+            object.__setattr__(self, "_step", _compiled_step(self.f_model, self.h_model, self.transform,
+                                                             self.angle_states))
+        return self._step
+
+    def _initial(self, x0: Gaussian | ArrayLike, P0: ArrayLike | None, runs: int | None):
+        """Validated initial mean(s) and covariance."""
+        n = self.f_model.n_u
+        if isinstance(x0, Gaussian):
+            if P0 is not None:
+                raise ShapeError("P0 must not be given with a Gaussian x0 (it carries its covariance)")
+            check_gaussian(x0, "x0", dim=n)
+            return np.asarray(x0.mean, dtype=float), np.asarray(x0.cov, dtype=float)
+        if P0 is None:
+            raise TypeError("x0 must be a symmon.Gaussian, or a mean given together with P0")
+        m = np.asarray(x0, dtype=float)
+        if not (m.shape == (n,) or (runs is not None and m.shape == (runs, n))):
+            want = f"({n},)" + ("" if runs is None else f" or ({runs}, {n})")
+            raise ShapeError(f"x0 must have shape {want}, got {m.shape}")
+        if not np.all(np.isfinite(m)):
+            raise ShapeError("x0 contains NaN or inf")
+        C = np.asarray(P0, dtype=float)
+        if runs is not None and C.shape == (runs, n, n):  # one covariance per run
+            for r in range(runs):
+                as_covariance(C[r], f"P0[{r}]", dim=n)
+            return m, C
+        return m, as_covariance(P0, "P0", dim=n)
+
+    def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None) -> NonlinearKalmanResult:
+        """Predict, then update, for each measurement (the convention of :class:`KalmanFilter`).
+
+        Parameters
+        ----------
+        ys : array_like, shape (K, n_y) or (R, K, n_y)
+            Measurements y_1 … y_K; a leading axis filters R independent runs (a bank) in
+            one compiled call.
+        x0 : Gaussian, or array_like of shape (n,) or (R, n)
+            The state x_0 before the first prediction: a Gaussian, or its mean (one for all
+            runs, or one per run) with ``P0``.
+        P0 : array_like, shape (n, n) or (R, n, n), optional
+            Covariance of x_0 when ``x0`` is a mean (one for all runs, or one per run: a
+            bank continued after a known jump of the state, e.g. an observer's manoeuvre).
+
+        Returns
+        -------
+        NonlinearKalmanResult
+            Arrays with a leading axis R for a bank.
+
+        Raises
+        ------
+        ShapeError
+            Bad shapes or non-finite data.
+        SymmonError
+            The filter produced NaN or inf (a singular S, or a covariance that lost
+            positive definiteness), naming the run and step.
+        """
+        n_y = self.h_model.n_y
+        Y = np.asarray(ys, dtype=float)
+        if Y.ndim not in (2, 3) or Y.shape[-1] != n_y or Y.shape[-2] == 0 or Y.shape[0] == 0:
+            raise ShapeError(f"ys must have shape (K, {n_y}) or (R, K, {n_y}) with K >= 1, got {Y.shape}")
+        if not np.all(np.isfinite(Y)):
+            raise ShapeError("ys contains NaN or inf")
+        runs = Y.shape[0] if Y.ndim == 3 else None
+        m0, C0 = self._initial(x0, P0, runs)
+        Yb = Y.reshape((runs or 1,) + Y.shape[-2:])
+        choices = None
+        if isinstance(self.transform, Adaptive):
+            out, choices = _adaptive_run(self, Yb, m0, C0)
+        else:
+            out = self._compiled()(m0, C0, Yb, self.Q, self.R)
+        bad = ~np.isfinite(out["x"]).all(axis=-1) | ~np.isfinite(out["P"]).all(axis=(-1, -2))
+        if bad.any():
+            r, k = np.argwhere(bad)[0]
+            where = f"step {k}" if runs is None else f"run {r}, step {k}"
+            raise SymmonError(
+                f"{self.method}: the filter produced NaN or inf at {where} (the innovation "
+                "covariance S is singular, a covariance lost positive definiteness, or a "
+                "derivative is undefined there, e.g. sqrt at 0 or atan2(0, 0))"
+            )
+        arrays = {k: v if runs is not None else v[0] for k, v in out.items()}
+        for v in arrays.values():
+            v.flags.writeable = False  # fresh arrays of this call: frozen, not copied
+        if choices is not None:
+            choices = choices if runs is not None else choices[0]
+            choices.flags.writeable = False
+        return NonlinearKalmanResult(**arrays, angle_states=tuple(sorted(self.angle_states)),
+                                     method=self.method, choices=choices)

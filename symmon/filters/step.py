@@ -1,0 +1,234 @@
+"""The compiled step of the nonlinear Kalman filters: one predict + update, and its run loop in C.
+
+The model is x_{k+1} = f(x_k, w_k), y_k = h(x_k, e_k), w_k ~ N(0, Q), e_k ~ N(0, R).  The
+time update is an NLT of f and the measurement update the indirect step of Gustafsson &
+Hendeby (Lemma 7.1); the transform (a Taylor rule or a point rule) computes both NLTs.
+With noise symbols (general noise) the rule runs on the augmented vector [x; w] with
+covariance blkdiag(P, Q) (resp. [x; e], blkdiag(P⁻, R)); with additive noise Q and R are
+added to the covariances.  One step reads
+
+    x⁻ = E f,  P⁻ = Cov f (+ Q),
+    ŷ = E h,  S = Cov h (+ R),  P^{xy} = Cov(x, h),
+    ν = y − ŷ,  K = P^{xy} S⁻¹,  x⁺ = x⁻ + K ν,  P⁺ = P⁻ − K S Kᵀ.
+
+Angles (Crouse 2015): the angle outputs of h get a circular or wrapped mean, wrapped
+residuals and a wrapped innovation; the angle states the same in the time update, and x⁺
+is wrapped.
+
+The whole step, from the sigma points (or the Taylor terms) to the wrapped update, is one
+CasADi function of (x, P, y, Q, R), built from the models' SX graphs with a symbolic Cholesky
+factor (the moment formulas of :mod:`symmon.codegen.symbolic`, in SX).  Its C code is
+compiled once (cached on disk, ``docs/compile.md``), and a C loop around it runs all the
+steps of all the runs of a filter bank in one call; without a compiler the step runs on
+CasADi's virtual machine.  :class:`symmon.NonlinearKalmanFilter` (:mod:`symmon.filters`)
+and the adaptive filter (:mod:`symmon.filters.adaptive`) run it.
+
+References
+----------
+F. Gustafsson, G. Hendeby, "Some relations between extended and unscented Kalman filters",
+IEEE Trans. Signal Process. 60(2), 2012. doi:10.1109/TSP.2011.2172431
+D. F. Crouse, "Cubature/unscented/sigma point Kalman filtering with angular measurement
+models", FUSION 2015 (wrapped residuals).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import itertools
+import math
+import threading
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from ..compile.compiled import build_shared_library, generated_c, has_compiler
+from ..errors import SymmonError
+from ..core.model import Model
+from ..compile import compiled
+from ..codegen.symbolic import moments, wrap_entries
+from ..transforms import Transform
+
+#: Names of the outputs of the step function, in order.
+_OUTPUTS = ("x", "P", "x_pred", "P_pred", "innovation", "S")
+
+
+def _sym(A: ca.SX) -> ca.SX:
+    return 0.5 * (A + A.T)
+
+
+def _step_function(f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
+                   name: str) -> ca.Function:
+    """(x, P, y, Q, R) ↦ (x⁺, P⁺, x⁻, P⁻, ν, S): one predict + update step (the module's notes)."""
+    n, n_y = f.n_u, h.n_y
+    nq, nr = f.n_v or n, h.n_v or n_y
+    x, P, y = ca.SX.sym("x", n), ca.SX.sym("P", n, n), ca.SX.sym("y", n_y)
+    Q, R = ca.SX.sym("Q", nq, nq), ca.SX.sym("R", nr, nr)
+    # Time update: the NLT of f, on [x; w] with general noise.
+    if f.n_v:
+        mean, cov, _ = moments(compiled(f), ca.vertcat(x, ca.SX.zeros(nq)), ca.diagcat(P, Q), transform,
+                               angle_states)
+    else:
+        mean, cov, _ = moments(compiled(f), x, P, transform, angle_states)
+        cov = cov + Q
+    x_pred, P_pred = wrap_entries(mean, angle_states), _sym(cov)
+    # Measurement update: the NLT of h at N(x⁻, P⁻), then Lemma 7.1.
+    y_angles = frozenset(h.angle_outputs)
+    if h.n_v:
+        y_hat, S, cross = moments(compiled(h), ca.vertcat(x_pred, ca.SX.zeros(nr)), ca.diagcat(P_pred, R),
+                                  transform, y_angles)
+        cross = cross[:, :n]
+    else:
+        y_hat, S, cross = moments(compiled(h), x_pred, P_pred, transform, y_angles)
+        S = S + R
+    S = _sym(S)
+    nu = wrap_entries(y - y_hat, y_angles)
+    gain = ca.solve(S, cross).T  # K = P^{xy} S⁻¹, S symmetric
+    x_new = wrap_entries(x_pred + ca.mtimes(gain, nu), angle_states)
+    P_new = _sym(P_pred - ca.mtimes(ca.mtimes(gain, S), gain.T))
+    outs = [ca.densify(a) for a in (x_new, P_new, x_pred, P_pred, nu, S)]
+    return ca.Function(name, [x, P, y, Q, R], outs, ["x", "P", "y", "Q", "R"],
+                       ["x_new", "P_new", "x_pred", "P_pred", "innovation", "S"],
+                       {"cse": True})
+
+
+# The run loop: for each run, K steps, each reading the previous step's output.  casadi_int
+# is CasADi's default, long long.  x0/P0 advance by x0_step/P0_step per run (0: shared).
+_DRIVER = """
+/* symmon: a bank of runs of the filter step {name}. */
+CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
+    const casadi_real* P0, casadi_int P0_step, const casadi_real* y,
+    const casadi_real* Q, const casadi_real* R, casadi_real* xs, casadi_real* Ps,
+    casadi_real* xps, casadi_real* Pps, casadi_real* nus, casadi_real* Ss,
+    casadi_int runs, casadi_int K, casadi_int* iw, casadi_real* w) {{
+  const casadi_real* arg[{sz_arg}];
+  casadi_real* res[{sz_res}];
+  casadi_int r, k, i;
+  for (r = 0; r < runs; ++r) {{
+    const casadi_real* x = x0 + r * x0_step;
+    const casadi_real* P = P0 + r * P0_step;
+    for (k = 0; k < K; ++k) {{
+      i = r * K + k;
+      arg[0] = x; arg[1] = P; arg[2] = y + i * {n_y}; arg[3] = Q; arg[4] = R;
+      res[0] = xs + i * {n}; res[1] = Ps + i * {nn}; res[2] = xps + i * {n};
+      res[3] = Pps + i * {nn}; res[4] = nus + i * {n_y}; res[5] = Ss + i * {nyy};
+      if ({name}(arg, res, iw, w, 0)) return 1;
+      x = res[0];
+      P = res[1];
+    }}
+  }}
+  return 0;
+}}
+"""
+
+
+class _CompiledStep:
+    """The step function of one (f, h, transform), as C with a run loop or on CasADi's VM."""
+
+    def __init__(self, f: Model, h: Model, transform: Transform, angle_states: frozenset[int]) -> None:
+        key = repr((f.outputs, f.inputs, f.noise, h.outputs, h.inputs, h.noise, transform,
+                    sorted(angle_states), sorted(h.angle_outputs)))
+        name = "sm_nkf_" + hashlib.sha1(key.encode()).hexdigest()[:12]
+        self.f = _step_function(f, h, transform, angle_states, name)
+        self.n, self.n_y = n, n_y = f.n_u, h.n_y
+        self._shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n),
+                        "innovation": (n_y,), "S": (n_y, n_y)}
+        # Without a compiler, compiled() has already warned (once) while the step was built.
+        self._run = self._load() if has_compiler() else None
+        self._local = threading.local()
+
+    def _load(self):
+        f = self.f
+        name = f.name()
+        code = generated_c(f) + _DRIVER.format(
+            name=name, sz_arg=max(f.sz_arg(), 5), sz_res=max(f.sz_res(), 6),
+            n=self.n, nn=self.n * self.n, n_y=self.n_y, nyy=self.n_y * self.n_y,
+        )
+        so = build_shared_library(code, name, stacklevel=5)
+        if so is None:
+            return None
+        run = getattr(ctypes.CDLL(str(so)), f"{name}_run")
+        run.argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_longlong]
+                        + [ctypes.c_void_p] * 9 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2)
+        run.restype = ctypes.c_int
+        return run
+
+    def _workspace(self) -> tuple[int, int]:
+        """Addresses of this thread's work arrays (integer, real), made once per thread."""
+        ws = getattr(self._local, "ws", None)
+        if ws is None:
+            ws = self._local.ws = (np.zeros(max(self.f.sz_iw(), 1), dtype=np.int64),
+                                   np.zeros(max(self.f.sz_w(), 1)))
+        return ws[0].ctypes.data, ws[1].ctypes.data
+
+    @property
+    def is_compiled(self) -> bool:
+        return self._run is not None
+
+    def __call__(self, x0: np.ndarray, P0: np.ndarray, Y: np.ndarray, Q: np.ndarray, R: np.ndarray,
+                 use_c: bool = True) -> dict[str, np.ndarray]:
+        """Run the bank: x0 (n,) or (runs, n), P0 (n, n) or (runs, n, n), Y (runs, K, n_y)."""
+        runs, K = Y.shape[:2]
+        n = self.n
+        shapes = self._shapes
+        sizes = [runs * K * math.prod(s) for s in shapes.values()]
+        # One block for all outputs and one for the inputs: a few pointers per call.
+        buf = np.empty(sum(sizes))
+        ends = list(itertools.accumulate(sizes))
+        out = {k: buf[e - z: e].reshape((runs, K) + s) for (k, s), z, e in zip(shapes.items(), sizes, ends)}
+        # CasADi is column-major: the symmetric P, Q, R, S need no transposition, and a C
+        # row (runs, n) is a column-major (n, runs).
+        Y = np.ascontiguousarray(Y, dtype=float)
+        if use_c and self._run is not None:
+            parts = [np.ravel(a) for a in (x0, P0, Q, R)]
+            inp = np.concatenate(parts).astype(float, copy=False)
+            at = [8 * i for i in itertools.accumulate([0] + [a.size for a in parts])]  # byte offsets
+            a_in, a_out = inp.ctypes.data, buf.ctypes.data
+            iw, w = self._workspace()
+            err = self._run(a_in, n if np.ndim(x0) == 2 else 0, a_in + at[1], n * n if np.ndim(P0) == 3 else 0,
+                            Y.ctypes.data, a_in + at[2], a_in + at[3],
+                            *(a_out + 8 * int(e - z) for z, e in zip(sizes, ends)), runs, K, iw, w)
+            if err:
+                raise SymmonError(f"the compiled filter step {self.f.name()} returned an error")
+            return out
+        x0, P0 = np.asarray(x0, dtype=float), np.asarray(P0, dtype=float)
+        Q, R = np.asarray(Q, dtype=float), np.asarray(R, dtype=float)
+        # CasADi's VM: one mapped call per step over all runs, through buffers.
+        fm = self.f.map(runs, "serial") if runs > 1 else self.f
+        fb, ev = fm.buffer()
+        x = np.ascontiguousarray(np.broadcast_to(x0, (runs, n)))
+        P = np.ascontiguousarray(np.broadcast_to(P0, (runs, n, n)))
+        Qb = np.ascontiguousarray(np.broadcast_to(Q, (runs,) + Q.shape))
+        Rb = np.ascontiguousarray(np.broadcast_to(R, (runs,) + R.shape))
+        step = {k: np.empty((runs,) + s) for k, s in shapes.items()}
+        for k in range(K):
+            yk = np.ascontiguousarray(Y[:, k])
+            for i, a in enumerate((x, P, yk, Qb, Rb)):
+                fb.set_arg(i, memoryview(a))
+            for i, name in enumerate(_OUTPUTS):
+                fb.set_res(i, memoryview(step[name]))
+            ev()
+            for name in _OUTPUTS:
+                out[name][:, k] = step[name]
+            x, P = step["x"].copy(), step["P"].copy()
+        return out
+
+
+_steps: dict[tuple, _CompiledStep] = {}
+_steps_lock = threading.Lock()
+
+
+def _compiled_step(f: Model, h: Model, transform: Transform, angle_states: frozenset[int]) -> _CompiledStep:
+    """The compiled step of (f, h, transform), built once per process (C cached on disk)."""
+    key = (f, h, transform, angle_states)
+    with _steps_lock:
+        step = _steps.get(key)
+        if step is None:
+            step = _steps[key] = _CompiledStep(f, h, transform, angle_states)
+        return step
+
+
+def _filterable(transform: Any) -> bool:
+    """A rule a filter can compile: a Taylor rule or a point rule (declared capabilities)."""
+    return isinstance(transform, Transform) and (transform.taylor_order is not None or transform.unit_rule(1) is not None)

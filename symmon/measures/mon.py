@@ -1,0 +1,142 @@
+"""Measures of nonlinearity (MoN): Liu–Li's MSE-based MoN and the unitless normalised MoN.
+
+With Σ_gg = Cov g, Σ_gu = Cov(g, u), Σ_uu = Cov u and Σ_c = Cov_v(E[g | v]),
+
+    M² = tr(W (Σ_gg − Σ_c − Σ_gu Σ_uu⁻¹ Σ_ug)).
+
+This module is the front end: it gets the moments from :func:`symmon.propagate`, Σ_c
+from :mod:`symmon.measures.conditional` (0 without noise, (29) for additive, (28) for
+multiplicative, a nested integral for general noise), evaluates the formula in
+:mod:`symmon.measures.formula`, and for Monte Carlo the jackknife error bar.
+
+TT1 gives M = 0 by construction: TT1 *is* the best affine approximation at the mean, so
+its residual D is exactly zero.  Use TT2 (closed form D ≈ ½[tr(H_i P H_j P)]), UT,
+Gauss–Hermite or Monte Carlo.
+
+The papers are those of :mod:`symmon.measures.formula` (Straka & Havlík 2024; Liu & Li 2015).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from .conditional import conditional_cov, conditional_cov_replicates
+from ..errors import NonFiniteError
+from ..core.gaussian import Gaussian
+from .formula import MonParts, NonlinearityMeasure, mon_from_moments
+from ..core.model import Model
+from ..propagation.joint import JointMoments
+from ..propagation.front import check_transform, propagate
+from ..transforms import Transform
+from ..transforms.stats import Stats, jackknife, moments_of
+from ..transforms.registry import compare_set
+
+__all__ = ["NonlinearityMeasure", "MonParts", "nonlinearity", "compare", "format_table", "mon_from_moments"]
+
+
+# --------------------------------------------------------------------------- public API
+def nonlinearity(model: Model, u: Gaussian, v: Gaussian | None = None, *, weight: Any = "full",
+                 transform: Transform | None = None, executor: Any = None) -> NonlinearityMeasure:
+    """The measure of nonlinearity of y = g(u, v).
+
+    Parameters
+    ----------
+    model : Model
+    u : Gaussian
+    v : Gaussian, optional
+        Required when the model has noise symbols.
+    weight : {"full", "diag", "liu-li", "liu-li-raw"}, ndarray or weights.GeneralWeight
+        ``"full"``: W = Σ_gg⁻¹/n_y (43); ``"diag"``: W = diag(diag Σ_gg)⁻¹/n_y (42);
+        ``"liu-li"``: W = I/tr Σ_gg, the normalised MoN (8); ``"liu-li-raw"``: W = I, the
+        raw MSE MoN (6) (it has units); a matrix W̄ in base units, checked against the
+        set (41); or :func:`symmon.measures.weights.general`.  The first two and the last two
+        options are unitless and lie in [0, 1].
+    transform : Transform, default ``TT2()``
+        As in :func:`symmon.propagate` (the same default).  TT1 gives 0 by construction
+        (see the module notes).
+    executor : Executor, optional
+        Where a stochastic transform's replicates run (:func:`symmon.propagate`).
+
+    Returns
+    -------
+    NonlinearityMeasure
+
+    Examples
+    --------
+    >>> import sympy as sp, symmon as sm
+    >>> x = sp.Symbol("x")
+    >>> round(float(sm.nonlinearity(sm.Model([x], [x**2]), sm.Gaussian([0.0], [[1.0]]))), 12)
+    1.0
+    """
+    tr = check_transform(transform)
+    m = propagate(model, u, v, transform=tr, executor=executor)
+    stderr = None
+    if tr.stochastic:
+        Sc, Sc_loo = conditional_cov_replicates(model, u, v, tr, executor)
+        stderr = _mc_stderr(m, model, weight, Sc, Sc_loo)
+    else:
+        Sc = conditional_cov(model, u, v, tr)
+    try:
+        parts = mon_from_moments(m.cov, m.cross_cov, m.input_cov, weight, Sc, m.mean)
+    except NonFiniteError as exc:
+        raise NonFiniteError(f"{tr!r}: {exc}") from None
+    if stderr is not None and not np.isfinite(stderr):
+        raise NonFiniteError(f"{tr!r}: the standard error of the MoN is {stderr}")
+    return NonlinearityMeasure.of(parts, transform=tr, structure=model.structure, moments=m, stderr=stderr)
+
+
+def _mc_stderr(m: JointMoments, model: Model, weight, Sc: np.ndarray, Sc_loo: np.ndarray | None) -> float:
+    """Jackknife standard error of the MoN: replicate i is left out of the moments and of
+    Σ_c (``Sc_loo``; ``None``: Σ_c has no sampling error)."""
+    ny, nu = model.n_y, model.n_u
+    nw = model.n_u + model.n_v
+    if Sc_loo is None:
+        Sc_loo = np.repeat(Sc[None], len(m.replicates), axis=0)
+
+    def values(loo: Stats) -> np.ndarray:
+        _, cyy, cyw, cww = moments_of(loo, ny, nw, sorted(model.angle_outputs))
+        return np.array([mon_from_moments(cyy[i], cyw[i, :, :nu], cww[i, :nu, :nu], weight, S).value
+                         for i, S in enumerate(Sc_loo)])
+
+    return float(jackknife(m.replicates, values))
+
+
+def compare(model: Model, u: Gaussian, v: Gaussian | None = None, *, weight: Any = "full",
+            transforms: Sequence[Transform] | None = None, executor: Any = None) -> list[dict]:
+    """The MoN by every transform, as rows of a table.
+
+    Parameters
+    ----------
+    model, u, v, weight, executor
+        As in :func:`nonlinearity`.
+    transforms : sequence of Transform, optional
+        Default: the registry's comparison set
+        (:func:`~symmon.transforms.registry.compare_set`).
+
+    Returns
+    -------
+    list of dict
+        Keys ``transform``, ``value``, ``stderr`` (Monte Carlo only) and ``evaluations``.
+    """
+    if transforms is None:
+        transforms = compare_set()
+    rows = []
+    for t in transforms:
+        res = nonlinearity(model, u, v, weight=weight, transform=t, executor=executor)
+        rows.append({
+            "transform": repr(t), "value": res.value, "stderr": res.stderr,
+            "evaluations": res.moments.evaluations,
+        })
+    return rows
+
+
+def format_table(rows: list[dict]) -> str:
+    """A plain-text table of :func:`compare` rows."""
+    lines = [f"{'transform':<60} {'MoN':>12} {'MC s.e.':>10}"]
+    for r in rows:
+        se = f"{r['stderr']:.2g}" if r["stderr"] is not None else "-"
+        lines.append(f"{r['transform'][:60]:<60} {r['value']:>12.6g} {se:>10}")
+    return "\n".join(lines)
+

@@ -1,0 +1,226 @@
+"""The single entry point: moments of y = g(u, v) for a Gaussian u (and v)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+from scipy.linalg import block_diag
+
+from ..compile import compiled
+from ..errors import ModelError, ShapeError
+from ..core.gaussian import PSD_RTOL, SYMMETRY_RTOL, Gaussian, as_covariance, as_vector
+from ..core.model import Model
+from .joint import JointMoments
+from ..transforms import Transform
+from ..transforms.base import Moments, check_moments_finite
+from ..transforms.registry import default_transform
+
+__all__ = ["propagate", "propagate_many", "joint_input", "input_batch", "check_transform"]
+
+
+def check_transform(transform: Any) -> Transform:
+    """``transform``, or the default (TT2, :func:`~symmon.transforms.registry.default_transform`)
+    for ``None``; a class or a non-transform is a TypeError."""
+    if transform is None:
+        return default_transform()
+    if isinstance(transform, type) and issubclass(transform, Transform):
+        raise TypeError(f"pass a transform instance, e.g. {transform.__name__}(), not the class")
+    if not isinstance(transform, Transform):
+        raise TypeError(f"transform must be a symmon transform (TT1, TT2, UT, ...), got {transform!r}")
+    return transform
+
+
+def _check_noise_given(model: Model, v: Any) -> None:
+    """v is given exactly when the model has noise symbols."""
+    if model.n_v == 0 and v is not None:
+        raise ModelError("v was given but the model declares no noise symbols")
+    if model.n_v and v is None:
+        raise ModelError(f"the model has noise symbols {list(map(str, model.noise))}: pass v=Gaussian(...)")
+
+
+def joint_input(model: Model, u: Gaussian, v: Gaussian | None) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and block-diagonal covariance of w = [u; v], validated against the model."""
+    if not isinstance(u, Gaussian):
+        raise TypeError(f"u must be a symmon.Gaussian, got {type(u).__name__}")
+    if u.dim != model.n_u:
+        raise ShapeError(f"u has dimension {u.dim} but the model has {model.n_u} inputs {list(map(str, model.inputs))}")
+    _check_noise_given(model, v)
+    if model.n_v == 0:
+        return u.mean.copy(), u.cov.copy()
+    if not isinstance(v, Gaussian):
+        raise TypeError(f"v must be a symmon.Gaussian, got {type(v).__name__}")
+    if v.dim != model.n_v:
+        raise ShapeError(f"v has dimension {v.dim} but the model has {model.n_v} noise symbols")
+    return np.concatenate([u.mean, v.mean]), block_diag(u.cov, v.cov)
+
+
+def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, *, transform: Transform | None = None,
+              executor: Any = None) -> JointMoments:
+    """E y, Cov y and Cov(y, u) of y = g(u, v) by a transform.
+
+    Parameters
+    ----------
+    model : Model
+    u : Gaussian
+        The input distribution.
+    v : Gaussian, optional
+        The noise distribution (required when the model has noise symbols).
+    transform : Transform, default ``TT2()``
+        TT1(), TT2(), UT(...), GaussHermite(...), MonteCarlo(...), Exact() or any
+        registered rule (docs/architecture.md).  The default is the same for
+        :func:`propagate_many`, :func:`symmon.nonlinearity` and the sweeps; docs/guide/transforms.md
+        says why it is TT2.
+        With noise, the transform is applied to w = [u; v] with a block-diagonal
+        covariance and ``cross_cov`` is the u-block of Cov(y, w).
+    executor : Executor, optional
+        Where a stochastic transform's replicates run (threads, Dask, progress);
+        default: the transform's own.  It never changes the numbers.
+
+    Returns
+    -------
+    JointMoments
+
+    Raises
+    ------
+    NonFiniteError
+        If g is NaN or inf at a point the transform evaluates (naming the output and the
+        point), or a moment overflows: a non-finite moment is never returned.  TT1/TT2
+        raise a DerivativeError and Monte Carlo a SamplingError in the same cases.
+
+    Warns
+    -----
+    AngleWarning
+        Once per model and output, for an atan2 output not declared in ``angles=`` whose
+        points (or, for Monte Carlo, pilot samples) lie on both sides of its cut at ±π.
+
+    Examples
+    --------
+    >>> import sympy as sp, symmon as sm
+    >>> x, y = sp.symbols("x y")
+    >>> m = sm.propagate(sm.Model([x, y], [x * y]), sm.Gaussian([1, 2], [[1, 0], [0, 1]]), transform=sm.TT2())
+    >>> float(m.mean[0]), float(m.cov[0, 0])
+    (2.0, 6.0)
+    """
+    tr = check_transform(transform)
+    mw, Pw = joint_input(model, u, v)
+    b = _checked_batch(model, tr, mw[None], Pw[None], executor)
+    # "compiled", "vm" or "vm (C build running)": CompiledModel.evaluator, docs/compile.md.
+    return JointMoments.of(b, u, model.n_u, tr, model.angle_outputs, model.angle_inputs,
+                           evaluator=compiled(model).evaluator)
+
+
+def input_batch(model: Model, u: Any, v: Any = None) -> tuple[np.ndarray, np.ndarray]:
+    """Means (K, n_w) and block-diagonal covariances (K, n_w, n_w) of K Gaussians of
+    w = [u; v], validated against the model (the batch of :func:`propagate_many`)."""
+    if isinstance(u, Gaussian):
+        raise TypeError("u is one Gaussian: use propagate, or pass a list of Gaussians")
+    if isinstance(u, list) and not u:
+        raise ShapeError("u must hold at least one Gaussian")
+    if isinstance(u, (list, tuple)) and u and all(isinstance(g, Gaussian) for g in u):
+        for k, g in enumerate(u):
+            if g.dim != model.n_u:
+                raise ShapeError(f"u[{k}] has dimension {g.dim} but the model has {model.n_u} inputs")
+        M = np.array([g.mean for g in u])
+        P = np.array([g.cov for g in u])
+    elif isinstance(u, tuple) and len(u) == 2:
+        M = np.asarray(u[0], dtype=float)
+        P = np.asarray(u[1], dtype=float)
+        if M.ndim != 2 or M.shape[1] != model.n_u:
+            raise ShapeError(f"means must have shape (K, {model.n_u}), got {M.shape}")
+        if P.shape != (M.shape[0], model.n_u, model.n_u):
+            raise ShapeError(f"covs must have shape {(M.shape[0], model.n_u, model.n_u)}, got {P.shape}")
+        _validate_batch(M, P)
+    else:
+        raise TypeError("u must be a list of K Gaussians or a pair (means (K, n_u), covs (K, n_u, n_u)), "
+                        f"got {type(u).__name__}")
+    K = M.shape[0]
+    _check_noise_given(model, v)
+    if model.n_v == 0:
+        return M, P
+    vs = [v] * K if isinstance(v, Gaussian) else list(v) if isinstance(v, (list, tuple)) else None
+    if vs is None or len(vs) != K or not all(isinstance(g, Gaussian) for g in vs):
+        raise TypeError(f"v must be a Gaussian or a list of {K} Gaussians, one per input")
+    for k, g in enumerate(vs):
+        if g.dim != model.n_v:
+            raise ShapeError(f"v[{k}] has dimension {g.dim} but the model has {model.n_v} noise symbols")
+    n_u, n_w = model.n_u, model.n_u + model.n_v
+    Mw = np.hstack([M, np.array([g.mean for g in vs])])
+    Pw = np.zeros((K, n_w, n_w))
+    Pw[:, :n_u, :n_u] = P
+    Pw[:, n_u:, n_u:] = np.array([g.cov for g in vs])
+    return Mw, Pw
+
+
+def propagate_many(model: Model, u: Any, v: Any = None, *, transform: Transform | None = None,
+                   executor: Any = None) -> Moments:
+    """:func:`propagate` for K input Gaussians at once (one batched evaluation).
+
+    Parameters
+    ----------
+    model : Model
+    u : list of Gaussian, or (means, covs)
+        K input Gaussians, or their means (K, n_u) and covariances (K, n_u, n_u) (checked
+        with array operations: the fast way to pass many).
+    v : Gaussian or list of Gaussian, optional
+        The noise: one Gaussian for every input, or one per input (required when the
+        model has noise symbols).
+    transform : Transform, default ``TT2()``
+        As in :func:`propagate`.
+    executor : Executor, optional
+        As in :func:`propagate`.
+
+    Returns
+    -------
+    Moments
+        ``mean`` (K, n_y), ``cov`` (K, n_y, n_y), ``cross_cov`` Cov(y, u) (K, n_y, n_u),
+        ``noise_cross_cov`` Cov(y, v) (K, n_y, n_v) and ``input_cov`` as
+        :class:`~symmon.JointMoments` holds them, batched.
+
+    Examples
+    --------
+    >>> import numpy as np, sympy as sp, symmon as sm
+    >>> x = sp.Symbol("x")
+    >>> b = sm.propagate_many(sm.Model([x], [x**2]), [sm.Gaussian([0.0], [[1.0]]), sm.Gaussian([1.0], [[2.0]])])
+    >>> b.mean[:, 0]  # E x² = m² + P
+    array([1., 3.])
+    """
+    tr = check_transform(transform)
+    M, P = input_batch(model, u, v)
+    b = _checked_batch(model, tr, M, P, executor)
+    if b.input_cov is None:  # as JointMoments: always Cov u, here the covariances passed in
+        b = replace(b, input_cov=P)
+    return b.split(model.n_u)
+
+
+def _checked_batch(model: Model, tr: Transform, means: np.ndarray, covs: np.ndarray, executor) -> Moments:
+    """``tr.moments`` with the final guard: a NaN or inf moment is an error, never a number."""
+    cm = compiled(model)
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported just below
+        tr.check_angles(cm, means, covs, model.angle_outputs)
+        b = tr.moments(cm, means, covs, model.angle_outputs, executor)
+    check_moments_finite(cm, b, means, tr)
+    return b
+
+
+def _validate_batch(M: np.ndarray, P: np.ndarray) -> None:
+    """Batched checks of K means and covariances; the per-state checks only name the culprit."""
+    if M.shape[0] == 0:
+        raise ShapeError("means must hold at least one state")
+    finite = np.isfinite(M).all() and np.isfinite(P).all()
+    scale = np.maximum(np.abs(P).max(axis=(1, 2)), np.finfo(float).tiny)
+    with np.errstate(over="ignore", invalid="ignore"):  # entries near 1.8e308: the slow path names them
+        asym = np.abs(P - P.transpose(0, 2, 1)).max(axis=(1, 2))
+        ok = finite and np.all(asym <= SYMMETRY_RTOL * scale)
+        if ok:
+            try:
+                eig_min = np.linalg.eigvalsh(0.5 * P + 0.5 * P.transpose(0, 2, 1))[:, 0]
+                ok = bool(np.all(eig_min >= -PSD_RTOL * scale))
+            except np.linalg.LinAlgError:
+                ok = False
+    if ok:
+        return
+    for k in range(M.shape[0]):  # slow path: find and name the first bad state
+        as_vector(M[k], f"means[{k}]")
+        as_covariance(P[k], f"covs[{k}]")

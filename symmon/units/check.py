@@ -1,0 +1,261 @@
+"""The per-model part of the lemma route: checks of one model at an exact rational point.
+
+The lemmas (:mod:`symmon.units.lemmas`) do not depend on the model; what does is checked here, in
+40-digit mpmath arithmetic at exact rational points:
+
+- :func:`_check_composition`: ḡ built by the change of units is g composed with (18): its
+  values, Jacobian and Hessians equal A(g − o_y), A J S_w and Σ_k A_ik S_wᵀ H_k S_w (the
+  chain rule, A = S_y⁻¹, S_w = blkdiag(S_u, S_v));
+- :func:`_regular`: the moments the weight needs are regular at the point (Σ_gg
+  nonsingular for (43), positive variances for (42), (38), (8));
+- :func:`_counterexample_tt2`, :func:`_counterexample_rule`: when the weight lemma fails, a
+  concrete refutation: M² of g at (μ, P, R) and of ḡ at the mapped point, each from its own
+  moments (the TT2 closed form in 40 digits, or a point rule through
+  :func:`symmon.nonlinearity`).
+
+References
+----------
+J. Straka, J. Havlík, "Design of Unitless Normalized Measure of Nonlinearity for State
+Estimation", FUSION 2024, arXiv:2410.13539, Sections III–IV, eqs. (18)–(21), (29), (34)–(43).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, Sequence
+
+import mpmath
+import numpy as np
+import sympy as sp
+
+from ..errors import SingularMatrixError, SymmonError
+from ..core.gaussian import Gaussian
+from .lemmas import _m2, _WeightPart
+from ..core.model import Model
+from ..core.affine import change_gaussian, changed_parts, inverse
+from ..core.rescale import change_units
+from ..measures.mon import nonlinearity
+from ..measures.weights import NAMED as WEIGHTS
+from ..transforms import UT, GaussHermite, MonteCarlo
+
+#: Digits of the numeric evaluations (composition check, regularity, counterexamples).
+_DPS = 40
+#: Relative agreement demanded of two 40-digit evaluations of the same exact quantity.
+_AGREE_RTOL = mpmath.mpf("1e-25")
+
+
+def _mp(x: Any) -> mpmath.mpf:
+    return sp.N(sp.sympify(x), _DPS + 5)._to_mpmath(mpmath.mp.prec)
+
+
+def _jets(inputs: Sequence[sp.Symbol], noise: Sequence[sp.Symbol], outputs: Sequence[sp.Expr]) -> Callable:
+    """Values, Jacobian and Hessians of g in w = [u; v] as one mpmath function of the point."""
+    w = list(inputs) + list(noise)
+    g = sp.Matrix(list(outputs))
+    J = g.jacobian(w)
+    H = [sp.hessian(gi, w) for gi in g]
+    f = sp.lambdify(w, [list(g), J.tolist(), [h.tolist() for h in H]], modules="mpmath")
+
+    def at(point: Sequence[Any]) -> tuple[mpmath.matrix, mpmath.matrix, list[mpmath.matrix]]:
+        vals, Jv, Hv = f(*[_mp(x) for x in point])
+        out = mpmath.matrix([[mpmath.mpmathify(x)] for x in vals]), mpmath.matrix(Jv), [mpmath.matrix(h) for h in Hv]
+        if not all(mpmath.isfinite(x) for M in (out[0], out[1], *out[2]) for x in M):
+            raise SymmonError(
+                f"g or its derivatives are not finite at {[str(x) for x in point]}: TT2 needs g twice "
+                "differentiable at the mean"
+            )
+        return out
+
+    return at
+
+
+def _mp_matrix(M: sp.Matrix) -> mpmath.matrix:
+    return mpmath.matrix(M.rows, M.cols) if M.rows == 0 else mpmath.matrix([[_mp(x) for x in row] for row in M.tolist()])
+
+
+def _half_traces(H: list[mpmath.matrix], P: mpmath.matrix) -> mpmath.matrix:
+    HP = [h * P for h in H]
+    n = len(H)
+    T = mpmath.matrix(n, n)
+    for i in range(n):
+        for j in range(n):
+            T[i, j] = sum((HP[i] * HP[j])[k, k] for k in range(P.rows)) / 2
+    return T
+
+
+def _tt2_numeric(jets: Callable, nu: int, nv: int, mu: sp.Matrix, P: sp.Matrix, R: sp.Matrix
+                 ) -> tuple[mpmath.matrix, mpmath.matrix]:
+    """Σ_gg and D of the TT2 closed form at a point, in 40 digits (the formulas of _tt2_moments)."""
+    _, J, H = jets(list(mu) + [0] * nv)
+    Pm = _mp_matrix(P)
+    nw = nu + nv
+    Pw = mpmath.matrix(nw, nw)
+    for i in range(nu):
+        for j in range(nu):
+            Pw[i, j] = Pm[i, j]
+    Rm = _mp_matrix(R) if nv else None
+    for i in range(nv):
+        for j in range(nv):
+            Pw[nu + i, nu + j] = Rm[i, j]
+    Sgg = J * Pw * J.T + _half_traces(H, Pw)
+    Ju = J[:, :nu] if nv else J
+    Sgu = Ju * Pm
+    D = Sgg - Sgu * mpmath.inverse(Pm) * Sgu.T
+    if nv:
+        Jv = J[:, nu:nw]
+        Hv = [h[nu:nw, nu:nw] for h in H]
+        D = D - (Jv * Rm * Jv.T + _half_traces(Hv, Rm))
+    return Sgg, D
+
+
+def _rational_point(model: Model, seed: int = 0, tries: int = 20) -> tuple[sp.Matrix, sp.Matrix, sp.Matrix]:
+    """An exact rational mean and diagonally dominant covariances where g is differentiable."""
+    rng = np.random.default_rng(seed)
+    jets = _jets(model.inputs, model.noise, model.outputs)
+    for _ in range(tries):
+        mu = sp.Matrix([sp.Rational(int(rng.integers(1, 20)), int(rng.integers(1, 7))) for _ in range(model.n_u)])
+
+        def cov(n: int) -> sp.Matrix:
+            A = sp.Matrix(n, n, lambda i, j: sp.Rational(int(rng.integers(-3, 4)), int(rng.integers(2, 6))))
+            return (A + A.T) / 4 + (n + 1) * sp.eye(n)
+
+        P, R = cov(model.n_u), cov(model.n_v) if model.n_v else sp.zeros(0, 0)
+        try:
+            jets(list(mu) + [0] * model.n_v)
+        except SymmonError:
+            continue
+        return mu, P, R
+    raise SymmonError(f"found no rational point where {model.name!r} is twice differentiable")
+
+
+def _scales(model: Model) -> dict[str, sp.Matrix]:
+    """Rational positive diagonal scales and offsets, distinct per component (one fixed choice)."""
+    primes = (2, 3, 5, 7, 11, 13, 17, 19)
+
+    def diag(n: int, k: int) -> sp.Matrix:
+        # Alternately large and small, so that a unit-dependent M² visibly changes.
+        return sp.diag(*[sp.Rational(primes[(i + k) % 8]) ** (-1 if i % 2 else 1) for i in range(n)])
+
+    def off(n: int, k: int) -> sp.Matrix:
+        return sp.Matrix([sp.Rational(i + k + 1, 3) for i in range(n)])
+
+    return {"S_u": diag(model.n_u, 0), "o_u": off(model.n_u, 1), "S_y": diag(model.n_y, 2),
+            "o_y": off(model.n_y, 2), "S_v": diag(model.n_v, 5) if model.n_v else sp.zeros(0, 0)}
+
+
+def _close(a: mpmath.matrix, b: mpmath.matrix) -> bool:
+    scale = max([mpmath.mpf(1)] + [abs(x) for x in a] + [abs(x) for x in b])
+    return all(abs(x - y) <= _AGREE_RTOL * scale for x, y in zip(a, b))
+
+
+def _check_composition(model: Model, point: sp.Matrix, tname: str,
+                       changed_parts: Callable = changed_parts) -> None:
+    """ḡ built by change_units is g composed with the unit change: check it at one point.
+
+    At rational scales, offsets and point (the model's mean mapped to the new units), the
+    values, Jacobian and Hessians of ḡ, differentiated on their own, must equal
+    A(g − o_y), A J S_w and Σ_k A_ik S_wᵀ H_k S_w from g (the chain rule; values only for a
+    point rule). 40-digit evaluation; the two sides agree to 1e-25 or this raises.
+    ``changed_parts`` builds ḡ (the caller passes the builder it relies on, so that the
+    check is of that builder).
+    """
+    sc = _scales(model)
+    Sw = sp.diag(sc["S_u"], sc["S_v"]) if model.n_v else sc["S_u"]
+    ow = sp.Matrix(list(sc["o_u"]) + [0] * model.n_v)
+    ub, vb, gb = changed_parts(model, sc["S_u"], sc["o_u"], sc["S_y"], sc["o_y"], sc["S_v"], "_bar")
+    w = sp.Matrix(list(point) + [0] * model.n_v)
+    wb = inverse(Sw) * (w - ow)
+    with mpmath.workdps(_DPS):
+        val, J, H = _jets(model.inputs, model.noise, model.outputs)(list(w))
+        val_b, J_b, H_b = _jets(ub, vb, list(gb))(list(wb))
+        A, S = _mp_matrix(inverse(sc["S_y"])), _mp_matrix(Sw)
+        ok = _close(val_b, A * (val - _mp_matrix(sc["o_y"])))
+        if tname == "tt2":
+            ok = ok and _close(J_b, A * J * S)
+            for i in range(model.n_y):
+                mixed = sum((A[i, k] * (S.T * H[k] * S) for k in range(model.n_y)), mpmath.zeros(Sw.rows))
+                ok = ok and _close(H_b[i], mixed)
+    if not ok:
+        raise SymmonError(f"the changed model of {model.name!r} is not g composed with the unit change (18)")
+
+
+def _regular(weight: Any, label: str, Sgg: mpmath.matrix) -> None:
+    """The weight needs Σ_gg⁻¹ (43) or positive variances (42), (38), (8): check at the point."""
+    n = Sgg.rows
+    if label == "full":
+        ev = mpmath.eigsy(Sgg)[0]
+        if min(ev) <= _AGREE_RTOL * max(abs(x) for x in ev):
+            raise SingularMatrixError(
+                f"Σ_gg of TT2 is singular at the given mean (eigenvalues {[mpmath.nstr(x, 5) for x in ev]}): "
+                "the weight 'full' (43) needs its inverse"
+            )
+    elif label != "liu-li-raw":
+        if any(Sgg[i, i] <= 0 for i in range(n)):
+            raise SingularMatrixError(
+                f"an output variance of TT2 is zero at the given mean: the weight {label!r} divides by it"
+            )
+
+
+def _values(wp: _WeightPart, Sgg: mpmath.matrix, D: mpmath.matrix, S_y: sp.Matrix) -> dict:
+    """Values of the symbols of the generic difference: Σ_gg, D of the model, the scale s_y."""
+    n = S_y.rows
+    point: dict = {}
+    for i in range(n):
+        for j in range(i, n):
+            point[wp.G[i, j]] = sp.Float(Sgg[i, j], _DPS)
+            point[wp.E[i, j]] = sp.Float(D[i, j], _DPS)
+        point[wp.s_y[i]] = S_y[i, i]
+        if wp.sigma is not None:
+            point[wp.sigma[i]] = sp.Float(mpmath.sqrt(Sgg[i, i]), _DPS)
+    return point
+
+
+def _m2_at(weight: Any, label: str, Sgg: mpmath.matrix, D: mpmath.matrix) -> sp.Expr:
+    G = sp.Matrix(Sgg.rows, Sgg.cols, lambda i, j: sp.Float(Sgg[i, j], _DPS))
+    E = sp.Matrix(D.rows, D.cols, lambda i, j: sp.Float(D[i, j], _DPS))
+    sigma = None if label in WEIGHTS else [sp.sqrt(G[i, i]) for i in range(G.rows)]
+    return sp.N(_m2(weight, G, E, sigma), _DPS)
+
+
+def _counterexample_tt2(model: Model, weight: Any, label: str, wp: _WeightPart,
+                        mu: sp.Matrix, P: sp.Matrix, R: sp.Matrix) -> dict:
+    """M² of g at (μ, P, R) and of ḡ at the mapped point, each from its own TT2 moments."""
+    sc = _scales(model)
+    ub, vb, gb = changed_parts(model, sc["S_u"], sc["o_u"], sc["S_y"], sc["o_y"], sc["S_v"], "_bar")
+    Su_inv = inverse(sc["S_u"])
+    mu_b, P_b = Su_inv * (mu - sc["o_u"]), Su_inv * P * Su_inv.T
+    R_b = inverse(sc["S_v"]) * R * inverse(sc["S_v"]).T if model.n_v else R
+    with mpmath.workdps(_DPS):
+        Sgg, D = _tt2_numeric(_jets(model.inputs, model.noise, model.outputs), model.n_u, model.n_v, mu, P, R)
+        Sgg_b, D_b = _tt2_numeric(_jets(ub, vb, list(gb)), model.n_u, model.n_v, mu_b, P_b, R_b)
+        lhs, rhs = _m2_at(weight, label, Sgg, D), _m2_at(weight, label, Sgg_b, D_b)
+    point = _values(wp, Sgg, D, sc["S_y"])
+    diff = sp.N(wp.difference.xreplace(point), _DPS)
+    if abs(diff - (lhs - rhs)) > 1e-20 * max(1, abs(lhs)):
+        raise SymmonError(f"internal: the lemma's difference {diff} and the direct {lhs - rhs} disagree")
+    point.update(sc)
+    point.update({"mean": mu, "cov": P, "noise_cov": R, "lhs": lhs, "rhs": rhs, "difference": diff})
+    return point
+
+
+def _counterexample_rule(model: Model, weight: Any, label: str, wp: _WeightPart, transform: Any,
+                         mu: sp.Matrix, P: sp.Matrix, R: sp.Matrix) -> dict:
+    """The same with the moments of a point rule, computed by :func:`symmon.nonlinearity` (double precision)."""
+    if isinstance(transform, str):  # a name: the family's default rule
+        transform = {"ut": UT.ut1(), "gh": GaussHermite(), "mc": MonteCarlo(n=10**5, seed=0)}[transform]
+    sc = _scales(model)
+    plain = model.with_angles([])  # the lemma assumes outputs that are not wrapped
+    f = lambda M: np.array(M.evalf(), dtype=float)  # noqa: E731 - a one-line conversion
+    u = Gaussian(f(mu).ravel(), f(P))
+    v = Gaussian(np.zeros(model.n_v), f(R)) if model.n_v else None
+    g_b = change_units(plain, sc["S_u"], sc["o_u"], sc["S_y"], sc["o_y"], sc["S_v"] if model.n_v else None)
+    u_b = change_gaussian(u, f(sc["S_u"]), f(sc["o_u"]).ravel())
+    v_b = change_gaussian(v, f(sc["S_v"])) if v is not None else None
+    old = nonlinearity(plain, u, v, weight=weight, transform=transform)
+    new = nonlinearity(g_b, u_b, v_b, weight=weight, transform=transform)
+    to_mp = lambda a: mpmath.matrix(a.tolist())  # noqa: E731
+    point = _values(wp, to_mp(old.moments.cov), to_mp(old.residual_cov), sc["S_y"])
+    point.update(sc)
+    lhs, rhs = sp.Float(old.squared), sp.Float(new.squared)
+    point.update({"mean": mu, "cov": P, "noise_cov": R, "lhs": lhs, "rhs": rhs,
+                  "difference": sp.N(wp.difference.xreplace(point), _DPS)})
+    return point
