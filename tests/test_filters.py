@@ -12,7 +12,8 @@ from scipy import stats
 import symmon as sm
 from symmon.estimation import nlt as est
 from symmon.errors import ShapeError, SymmonError
-from symmon.filters.nonlinear import NonlinearKalmanResult, _compiled_step
+from symmon.filters.results import NonlinearKalmanResult
+from symmon.filters.step import _compiled_step
 
 #: Two implementations of the same filter in double precision, over tens of steps: the
 #: order of the sums differs, so rounding (1e-16 per operation) grows by the conditioning
@@ -560,7 +561,40 @@ def test_adaptive_distance_is_the_unitless_error_of_advise():
     u = sm.Gaussian([3.0, 1.0, -0.5, 0.2], np.diag([4.0, 9.0, 0.1, 0.2]) + 0.5)
     a, b = sm.propagate(h, u, None, transform=sm.UT.cubature()), sm.propagate(h, u, None, transform=sm.GaussHermite(5))
     cm, angles = compiled(h), frozenset(h.angle_outputs)
-    ba = sm.UT.cubature().batch(cm, u.mean[None], u.cov[None], angles)
-    bb = sm.GaussHermite(5).batch(cm, u.mean[None], u.cov[None], angles)
+    ba = sm.UT.cubature().moments(cm, u.mean[None], u.cov[None], angles)
+    bb = sm.GaussHermite(5).moments(cm, u.mean[None], u.cov[None], angles)
     d = moment_distance(ba, bb, whiteners(bb.cov), whiteners(u.cov[None]), angles)[0]
     assert d == pytest.approx(moment_error(a, b), rel=1e-10)
+
+
+# --------------------------------------------------------------------------- strategies
+def test_a_transform_becomes_the_one_rule_strategy_and_any_strategy_runs_the_filter():
+    """The filter runs whatever FilterStrategy it is given; a transform is wrapped in RuleStrategy."""
+    x = sp.Symbol("x", real=True)
+    f, h = sm.Model([x], [x], name="strategy_f"), sm.Model([x], [x], name="strategy_h")
+    ekf = sm.NonlinearKalmanFilter(f, h, [[1.0]], [[1.0]], sm.TT1())
+    assert ekf.strategy == sm.filters.RuleStrategy(sm.TT1()) and ekf.method == "EKF"
+
+    class Traced(sm.filters.FilterStrategy):
+        calls = 0
+
+        def label(self):
+            return "traced EKF"
+
+        def run(self, kf, Y, x0, P0):
+            Traced.calls += 1
+            return sm.filters.RuleStrategy(sm.TT1()).run(kf, Y, x0, P0)
+
+    kf = sm.NonlinearKalmanFilter(f, h, [[1.0]], [[1.0]], Traced())
+    res = kf.filter([[1.0]], sm.Gaussian([0.0], [[1.0]]))
+    assert Traced.calls == 1 and res.method == "traced EKF"
+    np.testing.assert_array_equal(res.x, ekf.filter([[1.0]], sm.Gaussian([0.0], [[1.0]])).x)
+
+
+def test_a_rule_without_a_filter_step_is_refused():
+    x = sp.Symbol("x", real=True)
+    m = sm.Model([x], [x], name="strategy_mc")
+    with pytest.raises(SymmonError, match="a Taylor or point rule"):
+        sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]], sm.MonteCarlo(100))
+    with pytest.raises(TypeError, match="transform or a filter strategy"):
+        sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]], "ukf")

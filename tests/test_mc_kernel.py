@@ -100,8 +100,8 @@ def test_monte_carlo_on_the_vm_equals_the_compiled_kernel():
     cm = compiled(PROBLEM.model)
     vm = CompiledModel(cm.source_exprs, cm.symbols, name="mc_vm", compiled=False)
     mc = sm.MonteCarlo(20_000, seed=3, groups=4)
-    a = mc.batch(cm, PROBLEM.u.mean[None], PROBLEM.u.cov[None])
-    b = mc.batch(vm, PROBLEM.u.mean[None], PROBLEM.u.cov[None])
+    a = mc.moments(cm, PROBLEM.u.mean[None], PROBLEM.u.cov[None])
+    b = mc.moments(vm, PROBLEM.u.mean[None], PROBLEM.u.cov[None])
     for name in ("mean", "cov", "cross_cov"):
         x, y = getattr(a, name), getattr(b, name)
         np.testing.assert_allclose(x, y, rtol=0, atol=1e-12 * max(np.abs(y).max(), 1.0), err_msg=name)

@@ -57,7 +57,7 @@ def vm(exprs, syms, name="t"):
 
 def batch1(tr, cm, mean, cov):
     """Moments of one Gaussian through the batch API: mean, cov, cross, stderr."""
-    b = tr.batch(cm, np.asarray(mean, float)[None], np.asarray(cov, float)[None])
+    b = tr.moments(cm, np.asarray(mean, float)[None], np.asarray(cov, float)[None])
     se = None if b.stderr is None else {k: v[0] for k, v in b.stderr.items()}
     return b.mean[0], b.cov[0], b.cross_cov[0], se
 
@@ -452,9 +452,9 @@ def test_sparse_grid_polynomial_model_against_exact():
 
 def test_gauss_hermite_default_grid_switches_to_sparse_above_four_dims():
     cm = vm([sum(U5)], U5, "sum5")
-    b = sm.GaussHermite(3).batch(cm, MU5[None], P5[None])
+    b = sm.GaussHermite(3).moments(cm, MU5[None], P5[None])
     assert b.info["sparse"] is True
-    b = sm.GaussHermite(3).batch(vm([U2[0] + U2[1]], U2, "sum2"), MU2[None], P2[None])
+    b = sm.GaussHermite(3).moments(vm([U2[0] + U2[1]], U2, "sum2"), MU2[None], P2[None])
     assert b.info["sparse"] is False
 
 

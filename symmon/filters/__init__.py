@@ -1,7 +1,7 @@
 """Kalman filters: the linear filter (:mod:`.linear`) and the nonlinear family compiled to C
 (:mod:`.nonlinear`: EKF, second-order EKF, UKF, CKF, Gauss–Hermite), their compiled step
-(:mod:`.step`), results with NEES/NIS (:mod:`.results`) and the adaptive strategy
-(:mod:`.adaptive`)."""
+(:mod:`.step`), results with NEES/NIS (:mod:`.results`), and the strategies that run the steps
+(:mod:`.strategy`: one rule, or :class:`Adaptive`, :mod:`.adaptive`)."""
 
 from .adaptive import Adaptive as Adaptive
 from .linear import KalmanFilter as KalmanFilter
@@ -9,6 +9,8 @@ from .linear import KalmanResult as KalmanResult
 from .nonlinear import NonlinearKalmanFilter as NonlinearKalmanFilter
 from .results import ConsistencyTest as ConsistencyTest
 from .results import NonlinearKalmanResult as NonlinearKalmanResult
+from .strategy import FilterStrategy as FilterStrategy
+from .strategy import RuleStrategy as RuleStrategy
 
 __all__ = ["KalmanFilter", "KalmanResult", "NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest",
-           "Adaptive"]
+           "Adaptive", "FilterStrategy", "RuleStrategy"]

@@ -1,7 +1,7 @@
 """The adaptive nonlinear Kalman filter: at each step of each run, the cheapest adequate transform.
 
-:class:`Adaptive` is passed as the ``transform`` of :class:`symmon.NonlinearKalmanFilter`,
-which then runs :func:`_adaptive_run`: at every step, for the time update and then for the
+:class:`Adaptive` is a filter strategy (:mod:`symmon.filters.strategy`), passed as the
+``transform`` of :class:`symmon.NonlinearKalmanFilter`: at every step, for the time update and then for the
 measurement update, the candidates are taken in the order of their cost and the first whose
 estimated error (the unitless measure of :func:`symmon.measures.advice.moment_error`) is within the
 tolerance is chosen; the step itself is the compiled step (:mod:`symmon.filters.step`) of
@@ -27,6 +27,7 @@ from ..measures.advice import cost, moment_distance, whiteners
 from ..core.angles import wrap_angle
 from ..errors import SymmonError
 from .step import _compiled_step, _filterable
+from .strategy import FilterStrategy
 from ..core.model import Model
 from ..compile import compiled
 from ..transforms import TT1, TT2, UT, GaussHermite, Transform
@@ -38,8 +39,8 @@ __all__ = ["Adaptive"]
 
 
 @dataclass(frozen=True)
-class Adaptive:
-    """A filter option that picks, at each step of each run, the cheapest adequate transform.
+class Adaptive(FilterStrategy):
+    """A filter strategy that picks, at each step of each run, the cheapest adequate transform.
 
     Pass it as the ``transform`` of :class:`NonlinearKalmanFilter`.  At step k the filter
     decides twice, on the Gaussians the step transforms:
@@ -102,6 +103,12 @@ class Adaptive:
     def __repr__(self) -> str:
         return f"Adaptive(tol={self.tol:g}, candidates=[{', '.join(t.filter_label() for t in self.candidates)}])"
 
+    def label(self) -> str:
+        return repr(self)
+
+    def run(self, kf, Y, x0, P0):
+        return _adaptive_run(self, kf, Y, x0, P0)
+
 
 def _decide(model: Model, m: np.ndarray, C: np.ndarray, add: np.ndarray | None, angles: frozenset[int],
             order: list[Transform], reference: Transform, tol: float):
@@ -111,27 +118,27 @@ def _decide(model: Model, m: np.ndarray, C: np.ndarray, add: np.ndarray | None, 
     """
     cm = compiled(model)
     plus = (lambda c: c) if add is None else (lambda c: c + add)
-    t1 = TT1().batch(cm, m, C, angles)
+    t1 = TT1().moments(cm, m, C, angles)
     Aw = whiteners(C)
     choice = np.full(m.shape[0], len(order) - 1)
     mean, cov = t1.mean.copy(), plus(t1.cov)  # overwritten unless TT1 is the choice or the fallback
     open_ = np.ones(m.shape[0], dtype=bool)
     i1 = next((i for i, t in enumerate(order) if t.taylor_order == 1), None)
     if i1 is not None:  # TT1 is the cheapest: its closed-form test comes first
-        t2 = TT2().batch(cm, m, C, angles)
+        t2 = TT2().moments(cm, m, C, angles)
         ok = moment_distance(t1, t2, whiteners(plus(t2.cov)), Aw, angles) <= tol
         choice[ok] = i1
         open_ = ~ok
     rest = np.flatnonzero(open_)
     if rest.size:
         ms, Cs, Aws = m[rest], C[rest], Aw[rest]
-        ref = reference.batch(cm, ms, Cs, angles)
+        ref = reference.moments(cm, ms, Cs, angles)
         Ay = whiteners(plus(ref.cov))
         left = np.ones(rest.size, dtype=bool)
         for i, t in enumerate(order):
             if t.taylor_order == 1:
                 continue
-            b = t.batch(cm, ms, Cs, angles)
+            b = t.moments(cm, ms, Cs, angles)
             ok = (moment_distance(b, ref, Ay, Aws, angles) <= tol) & left
             if i == len(order) - 1:
                 ok = left  # the most expensive candidate is the fallback
@@ -141,9 +148,8 @@ def _decide(model: Model, m: np.ndarray, C: np.ndarray, add: np.ndarray | None, 
     return choice, mean, cov
 
 
-def _adaptive_run(kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: np.ndarray, P0: np.ndarray):
+def _adaptive_run(ad: Adaptive, kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: np.ndarray, P0: np.ndarray):
     """The adaptive filter (:class:`Adaptive`) on a bank Y (R, K, n_y): outputs and choices."""
-    ad: Adaptive = kf.transform
     f, h = kf.f_model, kf.h_model
     runs, K = Y.shape[:2]
     n, n_y = f.n_u, h.n_y

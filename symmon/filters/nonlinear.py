@@ -54,16 +54,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .adaptive import Adaptive, _adaptive_run
+from .adaptive import Adaptive
 from ..errors import ShapeError, SymmonError
 from ..core.checks import check_gaussian, check_model, noise_cov, readonly
 from .results import ConsistencyTest, NonlinearKalmanResult
-from .step import _CompiledStep, _compiled_step, _filterable
+from .strategy import FilterStrategy, RuleStrategy
 from ..core.gaussian import Gaussian, as_covariance
 from ..core.model import Model
 from ..transforms import UT, Transform
@@ -90,8 +89,15 @@ class NonlinearKalmanFilter:
         Process noise covariance (Cov w, or additive (n, n)).
     R : array_like
         Measurement noise covariance (Cov e, or additive (n_y, n_y)).
-    transform : TT1, TT2, UT, GaussHermite or Adaptive, default ``UT.ut1()``
-        Used for both steps; :class:`Adaptive` picks one per step and run.
+    transform : TT1, TT2, UT, GaussHermite, or a FilterStrategy such as Adaptive, default ``UT.ut1()``
+        A transform is used for both updates of every step (the strategy
+        :class:`~symmon.filters.strategy.RuleStrategy`); :class:`Adaptive` picks one per
+        step and run.
+
+    Attributes
+    ----------
+    strategy : FilterStrategy
+        How the steps run (:mod:`symmon.filters.strategy`).
 
     Examples
     --------
@@ -109,8 +115,8 @@ class NonlinearKalmanFilter:
     h_model: Model
     Q: np.ndarray
     R: np.ndarray
-    transform: Transform | None = None
-    _step: Any = field(default=None, init=False, repr=False)
+    transform: Transform | FilterStrategy | None = None
+    strategy: FilterStrategy = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         f = check_model(self.f_model, "f_model")
@@ -122,16 +128,11 @@ class NonlinearKalmanFilter:
         Q = as_covariance(self.Q, "Q", dim=f.n_v if f.n_v else f.n_u)
         R = noise_cov(h, self.R, "R")
         transform = UT.ut1() if self.transform is None else self.transform
-        if not isinstance(transform, (Transform, Adaptive)):
-            raise TypeError(f"transform must be a symmon transform, got {transform!r}")
-        if not (isinstance(transform, Adaptive) or _filterable(transform)):
-            raise SymmonError(
-                f"transform must be TT1, TT2, UT or GaussHermite (a Taylor or point rule) for a Kalman filter, "
-                f"got {transform!r}"
-            )
+        strategy = transform if isinstance(transform, FilterStrategy) else RuleStrategy(transform)
         object.__setattr__(self, "Q", readonly(Q))
         object.__setattr__(self, "R", readonly(R))
         object.__setattr__(self, "transform", transform)
+        object.__setattr__(self, "strategy", strategy)
 
     @cached_property
     def angle_states(self) -> frozenset[int]:
@@ -141,15 +142,7 @@ class NonlinearKalmanFilter:
     @cached_property
     def method(self) -> str:
         """The filter's name: EKF, EKF2, UKF(...), CKF, GHKF(order=...) or Adaptive(...)."""
-        if isinstance(self.transform, Adaptive):
-            return repr(self.transform)
-        return self.transform.filter_label()
-
-    def _compiled(self) -> _CompiledStep:
-        if self._step is None:
-            object.__setattr__(self, "_step", _compiled_step(self.f_model, self.h_model, self.transform,
-                                                             self.angle_states))
-        return self._step
+        return self.strategy.label()
 
     def _initial(self, x0: Gaussian | ArrayLike, P0: ArrayLike | None, runs: int | None):
         """Validated initial mean(s) and covariance."""
@@ -211,11 +204,7 @@ class NonlinearKalmanFilter:
         runs = Y.shape[0] if Y.ndim == 3 else None
         m0, C0 = self._initial(x0, P0, runs)
         Yb = Y.reshape((runs or 1,) + Y.shape[-2:])
-        choices = None
-        if isinstance(self.transform, Adaptive):
-            out, choices = _adaptive_run(self, Yb, m0, C0)
-        else:
-            out = self._compiled()(m0, C0, Yb, self.Q, self.R)
+        out, choices = self.strategy.run(self, Yb, m0, C0)
         bad = ~np.isfinite(out["x"]).all(axis=-1) | ~np.isfinite(out["P"]).all(axis=(-1, -2))
         if bad.any():
             r, k = np.argwhere(bad)[0]

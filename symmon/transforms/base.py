@@ -12,20 +12,21 @@ import warnings
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
-from typing import Any, ClassVar
+from typing import Any, Callable, ClassVar
 
 import numpy as np
 import sympy as sp
 
 from ..core.angles import wrap_angle  # re-exported: defined beside the other angle helpers
 from ..compile.compiled import CompiledModel
-from ..errors import AngleWarning, NonFiniteError
-from ..core.gaussian import matrix_sqrt
+from ..core.gaussian import PSD_RTOL, SYMMETRY_RTOL, as_covariance, as_vector, matrix_sqrt
+from ..errors import AngleWarning, NonFiniteError, ShapeError
 from .nodes import SPARSE_ABOVE, standard_rule
+from .registry import _register
 
 __all__ = [
     "Transform", "Moments", "wrap_angle", "weighted_moments", "batch_sqrt",
-    "evaluate_points", "check_moments_finite", "likely_angles", "warn_angle_cut", "pilot_angle_cut",
+    "evaluate_points", "check_moments_finite", "check_batch", "likely_angles", "warn_angle_cut", "pilot_angle_cut",
 ]
 
 
@@ -147,20 +148,76 @@ class Transform(ABC):
     #: The order of a Taylor rule (1: TT1, 2: TT2), whose moments are closed forms in
     #: J and H at the mean; ``None`` for other rules.
     taylor_order: ClassVar[int | None] = None
+    #: The rule's registered short names: ``{name: (summary, factory)}``, where
+    #: ``factory(**options)`` builds the rule from the options of
+    #: :func:`~symmon.transforms.registry.make` (samples, seed, order, groups), taking only
+    #: those it needs.  Registered when the class is created (:meth:`__init_subclass__`).
+    presets: ClassVar[dict[str, tuple[str, Callable[..., "Transform"]]]] = {}
 
-    @abstractmethod
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """Check a concrete rule's declarations and register its presets.
+
+        A rule is concrete when it implements :meth:`_moments`; it must then declare
+        :meth:`cost` (the cost model of ``advise`` and the adaptive filter), and a
+        ``stochastic`` rule also :meth:`replicate_stats` and :meth:`nested_stats` (its
+        error bars and the nested Σ_c).  A missing declaration is a TypeError here, when
+        the class is created, not at the first call.
+        """
+        super().__init_subclass__(**kwargs)
+        if "moments" in cls.__dict__:
+            raise TypeError(f"{cls.__name__} overrides moments(): implement the hook _moments() instead, "
+                            "so that the checks of Transform.moments always run")
+        if getattr(cls, "_moments") is Transform._moments:  # abstract: an intermediate base
+            return
+        missing = [m for m in ("cost",) if getattr(cls, m) is getattr(Transform, m)]
+        if cls.stochastic:
+            missing += [m for m in ("replicate_stats", "nested_stats") if getattr(cls, m) is getattr(Transform, m)]
+        if missing:
+            raise TypeError(f"the transform {cls.__name__} does not declare {', '.join(missing)} "
+                            "(docs/architecture.md, the Transform contract)")
+        for key, (summary, factory) in cls.__dict__.get("presets", {}).items():
+            _register(key, summary, factory)
+
     def moments(self, cm: CompiledModel, means: np.ndarray, covs: np.ndarray,
                 angles: frozenset[int] = frozenset(), executor: Any = None) -> Moments:
         """The moments of y = g(w) for the K Gaussians N(means[k], covs[k]).
 
-        ``executor`` (:class:`~symmon.transforms.executor.Executor`) says where the
-        work runs; deterministic rules ignore it.
-        """
+        The template of every rule: it checks the batch (shapes against ``cm``, finite
+        entries, symmetric positive semi-definite covariances), runs the rule's
+        undeclared-angle check, calls the rule's :meth:`_moments`, and refuses any NaN or
+        inf moment, so that no caller can skip the checks.
 
-    def batch(self, cm: CompiledModel, means: np.ndarray, covs: np.ndarray,
-              angles: frozenset[int] = frozenset()) -> Moments:
-        """:meth:`moments` with the default executor (the older name)."""
-        return self.moments(cm, means, covs, angles)
+        Parameters
+        ----------
+        cm : CompiledModel
+            The compiled g of w.
+        means : ndarray (K, n_w)
+        covs : ndarray (K, n_w, n_w)
+        angles : frozenset of int
+            The outputs that are angles (circular means, wrapped residuals).
+        executor : Executor, optional
+            Where stochastic work runs (:class:`~symmon.transforms.executor.Executor`);
+            deterministic rules ignore it.
+
+        Raises
+        ------
+        ShapeError, CovarianceError
+            A batch that does not fit ``cm`` or is not a batch of Gaussians.
+        NonFiniteError
+            A moment is NaN or inf.
+        """
+        means, covs = check_batch(cm, means, covs)
+        angles = frozenset(angles)
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported just below
+            self.check_angles(cm, means, covs, angles)
+            result = self._moments(cm, means, covs, angles, executor)
+        check_moments_finite(cm, result, means, self)
+        return result
+
+    @abstractmethod
+    def _moments(self, cm: CompiledModel, means: np.ndarray, covs: np.ndarray,
+                 angles: frozenset[int], executor: Any) -> Moments:
+        """The rule itself, on a checked batch (called by :meth:`moments` only)."""
 
     def cost(self, n_w: int) -> int:
         """Evaluations of g for one Gaussian of dimension ``n_w``."""
@@ -297,6 +354,42 @@ def evaluate_points(cm: CompiledModel, X: np.ndarray, transform: "Transform",
         )
     warn_angle_cut(cm, Y, angles, transform)
     return Y
+
+
+def check_batch(cm: CompiledModel, means: Any, covs: Any) -> tuple[np.ndarray, np.ndarray]:
+    """``means`` (K, n_w) and ``covs`` (K, n_w, n_w) as float arrays for ``cm``, checked in
+    one batched pass: K ≥ 1, finite, symmetric and positive semi-definite within the
+    tolerances of :class:`~symmon.Gaussian`.  A bad batch is re-checked state by state only
+    to name the first culprit.
+
+    Raises
+    ------
+    ShapeError, CovarianceError
+    """
+    M = np.asarray(means, dtype=float)
+    P = np.asarray(covs, dtype=float)
+    n = cm.n_w
+    if M.ndim != 2 or M.shape[1] != n or P.shape != (M.shape[0], n, n):
+        raise ShapeError(f"a batch of Gaussians of {n} variables needs means (K, {n}) and covs (K, {n}, {n}), "
+                         f"got {M.shape} and {P.shape}")
+    if M.shape[0] == 0:
+        raise ShapeError("means must hold at least one state")
+    finite = np.isfinite(M).all() and np.isfinite(P).all()
+    scale = np.maximum(np.abs(P).max(axis=(1, 2)), np.finfo(float).tiny)
+    with np.errstate(over="ignore", invalid="ignore"):  # entries near 1.8e308: the slow path names them
+        asym = np.abs(P - P.transpose(0, 2, 1)).max(axis=(1, 2))
+        ok = finite and np.all(asym <= SYMMETRY_RTOL * scale)
+        if ok:
+            try:
+                eig_min = np.linalg.eigvalsh(0.5 * P + 0.5 * P.transpose(0, 2, 1))[:, 0]
+                ok = bool(np.all(eig_min >= -PSD_RTOL * scale))
+            except np.linalg.LinAlgError:
+                ok = False
+    if not ok:
+        for k in range(M.shape[0]):  # slow path: find and name the first bad state
+            as_vector(M[k], f"means[{k}]")
+            as_covariance(P[k], f"covs[{k}]")
+    return M, P
 
 
 def check_moments_finite(cm: CompiledModel, b: Moments, means: np.ndarray, transform: "Transform") -> None:

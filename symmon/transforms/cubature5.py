@@ -8,7 +8,7 @@ three-point Gauss–Hermite rule.  For n > 4 the axis weights are negative, so, 
 the UT with a negative weight, a covariance can come out indefinite.
 
 This module is the worked example of docs/architecture.md: a rule is one file with a
-frozen dataclass, its declared capabilities and a :func:`~.registry.register` call.
+frozen dataclass with its ``_moments`` hook, its declared capabilities and its ``presets``.
 
 References
 ----------
@@ -27,7 +27,6 @@ from typing import ClassVar
 import numpy as np
 
 from .base import Moments, Transform, batch_sqrt, evaluate_points, weighted_moments
-from .registry import register
 
 __all__ = ["Cubature5"]
 
@@ -62,6 +61,7 @@ class Cubature5(Transform):
 
     exact_degree: ClassVar[float] = 5
     name: ClassVar[str] = "ct5"
+    presets: ClassVar[dict] = {"ct5": ("the fifth-degree cubature rule (2n^2 + 1 points)", lambda **_: Cubature5())}
 
     def cost(self, n_w: int) -> int:
         """2 n_w² + 1 points."""
@@ -77,13 +77,10 @@ class Cubature5(Transform):
         Z, w = _rule(mean.shape[0])
         return mean + Z @ batch_sqrt(cov[None])[0].T, w
 
-    def moments(self, cm, means, covs, angles=frozenset(), executor=None):
+    def _moments(self, cm, means, covs, angles, executor):
         K, n = means.shape
         Z, w = _rule(n)
         X = means[:, None, :] + np.einsum("kij,nj->kni", batch_sqrt(covs), Z)
         Y = evaluate_points(cm, X, self, angles)
         mean, cov, cross = weighted_moments(Y, X, means, w, w, angles)
         return Moments(mean, cov, cross, evaluations=K * Z.shape[0])
-
-
-register("ct5", "the fifth-degree cubature rule (2n^2 + 1 points)", lambda **_: Cubature5())

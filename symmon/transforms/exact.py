@@ -53,7 +53,7 @@ class Exact(Transform):
         """No evaluations of g: the moments are symbolic."""
         return 0
 
-    def moments(self, cm, means, covs, angles=frozenset(), executor=None):
+    def _moments(self, cm, means, covs, angles, executor):
         if angles:
             raise ModelError("Exact moments are not defined for angle outputs (wrapping is not polynomial)")
         exprs = [sp.sympify(e) for e in cm.source_exprs]

@@ -196,6 +196,12 @@ class MonteCarlo(Transform):
 
     exact_degree: ClassVar[float] = 0
     name: ClassVar[str] = "mc"
+    presets: ClassVar[dict] = {
+        "qmc": ("randomised quasi-Monte Carlo (scrambled Sobol' groups)",
+                lambda samples, seed, groups, **_: MonteCarlo(samples, seed=seed, qmc=True, groups=groups)),
+        "mc": ("Monte Carlo with jackknife standard errors",
+               lambda samples, seed, groups, **_: MonteCarlo(samples, seed=seed, qmc=False, groups=groups)),
+    }
     stochastic: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
@@ -272,7 +278,7 @@ class MonteCarlo(Transform):
         tasks = [dask.delayed(_run_group_remote)(cm.source_exprs, cm.symbols, j) for j in jobs]
         return dask_compute(tasks, ex.client, ex.scheduler)
 
-    def moments(self, cm, means, covs, angles=frozenset(), executor=None):
+    def _moments(self, cm, means, covs, angles, executor):
         outs = [self._single(cm, m, P, angles, executor) for m, P in zip(means, covs)]
         return Moments(
             np.stack([o.mean for o in outs]), np.stack([o.cov for o in outs]),

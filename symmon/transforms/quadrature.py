@@ -70,6 +70,7 @@ class GaussHermite(Transform):
     error_estimate: bool = False
 
     name: ClassVar[str] = "gh"
+    presets: ClassVar[dict] = {"gh": ("Gauss-Hermite quadrature of a given order", lambda order, **_: GaussHermite(order))}
 
     def __post_init__(self) -> None:
         if not isinstance(self.order, (int, np.integer)) or self.order < 1:
@@ -113,7 +114,7 @@ class GaussHermite(Transform):
         Z, w = standard_rule(n, int(self.order), n > SPARSE_ABOVE)
         return mean + Z @ batch_sqrt(cov[None])[0].T, w
 
-    def moments(self, cm, means, covs, angles=frozenset(), executor=None):
+    def _moments(self, cm, means, covs, angles, executor):
         K, n = means.shape
         sparse = self._sparse(n)
         L = batch_sqrt(covs)

@@ -2,9 +2,12 @@
 ``compare`` lists.
 
 A preset is a short name, a one-line summary and a factory that builds the transform
-from the options a front end can set (samples, seed, order, groups and where Monte
-Carlo runs); each factory takes the options it needs and ignores the others.  A new
-rule registers itself with :func:`register` in its own module (docs/architecture.md).
+from the options a front end can set (samples, seed, order, groups); each factory takes
+the options it needs and ignores the others.  Every rule, built-in or new, declares its
+presets in its class (``presets = {name: (summary, factory)}``) and
+:meth:`Transform.__init_subclass__ <symmon.Transform.__init_subclass__>` registers them
+here when the class is created (docs/architecture.md).  The names are listed in the order
+the rules' modules are imported by :mod:`symmon.transforms`.
 
 Examples
 --------
@@ -18,16 +21,14 @@ GaussHermite(order=3, sparse=None, error_estimate=False)
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Callable
 
 from ..errors import SymmonError
-from .base import Transform
-from .montecarlo import MonteCarlo
-from .quadrature import GaussHermite
-from .taylor import TT1, TT2
-from .unscented import UT
 
-__all__ = ["Preset", "register", "make", "names", "presets", "compare_set", "COMPARE", "DEFAULT",
+if TYPE_CHECKING:
+    from .base import Transform
+
+__all__ = ["Preset", "make", "names", "presets", "compare_set", "COMPARE", "DEFAULT",
            "default_transform"]
 
 
@@ -43,8 +44,9 @@ class Preset:
 _PRESETS: dict[str, Preset] = {}
 
 
-def register(name: str, summary: str, factory: Callable[..., Transform]) -> Preset:
-    """Add a preset under ``name`` (lower case, no spaces), listed after those before it.
+def _register(name: str, summary: str, factory: Callable[..., Transform]) -> Preset:
+    """Add a preset (called by :meth:`Transform.__init_subclass__` only: rules declare
+    ``presets``) under ``name`` (lower case, no spaces), listed after those before it.
 
     ``factory`` is called with the keyword options of :func:`make`, so it must accept
     ``**options`` and take from them only what it needs.
@@ -97,22 +99,6 @@ def make(name: str, *, samples: int = 10**6, seed: int = 0, order: int = 5, grou
         raise SymmonError(f"unknown transform {name!r}; use one of {names()}")
     return _PRESETS[name].factory(samples=samples, seed=seed, order=order, groups=groups)
 
-
-def _mc(qmc: bool) -> Callable[..., Transform]:
-    def factory(samples: int, seed: int, groups: int, **_: Any) -> Transform:
-        return MonteCarlo(samples, seed=seed, qmc=qmc, groups=groups)
-
-    return factory
-
-
-register("tt1", "first-order Taylor (the EKF's linearisation)", lambda **_: TT1())
-register("tt2", "second-order Taylor", lambda **_: TT2())
-register("ut1", "unscented transform, alpha = 1, beta = 0, kappa = 3 - n", lambda **_: UT.ut1())
-register("ut2", "unscented transform, alpha = 1e-3, beta = 2, kappa = 0", lambda **_: UT.ut2())
-register("ct", "the third-degree cubature rule (2n points)", lambda **_: UT.cubature())
-register("gh", "Gauss-Hermite quadrature of a given order", lambda order, **_: GaussHermite(order))
-register("qmc", "randomised quasi-Monte Carlo (scrambled Sobol' groups)", _mc(True))
-register("mc", "Monte Carlo with jackknife standard errors", _mc(False))
 
 #: The names :func:`symmon.compare` uses by default, with ``samples=10**5``.
 COMPARE = ("tt1", "tt2", "ut1", "ct", "gh", "mc")

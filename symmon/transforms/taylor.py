@@ -116,9 +116,10 @@ class TT1(Transform):
 
     exact_degree: ClassVar[float] = 1
     name: ClassVar[str] = "tt1"
+    presets: ClassVar[dict] = {"tt1": ("first-order Taylor (the EKF's linearisation)", lambda **_: TT1())}
     taylor_order: ClassVar[int | None] = 1
 
-    def moments(self, cm, means, covs, angles=frozenset(), executor=None):
+    def _moments(self, cm, means, covs, angles, executor):
         return _taylor(cm, means, covs, angles, second=False)
 
     def cost(self, n_w: int) -> int:
@@ -141,9 +142,10 @@ class TT2(Transform):
 
     exact_degree: ClassVar[float] = 2
     name: ClassVar[str] = "tt2"
+    presets: ClassVar[dict] = {"tt2": ("second-order Taylor", lambda **_: TT2())}
     taylor_order: ClassVar[int | None] = 2
 
-    def moments(self, cm, means, covs, angles=frozenset(), executor=None):
+    def _moments(self, cm, means, covs, angles, executor):
         return _taylor(cm, means, covs, angles, second=True)
 
     def filter_label(self) -> str:

@@ -53,6 +53,11 @@ class UT(Transform):
 
     exact_degree: ClassVar[float] = 3
     name: ClassVar[str] = "ut"
+    presets: ClassVar[dict] = {
+        "ut1": ("unscented transform, alpha = 1, beta = 0, kappa = 3 - n", lambda **_: UT.ut1()),
+        "ut2": ("unscented transform, alpha = 1e-3, beta = 2, kappa = 0", lambda **_: UT.ut2()),
+        "ct": ("the third-degree cubature rule (2n points)", lambda **_: UT.cubature()),
+    }
 
     def __post_init__(self) -> None:
         for k in ("alpha", "beta") + (("kappa",) if self.kappa is not None else ()):
@@ -139,7 +144,7 @@ class UT(Transform):
         """The sigma points and mean weights over N(mean, cov)."""
         return self.sigma_points(mean[None], cov[None])[0], self.weights(mean.shape[0])[0]
 
-    def moments(self, cm, means, covs, angles=frozenset(), executor=None):
+    def _moments(self, cm, means, covs, angles, executor):
         K, n = means.shape
         wm, wc, _ = self.weights(n)
         X = self.sigma_points(means, covs)

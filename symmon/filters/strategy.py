@@ -1,0 +1,76 @@
+"""How a nonlinear Kalman filter runs its steps: a strategy.
+
+:class:`NonlinearKalmanFilter <symmon.filters.nonlinear.NonlinearKalmanFilter>` hands a bank
+of measurements to its strategy.  A transform given to the filter becomes a
+:class:`RuleStrategy`: the one compiled step (:mod:`symmon.filters.step`) of that rule for
+every step of every run.  :class:`~symmon.filters.adaptive.Adaptive` is the other built-in
+strategy: it chooses a rule per step and per run.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..errors import SymmonError
+from ..transforms import Transform
+from .step import _compiled_step, _filterable
+
+if TYPE_CHECKING:  # the filter imports this module, not the other way round
+    from .nonlinear import NonlinearKalmanFilter
+
+__all__ = ["FilterStrategy", "RuleStrategy"]
+
+
+class FilterStrategy(ABC):
+    """The way a :class:`~symmon.NonlinearKalmanFilter` runs its predict and update steps."""
+
+    @abstractmethod
+    def label(self) -> str:
+        """The filter's name (EKF, UKF(...), Adaptive(...)): ``NonlinearKalmanFilter.method``."""
+
+    @abstractmethod
+    def run(self, kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: np.ndarray,
+            P0: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
+        """Filter the bank ``Y`` (R, K, n_y) from x0 (n,) or (R, n) and P0 (n, n) or (R, n, n).
+
+        Returns the arrays ``x``, ``P``, ``x_pred``, ``P_pred``, ``innovation`` and ``S``,
+        each with the leading axes (R, K), and the filter chosen at each step and run
+        (R, K) or ``None`` when there is no choice.  Steps after a failure may be NaN; the
+        filter names the run and step.
+        """
+
+
+@dataclass(frozen=True)
+class RuleStrategy(FilterStrategy):
+    """One transform for both updates of every step: its compiled step (EKF, UKF, ...).
+
+    Raises
+    ------
+    TypeError
+        ``transform`` is not a symmon transform.
+    SymmonError
+        The rule is neither a Taylor rule nor a point rule, so no filter step can be
+        compiled from it.
+    """
+
+    transform: Transform
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.transform, Transform):
+            raise TypeError(f"transform must be a symmon transform or a filter strategy, got {self.transform!r}")
+        if not _filterable(self.transform):
+            raise SymmonError(
+                f"transform must be TT1, TT2, UT or GaussHermite (a Taylor or point rule) for a Kalman filter, "
+                f"got {self.transform!r}"
+            )
+
+    def label(self) -> str:
+        return self.transform.filter_label()
+
+    def run(self, kf, Y, x0, P0):
+        step = _compiled_step(kf.f_model, kf.h_model, self.transform, kf.angle_states)
+        return step(x0, P0, Y, kf.Q, kf.R), None
