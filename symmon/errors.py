@@ -19,6 +19,7 @@ __all__ = [
     "NonFiniteError",
     "ResourceError",
     "ArgumentError",
+    "ArgumentTypeError",
     "ModelFileError",
     "UnitError",
     "OutputPathError",
@@ -71,6 +72,12 @@ class ResourceError(SymmonError):
 
 class ArgumentError(SymmonError):
     """An argument has a value of the wrong kind (e.g. an invalid seed)."""
+
+
+class ArgumentTypeError(ArgumentError, TypeError):
+    """An argument has the wrong type (e.g. a string where a Model is expected).
+
+    Also a :class:`TypeError`, so ``except TypeError`` keeps working."""
 
 
 class ModelFileError(ModelError):

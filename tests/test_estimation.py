@@ -202,9 +202,30 @@ def test_nonlinear_filter_on_linear_model_is_the_kalman_filter(cv_system, transf
     ref = kf.filter(ys, x0, P0)
     nkf = sm.NonlinearKalmanFilter(linear_model(F, "cv_f"), linear_model(H, "cv_h"), Q, R, transform)
     res = nkf.filter(ys, sm.Gaussian(x0, P0))
-    for got, want in ((res.x, ref.x), (res.P, ref.P), (res.x_pred, ref.x_pred), (res.P_pred, ref.P_pred)):
+    assert type(res) is type(ref) is sm.filters.KalmanResult  # one result type for the family
+    for got, want in ((res.x, ref.x), (res.P, ref.P), (res.x_pred, ref.x_pred), (res.P_pred, ref.P_pred),
+                      (res.innovation, ref.innovation), (res.S, ref.S), (res.nis(), ref.nis())):
         np.testing.assert_allclose(got, want, rtol=CLOSED_FORM_RTOL, atol=CLOSED_FORM_RTOL)
     np.testing.assert_array_equal(res.estimate(3).mean, res.x[3])
+    assert ref.method == "KF" and res.gain is None and ref.gain.shape == (len(ys), 2, 2)
+
+
+def test_the_linear_filter_bank_shares_its_covariances_and_the_statistics_broadcast(cv_system):
+    """A bank of the linear filter keeps one P per step (it does not depend on the data):
+    NEES, NIS, estimate and cross_cov work on it as on a nonlinear bank's per-run P."""
+    F, Q, H, R, kf, _ = cv_system
+    rng = np.random.default_rng(3)
+    x0, P0 = np.array([0.2, 0.8]), np.diag([1.0, 0.5])
+    states, ys = kf.simulate(6, x0, rng, P0=P0, runs=4)
+    bank = kf.filter(ys, x0, P0)
+    assert bank.runs == 4 and bank.P.shape == (6, 2, 2) and bank.x.shape == (4, 6, 2)
+    for r in (0, 3):
+        single = kf.filter(ys[r], x0, P0)
+        np.testing.assert_allclose(bank.nees(states)[r], single.nees(states[r]), rtol=CLOSED_FORM_RTOL)
+        np.testing.assert_allclose(bank.nis()[r], single.nis(), rtol=CLOSED_FORM_RTOL)
+        np.testing.assert_array_equal(bank.estimate(2, run=r).cov, single.P[2])
+    assert bank.cross_cov([0], [1]).shape == (6, 1, 1)
+    assert bank.anees(states).inside.shape == (6,)
 
 
 def test_predict_tt1_is_the_ekf_prediction():

@@ -40,7 +40,7 @@ import casadi as ca
 import numpy as np
 
 from ..compile.cnames import c_identifier, comment_text, is_casadi_name
-from ..errors import SymmonError
+from ..errors import ArgumentTypeError, SymmonError
 from ..io import atomic_write_text
 from ..core.model import Model
 from ..compile import compiled
@@ -106,7 +106,7 @@ def moment_functions(model: Model, ut: Transform | None = None, name: str | None
     6.0
     """
     if not isinstance(model, Model):
-        raise TypeError(f"model must be a symmon.Model, got {type(model).__name__}")
+        raise ArgumentTypeError(f"model must be a symmon.Model, got {type(model).__name__}")
     ut = _check_ut(ut)
     prefix = _check_name(model.name if name is None else name, from_model=name is None)
     cm = compiled(model)
@@ -272,7 +272,7 @@ def export_c(model: Model, outdir: str | Path, name: str | None = None, *, ut: T
     """
     ut = _check_ut(ut)
     if not isinstance(model, Model):
-        raise TypeError(f"model must be a symmon.Model, got {type(model).__name__}")
+        raise ArgumentTypeError(f"model must be a symmon.Model, got {type(model).__name__}")
     prefix = _check_name(model.name if name is None else name, from_model=name is None)
     fs = moment_functions(model, ut=ut, name=prefix, cse=cse)
     outdir = Path(outdir)

@@ -27,7 +27,7 @@ import sympy as sp
 from .ccache import NativeLibrary, build_shared_library, cache_dir, has_compiler, warn_no_compiler
 from .cnames import c_identifier
 from ..core.model import Model
-from ..errors import ShapeError, UnsupportedFunctionError
+from ..errors import ArgumentTypeError, ShapeError, UnsupportedFunctionError
 
 __all__ = ["to_casadi", "CompiledModel", "compile_model", "compiled", "cache_dir", "has_compiler", "build_shared_library",
            "generated_c", "rows_c"]
@@ -480,5 +480,5 @@ def compile_model(outputs: Sequence[sp.Expr], symbols: Sequence[sp.Symbol], name
 def compiled(model: Model) -> CompiledModel:
     """The compiled CasADi functions of ``model`` with respect to w = [u; v] (cached)."""
     if not isinstance(model, Model):
-        raise TypeError(f"expected a symmon.Model, got {type(model).__name__}")
+        raise ArgumentTypeError(f"expected a symmon.Model, got {type(model).__name__}")
     return compile_model(model.outputs, model.inputs + model.noise, model.name)

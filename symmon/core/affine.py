@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 import sympy as sp
 
-from ..errors import ModelError, ShapeError, SingularMatrixError, SymmonError
+from ..errors import ArgumentTypeError, ModelError, ShapeError, SingularMatrixError, SymmonError
 from typing import TYPE_CHECKING
 
 from .gaussian import Gaussian
@@ -256,7 +256,7 @@ def change_gaussian(dist: Gaussian, S: Any, o: Any = None) -> Gaussian:
     N([1], [[0.04]])
     """
     if not isinstance(dist, Gaussian):
-        raise TypeError(f"dist must be a symmon.Gaussian, got {type(dist).__name__}")
+        raise ArgumentTypeError(f"dist must be a symmon.Gaussian, got {type(dist).__name__}")
     A = _numeric_matrix(S, dist.dim, "S")
     off = offset_vector(o, dist.dim, "o")
     if off.free_symbols:

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import ShapeError
+from ..errors import ArgumentTypeError, ShapeError
 from .gaussian import Gaussian, as_covariance
 from .model import Model
 
@@ -26,14 +26,14 @@ def readonly(a: ArrayLike) -> np.ndarray:
 def check_model(model: Any, name: str) -> Model:
     """``model`` if it is a :class:`Model`, else a TypeError naming ``name``."""
     if not isinstance(model, Model):
-        raise TypeError(f"{name} must be a symmon.Model, got {type(model).__name__}")
+        raise ArgumentTypeError(f"{name} must be a symmon.Model, got {type(model).__name__}")
     return model
 
 
 def check_gaussian(g: Any, name: str, dim: int | None = None) -> Gaussian:
     """``g`` if it is a :class:`Gaussian` (of dimension ``dim``, if given), else a named error."""
     if not isinstance(g, Gaussian):
-        raise TypeError(f"{name} must be a symmon.Gaussian, got {type(g).__name__}")
+        raise ArgumentTypeError(f"{name} must be a symmon.Gaussian, got {type(g).__name__}")
     if dim is not None and g.dim != dim:
         raise ShapeError(f"{name} has dimension {g.dim}, expected {dim}")
     return g

@@ -16,7 +16,14 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .angles import angle_indices, innovation, unwrap_near, wrap_components
-from ..errors import ArgumentError, CovarianceError, ShapeError, SingularMatrixError, SymmonError
+from ..errors import (
+    ArgumentError,
+    ArgumentTypeError,
+    CovarianceError,
+    ShapeError,
+    SingularMatrixError,
+    SymmonError,
+)
 from ..latex import latex_number
 
 __all__ = ["Gaussian", "fuse", "as_covariance", "as_vector"]
@@ -83,7 +90,7 @@ def as_covariance(
     ShapeError, CovarianceError
     """
     if psd not in _PSD_MODES:
-        raise ValueError(f"psd must be one of {_PSD_MODES}, got {psd!r}")
+        raise ArgumentError(f"psd must be one of {_PSD_MODES}, got {psd!r}")
     arr = _float_array(P, name, CovarianceError)
     if arr.ndim == 0:
         arr = arr.reshape(1, 1)
@@ -457,7 +464,7 @@ def fuse(*gaussians: Gaussian, angles: Iterable[int] | None = None) -> Gaussian:
     if len(gaussians) == 0:
         raise ShapeError("fuse needs at least one Gaussian")
     if not all(isinstance(g, Gaussian) for g in gaussians):
-        raise TypeError("fuse takes Gaussian arguments")
+        raise ArgumentTypeError("fuse takes Gaussian arguments")
     n = gaussians[0].dim
     if any(g.dim != n for g in gaussians):
         raise ShapeError(f"fuse: dimensions differ: {[g.dim for g in gaussians]}")

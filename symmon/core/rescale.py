@@ -11,7 +11,7 @@ from typing import Any
 
 import sympy as sp
 
-from ..errors import ModelError
+from ..errors import ArgumentTypeError, ModelError
 from .affine import changed_parts, offset_vector, scale_matrix
 from .model import Model
 
@@ -67,7 +67,7 @@ def change_units(
     180*atan2(y_bar, x_bar)/pi
     """
     if not isinstance(model, Model):
-        raise TypeError(f"model must be a symmon.Model, got {type(model).__name__}")
+        raise ArgumentTypeError(f"model must be a symmon.Model, got {type(model).__name__}")
     return model.change_units(S_u, o_u, S_y, o_y, S_v, suffix=suffix)
 
 
@@ -94,7 +94,7 @@ def changed_relation(
     Matrix([[(o + s*x_bar)**2]])
     """
     if not isinstance(model, Model):
-        raise TypeError(f"model must be a symmon.Model, got {type(model).__name__}")
+        raise ArgumentTypeError(f"model must be a symmon.Model, got {type(model).__name__}")
     if model.n_v == 0 and S_v is not None:
         raise ModelError("S_v was given but the model declares no noise symbols")
     Su = scale_matrix(S_u, model.n_u, "S_u")

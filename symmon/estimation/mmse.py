@@ -44,7 +44,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.special import erfcx
 
-from ..errors import CovarianceError, ShapeError
+from ..errors import ArgumentError, CovarianceError, ShapeError
 from ..core.gaussian import PSD_RTOL, SYMMETRY_RTOL
 
 __all__ = [
@@ -358,7 +358,7 @@ def _normalised_plane(coefs: tuple[ArrayLike, ...], names: str) -> tuple[np.ndar
     norm = math.hypot(*normal)
     if norm == 0.0:
         lead = ", ".join(names[:-1])
-        raise ValueError(f"the coefficients {lead} must not all be zero (no line or plane)")
+        raise ArgumentError(f"the coefficients {lead} must not all be zero (no line or plane)")
     return np.asarray(normal) / norm, offset / norm
 
 
@@ -686,7 +686,7 @@ def bearing(xhat: ArrayLike, P: ArrayLike) -> Result:
     """
     x, _ = _gauss(xhat, P, 2)
     if np.any(np.all(x == 0.0, axis=-1)):
-        raise ValueError("xhat must not be the origin: the bearing is undefined there")
+        raise ArgumentError("xhat must not be the origin: the bearing is undefined there")
     return _out(np.arctan2(x[..., 1], x[..., 0]))
 
 
@@ -725,6 +725,6 @@ def cosine_angle(
         np.sum(y * y, axis=-1) + np.trace(Py, axis1=-2, axis2=-1)
     )
     if np.any(den2 <= 0.0):
-        raise ValueError("the angle is undefined: E||x||^2 or E||y||^2 is zero")
+        raise ArgumentError("the angle is undefined: E||x||^2 or E||y||^2 is zero")
     # Clip only rounding beyond Cauchy-Schwarz, never a real excess (the joint cov is checked).
     return _out(np.clip(num / np.sqrt(den2), -1.0, 1.0))

@@ -48,7 +48,7 @@ from typing import Callable, Mapping
 
 import sympy as sp
 
-from ..errors import ModelFileError
+from ..errors import ArgumentTypeError, ModelFileError
 
 __all__ = [
     "ModelFileError",
@@ -443,11 +443,11 @@ def parse_expression(
     symmon.errors.ModelFileError: <expr>, line 1, column 1: attribute access is not allowed
     """
     if not isinstance(text, str):
-        raise TypeError(f"text must be a str, got {type(text).__name__}")
+        raise ArgumentTypeError(f"text must be a str, got {type(text).__name__}")
     names: dict[str, sp.Expr] = {}
     for key, value in symbols.items():
         if not isinstance(key, str) or not isinstance(value, sp.Basic):
-            raise TypeError(f"symbols must map names (str) to sympy objects, got {key!r}: {value!r}")
+            raise ArgumentTypeError(f"symbols must map names (str) to sympy objects, got {key!r}: {value!r}")
         names[key] = value
     try:
         return _parse(text, names)

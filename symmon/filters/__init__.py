@@ -5,9 +5,9 @@
 
 from .adaptive import Adaptive as Adaptive
 from .linear import KalmanFilter as KalmanFilter
-from .linear import KalmanResult as KalmanResult
 from .nonlinear import NonlinearKalmanFilter as NonlinearKalmanFilter
 from .results import ConsistencyTest as ConsistencyTest
+from .results import KalmanResult as KalmanResult
 from .results import NonlinearKalmanResult as NonlinearKalmanResult
 from .strategy import FilterStrategy as FilterStrategy
 from .strategy import RuleStrategy as RuleStrategy

@@ -23,18 +23,16 @@ P. S. Maybeck, *Stochastic Models, Estimation and Control*, vol. 1 (Joseph form)
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence, Union
-
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..core.checks import readonly
-from ..errors import CovarianceError, ShapeError
+from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, ShapeError
 from ..core.gaussian import Gaussian, as_covariance, matrix_sqrt
+from .results import KalmanResult  # the one result type of the filters
 
 __all__ = ["KalmanFilter", "KalmanResult"]
 
-Block = Union[Sequence[int], slice]
 
 
 def _as_matrix(M: ArrayLike, name: str, shape: tuple[int | None, int | None]) -> np.ndarray:
@@ -53,90 +51,6 @@ def _as_matrix(M: ArrayLike, name: str, shape: tuple[int | None, int | None]) ->
     if not np.all(np.isfinite(arr)):
         raise ShapeError(f"{name} contains NaN or inf")
     return arr
-
-
-@dataclass(frozen=True, eq=False)
-class KalmanResult:
-    """Output of :meth:`KalmanFilter.filter`.
-
-    Shapes below are for one run; with a batch of ``N`` runs the means get a leading axis
-    ``N`` (``x`` is ``(N, K, n)``) while the covariances, which do not depend on the data,
-    keep the shapes below.
-
-    Attributes
-    ----------
-    x : ndarray, shape (K, n)
-        Filtered means :math:`\\hat x_{k|k}`, k = 1..K.
-    P : ndarray, shape (K, n, n)
-        Filtered error covariances :math:`P_{k|k}`.
-    x_pred : ndarray, shape (K, n)
-        Predicted means :math:`\\hat x_{k|k-1}`.
-    P_pred : ndarray, shape (K, n, n)
-        Predicted error covariances :math:`P_{k|k-1}`.
-    gain : ndarray, shape (K, n, n_y)
-        Kalman gains :math:`K_k`.
-    """
-
-    x: np.ndarray
-    P: np.ndarray
-    x_pred: np.ndarray
-    P_pred: np.ndarray
-    gain: np.ndarray
-
-    @property
-    def n(self) -> int:
-        """State dimension."""
-        return int(self.P.shape[-1])
-
-    def _block_index(self, block: Block, name: str) -> np.ndarray:
-        n = self.n
-        if isinstance(block, slice):
-            idx = np.arange(n)[block]
-        else:
-            idx = np.asarray(block)
-            if idx.ndim == 1 and idx.size == 0:
-                idx = idx.astype(int)  # np.asarray([]) is float; report it as empty below
-            if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer):
-                raise ShapeError(f"{name} must be a slice or a 1-D sequence of integers, got {block!r}")
-        if idx.size == 0:
-            raise ShapeError(f"{name} selects no state component")
-        if np.any(idx < -n) or np.any(idx >= n):
-            raise ShapeError(f"{name} has an index outside the state of dimension {n}: {block!r}")
-        return idx
-
-    def cross_cov(self, block_a: Block, block_b: Block) -> np.ndarray:
-        """Sub-blocks ``P_k[a][:, b]`` of the filtered covariances.
-
-        The composite estimators of :mod:`symmon.estimation.mmse` (Theorem 3, Example 7) need the
-        error cross-covariance :math:`P_{xy}` of two state blocks, e.g. two objects stacked
-        in one state vector.
-
-        Parameters
-        ----------
-        block_a, block_b : slice or sequence of int
-            State components of the two blocks.
-
-        Returns
-        -------
-        ndarray, shape (K, len(a), len(b))
-
-        Examples
-        --------
-        >>> kf = KalmanFilter(np.eye(2), 0.1 * np.eye(2), np.eye(2), np.eye(2))
-        >>> res = kf.filter(np.zeros((3, 2)), np.zeros(2), np.eye(2))
-        >>> res.cross_cov([0], [1]).shape
-        (3, 1, 1)
-        """
-        a = self._block_index(block_a, "block_a")
-        b = self._block_index(block_b, "block_b")
-        return self.P[:, a[:, None], b[None, :]]
-
-    def __repr__(self) -> str:
-        K, n = self.P.shape[0], self.n
-        runs = f"runs={self.x.shape[0]}, " if self.x.ndim == 3 else ""
-        last = "" if runs else (f", last x̂ [{', '.join(format(v, '.3g') for v in self.x[-1])}]"
-                                f", last std [{', '.join(format(v, '.3g') for v in np.sqrt(np.diag(self.P[-1])))}]")
-        return f"KalmanResult({runs}steps={K}, n={n}, n_y={self.gain.shape[-1]}{last})"
 
 
 @dataclass(frozen=True, eq=False, repr=False)
@@ -263,8 +177,10 @@ class KalmanFilter:
         lead = () if batch is None else (batch,)
         xs = np.empty(lead + (K, n))
         xps = np.empty(lead + (K, n))
+        innovs = np.empty(lead + (K, n_y))
         Ps = np.empty((K, n, n))
         Pps = np.empty((K, n, n))
+        Ss = np.empty((K, n_y, n_y))
         gains = np.empty((K, n, n_y))
         for k in range(K):
             x_pred = x @ F.T
@@ -280,10 +196,11 @@ class KalmanFilter:
             P = 0.5 * (P + P.T)
             xs[..., k, :] = x
             xps[..., k, :] = x_pred
-            Ps[k], Pps[k], gains[k] = P, P_pred, G
+            innovs[..., k, :] = innov
+            Ps[k], Pps[k], Ss[k], gains[k] = P, P_pred, S, G
         return KalmanResult(
             x=readonly(xs), P=readonly(Ps), x_pred=readonly(xps), P_pred=readonly(Pps),
-            gain=readonly(gains),
+            innovation=readonly(innovs), S=readonly(Ss), gain=readonly(gains), method="KF",
         )
 
     def simulate(
@@ -318,11 +235,11 @@ class KalmanFilter:
             Measurements :math:`y_1, \\dots, y_K`.
         """
         if isinstance(K, bool) or not isinstance(K, (int, np.integer)) or K < 1:
-            raise ValueError(f"K must be a positive integer, got {K!r}")
+            raise ArgumentError(f"K must be a positive integer, got {K!r}")
         if runs is not None and (isinstance(runs, bool) or not isinstance(runs, (int, np.integer)) or runs < 1):
-            raise ValueError(f"runs must be a positive integer or None, got {runs!r}")
+            raise ArgumentError(f"runs must be a positive integer or None, got {runs!r}")
         if not isinstance(rng, np.random.Generator):
-            raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+            raise ArgumentTypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
         x = self._initial_mean(x0, None)
         lead = () if runs is None else (int(runs),)
         n, n_y = self.n, self.n_y

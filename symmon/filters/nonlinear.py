@@ -29,7 +29,8 @@ modules, and their public names are re-exported here:
 - :mod:`symmon.filters.step`: one predict + update step as a CasADi function, compiled to C
   once (cached on disk), with a C loop that runs all the steps of all the runs of a filter
   bank in one call;
-- :mod:`symmon.filters.results`: :class:`NonlinearKalmanResult`, NEES and NIS, and
+- :mod:`symmon.filters.results`: :class:`KalmanResult` (the one result type of the linear
+  and nonlinear filters, also named NonlinearKalmanResult), NEES and NIS, and
   :class:`ConsistencyTest` (their χ² acceptance intervals);
 - :mod:`symmon.filters.adaptive`: :class:`Adaptive`, the filter that picks the cheapest adequate
   transform at each step of each run.
@@ -59,9 +60,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .adaptive import Adaptive
-from ..errors import ShapeError, SymmonError
+from ..errors import ArgumentTypeError, ShapeError, SymmonError
 from ..core.checks import check_gaussian, check_model, noise_cov, readonly
-from .results import ConsistencyTest, NonlinearKalmanResult
+from .results import ConsistencyTest, KalmanResult, NonlinearKalmanResult
 from .strategy import FilterStrategy, RuleStrategy
 from ..core.gaussian import Gaussian, as_covariance
 from ..core.model import Model
@@ -153,7 +154,7 @@ class NonlinearKalmanFilter:
             check_gaussian(x0, "x0", dim=n)
             return np.asarray(x0.mean, dtype=float), np.asarray(x0.cov, dtype=float)
         if P0 is None:
-            raise TypeError("x0 must be a symmon.Gaussian, or a mean given together with P0")
+            raise ArgumentTypeError("x0 must be a symmon.Gaussian, or a mean given together with P0")
         m = np.asarray(x0, dtype=float)
         if not (m.shape == (n,) or (runs is not None and m.shape == (runs, n))):
             want = f"({n},)" + ("" if runs is None else f" or ({runs}, {n})")
@@ -167,7 +168,7 @@ class NonlinearKalmanFilter:
             return m, C
         return m, as_covariance(P0, "P0", dim=n)
 
-    def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None) -> NonlinearKalmanResult:
+    def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None) -> KalmanResult:
         """Predict, then update, for each measurement (the convention of :class:`KalmanFilter`).
 
         Parameters
@@ -184,7 +185,7 @@ class NonlinearKalmanFilter:
 
         Returns
         -------
-        NonlinearKalmanResult
+        KalmanResult
             Arrays with a leading axis R for a bank.
 
         Raises
@@ -220,5 +221,5 @@ class NonlinearKalmanFilter:
         if choices is not None:
             choices = choices if runs is not None else choices[0]
             choices.flags.writeable = False
-        return NonlinearKalmanResult(**arrays, angle_states=tuple(sorted(self.angle_states)),
+        return KalmanResult(**arrays, angle_states=tuple(sorted(self.angle_states)),
                                      method=self.method, choices=choices)

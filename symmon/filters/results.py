@@ -1,10 +1,10 @@
-"""The result of a nonlinear Kalman filter and its consistency tests: NEES, NIS and their χ² bounds.
+"""The one result of the Kalman filters and its consistency tests: NEES, NIS and their χ² bounds.
 
-:class:`NonlinearKalmanResult` holds the filtered and predicted means and covariances, the
-innovations and their covariances of one run or a bank of runs of
-:class:`symmon.NonlinearKalmanFilter`; its :meth:`~NonlinearKalmanResult.nees`,
-:meth:`~NonlinearKalmanResult.nis`, :meth:`~NonlinearKalmanResult.anees` and
-:meth:`~NonlinearKalmanResult.anis` are the consistency statistics, the averages returned as a
+:class:`KalmanResult` holds the filtered and predicted means and covariances, the
+innovations and their covariances (and, for the linear filter, the gains) of one run or a
+bank of runs of :class:`symmon.KalmanFilter` or :class:`symmon.NonlinearKalmanFilter`; its
+:meth:`~KalmanResult.nees`, :meth:`~KalmanResult.nis`, :meth:`~KalmanResult.anees` and
+:meth:`~KalmanResult.anis` are the consistency statistics, the averages returned as a
 :class:`ConsistencyTest` with its two-sided χ² acceptance interval.
 
 References
@@ -16,6 +16,7 @@ Navigation*, Wiley, 2001, §5.4 (NEES, NIS and their χ² tests).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence, Union
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -26,7 +27,7 @@ from ..errors import ShapeError, SymmonError
 from ..core.checks import readonly
 from ..core.gaussian import Gaussian
 
-__all__ = ["NonlinearKalmanResult", "ConsistencyTest"]
+__all__ = ["KalmanResult", "NonlinearKalmanResult", "ConsistencyTest"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,12 +85,19 @@ def _quadratic_forms(e: np.ndarray, C: np.ndarray) -> np.ndarray:
     return np.einsum("...i,...i->...", e, np.linalg.solve(C, e[..., None])[..., 0])
 
 
+#: Which state components a block of :meth:`KalmanResult.cross_cov` selects.
+Block = Union[slice, Sequence[int]]
+
+
 @dataclass(frozen=True, eq=False)
-class NonlinearKalmanResult:
-    """Output of :meth:`NonlinearKalmanFilter.filter`.
+class KalmanResult:
+    """The result of every Kalman filter of symmon: :meth:`KalmanFilter.filter
+    <symmon.KalmanFilter.filter>` and :meth:`NonlinearKalmanFilter.filter
+    <symmon.NonlinearKalmanFilter.filter>`.
 
     Shapes are for one run; a bank of R runs adds a leading axis R to every array
-    (``x`` is (R, K, n), ``P`` is (R, K, n, n)).
+    (``x`` is (R, K, n)), except the covariances of the linear filter, which do not depend on
+    the data and are shared by the runs (``P`` stays (K, n, n); the methods broadcast).
 
     Attributes
     ----------
@@ -105,10 +113,12 @@ class NonlinearKalmanResult:
         Innovations ν_k = y_k − ŷ_{k|k−1} (angle components wrapped).
     S : ndarray, shape (K, n_y, n_y)
         Innovation covariances S_k.
+    gain : ndarray, shape (K, n, n_y), or None
+        Kalman gains K_k (the linear filter; None for the nonlinear ones).
     angle_states : tuple of int
         State components that are angles (their estimation errors are wrapped).
     method : str
-        The filter, e.g. ``"UKF(alpha=1, beta=0, kappa=None)"``.
+        The filter: ``"KF"``, ``"EKF"``, ``"UKF(alpha=1, beta=0, kappa=None)"``, ...
     choices : ndarray of str, shape (K,) or (R, K), or None
         For an :class:`Adaptive` filter: the filter used at each step (of each run), e.g.
         ``"EKF"`` or ``"CKF"``; None for a fixed transform.
@@ -120,6 +130,7 @@ class NonlinearKalmanResult:
     P_pred: np.ndarray
     innovation: np.ndarray
     S: np.ndarray
+    gain: np.ndarray | None = None
     angle_states: tuple[int, ...] = ()
     method: str = ""
     choices: np.ndarray | None = None
@@ -129,12 +140,62 @@ class NonlinearKalmanResult:
         """Number of runs of a bank; None for a single run."""
         return int(self.x.shape[0]) if self.x.ndim == 3 else None
 
+    @property
+    def n(self) -> int:
+        """State dimension."""
+        return int(self.x.shape[-1])
+
     def estimate(self, k: int, run: int | None = None) -> Gaussian:
         """N(x̂_{k|k}, P_{k|k}) at step k (0-based), of run ``run`` for a bank."""
         if (run is None) != (self.runs is None):
             raise ShapeError("give run= for a bank of runs, and only then")
-        x, P = (self.x, self.P) if run is None else (self.x[run], self.P[run])
+        x = self.x if run is None else self.x[run]
+        P = self.P if self.P.ndim == 3 else self.P[run]
         return Gaussian(x[k], P[k])
+
+    def _block_index(self, block: Block, name: str) -> np.ndarray:
+        n = self.n
+        if isinstance(block, slice):
+            idx = np.arange(n)[block]
+        else:
+            idx = np.asarray(block)
+            if idx.ndim == 1 and idx.size == 0:
+                idx = idx.astype(int)  # np.asarray([]) is float; report it as empty below
+            if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer):
+                raise ShapeError(f"{name} must be a slice or a 1-D sequence of integers, got {block!r}")
+        if idx.size == 0:
+            raise ShapeError(f"{name} selects no state component")
+        if np.any(idx < -n) or np.any(idx >= n):
+            raise ShapeError(f"{name} has an index outside the state of dimension {n}: {block!r}")
+        return idx
+
+    def cross_cov(self, block_a: Block, block_b: Block) -> np.ndarray:
+        """Sub-blocks ``P_k[a][:, b]`` of the filtered covariances.
+
+        The composite estimators of :mod:`symmon.estimation.mmse` (Theorem 3, Example 7) need
+        the error cross-covariance :math:`P_{xy}` of two state blocks, e.g. two objects
+        stacked in one state vector.
+
+        Parameters
+        ----------
+        block_a, block_b : slice or sequence of int
+            State components of the two blocks.
+
+        Returns
+        -------
+        ndarray, shape (K, len(a), len(b)) (with the leading run axis of ``P``, if any)
+
+        Examples
+        --------
+        >>> import numpy as np, symmon as sm
+        >>> kf = sm.KalmanFilter(np.eye(2), 0.1 * np.eye(2), np.eye(2), np.eye(2))
+        >>> res = kf.filter(np.zeros((3, 2)), np.zeros(2), np.eye(2))
+        >>> res.cross_cov([0], [1]).shape
+        (3, 1, 1)
+        """
+        a = self._block_index(block_a, "block_a")
+        b = self._block_index(block_b, "block_b")
+        return self.P[..., a[:, None], b[None, :]]
 
     def nees(self, x_true: ArrayLike) -> np.ndarray:
         """Normalised estimation error squared ε_k = (x_k − x̂_k)ᵀ P_k⁻¹ (x_k − x̂_k).
@@ -176,5 +237,9 @@ class NonlinearKalmanResult:
         n, n_y = self.x.shape[-1], self.innovation.shape[-1]
         K = self.x.shape[-2]
         runs = "" if self.runs is None else f"runs={self.runs}, "
-        return (f"NonlinearKalmanResult({self.method}, {runs}steps={K}, n={n}, n_y={n_y}, "
+        return (f"KalmanResult({self.method}, {runs}steps={K}, n={n}, n_y={n_y}, "
                 f"mean NIS {float(self.nis().mean()):.4g} (expected {n_y}))")
+
+
+#: The nonlinear filters' name for the one result type.
+NonlinearKalmanResult = KalmanResult

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..errors import SymmonError
+from ..errors import ArgumentTypeError, SymmonError
 from ..transforms import Transform
 from .step import _compiled_step, _filterable
 
@@ -61,7 +61,7 @@ class RuleStrategy(FilterStrategy):
 
     def __post_init__(self) -> None:
         if not isinstance(self.transform, Transform):
-            raise TypeError(f"transform must be a symmon transform or a filter strategy, got {self.transform!r}")
+            raise ArgumentTypeError(f"transform must be a symmon transform or a filter strategy, got {self.transform!r}")
         if not _filterable(self.transform):
             raise SymmonError(
                 f"transform must be TT1, TT2, UT or GaussHermite (a Taylor or point rule) for a Kalman filter, "

@@ -35,7 +35,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..core.angles import wrap_angle
-from ..errors import SymmonError
+from ..errors import ArgumentTypeError, SymmonError
 from ..core.gaussian import Gaussian
 from ..core.model import Model
 from ..propagation.joint import JointMoments
@@ -262,7 +262,7 @@ def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = 1e
     'TT1'
     """
     if not isinstance(model, Model):
-        raise TypeError(f"model must be a symmon.Model, got {type(model).__name__}")
+        raise ArgumentTypeError(f"model must be a symmon.Model, got {type(model).__name__}")
     if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not (0 < tol < 1):
         raise SymmonError(f"tol must be a number in (0, 1), got {tol!r}")
     cands = list(CANDIDATES if candidates is None else candidates)

@@ -33,7 +33,7 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import ShapeError, SymmonError
+from ..errors import ArgumentTypeError, ShapeError, SymmonError
 from ..core.gaussian import Gaussian
 from ..core.model import Model
 from .mon import mon_from_moments, nonlinearity
@@ -93,13 +93,13 @@ class SweepResult:
 # --------------------------------------------------------------------------- validation
 def _check_model(model: Any) -> Model:
     if not isinstance(model, Model):
-        raise TypeError(f"model must be a symmon.Model, got {type(model).__name__}")
+        raise ArgumentTypeError(f"model must be a symmon.Model, got {type(model).__name__}")
     return model
 
 
 def _check_executor(executor: Any) -> Executor | None:
     if executor is not None and not isinstance(executor, Executor):
-        raise TypeError(f"executor must be a symmon.Executor, got {executor!r}")
+        raise ArgumentTypeError(f"executor must be a symmon.Executor, got {executor!r}")
     return executor
 
 
@@ -149,7 +149,7 @@ def _sweep(model: Model, param: np.ndarray | None, u: Any, v: Gaussian | None, w
     transform = check_transform(transform)
     executor = _check_executor(executor)
     if v is not None and not isinstance(v, Gaussian):
-        raise TypeError(f"v must be a symmon.Gaussian (the same noise at every point), got {type(v).__name__}")
+        raise ArgumentTypeError(f"v must be a symmon.Gaussian (the same noise at every point), got {type(v).__name__}")
     is_mc = transform.stochastic
     if not is_mc and model.n_v == 0:
         return _batched(model, param, u, v, weight, transform)
@@ -241,7 +241,7 @@ def sweep_alpha(model: Model, u: Gaussian, alphas: ArrayLike, v: Gaussian | None
     """
     model = _check_model(model)
     if not isinstance(u, Gaussian):
-        raise TypeError(f"u must be a symmon.Gaussian, got {type(u).__name__}")
+        raise ArgumentTypeError(f"u must be a symmon.Gaussian, got {type(u).__name__}")
     if u.dim != model.n_u:
         raise ShapeError(f"u has dimension {u.dim} but the model has {model.n_u} inputs")
     a = _check_alphas(alphas)

@@ -9,7 +9,7 @@ import numpy as np
 from scipy.linalg import block_diag
 
 from ..compile import compiled
-from ..errors import ModelError, ShapeError
+from ..errors import ArgumentTypeError, ModelError, ShapeError
 from ..core.gaussian import Gaussian
 from ..core.model import Model
 from .joint import JointMoments
@@ -26,9 +26,9 @@ def check_transform(transform: Any) -> Transform:
     if transform is None:
         return default_transform()
     if isinstance(transform, type) and issubclass(transform, Transform):
-        raise TypeError(f"pass a transform instance, e.g. {transform.__name__}(), not the class")
+        raise ArgumentTypeError(f"pass a transform instance, e.g. {transform.__name__}(), not the class")
     if not isinstance(transform, Transform):
-        raise TypeError(f"transform must be a symmon transform (TT1, TT2, UT, ...), got {transform!r}")
+        raise ArgumentTypeError(f"transform must be a symmon transform (TT1, TT2, UT, ...), got {transform!r}")
     return transform
 
 
@@ -43,14 +43,14 @@ def _check_noise_given(model: Model, v: Any) -> None:
 def joint_input(model: Model, u: Gaussian, v: Gaussian | None) -> tuple[np.ndarray, np.ndarray]:
     """Mean and block-diagonal covariance of w = [u; v], validated against the model."""
     if not isinstance(u, Gaussian):
-        raise TypeError(f"u must be a symmon.Gaussian, got {type(u).__name__}")
+        raise ArgumentTypeError(f"u must be a symmon.Gaussian, got {type(u).__name__}")
     if u.dim != model.n_u:
         raise ShapeError(f"u has dimension {u.dim} but the model has {model.n_u} inputs {list(map(str, model.inputs))}")
     _check_noise_given(model, v)
     if model.n_v == 0:
         return u.mean.copy(), u.cov.copy()
     if not isinstance(v, Gaussian):
-        raise TypeError(f"v must be a symmon.Gaussian, got {type(v).__name__}")
+        raise ArgumentTypeError(f"v must be a symmon.Gaussian, got {type(v).__name__}")
     if v.dim != model.n_v:
         raise ShapeError(f"v has dimension {v.dim} but the model has {model.n_v} noise symbols")
     return np.concatenate([u.mean, v.mean]), block_diag(u.cov, v.cov)
@@ -115,7 +115,7 @@ def input_batch(model: Model, u: Any, v: Any = None) -> tuple[np.ndarray, np.nda
     """Means (K, n_w) and block-diagonal covariances (K, n_w, n_w) of K Gaussians of
     w = [u; v], validated against the model (the batch of :func:`propagate_many`)."""
     if isinstance(u, Gaussian):
-        raise TypeError("u is one Gaussian: use propagate, or pass a list of Gaussians")
+        raise ArgumentTypeError("u is one Gaussian: use propagate, or pass a list of Gaussians")
     if isinstance(u, list) and not u:
         raise ShapeError("u must hold at least one Gaussian")
     if isinstance(u, (list, tuple)) and u and all(isinstance(g, Gaussian) for g in u):
@@ -134,7 +134,7 @@ def input_batch(model: Model, u: Any, v: Any = None) -> tuple[np.ndarray, np.nda
         if M.shape[0] == 0:
             raise ShapeError("means must hold at least one state")
     else:
-        raise TypeError("u must be a list of K Gaussians or a pair (means (K, n_u), covs (K, n_u, n_u)), "
+        raise ArgumentTypeError("u must be a list of K Gaussians or a pair (means (K, n_u), covs (K, n_u, n_u)), "
                         f"got {type(u).__name__}")
     K = M.shape[0]
     _check_noise_given(model, v)
@@ -142,7 +142,7 @@ def input_batch(model: Model, u: Any, v: Any = None) -> tuple[np.ndarray, np.nda
         return M, P
     vs = [v] * K if isinstance(v, Gaussian) else list(v) if isinstance(v, (list, tuple)) else None
     if vs is None or len(vs) != K or not all(isinstance(g, Gaussian) for g in vs):
-        raise TypeError(f"v must be a Gaussian or a list of {K} Gaussians, one per input")
+        raise ArgumentTypeError(f"v must be a Gaussian or a list of {K} Gaussians, one per input")
     for k, g in enumerate(vs):
         if g.dim != model.n_v:
             raise ShapeError(f"v[{k}] has dimension {g.dim} but the model has {model.n_v} noise symbols")

@@ -83,6 +83,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import ArgumentError
 from ..estimation import mmse
 from ..io import save_figure, write_csv
 from ..filters.linear import KalmanFilter
@@ -330,9 +331,9 @@ def run(outdir: Path, runs: int = 1000, seed: int = 0, progress: bool = True) ->
         The files written: four CSV tables and three PNG figures.
     """
     if isinstance(runs, bool) or not isinstance(runs, (int, np.integer)) or runs < 2:
-        raise ValueError(f"runs must be an integer >= 2, got {runs!r}")
+        raise ArgumentError(f"runs must be an integer >= 2, got {runs!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+        raise ArgumentError(f"seed must be a non-negative integer, got {seed!r}")
     import matplotlib
 
     matplotlib.use("Agg")  # files only; never open a window

@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ArgumentError
 from ..estimation import nlt as estimation
 from ..core.gaussian import Gaussian
 from ..io import save_figure, write_csv
@@ -132,9 +133,9 @@ def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = Tru
         ``radar_estimates.csv``.
     """
     if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 2:
-        raise ValueError(f"samples must be an integer >= 2, got {samples!r}")
+        raise ArgumentError(f"samples must be an integer >= 2, got {samples!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+        raise ArgumentError(f"seed must be a non-negative integer, got {seed!r}")
     from tqdm import tqdm
 
     outdir = Path(outdir)

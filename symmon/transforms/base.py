@@ -20,7 +20,7 @@ import sympy as sp
 from ..core.angles import wrap_angle  # re-exported: defined beside the other angle helpers
 from ..compile.compiled import CompiledModel
 from ..core.gaussian import PSD_RTOL, SYMMETRY_RTOL, as_covariance, as_vector, matrix_sqrt
-from ..errors import AngleWarning, NonFiniteError, ShapeError
+from ..errors import AngleWarning, ArgumentError, ArgumentTypeError, NonFiniteError, ShapeError
 from .nodes import SPARSE_ABOVE, standard_rule
 from .registry import _register
 
@@ -104,7 +104,7 @@ class Moments:
             return None if d is None else {**d, "cross_cov": d["cross_cov"][:, :, :n_u]}
 
         if self.noise_cross_cov is not None:
-            raise ValueError("these moments are already split")
+            raise ArgumentError("these moments are already split")
         return replace(
             self, cross_cov=self.cross_cov[:, :, :n_u], noise_cross_cov=self.cross_cov[:, :, n_u:],
             input_cov=None if self.input_cov is None else self.input_cov[:, :n_u, :n_u],
@@ -165,7 +165,7 @@ class Transform(ABC):
         """
         super().__init_subclass__(**kwargs)
         if "moments" in cls.__dict__:
-            raise TypeError(f"{cls.__name__} overrides moments(): implement the hook _moments() instead, "
+            raise ArgumentTypeError(f"{cls.__name__} overrides moments(): implement the hook _moments() instead, "
                             "so that the checks of Transform.moments always run")
         if getattr(cls, "_moments") is Transform._moments:  # abstract: an intermediate base
             return
@@ -173,7 +173,7 @@ class Transform(ABC):
         if cls.stochastic:
             missing += [m for m in ("replicate_stats", "nested_stats") if getattr(cls, m) is getattr(Transform, m)]
         if missing:
-            raise TypeError(f"the transform {cls.__name__} does not declare {', '.join(missing)} "
+            raise ArgumentTypeError(f"the transform {cls.__name__} does not declare {', '.join(missing)} "
                             "(docs/architecture.md, the Transform contract)")
         for key, (summary, factory) in cls.__dict__.get("presets", {}).items():
             _register(key, summary, factory)

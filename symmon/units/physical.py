@@ -19,7 +19,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import sympy as sp
 
-from ..errors import ModelError
+from ..errors import ArgumentError, ArgumentTypeError, ModelError
 from ..core.gaussian import Gaussian
 from ..core.model import Model
 from ..core.affine import change_gaussian
@@ -231,7 +231,7 @@ class UnitModel:
             if self.model.n_v == 0:
                 raise ModelError("the model has no noise symbols")
             return change_gaussian(dist, self.S_v)
-        raise ValueError(f"kind must be 'inputs' or 'noise', got {kind!r}")
+        raise ArgumentError(f"kind must be 'inputs' or 'noise', got {kind!r}")
 
     def __repr__(self) -> str:
         u = self.units
@@ -276,7 +276,7 @@ def with_units(
         pint is not installed (``pip install 'symmon[units]'``).
     """
     if not isinstance(model, Model):
-        raise TypeError(f"model must be a symmon.Model, got {type(model).__name__}")
+        raise ArgumentTypeError(f"model must be a symmon.Model, got {type(model).__name__}")
     ureg = registry if registry is not None else _default_registry()
     names = tuple(output_names) if output_names is not None else tuple(f"y{i}" for i in range(model.n_y))
     if len(names) != model.n_y or len(set(names)) != len(names):

@@ -54,7 +54,7 @@ import mpmath
 import numpy as np
 import sympy as sp
 
-from ..errors import ModelError, ShapeError, SingularMatrixError, SymmonError
+from ..errors import ArgumentTypeError, ModelError, ShapeError, SingularMatrixError, SymmonError
 from ..core.gaussian import Gaussian
 from .check import (
     _DPS,
@@ -233,7 +233,7 @@ def prove_invariance(
     """
     t0 = time.perf_counter()
     if not isinstance(model, Model):
-        raise TypeError(f"model must be a symmon.Model, got {type(model).__name__}")
+        raise ArgumentTypeError(f"model must be a symmon.Model, got {type(model).__name__}")
     label = _weight_label(weight)
     tname = _as_transform_name(transform)
     if route not in ("lemmas", "direct"):
