@@ -3,6 +3,7 @@ general noise, filter banks and the NEES/NIS consistency statistics."""
 
 from __future__ import annotations
 
+import casadi as ca
 import numpy as np
 import pytest
 import sympy as sp
@@ -598,3 +599,40 @@ def test_a_rule_without_a_filter_step_is_refused():
         sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]], sm.MonteCarlo(100))
     with pytest.raises(TypeError, match="transform or a filter strategy"):
         sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]], "ukf")
+
+
+# --------------------------------------------------------------------------- the MX step
+@pytest.mark.parametrize("transform", [sm.TT1(), sm.TT2(), sm.UT.ut1(), sm.GaussHermite(3)], ids=repr)
+def test_the_mx_step_equals_the_sx_step(transform, monkeypatch):
+    """From MX_FROM variables on the step is built in MX (loops in C, the blocked Cholesky
+    factor); it computes what the unrolled SX step computes, up to rounding."""
+    from symmon.filters import step
+
+    T = 1 if isinstance(transform, sm.GaussHermite) else 3  # GH3 on 9 states would be 3^11 points
+    xs, fo, ho, angles = [], [], [], []
+    for t in range(T):
+        px, py, th = sp.symbols(f"px{t} py{t} th{t}", real=True)
+        xs += [px, py, th]
+        fo += [px + 0.1 * sp.cos(th), py + 0.1 * sp.sin(th), th + 0.05]
+        ho += [sp.sqrt(px**2 + py**2), sp.atan2(py, px)]
+        angles.append(2 * t + 1)
+    n = 3 * T
+    e = sp.symbols(f"e0:{2 * T}", real=True)  # general noise in h: e multiplies the range
+    f = sm.Model(xs, fo, name=f"mxstep_f{T}", angles=[xs[3 * t + 2] for t in range(T)])
+    h = sm.Model(xs, [ho[i] * (1 + e[i]) if i % 2 == 0 else ho[i] + e[i] for i in range(2 * T)], noise=e,
+                 name=f"mxstep_h{T}", angles=angles)
+    states = frozenset(range(2, n, 3))
+    rng = np.random.default_rng(5)
+    x = np.tile([3.0, 4.0, 0.3], T) + 0.1 * rng.standard_normal(n)
+    A = rng.standard_normal((n, n))
+    P = 0.01 * (A @ A.T) + 0.05 * np.eye(n)
+    y = np.tile([5.1, 0.9], T)
+    Q, R = 1e-3 * np.eye(n), np.diag(np.tile([1e-4, 1e-4], T))
+    monkeypatch.setattr(step, "MX_FROM", 1)
+    mx = step._step_function(f, h, transform, states, "mxstep_mx")
+    monkeypatch.setattr(step, "MX_FROM", 10**6)
+    sx = step._step_function(f, h, transform, states, "mxstep_sx")
+    assert isinstance(mx.mx_in(0), ca.MX) and mx.is_a("MXFunction") and sx.is_a("SXFunction")
+    for a, b in zip(mx(x, P, y, Q, R), sx(x, P, y, Q, R)):
+        a, b = a.full(), b.full()
+        assert np.max(np.abs(a - b)) <= 1e-12 * max(1.0, np.max(np.abs(b)))

@@ -18,7 +18,7 @@ import symmon as sm
 from symmon.errors import SymmonError
 from symmon.core.gaussian import matrix_sqrt
 from symmon.compile import compiled
-from symmon.codegen.symbolic import _tt2_derivatives, chol_lower, moments, unit_rule
+from symmon.codegen.symbolic import _tt2_derivatives, chol_lower, chol_node, moments, unit_rule
 from symmon.transforms.cubature5 import Cubature5
 
 #: Two implementations of the same Cholesky algorithm in double precision that sum in a
@@ -31,11 +31,17 @@ CHOL_RTOL = 1e-12
 #: relative to each array's scale.
 MOMENT_RTOL = 1e-10
 
-BUILDS = ["sx", "mx", "mx-expanded", "mx-called-on-sx"]
+BUILDS = ["sx", "mx", "mx-expanded", "mx-called-on-sx", "blocked-mx", "blocked-sx"]
+#: Sizes of the factor tests: the blocked factor unrolls blocks of CHOL_BLOCK = 8.
+SIZES = [*range(1, 11), 17, 20]
 
 
 def chol_function(n: int, build: str) -> ca.Function:
-    """P ↦ chol_lower(P) as a CasADi function, built one of the four ways."""
+    """P ↦ chol_lower(P) (or the blocked chol_node) as a CasADi function, built one of the ways."""
+    if build.startswith("blocked"):
+        kind = ca.MX if build == "blocked-mx" else ca.SX
+        P = kind.sym("P", n, n)
+        return ca.Function("chol_blocked", [P], [chol_node(P)])
     if build == "sx":
         P = ca.SX.sym("P", n, n)
         return ca.Function("chol", [P], [chol_lower(P)])
@@ -61,7 +67,7 @@ def rel(a: np.ndarray, b: np.ndarray) -> float:
 
 # --------------------------------------------------------------------------- Cholesky
 @pytest.mark.parametrize("build", BUILDS)
-@pytest.mark.parametrize("n", range(1, 11))
+@pytest.mark.parametrize("n", SIZES)
 def test_cholesky_equals_numpy(n, build):
     rng = np.random.default_rng(100 + n)
     f = chol_function(n, build)
@@ -71,7 +77,7 @@ def test_cholesky_equals_numpy(n, build):
 
 
 @pytest.mark.parametrize("build", BUILDS)
-@pytest.mark.parametrize("n", range(1, 11))
+@pytest.mark.parametrize("n", SIZES)
 def test_cholesky_of_a_zero_variance_has_a_zero_row_and_column(n, build):
     """A positive semidefinite P with P[z, z] = 0 (and its row and column): the factor of
     the other entries, with zeros at z, as matrix_sqrt continues a singular Cholesky."""

@@ -43,18 +43,27 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from ..compile.compiled import build_shared_library, generated_c, has_compiler
+from ..compile.ccache import NativeLibrary
+from ..compile.compiled import generated_c
 from ..errors import SymmonError
 from ..core.model import Model
 from ..compile import compiled
-from ..codegen.symbolic import moments, wrap_entries
+from ..codegen.symbolic import chol_lower, chol_node, moments, wrap_entries
 from ..transforms import Transform
 
 #: Names of the outputs of the step function, in order.
 _OUTPUTS = ("x", "P", "x_pred", "P_pred", "innovation", "S")
 
 
-def _sym(A: ca.SX) -> ca.SX:
+#: From this many variables (states plus noise symbols) on, the step is built in MX.  The SX
+#: step is straight-line code that grows about n^2.8 (245 KB of C and 4-12 s of gcc at n = 10,
+#: 1.85 MB and a minute at 20); the MX step keeps the matrix products, the map over the
+#: points and the solve as loops (tens of KB at any n, about a second of gcc) and is as fast
+#: from about 10 states on (docs/compile.md, "Filter steps").
+MX_FROM = 10
+
+
+def _sym(A):
     return 0.5 * (A + A.T)
 
 
@@ -63,24 +72,26 @@ def _step_function(f: Model, h: Model, transform: Transform, angle_states: froze
     """(x, P, y, Q, R) ↦ (x⁺, P⁺, x⁻, P⁻, ν, S): one predict + update step (the module's notes)."""
     n, n_y = f.n_u, h.n_y
     nq, nr = f.n_v or n, h.n_v or n_y
-    x, P, y = ca.SX.sym("x", n), ca.SX.sym("P", n, n), ca.SX.sym("y", n_y)
-    Q, R = ca.SX.sym("Q", nq, nq), ca.SX.sym("R", nr, nr)
+    kind = ca.MX if n + max(f.n_v, h.n_v) >= MX_FROM else ca.SX
+    chol = chol_node if kind is ca.MX else chol_lower  # the unrolled factor: n³/6 operations
+    x, P, y = kind.sym("x", n), kind.sym("P", n, n), kind.sym("y", n_y)
+    Q, R = kind.sym("Q", nq, nq), kind.sym("R", nr, nr)
     # Time update: the NLT of f, on [x; w] with general noise.
     if f.n_v:
-        mean, cov, _ = moments(compiled(f), ca.vertcat(x, ca.SX.zeros(nq)), ca.diagcat(P, Q), transform,
-                               angle_states)
+        mean, cov, _ = moments(compiled(f), ca.vertcat(x, kind.zeros(nq)), ca.diagcat(P, Q), transform,
+                               angle_states, chol)
     else:
-        mean, cov, _ = moments(compiled(f), x, P, transform, angle_states)
+        mean, cov, _ = moments(compiled(f), x, P, transform, angle_states, chol)
         cov = cov + Q
     x_pred, P_pred = wrap_entries(mean, angle_states), _sym(cov)
     # Measurement update: the NLT of h at N(x⁻, P⁻), then Lemma 7.1.
     y_angles = frozenset(h.angle_outputs)
     if h.n_v:
-        y_hat, S, cross = moments(compiled(h), ca.vertcat(x_pred, ca.SX.zeros(nr)), ca.diagcat(P_pred, R),
-                                  transform, y_angles)
+        y_hat, S, cross = moments(compiled(h), ca.vertcat(x_pred, kind.zeros(nr)), ca.diagcat(P_pred, R),
+                                  transform, y_angles, chol)
         cross = cross[:, :n]
     else:
-        y_hat, S, cross = moments(compiled(h), x_pred, P_pred, transform, y_angles)
+        y_hat, S, cross = moments(compiled(h), x_pred, P_pred, transform, y_angles, chol)
         S = S + R
     S = _sym(S)
     nu = wrap_entries(y - y_hat, y_angles)
@@ -90,7 +101,7 @@ def _step_function(f: Model, h: Model, transform: Transform, angle_states: froze
     outs = [ca.densify(a) for a in (x_new, P_new, x_pred, P_pred, nu, S)]
     return ca.Function(name, [x, P, y, Q, R], outs, ["x", "P", "y", "Q", "R"],
                        ["x_new", "P_new", "x_pred", "P_pred", "innovation", "S"],
-                       {"cse": True})
+                       {"cse": True} if kind is ca.SX else {})
 
 
 # The run loop: for each run, K steps, each reading the previous step's output.  casadi_int
@@ -134,21 +145,19 @@ class _CompiledStep:
         self.n, self.n_y = n, n_y = f.n_u, h.n_y
         self._shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n),
                         "innovation": (n_y,), "S": (n_y, n_y)}
+        # The compile policy of every generated function (docs/compile.md): a small step is
+        # built now; a large one runs on CasADi's VM while its C builds in the background.
         # Without a compiler, compiled() has already warned (once) while the step was built.
-        self._run = self._load() if has_compiler() else None
-        self._local = threading.local()
-
-    def _load(self):
         f = self.f
-        name = f.name()
         code = generated_c(f) + _DRIVER.format(
             name=name, sz_arg=max(f.sz_arg(), 5), sz_res=max(f.sz_res(), 6),
             n=self.n, nn=self.n * self.n, n_y=self.n_y, nyy=self.n_y * self.n_y,
         )
-        so = build_shared_library(code, name, stacklevel=5)
-        if so is None:
-            return None
-        run = getattr(ctypes.CDLL(str(so)), f"{name}_run")
+        self._lib = NativeLibrary(code, name, self._load, stacklevel=4)
+        self._local = threading.local()
+
+    def _load(self, so):
+        run = getattr(ctypes.CDLL(str(so)), f"{self.f.name()}_run")
         run.argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_longlong]
                         + [ctypes.c_void_p] * 9 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2)
         run.restype = ctypes.c_int
@@ -164,7 +173,12 @@ class _CompiledStep:
 
     @property
     def is_compiled(self) -> bool:
-        return self._run is not None
+        return self._lib.get() is not None
+
+    @property
+    def evaluator(self) -> str:
+        """``"compiled"``, ``"vm"`` or ``"vm (C build running)"`` (docs/compile.md)."""
+        return self._lib.evaluator
 
     def __call__(self, x0: np.ndarray, P0: np.ndarray, Y: np.ndarray, Q: np.ndarray, R: np.ndarray,
                  use_c: bool = True) -> dict[str, np.ndarray]:
@@ -180,13 +194,14 @@ class _CompiledStep:
         # CasADi is column-major: the symmetric P, Q, R, S need no transposition, and a C
         # row (runs, n) is a column-major (n, runs).
         Y = np.ascontiguousarray(Y, dtype=float)
-        if use_c and self._run is not None:
+        run = self._lib.get() if use_c else None
+        if run is not None:
             parts = [np.ravel(a) for a in (x0, P0, Q, R)]
             inp = np.concatenate(parts).astype(float, copy=False)
             at = [8 * i for i in itertools.accumulate([0] + [a.size for a in parts])]  # byte offsets
             a_in, a_out = inp.ctypes.data, buf.ctypes.data
             iw, w = self._workspace()
-            err = self._run(a_in, n if np.ndim(x0) == 2 else 0, a_in + at[1], n * n if np.ndim(P0) == 3 else 0,
+            err = run(a_in, n if np.ndim(x0) == 2 else 0, a_in + at[1], n * n if np.ndim(P0) == 3 else 0,
                             Y.ctypes.data, a_in + at[2], a_in + at[3],
                             *(a_out + 8 * int(e - z) for z, e in zip(sizes, ends)), runs, K, iw, w)
             if err:
