@@ -9,6 +9,7 @@ from __future__ import annotations
 import doctest
 import inspect
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -111,6 +112,12 @@ def _summary(obj) -> str:
     return first if cut < 0 else first[:cut + 1]
 
 
+def _absolute(text: str, module: str) -> str:
+    """Relative cross-references of a module's docstring (:mod:`.nlt`) made absolute, for use
+    outside the module."""
+    return re.sub(r":(\w+):`\.", rf":\1:`~{module}.", text)
+
+
 def _exported(mod) -> list[tuple[str, object]]:
     """The names of a module's ``__all__`` and their objects, submodules left out."""
     names = getattr(mod, "__all__", None) or [n for n in vars(mod) if not n.startswith("_")]
@@ -210,7 +217,7 @@ def _api_page() -> str:
               "   * - name", "     - module", "     - what it holds"]
     for public, mod in _MODULES.items():
         lines += [f"   * - :doc:`sm.{public} <modules/{mod.__name__}>`", f"     - :mod:`{mod.__name__}`",
-                  f"     - {_summary(mod)}"]
+                  f"     - {_absolute(_summary(mod), mod.__name__)}"]
     lines += ["", ".. toctree::", "   :hidden:", ""]
     lines += [f"   modules/{mod.__name__}" for mod in _MODULES.values()]
     return "\n".join(lines) + "\n"
