@@ -22,7 +22,7 @@ import sympy as sp
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from symmon.compile import CompiledModel, _load_rows, rows_c  # noqa: E402
+from symmon.compile.compiled import CompiledModel, _load_rows, rows_c  # noqa: E402
 
 ROWS = 2000
 

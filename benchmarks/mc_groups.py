@@ -3,7 +3,7 @@
     python benchmarks/mc_groups.py [--groups 64 500 2000 10000] [--out benchmarks/MC_GROUPS.md]
 
 a. ``symmon nonlinearity examples/gmti.toml --transform mc --samples 1000000 --groups G``
-   run as a fresh process (``python -m symmon.cli`` from this checkout): wall time and
+   run as a fresh process (:func:`symmon.cli.main` from this checkout): wall time and
    CPU time (user + system) of the whole command, imports included.  Each run is repeated
    and the best is kept.  The compile cache is warm (one run first).
 b. The same command with 6·10⁸ and 3·10⁹ samples, sent SIGINT two seconds after its
@@ -37,8 +37,12 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # this checkout, and the tests'
 from test_mc_groups import _INTERRUPTED_RUN as _ANNOUNCING_CLI  # noqa: E402
 
 
+#: The ``symmon`` command of this checkout (run with cwd=ROOT), as ``python -m symmon.cli`` was.
+CLI = [sys.executable, "-c", "import sys; from symmon.cli import main; sys.exit(main())"]
+
+
 def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "symmon.cli", "nonlinearity", str(GMTI), "--transform", "mc", *args]
+    return [*CLI, "nonlinearity", str(GMTI), "--transform", "mc", *args]
 
 
 def time_groups(G: int) -> tuple[float, float]:

@@ -20,11 +20,13 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ("polar", "radar", "bot", "gmti", "rdcos")
 WEIGHTS = ("full", "diag", "liu-li")
+#: The ``symmon`` command of this checkout (run with cwd=ROOT), as ``python -m symmon.cli`` was.
+CLI = [sys.executable, "-c", "import sys; from symmon.cli import main; sys.exit(main())"]
 
 
 def run_one(path: Path, weight: str, extra: list[str]) -> tuple[float, float, int, str]:
     """(seconds, peak MB, exit code, verdict) of one CLI run."""
-    cmd = [sys.executable, "-m", "symmon.cli", "prove-invariance", str(path), "--weight", weight, *extra]
+    cmd = [*CLI, "prove-invariance", str(path), "--weight", weight, *extra]
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     out = proc.stdout.read()

@@ -165,21 +165,16 @@ assert rows[0]["value"] < EXACT_TOL                # TT1 sees no nonlinearity by
 assert abs(rows[2]["value"] - mon_mc.value) <= MC_SIGMAS * mon_mc.stderr + 0.02  # GH-7 vs MC (quadrature error)
 
 # %% [markdown]
-# Unit invariance can also be *proved* symbolically (TT2 closed form): `prove_invariance`
+# Unit invariance can also be *proved* symbolically (TT2 closed form): `sm.units.prove_invariance`
 # builds M² in two unit systems with symbolic scales and offsets and simplifies the
 # difference to 0 (or shows a point where it is not).
 
 # %%
-try:
-    from symmon.units import prove_invariance
-except ImportError:          # the units module is optional in this tutorial
-    prove_invariance = None
-if prove_invariance is not None:
-    proof_full = prove_invariance(polar, "full", mean=u.mean, cov=u.cov)
-    proof_liu = prove_invariance(polar, "liu-li", mean=u.mean, cov=u.cov)
-    print(proof_full)
-    print(proof_liu)
-    assert proof_full.holds and not proof_liu.holds
+proof_full = sm.units.prove_invariance(polar, "full", mean=u.mean, cov=u.cov)
+proof_liu = sm.units.prove_invariance(polar, "liu-li", mean=u.mean, cov=u.cov)
+print(proof_full)
+print(proof_liu)
+assert proof_full.holds and not proof_liu.holds
 
 # %% [markdown]
 # ## 4. The same model from a model file
