@@ -428,11 +428,3 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"symmon: internal error: {type(exc).__name__}: {what} "
               "(set SYMMON_DEBUG=1 for the traceback)", file=sys.stderr)
         return 1
-
-
-if __name__ == "__main__":  # pragma: no cover
-    # ``python -m symmon.cli``: run the imported module, not this __main__ copy, so the commands
-    # (which import symmon.cli) raise the very UsageError that main catches.
-    from symmon.cli import parser as cli
-
-    sys.exit(cli.main())

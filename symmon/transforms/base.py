@@ -116,7 +116,8 @@ class Transform(ABC):
     """An abstract moment transform: immutable settings, a batched kernel and declared
     capabilities.
 
-    Subclasses are frozen dataclasses that implement :meth:`moments` and declare what
+    Subclasses are frozen dataclasses that implement the hook :meth:`_moments` (the
+    template :meth:`moments` checks its input and output) and declare what
     the rest of symmon needs to know about them, so that no caller tests for a concrete
     class (docs/architecture.md):
 
