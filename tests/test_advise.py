@@ -10,6 +10,8 @@ import symmon as sm
 from symmon.measures.advice import CANDIDATES, moment_error
 from symmon.errors import SymmonError
 
+from helpers import EXAMPLES
+
 #: The unitless error of an exact transform is rounding only.
 EXACT_ATOL = 1e-12
 #: Invariance of the unitless error under a change of units: rounding of the rescaling.
@@ -77,7 +79,6 @@ def test_bad_model():
 
 
 # --------------------------------------------------------------------------- symmon advise
-EXAMPLES = __import__("pathlib").Path(__file__).resolve().parent.parent / "examples"
 
 
 def test_cli_advise_json_equals_the_api(capsys):

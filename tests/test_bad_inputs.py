@@ -34,12 +34,13 @@ from symmon.errors import (
 )
 from symmon.files.modelfile import ModelFileError, load_model_file
 
+from helpers import EXAMPLES
+
 x, y, z = sp.symbols("x y z", real=True)
 e1, e2 = sp.symbols("e1 e2", real=True)
 POLAR = sm.Model([x, y], [sp.sqrt(x**2 + y**2), sp.atan2(y, x)], name="polar")
 NOISY = sm.Model([x, y], [x * y + e1, y + e2], noise=[e1, e2], name="noisy")
 U = sm.Gaussian([1.0, 10.0], np.diag([0.17, 17.0]))
-EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 #: Two closed-form TT2 computations of the same quantity agree to rounding.
 EXACT_TOL = 1e-10
 

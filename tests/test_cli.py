@@ -24,8 +24,8 @@ from symmon.cli import commands as cli_commands
 from symmon.cli import options as cli_options
 from symmon.files.modelfile import load_model_file
 
-EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
-DERIVATIONS = Path(__file__).resolve().parent.parent / "derivations"
+from helpers import DERIVATIONS, EXAMPLES
+
 #: The CLI prints floats with repr precision through JSON, so it must agree with the API
 #: to rounding: both run the same deterministic computation (seeded for Monte Carlo).
 CLI_API_RTOL = 1e-12

@@ -37,6 +37,8 @@ from symmon.measures.sweep import sweep_alpha
 from symmon.transforms import nodes, quadrature
 from symmon.transforms.nodes import MAX_NODES, rule_size, standard_rule
 
+from helpers import EXAMPLES
+
 x, y = sp.symbols("x y", real=True)
 
 #: Closed forms agree to rounding.
@@ -139,7 +141,7 @@ def test_nonlinearity_names_the_transform_when_the_mon_is_not_finite():
 
 
 def test_cli_alpha_sweep_over_the_float_range_exits_1(capsys):
-    code = cli.main(["nonlinearity", "examples/polar.toml", "--weight", "liu-li", "--transform", "tt2",
+    code = cli.main(["nonlinearity", str(EXAMPLES / "polar.toml"), "--weight", "liu-li", "--transform", "tt2",
                      "--alpha-sweep", "1e-300:1e300:7"])
     out, err = capsys.readouterr()
     assert code == 1
