@@ -179,6 +179,29 @@ def test_model_errors_exit_1_with_the_message_on_stderr(capsys, tmp_path, argv, 
     assert err.startswith("symmon: error: ") and message in err
 
 
+@pytest.mark.parametrize("debug", [False, True])
+def test_an_unexpected_exception_is_one_line_unless_debugging(capsys, monkeypatch, debug):
+    def broken(args):
+        raise RuntimeError("an unforeseen\nfailure")
+
+    parser = cli._parser
+    monkeypatch.setattr(cli, "_parser", lambda: _with_func(parser(), broken))
+    monkeypatch.setenv("SYMMON_DEBUG", "1" if debug else "0")
+    code, out, err = run(capsys, "propagate", EXAMPLES / "polar.toml")
+    assert (code, out) == (1, "")
+    last = "symmon: internal error: RuntimeError: an unforeseen failure (set SYMMON_DEBUG=1 for the traceback)\n"
+    assert err.endswith(last)
+    assert ("Traceback (most recent call last)" in err) == debug
+
+
+def _with_func(parser, func):
+    parser.set_defaults(func=func)
+    for action in parser._subparsers._group_actions:
+        for sub in action.choices.values():
+            sub.set_defaults(func=func)
+    return parser
+
+
 # --------------------------------------------------------------------------- output files
 def test_alpha_sweep_writes_csv_and_png_atomically(capsys, tmp_path):
     csv_path, png_path = tmp_path / "mon.csv", tmp_path / "mon.png"
@@ -372,6 +395,13 @@ def test_dask_target_that_is_neither_a_scheduler_nor_an_address(capsys):
     assert code == 2
     assert "--dask takes threads, processes, synchronous or a scheduler address" in err
     assert "not 'cluster'" in err
+
+
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1:8786", "scheduler.example.org:8786", "tls://[::1]:8786",
+                                     "tcp://dask_scheduler:8786",
+                                     "ucx://10.0.0.1:13337", "inproc://192.0.2.2/11485/1", "processes"])
+def test_valid_dask_targets_are_accepted(address):
+    assert cli._dask_target(address) == address
 
 
 def test_unreachable_dask_scheduler_is_an_input_error(capsys, monkeypatch):
