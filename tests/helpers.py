@@ -35,3 +35,16 @@ def random_spd(rng: np.random.Generator, n: int, scale: float = 1.0) -> np.ndarr
     """A random symmetric positive definite matrix with eigenvalues in [0.1, 1]·scale."""
     Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
     return scale * (Q * rng.uniform(0.1, 1.0, n)) @ Q.T
+
+
+def random_gaussian(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A random mean and covariance of dimension n, the covariance well conditioned."""
+    A = rng.normal(size=(n, n)) / np.sqrt(n)
+    return rng.normal(size=n), 0.2 * (A @ A.T) + 0.05 * np.eye(n)
+
+
+def sparse_ring(n: int) -> sm.Model:
+    """Output i depends on x_i, x_{i+1}, x_{i+2} (mod n): the sparse model of issue 12."""
+    x = sp.symbols(f"x0:{n}", real=True)
+    out = [sp.sqrt(x[i] ** 2 + x[(i + 1) % n] ** 2 + 1) + sp.sin(x[i] * x[(i + 2) % n]) for i in range(n)]
+    return sm.Model(list(x), out, name=f"ring{n}")
