@@ -225,6 +225,25 @@ def _with_func(parser, func):
     return parser
 
 
+def test_cli_exits_1_instead_of_printing_nan(tmp_path, capsys):
+    f = tmp_path / "sqrt.toml"
+    f.write_text('name = "sqrt"\ninputs = ["x"]\noutputs = ["sqrt(x)"]\n\n[u]\nmean = [-1]\ncov = [[1]]\n')
+    code = cli.main(["propagate", str(f), "--transform", "ut1"])
+    out, err = capsys.readouterr()
+    assert code == 1
+    assert "nan" not in out.lower()
+    assert "sqrt(x)" in err
+
+
+def test_cli_alpha_sweep_over_the_float_range_exits_1(capsys):
+    code = cli.main(["nonlinearity", str(EXAMPLES / "polar.toml"), "--weight", "liu-li", "--transform", "tt2",
+                     "--alpha-sweep", "1e-300:1e300:7"])
+    out, err = capsys.readouterr()
+    assert code == 1
+    assert "nan" not in out.lower()
+    assert "not finite" in err or "is inf" in err
+
+
 # --------------------------------------------------------------------------- output files
 def test_alpha_sweep_writes_csv_and_png_atomically(capsys, tmp_path):
     csv_path, png_path = tmp_path / "mon.csv", tmp_path / "mon.png"
