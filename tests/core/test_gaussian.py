@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from fractions import Fraction
 
 import numpy as np
@@ -14,6 +15,8 @@ from symmon.errors import CovarianceError, ShapeError, SingularMatrixError
 
 #: Closed forms in double precision (a few solves of 3x3 systems).
 CLOSED_FORM_RTOL = 1e-10
+#: Exact identities (a matrix clipped or jittered by a known amount) agree to rounding.
+EXACT_TOL = 1e-12
 #: Monte Carlo checks: a seeded generator and 5 standard errors.
 N_SE = 5.0
 
@@ -73,6 +76,54 @@ def test_psd_jitter_warns_with_eps():
         g = sm.Gaussian([0.0, 0.0], P, psd="jitter")
     assert np.linalg.eigvalsh(g.cov)[0] >= 0.0
     np.testing.assert_allclose(g.cov - P, np.eye(2) * (g.cov[0, 0] - 1.0), atol=1e-12)
+
+
+# --------------------------------------------------------------------------- Gaussian(psd=...) (issue 8)
+INDEFINITE = np.array([[1.0, 2.0], [2.0, 1.0]])  # eigenvalues 3 and −1
+
+
+def test_psd_default_raises():
+    with pytest.raises(CovarianceError, match=r"not positive semi-definite: smallest eigenvalue -1.*psd='clip'"):
+        sm.Gaussian([0.0, 0.0], INDEFINITE)
+
+
+def test_psd_clip_warns_with_the_clipped_mass_and_clips():
+    """Eigenvalues (3, −1) → (3, 0): P = 3 v vᵀ with v = (1, 1)/√2, i.e. 1.5 · ones; the
+    clipped mass is the sum of the negative eigenvalues' magnitudes, 1."""
+    with pytest.warns(RuntimeWarning, match=r"clipped negative eigenvalues to 0 \(clipped mass 1\)"):
+        g = sm.Gaussian([0.0, 0.0], INDEFINITE, psd="clip")
+    assert g.cov == pytest.approx(1.5 * np.ones((2, 2)), abs=EXACT_TOL)
+
+
+def test_psd_jitter_warns_with_eps_and_is_positive_definite():
+    with pytest.warns(RuntimeWarning, match=r"added jitter eps = ([0-9.e+-]+) times I") as rec:
+        g = sm.Gaussian([0.0, 0.0], INDEFINITE, psd="jitter")
+    eps_reported = float(re.search(r"eps = ([0-9.e+-]+)", str(rec[0].message)).group(1))
+    added = g.cov - INDEFINITE
+    eps = added[0, 0]
+    assert added == pytest.approx(eps * np.eye(2), abs=EXACT_TOL)  # εI, nothing else
+    assert eps == pytest.approx(eps_reported, rel=5e-3)  # the message rounds to 3 digits
+    assert eps == pytest.approx(1.0 + PSD_RTOL * 2.0, rel=EXACT_TOL)  # −λ_min plus the tolerance
+    assert np.linalg.eigvalsh(g.cov)[0] > 0
+    np.linalg.cholesky(g.cov)  # positive definite: Cholesky succeeds
+
+
+def test_psd_unknown_mode():
+    with pytest.raises(ValueError, match="psd must be one of"):
+        sm.Gaussian([0.0], [[1.0]], psd="fix")
+
+
+def test_asymmetry_beyond_rounding_raises():
+    """No silent symmetrization: only rounding-level asymmetry is averaged away."""
+    with pytest.raises(CovarianceError, match="not symmetric"):
+        sm.Gaussian([0.0, 0.0], [[1.0, 0.1], [0.0, 1.0]])
+
+
+@pytest.mark.parametrize("mode", ["clip", "jitter"])
+def test_psd_repair_is_silent_only_when_nothing_is_repaired(mode):
+    """A PSD matrix passes unchanged through every mode (filterwarnings=error checks it)."""
+    P = np.array([[2.0, 1.0], [1.0, 2.0]])
+    assert np.array_equal(sm.Gaussian([0.0, 0.0], P, psd=mode).cov, P)
 
 
 # --------------------------------------------------------------------------- immutability
