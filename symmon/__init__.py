@@ -52,7 +52,7 @@ from .transforms import Moments as Moments
 from .transforms import MonteCarlo as MonteCarlo
 from .transforms import Transform as Transform
 
-__version__ = "0.1.0"
+from .version import __version__ as __version__
 
 __all__ = [
     "angles", "errors", "estimation", "filters", "sweep", "units", "quadrature_error", "kalman",

@@ -15,7 +15,7 @@ import sys
 import time
 from typing import Callable, Iterable, Iterator, TypeVar
 
-__all__ = ["progress_bar", "silenced", "LINE_INTERVAL"]
+__all__ = ["progress_bar", "progress_lines", "silenced", "LINE_INTERVAL"]
 
 T = TypeVar("T")
 
@@ -60,17 +60,21 @@ def progress_bar(items: Iterable[T], desc: str, enabled: bool = True, total: int
     if total is None and hasattr(items, "__len__"):
         total = len(items)  # type: ignore[arg-type]
     if not sys.stderr.isatty():
-        return _lines(items, desc, total, LINE_INTERVAL)
+        return progress_lines(items, desc, total, LINE_INTERVAL)
     try:
         from tqdm import tqdm
     except ImportError:  # the bar is a convenience; the run does not need it
-        return _lines(items, desc, total, LINE_INTERVAL)
+        return progress_lines(items, desc, total, LINE_INTERVAL)
     return tqdm(items, desc=desc, total=total, leave=False)
 
 
-def _lines(items: Iterable[T], desc: str, total: int | None, interval: float,
-           clock: Callable[[], float] = time.monotonic) -> Iterator[T]:
-    """``items``, writing ``desc: done/total after t s`` to stderr at most every ``interval`` s."""
+def progress_lines(items: Iterable[T], desc: str, total: int | None, interval: float,
+                   clock: Callable[[], float] = time.monotonic) -> Iterator[T]:
+    """``items``, writing ``desc: done/total after t s`` to stderr at most every ``interval`` s.
+
+    What :func:`progress_bar` returns when stderr is not a terminal; ``clock`` (seconds)
+    is there for a test to control the time.
+    """
     start = last = clock()
     done = 0
     for item in items:

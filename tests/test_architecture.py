@@ -16,7 +16,6 @@ from symmon.cli import parser as cli
 from symmon.cli import options as cli_options
 from symmon.compile import CompiledModel
 from symmon.errors import CovarianceError, NonFiniteError, ShapeError, SymmonError
-from symmon.measures.conditional import _general_cov
 from symmon.compile import compiled
 from symmon.transforms import Cubature5, Executor, Moments, Transform
 from symmon.transforms import registry
@@ -87,18 +86,6 @@ def test_cubature5_is_gauss_hermite_3_in_one_dimension():
     a, b = sm.propagate(model, u, transform=Cubature5()), sm.propagate(model, u, transform=sm.GaussHermite(3))
     np.testing.assert_allclose(a.mean, b.mean, rtol=1e-13)
     np.testing.assert_allclose(a.cov, b.cov, rtol=1e-13)
-
-
-def test_cubature5_nested_rule_for_general_noise_is_exact_for_polynomials():
-    """Σ_c = Cov_v E[g | v] through the rule's declared inner and outer rules: for
-    g = u² v² + v the inner mean (P_u + μ_u²) v² + v is quadratic in u, and Σ_c integrates
-    its square, of degree 4 in v: degree 5 suffices, as for Gauss–Hermite 5 (exact to 9)."""
-    u_, v_ = sp.symbols("u_ v_", real=True)
-    model = sm.Model([u_], [u_**2 * v_**2 + v_], noise=[v_], name="arch_general")
-    u, v = sm.Gaussian([0.5], [[0.4]]), sm.Gaussian([0.2], [[0.3]])
-    got = _general_cov(model, u, v, Cubature5())
-    want = _general_cov(model, u, v, sm.GaussHermite(5))
-    np.testing.assert_allclose(got, want, rtol=EXACT_RTOL)
 
 
 def test_transform_is_abstract():

@@ -34,12 +34,13 @@ from symmon.errors import (
 )
 from symmon.files.modelfile import ModelFileError, load_model_file
 
+from helpers import EXAMPLES
+
 x, y, z = sp.symbols("x y z", real=True)
 e1, e2 = sp.symbols("e1 e2", real=True)
 POLAR = sm.Model([x, y], [sp.sqrt(x**2 + y**2), sp.atan2(y, x)], name="polar")
 NOISY = sm.Model([x, y], [x * y + e1, y + e2], noise=[e1, e2], name="noisy")
 U = sm.Gaussian([1.0, 10.0], np.diag([0.17, 17.0]))
-EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 #: Two closed-form TT2 computations of the same quantity agree to rounding.
 EXACT_TOL = 1e-10
 
@@ -542,13 +543,6 @@ def test_hostile_options_are_usage_errors_found_before_any_work(capsys, monkeypa
     assert "usage: symmon nonlinearity" in err and match in err
 
 
-@pytest.mark.parametrize("address", ["tcp://127.0.0.1:8786", "scheduler.example.org:8786", "tls://[::1]:8786",
-                                     "tcp://dask_scheduler:8786",
-                                     "ucx://10.0.0.1:13337", "inproc://192.0.2.2/11485/1", "processes"])
-def test_valid_dask_targets_are_accepted(address):
-    assert cli._dask_target(address) == address
-
-
 @pytest.mark.parametrize("figure", ["fig1", "radar", "mmse"])
 def test_reproduce_with_too_few_samples_is_a_usage_error(capsys, figure):
     code, out, err = run_cli(capsys, "reproduce", figure, "--samples", "1")
@@ -652,26 +646,3 @@ def test_a_nan_mon_is_not_printed(capsys, monkeypatch):
     code, out, err = run_cli(capsys, "nonlinearity", EXAMPLES / "polar.toml", "--alpha-sweep", "0.1:1:2")
     assert (code, out) == (1, "")
     assert "symmon: error: the MoN at alpha=0.1 is not finite" in err
-
-
-@pytest.mark.parametrize("debug", [False, True])
-def test_an_unexpected_exception_is_one_line_unless_debugging(capsys, monkeypatch, debug):
-    def broken(args):
-        raise RuntimeError("an unforeseen\nfailure")
-
-    parser = cli._parser
-    monkeypatch.setattr(cli, "_parser", lambda: _with_func(parser(), broken))
-    monkeypatch.setenv("SYMMON_DEBUG", "1" if debug else "0")
-    code, out, err = run_cli(capsys, "propagate", EXAMPLES / "polar.toml")
-    assert (code, out) == (1, "")
-    last = "symmon: internal error: RuntimeError: an unforeseen failure (set SYMMON_DEBUG=1 for the traceback)\n"
-    assert err.endswith(last)
-    assert ("Traceback (most recent call last)" in err) == debug
-
-
-def _with_func(parser, func):
-    parser.set_defaults(func=func)
-    for action in parser._subparsers._group_actions:
-        for sub in action.choices.values():
-            sub.set_defaults(func=func)
-    return parser

@@ -19,7 +19,8 @@ import pytest
 from symmon import derive
 from symmon.errors import SymmonError
 
-DERIVATIONS = Path(__file__).resolve().parents[1] / "derivations"
+from helpers import DERIVATIONS
+
 SCRIPTS = sorted(p for p in DERIVATIONS.glob("*.py") if not p.stem.startswith("_"))
 SCRIPT_TIMEOUT_S = 300          # generous: a loaded CI machine; each script takes seconds
 FAST = ["mmse_lemma2", "remarks"]

@@ -34,7 +34,7 @@ def test_bar_only_on_a_terminal(monkeypatch):
 
 def test_lines_when_stderr_is_not_a_terminal(capsys):
     ticks = itertools.count(0.0, 2.0)  # a clock that advances 2 s per item
-    out = list(progress._lines(range(7), "fig2: sweep", 7, 5.0, clock=lambda: next(ticks)))
+    out = list(progress.progress_lines(range(7), "fig2: sweep", 7, 5.0, clock=lambda: next(ticks)))
     assert out == list(range(7))
     # Start at t=0; items end at t=2, 4, ...: a line once 5 s have passed since the last one.
     assert capsys.readouterr().err.splitlines() == ["fig2: sweep: 3/7 done after 6 s",

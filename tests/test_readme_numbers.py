@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import csv
 import re
-from pathlib import Path
 
 import pytest
 
 from symmon.reproduce import fig1, fig2
 
-ROOT = Path(__file__).resolve().parent.parent
+from helpers import ROOT
+
 README = ROOT / "README.md"
 DATA = ROOT / "docs" / "data"
 #: A decimal number as the README prints it.

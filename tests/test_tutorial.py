@@ -11,9 +11,10 @@ import os
 import re
 import subprocess
 import sys
-from pathlib import Path
 
-TUTORIAL = Path(__file__).resolve().parent.parent / "examples" / "tutorial.py"
+from helpers import EXAMPLES
+
+TUTORIAL = EXAMPLES / "tutorial.py"
 #: Generous wall-clock bound so that a hang fails instead of blocking CI (not a timing test).
 HANG_TIMEOUT_S = 600
 

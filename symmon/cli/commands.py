@@ -108,7 +108,7 @@ def _nonlinearity(args: argparse.Namespace, ex: Any) -> int:
     from ..core.gaussian import Gaussian
     from ..io import save_figure, write_csv
     from ..measures.mon import nonlinearity
-    from ..reproduce._common import progress_bar, pyplot
+    from ..reproduce.common import progress_bar, pyplot
 
     spec = _load(args.file)
     tr = transform_from_name(args.transform, args.samples, args.seed, args.order, args.groups)
@@ -167,7 +167,7 @@ def _nonlinearity(args: argparse.Namespace, ex: Any) -> int:
 def cmd_compare(args: argparse.Namespace) -> int:
     """``symmon compare``: the MoN and the moments by every transform, as one table."""
     from ..measures.mon import nonlinearity
-    from ..reproduce._common import progress_bar
+    from ..reproduce.common import progress_bar
 
     spec = _load(args.file)
     rows = []

@@ -184,7 +184,7 @@ def _bank_json(r) -> dict:
 def _filter_plot(spec, rows, states: list[str], path: str) -> Path:
     """NEES, NIS (log scale, with the χ² intervals) and RMSE per step, one line per filter."""
     from ..io import save_figure
-    from ..reproduce._common import figure_style, pyplot
+    from ..reproduce.common import figure_style, pyplot
 
     # One RMSE panel per unit: a norm over components is only meaningful in one unit.
     # Without [units], one panel over all the states, as the scenario declares no units.

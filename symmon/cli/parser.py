@@ -43,7 +43,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .. import __version__
+from ..version import __version__
 from ..compile.ccache import catch_sigterm
 from ..errors import OutputPathError, SymmonError, UsageError
 from ..files.filterfile import FILTERS

@@ -21,7 +21,7 @@ from ..measures.formula import mon_from_moments
 from ..core.problems import polar
 from ..propagation.front import propagate
 from ..transforms import TT2, UT, MonteCarlo
-from ._common import ALPHA_LABEL, figure_style, progress_bar, pyplot, samples_text
+from .common import ALPHA_LABEL, figure_style, progress_bar, pyplot, samples_text
 
 __all__ = ["run", "curves", "ALPHAS", "UNIT_SIZES", "COLUMNS"]
 

@@ -19,7 +19,7 @@ from ..core.problems import GMTI_UNITS, RDCOS_UNITS, bot, gmti, rdcos
 from ..propagation.front import propagate
 from ..transforms import TT2, UT, MonteCarlo
 from ..transforms.stats import jackknife
-from ._common import ALPHA_LABEL, figure_style, progress_bar, pyplot, samples_text
+from .common import ALPHA_LABEL, figure_style, progress_bar, pyplot, samples_text
 
 __all__ = ["run", "curves", "ALPHAS", "PROBLEMS", "COLUMNS"]
 

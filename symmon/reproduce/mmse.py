@@ -87,7 +87,7 @@ from ..errors import ArgumentError
 from ..estimation import mmse
 from ..io import save_figure, write_csv
 from ..filters.linear import KalmanFilter
-from ._common import figure_style
+from .common import figure_style
 
 __all__ = [
     "ScalarCase",

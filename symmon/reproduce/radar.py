@@ -48,7 +48,7 @@ from ..core.model import Model
 from ..core.problems import radar_h, radar_hinv
 from ..compile import compiled
 from ..transforms import TT1, UT
-from ._common import figure_style
+from .common import figure_style
 
 __all__ = ["run", "SENSORS", "RANGE_VAR", "BEARING_VAR", "PRIOR", "hinv_model", "h_model", "measurement"]
 

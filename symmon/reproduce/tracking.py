@@ -50,7 +50,7 @@ from ..io import save_figure, write_csv
 from ..core.model import Model
 from ..measures.mon import nonlinearity
 from ..compile import compiled
-from ._common import figure_style, progress_bar
+from .common import figure_style, progress_bar
 
 __all__ = ["run", "Scenario", "scenarios", "FILTER_NAMES", "MON_RUNS", "TOL"]
 

@@ -5,14 +5,11 @@ Hessians, either from the blocks H_i[S_i, S_i] or from the dense H_i P
 (:func:`symmon.transforms.taylor.second_order_terms`).  Both are checked against the dense
 formula of Gustafsson & Hendeby (2012) on random sparse and dense models, and TT2 against
 the closed-form Gaussian moments of quadratic functions.  These are correctness and
-code-size tests; the timings are in ``benchmarks/scale.py``.
+code-size tests; the timings are in ``benchmarks/scale.py``, and export_c at scale is in
+tests/codegen/test_codegen_scale.py.
 """
 
 from __future__ import annotations
-
-import ctypes
-import shutil
-import subprocess
 
 import casadi as ca
 import numpy as np
@@ -24,22 +21,12 @@ from symmon.compile import CompiledModel
 from symmon.compile import compiled
 from symmon.transforms.taylor import second_order_terms
 
+from helpers import random_gaussian, sparse_ring
+
 #: Both evaluations sum the same products in a different order: rounding only.
 SUM_RTOL = 1e-12
 #: Closed forms against TT2: rounding of sums of O(n²) terms.
 CLOSED_RTOL = 1e-10
-
-
-def _gaussian(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    A = rng.normal(size=(n, n)) / np.sqrt(n)
-    return rng.normal(size=n), 0.2 * (A @ A.T) + 0.05 * np.eye(n)
-
-
-def sparse_ring(n: int) -> sm.Model:
-    """Output i depends on x_i, x_{i+1}, x_{i+2} (mod n): the model of issue 12."""
-    x = sp.symbols(f"x0:{n}", real=True)
-    out = [sp.sqrt(x[i] ** 2 + x[(i + 1) % n] ** 2 + 1) + sp.sin(x[i] * x[(i + 2) % n]) for i in range(n)]
-    return sm.Model(list(x), out, name=f"ring{n}")
 
 
 def random_model(n: int, n_y: int, dense: bool, rng: np.random.Generator) -> tuple[list[sp.Expr], tuple]:
@@ -70,7 +57,7 @@ def test_both_evaluations_equal_the_dense_formula(n, dense):
     rng = np.random.default_rng(100 * n + dense)
     exprs, x = random_model(n, n_y=n // 2 + 1, dense=dense, rng=rng)
     cm = CompiledModel(exprs, x, name=f"rand{n}{dense}", compiled=False)
-    m, P = _gaussian(n, rng)
+    m, P = random_gaussian(n, rng)
     mean, cov, _ = _dense_reference(cm, m, P)
     y = cm.eval_g(m[None])[0]
     H_nz = cm.eval_derivatives(m[None])[2]
@@ -113,7 +100,7 @@ def test_tt2_is_exact_for_quadratic_g(dense):
     xs = sp.Matrix(x)
     exprs = [sp.expand((xs.T * sp.Matrix(Ai) * xs)[0] + (sp.Matrix(bi).T * xs)[0]) for Ai, bi in zip(A, b)]
     model = sm.Model(list(x), exprs, name=f"quad{dense}")
-    m, P = _gaussian(n, rng)
+    m, P = random_gaussian(n, rng)
     got = sm.propagate(model, sm.Gaussian(m, P), transform=sm.TT2())
     D = np.array([2 * Ai @ m + bi for Ai, bi in zip(A, b)])
     mean = np.array([m @ Ai @ m + np.trace(Ai @ P) + bi @ m for Ai, bi in zip(A, b)])
@@ -140,73 +127,9 @@ def test_tt2_at_n40_equals_the_dense_formula():
     n = 40
     model = sparse_ring(n)
     rng = np.random.default_rng(40)
-    m, P = _gaussian(n, rng)
+    m, P = random_gaussian(n, rng)
     got = sm.propagate(model, sm.Gaussian(m, P), transform=sm.TT2())
     mean, cov, cross = _dense_reference(compiled(model), m, P)
     np.testing.assert_allclose(got.mean, mean, rtol=SUM_RTOL)
     np.testing.assert_allclose(got.cov, cov, rtol=SUM_RTOL, atol=SUM_RTOL * np.abs(cov).max())
     np.testing.assert_allclose(got.cross_cov, cross, rtol=SUM_RTOL, atol=SUM_RTOL * np.abs(cross).max())
-
-
-# --------------------------------------------------------------------------- export_c at scale
-def radar_and_quadratic(n: int) -> sm.Model:
-    """Range, bearing (an angle) and range rate of the first four states, and a dense
-    quadratic form of all n: Hessians dense on every input."""
-    x = sp.symbols(f"x0:{n}", real=True)
-    r = sp.sqrt(x[0] ** 2 + x[1] ** 2)
-    q = sp.Add(*[x[i] * x[j] * sp.Rational(2 if i != j else 1, (1 + j - i) * n) for i in range(n) for j in range(i, n)])
-    return sm.Model(list(x), [r, sp.atan2(x[1], x[0]), (x[0] * x[2] + x[1] * x[3]) / r, q],
-                    name=f"radar{n}", angles=[1])
-
-
-@pytest.mark.parametrize("factory", [sparse_ring, radar_and_quadratic], ids=["blocks", "dense"])
-def test_exported_moment_maps_match_propagate(factory):
-    """The MX moment maps of export_c: the block path (ring) and the dense path (radar)."""
-    from symmon.codegen.export import moment_functions
-
-    n = 12
-    model = factory(n)
-    rng = np.random.default_rng(12)
-    m, P = _gaussian(n, rng)
-    m[:4] = [30.0, 40.0, 1.0, -2.0]
-    u = sm.Gaussian(m, P)
-    fs = moment_functions(model, ut=sm.UT.cubature())
-    for key, tr in (("tt2", sm.TT2()), ("ut", sm.UT.cubature())):
-        ref = sm.propagate(model, u, transform=tr)
-        got = [np.array(a) for a in fs[key](m, P)]
-        for a, b in zip(got, (ref.mean, ref.cov, ref.cross_cov)):
-            np.testing.assert_allclose(a.reshape(np.shape(b)), b, rtol=SUM_RTOL, atol=SUM_RTOL * np.abs(b).max())
-
-
-def test_exported_code_grows_with_the_nonzeros(tmp_path):
-    """export_c's C of the ring model: MX loops, so doubling n less than triples it
-    (the unrolled SX products with P grew like n_y² n², 16× per doubling)."""
-    from symmon.codegen.export import export_c
-
-    size = {n: export_c(sparse_ring(n), tmp_path / str(n))[0].stat().st_size for n in (16, 32)}
-    assert size[32] < 3 * size[16], size
-
-
-@pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc not found")
-def test_compiled_block_path_matches_propagate(tmp_path):
-    """The C of the block path (ring model), compiled by gcc and called through ctypes."""
-    from symmon.codegen.export import export_c
-
-    n = 12
-    model = sparse_ring(n)
-    c_file, _ = export_c(model, tmp_path, name="ring", ut=sm.UT.cubature())
-    so = tmp_path / "libring.so"
-    subprocess.run(["gcc", "-O2", "-shared", "-fPIC", str(c_file), "-o", str(so), "-lm"], check=True,
-                   capture_output=True)
-    dll = ctypes.CDLL(str(so))
-    m, P = _gaussian(n, np.random.default_rng(3))
-    ptr = ctypes.POINTER(ctypes.c_double)
-    for fn, tr in (("ring_tt2_eval", sm.TT2()), ("ring_ut_eval", sm.UT.cubature())):
-        outs = [np.full(k, np.nan) for k in (n, n * n, n * n)]
-        # Column-major arrays: P is symmetric, the outputs are read back in Fortran order.
-        args = [np.ascontiguousarray(m), np.ascontiguousarray(P.T)] + outs
-        assert getattr(dll, fn)(*[a.ctypes.data_as(ptr) for a in args]) == 0
-        ref = sm.propagate(model, sm.Gaussian(m, P), transform=tr)
-        for got, want in zip(outs, (ref.mean, ref.cov, ref.cross_cov)):
-            got = got.reshape(np.shape(want), order="F")
-            np.testing.assert_allclose(got, want, rtol=SUM_RTOL, atol=SUM_RTOL * np.abs(want).max())

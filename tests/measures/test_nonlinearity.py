@@ -18,6 +18,7 @@ from symmon.errors import SingularMatrixError, SymmonError
 from symmon.measures.conditional import _general_cov, conditional_cov
 from symmon.measures.formula import mon_from_moments
 from symmon.core.problems import bot, gmti, polar, rdcos
+from symmon.transforms import Cubature5
 
 #: Closed forms and exact rescalings agree to rounding.
 EXACT_TOL = 1e-10
@@ -241,6 +242,18 @@ def test_multiplicative_equals_general_formula():
     mult = conditional_cov(MULT, u, v, tr)
     gen = _general_cov(MULT, u, v, tr)
     assert np.allclose(mult, gen, rtol=1e-10, atol=1e-12)
+
+
+def test_cubature5_nested_rule_for_general_noise_is_exact_for_polynomials():
+    """Σ_c = Cov_v E[g | v] through the rule's declared inner and outer rules: for
+    g = u² v² + v the inner mean (P_u + μ_u²) v² + v is quadratic in u, and Σ_c integrates
+    its square, of degree 4 in v: degree 5 suffices, as for Gauss–Hermite 5 (exact to 9)."""
+    u_, v_ = sp.symbols("u_ v_", real=True)
+    model = sm.Model([u_], [u_**2 * v_**2 + v_], noise=[v_], name="arch_general")
+    u, v = sm.Gaussian([0.5], [[0.4]]), sm.Gaussian([0.2], [[0.3]])
+    got = _general_cov(model, u, v, Cubature5())
+    want = _general_cov(model, u, v, sm.GaussHermite(5))
+    np.testing.assert_allclose(got, want, rtol=EXACT_TOL)
 
 
 def test_general_noise_matches_brute_force_least_squares():

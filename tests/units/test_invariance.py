@@ -8,12 +8,11 @@ about; the per-model proof is run on the example models, its refutations are che
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 import sympy as sp
-from conftest import random_spd
+from helpers import EXAMPLES, random_spd
 
 import symmon as sm
 from symmon.cli import parser as cli
@@ -22,7 +21,6 @@ from symmon import units
 from symmon.errors import SingularMatrixError, SymmonError
 from symmon.files.modelfile import load_model_file
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 #: Moments of a model and of its unit-changed copy, in double precision: a few products and
 #: solves with scales of condition number up to ~1e3 separate them.
 EQUIVARIANCE_RTOL = 1e-9

@@ -35,9 +35,10 @@ from symmon.files.modelfile import (
 )
 from symmon.core.model import Model
 
+from helpers import EXAMPLES
+
 #: Numbers that come out of one float operation (e.g. 100 * 0.17) are compared this tightly.
 EXACT_RTOL = 1e-12
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 #: The modules that read file text: the TOML schema and the expression parser.
 MODULE_SOURCES = (Path(modelfile.__file__), Path(expressions.__file__))
 

@@ -2,14 +2,21 @@
 
 from __future__ import annotations
 
+import re
+from fractions import Fraction
+
 import numpy as np
 import pytest
+import sympy as sp
 
 import symmon as sm
+from symmon.core.gaussian import PSD_RTOL, SCHUR_RTOL
 from symmon.errors import CovarianceError, ShapeError, SingularMatrixError
 
 #: Closed forms in double precision (a few solves of 3x3 systems).
 CLOSED_FORM_RTOL = 1e-10
+#: Exact identities (a matrix clipped or jittered by a known amount) agree to rounding.
+EXACT_TOL = 1e-12
 #: Monte Carlo checks: a seeded generator and 5 standard errors.
 N_SE = 5.0
 
@@ -69,6 +76,54 @@ def test_psd_jitter_warns_with_eps():
         g = sm.Gaussian([0.0, 0.0], P, psd="jitter")
     assert np.linalg.eigvalsh(g.cov)[0] >= 0.0
     np.testing.assert_allclose(g.cov - P, np.eye(2) * (g.cov[0, 0] - 1.0), atol=1e-12)
+
+
+# --------------------------------------------------------------------------- Gaussian(psd=...) (issue 8)
+INDEFINITE = np.array([[1.0, 2.0], [2.0, 1.0]])  # eigenvalues 3 and −1
+
+
+def test_psd_default_raises():
+    with pytest.raises(CovarianceError, match=r"not positive semi-definite: smallest eigenvalue -1.*psd='clip'"):
+        sm.Gaussian([0.0, 0.0], INDEFINITE)
+
+
+def test_psd_clip_warns_with_the_clipped_mass_and_clips():
+    """Eigenvalues (3, −1) → (3, 0): P = 3 v vᵀ with v = (1, 1)/√2, i.e. 1.5 · ones; the
+    clipped mass is the sum of the negative eigenvalues' magnitudes, 1."""
+    with pytest.warns(RuntimeWarning, match=r"clipped negative eigenvalues to 0 \(clipped mass 1\)"):
+        g = sm.Gaussian([0.0, 0.0], INDEFINITE, psd="clip")
+    assert g.cov == pytest.approx(1.5 * np.ones((2, 2)), abs=EXACT_TOL)
+
+
+def test_psd_jitter_warns_with_eps_and_is_positive_definite():
+    with pytest.warns(RuntimeWarning, match=r"added jitter eps = ([0-9.e+-]+) times I") as rec:
+        g = sm.Gaussian([0.0, 0.0], INDEFINITE, psd="jitter")
+    eps_reported = float(re.search(r"eps = ([0-9.e+-]+)", str(rec[0].message)).group(1))
+    added = g.cov - INDEFINITE
+    eps = added[0, 0]
+    assert added == pytest.approx(eps * np.eye(2), abs=EXACT_TOL)  # εI, nothing else
+    assert eps == pytest.approx(eps_reported, rel=5e-3)  # the message rounds to 3 digits
+    assert eps == pytest.approx(1.0 + PSD_RTOL * 2.0, rel=EXACT_TOL)  # −λ_min plus the tolerance
+    assert np.linalg.eigvalsh(g.cov)[0] > 0
+    np.linalg.cholesky(g.cov)  # positive definite: Cholesky succeeds
+
+
+def test_psd_unknown_mode():
+    with pytest.raises(ValueError, match="psd must be one of"):
+        sm.Gaussian([0.0], [[1.0]], psd="fix")
+
+
+def test_asymmetry_beyond_rounding_raises():
+    """No silent symmetrization: only rounding-level asymmetry is averaged away."""
+    with pytest.raises(CovarianceError, match="not symmetric"):
+        sm.Gaussian([0.0, 0.0], [[1.0, 0.1], [0.0, 1.0]])
+
+
+@pytest.mark.parametrize("mode", ["clip", "jitter"])
+def test_psd_repair_is_silent_only_when_nothing_is_repaired(mode):
+    """A PSD matrix passes unchanged through every mode (filterwarnings=error checks it)."""
+    P = np.array([[2.0, 1.0], [1.0, 2.0]])
+    assert np.array_equal(sm.Gaussian([0.0, 0.0], P, psd=mode).cov, P)
 
 
 # --------------------------------------------------------------------------- immutability
@@ -251,3 +306,43 @@ def test_condition_whose_mean_overflows_is_refused():
     g = sm.Gaussian([0.0, 0.0], [[1.0, 1e-154], [1e-154, 1e-308]])
     with pytest.raises(ShapeError, match="mean contains NaN or inf"):
         g.condition([1], [1e300])
+
+
+# --------------------------------------------------------------------------- conditioning near a zero posterior (issue 13)
+x, y = sp.symbols("x y", real=True)
+
+
+def _exact_schur(P: np.ndarray, iy: list[int]) -> np.ndarray:
+    """P_xx − P_xy P_yy⁻¹ P_yx of the float matrix P, in exact rational arithmetic."""
+    ix = [i for i in range(P.shape[0]) if i not in iy]
+    M = sp.Matrix([[Fraction(float(v)) for v in row] for row in P])
+    S = M.extract(ix, ix) - M.extract(ix, iy) * M.extract(iy, iy).inv() * M.extract(iy, ix)
+    return np.array(S.tolist(), dtype=float)
+
+
+def test_condition_near_a_zero_posterior_is_psd():
+    """The issue's example: a noise-free observation of the whole polar state.  The
+    posterior covariance is rank one (ut2 is almost a linearisation), and rounding put its
+    smallest eigenvalue at −6.79e-9.  It must agree with the exact Schur complement of the
+    same joint matrix to SCHUR_RTOL times its terms (‖P_xx‖ = 9): that is the rounding
+    allowance, and the result is PSD."""
+    polar = sm.Model([x, y], [sp.sqrt(x**2 + y**2), sp.atan2(y, x)], angles=[1])
+    m = sm.propagate(polar, sm.Gaussian([-30, 0.5], [[4, 1], [1, 9]]), transform=sm.UT.ut2())
+    post = m.condition([30.2, 3.13])
+    exact = _exact_schur(m.joint.cov, [2, 3])
+    scale = max(9.0, np.abs(exact).max())
+    np.testing.assert_allclose(post.cov, exact, rtol=0, atol=SCHUR_RTOL * scale)
+    eig = np.linalg.eigvalsh(post.cov)
+    assert eig[0] >= -PSD_RTOL * np.abs(post.cov).max()
+    assert eig[0] <= SCHUR_RTOL * scale  # near zero: the observation pins one direction down
+
+
+def test_condition_beyond_rounding_of_the_terms_still_raises():
+    """A joint with an eigenvalue of −9e-11 passes the Gaussian's own check (−PSD_RTOL·1),
+    but conditioning on the component of variance 1e-4 divides it by 1e-4: the complement
+    1 − a²/1e-4 = −9e-7 is beyond SCHUR_RTOL of its terms (≈ 1), so it is not rounding."""
+    b, delta = 1e-4, 9e-11
+    a = np.sqrt(b + delta)
+    joint = sm.Gaussian([0.0, 0.0], [[1.0, a], [a, b]])
+    with pytest.raises(CovarianceError, match=r"conditional covariance .* smallest eigenvalue -9"):
+        joint.condition([1], [0.0])

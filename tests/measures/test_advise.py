@@ -74,35 +74,3 @@ def test_bad_tol(tol):
 def test_bad_model():
     with pytest.raises(TypeError, match="symmon.Model"):
         sm.advise("x**2", sm.Gaussian([0.0], [[1.0]]))
-
-
-# --------------------------------------------------------------------------- symmon advise
-EXAMPLES = __import__("pathlib").Path(__file__).resolve().parent.parent / "examples"
-
-
-def test_cli_advise_json_equals_the_api(capsys):
-    import json
-
-    from symmon.cli import parser as cli
-
-    code = cli.main(["advise", str(EXAMPLES / "bot.toml"), "--tol", "0.001", "--weight", "diag", "--json"])
-    out = json.loads(capsys.readouterr().out)
-    spec = sm.load_model_file(EXAMPLES / "bot.toml")
-    a = sm.advise(spec.model, spec.u, spec.v, tol=1e-3, weight="diag")
-    assert code == 0
-    assert out["choice"] == a.choice_name and out["reference"] == a.reference and out["weight"] == "diag"
-    # Deterministic quadrature: the errors agree to rounding (JSON keeps repr precision).
-    for mine, theirs in zip(out["rows"], a.rows):
-        assert mine["name"] == theirs["name"]
-        assert mine["error"] == pytest.approx(theirs["error"], rel=1e-12, abs=1e-15)
-        assert mine["mon"] == pytest.approx(theirs["mon"], rel=1e-12, abs=1e-15)
-
-
-def test_cli_advise_prints_the_table_and_refuses_a_bad_tol(capsys):
-    from symmon.cli import parser as cli
-
-    assert cli.main(["advise", str(EXAMPLES / "bot.toml")]) == 0
-    out = capsys.readouterr().out
-    assert "TT2" in out and "<- choice" in out and "reference: Gauss-Hermite" in out
-    assert cli.main(["advise", str(EXAMPLES / "polar.toml"), "--tol", "2"]) == 2
-    assert "must be a number in (0, 1)" in capsys.readouterr().err

@@ -1,20 +1,21 @@
 """Numerical hardening (issue 13): a NaN or inf is an error, never a number.
 
 - g not finite at a point of a rule (UT, cubature, Gauss–Hermite): NonFiniteError naming the
-  transform, the output and the point; the CLI exits 1.
+  transform, the output and the point.
 - Moments that overflow with g finite (|g| ≫ 1e154): the final guard of every transform.
-- A MoN that is not finite (an α sweep to the ends of the float range).
 - Gauss–Hermite grids beyond MAX_NODES are refused before they are built.
-- Conditioning near a zero posterior: rounding judged against the Schur complement's terms.
 - An undeclared atan2 output whose points straddle ±π: one AngleWarning naming ``angles=``.
 - A fuzz over random small models: finite moments or a SymmonError, nothing else.
+
+The same issue's checks of a MoN that is not finite are in tests/measures/test_mon_nonfinite.py,
+of conditioning near a zero posterior in tests/core/test_gaussian.py, and of the command's
+exit 1 in tests/cli/test_cli.py.
 """
 
 from __future__ import annotations
 
 import itertools
 import warnings
-from fractions import Fraction
 
 import numpy as np
 import pytest
@@ -23,18 +24,14 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import symmon as sm
-from symmon.cli import parser as cli
 from symmon.errors import (
     AngleWarning,
-    CovarianceError,
     NonFiniteError,
     ResourceError,
     SamplingError,
     SymmonError,
 )
-from symmon.core.gaussian import PSD_RTOL, SCHUR_RTOL
-from symmon.measures.sweep import sweep_alpha
-from symmon.transforms import nodes, quadrature
+from symmon.transforms import nodes
 from symmon.transforms.nodes import MAX_NODES, rule_size, standard_rule
 
 x, y = sp.symbols("x y", real=True)
@@ -84,16 +81,6 @@ def test_monte_carlo_keeps_its_sampling_error():
         sm.propagate(sm.Model([x], [sp.sqrt(x)]), sm.Gaussian([-1.0], [[1.0]]), transform=sm.MonteCarlo(1000, seed=0))
 
 
-def test_cli_exits_1_instead_of_printing_nan(tmp_path, capsys):
-    f = tmp_path / "sqrt.toml"
-    f.write_text('name = "sqrt"\ninputs = ["x"]\noutputs = ["sqrt(x)"]\n\n[u]\nmean = [-1]\ncov = [[1]]\n')
-    code = cli.main(["propagate", str(f), "--transform", "ut1"])
-    out, err = capsys.readouterr()
-    assert code == 1
-    assert "nan" not in out.lower()
-    assert "sqrt(x)" in err
-
-
 # --------------------------------------------------------------------------- moments that overflow
 @pytest.mark.parametrize("transform", [sm.TT1(), sm.TT2(), sm.Exact()] + POINT_RULES,
                          ids=["tt1", "tt2", "exact"] + POINT_IDS)
@@ -115,36 +102,6 @@ def test_std_1e154_gives_the_exact_variance_not_inf():
     g = sm.Gaussian.from_std([0.0], [1e154])
     m = sm.propagate(sm.Model([x], [x]), g, transform=sm.UT.ut1())
     assert m.cov[0, 0] == pytest.approx(1e308, rel=EXACT_RTOL)
-
-
-def test_alpha_sweep_to_the_float_range_raises_instead_of_nan():
-    """The issue's sweep 1e-300:1e300 gave MoN = nan at the top (Cov y overflows)."""
-    p = sm.problems.polar()
-    with pytest.raises(NonFiniteError, match=r"TT2\(\): Cov y"):
-        sweep_alpha(p.model, p.u, np.logspace(-300, 300, 7), weight="liu-li", transform=sm.TT2())
-
-
-def test_mon_of_subnormal_input_covariance_raises():
-    """Σ_uu ≈ 1e-310 is subnormal: its inverse overflows and M² would be NaN."""
-    p = sm.problems.polar()
-    with pytest.raises(NonFiniteError, match=r"the MoN with weight .* is not finite"):
-        sweep_alpha(p.model, p.u, [1e-310], weight="liu-li-raw", transform=sm.TT2())
-
-
-def test_nonlinearity_names_the_transform_when_the_mon_is_not_finite():
-    p = sm.problems.polar()
-    u = sm.Gaussian(p.u.mean, 1e-310 * np.diag([1.0, 100.0]))
-    with pytest.raises(NonFiniteError, match=r"^TT2\(\): the MoN"):
-        sm.nonlinearity(p.model, u, weight="liu-li-raw", transform=sm.TT2())
-
-
-def test_cli_alpha_sweep_over_the_float_range_exits_1(capsys):
-    code = cli.main(["nonlinearity", "examples/polar.toml", "--weight", "liu-li", "--transform", "tt2",
-                     "--alpha-sweep", "1e-300:1e300:7"])
-    out, err = capsys.readouterr()
-    assert code == 1
-    assert "nan" not in out.lower()
-    assert "not finite" in err or "is inf" in err
 
 
 # --------------------------------------------------------------------------- Gauss–Hermite size limit
@@ -184,43 +141,6 @@ def test_rule_size_counts_the_combination_grids(dim, order):
     assert rule_size(dim, order, True) == brute
     assert standard_rule(dim, order, True)[0].shape[0] <= brute
     assert rule_size(dim, order, False) == order**dim
-
-
-# --------------------------------------------------------------------------- conditioning near a zero posterior
-def _exact_schur(P: np.ndarray, iy: list[int]) -> np.ndarray:
-    """P_xx − P_xy P_yy⁻¹ P_yx of the float matrix P, in exact rational arithmetic."""
-    ix = [i for i in range(P.shape[0]) if i not in iy]
-    M = sp.Matrix([[Fraction(float(v)) for v in row] for row in P])
-    S = M.extract(ix, ix) - M.extract(ix, iy) * M.extract(iy, iy).inv() * M.extract(iy, ix)
-    return np.array(S.tolist(), dtype=float)
-
-
-def test_condition_near_a_zero_posterior_is_psd():
-    """The issue's example: a noise-free observation of the whole polar state.  The
-    posterior covariance is rank one (ut2 is almost a linearisation), and rounding put its
-    smallest eigenvalue at −6.79e-9.  It must agree with the exact Schur complement of the
-    same joint matrix to SCHUR_RTOL times its terms (‖P_xx‖ = 9): that is the rounding
-    allowance, and the result is PSD."""
-    polar = sm.Model([x, y], [sp.sqrt(x**2 + y**2), sp.atan2(y, x)], angles=[1])
-    m = sm.propagate(polar, sm.Gaussian([-30, 0.5], [[4, 1], [1, 9]]), transform=sm.UT.ut2())
-    post = m.condition([30.2, 3.13])
-    exact = _exact_schur(m.joint.cov, [2, 3])
-    scale = max(9.0, np.abs(exact).max())
-    np.testing.assert_allclose(post.cov, exact, rtol=0, atol=SCHUR_RTOL * scale)
-    eig = np.linalg.eigvalsh(post.cov)
-    assert eig[0] >= -PSD_RTOL * np.abs(post.cov).max()
-    assert eig[0] <= SCHUR_RTOL * scale  # near zero: the observation pins one direction down
-
-
-def test_condition_beyond_rounding_of_the_terms_still_raises():
-    """A joint with an eigenvalue of −9e-11 passes the Gaussian's own check (−PSD_RTOL·1),
-    but conditioning on the component of variance 1e-4 divides it by 1e-4: the complement
-    1 − a²/1e-4 = −9e-7 is beyond SCHUR_RTOL of its terms (≈ 1), so it is not rounding."""
-    b, delta = 1e-4, 9e-11
-    a = np.sqrt(b + delta)
-    joint = sm.Gaussian([0.0, 0.0], [[1.0, a], [a, b]])
-    with pytest.raises(CovarianceError, match=r"conditional covariance .* smallest eigenvalue -9"):
-        joint.condition([1], [0.0])
 
 
 # --------------------------------------------------------------------------- undeclared angles across the cut

@@ -452,13 +452,13 @@ def test_adaptive_bad_options(kwargs, match):
 
 
 # --------------------------------------------------------------------------- scenario files, symmon filter
-from pathlib import Path  # noqa: E402
-
 from symmon.cli import parser as cli  # noqa: E402
 from symmon.files.filterfile import load_filter_file, run_bank, simulate as simulate_spec  # noqa: E402
 from symmon.files.modelfile import ModelFileError  # noqa: E402
 
-EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "rb_close.toml"
+from helpers import EXAMPLES  # noqa: E402
+
+EXAMPLE = EXAMPLES / "rb_close.toml"
 SCENARIO = """
 name = "lin"
 states = ["p", "v"]

@@ -24,6 +24,8 @@ from symmon.codegen.export import export_c, moment_functions
 from symmon.errors import SymmonError
 from symmon.compile import compiled
 
+from helpers import EXAMPLES
+
 #: C and Python evaluate the same expression graphs in a different order of operations:
 #: the results agree to rounding, relative to the scale of each array.
 C_RTOL = 1e-12
@@ -406,7 +408,7 @@ def test_the_issue_name_gives_no_symbol(tmp_path):
     """The name of the report (issue 12) through the CLI: the header defines nothing."""
     from symmon.cli.parser import main
 
-    toml = (Path(__file__).resolve().parents[1] / "examples" / "polar.toml").read_text()
+    toml = (EXAMPLES / "polar.toml").read_text()
     name = "aaaa" * 10 + f" {PAYLOAD} "
     model_file = tmp_path / "m.toml"
     model_file.write_text(toml.replace('name = "polar"', f'name = "{name}"'))

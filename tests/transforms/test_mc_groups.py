@@ -19,7 +19,6 @@ import sys
 import textwrap
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -38,7 +37,8 @@ from symmon.transforms.executor import connect_dask, dask_compute, run_groups, s
 from symmon.transforms.montecarlo import MAX_CHUNK, MAX_GROUPS, MAX_SAMPLES
 from symmon.transforms.stats import Stats, jackknife_se, leave_one_out, leave_one_out_stack, merge_all, moments_of
 
-ROOT = Path(__file__).resolve().parents[1]
+from helpers import ROOT
+
 
 #: Reverse merge vs merging the others: both exact, rounding only (see the module notes).
 LOO_RTOL = 1e-10

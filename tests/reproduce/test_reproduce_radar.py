@@ -13,6 +13,8 @@ import pytest
 import symmon as sm
 from symmon.reproduce import radar
 
+from helpers import REFERENCE_DIR
+
 #: Closed forms in double precision.
 CLOSED_FORM_RTOL = 1e-10
 #: Monte Carlo checks: a seeded generator and 5 standard errors.
@@ -22,7 +24,7 @@ SAMPLES = 2000
 PRINTED_DIGITS = 3
 FILES = ["radar_mc.png", "radar_direct_ut.png", "radar_indirect_tt1.png", "radar_estimates.csv"]
 
-REFERENCE = json.loads((Path(__file__).parent / "reference" / "lecture_estimation.json").read_text())
+REFERENCE = json.loads((REFERENCE_DIR / "lecture_estimation.json").read_text())
 
 
 def printed(x) -> np.ndarray:

@@ -1,12 +1,14 @@
 """Covariance safeguards and degenerate cases (issue 8): explicit, never silent.
 
-- ``Gaussian(psd=...)``: raise (default), clip with the clipped mass, or jitter with ε.
 - The UT's negative weights: a covariance that is not PSD is reported and returned as
   computed.
 - Monte Carlo's shifted sums: a large offset in y costs no digits.
 - Singular Σ_uu (pseudo-inverse, said in ``.notes``) and singular Σ_gg (W^full refused
   with the null combination named).
 - TT1/TT2 refuse NaN derivatives, naming the output and the point.
+
+``Gaussian(psd=...)`` (raise, clip with the clipped mass, or jitter with ε) is tested in
+tests/core/test_gaussian.py.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import CovarianceError, DerivativeError, SingularMatrixError
-from symmon.core.gaussian import PSD_RTOL, matrix_sqrt
+from symmon.core.gaussian import matrix_sqrt
 
 #: Closed forms and exact identities agree to rounding.
 EXACT_TOL = 1e-12
@@ -32,54 +34,6 @@ REDUCTION_TOL = 1e-9
 N_SE = 5
 
 x, y, z = sp.symbols("x y z", real=True)
-
-
-# --------------------------------------------------------------------------- Gaussian(psd=...)
-INDEFINITE = np.array([[1.0, 2.0], [2.0, 1.0]])  # eigenvalues 3 and −1
-
-
-def test_psd_default_raises():
-    with pytest.raises(CovarianceError, match=r"not positive semi-definite: smallest eigenvalue -1.*psd='clip'"):
-        sm.Gaussian([0.0, 0.0], INDEFINITE)
-
-
-def test_psd_clip_warns_with_the_clipped_mass_and_clips():
-    """Eigenvalues (3, −1) → (3, 0): P = 3 v vᵀ with v = (1, 1)/√2, i.e. 1.5 · ones; the
-    clipped mass is the sum of the negative eigenvalues' magnitudes, 1."""
-    with pytest.warns(RuntimeWarning, match=r"clipped negative eigenvalues to 0 \(clipped mass 1\)"):
-        g = sm.Gaussian([0.0, 0.0], INDEFINITE, psd="clip")
-    assert g.cov == pytest.approx(1.5 * np.ones((2, 2)), abs=EXACT_TOL)
-
-
-def test_psd_jitter_warns_with_eps_and_is_positive_definite():
-    with pytest.warns(RuntimeWarning, match=r"added jitter eps = ([0-9.e+-]+) times I") as rec:
-        g = sm.Gaussian([0.0, 0.0], INDEFINITE, psd="jitter")
-    eps_reported = float(re.search(r"eps = ([0-9.e+-]+)", str(rec[0].message)).group(1))
-    added = g.cov - INDEFINITE
-    eps = added[0, 0]
-    assert added == pytest.approx(eps * np.eye(2), abs=EXACT_TOL)  # εI, nothing else
-    assert eps == pytest.approx(eps_reported, rel=5e-3)  # the message rounds to 3 digits
-    assert eps == pytest.approx(1.0 + PSD_RTOL * 2.0, rel=EXACT_TOL)  # −λ_min plus the tolerance
-    assert np.linalg.eigvalsh(g.cov)[0] > 0
-    np.linalg.cholesky(g.cov)  # positive definite: Cholesky succeeds
-
-
-def test_psd_unknown_mode():
-    with pytest.raises(ValueError, match="psd must be one of"):
-        sm.Gaussian([0.0], [[1.0]], psd="fix")
-
-
-def test_asymmetry_beyond_rounding_raises():
-    """No silent symmetrization: only rounding-level asymmetry is averaged away."""
-    with pytest.raises(CovarianceError, match="not symmetric"):
-        sm.Gaussian([0.0, 0.0], [[1.0, 0.1], [0.0, 1.0]])
-
-
-@pytest.mark.parametrize("mode", ["clip", "jitter"])
-def test_psd_repair_is_silent_only_when_nothing_is_repaired(mode):
-    """A PSD matrix passes unchanged through every mode (filterwarnings=error checks it)."""
-    P = np.array([[2.0, 1.0], [1.0, 2.0]])
-    assert np.array_equal(sm.Gaussian([0.0, 0.0], P, psd=mode).cov, P)
 
 
 # --------------------------------------------------------------------------- UT negative weights

@@ -15,7 +15,6 @@ import subprocess
 import sys
 import textwrap
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -31,7 +30,8 @@ from symmon.transforms import montecarlo
 from symmon.transforms.montecarlo import group_generator
 from symmon.transforms.stats import Stats, merge_all
 
-ROOT = Path(__file__).resolve().parents[1]
+from helpers import ROOT
+
 
 #: Reordered sums (chunking, merging) of O(10⁶) terms: a few ulps per term, well below 1e-12.
 REORDER_RTOL = 1e-12

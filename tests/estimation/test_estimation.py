@@ -7,7 +7,6 @@ Reference numbers are in tests/reference/lecture_estimation.json, with their sli
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,12 +18,14 @@ from symmon.errors import ModelError, ShapeError, SingularMatrixError
 from symmon.filters.linear import KalmanFilter
 from symmon.reproduce import radar
 
+from helpers import REFERENCE_DIR
+
 #: Closed forms and algebraically equal filters in double precision (a few 2x2..4x4 solves).
 CLOSED_FORM_RTOL = 1e-10
 #: The lecture prints Gaussians with 3 significant digits.
 PRINTED_DIGITS = 3
 
-REFERENCE = json.loads((Path(__file__).parent / "reference" / "lecture_estimation.json").read_text())
+REFERENCE = json.loads((REFERENCE_DIR / "lecture_estimation.json").read_text())
 
 #: Transforms that are exact for an affine model (mean and covariance).
 AFFINE_EXACT = [sm.TT1(), sm.TT2(), sm.UT.ut1(), sm.UT.cubature(), sm.GaussHermite(order=3)]

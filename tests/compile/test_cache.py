@@ -22,7 +22,8 @@ import pytest
 import symmon.compile.ccache as cc
 from symmon.compile import has_compiler
 
-ROOT = Path(__file__).resolve().parents[1]
+from helpers import ROOT
+
 #: Seconds a subprocess gets to start, compile a tiny model, or die after a signal.
 SUBPROCESS_TIMEOUT = 120
 

@@ -6,7 +6,6 @@ import os
 import subprocess
 import sys
 import textwrap
-from pathlib import Path
 
 import pytest
 import sympy as sp
@@ -14,7 +13,8 @@ import sympy as sp
 import symmon as sm
 from symmon.errors import ModelError
 
-ROOT = Path(__file__).resolve().parents[1]
+from helpers import ROOT
+
 x, y, z = sp.symbols("x y z", real=True)
 v1, v2 = sp.symbols("v1 v2", real=True)
 

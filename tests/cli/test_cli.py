@@ -24,8 +24,8 @@ from symmon.cli import commands as cli_commands
 from symmon.cli import options as cli_options
 from symmon.files.modelfile import load_model_file
 
-EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
-DERIVATIONS = Path(__file__).resolve().parent.parent / "derivations"
+from helpers import DERIVATIONS, EXAMPLES
+
 #: The CLI prints floats with repr precision through JSON, so it must agree with the API
 #: to rounding: both run the same deterministic computation (seeded for Monte Carlo).
 CLI_API_RTOL = 1e-12
@@ -116,6 +116,29 @@ def test_compare_json_equals_nonlinearity_per_transform(capsys):
         assert_close([r["mon"], *r["mean"]], [res.value, *res.moments.mean])
 
 
+# --------------------------------------------------------------------------- symmon advise
+def test_cli_advise_json_equals_the_api(capsys):
+    code = cli.main(["advise", str(EXAMPLES / "bot.toml"), "--tol", "0.001", "--weight", "diag", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    spec = sm.load_model_file(EXAMPLES / "bot.toml")
+    a = sm.advise(spec.model, spec.u, spec.v, tol=1e-3, weight="diag")
+    assert code == 0
+    assert out["choice"] == a.choice_name and out["reference"] == a.reference and out["weight"] == "diag"
+    # Deterministic quadrature: the errors agree to rounding (JSON keeps repr precision).
+    for mine, theirs in zip(out["rows"], a.rows):
+        assert mine["name"] == theirs["name"]
+        assert mine["error"] == pytest.approx(theirs["error"], rel=1e-12, abs=1e-15)
+        assert mine["mon"] == pytest.approx(theirs["mon"], rel=1e-12, abs=1e-15)
+
+
+def test_cli_advise_prints_the_table_and_refuses_a_bad_tol(capsys):
+    assert cli.main(["advise", str(EXAMPLES / "bot.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "TT2" in out and "<- choice" in out and "reference: Gauss-Hermite" in out
+    assert cli.main(["advise", str(EXAMPLES / "polar.toml"), "--tol", "2"]) == 2
+    assert "must be a number in (0, 1)" in capsys.readouterr().err
+
+
 # --------------------------------------------------------------------------- help
 def test_top_level_help_lists_every_subcommand(capsys):
     code, out, _ = run(capsys, "--help")
@@ -177,6 +200,48 @@ def test_model_errors_exit_1_with_the_message_on_stderr(capsys, tmp_path, argv, 
     assert code == 1
     assert out == ""
     assert err.startswith("symmon: error: ") and message in err
+
+
+@pytest.mark.parametrize("debug", [False, True])
+def test_an_unexpected_exception_is_one_line_unless_debugging(capsys, monkeypatch, debug):
+    def broken(args):
+        raise RuntimeError("an unforeseen\nfailure")
+
+    parser = cli._parser
+    monkeypatch.setattr(cli, "_parser", lambda: _with_func(parser(), broken))
+    monkeypatch.setenv("SYMMON_DEBUG", "1" if debug else "0")
+    code, out, err = run(capsys, "propagate", EXAMPLES / "polar.toml")
+    assert (code, out) == (1, "")
+    last = "symmon: internal error: RuntimeError: an unforeseen failure (set SYMMON_DEBUG=1 for the traceback)\n"
+    assert err.endswith(last)
+    assert ("Traceback (most recent call last)" in err) == debug
+
+
+def _with_func(parser, func):
+    parser.set_defaults(func=func)
+    for action in parser._subparsers._group_actions:
+        for sub in action.choices.values():
+            sub.set_defaults(func=func)
+    return parser
+
+
+def test_cli_exits_1_instead_of_printing_nan(tmp_path, capsys):
+    f = tmp_path / "sqrt.toml"
+    f.write_text('name = "sqrt"\ninputs = ["x"]\noutputs = ["sqrt(x)"]\n\n[u]\nmean = [-1]\ncov = [[1]]\n')
+    code = cli.main(["propagate", str(f), "--transform", "ut1"])
+    out, err = capsys.readouterr()
+    assert code == 1
+    assert "nan" not in out.lower()
+    assert "sqrt(x)" in err
+
+
+def test_cli_alpha_sweep_over_the_float_range_exits_1(capsys):
+    code = cli.main(["nonlinearity", str(EXAMPLES / "polar.toml"), "--weight", "liu-li", "--transform", "tt2",
+                     "--alpha-sweep", "1e-300:1e300:7"])
+    out, err = capsys.readouterr()
+    assert code == 1
+    assert "nan" not in out.lower()
+    assert "not finite" in err or "is inf" in err
 
 
 # --------------------------------------------------------------------------- output files
@@ -372,6 +437,13 @@ def test_dask_target_that_is_neither_a_scheduler_nor_an_address(capsys):
     assert code == 2
     assert "--dask takes threads, processes, synchronous or a scheduler address" in err
     assert "not 'cluster'" in err
+
+
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1:8786", "scheduler.example.org:8786", "tls://[::1]:8786",
+                                     "tcp://dask_scheduler:8786",
+                                     "ucx://10.0.0.1:13337", "inproc://192.0.2.2/11485/1", "processes"])
+def test_valid_dask_targets_are_accepted(address):
+    assert cli._dask_target(address) == address
 
 
 def test_unreachable_dask_scheduler_is_an_input_error(capsys, monkeypatch):

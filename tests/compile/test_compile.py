@@ -6,7 +6,6 @@ import os
 import subprocess
 import sys
 import textwrap
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,12 +17,13 @@ from scipy import special
 from symmon.compile import CompiledModel, to_casadi
 from symmon.errors import UnsupportedFunctionError
 
+from helpers import ROOT
+
 #: Elementary functions in double precision: a few ulps, relative.
 EVAL_RTOL = 1e-12
 #: Derivatives: CasADi AD against sympy's symbolic diff evaluated numerically.
 DERIV_RTOL = 1e-10
 
-ROOT = Path(__file__).resolve().parents[1]
 #: Seconds for a subprocess or a background build of a small model.
 SUBPROCESS_TIMEOUT = 120
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import sympy as sp
-from conftest import random_spd
+from helpers import random_spd
 
 import symmon as sm
 from symmon import units

@@ -19,7 +19,7 @@ from symmon.transforms.montecarlo import group_generator
 from symmon.transforms.stats import Stats, merge, merge_all
 from symmon.transforms.nodes import standard_rule
 
-from conftest import radar_model, random_spd
+from helpers import radar_model, random_spd
 
 #: Closed-form moments against a transform that is exact for them: rounding only.
 EXACT_RTOL = 1e-10

@@ -1,0 +1,50 @@
+"""Helpers shared by the test modules: paths of the checkout and a few test inputs.
+
+The tests sit in folders named for the subpackage they test (tests/core, tests/cli, ...);
+``pythonpath = ["tests"]`` in pyproject.toml makes this module importable from all of
+them as ``from helpers import ...``, and the paths below do not depend on how deep a test
+module is. Fixtures are in tests/conftest.py.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import sympy as sp
+
+import symmon as sm
+
+#: The checkout: the parent of tests/.
+ROOT = Path(__file__).resolve().parents[1]
+#: The example model and scenario files (examples/*.toml, the tutorial).
+EXAMPLES = ROOT / "examples"
+#: The derivation scripts run by symmon.derive.
+DERIVATIONS = ROOT / "derivations"
+#: Printed reference numbers of the lecture (tests/reference/*.json).
+REFERENCE_DIR = ROOT / "tests" / "reference"
+
+
+def radar_model(sensor: tuple[float, float]) -> sm.Model:
+    """The direct model x = p + [r cos φ, r sin φ] of a sensor at p (lecture, radar example)."""
+    r, phi = sp.symbols("r phi", real=True)
+    return sm.Model([r, phi], [sensor[0] + r * sp.cos(phi), sensor[1] + r * sp.sin(phi)], name="radar_direct")
+
+
+def random_spd(rng: np.random.Generator, n: int, scale: float = 1.0) -> np.ndarray:
+    """A random symmetric positive definite matrix with eigenvalues in [0.1, 1]·scale."""
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    return scale * (Q * rng.uniform(0.1, 1.0, n)) @ Q.T
+
+
+def random_gaussian(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A random mean and covariance of dimension n, the covariance well conditioned."""
+    A = rng.normal(size=(n, n)) / np.sqrt(n)
+    return rng.normal(size=n), 0.2 * (A @ A.T) + 0.05 * np.eye(n)
+
+
+def sparse_ring(n: int) -> sm.Model:
+    """Output i depends on x_i, x_{i+1}, x_{i+2} (mod n): the sparse model of issue 12."""
+    x = sp.symbols(f"x0:{n}", real=True)
+    out = [sp.sqrt(x[i] ** 2 + x[(i + 1) % n] ** 2 + 1) + sp.sin(x[i] * x[(i + 2) % n]) for i in range(n)]
+    return sm.Model(list(x), out, name=f"ring{n}")
