@@ -66,11 +66,7 @@ FACE = PACKAGE
 MAX_TOP_MODULES = 14
 
 #: Private uses the test rule lets through, each with its reason.
-ALLOWED_PRIVATE_IN_TESTS: dict[tuple[str, str], str] = {
-    ("tests/conftest.py", "symmon.transforms.base._ANGLE_WARNED"):
-        "the autouse fixture that gives every test a fresh once-per-model AngleWarning registry; "
-        "to go when symmon.transforms.base has a public way to reset it",
-}
+ALLOWED_PRIVATE_IN_TESTS: dict[tuple[str, str], str] = {}
 
 #: Calls that read or write an attribute named by a string: f(target, "name", ...).
 _ATTRIBUTE_CALLS = {"setattr", "getattr", "delattr", "hasattr"}

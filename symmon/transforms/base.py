@@ -27,6 +27,7 @@ from .registry import _register
 __all__ = [
     "Transform", "Moments", "wrap_angle", "weighted_moments", "batch_sqrt",
     "evaluate_points", "check_moments_finite", "check_batch", "likely_angles", "warn_angle_cut", "pilot_angle_cut",
+    "reset_angle_warnings",
 ]
 
 
@@ -422,6 +423,12 @@ def check_moments_finite(cm: CompiledModel, b: Moments, means: np.ndarray, trans
 # --------------------------------------------------------------------------- undeclared angles
 #: (outputs, symbols, output index) already warned about: one AngleWarning per model and output.
 _ANGLE_WARNED: set[tuple] = set()
+
+
+def reset_angle_warnings() -> None:
+    """Forget which undeclared-angle warnings were given, so that each is given again
+    (once per model and output from now on): for a fresh start in a notebook or a test."""
+    _ANGLE_WARNED.clear()
 
 
 def likely_angles(cm: CompiledModel, declared: frozenset[int]) -> dict[int, float]:
