@@ -17,10 +17,12 @@ is wrapped.
 
 The whole step, from the sigma points (or the Taylor terms) to the wrapped update, is one
 CasADi function of (x, P, y, Q, R), built from the models' SX graphs with a symbolic Cholesky
-factor (the moment formulas of :mod:`symmon.codegen.symbolic`, in SX).  Its C code is
-compiled once (cached on disk, ``docs/compile.md``), and a C loop around it runs all the
-steps of all the runs of a filter bank in one call; without a compiler the step runs on
-CasADi's virtual machine.  :class:`symmon.NonlinearKalmanFilter` (:mod:`symmon.filters`)
+factor (the moment formulas of :mod:`symmon.codegen.symbolic`): straight-line SX for small
+filters, and from :data:`MX_FROM` variables on an MX graph whose matrix products, map over
+the points and solve are loops in C.  Its C code goes through the compile policy of every
+generated function (cached on disk, ``docs/compile.md``), and a C loop around it runs all
+the steps of all the runs of a filter bank in one call; without a compiler, or while a large
+step builds in the background, the step runs on CasADi's virtual machine.  :class:`symmon.NonlinearKalmanFilter` (:mod:`symmon.filters`)
 and the adaptive filter (:mod:`symmon.filters.adaptive`) run it.
 
 References
