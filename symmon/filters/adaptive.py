@@ -26,7 +26,7 @@ import numpy as np
 from ..measures.advice import cost, moment_distance, whiteners
 from ..core.angles import wrap_angle
 from ..errors import SymmonError
-from .step import _compiled_step, _filterable
+from .step import _compiled_step, _filterable, check_dimensions
 from .strategy import FilterStrategy
 from ..core.model import Model
 from ..compile import compiled
@@ -105,6 +105,10 @@ class Adaptive(FilterStrategy):
 
     def label(self) -> str:
         return repr(self)
+
+    def check(self, kf):
+        for t in self.candidates + (self.reference,):
+            check_dimensions(t, kf.dimensions)
 
     def run(self, kf, Y, x0, P0):
         return _adaptive_run(self, kf, Y, x0, P0)

@@ -134,6 +134,13 @@ class NonlinearKalmanFilter:
         object.__setattr__(self, "R", readonly(R))
         object.__setattr__(self, "transform", transform)
         object.__setattr__(self, "strategy", strategy)
+        strategy.check(self)
+
+    @property
+    def dimensions(self) -> tuple[int, int]:
+        """The dimensions the two updates integrate over: [x; w] for f and [x; e] for h
+        (the state alone for additive noise)."""
+        return self.f_model.n_u + self.f_model.n_v, self.h_model.n_u + self.h_model.n_v
 
     @cached_property
     def angle_states(self) -> frozenset[int]:

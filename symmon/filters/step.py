@@ -40,7 +40,7 @@ import hashlib
 import itertools
 import math
 import threading
-from typing import Any
+from typing import Any, Iterable
 
 import casadi as ca
 import numpy as np
@@ -63,6 +63,10 @@ _OUTPUTS = ("x", "P", "x_pred", "P_pred", "innovation", "S")
 #: points and the solve as loops (tens of KB at any n, about a second of gcc) and is as fast
 #: from about 10 states on (docs/compile.md, "Filter steps").
 MX_FROM = 10
+#: A point rule with more points than this is built in MX at any size: unrolled, each point
+#: copies g and its products with P (Gauss–Hermite of order 10 on 4 states has 10⁴ points,
+#: and its SX step ran gcc for minutes); in MX the points are one map.
+MAX_SX_POINTS = 64
 
 
 def _sym(A):
@@ -74,7 +78,9 @@ def _step_function(f: Model, h: Model, transform: Transform, angle_states: froze
     """(x, P, y, Q, R) ↦ (x⁺, P⁺, x⁻, P⁻, ν, S): one predict + update step (the module's notes)."""
     n, n_y = f.n_u, h.n_y
     nq, nr = f.n_v or n, h.n_v or n_y
-    kind = ca.MX if n + max(f.n_v, h.n_v) >= MX_FROM else ca.SX
+    dims = (n + f.n_v, n + h.n_v)
+    points = max(len(transform.unit_rule(d)[0]) for d in dims) if transform.point_rule else 0
+    kind = ca.MX if max(dims) >= MX_FROM or points > MAX_SX_POINTS else ca.SX
     chol = chol_node if kind is ca.MX else chol_lower  # the unrolled factor: n³/6 operations
     x, P, y = kind.sym("x", n), kind.sym("P", n, n), kind.sym("y", n_y)
     Q, R = kind.sym("Q", nq, nq), kind.sym("R", nr, nr)
@@ -248,4 +254,19 @@ def _compiled_step(f: Model, h: Model, transform: Transform, angle_states: froze
 
 def _filterable(transform: Any) -> bool:
     """A rule a filter can compile: a Taylor rule or a point rule (declared capabilities)."""
-    return isinstance(transform, Transform) and (transform.taylor_order is not None or transform.unit_rule(1) is not None)
+    return isinstance(transform, Transform) and (transform.taylor_order is not None or transform.point_rule)
+
+
+def check_dimensions(transform: Transform, dims: Iterable[int]) -> None:
+    """Build a point rule's unit points for each dimension a filter uses (the state, with
+    the noise appended for general noise), so that a rule undefined there (a UT with
+    n + λ ≤ 0, a grid beyond its size limit) is refused when the filter is made.
+
+    Raises
+    ------
+    SymmonError
+        From the rule, naming the dimension.
+    """
+    if transform.point_rule:
+        for n in sorted(set(dims)):
+            transform.unit_rule(n)

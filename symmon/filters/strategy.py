@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import ArgumentTypeError, SymmonError
 from ..transforms import Transform
-from .step import _compiled_step, _filterable
+from .step import _compiled_step, _filterable, check_dimensions
 
 if TYPE_CHECKING:  # the filter imports this module, not the other way round
     from .nonlinear import NonlinearKalmanFilter
@@ -31,6 +31,9 @@ class FilterStrategy(ABC):
     @abstractmethod
     def label(self) -> str:
         """The filter's name (EKF, UKF(...), Adaptive(...)): ``NonlinearKalmanFilter.method``."""
+
+    def check(self, kf: "NonlinearKalmanFilter") -> None:
+        """Refuse, when the filter is made, what cannot run on its dimensions (default: nothing)."""
 
     @abstractmethod
     def run(self, kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: np.ndarray,
@@ -70,6 +73,9 @@ class RuleStrategy(FilterStrategy):
 
     def label(self) -> str:
         return self.transform.filter_label()
+
+    def check(self, kf):
+        check_dimensions(self.transform, kf.dimensions)
 
     def run(self, kf, Y, x0, P0):
         step = _compiled_step(kf.f_model, kf.h_model, self.transform, kf.angle_states)

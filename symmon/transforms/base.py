@@ -150,6 +150,10 @@ class Transform(ABC):
     #: The order of a Taylor rule (1: TT1, 2: TT2), whose moments are closed forms in
     #: J and H at the mean; ``None`` for other rules.
     taylor_order: ClassVar[int | None] = None
+    #: True for a point rule: its moments are weighted sums over points m + L z whose unit
+    #: points and weights :meth:`unit_rule` gives (the filters and ``export_c`` compile
+    #: them).  Declared, so that no caller builds a rule to learn what kind it is.
+    point_rule: ClassVar[bool] = False
     #: The rule's registered short names: ``{name: (summary, factory)}``, where
     #: ``factory(**options)`` builds the rule from the options of
     #: :func:`~symmon.transforms.registry.make` (samples, seed, order, groups), taking only
@@ -172,6 +176,10 @@ class Transform(ABC):
         if getattr(cls, "_moments") is Transform._moments:  # abstract: an intermediate base
             return
         missing = [m for m in ("cost",) if getattr(cls, m) is getattr(Transform, m)]
+        if cls.point_rule and cls.unit_rule is Transform.unit_rule:
+            missing.append("unit_rule (it declares point_rule)")
+        if not cls.point_rule and cls.unit_rule is not Transform.unit_rule:
+            missing.append("point_rule = True (it defines unit_rule)")
         if cls.stochastic:
             missing += [m for m in ("replicate_stats", "nested_stats") if getattr(cls, m) is getattr(Transform, m)]
         if missing:

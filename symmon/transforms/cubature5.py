@@ -61,6 +61,7 @@ class Cubature5(Transform):
 
     exact_degree: ClassVar[float] = 5
     name: ClassVar[str] = "ct5"
+    point_rule: ClassVar[bool] = True
     presets: ClassVar[dict] = {"ct5": ("the fifth-degree cubature rule (2n^2 + 1 points)", lambda **_: Cubature5())}
 
     def cost(self, n_w: int) -> int:

@@ -70,6 +70,7 @@ class GaussHermite(Transform):
     error_estimate: bool = False
 
     name: ClassVar[str] = "gh"
+    point_rule: ClassVar[bool] = True
     presets: ClassVar[dict] = {"gh": ("Gauss-Hermite quadrature of a given order", lambda order, **_: GaussHermite(order))}
 
     def __post_init__(self) -> None:

@@ -53,6 +53,7 @@ class UT(Transform):
 
     exact_degree: ClassVar[float] = 3
     name: ClassVar[str] = "ut"
+    point_rule: ClassVar[bool] = True
     presets: ClassVar[dict] = {
         "ut1": ("unscented transform, alpha = 1, beta = 0, kappa = 3 - n", lambda **_: UT.ut1()),
         "ut2": ("unscented transform, alpha = 1e-3, beta = 2, kappa = 0", lambda **_: UT.ut2()),

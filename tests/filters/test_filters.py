@@ -636,3 +636,31 @@ def test_the_mx_step_equals_the_sx_step(transform, monkeypatch):
     for a, b in zip(mx(x, P, y, Q, R), sx(x, P, y, Q, R)):
         a, b = a.full(), b.full()
         assert np.max(np.abs(a - b)) <= 1e-12 * max(1.0, np.max(np.abs(b)))
+
+
+def test_a_rule_is_checked_at_the_filter_dimensions_not_at_one():
+    """FilterPy's kappa = 3 - n on 4 states (kappa = -1) is a valid UT there; on 1 state it
+    is not, and the filter says so when it is made."""
+    xs = sp.symbols("a b c d", real=True)
+    f, h = sm.Model(list(xs), list(xs), name="dims_f"), sm.Model(list(xs), [xs[0] ** 2, xs[1]], name="dims_h")
+    ut = sm.UT(alpha=1, beta=2, kappa=-1)
+    kf = sm.NonlinearKalmanFilter(f, h, np.eye(4), np.eye(2), ut)
+    assert kf.dimensions == (4, 4)
+    assert np.isfinite(kf.filter(np.ones((3, 2)), sm.Gaussian(np.zeros(4), np.eye(4))).x).all()
+    one = sm.Model([xs[0]], [xs[0]], name="dims_1")
+    with pytest.raises(SymmonError, match="n \\+ lambda = 0 <= 0 for n = 1"):
+        sm.NonlinearKalmanFilter(one, one, [[1.0]], [[1.0]], ut)
+    with pytest.raises(SymmonError, match="for n = 1"):
+        sm.NonlinearKalmanFilter(one, one, [[1.0]], [[1.0]], sm.Adaptive(candidates=(sm.TT1(), ut)))
+
+
+def test_a_rule_with_many_points_is_built_in_mx_at_any_size():
+    """Gauss–Hermite of order 10 on 4 states (10⁴ points): one map in MX, not 10⁴ unrolled
+    copies of h (that SX step ran gcc for minutes)."""
+    from symmon.filters import step
+
+    xs = sp.symbols("px py vx vy", real=True)
+    f = sm.Model(list(xs), [xs[0] + 0.5 * xs[2], xs[1] + 0.5 * xs[3], xs[2], xs[3]], name="gh10_f")
+    h = sm.Model(list(xs), [sp.sqrt(xs[0] ** 2 + xs[1] ** 2), sp.atan2(xs[1], xs[0])], name="gh10_h", angles=[1])
+    assert step._step_function(f, h, sm.GaussHermite(10), frozenset(), "gh10_step").is_a("MXFunction")
+    assert step._step_function(f, h, sm.UT.ut1(), frozenset(), "ut_step").is_a("SXFunction")

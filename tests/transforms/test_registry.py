@@ -77,3 +77,13 @@ def test_the_template_checks_every_call_of_a_rule(monkeypatch):
         np.full((1, 1), np.nan), np.zeros((1, 1, 1)), np.zeros((1, 1, 2)), evaluations=1))
     with pytest.raises(NonFiniteError, match="E y"):
         nan_rule().moments(cm, np.zeros((1, 2)), np.eye(2)[None])
+
+
+def test_a_point_rule_declares_itself_and_its_points_together(monkeypatch):
+    monkeypatch.setattr(registry, "_PRESETS", dict(registry._PRESETS))
+    with pytest.raises(TypeError, match="does not declare unit_rule"):
+        _point_rule_class("NoPoints", {}, point_rule=True)
+    with pytest.raises(TypeError, match="does not declare point_rule = True"):
+        _point_rule_class("Undeclared", {}, unit_rule=lambda self, n: None)
+    assert [t.point_rule for t in (sm.UT(), sm.GaussHermite(), sm.Cubature5(), sm.TT2(), sm.MonteCarlo(10))] == \
+        [True, True, True, False, False]
