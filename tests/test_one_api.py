@@ -224,3 +224,39 @@ def test_estimators_and_filters_default_to_the_ukf_rule():
     assert est.update(sq, prior, [1.0], [[0.3]]) == est.update(sq, prior, [1.0], [[0.3]], transform=ut)
     assert est.predict(sq, prior, [[0.1]]) != est.predict(sq, prior, [[0.1]], transform=sm.TT2())
     assert sm.NonlinearKalmanFilter(lin, sq, [[0.1]], [[0.3]]).method == "UKF(alpha=1.0, beta=0.0, kappa=None)"
+
+
+# --------------------------------------------------------------------------- transforms by name
+def test_a_transform_can_be_named_wherever_one_is_given(tmp_path):
+    """The command line's names work in Python too: the same rule as the instance, bit for bit."""
+    x, y = sp.symbols("x y", real=True)
+    polar = sm.Model([x, y], [sp.sqrt(x**2 + y**2), sp.atan2(y, x)], name="named_polar")
+    u = sm.Gaussian([1.0, 10.0], np.diag([0.17, 17.0]))
+    for name, rule in (("ut1", sm.UT.ut1()), ("tt1", sm.TT1()), ("gh5", sm.GaussHermite(5)), ("ct", sm.UT.cubature())):
+        np.testing.assert_array_equal(sm.propagate(polar, u, transform=name).cov, sm.propagate(polar, u, transform=rule).cov)
+    assert float(sm.nonlinearity(polar, u, transform="GH3")) == float(sm.nonlinearity(polar, u, transform=sm.GaussHermite(3)))
+    m = sm.propagate_many(polar, [u, u], transform="tt2")
+    np.testing.assert_array_equal(m.mean[0], sm.propagate(polar, u, transform=sm.TT2()).mean)
+    assert sm.NonlinearKalmanFilter(polar.with_angles([]), polar, np.eye(2), np.eye(2), "ut1").method == \
+        sm.UT.ut1().filter_label()
+    assert sm.Adaptive(candidates=("tt1", "ct"), reference="gh5").candidates == (sm.TT1(), sm.UT.cubature())
+    pred = sm.estimation.predict(polar.with_angles([]), u, np.eye(2), transform="tt1")
+    assert pred == sm.estimation.predict(polar.with_angles([]), u, np.eye(2), transform=sm.TT1())
+    c_named, _ = sm.export_c(polar, tmp_path / "a", name="named", ut="ct")
+    c_rule, _ = sm.export_c(polar, tmp_path / "b", name="named", ut=sm.UT.cubature())
+    assert c_named.read_text() == c_rule.read_text()
+
+
+@pytest.mark.parametrize("bad, error, match", [
+    ("nope", SymmonError, "unknown transform 'nope'"),
+    ("gh", None, None),  # the registry's own gh: order 5
+    (3, TypeError, "symmon transform"),
+])
+def test_a_bad_transform_name_is_a_clear_error(bad, error, match):
+    x = sp.Symbol("x", real=True)
+    model, u = sm.Model([x], [x**2], name="named_bad"), sm.Gaussian([0.0], [[1.0]])
+    if error is None:
+        assert sm.propagate(model, u, transform=bad).mean[0] == pytest.approx(1.0, abs=1e-12)
+        return
+    with pytest.raises(error, match=match):
+        sm.propagate(model, u, transform=bad)

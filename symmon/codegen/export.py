@@ -37,7 +37,6 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 import casadi as ca
-import numpy as np
 
 from ..compile.cnames import c_identifier, comment_text, is_casadi_name
 from ..errors import ArgumentTypeError, SymmonError
@@ -45,6 +44,7 @@ from ..io import atomic_write_text
 from ..core.model import Model
 from ..compile import compiled
 from .symbolic import point_moments, tt2_moments, unit_rule
+from ..transforms.registry import resolve
 from ..transforms import UT, Transform
 
 __all__ = ["export_c", "moment_functions"]
@@ -63,6 +63,7 @@ def _check_ut(ut: Transform | None) -> Transform:
     """The point rule of the ``ut`` map: by its declared capabilities, not its class."""
     if ut is None:
         return UT.ut1()
+    ut = resolve(ut)
     if not isinstance(ut, Transform) or ut.taylor_order is not None or ut.unit_rule(1) is None:
         raise SymmonError(
             "ut must be a point rule: a symmon transform that declares its points and weights "

@@ -40,13 +40,15 @@ from ..core.model import Model
 from ..propagation.joint import JointMoments
 from ..propagation.front import propagate
 from ..transforms import UT, Transform
+from ..transforms.registry import resolve
 
 
 
 def _estimator_transform(transform: Transform | None) -> Transform:
     """The estimators' default is the UKF's rule, ``UT.ut1()`` (the lecture's ``'ut1'``),
-    not the moments' default TT2: an estimator's defaults follow the filters'."""
-    return UT.ut1() if transform is None else transform
+    not the moments' default TT2: an estimator's defaults follow the filters'.  A name is
+    resolved as in :func:`symmon.propagate`."""
+    return UT.ut1() if transform is None else resolve(transform)
 
 
 __all__ = [

@@ -28,6 +28,7 @@ from ..core.angles import wrap_angle
 from ..errors import SymmonError
 from .step import _compiled_step, _filterable, check_dimensions
 from .strategy import FilterStrategy
+from ..transforms.registry import resolve
 from ..core.model import Model
 from ..compile import compiled
 from ..transforms import TT1, TT2, UT, GaussHermite, Transform
@@ -91,7 +92,8 @@ class Adaptive(FilterStrategy):
     def __post_init__(self) -> None:
         if isinstance(self.tol, bool) or not isinstance(self.tol, (int, float)) or not 0 < self.tol < 1:
             raise SymmonError(f"tol must be a number in (0, 1), got {self.tol!r}")
-        cands = tuple(self.candidates)
+        cands = tuple(resolve(t) for t in self.candidates)
+        object.__setattr__(self, "reference", resolve(self.reference))
         if not cands:
             raise SymmonError("candidates is empty")
         for t in cands + (self.reference,):

@@ -67,6 +67,7 @@ from .strategy import FilterStrategy, RuleStrategy
 from ..core.gaussian import Gaussian, as_covariance
 from ..core.model import Model
 from ..transforms import UT, Transform
+from ..transforms.registry import resolve
 
 __all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest", "Adaptive"]
 
@@ -90,7 +91,8 @@ class NonlinearKalmanFilter:
         Process noise covariance (Cov w, or additive (n, n)).
     R : array_like
         Measurement noise covariance (Cov e, or additive (n_y, n_y)).
-    transform : TT1, TT2, UT, GaussHermite, or a FilterStrategy such as Adaptive, default ``UT.ut1()``
+    transform : TT1, TT2, UT, GaussHermite, a registered name, or a FilterStrategy, default ``UT.ut1()``
+        A name is resolved as in :func:`symmon.propagate` (``"tt1"``, ``"ut1"``, ``"gh5"``).
         A transform is used for both updates of every step (the strategy
         :class:`~symmon.filters.strategy.RuleStrategy`); :class:`Adaptive` picks one per
         step and run.
@@ -128,7 +130,7 @@ class NonlinearKalmanFilter:
             raise ShapeError(f"h_model has {h.n_u} inputs but f_model has {f.n_u} states")
         Q = as_covariance(self.Q, "Q", dim=f.n_v if f.n_v else f.n_u)
         R = noise_cov(h, self.R, "R")
-        transform = UT.ut1() if self.transform is None else self.transform
+        transform = UT.ut1() if self.transform is None else resolve(self.transform)
         strategy = transform if isinstance(transform, FilterStrategy) else RuleStrategy(transform)
         object.__setattr__(self, "Q", readonly(Q))
         object.__setattr__(self, "R", readonly(R))

@@ -15,16 +15,18 @@ from ..core.model import Model
 from .joint import JointMoments
 from ..transforms import Transform
 from ..transforms import Moments
-from ..transforms.registry import default_transform
+from ..transforms.registry import default_transform, resolve
 
 __all__ = ["propagate", "propagate_many", "joint_input", "input_batch", "check_transform"]
 
 
 def check_transform(transform: Any) -> Transform:
     """``transform``, or the default (TT2, :func:`~symmon.transforms.registry.default_transform`)
-    for ``None``; a class or a non-transform is a TypeError."""
+    for ``None``, or the transform of a registered name (``"ut1"``, ``"gh5"``:
+    :func:`~symmon.transforms.registry.resolve`); a class or a non-transform is a TypeError."""
     if transform is None:
         return default_transform()
+    transform = resolve(transform)
     if isinstance(transform, type) and issubclass(transform, Transform):
         raise ArgumentTypeError(f"pass a transform instance, e.g. {transform.__name__}(), not the class")
     if not isinstance(transform, Transform):

@@ -21,14 +21,15 @@ GaussHermite(order=3, sparse=None, error_estimate=False)
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable
+import re
+from typing import TYPE_CHECKING, Any, Callable
 
 from ..errors import SymmonError
 
 if TYPE_CHECKING:
     from .base import Transform
 
-__all__ = ["Preset", "make", "names", "presets", "compare_set", "COMPARE", "DEFAULT",
+__all__ = ["Preset", "make", "resolve", "names", "presets", "compare_set", "COMPARE", "DEFAULT",
            "default_transform"]
 
 
@@ -96,8 +97,34 @@ def make(name: str, *, samples: int = 10**6, seed: int = 0, order: int = 5, grou
         For an unknown name.
     """
     if name not in _PRESETS:
-        raise SymmonError(f"unknown transform {name!r}; use one of {names()}")
+        raise SymmonError(f"unknown transform {name!r}; use one of {names()} (or gh<order>, e.g. 'gh5')")
     return _PRESETS[name].factory(samples=samples, seed=seed, order=order, groups=groups)
+
+
+def resolve(transform: Any) -> Any:
+    """A transform given by its short name, as on the command line, or as itself.
+
+    A registered name (:func:`names`: ``"tt1"``, ``"ut1"``, ``"gh"``, ``"mc"``, ...) is built
+    with :func:`make`'s defaults; ``"gh<order>"`` (``"gh5"``) is Gauss–Hermite of that order.
+    Anything that is not a string is returned as it is, for the caller to check.
+
+    Raises
+    ------
+    SymmonError
+        For an unknown name.
+
+    Examples
+    --------
+    >>> resolve("ut1"), resolve("gh3")
+    (UT.ut1(), GaussHermite(order=3, sparse=None, error_estimate=False))
+    """
+    if not isinstance(transform, str):
+        return transform
+    name = transform.strip().lower()
+    order = re.fullmatch(r"gh(\d{1,3})", name)
+    if order:
+        return make("gh", order=int(order.group(1)))
+    return make(name)
 
 
 #: The names :func:`symmon.compare` uses by default, with ``samples=10**5``.
