@@ -26,6 +26,7 @@ __all__ = [
     "UsageError",
     "BuildError",
     "AngleWarning",
+    "QuadratureWarning",
 ]
 
 
@@ -139,3 +140,9 @@ class BuildError(RuntimeError):
 class AngleWarning(RuntimeWarning):
     """An output that looks like an angle (atan2) is not declared with ``angles=`` and
     its evaluated points lie on both sides of the cut at ±π: its moments are wrong."""
+
+
+class QuadratureWarning(UserWarning):
+    """A quadrature rule chose a grid the caller did not ask for (Gauss–Hermite with
+    ``sparse=None`` falls to the sparse grid above 4 dimensions): its degree of exactness
+    and its weights differ from the tensor grid's."""

@@ -42,8 +42,8 @@ def rng() -> np.random.Generator:
 def _fresh_angle_warnings():
     """Each test starts (and leaves) with no AngleWarning issued: the warning comes once
     per model and output in a process, which would make a test depend on the ones before."""
-    from symmon.transforms.base import reset_angle_warnings
+    from symmon.transforms.base import reset_warnings
 
-    reset_angle_warnings()
+    reset_warnings()
     yield
-    reset_angle_warnings()
+    reset_warnings()

@@ -27,7 +27,7 @@ from .registry import _register
 __all__ = [
     "Transform", "Moments", "wrap_angle", "weighted_moments", "batch_sqrt",
     "evaluate_points", "check_moments_finite", "check_batch", "likely_angles", "warn_angle_cut", "pilot_angle_cut",
-    "reset_angle_warnings",
+    "reset_warnings",
 ]
 
 
@@ -228,6 +228,11 @@ class Transform(ABC):
     def _moments(self, cm: CompiledModel, means: np.ndarray, covs: np.ndarray,
                  angles: frozenset[int], executor: Any) -> Moments:
         """The rule itself, on a checked batch (called by :meth:`moments` only)."""
+
+    def degree(self, n: int) -> float:
+        """The degree of exactness for Gaussians of dimension ``n`` (default
+        :attr:`exact_degree`; a rule whose grid depends on n says so)."""
+        return self.exact_degree
 
     def cost(self, n_w: int) -> int:
         """Evaluations of g for one Gaussian of dimension ``n_w``."""
@@ -433,10 +438,18 @@ def check_moments_finite(cm: CompiledModel, b: Moments, means: np.ndarray, trans
 _ANGLE_WARNED: set[tuple] = set()
 
 
-def reset_angle_warnings() -> None:
+def reset_warnings() -> None:
     """Forget which undeclared-angle warnings were given, so that each is given again
-    (once per model and output from now on): for a fresh start in a notebook or a test."""
+    (once per model and output from now on): for a fresh start in a notebook or a test.
+    The announcements of a rule's own grid (:class:`~symmon.errors.QuadratureWarning`) are
+    reset too."""
     _ANGLE_WARNED.clear()
+    for forget in _RESETS:
+        forget()
+
+
+#: What :func:`reset_warnings` also clears: the once-only announcements of the rules.
+_RESETS: list = []
 
 
 def likely_angles(cm: CompiledModel, declared: frozenset[int]) -> dict[int, float]:

@@ -84,7 +84,8 @@ def _check_size(dim: int, order: int, sparse: bool) -> None:
     kind = "sparse (Smolyak)" if sparse else "tensor"
     hint = "a lower order, UT (2n + 1 points) or Monte Carlo"
     if not sparse:
-        hint = f"sparse=True ({rule_size(dim, order, True)} nodes), " + hint
+        # An upper bound: the grids before their common nodes merge (cost() counts the merged ones).
+        hint = f"sparse=True (at most {rule_size(dim, order, True)} nodes), " + hint
     raise ResourceError(
         f"the Gauss-Hermite {kind} grid of order {order} in {dim} dimensions has {size} nodes, "
         f"above the limit MAX_NODES = {MAX_NODES}: use {hint}"

@@ -21,20 +21,25 @@ grids", J. Econometrics 144(1), 2008. doi:10.1016/j.jeconom.2007.12.004
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 
-from ..errors import SymmonError
+from ..errors import QuadratureWarning, SymmonError
 from .nodes import MAX_NODES, SPARSE_ABOVE, rule_size, standard_rule
-from .base import Moments, Transform, batch_sqrt, evaluate_points, weighted_moments, wrap_angle
+from .base import _RESETS, Moments, Transform, batch_sqrt, evaluate_points, weighted_moments, wrap_angle
 
 __all__ = ["GaussHermite", "standard_rule", "rule_size", "ERROR_SAFETY", "MAX_NODES"]
 
 
 #: Factor on |Q_p − Q_{p+2}|: it bounds |Q_p − I| once |Q_{p+2} − I| ≤ |Q_p − I| / 2.
 ERROR_SAFETY = 2.0
+
+#: (order, dimension) whose fall to the sparse grid was announced (:class:`QuadratureWarning`).
+_ANNOUNCED: set[tuple[int, int]] = set()
+_RESETS.append(_ANNOUNCED.clear)
 
 @dataclass(frozen=True)
 class GaussHermite(Transform):
@@ -81,16 +86,33 @@ class GaussHermite(Transform):
 
     @property
     def exact_degree(self) -> float:  # type: ignore[override]
-        """Degree of exactness: 2·order − 1 per coordinate for the tensor grid; total
-        degree 2·level − 1, level = (order + 1) // 2, for the sparse grid.  With
-        ``sparse=None`` the tensor value is given (the grid is tensor up to 4 dimensions).
-        """
-        if self.sparse:
-            return 2 * ((self.order + 1) // 2) - 1
-        return 2 * self.order - 1
+        """The degree of exactness in every dimension: 2·order − 1 (per coordinate) for the
+        tensor grid, total degree 2·level − 1, level = (order + 1) // 2, for the sparse grid,
+        and with ``sparse=None`` the sparse value, which it falls to above 4 dimensions
+        (:meth:`degree` gives the degree in a given dimension)."""
+        if self.sparse is False:
+            return 2 * self.order - 1
+        return 2 * ((self.order + 1) // 2) - 1
+
+    def degree(self, n: int) -> float:
+        """The degree of exactness of the grid used in ``n`` dimensions (:attr:`exact_degree`)."""
+        return 2 * ((self.order + 1) // 2) - 1 if self._sparse(n) else 2 * self.order - 1
 
     def _sparse(self, n: int) -> bool:
         return bool(n > SPARSE_ABOVE if self.sparse is None else self.sparse)
+
+    def _announce(self, n: int) -> None:
+        """Warn (once per order and dimension) when ``sparse=None`` falls to the sparse grid."""
+        if self.sparse is None and n > SPARSE_ABOVE and (self.order, n) not in _ANNOUNCED:
+            _ANNOUNCED.add((self.order, n))
+            w = standard_rule(n, int(self.order), True)[1]
+            signs = ", with negative weights" if (w < 0).any() else ""
+            warnings.warn(
+                f"GaussHermite(order={self.order}) in {n} dimensions uses the Smolyak sparse grid "
+                f"({len(w)} nodes{signs}), exact to total "
+                f"degree {self.degree(n)} only, not the tensor grid ({self.order}^{n} = {self.order**n} nodes, "
+                f"degree {2 * self.order - 1} per coordinate): pass sparse=True to accept it, or sparse=False",
+                QuadratureWarning, stacklevel=4)
 
     def cost(self, n_w: int) -> int:
         """The nodes of the rule (and of the order + 2 rule with ``error_estimate``);
@@ -106,6 +128,7 @@ class GaussHermite(Transform):
 
     def unit_rule(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The nodes for N(0, I_n) (sparse as :meth:`moments` picks it) and the weights, twice."""
+        self._announce(n)
         Z, w = standard_rule(n, int(self.order), self._sparse(n))
         return Z, w, w
 
@@ -117,6 +140,7 @@ class GaussHermite(Transform):
 
     def _moments(self, cm, means, covs, angles, executor):
         K, n = means.shape
+        self._announce(n)
         sparse = self._sparse(n)
         L = batch_sqrt(covs)
         mean, cov, cross, evals = _rule_moments(cm, means, L, int(self.order), sparse, angles, self)

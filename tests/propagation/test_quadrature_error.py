@@ -106,7 +106,7 @@ def test_sparse_grid_estimate_bounds_the_error(order):
     model = sm.Model(list(syms), [syms[0] ** 2 * syms[1] + syms[2] * syms[3] * syms[4] + syms[4] ** 3], name="qerr_sparse")
     u = sm.Gaussian(np.linspace(-0.3, 0.4, 5), np.diag(np.linspace(0.5, 1.2, 5)) + 0.05)
     exact = sm.propagate(model, u, transform=sm.Exact())
-    m = quadrature_error(model, u, order=order)
+    m = quadrature_error(model, u, order=order, sparse=True)
     err = m.error
     assert m.info["sparse"] is True
     for k in MOMENTS:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import itertools
 from math import prod
 
@@ -14,7 +16,7 @@ from hypothesis.extra.numpy import arrays
 
 import symmon as sm
 from symmon.compile import CompiledModel
-from symmon.errors import SamplingError
+from symmon.errors import QuadratureWarning, SamplingError
 from symmon.transforms.montecarlo import group_generator
 from symmon.transforms.stats import Stats, merge, merge_all
 from symmon.transforms.nodes import standard_rule
@@ -446,14 +448,22 @@ def test_sparse_grid_polynomial_model_against_exact():
     # dim 5, order 5 → level 3 → total degree 5 for the mean.
     expr = [U5[0] * U5[1] * U5[2] ** 3 + U5[3] ** 4 * U5[4] - 2 * U5[1] ** 2 + U5[4]]
     cm = vm(expr, U5, "sparse_model")
-    got, ref = batch1(sm.GaussHermite(5), cm, MU5, P5), batch1(sm.Exact(), cm, MU5, P5)
+    got, ref = batch1(sm.GaussHermite(5, sparse=True), cm, MU5, P5), batch1(sm.Exact(), cm, MU5, P5)
     assert_close(got[0], ref[0], EXACT_RTOL, "mean")
 
 
 def test_gauss_hermite_default_grid_switches_to_sparse_above_four_dims():
+    """The fall to the sparse grid is announced once, with the grid's size and degree."""
     cm = vm([sum(U5)], U5, "sum5")
-    b = sm.GaussHermite(3).moments(cm, MU5[None], P5[None])
+    with pytest.warns(QuadratureWarning, match=r"GaussHermite\(order=3\) in 5 dimensions uses the Smolyak sparse "
+                                               r"grid \(11 nodes.*total degree 3 only.*3\^5 = 243 nodes, degree 5"):
+        b = sm.GaussHermite(3).moments(cm, MU5[None], P5[None])
     assert b.info["sparse"] is True
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert sm.GaussHermite(3).moments(cm, MU5[None], P5[None]).info["sparse"] is True  # once
+        assert sm.GaussHermite(3, sparse=True).moments(cm, MU5[None], P5[None]).info["sparse"] is True
+    assert (sm.GaussHermite(3).degree(4), sm.GaussHermite(3).degree(5), sm.GaussHermite(3).exact_degree) == (5, 3, 3)
     b = sm.GaussHermite(3).moments(vm([U2[0] + U2[1]], U2, "sum2"), MU2[None], P2[None])
     assert b.info["sparse"] is False
 
@@ -488,3 +498,40 @@ def test_propagate_many_refuses_covariances_that_overflow_the_checks():
     P = np.array([[[1e308, -1e308], [1e308, 1e308]]])
     with pytest.raises(sm.SymmonError, match=r"covs\[0\] is not symmetric"):
         sm.propagate_many(sm.Model([x, y], [x * y]), (np.zeros((1, 2)), P), transform=sm.UT.ut1())
+
+
+# =========================================================================== declared degrees
+def _monomials(n: int, degree: int, rng: np.random.Generator, count: int = 4) -> list[tuple[int, ...]]:
+    """``count`` random exponent vectors of total degree exactly ``degree`` in n variables."""
+    out = []
+    for _ in range(count):
+        e = np.zeros(n, dtype=int)
+        for i in rng.integers(0, n, size=degree):
+            e[i] += 1
+        out.append(tuple(int(k) for k in e))
+    return out
+
+
+DEGREE_CASES = [(rule, n) for rule in (sm.GaussHermite(2), sm.GaussHermite(3), sm.GaussHermite(3, sparse=True),
+                                         sm.GaussHermite(2, sparse=False), sm.UT.ut1()) for n in range(1, 9)]
+DEGREE_CASES += [(sm.Cubature5(), n) for n in range(1, 6)]  # the exact degree-5 reference is slow beyond
+
+
+@pytest.mark.parametrize("rule, n", DEGREE_CASES, ids=lambda c: repr(c) if not isinstance(c, int) else f"n={c}")
+def test_the_declared_degree_holds_in_every_dimension(rule, n):
+    """rule.degree(n) is what the grid used in n dimensions achieves: the mean of random
+    monomials of that total degree equals the exact Gaussian moment (closed form), for a
+    random mean and covariance."""
+    deg = int(rule.degree(n))
+    rng = np.random.default_rng(1000 * n + deg)
+    z = sp.symbols(f"z0:{n}", real=True)
+    monos = [sp.Mul(*[s**k for s, k in zip(z, e)]) for d in {max(deg - 1, 0), deg} for e in _monomials(n, d, rng, 2)]
+    cm = vm(monos, list(z), f"deg_{n}_{deg}")
+    A = rng.standard_normal((n, n))
+    mu, P = 0.3 * rng.standard_normal(n), 0.2 * (A @ A.T) / n + 0.3 * np.eye(n)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", QuadratureWarning)  # the fall to the sparse grid, tested above
+        got = rule.moments(cm, mu[None], P[None])
+    ref = sm.Exact().moments(cm, mu[None], P[None])
+    assert_close(got.mean[0], ref.mean[0], EXACT_RTOL, "mean")
+    assert rule.exact_degree <= rule.degree(n)  # the dimension-free declaration is the safe one
