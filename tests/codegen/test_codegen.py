@@ -329,7 +329,7 @@ def test_bad_ut_is_rejected(tmp_path):
         export_c(polar_model(), tmp_path, ut=sm.TT2())
 
 
-@pytest.mark.parametrize("ut", ["ut1", sm.TT1(), sm.MonteCarlo(n=100, seed=0)], ids=repr)
+@pytest.mark.parametrize("ut", ["tt1", sm.TT1(), sm.MonteCarlo(n=100, seed=0), 3], ids=repr)
 def test_ut_must_be_a_point_rule(tmp_path, ut):
     with pytest.raises(SymmonError, match="ut must be a point rule"):
         export_c(polar_model(), tmp_path, ut=ut)

@@ -132,7 +132,7 @@ def gaussian(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return m, 0.05 * (A @ A.T) + 0.01 * np.eye(n)
 
 
-TRANSFORMS = [sm.TT1(), sm.TT2(), sm.UT.ut1(), sm.UT(1.0, 2.0, 0.0), sm.UT.cubature(), sm.GaussHermite(3),
+TRANSFORMS = [sm.TT1(), sm.TT2(), sm.UT.ut1(), sm.UT(1.0, 2.0, 0.0), sm.UT.cubature(), sm.GaussHermite(3, sparse=True),
               Cubature5()]
 
 

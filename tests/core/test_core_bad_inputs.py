@@ -123,7 +123,9 @@ def test_transform_class_instead_of_instance(cls):
 
 def test_not_a_transform():
     with pytest.raises(TypeError, match="transform must be a symmon transform"):
-        sm.propagate(PRODUCT, U, transform="ut1")
+        sm.propagate(PRODUCT, U, transform=object())
+    with pytest.raises(SymmonError, match="unknown transform 'ut'"):
+        sm.propagate(PRODUCT, U, transform="ut")  # a name, but not a registered one
 
 
 @pytest.mark.parametrize("alpha", [0.0, -1.0])

@@ -501,7 +501,7 @@ def test_propagate_many_refuses_covariances_that_overflow_the_checks():
 
 
 # =========================================================================== declared degrees
-def _monomials(n: int, degree: int, rng: np.random.Generator, count: int = 4) -> list[tuple[int, ...]]:
+def _random_monomials(n: int, degree: int, rng: np.random.Generator, count: int = 4) -> list[tuple[int, ...]]:
     """``count`` random exponent vectors of total degree exactly ``degree`` in n variables."""
     out = []
     for _ in range(count):
@@ -512,12 +512,12 @@ def _monomials(n: int, degree: int, rng: np.random.Generator, count: int = 4) ->
     return out
 
 
-DEGREE_CASES = [(rule, n) for rule in (sm.GaussHermite(2), sm.GaussHermite(3), sm.GaussHermite(3, sparse=True),
+DIMENSION_CASES = [(rule, n) for rule in (sm.GaussHermite(2), sm.GaussHermite(3), sm.GaussHermite(3, sparse=True),
                                          sm.GaussHermite(2, sparse=False), sm.UT.ut1()) for n in range(1, 9)]
-DEGREE_CASES += [(sm.Cubature5(), n) for n in range(1, 6)]  # the exact degree-5 reference is slow beyond
+DIMENSION_CASES += [(sm.Cubature5(), n) for n in range(1, 6)]  # the exact degree-5 reference is slow beyond
 
 
-@pytest.mark.parametrize("rule, n", DEGREE_CASES, ids=lambda c: repr(c) if not isinstance(c, int) else f"n={c}")
+@pytest.mark.parametrize("rule, n", DIMENSION_CASES, ids=lambda c: repr(c) if not isinstance(c, int) else f"n={c}")
 def test_the_declared_degree_holds_in_every_dimension(rule, n):
     """rule.degree(n) is what the grid used in n dimensions achieves: the mean of random
     monomials of that total degree equals the exact Gaussian moment (closed form), for a
@@ -525,7 +525,7 @@ def test_the_declared_degree_holds_in_every_dimension(rule, n):
     deg = int(rule.degree(n))
     rng = np.random.default_rng(1000 * n + deg)
     z = sp.symbols(f"z0:{n}", real=True)
-    monos = [sp.Mul(*[s**k for s, k in zip(z, e)]) for d in {max(deg - 1, 0), deg} for e in _monomials(n, d, rng, 2)]
+    monos = [sp.Mul(*[s**k for s, k in zip(z, e)]) for d in {max(deg - 1, 0), deg} for e in _random_monomials(n, d, rng, 2)]
     cm = vm(monos, list(z), f"deg_{n}_{deg}")
     A = rng.standard_normal((n, n))
     mu, P = 0.3 * rng.standard_normal(n), 0.2 * (A @ A.T) / n + 0.3 * np.eye(n)
