@@ -18,11 +18,12 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence, TypeVar
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from ..errors import SymmonError
 from ..progress import progress_bar
 
-__all__ = ["Executor", "run_groups", "stop_point", "dask_compute", "connect_dask"]
+__all__ = ["Executor", "run_groups", "stop_point", "dask_compute", "connect_dask", "one_blas_thread"]
 
 J = TypeVar("J")
 R = TypeVar("R")
@@ -52,14 +53,26 @@ def run_groups(fn: Callable[[J, threading.Event], R], jobs: Sequence[J], workers
     # Ctrl-C is always seen at once (inline, a SIGINT was sometimes lost in the kernel loop).
     pool = ThreadPoolExecutor(workers)
     try:
-        futures = [pool.submit(fn, j, stop) for j in jobs]
-        return [f.result() for f in progress_bar(futures, desc, progress, total=len(futures))]
+        with one_blas_thread():
+            futures = [pool.submit(fn, j, stop) for j in jobs]
+            return [f.result() for f in progress_bar(futures, desc, progress, total=len(futures))]
     except BaseException:
         stop.set()
         raise
     finally:
         # Drop the queued groups; the running ones see `stop` within a chunk.
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def one_blas_thread() -> threadpool_limits:
+    """While symmon's own workers run, BLAS (OpenBLAS, MKL, ...) uses one thread each.
+
+    The workers already take the cores: a multithreaded BLAS beside them oversubscribes
+    them (Monte Carlo of a 20-state model took 16× longer on 2 cores with OpenBLAS's own
+    threads, docs/compile.md).  The limit is the library's, so it holds for the whole
+    process while the pool runs, and the previous setting comes back after it.
+    """
+    return threadpool_limits(limits=1, user_api="blas")
 
 
 def _is_int(v: Any) -> bool:

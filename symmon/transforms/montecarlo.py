@@ -30,7 +30,7 @@ import numpy as np
 from ..compile.compiled import CHUNK, CompiledModel, compile_model
 from ..errors import SamplingError, SymmonError
 from .base import Moments, Transform, batch_sqrt, pilot_angle_cut, wrap_angle
-from .executor import Executor, _is_int, dask_compute, stop_point
+from .executor import Executor, _is_int, dask_compute, one_blas_thread, stop_point
 from .mc_kernel import sample_kernel
 from .stats import Stats, _raw_stats, jackknife, merge, merge_all, moments_of
 
@@ -154,8 +154,10 @@ def _run_group(cm: CompiledModel, job: _Job, stop: threading.Event | None = None
 
 
 def _run_group_remote(outputs, symbols, job: _Job) -> Stats:
-    # Workers compile the model themselves: CasADi functions are not shipped.
-    return _run_group(compile_model(outputs, symbols), job)
+    # Workers compile the model themselves: CasADi functions are not shipped.  A Dask
+    # worker runs several tasks at once on its threads: one BLAS thread each, as ours.
+    with one_blas_thread():
+        return _run_group(compile_model(outputs, symbols), job)
 
 #: Inner samples per outer noise sample in the nested Monte Carlo of Cov_v E[g | v].
 MC_INNER = 64

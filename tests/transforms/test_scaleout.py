@@ -248,3 +248,19 @@ def test_randomised_qmc_error_bars_are_much_smaller_than_plain_mc():
         assert np.all(rqmc.stderr[k] > 0), k
         np.testing.assert_array_less(RQMC_GAIN * rqmc.stderr[k], plain.stderr[k], err_msg=k)
         np.testing.assert_array_less(np.abs(getattr(rqmc, k) - getattr(truth, k)), N_SE * rqmc.stderr[k], err_msg=k)
+
+
+def test_blas_runs_one_thread_inside_symmons_workers():
+    """Inside the thread pool each worker sees one BLAS thread; the setting comes back after."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from symmon.transforms.executor import run_groups
+
+    def blas_threads() -> list[int]:
+        return [d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"]
+
+    with threadpool_limits(limits=2, user_api="blas"):  # a known setting outside, whatever the machine
+        before = blas_threads()
+        seen = run_groups(lambda job, stop: blas_threads(), [0, 1, 2], workers=2)
+        assert seen == [[1] * len(before)] * 3
+        assert blas_threads() == before
