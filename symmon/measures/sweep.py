@@ -138,7 +138,8 @@ def _run_points(model: Model, means: np.ndarray, covs: np.ndarray, v: Gaussian |
     # fixed order).
     tasks = [dask.delayed(_point, pure=False)(model, m, P, v, weight, t, Executor(workers=1))
              for m, P, t in zip(means, covs, transforms)]
-    return dask_compute(tasks, executor.client, executor.scheduler)  # an interrupt cancels the pending points
+    # An interrupt cancels the pending points.
+    return dask_compute(tasks, executor.client, executor.scheduler, "sweep points", executor.progress)
 
 
 def _sweep(model: Model, param: np.ndarray | None, u: Any, v: Gaussian | None, weight: Any,

@@ -11,7 +11,9 @@ are the Dask side.
 from __future__ import annotations
 
 import asyncio
+import contextvars
 import os
+import queue
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -80,20 +82,54 @@ def _is_int(v: Any) -> bool:
     return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
 
 
-def dask_compute(tasks: Sequence[Any], client: Any = None, scheduler: str | None = None) -> list:
+def dask_compute(tasks: Sequence[Any], client: Any = None, scheduler: str | None = None,
+                 desc: str = "Dask tasks", progress: bool = False) -> list:
     """The results of Dask delayed ``tasks``, in order, on ``client`` or else on the local
     ``scheduler``.  On a client, an interrupt (or any error) cancels the tasks still
-    pending, so the cluster does not go on with a run nobody waits for."""
+    pending, so the cluster does not go on with a run nobody waits for.
+
+    With ``progress`` each finished task is counted as the thread pool counts its groups
+    (:func:`symmon.progress.progress_bar`: a bar on a terminal, a line every few seconds
+    otherwise), in the order the tasks finish."""
     if client is not None:
         futures = client.compute(list(tasks))
         try:
+            if progress:
+                from distributed import as_completed
+
+                for _ in progress_bar(as_completed(futures), desc, progress, total=len(futures)):
+                    pass
             return list(client.gather(futures))
         except BaseException:
             client.cancel(futures)
             raise
     import dask
+    from dask.callbacks import Callback
 
-    return list(dask.compute(*tasks, scheduler=scheduler))
+    keys = {t.key for t in tasks}
+    finished: queue.SimpleQueue = queue.SimpleQueue()
+
+    def count(key, result, dsk, state, worker_id):
+        if key in keys:
+            finished.put(key)
+
+    # The scheduler runs in this thread: a second one reports while it works, in this
+    # thread's context (where progress.silenced() may hold).
+    reporter = threading.Thread(target=contextvars.copy_context().run,
+                                args=(_drain, finished, desc, progress, len(keys)), daemon=True)
+    reporter.start()
+    try:
+        with Callback(posttask=count):
+            return list(dask.compute(*tasks, scheduler=scheduler))
+    finally:
+        finished.put(None)
+        reporter.join()
+
+
+def _drain(finished: queue.SimpleQueue, desc: str, progress: bool, total: int) -> None:
+    """Count the finished tasks of :func:`dask_compute` until its end mark (None)."""
+    for _ in progress_bar(iter(finished.get, None), desc, progress, total=total):
+        pass
 
 
 def connect_dask(address: str, timeout: float = 10.0) -> Any:

@@ -264,3 +264,20 @@ def test_blas_runs_one_thread_inside_symmons_workers():
         seen = run_groups(lambda job, stop: blas_threads(), [0, 1, 2], workers=2)
         assert seen == [[1] * len(before)] * 3
         assert blas_threads() == before
+
+
+@pytest.mark.parametrize("where", ["threads", "synchronous", "client"])
+def test_dask_runs_report_progress_per_finished_group(where, capsys, monkeypatch, request):
+    """Off a terminal, a line per finished group (the interval set to 0), as the thread pool."""
+    from symmon import progress
+
+    monkeypatch.setattr(progress, "LINE_INTERVAL", 0.0)
+    ex = (sm.Executor(client=request.getfixturevalue("client"), progress=True) if where == "client"
+          else sm.Executor(scheduler=where, progress=True))
+    mc = sm.MonteCarlo(4000, seed=1, groups=4)
+    sm.propagate(PROBLEM.model, PROBLEM.u, transform=mc, executor=ex)
+    lines = [l for l in capsys.readouterr().err.splitlines() if l.startswith("Monte Carlo groups:")]
+    assert [l.split()[3] for l in lines] == ["1/4", "2/4", "3/4", "4/4"]
+    with progress.silenced():
+        sm.propagate(PROBLEM.model, PROBLEM.u, transform=mc, executor=ex)
+    assert "Monte Carlo groups" not in capsys.readouterr().err
