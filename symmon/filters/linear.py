@@ -198,9 +198,15 @@ class KalmanFilter:
             xps[..., k, :] = x_pred
             innovs[..., k, :] = innov
             Ps[k], Pps[k], Ss[k], gains[k] = P, P_pred, S, G
+        # log N(ν_k; 0, S_k): S does not depend on the data, its factor serves every run.
+        L = np.linalg.cholesky(Ss)
+        log_det = 2 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
+        white = np.linalg.solve(L, innovs[..., None])[..., 0]
+        loglik = -0.5 * ((white**2).sum(axis=-1) + log_det + n_y * np.log(2 * np.pi))
         return KalmanResult(
             x=readonly(xs), P=readonly(Ps), x_pred=readonly(xps), P_pred=readonly(Pps),
-            innovation=readonly(innovs), S=readonly(Ss), gain=readonly(gains), method="KF",
+            innovation=readonly(innovs), S=readonly(Ss), gain=readonly(gains), loglik=readonly(loglik),
+            method="KF",
         )
 
     def simulate(

@@ -216,13 +216,14 @@ class NonlinearKalmanFilter:
         Yb = Y.reshape((runs or 1,) + Y.shape[-2:])
         out, choices = self.strategy.run(self, Yb, m0, C0)
         bad = ~np.isfinite(out["x"]).all(axis=-1) | ~np.isfinite(out["P"]).all(axis=(-1, -2))
+        bad |= ~np.isfinite(out["loglik"])
         if bad.any():
             r, k = np.argwhere(bad)[0]
             where = f"step {k}" if runs is None else f"run {r}, step {k}"
             raise SymmonError(
                 f"{self.method}: the filter produced NaN or inf at {where} (the innovation "
-                "covariance S is singular, a covariance lost positive definiteness, or a "
-                "derivative is undefined there, e.g. sqrt at 0 or atan2(0, 0))"
+                "covariance S is singular or not positive definite, a covariance lost positive "
+                "definiteness, or a derivative is undefined there, e.g. sqrt at 0 or atan2(0, 0))"
             )
         arrays = {k: v if runs is not None else v[0] for k, v in out.items()}
         for v in arrays.values():

@@ -115,6 +115,9 @@ class KalmanResult:
         Innovation covariances S_k.
     gain : ndarray, shape (K, n, n_y), or None
         Kalman gains K_k (the linear filter; None for the nonlinear ones).
+    loglik : ndarray, shape (K,), or None
+        log N(ν_k; 0, S_k) of each step, computed in the compiled step (its sum is
+        :attr:`log_likelihood`).
     angle_states : tuple of int
         State components that are angles (their estimation errors are wrapped).
     method : str
@@ -131,6 +134,7 @@ class KalmanResult:
     innovation: np.ndarray
     S: np.ndarray
     gain: np.ndarray | None = None
+    loglik: np.ndarray | None = None
     angle_states: tuple[int, ...] = ()
     method: str = ""
     choices: np.ndarray | None = None
@@ -144,6 +148,21 @@ class KalmanResult:
     def n(self) -> int:
         """State dimension."""
         return int(self.x.shape[-1])
+
+    @property
+    def log_likelihood(self) -> float | np.ndarray:
+        """The marginal log-likelihood of the measurements, Σ_k log N(ν_k; 0, S_k) (the
+        prediction-error decomposition): a float for one run, shape (R,) for a bank.
+
+        Raises
+        ------
+        SymmonError
+            If the result carries no per-step values (built by hand without ``loglik``).
+        """
+        if self.loglik is None:
+            raise SymmonError("this result has no per-step log-likelihood (loglik)")
+        total = self.loglik.sum(axis=-1)
+        return float(total) if np.ndim(total) == 0 else total
 
     def estimate(self, k: int, run: int | None = None) -> Gaussian:
         """N(x̂_{k|k}, P_{k|k}) at step k (0-based), of run ``run`` for a bank."""

@@ -54,7 +54,7 @@ from ..codegen.symbolic import chol_lower, chol_node, moments, wrap_entries
 from ..transforms import Transform
 
 #: Names of the outputs of the step function, in order.
-_OUTPUTS = ("x", "P", "x_pred", "P_pred", "innovation", "S")
+_OUTPUTS = ("x", "P", "x_pred", "P_pred", "innovation", "S", "loglik")
 
 
 #: From this many variables (states plus noise symbols) on, the step is built in MX.  The SX
@@ -106,9 +106,13 @@ def _step_function(f: Model, h: Model, transform: Transform, angle_states: froze
     gain = ca.solve(S, cross).T  # K = P^{xy} S⁻¹, S symmetric
     x_new = wrap_entries(x_pred + ca.mtimes(gain, nu), angle_states)
     P_new = _sym(P_pred - ca.mtimes(ca.mtimes(gain, S), gain.T))
-    outs = [ca.densify(a) for a in (x_new, P_new, x_pred, P_pred, nu, S)]
+    # log N(ν; 0, S): log det S from the Cholesky factor, NaN when S is not positive definite.
+    L_S = chol(S)
+    log_det = 2 * ca.sum1(ca.log(ca.diag(L_S)))
+    loglik = -0.5 * (ca.dot(nu, ca.solve(S, nu)) + log_det + n_y * math.log(2 * math.pi))
+    outs = [ca.densify(a) for a in (x_new, P_new, x_pred, P_pred, nu, S, loglik)]
     return ca.Function(name, [x, P, y, Q, R], outs, ["x", "P", "y", "Q", "R"],
-                       ["x_new", "P_new", "x_pred", "P_pred", "innovation", "S"],
+                       ["x_new", "P_new", "x_pred", "P_pred", "innovation", "S", "loglik"],
                        {"cse": True} if kind is ca.SX else {})
 
 
@@ -119,7 +123,7 @@ _DRIVER = """
 CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
     const casadi_real* P0, casadi_int P0_step, const casadi_real* y,
     const casadi_real* Q, const casadi_real* R, casadi_real* xs, casadi_real* Ps,
-    casadi_real* xps, casadi_real* Pps, casadi_real* nus, casadi_real* Ss,
+    casadi_real* xps, casadi_real* Pps, casadi_real* nus, casadi_real* Ss, casadi_real* lls,
     casadi_int runs, casadi_int K, casadi_int* iw, casadi_real* w) {{
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
@@ -131,7 +135,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
       i = r * K + k;
       arg[0] = x; arg[1] = P; arg[2] = y + i * {n_y}; arg[3] = Q; arg[4] = R;
       res[0] = xs + i * {n}; res[1] = Ps + i * {nn}; res[2] = xps + i * {n};
-      res[3] = Pps + i * {nn}; res[4] = nus + i * {n_y}; res[5] = Ss + i * {nyy};
+      res[3] = Pps + i * {nn}; res[4] = nus + i * {n_y}; res[5] = Ss + i * {nyy}; res[6] = lls + i;
       if ({name}(arg, res, iw, w, 0)) return 1;
       x = res[0];
       P = res[1];
@@ -152,13 +156,13 @@ class _CompiledStep:
         self.f = _step_function(f, h, transform, angle_states, name)
         self.n, self.n_y = n, n_y = f.n_u, h.n_y
         self._shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n),
-                        "innovation": (n_y,), "S": (n_y, n_y)}
+                        "innovation": (n_y,), "S": (n_y, n_y), "loglik": ()}
         # The compile policy of every generated function (docs/compile.md): a small step is
         # built now; a large one runs on CasADi's VM while its C builds in the background.
         # Without a compiler, compiled() has already warned (once) while the step was built.
         f = self.f
         code = generated_c(f) + _DRIVER.format(
-            name=name, sz_arg=max(f.sz_arg(), 5), sz_res=max(f.sz_res(), 6),
+            name=name, sz_arg=max(f.sz_arg(), 5), sz_res=max(f.sz_res(), 7),
             n=self.n, nn=self.n * self.n, n_y=self.n_y, nyy=self.n_y * self.n_y,
         )
         self._lib = NativeLibrary(code, name, self._load, stacklevel=4)
@@ -167,7 +171,7 @@ class _CompiledStep:
     def _load(self, so):
         run = getattr(ctypes.CDLL(str(so)), f"{self.f.name()}_run")
         run.argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_longlong]
-                        + [ctypes.c_void_p] * 9 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2)
+                        + [ctypes.c_void_p] * 10 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2)
         run.restype = ctypes.c_int
         return run
 

@@ -161,7 +161,7 @@ def filter_bank(sc: Scenario, name: str, ys: np.ndarray) -> NonlinearKalmanResul
         else:
             res = kf.filter(ys[:, a:b], parts[-1].x[:, -1] + sc.shifts[a], parts[-1].P[:, -1])
         parts.append(res)
-    keys = ("x", "P", "x_pred", "P_pred", "innovation", "S")
+    keys = ("x", "P", "x_pred", "P_pred", "innovation", "S", "loglik")
     arrays = {k: np.concatenate([getattr(p, k) for p in parts], axis=1) for k in keys}
     choices = None if parts[0].choices is None else np.concatenate([p.choices for p in parts], axis=1)
     return NonlinearKalmanResult(**arrays, method=parts[0].method, choices=choices)

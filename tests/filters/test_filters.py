@@ -100,13 +100,15 @@ def test_ukf_equals_filterpy(track, alpha, beta, kappa):
                                 MerweScaledSigmaPoints(4, alpha, beta, kappa),
                                 z_mean_fn=z_mean, residual_z=residual_z)
     ukf.x, ukf.P, ukf.Q, ukf.R = X0.mean.copy(), X0.cov.copy(), Q_CV, R_RB
-    xs, Ps, nus, Ss = [], [], [], []
+    xs, Ps, nus, Ss, lls = [], [], [], [], []
     for y in ys:
         ukf.predict()
         ukf.update(y)
         xs.append(ukf.x.copy()), Ps.append(ukf.P.copy()), nus.append(ukf.y.copy()), Ss.append(ukf.S.copy())
-    for got, want in ((res.x, xs), (res.P, Ps), (res.innovation, nus), (res.S, Ss)):
+        lls.append(ukf.log_likelihood)  # FilterPy's logpdf(y, S) of the step
+    for got, want in ((res.x, xs), (res.P, Ps), (res.innovation, nus), (res.S, Ss), (res.loglik, lls)):
         assert rel_err(got, np.array(want)) < SAME_FILTER_RTOL
+    assert res.log_likelihood == pytest.approx(sum(lls), rel=SAME_FILTER_RTOL)
 
 
 def test_ekf_equals_filterpy(track):
@@ -121,12 +123,13 @@ def test_ekf_equals_filterpy(track):
         r = np.sqrt(r2)
         return np.array([[x[0] / r, x[1] / r, 0, 0], [-x[1] / r2, x[0] / r2, 0, 0]])
 
-    xs, Ps, nus = [], [], []
+    xs, Ps, nus, lls = [], [], [], []
     for y in ys:
         ekf.predict()
         ekf.update(y, H_jac, hx, residual=residual_z)
         xs.append(ekf.x.copy()), Ps.append(ekf.P.copy()), nus.append(ekf.y.copy())
-    for got, want in ((res.x, xs), (res.P, Ps), (res.innovation, nus)):
+        lls.append(ekf.log_likelihood)
+    for got, want in ((res.x, xs), (res.P, Ps), (res.innovation, nus), (res.loglik, lls)):
         assert rel_err(got, np.array(want)) < SAME_FILTER_RTOL
 
 
@@ -667,3 +670,27 @@ def test_a_rule_with_many_points_is_built_in_mx_at_any_size():
     h = sm.Model(list(xs), [sp.sqrt(xs[0] ** 2 + xs[1] ** 2), sp.atan2(xs[1], xs[0])], name="gh10_h", angles=[1])
     assert step._step_function(f, h, sm.GaussHermite(10), frozenset(), "gh10_step").is_a("MXFunction")
     assert step._step_function(f, h, sm.UT.ut1(), frozenset(), "ut_step").is_a("SXFunction")
+
+
+
+def test_the_log_likelihood_of_a_bank_is_per_run_and_of_the_linear_filter_its_closed_form():
+    """A bank's log-likelihood is one per run, equal to each run filtered alone; on a linear
+    model every nonlinear filter's equals the linear Kalman filter's (closed form)."""
+    x = sp.symbols("p v", real=True)
+    F, H = np.array([[1.0, 0.5], [0.0, 1.0]]), np.array([[1.0, 0.0]])
+    f = sm.Model(list(x), list(sp.Matrix(F) * sp.Matrix(x)), name="ll_f")
+    h = sm.Model(list(x), [x[0]], name="ll_h")
+    Q, R = 0.1 * np.eye(2), np.array([[0.5]])
+    kf = sm.KalmanFilter(F, Q, H, R)
+    _, ys = kf.simulate(8, np.zeros(2), np.random.default_rng(2), P0=np.eye(2), runs=3)
+    ref = kf.filter(ys, np.zeros(2), np.eye(2))
+    for transform in (sm.TT1(), sm.UT.ut1(), sm.GaussHermite(3)):
+        bank = sm.NonlinearKalmanFilter(f, h, Q, R, transform).filter(ys, np.zeros(2), np.eye(2))
+        assert bank.log_likelihood.shape == (3,)
+        np.testing.assert_allclose(bank.log_likelihood, ref.log_likelihood, rtol=1e-10)
+        single = sm.NonlinearKalmanFilter(f, h, Q, R, transform).filter(ys[1], np.zeros(2), np.eye(2))
+        assert single.log_likelihood == pytest.approx(float(bank.log_likelihood[1]), rel=1e-12)
+    # The closed form: −½ Σ (νᵀS⁻¹ν + log det 2πS), with the linear filter's own ν and S.
+    nu, S = ref.innovation[0], ref.S
+    want = -0.5 * sum(float(n @ np.linalg.solve(s, n)) + np.log(np.linalg.det(2 * np.pi * s)) for n, s in zip(nu, S))
+    assert float(ref.log_likelihood[0]) == pytest.approx(want, rel=1e-12)
