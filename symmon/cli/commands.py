@@ -313,17 +313,18 @@ def cmd_filter(args: argparse.Namespace) -> int:
               f"runs with {a.confidence:.0%} chi-square intervals: ANEES [{a.lower:.3g}, {a.upper:.3g}] "
               f"(n = {len(states)}), ANIS [{b.lower:.3g}, {b.upper:.3g}] (n_y = {spec.h.n_y})")
     labelled = [f"{s} [{spec.unit(s)}]" if spec.unit(s) else s for s in states]
-    print(f"{'filter':<9} {'ANEES':>9} {'inside':>7} {'ANIS':>9} {'inside':>7}  RMSE ({', '.join(labelled)})")
+    print(f"{'filter':<9} {'ANEES':>9} {'inside':>7} {'ANIS':>9} {'inside':>7} {'log-lik':>10}  "
+          f"RMSE ({', '.join(labelled)})")
     for r in rows:
         if r.result is None:
             print(f"{r.name:<9} failed: {r.error}")
             continue
         rmse = np.sqrt(np.mean(r.rmse**2, axis=0))
         print(f"{r.name:<9} {float(np.mean(r.anees.value)):>9.4g} {float(np.mean(r.anees.inside)):>7.0%} "
-              f"{float(np.mean(r.anis.value)):>9.4g} {float(np.mean(r.anis.inside)):>7.0%}  "
-              + ", ".join(f"{v:.4g}" for v in rmse))
+              f"{float(np.mean(r.anis.value)):>9.4g} {float(np.mean(r.anis.inside)):>7.0%} "
+              f"{float(np.mean(r.result.log_likelihood)):>10.6g}  " + ", ".join(f"{v:.4g}" for v in rmse))
     print("ANEES, ANIS: time averages of the per-step values; inside: the share of steps inside the interval; "
-          "RMSE: over runs and steps")
+          "log-lik: the mean over the runs of the log-likelihood of a run's measurements; RMSE: over runs and steps")
     for p in written:
         print(f"wrote {p}")
     return 0

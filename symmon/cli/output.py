@@ -174,7 +174,7 @@ def _bank_json(r) -> dict:
     out = {"name": r.name, "method": r.result.method,
            "anees": _jsonable(r.anees.value), "anis": _jsonable(r.anis.value),
            "anees_bounds": [r.anees.lower, r.anees.upper], "anis_bounds": [r.anis.lower, r.anis.upper],
-           "rmse": _jsonable(r.rmse)}
+           "rmse": _jsonable(r.rmse), "log_likelihood": _jsonable(r.result.log_likelihood)}
     if r.result.choices is not None:
         names, counts = np.unique(r.result.choices, return_counts=True)
         out["choices"] = {str(k): int(v) for k, v in zip(names, counts)}

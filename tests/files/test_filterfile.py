@@ -135,8 +135,14 @@ def test_cli_filter_prints_units_and_plots_one_rmse_panel_per_unit(capsys, monke
     assert "RMSE (p [m], v [m/s])" in out
     (labels,) = figures
     assert labels[2].startswith("RMSE of (p) [m]") and labels[3].startswith("RMSE of (v) [m/s]")
+    assert "log-lik" in out
     assert cli.main(["filter", str(noisy), "--runs", "5", "--filters", "ukf", "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["units"] == {"p": "m", "v": "m/s", "measurements[0]": "m"}
+    report = json.loads(capsys.readouterr().out)
+    assert report["units"] == {"p": "m", "v": "m/s", "measurements[0]": "m"}
+    spec = load_filter_file(noisy)
+    xs, ys = simulate(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, 5, seed=0)
+    want = sm.NonlinearKalmanFilter(spec.f, spec.h, spec.Q, spec.R, sm.UT.ut1()).filter(ys, spec.x0).log_likelihood
+    np.testing.assert_allclose(report["filters"][0]["log_likelihood"], want, rtol=1e-12)
 
 
 def test_the_filter_on_a_scenario_equals_the_api(noisy):
