@@ -53,14 +53,16 @@ numpydoc_class_members_toctree = False
 numpydoc_xref_param_type = False
 
 # The guide's ```{doctest} blocks run with `sphinx-build -b doctest docs docs/_build/doctest`.
+# Nothing is imported or set behind the reader's back: the first snippet of each page shows
+# the page's imports, and the snippets of a page run in order in one namespace, as a reader
+# runs them when copying them one after another. They run from the checkout, so that the
+# paths of model files read as on the command line (examples/polar.toml).
 doctest_global_setup = f"""
-from pathlib import Path
-ROOT = Path({str(ROOT)!r})  # the checkout: examples/ and docs/ files are read from here
-import numpy as np
-import sympy as sp
-import symmon as sm
-np.set_printoptions(precision=4, suppress=True)
+import os as _os
+_cwd = _os.getcwd()
+_os.chdir({str(ROOT)!r})
 """
+doctest_global_cleanup = "_os.chdir(_cwd)"
 # The docstrings' own examples run under pytest --doctest-modules; here only the guide's.
 doctest_test_doctest_blocks = ""
 doctest_default_flags = doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE
