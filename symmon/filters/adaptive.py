@@ -112,8 +112,8 @@ class Adaptive(FilterStrategy):
         for t in self.candidates + (self.reference,):
             check_dimensions(t, kf.dimensions)
 
-    def run(self, kf, Y, x0, P0):
-        return _adaptive_run(self, kf, Y, x0, P0)
+    def run(self, kf, Y, x0, P0, keep=None):
+        return _adaptive_run(self, kf, Y, x0, P0)  # every output: the next decision reads x and P
 
 
 def _decide(model: Model, m: np.ndarray, C: np.ndarray, add: np.ndarray | None, angles: frozenset[int],

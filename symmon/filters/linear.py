@@ -23,13 +23,14 @@ P. S. Maybeck, *Stochastic Models, Estimation and Control*, vol. 1 (Joseph form)
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Iterable
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..core.checks import readonly
 from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, ShapeError
 from ..core.gaussian import Gaussian, as_covariance, matrix_sqrt
-from .results import KalmanResult  # the one result type of the filters
+from .results import KalmanResult, check_keep  # the one result type of the filters
 
 __all__ = ["KalmanFilter", "KalmanResult"]
 
@@ -127,7 +128,8 @@ class KalmanFilter:
     def __repr__(self) -> str:
         return f"KalmanFilter(n={self.n}, n_y={self.n_y})"
 
-    def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None) -> KalmanResult:
+    def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None, *,
+               keep: Iterable[str] | None = None) -> KalmanResult:
         """Run the filter over the measurements ``ys``.
 
         Each step predicts, then updates with the Joseph form
@@ -144,6 +146,8 @@ class KalmanFilter:
         P0 : array_like, shape (n, n), optional
             Covariance of :math:`x_0` when ``x0`` is a mean, symmetric PSD (zero for a known
             initial state).
+        keep : iterable of str, optional
+            The arrays to return (as :meth:`symmon.NonlinearKalmanFilter.filter`; default all).
 
         Returns
         -------
@@ -153,6 +157,7 @@ class KalmanFilter:
         ------
         ShapeError, CovarianceError
         """
+        kept = check_keep(keep)
         Y = np.asarray(ys, dtype=float)
         if Y.ndim not in (2, 3) or Y.shape[-1] != self.n_y or Y.shape[-2] == 0:
             raise ShapeError(
@@ -203,11 +208,9 @@ class KalmanFilter:
         log_det = 2 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
         white = np.linalg.solve(L, innovs[..., None])[..., 0]
         loglik = -0.5 * ((white**2).sum(axis=-1) + log_det + n_y * np.log(2 * np.pi))
-        return KalmanResult(
-            x=readonly(xs), P=readonly(Ps), x_pred=readonly(xps), P_pred=readonly(Pps),
-            innovation=readonly(innovs), S=readonly(Ss), gain=readonly(gains), loglik=readonly(loglik),
-            method="KF",
-        )
+        arrays = {"x": xs, "P": Ps, "x_pred": xps, "P_pred": Pps, "innovation": innovs, "S": Ss}
+        arrays = {k: readonly(v) if kept is None or k in kept else None for k, v in arrays.items()}
+        return KalmanResult(**arrays, gain=readonly(gains), loglik=readonly(loglik), method="KF")
 
     def simulate(
         self,

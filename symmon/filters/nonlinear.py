@@ -54,6 +54,7 @@ models", FUSION 2015 (wrapped residuals).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Iterable
 from functools import cached_property
 
 import numpy as np
@@ -62,7 +63,7 @@ from numpy.typing import ArrayLike
 from .adaptive import Adaptive
 from ..errors import ArgumentTypeError, ShapeError, SymmonError
 from ..core.checks import check_gaussian, check_model, noise_cov, readonly
-from .results import ConsistencyTest, KalmanResult, NonlinearKalmanResult
+from .results import ConsistencyTest, KalmanResult, NonlinearKalmanResult, check_keep
 from .strategy import FilterStrategy, RuleStrategy
 from ..core.gaussian import Gaussian, as_covariance
 from ..core.model import Model
@@ -177,7 +178,8 @@ class NonlinearKalmanFilter:
             return m, C
         return m, as_covariance(P0, "P0", dim=n)
 
-    def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None) -> KalmanResult:
+    def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None, *,
+               keep: Iterable[str] | None = None) -> KalmanResult:
         """Predict, then update, for each measurement (the convention of :class:`KalmanFilter`).
 
         Parameters
@@ -191,6 +193,10 @@ class NonlinearKalmanFilter:
         P0 : array_like, shape (n, n) or (R, n, n), optional
             Covariance of x_0 when ``x0`` is a mean (one for all runs, or one per run: a
             bank continued after a known jump of the state, e.g. an observer's manoeuvre).
+        keep : iterable of str, optional
+            The arrays to return, among ``"x"``, ``"P"``, ``"x_pred"``, ``"P_pred"``,
+            ``"innovation"`` and ``"S"`` (default: all); the others are not stored, which
+            bounds the memory of a large bank.  The per-step log-likelihood is always kept.
 
         Returns
         -------
@@ -212,11 +218,17 @@ class NonlinearKalmanFilter:
         if not np.all(np.isfinite(Y)):
             raise ShapeError("ys contains NaN or inf")
         runs = Y.shape[0] if Y.ndim == 3 else None
+        kept = check_keep(keep)
         m0, C0 = self._initial(x0, P0, runs)
         Yb = Y.reshape((runs or 1,) + Y.shape[-2:])
-        out, choices = self.strategy.run(self, Yb, m0, C0)
-        bad = ~np.isfinite(out["x"]).all(axis=-1) | ~np.isfinite(out["P"]).all(axis=(-1, -2))
-        bad |= ~np.isfinite(out["loglik"])
+        out, choices = self.strategy.run(self, Yb, m0, C0, kept)
+        out = {k: v for k, v in out.items() if k == "loglik" or kept is None or k in kept}
+        # A NaN reaches every later log-likelihood: the first non-finite one is the step.
+        bad = ~np.isfinite(out["loglik"])
+        if "x" in out:
+            bad |= ~np.isfinite(out["x"]).all(axis=-1)
+        if "P" in out:
+            bad |= ~np.isfinite(out["P"]).all(axis=(-1, -2))
         if bad.any():
             r, k = np.argwhere(bad)[0]
             where = f"step {k}" if runs is None else f"run {r}, step {k}"

@@ -16,18 +16,18 @@ Navigation*, Wiley, 2001, §5.4 (NEES, NIS and their χ² tests).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence, Union
+from typing import Iterable, Sequence, Union
 
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy import stats
 
 from ..core.angles import wrap_angle
-from ..errors import ShapeError, SymmonError
+from ..errors import ArgumentError, ShapeError, SymmonError
 from ..core.checks import readonly
 from ..core.gaussian import Gaussian
 
-__all__ = ["KalmanResult", "NonlinearKalmanResult", "ConsistencyTest"]
+__all__ = ["KalmanResult", "NonlinearKalmanResult", "ConsistencyTest", "KEEPABLE", "check_keep"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,6 +88,28 @@ def _quadratic_forms(e: np.ndarray, C: np.ndarray) -> np.ndarray:
 #: Which state components a block of :meth:`KalmanResult.cross_cov` selects.
 Block = Union[slice, Sequence[int]]
 
+#: The arrays a filter can keep (``filter(..., keep=...)``).
+KEEPABLE = ("x", "P", "x_pred", "P_pred", "innovation", "S")
+
+
+def check_keep(keep: Iterable[str] | None) -> frozenset[str] | None:
+    """``keep`` of a filter call as a set of names of :data:`KEEPABLE` (None: all).
+
+    Raises
+    ------
+    ArgumentError
+        For an unknown name, or a string where a collection of names is wanted.
+    """
+    if keep is None:
+        return None
+    if isinstance(keep, str):
+        raise ArgumentError(f"keep must be a collection of names, e.g. ({keep!r},), not the string {keep!r}")
+    names = frozenset(keep)
+    unknown = sorted(names - set(KEEPABLE))
+    if unknown:
+        raise ArgumentError(f"keep names {unknown} are not results of a filter; use some of {list(KEEPABLE)}")
+    return names
+
 
 @dataclass(frozen=True, eq=False)
 class KalmanResult:
@@ -98,6 +120,8 @@ class KalmanResult:
     Shapes are for one run; a bank of R runs adds a leading axis R to every array
     (``x`` is (R, K, n)), except the covariances of the linear filter, which do not depend on
     the data and are shared by the runs (``P`` stays (K, n, n); the methods broadcast).
+    An array the filter was told not to keep (``filter(..., keep=...)``) is None, and a
+    method that needs it says so.
 
     Attributes
     ----------
@@ -127,27 +151,43 @@ class KalmanResult:
         ``"EKF"`` or ``"CKF"``; None for a fixed transform.
     """
 
-    x: np.ndarray
-    P: np.ndarray
-    x_pred: np.ndarray
-    P_pred: np.ndarray
-    innovation: np.ndarray
-    S: np.ndarray
+    x: np.ndarray | None = None
+    P: np.ndarray | None = None
+    x_pred: np.ndarray | None = None
+    P_pred: np.ndarray | None = None
+    innovation: np.ndarray | None = None
+    S: np.ndarray | None = None
     gain: np.ndarray | None = None
     loglik: np.ndarray | None = None
     angle_states: tuple[int, ...] = ()
     method: str = ""
     choices: np.ndarray | None = None
 
+    def _need(self, *names: str) -> None:
+        missing = [k for k in names if getattr(self, k) is None]
+        if missing:
+            raise SymmonError(f"this result does not hold {', '.join(missing)}: the filter ran with keep= "
+                              "without it; run it again keeping it")
+
     @property
     def runs(self) -> int | None:
         """Number of runs of a bank; None for a single run."""
+        if self.loglik is not None:
+            return int(self.loglik.shape[0]) if self.loglik.ndim == 2 else None
         return int(self.x.shape[0]) if self.x.ndim == 3 else None
+
+    @property
+    def steps(self) -> int:
+        """Number of steps K."""
+        return int(self.loglik.shape[-1]) if self.loglik is not None else int(self.x.shape[-2])
 
     @property
     def n(self) -> int:
         """State dimension."""
-        return int(self.x.shape[-1])
+        for a in (self.x, self.x_pred, self.P, self.P_pred):
+            if a is not None:
+                return int(a.shape[-1])
+        raise SymmonError("this result holds no state array (keep= named none of x, P, x_pred, P_pred)")
 
     @property
     def log_likelihood(self) -> float | np.ndarray:
@@ -168,6 +208,7 @@ class KalmanResult:
         """N(x̂_{k|k}, P_{k|k}) at step k (0-based), of run ``run`` for a bank."""
         if (run is None) != (self.runs is None):
             raise ShapeError("give run= for a bank of runs, and only then")
+        self._need("x", "P")
         x = self.x if run is None else self.x[run]
         P = self.P if self.P.ndim == 3 else self.P[run]
         return Gaussian(x[k], P[k])
@@ -212,6 +253,7 @@ class KalmanResult:
         >>> res.cross_cov([0], [1]).shape
         (3, 1, 1)
         """
+        self._need("P")
         a = self._block_index(block_a, "block_a")
         b = self._block_index(block_b, "block_b")
         return self.P[..., a[:, None], b[None, :]]
@@ -228,6 +270,7 @@ class KalmanResult:
         -------
         ndarray, shape (K,) or (R, K)
         """
+        self._need("x", "P")
         X = np.asarray(x_true, dtype=float)
         if X.shape != self.x.shape:
             raise ShapeError(f"x_true must have the shape of x, {self.x.shape}, got {X.shape}")
@@ -241,23 +284,26 @@ class KalmanResult:
 
     def nis(self) -> np.ndarray:
         """Normalised innovation squared ν_kᵀ S_k⁻¹ ν_k, shape (K,) or (R, K)."""
+        self._need("innovation", "S")
         return _quadratic_forms(self.innovation, self.S)
 
     def anees(self, x_true: ArrayLike, confidence: float = 0.95) -> ConsistencyTest:
         """Average NEES with its χ² interval: per step over the runs of a bank, or over the
         steps of a single run (Bar-Shalom et al. 2001, §5.4.2)."""
-        return _consistency(self.nees(x_true), self.x.shape[-1], confidence)
+        return _consistency(self.nees(x_true), self.n, confidence)
 
     def anis(self, confidence: float = 0.95) -> ConsistencyTest:
         """Average NIS with its χ² interval, averaged as :meth:`anees`."""
-        return _consistency(self.nis(), self.innovation.shape[-1], confidence)
+        nis = self.nis()
+        return _consistency(nis, self.innovation.shape[-1], confidence)
 
     def __repr__(self) -> str:
-        n, n_y = self.x.shape[-1], self.innovation.shape[-1]
-        K = self.x.shape[-2]
         runs = "" if self.runs is None else f"runs={self.runs}, "
-        return (f"KalmanResult({self.method}, {runs}steps={K}, n={n}, n_y={n_y}, "
-                f"mean NIS {float(self.nis().mean()):.4g} (expected {n_y}))")
+        head = f"KalmanResult({self.method}, {runs}steps={self.steps}, n={self.n}"
+        if self.innovation is None or self.S is None:
+            return head + ")"
+        n_y = self.innovation.shape[-1]
+        return head + f", n_y={n_y}, mean NIS {float(self.nis().mean()):.4g} (expected {n_y}))"
 
 
 #: The nonlinear filters' name for the one result type.

@@ -119,23 +119,25 @@ def _step_function(f: Model, h: Model, transform: Transform, angle_states: froze
 # The run loop: for each run, K steps, each reading the previous step's output.  casadi_int
 # is CasADi's default, long long.  x0/P0 advance by x0_step/P0_step per run (0: shared).
 _DRIVER = """
-/* symmon: a bank of runs of the filter step {name}. */
+/* symmon: a bank of runs of the filter step {name}.  outs[j] is output j's block and
+   strides[j] its size per step; a stride of 0 means "not kept": every step writes to one
+   slot (x and P to two, alternately, so that a step never writes what it reads). */
 CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
     const casadi_real* P0, casadi_int P0_step, const casadi_real* y,
-    const casadi_real* Q, const casadi_real* R, casadi_real* xs, casadi_real* Ps,
-    casadi_real* xps, casadi_real* Pps, casadi_real* nus, casadi_real* Ss, casadi_real* lls,
+    const casadi_real* Q, const casadi_real* R, casadi_real* const* outs, const casadi_int* strides,
     casadi_int runs, casadi_int K, casadi_int* iw, casadi_real* w) {{
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
-  casadi_int r, k, i;
+  casadi_int r, k, i, j;
   for (r = 0; r < runs; ++r) {{
     const casadi_real* x = x0 + r * x0_step;
     const casadi_real* P = P0 + r * P0_step;
     for (k = 0; k < K; ++k) {{
       i = r * K + k;
       arg[0] = x; arg[1] = P; arg[2] = y + i * {n_y}; arg[3] = Q; arg[4] = R;
-      res[0] = xs + i * {n}; res[1] = Ps + i * {nn}; res[2] = xps + i * {n};
-      res[3] = Pps + i * {nn}; res[4] = nus + i * {n_y}; res[5] = Ss + i * {nyy}; res[6] = lls + i;
+      for (j = 0; j < 7; ++j) res[j] = outs[j] + i * strides[j];
+      if (!strides[0]) res[0] = outs[0] + (k & 1) * {n};
+      if (!strides[1]) res[1] = outs[1] + (k & 1) * {nn};
       if ({name}(arg, res, iw, w, 0)) return 1;
       x = res[0];
       P = res[1];
@@ -171,7 +173,7 @@ class _CompiledStep:
     def _load(self, so):
         run = getattr(ctypes.CDLL(str(so)), f"{self.f.name()}_run")
         run.argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_longlong]
-                        + [ctypes.c_void_p] * 10 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2)
+                        + [ctypes.c_void_p] * 5 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2)
         run.restype = ctypes.c_int
         return run
 
@@ -193,32 +195,46 @@ class _CompiledStep:
         return self._lib.evaluator
 
     def __call__(self, x0: np.ndarray, P0: np.ndarray, Y: np.ndarray, Q: np.ndarray, R: np.ndarray,
-                 use_c: bool = True) -> dict[str, np.ndarray]:
-        """Run the bank: x0 (n,) or (runs, n), P0 (n, n) or (runs, n, n), Y (runs, K, n_y)."""
+                 use_c: bool = True, keep: frozenset[str] | None = None) -> dict[str, np.ndarray]:
+        """Run the bank: x0 (n,) or (runs, n), P0 (n, n) or (runs, n, n), Y (runs, K, n_y).
+
+        Returns the outputs of every step, (runs, K, ...) each, or only those named in
+        ``keep`` (the others are written to a slot of one step, so a bank of long runs of a
+        large state need not hold its P⁻, say)."""
         runs, K = Y.shape[:2]
         n = self.n
         shapes = self._shapes
-        sizes = [runs * K * math.prod(s) for s in shapes.values()]
-        # One block for all outputs and one for the inputs: a few pointers per call.
-        buf = np.empty(sum(sizes))
-        ends = list(itertools.accumulate(sizes))
-        out = {k: buf[e - z: e].reshape((runs, K) + s) for (k, s), z, e in zip(shapes.items(), sizes, ends)}
+        kept = set(shapes) if keep is None else set(keep)
+        run = self._lib.get() if use_c else None
+        if run is None:
+            full = self._vm(x0, P0, np.ascontiguousarray(Y, dtype=float), Q, R)
+            return {k: v for k, v in full.items() if k in kept}
+        # A kept output: its (runs, K, ...) block; one that is not: a slot (two for x and P).
+        per_step = [math.prod(s) for s in shapes.values()]
+        blocks = {k: np.empty((runs, K) + s) if k in kept else np.empty((2 if k in ("x", "P") else 1,) + s)
+                  for k, s in shapes.items()}
+        outs = (ctypes.c_void_p * len(blocks))(*[b.ctypes.data for b in blocks.values()])
+        strides = np.array([z if k in kept else 0 for k, z in zip(shapes, per_step)], dtype=np.int64)
         # CasADi is column-major: the symmetric P, Q, R, S need no transposition, and a C
         # row (runs, n) is a column-major (n, runs).
         Y = np.ascontiguousarray(Y, dtype=float)
-        run = self._lib.get() if use_c else None
-        if run is not None:
-            parts = [np.ravel(a) for a in (x0, P0, Q, R)]
-            inp = np.concatenate(parts).astype(float, copy=False)
-            at = [8 * i for i in itertools.accumulate([0] + [a.size for a in parts])]  # byte offsets
-            a_in, a_out = inp.ctypes.data, buf.ctypes.data
-            iw, w = self._workspace()
-            err = run(a_in, n if np.ndim(x0) == 2 else 0, a_in + at[1], n * n if np.ndim(P0) == 3 else 0,
-                            Y.ctypes.data, a_in + at[2], a_in + at[3],
-                            *(a_out + 8 * int(e - z) for z, e in zip(sizes, ends)), runs, K, iw, w)
-            if err:
-                raise SymmonError(f"the compiled filter step {self.f.name()} returned an error")
-            return out
+        parts = [np.ravel(a) for a in (x0, P0, Q, R)]
+        inp = np.concatenate(parts).astype(float, copy=False)
+        at = [8 * i for i in itertools.accumulate([0] + [a.size for a in parts])]  # byte offsets
+        a_in = inp.ctypes.data
+        iw, w = self._workspace()
+        err = run(a_in, n if np.ndim(x0) == 2 else 0, a_in + at[1], n * n if np.ndim(P0) == 3 else 0,
+                  Y.ctypes.data, a_in + at[2], a_in + at[3], outs, strides.ctypes.data, runs, K, iw, w)
+        if err:
+            raise SymmonError(f"the compiled filter step {self.f.name()} returned an error")
+        return {k: b for k, b in blocks.items() if k in kept}
+
+    def _vm(self, x0, P0, Y: np.ndarray, Q, R) -> dict[str, np.ndarray]:
+        """Every output of every step on CasADi's VM: one mapped call per step over the runs."""
+        runs, K = Y.shape[:2]
+        n = self.n
+        shapes = self._shapes
+        out = {k: np.empty((runs, K) + s) for k, s in shapes.items()}
         x0, P0 = np.asarray(x0, dtype=float), np.asarray(P0, dtype=float)
         Q, R = np.asarray(Q, dtype=float), np.asarray(R, dtype=float)
         # CasADi's VM: one mapped call per step over all runs, through buffers.

@@ -36,12 +36,13 @@ class FilterStrategy(ABC):
         """Refuse, when the filter is made, what cannot run on its dimensions (default: nothing)."""
 
     @abstractmethod
-    def run(self, kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: np.ndarray,
-            P0: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
+    def run(self, kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: np.ndarray, P0: np.ndarray,
+            keep: frozenset[str] | None = None) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
         """Filter the bank ``Y`` (R, K, n_y) from x0 (n,) or (R, n) and P0 (n, n) or (R, n, n).
 
-        Returns the arrays ``x``, ``P``, ``x_pred``, ``P_pred``, ``innovation`` and ``S``,
-        each with the leading axes (R, K), and the filter chosen at each step and run
+        Returns the arrays ``x``, ``P``, ``x_pred``, ``P_pred``, ``innovation``, ``S`` and
+        ``loglik``, each with the leading axes (R, K) (at least those of ``keep`` and
+        ``loglik``: the filter drops the rest), and the filter chosen at each step and run
         (R, K) or ``None`` when there is no choice.  Steps after a failure may be NaN; the
         filter names the run and step.
         """
@@ -77,6 +78,6 @@ class RuleStrategy(FilterStrategy):
     def check(self, kf):
         check_dimensions(self.transform, kf.dimensions)
 
-    def run(self, kf, Y, x0, P0):
+    def run(self, kf, Y, x0, P0, keep=None):
         step = _compiled_step(kf.f_model, kf.h_model, self.transform, kf.angle_states)
-        return step(x0, P0, Y, kf.Q, kf.R), None
+        return step(x0, P0, Y, kf.Q, kf.R, keep=None if keep is None else keep | {"loglik"}), None

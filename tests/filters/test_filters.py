@@ -585,9 +585,9 @@ def test_a_transform_becomes_the_one_rule_strategy_and_any_strategy_runs_the_fil
         def label(self):
             return "traced EKF"
 
-        def run(self, kf, Y, x0, P0):
+        def run(self, kf, Y, x0, P0, keep=None):
             Traced.calls += 1
-            return sm.filters.RuleStrategy(sm.TT1()).run(kf, Y, x0, P0)
+            return sm.filters.RuleStrategy(sm.TT1()).run(kf, Y, x0, P0, keep)
 
     kf = sm.NonlinearKalmanFilter(f, h, [[1.0]], [[1.0]], Traced())
     res = kf.filter([[1.0]], sm.Gaussian([0.0], [[1.0]]))
@@ -694,3 +694,38 @@ def test_the_log_likelihood_of_a_bank_is_per_run_and_of_the_linear_filter_its_cl
     nu, S = ref.innovation[0], ref.S
     want = -0.5 * sum(float(n @ np.linalg.solve(s, n)) + np.log(np.linalg.det(2 * np.pi * s)) for n, s in zip(nu, S))
     assert float(ref.log_likelihood[0]) == pytest.approx(want, rel=1e-12)
+
+
+
+@pytest.mark.parametrize("keep", [("x", "P"), ("x",), ("innovation", "S"), ()])
+def test_a_bank_keeps_only_what_is_asked_and_the_numbers_do_not_change(bank, keep):
+    """keep= stores only the named arrays (the compiled loop writes the others to one slot):
+    the kept ones, the log-likelihood and a failure's report are those of the full run."""
+    _, ys = bank
+    f, h = cv_models()
+    kf = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, sm.UT.ut1())
+    full = kf.filter(ys, X0)
+    part = kf.filter(ys, X0, keep=keep)
+    for k in ("x", "P", "x_pred", "P_pred", "innovation", "S"):
+        if k in keep:
+            np.testing.assert_array_equal(getattr(part, k), getattr(full, k))
+        else:
+            assert getattr(part, k) is None
+    np.testing.assert_array_equal(part.log_likelihood, full.log_likelihood)
+    assert part.runs == full.runs and part.steps == full.steps
+    if "x" not in keep:
+        with pytest.raises(SymmonError, match="does not hold x"):
+            part.nees(full.x)
+    linear = sm.KalmanFilter(np.eye(2), np.eye(2), np.eye(2), np.eye(2)).filter(np.ones((3, 2)), np.zeros(2), np.eye(2),
+                                                                                keep=keep)
+    assert all((getattr(linear, k) is None) == (k not in keep) for k in ("x", "P", "S"))
+
+
+def test_keep_names_are_checked():
+    x = sp.Symbol("x", real=True)
+    m = sm.Model([x], [x], name="keep_m")
+    kf = sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]], sm.TT1())
+    with pytest.raises(SymmonError, match=r"keep names \['gain'\]"):
+        kf.filter([[1.0]], sm.Gaussian([0.0], [[1.0]]), keep=("x", "gain"))
+    with pytest.raises(SymmonError, match="not the string"):
+        kf.filter([[1.0]], sm.Gaussian([0.0], [[1.0]]), keep="x")
