@@ -37,9 +37,10 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
-import itertools
 import math
+import os
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Iterable
 
 import casadi as ca
@@ -209,23 +210,37 @@ class _CompiledStep:
         if run is None:
             full = self._vm(x0, P0, np.ascontiguousarray(Y, dtype=float), Q, R)
             return {k: v for k, v in full.items() if k in kept}
-        # A kept output: its (runs, K, ...) block; one that is not: a slot (two for x and P).
+        # A kept output: its (runs, K, ...) block; one that is not: a slot (two for x and P)
+        # per thread of the bank.
         per_step = [math.prod(s) for s in shapes.values()]
-        blocks = {k: np.empty((runs, K) + s) if k in kept else np.empty((2 if k in ("x", "P") else 1,) + s)
-                  for k, s in shapes.items()}
-        outs = (ctypes.c_void_p * len(blocks))(*[b.ctypes.data for b in blocks.values()])
+        chunks = _chunks(runs, K)
+        blocks = {k: np.empty((runs, K) + s) if k in kept
+                  else np.empty((len(chunks), 2 if k in ("x", "P") else 1) + s) for k, s in shapes.items()}
         strides = np.array([z if k in kept else 0 for k, z in zip(shapes, per_step)], dtype=np.int64)
         # CasADi is column-major: the symmetric P, Q, R, S need no transposition, and a C
         # row (runs, n) is a column-major (n, runs).
         Y = np.ascontiguousarray(Y, dtype=float)
-        parts = [np.ravel(a) for a in (x0, P0, Q, R)]
-        inp = np.concatenate(parts).astype(float, copy=False)
-        at = [8 * i for i in itertools.accumulate([0] + [a.size for a in parts])]  # byte offsets
-        a_in = inp.ctypes.data
-        iw, w = self._workspace()
-        err = run(a_in, n if np.ndim(x0) == 2 else 0, a_in + at[1], n * n if np.ndim(P0) == 3 else 0,
-                  Y.ctypes.data, a_in + at[2], a_in + at[3], outs, strides.ctypes.data, runs, K, iw, w)
-        if err:
+        x0 = np.ascontiguousarray(x0, dtype=float)
+        P0 = np.ascontiguousarray(P0, dtype=float)
+        Q, R = np.ascontiguousarray(Q, dtype=float), np.ascontiguousarray(R, dtype=float)
+        x_step = n if x0.ndim == 2 else 0
+        P_step = n * n if P0.ndim == 3 else 0
+
+        def part(c: int) -> int:
+            a, b = chunks[c]
+            outs = (ctypes.c_void_p * len(blocks))(*[
+                blk[a].ctypes.data if k in kept else blk[c].ctypes.data for k, blk in blocks.items()])
+            iw, w = self._workspace()  # one per thread
+            # ctypes releases the GIL for the call: the chunks run in parallel.
+            return run(x0.ctypes.data + 8 * a * x_step, x_step, P0.ctypes.data + 8 * a * P_step, P_step,
+                       Y[a].ctypes.data, Q.ctypes.data, R.ctypes.data, outs, strides.ctypes.data, b - a, K, iw, w)
+
+        if len(chunks) == 1:
+            errs = [part(0)]
+        else:
+            with ThreadPoolExecutor(len(chunks)) as pool:
+                errs = list(pool.map(part, range(len(chunks))))
+        if any(errs):
             raise SymmonError(f"the compiled filter step {self.f.name()} returned an error")
         return {k: b for k, b in blocks.items() if k in kept}
 
@@ -256,6 +271,17 @@ class _CompiledStep:
                 out[name][:, k] = step[name]
             x, P = step["x"].copy(), step["P"].copy()
         return out
+
+
+#: Fewest steps (runs × K) of a bank worth a thread of its own: below, one call.
+MIN_STEPS_PER_THREAD = 2000
+
+
+def _chunks(runs: int, K: int) -> list[tuple[int, int]]:
+    """The runs [a, b) of each thread: one per CPU, as long as each gets enough steps."""
+    threads = max(1, min(os.cpu_count() or 1, runs, (runs * K) // MIN_STEPS_PER_THREAD))
+    edges = np.linspace(0, runs, threads + 1).round().astype(int)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
 
 _steps: dict[tuple, _CompiledStep] = {}

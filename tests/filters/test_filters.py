@@ -729,3 +729,23 @@ def test_keep_names_are_checked():
         kf.filter([[1.0]], sm.Gaussian([0.0], [[1.0]]), keep=("x", "gain"))
     with pytest.raises(SymmonError, match="not the string"):
         kf.filter([[1.0]], sm.Gaussian([0.0], [[1.0]]), keep="x")
+
+
+@pytest.mark.parametrize("keep", [None, ("x",)])
+def test_a_bank_split_over_threads_equals_one_call(bank, keep, monkeypatch):
+    """The runs of a bank split over threads (the GIL is released in the C call) give the
+    numbers of one call bit for bit, kept arrays and log-likelihoods alike."""
+    from symmon.filters import step
+
+    _, ys = bank
+    f, h = cv_models()
+    kf = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, sm.UT.ut1())
+    monkeypatch.setattr(step, "MIN_STEPS_PER_THREAD", 10**12)
+    one = kf.filter(ys, X0, keep=keep)
+    monkeypatch.setattr(step, "MIN_STEPS_PER_THREAD", 1)
+    monkeypatch.setattr(step.os, "cpu_count", lambda: 4)
+    assert len(step._chunks(6, 25)) == 4
+    split = kf.filter(ys, X0, keep=keep)
+    for k in ("x", "P", "loglik"):
+        a, b = getattr(one, k), getattr(split, k)
+        assert (a is None and b is None) or np.array_equal(a, b), k
