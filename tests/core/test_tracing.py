@@ -107,13 +107,13 @@ def test_supported_operations(fn, expected):
 
 
 @pytest.mark.parametrize("fn, name", [
-    (lambda x: float(x[0]), "converting an input to a number"),
-    (lambda x: math.sqrt(x[0]), "converting an input to a number"),
-    (lambda x: x[0] if x[0] > 0 else -x[0], "comparison or branch"),
+    (lambda x: float(x[0]), "converting a traced value to a number"),
+    (lambda x: math.sqrt(x[0]), "converting a traced value to a number"),
+    (lambda x: x[0] if x[0] > 0 else -x[0], "deciding a traced comparison as True or False"),
     (lambda x: np.fmod(x[0], 2.0), "np.fmod"),
     (lambda x: x[0] // 2, "floor division"),
-    (lambda x: np.mod(x[0], 2.0), "np.remainder"),
-    (lambda x: np.add.accumulate(x[0]), "np.add.accumulate"),
+    (lambda x: np.mod(x[0], 2.0), r"np.remainder \(also np.mod\)"),
+    (lambda x: np.add.at(x, [0], 1.0), "np.add.at"),
 ])
 def test_unsupported_operation_is_named(fn, name):
     with pytest.raises(UnsupportedFunctionError, match=name):
@@ -138,3 +138,88 @@ def test_traced_value_is_not_a_number():
     with pytest.raises(UnsupportedFunctionError):
         bool(t)
     assert "np.arctan2" in SUPPORTED and "np.sqrt" in SUPPORTED
+
+
+# --------------------------------------------------------------------------- inputs and indexes
+def test_too_few_input_names_say_how_many_to_give():
+    def hx(x):
+        return np.array([x[0] + x[2]])
+
+    with pytest.raises(ModelError, match=r"the function hx reads x\[2\] but inputs= names 2 symbols "
+                                         r"\(a, b\): give 3 names") as err:
+        sm.Model.from_function(hx, inputs=["a", "b"])
+    assert not isinstance(err.value, UnsupportedFunctionError)
+    with pytest.raises(ModelError, match=r"reads x\[2\] and x\[5\] .* give 6 names"):
+        trace(lambda x: x[5] * x[2] + x[0], ["a", "b"])
+
+
+def test_the_index_check_names_the_parameter_and_the_noise():
+    def hx(state, noise):
+        return state[0] + noise[1]
+
+    with pytest.raises(ModelError, match=r"reads noise\[1\] but noise= names 1 symbol \(e\): give 2 names"):
+        trace(hx, ["a"], noise=["e"])
+    with pytest.raises(ModelError, match=r"reads state\[3\]"):
+        trace(lambda state, noise: state[3] + noise[0], ["a"], noise=["e"])
+
+
+@pytest.mark.parametrize("fn, message", [
+    (lambda x: x[-3], r"reads x\[-3\] .* give at least 3 names"),
+    (lambda x: x[[0, 2]].sum(), r"reads x\[2\] .* give 3 names"),
+    (lambda x: x[np.array([2, 0])], r"reads x\[2\]"),
+    (lambda x: x[(4,)], r"reads x\[4\] .* give 5 names"),
+    (lambda x: x[np.int64(2)], r"reads x\[2\]"),
+    # a failure after the read past the names (here: the placeholder in a float array)
+    (lambda x: np.array([x[2]], dtype=float), r"reads x\[2\]"),
+])
+def test_reads_past_the_names(fn, message):
+    with pytest.raises(ModelError, match=message):
+        trace(fn, ["a", "b"])
+
+
+@pytest.mark.parametrize("fn, expected", [
+    (lambda x: x[-1] - x[-2], lambda a, b: b - a),
+    (lambda x: x[1:].sum() + x[:1][0], lambda a, b: a + b),
+    (lambda x: x[::-1][0], lambda a, b: b),
+    (lambda x: x[[1, 0]][0], lambda a, b: b),
+    (lambda x: sum(xi**2 for xi in x), lambda a, b: a**2 + b**2),
+    (lambda x: (lambda p, q: p * q)(*x), lambda a, b: a * b),
+    (lambda x: len(x) * x[0], lambda a, b: 2 * a),
+    (lambda x: x.copy()[1], lambda a, b: b),
+])
+def test_negative_indexes_slices_and_iteration_keep_working(fn, expected):
+    a, b = sp.symbols("a b", real=True)
+    assert sp.simplify(trace(fn, ["a", "b"])[2][0] - expected(a, b)) == 0
+
+
+def test_other_index_errors_give_the_names():
+    def unpack(x):
+        px, py, pz = x
+        return px
+
+    with pytest.raises(ModelError, match=r"not enough values to unpack .*x holds the 2 names of inputs= \(a, b\)"):
+        trace(unpack, ["a", "b"])
+    with pytest.raises(ModelError, match=r"raised IndexError: too many indices.*\(x holds the 2 names"):
+        trace(lambda x: x[0, 1], ["a", "b"])
+    with pytest.raises(ModelError, match=r"IndexError.*x holds the 1 name of inputs= \(a\) and v holds the 1 name of noise= \(e\)"):
+        trace(lambda x, v: np.asarray(x)[3], ["a"], noise=["e"])
+
+
+def test_a_function_that_cannot_be_called_so_is_a_model_error():
+    def fx(x, dt):
+        return x * dt
+
+    with pytest.raises(ModelError, match=r"fx cannot be called as fx\(x\): missing a required argument: 'dt'.*args="):
+        sm.Model.from_function(fx, inputs=["a"])
+    def hx(x):
+        return x
+
+    with pytest.raises(ModelError, match=r"cannot be called as hx\(x, v\): too many positional arguments"):
+        trace(hx, ["a"], noise=["e"])
+
+
+def test_indexing_with_traced_values_is_refused():
+    with pytest.raises(UnsupportedFunctionError, match=r"indexing with traced values .* np.where"):
+        trace(lambda x: x[x > 0], ["a", "b"])
+    with pytest.raises(UnsupportedFunctionError, match=r"indexing with traced values"):
+        trace(lambda x: x[x[0]], ["a", "b"])
