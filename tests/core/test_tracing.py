@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import scipy.linalg
+import scipy.special
 import pytest
 import sympy as sp
 
@@ -223,3 +225,49 @@ def test_indexing_with_traced_values_is_refused():
         trace(lambda x: x[x > 0], ["a", "b"])
     with pytest.raises(UnsupportedFunctionError, match=r"indexing with traced values"):
         trace(lambda x: x[x[0]], ["a", "b"])
+
+
+# --------------------------------------------------------------------------- names of what is refused
+@pytest.mark.parametrize("fn, name", [
+    # ufuncs, by NumPy's or SciPy's qualified name
+    (lambda x: np.fmod(x[0], 2.0), "np.fmod"),
+    (lambda x: np.isfinite(x), "np.isfinite"),
+    (lambda x: scipy.special.gamma(x[0]), "scipy.special.gamma"),
+    (lambda x: scipy.special.j0(x), "scipy.special.j0"),
+    # NumPy functions, through __array_function__ on a traced scalar or array
+    (lambda x: np.sort(x), "np.sort"),
+    (lambda x: np.median(x), "np.median"),
+    (lambda x: np.sinc(x[0]), "np.sinc"),
+    (lambda x: np.round(x[0], 2), "np.round"),
+    (lambda x: np.linalg.solve(np.eye(2), x), "np.linalg.solve"),
+    # NumPy and SciPy functions without a traced argument to dispatch on: named from the call
+    (lambda x: np.sort(np.array([x[0], x[1]])), "np.sort"),
+    (lambda x: scipy.linalg.expm(np.array([[x[0], 0.0], [0.0, x[1]]])), "scipy.linalg.expm"),
+])
+def test_unsupported_functions_are_named_by_their_qualified_name(fn, name):
+    with pytest.raises(UnsupportedFunctionError) as err:
+        sm.Model.from_function(fn, inputs=["a", "b"])
+    message = str(err.value)
+    assert message.startswith(f"{name} is not supported in a traced model function: "), message
+    assert "np.erf" not in message and "np.gamma" not in message
+
+
+def test_a_refusal_inside_a_numpy_function_says_why():
+    with pytest.raises(UnsupportedFunctionError, match=r"^np.median .*: it compares traced values; .*np.where"):
+        trace(lambda x: np.median(x), ["a", "b"])
+    with pytest.raises(UnsupportedFunctionError, match=r"^scipy.linalg.expm .*: it converts traced values to numbers"):
+        trace(lambda x: scipy.linalg.expm(np.array([[x[0], 1.0], [0.0, x[0]]])), ["a"])
+    with pytest.raises(UnsupportedFunctionError, match=r"^np.sinc .*AttributeError"):
+        trace(lambda x: np.sinc(x[0]), ["a"])
+
+
+def test_a_refused_ufunc_lists_what_is_supported():
+    with pytest.raises(UnsupportedFunctionError) as err:
+        trace(lambda x: np.fmod(x[0], 2.0), ["a"])
+    assert all(name in str(err.value) for name in SUPPORTED)
+
+
+def test_scipy_erf_is_traced():
+    _, _, (g,) = trace(lambda x: scipy.special.erf(x[0]) + scipy.special.erfc(x[1]), ["a", "b"])
+    a, b = sp.symbols("a b", real=True)
+    assert sp.simplify(g - (sp.erf(a) + 1 - sp.erf(b))) == 0
