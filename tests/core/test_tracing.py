@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import math
+import re
+from typing import Callable
 
+import casadi as ca
 import numpy as np
 import scipy.linalg
 import scipy.special
@@ -12,6 +15,7 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import ModelError, UnsupportedFunctionError
+from symmon.compile import to_casadi
 from symmon.core.tracing import SUPPORTED, Traced, trace
 
 #: Sympy and NumPy evaluate the same expression in a different order: a few ulps.
@@ -271,3 +275,102 @@ def test_scipy_erf_is_traced():
     _, _, (g,) = trace(lambda x: scipy.special.erf(x[0]) + scipy.special.erfc(x[1]), ["a", "b"])
     a, b = sp.symbols("a b", real=True)
     assert sp.simplify(g - (sp.erf(a) + 1 - sp.erf(b))) == 0
+
+
+# --------------------------------------------------------------------------- SUPPORTED, each against NumPy
+M = np.array([[1.0, -2.0, 0.5], [0.0, 3.0, 1.0]])
+#: The NumPy functions of SUPPORTED that are not elementwise ufuncs, each on a 3-vector.
+FUNCTION_CASES: dict[str, Callable] = {
+    "np.array": lambda x: np.array([x[0] * 2, x[1] - x[2]]),
+    "np.asarray": lambda x: np.asarray(x) * 2 + 1,
+    "np.clip": lambda x: np.hstack([np.clip(x, -0.1, 0.5), np.clip(x[0], 0.0, None)]),
+    "np.concatenate": lambda x: np.concatenate([x, [1.5], x[:1]]),
+    "np.cumsum": lambda x: np.cumsum(x),
+    "np.dot": lambda x: np.dot(M, x),
+    "np.hstack": lambda x: np.hstack([x, x[0]]),
+    "np.inner": lambda x: np.inner(x, x),
+    "np.linalg.norm": lambda x: np.array([np.linalg.norm(x), np.linalg.norm(x, 1)]),
+    "np.matmul": lambda x: np.matmul(M, x) + M @ x,
+    "np.max": lambda x: np.max(x),
+    "np.mean": lambda x: np.mean(x),
+    "np.min": lambda x: np.min(x - 0.5),
+    "np.outer": lambda x: np.outer(x, x[:2]).ravel(),
+    "np.prod": lambda x: np.prod(x),
+    "np.stack": lambda x: np.stack([x, 2 * x]).ravel(),
+    "np.sum": lambda x: np.sum(x),
+    "np.vstack": lambda x: np.vstack([x, x[::-1]]).ravel(),
+    "np.where": lambda x: np.where(x > 0.5, x, -x),
+}
+FUNCTION_POINTS = [(0.3, 0.7, -0.2), (0.9, -0.4, 1.5)]
+
+#: Points inside each ufunc's domain; a ufunc of one argument uses the first coordinate.
+POINTS = [(0.3, 0.7), (0.9, -0.2), (-0.4, -0.45), (0.5, 0.5)]
+UFUNC_POINTS = {
+    **dict.fromkeys(["np.sqrt", "np.log", "np.log2", "np.log10", "np.power", "np.pow", "np.float_power"],
+                    [(0.3, 0.7), (2.5, 1.3), (1.0, 0.5)]),
+    **dict.fromkeys(["np.arccosh", "np.acosh"], [(1.7, 1.2), (3.0, 1.0)]),
+    **dict.fromkeys(["np.logical_and", "np.logical_or", "np.logical_xor", "np.logical_not"],
+                    [(0.0, 0.7), (0.3, 0.0), (0.0, 0.0), (0.3, -0.2)]),
+    "np.sign": POINTS + [(0.0, 0.0)],
+}
+
+
+def _resolve(name: str):
+    module, _, attr = name.rpartition(".")
+    return getattr({"np": np, "np.linalg": np.linalg, "scipy.special": scipy.special}[module], attr)
+
+
+def _ufunc_cases():
+    for name in SUPPORTED:
+        f = _resolve(name)
+        if isinstance(f, np.ufunc) and name not in FUNCTION_CASES:
+            points = UFUNC_POINTS.get(name, POINTS)
+            if f.nin == 1:
+                yield name, "scalar", (lambda x, f=f: f(x[0])), [p[:1] for p in points]
+                yield name, "array", (lambda x, f=f: f(x)), points
+            else:
+                yield name, "scalar", (lambda x, f=f: f(x[0], x[1])), points
+                yield name, "array", (lambda x, f=f: f(x, x[::-1])), points
+
+
+CASES = [*_ufunc_cases(), *[(name, "function", fn, FUNCTION_POINTS) for name, fn in FUNCTION_CASES.items()]]
+
+
+def _casadi_values(outputs, symbols, point):
+    w = ca.SX.sym("w", len(symbols))
+    f = ca.Function("f", [w], [ca.vertcat(*to_casadi(outputs, symbols, w))])
+    return np.asarray(f(np.asarray(point, dtype=float))).ravel()
+
+
+def test_every_supported_name_has_a_case():
+    assert {name for name, *_ in CASES} == set(SUPPORTED)
+
+
+@pytest.mark.parametrize("name, kind, fn, points", CASES, ids=[f"{c[0]}-{c[1]}" for c in CASES])
+def test_every_supported_operation_traces_to_what_numpy_computes(name, kind, fn, points):
+    names = [f"w{i}" for i in range(len(points[0]))]
+    inputs, _, outputs = trace(fn, names)
+    for point in points:
+        want = np.asarray(fn(np.array(point)), dtype=float).ravel()
+        subs = dict(zip(inputs, point))
+        by_sympy = np.array([float(sp.N(g.subs(subs), 30)) for g in outputs])
+        np.testing.assert_allclose(by_sympy, want, rtol=ROUNDING_RTOL, atol=1e-15, err_msg=f"{name} at {point}")
+        np.testing.assert_allclose(_casadi_values(outputs, inputs, point), want, rtol=ROUNDING_RTOL,
+                                   atol=1e-15, err_msg=f"{name} compiled, at {point}")
+
+
+@pytest.mark.parametrize("name, call", [
+    ("np.fmod", lambda x: np.fmod(x[0], 0.5)),
+    ("np.remainder", lambda x: np.remainder(x, 0.5)),
+    ("np.heaviside", lambda x: np.heaviside(x[0], 0.5)),
+    ("np.isfinite", lambda x: np.isfinite(x)),
+    ("np.sort", lambda x: np.sort(x)),
+    ("np.median", lambda x: np.median(x)),
+    ("np.sinc", lambda x: np.sinc(x[0])),
+    ("np.round", lambda x: np.round(x[1])),
+    ("scipy.special.gamma", lambda x: scipy.special.gamma(x)),
+])
+def test_unlisted_functions_are_refused(name, call):
+    assert name not in SUPPORTED
+    with pytest.raises(UnsupportedFunctionError, match=rf"^{re.escape(name)}.* is not supported in a traced model function: "):
+        trace(call, ["a", "b"])
