@@ -16,7 +16,7 @@ import sympy as sp
 import symmon as sm
 from symmon.errors import ModelError, UnsupportedFunctionError
 from symmon.compile import to_casadi
-from symmon.core.tracing import SUPPORTED, Traced, trace
+from symmon.core.tracing import SUPPORTED, Condition, Traced, trace
 
 #: Sympy and NumPy evaluate the same expression in a different order: a few ulps.
 ROUNDING_RTOL = 1e-12
@@ -374,3 +374,79 @@ def test_unlisted_functions_are_refused(name, call):
     assert name not in SUPPORTED
     with pytest.raises(UnsupportedFunctionError, match=rf"^{re.escape(name)}.* is not supported in a traced model function: "):
         trace(call, ["a", "b"])
+
+
+# --------------------------------------------------------------------------- branches on values
+def test_a_comparison_is_a_condition_and_np_where_a_piecewise():
+    a, b = sp.symbols("a b", real=True)
+    _, _, (g,) = trace(lambda x: np.where(x[0] > 0, x[0], -2 * x[0]), ["a"])
+    assert g == sp.Piecewise((a, a > 0), (-2 * a, True))
+    _, _, g = trace(lambda x: np.where(x > 1, x**2, 0), ["a", "b"])
+    assert g == (sp.Piecewise((a**2, a > 1), (0, True)), sp.Piecewise((b**2, b > 1), (0, True)))
+    _, _, (g,) = trace(lambda x: np.where((x[0] > 0) & ~(x[1] <= 1) | (x[0] == x[1]), 1.0, x[1]), ["a", "b"])
+    assert g == sp.Piecewise((1, ((a > 0) & (b > 1)) | sp.Eq(a, b)), (b, True))
+    cond = Traced(a) >= 1
+    assert isinstance(cond, Condition) and cond.expr == (a >= 1)
+
+
+def test_a_condition_in_arithmetic_is_one_or_zero():
+    a = sp.Symbol("a", real=True)
+    _, _, (g,) = trace(lambda x: (x[0] > 0) * x[0], ["a"])
+    assert g == a * sp.Piecewise((1, a > 0), (0, True))
+    _, _, (g,) = trace(lambda x: x[0] < 1, ["a"])  # a condition as an output
+    assert g == sp.Piecewise((1, a < 1), (0, True))
+
+
+@pytest.mark.parametrize("fn", [
+    lambda x: x[0] if x[0] > 0 else -x[0],
+    lambda x: x[0] if x[0] else 1.0,
+    lambda x: np.where(x[0] > 0 and x[1] > 0, 1.0, 0.0),
+    lambda x: max(x[0], 0.0),
+    lambda x: np.maximum(np.array([x[0], x[1]]), 0.0),  # NumPy's loop compares the entries
+])
+def test_a_python_branch_on_a_traced_comparison_says_how_to_write_it(fn):
+    with pytest.raises(UnsupportedFunctionError) as err:
+        sm.Model.from_function(fn, inputs=["a", "b"])
+    message = str(err.value)
+    assert message.startswith("deciding a traced comparison as True or False (Python if, while, and, or, not")
+    assert "np.where(cond, a, b)" in message and "sympy Piecewise" in message and "np.maximum" in message
+
+
+def test_a_comparison_sympy_decides_is_a_bool():
+    assert bool(Traced(sp.Symbol("a", real=True)) ** 2 + 1 > 0) is True
+    _, _, (g,) = trace(lambda x: x[0] if x[0] == x[0] else 0.0, ["a"])
+    assert g == sp.Symbol("a", real=True)
+
+
+def test_np_where_with_one_argument_is_refused():
+    with pytest.raises(UnsupportedFunctionError, match=r"np.where with one argument .* np.where\(cond, a, b\)"):
+        trace(lambda x: np.where(x > 0)[0], ["a", "b"])
+
+
+@pytest.mark.parametrize("fn, expected", [
+    (lambda x: np.maximum(x, 0.5), lambda a, b: [sp.Max(a, sp.Rational(1, 2)), sp.Max(b, sp.Rational(1, 2))]),
+    (lambda x: np.minimum(x[0], x[1]), lambda a, b: [sp.Min(a, b)]),
+    (lambda x: np.abs(x - 1), lambda a, b: [sp.Abs(a - 1), sp.Abs(b - 1)]),
+    (lambda x: np.sign(x), lambda a, b: [sp.sign(a), sp.sign(b)]),
+    (lambda x: np.clip(x, -1, 1), lambda a, b: [sp.Min(sp.Max(a, -1), 1), sp.Min(sp.Max(b, -1), 1)]),
+    (lambda x: x.clip(0, None), lambda a, b: [sp.Max(a, 0), sp.Max(b, 0)]),
+    (lambda x: np.max(x), lambda a, b: [sp.Max(a, b)]),
+    (lambda x: x.min(), lambda a, b: [sp.Min(a, b)]),
+    (lambda x: np.logical_and(x[0] > 0, x[1]), lambda a, b: [sp.Piecewise((1, (a > 0) & sp.Ne(b, 0)), (0, True))]),
+])
+def test_value_branches_are_max_min_abs_sign(fn, expected):
+    a, b = sp.symbols("a b", real=True)
+    assert list(trace(fn, ["a", "b"])[2]) == expected(a, b)
+
+
+def test_a_traced_branch_propagates_with_its_derivatives():
+    """CasADi compiles the Piecewise to if_else: TT1 takes the value and the slope of the
+    branch the mean lies in."""
+    def hx(x):
+        return np.array([np.where(x[0] > 0, x[0] ** 2, -x[0]), np.clip(x[1], -1.0, 1.0)])
+
+    m = sm.Model.from_function(hx, inputs=["a", "b"])
+    for mean, slope in (([2.0, 0.5], [4.0, 1.0]), ([-3.0, 2.0], [-1.0, 0.0])):
+        got = sm.propagate(m, sm.Gaussian(mean, np.diag([0.01, 0.04])), transform=sm.TT1())
+        np.testing.assert_allclose(got.mean, hx(np.array(mean)), rtol=EXACT_RTOL)
+        np.testing.assert_allclose(np.diag(got.cov), np.square(slope) * [0.01, 0.04], rtol=EXACT_RTOL, atol=1e-15)
