@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 import re
+import textwrap
+from pathlib import Path
 from typing import Callable
 
 import casadi as ca
@@ -23,6 +25,8 @@ ROUNDING_RTOL = 1e-12
 #: Two models with the same expressions give the same TT2 moments bit for bit, up to the
 #: rounding of the constants' decimal form (none here).
 EXACT_RTOL = 1e-12
+
+DOCS = Path(__file__).resolve().parents[2] / "docs"
 
 SENSOR = (1.0, 2.5)
 DT = 0.1
@@ -450,3 +454,24 @@ def test_a_traced_branch_propagates_with_its_derivatives():
         got = sm.propagate(m, sm.Gaussian(mean, np.diag([0.01, 0.04])), transform=sm.TT1())
         np.testing.assert_allclose(got.mean, hx(np.array(mean)), rtol=EXACT_RTOL)
         np.testing.assert_allclose(np.diag(got.cov), np.square(slope) * [0.01, 0.04], rtol=EXACT_RTOL, atol=1e-15)
+
+
+# --------------------------------------------------------------------------- the documented list
+def _bullet_list(text: str, after: str) -> str:
+    """The first bullet list after the line ``after``, up to the blank line that ends it."""
+    lines = textwrap.dedent(text.split(after, 1)[1]).splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("- "))
+    end = next((i for i in range(start, len(lines)) if not lines[i].strip()), len(lines))
+    return "\n".join(lines[start:end])
+
+
+@pytest.mark.parametrize("where, text, after", [
+    ("docs/guide/models.md", (DOCS / "guide" / "models.md").read_text(encoding="utf-8"),
+     "### What a traced function may use"),
+    ("Model.from_function", sm.Model.from_function.__doc__, "Notes\n        -----"),
+])
+def test_the_documented_list_is_supported(where, text, after):
+    listed = set(re.findall(r"`{1,2}((?:np|scipy)\.[A-Za-z_][\w.]*)", _bullet_list(text, after)))
+    assert set(SUPPORTED) - listed == set(), f"{where} omits these"
+    # a name listed but not supported is an alias that this NumPy does not have (np.pow < 2.0)
+    assert {n for n in listed - set(SUPPORTED) if hasattr(np, n.removeprefix("np."))} == set(), where
