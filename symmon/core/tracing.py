@@ -397,7 +397,7 @@ def _ufunc_override(ufunc: np.ufunc, method: str, inputs: Sequence[Any], kwargs:
 def _where(condition, *values, **kwargs):
     """``np.where(cond, a, b)``: a sympy Piecewise, entry by entry."""
     if len(values) != 2 or kwargs:
-        raise _refusal("np.where with one argument (the indices where a condition holds)",
+        raise _refusal("np.where(cond) without both a and b (the indices where cond holds)",
                        "they depend on the values. Use np.where(cond, a, b)")
     return _wrap(_piecewise(*[_operand(a) for a in (condition, *values)]))
 
