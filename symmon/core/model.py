@@ -219,9 +219,8 @@ class Model:
         """Trace a NumPy-style Python function into a Model.
 
         The function is called once on symbolic inputs (see :mod:`symmon.core.tracing`):
-        arithmetic, indexing, ``np.array([...])``, matrix products and the NumPy functions
-        of :data:`symmon.core.tracing.SUPPORTED` (``np.sqrt``, ``np.arctan2``, ``np.exp``,
-        ``np.sin``, ...) become the same sympy expressions a declaration would hold.
+        the operations and functions listed in the Notes become the same sympy expressions
+        a declaration would hold.
 
         Parameters
         ----------
@@ -229,7 +228,8 @@ class Model:
             ``fn(x, *args)``, or ``fn(x, v, *args)`` when ``noise`` is given; FilterPy's
             ``hx(x)`` and ``fx(x, dt)`` (with ``args=(dt,)``) work as written.
         inputs, noise : sequence of str or sympy.Symbol
-            Names of the components of ``x`` and of the noise ``v``.
+            Names of the components of ``x`` and of the noise ``v``: one name for each
+            entry the function reads.
         angles, name
             As for :class:`Model`.
         args : sequence
@@ -238,8 +238,49 @@ class Model:
         Raises
         ------
         UnsupportedFunctionError
-            Naming an operation that cannot be traced (``float(x[0])``, ``math.sqrt``, a
-            branch on an input, an unsupported NumPy function).
+            Naming an operation that cannot be traced by its qualified name (``np.fmod``,
+            ``np.sort``, ``scipy.special.gamma``; ``float(x[0])``, ``math.sqrt``, a Python
+            ``if`` on a traced comparison) and saying what to write instead.
+        ModelError
+            If ``fn`` reads an entry past the names (``x[2]`` with two names in
+            ``inputs``), saying how many names to give, or cannot be called as
+            ``fn(x, *args)`` / ``fn(x, v, *args)``.
+
+        Notes
+        -----
+        A traced function may use (:data:`symmon.core.tracing.SUPPORTED`, each tested
+        against NumPy):
+
+        - the operators ``+ - * / **``, unary ``-``, ``abs()``, ``@``, indexing (also
+          negative), slicing, iteration and unpacking of ``x``, the comparisons
+          ``< <= > >= == !=`` and ``&``, ``|``, ``^``, ``~`` of comparisons;
+        - arithmetic: ``np.add``, ``np.subtract``, ``np.multiply``, ``np.divide``,
+          ``np.true_divide``, ``np.power``, ``np.pow``, ``np.float_power``,
+          ``np.negative``, ``np.positive``, ``np.reciprocal``, ``np.square``, ``np.sqrt``,
+          ``np.cbrt``;
+        - exponentials and logarithms: ``np.exp``, ``np.expm1``, ``np.log``, ``np.log1p``,
+          ``np.log2``, ``np.log10``, and ``scipy.special.erf``, ``scipy.special.erfc``;
+        - trigonometry: ``np.sin``, ``np.cos``, ``np.tan``, ``np.arcsin`` (``np.asin``),
+          ``np.arccos`` (``np.acos``), ``np.arctan`` (``np.atan``), ``np.arctan2``
+          (``np.atan2``), ``np.hypot``, ``np.deg2rad`` (``np.radians``), ``np.rad2deg``
+          (``np.degrees``), ``np.sinh``, ``np.cosh``, ``np.tanh``, ``np.arcsinh``
+          (``np.asinh``), ``np.arccosh`` (``np.acosh``), ``np.arctanh`` (``np.atanh``);
+        - branches on values: ``np.where(cond, a, b)`` (a sympy Piecewise),
+          ``np.maximum``, ``np.minimum``, ``np.fmax``, ``np.fmin``, ``np.clip``,
+          ``np.max``, ``np.min`` (Max, Min), ``np.abs`` (``np.absolute``), ``np.sign``,
+          ``np.floor``, ``np.ceil``, the comparisons ``np.greater``, ``np.greater_equal``,
+          ``np.less``, ``np.less_equal``, ``np.equal``, ``np.not_equal`` and
+          ``np.logical_and``, ``np.logical_or``, ``np.logical_xor``, ``np.logical_not``;
+        - arrays: ``np.array``, ``np.asarray``, ``np.concatenate``, ``np.hstack``,
+          ``np.vstack``, ``np.stack``, ``np.dot``, ``np.matmul``, ``np.inner``,
+          ``np.outer``, ``np.linalg.norm``, ``np.sum``, ``np.prod``, ``np.mean``,
+          ``np.cumsum``.
+
+        (``np.pow``, ``np.asin`` and the other short names exist from NumPy 2.)  A
+        comparison is a symbolic condition, not a Python bool: write a branch as
+        ``np.where(cond, a, b)``.  Comparisons and the functions that compare work on traced
+        scalars and on the arrays computed from ``x``; on an array built with
+        ``np.array([...])`` NumPy compares the entries itself, so apply them to the entries.
 
         Examples
         --------
@@ -248,6 +289,8 @@ class Model:
         ...     return np.array([np.hypot(x[0], x[1]), np.arctan2(x[1], x[0])])
         >>> Model.from_function(hx, inputs=["x", "y"], angles=[1]).outputs
         (sqrt(x**2 + y**2), atan2(y, x))
+        >>> Model.from_function(lambda x: np.where(x[0] > 0, x[0], 0.0), inputs=["x"]).outputs
+        (Piecewise((x, x > 0), (0, True)),)
         """
         u, v, g = trace(fn, inputs, noise, args)
         label = name if name is not None else getattr(fn, "__name__", None)

@@ -6,18 +6,43 @@ and ``np.array([...])``.  :func:`trace` calls such a function once on symbolic v
 returns the sympy expressions of its outputs, so that :meth:`symmon.Model.from_function`
 builds the same :class:`~symmon.Model` as a sympy declaration.
 
-The function receives NumPy object arrays whose entries are :class:`Traced` values.  A
-Traced value supports the arithmetic operators and the NumPy ufuncs listed in
-:data:`SUPPORTED`, both on scalars (``np.sqrt(x[0])``) and on arrays (``np.sin(x)``);
-NumPy's own code built on them (``F @ x``, ``np.dot``, ``x.sum()``, slicing) works too.
-Anything that needs a number (``float(x[0])``, ``math.sqrt``, ``if x[0] > 0``) raises an
-:class:`~symmon.errors.UnsupportedFunctionError` naming the operation: the traced value
-has no number yet.
+The function receives NumPy object arrays of :class:`Traced` values.  What it may do with
+them is listed in :data:`SUPPORTED` (each entry is tested against NumPy):
+
+- arithmetic ``+ - * / **``, unary ``-``, ``abs()``, ``@``, indexing and slicing, and
+  the NumPy ufuncs of the list, on scalars (``np.sqrt(x[0])``) and on arrays
+  (``np.sin(x)``);
+- the NumPy functions of the list (``np.array``, ``np.dot``, ``np.sum``,
+  ``np.linalg.norm``, ...) and SciPy's ``scipy.special.erf`` and ``erfc``;
+- branches on values: a comparison (``x[0] > 0``, ``x > 0``) is a :class:`Condition`
+  (a sympy relation; combine them with ``&``, ``|`` and ``~``), ``np.where(cond, a, b)``
+  is a sympy ``Piecewise``, ``np.maximum`` / ``np.minimum`` / ``np.clip`` are ``Max`` and
+  ``Min``, ``np.abs`` and ``np.sign`` are ``Abs`` and ``sign``; CasADi compiles them to
+  ``if_else``, ``fmax``, ``fmin``, ``fabs`` and ``sign``.  A condition in arithmetic is 1
+  or 0, as a NumPy bool is.
+
+NumPy code built on these works too (``x.sum()``, ``np.hstack``, ``F @ x``).  Comparisons
+and the functions that compare (``np.maximum``, ``np.clip``, ``np.sign``, ``np.max``) work on
+traced scalars and on the arrays computed from ``x`` (``x``, ``x[1:]``, ``x - s``,
+``F @ x``); on an array built with ``np.array([...])`` NumPy compares the entries itself
+and cannot, so apply them to the entries.
+
+Anything else raises an :class:`~symmon.errors.UnsupportedFunctionError` that names the
+operation by its qualified name (``np.fmod``, ``np.sort``, ``scipy.special.gamma``) and says
+what to write instead: a Python ``if`` on a traced comparison (it is not a bool),
+``float(x[0])`` and ``math.sqrt`` (the value is a symbol, not a number).  Reading an entry
+past the declared names (``x[2]`` with two names in ``inputs=``) is a
+:class:`~symmon.errors.ModelError` that says how many names to give.
 """
 
 from __future__ import annotations
 
+import contextvars
+import functools
+import inspect
 import numbers
+import sys
+import traceback
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -26,15 +51,19 @@ import sympy as sp
 from ..errors import ModelError, UnsupportedFunctionError
 from .symbols import as_symbols
 
-__all__ = ["Traced", "trace", "SUPPORTED"]
+__all__ = ["Traced", "Condition", "trace", "SUPPORTED"]
 
 
 def _hypot(a, b):
     return sp.sqrt(a**2 + b**2)
 
 
-#: NumPy ufuncs a traced function may call, and their sympy counterparts.
-_UFUNCS: dict[np.ufunc, Callable[..., sp.Expr]] = {
+def _clip(a, lo, hi):
+    return sp.Min(sp.Max(a, lo), hi)
+
+
+#: NumPy ufuncs that give a value, and their sympy counterparts.
+_VALUES: dict[np.ufunc, Callable[..., sp.Expr]] = {
     np.add: lambda a, b: a + b,
     np.subtract: lambda a, b: a - b,
     np.multiply: lambda a, b: a * b,
@@ -68,27 +97,185 @@ _UFUNCS: dict[np.ufunc, Callable[..., sp.Expr]] = {
     np.deg2rad: lambda a: a * sp.pi / 180,
     np.rad2deg: lambda a: a * 180 / sp.pi,
 }
-_UFUNCS[np.radians] = _UFUNCS[np.deg2rad]
-_UFUNCS[np.degrees] = _UFUNCS[np.rad2deg]
-
-#: Names of the supported NumPy functions, for messages and documentation.
-SUPPORTED: tuple[str, ...] = tuple(sorted({f"np.{u.__name__}" for u in _UFUNCS}))
+_VALUES[np.radians] = _VALUES[np.deg2rad]
+_VALUES[np.degrees] = _VALUES[np.rad2deg]
 
 
-def _unsupported(what: str) -> UnsupportedFunctionError:
-    return UnsupportedFunctionError(
-        f"{what} is not supported in a traced model function: the inputs are symbols, not "
-        f"numbers. Use arithmetic, indexing, np.array([...]) and the NumPy functions "
-        f"{', '.join(SUPPORTED)}"
-    )
+def _clip_ufunc() -> np.ufunc | None:
+    """The ufunc behind ``np.clip`` and ``ndarray.clip`` (not in NumPy's namespace)."""
+    core = getattr(np, "_core", None) or getattr(np, "core", None)
+    clip = getattr(getattr(core, "umath", None), "clip", None)
+    return clip if isinstance(clip, np.ufunc) else None
 
 
+_CLIP = _clip_ufunc()
+if _CLIP is not None:
+    _VALUES[_CLIP] = _clip
+
+#: Comparisons: ufuncs that give a :class:`Condition`.
+_COMPARISONS: dict[np.ufunc, Callable[..., sp.Basic]] = {
+    np.greater: sp.Gt, np.greater_equal: sp.Ge, np.less: sp.Lt, np.less_equal: sp.Le,
+    np.equal: sp.Eq, np.not_equal: sp.Ne,
+}
+
+
+def _xor(a, b):
+    # CasADi has no Xor: written with And, Or and Not, which it compiles.
+    return sp.Or(sp.And(a, sp.Not(b)), sp.And(sp.Not(a), b))
+
+
+#: Logical ufuncs on conditions (a traced number is true where it is not 0, as in NumPy).
+_LOGICAL: dict[np.ufunc, Callable[..., sp.Basic]] = {
+    np.logical_and: sp.And, np.logical_or: sp.Or, np.logical_not: sp.Not, np.logical_xor: _xor,
+}
+#: ``&``, ``|``, ``^`` and ``~`` of arrays of conditions; only on conditions and bools.
+_BITWISE: dict[np.ufunc, Callable[..., sp.Basic]] = {
+    np.bitwise_and: sp.And, np.bitwise_or: sp.Or, np.bitwise_xor: _xor, np.invert: sp.Not,
+}
+#: Ufuncs whose NumPy object loop only multiplies and adds the entries: NumPy runs them.
+_DELEGATED: frozenset[np.ufunc] = frozenset({np.matmul})
+
+
+@functools.lru_cache(maxsize=None)
+def _scipy_values() -> dict:
+    """The SciPy ufuncs a traced function may call (scipy.special is loaded when it calls one)."""
+    special = sys.modules.get("scipy.special")
+    if special is None:  # pragma: no cover - a SciPy ufunc implies scipy.special is loaded
+        return {}
+    return {special.erf: sp.erf, special.erfc: lambda a: 1 - sp.erf(a)}
+
+
+def _numpy_names(ufuncs) -> set[str]:
+    """Every public name NumPy gives to the ufuncs (``np.abs`` and ``np.absolute``)."""
+    return {f"np.{name}" for name, obj in vars(np).items()
+            if not name.startswith("_") and isinstance(obj, np.ufunc) and obj in ufuncs}
+
+
+#: NumPy and SciPy functions that are not ufuncs; each is tested (tests/core/test_tracing.py).
+_FUNCTIONS = ("np.array", "np.asarray", "np.clip", "np.concatenate", "np.cumsum", "np.dot",
+              "np.hstack", "np.inner", "np.linalg.norm", "np.max", "np.mean", "np.min",
+              "np.outer", "np.prod", "np.stack", "np.sum", "np.vstack", "np.where")
+
+#: Every NumPy and SciPy function a traced function may call: the ufuncs under all their
+#: NumPy names (``np.abs`` and ``np.absolute``), comparisons, logical functions, the NumPy
+#: functions above and ``scipy.special.erf`` / ``erfc``.
+SUPPORTED: tuple[str, ...] = tuple(sorted(
+    _numpy_names({**_VALUES, **_COMPARISONS, **_LOGICAL, **dict.fromkeys(_DELEGATED)})
+    | set(_FUNCTIONS) | {"scipy.special.erf", "scipy.special.erfc"}))
+
+
+# --------------------------------------------------------------------------- names and errors
+def _alias(module: str) -> str:
+    return "np" + module[len("numpy"):] if module == "numpy" or module.startswith("numpy.") else module
+
+
+def _public_module(module: str) -> str:
+    """``numpy._core.fromnumeric`` → ``numpy``, ``scipy.linalg._matfuncs`` → ``scipy.linalg``."""
+    parts = []
+    for p in module.split("."):
+        if p.startswith("_"):
+            break
+        parts.append(p)
+    return ".".join(parts) or module
+
+
+def _qualified_name(obj: Any) -> str:
+    """The name a user writes for a NumPy or SciPy function or ufunc: ``np.fmod``,
+    ``np.linalg.norm``, ``scipy.special.erf``."""
+    name = getattr(obj, "__name__", None) or type(obj).__name__
+    for module in ("numpy", "numpy.linalg", "scipy.special"):
+        mod = sys.modules.get(module)
+        if mod is not None and getattr(mod, name, None) is obj:
+            also = sorted(f"{_alias(module)}.{k}" for k, o in vars(mod).items()
+                          if o is obj and k != name and not k.startswith("_"))
+            return f"{_alias(module)}.{name}" + (f" (also {', '.join(also)})" if also else "")
+    module = getattr(obj, "__module__", None)
+    if module:
+        return f"{_alias(_public_module(module))}.{name}"
+    return f"the ufunc {name}" if isinstance(obj, np.ufunc) else name
+
+
+def _code_of(obj: Any):
+    for _ in range(4):  # a dispatcher, its implementation, a wrapper ...
+        code = getattr(obj, "__code__", None)
+        if code is not None:
+            return code
+        obj = getattr(obj, "_implementation", None) or getattr(obj, "__wrapped__", None)
+    return None
+
+
+def _frame_name(frame) -> str | None:
+    """The public name of the NumPy/SciPy function running in ``frame``, if it has one."""
+    module = frame.f_globals.get("__name__", "")
+    public = _public_module(module)
+    obj = getattr(sys.modules.get(public), frame.f_code.co_name, None)
+    if obj is not None and _code_of(obj) is frame.f_code:
+        return f"{_alias(public)}.{frame.f_code.co_name}"
+    return None
+
+
+_SUPPORTED_ADVICE = ("The functions a traced model function may call are "
+                     "symmon.core.tracing.SUPPORTED: " + ", ".join(SUPPORTED)
+                     + "; anything else can be declared with sympy, Model(inputs, outputs)")
+_BRANCH_ADVICE = ("a comparison such as x[0] > 0 is a symbolic condition, not True or False. "
+                  "Write the branch as np.where(cond, a, b) (both a and b are traced; combine "
+                  "conditions with &, | and ~), use np.maximum, np.minimum, np.clip, np.abs or "
+                  "np.sign, or declare the model with sympy Piecewise")
+_NUMBER_ADVICE = ("the inputs are symbols, not numbers. Use the NumPy functions (np.sqrt, not "
+                  "math.sqrt), and build arrays with np.array([...]) or np.zeros(n, dtype=object)")
+
+
+def _refusal(subject: str, why: str, inside: str | None = None) -> UnsupportedFunctionError:
+    """``subject is not supported in a traced model function: why``; ``inside`` is the
+    phrase a NumPy function that met this error inside gives (``it converts ...``)."""
+    err = UnsupportedFunctionError(f"{subject} is not supported in a traced model function: {why}")
+    err.inside = inside or f"it uses {subject}, which is not supported"
+    err.why = why
+    return err
+
+
+def _unknown(subject: str) -> UnsupportedFunctionError:
+    return _refusal(subject, f"it has no sympy counterpart here. {_SUPPORTED_ADVICE}",
+                    f"it calls {subject}, which has no sympy counterpart here")
+
+
+def _branch() -> UnsupportedFunctionError:
+    return _refusal(
+        "deciding a traced comparison as True or False (Python if, while, and, or, not, bool(), "
+        "max(), min(), or a NumPy loop that compares the entries of an array built with "
+        "np.array([...]))", _BRANCH_ADVICE, "it compares traced values")
+
+
+def _number() -> UnsupportedFunctionError:
+    return _refusal(
+        "converting a traced value to a number (float(), int(), math.sqrt and the other math "
+        "functions, storing it in a float array such as np.zeros(n))", _NUMBER_ADVICE,
+        "it converts traced values to numbers")
+
+
+def _renamed(name: str, exc: BaseException) -> UnsupportedFunctionError:
+    """The error of the NumPy or SciPy function ``name`` that failed inside with ``exc``."""
+    if isinstance(exc, UnsupportedFunctionError) and hasattr(exc, "inside"):
+        why = f"{exc.inside}; {exc.why}"
+    else:
+        why = (f"it fails on traced values ({type(exc).__name__}: {exc}). {_SUPPORTED_ADVICE}")
+    err = _refusal(name, why)
+    err.named = True
+    return err
+
+
+# --------------------------------------------------------------------------- values
 def _to_sympy(a: Any) -> sp.Expr:
-    """A Traced value or a real number as a sympy expression (floats kept bit for bit)."""
+    """A traced value or a real number as a sympy expression (floats kept bit for bit);
+    a condition is 1 where it holds and 0 elsewhere, as a NumPy bool in arithmetic."""
+    if isinstance(a, np.ndarray) and a.ndim == 0:
+        a = a[()]
+    if isinstance(a, Condition):
+        return sp.Piecewise((sp.Integer(1), a.expr), (sp.Integer(0), True))
     if isinstance(a, Traced):
         return a.expr
     if isinstance(a, (bool, np.bool_)):
-        raise _unsupported("a boolean operand")
+        raise _refusal("a boolean operand", "write the number 1 or 0, or a traced comparison")
     if isinstance(a, numbers.Integral):
         return sp.Integer(int(a))
     if isinstance(a, numbers.Real):
@@ -98,20 +285,178 @@ def _to_sympy(a: Any) -> sp.Expr:
         # The shortest decimal that rounds back to x: what the user wrote (dt = 0.1 → 1/10),
         # and float() of it is x again, bit for bit.
         return sp.Rational(repr(x))
-    raise _unsupported(f"an operand of type {type(a).__name__}")
+    raise _refusal(f"an operand of type {type(a).__name__}",
+                   "the operands are traced values and real numbers")
+
+
+def _to_condition(a: Any, strict: bool = False) -> sp.Basic:
+    """A condition, a bool, or (unless ``strict``) a traced value or number as a sympy
+    boolean; a number is true where it is not 0, as in NumPy."""
+    if isinstance(a, np.ndarray) and a.ndim == 0:
+        a = a[()]
+    if isinstance(a, Condition):
+        return a.expr
+    if isinstance(a, (bool, np.bool_)):
+        return sp.true if a else sp.false
+    if strict:
+        raise _refusal(f"&, |, ^ or ~ of {type(a).__name__}",
+                       "they combine conditions; for numbers use np.logical_and, np.logical_or, "
+                       "np.logical_xor or np.logical_not")
+    return sp.Ne(_to_sympy(a), 0)
+
+
+def _plain(a: Any) -> Any:
+    return a.view(np.ndarray) if isinstance(a, _TracedArray) else a
+
+
+def _operand(a: Any) -> Any:
+    """``a`` for an object ufunc of ours: a plain array, a traced scalar in a 0-d object
+    array (else NumPy would hand the call back to it), a number as it is."""
+    if isinstance(a, np.ndarray):
+        return a.view(np.ndarray)
+    if isinstance(a, (Traced, list, tuple)):
+        return np.asarray(a, dtype=object) if not isinstance(a, Traced) else _zero_d(a)
+    return a
+
+
+def _zero_d(a: Any) -> np.ndarray:
+    arr = np.empty((), dtype=object)
+    arr[()] = a
+    return arr
+
+
+def _wrap(result: Any) -> Any:
+    """An object array as a :class:`_TracedArray`, so that NumPy keeps calling back."""
+    if isinstance(result, np.ndarray) and result.dtype == object and not isinstance(result, _TracedArray):
+        return result.view(_TracedArray)
+    if isinstance(result, tuple):
+        return tuple(_wrap(r) for r in result)
+    return result
+
+
+def _lookup(ufunc: np.ufunc) -> tuple[str, Callable] | None:
+    for kind, table in (("value", _VALUES), ("compare", _COMPARISONS), ("logic", _LOGICAL),
+                        ("bitwise", _BITWISE), ("value", _scipy_values())):
+        fn = table.get(ufunc)
+        if fn is not None:
+            return kind, fn
+    return None
 
 
 def _apply(ufunc: np.ufunc, args: Sequence[Any]) -> Any:
-    """Apply ``ufunc`` to scalars or (object) arrays of Traced values and numbers."""
-    fn = _UFUNCS.get(ufunc)
-    if fn is None:
-        raise _unsupported(f"np.{ufunc.__name__}")
+    """Apply ``ufunc`` to scalars or (object) arrays of traced values and numbers."""
+    found = _lookup(ufunc)
+    if found is None:
+        raise _unknown(_qualified_name(ufunc))
     if any(isinstance(a, np.ndarray) and a.ndim > 0 for a in args):
-        elementwise = np.frompyfunc(lambda *xs: _apply(ufunc, xs), len(args), 1)
-        return elementwise(*[np.asarray(a, dtype=object) if isinstance(a, np.ndarray) else a for a in args])
-    return Traced(fn(*[_to_sympy(a) for a in args]))
+        return _elementwise(ufunc)(*[_operand(a) for a in args])
+    kind, fn = found
+    if kind == "value":
+        return Traced(fn(*[_to_sympy(a) for a in args]))
+    if kind == "compare":
+        return Condition(fn(*[_to_sympy(a) for a in args]))
+    return Condition(fn(*[_to_condition(a, strict=kind == "bitwise") for a in args]))
 
 
+@functools.lru_cache(maxsize=None)
+def _elementwise(ufunc: np.ufunc) -> np.ufunc:
+    """``ufunc`` as an object ufunc of traced values, with NumPy's broadcasting, ``reduce``
+    and ``accumulate``."""
+    return np.frompyfunc(lambda *xs: _apply(ufunc, xs), ufunc.nin, 1)
+
+
+def _ufunc_override(ufunc: np.ufunc, method: str, inputs: Sequence[Any], kwargs: dict) -> Any:
+    """``__array_ufunc__`` of traced scalars and arrays."""
+    kwargs = dict(kwargs)
+    out = kwargs.pop("out", None)
+    if kwargs.get("dtype", None) in (None, object, np.dtype(object)):
+        kwargs.pop("dtype", None)
+    plain = [_operand(a) for a in inputs]
+    if method == "__call__":
+        if kwargs:
+            raise _refusal(f"{_qualified_name(ufunc)} with {sorted(kwargs)}", "call it without these arguments")
+        if ufunc in _DELEGATED:
+            result = ufunc(*plain)
+        else:
+            result = _apply(ufunc, plain)
+    elif method in ("reduce", "accumulate", "reduceat", "outer") and ufunc.nin == 2 and _lookup(ufunc):
+        if (method == "reduce" and ufunc.identity is not None and isinstance(plain[0], np.ndarray)
+                and plain[0].size == 0):
+            kwargs.setdefault("initial", ufunc.identity)
+        result = getattr(_elementwise(ufunc), method)(*plain, **kwargs)
+    else:
+        raise _unknown(f"{_qualified_name(ufunc)}.{method}")
+    if out is not None:
+        if len(out) != 1:
+            raise _refusal(f"{_qualified_name(ufunc)} with several out= arrays", "call it without out=")
+        out[0][...] = result
+        return out[0]
+    return _wrap(result)
+
+
+def _where(condition, *values, **kwargs):
+    """``np.where(cond, a, b)``: a sympy Piecewise, entry by entry."""
+    if len(values) != 2 or kwargs:
+        raise _refusal("np.where(cond) without both a and b (the indices where cond holds)",
+                       "they depend on the values. Use np.where(cond, a, b)")
+    return _wrap(_piecewise(*[_operand(a) for a in (condition, *values)]))
+
+
+def _piece(c, a, b):
+    return Traced(sp.Piecewise((_to_sympy(a), _to_condition(c)), (_to_sympy(b), True)))
+
+
+_piecewise = np.frompyfunc(_piece, 3, 1)
+
+
+def _absent(v: Any) -> bool:
+    return v is None or v is getattr(np, "_NoValue", None)
+
+
+def _clip_function(a, a_min=None, a_max=None, out=None, **kwargs):
+    """``np.clip(a, a_min, a_max)``: ``np.minimum(np.maximum(a, a_min), a_max)``."""
+    lo, hi = kwargs.pop("min", None), kwargs.pop("max", None)
+    a_min = lo if _absent(a_min) else a_min
+    a_max = hi if _absent(a_max) else a_max
+    if not _absent(out) or kwargs:
+        raise _refusal(f"np.clip with {sorted(kwargs) or ['out']}", "call np.clip(a, a_min, a_max)")
+    r = _plain(a)
+    if not _absent(a_min):
+        r = _apply(np.maximum, (r, _plain(a_min)))
+    if not _absent(a_max):
+        r = _apply(np.minimum, (r, _plain(a_max)))
+    return _wrap(r)
+
+
+#: NumPy functions with an implementation of their own for traced values.
+_SPECIAL: dict[Callable, Callable] = {np.where: _where, np.clip: _clip_function}
+#: Depth of nested NumPy functions: the outermost one names a failure inside.
+_DEPTH: contextvars.ContextVar[int] = contextvars.ContextVar("symmon_trace_depth", default=0)
+
+
+def _function_override(func: Callable, args: Sequence[Any], kwargs: dict) -> Any:
+    """``__array_function__`` of traced scalars and arrays: NumPy's implementation, with a
+    failure inside reported under the function's name."""
+    special = _SPECIAL.get(func)
+    if special is not None:
+        return special(*args, **kwargs)
+    name = _qualified_name(func)
+    impl = getattr(func, "_implementation", None) or getattr(func, "__wrapped__", None)
+    if impl is None:  # pragma: no cover - every NumPy dispatcher has its implementation
+        raise _unknown(name)
+    depth = _DEPTH.get()
+    token = _DEPTH.set(depth + 1)
+    try:
+        return _wrap(impl(*args, **kwargs))
+    except (UnsupportedFunctionError, TypeError, AttributeError) as exc:
+        if depth or getattr(exc, "named", False):
+            raise
+        raise _renamed(name, exc) from exc
+    finally:
+        _DEPTH.reset(token)
+
+
+# --------------------------------------------------------------------------- traced values
 class Traced:
     """A symbolic scalar that behaves like a float under NumPy-style code.
 
@@ -125,20 +470,20 @@ class Traced:
     # NumPy defers binary operators with a Traced operand to Traced's methods.
     __array_priority__ = 1000
 
-    def __init__(self, expr: sp.Expr) -> None:
+    def __init__(self, expr: sp.Basic) -> None:
         self.expr = expr
 
     def __repr__(self) -> str:
-        return f"Traced({self.expr})"
+        return f"{type(self).__name__}({self.expr})"
 
     def __array_ufunc__(self, ufunc: np.ufunc, method: str, *inputs: Any, **kwargs: Any) -> Any:
-        if method != "__call__" or kwargs:
-            raise _unsupported(f"np.{ufunc.__name__}.{method}" if method != "__call__"
-                               else f"np.{ufunc.__name__} with {sorted(kwargs)}")
-        return _apply(ufunc, inputs)
+        return _ufunc_override(ufunc, method, inputs, kwargs)
 
-    # Arithmetic; each returns NotImplemented for operands it does not know, so that
-    # NumPy arrays take over (elementwise through __array_ufunc__).
+    def __array_function__(self, func: Callable, types: Any, args: Sequence[Any], kwargs: dict) -> Any:
+        return _function_override(func, args, kwargs)
+
+    # Arithmetic; each returns NotImplemented for an array operand, so that NumPy arrays
+    # take over (elementwise through __array_ufunc__).
     def _binary(self, other: Any, ufunc: np.ufunc, reflected: bool = False) -> Any:
         if isinstance(other, np.ndarray) and other.ndim > 0:
             return NotImplemented
@@ -155,33 +500,199 @@ class Traced:
     def __rtruediv__(self, o): return self._binary(o, np.true_divide, True)
     def __pow__(self, o): return self._binary(o, np.power)
     def __rpow__(self, o): return self._binary(o, np.power, True)
-    def __neg__(self): return Traced(-self.expr)
+    def __neg__(self): return _apply(np.negative, (self,))
     def __pos__(self): return self
-    def __abs__(self): return Traced(sp.Abs(self.expr))
+    def __abs__(self): return _apply(np.absolute, (self,))
 
-    def _refuse(self, *_: Any) -> Any:
-        raise _unsupported("a comparison or branch on an input (if/while, <, ==, bool())")
-
-    __lt__ = __le__ = __gt__ = __ge__ = __eq__ = __ne__ = _refuse
-    __bool__ = _refuse
+    # Comparisons are conditions (sympy relations), not bools.
+    def __lt__(self, o): return self._binary(o, np.less)
+    def __le__(self, o): return self._binary(o, np.less_equal)
+    def __gt__(self, o): return self._binary(o, np.greater)
+    def __ge__(self, o): return self._binary(o, np.greater_equal)
+    def __eq__(self, o): return self._binary(o, np.equal)  # type: ignore[override]
+    def __ne__(self, o): return self._binary(o, np.not_equal)  # type: ignore[override]
     __hash__ = None  # type: ignore[assignment]
 
+    def __bool__(self) -> bool:
+        return bool(Condition(_to_condition(self)))
+
     def __float__(self) -> float:
-        raise _unsupported("converting an input to a number (float(), math.*, int())")
+        raise _number()
 
     __int__ = __index__ = __complex__ = __float__  # type: ignore[assignment]
 
-    def __floordiv__(self, o): raise _unsupported("floor division //")
+    def __floordiv__(self, o): raise _refusal("floor division //", "write np.floor(a / b)")
     __rfloordiv__ = __mod__ = __rmod__ = __floordiv__
 
 
-# NumPy calls a method of the same name on each element of an object array
-# (np.sqrt(x) with x an object array calls x[i].sqrt()).
-for _uf in _UFUNCS:
+class Condition(Traced):
+    """A traced comparison such as ``x[0] > 0``: a sympy relation, not a Python bool.
+
+    ``np.where(cond, a, b)`` turns it into a ``Piecewise``; ``&``, ``|``, ``^`` and ``~``
+    combine conditions; in arithmetic it is 1 where it holds and 0 elsewhere.  Python's
+    ``if``, ``and``, ``or``, ``not`` and ``bool()`` need True or False and raise an
+    :class:`~symmon.errors.UnsupportedFunctionError`, unless sympy decides the relation
+    for every value (``x[0]**2 + 1 > 0``).
+
+    Attributes
+    ----------
+    expr : sympy.Basic
+        The relation (``x > 0``), or a combination of relations with And, Or and Not.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> x = sp.Symbol("x", real=True)
+    >>> np.where(Traced(x) > 0, Traced(x), 0).expr
+    Piecewise((x, x > 0), (0, True))
+    """
+
+    __slots__ = ()
+
+    def __bool__(self) -> bool:
+        if self.expr in (sp.true, sp.false):
+            return self.expr is sp.true
+        raise _branch()
+
+    def _logical(self, other: Any, ufunc: np.ufunc, reflected: bool = False) -> Any:
+        if isinstance(other, np.ndarray) and other.ndim > 0:
+            return NotImplemented
+        return _apply(ufunc, (other, self) if reflected else (self, other))
+
+    def __and__(self, o): return self._logical(o, np.bitwise_and)
+    def __rand__(self, o): return self._logical(o, np.bitwise_and, True)
+    def __or__(self, o): return self._logical(o, np.bitwise_or)
+    def __ror__(self, o): return self._logical(o, np.bitwise_or, True)
+    def __xor__(self, o): return self._logical(o, np.bitwise_xor)
+    def __rxor__(self, o): return self._logical(o, np.bitwise_xor, True)
+    def __invert__(self): return _apply(np.invert, (self,))
+
+
+# NumPy's object loops call a method of the ufunc's name on each entry of an object array
+# (np.sqrt(a) calls a[i].sqrt()).
+for _uf in list(_VALUES) + list(_LOGICAL):
     if _uf.nin == 1 and not hasattr(Traced, _uf.__name__):
         setattr(Traced, _uf.__name__, (lambda uf: lambda self: _apply(uf, (self,)))(_uf))
     elif _uf.nin == 2 and not hasattr(Traced, _uf.__name__):
         setattr(Traced, _uf.__name__, (lambda uf: lambda self, other: _apply(uf, (self, other)))(_uf))
+
+
+class _Source:
+    """The names behind one argument of the traced function (``x`` or ``v``), and the
+    entries read past them, shared by the arguments of one trace."""
+
+    def __init__(self, label: str, keyword: str, names: tuple[sp.Symbol, ...], misses: list) -> None:
+        self.label, self.keyword, self.names, self.misses = label, keyword, names, misses
+
+    def read(self, key: Any) -> Any:
+        """The entry or entries ``key`` when some lie past the names (placeholders, and
+        the read recorded), else None: NumPy indexes as usual."""
+        k = key[0] if isinstance(key, tuple) and len(key) == 1 else key
+        n = len(self.names)
+        if isinstance(k, (int, np.integer)) and not isinstance(k, (bool, np.bool_)):
+            return None if -n <= int(k) < n else self._miss(int(k))
+        if isinstance(k, (list, np.ndarray)):
+            try:
+                idx = np.asarray(k)
+            except (TypeError, ValueError):
+                return None
+            if idx.dtype.kind in "iu" and idx.size and ((idx < -n) | (idx >= n)).any():
+                out = np.empty(idx.shape, dtype=object)
+                for pos, j in np.ndenumerate(idx):
+                    j = int(j)
+                    out[pos] = Traced(self.names[j]) if -n <= j < n else self._miss(j)
+                return out.view(_TracedArray)
+        return None
+
+    def _miss(self, k: int) -> "Traced":
+        self.misses.append((self, k))
+        return Traced(sp.Dummy(f"{self.label}[{k}]", real=True))
+
+
+class _TracedArray(np.ndarray):
+    """An object array of traced values that keeps its type through NumPy's ufuncs and
+    functions, so that comparisons, ``np.where`` and ``np.maximum`` on it are traced."""
+
+    def __array_finalize__(self, obj: Any) -> None:
+        self._source = None  # only the argument itself checks its indices, not a view
+
+    def __array_ufunc__(self, ufunc: np.ufunc, method: str, *inputs: Any, **kwargs: Any) -> Any:
+        return _ufunc_override(ufunc, method, inputs, kwargs)
+
+    def __array_function__(self, func: Callable, types: Any, args: Sequence[Any], kwargs: dict) -> Any:
+        return _function_override(func, args, kwargs)
+
+    def __getitem__(self, key: Any) -> Any:
+        if any(isinstance(k, np.ndarray) and k.dtype == object or isinstance(k, Traced)
+               for k in (key if isinstance(key, tuple) else (key,))):
+            raise _refusal(
+                "indexing with traced values (x[x > 0], x[i] with a traced i)",
+                "which entries are read would depend on the values. Write the selection as "
+                "np.where(cond, a, b), or declare the model with sympy Piecewise")
+        if self._source is not None:
+            hit = self._source.read(key)
+            if hit is not None:
+                return hit
+        return super().__getitem__(key)
+
+    def __iter__(self):
+        # NumPy iterates by indexing until IndexError; the argument's reads past its
+        # names give placeholders instead, so it iterates over its entries.
+        if self._source is not None:
+            return iter(self.view(np.ndarray))
+        return super().__iter__()
+
+
+def _argument(source: _Source) -> _TracedArray:
+    arr = np.array([Traced(s) for s in source.names], dtype=object).view(_TracedArray)
+    arr._source = source
+    return arr
+
+
+# --------------------------------------------------------------------------- trace
+def _labels(fn: Callable, count: int) -> tuple[list[str], inspect.Signature | None]:
+    """The names of ``fn``'s first ``count`` parameters (``x``, ``v`` if unknown) and its
+    signature."""
+    labels = ["x", "v"][:count]
+    try:
+        sig = inspect.signature(fn)
+    except (TypeError, ValueError):
+        return labels, None
+    positional = [p.name for p in sig.parameters.values()
+                  if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    return [positional[i] if i < len(positional) else labels[i] for i in range(count)], sig
+
+
+def _misses_error(who: str, misses: list) -> ModelError:
+    parts = []
+    for source in dict.fromkeys(s for s, _ in misses):
+        ks = sorted({k for s, k in misses if s is source}, key=lambda k: (k < 0, abs(k)))
+        need = max(k + 1 if k >= 0 else -k for k in ks)
+        n = len(source.names)
+        given = f"{n} symbol{'' if n == 1 else 's'}" + (f" ({', '.join(map(str, source.names))})" if n else "")
+        least = "at least " if any(k < 0 for k in ks) else ""
+        parts.append(f"{who} reads {' and '.join(f'{source.label}[{k}]' for k in ks)} but "
+                     f"{source.keyword}= names {given}: give {least}{need} names, one for each "
+                     f"entry of {source.label}")
+    return ModelError("; ".join(parts))
+
+
+def _library_failure(exc: BaseException) -> UnsupportedFunctionError | None:
+    """``exc`` raised inside a NumPy or SciPy function the traced function called, reported
+    under that function's name; None if it did not come from one."""
+    if getattr(exc, "named", False) or not isinstance(exc, (UnsupportedFunctionError, TypeError, AttributeError)):
+        return None
+    frames = [f for f, _ in traceback.walk_tb(exc.__traceback__)
+              if f.f_globals.get("__name__", "").partition(".")[0] in ("numpy", "scipy")]
+    if not frames:
+        return None
+    for f in frames:
+        name = _frame_name(f)
+        if name is not None:
+            return _renamed(name, exc)
+    f = frames[0]
+    code = f.f_code
+    return _renamed(f"{_alias(f.f_globals['__name__'])}.{getattr(code, 'co_qualname', code.co_name)}", exc)
 
 
 def trace(fn: Callable[..., Any], inputs: Sequence[Any], noise: Sequence[Any] | None = None,
@@ -192,9 +703,11 @@ def trace(fn: Callable[..., Any], inputs: Sequence[Any], noise: Sequence[Any] | 
     ----------
     fn : callable
         ``fn(x, *args)``, or ``fn(x, v, *args)`` when ``noise`` is given, with ``x`` (and
-        ``v``) 1-D arrays; it returns a scalar or a 1-D array-like of outputs.
+        ``v``) 1-D arrays; it returns a scalar or a 1-D array-like of outputs.  It may use
+        the operations and functions of :data:`SUPPORTED` (see the module's docstring).
     inputs, noise : sequence of str or sympy.Symbol
-        Names of the components of ``x`` and ``v``.
+        Names of the components of ``x`` and ``v``: one name for each entry the function
+        reads.
     args : sequence
         Further (numeric) arguments passed to ``fn``, such as FilterPy's ``dt``.
 
@@ -205,7 +718,11 @@ def trace(fn: Callable[..., Any], inputs: Sequence[Any], noise: Sequence[Any] | 
     Raises
     ------
     UnsupportedFunctionError
-        Naming the operation that cannot be traced.
+        Naming the operation that cannot be traced (``np.fmod``, ``scipy.special.gamma``,
+        ``float(x[0])``, a Python ``if`` on a traced comparison) and what to write instead.
+    ModelError
+        If ``fn`` reads an entry past the names (``x[2]`` with two names in ``inputs``),
+        saying how many names to give; if ``fn`` cannot be called with these arguments.
 
     Examples
     --------
@@ -214,6 +731,12 @@ def trace(fn: Callable[..., Any], inputs: Sequence[Any], noise: Sequence[Any] | 
     ...     return np.array([np.sqrt(x[0]**2 + x[1]**2), np.arctan2(x[1], x[0])])
     >>> trace(hx, ["px", "py"])[2]
     (sqrt(px**2 + py**2), atan2(py, px))
+    >>> trace(lambda x: np.where(x[0] > 0, x[0], -2 * x[0]), ["a"])[2]
+    (Piecewise((a, a > 0), (-2*a, True)),)
+    >>> trace(lambda x: x[0] + x[2], ["a", "b"])
+    Traceback (most recent call last):
+      ...
+    symmon.errors.ModelError: the function reads x[2] but inputs= names 2 symbols (a, b): give 3 names, one for each entry of x
     """
     if not callable(fn):
         raise ModelError(f"fn must be callable, got {type(fn).__name__}")
@@ -221,9 +744,37 @@ def trace(fn: Callable[..., Any], inputs: Sequence[Any], noise: Sequence[Any] | 
     v = as_symbols(noise, "noise")
     if not u:
         raise ModelError("a model needs at least one input")
-    x = np.array([Traced(s) for s in u], dtype=object)
-    call = [x] + ([np.array([Traced(s) for s in v], dtype=object)] if v else []) + list(args)
-    out = fn(*call)
+    fname = getattr(fn, "__name__", None)
+    who = "the function" if fname in (None, "<lambda>") else f"the function {fname}"
+    labels, sig = _labels(fn, 2 if v else 1)
+    misses: list = []
+    sources = [_Source(labels[0], "inputs", u, misses)] + ([_Source(labels[1], "noise", v, misses)] if v else [])
+    call = [_argument(s) for s in sources] + list(args)
+    if sig is not None:
+        try:
+            sig.bind(*call)
+        except TypeError as exc:
+            shown = ", ".join(labels + [repr(a) for a in args])
+            raise ModelError(
+                f"{who} cannot be called as {fname or 'fn'}({shown}): {exc}. from_function calls "
+                f"fn(x, *args), or fn(x, v, *args) when noise= names the noise; give the further "
+                f"arguments with args=(...)") from exc
+    try:
+        out = fn(*call)
+    except Exception as exc:
+        if misses:
+            raise _misses_error(who, misses) from exc
+        named = _library_failure(exc)
+        if named is not None:
+            raise named from exc
+        if isinstance(exc, IndexError) or (isinstance(exc, ValueError) and "values to unpack" in str(exc)):
+            held = " and ".join(f"{s.label} holds the {len(s.names)} name{'' if len(s.names) == 1 else 's'} "
+                                f"of {s.keyword}= ({', '.join(map(str, s.names))})" for s in sources)
+            raise ModelError(f"{who} raised {type(exc).__name__}: {exc} ({held}; if the function "
+                             f"reads more entries, give one name for each)") from exc
+        raise
+    if misses:
+        raise _misses_error(who, misses)
     try:
         flat = np.asarray(out, dtype=object).ravel()
     except (TypeError, ValueError) as exc:

@@ -3,20 +3,30 @@
 from __future__ import annotations
 
 import math
+import re
+import textwrap
+from pathlib import Path
+from typing import Callable
 
+import casadi as ca
 import numpy as np
+import scipy.linalg
+import scipy.special
 import pytest
 import sympy as sp
 
 import symmon as sm
 from symmon.errors import ModelError, UnsupportedFunctionError
-from symmon.core.tracing import SUPPORTED, Traced, trace
+from symmon.compile import to_casadi
+from symmon.core.tracing import SUPPORTED, Condition, Traced, trace
 
 #: Sympy and NumPy evaluate the same expression in a different order: a few ulps.
 ROUNDING_RTOL = 1e-12
 #: Two models with the same expressions give the same TT2 moments bit for bit, up to the
 #: rounding of the constants' decimal form (none here).
 EXACT_RTOL = 1e-12
+
+DOCS = Path(__file__).resolve().parents[2] / "docs"
 
 SENSOR = (1.0, 2.5)
 DT = 0.1
@@ -107,13 +117,13 @@ def test_supported_operations(fn, expected):
 
 
 @pytest.mark.parametrize("fn, name", [
-    (lambda x: float(x[0]), "converting an input to a number"),
-    (lambda x: math.sqrt(x[0]), "converting an input to a number"),
-    (lambda x: x[0] if x[0] > 0 else -x[0], "comparison or branch"),
+    (lambda x: float(x[0]), "converting a traced value to a number"),
+    (lambda x: math.sqrt(x[0]), "converting a traced value to a number"),
+    (lambda x: x[0] if x[0] > 0 else -x[0], "deciding a traced comparison as True or False"),
     (lambda x: np.fmod(x[0], 2.0), "np.fmod"),
     (lambda x: x[0] // 2, "floor division"),
-    (lambda x: np.mod(x[0], 2.0), "np.remainder"),
-    (lambda x: np.add.accumulate(x[0]), "np.add.accumulate"),
+    (lambda x: np.mod(x[0], 2.0), r"np.remainder \(also np.mod\)"),
+    (lambda x: np.add.at(x, [0], 1.0), "np.add.at"),
 ])
 def test_unsupported_operation_is_named(fn, name):
     with pytest.raises(UnsupportedFunctionError, match=name):
@@ -138,3 +148,330 @@ def test_traced_value_is_not_a_number():
     with pytest.raises(UnsupportedFunctionError):
         bool(t)
     assert "np.arctan2" in SUPPORTED and "np.sqrt" in SUPPORTED
+
+
+# --------------------------------------------------------------------------- inputs and indexes
+def test_too_few_input_names_say_how_many_to_give():
+    def hx(x):
+        return np.array([x[0] + x[2]])
+
+    with pytest.raises(ModelError, match=r"the function hx reads x\[2\] but inputs= names 2 symbols "
+                                         r"\(a, b\): give 3 names") as err:
+        sm.Model.from_function(hx, inputs=["a", "b"])
+    assert not isinstance(err.value, UnsupportedFunctionError)
+    with pytest.raises(ModelError, match=r"reads x\[2\] and x\[5\] .* give 6 names"):
+        trace(lambda x: x[5] * x[2] + x[0], ["a", "b"])
+
+
+def test_the_index_check_names_the_parameter_and_the_noise():
+    def hx(state, noise):
+        return state[0] + noise[1]
+
+    with pytest.raises(ModelError, match=r"reads noise\[1\] but noise= names 1 symbol \(e\): give 2 names"):
+        trace(hx, ["a"], noise=["e"])
+    with pytest.raises(ModelError, match=r"reads state\[3\]"):
+        trace(lambda state, noise: state[3] + noise[0], ["a"], noise=["e"])
+
+
+@pytest.mark.parametrize("fn, message", [
+    (lambda x: x[-3], r"reads x\[-3\] .* give at least 3 names"),
+    (lambda x: x[[0, 2]].sum(), r"reads x\[2\] .* give 3 names"),
+    (lambda x: x[np.array([2, 0])], r"reads x\[2\]"),
+    (lambda x: x[(4,)], r"reads x\[4\] .* give 5 names"),
+    (lambda x: x[np.int64(2)], r"reads x\[2\]"),
+    # a failure after the read past the names (here: the placeholder in a float array)
+    (lambda x: np.array([x[2]], dtype=float), r"reads x\[2\]"),
+])
+def test_reads_past_the_names(fn, message):
+    with pytest.raises(ModelError, match=message):
+        trace(fn, ["a", "b"])
+
+
+@pytest.mark.parametrize("fn, expected", [
+    (lambda x: x[-1] - x[-2], lambda a, b: b - a),
+    (lambda x: x[1:].sum() + x[:1][0], lambda a, b: a + b),
+    (lambda x: x[::-1][0], lambda a, b: b),
+    (lambda x: x[[1, 0]][0], lambda a, b: b),
+    (lambda x: sum(xi**2 for xi in x), lambda a, b: a**2 + b**2),
+    (lambda x: (lambda p, q: p * q)(*x), lambda a, b: a * b),
+    (lambda x: len(x) * x[0], lambda a, b: 2 * a),
+    (lambda x: x.copy()[1], lambda a, b: b),
+])
+def test_negative_indexes_slices_and_iteration_keep_working(fn, expected):
+    a, b = sp.symbols("a b", real=True)
+    assert sp.simplify(trace(fn, ["a", "b"])[2][0] - expected(a, b)) == 0
+
+
+def test_other_index_errors_give_the_names():
+    def unpack(x):
+        px, py, pz = x
+        return px
+
+    with pytest.raises(ModelError, match=r"not enough values to unpack .*x holds the 2 names of inputs= \(a, b\)"):
+        trace(unpack, ["a", "b"])
+    with pytest.raises(ModelError, match=r"raised IndexError: too many indices.*\(x holds the 2 names"):
+        trace(lambda x: x[0, 1], ["a", "b"])
+    with pytest.raises(ModelError, match=r"IndexError.*x holds the 1 name of inputs= \(a\) and v holds the 1 name of noise= \(e\)"):
+        trace(lambda x, v: np.asarray(x)[3], ["a"], noise=["e"])
+
+
+def test_a_function_that_cannot_be_called_so_is_a_model_error():
+    def fx(x, dt):
+        return x * dt
+
+    with pytest.raises(ModelError, match=r"fx cannot be called as fx\(x\): missing a required argument: 'dt'.*args="):
+        sm.Model.from_function(fx, inputs=["a"])
+    def hx(x):
+        return x
+
+    with pytest.raises(ModelError, match=r"cannot be called as hx\(x, v\): too many positional arguments"):
+        trace(hx, ["a"], noise=["e"])
+
+
+def test_indexing_with_traced_values_is_refused():
+    with pytest.raises(UnsupportedFunctionError, match=r"indexing with traced values .* np.where"):
+        trace(lambda x: x[x > 0], ["a", "b"])
+    with pytest.raises(UnsupportedFunctionError, match=r"indexing with traced values"):
+        trace(lambda x: x[x[0]], ["a", "b"])
+
+
+# --------------------------------------------------------------------------- names of what is refused
+@pytest.mark.parametrize("fn, name", [
+    # ufuncs, by NumPy's or SciPy's qualified name
+    (lambda x: np.fmod(x[0], 2.0), "np.fmod"),
+    (lambda x: np.isfinite(x), "np.isfinite"),
+    (lambda x: scipy.special.gamma(x[0]), "scipy.special.gamma"),
+    (lambda x: scipy.special.j0(x), "scipy.special.j0"),
+    # NumPy functions, through __array_function__ on a traced scalar or array
+    (lambda x: np.sort(x), "np.sort"),
+    (lambda x: np.median(x), "np.median"),
+    (lambda x: np.sinc(x[0]), "np.sinc"),
+    (lambda x: np.round(x[0], 2), "np.round"),
+    (lambda x: np.linalg.solve(np.eye(2), x), "np.linalg.solve"),
+    # NumPy and SciPy functions without a traced argument to dispatch on: named from the call
+    (lambda x: np.sort(np.array([x[0], x[1]])), "np.sort"),
+    (lambda x: scipy.linalg.expm(np.array([[x[0], 0.0], [0.0, x[1]]])), "scipy.linalg.expm"),
+])
+def test_unsupported_functions_are_named_by_their_qualified_name(fn, name):
+    with pytest.raises(UnsupportedFunctionError) as err:
+        sm.Model.from_function(fn, inputs=["a", "b"])
+    message = str(err.value)
+    assert message.startswith(f"{name} is not supported in a traced model function: "), message
+    assert "np.erf" not in message and "np.gamma" not in message
+
+
+def test_a_refusal_inside_a_numpy_function_says_why():
+    with pytest.raises(UnsupportedFunctionError, match=r"^np.median .*: it compares traced values; .*np.where"):
+        trace(lambda x: np.median(x), ["a", "b"])
+    with pytest.raises(UnsupportedFunctionError, match=r"^scipy.linalg.expm .*: it converts traced values to numbers"):
+        trace(lambda x: scipy.linalg.expm(np.array([[x[0], 1.0], [0.0, x[0]]])), ["a"])
+    with pytest.raises(UnsupportedFunctionError, match=r"^np.sinc .*AttributeError"):
+        trace(lambda x: np.sinc(x[0]), ["a"])
+
+
+def test_a_refused_ufunc_lists_what_is_supported():
+    with pytest.raises(UnsupportedFunctionError) as err:
+        trace(lambda x: np.fmod(x[0], 2.0), ["a"])
+    assert all(name in str(err.value) for name in SUPPORTED)
+
+
+def test_scipy_erf_is_traced():
+    _, _, (g,) = trace(lambda x: scipy.special.erf(x[0]) + scipy.special.erfc(x[1]), ["a", "b"])
+    a, b = sp.symbols("a b", real=True)
+    assert sp.simplify(g - (sp.erf(a) + 1 - sp.erf(b))) == 0
+
+
+# --------------------------------------------------------------------------- SUPPORTED, each against NumPy
+M = np.array([[1.0, -2.0, 0.5], [0.0, 3.0, 1.0]])
+#: The NumPy functions of SUPPORTED that are not elementwise ufuncs, each on a 3-vector.
+FUNCTION_CASES: dict[str, Callable] = {
+    "np.array": lambda x: np.array([x[0] * 2, x[1] - x[2]]),
+    "np.asarray": lambda x: np.asarray(x) * 2 + 1,
+    "np.clip": lambda x: np.hstack([np.clip(x, -0.1, 0.5), np.clip(x[0], 0.0, None)]),
+    "np.concatenate": lambda x: np.concatenate([x, [1.5], x[:1]]),
+    "np.cumsum": lambda x: np.cumsum(x),
+    "np.dot": lambda x: np.dot(M, x),
+    "np.hstack": lambda x: np.hstack([x, x[0]]),
+    "np.inner": lambda x: np.inner(x, x),
+    "np.linalg.norm": lambda x: np.array([np.linalg.norm(x), np.linalg.norm(x, 1)]),
+    "np.matmul": lambda x: np.matmul(M, x) + M @ x,
+    "np.max": lambda x: np.max(x),
+    "np.mean": lambda x: np.mean(x),
+    "np.min": lambda x: np.min(x - 0.5),
+    "np.outer": lambda x: np.outer(x, x[:2]).ravel(),
+    "np.prod": lambda x: np.prod(x),
+    "np.stack": lambda x: np.stack([x, 2 * x]).ravel(),
+    "np.sum": lambda x: np.sum(x),
+    "np.vstack": lambda x: np.vstack([x, x[::-1]]).ravel(),
+    "np.where": lambda x: np.where(x > 0.5, x, -x),
+}
+FUNCTION_POINTS = [(0.3, 0.7, -0.2), (0.9, -0.4, 1.5)]
+
+#: Points inside each ufunc's domain; a ufunc of one argument uses the first coordinate.
+POINTS = [(0.3, 0.7), (0.9, -0.2), (-0.4, -0.45), (0.5, 0.5)]
+UFUNC_POINTS = {
+    **dict.fromkeys(["np.sqrt", "np.log", "np.log2", "np.log10", "np.power", "np.pow", "np.float_power"],
+                    [(0.3, 0.7), (2.5, 1.3), (1.0, 0.5)]),
+    **dict.fromkeys(["np.arccosh", "np.acosh"], [(1.7, 1.2), (3.0, 1.0)]),
+    **dict.fromkeys(["np.logical_and", "np.logical_or", "np.logical_xor", "np.logical_not"],
+                    [(0.0, 0.7), (0.3, 0.0), (0.0, 0.0), (0.3, -0.2)]),
+    "np.sign": POINTS + [(0.0, 0.0)],
+}
+
+
+def _resolve(name: str):
+    module, _, attr = name.rpartition(".")
+    return getattr({"np": np, "np.linalg": np.linalg, "scipy.special": scipy.special}[module], attr)
+
+
+def _ufunc_cases():
+    for name in SUPPORTED:
+        f = _resolve(name)
+        if isinstance(f, np.ufunc) and name not in FUNCTION_CASES:
+            points = UFUNC_POINTS.get(name, POINTS)
+            if f.nin == 1:
+                yield name, "scalar", (lambda x, f=f: f(x[0])), [p[:1] for p in points]
+                yield name, "array", (lambda x, f=f: f(x)), points
+            else:
+                yield name, "scalar", (lambda x, f=f: f(x[0], x[1])), points
+                yield name, "array", (lambda x, f=f: f(x, x[::-1])), points
+
+
+CASES = [*_ufunc_cases(), *[(name, "function", fn, FUNCTION_POINTS) for name, fn in FUNCTION_CASES.items()]]
+
+
+def _casadi_values(outputs, symbols, point):
+    w = ca.SX.sym("w", len(symbols))
+    f = ca.Function("f", [w], [ca.vertcat(*to_casadi(outputs, symbols, w))])
+    return np.asarray(f(np.asarray(point, dtype=float))).ravel()
+
+
+def test_every_supported_name_has_a_case():
+    assert {name for name, *_ in CASES} == set(SUPPORTED)
+
+
+@pytest.mark.parametrize("name, kind, fn, points", CASES, ids=[f"{c[0]}-{c[1]}" for c in CASES])
+def test_every_supported_operation_traces_to_what_numpy_computes(name, kind, fn, points):
+    names = [f"w{i}" for i in range(len(points[0]))]
+    inputs, _, outputs = trace(fn, names)
+    for point in points:
+        want = np.asarray(fn(np.array(point)), dtype=float).ravel()
+        subs = dict(zip(inputs, point))
+        by_sympy = np.array([float(sp.N(g.subs(subs), 30)) for g in outputs])
+        np.testing.assert_allclose(by_sympy, want, rtol=ROUNDING_RTOL, atol=1e-15, err_msg=f"{name} at {point}")
+        np.testing.assert_allclose(_casadi_values(outputs, inputs, point), want, rtol=ROUNDING_RTOL,
+                                   atol=1e-15, err_msg=f"{name} compiled, at {point}")
+
+
+@pytest.mark.parametrize("name, call", [
+    ("np.fmod", lambda x: np.fmod(x[0], 0.5)),
+    ("np.remainder", lambda x: np.remainder(x, 0.5)),
+    ("np.heaviside", lambda x: np.heaviside(x[0], 0.5)),
+    ("np.isfinite", lambda x: np.isfinite(x)),
+    ("np.sort", lambda x: np.sort(x)),
+    ("np.median", lambda x: np.median(x)),
+    ("np.sinc", lambda x: np.sinc(x[0])),
+    ("np.round", lambda x: np.round(x[1])),
+    ("scipy.special.gamma", lambda x: scipy.special.gamma(x)),
+])
+def test_unlisted_functions_are_refused(name, call):
+    assert name not in SUPPORTED
+    with pytest.raises(UnsupportedFunctionError, match=rf"^{re.escape(name)}.* is not supported in a traced model function: "):
+        trace(call, ["a", "b"])
+
+
+# --------------------------------------------------------------------------- branches on values
+def test_a_comparison_is_a_condition_and_np_where_a_piecewise():
+    a, b = sp.symbols("a b", real=True)
+    _, _, (g,) = trace(lambda x: np.where(x[0] > 0, x[0], -2 * x[0]), ["a"])
+    assert g == sp.Piecewise((a, a > 0), (-2 * a, True))
+    _, _, g = trace(lambda x: np.where(x > 1, x**2, 0), ["a", "b"])
+    assert g == (sp.Piecewise((a**2, a > 1), (0, True)), sp.Piecewise((b**2, b > 1), (0, True)))
+    _, _, (g,) = trace(lambda x: np.where((x[0] > 0) & ~(x[1] <= 1) | (x[0] == x[1]), 1.0, x[1]), ["a", "b"])
+    assert g == sp.Piecewise((1, ((a > 0) & (b > 1)) | sp.Eq(a, b)), (b, True))
+    cond = Traced(a) >= 1
+    assert isinstance(cond, Condition) and cond.expr == (a >= 1)
+
+
+def test_a_condition_in_arithmetic_is_one_or_zero():
+    a = sp.Symbol("a", real=True)
+    _, _, (g,) = trace(lambda x: (x[0] > 0) * x[0], ["a"])
+    assert g == a * sp.Piecewise((1, a > 0), (0, True))
+    _, _, (g,) = trace(lambda x: x[0] < 1, ["a"])  # a condition as an output
+    assert g == sp.Piecewise((1, a < 1), (0, True))
+
+
+@pytest.mark.parametrize("fn", [
+    lambda x: x[0] if x[0] > 0 else -x[0],
+    lambda x: x[0] if x[0] else 1.0,
+    lambda x: np.where(x[0] > 0 and x[1] > 0, 1.0, 0.0),
+    lambda x: max(x[0], 0.0),
+    lambda x: np.maximum(np.array([x[0], x[1]]), 0.0),  # NumPy's loop compares the entries
+])
+def test_a_python_branch_on_a_traced_comparison_says_how_to_write_it(fn):
+    with pytest.raises(UnsupportedFunctionError) as err:
+        sm.Model.from_function(fn, inputs=["a", "b"])
+    message = str(err.value)
+    assert message.startswith("deciding a traced comparison as True or False (Python if, while, and, or, not")
+    assert "np.where(cond, a, b)" in message and "sympy Piecewise" in message and "np.maximum" in message
+
+
+def test_a_comparison_sympy_decides_is_a_bool():
+    assert bool(Traced(sp.Symbol("a", real=True)) ** 2 + 1 > 0) is True
+    _, _, (g,) = trace(lambda x: x[0] if x[0] == x[0] else 0.0, ["a"])
+    assert g == sp.Symbol("a", real=True)
+
+
+def test_np_where_with_one_argument_is_refused():
+    with pytest.raises(UnsupportedFunctionError, match=r"np.where\(cond\) without both a and b .* np.where\(cond, a, b\)"):
+        trace(lambda x: np.where(x > 0)[0], ["a", "b"])
+
+
+@pytest.mark.parametrize("fn, expected", [
+    (lambda x: np.maximum(x, 0.5), lambda a, b: [sp.Max(a, sp.Rational(1, 2)), sp.Max(b, sp.Rational(1, 2))]),
+    (lambda x: np.minimum(x[0], x[1]), lambda a, b: [sp.Min(a, b)]),
+    (lambda x: np.abs(x - 1), lambda a, b: [sp.Abs(a - 1), sp.Abs(b - 1)]),
+    (lambda x: np.sign(x), lambda a, b: [sp.sign(a), sp.sign(b)]),
+    (lambda x: np.clip(x, -1, 1), lambda a, b: [sp.Min(sp.Max(a, -1), 1), sp.Min(sp.Max(b, -1), 1)]),
+    (lambda x: x.clip(0, None), lambda a, b: [sp.Max(a, 0), sp.Max(b, 0)]),
+    (lambda x: np.max(x), lambda a, b: [sp.Max(a, b)]),
+    (lambda x: x.min(), lambda a, b: [sp.Min(a, b)]),
+    (lambda x: np.logical_and(x[0] > 0, x[1]), lambda a, b: [sp.Piecewise((1, (a > 0) & sp.Ne(b, 0)), (0, True))]),
+])
+def test_value_branches_are_max_min_abs_sign(fn, expected):
+    a, b = sp.symbols("a b", real=True)
+    assert list(trace(fn, ["a", "b"])[2]) == expected(a, b)
+
+
+def test_a_traced_branch_propagates_with_its_derivatives():
+    """CasADi compiles the Piecewise to if_else: TT1 takes the value and the slope of the
+    branch the mean lies in."""
+    def hx(x):
+        return np.array([np.where(x[0] > 0, x[0] ** 2, -x[0]), np.clip(x[1], -1.0, 1.0)])
+
+    m = sm.Model.from_function(hx, inputs=["a", "b"])
+    for mean, slope in (([2.0, 0.5], [4.0, 1.0]), ([-3.0, 2.0], [-1.0, 0.0])):
+        got = sm.propagate(m, sm.Gaussian(mean, np.diag([0.01, 0.04])), transform=sm.TT1())
+        np.testing.assert_allclose(got.mean, hx(np.array(mean)), rtol=EXACT_RTOL)
+        np.testing.assert_allclose(np.diag(got.cov), np.square(slope) * [0.01, 0.04], rtol=EXACT_RTOL, atol=1e-15)
+
+
+# --------------------------------------------------------------------------- the documented list
+def _bullet_list(text: str, after: str) -> str:
+    """The first bullet list after the line ``after``, up to the blank line that ends it."""
+    lines = textwrap.dedent(text.split(after, 1)[1]).splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("- "))
+    end = next((i for i in range(start, len(lines)) if not lines[i].strip()), len(lines))
+    return "\n".join(lines[start:end])
+
+
+@pytest.mark.parametrize("where, text, after", [
+    ("docs/guide/models.md", (DOCS / "guide" / "models.md").read_text(encoding="utf-8"),
+     "### What a traced function may use"),
+    ("Model.from_function", sm.Model.from_function.__doc__, "Notes\n        -----"),
+])
+def test_the_documented_list_is_supported(where, text, after):
+    listed = set(re.findall(r"`{1,2}((?:np|scipy)\.[A-Za-z_][\w.]*)", _bullet_list(text, after)))
+    assert set(SUPPORTED) - listed == set(), f"{where} omits these"
+    # a name listed but not supported is an alias that this NumPy does not have (np.pow < 2.0)
+    assert {n for n in listed - set(SUPPORTED) if hasattr(np, n.removeprefix("np."))} == set(), where
