@@ -31,16 +31,25 @@ extensions = [
     "sphinx.ext.autosummary",
     "sphinx.ext.doctest",
     "sphinx.ext.mathjax",
+    "sphinx-mathjax-offline",  # MathJax served from the built site: formulas render offline
+    "sphinx_copybutton",
     "sphinxarg.ext",
     "sphinx_gallery.gen_gallery",
 ]
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
-exclude_patterns = ["_build", "data", "sg_execution_times.rst"]   # the gallery's timing page
+exclude_patterns = ["_build", "data", "sg_execution_times.rst", "auto_examples/sg_execution_times.rst"]  # timing pages
 myst_enable_extensions = ["dollarmath", "colon_fence"]
 myst_heading_anchors = 3
 
 html_theme = "furo"
+html_static_path = ["_static"]
+html_css_files = ["wrap.css"]  # long lines of code wrap instead of being cut
+
+# The copy button leaves the prompts out: a copied snippet runs as it is.
+copybutton_prompt_text = r">>> |\.\.\. |\$ "
+copybutton_prompt_is_regexp = True
+copybutton_only_copy_prompt_lines = True
 html_title = f"symmon {release}"
 
 # API reference: one page per public name of symmon.__all__ (docs/reference/api.rst, written below).
@@ -76,6 +85,8 @@ sphinx_gallery_conf = {
     "remove_config_comments": True,
     "abort_on_example_error": True,
     "within_subsection_order": "FileNameSortKey",
+    # No execution-times page: it is the one page that loads scripts from a CDN (DataTables).
+    "write_computation_times": False,
 }
 
 
