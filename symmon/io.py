@@ -46,13 +46,15 @@ def _kind(mode: int) -> str:
     return "not a regular file"
 
 
-def check_output_file(path: str | os.PathLike) -> Path:
+def check_output_file(path: str | os.PathLike, inputs: Iterable[str | os.PathLike] = ()) -> Path:
     """The file that writing ``path`` replaces, after checking that it may be written.
 
     Parameters
     ----------
     path : str or os.PathLike
         The output file; a symbolic link is followed to its final target.
+    inputs : iterable of paths, optional
+        The files the command reads: the output must be none of them.
 
     Returns
     -------
@@ -62,7 +64,9 @@ def check_output_file(path: str | os.PathLike) -> Path:
     Raises
     ------
     OutputPathError
-        If ``path`` is empty, or the target exists and is not a regular file.
+        If ``path`` is empty, the target exists and is not a regular file, is read-only
+        (no write permission bit: the atomic rename would replace it anyway), or is one of
+        ``inputs``.
     FileNotFoundError
         If the target's directory does not exist (or is not a directory).
     PermissionError
@@ -75,9 +79,14 @@ def check_output_file(path: str | os.PathLike) -> Path:
         mode = real.stat().st_mode
     except (FileNotFoundError, NotADirectoryError):
         mode = None
+    shown = f"{path} (-> {real})" if str(real) != os.path.abspath(path) else str(path)
     if mode is not None and not stat.S_ISREG(mode):
-        shown = f"{path} (-> {real})" if str(real) != os.path.abspath(path) else str(path)
         raise OutputPathError(f"output file {shown} is {_kind(mode)}; only regular files are written")
+    for source in inputs:
+        if source is not None and os.path.realpath(source) == str(real):
+            raise OutputPathError(f"output file {shown} is the input file {source}: writing it would lose the input")
+    if mode is not None and not mode & (stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH):
+        raise OutputPathError(f"output file {shown} is read-only; make it writable or choose another name")
     if not real.parent.is_dir():
         raise FileNotFoundError(f"output directory does not exist: {Path(path).parent}")
     if not os.access(real.parent, os.W_OK | os.X_OK):

@@ -47,13 +47,13 @@ def _load(path: str):
     return load_model_file(path)
 
 
-def _check_output_files(*paths: str | None) -> None:
-    """Refuse output files that cannot be written, before any computation."""
+def _check_output_files(*paths: str | None, inputs: tuple = ()) -> None:
+    """Refuse output files that cannot be written or are an input, before any computation."""
     from ..io import check_output_file
 
     for p in paths:
         if p is not None:
-            check_output_file(p)
+            check_output_file(p, inputs)
 
 
 def cmd_propagate(args: argparse.Namespace) -> int:
@@ -85,7 +85,7 @@ def cmd_nonlinearity(args: argparse.Namespace) -> int:
     """``symmon nonlinearity``: the MoN of a model file, once or over a sweep of α."""
     if args.alpha_sweep is None and (args.plot or args.csv):
         raise UsageError("--plot and --csv need --alpha-sweep")
-    _check_output_files(args.csv, args.plot)
+    _check_output_files(args.csv, args.plot, inputs=(args.file,))
     if args.csv and args.plot and os.path.realpath(args.csv) == os.path.realpath(args.plot):
         raise UsageError(f"--csv and --plot name the same file: {args.csv}")
     if args.plot and importlib.util.find_spec("matplotlib") is None:
@@ -229,7 +229,7 @@ def cmd_prove(args: argparse.Namespace) -> int:
     from ..io import atomic_write_text
     from ..units import prove_invariance
 
-    _check_output_files(args.out)
+    _check_output_files(args.out, inputs=(args.file,))
     spec = _load(args.file)
     # --numeric: the file's distributions, made exact: a proof for this u (and v) only.
     moments = dict(mean=spec.u.mean, cov=spec.u.cov, noise_cov=None if spec.v is None else spec.v.cov) if args.numeric else {}
@@ -296,6 +296,7 @@ def cmd_filter(args: argparse.Namespace) -> int:
     """``symmon filter``: a bank of runs of each filter on a scenario; ANEES, ANIS, RMSE."""
     from ..files.filterfile import load_filter_file, run_bank, simulate
 
+    _check_output_files(args.plot, inputs=(args.file,))  # before the bank runs
     spec = load_filter_file(args.file)
     xs, ys = simulate(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
     rows = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, args.filters, args.tol, args.confidence)

@@ -180,9 +180,12 @@ def _refusal(d: Path) -> str | None:
         return f"it cannot be created ({exc.strerror or exc})"
     if not stat.S_ISDIR(st.st_mode):
         return "it is not a directory"
-    # Anyone who can write here can plant a library that this process would load.
+    # Anyone who can write here can plant a library (and its checksum) that this process
+    # would load: the checksum proves integrity, not who wrote the entry.
     if st.st_mode & stat.S_IWOTH:
         return "it is world-writable"
+    if st.st_mode & stat.S_IWGRP:
+        return "it is group-writable"
     if st.st_uid != os.geteuid():
         return f"it belongs to another user (uid {st.st_uid})"
     if not os.access(d, os.W_OK | os.X_OK):

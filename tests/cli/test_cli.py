@@ -641,3 +641,31 @@ def test_help_names_the_paper_of_each_equation_number(capsys, name):
     assert code == 0 and "Straka & Havlík 2024, eq. (43)" in text
     for eq in ("(42)", "(8)", "(6)"):
         assert f"eq. {eq}" in text
+
+
+# --------------------------------------------------------------------------- output paths
+def test_an_output_file_is_never_the_input_or_a_read_only_file(tmp_path, capsys):
+    """Checked before any computation: the model file survives, a read-only file too."""
+    import shutil
+
+    model = tmp_path / "polar.toml"
+    shutil.copy(EXAMPLES / "polar.toml", model)
+    before = model.read_bytes()
+    assert cli.main(["nonlinearity", str(model), "--alpha-sweep", "0.1:1:2", "--csv", str(model)]) == 1
+    assert "is the input file" in capsys.readouterr().err and model.read_bytes() == before
+    locked = tmp_path / "locked.csv"
+    locked.write_text("keep me\n")
+    locked.chmod(0o444)
+    assert cli.main(["nonlinearity", str(model), "--alpha-sweep", "0.1:1:2", "--csv", str(locked)]) == 1
+    assert "read-only" in capsys.readouterr().err and locked.read_text() == "keep me\n"
+    assert cli.main(["prove-invariance", str(model), "--out", str(model)]) == 1
+    assert "is the input file" in capsys.readouterr().err and model.read_bytes() == before
+
+
+def test_filter_plot_into_a_missing_directory_is_refused_before_the_bank_runs(tmp_path, capsys, monkeypatch):
+    from symmon.files import filterfile
+
+    ran = []
+    monkeypatch.setattr(filterfile, "run_bank", lambda *a, **k: ran.append(1))
+    code = cli.main(["filter", str(EXAMPLES / "rb_close.toml"), "--runs", "2", "--plot", str(tmp_path / "no" / "x.png")])
+    assert code == 1 and not ran and "output directory does not exist" in capsys.readouterr().err

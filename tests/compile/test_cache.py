@@ -143,6 +143,17 @@ def test_world_writable_directory_is_refused(tmp_path):
 
 
 @needs_cc
+def test_group_writable_directory_is_refused(tmp_path):
+    """A group member could plant a library with a matching checksum: refused too."""
+    d = tmp_path / "team"
+    d.mkdir()
+    d.chmod(0o770)
+    res = _fallback_run({"SYMMON_CACHE": str(d)})
+    assert res.stdout.splitlines()[1] == "compiled"  # into a private cache instead
+    assert "group-writable" in res.stderr and not list(d.iterdir())
+
+
+@needs_cc
 @pytest.mark.skipif(os.geteuid() != 0, reason="needs root to give a directory to another user")
 def test_directory_of_another_user_is_refused(tmp_path):
     d = tmp_path / "theirs"
