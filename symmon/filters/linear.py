@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike
 from ..core.checks import readonly
 from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, ShapeError
 from ..core.gaussian import Gaussian, as_covariance, matrix_sqrt
-from .results import KalmanResult, check_keep  # the one result type of the filters
+from .results import KalmanResult, check_keep, real_measurements  # the one result type of the filters
 
 __all__ = ["KalmanFilter", "KalmanResult"]
 
@@ -158,7 +158,7 @@ class KalmanFilter:
         ShapeError, CovarianceError
         """
         kept = check_keep(keep)
-        Y = np.asarray(ys, dtype=float)
+        Y = real_measurements(ys)
         if Y.ndim not in (2, 3) or Y.shape[-1] != self.n_y or Y.shape[-2] == 0:
             raise ShapeError(
                 f"ys must have shape (K, {self.n_y}) or (N, K, {self.n_y}) with K >= 1, got {Y.shape}"

@@ -63,7 +63,7 @@ from numpy.typing import ArrayLike
 from .adaptive import Adaptive
 from ..errors import ArgumentTypeError, ShapeError, SymmonError
 from ..core.checks import check_gaussian, check_model, noise_cov, readonly
-from .results import ConsistencyTest, KalmanResult, NonlinearKalmanResult, check_keep
+from .results import ConsistencyTest, KalmanResult, NonlinearKalmanResult, check_keep, real_measurements
 from .strategy import FilterStrategy, RuleStrategy
 from ..core.gaussian import Gaussian, as_covariance
 from ..core.model import Model
@@ -212,7 +212,7 @@ class NonlinearKalmanFilter:
             positive definiteness), naming the run and step.
         """
         n_y = self.h_model.n_y
-        Y = np.asarray(ys, dtype=float)
+        Y = real_measurements(ys)
         if Y.ndim not in (2, 3) or Y.shape[-1] != n_y or Y.shape[-2] == 0 or Y.shape[0] == 0:
             raise ShapeError(f"ys must have shape (K, {n_y}) or (R, K, {n_y}) with K >= 1, got {Y.shape}")
         if not np.all(np.isfinite(Y)):

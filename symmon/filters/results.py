@@ -23,11 +23,11 @@ from numpy.typing import ArrayLike
 from scipy import stats
 
 from ..core.angles import wrap_angle
-from ..errors import ArgumentError, ShapeError, SymmonError
+from ..errors import ArgumentError, ShapeError, SingularMatrixError, SymmonError
 from ..core.checks import readonly
 from ..core.gaussian import Gaussian
 
-__all__ = ["KalmanResult", "NonlinearKalmanResult", "ConsistencyTest", "KEEPABLE", "check_keep"]
+__all__ = ["KalmanResult", "NonlinearKalmanResult", "ConsistencyTest", "KEEPABLE", "check_keep", "real_measurements"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,8 +81,35 @@ def _consistency(stat: np.ndarray, d: int, confidence: float) -> ConsistencyTest
 
 
 def _quadratic_forms(e: np.ndarray, C: np.ndarray) -> np.ndarray:
-    """eᵀ C⁻¹ e for batches e (..., d), C (..., d, d), by a solve."""
-    return np.einsum("...i,...i->...", e, np.linalg.solve(C, e[..., None])[..., 0])
+    """eᵀ C⁻¹ e for batches e (..., d), C (..., d, d), by a solve.
+
+    Raises
+    ------
+    SingularMatrixError
+        If a covariance is singular (a state known exactly, or a variance that underflowed):
+        its normalised error is undefined.
+    """
+    try:
+        return np.einsum("...i,...i->...", e, np.linalg.solve(C, e[..., None])[..., 0])
+    except np.linalg.LinAlgError:
+        raise SingularMatrixError("a covariance of the result is singular (a state known exactly, or a "
+                                  "variance that underflowed): its normalised error squared is undefined") from None
+
+
+def real_measurements(ys: ArrayLike) -> np.ndarray:
+    """``ys`` as a float array; complex or non-numeric measurements are refused, not cast.
+
+    Raises
+    ------
+    ShapeError
+        For complex values or values that are not numbers.
+    """
+    if np.iscomplexobj(ys):
+        raise ShapeError("ys holds complex numbers: measurements must be real")
+    try:
+        return np.asarray(ys, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ShapeError(f"ys must be an array of real numbers: {exc}") from None
 
 
 #: Which state components a block of :meth:`KalmanResult.cross_cov` selects.

@@ -749,3 +749,20 @@ def test_a_bank_split_over_threads_equals_one_call(bank, keep, monkeypatch):
     for k in ("x", "P", "loglik"):
         a, b = getattr(one, k), getattr(split, k)
         assert (a is None and b is None) or np.array_equal(a, b), k
+
+
+def test_complex_measurements_and_a_singular_covariance_are_clear_errors():
+    """Complex ys are refused, not cast to their real part; NEES on a singular P is a named error."""
+    x = sp.Symbol("x", real=True)
+    m = sm.Model([x], [x], name="clear_m")
+    ekf = sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]], sm.TT1())
+    with pytest.raises(ShapeError, match="complex"):
+        ekf.filter(np.array([[1.0 + 2.0j]]), sm.Gaussian([0.0], [[1.0]]))
+    with pytest.raises(ShapeError, match="real numbers"):
+        ekf.filter([["a"]], sm.Gaussian([0.0], [[1.0]]))
+    with pytest.raises(ShapeError, match="complex"):
+        sm.KalmanFilter(np.eye(1), np.eye(1), np.eye(1), np.eye(1)).filter(np.ones((2, 1)) * 1j, np.zeros(1), np.eye(1))
+    known = sm.KalmanFilter(np.eye(1), np.zeros((1, 1)), np.eye(1), np.eye(1)).filter(np.ones((2, 1)), np.zeros(1),
+                                                                                    np.zeros((1, 1)))
+    with pytest.raises(sm.errors.SingularMatrixError, match="singular"):
+        known.nees(np.zeros((2, 1)))
