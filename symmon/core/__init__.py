@@ -15,7 +15,7 @@ from .gaussian import fuse as fuse
 from .model import Model as Model
 from .rescale import change_units as change_units
 from .rescale import changed_relation as changed_relation
-from .affine import change_gaussian as change_gaussian
+from .rescale import change_gaussian as change_gaussian
 from .tracing import SUPPORTED as SUPPORTED
 from .tracing import trace as trace
 

@@ -1,4 +1,4 @@
-"""Changes of units: the affine map (18) applied to a model and to Gaussians.
+"""Changes of units: the affine map (18) as sympy, the parts of the changed model.
 
 A change of units is the affine map (18) of Straka & Havlík (2024)::
 
@@ -15,16 +15,11 @@ old-unit numbers**.  Column k of S is the old-unit value of one new unit of comp
 Converting a position from m (old) to km (new) gives S = 1000, because 1 km = 1000 m;
 converting a bearing from rad to deg gives S = π/180.
 
-Contents
---------
-- :func:`change_units`, :func:`change_gaussian`: the model and the distributions in new
-  units, with exact sympy matrices (numeric or symbolic).
-- :func:`with_units`, :class:`UnitModel`: declare physical units with pint and convert; the
-  scale matrices and offsets come from pint, never from a table. Defined in
-  :mod:`symmon.units.physical` and re-exported here.
-- :func:`prove_invariance`, :func:`prove_matrix_invariance`: the symbolic proofs of unit
-  invariance, defined in :mod:`symmon.units.proofs` and :mod:`symmon.units.matrix` and
-  re-exported here.
+This module validates scale matrices and offsets and substitutes them into the outputs
+(:func:`changed_parts`, :func:`changed_model`); it knows no Model class, so that
+:meth:`Model.change_units <symmon.Model.change_units>` can build on it.  The public
+functions (:func:`~symmon.core.rescale.change_units`, ``changed_relation``,
+``change_gaussian``) are in :mod:`symmon.core.rescale`, published by :mod:`symmon.units`.
 
 References
 ----------
@@ -35,22 +30,19 @@ Estimation", FUSION 2024, arXiv:2410.13539, Sections III–IV, eqs. (18)–(21),
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import sympy as sp
 
-from ..errors import ArgumentTypeError, ModelError, ShapeError, SingularMatrixError, SymmonError
-from typing import TYPE_CHECKING
-
-from .gaussian import Gaussian
+from ..errors import ModelError, ShapeError, SingularMatrixError, SymmonError
 
 if TYPE_CHECKING:
     from .model import Model
 
 __all__ = [
     "scale_matrix", "offset_vector", "sympify_entry", "inverse", "Relation", "changed_parts",
-    "changed_model", "unchanged", "change_gaussian",
+    "changed_model", "unchanged",
 ]
 
 #: Relative tolerance of the numeric positive-definiteness and affinity checks.
@@ -220,48 +212,3 @@ def changed_model(model: "Model", Su, ou, Sy, oy, Sv, suffix: str) -> tuple[list
 def unchanged(S: sp.Matrix, o: sp.Matrix, i: int) -> bool:
     row = [S[i, j] for j in range(S.cols)]
     return all(sp.simplify(x - (1 if j == i else 0)) == 0 for j, x in enumerate(row)) and o[i] == 0
-
-
-def _numeric_matrix(S: Any, n: int, name: str) -> np.ndarray:
-    M = scale_matrix(S, n, name)
-    if M.free_symbols:
-        raise ShapeError(f"{name} must be numeric to transform a Gaussian, got symbols {sorted(map(str, M.free_symbols))}")
-    return np.array(M.evalf(), dtype=float)
-
-
-def change_gaussian(dist: Gaussian, S: Any, o: Any = None) -> Gaussian:
-    """The distribution of the new-unit variable x̄ = S⁻¹ (x − o) given x ~ ``dist``.
-
-    This is the distribution change (35b)–(35c) that matches :func:`change_units`:
-    ``dist`` is in the old units, x = S x̄ + o (18), and the result is in the new units,
-    N(S⁻¹(m − o), S⁻¹ P S⁻ᵀ). Use ``o=None`` for noise (18c). The inverse change is
-    ``change_gaussian(result, S⁻¹, −S⁻¹ o)``.
-
-    Parameters
-    ----------
-    dist : Gaussian
-        x in the old units.
-    S : scalar, sequence or matrix
-        Numeric scale (positive definite, invertible), same convention as :func:`change_units`.
-    o : sequence, optional
-        Numeric offset, default 0.
-
-    Returns
-    -------
-    Gaussian
-
-    Examples
-    --------
-    >>> change_gaussian(Gaussian([1000.0], [[4.0e4]]), S=1000.0)   # m -> km
-    N([1], [[0.04]])
-    """
-    if not isinstance(dist, Gaussian):
-        raise ArgumentTypeError(f"dist must be a symmon.Gaussian, got {type(dist).__name__}")
-    A = _numeric_matrix(S, dist.dim, "S")
-    off = offset_vector(o, dist.dim, "o")
-    if off.free_symbols:
-        raise ShapeError("o must be numeric to transform a Gaussian")
-    ov = np.array(off.evalf(), dtype=float).ravel()
-    Ainv = np.linalg.inv(A)
-    cov = Ainv @ dist.cov @ Ainv.T
-    return Gaussian(Ainv @ (dist.mean - ov), 0.5 * (cov + cov.T))

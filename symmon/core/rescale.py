@@ -1,7 +1,8 @@
-"""Changes of units of a model: the affine map (18) applied to g, (20) and (35a).
+"""Changes of units of a model and of a Gaussian: the affine map (18) applied to g, (20) and
+(35a), and to the distributions, (35b)–(35c).
 
 The validation of the scales and offsets and the substitution itself are in
-:mod:`symmon.core.affine`; this module holds the public functions on a :class:`Model`.
+:mod:`symmon.core.affine`; this module holds the public functions.
 See :mod:`symmon.units` for the conventions (S maps new-unit numbers to old-unit numbers).
 """
 
@@ -9,13 +10,15 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 import sympy as sp
 
-from ..errors import ArgumentTypeError, ModelError
+from ..errors import ArgumentTypeError, ModelError, ShapeError
 from .affine import changed_parts, offset_vector, scale_matrix
+from .gaussian import Gaussian
 from .model import Model
 
-__all__ = ["change_units", "changed_relation"]
+__all__ = ["change_units", "changed_relation", "change_gaussian"]
 
 
 def change_units(
@@ -104,3 +107,48 @@ def changed_relation(
     Sv = scale_matrix(S_v, model.n_v, "S_v") if model.n_v else sp.zeros(0, 0)
     u_new, v_new, g = changed_parts(model, Su, ou, Sy, oy, Sv, suffix)
     return tuple(u_new), tuple(v_new), g
+
+
+def _numeric_matrix(S: Any, n: int, name: str) -> np.ndarray:
+    M = scale_matrix(S, n, name)
+    if M.free_symbols:
+        raise ShapeError(f"{name} must be numeric to transform a Gaussian, got symbols {sorted(map(str, M.free_symbols))}")
+    return np.array(M.evalf(), dtype=float)
+
+
+def change_gaussian(dist: Gaussian, S: Any, o: Any = None) -> Gaussian:
+    """The distribution of the new-unit variable x̄ = S⁻¹ (x − o) given x ~ ``dist``.
+
+    This is the distribution change (35b)–(35c) that matches :func:`change_units`:
+    ``dist`` is in the old units, x = S x̄ + o (18), and the result is in the new units,
+    N(S⁻¹(m − o), S⁻¹ P S⁻ᵀ). Use ``o=None`` for noise (18c). The inverse change is
+    ``change_gaussian(result, S⁻¹, −S⁻¹ o)``.
+
+    Parameters
+    ----------
+    dist : Gaussian
+        x in the old units.
+    S : scalar, sequence or matrix
+        Numeric scale (positive definite, invertible), same convention as :func:`change_units`.
+    o : sequence, optional
+        Numeric offset, default 0.
+
+    Returns
+    -------
+    Gaussian
+
+    Examples
+    --------
+    >>> change_gaussian(Gaussian([1000.0], [[4.0e4]]), S=1000.0)   # m -> km
+    N([1], [[0.04]])
+    """
+    if not isinstance(dist, Gaussian):
+        raise ArgumentTypeError(f"dist must be a symmon.Gaussian, got {type(dist).__name__}")
+    A = _numeric_matrix(S, dist.dim, "S")
+    off = offset_vector(o, dist.dim, "o")
+    if off.free_symbols:
+        raise ShapeError("o must be numeric to transform a Gaussian")
+    ov = np.array(off.evalf(), dtype=float).ravel()
+    Ainv = np.linalg.inv(A)
+    cov = Ainv @ dist.cov @ Ainv.T
+    return Gaussian(Ainv @ (dist.mean - ov), 0.5 * (cov + cov.T))

@@ -60,7 +60,6 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .adaptive import Adaptive
 from ..errors import ArgumentTypeError, ShapeError, SymmonError
 from ..core.checks import check_gaussian, check_model, noise_cov, readonly
 from .results import ConsistencyTest, KalmanResult, NonlinearKalmanResult, check_keep, real_measurements
@@ -70,7 +69,7 @@ from ..core.model import Model
 from ..transforms import UT, Transform
 from ..transforms.registry import resolve
 
-__all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest", "Adaptive"]
+__all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest"]
 
 
 @dataclass(frozen=True, eq=False)

@@ -13,8 +13,7 @@ from ..errors import ArgumentTypeError, ModelError, ShapeError
 from ..core.gaussian import Gaussian
 from ..core.model import Model
 from .joint import JointMoments
-from ..transforms import Transform
-from ..transforms import Moments
+from ..transforms import Moments, Transform
 from ..transforms.registry import default_transform, resolve
 
 __all__ = ["propagate", "propagate_many", "joint_input", "input_batch", "check_transform"]

@@ -28,8 +28,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..compile.compiled import CHUNK, CompiledModel, compile_model
+from ..core.angles import wrap_angle
 from ..errors import SamplingError, SymmonError
-from .base import Moments, Transform, batch_sqrt, pilot_angle_cut, wrap_angle
+from .base import Moments, Transform, batch_sqrt, pilot_angle_cut
 from .executor import Executor, _is_int, dask_compute, one_blas_thread, stop_point
 from .mc_kernel import sample_kernel
 from .stats import Stats, _raw_stats, jackknife, merge, merge_all, moments_of

@@ -20,7 +20,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..errors import SymmonError
-from .base import wrap_angle
+from ..core.angles import wrap_angle
 
 __all__ = ["Stats", "merge", "merge_all", "leave_one_out", "leave_one_out_stack", "jackknife", "jackknife_se",
            "moments_of"]

@@ -18,8 +18,9 @@ from typing import ClassVar
 import numpy as np
 
 from ..compile.compiled import CompiledModel
+from ..core.angles import wrap_angle
 from ..errors import DerivativeError, SymmonError
-from .base import Moments, Transform, wrap_angle
+from .base import Moments, Transform
 
 __all__ = ["TT1", "TT2"]
 

@@ -12,7 +12,7 @@ the old-unit value of one new unit of component k (m → km gives S = 1000).
   proofs (:mod:`.proofs`, :mod:`.matrix`, :mod:`.proof`) and their lemmas (:mod:`.lemmas`).
 """
 
-from ..core.affine import change_gaussian as change_gaussian
+from ..core.rescale import change_gaussian as change_gaussian
 from ..core.rescale import change_units as change_units
 from ..core.rescale import changed_relation as changed_relation
 from ..errors import UnitError as UnitError

@@ -31,8 +31,8 @@ from ..errors import SingularMatrixError, SymmonError
 from ..core.gaussian import Gaussian
 from .lemmas import _m2, _WeightPart
 from ..core.model import Model
-from ..core.affine import change_gaussian, changed_parts, inverse
-from ..core.rescale import change_units
+from ..core.affine import changed_parts, inverse
+from ..core.rescale import change_gaussian, change_units
 from ..measures.mon import nonlinearity
 from ..measures.weights import NAMED as WEIGHTS
 from ..transforms import UT, GaussHermite, MonteCarlo

@@ -22,7 +22,7 @@ import sympy as sp
 from ..errors import ArgumentError, ArgumentTypeError, ModelError
 from ..core.gaussian import Gaussian
 from ..core.model import Model
-from ..core.affine import change_gaussian
+from ..core.rescale import change_gaussian
 from ..errors import UnitError
 
 __all__ = ["UnitModel", "with_units"]
