@@ -12,17 +12,19 @@ import warnings
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
-from typing import Any, Callable, ClassVar
+from typing import TYPE_CHECKING, Any, Callable, ClassVar
 
 import numpy as np
 import sympy as sp
 
 from ..core.angles import wrap_angle  # re-exported: defined beside the other angle helpers
-from ..compile.compiled import CompiledModel
 from ..core.gaussian import PSD_RTOL, SYMMETRY_RTOL, as_covariance, as_vector, matrix_sqrt
 from ..errors import AngleWarning, ArgumentError, ArgumentTypeError, NonFiniteError, ShapeError
 from .nodes import SPARSE_ABOVE, standard_rule
 from .registry import _register
+
+if TYPE_CHECKING:  # annotations only: a rule is handed a compiled model, it never makes one
+    from ..compile.compiled import CompiledModel
 
 __all__ = [
     "Transform", "Moments", "wrap_angle", "weighted_moments", "batch_sqrt",
@@ -434,22 +436,16 @@ def check_moments_finite(cm: CompiledModel, b: Moments, means: np.ndarray, trans
 
 
 # --------------------------------------------------------------------------- undeclared angles
-#: (outputs, symbols, output index) already warned about: one AngleWarning per model and output.
-_ANGLE_WARNED: set[tuple] = set()
+#: The once-only warnings already given: ("angle", outputs, symbols, output index) for an
+#: AngleWarning (one per model and output), and the rules' own keys (a Gauss–Hermite
+#: grid's QuadratureWarning, one per order and dimension).
+_WARNED: set[tuple] = set()
 
 
 def reset_warnings() -> None:
-    """Forget which undeclared-angle warnings were given, so that each is given again
-    (once per model and output from now on): for a fresh start in a notebook or a test.
-    The announcements of a rule's own grid (:class:`~symmon.errors.QuadratureWarning`) are
-    reset too."""
-    _ANGLE_WARNED.clear()
-    for forget in _RESETS:
-        forget()
-
-
-#: What :func:`reset_warnings` also clears: the once-only announcements of the rules.
-_RESETS: list = []
+    """Forget which once-only warnings were given (undeclared angles, a rule's fall to
+    another grid), so that each is given again: for a fresh start in a notebook or a test."""
+    _WARNED.clear()
 
 
 def likely_angles(cm: CompiledModel, declared: frozenset[int]) -> dict[int, float]:
@@ -505,8 +501,8 @@ def warn_angle_cut(cm: CompiledModel, Y: np.ndarray, angles: frozenset[int], tra
         Transformed points (or samples) of each state.
     """
     for i, half in likely_angles(cm, angles).items():
-        key = (cm.source_exprs, cm.symbols, i)
-        if key in _ANGLE_WARNED:
+        key = ("angle", cm.source_exprs, cm.symbols, i)
+        if key in _WARNED:
             continue
         th = wrap_angle(Y[:, :, i] * (np.pi / half))
         both = (th.max(axis=1) > np.pi / 2) & (th.min(axis=1) < -np.pi / 2)
@@ -517,7 +513,7 @@ def warn_angle_cut(cm: CompiledModel, Y: np.ndarray, angles: frozenset[int], tra
         across = 2 * np.pi - (th[:, -1] - th[:, 0])
         hit = inner > across
         if hit.any():
-            _ANGLE_WARNED.add(key)
+            _WARNED.add(key)
             k = int(np.argmax(hit))
             above = int(np.sum(th[k] > np.pi / 2))
             below = int(np.sum(th[k] < -np.pi / 2))

@@ -27,9 +27,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from ..core.angles import wrap_angle
 from ..errors import QuadratureWarning, SymmonError
 from .nodes import MAX_NODES, SPARSE_ABOVE, rule_size, standard_rule
-from .base import _RESETS, Moments, Transform, batch_sqrt, evaluate_points, weighted_moments, wrap_angle
+from .base import _WARNED, Moments, Transform, batch_sqrt, evaluate_points, weighted_moments
 
 __all__ = ["GaussHermite", "standard_rule", "rule_size", "ERROR_SAFETY", "MAX_NODES"]
 
@@ -37,9 +38,6 @@ __all__ = ["GaussHermite", "standard_rule", "rule_size", "ERROR_SAFETY", "MAX_NO
 #: Factor on |Q_p − Q_{p+2}|: it bounds |Q_p − I| once |Q_{p+2} − I| ≤ |Q_p − I| / 2.
 ERROR_SAFETY = 2.0
 
-#: (order, dimension) whose fall to the sparse grid was announced (:class:`QuadratureWarning`).
-_ANNOUNCED: set[tuple[int, int]] = set()
-_RESETS.append(_ANNOUNCED.clear)
 
 @dataclass(frozen=True)
 class GaussHermite(Transform):
@@ -103,8 +101,9 @@ class GaussHermite(Transform):
 
     def _announce(self, n: int) -> None:
         """Warn (once per order and dimension) when ``sparse=None`` falls to the sparse grid."""
-        if self.sparse is None and n > SPARSE_ABOVE and (self.order, n) not in _ANNOUNCED:
-            _ANNOUNCED.add((self.order, n))
+        key = ("gh-sparse", self.order, n)
+        if self.sparse is None and n > SPARSE_ABOVE and key not in _WARNED:
+            _WARNED.add(key)
             w = standard_rule(n, int(self.order), True)[1]
             signs = ", with negative weights" if (w < 0).any() else ""
             warnings.warn(
