@@ -53,24 +53,25 @@ def run_groups(fn: Callable[[J, threading.Event], R], jobs: Sequence[J], workers
     stop = threading.Event()
     # Even one worker runs off the main thread: the main thread then only waits, where a
     # Ctrl-C is always seen at once (inline, a SIGINT was sometimes lost in the kernel loop).
-    pool = ThreadPoolExecutor(workers)
-    try:
-        with one_blas_thread():
+    # The BLAS limit holds for the pool's whole life: it is restored only once no worker runs.
+    with one_blas_thread():
+        pool = ThreadPoolExecutor(workers)
+        try:
             futures = [pool.submit(fn, j, stop) for j in jobs]
             return [f.result() for f in progress_bar(futures, desc, progress, total=len(futures))]
-    except BaseException:
-        stop.set()
-        raise
-    finally:
-        # Drop the queued groups; the running ones see `stop` within a chunk.
-        pool.shutdown(wait=True, cancel_futures=True)
+        except BaseException:
+            stop.set()
+            raise
+        finally:
+            # Drop the queued groups; the running ones see `stop` within a chunk.
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def one_blas_thread() -> threadpool_limits:
     """While symmon's own workers run, BLAS (OpenBLAS, MKL, ...) uses one thread each.
 
     The workers already take the cores: a multithreaded BLAS beside them oversubscribes
-    them (Monte Carlo of a 20-state model took 16× longer on 2 cores with OpenBLAS's own
+    them (a 20-input Monte Carlo on 2 cores took 1.6× the wall time with OpenBLAS's own
     threads, docs/compile.md).  The limit is the library's, so it holds for the whole
     process while the pool runs, and the previous setting comes back after it.
     """
