@@ -34,8 +34,10 @@ optimal control", Math. Prog. Comp. 11, 2019. doi:10.1007/s12532-018-0139-4
 
 from __future__ import annotations
 
+import re
 import tempfile
 from pathlib import Path
+
 import casadi as ca
 
 from ..compile.cnames import c_identifier, comment_text, is_casadi_name
@@ -47,7 +49,7 @@ from .symbolic import point_moments, tt2_moments, unit_rule
 from ..transforms.registry import resolve
 from ..transforms import UT, Transform
 
-__all__ = ["export_c", "moment_functions"]
+__all__ = ["export_c", "moment_functions", "c_prefix", "strict_c"]
 
 # --------------------------------------------------------------------------- building blocks
 def _densified(name: str, w: ca.SX, expr: ca.SX, out: str, opts: dict) -> ca.Function:
@@ -109,7 +111,7 @@ def moment_functions(model: Model, ut: Transform | None = None, name: str | None
     if not isinstance(model, Model):
         raise ArgumentTypeError(f"model must be a symmon.Model, got {type(model).__name__}")
     ut = _check_ut(ut)
-    prefix = _check_name(model.name if name is None else name, from_model=name is None)
+    prefix = c_prefix(model.name if name is None else name, from_model=name is None)
     cm = compiled(model)
     w, y = cm.w_sx, cm.y_sx
     n = cm.n_w
@@ -130,8 +132,15 @@ def moment_functions(model: Model, ut: Transform | None = None, name: str | None
     return out
 
 
-def _check_name(name: str, from_model: bool) -> str:
-    """The C prefix: a model's free-text name made readable C, or an explicit identifier."""
+def c_prefix(name: str, from_model: bool) -> str:
+    """The C prefix of exported code: a model's free-text name made readable C
+    (``from_model``), or an explicit identifier, checked.
+
+    Raises
+    ------
+    SymmonError
+        If an explicit ``name`` is not an identifier that C and CasADi accept.
+    """
     if from_model:
         # Model names are free text ("polar (rad)"): the readable part, no hash, since the
         # prefix names the files and functions a user includes.
@@ -142,6 +151,42 @@ def _check_name(name: str, from_model: bool) -> str:
             f"digits and single underscores, not ending with '_' nor starting with 'casadi'; got {name!r}"
         )
     return name
+
+
+#: The first line of a function definition in CasADi's generated C: at column 0, a return
+#: type, the name, the parameter list and the opening brace (one-line bodies included).
+_DEFINITION = re.compile(r"^(?!(?:if|for|while|switch|return|else)\b)[A-Za-z_][\w \t*]*?\b\w+\(([^()]*)\)\s*\{")
+
+
+def strict_c(src: str) -> str:
+    """CasADi's generated C made warning-free under ``-Wall -Wextra -Werror -pedantic``.
+
+    CasADi's functions share one signature and leave some parameters unused (``iw``, ``w``,
+    ``mem``), which ``-Wextra`` reports; each unused parameter gets a ``(void)`` cast on the
+    first line of its function.  A function's body is the rest of that line (one-line
+    functions) or the lines up to the next ``}`` at column 0, CasADi's layout; a name that
+    appears anywhere in the body counts as used.
+    """
+    lines = src.splitlines()
+    out = []
+    for i, line in enumerate(lines):
+        m = _DEFINITION.match(line)
+        if m:
+            rest = line[m.end():]
+            if "}" in rest:
+                body = rest
+            else:
+                j = next((j for j in range(i + 1, len(lines)) if lines[j].startswith("}")), len(lines))
+                body = "\n".join(lines[i + 1:j])
+            unused = []
+            for param in m.group(1).split(","):
+                param = param.strip()
+                found = re.search(r"(\w+)\s*(?:\[[^\]]*\])?$", param)
+                if param and param != "void" and found and not re.search(rf"\b{found.group(1)}\b", body):
+                    unused.append(found.group(1))
+            line = line[:m.end()] + "".join(f" (void){p};" for p in unused) + rest
+        out.append(line)
+    return "\n".join(out) + "\n"
 
 
 def _wrapper_code(fs: dict[str, ca.Function]) -> tuple[str, str]:
@@ -274,7 +319,7 @@ def export_c(model: Model, outdir: str | Path, name: str | None = None, *, ut: T
     ut = _check_ut(ut)
     if not isinstance(model, Model):
         raise ArgumentTypeError(f"model must be a symmon.Model, got {type(model).__name__}")
-    prefix = _check_name(model.name if name is None else name, from_model=name is None)
+    prefix = c_prefix(model.name if name is None else name, from_model=name is None)
     fs = moment_functions(model, ut=ut, name=prefix, cse=cse)
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
@@ -288,7 +333,7 @@ def export_c(model: Model, outdir: str | Path, name: str | None = None, *, ut: T
         c_src = (Path(tmp) / f"{prefix}.c").read_text()
         h_src = (Path(tmp) / f"{prefix}.h").read_text()
     wrappers, protos = _wrapper_code(fs)
-    c_src = c_src.rstrip("\n") + "\n\n/* Plain-signature wrappers added by symmon (see the header). */\n" + wrappers
+    c_src = strict_c(c_src).rstrip("\n") + "\n\n/* Plain-signature wrappers added by symmon (see the header). */\n" + wrappers
     closing = "#ifdef __cplusplus\n} /* extern \"C\" */\n#endif"
     if closing not in h_src:  # pragma: no cover - depends on the CasADi version
         raise SymmonError("unexpected CasADi header layout: cannot add the wrapper prototypes")

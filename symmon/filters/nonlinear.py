@@ -53,7 +53,9 @@ models", FUSION 2015 (wrapped residuals).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Iterable
 from functools import cached_property
 
@@ -153,6 +155,24 @@ class NonlinearKalmanFilter:
     def method(self) -> str:
         """The filter's name: EKF, EKF2, UKF(...), CKF, GHKF(order=...) or Adaptive(...)."""
         return self.strategy.label()
+
+    def export_c(self, directory: str | os.PathLike, name: str | None = None) -> list[Path]:
+        """Write this filter as standalone C99 for an embedded target (docs/export.md).
+
+        ``NAME.c`` and ``NAME.h`` hold ``NAME_predict(x, P)`` and ``NAME_update(x, P, y,
+        &loglik)``, in place, with no allocation, no global state and no I/O;
+        ``NAME_example.c`` runs them on measurements read from stdin, and ``README.md``
+        states the interface, the sizes and the model's hash.  See
+        :func:`symmon.filters.export.export_filter_c` for the parameters and errors.
+
+        Returns
+        -------
+        list of Path
+            The files written: ``NAME.c``, ``NAME.h``, ``NAME_example.c``, ``README.md``.
+        """
+        from .export import export_filter_c
+
+        return export_filter_c(self, directory, name)
 
     def _initial(self, x0: Gaussian | ArrayLike, P0: ArrayLike | None, runs: int | None):
         """Validated initial mean(s) and covariance."""

@@ -74,29 +74,32 @@ def _sym(A):
     return 0.5 * (A + A.T)
 
 
-def _step_function(f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
-                   name: str) -> ca.Function:
-    """(x, P, y, Q, R) ↦ (x⁺, P⁺, x⁻, P⁻, ν, S): one predict + update step (the module's notes)."""
-    n, n_y = f.n_u, h.n_y
-    nq, nr = f.n_v or n, h.n_v or n_y
-    dims = (n + f.n_v, n + h.n_v)
+def step_kind(f: Model, h: Model, transform: Transform):
+    """SX or MX for the step of (f, h, transform), and the Cholesky factor that goes with it."""
+    dims = (f.n_u + f.n_v, f.n_u + h.n_v)
     points = max(len(transform.unit_rule(d)[0]) for d in dims) if transform.point_rule else 0
     kind = ca.MX if max(dims) >= MX_FROM or points > MAX_SX_POINTS else ca.SX
-    chol = chol_node if kind is ca.MX else chol_lower  # the unrolled factor: n³/6 operations
-    x, P, y = kind.sym("x", n), kind.sym("P", n, n), kind.sym("y", n_y)
-    Q, R = kind.sym("Q", nq, nq), kind.sym("R", nr, nr)
-    # Time update: the NLT of f, on [x; w] with general noise.
+    return kind, chol_node if kind is ca.MX else chol_lower  # unrolled factor: n³/6 operations
+
+
+def predict_graph(f: Model, transform: Transform, angle_states: frozenset[int], x, P, Q, chol):
+    """The time update: x⁻ = E f, P⁻ = Cov f (+ Q), the NLT of f (on [x; w] with general noise)."""
+    kind = type(x)
     if f.n_v:
-        mean, cov, _ = moments(compiled(f), ca.vertcat(x, kind.zeros(nq)), ca.diagcat(P, Q), transform,
+        mean, cov, _ = moments(compiled(f), ca.vertcat(x, kind.zeros(f.n_v)), ca.diagcat(P, Q), transform,
                                angle_states, chol)
     else:
         mean, cov, _ = moments(compiled(f), x, P, transform, angle_states, chol)
         cov = cov + Q
-    x_pred, P_pred = wrap_entries(mean, angle_states), _sym(cov)
-    # Measurement update: the NLT of h at N(x⁻, P⁻), then Lemma 7.1.
+    return wrap_entries(mean, angle_states), _sym(cov)
+
+
+def update_graph(h: Model, transform: Transform, angle_states: frozenset[int], x_pred, P_pred, y, R, chol):
+    """The measurement update, Lemma 7.1 on the NLT of h at N(x⁻, P⁻): (x⁺, P⁺, ν, S, log N(ν; 0, S))."""
+    kind, n, n_y = type(x_pred), x_pred.shape[0], h.n_y
     y_angles = frozenset(h.angle_outputs)
     if h.n_v:
-        y_hat, S, cross = moments(compiled(h), ca.vertcat(x_pred, kind.zeros(nr)), ca.diagcat(P_pred, R),
+        y_hat, S, cross = moments(compiled(h), ca.vertcat(x_pred, kind.zeros(h.n_v)), ca.diagcat(P_pred, R),
                                   transform, y_angles, chol)
         cross = cross[:, :n]
     else:
@@ -108,9 +111,21 @@ def _step_function(f: Model, h: Model, transform: Transform, angle_states: froze
     x_new = wrap_entries(x_pred + ca.mtimes(gain, nu), angle_states)
     P_new = _sym(P_pred - ca.mtimes(ca.mtimes(gain, S), gain.T))
     # log N(ν; 0, S): log det S from the Cholesky factor, NaN when S is not positive definite.
-    L_S = chol(S)
-    log_det = 2 * ca.sum1(ca.log(ca.diag(L_S)))
+    log_det = 2 * ca.sum1(ca.log(ca.diag(chol(S))))
     loglik = -0.5 * (ca.dot(nu, ca.solve(S, nu)) + log_det + n_y * math.log(2 * math.pi))
+    return x_new, P_new, nu, S, loglik
+
+
+def _step_function(f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
+                   name: str) -> ca.Function:
+    """(x, P, y, Q, R) ↦ (x⁺, P⁺, x⁻, P⁻, ν, S, log-likelihood): one predict + update step."""
+    n, n_y = f.n_u, h.n_y
+    nq, nr = f.n_v or n, h.n_v or n_y
+    kind, chol = step_kind(f, h, transform)
+    x, P, y = kind.sym("x", n), kind.sym("P", n, n), kind.sym("y", n_y)
+    Q, R = kind.sym("Q", nq, nq), kind.sym("R", nr, nr)
+    x_pred, P_pred = predict_graph(f, transform, angle_states, x, P, Q, chol)
+    x_new, P_new, nu, S, loglik = update_graph(h, transform, angle_states, x_pred, P_pred, y, R, chol)
     outs = [ca.densify(a) for a in (x_new, P_new, x_pred, P_pred, nu, S, loglik)]
     return ca.Function(name, [x, P, y, Q, R], outs, ["x", "P", "y", "Q", "R"],
                        ["x_new", "P_new", "x_pred", "P_pred", "innovation", "S", "loglik"],

@@ -1,0 +1,391 @@
+"""Standalone C of a nonlinear Kalman filter: predict and update, for embedded targets.
+
+:func:`export_filter_c` (and :meth:`symmon.NonlinearKalmanFilter.export_c`) writes
+``NAME.c`` and ``NAME.h``: C99 with no dynamic allocation, no global mutable state and no
+I/O, that includes only ``<math.h>`` and ``<string.h>``.  Its interface::
+
+    #define NAME_NX n        /* states */
+    #define NAME_NY n_y      /* measurements */
+    int NAME_predict(double *x, double *P);
+    int NAME_update(double *x, double *P, const double *y, double *loglik);
+
+Both work in place on the state x (NX) and its covariance P (NX × NX, symmetric, row-major
+and column-major alike); ``NAME_update`` adds log N(ν; 0, S) of the innovation ν to
+``*loglik``.  They return ``NAME_OK`` (0), or an error code and leave x, P and ``*loglik``
+unchanged: ``NAME_ERR_STATE`` (x or P not finite on entry), ``NAME_ERR_MEASUREMENT`` (y not
+finite), ``NAME_ERR_S`` (the innovation covariance S is not positive definite) or
+``NAME_ERR_P`` (the new P is not positive definite, or the new x is not finite).
+
+The step is the filter's own (:mod:`symmon.filters.step`): the same CasADi graphs of the
+time update and of the measurement update (Lemma 7.1 of Gustafsson & Hendeby), with Q and
+R fixed at export, angle states and angle measurements wrapped as in the filter.  It is
+always built in MX: the products with P, the Cholesky factors, the map over the points and
+the gain solve are matrix nodes around small SX functions of f, h and their derivatives'
+nonzeros, so the C has loops and grows with the nonzeros, not with n³ (docs/export.md).
+Positive definiteness is tested by the pivots of a Cholesky factor of S and of the new P.
+
+Also written: ``NAME_example.c``, a program that reads x0, P0 and measurements from stdin
+and prints the estimates, and ``README.md`` (interface, sizes, build, the model it came
+from, the symmon version and the model's hash).
+
+References
+----------
+F. Gustafsson, G. Hendeby, "Some relations between extended and unscented Kalman filters",
+IEEE Trans. Signal Process. 60(2), 2012. doi:10.1109/TSP.2011.2172431
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import tempfile
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import casadi as ca
+import numpy as np
+
+from ..codegen.export import c_prefix, strict_c
+from ..codegen.symbolic import chol_node
+from ..compile.cnames import c_identifier, comment_text
+from ..errors import ArgumentTypeError, SymmonError
+from ..io import atomic_write_text, check_output_dir
+from ..version import __version__
+from .step import predict_graph, update_graph
+from .strategy import RuleStrategy
+
+if TYPE_CHECKING:  # pragma: no cover - annotations only
+    from .nonlinear import NonlinearKalmanFilter
+
+__all__ = ["export_filter_c", "filter_functions", "ERROR_CODES"]
+
+#: The return codes of the exported functions, by suffix (``NAME_OK``, ``NAME_ERR_STATE``, …).
+ERROR_CODES = {
+    "OK": (0, "success"),
+    "ERR_STATE": (1, "x or P is not finite on entry"),
+    "ERR_MEASUREMENT": (2, "a measurement is not finite"),
+    "ERR_S": (3, "the innovation covariance S is not positive definite"),
+    "ERR_P": (4, "the new P is not positive definite, or the new x is not finite"),
+    "ERR_EVAL": (5, "the generated evaluation failed (not expected)"),
+}
+
+
+def _transform(kf: "NonlinearKalmanFilter"):
+    if not isinstance(kf.strategy, RuleStrategy):
+        raise SymmonError(
+            f"export_c needs a filter with one transform for every step; {kf.method} chooses one per "
+            "step: export each candidate filter (e.g. the EKF and the UKF) and switch between them in C"
+        )
+    return kf.strategy.transform
+
+
+def _family(kf: "NonlinearKalmanFilter") -> str:
+    """ekf, ekf2, ukf, ckf, ghkf, …: the filter's label without its settings."""
+    return re.sub(r"[^a-z0-9]+", "", kf.method.split("(")[0].lower()) or "kf"
+
+
+def filter_functions(kf: "NonlinearKalmanFilter", name: str) -> dict[str, ca.Function]:
+    """The CasADi functions :func:`export_filter_c` writes C for.
+
+    Returns
+    -------
+    dict
+        ``"predict"``: (x, P) ↦ (x⁻, P⁻, min pivot of chol P⁻); ``"update"``: (x⁻, P⁻, y) ↦
+        (x⁺, P⁺, log N(ν; 0, S), min pivot of chol S, min pivot of chol P⁺).  Q and R are the
+        filter's, fixed.  A pivot that is not > 0 (or NaN) means "not positive definite".
+    """
+    transform = _transform(kf)
+    f, h = kf.f_model, kf.h_model
+    n, n_y = f.n_u, h.n_y
+    chol = chol_node
+    Q, R = ca.DM(np.asarray(kf.Q, dtype=float)), ca.DM(np.asarray(kf.R, dtype=float))
+    x, P, y = ca.MX.sym("x", n), ca.MX.sym("P", n, n), ca.MX.sym("y", n_y)
+    x_pred, P_pred = predict_graph(f, transform, kf.angle_states, x, P, Q, chol)
+
+    def pivot(A):
+        return ca.mmin(ca.diag(chol(A)))
+
+    predict = ca.Function(f"{name}_predict_step", [x, P], [ca.densify(x_pred), ca.densify(P_pred), pivot(P_pred)],
+                          ["x", "P"], ["x_pred", "P_pred", "pivot_P"])
+    x_new, P_new, _, S, loglik = update_graph(h, transform, kf.angle_states, x, P, y, R, chol)
+    update = ca.Function(f"{name}_update_step", [x, P, y],
+                         [ca.densify(x_new), ca.densify(P_new), loglik, pivot(S), pivot(P_new)],
+                         ["x", "P", "y"], ["x_new", "P_new", "loglik", "pivot_S", "pivot_P"])
+    return {"predict": predict, "update": update}
+
+
+def _sizes(f: ca.Function) -> dict[str, int]:
+    return {"arg": max(1, int(f.sz_arg())), "res": max(1, int(f.sz_res())),
+            "iw": max(1, int(f.sz_iw())), "w": max(1, int(f.sz_w()))}
+
+
+def _work_macros(P: str, fname: str, key: str, f: ca.Function, extra_reals: int) -> list[str]:
+    """The work-array sizes of one function and the stack they take."""
+    s = _sizes(f)
+    K = f"{P}_{key}"
+    return [
+        f"#define {K}_SZ_ARG {s['arg']}",
+        f"#define {K}_SZ_RES {s['res']}",
+        f"#define {K}_SZ_IW {s['iw']}",
+        f"#define {K}_SZ_W {s['w'] + extra_reals}",
+        f"/* stack bytes of {fname}: its work arrays and a copy of the new state */",
+        f"#define {K}_STACK_BYTES ({K}_SZ_W * sizeof(double) + {K}_SZ_IW * sizeof(long long) \\",
+        f"    + ({K}_SZ_ARG + {K}_SZ_RES) * sizeof(void *))",
+    ]
+
+
+_C_FUNCTIONS = r"""
+/* ---- The filter interface (symmon): see {P}.h. ---- */
+
+static int {P}_all_finite(const double *a, int n) {{
+  int i;
+  for (i = 0; i < n; ++i) if (!isfinite(a[i])) return 0;
+  return 1;
+}}
+
+int {P}_predict(double *x, double *P) {{
+  const casadi_real *arg[{P_}_PREDICT_SZ_ARG];
+  casadi_real *res[{P_}_PREDICT_SZ_RES];
+  casadi_int iw[{P_}_PREDICT_SZ_IW];
+  casadi_real w[{P_}_PREDICT_SZ_W];
+  casadi_real *x_new = w, *P_new = w + {P_}_NX, pivot = 0;
+  casadi_real *work = w + {P_}_NX + {P_}_NX * {P_}_NX;
+  if (!{P}_all_finite(x, {P_}_NX) || !{P}_all_finite(P, {P_}_NX * {P_}_NX)) return {P_}_ERR_STATE;
+  arg[0] = x; arg[1] = P;
+  res[0] = x_new; res[1] = P_new; res[2] = &pivot;
+  if ({P}_predict_step(arg, res, iw, work, 0)) return {P_}_ERR_EVAL;
+  if (!(pivot > 0) || !{P}_all_finite(x_new, {P_}_NX)) return {P_}_ERR_P;
+  memcpy(x, x_new, sizeof(double) * {P_}_NX);
+  memcpy(P, P_new, sizeof(double) * {P_}_NX * {P_}_NX);
+  return {P_}_OK;
+}}
+
+int {P}_update(double *x, double *P, const double *y, double *loglik) {{
+  const casadi_real *arg[{P_}_UPDATE_SZ_ARG];
+  casadi_real *res[{P_}_UPDATE_SZ_RES];
+  casadi_int iw[{P_}_UPDATE_SZ_IW];
+  casadi_real w[{P_}_UPDATE_SZ_W];
+  casadi_real *x_new = w, *P_new = w + {P_}_NX, ll = 0, pivot_S = 0, pivot_P = 0;
+  casadi_real *work = w + {P_}_NX + {P_}_NX * {P_}_NX;
+  if (!{P}_all_finite(x, {P_}_NX) || !{P}_all_finite(P, {P_}_NX * {P_}_NX)) return {P_}_ERR_STATE;
+  if (!{P}_all_finite(y, {P_}_NY)) return {P_}_ERR_MEASUREMENT;
+  arg[0] = x; arg[1] = P; arg[2] = y;
+  res[0] = x_new; res[1] = P_new; res[2] = &ll; res[3] = &pivot_S; res[4] = &pivot_P;
+  if ({P}_update_step(arg, res, iw, work, 0)) return {P_}_ERR_EVAL;
+  if (!(pivot_S > 0) || !isfinite(ll)) return {P_}_ERR_S;
+  if (!(pivot_P > 0) || !{P}_all_finite(x_new, {P_}_NX)) return {P_}_ERR_P;
+  memcpy(x, x_new, sizeof(double) * {P_}_NX);
+  memcpy(P, P_new, sizeof(double) * {P_}_NX * {P_}_NX);
+  *loglik += ll;
+  return {P_}_OK;
+}}
+"""
+
+_EXAMPLE = r"""/* {P}_example.c: run the exported filter {P} on measurements read from stdin.
+
+   Input (whitespace-separated numbers): x0 ({P_}_NX numbers), P0 ({P_}_NX * {P_}_NX, row-major),
+   then one measurement of {P_}_NY numbers per step, until the end of the input.
+   Output: one line per step, "k code x[0..NX-1] P[0..NX*NX-1] loglik" (%.17g), where code is
+   the return code of {P}_predict, or else of {P}_update (0 = OK).  The program stops at
+   the first error, with exit status 1.
+   Build: cc -std=c99 -O2 {P}.c {P}_example.c -lm -o {P}_example */
+#include <stdio.h>
+#include "{P}.h"
+
+int main(void) {{
+  double x[{P_}_NX], P[{P_}_NX * {P_}_NX], y[{P_}_NY], loglik = 0;
+  int i, k, code;
+  for (i = 0; i < {P_}_NX; ++i) if (scanf("%lf", &x[i]) != 1) return 2;
+  for (i = 0; i < {P_}_NX * {P_}_NX; ++i) if (scanf("%lf", &P[i]) != 1) return 2;
+  for (k = 0;; ++k) {{
+    for (i = 0; i < {P_}_NY; ++i) if (scanf("%lf", &y[i]) != 1) break;
+    if (i == 0) break;
+    if (i < {P_}_NY) return 2;
+    code = {P}_predict(x, P);
+    if (code == {P_}_OK) code = {P}_update(x, P, y, &loglik);
+    printf("%d %d", k, code);
+    for (i = 0; i < {P_}_NX; ++i) printf(" %.17g", x[i]);
+    for (i = 0; i < {P_}_NX * {P_}_NX; ++i) printf(" %.17g", P[i]);
+    printf(" %.17g\n", loglik);
+    if (code != {P_}_OK) return 1;
+  }}
+  return 0;
+}}
+"""
+
+
+def _model_hash(kf: "NonlinearKalmanFilter", transform) -> str:
+    """sha256 of what the C computes: f, h, Q, R, the transform and the angles."""
+    f, h = kf.f_model, kf.h_model
+    key = repr((f.outputs, f.inputs, f.noise, h.outputs, h.inputs, h.noise, transform,
+                sorted(kf.angle_states), sorted(h.angle_outputs),
+                np.asarray(kf.Q).tolist(), np.asarray(kf.R).tolist()))
+    return hashlib.sha256(key.encode()).hexdigest()
+
+
+def _header(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> str:
+    f, h = kf.f_model, kf.h_model
+    n, n_y = f.n_u, h.n_y
+    P_ = P.upper()
+    states = ", ".join(comment_text(str(s)) for s in f.inputs)
+    ys = ", ".join(comment_text(str(e)) for e in h.outputs)
+    lines = [
+        f"{P}: the {comment_text(kf.method)} filter exported by symmon {__version__}.",
+        "",
+        f"  dynamics f: {comment_text(f.name)};  measurement h: {comment_text(h.name)}",
+        f"  state x = [{states}]   (NX = {n})",
+        f"  measurement y = [{ys}]   (NY = {n_y})",
+        f"  noise: {'general, w in f' if f.n_v else 'additive Q'}; {'general, e in h' if h.n_v else 'additive R'};"
+        " Q and R fixed at export",
+    ]
+    if kf.angle_states:
+        lines.append(f"  angle states (wrapped to (-pi, pi]): {sorted(kf.angle_states)} (0-based)")
+    if h.angle_outputs:
+        lines.append(f"  angle measurements (wrapped innovation): {sorted(h.angle_outputs)} (0-based)")
+    lines += [
+        f"  model hash (sha256 of f, h, Q, R, the transform and the angles): {digest}",
+        "",
+        f"int {P}_predict(double *x, double *P);",
+        "    The time update, in place: x <- E f(x), P <- Cov f (+ Q).",
+        f"int {P}_update(double *x, double *P, const double *y, double *loglik);",
+        "    The measurement update, in place, with y[NY]; adds log N(innovation; 0, S) to *loglik.",
+        "",
+        "x has NX entries, P NX x NX (symmetric: row- and column-major alike; written exactly",
+        "symmetric).  Both return 0 (OK), or an error code below and then leave x, P and *loglik",
+        "unchanged.  C99, reentrant: no allocation, no global mutable state, no I/O; the work",
+        "memory is on the stack, of the sizes *_STACK_BYTES below.  Build: cc -std=c99 -O2 -c "
+        f"{P}.c (link with -lm).",
+    ]
+    body = "/*\n" + "\n".join((" * " + ln).rstrip() for ln in lines) + "\n */\n"
+    macros = [f"#define {P_}_NX {n}", f"#define {P_}_NY {n_y}", ""]
+    for key, (code, what) in ERROR_CODES.items():
+        macros.append(f"#define {P_}_{key} {code}  /* {what} */")
+    macros.append("")
+    macros += _work_macros(P_, f"{P}_predict", "PREDICT", fs["predict"], n + n * n)
+    macros += _work_macros(P_, f"{P}_update", "UPDATE", fs["update"], n + n * n)
+    return body, "\n".join(macros)
+
+
+def export_filter_c(kf: "NonlinearKalmanFilter", directory: str | Path, name: str | None = None) -> list[Path]:
+    """Write the filter as standalone C: ``NAME.c``, ``NAME.h``, ``NAME_example.c``, ``README.md``.
+
+    Parameters
+    ----------
+    kf : NonlinearKalmanFilter
+        A filter with one transform (EKF, second-order EKF, UKF, CKF, Gauss–Hermite), additive
+        or general noise, angle states and measurements; Q and R are fixed in the C.
+    directory : str or Path
+        Output directory (created if missing); the files are written atomically.
+    name : str, optional
+        The C prefix and file name: a C identifier (ASCII letter first, then letters, digits and
+        single underscores, at most 63 characters); default: the measurement model's name and
+        the filter family, e.g. ``range_bearing_ukf``.
+
+    Returns
+    -------
+    list of Path
+        The four files written.
+
+    Raises
+    ------
+    SymmonError
+        For an adaptive filter (no single step to export), or a ``name`` that is not such an
+        identifier.
+    OutputPathError
+        If ``directory`` exists and is not a directory.
+
+    Notes
+    -----
+    The exported step computes what :meth:`NonlinearKalmanFilter.filter` computes (the same
+    graphs; tests/filters/test_export.py checks x, P and the log-likelihood against it to 1e-9
+    relative on a target passing behind the sensor).  See docs/export.md.
+    """
+    from .nonlinear import NonlinearKalmanFilter
+
+    if not isinstance(kf, NonlinearKalmanFilter):
+        raise ArgumentTypeError(f"kf must be a symmon.NonlinearKalmanFilter, got {type(kf).__name__}")
+    transform = _transform(kf)
+    default = f"{c_identifier(kf.h_model.name, hashed=False)}_{_family(kf)}"
+    P = c_prefix(default if name is None else name, from_model=name is None)
+    outdir = check_output_dir(directory)
+    fs = filter_functions(kf, P)
+    outdir.mkdir(parents=True, exist_ok=True)
+    gen = ca.CodeGenerator(f"{P}.c", {"with_header": True})
+    for f in fs.values():
+        gen.add(f)
+    with tempfile.TemporaryDirectory() as tmp:
+        gen.generate(str(Path(tmp)) + "/")
+        c_src = (Path(tmp) / f"{P}.c").read_text()
+        h_src = (Path(tmp) / f"{P}.h").read_text()
+    digest = _model_hash(kf, transform)
+    comment, macros = _header(kf, P, fs, transform, digest)
+    closing = "#ifdef __cplusplus\n} /* extern \"C\" */\n#endif"
+    if closing not in h_src:  # pragma: no cover - depends on the CasADi version
+        raise SymmonError("unexpected CasADi header layout: cannot add the filter interface")
+    head, tail = h_src.rsplit(closing, 1)
+    guard = f"{P.upper()}_SYMMON_FILTER_H"
+    protos = (f"int {P}_predict(double *x, double *P);\n"
+              f"int {P}_update(double *x, double *P, const double *y, double *loglik);\n")
+    h_src = (comment + f"#ifndef {guard}\n#define {guard}\n\n" + macros + "\n\n" + head
+             + "/* The filter interface (symmon). */\n" + protos + closing + tail + f"#endif /* {guard} */\n")
+    fill = {"P": P, "P_": P.upper()}
+    c_src = (strict_c(c_src).rstrip("\n") + "\n\n#include <string.h>\n#include \"" + P + ".h\"\n"
+             + _C_FUNCTIONS.format(**fill))
+    example = _EXAMPLE.format(**fill)
+    readme = _readme(kf, P, fs, transform, digest)
+    return [atomic_write_text(outdir / f"{P}.c", c_src), atomic_write_text(outdir / f"{P}.h", h_src),
+            atomic_write_text(outdir / f"{P}_example.c", example), atomic_write_text(outdir / "README.md", readme)]
+
+
+def _readme(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> str:
+    f, h = kf.f_model, kf.h_model
+    n, n_y = f.n_u, h.n_y
+    sizes = {k: _sizes(fn) for k, fn in fs.items()}
+    # Doubles and long longs of 8 bytes, pointers of 8 (a 64-bit target).
+    stack = {k: 8 * (s["w"] + n + n * n) + 8 * s["iw"] + 8 * (s["arg"] + s["res"]) for k, s in sizes.items()}
+    # Plain text of user names: Markdown code spans, with backticks replaced.
+    def code(text: str) -> str:
+        return "`" + comment_text(str(text)).replace("`", "'") + "`"
+
+    return "\n".join([
+        f"# {P}: an exported {comment_text(kf.method)} filter",
+        "",
+        f"Generated by symmon {__version__} (`NonlinearKalmanFilter.export_c`).",
+        "",
+        f"- dynamics f: {code(f.name)}; measurement h: {code(h.name)}",
+        f"- state ({n}): " + ", ".join(code(s) for s in f.inputs),
+        f"- measurement ({n_y}): " + ", ".join(code(e) for e in h.outputs),
+        f"- transform: {code(transform.settings(n + f.n_v))}",
+        f"- model hash (sha256 of f, h, Q, R, the transform and the angles): `{digest}`",
+        "",
+        "## Interface (see the comment at the top of the header)",
+        "",
+        "```c",
+        f"int {P}_predict(double *x, double *P);                                  /* in place */",
+        f"int {P}_update(double *x, double *P, const double *y, double *loglik);  /* in place */",
+        "```",
+        "",
+        f"x has {P.upper()}_NX = {n} entries, P is {n} x {n} (symmetric), y has {P.upper()}_NY = {n_y}.",
+        "Return codes: " + "; ".join(f"{code(P.upper() + '_' + k)} = {c} ({what})"
+                                      for k, (c, what) in ERROR_CODES.items()) + ".",
+        "On an error x, P and *loglik are left unchanged.",
+        "",
+        "## Memory",
+        "",
+        "No allocation and no global mutable state; each call takes its work memory on the stack:",
+        f"about {stack['predict']} bytes for predict and {stack['update']} for update on a 64-bit target "
+        f"(the macros {P.upper()}_PREDICT_STACK_BYTES and {P.upper()}_UPDATE_STACK_BYTES give it for yours).",
+        "",
+        "## Build and check",
+        "",
+        "```sh",
+        f"cc -std=c99 -O2 -Wall -Wextra -pedantic -c {P}.c",
+        f"cc -std=c99 -O2 {P}.c {P}_example.c -lm -o {P}_example",
+        f"./{P}_example < measurements.txt",
+        "```",
+        "",
+        f"`{P}_example` reads x0 ({n} numbers), P0 ({n * n}, row-major) and then one measurement of",
+        f"{n_y} numbers per step from stdin, and prints per step `k code x P loglik`. Run it on a",
+        "recorded sequence and compare with `kf.filter` in symmon (docs/export.md).",
+        "",
+    ])
