@@ -90,9 +90,10 @@ def filter_functions(kf: "NonlinearKalmanFilter", name: str) -> dict[str, ca.Fun
     Returns
     -------
     dict
-        ``"predict"``: (x, P) ↦ (x⁻, P⁻, min pivot of chol P⁻); ``"update"``: (x⁻, P⁻, y) ↦
-        (x⁺, P⁺, log N(ν; 0, S), min pivot of chol S, min pivot of chol P⁺).  Q and R are the
-        filter's, fixed.  A pivot that is not > 0 (or NaN) means "not positive definite".
+        ``"predict"``: (x, P) ↦ (x⁻, P⁻, P⁻ positive definite); ``"update"``: (x⁻, P⁻, y) ↦
+        (x⁺, P⁺, log N(ν; 0, S), S positive definite, P⁺ positive definite).  Q and R are the
+        filter's, fixed.  "Positive definite" is 1 when every pivot of the matrix's Cholesky
+        factor is > 0, else 0.
     """
     transform = _transform(kf)
     f, h = kf.f_model, kf.h_model
@@ -103,14 +104,16 @@ def filter_functions(kf: "NonlinearKalmanFilter", name: str) -> dict[str, ca.Fun
     x_pred, P_pred = predict_graph(f, transform, kf.angle_states, x, P, Q, chol)
 
     def pivot(A):
-        return ca.mmin(ca.diag(chol(A)))
+        # 1 when every pivot of chol(A) is > 0, else 0: a comparison is false for NaN (a
+        # negative pivot), where fmin would skip the NaN.
+        return ca.mmin(ca.diag(chol(A)) > 0)
 
     predict = ca.Function(f"{name}_predict_step", [x, P], [ca.densify(x_pred), ca.densify(P_pred), pivot(P_pred)],
-                          ["x", "P"], ["x_pred", "P_pred", "pivot_P"])
+                          ["x", "P"], ["x_pred", "P_pred", "pd_P"])
     x_new, P_new, _, S, loglik = update_graph(h, transform, kf.angle_states, x, P, y, R, chol)
     update = ca.Function(f"{name}_update_step", [x, P, y],
                          [ca.densify(x_new), ca.densify(P_new), loglik, pivot(S), pivot(P_new)],
-                         ["x", "P", "y"], ["x_new", "P_new", "loglik", "pivot_S", "pivot_P"])
+                         ["x", "P", "y"], ["x_new", "P_new", "loglik", "pd_S", "pd_P"])
     return {"predict": predict, "update": update}
 
 
@@ -148,13 +151,13 @@ int {P}_predict(double *x, double *P) {{
   casadi_real *res[{P_}_PREDICT_SZ_RES];
   casadi_int iw[{P_}_PREDICT_SZ_IW];
   casadi_real w[{P_}_PREDICT_SZ_W];
-  casadi_real *x_new = w, *P_new = w + {P_}_NX, pivot = 0;
+  casadi_real *x_new = w, *P_new = w + {P_}_NX, pd = 0;
   casadi_real *work = w + {P_}_NX + {P_}_NX * {P_}_NX;
   if (!{P}_all_finite(x, {P_}_NX) || !{P}_all_finite(P, {P_}_NX * {P_}_NX)) return {P_}_ERR_STATE;
   arg[0] = x; arg[1] = P;
-  res[0] = x_new; res[1] = P_new; res[2] = &pivot;
+  res[0] = x_new; res[1] = P_new; res[2] = &pd;
   if ({P}_predict_step(arg, res, iw, work, 0)) return {P_}_ERR_EVAL;
-  if (!(pivot > 0) || !{P}_all_finite(x_new, {P_}_NX)) return {P_}_ERR_P;
+  if (!(pd > 0) || !{P}_all_finite(x_new, {P_}_NX)) return {P_}_ERR_P;
   memcpy(x, x_new, sizeof(double) * {P_}_NX);
   memcpy(P, P_new, sizeof(double) * {P_}_NX * {P_}_NX);
   return {P_}_OK;
@@ -165,15 +168,15 @@ int {P}_update(double *x, double *P, const double *y, double *loglik) {{
   casadi_real *res[{P_}_UPDATE_SZ_RES];
   casadi_int iw[{P_}_UPDATE_SZ_IW];
   casadi_real w[{P_}_UPDATE_SZ_W];
-  casadi_real *x_new = w, *P_new = w + {P_}_NX, ll = 0, pivot_S = 0, pivot_P = 0;
+  casadi_real *x_new = w, *P_new = w + {P_}_NX, ll = 0, pd_S = 0, pd_P = 0;
   casadi_real *work = w + {P_}_NX + {P_}_NX * {P_}_NX;
   if (!{P}_all_finite(x, {P_}_NX) || !{P}_all_finite(P, {P_}_NX * {P_}_NX)) return {P_}_ERR_STATE;
   if (!{P}_all_finite(y, {P_}_NY)) return {P_}_ERR_MEASUREMENT;
   arg[0] = x; arg[1] = P; arg[2] = y;
-  res[0] = x_new; res[1] = P_new; res[2] = &ll; res[3] = &pivot_S; res[4] = &pivot_P;
+  res[0] = x_new; res[1] = P_new; res[2] = &ll; res[3] = &pd_S; res[4] = &pd_P;
   if ({P}_update_step(arg, res, iw, work, 0)) return {P_}_ERR_EVAL;
-  if (!(pivot_S > 0) || !isfinite(ll)) return {P_}_ERR_S;
-  if (!(pivot_P > 0) || !{P}_all_finite(x_new, {P_}_NX)) return {P_}_ERR_P;
+  if (!(pd_S > 0) || !isfinite(ll)) return {P_}_ERR_S;
+  if (!(pd_P > 0) || !{P}_all_finite(x_new, {P_}_NX)) return {P_}_ERR_P;
   memcpy(x, x_new, sizeof(double) * {P_}_NX);
   memcpy(P, P_new, sizeof(double) * {P_}_NX * {P_}_NX);
   *loglik += ll;

@@ -32,6 +32,8 @@ C_RTOL = 1e-12
 
 GCC = shutil.which("gcc")
 needs_gcc = pytest.mark.skipif(GCC is None, reason="gcc not found")
+#: The warnings an embedded code base builds with.
+STRICT = ("-Wall", "-Wextra", "-Werror", "-pedantic")
 
 
 # --------------------------------------------------------------------------- models
@@ -282,8 +284,8 @@ def test_source_is_self_contained_and_compiles(tmp_path):
     for p in paths:
         text = p.read_text()
         assert "#include <casadi" not in text and '#include "casadi' not in text
-    # Only the C library: no include path, strict C99, object file only.
-    res = subprocess.run([GCC, "-O2", "-std=c99", "-c", str(paths[0]), "-o", str(tmp_path / "gmti.o")],
+    # Only the C library: no include path, strict C99 without a warning, object file only.
+    res = subprocess.run([GCC, "-O2", "-std=c99", *STRICT, "-c", str(paths[0]), "-o", str(tmp_path / "gmti.o")],
                          capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     # The header compiles on its own and declares the plain wrappers.
