@@ -246,10 +246,10 @@ def report(steps: list[dict], b: dict, load: tuple[str, str]) -> str:
     return "\n".join(lines)
 
 
-def write_section(path: Path, text: str) -> None:
-    """Replace this benchmark's section of ``path`` (or append it), leaving the others."""
+def write_section(path: Path, text: str, heading: str = HEADING) -> None:
+    """Replace the section ``heading`` of ``path`` (or append it), leaving the others."""
     old = path.read_text() if path.exists() else ""
-    pat = re.compile(rf"^{re.escape(HEADING)}\n.*?(?=^## |\Z)", re.S | re.M)
+    pat = re.compile(rf"^{re.escape(heading)}\n.*?(?=^## |\Z)", re.S | re.M)
     new = pat.sub(lambda _: text + "\n", old) if pat.search(old) else old.rstrip("\n") + "\n\n" + text + "\n"
     atomic_write_text(path, new)
 

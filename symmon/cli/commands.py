@@ -292,6 +292,22 @@ def cmd_codegen(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    """``symmon export``: one filter of a scenario file as standalone C (docs/export.md)."""
+    from ..files.filterfile import filter_transform, load_filter_file
+    from ..compile.cnames import c_identifier
+    from ..filters.nonlinear import NonlinearKalmanFilter
+    from ..io import check_output_dir
+
+    check_output_dir(args.out)
+    spec = load_filter_file(args.file)
+    kf = NonlinearKalmanFilter(spec.f, spec.h, spec.Q, spec.R, filter_transform(args.filter))
+    name = args.name or f"{c_identifier(spec.name, hashed=False)}_{args.filter}"
+    for p in kf.export_c(args.out, name):
+        print(f"wrote {p}")
+    return 0
+
+
 def cmd_filter(args: argparse.Namespace) -> int:
     """``symmon filter``: a bank of runs of each filter on a scenario; ANEES, ANIS, RMSE."""
     from ..files.filterfile import load_filter_file, run_bank, simulate

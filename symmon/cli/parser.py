@@ -86,6 +86,8 @@ _EXAMPLES = {
                   "symmon reproduce all --samples 100000"],
     "derive": ["symmon derive --all --out derivations.md", "symmon derive --list"],
     "codegen": ["symmon codegen examples/gmti.toml -o build/gmti"],
+    "export": ["symmon export examples/rb_close.toml --filter ukf --out build/rb_ukf",
+               "symmon export examples/rb_close.toml --filter ekf --out build/rb_ekf --name rb_ekf"],
     "filter": ["symmon filter examples/rb_close.toml --runs 500 --plot nees.png",
                "symmon filter examples/rb_close.toml --filters ekf,ukf,adaptive --tol 0.01 --json"],
     "advise": ["symmon advise examples/bot.toml --tol 0.001",
@@ -351,6 +353,16 @@ def _parser() -> argparse.ArgumentParser:
                     help="output directory (created if missing)")
     sp.add_argument("--name", default=None, help="C prefix and file name (default: the model's name)")
     sp.set_defaults(func=commands.cmd_codegen)
+
+    sp = add("export", "export a filter of a filter scenario file as standalone C99 for an embedded "
+             "target: NAME.c, NAME.h, an example program and a README (docs/export.md)")
+    sp.add_argument("file", help="TOML filter scenario (see symmon.files.filterfile)")
+    sp.add_argument("--filter", choices=sorted(FILTERS), default="ukf", help="the filter (default ukf)")
+    sp.add_argument("--out", type=_output_path, required=True, metavar="DIR",
+                    help="output directory (created if missing)")
+    sp.add_argument("--name", default=None,
+                    help="C prefix and file name, a C identifier (default: the measurement model's name and the filter)")
+    sp.set_defaults(func=commands.cmd_export)
 
     sp = add("filter", "Monte Carlo runs of nonlinear Kalman filters on a filter scenario file: "
              "NEES, NIS (with chi-square bounds) and RMSE")

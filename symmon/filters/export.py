@@ -303,9 +303,8 @@ def export_filter_c(kf: "NonlinearKalmanFilter", directory: str | Path, name: st
     graphs; tests/filters/test_export.py checks x, P and the log-likelihood against it to 1e-9
     relative on a target passing behind the sensor).  See docs/export.md.
     """
-    from .nonlinear import NonlinearKalmanFilter
-
-    if not isinstance(kf, NonlinearKalmanFilter):
+    # Checked by what the export reads, not by class: filters.nonlinear imports this module.
+    if not all(hasattr(kf, a) for a in ("f_model", "h_model", "Q", "R", "strategy", "angle_states")):
         raise ArgumentTypeError(f"kf must be a symmon.NonlinearKalmanFilter, got {type(kf).__name__}")
     transform = _transform(kf)
     default = f"{c_identifier(kf.h_model.name, hashed=False)}_{_family(kf)}"

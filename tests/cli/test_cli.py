@@ -32,7 +32,7 @@ CLI_API_RTOL = 1e-12
 CLI_API_ATOL = 1e-12
 #: Small Monte Carlo runs keep the tests fast; the comparison is exact, not statistical.
 MC_SAMPLES = 2000
-SUBCOMMANDS = ("propagate", "nonlinearity", "compare", "prove-invariance", "reproduce", "derive", "codegen")
+SUBCOMMANDS = ("propagate", "nonlinearity", "compare", "prove-invariance", "reproduce", "derive", "codegen", "export")
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
@@ -356,6 +356,26 @@ def test_codegen_writes_c(capsys, tmp_path):
     for fn in ("polar_g", "polar_tt2", "polar_ut"):
         assert fn in header
     assert f"wrote {outdir / 'polar.c'}" in out
+
+
+@pytest.mark.parametrize("name", [None, "rb_ekf"])
+def test_export_writes_a_filter(capsys, tmp_path, name):
+    outdir = tmp_path / "build" / "rb"                 # created if missing
+    code, out, _ = run(capsys, "export", EXAMPLES / "rb_close.toml", "--filter", "ekf", "--out", outdir,
+                       *(["--name", name] if name else []))
+    prefix = name or "rb_close_ekf"
+    assert code == 0
+    assert sorted(p.name for p in outdir.iterdir()) == sorted(
+        ["README.md", f"{prefix}.c", f"{prefix}.h", f"{prefix}_example.c"])
+    header = (outdir / f"{prefix}.h").read_text()
+    assert f"int {prefix}_update(double *x, double *P, const double *y, double *loglik);" in header
+    assert "EKF" in header and f"wrote {outdir / (prefix + '.c')}" in out
+
+
+def test_export_refuses_an_unknown_filter(capsys, tmp_path):
+    code, _, err = run(capsys, "export", EXAMPLES / "rb_close.toml", "--filter", "adaptive", "--out", tmp_path / "o")
+    assert code == 2 and "invalid choice: 'adaptive'" in err
+    assert not (tmp_path / "o").exists()
 
 
 @pytest.mark.parametrize(("weight", "verdict"), [("full", "holds"), ("diag", "holds"), ("liu-li-raw", "fails")])

@@ -283,3 +283,11 @@ def test_strict_c_casts_only_unused_parameters():
     assert out[4] == "double g(double x) { (void)x; return 1.0;}"
     assert out[5] == "int h(void) {"
     assert out[-1] == "  if (x) {"
+
+
+def test_export_needs_a_filter(tmp_path):
+    from symmon.errors import ArgumentTypeError
+    from symmon.filters.export import export_filter_c
+
+    with pytest.raises(ArgumentTypeError, match="NonlinearKalmanFilter"):
+        export_filter_c(sm.TT1(), tmp_path)
