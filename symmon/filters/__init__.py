@@ -1,6 +1,7 @@
 """Kalman filters: the linear filter (:mod:`.linear`) and the nonlinear family compiled to C
 (:mod:`.nonlinear`: EKF, second-order EKF, UKF, CKF, Gauss–Hermite), their compiled step
-(:mod:`.step`), results with NEES/NIS (:mod:`.results`), and the strategies that run the steps
+(:mod:`.step`), their RTS smoothers (:mod:`.smoother`), their export as standalone C
+(:mod:`.export`), results with NEES/NIS (:mod:`.results`), and the strategies that run the steps
 (:mod:`.strategy`: one rule, or :class:`Adaptive`, :mod:`.adaptive`)."""
 
 from .adaptive import Adaptive as Adaptive
@@ -9,8 +10,9 @@ from .nonlinear import NonlinearKalmanFilter as NonlinearKalmanFilter
 from .results import ConsistencyTest as ConsistencyTest
 from .results import KalmanResult as KalmanResult
 from .results import NonlinearKalmanResult as NonlinearKalmanResult
+from .results import SmootherResult as SmootherResult
 from .strategy import FilterStrategy as FilterStrategy
 from .strategy import RuleStrategy as RuleStrategy
 
-__all__ = ["KalmanFilter", "KalmanResult", "NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest",
+__all__ = ["KalmanFilter", "KalmanResult", "NonlinearKalmanFilter", "NonlinearKalmanResult", "SmootherResult", "ConsistencyTest",
            "Adaptive", "FilterStrategy", "RuleStrategy"]

@@ -64,7 +64,8 @@ from numpy.typing import ArrayLike
 
 from ..errors import ArgumentTypeError, ShapeError, SymmonError
 from ..core.checks import check_gaussian, check_model, noise_cov, readonly
-from .results import ConsistencyTest, KalmanResult, NonlinearKalmanResult, check_keep, real_measurements
+from .results import ConsistencyTest, KalmanResult, NonlinearKalmanResult, SmootherResult, check_keep, real_measurements
+from .smoother import compiled_smoother
 from .strategy import FilterStrategy, RuleStrategy
 from ..core.gaussian import Gaussian, as_covariance
 from ..core.model import Model
@@ -155,6 +156,50 @@ class NonlinearKalmanFilter:
     def method(self) -> str:
         """The filter's name: EKF, EKF2, UKF(...), CKF, GHKF(order=...) or Adaptive(...)."""
         return self.strategy.label()
+
+    def smooth(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None) -> SmootherResult:
+        """The RTS smoother of this filter: a forward pass, then the backward pass in C.
+
+        The smoother of the filter's family (:mod:`symmon.filters.smoother`): TT1 gives the
+        extended RTS smoother, TT2 the second-order one, a UT the unscented RTS smoother
+        (Särkkä 2008), Gauss–Hermite the Gauss–Hermite smoother; angle states are wrapped.
+
+        Parameters
+        ----------
+        ys, x0, P0
+            As for :meth:`filter`: one run (K, n_y) or a bank (R, K, n_y).
+
+        Returns
+        -------
+        SmootherResult
+            ``x`` (K, n) and ``P`` (K, n, n) smoothed ((R, K, ...) for a bank), and
+            ``filtered``, the forward pass (its x, P and log-likelihood).
+
+        Raises
+        ------
+        SymmonError
+            For an adaptive filter (it has no one transform to smooth with), or when the
+            backward pass produces NaN or inf (a predicted covariance that is singular),
+            naming the run and step; the errors of :meth:`filter`.
+        """
+        if not isinstance(self.strategy, RuleStrategy):
+            raise SymmonError(f"smooth needs one transform for every step; {self.method} chooses one per step")
+        fwd = self.filter(ys, x0, P0, keep=("x", "P"))
+        bank = fwd.runs is not None
+        X = fwd.x if bank else fwd.x[None]
+        P = fwd.P if bank else fwd.P[None]
+        smoother = compiled_smoother(self.f_model, self.strategy.transform, self.angle_states)
+        xs, Ps = smoother(X, P, self.Q)
+        bad = ~(np.isfinite(xs).all(axis=-1) & np.isfinite(Ps).all(axis=(-1, -2)))
+        if bad.any():
+            r, k = np.argwhere(bad)[-1]  # the backward pass runs from the end
+            where = f"step {k}" if not bank else f"run {r}, step {k}"
+            raise SymmonError(f"{self.method} smoother: NaN or inf at {where} (a predicted covariance is "
+                              "singular, or a derivative is undefined there)")
+        if not bank:
+            xs, Ps = xs[0], Ps[0]
+        xs.flags.writeable = Ps.flags.writeable = False
+        return SmootherResult(xs, Ps, fwd, angle_states=tuple(sorted(self.angle_states)), method=self.method)
 
     def export_c(self, directory: str | os.PathLike, name: str | None = None) -> list[Path]:
         """Write this filter as standalone C99 for an embedded target (docs/export.md).

@@ -27,7 +27,7 @@ from ..errors import ArgumentError, ShapeError, SingularMatrixError, SymmonError
 from ..core.checks import readonly
 from ..core.gaussian import Gaussian
 
-__all__ = ["KalmanResult", "NonlinearKalmanResult", "ConsistencyTest", "KEEPABLE", "check_keep", "real_measurements"]
+__all__ = ["KalmanResult", "NonlinearKalmanResult", "SmootherResult", "ConsistencyTest", "KEEPABLE", "check_keep", "real_measurements"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -94,6 +94,20 @@ def _quadratic_forms(e: np.ndarray, C: np.ndarray) -> np.ndarray:
     except np.linalg.LinAlgError:
         raise SingularMatrixError("a covariance of the result is singular (a state known exactly, or a "
                                   "variance that underflowed): its normalised error squared is undefined") from None
+
+
+def _nees(x: np.ndarray, P: np.ndarray, x_true: ArrayLike, angle_states: Sequence[int]) -> np.ndarray:
+    """(x_true − x)ᵀ P⁻¹ (x_true − x) per step, the angle components of the error wrapped."""
+    X = np.asarray(x_true, dtype=float)
+    if X.shape != x.shape:
+        raise ShapeError(f"x_true must have the shape of x, {x.shape}, got {X.shape}")
+    if not np.all(np.isfinite(X)):
+        raise ShapeError("x_true contains NaN or inf")
+    e = X - x
+    if angle_states:
+        idx = list(angle_states)
+        e[..., idx] = wrap_angle(e[..., idx])
+    return _quadratic_forms(e, P)
 
 
 def real_measurements(ys: ArrayLike) -> np.ndarray:
@@ -298,16 +312,7 @@ class KalmanResult:
         ndarray, shape (K,) or (R, K)
         """
         self._need("x", "P")
-        X = np.asarray(x_true, dtype=float)
-        if X.shape != self.x.shape:
-            raise ShapeError(f"x_true must have the shape of x, {self.x.shape}, got {X.shape}")
-        if not np.all(np.isfinite(X)):
-            raise ShapeError("x_true contains NaN or inf")
-        e = X - self.x
-        if self.angle_states:
-            idx = list(self.angle_states)
-            e[..., idx] = wrap_angle(e[..., idx])
-        return _quadratic_forms(e, self.P)
+        return _nees(self.x, self.P, x_true, self.angle_states)
 
     def nis(self) -> np.ndarray:
         """Normalised innovation squared ν_kᵀ S_k⁻¹ ν_k, shape (K,) or (R, K)."""
@@ -335,3 +340,68 @@ class KalmanResult:
 
 #: The nonlinear filters' name for the one result type.
 NonlinearKalmanResult = KalmanResult
+
+
+@dataclass(frozen=True, eq=False)
+class SmootherResult:
+    """The result of :meth:`NonlinearKalmanFilter.smooth <symmon.NonlinearKalmanFilter.smooth>`:
+    the smoothed means and covariances, and the filter's result they came from.
+
+    Attributes
+    ----------
+    x : ndarray, shape (K, n), or (R, K, n) for a bank
+        Smoothed means x̂_{k|K}.
+    P : ndarray, shape (K, n, n), or (R, K, n, n)
+        Smoothed covariances P_{k|K}.
+    filtered : KalmanResult
+        The forward pass (its x, P and log-likelihood).
+    angle_states : tuple of int
+    method : str
+        The filter, e.g. ``"UKF(alpha=1.0, beta=2.0, kappa=0.0)"``; the smoother is its RTS
+        smoother (extended, second-order, unscented, Gauss–Hermite).
+    """
+
+    x: np.ndarray
+    P: np.ndarray
+    filtered: KalmanResult
+    angle_states: tuple[int, ...] = ()
+    method: str = ""
+
+    @property
+    def runs(self) -> int | None:
+        """Number of runs of a bank; None for a single run."""
+        return int(self.x.shape[0]) if self.x.ndim == 3 else None
+
+    @property
+    def steps(self) -> int:
+        return int(self.x.shape[-2])
+
+    @property
+    def n(self) -> int:
+        return int(self.x.shape[-1])
+
+    @property
+    def log_likelihood(self) -> float | np.ndarray:
+        """The filter's marginal log-likelihood (the smoother does not change it)."""
+        return self.filtered.log_likelihood
+
+    def estimate(self, k: int, run: int | None = None) -> Gaussian:
+        """N(x̂_{k|K}, P_{k|K}) at step k (0-based), of run ``run`` for a bank."""
+        if (run is None) != (self.runs is None):
+            raise ShapeError("give run= for a bank of runs, and only then")
+        x = self.x if run is None else self.x[run]
+        P = self.P if run is None else self.P[run]
+        return Gaussian(x[k], P[k])
+
+    def nees(self, x_true: ArrayLike) -> np.ndarray:
+        """NEES of the smoothed estimates, (x_k − x̂_{k|K})ᵀ P_{k|K}⁻¹ (x_k − x̂_{k|K}),
+        shape (K,) or (R, K)."""
+        return _nees(self.x, self.P, x_true, self.angle_states)
+
+    def anees(self, x_true: ArrayLike, confidence: float = 0.95) -> ConsistencyTest:
+        """Average smoothed NEES with its χ² interval, averaged as :meth:`KalmanResult.anees`."""
+        return _consistency(self.nees(x_true), self.n, confidence)
+
+    def __repr__(self) -> str:
+        runs = "" if self.runs is None else f"runs={self.runs}, "
+        return f"SmootherResult({self.method}, {runs}steps={self.steps}, n={self.n})"

@@ -70,7 +70,8 @@ MX_FROM = 10
 MAX_SX_POINTS = 64
 
 
-def _sym(A):
+def sym(A):
+    """The symmetric part of A: (A + Aᵀ)/2, so that rounding leaves no asymmetry."""
     return 0.5 * (A + A.T)
 
 
@@ -91,7 +92,7 @@ def predict_graph(f: Model, transform: Transform, angle_states: frozenset[int], 
     else:
         mean, cov, _ = moments(compiled(f), x, P, transform, angle_states, chol)
         cov = cov + Q
-    return wrap_entries(mean, angle_states), _sym(cov)
+    return wrap_entries(mean, angle_states), sym(cov)
 
 
 def update_graph(h: Model, transform: Transform, angle_states: frozenset[int], x_pred, P_pred, y, R, chol):
@@ -105,11 +106,11 @@ def update_graph(h: Model, transform: Transform, angle_states: frozenset[int], x
     else:
         y_hat, S, cross = moments(compiled(h), x_pred, P_pred, transform, y_angles, chol)
         S = S + R
-    S = _sym(S)
+    S = sym(S)
     nu = wrap_entries(y - y_hat, y_angles)
     gain = ca.solve(S, cross).T  # K = P^{xy} S⁻¹, S symmetric
     x_new = wrap_entries(x_pred + ca.mtimes(gain, nu), angle_states)
-    P_new = _sym(P_pred - ca.mtimes(ca.mtimes(gain, S), gain.T))
+    P_new = sym(P_pred - ca.mtimes(ca.mtimes(gain, S), gain.T))
     # log N(ν; 0, S): log det S from the Cholesky factor, NaN when S is not positive definite.
     log_det = 2 * ca.sum1(ca.log(ca.diag(chol(S))))
     loglik = -0.5 * (ca.dot(nu, ca.solve(S, nu)) + log_det + n_y * math.log(2 * math.pi))
@@ -228,7 +229,7 @@ class _CompiledStep:
         # A kept output: its (runs, K, ...) block; one that is not: a slot (two for x and P)
         # per thread of the bank.
         per_step = [math.prod(s) for s in shapes.values()]
-        chunks = _chunks(runs, K)
+        chunks = chunk_runs(runs, K)
         blocks = {k: np.empty((runs, K) + s) if k in kept
                   else np.empty((len(chunks), 2 if k in ("x", "P") else 1) + s) for k, s in shapes.items()}
         strides = np.array([z if k in kept else 0 for k, z in zip(shapes, per_step)], dtype=np.int64)
@@ -292,7 +293,7 @@ class _CompiledStep:
 MIN_STEPS_PER_THREAD = 2000
 
 
-def _chunks(runs: int, K: int) -> list[tuple[int, int]]:
+def chunk_runs(runs: int, K: int) -> list[tuple[int, int]]:
     """The runs [a, b) of each thread: one per CPU, as long as each gets enough steps."""
     threads = max(1, min(os.cpu_count() or 1, runs, (runs * K) // MIN_STEPS_PER_THREAD))
     edges = np.linspace(0, runs, threads + 1).round().astype(int)

@@ -1,0 +1,192 @@
+"""The Rauch–Tung–Striebel smoother of the nonlinear Kalman filters, compiled to C.
+
+After the forward pass of a filter (:mod:`symmon.filters.step`) gives the filtered
+N(x_k, P_k), k = 1 … K, the backward pass of the Gaussian RTS smoother (Särkkä 2008, the
+unscented RTS smoother; Särkkä 2013, Algorithm 9.3 for any Gaussian filter) reads, from
+x^s_K = x_K, P^s_K = P_K down to k = 1:
+
+    x⁻_{k+1}, P⁻_{k+1}, C_{k+1} = the NLT of f at N(x_k, P_k) (plus Q),
+    C_{k+1} = Cov(x_k, x_{k+1}),  G_k = C_{k+1} (P⁻_{k+1})⁻¹,
+    x^s_k = x_k + G_k (x^s_{k+1} − x⁻_{k+1}),
+    P^s_k = P_k + G_k (P^s_{k+1} − P⁻_{k+1}) G_kᵀ.
+
+The transform of the filter computes the NLT, so the smoother is of the same family: TT1
+gives the extended RTS smoother (C = P Fᵀ with F the Jacobian of f), TT2 the second-order
+one, a UT the unscented RTS smoother, Gauss–Hermite the Gauss–Hermite smoother.  With
+general noise the NLT runs on [x; w] with blkdiag(P, Q) and C is its x block.  Angle
+states: the difference x^s_{k+1} − x⁻_{k+1} is wrapped, and x^s_k is wrapped.
+
+The backward step is one CasADi function of (x_k, P_k, x^s_{k+1}, P^s_{k+1}, Q), built
+from the same time-update graph as the filter step (it recomputes x⁻, P⁻ and C rather
+than storing C in the forward pass), and a C loop runs it over the steps and the runs of
+a bank; it goes through the same compile policy as the filter step.
+
+References
+----------
+S. Särkkä, "Unscented Rauch–Tung–Striebel smoother", IEEE Trans. Autom. Control 53(3),
+2008. doi:10.1109/TAC.2008.919531
+S. Särkkä, *Bayesian Filtering and Smoothing*, Cambridge University Press, 2013, ch. 8–9.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+import casadi as ca
+import numpy as np
+
+from ..codegen.symbolic import chol_lower, chol_node, moments, wrap_entries
+from ..compile import compiled
+from ..compile.ccache import NativeLibrary
+from ..compile.compiled import generated_c
+from ..core.model import Model
+from ..errors import SymmonError
+from ..transforms import Transform
+from .step import MAX_SX_POINTS, MX_FROM, chunk_runs, sym
+
+__all__ = ["compiled_smoother"]
+
+
+def _backward_function(f: Model, transform: Transform, angle_states: frozenset[int], name: str) -> ca.Function:
+    """(x_k, P_k, x^s_{k+1}, P^s_{k+1}, Q) ↦ (x^s_k, P^s_k): one backward step (module notes)."""
+    n, nq = f.n_u, f.n_v or f.n_u
+    dim = n + f.n_v
+    points = len(transform.unit_rule(dim)[0]) if transform.point_rule else 0
+    kind = ca.MX if dim >= MX_FROM or points > MAX_SX_POINTS else ca.SX
+    chol = chol_node if kind is ca.MX else chol_lower
+    x, P = kind.sym("x", n), kind.sym("P", n, n)
+    xs, Ps, Q = kind.sym("xs", n), kind.sym("Ps", n, n), kind.sym("Q", nq, nq)
+    if f.n_v:
+        mean, cov, cross = moments(compiled(f), ca.vertcat(x, kind.zeros(nq)), ca.diagcat(P, Q), transform,
+                                   angle_states, chol)
+        cross = cross[:, :n]
+    else:
+        mean, cov, cross = moments(compiled(f), x, P, transform, angle_states, chol)
+        cov = cov + Q
+    x_pred, P_pred = wrap_entries(mean, angle_states), sym(cov)
+    gain = ca.solve(P_pred, cross).T  # G = C P⁻⁻¹ with C = crossᵀ, P⁻ symmetric
+    x_s = wrap_entries(x + ca.mtimes(gain, wrap_entries(xs - x_pred, angle_states)), angle_states)
+    P_s = sym(P + ca.mtimes(ca.mtimes(gain, Ps - P_pred), gain.T))
+    return ca.Function(name, [x, P, xs, Ps, Q], [ca.densify(x_s), ca.densify(P_s)],
+                       ["x", "P", "xs", "Ps", "Q"], ["x_smooth", "P_smooth"],
+                       {"cse": True} if kind is ca.SX else {})
+
+
+# The backward loop: for each run, x^s_K = x_K, then K − 1 steps down to the first.
+_DRIVER = """
+/* symmon: the RTS backward pass of {name} over a bank: x (runs*K*n), P (runs*K*n*n) filtered;
+   xs, Ps smoothed, the same layout. */
+CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x, const casadi_real* P, const casadi_real* Q,
+    casadi_real* xs, casadi_real* Ps, casadi_int runs, casadi_int K, casadi_int* iw, casadi_real* w) {{
+  const casadi_real* arg[{sz_arg}];
+  casadi_real* res[{sz_res}];
+  casadi_int r, k, i;
+  for (r = 0; r < runs; ++r) {{
+    i = r * K + K - 1;
+    for (k = 0; k < {n}; ++k) xs[i * {n} + k] = x[i * {n} + k];
+    for (k = 0; k < {nn}; ++k) Ps[i * {nn} + k] = P[i * {nn} + k];
+    for (k = K - 2; k >= 0; --k) {{
+      i = r * K + k;
+      arg[0] = x + i * {n}; arg[1] = P + i * {nn}; arg[2] = xs + (i + 1) * {n};
+      arg[3] = Ps + (i + 1) * {nn}; arg[4] = Q;
+      res[0] = xs + i * {n}; res[1] = Ps + i * {nn};
+      if ({name}(arg, res, iw, w, 0)) return 1;
+    }}
+  }}
+  return 0;
+}}
+"""
+
+
+class _CompiledSmoother:
+    """The backward step of one (f, transform), as C with its loop or on CasADi's VM."""
+
+    def __init__(self, f: Model, transform: Transform, angle_states: frozenset[int]) -> None:
+        key = repr((f.outputs, f.inputs, f.noise, transform, sorted(angle_states)))
+        name = "sm_rts_" + hashlib.sha1(key.encode()).hexdigest()[:12]
+        self.f = fn = _backward_function(f, transform, angle_states, name)
+        self.n = f.n_u
+        code = generated_c(fn) + _DRIVER.format(name=name, sz_arg=max(fn.sz_arg(), 5), sz_res=max(fn.sz_res(), 2),
+                                                n=self.n, nn=self.n * self.n)
+        self._lib = NativeLibrary(code, name, self._load, stacklevel=4)
+        self._local = threading.local()
+
+    def _load(self, so):
+        run = getattr(ctypes.CDLL(str(so)), f"{self.f.name()}_run")
+        run.argtypes = [ctypes.c_void_p] * 5 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2
+        run.restype = ctypes.c_int
+        return run
+
+    @property
+    def evaluator(self) -> str:
+        """``"compiled"``, ``"vm"`` or ``"vm (C build running)"`` (docs/compile.md)."""
+        return self._lib.evaluator
+
+    def _workspace(self) -> tuple[int, int]:
+        ws = getattr(self._local, "ws", None)
+        if ws is None:
+            ws = self._local.ws = (np.zeros(max(self.f.sz_iw(), 1), dtype=np.int64), np.zeros(max(self.f.sz_w(), 1)))
+        return ws[0].ctypes.data, ws[1].ctypes.data
+
+    def __call__(self, x: np.ndarray, P: np.ndarray, Q: np.ndarray, use_c: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """Smooth the filtered x (runs, K, n), P (runs, K, n, n); returns (x^s, P^s) alike."""
+        runs, K = x.shape[:2]
+        x = np.ascontiguousarray(x, dtype=float)
+        P = np.ascontiguousarray(P, dtype=float)
+        Q = np.ascontiguousarray(Q, dtype=float)
+        xs, Ps = np.empty_like(x), np.empty_like(P)
+        run = self._lib.get() if use_c else None
+        if run is None:
+            return self._vm(x, P, Q, xs, Ps)
+
+        def part(c: tuple[int, int]) -> int:
+            a, b = c
+            iw, w = self._workspace()
+            # ctypes releases the GIL for the call: the chunks run in parallel.
+            return run(x[a].ctypes.data, P[a].ctypes.data, Q.ctypes.data, xs[a].ctypes.data, Ps[a].ctypes.data,
+                       b - a, K, iw, w)
+
+        chunks = chunk_runs(runs, K)
+        if len(chunks) == 1:
+            errs = [part(chunks[0])]
+        else:
+            with ThreadPoolExecutor(len(chunks)) as pool:
+                errs = list(pool.map(part, chunks))
+        if any(errs):
+            raise SymmonError(f"the compiled smoother step {self.f.name()} returned an error")
+        return xs, Ps
+
+    def _vm(self, x, P, Q, xs, Ps):
+        """The backward pass on CasADi's VM: one mapped call per step over the runs."""
+        runs, K = x.shape[:2]
+        fm = self.f.map(runs, "serial") if runs > 1 else self.f
+        fb, ev = fm.buffer()
+        Qb = np.ascontiguousarray(np.broadcast_to(Q, (runs,) + Q.shape))
+        xs[:, -1], Ps[:, -1] = x[:, -1], P[:, -1]
+        out_x, out_P = np.empty((runs, self.n)), np.empty((runs, self.n, self.n))
+        for k in range(K - 2, -1, -1):
+            args = [np.ascontiguousarray(a) for a in (x[:, k], P[:, k], xs[:, k + 1], Ps[:, k + 1])] + [Qb]
+            for i, a in enumerate(args):
+                fb.set_arg(i, memoryview(a))
+            fb.set_res(0, memoryview(out_x))
+            fb.set_res(1, memoryview(out_P))
+            ev()
+            xs[:, k], Ps[:, k] = out_x, out_P
+        return xs, Ps
+
+
+_smoothers: dict[tuple, _CompiledSmoother] = {}
+_lock = threading.Lock()
+
+
+def compiled_smoother(f: Model, transform: Transform, angle_states: frozenset[int]) -> _CompiledSmoother:
+    """The compiled backward step of (f, transform), built once per process (C cached on disk)."""
+    key = (f, transform, angle_states)
+    with _lock:
+        s = _smoothers.get(key)
+        if s is None:
+            s = _smoothers[key] = _CompiledSmoother(f, transform, angle_states)
+        return s
