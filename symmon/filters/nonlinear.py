@@ -250,7 +250,12 @@ class NonlinearKalmanFilter:
         ----------
         ys : array_like, shape (K, n_y) or (R, K, n_y)
             Measurements y_1 … y_K; a leading axis filters R independent runs (a bank) in
-            one compiled call.
+            one compiled call.  NaN means "not measured": a row of NaN skips the update
+            (the step only predicts, FilterPy's ``update(None)``), a row with some NaN
+            updates on the measured components (angles still wrapped, S and the gain on the
+            measured block).  For a missing component the result's innovation is 0 and S has
+            a unit diagonal entry (no correlation), so NIS is that of the measured block, and
+            :attr:`KalmanResult.measured` counts the measured components per step.
         x0 : Gaussian, or array_like of shape (n,) or (R, n)
             The state x_0 before the first prediction: a Gaussian, or its mean (one for all
             runs, or one per run) with ``P0``.
@@ -270,7 +275,7 @@ class NonlinearKalmanFilter:
         Raises
         ------
         ShapeError
-            Bad shapes or non-finite data.
+            Bad shapes, or an infinite measurement.
         SymmonError
             The filter produced NaN or inf (a singular S, or a covariance that lost
             positive definiteness), naming the run and step.
@@ -279,8 +284,9 @@ class NonlinearKalmanFilter:
         Y = real_measurements(ys)
         if Y.ndim not in (2, 3) or Y.shape[-1] != n_y or Y.shape[-2] == 0 or Y.shape[0] == 0:
             raise ShapeError(f"ys must have shape (K, {n_y}) or (R, K, {n_y}) with K >= 1, got {Y.shape}")
-        if not np.all(np.isfinite(Y)):
-            raise ShapeError("ys contains NaN or inf")
+        if np.isinf(Y).any():
+            where = tuple(int(i) for i in np.argwhere(np.isinf(Y))[0])
+            raise ShapeError(f"ys contains inf (at index {where}); a missing measurement is NaN")
         runs = Y.shape[0] if Y.ndim == 3 else None
         kept = check_keep(keep)
         m0, C0 = self._initial(x0, P0, runs)
@@ -307,5 +313,8 @@ class NonlinearKalmanFilter:
         if choices is not None:
             choices = choices if runs is not None else choices[0]
             choices.flags.writeable = False
-        return KalmanResult(**arrays, angle_states=tuple(sorted(self.angle_states)),
+        measured = None
+        if np.isnan(Y).any():
+            measured = readonly((~np.isnan(Y)).sum(axis=-1))
+        return KalmanResult(**arrays, measured=measured, angle_states=tuple(sorted(self.angle_states)),
                                      method=self.method, choices=choices)

@@ -43,17 +43,18 @@ class ConsistencyTest:
     value : ndarray
         The average: shape (K,) over the runs of a bank at each step; shape () over the
         K steps of a single run.
-    lower, upper : float
-        The bounds of the interval.
-    dof : int
-        N·d.
+    lower, upper : float, or ndarray of shape (K,)
+        The bounds of the interval (per step when the dimension varies: missing
+        measurements in a bank).
+    dof : int, or ndarray of shape (K,)
+        N·d, or the sum of the averaged terms' dimensions.
     confidence : float
     """
 
     value: np.ndarray
-    lower: float
-    upper: float
-    dof: int
+    lower: float | np.ndarray
+    upper: float | np.ndarray
+    dof: int | np.ndarray
     confidence: float
 
     @property
@@ -65,19 +66,38 @@ class ConsistencyTest:
         frac = float(np.mean(self.inside))
         v = np.asarray(self.value)
         shown = f"{float(v):.4g}" if v.ndim == 0 else f"mean {float(v.mean()):.4g} over {v.size} steps"
-        return (f"ConsistencyTest({shown}, {self.confidence:.0%} interval [{self.lower:.4g}, "
-                f"{self.upper:.4g}], dof {self.dof}, {frac:.0%} inside)")
+        if np.ndim(self.lower) == 0:
+            interval = f"[{self.lower:.4g}, {self.upper:.4g}], dof {self.dof}"
+        else:
+            interval = f"per step, [{float(np.min(self.lower)):.4g}, {float(np.max(self.upper)):.4g}] at widest"
+        return f"ConsistencyTest({shown}, {self.confidence:.0%} interval {interval}, {frac:.0%} inside)"
 
 
-def _consistency(stat: np.ndarray, d: int, confidence: float) -> ConsistencyTest:
-    """Average ``stat`` (K,) over K steps or (R, K) over the R runs; χ² bounds (§5.4.2)."""
+def _consistency(stat: np.ndarray, d: int | np.ndarray, confidence: float) -> ConsistencyTest:
+    """Average ``stat`` (K,) over K steps or (R, K) over the R runs; χ² bounds (§5.4.2).
+
+    ``d`` is the dimension of each term, or an array of the shape of ``stat`` when it varies
+    (missing measurements): the degrees of freedom are then the sum of the averaged terms'
+    dimensions, and a step with none measured (0 degrees of freedom) is left out."""
     if not 0.0 < confidence < 1.0:
         raise SymmonError(f"confidence must lie in (0, 1), got {confidence!r}")
-    value = stat.mean(axis=0)
     N = stat.shape[0]
-    dof = N * d
-    lo, hi = stats.chi2.ppf([(1 - confidence) / 2, (1 + confidence) / 2], dof) / N
-    return ConsistencyTest(readonly(value), float(lo), float(hi), int(dof), float(confidence))
+    if np.ndim(d) == 0:
+        value = stat.mean(axis=0)
+        dof = N * int(d)
+        lo, hi = stats.chi2.ppf([(1 - confidence) / 2, (1 + confidence) / 2], dof) / N
+        return ConsistencyTest(readonly(value), float(lo), float(hi), int(dof), float(confidence))
+    d = np.asarray(d)
+    if stat.ndim == 1:  # one run: drop the steps with nothing measured
+        stat, d, N = stat[d > 0], d[d > 0], int(np.count_nonzero(d))
+    value = stat.mean(axis=0)
+    dof = d.sum(axis=0)
+    if np.any(dof == 0):
+        raise SymmonError("a step has no measured component in any run: its NIS has no degrees of freedom")
+    lo, hi = (stats.chi2.ppf(q, dof) / N for q in ((1 - confidence) / 2, (1 + confidence) / 2))
+    if np.ndim(dof) == 0:
+        return ConsistencyTest(readonly(value), float(lo), float(hi), int(dof), float(confidence))
+    return ConsistencyTest(readonly(value), readonly(lo), readonly(hi), readonly(dof), float(confidence))
 
 
 def _quadratic_forms(e: np.ndarray, C: np.ndarray) -> np.ndarray:
@@ -190,6 +210,9 @@ class KalmanResult:
     choices : ndarray of str, shape (K,) or (R, K), or None
         For an :class:`Adaptive` filter: the filter used at each step (of each run), e.g.
         ``"EKF"`` or ``"CKF"``; None for a fixed transform.
+    measured : ndarray of int, shape (K,) or (R, K), or None
+        With missing measurements (NaN in ``ys``): how many components were measured at
+        each step (the degrees of freedom of its NIS); None when all were.
     """
 
     x: np.ndarray | None = None
@@ -203,6 +226,7 @@ class KalmanResult:
     angle_states: tuple[int, ...] = ()
     method: str = ""
     choices: np.ndarray | None = None
+    measured: np.ndarray | None = None
 
     def _need(self, *names: str) -> None:
         missing = [k for k in names if getattr(self, k) is None]
@@ -327,7 +351,8 @@ class KalmanResult:
     def anis(self, confidence: float = 0.95) -> ConsistencyTest:
         """Average NIS with its χ² interval, averaged as :meth:`anees`."""
         nis = self.nis()
-        return _consistency(nis, self.innovation.shape[-1], confidence)
+        d = self.innovation.shape[-1] if self.measured is None else self.measured
+        return _consistency(nis, d, confidence)
 
     def __repr__(self) -> str:
         runs = "" if self.runs is None else f"runs={self.runs}, "

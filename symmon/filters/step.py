@@ -95,8 +95,19 @@ def predict_graph(f: Model, transform: Transform, angle_states: frozenset[int], 
     return wrap_entries(mean, angle_states), sym(cov)
 
 
-def update_graph(h: Model, transform: Transform, angle_states: frozenset[int], x_pred, P_pred, y, R, chol):
-    """The measurement update, Lemma 7.1 on the NLT of h at N(x⁻, P⁻): (x⁺, P⁺, ν, S, log N(ν; 0, S))."""
+def update_graph(h: Model, transform: Transform, angle_states: frozenset[int], x_pred, P_pred, y, R, chol,
+                 mask=None):
+    """The measurement update, Lemma 7.1 on the NLT of h at N(x⁻, P⁻): (x⁺, P⁺, ν, S, log N(ν; 0, S)).
+
+    ``mask`` (n_y, 1 for a measured component and 0 for a missing one; None: all measured)
+    restricts the update to the measured block: with D = diag(mask), ν̃ = D ν,
+    S̃ = D S D + (I − D) and P̃^{xy} = P^{xy} D (Cov(y, x) with zero rows), the gain P̃^{xy} S̃⁻¹ has zero columns for the
+    missing components and is the gain of the measured block elsewhere, so x⁺ and P⁺ are
+    those of the update on the measured components only, and log N(ν̃; 0, S̃) (with the 2π
+    term counted for the measured ones) their log-likelihood; nothing measured is a pure
+    prediction with log-likelihood 0.  A missing component must be finite in ``y`` (the
+    caller writes 0), so that no NaN enters the products.
+    """
     kind, n, n_y = type(x_pred), x_pred.shape[0], h.n_y
     y_angles = frozenset(h.angle_outputs)
     if h.n_v:
@@ -108,27 +119,35 @@ def update_graph(h: Model, transform: Transform, angle_states: frozenset[int], x
         S = S + R
     S = sym(S)
     nu = wrap_entries(y - y_hat, y_angles)
+    measured = n_y
+    if mask is not None:
+        D = ca.diag(mask)
+        nu = mask * nu
+        S = ca.mtimes(ca.mtimes(D, S), D) + ca.diag(1 - mask)
+        cross = ca.mtimes(D, cross)  # Cov(y, x) is n_y × n: rows of the missing components zero
+        measured = ca.sum1(mask)
     gain = ca.solve(S, cross).T  # K = P^{xy} S⁻¹, S symmetric
     x_new = wrap_entries(x_pred + ca.mtimes(gain, nu), angle_states)
     P_new = sym(P_pred - ca.mtimes(ca.mtimes(gain, S), gain.T))
     # log N(ν; 0, S): log det S from the Cholesky factor, NaN when S is not positive definite.
     log_det = 2 * ca.sum1(ca.log(ca.diag(chol(S))))
-    loglik = -0.5 * (ca.dot(nu, ca.solve(S, nu)) + log_det + n_y * math.log(2 * math.pi))
+    loglik = -0.5 * (ca.dot(nu, ca.solve(S, nu)) + log_det + measured * math.log(2 * math.pi))
     return x_new, P_new, nu, S, loglik
 
 
 def _step_function(f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
                    name: str) -> ca.Function:
-    """(x, P, y, Q, R) ↦ (x⁺, P⁺, x⁻, P⁻, ν, S, log-likelihood): one predict + update step."""
+    """(x, P, y, Q, R, mask) ↦ (x⁺, P⁺, x⁻, P⁻, ν, S, log-likelihood): one predict + update
+    step, on the measured components of y (``mask``, :func:`update_graph`)."""
     n, n_y = f.n_u, h.n_y
     nq, nr = f.n_v or n, h.n_v or n_y
     kind, chol = step_kind(f, h, transform)
     x, P, y = kind.sym("x", n), kind.sym("P", n, n), kind.sym("y", n_y)
-    Q, R = kind.sym("Q", nq, nq), kind.sym("R", nr, nr)
+    Q, R, mask = kind.sym("Q", nq, nq), kind.sym("R", nr, nr), kind.sym("mask", n_y)
     x_pred, P_pred = predict_graph(f, transform, angle_states, x, P, Q, chol)
-    x_new, P_new, nu, S, loglik = update_graph(h, transform, angle_states, x_pred, P_pred, y, R, chol)
+    x_new, P_new, nu, S, loglik = update_graph(h, transform, angle_states, x_pred, P_pred, y, R, chol, mask)
     outs = [ca.densify(a) for a in (x_new, P_new, x_pred, P_pred, nu, S, loglik)]
-    return ca.Function(name, [x, P, y, Q, R], outs, ["x", "P", "y", "Q", "R"],
+    return ca.Function(name, [x, P, y, Q, R, mask], outs, ["x", "P", "y", "Q", "R", "mask"],
                        ["x_new", "P_new", "x_pred", "P_pred", "innovation", "S", "loglik"],
                        {"cse": True} if kind is ca.SX else {})
 
@@ -141,8 +160,8 @@ _DRIVER = """
    slot (x and P to two, alternately, so that a step never writes what it reads). */
 CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
     const casadi_real* P0, casadi_int P0_step, const casadi_real* y,
-    const casadi_real* Q, const casadi_real* R, casadi_real* const* outs, const casadi_int* strides,
-    casadi_int runs, casadi_int K, casadi_int* iw, casadi_real* w) {{
+    const casadi_real* Q, const casadi_real* R, const casadi_real* mask, casadi_real* const* outs,
+    const casadi_int* strides, casadi_int runs, casadi_int K, casadi_int* iw, casadi_real* w) {{
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
   casadi_int r, k, i, j;
@@ -151,7 +170,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
     const casadi_real* P = P0 + r * P0_step;
     for (k = 0; k < K; ++k) {{
       i = r * K + k;
-      arg[0] = x; arg[1] = P; arg[2] = y + i * {n_y}; arg[3] = Q; arg[4] = R;
+      arg[0] = x; arg[1] = P; arg[2] = y + i * {n_y}; arg[3] = Q; arg[4] = R; arg[5] = mask + i * {n_y};
       for (j = 0; j < 7; ++j) res[j] = outs[j] + i * strides[j];
       if (!strides[0]) res[0] = outs[0] + (k & 1) * {n};
       if (!strides[1]) res[1] = outs[1] + (k & 1) * {nn};
@@ -181,7 +200,7 @@ class _CompiledStep:
         # Without a compiler, compiled() has already warned (once) while the step was built.
         f = self.f
         code = generated_c(f) + _DRIVER.format(
-            name=name, sz_arg=max(f.sz_arg(), 5), sz_res=max(f.sz_res(), 7),
+            name=name, sz_arg=max(f.sz_arg(), 6), sz_res=max(f.sz_res(), 7),
             n=self.n, nn=self.n * self.n, n_y=self.n_y, nyy=self.n_y * self.n_y,
         )
         self._lib = NativeLibrary(code, name, self._load, stacklevel=4)
@@ -190,7 +209,7 @@ class _CompiledStep:
     def _load(self, so):
         run = getattr(ctypes.CDLL(str(so)), f"{self.f.name()}_run")
         run.argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_longlong]
-                        + [ctypes.c_void_p] * 5 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2)
+                        + [ctypes.c_void_p] * 6 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2)
         run.restype = ctypes.c_int
         return run
 
@@ -217,14 +236,19 @@ class _CompiledStep:
 
         Returns the outputs of every step, (runs, K, ...) each, or only those named in
         ``keep`` (the others are written to a slot of one step, so a bank of long runs of a
-        large state need not hold its P⁻, say)."""
+        large state need not hold its P⁻, say).  A NaN in Y is a missing measurement: the
+        step updates on the measured components (:func:`update_graph`)."""
         runs, K = Y.shape[:2]
         n = self.n
         shapes = self._shapes
         kept = set(shapes) if keep is None else set(keep)
+        Y = np.asarray(Y, dtype=float)
+        measured = ~np.isnan(Y)
+        mask = np.ascontiguousarray(measured, dtype=float)
+        Y = np.ascontiguousarray(np.where(measured, Y, 0.0))
         run = self._lib.get() if use_c else None
         if run is None:
-            full = self._vm(x0, P0, np.ascontiguousarray(Y, dtype=float), Q, R)
+            full = self._vm(x0, P0, Y, Q, R, mask)
             return {k: v for k, v in full.items() if k in kept}
         # A kept output: its (runs, K, ...) block; one that is not: a slot (two for x and P)
         # per thread of the bank.
@@ -235,7 +259,6 @@ class _CompiledStep:
         strides = np.array([z if k in kept else 0 for k, z in zip(shapes, per_step)], dtype=np.int64)
         # CasADi is column-major: the symmetric P, Q, R, S need no transposition, and a C
         # row (runs, n) is a column-major (n, runs).
-        Y = np.ascontiguousarray(Y, dtype=float)
         x0 = np.ascontiguousarray(x0, dtype=float)
         P0 = np.ascontiguousarray(P0, dtype=float)
         Q, R = np.ascontiguousarray(Q, dtype=float), np.ascontiguousarray(R, dtype=float)
@@ -249,7 +272,8 @@ class _CompiledStep:
             iw, w = self._workspace()  # one per thread
             # ctypes releases the GIL for the call: the chunks run in parallel.
             return run(x0.ctypes.data + 8 * a * x_step, x_step, P0.ctypes.data + 8 * a * P_step, P_step,
-                       Y[a].ctypes.data, Q.ctypes.data, R.ctypes.data, outs, strides.ctypes.data, b - a, K, iw, w)
+                       Y[a].ctypes.data, Q.ctypes.data, R.ctypes.data, mask[a].ctypes.data, outs,
+                       strides.ctypes.data, b - a, K, iw, w)
 
         if len(chunks) == 1:
             errs = [part(0)]
@@ -260,7 +284,7 @@ class _CompiledStep:
             raise SymmonError(f"the compiled filter step {self.f.name()} returned an error")
         return {k: b for k, b in blocks.items() if k in kept}
 
-    def _vm(self, x0, P0, Y: np.ndarray, Q, R) -> dict[str, np.ndarray]:
+    def _vm(self, x0, P0, Y: np.ndarray, Q, R, mask: np.ndarray) -> dict[str, np.ndarray]:
         """Every output of every step on CasADi's VM: one mapped call per step over the runs."""
         runs, K = Y.shape[:2]
         n = self.n
@@ -277,8 +301,8 @@ class _CompiledStep:
         Rb = np.ascontiguousarray(np.broadcast_to(R, (runs,) + R.shape))
         step = {k: np.empty((runs,) + s) for k, s in shapes.items()}
         for k in range(K):
-            yk = np.ascontiguousarray(Y[:, k])
-            for i, a in enumerate((x, P, yk, Qb, Rb)):
+            yk, mk = np.ascontiguousarray(Y[:, k]), np.ascontiguousarray(mask[:, k])
+            for i, a in enumerate((x, P, yk, Qb, Rb, mk)):
                 fb.set_arg(i, memoryview(a))
             for i, name in enumerate(_OUTPUTS):
                 fb.set_res(i, memoryview(step[name]))

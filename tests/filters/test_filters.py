@@ -639,7 +639,8 @@ def test_the_mx_step_equals_the_sx_step(transform, monkeypatch):
     monkeypatch.setattr(step, "MAX_SX_POINTS", 10**6)
     sx = step._step_function(f, h, transform, states, "mxstep_sx")
     assert isinstance(mx.mx_in(0), ca.MX) and mx.is_a("MXFunction") and sx.is_a("SXFunction")
-    for a, b in zip(mx(x, P, y, Q, R), sx(x, P, y, Q, R)):
+    ones = np.ones(len(y))
+    for a, b in zip(mx(x, P, y, Q, R, ones), sx(x, P, y, Q, R, ones)):
         a, b = a.full(), b.full()
         assert np.max(np.abs(a - b)) <= 1e-12 * max(1.0, np.max(np.abs(b)))
 
@@ -744,7 +745,7 @@ def test_a_bank_split_over_threads_equals_one_call(bank, keep, monkeypatch):
     one = kf.filter(ys, X0, keep=keep)
     monkeypatch.setattr(step, "MIN_STEPS_PER_THREAD", 1)
     monkeypatch.setattr(step.os, "cpu_count", lambda: 4)
-    assert len(step._chunks(6, 25)) == 4
+    assert len(step.chunk_runs(6, 25)) == 4
     split = kf.filter(ys, X0, keep=keep)
     for k in ("x", "P", "loglik"):
         a, b = getattr(one, k), getattr(split, k)

@@ -1,4 +1,4 @@
-"""Make tests/reference/filterpy_rts.json: FilterPy's RTS smoothers on two recorded tracks.
+"""Make tests/reference/filterpy_rts.json: FilterPy's RTS smoothers and missing measurements.
 
     pip install ".[bench]"   # FilterPy
     python tests/reference/make_smoother_reference.py
@@ -11,6 +11,8 @@ same data (tests/filters/test_smoother.py):
   angle-aware measurement mean and residual) and its ``rts_smoother``; and FilterPy's linear
   ``KalmanFilter.rts_smoother`` run on the EKF's filtered output (the dynamics are linear, so
   the extended RTS smoother is that smoother).
+- ``missing``: the ``cv`` track with four rows not measured, FilterPy's UKF with
+  ``update(None)`` on them.
 - ``heading``: a target with a heading state through ±π and additive noise, seen in range and
   bearing; the UKF and its ``rts_smoother`` with angle-aware state mean and residual.
 """
@@ -131,11 +133,31 @@ def heading() -> dict:
             "ukf_filtered_x": Xs.tolist(), "ukf_x": xs.tolist(), "ukf_P": Ps_s.tolist()}
 
 
+#: Steps of the ``cv`` track whose measurement is missing (FilterPy: ``update(None)``).
+MISSING = [4, 5, 17, 30]
+
+
+def missing() -> dict:
+    """The ``cv`` track with rows :data:`MISSING` not measured: FilterPy's UKF with ``update(None)``."""
+    d = cv()
+    F, Q, R = np.array(d["F"]), np.array(d["Q"]), np.array(d["R"])
+    ukf = UnscentedKalmanFilter(4, 2, 1.0, hx, lambda s, dt: F @ s, MerweScaledSigmaPoints(4, 1.0, 2.0, 0.0),
+                                z_mean_fn=z_mean, residual_z=residual_z)
+    ukf.x, ukf.P, ukf.Q, ukf.R = np.array(d["x0"]), np.array(d["P0"]), Q, R
+    xs, Ps = [], []
+    for k, y in enumerate(d["ys"]):
+        ukf.predict()
+        ukf.update(None if k in MISSING else np.array(y))
+        xs.append(ukf.x.copy())
+        Ps.append(ukf.P.copy())
+    return {"rows": MISSING, "ukf_x": np.array(xs).tolist(), "ukf_P": np.array(Ps).tolist()}
+
+
 def main() -> None:
     import filterpy
 
     doc = {"made_by": "tests/reference/make_smoother_reference.py", "filterpy": filterpy.__version__,
-           "cv": cv(), "heading": heading()}
+           "cv": cv(), "heading": heading(), "missing": missing()}
     OUT.write_text(json.dumps(doc, indent=1) + "\n")
     print(f"wrote {OUT}")
 

@@ -1,0 +1,142 @@
+"""Missing measurements (NaN in ys) in the nonlinear filters.
+
+A row of NaN is a step without an update (FilterPy's ``update(None)``: stored reference in
+tests/reference/filterpy_rts.json, made by tests/reference/make_smoother_reference.py); a
+row with some NaN updates on the measured components, which must equal a filter whose h has
+only those components. The same sums in another order: rounding only, 1e-9 relative.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import symmon as sm
+from symmon.errors import ShapeError
+from helpers import REFERENCE_DIR
+
+REF = json.loads((REFERENCE_DIR / "filterpy_rts.json").read_text())
+RTOL = 1e-9
+X = sp.symbols("px py vx vy", real=True)
+
+
+def close(a, b):
+    b = np.asarray(b)
+    np.testing.assert_allclose(a, b, rtol=RTOL, atol=RTOL * np.abs(b).max())
+
+
+def cv_filter(transform, outputs=(0, 1)):
+    d = REF["cv"]
+    px, py = X[:2]
+    h_all = [sp.sqrt(px**2 + py**2), sp.atan2(py, px)]
+    h = sm.Model(X, [h_all[i] for i in outputs], angles=[j for j, i in enumerate(outputs) if i == 1],
+                 name=f"rb{''.join(map(str, outputs))}")
+    f = sm.Model(X, list(sp.Matrix(d["F"]) * sp.Matrix(X)), name="cv")
+    R = np.array(d["R"])[np.ix_(outputs, outputs)]
+    return sm.NonlinearKalmanFilter(f, h, d["Q"], R, transform), d
+
+
+def with_missing(rows, cols=(0, 1)):
+    ys = np.array(REF["cv"]["ys"])
+    for k in rows:
+        ys[k, list(cols)] = np.nan
+    return ys
+
+
+def test_rows_without_a_measurement_equal_filterpy_update_none():
+    kf, d = cv_filter(sm.UT(1.0, 2.0, 0.0))
+    rows = REF["missing"]["rows"]
+    res = kf.filter(with_missing(rows), d["x0"], d["P0"])
+    close(res.x, REF["missing"]["ukf_x"])
+    close(res.P, REF["missing"]["ukf_P"])
+    for k in rows:  # a pure prediction, with a zero log-likelihood term
+        np.testing.assert_array_equal(res.x[k], res.x_pred[k])
+        np.testing.assert_array_equal(res.P[k], res.P_pred[k])
+        assert res.loglik[k] == 0.0
+    assert list(np.flatnonzero(res.measured == 0)) == rows and set(res.measured[res.measured > 0]) == {2}
+
+
+@pytest.mark.parametrize("transform", [sm.TT1(), sm.TT2(), sm.UT.ut1(), sm.GaussHermite(3)])
+@pytest.mark.parametrize("kept", [0, 1])
+def test_a_partly_measured_row_updates_on_the_measured_block(transform, kept):
+    """Step k with only component ``kept`` measured equals one step of the filter whose h is
+    that component alone, from the same x_{k−1}, P_{k−1}."""
+    kf, d = cv_filter(transform)
+    k = 12
+    ys = with_missing([k], cols=[1 - kept])
+    res = kf.filter(ys, d["x0"], d["P0"])
+    part, _ = cv_filter(transform, outputs=(kept,))
+    one = part.filter(ys[k:k + 1, [kept]], res.x[k - 1], res.P[k - 1])
+    close(res.x[k], one.x[0])
+    close(res.P[k], one.P[0])
+    assert res.loglik[k] == pytest.approx(one.loglik[0], rel=RTOL)
+    assert res.innovation[k, 1 - kept] == 0.0 and res.S[k, 1 - kept, 1 - kept] == 1.0
+    assert res.S[k, 0, 1] == 0.0 and res.measured[k] == 1
+    assert res.nis()[k] == pytest.approx(one.nis()[0], rel=RTOL)
+    # The steps before are untouched.
+    full = kf.filter(np.array(d["ys"]), d["x0"], d["P0"])
+    np.testing.assert_array_equal(res.x[:k], full.x[:k])
+
+
+def test_a_bank_with_missing_rows_equals_its_runs_and_the_vm():
+    from symmon.filters.step import _compiled_step
+
+    kf, d = cv_filter(sm.UT.ut1())
+    ys = np.array(d["ys"])
+    bank = np.stack([ys, with_missing([3, 9]), with_missing([20], cols=[0])])
+    res = kf.filter(bank, d["x0"], d["P0"])
+    for r in range(3):
+        one = kf.filter(bank[r], d["x0"], d["P0"])
+        np.testing.assert_array_equal(res.x[r], one.x)
+        np.testing.assert_array_equal(res.loglik[r], one.loglik)
+    assert res.measured.shape == (3, 40) and res.measured[1, 3] == 0 and res.measured[2, 20] == 1
+    step = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)
+    c = step(np.array(d["x0"]), np.array(d["P0"]), bank, kf.Q, kf.R)
+    vm = step(np.array(d["x0"]), np.array(d["P0"]), bank, kf.Q, kf.R, use_c=False)
+    for name in c:
+        np.testing.assert_allclose(c[name], vm[name], rtol=1e-12, atol=1e-12)
+
+
+def test_nis_degrees_of_freedom_count_the_measured_components():
+    kf, d = cv_filter(sm.UT.ut1())
+    res = kf.filter(with_missing([5, 6]), d["x0"], d["P0"])
+    test = res.anis(confidence=0.9)
+    assert test.dof == 2 * 38  # two rows not measured: 38 steps of 2 components
+    part = kf.filter(with_missing([5], cols=[0]), d["x0"], d["P0"]).anis()
+    assert part.dof == 2 * 40 - 1
+    bank = kf.filter(np.stack([with_missing([5]), np.array(d["ys"])]), d["x0"], d["P0"]).anis()
+    assert bank.dof[5] == 2 and bank.dof[4] == 4 and np.ndim(bank.lower) == 1
+    assert "per step" in repr(bank)
+
+
+def test_inf_is_still_an_error_and_nan_everywhere_is_a_prediction():
+    kf, d = cv_filter(sm.TT1())
+    ys = np.array(d["ys"])
+    ys[3, 1] = np.inf
+    with pytest.raises(ShapeError, match=r"inf \(at index \(3, 1\)\); a missing measurement is NaN"):
+        kf.filter(ys, d["x0"], d["P0"])
+    res = kf.filter(np.full((5, 2), np.nan), d["x0"], d["P0"])
+    F, Q = np.array(d["F"]), np.array(d["Q"])
+    x, P = np.array(d["x0"]), np.array(d["P0"])
+    for k in range(5):
+        x, P = F @ x, F @ P @ F.T + Q
+        close(res.x[k], x)
+        close(res.P[k], P)
+    assert res.log_likelihood == 0.0
+
+
+def test_the_smoother_runs_over_missing_rows():
+    kf, d = cv_filter(sm.UT.ut1())
+    res = kf.smooth(with_missing([10, 11, 12]), d["x0"], d["P0"])
+    # Smoothed gaps lean on the later measurements: smaller variances than the filter's there.
+    assert np.all(np.trace(res.P[10:13], axis1=1, axis2=2) < np.trace(res.filtered.P[10:13], axis1=1, axis2=2))
+
+
+def test_the_adaptive_filter_skips_missing_rows_too():
+    kf, d = cv_filter(sm.Adaptive(0.01))
+    res = kf.filter(with_missing([7]), d["x0"], d["P0"])
+    np.testing.assert_array_equal(res.x[7], res.x_pred[7])
+    assert res.loglik[7] == 0.0 and res.measured[7] == 0
