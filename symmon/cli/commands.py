@@ -315,7 +315,8 @@ def cmd_filter(args: argparse.Namespace) -> int:
     _check_output_files(args.plot, inputs=(args.file,))  # before the bank runs
     spec = load_filter_file(args.file)
     xs, ys = simulate(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
-    rows = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, args.filters, args.tol, args.confidence)
+    rows = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, args.filters, args.tol, args.confidence,
+                    smooth=args.smooth)
     states = [str(s) for s in spec.f.inputs]
     written = [_filter_plot(spec, rows, states, args.plot)] if args.plot else []
     if args.json:
@@ -340,8 +341,17 @@ def cmd_filter(args: argparse.Namespace) -> int:
         print(f"{r.name:<9} {float(np.mean(r.anees.value)):>9.4g} {float(np.mean(r.anees.inside)):>7.0%} "
               f"{float(np.mean(r.anis.value)):>9.4g} {float(np.mean(r.anis.inside)):>7.0%} "
               f"{float(np.mean(r.result.log_likelihood)):>10.6g}  " + ", ".join(f"{v:.4g}" for v in rmse))
+        if args.smooth:
+            if r.smoothed is None:
+                print(f"{' smoothed':<9} (no RTS smoother for the adaptive filter)")
+            else:
+                s_rmse = np.sqrt(np.mean(r.smoothed_rmse**2, axis=0))
+                print(f"{' smoothed':<9} {float(np.mean(r.smoothed_anees.value)):>9.4g} "
+                      f"{float(np.mean(r.smoothed_anees.inside)):>7.0%} {'':>9} {'':>7} {'':>10}  "
+                      + ", ".join(f"{v:.4g}" for v in s_rmse))
     print("ANEES, ANIS: time averages of the per-step values; inside: the share of steps inside the interval; "
-          "log-lik: the mean over the runs of the log-likelihood of a run's measurements; RMSE: over runs and steps")
+          "log-lik: the mean over the runs of the log-likelihood of a run's measurements; RMSE: over runs and steps"
+          + ("; smoothed: the filter's RTS smoother (its ANEES has the filter's interval)" if args.smooth else ""))
     for p in written:
         print(f"wrote {p}")
     return 0

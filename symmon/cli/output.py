@@ -178,6 +178,8 @@ def _bank_json(r) -> dict:
     if r.result.choices is not None:
         names, counts = np.unique(r.result.choices, return_counts=True)
         out["choices"] = {str(k): int(v) for k, v in zip(names, counts)}
+    if r.smoothed is not None:
+        out["smoothed"] = {"anees": _jsonable(r.smoothed_anees.value), "rmse": _jsonable(r.smoothed_rmse)}
     return out
 
 
@@ -203,7 +205,10 @@ def _filter_plot(spec, rows, states: list[str], path: str) -> Path:
                 axes[0].semilogy(k, r.anees.value, label=r.name)
                 axes[1].semilogy(k, r.anis.value, label=r.name)
                 for ax, (_, idx) in zip(axes[2:], groups):
-                    ax.semilogy(k, np.sqrt(np.sum(r.rmse[:, idx] ** 2, axis=1)), label=r.name)
+                    line, = ax.semilogy(k, np.sqrt(np.sum(r.rmse[:, idx] ** 2, axis=1)), label=r.name)
+                    if r.smoothed is not None:  # the smoother dashed, in its filter's colour
+                        ax.semilogy(k, np.sqrt(np.sum(r.smoothed_rmse[:, idx] ** 2, axis=1)), "--",
+                                    color=line.get_color(), label=f"{r.name} smoothed")
             ok = [r for r in rows if r.result is not None]
             if ok:
                 for ax, t, what in ((axes[0], ok[0].anees, "NEES"), (axes[1], ok[0].anis, "NIS")):

@@ -89,7 +89,8 @@ _EXAMPLES = {
     "export": ["symmon export examples/rb_close.toml --filter ukf --out build/rb_ukf",
                "symmon export examples/rb_close.toml --filter ekf --out build/rb_ekf --name rb_ekf"],
     "filter": ["symmon filter examples/rb_close.toml --runs 500 --plot nees.png",
-               "symmon filter examples/rb_close.toml --filters ekf,ukf,adaptive --tol 0.01 --json"],
+               "symmon filter examples/rb_close.toml --filters ekf,ukf,adaptive --tol 0.01 --json",
+               "symmon filter examples/rb_close.toml --filters ekf,ukf --smooth"],
     "advise": ["symmon advise examples/bot.toml --tol 0.001",
                "symmon advise examples/polar.toml --weight diag --json"],
 }
@@ -375,6 +376,8 @@ def _parser() -> argparse.ArgumentParser:
                     help="the adaptive filter's tolerance (unitless moment error, default 0.01)")
     sp.add_argument("--confidence", type=_unit_interval, default=0.95,
                     help="of the chi-square intervals (default 0.95)")
+    sp.add_argument("--smooth", action="store_true",
+                    help="also run each filter's RTS smoother and report its ANEES and RMSE")
     sp.add_argument("--plot", metavar="PNG", type=_plot_path, help="write NEES, NIS and RMSE over time (atomically)")
     sp.add_argument("--json", action="store_true", help="print JSON")
     sp.set_defaults(func=commands.cmd_filter)

@@ -261,6 +261,11 @@ class BankSummary:
     rmse : ndarray, shape (K, n)
         Root mean square error of each state component over the runs, per step.
     error : str or None
+    smoothed : SmootherResult or None
+        With ``smooth=True``: the RTS smoother of the filter (None for the adaptive filter,
+        which has no one transform to smooth with).
+    smoothed_anees : ConsistencyTest or None
+    smoothed_rmse : ndarray, shape (K, n), or None
     """
 
     name: str
@@ -269,27 +274,45 @@ class BankSummary:
     anis: Any
     rmse: np.ndarray | None
     error: str | None = None
+    smoothed: Any = None
+    smoothed_anees: Any = None
+    smoothed_rmse: np.ndarray | None = None
+
+
+def _rmse(xs: np.ndarray, x: np.ndarray, angle_states) -> np.ndarray:
+    """RMSE over the runs per step and component, angle errors wrapped."""
+    e = xs - x
+    if angle_states:
+        idx = list(angle_states)
+        e[..., idx] = wrap_angle(e[..., idx])
+    return np.sqrt(np.mean(e**2, axis=0))
 
 
 def run_bank(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, xs: np.ndarray, ys: np.ndarray,
-             names: list[str], tol: float = 1e-2, confidence: float = 0.95) -> list[BankSummary]:
+             names: list[str], tol: float = 1e-2, confidence: float = 0.95, smooth: bool = False) -> list[BankSummary]:
     """Run the named filters (:func:`filter_transform`) on the bank ``ys`` with truth ``xs``.
 
-    A filter that fails (NaN: it diverged) is reported with its error instead of stopping
-    the others.
+    With ``smooth``, each filter's RTS smoother runs too (:meth:`NonlinearKalmanFilter.smooth`),
+    except the adaptive filter's.  A filter that fails (NaN: it diverged) is reported with its
+    error instead of stopping the others.
     """
     out = []
     for name in names:
         kf = NonlinearKalmanFilter(f, h, Q, R, filter_transform(name, tol))
+        smoothed = None
         try:
-            res = kf.filter(ys, x0)
+            if smooth and name != "adaptive":
+                smoothed = kf.smooth(ys, x0)
+                res = smoothed.filtered
+            else:
+                res = kf.filter(ys, x0)
         except SymmonError as exc:
             out.append(BankSummary(name, None, None, None, None, str(exc)))
             continue
-        e = xs - res.x
-        if res.angle_states:
-            idx = list(res.angle_states)
-            e[..., idx] = wrap_angle(e[..., idx])
-        rmse = np.sqrt(np.mean(e**2, axis=0))
-        out.append(BankSummary(name, res, res.anees(xs, confidence), res.anis(confidence), rmse))
+        extra = {}
+        if smoothed is not None:
+            extra = {"smoothed": smoothed, "smoothed_anees": smoothed.anees(xs, confidence),
+                     "smoothed_rmse": _rmse(xs, smoothed.x, res.angle_states)}
+        out.append(BankSummary(name, res, res.anees(xs, confidence), res.anis(confidence),
+                               _rmse(xs, res.x, res.angle_states), **extra))
     return out

@@ -157,7 +157,8 @@ class NonlinearKalmanFilter:
         """The filter's name: EKF, EKF2, UKF(...), CKF, GHKF(order=...) or Adaptive(...)."""
         return self.strategy.label()
 
-    def smooth(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None) -> SmootherResult:
+    def smooth(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None, *,
+               keep: Iterable[str] | None = None) -> SmootherResult:
         """The RTS smoother of this filter: a forward pass, then the backward pass in C.
 
         The smoother of the filter's family (:mod:`symmon.filters.smoother`): TT1 gives the
@@ -167,7 +168,11 @@ class NonlinearKalmanFilter:
         Parameters
         ----------
         ys, x0, P0
-            As for :meth:`filter`: one run (K, n_y) or a bank (R, K, n_y).
+            As for :meth:`filter`: one run (K, n_y) or a bank (R, K, n_y); NaN marks a
+            missing measurement.
+        keep : iterable of str, optional
+            What the forward pass keeps, as for :meth:`filter` (default: all); ``x`` and ``P``
+            are always kept, since the backward pass reads them.
 
         Returns
         -------
@@ -184,7 +189,8 @@ class NonlinearKalmanFilter:
         """
         if not isinstance(self.strategy, RuleStrategy):
             raise SymmonError(f"smooth needs one transform for every step; {self.method} chooses one per step")
-        fwd = self.filter(ys, x0, P0, keep=("x", "P"))
+        kept = check_keep(keep)
+        fwd = self.filter(ys, x0, P0, keep=None if kept is None else kept | {"x", "P"})
         bank = fwd.runs is not None
         X = fwd.x if bank else fwd.x[None]
         P = fwd.P if bank else fwd.P[None]

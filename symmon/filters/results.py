@@ -93,7 +93,9 @@ def _consistency(stat: np.ndarray, d: int | np.ndarray, confidence: float) -> Co
     value = stat.mean(axis=0)
     dof = d.sum(axis=0)
     if np.any(dof == 0):
-        raise SymmonError("a step has no measured component in any run: its NIS has no degrees of freedom")
+        k = int(np.flatnonzero(dof == 0)[0])
+        raise SymmonError(f"step {k} has no measured component in any run: its average NIS has no degrees of "
+                          "freedom; average over the other steps, e.g. res.nis()[:, res.measured.any(axis=0)]")
     lo, hi = (stats.chi2.ppf(q, dof) / N for q in ((1 - confidence) / 2, (1 + confidence) / 2))
     if np.ndim(dof) == 0:
         return ConsistencyTest(readonly(value), float(lo), float(hi), int(dof), float(confidence))

@@ -547,6 +547,27 @@ def test_cli_filter_json_equals_the_api(capsys):
     assert out["runs"] == 10 and out["steps"] == spec.steps
 
 
+def test_cli_filter_smooth_reports_the_smoother_as_the_api(capsys, tmp_path):
+    import json
+
+    assert cli.main(["filter", str(EXAMPLE), "--runs", "10", "--seed", "2", "--filters", "ekf,adaptive",
+                     "--smooth", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    spec = load_filter_file(EXAMPLE)
+    xs, ys = simulate_spec(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, 10, seed=2)
+    sres = sm.NonlinearKalmanFilter(spec.f, spec.h, spec.Q, spec.R, sm.TT1()).smooth(ys, spec.x0)
+    ekf, adaptive = out["filters"]
+    np.testing.assert_allclose(ekf["smoothed"]["anees"], sres.anees(xs).value, rtol=1e-12)
+    rmse = np.sqrt(np.mean((xs - sres.x) ** 2, axis=0))
+    np.testing.assert_allclose(ekf["smoothed"]["rmse"], rmse, rtol=1e-12)
+    assert np.mean(rmse) < np.mean(ekf["rmse"]) and "smoothed" not in adaptive
+    png = tmp_path / "s.png"
+    assert cli.main(["filter", str(EXAMPLE), "--runs", "5", "--filters", "ukf,adaptive", "--smooth",
+                     "--plot", str(png)]) == 0
+    text = capsys.readouterr().out
+    assert " smoothed" in text and "no RTS smoother for the adaptive filter" in text and png.exists()
+
+
 @pytest.mark.parametrize("argv, match", [(["--filters", "ekf,foo"], "must be distinct names"),
                                          (["--runs", "0"], "positive integer"),
                                          (["--tol", "1.5"], "number in \\(0, 1\\)"),

@@ -140,3 +140,11 @@ def test_the_adaptive_filter_skips_missing_rows_too():
     res = kf.filter(with_missing([7]), d["x0"], d["P0"])
     np.testing.assert_array_equal(res.x[7], res.x_pred[7])
     assert res.loglik[7] == 0.0 and res.measured[7] == 0
+
+
+def test_a_step_unmeasured_in_every_run_has_no_average_nis():
+    kf, d = cv_filter(sm.UT.ut1())
+    ys = np.stack([with_missing([5]), with_missing([5])])
+    res = kf.filter(ys, d["x0"], d["P0"])
+    with pytest.raises(sm.errors.SymmonError, match="step 5 has no measured component in any run"):
+        res.anis()
