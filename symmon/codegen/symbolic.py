@@ -288,7 +288,7 @@ def _offsets(L: Sym, Z: np.ndarray) -> Sym:
 
 
 def point_moments(g: ca.Function, m: Sym, P: Sym, transform: Transform,
-                  angles: Iterable[int] = (), chol=chol_lower) -> tuple[Sym, Sym, Sym]:
+                  angles: Iterable[int] = (), chol=chol_lower, p: Sym | None = None) -> tuple[Sym, Sym, Sym]:
     """E g, Cov g and Cov(g, w) of w ~ N(m, P) by a point rule.
 
     g is mapped over the N points m + L z_k (one loop in MX), and the weighted sums are
@@ -300,7 +300,9 @@ def point_moments(g: ca.Function, m: Sym, P: Sym, transform: Transform,
     Z, wm_a, wc_a = unit_rule(transform, m.shape[0])
     N = Z.shape[0]
     D = _offsets(chol(P), np.asarray(Z, dtype=float))
-    Y = g.map(N)(ca.repmat(m, 1, N) + D)
+    W = ca.repmat(m, 1, N) + D
+    # With parameters p, g is a function of [w; p]: the same p at every point.
+    Y = g.map(N)(W if p is None else ca.vertcat(W, ca.repmat(p, 1, N)))
     wm = ca.DM(np.asarray(wm_a, dtype=float))
     Y0 = Y[:, 0]
     mean = Y0 + ca.mtimes(Y - ca.repmat(Y0, 1, N), wm)
@@ -313,13 +315,24 @@ def point_moments(g: ca.Function, m: Sym, P: Sym, transform: Transform,
 
 
 def moments(cm: CompiledModel, m: Sym, P: Sym, transform: Transform,
-            angles: Iterable[int] = (), chol=chol_lower) -> tuple[Sym, Sym, Sym]:
+            angles: Iterable[int] = (), chol=chol_lower, p: Sym | None = None) -> tuple[Sym, Sym, Sym]:
     """E g, Cov g and Cov(g, w) of w ~ N(m, P) by ``transform``, chosen by its declared
     capabilities: a Taylor rule (``taylor_order`` 1 or 2) or a point rule (``unit_rule``,
-    its factor built by ``chol``)."""
+    its factor built by ``chol``).
+
+    With parameters ``p`` (a symbol of the enclosing graph), ``cm`` is the model compiled
+    with respect to z = [w; p] (:func:`symmon.compile.compiled_with_params`) and p is fixed:
+    the Taylor rules run at z = [m; p] with covariance blkdiag(P, 0), which gives their
+    moments in w exactly (J_w P J_wᵀ, tr(H_ww P), …), and the point rules put their points
+    in w only.  Cov(g, w) is returned either way."""
     order = transform.taylor_order
+    if p is not None and order in (1, 2):
+        kind, n_p = type(P), p.shape[0]
+        mz, Pz = ca.vertcat(m, p), ca.diagcat(P, kind.zeros(n_p, n_p))
+        mean, cov, cross = (tt1_moments if order == 1 else tt2_moments)(cm, mz, Pz, angles)
+        return mean, cov, cross[:, :m.shape[0]]
     if order == 1:
         return tt1_moments(cm, m, P, angles)
     if order == 2:
         return tt2_moments(cm, m, P, angles)
-    return point_moments(cm.g, m, P, transform, angles, chol)
+    return point_moments(cm.g, m, P, transform, angles, chol, p)

@@ -12,7 +12,8 @@ from .cnames import comment_text as comment_text
 from .compiled import CompiledModel as CompiledModel
 from .compiled import compile_model as compile_model
 from .compiled import compiled as compiled
+from .compiled import compiled_with_params as compiled_with_params
 from .compiled import to_casadi as to_casadi
 
-__all__ = ["CompiledModel", "compiled", "compile_model", "to_casadi", "NativeLibrary", "build_shared_library",
+__all__ = ["CompiledModel", "compiled", "compiled_with_params", "compile_model", "to_casadi", "NativeLibrary", "build_shared_library",
            "cache_dir", "compile_mode", "has_compiler", "c_identifier", "comment_text"]

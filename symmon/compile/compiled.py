@@ -27,9 +27,9 @@ import sympy as sp
 from .ccache import NativeLibrary, build_shared_library, cache_dir, has_compiler, warn_no_compiler
 from .cnames import c_identifier
 from ..core.model import Model
-from ..errors import ArgumentTypeError, ShapeError, UnsupportedFunctionError
+from ..errors import ArgumentTypeError, ModelError, ShapeError, UnsupportedFunctionError
 
-__all__ = ["to_casadi", "CompiledModel", "compile_model", "compiled", "cache_dir", "has_compiler", "build_shared_library",
+__all__ = ["to_casadi", "CompiledModel", "compile_model", "compiled", "compiled_with_params", "cache_dir", "has_compiler", "build_shared_library",
            "generated_c", "rows_c"]
 
 log = logging.getLogger(__name__)
@@ -478,7 +478,28 @@ def compile_model(outputs: Sequence[sp.Expr], symbols: Sequence[sp.Symbol], name
 
 
 def compiled(model: Model) -> CompiledModel:
-    """The compiled CasADi functions of ``model`` with respect to w = [u; v] (cached)."""
+    """The compiled CasADi functions of ``model`` with respect to w = [u; v] (cached).
+
+    Raises
+    ------
+    ModelError
+        If the model declares parameters: their values come first
+        (:meth:`Model.with_params`), except in the filters, which take them as inputs
+        (:func:`compiled_with_params`).
+    """
     if not isinstance(model, Model):
         raise ArgumentTypeError(f"expected a symmon.Model, got {type(model).__name__}")
+    if model.params:
+        raise ModelError(
+            f"model {model.name!r} has parameters {[str(s) for s in model.params]}: give their values, "
+            "model.with_params({...}) (the filters take params= at each call)")
     return compile_model(model.outputs, model.inputs + model.noise, model.name)
+
+
+def compiled_with_params(model: Model) -> CompiledModel:
+    """The compiled functions of ``model`` with respect to z = [u; v; p], its parameters p
+    appended to the inputs (cached): the graphs of the filter steps slice z, so that the
+    parameters are inputs of the compiled steps and their derivatives are exact."""
+    if not isinstance(model, Model):
+        raise ArgumentTypeError(f"expected a symmon.Model, got {type(model).__name__}")
+    return compile_model(model.outputs, model.inputs + model.noise + model.params, model.name)

@@ -164,12 +164,18 @@ class Model:
     name : str, optional
     angles : iterable of sympy.Symbol or int, optional
         Output indices (or input symbols) that are angles; see :mod:`symmon.core.angles`.
+    params : sequence of sympy.Symbol, optional
+        Parameters: symbols that are neither random inputs nor noise (a sensor bias, a
+        time step dt, a control input, a noise intensity).  Their values are given where the
+        model is evaluated, ``params={"b": 0.5}``: the filters take them as inputs of their
+        compiled steps (a value per step or per run, no recompile; and ``fit`` estimates
+        them), the other evaluators substitute them (:meth:`with_params`).
 
     Raises
     ------
     ModelError
-        On duplicate symbols, symbols used in both inputs and noise, or outputs that
-        use symbols that are declared neither as inputs nor as noise.
+        On duplicate symbols, symbols declared twice (as inputs, noise or parameters), or
+        outputs that use symbols that are declared as none of them.
 
     Examples
     --------
@@ -186,29 +192,35 @@ class Model:
         noise: Sequence[sp.Symbol] | None = None,
         name: str | None = None,
         angles: Iterable | None = None,
+        params: Sequence[sp.Symbol] | None = None,
     ) -> None:
         u = as_symbols(inputs, "inputs")
         v = as_symbols(noise, "noise")
+        p = as_symbols(params, "params")
         if not u:
             raise ModelError("a model needs at least one input symbol")
-        for group, what in ((u, "inputs"), (v, "noise")):
+        for group, what in ((u, "inputs"), (v, "noise"), (p, "params")):
             dup = {s for s in group if group.count(s) > 1}
             if dup:
                 raise ModelError(f"duplicate symbols in {what}: {sorted(map(str, dup))}")
-        both = set(u) & set(v)
-        if both:
-            raise ModelError(f"symbols declared both as inputs and noise: {sorted(map(str, both))}")
+        for (a, an), (b, bn) in (((u, "inputs"), (v, "noise")), ((u, "inputs"), (p, "params")),
+                                 ((v, "noise"), (p, "params"))):
+            both = set(a) & set(b)
+            if both:
+                raise ModelError(f"symbols declared both as {an} and {bn}: {sorted(map(str, both))}")
         g = _as_exprs(outputs)
-        known = set(u) | set(v)
+        known = set(u) | set(v) | set(p)
         for i, e in enumerate(g):
             unknown = e.free_symbols - known
             if unknown:
                 raise ModelError(
                     f"output {i} ({e}) uses unknown symbols {sorted(map(str, unknown))}; "
                     f"declared inputs {[str(s) for s in u]}, noise {[str(s) for s in v]}"
+                    + (f", params {[str(s) for s in p]}" if p else "; declare parameters with params=[...]")
                 )
         self._u = u
         self._v = v
+        self._p = p
         self._g = g
         self._name = name
         self._angles = self._resolve_angles(angles)
@@ -329,6 +341,43 @@ class Model:
         return self._v
 
     @property
+    def params(self) -> tuple[sp.Symbol, ...]:
+        """The parameter symbols (possibly empty): neither random inputs nor noise."""
+        return self._p
+
+    @property
+    def n_p(self) -> int:
+        return len(self._p)
+
+    def with_params(self, values: dict | None) -> "Model":
+        """The model with its parameters replaced by values: a model without parameters.
+
+        Parameters
+        ----------
+        values : dict
+            A finite real value for each parameter, keyed by name (``"b"``) or symbol.
+
+        Raises
+        ------
+        ModelError
+            For a missing, unknown or non-finite value.
+
+        Examples
+        --------
+        >>> import sympy as sp
+        >>> x, b = sp.symbols("x b")
+        >>> Model([x], [x + b], params=[b]).with_params({"b": 2.0}).outputs
+        (x + 2.0,)
+        """
+        if not self._p:
+            if values:
+                raise ModelError(f"model {self.name!r} declares no parameters, got params {sorted(map(str, values))}")
+            return self
+        vals = check_param_values(self._p, values, self.name)
+        g = [e.xreplace({s: sp.Float(vals[str(s)]) for s in self._p}) for e in self._g]
+        return Model(self._u, g, self._v, self._name, self._angle_args())
+
+    @property
     def outputs(self) -> tuple[sp.Expr, ...]:
         """The output expressions g."""
         return self._g
@@ -361,7 +410,7 @@ class Model:
 
     def with_angles(self, angles: Iterable) -> "Model":
         """The same model with angle declarations replaced by ``angles``."""
-        return Model(self._u, self._g, self._v, self._name, angles)
+        return Model(self._u, self._g, self._v, self._name, angles, self._p)
 
     # --- noise structure --------------------------------------------------
     @cached_property
@@ -445,7 +494,7 @@ class Model:
     def noise_free(self) -> "Model":
         """The model with every noise symbol set to zero (keeps inputs and angles)."""
         g = [e.subs({s: 0 for s in self._v}) for e in self._g]
-        return Model(self._u, g, None, self._name, self._angle_args())
+        return Model(self._u, g, None, self._name, self._angle_args(), self._p)
 
     def _angle_args(self) -> list:
         return sorted(self.angle_outputs) + [self._u[i] for i in sorted(self.angle_inputs)]
@@ -475,6 +524,8 @@ class Model:
         parts = [f"inputs={[str(s) for s in self._u]}"]
         if self._v:
             parts.append(f"noise={[str(s) for s in self._v]}")
+        if self._p:
+            parts.append(f"params={[str(s) for s in self._p]}")
         parts.append(f"outputs={[str(e) for e in self._g]}")
         return f"Model({self.name!r}, " + ", ".join(parts) + f", structure={self.structure!r})"
 
@@ -489,7 +540,40 @@ class Model:
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Model):
             return NotImplemented
-        return (self._u, self._v, self._g, self._angles) == (other._u, other._v, other._g, other._angles)
+        return (self._u, self._v, self._p, self._g, self._angles) == (other._u, other._v, other._p, other._g,
+                                                                       other._angles)
 
     def __hash__(self) -> int:
-        return hash((self._u, self._v, self._g, self._angles))
+        return hash((self._u, self._v, self._p, self._g, self._angles))
+
+
+def check_param_values(params: Sequence[sp.Symbol], values: dict | None, name: str = "model") -> dict[str, float]:
+    """``values`` as {parameter name: finite float}, one for each of ``params``.
+
+    Raises
+    ------
+    ModelError
+        For a missing, unknown or non-finite value, or one that is not a real scalar.
+    """
+    if values is None:
+        values = {}
+    if not isinstance(values, dict):
+        raise ModelError(f"params must be a dict of parameter values, got {type(values).__name__}")
+    names = [str(s) for s in params]
+    given = {str(k): v for k, v in values.items()}
+    unknown = sorted(set(given) - set(names))
+    if unknown:
+        raise ModelError(f"{name!r} has no parameters {unknown}; its parameters are {names}")
+    missing = [n for n in names if n not in given]
+    if missing:
+        raise ModelError(f"{name!r} needs values of its parameters {missing} (params={{...}})")
+    out = {}
+    for n in names:
+        try:
+            val = float(given[n])
+        except (TypeError, ValueError):
+            raise ModelError(f"parameter {n!r} must be a real number, got {given[n]!r}") from None
+        if not np.isfinite(val):
+            raise ModelError(f"parameter {n!r} must be finite, got {val}")
+        out[n] = val
+    return out

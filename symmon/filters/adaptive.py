@@ -109,6 +109,10 @@ class Adaptive(FilterStrategy):
         return repr(self)
 
     def check(self, kf):
+        if kf.params:
+            raise SymmonError(
+                f"Adaptive decides on moments evaluated outside the compiled step, which do not take model "
+                f"parameters ({[str(s) for s in kf.params]}): give their values with model.with_params({{...}})")
         for t in self.candidates + (self.reference,):
             check_dimensions(t, kf.dimensions)
 

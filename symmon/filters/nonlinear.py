@@ -62,10 +62,11 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import ArgumentTypeError, ShapeError, SymmonError
+from ..errors import ArgumentTypeError, ModelError, ShapeError, SymmonError
 from ..core.checks import check_gaussian, check_model, noise_cov, readonly
 from .results import ConsistencyTest, KalmanResult, NonlinearKalmanResult, SmootherResult, check_keep, real_measurements
 from .smoother import compiled_smoother
+from .step import filter_params
 from .strategy import FilterStrategy, RuleStrategy
 from ..core.gaussian import Gaussian, as_covariance
 from ..core.model import Model
@@ -148,6 +149,42 @@ class NonlinearKalmanFilter:
         return self.f_model.n_u + self.f_model.n_v, self.h_model.n_u + self.h_model.n_v
 
     @cached_property
+    def params(self) -> tuple:
+        """The parameters of the filter: those of f, then those of h that f does not have."""
+        return filter_params(self.f_model, self.h_model)
+
+    def _param_values(self, params: dict | None, runs: int | None, K: int) -> np.ndarray | None:
+        """The values of the parameters as (R, K, n_p): a scalar, one per step (K,), or one per
+        run and step (R, K) for each."""
+        if not self.params:
+            if params:
+                raise ModelError(f"the filter's models declare no parameters, got params {sorted(map(str, params))}")
+            return None
+        names = [str(s) for s in self.params]
+        if not isinstance(params, dict):
+            raise ModelError(f"the filter's models have parameters {names}: give params={{name: value}}, "
+                             f"got {type(params).__name__}")
+        given = {str(k): v for k, v in params.items()}
+        unknown = sorted(set(given) - set(names))
+        missing = [n for n in names if n not in given]
+        if unknown or missing:
+            raise ModelError(f"params must give each of {names}" + (f"; unknown {unknown}" if unknown else "")
+                             + (f"; missing {missing}" if missing else ""))
+        R = runs or 1
+        out = np.empty((R, K, len(names)))
+        for j, n in enumerate(names):
+            v = np.asarray(given[n], dtype=float)
+            shapes = [(), (K,)] + ([(runs, K)] if runs is not None else [])
+            if v.shape not in shapes:
+                raise ShapeError(f"parameter {n!r} must be a number, one per step ({K},)"
+                                 + (f" or one per run and step ({runs}, {K})" if runs is not None else "")
+                                 + f", got shape {v.shape}")
+            if not np.all(np.isfinite(v)):
+                raise ShapeError(f"parameter {n!r} contains NaN or inf")
+            out[..., j] = v
+        return out
+
+    @cached_property
     def angle_states(self) -> frozenset[int]:
         """State components that are angles: f's angle outputs and f's or h's angle inputs."""
         return frozenset(self.f_model.angle_outputs | self.f_model.angle_inputs | self.h_model.angle_inputs)
@@ -158,7 +195,7 @@ class NonlinearKalmanFilter:
         return self.strategy.label()
 
     def smooth(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None, *,
-               keep: Iterable[str] | None = None) -> SmootherResult:
+               keep: Iterable[str] | None = None, params: dict | None = None) -> SmootherResult:
         """The RTS smoother of this filter: a forward pass, then the backward pass in C.
 
         The smoother of the filter's family (:mod:`symmon.filters.smoother`): TT1 gives the
@@ -173,6 +210,8 @@ class NonlinearKalmanFilter:
         keep : iterable of str, optional
             What the forward pass keeps, as for :meth:`filter` (default: all); ``x`` and ``P``
             are always kept, since the backward pass reads them.
+        params : dict, optional
+            The parameters' values, as for :meth:`filter`.
 
         Returns
         -------
@@ -190,12 +229,12 @@ class NonlinearKalmanFilter:
         if not isinstance(self.strategy, RuleStrategy):
             raise SymmonError(f"smooth needs one transform for every step; {self.method} chooses one per step")
         kept = check_keep(keep)
-        fwd = self.filter(ys, x0, P0, keep=None if kept is None else kept | {"x", "P"})
+        fwd = self.filter(ys, x0, P0, keep=None if kept is None else kept | {"x", "P"}, params=params)
         bank = fwd.runs is not None
         X = fwd.x if bank else fwd.x[None]
         P = fwd.P if bank else fwd.P[None]
-        smoother = compiled_smoother(self.f_model, self.strategy.transform, self.angle_states)
-        xs, Ps = smoother(X, P, self.Q)
+        smoother = compiled_smoother(self.f_model, self.strategy.transform, self.angle_states, self.params)
+        xs, Ps = smoother(X, P, self.Q, params=self._param_values(params, fwd.runs, fwd.steps))
         bad = ~(np.isfinite(xs).all(axis=-1) & np.isfinite(Ps).all(axis=(-1, -2)))
         if bad.any():
             r, k = np.argwhere(bad)[-1]  # the backward pass runs from the end
@@ -249,7 +288,7 @@ class NonlinearKalmanFilter:
         return m, as_covariance(P0, "P0", dim=n)
 
     def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None, *,
-               keep: Iterable[str] | None = None) -> KalmanResult:
+               keep: Iterable[str] | None = None, params: dict | None = None) -> KalmanResult:
         """Predict, then update, for each measurement (the convention of :class:`KalmanFilter`).
 
         Parameters
@@ -272,6 +311,11 @@ class NonlinearKalmanFilter:
             The arrays to return, among ``"x"``, ``"P"``, ``"x_pred"``, ``"P_pred"``,
             ``"innovation"`` and ``"S"`` (default: all); the others are not stored, which
             bounds the memory of a large bank.  The per-step log-likelihood is always kept.
+        params : dict, optional
+            The values of the models' parameters (:attr:`params`), by name: a number, an array
+            of one per step (K,) (an irregular time step dt, a control input), or for a bank
+            one per run and step (R, K).  They are inputs of the compiled step: a new value
+            costs no recompile.
 
         Returns
         -------
@@ -297,7 +341,9 @@ class NonlinearKalmanFilter:
         kept = check_keep(keep)
         m0, C0 = self._initial(x0, P0, runs)
         Yb = Y.reshape((runs or 1,) + Y.shape[-2:])
-        out, choices = self.strategy.run(self, Yb, m0, C0, kept)
+        pv = self._param_values(params, runs, Y.shape[-2])
+        extra = {} if pv is None else {"params": pv}  # a strategy without parameters needs no argument
+        out, choices = self.strategy.run(self, Yb, m0, C0, kept, **extra)
         out = {k: v for k, v in out.items() if k == "loglik" or kept is None or k in kept}
         # A NaN reaches every later log-likelihood: the first non-finite one is the step.
         bad = ~np.isfinite(out["loglik"])

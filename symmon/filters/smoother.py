@@ -38,40 +38,35 @@ from concurrent.futures import ThreadPoolExecutor
 import casadi as ca
 import numpy as np
 
-from ..codegen.symbolic import chol_lower, chol_node, moments, wrap_entries
-from ..compile import compiled
+from ..codegen.symbolic import chol_lower, chol_node, wrap_entries
 from ..compile.ccache import NativeLibrary
 from ..compile.compiled import generated_c
 from ..core.model import Model
 from ..errors import SymmonError
 from ..transforms import Transform
-from .step import MAX_SX_POINTS, MX_FROM, chunk_runs, sym
+from .step import MAX_SX_POINTS, MX_FROM, chunk_runs, predict_graph, select_params, sym
 
 __all__ = ["compiled_smoother"]
 
 
-def _backward_function(f: Model, transform: Transform, angle_states: frozenset[int], name: str) -> ca.Function:
-    """(x_k, P_k, x^s_{k+1}, P^s_{k+1}, Q) ↦ (x^s_k, P^s_k): one backward step (module notes)."""
+def _backward_function(f: Model, transform: Transform, angle_states: frozenset[int], names: tuple,
+                       name: str) -> ca.Function:
+    """(x_k, P_k, x^s_{k+1}, P^s_{k+1}, Q, p_{k+1}) ↦ (x^s_k, P^s_k): one backward step (module
+    notes), with the parameter values of the prediction to step k + 1."""
     n, nq = f.n_u, f.n_v or f.n_u
     dim = n + f.n_v
     points = len(transform.unit_rule(dim)[0]) if transform.point_rule else 0
     kind = ca.MX if dim >= MX_FROM or points > MAX_SX_POINTS else ca.SX
     chol = chol_node if kind is ca.MX else chol_lower
     x, P = kind.sym("x", n), kind.sym("P", n, n)
-    xs, Ps, Q = kind.sym("xs", n), kind.sym("Ps", n, n), kind.sym("Q", nq, nq)
-    if f.n_v:
-        mean, cov, cross = moments(compiled(f), ca.vertcat(x, kind.zeros(nq)), ca.diagcat(P, Q), transform,
-                                   angle_states, chol)
-        cross = cross[:, :n]
-    else:
-        mean, cov, cross = moments(compiled(f), x, P, transform, angle_states, chol)
-        cov = cov + Q
-    x_pred, P_pred = wrap_entries(mean, angle_states), sym(cov)
+    xs, Ps, Q, p = kind.sym("xs", n), kind.sym("Ps", n, n), kind.sym("Q", nq, nq), kind.sym("p", len(names))
+    x_pred, P_pred, cross = predict_graph(f, transform, angle_states, x, P, Q, chol, select_params(f, names, p),
+                                          cross=True)
     gain = ca.solve(P_pred, cross).T  # G = C P⁻⁻¹ with C = crossᵀ, P⁻ symmetric
     x_s = wrap_entries(x + ca.mtimes(gain, wrap_entries(xs - x_pred, angle_states)), angle_states)
     P_s = sym(P + ca.mtimes(ca.mtimes(gain, Ps - P_pred), gain.T))
-    return ca.Function(name, [x, P, xs, Ps, Q], [ca.densify(x_s), ca.densify(P_s)],
-                       ["x", "P", "xs", "Ps", "Q"], ["x_smooth", "P_smooth"],
+    return ca.Function(name, [x, P, xs, Ps, Q, p], [ca.densify(x_s), ca.densify(P_s)],
+                       ["x", "P", "xs", "Ps", "Q", "p"], ["x_smooth", "P_smooth"],
                        {"cse": True} if kind is ca.SX else {})
 
 
@@ -80,7 +75,8 @@ _DRIVER = """
 /* symmon: the RTS backward pass of {name} over a bank: x (runs*K*n), P (runs*K*n*n) filtered;
    xs, Ps smoothed, the same layout. */
 CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x, const casadi_real* P, const casadi_real* Q,
-    casadi_real* xs, casadi_real* Ps, casadi_int runs, casadi_int K, casadi_int* iw, casadi_real* w) {{
+    const casadi_real* p, casadi_real* xs, casadi_real* Ps, casadi_int runs, casadi_int K, casadi_int* iw,
+    casadi_real* w) {{
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
   casadi_int r, k, i;
@@ -91,7 +87,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x, const casadi_real* P, 
     for (k = K - 2; k >= 0; --k) {{
       i = r * K + k;
       arg[0] = x + i * {n}; arg[1] = P + i * {nn}; arg[2] = xs + (i + 1) * {n};
-      arg[3] = Ps + (i + 1) * {nn}; arg[4] = Q;
+      arg[3] = Ps + (i + 1) * {nn}; arg[4] = Q; arg[5] = p + (i + 1) * {n_p};
       res[0] = xs + i * {n}; res[1] = Ps + i * {nn};
       if ({name}(arg, res, iw, w, 0)) return 1;
     }}
@@ -104,19 +100,19 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x, const casadi_real* P, 
 class _CompiledSmoother:
     """The backward step of one (f, transform), as C with its loop or on CasADi's VM."""
 
-    def __init__(self, f: Model, transform: Transform, angle_states: frozenset[int]) -> None:
-        key = repr((f.outputs, f.inputs, f.noise, transform, sorted(angle_states)))
+    def __init__(self, f: Model, transform: Transform, angle_states: frozenset[int], names: tuple = ()) -> None:
+        key = repr((f.outputs, f.inputs, f.noise, f.params, names, transform, sorted(angle_states)))
         name = "sm_rts_" + hashlib.sha1(key.encode()).hexdigest()[:12]
-        self.f = fn = _backward_function(f, transform, angle_states, name)
-        self.n = f.n_u
-        code = generated_c(fn) + _DRIVER.format(name=name, sz_arg=max(fn.sz_arg(), 5), sz_res=max(fn.sz_res(), 2),
-                                                n=self.n, nn=self.n * self.n)
+        self.f = fn = _backward_function(f, transform, angle_states, names, name)
+        self.n, self.n_p = f.n_u, len(names)
+        code = generated_c(fn) + _DRIVER.format(name=name, sz_arg=max(fn.sz_arg(), 6), sz_res=max(fn.sz_res(), 2),
+                                                n=self.n, nn=self.n * self.n, n_p=self.n_p)
         self._lib = NativeLibrary(code, name, self._load, stacklevel=4)
         self._local = threading.local()
 
     def _load(self, so):
         run = getattr(ctypes.CDLL(str(so)), f"{self.f.name()}_run")
-        run.argtypes = [ctypes.c_void_p] * 5 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2
+        run.argtypes = [ctypes.c_void_p] * 6 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2
         run.restype = ctypes.c_int
         return run
 
@@ -131,23 +127,30 @@ class _CompiledSmoother:
             ws = self._local.ws = (np.zeros(max(self.f.sz_iw(), 1), dtype=np.int64), np.zeros(max(self.f.sz_w(), 1)))
         return ws[0].ctypes.data, ws[1].ctypes.data
 
-    def __call__(self, x: np.ndarray, P: np.ndarray, Q: np.ndarray, use_c: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """Smooth the filtered x (runs, K, n), P (runs, K, n, n); returns (x^s, P^s) alike."""
+    def __call__(self, x: np.ndarray, P: np.ndarray, Q: np.ndarray, use_c: bool = True,
+                 params: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Smooth the filtered x (runs, K, n), P (runs, K, n, n), with the filter's parameter
+        values (runs, K, n_p) (None: no parameters); returns (x^s, P^s) alike."""
         runs, K = x.shape[:2]
         x = np.ascontiguousarray(x, dtype=float)
         P = np.ascontiguousarray(P, dtype=float)
         Q = np.ascontiguousarray(Q, dtype=float)
+        if params is None:
+            if self.n_p:
+                raise SymmonError("the smoother step needs the values of the parameters")
+            params = np.zeros((runs, K, 1))  # a valid pointer; no entry is read
+        params = np.ascontiguousarray(params, dtype=float)
         xs, Ps = np.empty_like(x), np.empty_like(P)
         run = self._lib.get() if use_c else None
         if run is None:
-            return self._vm(x, P, Q, xs, Ps)
+            return self._vm(x, P, Q, params[..., :self.n_p], xs, Ps)
 
         def part(c: tuple[int, int]) -> int:
             a, b = c
             iw, w = self._workspace()
             # ctypes releases the GIL for the call: the chunks run in parallel.
-            return run(x[a].ctypes.data, P[a].ctypes.data, Q.ctypes.data, xs[a].ctypes.data, Ps[a].ctypes.data,
-                       b - a, K, iw, w)
+            return run(x[a].ctypes.data, P[a].ctypes.data, Q.ctypes.data, params[a].ctypes.data, xs[a].ctypes.data,
+                       Ps[a].ctypes.data, b - a, K, iw, w)
 
         chunks = chunk_runs(runs, K)
         if len(chunks) == 1:
@@ -159,7 +162,7 @@ class _CompiledSmoother:
             raise SymmonError(f"the compiled smoother step {self.f.name()} returned an error")
         return xs, Ps
 
-    def _vm(self, x, P, Q, xs, Ps):
+    def _vm(self, x, P, Q, params, xs, Ps):
         """The backward pass on CasADi's VM: one mapped call per step over the runs."""
         runs, K = x.shape[:2]
         fm = self.f.map(runs, "serial") if runs > 1 else self.f
@@ -169,6 +172,7 @@ class _CompiledSmoother:
         out_x, out_P = np.empty((runs, self.n)), np.empty((runs, self.n, self.n))
         for k in range(K - 2, -1, -1):
             args = [np.ascontiguousarray(a) for a in (x[:, k], P[:, k], xs[:, k + 1], Ps[:, k + 1])] + [Qb]
+            args.append(np.ascontiguousarray(params[:, k + 1]))
             for i, a in enumerate(args):
                 fb.set_arg(i, memoryview(a))
             fb.set_res(0, memoryview(out_x))
@@ -182,11 +186,13 @@ _smoothers: dict[tuple, _CompiledSmoother] = {}
 _lock = threading.Lock()
 
 
-def compiled_smoother(f: Model, transform: Transform, angle_states: frozenset[int]) -> _CompiledSmoother:
-    """The compiled backward step of (f, transform), built once per process (C cached on disk)."""
-    key = (f, transform, angle_states)
+def compiled_smoother(f: Model, transform: Transform, angle_states: frozenset[int],
+                      names: tuple = ()) -> _CompiledSmoother:
+    """The compiled backward step of (f, transform), built once per process (C cached on disk);
+    ``names`` are the filter's parameters (:func:`symmon.filters.step.filter_params`)."""
+    key = (f, transform, angle_states, tuple(names))
     with _lock:
         s = _smoothers.get(key)
         if s is None:
-            s = _smoothers[key] = _CompiledSmoother(f, transform, angle_states)
+            s = _smoothers[key] = _CompiledSmoother(f, transform, angle_states, tuple(names))
         return s

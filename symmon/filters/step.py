@@ -50,7 +50,7 @@ from ..compile.ccache import NativeLibrary
 from ..compile.compiled import generated_c
 from ..errors import SymmonError
 from ..core.model import Model
-from ..compile import compiled
+from ..compile import compiled, compiled_with_params
 from ..codegen.symbolic import chol_lower, chol_node, moments, wrap_entries
 from ..transforms import Transform
 
@@ -83,20 +83,41 @@ def step_kind(f: Model, h: Model, transform: Transform):
     return kind, chol_node if kind is ca.MX else chol_lower  # unrolled factor: n³/6 operations
 
 
-def predict_graph(f: Model, transform: Transform, angle_states: frozenset[int], x, P, Q, chol):
-    """The time update: x⁻ = E f, P⁻ = Cov f (+ Q), the NLT of f (on [x; w] with general noise)."""
+def model_moments(model: Model, m, P, transform: Transform, angles, chol, p=None):
+    """E g, Cov g, Cov(g, w) of the model at N(m, P), its parameters p (their values, a
+    symbol of the graph) fixed: :func:`symmon.codegen.symbolic.moments`."""
+    if model.n_p:
+        return moments(compiled_with_params(model), m, P, transform, angles, chol, p)
+    return moments(compiled(model), m, P, transform, angles, chol)
+
+
+def select_params(model: Model, names: tuple, p):
+    """The entries of the filter's parameter vector p (named ``names``) that ``model`` uses."""
+    if not model.n_p:
+        return None
+    return ca.vertcat(*[p[names.index(s)] for s in model.params])
+
+
+def predict_graph(f: Model, transform: Transform, angle_states: frozenset[int], x, P, Q, chol, p=None,
+                  cross: bool = False):
+    """The time update: x⁻ = E f, P⁻ = Cov f (+ Q), the NLT of f (on [x; w] with general noise),
+    with f's parameters ``p``; with ``cross``, also Cov(x⁻, x) (n × n), for the smoother."""
     kind = type(x)
+    n = x.shape[0]
     if f.n_v:
-        mean, cov, _ = moments(compiled(f), ca.vertcat(x, kind.zeros(f.n_v)), ca.diagcat(P, Q), transform,
-                               angle_states, chol)
+        mean, cov, cxw = model_moments(f, ca.vertcat(x, kind.zeros(f.n_v)), ca.diagcat(P, Q), transform,
+                                       angle_states, chol, p)
+        cxw = cxw[:, :n]
     else:
-        mean, cov, _ = moments(compiled(f), x, P, transform, angle_states, chol)
+        mean, cov, cxw = model_moments(f, x, P, transform, angle_states, chol, p)
         cov = cov + Q
+    if cross:
+        return wrap_entries(mean, angle_states), sym(cov), cxw
     return wrap_entries(mean, angle_states), sym(cov)
 
 
 def update_graph(h: Model, transform: Transform, angle_states: frozenset[int], x_pred, P_pred, y, R, chol,
-                 mask=None):
+                 mask=None, p=None):
     """The measurement update, Lemma 7.1 on the NLT of h at N(x⁻, P⁻): (x⁺, P⁺, ν, S, log N(ν; 0, S)).
 
     ``mask`` (n_y, 1 for a measured component and 0 for a missing one; None: all measured)
@@ -106,16 +127,16 @@ def update_graph(h: Model, transform: Transform, angle_states: frozenset[int], x
     those of the update on the measured components only, and log N(ν̃; 0, S̃) (with the 2π
     term counted for the measured ones) their log-likelihood; nothing measured is a pure
     prediction with log-likelihood 0.  A missing component must be finite in ``y`` (the
-    caller writes 0), so that no NaN enters the products.
+    caller writes 0), so that no NaN enters the products.  ``p``: the values of h's parameters.
     """
     kind, n, n_y = type(x_pred), x_pred.shape[0], h.n_y
     y_angles = frozenset(h.angle_outputs)
     if h.n_v:
-        y_hat, S, cross = moments(compiled(h), ca.vertcat(x_pred, kind.zeros(h.n_v)), ca.diagcat(P_pred, R),
-                                  transform, y_angles, chol)
+        y_hat, S, cross = model_moments(h, ca.vertcat(x_pred, kind.zeros(h.n_v)), ca.diagcat(P_pred, R),
+                                        transform, y_angles, chol, p)
         cross = cross[:, :n]
     else:
-        y_hat, S, cross = moments(compiled(h), x_pred, P_pred, transform, y_angles, chol)
+        y_hat, S, cross = model_moments(h, x_pred, P_pred, transform, y_angles, chol, p)
         S = S + R
     S = sym(S)
     nu = wrap_entries(y - y_hat, y_angles)
@@ -135,19 +156,28 @@ def update_graph(h: Model, transform: Transform, angle_states: frozenset[int], x
     return x_new, P_new, nu, S, loglik
 
 
+def filter_params(f: Model, h: Model) -> tuple:
+    """The parameters of a filter: f's, then h's that f does not have."""
+    return tuple(f.params) + tuple(s for s in h.params if s not in f.params)
+
+
 def _step_function(f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
                    name: str) -> ca.Function:
-    """(x, P, y, Q, R, mask) ↦ (x⁺, P⁺, x⁻, P⁻, ν, S, log-likelihood): one predict + update
-    step, on the measured components of y (``mask``, :func:`update_graph`)."""
+    """(x, P, y, Q, R, mask, p) ↦ (x⁺, P⁺, x⁻, P⁻, ν, S, log-likelihood): one predict + update
+    step, on the measured components of y (``mask``, :func:`update_graph`), with the values p
+    of the parameters (:func:`filter_params`; size 0 without)."""
     n, n_y = f.n_u, h.n_y
     nq, nr = f.n_v or n, h.n_v or n_y
+    names = filter_params(f, h)
     kind, chol = step_kind(f, h, transform)
     x, P, y = kind.sym("x", n), kind.sym("P", n, n), kind.sym("y", n_y)
     Q, R, mask = kind.sym("Q", nq, nq), kind.sym("R", nr, nr), kind.sym("mask", n_y)
-    x_pred, P_pred = predict_graph(f, transform, angle_states, x, P, Q, chol)
-    x_new, P_new, nu, S, loglik = update_graph(h, transform, angle_states, x_pred, P_pred, y, R, chol, mask)
+    p = kind.sym("p", len(names))
+    x_pred, P_pred = predict_graph(f, transform, angle_states, x, P, Q, chol, select_params(f, names, p))
+    x_new, P_new, nu, S, loglik = update_graph(h, transform, angle_states, x_pred, P_pred, y, R, chol, mask,
+                                               select_params(h, names, p))
     outs = [ca.densify(a) for a in (x_new, P_new, x_pred, P_pred, nu, S, loglik)]
-    return ca.Function(name, [x, P, y, Q, R, mask], outs, ["x", "P", "y", "Q", "R", "mask"],
+    return ca.Function(name, [x, P, y, Q, R, mask, p], outs, ["x", "P", "y", "Q", "R", "mask", "p"],
                        ["x_new", "P_new", "x_pred", "P_pred", "innovation", "S", "loglik"],
                        {"cse": True} if kind is ca.SX else {})
 
@@ -160,8 +190,9 @@ _DRIVER = """
    slot (x and P to two, alternately, so that a step never writes what it reads). */
 CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
     const casadi_real* P0, casadi_int P0_step, const casadi_real* y,
-    const casadi_real* Q, const casadi_real* R, const casadi_real* mask, casadi_real* const* outs,
-    const casadi_int* strides, casadi_int runs, casadi_int K, casadi_int* iw, casadi_real* w) {{
+    const casadi_real* Q, const casadi_real* R, const casadi_real* mask, const casadi_real* p,
+    casadi_real* const* outs, const casadi_int* strides, casadi_int runs, casadi_int K, casadi_int* iw,
+    casadi_real* w) {{
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
   casadi_int r, k, i, j;
@@ -171,6 +202,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
     for (k = 0; k < K; ++k) {{
       i = r * K + k;
       arg[0] = x; arg[1] = P; arg[2] = y + i * {n_y}; arg[3] = Q; arg[4] = R; arg[5] = mask + i * {n_y};
+      arg[6] = p + i * {n_p};
       for (j = 0; j < 7; ++j) res[j] = outs[j] + i * strides[j];
       if (!strides[0]) res[0] = outs[0] + (k & 1) * {n};
       if (!strides[1]) res[1] = outs[1] + (k & 1) * {nn};
@@ -188,11 +220,12 @@ class _CompiledStep:
     """The step function of one (f, h, transform), as C with a run loop or on CasADi's VM."""
 
     def __init__(self, f: Model, h: Model, transform: Transform, angle_states: frozenset[int]) -> None:
-        key = repr((f.outputs, f.inputs, f.noise, h.outputs, h.inputs, h.noise, transform,
+        key = repr((f.outputs, f.inputs, f.noise, f.params, h.outputs, h.inputs, h.noise, h.params, transform,
                     sorted(angle_states), sorted(h.angle_outputs)))
         name = "sm_nkf_" + hashlib.sha1(key.encode()).hexdigest()[:12]
         self.f = _step_function(f, h, transform, angle_states, name)
         self.n, self.n_y = n, n_y = f.n_u, h.n_y
+        self.n_p = len(filter_params(f, h))
         self._shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n),
                         "innovation": (n_y,), "S": (n_y, n_y), "loglik": ()}
         # The compile policy of every generated function (docs/compile.md): a small step is
@@ -200,8 +233,8 @@ class _CompiledStep:
         # Without a compiler, compiled() has already warned (once) while the step was built.
         f = self.f
         code = generated_c(f) + _DRIVER.format(
-            name=name, sz_arg=max(f.sz_arg(), 6), sz_res=max(f.sz_res(), 7),
-            n=self.n, nn=self.n * self.n, n_y=self.n_y, nyy=self.n_y * self.n_y,
+            name=name, sz_arg=max(f.sz_arg(), 7), sz_res=max(f.sz_res(), 7),
+            n=self.n, nn=self.n * self.n, n_y=self.n_y, nyy=self.n_y * self.n_y, n_p=self.n_p,
         )
         self._lib = NativeLibrary(code, name, self._load, stacklevel=4)
         self._local = threading.local()
@@ -209,7 +242,7 @@ class _CompiledStep:
     def _load(self, so):
         run = getattr(ctypes.CDLL(str(so)), f"{self.f.name()}_run")
         run.argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_longlong]
-                        + [ctypes.c_void_p] * 6 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2)
+                        + [ctypes.c_void_p] * 7 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2)
         run.restype = ctypes.c_int
         return run
 
@@ -231,8 +264,10 @@ class _CompiledStep:
         return self._lib.evaluator
 
     def __call__(self, x0: np.ndarray, P0: np.ndarray, Y: np.ndarray, Q: np.ndarray, R: np.ndarray,
-                 use_c: bool = True, keep: frozenset[str] | None = None) -> dict[str, np.ndarray]:
-        """Run the bank: x0 (n,) or (runs, n), P0 (n, n) or (runs, n, n), Y (runs, K, n_y).
+                 use_c: bool = True, keep: frozenset[str] | None = None,
+                 params: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """Run the bank: x0 (n,) or (runs, n), P0 (n, n) or (runs, n, n), Y (runs, K, n_y), and
+        the parameters' values (runs, K, n_p) (None: no parameters).
 
         Returns the outputs of every step, (runs, K, ...) each, or only those named in
         ``keep`` (the others are written to a slot of one step, so a bank of long runs of a
@@ -246,9 +281,14 @@ class _CompiledStep:
         measured = ~np.isnan(Y)
         mask = np.ascontiguousarray(measured, dtype=float)
         Y = np.ascontiguousarray(np.where(measured, Y, 0.0))
+        if params is None:
+            if self.n_p:
+                raise SymmonError("the filter step needs the values of its parameters")
+            params = np.zeros((runs, K, 1))  # a valid pointer; no entry is read
+        params = np.ascontiguousarray(params, dtype=float)
         run = self._lib.get() if use_c else None
         if run is None:
-            full = self._vm(x0, P0, Y, Q, R, mask)
+            full = self._vm(x0, P0, Y, Q, R, mask, params[..., :self.n_p])
             return {k: v for k, v in full.items() if k in kept}
         # A kept output: its (runs, K, ...) block; one that is not: a slot (two for x and P)
         # per thread of the bank.
@@ -272,8 +312,8 @@ class _CompiledStep:
             iw, w = self._workspace()  # one per thread
             # ctypes releases the GIL for the call: the chunks run in parallel.
             return run(x0.ctypes.data + 8 * a * x_step, x_step, P0.ctypes.data + 8 * a * P_step, P_step,
-                       Y[a].ctypes.data, Q.ctypes.data, R.ctypes.data, mask[a].ctypes.data, outs,
-                       strides.ctypes.data, b - a, K, iw, w)
+                       Y[a].ctypes.data, Q.ctypes.data, R.ctypes.data, mask[a].ctypes.data,
+                       params[a].ctypes.data, outs, strides.ctypes.data, b - a, K, iw, w)
 
         if len(chunks) == 1:
             errs = [part(0)]
@@ -284,7 +324,7 @@ class _CompiledStep:
             raise SymmonError(f"the compiled filter step {self.f.name()} returned an error")
         return {k: b for k, b in blocks.items() if k in kept}
 
-    def _vm(self, x0, P0, Y: np.ndarray, Q, R, mask: np.ndarray) -> dict[str, np.ndarray]:
+    def _vm(self, x0, P0, Y: np.ndarray, Q, R, mask: np.ndarray, params: np.ndarray) -> dict[str, np.ndarray]:
         """Every output of every step on CasADi's VM: one mapped call per step over the runs."""
         runs, K = Y.shape[:2]
         n = self.n
@@ -301,8 +341,8 @@ class _CompiledStep:
         Rb = np.ascontiguousarray(np.broadcast_to(R, (runs,) + R.shape))
         step = {k: np.empty((runs,) + s) for k, s in shapes.items()}
         for k in range(K):
-            yk, mk = np.ascontiguousarray(Y[:, k]), np.ascontiguousarray(mask[:, k])
-            for i, a in enumerate((x, P, yk, Qb, Rb, mk)):
+            yk, mk, pk = (np.ascontiguousarray(a[:, k]) for a in (Y, mask, params))
+            for i, a in enumerate((x, P, yk, Qb, Rb, mk, pk)):
                 fb.set_arg(i, memoryview(a))
             for i, name in enumerate(_OUTPUTS):
                 fb.set_res(i, memoryview(step[name]))

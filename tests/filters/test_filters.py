@@ -661,7 +661,7 @@ def test_the_mx_step_equals_the_sx_step(transform, monkeypatch):
     sx = step._step_function(f, h, transform, states, "mxstep_sx")
     assert isinstance(mx.mx_in(0), ca.MX) and mx.is_a("MXFunction") and sx.is_a("SXFunction")
     ones = np.ones(len(y))
-    for a, b in zip(mx(x, P, y, Q, R, ones), sx(x, P, y, Q, R, ones)):
+    for a, b in zip(mx(x, P, y, Q, R, ones, []), sx(x, P, y, Q, R, ones, [])):
         a, b = a.full(), b.full()
         assert np.max(np.abs(a - b)) <= 1e-12 * max(1.0, np.max(np.abs(b)))
 
