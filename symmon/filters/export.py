@@ -14,7 +14,10 @@ and column-major alike); ``NAME_update`` adds log N(ν; 0, S) of the innovation 
 ``*loglik``.  They return ``NAME_OK`` (0), or an error code and leave x, P and ``*loglik``
 unchanged: ``NAME_ERR_STATE`` (x or P not finite on entry), ``NAME_ERR_MEASUREMENT`` (y not
 finite), ``NAME_ERR_S`` (the innovation covariance S is not positive definite) or
-``NAME_ERR_P`` (the new P is not positive definite, or the new x is not finite).
+``NAME_ERR_P`` (the new P is not positive definite, or the new x is not finite).  With model
+parameters (``Model(params=...)``) the function whose model uses them takes ``const double
+*p`` after the state (``NAME_NP`` values, f's then h's), and a non-finite one returns
+``NAME_ERR_PARAM``.
 
 The step is the filter's own (:mod:`symmon.filters.step`): the same CasADi graphs of the
 time update and of the measurement update (Lemma 7.1 of Gustafsson & Hendeby), with Q and
@@ -51,7 +54,7 @@ from ..compile.cnames import c_identifier, comment_text
 from ..errors import ArgumentTypeError, SymmonError
 from ..io import atomic_write_text, check_output_dir
 from ..version import __version__
-from .step import predict_graph, update_graph
+from .step import predict_graph, select_params, update_graph
 from .strategy import RuleStrategy
 
 if TYPE_CHECKING:  # pragma: no cover - annotations only
@@ -67,6 +70,7 @@ ERROR_CODES = {
     "ERR_S": (3, "the innovation covariance S is not positive definite"),
     "ERR_P": (4, "the new P is not positive definite, or the new x is not finite"),
     "ERR_EVAL": (5, "the generated evaluation failed (not expected)"),
+    "ERR_PARAM": (6, "a parameter value is not finite"),
 }
 
 
@@ -101,19 +105,25 @@ def filter_functions(kf: "NonlinearKalmanFilter", name: str) -> dict[str, ca.Fun
     chol = chol_node
     Q, R = ca.DM(np.asarray(kf.Q, dtype=float)), ca.DM(np.asarray(kf.R, dtype=float))
     x, P, y = ca.MX.sym("x", n), ca.MX.sym("P", n, n), ca.MX.sym("y", n_y)
-    x_pred, P_pred = predict_graph(f, transform, kf.angle_states, x, P, Q, chol)
+    names = kf.params
+    p = ca.MX.sym("p", len(names))
+    x_pred, P_pred = predict_graph(f, transform, kf.angle_states, x, P, Q, chol, select_params(f, names, p))
 
     def pivot(A):
         # 1 when every pivot of chol(A) is > 0, else 0: a comparison is false for NaN (a
         # negative pivot), where fmin would skip the NaN.
         return ca.mmin(ca.diag(chol(A)) > 0)
 
-    predict = ca.Function(f"{name}_predict_step", [x, P], [ca.densify(x_pred), ca.densify(P_pred), pivot(P_pred)],
-                          ["x", "P"], ["x_pred", "P_pred", "pd_P"])
-    x_new, P_new, _, S, loglik = update_graph(h, transform, kf.angle_states, x, P, y, R, chol)
-    update = ca.Function(f"{name}_update_step", [x, P, y],
+    # A function takes p when its model has parameters: (x, P, p) and (x, P, p, y).
+    pf, ph = ([p], ["p"]) if f.n_p else ([], []), ([p], ["p"]) if h.n_p else ([], [])
+    predict = ca.Function(f"{name}_predict_step", [x, P, *pf[0]],
+                          [ca.densify(x_pred), ca.densify(P_pred), pivot(P_pred)],
+                          ["x", "P", *pf[1]], ["x_pred", "P_pred", "pd_P"])
+    x_new, P_new, _, S, loglik = update_graph(h, transform, kf.angle_states, x, P, y, R, chol, None,
+                                              select_params(h, names, p))
+    update = ca.Function(f"{name}_update_step", [x, P, *ph[0], y],
                          [ca.densify(x_new), ca.densify(P_new), loglik, pivot(S), pivot(P_new)],
-                         ["x", "P", "y"], ["x_new", "P_new", "loglik", "pd_S", "pd_P"])
+                         ["x", "P", *ph[1], "y"], ["x_new", "P_new", "loglik", "pd_S", "pd_P"])
     return {"predict": predict, "update": update}
 
 
@@ -146,15 +156,15 @@ static int {P}_all_finite(const double *a, int n) {{
   return 1;
 }}
 
-int {P}_predict(double *x, double *P) {{
+int {P}_predict(double *x, double *P{f_sig}) {{
   const casadi_real *arg[{P_}_PREDICT_SZ_ARG];
   casadi_real *res[{P_}_PREDICT_SZ_RES];
   casadi_int iw[{P_}_PREDICT_SZ_IW];
   casadi_real w[{P_}_PREDICT_SZ_W];
   casadi_real *x_new = w, *P_new = w + {P_}_NX, pd = 0;
   casadi_real *work = w + {P_}_NX + {P_}_NX * {P_}_NX;
-  if (!{P}_all_finite(x, {P_}_NX) || !{P}_all_finite(P, {P_}_NX * {P_}_NX)) return {P_}_ERR_STATE;
-  arg[0] = x; arg[1] = P;
+  if (!{P}_all_finite(x, {P_}_NX) || !{P}_all_finite(P, {P_}_NX * {P_}_NX)) return {P_}_ERR_STATE;{f_check}
+  arg[0] = x; arg[1] = P;{f_arg}
   res[0] = x_new; res[1] = P_new; res[2] = &pd;
   if ({P}_predict_step(arg, res, iw, work, 0)) return {P_}_ERR_EVAL;
   if (!(pd > 0) || !{P}_all_finite(x_new, {P_}_NX)) return {P_}_ERR_P;
@@ -163,7 +173,7 @@ int {P}_predict(double *x, double *P) {{
   return {P_}_OK;
 }}
 
-int {P}_update(double *x, double *P, const double *y, double *loglik) {{
+int {P}_update(double *x, double *P{h_sig}, const double *y, double *loglik) {{
   const casadi_real *arg[{P_}_UPDATE_SZ_ARG];
   casadi_real *res[{P_}_UPDATE_SZ_RES];
   casadi_int iw[{P_}_UPDATE_SZ_IW];
@@ -171,8 +181,8 @@ int {P}_update(double *x, double *P, const double *y, double *loglik) {{
   casadi_real *x_new = w, *P_new = w + {P_}_NX, ll = 0, pd_S = 0, pd_P = 0;
   casadi_real *work = w + {P_}_NX + {P_}_NX * {P_}_NX;
   if (!{P}_all_finite(x, {P_}_NX) || !{P}_all_finite(P, {P_}_NX * {P_}_NX)) return {P_}_ERR_STATE;
-  if (!{P}_all_finite(y, {P_}_NY)) return {P_}_ERR_MEASUREMENT;
-  arg[0] = x; arg[1] = P; arg[2] = y;
+  if (!{P}_all_finite(y, {P_}_NY)) return {P_}_ERR_MEASUREMENT;{h_check}
+  arg[0] = x; arg[1] = P;{h_arg} arg[{y_at}] = y;
   res[0] = x_new; res[1] = P_new; res[2] = &ll; res[3] = &pd_S; res[4] = &pd_P;
   if ({P}_update_step(arg, res, iw, work, 0)) return {P_}_ERR_EVAL;
   if (!(pd_S > 0) || !isfinite(ll)) return {P_}_ERR_S;
@@ -186,7 +196,7 @@ int {P}_update(double *x, double *P, const double *y, double *loglik) {{
 
 _EXAMPLE = r"""/* {P}_example.c: run the exported filter {P} on measurements read from stdin.
 
-   Input (whitespace-separated numbers): x0 ({P_}_NX numbers), P0 ({P_}_NX * {P_}_NX, row-major),
+   Input (whitespace-separated numbers): x0 ({P_}_NX numbers), P0 ({P_}_NX * {P_}_NX, row-major),{ex_doc}
    then one measurement of {P_}_NY numbers per step, until the end of the input.
    Output: one line per step, "k code x[0..NX-1] P[0..NX*NX-1] loglik" (%.17g), where code is
    the return code of {P}_predict, or else of {P}_update (0 = OK).  The program stops at
@@ -196,16 +206,16 @@ _EXAMPLE = r"""/* {P}_example.c: run the exported filter {P} on measurements rea
 #include "{P}.h"
 
 int main(void) {{
-  double x[{P_}_NX], P[{P_}_NX * {P_}_NX], y[{P_}_NY], loglik = 0;
+  double x[{P_}_NX], P[{P_}_NX * {P_}_NX], y[{P_}_NY], loglik = 0;{ex_decl}
   int i, k, code;
   for (i = 0; i < {P_}_NX; ++i) if (scanf("%lf", &x[i]) != 1) return 2;
-  for (i = 0; i < {P_}_NX * {P_}_NX; ++i) if (scanf("%lf", &P[i]) != 1) return 2;
+  for (i = 0; i < {P_}_NX * {P_}_NX; ++i) if (scanf("%lf", &P[i]) != 1) return 2;{ex_read}
   for (k = 0;; ++k) {{
     for (i = 0; i < {P_}_NY; ++i) if (scanf("%lf", &y[i]) != 1) break;
     if (i == 0) break;
     if (i < {P_}_NY) return 2;
-    code = {P}_predict(x, P);
-    if (code == {P_}_OK) code = {P}_update(x, P, y, &loglik);
+    code = {P}_predict(x, P{f_call});
+    if (code == {P_}_OK) code = {P}_update(x, P{h_call}, y, &loglik);
     printf("%d %d", k, code);
     for (i = 0; i < {P_}_NX; ++i) printf(" %.17g", x[i]);
     for (i = 0; i < {P_}_NX * {P_}_NX; ++i) printf(" %.17g", P[i]);
@@ -217,10 +227,37 @@ int main(void) {{
 """
 
 
+def _fill(P: str, kf) -> dict[str, str]:
+    """The template's fields: the prefix, and the parameter argument of the functions whose
+    model has parameters."""
+    P_ = P.upper()
+    fp, hp = bool(kf.f_model.n_p), bool(kf.h_model.n_p)
+    check = f"\n  if (!{P}_all_finite(p, {P_}_NP)) return {P_}_ERR_PARAM;"
+    n_p = len(kf.params)
+    return {
+        "P": P, "P_": P_,
+        "f_sig": ", const double *p" if fp else "", "f_check": check if fp else "", "f_arg": " arg[2] = p;" if fp else "",
+        "h_sig": ", const double *p" if hp else "", "h_check": check if hp else "", "h_arg": " arg[2] = p;" if hp else "",
+        "y_at": "3" if hp else "2",
+        "f_call": ", p" if fp else "", "h_call": ", p" if hp else "",
+        "ex_doc": f"\n   then the {P_}_NP parameter values (constant over the run)," if n_p else "",
+        "ex_decl": f"\n  double p[{P_}_NP];" if n_p else "",
+        "ex_read": f"\n  for (i = 0; i < {P_}_NP; ++i) if (scanf(\"%lf\", &p[i]) != 1) return 2;" if n_p else "",
+    }
+
+
+def _signatures(P: str, kf) -> tuple[str, str]:
+    """The C prototypes of the two functions."""
+    fp = ", const double *p" if kf.f_model.n_p else ""
+    hp = ", const double *p" if kf.h_model.n_p else ""
+    return (f"int {P}_predict(double *x, double *P{fp});",
+            f"int {P}_update(double *x, double *P{hp}, const double *y, double *loglik);")
+
+
 def _model_hash(kf: "NonlinearKalmanFilter", transform) -> str:
     """sha256 of what the C computes: f, h, Q, R, the transform and the angles."""
     f, h = kf.f_model, kf.h_model
-    key = repr((f.outputs, f.inputs, f.noise, h.outputs, h.inputs, h.noise, transform,
+    key = repr((f.outputs, f.inputs, f.noise, f.params, h.outputs, h.inputs, h.noise, h.params, transform,
                 sorted(kf.angle_states), sorted(h.angle_outputs),
                 np.asarray(kf.Q).tolist(), np.asarray(kf.R).tolist()))
     return hashlib.sha256(key.encode()).hexdigest()
@@ -241,6 +278,9 @@ def _header(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> s
         f"  noise: {'general, w in f' if f.n_v else 'additive Q'}; {'general, e in h' if h.n_v else 'additive R'};"
         " Q and R fixed at export",
     ]
+    if kf.params:
+        lines.append(f"  parameters p = [{', '.join(comment_text(str(q)) for q in kf.params)}]   (NP = {len(kf.params)}),"
+                     " an argument of the functions whose model uses them")
     if kf.angle_states:
         lines.append(f"  angle states (wrapped to (-pi, pi]): {sorted(kf.angle_states)} (0-based)")
     if h.angle_outputs:
@@ -248,9 +288,9 @@ def _header(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> s
     lines += [
         f"  model hash (sha256 of f, h, Q, R, the transform and the angles): {digest}",
         "",
-        f"int {P}_predict(double *x, double *P);",
+        _signatures(P, kf)[0],
         "    The time update, in place: x <- E f(x), P <- Cov f (+ Q).",
-        f"int {P}_update(double *x, double *P, const double *y, double *loglik);",
+        _signatures(P, kf)[1],
         "    The measurement update, in place, with y[NY]; adds log N(innovation; 0, S) to *loglik.",
         "",
         "x has NX entries, P NX x NX (symmetric: row- and column-major alike; written exactly",
@@ -260,7 +300,10 @@ def _header(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> s
         f"{P}.c (link with -lm).",
     ]
     body = "/*\n" + "\n".join((" * " + ln).rstrip() for ln in lines) + "\n */\n"
-    macros = [f"#define {P_}_NX {n}", f"#define {P_}_NY {n_y}", ""]
+    macros = [f"#define {P_}_NX {n}", f"#define {P_}_NY {n_y}"]
+    if kf.params:
+        macros.append(f"#define {P_}_NP {len(kf.params)}")
+    macros.append("")
     for key, (code, what) in ERROR_CODES.items():
         macros.append(f"#define {P_}_{key} {code}  /* {what} */")
     macros.append("")
@@ -326,11 +369,10 @@ def export_filter_c(kf: "NonlinearKalmanFilter", directory: str | Path, name: st
         raise SymmonError("unexpected CasADi header layout: cannot add the filter interface")
     head, tail = h_src.rsplit(closing, 1)
     guard = f"{P.upper()}_SYMMON_FILTER_H"
-    protos = (f"int {P}_predict(double *x, double *P);\n"
-              f"int {P}_update(double *x, double *P, const double *y, double *loglik);\n")
+    protos = "\n".join(_signatures(P, kf)) + "\n"
     h_src = (comment + f"#ifndef {guard}\n#define {guard}\n\n" + macros + "\n\n" + head
              + "/* The filter interface (symmon). */\n" + protos + closing + tail + f"#endif /* {guard} */\n")
-    fill = {"P": P, "P_": P.upper()}
+    fill = _fill(P, kf)
     c_src = (strict_c(c_src).rstrip("\n") + "\n\n#include <string.h>\n#include \"" + P + ".h\"\n"
              + _C_FUNCTIONS.format(**fill))
     example = _EXAMPLE.format(**fill)
@@ -363,11 +405,13 @@ def _readme(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> s
         "## Interface (see the comment at the top of the header)",
         "",
         "```c",
-        f"int {P}_predict(double *x, double *P);                                  /* in place */",
-        f"int {P}_update(double *x, double *P, const double *y, double *loglik);  /* in place */",
+        _signatures(P, kf)[0] + "  /* in place */",
+        _signatures(P, kf)[1] + "  /* in place */",
         "```",
         "",
-        f"x has {P.upper()}_NX = {n} entries, P is {n} x {n} (symmetric), y has {P.upper()}_NY = {n_y}.",
+        f"x has {P.upper()}_NX = {n} entries, P is {n} x {n} (symmetric), y has {P.upper()}_NY = {n_y}"
+        + (f", p has {P.upper()}_NP = {len(kf.params)}: " + ", ".join(code(q) for q in kf.params) if kf.params else "")
+        + ".",
         "Return codes: " + "; ".join(f"{code(P.upper() + '_' + k)} = {c} ({what})"
                                       for k, (c, what) in ERROR_CODES.items()) + ".",
         "On an error x, P and *loglik are left unchanged.",
@@ -386,7 +430,8 @@ def _readme(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> s
         f"./{P}_example < measurements.txt",
         "```",
         "",
-        f"`{P}_example` reads x0 ({n} numbers), P0 ({n * n}, row-major) and then one measurement of",
+        f"`{P}_example` reads x0 ({n} numbers), P0 ({n * n}, row-major)"
+        + (f", the {len(kf.params)} parameter values" if kf.params else "") + " and then one measurement of",
         f"{n_y} numbers per step from stdin, and prints per step `k code x P loglik`. Run it on a",
         "recorded sequence and compare with `kf.filter` in symmon (docs/export.md).",
         "",

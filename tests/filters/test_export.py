@@ -77,17 +77,17 @@ def build(directory: Path, prefix: str, compiler: str = "gcc") -> Path:
     return exe
 
 
-def run_example(exe: Path, x0, P0, ys) -> tuple[int, np.ndarray]:
-    text = " ".join(repr(float(v)) for v in [*x0, *np.ravel(P0)]) + "\n"
+def run_example(exe: Path, x0, P0, ys, params=()) -> tuple[int, np.ndarray]:
+    text = " ".join(repr(float(v)) for v in [*x0, *np.ravel(P0), *params]) + "\n"
     text += "\n".join(" ".join(repr(float(v)) for v in row) for row in ys) + "\n"
     res = subprocess.run([str(exe)], input=text, capture_output=True, text=True)
     rows = np.array([[float(v) for v in line.split()] for line in res.stdout.splitlines()])
     return res.returncode, rows
 
 
-def check_against_filter(kf, rows, ys, x0, P0):
+def check_against_filter(kf, rows, ys, x0, P0, params=None):
     n = kf.f_model.n_u
-    ref = kf.filter(ys, x0, P0)
+    ref = kf.filter(ys, x0, P0, params=params)
     assert rows.shape == (len(ys), 2 + n + n * n + 1)
     assert (rows[:, 1] == 0).all()
     np.testing.assert_allclose(rows[:, 2:2 + n], ref.x, rtol=RTOL, atol=RTOL * np.abs(ref.x).max())
@@ -128,6 +128,43 @@ def test_export_with_general_noise_and_an_angle_state(tmp_path, family):
     assert code == 0
     assert np.all(np.abs(rows[:, 4]) <= np.pi)  # the heading is wrapped
     check_against_filter(kf, rows, ys, X0_TURN, P0_TURN)
+
+
+@needs_gcc
+@pytest.mark.parametrize("family", ["ekf", "ukf"])
+def test_export_with_parameters(tmp_path, family):
+    """A time step in f and a range bias in h: p is an argument of both functions."""
+    px, py, vx, vy, dt, b = sp.symbols("px py vx vy dt b", real=True)
+    f = sm.Model([px, py, vx, vy], [px + dt * vx, py + dt * vy, vx, vy], params=[dt], name="cv dt")
+    h = sm.Model([px, py, vx, vy], [sp.sqrt(px**2 + py**2) + b, sp.atan2(py, px)], angles=[1], params=[b],
+                 name="rb bias")
+    _, _, Q, R = cv_models()
+    kf = sm.NonlinearKalmanFilter(f, h, Q, R, FAMILIES[family])
+    ys = record(*cv_models()[:2], Q, R, X0)
+    ys[:, 0] += 0.8
+    kf.export_c(tmp_path, name="rbp")
+    header = (tmp_path / "rbp.h").read_text()
+    assert "#define RBP_NP 2" in header and "parameters p = [dt, b]" in header
+    assert "int rbp_predict(double *x, double *P, const double *p);" in header
+    assert "int rbp_update(double *x, double *P, const double *p, const double *y, double *loglik);" in header
+    code, rows = run_example(build(tmp_path, "rbp"), X0, P0, ys, params=(1.0, 0.8))
+    assert code == 0
+    check_against_filter(kf, rows, ys, X0, P0, params={"dt": 1.0, "b": 0.8})
+    code, rows = run_example(tmp_path / "rbp_example", X0, P0, ys, params=(1.0, np.nan))
+    assert code == 1 and rows[0, 1] == ERROR_CODES["ERR_PARAM"][0]  # at the first step
+
+
+@needs_gcc
+def test_only_the_functions_whose_model_has_parameters_take_them(tmp_path):
+    px, py, vx, vy, b = sp.symbols("px py vx vy b", real=True)
+    f, _, Q, R = cv_models()
+    h = sm.Model([px, py, vx, vy], [sp.sqrt(px**2 + py**2) + b, sp.atan2(py, px)], angles=[1], params=[b],
+                 name="rb bias")
+    sm.NonlinearKalmanFilter(f, h, Q, R, sm.UT.ut1()).export_c(tmp_path, name="hb")
+    header = (tmp_path / "hb.h").read_text()
+    assert "int hb_predict(double *x, double *P);" in header
+    assert "int hb_update(double *x, double *P, const double *p, const double *y, double *loglik);" in header
+    build(tmp_path, "hb")
 
 
 @pytest.mark.skipif(CLANG is None, reason="clang not found")
