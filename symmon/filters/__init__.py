@@ -11,8 +11,9 @@ from .results import ConsistencyTest as ConsistencyTest
 from .results import KalmanResult as KalmanResult
 from .results import NonlinearKalmanResult as NonlinearKalmanResult
 from .results import SmootherResult as SmootherResult
+from .fit import FitResult as FitResult
 from .strategy import FilterStrategy as FilterStrategy
 from .strategy import RuleStrategy as RuleStrategy
 
-__all__ = ["KalmanFilter", "KalmanResult", "NonlinearKalmanFilter", "NonlinearKalmanResult", "SmootherResult", "ConsistencyTest",
+__all__ = ["KalmanFilter", "KalmanResult", "NonlinearKalmanFilter", "NonlinearKalmanResult", "SmootherResult", "FitResult", "ConsistencyTest",
            "Adaptive", "FilterStrategy", "RuleStrategy"]

@@ -246,6 +246,49 @@ class NonlinearKalmanFilter:
         xs.flags.writeable = Ps.flags.writeable = False
         return SmootherResult(xs, Ps, fwd, angle_states=tuple(sorted(self.angle_states)), method=self.method)
 
+    def fit(self, ys: ArrayLike, x0: Gaussian | ArrayLike, start: dict, P0: ArrayLike | None = None, *,
+            params: dict | None = None, bounds: dict | None = None, max_iter: int = 200):
+        """Maximum-likelihood estimates of model parameters (:mod:`symmon.filters.fit`).
+
+        Maximises the marginal log-likelihood of ``ys`` (summed over the runs of a bank) over
+        the parameters named in ``start``, with its exact gradient: CasADi differentiates
+        through the filter's compiled step folded over the steps (no finite differences).
+
+        Parameters
+        ----------
+        ys, x0, P0
+            As for :meth:`filter` (NaN marks a missing measurement).
+        start : dict
+            The parameters to fit and their starting values, e.g. ``{"b": 0.0}``.
+        params : dict, optional
+            The values of the other parameters (fixed), as for :meth:`filter`.
+        bounds : dict, optional
+            ``{name: (low, high)}`` for fitted parameters (None for no bound on one side),
+            e.g. a noise intensity ``(1e-6, None)``.
+        max_iter : int
+            Iterations of the optimiser (L-BFGS-B).
+
+        Returns
+        -------
+        FitResult
+            The estimates, their standard errors from the observed information (the exact
+            Hessian of the log-likelihood), the covariance, the log-likelihood, the
+            iterations, all parameter values, and the filter at the fitted values.
+
+        Raises
+        ------
+        ModelError
+            Unknown, missing or doubly given parameters, or bad bounds or starting values.
+        SymmonError
+            When the optimiser does not converge, or the information matrix is singular
+            (a parameter the data do not identify).
+        """
+        from .fit import fit_parameters
+
+        if not isinstance(self.strategy, RuleStrategy):
+            raise SymmonError(f"fit needs one transform for every step; {self.method} chooses one per step")
+        return fit_parameters(self, ys, x0, start, P0, params=params, bounds=bounds, max_iter=max_iter)
+
     def export_c(self, directory: str | os.PathLike, name: str | None = None) -> list[Path]:
         """Write this filter as standalone C99 for an embedded target (docs/export.md).
 
