@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import UsageError
+from ..errors import ModelError, UsageError
 from .options import FIGURES, executor_of, transform_from_name, transform_names
 from .output import (
     _bank_json,
@@ -289,6 +289,37 @@ def cmd_codegen(args: argparse.Namespace) -> int:
     spec = _load(args.file)
     for p in export_c(spec.model, args.output, args.name):
         print(f"wrote {p}")
+    return 0
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    """``symmon fit``: maximum-likelihood estimates of a scenario's parameters from simulated runs."""
+    from ..files.filterfile import filter_transform, load_filter_file, simulate
+    from ..filters.nonlinear import NonlinearKalmanFilter
+
+    start = dict(args.param)
+    if len(start) != len(args.param):
+        raise ModelError("each --param names a different parameter")
+    spec = load_filter_file(args.file, free=list(start))
+    truth = {n: spec.params[n] for n in start}
+    f_true, h_true = (m.with_params({str(s): truth[str(s)] for s in m.params}) for m in (spec.f, spec.h))
+    _, ys = simulate(f_true, h_true, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
+    kf = NonlinearKalmanFilter(spec.f, spec.h, spec.Q, spec.R, filter_transform(args.filter))
+    res = kf.fit(ys, spec.x0, start, bounds=dict(args.bound))
+    if args.json:
+        _print_json({"scenario": spec.name, "filter": kf.method, "runs": args.runs, "steps": spec.steps,
+                     "seed": args.seed, "start": start, "truth": truth, "estimates": res.estimates,
+                     "std_errors": res.std_errors, "log_likelihood": res.log_likelihood,
+                     "iterations": res.iterations, "at_bound": list(res.at_bound)})
+        return 0
+    print(f"{spec.name}: {kf.method} on {args.runs} simulated runs of {spec.steps} steps (seed {args.seed}); "
+          f"log-likelihood {res.log_likelihood:.6g} after {res.iterations} iterations")
+    print(f"{'parameter':<12} {'estimate':>12} {'std. error':>11} {'truth':>10} {'start':>10}")
+    for n, v in res.estimates.items():
+        flag = "  (at a bound)" if n in res.at_bound else ""
+        print(f"{n:<12} {v:>12.6g} {res.std_errors[n]:>11.3g} {truth[n]:>10.6g} {start[n]:>10.6g}{flag}")
+    print("std. error: from the observed information (the exact Hessian of the log-likelihood); truth: the "
+          "file's value, which simulated the runs")
     return 0
 
 

@@ -86,6 +86,8 @@ _EXAMPLES = {
                   "symmon reproduce all --samples 100000"],
     "derive": ["symmon derive --all --out derivations.md", "symmon derive --list"],
     "codegen": ["symmon codegen examples/gmti.toml -o build/gmti"],
+    "fit": ["symmon fit examples/rb_bias.toml --param b=0 --param q=0.1 --bound q=1e-6:",
+            "symmon fit examples/rb_bias.toml --param b=0 --runs 50 --json"],
     "export": ["symmon export examples/rb_close.toml --filter ukf --out build/rb_ukf",
                "symmon export examples/rb_close.toml --filter ekf --out build/rb_ekf --name rb_ekf"],
     "filter": ["symmon filter examples/rb_close.toml --runs 500 --plot nees.png",
@@ -202,6 +204,35 @@ def _plot_path(text: str) -> str:
 
 
 _DEFAULT_FILTERS = "ekf,ekf2,ukf,ckf,gh,adaptive"
+
+
+def _param_start(text: str) -> tuple[str, float]:
+    """argparse type of ``--param NAME=START``."""
+    name, sep, value = text.partition("=")
+    if not sep or not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name.strip()):
+        raise argparse.ArgumentTypeError(f"must be NAME=START, e.g. b=0, got {text!r}")
+    try:
+        start = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"the starting value must be a number, got {text!r}") from None
+    if not math.isfinite(start):
+        raise argparse.ArgumentTypeError(f"the starting value must be finite, got {text!r}")
+    return name.strip(), start
+
+
+def _param_bound(text: str) -> tuple[str, tuple[float | None, float | None]]:
+    """argparse type of ``--bound NAME=LOW:HIGH`` (either side may be empty)."""
+    name, sep, value = text.partition("=")
+    parts = value.split(":")
+    if not sep or len(parts) != 2 or not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name.strip()):
+        raise argparse.ArgumentTypeError(f"must be NAME=LOW:HIGH, e.g. q=1e-6: , got {text!r}")
+    try:
+        lo, hi = (float(p) if p.strip() else None for p in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"the bounds must be numbers, got {text!r}") from None
+    if any(v is not None and math.isnan(v) for v in (lo, hi)):
+        raise argparse.ArgumentTypeError(f"the bounds must not be NaN, got {text!r}")
+    return name.strip(), (lo, hi)
 
 
 def _filter_names(text: str) -> list[str]:
@@ -354,6 +385,20 @@ def _parser() -> argparse.ArgumentParser:
                     help="output directory (created if missing)")
     sp.add_argument("--name", default=None, help="C prefix and file name (default: the model's name)")
     sp.set_defaults(func=commands.cmd_codegen)
+
+    sp = add("fit", "maximum-likelihood fit of a filter scenario's parameters from simulated runs: estimates "
+             "with standard errors (exact gradient and Hessian of the log-likelihood)")
+    sp.add_argument("file", help="TOML filter scenario (see symmon.files.filterfile)")
+    sp.add_argument("--param", type=_param_start, action="append", required=True, metavar="NAME=START",
+                    help="a [params] entry to fit and its starting value (repeat for several); the file's "
+                    "values are the truth of the simulated runs")
+    sp.add_argument("--bound", type=_param_bound, action="append", default=[], metavar="NAME=LOW:HIGH",
+                    help="bounds of a fitted parameter; either side may be empty (q=1e-6:)")
+    sp.add_argument("--filter", choices=sorted(FILTERS), default="ekf", help="the filter (default ekf)")
+    sp.add_argument("--runs", type=_int_in(1, MAX_RUNS), default=20, help="simulated runs (default 20)")
+    sp.add_argument("--seed", type=_seed, default=0, help="seed of the simulation, >= 0 (default 0)")
+    sp.add_argument("--json", action="store_true", help="print JSON")
+    sp.set_defaults(func=commands.cmd_fit)
 
     sp = add("export", "export a filter of a filter scenario file as standalone C99 for an embedded "
              "target: NAME.c, NAME.h, an example program and a README (docs/export.md)")

@@ -58,9 +58,10 @@ seed, and :data:`FILTERS` names the filters that ``symmon filter`` runs.
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 import sympy as sp
@@ -124,6 +125,9 @@ class FilterSpec:
     path : Path
     units : dict of str to str
         Unit strings by state name or ``"measurements[i]"`` (empty: none declared).
+    params : dict of str to float
+        The values of the ``[params]`` table (those kept free are model parameters of ``f``
+        and ``h``, :func:`load_filter_file`).
     """
 
     name: str
@@ -135,6 +139,7 @@ class FilterSpec:
     steps: int
     path: Path = Path("<memory>")
     units: dict[str, str] = field(default_factory=dict)
+    params: dict[str, float] = field(default_factory=dict)
 
     def unit(self, key: str) -> str | None:
         """The unit of a state name or of ``"measurements[i]"``, if declared."""
@@ -160,14 +165,35 @@ def _noise(ctx: _Context, doc: dict, key: str, dim: int, params: dict) -> np.nda
     return _gaussian(ctx, with_mean, key, dim, params, "components").cov
 
 
-def load_filter_file(path: str | os.PathLike) -> FilterSpec:
+def _uses(table: Any, name: str) -> bool:
+    """Whether an expression string anywhere in a TOML value mentions the identifier ``name``."""
+    if isinstance(table, str):
+        return re.search(rf"(?<![A-Za-z0-9_]){re.escape(name)}(?![A-Za-z0-9_])", table) is not None
+    if isinstance(table, dict):
+        return any(_uses(v, name) for v in table.values())
+    if isinstance(table, list):
+        return any(_uses(v, name) for v in table)
+    return False
+
+
+def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> FilterSpec:
     """Read a filter scenario (module notes).
+
+    Parameters
+    ----------
+    path : str or PathLike
+    free : iterable of str
+        Names of ``[params]`` entries to keep as model parameters of f and h
+        (``Model(params=...)``, for :meth:`symmon.NonlinearKalmanFilter.fit`) instead of
+        substituting their values.
 
     Raises
     ------
     ModelFileError
         With the file name, for the same faults as :func:`symmon.files.modelfile.load_model_file`,
-        and for a dynamics whose length is not the number of states, or a bad ``steps``.
+        for a dynamics whose length is not the number of states, or a bad ``steps``; and for a
+        free parameter that the file does not declare, or that ``[Q]``, ``[R]`` or ``[x0]``
+        use (they are numbers).
     """
     path, ctx, doc = read_toml(path, "scenario files")
     _check_keys(ctx, doc, _KEYS, _REQUIRED, "")
@@ -181,8 +207,19 @@ def load_filter_file(path: str | os.PathLike) -> FilterSpec:
     W = [sp.Symbol(s, real=True) for s in _names(ctx, doc.get("process_noise", []), "process_noise", seen)]
     E = [sp.Symbol(s, real=True) for s in _names(ctx, doc.get("measurement_noise", []), "measurement_noise", seen)]
     params = _params(ctx, doc.get("params", {}), seen)
+    free = list(dict.fromkeys(str(n) for n in free))
+    for n in free:
+        if n not in params:
+            raise ctx.error("params", f"{n!r} is not in [params] (it has {', '.join(params) or 'nothing'}): "
+                                      "only a declared parameter can be fitted")
+        for key in ("Q", "R", "x0"):
+            if _uses(doc.get(key), n):
+                raise ctx.error(f"[{key}]", f"uses the parameter {n!r}, which is kept free: [{key}] must be "
+                                            "numbers; put the parameter in the dynamics or the measurements "
+                                            "(e.g. a noise intensity times a noise symbol)")
+    free_syms = {n: sp.Symbol(n, real=True) for n in free}
     X = [sp.Symbol(s, real=True) for s in state_names]
-    env: dict[str, Any] = {**params, **{s.name: s for s in X}}
+    env: dict[str, Any] = {**params, **free_syms, **{s.name: s for s in X}}
     # Each noise is visible only where it belongs: w in the dynamics, e in the measurements.
     dyn = _expressions(ctx, doc, "dynamics", {**env, **{s.name: s for s in W}}, path)
     if len(dyn) != len(X):
@@ -199,13 +236,21 @@ def load_filter_file(path: str | os.PathLike) -> FilterSpec:
     if not isinstance(state_angles, list) or not all(a in state_names for a in state_angles):
         raise ctx.error("state_angles", f"must be a list of state names ({', '.join(state_names)}), got {state_angles!r}")
     by_name = dict(zip(state_names, X))
-    f = Model(X, dyn, noise=W or None, name=f"{name}_f", angles=[by_name[a] for a in state_angles] or None)
-    h = Model(X, meas, noise=E or None, name=f"{name}_h", angles=list(angles) or None)
+    def used(exprs):
+        syms = set().union(*(e.free_symbols for e in exprs))
+        return [s for s in free_syms.values() if s in syms] or None
+
+    f = Model(X, dyn, noise=W or None, name=f"{name}_f", angles=[by_name[a] for a in state_angles] or None,
+              params=used(dyn))
+    h = Model(X, meas, noise=E or None, name=f"{name}_h", angles=list(angles) or None, params=used(meas))
+    unused = [n for n in free if free_syms[n] not in set(f.params) | set(h.params)]
+    if unused:
+        raise ctx.error("params", f"{unused} appear in neither the dynamics nor the measurements: nothing to fit")
     Q = _noise(ctx, doc, "Q", len(W) or len(X), params)
     R = _noise(ctx, doc, "R", len(E) or len(meas), params)
     x0 = _gaussian(ctx, doc["x0"], "x0", len(X), params, "states")
     units = _units(ctx, doc.get("units", {}), len(meas), state_names, indexed="measurements", named="state names")
-    return FilterSpec(name, f, h, Q, R, x0, int(steps), path, units)
+    return FilterSpec(name, f, h, Q, R, x0, int(steps), path, units, {k: float(v) for k, v in params.items()})
 
 
 def simulate(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, steps: int, runs: int,

@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import importlib
 import json
+import re
 import os
 import shutil
 import subprocess
@@ -689,3 +690,34 @@ def test_filter_plot_into_a_missing_directory_is_refused_before_the_bank_runs(tm
     monkeypatch.setattr(filterfile, "run_bank", lambda *a, **k: ran.append(1))
     code = cli.main(["filter", str(EXAMPLES / "rb_close.toml"), "--runs", "2", "--plot", str(tmp_path / "no" / "x.png")])
     assert code == 1 and not ran and "output directory does not exist" in capsys.readouterr().err
+
+
+def test_fit_recovers_the_files_parameters(capsys):
+    import json
+
+    code, out, _ = run(capsys, "fit", EXAMPLES / "rb_bias.toml", "--param", "b=0", "--param", "q=0.1",
+                       "--bound", "q=1e-6:", "--json")
+    assert code == 0
+    doc = json.loads(out)
+    for k in ("b", "q"):  # the truth within 4 standard errors (a fixed seed: a deterministic check)
+        assert abs(doc["estimates"][k] - doc["truth"][k]) < 4 * doc["std_errors"][k]
+    code, text, _ = run(capsys, "fit", EXAMPLES / "rb_bias.toml", "--param", "b=0", "--runs", "5")
+    assert code == 0 and "std. error" in text and text.splitlines()[2].startswith("b ")
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--param", "b"], "must be NAME=START"),
+    (["--param", "b=x"], "must be a number"),
+    (["--param", "b=0", "--bound", "q=1"], "must be NAME=LOW:HIGH"),
+    (["--param", "zz=1"], "'zz' is not in \\[params\\]"),
+    (["--param", "b=0", "--param", "b=1"], "each --param names a different parameter"),
+    (["--param", "b=0", "--bound", "q=1e-6:"], "a bound for 'q', which is not fitted"),
+])
+def test_fit_bad_options_are_clear_errors(capsys, argv, match):
+    code, _, err = run(capsys, "fit", EXAMPLES / "rb_bias.toml", *argv)
+    assert code in (1, 2) and re.search(match, err), err
+
+
+def test_fit_refuses_a_parameter_of_the_noise_covariance(capsys):
+    code, _, err = run(capsys, "fit", EXAMPLES / "rb_close.toml", "--param", "q=0.1")
+    assert code == 1 and "[Q]: uses the parameter 'q', which is kept free" in err
