@@ -81,14 +81,12 @@ class FitResult:
         SymmonError
             If a parameter has a value per step or per run (keep ``kf`` and pass ``params``).
         """
-        from .nonlinear import NonlinearKalmanFilter
-
         if any(np.ndim(v) for v in self.params.values()):
             raise SymmonError("a parameter has a value per step or per run: use kf.filter(..., params=fit.params)")
         kf = self.kf
         f = kf.f_model.with_params({str(s): self.params[str(s)] for s in kf.f_model.params})
         h = kf.h_model.with_params({str(s): self.params[str(s)] for s in kf.h_model.params})
-        return NonlinearKalmanFilter(f, h, kf.Q, kf.R, kf.transform)
+        return type(kf)(f, h, kf.Q, kf.R, kf.transform)  # the filter's class: nonlinear imports this module
 
     def __repr__(self) -> str:
         parts = ", ".join(f"{k} = {v:.6g} ± {self.std_errors[k]:.2g}" for k, v in self.estimates.items())
