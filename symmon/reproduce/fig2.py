@@ -142,9 +142,8 @@ def run(outdir: str | Path = "results", samples: int = 10**6, seed: int = 0, pro
     return [png, csv]
 
 
-#: The second unit set of each problem (Sec. V), for the legends.
+#: The second unit set of each problem (Sec. V), as the caption names it; BOT has none.
 ALT_UNITS = {"BOT": "", "GMTI": "km, deg, km/h", "RDCOS": "km, –"}
-SI_UNITS = {"BOT": "rad", "GMTI": "m, rad, m/s", "RDCOS": "m, –"}
 
 
 def caption(samples: int = 10**6, seed: int = 0) -> str:
