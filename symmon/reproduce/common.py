@@ -18,6 +18,7 @@ import contextlib
 import math
 from typing import Iterator
 
+from ..core.model import Model
 from ..progress import progress_bar as progress_bar
 
 #: One look for every reproduced figure: readable sizes, light grid, no top/right frame.
@@ -57,6 +58,12 @@ def figure_style() -> Iterator[None]:
 
     with matplotlib.rc_context(STYLE):
         yield
+
+
+def with_angles(model: Model, angles: list[int]) -> Model:
+    """``model`` with the outputs ``angles`` declared angles (the papers' bearings are plain
+    atan2 expressions): circular means and wrapped deviations where samples reach ±π."""
+    return Model(model.inputs, model.outputs, name=f"{model.name}_angle", angles=angles or None)
 
 
 def png_metadata(title: str, caption: str) -> dict[str, str]:

@@ -19,14 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.model import Model
 from ..io import save_figure, write_csv
 from ..measures.formula import mon_from_moments
 from ..core.problems import polar
 from ..propagation.front import propagate
 from ..transforms import TT2, UT, MonteCarlo
 from ..transforms.stats import jackknife, moments_of
-from .common import ALPHA_LABEL, OKABE_ITO, figure_style, png_metadata, progress_bar, pyplot
+from .common import ALPHA_LABEL, OKABE_ITO, figure_style, png_metadata, progress_bar, pyplot, with_angles
 
 __all__ = ["run", "curves", "caption", "ALPHAS", "UNIT_SIZES", "COLUMNS", "MODEL"]
 
@@ -36,7 +35,7 @@ __all__ = ["run", "curves", "caption", "ALPHAS", "UNIT_SIZES", "COLUMNS", "MODEL
 ALPHAS = np.unique(np.concatenate([np.logspace(-4, 2, 37), np.logspace(-2, 0, 49), [0.17]]).round(12))
 
 #: The polar model (16), bearing in rad, with the bearing declared an angle (module notes).
-MODEL = Model(polar().model.inputs, polar().model.outputs, name="polar_rad_angle", angles=[1])
+MODEL = with_angles(polar().model, [1])
 #: Bearing unit sizes in rad: from 0.1 nrad to 10 Grad.
 UNIT_SIZES = np.logspace(-10, 10, 81)
 

@@ -18,14 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.model import Model
 from ..io import save_figure, write_csv
 from ..measures.formula import mon_from_moments
 from ..core.problems import GMTI_UNITS, RDCOS_UNITS, bot, gmti, rdcos
 from ..propagation.front import propagate
 from ..transforms import TT2, UT, MonteCarlo
 from ..transforms.stats import jackknife, moments_of
-from .common import OKABE_ITO, figure_style, png_metadata, progress_bar, pyplot
+from .common import OKABE_ITO, figure_style, png_metadata, progress_bar, pyplot, with_angles
 
 __all__ = ["run", "curves", "caption", "ALPHAS", "PROBLEMS", "COLUMNS", "ANGLES"]
 
@@ -42,11 +41,6 @@ PROBLEMS = {
 
 #: The outputs of each problem that are bearings, declared angles (module notes).
 ANGLES = {"BOT": [0], "GMTI": [1], "RDCOS": []}
-
-
-def _declared(name: str, model: Model) -> Model:
-    """The problem's model with its bearing declared an angle."""
-    return Model(model.inputs, model.outputs, name=f"{model.name}_angle", angles=ANGLES[name] or None)
 
 
 #: The CSV's columns: key of :func:`curves` → header that says what the column holds.
@@ -103,7 +97,7 @@ def curves(alphas=ALPHAS, samples: int = 10**6, seed: int = 0, progress: bool = 
     for name, i, a in progress_bar(jobs, "fig2: problems x alpha", progress):
         factory, scale = PROBLEMS[name]
         prob = factory(a)
-        model = _declared(name, prob.model)
+        model = with_angles(prob.model, ANGLES[name])
         cur = out[name]
         m = propagate(model, prob.u, transform=MonteCarlo(samples, seed=seed))
         for key, val in _row(m, m.input_cov, scale).items():

@@ -9,7 +9,7 @@ import pytest
 
 from helpers import ROOT
 from symmon.reproduce import fig1, fig2
-from symmon.reproduce.common import OKABE_ITO, figure_style, pyplot
+from symmon.reproduce.common import OKABE_ITO, figure_style, pyplot, with_angles
 
 SAMPLES = 20_000
 #: Monte Carlo bound in standard errors.
@@ -115,10 +115,15 @@ def test_fig1_grid_has_20_points_per_decade_around_the_peak():
 
 
 def test_the_bearings_are_declared_angles():
-    assert fig1.MODEL.angle_outputs == frozenset({1})
-    for name, angles in fig2.ANGLES.items():
-        assert sorted(fig2._declared(name, fig2.PROBLEMS[name][0]().model).angle_outputs) == angles
-    assert fig2.ANGLES == {"BOT": [0], "GMTI": [1], "RDCOS": []}
+    """Figure 1's bearing, and in Figure 2 exactly the outputs that are atan2 bearings."""
+    import sympy as sp
+
+    assert fig1.MODEL.angle_outputs == frozenset({1}) and isinstance(fig1.MODEL.outputs[1], sp.atan2)
+    for name, (factory, _) in fig2.PROBLEMS.items():
+        model = factory().model
+        bearings = [i for i, g in enumerate(model.outputs) if isinstance(g, sp.atan2)]
+        assert fig2.ANGLES[name] == bearings
+        assert sorted(with_angles(model, fig2.ANGLES[name]).angle_outputs) == bearings
 
 
 @pytest.mark.parametrize("module, paths", [(fig1, "fig1_paths"), (fig2, "fig2_paths")])
