@@ -68,6 +68,13 @@ def test_figure1_liu_li_at_alpha_017():
     assert printed(float(row["liu_deg"]), m.group(2)) == m.group(2)
 
 
+def test_figure1_declared_bearing_at_alpha_10():
+    m = re.search(r"at α = 10 the unitless MoN is " + NUM, readme())
+    assert m, "the Figure 1 sentence on the declared bearing was not found in README.md"
+    (row,) = [r for r in rows("fig1.csv") if float(r["alpha"]) == pytest.approx(10.0, rel=1e-12)]
+    assert printed(float(row["full"]), m.group(1)) == m.group(1)
+
+
 @pytest.mark.parametrize("problem", ["BOT", "GMTI", "RDCOS"])
 def test_figure2_table_ranges(problem):
     m = re.search(r"\| " + problem + r" \| " + RANGE + r" \|", readme())

@@ -57,3 +57,4 @@ ax2.plot(alphas, mon.value, "k-o", ms=3)
 ax2.set_ylabel("MoN (W^full, GH 10)")
 ax2.set_xlabel("α")
 fig.suptitle("Polar example: when the MoN grows, the cheap transforms fail")
+plt.show()  # the figure goes into the page; the title's Text object is not printed

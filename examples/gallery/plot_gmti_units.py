@@ -47,9 +47,10 @@ ax.set_xlabel("α")
 ax.set_ylabel("MoN")
 ax.legend(fontsize=7)
 ax.set_title("GMTI: the W^full and W^diag curves of both unit sets coincide")
+plt.show()  # the figure goes into the page; the title's Text object is not printed
 
 # %%
 # The invariance is a theorem: in matrix form it holds for any moments (``symmon.units``).
 
 print(sm.units.prove_matrix_invariance(n_u=4, n_y=3, weight="full"))
-print(sm.units.prove_matrix_invariance(n_u=4, n_y=3, weight="liu-li").holds)
+print("Liu–Li (8) unitless:", sm.units.prove_matrix_invariance(n_u=4, n_y=3, weight="liu-li").holds)

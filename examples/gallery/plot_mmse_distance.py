@@ -49,3 +49,4 @@ ax.set_xlabel("time step k")
 ax.set_ylabel("RMSE of the distance")
 ax.legend()
 ax.set_title("Distance |x − c| of a random walk: MMSE vs plug-in")
+plt.show()  # the figure goes into the page; the title's Text object is not printed

@@ -59,6 +59,7 @@ ax.set_xlim(-100, 300)
 ax.set_ylim(-100, 300)
 ax.legend(fontsize=8, loc="lower right")
 ax.set_title("Direct approach: h⁻¹(y) samples and 2σ ellipses")
+plt.show()  # the figure goes into the page; the title's Text object is not printed
 
 # %%
 # Monte Carlo of h⁻¹(y) for sensor 1, with standard errors: the UT's mean is within them,

@@ -397,7 +397,8 @@ def cmd_advise(args: argparse.Namespace) -> int:
     if args.json:
         _print_json({"model": spec.model.name, "tol": a.tol, "weight": args.weight, "choice": a.choice_name,
                      "reference": a.reference, "reference_error": a.reference_error,
-                     "reference_mon": a.reference_mon, "notes": list(a.notes),
+                     "reference_mon": a.reference_mon, "reference_mon_stderr": a.reference_mon_stderr,
+                     "notes": list(a.notes),
                      "rows": [{k: (repr(v) if k == "transform" else v) for k, v in r.items()} for r in a.rows]})
         return 0
     print(f"{spec.model.name}: {a}")

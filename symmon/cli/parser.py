@@ -47,6 +47,7 @@ from ..version import __version__
 from ..compile.ccache import catch_sigterm
 from ..errors import OutputPathError, SymmonError, UsageError
 from ..files.filterfile import FILTERS
+from ..measures.advice import DEFAULT_TOL  # one default for advise and the adaptive filter
 from ..io import plot_format
 from ..transforms.registry import DEFAULT  # the API's default transform is the command's
 from . import commands
@@ -417,8 +418,9 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("--seed", type=_seed, default=0, help="seed of the truth and measurements, >= 0 (default 0)")
     sp.add_argument("--filters", type=_filter_names, default=_filter_names(_DEFAULT_FILTERS),
                     help=f"comma-separated: ekf, ekf2, ukf, ckf, gh, adaptive (default {_DEFAULT_FILTERS})")
-    sp.add_argument("--tol", type=_unit_interval, default=1e-2,
-                    help="the adaptive filter's tolerance (unitless moment error, default 0.01)")
+    sp.add_argument("--tol", type=_unit_interval, default=DEFAULT_TOL,
+                    help=f"the adaptive filter's tolerance (unitless moment error, default {DEFAULT_TOL:g}, "
+                         "as symmon advise)")
     sp.add_argument("--confidence", type=_unit_interval, default=0.95,
                     help="of the chi-square intervals (default 0.95)")
     sp.add_argument("--smooth", action="store_true",
@@ -428,10 +430,10 @@ def _parser() -> argparse.ArgumentParser:
     sp.set_defaults(func=commands.cmd_filter)
 
     sp = add("advise", "which transform is good enough for a model file: every candidate's moment "
-             "error against a reference, its MoN and cost, and the cheapest within tol")
+             "error against a reference, its cost and times, the reference's MoN, and the cheapest within tol")
     sp.add_argument("file", help="TOML model file")
-    sp.add_argument("--tol", type=_unit_interval, default=1e-3,
-                    help="largest unitless moment error (default 0.001)")
+    sp.add_argument("--tol", type=_unit_interval, default=DEFAULT_TOL,
+                    help=f"largest unitless moment error (default {DEFAULT_TOL:g}, as the adaptive filter)")
     weight_opt(sp)
     sp.add_argument("--samples", type=_samples, default=10**6,
                     help="samples of the Monte Carlo reference, when Gauss-Hermite does not converge (default 10^6)")

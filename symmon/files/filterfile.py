@@ -69,6 +69,7 @@ import sympy as sp
 from ..core.angles import wrap_angle
 from ..errors import SymmonError
 from ..filters import Adaptive, NonlinearKalmanFilter
+from ..measures.advice import DEFAULT_TOL
 from ..core.gaussian import Gaussian
 from ..core.model import Model
 from .modelfile import (
@@ -97,7 +98,7 @@ _KEYS = ("name", "states", "dynamics", "measurements", "angles", "state_angles",
 _REQUIRED = ("name", "states", "dynamics", "measurements", "steps", "Q", "R", "x0")
 
 
-def filter_transform(name: str, tol: float = 1e-2):
+def filter_transform(name: str, tol: float = DEFAULT_TOL):
     """The transform of a filter by short name: a key of :data:`FILTERS`, or ``"adaptive"``."""
     if name == "adaptive":
         return Adaptive(tol=tol)
@@ -334,7 +335,8 @@ def _rmse(xs: np.ndarray, x: np.ndarray, angle_states) -> np.ndarray:
 
 
 def run_bank(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, xs: np.ndarray, ys: np.ndarray,
-             names: list[str], tol: float = 1e-2, confidence: float = 0.95, smooth: bool = False) -> list[BankSummary]:
+             names: list[str], tol: float = DEFAULT_TOL, confidence: float = 0.95,
+             smooth: bool = False) -> list[BankSummary]:
     """Run the named filters (:func:`filter_transform`) on the bank ``ys`` with truth ``xs``.
 
     With ``smooth``, each filter's RTS smoother runs too (:meth:`NonlinearKalmanFilter.smooth`),

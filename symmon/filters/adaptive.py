@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..measures.advice import cost, moment_distance, whiteners
+from ..measures.advice import DEFAULT_TOL, cost, moment_distance, whiteners
 from ..core.angles import wrap_angle
 from ..errors import SymmonError
 from .step import _compiled_step, _filterable, check_dimensions
@@ -77,15 +77,17 @@ class Adaptive(FilterStrategy):
 
     Parameters
     ----------
-    tol : float, default 0.01
-        Largest acceptable unitless error, in (0, 1).
+    tol : float, default :data:`symmon.measures.advice.DEFAULT_TOL` (0.01)
+        Largest acceptable unitless error, in (0, 1): the default of :func:`symmon.advise`
+        too, so that both decide alike on the same prior (why 0.01: the notes of
+        :mod:`symmon.measures.advice`).
     candidates : tuple of TT1, TT2, UT or GaussHermite
         Default TT1 (EKF), TT2 (second-order EKF), ``UT.cubature()`` (CKF) and
         GaussHermite(3).
     reference : UT or GaussHermite, default GaussHermite(5)
     """
 
-    tol: float = 1e-2
+    tol: float = DEFAULT_TOL
     candidates: tuple = (TT1(), TT2(), UT.cubature(), GaussHermite(3))
     reference: Transform = GaussHermite(5)
 

@@ -21,8 +21,21 @@ with the units of u or y.
 
 The cost of a candidate is counted in evaluations of g: TT1 needs g and J (1 + n_w),
 TT2 g, J and H (1 + n_w + n_w(n_w + 1)/2), the unscented family 2 n_w + 1 points,
-Gauss–Hermite its nodes and Monte Carlo its samples; the measured time is reported
-beside.
+Gauss–Hermite its nodes and Monte Carlo its samples.  Beside it, two measured times of the
+candidate's moments (:func:`symmon.propagate`): the *first call*, which includes compiling
+what the rule needs and the reference and the earlier candidates have not compiled yet (the
+derivatives of g, C code), and the *warm* time, the median of up to :data:`WARM_REPEATS`
+further calls.  The choice never depends on the times.
+
+The tolerance: :data:`DEFAULT_TOL` = 0.01 is the default of :func:`advise` and of the
+adaptive filter (:class:`symmon.Adaptive`): 1 % of a standard deviation in the mean, 1 % relative in the
+covariances.  Read against the MoN (Straka & Havlík 2024): with W^full (43), M² (25), (29)
+is the share of the output's variance, whitened and averaged over its n_y components, that
+the best affine approximation A u + b ((9), (10)) leaves unexplained; it is 1 − R², the
+multivariate coefficient of determination (Remark 1), and lies in [0, 1] (33).  For a
+scalar quadratic g the EKF's (TT1's) error in this measure is exactly M/√2 (its mean misses
+½ tr(H P); its variance is off by M² relative), so the default keeps the EKF where
+M ≤ √2 · 0.01 ≈ 0.014.  Why 0.01 and not tighter or looser: docs/guide/advise.md.
 """
 
 from __future__ import annotations
@@ -43,7 +56,14 @@ from .mon import nonlinearity
 from ..propagation.front import propagate
 from ..transforms import TT1, TT2, UT, GaussHermite, MonteCarlo, Transform
 
-__all__ = ["advise", "Advice", "moment_error", "moment_distance", "whiteners", "CANDIDATES", "cost"]
+__all__ = ["advise", "Advice", "moment_error", "moment_distance", "whiteners", "CANDIDATES", "cost",
+           "DEFAULT_TOL"]
+
+#: The default tolerance of :func:`advise` and of :class:`symmon.Adaptive`, in the unitless
+#: error of the moments (module notes): 1 % of a standard deviation in the mean, 1 %
+#: relative in the covariances; the EKF passes on a scalar quadratic while its MoN (43) is
+#: at most √2 · 0.01.  Justified in docs/guide/advise.md.
+DEFAULT_TOL = 1e-2
 
 #: The candidates, by name, in the order of the table.
 CANDIDATES: tuple[tuple[str, Transform], ...] = (
@@ -62,7 +82,13 @@ REFERENCE_ORDER = 7
 #: The reference must be this many times more accurate than the tolerance.
 REFERENCE_MARGIN = 10.0
 #: Above this many nodes the Gauss–Hermite reference is not affordable: Monte Carlo instead.
+#: A Gauss–Hermite rule (reference or candidate) whose tensor grid is within it uses the
+#: tensor grid; above it, the sparse grid.
 MAX_REFERENCE_NODES = 200_000
+#: Warm calls timed after the first call of each candidate (their median is reported) ...
+WARM_REPEATS = 3
+#: ... unless they take longer than this many seconds together: a slow candidate is timed fewer times.
+WARM_BUDGET_S = 1.0
 
 
 def whiteners(C: np.ndarray) -> np.ndarray:
@@ -154,20 +180,28 @@ class Advice:
     Attributes
     ----------
     rows : list of dict
-        One per candidate: ``name``, ``transform``, ``error`` (unitless, module notes),
-        ``mon`` (the MoN it gives), ``cost`` (evaluations of g), ``seconds`` and
+        One per candidate, in the order of the candidates: ``name``, ``transform`` (as run:
+        a Gauss–Hermite rule with its grid made explicit), ``error`` (the unitless error of
+        its moments against the reference, module notes), ``cost`` (evaluations of g),
+        ``first_call`` (seconds, compilation included), ``warm`` (seconds, the median of
+        the warm calls), ``seconds`` (the same as ``warm``), ``mon`` (the MoN that this
+        candidate's own moments give; not in the table, whose MoN is the reference's) and
         ``within_tol``.
     reference : str
         The reference transform.
     reference_error : float
         A bound on the reference's own error, in the same unitless measure.
     reference_mon : float
-        The MoN by the reference.
+        The MoN (25)–(29) with ``weight``, by the reference: the one MoN of the advice.
     choice : Transform or None
         The cheapest candidate within ``tol``; None when none is.
+    choice_name : str or None
     tol : float
-    weight : str
+    weight : str or ndarray
     notes : tuple of str
+    reference_mon_stderr : float or None
+        The Monte Carlo standard error of ``reference_mon``; None for a Gauss–Hermite
+        reference.
     """
 
     rows: list[dict]
@@ -179,23 +213,25 @@ class Advice:
     tol: float
     weight: Any
     notes: tuple[str, ...] = field(default_factory=tuple)
+    reference_mon_stderr: float | None = None
 
     @property
     def table(self) -> str:
-        """A plain-text table of the candidates."""
-        lines = [f"{'transform':<17} {'error':>9} {'MoN':>9} {'cost (g evals)':>15} {'time':>9}  within tol"]
+        """A plain-text table of the candidates: error, cost, first-call and warm time, within tol."""
+        lines = [f"{'transform':<25} {'error':>9} {'cost (g evals)':>15} {'first call':>11} {'warm':>10}  within tol"]
         for r in self.rows:
             mark = "yes" if r["within_tol"] else "no"
             if r["name"] == self.choice_name:
                 mark += "  <- choice"
-            lines.append(f"{r['name']:<17} {r['error']:>9.2e} {r['mon']:>9.4f} {r['cost']:>15,d} "
-                         f"{r['seconds'] * 1e3:>7.1f}ms  {mark}")
+            lines.append(f"{r['name']:<25} {r['error']:>9.2e} {r['cost']:>15,d} {_ms(r['first_call']):>11} "
+                         f"{_ms(r['warm']):>10}  {mark}")
         return "\n".join(lines)
 
     def __str__(self) -> str:
-        head = (f"advice for tol = {self.tol:g} (unitless error of the moments; MoN weight {self.weight!r})\n"
-                f"reference: {self.reference}, its own error ≤ {self.reference_error:.1e}, "
-                f"MoN {self.reference_mon:.4f}\n")
+        se = f" ± {2 * self.reference_mon_stderr:.1e} (2 SE)" if self.reference_mon_stderr is not None else ""
+        head = (f"advice for tol = {self.tol:g} (unitless error of the moments, in standard deviations)\n"
+                f"reference: {self.reference}, its own error ≤ {self.reference_error:.1e}\n"
+                f"MoN (weight {_weight_text(self.weight)}) by the reference: {self.reference_mon:.4f}{se}\n")
         choice = (f"choice: {self.choice_name}" if self.choice_name is not None
                   else "choice: none of the candidates is within tol")
         return head + self.table + "\n" + choice + "".join(f"\nnote: {n}" for n in self.notes)
@@ -204,18 +240,45 @@ class Advice:
         return f"Advice(choice={self.choice_name!r}, tol={self.tol:g}, reference={self.reference!r})"
 
 
+def _ms(seconds: float) -> str:
+    return f"{seconds * 1e3:.1f} ms" if seconds < 10 else f"{seconds:.1f} s"
+
+
+def _weight_text(weight: Any) -> str:
+    return repr(weight) if isinstance(weight, str) else "matrix"
+
+
+def _gauss_hermite(order: int, n_w: int, error_estimate: bool = False) -> GaussHermite:
+    """Gauss–Hermite of ``order`` in ``n_w`` dimensions on an explicit grid: the tensor grid
+    while it (and the order + 2 rule of its error estimate) is affordable, else the sparse grid."""
+    top = order + 2 if error_estimate else order
+    return GaussHermite(order, sparse=top**n_w > MAX_REFERENCE_NODES, error_estimate=error_estimate)
+
+
+def _explicit(name: str, t: Transform, n_w: int) -> tuple[str, Transform]:
+    """A Gauss–Hermite candidate that leaves its grid to the dimension (``sparse=None``) gets the
+    grid of :func:`_gauss_hermite`, and " (sparse)" in its name when that is the sparse grid."""
+    if isinstance(t, GaussHermite) and t.sparse is None:
+        t = _gauss_hermite(int(t.order), n_w, t.error_estimate)
+        if t.sparse:
+            name += " (sparse)"
+    return name, t
+
+
 def _reference(model: Model, u: Gaussian, v: Gaussian | None, tol: float, samples: int, seed: int
                ) -> tuple[Transform, str, JointMoments, float, list[str]]:
     notes: list[str] = []
     n_w = model.n_u + model.n_v
-    gh = GaussHermite(REFERENCE_ORDER, error_estimate=True)
-    nodes = GaussHermite(REFERENCE_ORDER + 2).cost(n_w)
+    gh = _gauss_hermite(REFERENCE_ORDER, n_w, error_estimate=True)
+    nodes = GaussHermite(REFERENCE_ORDER + 2, sparse=gh.sparse).cost(n_w)
+    grid = " (sparse)" if gh.sparse else ""
     if nodes <= MAX_REFERENCE_NODES:
         ref = propagate(model, u, v, transform=gh)
         bound = _error_bound(ref, ref.error)
         if bound <= tol / REFERENCE_MARGIN:
-            return GaussHermite(REFERENCE_ORDER), f"Gauss-Hermite {REFERENCE_ORDER}", ref, bound, notes
-        notes.append(f"Gauss-Hermite {REFERENCE_ORDER} did not converge (error estimate {bound:.1e}): "
+            return (GaussHermite(REFERENCE_ORDER, sparse=gh.sparse), f"Gauss-Hermite {REFERENCE_ORDER}{grid}",
+                    ref, bound, notes)
+        notes.append(f"Gauss-Hermite {REFERENCE_ORDER}{grid} did not converge (error estimate {bound:.1e}): "
                      "Monte Carlo is the reference")
     else:
         notes.append(f"Gauss-Hermite {REFERENCE_ORDER + 2} needs {nodes:,} nodes: Monte Carlo is the reference")
@@ -228,10 +291,29 @@ def _reference(model: Model, u: Gaussian, v: Gaussian | None, tol: float, sample
     return mc, f"Monte Carlo {mc.n:.0e} samples (seed {mc.seed})", ref, bound, notes
 
 
-def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = 1e-3, weight: Any = "full",
+def _timed(model: Model, u: Gaussian, v: Gaussian | None, t: Transform) -> tuple[JointMoments, float, float]:
+    """The moments by ``t``, the time of this first call and the median time of the warm calls."""
+    t0 = time.perf_counter()
+    m = propagate(model, u, v, transform=t)
+    first = time.perf_counter() - t0
+    warm: list[float] = []
+    while len(warm) < WARM_REPEATS and sum(warm) < WARM_BUDGET_S:
+        t0 = time.perf_counter()
+        propagate(model, u, v, transform=t)
+        warm.append(time.perf_counter() - t0)
+    return m, first, float(np.median(warm))
+
+
+def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = DEFAULT_TOL, weight: Any = "full",
            candidates: Sequence[tuple[str, Transform]] | None = None, samples: int = 10**6,
            seed: int = 0) -> Advice:
     """Estimate the error of each candidate transform's moments and pick the cheapest within ``tol``.
+
+    The reference is Gauss–Hermite of order 7 when its two-order error estimate (order 9)
+    is within ``tol`` / :data:`REFERENCE_MARGIN`, else Monte Carlo.  A candidate is within
+    ``tol`` when its error plus the reference's own error bound is; the choice is the
+    cheapest such candidate in evaluations of g (ties to the earlier one), never the
+    fastest, so that it does not depend on timing noise.
 
     Parameters
     ----------
@@ -239,27 +321,34 @@ def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = 1e
     u : Gaussian
     v : Gaussian, optional
         Required when the model has noise symbols.
-    tol : float, default 1e-3
-        Largest acceptable unitless error (module notes): 1e-3 is a thousandth of a
-        standard deviation in the mean, or 0.1 % in the covariances.
+    tol : float, default :data:`DEFAULT_TOL` (0.01)
+        Largest acceptable unitless error (module notes): 0.01 is 1 % of a standard
+        deviation in the mean, or 1 % in the covariances; the default of
+        :class:`symmon.Adaptive` too, so that the advice and the adaptive filter decide
+        alike on the same prior.
     weight : str or ndarray, default "full"
-        The MoN weight reported beside each candidate (as in :func:`symmon.nonlinearity`).
+        The weight of the reference's MoN (as in :func:`symmon.nonlinearity`): W^full (43)
+        by default.
     candidates : sequence of (name, Transform), optional
-        Default :data:`CANDIDATES`.
+        Default :data:`CANDIDATES`.  A Gauss–Hermite candidate with ``sparse=None`` runs on
+        the tensor grid while it has at most :data:`MAX_REFERENCE_NODES` nodes, else on the
+        sparse grid (its name then ends in " (sparse)").
     samples, seed : int
         Of the Monte Carlo reference, when Gauss–Hermite does not converge.
 
     Returns
     -------
     Advice
+        ``str(advice)`` prints the reference, its MoN and the table (error, cost, first-call
+        and warm time of each candidate).
 
     Examples
     --------
     >>> import sympy as sp, symmon as sm
     >>> x = sp.Symbol("x")
     >>> a = sm.advise(sm.Model([x], [3 * x + 1]), sm.Gaussian([1.0], [[0.5]]))
-    >>> a.choice_name
-    'TT1'
+    >>> a.choice_name, a.tol
+    ('TT1', 0.01)
     """
     if not isinstance(model, Model):
         raise ArgumentTypeError(f"model must be a symmon.Model, got {type(model).__name__}")
@@ -270,25 +359,23 @@ def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = 1e
         raise SymmonError("candidates is empty")
     n_w = model.n_u + model.n_v
     ref_t, ref_name, ref, ref_err, notes = _reference(model, u, v, tol, samples, seed)
-    ref_mon = nonlinearity(model, u, v, weight=weight, transform=ref_t).value
+    ref_mon = nonlinearity(model, u, v, weight=weight, transform=ref_t)
     rows = []
-    for name, t in cands:
+    for name, t in (_explicit(name, t, n_w) for name, t in cands):
         if not t.stochastic and cost(t, n_w) > MAX_REFERENCE_NODES:
             notes.append(f"{name} skipped: {cost(t, n_w):,} nodes")
             continue
-        t0 = time.perf_counter()
         try:
-            res = nonlinearity(model, u, v, weight=weight, transform=t)
+            m, first, warm = _timed(model, u, v, t)
+            mon = nonlinearity(model, u, v, weight=weight, transform=t).value
         except SymmonError as exc:  # e.g. TT at a point where g is not differentiable
             notes.append(f"{name} failed: {exc}")
             continue
-        seconds = time.perf_counter() - t0
-        err = moment_error(res.moments, ref)
-        rows.append({"name": name, "transform": t, "error": err, "mon": res.value, "cost": cost(t, n_w),
-                     "seconds": seconds, "within_tol": err + ref_err <= tol})
+        err = moment_error(m, ref)
+        rows.append({"name": name, "transform": t, "error": err, "cost": cost(t, n_w), "first_call": first,
+                     "warm": warm, "seconds": warm, "mon": mon, "within_tol": err + ref_err <= tol})
     # Ties in cost go to the earlier candidate: the choice must not depend on timing noise.
     ok = [(r["cost"], i) for i, r in enumerate(rows) if r["within_tol"]]
     best = rows[min(ok)[1]] if ok else None
-    return Advice(rows, ref_name, ref_err, ref_mon, best["transform"] if best else None,
-                  best["name"] if best else None, float(tol), weight, tuple(notes))
-
+    return Advice(rows, ref_name, ref_err, ref_mon.value, best["transform"] if best else None,
+                  best["name"] if best else None, float(tol), weight, tuple(notes), ref_mon.stderr)

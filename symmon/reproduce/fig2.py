@@ -5,6 +5,11 @@ joint moments are computed once (Monte Carlo by default), and the unitless MoN w
 W^full (43) and W^diag (42) and the original normalised MoN (8) in both unit sets of
 Sec. V ([m, rad, m/s] vs [km, deg, km/h] for GMTI; [m, −] vs [km, −] for RDCOS) follow
 by exact rescaling of the output moments.  TT2 and UT curves of W^full are drawn beside.
+
+The bearings of BOT and GMTI are declared angles (:data:`ANGLES`), as in Figure 1; over the
+prior (44) they stay far from the cut at ±π (at α = 10, GMTI's bearing from the sensor is
+5 standard deviations from it), so the declaration changes the MoNs by less than 1e-9.
+The curves rise monotonically with α, without a peak: 10 points per decade resolve them.
 """
 
 from __future__ import annotations
@@ -18,10 +23,10 @@ from ..measures.formula import mon_from_moments
 from ..core.problems import GMTI_UNITS, RDCOS_UNITS, bot, gmti, rdcos
 from ..propagation.front import propagate
 from ..transforms import TT2, UT, MonteCarlo
-from ..transforms.stats import jackknife
-from .common import ALPHA_LABEL, figure_style, progress_bar, pyplot, samples_text
+from ..transforms.stats import jackknife, moments_of
+from .common import OKABE_ITO, figure_style, png_metadata, progress_bar, pyplot, with_angles
 
-__all__ = ["run", "curves", "ALPHAS", "PROBLEMS", "COLUMNS"]
+__all__ = ["run", "curves", "caption", "ALPHAS", "PROBLEMS", "COLUMNS", "ANGLES"]
 
 #: α grid of Figure 2, [1e-1, 1e1].
 ALPHAS = np.logspace(-1, 1, 21)
@@ -32,6 +37,10 @@ PROBLEMS = {
     "GMTI": (gmti, GMTI_UNITS["km-deg-kmh"]),
     "RDCOS": (rdcos, (RDCOS_UNITS["km"], 1.0)),
 }
+
+
+#: The outputs of each problem that are bearings, declared angles (module notes).
+ANGLES = {"BOT": [0], "GMTI": [1], "RDCOS": []}
 
 
 #: The CSV's columns: key of :func:`curves` → header that says what the column holds.
@@ -70,9 +79,11 @@ def _row(m, Suu, scale) -> dict[str, float]:
     }
 
 
-def _stderr(m, ny: int, weight: str) -> float:
+def _stderr(m, ny: int, weight: str, angles: list[int]) -> float:
     def val(loo):
-        return np.array([_value(C[:ny, :ny], C[:ny, ny:], C[ny:, ny:], weight) for C in loo.cov])
+        # The replicates hold [y; u; sin y_A; cos y_A]: the circular moments of the bearings.
+        _, Cy, Cyu, Cu = moments_of(loo, ny, m.input_cov.shape[0], angles)
+        return np.array([_value(a, b, c, weight) for a, b, c in zip(Cy, Cyu, Cu)])
 
     return float(jackknife(m.replicates, val))
 
@@ -86,14 +97,16 @@ def curves(alphas=ALPHAS, samples: int = 10**6, seed: int = 0, progress: bool = 
     for name, i, a in progress_bar(jobs, "fig2: problems x alpha", progress):
         factory, scale = PROBLEMS[name]
         prob = factory(a)
+        model = with_angles(prob.model, ANGLES[name])
         cur = out[name]
-        m = propagate(prob.model, prob.u, transform=MonteCarlo(samples, seed=seed))
+        m = propagate(model, prob.u, transform=MonteCarlo(samples, seed=seed))
         for key, val in _row(m, m.input_cov, scale).items():
             cur.setdefault(key, np.empty(len(alphas)))[i] = val
         for w in ("full", "diag", "orig"):
-            cur.setdefault(f"{w}_se", np.empty(len(alphas)))[i] = _stderr(m, prob.model.n_y, {"orig": "liu-li"}.get(w, w))
+            cur.setdefault(f"{w}_se", np.empty(len(alphas)))[i] = _stderr(m, model.n_y, {"orig": "liu-li"}.get(w, w),
+                                                                           ANGLES[name])
         for suffix, tr in (("tt2", TT2()), ("ut", UT.ut1())):
-            mt = propagate(prob.model, prob.u, transform=tr)
+            mt = propagate(model, prob.u, transform=tr)
             for key, val in _row(mt, mt.input_cov, scale).items():
                 cur.setdefault(f"{key}_{suffix}", np.empty(len(alphas)))[i] = val
     return out
@@ -116,45 +129,67 @@ def run(outdir: str | Path = "results", samples: int = 10**6, seed: int = 0, pro
     csv = write_csv(outdir / "fig2.csv", list(COLUMNS.values()), rows)
     plt = pyplot()
     with figure_style():
-        fig = _plot(plt, c, samples)
-    png = save_figure(fig, outdir / "fig2.png", dpi=150)
+        fig = _plot(plt, c)
+    png = save_figure(fig, outdir / "fig2.png", dpi=150,
+                      metadata=png_metadata("Figure 2: MoNs of the BOT, GMTI and RDCOS problems", caption(samples, seed)))
     plt.close(fig)
     return [png, csv]
 
 
-#: The second unit set of each problem (Sec. V), for the legends.
+#: The second unit set of each problem (Sec. V), as the caption names it; BOT has none.
 ALT_UNITS = {"BOT": "", "GMTI": "km, deg, km/h", "RDCOS": "km, –"}
-SI_UNITS = {"BOT": "rad", "GMTI": "m, rad, m/s", "RDCOS": "m, –"}
 
 
-def _plot(plt, c: dict[str, dict[str, np.ndarray]], samples: int):
-    """Figure 2: one panel per problem, MC curves with ±2 SE bands, TT2 and UT beside."""
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4.6), sharey=True)
-    for ax, name in zip(axes, c):
+def caption(samples: int = 10**6, seed: int = 0) -> str:
+    """The caption of Figure 2 (saved in the PNG's metadata; the README quotes its numbers)."""
+    return ("Figure 2 (Straka & Havlík 2024, Sec. V). Measures of nonlinearity of the BOT (45), GMTI (46) "
+            "and RDCOS (47) measurements at the state (44) with its covariance scaled by α: the unitless MoN "
+            "with W^full (43) (black) and with W^diag (42) (vermillion, squares), and the original "
+            "normalised MoN (8) in SI units (blue, circles) and in the second unit set of Sec. V (sky blue, "
+            "triangles: [km, deg, km/h] for GMTI, [km, –] for RDCOS). Solid lines: Monte Carlo with "
+            f"{samples:,} samples per point (seed {seed}), with their ±2 SE bands, whose width the lower "
+            "panels show; dashed and dotted: W^full by TT2 and by the unscented transform ut1. BOT's output "
+            "is scalar, so its three MoNs coincide. Bearings are declared angles.")
+
+
+def _plot(plt, c: dict[str, dict[str, np.ndarray]]):
+    """Figure 2: one column per problem, MoNs above and the Monte Carlo 2 SE below; no title."""
+    from matplotlib.lines import Line2D
+
+    fig, axes = plt.subplots(2, 3, figsize=(7.2, 4.4), sharex=True, sharey="row", height_ratios=[3, 1])
+    marks = dict(markevery=0.1, ms=3.5)
+    styles = {"full": (OKABE_ITO["black"], None, 1.8), "diag": (OKABE_ITO["vermillion"], "s", 1.2),
+              "orig": (OKABE_ITO["blue"], "o", 1.2), "orig_alt": (OKABE_ITO["sky blue"], "^", 1.2)}
+    for (ax, ax_se), name in zip(axes.T, c):
         v = c[name]
         a = v["alpha"]
-        for key, color, label in (("full", "tab:green", "unitless, $W^{full}$ (43)"),
-                                  ("diag", "tab:red", "unitless, $W^{diag}$ (42)"),
-                                  ("orig", "tab:blue", f"original (8), in [{SI_UNITS[name]}]")):
+        for key in ("full", "diag", "orig"):
+            color, marker, lw = styles[key]
             se = v[f"{key}_se"]
-            ax.fill_between(a, v[key] - 2 * se, v[key] + 2 * se, color=color, alpha=0.25, lw=0)
-            ax.semilogx(a, v[key], "-", color=color, lw=2 if key != "orig" else 1.2,
-                        label=f"{label}: Monte Carlo (band ±2 SE)")
+            ax.fill_between(a, v[key] - 2 * se, v[key] + 2 * se, color=color, alpha=0.35, lw=0)
+            ax.semilogx(a, v[key], "-", color=color, lw=lw, marker=marker, **marks)
+            ax_se.semilogx(a, 2 * se, "-", color=color, lw=lw, marker=marker, **marks)
         if ALT_UNITS[name]:
-            ax.semilogx(a, v["orig_alt"], "--", color="tab:blue",
-                        label=f"original (8), in [{ALT_UNITS[name]}]: Monte Carlo")
-        ax.semilogx(a, v["full_tt2"], ":", color="tab:green", lw=1.5, label="unitless, $W^{full}$: TT2")
-        ax.semilogx(a, v["full_ut"], "-.", color="tab:green", lw=0.8,
-                    label="unitless, $W^{full}$: unscented transform")
-        ax.set_title({"BOT": "BOT (45)", "GMTI": "GMTI (46)", "RDCOS": "RDCOS (47)"}[name])
-        ax.set_xlabel(ALPHA_LABEL)
+            color, marker, lw = styles["orig_alt"]
+            ax.semilogx(a, v["orig_alt"], "-", color=color, lw=lw, marker=marker, **marks)
+        ax.semilogx(a, v["full_tt2"], "--", color=styles["full"][0], lw=1.1)
+        ax.semilogx(a, v["full_ut"], ":", color=styles["full"][0], lw=1.1)
+        ax.set_title({"BOT": "BOT (45)", "GMTI": "GMTI (46)", "RDCOS": "RDCOS (47)"}[name], fontsize=9)
         ax.set_ylim(bottom=0)
+        ax_se.set_yscale("log")
+        ax_se.set_xlabel(r"$\alpha$: scale of $P$ (44)")
         if name == "BOT":
-            ax.text(0.03, 0.97, "scalar output: the three MoNs coincide\n(one curve hides the others)",
-                    transform=ax.transAxes, fontsize=7, va="top")
-        ax.legend(loc="upper left", bbox_to_anchor=(0.0, 0.86) if name == "BOT" else (0.0, 1.0), fontsize=6.5)
-    axes[0].set_ylabel("measure of nonlinearity (unitless)")
-    fig.suptitle("Figure 2: MoNs of the state (44) scaled by α, Monte Carlo with "
-                 f"{samples_text(samples)} samples per point")
-    fig.tight_layout()
+            ax.text(0.04, 0.96, "scalar output:\nthe three MoNs coincide", transform=ax.transAxes, fontsize=7,
+                    va="top")
+    axes[0, 0].set_ylabel("MoN (unitless, 0 = affine)")
+    axes[1, 0].set_ylabel("2 SE (MC)")
+    handles = [Line2D([], [], color=styles[k][0], marker=styles[k][1], ms=3.5, lw=styles[k][2], label=lab)
+               for k, lab in (("full", "unitless, $W^{full}$ (43)"), ("diag", "unitless, $W^{diag}$ (42)"),
+                              ("orig", "original (8), SI units"), ("orig_alt", "original (8), second unit set"))]
+    handles += [Line2D([], [], color="0.35", ls="-", lw=1.2, label="Monte Carlo, band ±2 SE"),
+                Line2D([], [], color="0.35", ls="--", lw=1.1, label="$W^{full}$ by TT2"),
+                Line2D([], [], color="0.35", ls=":", lw=1.1, label="$W^{full}$ by the UT (ut1)")]
+    fig.align_ylabels()
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
+    fig.legend(handles=handles, loc="lower center", ncol=4, frameon=False, bbox_to_anchor=(0.5, 0.0))
     return fig

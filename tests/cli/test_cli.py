@@ -130,12 +130,25 @@ def test_cli_advise_json_equals_the_api(capsys):
         assert mine["name"] == theirs["name"]
         assert mine["error"] == pytest.approx(theirs["error"], rel=1e-12, abs=1e-15)
         assert mine["mon"] == pytest.approx(theirs["mon"], rel=1e-12, abs=1e-15)
+        assert mine["first_call"] >= 0 and mine["warm"] >= 0  # present; their values are timings
+    assert out["reference_mon"] == pytest.approx(a.reference_mon, rel=1e-12) and out["reference_mon_stderr"] is None
+
+
+def test_advise_and_filter_share_the_default_tolerance():
+    """``--tol`` of ``symmon advise`` and of ``symmon filter`` default to the one constant of
+    sm.advise and sm.Adaptive."""
+    from symmon.measures.advice import DEFAULT_TOL
+
+    parser = cli._parser()
+    assert parser.parse_args(["advise", "m.toml"]).tol == DEFAULT_TOL
+    assert parser.parse_args(["filter", "f.toml"]).tol == DEFAULT_TOL == sm.Adaptive().tol
 
 
 def test_cli_advise_prints_the_table_and_refuses_a_bad_tol(capsys):
     assert cli.main(["advise", str(EXAMPLES / "bot.toml")]) == 0
     out = capsys.readouterr().out
     assert "TT2" in out and "<- choice" in out and "reference: Gauss-Hermite" in out
+    assert "advice for tol = 0.01 " in out and "first call" in out and "by the reference:" in out
     assert cli.main(["advise", str(EXAMPLES / "polar.toml"), "--tol", "2"]) == 2
     assert "must be a number in (0, 1)" in capsys.readouterr().err
 
