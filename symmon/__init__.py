@@ -22,7 +22,9 @@ from .filters import linear as kalman
 from .measures import sweep as sweep
 from .measures import weights as weights
 from .codegen import export_c as export_c
+from .core import Empirical as Empirical
 from .core import Gaussian as Gaussian
+from .core import GaussianMixture as GaussianMixture
 from .core import Model as Model
 from .core import fuse as fuse
 from .errors import SymmonError as SymmonError
@@ -58,7 +60,7 @@ __all__ = [
     "angles", "errors", "estimation", "filters", "sweep", "units", "quadrature_error", "kalman",
     "modelfile", "mmse", "problems", "transforms", "weights", "codegen", "export_c",
     "load_model_file",
-    "SymmonError", "Gaussian", "fuse", "KalmanFilter", "Model", "JointMoments",
+    "SymmonError", "Gaussian", "GaussianMixture", "Empirical", "fuse", "KalmanFilter", "Model", "JointMoments",
     "NonlinearityMeasure", "MonParts", "mon_from_moments", "nonlinearity", "compare",
     "propagate", "propagate_many", "advise", "Advice",
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Cubature5", "Transform", "Moments", "Executor",

@@ -13,6 +13,7 @@ from ..errors import ArgumentTypeError, ModelError, ShapeError
 from ..core.gaussian import Gaussian
 from ..core.model import Model
 from .joint import JointMoments
+from .mixing import component_batch, is_mixture, mix_batch
 from ..transforms import Moments, Transform
 from ..transforms.registry import default_transform, resolve
 
@@ -64,10 +65,14 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, *, transform
     Parameters
     ----------
     model : Model
-    u : Gaussian
+    u : Gaussian or GaussianMixture
         The input distribution.
-    v : Gaussian, optional
-        The noise distribution (required when the model has noise symbols).
+    v : Gaussian or GaussianMixture, optional
+        The noise distribution (required when the model has noise symbols).  With a
+        mixture for u or v, every pair of components goes through the transform in one
+        batch and their moments are mixed exactly (:mod:`symmon.propagation.mixing`):
+        E y = Σ_j π_j m_j, Cov y = Σ_j π_j (P_j + (m_j − m)(m_j − m)ᵀ), and the
+        cross-covariances likewise.
     transform : Transform, default ``TT2()``
         TT1(), TT2(), UT(...), GaussHermite(...), MonteCarlo(...), Exact() or any
         registered rule (docs/architecture.md).  The default is the same for
@@ -105,6 +110,13 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, *, transform
     (2.0, 6.0)
     """
     tr = check_transform(transform)
+    if is_mixture(u) or is_mixture(v):
+        # Every pair of components of u and v in one batch, then mixed exactly (mixing.py).
+        _check_noise_given(model, v)
+        cb = component_batch(model, [u], None if model.n_v == 0 else [v])
+        b = mix_batch(_checked_batch(model, tr, cb.means, cb.covs, executor), cb, sorted(model.angle_outputs))
+        return JointMoments.of(b, u, model.n_u, tr, model.angle_outputs, model.angle_inputs,
+                               evaluator=compiled(model).evaluator)
     mw, Pw = joint_input(model, u, v)
     b = _checked_batch(model, tr, mw[None], Pw[None], executor)
     # "compiled", "vm" or "vm (C build running)": CompiledModel.evaluator, docs/compile.md.
@@ -162,12 +174,13 @@ def propagate_many(model: Model, u: Any, v: Any = None, *, transform: Transform 
     Parameters
     ----------
     model : Model
-    u : list of Gaussian, or (means, covs)
-        K input Gaussians, or their means (K, n_u) and covariances (K, n_u, n_u) (checked
-        with array operations: the fast way to pass many).
-    v : Gaussian or list of Gaussian, optional
-        The noise: one Gaussian for every input, or one per input (required when the
-        model has noise symbols).
+    u : list of Gaussian or GaussianMixture, or (means, covs)
+        K input distributions, or the means (K, n_u) and covariances (K, n_u, n_u) of K
+        Gaussians (checked with array operations: the fast way to pass many).
+    v : Gaussian, GaussianMixture or a list of them, optional
+        The noise: one distribution for every input, or one per input (required when the
+        model has noise symbols).  With any mixture, the components of every input go
+        through the transform in one batch and are mixed per input, as in :func:`propagate`.
     transform : Transform, default ``TT2()``
         As in :func:`propagate`.
     executor : Executor, optional
@@ -189,11 +202,38 @@ def propagate_many(model: Model, u: Any, v: Any = None, *, transform: Transform 
     array([1., 3.])
     """
     tr = check_transform(transform)
+    if _has_mixture(u, v):
+        us, vs = _mixture_items(model, u, v)
+        cb = component_batch(model, us, vs)
+        b = _checked_batch(model, tr, cb.means, cb.covs, executor)
+        return mix_batch(b, cb, sorted(model.angle_outputs)).split(model.n_u)
     M, P = input_batch(model, u, v)
     b = _checked_batch(model, tr, M, P, executor)
     if b.input_cov is None:  # as JointMoments: always Cov u, here the covariances passed in
         b = replace(b, input_cov=P)
     return b.split(model.n_u)
+
+
+def _has_mixture(u: Any, v: Any) -> bool:
+    items = list(u) if isinstance(u, list) else [u]
+    noise = list(v) if isinstance(v, (list, tuple)) else [v]
+    return any(is_mixture(d) for d in items + noise)
+
+
+def _mixture_items(model: Model, u: Any, v: Any) -> tuple[list, list | None]:
+    """The inputs and noises of :func:`propagate_many` as lists when one is a mixture."""
+    if is_mixture(u):
+        raise ArgumentTypeError("u is one GaussianMixture: use propagate, or pass a list of distributions")
+    if not isinstance(u, list) or not u:
+        raise ArgumentTypeError("with a GaussianMixture, u must be a non-empty list of Gaussian or "
+                                f"GaussianMixture, got {type(u).__name__}")
+    _check_noise_given(model, v)
+    if model.n_v == 0:
+        return u, None
+    vs = list(v) if isinstance(v, (list, tuple)) else [v] * len(u)
+    if len(vs) != len(u):
+        raise ArgumentTypeError(f"v must be one distribution or a list of {len(u)}, one per input")
+    return u, vs
 
 
 def _checked_batch(model: Model, tr: Transform, means: np.ndarray, covs: np.ndarray, executor) -> Moments:
