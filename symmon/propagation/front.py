@@ -13,11 +13,11 @@ from ..errors import ArgumentTypeError, ModelError, ShapeError
 from ..core.gaussian import Gaussian
 from ..core.model import Model
 from .joint import JointMoments
-from .mixing import component_batch, is_mixture, mix_batch
+from .mixing import ComponentBatch, component_batch, is_mixture, mix_batch
 from ..transforms import Moments, Transform
 from ..transforms.registry import default_transform, resolve
 
-__all__ = ["propagate", "propagate_many", "joint_input", "input_batch", "check_transform"]
+__all__ = ["propagate", "propagate_many", "propagate_mixture", "joint_input", "input_batch", "check_transform"]
 
 
 def check_transform(transform: Any) -> Transform:
@@ -111,17 +111,31 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, *, transform
     """
     tr = check_transform(transform)
     if is_mixture(u) or is_mixture(v):
-        # Every pair of components of u and v in one batch, then mixed exactly (mixing.py).
-        _check_noise_given(model, v)
-        cb = component_batch(model, [u], None if model.n_v == 0 else [v])
-        b = mix_batch(_checked_batch(model, tr, cb.means, cb.covs, executor), cb, sorted(model.angle_outputs))
-        return JointMoments.of(b, u, model.n_u, tr, model.angle_outputs, model.angle_inputs,
-                               evaluator=compiled(model).evaluator)
+        return propagate_mixture(model, u, v, tr, executor)[0]
     mw, Pw = joint_input(model, u, v)
     b = _checked_batch(model, tr, mw[None], Pw[None], executor)
     # "compiled", "vm" or "vm (C build running)": CompiledModel.evaluator, docs/compile.md.
     return JointMoments.of(b, u, model.n_u, tr, model.angle_outputs, model.angle_inputs,
                            evaluator=compiled(model).evaluator)
+
+
+def propagate_mixture(model: Model, u: Any, v: Any, transform: Transform, executor: Any = None
+                      ) -> tuple[JointMoments, Moments, ComponentBatch]:
+    """:func:`propagate` for a mixture u and/or v, with what the mixing came from: the
+    moments, the transform's batch result of the components and the
+    :class:`~symmon.propagation.mixing.ComponentBatch` (for the jackknife of a measure:
+    :func:`~symmon.propagation.mixing.mixed_leave_one_out`).
+
+    Every pair of components of u and v goes through the transform in one batch, and
+    their moments are mixed exactly (:mod:`symmon.propagation.mixing`).
+    """
+    _check_noise_given(model, v)
+    cb = component_batch(model, [u], None if model.n_v == 0 else [v])
+    raw = _checked_batch(model, transform, cb.means, cb.covs, executor)
+    b = mix_batch(raw, cb, sorted(model.angle_outputs))
+    m = JointMoments.of(b, u, model.n_u, transform, model.angle_outputs, model.angle_inputs,
+                        evaluator=compiled(model).evaluator)
+    return m, raw, cb
 
 
 def input_batch(model: Model, u: Any, v: Any = None) -> tuple[np.ndarray, np.ndarray]:
