@@ -45,14 +45,15 @@ import sympy as sp
 
 from ..compile.compiled import compile_model
 from ..core.gaussian import Gaussian
-from ..core.mixture import GaussianMixture, mixture_moments
+from ..core.mixture import Empirical, GaussianMixture, mixture_moments
 from ..core.model import Model
 from ..compile import compiled
+from ..propagation.particles import GROUPS, group_means
 from ..transforms import Transform
 from ..transforms.montecarlo import MC_INNER
 from ..transforms.stats import Stats, leave_one_out, merge_all, moments_of
 
-__all__ = ["conditional_cov", "conditional_cov_replicates"]
+__all__ = ["conditional_cov", "conditional_cov_replicates", "empirical_conditional_cov"]
 
 
 def _aux_moments(exprs: Sequence[sp.Expr], syms: Sequence[sp.Symbol], dist: Gaussian | GaussianMixture,
@@ -173,4 +174,54 @@ def conditional_cov_replicates(model: Model, u: Gaussian, v: Gaussian | None, tr
     total, var_sum = merge_all(stats), sum(g[1] for g in nested)
     loo = [_sc_nested(s, var_sum - g[1]) for s, g in zip(leave_one_out(stats, total), nested)]
     return _sc_nested(total, var_sum), np.array(loo)
+
+
+
+def _loo_ratio(sums: np.ndarray, wsum: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted means of all particles and of all but group g: (d,) and (G, d)."""
+    tot, W = sums.sum(axis=0), wsum.sum()
+    return tot / W, (tot - sums) / (W - wsum)[:, None]
+
+
+def empirical_conditional_cov(model: Model, u: Empirical, v: Gaussian | GaussianMixture | None,
+                              transform: Transform) -> tuple[np.ndarray, np.ndarray]:
+    """Σ_c for particles u, and its value with each jackknife group left out (G, n_y, n_y).
+
+    No noise: 0; additive: B Σ_vv Bᵀ (29), no sampling error; multiplicative: π̄ Σ_γγ π̄ᵀ
+    (28) with π̄ = Σ_i w_i π(x_i) and Σ_γγ by the transform over v; general: the outer
+    rule of the transform over (each component of) v, h(V_j) = Σ_i w_i g(x_i, V_j) at each
+    point (module notes).  Groups are those of :func:`~symmon.propagation.particles.group_means`.
+    """
+    ny = model.n_y
+    G = min(len(u.weights), GROUPS)
+    zero = np.zeros((ny, ny))
+    if model.n_v == 0:
+        return zero, np.repeat(zero[None], G, axis=0)
+    if model.structure == "additive" or (model.structure == "multiplicative" and model.pi.shape[1] == 0):
+        Sc = conditional_cov(model, u, v, transform)  # uses v only (u.cov is not read)
+        return Sc, np.repeat(Sc[None], G, axis=0)
+    if model.structure == "multiplicative":
+        pi = model.pi
+        cm = compile_model(list(pi), list(model.inputs))
+        pbar, pbar_loo = _loo_ratio(*group_means(u, cm.eval_g))
+        _, Sgam = _aux_moments(list(model.gamma), model.noise, v, transform)
+        return _pi_sgam_pi(pi, pbar, Sgam), np.array([_pi_sgam_pi(pi, p, Sgam) for p in pbar_loo])
+    cm = compiled(model)
+    wv, Mv, Pv = _components(v)
+    rules = [transform.outer_rule(m, P) for m, P in zip(Mv, Pv)]
+    V = np.vstack([r[0] for r in rules])
+    a = np.concatenate([wl * r[1] for wl, r in zip(wv, rules)])
+    J = V.shape[0]
+
+    def at_points(X: np.ndarray) -> np.ndarray:  # g(x_i, V_j) for every particle and point: (n, J·n_y)
+        W = np.hstack([np.repeat(X, J, axis=0), np.tile(V, (X.shape[0], 1))])
+        return cm.eval_g(W).reshape(X.shape[0], J * ny)
+
+    h, h_loo = _loo_ratio(*group_means(u, at_points))
+
+    def cov_of(hj: np.ndarray) -> np.ndarray:
+        R = hj.reshape(J, ny) - a @ hj.reshape(J, ny)
+        return np.einsum("j,ji,jk->ik", a, R, R)
+
+    return cov_of(h), np.array([cov_of(x) for x in h_loo])
 

@@ -22,15 +22,16 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .conditional import conditional_cov, conditional_cov_replicates
+from .conditional import conditional_cov, conditional_cov_replicates, empirical_conditional_cov
 from ..errors import ArgumentError, NonFiniteError
 from ..core.gaussian import Gaussian
-from ..core.mixture import GaussianMixture
+from ..core.mixture import Empirical, GaussianMixture
 from .formula import MonParts, NonlinearityMeasure, mon_from_moments
 from ..core.model import Model
 from ..propagation.joint import JointMoments
-from ..propagation.front import check_transform, propagate, propagate_mixture
+from ..propagation.front import check_noise_given, check_transform, propagate, propagate_mixture
 from ..propagation.mixing import is_mixture, mixed_leave_one_out
+from ..propagation.particles import propagate_empirical
 from ..transforms import Transform
 from ..transforms.stats import Stats, jackknife, jackknife_se, moments_of
 from ..transforms.registry import compare_set
@@ -47,7 +48,14 @@ def nonlinearity(model: Model, u: Gaussian | GaussianMixture, v: Gaussian | Gaus
     Parameters
     ----------
     model : Model
-    u : Gaussian or GaussianMixture
+    u : Gaussian, GaussianMixture or Empirical
+        For particles (:class:`~symmon.Empirical`) the MoN of the empirical measure,
+        from the weighted sample moments of :func:`symmon.propagate` and Σ_c with the
+        inner integral over u a weighted sum over the particles
+        (:func:`~symmon.measures.conditional.empirical_conditional_cov`); its ``stderr`` is
+        the delete-one-group jackknife over 20 interleaved groups of particles, and a
+        ``SampleSizeWarning`` comes when the effective sample size is below 100.  The
+        transform only integrates noise that is neither absent nor additive.
     v : Gaussian or GaussianMixture, optional
         Required when the model has noise symbols.  With a mixture, the MoN (25)–(29) is
         formed from the mixture's joint moments (:func:`symmon.propagate`: the exact
@@ -81,6 +89,8 @@ def nonlinearity(model: Model, u: Gaussian | GaussianMixture, v: Gaussian | Gaus
     1.0
     """
     tr = check_transform(transform)
+    if isinstance(u, Empirical):
+        return _empirical_nonlinearity(model, u, v, weight, tr, executor)
     if is_mixture(u) or is_mixture(v):
         return _mixture_nonlinearity(model, u, v, weight, tr, executor)
     m = propagate(model, u, v, transform=tr, executor=executor)
@@ -96,6 +106,27 @@ def nonlinearity(model: Model, u: Gaussian | GaussianMixture, v: Gaussian | Gaus
         raise NonFiniteError(f"{tr!r}: {exc}") from None
     if stderr is not None and not np.isfinite(stderr):
         raise NonFiniteError(f"{tr!r}: the standard error of the MoN is {stderr}")
+    return NonlinearityMeasure.of(parts, transform=tr, structure=model.structure, moments=m, stderr=stderr)
+
+
+def _empirical_nonlinearity(model: Model, u: Empirical, v: Any, weight: Any, tr: Transform, executor: Any
+                            ) -> NonlinearityMeasure:
+    """The MoN of particles with its jackknife error bar (see :func:`nonlinearity`)."""
+    check_noise_given(model, v)
+    m, sums = propagate_empirical(model, u, v, tr, executor)
+    Sc, Sc_loo = empirical_conditional_cov(model, u, v, tr)
+    try:
+        parts = mon_from_moments(m.cov, m.cross_cov, m.input_cov, weight, Sc, m.mean)
+    except NonFiniteError as exc:
+        raise NonFiniteError(f"particles: {exc}") from None
+    stderr = None
+    if sums.w.shape[0] >= 2:
+        # Group g left out of the moments and of Σ_c at once, as for Monte Carlo.
+        _, cov, cross, in_cov = sums.leave_one_out().moments()
+        nu = model.n_u
+        stderr = float(jackknife_se(np.array([
+            mon_from_moments(cov[g], cross[g][:, :nu], in_cov[g][:nu, :nu], weight, Sc_loo[g]).value
+            for g in range(cov.shape[0])])))
     return NonlinearityMeasure.of(parts, transform=tr, structure=model.structure, moments=m, stderr=stderr)
 
 

@@ -11,13 +11,15 @@ from scipy.linalg import block_diag
 from ..compile import compiled
 from ..errors import ArgumentTypeError, ModelError, ShapeError
 from ..core.gaussian import Gaussian
+from ..core.mixture import Empirical
 from ..core.model import Model
 from .joint import JointMoments
+from .particles import propagate_empirical
 from .mixing import ComponentBatch, component_batch, is_mixture, mix_batch
 from ..transforms import Moments, Transform
 from ..transforms.registry import default_transform, resolve
 
-__all__ = ["propagate", "propagate_many", "propagate_mixture", "joint_input", "input_batch", "check_transform"]
+__all__ = ["propagate", "propagate_many", "propagate_mixture", "check_noise_given", "joint_input", "input_batch", "check_transform"]
 
 
 def check_transform(transform: Any) -> Transform:
@@ -34,8 +36,8 @@ def check_transform(transform: Any) -> Transform:
     return transform
 
 
-def _check_noise_given(model: Model, v: Any) -> None:
-    """v is given exactly when the model has noise symbols."""
+def check_noise_given(model: Model, v: Any) -> None:
+    """v is given exactly when the model has noise symbols, else a ModelError."""
     if model.n_v == 0 and v is not None:
         raise ModelError("v was given but the model declares no noise symbols")
     if model.n_v and v is None:
@@ -48,7 +50,7 @@ def joint_input(model: Model, u: Gaussian, v: Gaussian | None) -> tuple[np.ndarr
         raise ArgumentTypeError(f"u must be a symmon.Gaussian, got {type(u).__name__}")
     if u.dim != model.n_u:
         raise ShapeError(f"u has dimension {u.dim} but the model has {model.n_u} inputs {list(map(str, model.inputs))}")
-    _check_noise_given(model, v)
+    check_noise_given(model, v)
     if model.n_v == 0:
         return u.mean.copy(), u.cov.copy()
     if not isinstance(v, Gaussian):
@@ -65,8 +67,13 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, *, transform
     Parameters
     ----------
     model : Model
-    u : Gaussian or GaussianMixture
-        The input distribution.
+    u : Gaussian, GaussianMixture or Empirical
+        The input distribution.  For particles (:class:`~symmon.Empirical`), the weighted
+        moments of y = g(x_i, v), exact for the empirical measure without noise and with
+        additive noise (the transform integrates any other noise at each particle), with
+        jackknife standard errors over interleaved groups of particles
+        (:mod:`symmon.propagation.particles`); a ``SampleSizeWarning`` when the
+        effective sample size is below 100.
     v : Gaussian or GaussianMixture, optional
         The noise distribution (required when the model has noise symbols).  With a
         mixture for u or v, every pair of components goes through the transform in one
@@ -110,6 +117,9 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, *, transform
     (2.0, 6.0)
     """
     tr = check_transform(transform)
+    if isinstance(u, Empirical):
+        check_noise_given(model, v)
+        return propagate_empirical(model, u, v, tr, executor)[0]
     if is_mixture(u) or is_mixture(v):
         return propagate_mixture(model, u, v, tr, executor)[0]
     mw, Pw = joint_input(model, u, v)
@@ -129,7 +139,7 @@ def propagate_mixture(model: Model, u: Any, v: Any, transform: Transform, execut
     Every pair of components of u and v goes through the transform in one batch, and
     their moments are mixed exactly (:mod:`symmon.propagation.mixing`).
     """
-    _check_noise_given(model, v)
+    check_noise_given(model, v)
     cb = component_batch(model, [u], None if model.n_v == 0 else [v])
     raw = _checked_batch(model, transform, cb.means, cb.covs, executor)
     b = mix_batch(raw, cb, sorted(model.angle_outputs))
@@ -164,7 +174,7 @@ def input_batch(model: Model, u: Any, v: Any = None) -> tuple[np.ndarray, np.nda
         raise ArgumentTypeError("u must be a list of K Gaussians or a pair (means (K, n_u), covs (K, n_u, n_u)), "
                         f"got {type(u).__name__}")
     K = M.shape[0]
-    _check_noise_given(model, v)
+    check_noise_given(model, v)
     if model.n_v == 0:
         return M, P
     vs = [v] * K if isinstance(v, Gaussian) else list(v) if isinstance(v, (list, tuple)) else None
@@ -231,6 +241,9 @@ def propagate_many(model: Model, u: Any, v: Any = None, *, transform: Transform 
 def _has_mixture(u: Any, v: Any) -> bool:
     items = list(u) if isinstance(u, list) else [u]
     noise = list(v) if isinstance(v, (list, tuple)) else [v]
+    if any(isinstance(d, Empirical) for d in items + noise):
+        raise ArgumentTypeError("propagate_many takes Gaussians and GaussianMixtures; pass an Empirical "
+                                "(particles) to propagate, one cloud at a time")
     return any(is_mixture(d) for d in items + noise)
 
 
@@ -241,7 +254,7 @@ def _mixture_items(model: Model, u: Any, v: Any) -> tuple[list, list | None]:
     if not isinstance(u, list) or not u:
         raise ArgumentTypeError("with a GaussianMixture, u must be a non-empty list of Gaussian or "
                                 f"GaussianMixture, got {type(u).__name__}")
-    _check_noise_given(model, v)
+    check_noise_given(model, v)
     if model.n_v == 0:
         return u, None
     vs = list(v) if isinstance(v, (list, tuple)) else [v] * len(u)
