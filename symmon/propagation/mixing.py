@@ -39,8 +39,8 @@ from ..errors import ArgumentTypeError, ShapeError
 from ..transforms import Moments
 from ..transforms.stats import jackknife_se, leave_one_out_stack, moments_of
 
-__all__ = ["ComponentBatch", "component_batch", "mix", "mix_batch", "mixed_leave_one_out", "is_mixture",
-           "parts"]
+__all__ = ["ComponentBatch", "component_batch", "mix", "mix_batch", "mixed_leave_one_out", "mixed_error",
+           "is_mixture", "parts"]
 
 
 def is_mixture(d: Any) -> bool:
@@ -183,5 +183,27 @@ def mix_batch(b: Moments, cb: ComponentBatch, angles: Sequence[int]) -> Moments:
         stderr = {k: jackknife_se(np.moveaxis(x, 1, 0))
                   for k, x in (("mean", lm), ("cov", lP), ("cross_cov", lC))}
     counts = np.diff(np.append(cb.starts, cb.weights.size))
-    return Moments(mean=mean, cov=cov, cross_cov=cross, input_cov=in_cov, stderr=stderr,
+    error = None if b.error is None else mixed_error(b, cb, mean, angles)
+    return Moments(mean=mean, cov=cov, cross_cov=cross, input_cov=in_cov, stderr=stderr, error=error,
                    evaluations=b.evaluations, details={"components": counts.tolist()})
+
+
+def mixed_error(b: Moments, cb: ComponentBatch, mean: np.ndarray, angles: Sequence[int]) -> dict:
+    """A first-order bound of the error of the mixed moments from the components' bounds
+    ``b.error`` (Gauss–Hermite's two-order estimate).
+
+    With |δm_j| ≤ ε_j, the mixed mean errs by at most ε = Σ_j π_j ε_j, each deviation
+    d_j = m_j − m by at most ε_j + ε, so (to first order in the errors)
+    |δ Cov y| ≤ Σ_j π_j (|δP_j| + |δd_j||d_j|ᵀ + |d_j||δd_j|ᵀ) and
+    |δ Cov(y, w)| ≤ Σ_j π_j (|δC_j| + |δd_j||μ_j^w − μ^w|ᵀ), entrywise.
+    """
+    pi, starts, owner = cb.weights, cb.starts, cb.owner
+    m = unwrap_near(b.mean, mean[owner], list(angles))
+    d = np.abs(m - mean[owner])
+    e = np.abs(cb.means - np.add.reduceat(_expand(pi, cb.means), starts, axis=0)[owner])
+    eps_m = np.add.reduceat(_expand(pi, b.error["mean"]), starts, axis=0)
+    dd = b.error["mean"] + eps_m[owner]
+    cov = np.add.reduceat(_expand(pi, b.error["cov"] + dd[:, :, None] * d[:, None, :] + d[:, :, None] * dd[:, None, :]),
+                          starts, axis=0)
+    cross = np.add.reduceat(_expand(pi, b.error["cross_cov"] + dd[:, :, None] * e[:, None, :]), starts, axis=0)
+    return {"mean": eps_m, "cov": cov, "cross_cov": cross}

@@ -145,3 +145,21 @@ def test_bad_mixture_inputs_are_named_errors():
         sm.propagate_many(POLAR, U_MIX)
     with pytest.raises(ArgumentTypeError, match="one per input"):
         sm.propagate_many(NOISY, [U_MIX, U_MIX], [V_MIX])
+
+
+def test_gauss_hermite_error_estimate_of_a_mixture_bounds_its_error():
+    smooth = sm.Model([x, y], [sp.exp(0.3 * x) * y, sp.sin(x) + 0.5 * y**2])
+    u = sm.GaussianMixture([0.3, 0.7], [[0.0, 1.0], [1.5, -0.5]], [[[0.3, 0.1], [0.1, 0.2]], 0.1 * np.eye(2)])
+    m = sm.propagate(smooth, u, transform=sm.GaussHermite(order=5, error_estimate=True))
+    ref = sm.propagate(smooth, u, transform=sm.GaussHermite(order=14))  # converged to rounding
+    for name in ("mean", "cov", "cross_cov"):
+        assert np.all(np.abs(getattr(m, name) - getattr(ref, name)) <= m.error[name] + 1e-14)
+
+
+def test_advise_takes_a_mixture():
+    smooth = sm.Model([x, y], [sp.exp(0.3 * x) * y, sp.sin(x) + 0.5 * y**2])
+    u = sm.GaussianMixture([0.3, 0.7], [[0.0, 1.0], [1.5, -0.5]], [[[0.3, 0.1], [0.1, 0.2]], 0.1 * np.eye(2)])
+    a = sm.advise(smooth, u, tol=1e-2)
+    assert a.reference.startswith("Gauss-Hermite") and a.choice_name is not None
+    assert a.reference_mon == pytest.approx(sm.nonlinearity(smooth, u, transform=sm.GaussHermite(order=7)).value,
+                                            rel=1e-12)
