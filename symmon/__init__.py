@@ -29,6 +29,7 @@ from .core import Model as Model
 from .core import fuse as fuse
 from .errors import SymmonError as SymmonError
 from .files import load_model_file as load_model_file
+from .files import load_samples_file as load_samples_file
 from .filters import Adaptive as Adaptive
 from .filters import KalmanFilter as KalmanFilter
 from .filters import NonlinearKalmanFilter as NonlinearKalmanFilter
@@ -59,7 +60,7 @@ from .version import __version__ as __version__
 __all__ = [
     "angles", "errors", "estimation", "filters", "sweep", "units", "quadrature_error", "kalman",
     "modelfile", "mmse", "problems", "transforms", "weights", "codegen", "export_c",
-    "load_model_file",
+    "load_model_file", "load_samples_file",
     "SymmonError", "Gaussian", "GaussianMixture", "Empirical", "fuse", "KalmanFilter", "Model", "JointMoments",
     "NonlinearityMeasure", "MonParts", "mon_from_moments", "nonlinearity", "compare",
     "propagate", "propagate_many", "advise", "Advice",
