@@ -18,8 +18,6 @@ References
 ----------
 O. Straka, J. Havlík, "Design of unitless normalized measure of nonlinearity for state
 estimation", FUSION 2024. arXiv:2410.13539
-A. Kong, J. S. Liu, W. H. Wong, "Sequential imputations and Bayesian missing data
-problems", JASA 89(425), 1994 (the effective sample size). doi:10.1080/01621459.1994.10476469
 """
 
 from __future__ import annotations
@@ -264,7 +262,7 @@ class Empirical:
         Σ_i w_i (x_i − mean)(x_i − mean)ᵀ: the covariance *of the empirical measure*
         (no N/(N − 1) correction; it is what the moments of y are exact for).
     ess : float
-        The effective sample size 1 / Σ w_i² (Kong, Liu & Wong 1994) for the normalised
+        The effective sample size 1 / Σ w_i² (the particle-filter convention) for the normalised
         weights: N for equal weights, 1 when one particle holds all the weight.
 
     Raises
