@@ -100,3 +100,11 @@ def test_usage_and_file_errors(capsys, files, tmp_path):
     code, _, err = run(capsys, "propagate", EXAMPLES / "bot.toml", "--samples-file", bad)
     assert code == 1 and "no column for the input 'vy'" in err
     assert Path(cloud).exists()  # nothing is written next to the inputs
+
+
+def test_compare_and_prove_invariance_take_a_mixture_file(capsys, files):
+    model, _, spec, _ = files
+    code, out, err = run(capsys, "compare", model, "--samples", "2000")
+    assert code == 0 and "gh" in out
+    code, out, err = run(capsys, "prove-invariance", model)
+    assert code == 0 and "holds" in out
