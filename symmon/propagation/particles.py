@@ -66,23 +66,33 @@ def _n_groups(n: int) -> int:
     return min(GROUPS, n)
 
 
+def _by_group(a: np.ndarray, G: int, L: int = 1) -> np.ndarray:
+    """Rows of a chunk (n·L rows: L per particle, n a multiple of G) regrouped as
+    (G, n/G·L, ...): particle start + r·G + g is in group g, the chunk starting at a
+    multiple of G."""
+    n = a.shape[0] // L
+    return np.swapaxes(a.reshape((n // G, G, L) + a.shape[1:]), 0, 1).reshape((G, (n // G) * L) + a.shape[1:])
+
+
+def _pad(a: np.ndarray, rows: int) -> np.ndarray:
+    """``a`` with zero rows appended up to ``rows`` (zero weight: nothing is added)."""
+    if a.shape[0] == rows:
+        return a
+    return np.concatenate([a, np.zeros((rows - a.shape[0],) + a.shape[1:])])
+
+
 def group_means(u: Empirical, fn: Callable[[np.ndarray], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Per group, Σ_i w_i fn(x_i) (G, d) and Σ_i w_i (G,), with fn evaluated on chunks of
     particles (rows) returning (chunk, d)."""
     G = _n_groups(u.n_samples)
-    sums, wsum = None, np.zeros(G)
+    sums, wsum = 0.0, 0.0
     for start in range(0, u.n_samples, CHUNK):
         X, w = u.samples[start:start + CHUNK], u.weights[start:start + CHUNK]
-        F = np.asarray(fn(X), dtype=float)
-        onehot = _onehot(start, X.shape[0], G) * w
-        sums = onehot @ F if sums is None else sums + onehot @ F
-        wsum += onehot.sum(axis=1)
+        rows = -(-X.shape[0] // G) * G
+        F, wp = _by_group(_pad(np.asarray(fn(X), dtype=float), rows), G), _by_group(_pad(w, rows), G)
+        sums = sums + np.einsum("gk,gkd->gd", wp, F)
+        wsum = wsum + wp.sum(axis=1)
     return sums, wsum
-
-
-def _onehot(start: int, n: int, G: int) -> np.ndarray:
-    """(G, n): row g selects the particles start + r with (start + r) mod G = g."""
-    return (np.arange(start, start + n) % G == np.arange(G)[:, None]).astype(float)
 
 
 @dataclass(frozen=True)
@@ -131,13 +141,12 @@ class GroupSums:
 def _conditional(model: Model, tr: Transform, X: np.ndarray, wv: np.ndarray, Mv: np.ndarray, Pv: np.ndarray,
                  executor: Any) -> tuple[np.ndarray, ...]:
     """For the particles X (n, n_u) and each component l of v: the weight factor (n·L,),
-    means of w (n·L, n_w), Cov w, and E[y | x_i, l], Cov(y | x_i, l), Cov(y, w | x_i, l)."""
+    means of w (n·L, n_w), Cov w, and E[y | x_i, l], Cov(y | x_i, l), Cov(y, w | x_i, l),
+    and the evaluations of g; without noise the covariances are ``None`` (all zero)."""
     cm = compiled(model)
     n, nu = X.shape
-    if model.n_v == 0:
-        Y = cm.eval_g(X)
-        z = np.zeros((n, Y.shape[1], Y.shape[1]))
-        return np.ones(n), X, np.zeros((n, nu, nu)), Y, z, np.zeros((n, Y.shape[1], nu)), n
+    if model.n_v == 0:  # point masses: no conditional (co)variances (None: not summed)
+        return np.ones(n), X, None, cm.eval_g(X), None, None, n
     L, nv = wv.size, model.n_v
     Mw = np.hstack([np.repeat(X, L, axis=0), np.tile(Mv, (n, 1))])  # row i·L + l
     Pw = np.zeros((n * L, nu + nv, nu + nv))
@@ -172,6 +181,7 @@ def particle_sums(model: Model, u: Empirical, v: Any, tr: Transform, executor: A
         wv = Mv = Pv = None
     A = tuple(sorted(model.angle_outputs))
     G = _n_groups(u.n_samples)
+    conditional = model.n_v > 0  # without noise P_i = C_i = Pw_i = 0: skip their sums
     acc: list[np.ndarray] | None = None
     c_y = c_w = None
     evaluations = 0
@@ -187,11 +197,18 @@ def particle_sums(model: Model, u: Empirical, v: Any, tr: Transform, executor: A
             if A:
                 c_y[list(A)] = np.arctan2(pi @ np.sin(m[:, A]), pi @ np.cos(m[:, A]))
         d = unwrap_near(m, c_y, A) - c_y
-        e = Mw - c_w
-        onehot = np.repeat(_onehot(start, X.shape[0], G), L, axis=1) * pi  # (G, n·L)
-        terms = (np.ones(pi.size), d, P + d[:, :, None] * d[:, None, :], C + d[:, :, None] * e[:, None, :], e,
-                 Pw + e[:, :, None] * e[:, None, :])
-        sums = [(onehot @ t.reshape(t.shape[0], -1)).reshape((G,) + t.shape[1:]) for t in terms]
+        # Regroup the rows (L per particle, the last chunk padded with zero weights) and
+        # take the weighted sums and Gram matrices of z = [d; e] per group, one BLAS call.
+        rows = -(-X.shape[0] // G) * G * L
+        pg = _by_group(_pad(pi, rows), G, L)
+        Zg = _by_group(_pad(np.hstack([d, Mw - c_w]), rows), G, L)
+        S1 = np.einsum("gk,gka->ga", pg, Zg)
+        S2 = np.matmul(np.swapaxes(Zg * pg[..., None], 1, 2), Zg)
+        ny = m.shape[1]
+        sums = [pg.sum(axis=1), S1[:, :ny], S2[:, :ny, :ny], S2[:, :ny, ny:], S1[:, ny:], S2[:, ny:, ny:]]
+        if conditional:  # the noise's own (co)variances at each particle: Σ π P, Σ π C, Σ π Pw
+            for k, t in ((2, P), (3, C), (5, Pw)):
+                sums[k] = sums[k] + np.einsum("gk,gkab->gab", pg, _by_group(_pad(t, rows), G, L))
         acc = sums if acc is None else [a + s_ for a, s_ in zip(acc, sums)]
     return GroupSums(*acc, c_y=c_y, c_w=c_w, angles=A, evaluations=evaluations)
 

@@ -76,6 +76,7 @@ def test_additive_noise_is_exact_without_a_rule(cloud):
 def test_noise_at_each_particle_is_the_mixture_of_point_masses(cloud, model, rule):
     """A particle is N(x_i, 0): the same numbers as the mixture path with zero covariances
     (which checks too that every rule accepts the zero block)."""
+    cloud = sm.Empirical(cloud.samples[:300], cloud.weights[:300])  # the nested Σ_c of 300 point masses is cost enough
     deg = sm.GaussianMixture(cloud.weights, cloud.samples, np.zeros((cloud.n_samples, 2, 2)))
     a = sm.propagate(model, cloud, V, transform=rule)
     b = sm.propagate(model, deg, V, transform=rule)
@@ -153,3 +154,19 @@ def test_bad_particle_inputs_are_named_errors(cloud):
         sm.propagate(GENERAL, cloud, V, transform=sm.MonteCarlo(n=100, seed=0))
     with pytest.raises(ArgumentTypeError, match="pass an Empirical"):
         sm.propagate_many(SMOOTH, [cloud])
+
+
+@pytest.mark.parametrize("model", [ADDITIVE, GENERAL], ids=["additive", "general"])
+def test_mixture_noise_at_each_particle(cloud, model, monkeypatch):
+    """Two components of v per particle (and chunks that split no particle's pair): the
+    same numbers as the mixture path with point-mass components of u."""
+    v = sm.GaussianMixture([0.7, 0.3], [[0.0, 0.0], [0.2, -0.1]], [V.cov, 4 * V.cov])
+    cloud = sm.Empirical(cloud.samples[:310], cloud.weights[:310])  # 310: the last chunk is padded
+    deg = sm.GaussianMixture(cloud.weights, cloud.samples, np.zeros((cloud.n_samples, 2, 2)))
+    monkeypatch.setattr(particles, "CHUNK", 100)
+    a = sm.propagate(model, cloud, v, transform=sm.UT.ut1())
+    b = sm.propagate(model, deg, v, transform=sm.UT.ut1())
+    for name in ("mean", "cov", "cross_cov", "noise_cross_cov"):
+        close(getattr(a, name), getattr(b, name))
+    sa, _ = empirical_conditional_cov(model, cloud, v, sm.UT.ut1())
+    close(sa, conditional_cov(model, deg, v, sm.UT.ut1()))
