@@ -14,7 +14,6 @@ from .gaussian import as_vector as as_vector
 from .gaussian import fuse as fuse
 from .mixture import Empirical as Empirical
 from .mixture import GaussianMixture as GaussianMixture
-from .mixture import check_distribution as check_distribution
 from .model import Model as Model
 from .rescale import change_units as change_units
 from .rescale import changed_relation as changed_relation
@@ -22,6 +21,6 @@ from .rescale import change_gaussian as change_gaussian
 from .tracing import SUPPORTED as SUPPORTED
 from .tracing import trace as trace
 
-__all__ = ["Gaussian", "GaussianMixture", "Empirical", "check_distribution", "Model", "fuse", "as_covariance", "as_vector", "check_gaussian", "check_model",
+__all__ = ["Gaussian", "GaussianMixture", "Empirical", "Model", "fuse", "as_covariance", "as_vector", "check_gaussian", "check_model",
            "noise_cov", "readonly", "change_units", "changed_relation", "change_gaussian", "trace",
            "SUPPORTED", "affine", "angles", "problems"]

@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike
 from ..errors import ArgumentError, ArgumentTypeError, ShapeError, WeightError
 from .gaussian import Gaussian, _float_array, _fmt, as_covariance, as_generator, as_vector, check_indices, matrix_sqrt
 
-__all__ = ["GaussianMixture", "Empirical", "mixture_moments", "check_distribution", "WEIGHT_SUM_ATOL", "MAX_SHOWN"]
+__all__ = ["GaussianMixture", "Empirical", "mixture_moments", "WEIGHT_SUM_ATOL", "MAX_SHOWN"]
 
 #: How far the mixture weights may sum from 1: rounding of weights computed in double
 #: precision (K·eps ≈ 1e-14 for K = 64) passes by five orders of magnitude, while a weight
@@ -374,12 +374,3 @@ class Empirical:
 
     def __hash__(self) -> int:
         return hash((self._samples.tobytes(), self._weights.tobytes()))
-
-
-def check_distribution(d: object, name: str) -> None:
-    """Raise an ArgumentTypeError naming ``name`` unless ``d`` is a Gaussian, a
-    GaussianMixture or an Empirical."""
-    if not isinstance(d, (Gaussian, GaussianMixture, Empirical)):
-        raise ArgumentTypeError(
-            f"{name} must be a symmon.Gaussian, GaussianMixture or Empirical, got {type(d).__name__}")
-
