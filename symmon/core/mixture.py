@@ -79,7 +79,53 @@ def mixture_moments(weights: np.ndarray, means: np.ndarray, covs: np.ndarray) ->
     return mean, 0.5 * (cov + cov.T)
 
 
-class GaussianMixture:
+class _WeightedMeasure:
+    """What a mixture and a weighted sample share: normalised weights, the overall mean
+    and covariance (read-only), immutability, the moment-matched Gaussian."""
+
+    __slots__ = ("_weights", "_mean", "_cov")
+
+    def __setattr__(self, key, value):  # immutable
+        raise AttributeError(f"{type(self).__name__} is immutable")
+
+    def _freeze(self, **arrays: np.ndarray) -> None:
+        for name, arr in arrays.items():
+            arr = np.array(arr, dtype=float)  # own copy: freezing it cannot affect the caller
+            arr.setflags(write=False)
+            object.__setattr__(self, "_" + name, arr)
+
+    @property
+    def weights(self) -> np.ndarray:
+        """The weights, summing to 1."""
+        return self._weights
+
+    @property
+    def dim(self) -> int:
+        """The dimension n."""
+        return int(self._mean.shape[0])
+
+    @property
+    def mean(self) -> np.ndarray:
+        """The overall mean, shape (n,)."""
+        return self._mean
+
+    @property
+    def cov(self) -> np.ndarray:
+        """The overall covariance, shape (n, n)."""
+        return self._cov
+
+    def as_gaussian(self) -> Gaussian:
+        """N(mean, cov): the moment-matched Gaussian (what a Kalman-type filter would carry)."""
+        return Gaussian(self._mean, self._cov)
+
+
+def _draws(n: int) -> int:
+    if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ArgumentError(f"n must be a positive integer, got {n!r}")
+    return int(n)
+
+
+class GaussianMixture(_WeightedMeasure):
     """A Gaussian mixture Σ_k w_k N(μ_k, P_k), immutable and validated.
 
     Parameters
@@ -121,7 +167,7 @@ class GaussianMixture:
     ([0.0], [[2.0]])
     """
 
-    __slots__ = ("_weights", "_means", "_covs", "_components", "_mean", "_cov")
+    __slots__ = ("_means", "_covs", "_components")
 
     def __init__(self, weights: ArrayLike, means: ArrayLike, covs: ArrayLike, psd: str = "raise") -> None:
         M = _float_array(means, "means", ShapeError)
@@ -144,14 +190,8 @@ class GaussianMixture:
         M = np.array([g.mean for g in comps])
         P = np.array([g.cov for g in comps])
         mean, cov = mixture_moments(w, M, P)
-        for name, arr in (("_weights", w), ("_means", M), ("_covs", P), ("_mean", mean), ("_cov", cov)):
-            arr = np.array(arr, dtype=float)
-            arr.setflags(write=False)
-            object.__setattr__(self, name, arr)
+        self._freeze(weights=w, means=M, covs=P, mean=mean, cov=cov)
         object.__setattr__(self, "_components", comps)
-
-    def __setattr__(self, key, value):  # immutable
-        raise AttributeError("GaussianMixture is immutable")
 
     @classmethod
     def from_components(cls, weights: ArrayLike, components: Sequence[Gaussian]) -> "GaussianMixture":
@@ -165,11 +205,6 @@ class GaussianMixture:
         out = cls.__new__(cls)
         out._set(w, comps)
         return out
-
-    @property
-    def weights(self) -> np.ndarray:
-        """The weights w_k, shape (K,), summing to 1."""
-        return self._weights
 
     @property
     def means(self) -> np.ndarray:
@@ -191,38 +226,18 @@ class GaussianMixture:
         """The number of components K."""
         return int(self._weights.shape[0])
 
-    @property
-    def dim(self) -> int:
-        """The dimension n."""
-        return int(self._means.shape[1])
-
-    @property
-    def mean(self) -> np.ndarray:
-        """The mixture mean Σ_k w_k μ_k, shape (n,)."""
-        return self._mean
-
-    @property
-    def cov(self) -> np.ndarray:
-        """The mixture covariance Σ_k w_k (P_k + (μ_k − μ)(μ_k − μ)ᵀ), shape (n, n)."""
-        return self._cov
-
     def sample(self, n: int, rng: np.random.Generator | int | None = None) -> np.ndarray:
         """Draw ``n`` samples, shape (n, dim): a component by its weight, then a draw of it."""
-        if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
-            raise ArgumentError(f"n must be a positive integer, got {n!r}")
+        n = _draws(n)
         gen = as_generator(rng)
-        k = gen.choice(self.n_components, size=int(n), p=self._weights)
-        z = gen.standard_normal((int(n), self.dim))
+        k = gen.choice(self.n_components, size=n, p=self._weights)
+        z = gen.standard_normal((n, self.dim))
         L = np.array([matrix_sqrt(P) for P in self._covs])
         return self._means[k] + np.einsum("nij,nj->ni", L[k], z)
 
     def marginal(self, idx: Sequence[int] | int) -> "GaussianMixture":
         """The marginal mixture of the components ``idx``: Σ_k w_k N(μ_k[idx], P_k[idx, idx])."""
         return GaussianMixture.from_components(self._weights, [g.marginal(idx) for g in self._components])
-
-    def as_gaussian(self) -> Gaussian:
-        """N(mean, cov): the moment-matched Gaussian of the mixture."""
-        return Gaussian(self._mean, self._cov)
 
     def __repr__(self) -> str:
         lines = [f"  {_fmt(w)} * {g!r}" for w, g in zip(self._weights[:MAX_SHOWN], self._components[:MAX_SHOWN])]
@@ -241,7 +256,7 @@ class GaussianMixture:
         return hash((self._weights.tobytes(), self._means.tobytes(), self._covs.tobytes()))
 
 
-class Empirical:
+class Empirical(_WeightedMeasure):
     """A weighted sample (particles): the empirical measure Σ_i w_i δ(x − x_i).
 
     Parameters
@@ -279,7 +294,7 @@ class Empirical:
     ([1.5], [[0.75]], 1.6)
     """
 
-    __slots__ = ("_samples", "_weights", "_mean", "_cov", "_ess")
+    __slots__ = ("_samples", "_ess")
 
     def __init__(self, samples: ArrayLike, weights: ArrayLike | None = None) -> None:
         X = _float_array(samples, "samples", ShapeError)
@@ -301,16 +316,8 @@ class Empirical:
             cov = (D * w[:, None]).T @ D
         if not np.all(np.isfinite(cov)):
             raise ShapeError("samples: the weighted covariance overflows a float; rescale the units")
-        cov = 0.5 * (cov + cov.T)
-        ess = float(1.0 / np.sum(w * w))
-        for name, arr in (("_samples", X), ("_weights", w), ("_mean", mean), ("_cov", cov)):
-            arr = np.array(arr, dtype=float)  # own copy: freezing it cannot affect the caller
-            arr.setflags(write=False)
-            object.__setattr__(self, name, arr)
-        object.__setattr__(self, "_ess", ess)
-
-    def __setattr__(self, key, value):  # immutable
-        raise AttributeError("Empirical is immutable")
+        self._freeze(samples=X, weights=w, mean=mean, cov=0.5 * (cov + cov.T))
+        object.__setattr__(self, "_ess", float(1.0 / np.sum(w * w)))
 
     @property
     def samples(self) -> np.ndarray:
@@ -318,29 +325,9 @@ class Empirical:
         return self._samples
 
     @property
-    def weights(self) -> np.ndarray:
-        """The normalised weights w_i, shape (N,)."""
-        return self._weights
-
-    @property
     def n_samples(self) -> int:
         """The number of particles N."""
         return int(self._samples.shape[0])
-
-    @property
-    def dim(self) -> int:
-        """The dimension n."""
-        return int(self._samples.shape[1])
-
-    @property
-    def mean(self) -> np.ndarray:
-        """The weighted mean Σ_i w_i x_i, shape (n,)."""
-        return self._mean
-
-    @property
-    def cov(self) -> np.ndarray:
-        """The weighted covariance of the empirical measure, shape (n, n)."""
-        return self._cov
 
     @property
     def ess(self) -> float:
@@ -349,18 +336,12 @@ class Empirical:
 
     def sample(self, n: int, rng: np.random.Generator | int | None = None) -> np.ndarray:
         """Draw ``n`` particles with replacement, each with probability w_i (multinomial resampling)."""
-        if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
-            raise ArgumentError(f"n must be a positive integer, got {n!r}")
-        return self._samples[as_generator(rng).choice(self.n_samples, size=int(n), p=self._weights)]
+        return self._samples[as_generator(rng).choice(self.n_samples, size=_draws(n), p=self._weights)]
 
     def marginal(self, idx: Sequence[int] | int) -> "Empirical":
         """The particles' components ``idx``, with the same weights."""
         ix = check_indices(idx, self.dim)
         return Empirical(self._samples[:, ix], self._weights)
-
-    def as_gaussian(self) -> Gaussian:
-        """N(mean, cov): the moment-matched Gaussian of the particles."""
-        return Gaussian(self._mean, self._cov)
 
     def __repr__(self) -> str:
         m = ", ".join(_fmt(x) for x in self._mean)
