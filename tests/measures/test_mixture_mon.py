@@ -154,3 +154,20 @@ def test_monte_carlo_with_a_mixture_and_general_noise_is_refused():
     with pytest.raises(ArgumentError, match="use a deterministic transform"):
         sm.nonlinearity(model, sm.GaussianMixture([1.0], [0.5], [0.1]), sm.Gaussian([0.0], [[0.1]]),
                         transform=sm.MonteCarlo(n=1000, seed=0))
+
+
+def test_sweep_states_takes_mixtures_for_a_deterministic_rule():
+    g = sm.Gaussian([0.5, 0.5], 0.2 * np.eye(2))
+    r = sm.sweep.sweep_states(SMOOTH, [U, g], transform=sm.UT.ut1())
+    for k, d in enumerate((U, g)):
+        assert r.value[k] == pytest.approx(sm.nonlinearity(SMOOTH, d, transform=sm.UT.ut1()).value, rel=1e-12)
+
+
+def test_what_takes_no_mixture_or_particles_says_so():
+    from symmon.errors import ArgumentTypeError
+    with pytest.raises(ArgumentTypeError, match="u must be a list of K Gaussians"):
+        sm.sweep.sweep_states(SMOOTH, [U], transform=sm.MonteCarlo(n=1000, seed=0))
+    with pytest.raises(ArgumentTypeError, match="u must be a symmon.Gaussian"):
+        sm.sweep.sweep_alpha(SMOOTH, U, [0.5, 1.0])
+    with pytest.raises(ArgumentTypeError, match="particles need none"):
+        sm.advise(SMOOTH, sm.Empirical(U.sample(500, 0)))
