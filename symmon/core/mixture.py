@@ -243,7 +243,8 @@ class GaussianMixture(_WeightedMeasure):
         lines = [f"  {_fmt(w)} * {g!r}" for w, g in zip(self._weights[:MAX_SHOWN], self._components[:MAX_SHOWN])]
         if self.n_components > MAX_SHOWN:
             lines.append(f"  ... ({self.n_components - MAX_SHOWN} more)")
-        head = f"GaussianMixture({self.n_components} component{'s' * (self.n_components != 1)} in {self.dim} dimension{'s' * (self.dim != 1)}:"
+        K, n = self.n_components, self.dim
+        head = f"GaussianMixture({K} component{'s' * (K != 1)} in {n} dimension{'s' * (n != 1)}:"
         return head + "\n" + "\n".join(lines) + ")"
 
     def __eq__(self, other: object) -> bool:

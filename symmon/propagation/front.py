@@ -11,7 +11,7 @@ from scipy.linalg import block_diag
 from ..compile import compiled
 from ..errors import ArgumentTypeError, ModelError, ShapeError
 from ..core.gaussian import Gaussian
-from ..core.mixture import Empirical
+from ..core.mixture import Empirical, GaussianMixture
 from ..core.model import Model
 from .joint import JointMoments
 from .particles import propagate_empirical
@@ -19,7 +19,8 @@ from .mixing import ComponentBatch, component_batch, is_mixture, mix_batch
 from ..transforms import Moments, Transform
 from ..transforms.registry import default_transform, resolve
 
-__all__ = ["propagate", "propagate_many", "propagate_mixture", "check_noise_given", "joint_input", "input_batch", "check_transform"]
+__all__ = ["propagate", "propagate_many", "propagate_mixture", "check_noise_given", "joint_input", "input_batch",
+           "check_transform"]
 
 
 def check_transform(transform: Any) -> Transform:
@@ -60,7 +61,8 @@ def joint_input(model: Model, u: Gaussian, v: Gaussian | None) -> tuple[np.ndarr
     return np.concatenate([u.mean, v.mean]), block_diag(u.cov, v.cov)
 
 
-def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, *, transform: Transform | None = None,
+def propagate(model: Model, u: Gaussian | GaussianMixture | Empirical,
+              v: Gaussian | GaussianMixture | None = None, *, transform: Transform | None = None,
               executor: Any = None) -> JointMoments:
     """E y, Cov y and Cov(y, u) of y = g(u, v) by a transform.
 
