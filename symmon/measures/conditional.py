@@ -28,7 +28,7 @@ are this formula evaluated in closed form: for additive noise h(v) = E f + B v g
 Σ_c = B Σ_vv Bᵀ (29) with Σ_vv the mixture's total covariance; for multiplicative noise
 h(v) = E f + π̄ γ(v) with π̄ = Σ_k w_k E_k π gives Σ_c = π̄ Σ_γγ π̄ᵀ (28), Σ_γγ the
 covariance of γ(v) under the mixture of v (the per-component moments of γ mixed by the
-law of total covariance).
+law of total covariance).  ``derivations/mixtures.py`` checks these identities symbolically.
 
 References
 ----------

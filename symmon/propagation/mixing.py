@@ -12,7 +12,8 @@ P_j = Cov_j y and C_j = Cov_j(y, w), then by the laws of total expectation and c
 
 whose u- and v-blocks are Cov(y, u) and Cov(y, v).  These identities are exact: the
 mixture's moments carry only the error of the per-component rule, so a linear model has
-exact moments under every transform.  All components of all inputs go through the rule's
+exact moments under every transform (``derivations/mixtures.py`` checks the identities
+symbolically).  All components of all inputs go through the rule's
 batched :meth:`~symmon.transforms.base.Transform.moments` in one call.
 
 An angle output's component means are moved to within π of the heaviest component's
