@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import sympy as sp
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import symmon as sm
 from symmon.errors import ArgumentTypeError, ModelError, ShapeError
@@ -163,3 +165,27 @@ def test_advise_takes_a_mixture():
     assert a.reference.startswith("Gauss-Hermite") and a.choice_name is not None
     assert a.reference_mon == pytest.approx(sm.nonlinearity(smooth, u, transform=sm.GaussHermite(order=7)).value,
                                             rel=1e-12)
+
+
+@settings(max_examples=25, deadline=5000, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_mixture_moments_ignore_the_order_and_splitting_of_components(data):
+    """A mixture is a measure: permuting its components, or splitting one into two copies
+    with half its weight, changes nothing (to rounding of the reordered sums)."""
+    K = data.draw(st.integers(1, 4))
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**32 - 1)))
+    w = rng.dirichlet(np.ones(K))
+    M = rng.normal(size=(K, 2)) * 3
+    A = rng.normal(size=(K, 2, 2))
+    P = A @ np.swapaxes(A, 1, 2) + 0.1 * np.eye(2)
+    perm = rng.permutation(K)
+    j = int(rng.integers(K))
+    base = sm.propagate(NOISY, sm.GaussianMixture(w, M, P), V_MIX, transform=sm.UT.ut1())
+    shuffled = sm.propagate(NOISY, sm.GaussianMixture(w[perm], M[perm], P[perm]), V_MIX, transform=sm.UT.ut1())
+    w2 = np.append(w, w[j] / 2)
+    w2[j] /= 2
+    split = sm.propagate(NOISY, sm.GaussianMixture(w2, np.vstack([M, M[j]]), np.concatenate([P, P[j][None]])), V_MIX,
+                         transform=sm.UT.ut1())
+    for other in (shuffled, split):
+        for name in ("mean", "cov", "cross_cov", "noise_cross_cov"):
+            close(getattr(other, name), getattr(base, name), 1e-11)
