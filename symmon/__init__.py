@@ -22,11 +22,14 @@ from .filters import linear as kalman
 from .measures import sweep as sweep
 from .measures import weights as weights
 from .codegen import export_c as export_c
+from .core import Empirical as Empirical
 from .core import Gaussian as Gaussian
+from .core import GaussianMixture as GaussianMixture
 from .core import Model as Model
 from .core import fuse as fuse
 from .errors import SymmonError as SymmonError
 from .files import load_model_file as load_model_file
+from .files import load_samples_file as load_samples_file
 from .filters import Adaptive as Adaptive
 from .filters import KalmanFilter as KalmanFilter
 from .filters import NonlinearKalmanFilter as NonlinearKalmanFilter
@@ -57,8 +60,8 @@ from .version import __version__ as __version__
 __all__ = [
     "angles", "errors", "estimation", "filters", "sweep", "units", "quadrature_error", "kalman",
     "modelfile", "mmse", "problems", "transforms", "weights", "codegen", "export_c",
-    "load_model_file",
-    "SymmonError", "Gaussian", "fuse", "KalmanFilter", "Model", "JointMoments",
+    "load_model_file", "load_samples_file",
+    "SymmonError", "Gaussian", "GaussianMixture", "Empirical", "fuse", "KalmanFilter", "Model", "JointMoments",
     "NonlinearityMeasure", "MonParts", "mon_from_moments", "nonlinearity", "compare",
     "propagate", "propagate_many", "advise", "Advice",
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Cubature5", "Transform", "Moments", "Executor",

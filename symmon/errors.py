@@ -25,8 +25,10 @@ __all__ = [
     "OutputPathError",
     "UsageError",
     "BuildError",
+    "WeightError",
     "AngleWarning",
     "QuadratureWarning",
+    "SampleSizeWarning",
 ]
 
 
@@ -73,6 +75,11 @@ class ResourceError(SymmonError):
 
 class ArgumentError(SymmonError):
     """An argument has a value of the wrong kind (e.g. an invalid seed)."""
+
+
+class WeightError(ArgumentError):
+    """Mixture or particle weights are negative, not finite, all zero, or (for a
+    mixture) do not sum to 1 beyond rounding."""
 
 
 class ArgumentTypeError(ArgumentError, TypeError):
@@ -146,3 +153,9 @@ class QuadratureWarning(UserWarning):
     """A quadrature rule chose a grid the caller did not ask for (Gauss–Hermite with
     ``sparse=None`` falls to the sparse grid above 4 dimensions): its degree of exactness
     and its weights differ from the tensor grid's."""
+
+
+class SampleSizeWarning(UserWarning):
+    """A weighted sample (``Empirical``) has a small effective sample size
+    (Σ w)² / Σ w²: its moments and measures are those of a few particles, and their
+    error bars are themselves unreliable."""

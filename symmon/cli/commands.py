@@ -47,6 +47,15 @@ def _load(path: str):
     return load_model_file(path)
 
 
+def _inputs(args: argparse.Namespace, spec) -> Any:
+    """The distribution of u: the particles of ``--samples-file`` if given, else the file's [u]."""
+    if getattr(args, "samples_file", None) is None:
+        return spec.u
+    from ..files.samplefile import load_samples_file
+
+    return load_samples_file(args.samples_file, spec.model)
+
+
 def _check_output_files(*paths: str | None, inputs: tuple = ()) -> None:
     """Refuse output files that cannot be written or are an input, before any computation."""
     from ..io import check_output_file
@@ -61,9 +70,10 @@ def cmd_propagate(args: argparse.Namespace) -> int:
     from ..propagation.front import propagate
 
     spec = _load(args.file)
+    u = _inputs(args, spec)
     tr = transform_from_name(args.transform, args.samples, args.seed, args.order, args.groups)
     with executor_of(args) as ex:
-        m = propagate(spec.model, spec.u, spec.v, transform=tr, executor=ex)
+        m = propagate(spec.model, u, spec.v, transform=tr, executor=ex)
     for name, value in (("E y", m.mean), ("Cov y", m.cov), ("Cov(y, u)", m.cross_cov),
                         *((f"the standard error of {k}", v) for k, v in (m.stderr or {}).items())):
         _finite(name, value)
@@ -85,6 +95,8 @@ def cmd_nonlinearity(args: argparse.Namespace) -> int:
     """``symmon nonlinearity``: the MoN of a model file, once or over a sweep of α."""
     if args.alpha_sweep is None and (args.plot or args.csv):
         raise UsageError("--plot and --csv need --alpha-sweep")
+    if args.alpha_sweep is not None and args.samples_file is not None:
+        raise UsageError("--alpha-sweep scales a Gaussian [u]; it cannot scale the particles of --samples-file")
     _check_output_files(args.csv, args.plot, inputs=(args.file,))
     if args.csv and args.plot and os.path.realpath(args.csv) == os.path.realpath(args.plot):
         raise UsageError(f"--csv and --plot name the same file: {args.csv}")
@@ -111,20 +123,25 @@ def _nonlinearity(args: argparse.Namespace, ex: Any) -> int:
     from ..reproduce.common import progress_bar, pyplot
 
     spec = _load(args.file)
+    u = _inputs(args, spec)
     tr = transform_from_name(args.transform, args.samples, args.seed, args.order, args.groups)
     unit = _mon_unit(spec, args.weight)
     if args.alpha_sweep is None:
-        res = _finite_measure(nonlinearity(spec.model, spec.u, spec.v, weight=args.weight, transform=tr,
+        res = _finite_measure(nonlinearity(spec.model, u, spec.v, weight=args.weight, transform=tr,
                                            executor=ex), "")
         if args.json:
             _print_json({"model": spec.model.name, **_measure_json(res), "unit": unit})
             return 0
-        se = f" ± {res.stderr:.2g} (MC standard error)" if res.stderr is not None else ""
-        print(f"{spec.model.name}: MoN[{args.weight}] by {tr!r} = {res.value:.6g}{se} ({unit})")
+        kind = "jackknife standard error of the particles" if args.samples_file else "MC standard error"
+        se = f" ± {res.stderr:.2g} ({kind})" if res.stderr is not None else ""
+        by = f"over {u!r}" if args.samples_file else f"by {tr!r}"
+        print(f"{spec.model.name}: MoN[{args.weight}] {by} = {res.value:.6g}{se} ({unit})")
         for note in res.notes:
             print(f"note: {note}")
         return 0
     # Σ_uu ← α Σ_uu, as in the papers' figures (the noise covariance is kept).
+    if not isinstance(spec.u, Gaussian):
+        raise UsageError("--alpha-sweep scales the covariance of a Gaussian [u]; this file's [u] is a mixture")
     rows, notes = [], []
     for a in progress_bar(args.alpha_sweep, "alpha sweep", not args.no_progress):
         res = nonlinearity(spec.model, Gaussian(spec.u.mean, a * spec.u.cov), spec.v, weight=args.weight,
@@ -233,8 +250,13 @@ def cmd_prove(args: argparse.Namespace) -> int:
     spec = _load(args.file)
     # --numeric: the file's distributions, made exact: a proof for this u (and v) only.
     moments = dict(mean=spec.u.mean, cov=spec.u.cov, noise_cov=None if spec.v is None else spec.v.cov) if args.numeric else {}
+    # The proof is of a Gaussian's MoN; a mixture in the file is checked at its moment-matched
+    # Gaussian (the invariance of a mixture's MoN is tested numerically, docs/guide/mixtures.md).
+    from ..core.mixture import GaussianMixture
+
+    at = tuple(d.as_gaussian() if isinstance(d, GaussianMixture) else d for d in (spec.u, spec.v))
     proof = prove_invariance(spec.model, args.weight, route=args.route, budget=args.budget, progress=True,
-                             at=(spec.u, spec.v), **moments)  # a refutation at the file's distribution
+                             at=at, **moments)  # a refutation at the file's distribution
     print(proof if proof.holds else _refutation_text(proof, args.out))
     if args.out:
         print(f"wrote {atomic_write_text(args.out, _proof_report(proof))}")
@@ -389,17 +411,35 @@ def cmd_filter(args: argparse.Namespace) -> int:
 
 
 def cmd_advise(args: argparse.Namespace) -> int:
-    """``symmon advise``: the advice of :func:`symmon.advise` for a model file."""
+    """``symmon advise``: the advice of :func:`symmon.advise` for a model file.
+
+    With ``--samples-file`` the MoN is that of the particles (with its jackknife standard
+    error), and the candidates are ranked on the particles' moment-matched Gaussian: the
+    N(mean, cov) a Kalman-type filter would carry in place of the cloud.
+    """
     from ..measures.advice import advise
+    from ..measures.mon import nonlinearity
 
     spec = _load(args.file)
-    a = advise(spec.model, spec.u, spec.v, tol=args.tol, weight=args.weight, samples=args.samples, seed=args.seed)
+    u = _inputs(args, spec)
+    cloud = None
+    if args.samples_file is not None:
+        cloud = nonlinearity(spec.model, u, spec.v, weight=args.weight)
+        u = u.as_gaussian()
+    a = advise(spec.model, u, spec.v, tol=args.tol, weight=args.weight, samples=args.samples, seed=args.seed)
+    particles = None if cloud is None else {
+        "particles": cloud.moments.input.n_samples, "ess": cloud.moments.input.ess, "mon": cloud.value,
+        "mon_stderr": cloud.stderr}
     if args.json:
         _print_json({"model": spec.model.name, "tol": a.tol, "weight": args.weight, "choice": a.choice_name,
                      "reference": a.reference, "reference_error": a.reference_error,
                      "reference_mon": a.reference_mon, "reference_mon_stderr": a.reference_mon_stderr,
-                     "notes": list(a.notes),
+                     "notes": list(a.notes), "samples": particles,
                      "rows": [{k: (repr(v) if k == "transform" else v) for k, v in r.items()} for r in a.rows]})
         return 0
+    if cloud is not None:
+        se = "" if cloud.stderr is None else f" ± {cloud.stderr:.2g}"
+        print(f"{spec.model.name}: MoN[{args.weight}] over {cloud.moments.input!r} = {cloud.value:.4f}{se}; "
+              "the candidates below are ranked on its moment-matched Gaussian N(mean, cov)")
     print(f"{spec.model.name}: {a}")
     return 0

@@ -95,6 +95,7 @@ _EXAMPLES = {
                "symmon filter examples/rb_close.toml --filters ekf,ukf,adaptive --tol 0.01 --json",
                "symmon filter examples/rb_close.toml --filters ekf,ukf --smooth"],
     "advise": ["symmon advise examples/bot.toml --tol 0.001",
+               "symmon advise examples/bot.toml --samples-file particles.csv",
                "symmon advise examples/polar.toml --weight diag --json"],
 }
 
@@ -311,9 +312,15 @@ def _parser() -> argparse.ArgumentParser:
                         "liu-li: the normalised Liu–Li MoN, eq. (8); liu-li-raw: the Liu–Li MSE MoN, eq. (6), "
                         "which has the outputs' units (default full)")
 
+    def samples_opt(sp: argparse.ArgumentParser, what: str) -> None:
+        sp.add_argument("--samples-file", metavar="CSV", default=None,
+                        help="particles for u instead of the file's [u]: a CSV with a header naming the "
+                        f"model's inputs and an optional 'weight' column, one row a particle; {what}")
+
     sp = add("propagate", "moments of a model file by a transform: E y, Cov y, Cov(y, u)")
     sp.add_argument("file", help="TOML model file")
     transform_opts(sp, 10**6)
+    samples_opt(sp, "the weighted moments of y over them (the transform only integrates non-additive noise)")
     sp.add_argument("--json", action="store_true", help="print JSON (full float precision)")
     quiet_opt(sp)
     sp.set_defaults(func=commands.cmd_propagate)
@@ -322,6 +329,7 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("file", help="TOML model file")
     weight_opt(sp)
     transform_opts(sp, 10**6)
+    samples_opt(sp, "the MoN over them with a jackknife standard error")
     sp.add_argument("--alpha-sweep", metavar="A:B:N", type=_sweep,
                     help="scale the input covariance by N log-spaced alphas from A to B")
     sp.add_argument("--plot", metavar="PNG", type=_plot_path,
@@ -438,6 +446,8 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("--samples", type=_samples, default=10**6,
                     help="samples of the Monte Carlo reference, when Gauss-Hermite does not converge (default 10^6)")
     sp.add_argument("--seed", type=_seed, default=0, help="seed of the Monte Carlo reference, >= 0 (default 0)")
+    samples_opt(sp, "the MoN over them, and the candidates ranked on their moment-matched Gaussian, "
+                "the one a Kalman-type filter would carry")
     sp.add_argument("--json", action="store_true", help="print JSON")
     sp.set_defaults(func=commands.cmd_advise)
     return p

@@ -12,6 +12,8 @@ from .gaussian import Gaussian as Gaussian
 from .gaussian import as_covariance as as_covariance
 from .gaussian import as_vector as as_vector
 from .gaussian import fuse as fuse
+from .mixture import Empirical as Empirical
+from .mixture import GaussianMixture as GaussianMixture
 from .model import Model as Model
 from .rescale import change_units as change_units
 from .rescale import changed_relation as changed_relation
@@ -19,6 +21,6 @@ from .rescale import change_gaussian as change_gaussian
 from .tracing import SUPPORTED as SUPPORTED
 from .tracing import trace as trace
 
-__all__ = ["Gaussian", "Model", "fuse", "as_covariance", "as_vector", "check_gaussian", "check_model",
+__all__ = ["Gaussian", "GaussianMixture", "Empirical", "Model", "fuse", "as_covariance", "as_vector", "check_gaussian", "check_model",
            "noise_cov", "readonly", "change_units", "changed_relation", "change_gaussian", "trace",
            "SUPPORTED", "affine", "angles", "problems"]

@@ -26,7 +26,7 @@ from ..errors import (
 )
 from ..latex import latex_number
 
-__all__ = ["Gaussian", "fuse", "as_covariance", "as_vector"]
+__all__ = ["Gaussian", "fuse", "as_covariance", "as_vector", "check_indices"]
 
 #: Relative tolerance of the symmetry and positive-semi-definiteness checks.
 SYMMETRY_RTOL = 1e-10
@@ -245,17 +245,7 @@ class Gaussian:
         return self._mean + z @ self.sqrt_cov().T
 
     def _index(self, idx: Iterable[int] | int, name: str = "idx") -> np.ndarray:
-        ix = np.atleast_1d(np.asarray(idx))
-        if ix.size == 0:  # before the dtype check: np.asarray([]) is float
-            raise ShapeError(f"{name} must not be empty")
-        if ix.dtype.kind not in "iu":
-            raise ShapeError(f"{name} must hold integer indices, got {ix}")
-        if np.any(ix < -self.dim) or np.any(ix >= self.dim):
-            raise ShapeError(f"{name} {ix.tolist()} out of range for dimension {self.dim}")
-        ix = np.where(ix < 0, ix + self.dim, ix)
-        if len(set(ix.tolist())) != ix.size:
-            raise ShapeError(f"{name} has duplicate indices: {ix.tolist()}")
-        return ix
+        return check_indices(idx, self.dim, name)
 
     def marginal(self, idx: Sequence[int] | int) -> "Gaussian":
         """The marginal distribution of the components ``idx``."""
@@ -325,6 +315,22 @@ class Gaussian:
 
     def __hash__(self) -> int:
         return hash((self._mean.tobytes(), self._cov.tobytes()))
+
+
+def check_indices(idx: Iterable[int] | int, dim: int, name: str = "idx") -> np.ndarray:
+    """``idx`` as distinct non-negative indices into a vector of length ``dim`` (negative
+    ones count from the end), or a :class:`ShapeError` naming ``name``."""
+    ix = np.atleast_1d(np.asarray(idx))
+    if ix.size == 0:  # before the dtype check: np.asarray([]) is float
+        raise ShapeError(f"{name} must not be empty")
+    if ix.dtype.kind not in "iu":
+        raise ShapeError(f"{name} must hold integer indices, got {ix}")
+    if np.any(ix < -dim) or np.any(ix >= dim):
+        raise ShapeError(f"{name} {ix.tolist()} out of range for dimension {dim}")
+    ix = np.where(ix < 0, ix + dim, ix)
+    if len(set(ix.tolist())) != ix.size:
+        raise ShapeError(f"{name} has duplicate indices: {ix.tolist()}")
+    return ix
 
 
 def as_generator(rng: np.random.Generator | int | None, name: str = "rng") -> np.random.Generator:

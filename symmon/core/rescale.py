@@ -16,6 +16,7 @@ import sympy as sp
 from ..errors import ArgumentTypeError, ModelError, ShapeError
 from .affine import changed_parts, offset_vector, scale_matrix
 from .gaussian import Gaussian
+from .mixture import Empirical, GaussianMixture
 from .model import Model
 
 __all__ = ["change_units", "changed_relation", "change_gaussian"]
@@ -116,17 +117,20 @@ def _numeric_matrix(S: Any, n: int, name: str) -> np.ndarray:
     return np.array(M.evalf(), dtype=float)
 
 
-def change_gaussian(dist: Gaussian, S: Any, o: Any = None) -> Gaussian:
+def change_gaussian(dist: Gaussian | GaussianMixture | Empirical, S: Any, o: Any = None
+                    ) -> Gaussian | GaussianMixture | Empirical:
     """The distribution of the new-unit variable x̄ = S⁻¹ (x − o) given x ~ ``dist``.
 
     This is the distribution change (35b)–(35c) that matches :func:`change_units`:
     ``dist`` is in the old units, x = S x̄ + o (18), and the result is in the new units,
     N(S⁻¹(m − o), S⁻¹ P S⁻ᵀ). Use ``o=None`` for noise (18c). The inverse change is
-    ``change_gaussian(result, S⁻¹, −S⁻¹ o)``.
+    ``change_gaussian(result, S⁻¹, −S⁻¹ o)``.  A :class:`~symmon.core.mixture.GaussianMixture`
+    is mapped component by component (same weights), an
+    :class:`~symmon.core.mixture.Empirical` particle by particle.
 
     Parameters
     ----------
-    dist : Gaussian
+    dist : Gaussian, GaussianMixture or Empirical
         x in the old units.
     S : scalar, sequence or matrix
         Numeric scale (positive definite, invertible), same convention as :func:`change_units`.
@@ -135,15 +139,25 @@ def change_gaussian(dist: Gaussian, S: Any, o: Any = None) -> Gaussian:
 
     Returns
     -------
-    Gaussian
+    Gaussian, GaussianMixture or Empirical
+        The same kind as ``dist``.
 
     Examples
     --------
     >>> change_gaussian(Gaussian([1000.0], [[4.0e4]]), S=1000.0)   # m -> km
     N([1], [[0.04]])
     """
+    if isinstance(dist, GaussianMixture):
+        return GaussianMixture.from_components(dist.weights, [change_gaussian(g, S, o) for g in dist.components])
+    if isinstance(dist, Empirical):
+        A = _numeric_matrix(S, dist.dim, "S")
+        off = offset_vector(o, dist.dim, "o")
+        if off.free_symbols:
+            raise ShapeError("o must be numeric to transform a distribution")
+        ov = np.array(off.evalf(), dtype=float).ravel()
+        return Empirical(np.linalg.solve(A, (dist.samples - ov).T).T, dist.weights)
     if not isinstance(dist, Gaussian):
-        raise ArgumentTypeError(f"dist must be a symmon.Gaussian, got {type(dist).__name__}")
+        raise ArgumentTypeError(f"dist must be a symmon.Gaussian, GaussianMixture or Empirical, got {type(dist).__name__}")
     A = _numeric_matrix(S, dist.dim, "S")
     off = offset_vector(o, dist.dim, "o")
     if off.free_symbols:

@@ -22,11 +22,20 @@ when the model has noise symbols, the Gaussian of the noise::
     "outputs[0]" = "km"
     "outputs[1]" = "rad"
 
+A Gaussian mixture (a Gaussian-sum prior, glint noise) is written in the same tables with
+``weights``, ``means`` and one of ``covs`` or ``stds``, one entry per component::
+
+    [u]
+    weights = [0.5, 0.3, 0.2]            # >= 0, summing to 1
+    means = [[1, 10], [2, 20], [4, 40]]
+    covs = [[[1, 0], [0, 1]], [[4, 0], [0, 4]], [[16, 0], [0, 16]]]   # or stds = [[1, 1], ...]
+
 Top-level keys: ``name``, ``inputs`` and ``outputs`` and the ``[u]`` table are required;
 ``noise`` (names of the noise symbols v), ``angles``, ``[params]``, ``[v]`` and ``[units]``
 are optional, except that ``[v]`` is required exactly when ``noise`` is given. The tables
 ``[u]`` and ``[v]`` take ``mean`` and one of ``cov`` (a matrix, or a scalar for one
-dimension) or ``std`` (a vector of standard deviations). Their numbers may be TOML numbers
+dimension) or ``std`` (a vector of standard deviations), or for a mixture ``weights``,
+``means`` and one of ``covs`` or ``stds`` (at most :data:`MAX_COMPONENTS` components). Their numbers may be TOML numbers
 or strings holding a constant expression (``"100*sqrt(2)"``, ``"pi/4"``, ``"100*alpha"``).
 ``[units]`` keys are input or noise names, or ``"outputs[i]"`` for the i-th output.
 
@@ -79,6 +88,7 @@ from .expressions import (
 )
 from . import expressions as _expressions
 from ..core.gaussian import Gaussian
+from ..core.mixture import GaussianMixture
 from ..core.model import Model
 
 try:
@@ -98,6 +108,7 @@ __all__ = [
     "MAX_NAME_LENGTH",
     "MAX_SYMBOLS",
     "MAX_OUTPUTS",
+    "MAX_COMPONENTS",
     *_expressions.__all__,
 ]
 
@@ -109,6 +120,9 @@ MAX_NAME_LENGTH = 100
 #: C compiler takes on a large model is bounded where models are turned into C code.
 MAX_SYMBOLS = 100
 MAX_OUTPUTS = 100
+#: Most components of a mixture in a model file (each goes through a transform: the
+#: work of a file stays bounded).
+MAX_COMPONENTS = 1000
 
 
 # --------------------------------------------------------------------------------------
@@ -123,9 +137,9 @@ class ModelSpec:
     Attributes
     ----------
     model : Model
-    u : Gaussian
+    u : Gaussian or GaussianMixture
         The distribution of the inputs, in the order of ``model.inputs``.
-    v : Gaussian or None
+    v : Gaussian, GaussianMixture or None
         The distribution of the noise, in the order of ``model.noise``; None without noise.
     units : dict of str to str
         Pint unit strings by input or noise name, and by ``"outputs[i]"``.
@@ -134,8 +148,8 @@ class ModelSpec:
     """
 
     model: Model
-    u: Gaussian
-    v: Gaussian | None = None
+    u: Gaussian | GaussianMixture
+    v: Gaussian | GaussianMixture | None = None
     units: dict[str, str] = field(default_factory=dict)
     path: Path = Path("<memory>")
 
@@ -143,6 +157,7 @@ class ModelSpec:
 _TOP_KEYS = ("name", "inputs", "noise", "outputs", "angles", "params", "u", "v", "units")
 _REQUIRED_KEYS = ("name", "inputs", "outputs", "u")
 _GAUSS_KEYS = ("mean", "cov", "std")
+_MIXTURE_KEYS = ("weights", "means", "covs", "stds")
 _EVALF_DIGITS = 30
 #: ``{indexed}[i]``: the key of the i-th output in a [units] table.
 _INDEXED_UNIT = r"{indexed}\[(0|[1-9][0-9]*)\]"
@@ -178,8 +193,9 @@ class _Context:
         return line - 1, col
 
 
-def _read(path: Path) -> str:
-    """The text of a model file: a regular UTF-8 file of at most MAX_FILE_BYTES bytes.
+def _read(path: Path, limit: int = MAX_FILE_BYTES, what: str = "model file") -> str:
+    """The text of a model file (or another input file, ``what``): a regular UTF-8 file of
+    at most ``limit`` bytes (MAX_FILE_BYTES for a model file).
 
     A FIFO, device or directory is refused from its ``stat`` before it is opened (opening
     a FIFO for reading blocks until a writer comes); the file is then opened without
@@ -189,34 +205,35 @@ def _read(path: Path) -> str:
         return ModelFileError(f"{path}: {reason}", source=str(path), reason=reason)
 
     try:
-        _check_regular(os.stat(path), fail)
+        _check_regular(os.stat(path), fail, limit, what)
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
         with os.fdopen(fd, "rb") as fh:
-            _check_regular(os.fstat(fh.fileno()), fail)
-            data = fh.read(MAX_FILE_BYTES + 1)
+            _check_regular(os.fstat(fh.fileno()), fail, limit, what)
+            data = fh.read(limit + 1)
     except FileNotFoundError:
-        raise fail("model file not found") from None
+        raise fail(f"{what} not found") from None
     except PermissionError:
-        raise fail("model file cannot be read (permission denied)") from None
+        raise fail(f"{what} cannot be read (permission denied)") from None
     except OSError as exc:
-        raise fail(f"model file cannot be read: {exc.strerror or exc}") from None
-    if len(data) > MAX_FILE_BYTES:
-        raise fail(f"model file larger than {MAX_FILE_BYTES} bytes")
+        raise fail(f"{what} cannot be read: {exc.strerror or exc}") from None
+    if len(data) > limit:
+        raise fail(f"{what} larger than {limit} bytes")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise fail(f"model file is not UTF-8 text (byte {exc.start})") from None
+        raise fail(f"{what} is not UTF-8 text (byte {exc.start})") from None
 
 
-def _check_regular(st: os.stat_result, fail: Callable[[str], ModelFileError]) -> None:
+def _check_regular(st: os.stat_result, fail: Callable[[str], ModelFileError], limit: int = MAX_FILE_BYTES,
+                   what: str = "model file") -> None:
     """Refuse a file that is not regular, or too large, from its stat."""
     if stat.S_ISDIR(st.st_mode):
-        raise fail("model file cannot be read: it is a directory")
+        raise fail(f"{what} cannot be read: it is a directory")
     if not stat.S_ISREG(st.st_mode):
         kind = "a FIFO" if stat.S_ISFIFO(st.st_mode) else "a device, socket or other special file"
-        raise fail(f"model file cannot be read: it is {kind}, not a regular file")
-    if st.st_size > MAX_FILE_BYTES:
-        raise fail(f"model file larger than {MAX_FILE_BYTES} bytes ({st.st_size} bytes)")
+        raise fail(f"{what} cannot be read: it is {kind}, not a regular file")
+    if st.st_size > limit:
+        raise fail(f"{what} larger than {limit} bytes ({st.st_size} bytes)")
 
 
 def _short(value: Any, limit: int = 80) -> str:
@@ -289,10 +306,51 @@ def _number(ctx: _Context, value: Any, where: str, params: Mapping[str, sp.Expr]
     return x
 
 
-def _gaussian(ctx: _Context, table: Any, key: str, dim: int, params: Mapping[str, sp.Expr], what: str) -> Gaussian:
+def _distribution(ctx: _Context, table: Any, key: str, dim: int, params: Mapping[str, sp.Expr], what: str
+                  ) -> Gaussian | GaussianMixture:
+    """The table ``[key]``: a Gaussian (mean, cov or std) or a mixture (weights, means, covs or stds)."""
+    if isinstance(table, dict) and any(k in table for k in _MIXTURE_KEYS):
+        return _mixture(ctx, table, key, dim, params, what)
+    return _gaussian(ctx, table, key, dim, params, what)
+
+
+def _mixture(ctx: _Context, table: dict, key: str, dim: int, params: Mapping[str, sp.Expr], what: str
+             ) -> GaussianMixture:
     where = f"[{key}]"
+    if any(k in table for k in _GAUSS_KEYS):
+        raise ctx.error(where, "mixes the keys of a Gaussian (mean, cov, std) with those of a mixture "
+                        "(weights, means, covs, stds)")
+    _check_keys(ctx, table, _MIXTURE_KEYS, ("weights", "means"), where)
+    if ("covs" in table) == ("stds" in table):
+        raise ctx.error(where, "give exactly one of 'covs' (a covariance per component) or 'stds' "
+                        "(standard deviations per component)")
+    spread = "covs" if "covs" in table else "stds"
+    anchor = rf"^\s*\[{key}\]"
+    w_in, m_in, s_in = table["weights"], table["means"], table[spread]
+    for name, value in (("weights", w_in), ("means", m_in), (spread, s_in)):
+        if not isinstance(value, list) or not value:
+            raise ctx.error(where, f"{name} must be a non-empty list, one entry per component, got {_short(value)}")
+    K = len(w_in)
+    if K > MAX_COMPONENTS:
+        raise ctx.error(where, f"{K} components: at most {MAX_COMPONENTS} are accepted")
+    if len(m_in) != K or len(s_in) != K:
+        raise ctx.error(where, f"weights, means and {spread} must have one entry per component: "
+                        f"got {K}, {len(m_in)} and {len(s_in)}")
+    weights = [_number(ctx, x, f"{where}.weights[{k}]", params, anchor) for k, x in enumerate(w_in)]
+    comps = [_gaussian(ctx, {"mean": m, spread[:-1]: c}, key, dim, params, what, where=f"{where} component {k}")
+             for k, (m, c) in enumerate(zip(m_in, s_in))]
+    try:
+        return GaussianMixture.from_components(weights, comps)
+    except SymmonError as exc:  # WeightError
+        raise ctx.error(where, f"{type(exc).__name__}: {exc}") from None
+
+
+def _gaussian(ctx: _Context, table: Any, key: str, dim: int, params: Mapping[str, sp.Expr], what: str,
+              where: str | None = None) -> Gaussian:
+    where = f"[{key}]" if where is None else where
     if not isinstance(table, dict):
-        raise ctx.error(where, f"must be a table with keys {', '.join(_GAUSS_KEYS)}, got {_short(table)}")
+        raise ctx.error(where, f"must be a table with keys {', '.join(_GAUSS_KEYS)} (a Gaussian) or "
+                        f"{', '.join(_MIXTURE_KEYS)} (a mixture), got {_short(table)}")
     _check_keys(ctx, table, _GAUSS_KEYS, ("mean",), where)
     if ("cov" in table) == ("std" in table):
         raise ctx.error(where, "give exactly one of 'cov' (covariance) or 'std' (standard deviations)")
@@ -499,14 +557,14 @@ def load_model_file(path: str | os.PathLike) -> ModelSpec:
     except ModelError as exc:
         raise ctx.error("model", str(exc)) from None
 
-    u = _gaussian(ctx, doc["u"], "u", len(u_syms), params, "inputs")
+    u = _distribution(ctx, doc["u"], "u", len(u_syms), params, "inputs")
     v = None
     if noise_names and "v" not in doc:
         raise ctx.error("[v]", f"noise {noise_names} is declared, so a [v] table (its Gaussian) is required")
     if "v" in doc:
         if not noise_names:
             raise ctx.error("[v]", "a [v] table needs noise symbols: declare them with noise = [...] and use them in outputs")
-        v = _gaussian(ctx, doc["v"], "v", len(v_syms), params, "noise symbols")
+        v = _distribution(ctx, doc["v"], "v", len(v_syms), params, "noise symbols")
 
     units = _units(ctx, doc.get("units", {}), len(outputs), input_names + noise_names)
     return ModelSpec(model=model, u=u, v=v, units=units, path=path)
@@ -539,7 +597,15 @@ def _toml_key(k: str) -> str:
     return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else _toml_str(k)
 
 
-def _gaussian_table(key: str, g: Gaussian) -> list[str]:
+def _matrix(P: np.ndarray) -> str:
+    return "[" + ", ".join("[" + ", ".join(_toml_float(x) for x in row) + "]" for row in P) + "]"
+
+
+def _gaussian_table(key: str, g: Gaussian | GaussianMixture) -> list[str]:
+    if isinstance(g, GaussianMixture):
+        return [f"[{key}]", "weights = [" + ", ".join(_toml_float(w) for w in g.weights) + "]",
+                "means = [" + ", ".join("[" + ", ".join(_toml_float(x) for x in m) + "]" for m in g.means) + "]",
+                "covs = [" + ", ".join(_matrix(P) for P in g.covs) + "]", ""]
     mean = ", ".join(_toml_float(x) for x in g.mean)
     rows = ", ".join("[" + ", ".join(_toml_float(x) for x in row) + "]" for row in g.cov)
     return [f"[{key}]", f"mean = [{mean}]", f"cov = [{rows}]", ""]

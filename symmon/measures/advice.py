@@ -50,6 +50,7 @@ import numpy as np
 from ..core.angles import wrap_angle
 from ..errors import ArgumentTypeError, SymmonError
 from ..core.gaussian import Gaussian
+from ..core.mixture import Empirical
 from ..core.model import Model
 from ..propagation.joint import JointMoments
 from .mon import nonlinearity
@@ -352,6 +353,9 @@ def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = DE
     """
     if not isinstance(model, Model):
         raise ArgumentTypeError(f"model must be a symmon.Model, got {type(model).__name__}")
+    if isinstance(u, Empirical):  # particles: every rule gives the same exact weighted sums
+        raise ArgumentTypeError("advise ranks transforms for a Gaussian or a GaussianMixture; particles need none: "
+                                "use nonlinearity(model, particles), or advise on particles.as_gaussian()")
     if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not (0 < tol < 1):
         raise SymmonError(f"tol must be a number in (0, 1), got {tol!r}")
     cands = list(CANDIDATES if candidates is None else candidates)

@@ -9,6 +9,27 @@ over u (:meth:`~symmon.transforms.base.Transform.nested_inner`), or for a stocha
 transform its nested replicates (:meth:`~symmon.transforms.base.Transform.nested_stats`)
 with their leave-one-out values for the jackknife.
 
+**Mixtures.**  For u ~ Σ_k w_k N(μ_k, P_k) and v ~ Σ_l ω_l N(ν_l, R_l), independent, the
+conditional mean is the mixture of the components' conditional means, because
+conditioning on v leaves the distribution of u unchanged:
+
+    h(v) = E[g | v] = Σ_k w_k E_{u∼N(μ_k, P_k)}[g(u, v)],
+
+and its covariance under the mixture of v follows from the law of total covariance over
+the components of v:
+
+    Σ_c = Cov_v h(v) = Σ_l ω_l [Cov_{N_l} h + (E_{N_l} h − E h)(E_{N_l} h − E h)ᵀ]
+        = Σ_{l,j} ω_l a_lj (h(V_lj) − h̄)(h(V_lj) − h̄)ᵀ,   h̄ = Σ_{l,j} ω_l a_lj h(V_lj),
+
+where V_lj, a_lj are the outer rule's points and weights over N(ν_l, R_l): the points of
+all components of v, with the weights ω_l a_lj, are one rule for the mixture, and h at
+each point is the mixture of K inner integrals, all in one batch.  The structured cases
+are this formula evaluated in closed form: for additive noise h(v) = E f + B v gives
+Σ_c = B Σ_vv Bᵀ (29) with Σ_vv the mixture's total covariance; for multiplicative noise
+h(v) = E f + π̄ γ(v) with π̄ = Σ_k w_k E_k π gives Σ_c = π̄ Σ_γγ π̄ᵀ (28), Σ_γγ the
+covariance of γ(v) under the mixture of v (the per-component moments of γ mixed by the
+law of total covariance).  ``derivations/mixtures.py`` checks these identities symbolically.
+
 References
 ----------
 O. Straka, J. Havlík, "Design of unitless normalized measure of nonlinearity for state
@@ -24,23 +45,31 @@ import sympy as sp
 
 from ..compile.compiled import compile_model
 from ..core.gaussian import Gaussian
+from ..core.mixture import Empirical, GaussianMixture, mixture_moments
 from ..core.model import Model
 from ..compile import compiled
+from ..propagation.particles import GROUPS, group_means
 from ..transforms import Transform
 from ..transforms.montecarlo import MC_INNER
 from ..transforms.stats import Stats, leave_one_out, merge_all, moments_of
 
-__all__ = ["conditional_cov", "conditional_cov_replicates"]
+__all__ = ["conditional_cov", "conditional_cov_replicates", "empirical_conditional_cov"]
 
 
-def _aux_moments(exprs: Sequence[sp.Expr], syms: Sequence[sp.Symbol], dist: Gaussian, transform: Transform):
+def _aux_moments(exprs: Sequence[sp.Expr], syms: Sequence[sp.Symbol], dist: Gaussian | GaussianMixture,
+                 transform: Transform):
     cm = compile_model(list(exprs), list(syms))
+    if isinstance(dist, GaussianMixture):  # the components in one batch, mixed exactly
+        b = transform.moments(cm, dist.means, dist.covs)
+        return mixture_moments(dist.weights, b.mean, b.cov)
     b = transform.moments(cm, dist.mean[None], dist.cov[None])
     return b.mean[0], b.cov[0]
 
 
-def conditional_cov(model: Model, u: Gaussian, v: Gaussian | None, transform: Transform) -> np.ndarray:
-    """Σ_c of y = g(u, v) by a deterministic transform: (28), (29) or the nested rule."""
+def conditional_cov(model: Model, u: Gaussian | GaussianMixture, v: Gaussian | GaussianMixture | None,
+                    transform: Transform) -> np.ndarray:
+    """Σ_c of y = g(u, v) by a deterministic transform: (28), (29) or the nested rule; for
+    a mixture u or v, the mixed forms of the module notes."""
     ny = model.n_y
     if model.n_v == 0:
         return np.zeros((ny, ny))
@@ -54,6 +83,8 @@ def conditional_cov(model: Model, u: Gaussian, v: Gaussian | None, transform: Tr
         pi_mean, _ = _aux_moments(list(pi), model.inputs, u, transform)
         _, Sgam = _aux_moments(list(model.gamma), model.noise, v, transform)
         return _pi_sgam_pi(pi, pi_mean, Sgam)
+    if isinstance(u, GaussianMixture) or isinstance(v, GaussianMixture):
+        return _general_cov_mixture(model, u, v, transform)
     return _general_cov(model, u, v, transform)
 
 
@@ -77,6 +108,34 @@ def _general_cov(model: Model, u: Gaussian, v: Gaussian, transform: Transform) -
     m = w @ cond_means
     R = cond_means - m
     return np.einsum("j,ji,jk->ik", w, R, R)
+
+
+def _components(d: Gaussian | GaussianMixture) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    if isinstance(d, GaussianMixture):
+        return d.weights, d.means, d.covs
+    return np.ones(1), d.mean[None], d.cov[None]
+
+
+def _general_cov_mixture(model: Model, u: Gaussian | GaussianMixture, v: Gaussian | GaussianMixture,
+                         transform: Transform) -> np.ndarray:
+    """Σ_c for general noise and a mixture u or v (module notes): the outer points of every
+    component of v form one rule; at each, h is the mixture of the K inner integrals over
+    the components of u, all K·J of them in one batch of the inner transform."""
+    cm = compiled(model)
+    nu, nv = model.n_u, model.n_v
+    wu, Mu, Pu = _components(u)
+    wv, Mv, Pv = _components(v)
+    rules = [transform.outer_rule(m, P) for m, P in zip(Mv, Pv)]  # points only: no evaluation of g
+    V = np.vstack([r[0] for r in rules])
+    a = np.concatenate([wl * r[1] for wl, r in zip(wv, rules)])
+    K, J = wu.size, V.shape[0]
+    means = np.hstack([np.repeat(Mu, J, axis=0), np.tile(V, (K, 1))])  # row k·J + j
+    covs = np.zeros((K * J, nu + nv, nu + nv))
+    covs[:, :nu, :nu] = np.repeat(Pu, J, axis=0)
+    cond = transform.nested_inner().moments(cm, means, covs).mean.reshape(K, J, model.n_y)
+    h = np.einsum("k,kjy->jy", wu, cond)  # E[g | V_j] under the mixture of u
+    R = h - a @ h
+    return np.einsum("j,ji,jk->ik", a, R, R)
 
 
 def _sc_nested(st: Stats, var_sum: np.ndarray) -> np.ndarray:
@@ -115,4 +174,54 @@ def conditional_cov_replicates(model: Model, u: Gaussian, v: Gaussian | None, tr
     total, var_sum = merge_all(stats), sum(g[1] for g in nested)
     loo = [_sc_nested(s, var_sum - g[1]) for s, g in zip(leave_one_out(stats, total), nested)]
     return _sc_nested(total, var_sum), np.array(loo)
+
+
+
+def _loo_ratio(sums: np.ndarray, wsum: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted means of all particles and of all but group g: (d,) and (G, d)."""
+    tot, W = sums.sum(axis=0), wsum.sum()
+    return tot / W, (tot - sums) / (W - wsum)[:, None]
+
+
+def empirical_conditional_cov(model: Model, u: Empirical, v: Gaussian | GaussianMixture | None,
+                              transform: Transform) -> tuple[np.ndarray, np.ndarray]:
+    """Σ_c for particles u, and its value with each jackknife group left out (G, n_y, n_y).
+
+    No noise: 0; additive: B Σ_vv Bᵀ (29), no sampling error; multiplicative: π̄ Σ_γγ π̄ᵀ
+    (28) with π̄ = Σ_i w_i π(x_i) and Σ_γγ by the transform over v; general: the outer
+    rule of the transform over (each component of) v, h(V_j) = Σ_i w_i g(x_i, V_j) at each
+    point (module notes).  Groups are those of :func:`~symmon.propagation.particles.group_means`.
+    """
+    ny = model.n_y
+    G = min(len(u.weights), GROUPS)
+    zero = np.zeros((ny, ny))
+    if model.n_v == 0:
+        return zero, np.repeat(zero[None], G, axis=0)
+    if model.structure == "additive" or (model.structure == "multiplicative" and model.pi.shape[1] == 0):
+        Sc = conditional_cov(model, u, v, transform)  # uses v only (u.cov is not read)
+        return Sc, np.repeat(Sc[None], G, axis=0)
+    if model.structure == "multiplicative":
+        pi = model.pi
+        cm = compile_model(list(pi), list(model.inputs))
+        pbar, pbar_loo = _loo_ratio(*group_means(u, cm.eval_g))
+        _, Sgam = _aux_moments(list(model.gamma), model.noise, v, transform)
+        return _pi_sgam_pi(pi, pbar, Sgam), np.array([_pi_sgam_pi(pi, p, Sgam) for p in pbar_loo])
+    cm = compiled(model)
+    wv, Mv, Pv = _components(v)
+    rules = [transform.outer_rule(m, P) for m, P in zip(Mv, Pv)]
+    V = np.vstack([r[0] for r in rules])
+    a = np.concatenate([wl * r[1] for wl, r in zip(wv, rules)])
+    J = V.shape[0]
+
+    def at_points(X: np.ndarray) -> np.ndarray:  # g(x_i, V_j) for every particle and point: (n, J·n_y)
+        W = np.hstack([np.repeat(X, J, axis=0), np.tile(V, (X.shape[0], 1))])
+        return cm.eval_g(W).reshape(X.shape[0], J * ny)
+
+    h, h_loo = _loo_ratio(*group_means(u, at_points))
+
+    def cov_of(hj: np.ndarray) -> np.ndarray:
+        R = hj.reshape(J, ny) - a @ hj.reshape(J, ny)
+        return np.einsum("j,ji,jk->ik", a, R, R)
+
+    return cov_of(h), np.array([cov_of(x) for x in h_loo])
 

@@ -22,31 +22,49 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .conditional import conditional_cov, conditional_cov_replicates
-from ..errors import NonFiniteError
+from .conditional import conditional_cov, conditional_cov_replicates, empirical_conditional_cov
+from ..errors import ArgumentError, NonFiniteError
 from ..core.gaussian import Gaussian
+from ..core.mixture import Empirical, GaussianMixture
 from .formula import MonParts, NonlinearityMeasure, mon_from_moments
 from ..core.model import Model
 from ..propagation.joint import JointMoments
-from ..propagation.front import check_transform, propagate
+from ..propagation.front import check_noise_given, check_transform, propagate, propagate_mixture
+from ..propagation.mixing import is_mixture, mixed_leave_one_out
+from ..propagation.particles import propagate_empirical
 from ..transforms import Transform
-from ..transforms.stats import Stats, jackknife, moments_of
+from ..transforms.stats import Stats, jackknife, jackknife_se, moments_of
 from ..transforms.registry import compare_set
 
 __all__ = ["NonlinearityMeasure", "MonParts", "nonlinearity", "compare", "format_table", "mon_from_moments"]
 
 
 # --------------------------------------------------------------------------- public API
-def nonlinearity(model: Model, u: Gaussian, v: Gaussian | None = None, *, weight: Any = "full",
-                 transform: Transform | None = None, executor: Any = None) -> NonlinearityMeasure:
+def nonlinearity(model: Model, u: Gaussian | GaussianMixture, v: Gaussian | GaussianMixture | None = None, *,
+                 weight: Any = "full", transform: Transform | None = None, executor: Any = None
+                 ) -> NonlinearityMeasure:
     """The measure of nonlinearity of y = g(u, v).
 
     Parameters
     ----------
     model : Model
-    u : Gaussian
-    v : Gaussian, optional
-        Required when the model has noise symbols.
+    u : Gaussian, GaussianMixture or Empirical
+        For particles (:class:`~symmon.Empirical`) the MoN of the empirical measure,
+        from the weighted sample moments of :func:`symmon.propagate` and Σ_c with the
+        inner integral over u a weighted sum over the particles
+        (:func:`~symmon.measures.conditional.empirical_conditional_cov`); its ``stderr`` is
+        the delete-one-group jackknife over 20 interleaved groups of particles, and a
+        ``SampleSizeWarning`` comes when the effective sample size is below 100.  The
+        transform only integrates noise that is neither absent nor additive.
+    v : Gaussian or GaussianMixture, optional
+        Required when the model has noise symbols.  With a mixture, the MoN (25)–(29) is
+        formed from the mixture's joint moments (:func:`symmon.propagate`: the exact
+        mixing of the per-component moments): Σ_uu is the mixture's covariance, so the
+        affine part is the best affine fit over the whole mixture, and Σ_c the mixed form
+        of :mod:`symmon.measures.conditional`.  A stochastic transform takes its error bar
+        from the jackknife with each group left out of every component; it is refused for
+        multiplicative and general noise with a mixture (their Σ_c would need nested
+        replicates per component): use a deterministic rule there.
     weight : {"full", "diag", "liu-li", "liu-li-raw"}, ndarray or weights.GeneralWeight
         ``"full"``: W = Σ_gg⁻¹/n_y (43); ``"diag"``: W = diag(diag Σ_gg)⁻¹/n_y (42);
         ``"liu-li"``: W = I/tr Σ_gg, the normalised MoN (8); ``"liu-li-raw"``: W = I, the
@@ -71,6 +89,10 @@ def nonlinearity(model: Model, u: Gaussian, v: Gaussian | None = None, *, weight
     1.0
     """
     tr = check_transform(transform)
+    if isinstance(u, Empirical):
+        return _empirical_nonlinearity(model, u, v, weight, tr, executor)
+    if is_mixture(u) or is_mixture(v):
+        return _mixture_nonlinearity(model, u, v, weight, tr, executor)
     m = propagate(model, u, v, transform=tr, executor=executor)
     stderr = None
     if tr.stochastic:
@@ -84,6 +106,56 @@ def nonlinearity(model: Model, u: Gaussian, v: Gaussian | None = None, *, weight
         raise NonFiniteError(f"{tr!r}: {exc}") from None
     if stderr is not None and not np.isfinite(stderr):
         raise NonFiniteError(f"{tr!r}: the standard error of the MoN is {stderr}")
+    return NonlinearityMeasure.of(parts, transform=tr, structure=model.structure, moments=m, stderr=stderr)
+
+
+def _empirical_nonlinearity(model: Model, u: Empirical, v: Any, weight: Any, tr: Transform, executor: Any
+                            ) -> NonlinearityMeasure:
+    """The MoN of particles with its jackknife error bar (see :func:`nonlinearity`)."""
+    check_noise_given(model, v)
+    m, sums = propagate_empirical(model, u, v, tr, executor)
+    Sc, Sc_loo = empirical_conditional_cov(model, u, v, tr)
+    try:
+        parts = mon_from_moments(m.cov, m.cross_cov, m.input_cov, weight, Sc, m.mean)
+    except NonFiniteError as exc:
+        raise NonFiniteError(f"particles: {exc}") from None
+    stderr = None
+    if sums.w.shape[0] >= 2:
+        # Group g left out of the moments and of Σ_c at once, as for Monte Carlo.
+        _, cov, cross, in_cov = sums.leave_one_out().moments()
+        nu = model.n_u
+        stderr = float(jackknife_se(np.array([
+            mon_from_moments(cov[g], cross[g][:, :nu], in_cov[g][:nu, :nu], weight, Sc_loo[g]).value
+            for g in range(cov.shape[0])])))
+    return NonlinearityMeasure.of(parts, transform=tr, structure=model.structure, moments=m, stderr=stderr)
+
+
+def _mixture_nonlinearity(model: Model, u: Any, v: Any, weight: Any, tr: Transform, executor: Any
+                          ) -> NonlinearityMeasure:
+    """The MoN of a mixture u and/or v from the mixed joint moments (see :func:`nonlinearity`)."""
+    exact_sc = model.n_v == 0 or model.structure == "additive" or (
+        model.structure == "multiplicative" and model.pi.shape[1] == 0)
+    if tr.stochastic and not exact_sc:
+        raise ArgumentError(
+            f"{tr!r} with a GaussianMixture and {model.structure} noise: the conditional term Cov_v E[g | v] "
+            "would need nested replicates for every component; use a deterministic transform "
+            "(GaussHermite, UT, TT2) or an Empirical sample of the mixture")
+    m, raw, cb = propagate_mixture(model, u, v, tr, executor)
+    Sc = conditional_cov(model, u, v, tr)
+    try:
+        parts = mon_from_moments(m.cov, m.cross_cov, m.input_cov, weight, Sc, m.mean)
+    except NonFiniteError as exc:
+        raise NonFiniteError(f"{tr!r}: {exc}") from None
+    stderr = None
+    if tr.stochastic:
+        # Group g left out of every component at once, mixed, and the MoN of each.
+        _, cov, cross, in_cov = mixed_leave_one_out(raw, cb, model.n_y, sorted(model.angle_outputs))
+        nu = model.n_u
+        stderr = float(jackknife_se(np.array([
+            mon_from_moments(cov[0, g], cross[0, g][:, :nu], in_cov[0, g][:nu, :nu], weight, Sc).value
+            for g in range(cov.shape[1])])))
+        if not np.isfinite(stderr):
+            raise NonFiniteError(f"{tr!r}: the standard error of the MoN is {stderr}")
     return NonlinearityMeasure.of(parts, transform=tr, structure=model.structure, moments=m, stderr=stderr)
 
 
@@ -103,14 +175,16 @@ def _mc_stderr(m: JointMoments, model: Model, weight, Sc: np.ndarray, Sc_loo: np
     return float(jackknife(m.replicates, values))
 
 
-def compare(model: Model, u: Gaussian, v: Gaussian | None = None, *, weight: Any = "full",
+def compare(model: Model, u: Gaussian | GaussianMixture, v: Gaussian | GaussianMixture | None = None, *,
+            weight: Any = "full",
             transforms: Sequence[Transform] | None = None, executor: Any = None) -> list[dict]:
     """The MoN by every transform, as rows of a table.
 
     Parameters
     ----------
     model, u, v, weight, executor
-        As in :func:`nonlinearity`.
+        As in :func:`nonlinearity` (a mixture u or v included: each row is the MoN
+        of the mixture by that transform).
     transforms : sequence of Transform, optional
         Default: the registry's comparison set
         (:func:`~symmon.transforms.registry.compare_set`).

@@ -261,7 +261,9 @@ def sweep_states(model: Model, u: Any, v: Gaussian | None = None, *, weight: Any
     model : Model
     u : list of Gaussian, or (means, covs)
         The K states, as in :func:`symmon.propagate_many`: Gaussians, or their means
-        (K, n_u) and covariances (K, n_u, n_u).
+        (K, n_u) and covariances (K, n_u, n_u).  A deterministic transform on a noise-free
+        model also takes GaussianMixtures in the list (their mixed moments, one batch);
+        otherwise a mixture is refused.
     v : Gaussian, optional
         The noise, the same at every state.
     weight, transform, executor, crn

@@ -8,7 +8,8 @@ from .front import input_batch as input_batch
 from .front import joint_input as joint_input
 from .front import propagate as propagate
 from .front import propagate_many as propagate_many
+from .front import propagate_mixture as propagate_mixture
 from .joint import JointMoments as JointMoments
 
 __all__ = ["propagate", "propagate_many", "JointMoments", "quadrature_error", "joint_input", "input_batch",
-           "check_transform"]
+           "check_transform", "propagate_mixture"]

@@ -11,12 +11,16 @@ from scipy.linalg import block_diag
 from ..compile import compiled
 from ..errors import ArgumentTypeError, ModelError, ShapeError
 from ..core.gaussian import Gaussian
+from ..core.mixture import Empirical, GaussianMixture
 from ..core.model import Model
 from .joint import JointMoments
+from .particles import propagate_empirical
+from .mixing import ComponentBatch, component_batch, is_mixture, mix_batch
 from ..transforms import Moments, Transform
 from ..transforms.registry import default_transform, resolve
 
-__all__ = ["propagate", "propagate_many", "joint_input", "input_batch", "check_transform"]
+__all__ = ["propagate", "propagate_many", "propagate_mixture", "check_noise_given", "joint_input", "input_batch",
+           "check_transform"]
 
 
 def check_transform(transform: Any) -> Transform:
@@ -33,8 +37,8 @@ def check_transform(transform: Any) -> Transform:
     return transform
 
 
-def _check_noise_given(model: Model, v: Any) -> None:
-    """v is given exactly when the model has noise symbols."""
+def check_noise_given(model: Model, v: Any) -> None:
+    """v is given exactly when the model has noise symbols, else a ModelError."""
     if model.n_v == 0 and v is not None:
         raise ModelError("v was given but the model declares no noise symbols")
     if model.n_v and v is None:
@@ -47,7 +51,7 @@ def joint_input(model: Model, u: Gaussian, v: Gaussian | None) -> tuple[np.ndarr
         raise ArgumentTypeError(f"u must be a symmon.Gaussian, got {type(u).__name__}")
     if u.dim != model.n_u:
         raise ShapeError(f"u has dimension {u.dim} but the model has {model.n_u} inputs {list(map(str, model.inputs))}")
-    _check_noise_given(model, v)
+    check_noise_given(model, v)
     if model.n_v == 0:
         return u.mean.copy(), u.cov.copy()
     if not isinstance(v, Gaussian):
@@ -57,17 +61,27 @@ def joint_input(model: Model, u: Gaussian, v: Gaussian | None) -> tuple[np.ndarr
     return np.concatenate([u.mean, v.mean]), block_diag(u.cov, v.cov)
 
 
-def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, *, transform: Transform | None = None,
+def propagate(model: Model, u: Gaussian | GaussianMixture | Empirical,
+              v: Gaussian | GaussianMixture | None = None, *, transform: Transform | None = None,
               executor: Any = None) -> JointMoments:
     """E y, Cov y and Cov(y, u) of y = g(u, v) by a transform.
 
     Parameters
     ----------
     model : Model
-    u : Gaussian
-        The input distribution.
-    v : Gaussian, optional
-        The noise distribution (required when the model has noise symbols).
+    u : Gaussian, GaussianMixture or Empirical
+        The input distribution.  For particles (:class:`~symmon.Empirical`), the weighted
+        moments of y = g(x_i, v), exact for the empirical measure without noise and with
+        additive noise (the transform integrates any other noise at each particle), with
+        jackknife standard errors over interleaved groups of particles
+        (:mod:`symmon.propagation.particles`); a ``SampleSizeWarning`` when the
+        effective sample size is below 100.
+    v : Gaussian or GaussianMixture, optional
+        The noise distribution (required when the model has noise symbols).  With a
+        mixture for u or v, every pair of components goes through the transform in one
+        batch and their moments are mixed exactly (:mod:`symmon.propagation.mixing`):
+        E y = Σ_j π_j m_j, Cov y = Σ_j π_j (P_j + (m_j − m)(m_j − m)ᵀ), and the
+        cross-covariances likewise.
     transform : Transform, default ``TT2()``
         TT1(), TT2(), UT(...), GaussHermite(...), MonteCarlo(...), Exact() or any
         registered rule (docs/architecture.md).  The default is the same for
@@ -105,11 +119,35 @@ def propagate(model: Model, u: Gaussian, v: Gaussian | None = None, *, transform
     (2.0, 6.0)
     """
     tr = check_transform(transform)
+    if isinstance(u, Empirical):
+        check_noise_given(model, v)
+        return propagate_empirical(model, u, v, tr, executor)[0]
+    if is_mixture(u) or is_mixture(v):
+        return propagate_mixture(model, u, v, tr, executor)[0]
     mw, Pw = joint_input(model, u, v)
     b = _checked_batch(model, tr, mw[None], Pw[None], executor)
     # "compiled", "vm" or "vm (C build running)": CompiledModel.evaluator, docs/compile.md.
     return JointMoments.of(b, u, model.n_u, tr, model.angle_outputs, model.angle_inputs,
                            evaluator=compiled(model).evaluator)
+
+
+def propagate_mixture(model: Model, u: Any, v: Any, transform: Transform, executor: Any = None
+                      ) -> tuple[JointMoments, Moments, ComponentBatch]:
+    """:func:`propagate` for a mixture u and/or v, with what the mixing came from: the
+    moments, the transform's batch result of the components and the
+    :class:`~symmon.propagation.mixing.ComponentBatch` (for the jackknife of a measure:
+    :func:`~symmon.propagation.mixing.mixed_leave_one_out`).
+
+    Every pair of components of u and v goes through the transform in one batch, and
+    their moments are mixed exactly (:mod:`symmon.propagation.mixing`).
+    """
+    check_noise_given(model, v)
+    cb = component_batch(model, [u], None if model.n_v == 0 else [v])
+    raw = _checked_batch(model, transform, cb.means, cb.covs, executor)
+    b = mix_batch(raw, cb, sorted(model.angle_outputs))
+    m = JointMoments.of(b, u, model.n_u, transform, model.angle_outputs, model.angle_inputs,
+                        evaluator=compiled(model).evaluator)
+    return m, raw, cb
 
 
 def input_batch(model: Model, u: Any, v: Any = None) -> tuple[np.ndarray, np.ndarray]:
@@ -138,7 +176,7 @@ def input_batch(model: Model, u: Any, v: Any = None) -> tuple[np.ndarray, np.nda
         raise ArgumentTypeError("u must be a list of K Gaussians or a pair (means (K, n_u), covs (K, n_u, n_u)), "
                         f"got {type(u).__name__}")
     K = M.shape[0]
-    _check_noise_given(model, v)
+    check_noise_given(model, v)
     if model.n_v == 0:
         return M, P
     vs = [v] * K if isinstance(v, Gaussian) else list(v) if isinstance(v, (list, tuple)) else None
@@ -162,12 +200,13 @@ def propagate_many(model: Model, u: Any, v: Any = None, *, transform: Transform 
     Parameters
     ----------
     model : Model
-    u : list of Gaussian, or (means, covs)
-        K input Gaussians, or their means (K, n_u) and covariances (K, n_u, n_u) (checked
-        with array operations: the fast way to pass many).
-    v : Gaussian or list of Gaussian, optional
-        The noise: one Gaussian for every input, or one per input (required when the
-        model has noise symbols).
+    u : list of Gaussian or GaussianMixture, or (means, covs)
+        K input distributions, or the means (K, n_u) and covariances (K, n_u, n_u) of K
+        Gaussians (checked with array operations: the fast way to pass many).
+    v : Gaussian, GaussianMixture or a list of them, optional
+        The noise: one distribution for every input, or one per input (required when the
+        model has noise symbols).  With any mixture, the components of every input go
+        through the transform in one batch and are mixed per input, as in :func:`propagate`.
     transform : Transform, default ``TT2()``
         As in :func:`propagate`.
     executor : Executor, optional
@@ -189,11 +228,41 @@ def propagate_many(model: Model, u: Any, v: Any = None, *, transform: Transform 
     array([1., 3.])
     """
     tr = check_transform(transform)
+    if _has_mixture(u, v):
+        us, vs = _mixture_items(model, u, v)
+        cb = component_batch(model, us, vs)
+        b = _checked_batch(model, tr, cb.means, cb.covs, executor)
+        return mix_batch(b, cb, sorted(model.angle_outputs)).split(model.n_u)
     M, P = input_batch(model, u, v)
     b = _checked_batch(model, tr, M, P, executor)
     if b.input_cov is None:  # as JointMoments: always Cov u, here the covariances passed in
         b = replace(b, input_cov=P)
     return b.split(model.n_u)
+
+
+def _has_mixture(u: Any, v: Any) -> bool:
+    items = list(u) if isinstance(u, list) else [u]
+    noise = list(v) if isinstance(v, (list, tuple)) else [v]
+    if any(isinstance(d, Empirical) for d in items + noise):
+        raise ArgumentTypeError("propagate_many takes Gaussians and GaussianMixtures; pass an Empirical "
+                                "(particles) to propagate, one cloud at a time")
+    return any(is_mixture(d) for d in items + noise)
+
+
+def _mixture_items(model: Model, u: Any, v: Any) -> tuple[list, list | None]:
+    """The inputs and noises of :func:`propagate_many` as lists when one is a mixture."""
+    if is_mixture(u):
+        raise ArgumentTypeError("u is one GaussianMixture: use propagate, or pass a list of distributions")
+    if not isinstance(u, list) or not u:
+        raise ArgumentTypeError("with a GaussianMixture, u must be a non-empty list of Gaussian or "
+                                f"GaussianMixture, got {type(u).__name__}")
+    check_noise_given(model, v)
+    if model.n_v == 0:
+        return u, None
+    vs = list(v) if isinstance(v, (list, tuple)) else [v] * len(u)
+    if len(vs) != len(u):
+        raise ArgumentTypeError(f"v must be one distribution or a list of {len(u)}, one per input")
+    return u, vs
 
 
 def _checked_batch(model: Model, tr: Transform, means: np.ndarray, covs: np.ndarray, executor) -> Moments:

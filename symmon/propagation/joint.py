@@ -31,8 +31,9 @@ class JointMoments:
         Cov y.
     cross_cov : ndarray, shape (n_y, n_u)
         Cov(y, u); for a model with noise, the u-block of Cov(y, [u; v]).
-    input : Gaussian
-        The distribution of u.
+    input : Gaussian or GaussianMixture
+        The distribution of u (:attr:`joint` and :meth:`condition` use its mean and
+        covariance: the Gaussian approximation of [u; y]).
     transform : object
         The transform settings that produced the moments.
     noise_cross_cov : ndarray, shape (n_y, n_v)
