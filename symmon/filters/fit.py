@@ -86,7 +86,7 @@ class FitResult:
         kf = self.kf
         f = kf.f_model.with_params({str(s): self.params[str(s)] for s in kf.f_model.params})
         h = kf.h_model.with_params({str(s): self.params[str(s)] for s in kf.h_model.params})
-        return type(kf)(f, h, kf.Q, kf.R, kf.transform)  # the filter's class: nonlinear imports this module
+        return type(kf)(f, h, kf.Q, kf.R, kf.transform, iterations=kf.iterations)  # the filter's class: nonlinear imports this module
 
     def __repr__(self) -> str:
         parts = ", ".join(f"{k} = {v:.6g} ± {self.std_errors[k]:.2g}" for k, v in self.estimates.items())
@@ -96,7 +96,7 @@ class FitResult:
 def _loglik_graph(kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: np.ndarray, P0: np.ndarray,
                   base: np.ndarray, fitted: list[int]) -> tuple[ca.MX, ca.MX]:
     """θ (the fitted parameters) and ℓ(θ) as an MX graph: the step folded over K, mapped over R."""
-    step = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states).f
+    step = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states, kf.iterations).f
     runs, K, n_y = Y.shape
     n, n_p = kf.f_model.n_u, base.shape[-1]
     s = ca.MX.sym("s", n + n * n)

@@ -49,6 +49,8 @@ Y. Bar-Shalom, X. R. Li, T. Kirubarajan, *Estimation with Applications to Tracki
 Navigation*, Wiley, 2001, §5.4 (NEES, NIS and their χ² tests).
 D. F. Crouse, "Cubature/unscented/sigma point Kalman filtering with angular measurement
 models", FUSION 2015 (wrapped residuals).
+B. M. Bell, F. W. Cathey, "The iterated Kalman filter update as a Gauss–Newton method", IEEE
+Trans. Autom. Control 38(2), 1993. doi:10.1109/9.250476
 """
 
 from __future__ import annotations
@@ -73,7 +75,10 @@ from ..core.model import Model
 from ..transforms import UT, Transform
 from ..transforms.registry import resolve
 
-__all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest"]
+__all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest", "MAX_ITERATIONS"]
+
+#: The most Gauss–Newton iterations of the iterated EKF's update (each one is unrolled in the step).
+MAX_ITERATIONS = 20
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,6 +105,10 @@ class NonlinearKalmanFilter:
         A transform is used for both updates of every step (the strategy
         :class:`~symmon.filters.strategy.RuleStrategy`); :class:`Adaptive` picks one per
         step and run.
+    iterations : int, default 1
+        With ``TT1()``, the number of linearisations of the measurement update: 1 is the EKF,
+        more the iterated EKF (Gauss–Newton steps of the update, Bell & Cathey 1993;
+        dynamax's ``num_iter``), from 1 to :data:`MAX_ITERATIONS`.
 
     Attributes
     ----------
@@ -123,6 +132,7 @@ class NonlinearKalmanFilter:
     Q: np.ndarray
     R: np.ndarray
     transform: Transform | FilterStrategy | None = None
+    iterations: int = 1
     strategy: FilterStrategy = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -136,6 +146,12 @@ class NonlinearKalmanFilter:
         R = noise_cov(h, self.R, "R")
         transform = UT.ut1() if self.transform is None else resolve(self.transform)
         strategy = transform if isinstance(transform, FilterStrategy) else RuleStrategy(transform)
+        it = self.iterations
+        if isinstance(it, bool) or not isinstance(it, (int, np.integer)) or not 1 <= it <= MAX_ITERATIONS:
+            raise SymmonError(f"iterations must be an integer from 1 to {MAX_ITERATIONS}, got {it!r}")
+        if it > 1 and not (isinstance(strategy, RuleStrategy) and strategy.transform.taylor_order == 1):
+            raise SymmonError(f"iterations > 1 is the iterated EKF: it needs transform TT1(), got {self.transform!r}")
+        object.__setattr__(self, "iterations", int(it))
         object.__setattr__(self, "Q", readonly(Q))
         object.__setattr__(self, "R", readonly(R))
         object.__setattr__(self, "transform", transform)
@@ -191,7 +207,9 @@ class NonlinearKalmanFilter:
 
     @cached_property
     def method(self) -> str:
-        """The filter's name: EKF, EKF2, UKF(...), CKF, GHKF(order=...) or Adaptive(...)."""
+        """The filter's name: EKF, IEKF(iterations=...), EKF2, UKF(...), CKF, GHKF(order=...) or Adaptive(...)."""
+        if self.iterations > 1:
+            return f"IEKF(iterations={self.iterations})"
         return self.strategy.label()
 
     def smooth(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None, *,

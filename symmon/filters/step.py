@@ -117,39 +117,58 @@ def predict_graph(f: Model, transform: Transform, angle_states: frozenset[int], 
 
 
 def update_graph(h: Model, transform: Transform, angle_states: frozenset[int], x_pred, P_pred, y, R, chol,
-                 mask=None, p=None):
+                 mask=None, p=None, iterations: int = 1):
     """The measurement update, Lemma 7.1 on the NLT of h at N(x⁻, P⁻): (x⁺, P⁺, ν, S, log N(ν; 0, S)).
 
     ``mask`` (n_y, 1 for a measured component and 0 for a missing one; None: all measured)
     restricts the update to the measured block: with D = diag(mask), ν̃ = D ν,
-    S̃ = D S D + (I − D) and P̃^{xy} = P^{xy} D (Cov(y, x) with zero rows), the gain P̃^{xy} S̃⁻¹ has zero columns for the
-    missing components and is the gain of the measured block elsewhere, so x⁺ and P⁺ are
-    those of the update on the measured components only, and log N(ν̃; 0, S̃) (with the 2π
-    term counted for the measured ones) their log-likelihood; nothing measured is a pure
-    prediction with log-likelihood 0.  A missing component must be finite in ``y`` (the
-    caller writes 0), so that no NaN enters the products.  ``p``: the values of h's parameters.
+    S̃ = D S D + (I − D) and P̃^{xy} = P^{xy} D (Cov(y, x) with zero rows), the gain P̃^{xy} S̃⁻¹
+    has zero columns for the missing components and is the gain of the measured block
+    elsewhere, so x⁺ and P⁺ are those of the update on the measured components only, and
+    log N(ν̃; 0, S̃) (with the 2π term counted for the measured ones) their log-likelihood;
+    nothing measured is a pure prediction with log-likelihood 0.  A missing component must be
+    finite in ``y`` (the caller writes 0), so that no NaN enters the products.  ``p``: the
+    values of h's parameters.
+
+    ``iterations`` > 1 (TT1 only) is the iterated EKF (Bell & Cathey 1993): Gauss–Newton
+    steps x_{i+1} = x⁻ + K_i (y − h(x_i) − H_i (x⁻ − x_i)), K_i = P⁻ H_iᵀ S_i⁻¹ with h
+    linearised at x_i (x_0 = x⁻; H_i (x⁻ − x_i) = P^{xy}_i P⁻⁻¹ (x⁻ − x_i)), and P⁺ = P⁻ − K S Kᵀ
+    of the last one; ν, S and the log-likelihood are those at x⁻ (the prediction errors).
     """
     kind, n, n_y = type(x_pred), x_pred.shape[0], h.n_y
     y_angles = frozenset(h.angle_outputs)
-    if h.n_v:
-        y_hat, S, cross = model_moments(h, ca.vertcat(x_pred, kind.zeros(h.n_v)), ca.diagcat(P_pred, R),
-                                        transform, y_angles, chol, p)
-        cross = cross[:, :n]
-    else:
-        y_hat, S, cross = model_moments(h, x_pred, P_pred, transform, y_angles, chol, p)
-        S = S + R
-    S = sym(S)
-    nu = wrap_entries(y - y_hat, y_angles)
-    measured = n_y
-    if mask is not None:
+
+    def linearised(m):
+        if h.n_v:
+            y_hat, S, cross = model_moments(h, ca.vertcat(m, kind.zeros(h.n_v)), ca.diagcat(P_pred, R),
+                                            transform, y_angles, chol, p)
+            cross = cross[:, :n]
+        else:
+            y_hat, S, cross = model_moments(h, m, P_pred, transform, y_angles, chol, p)
+            S = S + R
+        return y_hat, sym(S), cross
+
+    def masked(nu, S, cross):
+        if mask is None:
+            return nu, S, cross
         D = ca.diag(mask)
-        nu = mask * nu
-        S = ca.mtimes(ca.mtimes(D, S), D) + ca.diag(1 - mask)
-        cross = ca.mtimes(D, cross)  # Cov(y, x) is n_y × n: rows of the missing components zero
-        measured = ca.sum1(mask)
+        # Cov(y, x) is n_y × n: rows of the missing components zero.
+        return mask * nu, ca.mtimes(ca.mtimes(D, S), D) + ca.diag(1 - mask), ca.mtimes(D, cross)
+
+    y_hat, S, cross = linearised(x_pred)
+    nu, S, cross = masked(wrap_entries(y - y_hat, y_angles), S, cross)
+    measured = n_y if mask is None else ca.sum1(mask)
     gain = ca.solve(S, cross).T  # K = P^{xy} S⁻¹, S symmetric
-    x_new = wrap_entries(x_pred + ca.mtimes(gain, nu), angle_states)
-    P_new = sym(P_pred - ca.mtimes(ca.mtimes(gain, S), gain.T))
+    x_i = x_pred + ca.mtimes(gain, nu)
+    S_i = S
+    for _ in range(iterations - 1):
+        y_hat_i, S_i, cross_i = linearised(x_i)
+        step_back = ca.mtimes(cross_i, ca.solve(P_pred, x_pred - x_i))  # H_i (x⁻ − x_i)
+        r_i, S_i, cross_i = masked(wrap_entries(y - y_hat_i, y_angles) - step_back, S_i, cross_i)
+        gain = ca.solve(S_i, cross_i).T
+        x_i = x_pred + ca.mtimes(gain, r_i)
+    x_new = wrap_entries(x_i, angle_states)
+    P_new = sym(P_pred - ca.mtimes(ca.mtimes(gain, S_i), gain.T))
     # log N(ν; 0, S): log det S from the Cholesky factor, NaN when S is not positive definite.
     log_det = 2 * ca.sum1(ca.log(ca.diag(chol(S))))
     loglik = -0.5 * (ca.dot(nu, ca.solve(S, nu)) + log_det + measured * math.log(2 * math.pi))
@@ -162,7 +181,7 @@ def filter_params(f: Model, h: Model) -> tuple:
 
 
 def _step_function(f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
-                   name: str) -> ca.Function:
+                   name: str, iterations: int = 1) -> ca.Function:
     """(x, P, y, Q, R, mask, p) ↦ (x⁺, P⁺, x⁻, P⁻, ν, S, log-likelihood): one predict + update
     step, on the measured components of y (``mask``, :func:`update_graph`), with the values p
     of the parameters (:func:`filter_params`; size 0 without)."""
@@ -175,7 +194,7 @@ def _step_function(f: Model, h: Model, transform: Transform, angle_states: froze
     p = kind.sym("p", len(names))
     x_pred, P_pred = predict_graph(f, transform, angle_states, x, P, Q, chol, select_params(f, names, p))
     x_new, P_new, nu, S, loglik = update_graph(h, transform, angle_states, x_pred, P_pred, y, R, chol, mask,
-                                               select_params(h, names, p))
+                                               select_params(h, names, p), iterations)
     outs = [ca.densify(a) for a in (x_new, P_new, x_pred, P_pred, nu, S, loglik)]
     return ca.Function(name, [x, P, y, Q, R, mask, p], outs, ["x", "P", "y", "Q", "R", "mask", "p"],
                        ["x_new", "P_new", "x_pred", "P_pred", "innovation", "S", "loglik"],
@@ -219,11 +238,12 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
 class _CompiledStep:
     """The step function of one (f, h, transform), as C with a run loop or on CasADi's VM."""
 
-    def __init__(self, f: Model, h: Model, transform: Transform, angle_states: frozenset[int]) -> None:
+    def __init__(self, f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
+                 iterations: int = 1) -> None:
         key = repr((f.outputs, f.inputs, f.noise, f.params, h.outputs, h.inputs, h.noise, h.params, transform,
-                    sorted(angle_states), sorted(h.angle_outputs)))
+                    sorted(angle_states), sorted(h.angle_outputs)) + ((iterations,) if iterations > 1 else ()))
         name = "sm_nkf_" + hashlib.sha1(key.encode()).hexdigest()[:12]
-        self.f = _step_function(f, h, transform, angle_states, name)
+        self.f = _step_function(f, h, transform, angle_states, name, iterations)
         self.n, self.n_y = n, n_y = f.n_u, h.n_y
         self.n_p = len(filter_params(f, h))
         self._shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n),
@@ -368,13 +388,15 @@ _steps: dict[tuple, _CompiledStep] = {}
 _steps_lock = threading.Lock()
 
 
-def _compiled_step(f: Model, h: Model, transform: Transform, angle_states: frozenset[int]) -> _CompiledStep:
-    """The compiled step of (f, h, transform), built once per process (C cached on disk)."""
-    key = (f, h, transform, angle_states)
+def _compiled_step(f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
+                   iterations: int = 1) -> _CompiledStep:
+    """The compiled step of (f, h, transform), built once per process (C cached on disk);
+    ``iterations`` > 1: the iterated EKF's update (:func:`update_graph`)."""
+    key = (f, h, transform, angle_states, iterations)
     with _steps_lock:
         step = _steps.get(key)
         if step is None:
-            step = _steps[key] = _CompiledStep(f, h, transform, angle_states)
+            step = _steps[key] = _CompiledStep(f, h, transform, angle_states, iterations)
         return step
 
 

@@ -79,5 +79,5 @@ class RuleStrategy(FilterStrategy):
         check_dimensions(self.transform, kf.dimensions)
 
     def run(self, kf, Y, x0, P0, keep=None, params=None):
-        step = _compiled_step(kf.f_model, kf.h_model, self.transform, kf.angle_states)
+        step = _compiled_step(kf.f_model, kf.h_model, self.transform, kf.angle_states, kf.iterations)
         return step(x0, P0, Y, kf.Q, kf.R, keep=None if keep is None else keep | {"loglik"}, params=params), None
