@@ -36,10 +36,9 @@ sys.path.insert(0, str(HERE))
 os.environ.setdefault("SYMMON_CACHE", tempfile.mkdtemp(prefix="symmon-bench-export-"))
 
 import numpy as np  # noqa: E402
-import sympy as sp  # noqa: E402
 
 import symmon as sm  # noqa: E402
-from filters import Problem, best, cv_range_bearing, rel_diff, write_section  # noqa: E402
+from filters import Problem, best, cv_range_bearing, rel_diff, targets, write_section  # noqa: E402
 
 HEADING = "## Exported C filter"
 
@@ -79,25 +78,6 @@ int main(int argc, char **argv) {{
   return 0;
 }}
 """
-
-
-def targets(k: int) -> Problem:
-    """n = 5k: k constant-velocity targets, each with a range bias; range and bearing of each."""
-    blocks = [sp.symbols(f"px{i} py{i} vx{i} vy{i} b{i}", real=True) for i in range(k)]
-    X = [s for b in blocks for s in b]
-    F1 = np.eye(5)
-    F1[0, 2] = F1[1, 3] = 1.0
-    Q1 = np.zeros((5, 5))
-    Q1[:4, :4] = 0.05 * np.kron(np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]]), np.eye(2))
-    Q1[4, 4] = 1e-4
-    h, angles = [], []
-    for i, (px, py, _, _, b) in enumerate(blocks):
-        h += [sp.sqrt(px**2 + py**2) + b, sp.atan2(py, px)]
-        angles.append(2 * i + 1)
-    x0 = np.concatenate([[20.0 + 10 * i, 5.0 - 3 * i, -1.0, 0.5, 0.5] for i in range(k)])
-    P0 = np.diag(np.tile([1.0, 1.0, 0.1, 0.1, 0.25], k))
-    return Problem(f"t{5 * k}", np.kron(np.eye(k), F1), np.kron(np.eye(k), Q1),
-                   np.kron(np.eye(k), np.diag([0.5**2, 0.02**2])), X, h, angles, x0, P0)
 
 
 def c_per_step(exe: Path, p: Problem, ys: np.ndarray, repeats: int) -> tuple[float, np.ndarray]:

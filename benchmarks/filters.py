@@ -169,6 +169,25 @@ def ca_radar() -> Problem:
     return Problem("ca10", F, Q, R, X, h, [1, 2], x0, P0)
 
 
+def targets(k: int) -> Problem:
+    """n = 5k: k constant-velocity targets, each with a range bias; range and bearing of each."""
+    blocks = [sp.symbols(f"px{i} py{i} vx{i} vy{i} b{i}", real=True) for i in range(k)]
+    X = [s for b in blocks for s in b]
+    F1 = np.eye(5)
+    F1[0, 2] = F1[1, 3] = 1.0
+    Q1 = np.zeros((5, 5))
+    Q1[:4, :4] = 0.05 * np.kron(np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]]), np.eye(2))
+    Q1[4, 4] = 1e-4
+    h, angles = [], []
+    for i, (px, py, _, _, b) in enumerate(blocks):
+        h += [sp.sqrt(px**2 + py**2) + b, sp.atan2(py, px)]
+        angles.append(2 * i + 1)
+    x0 = np.concatenate([[20.0 + 10 * i, 5.0 - 3 * i, -1.0, 0.5, 0.5] for i in range(k)])
+    P0 = np.diag(np.tile([1.0, 1.0, 0.1, 0.1, 0.25], k))
+    return Problem(f"t{5 * k}", np.kron(np.eye(k), F1), np.kron(np.eye(k), Q1),
+                   np.kron(np.eye(k), np.diag([0.5**2, 0.02**2])), X, h, angles, x0, P0)
+
+
 # --------------------------------------------------------------------------- benchmarks
 def per_step(p: Problem, K: int, repeat: int) -> list[dict]:
     """symmon (K steps in one call) against FilterPy (a Python loop), per step."""

@@ -20,7 +20,8 @@ prior N(x̂_{k|k−1}, P_{k|k−1}) and e ~ N(0, R), over the first :data:`MON_R
 (median and 10–90 % band); the same without the noise e is shown beside.
 
 Files written to ``outdir``: ``tracking_bot.png``, ``tracking_rb.png`` (ANEES, ANIS,
-position RMSE, MoN and the adaptive filter's choices on one time axis),
+position RMSE (and the smoothed RMSE of each filter's RTS smoother, dashed), MoN and the adaptive
+filter's choices on one time axis),
 ``tracking_summary.csv`` (one row per scenario and filter), ``tracking_steps.csv``
 (one row per scenario and step) and ``tracking_events.csv``: each run whose EKF NEES
 exceeds :data:`EVENT_NEES`, with the first such step, that run's MoN there and two steps
@@ -150,21 +151,33 @@ def simulate(sc: Scenario, runs: int, rng: np.random.Generator) -> tuple[np.ndar
     return xs, ys
 
 
-def filter_bank(sc: Scenario, name: str, ys: np.ndarray) -> NonlinearKalmanResult:
-    """Filter the bank leg by leg: between legs the estimate is shifted as the truth."""
+def filter_bank(sc: Scenario, name: str, ys: np.ndarray, smooth: bool = False):
+    """Filter the bank leg by leg: between legs the estimate is shifted as the truth.
+
+    With ``smooth``, also the RTS smoother of each leg (a leg's smoother uses that leg's
+    measurements: the observer's manoeuvres bound the smoothing windows); returns
+    (filtered, smoothed x) then, the latter None for the adaptive filter."""
     kf = NonlinearKalmanFilter(sc.f, sc.h, sc.Q, sc.R, filter_transform(name, TOL))
+    asked, smooth = smooth, smooth and name != "adaptive"
     bounds = [0, *sorted(sc.shifts), sc.steps]
     parts: list[NonlinearKalmanResult] = []
+    smoothed = []
     for a, b in zip(bounds[:-1], bounds[1:]):
-        if not parts:
-            res = kf.filter(ys[:, a:b], sc.x0)
+        x0, P0 = (sc.x0, None) if not parts else (parts[-1].x[:, -1] + sc.shifts[a], parts[-1].P[:, -1])
+        if smooth:
+            sres = kf.smooth(ys[:, a:b], x0, P0)
+            res = sres.filtered
+            smoothed.append(sres.x)
         else:
-            res = kf.filter(ys[:, a:b], parts[-1].x[:, -1] + sc.shifts[a], parts[-1].P[:, -1])
+            res = kf.filter(ys[:, a:b], x0, P0)
         parts.append(res)
     keys = ("x", "P", "x_pred", "P_pred", "innovation", "S", "loglik")
     arrays = {k: np.concatenate([getattr(p, k) for p in parts], axis=1) for k in keys}
     choices = None if parts[0].choices is None else np.concatenate([p.choices for p in parts], axis=1)
-    return NonlinearKalmanResult(**arrays, method=parts[0].method, choices=choices)
+    out = NonlinearKalmanResult(**arrays, method=parts[0].method, choices=choices)
+    if not asked:
+        return out
+    return out, (np.concatenate(smoothed, axis=1) if smoothed else None)
 
 
 def mon_along(sc: Scenario, res: NonlinearKalmanResult, runs: int, noisy: bool) -> np.ndarray:
@@ -178,8 +191,8 @@ def mon_along(sc: Scenario, res: NonlinearKalmanResult, runs: int, noisy: bool) 
     return out
 
 
-def _position_rmse(xs: np.ndarray, res: NonlinearKalmanResult) -> np.ndarray:
-    return np.sqrt(np.mean(np.sum((xs[..., :2] - res.x[..., :2]) ** 2, axis=-1), axis=0))
+def _position_rmse(xs: np.ndarray, x: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.mean(np.sum((xs[..., :2] - x[..., :2]) ** 2, axis=-1), axis=0))
 
 
 def study(sc: Scenario, runs: int, seed: int, progress: bool = True) -> dict[str, Any]:
@@ -189,12 +202,13 @@ def study(sc: Scenario, runs: int, seed: int, progress: bool = True) -> dict[str
     out: dict[str, Any] = {"filters": {}, "failed": {}}
     for name in progress_bar(FILTER_NAMES, sc.name, progress):
         try:
-            res = filter_bank(sc, name, ys)
+            res, x_smooth = filter_bank(sc, name, ys, smooth=True)
         except SymmonError as exc:  # a filter that diverged: reported, not plotted
             out["failed"][name] = str(exc)
             continue
         out["filters"][name] = {"result": res, "anees": res.anees(xs, CONFIDENCE), "anis": res.anis(CONFIDENCE),
-                                "rmse": _position_rmse(xs, res)}
+                                "rmse": _position_rmse(xs, res.x),
+                                "rmse_smoothed": None if x_smooth is None else _position_rmse(xs, x_smooth)}
     ekf = out["filters"].get("ekf")
     m = min(runs, MON_RUNS)
     if ekf is not None:
@@ -237,14 +251,16 @@ def _plot(sc: Scenario, st: dict[str, Any], runs: int, path: Path) -> Path:
         style = {"lw": 2.0, "color": "k"} if name == "adaptive" else {"lw": 1.2}
         axes[0].semilogy(k, d["anees"].value, label=name.upper() if name != "adaptive" else "adaptive", **style)
         axes[1].semilogy(k, d["anis"].value, **style)
-        axes[2].semilogy(k, d["rmse"], **style)
+        line, = axes[2].semilogy(k, d["rmse"], **style)
+        if d["rmse_smoothed"] is not None:  # its RTS smoother, dashed in the same colour
+            axes[2].semilogy(k, d["rmse_smoothed"], ls="--", lw=1.0, color=line.get_color())
     if filters:
         any_ = next(iter(filters.values()))
         for ax, t in ((axes[0], any_["anees"]), (axes[1], any_["anis"])):
             ax.axhspan(t.lower, t.upper, color="0.85", zorder=0, label="95 % χ² interval")
     axes[0].set_ylabel("average NEES\n(expected 4)")
     axes[1].set_ylabel(f"average NIS\n(expected {sc.h.n_y})")
-    axes[2].set_ylabel("position RMSE [m]")
+    axes[2].set_ylabel("position RMSE [m]\n(dashed: smoothed)")
     axes[0].legend(ncol=4, fontsize=7)
     if "mon" in st:
         for key, color, label in (("mon", "C3", "MoN of h(x) + e"), ("mon_clean", "C0", "MoN of h(x), no noise")):
@@ -267,6 +283,11 @@ def _plot(sc: Scenario, st: dict[str, Any], runs: int, path: Path) -> Path:
     axes[0].set_title(f"{sc.title}\n{runs} Monte Carlo runs")
     fig.tight_layout()
     return save_figure(fig, path)
+
+
+def _rms(rmse: np.ndarray | None) -> float | None:
+    """The RMSE over the steps, or None (an empty CSV field) when there is none."""
+    return None if rmse is None else float(np.sqrt(np.mean(rmse**2)))
 
 
 @figure_style()
@@ -305,26 +326,27 @@ def run(outdir: Path, runs: int = 500, seed: int = 0, progress: bool = True) -> 
                 f"{c}:{n}" for c, n in zip(*np.unique(res.choices, return_counts=True)))
             summary.append([sc.name, name, runs, sc.steps, float(np.mean(a.value)), float(np.max(a.value)),
                             float(np.mean(a.inside)), float(np.mean(b.value)), float(np.mean(b.inside)),
-                            float(np.sqrt(np.mean(d["rmse"] ** 2))), choices, ""])
+                            float(np.sqrt(np.mean(d["rmse"] ** 2))), _rms(d["rmse_smoothed"]), choices, ""])
         for name, err in st["failed"].items():
-            summary.append([sc.name, name, runs, sc.steps] + [float("nan")] * 6 + ["", err])
+            summary.append([sc.name, name, runs, sc.steps] + [float("nan")] * 7 + ["", err])
         names = list(st["filters"])
         for k in range(sc.steps):
             row = [sc.name, k + 1]
             for name in names:
                 d = st["filters"][name]
-                row += [float(d["anees"].value[k]), float(d["anis"].value[k]), float(d["rmse"][k])]
+                sm_k = None if d["rmse_smoothed"] is None else float(d["rmse_smoothed"][k])
+                row += [float(d["anees"].value[k]), float(d["anis"].value[k]), float(d["rmse"][k]), sm_k]
             if "mon" in st:
                 row += [float(np.median(st["mon"][:, k])), float(np.median(st["mon_clean"][:, k]))]
             if "adaptive" in st["filters"]:
                 row.append(float(np.mean(st["filters"]["adaptive"]["result"].choices[:, k] != "EKF")))
             steps.append((names, row))
     header = ["scenario", "filter", "runs", "steps", "anees_mean", "anees_max", "anees_share_inside",
-              "anis_mean", "anis_share_inside", "position_rmse", "adaptive_choices", "error"]
+              "anis_mean", "anis_share_inside", "position_rmse", "position_rmse_smoothed", "adaptive_choices", "error"]
     files = [write_csv(outdir / "tracking_summary.csv", header, summary)]
     # One step table: the columns of the filters of the first scenario (both run the same).
     names = steps[0][0] if steps else []
-    step_header = ["scenario", "k"] + [f"{n}_{s}" for n in names for s in ("anees", "anis", "rmse")]
+    step_header = ["scenario", "k"] + [f"{n}_{s}" for n in names for s in ("anees", "anis", "rmse", "rmse_smoothed")]
     step_header += ["mon_median", "mon_clean_median", "adaptive_share_not_ekf"]
     files.append(write_csv(outdir / "tracking_steps.csv", step_header, [r for _, r in steps]))
     files.append(write_csv(outdir / "tracking_events.csv",

@@ -42,6 +42,10 @@ def test_summary_has_every_filter_of_both_scenarios_with_sane_numbers(outdir):
         assert int(r["runs"]) == RUNS and r["error"] == ""
         for key in ("anees_mean", "anis_mean", "position_rmse"):
             assert np.isfinite(float(r[key])) and float(r[key]) > 0
+        if r["filter"] == "adaptive":
+            assert r["position_rmse_smoothed"] == ""  # no RTS smoother for the adaptive filter
+        else:  # the smoother uses the later measurements of its leg
+            assert 0 < float(r["position_rmse_smoothed"]) < float(r["position_rmse"])
         assert 0.0 <= float(r["anees_share_inside"]) <= 1.0
     adaptive = [r for r in summary if r["filter"] == "adaptive"]
     for r in adaptive:

@@ -1,0 +1,192 @@
+"""The RTS smoother and the log-likelihood against FilterPy and dynamax (jax.jit, jax.vmap).
+
+    pip install ".[bench]"
+    python benchmarks/smoothers.py [--quick] [--out benchmarks/RESULTS.md]
+
+For n = 4, 10, 30 states (one target in range and bearing; 2 and 6 targets with a range bias
+each, benchmarks/filters.py), K = 100 steps, the unscented filter + RTS smoother
+(``UT(1, 2, 0)``):
+
+- **symmon**: ``kf.smooth(ys, x0)`` (the compiled filter and backward pass; the log-likelihood
+  comes with the filter), one run and a bank of R = 300 runs; first call into a fresh cache
+  (building and compiling the steps) and warm;
+- **dynamax**: ``unscented_kalman_smoother`` under ``jax.jit`` (one run) and
+  ``jax.jit(jax.vmap(...))`` (the bank), float64; first call (tracing and XLA compile) and
+  warm; the same α, β, κ;
+- **FilterPy**: ``UnscentedKalmanFilter.batch_filter`` + ``rts_smoother``, one run (its bank is
+  R times that, measured on a few runs and scaled).
+
+Ratios are peer time / symmon time (> 1: symmon faster). The smoothed means are compared
+(maximum relative difference). dynamax updates before predicting, so it is started at
+symmon's first predicted state and given the same measurements.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+os.environ.setdefault("SYMMON_CACHE", tempfile.mkdtemp(prefix="symmon-bench-smooth-"))
+
+import numpy as np  # noqa: E402
+
+import symmon as sm  # noqa: E402
+from filters import ALPHA, BETA, KAPPA, best, cv_range_bearing, rel_diff, targets, write_section  # noqa: E402
+
+HEADING = "## Smoothers and log-likelihood"
+
+
+def symmon_times(p, ys1, ysR, repeat):
+    kf = sm.NonlinearKalmanFilter(p.f_model, p.h_model, p.Q, p.R, sm.UT(ALPHA, BETA, KAPPA))
+    t0 = time.perf_counter()
+    res = kf.smooth(ys1, p.x0, p.P0)
+    first = time.perf_counter() - t0
+    # A large step runs on CasADi's VM while its C builds in the background (the compile
+    # policy): the warm times below are of the compiled C, once the builds are done.
+    from symmon.filters.smoother import compiled_smoother
+    from symmon.filters.step import _compiled_step
+
+    t0 = time.perf_counter()
+    for lib in (_compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)._lib,
+                compiled_smoother(kf.f_model, kf.transform, kf.angle_states)._lib):
+        lib.wait()
+    built = time.perf_counter() - t0
+    one = best(lambda: kf.smooth(ys1, p.x0, p.P0), repeat)
+    bank = best(lambda: kf.smooth(ysR, p.x0, p.P0, keep=("x", "P")), max(1, repeat // 2))
+    filt = best(lambda: kf.filter(ysR, p.x0, p.P0, keep=()), max(1, repeat // 2))
+    return {"first": first, "built": first + built, "one": one, "bank": bank, "loglik_bank": filt, "res": res}
+
+
+def dynamax_times(p, ys1, ysR, x_pred0, P_pred0, repeat):
+    try:
+        import jax
+    except ImportError:
+        return None
+    jax.config.update("jax_enable_x64", True)
+    import jax.numpy as jnp
+    from dynamax.nonlinear_gaussian_ssm import ParamsNLGSSM, UKFHyperParams
+    from dynamax.nonlinear_gaussian_ssm.inference_ukf import unscented_kalman_filter, unscented_kalman_smoother
+
+    F = jnp.asarray(p.F)
+    h_np = p.hx
+
+    angles = jnp.asarray(p.angles)
+
+    def h(x):
+        # The same h in JAX: range(s) and bearing(s) from the sympy expressions' structure.
+        out = []
+        for i in range(0, p.n_y, 2):
+            blk = i // 2
+            base = 5 * blk if p.n % 5 == 0 and p.n != 4 else 0
+            px, py = x[base], x[base + 1]
+            bias = x[base + 4] if p.n % 5 == 0 and p.n != 4 else 0.0
+            out += [jnp.sqrt(px**2 + py**2) + bias, jnp.arctan2(py, px)]
+        return jnp.stack(out)
+
+    del h_np, angles
+    params = ParamsNLGSSM(initial_mean=jnp.asarray(x_pred0), initial_covariance=jnp.asarray(P_pred0),
+                          dynamics_function=lambda x: F @ x, dynamics_covariance=jnp.asarray(p.Q),
+                          emission_function=h, emission_covariance=jnp.asarray(p.R))
+    hp = UKFHyperParams(alpha=ALPHA, beta=BETA, kappa=KAPPA)
+    smooth = jax.jit(lambda y: unscented_kalman_smoother(params, y, hp).smoothed_means)
+    ll = jax.jit(lambda y: unscented_kalman_filter(params, y, hp).marginal_loglik)
+    bank_smooth = jax.jit(jax.vmap(lambda y: unscented_kalman_smoother(params, y, hp).smoothed_means))
+    bank_ll = jax.jit(jax.vmap(lambda y: unscented_kalman_filter(params, y, hp).marginal_loglik))
+    y1, yR = jnp.asarray(ys1), jnp.asarray(ysR)
+    t0 = time.perf_counter()
+    xs = smooth(y1).block_until_ready()
+    first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    bank_smooth(yR).block_until_ready()
+    first_bank = time.perf_counter() - t0
+    bank_ll(yR).block_until_ready()
+    ll(y1).block_until_ready()
+    return {"first": first, "first_bank": first_bank,
+            "one": best(lambda: smooth(y1).block_until_ready(), repeat),
+            "bank": best(lambda: bank_smooth(yR).block_until_ready(), max(1, repeat // 2)),
+            "loglik_bank": best(lambda: bank_ll(yR).block_until_ready(), max(1, repeat // 2)),
+            "x": np.asarray(xs)}
+
+
+def filterpy_times(p, ys1, repeat):
+    try:
+        from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+    except ImportError:
+        return None
+    F = p.F
+
+    def run():
+        ukf = UnscentedKalmanFilter(p.n, p.n_y, 1.0, p.h, lambda x, dt: F @ x,
+                                    MerweScaledSigmaPoints(p.n, ALPHA, BETA, KAPPA),
+                                    z_mean_fn=p.z_mean, residual_z=p.residual_z)
+        ukf.x, ukf.P, ukf.Q, ukf.R = p.x0.copy(), p.P0.copy(), p.Q, p.R
+        Xs, Ps = ukf.batch_filter(ys1)[:2]
+        return ukf.rts_smoother(Xs, Ps)[0]
+
+    xs = run()
+    return {"one": best(run, max(1, repeat // 3)), "x": xs}
+
+
+def fmt(t):
+    if t is None:
+        return "—"
+    return f"{t * 1e6:.0f} µs" if t < 1e-3 else f"{t * 1e3:.1f} ms" if t < 1 else f"{t:.2f} s"
+
+
+def ratio(a, b):
+    return "—" if a is None or b is None else f"{a / b:.2f}×"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer runs and repeats")
+    ap.add_argument("--out", type=Path, default=None, help="write the section into this Markdown file")
+    a = ap.parse_args()
+    K, R, repeat = (50, 50, 3) if a.quick else (100, 300, 5)
+    load0 = "%.2f" % os.getloadavg()[0]
+    rows = []
+    for p in (cv_range_bearing(), targets(2), targets(6)):
+        _, ys = p.simulate(K, R, seed=0)
+        s = symmon_times(p, ys[0], ys, repeat)
+        res = s["res"]
+        d = dynamax_times(p, ys[0], ys, res.filtered.x_pred[0], res.filtered.P_pred[0], repeat)
+        fp = filterpy_times(p, ys[0], repeat)
+        rows.append((p.n, s, d, fp))
+        print(p.n, {k: v for k, v in s.items() if k != "res"},
+              None if d is None else {k: v for k, v in d.items() if k != "x"}, flush=True)
+    lines = [HEADING, "",
+             f"Generated by `python benchmarks/smoothers.py`: the UKF (`UT({ALPHA:g}, {BETA:g}, {KAPPA:g})`) and its "
+             f"RTS smoother over K = {K} steps, one run and a bank of R = {R}; dynamax under `jax.jit` / "
+             "`jax.jit(jax.vmap)` in float64; FilterPy `batch_filter` + `rts_smoother` (its bank: R × one run). "
+             "Ratios: peer / symmon (> 1: symmon faster); first calls compile into a fresh cache (symmon) or "
+             f"trace and compile (JAX); in parentheses, until symmon's background C builds are done (the first call "
+             "returns on CasADi's VM while they run). Load average before / after: {load0} / {os.getloadavg()[0]:.2f}.", "",
+             "| n | symmon first call (C built) | dynamax first call (one / bank) | symmon one run | dynamax jit | FilterPy "
+             "| symmon bank | dynamax vmap | log-lik. bank: symmon / dynamax | dynamax / symmon: one, bank, log-lik. "
+             "| FilterPy / symmon | agreement (dynamax, FilterPy) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for n, s, d, fp in rows:
+        dd = d or {}
+        agree_d = "—" if d is None else f"{rel_diff(s['res'].x, d['x']):.1e}"
+        agree_f = "—" if fp is None else f"{rel_diff(s['res'].x, fp['x']):.1e}"
+        lines.append(
+            f"| {n} | {fmt(s['first'])} ({fmt(s['built'])}) | {fmt(dd.get('first'))} / {fmt(dd.get('first_bank'))} | {fmt(s['one'])} "
+            f"| {fmt(dd.get('one'))} | {fmt(None if fp is None else fp['one'])} | {fmt(s['bank'])} "
+            f"| {fmt(dd.get('bank'))} | {fmt(s['loglik_bank'])} / {fmt(dd.get('loglik_bank'))} "
+            f"| {ratio(dd.get('one'), s['one'])}, {ratio(dd.get('bank'), s['bank'])}, "
+            f"{ratio(dd.get('loglik_bank'), s['loglik_bank'])} | {ratio(None if fp is None else fp['one'], s['one'])} "
+            f"| {agree_d}, {agree_f} |")
+    text = "\n".join(lines)
+    print(text)
+    if a.out:
+        write_section(a.out, text, HEADING)
+
+
+if __name__ == "__main__":
+    main()
