@@ -577,3 +577,13 @@ def check_param_values(params: Sequence[sp.Symbol], values: dict | None, name: s
             raise ModelError(f"parameter {n!r} must be finite, got {val}")
         out[n] = val
     return out
+
+
+def with_param_values(model, params: dict | None):
+    """``model`` with its parameters substituted when ``params`` is given (:meth:`Model.with_params`);
+    unchanged otherwise (a model with parameters then asks for their values where it is
+    compiled).  The ``params=`` of :func:`symmon.propagate` and the measures: the model is
+    compiled once per distinct set of values (the filters take them as inputs instead)."""
+    if params is None or not isinstance(model, Model):
+        return model
+    return model.with_params(params)

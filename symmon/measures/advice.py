@@ -51,7 +51,7 @@ from ..core.angles import wrap_angle
 from ..errors import ArgumentTypeError, SymmonError
 from ..core.gaussian import Gaussian
 from ..core.mixture import Empirical
-from ..core.model import Model
+from ..core.model import Model, with_param_values
 from ..propagation.joint import JointMoments
 from .mon import nonlinearity
 from ..propagation.front import propagate
@@ -307,7 +307,7 @@ def _timed(model: Model, u: Gaussian, v: Gaussian | None, t: Transform) -> tuple
 
 def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = DEFAULT_TOL, weight: Any = "full",
            candidates: Sequence[tuple[str, Transform]] | None = None, samples: int = 10**6,
-           seed: int = 0) -> Advice:
+           seed: int = 0, params: dict | None = None) -> Advice:
     """Estimate the error of each candidate transform's moments and pick the cheapest within ``tol``.
 
     The reference is Gauss–Hermite of order 7 when its two-order error estimate (order 9)
@@ -337,6 +337,10 @@ def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = DE
     samples, seed : int
         Of the Monte Carlo reference, when Gauss–Hermite does not converge.
 
+    params : dict, optional
+        Values of the model's parameters (``Model(params=...)``), substituted before the
+        model is compiled (:meth:`symmon.Model.with_params`).
+
     Returns
     -------
     Advice
@@ -351,6 +355,7 @@ def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = DE
     >>> a.choice_name, a.tol
     ('TT1', 0.01)
     """
+    model = with_param_values(model, params)
     if not isinstance(model, Model):
         raise ArgumentTypeError(f"model must be a symmon.Model, got {type(model).__name__}")
     if isinstance(u, Empirical):  # particles: every rule gives the same exact weighted sums

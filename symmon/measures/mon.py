@@ -27,7 +27,7 @@ from ..errors import ArgumentError, NonFiniteError
 from ..core.gaussian import Gaussian
 from ..core.mixture import Empirical, GaussianMixture
 from .formula import MonParts, NonlinearityMeasure, mon_from_moments
-from ..core.model import Model
+from ..core.model import Model, with_param_values
 from ..propagation.joint import JointMoments
 from ..propagation.front import check_noise_given, check_transform, propagate, propagate_mixture
 from ..propagation.mixing import is_mixture, mixed_leave_one_out
@@ -41,8 +41,8 @@ __all__ = ["NonlinearityMeasure", "MonParts", "nonlinearity", "compare", "format
 
 # --------------------------------------------------------------------------- public API
 def nonlinearity(model: Model, u: Gaussian | GaussianMixture, v: Gaussian | GaussianMixture | None = None, *,
-                 weight: Any = "full", transform: Transform | None = None, executor: Any = None
-                 ) -> NonlinearityMeasure:
+                 weight: Any = "full", transform: Transform | None = None, executor: Any = None,
+                 params: dict | None = None) -> NonlinearityMeasure:
     """The measure of nonlinearity of y = g(u, v).
 
     Parameters
@@ -77,6 +77,10 @@ def nonlinearity(model: Model, u: Gaussian | GaussianMixture, v: Gaussian | Gaus
     executor : Executor, optional
         Where a stochastic transform's replicates run (:func:`symmon.propagate`).
 
+    params : dict, optional
+        Values of the model's parameters (``Model(params=...)``), substituted before the
+        model is compiled (:meth:`symmon.Model.with_params`).
+
     Returns
     -------
     NonlinearityMeasure
@@ -88,6 +92,7 @@ def nonlinearity(model: Model, u: Gaussian | GaussianMixture, v: Gaussian | Gaus
     >>> round(float(sm.nonlinearity(sm.Model([x], [x**2]), sm.Gaussian([0.0], [[1.0]]))), 12)
     1.0
     """
+    model = with_param_values(model, params)
     tr = check_transform(transform)
     if isinstance(u, Empirical):
         return _empirical_nonlinearity(model, u, v, weight, tr, executor)
@@ -177,7 +182,8 @@ def _mc_stderr(m: JointMoments, model: Model, weight, Sc: np.ndarray, Sc_loo: np
 
 def compare(model: Model, u: Gaussian | GaussianMixture, v: Gaussian | GaussianMixture | None = None, *,
             weight: Any = "full",
-            transforms: Sequence[Transform] | None = None, executor: Any = None) -> list[dict]:
+            transforms: Sequence[Transform] | None = None, executor: Any = None,
+            params: dict | None = None) -> list[dict]:
     """The MoN by every transform, as rows of a table.
 
     Parameters
@@ -189,11 +195,16 @@ def compare(model: Model, u: Gaussian | GaussianMixture, v: Gaussian | GaussianM
         Default: the registry's comparison set
         (:func:`~symmon.transforms.registry.compare_set`).
 
+    params : dict, optional
+        Values of the model's parameters (``Model(params=...)``), substituted before the
+        model is compiled (:meth:`symmon.Model.with_params`).
+
     Returns
     -------
     list of dict
         Keys ``transform``, ``value``, ``stderr`` (Monte Carlo only) and ``evaluations``.
     """
+    model = with_param_values(model, params)
     if transforms is None:
         transforms = compare_set()
     rows = []

@@ -12,7 +12,7 @@ from ..compile import compiled
 from ..errors import ArgumentTypeError, ModelError, ShapeError
 from ..core.gaussian import Gaussian
 from ..core.mixture import Empirical, GaussianMixture
-from ..core.model import Model
+from ..core.model import Model, with_param_values
 from .joint import JointMoments
 from .particles import propagate_empirical
 from .mixing import ComponentBatch, component_batch, is_mixture, mix_batch
@@ -63,7 +63,7 @@ def joint_input(model: Model, u: Gaussian, v: Gaussian | None) -> tuple[np.ndarr
 
 def propagate(model: Model, u: Gaussian | GaussianMixture | Empirical,
               v: Gaussian | GaussianMixture | None = None, *, transform: Transform | None = None,
-              executor: Any = None) -> JointMoments:
+              executor: Any = None, params: dict | None = None) -> JointMoments:
     """E y, Cov y and Cov(y, u) of y = g(u, v) by a transform.
 
     Parameters
@@ -92,6 +92,10 @@ def propagate(model: Model, u: Gaussian | GaussianMixture | Empirical,
     executor : Executor, optional
         Where a stochastic transform's replicates run (threads, Dask, progress);
         default: the transform's own.  It never changes the numbers.
+    params : dict, optional
+        Values of the model's parameters (``Model(params=...)``), substituted before the
+        model is compiled (:meth:`symmon.Model.with_params`; the filters take them as
+        inputs of their compiled step instead).
 
     Returns
     -------
@@ -118,6 +122,7 @@ def propagate(model: Model, u: Gaussian | GaussianMixture | Empirical,
     >>> float(m.mean[0]), float(m.cov[0, 0])
     (2.0, 6.0)
     """
+    model = with_param_values(model, params)
     tr = check_transform(transform)
     if isinstance(u, Empirical):
         check_noise_given(model, v)
@@ -194,7 +199,7 @@ def input_batch(model: Model, u: Any, v: Any = None) -> tuple[np.ndarray, np.nda
 
 
 def propagate_many(model: Model, u: Any, v: Any = None, *, transform: Transform | None = None,
-                   executor: Any = None) -> Moments:
+                   executor: Any = None, params: dict | None = None) -> Moments:
     """:func:`propagate` for K input Gaussians at once (one batched evaluation).
 
     Parameters
@@ -212,6 +217,10 @@ def propagate_many(model: Model, u: Any, v: Any = None, *, transform: Transform 
     executor : Executor, optional
         As in :func:`propagate`.
 
+    params : dict, optional
+        Values of the model's parameters (``Model(params=...)``), substituted before the
+        model is compiled (:meth:`symmon.Model.with_params`).
+
     Returns
     -------
     Moments
@@ -227,6 +236,7 @@ def propagate_many(model: Model, u: Any, v: Any = None, *, transform: Transform 
     >>> b.mean[:, 0]  # E x² = m² + P
     array([1., 3.])
     """
+    model = with_param_values(model, params)
     tr = check_transform(transform)
     if _has_mixture(u, v):
         us, vs = _mixture_items(model, u, v)

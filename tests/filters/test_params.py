@@ -149,10 +149,22 @@ def test_model_parameters_are_declared_and_substituted():
     assert h != h.with_params({"b": 0.0}) and hash(h) == hash(models()[1])
 
 
-def test_other_evaluators_ask_for_the_values():
+def test_other_evaluators_take_params_or_ask_for_them():
     _, h = models()
+    u = sm.Gaussian(X0, P0)
     with pytest.raises(ModelError, match=r"with_params\(\{\.\.\.\}\)"):
-        sm.propagate(h, sm.Gaussian(X0, P0))
+        sm.propagate(h, u)
+    sub = h.with_params({"b": 0.5})
+    a, c = sm.propagate(h, u, params={"b": 0.5}), sm.propagate(sub, u)
+    np.testing.assert_array_equal(a.mean, c.mean)
+    many = sm.propagate_many(h, [u, u], params={"b": 0.5})
+    np.testing.assert_array_equal(many.mean[0], c.mean)
+    assert sm.nonlinearity(h, u, params={"b": 0.5}).value == sm.nonlinearity(sub, u).value
+    assert [r["value"] for r in sm.compare(h, u, params={"b": 0.5}, transforms=[sm.TT2()])] == \
+        [r["value"] for r in sm.compare(sub, u, transforms=[sm.TT2()])]
+    assert sm.advise(h, u, params={"b": 0.5}, samples=10**4).choice_name == sm.advise(sub, u, samples=10**4).choice_name
+    with pytest.raises(ModelError, match="needs values"):
+        sm.nonlinearity(h, u, params={})
     m = sm.propagate(h.with_params({"b": 0.5}), sm.Gaussian(X0, P0), transform=sm.TT1())
     base = sm.propagate(models(False, False)[1], sm.Gaussian(X0, P0), transform=sm.TT1())
     close(m.mean, base.mean + [0.5, 0.0])
