@@ -35,6 +35,7 @@ from numpy.typing import ArrayLike
 
 from ..errors import ArgumentTypeError, ShapeError, SymmonError
 from ..core.gaussian import Gaussian
+from ..core.mixture import GaussianMixture
 from ..core.model import Model
 from .mon import mon_from_moments, nonlinearity
 from ..propagation.front import check_transform, input_batch, propagate_many
@@ -208,8 +209,11 @@ def sweep_alpha(model: Model, u: Gaussian, alphas: ArrayLike, v: Gaussian | None
     Parameters
     ----------
     model : Model
-    u : Gaussian
-        N(ū, P): the distribution at α = 1.
+    u : Gaussian or GaussianMixture
+        N(ū, P): the distribution at α = 1.  A mixture is scaled about its mean, each
+        component's mean offset by √α and its covariance by α (so Cov u scales by α); as
+        for mixtures in :func:`sweep_states`, with a deterministic transform on a
+        noise-free model.
     alphas : array_like (K,)
         Positive covariance scales.
     v : Gaussian, optional
@@ -241,8 +245,17 @@ def sweep_alpha(model: Model, u: Gaussian, alphas: ArrayLike, v: Gaussian | None
     array([0.2       , 0.33333333, 0.5       ])
     """
     model = _check_model(model)
+    if isinstance(u, GaussianMixture):
+        if u.dim != model.n_u:
+            raise ShapeError(f"u has dimension {u.dim} but the model has {model.n_u} inputs")
+        a = _check_alphas(alphas)
+        # The mixture scaled about its mean: each component's offset by √α and its
+        # covariance by α, so the whole mixture's covariance is α Cov u, as (14) for a Gaussian.
+        scaled = [GaussianMixture(u.weights, u.mean + np.sqrt(s) * (u.means - u.mean), s * u.covs) for s in a]
+        res = sweep_states(model, scaled, v, weight=weight, transform=transform, executor=executor, crn=crn)
+        return dataclasses.replace(res, param=a)
     if not isinstance(u, Gaussian):
-        raise ArgumentTypeError(f"u must be a symmon.Gaussian, got {type(u).__name__}")
+        raise ArgumentTypeError(f"u must be a symmon.Gaussian or GaussianMixture, got {type(u).__name__}")
     if u.dim != model.n_u:
         raise ShapeError(f"u has dimension {u.dim} but the model has {model.n_u} inputs")
     a = _check_alphas(alphas)

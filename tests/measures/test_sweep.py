@@ -184,3 +184,24 @@ def test_bad_arguments():
     noisy = sm.Model([x], [x + e], noise=[e], name="sweep_needs_v")
     with pytest.raises(ModelError, match="noise symbols"):
         sweep_states(noisy, (np.zeros((1, 1)), np.ones((1, 1, 1))))
+
+
+def test_sweep_alpha_of_a_mixture_scales_it_about_its_mean():
+    """A one-component mixture sweeps as its Gaussian; a two-component one gives at each α the
+    MoN of the mixture with offsets ×√α and covariances ×α (total covariance ×α)."""
+    import symmon as sm
+    from symmon.measures.sweep import sweep_alpha
+
+    x = sp.Symbol("x", real=True)
+    m = sm.Model([x], [x**2 + sp.sin(x)], name="x2 sin")
+    alphas = [0.25, 1.0, 4.0]
+    one = sm.GaussianMixture([1.0], [[1.0]], [[[0.5]]])
+    np.testing.assert_allclose(sweep_alpha(m, one, alphas, transform=sm.GaussHermite(7)).squared,
+                               sweep_alpha(m, sm.Gaussian([1.0], [[0.5]]), alphas, transform=sm.GaussHermite(7)).squared,
+                               rtol=1e-12)
+    mix = sm.GaussianMixture([0.3, 0.7], [[0.0], [2.0]], [[[0.5]], [[0.2]]])
+    res = sweep_alpha(m, mix, alphas, transform=sm.GaussHermite(7))
+    for a, value in zip(alphas, res.value):
+        scaled = sm.GaussianMixture(mix.weights, mix.mean + np.sqrt(a) * (mix.means - mix.mean), a * mix.covs)
+        assert np.allclose(scaled.cov, a * mix.cov, rtol=1e-12)
+        assert value == pytest.approx(sm.nonlinearity(m, scaled, transform=sm.GaussHermite(7)).value, rel=1e-12)
