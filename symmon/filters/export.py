@@ -21,10 +21,12 @@ parameters (``Model(params=...)``) the function whose model uses them takes ``co
 
 The step is the filter's own (:mod:`symmon.filters.step`): the same CasADi graphs of the
 time update and of the measurement update (Lemma 7.1 of Gustafsson & Hendeby), with Q and
-R fixed at export, angle states and angle measurements wrapped as in the filter.  It is
-always built in MX: the products with P, the Cholesky factors, the map over the points and
-the gain solve are matrix nodes around small SX functions of f, h and their derivatives'
-nonzeros, so the C has loops and grows with the nonzeros, not with n³ (docs/export.md).
+R fixed at export, angle states and angle measurements wrapped as in the filter, and the
+filter's choice of graph: straight-line SX for small filters (below ``MX_FROM`` variables
+and ``MAX_SX_POINTS`` points: the fastest C, a few tens of KB), else MX, whose products with
+P, Cholesky factors, map over the points and gain solve are matrix nodes around small SX
+functions of f, h and their derivatives' nonzeros, so the C has loops and grows with the
+nonzeros, not with n³ (docs/export.md).
 Positive definiteness is tested by the pivots of a Cholesky factor of S and of the new P.
 
 Also written: ``NAME_example.c``, a program that reads x0, P0 and measurements from stdin
@@ -49,12 +51,11 @@ import casadi as ca
 import numpy as np
 
 from ..codegen.export import c_prefix, strict_c
-from ..codegen.symbolic import chol_node
 from ..compile.cnames import c_identifier, comment_text
 from ..errors import ArgumentTypeError, SymmonError
 from ..io import atomic_write_text, check_output_dir
 from ..version import __version__
-from .step import predict_graph, select_params, update_graph
+from .step import predict_graph, select_params, step_kind, update_graph
 from .strategy import RuleStrategy
 
 if TYPE_CHECKING:  # pragma: no cover - annotations only
@@ -102,11 +103,13 @@ def filter_functions(kf: "NonlinearKalmanFilter", name: str) -> dict[str, ca.Fun
     transform = _transform(kf)
     f, h = kf.f_model, kf.h_model
     n, n_y = f.n_u, h.n_y
-    chol = chol_node
+    # The filter step's own choice (symmon.filters.step.step_kind): straight-line SX for small
+    # filters (the fastest C, and short), MX with loops from MX_FROM variables on.
+    kind, chol = step_kind(f, h, transform)
     Q, R = ca.DM(np.asarray(kf.Q, dtype=float)), ca.DM(np.asarray(kf.R, dtype=float))
-    x, P, y = ca.MX.sym("x", n), ca.MX.sym("P", n, n), ca.MX.sym("y", n_y)
+    x, P, y = kind.sym("x", n), kind.sym("P", n, n), kind.sym("y", n_y)
     names = kf.params
-    p = ca.MX.sym("p", len(names))
+    p = kind.sym("p", len(names))
     x_pred, P_pred = predict_graph(f, transform, kf.angle_states, x, P, Q, chol, select_params(f, names, p))
 
     def pivot(A):
@@ -114,16 +117,17 @@ def filter_functions(kf: "NonlinearKalmanFilter", name: str) -> dict[str, ca.Fun
         # negative pivot), where fmin would skip the NaN.
         return ca.mmin(ca.diag(chol(A)) > 0)
 
+    opts = {"cse": True} if kind is ca.SX else {}
     # A function takes p when its model has parameters: (x, P, p) and (x, P, p, y).
     pf, ph = ([p], ["p"]) if f.n_p else ([], []), ([p], ["p"]) if h.n_p else ([], [])
     predict = ca.Function(f"{name}_predict_step", [x, P, *pf[0]],
                           [ca.densify(x_pred), ca.densify(P_pred), pivot(P_pred)],
-                          ["x", "P", *pf[1]], ["x_pred", "P_pred", "pd_P"])
+                          ["x", "P", *pf[1]], ["x_pred", "P_pred", "pd_P"], opts)
     x_new, P_new, _, S, loglik = update_graph(h, transform, kf.angle_states, x, P, y, R, chol, None,
                                               select_params(h, names, p), kf.iterations)
     update = ca.Function(f"{name}_update_step", [x, P, *ph[0], y],
                          [ca.densify(x_new), ca.densify(P_new), loglik, pivot(S), pivot(P_new)],
-                         ["x", "P", *ph[1], "y"], ["x_new", "P_new", "loglik", "pd_S", "pd_P"])
+                         ["x", "P", *ph[1], "y"], ["x_new", "P_new", "loglik", "pd_S", "pd_P"], opts)
     return {"predict": predict, "update": update}
 
 

@@ -188,8 +188,11 @@ def test_embedded_constraints(tmp_path):
     assert res.returncode == 0, res.stderr
     symbols = subprocess.run(["nm", str(obj)], capture_output=True, text=True, check=True).stdout.split("\n")
     undefined = {ln.split()[-1] for ln in symbols if re.match(r"\s+U ", ln)}
-    assert undefined <= {"sqrt", "sin", "cos", "atan2", "log", "fmin", "fmax", "floor", "memcpy", "memset",
-                         "fabs", "exp", "pow", "tan", "atan", "hypot"}, undefined
+    # gcc on a glibc target fuses sin(a) and cos(a) into one sincos call; the source has only
+    # the <math.h> functions (a compiler for a target without sincos calls them apart).
+    assert "sincos" not in paths[0].read_text()
+    assert undefined <= {"sqrt", "sin", "cos", "sincos", "atan2", "log", "fmin", "fmax", "floor", "memcpy",
+                         "memset", "fabs", "exp", "pow", "tan", "atan", "hypot"}, undefined
     # Writable data (D, B, d, b: data and bss) is global mutable state.
     writable = [ln for ln in symbols if re.match(r"\S*\s+[DdBb] ", ln)]
     assert not writable, writable
