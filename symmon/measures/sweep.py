@@ -252,7 +252,11 @@ def sweep_alpha(model: Model, u: Gaussian, alphas: ArrayLike, v: Gaussian | None
         # The mixture scaled about its mean: each component's offset by √α and its
         # covariance by α, so the whole mixture's covariance is α Cov u, as (14) for a Gaussian.
         scaled = [GaussianMixture(u.weights, u.mean + np.sqrt(s) * (u.means - u.mean), s * u.covs) for s in a]
-        res = sweep_states(model, scaled, v, weight=weight, transform=transform, executor=executor, crn=crn)
+        try:
+            res = sweep_states(model, scaled, v, weight=weight, transform=transform, executor=executor, crn=crn)
+        except ArgumentTypeError as exc:
+            raise ArgumentTypeError(f"sweep_alpha takes a GaussianMixture with a deterministic transform on a "
+                                    f"noise-free model only, as sweep_states ({exc})") from None
         return dataclasses.replace(res, param=a)
     if not isinstance(u, Gaussian):
         raise ArgumentTypeError(f"u must be a symmon.Gaussian or GaussianMixture, got {type(u).__name__}")

@@ -167,7 +167,9 @@ def test_what_takes_no_mixture_or_particles_says_so():
     from symmon.errors import ArgumentTypeError
     with pytest.raises(ArgumentTypeError, match="u must be a list of K Gaussians"):
         sm.sweep.sweep_states(SMOOTH, [U], transform=sm.MonteCarlo(n=1000, seed=0))
-    with pytest.raises(ArgumentTypeError, match="u must be a symmon.Gaussian"):
-        sm.sweep.sweep_alpha(SMOOTH, U, [0.5, 1.0])
+    with pytest.raises(ArgumentTypeError, match="sweep_alpha takes a GaussianMixture with a deterministic"):
+        sm.sweep.sweep_alpha(SMOOTH, U, [0.5, 1.0], transform=sm.MonteCarlo(n=1000, seed=0))
+    with pytest.raises(ArgumentTypeError, match="u must be a symmon.Gaussian or GaussianMixture"):
+        sm.sweep.sweep_alpha(SMOOTH, sm.Empirical(U.sample(50, 0)), [0.5, 1.0])
     with pytest.raises(ArgumentTypeError, match="particles need none"):
         sm.advise(SMOOTH, sm.Empirical(U.sample(500, 0)))
