@@ -270,13 +270,11 @@ class Empirical(_WeightedMeasure):
 
     Attributes
     ----------
-    samples : ndarray (N, n), read-only
-    weights : ndarray (N,), read-only, summing to 1
-    mean : ndarray (n,)
-        Σ_i w_i x_i.
-    cov : ndarray (n, n)
-        Σ_i w_i (x_i − mean)(x_i − mean)ᵀ: the covariance *of the empirical measure*
-        (no N/(N − 1) correction; it is what the moments of y are exact for).
+    samples, weights : ndarray (N, n) and (N,), read-only
+        The particles, and their weights normalised to sum to 1.
+    mean, cov : ndarray (n,) and (n, n), read-only
+        Σ_i w_i x_i, and Σ_i w_i (x_i − mean)(x_i − mean)ᵀ: the covariance *of the empirical
+        measure* (no N/(N − 1) correction; it is what the moments of y are exact for).
     ess : float
         The effective sample size 1 / Σ w_i² (the particle-filter convention) for the normalised
         weights: N for equal weights, 1 when one particle holds all the weight.
