@@ -85,6 +85,38 @@ def to_casadi(exprs: Sequence[sp.Expr], symbols: Sequence[sp.Symbol], xs: ca.SX)
     return [walk(sp.sympify(e)) for e in exprs]
 
 
+def _squares(e: sp.Basic) -> list[sp.Expr] | None:
+    """The a_i of e = Σ a_i² (at least two terms), else None."""
+    if not e.is_Add or len(e.args) < 2:
+        return None
+    if all(isinstance(t, sp.Pow) and t.exp == 2 for t in e.args):
+        return [t.base for t in e.args]
+    return None
+
+
+def _careful(e: sp.Basic, walk: Callable):
+    """The numerically careful C99 functions for the forms that sympy writes out: sqrt(Σ a_i²)
+    as nested hypot (no underflow of tiny, no overflow of huge a_i), exp(a) − 1 as expm1(a) and
+    log(1 + a) as log1p(a) (no loss of every digit near a = 0).  The same functions, so the
+    derivatives (CasADi's own) and the NaN of an undefined point are unchanged; None when
+    ``e`` is none of these forms."""
+    if isinstance(e, sp.Pow) and e.exp in (sp.Rational(1, 2), -sp.Rational(1, 2)):
+        terms = _squares(e.base)
+        if terms is not None:
+            r = functools.reduce(ca.hypot, [walk(a) for a in terms])
+            return r if e.exp > 0 else 1 / r
+    if e.is_Add and sp.S.NegativeOne in e.args:
+        exps = [t for t in e.args if isinstance(t, sp.exp)]
+        if exps:
+            rest = [t for t in e.args if t is not exps[0] and t != sp.S.NegativeOne]
+            out = ca.expm1(walk(exps[0].args[0]))
+            return functools.reduce(lambda a, b: a + b, [walk(t) for t in rest], out)
+    if isinstance(e, sp.log) and len(e.args) == 1 and e.args[0].is_Add and sp.S.One in e.args[0].args:
+        rest = sp.Add(*[t for t in e.args[0].args if t != sp.S.One])
+        return ca.log1p(walk(rest))
+    return None
+
+
 def _convert(e: sp.Basic, walk: Callable):
     if e.is_Number:
         if e.is_real is False or not e.is_finite:
@@ -98,6 +130,9 @@ def _convert(e: sp.Basic, walk: Callable):
         return ca.SX(np.e)
     if e.is_Symbol:
         raise UnsupportedFunctionError(f"unknown symbol {e} in expression")
+    careful = _careful(e, walk)
+    if careful is not None:
+        return careful
     op = _NARY.get(e.func)
     if op is not None:
         return functools.reduce(op, [walk(a) for a in e.args])
