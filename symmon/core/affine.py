@@ -106,14 +106,18 @@ def scale_matrix(S: Any, n: int, name: str) -> sp.Matrix:
             raise SymmonError(f"{name}[{i},{i}] = {M[i, i]} is not positive: a scale matrix is positive definite (18)")
     if not M.free_symbols:
         A = np.array(M.evalf(), dtype=float)
-        sym = 0.5 * (A + A.T)
-        scale = float(np.max(np.abs(A)))
-        if np.linalg.matrix_rank(A) < n:
+        # Tested with the diagonal scaled to 1 (the diagonal is positive, checked above): a
+        # scale of 1e-6 beside one of 1e6 (µm and km) is no less definite than two of 1.
+        r = 1.0 / np.sqrt(np.diag(A))
+        B = r[:, None] * A * r[None, :]
+        sym = 0.5 * (B + B.T)
+        if np.linalg.matrix_rank(B) < n:
             raise SingularMatrixError(f"{name} is singular: a change of units must be invertible (18)")
-        if np.linalg.eigvalsh(sym)[0] <= _PD_RTOL * scale:
+        if np.linalg.eigvalsh(sym)[0] <= _PD_RTOL:
             raise SymmonError(
-                f"{name} is not positive definite (smallest eigenvalue of its symmetric part "
-                f"{np.linalg.eigvalsh(sym)[0]:.3g}); (18) requires positive definite scale matrices"
+                f"{name} is not positive definite (smallest eigenvalue of the symmetric part of "
+                f"diag^-1/2 {name} diag^-1/2: {np.linalg.eigvalsh(sym)[0]:.3g}); (18) requires positive "
+                "definite scale matrices"
             )
         if M.det() == 0:
             raise SingularMatrixError(f"{name} is singular: a change of units must be invertible (18)")

@@ -31,7 +31,8 @@ from ..propagation.joint import JointMoments
 
 __all__ = ["MonParts", "NonlinearityMeasure", "mon_from_moments", "SINGULAR_COND"]
 
-#: Condition number above which Σ_uu is treated as singular (pseudo-inverse on its range).
+#: Condition number of Σ_uu's correlation matrix (the same in any units of u) above which Σ_uu is
+#: treated as singular (a generalised inverse on its range).
 SINGULAR_COND = 1e12
 
 
@@ -123,16 +124,23 @@ class NonlinearityMeasure(MonParts):
 
 
 def _inv_uu(Suu: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
-    cond = np.linalg.cond(Suu)
+    """Σ_uu⁻¹, or a generalised inverse when Σ_uu is singular, decided on its correlation matrix
+    (the same in any units of u: inputs in mm and in rad are not "singular")."""
+    d = np.diag(Suu)
+    r = np.where(d > 0, 1.0 / np.sqrt(np.where(d > 0, d, 1.0)), 0.0)
+    corr = r[:, None] * Suu * r[None, :]
+    cond = np.linalg.cond(corr) if np.all(d > 0) else np.inf
     if np.isfinite(cond) and cond < SINGULAR_COND:
-        return np.linalg.inv(Suu), ()
-    w = np.linalg.eigvalsh(Suu)
-    rank = int(np.sum(w > w[-1] * 1e-12))
+        return r[:, None] * np.linalg.inv(corr) * r[None, :], ()
+    w = np.linalg.eigvalsh(0.5 * (corr + corr.T))
+    rank = int(np.sum(w > max(w[-1], 0.0) * 1e-12))
     note = (
         f"Σ_uu is singular (rank {rank} of {Suu.shape[0]}): the pseudo-inverse was used, "
         "i.e. the best affine fit on the informative subspace of u"
     )
-    return np.linalg.pinv(Suu, rcond=1e-12, hermitian=True), (note,)
+    # A generalised inverse in scaled coordinates: Σ_yu G Σ_uy is the same for every one,
+    # as Σ_uy lies in the range of Σ_uu.
+    return r[:, None] * np.linalg.pinv(corr, rcond=1e-12, hermitian=True) * r[None, :], (note,)
 
 
 @np.errstate(over="ignore", divide="ignore", invalid="ignore")  # a non-finite result raises below

@@ -58,6 +58,12 @@ NAMED = tuple(NAMED_WEIGHTS)
 NORMALIZATION_TOL = 1e-8
 
 
+#: A correlation matrix with a smallest eigenvalue at or below this is singular: the test of
+#: W^full's Σ_gg, the same in any units of the outputs (issue 26: not a test on Σ_gg's own
+#: eigenvalues, whose scale is the units').
+SINGULAR_CORR = 1e-12
+
+
 def base_scale(Sgg: np.ndarray) -> np.ndarray:
     """S_y = diag(√diag Σ_gg): the scale to base units, where each output has unit variance."""
     d = np.diag(Sgg)
@@ -168,16 +174,25 @@ def resolve(weight, Sgg: np.ndarray) -> tuple[np.ndarray, str]:
             S = base_scale(Sgg)
             return np.linalg.inv(S @ S) / n, weight  # (42)
         if weight == "full":
-            lam, V = np.linalg.eigh(Sgg)
-            scale = max(float(np.abs(Sgg).max()), np.finfo(float).tiny)
-            if lam[0] <= 1e-12 * scale:
-                combo = " + ".join(f"{c:.3g}*y{i}" for i, c in enumerate(V[:, 0]) if abs(c) > 1e-6)
+            # Decided on the correlation matrix, which a change of the outputs' units leaves
+            # alone (a test on Σ_gg itself called a range in mm and a bearing in rad singular).
+            d = np.diag(Sgg)
+            if np.any(d <= 0):
+                zero = np.flatnonzero(d <= 0)
                 raise SingularMatrixError(
-                    f"Σ_gg is singular (eigenvalue {lam[0]:.3g}): the output combination "
-                    f"{combo} has no variance, so W^full = Σ_gg⁻¹/n_y (43) does not exist; "
-                    "use weight='diag'"
+                    f"Σ_gg is singular: outputs {zero.tolist()} have no variance, so W^full = Σ_gg⁻¹/n_y "
+                    "(43) does not exist")
+            r = 1.0 / np.sqrt(d)
+            corr = r[:, None] * Sgg * r[None, :]
+            lam, V = np.linalg.eigh(0.5 * (corr + corr.T))
+            if lam[0] <= SINGULAR_CORR:
+                combo = " + ".join(f"{c:.3g}*y{i}/σ_{i}" for i, c in enumerate(V[:, 0]) if abs(c) > 1e-6)
+                raise SingularMatrixError(
+                    f"Σ_gg is singular (smallest eigenvalue of its correlation matrix {lam[0]:.3g}): the output "
+                    f"combination {combo} (σ_i the standard deviation of y_i) has no variance, so "
+                    "W^full = Σ_gg⁻¹/n_y (43) does not exist; use weight='diag'"
                 )
-            return np.linalg.inv(Sgg) / n, weight  # (43)
+            return r[:, None] * np.linalg.inv(corr) * r[None, :] / n, weight  # (43), in the units of y
         raise SymmonError(f"unknown weight {weight!r}: use one of {NAMED}, a matrix W̄ or weights.general(...)")
     S = base_scale(Sgg)
     Sinv = np.linalg.inv(S)
