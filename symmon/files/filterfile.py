@@ -92,6 +92,9 @@ __all__ = ["FilterSpec", "load_filter_file", "simulate", "FILTERS", "filter_tran
 FILTERS = {"ekf": TT1(), "ekf2": TT2(), "ukf": UT.ut1(), "ckf": UT.cubature(), "gh": GaussHermite(3)}
 #: Largest number of steps of a scenario (the bank holds runs × steps × n² numbers).
 MAX_STEPS = 100_000
+#: The most numbers :func:`simulate` holds (truth and measurements of every run and step):
+#: 2·10⁸, 1.5 GiB, so that runs × steps is bounded jointly before any memory is taken.
+MAX_SIMULATED = 2 * 10**8
 
 _KEYS = ("name", "states", "dynamics", "measurements", "angles", "state_angles", "steps", "params", "Q", "R", "x0",
          "process_noise", "measurement_noise", "units")
@@ -267,9 +270,19 @@ def simulate(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, ste
     -------
     xs : ndarray, shape (runs, steps, n)
     ys : ndarray, shape (runs, steps, n_y)
+
+    Raises
+    ------
+    SymmonError
+        If runs × steps × (n + n_y) exceeds :data:`MAX_SIMULATED`, or the truth diverges (a
+        non-finite state or measurement, naming the run and step).
     """
-    rng = np.random.default_rng(seed)
     n, n_y = f.n_u, h.n_y
+    if runs * steps * (n + n_y) > MAX_SIMULATED:
+        raise SymmonError(
+            f"runs × steps × (states + measurements) = {runs} × {steps} × {n + n_y} exceeds {MAX_SIMULATED:.0e} "
+            f"numbers ({8 * MAX_SIMULATED / 2**30:.1f} GiB): use fewer runs or steps")
+    rng = np.random.default_rng(seed)
     cf, ch = compiled(f), compiled(h)
     nq, nr = f.n_v or n, h.n_v or n_y
     Lq, Lr = Gaussian(np.zeros(nq), Q).sqrt_cov(), Gaussian(np.zeros(nr), R).sqrt_cov()  # PSD allowed
@@ -290,6 +303,13 @@ def simulate(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, ste
         if y_angles:
             y[:, y_angles] = wrap_angle(y[:, y_angles])
         xs[:, k], ys[:, k] = x, y
+        bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(y).all(axis=1))
+        if bad.any():
+            # A NaN measurement would read as "not measured" to the filters: stop here.
+            r = int(np.flatnonzero(bad)[0])
+            raise SymmonError(
+                f"the simulated truth diverged: run {r} has a non-finite state or measurement at step {k + 1} "
+                f"(x = {x[r].tolist()}); the scenario's dynamics are unstable or its noise too large")
     return xs, ys
 
 

@@ -148,3 +148,15 @@ def test_a_step_unmeasured_in_every_run_has_no_average_nis():
     res = kf.filter(ys, d["x0"], d["P0"])
     with pytest.raises(sm.errors.SymmonError, match="step 5 has no measured component in any run"):
         res.anis()
+
+
+def test_a_diverging_simulation_is_reported_not_read_as_missing_data():
+    from symmon.files.filterfile import MAX_SIMULATED, simulate
+
+    x = sp.Symbol("x", real=True)
+    f = sm.Model([x], [x**3 + 10], name="explodes")
+    h = sm.Model([x], [x], name="id")
+    with pytest.raises(sm.errors.SymmonError, match=r"simulated truth diverged: run 0 .* at step \d+"):
+        simulate(f, h, np.eye(1), np.eye(1), sm.Gaussian([1.0], [[1.0]]), 50, 2, seed=0)
+    with pytest.raises(sm.errors.SymmonError, match="exceeds"):
+        simulate(f, h, np.eye(1), np.eye(1), sm.Gaussian([1.0], [[1.0]]), 10**5, MAX_SIMULATED // 10**5, seed=0)
