@@ -170,7 +170,7 @@ def _adaptive_run(ad: Adaptive, kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: 
     names = np.array([t.filter_label() for t in order])
     steps = [_compiled_step(f, h, t, kf.angle_states) for t in order]
     shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n), "innovation": (n_y,), "S": (n_y, n_y),
-              "loglik": ()}
+              "loglik": (), "nis": ()}
     out = {key: np.full((runs, K) + s, np.nan) for key, s in shapes.items()}  # NaN after a failure
     chosen = np.empty((runs, K), dtype=int)
     x = np.ascontiguousarray(np.broadcast_to(x0, (runs, n)), dtype=float)

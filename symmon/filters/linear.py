@@ -207,10 +207,13 @@ class KalmanFilter:
         L = np.linalg.cholesky(Ss)
         log_det = 2 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
         white = np.linalg.solve(L, innovs[..., None])[..., 0]
-        loglik = -0.5 * ((white**2).sum(axis=-1) + log_det + n_y * np.log(2 * np.pi))
-        arrays = {"x": xs, "P": Ps, "x_pred": xps, "P_pred": Pps, "innovation": innovs, "S": Ss}
-        arrays = {k: readonly(v) if kept is None or k in kept else None for k, v in arrays.items()}
-        return KalmanResult(**arrays, gain=readonly(gains), loglik=readonly(loglik), method="KF")
+        nis = (white**2).sum(axis=-1)  # νᵀ S⁻¹ ν from the same factor
+        loglik = -0.5 * (nis + log_det + n_y * np.log(2 * np.pi))
+        arrays = {"x": xs, "P": Ps, "x_pred": xps, "P_pred": Pps, "innovation": innovs, "S": Ss,
+                  "nis_values": nis}
+        arrays = {k: readonly(v) if kept is None or k.removesuffix("_values") in kept else None
+                  for k, v in arrays.items()}
+        return KalmanResult(**arrays, gain=readonly(gains), loglik=readonly(loglik), n_y=n_y, method="KF")
 
     def simulate(
         self,

@@ -370,8 +370,9 @@ class NonlinearKalmanFilter:
             bank continued after a known jump of the state, e.g. an observer's manoeuvre).
         keep : iterable of str, optional
             The arrays to return, among ``"x"``, ``"P"``, ``"x_pred"``, ``"P_pred"``,
-            ``"innovation"`` and ``"S"`` (default: all); the others are not stored, which
-            bounds the memory of a large bank.  The per-step log-likelihood is always kept.
+            ``"innovation"``, ``"S"`` and ``"nis"`` (νᵀ S⁻¹ ν, computed in the compiled step;
+            default: all); the others are not stored, which bounds the memory of a large
+            bank.  The per-step log-likelihood is always kept.
         params : dict, optional
             The values of the models' parameters (:attr:`params`), by name: a number, an array
             of one per step (K,) (an irregular time step dt, a control input), or for a bank
@@ -429,5 +430,7 @@ class NonlinearKalmanFilter:
         measured = None
         if np.isnan(Y).any():
             measured = readonly((~np.isnan(Y)).sum(axis=-1))
-        return KalmanResult(**arrays, measured=measured, angle_states=tuple(sorted(self.angle_states)),
+        if "nis" in arrays:
+            arrays["nis_values"] = arrays.pop("nis")
+        return KalmanResult(**arrays, measured=measured, n_y=n_y, angle_states=tuple(sorted(self.angle_states)),
                                      method=self.method, choices=choices)

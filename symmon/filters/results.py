@@ -152,7 +152,7 @@ def real_measurements(ys: ArrayLike) -> np.ndarray:
 Block = Union[slice, Sequence[int]]
 
 #: The arrays a filter can keep (``filter(..., keep=...)``).
-KEEPABLE = ("x", "P", "x_pred", "P_pred", "innovation", "S")
+KEEPABLE = ("x", "P", "x_pred", "P_pred", "innovation", "S", "nis")
 
 
 def check_keep(keep: Iterable[str] | None) -> frozenset[str] | None:
@@ -215,6 +215,11 @@ class KalmanResult:
     measured : ndarray of int, shape (K,) or (R, K), or None
         With missing measurements (NaN in ``ys``): how many components were measured at
         each step (the degrees of freedom of its NIS); None when all were.
+    nis_values : ndarray, shape (K,) or (R, K), or None
+        νᵀ S⁻¹ ν of each step, computed inside the compiled step of the nonlinear filters
+        (kept with ``keep=("nis", ...)``, so a bank need not keep ν and S for its NIS test).
+    n_y : int or None
+        The measurement dimension (set by the nonlinear filters).
     """
 
     x: np.ndarray | None = None
@@ -229,6 +234,8 @@ class KalmanResult:
     method: str = ""
     choices: np.ndarray | None = None
     measured: np.ndarray | None = None
+    nis_values: np.ndarray | None = None
+    n_y: int | None = None
 
     def _need(self, *names: str) -> None:
         missing = [k for k in names if getattr(self, k) is None]
@@ -341,7 +348,10 @@ class KalmanResult:
         return _nees(self.x, self.P, x_true, self.angle_states)
 
     def nis(self) -> np.ndarray:
-        """Normalised innovation squared ν_kᵀ S_k⁻¹ ν_k, shape (K,) or (R, K)."""
+        """Normalised innovation squared ν_kᵀ S_k⁻¹ ν_k, shape (K,) or (R, K): from the compiled
+        step when it was kept (:attr:`nis_values`), else from ``innovation`` and ``S``."""
+        if self.nis_values is not None:
+            return self.nis_values
         self._need("innovation", "S")
         return _quadratic_forms(self.innovation, self.S)
 
@@ -353,7 +363,16 @@ class KalmanResult:
     def anis(self, confidence: float = 0.95) -> ConsistencyTest:
         """Average NIS with its χ² interval, averaged as :meth:`anees`."""
         nis = self.nis()
-        d = self.innovation.shape[-1] if self.measured is None else self.measured
+        if self.measured is not None:
+            d = self.measured
+        elif self.innovation is not None:
+            d = self.innovation.shape[-1]
+        elif self.S is not None:
+            d = self.S.shape[-1]
+        elif self.n_y is not None:
+            d = self.n_y
+        else:
+            raise SymmonError("this result does not hold the measurement dimension: keep innovation or S too")
         return _consistency(nis, d, confidence)
 
     def __repr__(self) -> str:

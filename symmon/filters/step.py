@@ -55,7 +55,7 @@ from ..codegen.symbolic import chol_lower, chol_node, moments, wrap_entries
 from ..transforms import Transform
 
 #: Names of the outputs of the step function, in order.
-_OUTPUTS = ("x", "P", "x_pred", "P_pred", "innovation", "S", "loglik")
+_OUTPUTS = ("x", "P", "x_pred", "P_pred", "innovation", "S", "loglik", "nis")
 
 
 #: From this many variables (states plus noise symbols) on, the step is built in MX.  The SX
@@ -182,7 +182,7 @@ def filter_params(f: Model, h: Model) -> tuple:
 
 def _step_function(f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
                    name: str, iterations: int = 1) -> ca.Function:
-    """(x, P, y, Q, R, mask, p) ↦ (x⁺, P⁺, x⁻, P⁻, ν, S, log-likelihood): one predict + update
+    """(x, P, y, Q, R, mask, p) ↦ (x⁺, P⁺, x⁻, P⁻, ν, S, log-likelihood, NIS): one predict + update
     step, on the measured components of y (``mask``, :func:`update_graph`), with the values p
     of the parameters (:func:`filter_params`; size 0 without)."""
     n, n_y = f.n_u, h.n_y
@@ -195,9 +195,10 @@ def _step_function(f: Model, h: Model, transform: Transform, angle_states: froze
     x_pred, P_pred = predict_graph(f, transform, angle_states, x, P, Q, chol, select_params(f, names, p))
     x_new, P_new, nu, S, loglik = update_graph(h, transform, angle_states, x_pred, P_pred, y, R, chol, mask,
                                                select_params(h, names, p), iterations)
-    outs = [ca.densify(a) for a in (x_new, P_new, x_pred, P_pred, nu, S, loglik)]
+    nis = ca.dot(nu, ca.solve(S, nu))  # the consistency statistic, so a lean bank need not keep ν and S
+    outs = [ca.densify(a) for a in (x_new, P_new, x_pred, P_pred, nu, S, loglik, nis)]
     return ca.Function(name, [x, P, y, Q, R, mask, p], outs, ["x", "P", "y", "Q", "R", "mask", "p"],
-                       ["x_new", "P_new", "x_pred", "P_pred", "innovation", "S", "loglik"],
+                       ["x_new", "P_new", "x_pred", "P_pred", "innovation", "S", "loglik", "nis"],
                        {"cse": True} if kind is ca.SX else {})
 
 
@@ -222,7 +223,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
       i = r * K + k;
       arg[0] = x; arg[1] = P; arg[2] = y + i * {n_y}; arg[3] = Q; arg[4] = R; arg[5] = mask + i * {n_y};
       arg[6] = p + i * {n_p};
-      for (j = 0; j < 7; ++j) res[j] = outs[j] + i * strides[j];
+      for (j = 0; j < 8; ++j) res[j] = outs[j] + i * strides[j];
       if (!strides[0]) res[0] = outs[0] + (k & 1) * {n};
       if (!strides[1]) res[1] = outs[1] + (k & 1) * {nn};
       if ({name}(arg, res, iw, w, 0)) return 1;
@@ -247,13 +248,13 @@ class _CompiledStep:
         self.n, self.n_y = n, n_y = f.n_u, h.n_y
         self.n_p = len(filter_params(f, h))
         self._shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n),
-                        "innovation": (n_y,), "S": (n_y, n_y), "loglik": ()}
+                        "innovation": (n_y,), "S": (n_y, n_y), "loglik": (), "nis": ()}
         # The compile policy of every generated function (docs/compile.md): a small step is
         # built now; a large one runs on CasADi's VM while its C builds in the background.
         # Without a compiler, compiled() has already warned (once) while the step was built.
         f = self.f
         code = generated_c(f) + _DRIVER.format(
-            name=name, sz_arg=max(f.sz_arg(), 7), sz_res=max(f.sz_res(), 7),
+            name=name, sz_arg=max(f.sz_arg(), 7), sz_res=max(f.sz_res(), 8),
             n=self.n, nn=self.n * self.n, n_y=self.n_y, nyy=self.n_y * self.n_y, n_p=self.n_p,
         )
         self._lib = NativeLibrary(code, name, self._load, stacklevel=4)

@@ -15,6 +15,7 @@ from symmon.estimation import nlt as est
 from symmon.errors import ShapeError, SymmonError
 from symmon.filters.results import NonlinearKalmanResult
 from symmon.filters.step import _compiled_step
+from symmon.filters.results import _quadratic_forms
 
 #: Two implementations of the same filter in double precision, over tens of steps: the
 #: order of the sums differs, so rounding (1e-16 per operation) grows by the conditioning
@@ -717,6 +718,24 @@ def test_the_log_likelihood_of_a_bank_is_per_run_and_of_the_linear_filter_its_cl
     want = -0.5 * sum(float(n @ np.linalg.solve(s, n)) + np.log(np.linalg.det(2 * np.pi * s)) for n, s in zip(nu, S))
     assert float(ref.log_likelihood[0]) == pytest.approx(want, rel=1e-12)
 
+
+
+def test_the_nis_computed_in_the_step_equals_the_one_from_the_innovations(bank):
+    """keep=("nis",): the bank's NIS test without storing ν and S (the step computes νᵀS⁻¹ν)."""
+    _, ys = bank
+    f, h = cv_models()
+    kf = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, sm.UT.ut1())
+    full = kf.filter(ys, X0)
+    lean = kf.filter(ys, X0, keep=("nis",))
+    assert lean.innovation is None and lean.S is None and lean.x is None
+    np.testing.assert_allclose(lean.nis(), _quadratic_forms(full.innovation, full.S), rtol=1e-10)
+    np.testing.assert_allclose(lean.anis().value, full.anis().value, rtol=1e-10)
+    assert lean.anis().dof == full.anis().dof
+    lin = sm.KalmanFilter(np.eye(2), np.eye(2), np.eye(2), np.eye(2))
+    a, b = lin.filter(np.ones((3, 2)), np.zeros(2), np.eye(2)), lin.filter(np.ones((3, 2)), np.zeros(2), np.eye(2),
+                                                                           keep=("nis",))
+    np.testing.assert_allclose(b.nis(), _quadratic_forms(a.innovation, a.S), rtol=1e-12)
+    assert b.anis().dof == a.anis().dof
 
 
 @pytest.mark.parametrize("keep", [("x", "P"), ("x",), ("innovation", "S"), ()])
