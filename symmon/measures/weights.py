@@ -186,11 +186,13 @@ def resolve(weight, Sgg: np.ndarray) -> tuple[np.ndarray, str]:
             corr = r[:, None] * Sgg * r[None, :]
             lam, V = np.linalg.eigh(0.5 * (corr + corr.T))
             if lam[0] <= SINGULAR_CORR:
-                combo = " + ".join(f"{c:.3g}*y{i}/σ_{i}" for i, c in enumerate(V[:, 0]) if abs(c) > 1e-6)
+                a = r * V[:, 0]  # the null direction in the outputs' own units, unit length
+                a = a / np.linalg.norm(a)
+                combo = " + ".join(f"{c:.3g}*y{i}" for i, c in enumerate(a) if abs(c) > 1e-6)
                 raise SingularMatrixError(
                     f"Σ_gg is singular (smallest eigenvalue of its correlation matrix {lam[0]:.3g}): the output "
-                    f"combination {combo} (σ_i the standard deviation of y_i) has no variance, so "
-                    "W^full = Σ_gg⁻¹/n_y (43) does not exist; use weight='diag'"
+                    f"combination {combo} has no variance, so W^full = Σ_gg⁻¹/n_y (43) does not exist; "
+                    "use weight='diag'"
                 )
             return r[:, None] * np.linalg.inv(corr) * r[None, :] / n, weight  # (43), in the units of y
         raise SymmonError(f"unknown weight {weight!r}: use one of {NAMED}, a matrix W̄ or weights.general(...)")

@@ -350,7 +350,7 @@ def test_unknown_weight_name():
 def test_singular_output_covariance_with_full_weight_names_the_combination():
     model = sm.Model([x, y], [x + y, 2 * x + 2 * y])
     u = sm.Gaussian([0.0, 0.0], np.eye(2))
-    with pytest.raises(SingularMatrixError, match=r"y0/σ_0 .*y1/σ_1 \(σ_i the standard deviation of y_i\) has no variance"):
+    with pytest.raises(SingularMatrixError, match=r"y0 .*y1.* has no variance"):
         sm.nonlinearity(model, u, weight="full")
     assert sm.nonlinearity(model, u, weight="diag").value < 1e-8
 
