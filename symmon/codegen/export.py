@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import re
 import tempfile
+from typing import Iterable
 from pathlib import Path
 
 import casadi as ca
@@ -49,7 +50,7 @@ from .symbolic import point_moments, tt2_moments, unit_rule
 from ..transforms.registry import resolve
 from ..transforms import UT, Transform
 
-__all__ = ["export_c", "moment_functions", "c_prefix", "strict_c"]
+__all__ = ["export_c", "moment_functions", "c_prefix", "strict_c", "generate_sources", "work_sizes", "HEADER_CLOSING"]
 
 # --------------------------------------------------------------------------- building blocks
 def _densified(name: str, w: ca.SX, expr: ca.SX, out: str, opts: dict) -> ca.Function:
@@ -189,6 +190,42 @@ def strict_c(src: str) -> str:
     return "\n".join(out) + "\n"
 
 
+#: The end of CasADi's generated header, before which symmon adds its own prototypes.
+HEADER_CLOSING = "#ifdef __cplusplus\n} /* extern \"C\" */\n#endif"
+
+
+def generate_sources(fs: Iterable[ca.Function], prefix: str) -> tuple[str, str, str]:
+    """CasADi's C for the functions ``fs`` in one file ``prefix.c``, warning-free (:func:`strict_c`),
+    and its header split where symmon adds its prototypes: (C source, header head, header tail).
+
+    CodeGenerator writes both files itself: they are generated in a scratch directory and
+    read back, so that the caller writes them into place atomically with its additions.
+
+    Raises
+    ------
+    SymmonError
+        If the header does not end as CasADi's headers do (:data:`HEADER_CLOSING`).
+    """
+    gen = ca.CodeGenerator(f"{prefix}.c", {"with_header": True})
+    for f in fs:
+        gen.add(f)
+    with tempfile.TemporaryDirectory() as tmp:
+        gen.generate(str(Path(tmp)) + "/")
+        c_src = (Path(tmp) / f"{prefix}.c").read_text()
+        h_src = (Path(tmp) / f"{prefix}.h").read_text()
+    if HEADER_CLOSING not in h_src:  # pragma: no cover - depends on the CasADi version
+        raise SymmonError("unexpected CasADi header layout: cannot add symmon's prototypes")
+    head, tail = h_src.rsplit(HEADER_CLOSING, 1)
+    return strict_c(c_src), head, tail
+
+
+def work_sizes(f: ca.Function) -> dict[str, int]:
+    """The sizes of the argument, result, integer and real work arrays of ``f`` (at least 1,
+    so that every array can be declared in C)."""
+    return {k: max(1, int(v)) for k, v in
+            (("arg", f.sz_arg()), ("res", f.sz_res()), ("iw", f.sz_iw()), ("w", f.sz_w()))}
+
+
 def _wrapper_code(fs: dict[str, ca.Function]) -> tuple[str, str]:
     """Plain-signature wrappers with work arrays of fixed size, and their prototypes."""
     src, proto = [], []
@@ -199,8 +236,7 @@ def _wrapper_code(fs: dict[str, ca.Function]) -> tuple[str, str]:
         params = ", ".join([f"const casadi_real* {a}" for a in ins] + [f"casadi_real* {r}" for r in outs])
         sig = f"int {fname}_eval({params})"
         proto.append(sig + ";")
-        sizes = {k: max(1, int(v)) for k, v in
-                 (("arg", f.sz_arg()), ("res", f.sz_res()), ("iw", f.sz_iw()), ("w", f.sz_w()))}
+        sizes = work_sizes(f)
         body = [
             f"CASADI_SYMBOL_EXPORT {sig} {{",
             # Work arrays on the stack: reentrant, no allocation (sizes fixed at export).
@@ -323,25 +359,13 @@ def export_c(model: Model, outdir: str | Path, name: str | None = None, *, ut: T
     fs = moment_functions(model, ut=ut, name=prefix, cse=cse)
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
-    gen = ca.CodeGenerator(f"{prefix}.c", {"with_header": True})
-    for f in fs.values():
-        gen.add(f)
-    # CodeGenerator writes both files itself; generate in a scratch directory, then move
-    # them into place atomically with the additions below.
-    with tempfile.TemporaryDirectory() as tmp:
-        gen.generate(str(Path(tmp)) + "/")
-        c_src = (Path(tmp) / f"{prefix}.c").read_text()
-        h_src = (Path(tmp) / f"{prefix}.h").read_text()
+    c_src, head, tail = generate_sources(fs.values(), prefix)
     wrappers, protos = _wrapper_code(fs)
-    c_src = strict_c(c_src).rstrip("\n") + "\n\n/* Plain-signature wrappers added by symmon (see the header). */\n" + wrappers
-    closing = "#ifdef __cplusplus\n} /* extern \"C\" */\n#endif"
-    if closing not in h_src:  # pragma: no cover - depends on the CasADi version
-        raise SymmonError("unexpected CasADi header layout: cannot add the wrapper prototypes")
-    head, tail = h_src.rsplit(closing, 1)
+    c_src = c_src.rstrip("\n") + "\n\n/* Plain-signature wrappers added by symmon (see the header). */\n" + wrappers
     h_src = (
         _header_comment(model, prefix, fs, ut)
         + f"#ifndef {prefix.upper()}_SYMMON_H\n#define {prefix.upper()}_SYMMON_H\n"
-        + head + "/* Plain-signature wrappers (symmon). */\n" + protos + "\n" + closing + tail
+        + head + "/* Plain-signature wrappers (symmon). */\n" + protos + "\n" + HEADER_CLOSING + tail
         + f"#endif /* {prefix.upper()}_SYMMON_H */\n"
     )
     c_path = atomic_write_text(outdir / f"{prefix}.c", c_src)

@@ -43,14 +43,13 @@ from __future__ import annotations
 
 import hashlib
 import re
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
 
-from ..codegen.export import c_prefix, strict_c
+from ..codegen.export import HEADER_CLOSING, c_prefix, generate_sources, work_sizes
 from ..compile.cnames import c_identifier, comment_text
 from ..errors import ArgumentTypeError, SymmonError
 from ..io import atomic_write_text, check_output_dir
@@ -131,14 +130,9 @@ def filter_functions(kf: "NonlinearKalmanFilter", name: str) -> dict[str, ca.Fun
     return {"predict": predict, "update": update}
 
 
-def _sizes(f: ca.Function) -> dict[str, int]:
-    return {"arg": max(1, int(f.sz_arg())), "res": max(1, int(f.sz_res())),
-            "iw": max(1, int(f.sz_iw())), "w": max(1, int(f.sz_w()))}
-
-
 def _work_macros(P: str, fname: str, key: str, f: ca.Function, extra_reals: int) -> list[str]:
     """The work-array sizes of one function and the stack they take."""
-    s = _sizes(f)
+    s = work_sizes(f)
     K = f"{P}_{key}"
     return [
         f"#define {K}_SZ_ARG {s['arg']}",
@@ -359,25 +353,15 @@ def export_filter_c(kf: "NonlinearKalmanFilter", directory: str | Path, name: st
     outdir = check_output_dir(directory)
     fs = filter_functions(kf, P)
     outdir.mkdir(parents=True, exist_ok=True)
-    gen = ca.CodeGenerator(f"{P}.c", {"with_header": True})
-    for f in fs.values():
-        gen.add(f)
-    with tempfile.TemporaryDirectory() as tmp:
-        gen.generate(str(Path(tmp)) + "/")
-        c_src = (Path(tmp) / f"{P}.c").read_text()
-        h_src = (Path(tmp) / f"{P}.h").read_text()
+    c_src, head, tail = generate_sources(fs.values(), P)
     digest = _model_hash(kf, transform)
     comment, macros = _header(kf, P, fs, transform, digest)
-    closing = "#ifdef __cplusplus\n} /* extern \"C\" */\n#endif"
-    if closing not in h_src:  # pragma: no cover - depends on the CasADi version
-        raise SymmonError("unexpected CasADi header layout: cannot add the filter interface")
-    head, tail = h_src.rsplit(closing, 1)
     guard = f"{P.upper()}_SYMMON_FILTER_H"
     protos = "\n".join(_signatures(P, kf)) + "\n"
     h_src = (comment + f"#ifndef {guard}\n#define {guard}\n\n" + macros + "\n\n" + head
-             + "/* The filter interface (symmon). */\n" + protos + closing + tail + f"#endif /* {guard} */\n")
+             + "/* The filter interface (symmon). */\n" + protos + HEADER_CLOSING + tail + f"#endif /* {guard} */\n")
     fill = _fill(P, kf)
-    c_src = (strict_c(c_src).rstrip("\n") + "\n\n#include <string.h>\n#include \"" + P + ".h\"\n"
+    c_src = (c_src.rstrip("\n") + "\n\n#include <string.h>\n#include \"" + P + ".h\"\n"
              + _C_FUNCTIONS.format(**fill))
     example = _EXAMPLE.format(**fill)
     readme = _readme(kf, P, fs, transform, digest)
@@ -388,7 +372,7 @@ def export_filter_c(kf: "NonlinearKalmanFilter", directory: str | Path, name: st
 def _readme(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> str:
     f, h = kf.f_model, kf.h_model
     n, n_y = f.n_u, h.n_y
-    sizes = {k: _sizes(fn) for k, fn in fs.items()}
+    sizes = {k: work_sizes(fn) for k, fn in fs.items()}
     # Doubles and long longs of 8 bytes, pointers of 8 (a 64-bit target).
     stack = {k: 8 * (s["w"] + n + n * n) + 8 * s["iw"] + 8 * (s["arg"] + s["res"]) for k, s in sizes.items()}
     # Plain text of user names: Markdown code spans, with backticks replaced.
