@@ -33,18 +33,16 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import threading
-from concurrent.futures import ThreadPoolExecutor
 
 import casadi as ca
 import numpy as np
 
 from ..codegen.symbolic import chol_lower, chol_node, wrap_entries
-from ..compile.ccache import NativeLibrary
 from ..compile.compiled import generated_c
 from ..core.model import Model
 from ..errors import SymmonError
 from ..transforms import Transform
-from .step import MAX_SX_POINTS, MX_FROM, chunk_runs, predict_graph, select_params, sym
+from .step import MAX_SX_POINTS, MX_FROM, CompiledLoop, chunk_runs, predict_graph, select_params, sym
 
 __all__ = ["compiled_smoother"]
 
@@ -97,35 +95,17 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x, const casadi_real* P, 
 """
 
 
-class _CompiledSmoother:
+class _CompiledSmoother(CompiledLoop):
     """The backward step of one (f, transform), as C with its loop or on CasADi's VM."""
 
     def __init__(self, f: Model, transform: Transform, angle_states: frozenset[int], names: tuple = ()) -> None:
         key = repr((f.outputs, f.inputs, f.noise, f.params, names, transform, sorted(angle_states)))
         name = "sm_rts_" + hashlib.sha1(key.encode()).hexdigest()[:12]
-        self.f = fn = _backward_function(f, transform, angle_states, names, name)
+        fn = _backward_function(f, transform, angle_states, names, name)
         self.n, self.n_p = f.n_u, len(names)
         code = generated_c(fn) + _DRIVER.format(name=name, sz_arg=max(fn.sz_arg(), 6), sz_res=max(fn.sz_res(), 2),
                                                 n=self.n, nn=self.n * self.n, n_p=self.n_p)
-        self._lib = NativeLibrary(code, name, self._load, stacklevel=4)
-        self._local = threading.local()
-
-    def _load(self, so):
-        run = getattr(ctypes.CDLL(str(so)), f"{self.f.name()}_run")
-        run.argtypes = [ctypes.c_void_p] * 6 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2
-        run.restype = ctypes.c_int
-        return run
-
-    @property
-    def evaluator(self) -> str:
-        """``"compiled"``, ``"vm"`` or ``"vm (C build running)"`` (docs/compile.md)."""
-        return self._lib.evaluator
-
-    def _workspace(self) -> tuple[int, int]:
-        ws = getattr(self._local, "ws", None)
-        if ws is None:
-            ws = self._local.ws = (np.zeros(max(self.f.sz_iw(), 1), dtype=np.int64), np.zeros(max(self.f.sz_w(), 1)))
-        return ws[0].ctypes.data, ws[1].ctypes.data
+        super().__init__(fn, code, [ctypes.c_void_p] * 6 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2)
 
     def __call__(self, x: np.ndarray, P: np.ndarray, Q: np.ndarray, use_c: bool = True,
                  params: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -147,19 +127,11 @@ class _CompiledSmoother:
 
         def part(c: tuple[int, int]) -> int:
             a, b = c
-            iw, w = self._workspace()
-            # ctypes releases the GIL for the call: the chunks run in parallel.
+            iw, w = self._workspace()  # one per thread
             return run(x[a].ctypes.data, P[a].ctypes.data, Q.ctypes.data, params[a].ctypes.data, xs[a].ctypes.data,
                        Ps[a].ctypes.data, b - a, K, iw, w)
 
-        chunks = chunk_runs(runs, K)
-        if len(chunks) == 1:
-            errs = [part(chunks[0])]
-        else:
-            with ThreadPoolExecutor(len(chunks)) as pool:
-                errs = list(pool.map(part, chunks))
-        if any(errs):
-            raise SymmonError(f"the compiled smoother step {self.f.name()} returned an error")
+        self.run_chunks(part, chunk_runs(runs, K), "smoother step")
         return xs, Ps
 
     def _vm(self, x, P, Q, params, xs, Ps):

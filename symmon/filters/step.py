@@ -236,34 +236,34 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
 """
 
 
-class _CompiledStep:
-    """The step function of one (f, h, transform), as C with a run loop or on CasADi's VM."""
+class CompiledLoop:
+    """A step function ``f`` with its C loop ``{name}_run`` over the steps and runs of a bank,
+    built by the compile policy of every generated function (docs/compile.md): a small one now,
+    a large one in the background while CasADi's VM evaluates.  The filter step and the
+    smoother's backward step are two of them.
 
-    def __init__(self, f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
-                 iterations: int = 1) -> None:
-        key = repr((f.outputs, f.inputs, f.noise, f.params, h.outputs, h.inputs, h.noise, h.params, transform,
-                    sorted(angle_states), sorted(h.angle_outputs)) + ((iterations,) if iterations > 1 else ()))
-        name = "sm_nkf_" + hashlib.sha1(key.encode()).hexdigest()[:12]
-        self.f = _step_function(f, h, transform, angle_states, name, iterations)
-        self.n, self.n_y = n, n_y = f.n_u, h.n_y
-        self.n_p = len(filter_params(f, h))
-        self._shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n),
-                        "innovation": (n_y,), "S": (n_y, n_y), "loglik": (), "nis": ()}
-        # The compile policy of every generated function (docs/compile.md): a small step is
-        # built now; a large one runs on CasADi's VM while its C builds in the background.
+    Parameters
+    ----------
+    f : casadi.Function
+    code : str
+        The C of ``f`` and its loop.
+    argtypes : list
+        The ctypes argument types of ``{name}_run``.
+    stacklevel : int
+        For the warnings of a build, counted from the subclass's constructor (one frame up
+        from here: the NativeLibrary gets one more).
+    """
+
+    def __init__(self, f: ca.Function, code: str, argtypes: list, stacklevel: int = 4) -> None:
+        self.f = f
+        self._argtypes = argtypes
         # Without a compiler, compiled() has already warned (once) while the step was built.
-        f = self.f
-        code = generated_c(f) + _DRIVER.format(
-            name=name, sz_arg=max(f.sz_arg(), 7), sz_res=max(f.sz_res(), 8),
-            n=self.n, nn=self.n * self.n, n_y=self.n_y, nyy=self.n_y * self.n_y, n_p=self.n_p,
-        )
-        self._lib = NativeLibrary(code, name, self._load, stacklevel=4)
+        self._lib = NativeLibrary(code, f.name(), self._load, stacklevel=stacklevel + 1)
         self._local = threading.local()
 
     def _load(self, so):
         run = getattr(ctypes.CDLL(str(so)), f"{self.f.name()}_run")
-        run.argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_longlong]
-                        + [ctypes.c_void_p] * 7 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2)
+        run.argtypes = self._argtypes
         run.restype = ctypes.c_int
         return run
 
@@ -283,6 +283,45 @@ class _CompiledStep:
     def evaluator(self) -> str:
         """``"compiled"``, ``"vm"`` or ``"vm (C build running)"`` (docs/compile.md)."""
         return self._lib.evaluator
+
+    def run_chunks(self, part, chunks: list, what: str) -> None:
+        """``part(chunk)`` for each chunk of runs, on one thread per chunk (ctypes releases the
+        GIL in the C call, so they run in parallel).
+
+        Raises
+        ------
+        SymmonError
+            If a chunk's C loop returned an error, naming ``what``.
+        """
+        if len(chunks) == 1:
+            errs = [part(chunks[0])]
+        else:
+            with ThreadPoolExecutor(len(chunks)) as pool:
+                errs = list(pool.map(part, chunks))
+        if any(errs):
+            raise SymmonError(f"the compiled {what} {self.f.name()} returned an error")
+
+
+class _CompiledStep(CompiledLoop):
+    """The step function of one (f, h, transform), as C with a run loop or on CasADi's VM."""
+
+    def __init__(self, f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
+                 iterations: int = 1) -> None:
+        key = repr((f.outputs, f.inputs, f.noise, f.params, h.outputs, h.inputs, h.noise, h.params, transform,
+                    sorted(angle_states), sorted(h.angle_outputs)) + ((iterations,) if iterations > 1 else ()))
+        name = "sm_nkf_" + hashlib.sha1(key.encode()).hexdigest()[:12]
+        fn = _step_function(f, h, transform, angle_states, name, iterations)
+        self.n, self.n_y = n, n_y = f.n_u, h.n_y
+        self.n_p = len(filter_params(f, h))
+        self._shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n),
+                        "innovation": (n_y,), "S": (n_y, n_y), "loglik": (), "nis": ()}
+        code = generated_c(fn) + _DRIVER.format(
+            name=name, sz_arg=max(fn.sz_arg(), 7), sz_res=max(fn.sz_res(), 8),
+            n=self.n, nn=self.n * self.n, n_y=self.n_y, nyy=self.n_y * self.n_y, n_p=self.n_p,
+        )
+        argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_longlong]
+                    + [ctypes.c_void_p] * 7 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2)
+        super().__init__(fn, code, argtypes)
 
     def __call__(self, x0: np.ndarray, P0: np.ndarray, Y: np.ndarray, Q: np.ndarray, R: np.ndarray,
                  use_c: bool = True, keep: frozenset[str] | None = None,
@@ -331,18 +370,11 @@ class _CompiledStep:
             outs = (ctypes.c_void_p * len(blocks))(*[
                 blk[a].ctypes.data if k in kept else blk[c].ctypes.data for k, blk in blocks.items()])
             iw, w = self._workspace()  # one per thread
-            # ctypes releases the GIL for the call: the chunks run in parallel.
             return run(x0.ctypes.data + 8 * a * x_step, x_step, P0.ctypes.data + 8 * a * P_step, P_step,
                        Y[a].ctypes.data, Q.ctypes.data, R.ctypes.data, mask[a].ctypes.data,
                        params[a].ctypes.data, outs, strides.ctypes.data, b - a, K, iw, w)
 
-        if len(chunks) == 1:
-            errs = [part(0)]
-        else:
-            with ThreadPoolExecutor(len(chunks)) as pool:
-                errs = list(pool.map(part, range(len(chunks))))
-        if any(errs):
-            raise SymmonError(f"the compiled filter step {self.f.name()} returned an error")
+        self.run_chunks(part, list(range(len(chunks))), "filter step")
         return {k: b for k, b in blocks.items() if k in kept}
 
     def _vm(self, x0, P0, Y: np.ndarray, Q, R, mask: np.ndarray, params: np.ndarray) -> dict[str, np.ndarray]:
