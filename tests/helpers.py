@@ -48,3 +48,10 @@ def sparse_ring(n: int) -> sm.Model:
     x = sp.symbols(f"x0:{n}", real=True)
     out = [sp.sqrt(x[i] ** 2 + x[(i + 1) % n] ** 2 + 1) + sp.sin(x[i] * x[(i + 2) % n]) for i in range(n)]
     return sm.Model(list(x), out, name=f"ring{n}")
+
+
+def assert_close_to_scale(actual, expected, rtol: float) -> None:
+    """``actual`` equals ``expected`` to ``rtol`` relative, entries near zero judged against the
+    largest entry of ``expected`` (an absolute tolerance of rtol · max |expected|)."""
+    expected = np.asarray(expected)
+    np.testing.assert_allclose(actual, expected, rtol=rtol, atol=rtol * np.abs(expected).max())

@@ -12,6 +12,7 @@ import pytest
 import sympy as sp
 
 import symmon as sm
+from helpers import assert_close_to_scale
 from symmon.errors import ModelError, ShapeError, SymmonError
 
 RTOL = 1e-12
@@ -41,8 +42,8 @@ def track(K: int = 30, seed: int = 1):
     return ys
 
 
-def close(a, b_):
-    np.testing.assert_allclose(a, b_, rtol=RTOL, atol=RTOL * np.abs(b_).max())
+def close(a, b):
+    assert_close_to_scale(a, b, RTOL)
 
 
 @pytest.mark.parametrize("transform", [sm.TT1(), sm.TT2(), sm.UT.ut1(), sm.GaussHermite(3)])

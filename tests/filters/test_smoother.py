@@ -17,15 +17,14 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import ShapeError, SymmonError
-from helpers import REFERENCE_DIR
+from helpers import REFERENCE_DIR, assert_close_to_scale
 
 REF = json.loads((REFERENCE_DIR / "filterpy_rts.json").read_text())
 RTOL = 1e-9
 
 
 def close(a, b):
-    b = np.asarray(b)
-    np.testing.assert_allclose(a, b, rtol=RTOL, atol=RTOL * np.abs(b).max())
+    assert_close_to_scale(a, b, RTOL)
 
 
 def cv_filter(transform):
