@@ -41,6 +41,7 @@ from pathlib import Path
 
 import casadi as ca
 
+from ..compile.ckernels import faster_kernels
 from ..compile.cnames import c_identifier, comment_text, is_casadi_name
 from ..errors import ArgumentTypeError, SymmonError
 from ..io import atomic_write_text
@@ -195,7 +196,8 @@ HEADER_CLOSING = "#ifdef __cplusplus\n} /* extern \"C\" */\n#endif"
 
 
 def generate_sources(fs: Iterable[ca.Function], prefix: str) -> tuple[str, str, str]:
-    """CasADi's C for the functions ``fs`` in one file ``prefix.c``, warning-free (:func:`strict_c`),
+    """CasADi's C for the functions ``fs`` in one file ``prefix.c``, warning-free (:func:`strict_c`)
+    and with symmon's faster dense product (:func:`symmon.compile.ckernels.faster_kernels`),
     and its header split where symmon adds its prototypes: (C source, header head, header tail).
 
     CodeGenerator writes both files itself: they are generated in a scratch directory and
@@ -216,7 +218,7 @@ def generate_sources(fs: Iterable[ca.Function], prefix: str) -> tuple[str, str, 
     if HEADER_CLOSING not in h_src:  # pragma: no cover - depends on the CasADi version
         raise SymmonError("unexpected CasADi header layout: cannot add symmon's prototypes")
     head, tail = h_src.rsplit(HEADER_CLOSING, 1)
-    return strict_c(c_src), head, tail
+    return strict_c(faster_kernels(c_src)), head, tail
 
 
 def work_sizes(f: ca.Function) -> dict[str, int]:

@@ -23,7 +23,7 @@ everything between "here is C source" and "here is a loaded library":
   for the next run.  After an interrupt, and into a private temporary cache directory,
   it is killed at exit instead.
 - **Policy** (``$SYMMON_COMPILE``): ``auto`` (default) compiles C of up to
-  :data:`BACKGROUND_BYTES` at once with -O2, and larger C in a background thread (-O1,
+  :data:`BACKGROUND_BYTES` at once with -O2, and larger C in a background thread (-O2,
   or -O0 above :data:`HUGE_BYTES`) while CasADi's virtual machine evaluates, then swaps
   the library in; ``sync`` always waits for the compiler (-O2); ``background`` always
   builds in the background; ``never`` uses the virtual machine only (as does
@@ -65,13 +65,13 @@ log = logging.getLogger(__name__)
 #: Flags of every build.  No -ffast-math (it breaks NaN) and no FMA contraction, so that
 #: compiled code rounds like CasADi's virtual machine.
 CFLAGS = ("-fPIC", "-shared", "-fno-fast-math", "-ffp-contract=off")
-#: Optimisation of a build that the caller waits for, and of a background build.
+#: Optimisation of a build, whether the caller waits for it or not.  -O1 would compile
+#: straight-line SX no faster and run the loops of MX code 3x slower (docs/compile.md).
 OPT_SYNC = "-O2"
-OPT_BACKGROUND = "-O1"
 #: Generated C larger than this (bytes) is compiled in the background under the ``auto``
 #: policy: gcc -O2 takes 1-4 s for it on 2 busy cores (docs/compile.md, "Threshold").
 BACKGROUND_BYTES = 64_000
-#: Above this size gcc -O1 takes minutes (its time grows faster than the code) while
+#: Above this size gcc -O2 takes minutes (its time grows faster than the code) while
 #: -O0 takes seconds and still evaluates 3-4x faster than the VM: background at -O0.
 OPT_HUGE = "-O0"
 HUGE_BYTES = 300_000
@@ -508,7 +508,7 @@ class NativeLibrary(Generic[T]):
             self._done.set()
             return
         # A verified library of any optimisation level costs nothing to load: take the best.
-        for opt in (OPT_SYNC, OPT_BACKGROUND, OPT_HUGE):
+        for opt in (OPT_SYNC, OPT_HUGE):
             so = _entry(code, stem, opt)
             if so.exists() and _verify(so) is None:
                 try:
@@ -523,7 +523,7 @@ class NativeLibrary(Generic[T]):
             self._sync(code, OPT_SYNC, load, stacklevel + 1)
             self._done.set()
             return
-        opt = OPT_BACKGROUND if self.code_bytes <= HUGE_BYTES else OPT_HUGE
+        opt = OPT_SYNC if self.code_bytes <= HUGE_BYTES else OPT_HUGE
         self._state = "building"
         catch_sigterm()
         log.info("symmon: %s: %d bytes of C; evaluating on CasADi's VM while it compiles (%s) "

@@ -25,6 +25,7 @@ import numpy as np
 import sympy as sp
 
 from .ccache import NativeLibrary, build_shared_library, cache_dir, has_compiler, warn_no_compiler
+from .ckernels import faster_kernels
 from .cnames import c_identifier
 from ..core.model import Model
 from ..errors import ArgumentTypeError, ModelError, ShapeError, UnsupportedFunctionError
@@ -199,10 +200,11 @@ def _convert(e: sp.Basic, walk: Callable):
 
 # --------------------------------------------------------------------------- C code
 def generated_c(f: ca.Function) -> str:
-    """CasADi's C source of ``f`` (no header, no main)."""
+    """CasADi's C source of ``f`` (no header, no main), with symmon's faster dense product
+    (:func:`symmon.compile.ckernels.faster_kernels`: the same results to the bit)."""
     gen = ca.CodeGenerator(f.name() + ".c", {"with_header": False})
     gen.add(f)
-    return gen.dump()
+    return faster_kernels(gen.dump())
 
 
 # The row loop around CasADi's generated function: row i of x in, row i of each output
