@@ -47,7 +47,7 @@ from ..compile.compiled import CompiledModel
 from ..errors import SymmonError
 from ..transforms.base import Transform
 
-__all__ = ["chol_lower", "chol_function", "tril_inverse_function", "chol_node", "tt1_moments", "tt2_moments", "point_moments", "moments", "wrap_entries", "unit_rule"]
+__all__ = ["chol_lower", "chol_function", "tril_inverse_function", "chol_node", "tril_inverse", "jacobian_products", "tt1_moments", "tt2_moments", "point_moments", "moments", "wrap_entries", "unit_rule"]
 
 #: A symbolic matrix: SX (inlined, straight-line code) or MX (matrix nodes, loops in C).
 Sym = Union[ca.SX, ca.MX]
@@ -161,6 +161,29 @@ def chol_node(P: Sym, block: int = CHOL_BLOCK) -> Sym:
     return ca.vertcat(*rows)
 
 
+def tril_inverse(L: Sym, block: int = CHOL_BLOCK) -> Sym:
+    """The inverse of a lower triangular L (the factor of :func:`chol_node` or
+    :func:`chol_lower`), blocked as :func:`chol_node`: the diagonal blocks by the unrolled
+    :func:`tril_inverse_function`, and X_ij = −X_ii Σ_{j ≤ m < i} L_im X_mj below them as
+    matrix products.  A zero diagonal entry gives a zero row and column, as
+    :func:`tril_inverse_function`."""
+    n = L.shape[0]
+    if n <= block:
+        return tril_inverse_function(n)(L)
+    edges = list(range(0, n, block)) + [n]
+    spans = list(zip(edges[:-1], edges[1:]))
+    X: dict[tuple[int, int], Sym] = {}
+    for i, (a, b) in enumerate(spans):
+        X[i, i] = tril_inverse_function(b - a)(L[a:b, a:b])
+        for j in range(i):
+            acc = sum((ca.mtimes(L[a:b, spans[m][0]:spans[m][1]], X[m, j]) for m in range(j, i)), 0)
+            X[i, j] = -ca.mtimes(X[i, i], acc)
+    kind = type(L)
+    rows = [ca.horzcat(*[X[i, j] if j <= i else kind.zeros(spans[i][1] - spans[i][0], spans[j][1] - spans[j][0])
+                         for j in range(len(spans))]) for i in range(len(spans))]
+    return ca.vertcat(*rows)
+
+
 def wrap_entries(v: Sym, idx: Iterable[int]) -> Sym:
     """``v`` with the rows ``idx`` wrapped to (−π, π] (:func:`symmon.core.angles.wrap_casadi`)."""
     rows = sorted(idx)
@@ -171,12 +194,32 @@ def wrap_entries(v: Sym, idx: Iterable[int]) -> Sym:
     return out
 
 
+#: A Jacobian with at most this fraction of nonzeros enters its products with P sparse.
+SPARSE_JACOBIAN = 0.5
+
+
+def jacobian_products(J: Sym, P: Sym) -> tuple[Sym, Sym]:
+    """(J P, J P Jᵀ), with J's nonzeros only when J is sparse.
+
+    A sparse J (at most :data:`SPARSE_JACOBIAN` of its entries nonzero, as a motion model of
+    stacked targets) enters as the right factor of dense × sparse products, J P = (Pᵀ Jᵀ)ᵀ
+    and (J P) Jᵀ, which CasADi writes as loops over J's nonzeros (``casadi_mtimes_dense_sparse``):
+    the work is n·nnz(J) rather than n_y n², and each entry adds its terms in the order of the
+    dense product, less the zero ones.  A dense J is densified, so that the products are the
+    dense loops with no sparsity pattern in the C code.
+    """
+    if J.nnz() <= SPARSE_JACOBIAN * J.numel():
+        JP = ca.mtimes(P.T, J.T).T
+    else:
+        J = ca.densify(J)
+        JP = ca.mtimes(J, P)
+    return JP, ca.mtimes(JP, J.T)
+
+
 def tt1_moments(cm: CompiledModel, m: Sym, P: Sym, angles: Iterable[int] = ()) -> tuple[Sym, Sym, Sym]:
     """TT1 moments of g at (m, P): g(m) (angle outputs wrapped), J P Jᵀ and J P."""
-    # A dense J: the product loops over it, with no sparsity pattern of J P in the C code.
-    J = ca.densify(cm.jac(m))
-    JP = ca.mtimes(J, P)
-    return wrap_entries(cm.g(m), angles), ca.mtimes(JP, J.T), JP
+    JP, cov = jacobian_products(cm.jac(m), P)
+    return wrap_entries(cm.g(m), angles), cov, JP
 
 
 @functools.lru_cache(maxsize=64)
@@ -242,9 +285,7 @@ def tt2_moments(cm: CompiledModel, m: Sym, P: Sym, angles: Iterable[int] = ()) -
     derivs, blocks, S = _tt2_derivatives(cm)
     s = S.shape[1]
     y_m, J, Hm = derivs(m)
-    J = ca.densify(J)  # a dense product: no n × n sparsity pattern of P in the C code
-    JP = ca.mtimes(J, P)
-    cov = ca.mtimes(JP, J.T)
+    JP, cov = jacobian_products(J, P)
     if s == 0:  # affine g
         half_tr, half_tr2 = kind(n_y, 1), kind(n_y, n_y)
     elif blocks:

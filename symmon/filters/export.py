@@ -122,8 +122,8 @@ def filter_functions(kf: "NonlinearKalmanFilter", name: str) -> dict[str, ca.Fun
     predict = ca.Function(f"{name}_predict_step", [x, P, *pf[0]],
                           [ca.densify(x_pred), ca.densify(P_pred), pivot(P_pred)],
                           ["x", "P", *pf[1]], ["x_pred", "P_pred", "pd_P"], opts)
-    x_new, P_new, _, S, loglik = update_graph(h, transform, kf.angle_states, x, P, y, R, chol, None,
-                                              select_params(h, names, p), kf.iterations)
+    x_new, P_new, _, S, loglik, _ = update_graph(h, transform, kf.angle_states, x, P, y, R, chol, None,
+                                                 select_params(h, names, p), kf.iterations)
     update = ca.Function(f"{name}_update_step", [x, P, *ph[0], y],
                          [ca.densify(x_new), ca.densify(P_new), loglik, pivot(S), pivot(P_new)],
                          ["x", "P", *ph[1], "y"], ["x_new", "P_new", "loglik", "pd_S", "pd_P"], opts)

@@ -51,7 +51,7 @@ from ..compile.compiled import generated_c
 from ..errors import SymmonError
 from ..core.model import Model
 from ..compile import compiled, compiled_with_params
-from ..codegen.symbolic import chol_lower, chol_node, moments, wrap_entries
+from ..codegen.symbolic import chol_lower, chol_node, moments, tril_inverse, wrap_entries
 from ..transforms import Transform
 
 #: Names of the outputs of the step function, in order.
@@ -118,7 +118,7 @@ def predict_graph(f: Model, transform: Transform, angle_states: frozenset[int], 
 
 def update_graph(h: Model, transform: Transform, angle_states: frozenset[int], x_pred, P_pred, y, R, chol,
                  mask=None, p=None, iterations: int = 1):
-    """The measurement update, Lemma 7.1 on the NLT of h at N(x⁻, P⁻): (x⁺, P⁺, ν, S, log N(ν; 0, S)).
+    """The measurement update, Lemma 7.1 on the NLT of h at N(x⁻, P⁻): (x⁺, P⁺, ν, S, log N(ν; 0, S), NIS νᵀS⁻¹ν).
 
     ``mask`` (n_y, 1 for a measured component and 0 for a missing one; None: all measured)
     restricts the update to the measured block: with D = diag(mask), ν̃ = D ν,
@@ -155,24 +155,35 @@ def update_graph(h: Model, transform: Transform, angle_states: frozenset[int], x
         # Cov(y, x) is n_y × n: rows of the missing components zero.
         return mask * nu, ca.mtimes(ca.mtimes(D, S), D) + ca.diag(1 - mask), ca.mtimes(D, cross)
 
+    def whitened(S, cross):
+        # With L Lᵀ = S and W = L⁻¹ P^{yx}: K = P^{xy} S⁻¹ = Wᵀ L⁻¹ and K S Kᵀ = Wᵀ W, from one
+        # factor (a zero pivot gives a zero row of L⁻¹, and log det S = −inf below).
+        L = chol(S)
+        inv = tril_inverse(L)
+        return L, inv, ca.mtimes(inv, cross)
+
     y_hat, S, cross = linearised(x_pred)
     nu, S, cross = masked(wrap_entries(y - y_hat, y_angles), S, cross)
     measured = n_y if mask is None else ca.sum1(mask)
-    gain = ca.solve(S, cross).T  # K = P^{xy} S⁻¹, S symmetric
+    L, inv, W = whitened(S, cross)
+    gain = ca.mtimes(W.T, inv)
     x_i = x_pred + ca.mtimes(gain, nu)
-    S_i = S
+    W_i = W
     for _ in range(iterations - 1):
         y_hat_i, S_i, cross_i = linearised(x_i)
         step_back = ca.mtimes(cross_i, ca.solve(P_pred, x_pred - x_i))  # H_i (x⁻ − x_i)
         r_i, S_i, cross_i = masked(wrap_entries(y - y_hat_i, y_angles) - step_back, S_i, cross_i)
-        gain = ca.solve(S_i, cross_i).T
-        x_i = x_pred + ca.mtimes(gain, r_i)
+        _, inv_i, W_i = whitened(S_i, cross_i)
+        x_i = x_pred + ca.mtimes(ca.mtimes(W_i.T, inv_i), r_i)
     x_new = wrap_entries(x_i, angle_states)
-    P_new = sym(P_pred - ca.mtimes(ca.mtimes(gain, S_i), gain.T))
-    # log N(ν; 0, S): log det S from the Cholesky factor, NaN when S is not positive definite.
-    log_det = 2 * ca.sum1(ca.log(ca.diag(chol(S))))
-    loglik = -0.5 * (ca.dot(nu, ca.solve(S, nu)) + log_det + measured * math.log(2 * math.pi))
-    return x_new, P_new, nu, S, loglik
+    P_new = sym(P_pred - ca.mtimes(W_i.T, W_i))
+    # log N(ν; 0, S) = −(νᵀ S⁻¹ ν + log det S + m log 2π)/2, with νᵀ S⁻¹ ν = |L⁻¹ ν|²: NaN when
+    # S is not positive definite (a negative pivot), +inf when it is singular.
+    white = ca.mtimes(inv, nu)
+    nis = ca.dot(white, white)
+    log_det = 2 * ca.sum1(ca.log(ca.diag(L)))
+    loglik = -0.5 * (nis + log_det + measured * math.log(2 * math.pi))
+    return x_new, P_new, nu, S, loglik, nis
 
 
 def filter_params(f: Model, h: Model) -> tuple:
@@ -193,9 +204,9 @@ def _step_function(f: Model, h: Model, transform: Transform, angle_states: froze
     Q, R, mask = kind.sym("Q", nq, nq), kind.sym("R", nr, nr), kind.sym("mask", n_y)
     p = kind.sym("p", len(names))
     x_pred, P_pred = predict_graph(f, transform, angle_states, x, P, Q, chol, select_params(f, names, p))
-    x_new, P_new, nu, S, loglik = update_graph(h, transform, angle_states, x_pred, P_pred, y, R, chol, mask,
-                                               select_params(h, names, p), iterations)
-    nis = ca.dot(nu, ca.solve(S, nu))  # the consistency statistic, so a lean bank need not keep ν and S
+    # The NIS comes with the step, so that a lean bank need not keep ν and S.
+    x_new, P_new, nu, S, loglik, nis = update_graph(h, transform, angle_states, x_pred, P_pred, y, R, chol, mask,
+                                                    select_params(h, names, p), iterations)
     outs = [ca.densify(a) for a in (x_new, P_new, x_pred, P_pred, nu, S, loglik, nis)]
     return ca.Function(name, [x, P, y, Q, R, mask, p], outs, ["x", "P", "y", "Q", "R", "mask", "p"],
                        ["x_new", "P_new", "x_pred", "P_pred", "innovation", "S", "loglik", "nis"],

@@ -18,7 +18,8 @@ import symmon as sm
 from symmon.errors import SymmonError
 from symmon.core.gaussian import matrix_sqrt
 from symmon.compile import compiled
-from symmon.codegen.symbolic import _tt2_derivatives, chol_lower, chol_node, moments, unit_rule
+from symmon.codegen.symbolic import (_tt2_derivatives, chol_lower, chol_node, jacobian_products, moments,
+                                     tril_inverse, unit_rule)
 from symmon.transforms.cubature5 import Cubature5
 
 #: Two implementations of the same Cholesky algorithm in double precision that sum in a
@@ -100,6 +101,51 @@ def test_cholesky_of_an_indefinite_matrix_is_nan(build):
     spreads it over row 1, 0·NaN; SX folds the product with the constant e_j)."""
     L = chol_function(2, build)(np.array([[1.0, 2.0], [2.0, 1.0]])).full()
     assert L[0, 0] == 1.0 and L[0, 1] == 0.0 and np.isnan(L[1, 1])
+
+
+@pytest.mark.parametrize("kind", [ca.SX, ca.MX])
+@pytest.mark.parametrize("n", SIZES)
+def test_the_triangular_inverse_equals_numpy(n, kind):
+    rng = np.random.default_rng(300 + n)
+    P = kind.sym("P", n, n)
+    f = ca.Function("inv", [P], [tril_inverse(chol_node(P))])
+    for _ in range(2):
+        A = spd(n, rng)
+        want = np.linalg.inv(np.linalg.cholesky(A))
+        got = f(A).full()
+        assert np.all(np.triu(got, 1) == 0)
+        # Substitution and NumPy's LAPACK inverse: rounding of order n·ε·κ(L).
+        assert rel(got, want) <= CHOL_RTOL
+
+
+@pytest.mark.parametrize("n", [3, 9, 17])
+def test_the_triangular_inverse_of_a_zero_pivot_has_a_zero_row_and_column(n):
+    rng = np.random.default_rng(400 + n)
+    A = spd(n, rng)
+    z = n // 2
+    A[z, :] = A[:, z] = 0.0
+    P = ca.MX.sym("P", n, n)
+    got = ca.Function("inv", [P], [tril_inverse(chol_node(P))])(A).full()
+    assert np.all(got[z, :] == 0) and np.all(got[:, z] == 0)
+    keep = np.delete(np.arange(n), z)
+    assert rel(got[np.ix_(keep, keep)], np.linalg.inv(np.linalg.cholesky(A[np.ix_(keep, keep)]))) <= CHOL_RTOL
+
+
+@pytest.mark.parametrize("density", ["sparse", "dense"])
+def test_the_jacobian_products_equal_numpy_sparse_or_dense(density):
+    rng = np.random.default_rng(5)
+    n, n_y = 12, 7
+    pattern = rng.random((n_y, n)) < (0.2 if density == "sparse" else 0.9)
+    x, P = ca.MX.sym("x", n), ca.MX.sym("P", n, n)
+    J = ca.mtimes(ca.sparsify(ca.DM(pattern.astype(float))), ca.diag(x))  # J's pattern is the mask
+    assert (J.nnz() <= 0.5 * J.numel()) == (density == "sparse")
+    JP, cov = jacobian_products(J, P)
+    f = ca.Function("jp", [x, P], [JP, cov])
+    xv, Pv = rng.normal(size=n), spd(n, rng)
+    Jv = pattern * xv
+    got_JP, got_cov = (a.full() for a in f(xv, Pv))
+    assert rel(got_JP, Jv @ Pv) <= MOMENT_RTOL
+    assert rel(got_cov, Jv @ Pv @ Jv.T) <= MOMENT_RTOL
 
 
 @pytest.mark.parametrize("build", BUILDS)

@@ -1,0 +1,368 @@
+"""symmon against its fastest peers at real sizes, in one run: filters and batched moments.
+
+    pip install ".[bench]"
+    python benchmarks/peers.py [--quick] [--sizes 4,10,20,30,64] [--out benchmarks/RESULTS.md]
+
+**Filters.** Range–bearing trackers of n states (``benchmarks/filters.py``: n = 4 one target;
+n = 5k, k targets with a range bias each, stacked), K = 100 steps:
+
+- **symmon**: ``NonlinearKalmanFilter`` with ``UT(1, 2, 0)`` and ``TT1()``; one run and a bank
+  of R runs in one ``filter(ys, x0, keep=("x", "P"))`` call; the first call into a fresh cache
+  (building the step and compiling it, or starting on CasADi's VM while the C builds in the
+  background: the time until the C is in is given too);
+- **dynamax**: ``unscented_kalman_filter`` / ``extended_kalman_filter`` under ``jax.jit`` (one run)
+  and ``jax.jit(jax.vmap(...))`` (the bank), float64, asked for the filtered means and
+  covariances only; first call (trace and XLA compile) and warm;
+- **NumPy**: a hand-vectorised UKF bank (every run at once: batched Cholesky, sigma points,
+  einsum moments, batched solve), with the circular mean and wrapped residuals of the
+  bearings as symmon;
+- **FilterPy**: ``UnscentedKalmanFilter`` one run (a Python loop over steps).
+
+**Moments.** ``propagate_many`` of K = 10⁴ Gaussians through the sparse model of
+``benchmarks/scale.py`` (y_i = sqrt(x_i² + x_{i+1}² + 1) + sin(x_i x_{i+2})), UT and TT2,
+against ``jax.jit(jax.vmap(...))`` of the same UT (Cholesky, 2n + 1 points, weighted sums)
+and TT2 (``jax.jacfwd``, ``jax.hessian``).
+
+Ratios are peer time / symmon time (> 1: symmon faster); times are the best of several
+repeats after a warm-up.  Peers that are not installed are skipped with a note.  Growth
+exponents p (cost ∝ nᵖ) are least-squares fits over n ≥ 10.  The estimates are compared
+(maximum relative difference of the filtered means against symmon's).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+os.environ.setdefault("SYMMON_CACHE", tempfile.mkdtemp(prefix="symmon-bench-peers-"))
+
+import numpy as np  # noqa: E402
+import sympy as sp  # noqa: E402
+
+import symmon as sm  # noqa: E402
+from symmon.compile import compiled  # noqa: E402
+from filters import ALPHA, BETA, KAPPA, best, cv_range_bearing, rel_diff, targets, wrap, write_section  # noqa: E402
+from scale import sparse_model  # noqa: E402
+
+HEADING = "## Peers at real sizes"
+
+
+def problem(n: int):
+    return cv_range_bearing() if n == 4 else targets(max(1, round(n / 5)))
+
+
+# --------------------------------------------------------------------------- symmon
+def symmon_filters(p, ys, repeat):
+    from symmon.filters.step import _compiled_step
+
+    x0 = sm.Gaussian(p.x0, p.P0)
+    out = {}
+    for label, transform in (("ukf", sm.UT(ALPHA, BETA, KAPPA)), ("ekf", sm.TT1())):
+        kf = sm.NonlinearKalmanFilter(p.f_model, p.h_model, p.Q, p.R, transform)
+        t0 = time.perf_counter()
+        kf.filter(ys[0], x0, keep=("x", "P"))
+        first = time.perf_counter() - t0
+        lib = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)._lib
+        lib.wait()
+        out[label] = {
+            "first": first, "built": time.perf_counter() - t0,
+            "one": best(lambda: kf.filter(ys[0], x0, keep=("x", "P")), repeat),
+            "bank": best(lambda: kf.filter(ys, x0, keep=("x", "P")), max(1, repeat // 2)),
+            "x": kf.filter(ys, x0, keep=("x", "P")).x,
+        }
+    return out
+
+
+# --------------------------------------------------------------------------- dynamax
+def dynamax_filters(p, ys, repeat):
+    try:
+        import jax
+        from dynamax.nonlinear_gaussian_ssm import (ParamsNLGSSM, UKFHyperParams, extended_kalman_filter,
+                                                    unscented_kalman_filter)
+    except ImportError:
+        return None
+    jax.config.update("jax_enable_x64", True)
+    import jax.numpy as jnp
+
+    F = jnp.asarray(p.F)
+    h = sp.lambdify([p.f_model.inputs], p.h_model.outputs, "jax")
+    # dynamax updates before it predicts: start it at the first prediction, as symmon starts at x0.
+    params = ParamsNLGSSM(initial_mean=jnp.asarray(p.F @ p.x0), initial_covariance=jnp.asarray(p.F @ p.P0 @ p.F.T + p.Q),
+                          dynamics_function=lambda x: F @ x, dynamics_covariance=jnp.asarray(p.Q),
+                          emission_function=lambda x: jnp.stack(h(x)), emission_covariance=jnp.asarray(p.R))
+    hp = UKFHyperParams(alpha=ALPHA, beta=BETA, kappa=KAPPA)
+    fields = ["filtered_means", "filtered_covariances"]
+    runs = {
+        "ukf": lambda y: unscented_kalman_filter(params, y, hp, output_fields=fields).filtered_means,
+        "ekf": lambda y: extended_kalman_filter(params, y, output_fields=fields).filtered_means,
+    }
+    y1, yR = jnp.asarray(ys[0]), jnp.asarray(ys)
+    out = {}
+    for label, run in runs.items():
+        one, bank = jax.jit(run), jax.jit(jax.vmap(run))
+        t0 = time.perf_counter()
+        one(y1).block_until_ready()
+        first = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        xR = bank(yR).block_until_ready()
+        first_bank = time.perf_counter() - t0
+        out[label] = {"first": first, "first_bank": first_bank,
+                      "one": best(lambda: one(y1).block_until_ready(), repeat),
+                      "bank": best(lambda: bank(yR).block_until_ready(), max(1, repeat // 2)),
+                      "x": np.asarray(xR)}
+    return out
+
+
+# --------------------------------------------------------------------------- NumPy
+def numpy_ukf_bank(p, ys):
+    """Every run at once: the UKF (``UT(1, 2, 0)``) of symmon with batched NumPy."""
+    runs, K, _ = ys.shape
+    n = p.n
+    lam = ALPHA**2 * (n + KAPPA) - n
+    c = np.sqrt(n + lam)
+    wm = np.full(2 * n + 1, 1 / (2 * (n + lam)))
+    wm[0] = lam / (n + lam)
+    wc = wm.copy()
+    wc[0] += 1 - ALPHA**2 + BETA
+    hx = sp.lambdify(p.f_model.inputs, p.h_model.outputs, "numpy")
+    ang = list(p.angles)
+
+    def points(x, P):
+        L = c * np.linalg.cholesky(P)  # (R, n, n), columns are the offsets
+        off = np.concatenate([np.zeros((runs, n, 1)), L, -L], axis=2).transpose(0, 2, 1)
+        return x[:, None, :] + off  # (R, 2n+1, n)
+
+    def mean(Y, angles):
+        m = Y[:, 0] + np.einsum("j,rjk->rk", wm, Y - Y[:, :1])
+        if angles:
+            m[:, angles] = np.arctan2(np.einsum("j,rjk->rk", wm, np.sin(Y[..., angles])),
+                                      np.einsum("j,rjk->rk", wm, np.cos(Y[..., angles])))
+        return m
+
+    x = np.broadcast_to(p.x0, (runs, n)).copy()
+    P = np.broadcast_to(p.P0, (runs, n, n)).copy()
+    xs, Ps = np.empty((runs, K, n)), np.empty((runs, K, n, n))
+    for k in range(K):
+        X = points(x, P) @ p.F.T
+        xp = mean(X, [])
+        D = X - xp[:, None]
+        Pp = np.einsum("j,rja,rjb->rab", wc, D, D) + p.Q
+        X = points(xp, Pp)
+        Y = np.stack(np.broadcast_arrays(*hx(*np.moveaxis(X, -1, 0))), axis=-1)
+        yp = mean(Y, ang)
+        dY = Y - yp[:, None]
+        dY[..., ang] = wrap(dY[..., ang])
+        S = np.einsum("j,rja,rjb->rab", wc, dY, dY) + p.R
+        C = np.einsum("j,rja,rjb->rab", wc, X - xp[:, None], dY)
+        G = np.linalg.solve(S, C.transpose(0, 2, 1)).transpose(0, 2, 1)
+        nu = ys[:, k] - yp
+        nu[:, ang] = wrap(nu[:, ang])
+        x = xp + np.einsum("rab,rb->ra", G, nu)
+        P = Pp - G @ S @ G.transpose(0, 2, 1)
+        P = 0.5 * (P + P.transpose(0, 2, 1))
+        xs[:, k], Ps[:, k] = x, P
+    return xs, Ps
+
+
+def filterpy_one(p, ys, repeat):
+    try:
+        import filterpy  # noqa: F401
+    except ImportError:
+        return None
+    return best(lambda: p.filterpy_ukf(ys[0]), max(1, repeat // 3))
+
+
+# --------------------------------------------------------------------------- moments
+def moment_batch(n: int, K: int, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    means = rng.normal(size=(K, n))
+    A = rng.normal(size=(K, n, n)) / np.sqrt(n)
+    covs = 0.05 * (A @ A.transpose(0, 2, 1) + np.eye(n))
+    return means, covs
+
+
+def symmon_moments(n, means, covs, repeat):
+    model = sparse_model(n)
+    out = {}
+    for label, transform in (("ut", sm.UT(ALPHA, BETA, KAPPA)), ("tt2", sm.TT2())):
+        t0 = time.perf_counter()
+        sm.propagate_many(model, (means, covs), transform=transform)
+        first = time.perf_counter() - t0
+        compiled(model).wait_compiled(600)
+        res = sm.propagate_many(model, (means, covs), transform=transform)
+        out[label] = {"first": first, "warm": best(lambda: sm.propagate_many(model, (means, covs), transform=transform), repeat),
+                      "mean": np.asarray(res.mean)}
+    single = sm.Gaussian(means[0], covs[0])
+    out["propagate_us"] = 1e6 * best(lambda: sm.propagate(model, single, transform=sm.UT(ALPHA, BETA, KAPPA)), 20 * repeat)
+    return out
+
+
+def jax_moments(n, means, covs, repeat):
+    try:
+        import jax
+    except ImportError:
+        return None
+    jax.config.update("jax_enable_x64", True)
+    import jax.numpy as jnp
+
+    idx = np.arange(n)
+    i1, i2 = (idx + 1) % n, (idx + 2) % n
+
+    def g(x):
+        return jnp.sqrt(x**2 + x[i1] ** 2 + 1) + jnp.sin(x * x[i2])
+
+    lam = ALPHA**2 * (n + KAPPA) - n
+    c = np.sqrt(n + lam)
+    wm = np.full(2 * n + 1, 1 / (2 * (n + lam)))
+    wm[0] = lam / (n + lam)
+    wc = wm.copy()
+    wc[0] += 1 - ALPHA**2 + BETA
+
+    def ut(m, P):
+        L = c * jnp.linalg.cholesky(P)
+        X = jnp.concatenate([m[None], m + L.T, m - L.T])
+        Y = jax.vmap(g)(X)
+        mu = wm @ Y
+        D = Y - mu
+        return mu, (D.T * wc) @ D
+
+    def tt2(m, P):
+        J = jax.jacfwd(g)(m)
+        H = jax.hessian(g)(m)  # (n_y, n, n)
+        HP = H @ P
+        mu = g(m) + 0.5 * jnp.trace(HP, axis1=1, axis2=2)
+        cov = J @ P @ J.T + 0.5 * jnp.einsum("iab,jba->ij", HP, HP)
+        return mu, cov
+
+    M, C = jnp.asarray(means), jnp.asarray(covs)
+    out = {}
+    for label, rule in (("ut", ut), ("tt2", tt2)):
+        f = jax.jit(jax.vmap(rule))
+        t0 = time.perf_counter()
+        mu = f(M, C)[0].block_until_ready()
+        first = time.perf_counter() - t0
+        out[label] = {"first": first, "warm": best(lambda: f(M, C)[0].block_until_ready(), repeat), "mean": np.asarray(mu)}
+    one = jax.jit(ut)
+    one(M[0], C[0])[0].block_until_ready()
+    out["propagate_us"] = 1e6 * best(lambda: one(M[0], C[0])[0].block_until_ready(), 20 * repeat)
+    return out
+
+
+# --------------------------------------------------------------------------- report
+def fmt(t):
+    if t is None:
+        return "—"
+    return f"{t * 1e6:.0f} µs" if t < 1e-3 else f"{t * 1e3:.1f} ms" if t < 1 else f"{t:.2f} s"
+
+
+def ratio(a, b):
+    return "—" if a is None or b is None else f"{a / b:.2f}×"
+
+
+def exponent(ns, ts):
+    pts = [(n, t) for n, t in zip(ns, ts) if n >= 10 and t]
+    if len(pts) < 2:
+        return "—"
+    a = np.polyfit(np.log([n for n, _ in pts]), np.log([t for _, t in pts]), 1)[0]
+    return f"{a:.2f}"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer runs and repeats")
+    ap.add_argument("--sizes", default="4,10,20,30,64", help="state dimensions of the filter table")
+    ap.add_argument("--moment-sizes", default="16,64", help="input dimensions of the moment table")
+    ap.add_argument("--out", type=Path, default=None, help="write the section into this Markdown file")
+    a = ap.parse_args()
+    K, R, repeat, KM = (50, 50, 3, 2000) if a.quick else (100, 300, 5, 10_000)
+    sizes = [int(s) for s in a.sizes.split(",")]
+    load0 = os.getloadavg()[0]
+    rows = []
+    for n in sizes:
+        p = problem(n)
+        _, ys = p.simulate(K, R, seed=0)
+        s = symmon_filters(p, ys, repeat)
+        d = dynamax_filters(p, ys, repeat)
+        t0 = time.perf_counter()
+        xs_np, _ = numpy_ukf_bank(p, ys)
+        t_np = time.perf_counter() - t0
+        t_np = min(t_np, best(lambda: numpy_ukf_bank(p, ys), max(1, repeat // 3)))
+        fp = filterpy_one(p, ys, repeat)
+        rows.append((p.n, s, d, t_np, rel_diff(xs_np, s["ukf"]["x"]), fp))
+        print(p.n, {k: {kk: v for kk, v in s[k].items() if kk != "x"} for k in s}, flush=True)
+    mrows = []
+    for n in (int(s) for s in a.moment_sizes.split(",")):
+        means, covs = moment_batch(n, KM)
+        s = symmon_moments(n, means, covs, repeat)
+        j = jax_moments(n, means, covs, repeat)
+        mrows.append((n, s, j))
+        print("moments", n, {k: v for k, v in s.items() if k != "mean"}, flush=True)
+    load1 = os.getloadavg()[0]
+    import casadi
+
+    lines = [HEADING, "",
+             f"Generated by `python benchmarks/peers.py`{' --quick' if a.quick else ''} (the module docstring says what "
+             f"each column runs): K = {K} steps, banks of R = {R} runs; moments of {KM} Gaussians. Ratios: peer / "
+             "symmon (> 1: symmon faster). First calls build into a fresh cache (symmon: in parentheses, the time "
+             "until the background C build is in) or trace and compile (JAX). dynamax has no angle handling (its "
+             "bearing is averaged as a number), so its estimates differ from symmon's at the level of the bearing "
+             f"variance; the NumPy bank agrees to rounding. {platform.machine()}, {os.cpu_count()} cores, Python "
+             f"{platform.python_version()}, NumPy {np.__version__}, CasADi {casadi.__version__}; load average "
+             f"before / after: {load0:.2f} / {load1:.2f}.", "",
+             "### Filters", "",
+             "| n | symmon UKF first (C in) | dynamax UKF first (one / bank) | UKF one run: symmon / dynamax / FilterPy "
+             "| UKF bank: symmon / dynamax / NumPy | EKF bank: symmon / dynamax | dynamax / symmon: UKF one, UKF bank, "
+             "EKF bank | NumPy / symmon | FilterPy / symmon | agreement (dynamax, NumPy) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for n, s, d, t_np, agree_np, fp in rows:
+        du, de = (d or {}).get("ukf", {}), (d or {}).get("ekf", {})
+        agree_d = "—" if not du else f"{rel_diff(du['x'], s['ukf']['x']):.1e}"
+        lines.append(
+            f"| {n} | {fmt(s['ukf']['first'])} ({fmt(s['ukf']['built'])}) | {fmt(du.get('first'))} / "
+            f"{fmt(du.get('first_bank'))} | {fmt(s['ukf']['one'])} / {fmt(du.get('one'))} / {fmt(fp)} "
+            f"| {fmt(s['ukf']['bank'])} / {fmt(du.get('bank'))} / {fmt(t_np)} | {fmt(s['ekf']['bank'])} / "
+            f"{fmt(de.get('bank'))} | {ratio(du.get('one'), s['ukf']['one'])}, {ratio(du.get('bank'), s['ukf']['bank'])}, "
+            f"{ratio(de.get('bank'), s['ekf']['bank'])} | {ratio(t_np, s['ukf']['bank'])} | {ratio(fp, s['ukf']['one'])} "
+            f"| {agree_d}, {agree_np:.1e} |")
+    ns = [r[0] for r in rows]
+    cols = {
+        "symmon UKF one run": [r[1]["ukf"]["one"] for r in rows],
+        "symmon UKF bank": [r[1]["ukf"]["bank"] for r in rows],
+        "symmon EKF bank": [r[1]["ekf"]["bank"] for r in rows],
+        "dynamax UKF one run": [(r[2] or {}).get("ukf", {}).get("one") for r in rows],
+        "dynamax UKF bank": [(r[2] or {}).get("ukf", {}).get("bank") for r in rows],
+        "dynamax EKF bank": [(r[2] or {}).get("ekf", {}).get("bank") for r in rows],
+        "NumPy UKF bank": [r[3] for r in rows],
+    }
+    lines += ["", "Growth exponent p of cost ∝ nᵖ (n ≥ 10): " + "; ".join(f"{k} {exponent(ns, v)}" for k, v in cols.items())
+              + "."]
+    if any(r[2] is None for r in rows):
+        lines += ["", "dynamax (JAX) is not installed here: its columns are empty."]
+    lines += ["", "### Moments of a batch", "",
+              "| n | UT: symmon / jax.vmap (first call) | TT2: symmon / jax.vmap (first call) | jax / symmon: UT, TT2 "
+              "| one `propagate` (UT): symmon / jitted JAX | agreement of E y (UT, TT2) |",
+              "|---|---|---|---|---|---|"]
+    for n, s, j in mrows:
+        j = j or {}
+        ju, jt = j.get("ut", {}), j.get("tt2", {})
+        agree = "—" if not j else f"{rel_diff(s['ut']['mean'], ju['mean']):.1e}, {rel_diff(s['tt2']['mean'], jt['mean']):.1e}"
+        lines.append(
+            f"| {n} | {fmt(s['ut']['warm'])} / {fmt(ju.get('warm'))} ({fmt(s['ut']['first'])} / {fmt(ju.get('first'))}) "
+            f"| {fmt(s['tt2']['warm'])} / {fmt(jt.get('warm'))} ({fmt(s['tt2']['first'])} / {fmt(jt.get('first'))}) "
+            f"| {ratio(ju.get('warm'), s['ut']['warm'])}, {ratio(jt.get('warm'), s['tt2']['warm'])} "
+            f"| {s['propagate_us']:.0f} µs / {j.get('propagate_us', float('nan')):.0f} µs | {agree} |")
+    text = "\n".join(lines)
+    print(text)
+    if a.out:
+        write_section(a.out, text, HEADING)
+
+
+if __name__ == "__main__":
+    main()
