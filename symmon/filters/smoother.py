@@ -131,7 +131,7 @@ class _CompiledSmoother(CompiledLoop):
             return run(x[a].ctypes.data, P[a].ctypes.data, Q.ctypes.data, params[a].ctypes.data, xs[a].ctypes.data,
                        Ps[a].ctypes.data, b - a, K, iw, w)
 
-        self.run_chunks(part, chunk_runs(runs, K), "smoother step")
+        self.run_chunks(part, chunk_runs(runs, K, self.n), "smoother step")
         return xs, Ps
 
     def _vm(self, x, P, Q, params, xs, Ps):

@@ -781,11 +781,11 @@ def test_a_bank_split_over_threads_equals_one_call(bank, keep, monkeypatch):
     _, ys = bank
     f, h = cv_models()
     kf = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, sm.UT.ut1())
-    monkeypatch.setattr(step, "MIN_STEPS_PER_THREAD", 10**12)
+    monkeypatch.setattr(step, "MIN_WORK_PER_THREAD", 10**18)
     one = kf.filter(ys, X0, keep=keep)
-    monkeypatch.setattr(step, "MIN_STEPS_PER_THREAD", 1)
+    monkeypatch.setattr(step, "MIN_WORK_PER_THREAD", 1)
     monkeypatch.setattr(step.os, "cpu_count", lambda: 4)
-    assert len(step.chunk_runs(6, 25)) == 4
+    assert len(step.chunk_runs(6, 25, 4)) == 4
     split = kf.filter(ys, X0, keep=keep)
     for k in ("x", "P", "loglik"):
         a, b = getattr(one, k), getattr(split, k)
