@@ -47,7 +47,7 @@ from ..compile.compiled import CompiledModel
 from ..errors import SymmonError
 from ..transforms.base import Transform
 
-__all__ = ["chol_lower", "chol_function", "tril_inverse_function", "chol_node", "tril_inverse", "jacobian_products", "tt1_moments", "tt2_moments", "point_moments", "moments", "wrap_entries", "unit_rule"]
+__all__ = ["chol_lower", "chol_function", "tril_inverse_function", "chol_node", "tril_inverse", "jacobian_products", "affine_in", "tt1_moments", "tt2_moments", "point_moments", "moments", "wrap_entries", "unit_rule"]
 
 #: A symbolic matrix: SX (inlined, straight-line code) or MX (matrix nodes, loops in C).
 Sym = Union[ca.SX, ca.MX]
@@ -355,6 +355,11 @@ def point_moments(g: ca.Function, m: Sym, P: Sym, transform: Transform,
     return mean, ca.mtimes(RW, R.T), ca.mtimes(RW, D.T)
 
 
+def affine_in(cm: CompiledModel, n: int) -> bool:
+    """Whether g is affine in its first n inputs: its Jacobian in them does not depend on them."""
+    return not ca.depends_on(ca.vec(cm.J_sx[:, :n]), cm.w_sx[:n])
+
+
 def moments(cm: CompiledModel, m: Sym, P: Sym, transform: Transform,
             angles: Iterable[int] = (), chol=chol_lower, p: Sym | None = None) -> tuple[Sym, Sym, Sym]:
     """E g, Cov g and Cov(g, w) of w ~ N(m, P) by ``transform``, chosen by its declared
@@ -365,8 +370,15 @@ def moments(cm: CompiledModel, m: Sym, P: Sym, transform: Transform,
     with respect to z = [w; p] (:func:`symmon.compile.compiled_with_params`) and p is fixed:
     the Taylor rules run at z = [m; p] with covariance blkdiag(P, 0), which gives their
     moments in w exactly (J_w P J_wᵀ, tr(H_ww P), …), and the point rules put their points
-    in w only.  Cov(g, w) is returned either way."""
+    in w only.  Cov(g, w) is returned either way.
+
+    On a g that is affine in w, with no angle outputs, any rule whose mean is exact to
+    degree 2 (:meth:`~symmon.transforms.base.Transform.degree`) gives g(m), J P Jᵀ and J P
+    exactly, which are TT1's closed forms: those are built instead of the points (a linear
+    motion model's time update then costs n·nnz(J), not the 2n + 1 points' n³)."""
     order = transform.taylor_order
+    if order != 1 and not angles and transform.degree(m.shape[0]) >= 2 and affine_in(cm, m.shape[0]):
+        order = 1
     if p is not None and order in (1, 2):
         kind, n_p = type(P), p.shape[0]
         mz, Pz = ca.vertcat(m, p), ca.diagcat(P, kind.zeros(n_p, n_p))

@@ -18,8 +18,8 @@ import symmon as sm
 from symmon.errors import SymmonError
 from symmon.core.gaussian import matrix_sqrt
 from symmon.compile import compiled
-from symmon.codegen.symbolic import (_tt2_derivatives, chol_lower, chol_node, jacobian_products, moments,
-                                     tril_inverse, unit_rule)
+from symmon.codegen.symbolic import (_tt2_derivatives, affine_in, chol_lower, chol_node, jacobian_products,
+                                     moments, tril_inverse, unit_rule)
 from symmon.transforms.cubature5 import Cubature5
 
 #: Two implementations of the same Cholesky algorithm in double precision that sum in a
@@ -146,6 +146,44 @@ def test_the_jacobian_products_equal_numpy_sparse_or_dense(density):
     got_JP, got_cov = (a.full() for a in f(xv, Pv))
     assert rel(got_JP, Jv @ Pv) <= MOMENT_RTOL
     assert rel(got_cov, Jv @ Pv @ Jv.T) <= MOMENT_RTOL
+
+
+def affine_model(angle: bool) -> sm.Model:
+    x = sp.symbols("a0:5", real=True)
+    out = [x[0] + 2 * x[1] - x[4], 3 * x[2] + 0.5, x[3] - x[0]]
+    return sm.Model(list(x), out, name=f"affine5{'_angle' if angle else ''}", angles=[2] if angle else [])
+
+
+@pytest.mark.parametrize("transform", [sm.UT(1, 2, 0), sm.UT.ut2(), sm.UT.cubature(), sm.GaussHermite(3, sparse=False)])
+def test_a_rule_on_an_affine_model_builds_the_exact_closed_forms(transform):
+    """On an affine g with no angle outputs, a rule exact to degree 2 gives g(m), J P Jᵀ, J P:
+    TT1's graph to the bit (no points), and the NumPy rule's moments to rounding."""
+    model = affine_model(angle=False)
+    cm = compiled(model)
+    assert affine_in(cm, 5) and not affine_in(compiled(blocks_model()), 5)
+    m, P = ca.MX.sym("m", 5), ca.MX.sym("P", 5, 5)
+    f = ca.Function("mom", [m, P], list(moments(cm, m, P, transform)))
+    tt1 = ca.Function("tt1", [m, P], list(moments(cm, m, P, sm.TT1())))
+    rng = np.random.default_rng(11)
+    mv, Pv = rng.normal(size=5), spd(5, rng)
+    got = [a.full() for a in f(mv, Pv)]
+    assert all(np.array_equal(a, b.full()) for a, b in zip(got, tt1(mv, Pv)))
+    ref = sm.propagate(model, sm.Gaussian(mv, Pv), transform=transform)
+    assert rel(got[0].ravel(), ref.mean) <= MOMENT_RTOL
+    assert rel(got[1], ref.cov) <= MOMENT_RTOL
+
+
+def test_an_affine_model_with_an_angle_output_keeps_the_points():
+    """A declared angle output has a circular mean, which no closed form gives: the points stay."""
+    model = affine_model(angle=True)
+    cm = compiled(model)
+    m, P = ca.MX.sym("m", 5), ca.MX.sym("P", 5, 5)
+    f = ca.Function("mom", [m, P], list(moments(cm, m, P, sm.UT(1, 2, 0), angles=[2])))
+    mv, Pv = np.array([0.0, 0.0, 1.0, 0.0, 0.0]), np.eye(5)  # output 2 = 3 a2 + 0.5 spreads over the cut
+    ref = sm.propagate(model, sm.Gaussian(mv, Pv), transform=sm.UT(1, 2, 0))
+    got = [a.full() for a in f(mv, Pv)]
+    assert rel(got[0].ravel(), ref.mean) <= MOMENT_RTOL
+    assert abs(got[0][2, 0] - 3.5) > 0.1  # the circular mean, not g(m)
 
 
 @pytest.mark.parametrize("build", BUILDS)
