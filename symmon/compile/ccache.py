@@ -37,6 +37,7 @@ import atexit
 import hashlib
 import logging
 import os
+import re
 import shlex
 import shutil
 import signal
@@ -58,7 +59,7 @@ from .ccbuild import checksum_path, sha256_file
 from ..errors import BuildError, SymmonError
 
 __all__ = ["cache_dir", "has_compiler", "compile_mode", "build_shared_library", "NativeLibrary",
-           "catch_sigterm", "BACKGROUND_BYTES", "CFLAGS"]
+           "catch_sigterm", "build_limits", "BACKGROUND_BYTES", "CFLAGS"]
 
 log = logging.getLogger(__name__)
 
@@ -401,6 +402,42 @@ def _remove_stale_builds(d: Path) -> None:
             pass
 
 
+#: CPU seconds a compiler may take (``$SYMMON_BUILD_SECONDS``): the largest code the policy
+#: compiles at -O2 (300 KB) takes about 15 s; past the limit the build fails and the VM stays.
+BUILD_SECONDS = 600
+#: Memory (MiB) a compiler may take (``$SYMMON_BUILD_MEMORY_MB``): at most half the machine's
+#: memory and 8 GiB, so that a compiler is refused memory before the system's
+#: out-of-memory killer takes it or anything else.
+BUILD_MEMORY_MB = 8192
+
+
+def build_limits() -> tuple[int, int]:
+    """(CPU seconds, bytes of address space) of each compiler run, from
+    ``$SYMMON_BUILD_SECONDS`` and ``$SYMMON_BUILD_MEMORY_MB`` (defaults :data:`BUILD_SECONDS`,
+    and :data:`BUILD_MEMORY_MB` or half the physical memory, whichever is less).
+
+    Raises
+    ------
+    SymmonError
+        If either variable is not a positive integer.
+    """
+    try:
+        physical = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") >> 20
+    except (ValueError, OSError, AttributeError):
+        physical = 2 * BUILD_MEMORY_MB
+    values = []
+    for var, default in (("SYMMON_BUILD_SECONDS", BUILD_SECONDS),
+                         ("SYMMON_BUILD_MEMORY_MB", min(BUILD_MEMORY_MB, physical // 2))):
+        text = os.environ.get(var, "").strip()
+        if not text:
+            values.append(default)
+            continue
+        if not re.fullmatch(r"[0-9]+", text) or int(text) <= 0:
+            raise SymmonError(f"{var} must be a positive whole number, got {text!r}")
+        values.append(int(text))
+    return values[0], values[1] << 20
+
+
 def _build(code: str, so: Path, opt: str) -> None:
     """Compile ``code`` into the cache entry ``so`` and its checksum, atomically.
 
@@ -415,7 +452,8 @@ def _build(code: str, so: Path, opt: str) -> None:
     tmp = Path(tempfile.mkdtemp(prefix=".build-", dir=so.parent))
     try:
         (tmp / "f.c").write_text(code)
-        _run_compiler([sys.executable, "-I", ccbuild.__file__, str(tmp), str(so),
+        seconds, memory = build_limits()
+        _run_compiler([sys.executable, "-I", ccbuild.__file__, str(tmp), str(so), str(seconds), str(memory),
                        *cc, opt, *CFLAGS, "f.c", "-o", "f.so", "-lm"], tmp)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)  # the build process removed it, unless killed

@@ -3,10 +3,14 @@
 :mod:`symmon.compile.ccache` runs this file as a script, with the same Python, in a new session
 (process group) and in the entry's temporary build directory::
 
-    python -I ccbuild.py BUILD_DIR TARGET CC ARG...
+    python -I ccbuild.py BUILD_DIR TARGET CPU_SECONDS MEMORY_BYTES CC ARG...
 
 It runs ``CC ARG...`` in ``BUILD_DIR`` (which holds ``f.c``; the command writes
-``f.so``), installs ``f.so`` as ``TARGET`` with its checksum (:func:`install`), and
+``f.so``) under resource limits that the compiler's own children (``cc1``, ``as``)
+inherit: at most ``CPU_SECONDS`` of CPU time (SIGXCPU ends a process beyond it) and
+``MEMORY_BYTES`` of address space (an allocation beyond it fails, and the compiler stops
+with "out of memory"), so that a huge source ends in a failed build rather than a
+compiler running for an hour or taken by the out-of-memory killer.  It then installs ``f.so`` as ``TARGET`` with its checksum (:func:`install`), and
 removes ``BUILD_DIR`` whether the build succeeded or not.  Because the whole build
 happens in this process, a background build can outlive the Python that started it:
 after a normal exit it still fills the cache for the next run, while an interrupt kills
@@ -21,6 +25,10 @@ from __future__ import annotations
 
 import hashlib
 import os
+try:
+    import resource
+except ImportError:  # not on Windows: no limits there
+    resource = None  # type: ignore[assignment]
 import shlex
 import shutil
 import subprocess
@@ -66,16 +74,32 @@ def _report(message: str) -> None:
         pass
 
 
+def limiter(cpu_seconds: int, memory_bytes: int):
+    """The ``preexec_fn`` that sets the limits of the compiler (None where there are none)."""
+    if resource is None:
+        return None
+
+    def limit() -> None:
+        # SIGXCPU at the soft limit; SIGKILL at the hard one, should SIGXCPU be ignored.
+        resource.setrlimit(resource.RLIMIT_CPU, (cpu_seconds, cpu_seconds + 5))
+        resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
+    return limit
+
+
 def main(argv: list[str]) -> int:
     """Build and install; return the exit status (0 when the entry is installed)."""
-    build_dir, target, cmd = Path(argv[0]), Path(argv[1]), argv[2:]
+    build_dir, target = Path(argv[0]), Path(argv[1])
+    cpu_seconds, memory_bytes, cmd = int(argv[2]), int(argv[3]), argv[4:]
     try:
         # The compiler writes into a pipe that this process reads to its end: it never
         # gets SIGPIPE, even when the process that started this build has exited.
         res = subprocess.run(cmd, cwd=build_dir, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                             stderr=subprocess.STDOUT, text=True, errors="replace")
+                             stderr=subprocess.STDOUT, text=True, errors="replace",
+                             preexec_fn=limiter(cpu_seconds, memory_bytes))
         if res.returncode != 0:
-            _report(f"{shlex.join(cmd[:1])} exited with status {res.returncode}:\n{res.stdout[-OUTPUT_TAIL:]}")
+            _report(f"{shlex.join(cmd[:1])} exited with status {res.returncode} (the build's limits: "
+                    f"{cpu_seconds} s of CPU, {memory_bytes >> 20} MiB of memory; SYMMON_BUILD_SECONDS and "
+                    f"SYMMON_BUILD_MEMORY_MB set them):\n{res.stdout[-OUTPUT_TAIL:]}")
             return 1
         install(build_dir / "f.so", target)
         return 0
