@@ -97,9 +97,9 @@ def main(argv: list[str]) -> int:
                              stderr=subprocess.STDOUT, text=True, errors="replace",
                              preexec_fn=limiter(cpu_seconds, memory_bytes))
         if res.returncode != 0:
-            _report(f"{shlex.join(cmd[:1])} exited with status {res.returncode} (the build's limits: "
-                    f"{cpu_seconds} s of CPU, {memory_bytes >> 20} MiB of memory; SYMMON_BUILD_SECONDS and "
-                    f"SYMMON_BUILD_MEMORY_MB set them):\n{res.stdout[-OUTPUT_TAIL:]}")
+            _report(f"{shlex.join(cmd[:1])} exited with status {res.returncode}:\n{res.stdout[-OUTPUT_TAIL:].rstrip()}\n"
+                    f"(the build's limits: {cpu_seconds} s of CPU, {memory_bytes >> 20} MiB of memory; "
+                    "SYMMON_BUILD_SECONDS and SYMMON_BUILD_MEMORY_MB set them)")
             return 1
         install(build_dir / "f.so", target)
         return 0
