@@ -49,6 +49,7 @@ from ..errors import OutputPathError, SymmonError, UsageError
 from ..files.filterfile import FILTERS
 from ..measures.advice import DEFAULT_TOL  # one default for advise and the adaptive filter
 from ..io import plot_format
+from ..transforms.executor import MAX_WORKER_TIMEOUT, WORKER_TIMEOUT
 from ..transforms.registry import DEFAULT  # the API's default transform is the command's
 from . import commands
 from ..progress import LINE_INTERVAL, silenced
@@ -258,6 +259,17 @@ def _unit_interval(text: str) -> float:
     return x
 
 
+def _dask_seconds(text: str) -> float:
+    """argparse type of ``--dask-timeout``: seconds, > 0 and at most a day."""
+    try:
+        t = float(text)
+    except ValueError:
+        t = math.nan
+    if not 0.0 < t <= MAX_WORKER_TIMEOUT:
+        raise argparse.ArgumentTypeError(f"must be seconds, > 0 and at most {MAX_WORKER_TIMEOUT:g}, got {text!r}")
+    return t
+
+
 # --------------------------------------------------------------------------- parser
 def _parser() -> argparse.ArgumentParser:
     summary = "\n".join(f"  {ex}" for exs in _EXAMPLES.values() for ex in exs)
@@ -300,6 +312,10 @@ def _parser() -> argparse.ArgumentParser:
         sp.add_argument("--dask", metavar="TARGET", type=_dask_target, default=None,
                         help=f"run the Monte Carlo groups on Dask: {', '.join(DASK_LOCAL)}, or a scheduler "
                         "address such as tcp://host:8786 (needs the 'dask' extra); same result for the same seed")
+        sp.add_argument("--dask-timeout", metavar="SECONDS", type=_dask_seconds, default=WORKER_TIMEOUT,
+                        help="with a --dask address: how long to wait for a worker when the cluster has "
+                        f"none (at the start, or after the last one died) before stopping with an error "
+                        f"(default {WORKER_TIMEOUT:g})")
 
     def quiet_opt(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("-q", "--quiet", "--no-progress", dest="no_progress", action="store_true",

@@ -466,6 +466,23 @@ def test_dask_scheduler_address_gives_the_same_numbers(capsys):
     assert _numbers(remote) == _numbers(_mc_json(capsys))
 
 
+def test_dask_scheduler_without_workers_is_an_input_error(capsys):
+    """It used to wait forever, silently: now --dask-timeout seconds, said on stderr."""
+    distributed = pytest.importorskip("dask.distributed")
+    with distributed.LocalCluster(n_workers=0, processes=False, dashboard_address=":0") as cluster:
+        code, out, err = run(capsys, "propagate", EXAMPLES / "gmti.toml", "--transform", "mc",
+                             "--samples", MC_SAMPLES, "--dask", cluster.scheduler_address, "--dask-timeout", "0.5")
+    assert (code, out) == (1, "")
+    assert "has no worker; waiting up to 0.5 s for one" in err
+    assert f"symmon: error: the Dask cluster at {cluster.scheduler_address} had no worker for 0.5 s" in err
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "nan", "inf", "1e9", "soon"])
+def test_dask_timeout_must_be_seconds(capsys, value):
+    code, _, err = run(capsys, "propagate", EXAMPLES / "gmti.toml", "--dask-timeout", value)
+    assert code == 2 and "--dask-timeout: must be seconds, > 0 and at most 86400" in err
+
+
 def test_dask_target_that_is_neither_a_scheduler_nor_an_address(capsys):
     code, _, err = run(capsys, "propagate", EXAMPLES / "gmti.toml", "--transform", "mc", "--dask", "cluster")
     assert code == 2
