@@ -316,13 +316,14 @@ def cmd_codegen(args: argparse.Namespace) -> int:
 
 def cmd_fit(args: argparse.Namespace) -> int:
     """``symmon fit``: maximum-likelihood estimates of a scenario's parameters from simulated runs."""
-    from ..files.filterfile import filter_transform, load_filter_file, simulate
+    from ..files.filterfile import check_bank, filter_transform, load_filter_file, simulate
     from ..filters.nonlinear import NonlinearKalmanFilter
 
     start = dict(args.param)
     if len(start) != len(args.param):
         raise ModelError("each --param names a different parameter")
     spec = load_filter_file(args.file, free=list(start))
+    check_bank(spec, args.runs, [args.filter])  # the simulation and the fit's filter at its estimates
     truth = {n: spec.params[n] for n in start}
     f_true, h_true = (m.with_params({str(s): truth[str(s)] for s in m.params}) for m in (spec.f, spec.h))
     _, ys = simulate(f_true, h_true, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
@@ -363,10 +364,11 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def cmd_filter(args: argparse.Namespace) -> int:
     """``symmon filter``: a bank of runs of each filter on a scenario; ANEES, ANIS, RMSE."""
-    from ..files.filterfile import load_filter_file, run_bank, simulate
+    from ..files.filterfile import check_bank, load_filter_file, run_bank, simulate
 
     _check_output_files(args.plot, inputs=(args.file,))  # before the bank runs
     spec = load_filter_file(args.file)
+    check_bank(spec, args.runs, args.filters, args.smooth)  # before anything is simulated
     xs, ys = simulate(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
     rows = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, args.filters, args.tol, args.confidence,
                     smooth=args.smooth)

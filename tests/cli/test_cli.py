@@ -722,6 +722,22 @@ def test_filter_plot_into_a_missing_directory_is_refused_before_the_bank_runs(tm
     assert code == 1 and not ran and "output directory does not exist" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("argv", [["filter", "--runs", "100000"], ["filter", "--runs", "80000", "--filters", "ukf", "--smooth"],
+                                  ["fit", "--param", "b=0", "--runs", "100000"]], ids=["filter", "smooth", "fit"])
+def test_a_bank_beyond_memory_is_refused_before_it_is_simulated(capsys, monkeypatch, argv):
+    """runs × steps × (truth, measurements and each filter's results) is bounded before the
+    simulation: it used to simulate for seconds, then run out of memory in the filter.  (80000
+    runs of one UKF fit the limit, 80000 × 40 × 54 numbers; its smoother's 20 more per step do not.)"""
+    from symmon.files import filterfile
+
+    simulated = []
+    monkeypatch.setattr(filterfile, "simulate", lambda *a, **k: simulated.append(1))
+    scenario = EXAMPLES / ("rb_bias.toml" if argv[0] == "fit" else "rb_close.toml")
+    code, out, err = run(capsys, argv[0], scenario, *argv[1:])
+    assert (code, out, simulated) == (1, "", [])
+    assert "exceeds the limit of 2e+08 (1.5 GiB): use fewer runs, steps or filters" in err
+
+
 def test_fit_recovers_the_files_parameters(capsys):
     import json
 
