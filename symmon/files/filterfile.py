@@ -377,8 +377,9 @@ def run_bank(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, xs:
     """Run the named filters (:func:`filter_transform`) on the bank ``ys`` with truth ``xs``.
 
     With ``smooth``, each filter's RTS smoother runs too (:meth:`NonlinearKalmanFilter.smooth`),
-    except the adaptive filter's.  A filter that fails (NaN: it diverged) is reported with its
-    error instead of stopping the others.
+    except the adaptive filter's.  A filter that fails (NaN: it diverged), or whose
+    statistics do (a state known exactly has no NEES), is reported with its error instead of
+    stopping the others.
     """
     out = []
     for name in names:
@@ -390,13 +391,14 @@ def run_bank(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, xs:
                 res = smoothed.filtered
             else:
                 res = kf.filter(ys, x0)
+            # Its statistics may fail too (a state known exactly has no NEES): the same report.
+            extra = {}
+            if smoothed is not None:
+                extra = {"smoothed": smoothed, "smoothed_anees": smoothed.anees(xs, confidence),
+                         "smoothed_rmse": _rmse(xs, smoothed.x, res.angle_states)}
+            summary = BankSummary(name, res, res.anees(xs, confidence), res.anis(confidence),
+                                  _rmse(xs, res.x, res.angle_states), **extra)
         except SymmonError as exc:
-            out.append(BankSummary(name, None, None, None, None, str(exc)))
-            continue
-        extra = {}
-        if smoothed is not None:
-            extra = {"smoothed": smoothed, "smoothed_anees": smoothed.anees(xs, confidence),
-                     "smoothed_rmse": _rmse(xs, smoothed.x, res.angle_states)}
-        out.append(BankSummary(name, res, res.anees(xs, confidence), res.anis(confidence),
-                               _rmse(xs, res.x, res.angle_states), **extra))
+            summary = BankSummary(name, None, None, None, None, str(exc))
+        out.append(summary)
     return out

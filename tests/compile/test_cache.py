@@ -131,8 +131,20 @@ def _listing(d: Path) -> list[tuple[str, int, int, bytes]]:
     return sorted((p.name, p.lstat().st_mode, p.lstat().st_uid, p.read_bytes()) for p in d.iterdir())
 
 
+@pytest.mark.parametrize("how", ["group-writable library", "world-writable checksum", "symlinked library"])
+def test_distrusted_entries(tmp_path, how):
+    """Each way an entry may have been written by someone else, in process (the next test
+    runs the whole load in a fresh Python)."""
+    so = tmp_path / "sm_f_0123.so"
+    so.write_bytes(b"library")
+    sidecar(so).write_text(f"{cc.sha256_file(so)}  {so.name}\n")
+    assert cc._distrust(so) is None
+    why = _loosen(so, how)
+    assert cc._distrust(so) == why
+
+
 @pytest.mark.parametrize("how", [
-    "group-writable library", "world-writable checksum", "symlinked library",
+    "group-writable library",
     pytest.param("library of another user", marks=pytest.mark.skipif(
         os.geteuid() != 0, reason="needs root to give a file to another user")),
 ])
