@@ -200,22 +200,29 @@ def fuzz_dir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("fuzz")
 
 
-def _write(directory: Path, text: str) -> Path:
-    path = directory / "model.toml"
+def _write(directory: Path, text: str, name: str = "model.toml") -> Path:
+    path = directory / name
     path.write_text(text, encoding="utf-8")
     return path
+
+
+def _loaded(load, path: Path):
+    """``load(path)``, or None after a SymmonError; anything else fails the test."""
+    try:
+        spec = load(path)
+    except SymmonError:
+        event("refused")
+        return None
+    event("loaded")
+    return spec
 
 
 @settings(max_examples=200, **FUZZ)
 @given(text=model_files())
 def test_load_model_file_raises_only_symmon_errors(fuzz_dir, text):
-    try:
-        spec = load_model_file(_write(fuzz_dir, text))
-    except SymmonError:
-        event("refused")
-        return
-    event("loaded")
-    assert spec.u.mean.shape == (len(spec.model.inputs),)
+    spec = _loaded(load_model_file, _write(fuzz_dir, text))
+    if spec is not None:
+        assert spec.u.mean.shape == (len(spec.model.inputs),)
 
 
 # --------------------------------------------------------------------------- the command
@@ -343,22 +350,13 @@ def mutated_scenarios(draw) -> str:
     return text
 
 
-def _write_scenario(directory: Path, text: str) -> Path:
-    path = directory / "scenario.toml"
-    path.write_text(text, encoding="utf-8")
-    return path
-
-
 @settings(max_examples=120, **FUZZ)
 @given(text=st.one_of(scenario_files(), mutated_scenarios()))
 def test_load_filter_file_raises_only_symmon_errors(fuzz_dir, text):
     """The parser alone (nothing is compiled): a loaded scenario is consistent."""
-    try:
-        spec = load_filter_file(_write_scenario(fuzz_dir, text))
-    except SymmonError:
-        event("refused")
+    spec = _loaded(load_filter_file, _write(fuzz_dir, text, "scenario.toml"))
+    if spec is None:
         return
-    event("loaded")
     n = len(spec.f.inputs)
     assert spec.f.n_y == n and spec.h.n_u == n and 1 <= spec.steps <= MAX_STEPS
     assert spec.x0.mean.shape == (n,) and spec.Q.shape[0] == (spec.f.n_v or n)
@@ -371,7 +369,7 @@ def test_load_filter_file_raises_only_symmon_errors(fuzz_dir, text):
 def test_symmon_filter_on_a_scenario_exits_0_1_or_2(fuzz_dir, text, smooth):
     """A few valid scenarios end to end (each compiles a filter step; the refusals are the
     parser's, above): odd but valid models, never an internal error."""
-    path = _write_scenario(fuzz_dir, text)
+    path = _write(fuzz_dir, text, "scenario.toml")
     argv = ["filter", str(path), "--runs", "2", "--filters", "ekf"] + (["--smooth"] if smooth else [])
     out, err = io.StringIO(), io.StringIO()
     with warnings.catch_warnings(record=True), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
