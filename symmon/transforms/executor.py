@@ -104,7 +104,7 @@ class _WorkerWatch:
         self.since: float | None = None  # when the cluster was last seen without a worker
 
     def where(self) -> str:
-        return f"the Dask cluster at {getattr(self.client.scheduler, 'address', '?')}"
+        return f"the Dask cluster at {getattr(getattr(self.client, 'scheduler', None), 'address', '?')}"
 
     def check(self, futures: list) -> None:
         """Raise SymmonError when the cluster has had no worker for ``timeout`` s
