@@ -4,8 +4,9 @@ An existing file is either left untouched or replaced whole; it is never half-ov
 Only regular files are written: a symbolic link is followed to its target (the link
 stays a link), and a directory, a device, a FIFO or a socket is refused with an
 :class:`OutputPathError` before anything is written. The replaced file keeps its
-permission bits. :func:`check_output_file` and :func:`check_output_dir` run the same
-checks without writing, so that a command can refuse a bad path before its heavy work.
+permission bits. :func:`check_output_file`, :func:`check_output_dir` and
+:func:`check_output_set` run the same checks without writing, so that a command can refuse
+a bad path before its heavy work, and a set of files written together before any of them.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ __all__ = [
     "OutputPathError",
     "check_output_file",
     "check_output_dir",
+    "check_output_set",
     "atomic_write_bytes",
     "atomic_write_text",
     "write_csv",
@@ -38,9 +40,9 @@ PLOT_FORMATS = ("png", "pdf", "svg", "svgz", "eps", "ps", "jpg", "jpeg", "tif", 
 
 
 def _kind(mode: int) -> str:
-    """What a non-regular file is, in words."""
-    for test, name in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"),
-                       (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket")):
+    """What a file is, in words (for a path that is not the kind wanted)."""
+    for test, name in ((stat.S_ISDIR, "a directory"), (stat.S_ISREG, "a file"), (stat.S_ISFIFO, "a FIFO"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket")):
         if test(mode):
             return name
     return "not a regular file"
@@ -109,13 +111,30 @@ def check_output_dir(path: str | os.PathLike) -> Path:
     real = Path(os.path.realpath(path))
     if real.exists():
         if not real.is_dir():
-            raise OutputPathError(f"output directory {path} is {_kind(real.stat().st_mode)}")
+            raise OutputPathError(f"output directory {path} is {_kind(real.stat().st_mode)}, not a directory")
         return real
     ancestor = real.parent
     while not ancestor.exists():
         ancestor = ancestor.parent
     if not ancestor.is_dir():
         raise FileNotFoundError(f"cannot create the output directory {path}: {ancestor} is not a directory")
+    return real
+
+
+def check_output_set(directory: str | os.PathLike, names: Iterable[str]) -> Path:
+    """Check a directory (:func:`check_output_dir`) and each file ``names`` in it
+    (:func:`check_output_file`), for files written together: one that cannot be written
+    refuses the set before any of them is (no half-written set of files).
+
+    Returns
+    -------
+    pathlib.Path
+        The real path of the directory (which may not exist yet).
+    """
+    real = check_output_dir(directory)
+    if real.is_dir():
+        for name in names:
+            check_output_file(real / name)
     return real
 
 

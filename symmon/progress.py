@@ -15,7 +15,7 @@ import sys
 import time
 from typing import Callable, Iterable, Iterator, TypeVar
 
-__all__ = ["progress_bar", "progress_lines", "silenced", "LINE_INTERVAL"]
+__all__ = ["progress_bar", "progress_lines", "note", "silenced", "LINE_INTERVAL"]
 
 T = TypeVar("T")
 
@@ -85,3 +85,10 @@ def progress_lines(items: Iterable[T], desc: str, total: int | None, interval: f
             last = now
             of = f"/{total}" if total else ""
             print(f"{desc}: {done}{of} done after {now - start:.0f} s", file=sys.stderr, flush=True)
+
+
+def note(message: str, enabled: bool = True) -> None:
+    """Write one line about a long run's state (``symmon: message``) to stderr, as the
+    progress bars do: not when ``enabled`` is False nor inside :func:`silenced`."""
+    if enabled and not _silenced.get():
+        print(f"symmon: {message}", file=sys.stderr, flush=True)

@@ -1,12 +1,16 @@
-"""Fuzzing the model-file parser and the ``symmon`` command with hostile input (issue 13).
+"""Fuzzing the model-file and scenario-file parsers and the ``symmon`` command with hostile input
+(issues 13 and 26).
 
 Hypothesis generates expression texts from the grammar of :mod:`symmon.files.modelfile` (and
 around it: unknown names and functions, refused syntax, huge or odd numbers, deep nesting,
 unicode) and model files that follow its TOML schema loosely (hostile names, wrong
 lengths, odd numbers, unknown keys, truncated text). The properties:
 
-- :func:`parse_expression` and :func:`load_model_file` raise nothing but ``SymmonError``;
-- ``symmon propagate`` / ``symmon nonlinearity`` (cheap transforms) exit with 0, 1 or 2;
+- :func:`parse_expression`, :func:`load_model_file` and :func:`load_filter_file` (scenario
+  files made from the schema, and the examples with random edits) raise nothing but
+  ``SymmonError``;
+- ``symmon propagate`` / ``symmon nonlinearity`` (cheap transforms) and, on a few scenario
+  files, ``symmon filter`` exit with 0, 1 or 2;
   an exit 1 is a clear one-line ``symmon: error:`` (never an "internal error"), and an
   exit 0 prints only finite numbers.
 
@@ -24,6 +28,7 @@ import re
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 import sympy as sp
 from hypothesis import HealthCheck, event, given, settings
@@ -31,7 +36,10 @@ from hypothesis import strategies as st
 
 from symmon.cli import parser as cli
 from symmon.errors import SymmonError
+from symmon.files.filterfile import MAX_STEPS, load_filter_file
 from symmon.files.modelfile import FUNCTIONS, load_model_file, parse_expression
+
+from helpers import ROOT
 
 #: Reproducible and bounded: the same examples on every run, no deadline per example.
 FUZZ = dict(derandomize=True, database=None, deadline=None,
@@ -192,22 +200,29 @@ def fuzz_dir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("fuzz")
 
 
-def _write(directory: Path, text: str) -> Path:
-    path = directory / "model.toml"
+def _write(directory: Path, text: str, name: str = "model.toml") -> Path:
+    path = directory / name
     path.write_text(text, encoding="utf-8")
     return path
+
+
+def _loaded(load, path: Path):
+    """``load(path)``, or None after a SymmonError; anything else fails the test."""
+    try:
+        spec = load(path)
+    except SymmonError:
+        event("refused")
+        return None
+    event("loaded")
+    return spec
 
 
 @settings(max_examples=200, **FUZZ)
 @given(text=model_files())
 def test_load_model_file_raises_only_symmon_errors(fuzz_dir, text):
-    try:
-        spec = load_model_file(_write(fuzz_dir, text))
-    except SymmonError:
-        event("refused")
-        return
-    event("loaded")
-    assert spec.u.mean.shape == (len(spec.model.inputs),)
+    spec = _loaded(load_model_file, _write(fuzz_dir, text))
+    if spec is not None:
+        assert spec.u.mean.shape == (len(spec.model.inputs),)
 
 
 # --------------------------------------------------------------------------- the command
@@ -261,3 +276,107 @@ def test_the_command_exits_0_1_or_2_and_prints_only_finite_numbers(fuzz_dir, tex
     else:
         body = out.split("\n", 1)[1] if command == "propagate" else out.rsplit(" = ", 1)[1]
         assert not NON_FINITE.search(body), out
+
+
+# --------------------------------------------------------------------------- filter scenario files
+EXAMPLE_SCENARIOS = tuple((ROOT / "examples" / n).read_text(encoding="utf-8") for n in ("rb_close.toml", "rb_bias.toml"))
+#: The parts of a scenario file that :func:`scenario_files` may spoil; "" spoils none.
+SCENARIO_SPOILS = ("name", "states", "dynamics", "measurements", "angles", "state_angles", "steps", "params", "Q",
+                   "R", "x0", "process_noise", "measurement_noise", "units", "extra", "cut")
+STEPS = st.one_of(st.integers(-5, 200_000), st.sampled_from((0, 10**30, 1.5, "10", True)), numbers)
+
+
+@st.composite
+def scenario_files(draw, spoils: tuple[str, ...] = SCENARIO_SPOILS) -> str:
+    """Scenario-file text: about half valid, the rest with one part of ``spoils`` made hostile."""
+    spoil = draw(st.sampled_from(spoils + ("",) * max(len(spoils), 1)))
+    states = draw(st.lists(names, max_size=4) if spoil == "states"
+                  else st.lists(st.sampled_from(("x", "y", "z")), min_size=1, max_size=3, unique=True))
+    w = draw(st.lists(names, max_size=2) if spoil == "process_noise" else st.sampled_from(([], ["w1"])))
+    e = draw(st.lists(names, max_size=2) if spoil == "measurement_noise" else st.sampled_from(([], ["e1"])))
+    scope = tuple(states) + ("k",)
+    dynamics = draw(st.lists(st.one_of(expressions, _valid_expressions(scope + tuple(w))), max_size=4)
+                    if spoil == "dynamics" else st.lists(_valid_expressions(scope + tuple(w)),
+                                                         min_size=len(states), max_size=len(states)))
+    measurements = draw(st.lists(st.one_of(expressions, _valid_expressions(scope + tuple(e))), max_size=3)
+                        if spoil == "measurements" else st.lists(_valid_expressions(scope + tuple(e)),
+                                                                 min_size=1, max_size=3))
+    lines = [f"name = {_toml(draw(text_no_surrogates) if spoil == 'name' else 's')}",
+             f"states = {_toml(states)}", f"dynamics = {_toml(dynamics)}", f"measurements = {_toml(measurements)}",
+             f"steps = {_toml(draw(STEPS) if spoil == 'steps' else draw(st.integers(1, 50)))}"]
+    if w:
+        lines.append(f"process_noise = {_toml(w)}")
+    if e:
+        lines.append(f"measurement_noise = {_toml(e)}")
+    if spoil == "angles":
+        lines.append(f"angles = {_toml(draw(st.lists(st.one_of(st.integers(-2, 4), names), max_size=2)))}")
+    if spoil == "state_angles":
+        lines.append(f"state_angles = {_toml(draw(st.lists(names, max_size=2)))}")
+    if spoil == "extra":
+        lines.append(draw(st.sampled_from(("extra = 1", "u = 3", 'name = "twice"', "[v]\nmean = [0]"))))
+    k = draw(numbers if spoil == "params" else st.floats(0.1, 2))
+    lines.append(f"\n[params]\nk = {_toml(k)}")
+    for table, dim in (("Q", len(w) or len(states)), ("R", len(e) or len(measurements))):
+        body = _gaussian_table(draw, table, dim, spoil == table)
+        # A noise table takes cov or std without a mean (a spoiled one may keep it).
+        lines.append(body if spoil == table else re.sub(r"\nmean = .*", "", body))
+    lines.append(_gaussian_table(draw, "x0", len(states), spoil == "x0"))
+    if spoil == "units":
+        lines.append(f"\n[units]\n{_toml(draw(names))} = {_toml(draw(text_no_surrogates))}")
+    text = "\n".join(lines) + "\n"
+    return text[: draw(st.integers(0, len(text)))] if spoil == "cut" else text
+
+
+@st.composite
+def mutated_scenarios(draw) -> str:
+    """An example scenario with a few random edits: a span deleted, a line doubled, or a
+    character, a number or a name replaced."""
+    text = draw(st.sampled_from(EXAMPLE_SCENARIOS))
+    for _ in range(draw(st.integers(1, 3))):
+        i = draw(st.integers(0, len(text)))
+        j = draw(st.integers(i, min(len(text), i + 40)))
+        edit = draw(st.sampled_from(("delete", "double", "replace", "insert")))
+        if edit == "delete":
+            text = text[:i] + text[j:]
+        elif edit == "double":
+            text = text[:j] + text[i:j] + text[j:]
+        else:
+            piece = draw(st.one_of(st.sampled_from(("]", "[", '"', "=", "\n", "#", "1e400", "nan", "-1", "0",
+                                                    "states", "[Q]", "cov = 1", "__import__('os')", "x**99999",
+                                                    "1979-05-27T07:32:00Z", "{a = 1}", "\n[[Q]]\n", "[" * 300,
+                                                    '"\\u0000"', "\nsteps = 99999999999999999999\n", "'x'")),
+                                   text_no_surrogates))
+            text = text[:i] + piece + text[j if edit == "replace" else i:]
+    return text
+
+
+@settings(max_examples=120, **FUZZ)
+@given(text=st.one_of(scenario_files(), mutated_scenarios()))
+def test_load_filter_file_raises_only_symmon_errors(fuzz_dir, text):
+    """The parser alone (nothing is compiled): a loaded scenario is consistent."""
+    spec = _loaded(load_filter_file, _write(fuzz_dir, text, "scenario.toml"))
+    if spec is None:
+        return
+    n = len(spec.f.inputs)
+    assert spec.f.n_y == n and spec.h.n_u == n and 1 <= spec.steps <= MAX_STEPS
+    assert spec.x0.mean.shape == (n,) and spec.Q.shape[0] == (spec.f.n_v or n)
+    assert spec.R.shape[0] == (spec.h.n_v or spec.h.n_y)
+    assert all(np.isfinite(a).all() for a in (spec.Q, spec.R, spec.x0.mean, spec.x0.cov))
+
+
+@settings(max_examples=6, **FUZZ)
+@given(text=scenario_files(spoils=()), smooth=st.booleans())
+def test_symmon_filter_on_a_scenario_exits_0_1_or_2(fuzz_dir, text, smooth):
+    """A few valid scenarios end to end (each compiles a filter step; the refusals are the
+    parser's, above): odd but valid models, never an internal error."""
+    path = _write(fuzz_dir, text, "scenario.toml")
+    argv = ["filter", str(path), "--runs", "2", "--filters", "ekf"] + (["--smooth"] if smooth else [])
+    out, err = io.StringIO(), io.StringIO()
+    with warnings.catch_warnings(record=True), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        warnings.simplefilter("always")
+        code = cli.main(argv)
+    event(f"exit {code}")
+    assert code in (0, 1, 2), err.getvalue()
+    assert "internal error" not in err.getvalue(), err.getvalue()
+    if code == 1:
+        assert out.getvalue() == "" and err.getvalue().startswith("symmon: error: "), err.getvalue()

@@ -11,7 +11,6 @@ import argparse
 import importlib
 import importlib.util
 import math
-import os
 from pathlib import Path
 from typing import Any
 
@@ -56,13 +55,46 @@ def _inputs(args: argparse.Namespace, spec) -> Any:
     return load_samples_file(args.samples_file, spec.model)
 
 
-def _check_output_files(*paths: str | None, inputs: tuple = ()) -> None:
-    """Refuse output files that cannot be written or are an input, before any computation."""
-    from ..io import check_output_file
+def _inputs_read(args: argparse.Namespace) -> list[str]:
+    """The files the command reads (an output must be none of them)."""
+    paths = [getattr(args, k, None) for k in ("file", "samples_file")]
+    if args.command == "derive":  # the scripts it imports
+        from .. import derive
 
-    for p in paths:
-        if p is not None:
-            check_output_file(p, inputs)
+        d = derive.derivations_dir()
+        paths += [str(p) for p in d.glob("*.py")] if d.is_dir() else []
+    return [p for p in paths if p is not None]
+
+
+def check_outputs(args: argparse.Namespace) -> None:
+    """Check every output option of the command, before it does any work.
+
+    The parser registers each output option (``outputs``: destination, kind, flag).  A file
+    must be new or a writable regular file, in an existing writable directory, and none of
+    the files the command reads; a directory must exist or be creatable; no two options may
+    name the same file.  The writes themselves are atomic (:mod:`symmon.io`).
+
+    Raises
+    ------
+    OutputPathError, OSError
+        For a path that cannot be written (exit 1).
+    UsageError
+        When two output options name the same file (exit 2).
+    """
+    from ..io import check_output_dir, check_output_file
+
+    if getattr(args, "list", False):  # derive --list writes nothing
+        return
+    inputs = tuple(_inputs_read(args))
+    seen: dict[Path, str] = {}
+    for dest, kind, flag in getattr(args, "outputs", ()):
+        value = getattr(args, dest, None)
+        if value is None:
+            continue
+        real = check_output_dir(value) if kind == "dir" else check_output_file(value, inputs)
+        if real in seen:
+            raise UsageError(f"{flag} and {seen[real]} name the same file: {value}")
+        seen[real] = flag
 
 
 def cmd_propagate(args: argparse.Namespace) -> int:
@@ -97,9 +129,6 @@ def cmd_nonlinearity(args: argparse.Namespace) -> int:
         raise UsageError("--plot and --csv need --alpha-sweep")
     if args.alpha_sweep is not None and args.samples_file is not None:
         raise UsageError("--alpha-sweep scales a Gaussian [u]; it cannot scale the particles of --samples-file")
-    _check_output_files(args.csv, args.plot, inputs=(args.file,))
-    if args.csv and args.plot and os.path.realpath(args.csv) == os.path.realpath(args.plot):
-        raise UsageError(f"--csv and --plot name the same file: {args.csv}")
     if args.plot and importlib.util.find_spec("matplotlib") is None:
         raise SymmonError("--plot needs matplotlib: pip install 'symmon[plot]'")
     with executor_of(args) as ex:
@@ -246,7 +275,6 @@ def cmd_prove(args: argparse.Namespace) -> int:
     from ..io import atomic_write_text
     from ..units import prove_invariance
 
-    _check_output_files(args.out, inputs=(args.file,))
     spec = _load(args.file)
     # --numeric: the file's distributions, made exact: a proof for this u (and v) only.
     moments = dict(mean=spec.u.mean, cov=spec.u.cov, noise_cov=None if spec.v is None else spec.v.cov) if args.numeric else {}
@@ -266,10 +294,7 @@ def cmd_prove(args: argparse.Namespace) -> int:
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
     """``symmon reproduce``: a figure of the papers as PNG + CSV."""
-    from ..io import check_output_dir
-
     which = FIGURES if args.figure == "all" else (args.figure,)
-    check_output_dir(args.out)
     out = Path(args.out)
     for name in which:
         mod = importlib.import_module(f"symmon.reproduce.{name}")
@@ -286,13 +311,12 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 def cmd_derive(args: argparse.Namespace) -> int:
     """``symmon derive``: run derivation scripts and write a Markdown report."""
     from .. import derive
-    from ..io import atomic_write_text, check_output_file
+    from ..io import atomic_write_text
 
     if args.list:
         for name in derive.require_available():
             print(name)
         return 0
-    check_output_file(args.out)
     names = None if args.all or not args.name else [args.name]
     results = derive.run(names)
     path = atomic_write_text(args.out, derive.report_markdown(results))
@@ -305,9 +329,7 @@ def cmd_derive(args: argparse.Namespace) -> int:
 def cmd_codegen(args: argparse.Namespace) -> int:
     """``symmon codegen``: standalone C code for g, J and the TT2 and UT moments."""
     from ..codegen.export import export_c
-    from ..io import check_output_dir
 
-    check_output_dir(args.output)
     spec = _load(args.file)
     for p in export_c(spec.model, args.output, args.name):
         print(f"wrote {p}")
@@ -316,13 +338,14 @@ def cmd_codegen(args: argparse.Namespace) -> int:
 
 def cmd_fit(args: argparse.Namespace) -> int:
     """``symmon fit``: maximum-likelihood estimates of a scenario's parameters from simulated runs."""
-    from ..files.filterfile import filter_transform, load_filter_file, simulate
+    from ..files.filterfile import check_bank, filter_transform, load_filter_file, simulate
     from ..filters.nonlinear import NonlinearKalmanFilter
 
     start = dict(args.param)
     if len(start) != len(args.param):
         raise ModelError("each --param names a different parameter")
     spec = load_filter_file(args.file, free=list(start))
+    check_bank(spec, args.runs, [args.filter])  # the simulation and the fit's filter at its estimates
     truth = {n: spec.params[n] for n in start}
     f_true, h_true = (m.with_params({str(s): truth[str(s)] for s in m.params}) for m in (spec.f, spec.h))
     _, ys = simulate(f_true, h_true, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
@@ -350,9 +373,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     from ..files.filterfile import filter_transform, load_filter_file
     from ..compile.cnames import c_identifier
     from ..filters.nonlinear import NonlinearKalmanFilter
-    from ..io import check_output_dir
 
-    check_output_dir(args.out)
     spec = load_filter_file(args.file)
     kf = NonlinearKalmanFilter(spec.f, spec.h, spec.Q, spec.R, filter_transform(args.filter))
     name = args.name or f"{c_identifier(spec.name, hashed=False)}_{args.filter}"
@@ -363,10 +384,10 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def cmd_filter(args: argparse.Namespace) -> int:
     """``symmon filter``: a bank of runs of each filter on a scenario; ANEES, ANIS, RMSE."""
-    from ..files.filterfile import load_filter_file, run_bank, simulate
+    from ..files.filterfile import check_bank, load_filter_file, run_bank, simulate
 
-    _check_output_files(args.plot, inputs=(args.file,))  # before the bank runs
     spec = load_filter_file(args.file)
+    check_bank(spec, args.runs, args.filters, args.smooth)  # before anything is simulated
     xs, ys = simulate(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
     rows = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, args.filters, args.tol, args.confidence,
                     smooth=args.smooth)

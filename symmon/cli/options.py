@@ -95,6 +95,6 @@ def executor_of(args: argparse.Namespace) -> Iterator[Any]:
         raise SymmonError(f"cannot connect to the Dask scheduler at {target}: "
                           f"{type(exc).__name__}: {exc}") from exc
     try:
-        yield Executor(workers=args.workers, client=client, progress=True)
+        yield Executor(workers=args.workers, client=client, progress=True, worker_timeout=args.dask_timeout)
     finally:
         client.close()

@@ -17,7 +17,8 @@ Options are checked when they are parsed, before any computation: the sizes have
 limits (:data:`MAX_SAMPLES`, :data:`MAX_ORDER`, :data:`MAX_GROUPS`, :data:`MAX_WORKERS`,
 :data:`MAX_SWEEP_POINTS`), a ``--dask`` address must have a known scheme, a host and a port,
 ``--plot`` a figure format matplotlib writes, and output paths must name regular files (or
-directories) that can be written. Error messages go to stderr, results to stdout. Every
+directories) that can be written: every output option is registered (``output_opt``) and
+checked by one function, ``commands.check_outputs``, before the command runs. Error messages go to stderr, results to stdout. Every
 output file is written atomically through :mod:`symmon.io` (temporary file, then rename),
 so an existing file is replaced whole or left untouched. Progress goes to stderr: a bar on a
 terminal, a line every few seconds otherwise (:mod:`symmon.progress`); ``--quiet`` hides it.
@@ -49,6 +50,7 @@ from ..errors import OutputPathError, SymmonError, UsageError
 from ..files.filterfile import FILTERS
 from ..measures.advice import DEFAULT_TOL  # one default for advise and the adaptive filter
 from ..io import plot_format
+from ..transforms.executor import MAX_WORKER_TIMEOUT, WORKER_TIMEOUT
 from ..transforms.registry import DEFAULT  # the API's default transform is the command's
 from . import commands
 from ..progress import LINE_INTERVAL, silenced
@@ -258,6 +260,17 @@ def _unit_interval(text: str) -> float:
     return x
 
 
+def _dask_seconds(text: str) -> float:
+    """argparse type of ``--dask-timeout``: seconds, > 0 and at most a day."""
+    try:
+        t = float(text)
+    except ValueError:
+        t = math.nan
+    if not 0.0 < t <= MAX_WORKER_TIMEOUT:
+        raise argparse.ArgumentTypeError(f"must be seconds, > 0 and at most {MAX_WORKER_TIMEOUT:g}, got {text!r}")
+    return t
+
+
 # --------------------------------------------------------------------------- parser
 def _parser() -> argparse.ArgumentParser:
     summary = "\n".join(f"  {ex}" for exs in _EXAMPLES.values() for ex in exs)
@@ -278,6 +291,14 @@ def _parser() -> argparse.ArgumentParser:
                             formatter_class=argparse.RawDescriptionHelpFormatter)
         sp.set_defaults(subparser=sp)
         return sp
+
+    def output_opt(sp: argparse.ArgumentParser, *flags: str, kind: str, **kwargs) -> None:
+        """An output option of ``kind`` "file", "figure" (a file in a format matplotlib
+        writes) or "dir": :func:`main` checks every one (``commands.check_outputs``) before
+        the command does any work."""
+        action = sp.add_argument(*flags, type=_plot_path if kind == "figure" else _output_path, **kwargs)
+        registered = tuple(sp.get_default("outputs") or ())
+        sp.set_defaults(outputs=registered + ((action.dest, "dir" if kind == "dir" else "file", flags[-1]),))
 
     def transform_opts(sp: argparse.ArgumentParser, samples: int) -> None:
         sp.add_argument("--transform", choices=transform_names(), default=DEFAULT,
@@ -300,6 +321,10 @@ def _parser() -> argparse.ArgumentParser:
         sp.add_argument("--dask", metavar="TARGET", type=_dask_target, default=None,
                         help=f"run the Monte Carlo groups on Dask: {', '.join(DASK_LOCAL)}, or a scheduler "
                         "address such as tcp://host:8786 (needs the 'dask' extra); same result for the same seed")
+        sp.add_argument("--dask-timeout", metavar="SECONDS", type=_dask_seconds, default=WORKER_TIMEOUT,
+                        help="with a --dask address: how long to wait for a worker when the cluster has "
+                        f"none (at the start, or after the last one died) before stopping with an error "
+                        f"(default {WORKER_TIMEOUT:g})")
 
     def quiet_opt(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("-q", "--quiet", "--no-progress", dest="no_progress", action="store_true",
@@ -332,10 +357,9 @@ def _parser() -> argparse.ArgumentParser:
     samples_opt(sp, "the MoN over them with a jackknife standard error")
     sp.add_argument("--alpha-sweep", metavar="A:B:N", type=_sweep,
                     help="scale the input covariance by N log-spaced alphas from A to B")
-    sp.add_argument("--plot", metavar="PNG", type=_plot_path,
-                    help="with --alpha-sweep: write the MoN curve (atomically; .png, .pdf, .svg, ...)")
-    sp.add_argument("--csv", metavar="CSV", type=_output_path,
-                    help="with --alpha-sweep: write alpha, mon, stderr (atomically)")
+    output_opt(sp, "--plot", kind="figure", metavar="PNG",
+               help="with --alpha-sweep: write the MoN curve (atomically; .png, .pdf, .svg, ...)")
+    output_opt(sp, "--csv", kind="file", metavar="CSV", help="with --alpha-sweep: write alpha, mon, stderr (atomically)")
     sp.add_argument("--json", action="store_true", help="print JSON")
     quiet_opt(sp)
     sp.set_defaults(func=commands.cmd_nonlinearity)
@@ -360,8 +384,8 @@ def _parser() -> argparse.ArgumentParser:
                          "symbolically (small models only, stopped after --budget)")
     sp.add_argument("--budget", type=float, default=10.0, metavar="SECONDS",
                     help="wall-clock limit of the direct route (default 10)")
-    sp.add_argument("--out", type=_output_path, default=None, metavar="FILE",
-                    help="write the whole proof: M² in both units, their difference and the counterexample")
+    output_opt(sp, "--out", kind="file", default=None, metavar="FILE",
+               help="write the whole proof: M² in both units, their difference and the counterexample")
     sp.set_defaults(func=commands.cmd_prove)
 
     sp = add("reproduce", f"reproduce a figure of the papers (PNG + CSV): fig1 and fig2 of {SH24}; radar: the "
@@ -373,7 +397,7 @@ def _parser() -> argparse.ArgumentParser:
                     help=f"Monte Carlo samples, at least {REPRODUCE_MIN_SAMPLES} (default 10^6; the paper "
                     "used 10^7); for mmse: runs")
     sp.add_argument("--seed", type=_seed, default=0, help="seed, >= 0 (default 0)")
-    sp.add_argument("--out", type=_output_path, default="results", help="output directory (default ./results)")
+    output_opt(sp, "--out", kind="dir", default="results", help="output directory (default ./results)")
     quiet_opt(sp)
     sp.add_argument("--runs", type=_int_in(1, MAX_RUNS), default=None,
                     help="Monte Carlo runs of mmse and tracking (default: theirs, 1000 and 500)")
@@ -384,14 +408,12 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--all", action="store_true", help="run every derivation (the default)")
     g.add_argument("--list", action="store_true", help="list the derivation names and exit")
     g.add_argument("name", nargs="?", help="one derivation, by name (see --list)")
-    sp.add_argument("--out", type=_output_path, default="derivations-report.md",
-                    help="report file (default derivations-report.md)")
+    output_opt(sp, "--out", kind="file", default="derivations-report.md", help="report file (default derivations-report.md)")
     sp.set_defaults(func=commands.cmd_derive)
 
     sp = add("codegen", "export standalone C code (g, J, TT2 and UT moments)")
     sp.add_argument("file", help="TOML model file")
-    sp.add_argument("-o", "--output", type=_output_path, required=True, metavar="DIR",
-                    help="output directory (created if missing)")
+    output_opt(sp, "-o", "--output", kind="dir", required=True, metavar="DIR", help="output directory (created if missing)")
     sp.add_argument("--name", default=None, help="C prefix and file name (default: the model's name)")
     sp.set_defaults(func=commands.cmd_codegen)
 
@@ -413,8 +435,7 @@ def _parser() -> argparse.ArgumentParser:
              "target: NAME.c, NAME.h, an example program and a README (docs/export.md)")
     sp.add_argument("file", help="TOML filter scenario (see symmon.files.filterfile)")
     sp.add_argument("--filter", choices=sorted(FILTERS), default="ukf", help="the filter (default ukf)")
-    sp.add_argument("--out", type=_output_path, required=True, metavar="DIR",
-                    help="output directory (created if missing)")
+    output_opt(sp, "--out", kind="dir", required=True, metavar="DIR", help="output directory (created if missing)")
     sp.add_argument("--name", default=None,
                     help="C prefix and file name, a C identifier (default: the measurement model's name and the filter)")
     sp.set_defaults(func=commands.cmd_export)
@@ -433,7 +454,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="of the chi-square intervals (default 0.95)")
     sp.add_argument("--smooth", action="store_true",
                     help="also run each filter's RTS smoother and report its ANEES and RMSE")
-    sp.add_argument("--plot", metavar="PNG", type=_plot_path, help="write NEES, NIS and RMSE over time (atomically)")
+    output_opt(sp, "--plot", kind="figure", metavar="PNG", help="write NEES, NIS and RMSE over time (atomically)")
     sp.add_argument("--json", action="store_true", help="print JSON")
     sp.set_defaults(func=commands.cmd_filter)
 
@@ -475,6 +496,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exc.code if isinstance(exc.code, int) else 2
     catch_sigterm()  # SIGTERM during a compile exits through Python, which kills the compiler
     try:
+        commands.check_outputs(args)  # every output option, before the command does any work
         with silenced() if getattr(args, "no_progress", False) else contextlib.nullcontext():
             code = int(args.func(args))
         sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit

@@ -44,7 +44,7 @@ import casadi as ca
 from ..compile.ckernels import faster_kernels
 from ..compile.cnames import c_identifier, comment_text, is_casadi_name
 from ..errors import ArgumentTypeError, SymmonError
-from ..io import atomic_write_text
+from ..io import atomic_write_text, check_output_set
 from ..core.model import Model
 from ..compile import compiled
 from .symbolic import point_moments, tt2_moments, unit_rule
@@ -334,6 +334,9 @@ def export_c(model: Model, outdir: str | Path, name: str | None = None, *, ut: T
     ------
     SymmonError
         If ``name`` is not such an identifier or ``ut`` is not a point rule.
+    OutputPathError
+        If ``outdir`` is not a directory, or ``NAME.c`` or ``NAME.h`` in it cannot be
+        written (checked before anything is generated: neither is written then).
 
     Notes
     -----
@@ -358,6 +361,7 @@ def export_c(model: Model, outdir: str | Path, name: str | None = None, *, ut: T
     if not isinstance(model, Model):
         raise ArgumentTypeError(f"model must be a symmon.Model, got {type(model).__name__}")
     prefix = c_prefix(model.name if name is None else name, from_model=name is None)
+    check_output_set(outdir, (f"{prefix}.c", f"{prefix}.h"))  # both, before anything is generated
     fs = moment_functions(model, ut=ut, name=prefix, cse=cse)
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)

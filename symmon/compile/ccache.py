@@ -5,16 +5,20 @@ content: the library is cached on disk and loaded by later runs.  This module ow
 everything between "here is C source" and "here is a loaded library":
 
 - **Cache directory** (:func:`cache_dir`): ``$SYMMON_CACHE``, else
-  ``$XDG_CACHE_HOME/symmon``, else ``$HOME/.cache/symmon``.  It is created mode 0700.
-  A directory that is world-writable or belongs to another user is refused, and so is
-  one that cannot be created or written; symmon then uses a private temporary
+  ``$XDG_CACHE_HOME/symmon``, else ``$HOME/.cache/symmon``, symlinks resolved.  It is
+  created mode 0700.  A directory that is group- or world-writable or belongs to another
+  user is refused, and so is one whose parent someone else could write (without the
+  sticky bit) or that cannot be created or written, and, for root, one in the system's
+  own directories (``/``, ``/usr``, ``/etc``, ...); symmon then uses a private temporary
   directory for the rest of the process (removed at exit), with a warning.
 - **Entries**: ``STEM_KEY.so`` and, beside it, ``STEM_KEY.so.sha256`` in
   ``sha256sum`` format.  KEY hashes the source, the flags, the CasADi version and the
-  compiler's path, ``--version`` output and target (``-dumpmachine``).  Before a library
-  is loaded its sha256 is checked against the file beside it (which names the entry, so
-  a pair copied under another key fails too); a mismatch, a missing checksum or a load
-  failure gives a warning and a rebuild.
+  compiler's path, ``--version`` output and target (``-dumpmachine``).  Right before a
+  library is loaded, both files must be regular files of this user that nobody else can
+  write: an entry that is not is left alone, and the library is built in the private
+  directory instead, with a warning.  Then its sha256 is checked against the file beside
+  it (which names the entry, so a pair copied under another key fails too); a mismatch,
+  a missing checksum or a load failure gives a warning and a rebuild.
 - **Builds**: each runs as one build process (:mod:`symmon.compile.ccbuild`: the compiler, then
   the checksum and the atomic install) in a new session (process group) and in a
   temporary directory inside the cache.  On KeyboardInterrupt or SIGTERM the whole group
@@ -172,38 +176,80 @@ def _configured_dir() -> Path | None:
     return None
 
 
+#: For root, a cache in (or below) these trees is refused: they hold the system's own files.
+SYSTEM_TREES = tuple(map(Path, ("/bin", "/boot", "/dev", "/etc", "/lib", "/lib32", "/lib64", "/libx32",
+                                "/proc", "/run", "/sbin", "/sys", "/usr")))
+#: ... and so is a cache that *is* one of these (a subdirectory, like /var/cache/symmon, is fine).
+SYSTEM_DIRS = tuple(map(Path, ("/", "/home", "/media", "/mnt", "/opt", "/root", "/srv", "/tmp", "/var",
+                               "/var/cache", "/var/lib", "/var/tmp")))
+
+
+def is_system_path(d: Path) -> bool:
+    """Whether the resolved directory ``d`` is one of the system's (see :data:`SYSTEM_TREES`)."""
+    return d in SYSTEM_DIRS or any(d == t or t in d.parents for t in SYSTEM_TREES)
+
+
+def _writable_by_others(mode: int) -> str | None:
+    """``"world-writable"``, ``"group-writable"`` or None, for a file's ``st_mode``."""
+    if mode & stat.S_IWOTH:
+        return "world-writable"
+    if mode & stat.S_IWGRP:
+        return "group-writable"
+    return None
+
+
+def _parent_refusal(d: Path) -> str | None:
+    """Why a parent of ``d`` would let someone else replace ``d`` (None if none would)."""
+    uid = os.geteuid()
+    for parent in d.parents:
+        try:
+            st = parent.stat()
+        except OSError as exc:
+            return f"its parent {parent} cannot be examined ({exc.strerror or exc})"
+        if st.st_uid not in (0, uid):
+            return f"its parent {parent} belongs to another user (uid {st.st_uid})"
+        loose = _writable_by_others(st.st_mode)
+        if loose and not st.st_mode & stat.S_ISVTX:  # /tmp's sticky bit: only the owner renames
+            return f"its parent {parent} is {loose} (someone else could replace the cache)"
+    return None
+
+
 def _refusal(d: Path) -> str | None:
-    """Why ``d`` cannot hold the cache (None if it can); creates it mode 0700."""
+    """Why the resolved directory ``d`` cannot hold the cache (None if it can); creates it
+    mode 0700, unless it is a system directory of root's."""
+    if os.geteuid() == 0 and is_system_path(d):
+        return "it is a system directory, where symmon running as root caches nothing"
     try:
         d.mkdir(mode=0o700, parents=True, exist_ok=True)
-        st = d.stat()
+        st = d.lstat()  # resolved: a symlink here now was planted since
     except OSError as exc:
         return f"it cannot be created ({exc.strerror or exc})"
     if not stat.S_ISDIR(st.st_mode):
         return "it is not a directory"
     # Anyone who can write here can plant a library (and its checksum) that this process
     # would load: the checksum proves integrity, not who wrote the entry.
-    if st.st_mode & stat.S_IWOTH:
-        return "it is world-writable"
-    if st.st_mode & stat.S_IWGRP:
-        return "it is group-writable"
+    loose = _writable_by_others(st.st_mode)
+    if loose:
+        return f"it is {loose}"
     if st.st_uid != os.geteuid():
         return f"it belongs to another user (uid {st.st_uid})"
     if not os.access(d, os.W_OK | os.X_OK):
         return "it is not writable"
-    return None
+    return _parent_refusal(d)
 
 
 def cache_dir() -> Path:
     """The directory of the compiled-library cache, checked (see the module docstring).
 
-    Falls back, with a warning once per directory, to a private temporary directory
-    when the configured one is unusable, and silently when the environment names none
-    (``HOME`` empty or unset and no ``SYMMON_CACHE``).
+    Returns the resolved path (no symlink in it).  Falls back, with a warning once per
+    directory, to a private temporary directory when the configured one is unusable,
+    and silently when the environment names none (``HOME`` empty or unset and no
+    ``SYMMON_CACHE``).
     """
     d = _configured_dir()
     if d is None:
         return _private_dir()
+    d = d.resolve()
     why = _refusal(d)
     if why is None:
         return d
@@ -214,6 +260,26 @@ def cache_dir() -> Path:
 
 
 # --------------------------------------------------------------------------- entries
+def _distrust(so: Path) -> str | None:
+    """Why the entry ``so`` may not be this user's alone (None when both of its files, if
+    present, are regular files of this user that nobody else can write)."""
+    for path in (so, checksum_path(so)):
+        try:
+            st = path.lstat()
+        except FileNotFoundError:
+            continue
+        except OSError as exc:
+            return f"{path.name} cannot be examined ({exc.strerror or exc})"
+        if not stat.S_ISREG(st.st_mode):
+            return f"{path.name} is not a regular file"
+        if st.st_uid != os.geteuid():
+            return f"{path.name} belongs to another user (uid {st.st_uid})"
+        loose = _writable_by_others(st.st_mode)
+        if loose:
+            return f"{path.name} is {loose}"
+    return None
+
+
 def _verify(so: Path) -> str | None:
     """Why the entry ``so`` must not be loaded (None when its checksum matches)."""
     try:
@@ -459,14 +525,27 @@ def _build(code: str, so: Path, opt: str) -> None:
         shutil.rmtree(tmp, ignore_errors=True)  # the build process removed it, unless killed
 
 
-def _entry(code: str, stem: str, opt: str) -> Path:
-    """The cache path of ``code`` compiled with ``opt`` (not necessarily present)."""
+def _entry(code: str, stem: str, opt: str, warn: Callable[[str], None]) -> Path:
+    """The path of ``code`` compiled with ``opt`` (not necessarily present): in the cache,
+    or, when the cache's entry is not trusted (:func:`_distrust`), in the private
+    directory, after a warning through ``warn`` (once per entry and process)."""
     cc = _compiler()
     assert cc is not None
     key = hashlib.sha256("\0".join(
         [code, opt, *CFLAGS, ca.__version__, shlex.join(cc), _compiler_identity(cc)]).encode()
     ).hexdigest()[:24]
-    return cache_dir() / f"{stem}_{key}.so"
+    so = cache_dir() / f"{stem}_{key}.so"
+    why = _distrust(so)
+    if why is None:
+        return so
+    private = _private_dir() / so.name
+    with _lock:
+        first = f"entry:{so}" not in _warned
+        _warned.add(f"entry:{so}")
+    if first:
+        warn(f"symmon: not loading the cached library {so}: {why}; building it in {private.parent} "
+             f"for this process only (remove the entry to have it cached again)")
+    return private
 
 
 T = TypeVar("T")
@@ -478,7 +557,7 @@ def _load_or_build(code: str, stem: str, opt: str, load: Callable[[Path], T], wa
     A bad entry (checksum or load failure) is reported through ``warn``, removed and
     rebuilt once.  Raises BuildError, or OSError/RuntimeError from ``load``.
     """
-    so = _entry(code, stem, opt)
+    so = _entry(code, stem, opt, warn)
     if so.exists():
         why = _verify(so)
         if why is None:
@@ -547,7 +626,8 @@ class NativeLibrary(Generic[T]):
             return
         # A verified library of any optimisation level costs nothing to load: take the best.
         for opt in (OPT_SYNC, OPT_HUGE):
-            so = _entry(code, stem, opt)
+            so = _entry(code, stem, opt,
+                        lambda msg: warnings.warn(msg, RuntimeWarning, stacklevel=stacklevel + 2))
             if so.exists() and _verify(so) is None:
                 try:
                     self._obj, self._state = load(so), "compiled"

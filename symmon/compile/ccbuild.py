@@ -31,6 +31,7 @@ except ImportError:  # not on Windows: no limits there
     resource = None  # type: ignore[assignment]
 import shlex
 import shutil
+import stat
 import subprocess
 import sys
 from pathlib import Path
@@ -57,11 +58,14 @@ def install(built: Path, so: Path) -> None:
     """Move the library ``built`` to the cache entry ``so``, with its checksum, atomically.
 
     The checksum is written beside ``built`` (same file system as the entry) and moved
-    into place first: a reader that sees the new library sees its checksum.  Two
+    into place first: a reader that sees the new library sees its checksum.  Neither is
+    left group- or world-writable (a umask of 002 would make them so).  Two
     processes installing the same entry each move complete files, the last one wins.
     """
     staged = checksum_path(built)
     staged.write_text(f"{sha256_file(built)}  {so.name}\n")
+    for path in (built, staged):  # whatever the umask: an entry others can write is not loaded
+        os.chmod(path, stat.S_IMODE(os.stat(path).st_mode) & ~0o022)
     os.replace(staged, checksum_path(so))
     os.replace(built, so)
 

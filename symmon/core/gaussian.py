@@ -26,7 +26,7 @@ from ..errors import (
 )
 from ..latex import latex_number
 
-__all__ = ["Gaussian", "fuse", "as_covariance", "as_vector", "check_indices"]
+__all__ = ["Gaussian", "fuse", "as_covariance", "as_vector", "check_indices", "float_array"]
 
 #: Relative tolerance of the symmetry and positive-semi-definiteness checks.
 SYMMETRY_RTOL = 1e-10
@@ -35,21 +35,26 @@ PSD_RTOL = 1e-10
 _PSD_MODES = ("raise", "clip", "jitter")
 
 
-def _float_array(x: ArrayLike, name: str, error: type[SymmonError]) -> np.ndarray:
-    """``x`` as a float array; a value that is not a number or overflows a float (a
-    400-digit integer) raises ``error`` naming ``name`` instead of numpy's TypeError or
-    Python's OverflowError."""
+def float_array(x: ArrayLike, name: str, error: type[SymmonError] = ShapeError) -> np.ndarray:
+    """``x`` as a float array, or ``error`` naming ``name``: for a value that is not a
+    number (a string, None, a ragged list), a complex number (refused, not cast to its
+    real part) or a number that overflows a float (a 400-digit integer), instead of
+    numpy's TypeError, ValueError or ComplexWarning and Python's OverflowError."""
     try:
+        if np.iscomplexobj(x):
+            raise error(f"{name} holds complex numbers: it must be real")
         return np.asarray(x, dtype=float)
     except OverflowError as exc:
         raise error(f"{name} holds a number too large for a float (|x| > {np.finfo(float).max:.3g}): {exc}") from None
+    except SymmonError:
+        raise
     except (TypeError, ValueError) as exc:
         raise error(f"{name} must hold real numbers: {exc}") from None
 
 
 def as_vector(x: ArrayLike, name: str, dim: int | None = None) -> np.ndarray:
     """Return ``x`` as a finite 1-D float array, or raise a :class:`ShapeError` naming ``name``."""
-    arr = _float_array(x, name, ShapeError)
+    arr = float_array(x, name, ShapeError)
     if arr.ndim == 0:
         arr = arr.reshape(1)
     if arr.ndim != 1:
@@ -91,7 +96,7 @@ def as_covariance(
     """
     if psd not in _PSD_MODES:
         raise ArgumentError(f"psd must be one of {_PSD_MODES}, got {psd!r}")
-    arr = _float_array(P, name, CovarianceError)
+    arr = float_array(P, name, CovarianceError)
     if arr.ndim == 0:
         arr = arr.reshape(1, 1)
     if arr.ndim != 2 or arr.shape[0] != arr.shape[1]:

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import ArgumentError, ArgumentTypeError, ShapeError, WeightError
-from .gaussian import Gaussian, _float_array, _fmt, as_covariance, as_generator, as_vector, check_indices, matrix_sqrt
+from .gaussian import Gaussian, float_array, _fmt, as_covariance, as_generator, as_vector, check_indices, matrix_sqrt
 
 __all__ = ["GaussianMixture", "Empirical", "mixture_moments", "WEIGHT_SUM_ATOL", "MAX_SHOWN"]
 
@@ -43,7 +43,7 @@ MAX_SHOWN = 6
 def _check_weights(weights: ArrayLike, n: int | None, name: str, sum_to_one: bool) -> np.ndarray:
     """Weights as a float vector: finite, non-negative, not all zero (and, for a mixture,
     summing to 1 within :data:`WEIGHT_SUM_ATOL`), returned divided by their sum."""
-    w = _float_array(weights, name, WeightError)
+    w = float_array(weights, name, WeightError)
     if w.ndim == 0:
         w = w.reshape(1)
     if w.ndim != 1:
@@ -170,8 +170,8 @@ class GaussianMixture(_WeightedMeasure):
     __slots__ = ("_means", "_covs", "_components")
 
     def __init__(self, weights: ArrayLike, means: ArrayLike, covs: ArrayLike, psd: str = "raise") -> None:
-        M = _float_array(means, "means", ShapeError)
-        P = _float_array(covs, "covs", ShapeError)
+        M = float_array(means, "means", ShapeError)
+        P = float_array(covs, "covs", ShapeError)
         if M.ndim == 1 and P.ndim == 1:  # a scalar mixture: K means and K variances
             M, P = M[:, None], P[:, None, None]
         if M.ndim != 2:
@@ -296,7 +296,7 @@ class Empirical(_WeightedMeasure):
     __slots__ = ("_samples", "_ess")
 
     def __init__(self, samples: ArrayLike, weights: ArrayLike | None = None) -> None:
-        X = _float_array(samples, "samples", ShapeError)
+        X = float_array(samples, "samples", ShapeError)
         if X.ndim == 1:
             X = X[:, None]
         if X.ndim != 2 or X.shape[0] == 0 or X.shape[1] == 0:

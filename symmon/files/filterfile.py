@@ -69,6 +69,7 @@ import sympy as sp
 from ..core.angles import wrap_angle
 from ..errors import SymmonError
 from ..filters import Adaptive, NonlinearKalmanFilter
+from ..filters.results import KEEPABLE, MAX_BANK_NUMBERS, check_bank_size, kept_numbers
 from ..measures.advice import DEFAULT_TOL
 from ..core.gaussian import Gaussian
 from ..core.model import Model
@@ -86,15 +87,16 @@ from .modelfile import (
 from ..compile import compiled
 from ..transforms import TT1, TT2, UT, GaussHermite
 
-__all__ = ["FilterSpec", "load_filter_file", "simulate", "FILTERS", "filter_transform", "run_bank", "BankSummary"]
+__all__ = ["FilterSpec", "load_filter_file", "simulate", "check_bank", "FILTERS", "filter_transform", "run_bank", "BankSummary"]
 
 #: The filters of ``symmon filter`` and ``symmon reproduce tracking``, by short name.
 FILTERS = {"ekf": TT1(), "ekf2": TT2(), "ukf": UT.ut1(), "ckf": UT.cubature(), "gh": GaussHermite(3)}
 #: Largest number of steps of a scenario (the bank holds runs × steps × n² numbers).
 MAX_STEPS = 100_000
 #: The most numbers :func:`simulate` holds (truth and measurements of every run and step):
-#: 2·10⁸, 1.5 GiB, so that runs × steps is bounded jointly before any memory is taken.
-MAX_SIMULATED = 2 * 10**8
+#: 2·10⁸, 1.5 GiB, so that runs × steps is bounded jointly before any memory is taken; the
+#: same bound as a filter bank's results (:data:`symmon.filters.results.MAX_BANK_NUMBERS`).
+MAX_SIMULATED = MAX_BANK_NUMBERS
 
 _KEYS = ("name", "states", "dynamics", "measurements", "angles", "state_angles", "steps", "params", "Q", "R", "x0",
          "process_noise", "measurement_noise", "units")
@@ -257,6 +259,24 @@ def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> Filte
     return FilterSpec(name, f, h, Q, R, x0, int(steps), path, units, {k: float(v) for k, v in params.items()})
 
 
+def check_bank(spec: FilterSpec, runs: int, filters: Iterable[str], smooth: bool = False) -> None:
+    """Refuse, before anything is simulated, a bank whose arrays would not fit: the
+    simulated truth and measurements, and every filter's results (:func:`run_bank` keeps
+    each filter's, all arrays, and with ``smooth`` its smoothed means and covariances).
+
+    Raises
+    ------
+    ResourceError
+        Beyond :data:`~symmon.filters.results.MAX_BANK_NUMBERS` numbers.
+    """
+    n, n_y = spec.f.n_u, spec.h.n_y
+    names = list(filters)
+    smoothed = sum(smooth and name != "adaptive" for name in names)
+    per_step = n + n_y + len(names) * kept_numbers(n, n_y, KEEPABLE) + smoothed * (n + n * n)
+    check_bank_size(runs, spec.steps, per_step, f"a bank of {len(names)} filter(s) on {spec.name!r}",
+                    "use fewer runs, steps or filters")
+
+
 def simulate(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, steps: int, runs: int,
              seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """True states and measurements of ``runs`` independent runs.
@@ -278,10 +298,7 @@ def simulate(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, ste
         non-finite state or measurement, naming the run and step).
     """
     n, n_y = f.n_u, h.n_y
-    if runs * steps * (n + n_y) > MAX_SIMULATED:
-        raise SymmonError(
-            f"runs × steps × (states + measurements) = {runs} × {steps} × {n + n_y} exceeds {MAX_SIMULATED:.0e} "
-            f"numbers ({8 * MAX_SIMULATED / 2**30:.1f} GiB): use fewer runs or steps")
+    check_bank_size(runs, steps, n + n_y, "the simulated states and measurements", "use fewer runs or steps")
     rng = np.random.default_rng(seed)
     cf, ch = compiled(f), compiled(h)
     nq, nr = f.n_v or n, h.n_v or n_y
@@ -360,8 +377,9 @@ def run_bank(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, xs:
     """Run the named filters (:func:`filter_transform`) on the bank ``ys`` with truth ``xs``.
 
     With ``smooth``, each filter's RTS smoother runs too (:meth:`NonlinearKalmanFilter.smooth`),
-    except the adaptive filter's.  A filter that fails (NaN: it diverged) is reported with its
-    error instead of stopping the others.
+    except the adaptive filter's.  A filter that fails (NaN: it diverged), or whose
+    statistics do (a state known exactly has no NEES), is reported with its error instead of
+    stopping the others.
     """
     out = []
     for name in names:
@@ -373,13 +391,14 @@ def run_bank(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, xs:
                 res = smoothed.filtered
             else:
                 res = kf.filter(ys, x0)
+            # Its statistics may fail too (a state known exactly has no NEES): the same report.
+            extra = {}
+            if smoothed is not None:
+                extra = {"smoothed": smoothed, "smoothed_anees": smoothed.anees(xs, confidence),
+                         "smoothed_rmse": _rmse(xs, smoothed.x, res.angle_states)}
+            summary = BankSummary(name, res, res.anees(xs, confidence), res.anis(confidence),
+                                  _rmse(xs, res.x, res.angle_states), **extra)
         except SymmonError as exc:
-            out.append(BankSummary(name, None, None, None, None, str(exc)))
-            continue
-        extra = {}
-        if smoothed is not None:
-            extra = {"smoothed": smoothed, "smoothed_anees": smoothed.anees(xs, confidence),
-                     "smoothed_rmse": _rmse(xs, smoothed.x, res.angle_states)}
-        out.append(BankSummary(name, res, res.anees(xs, confidence), res.anis(confidence),
-                               _rmse(xs, res.x, res.angle_states), **extra))
+            summary = BankSummary(name, None, None, None, None, str(exc))
+        out.append(summary)
     return out

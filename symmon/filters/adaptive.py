@@ -27,6 +27,7 @@ from ..measures.advice import DEFAULT_TOL, cost, moment_distance, whiteners
 from ..core.angles import wrap_angle
 from ..errors import SymmonError
 from .step import _compiled_step, _filterable, check_dimensions
+from .results import KEEPABLE
 from .strategy import FilterStrategy
 from ..transforms.registry import resolve
 from ..core.model import Model
@@ -118,6 +119,9 @@ class Adaptive(FilterStrategy):
         for t in self.candidates + (self.reference,):
             check_dimensions(t, kf.dimensions)
 
+    def stores(self, keep):
+        return frozenset(KEEPABLE)  # every array: the next decision reads x and P
+
     def run(self, kf, Y, x0, P0, keep=None):
         return _adaptive_run(self, kf, Y, x0, P0)  # every output: the next decision reads x and P
 
@@ -172,7 +176,7 @@ def _adaptive_run(ad: Adaptive, kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: 
     shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n), "innovation": (n_y,), "S": (n_y, n_y),
               "loglik": (), "nis": ()}
     out = {key: np.full((runs, K) + s, np.nan) for key, s in shapes.items()}  # NaN after a failure
-    chosen = np.empty((runs, K), dtype=int)
+    chosen = np.full((runs, K), -1)  # -1: a step not run (after a failure), labelled ""
     x = np.ascontiguousarray(np.broadcast_to(x0, (runs, n)), dtype=float)
     P = np.ascontiguousarray(np.broadcast_to(P0, (runs, n, n)), dtype=float)
     states, y_angles = kf.angle_states, frozenset(h.angle_outputs)
@@ -207,4 +211,4 @@ def _adaptive_run(ad: Adaptive, kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: 
         x, P = out["x"][:, k].copy(), out["P"][:, k].copy()
         if not (np.isfinite(x).all() and np.isfinite(P).all()):
             break  # the caller names the run and step
-    return out, names[chosen]
+    return out, np.where(chosen >= 0, names[np.maximum(chosen, 0)], "")

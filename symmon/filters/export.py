@@ -52,7 +52,7 @@ import numpy as np
 from ..codegen.export import HEADER_CLOSING, c_prefix, generate_sources, work_sizes
 from ..compile.cnames import c_identifier, comment_text
 from ..errors import ArgumentTypeError, SymmonError
-from ..io import atomic_write_text, check_output_dir
+from ..io import atomic_write_text, check_output_set
 from ..version import __version__
 from .step import predict_graph, select_params, step_kind, update_graph
 from .strategy import RuleStrategy
@@ -336,7 +336,9 @@ def export_filter_c(kf: "NonlinearKalmanFilter", directory: str | Path, name: st
         For an adaptive filter (no single step to export), or a ``name`` that is not such an
         identifier.
     OutputPathError
-        If ``directory`` exists and is not a directory.
+        If ``directory`` exists and is not a directory, or one of the four files in it
+        cannot be written (read-only, not a regular file): checked before anything is
+        generated or written.
 
     Notes
     -----
@@ -350,7 +352,7 @@ def export_filter_c(kf: "NonlinearKalmanFilter", directory: str | Path, name: st
     transform = _transform(kf)
     default = f"{c_identifier(kf.h_model.name, hashed=False)}_{_family(kf)}"
     P = c_prefix(default if name is None else name, from_model=name is None)
-    outdir = check_output_dir(directory)
+    outdir = check_output_set(directory, (f"{P}.c", f"{P}.h", f"{P}_example.c", "README.md"))
     fs = filter_functions(kf, P)
     outdir.mkdir(parents=True, exist_ok=True)
     c_src, head, tail = generate_sources(fs.values(), P)

@@ -27,6 +27,7 @@ import casadi as ca
 import numpy as np
 from scipy import optimize
 
+from ..core.gaussian import float_array
 from ..errors import ModelError, SymmonError
 from .results import KalmanResult, real_measurements
 from .step import _compiled_step
@@ -34,7 +35,7 @@ from .step import _compiled_step
 if TYPE_CHECKING:  # pragma: no cover - annotations only
     from .nonlinear import NonlinearKalmanFilter
 
-__all__ = ["FitResult", "fit_parameters"]
+__all__ = ["FitResult", "fit_parameters", "MAX_ITER"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,6 +124,18 @@ def _loglik_graph(kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: np.ndarray, P0
     return theta, total
 
 
+#: The most iterations of the optimiser a fit may ask for.
+MAX_ITER = 100_000
+
+
+def _number(v: Any, what: str) -> float:
+    """``v`` as a real number (not NaN), or a ModelError naming ``what``."""
+    x = float_array(v, what, ModelError)
+    if x.ndim != 0 or np.isnan(x):
+        raise ModelError(f"{what} must be a number, got {v!r}")
+    return float(x)
+
+
 def fit_parameters(kf: "NonlinearKalmanFilter", ys, x0, start: dict, P0=None, *, params: dict | None = None,
                    bounds: dict | None = None, max_iter: int = 200, gtol: float = 1e-6) -> FitResult:
     """The maximum-likelihood estimates of the parameters named in ``start``
@@ -132,6 +145,11 @@ def fit_parameters(kf: "NonlinearKalmanFilter", ys, x0, start: dict, P0=None, *,
         raise ModelError("the filter's models declare no parameters to fit (Model(..., params=[...]))")
     if not isinstance(start, dict) or not start:
         raise ModelError(f"start must be a dict of starting values of some of {names}, got {start!r}")
+    for what, d in (("params", params), ("bounds", bounds)):
+        if d is not None and not isinstance(d, dict):
+            raise ModelError(f"{what} must be a dict by parameter name, got {type(d).__name__}")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or not 1 <= max_iter <= MAX_ITER:
+        raise ModelError(f"max_iter must be an integer from 1 to {MAX_ITER}, got {max_iter!r}")
     fitted_names = [str(k) for k in start]
     unknown = sorted(set(fitted_names) - set(names))
     if unknown:
@@ -140,17 +158,17 @@ def fit_parameters(kf: "NonlinearKalmanFilter", ys, x0, start: dict, P0=None, *,
     both = sorted(set(fixed) & set(fitted_names))
     if both:
         raise ModelError(f"parameters {both} are both fitted (start) and fixed (params)")
-    theta0 = np.array([float(start[k]) for k in fitted_names])
+    theta0 = np.array([_number(start[k], f"the starting value of {k!r}") for k in fitted_names])
     if not np.all(np.isfinite(theta0)):
         raise ModelError("the starting values must be finite")
     lo, hi = np.full(len(theta0), -np.inf), np.full(len(theta0), np.inf)
     for k, b in (bounds or {}).items():
         if str(k) not in fitted_names:
             raise ModelError(f"a bound for {k!r}, which is not fitted (fitted: {fitted_names})")
-        try:
-            a, c = (float(v) if v is not None else s for v, s in zip(b, (-np.inf, np.inf)))
-        except (TypeError, ValueError):
-            raise ModelError(f"the bound of {k!r} must be a pair (low, high), got {b!r}") from None
+        if not isinstance(b, (tuple, list)) or len(b) != 2:
+            raise ModelError(f"the bound of {k!r} must be a pair (low, high), got {b!r}")
+        a, c = (-np.inf if b[0] is None else _number(b[0], f"the low bound of {k!r}"),
+                np.inf if b[1] is None else _number(b[1], f"the high bound of {k!r}"))
         if not a < c:
             raise ModelError(f"the bound of {k!r} must have low < high, got {b!r}")
         j = fitted_names.index(str(k))

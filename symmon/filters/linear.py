@@ -28,9 +28,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..core.checks import readonly
-from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, ShapeError
-from ..core.gaussian import Gaussian, as_covariance, matrix_sqrt
-from .results import KalmanResult, check_keep, real_measurements  # the one result type of the filters
+from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, NonFiniteError, ShapeError, SingularMatrixError
+from ..core.gaussian import Gaussian, as_covariance, float_array, matrix_sqrt
+from .results import KalmanResult, check_bank_size, check_keep, real_measurements  # the one result type of the filters
 
 __all__ = ["KalmanFilter", "KalmanResult"]
 
@@ -38,7 +38,7 @@ __all__ = ["KalmanFilter", "KalmanResult"]
 
 def _as_matrix(M: ArrayLike, name: str, shape: tuple[int | None, int | None]) -> np.ndarray:
     """Return ``M`` as a finite 2-D float array of the given shape (None: any size)."""
-    arr = np.asarray(M, dtype=float)
+    arr = float_array(M, name)
     if arr.ndim == 0:
         arr = arr.reshape(1, 1)  # a scalar is a 1x1 model
     if arr.ndim != 2:
@@ -52,6 +52,36 @@ def _as_matrix(M: ArrayLike, name: str, shape: tuple[int | None, int | None]) ->
     if not np.all(np.isfinite(arr)):
         raise ShapeError(f"{name} contains NaN or inf")
     return arr
+
+
+def _solve(S: np.ndarray, B: np.ndarray, k: int) -> np.ndarray:
+    """S⁻¹ B for the innovation covariance S of step ``k``, or a named error."""
+    try:
+        return np.linalg.solve(S, B)
+    except np.linalg.LinAlgError:
+        raise SingularMatrixError(f"KF: the innovation covariance S at step {k} is singular in double "
+                                  "precision (H P Hᵀ dwarfs R by more than 1e16)") from None
+
+
+def _cholesky(Ss: np.ndarray) -> np.ndarray:
+    """The Cholesky factors of the innovation covariances (K, n_y, n_y), or a named error."""
+    try:
+        return np.linalg.cholesky(Ss)
+    except np.linalg.LinAlgError:
+        k = int(np.argmin(np.linalg.eigvalsh(Ss)[:, 0]))
+        raise SingularMatrixError(f"KF: the innovation covariance S at step {k} is not positive definite in "
+                                  "double precision (H P Hᵀ dwarfs R by more than 1e16)") from None
+
+
+def _check_finite(x: np.ndarray, P: np.ndarray, loglik: np.ndarray) -> None:
+    """Refuse a result with NaN or inf: x (..., K, n), P (K, n, n) shared by the runs,
+    loglik (..., K); the first bad run and step are named."""
+    bad = ~(np.isfinite(loglik) & np.isfinite(x).all(axis=-1) & np.isfinite(P).all(axis=(-1, -2)))
+    if bad.any():
+        idx = [int(i) for i in np.argwhere(bad)[0]]
+        where = f"step {idx[-1]}" if len(idx) == 1 else f"run {idx[0]}, step {idx[1]}"
+        raise NonFiniteError(f"KF: the filter produced NaN or inf at {where}: the state overflows double "
+                             "precision (an unstable F, or measurements or x0 beyond 1e154)")
 
 
 @dataclass(frozen=True, eq=False, repr=False)
@@ -116,7 +146,7 @@ class KalmanFilter:
         return int(self.H.shape[0])
 
     def _initial_mean(self, x0: ArrayLike, batch: int | None) -> np.ndarray:
-        arr = np.asarray(x0, dtype=float)
+        arr = float_array(x0, "x0")
         ok = arr.shape == (self.n,) or (batch is not None and arr.shape == (batch, self.n))
         if not ok:
             want = f"({self.n},)" + ("" if batch is None else f" or ({batch}, {self.n})")
@@ -156,6 +186,12 @@ class KalmanFilter:
         Raises
         ------
         ShapeError, CovarianceError
+            Bad inputs.
+        ResourceError
+            The results would exceed :data:`~symmon.filters.results.MAX_BANK_NUMBERS` numbers.
+        NonFiniteError, SingularMatrixError
+            The state or a covariance overflows double precision, or S rounds to a singular
+            matrix, naming the step (and run).
         """
         kept = check_keep(keep)
         Y = real_measurements(ys)
@@ -163,9 +199,14 @@ class KalmanFilter:
             raise ShapeError(
                 f"ys must have shape (K, {self.n_y}) or (N, K, {self.n_y}) with K >= 1, got {Y.shape}"
             )
+        batch = Y.shape[0] if Y.ndim == 3 else None
+        n, n_y = self.n, self.n_y
+        # Per run and step: x, x_pred, the innovation, its whitened form, NIS, log-likelihood;
+        # the covariances and gains are shared by the runs.  Checked before ys is read whole.
+        check_bank_size(batch or 1, Y.shape[-2], 2 * n + 2 * n_y + 2, "KF results",
+                        "filter the runs in smaller banks, or fewer steps at a time", shared=2 * n * n + n_y * n_y + n * n_y)
         if not np.all(np.isfinite(Y)):
             raise ShapeError("ys contains NaN or inf")
-        batch = Y.shape[0] if Y.ndim == 3 else None
         if isinstance(x0, Gaussian) == (P0 is not None):
             raise ShapeError("give x0 as a Gaussian, or its mean together with P0")
         if isinstance(x0, Gaussian):
@@ -176,7 +217,6 @@ class KalmanFilter:
         P = as_covariance(P0, "P0", dim=self.n)
 
         K = Y.shape[-2]
-        n, n_y = self.n, self.n_y
         F, Q, H, R = self.F, self.Q, self.H, self.R
         eye = np.eye(n)
         lead = () if batch is None else (batch,)
@@ -187,28 +227,33 @@ class KalmanFilter:
         Pps = np.empty((K, n, n))
         Ss = np.empty((K, n_y, n_y))
         gains = np.empty((K, n, n_y))
-        for k in range(K):
-            x_pred = x @ F.T
-            P_pred = F @ P @ F.T + Q
-            P_pred = 0.5 * (P_pred + P_pred.T)
-            S = H @ P_pred @ H.T + R
-            # K = P⁻Hᵀ S⁻¹ via a solve (S symmetric), not an explicit inverse.
-            G = np.linalg.solve(S, H @ P_pred).T
-            innov = Y[..., k, :] - x_pred @ H.T
-            x = x_pred + innov @ G.T
-            IKH = eye - G @ H
-            P = IKH @ P_pred @ IKH.T + G @ R @ G.T
-            P = 0.5 * (P + P.T)
-            xs[..., k, :] = x
-            xps[..., k, :] = x_pred
-            innovs[..., k, :] = innov
-            Ps[k], Pps[k], Ss[k], gains[k] = P, P_pred, S, G
-        # log N(ν_k; 0, S_k): S does not depend on the data, its factor serves every run.
-        L = np.linalg.cholesky(Ss)
-        log_det = 2 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
-        white = np.linalg.solve(L, innovs[..., None])[..., 0]
-        nis = (white**2).sum(axis=-1)  # νᵀ S⁻¹ ν from the same factor
-        loglik = -0.5 * (nis + log_det + n_y * np.log(2 * np.pi))
+        with np.errstate(over="ignore", invalid="ignore"):  # a non-finite number is refused below
+            for k in range(K):
+                x_pred = x @ F.T
+                P_pred = F @ P @ F.T + Q
+                P_pred = 0.5 * (P_pred + P_pred.T)
+                S = H @ P_pred @ H.T + R
+                if not (np.all(np.isfinite(P_pred)) and np.all(np.isfinite(S))):
+                    raise NonFiniteError(f"KF: the predicted covariance overflows at step {k} (F, Q or P0 too "
+                                         "large for double precision)")
+                # K = P⁻Hᵀ S⁻¹ via a solve (S symmetric), not an explicit inverse.
+                G = _solve(S, H @ P_pred, k).T
+                innov = Y[..., k, :] - x_pred @ H.T
+                x = x_pred + innov @ G.T
+                IKH = eye - G @ H
+                P = IKH @ P_pred @ IKH.T + G @ R @ G.T
+                P = 0.5 * (P + P.T)
+                xs[..., k, :] = x
+                xps[..., k, :] = x_pred
+                innovs[..., k, :] = innov
+                Ps[k], Pps[k], Ss[k], gains[k] = P, P_pred, S, G
+            # log N(ν_k; 0, S_k): S does not depend on the data, its factor serves every run.
+            L = _cholesky(Ss)
+            log_det = 2 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
+            white = np.linalg.solve(L, innovs[..., None])[..., 0]
+            nis = (white**2).sum(axis=-1)  # νᵀ S⁻¹ ν from the same factor
+            loglik = -0.5 * (nis + log_det + n_y * np.log(2 * np.pi))
+        _check_finite(xs, Ps, loglik)
         arrays = {"x": xs, "P": Ps, "x_pred": xps, "P_pred": Pps, "innovation": innovs, "S": Ss,
                   "nis_values": nis}
         arrays = {k: readonly(v) if kept is None or k.removesuffix("_values") in kept else None
@@ -245,6 +290,13 @@ class KalmanFilter:
             True states :math:`x_1, \\dots, x_K`.
         measurements : ndarray, shape (K, n_y) or (runs, K, n_y)
             Measurements :math:`y_1, \\dots, y_K`.
+
+        Raises
+        ------
+        ResourceError
+            runs × K × 2(n + n_y) beyond :data:`~symmon.filters.results.MAX_BANK_NUMBERS`.
+        NonFiniteError
+            The simulated state overflows (an unstable F), naming the run and step.
         """
         if isinstance(K, bool) or not isinstance(K, (int, np.integer)) or K < 1:
             raise ArgumentError(f"K must be a positive integer, got {K!r}")
@@ -255,6 +307,8 @@ class KalmanFilter:
         x = self._initial_mean(x0, None)
         lead = () if runs is None else (int(runs),)
         n, n_y = self.n, self.n_y
+        # The noises, states and measurements of every run and step.
+        check_bank_size(runs or 1, K, 2 * (n + n_y), "KalmanFilter.simulate", "simulate fewer runs or steps")
         if P0 is not None:
             L0 = matrix_sqrt(as_covariance(P0, "P0", dim=n))
             x = x + rng.standard_normal(lead + (n,)) @ L0.T
@@ -264,8 +318,15 @@ class KalmanFilter:
         w = rng.standard_normal(lead + (int(K), n)) @ matrix_sqrt(self.Q).T
         v = rng.standard_normal(lead + (int(K), n_y)) @ matrix_sqrt(self.R).T
         states = np.empty(lead + (int(K), n))
-        for k in range(int(K)):
-            x = x @ self.F.T + w[..., k, :]
-            states[..., k, :] = x
-        meas = states @ self.H.T + v
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging truth is refused below
+            for k in range(int(K)):
+                x = x @ self.F.T + w[..., k, :]
+                states[..., k, :] = x
+            meas = states @ self.H.T + v
+        bad = ~(np.isfinite(states).all(axis=-1) & np.isfinite(meas).all(axis=-1))
+        if bad.any():
+            *r, k = (int(i) for i in np.argwhere(bad)[0])
+            where = f"step {k}" if not r else f"run {r[0]}, step {k}"
+            raise NonFiniteError(f"KalmanFilter.simulate: the simulated state overflows at {where}: F is unstable "
+                                 "over this many steps, or x0, P0 or Q too large for double precision")
         return states, meas

@@ -56,21 +56,24 @@ Trans. Autom. Control 38(2), 1993. doi:10.1109/9.250476
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
 from functools import cached_property
 
 import numpy as np
+import sympy as sp
 from numpy.typing import ArrayLike
 
-from ..errors import ArgumentTypeError, ModelError, ShapeError, SymmonError
+from ..errors import AngleWarning, ArgumentTypeError, CovarianceError, ModelError, ShapeError, SymmonError
 from ..core.checks import check_gaussian, check_model, noise_cov, readonly
-from .results import ConsistencyTest, KalmanResult, NonlinearKalmanResult, SmootherResult, check_keep, real_measurements
+from .results import (ConsistencyTest, KalmanResult, NonlinearKalmanResult, SmootherResult, check_bank_size, check_keep,
+                      kept_numbers, real_measurements)
 from .smoother import compiled_smoother
 from .step import filter_params
 from .strategy import FilterStrategy, RuleStrategy
-from ..core.gaussian import Gaussian, as_covariance
+from ..core.gaussian import Gaussian, as_covariance, float_array
 from ..core.model import Model
 from ..transforms import UT, Transform
 from ..transforms.registry import resolve
@@ -79,6 +82,34 @@ __all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest", 
 
 #: The most Gauss–Newton iterations of the iterated EKF's update (each one is unrolled in the step).
 MAX_ITERATIONS = 20
+#: How to make a bank's results fit (:data:`~symmon.filters.results.MAX_BANK_NUMBERS`).
+_SMALLER = "keep fewer arrays (keep=('x',) stores the means only) or filter the runs in smaller banks"
+
+
+def _warn_undeclared_angle_outputs(h: Model, angle_states: frozenset[int]) -> None:
+    """Warn (AngleWarning) for each output of h that depends on angle states only, is not
+    2π-periodic in them (θ itself, θ + b, 2θ; not sin θ) and is not declared an angle.
+
+    Such an output measures an angle: its innovation must be wrapped, or a true angle near
+    ±π gives innovations near 2π and an inconsistent filter (an ANEES of 46 on a 2-state
+    tracker, issue 26), without any other sign.
+    """
+    angles = {h.inputs[j] for j in angle_states}
+    if not angles:
+        return
+    for i, expr in enumerate(h.outputs):
+        states = expr.free_symbols & set(h.inputs)
+        if i in h.angle_outputs or not states or not states <= angles:
+            continue
+        shift = {t: t + 2 * sp.pi for t in states}
+        if sp.expand(expr.xreplace(shift) - expr) == 0:  # sin θ, cos θ: continuous across ±π
+            continue
+        names = ", ".join(sorted(map(str, states)))
+        warnings.warn(
+            f"h_model {h.name!r}: output {i} ({expr}) depends only on the angle state(s) {names} and is not "
+            f"2π-periodic in them, but it is not declared an angle: its innovations are not wrapped, so a "
+            f"true angle near ±π gives innovations near 2π and an inconsistent filter; declare it with "
+            f"Model(..., angles=[{i}])", AngleWarning, stacklevel=4)
 
 
 @dataclass(frozen=True, eq=False)
@@ -157,6 +188,7 @@ class NonlinearKalmanFilter:
         object.__setattr__(self, "transform", transform)
         object.__setattr__(self, "strategy", strategy)
         strategy.check(self)
+        _warn_undeclared_angle_outputs(h, self.angle_states)
 
     @property
     def dimensions(self) -> tuple[int, int]:
@@ -189,7 +221,7 @@ class NonlinearKalmanFilter:
         R = runs or 1
         out = np.empty((R, K, len(names)))
         for j, n in enumerate(names):
-            v = np.asarray(given[n], dtype=float)
+            v = float_array(given[n], f"parameter {n!r}")
             shapes = [(), (K,)] + ([(runs, K)] if runs is not None else [])
             if v.shape not in shapes:
                 raise ShapeError(f"parameter {n!r} must be a number, one per step ({K},)"
@@ -247,7 +279,14 @@ class NonlinearKalmanFilter:
         if not isinstance(self.strategy, RuleStrategy):
             raise SymmonError(f"smooth needs one transform for every step; {self.method} chooses one per step")
         kept = check_keep(keep)
-        fwd = self.filter(ys, x0, P0, keep=None if kept is None else kept | {"x", "P"}, params=params)
+        forward = None if kept is None else kept | {"x", "P"}
+        Y = real_measurements(ys)
+        if Y.ndim in (2, 3):  # else filter() says what is wrong with the shape
+            n = self.f_model.n_u
+            stored = kept_numbers(n, self.h_model.n_y, self.strategy.stores(forward)) + n + n * n
+            check_bank_size(Y.shape[0] if Y.ndim == 3 else 1, Y.shape[-2], stored, f"{self.method} smoother results",
+                            _SMALLER)
+        fwd = self.filter(Y, x0, P0, keep=forward, params=params)
         bank = fwd.runs is not None
         X = fwd.x if bank else fwd.x[None]
         P = fwd.P if bank else fwd.P[None]
@@ -335,13 +374,13 @@ class NonlinearKalmanFilter:
             return np.asarray(x0.mean, dtype=float), np.asarray(x0.cov, dtype=float)
         if P0 is None:
             raise ArgumentTypeError("x0 must be a symmon.Gaussian, or a mean given together with P0")
-        m = np.asarray(x0, dtype=float)
+        m = float_array(x0, "x0")
         if not (m.shape == (n,) or (runs is not None and m.shape == (runs, n))):
             want = f"({n},)" + ("" if runs is None else f" or ({runs}, {n})")
             raise ShapeError(f"x0 must have shape {want}, got {m.shape}")
         if not np.all(np.isfinite(m)):
             raise ShapeError("x0 contains NaN or inf")
-        C = np.asarray(P0, dtype=float)
+        C = float_array(P0, "P0", CovarianceError)
         if runs is not None and C.shape == (runs, n, n):  # one covariance per run
             for r in range(runs):
                 as_covariance(C[r], f"P0[{r}]", dim=n)
@@ -388,19 +427,25 @@ class NonlinearKalmanFilter:
         ------
         ShapeError
             Bad shapes, or an infinite measurement.
+        ResourceError
+            The arrays kept would exceed :data:`~symmon.filters.results.MAX_BANK_NUMBERS`
+            numbers (checked before any work).
         SymmonError
             The filter produced NaN or inf (a singular S, or a covariance that lost
-            positive definiteness), naming the run and step.
+            positive definiteness), naming the first step that failed and its run.
         """
         n_y = self.h_model.n_y
         Y = real_measurements(ys)
         if Y.ndim not in (2, 3) or Y.shape[-1] != n_y or Y.shape[-2] == 0 or Y.shape[0] == 0:
             raise ShapeError(f"ys must have shape (K, {n_y}) or (R, K, {n_y}) with K >= 1, got {Y.shape}")
+        runs = Y.shape[0] if Y.ndim == 3 else None
+        kept = check_keep(keep)
+        # Before anything reads ys as a whole (a broadcast bank may be larger than memory).
+        check_bank_size(runs or 1, Y.shape[-2], kept_numbers(self.f_model.n_u, n_y, self.strategy.stores(kept)),
+                        f"{self.method} results", _SMALLER)
         if np.isinf(Y).any():
             where = tuple(int(i) for i in np.argwhere(np.isinf(Y))[0])
             raise ShapeError(f"ys contains inf (at index {where}); a missing measurement is NaN")
-        runs = Y.shape[0] if Y.ndim == 3 else None
-        kept = check_keep(keep)
         m0, C0 = self._initial(x0, P0, runs)
         Yb = Y.reshape((runs or 1,) + Y.shape[-2:])
         pv = self._param_values(params, runs, Y.shape[-2])
@@ -414,7 +459,7 @@ class NonlinearKalmanFilter:
         if "P" in out:
             bad |= ~np.isfinite(out["P"]).all(axis=(-1, -2))
         if bad.any():
-            r, k = np.argwhere(bad)[0]
+            k, r = np.argwhere(bad.T)[0]  # the first step that failed (later ones may be NaN in every run)
             where = f"step {k}" if runs is None else f"run {r}, step {k}"
             raise SymmonError(
                 f"{self.method}: the filter produced NaN or inf at {where} (the innovation "

@@ -16,6 +16,7 @@ Navigation*, Wiley, 2001, §5.4 (NEES, NIS and their χ² tests).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from decimal import Decimal
 from typing import Iterable, Sequence, Union
 
 import numpy as np
@@ -23,11 +24,13 @@ from numpy.typing import ArrayLike
 from scipy import stats
 
 from ..core.angles import wrap_angle
-from ..errors import ArgumentError, ShapeError, SingularMatrixError, SymmonError
+from ..errors import ArgumentError, NonFiniteError, ResourceError, ShapeError, SingularMatrixError, SymmonError
+from ..measures.weights import SINGULAR_CORR
 from ..core.checks import readonly
-from ..core.gaussian import Gaussian
+from ..core.gaussian import Gaussian, float_array
 
-__all__ = ["KalmanResult", "NonlinearKalmanResult", "SmootherResult", "ConsistencyTest", "KEEPABLE", "check_keep", "real_measurements"]
+__all__ = ["KalmanResult", "NonlinearKalmanResult", "SmootherResult", "ConsistencyTest", "KEEPABLE", "check_keep",
+           "real_measurements", "MAX_BANK_NUMBERS", "check_bank_size", "kept_numbers"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -102,25 +105,66 @@ def _consistency(stat: np.ndarray, d: int | np.ndarray, confidence: float) -> Co
     return ConsistencyTest(readonly(value), readonly(lo), readonly(hi), readonly(dof), float(confidence))
 
 
-def _quadratic_forms(e: np.ndarray, C: np.ndarray) -> np.ndarray:
-    """eᵀ C⁻¹ e for batches e (..., d), C (..., d, d), by a solve.
+def _where(index: tuple[int, ...], batch_ndim: int) -> str:
+    """"step k" or "run r, step k" for an index into the leading (R, K) axes of a result."""
+    if batch_ndim >= 2:
+        return f"run {index[-2]}, step {index[-1]}"
+    return f"step {index[-1]}" if batch_ndim == 1 else "the estimate"
+
+
+@np.errstate(over="ignore", invalid="ignore")  # a non-finite form is refused below
+def _quadratic_forms(e: np.ndarray, C: np.ndarray, what: str = "covariance") -> np.ndarray:
+    """eᵀ C⁻¹ e for batches e (..., d), C (..., d, d), in the same way in any units.
+
+    The form is computed on the correlation matrix, (e/σ)ᵀ Ρ⁻¹ (e/σ) with σ = √diag C and
+    Ρ = C / σσᵀ, and C is singular when Ρ is: a smallest eigenvalue at or below
+    :data:`~symmon.measures.weights.SINGULAR_CORR`.  So a standard deviation of 1e-200
+    beside one of 1 is fine (its variance 1e-400 is not: it underflows to 0), and two
+    states in mm and in km are no more singular than in m.
 
     Raises
     ------
     SingularMatrixError
-        If a covariance is singular (a state known exactly, or a variance that underflowed):
-        its normalised error is undefined.
+        If a covariance has a zero (or underflowed, or NaN) variance, or a correlation
+        matrix that is singular: the normalised error is undefined there.
+    NonFiniteError
+        If a form overflows (an error of more than ~1e154 standard deviations).
     """
-    try:
-        return np.einsum("...i,...i->...", e, np.linalg.solve(C, e[..., None])[..., 0])
-    except np.linalg.LinAlgError:
-        raise SingularMatrixError("a covariance of the result is singular (a state known exactly, or a "
-                                  "variance that underflowed): its normalised error squared is undefined") from None
+    batch = C.ndim - 2
+    if not np.all(np.isfinite(C)):
+        idx = tuple(int(j) for j in np.argwhere(~np.isfinite(C).all(axis=(-1, -2)))[0])
+        raise NonFiniteError(f"the {what} at {_where(idx, batch)} holds NaN or inf")
+    d = np.diagonal(C, axis1=-2, axis2=-1)
+    flat = ~(d >= np.finfo(float).tiny)  # zero, subnormal (digits lost to underflow) or NaN
+    if flat.any():
+        *idx, i = (int(j) for j in np.argwhere(flat)[0])
+        raise SingularMatrixError(
+            f"the {what} at {_where(tuple(idx), batch)} is singular: it has variance {d[tuple(idx) + (i,)]:.3g} "
+            f"in component {i} "
+            f"(zero, or below {np.finfo(float).tiny:.3g} where doubles lose their digits: a component known "
+            "exactly, or a variance that underflowed): its normalised error squared is undefined")
+    r = 1.0 / np.sqrt(d)
+    corr = r[..., :, None] * C * r[..., None, :]
+    lam = np.linalg.eigvalsh(0.5 * (corr + np.swapaxes(corr, -1, -2)))[..., 0]
+    singular = ~(lam > SINGULAR_CORR)
+    if singular.any():
+        idx = tuple(int(j) for j in np.argwhere(singular)[0])
+        raise SingularMatrixError(
+            f"the {what} at {_where(idx, batch)} is singular (smallest eigenvalue of its correlation "
+            f"matrix {lam[idx]:.3g}): a combination of components is known exactly, so the normalised "
+            "error squared is undefined")
+    z = e * r
+    q = np.einsum("...i,...i->...", z, np.linalg.solve(corr, z[..., None])[..., 0])
+    if not np.all(np.isfinite(q)):
+        idx = tuple(int(j) for j in np.argwhere(~np.isfinite(q))[0])
+        raise NonFiniteError(f"the normalised error squared at {_where(idx, q.ndim)} overflows: the error is "
+                             "beyond 1e154 standard deviations")
+    return q
 
 
 def _nees(x: np.ndarray, P: np.ndarray, x_true: ArrayLike, angle_states: Sequence[int]) -> np.ndarray:
     """(x_true − x)ᵀ P⁻¹ (x_true − x) per step, the angle components of the error wrapped."""
-    X = np.asarray(x_true, dtype=float)
+    X = float_array(x_true, "x_true")
     if X.shape != x.shape:
         raise ShapeError(f"x_true must have the shape of x, {x.shape}, got {X.shape}")
     if not np.all(np.isfinite(X)):
@@ -129,7 +173,7 @@ def _nees(x: np.ndarray, P: np.ndarray, x_true: ArrayLike, angle_states: Sequenc
     if angle_states:
         idx = list(angle_states)
         e[..., idx] = wrap_angle(e[..., idx])
-    return _quadratic_forms(e, P)
+    return _quadratic_forms(e, P, "state covariance P")
 
 
 def real_measurements(ys: ArrayLike) -> np.ndarray:
@@ -140,12 +184,43 @@ def real_measurements(ys: ArrayLike) -> np.ndarray:
     ShapeError
         For complex values or values that are not numbers.
     """
-    if np.iscomplexobj(ys):
-        raise ShapeError("ys holds complex numbers: measurements must be real")
-    try:
-        return np.asarray(ys, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ShapeError(f"ys must be an array of real numbers: {exc}") from None
+    return float_array(ys, "ys", ShapeError)
+
+
+#: The most numbers (8 bytes each: 1.5 GiB) that the arrays of one filter bank may hold: a
+#: filter call's results (R × K × the numbers per step of the arrays kept), a smoother's,
+#: or a simulated bank's states and measurements.  Beyond it the allocation would end in a
+#: MemoryError, or in the system's out-of-memory killer half-way through the run: the size
+#: is checked before anything is computed.
+MAX_BANK_NUMBERS = 2 * 10**8
+
+
+def check_bank_size(runs: int, steps: int, per_step: int, what: str, advice: str, shared: int = 0) -> None:
+    """Refuse a bank whose arrays would hold more than :data:`MAX_BANK_NUMBERS` numbers.
+
+    ``per_step`` is the count of numbers per run and step, ``shared`` per step for all
+    runs (the linear filter's covariances); ``what`` names the arrays and ``advice`` says
+    how to make them smaller.
+
+    Raises
+    ------
+    ResourceError
+        When runs × steps × per_step (+ steps × shared) exceeds the limit.
+    """
+    total = int(runs) * int(steps) * int(per_step) + int(steps) * int(shared)  # Python ints: no overflow
+    if total > MAX_BANK_NUMBERS:
+        gib = Decimal(8 * total) / 2**30  # a float would overflow for 400-digit counts
+        raise ResourceError(
+            f"{what}: runs × steps × numbers per step = {runs} × {steps} × {per_step}"
+            + (f" (+ {shared} per step)" if shared else "")
+            + f" = {Decimal(total):.3g} numbers ({gib:.3g} GiB), which exceeds the limit of "
+            f"{MAX_BANK_NUMBERS:.0e} ({8 * MAX_BANK_NUMBERS / 2**30:.1f} GiB): {advice}")
+
+
+def kept_numbers(n: int, n_y: int, names: Iterable[str]) -> int:
+    """Numbers per run and step of the filter arrays ``names`` (and the log-likelihood)."""
+    size = {"x": n, "P": n * n, "x_pred": n, "P_pred": n * n, "innovation": n_y, "S": n_y * n_y, "nis": 1}
+    return 1 + sum(size[k] for k in set(names) if k in size)
 
 
 #: Which state components a block of :meth:`KalmanResult.cross_cov` selects.
@@ -167,8 +242,11 @@ def check_keep(keep: Iterable[str] | None) -> frozenset[str] | None:
         return None
     if isinstance(keep, str):
         raise ArgumentError(f"keep must be a collection of names, e.g. ({keep!r},), not the string {keep!r}")
-    names = frozenset(keep)
-    unknown = sorted(names - set(KEEPABLE))
+    try:
+        names = frozenset(keep)
+    except TypeError:
+        raise ArgumentError(f"keep must be a collection of names among {list(KEEPABLE)}, got {keep!r}") from None
+    unknown = sorted(names - set(KEEPABLE), key=repr)
     if unknown:
         raise ArgumentError(f"keep names {unknown} are not results of a filter; use some of {list(KEEPABLE)}")
     return names
@@ -353,7 +431,7 @@ class KalmanResult:
         if self.nis_values is not None:
             return self.nis_values
         self._need("innovation", "S")
-        return _quadratic_forms(self.innovation, self.S)
+        return _quadratic_forms(self.innovation, self.S, "innovation covariance S")
 
     def anees(self, x_true: ArrayLike, confidence: float = 0.95) -> ConsistencyTest:
         """Average NEES with its χ² interval: per step over the runs of a bank, or over the

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import ArgumentTypeError, SymmonError
 from ..transforms import Transform
+from .results import KEEPABLE
 from .step import _compiled_step, _filterable, check_dimensions
 
 if TYPE_CHECKING:  # the filter imports this module, not the other way round
@@ -34,6 +35,11 @@ class FilterStrategy(ABC):
 
     def check(self, kf: "NonlinearKalmanFilter") -> None:
         """Refuse, when the filter is made, what cannot run on its dimensions (default: nothing)."""
+
+    def stores(self, keep: frozenset[str] | None) -> frozenset[str]:
+        """The arrays (of :data:`~symmon.filters.results.KEEPABLE`) that :meth:`run` allocates
+        for a bank when the caller keeps ``keep`` (None: all), for the bound on their size."""
+        return frozenset(KEEPABLE) if keep is None else frozenset(keep)
 
     @abstractmethod
     def run(self, kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: np.ndarray, P0: np.ndarray,

@@ -140,7 +140,8 @@ def _run_points(model: Model, means: np.ndarray, covs: np.ndarray, v: Gaussian |
     tasks = [dask.delayed(_point, pure=False)(model, m, P, v, weight, t, Executor(workers=1))
              for m, P, t in zip(means, covs, transforms)]
     # An interrupt cancels the pending points.
-    return dask_compute(tasks, executor.client, executor.scheduler, "sweep points", executor.progress)
+    return dask_compute(tasks, executor.client, executor.scheduler, "sweep points", executor.progress,
+                        executor.worker_timeout)
 
 
 def _sweep(model: Model, param: np.ndarray | None, u: Any, v: Gaussian | None, weight: Any,

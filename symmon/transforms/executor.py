@@ -15,17 +15,19 @@ import contextvars
 import os
 import queue
 import threading
-from concurrent.futures import ThreadPoolExecutor
+import time
+from concurrent.futures import CancelledError, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence, TypeVar
+from typing import Any, Callable, Iterator, Sequence, TypeVar
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
 from ..errors import SymmonError
-from ..progress import progress_bar
+from ..progress import note, progress_bar
 
-__all__ = ["Executor", "run_groups", "stop_point", "dask_compute", "connect_dask", "one_blas_thread"]
+__all__ = ["Executor", "run_groups", "stop_point", "dask_compute", "connect_dask", "one_blas_thread",
+           "WORKER_TIMEOUT", "MAX_WORKER_TIMEOUT"]
 
 J = TypeVar("J")
 R = TypeVar("R")
@@ -83,26 +85,132 @@ def _is_int(v: Any) -> bool:
     return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
 
 
+#: Seconds a Dask run waits for a worker: for the first one to join, and after the last
+#: one is lost, for another (``Executor(worker_timeout=...)``, ``--dask-timeout``).
+WORKER_TIMEOUT = 60.0
+#: Longest ``worker_timeout`` accepted (a day): a run waits, bounded, for workers to come.
+MAX_WORKER_TIMEOUT = 86400.0
+
+
+class _WorkerWatch:
+    """Whether a Dask cluster has had a worker lately: a run with no worker for
+    ``timeout`` seconds (none joined, or the last one died) ends with a SymmonError
+    instead of waiting forever; the wait is announced on stderr with ``progress``."""
+
+    def __init__(self, client: Any, timeout: float, desc: str, progress: bool) -> None:
+        self.client, self.timeout, self.desc, self.progress = client, timeout, desc, progress
+        self.poll = min(1.0, timeout / 4)  # seconds between two looks when nothing finishes
+        self.seen = False  # a worker was there at some point
+        self.since: float | None = None  # when the cluster was last seen without a worker
+
+    def where(self) -> str:
+        return f"the Dask cluster at {getattr(getattr(self.client, 'scheduler', None), 'address', '?')}"
+
+    def check(self, futures: list) -> None:
+        """Raise SymmonError when the cluster has had no worker for ``timeout`` s
+        (``futures``: the run's, for the count of the unfinished)."""
+        total = len(futures)
+        unfinished = sum(f.status != "finished" for f in futures)
+        try:
+            workers = len(self.client.nthreads())
+        except Exception as exc:  # CommClosedError, OSError, ...: the scheduler went away
+            raise SymmonError(f"lost {self.where()} with {unfinished} of {total} {self.desc} "
+                              f"unfinished: {type(exc).__name__}: {exc}") from exc
+        now = time.monotonic()
+        if workers:
+            if self.since is not None:
+                note(f"{self.desc}: {workers} Dask worker(s) now; going on", self.progress)
+            self.seen, self.since = True, None
+            return
+        if self.since is None:
+            self.since = now
+            what = "lost its last worker" if self.seen else "has no worker"
+            note(f"{self.desc}: {self.where()} {what}; waiting up to {self.timeout:g} s for one "
+                 f"({unfinished} of {total} unfinished)", self.progress)
+        elif now - self.since >= self.timeout:
+            what = ("lost its workers and none came back" if self.seen else "had no worker")
+            raise SymmonError(
+                f"{self.where()} {what} for {self.timeout:g} s, with {unfinished} of {total} "
+                f"{self.desc} unfinished: start workers for it (dask worker ADDRESS), or wait "
+                f"longer with Executor(worker_timeout=...) / --dask-timeout")
+
+
+def _client_results(futures: list, watch: _WorkerWatch, desc: str, progress: bool) -> list:
+    """The results of the Dask ``futures`` in order, counting them as they finish, and
+    watching the cluster's workers whenever nothing finishes for a while."""
+    from distributed import TimeoutError as DaskTimeout
+
+    total = len(futures)
+    finished: queue.SimpleQueue = queue.SimpleQueue()
+    for f in futures:
+        f.add_done_callback(finished.put)
+
+    def completions() -> Iterator[Any]:
+        for _ in range(total):
+            while True:
+                try:
+                    f = finished.get(timeout=watch.poll)
+                    break
+                except queue.Empty:
+                    watch.check(futures)
+            if f.status == "error":
+                f.result()  # raises the task's exception now, not after the tasks before it
+            yield f
+
+    watch.check(futures)
+    for _ in progress_bar(completions(), desc, progress, total=total):
+        pass
+    results = []
+    for f in futures:
+        while True:  # a result held by a worker that died is computed again, elsewhere
+            try:
+                results.append(f.result(timeout=watch.poll))
+                break
+            except (DaskTimeout, TimeoutError):
+                watch.check(futures)
+    return results
+
+
+def _dask_failure(exc: BaseException, where: str, desc: str) -> SymmonError | None:
+    """The SymmonError of the cluster's own failures (a task whose workers kept dying,
+    cancelled tasks), None for the task's own exception."""
+    from distributed import KilledWorker
+
+    if isinstance(exc, KilledWorker):
+        return SymmonError(f"{where}: the workers running one of the {desc} died each time it ran "
+                           f"(out of memory, or killed?): {exc}")
+    if isinstance(exc, CancelledError):  # distributed's FutureCancelledError too
+        return SymmonError(f"{where}: the {desc} were cancelled on the cluster (another client, "
+                           f"or the scheduler restarted): {exc}")
+    return None
+
+
 def dask_compute(tasks: Sequence[Any], client: Any = None, scheduler: str | None = None,
-                 desc: str = "Dask tasks", progress: bool = False) -> list:
+                 desc: str = "Dask tasks", progress: bool = False,
+                 worker_timeout: float = WORKER_TIMEOUT) -> list:
     """The results of Dask delayed ``tasks``, in order, on ``client`` or else on the local
     ``scheduler``.  On a client, an interrupt (or any error) cancels the tasks still
     pending, so the cluster does not go on with a run nobody waits for.
 
     With ``progress`` each finished task is counted as the thread pool counts its groups
     (:func:`symmon.progress.progress_bar`: a bar on a terminal, a line every few seconds
-    otherwise), in the order the tasks finish."""
+    otherwise), in the order the tasks finish.
+
+    On a client, a cluster without a worker (none joined, or the last one died) is
+    waited for at most ``worker_timeout`` seconds (a line on stderr with ``progress``
+    says so), then the run ends with a SymmonError; so does a task whose workers died
+    every time it ran (distributed's KilledWorker) or that was cancelled on the cluster.
+    """
     if client is not None:
+        watch = _WorkerWatch(client, worker_timeout, desc, progress)
         futures = client.compute(list(tasks))
         try:
-            if progress:
-                from distributed import as_completed
-
-                for _ in progress_bar(as_completed(futures), desc, progress, total=len(futures)):
-                    pass
-            return list(client.gather(futures))
-        except BaseException:
+            return _client_results(futures, watch, desc, progress)
+        except BaseException as exc:
             client.cancel(futures)
+            failure = _dask_failure(exc, watch.where(), desc)
+            if failure is not None:
+                raise failure from exc
             raise
     import dask
     from dask.callbacks import Callback
@@ -194,18 +302,28 @@ class Executor:
         A local Dask scheduler name (``"threads"``, ``"processes"``, ``"synchronous"``).
     progress : bool
         Show a progress bar over the replicates (on a terminal only).
+    worker_timeout : float
+        On a ``client``: seconds to wait for a worker when the cluster has none, at the
+        start or after the last one died, before the run ends with a SymmonError
+        (default :data:`WORKER_TIMEOUT`, 60 s; at most a day).
     """
 
     workers: int | None = None
     client: Any = field(default=None, repr=False)
     scheduler: str | None = None
     progress: bool = False
+    worker_timeout: float = WORKER_TIMEOUT
 
     def __post_init__(self) -> None:
         if self.workers is not None and (not _is_int(self.workers) or self.workers < 1):
             raise SymmonError(f"workers must be >= 1, got {self.workers!r}")
         if self.client is not None and self.scheduler is not None:
             raise SymmonError("pass either client or scheduler, not both")
+        t = self.worker_timeout
+        if not (isinstance(t, (int, float, np.integer, np.floating)) and not isinstance(t, (bool, np.bool_))
+                and 0 < t <= MAX_WORKER_TIMEOUT):
+            raise SymmonError(f"worker_timeout must be seconds, > 0 and at most {MAX_WORKER_TIMEOUT:g}, "
+                              f"got {t!r}")
         if self.scheduler is not None and not isinstance(self.scheduler, str):
             raise SymmonError(f"scheduler must be a Dask scheduler name such as 'processes', got {self.scheduler!r}")
 

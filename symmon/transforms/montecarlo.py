@@ -279,7 +279,8 @@ class MonteCarlo(Transform):
         except ImportError as exc:  # pragma: no cover - depends on the environment
             raise SymmonError("the Dask path needs the 'dask' extra: pip install symmon[dask]") from exc
         tasks = [dask.delayed(_run_group_remote)(cm.source_exprs, cm.symbols, j) for j in jobs]
-        return dask_compute(tasks, ex.client, ex.scheduler, "Monte Carlo groups", ex.progress)
+        return dask_compute(tasks, ex.client, ex.scheduler, "Monte Carlo groups", ex.progress,
+                            ex.worker_timeout)
 
     def _moments(self, cm, means, covs, angles, executor):
         outs = [self._single(cm, m, P, angles, executor) for m, P in zip(means, covs)]

@@ -466,6 +466,23 @@ def test_dask_scheduler_address_gives_the_same_numbers(capsys):
     assert _numbers(remote) == _numbers(_mc_json(capsys))
 
 
+def test_dask_scheduler_without_workers_is_an_input_error(capsys):
+    """It used to wait forever, silently: now --dask-timeout seconds, said on stderr."""
+    distributed = pytest.importorskip("dask.distributed")
+    with distributed.LocalCluster(n_workers=0, processes=False, dashboard_address=":0") as cluster:
+        code, out, err = run(capsys, "propagate", EXAMPLES / "gmti.toml", "--transform", "mc",
+                             "--samples", MC_SAMPLES, "--dask", cluster.scheduler_address, "--dask-timeout", "0.5")
+    assert (code, out) == (1, "")
+    assert "has no worker; waiting up to 0.5 s for one" in err
+    assert f"symmon: error: the Dask cluster at {cluster.scheduler_address} had no worker for 0.5 s" in err
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "nan", "inf", "1e9", "soon"])
+def test_dask_timeout_must_be_seconds(capsys, value):
+    code, _, err = run(capsys, "propagate", EXAMPLES / "gmti.toml", "--dask-timeout", value)
+    assert code == 2 and "--dask-timeout: must be seconds, > 0 and at most 86400" in err
+
+
 def test_dask_target_that_is_neither_a_scheduler_nor_an_address(capsys):
     code, _, err = run(capsys, "propagate", EXAMPLES / "gmti.toml", "--transform", "mc", "--dask", "cluster")
     assert code == 2
@@ -703,6 +720,22 @@ def test_filter_plot_into_a_missing_directory_is_refused_before_the_bank_runs(tm
     monkeypatch.setattr(filterfile, "run_bank", lambda *a, **k: ran.append(1))
     code = cli.main(["filter", str(EXAMPLES / "rb_close.toml"), "--runs", "2", "--plot", str(tmp_path / "no" / "x.png")])
     assert code == 1 and not ran and "output directory does not exist" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv", [["filter", "--runs", "100000"], ["filter", "--runs", "80000", "--filters", "ukf", "--smooth"],
+                                  ["fit", "--param", "b=0", "--runs", "100000"]], ids=["filter", "smooth", "fit"])
+def test_a_bank_beyond_memory_is_refused_before_it_is_simulated(capsys, monkeypatch, argv):
+    """runs × steps × (truth, measurements and each filter's results) is bounded before the
+    simulation: it used to simulate for seconds, then run out of memory in the filter.  (80000
+    runs of one UKF fit the limit, 80000 × 40 × 54 numbers; its smoother's 20 more per step do not.)"""
+    from symmon.files import filterfile
+
+    simulated = []
+    monkeypatch.setattr(filterfile, "simulate", lambda *a, **k: simulated.append(1))
+    scenario = EXAMPLES / ("rb_bias.toml" if argv[0] == "fit" else "rb_close.toml")
+    code, out, err = run(capsys, argv[0], scenario, *argv[1:])
+    assert (code, out, simulated) == (1, "", [])
+    assert "exceeds the limit of 2e+08 (1.5 GiB): use fewer runs, steps or filters" in err
 
 
 def test_fit_recovers_the_files_parameters(capsys):

@@ -28,7 +28,8 @@ option_text = st.one_of(
                      "out.png", "out.PDF", "out", "out.xyz", ".png", "x" * 300, "-", "--", "9" * 5000)),
     text_no_surrogates,
 )
-OPTIONS = ("--samples", "--seed", "--order", "--groups", "--workers", "--dask", "--alpha-sweep", "--plot", "--csv")
+OPTIONS = ("--samples", "--seed", "--order", "--groups", "--workers", "--dask", "--dask-timeout", "--alpha-sweep",
+           "--plot", "--csv")
 
 
 @settings(max_examples=300, **FUZZ)
@@ -49,6 +50,8 @@ def test_option_values_parse_within_their_limits_or_exit_2(option, value):
     if dest in limits:
         lo, hi = limits[dest]
         assert lo <= getattr(args, dest) <= hi
+    elif dest == "dask_timeout":
+        assert 0 < args.dask_timeout <= cli.MAX_WORKER_TIMEOUT
     elif dest == "alpha_sweep":
         assert 1 <= len(args.alpha_sweep) <= cli.MAX_SWEEP_POINTS
     else:

@@ -107,6 +107,102 @@ def test_verified_entry_loads_quietly(built):
     assert res.returncode == 0 and res.stdout.splitlines() == [EXPECTED, "compiled"] and res.stderr == ""
 
 
+# --------------------------------------------------------------------------- untrusted entries
+def _loosen(so: Path, how: str) -> str:
+    """Make the entry ``so`` one that someone else could have written; returns the reason
+    the warning must give."""
+    if how == "group-writable library":
+        so.chmod(0o775)
+        return f"{so.name} is group-writable"
+    if how == "world-writable checksum":
+        sidecar(so).chmod(0o666)
+        return f"{sidecar(so).name} is world-writable"
+    if how == "library of another user":
+        os.chown(so, 65534, 65534)
+        return f"{so.name} belongs to another user (uid 65534)"
+    assert how == "symlinked library"
+    real = so.with_name("elsewhere.so")
+    so.rename(real)
+    so.symlink_to(real)
+    return f"{so.name} is not a regular file"
+
+
+def _listing(d: Path) -> list[tuple[str, int, int, bytes]]:
+    return sorted((p.name, p.lstat().st_mode, p.lstat().st_uid, p.read_bytes()) for p in d.iterdir())
+
+
+@pytest.mark.parametrize("how", ["group-writable library", "world-writable checksum", "symlinked library"])
+def test_distrusted_entries(tmp_path, how):
+    """Each way an entry may have been written by someone else, in process (the next test
+    runs the whole load in a fresh Python)."""
+    so = tmp_path / "sm_f_0123.so"
+    so.write_bytes(b"library")
+    sidecar(so).write_text(f"{cc.sha256_file(so)}  {so.name}\n")
+    assert cc._distrust(so) is None
+    why = _loosen(so, how)
+    assert cc._distrust(so) == why
+
+
+@pytest.mark.parametrize("how", [
+    "group-writable library",
+    pytest.param("library of another user", marks=pytest.mark.skipif(
+        os.geteuid() != 0, reason="needs root to give a file to another user")),
+])
+def test_untrusted_entry_is_not_loaded(tmp_path, built, how):
+    """A matching checksum says nothing about who wrote the pair: an entry someone else
+    could have written is left alone, and the library is built privately instead."""
+    shutil.copytree(built["0"], tmp_path, dirs_exist_ok=True)
+    so, = libraries(tmp_path)
+    # The planted library is the model plus 1, with a checksum that matches it.
+    so.write_bytes(libraries(built["1"])[0].read_bytes())
+    sidecar(so).write_text(f"{cc.sha256_file(so)}  {so.name}\n")
+    why = _loosen(so, how)
+    before = _listing(tmp_path)
+    res = run({"SYMMON_CACHE": str(tmp_path)})
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.splitlines() == [EXPECTED, "compiled"]
+    assert f"not loading the cached library {so}: {why}; building it in" in res.stderr, res.stderr
+    assert _listing(tmp_path) == before
+
+
+def test_entry_of_another_user_is_distrusted(tmp_path, monkeypatch):
+    """The owner check, for any user: the process pretends to be someone else."""
+    so = tmp_path / "sm_f_0123.so"
+    so.write_bytes(b"library")
+    sidecar(so).write_text(f"{cc.sha256_file(so)}  {so.name}\n")
+    assert cc._distrust(so) is None
+    monkeypatch.setattr(cc.os, "geteuid", lambda: so.stat().st_uid + 1)
+    assert cc._distrust(so) == f"{so.name} belongs to another user (uid {so.stat().st_uid})"
+
+
+@needs_cc
+def test_untrusted_entry_is_built_privately(tmp_path, monkeypatch):
+    """In process: the path handed to the loader is in the private directory, warned once."""
+    monkeypatch.setenv("SYMMON_CACHE", str(tmp_path))
+    code = "int f(void) { return 1; }"
+    so = cc._entry(code, "sm_trust", cc.OPT_SYNC, pytest.fail)
+    so.write_bytes(b"planted")
+    so.chmod(0o664)
+    warned: list[str] = []
+    private = cc._entry(code, "sm_trust", cc.OPT_SYNC, warned.append)
+    assert private == cc._private_dir() / so.name and len(warned) == 1
+    assert cc._entry(code, "sm_trust", cc.OPT_SYNC, warned.append) == private and len(warned) == 1
+    assert cc._load_or_build(code, "sm_trust", cc.OPT_SYNC, lambda p: p, pytest.fail) == private
+    assert cc._verify(private) is None and so.read_bytes() == b"planted"
+
+
+def test_installed_entry_is_private_whatever_the_umask(tmp_path):
+    built_so = tmp_path / "f.so"
+    old = os.umask(0o002)
+    try:
+        built_so.write_bytes(b"library")
+        cc.ccbuild.install(built_so, tmp_path / "sm_f_0123.so")
+    finally:
+        os.umask(old)
+    assert cc._distrust(tmp_path / "sm_f_0123.so") is None
+    assert cc._verify(tmp_path / "sm_f_0123.so") is None
+
+
 # --------------------------------------------------------------------------- the directory
 def _fallback_run(env: dict[str, str]) -> subprocess.CompletedProcess:
     res = run(env)
@@ -156,6 +252,56 @@ def test_directory_of_another_user_is_refused(tmp_path):
     assert "belongs to another user" in res.stderr and not list(d.iterdir())
 
 
+def test_symlinks_are_resolved_and_their_target_checked(tmp_path, monkeypatch):
+    target = tmp_path / "target"
+    target.mkdir(mode=0o700)
+    link = tmp_path / "link"
+    link.symlink_to(target)
+    monkeypatch.setenv("SYMMON_CACHE", str(link))
+    assert cc.cache_dir() == target  # later paths cannot be redirected by the link
+    target.chmod(0o770)
+    with pytest.warns(RuntimeWarning, match=f"not using the cache directory {target}: it is group-writable"):
+        assert cc.cache_dir() == cc._private_dir()
+
+
+@pytest.mark.parametrize("mode, refused", [(0o777, True), (0o775, True), (0o1777, False), (0o755, False)])
+def test_a_parent_others_can_write_is_refused(tmp_path, mode, refused):
+    """Whoever can write the parent can rename the cache away and put their own in its
+    place, unless the sticky bit (/tmp's) keeps them to their own files."""
+    parent = tmp_path / "parent"
+    parent.mkdir()
+    parent.chmod(mode)
+    why = cc._refusal(parent / "cache")
+    if refused:
+        assert why == f"its parent {parent} is {'world' if mode & 0o002 else 'group'}-writable " \
+                      "(someone else could replace the cache)"
+    else:
+        assert why is None
+
+
+@pytest.mark.parametrize("configured", ["/", "/usr", "/etc", "/var", "/usr/lib/symmon-test-cache",
+                                        "/usr/local/share/symmon-test-cache", "link to /usr", "link to /"])
+def test_root_refuses_a_system_directory(tmp_path, monkeypatch, configured):
+    """As root every directory is writable and owned: the system's own are refused by
+    path (after resolving symlinks), before anything is created there."""
+    if configured.startswith("link to "):
+        link = tmp_path / "cache"
+        link.symlink_to(configured.removeprefix("link to "))
+        configured = str(link)
+    created = not Path(configured).exists()
+    monkeypatch.setattr(cc.os, "geteuid", lambda: 0)
+    assert cc._refusal(Path(configured).resolve()) == \
+        "it is a system directory, where symmon running as root caches nothing"
+    assert not created or not Path(configured).exists()
+
+
+@pytest.mark.parametrize("path, system", [("/var/cache/symmon", False), ("/root/.cache/symmon", False),
+                                          ("/opt/symmon/cache", False), ("/home", True), ("/lib64", True),
+                                          ("/sys/kernel", True), ("/tmp", True)])
+def test_system_paths(path, system):
+    assert cc.is_system_path(Path(path)) is system
+
+
 @needs_cc
 def test_directory_is_created_private(tmp_path):
     d = tmp_path / "a" / "cache"
@@ -185,9 +331,9 @@ def test_cache_dir_follows_xdg_and_home(tmp_path, monkeypatch):
 
 @needs_cc
 def test_key_covers_the_compiler_version_and_target(monkeypatch):
-    before = cc._entry("int f(void) { return 1; }", "f", "-O2").name
+    before = cc._entry("int f(void) { return 1; }", "f", "-O2", print).name
     monkeypatch.setattr(cc, "_compiler_identity", lambda cmd: "gcc 99\nriscv64-linux-gnu")
-    assert cc._entry("int f(void) { return 1; }", "f", "-O2").name != before
+    assert cc._entry("int f(void) { return 1; }", "f", "-O2", print).name != before
     assert "riscv64" not in before and cc._compiler_identity.__name__ == "<lambda>"
 
 

@@ -152,3 +152,20 @@ def test_the_filter_on_a_scenario_equals_the_api(noisy):
     (row,) = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, ["ukf"])
     np.testing.assert_array_equal(row.result.x, a.x)
     assert isinstance(spec.f.noise[0], sp.Symbol)
+
+
+def test_a_filter_whose_statistics_fail_is_reported_not_fatal(tmp_path, capsys):
+    """A state known exactly (c: no prior spread, no process noise) has no NEES: the bank
+    reports it on that filter's row, and the command still prints the table (it used to end
+    with the error)."""
+    path = tmp_path / "known.toml"
+    path.write_text(NOISY.replace('states = ["p", "v"]', 'states = ["p", "v", "c"]')
+                    .replace('dynamics = ["p + T*v + T**2/2*a", "v + T*a"]', 'dynamics = ["p + T*v + T**2/2*a", "v + T*a", "c"]')
+                    .replace('measurements = ["p + r"]', 'measurements = ["p + c + r"]')
+                    .replace("mean = [0, 1]\nstd = [1, 0.5]", "mean = [0, 1, 2]\nstd = [1, 0.5, 0]"))
+    spec = load_filter_file(path)
+    xs, ys = simulate(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, 3, seed=0)
+    row, = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, ["ekf"])
+    assert row.result is None and "is singular: it has variance 0 in component 2" in row.error
+    assert cli.main(["filter", str(path), "--runs", "3", "--filters", "ekf"]) == 0
+    assert "ekf       failed: the state covariance P" in capsys.readouterr().out

@@ -317,21 +317,35 @@ def test_nested_monte_carlo_on_threads_equals_one_thread(workers):
 
 
 def test_an_interrupted_dask_run_cancels_its_pending_tasks():
-    """Ctrl-C while gathering from a cluster: the futures are cancelled, the interrupt propagates."""
+    """Ctrl-C while waiting for a cluster's tasks: the futures are cancelled, the interrupt propagates."""
+
+    class Future:
+        status = "pending"
+
+        def __init__(self, task):
+            self.task = task
+
+        def add_done_callback(self, fn):
+            pass  # it never finishes
 
     class Client:
         cancelled = None
+        looks = 0
 
         def compute(self, tasks):
-            return [f"future-{t}" for t in tasks]
+            return [Future(t) for t in tasks]
 
-        def gather(self, futures):
-            raise KeyboardInterrupt
+        def nthreads(self):
+            # The watch looks at the workers when nothing finishes: Ctrl-C at its second look.
+            self.looks += 1
+            if self.looks > 1:
+                raise KeyboardInterrupt
+            return {"tcp://worker:1": 1}
 
         def cancel(self, futures):
-            self.cancelled = futures
+            self.cancelled = [f.task for f in futures]
 
     client = Client()
     with pytest.raises(KeyboardInterrupt):
-        dask_compute(["a", "b"], client)
-    assert client.cancelled == ["future-a", "future-b"]
+        dask_compute(["a", "b"], client, worker_timeout=0.2)
+    assert client.cancelled == ["a", "b"]
