@@ -11,6 +11,7 @@ __all__ = [
     "SymmonError",
     "ShapeError",
     "CovarianceError",
+    "IndefiniteCovarianceError",
     "ModelError",
     "UnsupportedFunctionError",
     "SamplingError",
@@ -42,6 +43,13 @@ class ShapeError(SymmonError):
 
 class CovarianceError(SymmonError):
     """A covariance is not symmetric, not positive semi-definite, or not finite."""
+
+
+class IndefiniteCovarianceError(CovarianceError):
+    """A transform's Cov y is indefinite beyond rounding: a rule with negative weights (the
+    UT with a negative centre weight, Gauss–Hermite's sparse grid, the fifth-degree cubature
+    rule above 4 dimensions) gave a covariance with a negative eigenvalue.  Never returned
+    as a number; use a rule whose weights are all non-negative."""
 
 
 class SingularMatrixError(SymmonError):

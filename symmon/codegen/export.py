@@ -344,8 +344,8 @@ def export_c(model: Model, outdir: str | Path, name: str | None = None, *, ut: T
     ``TT2()`` and ``ut``, except that the point rule's Cholesky factor gives a zero column only
     at an exactly zero pivot and NaN for a P that is not PSD, where
     :func:`symmon.core.gaussian.matrix_sqrt` also treats pivots at rounding level as zero and
-    falls back to an eigen-decomposition, and no warning is given for an indefinite covariance
-    from a negative weight.  TT2 is the one of docs/guide/transforms.md;
+    falls back to an eigen-decomposition, and an indefinite covariance from a negative weight
+    is returned, where :func:`symmon.propagate` refuses it.  TT2 is the one of docs/guide/transforms.md;
     for a model with noise the caller supplies the joint covariance of w = [u; v].
 
     Examples

@@ -104,7 +104,7 @@ def _general_cov(model: Model, u: Gaussian, v: Gaussian, transform: Transform) -
     means = np.hstack([np.tile(u.mean, (J, 1)), V])
     covs = np.zeros((J, nu + nv, nu + nv))
     covs[:, :nu, :nu] = u.cov
-    cond_means = inner.moments(cm, means, covs).mean  # E[g | v_j]
+    cond_means = inner.expectation(cm, means, covs)  # E[g | v_j]: only the means are used
     m = w @ cond_means
     R = cond_means - m
     return np.einsum("j,ji,jk->ik", w, R, R)
@@ -132,7 +132,7 @@ def _general_cov_mixture(model: Model, u: Gaussian | GaussianMixture, v: Gaussia
     means = np.hstack([np.repeat(Mu, J, axis=0), np.tile(V, (K, 1))])  # row k·J + j
     covs = np.zeros((K * J, nu + nv, nu + nv))
     covs[:, :nu, :nu] = np.repeat(Pu, J, axis=0)
-    cond = transform.nested_inner().moments(cm, means, covs).mean.reshape(K, J, model.n_y)
+    cond = transform.nested_inner().expectation(cm, means, covs).reshape(K, J, model.n_y)
     h = np.einsum("k,kjy->jy", wu, cond)  # E[g | V_j] under the mixture of u
     R = h - a @ h
     return np.einsum("j,ji,jk->ik", a, R, R)

@@ -19,7 +19,8 @@ import sympy as sp
 
 from ..core.angles import wrap_angle  # re-exported: defined beside the other angle helpers
 from ..core.gaussian import PSD_RTOL, SYMMETRY_RTOL, as_covariance, as_vector, matrix_sqrt
-from ..errors import AngleWarning, ArgumentError, ArgumentTypeError, NonFiniteError, ShapeError
+from ..errors import (AngleWarning, ArgumentError, ArgumentTypeError, IndefiniteCovarianceError, NonFiniteError,
+                      ShapeError)
 from .nodes import SPARSE_ABOVE, standard_rule
 from .registry import _register
 
@@ -28,7 +29,7 @@ if TYPE_CHECKING:  # annotations only: a rule is handed a compiled model, it nev
 
 __all__ = [
     "Transform", "Moments", "wrap_angle", "weighted_moments", "batch_sqrt",
-    "evaluate_points", "check_moments_finite", "check_batch", "likely_angles", "warn_angle_cut", "pilot_angle_cut",
+    "evaluate_points", "check_moments_finite", "check_moments_definite", "check_batch", "DEFINITE_RTOL", "likely_angles", "warn_angle_cut", "pilot_angle_cut",
     "reset_warnings",
 ]
 
@@ -63,9 +64,16 @@ class Moments:
         Evaluations of g (points, samples or expansion points) for the whole batch.
     details : dict
         Rule-specific extras: ``sigma_points`` and ``transformed_points`` (UT),
-        ``sparse`` (Gauss–Hermite), ``indefinite`` (UT), ``n_samples`` (Monte Carlo).
+        ``sparse`` and ``degree`` (Gauss–Hermite), ``n_samples`` (Monte Carlo).
     noise_cross_cov : ndarray (K, n_y, n_v) or None
         Set by :meth:`split`: Cov(y, v), the noise block of Cov(y, w).
+    cov_scale : ndarray (K, n_y) or None
+        The magnitude each output's variance was summed from, the scale of the rounding
+        in Cov y: Σ |wᶜᵢ| rᵢ² over the points of a rule with negative weights, the same
+        bound for the Taylor rules and exact moments; ``None``: the diagonal of ``cov``
+        (a rule with non-negative weights sums non-negative terms).  The template
+        :meth:`Transform.moments` tests definiteness against it
+        (:func:`check_moments_definite`).
     """
 
     mean: np.ndarray
@@ -78,6 +86,7 @@ class Moments:
     details: dict = field(default_factory=dict)
     error: dict | None = None
     noise_cross_cov: np.ndarray | None = None
+    cov_scale: np.ndarray | None = None
 
     @property
     def info(self) -> dict:
@@ -172,9 +181,10 @@ class Transform(ABC):
         the class is created, not at the first call.
         """
         super().__init_subclass__(**kwargs)
-        if "moments" in cls.__dict__:
-            raise ArgumentTypeError(f"{cls.__name__} overrides moments(): implement the hook _moments() instead, "
-                            "so that the checks of Transform.moments always run")
+        for final in ("moments", "expectation", "_checked"):
+            if final in cls.__dict__:
+                raise ArgumentTypeError(f"{cls.__name__} overrides {final}(): implement the hook _moments() instead, "
+                                        "so that the checks of Transform.moments always run")
         if getattr(cls, "_moments") is Transform._moments:  # abstract: an intermediate base
             return
         missing = [m for m in ("cost",) if getattr(cls, m) is getattr(Transform, m)]
@@ -197,7 +207,9 @@ class Transform(ABC):
         The template of every rule: it checks the batch (shapes against ``cm``, finite
         entries, symmetric positive semi-definite covariances), runs the rule's
         undeclared-angle check, calls the rule's :meth:`_moments`, and refuses any NaN or
-        inf moment, so that no caller can skip the checks.
+        inf moment and any Cov y that is indefinite beyond rounding (a rule with negative
+        weights can give one: :func:`check_moments_definite`), so that no caller can skip
+        the checks.
 
         Parameters
         ----------
@@ -217,7 +229,29 @@ class Transform(ABC):
             A batch that does not fit ``cm`` or is not a batch of Gaussians.
         NonFiniteError
             A moment is NaN or inf.
+        IndefiniteCovarianceError
+            Cov y of some Gaussian has a negative eigenvalue beyond rounding.
         """
+        result = self._checked(cm, means, covs, angles, executor)
+        check_moments_definite(cm, result, means, self)
+        return result
+
+    def expectation(self, cm: CompiledModel, means: np.ndarray, covs: np.ndarray,
+                    angles: frozenset[int] = frozenset(), executor: Any = None) -> np.ndarray:
+        """E y (K, n_y) alone, for a caller that reads nothing else (the inner integral
+        of a nested rule, E[g | v]): the checks of :meth:`moments` except the definiteness
+        of a Cov y that is not returned.
+
+        Raises
+        ------
+        ShapeError, CovarianceError, NonFiniteError
+            As :meth:`moments`.
+        """
+        return self._checked(cm, means, covs, angles, executor).mean
+
+    def _checked(self, cm: CompiledModel, means: np.ndarray, covs: np.ndarray,
+                 angles: frozenset[int], executor: Any) -> Moments:
+        """The checked batch through the rule, its moments refused unless finite."""
         means, covs = check_batch(cm, means, covs)
         angles = frozenset(angles)
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported just below
@@ -290,9 +324,9 @@ def batch_sqrt(covs: np.ndarray) -> np.ndarray:
         return np.stack([matrix_sqrt(P) for P in covs])
 
 
-def weighted_moments(Y: np.ndarray, X: np.ndarray, mx: np.ndarray, wm: np.ndarray,
-                     wc: np.ndarray, angles: frozenset[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Moments of weighted points.
+def weighted_moments(Y: np.ndarray, X: np.ndarray, mx: np.ndarray, wm: np.ndarray, wc: np.ndarray,
+                     angles: frozenset[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """Moments of weighted points, and the scale of Cov y's rounding.
 
     Parameters
     ----------
@@ -305,6 +339,9 @@ def weighted_moments(Y: np.ndarray, X: np.ndarray, mx: np.ndarray, wm: np.ndarra
     Returns
     -------
     mean (K, n_y), cov (K, n_y, n_y), cross (K, n_y, n_w)
+    cov_scale : (K, n_y) or None
+        Σ |wcᵢ| rᵢ² per output when some weight is negative (``Moments.cov_scale``); None
+        when none is, where it is the diagonal of ``cov``.
     """
     # Weights sum to 1: centring on the first point keeps digits when the weights are
     # large and of both signs (ut2's are about ±1e6), so a constant output stays exact.
@@ -324,7 +361,8 @@ def weighted_moments(Y: np.ndarray, X: np.ndarray, mx: np.ndarray, wm: np.ndarra
     cov = RW @ R
     cov = cov / 2 + cov.transpose(0, 2, 1) / 2  # exactly symmetric, as the einsum was; no overflow
     cross = RW @ D
-    return mean, cov, cross
+    scale = np.einsum("n,kni->ki", np.abs(wc), R * R) if (wc < 0).any() else None
+    return mean, cov, cross, scale
 
 
 
@@ -440,6 +478,73 @@ def check_moments_finite(cm: CompiledModel, b: Moments, means: np.ndarray, trans
             )
 
 
+#: The rounding allowed below zero in the eigenvalues of Cov y scaled by the magnitudes it
+#: was summed from (``Moments.cov_scale``: C = D^-1/2 Cov y D^-1/2, D its diagonal).  An entry
+#: of a weighted sum over N points carries a rounding error of at most N·eps·√(aⱼ aₖ)
+#: (Higham's bound of a dot product, with Cauchy–Schwarz), so C's eigenvalues move by at most
+#: n_y·N·eps: 2e-12 for ten outputs and a thousand points, where an indefiniteness due to
+#: negative weights is of order 0.1 to 1 (the sum of squares under ut1 in four dimensions:
+#: -0.6).  1e-10, the tolerance of an input covariance (``PSD_RTOL``), keeps a PSD but
+#: rank-deficient Cov y (two equal outputs, a linear g of rank below n_y) from being refused.
+DEFINITE_RTOL = PSD_RTOL
+
+
+def check_moments_definite(cm: CompiledModel, b: Moments, means: np.ndarray, transform: "Transform") -> None:
+    """Raise if the Cov y of some Gaussian of a batch is indefinite beyond rounding.
+
+    The test is scale-invariant: Cov y scaled to C = D^-1/2 Cov y D^-1/2 by D, the
+    magnitudes its entries were summed from (``b.cov_scale``, or the diagonal of Cov y),
+    must have no eigenvalue below −``DEFINITE_RTOL``, so that changing the units of an
+    output changes nothing.  A PSD rule (non-negative weights, Taylor, Monte Carlo) passes
+    by construction up to rounding; a rule with negative weights can fail (the UT with
+    κ < 0, Gauss–Hermite's sparse grid, the fifth-degree cubature above 4 dimensions), and
+    then the covariance is refused rather than returned: no Gaussian, filter or measure
+    of nonlinearity can use it.
+
+    Raises
+    ------
+    IndefiniteCovarianceError
+        Naming the transform, the Gaussian, the negative eigenvalue (of Cov y and scaled),
+        the direction, and rules with non-negative weights.
+    """
+    cov = b.cov
+    a = np.abs(np.diagonal(cov, axis1=1, axis2=2)) if b.cov_scale is None else b.cov_scale
+    # A zero scale holds only zeros (no term was summed); tiny keeps 1/√a finite there, and a
+    # nonzero entry beside it is then enormous against it: indefinite, as it must be.
+    inv = 1.0 / np.sqrt(np.maximum(a, np.finfo(float).tiny))
+    with np.errstate(over="ignore", invalid="ignore"):
+        C = cov * inv[:, :, None] * inv[:, None, :]
+    n_y = cov.shape[1]
+    finite = np.isfinite(C).all(axis=(1, 2))
+    try:  # the common case in one batched factorisation: C + tol·I is positive definite
+        if finite.all():
+            np.linalg.cholesky(C + DEFINITE_RTOL * np.eye(n_y))
+            return
+    except np.linalg.LinAlgError:
+        pass
+    lam = np.full(cov.shape[0], -np.inf)
+    lam[finite] = np.linalg.eigvalsh(C[finite])[:, 0]
+    bad = np.flatnonzero(lam < -DEFINITE_RTOL)
+    if bad.size == 0:
+        return
+    k = int(bad[0])
+    ev, vec = np.linalg.eigh(cov[k])
+    direction = vec[:, 0] / vec[np.argmax(np.abs(vec[:, 0])), 0]  # its largest component +1
+    along = ", ".join(f"{c:+.3g}·y{i}" for i, c in enumerate(direction) if abs(c) > 1e-3)
+    weights = ""
+    if transform.point_rule:
+        wc = transform.unit_rule(means.shape[1])[2]
+        if (wc < 0).any():
+            weights = f" Its covariance weights in {means.shape[1]} dimensions go down to {wc.min():.3g}."
+    raise IndefiniteCovarianceError(
+        f"{transform!r}: Cov y of Gaussian {k} of {cov.shape[0]} (input mean {_point_str(cm, means[k])}) is "
+        f"indefinite: its smallest eigenvalue is {ev[0]:.6g}, along {along}, {lam[k]:.3g} relative to the "
+        f"magnitudes it was summed from (rounding allows {DEFINITE_RTOL:g}).{weights}  A rule with negative "
+        "weights does not give a covariance here; use one whose weights are all non-negative: "
+        "UT.cubature() or UT(kappa >= 0), GaussHermite(order, sparse=False), TT2(), MonteCarlo(...)"
+    )
+
+
 # --------------------------------------------------------------------------- undeclared angles
 #: The once-only warnings already given: ("angle", outputs, symbols, output index) for an
 #: AngleWarning (one per model and output), and the rules' own keys (a Gauss–Hermite
@@ -527,7 +632,7 @@ def warn_angle_cut(cm: CompiledModel, Y: np.ndarray, angles: frozenset[int], tra
                 f"{transform!r} lie on both sides of its cut at ±{half:.6g} ({above} above, {below} "
                 "below): its mean and covariance mix values a full turn apart.  Declare it with "
                 f"Model(..., angles=[{i}]) to get circular moments",
-                AngleWarning, stacklevel=5,
+                AngleWarning, stacklevel=6,
             )
 
 

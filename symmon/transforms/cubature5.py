@@ -5,7 +5,8 @@ points ±√(n + 2) eᵢ and 1/(n + 2)² at the 2n(n − 1) points √((n + 2)/2
 Its moments match those of the Gaussian up to degree 5: E zᵢ² = 1, E zᵢ⁴ = 3,
 E zᵢ² zⱼ² = 1 and every odd moment 0 by symmetry.  In one dimension it is the
 three-point Gauss–Hermite rule.  For n > 4 the axis weights are negative, so, as for
-the UT with a negative weight, a covariance can come out indefinite.
+the UT with a negative weight, a covariance can come out indefinite: it is then refused
+(:class:`~symmon.errors.IndefiniteCovarianceError`, by :meth:`Transform.moments`).
 
 This module is the worked example of docs/architecture.md: a rule is one file with a
 frozen dataclass with its ``_moments`` hook, its declared capabilities and its ``presets``.
@@ -83,5 +84,5 @@ class Cubature5(Transform):
         Z, w = _rule(n)
         X = means[:, None, :] + np.einsum("kij,nj->kni", batch_sqrt(covs), Z)
         Y = evaluate_points(cm, X, self, angles)
-        mean, cov, cross = weighted_moments(Y, X, means, w, w, angles)
-        return Moments(mean, cov, cross, evaluations=K * Z.shape[0])
+        mean, cov, cross, scale = weighted_moments(Y, X, means, w, w, angles)
+        return Moments(mean, cov, cross, evaluations=K * Z.shape[0], cov_scale=scale)

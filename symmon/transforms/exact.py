@@ -64,7 +64,7 @@ class Exact(Transform):
         K, n = means.shape
         z = sp.symbols(f"z0:{n}")
         L = batch_sqrt(covs)
-        out_m, out_c, out_x = [], [], []
+        out_m, out_c, out_x, out_s = [], [], [], []
         for k in range(K):
             w = [float(means[k, i]) + sum(float(L[k, i, j]) * z[j] for j in range(n)) for i in range(n)]
             sub = dict(zip(syms, w))
@@ -76,8 +76,13 @@ class Exact(Transform):
             for i in range(ny):
                 for j in range(i, ny):
                     C[i, j] = C[j, i] = _expect(P[i] * P[j]) - m[i] * m[j]
+            # The rounding scale of C (Moments.cov_scale): E |P_i|² with the absolute values of
+            # the coefficients bounds every term the entries of row i were summed from.
+            absolute = [sp.Poly.from_dict({mono: abs(c) for mono, c in p.terms()}, *z) for p in P]
+            out_s.append([_expect(p * p) for p in absolute])
             X = np.array([[_expect(P[i] * Wp[j]) - m[i] * means[k, j] for j in range(n)] for i in range(ny)])
             out_m.append(m)
             out_c.append(C)
             out_x.append(X)
-        return Moments(np.array(out_m), np.array(out_c), np.array(out_x), evaluations=0)
+        return Moments(np.array(out_m), np.array(out_c), np.array(out_x), evaluations=0,
+                       cov_scale=np.array(out_s, dtype=float))

@@ -51,7 +51,12 @@ class GaussHermite(Transform):
         nodes (tensor or sparse) raises a :class:`~symmon.errors.ResourceError` before
         it is built.
     sparse : bool or None
-        Use a Smolyak sparse grid; ``None`` picks it above 4 dimensions.
+        Use a Smolyak sparse grid; ``None`` picks it above 4 dimensions, with a
+        :class:`~symmon.errors.QuadratureWarning`.  The sparse grid is exact to *total*
+        degree 2·⌊(order + 1)/2⌋ − 1 only (:meth:`degree`, the result's
+        ``info["degree"]``): order 3 gives degree 3, a covariance exact for affine g only,
+        and its weights are of both signs, so a covariance can come out indefinite; it
+        is then refused (:class:`~symmon.errors.IndefiniteCovarianceError`).
     error_estimate : bool, default False
         Also evaluate the rule of order ``order + 2`` and report the result's
         ``error = {"mean", "cov", "cross_cov"}``, each ``ERROR_SAFETY · |Q_order −
@@ -111,7 +116,7 @@ class GaussHermite(Transform):
                 f"({len(w)} nodes{signs}), exact to total "
                 f"degree {self.degree(n)} only, not the tensor grid ({self.order}^{n} = {self.order**n} nodes, "
                 f"degree {2 * self.order - 1} per coordinate): pass sparse=True to accept it, or sparse=False",
-                QuadratureWarning, stacklevel=4)
+                QuadratureWarning, stacklevel=5)
 
     def cost(self, n_w: int) -> int:
         """The nodes of the rule (and of the order + 2 rule with ``error_estimate``);
@@ -142,11 +147,11 @@ class GaussHermite(Transform):
         self._announce(n)
         sparse = self._sparse(n)
         L = batch_sqrt(covs)
-        mean, cov, cross, evals = _rule_moments(cm, means, L, int(self.order), sparse, angles, self)
-        info: dict[str, Any] = {"sparse": sparse}
+        mean, cov, cross, scale, evals = _rule_moments(cm, means, L, int(self.order), sparse, angles, self)
+        info: dict[str, Any] = {"sparse": sparse, "degree": self.degree(n)}
         error = None
         if self.error_estimate:
-            m2, c2, x2, e2 = _rule_moments(cm, means, L, int(self.order) + 2, sparse, angles, self)
+            m2, c2, x2, _, e2 = _rule_moments(cm, means, L, int(self.order) + 2, sparse, angles, self)
             dm = mean - m2
             if angles:
                 idx = sorted(angles)
@@ -157,16 +162,17 @@ class GaussHermite(Transform):
                 "cross_cov": ERROR_SAFETY * np.abs(cross - x2),
             }
             evals += e2
-        return Moments(mean, cov, cross, evaluations=evals, details=info, error=error)
+        return Moments(mean, cov, cross, evaluations=evals, details=info, error=error, cov_scale=scale)
 
 
-def _rule_moments(cm, means: np.ndarray, L: np.ndarray, order: int, sparse: bool,
-                  angles: frozenset[int], transform: Transform) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """Mean, covariance, cross-covariance and the number of evaluations of one rule."""
+def _rule_moments(cm, means: np.ndarray, L: np.ndarray, order: int, sparse: bool, angles: frozenset[int],
+                  transform: Transform) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, int]:
+    """Mean, covariance, cross-covariance, the covariance's rounding scale
+    (:func:`weighted_moments`) and the number of evaluations of one rule."""
     K, n = means.shape
     Z, w = standard_rule(n, order, sparse)
     X = means[:, None, :] + np.einsum("kij,nj->kni", L, Z)
     N = Z.shape[0]
     Y = evaluate_points(cm, X, transform, angles)
-    mean, cov, cross = weighted_moments(Y, X, means, w, w, angles)
-    return mean, cov, cross, K * N
+    mean, cov, cross, scale = weighted_moments(Y, X, means, w, w, angles)
+    return mean, cov, cross, scale, K * N

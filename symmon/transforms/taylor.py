@@ -95,16 +95,31 @@ def _taylor(cm: CompiledModel, means: np.ndarray, covs: np.ndarray, angles, seco
     J = cm.dense_jacobian(J_nz)
     JP = np.matmul(J, covs)
     cov = np.matmul(JP, J.transpose(0, 2, 1))
+    # The scale of the rounding of Cov y (Moments.cov_scale): with s the standard deviations,
+    # |P| ≤ s sᵀ entrywise, so |J||P||J|ᵀ ≤ (|J|s)(|J|s)ᵀ and |tr(H_i P H_j P)| ≤
+    # (sᵀ|H_i|s)(sᵀ|H_j|s); a product of sums of such terms is what the entries are made of.
+    s = np.sqrt(np.maximum(np.diagonal(covs, axis1=1, axis2=2), 0.0))
+    scale = np.einsum("kij,kj->ki", np.abs(J), s) ** 2
     mean = y.copy()
     if second:
         _check_finite(cm, means, H_nz, cm.hess_index[0], "Hessian")
         half_tr, half_tr2 = second_order_terms(cm, H_nz, covs)
         mean = mean + half_tr
         cov = cov + half_tr2
+        scale = scale + 0.5 * _hessian_spread(cm, H_nz, s) ** 2
     if angles:
         idx = sorted(angles)
         mean[:, idx] = wrap_angle(mean[:, idx])
-    return Moments(mean, cov, JP, evaluations=means.shape[0])
+    return Moments(mean, cov, JP, evaluations=means.shape[0], cov_scale=scale)
+
+
+def _hessian_spread(cm: CompiledModel, H_nz: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """sᵀ|H_i|s (K, n_y) from the lower-triangle nonzeros of the Hessians."""
+    out, rows, cols = cm.hess_index
+    terms = np.abs(H_nz) * s[:, rows] * s[:, cols] * np.where(rows == cols, 1.0, 2.0)
+    spread = np.zeros((H_nz.shape[0], cm.n_y))
+    np.add.at(spread.T, out, terms.T)
+    return spread
 
 
 @dataclass(frozen=True)

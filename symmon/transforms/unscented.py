@@ -4,6 +4,11 @@ With n = dim w and λ = α²(n + κ) − n, the sigma points are μ and μ ± �
 (Lᵢ the columns of a square root of P), with mean weights w₀ = λ/(n + λ),
 wᵢ = 1/(2(n + λ)) and covariance weight w₀ᶜ = w₀ + 1 − α² + β.
 
+The centre weight is negative when λ < 0 (ut1 above 3 dimensions, where κ = 3 − n; ut2).
+The covariance is S + (β − α²) d dᵀ, S = Σ_{i≥1} wᵢ eᵢ eᵢᵀ and d = Σ_{i≥1} wᵢ eᵢ with
+eᵢ = Yᵢ − Y₀, PSD whenever β ≥ α² (ut2); otherwise it can be indefinite, and is then
+refused (:class:`~symmon.errors.IndefiniteCovarianceError`, by :meth:`Transform.moments`).
+
 References
 ----------
 S. J. Julier, J. K. Uhlmann, "Unscented filtering and nonlinear estimation",
@@ -14,7 +19,6 @@ state-space models*, PhD thesis, OGI, 2004 (the scaled UT).
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -150,17 +154,6 @@ class UT(Transform):
         wm, wc, _ = self.weights(n)
         X = self.sigma_points(means, covs)
         Y = evaluate_points(cm, X, self, angles)
-        mean, cov, cross = weighted_moments(Y, X, means, wm, wc, angles)
+        mean, cov, cross, scale = weighted_moments(Y, X, means, wm, wc, angles)
         info = {"sigma_points": X, "transformed_points": Y}
-        if np.any(wc < 0):
-            eig_min = np.linalg.eigvalsh(cov)[:, 0]
-            scale = np.abs(cov).max(axis=(1, 2)) + np.finfo(float).tiny
-            if np.any(eig_min < -1e-10 * scale):
-                warnings.warn(
-                    f"{self!r}: a negative sigma-point weight (w0c = {wc[0]:.3g}) made the "
-                    f"covariance indefinite (smallest eigenvalue {eig_min.min():.3g}); it is "
-                    "returned as computed, not repaired",
-                    RuntimeWarning, stacklevel=4,
-                )
-                info["indefinite"] = True
-        return Moments(mean, cov, cross, evaluations=K * (2 * n + 1), details=info)
+        return Moments(mean, cov, cross, evaluations=K * (2 * n + 1), details=info, cov_scale=scale)

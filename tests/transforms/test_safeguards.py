@@ -1,7 +1,7 @@
 """Covariance safeguards and degenerate cases (issue 8): explicit, never silent.
 
-- The UT's negative weights: a covariance that is not PSD is reported and returned as
-  computed.
+- The UT's negative weights: a covariance that is not PSD is refused
+  (tests/transforms/test_definiteness.py).
 - Monte Carlo's shifted sums: a large offset in y costs no digits.
 - Singular Σ_uu (pseudo-inverse, said in ``.notes``) and singular Σ_gg (W^full refused
   with the null combination named).
@@ -34,63 +34,6 @@ REDUCTION_TOL = 1e-9
 N_SE = 5
 
 x, y, z = sp.symbols("x y z", real=True)
-
-
-# --------------------------------------------------------------------------- UT negative weights
-def _sum_of_squares(n: int) -> tuple[sm.Model, sm.Gaussian]:
-    xs = sp.symbols(f"x0:{n}", real=True)
-    return sm.Model(list(xs), [sum(s**2 for s in xs)]), sm.Gaussian(np.zeros(n), np.eye(n))
-
-
-def _ut_cov_identity(ut: sm.UT, n: int, Y: np.ndarray) -> np.ndarray:
-    """Σ_k wᶜ_k (Y_k − ȳ)(Y_k − ȳ)ᵀ written as S + (β − α²) d dᵀ with e_k = Y_k − Y_0,
-    S = Σ_{k≥1} w_k e_k e_kᵀ, d = Σ_{k≥1} w_k e_k (using Σ wᵐ = 1, wᶜ_0 = wᵐ_0 + 1 − α² + β).
-    It is PSD whenever β ≥ α²; only β < α² with Σ_{k≥1} w_k > 1 can make it indefinite."""
-    wm, _, _ = ut.weights(n)
-    e = Y[1:] - Y[0]
-    S = np.einsum("k,ki,kj->ij", wm[1:], e, e)
-    d = wm[1:] @ e
-    return S + (ut.beta - ut.alpha**2) * np.outer(d, d)
-
-
-@pytest.mark.parametrize("n", [4, 5, 8])
-def test_ut1_large_n_negative_variance_warns_and_is_returned_as_computed(n):
-    """ut1 (κ = 3 − n < 0 for n > 3) on y = ‖u‖², u ~ N(0, I): the points ±√3 eᵢ give
-    ȳ = n (exact) and Var y = n(3 − n) < 0, against the true 2n.  The UT warns and returns
-    exactly that number, neither clipped nor symmetrized."""
-    model, u = _sum_of_squares(n)
-    with pytest.warns(RuntimeWarning, match=r"negative sigma-point weight .* returned as computed, not repaired"):
-        m = sm.propagate(model, u, transform=sm.UT.ut1())
-    assert m.mean[0] == pytest.approx(n, rel=EXACT_TOL)
-    assert m.cov[0, 0] == pytest.approx(n * (3 - n), rel=EXACT_TOL)
-    assert m.info["indefinite"] is True
-    Y = m.info["transformed_points"][0]
-    assert m.cov == pytest.approx(_ut_cov_identity(sm.UT.ut1(), n, Y), rel=1e-10)
-    with pytest.raises(CovarianceError, match="not positive semi-definite"):
-        m.y  # the Gaussian of y refuses it unless a repair is asked for explicitly
-
-
-def test_custom_kappa_indefinite_matrix_warns():
-    """UT(α=1, β=0, κ=−5), n = 6, y = (x₀², x₁²): points ±e_i, weights ½, w₀ = −5.
-    S = I and d = (1, 1), so Cov y = S − d dᵀ = [[0, −1], [−1, 0]] (eigenvalues ±1)."""
-    xs = sp.symbols("x0:6", real=True)
-    model = sm.Model(list(xs), [xs[0] ** 2, xs[1] ** 2])
-    ut = sm.UT(1.0, 0.0, -5.0)
-    with pytest.warns(RuntimeWarning, match=r"w0c = -5.*smallest eigenvalue -1"):
-        m = sm.propagate(model, sm.Gaussian(np.zeros(6), np.eye(6)), transform=ut)
-    assert m.cov == pytest.approx(np.array([[0.0, -1.0], [-1.0, 0.0]]), abs=EXACT_TOL)
-    assert np.array_equal(m.cov, m.cov.T)  # symmetric as computed, not by a repair
-
-
-@pytest.mark.parametrize("n", [5, 20])
-def test_ut2_negative_weight_but_psd_no_warning(n):
-    """ut2 has w₀ = 1 − 1/α² ≈ −10⁶ for every n, but β = 2 ≥ α², so its covariance
-    S + (β − α²) d dᵀ is PSD in exact arithmetic: no warning.  For y = ‖u‖² it is
-    α²n² + (β − α²)n² = βn² (against the true 2n)."""
-    model, u = _sum_of_squares(n)
-    m = sm.propagate(model, u, transform=sm.UT.ut2())  # filterwarnings=error: no warning
-    assert m.cov[0, 0] == pytest.approx(2.0 * n**2, rel=1e-8)  # w₀ ≈ −1e6 costs ~6 digits
-    assert "indefinite" not in m.info
 
 
 # --------------------------------------------------------------------------- MC offsets
