@@ -69,7 +69,7 @@ class Moments:
         Set by :meth:`split`: Cov(y, v), the noise block of Cov(y, w).
     cov_scale : ndarray (K, n_y) or None
         The magnitude each output's variance was summed from, the scale of the rounding
-        in Cov y: Σ |wᶜᵢ| rᵢ² over the points of a rule with negative weights, the same
+        in Cov y: Σ abs(wᶜᵢ) rᵢ² over the points of a rule with negative weights, the same
         bound for the Taylor rules and exact moments; ``None``: the diagonal of ``cov``
         (a rule with non-negative weights sums non-negative terms).  The template
         :meth:`Transform.moments` tests definiteness against it
