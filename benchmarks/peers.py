@@ -50,6 +50,7 @@ import symmon as sm  # noqa: E402
 from symmon.compile import compiled  # noqa: E402
 from filters import ALPHA, BETA, KAPPA, best, cv_range_bearing, rel_diff, targets, wrap, write_section  # noqa: E402
 from scale import sparse_model  # noqa: E402
+from smoothers import fmt, ratio  # noqa: E402
 
 HEADING = "## Peers at real sizes"
 
@@ -121,16 +122,22 @@ def dynamax_filters(p, ys, repeat):
 
 
 # --------------------------------------------------------------------------- NumPy
-def numpy_ukf_bank(p, ys):
-    """Every run at once: the UKF (``UT(1, 2, 0)``) of symmon with batched NumPy."""
-    runs, K, _ = ys.shape
-    n = p.n
+def ut_weights(n: int):
+    """Mean and covariance weights and the scale √(n + λ) of ``UT(ALPHA, BETA, KAPPA)``, written
+    out here so that the peers do not take them from symmon."""
     lam = ALPHA**2 * (n + KAPPA) - n
-    c = np.sqrt(n + lam)
     wm = np.full(2 * n + 1, 1 / (2 * (n + lam)))
     wm[0] = lam / (n + lam)
     wc = wm.copy()
     wc[0] += 1 - ALPHA**2 + BETA
+    return wm, wc, np.sqrt(n + lam)
+
+
+def numpy_ukf_bank(p, ys):
+    """Every run at once: the UKF (``UT(1, 2, 0)``) of symmon with batched NumPy."""
+    runs, K, _ = ys.shape
+    n = p.n
+    wm, wc, c = ut_weights(n)
     hx = sp.lambdify(p.f_model.inputs, p.h_model.outputs, "numpy")
     ang = list(p.angles)
 
@@ -218,12 +225,7 @@ def jax_moments(n, means, covs, repeat):
     def g(x):
         return jnp.sqrt(x**2 + x[i1] ** 2 + 1) + jnp.sin(x * x[i2])
 
-    lam = ALPHA**2 * (n + KAPPA) - n
-    c = np.sqrt(n + lam)
-    wm = np.full(2 * n + 1, 1 / (2 * (n + lam)))
-    wm[0] = lam / (n + lam)
-    wc = wm.copy()
-    wc[0] += 1 - ALPHA**2 + BETA
+    wm, wc, c = ut_weights(n)
 
     def ut(m, P):
         L = c * jnp.linalg.cholesky(P)
@@ -256,16 +258,6 @@ def jax_moments(n, means, covs, repeat):
 
 
 # --------------------------------------------------------------------------- report
-def fmt(t):
-    if t is None:
-        return "—"
-    return f"{t * 1e6:.0f} µs" if t < 1e-3 else f"{t * 1e3:.1f} ms" if t < 1 else f"{t:.2f} s"
-
-
-def ratio(a, b):
-    return "—" if a is None or b is None else f"{a / b:.2f}×"
-
-
 def exponent(ns, ts):
     pts = [(n, t) for n, t in zip(ns, ts) if n >= 10 and t]
     if len(pts) < 2:
