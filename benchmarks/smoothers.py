@@ -166,7 +166,7 @@ def main() -> None:
              "`jax.jit(jax.vmap)` in float64; FilterPy `batch_filter` + `rts_smoother` (its bank: R × one run). "
              "Ratios: peer / symmon (> 1: symmon faster); first calls compile into a fresh cache (symmon) or "
              f"trace and compile (JAX); in parentheses, until symmon's background C builds are done (the first call "
-             "returns on CasADi's VM while they run). dynamax has no angle handling: its bearing is averaged as a number, where symmon and FilterPy take the circular mean and wrap the residuals, so its estimates differ at the level of the bearing variance (the agreement column); FilterPy agrees to rounding. Load average before / after: {load0} / {os.getloadavg()[0]:.2f}.", "",
+             f"returns on CasADi's VM while they run). dynamax has no angle handling: its bearing is averaged as a number, where symmon and FilterPy take the circular mean and wrap the residuals, so its estimates differ at the level of the bearing variance (the agreement column); FilterPy agrees to rounding. Load average before / after: {load0} / {os.getloadavg()[0]:.2f}.", "",
              "| n | symmon first call (C built) | dynamax first call (one / bank) | symmon one run | dynamax jit | FilterPy "
              "| symmon bank | dynamax vmap | log-lik. bank: symmon / dynamax | dynamax / symmon: one, bank, log-lik. "
              "| FilterPy / symmon | agreement (dynamax, FilterPy) |",
