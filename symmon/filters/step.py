@@ -71,8 +71,14 @@ MAX_SX_POINTS = 64
 
 
 def sym(A):
-    """The symmetric part of A: (A + Aᵀ)/2, so that rounding leaves no asymmetry."""
-    return 0.5 * (A + A.T)
+    """A exactly symmetric: its lower triangle mirrored, so that rounding leaves no asymmetry.
+
+    One gather of the n² entries, where the average (A + Aᵀ)/2 takes three passes (a
+    transpose, a sum, a scaling); on the matrices of a filter step, symmetric up to rounding,
+    the two differ by rounding only."""
+    n = A.shape[0]
+    lower = [max(i, j) + min(i, j) * n for j in range(n) for i in range(n)]  # column-major
+    return ca.reshape(ca.densify(A).nz[lower], n, n)
 
 
 def step_kind(f: Model, h: Model, transform: Transform):
@@ -151,9 +157,10 @@ def update_graph(h: Model, transform: Transform, angle_states: frozenset[int], x
     def masked(nu, S, cross):
         if mask is None:
             return nu, S, cross
-        D = ca.diag(mask)
-        # Cov(y, x) is n_y × n: rows of the missing components zero.
-        return mask * nu, ca.mtimes(ca.mtimes(D, S), D) + ca.diag(1 - mask), ca.mtimes(D, cross)
+        # D S D and D Cov(y, x) (rows of the missing components zero) entrywise, not as
+        # products with the diagonal D (a sparse product, slower than the whole update).
+        return (mask * nu, S * ca.mtimes(mask, mask.T) + ca.diag(1 - mask),
+                cross * ca.repmat(mask, 1, cross.shape[1]))
 
     def whitened(S, cross):
         # With L Lᵀ = S and W = L⁻¹ P^{yx}: K = P^{xy} S⁻¹ = Wᵀ L⁻¹ and K S Kᵀ = Wᵀ W, from one
@@ -166,20 +173,21 @@ def update_graph(h: Model, transform: Transform, angle_states: frozenset[int], x
     nu, S, cross = masked(wrap_entries(y - y_hat, y_angles), S, cross)
     measured = n_y if mask is None else ca.sum1(mask)
     L, inv, W = whitened(S, cross)
-    gain = ca.mtimes(W.T, inv)
-    x_i = x_pred + ca.mtimes(gain, nu)
+    # K ν = Wᵀ (L⁻¹ ν): the whitened innovation serves the NIS too, and the gain (n × n_y,
+    # n n_y² operations) is never formed.
+    white = ca.mtimes(inv, nu)
+    x_i = x_pred + ca.mtimes(W.T, white)
     W_i = W
     for _ in range(iterations - 1):
         y_hat_i, S_i, cross_i = linearised(x_i)
         step_back = ca.mtimes(cross_i, ca.solve(P_pred, x_pred - x_i))  # H_i (x⁻ − x_i)
         r_i, S_i, cross_i = masked(wrap_entries(y - y_hat_i, y_angles) - step_back, S_i, cross_i)
         _, inv_i, W_i = whitened(S_i, cross_i)
-        x_i = x_pred + ca.mtimes(ca.mtimes(W_i.T, inv_i), r_i)
+        x_i = x_pred + ca.mtimes(W_i.T, ca.mtimes(inv_i, r_i))
     x_new = wrap_entries(x_i, angle_states)
-    P_new = sym(P_pred - ca.mtimes(W_i.T, W_i))
+    P_new = sym(ca.mac(-W_i.T, W_i, P_pred))  # P⁻ − WᵀW, accumulated into a copy of P⁻
     # log N(ν; 0, S) = −(νᵀ S⁻¹ ν + log det S + m log 2π)/2, with νᵀ S⁻¹ ν = |L⁻¹ ν|²: NaN when
     # S is not positive definite (a negative pivot), +inf when it is singular.
-    white = ca.mtimes(inv, nu)
     nis = ca.dot(white, white)
     log_det = 2 * ca.sum1(ca.log(ca.diag(L)))
     loglik = -0.5 * (nis + log_det + measured * math.log(2 * math.pi))
@@ -217,8 +225,9 @@ def _step_function(f: Model, h: Model, transform: Transform, angle_states: froze
 # is CasADi's default, long long.  x0/P0 advance by x0_step/P0_step per run (0: shared).
 _DRIVER = """
 /* symmon: a bank of runs of the filter step {name}.  outs[j] is output j's block and
-   strides[j] its size per step; a stride of 0 means "not kept": every step writes to one
-   slot (x and P to two, alternately, so that a step never writes what it reads). */
+   strides[j] its size per step; a stride of 0 means "not kept": the step does not write it
+   (a null result), but x and P, which the next step reads, go to two slots, alternately,
+   so that a step never writes what it reads. */
 CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
     const casadi_real* P0, casadi_int P0_step, const casadi_real* y,
     const casadi_real* Q, const casadi_real* R, const casadi_real* mask, const casadi_real* p,
@@ -234,7 +243,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
       i = r * K + k;
       arg[0] = x; arg[1] = P; arg[2] = y + i * {n_y}; arg[3] = Q; arg[4] = R; arg[5] = mask + i * {n_y};
       arg[6] = p + i * {n_p};
-      for (j = 0; j < 8; ++j) res[j] = outs[j] + i * strides[j];
+      for (j = 0; j < 8; ++j) res[j] = strides[j] ? outs[j] + i * strides[j] : 0;
       if (!strides[0]) res[0] = outs[0] + (k & 1) * {n};
       if (!strides[1]) res[1] = outs[1] + (k & 1) * {nn};
       if ({name}(arg, res, iw, w, 0)) return 1;
@@ -361,12 +370,12 @@ class _CompiledStep(CompiledLoop):
         if run is None:
             full = self._vm(x0, P0, Y, Q, R, mask, params[..., :self.n_p])
             return {k: v for k, v in full.items() if k in kept}
-        # A kept output: its (runs, K, ...) block; one that is not: a slot (two for x and P)
-        # per thread of the bank.
+        # A kept output: its (runs, K, ...) block; x and P when not kept: two slots per thread
+        # of the bank (the next step reads them); any other: not written.
         per_step = [math.prod(s) for s in shapes.values()]
         chunks = chunk_runs(runs, K, x0.shape[-1])
         blocks = {k: np.empty((runs, K) + s) if k in kept
-                  else np.empty((len(chunks), 2 if k in ("x", "P") else 1) + s) for k, s in shapes.items()}
+                  else np.empty((len(chunks), 2) + s) if k in ("x", "P") else None for k, s in shapes.items()}
         strides = np.array([z if k in kept else 0 for k, z in zip(shapes, per_step)], dtype=np.int64)
         # CasADi is column-major: the symmetric P, Q, R, S need no transposition, and a C
         # row (runs, n) is a column-major (n, runs).
@@ -379,7 +388,8 @@ class _CompiledStep(CompiledLoop):
         def part(c: int) -> int:
             a, b = chunks[c]
             outs = (ctypes.c_void_p * len(blocks))(*[
-                blk[a].ctypes.data if k in kept else blk[c].ctypes.data for k, blk in blocks.items()])
+                None if blk is None else blk[a].ctypes.data if k in kept else blk[c].ctypes.data
+                for k, blk in blocks.items()])
             iw, w = self._workspace()  # one per thread
             return run(x0.ctypes.data + 8 * a * x_step, x_step, P0.ctypes.data + 8 * a * P_step, P_step,
                        Y[a].ctypes.data, Q.ctypes.data, R.ctypes.data, mask[a].ctypes.data,
