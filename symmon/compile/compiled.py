@@ -199,11 +199,13 @@ def _convert(e: sp.Basic, walk: Callable):
 
 
 # --------------------------------------------------------------------------- C code
-def generated_c(f: ca.Function) -> str:
-    """CasADi's C source of ``f`` (no header, no main), with symmon's faster dense product
+def generated_c(f: ca.Function, *more: ca.Function) -> str:
+    """CasADi's C source of ``f`` (and of the functions ``more``, in one file that shares
+    their helpers; no header, no main), with symmon's faster dense product
     (:func:`symmon.compile.ckernels.faster_kernels`: the same results to the bit)."""
     gen = ca.CodeGenerator(f.name() + ".c", {"with_header": False})
-    gen.add(f)
+    for g in (f,) + more:
+        gen.add(g)
     return faster_kernels(gen.dump())
 
 

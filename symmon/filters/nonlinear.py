@@ -69,7 +69,7 @@ from numpy.typing import ArrayLike
 from ..errors import AngleWarning, ArgumentTypeError, CovarianceError, ModelError, ShapeError, SymmonError
 from ..core.checks import check_gaussian, check_model, noise_cov, readonly
 from .results import (ConsistencyTest, KalmanResult, NonlinearKalmanResult, SmootherResult, check_bank_size, check_keep,
-                      kept_numbers, real_measurements)
+                      check_truth, kept_numbers, real_measurements, step_nees, _nees)
 from .smoother import compiled_smoother
 from .step import filter_params
 from .strategy import FilterStrategy, RuleStrategy
@@ -388,7 +388,8 @@ class NonlinearKalmanFilter:
         return m, as_covariance(P0, "P0", dim=n)
 
     def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None, *,
-               keep: Iterable[str] | None = None, params: dict | None = None) -> KalmanResult:
+               keep: Iterable[str] | None = None, params: dict | None = None,
+               x_true: ArrayLike | None = None) -> KalmanResult:
         """Predict, then update, for each measurement (the convention of :class:`KalmanFilter`).
 
         Parameters
@@ -417,6 +418,11 @@ class NonlinearKalmanFilter:
             of one per step (K,) (an irregular time step dt, a control input), or for a bank
             one per run and step (R, K).  They are inputs of the compiled step: a new value
             costs no recompile.
+        x_true : array_like, shape (K, n) or (R, K, n), optional
+            The true states (of a simulation): each step's NEES against them is computed
+            inside the compiled step, right after it (:attr:`KalmanResult.nees_values`,
+            ``res.nees()``, ``res.anees()``), so that a bank need not keep x and P for its
+            NEES test (``keep=("nis",)`` with ``x_true`` stores two numbers per step).
 
         Returns
         -------
@@ -433,6 +439,9 @@ class NonlinearKalmanFilter:
         SymmonError
             The filter produced NaN or inf (a singular S, or a covariance that lost
             positive definiteness), naming the first step that failed and its run.
+        SingularMatrixError
+            With ``x_true``: a filtered covariance P is singular, so its NEES is undefined
+            (:func:`~symmon.filters.results.step_nees`).
         """
         n_y = self.h_model.n_y
         Y = real_measurements(ys)
@@ -448,9 +457,17 @@ class NonlinearKalmanFilter:
             raise ShapeError(f"ys contains inf (at index {where}); a missing measurement is NaN")
         m0, C0 = self._initial(x0, P0, runs)
         Yb = Y.reshape((runs or 1,) + Y.shape[-2:])
+        truth = None
+        if x_true is not None:
+            truth = check_truth(x_true, Y.shape[:-1] + (self.f_model.n_u,)).reshape(Yb.shape[:2] + (-1,))
         pv = self._param_values(params, runs, Y.shape[-2])
         extra = {} if pv is None else {"params": pv}  # a strategy without parameters needs no argument
+        if truth is not None and self.strategy.nees_in_step:
+            extra["truth"] = truth
         out, choices = self.strategy.run(self, Yb, m0, C0, kept, **extra)
+        nees = {k: out.pop(k) for k in ("nees", "nees_trace") if k in out}
+        if truth is not None and not nees:  # a strategy that keeps every array: from x and P
+            nees = {"x": out["x"], "P": out["P"]}
         out = {k: v for k, v in out.items() if k == "loglik" or kept is None or k in kept}
         # A NaN reaches every later log-likelihood: the first non-finite one is the step.
         bad = ~np.isfinite(out["loglik"])
@@ -466,6 +483,12 @@ class NonlinearKalmanFilter:
                 "covariance S is singular or not positive definite, a covariance lost positive "
                 "definiteness, or a derivative is undefined there, e.g. sqrt at 0 or atan2(0, 0))"
             )
+        if truth is not None:  # after the check above: a NaN state is a failed filter, not a singular P
+            one = (lambda v: v) if runs is not None else (lambda v: v[0])  # a single run's errors name no run
+            out["nees_values"] = (step_nees(one(nees["nees"]), one(nees["nees_trace"])) if "nees" in nees
+                                  else _nees(one(nees["x"]), one(nees["P"]), one(truth), sorted(self.angle_states)))
+            if runs is None:
+                out["nees_values"] = out["nees_values"][None]
         arrays = {k: v if runs is not None else v[0] for k, v in out.items()}
         for v in arrays.values():
             v.flags.writeable = False  # fresh arrays of this call: frozen, not copied
@@ -477,5 +500,6 @@ class NonlinearKalmanFilter:
             measured = readonly((~np.isnan(Y)).sum(axis=-1))
         if "nis" in arrays:
             arrays["nis_values"] = arrays.pop("nis")
-        return KalmanResult(**arrays, measured=measured, n_y=n_y, angle_states=tuple(sorted(self.angle_states)),
+        return KalmanResult(**arrays, measured=measured, n_y=n_y, n_x=self.f_model.n_u,
+                            angle_states=tuple(sorted(self.angle_states)),
                                      method=self.method, choices=choices)

@@ -30,7 +30,7 @@ from ..core.checks import readonly
 from ..core.gaussian import Gaussian, float_array
 
 __all__ = ["KalmanResult", "NonlinearKalmanResult", "SmootherResult", "ConsistencyTest", "KEEPABLE", "check_keep",
-           "real_measurements", "MAX_BANK_NUMBERS", "check_bank_size", "kept_numbers"]
+           "real_measurements", "check_truth", "step_nees", "MAX_BANK_NUMBERS", "check_bank_size", "kept_numbers"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -164,16 +164,57 @@ def _quadratic_forms(e: np.ndarray, C: np.ndarray, what: str = "covariance") -> 
 
 def _nees(x: np.ndarray, P: np.ndarray, x_true: ArrayLike, angle_states: Sequence[int]) -> np.ndarray:
     """(x_true − x)ᵀ P⁻¹ (x_true − x) per step, the angle components of the error wrapped."""
-    X = float_array(x_true, "x_true")
-    if X.shape != x.shape:
-        raise ShapeError(f"x_true must have the shape of x, {x.shape}, got {X.shape}")
-    if not np.all(np.isfinite(X)):
-        raise ShapeError("x_true contains NaN or inf")
-    e = X - x
+    e = check_truth(x_true, x.shape) - x
     if angle_states:
         idx = list(angle_states)
         e[..., idx] = wrap_angle(e[..., idx])
     return _quadratic_forms(e, P, "state covariance P")
+
+
+def check_truth(x_true: ArrayLike, shape: tuple[int, ...]) -> np.ndarray:
+    """The true states ``x_true`` as a finite float array of ``shape`` ((K, n) or (R, K, n)).
+
+    Raises
+    ------
+    ShapeError
+        For another shape, or NaN or inf (complex values are refused by ``float_array``).
+    """
+    X = float_array(x_true, "x_true")
+    if X.shape != tuple(shape):
+        raise ShapeError(f"x_true must have the shape of x, {tuple(shape)}, got {X.shape}")
+    if not np.all(np.isfinite(X)):
+        raise ShapeError("x_true contains NaN or inf")
+    return X
+
+
+def step_nees(values: np.ndarray, trace: np.ndarray) -> np.ndarray:
+    """The NEES computed inside a compiled filter step, checked: ``values`` (R, K) or (K,) and
+    ``trace`` = tr Ρ⁻¹ of each step's correlation matrix Ρ (:func:`symmon.filters.step.nees_graph`).
+
+    A covariance counts as singular when tr Ρ⁻¹ ≥ 1 / :data:`~symmon.measures.weights.SINGULAR_CORR`
+    (infinite for a failed factor, NaN for a zero variance): every Ρ whose smallest eigenvalue is
+    at most SINGULAR_CORR (the test of :meth:`KalmanResult.nees` on stored x and P) and,
+    since tr Ρ⁻¹ ≤ n / λ_min, some with λ_min up to n times that.
+
+    Raises
+    ------
+    SingularMatrixError
+        At the first step whose P is singular in this sense, naming it.
+    NonFiniteError
+        If a NEES overflows.
+    """
+    singular = ~(trace < 1.0 / SINGULAR_CORR)
+    if singular.any():
+        idx = tuple(int(j) for j in np.argwhere(singular)[0])
+        raise SingularMatrixError(
+            f"the state covariance P at {_where(idx, values.ndim)} is singular (a zero variance, or a "
+            f"correlation matrix whose inverse has trace {trace[idx]:.3g} ≥ {1 / SINGULAR_CORR:.0e}): a "
+            "combination of components is known exactly, so the normalised error squared is undefined")
+    if not np.all(np.isfinite(values)):
+        idx = tuple(int(j) for j in np.argwhere(~np.isfinite(values))[0])
+        raise NonFiniteError(f"the normalised error squared at {_where(idx, values.ndim)} overflows: the error is "
+                             "beyond 1e154 standard deviations")
+    return values
 
 
 def real_measurements(ys: ArrayLike) -> np.ndarray:
@@ -298,6 +339,13 @@ class KalmanResult:
         (kept with ``keep=("nis", ...)``, so a bank need not keep ν and S for its NIS test).
     n_y : int or None
         The measurement dimension (set by the nonlinear filters).
+    nees_values : ndarray, shape (K,) or (R, K), or None
+        (x_k − x̂_k)ᵀ P_k⁻¹ (x_k − x̂_k) of each step against the true states given to
+        ``filter(..., x_true=...)``, computed inside the compiled step (so a bank need not
+        keep x and P for its NEES test); None without ``x_true``.
+    n_x : int or None
+        The state dimension (set by the nonlinear filters, so that :meth:`anees` works on
+        a result that keeps no state array).
     """
 
     x: np.ndarray | None = None
@@ -314,6 +362,8 @@ class KalmanResult:
     measured: np.ndarray | None = None
     nis_values: np.ndarray | None = None
     n_y: int | None = None
+    nees_values: np.ndarray | None = None
+    n_x: int | None = None
 
     def _need(self, *names: str) -> None:
         missing = [k for k in names if getattr(self, k) is None]
@@ -339,6 +389,8 @@ class KalmanResult:
         for a in (self.x, self.x_pred, self.P, self.P_pred):
             if a is not None:
                 return int(a.shape[-1])
+        if self.n_x is not None:
+            return self.n_x
         raise SymmonError("this result holds no state array (keep= named none of x, P, x_pred, P_pred)")
 
     @property
@@ -410,18 +462,30 @@ class KalmanResult:
         b = self._block_index(block_b, "block_b")
         return self.P[..., a[:, None], b[None, :]]
 
-    def nees(self, x_true: ArrayLike) -> np.ndarray:
+    def nees(self, x_true: ArrayLike | None = None) -> np.ndarray:
         """Normalised estimation error squared ε_k = (x_k − x̂_k)ᵀ P_k⁻¹ (x_k − x̂_k).
 
         Parameters
         ----------
-        x_true : array_like, shape of ``x``
-            The true states x_k ((K, n), or (R, K, n) for a bank).
+        x_true : array_like, shape of ``x``, optional
+            The true states x_k ((K, n), or (R, K, n) for a bank), against the stored ``x``
+            and ``P``.  Without it: :attr:`nees_values`, computed in the compiled step
+            against the ``x_true`` given to ``filter``.
 
         Returns
         -------
         ndarray, shape (K,) or (R, K)
+
+        Raises
+        ------
+        SymmonError
+            Without ``x_true`` when the filter was given none, or with it when x or P
+            were not kept.
         """
+        if x_true is None:
+            if self.nees_values is None:
+                raise SymmonError("give x_true, or filter with x_true= to have the NEES computed in the step")
+            return self.nees_values
         self._need("x", "P")
         return _nees(self.x, self.P, x_true, self.angle_states)
 
@@ -433,9 +497,9 @@ class KalmanResult:
         self._need("innovation", "S")
         return _quadratic_forms(self.innovation, self.S, "innovation covariance S")
 
-    def anees(self, x_true: ArrayLike, confidence: float = 0.95) -> ConsistencyTest:
+    def anees(self, x_true: ArrayLike | None = None, confidence: float = 0.95) -> ConsistencyTest:
         """Average NEES with its χ² interval: per step over the runs of a bank, or over the
-        steps of a single run (Bar-Shalom et al. 2001, §5.4.2)."""
+        steps of a single run (Bar-Shalom et al. 2001, §5.4.2); ``x_true`` as :meth:`nees`."""
         return _consistency(self.nees(x_true), self.n, confidence)
 
     def anis(self, confidence: float = 0.95) -> ConsistencyTest:

@@ -221,20 +221,49 @@ def _step_function(f: Model, h: Model, transform: Transform, angle_states: froze
                        {"cse": True} if kind is ca.SX else {})
 
 
+def nees_graph(x, P, truth, angle_states: Iterable[int], chol):
+    """(ε, t): the NEES ε = eᵀ P⁻¹ e of the error e = truth − x (angle entries wrapped), and
+    t = tr Ρ⁻¹, for the singularity test of :func:`symmon.filters.results.step_nees`.
+
+    As :meth:`symmon.KalmanResult.nees`, the form is computed on the correlation matrix
+    Ρ = P / σσᵀ (σ = √diag P), ε = |L⁻¹ (e / σ)|² with L Lᵀ = Ρ, so that it is the same in any
+    units; t = |L⁻¹|²_F.  A zero, negative or NaN pivot makes t infinite (a zero pivot would
+    otherwise drop its component from ε), and a zero variance makes both NaN.
+    """
+    e = wrap_entries(truth - x, angle_states)
+    r = 1 / ca.sqrt(ca.diag(P))
+    L = chol(P * ca.mtimes(r, r.T))
+    inv = tril_inverse(L)
+    z = ca.mtimes(inv, e * r)
+    return ca.dot(z, z), ca.sumsqr(inv) / ca.mmin(ca.diag(L) > 0)
+
+
+def _nees_function(f: Model, h: Model, transform: Transform, angle_states: frozenset[int], name: str) -> ca.Function:
+    """(x, P, truth) ↦ (NEES, tr Ρ⁻¹) of one step's estimate (:func:`nees_graph`), of the kind
+    (SX or MX) of the filter's step."""
+    kind, chol = step_kind(f, h, transform)
+    n = f.n_u
+    x, P, t = kind.sym("x", n), kind.sym("P", n, n), kind.sym("truth", n)
+    return ca.Function(name, [x, P, t], list(nees_graph(x, P, t, angle_states, chol)), ["x", "P", "truth"],
+                       ["nees", "trace"], {"cse": True} if kind is ca.SX else {})
+
+
 # The run loop: for each run, K steps, each reading the previous step's output.  casadi_int
 # is CasADi's default, long long.  x0/P0 advance by x0_step/P0_step per run (0: shared).
 _DRIVER = """
 /* symmon: a bank of runs of the filter step {name}.  outs[j] is output j's block and
    strides[j] its size per step; a stride of 0 means "not kept": the step does not write it
    (a null result), but x and P, which the next step reads, go to two slots, alternately,
-   so that a step never writes what it reads. */
+   so that a step never writes what it reads.  With the true states (truth, not null), each
+   step's NEES and its singularity test go to outs[8] and outs[9] ({name}_nees). */
 CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
     const casadi_real* P0, casadi_int P0_step, const casadi_real* y,
     const casadi_real* Q, const casadi_real* R, const casadi_real* mask, const casadi_real* p,
-    casadi_real* const* outs, const casadi_int* strides, casadi_int runs, casadi_int K, casadi_int* iw,
-    casadi_real* w) {{
+    const casadi_real* truth, casadi_real* const* outs, const casadi_int* strides, casadi_int runs,
+    casadi_int K, casadi_int* iw, casadi_real* w) {{
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
+  casadi_real* res2[{sz_res}];
   casadi_int r, k, i, j;
   for (r = 0; r < runs; ++r) {{
     const casadi_real* x = x0 + r * x0_step;
@@ -249,6 +278,11 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
       if ({name}(arg, res, iw, w, 0)) return 1;
       x = res[0];
       P = res[1];
+      if (truth) {{
+        arg[0] = x; arg[1] = P; arg[2] = truth + i * {n};
+        res2[0] = outs[8] + i; res2[1] = outs[9] + i;
+        if ({name}_nees(arg, res2, iw, w, 0)) return 1;
+      }}
     }}
   }}
   return 0;
@@ -272,10 +306,14 @@ class CompiledLoop:
     stacklevel : int
         For the warnings of a build, counted from the subclass's constructor (one frame up
         from here: the NativeLibrary gets one more).
+    also : tuple of casadi.Function
+        Other functions in ``code`` that the loop calls (their work arrays are shared).
     """
 
-    def __init__(self, f: ca.Function, code: str, argtypes: list, stacklevel: int = 4) -> None:
+    def __init__(self, f: ca.Function, code: str, argtypes: list, stacklevel: int = 4,
+                 also: tuple[ca.Function, ...] = ()) -> None:
         self.f = f
+        self._work = (max(g.sz_iw() for g in (f,) + also), max(g.sz_w() for g in (f,) + also))
         self._argtypes = argtypes
         # Without a compiler, compiled() has already warned (once) while the step was built.
         self._lib = NativeLibrary(code, f.name(), self._load, stacklevel=stacklevel + 1)
@@ -291,8 +329,8 @@ class CompiledLoop:
         """Addresses of this thread's work arrays (integer, real), made once per thread."""
         ws = getattr(self._local, "ws", None)
         if ws is None:
-            ws = self._local.ws = (np.zeros(max(self.f.sz_iw(), 1), dtype=np.int64),
-                                   np.zeros(max(self.f.sz_w(), 1)))
+            ws = self._local.ws = (np.zeros(max(self._work[0], 1), dtype=np.int64),
+                                   np.zeros(max(self._work[1], 1)))
         return ws[0].ctypes.data, ws[1].ctypes.data
 
     @property
@@ -331,28 +369,32 @@ class _CompiledStep(CompiledLoop):
                     sorted(angle_states), sorted(h.angle_outputs)) + ((iterations,) if iterations > 1 else ()))
         name = "sm_nkf_" + hashlib.sha1(key.encode()).hexdigest()[:12]
         fn = _step_function(f, h, transform, angle_states, name, iterations)
+        self.nees_f = _nees_function(f, h, transform, angle_states, name + "_nees")
         self.n, self.n_y = n, n_y = f.n_u, h.n_y
         self.n_p = len(filter_params(f, h))
         self._shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n),
                         "innovation": (n_y,), "S": (n_y, n_y), "loglik": (), "nis": ()}
-        code = generated_c(fn) + _DRIVER.format(
-            name=name, sz_arg=max(fn.sz_arg(), 7), sz_res=max(fn.sz_res(), 8),
+        both = (fn, self.nees_f)
+        code = generated_c(*both) + _DRIVER.format(
+            name=name, sz_arg=max(max(g.sz_arg() for g in both), 7), sz_res=max(max(g.sz_res() for g in both), 8),
             n=self.n, nn=self.n * self.n, n_y=self.n_y, nyy=self.n_y * self.n_y, n_p=self.n_p,
         )
         argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_longlong]
-                    + [ctypes.c_void_p] * 7 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2)
-        super().__init__(fn, code, argtypes)
+                    + [ctypes.c_void_p] * 8 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2)
+        super().__init__(fn, code, argtypes, also=(self.nees_f,))
 
     def __call__(self, x0: np.ndarray, P0: np.ndarray, Y: np.ndarray, Q: np.ndarray, R: np.ndarray,
                  use_c: bool = True, keep: frozenset[str] | None = None,
-                 params: np.ndarray | None = None) -> dict[str, np.ndarray]:
+                 params: np.ndarray | None = None, truth: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """Run the bank: x0 (n,) or (runs, n), P0 (n, n) or (runs, n, n), Y (runs, K, n_y), and
         the parameters' values (runs, K, n_p) (None: no parameters).
 
         Returns the outputs of every step, (runs, K, ...) each, or only those named in
-        ``keep`` (the others are written to a slot of one step, so a bank of long runs of a
-        large state need not hold its P⁻, say).  A NaN in Y is a missing measurement: the
-        step updates on the measured components (:func:`update_graph`)."""
+        ``keep`` (the others are not stored, so a bank of long runs of a large state need
+        not hold its P⁻, say).  A NaN in Y is a missing measurement: the step updates on the
+        measured components (:func:`update_graph`).  With the true states ``truth``
+        (runs, K, n), also ``"nees"`` and ``"nees_trace"`` of each step (:func:`nees_graph`),
+        computed right after the step, so that neither x nor P need be kept for them."""
         runs, K = Y.shape[:2]
         n = self.n
         shapes = self._shapes
@@ -366,9 +408,12 @@ class _CompiledStep(CompiledLoop):
                 raise SymmonError("the filter step needs the values of its parameters")
             params = np.zeros((runs, K, 1))  # a valid pointer; no entry is read
         params = np.ascontiguousarray(params, dtype=float)
+        if truth is not None:
+            truth = np.ascontiguousarray(truth, dtype=float)
+            kept |= {"nees", "nees_trace"}
         run = self._lib.get() if use_c else None
         if run is None:
-            full = self._vm(x0, P0, Y, Q, R, mask, params[..., :self.n_p])
+            full = self._vm(x0, P0, Y, Q, R, mask, params[..., :self.n_p], truth)
             return {k: v for k, v in full.items() if k in kept}
         # A kept output: its (runs, K, ...) block; x and P when not kept: two slots per thread
         # of the bank (the next step reads them); any other: not written.
@@ -377,6 +422,8 @@ class _CompiledStep(CompiledLoop):
         blocks = {k: np.empty((runs, K) + s) if k in kept
                   else np.empty((len(chunks), 2) + s) if k in ("x", "P") else None for k, s in shapes.items()}
         strides = np.array([z if k in kept else 0 for k, z in zip(shapes, per_step)], dtype=np.int64)
+        for k in ("nees", "nees_trace"):  # outs[8], outs[9] of the C loop
+            blocks[k] = np.empty((runs, K)) if truth is not None else None
         # CasADi is column-major: the symmetric P, Q, R, S need no transposition, and a C
         # row (runs, n) is a column-major (n, runs).
         x0 = np.ascontiguousarray(x0, dtype=float)
@@ -393,13 +440,16 @@ class _CompiledStep(CompiledLoop):
             iw, w = self._workspace()  # one per thread
             return run(x0.ctypes.data + 8 * a * x_step, x_step, P0.ctypes.data + 8 * a * P_step, P_step,
                        Y[a].ctypes.data, Q.ctypes.data, R.ctypes.data, mask[a].ctypes.data,
-                       params[a].ctypes.data, outs, strides.ctypes.data, b - a, K, iw, w)
+                       params[a].ctypes.data, None if truth is None else truth[a].ctypes.data, outs,
+                       strides.ctypes.data, b - a, K, iw, w)
 
         self.run_chunks(part, list(range(len(chunks))), "filter step")
         return {k: b for k, b in blocks.items() if k in kept}
 
-    def _vm(self, x0, P0, Y: np.ndarray, Q, R, mask: np.ndarray, params: np.ndarray) -> dict[str, np.ndarray]:
-        """Every output of every step on CasADi's VM: one mapped call per step over the runs."""
+    def _vm(self, x0, P0, Y: np.ndarray, Q, R, mask: np.ndarray, params: np.ndarray,
+            truth: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """Every output of every step on CasADi's VM: one mapped call per step over the runs
+        (and, with ``truth``, of the NEES function)."""
         runs, K = Y.shape[:2]
         n = self.n
         shapes = self._shapes
@@ -424,6 +474,13 @@ class _CompiledStep(CompiledLoop):
             for name in _OUTPUTS:
                 out[name][:, k] = step[name]
             x, P = step["x"].copy(), step["P"].copy()
+        if truth is not None:
+            N = runs * K
+            gm = self.nees_f.map(N, "serial")
+            # A mapped matrix input is the matrices side by side, n × (N n).
+            Ps = out["P"].reshape(N, n, n).transpose(1, 0, 2).reshape(n, N * n)
+            vals = gm(out["x"].reshape(N, n).T, Ps, truth.reshape(N, n).T)
+            out["nees"], out["nees_trace"] = (np.asarray(v).reshape(runs, K) for v in vals)
         return out
 
 

@@ -29,6 +29,11 @@ __all__ = ["FilterStrategy", "RuleStrategy"]
 class FilterStrategy(ABC):
     """The way a :class:`~symmon.NonlinearKalmanFilter` runs its predict and update steps."""
 
+    #: Whether :meth:`run` takes the true states (``truth=``, (R, K, n)) and returns each
+    #: step's ``nees`` and ``nees_trace`` (the compiled step's NEES); otherwise the filter
+    #: computes the NEES from the x and P that :meth:`run` returns.
+    nees_in_step: bool = False
+
     @abstractmethod
     def label(self) -> str:
         """The filter's name (EKF, UKF(...), Adaptive(...)): ``NonlinearKalmanFilter.method``."""
@@ -68,6 +73,7 @@ class RuleStrategy(FilterStrategy):
     """
 
     transform: Transform
+    nees_in_step = True  # a class attribute, not a field
 
     def __post_init__(self) -> None:
         if not isinstance(self.transform, Transform):
@@ -84,6 +90,7 @@ class RuleStrategy(FilterStrategy):
     def check(self, kf):
         check_dimensions(self.transform, kf.dimensions)
 
-    def run(self, kf, Y, x0, P0, keep=None, params=None):
+    def run(self, kf, Y, x0, P0, keep=None, params=None, truth=None):
         step = _compiled_step(kf.f_model, kf.h_model, self.transform, kf.angle_states, kf.iterations)
-        return step(x0, P0, Y, kf.Q, kf.R, keep=None if keep is None else keep | {"loglik"}, params=params), None
+        return step(x0, P0, Y, kf.Q, kf.R, keep=None if keep is None else keep | {"loglik"}, params=params,
+                    truth=truth), None
