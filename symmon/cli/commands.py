@@ -283,7 +283,7 @@ def cmd_prove(args: argparse.Namespace) -> int:
     from ..core.mixture import GaussianMixture
 
     at = tuple(d.as_gaussian() if isinstance(d, GaussianMixture) else d for d in (spec.u, spec.v))
-    proof = prove_invariance(spec.model, args.weight, route=args.route, budget=args.budget, progress=True,
+    proof = prove_invariance(spec.model, args.weight, args.transform, route=args.route, budget=args.budget, progress=True,
                              at=at, **moments)  # a refutation at the file's distribution
     print(proof if proof.holds else _refutation_text(proof, args.out))
     if args.out:

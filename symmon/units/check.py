@@ -50,7 +50,7 @@ def _mp(x: Any) -> mpmath.mpf:
 
 #: What to do when the TT2 route meets a kink of g at the mean (appended to the refusal).
 TT2_KINK_HINT = ("TT2 and its proof need g twice differentiable at the mean: move the mean off the kink, or use "
-                 "a point rule, which does not differentiate g (prove_invariance(..., transform='ut' or 'gh'))")
+                 "a point rule, which does not differentiate g (transform='ut' or 'gh'; on the command line --transform ut)")
 
 
 def _jets(inputs: Sequence[sp.Symbol], noise: Sequence[sp.Symbol], outputs: Sequence[sp.Expr],
@@ -406,8 +406,12 @@ def _numeric_check(model: Model, weight: Any, transform: Any, mu: sp.Matrix, P: 
             kinks = nonsmooth_atoms(model.outputs)
             why = (f"g has kinks or jumps ({', '.join(map(str, kinks[:3]))}) that rounding or a point of the rule meets"
                    if kinks else "the symbolic verdict and the numbers disagree")
-            shown = ", ".join(f"{n} = {list(_float(sc[n]).diagonal()) if n.startswith('S') else list(_float(sc[n]).ravel())}"
-                              for n in ("S_u", "o_u", "S_y", "o_y", "S_v") if sc[n].rows)
+            def fmt(n: str) -> str:
+                a = _float(sc[n])
+                vals = ", ".join(f"{v:.6g}" for v in (a.diagonal() if n.startswith("S") else a.ravel()))
+                return f"{n} = " + (f"diag({vals})" if n.startswith("S") else f"[{vals}]")
+
+            shown = ", ".join(fmt(n) for n in ("S_u", "o_u", "S_y", "o_y", "S_v") if sc[n].rows)
             raise UndecidedProofError(
                 f"not reporting invariance of {model.name!r}: symmon's numeric MoN ({_rule(transform)}) is "
                 f"{old.value:.6g} in the original units and {new.value:.6g} with {shown}; {why}. Move the "

@@ -148,6 +148,9 @@ def _exact_cov(P: Any, n: int, name: str) -> sp.Matrix:
     return M
 
 
+#: Rational points a refutation tries when the caller gave none.
+_POINTS = 5
+
 _RULES = {"ut": "UT family", "gh": "Gauss–Hermite", "mc": "Monte Carlo"}
 
 
@@ -297,8 +300,8 @@ def prove_invariance(
             Sgg, _ = _tt2_numeric(_jets(model.inputs, model.noise, model.outputs), model.n_u, model.n_v, mu, P, R)
             _regular(weight, label, Sgg)
     elif not numeric:
-        assumptions.append("g twice differentiable at μ and Σ_gg regular there "
-                           "(nonsingular for 'full', positive variances for 'diag' and W̄)")
+        assumptions.append(("g twice differentiable at μ and " if tname == "tt2" else "")
+                           + "Σ_gg regular at μ (nonsingular for 'full', positive variances for 'diag' and W̄)")
         if tname == "tt2" and kinks:
             assumptions.append("μ off the kinks of g: " + "; ".join(f"{k} where {kink_text(k)}" for k in kinks))
     if tname != "tt2":
@@ -322,12 +325,18 @@ def prove_invariance(
         _say(progress, f"the weight lemma fails: counterexample at {where}")
         holds, diff = False, wp.difference
         used += (wp.lemma.name,)
-        cex = _refutation(model, weight, label, wp, tname if tname == "tt2" else transform, *point)
+        rule = tname if tname == "tt2" else transform
+        cex = _refutation(model, weight, label, wp, rule, *point)
+        # A rational point may be special (two outputs equal there): try others.
+        for seed in range(1, _POINTS) if not given_point else ():
+            if cex is not None:
+                break
+            cex = _refutation(model, weight, label, wp, rule, *_rational_point(model, seed=seed))
         if cex is None:  # never a "counterexample" of two equal values
             raise UndecidedProofError(
                 f"cannot decide the unit invariance of the MoN of {model.name!r} with weight {label!r}: its "
-                f"lemma {wp.lemma.name} fails for generic moments, but at {where} M² is the same in all "
-                f"{SCALE_SETS} sets of scales tried; try another mean (a file's [u] with --numeric)"
+                f"lemma {wp.lemma.name} fails for generic moments, but at {where if given_point else f'{_POINTS} rational points'} "
+                f"M² is the same in all {SCALE_SETS} sets of scales tried; try another mean (a file's [u] with --numeric)"
             )
     if holds and isinstance(weight, str) and (numeric or tname != "tt2"):
         # A numeric route: the numbers of symmon itself must agree before "holds" is said.
