@@ -6,6 +6,7 @@ This module is the front end, :func:`prove_invariance`; the parts are in their o
 - :mod:`symmon.units.check`: the per-model checks at an exact rational point
   (composition, regularity) and the counterexamples;
 - :mod:`symmon.units.direct`: the direct symbolic route, guarded by size and time;
+- :mod:`symmon.units.kinks`: where g is not smooth, and its smooth branch near a point;
 - :mod:`symmon.units.matrix`: :func:`prove_matrix_invariance`, the exact statement in
   matrix form (re-exported here);
 - :mod:`symmon.units.proof`: the result type :class:`InvarianceProof` (re-exported here).
@@ -195,6 +196,30 @@ def prove_invariance(
     the model and simplifying the difference; it is stopped with a :class:`SymmonError` when
     the model is too large or after ``budget`` seconds.
 
+    A refutation always shows two values of M² that differ (beyond rounding, relative to
+    tr(W Σ_gg)): when the weight lemma fails but the model has D = 0 (∂²g/∂u∂w = 0: g affine
+    in u, at the mean for a numeric TT2 proof, everywhere otherwise), M² = tr(W D) = 0 in
+    every unit system and the proof holds by ``residual-zero`` (a linear model's Liu–Li MoN);
+    when no tried point and scales separate the two values, :class:`UndecidedProofError`.
+
+    **Kinks.** A model with ``Abs``, ``sign``, ``Max``, ``Min``, ``Heaviside``, ``floor``,
+    ``ceiling``, ``frac``, ``Mod`` or ``Piecewise`` is smooth except on its kinks (an argument of
+    ``Abs`` at 0, a tie of ``Max``, ...; :mod:`symmon.units.kinks`). TT2 needs the Hessian at
+    the mean, so its proofs take g's smooth branch there, which has the same TT2 moments: a
+    symbolic proof holds for every mean off the kinks (listed in ``assumptions``), and a
+    numeric mean on a kink is refused with :class:`NonSmoothModelError` by both routes (the
+    symbolic direct route also refuses ``floor``, ``ceiling``, ``frac`` and ``Mod``, which
+    sympy cannot differentiate). The point rules (``transform="ut"``, ``"gh"``, ``"mc"``)
+    evaluate g only, so their lemmas hold for such models exactly, kinks included.
+
+    **Numeric check.** Before a numeric route (a numeric mean, or a point rule) says "holds",
+    the MoN of :func:`symmon.nonlinearity` (the same transform) is compared in the original
+    units and in four changes of units (scales ×2^±10 and small primes, with offsets); if
+    they differ by more than 1e-6 of tr(W Σ_gg) (double-precision rounding is ~1e-13 of
+    it), :class:`UndecidedProofError`: e.g. a point of the rule on a jump of g, which the
+    rounding of the change of units moves to the other side. The exact symbolic TT2 proof
+    (symbolic mean) has no numbers to compare.
+
     Parameters
     ----------
     model : Model
@@ -206,7 +231,7 @@ def prove_invariance(
         W = S_b⁻¹ W̄ S_b⁻¹ with S_b = diag(√diag Σ_gg), (38) and (41).
     transform : "tt2", "ut", "gh", "mc" or such a Transform
         The point rules (UT family, Gauss–Hermite, Monte Carlo) take models without noise or
-        with additive noise, and the lemma route only.
+        with additive noise, and the lemma route only; they need no derivative of g.
     mean, cov : optional
         Numeric or symbolic mean and covariance of u (a Gaussian may be passed as ``mean``).
         Default: symbols μ and a symmetric P. Numbers are made exact (0.17 → 17/100).
@@ -234,6 +259,12 @@ def prove_invariance(
     SingularMatrixError
         A numeric covariance is not positive definite, or Σ_gg is singular at the given mean
         for a weight that needs its inverse.
+    NonSmoothModelError
+        TT2 at a numeric mean on a kink of g (naming the function and the kink), or the
+        symbolic direct route on a function sympy cannot differentiate.
+    UndecidedProofError
+        No verdict: the weight lemma fails but the two values of M² agree at every point and
+        scales tried, or the numeric check of a "holds" disagrees.
 
     Examples
     --------
