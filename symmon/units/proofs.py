@@ -212,8 +212,8 @@ def prove_invariance(
     sympy cannot differentiate). The point rules (``transform="ut"``, ``"gh"``, ``"mc"``)
     evaluate g only, so their lemmas hold for such models exactly, kinks included.
 
-    **Numeric check.** Before a numeric route (a numeric mean, or a point rule) says "holds",
-    the MoN of :func:`symmon.nonlinearity` (the same transform) is compared in the original
+    **Numeric check.** Before a numeric route (a numeric mean, or a point rule) says "holds"
+    for a named weight, the MoN of :func:`symmon.nonlinearity` (the same transform) is compared in the original
     units and in four changes of units (scales ×2^±10 and small primes, with offsets); if
     they differ by more than 1e-6 of tr(W Σ_gg) (double-precision rounding is ~1e-13 of
     it), :class:`UndecidedProofError`: e.g. a point of the rule on a jump of g, which the
