@@ -14,6 +14,8 @@ __all__ = [
     "IndefiniteCovarianceError",
     "ModelError",
     "UnsupportedFunctionError",
+    "NonSmoothModelError",
+    "UndecidedProofError",
     "SamplingError",
     "SingularMatrixError",
     "DerivativeError",
@@ -62,6 +64,20 @@ class ModelError(SymmonError):
 
 class UnsupportedFunctionError(ModelError):
     """An expression uses a function that symmon cannot compile."""
+
+
+class NonSmoothModelError(ModelError):
+    """g is not differentiable where a computation needs its derivatives: the mean lies on
+    a kink or jump of ``Abs``, ``sign``, ``Max``, ``Min``, ``Heaviside``, ``floor``,
+    ``ceiling``, ``Mod`` or a ``Piecewise`` boundary (TT2 and its proofs need the Hessian
+    at the mean), or a symbolic route cannot differentiate the function at all.  The
+    message names the function and the kink, and what to do instead."""
+
+
+class UndecidedProofError(SymmonError):
+    """A unit-invariance proof reached no verdict: the difference did not reduce to 0 and
+    no point where the two values of M² differ was found, or the numeric check of the
+    change of units contradicts the symbolic verdict.  Never reported as "holds"."""
 
 
 class SamplingError(SymmonError):

@@ -71,8 +71,9 @@ def check_outputs(args: argparse.Namespace) -> None:
 
     The parser registers each output option (``outputs``: destination, kind, flag).  A file
     must be new or a writable regular file, in an existing writable directory, and none of
-    the files the command reads; a directory must exist or be creatable; no two options may
-    name the same file.  The writes themselves are atomic (:mod:`symmon.io`).
+    the files the command reads; a directory must exist or be creatable, and each file the
+    command will write in it (``reproduce``: every figure's files) is checked as a file; no
+    two options may name the same file.  The writes themselves are atomic (:mod:`symmon.io`).
 
     Raises
     ------
@@ -95,6 +96,18 @@ def check_outputs(args: argparse.Namespace) -> None:
         if real in seen:
             raise UsageError(f"{flag} and {seen[real]} name the same file: {value}")
         seen[real] = flag
+        if kind == "dir" and real.is_dir():  # the files the command will write in it, now
+            for name in _files_in_dir(args):
+                seen[check_output_file(real / name, inputs)] = flag
+
+
+def _files_in_dir(args: argparse.Namespace) -> tuple[str, ...]:
+    """The names of the files a command writes into its output directory, where it knows them
+    before any work (``reproduce``: each figure's ``OUTPUTS``)."""
+    if args.command != "reproduce":
+        return ()
+    which = FIGURES if args.figure == "all" else (args.figure,)
+    return tuple(n for name in which for n in importlib.import_module(f"symmon.reproduce.{name}").OUTPUTS)
 
 
 def cmd_propagate(args: argparse.Namespace) -> int:
@@ -283,7 +296,7 @@ def cmd_prove(args: argparse.Namespace) -> int:
     from ..core.mixture import GaussianMixture
 
     at = tuple(d.as_gaussian() if isinstance(d, GaussianMixture) else d for d in (spec.u, spec.v))
-    proof = prove_invariance(spec.model, args.weight, route=args.route, budget=args.budget, progress=True,
+    proof = prove_invariance(spec.model, args.weight, args.transform, route=args.route, budget=args.budget, progress=True,
                              at=at, **moments)  # a refutation at the file's distribution
     print(proof if proof.holds else _refutation_text(proof, args.out))
     if args.out:

@@ -372,13 +372,18 @@ def _parser() -> argparse.ArgumentParser:
     quiet_opt(sp)
     sp.set_defaults(func=commands.cmd_compare)
 
-    sp = add("prove-invariance", "prove the unit invariance of the MoN symbolically (TT2 closed form) under "
+    sp = add("prove-invariance", "prove the unit invariance of the MoN symbolically (TT2 closed form, or a point rule with "
+             "--transform) under "
              f"the change of units of {SH24}, eq. (18); exit code 1 if a unit-invariant weight fails; a failure "
              "prints a counterexample")
     sp.add_argument("file", help="TOML model file")
     weight_opt(sp)
     sp.add_argument("--numeric", action="store_true",
                     help="use the file's mean and covariances instead of symbols (checks regularity there)")
+    sp.add_argument("--transform", choices=("tt2", "ut", "gh", "mc"), default="tt2",
+                    help="the moments whose MoN is proved invariant: tt2 (default; needs g twice differentiable "
+                         "at the mean), or a point rule, which evaluates g only (ut: UT family, gh: Gauss-Hermite, "
+                         "mc: Monte Carlo; models without noise or with additive noise, lemma route)")
     sp.add_argument("--route", choices=("lemmas", "direct"), default="lemmas",
                     help="lemmas: model-independent lemmas plus per-model checks (seconds); direct: expand M² "
                          "symbolically (small models only, stopped after --budget)")

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io import save_figure, write_csv
+from ..io import check_output_set, save_figure, write_csv
 from ..measures.formula import mon_from_moments
 from ..core.problems import polar
 from ..propagation.front import propagate
@@ -27,7 +27,11 @@ from ..transforms import TT2, UT, MonteCarlo
 from ..transforms.stats import jackknife, moments_of
 from .common import ALPHA_LABEL, OKABE_ITO, figure_style, png_metadata, progress_bar, pyplot, with_angles
 
-__all__ = ["run", "curves", "caption", "ALPHAS", "UNIT_SIZES", "COLUMNS", "MODEL"]
+__all__ = ["OUTPUTS", "run", "curves", "caption", "ALPHAS", "UNIT_SIZES", "COLUMNS", "MODEL"]
+
+#: The files :func:`run` writes into its directory, checked before any work
+#: (:func:`symmon.io.check_output_set`; the command line checks them with its other outputs).
+OUTPUTS = ("fig1.png", "fig1.csv")
 
 #: α grid of Figure 1, [1e-4, 1e2]: 6 points per decade, 24 per decade over [1e-2, 1], where
 #: the deg curve rises from 0.08 to its peak near α = 0.25 and falls again, and the α = 0.17
@@ -118,6 +122,7 @@ def run(outdir: str | Path = "results", samples: int = 10**6, seed: int = 0, pro
         alphas=ALPHAS) -> list[Path]:
     """Reproduce Figure 1: write ``fig1.png`` and ``fig1.csv`` into ``outdir``."""
     outdir = Path(outdir)
+    check_output_set(outdir, OUTPUTS)  # a read-only file refuses the run before its work
     outdir.mkdir(parents=True, exist_ok=True)
     c = curves(alphas, samples, seed, progress)
     csv = write_csv(outdir / "fig1.csv", list(COLUMNS.values()), zip(*[c[k] for k in COLUMNS]))

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io import save_figure, write_csv
+from ..io import check_output_set, save_figure, write_csv
 from ..measures.formula import mon_from_moments
 from ..core.problems import GMTI_UNITS, RDCOS_UNITS, bot, gmti, rdcos
 from ..propagation.front import propagate
@@ -26,7 +26,11 @@ from ..transforms import TT2, UT, MonteCarlo
 from ..transforms.stats import jackknife, moments_of
 from .common import OKABE_ITO, figure_style, png_metadata, progress_bar, pyplot, with_angles
 
-__all__ = ["run", "curves", "caption", "ALPHAS", "PROBLEMS", "COLUMNS", "ANGLES"]
+__all__ = ["OUTPUTS", "run", "curves", "caption", "ALPHAS", "PROBLEMS", "COLUMNS", "ANGLES"]
+
+#: The files :func:`run` writes into its directory, checked before any work
+#: (:func:`symmon.io.check_output_set`; the command line checks them with its other outputs).
+OUTPUTS = ("fig2.png", "fig2.csv")
 
 #: α grid of Figure 2, [1e-1, 1e1].
 ALPHAS = np.logspace(-1, 1, 21)
@@ -121,6 +125,7 @@ def run(outdir: str | Path = "results", samples: int = 10**6, seed: int = 0, pro
         alphas=ALPHAS) -> list[Path]:
     """Reproduce Figure 2: write ``fig2.png`` and ``fig2.csv`` into ``outdir``."""
     outdir = Path(outdir)
+    check_output_set(outdir, OUTPUTS)  # a read-only file refuses the run before its work
     outdir.mkdir(parents=True, exist_ok=True)
     c = curves(alphas, samples, seed, progress)
     keys = list(COLUMNS)[2:]

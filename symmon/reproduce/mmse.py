@@ -85,11 +85,12 @@ import numpy as np
 
 from ..errors import ArgumentError
 from ..estimation import mmse
-from ..io import save_figure, write_csv
+from ..io import check_output_set, save_figure, write_csv
 from ..filters.linear import KalmanFilter
 from .common import figure_style
 
 __all__ = [
+    "OUTPUTS",
     "ScalarCase",
     "TwoPointCase",
     "PlaneCase",
@@ -98,6 +99,11 @@ __all__ = [
     "SEC7_CASES",
     "run",
 ]
+
+#: The files :func:`run` writes into its directory, checked before any work
+#: (:func:`symmon.io.check_output_set`; the command line checks them with its other outputs).
+OUTPUTS = ("mmse_sec431_rmse.csv", "mmse_sec431.png", "mmse_sec432_rmse.csv", "mmse_sec432.png",
+           "mmse_sec7_rmse.csv", "mmse_sec7.png", "mmse_summary.csv")
 
 
 @dataclass(frozen=True)
@@ -341,6 +347,7 @@ def run(outdir: Path, runs: int = 1000, seed: int = 0, progress: bool = True) ->
     from tqdm import tqdm
 
     outdir = Path(outdir)
+    check_output_set(outdir, OUTPUTS)  # a read-only file refuses the run before its work
     outdir.mkdir(parents=True, exist_ok=True)
     cases: list[tuple[str, Any]] = (
         [("4.3.1", c) for c in SEC431_CASES] + [("4.3.2", c) for c in SEC432_CASES] + [("7", c) for c in SEC7_CASES]

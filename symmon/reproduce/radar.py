@@ -43,14 +43,18 @@ import numpy as np
 from ..errors import ArgumentError
 from ..estimation import nlt as estimation
 from ..core.gaussian import Gaussian
-from ..io import save_figure, write_csv
+from ..io import check_output_set, save_figure, write_csv
 from ..core.model import Model
 from ..core.problems import radar_h, radar_hinv
 from ..compile import compiled
 from ..transforms import TT1, UT
 from .common import figure_style
 
-__all__ = ["run", "SENSORS", "RANGE_VAR", "BEARING_VAR", "PRIOR", "hinv_model", "h_model", "measurement"]
+__all__ = ["OUTPUTS", "run", "SENSORS", "RANGE_VAR", "BEARING_VAR", "PRIOR", "hinv_model", "h_model", "measurement"]
+
+#: The files :func:`run` writes into its directory, checked before any work
+#: (:func:`symmon.io.check_output_set`; the command line checks them with its other outputs).
+OUTPUTS = ("radar_mc.png", "radar_direct_ut.png", "radar_indirect_tt1.png", "radar_estimates.csv")
 
 #: Sensor positions p₁ (left, "S1") and p₂ (right, "S2").
 SENSORS = ((0.0, 0.0), (200.0, 0.0))
@@ -139,6 +143,7 @@ def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = Tru
     from tqdm import tqdm
 
     outdir = Path(outdir)
+    check_output_set(outdir, OUTPUTS)  # a read-only file refuses the run before its work
     outdir.mkdir(parents=True, exist_ok=True)
     ys = [measurement(0), measurement(1)]
     hinvs = [hinv_model(p) for p in SENSORS]

@@ -47,13 +47,18 @@ from ..errors import SymmonError
 from ..files.filterfile import filter_transform
 from ..filters.nonlinear import NonlinearKalmanFilter, NonlinearKalmanResult
 from ..core.gaussian import Gaussian
-from ..io import save_figure, write_csv
+from ..io import check_output_set, save_figure, write_csv
 from ..core.model import Model
 from ..measures.mon import nonlinearity
 from ..compile import compiled
 from .common import figure_style, progress_bar
 
-__all__ = ["run", "Scenario", "scenarios", "FILTER_NAMES", "MON_RUNS", "TOL"]
+__all__ = ["OUTPUTS", "run", "Scenario", "scenarios", "FILTER_NAMES", "MON_RUNS", "TOL"]
+
+#: The files :func:`run` writes into its directory, checked before any work
+#: (:func:`symmon.io.check_output_set`; the command line checks them with its other outputs).
+OUTPUTS = ("tracking_bot.png", "tracking_rb.png", "tracking_summary.csv", "tracking_steps.csv",
+           "tracking_events.csv")
 
 #: The filters compared, by their names in :data:`symmon.files.filterfile.FILTERS`.
 FILTER_NAMES = ("ekf", "ekf2", "ukf", "ckf", "gh", "adaptive")
@@ -313,6 +318,7 @@ def run(outdir: Path, runs: int = 500, seed: int = 0, progress: bool = True) -> 
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SymmonError(f"seed must be a non-negative integer, got {seed!r}")
     outdir = Path(outdir)
+    check_output_set(outdir, OUTPUTS)  # a read-only file refuses the run before its work
     outdir.mkdir(parents=True, exist_ok=True)
     seeds = np.random.SeedSequence(seed).spawn(2)
     summary, steps, figures, events = [], [], [], []

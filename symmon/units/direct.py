@@ -22,6 +22,7 @@ import sys
 import threading
 import time
 from contextlib import contextmanager
+from dataclasses import replace
 from functools import lru_cache
 from typing import Any, Callable, Iterator
 
@@ -29,7 +30,9 @@ import mpmath
 import numpy as np
 import sympy as sp
 
-from ..errors import SymmonError
+from ..errors import NonSmoothModelError, SymmonError, UndecidedProofError
+from .check import SCALE_SETS, _numeric_check
+from .kinks import UNDIFFERENTIATED, kink_text, localize, nonsmooth_atoms
 from .proof import InvarianceProof, _say
 from .lemmas import _m2, _sym_matrix, _tt2_moments
 from ..core.model import Model
@@ -72,6 +75,7 @@ def _decide(diff: sp.Expr, seed: int = 0) -> tuple[sp.Expr, bool, dict | None]:
         return sp.Integer(0), True, None
     rng = np.random.default_rng(seed)
     syms = sorted(d.free_symbols, key=str)
+    kinky = nonsmooth_atoms([d])
     for _ in range(20):
         point = {}
         for s in syms:
@@ -83,12 +87,17 @@ def _decide(diff: sp.Expr, seed: int = 0) -> tuple[sp.Expr, bool, dict | None]:
             if len(idx) == 2 and idx.isdigit() and idx[0] == idx[1]:
                 val = abs(val) + 60
             point[s] = val
+        if kinky:
+            try:  # a point on a kink of g (x = y for Max(x, y)) is no admissible mean
+                localize(kinky, point)
+            except NonSmoothModelError:
+                continue
         val = d.xreplace(point)
         num = sp.N(val, 50)
         if num.is_finite and abs(num) > sp.Float("1e-30"):
             point["difference"] = val if val.is_Rational else num
             return d, False, point
-    raise SymmonError(
+    raise UndecidedProofError(
         "could not decide the invariance: the difference did not simplify to 0 and no point "
         f"where it is nonzero was found ({sp.count_ops(d)} operations)"
     )
@@ -153,14 +162,50 @@ def _prove_direct(model: Model, weight: Any, label: str, mu: sp.Matrix, P: sp.Ma
         )
     if not (isinstance(budget, (int, float)) and budget > 0):
         raise SymmonError(f"budget must be a positive number of seconds, got {budget!r}")
+    numeric = not (mu.free_symbols or P.free_symbols or R.free_symbols)
+    smooth, extra = _smooth_model(model, mu, numeric)
     try:
         with _deadline(float(budget)) as check:
-            return _direct(model, weight, label, mu, P, R, progress, check, t0)
+            proof = _direct(smooth, weight, label, mu, P, R, progress, check, t0)
     except _OutOfTime:
         raise SymmonError(
             f"the direct symbolic proof of {model.name!r} did not finish in {budget:g} s (size {size}): "
             f"{hint}; or raise the budget (--budget SECONDS)"
         ) from None
+    if proof.holds and numeric and isinstance(weight, str):
+        # A numeric route: the numbers of symmon itself must agree before "holds" is said.
+        _say(progress, "numeric check: the MoN in the original and in changed units")
+        _numeric_check(model, weight, "tt2", mu, P, R)
+        extra += (f"checked numerically: the MoN is the same in {SCALE_SETS} changes of units",)
+    return replace(proof, assumptions=proof.assumptions + extra)
+
+
+def _smooth_model(model: Model, mu: sp.Matrix, numeric: bool) -> tuple[Model, tuple[str, ...]]:
+    """The model the direct route differentiates, and what that adds to the assumptions.
+
+    At a numeric mean, g's smooth branch there (:func:`symmon.units.kinks.localize`: the
+    same TT2 moments; a mean on a kink is refused). At a symbolic one, g itself: sympy
+    differentiates ``Abs``, ``Max``, ... into ``sign``, ``Heaviside`` and ``DiracDelta``,
+    which vanish off the kinks, so the proof is of every mean off them; ``floor``,
+    ``ceiling``, ``frac`` and ``Mod`` it cannot differentiate at all.
+    """
+    kinks = nonsmooth_atoms(model.outputs)
+    if not kinks:
+        return model, ()
+    if numeric:
+        w = list(model.inputs) + list(model.noise)
+        hint = ("the direct route differentiates g at the mean: move the mean off the kink, or use a point rule "
+                "with the lemma route (transform='ut'; on the command line --transform ut)")
+        loc = localize(model.outputs, dict(zip(w, list(mu) + [0] * model.n_v)), hint)
+        return Model(model.inputs, loc, list(model.noise) or None, model.name), ()
+    flat = [k for k in kinks if isinstance(k, UNDIFFERENTIATED)]
+    if flat:
+        raise NonSmoothModelError(
+            f"the direct route differentiates g symbolically, and sympy cannot differentiate {flat[0]} (a jump "
+            f"where {kink_text(flat[0])}): use the lemma route (route='lemmas'; on the command line drop "
+            "--route direct), or give a numeric mean (--numeric)"
+        )
+    return model, ("μ off the kinks of g: " + "; ".join(f"{k} where {kink_text(k)}" for k in kinks),)
 
 
 def _direct(model: Model, weight: Any, label: str, mu: sp.Matrix, P: sp.Matrix, R: sp.Matrix,

@@ -6,6 +6,7 @@ This module is the front end, :func:`prove_invariance`; the parts are in their o
 - :mod:`symmon.units.check`: the per-model checks at an exact rational point
   (composition, regularity) and the counterexamples;
 - :mod:`symmon.units.direct`: the direct symbolic route, guarded by size and time;
+- :mod:`symmon.units.kinks`: where g is not smooth, and its smooth branch near a point;
 - :mod:`symmon.units.matrix`: :func:`prove_matrix_invariance`, the exact statement in
   matrix form (re-exported here);
 - :mod:`symmon.units.proof`: the result type :class:`InvarianceProof` (re-exported here).
@@ -54,18 +55,29 @@ import mpmath
 import numpy as np
 import sympy as sp
 
-from ..errors import ArgumentTypeError, ModelError, ShapeError, SingularMatrixError, SymmonError
+from ..errors import (
+    ArgumentTypeError,
+    ModelError,
+    NonSmoothModelError,
+    ShapeError,
+    SingularMatrixError,
+    SymmonError,
+    UndecidedProofError,
+)
 from ..core.gaussian import Gaussian
 from .check import (
     _DPS,
+    SCALE_SETS,
     _check_composition,
-    _counterexample_rule,
-    _counterexample_tt2,
     _jets,
+    _numeric_check,
     _rational_point,
+    _refutation,
     _regular,
+    _residual_zero,
     _tt2_numeric,
 )
+from .kinks import kink_text, localize, nonsmooth_atoms
 from .direct import DIRECT_BUDGET_S, DIRECT_MAX_SIZE, _prove_direct
 from .matrix import prove_matrix_invariance
 from .proof import InvarianceProof, _say
@@ -137,6 +149,9 @@ def _exact_cov(P: Any, n: int, name: str) -> sp.Matrix:
     return M
 
 
+#: Rational points a refutation tries when the caller gave none.
+_POINTS = 5
+
 _RULES = {"ut": "UT family", "gh": "Gauss–Hermite", "mc": "Monte Carlo"}
 
 
@@ -181,6 +196,30 @@ def prove_invariance(
     the model and simplifying the difference; it is stopped with a :class:`SymmonError` when
     the model is too large or after ``budget`` seconds.
 
+    A refutation always shows two values of M² that differ (beyond rounding, relative to
+    tr(W Σ_gg)): when the weight lemma fails but the model has D = 0 (∂²g/∂u∂w = 0: g affine
+    in u, at the mean for a numeric TT2 proof, everywhere otherwise), M² = tr(W D) = 0 in
+    every unit system and the proof holds by ``residual-zero`` (a linear model's Liu–Li MoN);
+    when no tried point and scales separate the two values, :class:`UndecidedProofError`.
+
+    **Kinks.** A model with ``Abs``, ``sign``, ``Max``, ``Min``, ``Heaviside``, ``floor``,
+    ``ceiling``, ``frac``, ``Mod`` or ``Piecewise`` is smooth except on its kinks (an argument of
+    ``Abs`` at 0, a tie of ``Max``, ...; :mod:`symmon.units.kinks`). TT2 needs the Hessian at
+    the mean, so its proofs take g's smooth branch there, which has the same TT2 moments: a
+    symbolic proof holds for every mean off the kinks (listed in ``assumptions``), and a
+    numeric mean on a kink is refused with :class:`NonSmoothModelError` by both routes (the
+    symbolic direct route also refuses ``floor``, ``ceiling``, ``frac`` and ``Mod``, which
+    sympy cannot differentiate). The point rules (``transform="ut"``, ``"gh"``, ``"mc"``)
+    evaluate g only, so their lemmas hold for such models exactly, kinks included.
+
+    **Numeric check.** Before a numeric route (a numeric mean, or a point rule) says "holds"
+    for a named weight, the MoN of :func:`symmon.nonlinearity` (the same transform) is compared in the original
+    units and in four changes of units (scales ×2^±10 and small primes, with offsets); if
+    they differ by more than 1e-6 of tr(W Σ_gg) (double-precision rounding is ~1e-13 of
+    it), :class:`UndecidedProofError`: e.g. a point of the rule on a jump of g, which the
+    rounding of the change of units moves to the other side. The exact symbolic TT2 proof
+    (symbolic mean) has no numbers to compare.
+
     Parameters
     ----------
     model : Model
@@ -192,7 +231,7 @@ def prove_invariance(
         W = S_b⁻¹ W̄ S_b⁻¹ with S_b = diag(√diag Σ_gg), (38) and (41).
     transform : "tt2", "ut", "gh", "mc" or such a Transform
         The point rules (UT family, Gauss–Hermite, Monte Carlo) take models without noise or
-        with additive noise, and the lemma route only.
+        with additive noise, and the lemma route only; they need no derivative of g.
     mean, cov : optional
         Numeric or symbolic mean and covariance of u (a Gaussian may be passed as ``mean``).
         Default: symbols μ and a symmetric P. Numbers are made exact (0.17 → 17/100).
@@ -220,6 +259,12 @@ def prove_invariance(
     SingularMatrixError
         A numeric covariance is not positive definite, or Σ_gg is singular at the given mean
         for a weight that needs its inverse.
+    NonSmoothModelError
+        TT2 at a numeric mean on a kink of g (naming the function and the kink), or the
+        symbolic direct route on a function sympy cannot differentiate.
+    UndecidedProofError
+        No verdict: the weight lemma fails but the two values of M² agree at every point and
+        scales tried, or the numeric check of a "holds" disagrees.
 
     Examples
     --------
@@ -256,19 +301,26 @@ def prove_invariance(
         if not lem.holds:
             raise SymmonError(f"lemma {lem.name} did not reduce: the proof cannot be made\n{lem}")
     numeric = not (mu.free_symbols or P.free_symbols or R.free_symbols)
+    kinks = nonsmooth_atoms(model.outputs)
     _say(progress, f"per-model checks of {model.name!r}: composition" + (" and regularity at the given mean" if numeric else ""))
+    given_point = numeric  # the counterexample is at the caller's distribution
     if numeric:
         point = (mu, P, R)
     else:
-        point = _rational_point(model)
+        point = _rational_point(model)  # off the kinks of g
         if at is not None:
             if not (isinstance(at, tuple) and at and all(isinstance(d, Gaussian) or d is None for d in at)
                     and isinstance(at[0], Gaussian)):
                 raise SymmonError(f"at must be a tuple (u,) or (u, v) of Gaussians, got {at!r}")
             given = _moments_args(model, at[0].mean, at[0].cov, at[1].cov if len(at) > 1 and at[1] is not None else None)
             if not any(M.free_symbols for M in given):  # a model with noise needs v too
-                point = given
+                if tname == "tt2" and kinks and not _smooth_at(model, given[0]):
+                    # A symbolic proof is of every mean off the kinks: check it at one of those.
+                    _say(progress, "the given mean lies on a kink of g: checking at a rational point instead")
+                else:
+                    point, given_point = given, True
     # The builder of ḡ this module imports is the one checked (a test replaces it here).
+    # At a numeric mean on a kink, TT2's check refuses here (NonSmoothModelError), before any other work.
     _check_composition(model, point[0], tname, changed_parts)
     # The TT2 and 'full' lemmas hold for any invertible scales; (42), W̄ and the Cholesky
     # factor of the point rules need positive diagonal ones.
@@ -279,27 +331,66 @@ def prove_invariance(
             Sgg, _ = _tt2_numeric(_jets(model.inputs, model.noise, model.outputs), model.n_u, model.n_v, mu, P, R)
             _regular(weight, label, Sgg)
     elif not numeric:
-        assumptions.append("g twice differentiable at μ and Σ_gg regular there "
-                           "(nonsingular for 'full', positive variances for 'diag' and W̄)")
+        assumptions.append(("g twice differentiable at μ and " if tname == "tt2" else "")
+                           + "Σ_gg regular at μ (nonsingular for 'full', positive variances for 'diag' and W̄)")
+        if tname == "tt2" and kinks:
+            assumptions.append("μ off the kinks of g: " + "; ".join(f"{k} where {kink_text(k)}" for k in kinks))
     if tname != "tt2":
         assumptions.append("outputs not wrapped as angles; P positive definite (Cholesky); the same nodes "
                            "(and Monte Carlo seed) in both unit systems")
+    used = tuple(lem.name for lem in lemmas)
+    lhs, rhs = wp.lhs, wp.rhs
     if wp.lemma.holds:
         holds, diff, cex = True, sp.Integer(0), None
+        used += (wp.lemma.name,)
+    elif _residual_zero(model, tname, mu if numeric else None):
+        # The weight is not invariant for generic moments, but this model has D = 0, so
+        # M² = tr(W D) = 0 in every unit system: invariant, and no counterexample exists.
+        holds, diff, cex = True, sp.Integer(0), None
+        used += ("residual-zero",)
+        lhs = rhs = sp.Integer(0)
+        assumptions.append("D = 0, so M² = 0 in every unit system: ∂²g/∂u∂w = 0 "
+                           + ("at the mean" if numeric and tname == "tt2" else "everywhere (g affine in u)"))
     else:
-        _say(progress, "the weight lemma fails: counterexample at " + ("the given distribution" if numeric or at is not None else "a rational point"))
+        where = "the given distribution" if given_point else "a rational point"
+        _say(progress, f"the weight lemma fails: counterexample at {where}")
         holds, diff = False, wp.difference
-        cex = (_counterexample_tt2(model, weight, label, wp, *point) if tname == "tt2"
-               else _counterexample_rule(model, weight, label, wp, transform, *point))
+        used += (wp.lemma.name,)
+        rule = tname if tname == "tt2" else transform
+        cex = _refutation(model, weight, label, wp, rule, *point)
+        # A rational point may be special (two outputs equal there): try others.
+        for seed in range(1, _POINTS) if not given_point else ():
+            if cex is not None:
+                break
+            cex = _refutation(model, weight, label, wp, rule, *_rational_point(model, seed=seed))
+        if cex is None:  # never a "counterexample" of two equal values
+            raise UndecidedProofError(
+                f"cannot decide the unit invariance of the MoN of {model.name!r} with weight {label!r}: its "
+                f"lemma {wp.lemma.name} fails for generic moments, but at {where if given_point else f'{_POINTS} rational points'} "
+                f"M² is the same in all {SCALE_SETS} sets of scales tried; try another mean (a file's [u] with --numeric)"
+            )
+    if holds and isinstance(weight, str) and (numeric or tname != "tt2"):
+        # A numeric route: the numbers of symmon itself must agree before "holds" is said.
+        _say(progress, "numeric check: the MoN in the original and in changed units")
+        _numeric_check(model, weight, tname if tname == "tt2" else transform, *point)
+        assumptions.append(f"checked numerically: the MoN is the same in {SCALE_SETS} changes of units")
     symbols = {"S_y": sp.diag(*wp.s_y), "Sigma_gg": wp.G, "D": wp.E, "mean": mu, "cov": P, "noise_cov": R}
     if wp.sigma is not None:
         symbols["sigma"] = sp.Matrix(wp.sigma)
     return InvarianceProof(
-        holds, diff, wp.lhs, wp.rhs, label, tname,
+        holds, diff, lhs, rhs, label, tname,
         f"unit invariance of the MoN of {model.name!r} under u = S_u ū + o_u, y = S_y ȳ + o_y, v = S_v v̄ (18)",
-        symbols, cex, time.perf_counter() - t0,
-        tuple(lem.name for lem in lemmas) + (wp.lemma.name,), tuple(assumptions),
+        symbols, cex, time.perf_counter() - t0, used, tuple(assumptions),
     )
+
+
+def _smooth_at(model: Model, mean: sp.Matrix) -> bool:
+    """g is off its kinks at ``mean`` (v = 0), so TT2 can be taken there."""
+    try:
+        localize(model.outputs, dict(zip(list(model.inputs) + list(model.noise), list(mean) + [0] * model.n_v)))
+    except NonSmoothModelError:
+        return False
+    return True
 
 
 def _moments_args(model: Model, mean: Any, cov: Any, noise_cov: Any) -> tuple[sp.Matrix, sp.Matrix, sp.Matrix]:

@@ -25,7 +25,7 @@ FIG2_ALPHAS = np.array([0.1, 10.0])
 def fig1_paths(tmp_path_factory):
     out = tmp_path_factory.mktemp("fig1")
     paths = fig1.run(out, samples=SAMPLES, progress=False, alphas=FIG1_ALPHAS)
-    assert [p.name for p in paths] == ["fig1.png", "fig1.csv"]
+    assert [p.name for p in paths] == ["fig1.png", "fig1.csv"] == list(fig1.OUTPUTS)
     assert paths[0].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     return paths
 
@@ -62,7 +62,9 @@ def test_fig1_band_contains_both_units(fig1_rows):
 @pytest.fixture(scope="module")
 def fig2_paths(tmp_path_factory):
     out = tmp_path_factory.mktemp("fig2")
-    return fig2.run(out, samples=SAMPLES, progress=False, alphas=FIG2_ALPHAS)
+    paths = fig2.run(out, samples=SAMPLES, progress=False, alphas=FIG2_ALPHAS)
+    assert [p.name for p in paths] == list(fig2.OUTPUTS)  # the files checked before the work
+    return paths
 
 
 @pytest.fixture(scope="module")

@@ -64,7 +64,7 @@ def summary(outputs: tuple[Path, list[Path]]) -> dict[tuple[str, str, str, int],
 
 def test_all_files_written(outputs: tuple[Path, list[Path]]) -> None:
     outdir, written = outputs
-    assert {p.name for p in written} == EXPECTED_FILES
+    assert {p.name for p in written} == EXPECTED_FILES == set(repro.OUTPUTS)
     assert all(p.parent == outdir and p.stat().st_size > 0 for p in written)
     for png in outdir.glob("*.png"):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -52,7 +52,7 @@ def table(written) -> dict[str, sm.Gaussian]:
 
 
 def test_run_writes_its_files(written, outdir):
-    assert [p.name for p in written] == FILES
+    assert [p.name for p in written] == FILES == list(radar.OUTPUTS)
     for p in written:
         assert p.parent == outdir and p.stat().st_size > 0
     for p in written[:3]:

@@ -29,7 +29,7 @@ def rows(path):
 def test_writes_the_figures_and_tables(outdir):
     names = sorted(p.name for p in outdir.iterdir())
     assert names == ["tracking_bot.png", "tracking_events.csv", "tracking_rb.png", "tracking_steps.csv",
-                     "tracking_summary.csv"]
+                     "tracking_summary.csv"] == sorted(tracking.OUTPUTS)
     for png in ("tracking_bot.png", "tracking_rb.png"):
         assert (outdir / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
