@@ -146,6 +146,36 @@ def test_compiled_and_vm_agree(n_points, points_rng):
         np.testing.assert_allclose(a, b, rtol=EVAL_RTOL, atol=1e-14)
 
 
+def test_row_spans_split_a_large_batch_on_the_main_thread_only():
+    import threading
+
+    from symmon.compile.compiled import MIN_ROWS_PER_THREAD, row_spans
+
+    assert row_spans(10) == [(0, 10)]
+    N = 4 * MIN_ROWS_PER_THREAD + 3
+    spans = row_spans(N)
+    assert len(spans) == min(os.cpu_count() or 1, 4)
+    assert spans[0][0] == 0 and spans[-1][1] == N and all(a[1] == b[0] for a, b in zip(spans, spans[1:]))
+    inside: list = []
+    t = threading.Thread(target=lambda: inside.append(row_spans(N)))
+    t.start()
+    t.join()
+    assert inside == [[(0, N)]]  # a worker thread's pool already uses the cores
+
+
+def test_a_batch_split_over_threads_equals_one_row_at_a_time(points_rng):
+    """The spans of a parallel evaluation write their own rows: the same numbers as one call per row."""
+    from symmon.compile.compiled import MIN_ROWS_PER_THREAD
+
+    c = CompiledModel(DERIV_MODELS["mixed"], SYMS, name="cmp_threads", compiled=True)
+    if not c.compiled:
+        pytest.skip("no C compiler")
+    W = points_rng.uniform(0.3, 2.0, (2 * MIN_ROWS_PER_THREAD + 11, 3))
+    whole = c.eval_g(W)
+    picks = [0, MIN_ROWS_PER_THREAD - 1, MIN_ROWS_PER_THREAD, MIN_ROWS_PER_THREAD + 6, len(W) - 1]
+    np.testing.assert_array_equal(whole[picks], np.vstack([c.eval_g(W[i:i + 1]) for i in picks]))
+
+
 def test_batch_shape_is_checked():
     from symmon.errors import ShapeError
 
