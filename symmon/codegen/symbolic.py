@@ -47,7 +47,7 @@ from ..compile.compiled import CompiledModel
 from ..errors import SymmonError
 from ..transforms.base import Transform
 
-__all__ = ["chol_lower", "chol_function", "tril_inverse_function", "chol_node", "tril_inverse", "jacobian_products", "affine_in", "tt1_moments", "tt2_moments", "point_moments", "moments", "wrap_entries", "unit_rule"]
+__all__ = ["MX_FROM", "MAX_SX_POINTS", "graph_kind", "chol_lower", "chol_function", "tril_inverse_function", "chol_node", "tril_inverse", "jacobian_products", "affine_in", "tt1_moments", "tt2_moments", "point_moments", "moments", "wrap_entries", "unit_rule"]
 
 #: A symbolic matrix: SX (inlined, straight-line code) or MX (matrix nodes, loops in C).
 Sym = Union[ca.SX, ca.MX]
@@ -298,6 +298,27 @@ def tt2_moments(cm: CompiledModel, m: Sym, P: Sym, angles: Iterable[int] = ()) -
         Ft = ca.horzcat(*[ca.vec(a.T) for a in HP])
         half_tr2 = 0.5 * ca.mtimes(F.T, Ft)  # ⟨H_i P, (H_j P)ᵀ⟩ = tr(H_i P H_j P)
     return wrap_entries(y_m + half_tr, angles), cov + half_tr2, JP
+
+
+#: From this many variables (states plus noise symbols) on, a filter step or a batch's
+#: moment function is built in MX.  The SX step is straight-line code that grows about n^2.8
+#: (245 KB of C and 4-12 s of gcc at n = 10, 1.85 MB and a minute at 20); the MX step keeps
+#: the matrix products, the map over the points and the solve as loops (tens of KB at any
+#: n, about a second of gcc) and is as fast from about 10 states on (docs/compile.md,
+#: "Filter steps").
+MX_FROM = 10
+#: A point rule with more points than this is built in MX at any size: unrolled, each point
+#: copies g and its products with P (Gauss–Hermite of order 10 on 4 states has 10⁴ points,
+#: and its SX step ran gcc for minutes); in MX the points are one map.
+MAX_SX_POINTS = 64
+
+
+def graph_kind(n: int, points: int = 0):
+    """SX or MX for a graph of n variables and a rule of ``points`` points (0: a Taylor
+    rule), and the Cholesky factor that goes with it: :func:`chol_lower` unrolled in SX,
+    the blocked :func:`chol_node` in MX."""
+    kind = ca.MX if n >= MX_FROM or points > MAX_SX_POINTS else ca.SX
+    return kind, chol_node if kind is ca.MX else chol_lower  # unrolled factor: n³/6 operations
 
 
 def unit_rule(transform: Transform, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

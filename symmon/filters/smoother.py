@@ -37,12 +37,12 @@ import threading
 import casadi as ca
 import numpy as np
 
-from ..codegen.symbolic import chol_lower, chol_node, wrap_entries
+from ..codegen.symbolic import graph_kind, wrap_entries
 from ..compile.compiled import generated_c
 from ..core.model import Model
 from ..errors import SymmonError
 from ..transforms import Transform
-from .step import MAX_SX_POINTS, MX_FROM, CompiledLoop, chunk_runs, predict_graph, select_params, sym
+from .step import CompiledLoop, chunk_runs, predict_graph, select_params, sym
 
 __all__ = ["compiled_smoother"]
 
@@ -54,8 +54,7 @@ def _backward_function(f: Model, transform: Transform, angle_states: frozenset[i
     n, nq = f.n_u, f.n_v or f.n_u
     dim = n + f.n_v
     points = len(transform.unit_rule(dim)[0]) if transform.point_rule else 0
-    kind = ca.MX if dim >= MX_FROM or points > MAX_SX_POINTS else ca.SX
-    chol = chol_node if kind is ca.MX else chol_lower
+    kind, chol = graph_kind(dim, points)
     x, P = kind.sym("x", n), kind.sym("P", n, n)
     xs, Ps, Q, p = kind.sym("xs", n), kind.sym("Ps", n, n), kind.sym("Q", nq, nq), kind.sym("p", len(names))
     x_pred, P_pred, cross = predict_graph(f, transform, angle_states, x, P, Q, chol, select_params(f, names, p),

@@ -18,7 +18,7 @@ is wrapped.
 The whole step, from the sigma points (or the Taylor terms) to the wrapped update, is one
 CasADi function of (x, P, y, Q, R), built from the models' SX graphs with a symbolic Cholesky
 factor (the moment formulas of :mod:`symmon.codegen.symbolic`): straight-line SX for small
-filters, and from :data:`MX_FROM` variables on an MX graph whose matrix products, map over
+filters, and from :data:`~symmon.codegen.symbolic.MX_FROM` variables on an MX graph whose matrix products, map over
 the points and solve are loops in C.  Its C code goes through the compile policy of every
 generated function (cached on disk, ``docs/compile.md``), and a C loop around it runs all
 the steps of all the runs of a filter bank in one call; without a compiler, or while a large
@@ -51,23 +51,11 @@ from ..compile.compiled import generated_c
 from ..errors import SymmonError
 from ..core.model import Model
 from ..compile import compiled, compiled_with_params
-from ..codegen.symbolic import chol_lower, chol_node, moments, tril_inverse, wrap_entries
+from ..codegen.symbolic import graph_kind, moments, tril_inverse, wrap_entries
 from ..transforms import Transform
 
 #: Names of the outputs of the step function, in order.
 _OUTPUTS = ("x", "P", "x_pred", "P_pred", "innovation", "S", "loglik", "nis")
-
-
-#: From this many variables (states plus noise symbols) on, the step is built in MX.  The SX
-#: step is straight-line code that grows about n^2.8 (245 KB of C and 4-12 s of gcc at n = 10,
-#: 1.85 MB and a minute at 20); the MX step keeps the matrix products, the map over the
-#: points and the solve as loops (tens of KB at any n, about a second of gcc) and is as fast
-#: from about 10 states on (docs/compile.md, "Filter steps").
-MX_FROM = 10
-#: A point rule with more points than this is built in MX at any size: unrolled, each point
-#: copies g and its products with P (Gauss–Hermite of order 10 on 4 states has 10⁴ points,
-#: and its SX step ran gcc for minutes); in MX the points are one map.
-MAX_SX_POINTS = 64
 
 
 def sym(A):
@@ -85,8 +73,7 @@ def step_kind(f: Model, h: Model, transform: Transform):
     """SX or MX for the step of (f, h, transform), and the Cholesky factor that goes with it."""
     dims = (f.n_u + f.n_v, f.n_u + h.n_v)
     points = max(len(transform.unit_rule(d)[0]) for d in dims) if transform.point_rule else 0
-    kind = ca.MX if max(dims) >= MX_FROM or points > MAX_SX_POINTS else ca.SX
-    return kind, chol_node if kind is ca.MX else chol_lower  # unrolled factor: n³/6 operations
+    return graph_kind(max(dims), points)
 
 
 def model_moments(model: Model, m, P, transform: Transform, angles, chol, p=None):

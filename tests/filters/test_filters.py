@@ -633,6 +633,7 @@ def test_a_rule_without_a_filter_step_is_refused():
 def test_the_mx_step_equals_the_sx_step(transform, monkeypatch):
     """From MX_FROM variables on the step is built in MX (loops in C, the blocked Cholesky
     factor); it computes what the unrolled SX step computes, up to rounding."""
+    from symmon.codegen import symbolic
     from symmon.filters import step
 
     T = 1 if isinstance(transform, sm.GaussHermite) else 3  # GH3 on 9 states would be 3^11 points
@@ -655,10 +656,10 @@ def test_the_mx_step_equals_the_sx_step(transform, monkeypatch):
     P = 0.01 * (A @ A.T) + 0.05 * np.eye(n)
     y = np.tile([5.1, 0.9], T)
     Q, R = 1e-3 * np.eye(n), np.diag(np.tile([1e-4, 1e-4], T))
-    monkeypatch.setattr(step, "MX_FROM", 1)
+    monkeypatch.setattr(symbolic, "MX_FROM", 1)
     mx = step._step_function(f, h, transform, states, "mxstep_mx")
-    monkeypatch.setattr(step, "MX_FROM", 10**6)
-    monkeypatch.setattr(step, "MAX_SX_POINTS", 10**6)
+    monkeypatch.setattr(symbolic, "MX_FROM", 10**6)
+    monkeypatch.setattr(symbolic, "MAX_SX_POINTS", 10**6)
     sx = step._step_function(f, h, transform, states, "mxstep_sx")
     assert isinstance(mx.mx_in(0), ca.MX) and mx.is_a("MXFunction") and sx.is_a("SXFunction")
     ones = np.ones(len(y))
