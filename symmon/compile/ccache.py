@@ -612,9 +612,13 @@ class NativeLibrary(Generic[T]):
         Path of a verified library → the object callers use (e.g. a ctypes function).
     stacklevel : int
         For the warnings of a build the caller waits for, counted from the constructor.
+    background : bool
+        Build in the background whatever the size of the code, under the ``auto`` policy:
+        for a caller with a fallback of its own, which should never wait for the compiler.
     """
 
-    def __init__(self, code: str, stem: str, load: Callable[[Path], T], stacklevel: int = 2) -> None:
+    def __init__(self, code: str, stem: str, load: Callable[[Path], T], stacklevel: int = 2,
+                 background: bool = False) -> None:
         self.stem = stem
         self.code_bytes = len(code.encode())
         self._obj: T | None = None
@@ -639,7 +643,7 @@ class NativeLibrary(Generic[T]):
                 log.info("symmon: %s: compiled C (%s) loaded from the cache", stem, opt)
                 self._done.set()
                 return
-        background = mode == "background" or (mode == "auto" and self.code_bytes > BACKGROUND_BYTES)
+        background = mode == "background" or (mode == "auto" and (background or self.code_bytes > BACKGROUND_BYTES))
         if not background:
             self._sync(code, OPT_SYNC, load, stacklevel + 1)
             self._done.set()

@@ -33,7 +33,7 @@ from ..core.model import Model
 from ..errors import ArgumentTypeError, ModelError, ShapeError, UnsupportedFunctionError
 
 __all__ = ["to_casadi", "CompiledModel", "compile_model", "compiled", "compiled_with_params", "cache_dir", "has_compiler", "build_shared_library",
-           "generated_c", "rows_c"]
+           "generated_c", "rows_c", "row_spans", "MIN_ROWS_PER_THREAD"]
 
 log = logging.getLogger(__name__)
 
@@ -253,13 +253,13 @@ def _load_rows(name: str) -> Callable[[Path], Callable]:
 MIN_ROWS_PER_THREAD = 4096
 
 
-def row_spans(N: int) -> list[tuple[int, int]]:
+def row_spans(N: int, least: int = MIN_ROWS_PER_THREAD) -> list[tuple[int, int]]:
     """The rows [a, b) of each thread for a compiled evaluation of N rows: one per CPU with
-    at least :data:`MIN_ROWS_PER_THREAD` each, and one span off the main thread (inside a
-    thread pool of symmon's, or of the caller's, the pool already uses the cores)."""
+    at least ``least`` each, and one span off the main thread (inside a thread pool of
+    symmon's, or of the caller's, the pool already uses the cores)."""
     threads = 1
     if threading.current_thread() is threading.main_thread():
-        threads = max(1, min(os.cpu_count() or 1, N // MIN_ROWS_PER_THREAD))
+        threads = max(1, min(os.cpu_count() or 1, N // least))
     edges = np.linspace(0, N, threads + 1).round().astype(int)
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 

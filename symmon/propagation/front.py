@@ -17,6 +17,7 @@ from .joint import JointMoments
 from .particles import propagate_empirical
 from .mixing import ComponentBatch, component_batch, is_mixture, mix_batch
 from ..transforms import Moments, Transform
+from .kernel import batch_kernel, kernel_moments
 from ..transforms.registry import default_transform, resolve
 
 __all__ = ["propagate", "propagate_many", "propagate_mixture", "check_noise_given", "joint_input", "input_batch",
@@ -276,5 +277,16 @@ def _mixture_items(model: Model, u: Any, v: Any) -> tuple[list, list | None]:
 
 
 def _checked_batch(model: Model, tr: Transform, means: np.ndarray, covs: np.ndarray, executor) -> Moments:
-    """``tr.moments`` on the compiled model (the template checks the batch and the result)."""
-    return tr.moments(compiled(model), means, covs, model.angle_outputs, executor)
+    """``tr.moments`` on the compiled model (the template checks the batch and the result),
+    or, for a large batch and a point rule, the compiled batch kernel (:mod:`.kernel`),
+    whose own Cholesky factor tests definiteness: any doubt goes to ``tr.moments``."""
+    cm = compiled(model)
+    angles = frozenset(model.angle_outputs)
+    M, P = np.asarray(means, dtype=float), np.asarray(covs, dtype=float)
+    fits = M.ndim == 2 and P.shape == (M.shape[0], cm.n_w, cm.n_w)  # else tr.moments says what is wrong
+    kernel = batch_kernel(cm, tr, angles, M.shape[0]) if fits else None
+    if kernel is not None:
+        b = kernel_moments(kernel, cm, tr, M, P)
+        if b is not None:
+            return b
+    return tr.moments(cm, M, P, model.angle_outputs, executor)

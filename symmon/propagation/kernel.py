@@ -1,0 +1,199 @@
+"""The moments of a batch of Gaussians by a point rule, in compiled C (:func:`propagate_many`).
+
+For the K Gaussians of a batch, a point rule (the UT family, the cubature rules,
+Gauss–Hermite's tensor grid) in NumPy builds (K, N, n) arrays of points, evaluates g on
+them, and sums weighted products of (K, N, n_y) residuals.  Here one CasADi function
+(m, P) ↦ (E y, Cov y, Cov(w, y), p) does the whole rule for one Gaussian, from the moment
+graphs the filters compile (:func:`symmon.codegen.symbolic.moments`: the Cholesky factor,
+the map of g over the points, the weighted sums as matrix products), with p the smallest
+pivot of its Cholesky factor; a C loop runs it over the batch, split over threads.  So
+there are no temporaries of K N n numbers, and the validation of the batch uses the rule's
+own factor: a Gaussian whose factor fails (p ≤ 0 or NaN: a singular or indefinite
+covariance) sends the whole batch through the NumPy rule, which takes a singular
+covariance's square root by eigh and names an indefinite one.
+
+The kernel is built in the background (the compile policy, docs/compile.md) while the NumPy
+rule answers, so no call waits for the compiler; its results are those of the NumPy rule up
+to rounding (the sums run in another order).  It is used for batches of at least
+:data:`MIN_BATCH` Gaussians, for rules whose covariance weights are all non-negative (a
+rule with negative weights needs the scale of its sums for the definiteness test:
+``Moments.cov_scale``), and for models with no undeclared angle output (whose points the
+NumPy rule inspects for the cut at ±π).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Callable
+
+import casadi as ca
+import numpy as np
+
+from ..codegen.symbolic import graph_kind, moments
+from ..compile.ccache import NativeLibrary
+from ..compile.compiled import CompiledModel, generated_c, row_spans
+from ..core.gaussian import SYMMETRY_RTOL
+from ..transforms.base import Moments, Transform, likely_angles
+
+__all__ = ["MIN_BATCH", "batch_kernel", "kernel_moments"]
+
+#: The smallest batch the kernel takes: below it the NumPy rule's temporaries are small.
+MIN_BATCH = 64
+#: Gaussians per thread, at least.
+MIN_PER_THREAD = 32
+
+_LOOP = """
+/* symmon: {name} on each of K Gaussians: m (K, n) and P (K, n, n) in, the moments out, and
+   per Gaussian its smallest pivot and its asymmetry (check[2k], check[2k + 1]). */
+CASADI_SYMBOL_EXPORT int {name}_batch(const casadi_real* m, const casadi_real* P, casadi_real* mean,
+    casadi_real* cov, casadi_real* cross, casadi_real* check, casadi_int K, casadi_int* iw, casadi_real* w) {{
+  const casadi_real* arg[{sz_arg}];
+  casadi_real* res[{sz_res}];
+  casadi_int k;
+  for (k = 0; k < K; ++k) {{
+    arg[0] = m + k * {n}; arg[1] = P + k * {nn};
+    res[0] = mean + k * {n_y}; res[1] = cov + k * {nyy}; res[2] = cross + k * {nny}; res[3] = check + 2 * k;
+    if ({name}(arg, res, iw, w, 0)) return 1;
+  }}
+  return 0;
+}}
+"""
+
+
+def _moment_function(cm: CompiledModel, transform: Transform, angles: frozenset[int], name: str) -> ca.Function:
+    """(m, P) ↦ (E y, Cov y, Cov(w, y), [p, a]) of the rule at N(m, (P + Pᵀ)/2), with p the
+    smallest pivot of its Cholesky factor and a = max |P − Pᵀ| / max |P| (the symmetry test
+    of :class:`~symmon.Gaussian`); Cov(w, y) n × n_y, so that its column-major entries are
+    the row-major (n_y, n) Cov(y, w) of a batch."""
+    n = cm.n_w
+    kind, chol = graph_kind(n, len(transform.unit_rule(n)[0]))
+    m, P_in = kind.sym("m", n), kind.sym("P", n, n)
+    P = 0.5 * (P_in + P_in.T)
+    asym = ca.mmax(ca.fabs(P_in - P_in.T)) / ca.fmax(ca.mmax(ca.fabs(P_in)), np.finfo(float).tiny)
+    factors = []
+
+    def recorded(A):
+        L = chol(A)
+        factors.append(L)
+        return L
+
+    mean, cov, cross = moments(cm, m, P, transform, angles, recorded)
+    L = factors[0] if factors else chol(P)  # an affine g takes TT1's closed forms: no points, no factor
+    pivot = ca.mmin(ca.diag(L))
+    cov = 0.5 * (cov + cov.T)  # exactly symmetric, as the NumPy rule's
+    outs = [ca.densify(a) for a in (mean, cov, cross.T, ca.vertcat(pivot, asym))]
+    return ca.Function(name, [m, P_in], outs, ["m", "P"], ["mean", "cov", "cross_t", "checks"],
+                       {"cse": True} if kind is ca.SX else {})
+
+
+def _load(name: str) -> Callable[[Path], Callable]:
+    def load(path: Path):
+        fn = getattr(ctypes.CDLL(str(path)), f"{name}_batch")
+        fn.argtypes = [ctypes.c_void_p] * 6 + [ctypes.c_longlong] + [ctypes.c_void_p] * 2
+        fn.restype = ctypes.c_int
+        return fn
+    return load
+
+
+class BatchKernel:
+    """The compiled moments of one (model, point rule, angle outputs) over a batch."""
+
+    def __init__(self, cm: CompiledModel, transform: Transform, angles: frozenset[int]) -> None:
+        key = repr((cm.source_exprs, cm.symbols, transform, sorted(angles)))
+        self.name = name = "sm_batch_" + hashlib.sha1(key.encode()).hexdigest()[:12]
+        self.f = f = _moment_function(cm, transform, angles, name)
+        self.n, self.n_y = cm.n_w, cm.n_y
+        self.points = len(transform.unit_rule(cm.n_w)[0])
+        n, n_y = self.n, self.n_y
+        code = generated_c(f) + _LOOP.format(name=name, sz_arg=max(f.sz_arg(), 2), sz_res=max(f.sz_res(), 4), n=n,
+                                             nn=n * n, n_y=n_y, nyy=n_y * n_y, nny=n * n_y)
+        self._lib = NativeLibrary(code, name, _load(name), stacklevel=4, background=True)
+
+    @property
+    def evaluator(self) -> str:
+        """``"compiled"``, ``"vm"`` or ``"vm (C build running)"`` (the NumPy rule runs while not compiled)."""
+        return self._lib.evaluator
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Wait for the background build; True when the compiled kernel is in."""
+        return self._lib.wait(timeout)
+
+    def __call__(self, M: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, ...] | None:
+        """(E y (K, n_y), Cov y (K, n_y, n_y), Cov(y, w) (K, n_y, n), checks (K, 2)) of the
+        batch M (K, n), P (K, n, n) (checks: the smallest pivot and the asymmetry of each
+        P, :func:`_moment_function`), or None while the kernel is not compiled."""
+        run = self._lib.get()
+        if run is None:
+            return None
+        K = M.shape[0]
+        M, P = np.ascontiguousarray(M, dtype=float), np.ascontiguousarray(P, dtype=float)
+        out = (np.empty((K, self.n_y)), np.empty((K, self.n_y, self.n_y)), np.empty((K, self.n_y, self.n)),
+               np.empty((K, 2)))
+        f = self.f
+
+        def part(ab: tuple[int, int]) -> int:
+            a, b = ab
+            iw = np.empty(max(f.sz_iw(), 1), dtype=np.int64)  # one work array per thread
+            w = np.empty(max(f.sz_w(), 1))
+            return run(M[a:].ctypes.data, P[a:].ctypes.data, *(o[a:].ctypes.data for o in out), b - a,
+                       iw.ctypes.data, w.ctypes.data)
+
+        spans = row_spans(K, MIN_PER_THREAD)
+        if len(spans) == 1:
+            errs = [part(spans[0])]
+        else:  # ctypes releases the GIL in the C call
+            with ThreadPoolExecutor(len(spans)) as pool:
+                errs = list(pool.map(part, spans))
+        if any(errs):
+            raise RuntimeError(f"the compiled batch moments {self.name} returned an error")
+        return out
+
+
+_kernels: dict[tuple, BatchKernel] = {}
+_lock = threading.Lock()
+
+
+def batch_kernel(cm: CompiledModel, transform: Transform, angles: frozenset[int], K: int) -> BatchKernel | None:
+    """The kernel of (cm, transform, angles) for a batch of K Gaussians (built once per
+    process, its C cached on disk), or None where the NumPy rule must run: a batch below
+    :data:`MIN_BATCH`, a rule that is not a point rule or has a negative covariance weight,
+    a model with an undeclared angle output, or no compiled evaluation (``cm.compiled``)."""
+    if K < MIN_BATCH or not cm.compiled or not transform.point_rule or transform.taylor_order is not None:
+        return None
+    rule = transform.unit_rule(cm.n_w)
+    if rule is None or np.any(np.asarray(rule[2]) < 0) or likely_angles(cm, angles):
+        return None
+    key = (cm, transform, angles)
+    with _lock:
+        kernel = _kernels.get(key)
+        if kernel is None:
+            kernel = _kernels[key] = BatchKernel(cm, transform, angles)
+        return kernel
+
+
+def kernel_moments(kernel: BatchKernel, cm: CompiledModel, transform: Transform, M: np.ndarray, P: np.ndarray
+                   ) -> Moments | None:
+    """The moments of the batch (M, P) by the compiled kernel, or None when the NumPy rule
+    must run (and check the batch, naming any culprit): the kernel is still being built, or
+    some input or moment is not finite, or some covariance is asymmetric beyond
+    ``SYMMETRY_RTOL`` or has a Cholesky factor that failed (singular or indefinite).
+
+    Cov y needs no test of definiteness: with non-negative weights it is a sum of
+    positive semi-definite terms (:func:`batch_kernel` takes no other rule).
+    """
+    if not (np.isfinite(M).all() and np.isfinite(P).all()):
+        return None
+    out = kernel(M, P)
+    if out is None:
+        return None
+    mean, cov, cross, checks = out
+    if not (np.all(checks[:, 0] > 0) and np.all(checks[:, 1] <= SYMMETRY_RTOL)):
+        return None
+    if not (np.isfinite(mean).all() and np.isfinite(cov).all() and np.isfinite(cross).all()):
+        return None  # the NumPy rule names the overflow
+    return Moments(mean, cov, cross, evaluations=M.shape[0] * kernel.points,
+                   details={"evaluator": "compiled batch kernel"})
