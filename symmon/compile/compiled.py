@@ -257,6 +257,8 @@ def row_spans(N: int, least: int = MIN_ROWS_PER_THREAD) -> list[tuple[int, int]]
     """The rows [a, b) of each thread for a compiled evaluation of N rows: one per CPU with
     at least ``least`` each, and one span off the main thread (inside a thread pool of
     symmon's, or of the caller's, the pool already uses the cores)."""
+    if N < 2 * least:  # the common small batch, without the CPU count (a system call)
+        return [(0, N)]
     threads = 1
     if threading.current_thread() is threading.main_thread():
         threads = max(1, min(os.cpu_count() or 1, N // least))

@@ -19,6 +19,8 @@ state-space models*, PhD thesis, OGI, 2004 (the scaled UT).
 
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -96,26 +98,9 @@ class UT(Transform):
         return cls(1.0, 0.0, 0.0)
 
     def weights(self, n: int) -> tuple[np.ndarray, np.ndarray, float]:
-        """Mean weights, covariance weights and the scale √(n + λ) for dimension n."""
-        kappa = 3.0 - n if self.kappa is None else self.kappa
-        with np.errstate(over="ignore"):  # α beyond ~1e154: α² is inf, refused just below
-            a2 = np.float64(self.alpha) ** 2
-            lam = a2 * (n + kappa) - n
-        if not np.isfinite(lam) or not np.isfinite(a2):
-            raise SymmonError(
-                f"UT with alpha={self.alpha}, kappa={kappa} gives lambda = alpha^2 (n + kappa) - n = {lam} "
-                f"for n = {n}: the sigma points and weights overflow; choose a moderate alpha and kappa (the presets use alpha = 1e-3 and 1)"
-            )
-        if n + lam <= 0:
-            raise SymmonError(
-                f"UT with alpha={self.alpha}, kappa={kappa} gives n + lambda = {n + lam:.3g} <= 0 "
-                f"for n = {n}: choose a larger kappa"
-            )
-        wm = np.full(2 * n + 1, 1.0 / (2 * (n + lam)))
-        wm[0] = lam / (n + lam)
-        wc = wm.copy()
-        wc[0] += 1 - a2 + self.beta
-        return wm, wc, float(np.sqrt(n + lam))
+        """Mean weights, covariance weights and the scale √(n + λ) for dimension n (read-only
+        arrays, made once per rule and dimension)."""
+        return _weights(self.alpha, self.beta, self.kappa, n)
 
     def filter_label(self) -> str:
         """``CKF`` for the cubature rule, ``UKF(alpha=…, beta=…, kappa=…)`` otherwise."""
@@ -157,3 +142,28 @@ class UT(Transform):
         mean, cov, cross, scale = weighted_moments(Y, X, means, wm, wc, angles)
         info = {"sigma_points": X, "transformed_points": Y}
         return Moments(mean, cov, cross, evaluations=K * (2 * n + 1), details=info, cov_scale=scale)
+
+
+@functools.lru_cache(maxsize=256)
+def _weights(alpha: float, beta: float, kappa: float | None, n: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """:meth:`UT.weights` of ``UT(alpha, beta, kappa)`` in dimension n."""
+    kappa = 3.0 - n if kappa is None else kappa
+    with np.errstate(over="ignore"):  # α beyond ~1e154: α² is inf, refused just below
+        a2 = np.float64(alpha) ** 2
+        lam = a2 * (n + kappa) - n
+    if not np.isfinite(lam) or not np.isfinite(a2):
+        raise SymmonError(
+            f"UT with alpha={alpha}, kappa={kappa} gives lambda = alpha^2 (n + kappa) - n = {lam} "
+            f"for n = {n}: the sigma points and weights overflow; choose a moderate alpha and kappa (the presets use alpha = 1e-3 and 1)"
+        )
+    if n + lam <= 0:
+        raise SymmonError(
+            f"UT with alpha={alpha}, kappa={kappa} gives n + lambda = {n + lam:.3g} <= 0 "
+            f"for n = {n}: choose a larger kappa"
+        )
+    wm = np.full(2 * n + 1, 1.0 / (2 * (n + lam)))
+    wm[0] = lam / (n + lam)
+    wc = wm.copy()
+    wc[0] += 1 - a2 + beta
+    wm.flags.writeable = wc.flags.writeable = False  # shared by every call
+    return wm, wc, float(np.sqrt(n + lam))
