@@ -145,3 +145,26 @@ def test_overflowing_second_moments_are_reported():
     model = sm.Model([x], [1e200 * x])
     with pytest.raises(SamplingError, match="overflow"):
         sm.propagate(model, sm.Gaussian([0.0], [[1.0]]), transform=sm.MonteCarlo(1000, seed=0, groups=2))
+
+
+def test_the_sine_and_cosine_of_a_bearing_are_its_direction_cosines():
+    """sin and cos of an output atan2(a, b) are a / r and b / r (r = hypot(a, b)): within a
+    few ulps of sin(atan2) and cos(atan2), with (0, 1) at a = b = 0 where atan2 is 0; an
+    angle output that is not atan2 itself keeps sin and cos."""
+    import casadi as ca
+
+    from symmon.transforms.mc_kernel import circle_point
+
+    w = ca.SX.sym("w", 3)
+    bearing = ca.atan2(w[0], w[1])
+    f = ca.Function("cp", [w], [ca.vertcat(*circle_point(bearing), *circle_point(bearing + w[2]))])
+    rng = np.random.default_rng(4)
+    W = np.vstack([rng.standard_normal((500, 3)) * 10.0 ** rng.integers(-150, 150, (500, 1)), [0.0, 0.0, 0.3],
+                   [0.0, -2.0, 0.0], [1e-300, 1e-300, 0.0], [1e300, -1e300, 0.0]])
+    out = np.array(f.map(len(W))(W.T)).T
+    plain = ca.Function("plain", [w], [ca.vertcat(ca.sin(bearing), ca.cos(bearing), ca.sin(bearing + w[2]),
+                                                  ca.cos(bearing + w[2]))])
+    ref = np.array(plain.map(len(W))(W.T)).T
+    np.testing.assert_allclose(out[:, :2], ref[:, :2], rtol=0, atol=4e-16)  # two ulps of 1
+    np.testing.assert_array_equal(out[:, 2:], ref[:, 2:])  # not atan2 itself: sin and cos
+    assert tuple(out[-4, :2]) == (0.0, 1.0)
