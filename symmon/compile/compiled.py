@@ -282,6 +282,7 @@ class _Batched:
         self.out_nnz = [f.nnz_out(i) for i in range(f.n_out())]
         self._maps: dict[int, ca.Function] = {}
         self._lock = threading.Lock()
+        self._local = threading.local()
         self.native: NativeLibrary | None = None
         self.used = False
 
@@ -293,6 +294,14 @@ class _Batched:
                     self.native = NativeLibrary(rows_c(self._f), self._f.name(), _load_rows(self._f.name()),
                                                 stacklevel=5)
         return self.native
+
+    def _workspace(self) -> tuple[int, int]:
+        """Addresses of this thread's work arrays (integer, real), made once per thread."""
+        ws = getattr(self._local, "ws", None)
+        if ws is None:
+            ws = self._local.ws = (np.zeros(max(self._f.sz_iw(), 1), dtype=np.int64),
+                                   np.zeros(max(self._f.sz_w(), 1)))
+        return ws[0].ctypes.data, ws[1].ctypes.data
 
     def _vm_map(self, n: int) -> ca.Function:
         with self._lock:
@@ -322,10 +331,9 @@ class _Batched:
         if rows is not None:
             def part(ab: tuple[int, int]) -> int:
                 a, b = ab
-                iw = np.empty(max(self._f.sz_iw(), 1), dtype=np.int64)  # one work array per thread
-                w = np.empty(max(self._f.sz_w(), 1))
+                iw, w = self._workspace()
                 ptrs = (ctypes.c_void_p * len(outs))(*[o[a:].ctypes.data for o in outs])
-                return rows(X[a:].ctypes.data, ptrs, b - a, iw.ctypes.data, w.ctypes.data)
+                return rows(X[a:].ctypes.data, ptrs, b - a, iw, w)
 
             spans = row_spans(N)
             if len(spans) == 1:

@@ -131,7 +131,7 @@ def propagate(model: Model, u: Gaussian | GaussianMixture | Empirical,
     if is_mixture(u) or is_mixture(v):
         return propagate_mixture(model, u, v, tr, executor)[0]
     mw, Pw = joint_input(model, u, v)
-    b = _checked_batch(model, tr, mw[None], Pw[None], executor)
+    b = _checked_batch(model, tr, mw[None], Pw[None], executor, validated=True)  # Gaussians, checked when made
     # "compiled", "vm" or "vm (C build running)": CompiledModel.evaluator, docs/compile.md.
     return JointMoments.of(b, u, model.n_u, tr, model.angle_outputs, model.angle_inputs,
                            evaluator=compiled(model).evaluator)
@@ -276,10 +276,12 @@ def _mixture_items(model: Model, u: Any, v: Any) -> tuple[list, list | None]:
     return u, vs
 
 
-def _checked_batch(model: Model, tr: Transform, means: np.ndarray, covs: np.ndarray, executor) -> Moments:
-    """``tr.moments`` on the compiled model (the template checks the batch and the result),
-    or, for a large batch and a point rule, the compiled batch kernel (:mod:`.kernel`),
-    whose own Cholesky factor tests definiteness: any doubt goes to ``tr.moments``."""
+def _checked_batch(model: Model, tr: Transform, means: np.ndarray, covs: np.ndarray, executor,
+                   validated: bool = False) -> Moments:
+    """``tr.moments`` on the compiled model (the template checks the batch and the result;
+    ``validated``: a batch of checked Gaussians, as :meth:`Transform.moments`), or, for a
+    large batch and a point rule, the compiled batch kernel (:mod:`.kernel`), whose own
+    Cholesky factor tests definiteness: any doubt goes to ``tr.moments``."""
     cm = compiled(model)
     angles = frozenset(model.angle_outputs)
     M, P = np.asarray(means, dtype=float), np.asarray(covs, dtype=float)
@@ -289,4 +291,4 @@ def _checked_batch(model: Model, tr: Transform, means: np.ndarray, covs: np.ndar
         b = kernel_moments(kernel, cm, tr, M, P)
         if b is not None:
             return b
-    return tr.moments(cm, M, P, model.angle_outputs, executor)
+    return tr.moments(cm, M, P, model.angle_outputs, executor, validated=validated)

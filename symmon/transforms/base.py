@@ -8,6 +8,7 @@ and covariances (K, n_w, n_w).  It returns the mean (K, n_y), the covariance
 
 from __future__ import annotations
 
+
 import warnings
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
@@ -29,7 +30,7 @@ if TYPE_CHECKING:  # annotations only: a rule is handed a compiled model, it nev
 
 __all__ = [
     "Transform", "Moments", "wrap_angle", "weighted_moments", "batch_sqrt",
-    "evaluate_points", "check_moments_finite", "check_moments_definite", "check_batch", "DEFINITE_RTOL", "likely_angles", "warn_angle_cut", "pilot_angle_cut",
+    "evaluate_points", "check_moments_finite", "check_moments_definite", "check_batch", "check_shapes", "DEFINITE_RTOL", "likely_angles", "warn_angle_cut", "pilot_angle_cut",
     "reset_warnings",
 ]
 
@@ -201,14 +202,15 @@ class Transform(ABC):
             _register(key, summary, factory)
 
     def moments(self, cm: CompiledModel, means: np.ndarray, covs: np.ndarray,
-                angles: frozenset[int] = frozenset(), executor: Any = None) -> Moments:
+                angles: frozenset[int] = frozenset(), executor: Any = None, *, validated: bool = False) -> Moments:
         """The moments of y = g(w) for the K Gaussians N(means[k], covs[k]).
 
         The template of every rule: it checks the batch (shapes against ``cm``, finite
         entries, symmetric positive semi-definite covariances), runs the rule's
         undeclared-angle check, calls the rule's :meth:`_moments`, and refuses any NaN or
         inf moment and any Cov y that is indefinite beyond rounding (a rule with negative
-        weights can give one: :func:`check_moments_definite`), so that no caller can skip
+        weights can give one: :func:`check_moments_definite`; a rule that is
+        :meth:`semidefinite` by construction needs no test), so that no caller can skip
         the checks.
 
         Parameters
@@ -222,6 +224,10 @@ class Transform(ABC):
         executor : Executor, optional
             Where stochastic work runs (:class:`~symmon.transforms.executor.Executor`);
             deterministic rules ignore it.
+        validated : bool
+            The batch was built from :class:`~symmon.Gaussian` objects, which checked their
+            covariances when they were made (symmetric, positive semi-definite): only its
+            shapes are checked again (:func:`symmon.propagate` of one Gaussian).
 
         Raises
         ------
@@ -232,8 +238,9 @@ class Transform(ABC):
         IndefiniteCovarianceError
             Cov y of some Gaussian has a negative eigenvalue beyond rounding.
         """
-        result = self._checked(cm, means, covs, angles, executor)
-        check_moments_definite(cm, result, means, self)
+        result = self._checked(cm, means, covs, angles, executor, validated)
+        if not self.semidefinite(cm.n_w):
+            check_moments_definite(cm, result, means, self)
         return result
 
     def expectation(self, cm: CompiledModel, means: np.ndarray, covs: np.ndarray,
@@ -250,9 +257,9 @@ class Transform(ABC):
         return self._checked(cm, means, covs, angles, executor).mean
 
     def _checked(self, cm: CompiledModel, means: np.ndarray, covs: np.ndarray,
-                 angles: frozenset[int], executor: Any) -> Moments:
+                 angles: frozenset[int], executor: Any, validated: bool = False) -> Moments:
         """The checked batch through the rule, its moments refused unless finite."""
-        means, covs = check_batch(cm, means, covs)
+        means, covs = check_shapes(cm, means, covs) if validated else check_batch(cm, means, covs)
         angles = frozenset(angles)
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported just below
             self.check_angles(cm, means, covs, angles)
@@ -269,6 +276,15 @@ class Transform(ABC):
         """The degree of exactness for Gaussians of dimension ``n`` (default
         :attr:`exact_degree`; a rule whose grid depends on n says so)."""
         return self.exact_degree
+
+    def semidefinite(self, n: int) -> bool:
+        """Whether the rule's Cov y is positive semi-definite by construction for Gaussians
+        of dimension ``n``: a sum of positive semi-definite terms, which rounding moves by
+        n_y·N·eps relative at most, far inside :data:`DEFINITE_RTOL`, so that
+        :meth:`moments` need not test it.  Default: a point rule whose covariance weights
+        are all non-negative (a rule with a negative one, the UT with κ < 0 or a sparse
+        grid, is tested); TT1, TT2 and Monte Carlo say so themselves."""
+        return _nonnegative_weights(self, n) if self.point_rule else False
 
     def cost(self, n_w: int) -> int:
         """Evaluations of g for one Gaussian of dimension ``n_w``."""
@@ -411,6 +427,31 @@ def evaluate_points(cm: CompiledModel, X: np.ndarray, transform: "Transform",
     return Y
 
 
+@lru_cache(maxsize=256)
+def _nonnegative_weights(transform: "Transform", n: int) -> bool:
+    rule = transform.unit_rule(n)
+    return rule is not None and bool(np.all(np.asarray(rule[2]) >= 0))
+
+
+def check_shapes(cm: CompiledModel, means: Any, covs: Any) -> tuple[np.ndarray, np.ndarray]:
+    """``means`` (K, n_w) and ``covs`` (K, n_w, n_w) as float arrays for ``cm``, their shapes
+    checked (for a batch of validated Gaussians; :func:`check_batch` checks the values too).
+
+    Raises
+    ------
+    ShapeError
+    """
+    M = np.asarray(means, dtype=float)
+    P = np.asarray(covs, dtype=float)
+    n = cm.n_w
+    if M.ndim != 2 or M.shape[1] != n or P.shape != (M.shape[0], n, n):
+        raise ShapeError(f"a batch of Gaussians of {n} variables needs means (K, {n}) and covs (K, {n}, {n}), "
+                         f"got {M.shape} and {P.shape}")
+    if M.shape[0] == 0:
+        raise ShapeError("means must hold at least one state")
+    return M, P
+
+
 def check_batch(cm: CompiledModel, means: Any, covs: Any) -> tuple[np.ndarray, np.ndarray]:
     """``means`` (K, n_w) and ``covs`` (K, n_w, n_w) as float arrays for ``cm``, checked in
     one batched pass: K ≥ 1, finite, symmetric and positive semi-definite within the
@@ -421,14 +462,7 @@ def check_batch(cm: CompiledModel, means: Any, covs: Any) -> tuple[np.ndarray, n
     ------
     ShapeError, CovarianceError
     """
-    M = np.asarray(means, dtype=float)
-    P = np.asarray(covs, dtype=float)
-    n = cm.n_w
-    if M.ndim != 2 or M.shape[1] != n or P.shape != (M.shape[0], n, n):
-        raise ShapeError(f"a batch of Gaussians of {n} variables needs means (K, {n}) and covs (K, {n}, {n}), "
-                         f"got {M.shape} and {P.shape}")
-    if M.shape[0] == 0:
-        raise ShapeError("means must hold at least one state")
+    M, P = check_shapes(cm, means, covs)
     finite = np.isfinite(M).all() and np.isfinite(P).all()
     scale = np.maximum(np.abs(P).max(axis=(1, 2)), np.finfo(float).tiny)
     with np.errstate(over="ignore", invalid="ignore"):  # entries near 1.8e308: the slow path names them

@@ -282,6 +282,11 @@ class MonteCarlo(Transform):
         return dask_compute(tasks, ex.client, ex.scheduler, "Monte Carlo groups", ex.progress,
                             ex.worker_timeout)
 
+    def semidefinite(self, n: int) -> bool:
+        """True: a sample covariance (merged exactly over groups and chunks) is a sum of
+        positive semi-definite terms."""
+        return True
+
     def _moments(self, cm, means, covs, angles, executor):
         outs = [self._single(cm, m, P, angles, executor) for m, P in zip(means, covs)]
         return Moments(

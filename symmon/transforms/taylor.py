@@ -135,6 +135,10 @@ class TT1(Transform):
     presets: ClassVar[dict] = {"tt1": ("first-order Taylor (the EKF's linearisation)", lambda **_: TT1())}
     taylor_order: ClassVar[int | None] = 1
 
+    def semidefinite(self, n: int) -> bool:
+        """True: Cov y = J P Jᵀ is positive semi-definite by construction."""
+        return True
+
     def _moments(self, cm, means, covs, angles, executor):
         return _taylor(cm, means, covs, angles, second=False)
 
@@ -160,6 +164,10 @@ class TT2(Transform):
     name: ClassVar[str] = "tt2"
     presets: ClassVar[dict] = {"tt2": ("second-order Taylor", lambda **_: TT2())}
     taylor_order: ClassVar[int | None] = 2
+
+    def semidefinite(self, n: int) -> bool:
+        """True: Cov y = J P Jᵀ plus the Gram matrix ½ [tr(H_i P H_j P)] is positive semi-definite by construction."""
+        return True
 
     def _moments(self, cm, means, covs, angles, executor):
         return _taylor(cm, means, covs, angles, second=True)

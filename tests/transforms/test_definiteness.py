@@ -267,3 +267,48 @@ def test_warnings_of_a_valid_rule_are_unchanged():
         warnings.simplefilter("error")
         m = sm.propagate(model, u, transform=sm.GaussHermite(3, sparse=False))
     assert m.cov[0, 0] == pytest.approx(12.0, rel=EXACT_RTOL)
+
+
+# --------------------------------------------------------------------------- semidefinite by construction
+@pytest.mark.parametrize("transform, n, expected", [
+    (sm.UT(1, 2, 0), 4, True), (sm.UT.cubature(), 6, True), (sm.UT.ut1(), 4, False), (sm.UT.ut1(), 2, True),
+    (sm.GaussHermite(3, sparse=False), 3, True), (sm.GaussHermite(3, sparse=True), 6, False),
+    (sm.TT1(), 5, True), (sm.TT2(), 5, True), (sm.MonteCarlo(100, seed=0), 5, True), (sm.Exact(), 2, False),
+], ids=repr)
+def test_which_rules_are_semidefinite_by_construction(transform, n, expected):
+    """Non-negative covariance weights, J P Jᵀ (+ a Gram matrix) and a sample covariance
+    are sums of PSD terms; a negative weight, or Exact's E yyᵀ − E y E yᵀ, is tested."""
+    assert transform.semidefinite(n) is expected
+    if transform.point_rule:
+        assert expected == bool(np.all(transform.unit_rule(n)[2] >= 0))
+
+
+def test_a_rule_with_a_negative_weight_is_still_tested(monkeypatch):
+    """The test is skipped only where it cannot fail: ut1 on 4 inputs still refuses."""
+    from symmon.transforms import base
+
+    calls = []
+    real = base.check_moments_definite
+    monkeypatch.setattr(base, "check_moments_definite", lambda *a: calls.append(a[-1]) or real(*a))
+    model, u = _sum_of_squares(4)
+    sm.propagate(model, u, transform=sm.UT(1, 2, 0))
+    assert calls == []  # non-negative weights: no test
+    with pytest.raises(IndefiniteCovarianceError):
+        sm.propagate(model, u, transform=sm.UT.ut1())
+    assert calls == [sm.UT.ut1()]
+
+
+def test_one_gaussian_is_not_checked_twice_but_an_array_batch_is(monkeypatch):
+    """A symmon.Gaussian checked itself when it was made: propagate passes its batch as
+    validated; propagate_many of raw arrays checks them (and refuses an indefinite one)."""
+    from symmon.transforms import base
+
+    calls = []
+    real = base.check_batch
+    monkeypatch.setattr(base, "check_batch", lambda *a: calls.append(1) or real(*a))
+    model, u = _sum_of_squares(2)
+    sm.propagate(model, u, transform=sm.TT2())
+    assert calls == []
+    with pytest.raises(CovarianceError):
+        sm.propagate_many(model, (np.zeros((2, 2)), np.array([np.eye(2), -np.eye(2)])), transform=sm.TT2())
+    assert calls == [1]
