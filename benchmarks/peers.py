@@ -18,6 +18,10 @@ n = 5k, k targets with a range bias each, stacked), K = 100 steps:
   bearings as symmon;
 - **FilterPy**: ``UnscentedKalmanFilter`` one run (a Python loop over steps).
 
+**Monte Carlo.** The W^full MoN of ``examples/gmti.toml`` (the bearing an angle) by
+``MonteCarlo(N)``, against numba ``parallel=True`` computing the same sample statistics,
+and the machine's limit: 4 normals a sample from NumPy's fastest generator on every core.
+
 **Moments.** ``propagate_many`` of K = 10⁴ Gaussians through the sparse model of
 ``benchmarks/scale.py`` (y_i = sqrt(x_i² + x_{i+1}² + 1) + sin(x_i x_{i+2})), UT and TT2,
 against ``jax.jit(jax.vmap(...))`` of the same UT (Cholesky, 2n + 1 points, weighted sums)
@@ -265,6 +269,92 @@ def jax_moments(n, means, covs, repeat):
     return out
 
 
+# --------------------------------------------------------------------------- Monte Carlo
+GMTI = HERE.parent / "examples" / "gmti.toml"
+
+
+def mc_floor(N: int, repeat: int) -> float:
+    """The machine's limit for N samples of 4 normals: NumPy's fastest generator (SFC64,
+    ziggurat) filling the normals on one core, divided by the cores."""
+    gen = np.random.Generator(np.random.SFC64(0))
+    buf = np.empty((N // 4, 4))
+    return 4 * best(lambda: gen.standard_normal(out=buf), repeat) / (os.cpu_count() or 1)
+
+
+def symmon_mc(N: int, repeat: int):
+    from symmon.files.modelfile import load_model_file
+
+    spec = load_model_file(GMTI)
+    run = lambda: sm.nonlinearity(spec.model, spec.u, weight="full", transform=sm.MonteCarlo(N, seed=0))  # noqa: E731
+    t0 = time.perf_counter()
+    run()
+    first = time.perf_counter() - t0
+    mon = run()
+    return {"first": first, "warm": best(run, repeat), "mon": float(mon.value), "se": float(mon.stderr)}
+
+
+def numba_mc(N: int, repeat: int):
+    """GMTI by Monte Carlo with numba ``parallel=True``: the same samples' statistics as
+    symmon's kernel (y with the bearing unwrapped around a reference, u, and the bearing's
+    sine and cosine; their sums and cross-products per thread), then the MoN W^full from
+    the covariances, in NumPy."""
+    try:
+        import numba
+    except ImportError:
+        return None
+    from numba import njit, prange
+
+    from symmon.files.modelfile import load_model_file
+
+    spec = load_model_file(GMTI)
+    m, L = np.asarray(spec.u.mean, dtype=float), np.linalg.cholesky(spec.u.cov)
+    sx, sy, sz = 1000.0, 1000.0, 1000.0  # the file's [params]
+    ref = float(np.arctan2(m[0] - sx, m[1] - sy))
+
+    @njit(parallel=True, cache=False)
+    def stats(n_per, threads, m, L, ref):
+        S = np.zeros((threads, 10, 10))
+        for t in prange(threads):
+            a = np.empty(10)
+            z = np.empty(4)
+            for _ in range(n_per):
+                for j in range(4):
+                    z[j] = np.random.standard_normal()
+                x = m[0] + L[0, 0] * z[0]
+                y = m[1] + L[1, 0] * z[0] + L[1, 1] * z[1]
+                vx = m[2] + L[2, 0] * z[0] + L[2, 1] * z[1] + L[2, 2] * z[2]
+                vy = m[3] + L[3, 0] * z[0] + L[3, 1] * z[1] + L[3, 2] * z[2] + L[3, 3] * z[3]
+                dx, dy = x - sx, y - sy
+                r = np.sqrt(dx * dx + dy * dy + sz * sz)
+                b = np.arctan2(dx, dy)
+                d = b - ref
+                b = ref + d - 2 * np.pi * np.floor((d + np.pi) / (2 * np.pi))
+                h = np.hypot(dx, dy)
+                a[0], a[1], a[2] = r, b, (dx * vx + dy * vy) / r
+                a[3], a[4], a[5], a[6] = x, y, vx, vy
+                a[7], a[8], a[9] = dx / h, dy / h, 1.0
+                for i in range(10):
+                    for k in range(10):
+                        S[t, i, k] += a[i] * a[k]
+        return S.sum(axis=0)
+
+    threads = numba.get_num_threads()
+
+    def run():
+        S = stats(N // threads, threads, m, L, ref)
+        n = S[9, 9]
+        mean = S[9, :9] / n
+        C = (S[:9, :9] - n * np.outer(mean, mean)) / (n - 1)  # no shift: fine at these magnitudes
+        Sgg, Sgu, Suu = C[:3, :3], C[:3, 3:7], C[3:7, 3:7]
+        D = Sgg - Sgu @ np.linalg.solve(Suu, Sgu.T)
+        return float(np.sqrt(np.trace(np.linalg.solve(Sgg, D)) / 3))
+
+    t0 = time.perf_counter()
+    run()
+    first = time.perf_counter() - t0  # includes numba's compile
+    return {"first": first, "warm": best(run, repeat), "mon": run(), "threads": threads}
+
+
 # --------------------------------------------------------------------------- report
 def exponent(ns, ts):
     pts = [(n, t) for n, t in zip(ns, ts) if n >= 10 and t]
@@ -305,6 +395,10 @@ def main() -> None:
         mrows.append((n, s, j))
         print("moments", n, {k: v if k == "propagate_us" else {kk: vv for kk, vv in v.items() if kk != "mean"}
                              for k, v in s.items()}, flush=True)
+    N_mc = 10**6 if a.quick else 4 * 10**6
+    floor = mc_floor(N_mc, repeat)
+    smc, nmc = symmon_mc(N_mc, repeat), numba_mc(N_mc, repeat)
+    print("mc", smc, nmc, floor, flush=True)
     load1 = os.getloadavg()[0]
     import casadi
 
@@ -361,6 +455,20 @@ def main() -> None:
             f"| {fmt(s['tt2']['warm'])} / {fmt(jt.get('warm'))} ({fmt(s['tt2']['first'])} / {fmt(jt.get('first'))}) "
             f"| {ratio(ju.get('warm'), s['ut']['warm'])}, {ratio(jt.get('warm'), s['tt2']['warm'])} "
             f"| {s['propagate_us']:.0f} µs / {j.get('propagate_us', float('nan')):.0f} µs | {agree} |")
+    lines += ["", "### Monte Carlo", "",
+              f"The W^full MoN of `examples/gmti.toml` (the bearing declared an angle) by Monte Carlo with "
+              f"{N_mc:.0e} samples: symmon `nonlinearity(..., transform=MonteCarlo(N))` against numba "
+              f"`parallel=True` computing the same statistics ({(nmc or {}).get('threads', '—')} threads); the "
+              f"machine's limit is NumPy's SFC64 normals, 4 a sample, on {os.cpu_count()} cores: {fmt(floor)}.", "",
+              "| | first call | warm | share of the limit | MoN |",
+              "|---|---|---|---|---|",
+              f"| symmon | {fmt(smc['first'])} | {fmt(smc['warm'])} | {floor / smc['warm']:.0%} | "
+              f"{smc['mon']:.5f} ± {smc['se']:.5f} |"]
+    if nmc:
+        lines.append(f"| numba | {fmt(nmc['first'])} | {fmt(nmc['warm'])} | {floor / nmc['warm']:.0%} | {nmc['mon']:.5f} |")
+        lines += ["", f"numba / symmon (warm): {ratio(nmc['warm'], smc['warm'])}."]
+    else:
+        lines += ["", "numba is not installed here: its row is left out."]
     text = "\n".join(lines)
     print(text)
     if a.out:
