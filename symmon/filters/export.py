@@ -116,7 +116,7 @@ def filter_functions(kf: "NonlinearKalmanFilter", name: str) -> dict[str, ca.Fun
         # negative pivot), where fmin would skip the NaN.
         return ca.mmin(ca.diag(chol(A)) > 0)
 
-    opts = {"cse": True} if kind is ca.SX else {}
+    opts = {"cse": True}
     # A function takes p when its model has parameters: (x, P, p) and (x, P, p, y).
     pf, ph = ([p], ["p"]) if f.n_p else ([], []), ([p], ["p"]) if h.n_p else ([], [])
     predict = ca.Function(f"{name}_predict_step", [x, P, *pf[0]],

@@ -64,7 +64,7 @@ def _backward_function(f: Model, transform: Transform, angle_states: frozenset[i
     P_s = sym(P + ca.mtimes(ca.mtimes(gain, Ps - P_pred), gain.T))
     return ca.Function(name, [x, P, xs, Ps, Q, p], [ca.densify(x_s), ca.densify(P_s)],
                        ["x", "P", "xs", "Ps", "Q", "p"], ["x_smooth", "P_smooth"],
-                       {"cse": True} if kind is ca.SX else {})
+                       {"cse": True})
 
 
 # The backward loop: for each run, x^s_K = x_K, then K − 1 steps down to the first.

@@ -205,7 +205,7 @@ def _step_function(f: Model, h: Model, transform: Transform, angle_states: froze
     outs = [ca.densify(a) for a in (x_new, P_new, x_pred, P_pred, nu, S, loglik, nis)]
     return ca.Function(name, [x, P, y, Q, R, mask, p], outs, ["x", "P", "y", "Q", "R", "mask", "p"],
                        ["x_new", "P_new", "x_pred", "P_pred", "innovation", "S", "loglik", "nis"],
-                       {"cse": True} if kind is ca.SX else {})
+                       {"cse": True})
 
 
 def nees_graph(x, P, truth, angle_states: Iterable[int], chol):
@@ -232,7 +232,7 @@ def _nees_function(f: Model, h: Model, transform: Transform, angle_states: froze
     n = f.n_u
     x, P, t = kind.sym("x", n), kind.sym("P", n, n), kind.sym("truth", n)
     return ca.Function(name, [x, P, t], list(nees_graph(x, P, t, angle_states, chol)), ["x", "P", "truth"],
-                       ["nees", "trace"], {"cse": True} if kind is ca.SX else {})
+                       ["nees", "trace"], {"cse": True})
 
 
 # The run loop: for each run, K steps, each reading the previous step's output.  casadi_int

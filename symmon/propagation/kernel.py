@@ -87,7 +87,7 @@ def _moment_function(cm: CompiledModel, transform: Transform, angles: frozenset[
     cov = 0.5 * (cov + cov.T)  # exactly symmetric, as the NumPy rule's
     outs = [ca.densify(a) for a in (mean, cov, cross.T, ca.vertcat(pivot, asym))]
     return ca.Function(name, [m, P_in], outs, ["m", "P"], ["mean", "cov", "cross_t", "checks"],
-                       {"cse": True} if kind is ca.SX else {})
+                       {"cse": True})
 
 
 def _load(name: str) -> Callable[[Path], Callable]:
