@@ -154,7 +154,17 @@ def _quadratic_forms(e: np.ndarray, C: np.ndarray, what: str = "covariance") -> 
             f"matrix {lam[idx]:.3g}): a combination of components is known exactly, so the normalised "
             "error squared is undefined")
     z = e * r
-    q = np.einsum("...i,...i->...", z, np.linalg.solve(corr, z[..., None])[..., 0])
+    return _finite_forms(np.einsum("...i,...i->...", z, np.linalg.solve(corr, z[..., None])[..., 0]))
+
+
+def _finite_forms(q: np.ndarray) -> np.ndarray:
+    """``q``, the normalised errors squared of a batch, refused where one overflowed.
+
+    Raises
+    ------
+    NonFiniteError
+        Naming the first run and step whose form is not finite.
+    """
     if not np.all(np.isfinite(q)):
         idx = tuple(int(j) for j in np.argwhere(~np.isfinite(q))[0])
         raise NonFiniteError(f"the normalised error squared at {_where(idx, q.ndim)} overflows: the error is "
@@ -210,11 +220,7 @@ def step_nees(values: np.ndarray, trace: np.ndarray) -> np.ndarray:
             f"the state covariance P at {_where(idx, values.ndim)} is singular (a zero variance, or a "
             f"correlation matrix whose inverse has trace {trace[idx]:.3g} ≥ {1 / SINGULAR_CORR:.0e}): a "
             "combination of components is known exactly, so the normalised error squared is undefined")
-    if not np.all(np.isfinite(values)):
-        idx = tuple(int(j) for j in np.argwhere(~np.isfinite(values))[0])
-        raise NonFiniteError(f"the normalised error squared at {_where(idx, values.ndim)} overflows: the error is "
-                             "beyond 1e154 standard deviations")
-    return values
+    return _finite_forms(values)
 
 
 def real_measurements(ys: ArrayLike) -> np.ndarray:
