@@ -42,11 +42,13 @@ import functools
 import inspect
 import numbers
 import sys
+import threading
 import traceback
 from typing import Any, Callable, Sequence
 
 import numpy as np
 import sympy as sp
+from sympy.core.cache import clear_cache
 
 from ..errors import ModelError, UnsupportedFunctionError
 from .symbols import as_symbols
@@ -695,6 +697,53 @@ def _library_failure(exc: BaseException) -> UnsupportedFunctionError | None:
     return _renamed(f"{_alias(f.f_globals['__name__'])}.{getattr(code, 'co_qualname', code.co_name)}", exc)
 
 
+#: The stack and the recursion limit of the thread that runs a traced function.  sympy's
+#: evaluation asks properties such as ``is_number`` recursively, as deep as the expression
+#: (``y = sin(y) + cos(y)`` 500 times is 1000 levels of three to five frames each, Python's
+#: default limit is 1000 frames): a recursion that is linear, but deeper than the default.
+TRACE_STACK_BYTES = 512 * 2**20
+TRACE_RECURSION_LIMIT = 100_000
+_deep_lock = threading.Lock()
+_deep_runs = [0, 0]  # traces running, the recursion limit before the first
+
+
+def _deep_call(fn: Callable[..., Any], args: Sequence[Any]) -> Any:
+    """``fn(*args)`` in a thread with a stack of :data:`TRACE_STACK_BYTES` and a recursion
+    limit of :data:`TRACE_RECURSION_LIMIT` (restored when the last trace ends), in a copy
+    of the caller's context (``np.errstate`` holds)."""
+    result: dict[str, Any] = {}
+
+    def run() -> None:
+        try:
+            result["out"] = fn(*args)
+        except BaseException as exc:  # re-raised in the caller, traceback and all
+            result["exc"] = exc
+
+    ctx = contextvars.copy_context()
+    with _deep_lock:
+        if _deep_runs[0] == 0:
+            _deep_runs[1] = sys.getrecursionlimit()
+            sys.setrecursionlimit(max(_deep_runs[1], TRACE_RECURSION_LIMIT))
+        _deep_runs[0] += 1
+        old = threading.stack_size()
+        try:
+            threading.stack_size(TRACE_STACK_BYTES)
+            worker = threading.Thread(target=ctx.run, args=(run,), name="symmon-trace", daemon=True)
+            worker.start()  # the stack size applies to the threads started while it is set
+        finally:
+            threading.stack_size(old)
+    try:
+        worker.join()
+    finally:
+        with _deep_lock:
+            _deep_runs[0] -= 1
+            if _deep_runs[0] == 0:
+                sys.setrecursionlimit(_deep_runs[1])
+    if "exc" in result:
+        raise result["exc"]
+    return result["out"]
+
+
 def trace(fn: Callable[..., Any], inputs: Sequence[Any], noise: Sequence[Any] | None = None,
           args: Sequence[Any] = ()) -> tuple[tuple[sp.Symbol, ...], tuple[sp.Symbol, ...], tuple[sp.Expr, ...]]:
     """Call ``fn`` on symbolic inputs and return the sympy expressions of its outputs.
@@ -750,6 +799,10 @@ def trace(fn: Callable[..., Any], inputs: Sequence[Any], noise: Sequence[Any] | 
     misses: list = []
     sources = [_Source(labels[0], "inputs", u, misses)] + ([_Source(labels[1], "noise", v, misses)] if v else [])
     call = [_argument(s) for s in sources] + list(args)
+    # sympy's cache of expressions may hold an earlier trace's copies of the same
+    # subexpressions; a lookup compares the copies by walking them as trees, exponential
+    # for a traced loop.  Within one trace, every node is built from the nodes before it.
+    clear_cache()
     if sig is not None:
         try:
             sig.bind(*call)
@@ -760,7 +813,7 @@ def trace(fn: Callable[..., Any], inputs: Sequence[Any], noise: Sequence[Any] | 
                 f"fn(x, *args), or fn(x, v, *args) when noise= names the noise; give the further "
                 f"arguments with args=(...)") from exc
     try:
-        out = fn(*call)
+        out = _deep_call(fn, call)
     except Exception as exc:
         if misses:
             raise _misses_error(who, misses) from exc
