@@ -249,6 +249,8 @@ def _convert(e: sp.Basic, walk: Callable, partial: Callable | None = None):
         a, b = walk(e.lhs), walk(e.rhs)
         ops = {"<": a < b, "<=": a <= b, ">": a > b, ">=": a >= b, "==": a == b, "!=": a != b}
         return ops[e.rel_op]
+    if isinstance(e, sp.ITE):  # sympy's form of a comparison of a Piecewise
+        return ca.if_else(walk(e.args[0]), walk(e.args[1]), walk(e.args[2]))
     if isinstance(e, sp.Not):
         return ca.logic_not(walk(e.args[0]))
     if e == sp.true:

@@ -271,7 +271,7 @@ class Model:
         - arithmetic: ``np.add``, ``np.subtract``, ``np.multiply``, ``np.divide``,
           ``np.true_divide``, ``np.power``, ``np.pow``, ``np.float_power``,
           ``np.negative``, ``np.positive``, ``np.reciprocal``, ``np.square``, ``np.sqrt``,
-          ``np.cbrt``;
+          ``np.cbrt``, ``np.conjugate`` (``np.conj``: a traced value is real);
         - exponentials and logarithms: ``np.exp``, ``np.expm1``, ``np.log``, ``np.log1p``,
           ``np.log2``, ``np.log10``, and ``scipy.special.erf``, ``scipy.special.erfc``;
         - trigonometry: ``np.sin``, ``np.cos``, ``np.tan``, ``np.arcsin`` (``np.asin``),
@@ -280,15 +280,16 @@ class Model:
           (``np.degrees``), ``np.sinh``, ``np.cosh``, ``np.tanh``, ``np.arcsinh``
           (``np.asinh``), ``np.arccosh`` (``np.acosh``), ``np.arctanh`` (``np.atanh``);
         - branches on values: ``np.where(cond, a, b)`` (a sympy Piecewise),
-          ``np.maximum``, ``np.minimum``, ``np.fmax``, ``np.fmin``, ``np.clip``,
-          ``np.max``, ``np.min`` (Max, Min), ``np.abs`` (``np.absolute``), ``np.sign``,
+          ``np.maximum``, ``np.minimum``, ``np.clip``, ``np.max``, ``np.min`` (NaN where
+          an argument is NaN, as in NumPy), ``np.fmax``, ``np.fmin`` (Max, Min: a NaN
+          dropped), ``np.abs`` (``np.absolute``), ``np.sign``,
           ``np.floor``, ``np.ceil``, the comparisons ``np.greater``, ``np.greater_equal``,
           ``np.less``, ``np.less_equal``, ``np.equal``, ``np.not_equal`` and
           ``np.logical_and``, ``np.logical_or``, ``np.logical_xor``, ``np.logical_not``;
         - arrays: ``np.array``, ``np.asarray``, ``np.concatenate``, ``np.hstack``,
           ``np.vstack``, ``np.stack``, ``np.dot``, ``np.matmul``, ``np.inner``,
           ``np.outer``, ``np.linalg.norm``, ``np.sum``, ``np.prod``, ``np.mean``,
-          ``np.cumsum``.
+          ``np.var``, ``np.std``, ``np.cumsum``.
 
         (``np.pow``, ``np.asin`` and the other short names exist from NumPy 2.)  A
         comparison is a symbolic condition, not a Python bool: write a branch as
