@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import ctypes
 import functools
-import hashlib
 import logging
 import os
 import threading
@@ -25,14 +24,16 @@ from typing import Any, Callable, Sequence
 import casadi as ca
 import numpy as np
 import sympy as sp
+from sympy.functions.elementary.piecewise import ExprCondPair
 
 from .ccache import NativeLibrary, build_shared_library, cache_dir, has_compiler, warn_no_compiler
 from .ckernels import faster_kernels
 from .cnames import c_identifier
+from ..core.dag import Canonical, digest, postorder
 from ..core.model import Model
 from ..errors import ArgumentTypeError, ModelError, ShapeError, UnsupportedFunctionError
 
-__all__ = ["to_casadi", "CompiledModel", "compile_model", "compiled", "compiled_with_params", "cache_dir", "has_compiler", "build_shared_library",
+__all__ = ["to_casadi", "CompiledModel", "compile_model", "model_key", "compiled", "compiled_with_params", "cache_dir", "has_compiler", "build_shared_library",
            "generated_c", "rows_c", "row_spans", "MIN_ROWS_PER_THREAD"]
 
 log = logging.getLogger(__name__)
@@ -60,7 +61,11 @@ _NARY = {
 
 
 def to_casadi(exprs: Sequence[sp.Expr], symbols: Sequence[sp.Symbol], xs: ca.SX) -> list[ca.SX]:
-    """Convert sympy expressions to CasADi SX by a memoised tree walk.
+    """Convert sympy expressions to CasADi SX, each distinct node once.
+
+    The nodes are converted in post-order (:func:`symmon.core.dag.postorder`, an explicit
+    stack, no recursion), so a subexpression shared by many others (a traced loop) is one
+    CasADi node and an expression hundreds of levels deep converts like a shallow one.
 
     Parameters
     ----------
@@ -75,17 +80,74 @@ def to_casadi(exprs: Sequence[sp.Expr], symbols: Sequence[sp.Symbol], xs: ca.SX)
     UnsupportedFunctionError
         Naming the sympy function that has no CasADi counterpart.
     """
-    memo: dict[sp.Basic, ca.SX] = {s: xs[i] for i, s in enumerate(symbols)}
+    by_symbol = {s: xs[i] for i, s in enumerate(symbols)}
+    # Keyed by identity, then by structure (dag.Canonical): no lookup compares two large
+    # expressions for equality, and equal nodes that sympy built twice are one CasADi node.
+    # ``keep`` holds every node numbered, so no id is reused while the walk runs.
+    memo: dict[int, Any] = {}
+    by_class: dict[int, Any] = {}
+    canon = Canonical()
+    keep: list[sp.Basic] = []
 
     def walk(e: sp.Basic):
-        hit = memo.get(e)
-        if hit is not None:
-            return hit
-        out = _convert(e, walk)
-        memo[e] = out
-        return out
+        hit = memo.get(id(e))
+        if hit is None:
+            convert([e])  # a node _convert built itself (log1p's rest): its arguments are done
+            hit = memo[id(e)]
+        if isinstance(hit, UnsupportedFunctionError):
+            raise hit
+        return hit
 
-    return [walk(sp.sympify(e)) for e in exprs]
+    def convert(roots: Sequence[sp.Basic]) -> None:
+        nodes = postorder(roots, done=lambda n: id(n) in memo)
+        keep.extend(nodes)
+        canon.add(nodes)
+        for node in nodes:
+            k = canon.classes[id(node)]
+            if k in by_class:
+                memo[id(node)] = by_class[k]
+                continue
+            if node.is_Symbol and node in by_symbol:
+                out = by_symbol[node]
+            elif isinstance(node, ExprCondPair):
+                out = _PAIR  # read through its Piecewise, never on its own
+            else:
+                try:
+                    out = _convert(node, walk, partial)
+                except UnsupportedFunctionError as exc:
+                    # Raised when a node that needs it is converted: a node converted only
+                    # because the walk passed it (the squares under a hypot) costs nothing.
+                    out = exc
+            memo[id(node)] = by_class[k] = out
+
+    def partial(e: sp.Basic):
+        """An Add or Mul converted before whose terms are terms of ``e``, and the terms
+        left, or None.  sympy flattens x + h·sin(x) into one sum of all the terms so far,
+        so each step of a traced loop x = x + h·f(x) is a longer sum: the sum of the step
+        before, found below a term of ``e`` (f(x) holds x), is reused, and the CasADi graph
+        grows by a few nodes a step, not by the length of the sum."""
+        cls = canon.classes
+        ids = {cls[id(a)] for a in e.args}
+        found = []
+        for a in e.args:
+            for b in a.args:
+                for c in (b, *b.args):
+                    if (c.func is e.func and id(c) in memo and 1 < len(c.args) < len(e.args)
+                            and not isinstance(memo[id(c)], UnsupportedFunctionError)):
+                        found.append(c)
+        for c in sorted(found, key=lambda c: -len(c.args)):
+            inner = {cls[id(t)] for t in c.args}
+            if inner <= ids and len(inner) == len(c.args):
+                return memo[id(c)], [a for a in e.args if cls[id(a)] not in inner]
+        return None
+
+    roots = [sp.sympify(e) for e in exprs]
+    convert(roots)
+    return [walk(e) for e in roots]
+
+
+#: The memo's entry of a Piecewise's (expression, condition) pair.
+_PAIR = object()
 
 
 def _squares(e: sp.Basic) -> list[sp.Expr] | None:
@@ -120,8 +182,11 @@ def _careful(e: sp.Basic, walk: Callable):
     return None
 
 
-def _convert(e: sp.Basic, walk: Callable):
+def _convert(e: sp.Basic, walk: Callable, partial: Callable | None = None):
     if e.is_Number:
+        if e is sp.nan:
+            # A NaN branch of a traced np.maximum / np.minimum (NaN in, NaN out, as NumPy).
+            return ca.SX(np.nan)
         if e.is_real is False or not e.is_finite:
             if e in (sp.oo, -sp.oo):
                 return ca.SX(float(e))
@@ -138,6 +203,9 @@ def _convert(e: sp.Basic, walk: Callable):
         return careful
     op = _NARY.get(e.func)
     if op is not None:
+        reused = partial(e) if partial is not None and e.func in (sp.Add, sp.Mul) else None
+        if reused is not None:
+            return functools.reduce(op, [walk(a) for a in reused[1]], reused[0])
         return functools.reduce(op, [walk(a) for a in e.args])
     if isinstance(e, sp.Pow):
         base, ex = e.args
@@ -183,6 +251,8 @@ def _convert(e: sp.Basic, walk: Callable):
         a, b = walk(e.lhs), walk(e.rhs)
         ops = {"<": a < b, "<=": a <= b, ">": a > b, ">=": a >= b, "==": a == b, "!=": a != b}
         return ops[e.rel_op]
+    if isinstance(e, sp.ITE):  # sympy's form of a comparison of a Piecewise
+        return ca.if_else(walk(e.args[0]), walk(e.args[1]), walk(e.args[2]))
     if isinstance(e, sp.Not):
         return ca.logic_not(walk(e.args[0]))
     if e == sp.true:
@@ -538,18 +608,28 @@ def _nonzeros(x: ca.SX) -> ca.SX:
     return ca.reshape(x.nz[:], -1, 1)
 
 
-_cache: dict[tuple, CompiledModel] = {}
+_cache: dict[str, CompiledModel] = {}
 _cache_lock = threading.Lock()
 
 
+def model_key(outputs: Sequence[sp.Expr], symbols: Sequence[sp.Symbol]) -> str:
+    """The key of the compiled functions of ``outputs`` in the variables ``symbols``: the
+    structural hash of both, in order (:func:`symmon.core.dag.digest`).
+
+    Its cost is linear in the distinct nodes of the outputs (printing them, as an earlier
+    key did, takes exponential time on a traced loop), and it is the same in every process.
+    """
+    return digest([sp.Tuple(*outputs), sp.Tuple(*symbols)])
+
+
 def compile_model(outputs: Sequence[sp.Expr], symbols: Sequence[sp.Symbol], name: str = "g") -> CompiledModel:
-    """A :class:`CompiledModel`, cached per (outputs, symbols) in this process."""
-    key = (tuple(outputs), tuple(symbols))
+    """A :class:`CompiledModel`, cached per (outputs, symbols) in this process
+    (:func:`model_key`)."""
+    key = model_key(outputs, symbols)
     with _cache_lock:
         cm = _cache.get(key)
         if cm is None:
-            digest = hashlib.sha1(repr(key).encode()).hexdigest()[:10]
-            cm = CompiledModel(outputs, symbols, name=f"{name}_{digest}")
+            cm = CompiledModel(outputs, symbols, name=f"{name}_{key[:10]}")
             _cache[key] = cm
     return cm
 

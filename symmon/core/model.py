@@ -22,6 +22,7 @@ import sympy as sp
 from sympy.ntheory.multinomial import multinomial_coefficients
 
 from ..errors import ModelError
+from . import dag
 from .affine import changed_model, offset_vector, scale_matrix
 from .symbols import as_symbols
 from .tracing import trace
@@ -59,7 +60,7 @@ class _TooLarge(Exception):
 
 
 def _short(e: sp.Expr, n: int = 60) -> str:
-    text = str(e)
+    text = dag.bounded_str(e)
     return text if len(text) <= n else text[: n - 3] + "..."
 
 
@@ -211,10 +212,11 @@ class Model:
         g = _as_exprs(outputs)
         known = set(u) | set(v) | set(p)
         for i, e in enumerate(g):
-            unknown = e.free_symbols - known
+            # dag.free_symbols: sympy's walks the tree, 2^100 nodes for a traced 100-step loop.
+            unknown = dag.free_symbols(e) - known
             if unknown:
                 raise ModelError(
-                    f"output {i} ({e}) uses unknown symbols {sorted(map(str, unknown))}; "
+                    f"output {i} ({dag.bounded_str(e)}) uses unknown symbols {sorted(map(str, unknown))}; "
                     f"declared inputs {[str(s) for s in u]}, noise {[str(s) for s in v]}"
                     + (f", params {[str(s) for s in p]}" if p else "; declare parameters with params=[...]")
                 )
@@ -269,7 +271,7 @@ class Model:
         - arithmetic: ``np.add``, ``np.subtract``, ``np.multiply``, ``np.divide``,
           ``np.true_divide``, ``np.power``, ``np.pow``, ``np.float_power``,
           ``np.negative``, ``np.positive``, ``np.reciprocal``, ``np.square``, ``np.sqrt``,
-          ``np.cbrt``;
+          ``np.cbrt``, ``np.conjugate`` (``np.conj``: a traced value is real);
         - exponentials and logarithms: ``np.exp``, ``np.expm1``, ``np.log``, ``np.log1p``,
           ``np.log2``, ``np.log10``, and ``scipy.special.erf``, ``scipy.special.erfc``;
         - trigonometry: ``np.sin``, ``np.cos``, ``np.tan``, ``np.arcsin`` (``np.asin``),
@@ -278,15 +280,16 @@ class Model:
           (``np.degrees``), ``np.sinh``, ``np.cosh``, ``np.tanh``, ``np.arcsinh``
           (``np.asinh``), ``np.arccosh`` (``np.acosh``), ``np.arctanh`` (``np.atanh``);
         - branches on values: ``np.where(cond, a, b)`` (a sympy Piecewise),
-          ``np.maximum``, ``np.minimum``, ``np.fmax``, ``np.fmin``, ``np.clip``,
-          ``np.max``, ``np.min`` (Max, Min), ``np.abs`` (``np.absolute``), ``np.sign``,
+          ``np.maximum``, ``np.minimum``, ``np.clip``, ``np.max``, ``np.min`` (NaN where
+          an argument is NaN, as in NumPy), ``np.fmax``, ``np.fmin`` (Max, Min: a NaN
+          dropped), ``np.abs`` (``np.absolute``), ``np.sign``,
           ``np.floor``, ``np.ceil``, the comparisons ``np.greater``, ``np.greater_equal``,
           ``np.less``, ``np.less_equal``, ``np.equal``, ``np.not_equal`` and
           ``np.logical_and``, ``np.logical_or``, ``np.logical_xor``, ``np.logical_not``;
         - arrays: ``np.array``, ``np.asarray``, ``np.concatenate``, ``np.hstack``,
           ``np.vstack``, ``np.stack``, ``np.dot``, ``np.matmul``, ``np.inner``,
           ``np.outer``, ``np.linalg.norm``, ``np.sum``, ``np.prod``, ``np.mean``,
-          ``np.cumsum``.
+          ``np.var``, ``np.std``, ``np.cumsum``.
 
         (``np.pow``, ``np.asin`` and the other short names exist from NumPy 2.)  A
         comparison is a symbolic condition, not a Python bool: write a branch as
@@ -419,6 +422,8 @@ class Model:
             return "none", sp.Matrix(self._g), sp.zeros(self.n_y, 0), sp.zeros(0, 1), "no noise symbols"
         vset = set(self._v)
         uset = set(self._u)
+        if not dag.is_small(self._g):
+            return self._split_large(uset, vset)
         # Constant Jacobian in v means g = f(u) + B v (cheap: no expansion).
         Jv = sp.Matrix(self._g).jacobian(sp.Matrix(self._v))
         if all(not (e.free_symbols & (vset | uset)) for e in Jv):
@@ -451,6 +456,34 @@ class Model:
         pi = sp.Matrix(self.n_y, len(gammas), lambda i, k: rows[i].get(k, sp.Integer(0)))
         return "multiplicative", sp.Matrix(f_parts), pi, sp.Matrix(list(gammas)), (
             f"g = f(u) + π(u)γ(v) with {len(gammas)} components of γ, read off term by term without expanding")
+
+    def _split_large(self, uset: set, vset: set):
+        """The structure of outputs too large for sympy's recursive walks (a traced loop):
+        additive when each output is a sum of terms free of v and of terms c·v_j with a
+        number c (read off the top-level sum, each term's symbols found by a DAG walk),
+        general otherwise (whose formulas hold for every g)."""
+        f_parts, rows = [], []
+        for e in self._g:
+            f_terms, row = [], [sp.Integer(0)] * self.n_v
+            terms = sp.Add.make_args(e)
+            for t in terms:
+                syms = dag.free_symbols(t)
+                if not syms & vset:
+                    f_terms.append(t)
+                    continue
+                c, rest = t.as_coeff_Mul()
+                if rest in vset and not syms & uset:
+                    row[self._v.index(rest)] += c
+                    continue
+                return "general", None, None, None, (
+                    f"the outputs are too large for sympy's symbolic walks (more than {dag.MAX_TREE} nodes as "
+                    f"a tree or {dag.MAX_DEPTH} levels deep) and not a sum f(u) + B v: treated as general "
+                    "noise, whose formulas hold for every g")
+            f_parts.append(e if len(f_terms) == len(terms) else sp.Add(*f_terms))
+            rows.append(row)
+        return "additive", sp.Matrix(f_parts), sp.Matrix(rows), sp.Matrix(self._v), (
+            "g = f(u) + B v, read off the sum of each output (the outputs are too large for sympy's "
+            "symbolic walks)")
 
     @property
     def structure(self) -> str:
@@ -526,25 +559,40 @@ class Model:
             parts.append(f"noise={[str(s) for s in self._v]}")
         if self._p:
             parts.append(f"params={[str(s) for s in self._p]}")
-        parts.append(f"outputs={[str(e) for e in self._g]}")
+        parts.append(f"outputs={[dag.bounded_str(e) for e in self._g]}")
         return f"Model({self.name!r}, " + ", ".join(parts) + f", structure={self.structure!r})"
 
     def _repr_latex_(self) -> str:
         args = ", ".join(sp.latex(s) for s in self._u + self._v)
-        body = r" \\ ".join(sp.latex(e) for e in self._g)
+        body = r" \\ ".join(sp.latex(e) if dag.is_small([e]) else r"\text{" + dag.bounded_str(e).strip("<>") + "}"
+                             for e in self._g)
         return (
             r"$g(" + args + r") = \begin{bmatrix}" + body + r"\end{bmatrix}"
             + r"\quad\text{(" + (f"{self.structure} noise" if self._v else "noise-free") + r")}$"
         )
 
     def __eq__(self, other: object) -> bool:
+        # By the structural hash: sympy's == walks two equal expressions built apart as
+        # trees, exponential for two traces of one loop.
         if not isinstance(other, Model):
             return NotImplemented
-        return (self._u, self._v, self._p, self._g, self._angles) == (other._u, other._v, other._p, other._g,
-                                                                       other._angles)
+        return self is other or self.key == other.key
 
     def __hash__(self) -> int:
-        return hash((self._u, self._v, self._p, self._g, self._angles))
+        return int(self.key[:16], 16)
+
+    @cached_property
+    def key(self) -> str:
+        """A structural hash of the model (:func:`symmon.core.dag.digest`): its inputs, noise,
+        parameters, outputs in order and angle declarations.
+
+        Equal models have equal keys in every process; the cost is linear in the distinct
+        nodes of the outputs, however large their tree (a traced loop).
+        """
+        def ints(ix):
+            return sp.Tuple(*sorted(ix))
+        return dag.digest([sp.Tuple(*self._u), sp.Tuple(*self._v), sp.Tuple(*self._p), sp.Tuple(*self._g),
+                           ints(self.angle_outputs), ints(self.angle_inputs)])
 
 
 def check_param_values(params: Sequence[sp.Symbol], values: dict | None, name: str = "model") -> dict[str, float]:

@@ -16,16 +16,30 @@ them is listed in :data:`SUPPORTED` (each entry is tested against NumPy):
   ``np.linalg.norm``, ...) and SciPy's ``scipy.special.erf`` and ``erfc``;
 - branches on values: a comparison (``x[0] > 0``, ``x > 0``) is a :class:`Condition`
   (a sympy relation; combine them with ``&``, ``|`` and ``~``), ``np.where(cond, a, b)``
-  is a sympy ``Piecewise``, ``np.maximum`` / ``np.minimum`` / ``np.clip`` are ``Max`` and
-  ``Min``, ``np.abs`` and ``np.sign`` are ``Abs`` and ``sign``; CasADi compiles them to
+  is a sympy ``Piecewise``, ``np.fmax`` / ``np.fmin`` are ``Max`` and ``Min``,
+  ``np.abs`` and ``np.sign`` are ``Abs`` and ``sign``; CasADi compiles them to
   ``if_else``, ``fmax``, ``fmin``, ``fabs`` and ``sign``.  A condition in arithmetic is 1
   or 0, as a NumPy bool is.
+- ``np.var`` and ``np.std`` (``axis`` one axis or None, ``ddof``, ``keepdims``), as NumPy
+  defines them; ``np.round``, ``np.around``, ``np.rint``, ``np.trunc`` and ``round()`` are
+  refused (a step of zero derivative; ``np.floor`` and ``np.ceil`` are there for a step).
+
+NaN as in NumPy: ``np.maximum``, ``np.minimum``, ``np.clip``, ``np.max`` and ``np.min``
+give NaN where an argument is NaN (a Piecewise whose last branch is NaN, which neither
+comparison reaches), ``np.fmax`` and ``np.fmin`` drop it (C's ``fmax``).  A NaN of
+``np.sqrt``, ``np.log`` or ``np.arcsin`` outside their domain reaches the output as in NumPy,
+unless sympy removed the subexpression by an identity that holds where it is defined
+(``a - a`` is 0, ``0 * a`` is 0, ``np.exp(np.log(a))`` is ``a``): there symmon's value is the
+identity's where NumPy's is NaN.
 
 NumPy code built on these works too (``x.sum()``, ``np.hstack``, ``F @ x``).  Comparisons
 and the functions that compare (``np.maximum``, ``np.clip``, ``np.sign``, ``np.max``) work on
 traced scalars and on the arrays computed from ``x`` (``x``, ``x[1:]``, ``x - s``,
 ``F @ x``); on an array built with ``np.array([...])`` NumPy compares the entries itself
-and cannot, so apply them to the entries.
+and cannot, so apply them to the entries (the other ufuncs work on it, but for
+``np.float_power`` and ``scipy.special.erf``/``erfc``, which NumPy has no object loop of).
+A traced loop (``for _ in range(500): x = x + dt * f(x)``) is an expression DAG: it is
+walked once per distinct node (:mod:`symmon.core.dag`), never as a tree.
 
 Anything else raises an :class:`~symmon.errors.UnsupportedFunctionError` that names the
 operation by its qualified name (``np.fmod``, ``np.sort``, ``scipy.special.gamma``) and says
@@ -41,12 +55,16 @@ import contextvars
 import functools
 import inspect
 import numbers
+import re
 import sys
+import threading
 import traceback
 from typing import Any, Callable, Sequence
 
 import numpy as np
 import sympy as sp
+from sympy.core.cache import clear_cache
+from sympy.functions.elementary.piecewise import ExprCondPair
 
 from ..errors import ModelError, UnsupportedFunctionError
 from .symbols import as_symbols
@@ -58,8 +76,43 @@ def _hypot(a, b):
     return sp.sqrt(a**2 + b**2)
 
 
+def _piecewise_of(*pairs: tuple[sp.Basic, sp.Basic]) -> sp.Piecewise:
+    """``Piecewise(*pairs)`` as given, each condition kept.
+
+    sympy's Piecewise rewrites a condition that holds a Piecewise into ``ITE`` form by
+    folding the branches (a walk of the whole condition, exponential on a traced loop),
+    which drops a NaN branch: ``max(NaN, 1) >= 2`` would become ``1 >= 2``.
+    """
+    return sp.Basic.__new__(sp.Piecewise, *[sp.Tuple.__new__(ExprCondPair, sp.sympify(e), c) for e, c in pairs])
+
+
+def _nan_max(a, b):
+    """NumPy's ``np.maximum``: the larger, NaN where either is NaN.
+
+    sympy's ``Max`` compiles to C's ``fmax``, which drops a NaN (``np.fmax``).  Here a NaN
+    fails both comparisons and takes the last branch; the Piecewise is built as it is
+    (:func:`_piecewise_of`), since sympy would merge ``a < b`` into the ``True`` of the
+    complement of ``a >= b`` (it holds for every real number, not for NaN).  A comparison sympy decides (``x**2 >= 0``)
+    picks its branch.
+    """
+    ge = sp.Ge(a, b)
+    if ge in (sp.true, sp.false):
+        return a if ge is sp.true else b
+    # Unevaluated relations too: sympy folds a comparison of a Piecewise into its branches.
+    return _piecewise_of((a, sp.Ge(a, b, evaluate=False)), (b, sp.Lt(a, b, evaluate=False)), (sp.nan, sp.true))
+
+
+def _nan_min(a, b):
+    """NumPy's ``np.minimum``: the smaller, NaN where either is NaN (see :func:`_nan_max`)."""
+    le = sp.Le(a, b)
+    if le in (sp.true, sp.false):
+        return a if le is sp.true else b
+    return _piecewise_of((a, sp.Le(a, b, evaluate=False)), (b, sp.Gt(a, b, evaluate=False)), (sp.nan, sp.true))
+
+
 def _clip(a, lo, hi):
-    return sp.Min(sp.Max(a, lo), hi)
+    # np.clip is minimum(maximum(a, lo), hi): NaN in, NaN out.
+    return _nan_min(_nan_max(a, lo), hi)
 
 
 #: NumPy ufuncs that give a value, and their sympy counterparts.
@@ -92,8 +145,10 @@ _VALUES: dict[np.ufunc, Callable[..., sp.Expr]] = {
     np.sign: sp.sign,
     np.floor: sp.floor,
     np.ceil: sp.ceiling,
-    np.maximum: sp.Max, np.fmax: sp.Max,
-    np.minimum: sp.Min, np.fmin: sp.Min,
+    # np.maximum / np.minimum propagate NaN, np.fmax / np.fmin drop it (Max, Min: fmax, fmin).
+    np.maximum: _nan_max, np.fmax: sp.Max,
+    np.minimum: _nan_min, np.fmin: sp.Min,
+    np.conjugate: lambda a: a,  # traced values are real (NumPy's np.var calls it)
     np.deg2rad: lambda a: a * sp.pi / 180,
     np.rad2deg: lambda a: a * 180 / sp.pi,
 }
@@ -154,7 +209,7 @@ def _numpy_names(ufuncs) -> set[str]:
 #: NumPy and SciPy functions that are not ufuncs; each is tested (tests/core/test_tracing.py).
 _FUNCTIONS = ("np.array", "np.asarray", "np.clip", "np.concatenate", "np.cumsum", "np.dot",
               "np.hstack", "np.inner", "np.linalg.norm", "np.max", "np.mean", "np.min",
-              "np.outer", "np.prod", "np.stack", "np.sum", "np.vstack", "np.where")
+              "np.outer", "np.prod", "np.stack", "np.std", "np.sum", "np.var", "np.vstack", "np.where")
 
 #: Every NumPy and SciPy function a traced function may call: the ufuncs under all their
 #: NumPy names (``np.abs`` and ``np.absolute``), comparisons, logical functions, the NumPy
@@ -271,7 +326,9 @@ def _to_sympy(a: Any) -> sp.Expr:
     if isinstance(a, np.ndarray) and a.ndim == 0:
         a = a[()]
     if isinstance(a, Condition):
-        return sp.Piecewise((sp.Integer(1), a.expr), (sp.Integer(0), True))
+        if a.expr in (sp.true, sp.false):
+            return sp.Integer(1 if a.expr is sp.true else 0)
+        return _piecewise_of((sp.Integer(1), a.expr), (sp.Integer(0), sp.true))
     if isinstance(a, Traced):
         return a.expr
     if isinstance(a, (bool, np.bool_)):
@@ -371,6 +428,12 @@ def _ufunc_override(ufunc: np.ufunc, method: str, inputs: Sequence[Any], kwargs:
     out = kwargs.pop("out", None)
     if kwargs.get("dtype", None) in (None, object, np.dtype(object)):
         kwargs.pop("dtype", None)
+    # NumPy's own functions pass these (np.var divides with casting="unsafe", subok=False):
+    # on object arrays they choose a dtype or an array type, never a value.
+    for k in ("casting", "subok", "order"):
+        kwargs.pop(k, None)
+    if kwargs.get("where", None) is True:
+        kwargs.pop("where")
     plain = [_operand(a) for a in inputs]
     if method == "__call__":
         if kwargs:
@@ -403,7 +466,10 @@ def _where(condition, *values, **kwargs):
 
 
 def _piece(c, a, b):
-    return Traced(sp.Piecewise((_to_sympy(a), _to_condition(c)), (_to_sympy(b), True)))
+    cond = _to_condition(c)
+    if cond in (sp.true, sp.false):
+        return Traced(_to_sympy(a) if cond is sp.true else _to_sympy(b))
+    return Traced(_piecewise_of((_to_sympy(a), cond), (_to_sympy(b), sp.true)))
 
 
 _piecewise = np.frompyfunc(_piece, 3, 1)
@@ -428,8 +494,51 @@ def _clip_function(a, a_min=None, a_max=None, out=None, **kwargs):
     return _wrap(r)
 
 
+def _var_function(a, axis=None, dtype=None, out=None, ddof=0, keepdims=False, *, where=True, mean=None,
+                  correction=None, _root=False):
+    """``np.var`` (and, with ``_root``, ``np.std``): the mean of the squared deviations
+    from the mean over ``axis``, divided by N − ddof, exactly as NumPy defines it."""
+    name = "np.std" if _root else "np.var"
+    if not (_absent(out) and _absent(mean) and (where is True or _absent(where))
+            and dtype in (None, object, float)):
+        raise _refusal(f"{name} with out=, where=, mean= or an integer dtype",
+                       f"call {name}(a, axis=..., ddof=..., keepdims=...)")
+    if not _absent(correction):
+        if ddof != 0:
+            raise ValueError(f"{name}: ddof and correction can't be provided simultaneously.")
+        ddof = correction
+    arr = _wrap(np.asarray(a, dtype=object))
+    mean_ = np.mean(arr, axis=axis, keepdims=True)  # NumPy checks the axis
+    axes = range(arr.ndim) if axis is None else (axis,) if isinstance(axis, numbers.Integral) else axis
+    count = int(np.prod([arr.shape[k] for k in axes]))
+    if count - ddof <= 0:
+        raise _refusal(f"{name} with ddof={ddof} of {count} entries", "NumPy divides by N - ddof <= 0 "
+                       "(a NaN or infinity with a warning): give fewer degrees of freedom")
+    centred = arr - mean_
+    var = np.sum(centred * centred, axis=axis, keepdims=keepdims) / (count - ddof)
+    return _wrap(np.sqrt(var) if _root else var)
+
+
+def _std_function(*args, **kwargs):
+    """``np.std``: the square root of ``np.var``."""
+    return _var_function(*args, _root=True, **kwargs)
+
+
+_ROUND_WHY = ("rounding is a step function of the value: its derivative is 0 wherever it "
+              "is defined, so every linearising transform would see no spread. Round the "
+              "numbers outside the model, or write the step you mean with np.floor "
+              "(np.floor(a + 0.5) rounds halves up; NumPy rounds them to even)")
+
+
+def _round_function(a, decimals=0, out=None):
+    raise _refusal("np.round (also np.around)", _ROUND_WHY)
+
+
 #: NumPy functions with an implementation of their own for traced values.
-_SPECIAL: dict[Callable, Callable] = {np.where: _where, np.clip: _clip_function}
+_SPECIAL: dict[Callable, Callable] = {np.where: _where, np.clip: _clip_function, np.var: _var_function,
+                                      np.std: _std_function, np.round: _round_function}
+if getattr(np, "around", np.round) is not np.round:
+    _SPECIAL[np.around] = _round_function
 #: Depth of nested NumPy functions: the outermost one names a failure inside.
 _DEPTH: contextvars.ContextVar[int] = contextvars.ContextVar("symmon_trace_depth", default=0)
 
@@ -448,7 +557,7 @@ def _function_override(func: Callable, args: Sequence[Any], kwargs: dict) -> Any
     token = _DEPTH.set(depth + 1)
     try:
         return _wrap(impl(*args, **kwargs))
-    except (UnsupportedFunctionError, TypeError, AttributeError) as exc:
+    except (UnsupportedFunctionError, TypeError, AttributeError, ValueError) as exc:
         if depth or getattr(exc, "named", False):
             raise
         raise _renamed(name, exc) from exc
@@ -524,6 +633,15 @@ class Traced:
     def __floordiv__(self, o): raise _refusal("floor division //", "write np.floor(a / b)")
     __rfloordiv__ = __mod__ = __rmod__ = __floordiv__
 
+    # math.floor / math.ceil, and NumPy's loops of np.floor / np.ceil over an object
+    # array built with np.array([...]) (they call math.floor on each entry).
+    def __floor__(self): return _apply(np.floor, (self,))
+    def __ceil__(self): return _apply(np.ceil, (self,))
+
+    def __trunc__(self): raise _refusal("np.trunc (also np.fix, math.trunc)", _ROUND_WHY)
+
+    def __round__(self, ndigits=None): raise _refusal("round() (also np.round)", _ROUND_WHY)
+
 
 class Condition(Traced):
     """A traced comparison such as ``x[0] > 0``: a sympy relation, not a Python bool.
@@ -575,6 +693,11 @@ for _uf in list(_VALUES) + list(_LOGICAL):
         setattr(Traced, _uf.__name__, (lambda uf: lambda self: _apply(uf, (self,)))(_uf))
     elif _uf.nin == 2 and not hasattr(Traced, _uf.__name__):
         setattr(Traced, _uf.__name__, (lambda uf: lambda self, other: _apply(uf, (self, other)))(_uf))
+# Any other ufunc's loop over an array built with np.array([...]) finds a method that
+# refuses it by name (not NumPy's TypeError "... has no callable rint method").
+for _uf in {obj for obj in vars(np).values() if isinstance(obj, np.ufunc)}:
+    if not hasattr(Traced, _uf.__name__) and _uf.__name__.isidentifier():
+        setattr(Traced, _uf.__name__, (lambda uf: lambda self, *rest: _apply(uf, (self, *rest)))(_uf))
 
 
 class _Source:
@@ -680,7 +803,8 @@ def _misses_error(who: str, misses: list) -> ModelError:
 def _library_failure(exc: BaseException) -> UnsupportedFunctionError | None:
     """``exc`` raised inside a NumPy or SciPy function the traced function called, reported
     under that function's name; None if it did not come from one."""
-    if getattr(exc, "named", False) or not isinstance(exc, (UnsupportedFunctionError, TypeError, AttributeError)):
+    if getattr(exc, "named", False) or not isinstance(exc, (UnsupportedFunctionError, TypeError, AttributeError,
+                                                             ValueError)):
         return None
     frames = [f for f, _ in traceback.walk_tb(exc.__traceback__)
               if f.f_globals.get("__name__", "").partition(".")[0] in ("numpy", "scipy")]
@@ -693,6 +817,72 @@ def _library_failure(exc: BaseException) -> UnsupportedFunctionError | None:
     f = frames[0]
     code = f.f_code
     return _renamed(f"{_alias(f.f_globals['__name__'])}.{getattr(code, 'co_qualname', code.co_name)}", exc)
+
+
+#: The stack and the recursion limit of the thread that runs a traced function.  sympy's
+#: evaluation asks properties such as ``is_number`` recursively, as deep as the expression
+#: (``y = sin(y) + cos(y)`` 500 times is 1000 levels of three to five frames each, Python's
+#: default limit is 1000 frames): a recursion that is linear, but deeper than the default.
+TRACE_STACK_BYTES = 512 * 2**20
+TRACE_RECURSION_LIMIT = 100_000
+_deep_lock = threading.Lock()
+_deep_runs = [0, 0]  # traces running, the recursion limit before the first
+
+
+def _deep_call(fn: Callable[..., Any], args: Sequence[Any]) -> Any:
+    """``fn(*args)`` in a thread with a stack of :data:`TRACE_STACK_BYTES` and a recursion
+    limit of :data:`TRACE_RECURSION_LIMIT` (restored when the last trace ends), in a copy
+    of the caller's context (``np.errstate`` holds)."""
+    result: dict[str, Any] = {}
+
+    def run() -> None:
+        try:
+            result["out"] = fn(*args)
+        except BaseException as exc:  # re-raised in the caller, traceback and all
+            result["exc"] = exc
+
+    ctx = contextvars.copy_context()
+    with _deep_lock:
+        if _deep_runs[0] == 0:
+            _deep_runs[1] = sys.getrecursionlimit()
+            sys.setrecursionlimit(max(_deep_runs[1], TRACE_RECURSION_LIMIT))
+        _deep_runs[0] += 1
+        old = threading.stack_size()
+        try:
+            threading.stack_size(TRACE_STACK_BYTES)
+            worker = threading.Thread(target=ctx.run, args=(run,), name="symmon-trace", daemon=True)
+            worker.start()  # the stack size applies to the threads started while it is set
+        finally:
+            threading.stack_size(old)
+    try:
+        worker.join()
+    finally:
+        with _deep_lock:
+            _deep_runs[0] -= 1
+            if _deep_runs[0] == 0:
+                sys.setrecursionlimit(_deep_runs[1])
+    if "exc" in result:
+        raise result["exc"]
+    return result["out"]
+
+
+def _ufunc_type_error(exc: BaseException) -> UnsupportedFunctionError | None:
+    """NumPy's TypeError for a ufunc without a loop for object arrays (``np.isnan`` of an
+    array built with ``np.array([...])``), raised in C, as the ufunc's refusal."""
+    match = re.search(r"ufunc '(\w+)'", str(exc)) if isinstance(exc, TypeError) else None
+    special = sys.modules.get("scipy.special")
+    ufunc = next((u for u in (getattr(m, match.group(1), None) for m in (np, special) if m is not None)
+                  if isinstance(u, np.ufunc)), None) if match else None
+    if not isinstance(ufunc, np.ufunc):
+        return None
+    if _lookup(ufunc) is not None:
+        err = _refusal(f"{_qualified_name(ufunc)} of an array built with np.array([...])",
+                       "NumPy has no loop of it for object arrays. Apply it to the entries, or to an "
+                       "array computed from x (x, x[1:], F @ x)")
+    else:
+        err = _unknown(_qualified_name(ufunc))
+    err.named = True
+    return err
 
 
 def trace(fn: Callable[..., Any], inputs: Sequence[Any], noise: Sequence[Any] | None = None,
@@ -750,6 +940,10 @@ def trace(fn: Callable[..., Any], inputs: Sequence[Any], noise: Sequence[Any] | 
     misses: list = []
     sources = [_Source(labels[0], "inputs", u, misses)] + ([_Source(labels[1], "noise", v, misses)] if v else [])
     call = [_argument(s) for s in sources] + list(args)
+    # sympy's cache of expressions may hold an earlier trace's copies of the same
+    # subexpressions; a lookup compares the copies by walking them as trees, exponential
+    # for a traced loop.  Within one trace, every node is built from the nodes before it.
+    clear_cache()
     if sig is not None:
         try:
             sig.bind(*call)
@@ -760,11 +954,11 @@ def trace(fn: Callable[..., Any], inputs: Sequence[Any], noise: Sequence[Any] | 
                 f"fn(x, *args), or fn(x, v, *args) when noise= names the noise; give the further "
                 f"arguments with args=(...)") from exc
     try:
-        out = fn(*call)
+        out = _deep_call(fn, call)
     except Exception as exc:
         if misses:
             raise _misses_error(who, misses) from exc
-        named = _library_failure(exc)
+        named = _library_failure(exc) or _ufunc_type_error(exc)
         if named is not None:
             raise named from exc
         if isinstance(exc, IndexError) or (isinstance(exc, ValueError) and "values to unpack" in str(exc)):

@@ -255,7 +255,7 @@ def _signatures(P: str, kf) -> tuple[str, str]:
 def _model_hash(kf: "NonlinearKalmanFilter", transform) -> str:
     """sha256 of what the C computes: f, h, Q, R, the transform and the angles."""
     f, h = kf.f_model, kf.h_model
-    key = repr((f.outputs, f.inputs, f.noise, f.params, h.outputs, h.inputs, h.noise, h.params, transform,
+    key = repr((f.key, h.key, transform,
                 sorted(kf.angle_states), sorted(h.angle_outputs),
                 np.asarray(kf.Q).tolist(), np.asarray(kf.R).tolist()))
     return hashlib.sha256(key.encode()).hexdigest()

@@ -98,7 +98,7 @@ class _CompiledSmoother(CompiledLoop):
     """The backward step of one (f, transform), as C with its loop or on CasADi's VM."""
 
     def __init__(self, f: Model, transform: Transform, angle_states: frozenset[int], names: tuple = ()) -> None:
-        key = repr((f.outputs, f.inputs, f.noise, f.params, names, transform, sorted(angle_states)))
+        key = repr((f.key, names, transform, sorted(angle_states)))
         name = "sm_rts_" + hashlib.sha1(key.encode()).hexdigest()[:12]
         fn = _backward_function(f, transform, angle_states, names, name)
         self.n, self.n_p = f.n_u, len(names)

@@ -352,7 +352,7 @@ class _CompiledStep(CompiledLoop):
 
     def __init__(self, f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
                  iterations: int = 1) -> None:
-        key = repr((f.outputs, f.inputs, f.noise, f.params, h.outputs, h.inputs, h.noise, h.params, transform,
+        key = repr((f.key, h.key, transform,
                     sorted(angle_states), sorted(h.angle_outputs)) + ((iterations,) if iterations > 1 else ()))
         name = "sm_nkf_" + hashlib.sha1(key.encode()).hexdigest()[:12]
         fn = _step_function(f, h, transform, angle_states, name, iterations)

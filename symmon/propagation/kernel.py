@@ -35,7 +35,7 @@ import numpy as np
 
 from ..codegen.symbolic import graph_kind, moments
 from ..compile.ccache import NativeLibrary
-from ..compile.compiled import CompiledModel, generated_c, row_spans
+from ..compile.compiled import CompiledModel, generated_c, model_key, row_spans
 from ..core.gaussian import SYMMETRY_RTOL
 from ..transforms.base import Moments, Transform, likely_angles
 
@@ -103,7 +103,8 @@ class BatchKernel:
     """The compiled moments of one (model, point rule, angle outputs) over a batch."""
 
     def __init__(self, cm: CompiledModel, transform: Transform, angles: frozenset[int]) -> None:
-        key = repr((cm.source_exprs, cm.symbols, transform, sorted(angles)))
+        # The model by its structural hash: printing a traced loop's outputs takes exponential time.
+        key = repr((model_key(cm.source_exprs, cm.symbols), transform, sorted(angles)))
         self.name = name = "sm_batch_" + hashlib.sha1(key.encode()).hexdigest()[:12]
         self.f = f = _moment_function(cm, transform, angles, name)
         self.n, self.n_y = cm.n_w, cm.n_y

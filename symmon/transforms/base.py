@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any, Callable, ClassVar
 import numpy as np
 import sympy as sp
 
+from ..core import dag
 from ..core.angles import wrap_angle  # re-exported: defined beside the other angle helpers
 from ..core.gaussian import PSD_RTOL, SYMMETRY_RTOL, as_covariance, as_vector, matrix_sqrt
 from ..errors import (AngleWarning, ArgumentError, ArgumentTypeError, IndefiniteCovarianceError, NonFiniteError,
@@ -608,11 +609,16 @@ def _likely_angles(exprs: tuple, declared: frozenset[int]) -> dict[int, float]:
     for i, e in enumerate(exprs):
         if i in declared or not isinstance(e, sp.Basic):
             continue
-        terms = [t for t in sp.Add.make_args(e) if t.has(sp.atan2)]
+        # DAG walks (symmon.core.dag): sympy's has() walks the tree, exponential on a traced loop.
+        terms = [t for t in sp.Add.make_args(e) if dag.contains(t, sp.atan2)]
         if len(terms) != 1:
             continue
-        c, rest = terms[0].as_independent(*terms[0].free_symbols, as_Add=False)
-        if isinstance(rest, sp.atan2) and c.is_number and c != 0 and _additive_rest(e - terms[0], terms[0]):
+        # c·atan2(·, ·) with c a number: the factors but one atan2 have no symbols.
+        factors = sp.Mul.make_args(terms[0])
+        angles = [f for f in factors if isinstance(f, sp.atan2)]
+        c = sp.Mul(*[f for f in factors if not isinstance(f, sp.atan2)])
+        if (len(angles) == 1 and not dag.free_symbols(c) and c.is_number and c != 0
+                and _additive_rest(e - terms[0], terms[0])):
             out[i] = float(abs(c)) * np.pi
     return out
 
@@ -623,11 +629,11 @@ def _additive_rest(others: sp.Expr, angle: sp.Expr) -> bool:
     Additive noise shifts the cut only a little; a term in the angle's own arguments (a
     unit change mixing range and bearing, say) moves it anywhere, and then no cut is guessed.
     """
-    syms = others.free_symbols
+    syms = dag.free_symbols(others)
     if not syms:
         return True
-    if syms & angle.free_symbols:
-        return False
+    if syms & dag.free_symbols(angle) or not dag.is_small([others]):
+        return False  # a rest too large for sympy's diff: no cut guessed (this is a hint only)
     return all(sp.diff(others, a, b) == 0 for a in syms for b in syms)
 
 

@@ -100,7 +100,7 @@ def test_noise_argument_and_structure():
 @pytest.mark.parametrize("fn, expected", [
     (lambda x: np.exp(x[0]) * np.log(x[1]), lambda a, b: sp.exp(a) * sp.log(b)),
     (lambda x: np.sin(x) ** 2, lambda a, b: [sp.sin(a) ** 2, sp.sin(b) ** 2]),
-    (lambda x: np.maximum(x[0], 2) - np.abs(x[1]), lambda a, b: sp.Max(a, 2) - sp.Abs(b)),
+    (lambda x: np.fmax(x[0], 2) - np.abs(x[1]), lambda a, b: sp.Max(a, 2) - sp.Abs(b)),
     (lambda x: x.sum() / 2, lambda a, b: (a + b) / 2),
     (lambda x: np.dot(x, x), lambda a, b: a**2 + b**2),
     (lambda x: 2.0 ** x[0], lambda a, b: 2 ** a),
@@ -246,7 +246,13 @@ def test_indexing_with_traced_values_is_refused():
     (lambda x: np.sort(x), "np.sort"),
     (lambda x: np.median(x), "np.median"),
     (lambda x: np.sinc(x[0]), "np.sinc"),
-    (lambda x: np.round(x[0], 2), "np.round"),
+    (lambda x: np.round(x[0], 2), r"np.round (also np.around)"),
+    (lambda x: np.around(x), r"np.round (also np.around)"),
+    (lambda x: np.rint(np.array([x[0], x[1]])), "np.rint"),  # NumPy's loop over an object array
+    (lambda x: np.isnan(np.array([x[0], x[1]])), "np.isnan"),  # NumPy has no loop for objects
+    (lambda x: np.reshape(x, (3, 3)), "np.reshape"),  # NumPy's ValueError, under its name
+    (lambda x: round(x[0]), "round() (also np.round)"),
+    (lambda x: math.trunc(x[0]), "np.trunc (also np.fix, math.trunc)"),
     (lambda x: np.linalg.solve(np.eye(2), x), "np.linalg.solve"),
     # NumPy and SciPy functions without a traced argument to dispatch on: named from the call
     (lambda x: np.sort(np.array([x[0], x[1]])), "np.sort"),
@@ -302,6 +308,8 @@ FUNCTION_CASES: dict[str, Callable] = {
     "np.prod": lambda x: np.prod(x),
     "np.stack": lambda x: np.stack([x, 2 * x]).ravel(),
     "np.sum": lambda x: np.sum(x),
+    "np.std": lambda x: np.std(x, ddof=1),
+    "np.var": lambda x: np.hstack([np.var(x), np.var(np.outer(x, x[:2]), axis=0)]),
     "np.vstack": lambda x: np.vstack([x, x[::-1]]).ravel(),
     "np.where": lambda x: np.where(x > 0.5, x, -x),
 }
@@ -427,20 +435,64 @@ def test_np_where_with_one_argument_is_refused():
         trace(lambda x: np.where(x > 0)[0], ["a", "b"])
 
 
+def _max(a, b):
+    """np.maximum's form: NaN where a or b is NaN (neither comparison holds)."""
+    return f"Piecewise(({a}, {a} >= {b}), ({b}, {a} < {b}), (nan, True))"
+
+
+def _min(a, b):
+    return f"Piecewise(({a}, {a} <= {b}), ({b}, {a} > {b}), (nan, True))"
+
+
 @pytest.mark.parametrize("fn, expected", [
-    (lambda x: np.maximum(x, 0.5), lambda a, b: [sp.Max(a, sp.Rational(1, 2)), sp.Max(b, sp.Rational(1, 2))]),
-    (lambda x: np.minimum(x[0], x[1]), lambda a, b: [sp.Min(a, b)]),
-    (lambda x: np.abs(x - 1), lambda a, b: [sp.Abs(a - 1), sp.Abs(b - 1)]),
-    (lambda x: np.sign(x), lambda a, b: [sp.sign(a), sp.sign(b)]),
-    (lambda x: np.clip(x, -1, 1), lambda a, b: [sp.Min(sp.Max(a, -1), 1), sp.Min(sp.Max(b, -1), 1)]),
-    (lambda x: x.clip(0, None), lambda a, b: [sp.Max(a, 0), sp.Max(b, 0)]),
-    (lambda x: np.max(x), lambda a, b: [sp.Max(a, b)]),
-    (lambda x: x.min(), lambda a, b: [sp.Min(a, b)]),
-    (lambda x: np.logical_and(x[0] > 0, x[1]), lambda a, b: [sp.Piecewise((1, (a > 0) & sp.Ne(b, 0)), (0, True))]),
+    (lambda x: np.maximum(x, 0.5), lambda a, b: [_max(a, "1/2"), _max(b, "1/2")]),
+    (lambda x: np.minimum(x[0], x[1]), lambda a, b: [_min(a, b)]),
+    (lambda x: np.fmax(x[0], x[1]), lambda a, b: [str(sp.Max(a, b))]),
+    (lambda x: np.fmin(x, 1), lambda a, b: [str(sp.Min(a, 1)), str(sp.Min(b, 1))]),
+    (lambda x: np.abs(x - 1), lambda a, b: [str(sp.Abs(a - 1)), str(sp.Abs(b - 1))]),
+    (lambda x: np.sign(x), lambda a, b: [str(sp.sign(a)), str(sp.sign(b))]),
+    (lambda x: np.clip(x[0], -1, 1), lambda a, b: [_min(_max(a, -1), 1)]),
+    (lambda x: x.clip(0, None), lambda a, b: [_max(a, 0), _max(b, 0)]),
+    (lambda x: np.max(x), lambda a, b: [_max(a, b)]),
+    (lambda x: x.min(), lambda a, b: [_min(a, b)]),
+    (lambda x: np.maximum(x[0] ** 2, 0), lambda a, b: [str(a**2)]),  # a comparison sympy decides
+    (lambda x: np.logical_and(x[0] > 0, x[1]), lambda a, b: [str(sp.Piecewise((1, (a > 0) & sp.Ne(b, 0)), (0, True)))]),
 ])
 def test_value_branches_are_max_min_abs_sign(fn, expected):
     a, b = sp.symbols("a b", real=True)
-    assert list(trace(fn, ["a", "b"])[2]) == expected(a, b)
+    assert [str(g) for g in trace(fn, ["a", "b"])[2]] == expected(a, b)
+
+
+NAN_CASES = {
+    "np.maximum": (lambda x: np.maximum(np.sqrt(x[0]), x[1]), True),
+    "np.minimum": (lambda x: np.minimum(x[1], np.log(x[0])), True),
+    "np.clip": (lambda x: np.clip(np.sqrt(x[0]), 0.0, x[1]), True),
+    "np.max": (lambda x: np.max(np.sqrt(x)), True),
+    "np.min": (lambda x: np.min(np.arcsin(x - 0.5)), True),
+    "nested": (lambda x: np.maximum(np.minimum(np.sqrt(x[0]), 1.0), x[1]), True),
+    "compared": (lambda x: np.where(np.maximum(np.sqrt(x[0]), x[1]) >= 0.5, 1.0, -1.0), None),  # NaN >= 0.5 is False
+    "np.fmax": (lambda x: np.fmax(np.sqrt(x[0]), x[1]), False),
+    "np.fmin": (lambda x: np.fmin(x[1], np.log(x[0])), False),
+}
+NAN_POINTS = [(-1.0, 0.25), (4.0, 0.25), (0.25, 3.0), (np.nan, 0.5), (0.5, np.nan), (np.nan, np.nan),
+              (0.0, -0.0), (np.inf, 1.0), (-np.inf, 1.0)]
+
+
+@pytest.mark.parametrize("name", NAN_CASES)
+def test_maximum_and_minimum_propagate_nan_as_numpy_does(name):
+    """np.maximum, np.minimum, np.clip, np.max and np.min give NaN where an argument is NaN
+    (a sqrt or log outside its domain, a NaN input); np.fmax and np.fmin drop it: the
+    compiled model against NumPy at each point, NaN for NaN, to rounding elsewhere."""
+    fn, propagates = NAN_CASES[name]
+    m = sm.Model.from_function(fn, inputs=["a", "b"])
+    cm = sm.compile.CompiledModel(m.outputs, m.inputs, name=f"nan_{name[3:]}", compiled=False)
+    got = cm.eval_g(np.array(NAN_POINTS))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        want = np.array([np.atleast_1d(np.asarray(fn(np.array(p)), dtype=float)) for p in NAN_POINTS])
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(want), err_msg=name)
+    np.testing.assert_allclose(got, want, rtol=ROUNDING_RTOL, equal_nan=True, err_msg=name)
+    if propagates is not None:  # at a = -1 the sqrt or log is NaN: kept, or dropped by fmax / fmin
+        assert np.isnan(want[0, 0]) == propagates
 
 
 def test_a_traced_branch_propagates_with_its_derivatives():
@@ -475,3 +527,49 @@ def test_the_documented_list_is_supported(where, text, after):
     assert set(SUPPORTED) - listed == set(), f"{where} omits these"
     # a name listed but not supported is an alias that this NumPy does not have (np.pow < 2.0)
     assert {n for n in listed - set(SUPPORTED) if hasattr(np, n.removeprefix("np."))} == set(), where
+
+
+# --------------------------------------------------------------------------- np.var, np.std, arrays built by hand
+@pytest.mark.parametrize("call", [
+    lambda x: np.var(x), lambda x: np.std(x), lambda x: np.var(x, ddof=1), lambda x: np.std(x, correction=1),
+    lambda x: np.var(np.outer(x, x[:2]), axis=0), lambda x: np.std(np.outer(x, x[:2]), axis=1, ddof=1),
+    lambda x: np.var(np.outer(x, x[:2]), axis=1, keepdims=True).ravel(),
+    lambda x: np.var(np.array([x[0], 2 * x[1], x[2]])),  # NumPy's own np.var on an object array
+])
+def test_var_and_std_trace_to_what_numpy_computes(call):
+    inputs, _, outputs = trace(call, ["a", "b", "c"])
+    for point in FUNCTION_POINTS:
+        want = np.asarray(call(np.array(point)), dtype=float).ravel()
+        np.testing.assert_allclose(_casadi_values(outputs, inputs, point), want, rtol=ROUNDING_RTOL, atol=1e-15)
+
+
+def test_var_with_no_degrees_of_freedom_left_is_refused():
+    with pytest.raises(UnsupportedFunctionError, match=r"np.var with ddof=3 of 3 entries"):
+        trace(lambda x: np.var(x, ddof=3), ["a", "b", "c"])
+
+
+#: The ufuncs whose NumPy loop over an object array compares the entries (refused on an
+#: array built with np.array([...]); they work on traced arrays and scalars).
+COMPARING = {"np.sign", "np.maximum", "np.minimum", "np.fmax", "np.fmin", "np.greater", "np.greater_equal",
+             "np.less", "np.less_equal", "np.equal", "np.not_equal", "np.logical_and", "np.logical_or",
+             "np.logical_not"}
+#: The ufuncs NumPy has no loop of for object arrays.
+NO_OBJECT_LOOP = {"np.float_power", "scipy.special.erf", "scipy.special.erfc"}
+
+
+@pytest.mark.parametrize("name", [n for n in SUPPORTED if isinstance(_resolve(n), np.ufunc) and n not in FUNCTION_CASES])
+def test_every_supported_ufunc_on_an_array_built_by_hand(name):
+    """np.floor(np.array([x[0], x[1]])): NumPy's own loop over the entries.  Those that
+    compare the entries cannot be decided and are refused with the advice."""
+    f = _resolve(name)
+    fn = (lambda x: f(np.array([x[0], x[1]]))) if f.nin == 1 else (lambda x: f(np.array([x[0], x[1]]), np.array([x[1], x[0]])))
+    if name in COMPARING | NO_OBJECT_LOOP:
+        with pytest.raises(UnsupportedFunctionError, match="deciding a traced comparison" if name in COMPARING
+                           else rf"^{re.escape(name)} of an array built with np.array\(\[...\]\) is not supported"):
+            trace(fn, ["w0", "w1"])
+        return
+    inputs, _, outputs = trace(fn, ["w0", "w1"])
+    for point in UFUNC_POINTS.get(name, POINTS):
+        want = np.asarray(fn(np.array(point)), dtype=float).ravel()
+        np.testing.assert_allclose(_casadi_values(outputs, inputs, point), want, rtol=ROUNDING_RTOL, atol=1e-15,
+                                   err_msg=f"{name} at {point}")
