@@ -650,7 +650,20 @@ def compiled(model: Model) -> CompiledModel:
         raise ModelError(
             f"model {model.name!r} has parameters {[str(s) for s in model.params]}: give their values, "
             "model.with_params({...}) (the filters take params= at each call)")
-    return compile_model(model.outputs, model.inputs + model.noise, model.name)
+    return _of_model(model, False)
+
+
+#: CompiledModel of each model by its structural key (``Model.key``, computed once per Model
+#: object), so that a call with the same model costs one lookup, not a walk of its outputs.
+_by_model: dict[tuple[str, bool], CompiledModel] = {}
+
+
+def _of_model(model: Model, with_params: bool) -> CompiledModel:
+    cm = _by_model.get((model.key, with_params))
+    if cm is None:
+        symbols = model.inputs + model.noise + (model.params if with_params else ())
+        cm = _by_model[(model.key, with_params)] = compile_model(model.outputs, symbols, model.name)
+    return cm
 
 
 def compiled_with_params(model: Model) -> CompiledModel:
@@ -659,4 +672,4 @@ def compiled_with_params(model: Model) -> CompiledModel:
     parameters are inputs of the compiled steps and their derivatives are exact."""
     if not isinstance(model, Model):
         raise ArgumentTypeError(f"expected a symmon.Model, got {type(model).__name__}")
-    return compile_model(model.outputs, model.inputs + model.noise + model.params, model.name)
+    return _of_model(model, True)
