@@ -34,7 +34,7 @@ from ..core.model import Model
 from ..errors import ArgumentTypeError, ModelError, ShapeError, UnsupportedFunctionError
 
 __all__ = ["to_casadi", "CompiledModel", "compile_model", "model_key", "compiled", "compiled_with_params", "cache_dir", "has_compiler", "build_shared_library",
-           "generated_c", "rows_c", "row_spans", "MIN_ROWS_PER_THREAD"]
+           "generated_c", "rows_c", "row_spans", "MIN_ROWS_PER_THREAD", "in_threads", "WorkArrays"]
 
 log = logging.getLogger(__name__)
 
@@ -336,6 +336,32 @@ def row_spans(N: int, least: int = MIN_ROWS_PER_THREAD) -> list[tuple[int, int]]
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
 
+def in_threads(part: Callable[[Any], int], items: Sequence[Any]) -> list[int]:
+    """``part(item)`` for each item, on one thread per item when there are several (a
+    ctypes call into compiled C releases the GIL, so they run in parallel); the return
+    codes, in order."""
+    if len(items) == 1:
+        return [part(items[0])]
+    with ThreadPoolExecutor(len(items)) as pool:
+        return list(pool.map(part, items))
+
+
+class WorkArrays:
+    """The integer and real work arrays of compiled CasADi functions, one pair per thread,
+    made on first use in that thread and large enough for every function given."""
+
+    def __init__(self, *functions: ca.Function) -> None:
+        self.sizes = (max(max(f.sz_iw() for f in functions), 1), max(max(f.sz_w() for f in functions), 1))
+        self._local = threading.local()
+
+    def addresses(self) -> tuple[int, int]:
+        """The addresses of this thread's arrays (integer, real)."""
+        ws = getattr(self._local, "ws", None)
+        if ws is None:
+            ws = self._local.ws = (np.zeros(self.sizes[0], dtype=np.int64), np.zeros(self.sizes[1]))
+        return ws[0].ctypes.data, ws[1].ctypes.data
+
+
 # --------------------------------------------------------------------------- compiled model
 class _Batched:
     """Evaluate a Function of one (n_in,) input on batches of rows, through buffers.
@@ -352,7 +378,7 @@ class _Batched:
         self.out_nnz = [f.nnz_out(i) for i in range(f.n_out())]
         self._maps: dict[int, ca.Function] = {}
         self._lock = threading.Lock()
-        self._local = threading.local()
+        self._work = WorkArrays(f)
         self.native: NativeLibrary | None = None
         self.used = False
 
@@ -364,14 +390,6 @@ class _Batched:
                     self.native = NativeLibrary(rows_c(self._f), self._f.name(), _load_rows(self._f.name()),
                                                 stacklevel=5)
         return self.native
-
-    def _workspace(self) -> tuple[int, int]:
-        """Addresses of this thread's work arrays (integer, real), made once per thread."""
-        ws = getattr(self._local, "ws", None)
-        if ws is None:
-            ws = self._local.ws = (np.zeros(max(self._f.sz_iw(), 1), dtype=np.int64),
-                                   np.zeros(max(self._f.sz_w(), 1)))
-        return ws[0].ctypes.data, ws[1].ctypes.data
 
     def _vm_map(self, n: int) -> ca.Function:
         with self._lock:
@@ -401,17 +419,11 @@ class _Batched:
         if rows is not None:
             def part(ab: tuple[int, int]) -> int:
                 a, b = ab
-                iw, w = self._workspace()
+                iw, w = self._work.addresses()
                 ptrs = (ctypes.c_void_p * len(outs))(*[o[a:].ctypes.data for o in outs])
                 return rows(X[a:].ctypes.data, ptrs, b - a, iw, w)
 
-            spans = row_spans(N)
-            if len(spans) == 1:
-                errs = [part(spans[0])]
-            else:  # ctypes releases the GIL in the C call: the spans run in parallel
-                with ThreadPoolExecutor(len(spans)) as pool:
-                    errs = list(pool.map(part, spans))
-            if any(errs):
+            if any(in_threads(part, row_spans(N))):
                 raise RuntimeError(f"the compiled function {self._f.name()} returned an error")
             return outs
         start = 0

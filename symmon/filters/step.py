@@ -40,14 +40,13 @@ import hashlib
 import math
 import os
 import threading
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Iterable
 
 import casadi as ca
 import numpy as np
 
 from ..compile.ccache import NativeLibrary
-from ..compile.compiled import generated_c
+from ..compile.compiled import WorkArrays, generated_c, in_threads
 from ..errors import SymmonError
 from ..core.model import Model
 from ..compile import compiled, compiled_with_params
@@ -300,11 +299,10 @@ class CompiledLoop:
     def __init__(self, f: ca.Function, code: str, argtypes: list, stacklevel: int = 4,
                  also: tuple[ca.Function, ...] = ()) -> None:
         self.f = f
-        self._work = (max(g.sz_iw() for g in (f,) + also), max(g.sz_w() for g in (f,) + also))
+        self._work = WorkArrays(f, *also)
         self._argtypes = argtypes
         # Without a compiler, compiled() has already warned (once) while the step was built.
         self._lib = NativeLibrary(code, f.name(), self._load, stacklevel=stacklevel + 1)
-        self._local = threading.local()
 
     def _load(self, so):
         run = getattr(ctypes.CDLL(str(so)), f"{self.f.name()}_run")
@@ -314,11 +312,7 @@ class CompiledLoop:
 
     def _workspace(self) -> tuple[int, int]:
         """Addresses of this thread's work arrays (integer, real), made once per thread."""
-        ws = getattr(self._local, "ws", None)
-        if ws is None:
-            ws = self._local.ws = (np.zeros(max(self._work[0], 1), dtype=np.int64),
-                                   np.zeros(max(self._work[1], 1)))
-        return ws[0].ctypes.data, ws[1].ctypes.data
+        return self._work.addresses()
 
     @property
     def is_compiled(self) -> bool:
@@ -338,12 +332,7 @@ class CompiledLoop:
         SymmonError
             If a chunk's C loop returned an error, naming ``what``.
         """
-        if len(chunks) == 1:
-            errs = [part(chunks[0])]
-        else:
-            with ThreadPoolExecutor(len(chunks)) as pool:
-                errs = list(pool.map(part, chunks))
-        if any(errs):
+        if any(in_threads(part, chunks)):
             raise SymmonError(f"the compiled {what} {self.f.name()} returned an error")
 
 

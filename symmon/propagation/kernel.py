@@ -26,7 +26,6 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import threading
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Callable
 
@@ -35,7 +34,7 @@ import numpy as np
 
 from ..codegen.symbolic import graph_kind, moments
 from ..compile.ccache import NativeLibrary
-from ..compile.compiled import CompiledModel, generated_c, model_key, row_spans
+from ..compile.compiled import CompiledModel, WorkArrays, generated_c, in_threads, model_key, row_spans
 from ..core.gaussian import SYMMETRY_RTOL
 from ..transforms.base import Moments, Transform, likely_angles
 
@@ -113,6 +112,7 @@ class BatchKernel:
         code = generated_c(f) + _LOOP.format(name=name, sz_arg=max(f.sz_arg(), 2), sz_res=max(f.sz_res(), 4), n=n,
                                              nn=n * n, n_y=n_y, nyy=n_y * n_y, nny=n * n_y)
         self._lib = NativeLibrary(code, name, _load(name), stacklevel=4, background=True)
+        self._work = WorkArrays(f)
 
     @property
     def evaluator(self) -> str:
@@ -134,27 +134,18 @@ class BatchKernel:
         M, P = np.ascontiguousarray(M, dtype=float), np.ascontiguousarray(P, dtype=float)
         out = (np.empty((K, self.n_y)), np.empty((K, self.n_y, self.n_y)), np.empty((K, self.n_y, self.n)),
                np.empty((K, 2)))
-        f = self.f
 
         def part(ab: tuple[int, int]) -> int:
             a, b = ab
-            iw = np.empty(max(f.sz_iw(), 1), dtype=np.int64)  # one work array per thread
-            w = np.empty(max(f.sz_w(), 1))
-            return run(M[a:].ctypes.data, P[a:].ctypes.data, *(o[a:].ctypes.data for o in out), b - a,
-                       iw.ctypes.data, w.ctypes.data)
+            iw, w = self._work.addresses()
+            return run(M[a:].ctypes.data, P[a:].ctypes.data, *(o[a:].ctypes.data for o in out), b - a, iw, w)
 
-        spans = row_spans(K, MIN_PER_THREAD)
-        if len(spans) == 1:
-            errs = [part(spans[0])]
-        else:  # ctypes releases the GIL in the C call
-            with ThreadPoolExecutor(len(spans)) as pool:
-                errs = list(pool.map(part, spans))
-        if any(errs):
+        if any(in_threads(part, row_spans(K, MIN_PER_THREAD))):
             raise RuntimeError(f"the compiled batch moments {self.name} returned an error")
         return out
 
 
-_kernels: dict[tuple, BatchKernel] = {}
+_kernels: dict[tuple, BatchKernel | None] = {}
 _lock = threading.Lock()
 
 
@@ -165,15 +156,13 @@ def batch_kernel(cm: CompiledModel, transform: Transform, angles: frozenset[int]
     a model with an undeclared angle output, or no compiled evaluation (``cm.compiled``)."""
     if K < MIN_BATCH or not cm.compiled or not transform.point_rule or transform.taylor_order is not None:
         return None
-    rule = transform.unit_rule(cm.n_w)
-    if rule is None or np.any(np.asarray(rule[2]) < 0) or likely_angles(cm, angles):
-        return None
     key = (cm, transform, angles)
-    with _lock:
-        kernel = _kernels.get(key)
-        if kernel is None:
-            kernel = _kernels[key] = BatchKernel(cm, transform, angles)
-        return kernel
+    with _lock:  # decided once per key: the rule's points and the angle hint are not rebuilt per call
+        if key not in _kernels:
+            rule = transform.unit_rule(cm.n_w)
+            takes = rule is not None and not np.any(np.asarray(rule[2]) < 0) and not likely_angles(cm, angles)
+            _kernels[key] = BatchKernel(cm, transform, angles) if takes else None
+        return _kernels[key]
 
 
 def kernel_moments(kernel: BatchKernel, cm: CompiledModel, transform: Transform, M: np.ndarray, P: np.ndarray
