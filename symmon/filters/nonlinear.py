@@ -467,7 +467,7 @@ class NonlinearKalmanFilter:
         out, choices = self.strategy.run(self, Yb, m0, C0, kept, **extra)
         nees = {k: out.pop(k) for k in ("nees", "nees_trace") if k in out}
         if truth is not None and not nees:  # a strategy that keeps every array: from x and P
-            nees = {"x": out["x"], "P": out["P"]}
+            nees = {"x": out["x"], "P": out["P"], "truth": truth}
         out = {k: v for k, v in out.items() if k == "loglik" or kept is None or k in kept}
         # A NaN reaches every later log-likelihood: the first non-finite one is the step.
         bad = ~np.isfinite(out["loglik"])
@@ -483,13 +483,11 @@ class NonlinearKalmanFilter:
                 "covariance S is singular or not positive definite, a covariance lost positive "
                 "definiteness, or a derivative is undefined there, e.g. sqrt at 0 or atan2(0, 0))"
             )
-        if truth is not None:  # after the check above: a NaN state is a failed filter, not a singular P
-            one = (lambda v: v) if runs is not None else (lambda v: v[0])  # a single run's errors name no run
-            out["nees_values"] = (step_nees(one(nees["nees"]), one(nees["nees_trace"])) if "nees" in nees
-                                  else _nees(one(nees["x"]), one(nees["P"]), one(truth), sorted(self.angle_states)))
-            if runs is None:
-                out["nees_values"] = out["nees_values"][None]
         arrays = {k: v if runs is not None else v[0] for k, v in out.items()}
+        if nees:  # after the check above: a NaN state is a failed filter, not a singular P
+            nees = {k: v if runs is not None else v[0] for k, v in nees.items()}  # a single run's errors name no run
+            arrays["nees_values"] = (step_nees(nees["nees"], nees["nees_trace"]) if "nees" in nees
+                                     else _nees(nees["x"], nees["P"], nees["truth"], sorted(self.angle_states)))
         for v in arrays.values():
             v.flags.writeable = False  # fresh arrays of this call: frozen, not copied
         if choices is not None:
