@@ -71,7 +71,7 @@ from ..core.checks import check_gaussian, check_model, noise_cov, readonly
 from .results import (ConsistencyTest, KalmanResult, NonlinearKalmanResult, SmootherResult, check_bank_size, check_keep,
                       check_truth, kept_numbers, real_measurements, step_nees, _nees)
 from .smoother import compiled_smoother
-from .step import filter_params
+from .step import filter_params, first_nonfinite
 from .strategy import FilterStrategy, RuleStrategy
 from ..core.gaussian import Gaussian, as_covariance, float_array
 from ..core.model import Model
@@ -468,15 +468,13 @@ class NonlinearKalmanFilter:
         nees = {k: out.pop(k) for k in ("nees", "nees_trace") if k in out}
         if truth is not None and not nees:  # a strategy that keeps every array: from x and P
             nees = {"x": out["x"], "P": out["P"], "truth": truth}
+        first = out.pop("first_nonfinite", None)  # tested in the compiled loop, step by step
         out = {k: v for k, v in out.items() if k == "loglik" or kept is None or k in kept}
-        # A NaN reaches every later log-likelihood: the first non-finite one is the step.
-        bad = ~np.isfinite(out["loglik"])
-        if "x" in out:
-            bad |= ~np.isfinite(out["x"]).all(axis=-1)
-        if "P" in out:
-            bad |= ~np.isfinite(out["P"]).all(axis=(-1, -2))
-        if bad.any():
-            k, r = np.argwhere(bad.T)[0]  # the first step that failed (later ones may be NaN in every run)
+        if first is None:  # a NaN reaches every later log-likelihood
+            first = first_nonfinite(out["loglik"], out.get("x"), out.get("P"))
+        if (first >= 0).any():
+            k = first[first >= 0].min()  # the first step that failed (later ones may be NaN in every run)
+            r = int(np.argmax(first == k))
             where = f"step {k}" if runs is None else f"run {r}, step {k}"
             raise SymmonError(
                 f"{self.method}: the filter produced NaN or inf at {where} (the innovation "

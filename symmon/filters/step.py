@@ -241,17 +241,33 @@ _DRIVER = """
    strides[j] its size per step; a stride of 0 means "not kept": the step does not write it
    (a null result), but x and P, which the next step reads, go to two slots, alternately,
    so that a step never writes what it reads.  With the true states (truth, not null), each
-   step's NEES and its singularity test go to outs[8] and outs[9] ({name}_nees). */
+   step's NEES and its singularity test go to outs[8] and outs[9] ({name}_nees).  With
+   failed (not null), failed[r] is the first step of run r whose x, P or log-likelihood is
+   not finite (the run stops there), or -1. */
+#include <string.h>
+static int {name}_nonfinite(const casadi_real* a, casadi_int n) {{
+  /* An exponent of all ones is inf or NaN; an integer test, so that the loop vectorises. */
+  unsigned long long u, bad = 0;
+  casadi_int j;
+  for (j = 0; j < n; ++j) {{
+    memcpy(&u, a + j, sizeof u);
+    bad |= (u & 0x7ff0000000000000ULL) == 0x7ff0000000000000ULL;
+  }}
+  return bad != 0;
+}}
+
 CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
     const casadi_real* P0, casadi_int P0_step, const casadi_real* y,
     const casadi_real* Q, const casadi_real* R, const casadi_real* mask, const casadi_real* p,
     const casadi_real* truth, casadi_real* const* outs, const casadi_int* strides, casadi_int runs,
-    casadi_int K, casadi_int* iw, casadi_real* w) {{
+    casadi_int K, casadi_int* iw, casadi_real* w, casadi_int* failed) {{
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
   casadi_real* res2[{sz_res}];
+  casadi_real ll;
   casadi_int r, k, i, j;
   for (r = 0; r < runs; ++r) {{
+    if (failed) failed[r] = -1;
     const casadi_real* x = x0 + r * x0_step;
     const casadi_real* P = P0 + r * P0_step;
     for (k = 0; k < K; ++k) {{
@@ -261,9 +277,14 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
       for (j = 0; j < 8; ++j) res[j] = strides[j] ? outs[j] + i * strides[j] : 0;
       if (!strides[0]) res[0] = outs[0] + (k & 1) * {n};
       if (!strides[1]) res[1] = outs[1] + (k & 1) * {nn};
+      if (failed && !res[6]) res[6] = &ll;
       if ({name}(arg, res, iw, w, 0)) return 1;
       x = res[0];
       P = res[1];
+      if (failed && ({name}_nonfinite(res[6], 1) || {name}_nonfinite(x, {n}) || {name}_nonfinite(P, {nn}))) {{
+        failed[r] = k;
+        break;
+      }}
       if (truth) {{
         arg[0] = x; arg[1] = P; arg[2] = truth + i * {n};
         res2[0] = outs[8] + i; res2[1] = outs[9] + i;
@@ -356,12 +377,13 @@ class _CompiledStep(CompiledLoop):
             n=self.n, nn=self.n * self.n, n_y=self.n_y, nyy=self.n_y * self.n_y, n_p=self.n_p,
         )
         argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_longlong]
-                    + [ctypes.c_void_p] * 8 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2)
+                    + [ctypes.c_void_p] * 8 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 3)
         super().__init__(fn, code, argtypes, also=(self.nees_f,))
 
     def __call__(self, x0: np.ndarray, P0: np.ndarray, Y: np.ndarray, Q: np.ndarray, R: np.ndarray,
                  use_c: bool = True, keep: frozenset[str] | None = None,
-                 params: np.ndarray | None = None, truth: np.ndarray | None = None) -> dict[str, np.ndarray]:
+                 params: np.ndarray | None = None, truth: np.ndarray | None = None,
+                 check_finite: bool = False) -> dict[str, np.ndarray]:
         """Run the bank: x0 (n,) or (runs, n), P0 (n, n) or (runs, n, n), Y (runs, K, n_y), and
         the parameters' values (runs, K, n_p) (None: no parameters).
 
@@ -370,7 +392,10 @@ class _CompiledStep(CompiledLoop):
         not hold its P⁻, say).  A NaN in Y is a missing measurement: the step updates on the
         measured components (:func:`update_graph`).  With the true states ``truth``
         (runs, K, n), also ``"nees"`` and ``"nees_trace"`` of each step (:func:`nees_graph`),
-        computed right after the step, so that neither x nor P need be kept for them."""
+        computed right after the step, so that neither x nor P need be kept for them.  With
+        ``check_finite``, also ``"first_nonfinite"`` (runs,): the first step of each run whose
+        x, P or log-likelihood is not finite, or -1 (the C loop tests every step as it goes,
+        and stops a run that failed, so the kept arrays need no second pass)."""
         runs, K = Y.shape[:2]
         n = self.n
         shapes = self._shapes
@@ -390,6 +415,9 @@ class _CompiledStep(CompiledLoop):
         run = self._lib.get() if use_c else None
         if run is None:
             full = self._vm(x0, P0, Y, Q, R, mask, params[..., :self.n_p], truth)
+            if check_finite:
+                kept.add("first_nonfinite")
+                full["first_nonfinite"] = first_nonfinite(full["loglik"], full["x"], full["P"])
             return {k: v for k, v in full.items() if k in kept}
         # A kept output: its (runs, K, ...) block; x and P when not kept: two slots per thread
         # of the bank (the next step reads them); any other: not written.
@@ -407,6 +435,7 @@ class _CompiledStep(CompiledLoop):
         Q, R = np.ascontiguousarray(Q, dtype=float), np.ascontiguousarray(R, dtype=float)
         x_step = n if x0.ndim == 2 else 0
         P_step = n * n if P0.ndim == 3 else 0
+        failed = np.empty(runs, dtype=np.int64) if check_finite else None
 
         def part(c: int) -> int:
             a, b = chunks[c]
@@ -417,10 +446,13 @@ class _CompiledStep(CompiledLoop):
             return run(x0.ctypes.data + 8 * a * x_step, x_step, P0.ctypes.data + 8 * a * P_step, P_step,
                        Y[a].ctypes.data, Q.ctypes.data, R.ctypes.data, mask[a].ctypes.data,
                        params[a].ctypes.data, None if truth is None else truth[a].ctypes.data, outs,
-                       strides.ctypes.data, b - a, K, iw, w)
+                       strides.ctypes.data, b - a, K, iw, w, None if failed is None else failed[a:].ctypes.data)
 
         self.run_chunks(part, list(range(len(chunks))), "filter step")
-        return {k: b for k, b in blocks.items() if k in kept}
+        out = {k: b for k, b in blocks.items() if k in kept}
+        if failed is not None:
+            out["first_nonfinite"] = failed
+        return out
 
     def _vm(self, x0, P0, Y: np.ndarray, Q, R, mask: np.ndarray, params: np.ndarray,
             truth: np.ndarray | None = None) -> dict[str, np.ndarray]:
@@ -458,6 +490,17 @@ class _CompiledStep(CompiledLoop):
             vals = gm(out["x"].reshape(N, n).T, Ps, truth.reshape(N, n).T)
             out["nees"], out["nees_trace"] = (np.asarray(v).reshape(runs, K) for v in vals)
         return out
+
+
+def first_nonfinite(loglik: np.ndarray, x: np.ndarray | None, P: np.ndarray | None) -> np.ndarray:
+    """The first step of each run (runs, K, ...) whose log-likelihood, x or P (None: not
+    tested) is not finite, or -1: what the C loop of :class:`_CompiledStep` reports as it goes."""
+    bad = ~np.isfinite(loglik)
+    if x is not None:
+        bad |= ~np.isfinite(x).all(axis=-1)
+    if P is not None:
+        bad |= ~np.isfinite(P).all(axis=(-1, -2))
+    return np.where(bad.any(axis=1), bad.argmax(axis=1), -1)
 
 
 #: Least work of a thread, in steps × n³ (n states): 2000 steps of a 4-state filter, about a

@@ -93,4 +93,4 @@ class RuleStrategy(FilterStrategy):
     def run(self, kf, Y, x0, P0, keep=None, params=None, truth=None):
         step = _compiled_step(kf.f_model, kf.h_model, self.transform, kf.angle_states, kf.iterations)
         return step(x0, P0, Y, kf.Q, kf.R, keep=None if keep is None else keep | {"loglik"}, params=params,
-                    truth=truth), None
+                    truth=truth, check_finite=True), None
