@@ -34,7 +34,7 @@ from ..core.model import Model
 from ..errors import ArgumentTypeError, ModelError, ShapeError, UnsupportedFunctionError
 
 __all__ = ["to_casadi", "CompiledModel", "compile_model", "model_key", "compiled", "compiled_with_params", "cache_dir", "has_compiler", "build_shared_library",
-           "generated_c", "rows_c", "row_spans", "MIN_ROWS_PER_THREAD", "in_threads", "WorkArrays"]
+           "generated_c", "rows_c", "row_spans", "MIN_ROWS_PER_THREAD", "in_threads", "WorkArrays", "padded"]
 
 log = logging.getLogger(__name__)
 
@@ -336,19 +336,48 @@ def row_spans(N: int, least: int = MIN_ROWS_PER_THREAD) -> list[tuple[int, int]]
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
 
+_pool: tuple[int, ThreadPoolExecutor] | None = None  # (the pid that made it, the pool)
+_pool_lock = threading.Lock()
+
+
+def _thread_pool() -> ThreadPoolExecutor:
+    """One pool of one thread per CPU for every compiled loop, kept for the process, so that a
+    call starts no thread and each thread keeps its work arrays (:class:`WorkArrays`); a
+    forked child, which has the pool but not its threads, makes its own."""
+    global _pool
+    with _pool_lock:
+        if _pool is None or _pool[0] != os.getpid():
+            _pool = (os.getpid(), ThreadPoolExecutor(os.cpu_count() or 1, thread_name_prefix="symmon-c"))
+        return _pool[1]
+
+
 def in_threads(part: Callable[[Any], int], items: Sequence[Any]) -> list[int]:
-    """``part(item)`` for each item, on one thread per item when there are several (a
+    """``part(item)`` for each item, on the threads of one pool when there are several (a
     ctypes call into compiled C releases the GIL, so they run in parallel); the return
-    codes, in order."""
+    codes, in order.  A part must not itself wait on the pool."""
     if len(items) == 1:
         return [part(items[0])]
-    with ThreadPoolExecutor(len(items)) as pool:
-        return list(pool.map(part, items))
+    return list(_thread_pool().map(part, items))
+
+
+#: Bytes of a cache line: work arrays of two threads never share one.
+CACHE_LINE = 64
+
+
+def padded(n: int, dtype=np.float64) -> np.ndarray:
+    """A zeroed array of n items that starts on a cache line and owns the rest of its last
+    one, so that two threads writing two of them never write the same line."""
+    item = np.dtype(dtype).itemsize
+    per_line = CACHE_LINE // item
+    raw = np.zeros(n + 2 * per_line, dtype=dtype)
+    start = (-raw.ctypes.data % CACHE_LINE) // item
+    return raw[start:start + n]
 
 
 class WorkArrays:
     """The integer and real work arrays of compiled CasADi functions, one pair per thread,
-    made on first use in that thread and large enough for every function given."""
+    made on first use in that thread (each on its own cache lines) and large enough for
+    every function given."""
 
     def __init__(self, *functions: ca.Function) -> None:
         self.sizes = (max(max(f.sz_iw() for f in functions), 1), max(max(f.sz_w() for f in functions), 1))
@@ -358,7 +387,7 @@ class WorkArrays:
         """The addresses of this thread's arrays (integer, real)."""
         ws = getattr(self._local, "ws", None)
         if ws is None:
-            ws = self._local.ws = (np.zeros(self.sizes[0], dtype=np.int64), np.zeros(self.sizes[1]))
+            ws = self._local.ws = (padded(self.sizes[0], np.int64), padded(self.sizes[1]))
         return ws[0].ctypes.data, ws[1].ctypes.data
 
 

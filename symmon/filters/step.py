@@ -46,7 +46,7 @@ import casadi as ca
 import numpy as np
 
 from ..compile.ccache import NativeLibrary
-from ..compile.compiled import WorkArrays, generated_c, in_threads
+from ..compile.compiled import WorkArrays, generated_c, in_threads, padded
 from ..errors import SymmonError
 from ..core.model import Model
 from ..compile import compiled, compiled_with_params
@@ -420,11 +420,13 @@ class _CompiledStep(CompiledLoop):
                 full["first_nonfinite"] = first_nonfinite(full["loglik"], full["x"], full["P"])
             return {k: v for k, v in full.items() if k in kept}
         # A kept output: its (runs, K, ...) block; x and P when not kept: two slots per thread
-        # of the bank (the next step reads them); any other: not written.
+        # of the bank (the next step reads them), on the thread's own cache lines; any
+        # other: not written.
         per_step = [math.prod(s) for s in shapes.values()]
         chunks = chunk_runs(runs, K, x0.shape[-1])
         blocks = {k: np.empty((runs, K) + s) if k in kept
-                  else np.empty((len(chunks), 2) + s) if k in ("x", "P") else None for k, s in shapes.items()}
+                  else [padded(2 * math.prod(s)) for _ in chunks] if k in ("x", "P") else None
+                  for k, s in shapes.items()}
         strides = np.array([z if k in kept else 0 for k, z in zip(shapes, per_step)], dtype=np.int64)
         for k in ("nees", "nees_trace"):  # outs[8], outs[9] of the C loop
             blocks[k] = np.empty((runs, K)) if truth is not None else None

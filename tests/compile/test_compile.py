@@ -7,6 +7,7 @@ import subprocess
 import sys
 import textwrap
 
+import casadi as ca
 import numpy as np
 import pytest
 import sympy as sp
@@ -161,6 +162,63 @@ def test_row_spans_split_a_large_batch_on_the_main_thread_only():
     t.start()
     t.join()
     assert inside == [[(0, N)]]  # a worker thread's pool already uses the cores
+
+
+def test_compiled_loops_share_one_pool_whose_threads_keep_their_work_arrays():
+    """A call starts no thread: the pool's threads serve every call, so each keeps its work
+    arrays; the arrays of two threads are on their own cache lines."""
+    import threading
+    import time
+
+    from symmon.compile.compiled import CACHE_LINE, WorkArrays, in_threads
+
+    a = ca.SX.sym("a", 3)
+    work = WorkArrays(ca.Function("wa", [a], [ca.sin(a) * a]))
+    seen: dict[int, tuple[int, int]] = {}
+
+    def part(_):
+        time.sleep(0.01)  # so that both items do not run on one thread
+        seen.setdefault(threading.get_ident(), work.addresses())
+        assert seen[threading.get_ident()] == work.addresses()
+        return 0
+
+    assert in_threads(part, [0, 1]) == [0, 0]
+    first = dict(seen)
+    assert in_threads(part, [0, 1, 2, 3]) == [0] * 4
+    assert set(seen) == set(first)  # the same threads, the same arrays
+    for iw, w in seen.values():
+        assert iw % CACHE_LINE == 0 and w % CACHE_LINE == 0
+
+
+def test_padded_arrays_own_their_cache_lines():
+    from symmon.compile.compiled import CACHE_LINE, padded
+
+    for n in (1, 7, 8, 9, 100):
+        for dtype in (np.float64, np.int64):
+            a = padded(n, dtype)
+            assert a.shape == (n,) and a.dtype == dtype and not a.any()
+            assert a.ctypes.data % CACHE_LINE == 0
+            end = a.ctypes.data + a.nbytes  # the rest of the last line belongs to a
+            assert a.base.ctypes.data + a.base.nbytes >= -(-end // CACHE_LINE) * CACHE_LINE
+
+
+def test_a_forked_child_makes_its_own_pool():
+    if not hasattr(os, "fork"):
+        pytest.skip("no fork")
+    from symmon.compile.compiled import in_threads
+
+    import signal
+    import warnings
+
+    assert in_threads(lambda i: i, [0, 1]) == [0, 1]  # the parent's pool exists
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # Python >= 3.12: fork of a threaded process
+        pid = os.fork()
+    if pid == 0:  # the child: a pool without threads would hang here, until the alarm
+        signal.alarm(60)
+        os._exit(0 if in_threads(lambda i: i + 1, [0, 1]) == [1, 2] else 1)
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 0
 
 
 def test_a_batch_split_over_threads_equals_one_row_at_a_time(points_rng):
