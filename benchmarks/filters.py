@@ -48,11 +48,13 @@ ALPHA, BETA, KAPPA = 1.0, 2.0, 0.0
 HEADING = "## Nonlinear filters"
 
 
-def best(fn: Callable[[], object], repeat: int) -> float:
-    """Best wall time of ``repeat`` calls, after one warm-up call."""
+def best(fn: Callable[[], object], repeat: int, min_time: float = 0.0) -> float:
+    """Best wall time of ``repeat`` calls, after one warm-up call; more calls (up to 100)
+    until they have taken ``min_time`` seconds, so that a fast call is timed as often as
+    a loop would make it (warm allocator and caches) and a slow one is not repeated."""
     fn()
-    times = []
-    for _ in range(repeat):
+    times: list[float] = []
+    while len(times) < repeat or (sum(times) < min_time and len(times) < 100):
         t0 = time.perf_counter()
         fn()
         times.append(time.perf_counter() - t0)
