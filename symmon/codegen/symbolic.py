@@ -199,17 +199,17 @@ SPARSE_JACOBIAN = 0.5
 
 
 def jacobian_products(J: Sym, P: Sym) -> tuple[Sym, Sym]:
-    """(J P, J P Jᵀ), with J's nonzeros only when J is sparse.
+    """(J P, J P Jᵀ) for a symmetric P, with J's nonzeros only when J is sparse.
 
     A sparse J (at most :data:`SPARSE_JACOBIAN` of its entries nonzero, as a motion model of
-    stacked targets) enters as the right factor of dense × sparse products, J P = (Pᵀ Jᵀ)ᵀ
-    and (J P) Jᵀ, which CasADi writes as loops over J's nonzeros (``casadi_mtimes_dense_sparse``):
+    stacked targets) enters as the right factor of dense × sparse products, J P = (P Jᵀ)ᵀ
+    (P = Pᵀ: no transpose of P) and (J P) Jᵀ, which CasADi writes as loops over J's nonzeros (``casadi_mtimes_dense_sparse``):
     the work is n·nnz(J) rather than n_y n², and each entry adds its terms in the order of the
     dense product, less the zero ones.  A dense J is densified, so that the products are the
     dense loops with no sparsity pattern in the C code.
     """
     if J.nnz() <= SPARSE_JACOBIAN * J.numel():
-        JP = ca.mtimes(P.T, J.T).T
+        JP = ca.mtimes(P, J.T).T
     else:
         J = ca.densify(J)
         JP = ca.mtimes(J, P)
