@@ -381,10 +381,8 @@ class NonlinearKalmanFilter:
         if not np.all(np.isfinite(m)):
             raise ShapeError("x0 contains NaN or inf")
         C = float_array(P0, "P0", CovarianceError)
-        if runs is not None and C.shape == (runs, n, n):  # one covariance per run
-            for r in range(runs):
-                as_covariance(C[r], f"P0[{r}]", dim=n)
-            return m, C
+        if runs is not None and C.shape == (runs, n, n):  # one covariance per run, each made symmetric
+            return m, np.stack([as_covariance(C[r], f"P0[{r}]", dim=n) for r in range(runs)])
         return m, as_covariance(P0, "P0", dim=n)
 
     def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None, *,

@@ -447,6 +447,18 @@ def test_bank_takes_one_initial_covariance_per_run(bank):
         assert rel_err(both.P[r], kf.filter(ys[r], X0.mean, P0s[r]).P) < SAME_CODE_RTOL
 
 
+def test_per_run_initial_covariances_are_made_symmetric_as_a_shared_one(bank):
+    """An asymmetry within rounding (accepted, as by Gaussian) is removed from each run's P0,
+    as from a shared P0: the run filtered alone and in the bank agree to the bit."""
+    f, h = cv_models()
+    _, ys = bank
+    P0 = np.array([[1.0, 0.3, 0, 0], [0.3, 1.0, 0, 0], [0, 0, 0.1, 0], [0, 0, 0, 0.1]])
+    P0[0, 1] += 1e-15  # 3e-15 relative: within SYMMETRY_RTOL
+    kf = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, sm.TT1())
+    both = kf.filter(ys[:2], X0.mean, np.stack([P0, P0]))
+    np.testing.assert_array_equal(both.P[1], kf.filter(ys[1], X0.mean, P0).P)
+
+
 @pytest.mark.parametrize("kwargs, match", [({"tol": 0.0}, "tol"), ({"tol": True}, "tol"),
                                            ({"candidates": ()}, "empty"),
                                            ({"candidates": (sm.MonteCarlo(1000),)}, "TT1, TT2, UT")])
