@@ -336,12 +336,19 @@ def unit_rule(transform: Transform, n: int) -> tuple[np.ndarray, np.ndarray, np.
     return rule
 
 
+def _ut_scale(Z: np.ndarray) -> float:
+    """c when the points Z (N, n) are the UT's 0, +c eᵢ, −c eᵢ (in that order), else 0."""
+    N, n = Z.shape
+    c = Z[1, 0] if N == 2 * n + 1 else 0.0
+    return c if c > 0 and np.array_equal(Z, np.vstack([np.zeros(n), c * np.eye(n), -c * np.eye(n)])) else 0.0
+
+
 def _offsets(L: Sym, Z: np.ndarray) -> Sym:
     """D = L Zᵀ (n × N), the offsets of the points from the mean."""
     kind = type(L)
     N, n = Z.shape
-    c = Z[1, 0] if N == 2 * n + 1 else 0.0
-    if c > 0 and np.array_equal(Z, np.vstack([np.zeros(n), c * np.eye(n), -c * np.eye(n)])):
+    c = _ut_scale(Z)
+    if c:
         # The UT's points 0, ±c eᵢ: a concatenation, no n × N constant in the C code.
         return c * ca.horzcat(kind.zeros(n, 1), L, -L)
     # Zᵀ without its zeros, added into a dense zero: the C code holds no sparsity
@@ -360,8 +367,10 @@ def point_moments(g: ca.Function, m: Sym, P: Sym, transform: Transform,
     :func:`chol_lower` (code O(n²)) or :func:`chol_node` (code O(n³), fewer operations).
     """
     Z, wm_a, wc_a = unit_rule(transform, m.shape[0])
-    N = Z.shape[0]
-    D = _offsets(chol(P), np.asarray(Z, dtype=float))
+    N, n = Z.shape
+    Z = np.asarray(Z, dtype=float)
+    L = chol(P)
+    D = _offsets(L, Z)
     W = ca.repmat(m, 1, N) + D
     # With parameters p, g is a function of [w; p]: the same p at every point.
     Y = g.map(N)(W if p is None else ca.vertcat(W, ca.repmat(p, 1, N)))
@@ -373,7 +382,12 @@ def point_moments(g: ca.Function, m: Sym, P: Sym, transform: Transform,
         mean[rows] = ca.atan2(ca.mtimes(ca.sin(Y[rows, :]), wm), ca.mtimes(ca.cos(Y[rows, :]), wm))
     R = wrap_entries(Y - ca.repmat(mean, 1, N), rows)
     RW = ca.mtimes(R, ca.diag(ca.DM(np.asarray(wc_a, dtype=float))))
-    return mean, ca.mtimes(RW, R.T), ca.mtimes(RW, D.T)
+    c = _ut_scale(Z)
+    if c:  # D = c [0, L, −L]: RW Dᵀ = c (RW₊ − RW₋) Lᵀ, half the products
+        cross = ca.mtimes(c * (RW[:, 1:n + 1] - RW[:, n + 1:]), L.T)
+    else:
+        cross = ca.mtimes(RW, D.T)
+    return mean, ca.mtimes(RW, R.T), cross
 
 
 def affine_in(cm: CompiledModel, n: int) -> bool:
