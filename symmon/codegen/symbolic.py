@@ -343,11 +343,10 @@ def _ut_scale(Z: np.ndarray) -> float:
     return c if c > 0 and np.array_equal(Z, np.vstack([np.zeros(n), c * np.eye(n), -c * np.eye(n)])) else 0.0
 
 
-def _offsets(L: Sym, Z: np.ndarray) -> Sym:
-    """D = L Zᵀ (n × N), the offsets of the points from the mean."""
+def _offsets(L: Sym, Z: np.ndarray, c: float) -> Sym:
+    """D = L Zᵀ (n × N), the offsets of the points from the mean; c = :func:`_ut_scale` of Z."""
     kind = type(L)
     N, n = Z.shape
-    c = _ut_scale(Z)
     if c:
         # The UT's points 0, ±c eᵢ: a concatenation, no n × N constant in the C code.
         return c * ca.horzcat(kind.zeros(n, 1), L, -L)
@@ -370,7 +369,8 @@ def point_moments(g: ca.Function, m: Sym, P: Sym, transform: Transform,
     N, n = Z.shape
     Z = np.asarray(Z, dtype=float)
     L = chol(P)
-    D = _offsets(L, Z)
+    c = _ut_scale(Z)
+    D = _offsets(L, Z, c)
     W = ca.repmat(m, 1, N) + D
     # With parameters p, g is a function of [w; p]: the same p at every point.
     Y = g.map(N)(W if p is None else ca.vertcat(W, ca.repmat(p, 1, N)))
@@ -382,7 +382,6 @@ def point_moments(g: ca.Function, m: Sym, P: Sym, transform: Transform,
         mean[rows] = ca.atan2(ca.mtimes(ca.sin(Y[rows, :]), wm), ca.mtimes(ca.cos(Y[rows, :]), wm))
     R = wrap_entries(Y - ca.repmat(mean, 1, N), rows)
     RW = ca.mtimes(R, ca.diag(ca.DM(np.asarray(wc_a, dtype=float))))
-    c = _ut_scale(Z)
     if c:  # D = c [0, L, −L]: RW Dᵀ = c (RW₊ − RW₋) Lᵀ, half the products
         cross = ca.mtimes(c * (RW[:, 1:n + 1] - RW[:, n + 1:]), L.T)
     else:

@@ -126,7 +126,7 @@ class _CompiledSmoother(CompiledLoop):
 
         def part(c: tuple[int, int]) -> int:
             a, b = c
-            iw, w = self._workspace()  # one per thread
+            iw, w = self._work.addresses()  # one per thread
             return run(x[a].ctypes.data, P[a].ctypes.data, Q.ctypes.data, params[a].ctypes.data, xs[a].ctypes.data,
                        Ps[a].ctypes.data, b - a, K, iw, w)
 

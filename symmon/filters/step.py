@@ -331,10 +331,6 @@ class CompiledLoop:
         run.restype = ctypes.c_int
         return run
 
-    def _workspace(self) -> tuple[int, int]:
-        """Addresses of this thread's work arrays (integer, real), made once per thread."""
-        return self._work.addresses()
-
     @property
     def is_compiled(self) -> bool:
         return self._lib.get() is not None
@@ -415,10 +411,10 @@ class _CompiledStep(CompiledLoop):
         run = self._lib.get() if use_c else None
         if run is None:
             full = self._vm(x0, P0, Y, Q, R, mask, params[..., :self.n_p], truth)
+            out = {k: v for k, v in full.items() if k in kept}
             if check_finite:
-                kept.add("first_nonfinite")
-                full["first_nonfinite"] = first_nonfinite(full["loglik"], full["x"], full["P"])
-            return {k: v for k, v in full.items() if k in kept}
+                out["first_nonfinite"] = first_nonfinite(full["loglik"], full["x"], full["P"])
+            return out
         # A kept output: its (runs, K, ...) block; x and P when not kept: two slots per thread
         # of the bank (the next step reads them), on the thread's own cache lines; any
         # other: not written.
@@ -444,7 +440,7 @@ class _CompiledStep(CompiledLoop):
             outs = (ctypes.c_void_p * len(blocks))(*[
                 None if blk is None else blk[a].ctypes.data if k in kept else blk[c].ctypes.data
                 for k, blk in blocks.items()])
-            iw, w = self._workspace()  # one per thread
+            iw, w = self._work.addresses()  # one per thread
             return run(x0.ctypes.data + 8 * a * x_step, x_step, P0.ctypes.data + 8 * a * P_step, P_step,
                        Y[a].ctypes.data, Q.ctypes.data, R.ctypes.data, mask[a].ctypes.data,
                        params[a].ctypes.data, None if truth is None else truth[a].ctypes.data, outs,
