@@ -54,7 +54,7 @@ def joint_input(model: Model, u: Gaussian, v: Gaussian | None) -> tuple[np.ndarr
         raise ShapeError(f"u has dimension {u.dim} but the model has {model.n_u} inputs {list(map(str, model.inputs))}")
     check_noise_given(model, v)
     if model.n_v == 0:
-        return u.mean.copy(), u.cov.copy()
+        return u.mean, u.cov  # read-only: a Gaussian is immutable, and no rule writes into its input
     if not isinstance(v, Gaussian):
         raise ArgumentTypeError(f"v must be a symmon.Gaussian, got {type(v).__name__}")
     if v.dim != model.n_v:

@@ -35,6 +35,7 @@ import numpy as np
 from ..codegen.symbolic import graph_kind, moments
 from ..compile.ccache import NativeLibrary
 from ..compile.compiled import CompiledModel, WorkArrays, generated_c, in_threads, model_key, row_spans
+from ..core.checks import all_finite
 from ..core.gaussian import SYMMETRY_RTOL
 from ..transforms.base import Moments, Transform, likely_angles
 
@@ -191,7 +192,7 @@ def kernel_moments(kernel: BatchKernel, cm: CompiledModel, transform: Transform,
     Cov y needs no test of definiteness: with non-negative weights it is a sum of
     positive semi-definite terms (:func:`batch_kernel` takes no other rule).
     """
-    if not (np.isfinite(M).all() and np.isfinite(P).all()):
+    if not all_finite(M, P):
         return None
     out = kernel(M, P)
     if out is None:
@@ -199,7 +200,7 @@ def kernel_moments(kernel: BatchKernel, cm: CompiledModel, transform: Transform,
     mean, cov, cross, checks = out
     if not (np.all(checks[:, 0] > 0) and np.all(checks[:, 1] <= SYMMETRY_RTOL)):
         return None
-    if not (np.isfinite(mean).all() and np.isfinite(cov).all() and np.isfinite(cross).all()):
+    if not all_finite(mean, cov, cross):
         return None  # the NumPy rule names the overflow
     return Moments(mean, cov, cross, evaluations=M.shape[0] * kernel.points,
                    details={"evaluator": "compiled batch kernel"})

@@ -19,6 +19,7 @@ import numpy as np
 import sympy as sp
 
 from ..core import dag
+from ..core.checks import all_finite
 from ..core.angles import wrap_angle  # re-exported: defined beside the other angle helpers
 from ..core.gaussian import PSD_RTOL, SYMMETRY_RTOL, as_covariance, as_vector, matrix_sqrt
 from ..errors import (AngleWarning, ArgumentError, ArgumentTypeError, IndefiniteCovarianceError, NonFiniteError,
@@ -261,7 +262,8 @@ class Transform(ABC):
                  angles: frozenset[int], executor: Any, validated: bool = False) -> Moments:
         """The checked batch through the rule, its moments refused unless finite."""
         means, covs = check_shapes(cm, means, covs) if validated else check_batch(cm, means, covs)
-        angles = frozenset(angles)
+        if type(angles) is not frozenset:
+            angles = frozenset(angles)
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported just below
             self.check_angles(cm, means, covs, angles)
             result = self._moments(cm, means, covs, angles, executor)
@@ -342,7 +344,8 @@ def batch_sqrt(covs: np.ndarray) -> np.ndarray:
 
 
 def weighted_moments(Y: np.ndarray, X: np.ndarray, mx: np.ndarray, wm: np.ndarray, wc: np.ndarray,
-                     angles: frozenset[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+                     angles: frozenset[int], negative: bool | None = None
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """Moments of weighted points, and the scale of Cov y's rounding.
 
     Parameters
@@ -352,6 +355,7 @@ def weighted_moments(Y: np.ndarray, X: np.ndarray, mx: np.ndarray, wm: np.ndarra
     mx : (K, n_w) the input means
     wm, wc : (N,) mean and covariance weights
     angles : output indices that are angles: circular mean, wrapped residuals
+    negative : whether some weight of wc is negative, when the rule knows (else tested)
 
     Returns
     -------
@@ -362,8 +366,10 @@ def weighted_moments(Y: np.ndarray, X: np.ndarray, mx: np.ndarray, wm: np.ndarra
     """
     # Weights sum to 1: centring on the first point keeps digits when the weights are
     # large and of both signs (ut2's are about ±1e6), so a constant output stays exact.
-    Y0 = Y[:, 0, :]
-    mean = Y0 + np.einsum("n,kni->ki", wm, Y - Y0[:, None, :])
+    # Not a matmul: BLAS's fused multiply-adds leave ut2's ±1e6-weighted sums of opposite
+    # points inexact (|w y| eps), where einsum's separate products cancel to zero.
+    Y0 = Y[:, :1, :]
+    mean = Y0[:, 0] + np.einsum("n,kni->ki", wm, Y - Y0)
     if angles:
         idx = sorted(angles)
         s = np.einsum("n,kni->ki", wm, np.sin(Y[..., idx]))
@@ -374,11 +380,13 @@ def weighted_moments(Y: np.ndarray, X: np.ndarray, mx: np.ndarray, wm: np.ndarra
         R[..., idx] = wrap_angle(R[..., idx])
     D = X - mx[:, None, :]
     # Matrix products (BLAS), not a three-operand einsum: 5x faster at n_w = 128.
-    RW = (R * wc[None, :, None]).transpose(0, 2, 1)
+    RW = (R * wc[:, None]).transpose(0, 2, 1)
     cov = RW @ R
     cov = cov / 2 + cov.transpose(0, 2, 1) / 2  # exactly symmetric, as the einsum was; no overflow
     cross = RW @ D
-    scale = np.einsum("n,kni->ki", np.abs(wc), R * R) if (wc < 0).any() else None
+    if negative is None:
+        negative = bool(wc.min() < 0)
+    scale = np.abs(wc) @ (R * R) if negative else None
     return mean, cov, cross, scale
 
 
@@ -407,14 +415,14 @@ def evaluate_points(cm: CompiledModel, X: np.ndarray, transform: "Transform",
         Naming the transform, the output and the point.
     """
     K, N, n = X.shape
-    if not np.isfinite(X).all():
+    if not all_finite(X):
         k, j = np.argwhere(~np.isfinite(X).all(axis=2))[0]
         raise NonFiniteError(
             f"{transform!r}: point {j} of the rule, ({_point_str(cm, X[k, j])}), overflows: the input "
             "mean and spread put it beyond 1.8e308; rescale the units of the inputs"
         )
     Y = cm.eval_g(X.reshape(K * N, n)).reshape(K, N, -1)
-    if not np.isfinite(Y).all():
+    if not all_finite(Y):
         bad = ~np.isfinite(Y)
         k, j, i = np.argwhere(bad)[0]
         raise NonFiniteError(
@@ -498,7 +506,7 @@ def check_moments_finite(cm: CompiledModel, b: Moments, means: np.ndarray, trans
     NonFiniteError
         Naming the transform, the moment, the output and the input mean.
     """
-    if np.isfinite(b.mean).all() and np.isfinite(b.cov).all() and np.isfinite(b.cross_cov).all():
+    if all_finite(b.mean, b.cov, b.cross_cov):
         return
     for label, arr in (("E y", b.mean), ("Cov y", b.cov), ("Cov(y, w)", b.cross_cov)):
         bad = ~np.isfinite(arr)

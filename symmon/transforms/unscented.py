@@ -117,9 +117,13 @@ class UT(Transform):
         """Sigma points (K, 2n + 1, n): μ, μ + c·Lᵢ, then μ − c·Lᵢ."""
         K, n = means.shape
         _, _, c = self.weights(n)
-        L = batch_sqrt(covs)  # (K, n, n), columns are the directions
-        D = c * np.swapaxes(L, 1, 2)  # rows = columns of L
-        return np.concatenate([means[:, None, :], means[:, None, :] + D, means[:, None, :] - D], axis=1)
+        D = c * np.swapaxes(batch_sqrt(covs), 1, 2)  # rows = the columns of L, the directions
+        X = np.empty((K, 2 * n + 1, n))
+        m = means[:, None, :]
+        X[:, :1] = m
+        np.add(m, D, out=X[:, 1:n + 1])
+        np.subtract(m, D, out=X[:, n + 1:])
+        return X
 
     def cost(self, n_w: int) -> int:
         """2 n_w + 1 sigma points."""
@@ -139,7 +143,7 @@ class UT(Transform):
         wm, wc, _ = self.weights(n)
         X = self.sigma_points(means, covs)
         Y = evaluate_points(cm, X, self, angles)
-        mean, cov, cross, scale = weighted_moments(Y, X, means, wm, wc, angles)
+        mean, cov, cross, scale = weighted_moments(Y, X, means, wm, wc, angles, negative=wc[0] < 0)  # wcᵢ > 0 for i ≥ 1
         info = {"sigma_points": X, "transformed_points": Y}
         return Moments(mean, cov, cross, evaluations=K * (2 * n + 1), details=info, cov_scale=scale)
 
