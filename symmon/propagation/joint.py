@@ -102,8 +102,10 @@ class JointMoments:
         )
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "angles", frozenset(map(int, self.angles)))
-        object.__setattr__(self, "input_angles", frozenset(map(int, self.input_angles)))
+        for name in ("angles", "input_angles"):
+            a = getattr(self, name)
+            if a or type(a) is not frozenset:  # the common empty frozenset is kept as it is
+                object.__setattr__(self, name, frozenset(map(int, a)))
         names = ("mean", "cov", "cross_cov", "noise_cross_cov", "input_cov")
         if self.input_cov is None:  # the input's own read-only array: a Gaussian is immutable
             object.__setattr__(self, "input_cov", self.input.cov)

@@ -366,10 +366,10 @@ def weighted_moments(Y: np.ndarray, X: np.ndarray, mx: np.ndarray, wm: np.ndarra
     """
     # Weights sum to 1: centring on the first point keeps digits when the weights are
     # large and of both signs (ut2's are about ±1e6), so a constant output stays exact.
-    # Not a matmul: BLAS's fused multiply-adds leave ut2's ±1e6-weighted sums of opposite
-    # points inexact (|w y| eps), where einsum's separate products cancel to zero.
+    # Products, then their sum: a matmul's fused multiply-adds would leave ut2's ±1e6-weighted
+    # sums of opposite points inexact (|w y| eps), where separate products cancel to zero.
     Y0 = Y[:, :1, :]
-    mean = Y0[:, 0] + np.einsum("n,kni->ki", wm, Y - Y0)
+    mean = Y0[:, 0] + (wm[:, None] * (Y - Y0)).sum(axis=1)
     if angles:
         idx = sorted(angles)
         s = np.einsum("n,kni->ki", wm, np.sin(Y[..., idx]))
@@ -382,7 +382,8 @@ def weighted_moments(Y: np.ndarray, X: np.ndarray, mx: np.ndarray, wm: np.ndarra
     # Matrix products (BLAS), not a three-operand einsum: 5x faster at n_w = 128.
     RW = (R * wc[:, None]).transpose(0, 2, 1)
     cov = RW @ R
-    cov = cov / 2 + cov.transpose(0, 2, 1) / 2  # exactly symmetric, as the einsum was; no overflow
+    half = cov * 0.5
+    cov = half + half.transpose(0, 2, 1)  # exactly symmetric, as the einsum was; no overflow
     cross = RW @ D
     if negative is None:
         negative = bool(wc.min() < 0)

@@ -19,21 +19,24 @@ import numpy as np
 
 from ..compile.compiled import CompiledModel
 from ..core.angles import wrap_angle
+from ..core.checks import all_finite
 from ..errors import DerivativeError, SymmonError
 from .base import Moments, Transform
 
 __all__ = ["TT1", "TT2"]
 
 
-def _check_finite(cm: CompiledModel, means: np.ndarray, arr: np.ndarray, owner: np.ndarray, what: str) -> None:
+def _check_finite(cm: CompiledModel, means: np.ndarray, arr: np.ndarray, owner: np.ndarray | None, what: str) -> None:
     """Raise DerivativeError naming the output and point of the first non-finite entry.
 
-    ``arr`` is (K, m) and ``owner[c]`` the output to which column c belongs.
+    ``arr`` is (K, m) and ``owner[c]`` the output to which column c belongs (None: output c).
     """
+    if all_finite(arr):
+        return
     bad = ~np.isfinite(arr)
     if bad.any():
         k, c = np.argwhere(bad)[0]
-        i = int(owner[c])
+        i = int(c if owner is None else owner[c])
         point = ", ".join(f"{s}={x:.6g}" for s, x in zip(cm.symbols, means[k]))
         expr = cm.source_exprs[i] if i < len(cm.source_exprs) else "?"
         raise DerivativeError(
@@ -90,7 +93,7 @@ def second_order_terms(cm: CompiledModel, H_nz: np.ndarray, covs: np.ndarray,
 
 def _taylor(cm: CompiledModel, means: np.ndarray, covs: np.ndarray, angles, second: bool):
     y, J_nz, H_nz = cm.eval_derivatives(means)
-    _check_finite(cm, means, y, np.arange(cm.n_y), "value")
+    _check_finite(cm, means, y, None, "value")
     _check_finite(cm, means, J_nz, cm.jac_index[0], "Jacobian")
     J = cm.dense_jacobian(J_nz)
     JP = np.matmul(J, covs)
