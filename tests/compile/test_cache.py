@@ -337,10 +337,51 @@ def test_key_covers_the_compiler_version_and_target(monkeypatch):
     assert "riscv64" not in before and cc._compiler_identity.__name__ == "<lambda>"
 
 
+@needs_cc
+def test_builds_target_this_cpu_and_key_on_it(monkeypatch):
+    """-march=native where the compiler takes it, with what it expands to in the key: a cache
+    shared by two CPUs keeps an entry for each."""
+    flags, expansion = cc.native_target(cc._compiler())
+    assert flags == ("-march=native",) and expansion  # gcc and clang both take it
+    before = cc._entry("int f(void) { return 1; }", "f", "-O2", print).name
+    monkeypatch.setattr(cc, "native_target", lambda cmd: (("-march=native",), "-march=other-cpu"))
+    assert cc._entry("int f(void) { return 1; }", "f", "-O2", print).name != before
+
+
+NO_NATIVE_CC = """#!/bin/sh
+# The real compiler, except that it refuses -march=native (as a cross compiler might).
+case "$1" in -march=native) echo "cc: error: unrecognized -march=native" >&2; exit 1;; esac
+for a in "$@"; do [ "$a" = "-march=native" ] && { echo "asked for -march=native" >&2; exit 1; }; done
+exec REAL "$@"
+"""
+
+
+@needs_cc
+def test_a_compiler_without_march_native_builds_for_its_default_target(tmp_path):
+    fake = tmp_path / "cc-no-native"
+    fake.write_text(NO_NATIVE_CC.replace("REAL", shutil.which("gcc") or shutil.which("cc")))
+    fake.chmod(0o755)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("SYMMON_")}
+    env.update(CC=str(fake), SYMMON_CACHE=str(tmp_path / "cache"), SYMMON_COMPILE="sync",
+               PYTHONPATH=str(ROOT) + os.pathsep + env.get("PYTHONPATH", ""))
+    script = textwrap.dedent("""
+        import numpy as np, sympy as sp
+        import symmon.compile.ccache as cc
+        from symmon.compile import CompiledModel
+        x, y = sp.symbols("x y")
+        cm = CompiledModel([x * y + 1], [x, y], name="no_native", compiled=True)
+        print(cc.native_target(cc._compiler()), cm.eval_g(np.ones((2, 2))).ravel().tolist(), cm.evaluator)
+    """)
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["((),", "'')", "[2.0,", "2.0]", "compiled"]
+
+
 # --------------------------------------------------------------------------- interrupts
 FAKE_CC = """#!/bin/sh
 # A compiler that never finishes: it records its pid and that of a child (like cc1), then waits.
-case "$1" in --version) echo "fake-cc 1.0"; exit 0;; -dumpmachine) echo "x86_64-fake-linux-gnu"; exit 0;; esac
+case "$1" in --version) echo "fake-cc 1.0"; exit 0;; -dumpmachine) echo "x86_64-fake-linux-gnu"; exit 0;;
+  -march=native) exit 1;; esac  # the target probe (ccache.native_target): not supported
 echo $$ > "$FAKE_CC_DIR/driver.pid"
 sleep 600 &
 echo $! > "$FAKE_CC_DIR/child.pid"
@@ -509,7 +550,7 @@ def test_build_into_a_private_directory_is_killed_at_exit(tmp_path):
 # A compiler, held until the test creates $FAKE_CC_DIR/gate (at most 2 minutes), so that
 # the Python which started the build has exited before the build ends.
 GATED_CC = """#!/bin/sh
-case "$1" in --version|-dumpmachine) exec REAL "$@";; esac
+case "$1" in --version|-dumpmachine|-march=native) exec REAL "$@";; esac
 n=0
 while [ ! -e "$FAKE_CC_DIR/gate" ] && [ $n -lt 1200 ]; do sleep 0.1; n=$((n + 1)); done
 exec REAL "$@"
@@ -517,7 +558,8 @@ exec REAL "$@"
 
 # A compiler that fails with a message.
 BROKEN_CC = """#!/bin/sh
-case "$1" in --version) echo "broken-cc 1.0"; exit 0;; -dumpmachine) echo "x86_64-broken-linux-gnu"; exit 0;; esac
+case "$1" in --version) echo "broken-cc 1.0"; exit 0;; -dumpmachine) echo "x86_64-broken-linux-gnu"; exit 0;;
+  -march=native) exit 1;; esac
 echo "broken-cc: error: f.c: cannot compile this" >&2
 exit 1
 """
