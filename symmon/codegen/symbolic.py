@@ -356,7 +356,8 @@ def _offsets(L: Sym, Z: np.ndarray, c: float) -> Sym:
 
 
 def point_moments(g: ca.Function, m: Sym, P: Sym, transform: Transform,
-                  angles: Iterable[int] = (), chol=chol_lower, p: Sym | None = None) -> tuple[Sym, Sym, Sym]:
+                  angles: Iterable[int] = (), chol=chol_lower, p: Sym | None = None,
+                  circle: bool = False) -> tuple[Sym, Sym, Sym]:
     """E g, Cov g and Cov(g, w) of w ~ N(m, P) by a point rule.
 
     g is mapped over the N points m + L z_k (one loop in MX), and the weighted sums are
@@ -364,6 +365,9 @@ def point_moments(g: ca.Function, m: Sym, P: Sym, transform: Transform,
     :func:`symmon.transforms.base.weighted_moments`: that keeps digits when the weights
     are large and of both signs (ut2's are about ±1e6).  ``chol`` builds the factor:
     :func:`chol_lower` (code O(n²)) or :func:`chol_node` (code O(n³), fewer operations).
+    With ``circle``, g is :meth:`~symmon.compile.CompiledModel.circle_function` of the
+    angles: it also gives the sines and cosines of the angle outputs for their circular
+    mean (a bearing's without a sine or a cosine).
     """
     Z, wm_a, wc_a = unit_rule(transform, m.shape[0])
     N, n = Z.shape
@@ -374,12 +378,18 @@ def point_moments(g: ca.Function, m: Sym, P: Sym, transform: Transform,
     W = ca.repmat(m, 1, N) + D
     # With parameters p, g is a function of [w; p]: the same p at every point.
     Y = g.map(N)(W if p is None else ca.vertcat(W, ca.repmat(p, 1, N)))
+    rows = sorted(angles)
+    if circle and rows:
+        k = len(rows)
+        n_y = Y.shape[0] - 2 * k
+        Y, sines, cosines = Y[:n_y, :], Y[n_y:n_y + k, :], Y[n_y + k:, :]
+    elif rows:
+        sines, cosines = ca.sin(Y[rows, :]), ca.cos(Y[rows, :])
     wm = ca.DM(np.asarray(wm_a, dtype=float))
     Y0 = Y[:, 0]
     mean = Y0 + ca.mtimes(Y - ca.repmat(Y0, 1, N), wm)
-    rows = sorted(angles)
     if rows:
-        mean[rows] = ca.atan2(ca.mtimes(ca.sin(Y[rows, :]), wm), ca.mtimes(ca.cos(Y[rows, :]), wm))
+        mean[rows] = ca.atan2(ca.mtimes(sines, wm), ca.mtimes(cosines, wm))
     R = wrap_entries(Y - ca.repmat(mean, 1, N), rows)
     RW = ca.mtimes(R, ca.diag(ca.DM(np.asarray(wc_a, dtype=float))))
     if c:  # D = c [0, L, −L]: RW Dᵀ = c (RW₊ − RW₋) Lᵀ, half the products
@@ -422,4 +432,6 @@ def moments(cm: CompiledModel, m: Sym, P: Sym, transform: Transform,
         return tt1_moments(cm, m, P, angles)
     if order == 2:
         return tt2_moments(cm, m, P, angles)
+    if angles:
+        return point_moments(cm.circle_function(angles), m, P, transform, angles, chol, p, circle=True)
     return point_moments(cm.g, m, P, transform, angles, chol, p)

@@ -29,6 +29,7 @@ from sympy.functions.elementary.piecewise import ExprCondPair
 from .ccache import NativeLibrary, build_shared_library, cache_dir, has_compiler, warn_no_compiler
 from .ckernels import faster_kernels
 from .cnames import c_identifier
+from ..core.angles import circle_point
 from ..core.dag import Canonical, digest, postorder
 from ..core.model import Model
 from ..errors import ArgumentTypeError, ModelError, ShapeError, UnsupportedFunctionError
@@ -549,6 +550,7 @@ class CompiledModel:
         )
         self._hess_layout()
         self.g = ca.Function(f"{tag}_g", [w], [y], ["w"], ["y"])
+        self._circle: dict[tuple[int, ...], ca.Function] = {}
         self.jac = ca.Function(f"{tag}_J", [w], [J], ["w"], ["J"])
         # Buffers carry nonzeros only: the outputs are dense columns of nonzeros.
         H_nz = ca.vertcat(ca.SX(0, 1), *[_nonzeros(h) for h in H])
@@ -611,6 +613,22 @@ class CompiledModel:
         # Flat positions in an (n_y, s, s) array of blocks, and of the mirrored entries.
         self._block_at = (out * s + a) * s + b
         self._block_at_t = (out * s + b) * s + a
+
+    def circle_function(self, angles: Sequence[int]) -> ca.Function:
+        """w ↦ [g(w); sin y_A; cos y_A] for the angle outputs A = sorted(angles) (all sines,
+        then all cosines), for the circular mean of a point rule: a bearing atan2(a, b) has
+        them as a / r and b / r (:func:`~symmon.core.angles.circle_point`), computed with g
+        in one function so that a and b are shared.  Made once per A."""
+        rows = tuple(sorted(angles))
+        with _cache_lock:
+            f = self._circle.get(rows)
+            if f is None:
+                y = self.y_sx
+                sines, cosines = zip(*[circle_point(y[i]) for i in rows]) if rows else ((), ())
+                f = self._circle[rows] = ca.Function(f"{self.tag}_gcs", [self.w_sx],
+                                                     [ca.vertcat(y, *sines, *cosines)], ["w"], ["y_sc"],
+                                                     {"cse": True})
+            return f
 
     # ------------------------------------------------------------------ evaluation
     def eval_g(self, W: np.ndarray) -> np.ndarray:

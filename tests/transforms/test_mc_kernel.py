@@ -153,7 +153,7 @@ def test_the_sine_and_cosine_of_a_bearing_are_its_direction_cosines():
     angle output that is not atan2 itself keeps sin and cos."""
     import casadi as ca
 
-    from symmon.transforms.mc_kernel import circle_point
+    from symmon.core.angles import circle_point
 
     w = ca.SX.sym("w", 3)
     bearing = ca.atan2(w[0], w[1])
