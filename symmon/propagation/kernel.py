@@ -35,7 +35,6 @@ import numpy as np
 from ..codegen.symbolic import graph_kind, moments
 from ..compile.ccache import NativeLibrary
 from ..compile.compiled import CompiledModel, WorkArrays, generated_c, in_threads, model_key, row_spans
-from ..core.checks import all_finite
 from ..core.gaussian import SYMMETRY_RTOL
 from ..transforms.base import Moments, Transform, likely_angles
 
@@ -48,10 +47,18 @@ MIN_PER_THREAD = 32
 
 _LOOP = """
 /* symmon: {name} on each of K Gaussians: m (K, n) and P (K, n, n) in, the moments out, and
-   per Gaussian its smallest pivot and its asymmetry (check[2k], check[2k + 1]): the
-   asymmetry max |P - P'| / max(max |P|, DBL_MIN) is the test of symmon.Gaussian, here in
-   plain C (in the graph, each max was a call of libm's fmax: 8 % of the batch). */
+   per Gaussian three checks (check[3k], check[3k + 1], check[3k + 2]): its smallest pivot,
+   its asymmetry max |P - P'| / max(max |P|, DBL_MIN) (the test of symmon.Gaussian, here in
+   plain C: in the graph, each max was a call of libm's fmax, 8 % of the batch) and 1 when
+   every input and output of that Gaussian is finite, else 0 (x - x == 0 exactly when x is
+   finite; in C, not by a NumPy pass whose dot product would wake BLAS's threads). */
 #include <float.h>
+static int {name}_finite(const casadi_real* a, casadi_int n) {{
+  int ok = 1;
+  casadi_int i;
+  for (i = 0; i < n; ++i) ok &= (a[i] - a[i] == 0);
+  return ok;
+}}
 CASADI_SYMBOL_EXPORT int {name}_batch(const casadi_real* m, const casadi_real* P, casadi_real* mean,
     casadi_real* cov, casadi_real* cross, casadi_real* check, casadi_int K, casadi_int* iw, casadi_real* w) {{
   const casadi_real* arg[{sz_arg}];
@@ -59,9 +66,10 @@ CASADI_SYMBOL_EXPORT int {name}_batch(const casadi_real* m, const casadi_real* P
   const casadi_real* Pk;
   casadi_real big, asym, a;
   casadi_int k, i, j;
+  int ok;
   for (k = 0; k < K; ++k) {{
     arg[0] = m + k * {n}; arg[1] = Pk = P + k * {nn};
-    res[0] = mean + k * {n_y}; res[1] = cov + k * {nyy}; res[2] = cross + k * {nny}; res[3] = check + 2 * k;
+    res[0] = mean + k * {n_y}; res[1] = cov + k * {nyy}; res[2] = cross + k * {nny}; res[3] = check + 3 * k;
     if ({name}(arg, res, iw, w, 0)) return 1;
     big = DBL_MIN;
     asym = 0;
@@ -74,7 +82,10 @@ CASADI_SYMBOL_EXPORT int {name}_batch(const casadi_real* m, const casadi_real* P
         a = fabs(Pk[i + j * {n}] - Pk[j + i * {n}]);
         if (a > asym) asym = a;
       }}
-    check[2 * k + 1] = asym / big;
+    check[3 * k + 1] = asym / big;
+    ok = {name}_finite(arg[0], {n}) & {name}_finite(Pk, {nn}) & {name}_finite(res[0], {n_y})
+        & {name}_finite(res[1], {nyy}) & {name}_finite(res[2], {nny});
+    check[3 * k + 2] = ok;
   }}
   return 0;
 }}
@@ -141,16 +152,17 @@ class BatchKernel:
         return self._lib.wait(timeout)
 
     def __call__(self, M: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, ...] | None:
-        """(E y (K, n_y), Cov y (K, n_y, n_y), Cov(y, w) (K, n_y, n), checks (K, 2)) of the
+        """(E y (K, n_y), Cov y (K, n_y, n_y), Cov(y, w) (K, n_y, n), checks (K, 3)) of the
         batch M (K, n), P (K, n, n) (checks: the smallest pivot and the asymmetry of each
-        P, :func:`_moment_function`), or None while the kernel is not compiled."""
+        P, and 1 where all of that Gaussian's inputs and moments are finite, else 0:
+        ``_LOOP``), or None while the kernel is not compiled."""
         run = self._lib.get()
         if run is None:
             return None
         K = M.shape[0]
         M, P = np.ascontiguousarray(M, dtype=float), np.ascontiguousarray(P, dtype=float)
         out = (np.empty((K, self.n_y)), np.empty((K, self.n_y, self.n_y)), np.empty((K, self.n_y, self.n)),
-               np.empty((K, 2)))
+               np.empty((K, 3)))
 
         def part(ab: tuple[int, int]) -> int:
             a, b = ab
@@ -192,15 +204,13 @@ def kernel_moments(kernel: BatchKernel, cm: CompiledModel, transform: Transform,
     Cov y needs no test of definiteness: with non-negative weights it is a sum of
     positive semi-definite terms (:func:`batch_kernel` takes no other rule).
     """
-    if not all_finite(M, P):
-        return None
     out = kernel(M, P)
     if out is None:
         return None
     mean, cov, cross, checks = out
-    if not (np.all(checks[:, 0] > 0) and np.all(checks[:, 1] <= SYMMETRY_RTOL)):
+    # Any doubt (a non-finite input or moment, too asymmetric, a failed factor): the NumPy
+    # rule checks the batch again and names the culprit.
+    if not (np.all(checks[:, 2] == 1) and np.all(checks[:, 0] > 0) and np.all(checks[:, 1] <= SYMMETRY_RTOL)):
         return None
-    if not all_finite(mean, cov, cross):
-        return None  # the NumPy rule names the overflow
     return Moments(mean, cov, cross, evaluations=M.shape[0] * kernel.points,
                    details={"evaluator": "compiled batch kernel"})

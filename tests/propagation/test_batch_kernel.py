@@ -113,6 +113,24 @@ def test_a_bad_batch_is_named_by_the_numpy_rule(spoil, error, message):
         sm.propagate_many(model, (M, P), transform=ut)
 
 
+def test_the_kernel_flags_each_gaussian_with_a_non_finite_input_or_moment():
+    x = sp.Symbol("x", real=True)
+    model = sm.Model([x], [sp.atan(x) + sp.exp(x / 400)], name="kern_finite")  # bounded in x → −∞
+    ut = sm.UT(1, 2, 0)
+    M, P = np.zeros((MIN_BATCH, 1)), np.ones((MIN_BATCH, 1, 1))
+    M[3] = -np.inf  # g(−∞) is finite: only the test of the input catches it
+    P[8] = np.nan
+    M[11] = 3e5  # exp(750): the moments overflow
+    kernel = kernel_of(model, ut, len(M))
+    mean, cov, cross, checks = kernel(M, P)
+    assert checks.shape == (MIN_BATCH, 3)
+    np.testing.assert_array_equal(np.flatnonzero(checks[:, 2] == 0), [3, 8, 11])
+    fine = np.setdiff1d(np.arange(MIN_BATCH), [3, 8, 11])
+    assert np.isfinite(mean[fine]).all() and np.all(checks[fine, 2] == 1)
+    with pytest.raises(ShapeError, match=r"means\[3\]"):
+        sm.propagate_many(model, (M, P), transform=ut)  # the NumPy rule names the first culprit
+
+
 def test_an_overflow_is_named_by_the_numpy_rule():
     x = sp.Symbol("x", real=True)
     model = sm.Model([x], [sp.exp(x)], name="kern_overflow")

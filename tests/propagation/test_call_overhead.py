@@ -16,7 +16,7 @@ import sympy as sp
 import symmon as sm
 from symmon.compile import compiled
 from symmon.compile.compiled import address
-from symmon.core.checks import all_finite
+from symmon.core.checks import DOT_MAX, all_finite
 from symmon.errors import ArgumentError
 from symmon.propagation.joint import JointMoments
 
@@ -37,6 +37,28 @@ x, y, v = sp.symbols("x y v")
 def test_all_finite_agrees_with_isfinite(arrays, expected):
     assert all_finite(*arrays) is expected
     assert expected == all(bool(np.isfinite(a).all()) for a in arrays)
+
+
+def _big(value: float | None = None, at: int = 0, fill: float = 1.0) -> np.ndarray:
+    a = np.full(DOT_MAX + 1000, fill)
+    if value is not None:
+        a[at] = value
+    return a
+
+
+@pytest.mark.parametrize("array, expected", [
+    (_big(), True),
+    (_big(np.nan, 17), False),
+    (_big(np.inf, DOT_MAX + 999), False),
+    (_big(-np.inf, 3), False),
+    (_big(fill=1e305), True),  # Σ a overflows: decided entry by entry
+    (_big(np.nan, 5, fill=1e305), False),
+    (np.concatenate([_big(np.inf), _big(-np.inf)]), False),  # inf − inf: NaN, not a cancellation
+])
+def test_all_finite_sums_an_array_beyond_the_dot_product_size(array, expected):
+    assert array.size > DOT_MAX  # the summed path, which wakes no BLAS thread
+    assert all_finite(array) is expected
+    assert expected == bool(np.isfinite(array).all())
 
 
 def test_address_is_the_data_pointer_for_writable_read_only_and_empty_arrays():
