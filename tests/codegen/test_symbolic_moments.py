@@ -276,3 +276,25 @@ def test_each_rule_declares_its_filter_name(transform, label):
     kf = sm.NonlinearKalmanFilter(sm.Model([x], [x], name="symmom_f"), sm.Model([x], [x], name="symmom_h"),
                                   [[1.0]], [[1.0]], transform)
     assert kf.method == label
+
+
+def test_the_circle_function_gives_g_and_the_sines_and_cosines_of_its_angles():
+    """[g; sin y_A; cos y_A] for A = sorted angles: a bearing's by a / r, b / r, an atan2
+    plus noise by sin and cos; equal to NumPy's sin and cos of g to a few ulps, made once
+    per angle set."""
+    cm = compiled(dense_model())  # y0 = atan2(y, x) + z²/10: not a bare bearing
+    x, y = sp.symbols("x y", real=True)
+    bearing = compiled(sm.Model([x, y], [sp.sqrt(x**2 + y**2), sp.atan2(y, x)], name="symmom_circle", angles=[1]))
+    rng = np.random.default_rng(7)
+    for model, angles in ((cm, [0]), (bearing, [1]), (bearing, [])):
+        f = model.circle_function(angles)
+        assert f is model.circle_function(list(reversed(angles)))  # cached by the sorted rows
+        for w in [*rng.standard_normal((20, model.n_w)) * 3, np.zeros(model.n_w)]:
+            out = np.array(f(w)).ravel()
+            g = np.array(model.g(w)).ravel()
+            k = len(angles)
+            assert out.shape == (model.n_y + 2 * k,)
+            np.testing.assert_array_equal(out[:model.n_y], g)
+            ya = g[angles]
+            np.testing.assert_allclose(out[model.n_y:model.n_y + k], np.sin(ya), rtol=0, atol=4e-16)
+            np.testing.assert_allclose(out[model.n_y + k:], np.cos(ya), rtol=0, atol=4e-16)
