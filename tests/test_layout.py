@@ -1,8 +1,10 @@
 """The package's layout, checked on its source: imports point one way and stay public (issue 22).
 
 Every ``.py`` file of ``symmon/`` is parsed (nothing is imported) and all its imports are
-read, those inside functions included; only the body of an ``if TYPE_CHECKING:`` block is
-left out, since it never runs. An import of a package is an import of its ``__init__.py``:
+read, those inside functions and those under ``if TYPE_CHECKING:`` included: an import for
+annotations only is still a dependency, and leaving it out hid the cycle of
+``symmon.filters`` (issue 38: ``nonlinear`` imported ``export``, ``fit`` and ``strategy``,
+which imported it back for their annotations and reached into it at run time). An import of a package is an import of its ``__init__.py``:
 ``from ..transforms import Transform`` imports ``symmon.transforms``, while
 ``from ..compile import ccache`` imports the module ``symmon.compile.ccache``. A call
 ``importlib.import_module("symmon.x")`` with a constant name counts as an import; one with a
@@ -125,21 +127,9 @@ def _tree(path: Path) -> ast.Module:
     return ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
 
 
-def _is_type_checking(test: ast.expr) -> bool:
-    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
-        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
-
-
 def _nodes(node: ast.AST) -> Iterator[ast.AST]:
-    """All nodes below ``node`` that run: the body of ``if TYPE_CHECKING:`` is skipped."""
-    for child in ast.iter_child_nodes(node):
-        if isinstance(child, ast.If) and _is_type_checking(child.test):
-            for stmt in child.orelse:
-                yield stmt
-                yield from _nodes(stmt)
-            continue
-        yield child
-        yield from _nodes(child)
+    """All nodes below ``node``, the bodies of ``if TYPE_CHECKING:`` blocks included."""
+    return ast.walk(node)
 
 
 def _deepest_module(dotted: str) -> str:
@@ -427,6 +417,16 @@ def test_no_import_cycles():
     found = cycles(edges)
     assert not found, "import cycles (each: its modules, then one path through them):\n" + "\n".join(
         f"  {', '.join(c)}\n    {' -> '.join(a_cycle(c, edges))}" for c in found)
+
+
+def test_an_import_for_annotations_only_counts():
+    """An import under ``if TYPE_CHECKING:`` is a dependency too (issue 38): skipping it hid
+    the cycle of symmon.filters, whose fit, export and strategies imported the filter back."""
+    mod = package_modules()["symmon.filters.fit"]
+    tree = ast.parse("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+                     "    from .nonlinear import NonlinearKalmanFilter\n")
+    assert [(i.target, i.name) for i in imports_of(tree, mod.name, mod)] == [
+        ("symmon.filters.nonlinear", "NonlinearKalmanFilter")]
 
 
 def test_no_private_names_across_subpackages():

@@ -30,15 +30,24 @@ Estimation", FUSION 2024, arXiv:2410.13539, Sections III–IV, eqs. (18)–(21),
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 import sympy as sp
 
 from ..errors import ModelError, ShapeError, SingularMatrixError, SymmonError
 
-if TYPE_CHECKING:
-    from .model import Model
+
+class ModelParts(Protocol):
+    """What a change of units reads from a model (a :class:`~symmon.Model` is one; this module
+    is below :mod:`symmon.core.model`, which builds on it, and does not import it)."""
+
+    inputs: tuple
+    noise: tuple
+    outputs: tuple
+    n_v: int
+    angle_inputs: frozenset
+    angle_outputs: frozenset
 
 __all__ = [
     "scale_matrix", "offset_vector", "sympify_entry", "inverse", "Relation", "changed_parts",
@@ -176,7 +185,7 @@ class Relation:
     name: str
 
 
-def changed_parts(model: "Model", Su, ou, Sy, oy, Sv, suffix: str) -> tuple[list, list, sp.Matrix]:
+def changed_parts(model: ModelParts, Su, ou, Sy, oy, Sv, suffix: str) -> tuple[list, list, sp.Matrix]:
     taken = {s.name for s in model.inputs + model.noise} if suffix else set()
     if suffix:
         u_new = [_bar_symbol(s, taken, suffix) for s in model.inputs]
@@ -190,7 +199,7 @@ def changed_parts(model: "Model", Su, ou, Sy, oy, Sv, suffix: str) -> tuple[list
     return u_new, v_new, inverse(Sy) * (g - oy)
 
 
-def changed_model(model: "Model", Su, ou, Sy, oy, Sv, suffix: str) -> tuple[list, list, list, list]:
+def changed_model(model: ModelParts, Su, ou, Sy, oy, Sv, suffix: str) -> tuple[list, list, list, list]:
     """The parts of the model in new units (20): new inputs, outputs ḡ, new noise, and the
     angle declarations kept (those of components whose units are unchanged); numeric scales only."""
     params = set().union(*(M.free_symbols for M in (Su, ou, Sy, oy, Sv)))

@@ -69,7 +69,7 @@ import sympy as sp
 from ..core.angles import wrap_angle
 from ..errors import SymmonError
 from ..filters import Adaptive, NonlinearKalmanFilter
-from ..filters.results import KEEPABLE, MAX_BANK_NUMBERS, check_bank_size, kept_numbers
+from ..filters.inputs import KEEPABLE, MAX_BANK_NUMBERS, check_bank_size, kept_numbers
 from ..measures.advice import DEFAULT_TOL
 from ..core.gaussian import Gaussian
 from ..core.model import Model
@@ -95,7 +95,7 @@ FILTERS = {"ekf": TT1(), "ekf2": TT2(), "ukf": UT.ut1(), "ckf": UT.cubature(), "
 MAX_STEPS = 100_000
 #: The most numbers :func:`simulate` holds (truth and measurements of every run and step):
 #: 2·10⁸, 1.5 GiB, so that runs × steps is bounded jointly before any memory is taken; the
-#: same bound as a filter bank's results (:data:`symmon.filters.results.MAX_BANK_NUMBERS`).
+#: same bound as a filter bank's results (:data:`symmon.filters.inputs.MAX_BANK_NUMBERS`).
 MAX_SIMULATED = MAX_BANK_NUMBERS
 
 _KEYS = ("name", "states", "dynamics", "measurements", "angles", "state_angles", "steps", "params", "Q", "R", "x0",
@@ -267,7 +267,7 @@ def check_bank(spec: FilterSpec, runs: int, filters: Iterable[str], smooth: bool
     Raises
     ------
     ResourceError
-        Beyond :data:`~symmon.filters.results.MAX_BANK_NUMBERS` numbers.
+        Beyond :data:`~symmon.filters.inputs.MAX_BANK_NUMBERS` numbers.
     """
     n, n_y = spec.f.n_u, spec.h.n_y
     names = list(filters)

@@ -2,7 +2,8 @@
 (:mod:`.nonlinear`: EKF, second-order EKF, UKF, CKF, Gauss–Hermite), their compiled step
 (:mod:`.step`), their RTS smoothers (:mod:`.smoother`), their export as standalone C
 (:mod:`.export`), results with NEES/NIS (:mod:`.results`), and the strategies that run the steps
-(:mod:`.strategy`: one rule, or :class:`Adaptive`, :mod:`.adaptive`)."""
+(:mod:`.strategy`: one rule, or :class:`Adaptive`, :mod:`.adaptive`), and the checks of a
+filter call's inputs (:mod:`.inputs`, which the others import and which imports none of them)."""
 
 from .adaptive import Adaptive as Adaptive
 from .linear import KalmanFilter as KalmanFilter

@@ -19,7 +19,6 @@ Control 45(5), 2000 (the Gauss–Hermite filter). doi:10.1109/9.855552
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -27,15 +26,12 @@ from ..measures.advice import DEFAULT_TOL, cost, moment_distance, whiteners
 from ..core.angles import wrap_angle
 from ..errors import SymmonError
 from .step import _compiled_step, _filterable, check_dimensions
-from .results import KEEPABLE
+from .inputs import KEEPABLE, FilterSpec
 from .strategy import FilterStrategy
 from ..transforms.registry import resolve
 from ..core.model import Model
 from ..compile import compiled
 from ..transforms import TT1, TT2, UT, GaussHermite, Transform
-
-if TYPE_CHECKING:  # the filter imports this module, not the other way round
-    from .nonlinear import NonlinearKalmanFilter
 
 __all__ = ["Adaptive"]
 
@@ -164,7 +160,7 @@ def _decide(model: Model, m: np.ndarray, C: np.ndarray, add: np.ndarray | None, 
     return choice, mean, cov
 
 
-def _adaptive_run(ad: Adaptive, kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: np.ndarray, P0: np.ndarray):
+def _adaptive_run(ad: Adaptive, kf: FilterSpec, Y: np.ndarray, x0: np.ndarray, P0: np.ndarray):
     """The adaptive filter (:class:`Adaptive`) on a bank Y (R, K, n_y): outputs and choices."""
     f, h = kf.f_model, kf.h_model
     runs, K = Y.shape[:2]

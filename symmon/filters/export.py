@@ -44,7 +44,6 @@ from __future__ import annotations
 import hashlib
 import re
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
@@ -55,10 +54,8 @@ from ..errors import ArgumentTypeError, SymmonError
 from ..io import atomic_write_text, check_output_set
 from ..version import __version__
 from .step import predict_graph, select_params, step_kind, update_graph
+from .inputs import FilterSpec
 from .strategy import RuleStrategy
-
-if TYPE_CHECKING:  # pragma: no cover - annotations only
-    from .nonlinear import NonlinearKalmanFilter
 
 __all__ = ["export_filter_c", "filter_functions", "ERROR_CODES"]
 
@@ -74,7 +71,7 @@ ERROR_CODES = {
 }
 
 
-def _transform(kf: "NonlinearKalmanFilter"):
+def _transform(kf: FilterSpec):
     if not isinstance(kf.strategy, RuleStrategy):
         raise SymmonError(
             f"export_c needs a filter with one transform for every step; {kf.method} chooses one per "
@@ -83,12 +80,12 @@ def _transform(kf: "NonlinearKalmanFilter"):
     return kf.strategy.transform
 
 
-def _family(kf: "NonlinearKalmanFilter") -> str:
+def _family(kf: FilterSpec) -> str:
     """ekf, ekf2, ukf, ckf, ghkf, …: the filter's label without its settings."""
     return re.sub(r"[^a-z0-9]+", "", kf.method.split("(")[0].lower()) or "kf"
 
 
-def filter_functions(kf: "NonlinearKalmanFilter", name: str) -> dict[str, ca.Function]:
+def filter_functions(kf: FilterSpec, name: str) -> dict[str, ca.Function]:
     """The CasADi functions :func:`export_filter_c` writes C for.
 
     Returns
@@ -252,7 +249,7 @@ def _signatures(P: str, kf) -> tuple[str, str]:
             f"int {P}_update(double *x, double *P{hp}, const double *y, double *loglik);")
 
 
-def _model_hash(kf: "NonlinearKalmanFilter", transform) -> str:
+def _model_hash(kf: FilterSpec, transform) -> str:
     """sha256 of what the C computes: f, h, Q, R, the transform and the angles."""
     f, h = kf.f_model, kf.h_model
     key = repr((f.key, h.key, transform,
@@ -310,7 +307,7 @@ def _header(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> s
     return body, "\n".join(macros)
 
 
-def export_filter_c(kf: "NonlinearKalmanFilter", directory: str | Path, name: str | None = None) -> list[Path]:
+def export_filter_c(kf: FilterSpec, directory: str | Path, name: str | None = None) -> list[Path]:
     """Write the filter as standalone C: ``NAME.c``, ``NAME.h``, ``NAME_example.c``, ``README.md``.
 
     Parameters
@@ -346,7 +343,7 @@ def export_filter_c(kf: "NonlinearKalmanFilter", directory: str | Path, name: st
     graphs; tests/filters/test_export.py checks x, P and the log-likelihood against it to 1e-9
     relative on a target passing behind the sensor).  See docs/export.md.
     """
-    # Checked by what the export reads, not by class: filters.nonlinear imports this module.
+    # Checked by what the export reads (FilterSpec), not by class: filters.nonlinear imports this module.
     if not all(hasattr(kf, a) for a in ("f_model", "h_model", "Q", "R", "strategy", "angle_states")):
         raise ArgumentTypeError(f"kf must be a symmon.NonlinearKalmanFilter, got {type(kf).__name__}")
     transform = _transform(kf)

@@ -19,9 +19,10 @@ S. Särkkä, *Bayesian Filtering and Smoothing*, Cambridge University Press, 201
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -29,11 +30,9 @@ from scipy import optimize
 
 from ..core.gaussian import float_array
 from ..errors import ModelError, SymmonError
-from .results import KalmanResult, real_measurements
+from .inputs import FilterSpec, filter_inputs
+from .results import KalmanResult
 from .step import _compiled_step
-
-if TYPE_CHECKING:  # pragma: no cover - annotations only
-    from .nonlinear import NonlinearKalmanFilter
 
 __all__ = ["FitResult", "fit_parameters", "MAX_ITER"]
 
@@ -74,7 +73,7 @@ class FitResult:
     kf: Any = None
 
     @property
-    def filter(self) -> "NonlinearKalmanFilter":
+    def filter(self) -> FilterSpec:
         """The filter with the fitted values substituted into its models (constant parameters).
 
         Raises
@@ -87,14 +86,14 @@ class FitResult:
         kf = self.kf
         f = kf.f_model.with_params({str(s): self.params[str(s)] for s in kf.f_model.params})
         h = kf.h_model.with_params({str(s): self.params[str(s)] for s in kf.h_model.params})
-        return type(kf)(f, h, kf.Q, kf.R, kf.transform, iterations=kf.iterations)  # the filter's class: nonlinear imports this module
+        return dataclasses.replace(kf, f_model=f, h_model=h)  # the filter's own class, checked anew
 
     def __repr__(self) -> str:
         parts = ", ".join(f"{k} = {v:.6g} ± {self.std_errors[k]:.2g}" for k, v in self.estimates.items())
         return f"FitResult({parts}; log-likelihood {self.log_likelihood:.6g}, {self.iterations} iterations)"
 
 
-def _loglik_graph(kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: np.ndarray, P0: np.ndarray,
+def _loglik_graph(kf: FilterSpec, Y: np.ndarray, x0: np.ndarray, P0: np.ndarray,
                   base: np.ndarray, fitted: list[int]) -> tuple[ca.MX, ca.MX]:
     """θ (the fitted parameters) and ℓ(θ) as an MX graph: the step folded over K, mapped over R."""
     step = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states, kf.iterations).f
@@ -136,7 +135,7 @@ def _number(v: Any, what: str) -> float:
     return float(x)
 
 
-def fit_parameters(kf: "NonlinearKalmanFilter", ys, x0, start: dict, P0=None, *, params: dict | None = None,
+def fit_parameters(kf: FilterSpec, ys, x0, start: dict, P0=None, *, params: dict | None = None,
                    bounds: dict | None = None, max_iter: int = 200, gtol: float = 1e-6) -> FitResult:
     """The maximum-likelihood estimates of the parameters named in ``start``
     (:meth:`NonlinearKalmanFilter.fit`, whose docstring gives the parameters)."""
@@ -176,14 +175,11 @@ def fit_parameters(kf: "NonlinearKalmanFilter", ys, x0, start: dict, P0=None, *,
     if np.any(theta0 < lo) or np.any(theta0 > hi):
         raise ModelError("the starting values must lie within their bounds")
 
-    Y = real_measurements(ys)
-    runs = Y.shape[0] if Y.ndim == 3 else None
-    # The filter's own checks of ys, x0, P0 and the parameters, at the starting values.
-    first = kf.filter(ys, x0, P0, params={**fixed, **start}, keep=("x",))
-    m0, C0 = kf._initial(x0, P0, runs)
-    base = kf._param_values({**fixed, **start}, runs, first.steps)
+    # The filter's checks of ys, x0, P0 and the parameters, and a run at the starting values.
+    checked = filter_inputs(kf, ys, x0, P0, params={**fixed, **start}, keep=("x",))
+    kf.filter(ys, x0, P0, params={**fixed, **start}, keep=("x",))
     fitted = [names.index(k) for k in fitted_names]
-    theta, total = _loglik_graph(kf, Y.reshape((runs or 1,) + Y.shape[-2:]), m0, C0, base, fitted)
+    theta, total = _loglik_graph(kf, checked.Y, checked.x0, checked.P0, checked.params, fitted)
     grad = ca.gradient(total, theta)
     value_grad = ca.Function("loglik_grad", [theta], [total, grad])
     hess = ca.Function("loglik_hess", [theta], [ca.hessian(total, theta)[0]])

@@ -30,7 +30,8 @@ from numpy.typing import ArrayLike
 from ..core.checks import readonly
 from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, NonFiniteError, ShapeError, SingularMatrixError
 from ..core.gaussian import Gaussian, as_covariance, float_array, matrix_sqrt
-from .results import KalmanResult, check_bank_size, check_keep, real_measurements  # the one result type of the filters
+from .inputs import check_bank_size, check_keep, real_measurements
+from .results import KalmanResult  # the one result type of the filters
 
 __all__ = ["KalmanFilter", "KalmanResult"]
 
@@ -188,7 +189,7 @@ class KalmanFilter:
         ShapeError, CovarianceError
             Bad inputs.
         ResourceError
-            The results would exceed :data:`~symmon.filters.results.MAX_BANK_NUMBERS` numbers.
+            The results would exceed :data:`~symmon.filters.inputs.MAX_BANK_NUMBERS` numbers.
         NonFiniteError, SingularMatrixError
             The state or a covariance overflows double precision, or S rounds to a singular
             matrix, naming the step (and run).
@@ -294,7 +295,7 @@ class KalmanFilter:
         Raises
         ------
         ResourceError
-            runs × K × 2(n + n_y) beyond :data:`~symmon.filters.results.MAX_BANK_NUMBERS`.
+            runs × K × 2(n + n_y) beyond :data:`~symmon.filters.inputs.MAX_BANK_NUMBERS`.
         NonFiniteError
             The simulated state overflows (an unstable F), naming the run and step.
         """

@@ -66,14 +66,16 @@ import numpy as np
 import sympy as sp
 from numpy.typing import ArrayLike
 
-from ..errors import AngleWarning, ArgumentTypeError, CovarianceError, ModelError, ShapeError, SymmonError
-from ..core.checks import check_gaussian, check_model, noise_cov, readonly
-from .results import (ConsistencyTest, KalmanResult, NonlinearKalmanResult, SmootherResult, check_bank_size, check_keep,
-                      check_truth, kept_numbers, real_measurements, step_nees, _nees)
+from ..errors import AngleWarning, ShapeError, SymmonError
+from ..core.checks import check_model, noise_cov, readonly
+from .export import export_filter_c
+from .fit import FitResult, fit_parameters
+from .inputs import check_keep, filter_inputs
+from .results import ConsistencyTest, KalmanResult, NonlinearKalmanResult, SmootherResult, step_nees, _nees
 from .smoother import compiled_smoother
 from .step import filter_params, first_nonfinite
 from .strategy import FilterStrategy, RuleStrategy
-from ..core.gaussian import Gaussian, as_covariance, float_array
+from ..core.gaussian import Gaussian, as_covariance
 from ..core.model import Model
 from ..transforms import UT, Transform
 from ..transforms.registry import resolve
@@ -82,7 +84,7 @@ __all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest", 
 
 #: The most Gauss–Newton iterations of the iterated EKF's update (each one is unrolled in the step).
 MAX_ITERATIONS = 20
-#: How to make a bank's results fit (:data:`~symmon.filters.results.MAX_BANK_NUMBERS`).
+#: How to make a bank's results fit (:data:`~symmon.filters.inputs.MAX_BANK_NUMBERS`).
 _SMALLER = "keep fewer arrays (keep=('x',) stores the means only) or filter the runs in smaller banks"
 
 
@@ -201,37 +203,6 @@ class NonlinearKalmanFilter:
         """The parameters of the filter: those of f, then those of h that f does not have."""
         return filter_params(self.f_model, self.h_model)
 
-    def _param_values(self, params: dict | None, runs: int | None, K: int) -> np.ndarray | None:
-        """The values of the parameters as (R, K, n_p): a scalar, one per step (K,), or one per
-        run and step (R, K) for each."""
-        if not self.params:
-            if params:
-                raise ModelError(f"the filter's models declare no parameters, got params {sorted(map(str, params))}")
-            return None
-        names = [str(s) for s in self.params]
-        if not isinstance(params, dict):
-            raise ModelError(f"the filter's models have parameters {names}: give params={{name: value}}, "
-                             f"got {type(params).__name__}")
-        given = {str(k): v for k, v in params.items()}
-        unknown = sorted(set(given) - set(names))
-        missing = [n for n in names if n not in given]
-        if unknown or missing:
-            raise ModelError(f"params must give each of {names}" + (f"; unknown {unknown}" if unknown else "")
-                             + (f"; missing {missing}" if missing else ""))
-        R = runs or 1
-        out = np.empty((R, K, len(names)))
-        for j, n in enumerate(names):
-            v = float_array(given[n], f"parameter {n!r}")
-            shapes = [(), (K,)] + ([(runs, K)] if runs is not None else [])
-            if v.shape not in shapes:
-                raise ShapeError(f"parameter {n!r} must be a number, one per step ({K},)"
-                                 + (f" or one per run and step ({runs}, {K})" if runs is not None else "")
-                                 + f", got shape {v.shape}")
-            if not np.all(np.isfinite(v)):
-                raise ShapeError(f"parameter {n!r} contains NaN or inf")
-            out[..., j] = v
-        return out
-
     @cached_property
     def angle_states(self) -> frozenset[int]:
         """State components that are angles: f's angle outputs and f's or h's angle inputs."""
@@ -278,20 +249,17 @@ class NonlinearKalmanFilter:
         """
         if not isinstance(self.strategy, RuleStrategy):
             raise SymmonError(f"smooth needs one transform for every step; {self.method} chooses one per step")
+        n = self.f_model.n_u
         kept = check_keep(keep)
         forward = None if kept is None else kept | {"x", "P"}
-        Y = real_measurements(ys)
-        if Y.ndim in (2, 3):  # else filter() says what is wrong with the shape
-            n = self.f_model.n_u
-            stored = kept_numbers(n, self.h_model.n_y, self.strategy.stores(forward)) + n + n * n
-            check_bank_size(Y.shape[0] if Y.ndim == 3 else 1, Y.shape[-2], stored, f"{self.method} smoother results",
-                            _SMALLER)
-        fwd = self.filter(Y, x0, P0, keep=forward, params=params)
+        checked = filter_inputs(self, ys, x0, P0, keep=forward, params=params, extra_per_step=n + n * n,
+                                what="smoother results", advice=_SMALLER)
+        fwd = self.filter(checked.Y if checked.runs is not None else checked.Y[0], x0, P0, keep=forward, params=params)
         bank = fwd.runs is not None
         X = fwd.x if bank else fwd.x[None]
         P = fwd.P if bank else fwd.P[None]
         smoother = compiled_smoother(self.f_model, self.strategy.transform, self.angle_states, self.params)
-        xs, Ps = smoother(X, P, self.Q, params=self._param_values(params, fwd.runs, fwd.steps))
+        xs, Ps = smoother(X, P, self.Q, params=checked.params)
         bad = ~(np.isfinite(xs).all(axis=-1) & np.isfinite(Ps).all(axis=(-1, -2)))
         if bad.any():
             r, k = np.argwhere(bad)[-1]  # the backward pass runs from the end
@@ -304,7 +272,7 @@ class NonlinearKalmanFilter:
         return SmootherResult(xs, Ps, fwd, angle_states=tuple(sorted(self.angle_states)), method=self.method)
 
     def fit(self, ys: ArrayLike, x0: Gaussian | ArrayLike, start: dict, P0: ArrayLike | None = None, *,
-            params: dict | None = None, bounds: dict | None = None, max_iter: int = 200):
+            params: dict | None = None, bounds: dict | None = None, max_iter: int = 200) -> FitResult:
         """Maximum-likelihood estimates of model parameters (:mod:`symmon.filters.fit`).
 
         Maximises the marginal log-likelihood of ``ys`` (summed over the runs of a bank) over
@@ -340,8 +308,6 @@ class NonlinearKalmanFilter:
             When the optimiser does not converge, or the information matrix is singular
             (a parameter the data do not identify).
         """
-        from .fit import fit_parameters
-
         if not isinstance(self.strategy, RuleStrategy):
             raise SymmonError(f"fit needs one transform for every step; {self.method} chooses one per step")
         return fit_parameters(self, ys, x0, start, P0, params=params, bounds=bounds, max_iter=max_iter)
@@ -360,30 +326,7 @@ class NonlinearKalmanFilter:
         list of Path
             The files written: ``NAME.c``, ``NAME.h``, ``NAME_example.c``, ``README.md``.
         """
-        from .export import export_filter_c
-
         return export_filter_c(self, directory, name)
-
-    def _initial(self, x0: Gaussian | ArrayLike, P0: ArrayLike | None, runs: int | None):
-        """Validated initial mean(s) and covariance."""
-        n = self.f_model.n_u
-        if isinstance(x0, Gaussian):
-            if P0 is not None:
-                raise ShapeError("P0 must not be given with a Gaussian x0 (it carries its covariance)")
-            check_gaussian(x0, "x0", dim=n)
-            return np.asarray(x0.mean, dtype=float), np.asarray(x0.cov, dtype=float)
-        if P0 is None:
-            raise ArgumentTypeError("x0 must be a symmon.Gaussian, or a mean given together with P0")
-        m = float_array(x0, "x0")
-        if not (m.shape == (n,) or (runs is not None and m.shape == (runs, n))):
-            want = f"({n},)" + ("" if runs is None else f" or ({runs}, {n})")
-            raise ShapeError(f"x0 must have shape {want}, got {m.shape}")
-        if not np.all(np.isfinite(m)):
-            raise ShapeError("x0 contains NaN or inf")
-        C = float_array(P0, "P0", CovarianceError)
-        if runs is not None and C.shape == (runs, n, n):  # one covariance per run, each made symmetric
-            return m, np.stack([as_covariance(C[r], f"P0[{r}]", dim=n) for r in range(runs)])
-        return m, as_covariance(P0, "P0", dim=n)
 
     def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None, *,
                keep: Iterable[str] | None = None, params: dict | None = None,
@@ -432,7 +375,7 @@ class NonlinearKalmanFilter:
         ShapeError
             Bad shapes, or an infinite measurement.
         ResourceError
-            The arrays kept would exceed :data:`~symmon.filters.results.MAX_BANK_NUMBERS`
+            The arrays kept would exceed :data:`~symmon.filters.inputs.MAX_BANK_NUMBERS`
             numbers (checked before any work).
         SymmonError
             The filter produced NaN or inf (a singular S, or a covariance that lost
@@ -442,27 +385,12 @@ class NonlinearKalmanFilter:
             (:func:`~symmon.filters.results.step_nees`).
         """
         n_y = self.h_model.n_y
-        Y = real_measurements(ys)
-        if Y.ndim not in (2, 3) or Y.shape[-1] != n_y or Y.shape[-2] == 0 or Y.shape[0] == 0:
-            raise ShapeError(f"ys must have shape (K, {n_y}) or (R, K, {n_y}) with K >= 1, got {Y.shape}")
-        runs = Y.shape[0] if Y.ndim == 3 else None
-        kept = check_keep(keep)
-        # Before anything reads ys as a whole (a broadcast bank may be larger than memory).
-        check_bank_size(runs or 1, Y.shape[-2], kept_numbers(self.f_model.n_u, n_y, self.strategy.stores(kept)),
-                        f"{self.method} results", _SMALLER)
-        if np.isinf(Y).any():
-            where = tuple(int(i) for i in np.argwhere(np.isinf(Y))[0])
-            raise ShapeError(f"ys contains inf (at index {where}); a missing measurement is NaN")
-        m0, C0 = self._initial(x0, P0, runs)
-        Yb = Y.reshape((runs or 1,) + Y.shape[-2:])
-        truth = None
-        if x_true is not None:
-            truth = check_truth(x_true, Y.shape[:-1] + (self.f_model.n_u,)).reshape(Yb.shape[:2] + (-1,))
-        pv = self._param_values(params, runs, Y.shape[-2])
-        extra = {} if pv is None else {"params": pv}  # a strategy without parameters needs no argument
+        checked = filter_inputs(self, ys, x0, P0, keep=keep, params=params, x_true=x_true, advice=_SMALLER)
+        Yb, runs, kept, truth = checked.Y, checked.runs, checked.keep, checked.truth
+        extra = {} if checked.params is None else {"params": checked.params}  # a strategy without parameters needs no argument
         if truth is not None and self.strategy.nees_in_step:
             extra["truth"] = truth
-        out, choices = self.strategy.run(self, Yb, m0, C0, kept, **extra)
+        out, choices = self.strategy.run(self, Yb, checked.x0, checked.P0, kept, **extra)
         nees = {k: out.pop(k) for k in ("nees", "nees_trace") if k in out}
         if truth is not None and not nees:  # a strategy that keeps every array: from x and P
             nees = {"x": out["x"], "P": out["P"], "truth": truth}
@@ -490,8 +418,8 @@ class NonlinearKalmanFilter:
             choices = choices if runs is not None else choices[0]
             choices.flags.writeable = False
         measured = None
-        if np.isnan(Y).any():
-            measured = readonly((~np.isnan(Y)).sum(axis=-1))
+        if np.isnan(Yb).any():
+            measured = readonly((~np.isnan(Yb if runs is not None else Yb[0])).sum(axis=-1))
         if "nis" in arrays:
             arrays["nis_values"] = arrays.pop("nis")
         return KalmanResult(**arrays, measured=measured, n_y=n_y, n_x=self.f_model.n_u,

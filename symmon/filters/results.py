@@ -16,21 +16,20 @@ Navigation*, Wiley, 2001, §5.4 (NEES, NIS and their χ² tests).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from decimal import Decimal
-from typing import Iterable, Sequence, Union
+from typing import Sequence, Union
 
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy import stats
 
 from ..core.angles import wrap_angle
-from ..errors import ArgumentError, NonFiniteError, ResourceError, ShapeError, SingularMatrixError, SymmonError
+from ..errors import NonFiniteError, ShapeError, SingularMatrixError, SymmonError
 from ..measures.weights import SINGULAR_CORR
 from ..core.checks import readonly
-from ..core.gaussian import Gaussian, float_array
+from ..core.gaussian import Gaussian
+from .inputs import check_truth
 
-__all__ = ["KalmanResult", "NonlinearKalmanResult", "SmootherResult", "ConsistencyTest", "KEEPABLE", "check_keep",
-           "real_measurements", "check_truth", "step_nees", "MAX_BANK_NUMBERS", "check_bank_size", "kept_numbers"]
+__all__ = ["KalmanResult", "NonlinearKalmanResult", "SmootherResult", "ConsistencyTest", "step_nees"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -181,22 +180,6 @@ def _nees(x: np.ndarray, P: np.ndarray, x_true: ArrayLike, angle_states: Sequenc
     return _quadratic_forms(e, P, "state covariance P")
 
 
-def check_truth(x_true: ArrayLike, shape: tuple[int, ...]) -> np.ndarray:
-    """The true states ``x_true`` as a finite float array of ``shape`` ((K, n) or (R, K, n)).
-
-    Raises
-    ------
-    ShapeError
-        For another shape, or NaN or inf (complex values are refused by ``float_array``).
-    """
-    X = float_array(x_true, "x_true")
-    if X.shape != tuple(shape):
-        raise ShapeError(f"x_true must have the shape of x, {tuple(shape)}, got {X.shape}")
-    if not np.all(np.isfinite(X)):
-        raise ShapeError("x_true contains NaN or inf")
-    return X
-
-
 def step_nees(values: np.ndarray, trace: np.ndarray) -> np.ndarray:
     """The NEES computed inside a compiled filter step, checked: ``values`` (R, K) or (K,) and
     ``trace`` = tr Ρ⁻¹ of each step's correlation matrix Ρ (:func:`symmon.filters.step.nees_graph`).
@@ -223,81 +206,8 @@ def step_nees(values: np.ndarray, trace: np.ndarray) -> np.ndarray:
     return _finite_forms(values)
 
 
-def real_measurements(ys: ArrayLike) -> np.ndarray:
-    """``ys`` as a float array; complex or non-numeric measurements are refused, not cast.
-
-    Raises
-    ------
-    ShapeError
-        For complex values or values that are not numbers.
-    """
-    return float_array(ys, "ys", ShapeError)
-
-
-#: The most numbers (8 bytes each: 1.5 GiB) that the arrays of one filter bank may hold: a
-#: filter call's results (R × K × the numbers per step of the arrays kept), a smoother's,
-#: or a simulated bank's states and measurements.  Beyond it the allocation would end in a
-#: MemoryError, or in the system's out-of-memory killer half-way through the run: the size
-#: is checked before anything is computed.
-MAX_BANK_NUMBERS = 2 * 10**8
-
-
-def check_bank_size(runs: int, steps: int, per_step: int, what: str, advice: str, shared: int = 0) -> None:
-    """Refuse a bank whose arrays would hold more than :data:`MAX_BANK_NUMBERS` numbers.
-
-    ``per_step`` is the count of numbers per run and step, ``shared`` per step for all
-    runs (the linear filter's covariances); ``what`` names the arrays and ``advice`` says
-    how to make them smaller.
-
-    Raises
-    ------
-    ResourceError
-        When runs × steps × per_step (+ steps × shared) exceeds the limit.
-    """
-    total = int(runs) * int(steps) * int(per_step) + int(steps) * int(shared)  # Python ints: no overflow
-    if total > MAX_BANK_NUMBERS:
-        gib = Decimal(8 * total) / 2**30  # a float would overflow for 400-digit counts
-        raise ResourceError(
-            f"{what}: runs × steps × numbers per step = {runs} × {steps} × {per_step}"
-            + (f" (+ {shared} per step)" if shared else "")
-            + f" = {Decimal(total):.3g} numbers ({gib:.3g} GiB), which exceeds the limit of "
-            f"{MAX_BANK_NUMBERS:.0e} ({8 * MAX_BANK_NUMBERS / 2**30:.1f} GiB): {advice}")
-
-
-def kept_numbers(n: int, n_y: int, names: Iterable[str]) -> int:
-    """Numbers per run and step of the filter arrays ``names`` (and the log-likelihood)."""
-    size = {"x": n, "P": n * n, "x_pred": n, "P_pred": n * n, "innovation": n_y, "S": n_y * n_y, "nis": 1}
-    return 1 + sum(size[k] for k in set(names) if k in size)
-
-
 #: Which state components a block of :meth:`KalmanResult.cross_cov` selects.
 Block = Union[slice, Sequence[int]]
-
-#: The arrays a filter can keep (``filter(..., keep=...)``).
-KEEPABLE = ("x", "P", "x_pred", "P_pred", "innovation", "S", "nis")
-
-
-def check_keep(keep: Iterable[str] | None) -> frozenset[str] | None:
-    """``keep`` of a filter call as a set of names of :data:`KEEPABLE` (None: all).
-
-    Raises
-    ------
-    ArgumentError
-        For an unknown name, or a string where a collection of names is wanted.
-    """
-    if keep is None:
-        return None
-    if isinstance(keep, str):
-        raise ArgumentError(f"keep must be a collection of names, e.g. ({keep!r},), not the string {keep!r}")
-    try:
-        names = frozenset(keep)
-    except TypeError:
-        raise ArgumentError(f"keep must be a collection of names among {list(KEEPABLE)}, got {keep!r}") from None
-    unknown = sorted(names - set(KEEPABLE), key=repr)
-    if unknown:
-        raise ArgumentError(f"keep names {unknown} are not results of a filter; use some of {list(KEEPABLE)}")
-    return names
-
 
 @dataclass(frozen=True, eq=False)
 class KalmanResult:

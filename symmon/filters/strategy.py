@@ -11,17 +11,13 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import ArgumentTypeError, SymmonError
 from ..transforms import Transform
-from .results import KEEPABLE
+from .inputs import KEEPABLE, FilterSpec
 from .step import _compiled_step, _filterable, check_dimensions
-
-if TYPE_CHECKING:  # the filter imports this module, not the other way round
-    from .nonlinear import NonlinearKalmanFilter
 
 __all__ = ["FilterStrategy", "RuleStrategy"]
 
@@ -38,16 +34,16 @@ class FilterStrategy(ABC):
     def label(self) -> str:
         """The filter's name (EKF, UKF(...), Adaptive(...)): ``NonlinearKalmanFilter.method``."""
 
-    def check(self, kf: "NonlinearKalmanFilter") -> None:
+    def check(self, kf: FilterSpec) -> None:
         """Refuse, when the filter is made, what cannot run on its dimensions (default: nothing)."""
 
     def stores(self, keep: frozenset[str] | None) -> frozenset[str]:
-        """The arrays (of :data:`~symmon.filters.results.KEEPABLE`) that :meth:`run` allocates
+        """The arrays (of :data:`~symmon.filters.inputs.KEEPABLE`) that :meth:`run` allocates
         for a bank when the caller keeps ``keep`` (None: all), for the bound on their size."""
         return frozenset(KEEPABLE) if keep is None else frozenset(keep)
 
     @abstractmethod
-    def run(self, kf: "NonlinearKalmanFilter", Y: np.ndarray, x0: np.ndarray, P0: np.ndarray,
+    def run(self, kf: FilterSpec, Y: np.ndarray, x0: np.ndarray, P0: np.ndarray,
             keep: frozenset[str] | None = None) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
         """Filter the bank ``Y`` (R, K, n_y) from x0 (n,) or (R, n) and P0 (n, n) or (R, n, n).
 

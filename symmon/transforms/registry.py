@@ -22,12 +22,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import re
-from typing import TYPE_CHECKING, Any, Callable
+from typing import Any, Callable
 
 from ..errors import SymmonError
 
-if TYPE_CHECKING:
-    from .base import Transform
+#: A preset's factory: the keyword options of :func:`make` → a ``Transform``.  Annotated
+#: without the class: :mod:`symmon.transforms.base` registers its rules here when they are
+#: created, so this module is below it and does not import it.
+Factory = Callable[..., Any]
 
 __all__ = ["Preset", "make", "resolve", "names", "presets", "compare_set", "COMPARE", "DEFAULT",
            "default_transform"]
@@ -39,13 +41,13 @@ class Preset:
 
     name: str
     summary: str
-    factory: Callable[..., Transform]
+    factory: Factory
 
 
 _PRESETS: dict[str, Preset] = {}
 
 
-def _register(name: str, summary: str, factory: Callable[..., Transform]) -> Preset:
+def _register(name: str, summary: str, factory: Factory) -> Preset:
     """Add a preset (called by :meth:`Transform.__init_subclass__` only: rules declare
     ``presets``) under ``name`` (lower case, no spaces), listed after those before it.
 
@@ -76,7 +78,7 @@ def presets() -> tuple[Preset, ...]:
     return tuple(_PRESETS.values())
 
 
-def make(name: str, *, samples: int = 10**6, seed: int = 0, order: int = 5, groups: int = 16) -> Transform:
+def make(name: str, *, samples: int = 10**6, seed: int = 0, order: int = 5, groups: int = 16) -> Any:
     """The transform registered as ``name``, built with the options it uses.
 
     Parameters
@@ -140,11 +142,11 @@ COMPARE = ("tt1", "tt2", "ut1", "ct", "gh", "mc")
 DEFAULT = "tt2"
 
 
-def default_transform() -> Transform:
+def default_transform() -> Any:
     """The transform used when none is given (:data:`DEFAULT`)."""
     return make(DEFAULT)
 
 
-def compare_set() -> list[Transform]:
+def compare_set() -> list[Any]:
     """The transforms :func:`symmon.compare` uses by default (:data:`COMPARE`)."""
     return [make(n, samples=10**5) for n in COMPARE]

@@ -16,9 +16,10 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import AngleWarning, NonFiniteError, ResourceError, SingularMatrixError, SymmonError
-from symmon.filters import results
+from symmon.filters import inputs, results
 from symmon.filters.adaptive import _adaptive_run
-from symmon.filters.results import MAX_BANK_NUMBERS, _quadratic_forms
+from symmon.filters.inputs import MAX_BANK_NUMBERS
+from symmon.filters.results import _quadratic_forms
 
 #: A quadratic form computed two ways (scaled and unscaled) in double precision.
 FORM_RTOL = 1e-12
@@ -79,7 +80,7 @@ def test_the_bound_counts_the_arrays_kept(monkeypatch):
     (x, P, x_pred, P_pred, innovation, S, nis, loglik): a limit between the two separates them."""
     kf = line_filter(sm.TT1())
     ys = np.ones((10, 10, 1))
-    monkeypatch.setattr(results, "MAX_BANK_NUMBERS", 100 * 5)
+    monkeypatch.setattr(inputs, "MAX_BANK_NUMBERS", 100 * 5)
     assert kf.filter(ys, sm.Gaussian([0.0], [[1.0]]), keep=("x", "P")).x.shape == (10, 10, 1)
     with pytest.raises(ResourceError, match=r"10 × 10 × 8 = 800 numbers"):
         kf.filter(ys, sm.Gaussian([0.0], [[1.0]]))

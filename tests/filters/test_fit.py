@@ -80,13 +80,13 @@ def test_the_gradient_is_the_derivative_of_the_filters_log_likelihood():
     import casadi as ca
 
     from symmon.filters.fit import _loglik_graph
+    from symmon.filters.inputs import filter_inputs
 
     _, ys = data(3, runs=3, K=20)
     k = kf(sm.UT.ut1())
     theta = np.array([0.25, 1.0])
-    base = k._param_values({"q": 0.25, "b": 1.0}, 3, 20)
-    m0, C0 = k._initial(X0, None, 3)
-    t, total = _loglik_graph(k, ys, m0, C0, base, [0, 1])
+    checked = filter_inputs(k, ys, X0, None, params={"q": 0.25, "b": 1.0})
+    t, total = _loglik_graph(k, checked.Y, checked.x0, checked.P0, checked.params, [0, 1])
     fn = ca.Function("f", [t], [total, ca.gradient(total, t)])
     value, grad = (np.asarray(a, dtype=float).ravel() for a in fn(theta))
 

@@ -1,0 +1,282 @@
+"""The checks of a filter call's inputs, in one module: the measurements, ``keep``, the size of
+a bank's results, the true states, the initial state and the models' parameter values.
+
+:func:`filter_inputs` runs them all, in the order a caller meets them, for
+:meth:`NonlinearKalmanFilter.filter <symmon.NonlinearKalmanFilter.filter>`, its smoother and
+its fit; the linear filter and the filter files use the single checks.  It is the bottom of
+:mod:`symmon.filters`: the results, the filter, its strategies, its fit and its export import
+it, and it imports none of them.  :class:`FilterSpec` is what they read from a filter, so that
+none of them needs the filter's class (nor imports :mod:`symmon.filters.nonlinear`, which
+imports them).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from decimal import Decimal
+from typing import Any, Iterable, Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ..core.checks import check_gaussian
+from ..core.gaussian import Gaussian, as_covariance, float_array
+from ..core.model import Model
+from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, ModelError, ResourceError, ShapeError
+
+__all__ = ["FilterSpec", "FilterInputs", "filter_inputs", "KEEPABLE", "check_keep", "real_measurements",
+           "check_truth", "MAX_BANK_NUMBERS", "check_bank_size", "kept_numbers", "initial_state", "param_values"]
+
+
+class FilterSpec(Protocol):
+    """A nonlinear filter as its strategies, fit, export and input checks read it
+    (:class:`~symmon.NonlinearKalmanFilter` is the one implementation)."""
+
+    f_model: Model
+    h_model: Model
+    Q: np.ndarray
+    R: np.ndarray
+    transform: Any
+    iterations: int
+    strategy: Any  # a FilterStrategy (symmon.filters.strategy imports this module)
+
+    @property
+    def params(self) -> tuple: ...
+
+    @property
+    def angle_states(self) -> frozenset[int]: ...
+
+    @property
+    def dimensions(self) -> tuple[int, int]: ...
+
+    @property
+    def method(self) -> str: ...
+
+
+#: The arrays a filter can keep (``filter(..., keep=...)``).
+KEEPABLE = ("x", "P", "x_pred", "P_pred", "innovation", "S", "nis")
+
+
+def check_keep(keep: Iterable[str] | None) -> frozenset[str] | None:
+    """``keep`` of a filter call as a set of names of :data:`KEEPABLE` (None: all).
+
+    Raises
+    ------
+    ArgumentError
+        For an unknown name, or a string where a collection of names is wanted.
+    """
+    if keep is None:
+        return None
+    if isinstance(keep, str):
+        raise ArgumentError(f"keep must be a collection of names, e.g. ({keep!r},), not the string {keep!r}")
+    try:
+        names = frozenset(keep)
+    except TypeError:
+        raise ArgumentError(f"keep must be a collection of names among {list(KEEPABLE)}, got {keep!r}") from None
+    unknown = sorted(names - set(KEEPABLE), key=repr)
+    if unknown:
+        raise ArgumentError(f"keep names {unknown} are not results of a filter; use some of {list(KEEPABLE)}")
+    return names
+
+
+def real_measurements(ys: ArrayLike) -> np.ndarray:
+    """``ys`` as a float array; complex or non-numeric measurements are refused, not cast.
+
+    Raises
+    ------
+    ShapeError
+        For complex values or values that are not numbers.
+    """
+    return float_array(ys, "ys", ShapeError)
+
+
+def check_truth(x_true: ArrayLike, shape: tuple[int, ...]) -> np.ndarray:
+    """The true states ``x_true`` as a finite float array of ``shape`` ((K, n) or (R, K, n)).
+
+    Raises
+    ------
+    ShapeError
+        For another shape, or NaN or inf (complex values are refused by ``float_array``).
+    """
+    X = float_array(x_true, "x_true")
+    if X.shape != tuple(shape):
+        raise ShapeError(f"x_true must have the shape of x, {tuple(shape)}, got {X.shape}")
+    if not np.all(np.isfinite(X)):
+        raise ShapeError("x_true contains NaN or inf")
+    return X
+
+
+#: The most numbers (8 bytes each: 1.5 GiB) that the arrays of one filter bank may hold: a
+#: filter call's results (R × K × the numbers per step of the arrays kept), a smoother's,
+#: or a simulated bank's states and measurements.  Beyond it the allocation would end in a
+#: MemoryError, or in the system's out-of-memory killer half-way through the run: the size
+#: is checked before anything is computed.
+MAX_BANK_NUMBERS = 2 * 10**8
+
+
+def check_bank_size(runs: int, steps: int, per_step: int, what: str, advice: str, shared: int = 0) -> None:
+    """Refuse a bank whose arrays would hold more than :data:`MAX_BANK_NUMBERS` numbers.
+
+    ``per_step`` is the count of numbers per run and step, ``shared`` per step for all
+    runs (the linear filter's covariances); ``what`` names the arrays and ``advice`` says
+    how to make them smaller.
+
+    Raises
+    ------
+    ResourceError
+        When runs × steps × per_step (+ steps × shared) exceeds the limit.
+    """
+    total = int(runs) * int(steps) * int(per_step) + int(steps) * int(shared)  # Python ints: no overflow
+    if total > MAX_BANK_NUMBERS:
+        gib = Decimal(8 * total) / 2**30  # a float would overflow for 400-digit counts
+        raise ResourceError(
+            f"{what}: runs × steps × numbers per step = {runs} × {steps} × {per_step}"
+            + (f" (+ {shared} per step)" if shared else "")
+            + f" = {Decimal(total):.3g} numbers ({gib:.3g} GiB), which exceeds the limit of "
+            f"{MAX_BANK_NUMBERS:.0e} ({8 * MAX_BANK_NUMBERS / 2**30:.1f} GiB): {advice}")
+
+
+def kept_numbers(n: int, n_y: int, names: Iterable[str]) -> int:
+    """Numbers per run and step of the filter arrays ``names`` (and the log-likelihood)."""
+    size = {"x": n, "P": n * n, "x_pred": n, "P_pred": n * n, "innovation": n_y, "S": n_y * n_y, "nis": 1}
+    return 1 + sum(size[k] for k in set(names) if k in size)
+
+
+def initial_state(n: int, x0: Gaussian | ArrayLike, P0: ArrayLike | None,
+                  runs: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """The initial mean(s) and covariance(s) of a filter of state dimension ``n``: from a
+    Gaussian, or a mean (n,) or (R, n) with ``P0`` (n, n) or (R, n, n).
+
+    Raises
+    ------
+    ShapeError, CovarianceError, ArgumentTypeError
+        A bad shape, NaN or inf, a covariance that is not one, or neither form given.
+    """
+    if isinstance(x0, Gaussian):
+        if P0 is not None:
+            raise ShapeError("P0 must not be given with a Gaussian x0 (it carries its covariance)")
+        check_gaussian(x0, "x0", dim=n)
+        return np.asarray(x0.mean, dtype=float), np.asarray(x0.cov, dtype=float)
+    if P0 is None:
+        raise ArgumentTypeError("x0 must be a symmon.Gaussian, or a mean given together with P0")
+    m = float_array(x0, "x0")
+    if not (m.shape == (n,) or (runs is not None and m.shape == (runs, n))):
+        want = f"({n},)" + ("" if runs is None else f" or ({runs}, {n})")
+        raise ShapeError(f"x0 must have shape {want}, got {m.shape}")
+    if not np.all(np.isfinite(m)):
+        raise ShapeError("x0 contains NaN or inf")
+    C = float_array(P0, "P0", CovarianceError)
+    if runs is not None and C.shape == (runs, n, n):  # one covariance per run, each made symmetric
+        return m, np.stack([as_covariance(C[r], f"P0[{r}]", dim=n) for r in range(runs)])
+    return m, as_covariance(P0, "P0", dim=n)
+
+
+def param_values(names: tuple, params: dict | None, runs: int | None, K: int) -> np.ndarray | None:
+    """The values of the parameters ``names`` (sympy symbols) as (R, K, n_p): for each, a
+    scalar, one per step (K,), or one per run and step (R, K); None without parameters.
+
+    Raises
+    ------
+    ModelError
+        ``params`` is not a dict, or misses or adds a parameter.
+    ShapeError
+        A value of another shape, or NaN or inf.
+    """
+    if not names:
+        if params:
+            raise ModelError(f"the filter's models declare no parameters, got params {sorted(map(str, params))}")
+        return None
+    names = [str(s) for s in names]
+    if not isinstance(params, dict):
+        raise ModelError(f"the filter's models have parameters {names}: give params={{name: value}}, "
+                         f"got {type(params).__name__}")
+    given = {str(k): v for k, v in params.items()}
+    unknown = sorted(set(given) - set(names))
+    missing = [n for n in names if n not in given]
+    if unknown or missing:
+        raise ModelError(f"params must give each of {names}" + (f"; unknown {unknown}" if unknown else "")
+                         + (f"; missing {missing}" if missing else ""))
+    R = runs or 1
+    out = np.empty((R, K, len(names)))
+    for j, n in enumerate(names):
+        v = float_array(given[n], f"parameter {n!r}")
+        shapes = [(), (K,)] + ([(runs, K)] if runs is not None else [])
+        if v.shape not in shapes:
+            raise ShapeError(f"parameter {n!r} must be a number, one per step ({K},)"
+                             + (f" or one per run and step ({runs}, {K})" if runs is not None else "")
+                             + f", got shape {v.shape}")
+        if not np.all(np.isfinite(v)):
+            raise ShapeError(f"parameter {n!r} contains NaN or inf")
+        out[..., j] = v
+    return out
+
+
+@dataclass(frozen=True)
+class FilterInputs:
+    """The checked inputs of one filter call.
+
+    Attributes
+    ----------
+    Y : ndarray, shape (R, K, n_y)
+        The measurements as a bank (R = 1 for a single run); NaN marks a missing one.
+    runs : int or None
+        R for a bank, None for a single run.
+    keep : frozenset of str, or None
+        The arrays to keep (None: all).
+    x0, P0 : ndarray
+        The initial mean(s) (n,) or (R, n) and covariance(s) (n, n) or (R, n, n).
+    truth : ndarray, shape (R, K, n), or None
+        The true states, when given.
+    params : ndarray, shape (R, K, n_p), or None
+        The parameter values, when the models have parameters.
+    """
+
+    Y: np.ndarray
+    runs: int | None
+    keep: frozenset[str] | None
+    x0: np.ndarray
+    P0: np.ndarray
+    truth: np.ndarray | None
+    params: np.ndarray | None
+
+    @property
+    def steps(self) -> int:
+        return int(self.Y.shape[1])
+
+
+def filter_inputs(kf: FilterSpec, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None, *,
+                  keep: Iterable[str] | None = None, params: dict | None = None, x_true: ArrayLike | None = None,
+                  extra_per_step: int = 0, what: str = "results", advice: str = "") -> FilterInputs:
+    """Every check of a nonlinear filter call's inputs, in the order a caller meets them.
+
+    ``extra_per_step`` numbers per run and step are added to the arrays the filter's strategy
+    stores (a smoother's x and P), and ``what`` names them in the bound's message.
+
+    Raises
+    ------
+    ShapeError
+        ``ys`` not (K, n_y) or (R, K, n_y) with K ≥ 1, not real numbers, or holding inf.
+    ArgumentError
+        A bad ``keep``.
+    ResourceError
+        The arrays would exceed :data:`MAX_BANK_NUMBERS` numbers (checked before ys is
+        read whole: a broadcast bank may be larger than memory).
+    """
+    n, n_y = kf.f_model.n_u, kf.h_model.n_y
+    Y = real_measurements(ys)
+    if Y.ndim not in (2, 3) or Y.shape[-1] != n_y or Y.shape[-2] == 0 or Y.shape[0] == 0:
+        raise ShapeError(f"ys must have shape (K, {n_y}) or (R, K, {n_y}) with K >= 1, got {Y.shape}")
+    runs = Y.shape[0] if Y.ndim == 3 else None
+    kept = check_keep(keep)
+    check_bank_size(runs or 1, Y.shape[-2], kept_numbers(n, n_y, kf.strategy.stores(kept)) + extra_per_step,
+                    f"{kf.method} {what}", advice)
+    if np.isinf(Y).any():
+        where = tuple(int(i) for i in np.argwhere(np.isinf(Y))[0])
+        raise ShapeError(f"ys contains inf (at index {where}); a missing measurement is NaN")
+    m0, C0 = initial_state(n, x0, P0, runs)
+    Yb = Y.reshape((runs or 1,) + Y.shape[-2:])
+    truth = None
+    if x_true is not None:
+        truth = check_truth(x_true, Y.shape[:-1] + (n,)).reshape(Yb.shape[:2] + (-1,))
+    pv = param_values(kf.params, params, runs, Y.shape[-2])
+    return FilterInputs(Yb, runs, kept, m0, C0, truth, pv)

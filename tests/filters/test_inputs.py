@@ -1,0 +1,82 @@
+"""The checks of a filter call's inputs live in one module, below the filter (issue 38, item 19).
+
+symmon.filters.inputs holds every check of ys, keep, the bank's size, x_true, x0/P0 and the
+parameter values; the filter, its smoother and its fit delegate to :func:`filter_inputs`, and no
+module of the subpackage but its ``__init__`` imports the filter (whose methods import them).
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import symmon as sm
+from symmon.errors import ArgumentError, ModelError, ShapeError
+from symmon.filters import inputs, results
+from symmon.filters.inputs import FilterInputs, filter_inputs
+
+FILTERS = Path(inputs.__file__).parent
+
+
+def _imports(path: Path) -> set[str]:
+    """The modules of symmon.filters that ``path`` imports (relative, any scope, annotations too)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom) and node.level == 1:
+            found |= {node.module} if node.module else {a.name for a in node.names}
+    return found
+
+
+def test_no_module_of_the_subpackage_imports_the_filter_back():
+    back = sorted(p.name for p in FILTERS.glob("*.py") if p.name != "__init__.py" and "nonlinear" in _imports(p))
+    assert back == []
+
+
+def test_the_input_checks_import_no_other_filter_module():
+    assert _imports(FILTERS / "inputs.py") == set()
+
+
+def test_results_hold_no_input_check():
+    """The checks moved out of results.py: a filter call reads them from one module."""
+    defined = {n.name for n in ast.parse(Path(results.__file__).read_text(encoding="utf-8")).body
+               if isinstance(n, ast.FunctionDef)}
+    assert not defined & {"check_keep", "real_measurements", "check_truth", "check_bank_size", "kept_numbers"}
+
+
+@pytest.fixture(scope="module")
+def kf():
+    x, b = sp.symbols("x b")
+    f = sm.Model([x], [x], params=[b], name="inputs_f")
+    h = sm.Model([x], [x + b], params=[b], name="inputs_h")
+    return sm.NonlinearKalmanFilter(f, h, [[0.1]], [[1.0]], sm.TT1())
+
+
+def test_filter_inputs_checks_and_shapes_a_call(kf):
+    ys = np.array([[1.0], [np.nan], [2.0]])
+    c = filter_inputs(kf, ys, np.zeros(1), np.eye(1), keep=("x",), params={"b": [0.0, 1.0, 2.0]},
+                      x_true=np.zeros((3, 1)))
+    assert isinstance(c, FilterInputs) and c.runs is None and c.steps == 3
+    assert c.Y.shape == (1, 3, 1) and np.isnan(c.Y[0, 1, 0]) and c.keep == frozenset({"x"})
+    assert c.truth.shape == (1, 3, 1) and c.params[0, :, 0].tolist() == [0.0, 1.0, 2.0]
+    bank = filter_inputs(kf, np.ones((2, 3, 1)), np.zeros((2, 1)), np.eye(1), params={"b": 1.0})
+    assert bank.runs == 2 and bank.x0.shape == (2, 1) and bank.params.shape == (2, 3, 1)
+
+
+@pytest.mark.parametrize("call, error, match", [
+    (dict(ys=np.ones((3, 2))), ShapeError, r"ys must have shape \(K, 1\)"),
+    (dict(ys=[[1.0], [np.inf]]), ShapeError, "ys contains inf"),
+    (dict(keep="x"), ArgumentError, "not the string"),
+    (dict(params={}), ModelError, "missing"),
+    (dict(x_true=np.zeros((2, 1))), ShapeError, "x_true must have the shape"),
+])
+def test_the_filter_raises_what_filter_inputs_raises(kf, call, error, match):
+    args = dict(ys=np.ones((3, 1)), keep=None, params={"b": 0.0}, x_true=None) | call
+    with pytest.raises(error, match=match):
+        filter_inputs(kf, args["ys"], np.zeros(1), np.eye(1), keep=args["keep"], params=args["params"],
+                      x_true=args["x_true"])
+    with pytest.raises(error, match=match):
+        kf.filter(args["ys"], np.zeros(1), np.eye(1), keep=args["keep"], params=args["params"], x_true=args["x_true"])
