@@ -155,7 +155,8 @@ class UnitError(ModelError):
 
 
 class OutputPathError(SymmonError):
-    """An output path is empty or names something that is not a regular file."""
+    """An output path is empty or names something that is not a regular file, or a file
+    that symmon would replace but did not write (an export's README beside a user's)."""
 
 
 class UsageError(SymmonError):

@@ -437,7 +437,7 @@ def _parser() -> argparse.ArgumentParser:
     sp.set_defaults(func=commands.cmd_fit)
 
     sp = add("export", "export a filter of a filter scenario file as standalone C99 for an embedded "
-             "target: NAME.c, NAME.h, an example program and a README (docs/export.md)")
+             "target: NAME.c, NAME.h, an example program and NAME_README.md (docs/export.md)")
     sp.add_argument("file", help="TOML filter scenario (see symmon.files.filterfile)")
     sp.add_argument("--filter", choices=sorted(FILTERS), default="ukf", help="the filter (default ukf)")
     output_opt(sp, "--out", kind="dir", required=True, metavar="DIR", help="output directory (created if missing)")

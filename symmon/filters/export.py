@@ -12,9 +12,11 @@ I/O, that includes only ``<math.h>`` and ``<string.h>``.  Its interface::
 Both work in place on the state x (NX) and its covariance P (NX × NX, symmetric, row-major
 and column-major alike); ``NAME_update`` adds log N(ν; 0, S) of the innovation ν to
 ``*loglik``.  They return ``NAME_OK`` (0), or an error code and leave x, P and ``*loglik``
-unchanged: ``NAME_ERR_STATE`` (x or P not finite on entry), ``NAME_ERR_MEASUREMENT`` (y not
-finite), ``NAME_ERR_S`` (the innovation covariance S is not positive definite) or
-``NAME_ERR_P`` (the new P is not positive definite, or the new x is not finite).  With model
+unchanged: ``NAME_ERR_STATE`` (x or P not finite on entry), ``NAME_ERR_MEASUREMENT`` (a component
+of y infinite), ``NAME_ERR_S`` (the innovation covariance S is not positive definite) or
+``NAME_ERR_P`` (the new P is not positive definite, or the new x is not finite).  A NaN
+component of y is a missing measurement, as in ``kf.filter``: the update runs on the measured
+components (the filter step's mask), and a y of NaN only leaves x and P as predicted.  With model
 parameters (``Model(params=...)``) the function whose model uses them takes ``const double
 *p`` after the state (``NAME_NP`` values, f's then h's), and a non-finite one returns
 ``NAME_ERR_PARAM``.
@@ -29,9 +31,11 @@ functions of f, h and their derivatives' nonzeros, so the C has loops and grows 
 nonzeros, not with n³ (docs/export.md).
 Positive definiteness is tested by the pivots of a Cholesky factor of S and of the new P.
 
-Also written: ``NAME_example.c``, a program that reads x0, P0 and measurements from stdin
-and prints the estimates, and ``README.md`` (interface, sizes, build, the model it came
-from, the symmon version and the model's hash).
+Also written: ``NAME_example.c``, a program that reads x0, P0 and per step the parameter
+values and a measurement from stdin and prints the estimates, and ``NAME_README.md``
+(interface, sizes, build, the model it came from, the symmon version and the model's hash).
+A file of these names that symmon's export did not write (it carries :data:`STAMP`) is not
+replaced.
 
 References
 ----------
@@ -50,20 +54,23 @@ import numpy as np
 
 from ..codegen.export import HEADER_CLOSING, c_prefix, generate_sources, work_sizes
 from ..compile.cnames import c_identifier, comment_text
-from ..errors import ArgumentTypeError, SymmonError
+from ..errors import ArgumentTypeError, OutputPathError, SymmonError
 from ..io import atomic_write_text, check_output_set
 from ..version import __version__
 from .step import predict_graph, select_params, step_kind, update_graph
 from .inputs import FilterSpec
 from .strategy import RuleStrategy
 
-__all__ = ["export_filter_c", "filter_functions", "ERROR_CODES"]
+__all__ = ["export_filter_c", "filter_functions", "ERROR_CODES", "STAMP"]
+
+#: The mark in the head of every file the export writes: a file without it is not replaced.
+STAMP = "written by symmon's NonlinearKalmanFilter.export_c"
 
 #: The return codes of the exported functions, by suffix (``NAME_OK``, ``NAME_ERR_STATE``, …).
 ERROR_CODES = {
     "OK": (0, "success"),
     "ERR_STATE": (1, "x or P is not finite on entry"),
-    "ERR_MEASUREMENT": (2, "a measurement is not finite"),
+    "ERR_MEASUREMENT": (2, "a measurement is infinite (NaN marks a missing one)"),
     "ERR_S": (3, "the innovation covariance S is not positive definite"),
     "ERR_P": (4, "the new P is not positive definite, or the new x is not finite"),
     "ERR_EVAL": (5, "the generated evaluation failed (not expected)"),
@@ -91,9 +98,10 @@ def filter_functions(kf: FilterSpec, name: str) -> dict[str, ca.Function]:
     Returns
     -------
     dict
-        ``"predict"``: (x, P) ↦ (x⁻, P⁻, P⁻ positive definite); ``"update"``: (x⁻, P⁻, y) ↦
-        (x⁺, P⁺, log N(ν; 0, S), S positive definite, P⁺ positive definite).  Q and R are the
-        filter's, fixed.  "Positive definite" is 1 when every pivot of the matrix's Cholesky
+        ``"predict"``: (x, P) ↦ (x⁻, P⁻, P⁻ positive definite); ``"update"``: (x⁻, P⁻, y, mask) ↦
+        (x⁺, P⁺, log N(ν; 0, S), S positive definite, P⁺ positive definite), on the components
+        of y whose mask is 1 (the filter step's :func:`~symmon.filters.step.update_graph`).  Q
+        and R are the filter's, fixed.  "Positive definite" is 1 when every pivot of the matrix's Cholesky
         factor is > 0, else 0.
     """
     transform = _transform(kf)
@@ -103,7 +111,7 @@ def filter_functions(kf: FilterSpec, name: str) -> dict[str, ca.Function]:
     # filters (the fastest C, and short), MX with loops from MX_FROM variables on.
     kind, chol = step_kind(f, h, transform)
     Q, R = ca.DM(np.asarray(kf.Q, dtype=float)), ca.DM(np.asarray(kf.R, dtype=float))
-    x, P, y = kind.sym("x", n), kind.sym("P", n, n), kind.sym("y", n_y)
+    x, P, y, mask = kind.sym("x", n), kind.sym("P", n, n), kind.sym("y", n_y), kind.sym("mask", n_y)
     names = kf.params
     p = kind.sym("p", len(names))
     x_pred, P_pred = predict_graph(f, transform, kf.angle_states, x, P, Q, chol, select_params(f, names, p))
@@ -119,11 +127,11 @@ def filter_functions(kf: FilterSpec, name: str) -> dict[str, ca.Function]:
     predict = ca.Function(f"{name}_predict_step", [x, P, *pf[0]],
                           [ca.densify(x_pred), ca.densify(P_pred), pivot(P_pred)],
                           ["x", "P", *pf[1]], ["x_pred", "P_pred", "pd_P"], opts)
-    x_new, P_new, _, S, loglik, _ = update_graph(h, transform, kf.angle_states, x, P, y, R, chol, None,
+    x_new, P_new, _, S, loglik, _ = update_graph(h, transform, kf.angle_states, x, P, y, R, chol, mask,
                                                  select_params(h, names, p), kf.iterations)
-    update = ca.Function(f"{name}_update_step", [x, P, *ph[0], y],
+    update = ca.Function(f"{name}_update_step", [x, P, *ph[0], y, mask],
                          [ca.densify(x_new), ca.densify(P_new), loglik, pivot(S), pivot(P_new)],
-                         ["x", "P", *ph[1], "y"], ["x_new", "P_new", "loglik", "pd_S", "pd_P"], opts)
+                         ["x", "P", *ph[1], "y", "mask"], ["x_new", "P_new", "loglik", "pd_S", "pd_P"], opts)
     return {"predict": predict, "update": update}
 
 
@@ -144,6 +152,18 @@ def _work_macros(P: str, fname: str, key: str, f: ca.Function, extra_reals: int)
 
 _C_FUNCTIONS = r"""
 /* ---- The filter interface (symmon): see {P}.h. ---- */
+
+/* y (NY) as the step reads it: a NaN component (missing) becomes 0 with mask 0, as in
+   symmon's kf.filter; returns the count measured, or -1 for an infinite component. */
+static int {P}_measured(const double *y, casadi_real *y_in, casadi_real *mask) {{
+  int i, count = 0;
+  for (i = 0; i < {P_}_NY; ++i) {{
+    if (isnan(y[i])) {{ y_in[i] = 0; mask[i] = 0; continue; }}
+    if (!isfinite(y[i])) return -1;
+    y_in[i] = y[i]; mask[i] = 1; ++count;
+  }}
+  return count;
+}}
 
 static int {P}_all_finite(const double *a, int n) {{
   int i;
@@ -174,10 +194,14 @@ int {P}_update(double *x, double *P{h_sig}, const double *y, double *loglik) {{
   casadi_int iw[{P_}_UPDATE_SZ_IW];
   casadi_real w[{P_}_UPDATE_SZ_W];
   casadi_real *x_new = w, *P_new = w + {P_}_NX, ll = 0, pd_S = 0, pd_P = 0;
-  casadi_real *work = w + {P_}_NX + {P_}_NX * {P_}_NX;
+  casadi_real *y_in = w + {P_}_NX + {P_}_NX * {P_}_NX, *mask = y_in + {P_}_NY;
+  casadi_real *work = mask + {P_}_NY;
+  int measured;
   if (!{P}_all_finite(x, {P_}_NX) || !{P}_all_finite(P, {P_}_NX * {P_}_NX)) return {P_}_ERR_STATE;
-  if (!{P}_all_finite(y, {P_}_NY)) return {P_}_ERR_MEASUREMENT;{h_check}
-  arg[0] = x; arg[1] = P;{h_arg} arg[{y_at}] = y;
+  measured = {P}_measured(y, y_in, mask);
+  if (measured < 0) return {P_}_ERR_MEASUREMENT;{h_check}
+  if (measured == 0) return {P_}_OK;  /* nothing measured: x and P stay as predicted, loglik + 0 */
+  arg[0] = x; arg[1] = P;{h_arg} arg[{y_at}] = y_in; arg[{y_at} + 1] = mask;
   res[0] = x_new; res[1] = P_new; res[2] = &ll; res[3] = &pd_S; res[4] = &pd_P;
   if ({P}_update_step(arg, res, iw, work, 0)) return {P_}_ERR_EVAL;
   if (!(pd_S > 0) || !isfinite(ll)) return {P_}_ERR_S;
@@ -190,25 +214,29 @@ int {P}_update(double *x, double *P{h_sig}, const double *y, double *loglik) {{
 """
 
 _EXAMPLE = r"""/* {P}_example.c: run the exported filter {P} on measurements read from stdin.
+   ({stamp})
 
-   Input (whitespace-separated numbers): x0 ({P_}_NX numbers), P0 ({P_}_NX * {P_}_NX, row-major),{ex_doc}
-   then one measurement of {P_}_NY numbers per step, until the end of the input.
+   Input (whitespace-separated numbers): x0 ({P_}_NX numbers), P0 ({P_}_NX * {P_}_NX, row-major),
+   then per step{ex_doc} one measurement of {P_}_NY numbers, until the end of the input.
+   A measurement component written nan is missing: {P}_update skips it (a row of nan only
+   predicts), as symmon's kf.filter does.
    Output: one line per step, "k code x[0..NX-1] P[0..NX*NX-1] loglik" (%.17g), where code is
    the return code of {P}_predict, or else of {P}_update (0 = OK).  The program stops at
-   the first error, with exit status 1.
+   the first error, with exit status 1 (status 2: the input ends inside a step).
    Build: cc -std=c99 -O2 {P}.c {P}_example.c -lm -o {P}_example */
 #include <stdio.h>
 #include "{P}.h"
 
 int main(void) {{
   double x[{P_}_NX], P[{P_}_NX * {P_}_NX], y[{P_}_NY], loglik = 0;{ex_decl}
-  int i, k, code;
+  int i, k, code, got;
   for (i = 0; i < {P_}_NX; ++i) if (scanf("%lf", &x[i]) != 1) return 2;
-  for (i = 0; i < {P_}_NX * {P_}_NX; ++i) if (scanf("%lf", &P[i]) != 1) return 2;{ex_read}
+  for (i = 0; i < {P_}_NX * {P_}_NX; ++i) if (scanf("%lf", &P[i]) != 1) return 2;
   for (k = 0;; ++k) {{
-    for (i = 0; i < {P_}_NY; ++i) if (scanf("%lf", &y[i]) != 1) break;
-    if (i == 0) break;
-    if (i < {P_}_NY) return 2;
+    got = 0;{ex_read}
+    for (i = 0; i < {P_}_NY && scanf("%lf", &y[i]) == 1; ++i) ++got;
+    if (got == 0) break;
+    if (got < {ex_count}{P_}_NY) return 2;
     code = {P}_predict(x, P{f_call});
     if (code == {P_}_OK) code = {P}_update(x, P{h_call}, y, &loglik);
     printf("%d %d", k, code);
@@ -235,9 +263,11 @@ def _fill(P: str, kf) -> dict[str, str]:
         "h_sig": ", const double *p" if hp else "", "h_check": check if hp else "", "h_arg": " arg[2] = p;" if hp else "",
         "y_at": "3" if hp else "2",
         "f_call": ", p" if fp else "", "h_call": ", p" if hp else "",
-        "ex_doc": f"\n   then the {P_}_NP parameter values (constant over the run)," if n_p else "",
+        "ex_doc": f" the {P_}_NP parameter values of the step (a time step, a bias: they may change) and" if n_p else "",
         "ex_decl": f"\n  double p[{P_}_NP];" if n_p else "",
-        "ex_read": f"\n  for (i = 0; i < {P_}_NP; ++i) if (scanf(\"%lf\", &p[i]) != 1) return 2;" if n_p else "",
+        "ex_read": f"\n    for (i = 0; i < {P_}_NP && scanf(\"%lf\", &p[i]) == 1; ++i) ++got;" if n_p else "",
+        "ex_count": f"{P_}_NP + " if n_p else "",
+        "stamp": STAMP,
     }
 
 
@@ -250,12 +280,41 @@ def _signatures(P: str, kf) -> tuple[str, str]:
 
 
 def _model_hash(kf: FilterSpec, transform) -> str:
-    """sha256 of what the C computes: f, h, Q, R, the transform and the angles."""
+    """sha256 of what the C computes: f, h, Q, R, the transform, its iterations (the IEKF's
+    Gauss–Newton steps) and the angles."""
     f, h = kf.f_model, kf.h_model
-    key = repr((f.key, h.key, transform,
+    key = repr((f.key, h.key, transform, kf.iterations,
                 sorted(kf.angle_states), sorted(h.angle_outputs),
                 np.asarray(kf.Q).tolist(), np.asarray(kf.R).tolist()))
     return hashlib.sha256(key.encode()).hexdigest()
+
+
+def _settings(kf: FilterSpec, transform) -> str:
+    """The rule's settings with the dimension-dependent defaults resolved (the UT's κ = 3 − n)
+    for the dimensions the two updates integrate over; both when they differ."""
+    d_f, d_h = kf.dimensions
+    if transform.settings(d_f) == transform.settings(d_h):
+        return transform.settings(d_f)
+    return f"time update {transform.settings(d_f)}; measurement update {transform.settings(d_h)}"
+
+
+def _label(kf: FilterSpec, transform) -> str:
+    """The filter's name for the files' titles: ``kf.method``, with the settings resolved
+    where a default depends on the dimension (``UKF(alpha = 1.0, beta = 0.0, kappa = -5.0)``
+    rather than ``kappa=None``), so that a title never contradicts the settings below it."""
+    d_f, d_h = kf.dimensions
+    if all(transform.settings(d) == repr(transform) for d in (d_f, d_h)):
+        return kf.method
+    return f"{kf.method.split('(')[0]}({_settings(kf, transform)})"
+
+
+def _owned(path: Path) -> bool:
+    """Whether ``path`` is missing, or a file the export wrote (:data:`STAMP` in its head)."""
+    try:
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            return STAMP in fh.read(4096)
+    except FileNotFoundError:
+        return True
 
 
 def _header(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> str:
@@ -265,7 +324,8 @@ def _header(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> s
     states = ", ".join(comment_text(str(s)) for s in f.inputs)
     ys = ", ".join(comment_text(str(e)) for e in h.outputs)
     lines = [
-        f"{P}: the {comment_text(kf.method)} filter exported by symmon {__version__}.",
+        f"{P}: the {comment_text(_label(kf, transform))} filter exported by symmon {__version__}",
+        f"({STAMP}).",
         "",
         f"  dynamics f: {comment_text(f.name)};  measurement h: {comment_text(h.name)}",
         f"  state x = [{states}]   (NX = {n})",
@@ -281,12 +341,14 @@ def _header(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> s
     if h.angle_outputs:
         lines.append(f"  angle measurements (wrapped innovation): {sorted(h.angle_outputs)} (0-based)")
     lines += [
-        f"  model hash (sha256 of f, h, Q, R, the transform and the angles): {digest}",
+        f"  transform: {comment_text(_settings(kf, transform))}" + (f", {kf.iterations} iterations" if kf.iterations > 1 else ""),
+        f"  model hash (sha256 of f, h, Q, R, the transform, its iterations and the angles): {digest}",
         "",
         _signatures(P, kf)[0],
         "    The time update, in place: x <- E f(x), P <- Cov f (+ Q).",
         _signatures(P, kf)[1],
         "    The measurement update, in place, with y[NY]; adds log N(innovation; 0, S) to *loglik.",
+        "    A NaN component of y is missing: the update uses the others; y all NaN leaves x, P.",
         "",
         "x has NX entries, P NX x NX (symmetric: row- and column-major alike; written exactly",
         "symmetric).  Both return 0 (OK), or an error code below and then leave x, P and *loglik",
@@ -303,12 +365,12 @@ def _header(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> s
         macros.append(f"#define {P_}_{key} {code}  /* {what} */")
     macros.append("")
     macros += _work_macros(P_, f"{P}_predict", "PREDICT", fs["predict"], n + n * n)
-    macros += _work_macros(P_, f"{P}_update", "UPDATE", fs["update"], n + n * n)
+    macros += _work_macros(P_, f"{P}_update", "UPDATE", fs["update"], n + n * n + 2 * n_y)  # + y and its mask
     return body, "\n".join(macros)
 
 
 def export_filter_c(kf: FilterSpec, directory: str | Path, name: str | None = None) -> list[Path]:
-    """Write the filter as standalone C: ``NAME.c``, ``NAME.h``, ``NAME_example.c``, ``README.md``.
+    """Write the filter as standalone C: ``NAME.c``, ``NAME.h``, ``NAME_example.c``, ``NAME_README.md``.
 
     Parameters
     ----------
@@ -334,8 +396,9 @@ def export_filter_c(kf: FilterSpec, directory: str | Path, name: str | None = No
         identifier.
     OutputPathError
         If ``directory`` exists and is not a directory, or one of the four files in it
-        cannot be written (read-only, not a regular file): checked before anything is
-        generated or written.
+        cannot be written (read-only, not a regular file) or exists without
+        :data:`STAMP` (a file the export did not write, e.g. a user's README): checked
+        before anything is generated or written.
 
     Notes
     -----
@@ -349,7 +412,13 @@ def export_filter_c(kf: FilterSpec, directory: str | Path, name: str | None = No
     transform = _transform(kf)
     default = f"{c_identifier(kf.h_model.name, hashed=False)}_{_family(kf)}"
     P = c_prefix(default if name is None else name, from_model=name is None)
-    outdir = check_output_set(directory, (f"{P}.c", f"{P}.h", f"{P}_example.c", "README.md"))
+    files = (f"{P}.c", f"{P}.h", f"{P}_example.c", f"{P}_README.md")
+    outdir = check_output_set(directory, files)
+    foreign = [outdir / f for f in files if not _owned(outdir / f)]
+    if foreign:
+        raise OutputPathError(
+            f"export_c would replace {', '.join(str(p) for p in foreign)}, which symmon's export did not write "
+            f"(no {STAMP!r} in its head): move it away, or export to another directory or name=")
     fs = filter_functions(kf, P)
     outdir.mkdir(parents=True, exist_ok=True)
     c_src, head, tail = generate_sources(fs.values(), P)
@@ -360,12 +429,13 @@ def export_filter_c(kf: FilterSpec, directory: str | Path, name: str | None = No
     h_src = (comment + f"#ifndef {guard}\n#define {guard}\n\n" + macros + "\n\n" + head
              + "/* The filter interface (symmon). */\n" + protos + HEADER_CLOSING + tail + f"#endif /* {guard} */\n")
     fill = _fill(P, kf)
-    c_src = (c_src.rstrip("\n") + "\n\n#include <string.h>\n#include \"" + P + ".h\"\n"
+    c_src = (f"/* {P}.c: the {comment_text(_label(kf, transform))} filter ({STAMP}, symmon {__version__}). */\n"
+             + c_src.rstrip("\n") + "\n\n#include <string.h>\n#include \"" + P + ".h\"\n"
              + _C_FUNCTIONS.format(**fill))
     example = _EXAMPLE.format(**fill)
     readme = _readme(kf, P, fs, transform, digest)
     return [atomic_write_text(outdir / f"{P}.c", c_src), atomic_write_text(outdir / f"{P}.h", h_src),
-            atomic_write_text(outdir / f"{P}_example.c", example), atomic_write_text(outdir / "README.md", readme)]
+            atomic_write_text(outdir / f"{P}_example.c", example), atomic_write_text(outdir / f"{P}_README.md", readme)]
 
 
 def _readme(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> str:
@@ -373,21 +443,22 @@ def _readme(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> s
     n, n_y = f.n_u, h.n_y
     sizes = {k: work_sizes(fn) for k, fn in fs.items()}
     # Doubles and long longs of 8 bytes, pointers of 8 (a 64-bit target).
-    stack = {k: 8 * (s["w"] + n + n * n) + 8 * s["iw"] + 8 * (s["arg"] + s["res"]) for k, s in sizes.items()}
+    extra = {"predict": n + n * n, "update": n + n * n + 2 * n_y}  # the new state (and y with its mask)
+    stack = {k: 8 * (s["w"] + extra[k]) + 8 * s["iw"] + 8 * (s["arg"] + s["res"]) for k, s in sizes.items()}
     # Plain text of user names: Markdown code spans, with backticks replaced.
     def code(text: str) -> str:
         return "`" + comment_text(str(text)).replace("`", "'") + "`"
 
     return "\n".join([
-        f"# {P}: an exported {comment_text(kf.method)} filter",
+        f"# {P}: an exported {comment_text(_label(kf, transform))} filter",
         "",
-        f"Generated by symmon {__version__} (`NonlinearKalmanFilter.export_c`).",
+        f"Generated by symmon {__version__} ({STAMP}; it replaces only files that carry this mark).",
         "",
         f"- dynamics f: {code(f.name)}; measurement h: {code(h.name)}",
         f"- state ({n}): " + ", ".join(code(s) for s in f.inputs),
         f"- measurement ({n_y}): " + ", ".join(code(e) for e in h.outputs),
-        f"- transform: {code(transform.settings(n + f.n_v))}",
-        f"- model hash (sha256 of f, h, Q, R, the transform and the angles): `{digest}`",
+        f"- transform: {code(_settings(kf, transform))}" + (f", {kf.iterations} iterations" if kf.iterations > 1 else ""),
+        f"- model hash (sha256 of f, h, Q, R, the transform, its iterations and the angles): `{digest}`",
         "",
         "## Interface (see the comment at the top of the header)",
         "",
@@ -401,7 +472,8 @@ def _readme(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> s
         + ".",
         "Return codes: " + "; ".join(f"{code(P.upper() + '_' + k)} = {c} ({what})"
                                       for k, (c, what) in ERROR_CODES.items()) + ".",
-        "On an error x, P and *loglik are left unchanged.",
+        "On an error x, P and *loglik are left unchanged. A NaN component of y is a missing measurement:",
+        "the update uses the measured ones (as `kf.filter` does), and a y of NaN leaves x and P as predicted.",
         "",
         "## Memory",
         "",
@@ -417,9 +489,9 @@ def _readme(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> s
         f"./{P}_example < measurements.txt",
         "```",
         "",
-        f"`{P}_example` reads x0 ({n} numbers), P0 ({n * n}, row-major)"
-        + (f", the {len(kf.params)} parameter values" if kf.params else "") + " and then one measurement of",
-        f"{n_y} numbers per step from stdin, and prints per step `k code x P loglik`. Run it on a",
-        "recorded sequence and compare with `kf.filter` in symmon (docs/export.md).",
+        f"`{P}_example` reads x0 ({n} numbers), P0 ({n * n}, row-major) and then per step"
+        + (f" the {len(kf.params)} parameter values and" if kf.params else "") + f" one measurement of",
+        f"{n_y} numbers (`nan` for a missing one) from stdin, and prints per step `k code x P loglik`.",
+        "Run it on a recorded sequence and compare with `kf.filter` in symmon (docs/export.md).",
         "",
     ])

@@ -317,14 +317,16 @@ class NonlinearKalmanFilter:
 
         ``NAME.c`` and ``NAME.h`` hold ``NAME_predict(x, P)`` and ``NAME_update(x, P, y,
         &loglik)``, in place, with no allocation, no global state and no I/O;
-        ``NAME_example.c`` runs them on measurements read from stdin, and ``README.md``
-        states the interface, the sizes and the model's hash.  See
+        ``NAME_example.c`` runs them on measurements read from stdin (NaN: missing, skipped
+        as :meth:`filter` skips it; the parameter values of each step before its
+        measurement), and ``NAME_README.md`` states the interface, the sizes and the model's
+        hash; a file of these names that the export did not write is not replaced.  See
         :func:`symmon.filters.export.export_filter_c` for the parameters and errors.
 
         Returns
         -------
         list of Path
-            The files written: ``NAME.c``, ``NAME.h``, ``NAME_example.c``, ``README.md``.
+            The files written: ``NAME.c``, ``NAME.h``, ``NAME_example.c``, ``NAME_README.md``.
         """
         return export_filter_c(self, directory, name)
 

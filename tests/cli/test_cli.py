@@ -380,7 +380,7 @@ def test_export_writes_a_filter(capsys, tmp_path, name):
     prefix = name or "rb_close_ekf"
     assert code == 0
     assert sorted(p.name for p in outdir.iterdir()) == sorted(
-        ["README.md", f"{prefix}.c", f"{prefix}.h", f"{prefix}_example.c"])
+        [f"{prefix}_README.md", f"{prefix}.c", f"{prefix}.h", f"{prefix}_example.c"])
     header = (outdir / f"{prefix}.h").read_text()
     assert f"int {prefix}_update(double *x, double *P, const double *y, double *loglik);" in header
     assert "EKF" in header and f"wrote {outdir / (prefix + '.c')}" in out

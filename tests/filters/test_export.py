@@ -77,9 +77,14 @@ def build(directory: Path, prefix: str, compiler: str = "gcc") -> Path:
     return exe
 
 
-def run_example(exe: Path, x0, P0, ys, params=()) -> tuple[int, np.ndarray]:
-    text = " ".join(repr(float(v)) for v in [*x0, *np.ravel(P0), *params]) + "\n"
-    text += "\n".join(" ".join(repr(float(v)) for v in row) for row in ys) + "\n"
+def run_example(exe: Path, x0, P0, ys, params=None) -> tuple[int, np.ndarray]:
+    """The example's output on x0, P0 and per step the parameter values (``params`` (K, NP), or
+    one row for every step) and the measurement (NaN written ``nan``: missing)."""
+    steps = np.asarray(ys, dtype=float)
+    if params is not None:
+        steps = np.hstack([np.broadcast_to(np.asarray(params, dtype=float), (len(ys), np.shape(params)[-1])), steps])
+    text = " ".join(repr(float(v)) for v in [*x0, *np.ravel(P0)]) + "\n"
+    text += "\n".join(" ".join(repr(float(v)) for v in row) for row in steps) + "\n"
     res = subprocess.run([str(exe)], input=text, capture_output=True, text=True)
     rows = np.array([[float(v) for v in line.split()] for line in res.stdout.splitlines()])
     return res.returncode, rows
@@ -110,7 +115,7 @@ def test_export_equals_the_filter_behind_the_sensor(tmp_path, family):
     assert np.abs(np.diff(ys[:, 1])).max() > np.pi  # the bearing wraps through ±π
     paths = kf.export_c(tmp_path)
     prefix = f"range_bearing_{family}"
-    assert [p.name for p in paths] == [f"{prefix}.c", f"{prefix}.h", f"{prefix}_example.c", "README.md"]
+    assert [p.name for p in paths] == [f"{prefix}.c", f"{prefix}.h", f"{prefix}_example.c", f"{prefix}_README.md"]
     code, rows = run_example(build(tmp_path, prefix), X0, P0, ys)
     assert code == 0
     check_against_filter(kf, rows, ys, X0, P0)
@@ -147,10 +152,10 @@ def test_export_with_parameters(tmp_path, family):
     assert "#define RBP_NP 2" in header and "parameters p = [dt, b]" in header
     assert "int rbp_predict(double *x, double *P, const double *p);" in header
     assert "int rbp_update(double *x, double *P, const double *p, const double *y, double *loglik);" in header
-    code, rows = run_example(build(tmp_path, "rbp"), X0, P0, ys, params=(1.0, 0.8))
+    code, rows = run_example(build(tmp_path, "rbp"), X0, P0, ys, params=[(1.0, 0.8)])
     assert code == 0
     check_against_filter(kf, rows, ys, X0, P0, params={"dt": 1.0, "b": 0.8})
-    code, rows = run_example(tmp_path / "rbp_example", X0, P0, ys, params=(1.0, np.nan))
+    code, rows = run_example(tmp_path / "rbp_example", X0, P0, ys, params=[(1.0, np.nan)])
     assert code == 1 and rows[0, 1] == ERROR_CODES["ERR_PARAM"][0]  # at the first step
 
 
@@ -220,8 +225,13 @@ int main(void) {
   int i;
   for (i = 0; i < RB_NX; ++i) P[i * RB_NX + i] = 1;
   memcpy(x0, x, sizeof x); memcpy(P0, P, sizeof P);
-  y[1] = NAN;
+  y[1] = INFINITY;
+  report("inf_y", rb_update(x, P, y, &ll), x, x0, P, P0, ll);
+  y[0] = NAN; y[1] = NAN;  /* nothing measured: OK, and x, P, loglik as they were */
   report("nan_y", rb_update(x, P, y, &ll), x, x0, P, P0, ll);
+  y[0] = 100; y[1] = NAN;  /* the range alone updates */
+  report("nan_bearing", rb_update(x, P, y, &ll), x, x0, P, P0, ll);
+  memcpy(x, x0, sizeof x); memcpy(P, P0, sizeof P); ll = 0;
   y[1] = 1.7;
   x[0] = INFINITY; memcpy(x0, x, sizeof x);
   report("inf_x", rb_update(x, P, y, &ll), x, x0, P, P0, ll);
@@ -250,7 +260,9 @@ def test_error_codes_leave_the_state_unchanged(tmp_path, family):
     out = subprocess.run([str(tmp_path / "driver")], capture_output=True, text=True, check=True).stdout
     got = {w: (int(c), int(s)) for w, c, s in (line.split() for line in out.splitlines())}
     codes = {k: c for k, (c, _) in ERROR_CODES.items()}
-    assert got["nan_y"] == (codes["ERR_MEASUREMENT"], 1)
+    assert got["inf_y"] == (codes["ERR_MEASUREMENT"], 1)
+    assert got["nan_y"] == (codes["OK"], 1)  # a missing measurement: the update leaves the prediction
+    assert got["nan_bearing"] == (codes["OK"], 0)  # the measured range updates
     assert got["inf_x"] == (codes["ERR_STATE"], 1)
     assert got["indefinite_S"] == (codes["ERR_S"], 1)
     assert got["indefinite_P"] == (codes["ERR_P"], 1)
@@ -262,7 +274,7 @@ def test_example_stops_at_the_first_error(tmp_path):
     f, h, Q, R = cv_models()
     sm.NonlinearKalmanFilter(f, h, Q, R, sm.TT1()).export_c(tmp_path, name="rb")
     ys = record(f, h, Q, R, X0)[:5].copy()
-    ys[3, 0] = np.nan
+    ys[3, 0] = np.inf
     code, rows = run_example(build(tmp_path, "rb"), X0, P0, ys)
     assert code == 1 and rows.shape[0] == 4
     assert rows[3, 1] == ERROR_CODES["ERR_MEASUREMENT"][0]
@@ -285,7 +297,7 @@ def test_the_hash_changes_with_the_noise(tmp_path):
     f, h, Q, R = cv_models()
     sm.NonlinearKalmanFilter(f, h, Q, R).export_c(tmp_path / "a", name="rb")
     sm.NonlinearKalmanFilter(f, h, 2 * Q, R).export_c(tmp_path / "b", name="rb")
-    digest = [re.search(r"`([0-9a-f]{64})`", (tmp_path / d / "README.md").read_text()).group(1) for d in "ab"]
+    digest = [re.search(r"`([0-9a-f]{64})`", (tmp_path / d / "rb_README.md").read_text()).group(1) for d in "ab"]
     assert digest[0] != digest[1]
 
 
@@ -331,3 +343,86 @@ def test_export_needs_a_filter(tmp_path):
 
     with pytest.raises(ArgumentTypeError, match="NonlinearKalmanFilter"):
         export_filter_c(sm.TT1(), tmp_path)
+
+
+def gappy(ys: np.ndarray) -> np.ndarray:
+    """``ys`` with two rows missing (the second one at the first step) and two components missing."""
+    ys = ys.copy()
+    ys[[0, 7]] = np.nan
+    ys[3, 1] = ys[12, 0] = np.nan
+    return ys
+
+
+@needs_gcc
+@pytest.mark.parametrize("family", ["ekf", "iekf", "ukf"])
+def test_export_runs_recorded_data_with_gaps_and_a_step_per_row(tmp_path, family):
+    """Issue 38, item 1: NaN rows and NaN components are skipped as kf.filter skips them, and an
+    irregular dt (and a drifting bias) is read at every step; x, P and the log-likelihood
+    equal kf.filter's to 1e-9."""
+    px, py, vx, vy, dt, b = sp.symbols("px py vx vy dt b", real=True)
+    f = sm.Model([px, py, vx, vy], [px + dt * vx, py + dt * vy, vx, vy], params=[dt], name="cv dt")
+    h = sm.Model([px, py, vx, vy], [sp.sqrt(px**2 + py**2) + b, sp.atan2(py, px)], angles=[1], params=[b],
+                 name="rb bias")
+    _, _, Q, R = cv_models()
+    transform, iterations = (sm.TT1(), 3) if family == "iekf" else (FAMILIES[family], 1)
+    kf = sm.NonlinearKalmanFilter(f, h, Q, R, transform, iterations=iterations)
+    ys = gappy(record(*cv_models()[:2], Q, R, X0))
+    steps = np.random.default_rng(5).uniform(0.5, 1.5, len(ys))
+    bias = np.linspace(0.0, 1.0, len(ys))
+    kf.export_c(tmp_path, name="gaps")
+    code, rows = run_example(build(tmp_path, "gaps"), X0, P0, ys, params=np.column_stack([steps, bias]))
+    assert code == 0
+    check_against_filter(kf, rows, ys, X0, P0, params={"dt": steps, "b": bias})
+    assert rows[0, -1] == 0.0 and rows[7, -1] == rows[6, -1]  # nothing measured: no log-likelihood
+
+
+@needs_gcc
+def test_the_exported_update_skips_the_missing_components_itself(tmp_path):
+    """The library function, not only the example: NaN in y is a missing component."""
+    f, h, Q, R = cv_models()
+    kf = sm.NonlinearKalmanFilter(f, h, Q, R, sm.UT.ut1())
+    kf.export_c(tmp_path, name="rb")
+    ys = gappy(record(f, h, Q, R, X0))
+    code, rows = run_example(build(tmp_path, "rb"), X0, P0, ys)
+    assert code == 0
+    check_against_filter(kf, rows, ys, X0, P0)
+
+
+def test_the_export_replaces_only_files_it_wrote(tmp_path):
+    """Issue 38, item 2: the README is NAME_README.md, a user's README.md stays, and a file of an
+    export's name that the export did not write is refused, before anything is written."""
+    f, h, Q, R = cv_models()
+    kf = sm.NonlinearKalmanFilter(f, h, Q, R)
+    (tmp_path / "README.md").write_text("my project\n")
+    paths = kf.export_c(tmp_path, name="rb")
+    assert (tmp_path / "README.md").read_text() == "my project\n" and paths[-1].name == "rb_README.md"
+    assert kf.export_c(tmp_path, name="rb") == paths  # its own files are replaced
+    (tmp_path / "other_README.md").write_text("notes\n")
+    with pytest.raises(OutputPathError, match=r"other_README\.md, which symmon's export did not write"):
+        kf.export_c(tmp_path, name="other")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["README.md", "other_README.md", *(p.name for p in paths)])
+    assert (tmp_path / "other_README.md").read_text() == "notes\n"
+
+
+def test_the_hash_covers_the_iterations_and_the_title_the_resolved_kappa(tmp_path):
+    """Issue 38, item 3: the EKF and the IEKF of one model differ in code and in hash; the title's
+    κ is the one the body states (κ = 3 − n resolved, not None)."""
+    f, h, Q, R = cv_models()
+    digest = []
+    for d, it in (("a", 1), ("b", 3)):
+        sm.NonlinearKalmanFilter(f, h, Q, R, sm.TT1(), iterations=it).export_c(tmp_path / d, name="rb")
+        digest.append(re.search(r"`([0-9a-f]{64})`", (tmp_path / d / "rb_README.md").read_text()).group(1))
+    assert digest[0] != digest[1]
+    assert "3 iterations" in (tmp_path / "b" / "rb_README.md").read_text()
+    turn = turn_models()  # general noise: [x; w] has 6 dimensions, [x; e] also 6
+    sm.NonlinearKalmanFilter(*cv_models()[:2], Q, R, sm.UT.ut1()).export_c(tmp_path / "c", name="rb")
+    text = (tmp_path / "c" / "rb_README.md").read_text()
+    title = text.splitlines()[0]
+    assert title == "# rb: an exported UKF(alpha = 1.0, beta = 0.0, kappa = -1.0) filter"
+    assert "- transform: `alpha = 1.0, beta = 0.0, kappa = -1.0`" in text and "None" not in text
+    f2, h2, Q2, R2 = turn
+    h_one = sm.Model(h2.inputs, [h2.outputs[0]], noise=[h2.noise[0]], name="range noise")  # [x; e]: 5 dimensions
+    sm.NonlinearKalmanFilter(f2, h_one, Q2, R2[:1, :1], sm.UT.ut1()).export_c(tmp_path / "d", name="rb")
+    text = (tmp_path / "d" / "rb_README.md").read_text()
+    assert ("time update alpha = 1.0, beta = 0.0, kappa = -3.0; measurement update alpha = 1.0, beta = 0.0, "
+            "kappa = -2.0") in text.splitlines()[0]
