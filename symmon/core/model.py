@@ -219,6 +219,7 @@ class Model:
                     f"output {i} ({dag.bounded_str(e)}) uses unknown symbols {sorted(map(str, unknown))}; "
                     f"declared inputs {[str(s) for s in u]}, noise {[str(s) for s in v]}"
                     + (f", params {[str(s) for s in p]}" if p else "; declare parameters with params=[...]")
+                    + _namesakes(unknown, known)
                 )
         self._u = u
         self._v = v
@@ -593,6 +594,20 @@ class Model:
             return sp.Tuple(*sorted(ix))
         return dag.digest([sp.Tuple(*self._u), sp.Tuple(*self._v), sp.Tuple(*self._p), sp.Tuple(*self._g),
                            ints(self.angle_outputs), ints(self.angle_inputs)])
+
+
+def _namesakes(unknown: set, known: set) -> str:
+    """The unknown symbols that share a name with a declared one, told apart by their sympy
+    assumptions (``Symbol('px')`` and ``Symbol('px', real=True)`` are two symbols)."""
+    by_name = {s.name: s for s in known}
+    pairs = sorted(((s, by_name[s.name]) for s in unknown if getattr(s, "name", None) in by_name),
+                   key=lambda pair: pair[0].name)
+    if not pairs:
+        return ""
+    told = "; ".join(f"the output's {sp.srepr(a)} is not the declared {sp.srepr(b)}" for a, b in pairs)
+    return (f". Same names, other assumptions: {told}. sympy treats a name with other assumptions as "
+            "another symbol: create each symbol once (sp.symbols(..., real=True)) and use it in the "
+            "outputs and the declarations")
 
 
 def check_param_values(params: Sequence[sp.Symbol], values: dict | None, name: str = "model") -> dict[str, float]:

@@ -79,15 +79,43 @@ def check_keep(keep: Iterable[str] | None) -> frozenset[str] | None:
     return names
 
 
+def _first_none(x: Any, depth: int = 3) -> tuple[int, ...] | None:
+    """The index of the first ``None`` in nested lists/tuples (or an object array) of ``x``."""
+    if x is None:
+        return ()
+    if depth == 0 or not (isinstance(x, (list, tuple)) or (isinstance(x, np.ndarray) and x.dtype == object)):
+        return None
+    for i, item in enumerate(x):
+        below = _first_none(item, depth - 1)
+        if below is not None:
+            return (i, *below)
+    return None
+
+
 def real_measurements(ys: ArrayLike) -> np.ndarray:
-    """``ys`` as a float array; complex or non-numeric measurements are refused, not cast.
+    """``ys`` as a float array; complex, non-numeric or text measurements are refused, not cast.
 
     Raises
     ------
     ShapeError
-        For complex values or values that are not numbers.
+        For complex values, values that are not numbers, strings (``ys.astype(str)``: even
+        numeric text is refused, as the docs say, since a parser's choice of decimal mark or
+        a stray unit would pass unseen) or ``None`` (FilterPy's missing measurement: symmon's
+        is NaN).
     """
-    return float_array(ys, "ys", ShapeError)
+    where = _first_none(ys)
+    if where is not None:
+        raise ShapeError(f"ys holds None at index {where}: a missing measurement is NaN in symmon (FilterPy's "
+                         "update(None)): write np.nan for it, a row of NaN for a missing row")
+    try:
+        raw = ys if isinstance(ys, np.ndarray) else np.asarray(ys)
+    except (TypeError, ValueError):
+        raw = ys  # ragged or not numbers: float_array says what is wrong
+    if isinstance(raw, np.ndarray) and (raw.dtype.kind in "US" or (
+            raw.dtype == object and any(isinstance(v, (str, bytes)) for v in raw.flat))):
+        raise ShapeError("ys holds text, not real numbers: convert it explicitly (np.asarray(ys, dtype=float) once "
+                         "you know its format), so that a number is never read from a string unseen")
+    return float_array(raw, "ys", ShapeError)
 
 
 def check_truth(x_true: ArrayLike, shape: tuple[int, ...]) -> np.ndarray:

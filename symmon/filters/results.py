@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike
 from scipy import stats
 
 from ..core.angles import wrap_angle
-from ..errors import NonFiniteError, ShapeError, SingularMatrixError, SymmonError
+from ..errors import ArgumentError, NonFiniteError, ShapeError, SingularMatrixError, SymmonError
 from ..measures.weights import SINGULAR_CORR
 from ..core.checks import readonly
 from ..core.gaussian import Gaussian
@@ -37,8 +37,15 @@ class ConsistencyTest:
     """An averaged NEES or NIS with its two-sided χ² acceptance interval.
 
     With N independent terms of dimension d averaged, N·value ~ χ²(N d) for a consistent
-    filter (Bar-Shalom, Li & Kirubarajan 2001, §5.4.2), so the interval is
-    [χ²_{Nd}(α/2), χ²_{Nd}(1 − α/2)] / N with α = 1 − ``confidence``.
+    filter (Bar-Shalom, Li & Kirubarajan 2001, §5.4.2, (5.4.2-5) and (5.4.2-9)), so the
+    interval is [χ²_{Nd}(α/2), χ²_{Nd}(1 − α/2)] / N with α = 1 − ``confidence``.  With
+    missing measurements N counts only the terms that measured something (per step over the
+    runs of a bank), so the value is the mean over what was measured.
+
+    The interval assumes the N terms independent: true of the runs of a bank, and of the
+    NIS of one run (the innovations of a consistent filter are white), but not of the NEES
+    of one run, whose errors are correlated from step to step: its interval is then too
+    narrow, and :attr:`note` says so (average over a bank of independent runs instead).
 
     Attributes
     ----------
@@ -51,6 +58,8 @@ class ConsistencyTest:
     dof : int, or ndarray of shape (K,)
         N·d, or the sum of the averaged terms' dimensions.
     confidence : float
+    note : str
+        A caveat on the interval ("" when none): a single run's ANEES.
     """
 
     value: np.ndarray
@@ -58,6 +67,7 @@ class ConsistencyTest:
     upper: float | np.ndarray
     dof: int | np.ndarray
     confidence: float
+    note: str = ""
 
     @property
     def inside(self) -> np.ndarray:
@@ -72,15 +82,22 @@ class ConsistencyTest:
             interval = f"[{self.lower:.4g}, {self.upper:.4g}], dof {self.dof}"
         else:
             interval = f"per step, [{float(np.min(self.lower)):.4g}, {float(np.max(self.upper)):.4g}] at widest"
-        return f"ConsistencyTest({shown}, {self.confidence:.0%} interval {interval}, {frac:.0%} inside)"
+        note = f"; {self.note}" if self.note else ""
+        return f"ConsistencyTest({shown}, {self.confidence:.0%} interval {interval}, {frac:.0%} inside{note})"
 
 
-def _consistency(stat: np.ndarray, d: int | np.ndarray, confidence: float) -> ConsistencyTest:
+#: The caveat of a single run's ANEES (:class:`ConsistencyTest`).
+ONE_RUN_NEES = ("one run: its K NEES are correlated from step to step, the interval treats them as "
+                "independent and is too narrow; average over a bank of independent runs")
+
+
+def _consistency(stat: np.ndarray, d: int | np.ndarray, confidence: float, note: str = "") -> ConsistencyTest:
     """Average ``stat`` (K,) over K steps or (R, K) over the R runs; χ² bounds (§5.4.2).
 
     ``d`` is the dimension of each term, or an array of the shape of ``stat`` when it varies
-    (missing measurements): the degrees of freedom are then the sum of the averaged terms'
-    dimensions, and a step with none measured (0 degrees of freedom) is left out."""
+    (missing measurements): a term with nothing measured (dimension 0) is left out of the
+    average and of N, so the value is the mean over the terms measured, and the degrees of
+    freedom are the sum of their dimensions; a step with none measured is refused."""
     if not 0.0 < confidence < 1.0:
         raise SymmonError(f"confidence must lie in (0, 1), got {confidence!r}")
     N = stat.shape[0]
@@ -88,20 +105,44 @@ def _consistency(stat: np.ndarray, d: int | np.ndarray, confidence: float) -> Co
         value = stat.mean(axis=0)
         dof = N * int(d)
         lo, hi = stats.chi2.ppf([(1 - confidence) / 2, (1 + confidence) / 2], dof) / N
-        return ConsistencyTest(readonly(value), float(lo), float(hi), int(dof), float(confidence))
+        return ConsistencyTest(readonly(value), float(lo), float(hi), int(dof), float(confidence), note)
     d = np.asarray(d)
     if stat.ndim == 1:  # one run: drop the steps with nothing measured
-        stat, d, N = stat[d > 0], d[d > 0], int(np.count_nonzero(d))
-    value = stat.mean(axis=0)
+        stat, d = stat[d > 0], d[d > 0]
     dof = d.sum(axis=0)
     if np.any(dof == 0):
         k = int(np.flatnonzero(dof == 0)[0])
         raise SymmonError(f"step {k} has no measured component in any run: its average NIS has no degrees of "
                           "freedom; average over the other steps, e.g. res.nis()[:, res.measured.any(axis=0)]")
+    N = np.count_nonzero(d > 0, axis=0)  # the terms that measured something (per step of a bank)
+    value = np.where(d > 0, stat, 0.0).sum(axis=0) / N
     lo, hi = (stats.chi2.ppf(q, dof) / N for q in ((1 - confidence) / 2, (1 + confidence) / 2))
     if np.ndim(dof) == 0:
-        return ConsistencyTest(readonly(value), float(lo), float(hi), int(dof), float(confidence))
-    return ConsistencyTest(readonly(value), readonly(lo), readonly(hi), readonly(dof), float(confidence))
+        return ConsistencyTest(readonly(np.asarray(value)), float(lo), float(hi), int(dof), float(confidence), note)
+    return ConsistencyTest(readonly(value), readonly(lo), readonly(hi), readonly(dof), float(confidence), note)
+
+
+def _step_index(k: int, steps: int, run: int | None, runs: int | None) -> tuple[int, int | None]:
+    """``k`` (and ``run``) as indices of a result of ``steps`` steps (and ``runs`` runs);
+    negative ones count from the end, as in Python.
+
+    Raises
+    ------
+    ArgumentError
+        For a non-integer, or an index outside the steps (or runs), naming the range.
+    """
+    out = []
+    for name, i, size in (("k", k, steps), ("run", run, runs)):
+        if i is None:
+            out.append(None)
+            continue
+        if isinstance(i, bool) or not isinstance(i, (int, np.integer)):
+            raise ArgumentError(f"{name} must be an integer, got {i!r}")
+        if not -size <= i < size:
+            raise ArgumentError(f"{name} = {i} is outside the {size} {'steps' if name == 'k' else 'runs'} of this "
+                                f"result: use 0 to {size - 1} (or -{size} to -1 from the end)")
+        out.append(int(i))
+    return out[0], out[1]
 
 
 def _where(index: tuple[int, ...], batch_ndim: int) -> str:
@@ -325,10 +366,17 @@ class KalmanResult:
         return float(total) if np.ndim(total) == 0 else total
 
     def estimate(self, k: int, run: int | None = None) -> Gaussian:
-        """N(x̂_{k|k}, P_{k|k}) at step k (0-based), of run ``run`` for a bank."""
+        """N(x̂_{k|k}, P_{k|k}) at step k (0-based, negative from the end), of run ``run`` for a bank.
+
+        Raises
+        ------
+        ArgumentError
+            For a step (or run) outside the result, naming its range.
+        """
         if (run is None) != (self.runs is None):
             raise ShapeError("give run= for a bank of runs, and only then")
         self._need("x", "P")
+        k, run = _step_index(k, self.steps, run, self.runs)
         x = self.x if run is None else self.x[run]
         P = self.P if self.P.ndim == 3 else self.P[run]
         return Gaussian(x[k], P[k])
@@ -415,11 +463,22 @@ class KalmanResult:
 
     def anees(self, x_true: ArrayLike | None = None, confidence: float = 0.95) -> ConsistencyTest:
         """Average NEES with its χ² interval: per step over the runs of a bank, or over the
-        steps of a single run (Bar-Shalom et al. 2001, §5.4.2); ``x_true`` as :meth:`nees`."""
-        return _consistency(self.nees(x_true), self.n, confidence)
+        steps of a single run (Bar-Shalom et al. 2001, §5.4.2); ``x_true`` as :meth:`nees`.
+
+        The interval takes the averaged NEES as independent: the runs of a bank are, but the
+        K steps of a single run are not (the estimation errors are correlated in time), so a
+        single run's interval is too narrow and the result's ``note`` and printout say so.
+        """
+        nees = self.nees(x_true)
+        return _consistency(nees, self.n, confidence, ONE_RUN_NEES if nees.ndim == 1 else "")
 
     def anis(self, confidence: float = 0.95) -> ConsistencyTest:
-        """Average NIS with its χ² interval, averaged as :meth:`anees`."""
+        """Average NIS with its χ² interval, averaged as :meth:`anees`.
+
+        With missing measurements (:attr:`measured`) each step's average is over the runs
+        that measured something (a missing row counts neither as a zero nor in N), and the
+        degrees of freedom are the components measured; a single run's NIS are independent
+        for a consistent filter (white innovations), so its interval holds."""
         nis = self.nis()
         if self.measured is not None:
             d = self.measured
@@ -490,9 +549,11 @@ class SmootherResult:
         return self.filtered.log_likelihood
 
     def estimate(self, k: int, run: int | None = None) -> Gaussian:
-        """N(x̂_{k|K}, P_{k|K}) at step k (0-based), of run ``run`` for a bank."""
+        """N(x̂_{k|K}, P_{k|K}) at step k (0-based, negative from the end), of run ``run`` for a bank
+        (an index outside the result: ArgumentError)."""
         if (run is None) != (self.runs is None):
             raise ShapeError("give run= for a bank of runs, and only then")
+        k, run = _step_index(k, self.steps, run, self.runs)
         x = self.x if run is None else self.x[run]
         P = self.P if run is None else self.P[run]
         return Gaussian(x[k], P[k])
@@ -503,8 +564,10 @@ class SmootherResult:
         return _nees(self.x, self.P, x_true, self.angle_states)
 
     def anees(self, x_true: ArrayLike, confidence: float = 0.95) -> ConsistencyTest:
-        """Average smoothed NEES with its χ² interval, averaged as :meth:`KalmanResult.anees`."""
-        return _consistency(self.nees(x_true), self.n, confidence)
+        """Average smoothed NEES with its χ² interval, averaged as :meth:`KalmanResult.anees`
+        (a single run's interval is too narrow: its errors are correlated in time)."""
+        nees = self.nees(x_true)
+        return _consistency(nees, self.n, confidence, ONE_RUN_NEES if nees.ndim == 1 else "")
 
     def __repr__(self) -> str:
         runs = "" if self.runs is None else f"runs={self.runs}, "
