@@ -154,3 +154,35 @@ def test_a_filter_compiles_any_point_rule_from_its_declared_points():
     b = sm.NonlinearKalmanFilter(f, h, [[0.01]], [[0.1]], sm.GaussHermite(3)).filter(ys, x0)
     np.testing.assert_allclose(a.x, b.x, rtol=1e-12)
     np.testing.assert_allclose(a.P, b.P, rtol=1e-12)
+
+
+def test_nothing_above_the_transforms_tests_for_a_concrete_rule():
+    """What a caller needs to know about a rule, the rule declares (docs/architecture.md, the
+    Transform contract; issue 38, item 18): no isinstance(t, GaussHermite) outside transforms/."""
+    import ast
+    from pathlib import Path
+
+    import symmon.transforms as tr
+
+    concrete = {n for n in tr.__all__ if isinstance(getattr(tr, n), type)
+                and issubclass(getattr(tr, n), Transform) and getattr(tr, n) is not Transform}
+    root = Path(sm.__file__).parent
+    bad = []
+    for path in sorted(root.rglob("*.py")):
+        if path.relative_to(root).parts[0] == "transforms":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "isinstance" and len(node.args) == 2:
+                classes = node.args[1].elts if isinstance(node.args[1], ast.Tuple) else [node.args[1]]
+                names = {c.attr if isinstance(c, ast.Attribute) else getattr(c, "id", None) for c in classes}
+                if names & concrete:
+                    bad.append(f"{path.relative_to(root)}:{node.lineno} {sorted(names & concrete)}")
+    assert not bad, bad
+
+
+def test_a_gauss_hermite_grid_left_to_the_dimension_is_made_explicit():
+    gh = sm.GaussHermite(5)
+    assert gh.for_dimension(3, 10**4) == (sm.GaussHermite(5, sparse=False), "")
+    assert gh.for_dimension(8, 10**4) == (sm.GaussHermite(5, sparse=True), "sparse")
+    assert sm.GaussHermite(5, sparse=False).for_dimension(8, 10) == (sm.GaussHermite(5, sparse=False), "")
+    assert sm.UT.ut1().for_dimension(8, 10) == (sm.UT.ut1(), "")

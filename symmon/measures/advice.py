@@ -50,7 +50,7 @@ import numpy as np
 from ..core.angles import wrap_angle
 from ..errors import ArgumentTypeError, SymmonError
 from ..core.gaussian import Gaussian
-from ..core.mixture import Empirical
+from ..core.mixture import Empirical, GaussianMixture
 from ..core.model import Model, with_param_values
 from ..propagation.joint import JointMoments
 from .mon import nonlinearity
@@ -187,7 +187,10 @@ class Advice:
         ``first_call`` (seconds, compilation included), ``warm`` (seconds, the median of
         the warm calls), ``seconds`` (the same as ``warm``), ``mon`` (the MoN that this
         candidate's own moments give; not in the table, whose MoN is the reference's) and
-        ``within_tol``.
+        ``within_tol``; for a :class:`~symmon.GaussianMixture` u also ``component_error``
+        (the worst error over its components, each against the reference rule on that
+        component) and ``worst_component``, and a note says how the choice relates to
+        the components' (the mixed moments can hide a component's error).
     reference : str
         The reference transform.
     reference_error : float
@@ -252,18 +255,14 @@ def _weight_text(weight: Any) -> str:
 def _gauss_hermite(order: int, n_w: int, error_estimate: bool = False) -> GaussHermite:
     """Gauss–Hermite of ``order`` in ``n_w`` dimensions on an explicit grid: the tensor grid
     while it (and the order + 2 rule of its error estimate) is affordable, else the sparse grid."""
-    top = order + 2 if error_estimate else order
-    return GaussHermite(order, sparse=top**n_w > MAX_REFERENCE_NODES, error_estimate=error_estimate)
+    return GaussHermite(order, error_estimate=error_estimate).for_dimension(n_w, MAX_REFERENCE_NODES)[0]
 
 
 def _explicit(name: str, t: Transform, n_w: int) -> tuple[str, Transform]:
-    """A Gauss–Hermite candidate that leaves its grid to the dimension (``sparse=None``) gets the
-    grid of :func:`_gauss_hermite`, and " (sparse)" in its name when that is the sparse grid."""
-    if isinstance(t, GaussHermite) and t.sparse is None:
-        t = _gauss_hermite(int(t.order), n_w, t.error_estimate)
-        if t.sparse:
-            name += " (sparse)"
-    return name, t
+    """A candidate with its dimension-dependent choices made (:meth:`Transform.for_dimension`:
+    Gauss–Hermite's grid), the choice named in its name, e.g. " (sparse)"."""
+    t, choice = t.for_dimension(n_w, MAX_REFERENCE_NODES)
+    return (f"{name} ({choice})" if choice else name), t
 
 
 def _reference(model: Model, u: Gaussian, v: Gaussian | None, tol: float, samples: int, seed: int
@@ -290,6 +289,33 @@ def _reference(model: Model, u: Gaussian, v: Gaussian | None, tol: float, sample
         notes.append(f"the Monte Carlo reference is only good to {bound:.1e} (2 SE) > tol: "
                      "raise samples to resolve tol")
     return mc, f"Monte Carlo {mc.n:.0e} samples (seed {mc.seed})", ref, bound, notes
+
+
+def _components_note(model: Model, u: GaussianMixture, v, rows: list[dict], ref_t: Transform, ref_err: float,
+                     tol: float, best: dict | None) -> str:
+    """How the choice for a mixture's moments relates to its components': each row gets
+    ``component_error``, its worst error over the components of ``u`` (each against the
+    reference rule on that component), and the note names the cheapest candidate within
+    ``tol`` on every component.  The mixed moments can hide a component's error (the
+    spread between the components dominates their covariance), so a per-component use, such
+    as a Gaussian-sum filter, may need a richer rule than the mixture's moments."""
+    refs = [propagate(model, c, v, transform=ref_t) for c in u.components]
+    for r in rows:
+        errs = [moment_error(propagate(model, c, v, transform=r["transform"]), ref) for c, ref in zip(u.components, refs)]
+        r["component_error"] = max(errs)
+        r["worst_component"] = int(np.argmax(errs))
+    ok = [(r["cost"], i) for i, r in enumerate(rows) if r["component_error"] + ref_err <= tol]
+    each = rows[min(ok)[1]] if ok else None
+    head = (f"u is a mixture of {len(u.components)} components: the choice is for its mixed moments, where the "
+            "spread between the components can hide their own errors; ")
+    if each is None:
+        return head + f"on its components no candidate is within tol {tol:g}"
+    if best is not None and each is best:
+        return head + f"{each['name']} is also within tol on every component (worst error {each['component_error']:.1e})"
+    told = ("" if best is None else f"{best['name']} errs up to {best['component_error']:.1e} on component "
+            f"{best['worst_component']}; ")
+    return head + told + (f"component by component (a Gaussian-sum filter, a propagate per component) the cheapest "
+                          f"within tol is {each['name']} (worst error {each['component_error']:.1e})")
 
 
 def _timed(model: Model, u: Gaussian, v: Gaussian | None, t: Transform) -> tuple[JointMoments, float, float]:
@@ -386,5 +412,7 @@ def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = DE
     # Ties in cost go to the earlier candidate: the choice must not depend on timing noise.
     ok = [(r["cost"], i) for i, r in enumerate(rows) if r["within_tol"]]
     best = rows[min(ok)[1]] if ok else None
+    if isinstance(u, GaussianMixture):
+        notes.append(_components_note(model, u, v, rows, ref_t, ref_err, tol, best))
     return Advice(rows, ref_name, ref_err, ref_mon.value, best["transform"] if best else None,
                   best["name"] if best else None, float(tol), weight, tuple(notes), ref_mon.stderr)

@@ -289,6 +289,13 @@ class Transform(ABC):
         grid, is tested); TT1, TT2 and Monte Carlo say so themselves."""
         return _nonnegative_weights(self, n) if self.point_rule else False
 
+    def for_dimension(self, n: int, max_nodes: int) -> tuple["Transform", str]:
+        """This rule with its dimension-dependent choices made for Gaussians of dimension ``n``
+        (a grid left to the dimension takes the richer grid while it has at most ``max_nodes``
+        nodes), and a word naming the choice ("" when none): what :func:`symmon.advise` times
+        and reports is then the rule that runs.  Default: the rule itself and ""."""
+        return self, ""
+
     def cost(self, n_w: int) -> int:
         """Evaluations of g for one Gaussian of dimension ``n_w``."""
         raise NotImplementedError(f"{type(self).__name__} declares no cost model")

@@ -126,6 +126,16 @@ class GaussHermite(Transform):
 
         return nodes(int(self.order)) + (nodes(int(self.order) + 2) if self.error_estimate else 0)
 
+    def for_dimension(self, n: int, max_nodes: int) -> tuple["GaussHermite", str]:
+        """With ``sparse=None``: the tensor grid while it (and the order + 2 grid of the error
+        estimate) has at most ``max_nodes`` nodes in ``n`` dimensions, else the sparse grid,
+        named "sparse"; an explicit ``sparse`` is kept."""
+        if self.sparse is not None:
+            return self, ""
+        top = self.order + 2 if self.error_estimate else self.order
+        sparse = bool(top**n > max_nodes)
+        return GaussHermite(self.order, sparse=sparse, error_estimate=self.error_estimate), "sparse" if sparse else ""
+
     def filter_label(self) -> str:
         """The Gauss–Hermite Kalman filter, ``GHKF(order=…)``."""
         return f"GHKF(order={self.order})"
