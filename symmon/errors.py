@@ -32,6 +32,7 @@ __all__ = [
     "AngleWarning",
     "QuadratureWarning",
     "SampleSizeWarning",
+    "IdentifiabilityWarning",
 ]
 
 
@@ -178,6 +179,12 @@ class QuadratureWarning(UserWarning):
     """A quadrature rule chose a grid the caller did not ask for (Gauss–Hermite with
     ``sparse=None`` falls to the sparse grid above 4 dimensions): its degree of exactness
     and its weights differ from the tensor grid's."""
+
+
+class IdentifiabilityWarning(UserWarning):
+    """A fitted parameter has a standard error larger than its estimate: the data hardly
+    constrain it (a bias confounded with an uncertain initial state), and the estimate is
+    little more than its starting value moved by noise."""
 
 
 class SampleSizeWarning(UserWarning):

@@ -29,7 +29,9 @@ import numpy as np
 from scipy import optimize
 
 from ..core.gaussian import float_array
-from ..errors import ModelError, SymmonError
+import warnings
+
+from ..errors import IdentifiabilityWarning, ModelError, SymmonError
 from .inputs import FilterSpec, filter_inputs
 from .results import KalmanResult
 from .step import _compiled_step
@@ -193,18 +195,35 @@ def fit_parameters(kf: FilterSpec, ys, x0, start: dict, P0=None, *, params: dict
 
     res = optimize.minimize(objective, theta0, jac=True, method="L-BFGS-B",
                             bounds=list(zip(lo, hi)), options={"maxiter": int(max_iter), "gtol": gtol})
+    at = {k: float(v) for k, v in zip(fitted_names, res.x)}  # plain floats in messages, not np.float64(...)
     if not res.success or not np.isfinite(res.fun):
         raise SymmonError(f"the maximum-likelihood fit did not converge after {res.nit} iterations: {res.message} "
-                          f"(last estimates {dict(zip(fitted_names, res.x))}); try other starting values or bounds")
+                          f"(last estimates {at}); try other starting values or bounds")
     info = -np.asarray(hess(res.x), dtype=float)
     info = 0.5 * (info + info.T)
-    eig = np.linalg.eigvalsh(info)
-    if not np.all(np.isfinite(eig)) or eig[0] <= 1e-12 * max(abs(eig[-1]), 1e-300):
+    eig, vec = np.linalg.eigh(info)
+    tiny = 1e-12 * max(abs(eig[-1]) if np.all(np.isfinite(eig)) else 0.0, 1e-300)
+    if np.all(np.isfinite(eig)) and eig[0] < -tiny:
+        # −∇²ℓ has a negative eigenvalue: ℓ curves up along its eigenvector, so the search
+        # stopped where the gradient vanishes but ℓ is not a maximum (a symmetric start such as
+        # a noise intensity q = 0, where ℓ(q) = ℓ(−q)).
+        direction = dict(zip(fitted_names, (float(c) for c in vec[:, 0])))
         raise SymmonError(
-            f"the observed information matrix at {dict(zip(fitted_names, res.x))} is singular or not positive "
-            f"definite (eigenvalues {eig}): a fitted parameter is not identifiable from these data")
+            f"the fit stopped at {at}, where the gradient of the log-likelihood vanishes but it is a minimum or a "
+            f"saddle, not a maximum (the observed information has the negative eigenvalue {eig[0]:.3g} along "
+            f"{direction}): start elsewhere, away from a point of symmetry (e.g. a noise intensity of 0)")
+    if not np.all(np.isfinite(eig)) or eig[0] <= tiny:
+        raise SymmonError(
+            f"the observed information matrix at {at} is singular (eigenvalues {[float(e) for e in eig]}): "
+            "a fitted parameter is not identifiable from these data (two parameters that enter only together)")
     cov = np.linalg.inv(info)
     se = np.sqrt(np.diag(cov))
+    weak = [(k, float(res.x[j]), float(se[j])) for j, k in enumerate(fitted_names) if se[j] > abs(res.x[j])]
+    if weak:
+        warnings.warn("weakly identified: " + "; ".join(f"{k} = {v:.6g} has standard error {s:.3g}" for k, v, s in weak)
+                      + ", larger than the estimate: the data hardly constrain it (a bias confounded with an "
+                      "uncertain initial state, say); fix it with params=, or fit on more informative data",
+                      IdentifiabilityWarning, stacklevel=3)
     estimates = dict(zip(fitted_names, (float(v) for v in res.x)))
     scale = np.maximum(1.0, np.abs(res.x))
     at_bound = tuple(k for j, k in enumerate(fitted_names)

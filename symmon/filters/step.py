@@ -84,10 +84,12 @@ def model_moments(model: Model, m, P, transform: Transform, angles, chol, p=None
 
 
 def select_params(model: Model, names: tuple, p):
-    """The entries of the filter's parameter vector p (named ``names``) that ``model`` uses."""
+    """The entries of the filter's parameter vector p (named ``names``) that ``model`` uses,
+    found by name (:func:`filter_params`: one name, one parameter)."""
     if not model.n_p:
         return None
-    return ca.vertcat(*[p[names.index(s)] for s in model.params])
+    keys = [str(q) for q in names]
+    return ca.vertcat(*[p[keys.index(str(s))] for s in model.params])
 
 
 def predict_graph(f: Model, transform: Transform, angle_states: frozenset[int], x, P, Q, chol, p=None,
@@ -181,8 +183,13 @@ def update_graph(h: Model, transform: Transform, angle_states: frozenset[int], x
 
 
 def filter_params(f: Model, h: Model) -> tuple:
-    """The parameters of a filter: f's, then h's that f does not have."""
-    return tuple(f.params) + tuple(s for s in h.params if s not in f.params)
+    """The parameters of a filter: f's, then h's whose names f does not have.
+
+    One name is one parameter: a ``b`` of h declared as another sympy symbol than f's ``b``
+    (other assumptions, or made apart) is the same parameter, as ``filter(params={"b": …})``
+    sets it, so that a fit varies the one value both models use."""
+    names = {str(s) for s in f.params}
+    return tuple(f.params) + tuple(s for s in h.params if str(s) not in names)
 
 
 def _step_function(f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
