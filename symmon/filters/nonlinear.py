@@ -68,6 +68,7 @@ from numpy.typing import ArrayLike
 
 from ..errors import AngleWarning, ShapeError, SymmonError
 from ..core.checks import check_model, noise_cov, readonly
+from .diagnose import locate_nonfinite
 from .export import export_filter_c
 from .fit import FitResult, fit_parameters
 from .inputs import check_keep, filter_inputs
@@ -330,6 +331,25 @@ class NonlinearKalmanFilter:
         """
         return export_filter_c(self, directory, name)
 
+    def _nan_cause(self, checked, r: int, k: int) -> str:
+        """Where step ``k`` of run ``r`` turned NaN (:mod:`symmon.filters.diagnose`): f at the last
+        finite estimate, else h at the prediction; "" when neither shows it."""
+        x0 = checked.x0 if checked.x0.ndim == 1 else checked.x0[r]
+        P0 = checked.P0 if checked.P0.ndim == 2 else checked.P0[r]
+        pv = None if checked.params is None else checked.params[r:r + 1, :k + 1]
+        values = {} if pv is None else dict(zip((str(s) for s in self.params), pv[0, k]))
+        try:
+            out, _ = self.strategy.run(self, checked.Y[r:r + 1, :k + 1], x0, P0, None,
+                                       **({} if pv is None else {"params": pv}))
+            x_prev = x0 if k == 0 else out["x"][0, k - 1]
+            cause = locate_nonfinite(self.f_model, "f", x_prev, values)
+            x_pred = out["x_pred"][0, k]
+            if not cause and np.all(np.isfinite(x_pred)):
+                cause = locate_nonfinite(self.h_model, "h", x_pred, values)
+            return cause
+        except (SymmonError, KeyError, IndexError):  # the diagnosis must not hide the failure itself
+            return ""
+
     def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None, *,
                keep: Iterable[str] | None = None, params: dict | None = None,
                x_true: ArrayLike | None = None) -> KalmanResult:
@@ -404,10 +424,12 @@ class NonlinearKalmanFilter:
             k = first[first >= 0].min()  # the first step that failed (later ones may be NaN in every run)
             r = int(np.argmax(first == k))
             where = f"step {k}" if runs is None else f"run {r}, step {k}"
+            cause = self._nan_cause(checked, r, int(k))
             raise SymmonError(
-                f"{self.method}: the filter produced NaN or inf at {where} (the innovation "
-                "covariance S is singular or not positive definite, a covariance lost positive "
-                "definiteness, or a derivative is undefined there, e.g. sqrt at 0 or atan2(0, 0))"
+                f"{self.method}: the filter produced NaN or inf at {where}"
+                + (f": {cause}" if cause else " (the innovation covariance S is singular or not positive definite, "
+                   "a covariance lost positive definiteness, or a derivative is undefined there, e.g. sqrt at 0 or "
+                   "atan2(0, 0))")
             )
         arrays = {k: v if runs is not None else v[0] for k, v in out.items()}
         if nees:  # after the check above: a NaN state is a failed filter, not a singular P

@@ -79,3 +79,24 @@ def test_a_step_outside_the_result_is_named(kf):
     sm_res = kf.smooth(np.zeros((5, 2)), X0)
     with pytest.raises(ArgumentError, match="k = 5 is outside"):
         sm_res.estimate(5)
+
+
+def test_a_nan_names_the_model_the_output_and_the_operation():
+    """Issue 38, item 4: a coordinated turn at turn rate 0 (sin(ω dt)/ω) and a range at the sensor."""
+    px, py, vx, vy, om, dt = sp.symbols("px py vx vy om dt", real=True)
+    s, c = sp.sin(om * dt) / om, (1 - sp.cos(om * dt)) / om
+    f = sm.Model([px, py, vx, vy, om], [px + s * vx - c * vy, py + c * vx + s * vy, vx, vy, om], params=[dt],
+                 name="i38_ct")
+    h = sm.Model([px, py, vx, vy, om], [px, py], name="i38_xy")
+    for t in (sm.TT1(), sm.UT.ut1()):
+        kf = sm.NonlinearKalmanFilter(f, h, 0.01 * np.eye(5), np.eye(2), t)
+        with pytest.raises(sm.errors.SymmonError, match=r"at step 0: f 'i38_ct', output 0 \(.*\), is not finite .*"
+                                                        r"om = 0\]: a division by zero: 1/om at om = 0"):
+            kf.filter(np.ones((3, 2)), np.zeros(5), np.eye(5), params={"dt": 1.0})
+    x, y = sp.symbols("x y", real=True)
+    walk = sm.Model([x, y], [x, y], name="i38_walk")
+    rng = sm.Model([x, y], [sp.sqrt(x**2 + y**2)], name="i38_range")
+    kf = sm.NonlinearKalmanFilter(walk, rng, 0.01 * np.eye(2), [[1.0]], sm.TT1())
+    with pytest.raises(sm.errors.SymmonError, match=r"step 0: the derivative of h 'i38_range', output 0 .* by x is "
+                                                    r"not finite .* division by zero"):
+        kf.filter([[1.0], [1.0]], np.array([0.0, 0.0]), 1e-300 * np.eye(2))
