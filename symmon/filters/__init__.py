@@ -1,7 +1,7 @@
 """Kalman filters: the linear filter (:mod:`.linear`) and the nonlinear family compiled to C
 (:mod:`.nonlinear`: EKF, second-order EKF, UKF, CKF, Gauss–Hermite), their compiled step
 (:mod:`.step`), their RTS smoothers (:mod:`.smoother`), their export as standalone C
-(:mod:`.export`), results with NEES/NIS (:mod:`.results`), and the strategies that run the steps
+(:mod:`.export`), the truth of a filter study (:func:`.simulation.simulate`), results with NEES/NIS (:mod:`.results`), and the strategies that run the steps
 (:mod:`.strategy`: one rule, or :class:`Adaptive`, :mod:`.adaptive`)."""
 
 from .adaptive import Adaptive as Adaptive
@@ -13,7 +13,8 @@ from .results import NonlinearKalmanResult as NonlinearKalmanResult
 from .results import SmootherResult as SmootherResult
 from .fit import FitResult as FitResult
 from .strategy import FilterStrategy as FilterStrategy
+from .simulation import simulate as simulate
 from .strategy import RuleStrategy as RuleStrategy
 
 __all__ = ["KalmanFilter", "KalmanResult", "NonlinearKalmanFilter", "NonlinearKalmanResult", "SmootherResult", "FitResult", "ConsistencyTest",
-           "Adaptive", "FilterStrategy", "RuleStrategy"]
+           "Adaptive", "FilterStrategy", "RuleStrategy", "simulate"]
