@@ -35,6 +35,8 @@ from .filters import GaussianSumFilter as GaussianSumFilter
 from .filters import GaussianSumResult as GaussianSumResult
 from .filters import KalmanFilter as KalmanFilter
 from .filters import NonlinearKalmanFilter as NonlinearKalmanFilter
+from .filters import ParticleFilter as ParticleFilter
+from .filters import simulate as simulate
 from .measures import Advice as Advice
 from .measures import MonParts as MonParts
 from .measures import NonlinearityMeasure as NonlinearityMeasure
@@ -67,7 +69,7 @@ __all__ = [
     "NonlinearityMeasure", "MonParts", "mon_from_moments", "nonlinearity", "compare",
     "propagate", "propagate_many", "advise", "Advice",
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Cubature5", "Transform", "Moments", "Executor",
-    "NonlinearKalmanFilter", "Adaptive", "GaussianSumFilter", "GaussianSumResult",
+    "NonlinearKalmanFilter", "Adaptive", "simulate", "ParticleFilter", "GaussianSumFilter", "GaussianSumResult",
 ]
 
 

@@ -69,6 +69,7 @@ import sympy as sp
 from ..core.angles import wrap_angle
 from ..errors import SymmonError
 from ..filters import Adaptive, NonlinearKalmanFilter
+from ..filters.simulation import simulate as simulate_models
 from ..filters.results import KEEPABLE, MAX_BANK_NUMBERS, check_bank_size, kept_numbers
 from ..measures.advice import DEFAULT_TOL
 from ..core.gaussian import Gaussian
@@ -84,7 +85,6 @@ from .modelfile import (
     read_toml,
     parse_expression,
 )
-from ..compile import compiled
 from ..transforms import TT1, TT2, UT, GaussHermite
 
 __all__ = ["FilterSpec", "load_filter_file", "simulate", "check_bank", "FILTERS", "filter_transform", "run_bank", "BankSummary"]
@@ -279,17 +279,13 @@ def check_bank(spec: FilterSpec, runs: int, filters: Iterable[str], smooth: bool
 
 def simulate(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, steps: int, runs: int,
              seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """True states and measurements of ``runs`` independent runs.
+    """True states and measurements of ``runs`` independent runs: :func:`symmon.simulate`
+    with a bank of ``runs`` (shapes (runs, steps, n) and (runs, steps, n_y)).
 
     x_0 ~ x0, x_k = f(x_{k−1}) + w_k, y_k = h(x_k) + e_k for k = 1 … ``steps``, with
     w_k ~ N(0, Q) and e_k ~ N(0, R); for a model with noise symbols the noise is its
     argument instead, x_k = f(x_{k−1}, w_k) and y_k = h(x_k, e_k).  Angle states and
     angle measurements are wrapped to (−π, π].
-
-    Returns
-    -------
-    xs : ndarray, shape (runs, steps, n)
-    ys : ndarray, shape (runs, steps, n_y)
 
     Raises
     ------
@@ -297,37 +293,7 @@ def simulate(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, ste
         If runs × steps × (n + n_y) exceeds :data:`MAX_SIMULATED`, or the truth diverges (a
         non-finite state or measurement, naming the run and step).
     """
-    n, n_y = f.n_u, h.n_y
-    check_bank_size(runs, steps, n + n_y, "the simulated states and measurements", "use fewer runs or steps")
-    rng = np.random.default_rng(seed)
-    cf, ch = compiled(f), compiled(h)
-    nq, nr = f.n_v or n, h.n_v or n_y
-    Lq, Lr = Gaussian(np.zeros(nq), Q).sqrt_cov(), Gaussian(np.zeros(nr), R).sqrt_cov()  # PSD allowed
-    x = x0.mean + rng.standard_normal((runs, n)) @ x0.sqrt_cov().T
-    s_angles = sorted(f.angle_outputs | f.angle_inputs | h.angle_inputs)
-    y_angles = sorted(h.angle_outputs)
-    xs, ys = np.empty((runs, steps, n)), np.empty((runs, steps, n_y))
-
-    def step(c, model: Model, z: np.ndarray, L: np.ndarray) -> np.ndarray:
-        noise = rng.standard_normal((runs, L.shape[0])) @ L.T
-        return c.eval_g(np.hstack([z, noise])) if model.n_v else c.eval_g(z) + noise
-
-    for k in range(steps):
-        x = step(cf, f, x, Lq)
-        if s_angles:
-            x[:, s_angles] = wrap_angle(x[:, s_angles])
-        y = step(ch, h, x, Lr)
-        if y_angles:
-            y[:, y_angles] = wrap_angle(y[:, y_angles])
-        xs[:, k], ys[:, k] = x, y
-        bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(y).all(axis=1))
-        if bad.any():
-            # A NaN measurement would read as "not measured" to the filters: stop here.
-            r = int(np.flatnonzero(bad)[0])
-            raise SymmonError(
-                f"the simulated truth diverged: run {r} has a non-finite state or measurement at step {k + 1} "
-                f"(x = {x[r].tolist()}); the scenario's dynamics are unstable or its noise too large")
-    return xs, ys
+    return simulate_models(f, h, Q, R, x0, steps, runs, seed=seed)
 
 
 @dataclass(frozen=True)

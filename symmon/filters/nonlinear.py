@@ -66,12 +66,12 @@ import numpy as np
 import sympy as sp
 from numpy.typing import ArrayLike
 
-from ..errors import AngleWarning, ArgumentTypeError, CovarianceError, ModelError, ShapeError, SymmonError
+from ..errors import AngleWarning, ArgumentTypeError, CovarianceError, ShapeError, SymmonError
 from ..core.checks import check_gaussian, check_model, noise_cov, readonly
 from .results import (ConsistencyTest, KalmanResult, NonlinearKalmanResult, SmootherResult, check_bank_size, check_keep,
                       check_truth, kept_numbers, real_measurements, step_nees, _nees)
 from .smoother import compiled_smoother
-from .step import filter_params, first_nonfinite
+from .step import filter_params, first_nonfinite, param_values
 from .strategy import FilterStrategy, RuleStrategy
 from ..core.gaussian import Gaussian, as_covariance, float_array
 from ..core.model import Model
@@ -202,35 +202,8 @@ class NonlinearKalmanFilter:
         return filter_params(self.f_model, self.h_model)
 
     def _param_values(self, params: dict | None, runs: int | None, K: int) -> np.ndarray | None:
-        """The values of the parameters as (R, K, n_p): a scalar, one per step (K,), or one per
-        run and step (R, K) for each."""
-        if not self.params:
-            if params:
-                raise ModelError(f"the filter's models declare no parameters, got params {sorted(map(str, params))}")
-            return None
-        names = [str(s) for s in self.params]
-        if not isinstance(params, dict):
-            raise ModelError(f"the filter's models have parameters {names}: give params={{name: value}}, "
-                             f"got {type(params).__name__}")
-        given = {str(k): v for k, v in params.items()}
-        unknown = sorted(set(given) - set(names))
-        missing = [n for n in names if n not in given]
-        if unknown or missing:
-            raise ModelError(f"params must give each of {names}" + (f"; unknown {unknown}" if unknown else "")
-                             + (f"; missing {missing}" if missing else ""))
-        R = runs or 1
-        out = np.empty((R, K, len(names)))
-        for j, n in enumerate(names):
-            v = float_array(given[n], f"parameter {n!r}")
-            shapes = [(), (K,)] + ([(runs, K)] if runs is not None else [])
-            if v.shape not in shapes:
-                raise ShapeError(f"parameter {n!r} must be a number, one per step ({K},)"
-                                 + (f" or one per run and step ({runs}, {K})" if runs is not None else "")
-                                 + f", got shape {v.shape}")
-            if not np.all(np.isfinite(v)):
-                raise ShapeError(f"parameter {n!r} contains NaN or inf")
-            out[..., j] = v
-        return out
+        """The values of the parameters as (R, K, n_p) (:func:`~symmon.filters.step.param_values`)."""
+        return param_values(self.params, params, runs, K)
 
     @cached_property
     def angle_states(self) -> frozenset[int]:

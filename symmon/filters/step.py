@@ -47,7 +47,8 @@ import numpy as np
 
 from ..compile.ccache import NativeLibrary
 from ..compile.compiled import WorkArrays, generated_c, in_threads, padded
-from ..errors import SymmonError
+from ..errors import ModelError, ShapeError, SymmonError
+from ..core.gaussian import float_array
 from ..core.model import Model
 from ..compile import compiled, compiled_with_params
 from ..codegen.symbolic import graph_kind, moments, tril_inverse, wrap_entries
@@ -183,6 +184,46 @@ def update_graph(h: Model, transform: Transform, angle_states: frozenset[int], x
 def filter_params(f: Model, h: Model) -> tuple:
     """The parameters of a filter: f's, then h's that f does not have."""
     return tuple(f.params) + tuple(s for s in h.params if s not in f.params)
+
+
+def param_values(names: tuple, params: dict | None, runs: int | None, K: int,
+                 who: str = "the filter's models") -> np.ndarray | None:
+    """The values of the parameters ``names`` as (R, K, n_p): for each, a number, one per
+    step (K,), or one per run and step (R, K) (``runs`` not None); None without parameters.
+
+    Raises
+    ------
+    ModelError
+        For a parameter unknown, missing, or given to models (``who``) that have none.
+    ShapeError
+        For a value of another shape, or NaN or inf.
+    """
+    if not names:
+        if params:
+            raise ModelError(f"{who} declare no parameters, got params {sorted(map(str, params))}")
+        return None
+    names = [str(s) for s in names]
+    if not isinstance(params, dict):
+        raise ModelError(f"{who} have parameters {names}: give params={{name: value}}, "
+                         f"got {type(params).__name__}")
+    given = {str(k): v for k, v in params.items()}
+    unknown = sorted(set(given) - set(names))
+    missing = [n for n in names if n not in given]
+    if unknown or missing:
+        raise ModelError(f"params must give each of {names}" + (f"; unknown {unknown}" if unknown else "")
+                         + (f"; missing {missing}" if missing else ""))
+    out = np.empty((runs or 1, K, len(names)))
+    for j, n in enumerate(names):
+        v = float_array(given[n], f"parameter {n!r}")
+        shapes = [(), (K,)] + ([(runs, K)] if runs is not None else [])
+        if v.shape not in shapes:
+            raise ShapeError(f"parameter {n!r} must be a number, one per step ({K},)"
+                             + (f" or one per run and step ({runs}, {K})" if runs is not None else "")
+                             + f", got shape {v.shape}")
+        if not np.all(np.isfinite(v)):
+            raise ShapeError(f"parameter {n!r} contains NaN or inf")
+        out[..., j] = v
+    return out
 
 
 def _step_function(f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
