@@ -6,7 +6,7 @@ table of univariate splits of N(0, 1)
 
     N(x; 0, 1) ≈ Σ_i w_i N(x; μ_i, σ²),   μ_i = (i − (m − 1)/2) δ,
 
-computed here, once, and stored in the module (``SPLITS``).  The split is symmetric
+computed here, once, and stored in ``symmon/core/mixture.py`` (``SPLITS``).  The split is symmetric
 (w_i = w_{m−1−i}), so its mean is 0 exactly, and δ is not a free parameter: it is fixed by
 the variance, σ² + Σ_i w_i μ_i² = 1, so the mixture keeps the mean and the covariance of the
 component exactly (the filter computes δ from the stored σ and w).  The free parameters σ and

@@ -17,7 +17,7 @@ W^full = Σ_yy⁻¹/n_y (Straka & Havlík 2024, eqs. (25), (29), (43)),
 (for y = g(x) + e, e ~ N(0, R); Q for the dynamics) is computed with TT2 at the component
 N(m_i, P_i), in one compiled batch over all components.  A component whose M exceeds
 ``split`` is replaced by m = 3 or 5 components from a tabulated split of N(0, 1)
-(:data:`SPLITS`, computed by ``derivations/gaussian_split.py``): along a direction d with
+(:data:`symmon.core.mixture.SPLITS`, computed by ``derivations/gaussian_split.py``): along a direction d with
 P = S Sᵀ and d = S a, |a| = 1,
 
     m_j = m + μ_j d,   P_j = P − (1 − σ²) d dᵀ,   w_j = w · ω_j,
@@ -69,7 +69,6 @@ D. J. Salmond, "Mixture reduction algorithms for target tracking in clutter", Pr
 from __future__ import annotations
 
 import hashlib
-import math
 import threading
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -83,7 +82,7 @@ from ..compile import batched, compiled, compiled_with_params
 from ..core.angles import wrap_angle
 from ..core.gaussian import Gaussian
 from ..core.checks import check_gaussian
-from ..core.mixture import GaussianMixture, mixture_moments
+from ..core.mixture import SPLITS, GaussianMixture, mixture_moments, split_weights
 from ..core.model import Model
 from ..errors import ArgumentError, ArgumentTypeError, ShapeError, SymmonError
 from ..transforms import TT2, UT, Transform
@@ -96,28 +95,8 @@ from .step import (_filterable, filter_params, model_moments, predict_graph, sel
 __all__ = ["GaussianSumFilter", "GaussianSumResult", "SPLITS", "split_component", "split_direction",
            "merge_components", "component_mon", "MERGE_RULES"]
 
-#: The univariate splits of N(0, 1): components m ↦ (σ, the outer weights of one side, nearest
-#: first), computed by ``derivations/gaussian_split.py`` (L2 distance + 10⁻³ σ, DeMars et al.
-#: 2013, with the variance kept exactly); the centre weight and the spacing δ follow from
-#: Σ ω = 1 and σ² + Σ ω μ² = 1 (:func:`split_weights`).
-SPLITS: dict[int, tuple[float, tuple[float, ...]]] = {
-    3: (0.7303827025415317, (0.20224354212317014,)),
-    5: (0.5472166585274427, (0.23721882185007498, 0.04842309990180618)),
-}
 #: The merging criteria.
 MERGE_RULES = ("runnalls", "salmond")
-
-
-def split_weights(m: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """(ω (m,), μ (m,), σ) of the tabulated split of N(0, 1) into m components: symmetric, so
-    Σ ω μ = 0, and δ from the variance, σ² + Σ ω μ² = 1."""
-    sigma, outer = SPLITS[m]
-    o = np.array(outer)
-    idx = np.arange(1, len(o) + 1)
-    w = np.concatenate([o[::-1], [1.0 - 2.0 * o.sum()], o])
-    delta = math.sqrt((1.0 - sigma**2) / (2.0 * float(o @ idx**2)))
-    mu = np.concatenate([-idx[::-1], [0], idx]) * delta
-    return w, mu, sigma
 
 
 def split_component(mean: ArrayLike, cov: ArrayLike, direction: ArrayLike, m: int = 3
