@@ -31,8 +31,12 @@ from .errors import SymmonError as SymmonError
 from .files import load_model_file as load_model_file
 from .files import load_samples_file as load_samples_file
 from .filters import Adaptive as Adaptive
+from .filters import GaussianSumFilter as GaussianSumFilter
+from .filters import GaussianSumResult as GaussianSumResult
 from .filters import KalmanFilter as KalmanFilter
 from .filters import NonlinearKalmanFilter as NonlinearKalmanFilter
+from .filters import ParticleFilter as ParticleFilter
+from .filters import simulate as simulate
 from .measures import Advice as Advice
 from .measures import MonParts as MonParts
 from .measures import NonlinearityMeasure as NonlinearityMeasure
@@ -65,7 +69,7 @@ __all__ = [
     "NonlinearityMeasure", "MonParts", "mon_from_moments", "nonlinearity", "compare",
     "propagate", "propagate_many", "advise", "Advice",
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Cubature5", "Transform", "Moments", "Executor",
-    "NonlinearKalmanFilter", "Adaptive",
+    "NonlinearKalmanFilter", "Adaptive", "simulate", "ParticleFilter", "GaussianSumFilter", "GaussianSumResult",
 ]
 
 

@@ -33,6 +33,7 @@ __all__ = [
     "QuadratureWarning",
     "SampleSizeWarning",
     "IdentifiabilityWarning",
+    "DegeneracyWarning",
 ]
 
 
@@ -191,3 +192,10 @@ class SampleSizeWarning(UserWarning):
     """A weighted sample (``Empirical``) has a small effective sample size
     (Σ w)² / Σ w²: its moments and measures are those of a few particles, and their
     error bars are themselves unreliable."""
+
+
+class DegeneracyWarning(RuntimeWarning):
+    """A particle filter's weights collapsed: at some step the effective sample size
+    1 / Σ w_i² fell to about one particle, so its estimate is that particle's state and its
+    covariance and log-likelihood are unreliable.  More particles, a proposal that uses the
+    measurement (``proposal="ekf"`` or ``"ukf"``) or a larger process noise help."""

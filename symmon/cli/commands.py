@@ -403,7 +403,7 @@ def cmd_filter(args: argparse.Namespace) -> int:
     check_bank(spec, args.runs, args.filters, args.smooth)  # before anything is simulated
     xs, ys = simulate(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
     rows = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, args.filters, args.tol, args.confidence,
-                    smooth=args.smooth)
+                    smooth=args.smooth, settings=spec.settings)
     states = [str(s) for s in spec.f.inputs]
     written = [_filter_plot(spec, rows, states, args.plot)] if args.plot else []
     if args.json:
@@ -411,7 +411,7 @@ def cmd_filter(args: argparse.Namespace) -> int:
                      "states": states, "units": spec.units, "filters": [_bank_json(r) for r in rows],
                      "files": [str(p) for p in written]})
         return 0
-    ok = [r for r in rows if r.result is not None]
+    ok = [r for r in rows if r.result is not None and r.anis is not None]
     if ok:
         a, b = ok[0].anees, ok[0].anis
         print(f"{spec.name}: {args.runs} runs of {spec.steps} steps (seed {args.seed}); per-step averages over the "
@@ -425,8 +425,9 @@ def cmd_filter(args: argparse.Namespace) -> int:
             print(f"{r.name:<9} failed: {r.error}")
             continue
         rmse = np.sqrt(np.mean(r.rmse**2, axis=0))
-        print(f"{r.name:<9} {float(np.mean(r.anees.value)):>9.4g} {float(np.mean(r.anees.inside)):>7.0%} "
-              f"{float(np.mean(r.anis.value)):>9.4g} {float(np.mean(r.anis.inside)):>7.0%} "
+        anis = (f"{'-':>9} {'-':>7}" if r.anis is None else  # a Gaussian-sum filter: no ANIS
+                f"{float(np.mean(r.anis.value)):>9.4g} {float(np.mean(r.anis.inside)):>7.0%}")
+        print(f"{r.name:<9} {float(np.mean(r.anees.value)):>9.4g} {float(np.mean(r.anees.inside)):>7.0%} {anis} "
               f"{float(np.mean(r.result.log_likelihood)):>10.6g}  " + ", ".join(f"{v:.4g}" for v in rmse))
         if args.smooth:
             if r.smoothed is None:

@@ -172,8 +172,9 @@ def _bank_json(r) -> dict:
     if r.result is None:
         return {"name": r.name, "error": r.error}
     out = {"name": r.name, "method": r.result.method,
-           "anees": _jsonable(r.anees.value), "anis": _jsonable(r.anis.value),
-           "anees_bounds": [r.anees.lower, r.anees.upper], "anis_bounds": [r.anis.lower, r.anis.upper],
+           "anees": _jsonable(r.anees.value), "anis": None if r.anis is None else _jsonable(r.anis.value),
+           "anees_bounds": [r.anees.lower, r.anees.upper],
+           "anis_bounds": None if r.anis is None else [r.anis.lower, r.anis.upper],
            "rmse": _jsonable(r.rmse), "log_likelihood": _jsonable(r.result.log_likelihood)}
     if r.result.choices is not None:
         names, counts = np.unique(r.result.choices, return_counts=True)
@@ -203,13 +204,14 @@ def _filter_plot(spec, rows, states: list[str], path: str) -> Path:
                 if r.result is None:
                     continue
                 axes[0].semilogy(k, r.anees.value, label=r.name)
-                axes[1].semilogy(k, r.anis.value, label=r.name)
+                if r.anis is not None:  # a Gaussian-sum filter has none
+                    axes[1].semilogy(k, r.anis.value, label=r.name)
                 for ax, (_, idx) in zip(axes[2:], groups):
                     line, = ax.semilogy(k, np.sqrt(np.sum(r.rmse[:, idx] ** 2, axis=1)), label=r.name)
                     if r.smoothed is not None:  # the smoother dashed, in its filter's colour
                         ax.semilogy(k, np.sqrt(np.sum(r.smoothed_rmse[:, idx] ** 2, axis=1)), "--",
                                     color=line.get_color(), label=f"{r.name} smoothed")
-            ok = [r for r in rows if r.result is not None]
+            ok = [r for r in rows if r.result is not None and r.anis is not None]
             if ok:
                 for ax, t, what in ((axes[0], ok[0].anees, "NEES"), (axes[1], ok[0].anis, "NIS")):
                     ax.axhspan(t.lower, t.upper, color="0.85", label=f"{t.confidence:.0%} interval")

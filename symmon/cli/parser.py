@@ -47,7 +47,7 @@ import numpy as np
 from ..version import __version__
 from ..compile.ccache import catch_sigterm
 from ..errors import OutputPathError, SymmonError, UsageError
-from ..files.filterfile import FILTERS
+from ..files.filterfile import FILTERS, MIXTURE_FILTERS
 from ..measures.advice import DEFAULT_TOL  # one default for advise and the adaptive filter
 from ..io import plot_format
 from ..transforms.executor import MAX_WORKER_TIMEOUT, WORKER_TIMEOUT
@@ -242,7 +242,7 @@ def _param_bound(text: str) -> tuple[str, tuple[float | None, float | None]]:
 def _filter_names(text: str) -> list[str]:
     """argparse type of ``--filters``: known, distinct short names."""
     names = [t.strip() for t in text.split(",") if t.strip()]
-    known = tuple(FILTERS) + ("adaptive",)
+    known = tuple(FILTERS) + ("adaptive",) + MIXTURE_FILTERS
     bad = [t for t in names if t not in known]
     if not names or bad or len(set(names)) != len(names):
         raise argparse.ArgumentTypeError(f"must be distinct names among {', '.join(known)}, got {text!r}")
@@ -451,7 +451,7 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("--runs", type=_int_in(1, MAX_RUNS), default=100, help="Monte Carlo runs (default 100)")
     sp.add_argument("--seed", type=_seed, default=0, help="seed of the truth and measurements, >= 0 (default 0)")
     sp.add_argument("--filters", type=_filter_names, default=_filter_names(_DEFAULT_FILTERS),
-                    help=f"comma-separated: ekf, ekf2, ukf, ckf, gh, adaptive (default {_DEFAULT_FILTERS})")
+                    help=f"comma-separated: ekf, ekf2, ukf, ckf, gh, adaptive, gsf (Gaussian-sum), pf (particle; their settings: the scenario's [gsf] and [pf] tables) (default {_DEFAULT_FILTERS})")
     sp.add_argument("--tol", type=_unit_interval, default=DEFAULT_TOL,
                     help=f"the adaptive filter's tolerance (unitless moment error, default {DEFAULT_TOL:g}, "
                          "as symmon advise)")

@@ -10,11 +10,12 @@ from .ccache import has_compiler as has_compiler
 from .cnames import c_identifier as c_identifier
 from .cnames import comment_text as comment_text
 from .compiled import CompiledModel as CompiledModel
+from .compiled import batched as batched
 from .compiled import compile_model as compile_model
 from .compiled import compiled as compiled
 from .compiled import compiled_with_params as compiled_with_params
 from .compiled import model_key as model_key
 from .compiled import to_casadi as to_casadi
 
-__all__ = ["CompiledModel", "compiled", "compiled_with_params", "compile_model", "model_key", "to_casadi", "NativeLibrary", "build_shared_library",
+__all__ = ["CompiledModel", "batched", "compiled", "compiled_with_params", "compile_model", "model_key", "to_casadi", "NativeLibrary", "build_shared_library",
            "cache_dir", "compile_mode", "has_compiler", "c_identifier", "comment_text"]

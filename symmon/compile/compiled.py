@@ -486,6 +486,15 @@ class _Batched:
         return outs
 
 
+def batched(f: ca.Function, compiled: bool | None = None) -> _Batched:
+    """An evaluator of ``f`` (one dense (n_in,) input) on batches of rows: ``ev(X)`` with X
+    (N, n_in) returns each output's nonzeros as (N, nnz).  Compiled C with a row loop (through
+    the compile policy, docs/compile.md) when a compiler is there (``compiled=None``) or
+    asked for, else CasADi's VM; the evaluator of :class:`CompiledModel`'s g and derivatives,
+    for other generated functions (the Gaussian-sum filter's component steps)."""
+    return _Batched(f, has_compiler() if compiled is None else compiled)
+
+
 class CompiledModel:
     """CasADi functions of a model, with respect to w = [u; v].
 

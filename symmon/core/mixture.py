@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike
 from ..errors import ArgumentError, ArgumentTypeError, ShapeError, WeightError
 from .gaussian import Gaussian, float_array, _fmt, as_covariance, as_generator, as_vector, check_indices, matrix_sqrt
 
-__all__ = ["GaussianMixture", "Empirical", "mixture_moments", "WEIGHT_SUM_ATOL", "MAX_SHOWN"]
+__all__ = ["GaussianMixture", "Empirical", "mixture_moments", "WEIGHT_SUM_ATOL", "MAX_SHOWN", "SPLITS", "split_weights"]
 
 #: How far the mixture weights may sum from 1: rounding of weights computed in double
 #: precision (K·eps ≈ 1e-14 for K = 64) passes by five orders of magnitude, while a weight
@@ -38,6 +38,30 @@ __all__ = ["GaussianMixture", "Empirical", "mixture_moments", "WEIGHT_SUM_ATOL",
 WEIGHT_SUM_ATOL = 1e-9
 #: Components (or particles' summary lines) a repr shows before it elides the rest.
 MAX_SHOWN = 6
+
+
+#: The univariate splits of N(0, 1) into m narrower components Σ ω_j N(μ_j, σ²), for the
+#: Gaussian-sum filter's splitting (:mod:`symmon.filters.gaussian_sum`) and the component
+#: counts of :func:`symmon.advise`: m ↦ (σ, the outer weights of one side, nearest first),
+#: computed by ``derivations/gaussian_split.py`` (L2 distance + 10⁻³ σ, after DeMars, Bishop &
+#: Jah 2013, with the variance kept exactly); the centre weight and the spacing δ follow from
+#: Σ ω = 1 and σ² + Σ ω μ² = 1 (:func:`split_weights`).
+SPLITS: dict[int, tuple[float, tuple[float, ...]]] = {
+    3: (0.7303827025415317, (0.20224354212317014,)),
+    5: (0.5472166585274427, (0.23721882185007498, 0.04842309990180618)),
+}
+
+
+def split_weights(m: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """(ω (m,), μ (m,), σ) of the tabulated split of N(0, 1) into m components: symmetric, so
+    Σ ω μ = 0, and δ from the variance, σ² + Σ ω μ² = 1."""
+    sigma, outer = SPLITS[m]
+    o = np.array(outer)
+    idx = np.arange(1, len(o) + 1)
+    w = np.concatenate([o[::-1], [1.0 - 2.0 * o.sum()], o])
+    delta = float(np.sqrt((1.0 - sigma**2) / (2.0 * float(o @ idx**2))))
+    mu = np.concatenate([-idx[::-1], [0], idx]) * delta
+    return w, mu, sigma
 
 
 def _check_weights(weights: ArrayLike, n: int | None, name: str, sum_to_one: bool) -> np.ndarray:

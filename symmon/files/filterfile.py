@@ -41,6 +41,20 @@ may enter nonlinearly or with fewer components than the states::
     [R]
     std = [0.01]
 
+**Gaussian-sum and particle filters.**  ``symmon filter --filters ekf,gsf,pf`` runs them beside
+the Gaussian filters; optional ``[gsf]`` and ``[pf]`` tables hold their settings (the
+keyword arguments of :class:`symmon.GaussianSumFilter` and :class:`symmon.ParticleFilter`; a
+component filter by its short name)::
+
+    [gsf]
+    transform = "ukf"             # the filter of each component (a key of FILTERS)
+    split = 0.05                  # split where a component's MoN (W^full) exceeds this
+    max_components = 16
+    [pf]
+    particles = 2000
+    proposal = "bootstrap"
+    seed = 1
+
 **Units.**  An optional ``[units]`` table gives pint unit strings of states (by name) and
 measurements (``"measurements[i]"``); ``symmon filter`` prints them and its plot shows
 the RMSE of the states of each unit on its own axis.
@@ -49,7 +63,7 @@ Every expression and number is read by the same whitelist parser as a model file
 (:func:`symmon.files.modelfile.parse_expression`): nothing in the file is executed.  Keys:
 ``name``, ``states``, ``dynamics``, ``measurements``, ``steps``, ``[Q]``, ``[R]`` and
 ``[x0]`` are required; ``angles``, ``state_angles``, ``process_noise``,
-``measurement_noise``, ``[params]`` and ``[units]`` are optional.
+``measurement_noise``, ``[params]``, ``[units]``, ``[gsf]`` and ``[pf]`` are optional.
 
 :func:`simulate` draws the true states and the measurements of a bank of runs with a
 seed, and :data:`FILTERS` names the filters that ``symmon filter`` runs.
@@ -68,8 +82,9 @@ import sympy as sp
 
 from ..core.angles import wrap_angle
 from ..errors import SymmonError
-from ..filters import Adaptive, NonlinearKalmanFilter
+from ..filters import Adaptive, GaussianSumFilter, NonlinearKalmanFilter, ParticleFilter
 from ..filters.inputs import KEEPABLE, MAX_BANK_NUMBERS, check_bank_size, kept_numbers
+from ..filters.simulation import simulate as simulate_models
 from ..measures.advice import DEFAULT_TOL
 from ..core.gaussian import Gaussian
 from ..core.model import Model
@@ -84,13 +99,22 @@ from .modelfile import (
     read_toml,
     parse_expression,
 )
-from ..compile import compiled
 from ..transforms import TT1, TT2, UT, GaussHermite
 
-__all__ = ["FilterSpec", "load_filter_file", "simulate", "check_bank", "FILTERS", "filter_transform", "run_bank", "BankSummary"]
+__all__ = ["FilterSpec", "load_filter_file", "simulate", "check_bank", "FILTERS", "filter_transform", "run_bank", "BankSummary",
+           "make_filter", "MIXTURE_FILTERS", "FILTER_SETTINGS"]
 
 #: The filters of ``symmon filter`` and ``symmon reproduce tracking``, by short name.
 FILTERS = {"ekf": TT1(), "ekf2": TT2(), "ukf": UT.ut1(), "ckf": UT.cubature(), "gh": GaussHermite(3)}
+#: The filters beyond the Gaussian ones, by short name: their settings come from the
+#: scenario's table of the same name.
+MIXTURE_FILTERS = ("gsf", "pf")
+#: The settings each may take, with their types (numbers: int or float).
+FILTER_SETTINGS = {
+    "gsf": {"transform": str, "split": float, "max_components": int, "prune": float, "merge": str,
+            "split_components": int},
+    "pf": {"particles": int, "proposal": str, "resample": str, "ess_threshold": float, "seed": int},
+}
 #: Largest number of steps of a scenario (the bank holds runs × steps × n² numbers).
 MAX_STEPS = 100_000
 #: The most numbers :func:`simulate` holds (truth and measurements of every run and step):
@@ -99,7 +123,7 @@ MAX_STEPS = 100_000
 MAX_SIMULATED = MAX_BANK_NUMBERS
 
 _KEYS = ("name", "states", "dynamics", "measurements", "angles", "state_angles", "steps", "params", "Q", "R", "x0",
-         "process_noise", "measurement_noise", "units")
+         "process_noise", "measurement_noise", "units", "gsf", "pf")
 _REQUIRED = ("name", "states", "dynamics", "measurements", "steps", "Q", "R", "x0")
 
 
@@ -134,6 +158,8 @@ class FilterSpec:
     params : dict of str to float
         The values of the ``[params]`` table (those kept free are model parameters of ``f``
         and ``h``, :func:`load_filter_file`).
+    settings : dict
+        The ``[gsf]`` and ``[pf]`` tables: ``{"gsf": {...}, "pf": {...}}`` (empty: defaults).
     """
 
     name: str
@@ -146,6 +172,7 @@ class FilterSpec:
     path: Path = Path("<memory>")
     units: dict[str, str] = field(default_factory=dict)
     params: dict[str, float] = field(default_factory=dict)
+    settings: dict[str, dict] = field(default_factory=dict)
 
     def unit(self, key: str) -> str | None:
         """The unit of a state name or of ``"measurements[i]"``, if declared."""
@@ -256,7 +283,46 @@ def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> Filte
     R = _noise(ctx, doc, "R", len(E) or len(meas), params)
     x0 = _gaussian(ctx, doc["x0"], "x0", len(X), params, "states")
     units = _units(ctx, doc.get("units", {}), len(meas), state_names, indexed="measurements", named="state names")
-    return FilterSpec(name, f, h, Q, R, x0, int(steps), path, units, {k: float(v) for k, v in params.items()})
+    settings = {kind: _filter_settings(ctx, doc.get(kind, {}), kind) for kind in MIXTURE_FILTERS}
+    for kind, table in settings.items():  # the filters' own checks, with the file's name
+        try:
+            make_filter(kind, f, h, Q, R, settings=settings)
+        except SymmonError as exc:
+            raise ctx.error(f"[{kind}]", str(exc)) from None
+    return FilterSpec(name, f, h, Q, R, x0, int(steps), path, units, {k: float(v) for k, v in params.items()},
+                      settings)
+
+
+def _filter_settings(ctx: _Context, table: Any, kind: str) -> dict:
+    """A ``[gsf]`` or ``[pf]`` table: known keys of the right types (:data:`FILTER_SETTINGS`)."""
+    if not isinstance(table, dict):
+        raise ctx.error(f"[{kind}]", f"must be a table, got {table!r}")
+    known = FILTER_SETTINGS[kind]
+    out = {}
+    for key, value in table.items():
+        if key not in known:
+            raise ctx.error(f"[{kind}]", f"unknown setting {key!r}; known: {', '.join(known)}")
+        want = known[key]
+        ok = isinstance(value, str) if want is str else (
+            not isinstance(value, bool) and isinstance(value, (int, float) if want is float else int))
+        if not ok:
+            raise ctx.error(f"[{kind}].{key}", f"must be {'a string' if want is str else 'a number' if want is float else 'an integer'}, got {value!r}")
+        out[key] = value
+    return out
+
+
+def make_filter(name: str, f: Model, h: Model, Q: np.ndarray, R: np.ndarray, tol: float = DEFAULT_TOL,
+                settings: dict | None = None):
+    """The filter of a short name: a Gaussian one (:func:`filter_transform`), or ``"gsf"`` /
+    ``"pf"`` with the scenario's settings (a component ``transform`` by its short name)."""
+    if name not in MIXTURE_FILTERS:
+        return NonlinearKalmanFilter(f, h, Q, R, filter_transform(name, tol))
+    kw = dict((settings or {}).get(name, {}))
+    if name == "gsf":
+        if "transform" in kw:
+            kw["transform"] = filter_transform(kw["transform"], tol)
+        return GaussianSumFilter(f, h, Q, R, **kw)
+    return ParticleFilter(f, h, Q, R, **kw)
 
 
 def check_bank(spec: FilterSpec, runs: int, filters: Iterable[str], smooth: bool = False) -> None:
@@ -271,7 +337,7 @@ def check_bank(spec: FilterSpec, runs: int, filters: Iterable[str], smooth: bool
     """
     n, n_y = spec.f.n_u, spec.h.n_y
     names = list(filters)
-    smoothed = sum(smooth and name != "adaptive" for name in names)
+    smoothed = sum(smooth and name not in ("adaptive",) + MIXTURE_FILTERS for name in names)
     per_step = n + n_y + len(names) * kept_numbers(n, n_y, KEEPABLE) + smoothed * (n + n * n)
     check_bank_size(runs, spec.steps, per_step, f"a bank of {len(names)} filter(s) on {spec.name!r}",
                     "use fewer runs, steps or filters")
@@ -279,17 +345,13 @@ def check_bank(spec: FilterSpec, runs: int, filters: Iterable[str], smooth: bool
 
 def simulate(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, steps: int, runs: int,
              seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """True states and measurements of ``runs`` independent runs.
+    """True states and measurements of ``runs`` independent runs: :func:`symmon.simulate`
+    with a bank of ``runs`` (shapes (runs, steps, n) and (runs, steps, n_y)).
 
     x_0 ~ x0, x_k = f(x_{k−1}) + w_k, y_k = h(x_k) + e_k for k = 1 … ``steps``, with
     w_k ~ N(0, Q) and e_k ~ N(0, R); for a model with noise symbols the noise is its
     argument instead, x_k = f(x_{k−1}, w_k) and y_k = h(x_k, e_k).  Angle states and
     angle measurements are wrapped to (−π, π].
-
-    Returns
-    -------
-    xs : ndarray, shape (runs, steps, n)
-    ys : ndarray, shape (runs, steps, n_y)
 
     Raises
     ------
@@ -297,37 +359,7 @@ def simulate(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, ste
         If runs × steps × (n + n_y) exceeds :data:`MAX_SIMULATED`, or the truth diverges (a
         non-finite state or measurement, naming the run and step).
     """
-    n, n_y = f.n_u, h.n_y
-    check_bank_size(runs, steps, n + n_y, "the simulated states and measurements", "use fewer runs or steps")
-    rng = np.random.default_rng(seed)
-    cf, ch = compiled(f), compiled(h)
-    nq, nr = f.n_v or n, h.n_v or n_y
-    Lq, Lr = Gaussian(np.zeros(nq), Q).sqrt_cov(), Gaussian(np.zeros(nr), R).sqrt_cov()  # PSD allowed
-    x = x0.mean + rng.standard_normal((runs, n)) @ x0.sqrt_cov().T
-    s_angles = sorted(f.angle_outputs | f.angle_inputs | h.angle_inputs)
-    y_angles = sorted(h.angle_outputs)
-    xs, ys = np.empty((runs, steps, n)), np.empty((runs, steps, n_y))
-
-    def step(c, model: Model, z: np.ndarray, L: np.ndarray) -> np.ndarray:
-        noise = rng.standard_normal((runs, L.shape[0])) @ L.T
-        return c.eval_g(np.hstack([z, noise])) if model.n_v else c.eval_g(z) + noise
-
-    for k in range(steps):
-        x = step(cf, f, x, Lq)
-        if s_angles:
-            x[:, s_angles] = wrap_angle(x[:, s_angles])
-        y = step(ch, h, x, Lr)
-        if y_angles:
-            y[:, y_angles] = wrap_angle(y[:, y_angles])
-        xs[:, k], ys[:, k] = x, y
-        bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(y).all(axis=1))
-        if bad.any():
-            # A NaN measurement would read as "not measured" to the filters: stop here.
-            r = int(np.flatnonzero(bad)[0])
-            raise SymmonError(
-                f"the simulated truth diverged: run {r} has a non-finite state or measurement at step {k + 1} "
-                f"(x = {x[r].tolist()}); the scenario's dynamics are unstable or its noise too large")
-    return xs, ys
+    return simulate_models(f, h, Q, R, x0, steps, runs, seed=seed)
 
 
 @dataclass(frozen=True)
@@ -373,19 +405,27 @@ def _rmse(xs: np.ndarray, x: np.ndarray, angle_states) -> np.ndarray:
 
 def run_bank(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, xs: np.ndarray, ys: np.ndarray,
              names: list[str], tol: float = DEFAULT_TOL, confidence: float = 0.95,
-             smooth: bool = False) -> list[BankSummary]:
+             smooth: bool = False, settings: dict | None = None) -> list[BankSummary]:
     """Run the named filters (:func:`filter_transform`) on the bank ``ys`` with truth ``xs``.
 
     With ``smooth``, each filter's RTS smoother runs too (:meth:`NonlinearKalmanFilter.smooth`),
-    except the adaptive filter's.  A filter that fails (NaN: it diverged), or whose
+    except the adaptive filter's, the Gaussian-sum filter's and the particle filter's (made by
+    :func:`make_filter` with ``settings``, the scenario's ``[gsf]`` and ``[pf]`` tables; the
+    Gaussian-sum filter has no ANIS, its ``anis`` is None).  A filter that fails (NaN: it diverged), or whose
     statistics do (a state known exactly has no NEES), is reported with its error instead of
     stopping the others.
     """
     out = []
     for name in names:
-        kf = NonlinearKalmanFilter(f, h, Q, R, filter_transform(name, tol))
         smoothed = None
         try:
+            kf = make_filter(name, f, h, Q, R, tol, settings)
+            if name in MIXTURE_FILTERS:  # no smoother; the NIS of a mixture's innovation is not kept
+                res = kf.filter(ys, x0)
+                out.append(BankSummary(name, res, res.anees(xs, confidence),
+                                       res.anis(confidence) if res.nis_values is not None else None,
+                                       _rmse(xs, res.x, res.angle_states)))
+                continue
             if smooth and name != "adaptive":
                 smoothed = kf.smooth(ys, x0)
                 res = smoothed.filtered

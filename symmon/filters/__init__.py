@@ -1,9 +1,11 @@
 """Kalman filters: the linear filter (:mod:`.linear`) and the nonlinear family compiled to C
 (:mod:`.nonlinear`: EKF, second-order EKF, UKF, CKF, Gauss–Hermite), their compiled step
 (:mod:`.step`), their RTS smoothers (:mod:`.smoother`), their export as standalone C
-(:mod:`.export`), results with NEES/NIS (:mod:`.results`), and the strategies that run the steps
-(:mod:`.strategy`: one rule, or :class:`Adaptive`, :mod:`.adaptive`), and the checks of a
-filter call's inputs (:mod:`.inputs`, which the others import and which imports none of them)."""
+(:mod:`.export`), the truth of a filter study (:func:`.simulation.simulate`), the particle filter
+(:mod:`.particle`), results with NEES/NIS (:mod:`.results`), the strategies that run the steps
+(:mod:`.strategy`: one rule, or :class:`Adaptive`, :mod:`.adaptive`), the Gaussian-sum filter
+(:mod:`.gaussian_sum`), and the checks of a filter call's inputs (:mod:`.inputs`, which the
+others import and which imports none of them)."""
 
 from .adaptive import Adaptive as Adaptive
 from .linear import KalmanFilter as KalmanFilter
@@ -13,8 +15,14 @@ from .results import KalmanResult as KalmanResult
 from .results import NonlinearKalmanResult as NonlinearKalmanResult
 from .results import SmootherResult as SmootherResult
 from .fit import FitResult as FitResult
+from .gaussian_sum import GaussianSumFilter as GaussianSumFilter
+from .gaussian_sum import GaussianSumResult as GaussianSumResult
 from .strategy import FilterStrategy as FilterStrategy
+from .simulation import simulate as simulate
+from .particle import ParticleFilter as ParticleFilter
+from .particle import ParticleResult as ParticleResult
 from .strategy import RuleStrategy as RuleStrategy
 
 __all__ = ["KalmanFilter", "KalmanResult", "NonlinearKalmanFilter", "NonlinearKalmanResult", "SmootherResult", "FitResult", "ConsistencyTest",
-           "Adaptive", "FilterStrategy", "RuleStrategy"]
+           "Adaptive", "FilterStrategy", "RuleStrategy", "simulate",
+           "ParticleFilter", "ParticleResult", "GaussianSumFilter", "GaussianSumResult"]

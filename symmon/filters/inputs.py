@@ -199,24 +199,25 @@ def initial_state(n: int, x0: Gaussian | ArrayLike, P0: ArrayLike | None,
     return m, as_covariance(P0, "P0", dim=n)
 
 
-def param_values(names: tuple, params: dict | None, runs: int | None, K: int) -> np.ndarray | None:
+def param_values(names: tuple, params: dict | None, runs: int | None, K: int,
+                 who: str = "the filter's models") -> np.ndarray | None:
     """The values of the parameters ``names`` (sympy symbols) as (R, K, n_p): for each, a
     scalar, one per step (K,), or one per run and step (R, K); None without parameters.
 
     Raises
     ------
     ModelError
-        ``params`` is not a dict, or misses or adds a parameter.
+        ``params`` is not a dict, or misses or adds a parameter (``who`` names the models).
     ShapeError
         A value of another shape, or NaN or inf.
     """
     if not names:
         if params:
-            raise ModelError(f"the filter's models declare no parameters, got params {sorted(map(str, params))}")
+            raise ModelError(f"{who} declare no parameters, got params {sorted(map(str, params))}")
         return None
     names = [str(s) for s in names]
     if not isinstance(params, dict):
-        raise ModelError(f"the filter's models have parameters {names}: give params={{name: value}}, "
+        raise ModelError(f"{who} have parameters {names}: give params={{name: value}}, "
                          f"got {type(params).__name__}")
     given = {str(k): v for k, v in params.items()}
     unknown = sorted(set(given) - set(names))

@@ -47,7 +47,8 @@ import numpy as np
 
 from ..compile.ccache import NativeLibrary
 from ..compile.compiled import WorkArrays, generated_c, in_threads, padded
-from ..errors import SymmonError
+from ..errors import ModelError, ShapeError, SymmonError
+from ..core.gaussian import float_array
 from ..core.model import Model
 from ..compile import compiled, compiled_with_params
 from ..codegen.symbolic import graph_kind, moments, tril_inverse, wrap_entries

@@ -36,6 +36,21 @@ multivariate coefficient of determination (Remark 1), and lies in [0, 1] (33).  
 scalar quadratic g the EKF's (TT1's) error in this measure is exactly M/√2 (its mean misses
 ½ tr(H P); its variance is off by M² relative), so the default keeps the EKF where
 M ≤ √2 · 0.01 ≈ 0.014.  Why 0.01 and not tighter or looser: docs/guide/advise.md.
+
+**Beyond Gaussian filters.**  The advice also names a *filter* (:attr:`Advice.filter`).  A
+Gaussian filter with the chosen rule while a candidate is within ``tol`` and the reference's
+MoN is at most :data:`GAUSSIAN_MON_LIMIT` (0.15: in the tracking study of docs/tracking.md,
+the EKF lost consistency at a closest approach at MoN 0.15–0.59, and never below 0.045).
+Otherwise no single Gaussian follows the model, and the advice is a Gaussian-sum filter
+(:class:`symmon.GaussianSumFilter`) whose MoN-driven splitting brings each component's MoN
+to √2 · tol, where the EKF is within ``tol`` on a quadratic (above): a split of a component
+into 3 (``symmon.core.mixture.SPLITS``) scales its variance along the most curved direction
+by σ² ≈ 0.53, and with it a quadratic's MoN along that direction, so L = ⌈log(M/(√2 tol)) /
+log(1/σ²)⌉ levels of splits and 3^L components are needed (a scalar quadratic: exact); above
+:data:`MAX_GSF_COMPONENTS` components, a particle filter (:class:`symmon.ParticleFilter`).
+These counts are the splitting's arithmetic on the reference's MoN, an estimate for one
+prior, not a guarantee along a track: the bearings-only study (``symmon reproduce bot``,
+docs/bot.md) measures where each filter keeps its credibility.
 """
 
 from __future__ import annotations
@@ -50,7 +65,7 @@ import numpy as np
 from ..core.angles import wrap_angle
 from ..errors import ArgumentTypeError, SymmonError
 from ..core.gaussian import Gaussian
-from ..core.mixture import Empirical, GaussianMixture
+from ..core.mixture import SPLITS, Empirical, GaussianMixture
 from ..core.model import Model, with_param_values
 from ..propagation.joint import JointMoments
 from .mon import nonlinearity
@@ -58,13 +73,20 @@ from ..propagation.front import propagate
 from ..transforms import TT1, TT2, UT, GaussHermite, MonteCarlo, Transform
 
 __all__ = ["advise", "Advice", "moment_error", "moment_distance", "whiteners", "CANDIDATES", "cost",
-           "DEFAULT_TOL"]
+           "DEFAULT_TOL", "GAUSSIAN_MON_LIMIT", "MAX_GSF_COMPONENTS", "filter_advice"]
 
 #: The default tolerance of :func:`advise` and of :class:`symmon.Adaptive`, in the unitless
 #: error of the moments (module notes): 1 % of a standard deviation in the mean, 1 %
 #: relative in the covariances; the EKF passes on a scalar quadratic while its MoN (43) is
 #: at most √2 · 0.01.  Justified in docs/guide/advise.md.
 DEFAULT_TOL = 1e-2
+
+#: The MoN (W^full) above which no single Gaussian is advised, whatever the moment errors: the
+#: least MoN at which the EKF of docs/tracking.md lost consistency at a closest approach.
+GAUSSIAN_MON_LIMIT = 0.15
+#: The most components of an advised Gaussian-sum filter (4 levels of 3-splits); beyond, a
+#: particle filter.
+MAX_GSF_COMPONENTS = 81
 
 #: The candidates, by name, in the order of the table.
 CANDIDATES: tuple[tuple[str, Transform], ...] = (
@@ -206,6 +228,10 @@ class Advice:
     reference_mon_stderr : float or None
         The Monte Carlo standard error of ``reference_mon``; None for a Gauss–Hermite
         reference.
+    filter : dict
+        The filter advised (module notes): ``{"filter": "gaussian", "transform": choice}``,
+        ``{"filter": "gsf", "transform": TT1(), "split": √2 tol, "max_components": 3^L,
+        "levels": L}`` or ``{"filter": "pf"}``, with ``"reason"``: why (:func:`filter_advice`).
     """
 
     rows: list[dict]
@@ -218,6 +244,19 @@ class Advice:
     weight: Any
     notes: tuple[str, ...] = field(default_factory=tuple)
     reference_mon_stderr: float | None = None
+    filter: dict = field(default_factory=dict)
+
+    @property
+    def filter_name(self) -> str:
+        """The advised filter in words: ``NonlinearKalmanFilter(UKF(...))``,
+        ``GaussianSumFilter(EKF, split=0.0141, max_components=27)`` or ``ParticleFilter``."""
+        kind = self.filter.get("filter")
+        if kind == "gaussian":
+            return f"NonlinearKalmanFilter({self.filter['transform'].filter_label()})"
+        if kind == "gsf":
+            return (f"GaussianSumFilter({self.filter['transform'].filter_label()}, split={self.filter['split']:.3g}, "
+                    f"max_components={self.filter['max_components']})")
+        return "ParticleFilter"
 
     @property
     def table(self) -> str:
@@ -238,10 +277,43 @@ class Advice:
                 f"MoN (weight {_weight_text(self.weight)}) by the reference: {self.reference_mon:.4f}{se}\n")
         choice = (f"choice: {self.choice_name}" if self.choice_name is not None
                   else "choice: none of the candidates is within tol")
-        return head + self.table + "\n" + choice + "".join(f"\nnote: {n}" for n in self.notes)
+        advised = f"\nfilter: {self.filter_name} ({self.filter['reason']})" if self.filter else ""
+        return head + self.table + "\n" + choice + advised + "".join(f"\nnote: {n}" for n in self.notes)
 
     def __repr__(self) -> str:
         return f"Advice(choice={self.choice_name!r}, tol={self.tol:g}, reference={self.reference!r})"
+
+
+def filter_advice(mon: float, choice: Transform | None, tol: float) -> dict:
+    """The filter for a model whose reference MoN (W^full) is ``mon``, when ``choice`` is the
+    cheapest rule within ``tol`` (None: none is): module notes.
+
+    Examples
+    --------
+    >>> from symmon.measures.advice import filter_advice
+    >>> from symmon import TT1
+    >>> filter_advice(0.01, TT1(), 0.01)["filter"]
+    'gaussian'
+    >>> a = filter_advice(0.05, None, 0.01)
+    >>> a["filter"], a["levels"], a["max_components"]
+    ('gsf', 3, 27)
+    >>> filter_advice(0.9, None, 0.01)["filter"]
+    'pf'
+    """
+    if choice is not None and mon <= GAUSSIAN_MON_LIMIT:
+        return {"filter": "gaussian", "transform": choice,
+                "reason": f"a Gaussian rule is within tol and the MoN {mon:.3g} <= {GAUSSIAN_MON_LIMIT}"}
+    why = (f"the MoN {mon:.3g} > {GAUSSIAN_MON_LIMIT}, where Gaussian filters lose consistency"
+           if mon > GAUSSIAN_MON_LIMIT else "no Gaussian rule is within tol")
+    target = np.sqrt(2.0) * tol
+    sigma = SPLITS[3][0]
+    levels = max(1, int(np.ceil(np.log(mon / target) / np.log(1.0 / sigma**2)))) if mon > target else 1
+    if 3**levels > MAX_GSF_COMPONENTS:
+        return {"filter": "pf", "reason": f"{why}; splitting to MoN {target:.3g} needs {3**levels} components "
+                                          f"(> {MAX_GSF_COMPONENTS})"}
+    return {"filter": "gsf", "transform": TT1(), "split": float(target), "max_components": 3**levels,
+            "levels": levels, "reason": f"{why}; {levels} level(s) of 3-splits bring each component's MoN to "
+                                        f"{target:.3g}"}
 
 
 def _ms(seconds: float) -> str:
@@ -371,15 +443,17 @@ def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = DE
     -------
     Advice
         ``str(advice)`` prints the reference, its MoN and the table (error, cost, first-call
-        and warm time of each candidate).
+        and warm time of each candidate); ``advice.filter`` and ``advice.filter_name`` name
+        the filter advised: a Gaussian filter, a Gaussian-sum filter with its components, or
+        a particle filter (module notes).
 
     Examples
     --------
     >>> import sympy as sp, symmon as sm
     >>> x = sp.Symbol("x")
     >>> a = sm.advise(sm.Model([x], [3 * x + 1]), sm.Gaussian([1.0], [[0.5]]))
-    >>> a.choice_name, a.tol
-    ('TT1', 0.01)
+    >>> a.choice_name, a.tol, a.filter_name
+    ('TT1', 0.01, 'NonlinearKalmanFilter(EKF)')
     """
     model = with_param_values(model, params)
     if not isinstance(model, Model):
@@ -414,5 +488,6 @@ def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = DE
     best = rows[min(ok)[1]] if ok else None
     if isinstance(u, GaussianMixture):
         notes.append(_components_note(model, u, v, rows, ref_t, ref_err, tol, best))
-    return Advice(rows, ref_name, ref_err, ref_mon.value, best["transform"] if best else None,
-                  best["name"] if best else None, float(tol), weight, tuple(notes), ref_mon.stderr)
+    choice = best["transform"] if best else None
+    return Advice(rows, ref_name, ref_err, ref_mon.value, choice, best["name"] if best else None, float(tol), weight,
+                  tuple(notes), ref_mon.stderr, filter_advice(ref_mon.value, choice, float(tol)))

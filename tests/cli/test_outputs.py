@@ -159,8 +159,12 @@ def test_filter_export_set_with_a_read_only_readme_writes_none(tmp_path):
     x = sp.Symbol("x", real=True)
     kf = sm.NonlinearKalmanFilter(sm.Model([x], [x], name="set_f"), sm.Model([x], [x], name="set_h"),
                                   [[1.0]], [[1.0]], sm.TT1())
-    (tmp_path / "README.md").write_text("old\n")
-    (tmp_path / "README.md").chmod(0o444)
-    with pytest.raises(OutputPathError, match="README.md .*is read-only"):
-        kf.export_c(tmp_path, "set_ekf")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["README.md"]
+    kf.export_c(tmp_path, "set_ekf")
+    readme = tmp_path / "set_ekf_README.md"
+    readme.chmod(0o444)   # a set that symmon wrote, with one member read-only: nothing is replaced
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    kf2 = sm.NonlinearKalmanFilter(sm.Model([x], [2 * x], name="set_f"), sm.Model([x], [x], name="set_h"),
+                                   [[1.0]], [[1.0]], sm.TT1())
+    with pytest.raises(OutputPathError, match="set_ekf_README.md .*is read-only"):
+        kf2.export_c(tmp_path, "set_ekf")
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before

@@ -1,0 +1,654 @@
+"""The Gaussian-sum filter, its components split where the measure of nonlinearity says so.
+
+The posterior is a mixture p(x_k | y_1:k) ≈ Σ_i w_i N(x; m_i, P_i) (Sorenson & Alspach 1971;
+Alspach & Sorenson 1972).  Each component runs the compiled step of one Gaussian filter (the
+EKF, UKF, CKF, ... of :class:`~symmon.NonlinearKalmanFilter`, :mod:`symmon.filters.step`), and
+its weight is multiplied by the likelihood of its innovation, w_i ← w_i N(ν_i; 0, S_i), then
+renormalised; the log-likelihood of a step is log Σ_i w_i N(ν_i; 0, S_i) with the weights
+before the update.
+
+**Splitting by the measure of nonlinearity.**  A Gaussian filter is only as good as its
+component is narrow compared with the curvature of the model.  Before the prediction (for f)
+and before the update (for h), the unitless MoN of each component with the full weight
+W^full = Σ_yy⁻¹/n_y (Straka & Havlík 2024, eqs. (25), (29), (43)),
+
+    M² = tr(W (Σ_gg − Σ_c − Σ_gu Σ_uu⁻¹ Σ_ug)),  Σ_gg = Cov g + R,  Σ_c = R,
+
+(for y = g(x) + e, e ~ N(0, R); Q for the dynamics) is computed with TT2 at the component
+N(m_i, P_i), in one compiled batch over all components.  A component whose M exceeds
+``split`` is replaced by m = 3 or 5 components from a tabulated split of N(0, 1)
+(:data:`symmon.core.mixture.SPLITS`, computed by ``derivations/gaussian_split.py``): along a direction d with
+P = S Sᵀ and d = S a, |a| = 1,
+
+    m_j = m + μ_j d,   P_j = P − (1 − σ²) d dᵀ,   w_j = w · ω_j,
+
+which keeps the mixture's mean and covariance exactly (Σ ω_j μ_j = 0, σ² + Σ ω_j μ_j² = 1).
+
+**The direction.**  For a Gaussian input, the part of the output that the best affine fit
+misses is, to second order, ½ tr(H_i P H_l P) (the TT2 form of the MoN's residual D); in
+whitened coordinates (x = m + S z) and with the outputs whitened by W = CᵀC, it is
+½ Σ_k ‖G_k‖²_F with G_k = Σ_i C_ki Sᵀ H_i S.  Splitting along a unit a scales the variance
+along a by σ² and leaves the orthogonal complement, so the split that removes most of this
+residual is along the a that maximises the rank-one share ½ Σ_k (aᵀ G_k a)²: for one output
+the eigenvector of G_1 with the largest |eigenvalue| (exact), for several the best among the
+leading eigenvectors of every G_k and the eigen-directions of P (the axes of the whitened
+coordinates).  This is the eigen-direction of the curvature in the units of the component's
+own spread: splitting along the largest eigen-direction of P alone would split a bearing's
+range uncertainty even when the bearing is linear in it.
+
+**Merging and pruning.**  After each update, components with weight below ``prune`` are
+dropped, and while a run has more than ``max_components``, the pair with the least cost is
+merged into its moment-matched Gaussian (which keeps the mixture's mean and covariance):
+Runnalls' (2007) upper bound on the Kullback–Leibler discrimination,
+B = ½[(w_i + w_j) log det P_ij − w_i log det P_i − w_j log det P_j], or Salmond's (1990)
+distance w_i w_j/(w_i + w_j) (m_i − m_j)ᵀ P⁻¹ (m_i − m_j) with P the mixture's covariance.
+
+**Without splitting** the number of components never grows: the components are independent
+Kalman filters and run as one bank through the compiled loop of
+:class:`~symmon.NonlinearKalmanFilter` (all steps of all components of all runs in one C
+call), their weights following from the per-step log-likelihoods.  With splitting the steps
+run in Python, each stage (the MoN, the prediction, the update) one compiled batch over all
+components of all runs.
+
+References
+----------
+H. W. Sorenson, D. L. Alspach, "Recursive Bayesian estimation using Gaussian sums",
+Automatica 7(4), 1971. doi:10.1016/0005-1098(71)90097-5
+O. Straka, J. Havlík, "Design of unitless normalized measure of nonlinearity for state
+estimation", FUSION 2024. arXiv:2410.13539
+K. J. DeMars, R. H. Bishop, M. K. Jah, "Entropy-based approach for uncertainty propagation of
+nonlinear dynamical systems", J. Guid. Control Dyn. 36(4), 2013 (splitting libraries).
+K. Tuggle, R. Zanetti, "Automated splitting Gaussian mixture nonlinear measurement update",
+J. Guid. Control Dyn. 41(3), 2018.
+A. R. Runnalls, "Kullback–Leibler approach to Gaussian mixture reduction", IEEE Trans.
+Aerosp. Electron. Syst. 43(3), 2007. doi:10.1109/TAES.2007.4383588
+D. J. Salmond, "Mixture reduction algorithms for target tracking in clutter", Proc. SPIE
+1305, 1990.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import threading
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Iterable
+
+import casadi as ca
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ..compile import batched, compiled, compiled_with_params
+from ..core.angles import wrap_angle
+from ..core.gaussian import Gaussian
+from ..core.checks import check_gaussian
+from ..core.mixture import SPLITS, GaussianMixture, mixture_moments, split_weights
+from ..core.model import Model
+from ..errors import ArgumentError, ArgumentTypeError, ShapeError, SymmonError
+from ..transforms import TT2, UT, Transform
+from ..transforms.registry import resolve
+from .nonlinear import NonlinearKalmanFilter
+from .inputs import check_bank_size, param_values, real_measurements
+from .results import KalmanResult
+from .step import (_filterable, filter_params, model_moments, predict_graph, select_params, step_kind, sym,
+                   update_graph)
+
+__all__ = ["GaussianSumFilter", "GaussianSumResult", "SPLITS", "split_component", "split_direction",
+           "merge_components", "component_mon", "MERGE_RULES"]
+
+#: The merging criteria.
+MERGE_RULES = ("runnalls", "salmond")
+
+
+def split_component(mean: ArrayLike, cov: ArrayLike, direction: ArrayLike, m: int = 3
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Split N(mean, cov) along ``direction`` d into m components with the same mean and covariance.
+
+    m_j = mean + μ_j d, P_j = cov − (1 − σ²) d dᵀ, weights ω_j (module notes); d must be
+    S a for a square root S Sᵀ = cov and a unit a (so that every P_j is positive
+    semi-definite), e.g. ``split_direction``'s.
+
+    Returns
+    -------
+    weights (m,), means (m, n), covs (m, n, n)
+    """
+    if m not in SPLITS:
+        raise ArgumentError(f"a split has {sorted(SPLITS)} components, got {m!r}")
+    w, mu, sigma = split_weights(m)
+    mean, cov, d = (np.asarray(a, dtype=float) for a in (mean, cov, direction))
+    means = mean + mu[:, None] * d
+    P = cov - (1.0 - sigma**2) * np.outer(d, d)
+    return w, means, np.broadcast_to(0.5 * (P + P.T), (m,) + cov.shape).copy()
+
+
+def split_direction(cov: np.ndarray, hessians: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """The direction d = S a to split N(·, cov) along, for Hessians H_i (n_y, n, n) of g at its
+    mean and the MoN's weight W (n_y, n_y): the unit a maximising ½ Σ_k (aᵀ G_k a)²,
+    G_k = Σ_i C_ki Sᵀ H_i S, W = CᵀC (module notes), among the leading eigenvectors of the
+    G_k and the axes; S from the eigen-decomposition of cov."""
+    lam, V = np.linalg.eigh(cov)
+    S = V * np.sqrt(np.clip(lam, 0.0, None))
+    wl, wv = np.linalg.eigh(0.5 * (weight + weight.T))
+    C = (wv * np.sqrt(np.clip(wl, 0.0, None))).T
+    G = np.einsum("ki,ab,iac,cd->kbd", C, S, hessians, S)
+    G = 0.5 * (G + np.swapaxes(G, 1, 2))
+    gl, gv = np.linalg.eigh(G)
+    lead = gv[np.arange(len(G)), :, np.argmax(np.abs(gl), axis=1)]  # (n_y, n): each G_k's leading eigenvector
+    cands = np.vstack([lead, np.eye(len(cov))])
+    share = (np.einsum("ca,kab,cb->ck", cands, G, cands) ** 2).sum(axis=1)
+    return S @ cands[int(np.argmax(share))]
+
+
+def _corr_inverse(A: np.ndarray) -> np.ndarray:
+    """Batched inverses of positive definite A (N, d, d), through the correlation matrices
+    (so that a state in mm beside one in rad is not called singular); pseudo-inverse on the
+    correlation scale where one is singular."""
+    r = 1.0 / np.sqrt(np.einsum("nii->ni", A))
+    corr = r[:, :, None] * A * r[:, None, :]
+    return r[:, :, None] * np.linalg.pinv(corr, rcond=1e-12, hermitian=True) * r[:, None, :]
+
+
+def component_mon(cov_g: np.ndarray, cross: np.ndarray, P: np.ndarray, noise: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The unitless MoN M (N,) of y = g(x) + e, e ~ N(0, noise), at N components, from their
+    moments (TT2 in the filter): Cov g (N, n_y, n_y), Cov(g, x) (N, n_y, n) and P = Cov x
+    (N, n, n); and the weights W = Σ_yy⁻¹/n_y (N, n_y, n_y).
+
+    M² = tr(W (Σ_gg − Σ_c − Σ_gu Σ_uu⁻¹ Σ_ug)) with Σ_gg = Cov g + noise, Σ_c = noise
+    (eqs. (25), (29), (43) of Straka & Havlík 2024): the batched form of
+    :func:`symmon.measures.formula.mon_from_moments`.
+    """
+    n_y = cov_g.shape[-1]
+    W = _corr_inverse(cov_g + noise) / n_y
+    D = cov_g - cross @ _corr_inverse(P) @ np.swapaxes(cross, 1, 2)
+    M2 = np.einsum("nij,nji->n", W, D)
+    return np.sqrt(np.clip(M2, 0.0, None)), W
+
+
+def merge_components(w: np.ndarray, m: np.ndarray, P: np.ndarray, keep: int, rule: str = "runnalls"
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Merge pairs of the mixture (w (M,), m (M, n), P (M, n, n)) until at most ``keep``
+    components are left, each pair into its moment-matched Gaussian (which keeps the mixture's
+    mean and covariance), the pair of least Runnalls (2007) or Salmond (1990) cost first."""
+    if rule not in MERGE_RULES:
+        raise ArgumentError(f"merge must be one of {MERGE_RULES}, got {rule!r}")
+    w, m, P = w.copy(), m.copy(), P.copy()
+    if rule == "salmond":
+        Pinv = _corr_inverse(mixture_moments(w / w.sum(), m, P)[1][None])[0]
+    while len(w) > keep:
+        iu, ju = np.triu_indices(len(w), 1)
+        wi, wj = w[iu], w[ju]
+        ws = wi + wj
+        d = m[iu] - m[ju]
+        if rule == "runnalls":
+            Pij = (wi[:, None, None] * P[iu] + wj[:, None, None] * P[ju]) / ws[:, None, None] \
+                + (wi * wj / ws**2)[:, None, None] * d[:, :, None] * d[:, None, :]
+            ld = np.linalg.slogdet(P)[1]
+            cost = 0.5 * (ws * np.linalg.slogdet(Pij)[1] - wi * ld[iu] - wj * ld[ju])
+        else:
+            cost = wi * wj / ws * np.einsum("ka,ab,kb->k", d, Pinv, d)
+        k = int(np.argmin(cost))
+        i, j = int(iu[k]), int(ju[k])
+        mm, PP = mixture_moments(np.array([w[i], w[j]]) / (w[i] + w[j]), m[[i, j]], P[[i, j]])
+        w[i], m[i], P[i] = w[i] + w[j], mm, PP
+        w, m, P = np.delete(w, j), np.delete(m, j, axis=0), np.delete(P, j, axis=0)
+    return w, m, P
+
+
+def _rows(z, shapes: list[tuple[int, int]]) -> list:
+    """The packed row z cut into matrices of the given shapes (column-major, as CasADi's)."""
+    out, a = [], 0
+    for r, c in shapes:
+        out.append(ca.reshape(z[a:a + r * c], r, c))
+        a += r * c
+    return out
+
+
+def _model_cm(model: Model):
+    """The compiled model with its parameters as inputs after [u; v] (none: the plain one)."""
+    return compiled_with_params(model) if model.n_p else compiled(model)
+
+
+class _ComponentSteps:
+    """The three compiled batches of the stepwise filter, each a function of one packed row:
+    the prediction (x, P, Q, p) ↦ (x⁻, P⁻); the update (x⁻, P⁻, y, R, mask, p) ↦ (x, P,
+    log N(ν; 0, S)); and the TT2 moments of f and of h for the MoN, (x, P, p) ↦ (Cov g, Cov(g, x))."""
+
+    def __init__(self, f: Model, h: Model, transform: Transform, angle_states: frozenset[int]) -> None:
+        n, n_y = f.n_u, h.n_y
+        names = filter_params(f, h)
+        self.n_p = n_p = len(names)
+        key = repr((f.key, h.key, transform, sorted(angle_states), sorted(h.angle_outputs)))
+        tag = "sm_gsf_" + hashlib.sha1(key.encode()).hexdigest()[:12]
+        kind, chol = step_kind(f, h, transform)
+        z = kind.sym("z", n + n * n + n * n + n_p)
+        x, P, Q, p = _rows(z, [(n, 1), (n, n), (n, n), (n_p, 1)])
+        xp, Pp = predict_graph(f, transform, angle_states, x, P, Q, chol, select_params(f, names, p))
+        self.predict = batched(ca.Function(tag + "_p", [z], [ca.densify(xp), ca.densify(Pp)], {"cse": True}))
+        z = kind.sym("z", n + n * n + n_y + n_y * n_y + n_y + n_p)
+        x, P, y, R, mask, p = _rows(z, [(n, 1), (n, n), (n_y, 1), (n_y, n_y), (n_y, 1), (n_p, 1)])
+        xn, Pn, _, _, ll, _ = update_graph(h, transform, angle_states, x, P, y, R, chol, mask,
+                                           select_params(h, names, p))
+        self.update = batched(ca.Function(tag + "_u", [z], [ca.densify(a) for a in (xn, Pn, ll)], {"cse": True}))
+        self.mon = {}
+        mon_kind, mon_chol = step_kind(f, h, TT2())
+        for which, mdl, angles in (("f", f, angle_states), ("h", h, frozenset(h.angle_outputs))):
+            z = mon_kind.sym("z", n + n * n + n_p)
+            x, P, p = _rows(z, [(n, 1), (n, n), (n_p, 1)])
+            _, cov, cross = model_moments(mdl, x, P, TT2(), angles, mon_chol, select_params(mdl, names, p))
+            self.mon[which] = batched(ca.Function(f"{tag}_m{which}", [z], [ca.densify(sym(cov)), ca.densify(cross)],
+                                                  {"cse": True}))
+
+
+_steps: dict[tuple, _ComponentSteps] = {}
+_steps_lock = threading.Lock()
+
+
+def _component_steps(f: Model, h: Model, transform: Transform, angle_states: frozenset[int]) -> _ComponentSteps:
+    key = (f, h, transform, angle_states)
+    with _steps_lock:
+        if key not in _steps:
+            _steps[key] = _ComponentSteps(f, h, transform, angle_states)
+        return _steps[key]
+
+
+@dataclass(frozen=True, eq=False)
+class GaussianSumResult(KalmanResult):
+    """The result of :meth:`GaussianSumFilter.filter`: a :class:`KalmanResult` whose ``x`` and
+    ``P`` are the moment-matched mean and covariance of each step's mixture (so NEES, ANEES,
+    ``estimate`` and ``log_likelihood`` work as for every filter), with the mixtures.
+
+    Attributes
+    ----------
+    weights : ndarray, shape (K, M) or (R, K, M), or None
+        The components' weights at each step, zero beyond ``components`` (M: the most
+        components of any step).
+    means : ndarray, shape (K, M, n) or (R, K, M, n), or None
+    covs : ndarray, shape (K, M, n, n) or (R, K, M, n, n), or None
+    components : ndarray of int, shape (K,) or (R, K)
+        Components after each step (after merging and pruning).
+    splits : ndarray of int, shape (K,) or (R, K)
+        Components split during each step (before its prediction and its update).
+    """
+
+    weights: np.ndarray | None = None
+    means: np.ndarray | None = None
+    covs: np.ndarray | None = None
+    components: np.ndarray | None = None
+    splits: np.ndarray | None = None
+
+    def mixture(self, k: int, run: int | None = None) -> GaussianMixture:
+        """The posterior mixture at step k (0-based), of run ``run`` for a bank."""
+        if (run is None) != (self.runs is None):
+            raise ShapeError("give run= for a bank of runs, and only then")
+        self._need("weights", "means", "covs")
+        sel = (k,) if run is None else (run, k)
+        c = int(self.components[sel])
+        return GaussianMixture(self.weights[sel][:c], self.means[sel][:c], self.covs[sel][:c], psd="clip")
+
+    def __repr__(self) -> str:
+        runs = "" if self.runs is None else f"runs={self.runs}, "
+        return (f"GaussianSumResult({self.method}, {runs}steps={self.steps}, n={self.n}, "
+                f"components={int(self.components.min())}–{int(self.components.max())})")
+
+
+#: What :meth:`GaussianSumFilter.filter` can keep.
+GSF_KEEPABLE = ("x", "P", "mixture")
+
+
+@dataclass(frozen=True, eq=False)
+class GaussianSumFilter:
+    """A Gaussian-sum filter whose components run a compiled Gaussian filter, split by the MoN.
+
+    x_{k+1} = f(x_k) + w_k, y_k = h(x_k) + e_k (or with noise symbols, as
+    :class:`~symmon.NonlinearKalmanFilter`); module notes for the algorithm.
+
+    Parameters
+    ----------
+    f_model, h_model, Q, R
+        As for :class:`~symmon.NonlinearKalmanFilter`.
+    transform : TT1, TT2, UT, GaussHermite or a registered name, default ``UT.ut1()``
+        The Gaussian filter each component runs (``TT1()``: a bank of EKFs).
+    split : float or None, default None
+        Split a component before a prediction (by the MoN of f) or an update (by the MoN of
+        h, at the predicted component) whose unitless MoN (W^full, TT2) exceeds this; None:
+        never split.  Splitting needs additive noises (no noise symbols).
+    max_components : int, default 16
+        Components kept per run after each step (merging beyond); splits during a step are
+        limited to ``max_components`` × ``split_components`` components.
+    prune : float, default 1e-6
+        Components whose weight falls below this after an update are dropped (the heaviest
+        is always kept).
+    merge : {"runnalls", "salmond"}, default "runnalls"
+        The cost by which pairs are merged (module notes).
+    split_components : {3, 5}, default 3
+        Components per split (:data:`SPLITS`).
+
+    Examples
+    --------
+    >>> import sympy as sp, symmon as sm
+    >>> x = sp.symbols("x")
+    >>> gsf = sm.GaussianSumFilter(sm.Model([x], [x]), sm.Model([x], [x]), [[1.0]], [[1.0]], sm.TT1())
+    >>> prior = sm.GaussianMixture([0.5, 0.5], [[-1.0], [1.0]], [[[1.0]], [[1.0]]])
+    >>> res = gsf.filter([[1.0]], prior)
+    >>> res.mixture(0).n_components, round(float(res.x[0, 0]), 6)
+    (2, 0.773838)
+    """
+
+    f_model: Model
+    h_model: Model
+    Q: np.ndarray
+    R: np.ndarray
+    transform: Transform | None = None
+    split: float | None = None
+    max_components: int = 16
+    prune: float = 1e-6
+    merge: str = "runnalls"
+    split_components: int = 3
+    kf: NonlinearKalmanFilter = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        transform = UT.ut1() if self.transform is None else resolve(self.transform)
+        if not _filterable(transform):
+            raise ArgumentTypeError(f"transform must be TT1, TT2, UT or GaussHermite (one rule for every component), "
+                                    f"got {self.transform!r}")
+        kf = NonlinearKalmanFilter(self.f_model, self.h_model, self.Q, self.R, transform)
+        object.__setattr__(self, "kf", kf)
+        object.__setattr__(self, "transform", transform)
+        object.__setattr__(self, "Q", kf.Q)
+        object.__setattr__(self, "R", kf.R)
+        s = self.split
+        if s is not None and (isinstance(s, bool) or not isinstance(s, (int, float)) or not 0 < s < 1):
+            raise ArgumentError(f"split must be None or a MoN level in (0, 1) (W^full's MoN lies in [0, 1]), got {s!r}")
+        if s is not None and (kf.f_model.n_v or kf.h_model.n_v):
+            raise ArgumentError("split needs additive noises: the models have noise symbols, whose MoN needs "
+                                "nested integration per component; use split=None")
+        mc = self.max_components
+        if isinstance(mc, bool) or not isinstance(mc, (int, np.integer)) or mc < 1:
+            raise ArgumentError(f"max_components must be a positive integer, got {mc!r}")
+        p = self.prune
+        if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0 <= p < 1:
+            raise ArgumentError(f"prune must be a weight in [0, 1), got {p!r}")
+        if self.merge not in MERGE_RULES:
+            raise ArgumentError(f"merge must be one of {MERGE_RULES}, got {self.merge!r}")
+        if self.split_components not in SPLITS:
+            raise ArgumentError(f"split_components must be one of {sorted(SPLITS)}, got {self.split_components!r}")
+
+    @property
+    def f(self) -> Model:
+        return self.kf.f_model
+
+    @property
+    def h(self) -> Model:
+        return self.kf.h_model
+
+    @cached_property
+    def method(self) -> str:
+        """``GSF(<component filter>, split=...)``."""
+        s = "" if self.split is None else f", split={self.split:g}"
+        return f"GSF({self.kf.method}{s})"
+
+    @cached_property
+    def _curved(self) -> tuple[bool, bool]:
+        """Whether f and h have a structurally nonzero second derivative in the state (an
+        affine model's MoN is 0: it is never split)."""
+        def curved(model: Model) -> bool:
+            _, rows, cols = _model_cm(model).hess_index
+            return bool(((rows < model.n_u) & (cols < model.n_u)).any())
+        return curved(self.f), curved(self.h)
+
+    def _prior(self, x0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        n = self.f.n_u
+        if isinstance(x0, GaussianMixture):
+            if x0.dim != n:
+                raise ShapeError(f"x0 has dimension {x0.dim} but the state has {n}")
+            return np.array(x0.weights), np.array(x0.means), np.array(x0.covs)
+        if isinstance(x0, Gaussian):
+            check_gaussian(x0, "x0", dim=n)
+            return np.ones(1), np.asarray(x0.mean, dtype=float)[None], np.asarray(x0.cov, dtype=float)[None]
+        raise ArgumentTypeError(f"x0 must be a symmon.Gaussian or GaussianMixture, got {type(x0).__name__}")
+
+    def filter(self, ys: ArrayLike, x0: Gaussian | GaussianMixture, *, params: dict | None = None,
+               keep: Iterable[str] | None = None) -> GaussianSumResult:
+        """Predict, then update, for each measurement, every component.
+
+        Parameters
+        ----------
+        ys : array_like, shape (K, n_y) or (R, K, n_y)
+            As for :meth:`NonlinearKalmanFilter.filter` (NaN: not measured).
+        x0 : Gaussian or GaussianMixture
+            The prior before the first prediction (a mixture: e.g. a range-parameterised prior).
+        params : dict, optional
+            The models' parameters, as for :meth:`NonlinearKalmanFilter.filter`.
+        keep : iterable of str, optional
+            Among ``"x"``, ``"P"`` and ``"mixture"`` (the weights, means and covariances of
+            every step); default all.  The per-step log-likelihood is always kept.
+
+        Returns
+        -------
+        GaussianSumResult
+
+        Raises
+        ------
+        ShapeError, ArgumentTypeError
+            Bad measurements or prior.
+        SymmonError
+            A component's step produced NaN or inf (naming the step and run).
+        """
+        kept = set(GSF_KEEPABLE) if keep is None else set(keep)
+        if not kept <= set(GSF_KEEPABLE):
+            raise ArgumentError(f"keep must name some of {GSF_KEEPABLE}, got {sorted(kept - set(GSF_KEEPABLE))}")
+        w0, m0, P0 = self._prior(x0)
+        if len(w0) > self.max_components:
+            w0, m0, P0 = merge_components(w0, m0, P0, self.max_components, self.merge)
+        Y = real_measurements(ys)
+        n, n_y = self.f.n_u, self.h.n_y
+        if Y.ndim not in (2, 3) or Y.shape[-1] != n_y or Y.shape[-2] == 0 or Y.shape[0] == 0:
+            raise ShapeError(f"ys must have shape (K, {n_y}) or (R, K, {n_y}) with K >= 1, got {Y.shape}")
+        runs = Y.shape[0] if Y.ndim == 3 else None
+        Yb = Y.reshape((runs or 1,) + Y.shape[-2:])
+        mixture_numbers = self.max_components * (1 + n + n * n) if "mixture" in kept else 0
+        check_bank_size(runs or 1, Yb.shape[1], 2 + n + n * n + mixture_numbers, f"{self.method} results",
+                        "keep fewer arrays (keep=('x',)) or filter the runs in smaller banks")
+        pv = param_values(self.kf.params, params, runs, Yb.shape[1])
+        if self.split is None:
+            out = self._bank(Yb, w0, m0, P0, params, runs, kept)
+        else:
+            out = self._stepwise(Yb, w0, m0, P0, pv, kept)
+        arrays = {k: (v if runs is not None else v[0]) for k, v in out.items()}
+        for v in arrays.values():
+            v.flags.writeable = False
+        return GaussianSumResult(**arrays, n_y=n_y, n_x=n, angle_states=tuple(sorted(self.kf.angle_states)),
+                                 method=self.method)
+
+    def _bank(self, Y, w0, m0, P0, params, runs, kept) -> dict[str, np.ndarray]:
+        """Without splitting: every component of every run as one bank of the compiled filter."""
+        R, K = Y.shape[:2]
+        M = len(w0)
+        Yr = np.repeat(Y, M, axis=0)
+        bank_params = None
+        if params:
+            bank_params = {}
+            for k, v in params.items():
+                a = np.asarray(v, dtype=float)
+                bank_params[k] = np.repeat(a, M, axis=0) if runs is not None and a.shape == (R, K) else a
+        res = self.kf.filter(Yr, np.tile(m0, (R, 1)), np.tile(P0, (R, 1, 1)), keep=("x", "P"), params=bank_params)
+        ll = res.loglik.reshape(R, M, K)
+        x, P = res.x.reshape(R, M, K, n := self.f.n_u), res.P.reshape(R, M, K, n, n)
+        logw = np.empty((R, K, M))
+        step_ll = np.empty((R, K))
+        prev = np.broadcast_to(np.log(w0), (R, M))
+        for k in range(K):
+            a = prev + ll[:, :, k]
+            top = a.max(axis=1, keepdims=True)
+            step_ll[:, k] = top[:, 0] + np.log(np.exp(a - top).sum(axis=1))
+            prev = a - step_ll[:, k:k + 1]  # log of the normalised weights
+            logw[:, k] = prev
+        w = np.exp(logw)
+        w /= w.sum(axis=-1, keepdims=True)
+        means, covs = np.moveaxis(x, 1, 2), np.moveaxis(P, 1, 2)  # (R, K, M, ...)
+        out = {"loglik": step_ll, "components": np.full((R, K), M), "splits": np.zeros((R, K), dtype=int)}
+        xm = np.einsum("rkm,rkma->rka", w, means)
+        if "x" in kept:
+            out["x"] = xm
+        if "P" in kept:
+            d = means - xm[:, :, None]
+            Pm = np.einsum("rkm,rkmab->rkab", w, covs) + np.einsum("rkm,rkma,rkmb->rkab", w, d, d)
+            out["P"] = 0.5 * (Pm + np.swapaxes(Pm, -1, -2))
+        if "mixture" in kept:
+            out.update(weights=w, means=means, covs=covs)
+        return out
+
+    # ------------------------------------------------------------------ the stepwise filter
+    def _mons(self, which: str, steps: _ComponentSteps, x, P, p, noise) -> tuple[np.ndarray, np.ndarray]:
+        N, n = x.shape
+        cov_g, cross = steps.mon[which](np.hstack([x, P.reshape(N, n * n), p]))
+        n_y = noise.shape[0]
+        return component_mon(cov_g.reshape(N, n_y, n_y), cross.reshape(N, n, n_y).transpose(0, 2, 1), P, noise)
+
+    def _split(self, which: str, steps, run, w, x, P, p, noise, cap: int):
+        """Split the components whose MoN of ``which`` exceeds ``split`` (the largest first,
+        while the run has room below ``cap``); returns the new arrays and the splits per run."""
+        R = int(run.max()) + 1 if len(run) else 0
+        mon, W = self._mons(which, steps, x, P, p, noise)
+        over = np.flatnonzero(mon > self.split)
+        count = np.bincount(run, minlength=R)
+        splits = np.zeros(R, dtype=int)
+        if not len(over):
+            return run, w, x, P, p, splits
+        mdl = self.f if which == "f" else self.h
+        cm = _model_cm(mdl)
+        n = x.shape[1]
+        m = self.split_components
+        order = over[np.argsort(-mon[over], kind="stable")]
+        chosen = []
+        for i in order:
+            if count[run[i]] + m - 1 <= cap:
+                count[run[i]] += m - 1
+                splits[run[i]] += 1
+                chosen.append(i)
+        if not chosen:
+            return run, w, x, P, p, splits
+        chosen = np.sort(np.array(chosen))
+        names = filter_params(self.f, self.h)
+        rows = np.hstack([x[chosen], p[chosen][:, [names.index(s) for s in mdl.params]]]) if mdl.n_p else x[chosen]
+        H = cm.eval_gjh(rows)[2][:, :, :n, :n]
+        pieces = []
+        for c, i in enumerate(chosen):
+            d = split_direction(P[i], H[c], W[i])
+            pieces.append(split_component(x[i], P[i], d, m))
+        # Each chosen component becomes m, in place (the runs stay contiguous and in order).
+        reps = np.ones(len(w), dtype=int)
+        reps[chosen] = m
+        idx = np.repeat(np.arange(len(w)), reps)
+        run, w, x, P, p = run[idx], w[idx].copy(), x[idx].copy(), P[idx].copy(), p[idx]
+        starts = np.cumsum(reps) - reps
+        for (pw, pm, pP), i in zip(pieces, chosen):
+            s = starts[i]
+            w[s:s + m] = w[s:s + m] * pw
+            x[s:s + m], P[s:s + m] = pm, pP
+        if self.kf.angle_states:
+            a = sorted(self.kf.angle_states)
+            x[:, a] = wrap_angle(x[:, a])
+        return run, w, x, P, p, splits
+
+    def _stepwise(self, Y, w0, m0, P0, pv, kept) -> dict[str, np.ndarray]:
+        R, K, n_y = Y.shape
+        n = self.f.n_u
+        steps = _component_steps(self.f, self.h, self.transform, self.kf.angle_states)
+        M0 = len(w0)
+        run = np.repeat(np.arange(R), M0)
+        w = np.tile(w0, R)
+        x, P = np.tile(m0, (R, 1)), np.tile(P0, (R, 1, 1))
+        n_p = steps.n_p
+        params = np.zeros((R, K, max(n_p, 1)))[..., :n_p] if pv is None else pv
+        measured = ~np.isnan(Y)
+        Yz = np.where(measured, Y, 0.0)
+        cap = self.max_components * self.split_components
+        Mk = self.max_components
+        out = {"loglik": np.empty((R, K)), "components": np.empty((R, K), dtype=int),
+               "splits": np.zeros((R, K), dtype=int)}
+        if "x" in kept:
+            out["x"] = np.empty((R, K, n))
+        if "P" in kept:
+            out["P"] = np.empty((R, K, n, n))
+        if "mixture" in kept:
+            out.update(weights=np.zeros((R, K, Mk)), means=np.zeros((R, K, Mk, n)), covs=np.zeros((R, K, Mk, n, n)))
+        curved_f, curved_h = self._curved
+        Q, Rn = np.asarray(self.Q), np.asarray(self.R)
+        for k in range(K):
+            p = params[run, k]
+            if curved_f:
+                run, w, x, P, p, s = self._split("f", steps, run, w, x, P, p, Q, cap)
+                out["splits"][:, k] += s
+            N = len(w)
+            xp, Pp = steps.predict(np.hstack([x, P.reshape(N, n * n), np.broadcast_to(Q.ravel(), (N, n * n)), p]))
+            Pp = Pp.reshape(N, n, n)
+            if curved_h:
+                run, w, xp, Pp, p, s = self._split("h", steps, run, w, xp, Pp, p, Rn, cap)
+                out["splits"][:, k] += s
+            N = len(w)
+            rows = np.hstack([xp, Pp.reshape(N, n * n), Yz[run, k], np.broadcast_to(Rn.ravel(), (N, n_y * n_y)),
+                              measured[run, k].astype(float), p])
+            x, P, ll = steps.update(rows)
+            P = P.reshape(N, n, n)
+            ll = ll[:, 0]
+            bad = ~(np.isfinite(ll) & np.isfinite(x).all(axis=1) & np.isfinite(P).all(axis=(1, 2)))
+            if bad.any():
+                r = int(run[np.argmax(bad)])
+                where = f"step {k}" if R == 1 else f"run {r}, step {k}"
+                raise SymmonError(f"{self.method}: a component's step produced NaN or inf at {where} (its "
+                                  "innovation covariance is singular or a covariance lost positive definiteness)")
+            # log Σ_i w_i N(ν_i; 0, S_i) per run, in log space; then the normalised weights.
+            a = np.log(w) + ll
+            top = np.full(R, -np.inf)
+            np.maximum.at(top, run, a)
+            tot = top + np.log(np.bincount(run, np.exp(a - top[run]), minlength=R))
+            out["loglik"][:, k] = tot
+            w = np.exp(a - tot[run])
+            run, w, x, P = self._reduce(run, w, x, P)
+            counts = np.bincount(run, minlength=R)
+            out["components"][:, k] = counts
+            starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+            slot = np.arange(len(w)) - starts[run]
+            xm = np.zeros((R, n))
+            np.add.at(xm, run, w[:, None] * x)
+            if "x" in kept:
+                out["x"][:, k] = xm
+            if "P" in kept:
+                d = x - xm[run]
+                Pm = np.zeros((R, n, n))
+                np.add.at(Pm, run, w[:, None, None] * (P + d[:, :, None] * d[:, None, :]))
+                out["P"][:, k] = 0.5 * (Pm + np.swapaxes(Pm, 1, 2))
+            if "mixture" in kept:
+                out["weights"][run, k, slot] = w
+                out["means"][run, k, slot] = x
+                out["covs"][run, k, slot] = P
+        if "mixture" in kept:
+            M = max(int(out["components"].max()), 1)
+            for name in ("weights", "means", "covs"):
+                out[name] = np.ascontiguousarray(out[name][:, :, :M])
+        return out
+
+    def _reduce(self, run, w, x, P):
+        """Prune below ``prune`` (keeping each run's heaviest) and merge each run down to
+        ``max_components``; weights renormalised per run."""
+        R = int(run.max()) + 1
+        top = np.zeros(R)
+        np.maximum.at(top, run, w)
+        keep = (w >= self.prune) | (w == top[run])
+        run, w, x, P = run[keep], w[keep], x[keep], P[keep]
+        counts = np.bincount(run, minlength=R)
+        if (counts > self.max_components).any():
+            parts = []
+            starts = np.concatenate([[0], np.cumsum(counts)])
+            for r in range(R):
+                a, b = starts[r], starts[r + 1]
+                if b - a > self.max_components:
+                    wr, xr, Pr = merge_components(w[a:b], x[a:b], P[a:b], self.max_components, self.merge)
+                else:
+                    wr, xr, Pr = w[a:b], x[a:b], P[a:b]
+                parts.append((np.full(len(wr), r), wr, xr, Pr))
+            run, w, x, P = (np.concatenate([q[i] for q in parts]) for i in range(4))
+        tot = np.bincount(run, w, minlength=R)
+        return run, w / tot[run], x, P

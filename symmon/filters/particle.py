@@ -1,0 +1,589 @@
+"""The particle filter: sequential importance resampling over the compiled models.
+
+The model is that of :class:`~symmon.NonlinearKalmanFilter`: x_{k+1} = f(x_k, w_k),
+y_k = h(x_k, e_k), w_k ~ N(0, Q), e_k ~ N(0, R), the noises additive without noise symbols.
+Each of N particles x^i carries a log-weight; a step
+
+1. draws x_k^i from the proposal q(x_k | x_{k−1}^i, y_k): the transition itself (the
+   bootstrap filter, Gordon et al. 1993, §3), or N(m^i, Σ^i), the posterior of one EKF or
+   UKF step from the particle, N(x_{k−1}^i, 0), with y_k: a Gaussian approximation of the
+   optimal proposal p(x_k | x_{k−1}^i, y_k) by local linearisation (Doucet, Godsill &
+   Andrieu 2000, §II.D.2; the extended and unscented particle filters of van der Merwe et
+   al. 2000, §3–4, run the same per-particle step but start it from a covariance P^i that
+   each particle carries, which broadens the proposal beyond the optimal one — exact for a
+   linear Gaussian model from P = 0 — and costs N·n² numbers);
+2. updates the log-weights by log p(y_k | x_k^i) + log p(x_k^i | x_{k−1}^i) − log q(x_k^i | ·)
+   (the last two cancel for the bootstrap proposal; Doucet et al. 2000, eq. (11)), in log
+   space, so that no weight underflows;
+3. adds log Σ_i W_{k−1}^i exp(increment^i), with W the normalised weights before the step,
+   to the log-likelihood: the estimate Σ_k log(mean weight) whose exponential is unbiased
+   for the marginal likelihood p(y_1 … y_K) (Del Moral 2004, Thm. 7.4.2; Andrieu, Doucet &
+   Holenstein 2010, §4.1);
+4. reports the weighted mean and covariance (a circular mean, and deviations wrapped, for
+   angle states) and the effective sample size ESS = 1 / Σ_i W_i², and resamples
+   (systematic, stratified or multinomial; Douc, Cappé & Moulines 2005) when the ESS falls
+   to ``ess_threshold`` · N.
+
+f and h run as compiled C over all particles of all runs of a step at once (threads over
+row spans, :meth:`~symmon.compile.CompiledModel.eval_g`); the EKF/UKF proposal runs the
+filters' compiled predict + update step (:mod:`symmon.filters.step`) over the particles as
+a bank.  A missing measurement (NaN) leaves its component out of the likelihood (a row of
+NaN: the step only predicts).  Every run of a bank has its own random stream
+(``SeedSequence(seed).spawn(runs)``), so run r of a bank is the same whatever the other
+runs.
+
+References
+----------
+N. J. Gordon, D. J. Salmond, A. F. M. Smith, "Novel approach to nonlinear/non-Gaussian
+Bayesian state estimation", IEE Proc. F 140(2), 1993. doi:10.1049/ip-f-2.1993.0015
+R. van der Merwe, A. Doucet, N. de Freitas, E. Wan, "The unscented particle filter",
+Tech. Rep. CUED/F-INFENG/TR 380, Cambridge University, 2000 (NIPS 13, 2001).
+A. Doucet, S. Godsill, C. Andrieu, "On sequential Monte Carlo sampling methods for Bayesian
+filtering", Statistics and Computing 10, 2000. doi:10.1023/A:1008935410038
+R. Douc, O. Cappé, E. Moulines, "Comparison of resampling schemes for particle filtering",
+ISPA 2005. doi:10.1109/ISPA.2005.195385
+P. Del Moral, *Feynman–Kac Formulae*, Springer, 2004.
+C. Andrieu, A. Doucet, R. Holenstein, "Particle Markov chain Monte Carlo methods", JRSS B
+72(3), 2010. doi:10.1111/j.1467-9868.2009.00736.x
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Iterable
+
+import numpy as np
+import sympy as sp
+from numpy.typing import ArrayLike
+
+from ..compile import compiled_with_params
+from ..core.angles import wrap_angle
+from ..core.gaussian import Gaussian
+from ..core.mixture import Empirical, GaussianMixture
+from ..core.model import Model
+from ..errors import ArgumentError, DegeneracyWarning, ModelError, NonFiniteError, ShapeError, SymmonError
+from ..transforms import TT1, UT
+from .nonlinear import NonlinearKalmanFilter
+from .inputs import check_bank_size, check_keep, check_truth, kept_numbers, param_values, real_measurements
+from .results import KalmanResult, _nees
+from .simulation import check_count, check_prior
+from .statespace import StateSpace
+
+__all__ = ["ParticleFilter", "ParticleResult", "resample", "PROPOSALS", "RESAMPLERS", "DEGENERATE_ESS"]
+
+#: The proposals: the transition (bootstrap), or one EKF / UKF step per particle.
+PROPOSALS = ("bootstrap", "ekf", "ukf")
+#: The resampling schemes (Douc, Cappé & Moulines 2005).
+RESAMPLERS = ("systematic", "stratified", "multinomial")
+#: An effective sample size below this counts as a collapse to one particle (a DegeneracyWarning).
+DEGENERATE_ESS = 1.5
+_LOG_2PI = math.log(2 * math.pi)
+
+
+def resample(weights: np.ndarray, method: str, rng: np.random.Generator | Iterable[np.random.Generator]) -> np.ndarray:
+    """Indices of the particles drawn by ``method`` from the normalised ``weights``.
+
+    Systematic: one uniform u, points (u + i)/N; stratified: one uniform per stratum,
+    (u_i + i)/N; multinomial: N independent uniforms (sorted).  Each point picks the
+    particle whose cumulative weight interval, of length N·w_i on the scale of the points,
+    holds it (Douc et al. 2005, §2).  So the number of copies of particle i differs from
+    N·w_i by less than 1 for systematic resampling (points one apart) and by less than 2
+    for stratified resampling (one point per unit stratum, two strata cut by the ends);
+    every scheme is unbiased, E copies = N·w_i.
+
+    Parameters
+    ----------
+    weights : ndarray, shape (N,) or (R, N)
+        Non-negative weights summing to 1 along the last axis.
+    method : {"systematic", "stratified", "multinomial"}
+    rng : Generator, or one per row of ``weights``
+
+    Returns
+    -------
+    ndarray of int, the shape of ``weights``
+    """
+    if method not in RESAMPLERS:
+        raise ArgumentError(f"resample must be one of {RESAMPLERS}, got {method!r}")
+    W = np.atleast_2d(np.asarray(weights, dtype=float))
+    R, N = W.shape
+    rngs = [rng] * R if isinstance(rng, np.random.Generator) else list(rng)
+    if len(rngs) != R:
+        raise ShapeError(f"resample needs one generator per row of weights ({R}), got {len(rngs)}")
+    if method == "systematic":
+        u = np.stack([g.random(1) for g in rngs]) + np.arange(N)
+    elif method == "stratified":
+        u = np.stack([g.random(N) for g in rngs]) + np.arange(N)
+    else:
+        u = np.sort(np.stack([g.random(N) for g in rngs]), axis=1) * N
+    cum = np.cumsum(W, axis=1) * N
+    cum[:, -1] = N  # rounding must not leave the last point beyond the sum
+    # One search over the runs side by side: row r's points and sums shifted by r·N.
+    shift = (np.arange(R) * N)[:, None]
+    idx = np.searchsorted((cum + shift).ravel(), (u + shift).ravel(), side="right").reshape(R, N) - shift
+    idx = np.minimum(idx, N - 1)
+    return idx.reshape(np.shape(weights))
+
+
+@dataclass(frozen=True, eq=False)
+class ParticleResult(KalmanResult):
+    """The result of :meth:`ParticleFilter.filter`: the Kalman filters' result
+    (:class:`~symmon.filters.results.KalmanResult`: ``x`` and ``P`` are the weighted mean and
+    covariance of the particles after each update, ``x_pred`` and ``P_pred`` those of the
+    prediction, ``innovation`` and ``S`` the mean and covariance of the predicted measurement
+    mixture, ``loglik`` the log of each step's mean weight, NEES, NIS, ANEES), plus
+
+    Attributes
+    ----------
+    ess : ndarray, shape (K,) or (R, K)
+        The effective sample size 1 / Σ_i W_i² after each update (before resampling).
+    resampled : ndarray of bool, shape (K,) or (R, K)
+        Whether the particles were resampled after the update of that step.
+    particles : int
+        N.
+    """
+
+    ess: np.ndarray | None = None
+    resampled: np.ndarray | None = None
+    particles: int = 0
+
+    def __repr__(self) -> str:
+        runs = "" if self.runs is None else f"runs={self.runs}, "
+        return (f"ParticleResult({self.method}, {runs}steps={self.steps}, n={self.n}, "
+                f"mean ESS {float(self.ess.mean()):.4g} of {self.particles})")
+
+
+@dataclass(frozen=True, eq=False)
+class ParticleFilter:
+    """A particle filter (sequential importance resampling) on the compiled models.
+
+    Parameters
+    ----------
+    f_model, h_model : Model
+        The dynamics (n → n) and the measurement (n → n_y), as for
+        :class:`~symmon.NonlinearKalmanFilter` (angle states and outputs wrapped).  The
+        measurement noise must enter h affinely (y = h(x, 0) + Γ(x) e, which holds for
+        additive noise), so that p(y | x) is Gaussian; the process noise may enter f in
+        any way for the bootstrap proposal.
+    Q, R : array_like
+        Process and measurement noise covariances (of the noise symbols, or additive).
+    particles : int, default 1000
+        N, per run.
+    proposal : {"bootstrap", "ekf", "ukf"}
+        The transition, or one EKF (``TT1``) or UKF (``UT.ut1()``) step per particle from
+        N(x^i, 0) with the new measurement (module notes); the latter two need additive
+        process noise with Q positive definite (the transition density p(x_k | x_{k−1}) in
+        the weights).
+    resample : {"systematic", "stratified", "multinomial"}
+    ess_threshold : float in [0, 1], default 0.5
+        Resample when ESS ≤ ``ess_threshold`` · N (1: at every step; 0: never).
+    seed : int, default 0
+        The seed of every ``filter`` call (``SeedSequence(seed).spawn(runs)``): the same
+        call gives the same numbers.
+
+    Raises
+    ------
+    ArgumentError
+        For a bad ``particles``, ``proposal``, ``resample``, ``ess_threshold`` or ``seed``,
+        or a proposal that needs additive process noise without it.
+    ModelError
+        When h is not affine in its noise symbols (no Gaussian likelihood).
+    ShapeError, CovarianceError
+        As :class:`~symmon.NonlinearKalmanFilter`, and for an R whose likelihood is
+        singular.
+
+    Examples
+    --------
+    >>> import sympy as sp, symmon as sm
+    >>> x = sp.Symbol("x")
+    >>> f, h = sm.Model([x], [0.9 * x]), sm.Model([x], [x])
+    >>> xs, ys = sm.simulate(f, h, [[0.5]], [[0.1]], sm.Gaussian([0.0], [[1.0]]), 20, seed=1)
+    >>> res = sm.ParticleFilter(f, h, [[0.5]], [[0.1]], particles=2000).filter(ys, sm.Gaussian([0.0], [[1.0]]))
+    >>> res.x.shape, res.ess.shape
+    ((20, 1), (20,))
+    """
+
+    f_model: Model
+    h_model: Model
+    Q: np.ndarray
+    R: np.ndarray
+    particles: int = 1000
+    proposal: str = "bootstrap"
+    resample: str = "systematic"
+    ess_threshold: float = 0.5
+    seed: int = 0
+    space: StateSpace = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        ss = StateSpace(self.f_model, self.h_model, self.Q, self.R)
+        object.__setattr__(self, "space", ss)
+        object.__setattr__(self, "Q", ss.Q)
+        object.__setattr__(self, "R", ss.R)
+        object.__setattr__(self, "particles", check_count(self.particles, "particles"))
+        if self.proposal not in PROPOSALS:
+            raise ArgumentError(f"proposal must be one of {PROPOSALS}, got {self.proposal!r}")
+        if self.resample not in RESAMPLERS:
+            raise ArgumentError(f"resample must be one of {RESAMPLERS}, got {self.resample!r}")
+        t = self.ess_threshold
+        if isinstance(t, bool) or not isinstance(t, (int, float, np.floating, np.integer)) or not 0 <= t <= 1:
+            raise ArgumentError(f"ess_threshold must be a number in [0, 1], got {t!r}")
+        object.__setattr__(self, "ess_threshold", float(t))
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise ArgumentError(f"seed must be a non-negative integer, got {self.seed!r}")
+        _ = self._noise_map  # refuse an h not affine in its noise, and a singular likelihood, now
+        if self.proposal != "bootstrap":
+            if self.f_model.n_v:
+                raise ArgumentError(f"proposal={self.proposal!r} weighs by the transition density N(x'; f(x), Q): "
+                                    "it needs additive process noise (f without noise symbols); use "
+                                    "proposal='bootstrap' for f's noise symbols")
+            try:
+                np.linalg.cholesky(self.Q)
+            except np.linalg.LinAlgError:
+                raise ArgumentError(f"proposal={self.proposal!r} needs a positive definite Q (the transition "
+                                    "density); use proposal='bootstrap' for a singular Q") from None
+
+    # ------------------------------------------------------------------ set-up
+    @property
+    def method(self) -> str:
+        """The filter's name, e.g. ``PF(bootstrap, N=1000, systematic)``."""
+        return f"PF({self.proposal}, N={self.particles}, {self.resample})"
+
+    @property
+    def params(self) -> tuple:
+        """The parameters of the models (f's, then h's that f does not have)."""
+        return self.space.params
+
+    @cached_property
+    def _noise_map(self) -> np.ndarray | None:
+        """Γ = ∂h/∂e when it is constant (None: it depends on x or a parameter, or no noise
+        symbols, Γ = I); refuses an h that is not affine in e."""
+        h = self.h_model
+        if not h.n_v:
+            self._whitening(np.asarray(self.R), "R")
+            return None
+        J = sp.Matrix(h.outputs).jacobian(sp.Matrix(h.noise))
+        if any(J.has(e) for e in h.noise):
+            raise ModelError(f"h_model {h.name!r} is not affine in its noise symbols {[str(e) for e in h.noise]}: "
+                             "the particle filter needs the likelihood p(y | x), Gaussian when y = h(x, 0) + Γ(x) e; "
+                             "write the noise additively")
+        if J.free_symbols:
+            return None
+        G = np.array(J.tolist(), dtype=float)
+        self._whitening(G @ self.R @ G.T, "the measurement covariance Γ R Γᵀ")
+        return G
+
+    @staticmethod
+    def _whitening(S: np.ndarray, what: str) -> np.ndarray:
+        try:
+            return np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:
+            raise ShapeError(f"{what} is singular: the likelihood p(y | x) has no density; give every measured "
+                             "component some noise") from None
+
+    @cached_property
+    def _kf(self) -> NonlinearKalmanFilter | None:
+        """The Gaussian filter whose compiled step is the proposal (None: bootstrap)."""
+        if self.proposal == "bootstrap":
+            return None
+        rule = TT1() if self.proposal == "ekf" else UT.ut1()
+        return NonlinearKalmanFilter(self.f_model, self.h_model, self.Q, self.R, rule)
+
+    # ------------------------------------------------------------------ pieces of a step
+    def _loglik(self, X: np.ndarray, Y: np.ndarray, p: np.ndarray | None):
+        """log p(y | x) of each particle, (R, N), h(x, 0) (R, N, n_y) and the covariance of
+        y given x, Γ R Γᵀ ((n_y, n_y), or (R, N, n_y, n_y) when Γ depends on x); Y (R, n_y)
+        with NaN for a missing component (left out), p (R, n_p) or None."""
+        R_, N, n = X.shape
+        ss, h = self.space, self.h_model
+        flat = X.reshape(-1, n)
+        prow = None if p is None else np.repeat(p, N, axis=0)
+        if h.n_v and self._noise_map is None:  # Γ(x): the Jacobian in e at e = 0
+            cm = compiled_with_params(h)
+            W = [flat, np.zeros((flat.shape[0], h.n_v))]
+            if h.n_p:
+                W.append(prow[:, [ss.params.index(s) for s in h.params]])
+            Hx, J_nz, _ = cm.eval_derivatives(np.hstack(W))
+            G = cm.dense_jacobian(J_nz)[:, :, n:n + h.n_v]
+            S_all = (G @ self.R @ G.transpose(0, 2, 1)).reshape(R_, N, h.n_y, h.n_y)
+        else:
+            Hx = ss.evaluate(h, flat, None, prow)
+            G = np.eye(h.n_y) if self._noise_map is None else self._noise_map
+            S_all = G @ self.R @ G.T
+        Hx = Hx.reshape(R_, N, h.n_y)
+        if ss.angle_outputs:
+            Hx[..., list(ss.angle_outputs)] = wrap_angle(Hx[..., list(ss.angle_outputs)])
+        nu = Y[:, None, :] - Hx
+        if ss.angle_outputs:
+            nu[..., list(ss.angle_outputs)] = wrap_angle(nu[..., list(ss.angle_outputs)])
+        ll = np.zeros((R_, N))
+        measured = ~np.isnan(Y)
+        for pattern in np.unique(measured, axis=0):
+            runs = np.flatnonzero((measured == pattern).all(axis=1))
+            m = np.flatnonzero(pattern)
+            if m.size == 0:
+                continue
+            v = nu[runs][..., m]
+            if S_all.ndim == 2:  # one S for every particle: one factor
+                L = self._whitening(S_all[np.ix_(m, m)], "the measurement covariance")
+                z = np.linalg.solve(L, v.reshape(-1, m.size).T).T.reshape(v.shape)
+                log_det = 2 * np.log(np.diag(L)).sum()
+            else:
+                S = S_all[runs][..., m[:, None], m[None, :]]
+                try:
+                    L = np.linalg.cholesky(S)
+                except np.linalg.LinAlgError:
+                    raise NonFiniteError("the measurement covariance Γ(x) R Γ(x)ᵀ of a particle is singular: "
+                                         "its likelihood has no density") from None
+                z = np.linalg.solve(L, v[..., None])[..., 0]
+                log_det = 2 * np.log(np.diagonal(L, axis1=-2, axis2=-1)).sum(axis=-1)
+            ll[runs] = -0.5 * ((z * z).sum(axis=-1) + log_det + m.size * _LOG_2PI)
+        return ll, Hx, S_all
+
+    def _moments(self, X: np.ndarray, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The weighted mean (circular for angle states) and covariance (deviations
+        wrapped) of particles X (R, N, n) with normalised weights W (R, N)."""
+        mean = np.einsum("rn,rni->ri", W, X)
+        angles = list(self.space.angle_states)
+        if angles:
+            A = X[..., angles]
+            mean[:, angles] = np.arctan2(np.einsum("rn,rni->ri", W, np.sin(A)), np.einsum("rn,rni->ri", W, np.cos(A)))
+        D = X - mean[:, None, :]
+        if angles:
+            D[..., angles] = wrap_angle(D[..., angles])
+        cov = np.matmul((D * W[..., None]).transpose(0, 2, 1), D)
+        return mean, 0.5 * (cov + cov.transpose(0, 2, 1))
+
+    def _measurement_moments(self, Hx: np.ndarray, W: np.ndarray, Y: np.ndarray,
+                             S_noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The innovation y − ŷ and its covariance S of the predicted measurement mixture
+        Σ_i W_i N(ŷ_i, S_i), ŷ_i = ``Hx[:, i]`` and S_i = ``S_noise`` (one for all, or per
+        particle); missing components: 0 and a unit diagonal entry (as the Kalman filters)."""
+        missing = np.isnan(Y)
+        mean = np.einsum("rn,rni->ri", W, Hx)
+        ang = list(self.space.angle_outputs)
+        if ang:
+            A = Hx[..., ang]
+            mean[:, ang] = np.arctan2(np.einsum("rn,rni->ri", W, np.sin(A)), np.einsum("rn,rni->ri", W, np.cos(A)))
+        D = Hx - mean[:, None, :]
+        if ang:
+            D[..., ang] = wrap_angle(D[..., ang])
+        noise = S_noise if S_noise.ndim == 2 else np.einsum("rn,rnij->rij", W, S_noise)
+        S = np.matmul((D * W[..., None]).transpose(0, 2, 1), D) + noise
+        nu = Y - mean
+        if ang:
+            nu[:, ang] = wrap_angle(nu[:, ang])
+        if missing.any():
+            nu[missing] = 0.0
+            S = np.where(missing[:, :, None] | missing[:, None, :], 0.0, S)
+            r, i = np.nonzero(missing)
+            S[r, i, i] = 1.0
+        return nu, 0.5 * (S + S.transpose(0, 2, 1))
+
+    # ------------------------------------------------------------------ the filter
+    def filter(self, ys: ArrayLike, x0: Gaussian | GaussianMixture | Empirical, *, params: dict | None = None,
+               keep: Iterable[str] | None = None, x_true: ArrayLike | None = None) -> ParticleResult:
+        """Filter the measurements ``ys`` from the prior ``x0`` (the convention of
+        :meth:`NonlinearKalmanFilter.filter <symmon.NonlinearKalmanFilter.filter>`: predict,
+        then update, for each measurement; ``ys[k]`` is y_{k+1}).
+
+        Parameters
+        ----------
+        ys : array_like, shape (K, n_y) or (R, K, n_y)
+            Measurements, a leading axis for a bank of R runs; NaN marks a missing
+            component (a row of NaN: the step only predicts).
+        x0 : Gaussian, GaussianMixture or Empirical
+            The prior of x_0: the N particles of each run are drawn from it (an Empirical
+            is resampled by its weights).
+        params : dict, optional
+            The models' parameters by name: a number, one per step (K,), or one per run and
+            step (R, K).
+        keep : iterable of str, optional
+            The arrays to return among ``"x"``, ``"P"``, ``"x_pred"``, ``"P_pred"``,
+            ``"innovation"``, ``"S"`` and ``"nis"`` (default all); the log-likelihood and
+            the ESS are always kept.  The predicted moments cost a pass over the particles.
+        x_true : array_like, shape (K, n) or (R, K, n), optional
+            The true states: each step's NEES against the weighted mean and covariance.
+
+        Returns
+        -------
+        ParticleResult
+
+        Raises
+        ------
+        ShapeError
+            Bad shapes, an infinite measurement, bad parameters.
+        NonFiniteError
+            A particle or weight became NaN or inf (the model overflows), or every particle
+            of a run has zero likelihood, naming the run and step.
+        SymmonError
+            An EKF/UKF proposal step failed (a singular covariance).
+        ResourceError
+            The particles or the kept arrays would exceed
+            :data:`~symmon.filters.results.MAX_BANK_NUMBERS` numbers.
+
+        Warns
+        -----
+        DegeneracyWarning
+            When the ESS fell below :data:`DEGENERATE_ESS` (about one particle) at some step.
+        """
+        ss, N = self.space, self.particles
+        n, n_y = ss.n, ss.n_y
+        Y = real_measurements(ys)
+        if Y.ndim not in (2, 3) or Y.shape[-1] != n_y or Y.shape[-2] == 0 or Y.shape[0] == 0:
+            raise ShapeError(f"ys must have shape (K, {n_y}) or (R, K, {n_y}) with K >= 1, got {Y.shape}")
+        if np.isinf(Y).any():
+            where = tuple(int(i) for i in np.argwhere(np.isinf(Y))[0])
+            raise ShapeError(f"ys contains inf (at index {where}); a missing measurement is NaN")
+        bank = Y.shape[0] if Y.ndim == 3 else None
+        Rr, K = bank or 1, Y.shape[-2]
+        Yb = Y.reshape(Rr, K, n_y)
+        kept = check_keep(keep)
+        names = frozenset(("x", "P", "x_pred", "P_pred", "innovation", "S", "nis")) if kept is None else kept
+        check_bank_size(Rr, K, kept_numbers(n, n_y, names) + 2, f"{self.method} results", "keep fewer arrays")
+        carried = n + (n * n + 2 * n_y + n_y * n_y if self._kf is not None else 0)  # and the proposal's step
+        check_bank_size(Rr, N, 3 * carried + n_y + 2, f"{self.method} particles", "use fewer particles or runs")
+        x0 = check_prior(x0, n)
+        truth = None
+        if x_true is not None:
+            truth = check_truth(x_true, Y.shape[:-1] + (n,)).reshape(Rr, K, n)
+        pv = param_values(ss.params, params, bank, K, who="the models")
+        rngs = [np.random.Generator(np.random.PCG64(s)) for s in np.random.SeedSequence(self.seed).spawn(Rr)]
+
+        X = ss.wrap_states(np.stack([np.asarray(x0.sample(N, g), dtype=float) for g in rngs]))
+        logW = np.full((Rr, N), -math.log(N))
+        want = lambda *k: any(a in names for a in k)  # noqa: E731
+        out = {k: np.empty((Rr, K) + s) for k, s in (("x", (n,)), ("P", (n, n)), ("x_pred", (n,)),
+                                                     ("P_pred", (n, n)), ("innovation", (n_y,)),
+                                                     ("S", (n_y, n_y)), ("nis", ())) if k in names}
+        loglik, ess, resampled = np.empty((Rr, K)), np.empty((Rr, K)), np.zeros((Rr, K), dtype=bool)
+        nees = np.empty((Rr, K)) if truth is not None else None
+        nq = ss.Lq.shape[0]
+
+        for k in range(K):
+            y, p = Yb[:, k], (None if pv is None else pv[:, k])
+            Wprev = np.exp(logW)
+            with np.errstate(over="ignore", invalid="ignore"):  # a non-finite particle is refused below
+                if self._kf is None:
+                    Z = np.concatenate([g.standard_normal((N, nq)) for g in rngs])
+                    X = ss.transition(X.reshape(-1, n), Z, None if p is None else np.repeat(p, N, axis=0))
+                    X = X.reshape(Rr, N, n)
+                    inc, prior_h, S_noise = self._loglik(X, y, p)
+                    prior_x = X
+                else:
+                    X, inc, prior_x, prior_h, S_noise = self._proposal_step(X, y, p, rngs, k, bank, want)
+            total = logW + inc
+            top = total.max(axis=1)
+            bad = ~np.isfinite(top) | ~np.isfinite(X).all(axis=(1, 2))
+            if bad.any():
+                r = int(np.flatnonzero(bad)[0])
+                where = f"step {k}" if bank is None else f"run {r}, step {k}"
+                raise NonFiniteError(f"{self.method}: at {where} a particle or its weight is NaN or inf, or every "
+                                     "particle has zero likelihood (the model overflows there, or the measurement "
+                                     "is far from every particle: use more particles or another proposal)")
+            lse = top + np.log(np.exp(total - top[:, None]).sum(axis=1))
+            loglik[:, k] = lse  # log Σ W_{k−1} exp(inc): logW is normalised
+            logW = total - lse[:, None]
+            W = np.exp(logW)
+            ess[:, k] = 1.0 / (W * W).sum(axis=1)
+            if want("x", "P") or truth is not None:
+                m, C = self._moments(X, W)
+                if "x" in out:
+                    out["x"][:, k] = m
+                if "P" in out:
+                    out["P"][:, k] = C
+                if truth is not None:
+                    nees[:, k] = _nees(m[:, None], C[:, None], truth[:, k:k + 1], ss.angle_states)[:, 0]
+            if want("x_pred", "P_pred"):
+                m, C = self._moments(prior_x, Wprev)
+                if self._kf is not None:
+                    C = C + self.Q  # prior_x holds f(x_{k−1}) for a proposal
+                if "x_pred" in out:
+                    out["x_pred"][:, k] = m
+                if "P_pred" in out:
+                    out["P_pred"][:, k] = C
+            if want("innovation", "S", "nis"):
+                nu, S = self._measurement_moments(prior_h, Wprev, y, S_noise)
+                if "innovation" in out:
+                    out["innovation"][:, k] = nu
+                if "S" in out:
+                    out["S"][:, k] = S
+                if "nis" in out:
+                    out["nis"][:, k] = np.einsum("ri,ri->r", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+            redo = np.flatnonzero(ess[:, k] <= self.ess_threshold * N)
+            if redo.size:
+                idx = resample(W[redo], self.resample, [rngs[r] for r in redo])
+                X[redo] = np.take_along_axis(X[redo], idx[..., None], axis=1)
+                logW[redo] = -math.log(N)
+                resampled[redo, k] = True
+
+        collapsed = ess < DEGENERATE_ESS
+        if collapsed.any():
+            r, k = (int(i) for i in np.argwhere(collapsed)[0])
+            where = f"step {k}" if bank is None else f"run {r}, step {k}"
+            warnings.warn(f"{self.method}: the weights collapsed to about one particle (ESS < {DEGENERATE_ESS}) at "
+                          f"{int(collapsed.sum())} step(s), first at {where}: the estimates there are one particle's; "
+                          "use more particles, proposal='ekf'/'ukf', or check the noise covariances",
+                          DegeneracyWarning, stacklevel=2)
+        arrays = {k: v if bank is not None else v[0] for k, v in out.items()}
+        if "nis" in arrays:
+            arrays["nis_values"] = arrays.pop("nis")
+        extra = {"loglik": loglik, "ess": ess, "resampled": resampled}
+        if nees is not None:
+            extra["nees_values"] = nees
+        arrays.update({k: v if bank is not None else v[0] for k, v in extra.items()})
+        for v in arrays.values():
+            v.flags.writeable = False
+        measured = None
+        if np.isnan(Y).any():
+            measured = (~np.isnan(Y)).sum(axis=-1)
+            measured.flags.writeable = False
+        return ParticleResult(**arrays, measured=measured, n_y=n_y, n_x=n, angle_states=ss.angle_states,
+                              method=self.method, particles=N)
+
+    def _proposal_step(self, X, y, p, rngs, k, bank, want):
+        """One EKF/UKF-proposal step (module notes): the Gaussian filter's compiled step from
+        N(x^i, 0) with y gives N(m^i, Σ^i); x'^i ~ N(m^i, Σ^i), and the log-weight increment
+        log p(y | x') + log N(x'; f(x), Q) − log N(x'; m, Σ).
+
+        Returns the particles, the increments, f(x) (the predicted means) and the
+        predicted measurements ŷ^i and S^i of each particle's step (None unless wanted)."""
+        ss, N, kf = self.space, self.particles, self._kf
+        Rr, _, n = X.shape
+        flat = X.reshape(-1, n)
+        Yrep = np.repeat(y, N, axis=0)[:, None, :]
+        prow = None if p is None else np.repeat(p, N, axis=0)
+        predicted = want("innovation", "S", "nis")
+        keep = frozenset({"x", "P"} | ({"innovation", "S"} if predicted else set()))
+        out, _ = kf.strategy.run(kf, Yrep, flat, np.zeros((n, n)), keep, params=None if prow is None else prow[:, None, :])
+        failed = out.pop("first_nonfinite")
+        if (failed >= 0).any():
+            i = int(np.flatnonzero(failed >= 0)[0])
+            where = f"step {k}" if bank is None else f"run {i // N}, step {k}"
+            raise SymmonError(f"{self.method}: the {kf.method} proposal of particle {i % N} failed at {where} (its "
+                              "covariance lost positive definiteness, or S is singular)")
+        m, Sig = out["x"][:, 0], out["P"][:, 0]
+        try:
+            L = np.linalg.cholesky(Sig)
+        except np.linalg.LinAlgError:
+            raise SymmonError(f"{self.method}: a proposal covariance of step {k} is not positive definite "
+                              "(a particle's Gaussian step lost definiteness); use proposal='bootstrap'") from None
+        Z = np.concatenate([g.standard_normal((N, n)) for g in rngs])
+        Xn = ss.wrap_states(m + np.einsum("nij,nj->ni", L, Z))
+        log_q = -0.5 * (Z * Z).sum(axis=1) - np.log(np.diagonal(L, axis1=-2, axis2=-1)).sum(axis=1)
+        fx = ss.transition(flat, None, prow)
+        d = Xn - fx
+        if ss.angle_states:
+            d[:, list(ss.angle_states)] = wrap_angle(d[:, list(ss.angle_states)])
+        Lq = np.linalg.cholesky(self.Q)
+        zq = np.linalg.solve(Lq, d.T).T
+        log_f = -0.5 * (zq * zq).sum(axis=1) - np.log(np.diag(Lq)).sum()  # the 2π terms cancel with log_q's
+        Xn = Xn.reshape(Rr, N, n)
+        ll, _, _ = self._loglik(Xn, y, p)
+        inc = ll + (log_f - log_q).reshape(Rr, N)
+        y_hat = S_i = None
+        if predicted:  # ŷ^i = y − ν^i (a missing component: any finite value, left out)
+            y_hat = (np.where(np.isnan(Yrep[:, 0]), 0.0, Yrep[:, 0]) - out["innovation"][:, 0]).reshape(Rr, N, -1)
+            S_i = out["S"][:, 0].reshape(Rr, N, ss.n_y, ss.n_y)
+        return Xn, inc, fx.reshape(Rr, N, n), y_hat, S_i
