@@ -1,0 +1,399 @@
+"""Interacting multiple models (IMM) over symmon's Kalman filters.
+
+A target that switches between motion models (constant velocity, a coordinated turn) is a
+jump-Markov system: the mode m_k ∈ {1, …, M} follows a Markov chain with transition
+probabilities p_ij = P(m_k = j | m_{k−1} = i), and in mode j the state follows that mode's
+f_j, Q_j and is measured by h_j, R_j.  The IMM estimator (Blom & Bar-Shalom 1988) keeps one
+Gaussian per mode and, at each step k (Bar-Shalom, Li & Kirubarajan 2001, §11.6.6):
+
+1. **mixing probabilities**: c̄_j = Σ_i p_ij μ_i (the predicted mode probabilities) and
+   μ_{i|j} = p_ij μ_i / c̄_j;
+2. **mixing**: x⁰_j = Σ_i μ_{i|j} x_i, P⁰_j = Σ_i μ_{i|j} (P_i + (x_i − x⁰_j)(x_i − x⁰_j)ᵀ);
+3. **mode-matched filtering**: mode j's filter predicts and updates from N(x⁰_j, P⁰_j), giving
+   x_j, P_j and the likelihood Λ_j = N(ν_j; 0, S_j) of its innovation;
+4. **mode probabilities**: μ_j = Λ_j c̄_j / c with c = Σ_j Λ_j c̄_j, the step's likelihood
+   (log c is the step's term of the log-likelihood; computed in log space, so a likelihood
+   below 1e-308 does not underflow to a zero probability);
+5. **combination**: x = Σ_j μ_j x_j, P = Σ_j μ_j (P_j + (x_j − x)(x_j − x)ᵀ).
+
+Angle states (the angle states of the modes' filters, which must agree) are mixed and
+combined with the weighted circular mean atan2(Σ w sin θ, Σ w cos θ) (Mardia & Jupp 2000,
+§2.2.1), and their deviations θ_i − θ̄ are wrapped.  The predicted measurement of the IMM is
+the mixture Σ_j c̄_j N(ŷ_j, S_j); its moment-matched innovation ν = Σ_j c̄_j ν_j and
+covariance S = Σ_j c̄_j (S_j + (ν_j − ν)(ν_j − ν)ᵀ) give the combined NIS.  A missing
+measurement (NaN) skips every mode's update on the missing components (as in
+:meth:`symmon.NonlinearKalmanFilter.filter`); a row of NaN leaves μ = c̄.
+
+Each mode-matched step is the mode's own compiled predict + update step
+(:mod:`symmon.filters.step`), called on all the runs of a bank at once.
+
+References
+----------
+H. A. P. Blom, Y. Bar-Shalom, "The interacting multiple model algorithm for systems with
+Markovian switching coefficients", IEEE Trans. Autom. Control 33(8), 1988.
+doi:10.1109/9.1299
+Y. Bar-Shalom, X. R. Li, T. Kirubarajan, *Estimation with Applications to Tracking and
+Navigation*, Wiley, 2001, §11.6.6 (the IMM), §11.7 (the coordinated turn).
+K. V. Mardia, P. E. Jupp, *Directional Statistics*, Wiley, 2000, §2.2.1 (the circular mean).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+import numpy as np
+import sympy as sp
+from numpy.typing import ArrayLike
+
+from ..core.angles import wrap_angle
+from ..core.checks import readonly
+from ..core.gaussian import Gaussian, float_array
+from ..core.model import Model
+from ..errors import ArgumentError, ArgumentTypeError, ModelError, NonFiniteError, ShapeError
+from ..transforms import TT1
+from .linear import KalmanFilter
+from .nonlinear import NonlinearKalmanFilter
+from .results import KalmanResult, _nees, _quadratic_forms, check_bank_size, check_truth, real_measurements
+
+__all__ = ["IMM", "IMMResult"]
+
+#: How far the rows of the transition matrix and the initial probabilities may sum from 1.
+PROBABILITY_ATOL = 1e-9
+
+
+@dataclass(frozen=True, eq=False)
+class IMMResult(KalmanResult):
+    """The result of :meth:`IMM.filter`: the combined estimate, as a :class:`KalmanResult`
+    (``x``, ``P``, NEES, NIS and their χ² tests, ``log_likelihood``), with the modes.
+
+    The combined ``x`` and ``P`` are the moment-matched mixture Σ_j μ_j N(x_j, P_j);
+    ``x_pred`` and ``P_pred`` that of the mode-matched predictions weighted by c̄_j;
+    ``innovation`` and ``S`` the moment-matched predicted measurement Σ_j c̄_j N(ŷ_j, S_j)
+    (so :meth:`nis` is the combined NIS); ``loglik`` the IMM's log c_k.
+
+    Attributes
+    ----------
+    mode_probabilities : ndarray, shape (K, M) or (R, K, M)
+        μ_j after each step's update.
+    predicted_probabilities : ndarray, shape (K, M) or (R, K, M)
+        c̄_j, the mode probabilities before each step's update.
+    mode_x : ndarray, shape (K, M, n) or (R, K, M, n)
+        Each mode-matched filter's x_j.
+    mode_P : ndarray, shape (K, M, n, n) or (R, K, M, n, n)
+        Each mode-matched filter's P_j.
+    mode_loglik : ndarray, shape (K, M) or (R, K, M)
+        log Λ_j, each mode's log-likelihood of the step's measurement.
+    modes : tuple of str
+        The modes' filters, e.g. ``("EKF(cv)", "UKF(...)(ct)")``.
+    """
+
+    mode_probabilities: np.ndarray | None = None
+    predicted_probabilities: np.ndarray | None = None
+    mode_x: np.ndarray | None = None
+    mode_P: np.ndarray | None = None
+    mode_loglik: np.ndarray | None = None
+    modes: tuple[str, ...] = ()
+
+    def __repr__(self) -> str:
+        runs = "" if self.runs is None else f"runs={self.runs}, "
+        return f"IMMResult({', '.join(self.modes)}; {runs}steps={self.steps}, n={self.n})"
+
+
+def _as_nonlinear(kf: KalmanFilter) -> NonlinearKalmanFilter:
+    """The EKF of a linear model, f(x) = F x, h(x) = H x: the Kalman filter to rounding."""
+    xs = sp.Matrix(sp.symbols(f"x0:{kf.n}", real=True))
+    f = Model(list(xs), list(sp.Matrix(kf.F) * xs), name="linear_F")
+    h = Model(list(xs), list(sp.Matrix(kf.H) * xs), name="linear_H")
+    return NonlinearKalmanFilter(f, h, kf.Q, kf.R, TT1())
+
+
+def _probabilities(p: ArrayLike, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """``p`` as finite, non-negative probabilities of ``shape`` whose last axis sums to 1
+    (within :data:`PROBABILITY_ATOL`), normalised exactly."""
+    arr = float_array(p, name, ArgumentError)
+    if arr.shape != shape:
+        raise ShapeError(f"{name} must have shape {shape} (one entry per mode), got {arr.shape}")
+    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+        raise ArgumentError(f"{name} must hold finite probabilities ≥ 0, got {arr.tolist()}")
+    sums = arr.sum(axis=-1)
+    bad = np.flatnonzero(np.abs(np.atleast_1d(sums) - 1.0) > PROBABILITY_ATOL)
+    if bad.size:
+        where = f"row {bad[0]} of {name}" if arr.ndim == 2 else name
+        raise ArgumentError(f"{where} sums to {np.atleast_1d(sums)[bad[0]]!r}, not 1: give probabilities "
+                            + ("P(mode j at k | mode i at k−1) in row i" if arr.ndim == 2 else "of the modes"))
+    return readonly(arr / sums[..., None] if arr.ndim == 2 else arr / sums)
+
+
+def _mix(w: np.ndarray, xs: np.ndarray, Ps: np.ndarray | None, angles: list[int]):
+    """The moment-matched mixtures Σ_i w[:, i, j] N(xs[:, i], Ps[:, i]) for each j: means
+    (R, J, n) and covariances (R, J, n, n) (None without ``Ps``: the spread of the means only
+    is not wanted then); ``w`` (R, I, J) with columns summing to 1, xs (R, I, n).  Angle
+    components: the weighted circular mean and wrapped deviations."""
+    mean = np.einsum("rij,rin->rjn", w, xs)
+    if angles:
+        th = xs[..., angles]
+        mean[..., angles] = np.arctan2(np.einsum("rij,ria->rja", w, np.sin(th)),
+                                       np.einsum("rij,ria->rja", w, np.cos(th)))
+    if Ps is None:
+        return mean, None
+    d = xs[:, :, None, :] - mean[:, None, :, :]  # (R, I, J, n)
+    if angles:
+        d[..., angles] = wrap_angle(d[..., angles])
+    cov = np.einsum("rij,rinm->rjnm", w, Ps) + np.einsum("rij,rijn,rijm->rjnm", w, d, d)
+    return mean, 0.5 * (cov + np.swapaxes(cov, -1, -2))
+
+
+@dataclass(frozen=True, eq=False)
+class IMM:
+    """Interacting multiple models (Blom & Bar-Shalom 1988) over symmon's Kalman filters.
+
+    Parameters
+    ----------
+    filters : sequence of NonlinearKalmanFilter or KalmanFilter
+        One filter per mode, on the same state vector (n states) and the same measurement
+        (n_y components), each with its own f, Q, h, R, transform (EKF, iterated EKF, EKF2,
+        UKF, CKF, Gauss–Hermite, adaptive) and parameters.  A linear :class:`KalmanFilter`
+        runs as the EKF of its linear model (equal to rounding).  The modes must agree on
+        which states are angles and which measurement components are angles.
+    transition : array_like, shape (M, M)
+        p_ij = P(mode j at step k | mode i at step k − 1): each row sums to 1 (FilterPy's
+        ``IMMEstimator`` ``M``).
+    probabilities : array_like, shape (M,)
+        The mode probabilities of x0, before the first step; they sum to 1.
+
+    Raises
+    ------
+    ArgumentTypeError
+        A mode is not a symmon Kalman filter.
+    ShapeError
+        The modes differ in state or measurement dimension, in their angle states or
+        angle outputs, or ``transition``/``probabilities`` have the wrong shape.
+    ArgumentError
+        Probabilities that are negative, not finite, or do not sum to 1.
+
+    Examples
+    --------
+    >>> import numpy as np, symmon as sm
+    >>> F = np.array([[1.0, 1.0], [0.0, 1.0]]); H = np.array([[1.0, 0.0]])
+    >>> quiet = sm.KalmanFilter(F, 1e-4 * np.eye(2), H, [[1.0]])
+    >>> agile = sm.KalmanFilter(F, 1.0 * np.eye(2), H, [[1.0]])
+    >>> imm = sm.IMM([quiet, agile], [[0.95, 0.05], [0.05, 0.95]], [0.5, 0.5])
+    >>> ys = np.r_[np.arange(10.0), 10 + 3 * np.arange(10.0)][:, None]   # the speed jumps at step 10
+    >>> res = imm.filter(ys, sm.Gaussian([0.0, 1.0], np.eye(2)))
+    >>> res.mode_probabilities[[10, 13], 1].round(2).tolist()   # P(agile) before and after
+    [0.09, 0.9]
+    """
+
+    filters: tuple
+    transition: np.ndarray
+    probabilities: np.ndarray
+
+    def __post_init__(self) -> None:
+        if isinstance(self.filters, (KalmanFilter, NonlinearKalmanFilter)) or not isinstance(self.filters, Iterable):
+            raise ArgumentTypeError("filters must be a sequence of filters, one per mode")
+        filters = tuple(self.filters)
+        if not filters:
+            raise ArgumentError("filters must hold at least one filter (one per mode)")
+        modes = []
+        for j, kf in enumerate(filters):
+            if isinstance(kf, KalmanFilter):
+                kf = _as_nonlinear(kf)
+            elif not isinstance(kf, NonlinearKalmanFilter):
+                raise ArgumentTypeError(f"mode {j}: filters must be symmon KalmanFilter or NonlinearKalmanFilter "
+                                        f"objects, got {type(kf).__name__}")
+            modes.append(kf)
+        first = modes[0]
+        n, n_y = first.f_model.n_u, first.h_model.n_y
+        for j, kf in enumerate(modes[1:], start=1):
+            if kf.f_model.n_u != n or kf.h_model.n_y != n_y:
+                raise ShapeError(f"mode {j} has {kf.f_model.n_u} states and {kf.h_model.n_y} measurement components, "
+                                 f"mode 0 has {n} and {n_y}: the modes of an IMM share the state vector and the "
+                                 "measurement")
+            if kf.angle_states != first.angle_states:
+                raise ShapeError(f"mode {j} has angle states {sorted(kf.angle_states)}, mode 0 "
+                                 f"{sorted(first.angle_states)}: the mixing needs one answer; declare the same angles "
+                                 "in every mode's models")
+            if kf.h_model.angle_outputs != first.h_model.angle_outputs:
+                raise ShapeError(f"mode {j} measures angles at outputs {sorted(kf.h_model.angle_outputs)}, mode 0 at "
+                                 f"{sorted(first.h_model.angle_outputs)}: the modes measure the same quantities")
+        M = len(modes)
+        object.__setattr__(self, "filters", tuple(modes))
+        object.__setattr__(self, "transition", _probabilities(self.transition, "transition", (M, M)))
+        object.__setattr__(self, "probabilities", _probabilities(self.probabilities, "probabilities", (M,)))
+
+    @property
+    def n(self) -> int:
+        """The state dimension."""
+        return self.filters[0].f_model.n_u
+
+    @property
+    def n_y(self) -> int:
+        """The measurement dimension."""
+        return self.filters[0].h_model.n_y
+
+    @property
+    def angle_states(self) -> frozenset[int]:
+        """The state components that are angles (the same in every mode)."""
+        return self.filters[0].angle_states
+
+    @property
+    def modes(self) -> tuple[str, ...]:
+        """Each mode's filter and dynamics, e.g. ``"EKF(ct)"``."""
+        return tuple(f"{kf.method}({kf.f_model.name})" for kf in self.filters)
+
+    def __repr__(self) -> str:
+        return f"IMM({', '.join(self.modes)}; n={self.n}, n_y={self.n_y})"
+
+    def _mode_params(self, params, runs: int | None, K: int) -> list:
+        """Each mode's parameter values (R, K, n_p), or None: ``params`` is one dict by name
+        (each mode takes the names its models declare) or one dict (or None) per mode."""
+        M = len(self.filters)
+        if params is None or isinstance(params, dict):
+            given = {} if params is None else {str(k): v for k, v in params.items()}
+            declared = {str(s) for kf in self.filters for s in kf.params}
+            unknown = sorted(set(given) - declared)
+            if unknown:
+                raise ModelError(f"params {unknown} are declared by no mode's models (they declare "
+                                 f"{sorted(declared)})")
+            per_mode = [{k: v for k, v in given.items() if k in {str(s) for s in kf.params}} for kf in self.filters]
+        elif isinstance(params, (list, tuple)) and len(params) == M:
+            per_mode = list(params)
+        else:
+            raise ModelError(f"params must be a dict by name or a sequence of {M} dicts (one per mode), got "
+                             f"{type(params).__name__}")
+        out = []
+        for j, (kf, p) in enumerate(zip(self.filters, per_mode)):
+            try:
+                out.append(kf._param_values(p, runs, K))
+            except ModelError as err:
+                raise type(err)(f"mode {j} ({self.modes[j]}): {err}") from None
+        return out
+
+    def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None, *,
+               params: dict | Sequence[dict | None] | None = None, x_true: ArrayLike | None = None) -> IMMResult:
+        """Run the IMM over the measurements ``ys`` (predict, then update, at each step).
+
+        Parameters
+        ----------
+        ys : array_like, shape (K, n_y) or (R, K, n_y)
+            Measurements y_1 … y_K; a leading axis filters R independent runs (a bank).  NaN
+            marks a missing measurement (a row, or single components), as for
+            :meth:`symmon.NonlinearKalmanFilter.filter`.
+        x0 : Gaussian, or array_like of shape (n,) or (R, n)
+            The state before the first step, the same in every mode: a Gaussian, or its mean
+            with ``P0``.
+        P0 : array_like, shape (n, n) or (R, n, n), optional
+            Its covariance when ``x0`` is a mean.
+        params : dict, or sequence of dict, optional
+            The values of the modes' parameters: one dict by name, each mode taking the
+            names its models declare (a name two modes declare has one value), or one dict
+            (or None) per mode.  Values as for :meth:`symmon.NonlinearKalmanFilter.filter`.
+        x_true : array_like, shape (K, n) or (R, K, n), optional
+            The true states: the NEES of the combined estimate is computed
+            (:attr:`IMMResult.nees_values`).
+
+        Returns
+        -------
+        IMMResult
+
+        Raises
+        ------
+        ShapeError
+            Bad shapes, or an infinite measurement.
+        ResourceError
+            The results would exceed :data:`~symmon.filters.results.MAX_BANK_NUMBERS` numbers.
+        NonFiniteError
+            A mode-matched filter produced NaN or inf, naming the mode, the run and the step.
+        SingularMatrixError
+            With ``x_true``: a combined P is singular.
+        """
+        n, n_y, M = self.n, self.n_y, len(self.filters)
+        Y = real_measurements(ys)
+        if Y.ndim not in (2, 3) or Y.shape[-1] != n_y or Y.shape[-2] == 0 or Y.shape[0] == 0:
+            raise ShapeError(f"ys must have shape (K, {n_y}) or (R, K, {n_y}) with K >= 1, got {Y.shape}")
+        runs = Y.shape[0] if Y.ndim == 3 else None
+        R, K = runs or 1, Y.shape[-2]
+        # Combined x, P, x_pred, P_pred, ν, S, NIS, log c; per mode μ, c̄, x, P, log Λ.
+        per_step = 2 * (n + n * n) + n_y + n_y * n_y + 2 + M * (3 + n + n * n)
+        check_bank_size(R, K, per_step, "IMM results", "filter the runs in smaller banks, or fewer steps at a time")
+        if np.isinf(Y).any():
+            where = tuple(int(i) for i in np.argwhere(np.isinf(Y))[0])
+            raise ShapeError(f"ys contains inf (at index {where}); a missing measurement is NaN")
+        m0, C0 = self.filters[0]._initial(x0, P0, runs)
+        truth = None if x_true is None else check_truth(x_true, Y.shape[:-1] + (n,))
+        pvs = self._mode_params(params, runs, K)
+        Yb = Y.reshape(R, K, n_y)
+        angles = sorted(self.angle_states)
+        T = self.transition
+
+        xm = np.array(np.broadcast_to(m0, (R, M, n)) if m0.ndim == 1 else np.repeat(m0[:, None], M, axis=1))
+        Pm = np.array(np.broadcast_to(C0, (R, M, n, n)) if C0.ndim == 2 else np.repeat(C0[:, None], M, axis=1))
+        mu = np.array(np.broadcast_to(self.probabilities, (R, M)))
+        out = {k: np.empty((R, K) + s) for k, s in (
+            ("x", (n,)), ("P", (n, n)), ("x_pred", (n,)), ("P_pred", (n, n)), ("innovation", (n_y,)),
+            ("S", (n_y, n_y)), ("nis", ()), ("loglik", ()), ("mu", (M,)), ("cbar", (M,)), ("mode_x", (M, n)),
+            ("mode_P", (M, n, n)), ("mode_loglik", (M,)))}
+        step_x, step_P = np.empty((R, M, n)), np.empty((R, M, n, n))
+        step_xp, step_Pp = np.empty((R, M, n)), np.empty((R, M, n, n))
+        step_nu, step_S, step_l = np.empty((R, M, n_y)), np.empty((R, M, n_y, n_y)), np.empty((R, M))
+        for k in range(K):
+            # 1–2: the mixing probabilities μ_{i|j} = p_ij μ_i / c̄_j and the mixed Gaussians.
+            joint = mu[:, :, None] * T  # (R, i, j)
+            cbar = joint.sum(axis=1)
+            # A mode no other mode can reach (c̄_j = 0) keeps its own posterior; its weight is 0.
+            w = np.divide(joint, cbar[:, None, :], out=np.eye(M)[None].repeat(R, axis=0), where=cbar[:, None, :] > 0)
+            x_mix, P_mix = _mix(w, xm, Pm, angles)
+            # 3: each mode's compiled predict + update step, on all the runs at once.
+            Yk = Yb[:, k:k + 1]
+            for j, kf in enumerate(self.filters):
+                pv = None if pvs[j] is None else np.ascontiguousarray(pvs[j][:, k:k + 1])
+                extra = {} if pv is None else {"params": pv}
+                res, _ = kf.strategy.run(kf, Yk, x_mix[:, j], P_mix[:, j], None, **extra)
+                for buf, name in ((step_x, "x"), (step_P, "P"), (step_xp, "x_pred"), (step_Pp, "P_pred"),
+                                  (step_nu, "innovation"), (step_S, "S"), (step_l, "loglik")):
+                    buf[:, j] = res[name][:, 0]
+                bad = ~(np.isfinite(step_l[:, j]) & np.isfinite(step_x[:, j]).all(axis=-1)
+                        & np.isfinite(step_P[:, j]).all(axis=(-1, -2)))
+                if bad.any():
+                    r = int(np.argmax(bad))
+                    where = f"step {k}" if runs is None else f"run {r}, step {k}"
+                    raise NonFiniteError(
+                        f"IMM: mode {j} ({self.modes[j]}) produced NaN or inf at {where} (its innovation covariance "
+                        "S is singular or not positive definite, a covariance lost positive definiteness, or a "
+                        "derivative is undefined there)")
+            # 4: μ_j ∝ c̄_j Λ_j, with Λ_j scaled by the largest (no underflow); log c = log Σ_j c̄_j Λ_j
+            # is the step's log-likelihood.  c̄ sums to 1 up to rounding: dividing by its sum makes
+            # a step without a measurement (every Λ_j = 1) give μ = c̄ and log c = 0 exactly.
+            top = step_l.max(axis=1)
+            e = cbar * np.exp(step_l - top[:, None])
+            total = e.sum(axis=1)
+            log_c = top + np.log(total / cbar.sum(axis=1))
+            mu = e / total[:, None]
+            # 5: the combined estimate; the combined prediction and predicted measurement with c̄.
+            x, P = _mix(mu[:, :, None], step_x, step_P, angles)
+            xp, Pp = _mix(cbar[:, :, None], step_xp, step_Pp, angles)
+            nu, S = _mix(cbar[:, :, None], step_nu, step_S, [])
+            xm, Pm = step_x.copy(), step_P.copy()
+            for name, v in (("x", x[:, 0]), ("P", P[:, 0]), ("x_pred", xp[:, 0]), ("P_pred", Pp[:, 0]),
+                            ("innovation", nu[:, 0]), ("S", S[:, 0]), ("loglik", log_c), ("mu", mu),
+                            ("cbar", cbar), ("mode_x", xm), ("mode_P", Pm), ("mode_loglik", step_l)):
+                out[name][:, k] = v
+        # The combined NIS, on the measured block (a missing component has ν = 0, a unit S entry).
+        out["nis"] = _quadratic_forms(out["innovation"], out["S"], "combined innovation covariance S")
+        measured = readonly((~np.isnan(Yb)).sum(axis=-1)) if np.isnan(Yb).any() else None
+        nees = None
+        if truth is not None:
+            nees = _nees(out["x"], out["P"], truth.reshape(R, K, n), angles)
+        if runs is None:
+            out = {k: v[0] for k, v in out.items()}
+            measured = None if measured is None else measured[0]
+            nees = None if nees is None else nees[0]
+        out = {k: readonly(v) for k, v in out.items()}
+        return IMMResult(x=out["x"], P=out["P"], x_pred=out["x_pred"], P_pred=out["P_pred"],
+                         innovation=out["innovation"], S=out["S"], loglik=out["loglik"],
+                         angle_states=tuple(angles), method="IMM(" + ", ".join(self.modes) + ")",
+                         measured=measured, nis_values=out["nis"], n_y=n_y,
+                         nees_values=None if nees is None else readonly(nees), n_x=n,
+                         mode_probabilities=out["mu"], predicted_probabilities=out["cbar"], mode_x=out["mode_x"],
+                         mode_P=out["mode_P"], mode_loglik=out["mode_loglik"], modes=self.modes)
