@@ -39,6 +39,9 @@ K. V. Mardia, P. E. Jupp, *Directional Statistics*, Wiley, 2000, §2.2.1 (the ci
 
 from __future__ import annotations
 
+import ctypes
+import hashlib
+import threading
 from dataclasses import dataclass
 from typing import Iterable, Sequence
 
@@ -50,11 +53,15 @@ from ..core.angles import wrap_angle
 from ..core.checks import readonly
 from ..core.gaussian import Gaussian, float_array
 from ..core.model import Model
-from ..errors import ArgumentError, ArgumentTypeError, ModelError, NonFiniteError, ShapeError
+from ..compile.ccache import NativeLibrary
+from ..compile.compiled import WorkArrays, generated_c, in_threads
+from ..errors import ArgumentError, ArgumentTypeError, ModelError, NonFiniteError, ShapeError, SymmonError
 from ..transforms import TT1
 from .linear import KalmanFilter
 from .nonlinear import NonlinearKalmanFilter
 from .results import KalmanResult, _nees, _quadratic_forms, check_bank_size, check_truth, real_measurements
+from .step import _compiled_step, chunk_runs
+from .strategy import RuleStrategy
 
 __all__ = ["IMM", "IMMResult"]
 
@@ -314,8 +321,8 @@ class IMM:
             raise ShapeError(f"ys must have shape (K, {n_y}) or (R, K, {n_y}) with K >= 1, got {Y.shape}")
         runs = Y.shape[0] if Y.ndim == 3 else None
         R, K = runs or 1, Y.shape[-2]
-        # Combined x, P, x_pred, P_pred, ν, S, NIS, log c; per mode μ, c̄, x, P, log Λ.
-        per_step = 2 * (n + n * n) + n_y + n_y * n_y + 2 + M * (3 + n + n * n)
+        # Combined x, P, x_pred, P_pred, ν, S, NIS, log c; per mode μ, c̄, log Λ, x, P, x⁻, P⁻, ν, S.
+        per_step = 2 * (n + n * n) + n_y + n_y * n_y + 2 + M * (3 + 2 * (n + n * n) + n_y + n_y * n_y)
         check_bank_size(R, K, per_step, "IMM results", "filter the runs in smaller banks, or fewer steps at a time")
         if np.isinf(Y).any():
             where = tuple(int(i) for i in np.argwhere(np.isinf(Y))[0])
@@ -325,60 +332,23 @@ class IMM:
         pvs = self._mode_params(params, runs, K)
         Yb = Y.reshape(R, K, n_y)
         angles = sorted(self.angle_states)
-        T = self.transition
-
-        xm = np.array(np.broadcast_to(m0, (R, M, n)) if m0.ndim == 1 else np.repeat(m0[:, None], M, axis=1))
-        Pm = np.array(np.broadcast_to(C0, (R, M, n, n)) if C0.ndim == 2 else np.repeat(C0[:, None], M, axis=1))
-        mu = np.array(np.broadcast_to(self.probabilities, (R, M)))
-        out = {k: np.empty((R, K) + s) for k, s in (
-            ("x", (n,)), ("P", (n, n)), ("x_pred", (n,)), ("P_pred", (n, n)), ("innovation", (n_y,)),
-            ("S", (n_y, n_y)), ("nis", ()), ("loglik", ()), ("mu", (M,)), ("cbar", (M,)), ("mode_x", (M, n)),
-            ("mode_P", (M, n, n)), ("mode_loglik", (M,)))}
-        step_x, step_P = np.empty((R, M, n)), np.empty((R, M, n, n))
-        step_xp, step_Pp = np.empty((R, M, n)), np.empty((R, M, n, n))
-        step_nu, step_S, step_l = np.empty((R, M, n_y)), np.empty((R, M, n_y, n_y)), np.empty((R, M))
-        for k in range(K):
-            # 1–2: the mixing probabilities μ_{i|j} = p_ij μ_i / c̄_j and the mixed Gaussians.
-            joint = mu[:, :, None] * T  # (R, i, j)
-            cbar = joint.sum(axis=1)
-            # A mode no other mode can reach (c̄_j = 0) keeps its own posterior; its weight is 0.
-            w = np.divide(joint, cbar[:, None, :], out=np.eye(M)[None].repeat(R, axis=0), where=cbar[:, None, :] > 0)
-            x_mix, P_mix = _mix(w, xm, Pm, angles)
-            # 3: each mode's compiled predict + update step, on all the runs at once.
-            Yk = Yb[:, k:k + 1]
-            for j, kf in enumerate(self.filters):
-                pv = None if pvs[j] is None else np.ascontiguousarray(pvs[j][:, k:k + 1])
-                extra = {} if pv is None else {"params": pv}
-                res, _ = kf.strategy.run(kf, Yk, x_mix[:, j], P_mix[:, j], None, **extra)
-                for buf, name in ((step_x, "x"), (step_P, "P"), (step_xp, "x_pred"), (step_Pp, "P_pred"),
-                                  (step_nu, "innovation"), (step_S, "S"), (step_l, "loglik")):
-                    buf[:, j] = res[name][:, 0]
-                bad = ~(np.isfinite(step_l[:, j]) & np.isfinite(step_x[:, j]).all(axis=-1)
-                        & np.isfinite(step_P[:, j]).all(axis=(-1, -2)))
-                if bad.any():
-                    r = int(np.argmax(bad))
-                    where = f"step {k}" if runs is None else f"run {r}, step {k}"
-                    raise NonFiniteError(
-                        f"IMM: mode {j} ({self.modes[j]}) produced NaN or inf at {where} (its innovation covariance "
-                        "S is singular or not positive definite, a covariance lost positive definiteness, or a "
-                        "derivative is undefined there)")
-            # 4: μ_j ∝ c̄_j Λ_j, with Λ_j scaled by the largest (no underflow); log c = log Σ_j c̄_j Λ_j
-            # is the step's log-likelihood.  c̄ sums to 1 up to rounding: dividing by its sum makes
-            # a step without a measurement (every Λ_j = 1) give μ = c̄ and log c = 0 exactly.
-            top = step_l.max(axis=1)
-            e = cbar * np.exp(step_l - top[:, None])
-            total = e.sum(axis=1)
-            log_c = top + np.log(total / cbar.sum(axis=1))
-            mu = e / total[:, None]
-            # 5: the combined estimate; the combined prediction and predicted measurement with c̄.
-            x, P = _mix(mu[:, :, None], step_x, step_P, angles)
-            xp, Pp = _mix(cbar[:, :, None], step_xp, step_Pp, angles)
-            nu, S = _mix(cbar[:, :, None], step_nu, step_S, [])
-            xm, Pm = step_x.copy(), step_P.copy()
-            for name, v in (("x", x[:, 0]), ("P", P[:, 0]), ("x_pred", xp[:, 0]), ("P_pred", Pp[:, 0]),
-                            ("innovation", nu[:, 0]), ("S", S[:, 0]), ("loglik", log_c), ("mu", mu),
-                            ("cbar", cbar), ("mode_x", xm), ("mode_P", Pm), ("mode_loglik", step_l)):
-                out[name][:, k] = v
+        loop = self._fused_loop()
+        run = None if loop is None else loop.native()
+        if run is not None:
+            modes, failed = loop(run, m0, C0, Yb, [kf.Q for kf in self.filters], [kf.R for kf in self.filters], pvs,
+                                 self.transition, self.probabilities)
+        else:
+            modes, failed = self._python_loop(m0, C0, Yb, pvs)
+        if (failed[:, 0] >= 0).any():
+            k = failed[failed[:, 0] >= 0, 0].min()  # the first step that failed, in its first run
+            r = int(np.argmax(failed[:, 0] == k))
+            j = int(failed[r, 1])
+            where = f"step {k}" if runs is None else f"run {r}, step {k}"
+            raise NonFiniteError(
+                f"IMM: mode {j} ({self.modes[j]}) produced NaN or inf at {where} (its innovation covariance "
+                "S is singular or not positive definite, a covariance lost positive definiteness, or a "
+                "derivative is undefined there)")
+        out = _combine(modes, angles)
         # The combined NIS, on the measured block (a missing component has ν = 0, a unit S entry).
         out["nis"] = _quadratic_forms(out["innovation"], out["S"], "combined innovation covariance S")
         measured = readonly((~np.isnan(Yb)).sum(axis=-1)) if np.isnan(Yb).any() else None
@@ -397,3 +367,298 @@ class IMM:
                          nees_values=None if nees is None else readonly(nees), n_x=n,
                          mode_probabilities=out["mu"], predicted_probabilities=out["cbar"], mode_x=out["mode_x"],
                          mode_P=out["mode_P"], mode_loglik=out["mode_loglik"], modes=self.modes)
+
+    def _fused_loop(self) -> "_FusedLoop | None":
+        """The compiled loop over the steps and runs of a bank with every mode's step inside
+        it, when every mode runs one compiled rule (None: an adaptive mode)."""
+        if not all(isinstance(kf.strategy, RuleStrategy) for kf in self.filters):
+            return None
+        steps = tuple(_compiled_step(kf.f_model, kf.h_model, kf.strategy.transform, kf.angle_states, kf.iterations)
+                      for kf in self.filters)
+        key = (tuple(st.f.name() for st in steps), tuple(sorted(self.angle_states)))
+        with _loops_lock:
+            loop = _loops.get(key)
+            if loop is None:
+                loop = _loops[key] = _FusedLoop(steps, sorted(self.angle_states))
+        return loop
+
+    def _python_loop(self, m0: np.ndarray, C0: np.ndarray, Yb: np.ndarray, pvs: list):
+        """The IMM recursion with each mode's compiled step called per time step on all the runs
+        (the fallback of the fused loop: an adaptive mode, or no compiled C yet).  Returns the
+        modes' arrays (R, K, M, ...) and, per run, the first failed step and its mode (or −1)."""
+        R, K, _ = Yb.shape
+        n, n_y, M = self.n, self.n_y, len(self.filters)
+        angles = sorted(self.angle_states)
+        T = self.transition
+        xm = np.array(np.broadcast_to(m0, (R, M, n)) if m0.ndim == 1 else np.repeat(m0[:, None], M, axis=1))
+        Pm = np.array(np.broadcast_to(C0, (R, M, n, n)) if C0.ndim == 2 else np.repeat(C0[:, None], M, axis=1))
+        mu = np.array(np.broadcast_to(self.probabilities, (R, M)))
+        modes = _mode_arrays(R, K, M, n, n_y)
+        failed = np.full((R, 2), -1, dtype=np.int64)
+        for k in range(K):
+            # 1–2: the mixing probabilities μ_{i|j} = p_ij μ_i / c̄_j and the mixed Gaussians.
+            joint = mu[:, :, None] * T  # (R, i, j)
+            cbar = joint.sum(axis=1)
+            # A mode no other mode can reach (c̄_j = 0) keeps its own posterior; its weight is 0.
+            w = np.divide(joint, cbar[:, None, :], out=np.eye(M)[None].repeat(R, axis=0), where=cbar[:, None, :] > 0)
+            x_mix, P_mix = _mix(w, xm, Pm, angles)
+            # 3: each mode's compiled predict + update step, on all the runs at once.
+            Yk = Yb[:, k:k + 1]
+            for j, kf in enumerate(self.filters):
+                pv = None if pvs[j] is None else np.ascontiguousarray(pvs[j][:, k:k + 1])
+                extra = {} if pv is None else {"params": pv}
+                res, _ = kf.strategy.run(kf, Yk, x_mix[:, j], P_mix[:, j], None, **extra)
+                for name in _MODE_OUTPUTS:
+                    modes[name][:, k, j] = res[name][:, 0]
+                bad = ~(np.isfinite(modes["loglik"][:, k, j]) & np.isfinite(modes["x"][:, k, j]).all(axis=-1)
+                        & np.isfinite(modes["P"][:, k, j]).all(axis=(-1, -2)))
+                if bad.any():
+                    failed[bad & (failed[:, 0] < 0)] = (k, j)
+                    return modes, failed
+            mu = _mode_probabilities(cbar, modes["loglik"][:, k])[0]
+            modes["mu"][:, k], modes["cbar"][:, k] = mu, cbar
+            xm, Pm = modes["x"][:, k], modes["P"][:, k]
+        return modes, failed
+
+
+#: The outputs of a mode's step that the IMM keeps, (R, K, M, ...) each.
+_MODE_OUTPUTS = ("x", "P", "x_pred", "P_pred", "innovation", "S", "loglik")
+
+
+def _mode_arrays(R: int, K: int, M: int, n: int, n_y: int) -> dict[str, np.ndarray]:
+    """Empty arrays for the modes' step outputs and probabilities."""
+    shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n), "innovation": (n_y,), "S": (n_y, n_y),
+              "loglik": ()}
+    out = {k: np.empty((R, K, M) + s) for k, s in shapes.items()}
+    out["mu"], out["cbar"] = np.empty((R, K, M)), np.empty((R, K, M))
+    return out
+
+
+def _mode_probabilities(cbar: np.ndarray, loglik: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """μ_j ∝ c̄_j Λ_j and log c = log Σ_j c̄_j Λ_j, for c̄ and log Λ (..., M).
+
+    The Λ_j are scaled by the largest (no underflow); c̄ sums to 1 up to rounding, and
+    dividing by its sum makes a step without a measurement (every Λ_j = 1) give μ = c̄ and
+    log c = 0 exactly."""
+    top = loglik.max(axis=-1)
+    e = cbar * np.exp(loglik - top[..., None])
+    total = e.sum(axis=-1)
+    return e / total[..., None], top + np.log(total / cbar.sum(axis=-1))
+
+
+def _combine(modes: dict[str, np.ndarray], angles: list[int]) -> dict[str, np.ndarray]:
+    """The combined estimate of every step of every run from the modes' arrays (R, K, M, ...):
+    x, P with μ; x_pred, P_pred and the predicted measurement (ν, S) with c̄; log c."""
+    R, K, M, n = modes["x"].shape
+    n_y = modes["innovation"].shape[-1]
+    flat = {k: v.reshape((R * K,) + v.shape[2:]) for k, v in modes.items()}
+    mu, cbar = flat["mu"][:, :, None], flat["cbar"][:, :, None]
+    x, P = _mix(mu, flat["x"], flat["P"], angles)
+    xp, Pp = _mix(cbar, flat["x_pred"], flat["P_pred"], angles)
+    nu, S = _mix(cbar, flat["innovation"], flat["S"], [])
+    log_c = _mode_probabilities(flat["cbar"], flat["loglik"])[1]
+    out = {"x": x.reshape(R, K, n), "P": P.reshape(R, K, n, n), "x_pred": xp.reshape(R, K, n),
+           "P_pred": Pp.reshape(R, K, n, n), "innovation": nu.reshape(R, K, n_y), "S": S.reshape(R, K, n_y, n_y),
+           "loglik": log_c.reshape(R, K)}
+    out.update(mu=modes["mu"], cbar=modes["cbar"], mode_x=modes["x"], mode_P=modes["P"], mode_loglik=modes["loglik"])
+    return out
+
+
+# The fused loop: for each run, K steps of the IMM recursion, each calling the modes' steps.
+# outs[0..6] are the modes' x, P, x⁻, P⁻, ν, S, log Λ (run, step, mode, ...), outs[7] μ and
+# outs[8] c̄.  A mode's previous x and P are its outputs of the step before.
+_DRIVER = """
+/* symmon: an IMM over the filter steps {steps}. */
+#include <math.h>
+#include <string.h>
+static int {name}_bad(const casadi_real* a, casadi_int n) {{
+  unsigned long long u, bad = 0;
+  casadi_int j;
+  for (j = 0; j < n; ++j) {{
+    memcpy(&u, a + j, sizeof u);
+    bad |= (u & 0x7ff0000000000000ULL) == 0x7ff0000000000000ULL;
+  }}
+  return bad != 0;
+}}
+static casadi_real {name}_wrap(casadi_real a) {{
+  casadi_real r = fmod(a + M_PI, 2 * M_PI);
+  if (r < 0) r += 2 * M_PI;
+  r -= M_PI;
+  return r == -M_PI ? M_PI : r;
+}}
+static int {name}_step(casadi_int j, const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w) {{
+  switch (j) {{
+{cases}
+  }}
+  return 1;
+}}
+
+CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step, const casadi_real* P0,
+    casadi_int P0_step, const casadi_real* y, const casadi_real* mask, const casadi_real* const* Qs,
+    const casadi_real* const* Rs, const casadi_real* const* ps, const casadi_int* p_sizes, const casadi_real* T,
+    const casadi_real* mu0, casadi_real* const* outs, casadi_int runs, casadi_int K, casadi_int* iw,
+    casadi_real* w, casadi_int* failed) {{
+  const casadi_real* arg[{sz_arg}];
+  casadi_real* res[{sz_res}];
+  const casadi_real* xprev[M_];
+  const casadi_real* Pprev[M_];
+  casadi_real mu[M_], cbar[M_], wm[M_ * M_], xmix[M_ * N_], Pmix[M_ * N_ * N_], d[N_], nis, top, tot, s, c;
+  casadi_int r, k, i, j, a, b, t;
+  static const casadi_int angles[] = {{{angles}}};
+  for (r = 0; r < runs; ++r) {{
+    failed[2 * r] = -1;
+    failed[2 * r + 1] = -1;
+    for (j = 0; j < M_; ++j) mu[j] = mu0[j];
+    for (k = 0; k < K; ++k) {{
+      t = r * K + k;
+      for (i = 0; i < M_; ++i) {{
+        xprev[i] = k ? outs[0] + ((t - 1) * M_ + i) * N_ : x0 + r * x0_step;
+        Pprev[i] = k ? outs[1] + ((t - 1) * M_ + i) * N_ * N_ : P0 + r * P0_step;
+      }}
+      /* 1: c̄_j = Σ_i p_ij μ_i, μ_(i|j) = p_ij μ_i / c̄_j (a mode nothing reaches keeps its own) */
+      for (j = 0; j < M_; ++j) {{
+        cbar[j] = 0;
+        for (i = 0; i < M_; ++i) cbar[j] += mu[i] * T[i * M_ + j];
+        for (i = 0; i < M_; ++i) wm[i * M_ + j] = cbar[j] > 0 ? mu[i] * T[i * M_ + j] / cbar[j] : (i == j);
+      }}
+      /* 2: the mixed Gaussians, angle states by circular means and wrapped deviations */
+      for (j = 0; j < M_; ++j) {{
+        casadi_real* xj = xmix + j * N_;
+        casadi_real* Pj = Pmix + j * N_ * N_;
+        for (a = 0; a < N_; ++a) {{
+          xj[a] = 0;
+          for (i = 0; i < M_; ++i) xj[a] += wm[i * M_ + j] * xprev[i][a];
+        }}
+        for (b = 0; b < N_ANG; ++b) {{
+          a = angles[b];
+          s = c = 0;
+          for (i = 0; i < M_; ++i) {{
+            s += wm[i * M_ + j] * sin(xprev[i][a]);
+            c += wm[i * M_ + j] * cos(xprev[i][a]);
+          }}
+          xj[a] = atan2(s, c);
+        }}
+        for (a = 0; a < N_ * N_; ++a) Pj[a] = 0;
+        for (i = 0; i < M_; ++i) {{
+          casadi_real wi = wm[i * M_ + j];
+          for (a = 0; a < N_; ++a) d[a] = xprev[i][a] - xj[a];
+          for (b = 0; b < N_ANG; ++b) d[angles[b]] = {name}_wrap(d[angles[b]]);
+          for (b = 0; b < N_; ++b)
+            for (a = 0; a < N_; ++a) Pj[a + b * N_] += wi * (Pprev[i][a + b * N_] + d[a] * d[b]);
+        }}
+        for (b = 0; b < N_; ++b)
+          for (a = 0; a < b; ++a) Pj[a + b * N_] = Pj[b + a * N_] = 0.5 * (Pj[a + b * N_] + Pj[b + a * N_]);
+      }}
+      /* 3: each mode's predict + update step from its mixed Gaussian */
+      for (j = 0; j < M_; ++j) {{
+        casadi_int o = t * M_ + j;
+        arg[0] = xmix + j * N_; arg[1] = Pmix + j * N_ * N_; arg[2] = y + t * NY_; arg[3] = Qs[j]; arg[4] = Rs[j];
+        arg[5] = mask + t * NY_; arg[6] = ps[j] + t * p_sizes[j];
+        res[0] = outs[0] + o * N_; res[1] = outs[1] + o * N_ * N_; res[2] = outs[2] + o * N_;
+        res[3] = outs[3] + o * N_ * N_; res[4] = outs[4] + o * NY_; res[5] = outs[5] + o * NY_ * NY_;
+        res[6] = outs[6] + o; res[7] = &nis;
+        if ({name}_step(j, arg, res, iw, w)) return 1;
+        if ({name}_bad(res[6], 1) || {name}_bad(res[0], N_) || {name}_bad(res[1], N_ * N_)) {{
+          failed[2 * r] = k;
+          failed[2 * r + 1] = j;
+          break;
+        }}
+      }}
+      if (failed[2 * r] >= 0) break;
+      /* 4: μ_j ∝ c̄_j Λ_j, the Λ_j scaled by the largest */
+      top = outs[6][t * M_];
+      for (j = 1; j < M_; ++j) if (outs[6][t * M_ + j] > top) top = outs[6][t * M_ + j];
+      tot = 0;
+      for (j = 0; j < M_; ++j) {{
+        mu[j] = cbar[j] * exp(outs[6][t * M_ + j] - top);
+        tot += mu[j];
+      }}
+      for (j = 0; j < M_; ++j) {{
+        mu[j] /= tot;
+        outs[7][t * M_ + j] = mu[j];
+        outs[8][t * M_ + j] = cbar[j];
+      }}
+    }}
+  }}
+  return 0;
+}}
+"""
+
+
+class _FusedLoop:
+    """The IMM recursion over the steps and runs of a bank in one compiled C loop, with the
+    modes' compiled steps (:mod:`symmon.filters.step`) inside it: the mixing (circular means
+    for angle states), each mode's predict + update and the mode probabilities run in C; the
+    combination of the modes' outputs is done afterwards, vectorised (:func:`_combine`).
+    Built by the compile policy of every generated function (docs/compile.md); while it is
+    not compiled (no compiler, or a background build) :meth:`native` is None."""
+
+    def __init__(self, steps: tuple, angles: list[int]) -> None:
+        fns = list({st.f.name(): st.f for st in steps}.values())  # a step two modes share: once
+        names = [st.f.name() for st in steps]
+        self.n, self.n_y, self.M = steps[0].n, steps[0].n_y, len(steps)
+        self.p_sizes = np.array([max(st.n_p, 1) for st in steps], dtype=np.int64)
+        key = repr((names, angles))
+        name = "sm_imm_" + hashlib.sha1(key.encode()).hexdigest()[:12]
+        cases = "\n".join(f"    case {j}: return {nm}(arg, res, iw, w, 0);" for j, nm in enumerate(names))
+        defines = (f"#define M_ {self.M}\n#define N_ {self.n}\n#define NY_ {self.n_y}\n#define N_ANG {len(angles)}\n"
+                   "#ifndef M_PI\n#define M_PI 3.14159265358979323846\n#endif\n")
+        code = generated_c(*fns) + defines + _DRIVER.format(
+            name=name, steps=", ".join(names), cases=cases, angles=", ".join(map(str, angles or [0])),
+            sz_arg=max(max(f.sz_arg() for f in fns), 7), sz_res=max(max(f.sz_res() for f in fns), 8))
+        self._work = WorkArrays(*fns)
+        self._name = name
+        self._lib = NativeLibrary(code, name, self._load, stacklevel=5)
+
+    def _load(self, so):
+        run = getattr(ctypes.CDLL(str(so)), f"{self._name}_run")
+        run.argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_longlong]
+                        + [ctypes.c_void_p] * 9 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 3)
+        run.restype = ctypes.c_int
+        return run
+
+    def native(self):
+        """The compiled loop, or None while it is not (evaluate with the modes' steps)."""
+        return self._lib.get()
+
+    def __call__(self, run, m0: np.ndarray, C0: np.ndarray, Yb: np.ndarray, Qs: list, Rs: list, pvs: list,
+                 T: np.ndarray, mu0: np.ndarray):
+        """The modes' arrays (R, K, M, ...) and (R, 2) the first failed step of each run and
+        its mode (−1: none) of the bank Yb (R, K, n_y), NaN for a missing measurement."""
+        R, K, _ = Yb.shape
+        n, n_y, M = self.n, self.n_y, self.M
+        measured = ~np.isnan(Yb)
+        mask = np.ascontiguousarray(measured, dtype=float)
+        Y = np.ascontiguousarray(np.where(measured, Yb, 0.0))
+        modes = _mode_arrays(R, K, M, n, n_y)
+        blocks = [modes[k] for k in _MODE_OUTPUTS] + [modes["mu"], modes["cbar"]]
+        x0, P0 = np.ascontiguousarray(m0, dtype=float), np.ascontiguousarray(C0, dtype=float)
+        x_step, P_step = (n if x0.ndim == 2 else 0), (n * n if P0.ndim == 3 else 0)
+        Qs = [np.ascontiguousarray(Q, dtype=float) for Q in Qs]
+        Rs = [np.ascontiguousarray(Rm, dtype=float) for Rm in Rs]
+        ps = [np.zeros((R, K, 1)) if p is None else np.ascontiguousarray(p, dtype=float) for p in pvs]
+        T, mu0 = np.ascontiguousarray(T, dtype=float), np.ascontiguousarray(mu0, dtype=float)
+        failed = np.empty((R, 2), dtype=np.int64)
+        chunks = chunk_runs(R, K * M, n)
+
+        def pointers(arrays):
+            return (ctypes.c_void_p * len(arrays))(*[a.ctypes.data for a in arrays])
+
+        Qp, Rp = pointers(Qs), pointers(Rs)
+
+        def part(c: int) -> int:
+            a, b = chunks[c]
+            outs = (ctypes.c_void_p * len(blocks))(*[blk[a].ctypes.data for blk in blocks])
+            iw, w = self._work.addresses()
+            return run(x0.ctypes.data + 8 * a * x_step, x_step, P0.ctypes.data + 8 * a * P_step, P_step,
+                       Y[a].ctypes.data, mask[a].ctypes.data, Qp, Rp, pointers([p[a] for p in ps]),
+                       self.p_sizes.ctypes.data, T.ctypes.data, mu0.ctypes.data, outs, b - a, K, iw, w,
+                       failed[a].ctypes.data)
+
+        if any(in_threads(part, list(range(len(chunks))))):
+            raise SymmonError(f"the compiled IMM loop {self._name} returned an error")
+        return modes, failed
+
+
+_loops: dict[tuple, _FusedLoop] = {}
+_loops_lock = threading.Lock()

@@ -279,3 +279,42 @@ def test_modes_must_agree_on_angles():
     b = sm.NonlinearKalmanFilter(sm.Model([th], [th], name="b"), h, [[1.0]], [[1.0]], sm.TT1())
     with pytest.raises(ShapeError, match=r"mode 1 has angle states \[\], mode 0 \[0\]"):
         sm.IMM([a, b], np.eye(2), [0.5, 0.5])
+
+
+# ---------------------------------------------------------- the compiled loop and its fallback
+def heading_imm():
+    th = sp.Symbol("theta", real=True)
+    h = sm.Model([th], [th], angles=[0], name="heading")
+    turns = [sm.NonlinearKalmanFilter(sm.Model([th], [th + a], angles=[0], name=f"turn{a}"), h, [[1e-4]], [[0.01]],
+                                      sm.TT1()) for a in (0.2, -0.2)]
+    return sm.IMM(turns, [[0.7, 0.3], [0.4, 0.6]], [0.5, 0.5])
+
+
+def test_the_compiled_loop_equals_the_loop_over_steps(modes, monkeypatch):
+    """The fused C loop (mixing, steps and mode probabilities in C) and the fallback that calls
+    each mode's compiled step per time step (an adaptive mode, or no compiler): the same sums
+    in another order, to 1e-12; angle states, missing rows and components, and parameters."""
+    _, ys = manoeuvre(runs=3)
+    ys[0, 4] = np.nan
+    ys[2, 30, 1] = np.nan
+    imm = sm.IMM(list(modes), [[0.95, 0.05], [0.05, 0.95]], [0.9, 0.1])
+    cases = [(imm, ys, X0), (heading_imm(), np.full((2, 6, 1), np.pi), sm.Gaussian([np.pi - 0.01], [[0.04]]))]
+    fused = [m.filter(y, x0) for m, y, x0 in cases]
+    assert all(m._fused_loop().native() is not None for m, _, _ in cases)
+    monkeypatch.setattr("symmon.filters.imm._FusedLoop.native", lambda self: None)
+    for (m, y, x0), a in zip(cases, fused):
+        b = m.filter(y, x0)
+        for name in ("x", "P", "x_pred", "P_pred", "innovation", "S", "loglik", "mode_probabilities",
+                     "predicted_probabilities", "mode_x", "mode_P", "mode_loglik"):
+            close(getattr(b, name), getattr(a, name), 1e-12)
+
+
+def test_an_adaptive_mode_runs_step_by_step(modes):
+    cv, ct = modes
+    rules = sm.Adaptive(0.01, candidates=("tt1", "ct"), reference=sm.GaussHermite(3, sparse=False))
+    adaptive = sm.NonlinearKalmanFilter(ct.f_model, ct.h_model, ct.Q, ct.R, rules)
+    imm = sm.IMM([cv, adaptive], [[0.95, 0.05], [0.05, 0.95]], [0.9, 0.1])
+    assert imm._fused_loop() is None
+    _, ys = manoeuvre(runs=1)
+    res = imm.filter(ys[0, :25], X0)
+    assert res.mode_probabilities[23, 1] > 0.5  # the turn began at step 20
