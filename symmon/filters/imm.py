@@ -25,7 +25,11 @@ measurement (NaN) skips every mode's update on the missing components (as in
 :meth:`symmon.NonlinearKalmanFilter.filter`); a row of NaN leaves μ = c̄.
 
 Each mode-matched step is the mode's own compiled predict + update step
-(:mod:`symmon.filters.step`), called on all the runs of a bank at once.
+(:mod:`symmon.filters.step`).  When every mode runs one compiled rule, the recursion of a
+whole bank (mixing, the modes' steps, the mode probabilities) is one generated C loop around
+those steps (:class:`_FusedLoop`), and the combination is vectorised over the runs and steps
+afterwards; otherwise (an adaptive mode, no compiler) each mode's step is called per time
+step on all the runs, NumPy between the calls.
 
 References
 ----------
@@ -132,22 +136,21 @@ def _probabilities(p: ArrayLike, name: str, shape: tuple[int, ...]) -> np.ndarra
     return readonly(arr / sums[..., None] if arr.ndim == 2 else arr / sums)
 
 
-def _mix(w: np.ndarray, xs: np.ndarray, Ps: np.ndarray | None, angles: list[int]):
+def _mix(w: np.ndarray, xs: np.ndarray, Ps: np.ndarray, angles: list[int]) -> tuple[np.ndarray, np.ndarray]:
     """The moment-matched mixtures Σ_i w[:, i, j] N(xs[:, i], Ps[:, i]) for each j: means
-    (R, J, n) and covariances (R, J, n, n) (None without ``Ps``: the spread of the means only
-    is not wanted then); ``w`` (R, I, J) with columns summing to 1, xs (R, I, n).  Angle
-    components: the weighted circular mean and wrapped deviations."""
-    mean = np.einsum("rij,rin->rjn", w, xs)
+    (R, J, n) and covariances (R, J, n, n), for ``w`` (R, I, J) with columns summing to 1,
+    xs (R, I, n), Ps (R, I, n, n).  Angle components: the weighted circular mean and
+    wrapped deviations."""
+    R, I, n = xs.shape
+    wt = np.swapaxes(w, 1, 2)  # (R, J, I): the sums over i as batched products
+    mean = wt @ xs
     if angles:
         th = xs[..., angles]
-        mean[..., angles] = np.arctan2(np.einsum("rij,ria->rja", w, np.sin(th)),
-                                       np.einsum("rij,ria->rja", w, np.cos(th)))
-    if Ps is None:
-        return mean, None
-    d = xs[:, :, None, :] - mean[:, None, :, :]  # (R, I, J, n)
+        mean[..., angles] = np.arctan2(wt @ np.sin(th), wt @ np.cos(th))
+    d = xs[:, None, :, :] - mean[:, :, None, :]  # (R, J, I, n)
     if angles:
         d[..., angles] = wrap_angle(d[..., angles])
-    cov = np.einsum("rij,rinm->rjnm", w, Ps) + np.einsum("rij,rijn,rijm->rjnm", w, d, d)
+    cov = (wt @ Ps.reshape(R, I, n * n)).reshape(R, -1, n, n) + np.swapaxes(d * wt[..., None], -1, -2) @ d
     return mean, 0.5 * (cov + np.swapaxes(cov, -1, -2))
 
 
