@@ -69,9 +69,9 @@ for name, rule in (("EKF", sm.TT1()), ("CKF", sm.UT.cubature())):
           f"{res.mode_probabilities[:, turn, 1].mean():.2f}")
 
 # %%
-# The mode probabilities, averaged over the runs: both IMMs switch to the turn mode two
-# steps after the turn begins; the one whose turn mode is an EKF gives the turn up again
-# half-way through, while the CKF's keeps it.
+# The mode probabilities, averaged over the runs: both IMMs switch to the turn mode at the
+# turn's second step; the one whose turn mode is an EKF gives the turn up in its last steps,
+# while the target still turns, and the CKF's keeps it.
 
 fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4))
 ax1.plot(truth[:, 0] / 1e3, truth[:, 1] / 1e3, "k-", lw=1, label="truth")
@@ -92,9 +92,10 @@ fig.tight_layout()
 
 # %%
 # Why the EKF loses the turn: the MoN (43) of the coordinated turn at the turn mode's own
-# filtered Gaussian N(x_j, P_j) (run 0 of the CKF's IMM). It is about 0.35 at every step
-# (M² ≈ 0.13: of the variance of f over that Gaussian, averaged over its whitened output
-# directions, 13 % is beyond the best linear fit): the turn mode always carries a turn rate
+# filtered Gaussian N(x_j, P_j) (run 0 of the CKF's IMM). From the third step on it is 0.31
+# to 0.39, in the turn and out of it (M² = 0.10 to 0.15: of the variance of f over that
+# Gaussian, averaged over its whitened output directions, 10 to 15 % is beyond the best linear
+# fit): the turn mode always carries a turn rate
 # uncertain by a few hundredths of rad/s, and over T = 2 s at 150 m/s that bends the
 # predicted positions along arcs. In straight flight it costs nothing, since the
 # constant-velocity mode (linear, MoN 0) carries the estimate. In the turn the turn mode
