@@ -27,7 +27,7 @@ measurement (NaN) skips every mode's update on the missing components (as in
 Each mode-matched step is the mode's own compiled predict + update step
 (:mod:`symmon.filters.step`).  When every mode runs one compiled rule, the recursion of a
 whole bank (mixing, the modes' steps, the mode probabilities) is one generated C loop around
-those steps (:class:`_FusedLoop`), and the combination is vectorised over the runs and steps
+those steps (``_FusedLoop``), and the combination is vectorised over the runs and steps
 afterwards; otherwise (an adaptive mode, no compiler) each mode's step is called per time
 step on all the runs, NumPy between the calls.
 

@@ -69,6 +69,11 @@ def test_a_bank_equals_its_runs():
         close(bank.mode_probabilities[r], one.mode_probabilities, 1e-13)
         close(bank.loglik[r], one.loglik, 1e-13)
     assert bank.log_likelihood.shape == (3,)
+    # One initial state per run.
+    x0s = np.array(d["x0"]) + np.arange(3)[:, None]
+    per_run = imm.filter(np.stack([ys] * 3), x0s, np.array(d["P0"]))
+    for r in range(3):
+        close(per_run.x[r], imm.filter(ys, x0s[r], np.array(d["P0"])).x, 1e-13)
 
 
 # ------------------------------------------------------------- the tracking models
@@ -178,6 +183,13 @@ def test_one_mode_is_that_filter(modes):
     np.testing.assert_array_equal(one.measured, ref.measured)
     close(one.nis(), ref.nis(), 1e-12)
     np.testing.assert_array_equal(one.mode_probabilities, 1.0)
+    # A second mode that no mode can enter (a zero column of the transition matrix) has
+    # probability 0 throughout, and the IMM is the first mode's filter.
+    cv, _ = modes
+    two = sm.IMM([ct, cv], [[1.0, 0.0], [1.0, 0.0]], [1.0, 0.0]).filter(ys, X0)
+    np.testing.assert_array_equal(two.mode_probabilities[..., 1], 0.0)
+    close(two.x, ref.x, 1e-14)
+    close(two.P, ref.P, 1e-14)
 
 
 def test_a_row_without_measurement_keeps_the_predicted_mode_probabilities(modes):
@@ -236,7 +248,7 @@ def test_angle_states_are_mixed_with_circular_means():
 
 
 # ------------------------------------------------------------------------------ errors
-def test_a_failing_mode_is_named_with_its_run_and_step():
+def test_a_failing_mode_is_named_with_its_run_and_step(monkeypatch):
     s = sp.Symbol("s", real=True)
     h = sm.Model([s], [sp.log(s)], name="log")
     stay = sm.NonlinearKalmanFilter(sm.Model([s], [s], name="stay"), h, [[1e-6]], [[0.01]], sm.TT1())
@@ -245,6 +257,11 @@ def test_a_failing_mode_is_named_with_its_run_and_step():
     ys = np.log(np.array([[[100.0]] * 3, [[3.0]] * 3]))
     with pytest.raises(NonFiniteError, match=r"mode 1 \(EKF\(fall\)\) produced NaN or inf at run 1, step 0"):
         imm.filter(ys, np.array([[100.0], [3.0]]), np.array([[1e-6]]))
+    monkeypatch.setattr("symmon.filters.imm._FusedLoop.native", lambda self: None)  # the loop over steps
+    with pytest.raises(NonFiniteError, match=r"mode 1 \(EKF\(fall\)\) produced NaN or inf at run 1, step 0"):
+        imm.filter(ys, np.array([[100.0], [3.0]]), np.array([[1e-6]]))
+    with pytest.raises(NonFiniteError, match=r"mode 1 \(EKF\(fall\)\) produced NaN or inf at step 0"):
+        imm.filter(ys[1], np.array([3.0]), np.array([[1e-6]]))
 
 
 I2 = np.eye(2)
