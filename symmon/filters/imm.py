@@ -276,7 +276,7 @@ class IMM:
         for j, (kf, p) in enumerate(zip(self.filters, per_mode)):
             try:
                 out.append(kf._param_values(p, runs, K))
-            except ModelError as err:
+            except (ModelError, ShapeError) as err:
                 raise type(err)(f"mode {j} ({self.modes[j]}): {err}") from None
         return out
 

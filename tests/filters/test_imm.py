@@ -221,6 +221,8 @@ def test_parameters_reach_each_mode():
         b.filter(ys, X0, params={"dt": 1.0, "speed": 2.0})
     with pytest.raises(ModelError, match=r"mode 0 \(EKF\(cv_dt\)\): .*missing \['dt'\]"):
         b.filter(ys, X0)
+    with pytest.raises(ShapeError, match=r"mode 0 \(EKF\(cv_dt\)\): parameter 'dt' must be"):
+        b.filter(ys, X0, params={"dt": np.ones(5)})
 
 
 # ----------------------------------------------------------------------- angle states
