@@ -30,6 +30,7 @@ from .core import fuse as fuse
 from .errors import SymmonError as SymmonError
 from .files import load_model_file as load_model_file
 from .files import load_samples_file as load_samples_file
+from .filters import IMM as IMM
 from .filters import Adaptive as Adaptive
 from .filters import GaussianSumFilter as GaussianSumFilter
 from .filters import GaussianSumResult as GaussianSumResult
@@ -69,7 +70,7 @@ __all__ = [
     "NonlinearityMeasure", "MonParts", "mon_from_moments", "nonlinearity", "compare",
     "propagate", "propagate_many", "advise", "Advice",
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Cubature5", "Transform", "Moments", "Executor",
-    "NonlinearKalmanFilter", "Adaptive", "simulate", "ParticleFilter", "GaussianSumFilter", "GaussianSumResult",
+    "NonlinearKalmanFilter", "Adaptive", "IMM", "simulate", "ParticleFilter", "GaussianSumFilter", "GaussianSumResult",
 ]
 
 

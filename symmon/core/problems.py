@@ -6,6 +6,8 @@
   state (44) scaled by α.
 - :func:`radar_h`, :func:`radar_hinv`: the radar sensor of Gustafsson & Hendeby's
   lecture, its inverse for the direct approach.
+- :func:`coordinated_turn`: the coordinated turn with a turn-rate state (Bar-Shalom, Li &
+  Kirubarajan 2001, §11.7.2, (11.7.2-4)), the manoeuvring mode of an IMM.
 """
 
 from __future__ import annotations
@@ -19,7 +21,8 @@ from ..errors import SymmonError
 from .gaussian import Gaussian
 from .model import Model
 
-__all__ = ["Problem", "polar", "bot", "gmti", "rdcos", "radar_h", "radar_hinv", "BEARING_UNITS", "GMTI_SENSOR"]
+__all__ = ["Problem", "polar", "bot", "gmti", "rdcos", "radar_h", "radar_hinv", "coordinated_turn", "BEARING_UNITS",
+           "GMTI_SENSOR", "TURN_SERIES"]
 
 #: Size of common bearing units, in radians.
 BEARING_UNITS = {"rad": 1.0, "deg": np.pi / 180, "mrad": 1e-3, "grad": np.pi / 200}
@@ -147,3 +150,46 @@ def radar_hinv(p=(0.0, 0.0)) -> Model:
     r, phi = sp.symbols("r phi", real=True)
     p1, p2 = (sp.Float(float(c)) for c in p)
     return Model([r, phi], [p1 + r * sp.cos(phi), p2 + r * sp.sin(phi)], name="radar_hinv")
+
+
+#: Below this |ωT| the coordinated turn uses the Taylor series of its two ratios (to (ωT)⁴:
+#: an error below (ωT)⁶/5040 ≈ 2e-16 relative): sin(ωT)/ω and (1 − cos ωT)/ω are 0/0 at ω = 0,
+#: and their derivatives lose about eps/(ωT)² to cancellation just above it (2e-12).
+TURN_SERIES = 1e-2
+
+
+def coordinated_turn(T: float = 1.0) -> Model:
+    """The coordinated turn with unknown turn rate, state [x, y, ẋ, ẏ, ω] (Bar-Shalom, Li &
+    Kirubarajan 2001, §11.7.2, (11.7.2-4)): one step of T at the constant turn rate ω,
+
+        x⁺ = x + (sin ωT / ω) ẋ − ((1 − cos ωT) / ω) ẏ,   ẋ⁺ = cos ωT ẋ − sin ωT ẏ,
+        y⁺ = y + ((1 − cos ωT) / ω) ẋ + (sin ωT / ω) ẏ,   ẏ⁺ = sin ωT ẋ + cos ωT ẏ,   ω⁺ = ω.
+
+    At ω = 0 it is the constant-velocity step; for |ωT| < :data:`TURN_SERIES` the two ratios
+    are their Taylor series (a Piecewise), so that f and its derivatives are finite and
+    accurate there, and 1 − cos ωT is computed as 2 sin²(ωT/2) (no cancellation).
+
+    Parameters
+    ----------
+    T : float
+        The time step (> 0).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from symmon.compile import compiled
+    >>> g = compiled(coordinated_turn(1.0))
+    >>> np.round(g.eval_g(np.array([[0.0, 0.0, 1.0, 0.0, np.pi / 2]]))[0], 6).tolist()  # a quarter turn
+    [0.63662, 0.63662, 0.0, 1.0, 1.570796]
+    """
+    T = float(T)
+    if not (np.isfinite(T) and T > 0):
+        raise SymmonError(f"T must be a positive time step, got {T!r}")
+    x, y, vx, vy, w = sp.symbols("x y vx vy omega", real=True)
+    a = w * T
+    small = sp.Abs(a) < TURN_SERIES
+    # sin(ωT)/ω = T (1 − a²/6 + a⁴/120 − …), (1 − cos ωT)/ω = T a (1/2 − a²/24 + a⁴/720 − …)
+    s = sp.Piecewise((T * (1 - a**2 / 6 + a**4 / 120), small), (sp.sin(a) / w, True))
+    c = sp.Piecewise((T * a * (sp.Rational(1, 2) - a**2 / 24 + a**4 / 720), small), (2 * sp.sin(a / 2)**2 / w, True))
+    return Model([x, y, vx, vy, w], [x + s * vx - c * vy, y + c * vx + s * vy, sp.cos(a) * vx - sp.sin(a) * vy,
+                                     sp.sin(a) * vx + sp.cos(a) * vy, w], name=f"coordinated_turn_T{T:g}")

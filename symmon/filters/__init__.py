@@ -4,8 +4,8 @@
 (:mod:`.export`), the truth of a filter study (:func:`.simulation.simulate`), the particle filter
 (:mod:`.particle`), results with NEES/NIS (:mod:`.results`), the strategies that run the steps
 (:mod:`.strategy`: one rule, or :class:`Adaptive`, :mod:`.adaptive`), the Gaussian-sum filter
-(:mod:`.gaussian_sum`), and the checks of a filter call's inputs (:mod:`.inputs`, which the
-others import and which imports none of them)."""
+(:mod:`.gaussian_sum`), interacting multiple models over them (:mod:`.imm`), and the checks of a
+filter call's inputs (:mod:`.inputs`, which the others import and which imports none of them)."""
 
 from .adaptive import Adaptive as Adaptive
 from .linear import KalmanFilter as KalmanFilter
@@ -17,6 +17,8 @@ from .results import SmootherResult as SmootherResult
 from .fit import FitResult as FitResult
 from .gaussian_sum import GaussianSumFilter as GaussianSumFilter
 from .gaussian_sum import GaussianSumResult as GaussianSumResult
+from .imm import IMM as IMM
+from .imm import IMMResult as IMMResult
 from .strategy import FilterStrategy as FilterStrategy
 from .simulation import simulate as simulate
 from .particle import ParticleFilter as ParticleFilter
@@ -24,5 +26,5 @@ from .particle import ParticleResult as ParticleResult
 from .strategy import RuleStrategy as RuleStrategy
 
 __all__ = ["KalmanFilter", "KalmanResult", "NonlinearKalmanFilter", "NonlinearKalmanResult", "SmootherResult", "FitResult", "ConsistencyTest",
-           "Adaptive", "FilterStrategy", "RuleStrategy", "simulate",
+           "Adaptive", "FilterStrategy", "RuleStrategy", "simulate", "IMM", "IMMResult",
            "ParticleFilter", "ParticleResult", "GaussianSumFilter", "GaussianSumResult"]

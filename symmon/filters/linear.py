@@ -64,23 +64,40 @@ def _solve(S: np.ndarray, B: np.ndarray, k: int) -> np.ndarray:
                                   "precision (H P Hᵀ dwarfs R by more than 1e16)") from None
 
 
-def _cholesky(Ss: np.ndarray) -> np.ndarray:
-    """The Cholesky factors of the innovation covariances (K, n_y, n_y), or a named error."""
+def _unit_diagonal(d: np.ndarray) -> np.ndarray:
+    """diag(d) for each row of ``d`` (G, m): (G, m, m)."""
+    out = np.zeros(d.shape + d.shape[-1:])
+    idx = np.arange(d.shape[-1])
+    out[..., idx, idx] = d
+    return out
+
+
+def _where(group: np.ndarray, g: int, k: int) -> str:
+    """"step k", or "run r, step k" with the first run r of group g when the runs' covariances differ."""
+    if group.max(initial=0) == 0:
+        return f"step {k}"
+    return f"run {int(np.argmax(group == g))}, step {k}"
+
+
+def _cholesky(Ss: np.ndarray, group: np.ndarray) -> np.ndarray:
+    """The Cholesky factors of the innovation covariances (G, K, n_y, n_y) of each group of
+    runs (``group``: the group of each run), or a named error."""
     try:
         return np.linalg.cholesky(Ss)
     except np.linalg.LinAlgError:
-        k = int(np.argmin(np.linalg.eigvalsh(Ss)[:, 0]))
-        raise SingularMatrixError(f"KF: the innovation covariance S at step {k} is not positive definite in "
-                                  "double precision (H P Hᵀ dwarfs R by more than 1e16)") from None
+        g, k = np.unravel_index(int(np.argmin(np.linalg.eigvalsh(Ss)[..., 0])), Ss.shape[:2])
+        raise SingularMatrixError(f"KF: the innovation covariance S at {_where(group, g, k)} is not positive "
+                                  "definite in double precision (H P Hᵀ dwarfs R by more than 1e16)") from None
 
 
-def _check_finite(x: np.ndarray, P: np.ndarray, loglik: np.ndarray) -> None:
-    """Refuse a result with NaN or inf: x (..., K, n), P (K, n, n) shared by the runs,
-    loglik (..., K); the first bad run and step are named."""
-    bad = ~(np.isfinite(loglik) & np.isfinite(x).all(axis=-1) & np.isfinite(P).all(axis=(-1, -2)))
+def _check_finite(x: np.ndarray, P: np.ndarray, loglik: np.ndarray, group: np.ndarray, bank: bool) -> None:
+    """Refuse a result with NaN or inf: x (R, K, n), P (G, K, n, n) shared by the runs of
+    each group (``group``: the group of each run), loglik (R, K); the first bad run and step
+    are named (the step alone when not a ``bank``)."""
+    bad = ~(np.isfinite(loglik) & np.isfinite(x).all(axis=-1) & np.isfinite(P).all(axis=(-1, -2))[group])
     if bad.any():
-        idx = [int(i) for i in np.argwhere(bad)[0]]
-        where = f"step {idx[-1]}" if len(idx) == 1 else f"run {idx[0]}, step {idx[1]}"
+        r, k = (int(i) for i in np.argwhere(bad)[0])
+        where = f"run {r}, step {k}" if bank else f"step {k}"
         raise NonFiniteError(f"KF: the filter produced NaN or inf at {where}: the state overflows double "
                              "precision (an unstable F, or measurements or x0 beyond 1e154)")
 
@@ -171,6 +188,13 @@ class KalmanFilter:
         ----------
         ys : array_like, shape (K, n_y) or (N, K, n_y)
             Measurements :math:`y_1, \\dots, y_K`; a leading axis filters N independent runs.
+            NaN means "not measured", as in :meth:`symmon.NonlinearKalmanFilter.filter`: a
+            row of NaN skips the update (the step only predicts, with log-likelihood 0), a
+            row with some NaN updates on the measured components (with D = diag(measured),
+            S̃ = D S D + (I − D) and the rows of H of the missing components zeroed, the gain
+            has zero columns there).  A missing component has innovation 0 and a unit
+            diagonal entry in S, so the NIS is that of the measured block, and
+            :attr:`KalmanResult.measured` counts the measured components per step.
         x0 : Gaussian, or array_like of shape (n,) or (N, n)
             The initial state :math:`x_0` (before the first prediction), or its mean with ``P0``
             (the signature of :meth:`symmon.NonlinearKalmanFilter.filter`).
@@ -183,11 +207,14 @@ class KalmanFilter:
         Returns
         -------
         KalmanResult
+            The covariances (P, P_pred, S) and gains do not depend on the data: a bank's runs
+            share them ((K, n, n)) when they have the same missing measurements, and each run
+            has its own ((N, K, n, n)) when they differ.
 
         Raises
         ------
         ShapeError, CovarianceError
-            Bad inputs.
+            Bad inputs, or an infinite measurement (a missing one is NaN).
         ResourceError
             The results would exceed :data:`~symmon.filters.inputs.MAX_BANK_NUMBERS` numbers.
         NonFiniteError, SingularMatrixError
@@ -204,62 +231,88 @@ class KalmanFilter:
         n, n_y = self.n, self.n_y
         # Per run and step: x, x_pred, the innovation, its whitened form, NIS, log-likelihood;
         # the covariances and gains are shared by the runs.  Checked before ys is read whole.
+        shared = 2 * n * n + n_y * n_y + n * n_y
         check_bank_size(batch or 1, Y.shape[-2], 2 * n + 2 * n_y + 2, "KF results",
-                        "filter the runs in smaller banks, or fewer steps at a time", shared=2 * n * n + n_y * n_y + n * n_y)
-        if not np.all(np.isfinite(Y)):
-            raise ShapeError("ys contains NaN or inf")
+                        "filter the runs in smaller banks, or fewer steps at a time", shared=shared)
+        if np.isinf(Y).any():
+            where = tuple(int(i) for i in np.argwhere(np.isinf(Y))[0])
+            raise ShapeError(f"ys contains inf (at index {where}); a missing measurement is NaN")
         if isinstance(x0, Gaussian) == (P0 is not None):
             raise ShapeError("give x0 as a Gaussian, or its mean together with P0")
         if isinstance(x0, Gaussian):
             x0, P0 = x0.mean, x0.cov
         x = self._initial_mean(x0, batch)
-        if batch is not None:
-            x = np.broadcast_to(x, (batch, self.n))
-        P = as_covariance(P0, "P0", dim=self.n)
+        P0 = as_covariance(P0, "P0", dim=self.n)
 
         K = Y.shape[-2]
+        Yb = Y.reshape((batch or 1, K, n_y))
+        runs = Yb.shape[0]
+        # The covariances depend on which components are measured, not on the values: one
+        # recursion per distinct pattern of missing measurements ("group"), shared by its runs.
+        missing = np.isnan(Yb)
+        if missing.any():
+            patterns, group = np.unique(~missing.reshape(runs, -1), axis=0, return_inverse=True)
+            masks = patterns.reshape(-1, K, n_y).astype(float)
+            group = group.reshape(-1)
+            Yb = np.where(missing, 0.0, Yb)  # masked below; no NaN enters the products
+            if len(masks) > 1:
+                check_bank_size(runs, K, 2 * n + 2 * n_y + 2 + shared, "KF results (one covariance per run: "
+                                "the runs have different missing measurements)",
+                                "filter the runs with the same missing measurements together, or in smaller banks")
+        else:
+            masks, group = np.ones((1, K, n_y)), np.zeros(runs, dtype=np.intp)
+        n_groups = len(masks)
         F, Q, H, R = self.F, self.Q, self.H, self.R
         eye = np.eye(n)
-        lead = () if batch is None else (batch,)
-        xs = np.empty(lead + (K, n))
-        xps = np.empty(lead + (K, n))
-        innovs = np.empty(lead + (K, n_y))
-        Ps = np.empty((K, n, n))
-        Pps = np.empty((K, n, n))
-        Ss = np.empty((K, n_y, n_y))
-        gains = np.empty((K, n, n_y))
+        x = np.array(np.broadcast_to(x, (runs, n)))
+        P = np.broadcast_to(P0, (n_groups, n, n))
+        xs, xps = np.empty((runs, K, n)), np.empty((runs, K, n))
+        innovs = np.empty((runs, K, n_y))
+        Ps, Pps = np.empty((n_groups, K, n, n)), np.empty((n_groups, K, n, n))
+        Ss, gains = np.empty((n_groups, K, n_y, n_y)), np.empty((n_groups, K, n, n_y))
         with np.errstate(over="ignore", invalid="ignore"):  # a non-finite number is refused below
             for k in range(K):
+                m = masks[:, k]
                 x_pred = x @ F.T
                 P_pred = F @ P @ F.T + Q
-                P_pred = 0.5 * (P_pred + P_pred.T)
-                S = H @ P_pred @ H.T + R
+                P_pred = 0.5 * (P_pred + np.swapaxes(P_pred, -1, -2))
+                # D S D + (I − D) and D H P⁻ (the update of the measured block only).
+                S = (H @ P_pred @ H.T + R) * (m[:, :, None] * m[:, None, :]) + _unit_diagonal(1.0 - m)
                 if not (np.all(np.isfinite(P_pred)) and np.all(np.isfinite(S))):
                     raise NonFiniteError(f"KF: the predicted covariance overflows at step {k} (F, Q or P0 too "
                                          "large for double precision)")
                 # K = P⁻Hᵀ S⁻¹ via a solve (S symmetric), not an explicit inverse.
-                G = _solve(S, H @ P_pred, k).T
-                innov = Y[..., k, :] - x_pred @ H.T
-                x = x_pred + innov @ G.T
+                G = np.swapaxes(_solve(S, (H @ P_pred) * m[:, :, None], k), -1, -2)
+                innov = (Yb[:, k] - x_pred @ H.T) * masks[group, k]
+                x = x_pred + (innov @ G[0].T if n_groups == 1 else np.einsum("rij,rj->ri", G[group], innov))
                 IKH = eye - G @ H
-                P = IKH @ P_pred @ IKH.T + G @ R @ G.T
-                P = 0.5 * (P + P.T)
-                xs[..., k, :] = x
-                xps[..., k, :] = x_pred
-                innovs[..., k, :] = innov
-                Ps[k], Pps[k], Ss[k], gains[k] = P, P_pred, S, G
-            # log N(ν_k; 0, S_k): S does not depend on the data, its factor serves every run.
-            L = _cholesky(Ss)
-            log_det = 2 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
-            white = np.linalg.solve(L, innovs[..., None])[..., 0]
+                P = IKH @ P_pred @ np.swapaxes(IKH, -1, -2) + G @ R @ np.swapaxes(G, -1, -2)
+                P = 0.5 * (P + np.swapaxes(P, -1, -2))
+                xs[:, k], xps[:, k], innovs[:, k] = x, x_pred, innov
+                Ps[:, k], Pps[:, k], Ss[:, k], gains[:, k] = P, P_pred, S, G
+            # log N(ν_k; 0, S_k) of the measured block: S does not depend on the data, its
+            # factor serves every run of its group (the unit diagonal of a missing component
+            # adds nothing to log det S nor to νᵀ S⁻¹ ν).
+            L = _cholesky(Ss, group)
+            log_det = 2 * np.log(np.diagonal(L, axis1=-2, axis2=-1)).sum(axis=-1)
+            white = np.linalg.solve(L[0] if n_groups == 1 else L[group], innovs[..., None])[..., 0]
             nis = (white**2).sum(axis=-1)  # νᵀ S⁻¹ ν from the same factor
-            loglik = -0.5 * (nis + log_det + n_y * np.log(2 * np.pi))
-        _check_finite(xs, Ps, loglik)
+            loglik = -0.5 * (nis + (log_det + masks.sum(axis=-1) * np.log(2 * np.pi))[group])
+        _check_finite(xs, Ps, loglik, group, batch is not None)
+        if n_groups == 1:  # shared by the runs
+            Ps, Pps, Ss, gains = Ps[0], Pps[0], Ss[0], gains[0]
+        else:
+            Ps, Pps, Ss, gains = Ps[group], Pps[group], Ss[group], gains[group]
+        measured = (~missing).sum(axis=-1) if missing.any() else None
+        if batch is None:
+            xs, xps, innovs, nis, loglik = xs[0], xps[0], innovs[0], nis[0], loglik[0]
+            measured = None if measured is None else measured[0]
         arrays = {"x": xs, "P": Ps, "x_pred": xps, "P_pred": Pps, "innovation": innovs, "S": Ss,
                   "nis_values": nis}
         arrays = {k: readonly(v) if kept is None or k.removesuffix("_values") in kept else None
                   for k, v in arrays.items()}
-        return KalmanResult(**arrays, gain=readonly(gains), loglik=readonly(loglik), n_y=n_y, method="KF")
+        return KalmanResult(**arrays, gain=readonly(gains), loglik=readonly(loglik), n_y=n_y, method="KF",
+                            measured=None if measured is None else readonly(measured))
 
     def simulate(
         self,

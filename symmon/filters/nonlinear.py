@@ -141,8 +141,8 @@ class NonlinearKalmanFilter:
         step and run.
     iterations : int, default 1
         With ``TT1()``, the number of linearisations of the measurement update: 1 is the EKF,
-        more the iterated EKF (Gauss–Newton steps of the update, Bell & Cathey 1993;
-        dynamax's ``num_iter``), from 1 to :data:`MAX_ITERATIONS`.
+        more the iterated EKF (Gauss–Newton steps of the update from the same prior, Bell &
+        Cathey 1993; docs/filters.md, "Iterated EKF"), from 1 to :data:`MAX_ITERATIONS`.
 
     Attributes
     ----------

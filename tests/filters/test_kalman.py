@@ -287,7 +287,7 @@ BAD_INPUTS = [
     ("ys columns", lambda: KF.filter(np.zeros((3, 3)), np.zeros(2), I2), ShapeError, "ys must have shape"),
     ("ys 1-D", lambda: KF.filter(np.zeros(3), np.zeros(2), I2), ShapeError, "ys must have shape"),
     ("ys empty", lambda: KF.filter(np.zeros((0, 2)), np.zeros(2), I2), ShapeError, "ys must have shape"),
-    ("ys nan", lambda: KF.filter([[np.nan, 0.0]], np.zeros(2), I2), ShapeError, "ys contains"),
+    ("ys inf", lambda: KF.filter([[np.inf, 0.0]], np.zeros(2), I2), ShapeError, "ys contains inf"),
     ("x0 length", lambda: KF.filter(np.zeros((3, 2)), np.zeros(3), I2), ShapeError, "x0 must have shape"),
     ("x0 batch without ys batch", lambda: KF.filter(np.zeros((3, 2)), np.zeros((4, 2)), I2), ShapeError, "x0"),
     ("x0 inf", lambda: KF.filter(np.zeros((3, 2)), [np.inf, 0.0], I2), ShapeError, "x0 contains"),

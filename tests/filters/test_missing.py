@@ -1,9 +1,11 @@
-"""Missing measurements (NaN in ys) in the nonlinear filters.
+"""Missing measurements (NaN in ys) in the nonlinear filters and the linear one.
 
 A row of NaN is a step without an update (FilterPy's ``update(None)``: stored reference in
 tests/reference/filterpy_rts.json, made by tests/reference/make_smoother_reference.py); a
 row with some NaN updates on the measured components, which must equal a filter whose h has
 only those components. The same sums in another order: rounding only, 1e-9 relative.
+The linear ``sm.KalmanFilter`` must equal the EKF (TT1) of the same linear model, missing
+rows and components in a bank included, to 1e-10.
 """
 
 from __future__ import annotations
@@ -159,3 +161,74 @@ def test_a_diverging_simulation_is_reported_not_read_as_missing_data():
         simulate(f, h, np.eye(1), np.eye(1), sm.Gaussian([1.0], [[1.0]]), 50, 2, seed=0)
     with pytest.raises(sm.errors.SymmonError, match="exceeds"):
         simulate(f, h, np.eye(1), np.eye(1), sm.Gaussian([1.0], [[1.0]]), 10**5, MAX_SIMULATED // 10**5, seed=0)
+
+
+# --------------------------------------------------- the linear filter, against the EKF
+
+LINEAR_RTOL = 1e-10  # Joseph form against P⁻ − K S Kᵀ, a solve against a Cholesky factor: rounding only
+
+
+def lclose(a, b):
+    assert_close_to_scale(a, b, LINEAR_RTOL)
+
+
+@pytest.fixture(scope="module")
+def linear_pair():
+    """sm.KalmanFilter and the EKF (TT1) of the same linear model: the CV model of the
+    reference, both positions measured with correlated noise (so masking S's off-diagonal
+    entries matters)."""
+    d = REF["cv"]
+    F, H = np.array(d["F"]), np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
+    R = np.array([[0.5, 0.2], [0.2, 0.3]])
+    f = sm.Model(X, list(sp.Matrix(F) * sp.Matrix(X)), name="cv")
+    h = sm.Model(X, list(sp.Matrix(H) * sp.Matrix(X)), name="pos")
+    ys = np.array(d["ys"])  # range–bearing numbers, read as positions: any data will do
+    ys = np.stack([ys[:, 0] * np.cos(ys[:, 1]), ys[:, 0] * np.sin(ys[:, 1])], axis=-1)
+    return sm.KalmanFilter(F, d["Q"], H, R), sm.NonlinearKalmanFilter(f, h, d["Q"], R, sm.TT1()), ys, d
+
+
+def missing_bank(ys):
+    full, rows, parts = ys.copy(), ys.copy(), ys.copy()
+    rows[[3, 4, 17]] = np.nan
+    parts[5, 0] = parts[6, 1] = parts[30, 0] = np.nan
+    parts[31] = np.nan
+    return np.stack([full, rows, parts, rows])
+
+
+def test_linear_filter_skips_missing_measurements_as_the_nonlinear_one(linear_pair):
+    kf, ekf, ys, d = linear_pair
+    bank = missing_bank(ys)
+    lin, ext = kf.filter(bank, d["x0"], d["P0"]), ekf.filter(bank, d["x0"], d["P0"])
+    for name in ("x", "P", "x_pred", "P_pred", "innovation", "S", "loglik"):
+        lclose(getattr(lin, name), getattr(ext, name))
+    lclose(lin.nis(), ext.nis())
+    np.testing.assert_array_equal(lin.measured, ext.measured)
+    assert lin.P.shape == (4, 40, 4, 4)  # different missing measurements: one covariance per run
+    np.testing.assert_array_equal(lin.P[1], lin.P[3])
+    for k in (3, 4, 17):  # a pure prediction with a zero log-likelihood term
+        np.testing.assert_array_equal(lin.x[1, k], lin.x_pred[1, k])
+        np.testing.assert_array_equal(lin.P[1, k], lin.P_pred[1, k])
+        assert lin.loglik[1, k] == 0.0 and lin.nis()[1, k] == 0.0
+    assert lin.innovation[2, 5, 0] == 0.0 and lin.S[2, 5, 0, 0] == 1.0 and lin.S[2, 5, 0, 1] == 0.0
+    assert np.all(lin.gain[2, 5][:, 0] == 0.0) and np.all(lin.gain[2, 31] == 0.0)
+    assert lin.anis().dof[5] == 4 * 2 - 1 and lin.anis().dof[3] == 2 * 2
+    np.testing.assert_array_equal(lin.estimate(5, run=2).cov, lin.P[2, 5])
+    lclose(lin.nees(np.zeros((4, 40, 4))), ext.nees(np.zeros((4, 40, 4))))
+
+
+def test_linear_filter_with_one_missing_pattern_shares_its_covariances(linear_pair):
+    kf, ekf, ys, d = linear_pair
+    rows = missing_bank(ys)[1]
+    one, ext = kf.filter(rows, d["x0"], d["P0"]), ekf.filter(rows, d["x0"], d["P0"])
+    for name in ("x", "P", "loglik"):
+        lclose(getattr(one, name), getattr(ext, name))
+    assert one.measured[3] == 0 and one.measured[2] == 2 and one.P.shape == (40, 4, 4)
+    assert one.log_likelihood == pytest.approx(ext.log_likelihood, rel=LINEAR_RTOL)
+    bank = kf.filter(np.stack([rows, rows + 1.0]), d["x0"], d["P0"])  # the same pattern: P shared
+    assert bank.P.shape == (40, 4, 4)
+    np.testing.assert_array_equal(bank.P, one.P)
+    lclose(bank.x[0], one.x)  # (2, n) and (n,) products: rounding
+    full = kf.filter(ys, d["x0"], d["P0"])
+    assert full.measured is None  # nothing missing: as before
+    with pytest.raises(ShapeError, match=r"ys contains inf \(at index \(2, 1\)\)"):
+        kf.filter(np.where(np.arange(40)[:, None] * [0, 1] == 2, np.inf, ys), d["x0"], d["P0"])
