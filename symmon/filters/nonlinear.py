@@ -140,6 +140,11 @@ class NonlinearKalmanFilter:
         With ``TT1()``, the number of linearisations of the measurement update: 1 is the EKF,
         more the iterated EKF (Gauss–Newton steps of the update, Bell & Cathey 1993;
         dynamax's ``num_iter``), from 1 to :data:`MAX_ITERATIONS`.
+    square_root : bool, default False
+        Propagate the lower Cholesky factor S of P (P = S Sᵀ) instead of P: the square-root
+        form of the same filter (:mod:`symmon.filters.sqrtstep`), whose covariances stay
+        positive semidefinite where P⁻ − K S Kᵀ loses definiteness to rounding.  Its results
+        also hold the factors (:attr:`KalmanResult.P_chol`).
 
     Attributes
     ----------
@@ -164,6 +169,7 @@ class NonlinearKalmanFilter:
     R: np.ndarray
     transform: Transform | FilterStrategy | None = None
     iterations: int = 1
+    square_root: bool = False
     strategy: FilterStrategy = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -182,6 +188,12 @@ class NonlinearKalmanFilter:
             raise SymmonError(f"iterations must be an integer from 1 to {MAX_ITERATIONS}, got {it!r}")
         if it > 1 and not (isinstance(strategy, RuleStrategy) and strategy.transform.taylor_order == 1):
             raise SymmonError(f"iterations > 1 is the iterated EKF: it needs transform TT1(), got {self.transform!r}")
+        if not isinstance(self.square_root, (bool, np.bool_)):
+            raise ArgumentTypeError(f"square_root must be True or False, got {self.square_root!r}")
+        if self.square_root and not isinstance(strategy, RuleStrategy):
+            raise SymmonError(f"square_root=True needs one transform for every step; {strategy.label()} chooses "
+                              "one per step")
+        object.__setattr__(self, "square_root", bool(self.square_root))
         object.__setattr__(self, "iterations", int(it))
         object.__setattr__(self, "Q", readonly(Q))
         object.__setattr__(self, "R", readonly(R))
@@ -240,9 +252,8 @@ class NonlinearKalmanFilter:
     @cached_property
     def method(self) -> str:
         """The filter's name: EKF, IEKF(iterations=...), EKF2, UKF(...), CKF, GHKF(order=...) or Adaptive(...)."""
-        if self.iterations > 1:
-            return f"IEKF(iterations={self.iterations})"
-        return self.strategy.label()
+        label = f"IEKF(iterations={self.iterations})" if self.iterations > 1 else self.strategy.label()
+        return "SR-" + label if self.square_root else label
 
     def smooth(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None, *,
                keep: Iterable[str] | None = None, params: dict | None = None) -> SmootherResult:
@@ -467,7 +478,7 @@ class NonlinearKalmanFilter:
         if truth is not None and not nees:  # a strategy that keeps every array: from x and P
             nees = {"x": out["x"], "P": out["P"], "truth": truth}
         first = out.pop("first_nonfinite", None)  # tested in the compiled loop, step by step
-        out = {k: v for k, v in out.items() if k == "loglik" or kept is None or k in kept}
+        out = {k: v for k, v in out.items() if k == "loglik" or kept is None or k.removesuffix("_chol") in kept}
         if first is None:  # a NaN reaches every later log-likelihood
             first = first_nonfinite(out["loglik"], out.get("x"), out.get("P"))
         if (first >= 0).any():

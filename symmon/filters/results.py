@@ -352,6 +352,10 @@ class KalmanResult:
     n_x : int or None
         The state dimension (set by the nonlinear filters, so that :meth:`anees` works on
         a result that keeps no state array).
+    P_chol, P_pred_chol : ndarray, shape (K, n, n), or None
+        The lower Cholesky factors S of ``P`` and ``P_pred`` (P = S Sᵀ) that a square-root
+        filter (``NonlinearKalmanFilter(..., square_root=True)``) propagated, kept with
+        ``P`` and ``P_pred``; None for the other filters.
     """
 
     x: np.ndarray | None = None
@@ -370,6 +374,8 @@ class KalmanResult:
     n_y: int | None = None
     nees_values: np.ndarray | None = None
     n_x: int | None = None
+    P_chol: np.ndarray | None = None
+    P_pred_chol: np.ndarray | None = None
 
     def _need(self, *names: str) -> None:
         missing = [k for k in names if getattr(self, k) is None]

@@ -1,0 +1,267 @@
+"""Square-root forms of the moment formulas as CasADi graphs: factors instead of covariances.
+
+A covariance P is carried as its lower Cholesky factor S (P = S Sᵀ, diagonal ≥ 0), and
+every covariance a filter step forms is a Gram matrix A Aᵀ − B Bᵀ of *columns* it never
+squares:
+
+- :func:`tria` is the lower triangular factor of A Aᵀ by Householder reflections of the
+  columns of A (a QR of Aᵀ, R = Sᵀ; Golub & Van Loan 2013, Alg. 5.2.1), with the signs chosen
+  so that the diagonal is ≥ 0: the factor is then *the* Cholesky factor when A Aᵀ is
+  positive definite, and the sigma points taken from it are those of the standard form;
+- :func:`chol_downdate` removes one column b (S' S'ᵀ = S Sᵀ − b bᵀ, Golub & Van Loan 2013
+  §6.5.4), for the points of negative weight (the UT's centre, a sparse grid): a result
+  that is not positive semidefinite gives NaN, never a factor of a wrong matrix;
+- :func:`sqrt_moments` gives, for y = g(w), w ~ N(m, A Aᵀ), E y and the joint columns
+  (Y₊, W₊; Y₋, W₋) with Cov [y; w] = [Y₊; W₊][Y₊; W₊]ᵀ − [Y₋; W₋][Y₋; W₋]ᵀ: for TT1
+  Y₊ = J A, W₊ = A (Gustafsson & Hendeby 2012, eq. (10)); for TT2 also the columns of the
+  second-order term, ½ tr(H_i P H_j P) = Σ_{a≤b} G_ia G_jb with G the entries of Aᵀ H_i A
+  (the diagonal ones scaled by 1/√2); for a point rule √|wᶜ_k| (y_k − ȳ) and √|wᶜ_k| A z_k
+  (Arasaratnam & Haykin 2009, eqs. (48)–(52) for the cubature rule; van der Merwe & Wan
+  2001 for the UT with its centre weight);
+- :func:`joint_factor` is the array algorithm of the measurement update (Kailath, Sayed &
+  Hassibi 2000, §12.3): the lower factor of the joint columns [Y; X] is
+  [[S_y, 0], [K̄, S⁺]] with S_y S_yᵀ = Cov y (+ R), K̄ = P^{xy} S_y⁻ᵀ (so K = K̄ S_y⁻¹) and
+  S⁺ S⁺ᵀ = P − P^{xy} (Cov y)⁻¹ P^{yx}, a sum of squares that stays positive semidefinite
+  in floating point, where P − K S Kᵀ is a difference that need not.
+
+The same functions build SX (straight-line code, the column index a constant that folds) or
+MX graphs (one step function per column called n times: loops in C, code O(1) in n), as
+:func:`symmon.codegen.symbolic.chol_lower`.
+
+References
+----------
+G. H. Golub, C. F. Van Loan, *Matrix Computations*, 4th ed., Johns Hopkins, 2013, §5.2
+(Householder QR), §6.5.4 (Cholesky updating and downdating).
+T. Kailath, A. H. Sayed, B. Hassibi, *Linear Estimation*, Prentice Hall, 2000, ch. 12
+(array algorithms).
+R. van der Merwe, E. A. Wan, "The square-root unscented Kalman filter for state and
+parameter-estimation", ICASSP 2001. doi:10.1109/ICASSP.2001.940586
+I. Arasaratnam, S. Haykin, "Cubature Kalman filters", IEEE Trans. Autom. Control 54(6),
+2009, §V (the square-root cubature Kalman filter). doi:10.1109/TAC.2009.2019800
+F. Gustafsson, G. Hendeby, "Some relations between extended and unscented Kalman filters",
+IEEE Trans. Signal Process. 60(2), 2012. doi:10.1109/TSP.2011.2172431
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import Iterable, NamedTuple
+
+import casadi as ca
+import numpy as np
+
+from ..compile.compiled import CompiledModel
+from ..errors import SymmonError
+from ..transforms.base import Transform
+from .symbolic import Sym, effective_order, point_values, wrap_entries
+
+__all__ = ["tria", "chol_downdate", "JointColumns", "sqrt_moments", "joint_factor", "check_sqrt_rule",
+           "chol_scaled"]
+
+#: A rule's points reproduce the covariance when Σ wᶜ_k z_k z_kᵀ = I to this (absolute) tolerance.
+UNIT_COV_TOL = 1e-10
+
+
+@functools.lru_cache(maxsize=128)
+def _tria_step(kind: type, n: int, m: int) -> ca.Function:
+    """(A, j) ↦ A with row j reflected onto its diagonal: one Householder step of :func:`tria`.
+
+    Rows below j see the same reflection of the columns j…m−1; row j becomes σ e_j (σ its
+    norm over those columns, ≥ 0, its sign carried to column j), and the rows above are
+    untouched (their entries from column j on are already zero).
+    """
+    A, j = kind.sym("A", n, m), kind.sym("j")
+    rows, cols = ca.DM(np.arange(n, dtype=float)), ca.DM(np.arange(m, dtype=float))
+    e = ca.if_else(rows == j, 1, 0)  # e_j among the rows
+    f = ca.if_else(cols == j, 1, 0)  # e_j among the columns
+    right = ca.if_else(cols >= j, 1, 0)
+    below = ca.if_else(rows > j, 1, 0)
+    x = ca.mtimes(e.T, A).T * right  # row j from column j on
+    sigma = ca.norm_2(x)
+    x0 = ca.dot(x, f)
+    s = ca.if_else(x0 >= 0, 1, -1)
+    v = x + s * sigma * f
+    vv = ca.dot(v, v)  # 2σ(σ + |x₀|): zero only for a zero row, which needs no reflection
+    beta = ca.if_else(vv > 0, 2 / vv, 0)
+    Av = ca.mtimes(A, v) * below
+    out = A - ca.mtimes(beta * Av, v.T)
+    # Row j exactly σ e_j, the other rows' column j times −s (so that σ ≥ 0 sits on the
+    # diagonal: a sign change of one column of the orthogonal transformation).
+    col = ca.mtimes(out, f) * below
+    out = out * (1 - ca.mtimes(e, right.T)) + ca.mtimes(-s * col - col, f.T) + sigma * ca.mtimes(e, f.T)
+    return ca.Function("tria_step", [A, j], [out])
+
+
+def tria(A: Sym) -> Sym:
+    """The lower triangular L with L Lᵀ = A Aᵀ and diag L ≥ 0 (n × n, A n × m).
+
+    Householder reflections of the columns of A, row by row (a QR factorisation of Aᵀ; Golub
+    & Van Loan 2013, Alg. 5.2.1).  With A Aᵀ positive definite, L is its Cholesky factor;
+    with a zero row left (a noise-free direction) the step skips it, so L has a zero column
+    there, as :func:`symmon.codegen.symbolic.chol_lower`.  In SX the column index folds and
+    the code is the unrolled reflections (2 n² m operations); in MX it is n calls of one
+    step function.
+    """
+    kind = type(A)
+    n, m = A.shape
+    if m < n:  # fewer columns than rows: zero columns change nothing
+        A = ca.horzcat(A, kind.zeros(n, n - m))
+        m = n
+    step = _tria_step(kind, n, m)
+    out = ca.densify(A)
+    for j in range(n):
+        out = step(out, j)
+    return out[:, :n]
+
+
+@functools.lru_cache(maxsize=128)
+def _downdate_step(kind: type, n: int) -> ca.Function:
+    """(L, b, k) ↦ (L, b) after column k of the rank-1 downdate L Lᵀ − b bᵀ (a hyperbolic
+    rotation of column k of L against b; Golub & Van Loan 2013, §6.5.4)."""
+    L, b, k = kind.sym("L", n, n), kind.sym("b", n), kind.sym("k")
+    rows = ca.DM(np.arange(n, dtype=float))
+    e = ca.if_else(rows == k, 1, 0)
+    below = ca.if_else(rows > k, 1, 0)
+    col = ca.mtimes(L, e)
+    lkk, bk = ca.dot(col, e), ca.dot(b, e)
+    # A negative r² (the result is not positive semidefinite) gives NaN: it reaches the
+    # outputs, and the filter names the step, as a negative pivot of chol_lower does.
+    r = ca.sqrt(lkk * lkk - bk * bk)
+    ok = r > 0
+    c = ca.if_else(ok, r / lkk, 0)
+    s = ca.if_else(ok, bk / lkk, 0)
+    new = ca.if_else(ok, (col - s * b) / c, 0) * below + r * e
+    b_new = (c * b - s * new) * below
+    # r = 0 from a positive pivot: the column equals ±b below it, and both vanish; a zero
+    # pivot (with b_k = 0): the column stays zero and b passes unchanged.
+    b_new = ca.if_else(ok, b_new, ca.if_else(lkk > 0, 0, 1) * b * below)
+    return ca.Function("downdate_step", [L, b, k], [L + ca.mtimes(new - col, e.T), b_new])
+
+
+def chol_downdate(L: Sym, b: Sym) -> Sym:
+    """The lower factor L' of L Lᵀ − b bᵀ (diag ≥ 0), by n hyperbolic rotations (Golub &
+    Van Loan 2013, §6.5.4); NaN when L Lᵀ − b bᵀ is not positive semidefinite."""
+    n = L.shape[0]
+    step = _downdate_step(type(L), n)
+    for k in range(n):
+        L, b = step(L, b, k)
+    return L
+
+
+class JointColumns(NamedTuple):
+    """Columns of the joint factor of [y; w]: Cov [y; w] = [Y; W][Y; W]ᵀ − [Yn; Wn][Yn; Wn]ᵀ
+    (``Yn``, ``Wn`` None when no weight is negative)."""
+
+    Y: Sym
+    W: Sym
+    Yn: Sym | None = None
+    Wn: Sym | None = None
+
+
+def check_sqrt_rule(transform: Transform, n: int) -> None:
+    """Refuse a point rule whose points do not reproduce the covariance (Σ wᶜ z zᵀ ≠ I in
+    n dimensions): the square-root update reads P⁻ from the points.
+
+    Raises
+    ------
+    SymmonError
+        Naming the rule and the dimension.
+    """
+    if not transform.point_rule:
+        return
+    Z, _, wc = transform.unit_rule(n)
+    Z = np.asarray(Z, dtype=float)
+    err = float(np.abs(Z.T @ (np.asarray(wc, dtype=float)[:, None] * Z) - np.eye(n)).max()) if n else 0.0
+    if not err <= UNIT_COV_TOL:
+        raise SymmonError(f"square_root=True: the points of {transform!r} in {n} dimensions do not reproduce "
+                          f"the covariance (|Σ wc z zᵀ − I| = {err:.3g}), which the square-root update reads "
+                          "from them; use a rule exact to degree 2 (UT, cubature, Gauss–Hermite of order ≥ 2)")
+
+
+def _split(cols: Sym, weights: np.ndarray) -> tuple[Sym, Sym | None]:
+    """(cols[:, w > 0] √w, cols[:, w < 0] √|w|): zero weights drop."""
+    pos, neg = np.flatnonzero(weights > 0), np.flatnonzero(weights < 0)
+    scaled = [ca.mtimes(cols[:, idx.tolist()], ca.diag(ca.DM(np.sqrt(np.abs(weights[idx]))))) if idx.size else None
+              for idx in (pos, neg)]
+    if scaled[0] is None:
+        scaled[0] = type(cols).zeros(cols.shape[0], 1)
+    return scaled[0], scaled[1]
+
+
+@functools.lru_cache(maxsize=64)
+def _taylor_derivatives(cm: CompiledModel, order: int) -> ca.Function:
+    """w ↦ (g, J) for TT1, (g, J, H_1; …; H_{n_y}) stacked (n_y n × n) for TT2."""
+    outs = [cm.y_sx, cm.J_sx] + ([ca.vertcat(*cm.H_sx)] if order == 2 else [])
+    return ca.Function("derivs", [cm.w_sx], outs)
+
+
+def sqrt_moments(cm: CompiledModel, m: Sym, A: Sym, transform: Transform, angles: Iterable[int] = (),
+                 p: Sym | None = None) -> tuple[Sym, JointColumns]:
+    """E g and the joint columns (module notes) of y = g(w), w ~ N(m, A Aᵀ), by ``transform``.
+
+    ``A`` (n × n) is a square root of the covariance; a point rule takes its points
+    m + A z_k, so A must be the lower Cholesky factor for the points of the standard form.
+    With parameters ``p``, ``cm`` is compiled with respect to [w; p] and p is fixed (its
+    rows of the factor are zero).
+    """
+    kind = type(A)
+    n = m.shape[0]
+    angles = sorted(angles)
+    order = effective_order(cm, n, transform, angles)
+    if order in (1, 2):
+        z = m if p is None else ca.vertcat(m, p)
+        outs = _taylor_derivatives(cm, order)(z)
+        y, J = outs[0], outs[1][:, :n]
+        JA = ca.mtimes(J, A)
+        if order == 1:
+            return wrap_entries(y, angles), JointColumns(JA, A)
+        nz = z.shape[0]
+        # Aᵀ H_i A per output (the w block of H_i); its entries a ≤ b are the columns of the
+        # second-order term, the diagonal ones over √2: ½ ⟨Aᵀ H_i A, Aᵀ H_j A⟩ = G_i G_jᵀ.
+        T = [ca.mtimes(ca.mtimes(A.T, outs[2][i * nz:i * nz + n, :n]), A) for i in range(cm.n_y)]
+        half_tr = 0.5 * ca.vertcat(*[ca.trace(t) for t in T])
+        upper = [(a, b) for b in range(n) for a in range(b + 1)]
+        idx = [a + b * n for a, b in upper]  # column-major positions in vec
+        scale = ca.DM([1 / math.sqrt(2) if a == b else 1.0 for a, b in upper])
+        G = ca.horzcat(*[ca.vec(t)[idx] * scale for t in T]).T
+        return (wrap_entries(y + half_tr, angles),
+                JointColumns(ca.horzcat(JA, G), ca.horzcat(A, kind.zeros(n, G.shape[1]))))
+    if angles:
+        g = cm.circle_function(angles)
+    else:
+        g = cm.g
+    _, _, wc, D, mean, R = point_values(g, m, A, transform, angles, p, circle=bool(angles))
+    wc = np.asarray(wc, dtype=float)
+    Y, Yn = _split(R, wc)
+    W, Wn = _split(D, wc)
+    return mean, JointColumns(Y, W, Yn, Wn)
+
+
+def downdate_all(L: Sym, cols: Sym | None) -> Sym:
+    """L after a rank-1 downdate by each column of ``cols`` (None: L)."""
+    if cols is not None:
+        for k in range(cols.shape[1]):
+            L = chol_downdate(L, cols[:, k])
+    return L
+
+
+def joint_factor(Y: Sym, X: Sym, Yn: Sym | None = None, Xn: Sym | None = None) -> tuple[Sym, Sym, Sym]:
+    """(S_y, K̄, S⁺) from the lower factor of the joint columns [Y; X] (less [Yn; Xn]):
+    the array algorithm of the update (module notes; Kailath, Sayed & Hassibi 2000, §12.3).
+
+    S_y S_yᵀ = Y Yᵀ − Yn Ynᵀ, K̄ = (X Yᵀ − Xn Ynᵀ) S_y⁻ᵀ and S⁺ S⁺ᵀ = X Xᵀ − Xn Xnᵀ − K̄ K̄ᵀ.
+    """
+    n_y = Y.shape[0]
+    L = tria(ca.vertcat(Y, X))
+    if Yn is not None:
+        L = downdate_all(L, ca.vertcat(Yn, Xn))
+    return L[:n_y, :n_y], L[n_y:, :n_y], L[n_y:, n_y:]
+
+
+def chol_scaled(S: Sym) -> tuple[Sym, Sym]:
+    """(diag(r) S, r) with r = 1/√diag(S Sᵀ): the Cholesky factor of the correlation matrix
+    of P = S Sᵀ, read off the factor (no second factorisation)."""
+    r = 1 / ca.sqrt(ca.sum2(S * S))
+    return S * ca.repmat(r, 1, S.shape[1]), r
+
