@@ -79,3 +79,106 @@ def test_square_root_equals_the_standard_form_without_params(family):
     std = sm.NonlinearKalmanFilter(F_FIX, H_RB, Q, R, **opts)
     sr = sm.NonlinearKalmanFilter(F_FIX, H_RB, Q, R, square_root=True, **opts)
     assert_same(sr.filter(YS[0], X0), std.filter(YS[0], X0))
+
+
+# --- Ill-conditioned problems: the standard form fails, the square-root form keeps P definite.
+
+EPS = np.finfo(float).eps
+
+
+def kalman_mp(F, H, Q, R, x0, P0, ys, dps: int = 60):
+    """The Kalman filter in mpmath at ``dps`` digits: (x (K, n), P (K, n, n)) as floats."""
+    mp = pytest.importorskip("mpmath")
+    mp.mp.dps = dps
+    F, H, Q, R = (mp.matrix(np.asarray(a, dtype=float).tolist()) for a in (F, H, Q, R))
+    x, P = mp.matrix([float(a) for a in x0]), mp.matrix(np.asarray(P0, dtype=float).tolist())
+    xs, Ps = [], []
+    for y in ys:
+        x, P = F * x, F * P * F.T + Q
+        S = H * P * H.T + R
+        G = P * H.T * mp.inverse(S)
+        x = x + G * (mp.matrix([float(a) for a in y]) - H * x)
+        P = P - G * S * G.T
+        P = (P + P.T) / 2
+        xs.append([float(a) for a in x])
+        Ps.append([[float(P[i, j]) for j in range(P.cols)] for i in range(P.rows)])
+    return np.array(xs), np.array(Ps)
+
+
+def correlation_errors(x, P, xr, Pr):
+    """(max |x − x_ref| / (σ + |x_ref|), max |P − P_ref| / σσᵀ) with σ the reference's standard
+    deviations (the error relative to the state's uncertainty or its size, whichever is
+    larger, and in correlation units), and the largest condition number κ of the reference's
+    correlation matrices."""
+    sd = np.sqrt(np.einsum("kii->ki", Pr))
+    outer = np.einsum("ki,kj->kij", sd, sd)
+    return (float(np.max(np.abs(x - xr) / (sd + np.abs(xr)))), float(np.max(np.abs(P - Pr) / outer)),
+            float(np.max(np.linalg.cond(Pr / outer))))
+
+
+def assert_definite_factor(res: sm.KalmanResult) -> None:
+    """Every P_chol is lower triangular with a positive diagonal: P = S Sᵀ is positive definite."""
+    d = np.diagonal(res.P_chol, axis1=-2, axis2=-1)
+    assert np.all(np.triu(res.P_chol, 1) == 0) and np.all(d > 0)
+
+
+def test_filterpy_linear_rts_with_r_1e_16():
+    """FilterPy's test_linear_rts (test_ukf.py): a 1-D constant-velocity model, Q of
+    Q_discrete_white_noise(2, 1, 0.01) (rank 1), R = 1e-16, P0 = I, the UT of
+    MerweScaledSigmaPoints(2, alpha=.1, beta=2, kappa=1) (centre weight −62.7), 50 steps.
+
+    FilterPy's UKF stops with a failed Cholesky factor; symmon's standard form runs but its
+    position variance (≈ 1e-16 after each update) is rounding, off by a factor up to 4.4;
+    the square-root form equals the exact filter (mpmath) to 1e-12 in correlation units."""
+    p, v = sp.symbols("p v", real=True)
+    f = sm.Model([p, v], [p + v, v], name="sr_frts_f")
+    h = sm.Model([p, v], [p], name="sr_frts_h")
+    Q1 = 0.01 * np.array([[0.25, 0.5], [0.5, 1.0]])
+    R1 = np.array([[1e-16]])
+    ys = (np.arange(1, 51) + 1e-8 * np.random.default_rng(7).standard_normal(50))[:, None]
+    x0 = sm.Gaussian([0.0, 1.0], np.eye(2))
+    ut = sm.UT(alpha=0.1, beta=2.0, kappa=1.0)
+    xr, Pr = kalman_mp([[1, 1], [0, 1]], [[1, 0]], Q1, R1, x0.mean, x0.cov, ys)
+    sr = sm.NonlinearKalmanFilter(f, h, Q1, R1, ut, square_root=True).filter(ys, x0)
+    assert_definite_factor(sr)
+    ex, eP, kappa = correlation_errors(sr.x, sr.P, xr, Pr)
+    # A backward-stable square-root recursion: errors of order ε √κ per step (Verhaegen & Van
+    # Dooren 1986); κ ≈ 1 here, 50 steps: 1e-12 is 50 × 100 ε √κ rounded up.
+    assert kappa < 10 and ex < 1e-12 and eP < 1e-12
+    std = sm.NonlinearKalmanFilter(f, h, Q1, R1, ut).filter(ys, x0)
+    assert correlation_errors(std.x, std.P, xr, Pr)[1] > 1.0  # the difference P⁻ − K S Kᵀ: rounding
+
+    ukf_module = pytest.importorskip("filterpy.kalman")
+    fp = ukf_module.UnscentedKalmanFilter(2, 1, 1.0, lambda x: x[:1], lambda x, dt: np.array([x[0] + x[1], x[1]]),
+                                          ukf_module.MerweScaledSigmaPoints(2, alpha=0.1, beta=2.0, kappa=1.0))
+    fp.x, fp.P, fp.Q, fp.R = np.array([0.0, 1.0]), np.eye(2), Q1.copy(), R1.copy()
+    with pytest.raises(np.linalg.LinAlgError):
+        fp.batch_filter(ys)
+
+
+def test_ten_thousand_steps_of_a_noise_free_tracker_with_a_diffuse_prior():
+    """Constant acceleration, position and velocity noise-free, Q = 1e-20 on the acceleration,
+    P0 = 1e12 I, R = 1e-6, 10⁴ steps (tests/reference/make_sqrt_reference.py, mpmath at 60
+    digits): the standard form's S loses definiteness within a few steps; the square-root
+    form runs, keeps a positive factor, and equals the exact filter within 100 ε √κ."""
+    import json
+    from pathlib import Path
+
+    ref = json.loads((Path(__file__).parents[1] / "reference" / "sqrt_filter.json").read_text())
+    K_ref, steps = ref["K"], ref["steps"]
+    t = np.arange(1, K_ref + 1, dtype=float)
+    ys = (t + 5e-4 * t**2 + np.sqrt(ref["R"]) * np.sin(1.7 * t))[:, None]  # as the script's measurements()
+    p, v, a = sp.symbols("p v a", real=True)
+    f = sm.Model([p, v, a], [p + v + a / 2, v + a, a], name="sr_ca_f")
+    h = sm.Model([p, v, a], [p], name="sr_ca_h")
+    Q3, R3 = np.diag([0.0, 0.0, ref["Q_acc"]]), np.array([[ref["R"]]])
+    x0 = sm.Gaussian([0.0, 1.0, 0.0], ref["P0"] * np.eye(3))
+    with pytest.raises(SymmonError, match="NaN or inf at step"):
+        sm.NonlinearKalmanFilter(f, h, Q3, R3, sm.TT1()).filter(ys, x0)
+    res = sm.NonlinearKalmanFilter(f, h, Q3, R3, sm.TT1(), square_root=True).filter(ys, x0)
+    assert_definite_factor(res)
+    ex, eP, kappa = correlation_errors(res.x[steps], res.P[steps], np.array(ref["x"]), np.array(ref["P"]))
+    # κ ≈ 4e16 after the second measurement (p and v pinned, almost perfectly correlated):
+    # the factors' condition is √κ ≈ 2e8, and the early errors persist in a noise-free model.
+    bound = 100 * EPS * np.sqrt(kappa)
+    assert kappa > 1e16 and ex < bound and eP < bound
