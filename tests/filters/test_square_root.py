@@ -182,3 +182,72 @@ def test_ten_thousand_steps_of_a_noise_free_tracker_with_a_diffuse_prior():
     # the factors' condition is √κ ≈ 2e8, and the early errors persist in a noise-free model.
     bound = 100 * EPS * np.sqrt(kappa)
     assert kappa > 1e16 and ex < bound and eP < bound
+
+
+# --- General noise, large (MX) steps, the VM, NEES in the step, refusals.
+
+e1, e2 = sp.symbols("e1 e2", real=True)
+#: Range with a multiplicative error and bearing with an additive one: general noise.
+H_GEN = sm.Model(STATE, [sp.sqrt(px**2 + py**2) * (1 + e1), sp.atan2(py, px) + e2], noise=[e1, e2], angles=[1],
+                 name="sr_rb_gen")
+R_GEN = np.diag([0.01**2, 0.01**2])
+
+
+@pytest.mark.parametrize("family", ["EKF", "CKF"])
+def test_square_root_with_general_noise_equals_the_standard_form(family):
+    opts = FAMILIES[family]
+    std = sm.NonlinearKalmanFilter(F_FIX, H_GEN, Q, R_GEN, **opts)
+    sr = sm.NonlinearKalmanFilter(F_FIX, H_GEN, Q, R_GEN, square_root=True, **opts)
+    assert_same(sr.filter(YS, X0), std.filter(YS, X0))
+
+
+def stacked_tracker(k: int):
+    """k constant-velocity targets in range and bearing: 4k states (MX from 10)."""
+    X, fo, ho = [], [], []
+    for i in range(k):
+        a, b, c, d = sp.symbols(f"sx{i} sy{i} svx{i} svy{i}", real=True)
+        X += [a, b, c, d]
+        fo += [a + c, b + d, c, d]
+        ho += [sp.sqrt(a**2 + b**2), sp.atan2(b, a)]
+    f = sm.Model(X, fo, name=f"sr_cv{k}")
+    h = sm.Model(X, ho, name=f"sr_rb{k}", angles=list(range(1, 2 * k, 2)))
+    x0 = sm.Gaussian(np.concatenate([[20.0 + 5 * i, 5.0 - 3 * i, -1.0, 0.5] for i in range(k)]),
+                     np.kron(np.eye(k), np.diag([1.0, 1.0, 0.1, 0.1])))
+    return f, h, np.kron(np.eye(k), np.diag([0.01, 0.01, 0.001, 0.001])), np.kron(np.eye(k), R), x0
+
+
+def test_square_root_mx_step_equals_the_standard_form_and_the_vm():
+    f, h, Q3, R3, x0 = stacked_tracker(3)  # 12 states: the MX step
+    rng = np.random.default_rng(5)
+    hx = sp.lambdify(f.inputs, h.outputs, "numpy")
+    ys = np.array([hx(*(x0.mean + [0, 0, 0, 0] * 3)) for _ in range(6)]) + 0.01 * rng.standard_normal((6, 6))
+    ys[2, 3] = np.nan
+    std = sm.NonlinearKalmanFilter(f, h, Q3, R3, sm.UT.cubature())
+    sr = sm.NonlinearKalmanFilter(f, h, Q3, R3, sm.UT.cubature(), square_root=True)
+    a = sr.filter(ys, x0)
+    assert_same(a, std.filter(ys, x0))
+    from symmon.filters.step import _compiled_step
+
+    step = _compiled_step(f, h, sm.UT.cubature(), sr.angle_states, 1, True)
+    vm = step(np.asarray(x0.mean), np.asarray(x0.cov), ys[None], sr.Q, sr.R, use_c=False)
+    np.testing.assert_allclose(vm["x"][0], a.x, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(vm["P_chol"][0], a.P_chol, rtol=1e-12, atol=1e-14)
+
+
+def test_square_root_nees_in_the_step_equals_the_nees_of_its_p():
+    sr = sm.NonlinearKalmanFilter(F_PAR, H_RB, Q, R, sm.TT1(), square_root=True)
+    truth = np.repeat(np.asarray(X0.mean)[None, None], K, axis=1).repeat(2, axis=0)
+    res = sr.filter(YS, X0, params=PARAMS, x_true=truth)
+    e = truth - res.x
+    e[..., 2] = (e[..., 2] + np.pi) % (2 * np.pi) - np.pi
+    direct = np.einsum("rki,rki->rk", e, np.linalg.solve(res.P, e[..., None])[..., 0])
+    np.testing.assert_allclose(res.nees_values, direct, rtol=1e-9)
+
+
+def test_square_root_refusals():
+    with pytest.raises(ArgumentTypeError, match="square_root must be True or False"):
+        sm.NonlinearKalmanFilter(F_FIX, H_RB, Q, R, sm.TT1(), square_root="yes")
+    with pytest.raises(SymmonError, match="square_root=True needs one transform"):
+        sm.NonlinearKalmanFilter(F_FIX, H_RB, Q, R, sm.Adaptive(), square_root=True)
+    with pytest.raises(SymmonError, match="do not reproduce the covariance"):
+        sm.NonlinearKalmanFilter(F_FIX, H_RB, Q, R, sm.GaussHermite(1), square_root=True)
