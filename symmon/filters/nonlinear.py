@@ -262,6 +262,9 @@ class NonlinearKalmanFilter:
         The smoother of the filter's family (:mod:`symmon.filters.smoother`): TT1 gives the
         extended RTS smoother, TT2 the second-order one, a UT the unscented RTS smoother
         (Särkkä 2008), Gauss–Hermite the Gauss–Hermite smoother; angle states are wrapped.
+        A square-root filter has the square-root smoother
+        (:func:`symmon.filters.smoother.sqrt_backward_graph`), whose result also holds the
+        smoothed factors (``P_chol``).
 
         Parameters
         ----------
@@ -301,8 +304,11 @@ class NonlinearKalmanFilter:
         bank = fwd.runs is not None
         X = fwd.x if bank else fwd.x[None]
         P = fwd.P if bank else fwd.P[None]
-        smoother = compiled_smoother(self.f_model, self.strategy.transform, self.angle_states, self.params)
-        xs, Ps = smoother(X, P, self.Q, params=self._param_values(params, fwd.runs, fwd.steps))
+        smoother = compiled_smoother(self.f_model, self.strategy.transform, self.angle_states, self.params,
+                                     self.square_root)
+        if self.square_root:  # the factors the filter propagated, not a new factorisation of P
+            P = fwd.P_chol if bank else fwd.P_chol[None]
+        xs, Ps, *chol = smoother(X, P, self.Q, params=self._param_values(params, fwd.runs, fwd.steps))
         bad = ~(np.isfinite(xs).all(axis=-1) & np.isfinite(Ps).all(axis=(-1, -2)))
         if bad.any():
             r, k = np.argwhere(bad)[-1]  # the backward pass runs from the end
@@ -310,9 +316,11 @@ class NonlinearKalmanFilter:
             raise SymmonError(f"{self.method} smoother: NaN or inf at {where} (a predicted covariance is "
                               "singular, or a derivative is undefined there)")
         if not bank:
-            xs, Ps = xs[0], Ps[0]
-        xs.flags.writeable = Ps.flags.writeable = False
-        return SmootherResult(xs, Ps, fwd, angle_states=tuple(sorted(self.angle_states)), method=self.method)
+            xs, Ps, chol = xs[0], Ps[0], [c[0] for c in chol]
+        for a in [xs, Ps] + chol:
+            a.flags.writeable = False
+        return SmootherResult(xs, Ps, fwd, angle_states=tuple(sorted(self.angle_states)), method=self.method,
+                              P_chol=chol[0] if chol else None)
 
     def fit(self, ys: ArrayLike, x0: Gaussian | ArrayLike, start: dict, P0: ArrayLike | None = None, *,
             params: dict | None = None, bounds: dict | None = None, max_iter: int = 200):

@@ -559,6 +559,9 @@ class SmootherResult:
     method : str
         The filter, e.g. ``"UKF(alpha=1.0, beta=2.0, kappa=0.0)"``; the smoother is its RTS
         smoother (extended, second-order, unscented, Gauss–Hermite).
+    P_chol : ndarray, shape of ``P``, or None
+        The smoothed lower Cholesky factors (P = S Sᵀ) of a square-root smoother; None for
+        the others.
     """
 
     x: np.ndarray
@@ -566,6 +569,7 @@ class SmootherResult:
     filtered: KalmanResult
     angle_states: tuple[int, ...] = ()
     method: str = ""
+    P_chol: np.ndarray | None = None
 
     @property
     def runs(self) -> int | None:

@@ -86,8 +86,9 @@ def test_square_root_equals_the_standard_form_without_params(family):
 EPS = np.finfo(float).eps
 
 
-def kalman_mp(F, H, Q, R, x0, P0, ys, dps: int = 60):
-    """The Kalman filter in mpmath at ``dps`` digits: (x (K, n), P (K, n, n)) as floats."""
+def kalman_mp(F, H, Q, R, x0, P0, ys, dps: int = 60, smooth: bool = False):
+    """The Kalman filter (``smooth``: its RTS smoother) in mpmath at ``dps`` digits: (x (K, n),
+    P (K, n, n)) as floats."""
     mp = pytest.importorskip("mpmath")
     mp.mp.dps = dps
     F, H, Q, R = (mp.matrix(np.asarray(a, dtype=float).tolist()) for a in (F, H, Q, R))
@@ -100,9 +101,15 @@ def kalman_mp(F, H, Q, R, x0, P0, ys, dps: int = 60):
         x = x + G * (mp.matrix([float(a) for a in y]) - H * x)
         P = P - G * S * G.T
         P = (P + P.T) / 2
-        xs.append([float(a) for a in x])
-        Ps.append([[float(P[i, j]) for j in range(P.cols)] for i in range(P.rows)])
-    return np.array(xs), np.array(Ps)
+        xs.append(x)
+        Ps.append(P)
+    if smooth:  # the RTS backward pass: G = P_k Fᵀ (F P_k Fᵀ + Q)⁻¹
+        for k in range(len(ys) - 2, -1, -1):
+            G = Ps[k] * F.T * mp.inverse(F * Ps[k] * F.T + Q)
+            xs[k] = xs[k] + G * (xs[k + 1] - F * xs[k])
+            Ps[k] = Ps[k] + G * (Ps[k + 1] - F * Ps[k] * F.T - Q) * G.T
+    return (np.array([[float(a) for a in x] for x in xs]),
+            np.array([[[float(P[i, j]) for j in range(P.cols)] for i in range(P.rows)] for P in Ps]))
 
 
 def correlation_errors(x, P, xr, Pr):
@@ -147,6 +154,12 @@ def test_filterpy_linear_rts_with_r_1e_16():
     assert kappa < 10 and ex < 1e-12 and eP < 1e-12
     std = sm.NonlinearKalmanFilter(f, h, Q1, R1, ut).filter(ys, x0)
     assert correlation_errors(std.x, std.P, xr, Pr)[1] > 1.0  # the difference P⁻ − K S Kᵀ: rounding
+    # The test's point: the RTS smoother.  Same bound.
+    xs_r, Ps_r = kalman_mp([[1, 1], [0, 1]], [[1, 0]], Q1, R1, x0.mean, x0.cov, ys, smooth=True)
+    smoothed = sm.NonlinearKalmanFilter(f, h, Q1, R1, ut, square_root=True).smooth(ys, x0)
+    assert np.all(np.diagonal(smoothed.P_chol, axis1=-2, axis2=-1) > 0)
+    ex, eP, kappa = correlation_errors(smoothed.x, smoothed.P, xs_r, Ps_r)
+    assert kappa < 10 and ex < 1e-12 and eP < 1e-12
 
     ukf_module = pytest.importorskip("filterpy.kalman")
     fp = ukf_module.UnscentedKalmanFilter(2, 1, 1.0, lambda x: x[:1], lambda x, dt: np.array([x[0] + x[1], x[1]]),
@@ -251,3 +264,17 @@ def test_square_root_refusals():
         sm.NonlinearKalmanFilter(F_FIX, H_RB, Q, R, sm.Adaptive(), square_root=True)
     with pytest.raises(SymmonError, match="do not reproduce the covariance"):
         sm.NonlinearKalmanFilter(F_FIX, H_RB, Q, R, sm.GaussHermite(1), square_root=True)
+
+
+# --- The square-root RTS smoother.
+
+
+@pytest.mark.parametrize("family", ["EKF", "UKF-negative-centre", "EKF2"])
+def test_square_root_smoother_equals_the_standard_smoother(family):
+    opts = FAMILIES[family]
+    std = sm.NonlinearKalmanFilter(F_PAR, H_RB, Q, R, **opts).smooth(YS, X0, params=PARAMS)
+    sr = sm.NonlinearKalmanFilter(F_PAR, H_RB, Q, R, square_root=True, **opts).smooth(YS, X0, params=PARAMS)
+    for u, w in ((sr.x, std.x), (sr.P, std.P)):
+        assert np.all(np.abs(u - w) <= 1e-10 * np.maximum(np.abs(w), 1.0))
+    np.testing.assert_allclose(sr.P_chol, np.linalg.cholesky(std.P), rtol=1e-9, atol=1e-12)
+    assert std.P_chol is None
