@@ -119,7 +119,7 @@ def _jacobian_x(h: Model, m, p):
 
 def sqrt_update_graph(h: Model, transform: Transform, angle_states: frozenset[int], x_pred, S_pred, y, R_sqrt,
                       mask=None, p=None, iterations: int = 1):
-    """The measurement update in square-root form: (x⁺, S⁺, ν, S, log N(ν; 0, S), NIS), with
+    """The measurement update in square-root form: (x⁺, S⁺, ν, S_y, log N(ν; 0, S), NIS), with
     S = S_y S_yᵀ the innovation covariance (module notes; the mask and the iterations as
     :func:`symmon.filters.step.update_graph`)."""
     kind, n, n_y = type(x_pred), x_pred.shape[0], h.n_y
@@ -154,7 +154,7 @@ def sqrt_update_graph(h: Model, transform: Transform, angle_states: frozenset[in
     nis = ca.dot(white, white)
     log_det = 2 * ca.sum1(ca.log(ca.diag(Sy)))
     loglik = -0.5 * (nis + log_det + measured * math.log(2 * math.pi))
-    return wrap_entries(x_i, angle_states), S_new, nu, ca.mtimes(Sy, Sy.T), loglik, nis
+    return wrap_entries(x_i, angle_states), S_new, nu, Sy, loglik, nis
 
 
 def sqrt_nees_graph(x, S, truth, angle_states):

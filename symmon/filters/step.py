@@ -202,8 +202,9 @@ def _step_function(f: Model, h: Model, transform: Transform, angle_states: froze
     p = kind.sym("p", len(names))
     if square_root:
         x_pred, P_pred = sqrt_predict_graph(f, transform, angle_states, x, P, Q, select_params(f, names, p))
-        x_new, P_new, nu, S, loglik, nis = sqrt_update_graph(h, transform, angle_states, x_pred, P_pred, y, R,
-                                                             mask, select_params(h, names, p), iterations)
+        x_new, P_new, nu, Sy, loglik, nis = sqrt_update_graph(h, transform, angle_states, x_pred, P_pred, y, R,
+                                                              mask, select_params(h, names, p), iterations)
+        S = ca.mtimes(Sy, Sy.T)
     else:
         x_pred, P_pred = predict_graph(f, transform, angle_states, x, P, Q, chol, select_params(f, names, p))
         # The NIS comes with the step, so that a lean bank need not keep ν and S.
