@@ -63,90 +63,68 @@ __all__ = ["tria", "chol_downdate", "JointColumns", "sqrt_moments", "joint_facto
 UNIT_COV_TOL = 1e-10
 
 
-@functools.lru_cache(maxsize=128)
-def _tria_step(kind: type, n: int, m: int) -> ca.Function:
-    """(A, j) ↦ A with row j reflected onto its diagonal: one Householder step of :func:`tria`.
-
-    Rows below j see the same reflection of the columns j…m−1; row j becomes σ e_j (σ its
-    norm over those columns, ≥ 0, its sign carried to column j), and the rows above are
-    untouched (their entries from column j on are already zero).
-    """
-    A, j = kind.sym("A", n, m), kind.sym("j")
-    rows, cols = ca.DM(np.arange(n, dtype=float)), ca.DM(np.arange(m, dtype=float))
-    e = ca.if_else(rows == j, 1, 0)  # e_j among the rows
-    f = ca.if_else(cols == j, 1, 0)  # e_j among the columns
-    right = ca.if_else(cols >= j, 1, 0)
-    below = ca.if_else(rows > j, 1, 0)
-    x = ca.mtimes(e.T, A).T * right  # row j from column j on
-    sigma = ca.norm_2(x)
-    x0 = ca.dot(x, f)
-    s = ca.if_else(x0 >= 0, 1, -1)
-    v = x + s * sigma * f
-    vv = ca.dot(v, v)  # 2σ(σ + |x₀|): zero only for a zero row, which needs no reflection
-    beta = ca.if_else(vv > 0, 2 / vv, 0)
-    Av = ca.mtimes(A, v) * below
-    out = A - ca.mtimes(beta * Av, v.T)
-    # Row j exactly σ e_j, the other rows' column j times −s (so that σ ≥ 0 sits on the
-    # diagonal: a sign change of one column of the orthogonal transformation).
-    col = ca.mtimes(out, f) * below
-    out = out * (1 - ca.mtimes(e, right.T)) + ca.mtimes(-s * col - col, f.T) + sigma * ca.mtimes(e, f.T)
-    return ca.Function("tria_step", [A, j], [out])
-
-
 def tria(A: Sym) -> Sym:
     """The lower triangular L with L Lᵀ = A Aᵀ and diag L ≥ 0 (n × n, A n × m).
 
     Householder reflections of the columns of A, row by row (a QR factorisation of Aᵀ; Golub
-    & Van Loan 2013, Alg. 5.2.1).  With A Aᵀ positive definite, L is its Cholesky factor;
-    with a zero row left (a noise-free direction) the step skips it, so L has a zero column
-    there, as :func:`symmon.codegen.symbolic.chol_lower`.  In SX the column index folds and
-    the code is the unrolled reflections (2 n² m operations); in MX it is n calls of one
-    step function.
+    & Van Loan 2013, Alg. 5.2.1): row j of the trailing block is reflected onto σ e_j (σ its
+    norm), the same reflection applied to the rows below, and the sign of column j chosen so
+    that σ ≥ 0 sits on the diagonal.  With A Aᵀ positive definite, L is its Cholesky factor;
+    a zero row (a noise-free direction) needs no reflection and gives a zero column, as
+    :func:`symmon.codegen.symbolic.chol_lower`.  Each step works on the trailing block only
+    (slices, a matrix-vector product and a rank-1 update: loops in MX, 2 n² m operations in
+    all, O(n) nodes).
     """
     kind = type(A)
     n, m = A.shape
     if m < n:  # fewer columns than rows: zero columns change nothing
         A = ca.horzcat(A, kind.zeros(n, n - m))
-        m = n
-    step = _tria_step(kind, n, m)
-    out = ca.densify(A)
+    T = ca.densify(A)  # the trailing block, rows j…n−1 and columns j…m−1
+    cols = []
     for j in range(n):
-        out = step(out, j)
-    return out[:, :n]
-
-
-@functools.lru_cache(maxsize=128)
-def _downdate_step(kind: type, n: int) -> ca.Function:
-    """(L, b, k) ↦ (L, b) after column k of the rank-1 downdate L Lᵀ − b bᵀ (a hyperbolic
-    rotation of column k of L against b; Golub & Van Loan 2013, §6.5.4)."""
-    L, b, k = kind.sym("L", n, n), kind.sym("b", n), kind.sym("k")
-    rows = ca.DM(np.arange(n, dtype=float))
-    e = ca.if_else(rows == k, 1, 0)
-    below = ca.if_else(rows > k, 1, 0)
-    col = ca.mtimes(L, e)
-    lkk, bk = ca.dot(col, e), ca.dot(b, e)
-    # A negative r² (the result is not positive semidefinite) gives NaN: it reaches the
-    # outputs, and the filter names the step, as a negative pivot of chol_lower does.
-    r = ca.sqrt(lkk * lkk - bk * bk)
-    ok = r > 0
-    c = ca.if_else(ok, r / lkk, 0)
-    s = ca.if_else(ok, bk / lkk, 0)
-    new = ca.if_else(ok, (col - s * b) / c, 0) * below + r * e
-    b_new = (c * b - s * new) * below
-    # r = 0 from a positive pivot: the column equals ±b below it, and both vanish; a zero
-    # pivot (with b_k = 0): the column stays zero and b passes unchanged.
-    b_new = ca.if_else(ok, b_new, ca.if_else(lkk > 0, 0, 1) * b * below)
-    return ca.Function("downdate_step", [L, b, k], [L + ca.mtimes(new - col, e.T), b_new])
+        x = T[0, :].T
+        sigma = ca.norm_2(x)
+        s = ca.if_else(x[0] >= 0, 1, -1)
+        v = ca.vertcat(x[0] + s * sigma, x[1:, :])
+        vv = ca.dot(v, v)  # 2σ(σ + |x₀|): zero only for a zero row, which needs no reflection
+        beta = ca.if_else(vv > 0, 2 / vv, 0)
+        if j == n - 1:
+            cols.append(ca.vertcat(kind.zeros(j, 1), sigma))
+            break
+        rest = T[1:, :]
+        rest = rest - ca.mtimes(beta * ca.mtimes(rest, v), v.T)
+        cols.append(ca.vertcat(kind.zeros(j, 1), sigma, -s * rest[:, 0]))
+        T = rest[:, 1:]
+    return ca.horzcat(*cols)
 
 
 def chol_downdate(L: Sym, b: Sym) -> Sym:
-    """The lower factor L' of L Lᵀ − b bᵀ (diag ≥ 0), by n hyperbolic rotations (Golub &
-    Van Loan 2013, §6.5.4); NaN when L Lᵀ − b bᵀ is not positive semidefinite."""
+    """The lower factor L' of L Lᵀ − b bᵀ (diag ≥ 0): a hyperbolic rotation of each column of
+    L against b (Golub & Van Loan 2013, §6.5.4), O(n²).
+
+    A result that is not positive semidefinite gives a negative r² and NaN, which reaches
+    the outputs (the filter names the step), as a negative pivot of
+    :func:`symmon.codegen.symbolic.chol_lower` does.
+    """
+    kind = type(L)
     n = L.shape[0]
-    step = _downdate_step(type(L), n)
+    cols = []
     for k in range(n):
-        L, b = step(L, b, k)
-    return L
+        col = L[k:, k]
+        lkk, bk = col[0], b[0]
+        r = ca.sqrt(lkk * lkk - bk * bk)
+        ok = r > 0
+        c = ca.if_else(ok, r / lkk, 0)
+        s = ca.if_else(ok, bk / lkk, 0)
+        if k == n - 1:
+            cols.append(ca.vertcat(kind.zeros(k, 1), r))
+            break
+        below = ca.if_else(ok, (col[1:, :] - s * b[1:, :]) / c, 0)
+        cols.append(ca.vertcat(kind.zeros(k, 1), r, below))
+        # r = 0 from a positive pivot: the column equals ±b below it, and both vanish; a zero
+        # pivot (with b_k = 0): the column stays zero and b passes unchanged.
+        b = ca.if_else(ok, c * b[1:, :] - s * below, ca.if_else(lkk > 0, 0, 1) * b[1:, :])
+    return ca.horzcat(*cols)
 
 
 class JointColumns(NamedTuple):
