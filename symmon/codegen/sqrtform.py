@@ -18,11 +18,12 @@ squares:
   (the diagonal ones scaled by 1/√2); for a point rule √|wᶜ_k| (y_k − ȳ) and √|wᶜ_k| A z_k
   (Arasaratnam & Haykin 2009, eqs. (48)–(52) for the cubature rule; van der Merwe & Wan
   2001 for the UT with its centre weight);
-- :func:`joint_factor` is the array algorithm of the measurement update (Kailath, Sayed &
-  Hassibi 2000, §12.3): the lower factor of the joint columns [Y; X] is
-  [[S_y, 0], [K̄, S⁺]] with S_y S_yᵀ = Cov y (+ R), K̄ = P^{xy} S_y⁻ᵀ (so K = K̄ S_y⁻¹) and
-  S⁺ S⁺ᵀ = P − P^{xy} (Cov y)⁻¹ P^{yx}, a sum of squares that stays positive semidefinite
-  in floating point, where P − K S Kᵀ is a difference that need not.
+- :func:`gain_factor` and :func:`residual_factor` are the measurement update: S_y = tria(Y)
+  (S_y S_yᵀ = Cov y, + R with its columns), K = P^{xy} S_y⁻ᵀ S_y⁻¹ by triangular inverses,
+  and S⁺ = tria(X − K Y): the Joseph form (X − K Y)(X − K Y)ᵀ = P − K S Kᵀ in factored
+  form (Arasaratnam & Haykin 2009, §V; Grewal & Andrews 2015), a sum of squares that
+  stays positive semidefinite in floating point, where P − K S Kᵀ is a difference that
+  need not.
 
 The same functions build SX (straight-line code, the column index a constant that folds) or
 MX graphs (one step function per column called n times: loops in C, code O(1) in n), as
@@ -32,8 +33,8 @@ References
 ----------
 G. H. Golub, C. F. Van Loan, *Matrix Computations*, 4th ed., Johns Hopkins, 2013, §5.2
 (Householder QR), §6.5.4 (Cholesky updating and downdating).
-T. Kailath, A. H. Sayed, B. Hassibi, *Linear Estimation*, Prentice Hall, 2000, ch. 12
-(array algorithms).
+M. S. Grewal, A. P. Andrews, *Kalman Filtering: Theory and Practice with MATLAB*, 4th ed.,
+Wiley, 2015 (the Joseph form and square-root filters).
 R. van der Merwe, E. A. Wan, "The square-root unscented Kalman filter for state and
 parameter-estimation", ICASSP 2001. doi:10.1109/ICASSP.2001.940586
 I. Arasaratnam, S. Haykin, "Cubature Kalman filters", IEEE Trans. Autom. Control 54(6),
@@ -54,9 +55,9 @@ import numpy as np
 from ..compile.compiled import CompiledModel
 from ..errors import SymmonError
 from ..transforms.base import Transform
-from .symbolic import Sym, effective_order, point_values, wrap_entries
+from .symbolic import Sym, effective_order, point_values, tril_inverse, wrap_entries
 
-__all__ = ["tria", "chol_downdate", "JointColumns", "sqrt_moments", "joint_factor", "check_sqrt_rule",
+__all__ = ["tria", "chol_downdate", "JointColumns", "sqrt_moments", "gain_factor", "residual_factor", "check_sqrt_rule",
            "chol_scaled"]
 
 #: A rule's points reproduce the covariance when Σ wᶜ_k z_k z_kᵀ = I to this (absolute) tolerance.
@@ -91,10 +92,11 @@ def tria(A: Sym) -> Sym:
         if j == n - 1:
             cols.append(ca.vertcat(kind.zeros(j, 1), sigma))
             break
-        rest = T[1:, :]
-        rest = rest - ca.mtimes(beta * ca.mtimes(rest, v), v.T)
-        cols.append(ca.vertcat(kind.zeros(j, 1), sigma, -s * rest[:, 0]))
-        T = rest[:, 1:]
+        # The rows below: w = T v (without row 0), column 0 is their new column j, and the
+        # trailing block T[1:, 1:] − β w v[1:]ᵀ accumulates into the copy of its slice.
+        w = beta * ca.mtimes(T, v)[1:, :]
+        cols.append(ca.vertcat(kind.zeros(j, 1), sigma, -s * (T[1:, 0] - w * v[0])))
+        T = ca.mac(-w, v[1:, :].T, T[1:, 1:])
     return ca.horzcat(*cols)
 
 
@@ -224,17 +226,30 @@ def downdate_all(L: Sym, cols: Sym | None) -> Sym:
     return L
 
 
-def joint_factor(Y: Sym, X: Sym, Yn: Sym | None = None, Xn: Sym | None = None) -> tuple[Sym, Sym, Sym]:
-    """(S_y, K̄, S⁺) from the lower factor of the joint columns [Y; X] (less [Yn; Xn]):
-    the array algorithm of the update (module notes; Kailath, Sayed & Hassibi 2000, §12.3).
-
-    S_y S_yᵀ = Y Yᵀ − Yn Ynᵀ, K̄ = (X Yᵀ − Xn Ynᵀ) S_y⁻ᵀ and S⁺ S⁺ᵀ = X Xᵀ − Xn Xnᵀ − K̄ K̄ᵀ.
-    """
-    n_y = Y.shape[0]
-    L = tria(ca.vertcat(Y, X))
+def gain_factor(Y: Sym, X: Sym, Yn: Sym | None = None, Xn: Sym | None = None,
+                extra: Sym | None = None) -> tuple[Sym, Sym, Sym]:
+    """(S_y, K̄, K) of the joint columns: S_y = tria([Y, extra]) downdated by Yn (S_y S_yᵀ =
+    Cov y, the ``extra`` columns' Gram added), K̄ = P^{xy} S_y⁻ᵀ with P^{xy} = X Yᵀ − Xn Ynᵀ,
+    and the gain K = K̄ S_y⁻¹ = P^{xy} (S_y S_yᵀ)⁻¹ (triangular inverses only)."""
+    Sy = downdate_all(tria(Y if extra is None else ca.horzcat(Y, extra)), Yn)
+    cross = ca.mtimes(X, Y.T)
     if Yn is not None:
-        L = downdate_all(L, ca.vertcat(Yn, Xn))
-    return L[:n_y, :n_y], L[n_y:, :n_y], L[n_y:, n_y:]
+        cross = cross - ca.mtimes(Xn, Yn.T)
+    inv = tril_inverse(Sy)
+    Kbar = ca.mtimes(cross, inv.T)
+    return Sy, Kbar, ca.mtimes(Kbar, inv)
+
+
+def residual_factor(X: Sym, Y: Sym, K: Sym, Xn: Sym | None = None, Yn: Sym | None = None,
+                    extra: Sym | None = None) -> Sym:
+    """tria([X − K Y, extra]) downdated by Xn − K Yn: the factor of the Joseph form
+    (X − K Y)(X − K Y)ᵀ − (Xn − K Yn)(Xn − K Yn)ᵀ + extra extraᵀ, which is
+    P − K P^{yx} − P^{xy} Kᵀ + K Cov y Kᵀ (+ extra extraᵀ) = P − K Cov y Kᵀ for the gain of
+    :func:`gain_factor` (Arasaratnam & Haykin 2009, §V): a sum of squares, first-order
+    insensitive to an error in K."""
+    A = X - ca.mtimes(K, Y)
+    L = tria(A if extra is None else ca.horzcat(A, extra))
+    return downdate_all(L, None if Xn is None else Xn - ca.mtimes(K, Yn))
 
 
 def chol_scaled(S: Sym) -> tuple[Sym, Sym]:

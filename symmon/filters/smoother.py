@@ -37,8 +37,8 @@ import threading
 import casadi as ca
 import numpy as np
 
-from ..codegen.sqrtform import joint_factor, tria
-from ..codegen.symbolic import graph_kind, tril_inverse, wrap_entries
+from ..codegen.sqrtform import gain_factor, residual_factor
+from ..codegen.symbolic import graph_kind, wrap_entries
 from ..compile.compiled import generated_c
 from ..core.model import Model
 from ..errors import SymmonError
@@ -76,17 +76,17 @@ def _backward_function(f: Model, transform: Transform, angle_states: frozenset[i
 def sqrt_backward_graph(f: Model, transform: Transform, angle_states: frozenset[int], x, S, xs, Ss, Q_sqrt, p=None):
     """One backward step in square-root form: (x^s_k, S^s_k) from the factors S_k, S^s_{k+1}.
 
-    The joint columns of [x_{k+1}; x_k] (the time update's, :func:`symmon.filters.sqrtstep.sqrt_predict_graph`)
-    triangularise to [[S⁻, 0], [Ḡ, S_c]] (the array algorithm, as the measurement update
-    with f for h and Q for R): Ḡ = C S⁻⁻ᵀ, so G = Ḡ S⁻⁻¹, and S_c S_cᵀ = P − G P⁻ Gᵀ; then
-    P^s = S_c S_cᵀ + G P^s_{k+1} Gᵀ = tria([S_c, G S^s_{k+1}]) (Särkkä 2013, eq. (8.6) in the
-    factored form of Kailath, Sayed & Hassibi 2000, §12.3): a sum of squares, where
-    P + G (P^s − P⁻) Gᵀ is a difference."""
-    x_pred, _, cols = sqrt_predict_graph(f, transform, angle_states, x, S, Q_sqrt, p, joint=True)
-    S_pred, Gbar, S_c = joint_factor(*cols)
-    gain = ca.mtimes(Gbar, tril_inverse(S_pred))
+    The joint columns (Y, X) of [x_{k+1}; x_k] (the time update's,
+    :func:`symmon.filters.sqrtstep.sqrt_predict_graph`) give the gain as the measurement
+    update does with f for h and Q for R: S⁻ = tria(Y), G = C S⁻⁻ᵀ S⁻⁻¹ = C (P⁻)⁻¹
+    (:func:`symmon.codegen.sqrtform.gain_factor`), and (X − G Y)(X − G Y)ᵀ = P − G P⁻ Gᵀ, so
+    P^s = P + G (P^s_{k+1} − P⁻) Gᵀ (Särkkä 2013, eq. (8.6)) is the sum of squares
+    tria([X − G Y, G S^s_{k+1}]) (:func:`symmon.codegen.sqrtform.residual_factor`), where the
+    standard form adds a difference."""
+    x_pred, cols = sqrt_predict_graph(f, transform, angle_states, x, S, Q_sqrt, p, joint=True)
+    _, _, gain = gain_factor(*cols)
     x_s = wrap_entries(x + ca.mtimes(gain, wrap_entries(xs - x_pred, angle_states)), angle_states)
-    return x_s, tria(ca.horzcat(S_c, ca.mtimes(gain, Ss)))
+    return x_s, residual_factor(cols.W, cols.Y, gain, cols.Wn, cols.Yn, extra=ca.mtimes(gain, Ss))
 
 
 # The backward loop: for each run, x^s_K = x_K, then K − 1 steps down to the first.

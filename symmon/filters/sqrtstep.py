@@ -8,25 +8,28 @@ when a noise-free state's variance shrinks over many steps.  Here every covarian
 Gram matrix of columns (:mod:`symmon.codegen.sqrtform`), triangularised without squaring:
 
     S⁻ = tria([Y₊, √Q])  (downdated by Y₋),
-    [[S_y, 0], [K̄, S⁺]] = tria([[Y₊, √R], [X₊, 0]])  (downdated by [Y₋; X₋]),
-    x⁺ = x⁻ + K̄ S_y⁻¹ ν,
+    S_y = tria([Y₊, √R])  (downdated by Y₋),  K = (X₊ Y₊ᵀ − X₋ Y₋ᵀ) S_y⁻ᵀ S_y⁻¹,
+    S⁺ = tria([X₊ − K Y₊, −K √R])  (downdated by X₋ − K Y₋),  x⁺ = x⁻ + K ν,
 
 with Y₊, X₊ the joint columns of the rule (Y₊ = J S⁻ and X₊ = S⁻ for TT1, the weighted
 deviations of the points for a point rule, which are taken from S itself), √Q and √R the
 Cholesky factors of the noises, and with general noise the rule on [x; w] with the factor
-blkdiag(S, √Q) (resp. blkdiag(S⁻, √R)).  S⁺ S⁺ᵀ = P⁻ − K S Kᵀ in exact arithmetic, so the
-filter is the standard one; the factors have a non-negative diagonal, so on a positive
-definite P they are the Cholesky factors the standard form takes its sigma points from.
+blkdiag(S, √Q) (resp. blkdiag(S⁻, √R)).  S⁺ is the factored Joseph form,
+S⁺ S⁺ᵀ = (I − K H) P⁻ (I − K H)ᵀ + K R Kᵀ for TT1, and P⁻ − K S Kᵀ for every rule in exact
+arithmetic, so the filter is the standard one; the factors have a non-negative diagonal,
+so on a positive definite P they are the Cholesky factors the standard form takes its
+sigma points from.
 
 Missing components (``mask``, as :func:`symmon.filters.step.update_graph`): their rows of the
-y columns are zero and the columns of I − D are appended, so S_y S_yᵀ = D S D + (I − D).
+y columns are zero and the columns of I − D are appended to S_y's, so S_y S_yᵀ = D S D + (I − D)
+and the gain's columns of the missing components are zero.
 The iterated EKF relinearises at x_i: its residual y − h(x_i) − J_i (x⁻ − x_i) takes J_i
 from the model's Jacobian (no solve with P⁻), and S⁺ is that of the last linearisation.
 
 References
 ----------
-T. Kailath, A. H. Sayed, B. Hassibi, *Linear Estimation*, Prentice Hall, 2000, §12.3
-(array algorithms).
+M. S. Grewal, A. P. Andrews, *Kalman Filtering: Theory and Practice with MATLAB*, 4th ed.,
+Wiley, 2015 (the Joseph form and square-root filters).
 R. van der Merwe, E. A. Wan, "The square-root unscented Kalman filter for state and
 parameter-estimation", ICASSP 2001. doi:10.1109/ICASSP.2001.940586
 I. Arasaratnam, S. Haykin, "Cubature Kalman filters", IEEE Trans. Autom. Control 54(6),
@@ -42,7 +45,8 @@ import math
 import casadi as ca
 import numpy as np
 
-from ..codegen.sqrtform import (JointColumns, chol_scaled, downdate_all, joint_factor, sqrt_moments, tria)
+from ..codegen.sqrtform import (JointColumns, chol_scaled, downdate_all, gain_factor, residual_factor, sqrt_moments,
+                                tria)
 from ..codegen.symbolic import tril_inverse, wrap_entries
 from ..compile import compiled, compiled_with_params
 from ..core.gaussian import matrix_sqrt
@@ -97,14 +101,13 @@ def _columns(model: Model, transform: Transform, angles, x, S, noise_sqrt, p) ->
 def sqrt_predict_graph(f: Model, transform: Transform, angle_states: frozenset[int], x, S, Q_sqrt, p=None,
                        joint: bool = False):
     """The time update in square-root form: (x⁻, S⁻), S⁻ = tria of the columns of f (and √Q),
-    downdated by those of negative weight; with ``joint``, also the joint columns of
-    [x⁻; x] (the smoother's, :func:`symmon.codegen.sqrtform.joint_factor`)."""
+    downdated by those of negative weight; with ``joint``, (x⁻, the joint columns of
+    [x⁻; x]) instead (the smoother's, :func:`symmon.codegen.sqrtform.gain_factor`)."""
     mean, cols = _columns(f, transform, angle_states, x, S, Q_sqrt, p)
-    S_pred = downdate_all(tria(cols.Y), cols.Yn)
     x_pred = wrap_entries(mean, angle_states)
     if joint:
-        return x_pred, S_pred, cols
-    return x_pred, S_pred
+        return x_pred, cols
+    return x_pred, downdate_all(tria(cols.Y), cols.Yn)
 
 
 def _jacobian_x(h: Model, m, p):
@@ -122,34 +125,37 @@ def sqrt_update_graph(h: Model, transform: Transform, angle_states: frozenset[in
     """The measurement update in square-root form: (x⁺, S⁺, ν, S_y, log N(ν; 0, S), NIS), with
     S = S_y S_yᵀ the innovation covariance (module notes; the mask and the iterations as
     :func:`symmon.filters.step.update_graph`)."""
-    kind, n, n_y = type(x_pred), x_pred.shape[0], h.n_y
+    n_y = h.n_y
     y_angles = frozenset(h.angle_outputs)
+
+    # I − D appended to S_y's columns: S_y S_yᵀ = D S D + (I − D).
+    extra = None if mask is None else ca.diag(1 - mask)
 
     def columns(m):
         y_hat, cols = _columns(h, transform, y_angles, m, S_pred, R_sqrt, p)
         if mask is None:
             return y_hat, cols
-        # D Y (rows of the missing components zero), and I − D appended: S_y S_yᵀ = D S D + (I − D).
+        # D Y: the rows of the missing components zero.
         def rows(Z):
             return None if Z is None else Z * ca.repmat(mask, 1, Z.shape[1])
 
-        return y_hat, JointColumns(ca.horzcat(rows(cols.Y), ca.diag(1 - mask)),
-                                   ca.horzcat(cols.W, kind.zeros(n, n_y)), rows(cols.Yn), cols.Wn)
+        return y_hat, JointColumns(rows(cols.Y), cols.W, rows(cols.Yn), cols.Wn)
 
     def masked(r):
         return r if mask is None else mask * r
 
     y_hat, cols = columns(x_pred)
     nu = masked(wrap_entries(y - y_hat, y_angles))
-    Sy, Kbar, S_new = joint_factor(*cols)
-    inv = tril_inverse(Sy)  # a zero pivot: a zero row, and log det S = −inf below
-    white = ca.mtimes(inv, nu)
+    Sy, Kbar, K = gain_factor(*cols, extra=extra)
+    # A zero pivot: a zero row of S_y⁻¹, and log det S = −inf below.
+    white = ca.mtimes(tril_inverse(Sy), nu)
     x_i = x_pred + ca.mtimes(Kbar, white)
     for _ in range(iterations - 1):
-        y_hat_i, cols_i = columns(x_i)
+        y_hat_i, cols = columns(x_i)
         r_i = masked(wrap_entries(y - y_hat_i, y_angles) - ca.mtimes(_jacobian_x(h, x_i, p), x_pred - x_i))
-        Sy_i, Kbar_i, S_new = joint_factor(*cols_i)
-        x_i = x_pred + ca.mtimes(Kbar_i, ca.mtimes(tril_inverse(Sy_i), r_i))
+        _, _, K = gain_factor(*cols, extra=extra)
+        x_i = x_pred + ca.mtimes(K, r_i)
+    S_new = residual_factor(cols.W, cols.Y, K, cols.Wn, cols.Yn)
     measured = n_y if mask is None else ca.sum1(mask)
     nis = ca.dot(white, white)
     log_det = 2 * ca.sum1(ca.log(ca.diag(Sy)))
