@@ -71,8 +71,9 @@ def tria(A: Sym) -> Sym:
     & Van Loan 2013, Alg. 5.2.1): row j of the trailing block is reflected onto σ e_j (σ its
     norm), the same reflection applied to the rows below, and the sign of column j chosen so
     that σ ≥ 0 sits on the diagonal.  With A Aᵀ positive definite, L is its Cholesky factor;
-    a zero row (a noise-free direction) needs no reflection and gives a zero column, as
-    :func:`symmon.codegen.symbolic.chol_lower`.  Each step works on the trailing block only
+    a zero row j (a direction with no variance) needs no reflection and gives a zero row of
+    L, one of the factors of the singular A Aᵀ (its column j below the diagonal need not be
+    zero, as that of :func:`symmon.codegen.symbolic.chol_lower` is).  Each step works on the trailing block only
     (slices, a matrix-vector product and a rank-1 update: loops in MX, 2 n² m operations in
     all, O(n) nodes).
     """
