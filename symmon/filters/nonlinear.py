@@ -297,7 +297,7 @@ class NonlinearKalmanFilter:
         Y = real_measurements(ys)
         if Y.ndim in (2, 3):  # else filter() says what is wrong with the shape
             n = self.f_model.n_u
-            stored = kept_numbers(n, self.h_model.n_y, self.strategy.stores(forward)) + n + n * n
+            stored = self._stored(forward) + (n + 2 * n * n if self.square_root else n + n * n)
             check_bank_size(Y.shape[0] if Y.ndim == 3 else 1, Y.shape[-2], stored, f"{self.method} smoother results",
                             _SMALLER)
         fwd = self.filter(Y, x0, P0, keep=forward, params=params)
@@ -383,6 +383,13 @@ class NonlinearKalmanFilter:
 
         return export_filter_c(self, directory, name)
 
+    def _stored(self, keep: frozenset[str] | None) -> int:
+        """Numbers per run and step of the arrays a filter call keeps: a square-root filter
+        keeps the factors of P and P⁻ beside them."""
+        n, names = self.f_model.n_u, self.strategy.stores(keep)
+        extra = n * n * len(names & {"P", "P_pred"}) if self.square_root else 0
+        return kept_numbers(n, self.h_model.n_y, names) + extra
+
     def _initial(self, x0: Gaussian | ArrayLike, P0: ArrayLike | None, runs: int | None):
         """Validated initial mean(s) and covariance."""
         n = self.f_model.n_u
@@ -467,8 +474,7 @@ class NonlinearKalmanFilter:
         runs = Y.shape[0] if Y.ndim == 3 else None
         kept = check_keep(keep)
         # Before anything reads ys as a whole (a broadcast bank may be larger than memory).
-        check_bank_size(runs or 1, Y.shape[-2], kept_numbers(self.f_model.n_u, n_y, self.strategy.stores(kept)),
-                        f"{self.method} results", _SMALLER)
+        check_bank_size(runs or 1, Y.shape[-2], self._stored(kept), f"{self.method} results", _SMALLER)
         if np.isinf(Y).any():
             where = tuple(int(i) for i in np.argwhere(np.isinf(Y))[0])
             raise ShapeError(f"ys contains inf (at index {where}); a missing measurement is NaN")

@@ -303,3 +303,16 @@ def test_exported_square_root_c_equals_the_filter(tmp_path, family):
     np.testing.assert_allclose(rows[:, 2:6], ref.x, rtol=1e-9, atol=1e-9 * np.abs(ref.x).max())
     np.testing.assert_allclose(rows[:, 6:-1].reshape(-1, 4, 4), ref.P_chol, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(rows[:, -1], np.cumsum(ref.loglik), rtol=1e-9, atol=1e-9)
+
+
+def test_the_bank_size_limit_counts_the_factors():
+    from symmon.errors import ResourceError
+    from symmon.filters.results import MAX_BANK_NUMBERS
+
+    # (1 + 4 + 16 + 16) numbers per step with P and its factor: 37; without the factor, 21.
+    steps = MAX_BANK_NUMBERS // 30
+    ys = np.broadcast_to(np.zeros(2), (steps, 2))
+    std = sm.NonlinearKalmanFilter(F_FIX, H_RB, Q, R, sm.TT1())
+    assert std._stored(frozenset({"x", "P"})) * steps <= MAX_BANK_NUMBERS  # the standard form's fit
+    with pytest.raises(ResourceError, match="37"):
+        sm.NonlinearKalmanFilter(F_FIX, H_RB, Q, R, sm.TT1(), square_root=True).filter(ys, X0, keep=("x", "P"))
