@@ -134,7 +134,7 @@ def main() -> None:
     text = report(rows, K, (load0, " ".join(f"{v:.2f}" for v in os.getloadavg())))
     print(text)
     if args.out:
-        write_section(args.out, text)
+        write_section(args.out, text, HEADING)
 
 
 if __name__ == "__main__":
