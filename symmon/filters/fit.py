@@ -87,7 +87,8 @@ class FitResult:
         kf = self.kf
         f = kf.f_model.with_params({str(s): self.params[str(s)] for s in kf.f_model.params})
         h = kf.h_model.with_params({str(s): self.params[str(s)] for s in kf.h_model.params})
-        return type(kf)(f, h, kf.Q, kf.R, kf.transform, iterations=kf.iterations)  # the filter's class: nonlinear imports this module
+        # The filter's class: nonlinear imports this module.
+        return type(kf)(f, h, kf.Q, kf.R, kf.transform, iterations=kf.iterations, square_root=kf.square_root)
 
     def __repr__(self) -> str:
         parts = ", ".join(f"{k} = {v:.6g} ± {self.std_errors[k]:.2g}" for k, v in self.estimates.items())

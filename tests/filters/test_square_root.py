@@ -316,3 +316,11 @@ def test_the_bank_size_limit_counts_the_factors():
     assert std._stored(frozenset({"x", "P"})) * steps <= MAX_BANK_NUMBERS  # the standard form's fit
     with pytest.raises(ResourceError, match="37"):
         sm.NonlinearKalmanFilter(F_FIX, H_RB, Q, R, sm.TT1(), square_root=True).filter(ys, X0, keep=("x", "P"))
+
+
+def test_the_fitted_filter_of_a_square_root_filter_is_square_root():
+    from symmon.filters.fit import FitResult
+
+    sr = sm.NonlinearKalmanFilter(F_PAR, H_RB, Q, R, sm.TT1(), square_root=True)
+    fit = FitResult({"om": 0.1}, {"om": 0.01}, np.eye(1), 0.0, 1, {"dt": 1.0, "om": 0.1}, None, kf=sr)
+    assert fit.filter.square_root and fit.filter.method == "SR-EKF"
