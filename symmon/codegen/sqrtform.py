@@ -73,9 +73,9 @@ def tria(A: Sym) -> Sym:
     that σ ≥ 0 sits on the diagonal.  With A Aᵀ positive definite, L is its Cholesky factor;
     a zero row j (a direction with no variance) needs no reflection and gives a zero row of
     L, one of the factors of the singular A Aᵀ (its column j below the diagonal need not be
-    zero, as that of :func:`symmon.codegen.symbolic.chol_lower` is).  Each step works on the trailing block only
-    (slices, a matrix-vector product and a rank-1 update: loops in MX, 2 n² m operations in
-    all, O(n) nodes).
+    zero, as that of :func:`symmon.codegen.symbolic.chol_lower` is).  Each step works on the
+    trailing block only (slices, a matrix-vector product and a rank-1 update: loops in MX,
+    2 n² m operations in all, O(n) nodes).
     """
     kind = type(A)
     n, m = A.shape
@@ -115,7 +115,7 @@ def chol_downdate(L: Sym, b: Sym) -> Sym:
     for k in range(n):
         col = L[k:, k]
         lkk, bk = col[0], b[0]
-        r = ca.sqrt(lkk * lkk - bk * bk)
+        r = ca.sqrt((lkk - bk) * (lkk + bk))  # l² − b² without the cancellation of the squares
         ok = r > 0
         c = ca.if_else(ok, r / lkk, 0)
         s = ca.if_else(ok, bk / lkk, 0)
