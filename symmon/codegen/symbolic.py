@@ -47,7 +47,7 @@ from ..compile.compiled import CompiledModel
 from ..errors import SymmonError
 from ..transforms.base import Transform
 
-__all__ = ["MX_FROM", "MAX_SX_POINTS", "graph_kind", "chol_lower", "chol_function", "tril_inverse_function", "chol_node", "tril_inverse", "jacobian_products", "affine_in", "tt1_moments", "tt2_moments", "point_moments", "moments", "wrap_entries", "unit_rule"]
+__all__ = ["MX_FROM", "MAX_SX_POINTS", "graph_kind", "chol_lower", "chol_function", "tril_inverse_function", "chol_node", "tril_inverse", "jacobian_products", "affine_in", "effective_order", "tt1_moments", "tt2_moments", "point_values", "point_moments", "moments", "wrap_entries", "unit_rule"]
 
 #: A symbolic matrix: SX (inlined, straight-line code) or MX (matrix nodes, loops in C).
 Sym = Union[ca.SX, ca.MX]
@@ -355,24 +355,21 @@ def _offsets(L: Sym, Z: np.ndarray, c: float) -> Sym:
     return ca.mac(L, ca.sparsify(ca.DM(Z.T)), kind.zeros(n, N))
 
 
-def point_moments(g: ca.Function, m: Sym, P: Sym, transform: Transform,
-                  angles: Iterable[int] = (), chol=chol_lower, p: Sym | None = None,
-                  circle: bool = False) -> tuple[Sym, Sym, Sym]:
-    """E g, Cov g and Cov(g, w) of w ~ N(m, P) by a point rule.
+def point_values(g: ca.Function, m: Sym, L: Sym, transform: Transform, angles: Iterable[int] = (),
+                 p: Sym | None = None, circle: bool = False):
+    """The parts of a point rule's moments at N(m, L Lᵀ): (Z, wᵐ, wᶜ, D, E g, R), with D = L Zᵀ
+    the offsets of the points and R the residuals g(m + L z_k) − E g (angle rows wrapped).
 
-    g is mapped over the N points m + L z_k (one loop in MX), and the weighted sums are
-    matrix products.  The mean is centred on the first point, as
-    :func:`symmon.transforms.base.weighted_moments`: that keeps digits when the weights
-    are large and of both signs (ut2's are about ±1e6).  ``chol`` builds the factor:
-    :func:`chol_lower` (code O(n²)) or :func:`chol_node` (code O(n³), fewer operations).
-    With ``circle``, g is :meth:`~symmon.compile.CompiledModel.circle_function` of the
-    angles: it also gives the sines and cosines of the angle outputs for their circular
-    mean (a bearing's without a sine or a cosine).
+    g is mapped over the N points m + L z_k (one loop in MX).  The mean is centred on the
+    first point, as :func:`symmon.transforms.base.weighted_moments`: that keeps digits when
+    the weights are large and of both signs (ut2's are about ±1e6).  With ``circle``, g is
+    :meth:`~symmon.compile.CompiledModel.circle_function` of the angles: it also gives the
+    sines and cosines of the angle outputs for their circular mean (a bearing's without a
+    sine or a cosine).
     """
     Z, wm_a, wc_a = unit_rule(transform, m.shape[0])
     N, n = Z.shape
     Z = np.asarray(Z, dtype=float)
-    L = chol(P)
     c = _ut_scale(Z)
     D = _offsets(L, Z, c)
     W = ca.repmat(m, 1, N) + D
@@ -391,6 +388,22 @@ def point_moments(g: ca.Function, m: Sym, P: Sym, transform: Transform,
     if rows:
         mean[rows] = ca.atan2(ca.mtimes(sines, wm), ca.mtimes(cosines, wm))
     R = wrap_entries(Y - ca.repmat(mean, 1, N), rows)
+    return Z, wm_a, wc_a, D, mean, R
+
+
+def point_moments(g: ca.Function, m: Sym, P: Sym, transform: Transform,
+                  angles: Iterable[int] = (), chol=chol_lower, p: Sym | None = None,
+                  circle: bool = False) -> tuple[Sym, Sym, Sym]:
+    """E g, Cov g and Cov(g, w) of w ~ N(m, P) by a point rule.
+
+    The points and residuals are :func:`point_values` at the factor L = ``chol(P)``, and
+    the weighted sums are matrix products.  ``chol`` builds the factor:
+    :func:`chol_lower` (code O(n²)) or :func:`chol_node` (code O(n³), fewer operations).
+    """
+    L = chol(P)
+    Z, _, wc_a, D, mean, R = point_values(g, m, L, transform, angles, p, circle)
+    N, n = Z.shape
+    c = _ut_scale(Z)
     RW = ca.mtimes(R, ca.diag(ca.DM(np.asarray(wc_a, dtype=float))))
     if c:  # D = c [0, L, −L]: RW Dᵀ = c (RW₊ − RW₋) Lᵀ, half the products
         cross = ca.mtimes(c * (RW[:, 1:n + 1] - RW[:, n + 1:]), L.T)
@@ -402,6 +415,16 @@ def point_moments(g: ca.Function, m: Sym, P: Sym, transform: Transform,
 def affine_in(cm: CompiledModel, n: int) -> bool:
     """Whether g is affine in its first n inputs: its Jacobian in them does not depend on them."""
     return not ca.depends_on(ca.vec(cm.J_sx[:, :n]), cm.w_sx[:n])
+
+
+def effective_order(cm: CompiledModel, n: int, transform: Transform, angles: Iterable[int]) -> int | None:
+    """The Taylor order the moments use: the rule's own (None for a point rule), or 1 for a
+    rule exact to degree 2 on a g affine in its first n inputs without angle outputs, where
+    TT1's closed forms are exact (:func:`moments`)."""
+    order = transform.taylor_order
+    if order != 1 and not angles and transform.degree(n) >= 2 and affine_in(cm, n):
+        return 1
+    return order
 
 
 def moments(cm: CompiledModel, m: Sym, P: Sym, transform: Transform,
@@ -420,9 +443,7 @@ def moments(cm: CompiledModel, m: Sym, P: Sym, transform: Transform,
     degree 2 (:meth:`~symmon.transforms.base.Transform.degree`) gives g(m), J P Jᵀ and J P
     exactly, which are TT1's closed forms: those are built instead of the points (a linear
     motion model's time update then costs n·nnz(J), not the 2n + 1 points' n³)."""
-    order = transform.taylor_order
-    if order != 1 and not angles and transform.degree(m.shape[0]) >= 2 and affine_in(cm, m.shape[0]):
-        order = 1
+    order = effective_order(cm, m.shape[0], transform, angles)
     if p is not None and order in (1, 2):
         kind, n_p = type(P), p.shape[0]
         mz, Pz = ca.vertcat(m, p), ca.diagcat(P, kind.zeros(n_p, n_p))

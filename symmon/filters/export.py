@@ -37,6 +37,11 @@ values and a measurement from stdin and prints the estimates, and ``NAME_README.
 A file of these names that symmon's export did not write (it carries :data:`STAMP`) is not
 replaced.
 
+A square-root filter (``square_root=True``) exports its square-root step
+(:mod:`symmon.filters.sqrtstep`): ``NAME_predict(x, S)`` and ``NAME_update(x, S, y,
+&loglik)`` (NaN components of y missing, as in the standard export) carry the lower Cholesky factor S of P (P = S Sᵀ, row-major) in place of P, √Q
+and √R are fixed, and definiteness is a positive diagonal of the factors.
+
 References
 ----------
 F. Gustafsson, G. Hendeby, "Some relations between extended and unscented Kalman filters",
@@ -57,6 +62,7 @@ from ..compile.cnames import c_identifier, comment_text
 from ..errors import ArgumentTypeError, OutputPathError, SymmonError
 from ..io import atomic_write_text, check_output_set
 from ..version import __version__
+from .sqrtstep import noise_factor, sqrt_predict_graph, sqrt_update_graph
 from .step import predict_graph, select_params, step_kind, update_graph
 from .inputs import FilterSpec
 from .strategy import RuleStrategy
@@ -110,10 +116,12 @@ def filter_functions(kf: FilterSpec, name: str) -> dict[str, ca.Function]:
     # The filter step's own choice (symmon.filters.step.step_kind): straight-line SX for small
     # filters (the fastest C, and short), MX with loops from MX_FROM variables on.
     kind, chol = step_kind(f, h, transform)
-    Q, R = ca.DM(np.asarray(kf.Q, dtype=float)), ca.DM(np.asarray(kf.R, dtype=float))
     x, P, y, mask = kind.sym("x", n), kind.sym("P", n, n), kind.sym("y", n_y), kind.sym("mask", n_y)
     names = kf.params
     p = kind.sym("p", len(names))
+    if kf.square_root:
+        return _sqrt_functions(kf, transform, name, x, P, y, mask, p)
+    Q, R = ca.DM(np.asarray(kf.Q, dtype=float)), ca.DM(np.asarray(kf.R, dtype=float))
     x_pred, P_pred = predict_graph(f, transform, kf.angle_states, x, P, Q, chol, select_params(f, names, p))
 
     def pivot(A):
@@ -132,6 +140,33 @@ def filter_functions(kf: FilterSpec, name: str) -> dict[str, ca.Function]:
     update = ca.Function(f"{name}_update_step", [x, P, *ph[0], y, mask],
                          [ca.densify(x_new), ca.densify(P_new), loglik, pivot(S), pivot(P_new)],
                          ["x", "P", *ph[1], "y", "mask"], ["x_new", "P_new", "loglik", "pd_S", "pd_P"], opts)
+    return {"predict": predict, "update": update}
+
+
+def _sqrt_functions(kf: FilterSpec, transform, name: str, x, U, y, mask, p) -> dict[str, ca.Function]:
+    """:func:`filter_functions` of a square-root filter: (x, S) ↦ (x⁻, S⁻, S⁻ nonsingular) and
+    (x⁻, S⁻, y, mask) ↦ (x⁺, S⁺, log N(ν; 0, S), S_y nonsingular, S⁺ nonsingular), with S the lower
+    Cholesky factor of P stored row-major (so the graph reads its column-major argument U as
+    S = Uᵀ and writes Sᵀ); √Q and √R fixed (:mod:`symmon.filters.sqrtstep`)."""
+    f, h, names = kf.f_model, kf.h_model, kf.params
+    Qs, Rs = (ca.DM(noise_factor(np.asarray(C, dtype=float))) for C in (kf.Q, kf.R))
+    S = U.T
+
+    def nonsingular(L):
+        # 1 when every diagonal entry of the factor is > 0 (false for NaN), else 0.
+        return ca.mmin(ca.diag(L) > 0)
+
+    opts = {"cse": True}
+    pf, ph = ([p], ["p"]) if f.n_p else ([], []), ([p], ["p"]) if h.n_p else ([], [])
+    x_pred, S_pred = sqrt_predict_graph(f, transform, kf.angle_states, x, S, Qs, select_params(f, names, p))
+    predict = ca.Function(f"{name}_predict_step", [x, U, *pf[0]],
+                          [ca.densify(x_pred), ca.densify(S_pred.T), nonsingular(S_pred)],
+                          ["x", "S", *pf[1]], ["x_pred", "S_pred", "pd_P"], opts)
+    x_new, S_new, _, Sy, loglik, _ = sqrt_update_graph(h, transform, kf.angle_states, x, S, y, Rs, mask,
+                                                       select_params(h, names, p), kf.iterations)
+    update = ca.Function(f"{name}_update_step", [x, U, *ph[0], y, mask],
+                         [ca.densify(x_new), ca.densify(S_new.T), loglik, nonsingular(Sy), nonsingular(S_new)],
+                         ["x", "S", *ph[1], "y", "mask"], ["x_new", "S_new", "loglik", "pd_S", "pd_P"], opts)
     return {"predict": predict, "update": update}
 
 
@@ -171,24 +206,24 @@ static int {P}_all_finite(const double *a, int n) {{
   return 1;
 }}
 
-int {P}_predict(double *x, double *P{f_sig}) {{
+int {P}_predict(double *x, double *{cov}{f_sig}) {{
   const casadi_real *arg[{P_}_PREDICT_SZ_ARG];
   casadi_real *res[{P_}_PREDICT_SZ_RES];
   casadi_int iw[{P_}_PREDICT_SZ_IW];
   casadi_real w[{P_}_PREDICT_SZ_W];
   casadi_real *x_new = w, *P_new = w + {P_}_NX, pd = 0;
   casadi_real *work = w + {P_}_NX + {P_}_NX * {P_}_NX;
-  if (!{P}_all_finite(x, {P_}_NX) || !{P}_all_finite(P, {P_}_NX * {P_}_NX)) return {P_}_ERR_STATE;{f_check}
-  arg[0] = x; arg[1] = P;{f_arg}
+  if (!{P}_all_finite(x, {P_}_NX) || !{P}_all_finite({cov}, {P_}_NX * {P_}_NX)) return {P_}_ERR_STATE;{f_check}
+  arg[0] = x; arg[1] = {cov};{f_arg}
   res[0] = x_new; res[1] = P_new; res[2] = &pd;
   if ({P}_predict_step(arg, res, iw, work, 0)) return {P_}_ERR_EVAL;
   if (!(pd > 0) || !{P}_all_finite(x_new, {P_}_NX)) return {P_}_ERR_P;
   memcpy(x, x_new, sizeof(double) * {P_}_NX);
-  memcpy(P, P_new, sizeof(double) * {P_}_NX * {P_}_NX);
+  memcpy({cov}, P_new, sizeof(double) * {P_}_NX * {P_}_NX);
   return {P_}_OK;
 }}
 
-int {P}_update(double *x, double *P{h_sig}, const double *y, double *loglik) {{
+int {P}_update(double *x, double *{cov}{h_sig}, const double *y, double *loglik) {{
   const casadi_real *arg[{P_}_UPDATE_SZ_ARG];
   casadi_real *res[{P_}_UPDATE_SZ_RES];
   casadi_int iw[{P_}_UPDATE_SZ_IW];
@@ -197,17 +232,17 @@ int {P}_update(double *x, double *P{h_sig}, const double *y, double *loglik) {{
   casadi_real *y_in = w + {P_}_NX + {P_}_NX * {P_}_NX, *mask = y_in + {P_}_NY;
   casadi_real *work = mask + {P_}_NY;
   int measured;
-  if (!{P}_all_finite(x, {P_}_NX) || !{P}_all_finite(P, {P_}_NX * {P_}_NX)) return {P_}_ERR_STATE;
+  if (!{P}_all_finite(x, {P_}_NX) || !{P}_all_finite({cov}, {P_}_NX * {P_}_NX)) return {P_}_ERR_STATE;
   measured = {P}_measured(y, y_in, mask);
   if (measured < 0) return {P_}_ERR_MEASUREMENT;{h_check}
   if (measured == 0) return {P_}_OK;  /* nothing measured: x and P stay as predicted, loglik + 0 */
-  arg[0] = x; arg[1] = P;{h_arg} arg[{y_at}] = y_in; arg[{y_at} + 1] = mask;
+  arg[0] = x; arg[1] = {cov};{h_arg} arg[{y_at}] = y_in; arg[{y_at} + 1] = mask;
   res[0] = x_new; res[1] = P_new; res[2] = &ll; res[3] = &pd_S; res[4] = &pd_P;
   if ({P}_update_step(arg, res, iw, work, 0)) return {P_}_ERR_EVAL;
   if (!(pd_S > 0) || !isfinite(ll)) return {P_}_ERR_S;
   if (!(pd_P > 0) || !{P}_all_finite(x_new, {P_}_NX)) return {P_}_ERR_P;
   memcpy(x, x_new, sizeof(double) * {P_}_NX);
-  memcpy(P, P_new, sizeof(double) * {P_}_NX * {P_}_NX);
+  memcpy({cov}, P_new, sizeof(double) * {P_}_NX * {P_}_NX);
   *loglik += ll;
   return {P_}_OK;
 }}
@@ -216,11 +251,11 @@ int {P}_update(double *x, double *P{h_sig}, const double *y, double *loglik) {{
 _EXAMPLE = r"""/* {P}_example.c: run the exported filter {P} on measurements read from stdin.
    ({stamp})
 
-   Input (whitespace-separated numbers): x0 ({P_}_NX numbers), P0 ({P_}_NX * {P_}_NX, row-major),
+   Input (whitespace-separated numbers): x0 ({P_}_NX numbers), {cov_doc},
    then per step{ex_doc} one measurement of {P_}_NY numbers, until the end of the input.
    A measurement component written nan is missing: {P}_update skips it (a row of nan only
    predicts), as symmon's kf.filter does.
-   Output: one line per step, "k code x[0..NX-1] P[0..NX*NX-1] loglik" (%.17g), where code is
+   Output: one line per step, "k code x[0..NX-1] {cov}[0..NX*NX-1] loglik" (%.17g), where code is
    the return code of {P}_predict, or else of {P}_update (0 = OK).  The program stops at
    the first error, with exit status 1 (status 2: the input ends inside a step).
    Build: cc -std=c99 -O2 {P}.c {P}_example.c -lm -o {P}_example */
@@ -228,20 +263,20 @@ _EXAMPLE = r"""/* {P}_example.c: run the exported filter {P} on measurements rea
 #include "{P}.h"
 
 int main(void) {{
-  double x[{P_}_NX], P[{P_}_NX * {P_}_NX], y[{P_}_NY], loglik = 0;{ex_decl}
+  double x[{P_}_NX], {cov}[{P_}_NX * {P_}_NX], y[{P_}_NY], loglik = 0;{ex_decl}
   int i, k, code, got;
   for (i = 0; i < {P_}_NX; ++i) if (scanf("%lf", &x[i]) != 1) return 2;
-  for (i = 0; i < {P_}_NX * {P_}_NX; ++i) if (scanf("%lf", &P[i]) != 1) return 2;
+  for (i = 0; i < {P_}_NX * {P_}_NX; ++i) if (scanf("%lf", &{cov}[i]) != 1) return 2;
   for (k = 0;; ++k) {{
     got = 0;{ex_read}
     for (i = 0; i < {P_}_NY && scanf("%lf", &y[i]) == 1; ++i) ++got;
     if (got == 0) break;
     if (got < {ex_count}{P_}_NY) return 2;
-    code = {P}_predict(x, P{f_call});
-    if (code == {P_}_OK) code = {P}_update(x, P{h_call}, y, &loglik);
+    code = {P}_predict(x, {cov}{f_call});
+    if (code == {P_}_OK) code = {P}_update(x, {cov}{h_call}, y, &loglik);
     printf("%d %d", k, code);
     for (i = 0; i < {P_}_NX; ++i) printf(" %.17g", x[i]);
-    for (i = 0; i < {P_}_NX * {P_}_NX; ++i) printf(" %.17g", P[i]);
+    for (i = 0; i < {P_}_NX * {P_}_NX; ++i) printf(" %.17g", {cov}[i]);
     printf(" %.17g\n", loglik);
     if (code != {P_}_OK) return 1;
   }}
@@ -258,7 +293,9 @@ def _fill(P: str, kf) -> dict[str, str]:
     check = f"\n  if (!{P}_all_finite(p, {P_}_NP)) return {P_}_ERR_PARAM;"
     n_p = len(kf.params)
     return {
-        "P": P, "P_": P_,
+        "P": P, "P_": P_, "cov": "S" if kf.square_root else "P",
+        "cov_doc": (f"S0 (the lower Cholesky factor of P0, {P_}_NX * {P_}_NX, row-major)" if kf.square_root
+                    else f"P0 ({P_}_NX * {P_}_NX, row-major)"),
         "f_sig": ", const double *p" if fp else "", "f_check": check if fp else "", "f_arg": " arg[2] = p;" if fp else "",
         "h_sig": ", const double *p" if hp else "", "h_check": check if hp else "", "h_arg": " arg[2] = p;" if hp else "",
         "y_at": "3" if hp else "2",
@@ -275,8 +312,9 @@ def _signatures(P: str, kf) -> tuple[str, str]:
     """The C prototypes of the two functions."""
     fp = ", const double *p" if kf.f_model.n_p else ""
     hp = ", const double *p" if kf.h_model.n_p else ""
-    return (f"int {P}_predict(double *x, double *P{fp});",
-            f"int {P}_update(double *x, double *P{hp}, const double *y, double *loglik);")
+    cov = "S" if kf.square_root else "P"
+    return (f"int {P}_predict(double *x, double *{cov}{fp});",
+            f"int {P}_update(double *x, double *{cov}{hp}, const double *y, double *loglik);")
 
 
 def _model_hash(kf: FilterSpec, transform) -> str:
@@ -285,7 +323,7 @@ def _model_hash(kf: FilterSpec, transform) -> str:
     f, h = kf.f_model, kf.h_model
     key = repr((f.key, h.key, transform, kf.iterations,
                 sorted(kf.angle_states), sorted(h.angle_outputs),
-                np.asarray(kf.Q).tolist(), np.asarray(kf.R).tolist()))
+                np.asarray(kf.Q).tolist(), np.asarray(kf.R).tolist()) + (("square_root",) if kf.square_root else ()))
     return hashlib.sha256(key.encode()).hexdigest()
 
 
@@ -340,19 +378,37 @@ def _header(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> s
         lines.append(f"  angle states (wrapped to (-pi, pi]): {sorted(kf.angle_states)} (0-based)")
     if h.angle_outputs:
         lines.append(f"  angle measurements (wrapped innovation): {sorted(h.angle_outputs)} (0-based)")
+    if kf.square_root:
+        cov_lines = [
+            _signatures(P, kf)[0],
+            "    The time update, in place: x <- E f(x), S <- the lower Cholesky factor of Cov f (+ Q).",
+            _signatures(P, kf)[1],
+            "    The measurement update, in place, with y[NY]; adds log N(innovation; 0, S_y S_y^T) to *loglik.",
+            "    A NaN component of y is missing: the update uses the others; y all NaN leaves x, S.",
+            "",
+            "x has NX entries; S is NX x NX, the lower triangular Cholesky factor of the covariance",
+            "(P = S S^T), row-major: the square-root form, whose P stays positive definite where",
+            "P - K S K^T loses it to rounding.  Both return 0 (OK), or an error code below and then",
+            "leave x, S and *loglik unchanged.  C99, reentrant: no allocation, no global mutable state,",
+            "no I/O; the work",
+        ]
+    else:
+        cov_lines = [
+            _signatures(P, kf)[0],
+            "    The time update, in place: x <- E f(x), P <- Cov f (+ Q).",
+            _signatures(P, kf)[1],
+            "    The measurement update, in place, with y[NY]; adds log N(innovation; 0, S) to *loglik.",
+            "    A NaN component of y is missing: the update uses the others; y all NaN leaves x, P.",
+            "",
+            "x has NX entries, P NX x NX (symmetric: row- and column-major alike; written exactly",
+            "symmetric).  Both return 0 (OK), or an error code below and then leave x, P and *loglik",
+            "unchanged.  C99, reentrant: no allocation, no global mutable state, no I/O; the work",
+        ]
     lines += [
         f"  transform: {comment_text(_settings(kf, transform))}" + (f", {kf.iterations} iterations" if kf.iterations > 1 else ""),
         f"  model hash (sha256 of f, h, Q, R, the transform, its iterations and the angles): {digest}",
         "",
-        _signatures(P, kf)[0],
-        "    The time update, in place: x <- E f(x), P <- Cov f (+ Q).",
-        _signatures(P, kf)[1],
-        "    The measurement update, in place, with y[NY]; adds log N(innovation; 0, S) to *loglik.",
-        "    A NaN component of y is missing: the update uses the others; y all NaN leaves x, P.",
-        "",
-        "x has NX entries, P NX x NX (symmetric: row- and column-major alike; written exactly",
-        "symmetric).  Both return 0 (OK), or an error code below and then leave x, P and *loglik",
-        "unchanged.  C99, reentrant: no allocation, no global mutable state, no I/O; the work",
+        *cov_lines,
         "memory is on the stack, of the sizes *_STACK_BYTES below.  Build: cc -std=c99 -O2 -c "
         f"{P}.c (link with -lm).",
     ]
@@ -467,7 +523,10 @@ def _readme(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> s
         _signatures(P, kf)[1] + "  /* in place */",
         "```",
         "",
-        f"x has {P.upper()}_NX = {n} entries, P is {n} x {n} (symmetric), y has {P.upper()}_NY = {n_y}"
+        f"x has {P.upper()}_NX = {n} entries, "
+        + (f"S is {n} x {n} (the lower Cholesky factor of P = S S^T, row-major)" if kf.square_root
+           else f"P is {n} x {n} (symmetric)")
+        + f", y has {P.upper()}_NY = {n_y}"
         + (f", p has {P.upper()}_NP = {len(kf.params)}: " + ", ".join(code(q) for q in kf.params) if kf.params else "")
         + ".",
         "Return codes: " + "; ".join(f"{code(P.upper() + '_' + k)} = {c} ({what})"
@@ -489,8 +548,9 @@ def _readme(kf, P: str, fs: dict[str, ca.Function], transform, digest: str) -> s
         f"./{P}_example < measurements.txt",
         "```",
         "",
-        f"`{P}_example` reads x0 ({n} numbers), P0 ({n * n}, row-major) and then per step"
-        + (f" the {len(kf.params)} parameter values and" if kf.params else "") + f" one measurement of",
+        f"`{P}_example` reads x0 ({n} numbers), "
+        + (f"S0 ({n * n}, the lower Cholesky factor of P0, row-major)" if kf.square_root else f"P0 ({n * n}, row-major)")
+        + " and then per step" + (f" the {len(kf.params)} parameter values and" if kf.params else "") + " one measurement of",
         f"{n_y} numbers (`nan` for a missing one) from stdin, and prints per step `k code x P loglik`.",
         "Run it on a recorded sequence and compare with `kf.filter` in symmon (docs/export.md).",
         "",

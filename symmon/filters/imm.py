@@ -213,6 +213,10 @@ class IMM:
             elif not isinstance(kf, NonlinearKalmanFilter):
                 raise ArgumentTypeError(f"mode {j}: filters must be symmon KalmanFilter or NonlinearKalmanFilter "
                                         f"objects, got {type(kf).__name__}")
+            if kf.square_root:
+                # The mixing works on P; a square-root mode would be run in its standard form.
+                raise ArgumentError(f"mode {j} ({kf.method}) is a square-root filter, which the IMM does not mix "
+                                    "yet: give the mode with square_root=False")
             modes.append(kf)
         first = modes[0]
         n, n_y = first.f_model.n_u, first.h_model.n_y

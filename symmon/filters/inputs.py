@@ -38,6 +38,7 @@ class FilterSpec(Protocol):
     R: np.ndarray
     transform: Any
     iterations: int
+    square_root: bool
     strategy: Any  # a FilterStrategy (symmon.filters.strategy imports this module)
 
     @property
@@ -279,7 +280,8 @@ def filter_inputs(kf: FilterSpec, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: A
     """Every check of a nonlinear filter call's inputs, in the order a caller meets them.
 
     ``extra_per_step`` numbers per run and step are added to the arrays the filter's strategy
-    stores (a smoother's x and P), and ``what`` names them in the bound's message.
+    stores (a smoother's x and P; a square-root filter's factors of P and P⁻ are counted too),
+    and ``what`` names them in the bound's message.
 
     Raises
     ------
@@ -297,7 +299,10 @@ def filter_inputs(kf: FilterSpec, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: A
         raise ShapeError(f"ys must have shape (K, {n_y}) or (R, K, {n_y}) with K >= 1, got {Y.shape}")
     runs = Y.shape[0] if Y.ndim == 3 else None
     kept = check_keep(keep)
-    check_bank_size(runs or 1, Y.shape[-2], kept_numbers(n, n_y, kf.strategy.stores(kept)) + extra_per_step,
+    names = kf.strategy.stores(kept)
+    # A square-root filter keeps the factors of P and P⁻ beside them.
+    factors = n * n * len(names & {"P", "P_pred"}) if getattr(kf, "square_root", False) else 0
+    check_bank_size(runs or 1, Y.shape[-2], kept_numbers(n, n_y, names) + factors + extra_per_step,
                     f"{kf.method} {what}", advice)
     if np.isinf(Y).any():
         where = tuple(int(i) for i in np.argwhere(np.isinf(Y))[0])

@@ -66,7 +66,7 @@ import numpy as np
 import sympy as sp
 from numpy.typing import ArrayLike
 
-from ..errors import AngleWarning, ShapeError, SymmonError
+from ..errors import AngleWarning, ArgumentTypeError, ShapeError, SymmonError
 from ..core.checks import check_model, noise_cov, readonly
 from .diagnose import locate_nonfinite
 from .export import export_filter_c
@@ -143,6 +143,11 @@ class NonlinearKalmanFilter:
         With ``TT1()``, the number of linearisations of the measurement update: 1 is the EKF,
         more the iterated EKF (Gauss–Newton steps of the update from the same prior, Bell &
         Cathey 1993; docs/filters.md, "Iterated EKF"), from 1 to :data:`MAX_ITERATIONS`.
+    square_root : bool, default False
+        Propagate the lower Cholesky factor S of P (P = S Sᵀ) instead of P: the square-root
+        form of the same filter (:mod:`symmon.filters.sqrtstep`), whose covariances stay
+        positive semidefinite where P⁻ − K S Kᵀ loses definiteness to rounding.  Its results
+        also hold the factors (:attr:`KalmanResult.P_chol`).
 
     Attributes
     ----------
@@ -167,6 +172,7 @@ class NonlinearKalmanFilter:
     R: np.ndarray
     transform: Transform | FilterStrategy | None = None
     iterations: int = 1
+    square_root: bool = False
     strategy: FilterStrategy = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -185,6 +191,12 @@ class NonlinearKalmanFilter:
             raise SymmonError(f"iterations must be an integer from 1 to {MAX_ITERATIONS}, got {it!r}")
         if it > 1 and not (isinstance(strategy, RuleStrategy) and strategy.transform.taylor_order == 1):
             raise SymmonError(f"iterations > 1 is the iterated EKF: it needs transform TT1(), got {self.transform!r}")
+        if not isinstance(self.square_root, (bool, np.bool_)):
+            raise ArgumentTypeError(f"square_root must be True or False, got {self.square_root!r}")
+        if self.square_root and not isinstance(strategy, RuleStrategy):
+            raise SymmonError(f"square_root=True needs one transform for every step; {strategy.label()} chooses "
+                              "one per step")
+        object.__setattr__(self, "square_root", bool(self.square_root))
         object.__setattr__(self, "iterations", int(it))
         object.__setattr__(self, "Q", readonly(Q))
         object.__setattr__(self, "R", readonly(R))
@@ -212,9 +224,8 @@ class NonlinearKalmanFilter:
     @cached_property
     def method(self) -> str:
         """The filter's name: EKF, IEKF(iterations=...), EKF2, UKF(...), CKF, GHKF(order=...) or Adaptive(...)."""
-        if self.iterations > 1:
-            return f"IEKF(iterations={self.iterations})"
-        return self.strategy.label()
+        label = f"IEKF(iterations={self.iterations})" if self.iterations > 1 else self.strategy.label()
+        return "SR-" + label if self.square_root else label
 
     def smooth(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None, *,
                keep: Iterable[str] | None = None, params: dict | None = None) -> SmootherResult:
@@ -223,6 +234,9 @@ class NonlinearKalmanFilter:
         The smoother of the filter's family (:mod:`symmon.filters.smoother`): TT1 gives the
         extended RTS smoother, TT2 the second-order one, a UT the unscented RTS smoother
         (Särkkä 2008), Gauss–Hermite the Gauss–Hermite smoother; angle states are wrapped.
+        A square-root filter has the square-root smoother
+        (:func:`symmon.filters.smoother.sqrt_backward_graph`), whose result also holds the
+        smoothed factors (``P_chol``).
 
         Parameters
         ----------
@@ -253,14 +267,19 @@ class NonlinearKalmanFilter:
         n = self.f_model.n_u
         kept = check_keep(keep)
         forward = None if kept is None else kept | {"x", "P"}
-        checked = filter_inputs(self, ys, x0, P0, keep=forward, params=params, extra_per_step=n + n * n,
+        n = self.f_model.n_u
+        checked = filter_inputs(self, ys, x0, P0, keep=forward, params=params,
+                                extra_per_step=n + (2 if self.square_root else 1) * n * n,
                                 what="smoother results", advice=_SMALLER)
         fwd = self.filter(checked.Y if checked.runs is not None else checked.Y[0], x0, P0, keep=forward, params=params)
         bank = fwd.runs is not None
         X = fwd.x if bank else fwd.x[None]
         P = fwd.P if bank else fwd.P[None]
-        smoother = compiled_smoother(self.f_model, self.strategy.transform, self.angle_states, self.params)
-        xs, Ps = smoother(X, P, self.Q, params=checked.params)
+        smoother = compiled_smoother(self.f_model, self.strategy.transform, self.angle_states, self.params,
+                                     self.square_root)
+        if self.square_root:  # the factors the filter propagated, not a new factorisation of P
+            P = fwd.P_chol if bank else fwd.P_chol[None]
+        xs, Ps, *chol = smoother(X, P, self.Q, params=checked.params)
         bad = ~(np.isfinite(xs).all(axis=-1) & np.isfinite(Ps).all(axis=(-1, -2)))
         if bad.any():
             r, k = np.argwhere(bad)[-1]  # the backward pass runs from the end
@@ -268,9 +287,11 @@ class NonlinearKalmanFilter:
             raise SymmonError(f"{self.method} smoother: NaN or inf at {where} (a predicted covariance is "
                               "singular, or a derivative is undefined there)")
         if not bank:
-            xs, Ps = xs[0], Ps[0]
-        xs.flags.writeable = Ps.flags.writeable = False
-        return SmootherResult(xs, Ps, fwd, angle_states=tuple(sorted(self.angle_states)), method=self.method)
+            xs, Ps, chol = xs[0], Ps[0], [c[0] for c in chol]
+        for a in [xs, Ps] + chol:
+            a.flags.writeable = False
+        return SmootherResult(xs, Ps, fwd, angle_states=tuple(sorted(self.angle_states)), method=self.method,
+                              P_chol=chol[0] if chol else None)
 
     def fit(self, ys: ArrayLike, x0: Gaussian | ArrayLike, start: dict, P0: ArrayLike | None = None, *,
             params: dict | None = None, bounds: dict | None = None, max_iter: int = 200) -> FitResult:
@@ -417,7 +438,7 @@ class NonlinearKalmanFilter:
         if truth is not None and not nees:  # a strategy that keeps every array: from x and P
             nees = {"x": out["x"], "P": out["P"], "truth": truth}
         first = out.pop("first_nonfinite", None)  # tested in the compiled loop, step by step
-        out = {k: v for k, v in out.items() if k == "loglik" or kept is None or k in kept}
+        out = {k: v for k, v in out.items() if k == "loglik" or kept is None or k.removesuffix("_chol") in kept}
         if first is None:  # a NaN reaches every later log-likelihood
             first = first_nonfinite(out["loglik"], out.get("x"), out.get("P"))
         if (first >= 0).any():

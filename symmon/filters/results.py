@@ -303,6 +303,10 @@ class KalmanResult:
     n_x : int or None
         The state dimension (set by the nonlinear filters, so that :meth:`anees` works on
         a result that keeps no state array).
+    P_chol, P_pred_chol : ndarray, shape (K, n, n), or None
+        The lower Cholesky factors S of ``P`` and ``P_pred`` (P = S Sᵀ) that a square-root
+        filter (``NonlinearKalmanFilter(..., square_root=True)``) propagated, kept with
+        ``P`` and ``P_pred``; None for the other filters.
     """
 
     x: np.ndarray | None = None
@@ -321,6 +325,8 @@ class KalmanResult:
     n_y: int | None = None
     nees_values: np.ndarray | None = None
     n_x: int | None = None
+    P_chol: np.ndarray | None = None
+    P_pred_chol: np.ndarray | None = None
 
     def _need(self, *names: str) -> None:
         missing = [k for k in names if getattr(self, k) is None]
@@ -522,6 +528,9 @@ class SmootherResult:
     method : str
         The filter, e.g. ``"UKF(alpha=1.0, beta=2.0, kappa=0.0)"``; the smoother is its RTS
         smoother (extended, second-order, unscented, Gauss–Hermite).
+    P_chol : ndarray, shape of ``P``, or None
+        The smoothed lower Cholesky factors (P = S Sᵀ) of a square-root smoother; None for
+        the others.
     """
 
     x: np.ndarray
@@ -529,6 +538,7 @@ class SmootherResult:
     filtered: KalmanResult
     angle_states: tuple[int, ...] = ()
     method: str = ""
+    P_chol: np.ndarray | None = None
 
     @property
     def runs(self) -> int | None:

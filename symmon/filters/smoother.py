@@ -37,34 +37,56 @@ import threading
 import casadi as ca
 import numpy as np
 
+from ..codegen.sqrtform import gain_factor, residual_factor
 from ..codegen.symbolic import graph_kind, wrap_entries
 from ..compile.compiled import generated_c
 from ..core.model import Model
 from ..errors import SymmonError
 from ..transforms import Transform
+from .sqrtstep import covariance_of, noise_factor, sqrt_predict_graph
 from .step import CompiledLoop, chunk_runs, predict_graph, select_params, sym
 
-__all__ = ["compiled_smoother"]
+__all__ = ["compiled_smoother", "sqrt_backward_graph"]
 
 
 def _backward_function(f: Model, transform: Transform, angle_states: frozenset[int], names: tuple,
-                       name: str) -> ca.Function:
+                       name: str, square_root: bool = False) -> ca.Function:
     """(x_k, P_k, x^s_{k+1}, P^s_{k+1}, Q, p_{k+1}) ↦ (x^s_k, P^s_k): one backward step (module
-    notes), with the parameter values of the prediction to step k + 1."""
+    notes), with the parameter values of the prediction to step k + 1; with ``square_root``
+    the P's and Q are lower Cholesky factors (:func:`sqrt_backward_graph`)."""
     n, nq = f.n_u, f.n_v or f.n_u
     dim = n + f.n_v
     points = len(transform.unit_rule(dim)[0]) if transform.point_rule else 0
     kind, chol = graph_kind(dim, points)
     x, P = kind.sym("x", n), kind.sym("P", n, n)
     xs, Ps, Q, p = kind.sym("xs", n), kind.sym("Ps", n, n), kind.sym("Q", nq, nq), kind.sym("p", len(names))
-    x_pred, P_pred, cross = predict_graph(f, transform, angle_states, x, P, Q, chol, select_params(f, names, p),
-                                          cross=True)
-    gain = ca.solve(P_pred, cross).T  # G = C P⁻⁻¹ with C = crossᵀ, P⁻ symmetric
-    x_s = wrap_entries(x + ca.mtimes(gain, wrap_entries(xs - x_pred, angle_states)), angle_states)
-    P_s = sym(P + ca.mtimes(ca.mtimes(gain, Ps - P_pred), gain.T))
+    if square_root:
+        x_s, P_s = sqrt_backward_graph(f, transform, angle_states, x, P, xs, Ps, Q, select_params(f, names, p))
+    else:
+        x_pred, P_pred, cross = predict_graph(f, transform, angle_states, x, P, Q, chol,
+                                              select_params(f, names, p), cross=True)
+        gain = ca.solve(P_pred, cross).T  # G = C P⁻⁻¹ with C = crossᵀ, P⁻ symmetric
+        x_s = wrap_entries(x + ca.mtimes(gain, wrap_entries(xs - x_pred, angle_states)), angle_states)
+        P_s = sym(P + ca.mtimes(ca.mtimes(gain, Ps - P_pred), gain.T))
     return ca.Function(name, [x, P, xs, Ps, Q, p], [ca.densify(x_s), ca.densify(P_s)],
                        ["x", "P", "xs", "Ps", "Q", "p"], ["x_smooth", "P_smooth"],
                        {"cse": True})
+
+
+def sqrt_backward_graph(f: Model, transform: Transform, angle_states: frozenset[int], x, S, xs, Ss, Q_sqrt, p=None):
+    """One backward step in square-root form: (x^s_k, S^s_k) from the factors S_k, S^s_{k+1}.
+
+    The joint columns (Y, X) of [x_{k+1}; x_k] (the time update's,
+    :func:`symmon.filters.sqrtstep.sqrt_predict_graph`) give the gain as the measurement
+    update does with f for h and Q for R: S⁻ = tria(Y), G = C S⁻⁻ᵀ S⁻⁻¹ = C (P⁻)⁻¹
+    (:func:`symmon.codegen.sqrtform.gain_factor`), and (X − G Y)(X − G Y)ᵀ = P − G P⁻ Gᵀ, so
+    P^s = P + G (P^s_{k+1} − P⁻) Gᵀ (Särkkä 2013, eq. (8.6)) is the sum of squares
+    tria([X − G Y, G S^s_{k+1}]) (:func:`symmon.codegen.sqrtform.residual_factor`), where the
+    standard form adds a difference."""
+    x_pred, cols = sqrt_predict_graph(f, transform, angle_states, x, S, Q_sqrt, p, joint=True)
+    _, _, gain = gain_factor(*cols)
+    x_s = wrap_entries(x + ca.mtimes(gain, wrap_entries(xs - x_pred, angle_states)), angle_states)
+    return x_s, residual_factor(cols.W, cols.Y, gain, cols.Wn, cols.Yn, extra=ca.mtimes(gain, Ss))
 
 
 # The backward loop: for each run, x^s_K = x_K, then K − 1 steps down to the first.
@@ -97,10 +119,12 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x, const casadi_real* P, 
 class _CompiledSmoother(CompiledLoop):
     """The backward step of one (f, transform), as C with its loop or on CasADi's VM."""
 
-    def __init__(self, f: Model, transform: Transform, angle_states: frozenset[int], names: tuple = ()) -> None:
-        key = repr((f.key, names, transform, sorted(angle_states)))
+    def __init__(self, f: Model, transform: Transform, angle_states: frozenset[int], names: tuple = (),
+                 square_root: bool = False) -> None:
+        key = repr((f.key, names, transform, sorted(angle_states)) + (("square_root",) if square_root else ()))
         name = "sm_rts_" + hashlib.sha1(key.encode()).hexdigest()[:12]
-        fn = _backward_function(f, transform, angle_states, names, name)
+        fn = _backward_function(f, transform, angle_states, names, name, square_root)
+        self.square_root = square_root
         self.n, self.n_p = f.n_u, len(names)
         code = generated_c(fn) + _DRIVER.format(name=name, sz_arg=max(fn.sz_arg(), 6), sz_res=max(fn.sz_res(), 2),
                                                 n=self.n, nn=self.n * self.n, n_p=self.n_p)
@@ -109,7 +133,17 @@ class _CompiledSmoother(CompiledLoop):
     def __call__(self, x: np.ndarray, P: np.ndarray, Q: np.ndarray, use_c: bool = True,
                  params: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Smooth the filtered x (runs, K, n), P (runs, K, n, n), with the filter's parameter
-        values (runs, K, n_p) (None: no parameters); returns (x^s, P^s) alike."""
+        values (runs, K, n_p) (None: no parameters); returns (x^s, P^s) alike.
+
+        A square-root smoother reads the filter's lower factors S (P = S Sᵀ) as ``P`` and
+        returns (x^s, P^s, S^s)."""
+        if self.square_root:
+            xs, Us = self._run(x, np.ascontiguousarray(np.swapaxes(P, -1, -2)), noise_factor(Q).T, use_c, params)
+            return (xs,) + covariance_of(Us)
+        return self._run(x, P, Q, use_c, params)
+
+    def _run(self, x, P, Q, use_c, params):
+        """:meth:`__call__` on the step's own inputs (factors, transposed, for a square-root one)."""
         runs, K = x.shape[:2]
         x = np.ascontiguousarray(x, dtype=float)
         P = np.ascontiguousarray(P, dtype=float)
@@ -158,12 +192,13 @@ _lock = threading.Lock()
 
 
 def compiled_smoother(f: Model, transform: Transform, angle_states: frozenset[int],
-                      names: tuple = ()) -> _CompiledSmoother:
+                      names: tuple = (), square_root: bool = False) -> _CompiledSmoother:
     """The compiled backward step of (f, transform), built once per process (C cached on disk);
-    ``names`` are the filter's parameters (:func:`symmon.filters.step.filter_params`)."""
-    key = (f, transform, angle_states, tuple(names))
+    ``names`` are the filter's parameters (:func:`symmon.filters.step.filter_params`);
+    ``square_root``: the square-root smoother (:func:`sqrt_backward_graph`)."""
+    key = (f, transform, angle_states, tuple(names), square_root)
     with _lock:
         s = _smoothers.get(key)
         if s is None:
-            s = _smoothers[key] = _CompiledSmoother(f, transform, angle_states, tuple(names))
+            s = _smoothers[key] = _CompiledSmoother(f, transform, angle_states, tuple(names), square_root)
         return s

@@ -47,12 +47,12 @@ import numpy as np
 
 from ..compile.ccache import NativeLibrary
 from ..compile.compiled import WorkArrays, generated_c, in_threads, padded
-from ..errors import ModelError, ShapeError, SymmonError
-from ..core.gaussian import float_array
+from ..errors import SymmonError
 from ..core.model import Model
 from ..compile import compiled, compiled_with_params
 from ..codegen.symbolic import graph_kind, moments, tril_inverse, wrap_entries
 from ..transforms import Transform
+from .sqrtstep import covariance_of, factor_of, noise_factor, sqrt_nees_graph, sqrt_predict_graph, sqrt_update_graph
 
 #: Names of the outputs of the step function, in order.
 _OUTPUTS = ("x", "P", "x_pred", "P_pred", "innovation", "S", "loglik", "nis")
@@ -194,10 +194,12 @@ def filter_params(f: Model, h: Model) -> tuple:
 
 
 def _step_function(f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
-                   name: str, iterations: int = 1) -> ca.Function:
+                   name: str, iterations: int = 1, square_root: bool = False) -> ca.Function:
     """(x, P, y, Q, R, mask, p) ↦ (x⁺, P⁺, x⁻, P⁻, ν, S, log-likelihood, NIS): one predict + update
     step, on the measured components of y (``mask``, :func:`update_graph`), with the values p
-    of the parameters (:func:`filter_params`; size 0 without)."""
+    of the parameters (:func:`filter_params`; size 0 without).  With ``square_root``, P, Q, R,
+    P⁺ and P⁻ are lower Cholesky factors (:mod:`symmon.filters.sqrtstep`); S is still the
+    innovation covariance."""
     n, n_y = f.n_u, h.n_y
     nq, nr = f.n_v or n, h.n_v or n_y
     names = filter_params(f, h)
@@ -205,10 +207,16 @@ def _step_function(f: Model, h: Model, transform: Transform, angle_states: froze
     x, P, y = kind.sym("x", n), kind.sym("P", n, n), kind.sym("y", n_y)
     Q, R, mask = kind.sym("Q", nq, nq), kind.sym("R", nr, nr), kind.sym("mask", n_y)
     p = kind.sym("p", len(names))
-    x_pred, P_pred = predict_graph(f, transform, angle_states, x, P, Q, chol, select_params(f, names, p))
-    # The NIS comes with the step, so that a lean bank need not keep ν and S.
-    x_new, P_new, nu, S, loglik, nis = update_graph(h, transform, angle_states, x_pred, P_pred, y, R, chol, mask,
-                                                    select_params(h, names, p), iterations)
+    if square_root:
+        x_pred, P_pred = sqrt_predict_graph(f, transform, angle_states, x, P, Q, select_params(f, names, p))
+        x_new, P_new, nu, Sy, loglik, nis = sqrt_update_graph(h, transform, angle_states, x_pred, P_pred, y, R,
+                                                              mask, select_params(h, names, p), iterations)
+        S = ca.mtimes(Sy, Sy.T)
+    else:
+        x_pred, P_pred = predict_graph(f, transform, angle_states, x, P, Q, chol, select_params(f, names, p))
+        # The NIS comes with the step, so that a lean bank need not keep ν and S.
+        x_new, P_new, nu, S, loglik, nis = update_graph(h, transform, angle_states, x_pred, P_pred, y, R, chol,
+                                                        mask, select_params(h, names, p), iterations)
     outs = [ca.densify(a) for a in (x_new, P_new, x_pred, P_pred, nu, S, loglik, nis)]
     return ca.Function(name, [x, P, y, Q, R, mask, p], outs, ["x", "P", "y", "Q", "R", "mask", "p"],
                        ["x_new", "P_new", "x_pred", "P_pred", "innovation", "S", "loglik", "nis"],
@@ -232,14 +240,15 @@ def nees_graph(x, P, truth, angle_states: Iterable[int], chol):
     return ca.dot(z, z), ca.sumsqr(inv) / ca.mmin(ca.diag(L) > 0)
 
 
-def _nees_function(f: Model, h: Model, transform: Transform, angle_states: frozenset[int], name: str) -> ca.Function:
+def _nees_function(f: Model, h: Model, transform: Transform, angle_states: frozenset[int], name: str,
+                   square_root: bool = False) -> ca.Function:
     """(x, P, truth) ↦ (NEES, tr Ρ⁻¹) of one step's estimate (:func:`nees_graph`), of the kind
-    (SX or MX) of the filter's step."""
+    (SX or MX) of the filter's step; with ``square_root``, P is its lower Cholesky factor."""
     kind, chol = step_kind(f, h, transform)
     n = f.n_u
     x, P, t = kind.sym("x", n), kind.sym("P", n, n), kind.sym("truth", n)
-    return ca.Function(name, [x, P, t], list(nees_graph(x, P, t, angle_states, chol)), ["x", "P", "truth"],
-                       ["nees", "trace"], {"cse": True})
+    outs = sqrt_nees_graph(x, P, t, angle_states) if square_root else nees_graph(x, P, t, angle_states, chol)
+    return ca.Function(name, [x, P, t], list(outs), ["x", "P", "truth"], ["nees", "trace"], {"cse": True})
 
 
 # The run loop: for each run, K steps, each reading the previous step's output.  casadi_int
@@ -365,12 +374,13 @@ class _CompiledStep(CompiledLoop):
     """The step function of one (f, h, transform), as C with a run loop or on CasADi's VM."""
 
     def __init__(self, f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
-                 iterations: int = 1) -> None:
-        key = repr((f.key, h.key, transform,
-                    sorted(angle_states), sorted(h.angle_outputs)) + ((iterations,) if iterations > 1 else ()))
+                 iterations: int = 1, square_root: bool = False) -> None:
+        key = repr((f.key, h.key, transform, sorted(angle_states), sorted(h.angle_outputs))
+                   + ((iterations,) if iterations > 1 else ()) + (("square_root",) if square_root else ()))
         name = "sm_nkf_" + hashlib.sha1(key.encode()).hexdigest()[:12]
-        fn = _step_function(f, h, transform, angle_states, name, iterations)
-        self.nees_f = _nees_function(f, h, transform, angle_states, name + "_nees")
+        fn = _step_function(f, h, transform, angle_states, name, iterations, square_root)
+        self.nees_f = _nees_function(f, h, transform, angle_states, name + "_nees", square_root)
+        self.square_root = square_root
         self.n, self.n_y = n, n_y = f.n_u, h.n_y
         self.n_p = len(filter_params(f, h))
         self._shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n),
@@ -399,7 +409,22 @@ class _CompiledStep(CompiledLoop):
         computed right after the step, so that neither x nor P need be kept for them.  With
         ``check_finite``, also ``"first_nonfinite"`` (runs,): the first step of each run whose
         x, P or log-likelihood is not finite, or -1 (the C loop tests every step as it goes,
-        and stops a run that failed, so the kept arrays need no second pass)."""
+        and stops a run that failed, so the kept arrays need no second pass).
+
+        A square-root step (:mod:`symmon.filters.sqrtstep`) reads P0, Q and R as covariances
+        and factors them once; its kept ``P`` and ``P_pred`` are S Sᵀ, with the factors S
+        themselves as ``P_chol`` and ``P_pred_chol``."""
+        if self.square_root:
+            out = self._run(x0, factor_of(P0), Y, noise_factor(Q).T, noise_factor(R).T, use_c, keep, params, truth,
+                            check_finite)
+            for k in ("P", "P_pred"):
+                if k in out:
+                    out[k], out[k + "_chol"] = covariance_of(out[k])
+            return out
+        return self._run(x0, P0, Y, Q, R, use_c, keep, params, truth, check_finite)
+
+    def _run(self, x0, P0, Y, Q, R, use_c, keep, params, truth, check_finite) -> dict[str, np.ndarray]:
+        """:meth:`__call__` on the step's own inputs (factors for a square-root step)."""
         runs, K = Y.shape[:2]
         n = self.n
         shapes = self._shapes
@@ -527,14 +552,15 @@ _steps_lock = threading.Lock()
 
 
 def _compiled_step(f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
-                   iterations: int = 1) -> _CompiledStep:
+                   iterations: int = 1, square_root: bool = False) -> _CompiledStep:
     """The compiled step of (f, h, transform), built once per process (C cached on disk);
-    ``iterations`` > 1: the iterated EKF's update (:func:`update_graph`)."""
-    key = (f, h, transform, angle_states, iterations)
+    ``iterations`` > 1: the iterated EKF's update (:func:`update_graph`); ``square_root``:
+    the square-root form (:mod:`symmon.filters.sqrtstep`)."""
+    key = (f, h, transform, angle_states, iterations, square_root)
     with _steps_lock:
         step = _steps.get(key)
         if step is None:
-            step = _steps[key] = _CompiledStep(f, h, transform, angle_states, iterations)
+            step = _steps[key] = _CompiledStep(f, h, transform, angle_states, iterations, square_root)
         return step
 
 

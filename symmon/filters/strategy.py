@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..codegen.sqrtform import check_sqrt_rule
 from ..errors import ArgumentTypeError, SymmonError
 from ..transforms import Transform
 from .inputs import KEEPABLE, FilterSpec
@@ -85,8 +86,12 @@ class RuleStrategy(FilterStrategy):
 
     def check(self, kf):
         check_dimensions(self.transform, kf.dimensions)
+        if kf.square_root:
+            for n in sorted(set(kf.dimensions)):
+                check_sqrt_rule(self.transform, n)
 
     def run(self, kf, Y, x0, P0, keep=None, params=None, truth=None):
-        step = _compiled_step(kf.f_model, kf.h_model, self.transform, kf.angle_states, kf.iterations)
+        step = _compiled_step(kf.f_model, kf.h_model, self.transform, kf.angle_states, kf.iterations,
+                              kf.square_root)
         return step(x0, P0, Y, kf.Q, kf.R, keep=None if keep is None else keep | {"loglik"}, params=params,
                     truth=truth, check_finite=True), None

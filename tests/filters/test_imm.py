@@ -337,3 +337,12 @@ def test_an_adaptive_mode_runs_step_by_step(modes):
     _, ys = manoeuvre(runs=1)
     res = imm.filter(ys[0, :25], X0)
     assert res.mode_probabilities[23, 1] > 0.5  # the turn began at step 20
+
+
+def test_a_square_root_mode_is_refused_with_its_name():
+    x = sp.Symbol("x", real=True)
+    f, h = sm.Model([x], [x], name="f1"), sm.Model([x], [x], name="h1")
+    std = sm.NonlinearKalmanFilter(f, h, [[1.0]], [[1.0]], sm.TT1())
+    sr = sm.NonlinearKalmanFilter(f, h, [[1.0]], [[1.0]], sm.TT1(), square_root=True)
+    with pytest.raises(ArgumentError, match="mode 1 .*square-root"):
+        sm.IMM([std, sr], [[0.9, 0.1], [0.1, 0.9]], [0.5, 0.5])
