@@ -44,7 +44,7 @@ import sympy as sp
 from ..core.gaussian import Gaussian
 from ..core.model import Model
 from ..latex import latex_text
-from ..errors import ArgumentError, ArgumentTypeError, ModelError, ResourceError
+from ..errors import ArgumentError, ArgumentTypeError, ModelError, NonFiniteError, ResourceError
 from ..propagation import check_transform
 from ..transforms import Exact, Transform
 from .expectation import as_mean_cov, expect
@@ -104,11 +104,19 @@ class SymbolicMoments:
             An entry of μ or P was given as an expression, not a symbol, and differs from
             the Gaussian's value; or v is missing for a model with noise.
         """
+        if not isinstance(u, Gaussian) or (v is not None and not isinstance(v, Gaussian)):
+            raise ArgumentTypeError("u (and v) must be symmon.Gaussian")
+        if u.dim != self.model.n_u:
+            raise ArgumentError(f"u has dimension {u.dim} but the model has {self.model.n_u} inputs")
         pairs = [(self.input_mean, u.mean), (self.input_cov, u.cov)]
         if self.model.n_v:
             if v is None:
                 raise ArgumentError(f"the model has noise {list(map(str, self.model.noise))}: pass v=Gaussian(...)")
+            if v.dim != self.model.n_v:
+                raise ArgumentError(f"v has dimension {v.dim} but the model has {self.model.n_v} noise symbols")
             pairs += [(self.noise_mean, v.mean), (self.noise_cov, v.cov)]
+        elif v is not None:
+            raise ArgumentError("v was given but the model declares no noise symbols")
         out: dict[sp.Symbol, sp.Expr] = {}
         for sym, num in pairs:
             flat = np.asarray(num, dtype=float).ravel()
@@ -118,21 +126,45 @@ class SymbolicMoments:
         for sym, num in pairs:  # entries given as numbers or expressions must match
             flat = np.asarray(num, dtype=float).ravel()
             for e, val in zip(list(sym), flat):
-                if not isinstance(e, sp.Symbol) and abs(float(e.xreplace(out)) - val) > 1e-12 * max(1.0, abs(val)):
-                    raise ArgumentError(f"the moments were derived for an entry {e}, the Gaussian has {val}")
+                if isinstance(e, sp.Symbol):
+                    continue
+                given = e.xreplace(out)
+                if given.free_symbols or abs(float(given) - val) > 1e-12 * max(1.0, abs(val)):
+                    raise ArgumentError(f"the moments were derived for an entry {e} of the mean or covariance, "
+                                        f"the Gaussian has {val}")
         return out
 
     def evaluate(self, u: Gaussian, v: Gaussian | None = None, digits: int = 30
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """E y, Cov y and Cov(y, u) at the Gaussians u (and v) as float arrays, evaluated
-        with ``digits`` significant digits before the conversion."""
+        with ``digits`` significant digits before the conversion.
+
+        Raises
+        ------
+        ArgumentError
+            v is missing (or given for a model without noise), a dimension is wrong, or an
+            entry still depends on a symbol the Gaussians do not give (a model parameter).
+        NonFiniteError
+            An entry is NaN, infinite or complex at these Gaussians (TT1 of the range at
+            the origin): never returned as a number.
+        """
         sub = self.substitution(u, v)
 
-        def num(M: sp.Matrix) -> np.ndarray:
-            return np.array([[complex(sp.N(e.xreplace(sub), digits)).real for e in row] for row in M.tolist()],
-                            dtype=float).reshape(M.shape)
+        def num(M: sp.Matrix, what: str) -> np.ndarray:
+            out = np.empty(M.shape)
+            for (i, j), e in np.ndenumerate(np.array(M.tolist(), dtype=object).reshape(M.shape)):
+                value = sp.N(e.xreplace(sub), digits)
+                if value.free_symbols:
+                    raise ArgumentError(f"{what}[{i}, {j}] depends on {sorted(map(str, value.free_symbols))}, "
+                                        "which the Gaussians do not give (a model parameter?): substitute it first")
+                z = complex(value)
+                if not (np.isfinite(z.real) and abs(z.imag) <= 1e-25 * max(1.0, abs(z.real))):
+                    raise NonFiniteError(f"{what}[{i}, {j}] is {value} at these Gaussians, not a finite real number")
+                out[i, j] = z.real
+            return out
 
-        return num(self.mean).ravel(), num(self.cov), num(self.cross_cov)
+        return num(self.mean, "mean").ravel(), num(self.cov, "cov"), num(self.cross_cov, "cross_cov")
+
 
     def latex(self) -> str:
         r"""E y, Cov y and Cov(y, u) as one LaTeX ``aligned`` block (without ``$``)."""

@@ -151,3 +151,23 @@ def test_the_exact_unit_rule_is_the_float_rule(tr):
         np.testing.assert_allclose([float(w) for w in wm + wc], np.concatenate([fm, fc]), rtol=tol, atol=tol)
         assert sum(wm) == 1  # exactly
     assert sm.TT1().symbolic_unit_rule(2) is None
+
+
+def test_evaluate_refuses_what_it_cannot_give():
+    from symmon.errors import ArgumentError, NonFiniteError
+
+    noisy = sm.symbolic_moments(NOISY, sm.TT1())
+    with pytest.raises(ArgumentError, match="noise"):
+        noisy.evaluate(U)
+    polar = sm.symbolic_moments(POLAR, sm.TT1())
+    with pytest.raises(ArgumentError, match="no noise"):
+        polar.evaluate(U, V)
+    with pytest.raises(NonFiniteError, match="not a finite real"):
+        polar.evaluate(sm.Gaussian([0.0, 0.0], np.eye(2)))  # the range's Jacobian at the origin
+    b = sp.Symbol("b", real=True)
+    biased = sm.symbolic_moments(sm.Model([x], [x + b], params=[b]), sm.TT1())
+    with pytest.raises(ArgumentError, match="parameter"):
+        biased.evaluate(sm.Gaussian([1.0], [[1.0]]))
+    fixed = sm.symbolic_moments(POLAR, sm.TT1(), cov=[[sp.Rational(2, 5), 0], [0, sp.Rational(3, 10)]])
+    with pytest.raises(ArgumentError, match="derived for"):
+        fixed.evaluate(U)  # U has a cross-covariance 0.1, the moments were derived for 0
