@@ -59,6 +59,9 @@ from .transforms import GaussHermite as GaussHermite
 from .transforms import Moments as Moments
 from .transforms import MonteCarlo as MonteCarlo
 from .transforms import Transform as Transform
+from .verify import SymbolicMoments as SymbolicMoments
+from .verify import expect as expect
+from .verify import symbolic_moments as symbolic_moments
 
 from .version import __version__ as __version__
 
@@ -71,6 +74,7 @@ __all__ = [
     "propagate", "propagate_many", "advise", "Advice",
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Cubature5", "Transform", "Moments", "Executor",
     "NonlinearKalmanFilter", "Adaptive", "IMM", "simulate", "ParticleFilter", "GaussianSumFilter", "GaussianSumResult",
+    "expect", "symbolic_moments", "SymbolicMoments",
 ]
 
 

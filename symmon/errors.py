@@ -16,6 +16,7 @@ __all__ = [
     "UnsupportedFunctionError",
     "NonSmoothModelError",
     "UndecidedProofError",
+    "ExpectationNotClosedForm",
     "SamplingError",
     "SingularMatrixError",
     "DerivativeError",
@@ -80,6 +81,16 @@ class UndecidedProofError(SymmonError):
     """A unit-invariance proof reached no verdict: the difference did not reduce to 0 and
     no point where the two values of M² differ was found, or the numeric check of the
     change of units contradicts the symbolic verdict.  Never reported as "holds"."""
+
+
+class ExpectationNotClosedForm(SymmonError):
+    """A Gaussian expectation E[f(x)] asked of :func:`symmon.expect` (or of the exact
+    symbolic moments built on it) lies outside the class that has a proved closed form:
+    sums and products of polynomials, exponentials of affine forms, sines and cosines of
+    affine forms, and |affine| and max/min of two affine forms (an absolute value times
+    polynomials and real exponentials only).  The message names the subexpression that
+    is outside; nothing unproven (no numeric integral, no sympy.stats fallback) is
+    returned instead."""
 
 
 class SamplingError(SymmonError):

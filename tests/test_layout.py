@@ -58,7 +58,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("symmon.transforms",),
     ("symmon.propagation", "symmon.codegen"),
     ("symmon.measures", "symmon.estimation"),
-    ("symmon.units", "symmon.filters"),
+    ("symmon.units", "symmon.filters", "symmon.verify"),
     ("symmon.files",),
     ("symmon.cli", "symmon.reproduce"),
 )

@@ -1,0 +1,12 @@
+"""Derivation verification: symbolic Gaussian expectations and symbolic moments.
+
+The room above propagation and code generation where a user's own derivation is checked:
+:func:`expect` gives E[f(x)] of a Gaussian vector in closed form (or says it has none),
+:func:`symbolic_moments` the moments of a model under a transform as sympy matrices in the
+symbols of the input's mean and covariance.
+"""
+
+from .expectation import expect
+from .moments import SymbolicMoments, symbolic_moments
+
+__all__ = ["expect", "symbolic_moments", "SymbolicMoments"]
