@@ -57,6 +57,9 @@ from .transforms import Transform as Transform
 from .verify import SymbolicMoments as SymbolicMoments
 from .verify import expect as expect
 from .verify import symbolic_moments as symbolic_moments
+from .verify import Expectation as Expectation
+from .verify import Verification as Verification
+from .verify import verify as verify
 
 from .version import __version__ as __version__
 
@@ -70,6 +73,7 @@ __all__ = [
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Cubature5", "Transform", "Moments", "Executor",
     "NonlinearKalmanFilter", "Adaptive",
     "expect", "symbolic_moments", "SymbolicMoments",
+    "verify", "Verification", "Expectation",
 ]
 
 

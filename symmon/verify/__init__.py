@@ -8,5 +8,6 @@ symbols of the input's mean and covariance.
 
 from .expectation import expect
 from .moments import SymbolicMoments, symbolic_moments
+from .verification import Expectation, Verification, verify
 
-__all__ = ["expect", "symbolic_moments", "SymbolicMoments"]
+__all__ = ["expect", "symbolic_moments", "SymbolicMoments", "verify", "Verification", "Expectation"]
