@@ -60,6 +60,11 @@ from .verify import symbolic_moments as symbolic_moments
 from .verify import Expectation as Expectation
 from .verify import Verification as Verification
 from .verify import verify as verify
+from .verify import verify_derivatives as verify_derivatives
+from .verify import verify_estimator as verify_estimator
+from .verify import verify_moments as verify_moments
+from .verify import verify_mon as verify_mon
+from .verify import verify_weight as verify_weight
 
 from .version import __version__ as __version__
 
@@ -73,7 +78,8 @@ __all__ = [
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Cubature5", "Transform", "Moments", "Executor",
     "NonlinearKalmanFilter", "Adaptive",
     "expect", "symbolic_moments", "SymbolicMoments",
-    "verify", "Verification", "Expectation",
+    "verify", "Verification", "Expectation", "verify_moments", "verify_derivatives", "verify_mon",
+    "verify_weight", "verify_estimator",
 ]
 
 

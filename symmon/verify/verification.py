@@ -558,19 +558,20 @@ def _point_text(pt: Mapping) -> dict:
 
 
 def decide(claim: str, lhs: Side, rhs: Side, prep: Prepared, *, points: int = DEFAULT_POINTS, seed: int = 0,
-           notes: Sequence[str] = (), t0: float | None = None) -> Verification:
-    """The verdict on ``lhs = rhs`` (sides of the same shape) over the prepared domain."""
+           notes: Sequence[str] = (), t0: float | None = None, labels: Sequence[str] | None = None) -> Verification:
+    """The verdict on ``lhs = rhs`` (sides of the same shape) over the prepared domain; ``labels``
+    name the entries (in row-major order) in a counterexample."""
     t0 = time.perf_counter() if t0 is None else t0
     if lhs.shape != rhs.shape:
         raise ShapeError(f"the two sides of the claim have different shapes: {lhs.shape} and {rhs.shape}")
     notes = [*lhs.notes, *rhs.notes, *notes]
     texts = list(prep.texts)
     if lhs.exact is not None and rhs.exact is not None:
-        return _decide_exact(claim, lhs, rhs, prep, points, seed, notes, texts, t0)
-    return _decide_numeric(claim, lhs, rhs, prep, min(points, NUMERIC_POINTS), seed, notes, texts, t0)
+        return _decide_exact(claim, lhs, rhs, prep, points, seed, notes, texts, t0, labels)
+    return _decide_numeric(claim, lhs, rhs, prep, min(points, NUMERIC_POINTS), seed, notes, texts, t0, labels)
 
 
-def _decide_exact(claim, lhs, rhs, prep, count, seed, notes, texts, t0) -> Verification:
+def _decide_exact(claim, lhs, rhs, prep, count, seed, notes, texts, t0, labels) -> Verification:
     L, R = lhs.exact, rhs.exact
     D = L - R
     symbols = L.free_symbols | R.free_symbols | lhs.symbols | rhs.symbols
@@ -600,7 +601,7 @@ def _decide_exact(claim, lhs, rhs, prep, count, seed, notes, texts, t0) -> Verif
                         f"but the re-check does not confirm it ({recheck})")
                 exact = sp.nsimplify(D[i].xreplace(pt)) if sp.count_ops(D[i].xreplace(pt)) < 40 else None
                 exact_text = str(exact) if exact is not None and len(str(exact)) < 120 and exact.free_symbols == set() else None
-                cex = {"point": _point_text(pt), "entry": _entry(D, i), "lhs": _fmt(lv), "rhs": _fmt(rv),
+                cex = {"point": _point_text(pt), "entry": labels[i] if labels else _entry(D, i), "lhs": _fmt(lv), "rhs": _fmt(rv),
                        "difference": _fmt(diff, 20), "exact_difference": exact_text, "recheck": recheck}
                 return Verification(
                     claim, "refuted",
@@ -640,15 +641,15 @@ def _side_values(side: Side, pt: Mapping, refine: bool, seed: int) -> tuple[list
     return [mpmath.mpf(v) for v in ref.values], [mpmath.mpf(e) for e in ref.errors], ref.method
 
 
-def _decide_numeric(claim, lhs, rhs, prep, count, seed, notes, texts, t0) -> Verification:
+def _decide_numeric(claim, lhs, rhs, prep, count, seed, notes, texts, t0, labels) -> Verification:
     symbols = lhs.symbols | rhs.symbols | (lhs.exact.free_symbols if lhs.exact is not None else set()) \
         | (rhs.exact.free_symbols if rhs.exact is not None else set())
     pts, refused = _points(symbols, prep, lhs.covs + rhs.covs, count, seed) if symbols else ([{}], 0)
     with mpmath.workdps(DIGITS):
-        return _numeric_points(claim, lhs, rhs, pts, refused, seed, notes, texts, t0)
+        return _numeric_points(claim, lhs, rhs, pts, refused, seed, notes, texts, t0, labels)
 
 
-def _numeric_points(claim, lhs, rhs, pts, refused, seed, notes, texts, t0) -> Verification:
+def _numeric_points(claim, lhs, rhs, pts, refused, seed, notes, texts, t0, labels) -> Verification:
     checked, worst, methods, resolved = 0, mpmath.mpf(0), set(), 0
     for k, pt in enumerate(pts):
         a, b = _side_values(lhs, pt, False, seed + k), _side_values(rhs, pt, False, seed + k)
@@ -668,7 +669,7 @@ def _numeric_points(claim, lhs, rhs, pts, refused, seed, notes, texts, t0) -> Ve
             if diff2 <= bound2:
                 resolved += 1
                 continue
-            cex = {"point": _point_text(pt), "entry": _entry(sp.zeros(*lhs.shape), i),
+            cex = {"point": _point_text(pt), "entry": labels[i] if labels else _entry(sp.zeros(*lhs.shape), i),
                    "lhs": f"{_n(a[0][i], 20)} ± {_n(a[1][i], 3)}", "rhs": f"{_n(b[0][i], 20)} ± {_n(b[1][i], 3)}",
                    "difference": f"{_n(a[0][i] - b[0][i], 10)} (bound {_n(bound, 3)})", "exact_difference": None,
                    "recheck": (f"refined reference ({a2[2] if a2[2] != 'exact' else b2[2]}): lhs = {_n(a2[0][i], 20)}, "
