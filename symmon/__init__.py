@@ -14,6 +14,7 @@ from . import codegen as codegen
 from . import estimation as estimation
 from . import filters as filters
 from . import units as units
+from . import testing as testing
 from .core import angles as angles
 from .core import problems as problems
 from .estimation import mmse as mmse
@@ -78,7 +79,7 @@ __all__ = [
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Cubature5", "Transform", "Moments", "Executor",
     "NonlinearKalmanFilter", "Adaptive",
     "expect", "symbolic_moments", "SymbolicMoments",
-    "verify", "Verification", "Expectation", "verify_moments", "verify_derivatives", "verify_mon",
+    "testing", "verify", "Verification", "Expectation", "verify_moments", "verify_derivatives", "verify_mon",
     "verify_weight", "verify_estimator",
 ]
 
