@@ -31,7 +31,9 @@ from .verification import (
     DEFAULT_POINTS,
     Expectation,
     Verification,
+    as_matrix,
     decide,
+    domain_items,
     exact_side,
     numeric_side,
     prepare,
@@ -81,7 +83,7 @@ def _stack(parts: Sequence[tuple[str, sp.Matrix | None]]) -> tuple[sp.Matrix, li
 def _claimed(value: Any, shape: tuple[int, int], name: str) -> sp.Matrix | None:
     if value is None:
         return None
-    M = sp.Matrix(value) if not isinstance(value, sp.Basic) or isinstance(value, sp.MatrixBase) else sp.Matrix([[value]])
+    M = as_matrix(value, name)
     if M.shape != shape and M.shape == (shape[1], shape[0]) and 1 in shape:
         M = M.reshape(*shape)
     if M.shape != shape:
@@ -308,7 +310,7 @@ def verify_weight(weight: str, cov: Any, claimed: Any, assumptions: Any = None, 
     if weight not in NAMED_WEIGHTS:
         raise ArgumentError(f"weight must be one of {', '.join(NAMED_WEIGHTS)}, got {weight!r}")
     C = _claimed(claimed, S.shape, "claimed")
-    dom = dict(domain or {})
+    dom = dict(domain_items(domain))
     if S.free_symbols and not any(isinstance(k, sp.MatrixBase) for k in dom):
         dom[sp.ImmutableMatrix(S)] = "spd"
     (C, S), prep = prepare([C, S], assumptions, dom)

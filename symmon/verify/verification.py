@@ -47,7 +47,7 @@ from ..errors import (
 from .numeric import Reference, gaussian_integrals
 
 __all__ = ["Verification", "Expectation", "verify", "VERDICTS", "ASSUMPTIONS", "DEFAULT_POINTS",
-           "decide", "Side", "exact_side", "numeric_side", "side_of", "prepare"]
+           "decide", "Side", "exact_side", "numeric_side", "side_of", "prepare", "as_matrix", "domain_items"]
 
 VERDICTS = ("proved", "refuted", "consistent")
 #: Words an assumption on a symbol may use, and the sympy assumption each sets.
@@ -176,15 +176,15 @@ class Expectation:
     """
 
     def __init__(self, expr: Any, over: Any, mean: Any, cov: Any) -> None:
-        self.expr = _as_matrix(expr, "expr")
+        self.expr = as_matrix(expr, "expr")
         self.over = tuple(over) if isinstance(over, (list, tuple, sp.MatrixBase)) else (over,)
         if not self.over or not all(isinstance(s, sp.Symbol) for s in self.over):
             raise ArgumentTypeError(f"over must be a sympy Symbol or a sequence of them, got {over!r}")
         n = len(self.over)
-        self.mean = _as_matrix(mean, "mean").reshape(n, 1) if _size(mean) == n else None
+        self.mean = as_matrix(mean, "mean").reshape(n, 1) if _size(mean) == n else None
         if self.mean is None:
             raise ShapeError(f"mean must have {n} entries (one per variable of over), got {mean!r}")
-        self.cov = _as_matrix(cov, "cov")
+        self.cov = as_matrix(cov, "cov")
         if self.cov.shape != (n, n):
             raise ShapeError(f"cov must be {n}x{n}, got shape {self.cov.shape}")
 
@@ -221,7 +221,7 @@ def _size(x: Any) -> int:
     return 1
 
 
-def _as_matrix(x: Any, name: str) -> sp.Matrix:
+def as_matrix(x: Any, name: str) -> sp.Matrix:
     """A sympy Matrix of the value: a scalar is 1x1, a flat sequence a column."""
     try:
         if isinstance(x, sp.MatrixBase):
@@ -266,7 +266,7 @@ class Side:
 
 
 def exact_side(M: Any, notes: Sequence[str] = (), covs: Sequence[sp.Matrix] = ()) -> Side:
-    M = _exact(_as_matrix(M, "claim"))
+    M = _exact(as_matrix(M, "claim"))
     return Side(M.shape, exact=M, symbols=set(M.free_symbols), covs=list(covs), notes=list(notes))
 
 
@@ -332,7 +332,7 @@ def prepare(objects: Iterable[Any], assumptions: Any, domain: Any) -> tuple[list
         if isinstance(o, Expectation):
             syms |= o.free_symbols | set(o.over)
         else:
-            syms |= _as_matrix(o, "claim").free_symbols
+            syms |= as_matrix(o, "claim").free_symbols
     syms = {s for s in syms if isinstance(s, sp.Symbol)}
     by_name = {s.name: s for s in syms}
     if len(by_name) != len(syms):
@@ -378,8 +378,8 @@ def prepare(objects: Iterable[Any], assumptions: Any, domain: Any) -> tuple[list
     texts += [f"{c} (restricts the random points only)" for c in constraints]
     intervals: dict[sp.Symbol, tuple[sp.Rational, sp.Rational]] = {}
     spd: list[sp.Matrix] = []
-    for key, value in (dict(domain) if domain is not None else {}).items():
-        if isinstance(key, sp.MatrixBase) or (isinstance(key, tuple) and isinstance(value, str)):
+    for key, value in domain_items(domain):
+        if isinstance(key, sp.MatrixBase):
             if value != "spd":
                 raise ArgumentError(f"domain: a matrix key takes 'spd' (symmetric positive definite), got {value!r}")
             spd.append(sp.ImmutableMatrix(key).xreplace(rule))
@@ -394,8 +394,24 @@ def prepare(objects: Iterable[Any], assumptions: Any, domain: Any) -> tuple[list
         intervals[s] = (lo, hi)
     texts += [f"{s} in [{lo}, {hi}] (random points)" for s, (lo, hi) in intervals.items()]
     texts += [f"{sp.Matrix(M).tolist()} symmetric positive definite (random points)" for M in spd]
-    out = [o.xreplace(rule) if isinstance(o, Expectation) else _as_matrix(o, "claim").xreplace(rule) for o in objects]
+    out = [o.xreplace(rule) if isinstance(o, Expectation) else as_matrix(o, "claim").xreplace(rule) for o in objects]
     return out, Prepared(rule, texts, constraints, intervals, spd)
+
+
+def domain_items(domain: Any) -> list[tuple[Any, Any]]:
+    """The (key, value) pairs of a domain: a mapping, or a sequence of pairs (a mutable sympy
+    Matrix, which cannot be a dict key, is given as ``[(P, "spd")]``)."""
+    if domain is None:
+        return []
+    if isinstance(domain, Mapping):
+        return [(sp.ImmutableMatrix(k) if isinstance(k, sp.MatrixBase) else k, v) for k, v in domain.items()]
+    try:
+        pairs = [tuple(p) for p in domain]
+    except TypeError:
+        raise ArgumentTypeError(f"domain must be a mapping or a sequence of (key, value) pairs, got {domain!r}") from None
+    if not all(len(p) == 2 for p in pairs):
+        raise ArgumentTypeError("domain must be a mapping or a sequence of (key, value) pairs")
+    return [(sp.ImmutableMatrix(k) if isinstance(k, sp.MatrixBase) else k, v) for k, v in pairs]
 
 
 def _sign_word(rel: sp.Basic) -> tuple[sp.Symbol, str] | None:
@@ -707,9 +723,10 @@ def verify(lhs: Any, rhs: Any, assumptions: Any = None, domain: Any = None, *, p
         nonzero) or relations ``[sigma > 0, x >= y]``. A relation of a symbol against 0 is a
         sympy assumption the proof may use; any other relation restricts the random points.
         Every symbol is real.
-    domain : mapping, optional
-        Where the random points are drawn: ``{x: (-1, 1)}``, and ``{P: "spd"}`` for a sympy
-        matrix of symbols that is a covariance (exact symmetric positive definite values).
+    domain : mapping or sequence of pairs, optional
+        Where the random points are drawn: ``{x: (-1, 1)}``, and ``(P, "spd")`` for a sympy
+        matrix of symbols that is a covariance (exact symmetric positive definite values; a
+        mutable Matrix is no dict key: pass ``[(P, "spd")]`` or ``sp.ImmutableMatrix(P)``).
         Default: [-4, 4] for a real symbol, [1/4, 4] for a positive one.
     points : int, default 8
         Random points of the screening (4 at most with a numeric reference).
@@ -753,5 +770,5 @@ def verify(lhs: Any, rhs: Any, assumptions: Any = None, domain: Any = None, *, p
 def _show(x: Any) -> str:
     if isinstance(x, Expectation):
         return repr(x)
-    M = _as_matrix(x, "claim")
+    M = as_matrix(x, "claim")
     return str(M[0]) if M.shape == (1, 1) else str(M.tolist())
