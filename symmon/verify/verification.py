@@ -562,6 +562,15 @@ def _recheck(le: sp.Expr, re_: sp.Expr, pt: Mapping, d50: sp.Expr, scale: sp.Exp
                     f"rhs = {mpmath.nstr(rv, 30)}, difference = {mpmath.nstr(d, 20)}")
 
 
+def _exact_text(value: sp.Expr) -> str | None:
+    """The exact difference at a point, simplified, when it is short and holds no float."""
+    if value.free_symbols or value.atoms(sp.Float) or sp.count_ops(value) > 60:
+        return None
+    value = sp.radsimp(sp.simplify(value)) if sp.count_ops(value) > 1 else value
+    text = str(value)
+    return text if len(text) <= 120 and not value.atoms(sp.Float) else None
+
+
 def _entry(M: sp.Matrix, i: int) -> str | None:
     if M.shape == (1, 1):
         return None
@@ -615,8 +624,7 @@ def _decide_exact(claim, lhs, rhs, prep, count, seed, notes, texts, t0, labels) 
                     raise UndecidedProofError(
                         f"{claim}: the sides differ by {_fmt(diff, 10)} at {_point_text(pt)} in {DIGITS} digits, "
                         f"but the re-check does not confirm it ({recheck})")
-                exact = sp.nsimplify(D[i].xreplace(pt)) if sp.count_ops(D[i].xreplace(pt)) < 40 else None
-                exact_text = str(exact) if exact is not None and len(str(exact)) < 120 and exact.free_symbols == set() else None
+                exact_text = _exact_text(D[i].xreplace(pt))
                 cex = {"point": _point_text(pt), "entry": labels[i] if labels else _entry(D, i), "lhs": _fmt(lv), "rhs": _fmt(rv),
                        "difference": _fmt(diff, 20), "exact_difference": exact_text, "recheck": recheck}
                 return Verification(

@@ -51,6 +51,10 @@ def test_a_refutation_holds_in_exact_arithmetic():
     v = sm.verify(lhs, rhs)
     assert v.verdict == "refuted" and not v.passed
     d = exact_difference_at(v, lhs, rhs, [x])
+    if v.counterexample["exact_difference"] is not None:  # short exact forms are reported, and right
+        point = {x: sp.Rational(v.counterexample["point"]["x"])}
+        shown = sp.sympify(v.counterexample["exact_difference"])  # test-side parse of symmon's own output
+        assert sp.simplify(shown - (lhs - rhs).xreplace(point)) == 0
     assert abs(d) > sp.Float("1e-3")
     assert sp.Float(v.counterexample["difference"], 20) == pytest.approx(float(d), rel=1e-15)
     assert "100 digits" in v.counterexample["recheck"]
@@ -192,7 +196,9 @@ def test_erratum_37_38_the_weight_relation_with_s_v_is_refuted_and_with_s_y_prov
     bad = sm.verify(lhs, printed, domain=[(D, "spd"), (Wb, "spd")])
     assert bad.verdict == "refuted"
     point = {sym: sp.Rational(bad.counterexample["point"][sym.name]) for sym in lhs.free_symbols | printed.free_symbols}
-    assert (lhs - printed).xreplace(point) != 0  # a rational number: exact
+    exact = (lhs - printed).xreplace(point)
+    assert exact.is_Rational and exact != 0  # a rational number: exact
+    assert sp.Rational(bad.counterexample["exact_difference"]) == exact
     assert sp.Matrix(D.xreplace(point)).is_positive_definite
 
 
