@@ -249,7 +249,9 @@ class _Reader:
         if not isinstance(table, dict):
             raise self.error("models", f"must be a table of models, got {_short(table)}")
         for mname, spec in table.items():
-            where = f"[models.{mname}]"
+            where = f"[models.{_short(mname, 60)}]"
+            if len(mname) > 100 or not mname.isprintable():
+                raise self.error("models", f"{_short(mname)}: a model's name has at most 100 printable characters")
             if not isinstance(spec, dict):
                 raise self.error(where, f"must be a table, got {_short(spec)}")
             _check_keys(self.ctx, spec, _MODEL_KEYS, _MODEL_KEYS, where)
@@ -263,7 +265,7 @@ class _Reader:
                 raise self.error(f"{where}.outputs", f"must be a non-empty list of expressions, got {_short(outputs)}")
             g = [self.expr(o, f"{where}.outputs[{i}]", env) for i, o in enumerate(outputs)]
             try:
-                model = Model(us, g, name=str(mname)[:100])
+                model = Model(us, g, name=mname)
             except ModelError as exc:
                 raise self.error(where, str(exc)) from None
             mean = self.vector(spec["mean"], f"{where}.mean", len(us), self.symbols)

@@ -126,7 +126,7 @@ class Verification:
     def __str__(self) -> str:
         lines = [f"claim:       {self.claim}", f"verdict:     {self.verdict.upper()}", f"method:      {self.method}",
                  "assumptions: " + ("; ".join(self.assumptions) if self.assumptions else "none")]
-        ev = "; ".join(f"{k} = {_short(v)}" for k, v in self.evidence.items())
+        ev = "; ".join(f"{k} = {_short(v)}" for k, v in self.evidence.items() if v not in ([], None, ""))
         lines.append(f"evidence:    {ev}")
         cex = self.counterexample
         if cex is not None:
