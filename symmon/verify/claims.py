@@ -34,6 +34,7 @@ from .verification import (
     as_matrix,
     decide,
     domain_items,
+    exact_matrix,
     exact_side,
     numeric_side,
     prepare,
@@ -60,7 +61,8 @@ def _input(model: Model, u: Any) -> tuple[sp.Matrix, sp.Matrix]:
         raise ArgumentTypeError(f"u must be a symmon.Gaussian or a pair (mean, cov), got {type(u).__name__}")
     if mu.shape not in ((n, 1), (1, n)) or P.shape != (n, n):
         raise ShapeError(f"u: the model has {n} inputs, got a mean of shape {mu.shape} and a cov of shape {P.shape}")
-    return mu.reshape(n, 1), P
+    # numbers exact before any moment is computed from them (0.17 -> 17/100)
+    return exact_matrix(mu.reshape(n, 1)), exact_matrix(P)
 
 
 def _transform_name(transform: Any) -> str:

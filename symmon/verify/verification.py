@@ -47,7 +47,7 @@ from ..errors import (
 from .numeric import Reference, gaussian_integrals
 
 __all__ = ["Verification", "Expectation", "verify", "VERDICTS", "ASSUMPTIONS", "DEFAULT_POINTS",
-           "decide", "Side", "exact_side", "numeric_side", "side_of", "prepare", "as_matrix", "domain_items"]
+           "decide", "Side", "exact_side", "numeric_side", "side_of", "prepare", "as_matrix", "domain_items", "exact_matrix"]
 
 VERDICTS = ("proved", "refuted", "consistent")
 #: Words an assumption on a symbol may use, and the sympy assumption each sets.
@@ -238,7 +238,7 @@ def as_matrix(x: Any, name: str) -> sp.Matrix:
         raise ArgumentTypeError(f"{name} must hold sympy expressions or numbers, got {x!r}") from None
 
 
-def _exact(M: sp.Matrix) -> sp.Matrix:
+def exact_matrix(M: sp.Matrix) -> sp.Matrix:
     """Floats as exact rationals: the shortest decimal of a double (0.17 → 17/100)."""
     floats = M.atoms(sp.Float)
     if not floats:
@@ -266,7 +266,7 @@ class Side:
 
 
 def exact_side(M: Any, notes: Sequence[str] = (), covs: Sequence[sp.Matrix] = ()) -> Side:
-    M = _exact(as_matrix(M, "claim"))
+    M = exact_matrix(as_matrix(M, "claim"))
     return Side(M.shape, exact=M, symbols=set(M.free_symbols), covs=list(covs), notes=list(notes))
 
 
@@ -278,7 +278,7 @@ def numeric_side(shape: tuple[int, int], reference: Callable[[Mapping, bool, int
 def side_of(x: Any) -> Side:
     """A claim's side: an :class:`Expectation` in closed form when it has one, else numeric."""
     if isinstance(x, Expectation):
-        e = Expectation(_exact(x.expr), x.over, _exact(x.mean), _exact(x.cov))
+        e = Expectation(exact_matrix(x.expr), x.over, exact_matrix(x.mean), exact_matrix(x.cov))
         try:
             closed = e.closed_form()
         except ExpectationNotClosedForm as exc:
