@@ -132,8 +132,8 @@ def assert_moments_close(a: Any, b: Any, *, sigmas: float = 5.0, rtol: float = 1
                          parts: tuple[str, ...] = MOMENT_PARTS) -> Verification:
     """Assert that two sets of moments agree within the error bars of whichever side has them.
 
-    Entry by entry, |a − b| ≤ ``sigmas`` · √(se_a² + se_b²) + err_a + err_b + ``rtol`` ·
-    max(|a|, |b|) + ``atol``, where se are standard errors (``stderr``: Monte Carlo, particles)
+    Entry by entry, ``abs(a − b) ≤ sigmas · √(se_a² + se_b²) + err_a + err_b + rtol · max(abs(a), abs(b)) + atol``,
+    where se are standard errors (``stderr``: Monte Carlo, particles)
     and err error bounds (``error``: Gauss–Hermite's ``error_estimate``, :func:`symmon.quadrature_error`);
     a side without them contributes 0, so two closed forms are compared to ``rtol``.
 
@@ -152,7 +152,7 @@ def assert_moments_close(a: Any, b: Any, *, sigmas: float = 5.0, rtol: float = 1
     Returns
     -------
     Verification
-        Verdict "consistent", with the largest |a − b| over its tolerance.
+        Verdict "consistent", with the largest ``abs(a − b)`` over its tolerance.
 
     Raises
     ------
