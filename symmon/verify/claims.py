@@ -50,17 +50,17 @@ def _model(model: Any) -> Model:
     return model
 
 
-def _input(model: Model, u: Any) -> tuple[sp.Matrix, sp.Matrix]:
-    """μ and P of the input: a Gaussian (its numbers made exact) or a pair (mean, cov) of sympy."""
-    n = model.n_u
+def _input(model: Model, u: Any, n: int | None = None, what: str = "u") -> tuple[sp.Matrix, sp.Matrix]:
+    """μ and P of the input (or of the noise): a Gaussian (its numbers made exact) or a pair (mean, cov)."""
+    n = model.n_u if n is None else n
     if isinstance(u, Gaussian):
         mu, P = sp.Matrix(list(u.mean)), sp.Matrix(u.cov.tolist())
     elif isinstance(u, (tuple, list)) and len(u) == 2:
         mu, P = sp.Matrix(u[0]), sp.Matrix(u[1])
     else:
-        raise ArgumentTypeError(f"u must be a symmon.Gaussian or a pair (mean, cov), got {type(u).__name__}")
+        raise ArgumentTypeError(f"{what} must be a symmon.Gaussian or a pair (mean, cov), got {type(u).__name__}")
     if mu.shape not in ((n, 1), (1, n)) or P.shape != (n, n):
-        raise ShapeError(f"u: the model has {n} inputs, got a mean of shape {mu.shape} and a cov of shape {P.shape}")
+        raise ShapeError(f"{what}: the model has {n} of them, got a mean of shape {mu.shape} and a cov of shape {P.shape}")
     # numbers exact before any moment is computed from them (0.17 -> 17/100)
     return exact_matrix(mu.reshape(n, 1)), exact_matrix(P)
 
@@ -93,16 +93,21 @@ def _claimed(value: Any, shape: tuple[int, int], name: str) -> sp.Matrix | None:
     return M
 
 
-def _exact_moments_reference(model: Model, mu: sp.Matrix, P: sp.Matrix, which: Sequence[str]):
-    """A numeric reference of the exact E y, Cov y, Cov(y, u) at a point, with propagated errors."""
+def _exact_moments_reference(model: Model, mu: sp.Matrix, P: sp.Matrix, which: Sequence[str],
+                             mv: sp.Matrix, R: sp.Matrix):
+    """A numeric reference of the exact E y, Cov y, Cov(y, u) at a point, with propagated errors
+    (the noise v ~ N(mv, R), independent of u, integrated with it)."""
     g = list(model.outputs)
     u = list(model.inputs)
+    w = u + list(model.noise)
     ny, nu = len(g), len(u)
 
     def reference(pt, refine, seed) -> Reference:
-        m, C = mu.xreplace(pt), P.xreplace(pt)
+        m = mu.xreplace(pt)
+        mw = list(m) + list(mv.xreplace(pt))
+        C = sp.diag(P.xreplace(pt), R.xreplace(pt)) if model.n_v else P.xreplace(pt)
         funcs = g + [g[i] * g[j] for i in range(ny) for j in range(ny)] + [g[i] * s for i in range(ny) for s in u]
-        r = gaussian_integrals(funcs, u, list(m), C, refine=refine, seed=seed)
+        r = gaussian_integrals(funcs, w, mw, C, refine=refine, seed=seed)
         v, e = list(r.values), list(r.errors)
         Eg, eg = v[:ny], e[:ny]
         vals, errs = [], []
@@ -129,8 +134,8 @@ def _exact_moments_reference(model: Model, mu: sp.Matrix, P: sp.Matrix, which: S
 
 def verify_moments(model: Model, u: Any, mean: Any = None, cov: Any = None, cross_cov: Any = None,
                    transform: Any = "exact", assumptions: Any = None, domain: Any = None, *,
-                   points: int = DEFAULT_POINTS, seed: int = 0) -> Verification:
-    """Verify a claimed E y, Cov y and/or Cov(y, u) of y = g(u), u ~ N(μ, P).
+                   v: Any = None, points: int = DEFAULT_POINTS, seed: int = 0) -> Verification:
+    """Verify a claimed E y, Cov y and/or Cov(y, u) of y = g(u, v), u ~ N(μ, P), v ~ N(μ_v, R).
 
     The reference is :func:`symmon.symbolic_moments` with the same transform: TT1, TT2 and
     the UT family are closed forms, so the claim is proved or refuted exactly; the exact
@@ -141,7 +146,6 @@ def verify_moments(model: Model, u: Any, mean: Any = None, cov: Any = None, cros
     Parameters
     ----------
     model : Model
-        A model without noise symbols (write the noise as inputs).
     u : Gaussian or (mean, cov)
         The input: numbers (made exact, 0.17 → 17/100) or sympy symbols.
     mean, cov, cross_cov : optional
@@ -150,6 +154,8 @@ def verify_moments(model: Model, u: Any, mean: Any = None, cov: Any = None, cros
     assumptions, domain, points, seed
         As :func:`symmon.verify`; the input covariance must be positive definite at every
         random point (other points are refused).
+    v : Gaussian or (mean, cov), keyword-only
+        The noise of a model with noise symbols (required then), independent of u.
 
     Returns
     -------
@@ -169,10 +175,12 @@ def verify_moments(model: Model, u: Any, mean: Any = None, cov: Any = None, cros
     """
     t0 = time.perf_counter()
     model = _model(model)
-    if model.n_v:
-        raise ArgumentError("verify_moments takes a model without noise symbols: write the noise as inputs "
-                            "(its mean 0 and covariance in u)")
     mu, P = _input(model, u)
+    if model.n_v and v is None:
+        raise ArgumentError(f"the model has noise {list(map(str, model.noise))}: pass its Gaussian, v=(mean, cov)")
+    if not model.n_v and v is not None:
+        raise ArgumentError("v is given but the model has no noise symbols")
+    mv, R = _input(model, v, model.n_v, "v") if model.n_v else (sp.zeros(0, 1), sp.zeros(0, 0))
     ny, nu = model.n_y, model.n_u
     claimed = [("E y", _claimed(mean, (ny, 1), "mean")), ("Cov y", _claimed(cov, (ny, ny), "cov")),
                ("Cov(y, u)", _claimed(cross_cov, (ny, nu), "cross_cov"))]
@@ -180,21 +188,25 @@ def verify_moments(model: Model, u: Any, mean: Any = None, cov: Any = None, cros
         raise ArgumentError("verify_moments needs a claim: mean, cov and/or cross_cov")
     which = [k for k, (_, c) in zip(("mean", "cov", "cross_cov"), claimed) if c is not None]
     C, labels = _stack(claimed)
-    (C, mu, P), prep = prepare([C, mu, P], assumptions, domain)
+    (C, mu, P, mv, R), prep = prepare([C, mu, P, mv, R], assumptions, domain)
     tname = _transform_name(transform)
-    sym_model = model
+    noise = dict(noise_mean=mv, noise_cov=R) if model.n_v else {}
     try:
-        ref = symbolic_moments(sym_model, transform, mean=mu, cov=P)
-        R, _ = _stack([("E y", ref.mean if "mean" in which else None), ("Cov y", ref.cov if "cov" in which else None),
-                       ("Cov(y, u)", ref.cross_cov if "cross_cov" in which else None)])
-        rhs = exact_side(R, [f"reference: symmon.symbolic_moments(model, {tname!r}) in closed form"], covs=[P])
+        ref = symbolic_moments(model, transform, mean=mu, cov=P, **noise)
+        reference, _ = _stack([("E y", ref.mean if "mean" in which else None),
+                               ("Cov y", ref.cov if "cov" in which else None),
+                               ("Cov(y, u)", ref.cross_cov if "cross_cov" in which else None)])
+        rhs = exact_side(reference, [f"reference: symmon.symbolic_moments(model, {tname!r}) in closed form"],
+                         covs=[P, R])
     except ExpectationNotClosedForm as exc:
-        rhs = numeric_side(C.shape, _exact_moments_reference(model, mu, P, which), mu.free_symbols | P.free_symbols,
-                           [P], [f"the exact moments have no closed form ({exc}): numeric reference"])
+        rhs = numeric_side(C.shape, _exact_moments_reference(model, mu, P, which, mv, R),
+                           mu.free_symbols | P.free_symbols | mv.free_symbols | R.free_symbols,
+                           [P, R], [f"the exact moments have no closed form ({exc}): numeric reference"])
     parts = ", ".join(f"{n} = {_short(c)}" for n, c in claimed if c is not None)
-    text = f"{parts} for y = {list(model.outputs)}, u ~ N({list(mu)}, {P.tolist()}), {tname}"
-    lhs = exact_side(C, covs=[P])
-    lhs.symbols |= mu.free_symbols | P.free_symbols
+    text = f"{parts} for y = {list(model.outputs)}, u ~ N({list(mu)}, {P.tolist()})"
+    text += f", v ~ N({list(mv)}, {R.tolist()}), {tname}" if model.n_v else f", {tname}"
+    lhs = exact_side(C, covs=[P, R])
+    lhs.symbols |= mu.free_symbols | P.free_symbols | mv.free_symbols | R.free_symbols
     return decide(text, lhs, rhs, prep, points=points, seed=seed, t0=t0, labels=labels)
 
 

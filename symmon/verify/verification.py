@@ -493,7 +493,7 @@ def _admissible(pt: Mapping, prep: Prepared, covs: Sequence[sp.Matrix]) -> bool:
             return False
     for P in covs:
         Pn = sp.Matrix(P).xreplace(pt)
-        if Pn.free_symbols:
+        if Pn.free_symbols or not Pn.rows:
             continue
         try:
             A = np.array(Pn.evalf(20).tolist(), dtype=float)
