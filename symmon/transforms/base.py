@@ -298,6 +298,12 @@ class Transform(ABC):
         whose moments are weighted sums over the points m + L z; ``None`` otherwise."""
         return None
 
+    def symbolic_unit_rule(self, n: int) -> tuple[sp.Matrix, list, list] | None:
+        """:meth:`unit_rule` in exact sympy arithmetic (points as the rows of a matrix, mean
+        and covariance weights as lists), for :func:`symmon.symbolic_moments`; ``None``
+        when the rule declares none (the floats of :meth:`unit_rule` are then used)."""
+        return None
+
     def filter_label(self) -> str:
         """The name of the Kalman filter whose time and measurement updates use this rule
         (:class:`symmon.NonlinearKalmanFilter`); default ``KF(<repr>)``."""

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+import sympy as sp
 
 from ..errors import SymmonError
 from .base import Moments, Transform, batch_sqrt, evaluate_points, weighted_moments
@@ -133,6 +134,20 @@ class UT(Transform):
         """The sigma points of N(0, I_n): 0, then +c eᵢ, then −c eᵢ; mean and covariance weights."""
         wm, wc, c = self.weights(n)
         return np.vstack([np.zeros(n), c * np.eye(n), -c * np.eye(n)]), wm, wc
+
+    def symbolic_unit_rule(self, n: int) -> tuple[sp.Matrix, list, list]:
+        """:meth:`unit_rule` in exact arithmetic: α, β and κ read as the decimals they print
+        as (1e-3 is 1/1000), λ = α²(n + κ) − n, the points 0, ±√(n + λ) eᵢ, the weights
+        λ/(n + λ) and 1/(2(n + λ)), and w₀ᶜ = w₀ + 1 − α² + β (module doc)."""
+        self.weights(n)  # the same refusal of a degenerate rule as the numeric one
+        a, b = sp.Rational(repr(self.alpha)), sp.Rational(repr(self.beta))
+        k = sp.Integer(3 - n) if self.kappa is None else sp.Rational(repr(self.kappa))
+        lam = a**2 * (n + k) - n
+        c = sp.sqrt(n + lam)
+        points = sp.Matrix.vstack(sp.zeros(1, n), c * sp.eye(n), -c * sp.eye(n))
+        wm = [lam / (n + lam)] + [1 / (2 * (n + lam))] * (2 * n)
+        wc = [wm[0] + 1 - a**2 + b] + wm[1:]
+        return points, wm, wc
 
     def outer_rule(self, mean, cov):
         """The sigma points and mean weights over N(mean, cov)."""
