@@ -65,7 +65,7 @@ for test in (test_my_jacobian, test_my_tt2_mean, test_my_mmse_estimate_of_a_squa
     print(f"passed: {test.__name__}")
 
 # %%
-# A wrong claim fails with its certificate: here the TT2 correction with a wrong sign.
+# A wrong claim fails with its certificate: here E[(x − 1)²] with the wrong sign of σ².
 try:
     assert_derivation(sm.Expectation((x - 1)**2, x, mx, sigma**2), (mx - 1)**2 - sigma**2)
 except AssertionError as failure:

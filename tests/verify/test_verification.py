@@ -239,3 +239,24 @@ def test_bad_input_is_refused_with_a_clear_error():
 
 def test_the_exact_tolerance_is_far_below_double_precision():
     assert EXACT_RTOL < sp.Float("1e-30")
+def test_exact_moments_without_closed_form_use_a_numeric_reference():
+    model = sm.Model([x], [sp.atan(x)])
+    v = sm.verify_moments(model, (sp.Matrix([0]), sp.Matrix([[s**2]])), mean=[0], transform="exact")
+    assert v.verdict == "consistent"
+    bad = sm.verify_moments(model, (sp.Matrix([mu]), sp.Matrix([[s**2]])), mean=[sp.atan(mu)], transform="exact")
+    assert bad.verdict == "refuted"
+
+
+
+def test_verify_moments_of_a_model_with_noise():
+    """y = x·e (multiplicative noise), e ~ N(1, r) independent of x ~ N(m, p): E y = m, Var y = (m² + p)(1 + r) − m²."""
+    e = sp.Symbol("e", real=True)
+    r = sp.Symbol("r", positive=True)
+    p = sp.Symbol("p", positive=True)
+    model = sm.Model([x], [x * e], noise=[e])
+    u, v = (sp.Matrix([mu]), sp.Matrix([[p]])), (sp.Matrix([1]), sp.Matrix([[r]]))
+    good = sm.verify_moments(model, u, mean=[mu], cov=[[(mu**2 + p) * (1 + r) - mu**2]], transform="exact", v=v)
+    assert good.verdict == "proved"
+    assert sm.verify_moments(model, u, cov=[[p * (1 + r)]], transform="exact", v=v).verdict == "refuted"
+    with pytest.raises(ArgumentError, match="noise"):
+        sm.verify_moments(model, u, mean=[mu])
