@@ -14,6 +14,7 @@ from . import codegen as codegen
 from . import estimation as estimation
 from . import filters as filters
 from . import units as units
+from . import testing as testing
 from .core import angles as angles
 from .core import problems as problems
 from .estimation import mmse as mmse
@@ -62,6 +63,14 @@ from .transforms import Transform as Transform
 from .verify import SymbolicMoments as SymbolicMoments
 from .verify import expect as expect
 from .verify import symbolic_moments as symbolic_moments
+from .verify import Expectation as Expectation
+from .verify import Verification as Verification
+from .verify import verify as verify
+from .verify import verify_derivatives as verify_derivatives
+from .verify import verify_estimator as verify_estimator
+from .verify import verify_moments as verify_moments
+from .verify import verify_mon as verify_mon
+from .verify import verify_weight as verify_weight
 
 from .version import __version__ as __version__
 
@@ -75,6 +84,8 @@ __all__ = [
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Cubature5", "Transform", "Moments", "Executor",
     "NonlinearKalmanFilter", "Adaptive", "IMM", "simulate", "ParticleFilter", "GaussianSumFilter", "GaussianSumResult",
     "expect", "symbolic_moments", "SymbolicMoments",
+    "testing", "verify", "Verification", "Expectation", "verify_moments", "verify_derivatives", "verify_mon",
+    "verify_weight", "verify_estimator",
 ]
 
 

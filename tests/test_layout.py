@@ -60,7 +60,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("symmon.measures", "symmon.estimation"),
     ("symmon.units", "symmon.filters", "symmon.verify"),
     ("symmon.files",),
-    ("symmon.cli", "symmon.reproduce"),
+    ("symmon.cli", "symmon.reproduce", "symmon.testing"),
 )
 #: symmon/__init__.py: the one public face, above every layer.
 FACE = PACKAGE

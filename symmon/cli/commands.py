@@ -339,6 +339,34 @@ def cmd_derive(args: argparse.Namespace) -> int:
     return 0 if all(r.passed for r in results) else 1
 
 
+def cmd_verify(args: argparse.Namespace) -> int:
+    """``symmon verify``: check every claim of a derivation file; 1 if one is refuted (or misses its
+    expected verdict)."""
+    from ..files.derivationfile import load_derivation_file
+
+    spec = load_derivation_file(args.file)
+    rows, ok = [], True
+    if not args.json:
+        print(f"{spec.title}" + (f" ({spec.source})" if spec.source else ""))
+    for claim in spec.claims:
+        v = claim.check(args.points, args.seed)
+        passes = claim.passes(v)
+        ok &= passes
+        rows.append({"name": claim.name, "kind": claim.kind, "expected": claim.expected, "passes": passes,
+                     **v.to_dict()})
+        if not args.json:
+            wanted = f", expected {claim.expected}" if claim.expected else ""
+            print(f"\n{'PASS' if passes else 'FAIL'}  {claim.name}: {v.verdict}{wanted}")
+            print("  " + str(v).replace("\n", "\n  "))
+    if args.json:
+        _print_json({"file": str(spec.path), "title": spec.title, "source": spec.source, "passed": ok, "claims": rows})
+    else:
+        counts = {k: sum(r["verdict"] == k for r in rows) for k in ("proved", "consistent", "refuted")}
+        print(f"\n{len(rows)} claims: " + ", ".join(f"{n} {k}" for k, n in counts.items())
+              + f"; {'all pass' if ok else 'FAILED'}")
+    return 0 if ok else 1
+
+
 def cmd_codegen(args: argparse.Namespace) -> int:
     """``symmon codegen``: standalone C code for g, J and the TT2 and UT moments."""
     from ..codegen.export import export_c

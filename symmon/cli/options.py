@@ -13,7 +13,7 @@ from ..transforms.registry import make, names
 
 __all__ = ["transform_from_name", "transform_names", "executor_of", "WEIGHT_NAMES", "FIGURES", "SH24", "DASK_LOCAL",
            "DASK_SCHEMES", "MAX_SAMPLES", "MAX_SEED", "MAX_ORDER", "MAX_GROUPS", "MAX_RUNS", "MAX_WORKERS",
-           "MAX_SWEEP_POINTS", "REPRODUCE_MIN_SAMPLES", "DASK_CONNECT_TIMEOUT"]
+           "MAX_SWEEP_POINTS", "MAX_VERIFY_POINTS", "REPRODUCE_MIN_SAMPLES", "DASK_CONNECT_TIMEOUT"]
 
 #: The paper whose equation numbers the help cites.
 SH24 = "Straka & Havlík 2024"
@@ -72,6 +72,8 @@ MAX_RUNS = 10**5
 MAX_WORKERS = 1024
 #: Points of ``--alpha-sweep``: each is a full MoN computation.
 MAX_SWEEP_POINTS = 1000
+#: Random points per claim of ``symmon verify``: each is a 50-digit evaluation (or a quadrature).
+MAX_VERIFY_POINTS = 1000
 #: Fewest ``reproduce --samples``: two per Monte Carlo group of the figures (16 groups).
 REPRODUCE_MIN_SAMPLES = 32
 #: Seconds to wait for a Dask scheduler at ``--dask ADDRESS``.

@@ -65,6 +65,7 @@ from .options import (
     MAX_SAMPLES,
     MAX_SEED,
     MAX_SWEEP_POINTS,
+    MAX_VERIFY_POINTS,
     MAX_WORKERS,
     REPRODUCE_MIN_SAMPLES,
     SH24,
@@ -88,6 +89,7 @@ _EXAMPLES = {
     "reproduce": ["symmon reproduce fig1 --samples 10000000 --out results",
                   "symmon reproduce all --samples 100000"],
     "derive": ["symmon derive --all --out derivations.md", "symmon derive --list"],
+    "verify": ["symmon verify examples/verify/lemma1.toml", "symmon verify examples/verify/lemma1.toml --json --points 16"],
     "codegen": ["symmon codegen examples/gmti.toml -o build/gmti"],
     "fit": ["symmon fit examples/rb_bias.toml --param b=0 --param q=0.1 --bound q=1e-6:",
             "symmon fit examples/rb_bias.toml --param b=0 --runs 50 --json"],
@@ -415,6 +417,16 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("name", nargs="?", help="one derivation, by name (see --list)")
     output_opt(sp, "--out", kind="file", default="derivations-report.md", help="report file (default derivations-report.md)")
     sp.set_defaults(func=commands.cmd_derive)
+
+    sp = add("verify", "check the claims of a derivation file (docs/reference/derivationfile.md): each is proved "
+             "(exact simplification), refuted (an exact counterexample) or consistent (random points within a "
+             "reference's error bound); exit code 1 if a claim is refuted or misses the verdict it expects")
+    sp.add_argument("file", help="TOML derivation file")
+    sp.add_argument("--points", type=_int_in(1, MAX_VERIFY_POINTS), default=8,
+                    help=f"random points per claim, 1 to {MAX_VERIFY_POINTS} (default 8; at most 4 against a numeric reference)")
+    sp.add_argument("--seed", type=_seed, default=0, help="seed of the random points, >= 0 (default 0)")
+    sp.add_argument("--json", action="store_true", help="print the certificates as JSON")
+    sp.set_defaults(func=commands.cmd_verify)
 
     sp = add("codegen", "export standalone C code (g, J, TT2 and UT moments)")
     sp.add_argument("file", help="TOML model file")

@@ -172,8 +172,9 @@ class _Refused(Exception):
 class _Builder:
     """Build a sympy expression from a syntax tree, refusing anything off the whitelist."""
 
-    def __init__(self, names: Mapping[str, sp.Expr]) -> None:
+    def __init__(self, names: Mapping[str, sp.Expr], functions: Mapping[str, _Function] = FUNCTIONS) -> None:
         self.names = names
+        self.functions = functions
         self.checked: set[sp.Basic] = set()  # results of _checked, finite and real
 
     # -- entry -------------------------------------------------------------------------
@@ -223,7 +224,7 @@ class _Builder:
             return self.names[name]
         if name in CONSTANTS:
             return CONSTANTS[name]
-        if name in FUNCTIONS:
+        if name in self.functions:
             raise self._at(node, f"the function {name!r} must be called, e.g. {name}(x)")
         known = sorted(set(self.names) | set(CONSTANTS))
         raise self._at(node, f"unknown name {name!r}; known names: {', '.join(known)}")
@@ -300,14 +301,14 @@ class _Builder:
         name = func.id
         if name.startswith("__"):
             raise self._at(func, f"dunder names such as {name!r} are not allowed")
-        if name not in FUNCTIONS:
-            raise self._at(func, f"unknown function {name!r}; allowed functions: {', '.join(sorted(FUNCTIONS))}")
+        if name not in self.functions:
+            raise self._at(func, f"unknown function {name!r}; allowed functions: {', '.join(sorted(self.functions))}")
         if node.keywords:
             raise self._at(node.keywords[0], f"keyword arguments are not allowed (in a call of {name})")
         for arg in node.args:
             if isinstance(arg, ast.Starred):
                 raise self._at(arg, f"starred arguments are not allowed (in a call of {name})")
-        spec = FUNCTIONS[name]
+        spec = self.functions[name]
         n = len(node.args)
         if n < spec.min_args or (spec.max_args is not None and n > spec.max_args):
             raise self._at(node, f"wrong number of arguments: {name} takes {spec.arity()}, got {n}")
@@ -401,6 +402,7 @@ def parse_expression(
     source: str = "<expr>",
     line_offset: int = 0,
     col_offset: int = 0,
+    functions: Mapping[str, tuple[Callable[..., sp.Expr], int, int | None]] | None = None,
 ) -> sp.Expr:
     """Parse an expression text into sympy through a whitelist, never executing it.
 
@@ -418,6 +420,11 @@ def parse_expression(
         minus one).
     col_offset : int, default 0
         Added to the column numbers of the first line in error messages.
+    functions : mapping, optional
+        More functions a caller's language allows: name -> (builder of sympy arguments,
+        least and most arguments, ``None`` for any number), e.g. the derivation files'
+        ``Phi``, ``erf`` and ``expect`` (:mod:`symmon.files.derivationfile`). They may not
+        replace a function of :data:`FUNCTIONS`.
 
     Returns
     -------
@@ -449,8 +456,14 @@ def parse_expression(
         if not isinstance(key, str) or not isinstance(value, sp.Basic):
             raise ArgumentTypeError(f"symbols must map names (str) to sympy objects, got {key!r}: {value!r}")
         names[key] = value
+    table: Mapping[str, _Function] = FUNCTIONS
+    if functions:
+        clash = sorted(set(functions) & set(FUNCTIONS))
+        if clash:
+            raise ArgumentTypeError(f"functions may not replace the built-in functions {clash}")
+        table = {**FUNCTIONS, **{k: _Function(*spec) for k, spec in functions.items()}}
     try:
-        return _parse(text, names)
+        return _parse(text, names, table)
     except _Refused as r:
         if r.char_col:
             col = r.col
@@ -467,7 +480,7 @@ def parse_expression(
         ) from None
 
 
-def _parse(text: str, names: Mapping[str, sp.Expr]) -> sp.Expr:
+def _parse(text: str, names: Mapping[str, sp.Expr], functions: Mapping[str, _Function] = FUNCTIONS) -> sp.Expr:
     if len(text) > MAX_EXPRESSION_LENGTH:
         line, col = _char_position(text, MAX_EXPRESSION_LENGTH)
         raise _Refused(
@@ -491,6 +504,6 @@ def _parse(text: str, names: Mapping[str, sp.Expr]) -> sp.Expr:
     except ValueError as exc:  # e.g. null bytes on some Python versions
         raise _Refused(f"invalid syntax: {exc}", 1, 0, char_col=True) from None
     try:
-        return _Builder(names).build(tree.body, 1)
+        return _Builder(names, functions).build(tree.body, 1)
     except RecursionError:
         raise _Refused("expression too complex (nested too deeply)", 1, 0, char_col=True) from None

@@ -8,5 +8,8 @@ symbols of the input's mean and covariance.
 
 from .expectation import expect
 from .moments import SymbolicMoments, symbolic_moments
+from .verification import Expectation, Verification, verify
+from .claims import verify_derivatives, verify_estimator, verify_moments, verify_mon, verify_weight
 
-__all__ = ["expect", "symbolic_moments", "SymbolicMoments"]
+__all__ = ["expect", "symbolic_moments", "SymbolicMoments", "verify", "Verification", "Expectation",
+           "verify_moments", "verify_derivatives", "verify_mon", "verify_weight", "verify_estimator"]
