@@ -20,6 +20,11 @@ i mod G (:data:`GROUPS`); the group sums give the delete-one-group jackknife
 particles as a sample of the distribution they stand for.  Interleaved groups keep
 neighbouring particles apart; the duplicates of a resampled cloud are still correlated
 across groups, which makes the error bar optimistic for such a cloud.
+
+A declared angle input (``Model(..., angles=[θ])``) is summed on the circle: its
+reference is the circular mean of the first chunk, its deviations are wrapped to
+(−π, π], so a cloud on both sides of ±π has its spread about its mean direction, not about
+0 (Mardia & Jupp 2000, Sec. 2.2; :mod:`symmon.core.angles`).
 """
 
 from __future__ import annotations
@@ -99,7 +104,7 @@ def group_means(u: Empirical, fn: Callable[[np.ndarray], np.ndarray]) -> tuple[n
 class GroupSums:
     """Weighted sums of the particles' conditional moments, per group, about a reference.
 
-    With d_i = m_i − c_y (angles wrapped) and e_i = μ_i − c_w, each group holds
+    With d_i = m_i − c_y and e_i = μ_i − c_w (angles wrapped), each group holds
     w = Σ w_i, m = Σ w_i d_i, mm = Σ w_i (P_i + d_i d_iᵀ), my = Σ w_i (C_i + d_i e_iᵀ),
     mu = Σ w_i e_i and uu = Σ w_i (Pw_i + e_i e_iᵀ), the leading axis the G groups.
     """
@@ -114,6 +119,7 @@ class GroupSums:
     c_w: np.ndarray
     angles: tuple[int, ...]
     evaluations: int
+    input_angles: tuple[int, ...] = ()
 
     def total(self) -> "GroupSums":
         """The sums over all groups (a leading axis of 1)."""
@@ -125,7 +131,11 @@ class GroupSums:
 
     def _with(self, f: Callable[[np.ndarray], np.ndarray]) -> "GroupSums":
         return GroupSums(*(f(getattr(self, k)) for k in ("w", "m", "mm", "my", "mu", "uu")),
-                         self.c_y, self.c_w, self.angles, self.evaluations)
+                         self.c_y, self.c_w, self.angles, self.evaluations, self.input_angles)
+
+    def input_mean(self) -> np.ndarray:
+        """E w for each set of sums (leading axis), the angle inputs wrapped to (−π, π]."""
+        return wrap_components(self.c_w + self.mu / self.w[:, None], self.input_angles)
 
     def moments(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """E y, Cov y, Cov(y, w) and Cov w for each set of sums (leading axis)."""
@@ -180,6 +190,7 @@ def particle_sums(model: Model, u: Empirical, v: Any, tr: Transform, executor: A
     else:
         wv = Mv = Pv = None
     A = tuple(sorted(model.angle_outputs))
+    W = tuple(sorted(model.angle_inputs))  # u leads w: an input's index is its index in w
     G = _n_groups(u.n_samples)
     conditional = model.n_v > 0  # without noise P_i = C_i = Pw_i = 0: skip their sums
     acc: list[np.ndarray] | None = None
@@ -194,14 +205,16 @@ def particle_sums(model: Model, u: Empirical, v: Any, tr: Transform, executor: A
         if c_y is None:  # the reference: this first chunk's weighted mean (circular for angles)
             s = max(float(pi.sum()), np.finfo(float).tiny)
             c_y, c_w = pi @ m / s, pi @ Mw / s
-            if A:
-                c_y[list(A)] = np.arctan2(pi @ np.sin(m[:, A]), pi @ np.cos(m[:, A]))
+            for ref, x, idx in ((c_y, m, A), (c_w, Mw, W)):
+                if idx:
+                    ref[list(idx)] = np.arctan2(pi @ np.sin(x[:, idx]), pi @ np.cos(x[:, idx]))
         d = unwrap_near(m, c_y, A) - c_y
+        e = unwrap_near(Mw, c_w, W) - c_w
         # Regroup the rows (L per particle, the last chunk padded with zero weights) and
         # take the weighted sums and Gram matrices of z = [d; e] per group, one BLAS call.
         rows = -(-X.shape[0] // G) * G * L
         pg = _by_group(_pad(pi, rows), G, L)
-        Zg = _by_group(_pad(np.hstack([d, Mw - c_w]), rows), G, L)
+        Zg = _by_group(_pad(np.hstack([d, e]), rows), G, L)
         S1 = np.einsum("gk,gka->ga", pg, Zg)
         S2 = np.matmul(np.swapaxes(Zg * pg[..., None], 1, 2), Zg)
         ny = m.shape[1]
@@ -210,7 +223,7 @@ def particle_sums(model: Model, u: Empirical, v: Any, tr: Transform, executor: A
             for k, t in ((2, P), (3, C), (5, Pw)):
                 sums[k] = sums[k] + np.einsum("gk,gkab->gab", pg, _by_group(_pad(t, rows), G, L))
         acc = sums if acc is None else [a + s_ for a, s_ in zip(acc, sums)]
-    return GroupSums(*acc, c_y=c_y, c_w=c_w, angles=A, evaluations=evaluations)
+    return GroupSums(*acc, c_y=c_y, c_w=c_w, angles=A, evaluations=evaluations, input_angles=W)
 
 
 def propagate_empirical(model: Model, u: Empirical, v: Any, tr: Transform, executor: Any = None
@@ -228,7 +241,8 @@ def propagate_empirical(model: Model, u: Empirical, v: Any, tr: Transform, execu
             lm[:, A] = mean[0, A] + wrap_angle(lm[:, A] - mean[0, A])
         stderr = {"mean": jackknife_se(lm)[None], "cov": jackknife_se(lP)[None], "cross_cov": jackknife_se(lC)[None]}
     b = Moments(mean=mean, cov=cov, cross_cov=cross, input_cov=in_cov, stderr=stderr, evaluations=sums.evaluations,
-                details={"particles": u.n_samples, "ess": u.ess, "jackknife_groups": int(sums.w.shape[0])})
+                details={"particles": u.n_samples, "ess": u.ess, "jackknife_groups": int(sums.w.shape[0]),
+                         "input_mean": sums.total().input_mean()})
     m = JointMoments.of(b, u, model.n_u, tr, model.angle_outputs, model.angle_inputs,
                         evaluator=compiled(model).evaluator)
     return m, sums
