@@ -14,8 +14,11 @@ Each particle x_i with weight w_i is a point mass: the sample is the mixture
 
 The particles are processed in chunks of :data:`CHUNK` and accumulated as weighted sums
 about a reference (the first chunk's weighted mean), so that memory beyond the particles
-is flat in their number and a mean far from 0 costs no digits.  Particle i belongs to group
-i mod G (:data:`GROUPS`); the group sums give the delete-one-group jackknife
+is flat in their number and a mean far from 0 costs no digits.  The particles of zero
+weight add nothing and are left out (:func:`support`); of the others, the i-th belongs to
+group i mod G (:data:`GROUPS`), so that every group holds weight (were the groups formed
+over all particles, a cloud whose weighted particles all fall in one group, every 20th,
+would leave a group of zero weight and no leave-one-out moments); the group sums give the delete-one-group jackknife
 (:func:`~symmon.transforms.stats.jackknife_se`) of every moment and measure: the error of the
 particles as a sample of the distribution they stand for.  Interleaved groups keep
 neighbouring particles apart; the duplicates of a resampled cloud are still correlated
@@ -39,14 +42,14 @@ from ..compile import compiled
 from ..core.angles import unwrap_near, wrap_components, wrap_angle
 from ..core.mixture import Empirical
 from ..core.model import Model
-from ..errors import ArgumentError, ArgumentTypeError, SampleSizeWarning, ShapeError
+from ..errors import ArgumentError, ArgumentTypeError, NonFiniteError, SampleSizeWarning, ShapeError
 from ..transforms import Moments, Transform
 from ..transforms.stats import jackknife_se
 from .joint import JointMoments
 from .mixing import parts
 
-__all__ = ["GroupSums", "particle_sums", "group_means", "propagate_empirical", "check_ess", "CHUNK", "GROUPS",
-           "SMALL_ESS"]
+__all__ = ["GroupSums", "particle_sums", "group_means", "propagate_empirical", "check_ess", "support",
+           "jackknife_groups", "CHUNK", "GROUPS", "SMALL_ESS"]
 
 #: Particles per evaluation batch (a multiple of :data:`GROUPS`): the buffers of a chunk
 #: are CHUNK·(n_y·n_w + n_y²)·8 bytes, a few MB.
@@ -67,8 +70,20 @@ def check_ess(u: Empirical, stacklevel: int = 3) -> None:
                       SampleSizeWarning, stacklevel=stacklevel)
 
 
-def _n_groups(n: int) -> int:
-    return min(GROUPS, n)
+def support(u: Empirical) -> tuple[np.ndarray, np.ndarray]:
+    """The particles of ``u`` with a positive weight and their weights (``u``'s own arrays,
+    uncopied, when none is zero): what every sum of this module runs over."""
+    w = u.weights
+    keep = w > 0
+    if keep.all():
+        return u.samples, w
+    return u.samples[keep], w[keep]
+
+
+def jackknife_groups(u: Empirical) -> int:
+    """The number G of jackknife groups of ``u``: :data:`GROUPS`, or fewer when fewer
+    particles have a positive weight (each group holds at least one of them)."""
+    return min(GROUPS, int(np.count_nonzero(u.weights > 0)))
 
 
 def _by_group(a: np.ndarray, G: int, L: int = 1) -> np.ndarray:
@@ -89,10 +104,11 @@ def _pad(a: np.ndarray, rows: int) -> np.ndarray:
 def group_means(u: Empirical, fn: Callable[[np.ndarray], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Per group, Σ_i w_i fn(x_i) (G, d) and Σ_i w_i (G,), with fn evaluated on chunks of
     particles (rows) returning (chunk, d)."""
-    G = _n_groups(u.n_samples)
+    G = jackknife_groups(u)
+    Xs, ws = support(u)
     sums, wsum = 0.0, 0.0
-    for start in range(0, u.n_samples, CHUNK):
-        X, w = u.samples[start:start + CHUNK], u.weights[start:start + CHUNK]
+    for start in range(0, ws.size, CHUNK):
+        X, w = Xs[start:start + CHUNK], ws[start:start + CHUNK]
         rows = -(-X.shape[0] // G) * G
         F, wp = _by_group(_pad(np.asarray(fn(X), dtype=float), rows), G), _by_group(_pad(w, rows), G)
         sums = sums + np.einsum("gk,gkd->gd", wp, F)
@@ -191,13 +207,14 @@ def particle_sums(model: Model, u: Empirical, v: Any, tr: Transform, executor: A
         wv = Mv = Pv = None
     A = tuple(sorted(model.angle_outputs))
     W = tuple(sorted(model.angle_inputs))  # u leads w: an input's index is its index in w
-    G = _n_groups(u.n_samples)
+    G = jackknife_groups(u)
+    Xs, ws = support(u)
     conditional = model.n_v > 0  # without noise P_i = C_i = Pw_i = 0: skip their sums
     acc: list[np.ndarray] | None = None
     c_y = c_w = None
     evaluations = 0
-    for start in range(0, u.n_samples, CHUNK):
-        X, wx = u.samples[start:start + CHUNK], u.weights[start:start + CHUNK]
+    for start in range(0, ws.size, CHUNK):
+        X, wx = Xs[start:start + CHUNK], ws[start:start + CHUNK]
         fac, Mw, Pw, m, P, C, ev = _conditional(model, tr, X, wv, Mv, Pv, executor)
         evaluations += int(ev)
         L = fac.size // X.shape[0]
@@ -240,6 +257,11 @@ def propagate_empirical(model: Model, u: Empirical, v: Any, tr: Transform, execu
         if A := list(sums.angles):  # leave-one-out means of an angle: their spread about the total
             lm[:, A] = mean[0, A] + wrap_angle(lm[:, A] - mean[0, A])
         stderr = {"mean": jackknife_se(lm)[None], "cov": jackknife_se(lP)[None], "cross_cov": jackknife_se(lC)[None]}
+        if not all(np.all(np.isfinite(a)) for a in stderr.values()):
+            raise NonFiniteError(
+                f"particles: the jackknife standard errors over {sums.w.shape[0]} groups are not finite (group "
+                f"weights {np.array2string(sums.w, precision=3)}); the moments are {mean[0].tolist()}: check the "
+                "weights, or rescale the units if the moments are near the float range")
     b = Moments(mean=mean, cov=cov, cross_cov=cross, input_cov=in_cov, stderr=stderr, evaluations=sums.evaluations,
                 details={"particles": u.n_samples, "ess": u.ess, "jackknife_groups": int(sums.w.shape[0]),
                          "input_mean": sums.total().input_mean()})
