@@ -50,6 +50,7 @@ from ..errors import OutputPathError, SymmonError, UsageError
 from ..files.filterfile import FILTERS
 from ..measures.advice import DEFAULT_TOL  # one default for advise and the adaptive filter
 from ..io import plot_format
+from ..reproduce.common import FORMATS
 from ..transforms.executor import MAX_WORKER_TIMEOUT, WORKER_TIMEOUT
 from ..transforms.registry import DEFAULT  # the API's default transform is the command's
 from . import commands
@@ -406,6 +407,8 @@ def _parser() -> argparse.ArgumentParser:
     quiet_opt(sp)
     sp.add_argument("--runs", type=_int_in(1, MAX_RUNS), default=None,
                     help="Monte Carlo runs of mmse and tracking (default: theirs, 1000 and 500)")
+    sp.add_argument("--format", choices=FORMATS, default="png",
+                    help="figure format: png (300 dpi, default), or pdf and svg (vector, for a journal)")
     sp.set_defaults(func=commands.cmd_reproduce)
 
     sp = add("derive", "run the derivation scripts (derivations/) and write a Markdown report")
