@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import doctest
 import inspect
+import logging
 import os
 import re
 import sys
@@ -18,6 +19,10 @@ sys.path.insert(0, str(ROOT))            # document the checkout, not an install
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 import symmon  # noqa: E402
+
+# symmon logs each C build at INFO ("compiled C ready in ..."); the snippets and the gallery
+# build many, which filled the build's log: the docs show symmon's warnings only.
+logging.getLogger("symmon").setLevel(logging.WARNING)
 
 project = "symmon"
 author = "symmon developers"

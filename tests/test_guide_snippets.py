@@ -67,3 +67,20 @@ def test_imported_reads_an_import_line():
     assert imported("import numpy as np, sympy as sp, symmon as sm") == {"np", "sp", "sm"}
     assert imported("import symmon as sm   # the package") == {"sm"}
     assert imported("import numpy") == set() and imported("x = np.eye(2)") == set()
+
+
+def test_the_docs_build_shows_symmons_warnings_only():
+    """Issue 38, item 16: the docs build's log was full of symmon's INFO lines (``compiled C
+    ready in ...``, one per C build of the snippets and the gallery): conf.py sets symmon's
+    logger to WARNING, which this runs as conf.py does, after ``import symmon``."""
+    import logging
+
+    conf = (DOCS / "conf.py").read_text(encoding="utf-8")
+    line = 'logging.getLogger("symmon").setLevel(logging.WARNING)'
+    assert line in conf and conf.index(line) > conf.index("import symmon")
+    before = logging.getLogger("symmon").level
+    try:
+        exec(line, {"logging": logging})
+        assert not logging.getLogger("symmon.compile.ccache").isEnabledFor(logging.INFO)
+    finally:
+        logging.getLogger("symmon").setLevel(before)

@@ -152,8 +152,40 @@ def commands() -> list[tuple[int, str]]:
     return out
 
 
+def made_directories() -> set[str]:
+    """The directories that ``mkdir -p DIR && symmon ...`` lines of the bash blocks make."""
+    out = set()
+    for block in blocks("bash"):
+        for line in block.code.splitlines():
+            for part in " ".join(shlex.split(line, comments=True)).split(" && "):
+                if part.startswith("mkdir -p "):
+                    out.update(part.split()[2:])
+    return out
+
+
+#: Options of the README's commands that name a file or directory they write.
+OUTPUT_OPTIONS = ("--csv", "--plot", "--out")
+
+
+def test_readme_commands_write_under_results_not_the_checkout_root():
+    """Issue 38, item 16: the README's commands wrote mon.csv, mon.png and nees.png into the
+    checkout's root; they go under results/ (as `symmon reproduce` writes), and the C export
+    does not use pip's build/ directory."""
+    for line, command in commands():
+        words = shlex.split(command)
+        for opt, value in zip(words, words[1:]):
+            if opt in OUTPUT_OPTIONS:
+                assert "/" in value and value.split("/")[0] in {"results", "docs", "c_export"}, \
+                    f"README.md line {line}: {opt} {value} writes into the checkout's root"
+    text = README.read_text(encoding="utf-8")
+    assert "results" in made_directories()
+    assert not re.search(r"export_c\([^)]*[\"']build[\"']|--out build\b", text), "the C export writes into build/"
+
+
 def symmon(command: str, cwd: Path) -> subprocess.CompletedProcess:
     (cwd / "examples").symlink_to(ROOT / "examples", target_is_directory=True)
+    for d in made_directories():  # what `mkdir -p results && symmon ...` makes first
+        (cwd / d).mkdir(parents=True, exist_ok=True)
     argv = [sys.executable, "-W", "error", "-m", "symmon.cli", *shlex.split(command)[1:]]
     return subprocess.run(argv, cwd=cwd, env=environment(), capture_output=True, text=True,
                           timeout=HANG_TIMEOUT_S, check=False)

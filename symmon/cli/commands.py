@@ -107,7 +107,10 @@ def _files_in_dir(args: argparse.Namespace) -> tuple[str, ...]:
     if args.command != "reproduce":
         return ()
     which = FIGURES if args.figure == "all" else (args.figure,)
-    return tuple(n for name in which for n in importlib.import_module(f"symmon.reproduce.{name}").OUTPUTS)
+    from ..reproduce.common import with_format
+
+    return tuple(n for name in which
+                 for n in with_format(importlib.import_module(f"symmon.reproduce.{name}").OUTPUTS, args.format))
 
 
 def cmd_propagate(args: argparse.Namespace) -> int:
@@ -306,12 +309,12 @@ def cmd_prove(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    """``symmon reproduce``: a figure of the papers as PNG + CSV."""
+    """``symmon reproduce``: a figure of the papers as PNG (or PDF, SVG: ``--format``) + CSV."""
     which = FIGURES if args.figure == "all" else (args.figure,)
     out = Path(args.out)
     for name in which:
         mod = importlib.import_module(f"symmon.reproduce.{name}")
-        kwargs: dict[str, Any] = {"seed": args.seed, "progress": not args.no_progress}
+        kwargs: dict[str, Any] = {"seed": args.seed, "progress": not args.no_progress, "fmt": args.format}
         if args.samples is not None and name != "tracking":
             kwargs["runs" if name == "mmse" else "samples"] = args.samples
         if args.runs is not None and name in ("mmse", "tracking"):

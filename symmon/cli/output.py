@@ -187,7 +187,7 @@ def _bank_json(r) -> dict:
 def _filter_plot(spec, rows, states: list[str], path: str) -> Path:
     """NEES, NIS (log scale, with the χ² intervals) and RMSE per step, one line per filter."""
     from ..io import save_figure
-    from ..reproduce.common import figure_style, pyplot
+    from ..reproduce.common import curve_styles, figure_style, pyplot
 
     # One RMSE panel per unit: a norm over components is only meaningful in one unit.
     # Without [units], one panel over all the states, as the scenario declares no units.
@@ -200,17 +200,20 @@ def _filter_plot(spec, rows, states: list[str], path: str) -> Path:
         fig, axes = plt.subplots(2 + len(groups), 1, figsize=(7, 5 + 2.5 * len(groups)), sharex=True)
         try:
             k = np.arange(1, spec.steps + 1)
-            for r in rows:
+            # Filters often coincide (the adaptive one on the rule it chose): each its own
+            # colour, line style, markers and layer (reproduce.common.curve_styles).
+            styles = curve_styles(len(rows), len(k))
+            for r, st in zip(rows, styles):
                 if r.result is None:
                     continue
-                axes[0].semilogy(k, r.anees.value, label=r.name)
+                axes[0].semilogy(k, r.anees.value, label=r.name, **st)
                 if r.anis is not None:  # a Gaussian-sum filter has none
-                    axes[1].semilogy(k, r.anis.value, label=r.name)
+                    axes[1].semilogy(k, r.anis.value, label=r.name, **st)
                 for ax, (_, idx) in zip(axes[2:], groups):
-                    line, = ax.semilogy(k, np.sqrt(np.sum(r.rmse[:, idx] ** 2, axis=1)), label=r.name)
-                    if r.smoothed is not None:  # the smoother dashed, in its filter's colour
-                        ax.semilogy(k, np.sqrt(np.sum(r.smoothed_rmse[:, idx] ** 2, axis=1)), "--",
-                                    color=line.get_color(), label=f"{r.name} smoothed")
+                    ax.semilogy(k, np.sqrt(np.sum(r.rmse[:, idx] ** 2, axis=1)), label=r.name, **st)
+                    if r.smoothed is not None:  # the smoother thin, in its filter's colour, no markers
+                        ax.semilogy(k, np.sqrt(np.sum(r.smoothed_rmse[:, idx] ** 2, axis=1)), ls=(0, (1, 1)),
+                                    color=st["color"], lw=0.8, zorder=st["zorder"], label=f"{r.name} smoothed")
             ok = [r for r in rows if r.result is not None and r.anis is not None]
             if ok:
                 for ax, t, what in ((axes[0], ok[0].anees, "NEES"), (axes[1], ok[0].anis, "NIS")):

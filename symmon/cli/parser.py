@@ -50,6 +50,7 @@ from ..errors import OutputPathError, SymmonError, UsageError
 from ..files.filterfile import FILTERS, MIXTURE_FILTERS
 from ..measures.advice import DEFAULT_TOL  # one default for advise and the adaptive filter
 from ..io import plot_format
+from ..reproduce.common import FORMATS
 from ..transforms.executor import MAX_WORKER_TIMEOUT, WORKER_TIMEOUT
 from ..transforms.registry import DEFAULT  # the API's default transform is the command's
 from . import commands
@@ -93,8 +94,8 @@ _EXAMPLES = {
     "codegen": ["symmon codegen examples/gmti.toml -o build/gmti"],
     "fit": ["symmon fit examples/rb_bias.toml --param b=0 --param q=0.1 --bound q=1e-6:",
             "symmon fit examples/rb_bias.toml --param b=0 --runs 50 --json"],
-    "export": ["symmon export examples/rb_close.toml --filter ukf --out build/rb_ukf",
-               "symmon export examples/rb_close.toml --filter ekf --out build/rb_ekf --name rb_ekf"],
+    "export": ["symmon export examples/rb_close.toml --filter ukf --out c_export/rb_ukf",
+               "symmon export examples/rb_close.toml --filter ekf --out c_export/rb_ekf --name rb_ekf"],
     "filter": ["symmon filter examples/rb_close.toml --runs 500 --plot nees.png",
                "symmon filter examples/rb_close.toml --filters ekf,ukf,adaptive --tol 0.01 --json",
                "symmon filter examples/rb_close.toml --filters ekf,ukf --smooth"],
@@ -408,6 +409,8 @@ def _parser() -> argparse.ArgumentParser:
     quiet_opt(sp)
     sp.add_argument("--runs", type=_int_in(1, MAX_RUNS), default=None,
                     help="Monte Carlo runs of mmse and tracking (default: theirs, 1000 and 500)")
+    sp.add_argument("--format", choices=FORMATS, default="png",
+                    help="figure format: png (300 dpi, default), or pdf and svg (vector, for a journal)")
     sp.set_defaults(func=commands.cmd_reproduce)
 
     sp = add("derive", "run the derivation scripts (derivations/) and write a Markdown report")

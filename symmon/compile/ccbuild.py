@@ -10,7 +10,9 @@ It runs ``CC ARG...`` in ``BUILD_DIR`` (which holds ``f.c``; the command writes
 inherit: at most ``CPU_SECONDS`` of CPU time (SIGXCPU ends a process beyond it) and
 ``MEMORY_BYTES`` of address space (an allocation beyond it fails, and the compiler stops
 with "out of memory"), so that a huge source ends in a failed build rather than a
-compiler running for an hour or taken by the out-of-memory killer.  It then installs ``f.so`` as ``TARGET`` with its checksum (:func:`install`), and
+compiler running for an hour or taken by the out-of-memory killer.  Where this process's
+own limits are lower (``ulimit -v`` below 8 GiB), the compiler gets those
+(:func:`effective_limits`).  It then installs ``f.so`` as ``TARGET`` with its checksum (:func:`install`), and
 removes ``BUILD_DIR`` whether the build succeeded or not.  Because the whole build
 happens in this process, a background build can outlive the Python that started it:
 after a normal exit it still fills the cache for the next run, while an interrupt kills
@@ -78,14 +80,40 @@ def _report(message: str) -> None:
         pass
 
 
+def effective_limits(cpu_seconds: int, memory_bytes: int) -> tuple[int, int]:
+    """The limits the compiler gets: the build's, or this process's own where they are lower
+    (``ulimit -t``, ``ulimit -v`` below the build's 8 GiB): a process may lower its limits
+    but not raise them past the hard ones, so asking for more fails in the child before the
+    compiler starts, and every build would fail.  Unchanged where there are no limits."""
+    if resource is None:
+        return cpu_seconds, memory_bytes
+
+    def lower(which: int, wanted: int) -> int:
+        soft, hard = resource.getrlimit(which)
+        for own in (soft, hard):
+            if own != resource.RLIM_INFINITY and own >= 0:
+                wanted = min(wanted, own)
+        return wanted
+
+    # SIGKILL comes 5 s after the soft CPU limit: leave room for it under a hard one.
+    cpu_hard = resource.getrlimit(resource.RLIMIT_CPU)[1]
+    cpu = lower(resource.RLIMIT_CPU, cpu_seconds)
+    if cpu_hard != resource.RLIM_INFINITY and cpu_hard >= 0:
+        cpu = max(1, min(cpu, cpu_hard - 5))
+    return cpu, lower(resource.RLIMIT_AS, memory_bytes)
+
+
 def limiter(cpu_seconds: int, memory_bytes: int):
-    """The ``preexec_fn`` that sets the limits of the compiler (None where there are none)."""
+    """The ``preexec_fn`` that sets the limits of the compiler (None where there are none);
+    give it :func:`effective_limits`."""
     if resource is None:
         return None
+    cpu_hard = resource.getrlimit(resource.RLIMIT_CPU)[1]
+    cpu_kill = cpu_seconds + 5 if cpu_hard == resource.RLIM_INFINITY else min(cpu_seconds + 5, cpu_hard)
 
     def limit() -> None:
         # SIGXCPU at the soft limit; SIGKILL at the hard one, should SIGXCPU be ignored.
-        resource.setrlimit(resource.RLIMIT_CPU, (cpu_seconds, cpu_seconds + 5))
+        resource.setrlimit(resource.RLIMIT_CPU, (cpu_seconds, cpu_kill))
         resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
     return limit
 
@@ -94,6 +122,7 @@ def main(argv: list[str]) -> int:
     """Build and install; return the exit status (0 when the entry is installed)."""
     build_dir, target = Path(argv[0]), Path(argv[1])
     cpu_seconds, memory_bytes, cmd = int(argv[2]), int(argv[3]), argv[4:]
+    cpu_seconds, memory_bytes = effective_limits(cpu_seconds, memory_bytes)
     try:
         # The compiler writes into a pipe that this process reads to its end: it never
         # gets SIGPIPE, even when the process that started this build has exited.
@@ -107,8 +136,9 @@ def main(argv: list[str]) -> int:
             return 1
         install(build_dir / "f.so", target)
         return 0
-    except OSError as exc:
-        _report(f"the build of {target.name} failed: {exc}")
+    except (OSError, subprocess.SubprocessError, ValueError) as exc:  # ValueError: setrlimit in the child
+        _report(f"the build of {target.name} failed: {type(exc).__name__}: {exc} (the build's limits: "
+                f"{cpu_seconds} s of CPU, {memory_bytes >> 20} MiB of memory)")
         return 1
     finally:
         shutil.rmtree(build_dir, ignore_errors=True)

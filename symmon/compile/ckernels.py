@@ -12,13 +12,18 @@ the same order, one rounding after each, as in CasADi's loop and its virtual mac
 (no FMA: the builds use ``-ffp-contract=off``), so the numbers do not change.  The swap is
 made only when CasADi's definition is the one this was written against (its text is
 compared in full): any other CasADi keeps its own kernel.
+
+:data:`STOP_POLL` is the check that symmon's own run loops (the filter bank's steps, the
+smoother's backward pass) make between two steps: an interrupt of the thread waiting for
+them sets the flag (:func:`symmon.compile.compiled.in_threads`), and each loop returns
+:data:`STOPPED` at its next step instead of running to its end.
 """
 
 from __future__ import annotations
 
 import logging
 
-__all__ = ["faster_kernels", "CASADI_MTIMES_DENSE", "MTIMES_DENSE"]
+__all__ = ["faster_kernels", "CASADI_MTIMES_DENSE", "MTIMES_DENSE", "STOP_POLL", "STOPPED"]
 
 log = logging.getLogger(__name__)
 
@@ -96,3 +101,10 @@ def faster_kernels(code: str) -> str:
     if "void casadi_mtimes_dense(" in code:
         log.debug("symmon: this CasADi's casadi_mtimes_dense is not the known one; kept as it is")
     return code
+
+
+#: The return code of a run loop that saw its stop flag.
+STOPPED = 2
+#: C, between two steps of a run loop whose arguments include ``const volatile int* stop``
+#: (NULL: never stopped): one load of a flag another thread may set, a few cycles a step.
+STOP_POLL = "if (stop && *stop) return %d;" % STOPPED

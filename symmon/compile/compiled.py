@@ -17,7 +17,8 @@ import functools
 import logging
 import os
 import threading
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -27,7 +28,7 @@ import sympy as sp
 from sympy.functions.elementary.piecewise import ExprCondPair
 
 from .ccache import NativeLibrary, build_shared_library, cache_dir, has_compiler, warn_no_compiler
-from .ckernels import faster_kernels
+from .ckernels import STOPPED, faster_kernels
 from .cnames import c_identifier
 from ..core.angles import circle_point
 from ..core.dag import Canonical, digest, postorder
@@ -352,13 +353,67 @@ def _thread_pool() -> ThreadPoolExecutor:
         return _pool[1]
 
 
-def in_threads(part: Callable[[Any], int], items: Sequence[Any]) -> list[int]:
+#: Seconds between two looks of a waiting thread at its pending signals: a Ctrl-C that
+#: arrives just before the thread blocks on a future is otherwise handled only when the
+#: future is done (CPython runs the handler when the wait returns).
+SIGNAL_POLL = 0.1
+
+
+def _result(f: Future) -> Any:
+    """``f.result()``, waiting in slices of :data:`SIGNAL_POLL` seconds."""
+    while True:
+        try:
+            return f.result(timeout=SIGNAL_POLL)
+        except FutureTimeout:
+            continue
+
+
+def in_threads(part: Callable[[Any], int], items: Sequence[Any], stop: np.ndarray | None = None) -> list[int]:
     """``part(item)`` for each item, on the threads of one pool when there are several (a
     ctypes call into compiled C releases the GIL, so they run in parallel); the return
-    codes, in order.  A part must not itself wait on the pool."""
+    codes, in order.  A part must not itself wait on the pool.
+
+    When the waiting thread is interrupted (Ctrl-C: KeyboardInterrupt, or any exception),
+    the parts not started are cancelled and, with ``stop`` (a one-entry int array that the
+    parts' C loops poll between steps, :data:`~symmon.compile.ckernels.STOP_POLL`), it is
+    set to 1 and the running parts are waited for, which end at their next step: the
+    interrupt leaves no loop running in the shared pool for the next call to queue
+    behind.  A part that starts after that returns :data:`~symmon.compile.ckernels.STOPPED`
+    at once.  The parts are counted as they start, not by their futures, so that an
+    interrupt arriving while they are being submitted still waits for every one that runs.
+    Without ``stop`` the running parts end on their own (short batches).
+    """
     if len(items) == 1:
         return [part(items[0])]
-    return list(_thread_pool().map(part, items))
+    running = [0]
+    idle = threading.Condition()
+
+    def task(item: Any) -> int:
+        with idle:
+            if stop is not None and stop[0]:
+                return STOPPED
+            running[0] += 1
+        try:
+            return part(item)
+        finally:
+            with idle:
+                running[0] -= 1
+                idle.notify_all()
+
+    futures: list = []
+    try:
+        pool = _thread_pool()
+        for item in items:
+            futures.append(pool.submit(task, item))
+        return [_result(f) for f in futures]
+    except BaseException:
+        for f in futures:
+            f.cancel()
+        if stop is not None:
+            with idle:
+                stop[...] = 1
+                idle.wait_for(lambda: running[0] == 0)
+        raise
 
 
 def address(a: np.ndarray) -> int:

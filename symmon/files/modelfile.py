@@ -66,7 +66,7 @@ import stat
 import unicodedata
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, BinaryIO, Callable, Mapping, Sequence
 
 import numpy as np
 import sympy as sp
@@ -204,24 +204,41 @@ def _read(path: Path, limit: int = MAX_FILE_BYTES, what: str = "model file") -> 
     def fail(reason: str) -> ModelFileError:
         return ModelFileError(f"{path}: {reason}", source=str(path), reason=reason)
 
-    try:
-        _check_regular(os.stat(path), fail, limit, what)
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
-        with os.fdopen(fd, "rb") as fh:
-            _check_regular(os.fstat(fh.fileno()), fail, limit, what)
+    with _open_checked(path, limit, what) as fh:
+        try:
             data = fh.read(limit + 1)
-    except FileNotFoundError:
-        raise fail(f"{what} not found") from None
-    except PermissionError:
-        raise fail(f"{what} cannot be read (permission denied)") from None
-    except OSError as exc:
-        raise fail(f"{what} cannot be read: {exc.strerror or exc}") from None
+        except OSError as exc:
+            raise fail(f"{what} cannot be read: {exc.strerror or exc}") from None
     if len(data) > limit:
         raise fail(f"{what} larger than {limit} bytes")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise fail(f"{what} is not UTF-8 text (byte {exc.start})") from None
+
+
+def _open_checked(path: Path, limit: int = MAX_FILE_BYTES, what: str = "model file") -> BinaryIO:
+    """The open binary file at ``path`` after the checks of :func:`_read` (regular, at most
+    ``limit`` bytes), for a reader that streams it (a particle file)."""
+    def fail(reason: str) -> ModelFileError:
+        return ModelFileError(f"{path}: {reason}", source=str(path), reason=reason)
+
+    try:
+        _check_regular(os.stat(path), fail, limit, what)
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
+        fh = os.fdopen(fd, "rb")
+        try:
+            _check_regular(os.fstat(fh.fileno()), fail, limit, what)
+        except BaseException:
+            fh.close()
+            raise
+        return fh
+    except FileNotFoundError:
+        raise fail(f"{what} not found") from None
+    except PermissionError:
+        raise fail(f"{what} cannot be read (permission denied)") from None
+    except OSError as exc:
+        raise fail(f"{what} cannot be read: {exc.strerror or exc}") from None
 
 
 def _check_regular(st: os.stat_result, fail: Callable[[str], ModelFileError], limit: int = MAX_FILE_BYTES,

@@ -43,6 +43,7 @@ from ..compile.compiled import generated_c
 from ..core.model import Model
 from ..errors import SymmonError
 from ..transforms import Transform
+from ..compile.ckernels import STOP_POLL
 from .sqrtstep import covariance_of, noise_factor, sqrt_predict_graph
 from .step import CompiledLoop, chunk_runs, predict_graph, select_params, sym
 
@@ -92,10 +93,11 @@ def sqrt_backward_graph(f: Model, transform: Transform, angle_states: frozenset[
 # The backward loop: for each run, x^s_K = x_K, then K − 1 steps down to the first.
 _DRIVER = """
 /* symmon: the RTS backward pass of {name} over a bank: x (runs*K*n), P (runs*K*n*n) filtered;
-   xs, Ps smoothed, the same layout. */
+   xs, Ps smoothed, the same layout; stop (not null) is polled before each step, as in the
+   filter's loop. */
 CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x, const casadi_real* P, const casadi_real* Q,
     const casadi_real* p, casadi_real* xs, casadi_real* Ps, casadi_int runs, casadi_int K, casadi_int* iw,
-    casadi_real* w) {{
+    casadi_real* w, const volatile int* stop) {{
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
   casadi_int r, k, i;
@@ -104,6 +106,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x, const casadi_real* P, 
     for (k = 0; k < {n}; ++k) xs[i * {n} + k] = x[i * {n} + k];
     for (k = 0; k < {nn}; ++k) Ps[i * {nn} + k] = P[i * {nn} + k];
     for (k = K - 2; k >= 0; --k) {{
+      {stop_poll}
       i = r * K + k;
       arg[0] = x + i * {n}; arg[1] = P + i * {nn}; arg[2] = xs + (i + 1) * {n};
       arg[3] = Ps + (i + 1) * {nn}; arg[4] = Q; arg[5] = p + (i + 1) * {n_p};
@@ -127,8 +130,8 @@ class _CompiledSmoother(CompiledLoop):
         self.square_root = square_root
         self.n, self.n_p = f.n_u, len(names)
         code = generated_c(fn) + _DRIVER.format(name=name, sz_arg=max(fn.sz_arg(), 6), sz_res=max(fn.sz_res(), 2),
-                                                n=self.n, nn=self.n * self.n, n_p=self.n_p)
-        super().__init__(fn, code, [ctypes.c_void_p] * 6 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 2)
+                                                n=self.n, nn=self.n * self.n, n_p=self.n_p, stop_poll=STOP_POLL)
+        super().__init__(fn, code, [ctypes.c_void_p] * 6 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 3)
 
     def __call__(self, x: np.ndarray, P: np.ndarray, Q: np.ndarray, use_c: bool = True,
                  params: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -158,11 +161,11 @@ class _CompiledSmoother(CompiledLoop):
         if run is None:
             return self._vm(x, P, Q, params[..., :self.n_p], xs, Ps)
 
-        def part(c: tuple[int, int]) -> int:
+        def part(c: tuple[int, int], stop: int) -> int:
             a, b = c
             iw, w = self._work.addresses()  # one per thread
             return run(x[a].ctypes.data, P[a].ctypes.data, Q.ctypes.data, params[a].ctypes.data, xs[a].ctypes.data,
-                       Ps[a].ctypes.data, b - a, K, iw, w)
+                       Ps[a].ctypes.data, b - a, K, iw, w, stop)
 
         self.run_chunks(part, chunk_runs(runs, K, self.n), "smoother step")
         return xs, Ps

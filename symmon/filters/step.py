@@ -46,6 +46,7 @@ import casadi as ca
 import numpy as np
 
 from ..compile.ccache import NativeLibrary
+from ..compile.ckernels import STOP_POLL, STOPPED
 from ..compile.compiled import WorkArrays, generated_c, in_threads, padded
 from ..errors import SymmonError
 from ..core.model import Model
@@ -260,7 +261,8 @@ _DRIVER = """
    so that a step never writes what it reads.  With the true states (truth, not null), each
    step's NEES and its singularity test go to outs[8] and outs[9] ({name}_nees).  With
    failed (not null), failed[r] is the first step of run r whose x, P or log-likelihood is
-   not finite (the run stops there), or -1. */
+   not finite (the run stops there), or -1.  Before each step it polls stop (not null): set
+   by the thread that waits for the bank when that is interrupted, it ends the loop. */
 #include <string.h>
 static int {name}_nonfinite(const casadi_real* a, casadi_int n) {{
   /* An exponent of all ones is inf or NaN; an integer test, so that the loop vectorises. */
@@ -277,7 +279,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
     const casadi_real* P0, casadi_int P0_step, const casadi_real* y,
     const casadi_real* Q, const casadi_real* R, const casadi_real* mask, const casadi_real* p,
     const casadi_real* truth, casadi_real* const* outs, const casadi_int* strides, casadi_int runs,
-    casadi_int K, casadi_int* iw, casadi_real* w, casadi_int* failed) {{
+    casadi_int K, casadi_int* iw, casadi_real* w, casadi_int* failed, const volatile int* stop) {{
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
   casadi_real* res2[{sz_res}];
@@ -288,6 +290,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
     const casadi_real* x = x0 + r * x0_step;
     const casadi_real* P = P0 + r * P0_step;
     for (k = 0; k < K; ++k) {{
+      {stop_poll}
       i = r * K + k;
       arg[0] = x; arg[1] = P; arg[2] = y + i * {n_y}; arg[3] = Q; arg[4] = R; arg[5] = mask + i * {n_y};
       arg[6] = p + i * {n_p};
@@ -358,15 +361,21 @@ class CompiledLoop:
         return self._lib.evaluator
 
     def run_chunks(self, part, chunks: list, what: str) -> None:
-        """``part(chunk)`` for each chunk of runs, on one thread per chunk (ctypes releases the
-        GIL in the C call, so they run in parallel).
+        """``part(chunk, stop)`` for each chunk of runs, on one thread per chunk (ctypes
+        releases the GIL in the C call, so they run in parallel); ``stop`` is the address of
+        the flag the C loops poll between steps (:data:`~symmon.compile.ckernels.STOP_POLL`).
+        A Ctrl-C (KeyboardInterrupt) of the waiting thread sets it and waits for the loops,
+        which end at their next step, before it propagates: no loop of an interrupted bank
+        keeps running in the shared pool for the next call to queue behind.
 
         Raises
         ------
         SymmonError
             If a chunk's C loop returned an error, naming ``what``.
         """
-        if any(in_threads(part, chunks)):
+        stop = np.zeros(1, dtype=np.intc)
+        codes = in_threads(lambda c: part(c, stop.ctypes.data), chunks, stop=stop)
+        if any(code not in (0, STOPPED) for code in codes):
             raise SymmonError(f"the compiled {what} {self.f.name()} returned an error")
 
 
@@ -389,9 +398,10 @@ class _CompiledStep(CompiledLoop):
         code = generated_c(*both) + _DRIVER.format(
             name=name, sz_arg=max(max(g.sz_arg() for g in both), 7), sz_res=max(max(g.sz_res() for g in both), 8),
             n=self.n, nn=self.n * self.n, n_y=self.n_y, nyy=self.n_y * self.n_y, n_p=self.n_p,
+            stop_poll=STOP_POLL,
         )
         argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_longlong]
-                    + [ctypes.c_void_p] * 8 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 3)
+                    + [ctypes.c_void_p] * 8 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 4)
         super().__init__(fn, code, argtypes, also=(self.nees_f,))
 
     def __call__(self, x0: np.ndarray, P0: np.ndarray, Y: np.ndarray, Q: np.ndarray, R: np.ndarray,
@@ -468,7 +478,7 @@ class _CompiledStep(CompiledLoop):
         P_step = n * n if P0.ndim == 3 else 0
         failed = np.empty(runs, dtype=np.int64) if check_finite else None
 
-        def part(c: int) -> int:
+        def part(c: int, stop: int) -> int:
             a, b = chunks[c]
             outs = (ctypes.c_void_p * len(blocks))(*[
                 None if blk is None else blk[a].ctypes.data if k in kept else blk[c].ctypes.data
@@ -477,7 +487,7 @@ class _CompiledStep(CompiledLoop):
             return run(x0.ctypes.data + 8 * a * x_step, x_step, P0.ctypes.data + 8 * a * P_step, P_step,
                        Y[a].ctypes.data, Q.ctypes.data, R.ctypes.data, mask[a].ctypes.data,
                        params[a].ctypes.data, None if truth is None else truth[a].ctypes.data, outs,
-                       strides.ctypes.data, b - a, K, iw, w, None if failed is None else failed[a:].ctypes.data)
+                       strides.ctypes.data, b - a, K, iw, w, None if failed is None else failed[a:].ctypes.data, stop)
 
         self.run_chunks(part, list(range(len(chunks))), "filter step")
         out = {k: b for k, b in blocks.items() if k in kept}

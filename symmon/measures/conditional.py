@@ -48,7 +48,7 @@ from ..core.gaussian import Gaussian
 from ..core.mixture import Empirical, GaussianMixture, mixture_moments
 from ..core.model import Model
 from ..compile import compiled
-from ..propagation.particles import GROUPS, group_means
+from ..propagation.particles import group_means, jackknife_groups
 from ..transforms import Transform
 from ..transforms.montecarlo import MC_INNER
 from ..transforms.stats import Stats, leave_one_out, merge_all, moments_of
@@ -193,7 +193,7 @@ def empirical_conditional_cov(model: Model, u: Empirical, v: Gaussian | Gaussian
     point (module notes).  Groups are those of :func:`~symmon.propagation.particles.group_means`.
     """
     ny = model.n_y
-    G = min(len(u.weights), GROUPS)
+    G = jackknife_groups(u)
     zero = np.zeros((ny, ny))
     if model.n_v == 0:
         return zero, np.repeat(zero[None], G, axis=0)

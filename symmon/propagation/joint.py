@@ -122,10 +122,18 @@ class JointMoments:
 
     @property
     def joint(self) -> Gaussian:
-        """The Gaussian approximation of [u; y] (noise v is not part of it)."""
+        """The Gaussian approximation of [u; y] (noise v is not part of it).
+
+        For a mixture or particles with a declared angle input, E u and Cov u are those
+        the moments were mixed with (on the circle, ``info["input_mean"]`` and
+        :attr:`input_cov`), not the input's linear ones.
+        """
         u = self.input
-        mean = np.concatenate([u.mean, self.mean])
-        cov = np.block([[u.cov, self.cross_cov.T], [self.cross_cov, self.cov]])
+        mu, Puu = u.mean, u.cov
+        if self.input_angles and "input_mean" in self.info:
+            mu, Puu = np.asarray(self.info["input_mean"])[0, :u.dim], self.input_cov
+        mean = np.concatenate([mu, self.mean])
+        cov = np.block([[Puu, self.cross_cov.T], [self.cross_cov, self.cov]])
         return Gaussian(mean, cov)
 
     @property

@@ -16,9 +16,13 @@ exact moments under every transform (``derivations/mixtures.py`` checks the iden
 symbolically).  All components of all inputs go through the rule's
 batched :meth:`~symmon.transforms.base.Transform.moments` in one call.
 
-An angle output's component means are moved to within π of the heaviest component's
-mean (:func:`~symmon.core.angles.unwrap_near`) before they are mixed, and the mixed mean
-is wrapped to (−π, π]: the mixture's spread about its mean, not about the cut.
+An angle output's component means, and a declared angle input's (``Model(...,
+angles=[θ])``), are moved to within π of the heaviest component's mean
+(:func:`~symmon.core.angles.unwrap_near`) before they are mixed, and the mixed mean is
+wrapped to (−π, π]: the mixture's spread about its mean, not about the cut.  Components of
+a bearing at +3.0 and −3.0 rad are 0.28 rad apart, not 6 (a linear average would put the
+mixture's mean at 0 and its variance near 9, and the MoN's affine fit across the cut).
+The component moments themselves need no change: g is 2π-periodic in an angle input.
 
 For a stochastic rule the standard errors come from the delete-one-group jackknife
 (:func:`~symmon.transforms.stats.jackknife_se`): group g is left out of every component at
@@ -40,7 +44,7 @@ from ..errors import ArgumentTypeError, ShapeError
 from ..transforms import Moments
 from ..transforms.stats import jackknife_se, leave_one_out_stack, moments_of
 
-__all__ = ["ComponentBatch", "component_batch", "mix", "mix_batch", "mixed_leave_one_out", "mixed_error",
+__all__ = ["ComponentBatch", "component_batch", "mix", "mix_batch", "mixed_leave_one_out", "mixed_error", "mixed_input_mean",
            "is_mixture", "parts"]
 
 
@@ -77,12 +81,16 @@ class ComponentBatch:
     starts : ndarray (n_items,)
         Index of the first component of each input (the components of an input are
         consecutive).
+    input_angles : tuple of int
+        The components of w that are angles (the model's angle inputs): mixed on the
+        circle.
     """
 
     weights: np.ndarray
     means: np.ndarray
     covs: np.ndarray
     starts: np.ndarray
+    input_angles: tuple[int, ...] = ()
 
     @property
     def owner(self) -> np.ndarray:
@@ -111,15 +119,36 @@ def component_batch(model: Model, us: Sequence[Any], vs: Sequence[Any] | None) -
         starts.append(J)
         J += w.size
         W.append(w), M.append(Mw), P.append(Pw)
-    return ComponentBatch(np.concatenate(W), np.concatenate(M), np.concatenate(P), np.array(starts, dtype=np.intp))
+    return ComponentBatch(np.concatenate(W), np.concatenate(M), np.concatenate(P), np.array(starts, dtype=np.intp),
+                          tuple(sorted(model.angle_inputs)))
 
 
 def _expand(pi: np.ndarray, x: np.ndarray) -> np.ndarray:
     return pi.reshape(pi.shape + (1,) * (x.ndim - 1)) * x
 
 
+def _on_branch(pi: np.ndarray, starts: np.ndarray, x: np.ndarray, idx: Sequence[int]) -> np.ndarray:
+    """``x`` (J, ...) with its angle components ``idx`` moved to within π of those of the
+    heaviest component of the same input: one branch per input, so that a linear
+    mixing is the mixing on the circle."""
+    if not len(idx):
+        return x
+    ends = np.append(starts[1:], pi.size)
+    heaviest = np.array([s + int(np.argmax(pi[s:e])) for s, e in zip(starts, ends)])
+    owner = np.repeat(np.arange(starts.size), ends - starts)
+    return unwrap_near(x, x[heaviest][owner], list(idx))
+
+
+def mixed_input_mean(cb: ComponentBatch) -> np.ndarray:
+    """The mean of w of each input (n_items, n_w): Σ_j π_j μ_j^w, with the angle inputs'
+    component means on one branch and the result wrapped to (−π, π]."""
+    mu = _on_branch(cb.weights, cb.starts, cb.means, cb.input_angles)
+    return wrap_components(np.add.reduceat(_expand(cb.weights, mu), cb.starts, axis=0), cb.input_angles)
+
+
 def mix(pi: np.ndarray, starts: np.ndarray, m: np.ndarray, P: np.ndarray, C: np.ndarray, mu: np.ndarray,
-        Pw: np.ndarray, angles: Sequence[int] = ()) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        Pw: np.ndarray, angles: Sequence[int] = (), input_angles: Sequence[int] = ()
+        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The mixed moments of each input from the moments of its components (the module's
     identities), centred on the mixed means so that no digits are lost to |m| ≫ σ.
 
@@ -134,6 +163,9 @@ def mix(pi: np.ndarray, starts: np.ndarray, m: np.ndarray, P: np.ndarray, C: np.
         The component means and covariances of w.
     angles : sequence of int
         The angle outputs.
+    input_angles : sequence of int
+        The components of w that are angles: their component means are put on one branch
+        before Cov w and Cov(y, w) are formed.
 
     Returns
     -------
@@ -141,10 +173,9 @@ def mix(pi: np.ndarray, starts: np.ndarray, m: np.ndarray, P: np.ndarray, C: np.
     """
     owner = np.repeat(np.arange(starts.size), np.diff(np.append(starts, pi.size)))
     A = list(angles)
-    if A:
-        # The heaviest component of each input is the reference of its angles.
-        heaviest = np.array([s + int(np.argmax(pi[s:e])) for s, e in zip(starts, np.append(starts[1:], pi.size))])
-        m = unwrap_near(m, m[heaviest][owner], A)
+    # The heaviest component of each input is the reference of its angles.
+    m = _on_branch(pi, starts, m, A)
+    mu = _on_branch(pi, starts, mu, input_angles)
     mean = np.add.reduceat(_expand(pi, m), starts, axis=0)
     mu_bar = np.add.reduceat(_expand(pi, mu), starts, axis=0)
     d = m - mean[owner]
@@ -169,7 +200,7 @@ def mixed_leave_one_out(b: Moments, cb: ComponentBatch, n_y: int, angles: Sequen
         raise ShapeError(f"the components have different numbers of replicates: {sorted(G)}")
     m, P, C, Pw = (np.stack([r[i] for r in loo]) for i in range(4))  # (J, G, ...)
     # Pw: each component's sample Cov w, as JointMoments.input_cov holds it for Monte Carlo.
-    return mix(cb.weights, cb.starts, m, P, C, cb.means, Pw, angles)
+    return mix(cb.weights, cb.starts, m, P, C, cb.means, Pw, angles, cb.input_angles)
 
 
 def mix_batch(b: Moments, cb: ComponentBatch, angles: Sequence[int]) -> Moments:
@@ -177,7 +208,8 @@ def mix_batch(b: Moments, cb: ComponentBatch, angles: Sequence[int]) -> Moments:
     result ``b`` of its components; for a stochastic rule with standard errors by the
     jackknife over its replicates."""
     Pw = cb.covs if b.input_cov is None else b.input_cov
-    mean, cov, cross, in_cov = mix(cb.weights, cb.starts, b.mean, b.cov, b.cross_cov, cb.means, Pw, angles)
+    mean, cov, cross, in_cov = mix(cb.weights, cb.starts, b.mean, b.cov, b.cross_cov, cb.means, Pw, angles,
+                                   cb.input_angles)
     stderr = None
     if b.replicates is not None:
         lm, lP, lC, _ = mixed_leave_one_out(b, cb, b.mean.shape[1], angles)
@@ -186,7 +218,7 @@ def mix_batch(b: Moments, cb: ComponentBatch, angles: Sequence[int]) -> Moments:
     counts = np.diff(np.append(cb.starts, cb.weights.size))
     error = None if b.error is None else mixed_error(b, cb, mean, angles)
     return Moments(mean=mean, cov=cov, cross_cov=cross, input_cov=in_cov, stderr=stderr, error=error,
-                   evaluations=b.evaluations, details={"components": counts.tolist()})
+                   evaluations=b.evaluations, details={"components": counts.tolist(), "input_mean": mixed_input_mean(cb)})
 
 
 def mixed_error(b: Moments, cb: ComponentBatch, mean: np.ndarray, angles: Sequence[int]) -> dict:
@@ -201,7 +233,8 @@ def mixed_error(b: Moments, cb: ComponentBatch, mean: np.ndarray, angles: Sequen
     pi, starts, owner = cb.weights, cb.starts, cb.owner
     m = unwrap_near(b.mean, mean[owner], list(angles))
     d = np.abs(m - mean[owner])
-    e = np.abs(cb.means - np.add.reduceat(_expand(pi, cb.means), starts, axis=0)[owner])
+    mu = _on_branch(pi, starts, cb.means, cb.input_angles)
+    e = np.abs(mu - np.add.reduceat(_expand(pi, mu), starts, axis=0)[owner])
     eps_m = np.add.reduceat(_expand(pi, b.error["mean"]), starts, axis=0)
     dd = b.error["mean"] + eps_m[owner]
     cov = np.add.reduceat(_expand(pi, b.error["cov"] + dd[:, :, None] * d[:, None, :] + d[:, :, None] * dd[:, None, :]),

@@ -14,12 +14,20 @@ Each particle x_i with weight w_i is a point mass: the sample is the mixture
 
 The particles are processed in chunks of :data:`CHUNK` and accumulated as weighted sums
 about a reference (the first chunk's weighted mean), so that memory beyond the particles
-is flat in their number and a mean far from 0 costs no digits.  Particle i belongs to group
-i mod G (:data:`GROUPS`); the group sums give the delete-one-group jackknife
+is flat in their number and a mean far from 0 costs no digits.  The particles of zero
+weight add nothing and are left out (:func:`support`); of the others, the i-th belongs to
+group i mod G (:data:`GROUPS`), so that every group holds weight (were the groups formed
+over all particles, a cloud whose weighted particles all fall in one group, every 20th,
+would leave a group of zero weight and no leave-one-out moments); the group sums give the delete-one-group jackknife
 (:func:`~symmon.transforms.stats.jackknife_se`) of every moment and measure: the error of the
 particles as a sample of the distribution they stand for.  Interleaved groups keep
 neighbouring particles apart; the duplicates of a resampled cloud are still correlated
 across groups, which makes the error bar optimistic for such a cloud.
+
+A declared angle input (``Model(..., angles=[θ])``) is summed on the circle: its
+reference is the circular mean of the first chunk, its deviations are wrapped to
+(−π, π], so a cloud on both sides of ±π has its spread about its mean direction, not about
+0 (Mardia & Jupp 2000, Sec. 2.2; :mod:`symmon.core.angles`).
 """
 
 from __future__ import annotations
@@ -34,14 +42,14 @@ from ..compile import compiled
 from ..core.angles import unwrap_near, wrap_components, wrap_angle
 from ..core.mixture import Empirical
 from ..core.model import Model
-from ..errors import ArgumentError, ArgumentTypeError, SampleSizeWarning, ShapeError
+from ..errors import ArgumentError, ArgumentTypeError, NonFiniteError, SampleSizeWarning, ShapeError
 from ..transforms import Moments, Transform
 from ..transforms.stats import jackknife_se
 from .joint import JointMoments
 from .mixing import parts
 
-__all__ = ["GroupSums", "particle_sums", "group_means", "propagate_empirical", "check_ess", "CHUNK", "GROUPS",
-           "SMALL_ESS"]
+__all__ = ["GroupSums", "particle_sums", "group_means", "propagate_empirical", "check_ess", "support",
+           "jackknife_groups", "CHUNK", "GROUPS", "SMALL_ESS"]
 
 #: Particles per evaluation batch (a multiple of :data:`GROUPS`): the buffers of a chunk
 #: are CHUNK·(n_y·n_w + n_y²)·8 bytes, a few MB.
@@ -62,8 +70,20 @@ def check_ess(u: Empirical, stacklevel: int = 3) -> None:
                       SampleSizeWarning, stacklevel=stacklevel)
 
 
-def _n_groups(n: int) -> int:
-    return min(GROUPS, n)
+def support(u: Empirical) -> tuple[np.ndarray, np.ndarray]:
+    """The particles of ``u`` with a positive weight and their weights (``u``'s own arrays,
+    uncopied, when none is zero): what every sum of this module runs over."""
+    w = u.weights
+    keep = w > 0
+    if keep.all():
+        return u.samples, w
+    return u.samples[keep], w[keep]
+
+
+def jackknife_groups(u: Empirical) -> int:
+    """The number G of jackknife groups of ``u``: :data:`GROUPS`, or fewer when fewer
+    particles have a positive weight (each group holds at least one of them)."""
+    return min(GROUPS, int(np.count_nonzero(u.weights > 0)))
 
 
 def _by_group(a: np.ndarray, G: int, L: int = 1) -> np.ndarray:
@@ -84,10 +104,11 @@ def _pad(a: np.ndarray, rows: int) -> np.ndarray:
 def group_means(u: Empirical, fn: Callable[[np.ndarray], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Per group, Σ_i w_i fn(x_i) (G, d) and Σ_i w_i (G,), with fn evaluated on chunks of
     particles (rows) returning (chunk, d)."""
-    G = _n_groups(u.n_samples)
+    G = jackknife_groups(u)
+    Xs, ws = support(u)
     sums, wsum = 0.0, 0.0
-    for start in range(0, u.n_samples, CHUNK):
-        X, w = u.samples[start:start + CHUNK], u.weights[start:start + CHUNK]
+    for start in range(0, ws.size, CHUNK):
+        X, w = Xs[start:start + CHUNK], ws[start:start + CHUNK]
         rows = -(-X.shape[0] // G) * G
         F, wp = _by_group(_pad(np.asarray(fn(X), dtype=float), rows), G), _by_group(_pad(w, rows), G)
         sums = sums + np.einsum("gk,gkd->gd", wp, F)
@@ -99,7 +120,7 @@ def group_means(u: Empirical, fn: Callable[[np.ndarray], np.ndarray]) -> tuple[n
 class GroupSums:
     """Weighted sums of the particles' conditional moments, per group, about a reference.
 
-    With d_i = m_i − c_y (angles wrapped) and e_i = μ_i − c_w, each group holds
+    With d_i = m_i − c_y and e_i = μ_i − c_w (angles wrapped), each group holds
     w = Σ w_i, m = Σ w_i d_i, mm = Σ w_i (P_i + d_i d_iᵀ), my = Σ w_i (C_i + d_i e_iᵀ),
     mu = Σ w_i e_i and uu = Σ w_i (Pw_i + e_i e_iᵀ), the leading axis the G groups.
     """
@@ -114,6 +135,7 @@ class GroupSums:
     c_w: np.ndarray
     angles: tuple[int, ...]
     evaluations: int
+    input_angles: tuple[int, ...] = ()
 
     def total(self) -> "GroupSums":
         """The sums over all groups (a leading axis of 1)."""
@@ -125,7 +147,11 @@ class GroupSums:
 
     def _with(self, f: Callable[[np.ndarray], np.ndarray]) -> "GroupSums":
         return GroupSums(*(f(getattr(self, k)) for k in ("w", "m", "mm", "my", "mu", "uu")),
-                         self.c_y, self.c_w, self.angles, self.evaluations)
+                         self.c_y, self.c_w, self.angles, self.evaluations, self.input_angles)
+
+    def input_mean(self) -> np.ndarray:
+        """E w for each set of sums (leading axis), the angle inputs wrapped to (−π, π]."""
+        return wrap_components(self.c_w + self.mu / self.w[:, None], self.input_angles)
 
     def moments(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """E y, Cov y, Cov(y, w) and Cov w for each set of sums (leading axis)."""
@@ -180,13 +206,15 @@ def particle_sums(model: Model, u: Empirical, v: Any, tr: Transform, executor: A
     else:
         wv = Mv = Pv = None
     A = tuple(sorted(model.angle_outputs))
-    G = _n_groups(u.n_samples)
+    W = tuple(sorted(model.angle_inputs))  # u leads w: an input's index is its index in w
+    G = jackknife_groups(u)
+    Xs, ws = support(u)
     conditional = model.n_v > 0  # without noise P_i = C_i = Pw_i = 0: skip their sums
     acc: list[np.ndarray] | None = None
     c_y = c_w = None
     evaluations = 0
-    for start in range(0, u.n_samples, CHUNK):
-        X, wx = u.samples[start:start + CHUNK], u.weights[start:start + CHUNK]
+    for start in range(0, ws.size, CHUNK):
+        X, wx = Xs[start:start + CHUNK], ws[start:start + CHUNK]
         fac, Mw, Pw, m, P, C, ev = _conditional(model, tr, X, wv, Mv, Pv, executor)
         evaluations += int(ev)
         L = fac.size // X.shape[0]
@@ -194,14 +222,16 @@ def particle_sums(model: Model, u: Empirical, v: Any, tr: Transform, executor: A
         if c_y is None:  # the reference: this first chunk's weighted mean (circular for angles)
             s = max(float(pi.sum()), np.finfo(float).tiny)
             c_y, c_w = pi @ m / s, pi @ Mw / s
-            if A:
-                c_y[list(A)] = np.arctan2(pi @ np.sin(m[:, A]), pi @ np.cos(m[:, A]))
+            for ref, x, idx in ((c_y, m, A), (c_w, Mw, W)):
+                if idx:
+                    ref[list(idx)] = np.arctan2(pi @ np.sin(x[:, idx]), pi @ np.cos(x[:, idx]))
         d = unwrap_near(m, c_y, A) - c_y
+        e = unwrap_near(Mw, c_w, W) - c_w
         # Regroup the rows (L per particle, the last chunk padded with zero weights) and
         # take the weighted sums and Gram matrices of z = [d; e] per group, one BLAS call.
         rows = -(-X.shape[0] // G) * G * L
         pg = _by_group(_pad(pi, rows), G, L)
-        Zg = _by_group(_pad(np.hstack([d, Mw - c_w]), rows), G, L)
+        Zg = _by_group(_pad(np.hstack([d, e]), rows), G, L)
         S1 = np.einsum("gk,gka->ga", pg, Zg)
         S2 = np.matmul(np.swapaxes(Zg * pg[..., None], 1, 2), Zg)
         ny = m.shape[1]
@@ -210,7 +240,7 @@ def particle_sums(model: Model, u: Empirical, v: Any, tr: Transform, executor: A
             for k, t in ((2, P), (3, C), (5, Pw)):
                 sums[k] = sums[k] + np.einsum("gk,gkab->gab", pg, _by_group(_pad(t, rows), G, L))
         acc = sums if acc is None else [a + s_ for a, s_ in zip(acc, sums)]
-    return GroupSums(*acc, c_y=c_y, c_w=c_w, angles=A, evaluations=evaluations)
+    return GroupSums(*acc, c_y=c_y, c_w=c_w, angles=A, evaluations=evaluations, input_angles=W)
 
 
 def propagate_empirical(model: Model, u: Empirical, v: Any, tr: Transform, executor: Any = None
@@ -227,8 +257,14 @@ def propagate_empirical(model: Model, u: Empirical, v: Any, tr: Transform, execu
         if A := list(sums.angles):  # leave-one-out means of an angle: their spread about the total
             lm[:, A] = mean[0, A] + wrap_angle(lm[:, A] - mean[0, A])
         stderr = {"mean": jackknife_se(lm)[None], "cov": jackknife_se(lP)[None], "cross_cov": jackknife_se(lC)[None]}
+        if not all(np.all(np.isfinite(a)) for a in stderr.values()):
+            raise NonFiniteError(
+                f"particles: the jackknife standard errors over {sums.w.shape[0]} groups are not finite (group "
+                f"weights {np.array2string(sums.w, precision=3)}); the moments are {mean[0].tolist()}: check the "
+                "weights, or rescale the units if the moments are near the float range")
     b = Moments(mean=mean, cov=cov, cross_cov=cross, input_cov=in_cov, stderr=stderr, evaluations=sums.evaluations,
-                details={"particles": u.n_samples, "ess": u.ess, "jackknife_groups": int(sums.w.shape[0])})
+                details={"particles": u.n_samples, "ess": u.ess, "jackknife_groups": int(sums.w.shape[0]),
+                         "input_mean": sums.total().input_mean()})
     m = JointMoments.of(b, u, model.n_u, tr, model.angle_outputs, model.angle_inputs,
                         evaluator=compiled(model).evaluator)
     return m, sums

@@ -16,9 +16,12 @@ from __future__ import annotations
 
 import contextlib
 import math
-from typing import Iterator
+from pathlib import Path
+from typing import Iterable, Iterator
 
 from ..core.model import Model
+from ..errors import SymmonError
+from ..io import save_figure
 from ..progress import progress_bar as progress_bar
 
 #: One look for every reproduced figure: readable sizes, light grid, no top/right frame.
@@ -32,8 +35,14 @@ STYLE = {
     "grid.alpha": 0.3,
     "axes.spines.top": False,
     "axes.spines.right": False,
-    "savefig.dpi": 150,
+    "savefig.dpi": 300,
 }
+
+#: The figure formats of ``symmon reproduce --format``: PNG (raster, :data:`PNG_DPI`), or
+#: PDF and SVG (vector, what a journal asks for).
+FORMATS = ("png", "pdf", "svg")
+#: The resolution of a reproduced PNG: print quality at the figures' 7.2 in width.
+PNG_DPI = 300
 
 #: The Okabe–Ito palette (Okabe & Ito 2008), by name.
 OKABE_ITO = {
@@ -69,6 +78,56 @@ def with_angles(model: Model, angles: list[int]) -> Model:
 def png_metadata(title: str, caption: str) -> dict[str, str]:
     """PNG text chunks of a reproduced figure: its title and its caption (``Description``)."""
     return {"Title": title, "Description": caption}
+
+
+#: Line styles and markers of curves drawn on one axes, cycled with the colours: two
+#: curves that coincide (a filter the adaptive one chose throughout) still show both.
+LINESTYLES = ("-", "--", "-.", ":")
+MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")
+
+
+def curve_styles(n: int, points: int) -> list[dict]:
+    """Keyword arguments of ``plot`` for n curves of ``points`` points on one axes: Okabe–Ito
+    colours, line styles and open markers in turn; each curve's markers at its own points
+    (every max(n, points/10)-th, offset by its index, so the markers of coinciding curves
+    never fall on each other), and each later curve drawn above the earlier ones with a
+    thinner line, so that a curve under another still shows at its edges."""
+    colours = [c for name, c in OKABE_ITO.items() if name != "yellow"]  # yellow is faint on white
+    step = max(n, points // 10, 1)
+    return [{"color": colours[i % len(colours)], "ls": LINESTYLES[i % len(LINESTYLES)],
+             "marker": MARKERS[i % len(MARKERS)], "ms": 4.5, "mfc": "none",
+             "markevery": (i % step, step), "lw": max(0.8, 2.6 - 0.3 * i), "zorder": 3 + i} for i in range(n)]
+
+
+def check_format(fmt: str) -> str:
+    """``fmt`` if it is one of :data:`FORMATS`, else a SymmonError naming them."""
+    if fmt not in FORMATS:
+        raise SymmonError(f"format must be one of {', '.join(FORMATS)}, got {fmt!r}")
+    return fmt
+
+
+def with_format(names: Iterable[str], fmt: str) -> tuple[str, ...]:
+    """The output names of a figure module (``OUTPUTS``, its figures as ``.png``) for the
+    figure format ``fmt``."""
+    check_format(fmt)
+    return tuple(n[:-len(".png")] + "." + fmt if n.endswith(".png") else n for n in names)
+
+
+def save_reproduced(fig, path: Path, fmt: str = "png", title: str = "", caption: str = "") -> Path:
+    """Save a reproduced figure as ``path`` with the suffix of ``fmt``: a PNG at
+    :data:`PNG_DPI` dpi, or a vector PDF or SVG; its title and caption go into the file's
+    metadata (PNG text chunks, PDF Title and Subject, SVG title and description), and no
+    date, so that the same figure gives the same file."""
+    check_format(fmt)
+    path = Path(path).with_suffix("." + fmt)
+    if fmt == "png":
+        meta = png_metadata(title, caption) if title else {}
+        return save_figure(fig, path, dpi=PNG_DPI, metadata=meta or None)
+    if fmt == "pdf":
+        meta = {"Title": title, "Subject": caption, "CreationDate": None, "ModDate": None}
+    else:
+        meta = {"Title": title, "Description": caption, "Date": None}
+    return save_figure(fig, path, metadata={k: v for k, v in meta.items() if v != ""})
 
 
 def samples_text(n: int) -> str:

@@ -19,13 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io import check_output_set, save_figure, write_csv
+from ..io import check_output_set, write_csv
 from ..measures.formula import mon_from_moments
 from ..core.problems import polar
 from ..propagation.front import propagate
 from ..transforms import TT2, UT, MonteCarlo
 from ..transforms.stats import jackknife, moments_of
-from .common import ALPHA_LABEL, OKABE_ITO, figure_style, png_metadata, progress_bar, pyplot, with_angles
+from .common import (ALPHA_LABEL, OKABE_ITO, figure_style, progress_bar, pyplot, save_reproduced,
+                     with_angles, with_format)
 
 __all__ = ["OUTPUTS", "run", "curves", "caption", "ALPHAS", "UNIT_SIZES", "COLUMNS", "MODEL"]
 
@@ -119,18 +120,20 @@ def caption(samples: int = 10**6, seed: int = 0) -> str:
 
 
 def run(outdir: str | Path = "results", samples: int = 10**6, seed: int = 0, progress: bool = True,
-        alphas=ALPHAS) -> list[Path]:
-    """Reproduce Figure 1: write ``fig1.png`` and ``fig1.csv`` into ``outdir``."""
+        alphas=ALPHAS, fmt: str = "png") -> list[Path]:
+    """Reproduce Figure 1: write ``fig1.png`` (or ``.pdf``, ``.svg``: ``fmt``) and
+    ``fig1.csv`` into ``outdir``."""
     outdir = Path(outdir)
-    check_output_set(outdir, OUTPUTS)  # a read-only file refuses the run before its work
+    check_output_set(outdir, with_format(OUTPUTS, fmt))  # a read-only file refuses the run before its work
     outdir.mkdir(parents=True, exist_ok=True)
     c = curves(alphas, samples, seed, progress)
     csv = write_csv(outdir / "fig1.csv", list(COLUMNS.values()), zip(*[c[k] for k in COLUMNS]))
     plt = pyplot()
     with figure_style():
         fig = _plot(plt, c)
-    png = save_figure(fig, outdir / "fig1.png", dpi=150,
-                      metadata=png_metadata("Figure 1: the MSE-based MoN and the bearing unit", caption(samples, seed)))
+    png = save_reproduced(fig, outdir / "fig1.png", fmt, 
+                          "Figure 1: the MSE-based MoN and the bearing unit",
+                          caption(samples, seed))
     plt.close(fig)
     return [png, csv]
 

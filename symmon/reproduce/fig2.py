@@ -18,13 +18,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io import check_output_set, save_figure, write_csv
+from ..io import check_output_set, write_csv
 from ..measures.formula import mon_from_moments
 from ..core.problems import GMTI_UNITS, RDCOS_UNITS, bot, gmti, rdcos
 from ..propagation.front import propagate
 from ..transforms import TT2, UT, MonteCarlo
 from ..transforms.stats import jackknife, moments_of
-from .common import OKABE_ITO, figure_style, png_metadata, progress_bar, pyplot, with_angles
+from .common import (OKABE_ITO, figure_style, progress_bar, pyplot, save_reproduced,
+                     with_angles, with_format)
 
 __all__ = ["OUTPUTS", "run", "curves", "caption", "ALPHAS", "PROBLEMS", "COLUMNS", "ANGLES"]
 
@@ -122,10 +123,11 @@ def intervals(c: dict[str, dict[str, np.ndarray]]) -> dict[str, tuple[float, flo
 
 
 def run(outdir: str | Path = "results", samples: int = 10**6, seed: int = 0, progress: bool = True,
-        alphas=ALPHAS) -> list[Path]:
-    """Reproduce Figure 2: write ``fig2.png`` and ``fig2.csv`` into ``outdir``."""
+        alphas=ALPHAS, fmt: str = "png") -> list[Path]:
+    """Reproduce Figure 2: write ``fig2.png`` (or ``.pdf``, ``.svg``: ``fmt``) and
+    ``fig2.csv`` into ``outdir``."""
     outdir = Path(outdir)
-    check_output_set(outdir, OUTPUTS)  # a read-only file refuses the run before its work
+    check_output_set(outdir, with_format(OUTPUTS, fmt))  # a read-only file refuses the run before its work
     outdir.mkdir(parents=True, exist_ok=True)
     c = curves(alphas, samples, seed, progress)
     keys = list(COLUMNS)[2:]
@@ -135,11 +137,16 @@ def run(outdir: str | Path = "results", samples: int = 10**6, seed: int = 0, pro
     plt = pyplot()
     with figure_style():
         fig = _plot(plt, c)
-    png = save_figure(fig, outdir / "fig2.png", dpi=150,
-                      metadata=png_metadata("Figure 2: MoNs of the BOT, GMTI and RDCOS problems", caption(samples, seed)))
+    png = save_reproduced(fig, outdir / "fig2.png", fmt, 
+                          "Figure 2: MoNs of the BOT, GMTI and RDCOS problems",
+                          caption(samples, seed))
     plt.close(fig)
     return [png, csv]
 
+
+#: W^full by TT2 and by the UT: colour, open marker and the α at which it is drawn (apart
+#: from each other and from the Monte Carlo curve's markers).
+OTHER_RULES = {"tt2": (OKABE_ITO["bluish green"], "D", (1, 4)), "ut": (OKABE_ITO["reddish purple"], "v", (3, 4))}
 
 #: The second unit set of each problem (Sec. V), as the caption names it; BOT has none.
 ALT_UNITS = {"BOT": "", "GMTI": "km, deg, km/h", "RDCOS": "km, –"}
@@ -153,16 +160,21 @@ def caption(samples: int = 10**6, seed: int = 0) -> str:
             "normalised MoN (8) in SI units (blue, circles) and in the second unit set of Sec. V (sky blue, "
             "triangles: [km, deg, km/h] for GMTI, [km, –] for RDCOS). Solid lines: Monte Carlo with "
             f"{samples:,} samples per point (seed {seed}), with their ±2 SE bands, whose width the lower "
-            "panels show; dashed and dotted: W^full by TT2 and by the unscented transform ut1. BOT's output "
+            "panels show; dashed (bluish green, diamonds) and dotted (reddish purple, triangles): W^full by TT2 "
+            "and by the unscented transform ut1, drawn above the Monte Carlo curve. Panels (a)–(c): the MoNs; "
+            "(d)–(f): the Monte Carlo 2 SE. BOT's output "
             "is scalar, so its three MoNs coincide. Bearings are declared angles.")
 
 
 def _plot(plt, c: dict[str, dict[str, np.ndarray]]):
     """Figure 2: one column per problem, MoNs above and the Monte Carlo 2 SE below; no title."""
     from matplotlib.lines import Line2D
+    from matplotlib.ticker import NullFormatter
 
     fig, axes = plt.subplots(2, 3, figsize=(7.2, 4.4), sharex=True, sharey="row", height_ratios=[3, 1])
-    marks = dict(markevery=0.1, ms=3.5)
+    # Curves that coincide (BOT's three MoNs, a scalar output) put their markers at
+    # alternate α, so that each stays visible on the others.
+    mark_at = {"full": None, "diag": (0, 3), "orig": (1, 3), "orig_alt": (2, 3)}
     styles = {"full": (OKABE_ITO["black"], None, 1.8), "diag": (OKABE_ITO["vermillion"], "s", 1.2),
               "orig": (OKABE_ITO["blue"], "o", 1.2), "orig_alt": (OKABE_ITO["sky blue"], "^", 1.2)}
     for (ax, ax_se), name in zip(axes.T, c):
@@ -172,16 +184,24 @@ def _plot(plt, c: dict[str, dict[str, np.ndarray]]):
             color, marker, lw = styles[key]
             se = v[f"{key}_se"]
             ax.fill_between(a, v[key] - 2 * se, v[key] + 2 * se, color=color, alpha=0.35, lw=0)
-            ax.semilogx(a, v[key], "-", color=color, lw=lw, marker=marker, **marks)
-            ax_se.semilogx(a, 2 * se, "-", color=color, lw=lw, marker=marker, **marks)
+            ax.semilogx(a, v[key], "-", color=color, lw=lw, marker=marker, ms=3.5, markevery=mark_at[key])
+            ax_se.semilogx(a, 2 * se, "-", color=color, lw=lw, marker=marker, ms=3.5, markevery=mark_at[key])
         if ALT_UNITS[name]:
             color, marker, lw = styles["orig_alt"]
-            ax.semilogx(a, v["orig_alt"], "-", color=color, lw=lw, marker=marker, **marks)
-        ax.semilogx(a, v["full_tt2"], "--", color=styles["full"][0], lw=1.1)
-        ax.semilogx(a, v["full_ut"], ":", color=styles["full"][0], lw=1.1)
+            ax.semilogx(a, v["orig_alt"], "-", color=color, lw=lw, marker=marker, ms=3.5,
+                        markevery=mark_at["orig_alt"])
+            ax.text(0.97, 0.04, f"second unit set: {ALT_UNITS[name]}", transform=ax.transAxes, fontsize=6.5,
+                    ha="right", va="bottom", color=color)
+        # TT2 and the UT follow W^full by Monte Carlo closely: drawn above it, in their own
+        # colours, with open markers at other α, so that neither hides nor is hidden.
+        for key, ls, (color, marker, every) in (("full_tt2", "--", OTHER_RULES["tt2"]),
+                                                 ("full_ut", ":", OTHER_RULES["ut"])):
+            ax.semilogx(a, v[key], ls, color=color, lw=1.3, marker=marker, mfc="none", ms=4, markevery=every,
+                        zorder=3)
         ax.set_title({"BOT": "BOT (45)", "GMTI": "GMTI (46)", "RDCOS": "RDCOS (47)"}[name], fontsize=9)
         ax.set_ylim(bottom=0)
         ax_se.set_yscale("log")
+        ax_se.yaxis.set_minor_formatter(NullFormatter())  # decades only: the minor labels overlapped
         ax_se.set_xlabel(r"$\alpha$: scale of $P$ (44)")
         if name == "BOT":
             ax.text(0.04, 0.96, "scalar output:\nthe three MoNs coincide", transform=ax.transAxes, fontsize=7,
@@ -190,10 +210,15 @@ def _plot(plt, c: dict[str, dict[str, np.ndarray]]):
     axes[1, 0].set_ylabel("2 SE (MC)")
     handles = [Line2D([], [], color=styles[k][0], marker=styles[k][1], ms=3.5, lw=styles[k][2], label=lab)
                for k, lab in (("full", "unitless, $W^{full}$ (43)"), ("diag", "unitless, $W^{diag}$ (42)"),
-                              ("orig", "original (8), SI units"), ("orig_alt", "original (8), second unit set"))]
+                              ("orig", "original (8), SI units"), ("orig_alt", "original (8), second unit set\n(GMTI: km, deg, km/h; RDCOS: km, –)"))]
     handles += [Line2D([], [], color="0.35", ls="-", lw=1.2, label="Monte Carlo, band ±2 SE"),
-                Line2D([], [], color="0.35", ls="--", lw=1.1, label="$W^{full}$ by TT2"),
-                Line2D([], [], color="0.35", ls=":", lw=1.1, label="$W^{full}$ by the UT (ut1)")]
+                Line2D([], [], color=OTHER_RULES["tt2"][0], ls="--", lw=1.3, marker=OTHER_RULES["tt2"][1], mfc="none",
+                       ms=4, label="$W^{full}$ by TT2"),
+                Line2D([], [], color=OTHER_RULES["ut"][0], ls=":", lw=1.3, marker=OTHER_RULES["ut"][1], mfc="none",
+                       ms=4, label="$W^{full}$ by the UT (ut1)")]
+    for letter, ax in zip("abcdef", axes.ravel()):  # panel letters, row by row
+        ax.text(-0.04, 1.04, f"({letter})", transform=ax.transAxes, fontsize=9, fontweight="bold", ha="right",
+                va="bottom")
     fig.align_ylabels()
     fig.tight_layout(rect=(0, 0.1, 1, 1))
     fig.legend(handles=handles, loc="lower center", ncol=4, frameon=False, bbox_to_anchor=(0.5, 0.0))

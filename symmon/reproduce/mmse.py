@@ -85,9 +85,9 @@ import numpy as np
 
 from ..errors import ArgumentError
 from ..estimation import mmse
-from ..io import check_output_set, save_figure, write_csv
+from ..io import check_output_set, write_csv
 from ..filters.linear import KalmanFilter
-from .common import figure_style
+from .common import figure_style, save_reproduced, with_format
 
 __all__ = [
     "OUTPUTS",
@@ -316,7 +316,8 @@ def _figure_sec7(plt: Any, results: dict[str, dict[str, np.ndarray]]) -> Any:
 
 
 @figure_style()
-def run(outdir: Path, runs: int = 1000, seed: int = 0, progress: bool = True) -> list[Path]:
+def run(outdir: Path, runs: int = 1000, seed: int = 0, progress: bool = True,
+        fmt: str = "png") -> list[Path]:
     """Run the Section 4.3.1, 4.3.2 and 7 simulations and write tables and plots.
 
     Parameters
@@ -347,7 +348,7 @@ def run(outdir: Path, runs: int = 1000, seed: int = 0, progress: bool = True) ->
     from tqdm import tqdm
 
     outdir = Path(outdir)
-    check_output_set(outdir, OUTPUTS)  # a read-only file refuses the run before its work
+    check_output_set(outdir, with_format(OUTPUTS, fmt))  # a read-only file refuses the run before its work
     outdir.mkdir(parents=True, exist_ok=True)
     cases: list[tuple[str, Any]] = (
         [("4.3.1", c) for c in SEC431_CASES] + [("4.3.2", c) for c in SEC432_CASES] + [("7", c) for c in SEC7_CASES]
@@ -374,7 +375,7 @@ def run(outdir: Path, runs: int = 1000, seed: int = 0, progress: bool = True) ->
             title = {"4.3.1": "Section 4.3.1: |x_k|, scalar random walk",
                      "4.3.2": "Section 4.3.2: |x1_k - x2_k|, two points on a line"}[section]
             fig = _figure_abs(plt, f"{title} ({runs} runs)", section_cases, results[section])
-            written.append(save_figure(fig, outdir / f"mmse_{tag}.png", dpi=110))
+            written.append(save_reproduced(fig, outdir / f"mmse_{tag}.png", fmt))
             plt.close(fig)
             bar.update()
 
@@ -390,7 +391,7 @@ def run(outdir: Path, runs: int = 1000, seed: int = 0, progress: bool = True) ->
                     summary.append(["7", c.name, q, lo, hi, float(d[f"{q}_composite"][lo - 1:hi].mean()),
                                     float(d[f"{q}_simple"][lo - 1:hi].mean()), c.params])
         fig = _figure_sec7(plt, results["7"])
-        written.append(save_figure(fig, outdir / "mmse_sec7.png", dpi=110))
+        written.append(save_reproduced(fig, outdir / "mmse_sec7.png", fmt))
         plt.close(fig)
         bar.update()
 

@@ -43,12 +43,12 @@ import numpy as np
 from ..errors import ArgumentError
 from ..estimation import nlt as estimation
 from ..core.gaussian import Gaussian
-from ..io import check_output_set, save_figure, write_csv
+from ..io import check_output_set, write_csv
 from ..core.model import Model
 from ..core.problems import radar_h, radar_hinv
 from ..compile import compiled
 from ..transforms import TT1, UT
-from .common import figure_style
+from .common import figure_style, save_reproduced, with_format
 
 __all__ = ["OUTPUTS", "run", "SENSORS", "RANGE_VAR", "BEARING_VAR", "PRIOR", "hinv_model", "h_model", "measurement"]
 
@@ -116,7 +116,8 @@ def _figure(ncols: int = 1):
 
 
 @figure_style()
-def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = True) -> list[Path]:
+def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = True,
+        fmt: str = "png") -> list[Path]:
     """Reproduce the lecture's radar example: Monte Carlo, direct UT, indirect TT1.
 
     Parameters
@@ -143,7 +144,7 @@ def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = Tru
     from tqdm import tqdm
 
     outdir = Path(outdir)
-    check_output_set(outdir, OUTPUTS)  # a read-only file refuses the run before its work
+    check_output_set(outdir, with_format(OUTPUTS, fmt))  # a read-only file refuses the run before its work
     outdir.mkdir(parents=True, exist_ok=True)
     ys = [measurement(0), measurement(1)]
     hinvs = [hinv_model(p) for p in SENSORS]
@@ -165,7 +166,7 @@ def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = Tru
             ax.plot(X[:, 0], X[:, 1], ".", color=c, markersize=1, alpha=0.3)
         ax.set(title=f"Monte Carlo samples of x = h⁻¹(y), {samples:,} per sensor", xlabel="position x₁ (length unit of r)",
                ylabel="position x₂ (length unit of r)", aspect="equal")
-        written.append(save_figure(fig, outdir / "radar_mc.png", dpi=110))
+        written.append(save_reproduced(fig, outdir / "radar_mc.png", fmt))
         bar.update()
 
         # Direct approach with UT (ut1), as SigSys uteval(y, hinv, 'ut1', [], p).
@@ -193,7 +194,7 @@ def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = Tru
         ax_x.set(title=f"h⁻¹ of the sigma points, N(x̂ₖ, Pₖ), fused (red); {ELLIPSE_LEVEL:.0%} ellipses",
                  xlabel="position x₁ (length unit of r)", ylabel="position x₂ (length unit of r)",
                  aspect="equal")
-        written.append(save_figure(fig, outdir / "radar_direct_ut.png", dpi=110))
+        written.append(save_reproduced(fig, outdir / "radar_direct_ut.png", fmt))
         bar.update()
 
         # Indirect approach with TT1 and exact measurement statistics: e_k = N(0, Cov y_k),
@@ -220,7 +221,7 @@ def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = Tru
         ax.legend(loc="lower center")
         ax.set(title=f"Indirect approach with TT1: {ELLIPSE_LEVEL:.0%} confidence ellipses",
                xlabel="position x₁ (length unit of r)", ylabel="position x₂ (length unit of r)", aspect="equal")
-        written.append(save_figure(fig, outdir / "radar_indirect_tt1.png", dpi=110))
+        written.append(save_reproduced(fig, outdir / "radar_indirect_tt1.png", fmt))
         bar.update()
 
         header = ["name", "method", "x1", "x2", "P11", "P12", "P22"]

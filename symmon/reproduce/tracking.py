@@ -47,11 +47,11 @@ from ..errors import SymmonError
 from ..files.filterfile import filter_transform
 from ..filters.nonlinear import NonlinearKalmanFilter, NonlinearKalmanResult
 from ..core.gaussian import Gaussian
-from ..io import check_output_set, save_figure, write_csv
+from ..io import check_output_set, write_csv
 from ..core.model import Model
 from ..measures.mon import nonlinearity
 from ..compile import compiled
-from .common import figure_style, progress_bar
+from .common import figure_style, progress_bar, save_reproduced, with_format
 
 __all__ = ["OUTPUTS", "run", "Scenario", "scenarios", "FILTER_NAMES", "MON_RUNS", "TOL"]
 
@@ -243,7 +243,7 @@ def _events(sc: Scenario, ekf: NonlinearKalmanResult, xs: np.ndarray, adaptive: 
     return rows
 
 
-def _plot(sc: Scenario, st: dict[str, Any], runs: int, path: Path) -> Path:
+def _plot(sc: Scenario, st: dict[str, Any], runs: int, path: Path, fmt: str = "png") -> Path:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -287,7 +287,7 @@ def _plot(sc: Scenario, st: dict[str, Any], runs: int, path: Path) -> Path:
     axes[-1].set_xlabel("step k")
     axes[0].set_title(f"{sc.title}\n{runs} Monte Carlo runs")
     fig.tight_layout()
-    return save_figure(fig, path)
+    return save_reproduced(fig, path, fmt)
 
 
 def _rms(rmse: np.ndarray | None) -> float | None:
@@ -296,7 +296,8 @@ def _rms(rmse: np.ndarray | None) -> float | None:
 
 
 @figure_style()
-def run(outdir: Path, runs: int = 500, seed: int = 0, progress: bool = True) -> list[Path]:
+def run(outdir: Path, runs: int = 500, seed: int = 0, progress: bool = True,
+        fmt: str = "png") -> list[Path]:
     """Run both scenarios and write the figures and tables (module notes).
 
     Parameters
@@ -318,13 +319,13 @@ def run(outdir: Path, runs: int = 500, seed: int = 0, progress: bool = True) -> 
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SymmonError(f"seed must be a non-negative integer, got {seed!r}")
     outdir = Path(outdir)
-    check_output_set(outdir, OUTPUTS)  # a read-only file refuses the run before its work
+    check_output_set(outdir, with_format(OUTPUTS, fmt))  # a read-only file refuses the run before its work
     outdir.mkdir(parents=True, exist_ok=True)
     seeds = np.random.SeedSequence(seed).spawn(2)
     summary, steps, figures, events = [], [], [], []
     for sc, ss in zip(scenarios(), seeds):
         st = study(sc, runs, int(ss.generate_state(1)[0]), progress)
-        figures.append(_plot(sc, st, runs, outdir / f"tracking_{sc.name}.png"))
+        figures.append(_plot(sc, st, runs, outdir / f"tracking_{sc.name}.png", fmt))
         events += st.get("events", [])
         for name, d in st["filters"].items():
             a, b, res = d["anees"], d["anis"], d["result"]

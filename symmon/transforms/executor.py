@@ -11,6 +11,7 @@ are the Dask side.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import contextvars
 import os
 import queue
@@ -21,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Iterator, Sequence, TypeVar
 
 import numpy as np
+import threadpoolctl
 from threadpoolctl import threadpool_limits
 
 from ..errors import SymmonError
@@ -69,15 +71,53 @@ def run_groups(fn: Callable[[J, threading.Event], R], jobs: Sequence[J], workers
             pool.shutdown(wait=True, cancel_futures=True)
 
 
-def one_blas_thread() -> threadpool_limits:
+#: The process's one BLAS limit of :func:`one_blas_thread`: the users inside it, and the
+#: threadpoolctl limiter that the first one set and the last one restores.
+_BLAS_LOCK = threading.Lock()
+_BLAS_STATE: dict[str, Any] = {"users": 0, "limiter": None}
+
+
+def _release_openblas_control() -> None:
+    """Let any thread set OpenBLAS's limit next.  threadpoolctl ≥ 3.6 lets only the thread
+    that last set a process-wide (pthreads) OpenBLAS limit change it again, and silently
+    ignores the others; the limit here is set by the first user's thread and restored by
+    the last one's, perhaps another, so neither keeps that control (the calls are
+    serialised by ``_BLAS_LOCK``).  Older threadpoolctl has no such control."""
+    clear = getattr(getattr(threadpoolctl, "OpenBLASController", None), "clear_controlling_thread", None)
+    if clear is not None:
+        clear(force=True)
+
+
+@contextlib.contextmanager
+def one_blas_thread() -> Iterator[None]:
     """While symmon's own workers run, BLAS (OpenBLAS, MKL, ...) uses one thread each.
 
     The workers already take the cores: a multithreaded BLAS beside them oversubscribes
     them (a 20-input Monte Carlo on 2 cores took 1.6× the wall time with OpenBLAS's own
     threads, docs/compile.md).  The limit is the library's, so it holds for the whole
-    process while the pool runs, and the previous setting comes back after it.
+    process; it is therefore reference-counted: the first of overlapping users (two
+    Monte Carlo calls from two Python threads) sets it, the last one restores what was
+    there before the first.  Each user restoring "its" previous setting, as nested
+    ``threadpool_limits`` contexts do, left BLAS at one thread for good when the calls
+    ended in the order they began: the second one saw the first one's limit as the
+    setting to restore.
     """
-    return threadpool_limits(limits=1, user_api="blas")
+    with _BLAS_LOCK:
+        if _BLAS_STATE["users"] == 0:
+            _release_openblas_control()
+            _BLAS_STATE["limiter"] = threadpool_limits(limits=1, user_api="blas")
+            _release_openblas_control()
+        _BLAS_STATE["users"] += 1
+    try:
+        yield
+    finally:
+        with _BLAS_LOCK:
+            _BLAS_STATE["users"] -= 1
+            if _BLAS_STATE["users"] == 0:
+                limiter, _BLAS_STATE["limiter"] = _BLAS_STATE["limiter"], None
+                _release_openblas_control()
+                limiter.restore_original_limits()
+                _release_openblas_control()
 
 
 def _is_int(v: Any) -> bool:

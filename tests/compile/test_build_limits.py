@@ -60,3 +60,33 @@ def test_a_build_past_its_limits_leaves_the_vm_with_a_warning(monkeypatch, tmp_p
     assert lib.get() is None
     assert any("1 MiB of memory" in str(w.message) for w in caught)
     assert not list(tmp_path.glob("limited_*.so"))
+
+
+def test_a_lower_ulimit_than_the_builds_is_taken(tmp_path):
+    """Under ``ulimit -v`` below the build's memory limit (and ``ulimit -t`` below its CPU
+    limit) the compiler runs under the lower limits (issue 38, item 14): asking for more
+    than the hard limit failed in the child, before the compiler, with a raw traceback, and
+    every C build fell back to the VM."""
+    import ast
+    import resource
+    import subprocess
+
+    own = 3 << 30  # below the build's 8 GiB, above what this Python needs
+
+    def lower() -> None:  # the ulimit -v and -t of the process that starts the build
+        resource.setrlimit(resource.RLIMIT_AS, (own, own))
+        resource.setrlimit(resource.RLIMIT_CPU, (100, 100))
+
+    build = tmp_path / "build"
+    build.mkdir()
+    (build / "f.c").write_text("")
+    report = [sys.executable, "-I", "-c",
+              "import resource; open('f.so', 'w').write(repr(resource.getrlimit(resource.RLIMIT_AS)"
+              " + resource.getrlimit(resource.RLIMIT_CPU)))"]
+    res = subprocess.run([sys.executable, "-I", ccbuild.__file__, str(build), str(tmp_path / "x.so"),
+                          "600", str(8 << 30), *report], preexec_fn=lower, capture_output=True, text=True,
+                         timeout=120)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "Traceback" not in res.stdout + res.stderr
+    # The compiler's limits: this process's memory, and its CPU time less the 5 s to SIGKILL.
+    assert ast.literal_eval((tmp_path / "x.so").read_text()) == (own, own, 95, 100)

@@ -266,6 +266,59 @@ def test_blas_runs_one_thread_inside_symmons_workers():
         assert blas_threads() == before
 
 
+@pytest.mark.parametrize("outside", ["default", "user limit"])
+def test_overlapping_runs_from_two_threads_restore_the_blas_setting(outside):
+    """Two Monte Carlo runs from two Python threads, the first to start the first to end
+    (issue 38, item 12): BLAS is at one thread while either runs and at its own setting
+    after both; restoring per run left it at one thread for good (and the second run at
+    the machine's threads once the first had ended).  Under a user's own limit in the
+    main thread, threadpoolctl ≥ 3.6 ignored the runs' limits (only the thread that set
+    the last limit may change it)."""
+    import contextlib
+    import threading
+
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from symmon.transforms.executor import run_groups
+
+    def blas_threads() -> list[int]:
+        return [d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"]
+
+    a_inside, b_inside, a_done = threading.Event(), threading.Event(), threading.Event()
+    seen: dict[str, list] = {}
+
+    def run_a() -> None:
+        def job(_, stop):
+            a_inside.set()
+            assert b_inside.wait(30)
+            return blas_threads()
+        seen["a"] = run_groups(job, [0], workers=1)
+
+    def run_b() -> None:
+        def job(_, stop):
+            b_inside.set()
+            assert a_done.wait(30)
+            return blas_threads()
+        seen["b"] = run_groups(job, [0], workers=1)
+
+    if outside == "default" and max(blas_threads(), default=1) < 2:
+        pytest.skip("BLAS runs one thread here already: nothing to restore")
+    with (threadpool_limits(limits=2, user_api="blas") if outside == "user limit" else contextlib.nullcontext()):
+        before = blas_threads()
+        ta, tb = threading.Thread(target=run_a), threading.Thread(target=run_b)
+        ta.start()
+        assert a_inside.wait(30)
+        tb.start()
+        ta.join(30)
+        seen["between"] = blas_threads()  # a has ended, b still runs
+        a_done.set()
+        tb.join(30)
+        after = blas_threads()
+    ones = [1] * len(before)
+    assert seen["a"] == [ones] and seen["b"] == [ones] and seen["between"] == ones
+    assert after == before
+
+
 @pytest.mark.parametrize("where", ["threads", "synchronous", "client"])
 def test_dask_runs_report_progress_per_finished_group(where, capsys, monkeypatch, request):
     """Off a terminal, a line per finished group (the interval set to 0), as the thread pool."""
