@@ -202,8 +202,7 @@ def range_parameterised_prior(x0: Gaussian, components: int = RP_COMPONENTS, r_m
         means[j] = np.r_[r[j] * u, m[2:]]
         covs[j] = P.copy()
         covs[j][:2, :2] = B @ np.diag([(width[j] / math.sqrt(12)) ** 2, (r[j] * sd_theta) ** 2]) @ B.T
-        covs[j][:2, 2:] = covs[j][2:, :2].T * 0.0
-        covs[j][2:, :2] = 0.0
+        covs[j][:2, 2:] = covs[j][2:, :2] = 0.0  # position and velocity independent, as in the polar prior
     return GaussianMixture(w / w.sum(), means, covs)
 
 
