@@ -95,6 +95,8 @@ RUNS, PARTICLES = 200, 2000
 SPLIT, MAX_COMPONENTS = 0.1, 16
 #: Components of the range-parameterised prior.
 RP_COMPONENTS = 6
+#: The top of the figure's ANEES axis.
+ANEES_AXIS_TOP = 1e3
 #: Confidence of the χ² intervals.
 CONFIDENCE = 0.95
 #: The columns of ``bot_steps.csv``.
@@ -341,7 +343,7 @@ def caption(st: dict[str, Any]) -> str:
     return (f"Bearings-only tracking after Arulampalam & Ristic (2000): {st['runs']} Monte Carlo runs, seed "
             f"{st['seed']}, particle filter with {st['particles']} particles. (a) observer and target tracks "
             "(nominal target; triangle: the observer at scan 0); (b) position RMSE; (c) ANEES with its two-sided 95 % chi-square interval (grey); "
-            "(d) unitless MoN (W^full, TT2) of the bearing at each filter's prior, median over the runs.")
+            "values above 1000 are off the axis (the table has them); (d) unitless MoN (W^full, TT2) of the bearing at each filter's prior, median over the runs.")
 
 
 def _plot(st: dict[str, Any], path: Path) -> Path:
@@ -377,7 +379,15 @@ def _plot(st: dict[str, Any], path: Path) -> Path:
     ax_a.fill_between(k, lo, hi, color="0.8", zorder=0, label="95 % χ² interval")
     ax_a.axhline(4.0, color="0.5", lw=0.8)
     ax_m.axhline(SPLIT, color=OKABE_ITO["bluish green"], lw=0.8, ls=":")
-    ax_m.text(1, SPLIT * 1.1, "split level", fontsize=7, color=OKABE_ITO["bluish green"])
+    ax_m.text(sc.steps, SPLIT * 1.04, "split level", fontsize=7, color=OKABE_ITO["bluish green"], ha="right",
+              va="bottom")
+    # The axis shows the band and the filters near it; larger values are drawn off the axis.
+    top = ANEES_AXIS_TOP
+    ax_a.set_ylim(1.0, top)
+    off = [LABELS[n] for n, d in st["filters"].items() if np.max(d["anees"].value) > top]
+    if off:
+        ax_a.text(0.02, 0.97, f"beyond {top:.0e} (off the axis): " + ", ".join(off), transform=ax_a.transAxes,
+                  fontsize=7, va="top")
     for ax in (ax_r, ax_a, ax_m):
         ax.axvspan(13, 17, color=OKABE_ITO["sky blue"], alpha=0.15, lw=0)
         ax.set_xlabel("scan k (T = 1 min)")
