@@ -315,10 +315,12 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     for name in which:
         mod = importlib.import_module(f"symmon.reproduce.{name}")
         kwargs: dict[str, Any] = {"seed": args.seed, "progress": not args.no_progress, "fmt": args.format}
-        if args.samples is not None and name != "tracking":
+        if args.samples is not None and name not in ("tracking", "bot"):
             kwargs["runs" if name == "mmse" else "samples"] = args.samples
-        if args.runs is not None and name in ("mmse", "tracking"):
+        if args.runs is not None and name in ("mmse", "tracking", "bot"):
             kwargs["runs"] = args.runs
+        if args.particles is not None and name == "bot":
+            kwargs["particles"] = args.particles
         for p in mod.run(out, **kwargs):
             print(f"wrote {p}")
     return 0

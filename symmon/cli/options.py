@@ -12,13 +12,13 @@ from ..transforms.executor import Executor, connect_dask
 from ..transforms.registry import make, names
 
 __all__ = ["transform_from_name", "transform_names", "executor_of", "WEIGHT_NAMES", "FIGURES", "SH24", "DASK_LOCAL",
-           "DASK_SCHEMES", "MAX_SAMPLES", "MAX_SEED", "MAX_ORDER", "MAX_GROUPS", "MAX_RUNS", "MAX_WORKERS",
+           "DASK_SCHEMES", "MAX_SAMPLES", "MAX_SEED", "MAX_ORDER", "MAX_GROUPS", "MAX_RUNS", "MAX_PARTICLES", "MAX_WORKERS",
            "MAX_SWEEP_POINTS", "MAX_VERIFY_POINTS", "REPRODUCE_MIN_SAMPLES", "DASK_CONNECT_TIMEOUT"]
 
 #: The paper whose equation numbers the help cites.
 SH24 = "Straka & Havlík 2024"
 WEIGHT_NAMES = ("full", "diag", "liu-li", "liu-li-raw")
-FIGURES = ("fig1", "fig2", "radar", "mmse", "tracking")
+FIGURES = ("fig1", "fig2", "radar", "mmse", "tracking", "bot")
 
 def transform_from_name(name: str, samples: int = 10**6, seed: int = 0, order: int = 5, groups: int = 16):
     """A transform from its registered short name (:mod:`symmon.transforms.registry`).
@@ -69,6 +69,8 @@ MAX_ORDER = 100
 MAX_GROUPS = 1024
 #: Most Monte Carlo runs of a filter study (each run keeps its whole trajectory).
 MAX_RUNS = 10**5
+#: Most particles per run of ``reproduce bot --particles`` (runs × particles × states are held at once).
+MAX_PARTICLES = 10**6
 MAX_WORKERS = 1024
 #: Points of ``--alpha-sweep``: each is a full MoN computation.
 MAX_SWEEP_POINTS = 1000

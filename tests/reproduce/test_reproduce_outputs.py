@@ -18,7 +18,8 @@ from symmon.cli.options import FIGURES
 from symmon.errors import OutputPathError
 
 #: The first expensive step of each module's run: replaced by one that fails the test.
-HEAVY = {"fig1": "curves", "fig2": "curves", "radar": "measurement", "mmse": "_sec431", "tracking": "study"}
+HEAVY = {"fig1": "curves", "fig2": "curves", "radar": "measurement", "mmse": "_sec431", "tracking": "study",
+         "bot": "study"}
 
 
 @pytest.fixture
@@ -61,10 +62,10 @@ def test_run_itself_checks_its_files_first(tmp_path, no_work, figure):
 
 
 def test_reproduce_all_checks_every_figure_before_the_first(capsys, tmp_path, no_work):
-    _lock(tmp_path, "tracking_events.csv")  # the last file of the last figure
+    _lock(tmp_path, "bot_steps.csv")  # the last file of the last figure
     assert cli.main(["reproduce", "all", "--out", str(tmp_path), "--no-progress"]) == 1
-    assert "tracking_events.csv" in capsys.readouterr().err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["tracking_events.csv"]
+    assert "bot_steps.csv" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bot_steps.csv"]
 
 
 def test_an_output_file_that_is_a_directory_is_refused(capsys, tmp_path, no_work):
