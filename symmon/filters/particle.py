@@ -70,7 +70,7 @@ from .nonlinear import NonlinearKalmanFilter
 from .inputs import check_bank_size, check_keep, check_truth, kept_numbers, param_values, real_measurements
 from .results import KalmanResult, _nees
 from .simulation import check_count, check_prior
-from .statespace import StateSpace
+from .statespace import StateSpace, rows_times
 
 __all__ = ["ParticleFilter", "ParticleResult", "resample", "PROPOSALS", "RESAMPLERS", "DEGENERATE_ESS"]
 
@@ -327,7 +327,7 @@ class ParticleFilter:
             v = nu[runs][..., m]
             if S_all.ndim == 2:  # one S for every particle: one factor
                 L = self._whitening(S_all[np.ix_(m, m)], "the measurement covariance")
-                z = np.linalg.solve(L, v.reshape(-1, m.size).T).T.reshape(v.shape)
+                z = np.einsum("ij,rnj->rni", np.linalg.inv(L), v)  # no BLAS (statespace.rows_times)
                 log_det = 2 * np.log(np.diag(L)).sum()
             else:
                 S = S_all[runs][..., m[:, None], m[None, :]]
@@ -341,19 +341,21 @@ class ParticleFilter:
             ll[runs] = -0.5 * ((z * z).sum(axis=-1) + log_det + m.size * _LOG_2PI)
         return ll, Hx, S_all
 
-    def _moments(self, X: np.ndarray, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _moments(self, X: np.ndarray, W: np.ndarray, cov: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """The weighted mean (circular for angle states) and covariance (deviations
-        wrapped) of particles X (R, N, n) with normalised weights W (R, N)."""
-        mean = np.einsum("rn,rni->ri", W, X)
+        wrapped; None without ``cov``) of particles X (R, N, n) with normalised weights W (R, N)."""
+        mean = np.matmul(W[:, None, :], X)[:, 0]
         angles = list(self.space.angle_states)
         if angles:
             A = X[..., angles]
             mean[:, angles] = np.arctan2(np.einsum("rn,rni->ri", W, np.sin(A)), np.einsum("rn,rni->ri", W, np.cos(A)))
+        if not cov:
+            return mean, None
         D = X - mean[:, None, :]
         if angles:
             D[..., angles] = wrap_angle(D[..., angles])
-        cov = np.matmul((D * W[..., None]).transpose(0, 2, 1), D)
-        return mean, 0.5 * (cov + cov.transpose(0, 2, 1))
+        C = np.einsum("rni,rnj->rij", D * W[..., None], D)
+        return mean, 0.5 * (C + C.transpose(0, 2, 1))
 
     def _measurement_moments(self, Hx: np.ndarray, W: np.ndarray, Y: np.ndarray,
                              S_noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -370,7 +372,7 @@ class ParticleFilter:
         if ang:
             D[..., ang] = wrap_angle(D[..., ang])
         noise = S_noise if S_noise.ndim == 2 else np.einsum("rn,rnij->rij", W, S_noise)
-        S = np.matmul((D * W[..., None]).transpose(0, 2, 1), D) + noise
+        S = np.einsum("rni,rnj->rij", D * W[..., None], D) + noise
         nu = Y - mean
         if ang:
             nu[:, ang] = wrap_angle(nu[:, ang])
@@ -488,7 +490,7 @@ class ParticleFilter:
             W = np.exp(logW)
             ess[:, k] = 1.0 / (W * W).sum(axis=1)
             if want("x", "P") or truth is not None:
-                m, C = self._moments(X, W)
+                m, C = self._moments(X, W, cov="P" in out or truth is not None)
                 if "x" in out:
                     out["x"][:, k] = m
                 if "P" in out:
@@ -496,8 +498,8 @@ class ParticleFilter:
                 if truth is not None:
                     nees[:, k] = _nees(m[:, None], C[:, None], truth[:, k:k + 1], ss.angle_states)[:, 0]
             if want("x_pred", "P_pred"):
-                m, C = self._moments(prior_x, Wprev)
-                if self._kf is not None:
+                m, C = self._moments(prior_x, Wprev, cov="P_pred" in out)
+                if C is not None and self._kf is not None:
                     C = C + self.Q  # prior_x holds f(x_{k−1}) for a proposal
                 if "x_pred" in out:
                     out["x_pred"][:, k] = m
@@ -577,7 +579,7 @@ class ParticleFilter:
         if ss.angle_states:
             d[:, list(ss.angle_states)] = wrap_angle(d[:, list(ss.angle_states)])
         Lq = np.linalg.cholesky(self.Q)
-        zq = np.linalg.solve(Lq, d.T).T
+        zq = rows_times(d, np.linalg.inv(Lq))
         log_f = -0.5 * (zq * zq).sum(axis=1) - np.log(np.diag(Lq)).sum()  # the 2π terms cancel with log_q's
         Xn = Xn.reshape(Rr, N, n)
         ll, _, _ = self._loglik(Xn, y, p)
