@@ -563,7 +563,7 @@ class ParticleFilter:
         if self.proposal != "bootstrap" or (h.n_v and self._noise_map is None):
             return None
         ss = self.space
-        return bootstrap_kernel(self.f_model, h, ss.params, ss.Lq.shape[1], ss.angle_states, ss.angle_outputs)
+        return bootstrap_kernel(self.f_model, h, ss.params, ss.Lq, ss.angle_states, ss.angle_outputs)
 
     def _not_finite(self, k: int, r: int, bank) -> NonFiniteError:
         where = f"step {k}" if bank is None else f"run {r}, step {k}"

@@ -122,28 +122,34 @@ class BootstrapKernel:
     ----------
     f_model, h_model : Model
     params : the filter's parameter names (f's, then h's that f does not have)
-    n_q : the number of process noise draws per particle (the rows of L_Q)
+    Lq_pattern : bool (d, n_q), the structural nonzeros of L_Q (d: f's noise symbols, or n),
+        n_q the draws per particle
     angle_states, angle_outputs : wrapped components
 
     Notes
     -----
     The parameters of a call (one run) are packed by :meth:`pack`:
-    p = [θ (the filter's parameters), vec(L_Q) (column-major), y (missing: 0), mask (1: measured),
+    p = [θ (the filter's parameters), the nonzeros of L_Q (column-major), y (missing: 0), mask (1: measured),
     vec(A) (column-major), c], with A the inverse Cholesky factor of the measured block of
     Γ R Γᵀ embedded with zeros and c = −(log det + m log 2π)/2 for the m measured components.
     """
 
-    def __init__(self, f_model: Model, h_model: Model, params: Sequence, n_q: int,
+    def __init__(self, f_model: Model, h_model: Model, params: Sequence, Lq_pattern: np.ndarray,
                  angle_states: Sequence[int], angle_outputs: Sequence[int]) -> None:
         cf, ch = compiled_with_params(f_model), compiled_with_params(h_model)
         n, ny, npar = f_model.n_u, h_model.n_y, len(params)
-        self.n, self.n_y, self.n_q, self.n_par = n, ny, n_q, npar
-        d = f_model.n_v or n  # the noise enters f's noise symbols, or adds to f
+        self.n, self.n_y, self.n_par = n, ny, npar
+        # L_Q enters by its structural nonzeros only (a block-diagonal Q of 5 targets: 40 of
+        # 400 products per particle), as parameters, so one C serves every Q of that pattern.
+        self.Lq_pattern = pattern = np.asarray(Lq_pattern, dtype=bool)
+        d, n_q = pattern.shape  # d: f's noise symbols, or n for additive noise
+        self.n_q, nnz = n_q, int(pattern.sum())
         x, z = ca.SX.sym("x", n), ca.SX.sym("z", n_q)
-        p = ca.SX.sym("p", npar + d * n_q + 2 * ny + ny * ny + 1)
+        p = ca.SX.sym("p", npar + nnz + 2 * ny + ny * ny + 1)
         theta = p[:npar]
-        Lq = ca.reshape(p[npar:npar + d * n_q], d, n_q)
-        o = npar + d * n_q
+        col, row = np.nonzero(pattern.T)  # the nonzeros in column-major order, as CasADi stores them
+        Lq = ca.SX(ca.Sparsity.triplet(d, n_q, row.tolist(), col.tolist()), p[npar:npar + nnz])
+        o = npar + nnz
         y, mask = p[o:o + ny], p[o + ny:o + 2 * ny]
         o += 2 * ny
         A = ca.reshape(p[o:o + ny * ny], ny, ny)
@@ -188,7 +194,7 @@ class BootstrapKernel:
             return prop, sums, res
 
         self._native: NativeLibrary = cf.native_library(code, name, load, stacklevel=4)
-        self._Lq_size = d * n_q
+        self._Lq_size = nnz
 
     def loops(self):
         """The three ctypes functions (prop, sums, resample), or None while the C is not there
@@ -201,7 +207,7 @@ class BootstrapKernel:
         o = self.n_par
         if o:
             p[:o] = theta
-        p[o:o + Lq.size] = Lq.ravel(order="F")
+        p[o:o + self._Lq_size] = Lq.T[self.Lq_pattern.T]
         o += self._Lq_size
         measured = ~np.isnan(y)
         p[o:o + self.n_y] = np.where(measured, y, 0.0)
@@ -220,14 +226,17 @@ _kernels: dict[tuple, BootstrapKernel] = {}
 _lock = threading.Lock()
 
 
-def bootstrap_kernel(f_model: Model, h_model: Model, params: Sequence, n_q: int,
+def bootstrap_kernel(f_model: Model, h_model: Model, params: Sequence, Lq: np.ndarray,
                      angle_states: Sequence[int], angle_outputs: Sequence[int]) -> BootstrapKernel:
-    """The kernel of these models, built once per process (by the models' structural keys)."""
-    key = (f_model.key, h_model.key, tuple(str(s) for s in params), n_q, tuple(angle_states), tuple(angle_outputs))
+    """The kernel of these models for the nonzero pattern of ``Lq``, built once per process
+    (by the models' structural keys and the pattern)."""
+    pattern = np.asarray(Lq) != 0
+    key = (f_model.key, h_model.key, tuple(str(s) for s in params), pattern.shape, pattern.tobytes(),
+           tuple(angle_states), tuple(angle_outputs))
     with _lock:
         k = _kernels.get(key)
         if k is None:
-            k = _kernels[key] = BootstrapKernel(f_model, h_model, params, n_q, angle_states, angle_outputs)
+            k = _kernels[key] = BootstrapKernel(f_model, h_model, params, pattern, angle_states, angle_outputs)
         return k
 
 
