@@ -24,10 +24,15 @@ Each of N particles x^i carries a log-weight; a step
    (systematic, stratified or multinomial; Douc, Cappé & Moulines 2005) when the ESS falls
    to ``ess_threshold`` · N.
 
-f and h run as compiled C over all particles of all runs of a step at once (threads over
-row spans, :meth:`~symmon.compile.CompiledModel.eval_g`); the EKF/UKF proposal runs the
-filters' compiled predict + update step (:mod:`symmon.filters.step`) over the particles as
-a bank.  A missing measurement (NaN) leaves its component out of the likelihood (a row of
+The bootstrap step runs as three compiled row loops over the particles
+(:mod:`symmon.filters.pf_kernel`: the transition and the log-likelihood in one, the
+exponentials, sums, mean and ESS in the next, the resampling walk with its gather in the
+last; threads over row spans), with the same draws as the NumPy loop of :meth:`filter`,
+which remains for a measurement noise map Γ(x) that depends on the state and while no C
+is available.  The EKF/UKF proposal runs the filters' compiled predict + update step
+(:mod:`symmon.filters.step`) over the particles as a bank, and f and h as compiled C over
+all particles of all runs of a step at once
+(:meth:`~symmon.compile.CompiledModel.eval_g`).  A missing measurement (NaN) leaves its component out of the likelihood (a row of
 NaN: the step only predicts).  Every run of a bank has its own random stream
 (``SeedSequence(seed).spawn(runs)``), so run r of a bank is the same whatever the other
 runs.
