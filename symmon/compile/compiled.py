@@ -36,7 +36,7 @@ from ..core.model import Model
 from ..errors import ArgumentTypeError, ModelError, ShapeError, UnsupportedFunctionError
 
 __all__ = ["to_casadi", "CompiledModel", "compile_model", "model_key", "compiled", "compiled_with_params", "cache_dir", "has_compiler", "build_shared_library",
-           "generated_c", "rows_c", "row_spans", "MIN_ROWS_PER_THREAD", "in_threads", "WorkArrays", "padded"]
+           "generated_c", "rows_c", "row_spans", "MIN_ROWS_PER_THREAD", "in_threads", "WorkArrays", "padded", "address"]
 
 log = logging.getLogger(__name__)
 

@@ -24,10 +24,15 @@ Each of N particles x^i carries a log-weight; a step
    (systematic, stratified or multinomial; Douc, Cappé & Moulines 2005) when the ESS falls
    to ``ess_threshold`` · N.
 
-f and h run as compiled C over all particles of all runs of a step at once (threads over
-row spans, :meth:`~symmon.compile.CompiledModel.eval_g`); the EKF/UKF proposal runs the
-filters' compiled predict + update step (:mod:`symmon.filters.step`) over the particles as
-a bank.  A missing measurement (NaN) leaves its component out of the likelihood (a row of
+The bootstrap step runs as three compiled row loops over the particles
+(:mod:`symmon.filters.pf_kernel`: the transition and the log-likelihood in one, the
+exponentials, sums, mean and ESS in the next, the resampling walk with its gather in the
+last; threads over row spans), with the same draws as the NumPy loop of :meth:`filter`,
+which remains for a measurement noise map Γ(x) that depends on the state and while no C
+is available.  The EKF/UKF proposal runs the filters' compiled predict + update step
+(:mod:`symmon.filters.step`) over the particles as a bank, and f and h as compiled C over
+all particles of all runs of a step at once
+(:meth:`~symmon.compile.CompiledModel.eval_g`).  A missing measurement (NaN) leaves its component out of the likelihood (a row of
 NaN: the step only predicts).  Every run of a bank has its own random stream
 (``SeedSequence(seed).spawn(runs)``), so run r of a bank is the same whatever the other
 runs.
@@ -60,6 +65,7 @@ import sympy as sp
 from numpy.typing import ArrayLike
 
 from ..compile import compiled_with_params
+from ..compile.compiled import in_threads, row_spans
 from ..core.angles import wrap_angle
 from ..core.gaussian import Gaussian
 from ..core.mixture import Empirical, GaussianMixture
@@ -70,7 +76,8 @@ from .nonlinear import NonlinearKalmanFilter
 from .inputs import check_bank_size, check_keep, check_truth, kept_numbers, param_values, real_measurements
 from .results import KalmanResult, _nees
 from .simulation import check_count, check_prior
-from .statespace import StateSpace
+from .pf_kernel import BootstrapKernel, bootstrap_kernel, whitening
+from .statespace import StateSpace, rows_times
 
 __all__ = ["ParticleFilter", "ParticleResult", "resample", "PROPOSALS", "RESAMPLERS", "DEGENERATE_ESS"]
 
@@ -112,12 +119,7 @@ def resample(weights: np.ndarray, method: str, rng: np.random.Generator | Iterab
     rngs = [rng] * R if isinstance(rng, np.random.Generator) else list(rng)
     if len(rngs) != R:
         raise ShapeError(f"resample needs one generator per row of weights ({R}), got {len(rngs)}")
-    if method == "systematic":
-        u = np.stack([g.random(1) for g in rngs]) + np.arange(N)
-    elif method == "stratified":
-        u = np.stack([g.random(N) for g in rngs]) + np.arange(N)
-    else:
-        u = np.sort(np.stack([g.random(N) for g in rngs]), axis=1) * N
+    u = np.stack([resampling_points(method, g, N) for g in rngs])
     cum = np.cumsum(W, axis=1) * N
     cum[:, -1] = N  # rounding must not leave the last point beyond the sum
     # One search over the runs side by side: row r's points and sums shifted by r·N.
@@ -125,6 +127,17 @@ def resample(weights: np.ndarray, method: str, rng: np.random.Generator | Iterab
     idx = np.searchsorted((cum + shift).ravel(), (u + shift).ravel(), side="right").reshape(R, N) - shift
     idx = np.minimum(idx, N - 1)
     return idx.reshape(np.shape(weights))
+
+
+def resampling_points(method: str, rng: np.random.Generator, N: int) -> np.ndarray:
+    """The N ascending points in [0, N) of one resampling by ``method`` (:func:`resample`),
+    drawn from ``rng``: u + i (systematic), u_i + i (stratified), N · sorted uniforms
+    (multinomial)."""
+    if method == "systematic":
+        return rng.random(1) + np.arange(N)
+    if method == "stratified":
+        return rng.random(N) + np.arange(N)
+    return np.sort(rng.random(N)) * N
 
 
 @dataclass(frozen=True, eq=False)
@@ -327,7 +340,7 @@ class ParticleFilter:
             v = nu[runs][..., m]
             if S_all.ndim == 2:  # one S for every particle: one factor
                 L = self._whitening(S_all[np.ix_(m, m)], "the measurement covariance")
-                z = np.linalg.solve(L, v.reshape(-1, m.size).T).T.reshape(v.shape)
+                z = np.einsum("ij,rnj->rni", np.linalg.inv(L), v)  # no BLAS (statespace.rows_times)
                 log_det = 2 * np.log(np.diag(L)).sum()
             else:
                 S = S_all[runs][..., m[:, None], m[None, :]]
@@ -341,19 +354,21 @@ class ParticleFilter:
             ll[runs] = -0.5 * ((z * z).sum(axis=-1) + log_det + m.size * _LOG_2PI)
         return ll, Hx, S_all
 
-    def _moments(self, X: np.ndarray, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _moments(self, X: np.ndarray, W: np.ndarray, cov: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """The weighted mean (circular for angle states) and covariance (deviations
-        wrapped) of particles X (R, N, n) with normalised weights W (R, N)."""
-        mean = np.einsum("rn,rni->ri", W, X)
+        wrapped; None without ``cov``) of particles X (R, N, n) with normalised weights W (R, N)."""
+        mean = np.matmul(W[:, None, :], X)[:, 0]
         angles = list(self.space.angle_states)
         if angles:
             A = X[..., angles]
             mean[:, angles] = np.arctan2(np.einsum("rn,rni->ri", W, np.sin(A)), np.einsum("rn,rni->ri", W, np.cos(A)))
+        if not cov:
+            return mean, None
         D = X - mean[:, None, :]
         if angles:
             D[..., angles] = wrap_angle(D[..., angles])
-        cov = np.matmul((D * W[..., None]).transpose(0, 2, 1), D)
-        return mean, 0.5 * (cov + cov.transpose(0, 2, 1))
+        C = np.einsum("rni,rnj->rij", D * W[..., None], D)
+        return mean, 0.5 * (C + C.transpose(0, 2, 1))
 
     def _measurement_moments(self, Hx: np.ndarray, W: np.ndarray, Y: np.ndarray,
                              S_noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -370,7 +385,7 @@ class ParticleFilter:
         if ang:
             D[..., ang] = wrap_angle(D[..., ang])
         noise = S_noise if S_noise.ndim == 2 else np.einsum("rn,rnij->rij", W, S_noise)
-        S = np.matmul((D * W[..., None]).transpose(0, 2, 1), D) + noise
+        S = np.einsum("rni,rnj->rij", D * W[..., None], D) + noise
         nu = Y - mean
         if ang:
             nu[:, ang] = wrap_angle(nu[:, ang])
@@ -460,8 +475,11 @@ class ParticleFilter:
         loglik, ess, resampled = np.empty((Rr, K)), np.empty((Rr, K)), np.zeros((Rr, K), dtype=bool)
         nees = np.empty((Rr, K)) if truth is not None else None
         nq = ss.Lq.shape[0]
-
-        for k in range(K):
+        kern = self._bootstrap_kernel
+        loops = None if kern is None else kern.loops()
+        if loops is not None:  # the compiled step (pf_kernel); the loop below is its NumPy twin
+            self._run_compiled(kern, loops, X, Yb, pv, rngs, names, out, loglik, ess, resampled, nees, truth, bank)
+        for k in range(K if loops is None else 0):
             y, p = Yb[:, k], (None if pv is None else pv[:, k])
             Wprev = np.exp(logW)
             with np.errstate(over="ignore", invalid="ignore"):  # a non-finite particle is refused below
@@ -488,7 +506,7 @@ class ParticleFilter:
             W = np.exp(logW)
             ess[:, k] = 1.0 / (W * W).sum(axis=1)
             if want("x", "P") or truth is not None:
-                m, C = self._moments(X, W)
+                m, C = self._moments(X, W, cov="P" in out or truth is not None)
                 if "x" in out:
                     out["x"][:, k] = m
                 if "P" in out:
@@ -496,8 +514,8 @@ class ParticleFilter:
                 if truth is not None:
                     nees[:, k] = _nees(m[:, None], C[:, None], truth[:, k:k + 1], ss.angle_states)[:, 0]
             if want("x_pred", "P_pred"):
-                m, C = self._moments(prior_x, Wprev)
-                if self._kf is not None:
+                m, C = self._moments(prior_x, Wprev, cov="P_pred" in out)
+                if C is not None and self._kf is not None:
                     C = C + self.Q  # prior_x holds f(x_{k−1}) for a proposal
                 if "x_pred" in out:
                     out["x_pred"][:, k] = m
@@ -542,6 +560,135 @@ class ParticleFilter:
         return ParticleResult(**arrays, measured=measured, n_y=n_y, n_x=n, angle_states=ss.angle_states,
                               method=self.method, particles=N)
 
+    @cached_property
+    def _bootstrap_kernel(self) -> BootstrapKernel | None:
+        """The compiled bootstrap step (:mod:`symmon.filters.pf_kernel`), or None where it does
+        not apply: another proposal, or a Γ(x) that depends on the state."""
+        h = self.h_model
+        if self.proposal != "bootstrap" or (h.n_v and self._noise_map is None):
+            return None
+        ss = self.space
+        return bootstrap_kernel(self.f_model, h, ss.params, ss.Lq, ss.angle_states, ss.angle_outputs)
+
+    def _not_finite(self, k: int, r: int, bank) -> NonFiniteError:
+        where = f"step {k}" if bank is None else f"run {r}, step {k}"
+        return NonFiniteError(f"{self.method}: at {where} a particle or its weight is NaN or inf, or every "
+                              "particle has zero likelihood (the model overflows there, or the measurement "
+                              "is far from every particle: use more particles or another proposal)")
+
+    def _run_compiled(self, kern, loops, X, Yb, pv, rngs, names, out, loglik, ess, resampled, nees, truth, bank):
+        """The bootstrap steps through the compiled loops (pf_kernel's module notes): the same
+        draws, in the same order, as the NumPy loop of :meth:`filter`, which it replaces."""
+        prop, sums, walk = loops
+        ss, N = self.space, self.particles
+        Rr, K, n_y = Yb.shape
+        n, nq = ss.n, kern.n_q
+        G = np.eye(n_y) if self._noise_map is None else self._noise_map
+        S_noise = G @ self.R @ G.T
+        Lq = np.asarray(ss.Lq)
+        want_pred = any(a in names for a in ("x_pred", "P_pred"))
+        want_h = any(a in names for a in ("innovation", "S", "nis"))
+        angles = list(ss.angle_states)
+        X = np.ascontiguousarray(X)
+        Xn, Z = np.empty_like(X), np.empty((Rr, N, nq))
+        T, E = np.empty((Rr, N)), np.empty((Rr, N))
+        Hx = np.empty((Rr, N, n_y)) if want_h else None
+        logW = np.full((Rr, N), -math.log(N))
+        spans = [(r, a, b) for r in range(Rr) for a, b in row_spans(N)]
+        top, acc = np.empty(len(spans)), np.empty((len(spans), 2 + n))
+        row, at = 8 * n, lambda a: a.ctypes.data  # noqa: E731
+        x_at, xn_at, z_at, t_at, e_at = at(X), at(Xn), at(Z), at(T), at(E)
+        lw_at, top_at, acc_at = at(logW), at(top), at(acc)
+        hx_at = None if Hx is None else at(Hx)
+        white: dict[tuple, tuple[np.ndarray, float]] = {}
+        for k in range(K):
+            Y = Yb[:, k]
+            for r, g in enumerate(rngs):
+                g.standard_normal(out=Z[r])  # the draws of the NumPy loop, in its order
+            P = []
+            for r in range(Rr):
+                pattern = tuple(~np.isnan(Y[r]))
+                if pattern not in white:
+                    white[pattern] = whitening(S_noise, np.array(pattern))
+                P.append(kern.pack(None if pv is None else pv[r, k], Lq, Y[r], *white[pattern]))
+            P = np.stack(P)
+            Wprev = np.exp(logW) if want_pred or want_h else None
+
+            def first(j: int) -> int:
+                r, a, b = spans[j]
+                i = r * N + a
+                iw, w = kern.work()
+                return prop(x_at + i * row, z_at + i * 8 * nq, P[r].ctypes.data, lw_at + i * 8, xn_at + i * row,
+                            t_at + i * 8, None if hx_at is None else hx_at + i * 8 * n_y, b - a, top_at + j * 8,
+                            iw, w)
+
+            codes = in_threads(first, range(len(spans)))
+            if any(c == 1 for c in codes):
+                raise SymmonError(f"{self.method}: the compiled step {kern.f.name()} returned an error")
+            mx = np.full(Rr, -np.inf)
+            np.maximum.at(mx, [r for r, _, _ in spans], top)
+            for j, c in enumerate(codes):
+                if c == 2:
+                    raise self._not_finite(k, spans[j][0], bank)
+            if not np.isfinite(mx).all():
+                raise self._not_finite(k, int(np.flatnonzero(~np.isfinite(mx))[0]), bank)
+
+            def second(j: int) -> None:
+                r, a, b = spans[j]
+                i = r * N + a
+                sums(xn_at + i * row, t_at + i * 8, float(mx[r]), e_at + i * 8, b - a, acc_at + j * acc.shape[1] * 8)
+
+            in_threads(second, range(len(spans)))
+            tot = np.zeros((Rr, 2 + n))
+            np.add.at(tot, [r for r, _, _ in spans], acc)
+            s = tot[:, 0]
+            lse = mx + np.log(s)
+            loglik[:, k] = np.where(np.isnan(Y).all(axis=1), 0.0, lse)  # no measurement: log Σ W = 0 exactly
+            ess[:, k] = s * s / tot[:, 1]
+            W = None
+            if angles or any(a in names for a in ("P",)) or truth is not None:
+                W = E / s[:, None]
+            if "x" in names or "P" in names or truth is not None:
+                if "P" in names or truth is not None:
+                    m, C = self._moments(Xn, W)
+                else:
+                    m, C = tot[:, 2:] / s[:, None], None
+                    if angles:
+                        A = Xn[..., angles]
+                        m[:, angles] = np.arctan2(np.einsum("rn,rni->ri", W, np.sin(A)),
+                                                  np.einsum("rn,rni->ri", W, np.cos(A)))
+                if "x" in out:
+                    out["x"][:, k] = m
+                if "P" in out:
+                    out["P"][:, k] = C
+                if truth is not None:
+                    nees[:, k] = _nees(m[:, None], C[:, None], truth[:, k:k + 1], ss.angle_states)[:, 0]
+            if want_pred:
+                m, C = self._moments(Xn, Wprev, cov="P_pred" in out)
+                if "x_pred" in out:
+                    out["x_pred"][:, k] = m
+                if "P_pred" in out:
+                    out["P_pred"][:, k] = C
+            if want_h:
+                nu, S = self._measurement_moments(Hx, Wprev, Y, S_noise)
+                if "innovation" in out:
+                    out["innovation"][:, k] = nu
+                if "S" in out:
+                    out["S"][:, k] = S
+                if "nis" in out:
+                    out["nis"][:, k] = np.einsum("ri,ri->r", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+            redo = ess[:, k] <= self.ess_threshold * N
+            for r in range(Rr):
+                if not redo[r]:
+                    np.subtract(T[r], lse[r], out=logW[r])
+                    X[r] = Xn[r]
+                    continue
+                pts = resampling_points(self.resample, rngs[r], N)
+                u, pts_at = (float(pts[0]), None) if self.resample == "systematic" else (0.0, at(pts))
+                walk(e_at + r * N * 8, float(s[r]), pts_at, u, N, xn_at + r * N * row, x_at + r * N * row)
+                logW[r] = -math.log(N)
+                resampled[r, k] = True
+
     def _proposal_step(self, X, y, p, rngs, k, bank, want):
         """One EKF/UKF-proposal step (module notes): the Gaussian filter's compiled step from
         N(x^i, 0) with y gives N(m^i, Σ^i); x'^i ~ N(m^i, Σ^i), and the log-weight increment
@@ -577,7 +724,7 @@ class ParticleFilter:
         if ss.angle_states:
             d[:, list(ss.angle_states)] = wrap_angle(d[:, list(ss.angle_states)])
         Lq = np.linalg.cholesky(self.Q)
-        zq = np.linalg.solve(Lq, d.T).T
+        zq = rows_times(d, np.linalg.inv(Lq))
         log_f = -0.5 * (zq * zq).sum(axis=1) - np.log(np.diag(Lq)).sum()  # the 2π terms cancel with log_q's
         Xn = Xn.reshape(Rr, N, n)
         ll, _, _ = self._loglik(Xn, y, p)

@@ -1,0 +1,201 @@
+"""Timings of symmon's particle filter against a hand-vectorised NumPy bootstrap filter and
+Stone Soup's particle filter, in one run.
+
+    python benchmarks/particle.py [--quick] [--out benchmarks/RESULTS.md]
+
+The model, the same in the three: m targets with constant velocity (n = 4m states ordered
+[x, vx, y, vy] per target, as Stone Soup's ``ConstantVelocity``, dt = 1, noise intensity
+q = 0.05), measured in bearing and range of the first target (additive noise, the bearing
+an angle: wrapped innovation).  n = 4 (m = 1) and n = 20 (m = 5); N = 10³, 10⁴, 10⁵
+particles; K steps from a Gaussian prior; the bootstrap proposal with systematic resampling
+at every step (``ess_threshold=1``; Stone Soup's ``SystematicResampler``).  symmon keeps only
+``x`` (``keep=("x",)``); the NumPy filter computes the same weighted mean.  Times per step,
+best of the repeats after a warm-up; symmon's first call apart (after ``sm.simulate``
+compiled f and h into a fresh cache).  Ratios: peer / symmon (> 1: symmon faster).  The load average is recorded: the
+machine may be shared.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+os.environ.setdefault("SYMMON_CACHE", tempfile.mkdtemp(prefix="symmon-bench-particle-"))
+
+import numpy as np  # noqa: E402
+import sympy as sp  # noqa: E402
+
+import symmon as sm  # noqa: E402
+
+HEADING = "## Particle filter"
+Q_INTENSITY = 0.05
+NOISE = (0.02, 0.5)  # bearing (rad), range
+
+
+def scenario(m: int):
+    """symmon's models, Q, R, prior and the measurements of one simulated run."""
+    X = sp.symbols(" ".join(f"x{i} vx{i} y{i} vy{i}" for i in range(m)), real=True)
+    f_out = []
+    for i in range(m):
+        x, vx, y, vy = X[4 * i:4 * i + 4]
+        f_out += [x + vx, vx, y + vy, vy]
+    f = sm.Model(X, f_out, name=f"pf_bench_cv{m}")
+    h = sm.Model(X, [sp.atan2(X[2], X[0]), sp.sqrt(X[0] ** 2 + X[2] ** 2)], angles=[0], name=f"pf_bench_br{m}")
+    q = Q_INTENSITY * np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]])
+    Q = np.kron(np.eye(2 * m), q)
+    R = np.diag(np.square(NOISE))
+    mean = np.tile([20.0, -1.0, 5.0, 0.5], m)
+    x0 = sm.Gaussian(mean, np.diag(np.tile([1.0, 0.1, 1.0, 0.1], m)))
+    return f, h, Q, R, x0
+
+
+def numpy_pf(ys, x0, Q, R, N, seed=0):
+    """The hand-vectorised NumPy bootstrap filter: the weighted mean of each step."""
+    rng = np.random.default_rng(seed)
+    n = x0.dim
+    F = np.kron(np.eye(n // 4), np.kron(np.eye(2), [[1.0, 1.0], [0.0, 1.0]]))
+    Lq = np.linalg.cholesky(Q)
+    Rinv = np.linalg.inv(R)
+    X = x0.mean + rng.standard_normal((N, n)) @ x0.sqrt_cov().T
+    out = np.empty((len(ys), n))
+    for k, y in enumerate(ys):
+        X = X @ F.T + rng.standard_normal((N, n)) @ Lq.T
+        nu = np.column_stack([np.arctan2(X[:, 2], X[:, 0]), np.hypot(X[:, 0], X[:, 2])])
+        nu = y - nu
+        nu[:, 0] = np.mod(nu[:, 0] + np.pi, 2 * np.pi) - np.pi
+        logw = -0.5 * np.einsum("ni,ij,nj->n", nu, Rinv, nu)
+        w = np.exp(logw - logw.max())
+        w /= w.sum()
+        out[k] = w @ X
+        u = (rng.random() + np.arange(N)) / N
+        idx = np.minimum(np.searchsorted(np.cumsum(w), u), N - 1)
+        X = X[idx]
+    return out
+
+
+def stonesoup_pf(ys, x0, m, N, seed=0):
+    """Stone Soup's predictor, updater and systematic resampler on the same model."""
+    from stonesoup.models.measurement.nonlinear import CartesianToBearingRange
+    from stonesoup.models.transition.linear import CombinedLinearGaussianTransitionModel, ConstantVelocity
+    from stonesoup.predictor.particle import ParticlePredictor
+    from stonesoup.resampler.particle import SystematicResampler
+    from stonesoup.types.array import StateVectors
+    from stonesoup.types.detection import Detection
+    from stonesoup.types.hypothesis import SingleHypothesis
+    from stonesoup.types.state import ParticleState
+    from stonesoup.updater.particle import ParticleUpdater
+
+    np.random.seed(seed)  # Stone Soup draws from NumPy's global generator
+    n = 4 * m
+    tm = CombinedLinearGaussianTransitionModel([ConstantVelocity(Q_INTENSITY) for _ in range(2 * m)])
+    mm = CartesianToBearingRange(ndim_state=n, mapping=(0, 2), noise_covar=np.diag(np.square(NOISE)))
+    predictor = ParticlePredictor(tm)
+    updater = ParticleUpdater(mm, resampler=SystematicResampler())
+    t = datetime.datetime(2024, 1, 1)
+    X = x0.sample(N, np.random.default_rng(seed))
+    state = ParticleState(StateVectors(X.T), weight=np.full(N, 1.0 / N), timestamp=t)
+    out = np.empty((len(ys), n))
+    for k, y in enumerate(ys):
+        t = t + datetime.timedelta(seconds=1)
+        pred = predictor.predict(state, timestamp=t)
+        det = Detection(np.array([[y[0]], [y[1]]]), timestamp=t, measurement_model=mm)
+        state = updater.update(SingleHypothesis(pred, det))
+        out[k] = np.asarray(state.mean, dtype=float).ravel()
+    return out
+
+
+def best(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return min(times)
+
+
+def fmt(s: float) -> str:
+    return f"{s * 1e6:.0f} µs" if s < 1e-3 else f"{s * 1e3:.1f} ms" if s < 1 else f"{s:.2f} s"
+
+
+def run(quick: bool) -> str:
+    try:
+        import stonesoup  # noqa: F401
+        have_ss = True
+    except ImportError:
+        have_ss = False
+    K = 5 if quick else 20
+    sizes = (10**3, 10**4) if quick else (10**3, 10**4, 10**5)
+    load0 = os.getloadavg()[0]
+    rows = []
+    for m in (1, 5):
+        f, h, Q, R, x0 = scenario(m)
+        _, ys = sm.simulate(f, h, Q, R, x0, K, seed=1)
+        for N in sizes:
+            pf = sm.ParticleFilter(f, h, Q, R, particles=N, ess_threshold=1.0)
+            t = time.perf_counter()
+            pf.filter(ys, x0, keep=("x",))
+            first = time.perf_counter() - t
+            reps = 3 if N < 10**5 else 2
+            t_sm = best(lambda: pf.filter(ys, x0, keep=("x",)), reps) / K
+            t_np = best(lambda: numpy_pf(ys, x0, Q, R, N), reps) / K
+            t_ss = None
+            if have_ss and N <= 10**4 * (1 if quick else 10):
+                stonesoup_pf(ys[:2], x0, m, N)  # warm-up (imports)
+                t_ss = best(lambda: stonesoup_pf(ys, x0, m, N), 1 if N >= 10**4 else 2) / K
+            # agreement: the three are Monte Carlo estimates with their own draws
+            a = pf.filter(ys, x0, keep=("x",)).x
+            b = numpy_pf(ys, x0, Q, R, N)
+            rows.append((4 * m, N, first, t_sm, t_np, t_ss, float(np.abs(a - b)[:, 0].max())))
+            print(rows[-1], flush=True)
+    load1 = os.getloadavg()[0]
+    lines = [HEADING, "",
+             "Generated by `python benchmarks/particle.py` (its docstring gives the model): the bootstrap particle "
+             f"filter, systematic resampling at every step, K = {K} steps, per-step times (best of the repeats, warm); "
+             "symmon's first call is its first filter call, after `sm.simulate` compiled f and h into a fresh cache (it "
+             "includes the C build of the PF's compiled step, once per model: the first N of each n). Ratios: peer / symmon (> 1: symmon faster). "
+             "Targets (issue 35): NumPy / symmon ≥ 3 and Stone Soup / symmon ≥ 30 at every size. "
+             f"x86_64, {os.cpu_count()} cores shared with other jobs; load average before / after: "
+             f"{load0:.2f} / {load1:.2f}.", "",
+             "| n | N | symmon first call | symmon / step | NumPy / step | Stone Soup / step | NumPy / symmon | "
+             "Stone Soup / symmon | |x̂_symmon − x̂_NumPy| (px, max over steps) |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for n, N, first, a, b, c, d in rows:
+        ss = "not run" if c is None else fmt(c)
+        ratio = "—" if c is None else f"{c / a:.1f}×"
+        lines.append(f"| {n} | {N:.0e} | {fmt(first)} | {fmt(a)} | {fmt(b)} | {ss} | {b / a:.2f}× | {ratio} | {d:.2g} |")
+    return "\n".join(lines) + "\n"
+
+
+def write_section(path: Path, text: str) -> None:
+    """Replace the section under HEADING in ``path`` (or append it)."""
+    old = path.read_text(encoding="utf-8") if path.exists() else ""
+    start = old.find(HEADING + "\n")
+    if start < 0:
+        new = old.rstrip("\n") + "\n\n" + text
+    else:
+        end = old.find("\n## ", start + len(HEADING))
+        new = old[:start] + text + ("" if end < 0 else old[end:])
+    path.write_text(new, encoding="utf-8")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="K = 5, N ≤ 1e4")
+    parser.add_argument("--out", type=Path, help="write the section into this Markdown file")
+    args = parser.parse_args()
+    text = run(args.quick)
+    print(text)
+    if args.out:
+        write_section(args.out, text)
+
+
+if __name__ == "__main__":
+    main()
