@@ -192,8 +192,6 @@ def _shard_call(call: dict, per_run: list[str], per_run_params: list, a: int, b:
 def _merge(results: list[Any], measured_full: int) -> Any:
     """The shards' results joined along the run axis: one result of the whole bank."""
     first = results[0]
-    if len(results) == 1:
-        return first
     fields = {}
     for f in dataclasses.fields(first):
         if not f.init:
@@ -211,6 +209,7 @@ def _merge(results: list[Any], measured_full: int) -> Any:
             fields[f.name] = readonly(np.concatenate(values))
         elif isinstance(v0, np.ndarray):
             if f.name in _SHARED and v0.ndim == 3:  # the linear filter's, the same for every run
+                v0.flags.writeable = False  # (a worker's result arrives writeable)
                 fields[f.name] = v0
             else:
                 if f.name in _COMPONENTS:  # the shards' longest: zeros beyond, as in one bank
