@@ -16,7 +16,8 @@ number of shards or workers.
 What travels.  A task carries the filter's constructor arguments (sympy models, arrays,
 settings: no CasADi object) and its shard's slices of the per-run inputs; each worker
 process rebuilds the filter once and keeps it (the compiled C is cached on disk).  Errors
-and warnings of a shard name the run by its index in the whole bank.
+of a shard, and the warnings of a worker process (raised again here), name the run by its
+index in the whole bank.
 """
 
 from __future__ import annotations
