@@ -435,8 +435,9 @@ def cmd_filter(args: argparse.Namespace) -> int:
     spec = load_filter_file(args.file)
     check_bank(spec, args.runs, args.filters, args.smooth)  # before anything is simulated
     xs, ys = simulate(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
-    rows = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, args.filters, args.tol, args.confidence,
-                    smooth=args.smooth, settings=spec.settings)
+    with executor_of(args) as ex:  # --dask: the banks in shards on Dask, the same numbers
+        rows = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, args.filters, args.tol, args.confidence,
+                        smooth=args.smooth, settings=spec.settings, executor=ex if args.dask else None)
     states = [str(s) for s in spec.f.inputs]
     written = [_filter_plot(spec, rows, states, args.plot)] if args.plot else []
     if args.json:

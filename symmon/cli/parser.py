@@ -322,8 +322,12 @@ def _parser() -> argparse.ArgumentParser:
                         "come from them (default 16, at least 2)")
         sp.add_argument("--workers", type=_int_in(1, MAX_WORKERS), default=None,
                         help="Monte Carlo threads (default: the number of CPUs)")
+        dask_opts(sp, "the Monte Carlo groups")
+
+    def dask_opts(sp: argparse.ArgumentParser, what: str) -> None:
+        """``--dask`` and ``--dask-timeout``: where ``what`` runs (:func:`executor_of`)."""
         sp.add_argument("--dask", metavar="TARGET", type=_dask_target, default=None,
-                        help=f"run the Monte Carlo groups on Dask: {', '.join(DASK_LOCAL)}, or a scheduler "
+                        help=f"run {what} on Dask: {', '.join(DASK_LOCAL)}, or a scheduler "
                         "address such as tcp://host:8786 (needs the 'dask' extra); same result for the same seed")
         sp.add_argument("--dask-timeout", metavar="SECONDS", type=_dask_seconds, default=WORKER_TIMEOUT,
                         help="with a --dask address: how long to wait for a worker when the cluster has "
@@ -478,6 +482,9 @@ def _parser() -> argparse.ArgumentParser:
                     help="of the chi-square intervals (default 0.95)")
     sp.add_argument("--smooth", action="store_true",
                     help="also run each filter's RTS smoother and report its ANEES and RMSE")
+    dask_opts(sp, "each filter's runs, in shards of runs (one task per thread of the cluster)")
+    sp.set_defaults(workers=None)
+    quiet_opt(sp)
     output_opt(sp, "--plot", kind="figure", metavar="PNG", help="write NEES, NIS and RMSE over time (atomically)")
     sp.add_argument("--json", action="store_true", help="print JSON")
     sp.set_defaults(func=commands.cmd_filter)

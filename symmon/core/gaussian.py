@@ -168,6 +168,23 @@ def _fmt(x: float) -> str:
     return f"{x:.3g}"
 
 
+def _frozen_reduce(obj: object) -> tuple:
+    """``__reduce__`` of an immutable ``__slots__`` object: its slots, restored as they are
+    (no validation again, the same bits), so that it pickles (e.g. to a Dask worker)."""
+    names = [s for c in type(obj).__mro__ for s in getattr(c, "__slots__", ())]
+    return _frozen_restore, (type(obj), {s: getattr(obj, s) for s in names if hasattr(obj, s)})
+
+
+def _frozen_restore(cls: type, state: dict) -> object:
+    """The object of :func:`_frozen_reduce`, its arrays read-only again."""
+    obj = cls.__new__(cls)
+    for name, value in state.items():
+        if isinstance(value, np.ndarray):
+            value.setflags(write=False)
+        object.__setattr__(obj, name, value)
+    return obj
+
+
 class Gaussian:
     """A multivariate Gaussian N(mean, cov), immutable and validated.
 
@@ -208,6 +225,8 @@ class Gaussian:
 
     def __setattr__(self, key, value):  # immutable
         raise AttributeError("Gaussian is immutable")
+
+    __reduce__ = _frozen_reduce  # pickles: __setattr__ refuses the default restore
 
     @classmethod
     def from_std(cls, mean: ArrayLike, std: ArrayLike) -> "Gaussian":

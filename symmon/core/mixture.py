@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import ArgumentError, ArgumentTypeError, ShapeError, WeightError
-from .gaussian import Gaussian, float_array, _fmt, as_covariance, as_generator, as_vector, check_indices, matrix_sqrt
+from .gaussian import Gaussian, float_array, _fmt, _frozen_reduce, as_covariance, as_generator, as_vector, check_indices, matrix_sqrt
 
 __all__ = ["GaussianMixture", "Empirical", "mixture_moments", "WEIGHT_SUM_ATOL", "MAX_SHOWN", "SPLITS", "split_weights"]
 
@@ -111,6 +111,8 @@ class _WeightedMeasure:
 
     def __setattr__(self, key, value):  # immutable
         raise AttributeError(f"{type(self).__name__} is immutable")
+
+    __reduce__ = _frozen_reduce  # pickles: __setattr__ refuses the default restore
 
     def _freeze(self, **arrays: np.ndarray) -> None:
         for name, arr in arrays.items():

@@ -100,6 +100,7 @@ from .modelfile import (
     parse_expression,
 )
 from ..transforms import TT1, TT2, UT, GaussHermite
+from ..transforms.executor import Executor
 
 __all__ = ["FilterSpec", "load_filter_file", "simulate", "check_bank", "FILTERS", "filter_transform", "run_bank", "BankSummary",
            "make_filter", "MIXTURE_FILTERS", "FILTER_SETTINGS"]
@@ -405,7 +406,8 @@ def _rmse(xs: np.ndarray, x: np.ndarray, angle_states) -> np.ndarray:
 
 def run_bank(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, xs: np.ndarray, ys: np.ndarray,
              names: list[str], tol: float = DEFAULT_TOL, confidence: float = 0.95,
-             smooth: bool = False, settings: dict | None = None) -> list[BankSummary]:
+             smooth: bool = False, settings: dict | None = None,
+             executor: Executor | None = None) -> list[BankSummary]:
     """Run the named filters (:func:`filter_transform`) on the bank ``ys`` with truth ``xs``.
 
     With ``smooth``, each filter's RTS smoother runs too (:meth:`NonlinearKalmanFilter.smooth`),
@@ -413,7 +415,9 @@ def run_bank(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, xs:
     :func:`make_filter` with ``settings``, the scenario's ``[gsf]`` and ``[pf]`` tables; the
     Gaussian-sum filter has no ANIS, its ``anis`` is None).  A filter that fails (NaN: it diverged), or whose
     statistics do (a state known exactly has no NEES), is reported with its error instead of
-    stopping the others.
+    stopping the others.  With ``executor`` each filter's bank runs in shards there
+    (:func:`symmon.filters.distributed.filter_bank`: the same numbers); the smoothers'
+    backward passes run here.
     """
     out = []
     for name in names:
@@ -421,7 +425,7 @@ def run_bank(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, xs:
         try:
             kf = make_filter(name, f, h, Q, R, tol, settings)
             if name in MIXTURE_FILTERS:  # no smoother; the NIS of a mixture's innovation is not kept
-                res = kf.filter(ys, x0)
+                res = kf.filter(ys, x0, executor=executor)
                 out.append(BankSummary(name, res, res.anees(xs, confidence),
                                        res.anis(confidence) if res.nis_values is not None else None,
                                        _rmse(xs, res.x, res.angle_states)))
@@ -430,7 +434,7 @@ def run_bank(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, xs:
                 smoothed = kf.smooth(ys, x0)
                 res = smoothed.filtered
             else:
-                res = kf.filter(ys, x0)
+                res = kf.filter(ys, x0, executor=executor)
             # Its statistics may fail too (a state known exactly has no NEES): the same report.
             extra = {}
             if smoothed is not None:

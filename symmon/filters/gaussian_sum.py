@@ -87,6 +87,8 @@ from ..core.model import Model
 from ..errors import ArgumentError, ArgumentTypeError, ShapeError, SymmonError
 from ..transforms import TT2, UT, Transform
 from ..transforms.registry import resolve
+from ..transforms.executor import Executor
+from .distributed import filter_bank
 from .nonlinear import NonlinearKalmanFilter
 from .inputs import check_bank_size, param_values, real_measurements
 from .results import KalmanResult
@@ -409,7 +411,7 @@ class GaussianSumFilter:
         raise ArgumentTypeError(f"x0 must be a symmon.Gaussian or GaussianMixture, got {type(x0).__name__}")
 
     def filter(self, ys: ArrayLike, x0: Gaussian | GaussianMixture, *, params: dict | None = None,
-               keep: Iterable[str] | None = None) -> GaussianSumResult:
+               keep: Iterable[str] | None = None, executor: Executor | None = None) -> GaussianSumResult:
         """Predict, then update, for each measurement, every component.
 
         Parameters
@@ -423,6 +425,10 @@ class GaussianSumFilter:
         keep : iterable of str, optional
             Among ``"x"``, ``"P"`` and ``"mixture"`` (the weights, means and covariances of
             every step); default all.  The per-step log-likelihood is always kept.
+        executor : Executor, optional
+            Filter the runs of a bank in shards on threads, a local Dask scheduler or a
+            Dask cluster (:func:`symmon.filters.distributed.filter_bank`, docs/scale-out.md):
+            the same result bit for bit.
 
         Returns
         -------
@@ -435,6 +441,8 @@ class GaussianSumFilter:
         SymmonError
             A component's step produced NaN or inf (naming the step and run).
         """
+        if executor is not None:
+            return filter_bank(self, executor, ys, x0=x0, params=params, keep=keep)
         kept = set(GSF_KEEPABLE) if keep is None else set(keep)
         if not kept <= set(GSF_KEEPABLE):
             raise ArgumentError(f"keep must name some of {GSF_KEEPABLE}, got {sorted(kept - set(GSF_KEEPABLE))}")

@@ -30,6 +30,8 @@ from numpy.typing import ArrayLike
 from ..core.checks import readonly
 from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, NonFiniteError, ShapeError, SingularMatrixError
 from ..core.gaussian import Gaussian, as_covariance, float_array, matrix_sqrt
+from ..transforms.executor import Executor
+from .distributed import filter_bank
 from .inputs import check_bank_size, check_keep, real_measurements
 from .results import KalmanResult  # the one result type of the filters
 
@@ -177,7 +179,7 @@ class KalmanFilter:
         return f"KalmanFilter(n={self.n}, n_y={self.n_y})"
 
     def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None, *,
-               keep: Iterable[str] | None = None) -> KalmanResult:
+               keep: Iterable[str] | None = None, executor: Executor | None = None) -> KalmanResult:
         """Run the filter over the measurements ``ys``.
 
         Each step predicts, then updates with the Joseph form
@@ -203,6 +205,10 @@ class KalmanFilter:
             initial state).
         keep : iterable of str, optional
             The arrays to return (as :meth:`symmon.NonlinearKalmanFilter.filter`; default all).
+        executor : Executor, optional
+            Filter the runs of a bank in shards on threads, a local Dask scheduler or a
+            Dask cluster (:func:`symmon.filters.distributed.filter_bank`, docs/scale-out.md):
+            the same result bit for bit.
 
         Returns
         -------
@@ -221,6 +227,8 @@ class KalmanFilter:
             The state or a covariance overflows double precision, or S rounds to a singular
             matrix, naming the step (and run).
         """
+        if executor is not None:
+            return filter_bank(self, executor, ys, x0=x0, P0=P0, keep=keep)
         kept = check_keep(keep)
         Y = real_measurements(ys)
         if Y.ndim not in (2, 3) or Y.shape[-1] != self.n_y or Y.shape[-2] == 0:

@@ -69,6 +69,7 @@ from numpy.typing import ArrayLike
 from ..errors import AngleWarning, ArgumentTypeError, ShapeError, SymmonError
 from ..core.checks import check_model, noise_cov, readonly
 from .diagnose import locate_nonfinite
+from .distributed import filter_bank
 from .export import export_filter_c
 from .fit import FitResult, fit_parameters
 from .inputs import check_keep, filter_inputs
@@ -79,6 +80,7 @@ from .strategy import FilterStrategy, RuleStrategy
 from ..core.gaussian import Gaussian, as_covariance
 from ..core.model import Model
 from ..transforms import UT, Transform
+from ..transforms.executor import Executor
 from ..transforms.registry import resolve
 
 __all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest", "MAX_ITERATIONS"]
@@ -373,7 +375,7 @@ class NonlinearKalmanFilter:
 
     def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None, *,
                keep: Iterable[str] | None = None, params: dict | None = None,
-               x_true: ArrayLike | None = None) -> KalmanResult:
+               x_true: ArrayLike | None = None, executor: Executor | None = None) -> KalmanResult:
         """Predict, then update, for each measurement (the convention of :class:`KalmanFilter`).
 
         Parameters
@@ -407,6 +409,10 @@ class NonlinearKalmanFilter:
             inside the compiled step, right after it (:attr:`KalmanResult.nees_values`,
             ``res.nees()``, ``res.anees()``), so that a bank need not keep x and P for its
             NEES test (``keep=("nis",)`` with ``x_true`` stores two numbers per step).
+        executor : Executor, optional
+            Filter the runs of a bank in shards on threads, a local Dask scheduler or a
+            Dask cluster (:func:`symmon.filters.distributed.filter_bank`, docs/scale-out.md):
+            the same result bit for bit.
 
         Returns
         -------
@@ -427,6 +433,8 @@ class NonlinearKalmanFilter:
             With ``x_true``: a filtered covariance P is singular, so its NEES is undefined
             (:func:`~symmon.filters.results.step_nees`).
         """
+        if executor is not None:
+            return filter_bank(self, executor, ys, x0=x0, P0=P0, keep=keep, params=params, x_true=x_true)
         n_y = self.h_model.n_y
         checked = filter_inputs(self, ys, x0, P0, keep=keep, params=params, x_true=x_true, advice=_SMALLER)
         Yb, runs, kept, truth = checked.Y, checked.runs, checked.keep, checked.truth

@@ -72,6 +72,8 @@ from ..core.mixture import Empirical, GaussianMixture
 from ..core.model import Model
 from ..errors import ArgumentError, DegeneracyWarning, ModelError, NonFiniteError, ShapeError, SymmonError
 from ..transforms import TT1, UT
+from ..transforms.executor import Executor
+from .distributed import filter_bank, run_streams
 from .nonlinear import NonlinearKalmanFilter
 from .inputs import check_bank_size, check_keep, check_truth, kept_numbers, param_values, real_measurements
 from .results import KalmanResult, _nees
@@ -398,7 +400,8 @@ class ParticleFilter:
 
     # ------------------------------------------------------------------ the filter
     def filter(self, ys: ArrayLike, x0: Gaussian | GaussianMixture | Empirical, *, params: dict | None = None,
-               keep: Iterable[str] | None = None, x_true: ArrayLike | None = None) -> ParticleResult:
+               keep: Iterable[str] | None = None, x_true: ArrayLike | None = None,
+               executor: Executor | None = None, first_run: int = 0) -> ParticleResult:
         """Filter the measurements ``ys`` from the prior ``x0`` (the convention of
         :meth:`NonlinearKalmanFilter.filter <symmon.NonlinearKalmanFilter.filter>`: predict,
         then update, for each measurement; ``ys[k]`` is y_{k+1}).
@@ -420,6 +423,14 @@ class ParticleFilter:
             the ESS are always kept.  The predicted moments cost a pass over the particles.
         x_true : array_like, shape (K, n) or (R, K, n), optional
             The true states: each step's NEES against the weighted mean and covariance.
+        executor : Executor, optional
+            Filter the runs of a bank in shards on threads, a local Dask scheduler or a
+            Dask cluster (:func:`symmon.filters.distributed.filter_bank`, docs/scale-out.md):
+            the same result bit for bit.
+        first_run : int, default 0
+            The index of the first run of ``ys`` in a larger bank: run r draws from the
+            stream of run ``first_run + r`` (:func:`~symmon.filters.distributed.run_streams`),
+            so a bank filtered in pieces gives the numbers of the whole bank.
 
         Returns
         -------
@@ -443,6 +454,8 @@ class ParticleFilter:
         DegeneracyWarning
             When the ESS fell below :data:`DEGENERATE_ESS` (about one particle) at some step.
         """
+        if executor is not None:
+            return filter_bank(self, executor, ys, x0=x0, params=params, keep=keep, x_true=x_true)
         ss, N = self.space, self.particles
         n, n_y = ss.n, ss.n_y
         Y = real_measurements(ys)
@@ -464,7 +477,7 @@ class ParticleFilter:
         if x_true is not None:
             truth = check_truth(x_true, Y.shape[:-1] + (n,)).reshape(Rr, K, n)
         pv = param_values(ss.params, params, bank, K, who="the models")
-        rngs = [np.random.Generator(np.random.PCG64(s)) for s in np.random.SeedSequence(self.seed).spawn(Rr)]
+        rngs = run_streams(self.seed, Rr, first_run)
 
         X = ss.wrap_states(np.stack([np.asarray(x0.sample(N, g), dtype=float) for g in rngs]))
         logW = np.full((Rr, N), -math.log(N))
