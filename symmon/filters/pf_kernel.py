@@ -42,7 +42,7 @@ import casadi as ca
 import numpy as np
 
 from ..compile import NativeLibrary, compiled_with_params
-from ..compile.compiled import WorkArrays, address, generated_c
+from ..compile.compiled import WorkArrays, generated_c
 from ..core.angles import wrap_casadi
 from ..core.model import Model
 
