@@ -87,7 +87,7 @@ class ExpectationNotClosedForm(SymmonError):
     """A Gaussian expectation E[f(x)] asked of :func:`symmon.expect` (or of the exact
     symbolic moments built on it) lies outside the class that has a proved closed form:
     sums and products of polynomials, exponentials of affine forms, sines and cosines of
-    affine forms, and |affine| and max/min of two affine forms (an absolute value times
+    affine forms, and ``|affine|`` and max/min of two affine forms (an absolute value times
     polynomials and real exponentials only).  The message names the subexpression that
     is outside; nothing unproven (no numeric integral, no sympy.stats fallback) is
     returned instead."""

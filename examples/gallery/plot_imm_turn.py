@@ -1,6 +1,6 @@
 """
 A target that turns: interacting multiple models with an EKF or a CKF in the turn mode
-=====================================================================================
+======================================================================================
 
 An aircraft at 150 m/s, 20 km from a radar that measures range (σ = 20 m) and bearing
 (σ = 2 mrad) every T = 2 s, flies straight, turns at 0.1 rad/s through 90°, and flies

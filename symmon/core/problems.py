@@ -152,7 +152,7 @@ def radar_hinv(p=(0.0, 0.0)) -> Model:
     return Model([r, phi], [p1 + r * sp.cos(phi), p2 + r * sp.sin(phi)], name="radar_hinv")
 
 
-#: Below this |ωT| the coordinated turn uses the Taylor series of its two ratios (to (ωT)⁴:
+#: Below this ``|ωT|`` the coordinated turn uses the Taylor series of its two ratios (to (ωT)⁴:
 #: an error below (ωT)⁶/5040 ≈ 2e-16 relative): sin(ωT)/ω and (1 − cos ωT)/ω are 0/0 at ω = 0,
 #: and their derivatives lose about eps/(ωT)² to cancellation just above it (2e-12).
 TURN_SERIES = 1e-2
@@ -165,7 +165,7 @@ def coordinated_turn(T: float = 1.0) -> Model:
         x⁺ = x + (sin ωT / ω) ẋ − ((1 − cos ωT) / ω) ẏ,   ẋ⁺ = cos ωT ẋ − sin ωT ẏ,
         y⁺ = y + ((1 − cos ωT) / ω) ẋ + (sin ωT / ω) ẏ,   ẏ⁺ = sin ωT ẋ + cos ωT ẏ,   ω⁺ = ω.
 
-    At ω = 0 it is the constant-velocity step; for |ωT| < :data:`TURN_SERIES` the two ratios
+    At ω = 0 it is the constant-velocity step; for ``|ωT|`` < :data:`TURN_SERIES` the two ratios
     are their Taylor series (a Piecewise), so that f and its derivatives are finite and
     accurate there, and 1 − cos ωT is computed as 2 sin²(ωT/2) (no cancellation).
 

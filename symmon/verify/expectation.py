@@ -27,7 +27,7 @@ The class of f with a proved closed form (:func:`expect`) and the formula for ea
     E[(m + sZ)^j 1{Z < α}] = Σ_i C(j, i) m^{j−i} sⁱ τ_i(α), α = −m/s,
     τ₀ = Φ(α), τ₁ = −φ(α), τ_i = (i − 1) τ_{i−2} − α^{i−1} φ(α) (integration by parts).
     Times a real exponential exp(cᵀx), the tilt of (2) first: the mean μ + Pc, the factor
-    exp(cᵀμ + ½cᵀPc).  |L|² = L² is a polynomial; |L₁| |L₂| with L₁ = r L₂ is |r| L₂².
+    exp(cᵀμ + ½cᵀPc).  ``|L|² = L²`` is a polynomial; ``|L₁| |L₂|`` with L₁ = r L₂ is ``|r| L₂²``.
 
 Sums and products of these are expanded into sums of atoms p(x) exp(cᵀx + c₀) |L|^{0 or 1}.
 Everything else that depends on x is refused with :class:`~symmon.errors.ExpectationNotClosedForm`
@@ -427,7 +427,7 @@ def expect(expr: Any, over: Any, mean: Any, cov: Any) -> sp.Expr:
     The class (module :mod:`symmon.verify.expectation`, eqs. (1)–(4)): sums and products of
     polynomials, exponentials of affine forms, sin, cos, sinh and cosh of affine forms, the
     absolute value of an affine form and max / min of two affine forms (the last three times
-    polynomials and real exponentials; |L|² and |L| |rL| reduce to polynomials).  The
+    polynomials and real exponentials; ``|L|²`` and ``|L| |rL|`` reduce to polynomials).  The
     expectation of an absolute value is that of Lemma 1, eq. (8), and Theorem 1, eq. (10), of
     the MMSE distance paper, E|L| = m(1 − 2Φ(−m/s)) + 2sφ(m/s), written with erf.
 
