@@ -11,6 +11,8 @@
   coordinated-turn UKF switch within a few steps of each change.
 - Angle states are mixed with circular means; parameters reach each mode; failures name the
   mode, run and step.
+- Square-root modes (all or some) equal the standard IMM, and FilterPy's, to 1e-10; a mixed
+  covariance without a Cholesky factor is refused, naming the mode, run and step.
 """
 
 from __future__ import annotations
