@@ -28,8 +28,11 @@ Each mode-matched step is the mode's own compiled predict + update step
 (:mod:`symmon.filters.step`).  When every mode runs one compiled rule, the recursion of a
 whole bank (mixing, the modes' steps, the mode probabilities) is one generated C loop around
 those steps (``_FusedLoop``), and the combination is vectorised over the runs and steps
-afterwards; otherwise (an adaptive mode, no compiler) each mode's step is called per time
-step on all the runs, NumPy between the calls.
+afterwards; otherwise (an adaptive mode, a square-root mode, no compiler) each mode's step
+is called per time step on all the runs, NumPy between the calls.  A square-root mode
+(``square_root=True``, :mod:`symmon.filters.sqrtstep`) takes the lower Cholesky factor of
+its mixed P⁰_j (refused, naming the mode, run and step, when P⁰_j is not positive definite)
+and its step's factor S_j gives P_j = S_j S_jᵀ for the mixing and the combination.
 
 References
 ----------
@@ -59,7 +62,8 @@ from ..core.gaussian import Gaussian, float_array
 from ..core.model import Model
 from ..compile.ccache import NativeLibrary
 from ..compile.compiled import WorkArrays, generated_c, in_threads
-from ..errors import ArgumentError, ArgumentTypeError, ModelError, NonFiniteError, ShapeError, SymmonError
+from ..errors import (ArgumentError, ArgumentTypeError, CovarianceError, ModelError, NonFiniteError, ShapeError,
+                      SymmonError)
 from ..transforms import TT1
 from .linear import KalmanFilter
 from .nonlinear import NonlinearKalmanFilter
@@ -164,7 +168,7 @@ class IMM:
     filters : sequence of NonlinearKalmanFilter or KalmanFilter
         One filter per mode, on the same state vector (n states) and the same measurement
         (n_y components), each with its own f, Q, h, R, transform (EKF, iterated EKF, EKF2,
-        UKF, CKF, Gauss–Hermite, adaptive) and parameters.  A linear :class:`KalmanFilter`
+        UKF, CKF, Gauss–Hermite, adaptive; square-root or not) and parameters.  A linear :class:`KalmanFilter`
         runs as the EKF of its linear model (equal to rounding).  The modes must agree on
         which states are angles and which measurement components are angles.
     transition : array_like, shape (M, M)
@@ -213,10 +217,6 @@ class IMM:
             elif not isinstance(kf, NonlinearKalmanFilter):
                 raise ArgumentTypeError(f"mode {j}: filters must be symmon KalmanFilter or NonlinearKalmanFilter "
                                         f"objects, got {type(kf).__name__}")
-            if kf.square_root:
-                # The mixing works on P; a square-root mode would be run in its standard form.
-                raise ArgumentError(f"mode {j} ({kf.method}) is a square-root filter, which the IMM does not mix "
-                                    "yet: give the mode with square_root=False")
             modes.append(kf)
         first = modes[0]
         n, n_y = first.f_model.n_u, first.h_model.n_y
@@ -320,6 +320,9 @@ class IMM:
             The results would exceed :data:`~symmon.filters.results.MAX_BANK_NUMBERS` numbers.
         NonFiniteError
             A mode-matched filter produced NaN or inf, naming the mode, the run and the step.
+        CovarianceError
+            The mixed covariance P⁰_j of a square-root mode is not positive definite (no
+            Cholesky factor), naming the mode, the run and the step.
         SingularMatrixError
             With ``x_true``: a combined P is singular.
         """
@@ -346,7 +349,7 @@ class IMM:
             modes, failed = loop(run, m0, C0, Yb, [kf.Q for kf in self.filters], [kf.R for kf in self.filters], pvs,
                                  self.transition, self.probabilities)
         else:
-            modes, failed = self._python_loop(m0, C0, Yb, pvs)
+            modes, failed = self._python_loop(m0, C0, Yb, pvs, runs is not None)
         if (failed[:, 0] >= 0).any():
             k = failed[failed[:, 0] >= 0, 0].min()  # the first step that failed, in its first run
             r = int(np.argmax(failed[:, 0] == k))
@@ -378,8 +381,9 @@ class IMM:
 
     def _fused_loop(self) -> "_FusedLoop | None":
         """The compiled loop over the steps and runs of a bank with every mode's step inside
-        it, when every mode runs one compiled rule (None: an adaptive mode)."""
-        if not all(isinstance(kf.strategy, RuleStrategy) for kf in self.filters):
+        it, when every mode runs one compiled standard step (None: an adaptive or a
+        square-root mode, which run in :meth:`_python_loop`)."""
+        if not all(isinstance(kf.strategy, RuleStrategy) and not kf.square_root for kf in self.filters):
             return None
         steps = tuple(_compiled_step(kf.f_model, kf.h_model, kf.strategy.transform, kf.angle_states, kf.iterations)
                       for kf in self.filters)
@@ -390,10 +394,11 @@ class IMM:
                 loop = _loops[key] = _FusedLoop(steps, sorted(self.angle_states))
         return loop
 
-    def _python_loop(self, m0: np.ndarray, C0: np.ndarray, Yb: np.ndarray, pvs: list):
+    def _python_loop(self, m0: np.ndarray, C0: np.ndarray, Yb: np.ndarray, pvs: list, bank: bool = True):
         """The IMM recursion with each mode's compiled step called per time step on all the runs
-        (the fallback of the fused loop: an adaptive mode, or no compiled C yet).  Returns the
-        modes' arrays (R, K, M, ...) and, per run, the first failed step and its mode (or −1)."""
+        (the fallback of the fused loop: an adaptive or a square-root mode, or no compiled C
+        yet).  Returns the modes' arrays (R, K, M, ...) and, per run, the first failed step and
+        its mode (or −1); ``bank`` says whether errors name the run."""
         R, K, _ = Yb.shape
         n, n_y, M = self.n, self.n_y, len(self.filters)
         angles = sorted(self.angle_states)
@@ -414,8 +419,14 @@ class IMM:
             Yk = Yb[:, k:k + 1]
             for j, kf in enumerate(self.filters):
                 pv = None if pvs[j] is None else np.ascontiguousarray(pvs[j][:, k:k + 1])
-                extra = {} if pv is None else {"params": pv}
-                res, _ = kf.strategy.run(kf, Yk, x_mix[:, j], P_mix[:, j], None, **extra)
+                if kf.square_root:
+                    step = _compiled_step(kf.f_model, kf.h_model, kf.strategy.transform, kf.angle_states,
+                                          kf.iterations, True)
+                    S0 = self._mixed_factor(P_mix[:, j], j, k, bank)
+                    res = step(x_mix[:, j], S0, Yk, kf.Q, kf.R, params=pv, check_finite=True, factored=True)
+                else:
+                    extra = {} if pv is None else {"params": pv}
+                    res, _ = kf.strategy.run(kf, Yk, x_mix[:, j], P_mix[:, j], None, **extra)
                 for name in _MODE_OUTPUTS:
                     modes[name][:, k, j] = res[name][:, 0]
                 bad = ~(np.isfinite(modes["loglik"][:, k, j]) & np.isfinite(modes["x"][:, k, j]).all(axis=-1)
@@ -427,6 +438,30 @@ class IMM:
             modes["mu"][:, k], modes["cbar"][:, k] = mu, cbar
             xm, Pm = modes["x"][:, k], modes["P"][:, k]
         return modes, failed
+
+    def _mixed_factor(self, P: np.ndarray, j: int, k: int, bank: bool) -> np.ndarray:
+        """The lower Cholesky factors (R, n, n) of mode j's mixed covariances P⁰_j (R, n, n) at
+        step k, for its square-root step; a P⁰_j that is not positive definite is refused
+        (its square-root filter would start from a factor of a different matrix)."""
+        try:
+            return np.linalg.cholesky(P)
+        except np.linalg.LinAlgError:
+            pass
+        r = next(r for r in range(P.shape[0]) if not _positive_definite(P[r]))  # the first run that failed
+        where = f"run {r}, step {k}" if bank else f"step {k}"
+        raise CovarianceError(
+            f"IMM: the mixed covariance P⁰ of mode {j} ({self.modes[j]}) is not positive definite at {where}, so "
+            "its square-root step has no Cholesky factor to start from: give x0 a positive definite covariance, "
+            "or the mode square_root=False")
+
+
+def _positive_definite(P: np.ndarray) -> bool:
+    """Whether the symmetric P (n, n) has a Cholesky factor."""
+    try:
+        np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        return False
+    return True
 
 
 #: The outputs of a mode's step that the IMM keeps, (R, K, M, ...) each.

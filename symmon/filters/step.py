@@ -407,7 +407,7 @@ class _CompiledStep(CompiledLoop):
     def __call__(self, x0: np.ndarray, P0: np.ndarray, Y: np.ndarray, Q: np.ndarray, R: np.ndarray,
                  use_c: bool = True, keep: frozenset[str] | None = None,
                  params: np.ndarray | None = None, truth: np.ndarray | None = None,
-                 check_finite: bool = False) -> dict[str, np.ndarray]:
+                 check_finite: bool = False, factored: bool = False) -> dict[str, np.ndarray]:
         """Run the bank: x0 (n,) or (runs, n), P0 (n, n) or (runs, n, n), Y (runs, K, n_y), and
         the parameters' values (runs, K, n_p) (None: no parameters).
 
@@ -422,10 +422,13 @@ class _CompiledStep(CompiledLoop):
         and stops a run that failed, so the kept arrays need no second pass).
 
         A square-root step (:mod:`symmon.filters.sqrtstep`) reads P0, Q and R as covariances
-        and factors them once; its kept ``P`` and ``P_pred`` are S Sᵀ, with the factors S
-        themselves as ``P_chol`` and ``P_pred_chol``."""
+        and factors them once (with ``factored``, P0 is already the lower factor S₀ of P0); its
+        kept ``P`` and ``P_pred`` are S Sᵀ, with the factors S themselves as ``P_chol`` and
+        ``P_pred_chol``."""
         if self.square_root:
-            out = self._run(x0, factor_of(P0), Y, noise_factor(Q).T, noise_factor(R).T, use_c, keep, params, truth,
+            # The loop reads each factor transposed (column-major), C-contiguous.
+            U0 = np.ascontiguousarray(np.swapaxes(P0, -1, -2), dtype=float) if factored else factor_of(P0)
+            out = self._run(x0, U0, Y, noise_factor(Q).T, noise_factor(R).T, use_c, keep, params, truth,
                             check_finite)
             for k in ("P", "P_pred"):
                 if k in out:

@@ -11,6 +11,8 @@
   coordinated-turn UKF switch within a few steps of each change.
 - Angle states are mixed with circular means; parameters reach each mode; failures name the
   mode, run and step.
+- Square-root modes (all or some) equal the standard IMM, and FilterPy's, to 1e-10; a mixed
+  covariance without a Cholesky factor is refused, naming the mode, run and step.
 """
 
 from __future__ import annotations
@@ -23,7 +25,9 @@ import sympy as sp
 
 import symmon as sm
 from symmon.core.problems import TURN_SERIES, coordinated_turn
-from symmon.errors import ArgumentError, ArgumentTypeError, ModelError, NonFiniteError, ShapeError
+from symmon.errors import (ArgumentError, ArgumentTypeError, CovarianceError, ModelError, NonFiniteError,
+                           ShapeError)
+from symmon.filters.imm import _as_nonlinear
 from helpers import REFERENCE_DIR, assert_close_to_scale
 
 REF = json.loads((REFERENCE_DIR / "filterpy_imm.json").read_text())
@@ -339,10 +343,57 @@ def test_an_adaptive_mode_runs_step_by_step(modes):
     assert res.mode_probabilities[23, 1] > 0.5  # the turn began at step 20
 
 
-def test_a_square_root_mode_is_refused_with_its_name():
-    x = sp.Symbol("x", real=True)
-    f, h = sm.Model([x], [x], name="f1"), sm.Model([x], [x], name="h1")
-    std = sm.NonlinearKalmanFilter(f, h, [[1.0]], [[1.0]], sm.TT1())
-    sr = sm.NonlinearKalmanFilter(f, h, [[1.0]], [[1.0]], sm.TT1(), square_root=True)
-    with pytest.raises(ArgumentError, match="mode 1 .*square-root"):
-        sm.IMM([std, sr], [[0.9, 0.1], [0.1, 0.9]], [0.5, 0.5])
+# ------------------------------------------------------------------ square-root modes
+def square_root(kf):
+    """The square-root form of a mode (a linear KalmanFilter as the EKF of its model)."""
+    if isinstance(kf, sm.KalmanFilter):
+        kf = _as_nonlinear(kf)
+    return sm.NonlinearKalmanFilter(kf.f_model, kf.h_model, kf.Q, kf.R, kf.strategy.transform, square_root=True)
+
+
+IMM_OUTPUTS = ("x", "P", "x_pred", "P_pred", "innovation", "S", "loglik", "mode_probabilities",
+               "predicted_probabilities", "mode_x", "mode_P", "mode_loglik")
+
+
+def test_square_root_modes_equal_filterpy_imm_estimator():
+    """Square-root modes (the mixed P⁰ factored, P = S Sᵀ from the step's factor) on FilterPy's
+    linear case: its IMMEstimator to 1e-10, as the standard modes."""
+    d = REF["crassidis"]
+    kfs = [square_root(sm.KalmanFilter(d["F"], Q, d["H"], R)) for Q, R in zip(d["Q"], d["R"])]
+    imm = sm.IMM(kfs, d["transition"], d["mu0"])
+    assert imm._fused_loop() is None and imm.modes[0].startswith("SR-EKF")
+    res = imm.filter(np.array(d["ys"]), np.array(d["x0"]), np.array(d["P0"]))
+    close(res.x, d["x"])
+    close(res.P[d["P_steps"]], d["P"])
+    close(res.mode_probabilities, d["mu"])
+    close(res.loglik, d["loglik"])
+
+
+@pytest.mark.parametrize("which", [(0, 1), (1,)], ids=["all", "mixed"])
+def test_square_root_modes_equal_standard_modes(modes, which):
+    """On the manoeuvre (a CV EKF and a CT cubature filter, a bearing, missing rows and
+    components, a bank): square-root modes, all or some, give the standard IMM to 1e-10
+    (the same filter in exact arithmetic; rounding only on this well-conditioned case)."""
+    _, ys = manoeuvre(runs=2)
+    ys = ys[:, :30]
+    ys[0, 4] = np.nan
+    ys[1, 22, 1] = np.nan
+    T = [[0.95, 0.05], [0.05, 0.95]]
+    ref = sm.IMM(list(modes), T, [0.9, 0.1]).filter(ys, X0)
+    sr = [square_root(kf) if j in which else kf for j, kf in enumerate(modes)]
+    res = sm.IMM(sr, T, [0.9, 0.1]).filter(ys, X0)
+    for name in IMM_OUTPUTS:
+        close(getattr(res, name), getattr(ref, name), 1e-10)
+
+
+def test_a_square_root_mode_refuses_a_mixed_covariance_without_factor(modes):
+    """A singular P⁰ of a square-root mode is refused, naming the mode, the run and the step."""
+    cv, ct = modes
+    imm = sm.IMM([cv, square_root(ct)], [[0.95, 0.05], [0.05, 0.95]], [0.9, 0.1])
+    _, ys = manoeuvre(runs=2)
+    P0 = np.stack([X0.cov, np.diag([100.0, 100.0, 4.0, 4.0, 0.0])])  # run 1: a known turn rate
+    with pytest.raises(CovarianceError, match=r"mode 1 \(SR-CKF\(coordinated_turn_T1\)\) is not positive definite "
+                                              r"at run 1, step 0"):
+        imm.filter(ys[:, :3], X0.mean[None].repeat(2, axis=0), P0)
+    with pytest.raises(CovarianceError, match=r"mode 1 .* not positive definite at step 0"):
+        imm.filter(ys[1, :3], X0.mean, P0[1])
