@@ -19,13 +19,13 @@ from typing import Any, Iterable, Protocol
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..core.checks import check_gaussian
+from ..core.checks import check_gaussian, check_model
 from ..core.gaussian import Gaussian, as_covariance, float_array
 from ..core.model import Model
 from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, ModelError, ResourceError, ShapeError
 
 __all__ = ["FilterSpec", "FilterInputs", "filter_inputs", "KEEPABLE", "check_keep", "real_measurements",
-           "check_truth", "MAX_BANK_NUMBERS", "check_bank_size", "kept_numbers", "initial_state", "param_values"]
+           "check_truth", "check_state_models", "MAX_BANK_NUMBERS", "check_bank_size", "kept_numbers", "initial_state", "param_values"]
 
 
 class FilterSpec(Protocol):
@@ -56,6 +56,23 @@ class FilterSpec(Protocol):
 
 #: The arrays a filter can keep (``filter(..., keep=...)``).
 KEEPABLE = ("x", "P", "x_pred", "P_pred", "innovation", "S", "nis")
+
+
+def check_state_models(f_model: Model, h_model: Model) -> tuple[Model, Model]:
+    """The checked models of a state space: f maps the state to itself, h reads the state.
+
+    Raises
+    ------
+    ShapeError
+        f's outputs are not its inputs in number, or h's inputs are not f's states.
+    """
+    f = check_model(f_model, "f_model")
+    h = check_model(h_model, "h_model")
+    if f.n_y != f.n_u:
+        raise ShapeError(f"f_model must map the state to itself: {f.n_u} inputs, {f.n_y} outputs")
+    if h.n_u != f.n_u:
+        raise ShapeError(f"h_model has {h.n_u} inputs but f_model has {f.n_u} states")
+    return f, h
 
 
 def check_keep(keep: Iterable[str] | None) -> frozenset[str] | None:

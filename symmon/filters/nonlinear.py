@@ -66,13 +66,13 @@ import numpy as np
 import sympy as sp
 from numpy.typing import ArrayLike
 
-from ..errors import AngleWarning, ArgumentTypeError, ShapeError, SymmonError
-from ..core.checks import check_model, noise_cov, readonly
+from ..errors import AngleWarning, ArgumentTypeError, SymmonError
+from ..core.checks import noise_cov, readonly
 from .diagnose import locate_nonfinite
 from .distributed import filter_bank
 from .export import export_filter_c
 from .fit import FitResult, fit_parameters
-from .inputs import check_keep, filter_inputs
+from .inputs import check_keep, check_state_models, filter_inputs
 from .results import ConsistencyTest, KalmanResult, NonlinearKalmanResult, SmootherResult, step_nees, _nees
 from .smoother import compiled_smoother
 from .step import filter_params, first_nonfinite
@@ -178,12 +178,7 @@ class NonlinearKalmanFilter:
     strategy: FilterStrategy = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        f = check_model(self.f_model, "f_model")
-        h = check_model(self.h_model, "h_model")
-        if f.n_y != f.n_u:
-            raise ShapeError(f"f_model must map the state to itself: {f.n_u} inputs, {f.n_y} outputs")
-        if h.n_u != f.n_u:
-            raise ShapeError(f"h_model has {h.n_u} inputs but f_model has {f.n_u} states")
+        f, h = check_state_models(self.f_model, self.h_model)
         Q = as_covariance(self.Q, "Q", dim=f.n_v if f.n_v else f.n_u)
         R = noise_cov(h, self.R, "R")
         transform = UT.ut1() if self.transform is None else resolve(self.transform)

@@ -535,13 +535,7 @@ class ParticleFilter:
                 if "P_pred" in out:
                     out["P_pred"][:, k] = C
             if want("innovation", "S", "nis"):
-                nu, S = self._measurement_moments(prior_h, Wprev, y, S_noise)
-                if "innovation" in out:
-                    out["innovation"][:, k] = nu
-                if "S" in out:
-                    out["S"][:, k] = S
-                if "nis" in out:
-                    out["nis"][:, k] = np.einsum("ri,ri->r", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+                _store_measurement(out, k, *self._measurement_moments(prior_h, Wprev, y, S_noise))
             redo = np.flatnonzero(ess[:, k] <= self.ess_threshold * N)
             if redo.size:
                 idx = resample(W[redo], self.resample, [rngs[r] for r in redo])
@@ -683,13 +677,7 @@ class ParticleFilter:
                 if "P_pred" in out:
                     out["P_pred"][:, k] = C
             if want_h:
-                nu, S = self._measurement_moments(Hx, Wprev, Y, S_noise)
-                if "innovation" in out:
-                    out["innovation"][:, k] = nu
-                if "S" in out:
-                    out["S"][:, k] = S
-                if "nis" in out:
-                    out["nis"][:, k] = np.einsum("ri,ri->r", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+                _store_measurement(out, k, *self._measurement_moments(Hx, Wprev, Y, S_noise))
             redo = ess[:, k] <= self.ess_threshold * N
             for r in range(Rr):
                 if not redo[r]:
@@ -747,3 +735,13 @@ class ParticleFilter:
             y_hat = (np.where(np.isnan(Yrep[:, 0]), 0.0, Yrep[:, 0]) - out["innovation"][:, 0]).reshape(Rr, N, -1)
             S_i = out["S"][:, 0].reshape(Rr, N, ss.n_y, ss.n_y)
         return Xn, inc, fx.reshape(Rr, N, n), y_hat, S_i
+
+
+def _store_measurement(out: dict, k: int, nu: np.ndarray, S: np.ndarray) -> None:
+    """Write step ``k``'s innovation, its covariance and the NIS into the kept arrays of ``out``."""
+    if "innovation" in out:
+        out["innovation"][:, k] = nu
+    if "S" in out:
+        out["S"][:, k] = S
+    if "nis" in out:
+        out["nis"][:, k] = np.einsum("ri,ri->r", nu, np.linalg.solve(S, nu[..., None])[..., 0])

@@ -21,10 +21,10 @@ from numpy.typing import ArrayLike
 
 from ..compile import compiled_with_params
 from ..core.angles import wrap_angle
-from ..core.checks import check_model, noise_cov, readonly
+from ..core.checks import noise_cov, readonly
 from ..core.gaussian import as_covariance, matrix_sqrt
 from ..core.model import Model
-from ..errors import ShapeError
+from .inputs import check_state_models
 from .step import filter_params
 
 __all__ = ["StateSpace", "rows_times"]
@@ -62,12 +62,7 @@ class StateSpace:
     R: np.ndarray
 
     def __post_init__(self) -> None:
-        f = check_model(self.f_model, "f_model")
-        h = check_model(self.h_model, "h_model")
-        if f.n_y != f.n_u:
-            raise ShapeError(f"f_model must map the state to itself: {f.n_u} inputs, {f.n_y} outputs")
-        if h.n_u != f.n_u:
-            raise ShapeError(f"h_model has {h.n_u} inputs but f_model has {f.n_u} states")
+        f, h = check_state_models(self.f_model, self.h_model)
         object.__setattr__(self, "Q", readonly(as_covariance(self.Q, "Q", dim=f.n_v or f.n_u)))
         object.__setattr__(self, "R", readonly(noise_cov(h, self.R, "R")))
 
