@@ -90,7 +90,7 @@ from ..transforms.registry import resolve
 from ..transforms.executor import Executor
 from .distributed import filter_bank
 from .nonlinear import NonlinearKalmanFilter
-from .inputs import check_bank_size, param_values, real_measurements
+from .inputs import check_bank_size, measurement_bank, param_values
 from .results import KalmanResult
 from .step import (_filterable, filter_params, model_moments, predict_graph, select_params, step_kind, sym,
                    update_graph)
@@ -449,11 +449,8 @@ class GaussianSumFilter:
         w0, m0, P0 = self._prior(x0)
         if len(w0) > self.max_components:
             w0, m0, P0 = merge_components(w0, m0, P0, self.max_components, self.merge)
-        Y = real_measurements(ys)
         n, n_y = self.f.n_u, self.h.n_y
-        if Y.ndim not in (2, 3) or Y.shape[-1] != n_y or Y.shape[-2] == 0 or Y.shape[0] == 0:
-            raise ShapeError(f"ys must have shape (K, {n_y}) or (R, K, {n_y}) with K >= 1, got {Y.shape}")
-        runs = Y.shape[0] if Y.ndim == 3 else None
+        Y, runs = measurement_bank(ys, n_y)
         Yb = Y.reshape((runs or 1,) + Y.shape[-2:])
         mixture_numbers = self.max_components * (1 + n + n * n) if "mixture" in kept else 0
         check_bank_size(runs or 1, Yb.shape[1], 2 + n + n * n + mixture_numbers, f"{self.method} results",

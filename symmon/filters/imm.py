@@ -67,7 +67,7 @@ from ..errors import (ArgumentError, ArgumentTypeError, CovarianceError, ModelEr
 from ..transforms import TT1
 from .linear import KalmanFilter
 from .nonlinear import NonlinearKalmanFilter
-from .inputs import check_bank_size, check_truth, initial_state, param_values, real_measurements
+from .inputs import check_bank_size, check_truth, initial_state, measurement_bank, param_values, refuse_inf
 from .results import KalmanResult, _nees, _quadratic_forms
 from .step import _compiled_step, chunk_runs
 from .strategy import RuleStrategy
@@ -327,17 +327,12 @@ class IMM:
             With ``x_true``: a combined P is singular.
         """
         n, n_y, M = self.n, self.n_y, len(self.filters)
-        Y = real_measurements(ys)
-        if Y.ndim not in (2, 3) or Y.shape[-1] != n_y or Y.shape[-2] == 0 or Y.shape[0] == 0:
-            raise ShapeError(f"ys must have shape (K, {n_y}) or (R, K, {n_y}) with K >= 1, got {Y.shape}")
-        runs = Y.shape[0] if Y.ndim == 3 else None
+        Y, runs = measurement_bank(ys, n_y)
         R, K = runs or 1, Y.shape[-2]
         # Combined x, P, x_pred, P_pred, ν, S, NIS, log c; per mode μ, c̄, log Λ, x, P, x⁻, P⁻, ν, S.
         per_step = 2 * (n + n * n) + n_y + n_y * n_y + 2 + M * (3 + 2 * (n + n * n) + n_y + n_y * n_y)
         check_bank_size(R, K, per_step, "IMM results", "filter the runs in smaller banks, or fewer steps at a time")
-        if np.isinf(Y).any():
-            where = tuple(int(i) for i in np.argwhere(np.isinf(Y))[0])
-            raise ShapeError(f"ys contains inf (at index {where}); a missing measurement is NaN")
+        refuse_inf(Y)
         m0, C0 = initial_state(n, x0, P0, runs)
         truth = None if x_true is None else check_truth(x_true, Y.shape[:-1] + (n,))
         pvs = self._mode_params(params, runs, K)

@@ -25,7 +25,8 @@ from ..core.model import Model
 from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, ModelError, ResourceError, ShapeError
 
 __all__ = ["FilterSpec", "FilterInputs", "filter_inputs", "KEEPABLE", "check_keep", "real_measurements",
-           "check_truth", "check_state_models", "MAX_BANK_NUMBERS", "check_bank_size", "kept_numbers", "initial_state", "param_values"]
+           "check_truth", "check_state_models", "measurement_bank", "refuse_inf", "MAX_BANK_NUMBERS",
+           "check_bank_size", "kept_numbers", "initial_state", "param_values"]
 
 
 class FilterSpec(Protocol):
@@ -73,6 +74,30 @@ def check_state_models(f_model: Model, h_model: Model) -> tuple[Model, Model]:
     if h.n_u != f.n_u:
         raise ShapeError(f"h_model has {h.n_u} inputs but f_model has {f.n_u} states")
     return f, h
+
+
+def measurement_bank(ys: ArrayLike, n_y: int) -> tuple[np.ndarray, int | None]:
+    """``ys`` as real measurements of shape (K, n_y) for one run or (R, K, n_y) for a bank of
+    R runs (:func:`real_measurements`), and R (None for one run).
+
+    Raises
+    ------
+    ShapeError
+        Another shape, no step or no run, or what :func:`real_measurements` refuses.
+    """
+    Y = real_measurements(ys)
+    if Y.ndim not in (2, 3) or Y.shape[-1] != n_y or Y.shape[-2] == 0 or Y.shape[0] == 0:
+        raise ShapeError(f"ys must have shape (K, {n_y}) or (R, K, {n_y}) with K >= 1, got {Y.shape}")
+    return Y, (Y.shape[0] if Y.ndim == 3 else None)
+
+
+def refuse_inf(Y: np.ndarray) -> None:
+    """Refuse an infinite measurement, naming its index: a missing one is NaN. Called after
+    the bank's size is checked, since it reads ``Y`` whole (a broadcast bank may be larger
+    than memory)."""
+    if np.isinf(Y).any():
+        where = tuple(int(i) for i in np.argwhere(np.isinf(Y))[0])
+        raise ShapeError(f"ys contains inf (at index {where}); a missing measurement is NaN")
 
 
 def check_keep(keep: Iterable[str] | None) -> frozenset[str] | None:
@@ -311,19 +336,14 @@ def filter_inputs(kf: FilterSpec, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: A
         read whole: a broadcast bank may be larger than memory).
     """
     n, n_y = kf.f_model.n_u, kf.h_model.n_y
-    Y = real_measurements(ys)
-    if Y.ndim not in (2, 3) or Y.shape[-1] != n_y or Y.shape[-2] == 0 or Y.shape[0] == 0:
-        raise ShapeError(f"ys must have shape (K, {n_y}) or (R, K, {n_y}) with K >= 1, got {Y.shape}")
-    runs = Y.shape[0] if Y.ndim == 3 else None
+    Y, runs = measurement_bank(ys, n_y)
     kept = check_keep(keep)
     names = kf.strategy.stores(kept)
     # A square-root filter keeps the factors of P and P⁻ beside them.
-    factors = n * n * len(names & {"P", "P_pred"}) if getattr(kf, "square_root", False) else 0
+    factors = n * n * len(names & {"P", "P_pred"}) if kf.square_root else 0
     check_bank_size(runs or 1, Y.shape[-2], kept_numbers(n, n_y, names) + factors + extra_per_step,
                     f"{kf.method} {what}", advice)
-    if np.isinf(Y).any():
-        where = tuple(int(i) for i in np.argwhere(np.isinf(Y))[0])
-        raise ShapeError(f"ys contains inf (at index {where}); a missing measurement is NaN")
+    refuse_inf(Y)
     m0, C0 = initial_state(n, x0, P0, runs)
     Yb = Y.reshape((runs or 1,) + Y.shape[-2:])
     truth = None

@@ -32,7 +32,7 @@ from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, NonFinit
 from ..core.gaussian import Gaussian, as_covariance, float_array, matrix_sqrt
 from ..transforms.executor import Executor
 from .distributed import filter_bank
-from .inputs import check_bank_size, check_keep, real_measurements
+from .inputs import check_bank_size, check_keep, real_measurements, refuse_inf
 from .results import KalmanResult  # the one result type of the filters
 
 __all__ = ["KalmanFilter", "KalmanResult"]
@@ -242,9 +242,7 @@ class KalmanFilter:
         shared = 2 * n * n + n_y * n_y + n * n_y
         check_bank_size(batch or 1, Y.shape[-2], 2 * n + 2 * n_y + 2, "KF results",
                         "filter the runs in smaller banks, or fewer steps at a time", shared=shared)
-        if np.isinf(Y).any():
-            where = tuple(int(i) for i in np.argwhere(np.isinf(Y))[0])
-            raise ShapeError(f"ys contains inf (at index {where}); a missing measurement is NaN")
+        refuse_inf(Y)
         if isinstance(x0, Gaussian) == (P0 is not None):
             raise ShapeError("give x0 as a Gaussian, or its mean together with P0")
         if isinstance(x0, Gaussian):

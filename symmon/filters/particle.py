@@ -75,7 +75,7 @@ from ..transforms import TT1, UT
 from ..transforms.executor import Executor
 from .distributed import filter_bank, run_streams
 from .nonlinear import NonlinearKalmanFilter
-from .inputs import check_bank_size, check_keep, check_truth, kept_numbers, param_values, real_measurements
+from .inputs import check_bank_size, check_keep, check_truth, kept_numbers, measurement_bank, param_values, refuse_inf
 from .results import KalmanResult, _nees
 from .simulation import check_count, check_prior
 from .pf_kernel import BootstrapKernel, bootstrap_kernel, whitening
@@ -458,13 +458,8 @@ class ParticleFilter:
             return filter_bank(self, executor, ys, x0=x0, params=params, keep=keep, x_true=x_true)
         ss, N = self.space, self.particles
         n, n_y = ss.n, ss.n_y
-        Y = real_measurements(ys)
-        if Y.ndim not in (2, 3) or Y.shape[-1] != n_y or Y.shape[-2] == 0 or Y.shape[0] == 0:
-            raise ShapeError(f"ys must have shape (K, {n_y}) or (R, K, {n_y}) with K >= 1, got {Y.shape}")
-        if np.isinf(Y).any():
-            where = tuple(int(i) for i in np.argwhere(np.isinf(Y))[0])
-            raise ShapeError(f"ys contains inf (at index {where}); a missing measurement is NaN")
-        bank = Y.shape[0] if Y.ndim == 3 else None
+        Y, bank = measurement_bank(ys, n_y)
+        refuse_inf(Y)
         Rr, K = bank or 1, Y.shape[-2]
         Yb = Y.reshape(Rr, K, n_y)
         kept = check_keep(keep)
