@@ -363,7 +363,7 @@ class ParticleFilter:
         angles = list(self.space.angle_states)
         if angles:
             A = X[..., angles]
-            mean[:, angles] = np.arctan2(np.einsum("rn,rni->ri", W, np.sin(A)), np.einsum("rn,rni->ri", W, np.cos(A)))
+            mean[:, angles] = _circular_means(W, A)
         if not cov:
             return mean, None
         D = X - mean[:, None, :]
@@ -382,7 +382,7 @@ class ParticleFilter:
         ang = list(self.space.angle_outputs)
         if ang:
             A = Hx[..., ang]
-            mean[:, ang] = np.arctan2(np.einsum("rn,rni->ri", W, np.sin(A)), np.einsum("rn,rni->ri", W, np.cos(A)))
+            mean[:, ang] = _circular_means(W, A)
         D = Hx - mean[:, None, :]
         if ang:
             D[..., ang] = wrap_angle(D[..., ang])
@@ -657,8 +657,7 @@ class ParticleFilter:
                     m, C = tot[:, 2:] / s[:, None], None
                     if angles:
                         A = Xn[..., angles]
-                        m[:, angles] = np.arctan2(np.einsum("rn,rni->ri", W, np.sin(A)),
-                                                  np.einsum("rn,rni->ri", W, np.cos(A)))
+                        m[:, angles] = _circular_means(W, A)
                 if "x" in out:
                     out["x"][:, k] = m
                 if "P" in out:
@@ -730,6 +729,13 @@ class ParticleFilter:
             y_hat = (np.where(np.isnan(Yrep[:, 0]), 0.0, Yrep[:, 0]) - out["innovation"][:, 0]).reshape(Rr, N, -1)
             S_i = out["S"][:, 0].reshape(Rr, N, ss.n_y, ss.n_y)
         return Xn, inc, fx.reshape(Rr, N, n), y_hat, S_i
+
+
+def _circular_means(W: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """The weighted mean directions atan2(Σ W sin A, Σ W cos A) of angles A (R, N, i) with
+    weights W (R, N), per run: :func:`symmon.core.angles.circular_mean` with one weight
+    vector per run."""
+    return np.arctan2(np.einsum("rn,rni->ri", W, np.sin(A)), np.einsum("rn,rni->ri", W, np.cos(A)))
 
 
 def _store_measurement(out: dict, k: int, nu: np.ndarray, S: np.ndarray) -> None:
