@@ -26,6 +26,7 @@ import numpy as np
 import sympy as sp
 
 from ..errors import NonFiniteError, SingularMatrixError
+from ..transforms.nodes import standard_rule
 
 __all__ = ["Reference", "gaussian_integrals", "GH_ORDERS", "GH_SAFETY", "MC_SAMPLES", "MC_SIGMAS", "QUAD_DPS"]
 
@@ -106,16 +107,6 @@ def _quad_1d(funcs: Sequence[sp.Expr], x: sp.Symbol, m: sp.Expr, var: sp.Expr, d
     return Reference(tuple(vals), tuple(errs), f"mpmath quadrature in {dps} digits (split at the kinks)")
 
 
-def _hermite_nodes(order: int, n: int) -> tuple[np.ndarray, np.ndarray]:
-    z, w = np.polynomial.hermite_e.hermegauss(order)
-    w = w / w.sum()
-    grids = np.meshgrid(*([z] * n), indexing="ij")
-    weights = np.ones_like(grids[0])
-    for g in np.meshgrid(*([w] * n), indexing="ij"):
-        weights = weights * g
-    return np.stack([g.ravel() for g in grids], axis=1), weights.ravel()
-
-
 def _evaluate(funcs: Sequence[sp.Expr], over: Sequence[sp.Symbol], X: np.ndarray) -> np.ndarray:
     """The functions at the rows of X, shape (len(funcs), len(X)); non-finite values refused."""
     fn = sp.lambdify(list(over), list(funcs), modules="numpy")
@@ -132,7 +123,7 @@ def _gauss_hermite(funcs: Sequence[sp.Expr], over: Sequence[sp.Symbol], m: np.nd
     lo, hi = orders
     res = []
     for order in (lo, hi):
-        Z, w = _hermite_nodes(order, len(over))
+        Z, w = standard_rule(len(over), order, sparse=False)
         F = _evaluate(funcs, over, m + Z @ L.T)
         res.append((F @ w, np.abs(F) @ w))
     (a, scale), (b, _) = res
