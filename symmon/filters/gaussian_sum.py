@@ -92,11 +92,11 @@ from .distributed import filter_bank
 from .nonlinear import NonlinearKalmanFilter
 from .inputs import check_bank_size, measurement_bank, param_values
 from .results import KalmanResult
-from .step import (_filterable, filter_params, model_moments, predict_graph, select_params, step_kind, sym,
+from .step import (_filterable, filter_params, predict_graph, select_params, step_kind, sym,
                    update_graph)
 
-__all__ = ["GaussianSumFilter", "GaussianSumResult", "SPLITS", "split_component", "split_direction",
-           "merge_components", "component_mon", "MERGE_RULES"]
+__all__ = ["GaussianSumFilter", "GaussianSumResult", "SPLITS", "split_component", "split_components",
+           "split_direction", "split_directions", "merge_components", "component_mon", "MERGE_RULES"]
 
 #: The merging criteria.
 MERGE_RULES = ("runnalls", "salmond")
@@ -108,37 +108,75 @@ def split_component(mean: ArrayLike, cov: ArrayLike, direction: ArrayLike, m: in
 
     m_j = mean + μ_j d, P_j = cov − (1 − σ²) d dᵀ, weights ω_j (module notes); d must be
     S a for a square root S Sᵀ = cov and a unit a (so that every P_j is positive
-    semi-definite), e.g. ``split_direction``'s.
+    semi-definite), e.g. ``split_direction``'s.  :func:`split_components` is the same for a
+    stack of components.
 
     Returns
     -------
     weights (m,), means (m, n), covs (m, n, n)
     """
+    mean, cov, d = (np.asarray(a, dtype=float) for a in (mean, cov, direction))
+    w, means, covs = split_components(mean[None], cov[None], d[None], m)
+    return w, means[0], covs[0]
+
+
+def split_components(means: np.ndarray, covs: np.ndarray, directions: np.ndarray, m: int = 3
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`split_component` of N components at once: means (N, n), covs (N, n, n) and
+    directions (N, n) give the weights ω (m,) and the children's means (N, m, n) and
+    covariances (N, m, n, n)."""
     if m not in SPLITS:
         raise ArgumentError(f"a split has {sorted(SPLITS)} components, got {m!r}")
     w, mu, sigma = split_weights(m)
-    mean, cov, d = (np.asarray(a, dtype=float) for a in (mean, cov, direction))
-    means = mean + mu[:, None] * d
-    P = cov - (1.0 - sigma**2) * np.outer(d, d)
-    return w, means, np.broadcast_to(0.5 * (P + P.T), (m,) + cov.shape).copy()
+    d = directions
+    children = means[:, None, :] + mu[None, :, None] * d[:, None, :]
+    P = covs - (1.0 - sigma**2) * (d[:, :, None] * d[:, None, :])
+    P = 0.5 * (P + np.swapaxes(P, 1, 2))
+    return w, children, np.broadcast_to(P[:, None], (len(P), m) + P.shape[1:]).copy()
 
 
 def split_direction(cov: np.ndarray, hessians: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """The direction d = S a to split N(·, cov) along, for Hessians H_i (n_y, n, n) of g at its
     mean and the MoN's weight W (n_y, n_y): the unit a maximising ½ Σ_k (aᵀ G_k a)²,
     G_k = Σ_i C_ki Sᵀ H_i S, W = CᵀC (module notes), among the leading eigenvectors of the
-    G_k and the axes; S from the eigen-decomposition of cov."""
-    lam, V = np.linalg.eigh(cov)
-    S = V * np.sqrt(np.clip(lam, 0.0, None))
-    wl, wv = np.linalg.eigh(0.5 * (weight + weight.T))
-    C = (wv * np.sqrt(np.clip(wl, 0.0, None))).T
-    G = np.einsum("ki,ab,iac,cd->kbd", C, S, hessians, S)
-    G = 0.5 * (G + np.swapaxes(G, 1, 2))
+    G_k and the axes; S from the eigen-decomposition of cov (ties within :data:`TIE`: the first
+    eigenvalue, the first candidate).  :func:`split_directions` is the same for a stack of
+    components."""
+    cov, hessians, weight = (np.asarray(a, dtype=float) for a in (cov, hessians, weight))
+    return split_directions(cov[None], hessians[None], weight[None])[0]
+
+
+#: Relative margin within which two candidate directions (or eigenvalues) count as tied: a
+#: bearing's Hessian has eigenvalues ±λ (atan2 is harmonic), so with an isotropic position
+#: spread its two curvature directions are exactly as good, and rounding alone would pick one.
+TIE = 1e-9
+
+
+def _first_max(a: np.ndarray, axis: int) -> np.ndarray:
+    """The index of the first entry of the non-negative ``a`` along ``axis`` within :data:`TIE`
+    of the largest: a tie is broken by the order, not by the last bits."""
+    return np.argmax(a >= (1.0 - TIE) * a.max(axis=axis, keepdims=True), axis=axis)
+
+
+def split_directions(covs: np.ndarray, hessians: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """:func:`split_direction` of N components at once, every step one stacked NumPy call:
+    covs (N, n, n), hessians (N, n_y, n, n), weights (N, n_y, n_y) ↦ directions (N, n)."""
+    N, n = covs.shape[:2]
+    lam, V = np.linalg.eigh(covs)
+    S = V * np.sqrt(np.clip(lam, 0.0, None))[:, None, :]
+    wl, wv = np.linalg.eigh(0.5 * (weights + np.swapaxes(weights, 1, 2)))
+    C = np.swapaxes(wv * np.sqrt(np.clip(wl, 0.0, None))[:, None, :], 1, 2)
+    # G_k = Σ_i C_ki Sᵀ H_i S for every component: (N, n_y, n, n).
+    SHS = np.swapaxes(S, 1, 2)[:, None] @ hessians @ S[:, None]
+    G = np.einsum("Nki,Nibd->Nkbd", C, SHS)
+    G = 0.5 * (G + np.swapaxes(G, 2, 3))
     gl, gv = np.linalg.eigh(G)
-    lead = gv[np.arange(len(G)), :, np.argmax(np.abs(gl), axis=1)]  # (n_y, n): each G_k's leading eigenvector
-    cands = np.vstack([lead, np.eye(len(cov))])
-    share = (np.einsum("ca,kab,cb->ck", cands, G, cands) ** 2).sum(axis=1)
-    return S @ cands[int(np.argmax(share))]
+    top = _first_max(np.abs(gl), axis=2)  # (N, n_y)
+    lead = np.take_along_axis(gv, top[:, :, None, None], axis=3)[..., 0]  # (N, n_y, n): leading eigenvectors
+    cands = np.concatenate([lead, np.broadcast_to(np.eye(n), (N, n, n))], axis=1)  # (N, n_y + n, n)
+    quad = np.einsum("Nca,Nkab,Ncb->Nck", cands, G, cands)
+    best = _first_max((quad**2).sum(axis=2), axis=1)
+    return np.einsum("Nab,Nb->Na", S, cands[np.arange(N), best])
 
 
 def _corr_inverse(A: np.ndarray) -> np.ndarray:
@@ -146,55 +184,81 @@ def _corr_inverse(A: np.ndarray) -> np.ndarray:
     (so that a state in mm beside one in rad is not called singular); pseudo-inverse on the
     correlation scale where one is singular."""
     r = 1.0 / np.sqrt(np.einsum("nii->ni", A))
+    if A.shape[1] == 1:  # a variance: its correlation matrix is [1]
+        return r[:, :, None] * r[:, None, :]
     corr = r[:, :, None] * A * r[:, None, :]
     return r[:, :, None] * np.linalg.pinv(corr, rcond=1e-12, hermitian=True) * r[:, None, :]
 
 
-def component_mon(cov_g: np.ndarray, cross: np.ndarray, P: np.ndarray, noise: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """The unitless MoN M (N,) of y = g(x) + e, e ~ N(0, noise), at N components, from their
-    moments (TT2 in the filter): Cov g (N, n_y, n_y), Cov(g, x) (N, n_y, n) and P = Cov x
-    (N, n, n); and the weights W = Σ_yy⁻¹/n_y (N, n_y, n_y).
+def component_mon(cov_g: np.ndarray, residual: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The unitless MoN M (N,) of y = g(x) + e, e ~ N(0, noise), at N components, and their
+    weights W = Σ_yy⁻¹/n_y (N, n_y, n_y), from Cov g (N, n_y, n_y) and the residual
+    D = Σ_gg − Σ_c − Σ_gu Σ_uu⁻¹ Σ_ug (N, n_y, n_y) of each component.
 
-    M² = tr(W (Σ_gg − Σ_c − Σ_gu Σ_uu⁻¹ Σ_ug)) with Σ_gg = Cov g + noise, Σ_c = noise
-    (eqs. (25), (29), (43) of Straka & Havlík 2024): the batched form of
-    :func:`symmon.measures.formula.mon_from_moments`.
+    M² = tr(W D) with Σ_gg = Cov g + noise, Σ_c = noise (eqs. (25), (29), (43) of Straka &
+    Havlík 2024): the batched form of :func:`symmon.measures.formula.mon_from_moments`.  The
+    filter takes D from TT2, D_ij = ½ tr(H_i P H_j P) (no inverse of P, and none of the
+    cancellation of Cov g − J P Jᵀ), in the same compiled call as Cov g.
     """
     n_y = cov_g.shape[-1]
     W = _corr_inverse(cov_g + noise) / n_y
-    D = cov_g - cross @ _corr_inverse(P) @ np.swapaxes(cross, 1, 2)
-    M2 = np.einsum("nij,nji->n", W, D)
+    M2 = np.einsum("nij,nji->n", W, residual)
     return np.sqrt(np.clip(M2, 0.0, None)), W
+
+
+def _pair_costs(w, m, P, ld, a, b, rule: str, Pinv) -> np.ndarray:
+    """The merging costs of the pairs (a[k], b[k]) (module notes): Runnalls' bound, with
+    ld the log-determinants of the P, or Salmond's distance in the metric Pinv."""
+    wi, wj = w[a], w[b]
+    ws = wi + wj
+    d = m[a] - m[b]
+    if rule == "runnalls":
+        Pij = (wi[:, None, None] * P[a] + wj[:, None, None] * P[b]) / ws[:, None, None] \
+            + (wi * wj / ws**2)[:, None, None] * d[:, :, None] * d[:, None, :]
+        return 0.5 * (ws * np.linalg.slogdet(Pij)[1] - wi * ld[a] - wj * ld[b])
+    return wi * wj / ws * np.einsum("ka,ab,kb->k", d, Pinv, d)
 
 
 def merge_components(w: np.ndarray, m: np.ndarray, P: np.ndarray, keep: int, rule: str = "runnalls"
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Merge pairs of the mixture (w (M,), m (M, n), P (M, n, n)) until at most ``keep``
     components are left, each pair into its moment-matched Gaussian (which keeps the mixture's
-    mean and covariance), the pair of least Runnalls (2007) or Salmond (1990) cost first."""
+    mean and covariance), the pair of least Runnalls (2007) or Salmond (1990) cost first.
+
+    Greedy, as Runnalls (2007, Sec. V): the costs of all M(M − 1)/2 pairs are computed once,
+    in one stacked call; after a merge of (i, j) into i, only the costs of the pairs with i are
+    recomputed (the others are unchanged), so M − keep merges cost O(M² + (M − keep) M)
+    pair costs instead of O((M − keep) M²).  Ties go to the first pair in the order
+    (i, j), i < j, of the components as they stand.
+    """
     if rule not in MERGE_RULES:
         raise ArgumentError(f"merge must be one of {MERGE_RULES}, got {rule!r}")
     w, m, P = w.copy(), m.copy(), P.copy()
-    if rule == "salmond":
-        Pinv = _corr_inverse(mixture_moments(w / w.sum(), m, P)[1][None])[0]
-    while len(w) > keep:
-        iu, ju = np.triu_indices(len(w), 1)
-        wi, wj = w[iu], w[ju]
-        ws = wi + wj
-        d = m[iu] - m[ju]
-        if rule == "runnalls":
-            Pij = (wi[:, None, None] * P[iu] + wj[:, None, None] * P[ju]) / ws[:, None, None] \
-                + (wi * wj / ws**2)[:, None, None] * d[:, :, None] * d[:, None, :]
-            ld = np.linalg.slogdet(P)[1]
-            cost = 0.5 * (ws * np.linalg.slogdet(Pij)[1] - wi * ld[iu] - wj * ld[ju])
-        else:
-            cost = wi * wj / ws * np.einsum("ka,ab,kb->k", d, Pinv, d)
-        k = int(np.argmin(cost))
-        i, j = int(iu[k]), int(ju[k])
+    M = len(w)
+    if M <= keep:
+        return w, m, P
+    Pinv = _corr_inverse(mixture_moments(w / w.sum(), m, P)[1][None])[0] if rule == "salmond" else None
+    ld = np.linalg.slogdet(P)[1] if rule == "runnalls" else None
+    cost = np.full((M, M), np.inf)  # cost[i, j] of the pair i < j of live components; inf elsewhere
+    iu, ju = np.triu_indices(M, 1)
+    cost[iu, ju] = _pair_costs(w, m, P, ld, iu, ju, rule, Pinv)
+    alive = np.ones(M, dtype=bool)
+    for _ in range(M - keep):
+        i, j = divmod(int(np.argmin(cost)), M)
+        if not i < j or not alive[i] or not alive[j] or cost[i, j] == np.inf:
+            # Every live pair costs inf (or the argmin landed on a filler inf): the first live pair.
+            i, j = np.flatnonzero(alive)[:2]
         mm, PP = mixture_moments(np.array([w[i], w[j]]) / (w[i] + w[j]), m[[i, j]], P[[i, j]])
         w[i], m[i], P[i] = w[i] + w[j], mm, PP
-        w, m, P = np.delete(w, j), np.delete(m, j, axis=0), np.delete(P, j, axis=0)
-    return w, m, P
+        alive[j] = False
+        cost[j, :] = cost[:, j] = np.inf
+        if ld is not None:
+            ld[i] = np.linalg.slogdet(P[i])[1]
+        live = np.flatnonzero(alive)
+        lo, hi = live[live < i], live[live > i]
+        cost[lo, i] = _pair_costs(w, m, P, ld, lo, np.full(len(lo), i), rule, Pinv)
+        cost[i, hi] = _pair_costs(w, m, P, ld, np.full(len(hi), i), hi, rule, Pinv)
+    return w[alive], m[alive], P[alive]
 
 
 def _rows(z, shapes: list[tuple[int, int]]) -> list:
@@ -233,13 +297,36 @@ class _ComponentSteps:
                                            select_params(h, names, p))
         self.update = batched(ca.Function(tag + "_u", [z], [ca.densify(a) for a in (xn, Pn, ll)], {"cse": True}))
         self.mon = {}
-        mon_kind, mon_chol = step_kind(f, h, TT2())
-        for which, mdl, angles in (("f", f, angle_states), ("h", h, frozenset(h.angle_outputs))):
+        mon_kind = step_kind(f, h, TT2())[0]
+        for which, mdl in (("f", f), ("h", h)):
             z = mon_kind.sym("z", n + n * n + n_p)
             x, P, p = _rows(z, [(n, 1), (n, n), (n_p, 1)])
-            _, cov, cross = model_moments(mdl, x, P, TT2(), angles, mon_chol, select_params(mdl, names, p))
-            self.mon[which] = batched(ca.Function(f"{tag}_m{which}", [z], [ca.densify(sym(cov)), ca.densify(cross)],
+            self.mon[which] = batched(ca.Function(f"{tag}_m{which}", [z], _mon_graph(mdl, x, P, select_params(mdl, names, p)),
                                                   {"cse": True}))
+
+
+def _mon_graph(model: Model, x, P, p) -> list:
+    """(Cov g, D, the Hessians H_i) of g = ``model`` (additive noise) at N(x, P) by TT2: the
+    MoN's moments and the split direction's curvature of one component, one graph.
+
+    With J and H_i the Jacobian and Hessians in the state at x (p fixed), TT2 gives
+    Cov g = J P Jᵀ + D and Cov(g, x) = J P, so the MoN's residual
+    D = Σ_gg − Σ_c − Σ_gu Σ_uu⁻¹ Σ_ug = Cov g − J P Jᵀ (Straka & Havlík 2024, eqs. (25), (29))
+    is D_ij = ½ tr(H_i P H_j P) (Gustafsson & Hendeby 2012): no inverse of P, and none of the
+    cancellation of the difference when the MoN is small."""
+    cm = _model_cm(model)
+    n, n_y = x.shape[0], model.n_y
+    w = ca.vertcat(x, p) if model.n_p else x
+    J, *H = ca.Function("jh", [cm.w_sx], [cm.J_sx, *cm.H_sx])(w)
+    J = J[:, :n]
+    H = [ca.densify(a[:n, :n]) for a in H]
+    HP = [ca.mtimes(a, P) for a in H]
+    F = ca.horzcat(*[ca.vec(a) for a in HP])
+    Ft = ca.horzcat(*[ca.vec(a.T) for a in HP])
+    D = 0.5 * ca.mtimes(F.T, Ft)  # ⟨H_i P, (H_j P)ᵀ⟩ = tr(H_i P H_j P)
+    D = 0.5 * (D + D.T)
+    cov = ca.mtimes(ca.mtimes(J, P), J.T) + D
+    return [ca.densify(sym(cov)), ca.densify(D), ca.vertcat(*[ca.vec(a) for a in H])]
 
 
 _steps: dict[tuple, _ComponentSteps] = {}
@@ -505,53 +592,49 @@ class GaussianSumFilter:
         return out
 
     # ------------------------------------------------------------------ the stepwise filter
-    def _mons(self, which: str, steps: _ComponentSteps, x, P, p, noise) -> tuple[np.ndarray, np.ndarray]:
+    def _mons(self, which: str, steps: _ComponentSteps, x, P, p, noise):
+        """The MoN M (N,), its weights W (N, n_y, n_y) and the Hessians (N, n_y, n, n) of f or h
+        at every component: one compiled call, then the stacked weights."""
         N, n = x.shape
-        cov_g, cross = steps.mon[which](np.hstack([x, P.reshape(N, n * n), p]))
         n_y = noise.shape[0]
-        return component_mon(cov_g.reshape(N, n_y, n_y), cross.reshape(N, n, n_y).transpose(0, 2, 1), P, noise)
+        cov_g, D, H = steps.mon[which](np.hstack([x, P.reshape(N, n * n), p]))
+        mon, W = component_mon(cov_g.reshape(N, n_y, n_y), D.reshape(N, n_y, n_y), noise)
+        # CasADi's vec is column-major: H_i's columns are the rows of its transpose (H_i is symmetric).
+        return mon, W, H.reshape(N, n_y, n, n)
 
     def _split(self, which: str, steps, run, w, x, P, p, noise, cap: int):
         """Split the components whose MoN of ``which`` exceeds ``split`` (the largest first,
         while the run has room below ``cap``); returns the new arrays and the splits per run."""
         R = int(run.max()) + 1 if len(run) else 0
-        mon, W = self._mons(which, steps, x, P, p, noise)
+        mon, W, H = self._mons(which, steps, x, P, p, noise)
         over = np.flatnonzero(mon > self.split)
-        count = np.bincount(run, minlength=R)
         splits = np.zeros(R, dtype=int)
         if not len(over):
             return run, w, x, P, p, splits
-        mdl = self.f if which == "f" else self.h
-        cm = _model_cm(mdl)
-        n = x.shape[1]
         m = self.split_components
         order = over[np.argsort(-mon[over], kind="stable")]
-        chosen = []
-        for i in order:
-            if count[run[i]] + m - 1 <= cap:
-                count[run[i]] += m - 1
-                splits[run[i]] += 1
-                chosen.append(i)
-        if not chosen:
+        # The largest MoN first, while the run has room: the k-th split of a run (in that
+        # order) brings it to count + k (m − 1) components.
+        count = np.bincount(run, minlength=R)
+        rank = np.empty(len(order), dtype=int)
+        ro = run[order]
+        by_run = np.argsort(ro, kind="stable")
+        firsts = np.searchsorted(ro[by_run], np.arange(R))
+        rank[by_run] = np.arange(len(order)) - firsts[ro[by_run]]
+        chosen = np.sort(order[count[ro] + (rank + 1) * (m - 1) <= cap])
+        if not len(chosen):
             return run, w, x, P, p, splits
-        chosen = np.sort(np.array(chosen))
-        names = filter_params(self.f, self.h)
-        rows = np.hstack([x[chosen], p[chosen][:, [names.index(s) for s in mdl.params]]]) if mdl.n_p else x[chosen]
-        H = cm.eval_gjh(rows)[2][:, :, :n, :n]
-        pieces = []
-        for c, i in enumerate(chosen):
-            d = split_direction(P[i], H[c], W[i])
-            pieces.append(split_component(x[i], P[i], d, m))
+        splits += np.bincount(run[chosen], minlength=R)
+        d = split_directions(P[chosen], H[chosen], W[chosen])
+        pw, pm, pP = split_components(x[chosen], P[chosen], d, m)
         # Each chosen component becomes m, in place (the runs stay contiguous and in order).
         reps = np.ones(len(w), dtype=int)
         reps[chosen] = m
         idx = np.repeat(np.arange(len(w)), reps)
         run, w, x, P, p = run[idx], w[idx].copy(), x[idx].copy(), P[idx].copy(), p[idx]
-        starts = np.cumsum(reps) - reps
-        for (pw, pm, pP), i in zip(pieces, chosen):
-            s = starts[i]
-            w[s:s + m] = w[s:s + m] * pw
-            x[s:s + m], P[s:s + m] = pm, pP
+        slots = ((np.cumsum(reps) - reps)[chosen][:, None] + np.arange(m)).ravel()
+        w[slots] = w[slots] * np.tile(pw, len(chosen))
+        x[slots], P[slots] = pm.reshape(-1, x.shape[1]), pP.reshape((-1,) + P.shape[1:])
         if self.kf.angle_states:
             a = sorted(self.kf.angle_states)
             x[:, a] = wrap_angle(x[:, a])

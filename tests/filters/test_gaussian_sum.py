@@ -148,14 +148,20 @@ def test_a_split_keeps_the_moments_and_lowers_each_components_mon(m) -> None:
     assert w @ children < 0.7 * parent
 
 
-def test_component_mon_is_the_full_weight_mon_of_the_noisy_model() -> None:
+def _noisy(model):
     e = sp.Symbol("e")
-    noisy = sm.Model(H_BEARING.inputs, [H_BEARING.outputs[0] + e], noise=[e], angles=[0])
+    return sm.Model(model.inputs, [model.outputs[0] + e], noise=[e], angles=list(model.angle_outputs))
+
+
+def test_component_mon_is_the_full_weight_mon_of_the_noisy_model() -> None:
     mean, P = np.array([1.0, 0.2]), np.array([[0.7, 0.1], [0.1, 0.3]])
-    ref = sm.nonlinearity(noisy, sm.Gaussian(mean, P), sm.Gaussian([0.0], R), weight="full", transform=sm.TT2())
+    ref = sm.nonlinearity(_noisy(H_BEARING), sm.Gaussian(mean, P), sm.Gaussian([0.0], R), weight="full",
+                          transform=sm.TT2())
     mom = sm.propagate_many(H_BEARING, (mean[None], P[None]), transform=sm.TT2())
-    mon, _ = component_mon(mom.cov, mom.cross_cov, P[None], R)
+    D = mom.cov - mom.cross_cov @ np.linalg.solve(P, mom.cross_cov[0].T)
+    mon, W = component_mon(mom.cov, D, R)
     assert mon[0] == pytest.approx(ref.value, rel=1e-10)
+    np.testing.assert_allclose(W[0], ref.weight, rtol=1e-14)
 
 
 @pytest.mark.parametrize("rule", ["runnalls", "salmond"])
