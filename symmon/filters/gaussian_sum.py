@@ -71,7 +71,7 @@ from __future__ import annotations
 import hashlib
 import threading
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, lru_cache
 from typing import Iterable
 
 import casadi as ca
@@ -82,7 +82,7 @@ from ..compile import batched, compiled, compiled_with_params
 from ..core.angles import wrap_angle
 from ..core.gaussian import Gaussian
 from ..core.checks import check_gaussian
-from ..core.mixture import SPLITS, GaussianMixture, mixture_moments, split_weights
+from ..core.mixture import SPLITS, GaussianMixture, split_weights
 from ..core.model import Model
 from ..errors import ArgumentError, ArgumentTypeError, ShapeError, SymmonError
 from ..transforms import TT2, UT, Transform
@@ -90,6 +90,7 @@ from ..transforms.registry import resolve
 from ..transforms.executor import Executor
 from .distributed import filter_bank
 from .nonlinear import NonlinearKalmanFilter
+from .mixture_merge import MERGE_RULES, merge_components, merge_runs
 from .inputs import check_bank_size, measurement_bank, param_values
 from .results import KalmanResult
 from .step import (_filterable, filter_params, predict_graph, select_params, step_kind, sym,
@@ -97,10 +98,6 @@ from .step import (_filterable, filter_params, predict_graph, select_params, ste
 
 __all__ = ["GaussianSumFilter", "GaussianSumResult", "SPLITS", "split_component", "split_components",
            "split_direction", "split_directions", "merge_components", "component_mon", "MERGE_RULES"]
-
-#: The merging criteria.
-MERGE_RULES = ("runnalls", "salmond")
-
 
 def split_component(mean: ArrayLike, cov: ArrayLike, direction: ArrayLike, m: int = 3
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -120,14 +117,22 @@ def split_component(mean: ArrayLike, cov: ArrayLike, direction: ArrayLike, m: in
     return w, means[0], covs[0]
 
 
+@lru_cache(maxsize=None)
+def _split_table(m: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """:func:`~symmon.core.mixture.split_weights` of m, computed once (read-only arrays)."""
+    if m not in SPLITS:
+        raise ArgumentError(f"a split has {sorted(SPLITS)} components, got {m!r}")
+    w, mu, sigma = split_weights(m)
+    w.flags.writeable = mu.flags.writeable = False
+    return w, mu, sigma
+
+
 def split_components(means: np.ndarray, covs: np.ndarray, directions: np.ndarray, m: int = 3
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`split_component` of N components at once: means (N, n), covs (N, n, n) and
     directions (N, n) give the weights ω (m,) and the children's means (N, m, n) and
     covariances (N, m, n, n)."""
-    if m not in SPLITS:
-        raise ArgumentError(f"a split has {sorted(SPLITS)} components, got {m!r}")
-    w, mu, sigma = split_weights(m)
+    w, mu, sigma = _split_table(m)
     d = directions
     children = means[:, None, :] + mu[None, :, None] * d[:, None, :]
     P = covs - (1.0 - sigma**2) * (d[:, :, None] * d[:, None, :])
@@ -164,10 +169,17 @@ def split_directions(covs: np.ndarray, hessians: np.ndarray, weights: np.ndarray
     N, n = covs.shape[:2]
     lam, V = np.linalg.eigh(covs)
     S = V * np.sqrt(np.clip(lam, 0.0, None))[:, None, :]
+    SHS = np.swapaxes(S, 1, 2)[:, None] @ hessians @ S[:, None]
+    if weights.shape[1] == 1:
+        # One output: W = C² > 0 and the leading eigenvector a of G_1 maximises (aᵀ G_1 a)²
+        # exactly, so no axis can beat it (the general path below picks it too).
+        G = np.sqrt(np.clip(weights[:, 0, 0], 0.0, None))[:, None, None] * SHS[:, 0]
+        gl, gv = np.linalg.eigh(0.5 * (G + np.swapaxes(G, 1, 2)))
+        lead = np.take_along_axis(gv, _first_max(np.abs(gl), axis=1)[:, None, None], axis=2)[..., 0]
+        return np.einsum("Nab,Nb->Na", S, lead)
     wl, wv = np.linalg.eigh(0.5 * (weights + np.swapaxes(weights, 1, 2)))
     C = np.swapaxes(wv * np.sqrt(np.clip(wl, 0.0, None))[:, None, :], 1, 2)
     # G_k = Σ_i C_ki Sᵀ H_i S for every component: (N, n_y, n, n).
-    SHS = np.swapaxes(S, 1, 2)[:, None] @ hessians @ S[:, None]
     G = np.einsum("Nki,Nibd->Nkbd", C, SHS)
     G = 0.5 * (G + np.swapaxes(G, 2, 3))
     gl, gv = np.linalg.eigh(G)
@@ -204,61 +216,6 @@ def component_mon(cov_g: np.ndarray, residual: np.ndarray, noise: np.ndarray) ->
     W = _corr_inverse(cov_g + noise) / n_y
     M2 = np.einsum("nij,nji->n", W, residual)
     return np.sqrt(np.clip(M2, 0.0, None)), W
-
-
-def _pair_costs(w, m, P, ld, a, b, rule: str, Pinv) -> np.ndarray:
-    """The merging costs of the pairs (a[k], b[k]) (module notes): Runnalls' bound, with
-    ld the log-determinants of the P, or Salmond's distance in the metric Pinv."""
-    wi, wj = w[a], w[b]
-    ws = wi + wj
-    d = m[a] - m[b]
-    if rule == "runnalls":
-        Pij = (wi[:, None, None] * P[a] + wj[:, None, None] * P[b]) / ws[:, None, None] \
-            + (wi * wj / ws**2)[:, None, None] * d[:, :, None] * d[:, None, :]
-        return 0.5 * (ws * np.linalg.slogdet(Pij)[1] - wi * ld[a] - wj * ld[b])
-    return wi * wj / ws * np.einsum("ka,ab,kb->k", d, Pinv, d)
-
-
-def merge_components(w: np.ndarray, m: np.ndarray, P: np.ndarray, keep: int, rule: str = "runnalls"
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Merge pairs of the mixture (w (M,), m (M, n), P (M, n, n)) until at most ``keep``
-    components are left, each pair into its moment-matched Gaussian (which keeps the mixture's
-    mean and covariance), the pair of least Runnalls (2007) or Salmond (1990) cost first.
-
-    Greedy, as Runnalls (2007, Sec. V): the costs of all M(M − 1)/2 pairs are computed once,
-    in one stacked call; after a merge of (i, j) into i, only the costs of the pairs with i are
-    recomputed (the others are unchanged), so M − keep merges cost O(M² + (M − keep) M)
-    pair costs instead of O((M − keep) M²).  Ties go to the first pair in the order
-    (i, j), i < j, of the components as they stand.
-    """
-    if rule not in MERGE_RULES:
-        raise ArgumentError(f"merge must be one of {MERGE_RULES}, got {rule!r}")
-    w, m, P = w.copy(), m.copy(), P.copy()
-    M = len(w)
-    if M <= keep:
-        return w, m, P
-    Pinv = _corr_inverse(mixture_moments(w / w.sum(), m, P)[1][None])[0] if rule == "salmond" else None
-    ld = np.linalg.slogdet(P)[1] if rule == "runnalls" else None
-    cost = np.full((M, M), np.inf)  # cost[i, j] of the pair i < j of live components; inf elsewhere
-    iu, ju = np.triu_indices(M, 1)
-    cost[iu, ju] = _pair_costs(w, m, P, ld, iu, ju, rule, Pinv)
-    alive = np.ones(M, dtype=bool)
-    for _ in range(M - keep):
-        i, j = divmod(int(np.argmin(cost)), M)
-        if not i < j or not alive[i] or not alive[j] or cost[i, j] == np.inf:
-            # Every live pair costs inf (or the argmin landed on a filler inf): the first live pair.
-            i, j = np.flatnonzero(alive)[:2]
-        mm, PP = mixture_moments(np.array([w[i], w[j]]) / (w[i] + w[j]), m[[i, j]], P[[i, j]])
-        w[i], m[i], P[i] = w[i] + w[j], mm, PP
-        alive[j] = False
-        cost[j, :] = cost[:, j] = np.inf
-        if ld is not None:
-            ld[i] = np.linalg.slogdet(P[i])[1]
-        live = np.flatnonzero(alive)
-        lo, hi = live[live < i], live[live > i]
-        cost[lo, i] = _pair_costs(w, m, P, ld, lo, np.full(len(lo), i), rule, Pinv)
-        cost[i, hi] = _pair_costs(w, m, P, ld, np.full(len(hi), i), hi, rule, Pinv)
-    return w[alive], m[alive], P[alive]
 
 
 def _rows(z, shapes: list[tuple[int, int]]) -> list:
@@ -726,17 +683,9 @@ class GaussianSumFilter:
         np.maximum.at(top, run, w)
         keep = (w >= self.prune) | (w == top[run])
         run, w, x, P = run[keep], w[keep], x[keep], P[keep]
-        counts = np.bincount(run, minlength=R)
-        if (counts > self.max_components).any():
-            parts = []
-            starts = np.concatenate([[0], np.cumsum(counts)])
-            for r in range(R):
-                a, b = starts[r], starts[r + 1]
-                if b - a > self.max_components:
-                    wr, xr, Pr = merge_components(w[a:b], x[a:b], P[a:b], self.max_components, self.merge)
-                else:
-                    wr, xr, Pr = w[a:b], x[a:b], P[a:b]
-                parts.append((np.full(len(wr), r), wr, xr, Pr))
-            run, w, x, P = (np.concatenate([q[i] for q in parts]) for i in range(4))
+        if (np.bincount(run, minlength=R) > self.max_components).any():
+            w, x, P = (np.ascontiguousarray(a, dtype=float) for a in (w, x, P))
+            left = merge_runs(run, w, x, P, self.max_components, self.merge)
+            run, w, x, P = run[left], w[left], x[left], P[left]
         tot = np.bincount(run, w, minlength=R)
         return run, w / tot[run], x, P
