@@ -15,7 +15,9 @@ W^full = Σ_yy⁻¹/n_y (Straka & Havlík 2024, eqs. (25), (29), (43)),
     M² = tr(W (Σ_gg − Σ_c − Σ_gu Σ_uu⁻¹ Σ_ug)),  Σ_gg = Cov g + R,  Σ_c = R,
 
 (for y = g(x) + e, e ~ N(0, R); Q for the dynamics) is computed with TT2 at the component
-N(m_i, P_i), in one compiled batch over all components.  A component whose M exceeds
+N(m_i, P_i): for TT2, Cov g = J P Jᵀ + D and Cov(g, x) = J P, so the residual is
+D_il = ½ tr(H_i P H_l P), with no inverse of P.  One compiled call gives Cov g, D and the
+Hessians H_i (for the direction below) of all components of all runs.  A component whose M exceeds
 ``split`` is replaced by m = 3 or 5 components from a tabulated split of N(0, 1)
 (:data:`symmon.core.mixture.SPLITS`, computed by ``derivations/gaussian_split.py``): along a direction d with
 P = S Sᵀ and d = S a, |a| = 1,
@@ -34,21 +36,40 @@ the eigenvector of G_1 with the largest |eigenvalue| (exact), for several the be
 leading eigenvectors of every G_k and the eigen-directions of P (the axes of the whitened
 coordinates).  This is the eigen-direction of the curvature in the units of the component's
 own spread: splitting along the largest eigen-direction of P alone would split a bearing's
-range uncertainty even when the bearing is linear in it.
+range uncertainty even when the bearing is linear in it.  Exact ties (a bearing's Hessian
+has eigenvalues ±λ, so an isotropic position spread has two equally curved directions) go
+to the first eigenvalue and candidate (:data:`TIE`), not to the last bits of rounding.  The
+directions and the splits of all components are stacked NumPy calls
+(:func:`split_directions`, :func:`split_components`).
+
+**What a split does to the MoN.**  Under a fixed weight (the parent's W, or Liu–Li's raw
+W = I) and a quadratic g, every child is less nonlinear than its parent along *any*
+direction: D(P) = ½ tr(H P H P) is monotone in the Loewner order and P_j ⪯ P.  Each child's
+*own* normalised MoN (its W^full, which for one output is also the normalised Liu–Li weight)
+is not lower in general, whatever the direction or the spread: a child moving to where g is
+flatter has less output variance, of which the residual is a larger share (quadratic of the
+tests: 0.73 for a child against 0.42 for the parent; no direction of 24 lowers every child's
+MoN by 1 %).  For a bearing even the parent's weight does not suffice: the child nearest the
+sensor, where the curvature grows as 1/r², is more nonlinear (1.38 × the parent's M²); what
+holds is that the children's weighted mean MoN is lower.  Splitting again the children above
+the threshold does not converge either (after 5 levels a chain of children toward the
+sensor or the stationary point keeps a MoN of 0.64–0.70).  docs/filters.md has the numbers.
 
 **Merging and pruning.**  After each update, components with weight below ``prune`` are
 dropped, and while a run has more than ``max_components``, the pair with the least cost is
 merged into its moment-matched Gaussian (which keeps the mixture's mean and covariance):
 Runnalls' (2007) upper bound on the Kullback–Leibler discrimination,
 B = ½[(w_i + w_j) log det P_ij − w_i log det P_i − w_j log det P_j], or Salmond's (1990)
-distance w_i w_j/(w_i + w_j) (m_i − m_j)ᵀ P⁻¹ (m_i − m_j) with P the mixture's covariance.
+distance w_i w_j/(w_i + w_j) (m_i − m_j)ᵀ P⁻¹ (m_i − m_j) with P the mixture's covariance
+(:mod:`symmon.filters.mixture_merge`: the pair costs once, then only those of the merged
+component, in one C call for all runs of a bank).
 
 **Without splitting** the number of components never grows: the components are independent
 Kalman filters and run as one bank through the compiled loop of
 :class:`~symmon.NonlinearKalmanFilter` (all steps of all components of all runs in one C
 call), their weights following from the per-step log-likelihoods.  With splitting the steps
-run in Python, each stage (the MoN, the prediction, the update) one compiled batch over all
-components of all runs.
+run in Python, each stage (the MoN with the Hessians, the prediction, the update, the merge)
+one compiled call over all components of all runs, the directions and splits stacked NumPy.
 
 References
 ----------
@@ -97,7 +118,7 @@ from .step import (_filterable, filter_params, predict_graph, select_params, ste
                    update_graph)
 
 __all__ = ["GaussianSumFilter", "GaussianSumResult", "SPLITS", "split_component", "split_components",
-           "split_direction", "split_directions", "merge_components", "component_mon", "MERGE_RULES"]
+           "split_direction", "split_directions", "merge_components", "component_mon", "MERGE_RULES", "TIE"]
 
 def split_component(mean: ArrayLike, cov: ArrayLike, direction: ArrayLike, m: int = 3
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -573,12 +594,15 @@ class GaussianSumFilter:
         # The largest MoN first, while the run has room: the k-th split of a run (in that
         # order) brings it to count + k (m − 1) components.
         count = np.bincount(run, minlength=R)
-        rank = np.empty(len(order), dtype=int)
-        ro = run[order]
-        by_run = np.argsort(ro, kind="stable")
-        firsts = np.searchsorted(ro[by_run], np.arange(R))
-        rank[by_run] = np.arange(len(order)) - firsts[ro[by_run]]
-        chosen = np.sort(order[count[ro] + (rank + 1) * (m - 1) <= cap])
+        if (count + np.bincount(run[over], minlength=R) * (m - 1) <= cap).all():
+            chosen = over  # room for every split (the usual case)
+        else:
+            rank = np.empty(len(order), dtype=int)
+            ro = run[order]
+            by_run = np.argsort(ro, kind="stable")
+            firsts = np.searchsorted(ro[by_run], np.arange(R))
+            rank[by_run] = np.arange(len(order)) - firsts[ro[by_run]]
+            chosen = np.sort(order[count[ro] + (rank + 1) * (m - 1) <= cap])
         if not len(chosen):
             return run, w, x, P, p, splits
         splits += np.bincount(run[chosen], minlength=R)
