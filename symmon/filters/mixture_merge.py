@@ -58,7 +58,7 @@ _C = r"""
 /* symmon: greedy Gaussian-mixture reduction (symmon.filters.mixture_merge). */
 
 static double sm_logdet(const double *A, long long n, double *L) {
-  /* log det of the symmetric positive definite A (row-major) by L D Lᵀ (no square roots):
+  /* log det of the symmetric positive definite A (row-major, its lower triangle read) by L D Lᵀ (no square roots):
      log Π d_i, one log per factor of the product kept within the float range; -inf if A is
      not positive definite.  L (n × n) is scratch: its lower triangle holds L, its diagonal D. */
   double prod = 1.0, logs = 0.0;
@@ -90,8 +90,8 @@ static double sm_cost(long long i, long long j, long long n, int salmond, const 
   }
   const double *Pi = P + i * n * n, *Pj = P + j * n * n;
   const double c = wi * wj / (ws * ws);
-  for (long long a = 0; a < n; ++a)
-    for (long long b = 0; b < n; ++b)
+  for (long long a = 0; a < n; ++a)  /* the lower triangle: all that sm_logdet reads */
+    for (long long b = 0; b <= a; ++b)
       A[a * n + b] = (wi * Pi[a * n + b] + wj * Pj[a * n + b]) / ws + c * (mi[a] - mj[a]) * (mi[b] - mj[b]);
   return 0.5 * (ws * sm_logdet(A, n, L) - (wi * ld[i] + wj * ld[j]));
 }
