@@ -189,15 +189,15 @@ def split_directions(covs: np.ndarray, hessians: np.ndarray, weights: np.ndarray
     covs (N, n, n), hessians (N, n_y, n, n), weights (N, n_y, n_y) ↦ directions (N, n)."""
     N, n = covs.shape[:2]
     lam, V = np.linalg.eigh(covs)
-    S = V * np.sqrt(np.clip(lam, 0.0, None))[:, None, :]
+    S = V * np.sqrt(np.maximum(lam, 0.0))[:, None, :]
     SHS = np.swapaxes(S, 1, 2)[:, None] @ hessians @ S[:, None]
     if weights.shape[1] == 1:
         # One output: W = C² > 0 and the leading eigenvector a of G_1 maximises (aᵀ G_1 a)²
         # exactly, so no axis can beat it (the general path below picks it too).
-        G = np.sqrt(np.clip(weights[:, 0, 0], 0.0, None))[:, None, None] * SHS[:, 0]
+        G = np.sqrt(np.maximum(weights[:, 0, 0], 0.0))[:, None, None] * SHS[:, 0]
         gl, gv = np.linalg.eigh(0.5 * (G + np.swapaxes(G, 1, 2)))
-        lead = np.take_along_axis(gv, _first_max(np.abs(gl), axis=1)[:, None, None], axis=2)[..., 0]
-        return np.einsum("Nab,Nb->Na", S, lead)
+        lead = gv[np.arange(N), :, _first_max(np.abs(gl), axis=1)]
+        return (S @ lead[:, :, None])[:, :, 0]
     wl, wv = np.linalg.eigh(0.5 * (weights + np.swapaxes(weights, 1, 2)))
     C = np.swapaxes(wv * np.sqrt(np.clip(wl, 0.0, None))[:, None, :], 1, 2)
     # G_k = Σ_i C_ki Sᵀ H_i S for every component: (N, n_y, n, n).
@@ -236,7 +236,7 @@ def component_mon(cov_g: np.ndarray, residual: np.ndarray, noise: np.ndarray) ->
     n_y = cov_g.shape[-1]
     W = _corr_inverse(cov_g + noise) / n_y
     M2 = np.einsum("nij,nji->n", W, residual)
-    return np.sqrt(np.clip(M2, 0.0, None)), W
+    return np.sqrt(np.maximum(M2, 0.0)), W
 
 
 def _rows(z, shapes: list[tuple[int, int]]) -> list:
@@ -669,27 +669,26 @@ class GaussianSumFilter:
                 raise SymmonError(f"{self.method}: a component's step produced NaN or inf at {where} (its "
                                   "innovation covariance is singular or a covariance lost positive definiteness)")
             # log Σ_i w_i N(ν_i; 0, S_i) per run, in log space; then the normalised weights.
+            # Every run keeps at least one component and its components are contiguous: the
+            # per-run reductions are reduceat over the runs' first rows.
             a = np.log(w) + ll
-            top = np.full(R, -np.inf)
-            np.maximum.at(top, run, a)
-            tot = top + np.log(np.bincount(run, np.exp(a - top[run]), minlength=R))
+            first = np.searchsorted(run, np.arange(R))
+            top = np.maximum.reduceat(a, first)
+            tot = top + np.log(np.add.reduceat(np.exp(a - top[run]), first))
             out["loglik"][:, k] = tot
             w = np.exp(a - tot[run])
             run, w, x, P = self._reduce(run, w, x, P)
-            counts = np.bincount(run, minlength=R)
-            out["components"][:, k] = counts
-            starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-            slot = np.arange(len(w)) - starts[run]
-            xm = np.zeros((R, n))
-            np.add.at(xm, run, w[:, None] * x)
+            starts = np.searchsorted(run, np.arange(R))
+            out["components"][:, k] = np.diff(starts, append=len(run))
+            xm = np.add.reduceat(w[:, None] * x, starts, axis=0)
             if "x" in kept:
                 out["x"][:, k] = xm
             if "P" in kept:
                 d = x - xm[run]
-                Pm = np.zeros((R, n, n))
-                np.add.at(Pm, run, w[:, None, None] * (P + d[:, :, None] * d[:, None, :]))
+                Pm = np.add.reduceat(w[:, None, None] * (P + d[:, :, None] * d[:, None, :]), starts, axis=0)
                 out["P"][:, k] = 0.5 * (Pm + np.swapaxes(Pm, 1, 2))
             if "mixture" in kept:
+                slot = np.arange(len(w)) - starts[run]
                 out["weights"][run, k, slot] = w
                 out["means"][run, k, slot] = x
                 out["covs"][run, k, slot] = P
@@ -702,9 +701,8 @@ class GaussianSumFilter:
     def _reduce(self, run, w, x, P):
         """Prune below ``prune`` (keeping each run's heaviest) and merge each run down to
         ``max_components``; weights renormalised per run."""
-        R = int(run.max()) + 1
-        top = np.zeros(R)
-        np.maximum.at(top, run, w)
+        R = int(run[-1]) + 1
+        top = np.maximum.reduceat(w, np.searchsorted(run, np.arange(R)))
         keep = (w >= self.prune) | (w == top[run])
         run, w, x, P = run[keep], w[keep], x[keep], P[keep]
         if (np.bincount(run, minlength=R) > self.max_components).any():
