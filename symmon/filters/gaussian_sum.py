@@ -120,6 +120,7 @@ from .step import (_filterable, filter_params, predict_graph, select_params, ste
 __all__ = ["GaussianSumFilter", "GaussianSumResult", "SPLITS", "split_component", "split_components",
            "split_direction", "split_directions", "merge_components", "component_mon", "MERGE_RULES", "TIE"]
 
+
 def split_component(mean: ArrayLike, cov: ArrayLike, direction: ArrayLike, m: int = 3
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Split N(mean, cov) along ``direction`` d into m components with the same mean and covariance.
