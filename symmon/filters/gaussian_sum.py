@@ -15,7 +15,9 @@ W^full = Σ_yy⁻¹/n_y (Straka & Havlík 2024, eqs. (25), (29), (43)),
     M² = tr(W (Σ_gg − Σ_c − Σ_gu Σ_uu⁻¹ Σ_ug)),  Σ_gg = Cov g + R,  Σ_c = R,
 
 (for y = g(x) + e, e ~ N(0, R); Q for the dynamics) is computed with TT2 at the component
-N(m_i, P_i), in one compiled batch over all components.  A component whose M exceeds
+N(m_i, P_i): for TT2, Cov g = J P Jᵀ + D and Cov(g, x) = J P, so the residual is
+D_il = ½ tr(H_i P H_l P), with no inverse of P.  One compiled call gives Cov g, D and the
+Hessians H_i (for the direction below) of all components of all runs.  A component whose M exceeds
 ``split`` is replaced by m = 3 or 5 components from a tabulated split of N(0, 1)
 (:data:`symmon.core.mixture.SPLITS`, computed by ``derivations/gaussian_split.py``): along a direction d with
 P = S Sᵀ and d = S a, |a| = 1,
@@ -34,21 +36,40 @@ the eigenvector of G_1 with the largest |eigenvalue| (exact), for several the be
 leading eigenvectors of every G_k and the eigen-directions of P (the axes of the whitened
 coordinates).  This is the eigen-direction of the curvature in the units of the component's
 own spread: splitting along the largest eigen-direction of P alone would split a bearing's
-range uncertainty even when the bearing is linear in it.
+range uncertainty even when the bearing is linear in it.  Exact ties (a bearing's Hessian
+has eigenvalues ±λ, so an isotropic position spread has two equally curved directions) go
+to the first eigenvalue and candidate (:data:`TIE`), not to the last bits of rounding.  The
+directions and the splits of all components are stacked NumPy calls
+(:func:`split_directions`, :func:`split_components`).
+
+**What a split does to the MoN.**  Under a fixed weight (the parent's W, or Liu–Li's raw
+W = I) and a quadratic g, every child is less nonlinear than its parent along *any*
+direction: D(P) = ½ tr(H P H P) is monotone in the Loewner order and P_j ⪯ P.  Each child's
+*own* normalised MoN (its W^full, which for one output is also the normalised Liu–Li weight)
+is not lower in general, whatever the direction or the spread: a child moving to where g is
+flatter has less output variance, of which the residual is a larger share (quadratic of the
+tests: 0.73 for a child against 0.42 for the parent; no direction of 24 lowers every child's
+MoN by 1 %).  For a bearing even the parent's weight does not suffice: the child nearest the
+sensor, where the curvature grows as 1/r², is more nonlinear (1.38 × the parent's M²); what
+holds is that the children's weighted mean MoN is lower.  Splitting again the children above
+the threshold does not converge either (after 5 levels a chain of children toward the
+sensor or the stationary point keeps a MoN of 0.64–0.70).  docs/filters.md has the numbers.
 
 **Merging and pruning.**  After each update, components with weight below ``prune`` are
 dropped, and while a run has more than ``max_components``, the pair with the least cost is
 merged into its moment-matched Gaussian (which keeps the mixture's mean and covariance):
 Runnalls' (2007) upper bound on the Kullback–Leibler discrimination,
 B = ½[(w_i + w_j) log det P_ij − w_i log det P_i − w_j log det P_j], or Salmond's (1990)
-distance w_i w_j/(w_i + w_j) (m_i − m_j)ᵀ P⁻¹ (m_i − m_j) with P the mixture's covariance.
+distance w_i w_j/(w_i + w_j) (m_i − m_j)ᵀ P⁻¹ (m_i − m_j) with P the mixture's covariance
+(:mod:`symmon.filters.mixture_merge`: the pair costs once, then only those of the merged
+component, in one C call for all runs of a bank).
 
 **Without splitting** the number of components never grows: the components are independent
 Kalman filters and run as one bank through the compiled loop of
 :class:`~symmon.NonlinearKalmanFilter` (all steps of all components of all runs in one C
 call), their weights following from the per-step log-likelihoods.  With splitting the steps
-run in Python, each stage (the MoN, the prediction, the update) one compiled batch over all
-components of all runs.
+run in Python, each stage (the MoN with the Hessians, the prediction, the update, the merge)
+one compiled call over all components of all runs, the directions and splits stacked NumPy.
 
 References
 ----------
@@ -71,7 +92,7 @@ from __future__ import annotations
 import hashlib
 import threading
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, lru_cache
 from typing import Iterable
 
 import casadi as ca
@@ -82,7 +103,7 @@ from ..compile import batched, compiled, compiled_with_params
 from ..core.angles import wrap_angle
 from ..core.gaussian import Gaussian
 from ..core.checks import check_gaussian
-from ..core.mixture import SPLITS, GaussianMixture, mixture_moments, split_weights
+from ..core.mixture import SPLITS, GaussianMixture, split_weights
 from ..core.model import Model
 from ..errors import ArgumentError, ArgumentTypeError, ShapeError, SymmonError
 from ..transforms import TT2, UT, Transform
@@ -90,16 +111,14 @@ from ..transforms.registry import resolve
 from ..transforms.executor import Executor
 from .distributed import filter_bank
 from .nonlinear import NonlinearKalmanFilter
+from .mixture_merge import MERGE_RULES, merge_components, merge_runs
 from .inputs import check_bank_size, measurement_bank, param_values
 from .results import KalmanResult
-from .step import (_filterable, filter_params, model_moments, predict_graph, select_params, step_kind, sym,
+from .step import (_filterable, filter_params, predict_graph, select_params, step_kind, sym,
                    update_graph)
 
-__all__ = ["GaussianSumFilter", "GaussianSumResult", "SPLITS", "split_component", "split_direction",
-           "merge_components", "component_mon", "MERGE_RULES"]
-
-#: The merging criteria.
-MERGE_RULES = ("runnalls", "salmond")
+__all__ = ["GaussianSumFilter", "GaussianSumResult", "SPLITS", "split_component", "split_components",
+           "split_direction", "split_directions", "merge_components", "component_mon", "MERGE_RULES", "TIE"]
 
 
 def split_component(mean: ArrayLike, cov: ArrayLike, direction: ArrayLike, m: int = 3
@@ -108,37 +127,90 @@ def split_component(mean: ArrayLike, cov: ArrayLike, direction: ArrayLike, m: in
 
     m_j = mean + μ_j d, P_j = cov − (1 − σ²) d dᵀ, weights ω_j (module notes); d must be
     S a for a square root S Sᵀ = cov and a unit a (so that every P_j is positive
-    semi-definite), e.g. ``split_direction``'s.
+    semi-definite), e.g. ``split_direction``'s.  :func:`split_components` is the same for a
+    stack of components.
 
     Returns
     -------
     weights (m,), means (m, n), covs (m, n, n)
     """
+    mean, cov, d = (np.asarray(a, dtype=float) for a in (mean, cov, direction))
+    w, means, covs = split_components(mean[None], cov[None], d[None], m)
+    return w, means[0], covs[0]
+
+
+@lru_cache(maxsize=None)
+def _split_table(m: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """:func:`~symmon.core.mixture.split_weights` of m, computed once (read-only arrays)."""
     if m not in SPLITS:
         raise ArgumentError(f"a split has {sorted(SPLITS)} components, got {m!r}")
     w, mu, sigma = split_weights(m)
-    mean, cov, d = (np.asarray(a, dtype=float) for a in (mean, cov, direction))
-    means = mean + mu[:, None] * d
-    P = cov - (1.0 - sigma**2) * np.outer(d, d)
-    return w, means, np.broadcast_to(0.5 * (P + P.T), (m,) + cov.shape).copy()
+    w.flags.writeable = mu.flags.writeable = False
+    return w, mu, sigma
+
+
+def split_components(means: np.ndarray, covs: np.ndarray, directions: np.ndarray, m: int = 3
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`split_component` of N components at once: means (N, n), covs (N, n, n) and
+    directions (N, n) give the weights ω (m,) and the children's means (N, m, n) and
+    covariances (N, m, n, n)."""
+    w, mu, sigma = _split_table(m)
+    d = directions
+    children = means[:, None, :] + mu[None, :, None] * d[:, None, :]
+    P = covs - (1.0 - sigma**2) * (d[:, :, None] * d[:, None, :])
+    P = 0.5 * (P + np.swapaxes(P, 1, 2))
+    return w, children, np.broadcast_to(P[:, None], (len(P), m) + P.shape[1:]).copy()
 
 
 def split_direction(cov: np.ndarray, hessians: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """The direction d = S a to split N(·, cov) along, for Hessians H_i (n_y, n, n) of g at its
     mean and the MoN's weight W (n_y, n_y): the unit a maximising ½ Σ_k (aᵀ G_k a)²,
     G_k = Σ_i C_ki Sᵀ H_i S, W = CᵀC (module notes), among the leading eigenvectors of the
-    G_k and the axes; S from the eigen-decomposition of cov."""
-    lam, V = np.linalg.eigh(cov)
-    S = V * np.sqrt(np.clip(lam, 0.0, None))
-    wl, wv = np.linalg.eigh(0.5 * (weight + weight.T))
-    C = (wv * np.sqrt(np.clip(wl, 0.0, None))).T
-    G = np.einsum("ki,ab,iac,cd->kbd", C, S, hessians, S)
-    G = 0.5 * (G + np.swapaxes(G, 1, 2))
+    G_k and the axes; S from the eigen-decomposition of cov (ties within :data:`TIE`: the first
+    eigenvalue, the first candidate).  :func:`split_directions` is the same for a stack of
+    components."""
+    cov, hessians, weight = (np.asarray(a, dtype=float) for a in (cov, hessians, weight))
+    return split_directions(cov[None], hessians[None], weight[None])[0]
+
+
+#: Relative margin within which two candidate directions (or eigenvalues) count as tied: a
+#: bearing's Hessian has eigenvalues ±λ (atan2 is harmonic), so with an isotropic position
+#: spread its two curvature directions are exactly as good, and rounding alone would pick one.
+TIE = 1e-9
+
+
+def _first_max(a: np.ndarray, axis: int) -> np.ndarray:
+    """The index of the first entry of the non-negative ``a`` along ``axis`` within :data:`TIE`
+    of the largest: a tie is broken by the order, not by the last bits."""
+    return np.argmax(a >= (1.0 - TIE) * a.max(axis=axis, keepdims=True), axis=axis)
+
+
+def split_directions(covs: np.ndarray, hessians: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """:func:`split_direction` of N components at once, every step one stacked NumPy call:
+    covs (N, n, n), hessians (N, n_y, n, n), weights (N, n_y, n_y) ↦ directions (N, n)."""
+    N, n = covs.shape[:2]
+    lam, V = np.linalg.eigh(covs)
+    S = V * np.sqrt(np.maximum(lam, 0.0))[:, None, :]
+    SHS = np.swapaxes(S, 1, 2)[:, None] @ hessians @ S[:, None]
+    if weights.shape[1] == 1:
+        # One output: W = C² > 0 and the leading eigenvector a of G_1 maximises (aᵀ G_1 a)²
+        # exactly, so no axis can beat it (the general path below picks it too).
+        G = np.sqrt(np.maximum(weights[:, 0, 0], 0.0))[:, None, None] * SHS[:, 0]
+        gl, gv = np.linalg.eigh(0.5 * (G + np.swapaxes(G, 1, 2)))
+        lead = gv[np.arange(N), :, _first_max(np.abs(gl), axis=1)]
+        return (S @ lead[:, :, None])[:, :, 0]
+    wl, wv = np.linalg.eigh(0.5 * (weights + np.swapaxes(weights, 1, 2)))
+    C = np.swapaxes(wv * np.sqrt(np.clip(wl, 0.0, None))[:, None, :], 1, 2)
+    # G_k = Σ_i C_ki Sᵀ H_i S for every component: (N, n_y, n, n).
+    G = np.einsum("Nki,Nibd->Nkbd", C, SHS)
+    G = 0.5 * (G + np.swapaxes(G, 2, 3))
     gl, gv = np.linalg.eigh(G)
-    lead = gv[np.arange(len(G)), :, np.argmax(np.abs(gl), axis=1)]  # (n_y, n): each G_k's leading eigenvector
-    cands = np.vstack([lead, np.eye(len(cov))])
-    share = (np.einsum("ca,kab,cb->ck", cands, G, cands) ** 2).sum(axis=1)
-    return S @ cands[int(np.argmax(share))]
+    top = _first_max(np.abs(gl), axis=2)  # (N, n_y)
+    lead = np.take_along_axis(gv, top[:, :, None, None], axis=3)[..., 0]  # (N, n_y, n): leading eigenvectors
+    cands = np.concatenate([lead, np.broadcast_to(np.eye(n), (N, n, n))], axis=1)  # (N, n_y + n, n)
+    quad = np.einsum("Nca,Nkab,Ncb->Nck", cands, G, cands)
+    best = _first_max((quad**2).sum(axis=2), axis=1)
+    return np.einsum("Nab,Nb->Na", S, cands[np.arange(N), best])
 
 
 def _corr_inverse(A: np.ndarray) -> np.ndarray:
@@ -146,55 +218,26 @@ def _corr_inverse(A: np.ndarray) -> np.ndarray:
     (so that a state in mm beside one in rad is not called singular); pseudo-inverse on the
     correlation scale where one is singular."""
     r = 1.0 / np.sqrt(np.einsum("nii->ni", A))
+    if A.shape[1] == 1:  # a variance: its correlation matrix is [1]
+        return r[:, :, None] * r[:, None, :]
     corr = r[:, :, None] * A * r[:, None, :]
     return r[:, :, None] * np.linalg.pinv(corr, rcond=1e-12, hermitian=True) * r[:, None, :]
 
 
-def component_mon(cov_g: np.ndarray, cross: np.ndarray, P: np.ndarray, noise: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """The unitless MoN M (N,) of y = g(x) + e, e ~ N(0, noise), at N components, from their
-    moments (TT2 in the filter): Cov g (N, n_y, n_y), Cov(g, x) (N, n_y, n) and P = Cov x
-    (N, n, n); and the weights W = Σ_yy⁻¹/n_y (N, n_y, n_y).
+def component_mon(cov_g: np.ndarray, residual: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The unitless MoN M (N,) of y = g(x) + e, e ~ N(0, noise), at N components, and their
+    weights W = Σ_yy⁻¹/n_y (N, n_y, n_y), from Cov g (N, n_y, n_y) and the residual
+    D = Σ_gg − Σ_c − Σ_gu Σ_uu⁻¹ Σ_ug (N, n_y, n_y) of each component.
 
-    M² = tr(W (Σ_gg − Σ_c − Σ_gu Σ_uu⁻¹ Σ_ug)) with Σ_gg = Cov g + noise, Σ_c = noise
-    (eqs. (25), (29), (43) of Straka & Havlík 2024): the batched form of
-    :func:`symmon.measures.formula.mon_from_moments`.
+    M² = tr(W D) with Σ_gg = Cov g + noise, Σ_c = noise (eqs. (25), (29), (43) of Straka &
+    Havlík 2024): the batched form of :func:`symmon.measures.formula.mon_from_moments`.  The
+    filter takes D from TT2, D_ij = ½ tr(H_i P H_j P) (no inverse of P, and none of the
+    cancellation of Cov g − J P Jᵀ), in the same compiled call as Cov g.
     """
     n_y = cov_g.shape[-1]
     W = _corr_inverse(cov_g + noise) / n_y
-    D = cov_g - cross @ _corr_inverse(P) @ np.swapaxes(cross, 1, 2)
-    M2 = np.einsum("nij,nji->n", W, D)
-    return np.sqrt(np.clip(M2, 0.0, None)), W
-
-
-def merge_components(w: np.ndarray, m: np.ndarray, P: np.ndarray, keep: int, rule: str = "runnalls"
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Merge pairs of the mixture (w (M,), m (M, n), P (M, n, n)) until at most ``keep``
-    components are left, each pair into its moment-matched Gaussian (which keeps the mixture's
-    mean and covariance), the pair of least Runnalls (2007) or Salmond (1990) cost first."""
-    if rule not in MERGE_RULES:
-        raise ArgumentError(f"merge must be one of {MERGE_RULES}, got {rule!r}")
-    w, m, P = w.copy(), m.copy(), P.copy()
-    if rule == "salmond":
-        Pinv = _corr_inverse(mixture_moments(w / w.sum(), m, P)[1][None])[0]
-    while len(w) > keep:
-        iu, ju = np.triu_indices(len(w), 1)
-        wi, wj = w[iu], w[ju]
-        ws = wi + wj
-        d = m[iu] - m[ju]
-        if rule == "runnalls":
-            Pij = (wi[:, None, None] * P[iu] + wj[:, None, None] * P[ju]) / ws[:, None, None] \
-                + (wi * wj / ws**2)[:, None, None] * d[:, :, None] * d[:, None, :]
-            ld = np.linalg.slogdet(P)[1]
-            cost = 0.5 * (ws * np.linalg.slogdet(Pij)[1] - wi * ld[iu] - wj * ld[ju])
-        else:
-            cost = wi * wj / ws * np.einsum("ka,ab,kb->k", d, Pinv, d)
-        k = int(np.argmin(cost))
-        i, j = int(iu[k]), int(ju[k])
-        mm, PP = mixture_moments(np.array([w[i], w[j]]) / (w[i] + w[j]), m[[i, j]], P[[i, j]])
-        w[i], m[i], P[i] = w[i] + w[j], mm, PP
-        w, m, P = np.delete(w, j), np.delete(m, j, axis=0), np.delete(P, j, axis=0)
-    return w, m, P
+    M2 = np.einsum("nij,nji->n", W, residual)
+    return np.sqrt(np.maximum(M2, 0.0)), W
 
 
 def _rows(z, shapes: list[tuple[int, int]]) -> list:
@@ -233,13 +276,36 @@ class _ComponentSteps:
                                            select_params(h, names, p))
         self.update = batched(ca.Function(tag + "_u", [z], [ca.densify(a) for a in (xn, Pn, ll)], {"cse": True}))
         self.mon = {}
-        mon_kind, mon_chol = step_kind(f, h, TT2())
-        for which, mdl, angles in (("f", f, angle_states), ("h", h, frozenset(h.angle_outputs))):
+        mon_kind = step_kind(f, h, TT2())[0]
+        for which, mdl in (("f", f), ("h", h)):
             z = mon_kind.sym("z", n + n * n + n_p)
             x, P, p = _rows(z, [(n, 1), (n, n), (n_p, 1)])
-            _, cov, cross = model_moments(mdl, x, P, TT2(), angles, mon_chol, select_params(mdl, names, p))
-            self.mon[which] = batched(ca.Function(f"{tag}_m{which}", [z], [ca.densify(sym(cov)), ca.densify(cross)],
+            self.mon[which] = batched(ca.Function(f"{tag}_m{which}", [z], _mon_graph(mdl, x, P, select_params(mdl, names, p)),
                                                   {"cse": True}))
+
+
+def _mon_graph(model: Model, x, P, p) -> list:
+    """(Cov g, D, the Hessians H_i) of g = ``model`` (additive noise) at N(x, P) by TT2: the
+    MoN's moments and the split direction's curvature of one component, one graph.
+
+    With J and H_i the Jacobian and Hessians in the state at x (p fixed), TT2 gives
+    Cov g = J P Jᵀ + D and Cov(g, x) = J P, so the MoN's residual
+    D = Σ_gg − Σ_c − Σ_gu Σ_uu⁻¹ Σ_ug = Cov g − J P Jᵀ (Straka & Havlík 2024, eqs. (25), (29))
+    is D_ij = ½ tr(H_i P H_j P) (Gustafsson & Hendeby 2012): no inverse of P, and none of the
+    cancellation of the difference when the MoN is small."""
+    cm = _model_cm(model)
+    n, n_y = x.shape[0], model.n_y
+    w = ca.vertcat(x, p) if model.n_p else x
+    J, *H = ca.Function("jh", [cm.w_sx], [cm.J_sx, *cm.H_sx])(w)
+    J = J[:, :n]
+    H = [ca.densify(a[:n, :n]) for a in H]
+    HP = [ca.mtimes(a, P) for a in H]
+    F = ca.horzcat(*[ca.vec(a) for a in HP])
+    Ft = ca.horzcat(*[ca.vec(a.T) for a in HP])
+    D = 0.5 * ca.mtimes(F.T, Ft)  # ⟨H_i P, (H_j P)ᵀ⟩ = tr(H_i P H_j P)
+    D = 0.5 * (D + D.T)
+    cov = ca.mtimes(ca.mtimes(J, P), J.T) + D
+    return [ca.densify(sym(cov)), ca.densify(D), ca.vertcat(*[ca.vec(a) for a in H])]
 
 
 _steps: dict[tuple, _ComponentSteps] = {}
@@ -505,53 +571,52 @@ class GaussianSumFilter:
         return out
 
     # ------------------------------------------------------------------ the stepwise filter
-    def _mons(self, which: str, steps: _ComponentSteps, x, P, p, noise) -> tuple[np.ndarray, np.ndarray]:
+    def _mons(self, which: str, steps: _ComponentSteps, x, P, p, noise):
+        """The MoN M (N,), its weights W (N, n_y, n_y) and the Hessians (N, n_y, n, n) of f or h
+        at every component: one compiled call, then the stacked weights."""
         N, n = x.shape
-        cov_g, cross = steps.mon[which](np.hstack([x, P.reshape(N, n * n), p]))
         n_y = noise.shape[0]
-        return component_mon(cov_g.reshape(N, n_y, n_y), cross.reshape(N, n, n_y).transpose(0, 2, 1), P, noise)
+        cov_g, D, H = steps.mon[which](np.hstack([x, P.reshape(N, n * n), p]))
+        mon, W = component_mon(cov_g.reshape(N, n_y, n_y), D.reshape(N, n_y, n_y), noise)
+        # CasADi's vec is column-major: H_i's columns are the rows of its transpose (H_i is symmetric).
+        return mon, W, H.reshape(N, n_y, n, n)
 
     def _split(self, which: str, steps, run, w, x, P, p, noise, cap: int):
         """Split the components whose MoN of ``which`` exceeds ``split`` (the largest first,
         while the run has room below ``cap``); returns the new arrays and the splits per run."""
         R = int(run.max()) + 1 if len(run) else 0
-        mon, W = self._mons(which, steps, x, P, p, noise)
+        mon, W, H = self._mons(which, steps, x, P, p, noise)
         over = np.flatnonzero(mon > self.split)
-        count = np.bincount(run, minlength=R)
         splits = np.zeros(R, dtype=int)
         if not len(over):
             return run, w, x, P, p, splits
-        mdl = self.f if which == "f" else self.h
-        cm = _model_cm(mdl)
-        n = x.shape[1]
         m = self.split_components
         order = over[np.argsort(-mon[over], kind="stable")]
-        chosen = []
-        for i in order:
-            if count[run[i]] + m - 1 <= cap:
-                count[run[i]] += m - 1
-                splits[run[i]] += 1
-                chosen.append(i)
-        if not chosen:
+        # The largest MoN first, while the run has room: the k-th split of a run (in that
+        # order) brings it to count + k (m − 1) components.
+        count = np.bincount(run, minlength=R)
+        if (count + np.bincount(run[over], minlength=R) * (m - 1) <= cap).all():
+            chosen = over  # room for every split (the usual case)
+        else:
+            rank = np.empty(len(order), dtype=int)
+            ro = run[order]
+            by_run = np.argsort(ro, kind="stable")
+            firsts = np.searchsorted(ro[by_run], np.arange(R))
+            rank[by_run] = np.arange(len(order)) - firsts[ro[by_run]]
+            chosen = np.sort(order[count[ro] + (rank + 1) * (m - 1) <= cap])
+        if not len(chosen):
             return run, w, x, P, p, splits
-        chosen = np.sort(np.array(chosen))
-        names = filter_params(self.f, self.h)
-        rows = np.hstack([x[chosen], p[chosen][:, [names.index(s) for s in mdl.params]]]) if mdl.n_p else x[chosen]
-        H = cm.eval_gjh(rows)[2][:, :, :n, :n]
-        pieces = []
-        for c, i in enumerate(chosen):
-            d = split_direction(P[i], H[c], W[i])
-            pieces.append(split_component(x[i], P[i], d, m))
+        splits += np.bincount(run[chosen], minlength=R)
+        d = split_directions(P[chosen], H[chosen], W[chosen])
+        pw, pm, pP = split_components(x[chosen], P[chosen], d, m)
         # Each chosen component becomes m, in place (the runs stay contiguous and in order).
         reps = np.ones(len(w), dtype=int)
         reps[chosen] = m
         idx = np.repeat(np.arange(len(w)), reps)
         run, w, x, P, p = run[idx], w[idx].copy(), x[idx].copy(), P[idx].copy(), p[idx]
-        starts = np.cumsum(reps) - reps
-        for (pw, pm, pP), i in zip(pieces, chosen):
-            s = starts[i]
-            w[s:s + m] = w[s:s + m] * pw
-            x[s:s + m], P[s:s + m] = pm, pP
+        slots = ((np.cumsum(reps) - reps)[chosen][:, None] + np.arange(m)).ravel()
+        w[slots] = w[slots] * np.tile(pw, len(chosen))
+        x[slots], P[slots] = pm.reshape(-1, x.shape[1]), pP.reshape((-1,) + P.shape[1:])
         if self.kf.angle_states:
             a = sorted(self.kf.angle_states)
             x[:, a] = wrap_angle(x[:, a])
@@ -605,27 +670,26 @@ class GaussianSumFilter:
                 raise SymmonError(f"{self.method}: a component's step produced NaN or inf at {where} (its "
                                   "innovation covariance is singular or a covariance lost positive definiteness)")
             # log Σ_i w_i N(ν_i; 0, S_i) per run, in log space; then the normalised weights.
+            # Every run keeps at least one component and its components are contiguous: the
+            # per-run reductions are reduceat over the runs' first rows.
             a = np.log(w) + ll
-            top = np.full(R, -np.inf)
-            np.maximum.at(top, run, a)
-            tot = top + np.log(np.bincount(run, np.exp(a - top[run]), minlength=R))
+            first = np.searchsorted(run, np.arange(R))
+            top = np.maximum.reduceat(a, first)
+            tot = top + np.log(np.add.reduceat(np.exp(a - top[run]), first))
             out["loglik"][:, k] = tot
             w = np.exp(a - tot[run])
             run, w, x, P = self._reduce(run, w, x, P)
-            counts = np.bincount(run, minlength=R)
-            out["components"][:, k] = counts
-            starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-            slot = np.arange(len(w)) - starts[run]
-            xm = np.zeros((R, n))
-            np.add.at(xm, run, w[:, None] * x)
+            starts = np.searchsorted(run, np.arange(R))
+            out["components"][:, k] = np.diff(starts, append=len(run))
+            xm = np.add.reduceat(w[:, None] * x, starts, axis=0)
             if "x" in kept:
                 out["x"][:, k] = xm
             if "P" in kept:
                 d = x - xm[run]
-                Pm = np.zeros((R, n, n))
-                np.add.at(Pm, run, w[:, None, None] * (P + d[:, :, None] * d[:, None, :]))
+                Pm = np.add.reduceat(w[:, None, None] * (P + d[:, :, None] * d[:, None, :]), starts, axis=0)
                 out["P"][:, k] = 0.5 * (Pm + np.swapaxes(Pm, 1, 2))
             if "mixture" in kept:
+                slot = np.arange(len(w)) - starts[run]
                 out["weights"][run, k, slot] = w
                 out["means"][run, k, slot] = x
                 out["covs"][run, k, slot] = P
@@ -638,22 +702,13 @@ class GaussianSumFilter:
     def _reduce(self, run, w, x, P):
         """Prune below ``prune`` (keeping each run's heaviest) and merge each run down to
         ``max_components``; weights renormalised per run."""
-        R = int(run.max()) + 1
-        top = np.zeros(R)
-        np.maximum.at(top, run, w)
+        R = int(run[-1]) + 1
+        top = np.maximum.reduceat(w, np.searchsorted(run, np.arange(R)))
         keep = (w >= self.prune) | (w == top[run])
         run, w, x, P = run[keep], w[keep], x[keep], P[keep]
-        counts = np.bincount(run, minlength=R)
-        if (counts > self.max_components).any():
-            parts = []
-            starts = np.concatenate([[0], np.cumsum(counts)])
-            for r in range(R):
-                a, b = starts[r], starts[r + 1]
-                if b - a > self.max_components:
-                    wr, xr, Pr = merge_components(w[a:b], x[a:b], P[a:b], self.max_components, self.merge)
-                else:
-                    wr, xr, Pr = w[a:b], x[a:b], P[a:b]
-                parts.append((np.full(len(wr), r), wr, xr, Pr))
-            run, w, x, P = (np.concatenate([q[i] for q in parts]) for i in range(4))
+        if (np.bincount(run, minlength=R) > self.max_components).any():
+            w, x, P = (np.ascontiguousarray(a, dtype=float) for a in (w, x, P))
+            left = merge_runs(run, w, x, P, self.max_components, self.merge)
+            run, w, x, P = run[left], w[left], x[left], P[left]
         tot = np.bincount(run, w, minlength=R)
         return run, w / tot[run], x, P
