@@ -205,19 +205,22 @@ static int {name}_ekf(const casadi_real** arg, casadi_real** res, casadi_int* iw
     S[i + i * ny] += 1 - m;
     for (k = 0; k < n; ++k) Ct[k + i * n] *= m;
   }}
-  /* L L^T = S: a zero pivot gives a zero column, a negative one NaN on the diagonal. */
+  /* L L^T = S, right-looking: column j scaled, then subtracted from the columns after it
+     (contiguous updates; each entry sees the same subtractions in the same order as the
+     left-looking sums).  A zero pivot gives a zero column, a negative one NaN on the diagonal. */
+  for (j = 0; j < ny; ++j)
+    for (i = 0; i < ny; ++i) L[i + j * ny] = i >= j ? S[i + j * ny] : 0;
   for (j = 0; j < ny; ++j) {{
-    casadi_real d;
-    for (i = j; i < ny; ++i) {{
-      casadi_real v = S[i + j * ny];
-      for (k = 0; k < j; ++k) v -= L[i + k * ny] * L[j + k * ny];
-      L[i + j * ny] = v;
-    }}
-    d = sqrt(L[j + j * ny]);
-    for (i = 0; i < j; ++i) L[i + j * ny] = 0;
-    for (i = j + 1; i < ny; ++i) L[i + j * ny] = d > 0 ? L[i + j * ny] / d : 0;
-    L[j + j * ny] = d;
+    casadi_real d = sqrt(L[j + j * ny]);
+    casadi_real* lj = L + j * ny;
+    for (i = j + 1; i < ny; ++i) lj[i] = d > 0 ? lj[i] / d : 0;
+    lj[j] = d;
     r[j] = d > 0 ? 1 / d : 0;  /* a zero (or NaN) pivot: a zero row of the inverse */
+    for (k = j + 1; k < ny; ++k) {{
+      casadi_real l = lj[k];
+      casadi_real* lk = L + k * ny;
+      for (i = k; i < ny; ++i) lk[i] -= lj[i] * l;
+    }}
   }}
   /* W^T = Ct L^-T and L^-1 nu, by forward substitution, column by column. */
   for (i = 0; i < ny; ++i) {{
