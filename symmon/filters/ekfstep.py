@@ -166,30 +166,26 @@ static void {name}_sub_cols(casadi_real* restrict a, const casadi_real* restrict
   }}
 }}
 
-static int {name}_ekf(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
-    casadi_real* s) {{
+/* The linearised update at xl (xl = x-: the EKF's; else an iteration of the IEKF, whose
+   residual is y - h(xl) - H (x- - xl)): nu (masked), Ct -> W^T = P^xy L^-T, S (masked), L,
+   r (reciprocal pivots), wh = L^-1 nu; adds |wh|^2, sum log L_ii and the measured count
+   into acc[0..2].  dx: n reals of scratch. */
+static int {name}_linearised(const casadi_real* xl, const casadi_real* xp, const casadi_real* Pp,
+    const casadi_real* y, const casadi_real* R, const casadi_real* mask, const casadi_real* p,
+    casadi_int* iw, casadi_real* w, casadi_real* nu, casadi_real* Hz, casadi_real* Ct, casadi_real* A,
+    casadi_real* S, casadi_real* L, casadi_real* r, casadi_real* wh, casadi_real* dx, casadi_real* acc) {{
   const casadi_int n = {name}_N, ny = {name}_NY;
-  const casadi_real *x = arg[0], *P = arg[1], *y = arg[2], *Q = arg[3], *R = arg[4], *mask = arg[5], *p = arg[6];
-  casadi_real *xp = res[2] ? res[2] : s, *Pp = res[3] ? res[3] : s + n;
-  casadi_real *A = s + n + n * n, *Fz = A + n * n, *Hz = Fz + {f_nnz}, *nu = res[4] ? res[4] : Hz + {h_nnz};
-  casadi_real *Ct = Hz + {h_nnz} + ny, *S = res[5] ? res[5] : Ct + n * ny, *L = Ct + n * ny + ny * ny;
-  casadi_real *wh = L + ny * ny, *r = wh + ny, *xn = r + ny;
-  casadi_real *Pn = res[1], nis = 0, logdet = 0, measured = 0;
   const casadi_real* a2[3];
   casadi_real* r2[2];
-  casadi_int i, j, k;
-  /* x- = f(x) (angle states wrapped), F's nonzeros. */
-  a2[0] = x; a2[1] = p; r2[0] = xp; r2[1] = Fz;
-  if ({name}_fpart(a2, r2, iw, w, 0)) return 1;
-  /* P- = F (P F^T) + Q, lower triangle mirrored. */
-  {name}_times_jt(Pp, P, {name}_fcol, {name}_frow, Fz, n, n, n);
-  {name}_transpose(A, Pp, n, n);  /* F P = (P F^T)^T: P is symmetric */
-  {name}_times_jt(Pp, A, {name}_fcol, {name}_frow, Fz, n, n, n);
-  for (i = 0; i < n * n; ++i) Pp[i] += Q[i];
-  {name}_mirror(Pp, n);
-  /* nu = y - h(x-) (angle outputs wrapped), H's nonzeros. */
-  a2[0] = xp; a2[1] = y; a2[2] = p; r2[0] = nu; r2[1] = Hz;
+  casadi_int i, j, k, e;
+  /* nu = y - h(xl) (angle outputs wrapped), H's nonzeros at xl. */
+  a2[0] = xl; a2[1] = y; a2[2] = p; r2[0] = nu; r2[1] = Hz;
   if ({name}_hpart(a2, r2, iw, w, 0)) return 1;
+  if (xl != xp) {{
+    for (j = 0; j < n; ++j) dx[j] = xp[j] - xl[j];
+    for (j = 0; j < n; ++j)
+      for (e = {name}_hcol[j]; e < {name}_hcol[j + 1]; ++e) nu[{name}_hrow[e]] -= Hz[e] * dx[j];
+  }}
   /* Ct = P- H^T (the cross-covariance P^xy, n x ny), S = H Ct + R, lower mirrored. */
   {name}_times_jt(Ct, Pp, {name}_hcol, {name}_hrow, Hz, n, ny, n);
   {name}_transpose(A, Ct, n, ny);  /* H P- = Ct^T */
@@ -199,7 +195,7 @@ static int {name}_ekf(const casadi_real** arg, casadi_real** res, casadi_int* iw
   /* The measured block: D nu, D S D + (I - D), P^xy D (update_graph's masking). */
   for (i = 0; i < ny; ++i) {{
     casadi_real m = mask[i];
-    measured += m;
+    acc[2] += m;
     nu[i] *= m;
     for (j = 0; j < ny; ++j) S[i + j * ny] *= m * mask[j];
     S[i + i * ny] += 1 - m;
@@ -230,14 +226,48 @@ static int {name}_ekf(const casadi_real** arg, casadi_real** res, casadi_int* iw
     for (k = 0; k < i; ++k) v -= L[i + k * ny] * wh[k];
     for (j = 0; j < n; ++j) c[j] *= r[i];
     wh[i] = r[i] * v;
-    nis += wh[i] * wh[i];
-    logdet += log(L[i + i * ny]);
+    acc[0] += wh[i] * wh[i];
+    acc[1] += log(L[i + i * ny]);
   }}
-  /* x+ = x- + W^T (L^-1 nu), angle states wrapped. */
-  for (j = 0; j < n; ++j) xn[j] = xp[j];
-  for (i = 0; i < ny; ++i) {{
-    const casadi_real* c = Ct + i * n;
-    for (j = 0; j < n; ++j) xn[j] += c[j] * wh[i];
+  return 0;
+}}
+
+static int {name}_ekf(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+    casadi_real* s) {{
+  const casadi_int n = {name}_N, ny = {name}_NY;
+  const casadi_real *x = arg[0], *P = arg[1], *y = arg[2], *Q = arg[3], *R = arg[4], *mask = arg[5], *p = arg[6];
+  casadi_real *xp = res[2] ? res[2] : s, *Pp = res[3] ? res[3] : s + n;
+  casadi_real *A = s + n + n * n, *Fz = A + n * n, *Hz = Fz + {f_nnz}, *nu = res[4] ? res[4] : Hz + {h_nnz};
+  casadi_real *Ct = Hz + {h_nnz} + ny, *S = res[5] ? res[5] : Ct + n * ny, *L = Ct + n * ny + ny * ny;
+  casadi_real *wh = L + ny * ny, *r = wh + ny, *xn = r + ny, *xl = xn + n, *dx = xl + n;
+  casadi_real *nu2 = dx + n, *S2 = nu2 + ny, *wh2 = S2 + ny * ny, *wx = wh;
+  casadi_real *Pn = res[1], acc[3] = {{0, 0, 0}}, acc2[3] = {{0, 0, 0}};
+  const casadi_real* a2[2];
+  casadi_real* r2[2];
+  casadi_int i, j, k, it;
+  /* x- = f(x) (angle states wrapped), F's nonzeros. */
+  a2[0] = x; a2[1] = p; r2[0] = xp; r2[1] = Fz;
+  if ({name}_fpart(a2, r2, iw, w, 0)) return 1;
+  /* P- = F (P F^T) + Q, lower triangle mirrored. */
+  {name}_times_jt(Pp, P, {name}_fcol, {name}_frow, Fz, n, n, n);
+  {name}_transpose(A, Pp, n, n);  /* F P = (P F^T)^T: P is symmetric */
+  {name}_times_jt(Pp, A, {name}_fcol, {name}_frow, Fz, n, n, n);
+  for (i = 0; i < n * n; ++i) Pp[i] += Q[i];
+  {name}_mirror(Pp, n);
+  /* The update at x-: its nu, S, NIS and log-likelihood are the step's. */
+  if ({name}_linearised(xp, xp, Pp, y, R, mask, p, iw, w, nu, Hz, Ct, A, S, L, r, wh, dx, acc)) return 1;
+  /* x+ = x- + W^T (L^-1 nu); the IEKF's Gauss-Newton steps relinearise h at x+. */
+  for (it = 0; it < {iterations}; ++it) {{
+    if (it) {{
+      for (j = 0; j < n; ++j) xl[j] = xn[j];
+      if ({name}_linearised(xl, xp, Pp, y, R, mask, p, iw, w, nu2, Hz, Ct, A, S2, L, r, wh2, dx, acc2)) return 1;
+      wx = wh2;
+    }}
+    for (j = 0; j < n; ++j) xn[j] = xp[j];
+    for (i = 0; i < ny; ++i) {{
+      const casadi_real* c = Ct + i * n;
+      for (j = 0; j < n; ++j) xn[j] += c[j] * wx[i];
+    }}
   }}
   if ({wrap_x}) {{
     a2[0] = xn; r2[0] = res[0];
@@ -245,7 +275,7 @@ static int {name}_ekf(const casadi_real** arg, casadi_real** res, casadi_int* iw
   }} else {{
     for (j = 0; j < n; ++j) res[0][j] = xn[j];
   }}
-  /* P+ = P- - W^T W on the lower triangle, mirrored. */
+  /* P+ = P- - W^T W (the last linearisation's W) on the lower triangle, mirrored. */
   for (j = 0; j < n; ++j) {{
     casadi_real* pn = Pn + j * n;
     const casadi_real* pp = Pp + j * n;
@@ -253,18 +283,19 @@ static int {name}_ekf(const casadi_real** arg, casadi_real** res, casadi_int* iw
     {name}_sub_cols(pn + j, Ct + j, n, Ct + j, n, ny, n - j);
   }}
   {name}_mirror(Pn, n);
-  if (res[6]) res[6][0] = -0.5 * (nis + 2 * logdet + measured * {log_2pi});
-  if (res[7]) res[7][0] = nis;
+  if (res[6]) res[6][0] = -0.5 * (acc[0] + 2 * acc[1] + acc[2] * {log_2pi});
+  if (res[7]) res[7][0] = acc[0];
   return 0;
 }}
 """
 
 
-def ekf_c(name: str, n: int, n_y: int, pattern: dict) -> tuple[str, int]:
-    """The C of ``{name}_ekf`` (after the pieces' generated C) and its scratch size in reals."""
+def ekf_c(name: str, n: int, n_y: int, pattern: dict, iterations: int = 1) -> tuple[str, int]:
+    """The C of ``{name}_ekf`` (after the pieces' generated C) and its scratch size in reals;
+    ``iterations`` > 1: the iterated EKF's update (:func:`symmon.filters.step.update_graph`)."""
     f_nnz, h_nnz = max(len(pattern["f_row"]), 1), max(len(pattern["h_row"]), 1)
-    scratch = n + 2 * n * n + f_nnz + h_nnz + n_y + n * n_y + 2 * n_y * n_y + 2 * n_y + n
+    scratch = n + 2 * n * n + f_nnz + h_nnz + n_y + n * n_y + 2 * n_y * n_y + 2 * n_y + 3 * n + 2 * n_y + n_y * n_y
     code = _STEP.format(name=name, n=n, n_y=n_y, f_col=_ints(pattern["f_col"]), f_row=_ints(pattern["f_row"]),
                         h_col=_ints(pattern["h_col"]), h_row=_ints(pattern["h_row"]), f_nnz=f_nnz, h_nnz=h_nnz,
-                        scratch=scratch, wrap_x=int(pattern["wrap_x"]), log_2pi=repr(float(np.log(2 * np.pi))))
+                        scratch=scratch, wrap_x=int(pattern["wrap_x"]), iterations=int(iterations), log_2pi=repr(float(np.log(2 * np.pi))))
     return code, scratch

@@ -412,17 +412,17 @@ class _CompiledStep(CompiledLoop):
         self.n_p = len(filter_params(f, h))
         self._shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n),
                         "innovation": (n_y,), "S": (n_y, n_y), "loglik": (), "nis": ()}
-        # A larger EKF (TT1, additive noise) runs the C step of symmon.filters.ekfstep around
+        # A larger EKF or IEKF (TT1, additive noise) runs the C step of symmon.filters.ekfstep around
         # CasADi's model pieces; the MX step fn stays for CasADi's VM (and the fit, the IMM).
-        self.c_ekf = (transform.taylor_order == 1 and iterations == 1 and not square_root and not f.n_v
-                      and not h.n_v and n >= C_EKF_FROM)
+        self.c_ekf = (transform.taylor_order == 1 and not square_root and not f.n_v and not h.n_v
+                      and n >= C_EKF_FROM)
         if self.c_ekf:
             names = filter_params(f, h)
             xs, ys, ps = ca.SX.sym("x", n), ca.SX.sym("y", n_y), ca.SX.sym("p", len(names))
             pieces, pattern = ekf_pieces(f, h, angle_states, select_params(f, names, ps),
                                          select_params(h, names, ps), xs, ys, ps, name)
             funcs = (self.nees_f,) + pieces
-            ekf_code, scratch = ekf_c(name, n, n_y, pattern)
+            ekf_code, scratch = ekf_c(name, n, n_y, pattern, iterations)
             code, call = generated_c(*funcs) + ekf_code, f"{name}_ekf(arg, res, iw, w, s)"
         else:
             funcs, scratch = (fn, self.nees_f), 0
