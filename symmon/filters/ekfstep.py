@@ -100,6 +100,12 @@ _STEP = """
    scratch).  s: scratch of {name}_ekf_scratch reals. */
 #include <math.h>
 #include <stdlib.h>
+/* The loops below are a few KB of C: optimised even when the whole file is large enough (the
+   NEES function of a large filter) for the compile policy's -O0 build.  No FMA contraction,
+   as every build (the same results at any level). */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC optimize ("O3", "fp-contract=off")
+#endif
 #define {name}_N {n}
 #define {name}_NY {n_y}
 static const casadi_int {name}_fcol[] = {f_col};
