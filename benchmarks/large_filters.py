@@ -110,6 +110,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--timeout", type=float, default=300.0, help="seconds per subprocess")
     ap.add_argument("--out", type=Path, default=None, help="write the section into this Markdown file")
+    ap.add_argument("--logs", nargs="*", type=Path, default=None,
+                    help="build the section from the result lines that earlier runs printed (no measurement)")
     a = ap.parse_args()
     if a.worker:
         side, label, n, repeat = a.worker
@@ -123,13 +125,28 @@ def main() -> None:
 
     load0 = os.getloadavg()[0]
     res: dict[tuple[str, str, int], dict] = {}
-    plan = [("ekf", int(n), ("symmon", "dynamax", "numpy")) for n in a.ekf_sizes.split(",") if n]
-    plan += [("ukf", int(n), ("symmon", "dynamax")) for n in a.ukf_sizes.split(",") if n]
-    for label, n, sides in plan:
-        for side in sides:
-            res[side, label, n] = r = run_worker(side, label, n, a.repeat, a.timeout)
-            print(side, label, n, r, flush=True)
-    load1 = os.getloadavg()[0]
+    if a.logs is not None:
+        import ast
+
+        loads = []
+        for path in a.logs:  # later files override earlier ones
+            for line in path.read_text().splitlines():
+                parts = line.split(" ", 3)
+                if len(parts) == 4 and parts[0] in ("symmon", "dynamax", "numpy") and parts[3].startswith("{"):
+                    res[parts[0], parts[1], int(parts[2])] = ast.literal_eval(parts[3])
+                elif line.startswith("load "):
+                    loads += [float(v) for v in line.split()[1:]]
+        load0, load1 = (min(loads), max(loads)) if loads else (float("nan"), float("nan"))
+    else:
+        print("load", load0, flush=True)
+        plan = [("ekf", int(n), ("symmon", "dynamax", "numpy")) for n in a.ekf_sizes.split(",") if n]
+        plan += [("ukf", int(n), ("symmon", "dynamax")) for n in a.ukf_sizes.split(",") if n]
+        for label, n, sides in plan:
+            for side in sides:
+                res[side, label, n] = r = run_worker(side, label, n, a.repeat, a.timeout)
+                print(side, label, n, r, flush=True)
+        load1 = os.getloadavg()[0]
+        print("load", load1, flush=True)
 
     def cell(r: dict, key: str) -> str:
         if "timeout" in r:
@@ -143,7 +160,7 @@ def main() -> None:
              f"symmon into a fresh cache (in parentheses, until the C is in), dynamax its jit trace and compile. Peak: "
              f"VmHWM above the process after its imports (MiB), over all its calls. {platform.machine()}, "
              f"{os.cpu_count()} cores, Python {platform.python_version()}, NumPy {np.__version__}; load average "
-             f"before / after: {load0:.2f} / {load1:.2f}.", ""]
+             f"(1 min) {'min / max over the runs' if a.logs is not None else 'before / after'}: {load0:.2f} / {load1:.2f}.", ""]
     for label, peers_ in (("ekf", ("dynamax", "numpy")), ("ukf", ("dynamax",))):
         ns = sorted({n for (s, lab, n) in res if lab == label})
         if not ns:
