@@ -22,7 +22,10 @@ filters, and from :data:`~symmon.codegen.symbolic.MX_FROM` variables on an MX gr
 the points and solve are loops in C.  Its C code goes through the compile policy of every
 generated function (cached on disk, ``docs/compile.md``), and a C loop around it runs all
 the steps of all the runs of a filter bank in one call; without a compiler, or while a large
-step builds in the background, the step runs on CasADi's virtual machine.  :class:`symmon.NonlinearKalmanFilter` (:mod:`symmon.filters`)
+step builds in the background, the step runs on CasADi's virtual machine.  From
+:data:`~symmon.filters.ekfstep.C_EKF_FROM` states on, the C loop of a TT1 step (EKF, IEKF) with
+additive noise calls the hand-written C step of :mod:`symmon.filters.ekfstep` around CasADi's
+model pieces instead (the MX step remains the VM's).  :class:`symmon.NonlinearKalmanFilter` (:mod:`symmon.filters`)
 and the adaptive filter (:mod:`symmon.filters.adaptive`) run it.
 
 References
