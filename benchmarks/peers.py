@@ -69,18 +69,24 @@ def problem(n: int):
 
 
 # --------------------------------------------------------------------------- symmon
-def symmon_filters(p, ys, repeat):
+TRANSFORMS = {"ukf": lambda: sm.UT(ALPHA, BETA, KAPPA), "ekf": sm.TT1}
+
+
+def symmon_filters(p, ys, repeat, labels=("ukf", "ekf"), wait=None):
     from symmon.filters.step import _compiled_step
 
     x0 = sm.Gaussian(p.x0, p.P0)
     out = {}
-    for label, transform in (("ukf", sm.UT(ALPHA, BETA, KAPPA)), ("ekf", sm.TT1())):
+    for label in labels:
+        transform = TRANSFORMS[label]()
         kf = sm.NonlinearKalmanFilter(p.f_model, p.h_model, p.Q, p.R, transform)
         t0 = time.perf_counter()
         kf.filter(ys[0], x0, keep=("x", "P"))
         first = time.perf_counter() - t0
         lib = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)._lib
-        lib.wait()
+        if not lib.wait(wait):
+            out[label] = {"first": first, "built": None}
+            continue
         out[label] = {
             "first": first, "built": time.perf_counter() - t0,
             "one": best(lambda: kf.filter(ys[0], x0, keep=("x", "P")), repeat, MIN_TIME),
@@ -91,7 +97,7 @@ def symmon_filters(p, ys, repeat):
 
 
 # --------------------------------------------------------------------------- dynamax
-def dynamax_filters(p, ys, repeat):
+def dynamax_filters(p, ys, repeat, labels=("ukf", "ekf")):
     try:
         import jax
         from dynamax.nonlinear_gaussian_ssm import (ParamsNLGSSM, UKFHyperParams, extended_kalman_filter,
@@ -115,7 +121,8 @@ def dynamax_filters(p, ys, repeat):
     }
     y1, yR = jnp.asarray(ys[0]), jnp.asarray(ys)
     out = {}
-    for label, run in runs.items():
+    for label in labels:
+        run = runs[label]
         one, bank = jax.jit(run), jax.jit(jax.vmap(run))
         t0 = time.perf_counter()
         one(y1).block_until_ready()
@@ -177,6 +184,37 @@ def numpy_ukf_bank(p, ys):
         dY[..., ang] = wrap(dY[..., ang])
         S = np.einsum("j,rja,rjb->rab", wc, dY, dY) + p.R
         C = np.einsum("j,rja,rjb->rab", wc, X - xp[:, None], dY)
+        G = np.linalg.solve(S, C.transpose(0, 2, 1)).transpose(0, 2, 1)
+        nu = ys[:, k] - yp
+        nu[:, ang] = wrap(nu[:, ang])
+        x = xp + np.einsum("rab,rb->ra", G, nu)
+        P = Pp - G @ S @ G.transpose(0, 2, 1)
+        P = 0.5 * (P + P.transpose(0, 2, 1))
+        xs[:, k], Ps[:, k] = x, P
+    return xs, Ps
+
+
+def numpy_ekf_bank(p, ys):
+    """Every run at once: the EKF (TT1) of symmon with batched NumPy (the Jacobian of h
+    lambdified from sympy, batched solve), the bearings' innovations wrapped."""
+    runs, K, _ = ys.shape
+    n = p.n
+    X = p.f_model.inputs
+    hx = sp.lambdify(X, p.h_model.outputs, "numpy")
+    Hx = sp.lambdify(X, list(sp.Matrix(p.h_model.outputs).jacobian(X)), "numpy")  # row-major entries
+    ang = list(p.angles)
+    x = np.broadcast_to(p.x0, (runs, n)).copy()
+    P = np.broadcast_to(p.P0, (runs, n, n)).copy()
+    xs, Ps = np.empty((runs, K, n)), np.empty((runs, K, n, n))
+    for k in range(K):
+        xp = x @ p.F.T
+        Pp = p.F @ P @ p.F.T + p.Q
+        cols = np.moveaxis(xp, -1, 0)
+        yp = np.stack(np.broadcast_arrays(*hx(*cols)), axis=-1)
+        yp[:, ang] = wrap(yp[:, ang])
+        H = np.stack([np.broadcast_to(e, (runs,)) for e in Hx(*cols)], axis=-1).reshape(runs, p.n_y, n)
+        C = Pp @ H.transpose(0, 2, 1)
+        S = H @ C + p.R
         G = np.linalg.solve(S, C.transpose(0, 2, 1)).transpose(0, 2, 1)
         nu = ys[:, k] - yp
         nu[:, ang] = wrap(nu[:, ang])
@@ -393,7 +431,9 @@ def main() -> None:
         t_np = time.perf_counter() - t0
         t_np = min(t_np, best(lambda: numpy_ukf_bank(p, ys), max(1, repeat // 3)))
         fp = filterpy_one(p, ys, repeat)
-        rows.append((p.n, s, d, t_np, rel_diff(xs_np, s["ukf"]["x"]), fp))
+        xs_npe, _ = numpy_ekf_bank(p, ys)
+        t_npe = best(lambda: numpy_ekf_bank(p, ys), max(1, repeat // 3))
+        rows.append((p.n, s, d, t_np, rel_diff(xs_np, s["ukf"]["x"]), fp, t_npe, rel_diff(xs_npe, s["ekf"]["x"])))
         print(p.n, {k: {kk: v for kk, v in s[k].items() if kk != "x"} for k in s}, flush=True)
     mrows = []
     for n in (int(s) for s in a.moment_sizes.split(",")):
@@ -425,7 +465,7 @@ def main() -> None:
              "| UKF bank: symmon / dynamax / NumPy | EKF bank: symmon / dynamax | dynamax / symmon: UKF one, UKF bank, "
              "EKF bank | NumPy / symmon | FilterPy / symmon | agreement (dynamax, NumPy) |",
              "|---|---|---|---|---|---|---|---|---|---|"]
-    for n, s, d, t_np, agree_np, fp in rows:
+    for n, s, d, t_np, agree_np, fp, *_ in rows:
         du, de = (d or {}).get("ukf", {}), (d or {}).get("ekf", {})
         agree_d = "—" if not du else f"{np.median([rel_diff(a, b) for a, b in zip(du['x'], s['ukf']['x'])]):.1e}"
         lines.append(
@@ -435,6 +475,21 @@ def main() -> None:
             f"{fmt(de.get('bank'))} | {ratio(du.get('one'), s['ukf']['one'])}, {ratio(du.get('bank'), s['ukf']['bank'])}, "
             f"{ratio(de.get('bank'), s['ekf']['bank'])} | {ratio(t_np, s['ukf']['bank'])} | {ratio(fp, s['ukf']['one'])} "
             f"| {agree_d}, {agree_np:.1e} |")
+    lines += ["", "### EKF", "",
+              "The same trackers with `TT1()` (symmon), `extended_kalman_filter` (dynamax) and a hand-vectorised "
+              "NumPy EKF bank (batched products and solve, the bearings' innovations wrapped).", "",
+              "| n | symmon EKF first (C in) | dynamax EKF first (one / bank) | EKF one run: symmon / dynamax "
+              "| EKF bank: symmon / dynamax / NumPy | dynamax / symmon: one run, bank | NumPy / symmon (bank) "
+              "| agreement (NumPy) |",
+              "|---|---|---|---|---|---|---|---|"]
+    for n, s, d, _, _, _, t_npe, agree_npe in rows:
+        de = (d or {}).get("ekf", {})
+        lines.append(
+            f"| {n} | {fmt(s['ekf']['first'])} ({fmt(s['ekf']['built'])}) | {fmt(de.get('first'))} / "
+            f"{fmt(de.get('first_bank'))} | {fmt(s['ekf']['one'])} / {fmt(de.get('one'))} "
+            f"| {fmt(s['ekf']['bank'])} / {fmt(de.get('bank'))} / {fmt(t_npe)} "
+            f"| {ratio(de.get('one'), s['ekf']['one'])}, {ratio(de.get('bank'), s['ekf']['bank'])} "
+            f"| {ratio(t_npe, s['ekf']['bank'])} | {agree_npe:.1e} |")
     ns = [r[0] for r in rows]
     cols = {
         "symmon UKF one run": [r[1]["ukf"]["one"] for r in rows],
@@ -444,6 +499,9 @@ def main() -> None:
         "dynamax UKF bank": [(r[2] or {}).get("ukf", {}).get("bank") for r in rows],
         "dynamax EKF bank": [(r[2] or {}).get("ekf", {}).get("bank") for r in rows],
         "NumPy UKF bank": [r[3] for r in rows],
+        "symmon EKF one run": [r[1]["ekf"]["one"] for r in rows],
+        "dynamax EKF one run": [(r[2] or {}).get("ekf", {}).get("one") for r in rows],
+        "NumPy EKF bank": [r[6] for r in rows],
     }
     lines += ["", "Growth exponent p of cost ∝ nᵖ (n ≥ 10): " + "; ".join(f"{k} {exponent(ns, v)}" for k, v in cols.items())
               + "."]

@@ -22,7 +22,10 @@ filters, and from :data:`~symmon.codegen.symbolic.MX_FROM` variables on an MX gr
 the points and solve are loops in C.  Its C code goes through the compile policy of every
 generated function (cached on disk, ``docs/compile.md``), and a C loop around it runs all
 the steps of all the runs of a filter bank in one call; without a compiler, or while a large
-step builds in the background, the step runs on CasADi's virtual machine.  :class:`symmon.NonlinearKalmanFilter` (:mod:`symmon.filters`)
+step builds in the background, the step runs on CasADi's virtual machine.  From
+:data:`~symmon.filters.ekfstep.C_EKF_FROM` states on, the C loop of a TT1 step (EKF, IEKF) with
+additive noise calls the hand-written C step of :mod:`symmon.filters.ekfstep` around CasADi's
+model pieces instead (the MX step remains the VM's).  :class:`symmon.NonlinearKalmanFilter` (:mod:`symmon.filters`)
 and the adaptive filter (:mod:`symmon.filters.adaptive`) run it.
 
 References
@@ -53,6 +56,7 @@ from ..core.model import Model
 from ..compile import compiled, compiled_with_params
 from ..codegen.symbolic import graph_kind, moments, tril_inverse, wrap_entries
 from ..transforms import Transform
+from .ekfstep import C_EKF_FROM, ekf_c, ekf_pieces
 from .sqrtstep import covariance_of, factor_of, noise_factor, sqrt_nees_graph, sqrt_predict_graph, sqrt_update_graph
 
 #: Names of the outputs of the step function, in order.
@@ -263,6 +267,7 @@ _DRIVER = """
    failed (not null), failed[r] is the first step of run r whose x, P or log-likelihood is
    not finite (the run stops there), or -1.  Before each step it polls stop (not null): set
    by the thread that waits for the bank when that is interrupted, it ends the loop. */
+#include <stdlib.h>
 #include <string.h>
 static int {name}_nonfinite(const casadi_real* a, casadi_int n) {{
   /* An exponent of all ones is inf or NaN; an integer test, so that the loop vectorises. */
@@ -275,11 +280,12 @@ static int {name}_nonfinite(const casadi_real* a, casadi_int n) {{
   return bad != 0;
 }}
 
-CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
+static int {name}_loop(const casadi_real* x0, casadi_int x0_step,
     const casadi_real* P0, casadi_int P0_step, const casadi_real* y,
     const casadi_real* Q, const casadi_real* R, const casadi_real* mask, const casadi_real* p,
     const casadi_real* truth, casadi_real* const* outs, const casadi_int* strides, casadi_int runs,
-    casadi_int K, casadi_int* iw, casadi_real* w, casadi_int* failed, const volatile int* stop) {{
+    casadi_int K, casadi_int* iw, casadi_real* w, casadi_int* failed, const volatile int* stop,
+    casadi_real* s) {{
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
   casadi_real* res2[{sz_res}];
@@ -298,7 +304,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
       if (!strides[0]) res[0] = outs[0] + (k & 1) * {n};
       if (!strides[1]) res[1] = outs[1] + (k & 1) * {nn};
       if (failed && !res[6]) res[6] = &ll;
-      if ({name}(arg, res, iw, w, 0)) return 1;
+      if ({call}) return 1;
       x = res[0];
       P = res[1];
       if (failed && ({name}_nonfinite(res[6], 1) || {name}_nonfinite(x, {n}) || {name}_nonfinite(P, {nn}))) {{
@@ -313,6 +319,21 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
     }}
   }}
   return 0;
+}}
+
+/* The loop with its scratch ({scratch} reals: the C EKF step's work, one block per call). */
+CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
+    const casadi_real* P0, casadi_int P0_step, const casadi_real* y,
+    const casadi_real* Q, const casadi_real* R, const casadi_real* mask, const casadi_real* p,
+    const casadi_real* truth, casadi_real* const* outs, const casadi_int* strides, casadi_int runs,
+    casadi_int K, casadi_int* iw, casadi_real* w, casadi_int* failed, const volatile int* stop) {{
+  casadi_real* s = 0;
+  int code;
+  if ({scratch} && !(s = (casadi_real*)malloc({scratch} * sizeof(casadi_real)))) return 1;
+  code = {name}_loop(x0, x0_step, P0, P0_step, y, Q, R, mask, p, truth, outs, strides, runs, K, iw, w,
+                     failed, stop, s);
+  free(s);
+  return code;
 }}
 """
 
@@ -394,15 +415,29 @@ class _CompiledStep(CompiledLoop):
         self.n_p = len(filter_params(f, h))
         self._shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n),
                         "innovation": (n_y,), "S": (n_y, n_y), "loglik": (), "nis": ()}
-        both = (fn, self.nees_f)
-        code = generated_c(*both) + _DRIVER.format(
-            name=name, sz_arg=max(max(g.sz_arg() for g in both), 7), sz_res=max(max(g.sz_res() for g in both), 8),
+        # A larger EKF or IEKF (TT1, additive noise) runs the C step of symmon.filters.ekfstep around
+        # CasADi's model pieces; the MX step fn stays for CasADi's VM (and the fit, the IMM).
+        self.c_ekf = (transform.taylor_order == 1 and not square_root and not f.n_v and not h.n_v
+                      and n >= C_EKF_FROM)
+        if self.c_ekf:
+            names = filter_params(f, h)
+            xs, ys, ps = ca.SX.sym("x", n), ca.SX.sym("y", n_y), ca.SX.sym("p", len(names))
+            pieces, pattern = ekf_pieces(f, h, angle_states, select_params(f, names, ps),
+                                         select_params(h, names, ps), xs, ys, ps, name)
+            funcs = (self.nees_f,) + pieces
+            ekf_code, scratch = ekf_c(name, n, n_y, pattern, iterations)
+            code, call = generated_c(*funcs) + ekf_code, f"{name}_ekf(arg, res, iw, w, s)"
+        else:
+            funcs, scratch = (fn, self.nees_f), 0
+            code, call = generated_c(*funcs), f"{name}(arg, res, iw, w, 0)"
+        code += _DRIVER.format(
+            name=name, sz_arg=max(max(g.sz_arg() for g in funcs), 7), sz_res=max(max(g.sz_res() for g in funcs), 8),
             n=self.n, nn=self.n * self.n, n_y=self.n_y, nyy=self.n_y * self.n_y, n_p=self.n_p,
-            stop_poll=STOP_POLL,
+            stop_poll=STOP_POLL, call=call, scratch=scratch,
         )
         argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_longlong]
                     + [ctypes.c_void_p] * 8 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 4)
-        super().__init__(fn, code, argtypes, also=(self.nees_f,))
+        super().__init__(fn, code, argtypes, also=funcs)
 
     def __call__(self, x0: np.ndarray, P0: np.ndarray, Y: np.ndarray, Q: np.ndarray, R: np.ndarray,
                  use_c: bool = True, keep: frozenset[str] | None = None,
