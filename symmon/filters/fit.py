@@ -160,6 +160,13 @@ CASADI_SYMBOL_EXPORT int {name}_fit(const casadi_real* D, const casadi_real* S0,
       for (j = 0; j < m; ++j) out[1 + j] += a[{ns} + rows[j]];
       for (i = 0; i < {ns}; ++i) lam[i] = a[i];
     }}
+{hessian}  }}
+  return 0;
+}}
+"""
+
+# The Hessian's sweeps, in the second library only (:class:`_CompiledLoglik`).
+_HESSIAN = """
     if (order < 2) continue;
     for (j = 0; j < m; ++j) {{
       /* forward tangent of the states along parameter j (T_k = ds_k/dtheta_j), then the
@@ -177,17 +184,13 @@ CASADI_SYMBOL_EXPORT int {name}_fit(const casadi_real* D, const casadi_real* S0,
       lam[{ns}] = 1.0;
       for (k = K - 1; k >= 0; --k) {{
         for (i = 0; i < {ns}; ++i) zd[i] = T[k * {ns} + i];
-        arg[0] = Z + k * {nz}; arg[1] = Q; arg[2] = R; arg[3] = zd; arg[4] = lam; arg[5] = lamd; res[0] = ad;
+        arg[0] = Z + k * {nz}; arg[1] = Q; arg[2] = R; arg[3] = zd; arg[4] = lam; arg[5] = lamd;
+        res[0] = a; res[1] = ad;
         if ({name}_hvp(arg, res, iw, w, 0)) return 1;
-        arg[3] = lam; res[0] = a;
-        if ({name}_vjp(arg, res, iw, w, 0)) return 1;
         for (i = 0; i < m; ++i) out[1 + m + i * m + j] += ad[{ns} + rows[i]];
         for (i = 0; i < {ns}; ++i) {{ lam[i] = a[i]; lamd[i] = ad[i]; }}
       }}
     }}
-  }}
-  return 0;
-}}
 """
 
 
@@ -202,7 +205,7 @@ class _CompiledLoglik:
     parameter gives ∇²ℓ (forward-over-reverse, ibid. §5.2).  It does not depend on the data,
     the parameters fitted or the bank's shape: one build per filter, through the compile
     policy (:class:`symmon.compile.ccache.NativeLibrary`, in the background: the VM graph
-    :func:`_loglik_graph` is the fallback)."""
+    :func:`_loglik_graph` is the fallback), as two libraries: ℓ and ∇ℓ, and with the Hessian."""
 
     def __init__(self, kf: FilterSpec) -> None:
         step = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states, kf.iterations).f
@@ -221,30 +224,45 @@ class _CompiledLoglik:
         o = ca.vertcat(out[0], ca.vec(out[1]), out[6])
         vjp = ca.jtimes(o, z, lam, True)
         hvp = ca.jtimes(vjp, z, zd) + ca.jtimes(o, z, lamd, True)
-        fs = [ca.Function(f"{name}_f", [z, Q, R], [o]),
-              ca.Function(f"{name}_jvp", [z, Q, R, zd], [ca.jtimes(o, z, zd)]),
-              ca.Function(f"{name}_vjp", [z, Q, R, lam], [vjp]),
-              ca.Function(f"{name}_hvp", [z, Q, R, zd, lam, lamd], [hvp])]
-        self.f = fs[0]
-        self._work = WorkArrays(*fs)
-        code = generated_c(*fs) + _DRIVER.format(name=name, ns=self.ns, nd=self.nd, nz=nz,
-                                                 sz_arg=max(max(f.sz_arg() for f in fs), 6),
-                                                 sz_res=max(max(f.sz_res() for f in fs), 1))
-        self._lib = NativeLibrary(code, name, self._load, stacklevel=3, background=True)
+        self._work, self._libs = None, []
+        fns = []
+        # Two libraries: the value and gradient (every iteration) apart from the Hessian (once
+        # per fit, its code three times as large), so that the compile policy builds the first
+        # with full optimisation where the whole would be too large for it (docs/compile.md).
+        for part, hessian in (("g", ""), ("h", _HESSIAN)):
+            pre = f"{name}{part}"
+            fs = [ca.Function(f"{pre}_f", [z, Q, R], [o]), ca.Function(f"{pre}_vjp", [z, Q, R, lam], [vjp])]
+            if hessian:
+                fs += [ca.Function(f"{pre}_jvp", [z, Q, R, zd], [ca.jtimes(o, z, zd)]),
+                       ca.Function(f"{pre}_hvp", [z, Q, R, zd, lam, lamd], [vjp, hvp])]
+            fns += fs
+            fmt = dict(name=pre, ns=self.ns, nd=self.nd, nz=nz, sz_arg=max(max(f.sz_arg() for f in fs), 6),
+                       sz_res=max(max(f.sz_res() for f in fs), 2))
+            code = generated_c(*fs) + _DRIVER.format(hessian=hessian.format(**fmt), **fmt)
+            self._libs.append(NativeLibrary(code, pre, lambda so, pre=pre: self._load(so, pre), stacklevel=3,
+                                            background=True))
+        self.name = name
+        self._work = WorkArrays(*fns)
 
-    def _load(self, so):
-        run = getattr(ctypes.CDLL(str(so)), f"{self.f.name()[:-2]}_fit")
+    @staticmethod
+    def _load(so, pre: str):
+        run = getattr(ctypes.CDLL(str(so)), f"{pre}_fit")
         run.argtypes = [ctypes.c_void_p] * 4 + [ctypes.c_longlong] * 3 + [ctypes.c_void_p, ctypes.c_longlong] \
             + [ctypes.c_void_p] * 5
         run.restype = ctypes.c_int
         return run
 
+    def wait(self) -> bool:
+        """Wait for the background builds; True when both libraries are compiled."""
+        return all([lib.wait() for lib in self._libs])
+
     def bind(self, data: np.ndarray, S0: np.ndarray, Q: np.ndarray, R: np.ndarray, fitted: list[int]):
         """``(θ, order) ↦ (ℓ, ∇ℓ, ∇²ℓ)`` (order 0: ℓ only; 1: and ∇ℓ; 2: and ∇²ℓ) on the data
         (runs, K, nd) of the step (:func:`_step_data`) with the parameters ``fitted`` (indices
         among the filter's parameters) set to θ, from the states S0 (:func:`_initial_states`);
-        None while the C is not available (CasADi's VM, or a build still running)."""
-        run = self._lib.get()
+        None while the C of the gradient is not available (CasADi's VM, or a build still
+        running); order 2 gives None for ∇²ℓ while that of the Hessian is not."""
+        run = self._libs[0].get()
         if run is None:
             return None
         runs, K = data.shape[:2]
@@ -257,12 +275,17 @@ class _CompiledLoglik:
         m = len(rows)
 
         def evaluate(theta: np.ndarray, order: int):
+            fn = run
+            if order == 2:
+                fn = self._libs[1].get()
+                if fn is None:
+                    return None
             data[:, :, rows] = theta
             out = np.zeros(1 + m + m * m)
             iw, w = self._work.addresses()
-            if run(data.ctypes.data, S0.ctypes.data, Qc.ctypes.data, Rc.ctypes.data, runs, K, m, rows.ctypes.data,
+            if fn(data.ctypes.data, S0.ctypes.data, Qc.ctypes.data, Rc.ctypes.data, runs, K, m, rows.ctypes.data,
                    order, Z.ctypes.data, T.ctypes.data, out.ctypes.data, iw, w):
-                raise SymmonError(f"the compiled log-likelihood {self.f.name()} returned an error")
+                raise SymmonError(f"the compiled log-likelihood {self.name} returned an error")
             return out[0], out[1:1 + m], out[1 + m:].reshape(m, m)
 
         return evaluate
@@ -354,17 +377,22 @@ def fit_parameters(kf: FilterSpec, ys, x0, start: dict, P0=None, *, params: dict
     fitted = [names.index(k) for k in fitted_names]
     evaluate = compiled_loglik(kf).bind(_step_data(checked.Y, checked.params),
                                         _initial_states(checked.x0, checked.P0, checked.Y.shape[0]), kf.Q, kf.R, fitted)
+
+    def vm_hess(t):
+        theta, total = _loglik_graph(kf, checked.Y, checked.x0, checked.P0, checked.params, fitted)
+        return ca.Function("loglik_hess", [theta], [ca.hessian(total, theta)[0]])(t)
+
+    hess = vm_hess
     if evaluate is None:  # no compiled C (yet): the same ℓ as one CasADi graph on its VM
         theta, total = _loglik_graph(kf, checked.Y, checked.x0, checked.P0, checked.params, fitted)
-        grad = ca.gradient(total, theta)
-        value_grad = ca.Function("loglik_grad", [theta], [total, grad])
-        hess = ca.Function("loglik_hess", [theta], [ca.hessian(total, theta)[0]])
+        value_grad = ca.Function("loglik_grad", [theta], [total, ca.gradient(total, theta)])
     else:
         def value_grad(t):
             return evaluate(np.asarray(t, dtype=float), 1)[:2]
 
         def hess(t):
-            return evaluate(np.asarray(t, dtype=float), 2)[2]
+            out = evaluate(np.asarray(t, dtype=float), 2)
+            return vm_hess(t) if out is None else out[2]
 
     def objective(t: np.ndarray):
         v, g = value_grad(t)
