@@ -169,8 +169,8 @@ def main() -> None:
         from symmon.filters.step import _compiled_step
 
         kf = fp.kf()
-        for lib in (compiled_loglik(kf)._lib, _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)._lib):
-            lib.wait()
+        compiled_loglik(kf).wait()
+        _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)._lib.wait()
         s_built = time.perf_counter() - t0
         t0 = time.perf_counter()
         run, ll = dynamax_fit(fp, ys)
