@@ -1,13 +1,17 @@
 """Maximum-likelihood fit of model parameters through the filter's log-likelihood.
 
 The marginal log-likelihood of the measurements, ℓ(θ) = Σ_runs Σ_k log N(ν_k; 0, S_k), is
-what the filter step computes (the prediction-error decomposition).  :func:`fit` builds ℓ as
-one CasADi graph of the named parameters θ: the filter's own step function (the same graph
-as :mod:`symmon.filters.step`) folded over the K steps (``mapaccum``) and mapped over the runs
-of a bank, so its gradient and its Hessian are exact (CasADi's algorithmic differentiation
-through every step; no finite differences).  SciPy's quasi-Newton method (L-BFGS-B, with
-bounds) maximises ℓ; the standard errors are the square roots of the diagonal of the inverse
-observed information, I = −∇²ℓ(θ̂) (exact Hessian).
+what the filter step computes (the prediction-error decomposition).  :func:`fit` evaluates ℓ
+and its exact gradient and Hessian in the named parameters θ by a C loop over the steps and
+runs of a bank (:class:`_CompiledLoglik`) around the filter's own step function (the same
+graph as :mod:`symmon.filters.step`) and CasADi's derivatives of it: a reverse sweep for the
+gradient, a forward-over-reverse sweep per parameter for the Hessian (algorithmic
+differentiation through every step; no finite differences).  It is built once per filter
+through the compile policy; until it is, the same ℓ is one CasADi graph of θ (the step
+folded over the K steps, ``mapaccum``, and mapped over the runs, :func:`_loglik_graph`)
+evaluated on CasADi's VM.  SciPy's quasi-Newton method (L-BFGS-B, with bounds) maximises ℓ;
+the standard errors are the square roots of the diagonal of the inverse observed
+information, I = −∇²ℓ(θ̂) (exact Hessian).
 
 References
 ----------
@@ -15,6 +19,8 @@ J. D. Hamilton, *Time Series Analysis*, Princeton University Press, 1994, §13.4
 prediction-error decomposition and maximum likelihood with a Kalman filter).
 S. Särkkä, *Bayesian Filtering and Smoothing*, Cambridge University Press, 2013, §12.2
 (parameter estimation with Gaussian filters).
+A. Griewank and A. Walther, *Evaluating Derivatives*, 2nd ed., SIAM, 2008, §3.2 (the reverse
+mode) and §5.2 (second derivatives by forward over reverse).
 """
 
 from __future__ import annotations
