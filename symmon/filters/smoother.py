@@ -19,7 +19,10 @@ states: the difference x^s_{k+1} − x⁻_{k+1} is wrapped, and x^s_k is wrapped
 The backward step is one CasADi function of (x_k, P_k, x^s_{k+1}, P^s_{k+1}, Q), built
 from the same time-update graph as the filter step (it recomputes x⁻, P⁻ and C rather
 than storing C in the forward pass), and a C loop runs it over the steps and the runs of
-a bank; it goes through the same compile policy as the filter step.
+a bank; it goes through the same compile policy as the filter step.  The gain comes from the
+Cholesky factor of the prediction, P⁻ = L Lᵀ, as G = (C L⁻ᵀ) L⁻¹ (the blocked factor and
+inverse of :mod:`symmon.codegen.symbolic`, whose products are loops in C), not from a
+general solve: the same G to rounding, several times faster at n = 30.
 
 References
 ----------
