@@ -20,9 +20,9 @@ The data are simulated at q = 1, b = 1.5; both fits start at q = 0.5, b = 0.
 
 Both first calls build from nothing (symmon into a fresh cache; JAX traces and compiles);
 warm times are the best of a few repeats, symmon and dynamax interleaved.  dynamax has no
-angle handling, so the bearing is not declared an angle in symmon's model (the tracks stay
-away from ±π, where the wrap would act): the two log-likelihoods are then the same function,
-checked at the start to rounding, and the estimates must agree to the optimiser's tolerance.
+angle handling, so the bearing is not declared an angle in symmon's model: the two
+log-likelihoods are then the same function (neither wraps the bearing's innovation), checked
+at the start, and the estimates must agree to the optimiser's tolerance.
 Ratios are dynamax time / symmon time (> 1: symmon faster).
 """
 
@@ -196,7 +196,7 @@ def main() -> None:
              f"b = {START['b']:g}) on one run of K = {K} steps; symmon's `kf.fit` against dynamax's "
              "`extended_kalman_filter(...).marginal_loglik` under `jax.jit(jax.value_and_grad)` and the same SciPy "
              f"L-BFGS-B (gtol {GTOL:g}), plus the standard errors from a central difference of that gradient (symmon: its exact Hessian), float64. The "
-             "bearing is not declared an angle (dynamax has none; the tracks stay away from ±π). First calls build "
+             "bearing is not declared an angle (dynamax has none), so both compute the same function, unwrapped. First calls build "
              "from nothing (symmon into a fresh cache, on CasADi's VM while the C builds in the background, in "
              "parentheses until it is done; JAX traces and compiles); warm: best of "
              f"{repeat}, interleaved. Ratio: dynamax / symmon (> 1: symmon faster). Agreement: ℓ at the start "
