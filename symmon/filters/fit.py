@@ -1,13 +1,17 @@
 """Maximum-likelihood fit of model parameters through the filter's log-likelihood.
 
 The marginal log-likelihood of the measurements, ℓ(θ) = Σ_runs Σ_k log N(ν_k; 0, S_k), is
-what the filter step computes (the prediction-error decomposition).  :func:`fit` builds ℓ as
-one CasADi graph of the named parameters θ: the filter's own step function (the same graph
-as :mod:`symmon.filters.step`) folded over the K steps (``mapaccum``) and mapped over the runs
-of a bank, so its gradient and its Hessian are exact (CasADi's algorithmic differentiation
-through every step; no finite differences).  SciPy's quasi-Newton method (L-BFGS-B, with
-bounds) maximises ℓ; the standard errors are the square roots of the diagonal of the inverse
-observed information, I = −∇²ℓ(θ̂) (exact Hessian).
+what the filter step computes (the prediction-error decomposition).  :func:`fit` evaluates ℓ
+and its exact gradient and Hessian in the named parameters θ by a C loop over the steps and
+runs of a bank (:class:`_CompiledLoglik`) around the filter's own step function (the same
+graph as :mod:`symmon.filters.step`) and CasADi's derivatives of it: a reverse sweep for the
+gradient, a forward-over-reverse sweep per parameter for the Hessian (algorithmic
+differentiation through every step; no finite differences).  It is built once per filter
+through the compile policy; until it is, the same ℓ is one CasADi graph of θ (the step
+folded over the K steps, ``mapaccum``, and mapped over the runs, :func:`_loglik_graph`)
+evaluated on CasADi's VM.  SciPy's quasi-Newton method (L-BFGS-B, with bounds) maximises ℓ;
+the standard errors are the square roots of the diagonal of the inverse observed
+information, I = −∇²ℓ(θ̂) (exact Hessian).
 
 References
 ----------
@@ -15,12 +19,18 @@ J. D. Hamilton, *Time Series Analysis*, Princeton University Press, 1994, §13.4
 prediction-error decomposition and maximum likelihood with a Kalman filter).
 S. Särkkä, *Bayesian Filtering and Smoothing*, Cambridge University Press, 2013, §12.2
 (parameter estimation with Gaussian filters).
+A. Griewank and A. Walther, *Evaluating Derivatives*, 2nd ed., SIAM, 2008, §3.2 (the reverse
+mode) and §5.2 (second derivatives by forward over reverse).
 """
 
 from __future__ import annotations
 
+import ctypes
 import dataclasses
+import hashlib
 import math
+import threading
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -28,9 +38,9 @@ import casadi as ca
 import numpy as np
 from scipy import optimize
 
+from ..compile.ccache import NativeLibrary
+from ..compile.compiled import WorkArrays, generated_c
 from ..core.gaussian import float_array
-import warnings
-
 from ..errors import IdentifiabilityWarning, ModelError, SymmonError
 from .inputs import FilterSpec, filter_inputs
 from .results import KalmanResult
@@ -109,8 +119,7 @@ def _loglik_graph(kf: FilterSpec, Y: np.ndarray, x0: np.ndarray, P0: np.ndarray,
     S0, D = ca.MX.sym("s0", n + n * n), ca.MX.sym("D", 2 * n_y + n_p, K)
     run_ll = ca.Function("run", [S0, D], [ca.sum2(acc(S0, D)[1])])
     theta = ca.MX.sym("theta", len(fitted))
-    measured = ~np.isnan(Y)
-    data = np.concatenate([np.where(measured, Y, 0.0), measured.astype(float), base], axis=2)  # (R, K, ·)
+    data = _step_data(Y, base)  # (R, K, ·)
     sel = np.zeros((n_p, len(fitted)))
     sel[fitted, np.arange(len(fitted))] = 1.0
     keep = np.ones(2 * n_y + n_p)
@@ -118,11 +127,202 @@ def _loglik_graph(kf: FilterSpec, Y: np.ndarray, x0: np.ndarray, P0: np.ndarray,
     # Each run's data columns, with the fitted rows replaced by θ (the same at every step).
     Ds = [ca.diag(ca.DM(keep)) @ ca.DM(data[r].T)
           + ca.repmat(ca.vertcat(ca.DM.zeros(2 * n_y, 1), ca.mtimes(ca.DM(sel), theta)), 1, K) for r in range(runs)]
-    x0r = np.broadcast_to(x0, (runs, n))
-    P0r = np.broadcast_to(P0, (runs, n, n))
-    S0s = ca.horzcat(*[ca.DM(np.concatenate([x0r[r], P0r[r].T.ravel()])) for r in range(runs)])
+    S0s = ca.DM(_initial_states(x0, P0, runs).T)
     total = ca.sum2(run_ll.map(runs)(S0s, ca.horzcat(*Ds)))
     return theta, total
+
+
+# The fold of the filter step over the steps and runs, with its exact gradient (one reverse
+# sweep) and Hessian (a forward-over-reverse sweep per fitted parameter), in one C loop.
+_DRIVER = """
+/* symmon: the log-likelihood of a bank and its derivatives in the fitted rows of the step's
+   data.  D (runs*K*{nd}): the step's data per step; S0 (runs*{ns}): [x0; vec(P0)] per run;
+   rows (m): the fitted rows of the data; order 0: the value, 1: + gradient, 2: + Hessian,
+   added into out = [l, g (m), H (m*m, row-major)].  Z (K*{nz}) and T (K*{ns}): work. */
+CASADI_SYMBOL_EXPORT int {name}_fit(const casadi_real* D, const casadi_real* S0, const casadi_real* Q,
+    const casadi_real* R, casadi_int runs, casadi_int K, casadi_int m, const casadi_int* rows,
+    casadi_int order, casadi_real* Z, casadi_real* T, casadi_real* out, casadi_int* iw, casadi_real* w) {{
+  const casadi_real* arg[{sz_arg}];
+  casadi_real* res[{sz_res}];
+  casadi_real o[{ns} + 1], lam[{ns} + 1], lamd[{ns} + 1], a[{nz}], ad[{nz}], zd[{nz}];
+  casadi_int r, k, i, j;
+  for (r = 0; r < runs; ++r) {{
+    /* forward: z_k = [s_k; d_k], s_{{k+1}}, l_k = step(z_k) */
+    for (i = 0; i < {ns}; ++i) Z[i] = S0[r * {ns} + i];
+    for (k = 0; k < K; ++k) {{
+      for (i = 0; i < {nd}; ++i) Z[k * {nz} + {ns} + i] = D[(r * K + k) * {nd} + i];
+      arg[0] = Z + k * {nz}; arg[1] = Q; arg[2] = R; res[0] = o;
+      if ({name}_f(arg, res, iw, w, 0)) return 1;
+      out[0] += o[{ns}];
+      if (k + 1 < K) for (i = 0; i < {ns}; ++i) Z[(k + 1) * {nz} + i] = o[i];
+    }}
+    if (order < 1) continue;
+    /* reverse: the adjoint [lambda_{{k+1}}; 1] of (s_{{k+1}}, l_k) gives that of z_k */
+    for (i = 0; i < {ns}; ++i) lam[i] = 0.0;
+    lam[{ns}] = 1.0;
+    for (k = K - 1; k >= 0; --k) {{
+      arg[0] = Z + k * {nz}; arg[1] = Q; arg[2] = R; arg[3] = lam; res[0] = a;
+      if ({name}_vjp(arg, res, iw, w, 0)) return 1;
+      for (j = 0; j < m; ++j) out[1 + j] += a[{ns} + rows[j]];
+      for (i = 0; i < {ns}; ++i) lam[i] = a[i];
+    }}
+{hessian}  }}
+  return 0;
+}}
+"""
+
+# The Hessian's sweeps, in the second library only (:class:`_CompiledLoglik`).
+_HESSIAN = """
+    if (order < 2) continue;
+    for (j = 0; j < m; ++j) {{
+      /* forward tangent of the states along parameter j (T_k = ds_k/dtheta_j), then the
+         reverse sweep of the adjoint and its tangent: column j of the Hessian */
+      for (i = 0; i < {nz}; ++i) zd[i] = 0.0;
+      zd[{ns} + rows[j]] = 1.0;
+      for (i = 0; i < {ns}; ++i) T[i] = 0.0;
+      for (k = 0; k + 1 < K; ++k) {{
+        for (i = 0; i < {ns}; ++i) zd[i] = T[k * {ns} + i];
+        arg[0] = Z + k * {nz}; arg[1] = Q; arg[2] = R; arg[3] = zd; res[0] = o;
+        if ({name}_jvp(arg, res, iw, w, 0)) return 1;
+        for (i = 0; i < {ns}; ++i) T[(k + 1) * {ns} + i] = o[i];
+      }}
+      for (i = 0; i <= {ns}; ++i) lam[i] = lamd[i] = 0.0;
+      lam[{ns}] = 1.0;
+      for (k = K - 1; k >= 0; --k) {{
+        for (i = 0; i < {ns}; ++i) zd[i] = T[k * {ns} + i];
+        arg[0] = Z + k * {nz}; arg[1] = Q; arg[2] = R; arg[3] = zd; arg[4] = lam; arg[5] = lamd;
+        res[0] = a; res[1] = ad;
+        if ({name}_hvp(arg, res, iw, w, 0)) return 1;
+        for (i = 0; i < m; ++i) out[1 + m + i * m + j] += ad[{ns} + rows[i]];
+        for (i = 0; i < {ns}; ++i) {{ lam[i] = a[i]; lamd[i] = ad[i]; }}
+      }}
+    }}
+"""
+
+
+class _CompiledLoglik:
+    """ℓ and its exact gradient and Hessian in the fitted parameters, as one C loop over the
+    steps and runs (:data:`_DRIVER`) around the filter's step function and three of its
+    derivatives built by CasADi: with z = [x; vec(P); y; mask; p] and o = [x⁺; vec(P⁺); ℓ_k]
+    = step(z), the step (z ↦ o), its Jacobian-vector product (z, ż ↦ J ż), its
+    vector-Jacobian product (z, λ ↦ Jᵀλ) and the derivative of that along ż
+    (z, ż, λ, λ̇ ↦ (∇(Jᵀλ)) ż + Jᵀλ̇).  Reverse accumulation through the K steps gives ∇ℓ
+    (Griewank & Walther 2008, §3.2), the same sweep differentiated forward along each fitted
+    parameter gives ∇²ℓ (forward-over-reverse, ibid. §5.2).  It does not depend on the data,
+    the parameters fitted or the bank's shape: one build per filter, through the compile
+    policy (:class:`symmon.compile.ccache.NativeLibrary`, in the background: the VM graph
+    :func:`_loglik_graph` is the fallback), as two libraries: ℓ and ∇ℓ, and with the Hessian."""
+
+    def __init__(self, kf: FilterSpec) -> None:
+        step = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states, kf.iterations).f
+        n, n_y = kf.f_model.n_u, kf.h_model.n_y
+        self.ns = n + n * n
+        self.n_p = step.size1_in(6)
+        self.nd = 2 * n_y + self.n_p
+        nz = self.ns + self.nd
+        key = repr((step.name(), "fit"))
+        name = "sm_fit_" + hashlib.sha1(key.encode()).hexdigest()[:12]
+        z, zd = ca.MX.sym("z", nz), ca.MX.sym("zd", nz)
+        Q, R = ca.MX.sym("Q", step.sparsity_in(3)), ca.MX.sym("R", step.sparsity_in(4))
+        lam, lamd = ca.MX.sym("lam", self.ns + 1), ca.MX.sym("lamd", self.ns + 1)
+        s, d = z[:self.ns], z[self.ns:]
+        out = step(s[:n], ca.reshape(s[n:], n, n), d[:n_y], Q, R, d[n_y:2 * n_y], d[2 * n_y:])
+        o = ca.vertcat(out[0], ca.vec(out[1]), out[6])
+        vjp = ca.jtimes(o, z, lam, True)
+        hvp = ca.jtimes(vjp, z, zd) + ca.jtimes(o, z, lamd, True)
+        self._work, self._libs = None, []
+        fns = []
+        # Two libraries: the value and gradient (every iteration) apart from the Hessian (once
+        # per fit, its code three times as large), so that the compile policy builds the first
+        # with full optimisation where the whole would be too large for it (docs/compile.md).
+        for part, hessian in (("g", ""), ("h", _HESSIAN)):
+            pre = f"{name}{part}"
+            fs = [ca.Function(f"{pre}_f", [z, Q, R], [o]), ca.Function(f"{pre}_vjp", [z, Q, R, lam], [vjp])]
+            if hessian:
+                fs += [ca.Function(f"{pre}_jvp", [z, Q, R, zd], [ca.jtimes(o, z, zd)]),
+                       ca.Function(f"{pre}_hvp", [z, Q, R, zd, lam, lamd], [vjp, hvp])]
+            fns += fs
+            fmt = dict(name=pre, ns=self.ns, nd=self.nd, nz=nz, sz_arg=max(max(f.sz_arg() for f in fs), 6),
+                       sz_res=max(max(f.sz_res() for f in fs), 2))
+            code = generated_c(*fs) + _DRIVER.format(hessian=hessian.format(**fmt), **fmt)
+            self._libs.append(NativeLibrary(code, pre, lambda so, pre=pre: self._load(so, pre), stacklevel=3,
+                                            background=True))
+        self.name = name
+        self._work = WorkArrays(*fns)
+
+    @staticmethod
+    def _load(so, pre: str):
+        run = getattr(ctypes.CDLL(str(so)), f"{pre}_fit")
+        run.argtypes = [ctypes.c_void_p] * 4 + [ctypes.c_longlong] * 3 + [ctypes.c_void_p, ctypes.c_longlong] \
+            + [ctypes.c_void_p] * 5
+        run.restype = ctypes.c_int
+        return run
+
+    def wait(self) -> bool:
+        """Wait for the background builds; True when both libraries are compiled."""
+        return all([lib.wait() for lib in self._libs])
+
+    def bind(self, data: np.ndarray, S0: np.ndarray, Q: np.ndarray, R: np.ndarray, fitted: list[int]):
+        """``(θ, order) ↦ (ℓ, ∇ℓ, ∇²ℓ)`` (order 0: ℓ only; 1: and ∇ℓ; 2: and ∇²ℓ) on the data
+        (runs, K, nd) of the step (:func:`_step_data`) with the parameters ``fitted`` (indices
+        among the filter's parameters) set to θ, from the states S0 (:func:`_initial_states`);
+        None while the C of the gradient is not available (CasADi's VM, or a build still
+        running); order 2 gives None for ∇²ℓ while that of the Hessian is not."""
+        run = self._libs[0].get()
+        if run is None:
+            return None
+        runs, K = data.shape[:2]
+        data = np.array(data, dtype=float, order="C")
+        # The parameters' values are the last rows of the step's data.
+        rows = np.ascontiguousarray(self.nd - self.n_p + np.asarray(fitted, dtype=np.int64))
+        S0 = np.ascontiguousarray(S0, dtype=float)
+        Qc, Rc = np.asfortranarray(Q, dtype=float).ravel(order="F"), np.asfortranarray(R, dtype=float).ravel(order="F")
+        Z, T = np.empty(K * (self.ns + self.nd)), np.empty(K * self.ns)
+        m = len(rows)
+
+        def evaluate(theta: np.ndarray, order: int):
+            fn = run
+            if order == 2:
+                fn = self._libs[1].get()
+                if fn is None:
+                    return None
+            data[:, :, rows] = theta
+            out = np.zeros(1 + m + m * m)
+            iw, w = self._work.addresses()
+            if fn(data.ctypes.data, S0.ctypes.data, Qc.ctypes.data, Rc.ctypes.data, runs, K, m, rows.ctypes.data,
+                   order, Z.ctypes.data, T.ctypes.data, out.ctypes.data, iw, w):
+                raise SymmonError(f"the compiled log-likelihood {self.name} returned an error")
+            return out[0], out[1:1 + m], out[1 + m:].reshape(m, m)
+
+        return evaluate
+
+
+_loglik_lock = threading.Lock()
+_logliks: dict[tuple, _CompiledLoglik] = {}
+
+
+def compiled_loglik(kf: FilterSpec) -> _CompiledLoglik:
+    """The compiled log-likelihood of the filter ``kf`` (:class:`_CompiledLoglik`), built once
+    per process (C cached on disk)."""
+    key = (kf.f_model, kf.h_model, kf.transform, kf.angle_states, kf.iterations)
+    with _loglik_lock:
+        c = _logliks.get(key)
+        if c is None:
+            c = _logliks[key] = _CompiledLoglik(kf)
+        return c
+
+
+def _step_data(Y: np.ndarray, base: np.ndarray) -> np.ndarray:
+    """The step's data per run and step: [y (0 where missing); mask; parameter values]."""
+    measured = ~np.isnan(Y)
+    return np.concatenate([np.where(measured, Y, 0.0), measured.astype(float), base], axis=2)
+
+
+def _initial_states(x0: np.ndarray, P0: np.ndarray, runs: int) -> np.ndarray:
+    """[x0; vec(P0)] per run (column-major vec, CasADi's)."""
+    x0r = np.broadcast_to(x0, (runs,) + np.shape(x0)[-1:])
+    P0r = np.broadcast_to(P0, (runs,) + np.shape(P0)[-2:])
+    return np.concatenate([x0r, np.swapaxes(P0r, -1, -2).reshape(runs, -1)], axis=1)
 
 
 #: The most iterations of the optimiser a fit may ask for.
@@ -181,10 +381,24 @@ def fit_parameters(kf: FilterSpec, ys, x0, start: dict, P0=None, *, params: dict
     checked = filter_inputs(kf, ys, x0, P0, params={**fixed, **start}, keep=("x",))
     kf.filter(ys, x0, P0, params={**fixed, **start}, keep=("x",))
     fitted = [names.index(k) for k in fitted_names]
-    theta, total = _loglik_graph(kf, checked.Y, checked.x0, checked.P0, checked.params, fitted)
-    grad = ca.gradient(total, theta)
-    value_grad = ca.Function("loglik_grad", [theta], [total, grad])
-    hess = ca.Function("loglik_hess", [theta], [ca.hessian(total, theta)[0]])
+    evaluate = compiled_loglik(kf).bind(_step_data(checked.Y, checked.params),
+                                        _initial_states(checked.x0, checked.P0, checked.Y.shape[0]), kf.Q, kf.R, fitted)
+
+    def vm_hess(t):
+        theta, total = _loglik_graph(kf, checked.Y, checked.x0, checked.P0, checked.params, fitted)
+        return ca.Function("loglik_hess", [theta], [ca.hessian(total, theta)[0]])(t)
+
+    hess = vm_hess
+    if evaluate is None:  # no compiled C (yet): the same ℓ as one CasADi graph on its VM
+        theta, total = _loglik_graph(kf, checked.Y, checked.x0, checked.P0, checked.params, fitted)
+        value_grad = ca.Function("loglik_grad", [theta], [total, ca.gradient(total, theta)])
+    else:
+        def value_grad(t):
+            return evaluate(np.asarray(t, dtype=float), 1)[:2]
+
+        def hess(t):
+            out = evaluate(np.asarray(t, dtype=float), 2)
+            return vm_hess(t) if out is None else out[2]
 
     def objective(t: np.ndarray):
         v, g = value_grad(t)

@@ -19,7 +19,10 @@ states: the difference x^s_{k+1} − x⁻_{k+1} is wrapped, and x^s_k is wrapped
 The backward step is one CasADi function of (x_k, P_k, x^s_{k+1}, P^s_{k+1}, Q), built
 from the same time-update graph as the filter step (it recomputes x⁻, P⁻ and C rather
 than storing C in the forward pass), and a C loop runs it over the steps and the runs of
-a bank; it goes through the same compile policy as the filter step.
+a bank; it goes through the same compile policy as the filter step.  The gain comes from the
+Cholesky factor of the prediction, P⁻ = L Lᵀ, as G = (C L⁻ᵀ) L⁻¹ (the blocked factor and
+inverse of :mod:`symmon.codegen.symbolic`, whose products are loops in C), not from a
+general solve: the same G to rounding, several times faster at n = 30.
 
 References
 ----------
@@ -38,7 +41,7 @@ import casadi as ca
 import numpy as np
 
 from ..codegen.sqrtform import gain_factor, residual_factor
-from ..codegen.symbolic import graph_kind, wrap_entries
+from ..codegen.symbolic import graph_kind, tril_inverse, wrap_entries
 from ..compile.compiled import generated_c
 from ..core.model import Model
 from ..errors import SymmonError
@@ -66,7 +69,13 @@ def _backward_function(f: Model, transform: Transform, angle_states: frozenset[i
     else:
         x_pred, P_pred, cross = predict_graph(f, transform, angle_states, x, P, Q, chol,
                                               select_params(f, names, p), cross=True)
-        gain = ca.solve(P_pred, cross).T  # G = C P⁻⁻¹ with C = crossᵀ, P⁻ symmetric
+        # G = C P⁻⁻¹ with C = crossᵀ, by the factor P⁻ = L Lᵀ: G = (C L⁻ᵀ) L⁻¹, products of
+        # the blocked factor and its inverse (loops in C) in place of a general solve.
+        L = chol(P_pred)
+        inv = tril_inverse(L)
+        # A zero pivot (P⁻ singular) gives a zero column where the solve gave inf: keep the
+        # inf, so that the smoother reports a singular prediction rather than a number.
+        gain = ca.mtimes(ca.mtimes(cross.T, inv.T), inv) + ca.if_else(ca.mmin(ca.diag(L)) > 0, 0, ca.inf)
         x_s = wrap_entries(x + ca.mtimes(gain, wrap_entries(xs - x_pred, angle_states)), angle_states)
         P_s = sym(P + ca.mtimes(ca.mtimes(gain, Ps - P_pred), gain.T))
     return ca.Function(name, [x, P, xs, Ps, Q, p], [ca.densify(x_s), ca.densify(P_s)],

@@ -1,0 +1,79 @@
+"""The compiled log-likelihood of the fit (symmon.filters.fit._CompiledLoglik).
+
+The C loop folds the same step function as the VM graph (_loglik_graph) over the steps and
+runs, so its value agrees to rounding (1e-12 relative); its gradient (a reverse sweep) and
+Hessian (forward over reverse) are CasADi's derivatives of that step, so they agree with
+ca.gradient / ca.hessian of the VM graph to rounding too (1e-10 relative to the largest
+entry: sums of a few thousand terms of mixed sign).  The model is tests/filters/test_fit.py's
+(a range bias b and a noise intensity q, the bearing an angle); the bank has missing
+components and a missing step.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import symmon as sm
+from symmon.filters import fit as fitmod
+from symmon.filters.inputs import filter_inputs
+
+from test_fit import X0, data, kf
+
+
+@pytest.fixture(scope="module", params=["TT1", "UT"])
+def problem(request):
+    k = kf(sm.TT1() if request.param == "TT1" else sm.UT.ut1())
+    _, ys = data(5, runs=3, K=20)
+    ys[0, 3, 1] = np.nan  # one component
+    ys[1, 7] = np.nan  # a whole step
+    compiled = fitmod.compiled_loglik(k)
+    assert compiled.wait()  # both libraries built (the fit itself does not wait)
+    return k, ys, compiled
+
+
+@pytest.mark.parametrize("fitted", [[0, 1], [1]])
+def test_value_gradient_and_hessian_are_the_vm_graphs(problem, fitted):
+    k, ys, compiled = problem
+    values = {"q": 0.25, "b": 1.0}
+    checked = filter_inputs(k, ys, X0, None, params=values)
+    ev = compiled.bind(fitmod._step_data(checked.Y, checked.params),
+                       fitmod._initial_states(checked.x0, checked.P0, ys.shape[0]), k.Q, k.R, fitted)
+    theta, total = fitmod._loglik_graph(k, checked.Y, checked.x0, checked.P0, checked.params, fitted)
+    vm = ca.Function("vm", [theta], [total, ca.gradient(total, theta), ca.hessian(total, theta)[0]])
+    names = [str(s) for s in k.params]
+    for t in ([values[names[j]] for j in fitted], [0.31 + 0.2 * j for j in range(len(fitted))]):
+        t = np.array(t, dtype=float)
+        value, grad, hess = ev(t, 2)
+        v0, g0, _ = ev(t, 0)
+        v1, g1, _ = ev(t, 1)
+        ref_v, ref_g, ref_h = (np.asarray(a, dtype=float) for a in vm(t))
+        assert value == pytest.approx(float(ref_v.item()), rel=1e-12)
+        assert v0 == value and v1 == value and np.all(g0 == 0.0)  # order 0: the value only
+        np.testing.assert_allclose(grad, ref_g.ravel(), rtol=0, atol=1e-10 * np.max(np.abs(ref_g)))
+        np.testing.assert_array_equal(g1, grad)
+        np.testing.assert_allclose(hess, ref_h, rtol=0, atol=1e-10 * np.max(np.abs(ref_h)))
+        np.testing.assert_allclose(hess, hess.T, rtol=0, atol=1e-10 * np.max(np.abs(ref_h)))
+
+
+def test_the_fit_on_the_compiled_loglik_is_the_fit_on_the_vm(problem, monkeypatch):
+    """The same estimates, standard errors and log-likelihood with and without the C (the
+    optimiser sees gradients equal to rounding, so its iterates agree to well below gtol)."""
+    k, _, _ = problem
+    _, ys = data(7, runs=10)
+    ys[2, 4] = np.nan
+    fast = k.fit(ys, X0, {"q": 0.1, "b": 0.0}, bounds={"q": (1e-6, None)})
+    monkeypatch.setattr(fitmod._CompiledLoglik, "bind", lambda self, *a: None)
+    slow = k.fit(ys, X0, {"q": 0.1, "b": 0.0}, bounds={"q": (1e-6, None)})
+    assert fast.iterations == slow.iterations
+    for name in ("q", "b"):
+        assert fast.estimates[name] == pytest.approx(slow.estimates[name], rel=1e-9)
+        assert fast.std_errors[name] == pytest.approx(slow.std_errors[name], rel=1e-8)
+    assert fast.log_likelihood == pytest.approx(slow.log_likelihood, rel=1e-12)
+
+
+def test_one_library_per_filter_whatever_the_data():
+    k = kf()
+    assert fitmod.compiled_loglik(k) is fitmod.compiled_loglik(kf())
+    assert fitmod.compiled_loglik(kf(sm.UT.ut1())) is not fitmod.compiled_loglik(k)
