@@ -31,6 +31,7 @@ import numpy as np
 from ..core.angles import circle_point, wrap_casadi
 from ..compile.ccache import NativeLibrary
 from ..compile.compiled import CompiledModel, generated_c
+from ..compile.vecmath import VECMATH_C, vector_rows
 from ..errors import ShapeError, SymmonError
 
 __all__ = ["SampleKernel", "sample_kernel", "FUSE_MAX_NW"]
@@ -52,6 +53,34 @@ CASADI_SYMBOL_EXPORT int {name}_rows(const casadi_real* z, const casadi_real* p,
     arg[0] = z + i * {n_in};
     res[0] = out + i * {n_out};
     if ({name}(arg, res, iw, w, 0)) return 1;
+  }}
+  return 0;
+}}
+"""
+
+
+# The vectorised row loop (symmon.compile.vecmath): blocks of VEC_BLOCK rows through the
+# vector loop {name}_vec; a row it flags (an atan2 or hypot argument that is zero, inf,
+# NaN or beyond 2^±500) is recomputed by CasADi's function, that is, by libm.
+VEC_BLOCK = 256
+_VEC_DRIVER = """
+/* symmon: rows of z in, rows of out out; p is shared by every row (vectorised loop). */
+CASADI_SYMBOL_EXPORT int {name}_rows(const casadi_real* z, const casadi_real* p,
+    casadi_real* out, casadi_int n, casadi_int* iw, casadi_real* w) {{
+  const casadi_real* arg[{sz_arg}];
+  casadi_real* res[{sz_res}];
+  unsigned char odd[{block}];
+  casadi_int b, i, m;
+  arg[1] = p;
+  for (b = 0; b < n; b += {block}) {{
+    m = n - b < {block} ? n - b : {block};
+    if ({name}_vec(z + b * {n_in}, p, out + b * {n_out}, m, odd) == 0) continue;
+    for (i = 0; i < m; ++i) {{
+      if (!odd[i]) continue;
+      arg[0] = z + (b + i) * {n_in};
+      res[0] = out + (b + i) * {n_out};
+      if ({name}(arg, res, iw, w, 0)) return 1;
+    }}
   }}
   return 0;
 }}
@@ -107,6 +136,7 @@ class SampleKernel:
         out = ca.densify(ca.vertcat(zfull - s, 1))
         tag = "_".join(["mc", *map(str, angles)])
         self.f = ca.Function(f"{cm.tag}_{tag}", [z, p], [out], ["z", "p"], ["a"])
+        self.vectorised = False
         self._native = self._start(cm) if cm.compiled else None
         self._maps: dict[int, ca.Function] = {}
         self._lock = threading.Lock()
@@ -121,10 +151,16 @@ class SampleKernel:
         """The kernel's C library, built (now or in the background) by the compile policy."""
         f = self.f
         name = f.name()
-        code = generated_c(f) + _DRIVER.format(
-            name=name, sz_arg=max(f.sz_arg(), 2), sz_res=max(f.sz_res(), 1),
-            n_in=self.n_w, n_out=self.n_out,
-        )
+        fmt = dict(name=name, sz_arg=max(f.sz_arg(), 2), sz_res=max(f.sz_res(), 1), n_in=self.n_w,
+                   n_out=self.n_out, block=VEC_BLOCK)
+        vec = vector_rows(f, f"{name}_vec", self.n_w, self.n_out)
+        #: True when the rows run through the vectorised loop (every operation of g in
+        #: :data:`~symmon.compile.vecmath.VECTOR_OPS`), False when through CasADi's C per row.
+        self.vectorised = vec is not None
+        if vec is None:
+            code = generated_c(f) + _DRIVER.format(**fmt)
+        else:
+            code = generated_c(f) + VECMATH_C + vec + _VEC_DRIVER.format(**fmt)
 
         def load(so):
             rows = getattr(ctypes.CDLL(str(so)), f"{name}_rows")
