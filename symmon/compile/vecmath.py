@@ -146,9 +146,10 @@ def _literal(v: float) -> str:
     return f"({v.hex()})"
 
 
-def vector_rows(f: ca.Function, name: str, n_in: int, n_out: int) -> str | None:
+def vector_rows(f: ca.Function, name: str, n_in: int, ld: int) -> str | None:
     """C of ``int {name}(const double* z, const double* p, double* out, long long n,
-    unsigned char* odd)``: for each of n rows, ``out[i*n_out:]`` = f(z[i*n_in:], p), and
+    unsigned char* odd)``: for each of n ≤ ld rows, output k of f(z[i*n_in:], p) in
+    ``out[k*ld + i]`` (a block by columns, so that the stores are contiguous), and
     ``odd[i]`` = 1 where an argument of atan2 or hypot is not ordinary (the row's numbers
     are then to be recomputed by CasADi's C); returns the number of such rows.
 
@@ -167,7 +168,7 @@ def vector_rows(f: ca.Function, name: str, n_in: int, n_out: int) -> str | None:
             src = f"z[i*{n_in}+{ins[1]}]" if ins[0] == 0 else f"p[{ins[1]}]"
             body.append(f"v{outs[0]} = {src};")
         elif op == ca.OP_OUTPUT:
-            body.append(f"out[i*{n_out}+{outs[1]}] = v{ins[0]};")
+            body.append(f"out[{outs[1]}*{ld}+i] = v{ins[0]};")
         elif op in VECTOR_OPS:
             args = [f"v{j}" for j in ins]
             if op in _CHECKED:  # at this point: work variables are reused later
