@@ -22,8 +22,8 @@ and ``hypot`` are scalar calls, so the loop runs one sample at a time.  Here:
   functions keep it as it is.
 
 Why not a library: glibc's vector math library (libmvec) documents errors up to 4 ulp
-and gcc calls it only under ``-ffast-math``; SLEEF has no wheel that ships its library
-and header, and its build needs CMake.
+(measured: atan2 2.35 ulp, hypot 1.16 ulp; docs/compile.md) and gcc calls it only under
+``-ffast-math``; SLEEF has no wheel on the package index, and its build needs CMake.
 
 atan2 (y, x): with n = min(|x|, |y|), d = max(|x|, |y|), t = n / d in [0, 1] is kept as a
 double-double t + t_l (t_l = fma(−t, d, n) / d), reduced around c = k/8 (k = round 8t) by

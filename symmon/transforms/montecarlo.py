@@ -44,12 +44,13 @@ MAX_SAMPLES = 2**53
 #: each group costs ~0.1 ms of bookkeeping; past a few hundred groups the error bars gain
 #: little (their own relative error is ~1/√(2G)), so 10⁵ keeps memory and time on the samples.
 MAX_GROUPS = 10**5
-#: Most samples per kernel call: a thread's buffers are chunk·(2 n_w + n_y + 1)·8 bytes.
+#: Most samples per kernel call: a thread's normals are chunk·n_w·8 bytes (its rows too,
+#: chunk·(n_w + n_y + 2·angles + 1)·8, on CasADi's VM).
 MAX_CHUNK = 2**20
 #: Samples per kernel call by default: the compiled kernel keeps no rows (its blocks of
 #: ``mc_kernel.BLOCK`` rows stay in L1), so a chunk costs chunk·n_w·8 bytes of normals per
 #: thread; 2¹⁵ makes the Python work per chunk (drawing, merging) a few per cent of the
-#: chunk (8192: 49 % of the RNG limit on gmti.toml, 2¹⁵: 55 %, benchmarks/RESULTS.md).
+#: chunk (gmti.toml, 4·10⁶ samples: 0.39 s of CPU at 8192, 0.34 s at 2¹⁵, 0.32 s at 2¹⁷).
 MC_CHUNK = 2**15
 #: Most points per group with qmc=True: SciPy's Sobol' engine draws at most 2³⁰ (30 bits).
 MAX_QMC_GROUP = 2**30
