@@ -68,8 +68,11 @@ __all__ = ["cache_dir", "has_compiler", "compile_mode", "build_shared_library", 
 log = logging.getLogger(__name__)
 
 #: Flags of every build.  No -ffast-math (it breaks NaN) and no FMA contraction, so that
-#: compiled code rounds like CasADi's virtual machine.
-CFLAGS = ("-fPIC", "-shared", "-fno-fast-math", "-ffp-contract=off")
+#: compiled code rounds like CasADi's virtual machine.  Of fast math's parts only the two
+#: that change no number: no errno from libm (sqrt becomes the bare instruction, which
+#: gcc can vectorise) and no trapping math (no floating-point traps: gcc may then compute
+#: both sides of a select, which vectorises the branch-free loops of symmon.compile.vecmath).
+CFLAGS = ("-fPIC", "-shared", "-fno-fast-math", "-ffp-contract=off", "-fno-math-errno", "-fno-trapping-math")
 #: Optimisation of a build, whether the caller waits for it or not.  -O1 would compile
 #: straight-line SX no faster and run the loops of MX code 3x slower than -O2; -O3
 #: vectorises those loops (without reassociating a sum: the results are the same to the

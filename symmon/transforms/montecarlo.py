@@ -27,7 +27,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..compile.compiled import CHUNK, CompiledModel, compile_model
+from ..compile.compiled import CompiledModel, compile_model
 from ..core.angles import wrap_angle
 from ..errors import SamplingError, SymmonError
 from .base import Moments, Transform, batch_sqrt, pilot_angle_cut
@@ -35,7 +35,7 @@ from .executor import Executor, _is_int, dask_compute, one_blas_thread, stop_poi
 from .mc_kernel import sample_kernel
 from .stats import Stats, _raw_stats, jackknife, merge, merge_all, moments_of
 
-__all__ = ["MonteCarlo", "group_generator", "group_sizes", "MC_INNER", "MAX_SAMPLES", "MAX_GROUPS", "MAX_CHUNK",
+__all__ = ["MonteCarlo", "group_generator", "group_sizes", "MC_INNER", "MAX_SAMPLES", "MAX_GROUPS", "MAX_CHUNK", "MC_CHUNK",
            "MAX_QMC_GROUP"]
 
 #: Most samples in a run: counts and the sums of a chunk stay exact in double precision.
@@ -44,8 +44,14 @@ MAX_SAMPLES = 2**53
 #: each group costs ~0.1 ms of bookkeeping; past a few hundred groups the error bars gain
 #: little (their own relative error is ~1/√(2G)), so 10⁵ keeps memory and time on the samples.
 MAX_GROUPS = 10**5
-#: Most samples per kernel call: a thread's buffers are chunk·(2 n_w + n_y + 1)·8 bytes.
+#: Most samples per kernel call: a thread's normals are chunk·n_w·8 bytes (its rows too,
+#: chunk·(n_w + n_y + 2·angles + 1)·8, on CasADi's VM).
 MAX_CHUNK = 2**20
+#: Samples per kernel call by default: the compiled kernel keeps no rows (its blocks of
+#: ``mc_kernel.BLOCK`` rows stay in L1), so a chunk costs chunk·n_w·8 bytes of normals per
+#: thread; 2¹⁵ makes the Python work per chunk (drawing, merging) a few per cent of the
+#: chunk (gmti.toml, 4·10⁶ samples: 0.39 s of CPU at 8192, 0.34 s at 2¹⁵, 0.32 s at 2¹⁷).
+MC_CHUNK = 2**15
 #: Most points per group with qmc=True: SciPy's Sobol' engine draws at most 2³⁰ (30 bits).
 MAX_QMC_GROUP = 2**30
 
@@ -73,18 +79,25 @@ class _Job:
     angles: tuple[int, ...]
 
 
-def _sampling_error(A: np.ndarray, shift: np.ndarray, ny: int, nw: int, m: int, done: int) -> SamplingError:
-    bad = ~np.isfinite(A).all(axis=1)
-    if not bad.any():
+def _sampling_error_count(n_bad: int, w_bad: np.ndarray | None, m: int, done: int) -> SamplingError:
+    """The error of a chunk of m samples ({done} drawn before it) with n_bad rows that are
+    not finite, the first at input w_bad (None: no such row, the sums overflow)."""
+    if w_bad is None:
         return SamplingError(
             f"Monte Carlo: the second moments of g overflow in a chunk of {m} samples "
             f"({done + m} drawn so far in this group): |y| is beyond ~1e154"
         )
-    first = A[np.argmax(bad), ny: ny + nw] + shift[ny: ny + nw]
     return SamplingError(
-        f"Monte Carlo: g is NaN or inf at {int(bad.sum())} of {m} samples in a chunk "
-        f"({done + m} drawn so far in this group); first bad sample w = {first.tolist()}"
+        f"Monte Carlo: g is NaN or inf at {n_bad} of {m} samples in a chunk "
+        f"({done + m} drawn so far in this group); first bad sample w = {w_bad.tolist()}"
     )
+
+
+def _sampling_error(A: np.ndarray, shift: np.ndarray, ny: int, nw: int, m: int, done: int) -> SamplingError:
+    """:func:`_sampling_error_count` of the rows A (shifted by ``shift``) of a chunk."""
+    bad = ~np.isfinite(A).all(axis=1)
+    first = A[np.argmax(bad), ny: ny + nw] + shift[ny: ny + nw] if bad.any() else None
+    return _sampling_error_count(int(bad.sum()), first, m, done)
 
 
 def _run_group(cm: CompiledModel, job: _Job, stop: threading.Event | None = None) -> Stats:
@@ -110,7 +123,8 @@ def _run_group(cm: CompiledModel, job: _Job, stop: threading.Event | None = None
         gen = group_generator(job.seed)
     rows = min(job.chunk, job.n)  # a group smaller than a chunk needs no more
     Zbuf = np.empty((rows, d))
-    Abuf = np.empty((rows, kernel.n_out))
+    Abuf: np.ndarray | None = None  # rows are kept only on CasADi's VM (no compiled kernel)
+    fused = None
     shift = np.zeros(kernel.n_z)
     p = kernel.params(job.mean, job.L, shift, job.ref)
     acc: Stats | None = None
@@ -118,7 +132,7 @@ def _run_group(cm: CompiledModel, job: _Job, stop: threading.Event | None = None
     while done < job.n:
         stop_point(stop)
         m = min(job.chunk, job.n - done)
-        Z, A = Zbuf[:m], Abuf[:m]
+        Z = Zbuf[:m]
         if job.qmc:
             with warnings.catch_warnings():
                 # Chunks are powers of two and the total is one: the balance holds.
@@ -129,17 +143,30 @@ def _run_group(cm: CompiledModel, job: _Job, stop: threading.Event | None = None
             ndtri(np.clip(U, eps, 1 - eps, out=U), out=Z)
         else:
             gen.standard_normal(out=Z)
-        kernel(Z, p, A, work)
         if acc is None:
-            shift = A[0, :-1].copy()
+            # The first chunk is centred on its first sample.
+            first = np.empty((1, kernel.n_out))
+            kernel(Z[:1], p, first, work)
+            shift = first[0, :-1].copy()
             if not np.isfinite(shift).all():
                 shift[:] = 0.0  # g fails at the first sample: leave the rows for the error count
-            A[:, :-1] -= shift
-        with np.errstate(over="ignore", invalid="ignore"):  # reported just below, with the count
-            S = A.T @ A
-        # One small check per chunk; the per-row scan only on failure.
-        if not np.isfinite(S).all():
-            raise _sampling_error(A, shift, ny, d, m, done)
+            p = kernel.params(job.mean, job.L, shift, job.ref)
+        if fused is None:
+            fused = kernel.chunk_stats(work)
+        if fused is None:  # CasADi's VM (or the map w = m + L z in NumPy): the rows, then one product
+            if Abuf is None:
+                Abuf = np.empty((rows, kernel.n_out))
+            A = Abuf[:m]
+            kernel(Z, p, A, work)
+            with np.errstate(over="ignore", invalid="ignore"):  # reported just below, with the count
+                S = A.T @ A
+            if not np.isfinite(S).all():
+                raise _sampling_error(A, shift, ny, d, m, done)
+        else:  # one compiled call: the rows and their sums, no rows kept
+            S, n_bad, first_bad = fused(Z, p)
+            if n_bad or not np.isfinite(S).all():
+                w_bad = None if n_bad == 0 else job.mean + job.L @ Z[first_bad]
+                raise _sampling_error_count(n_bad, w_bad, m, done)
         s = _raw_stats(S)
         if acc is None:
             # Later chunks are centred on this chunk's mean: re-express it on that shift.
@@ -183,8 +210,8 @@ class MonteCarlo(Transform):
     groups : int
         Independent shards, 2 to 10⁵; the jackknife over them gives the error bars.
     chunk : int
-        Samples per compiled kernel call, at most 2²⁰ (memory per thread
-        ~ chunk · (2 n_w + n_y + 1) · 8 bytes).
+        Samples per compiled kernel call, at most 2²⁰ (memory per thread ~ chunk · n_w · 8
+        bytes; on CasADi's VM ~ chunk · (2 n_w + n_y + 1) · 8 bytes).
 
     Where the groups run (threads, Dask, progress) is not part of the method: pass an
     :class:`~symmon.Executor` to :func:`symmon.propagate` (``executor=``); the numbers do not
@@ -195,7 +222,7 @@ class MonteCarlo(Transform):
     seed: int | None = 0
     qmc: bool = False
     groups: int = 16
-    chunk: int = CHUNK
+    chunk: int = MC_CHUNK
 
     exact_degree: ClassVar[float] = 0
     name: ClassVar[str] = "mc"
