@@ -79,6 +79,7 @@ from .inputs import check_bank_size, check_keep, check_truth, kept_numbers, meas
 from .results import KalmanResult, _nees
 from .simulation import check_count, check_prior
 from .pf_kernel import BootstrapKernel, bootstrap_kernel, whitening
+from .pf_rng import CHUNK, stream_states
 from .statespace import StateSpace, rows_times
 
 __all__ = ["ParticleFilter", "ParticleResult", "resample", "PROPOSALS", "RESAMPLERS", "DEGENERATE_ESS"]
@@ -121,14 +122,20 @@ def resample(weights: np.ndarray, method: str, rng: np.random.Generator | Iterab
     rngs = [rng] * R if isinstance(rng, np.random.Generator) else list(rng)
     if len(rngs) != R:
         raise ShapeError(f"resample needs one generator per row of weights ({R}), got {len(rngs)}")
-    u = np.stack([resampling_points(method, g, N) for g in rngs])
+    return pick(W, np.stack([resampling_points(method, g, N) for g in rngs])).reshape(np.shape(weights))
+
+
+def pick(W: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """The particle indices (R, N) picked by the ascending points u (R, N) on [0, N) from the
+    normalised weights W (R, N): the cumulative weight interval holding each point
+    (:func:`resample`)."""
+    R, N = W.shape
     cum = np.cumsum(W, axis=1) * N
     cum[:, -1] = N  # rounding must not leave the last point beyond the sum
     # One search over the runs side by side: row r's points and sums shifted by r·N.
     shift = (np.arange(R) * N)[:, None]
     idx = np.searchsorted((cum + shift).ravel(), (u + shift).ravel(), side="right").reshape(R, N) - shift
-    idx = np.minimum(idx, N - 1)
-    return idx.reshape(np.shape(weights))
+    return np.minimum(idx, N - 1)
 
 
 def resampling_points(method: str, rng: np.random.Generator, N: int) -> np.ndarray:
@@ -196,7 +203,18 @@ class ParticleFilter:
         Resample when ESS ≤ ``ess_threshold`` · N (1: at every step; 0: never).
     seed : int, default 0
         The seed of every ``filter`` call (``SeedSequence(seed).spawn(runs)``): the same
-        call gives the same numbers.
+        call gives the same numbers, whatever the number of threads or shards.  The
+        compiled bootstrap recursion draws its normals and resampling uniforms in C
+        (xoshiro256++ streams and a ziggurat, :mod:`symmon.filters.pf_rng`); the NumPy path
+        (the EKF/UKF proposals, a state-dependent Γ(x), no compiler) draws from NumPy's
+        Generator: the two give different particles for a seed, with the same law.
+    regularise : bool, default False
+        The post-regularised particle filter (Musso, Oudjane & Le Gland 2001):
+        after each resampling every particle moves by h_opt · L ε, ε ~ N(0, I), L the
+        Cholesky factor of the weighted particle covariance before the resampling and
+        h_opt = :attr:`bandwidth` (angle states wrapped): a draw from a Gaussian-kernel
+        density estimate of the posterior, which restores the diversity that resampling
+        removes when the process noise is small.
 
     Raises
     ------
@@ -229,6 +247,7 @@ class ParticleFilter:
     resample: str = "systematic"
     ess_threshold: float = 0.5
     seed: int = 0
+    regularise: bool = False
     space: StateSpace = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -247,6 +266,9 @@ class ParticleFilter:
         object.__setattr__(self, "ess_threshold", float(t))
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
             raise ArgumentError(f"seed must be a non-negative integer, got {self.seed!r}")
+        if not isinstance(self.regularise, (bool, np.bool_)):
+            raise ArgumentError(f"regularise must be True or False, got {self.regularise!r}")
+        object.__setattr__(self, "regularise", bool(self.regularise))
         _ = self._noise_map  # refuse an h not affine in its noise, and a singular likelihood, now
         if self.proposal != "bootstrap":
             if self.f_model.n_v:
@@ -263,7 +285,16 @@ class ParticleFilter:
     @property
     def method(self) -> str:
         """The filter's name, e.g. ``PF(bootstrap, N=1000, systematic)``."""
-        return f"PF({self.proposal}, N={self.particles}, {self.resample})"
+        reg = ", regularised" if self.regularise else ""
+        return f"PF({self.proposal}, N={self.particles}, {self.resample}{reg})"
+
+    @property
+    def bandwidth(self) -> float:
+        """h_opt = (4 / (N (n + 2)))^(1/(n+4)), the bandwidth of the Gaussian kernel that
+        minimises the mean integrated squared error for a Gaussian density (Musso, Oudjane &
+        Le Gland 2001, ch. 12 of Doucet et al., *Sequential Monte Carlo Methods in Practice*); the jitter of ``regularise=True`` is h_opt · L ε."""
+        n = self.space.n
+        return (4.0 / (self.particles * (n + 2))) ** (1.0 / (n + 4))
 
     @property
     def params(self) -> tuple:
@@ -377,7 +408,6 @@ class ParticleFilter:
         """The innovation y − ŷ and its covariance S of the predicted measurement mixture
         Σ_i W_i N(ŷ_i, S_i), ŷ_i = ``Hx[:, i]`` and S_i = ``S_noise`` (one for all, or per
         particle); missing components: 0 and a unit diagonal entry (as the Kalman filters)."""
-        missing = np.isnan(Y)
         mean = np.einsum("rn,rni->ri", W, Hx)
         ang = list(self.space.angle_outputs)
         if ang:
@@ -387,7 +417,16 @@ class ParticleFilter:
         if ang:
             D[..., ang] = wrap_angle(D[..., ang])
         noise = S_noise if S_noise.ndim == 2 else np.einsum("rn,rnij->rij", W, S_noise)
-        S = np.einsum("rni,rnj->rij", D * W[..., None], D) + noise
+        return self._innovation_moments(mean, np.einsum("rni,rnj->rij", D * W[..., None], D), Y, noise)
+
+    def _innovation_moments(self, mean: np.ndarray, spread: np.ndarray, Y: np.ndarray,
+                            noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The innovation y − ŷ (wrapped for angle outputs) and S = spread + noise, from the
+        mixture's mean ŷ (R, n_y) and the covariance of its means ``spread`` (R, n_y, n_y);
+        missing components: 0 and a unit diagonal entry (as the Kalman filters)."""
+        missing = np.isnan(Y)
+        ang = list(self.space.angle_outputs)
+        S = spread + noise
         nu = Y - mean
         if ang:
             nu[:, ang] = wrap_angle(nu[:, ang])
@@ -487,12 +526,14 @@ class ParticleFilter:
         loops = None if kern is None else kern.loops()
         if loops is not None:  # the compiled step (pf_kernel); the loop below is its NumPy twin
             self._run_compiled(kern, loops, X, Yb, pv, rngs, names, out, loglik, ess, resampled, nees, truth, bank)
+        replay = getattr(self, "_replay", None)  # a test's draws for both paths (test_particle_kernel)
         for k in range(K if loops is None else 0):
             y, p = Yb[:, k], (None if pv is None else pv[:, k])
             Wprev = np.exp(logW)
             with np.errstate(over="ignore", invalid="ignore"):  # a non-finite particle is refused below
                 if self._kf is None:
-                    Z = np.concatenate([g.standard_normal((N, nq)) for g in rngs])
+                    Z = (replay["z"][:, k].reshape(-1, nq) if replay is not None
+                         else np.concatenate([g.standard_normal((N, nq)) for g in rngs]))
                     X = ss.transition(X.reshape(-1, n), Z, None if p is None else np.repeat(p, N, axis=0))
                     X = X.reshape(Rr, N, n)
                     inc, prior_h, S_noise = self._loglik(X, y, p)
@@ -503,18 +544,16 @@ class ParticleFilter:
             top = total.max(axis=1)
             bad = ~np.isfinite(top) | ~np.isfinite(X).all(axis=(1, 2))
             if bad.any():
-                r = int(np.flatnonzero(bad)[0])
-                where = f"step {k}" if bank is None else f"run {r}, step {k}"
-                raise NonFiniteError(f"{self.method}: at {where} a particle or its weight is NaN or inf, or every "
-                                     "particle has zero likelihood (the model overflows there, or the measurement "
-                                     "is far from every particle: use more particles or another proposal)")
+                raise self._not_finite(k, int(np.flatnonzero(bad)[0]), bank)
             lse = top + np.log(np.exp(total - top[:, None]).sum(axis=1))
             loglik[:, k] = lse  # log Σ W_{k−1} exp(inc): logW is normalised
             logW = total - lse[:, None]
             W = np.exp(logW)
             ess[:, k] = 1.0 / (W * W).sum(axis=1)
-            if want("x", "P") or truth is not None:
-                m, C = self._moments(X, W, cov="P" in out or truth is not None)
+            redo = np.flatnonzero(ess[:, k] <= self.ess_threshold * N)
+            spread = None  # the weighted covariance, which the regularisation's kernel takes
+            if want("x", "P") or truth is not None or (self.regularise and redo.size):
+                m, C = spread = self._moments(X, W, cov="P" in out or truth is not None or self.regularise)
                 if "x" in out:
                     out["x"][:, k] = m
                 if "P" in out:
@@ -531,10 +570,15 @@ class ParticleFilter:
                     out["P_pred"][:, k] = C
             if want("innovation", "S", "nis"):
                 _store_measurement(out, k, *self._measurement_moments(prior_h, Wprev, y, S_noise))
-            redo = np.flatnonzero(ess[:, k] <= self.ess_threshold * N)
             if redo.size:
-                idx = resample(W[redo], self.resample, [rngs[r] for r in redo])
+                pts = (replay["u"][redo, k] if replay is not None
+                       else np.stack([resampling_points(self.resample, rngs[r], N) for r in redo]))
+                idx = pick(W[redo], pts)
                 X[redo] = np.take_along_axis(X[redo], idx[..., None], axis=1)
+                if self.regularise:
+                    for r in redo:
+                        eps = replay["j"][r, k] if replay is not None else rngs[r].standard_normal((N, n))
+                        X[r] = ss.wrap_states(X[r] + self.bandwidth * rows_times(eps, _semidefinite_cholesky(spread[1][r])))
                 logW[redo] = -math.log(N)
                 resampled[redo, k] = True
 
@@ -579,110 +623,73 @@ class ParticleFilter:
                               "is far from every particle: use more particles or another proposal)")
 
     def _run_compiled(self, kern, loops, X, Yb, pv, rngs, names, out, loglik, ess, resampled, nees, truth, bank):
-        """The bootstrap steps through the compiled loops (pf_kernel's module notes): the same
-        draws, in the same order, as the NumPy loop of :meth:`filter`, which it replaces."""
-        prop, sums, walk = loops
+        """The K bootstrap steps of each run in one compiled call (pf_kernel's module notes),
+        the runs of a bank on threads; the normals and resampling uniforms drawn in C from the
+        runs' xoshiro streams (:mod:`symmon.filters.pf_rng`), or replayed (``_replay``)."""
+        run = loops[0]
         ss, N = self.space, self.particles
         Rr, K, n_y = Yb.shape
-        n, nq = ss.n, kern.n_q
+        n = ss.n
         G = np.eye(n_y) if self._noise_map is None else self._noise_map
         S_noise = G @ self.R @ G.T
         Lq = np.asarray(ss.Lq)
-        want_pred = any(a in names for a in ("x_pred", "P_pred"))
-        want_h = any(a in names for a in ("innovation", "S", "nis"))
-        angles = list(ss.angle_states)
-        X = np.ascontiguousarray(X)
-        Xn, Z = np.empty_like(X), np.empty((Rr, N, nq))
-        T, E = np.empty((Rr, N)), np.empty((Rr, N))
-        Hx = np.empty((Rr, N, n_y)) if want_h else None
-        logW = np.full((Rr, N), -math.log(N))
-        spans = [(r, a, b) for r in range(Rr) for a, b in row_spans(N)]
-        top, acc = np.empty(len(spans)), np.empty((len(spans), 2 + n))
-        row, at = 8 * n, lambda a: a.ctypes.data  # noqa: E731
-        x_at, xn_at, z_at, t_at, e_at = at(X), at(Xn), at(Z), at(T), at(E)
-        lw_at, top_at, acc_at = at(logW), at(top), at(acc)
-        hx_at = None if Hx is None else at(Hx)
         white: dict[tuple, tuple[np.ndarray, float]] = {}
-        for k in range(K):
-            Y = Yb[:, k]
-            for r, g in enumerate(rngs):
-                g.standard_normal(out=Z[r])  # the draws of the NumPy loop, in its order
-            P = []
-            for r in range(Rr):
-                pattern = tuple(~np.isnan(Y[r]))
+        P = np.empty((Rr, K, kern.n_p))
+        for r in range(Rr):
+            for k in range(K):
+                pattern = tuple(~np.isnan(Yb[r, k]))
                 if pattern not in white:
                     white[pattern] = whitening(S_noise, np.array(pattern))
-                P.append(kern.pack(None if pv is None else pv[r, k], Lq, Y[r], *white[pattern]))
-            P = np.stack(P)
-            Wprev = np.exp(logW) if want_pred or want_h else None
+                P[r, k] = kern.pack(None if pv is None else pv[r, k], Lq, Yb[r, k], *white[pattern])
+        want_h = any(a in names for a in ("innovation", "S", "nis"))
+        need_x = "x" in names or truth is not None
+        need_P = "P" in names or truth is not None
+        arr = {"x": out["x"] if "x" in out else (np.empty((Rr, K, n)) if need_x else None),
+               "P": out["P"] if "P" in out else (np.empty((Rr, K, n, n)) if need_P else None),
+               "x_pred": out.get("x_pred"), "P_pred": out.get("P_pred"),
+               "hm": np.empty((Rr, K, n_y)) if want_h else None, "hS": np.empty((Rr, K, n_y, n_y)) if want_h else None}
+        res_f = np.zeros((Rr, K))
+        X = np.ascontiguousarray(X)
+        Xn = np.empty_like(X)
+        work = np.empty((Rr, 4, N))  # t, e, lw, and the points
+        Hx = np.empty((Rr, N, n_y)) if want_h else None
+        chunks = -(-N // CHUNK)
+        part = np.empty((Rr, chunks, 4 + 2 * n))
+        st = np.stack([stream_states(g, chunks + 1) for g in rngs])
+        # threads over particle chunks for one run (in C), over runs for a bank (here)
+        T = 1 if Rr > 1 else len(row_spans(N, CHUNK))
+        isz, wsz = kern.f.sz_iw() + 1, kern.f.sz_w() + 1
+        iws, ws = np.empty((Rr, T, isz), dtype=np.int64), np.empty((Rr, T, wsz))
+        replay = getattr(self, "_replay", None)
+        opt = np.array([RESAMPLERS.index(self.resample), int(self.regularise)], dtype=np.int64)
+        fl = np.array([self.ess_threshold * N, self.bandwidth])
+        fail = np.zeros(Rr, dtype=np.int64)
+        at = lambda a, r=None: 0 if a is None else a.ctypes.data + (0 if r is None else r * a[0].nbytes)  # noqa: E731
 
-            def first(j: int) -> int:
-                r, a, b = spans[j]
-                i = r * N + a
-                iw, w = kern.work()
-                return prop(x_at + i * row, z_at + i * 8 * nq, P[r].ctypes.data, lw_at + i * 8, xn_at + i * row,
-                            t_at + i * 8, None if hx_at is None else hx_at + i * 8 * n_y, b - a, top_at + j * 8,
-                            iw, w)
+        def one(r: int) -> int:
+            rp = (None, None, None) if replay is None else tuple(
+                np.ascontiguousarray(replay[key][r], dtype=float) for key in ("z", "u", "j"))
+            return run(at(P, r), K, N, at(X, r), at(Xn, r), at(work[r, 0]), at(work[r, 1]), at(work[r, 2]),
+                       at(work[r, 3]), at(Hx, r), at(part, r), at(st, r), *(at(a) for a in rp), at(opt), at(fl),
+                       at(loglik, r), at(ess, r), at(res_f, r), at(arr["x"], r), at(arr["P"], r), at(arr["x_pred"], r),
+                       at(arr["P_pred"], r), at(arr["hm"], r), at(arr["hS"], r), at(iws, r), at(ws, r), isz, wsz, T,
+                       at(fail) + 8 * r)
 
-            codes = in_threads(first, range(len(spans)))
-            if any(c == 1 for c in codes):
+        codes = in_threads(one, range(Rr)) if Rr > 1 else [one(0)]
+        for r, c in enumerate(codes):
+            if c == 1:
                 raise SymmonError(f"{self.method}: the compiled step {kern.f.name()} returned an error")
-            mx = np.full(Rr, -np.inf)
-            np.maximum.at(mx, [r for r, _, _ in spans], top)
-            for j, c in enumerate(codes):
-                if c == 2:
-                    raise self._not_finite(k, spans[j][0], bank)
-            if not np.isfinite(mx).all():
-                raise self._not_finite(k, int(np.flatnonzero(~np.isfinite(mx))[0]), bank)
-
-            def second(j: int) -> None:
-                r, a, b = spans[j]
-                i = r * N + a
-                sums(xn_at + i * row, t_at + i * 8, float(mx[r]), e_at + i * 8, b - a, acc_at + j * acc.shape[1] * 8)
-
-            in_threads(second, range(len(spans)))
-            tot = np.zeros((Rr, 2 + n))
-            np.add.at(tot, [r for r, _, _ in spans], acc)
-            s = tot[:, 0]
-            lse = mx + np.log(s)
-            loglik[:, k] = np.where(np.isnan(Y).all(axis=1), 0.0, lse)  # no measurement: log Σ W = 0 exactly
-            ess[:, k] = s * s / tot[:, 1]
-            W = None
-            if angles or any(a in names for a in ("P",)) or truth is not None:
-                W = E / s[:, None]
-            if "x" in names or "P" in names or truth is not None:
-                if "P" in names or truth is not None:
-                    m, C = self._moments(Xn, W)
-                else:
-                    m, C = tot[:, 2:] / s[:, None], None
-                    if angles:
-                        A = Xn[..., angles]
-                        m[:, angles] = _circular_means(W, A)
-                if "x" in out:
-                    out["x"][:, k] = m
-                if "P" in out:
-                    out["P"][:, k] = C
-                if truth is not None:
-                    nees[:, k] = _nees(m[:, None], C[:, None], truth[:, k:k + 1], ss.angle_states)[:, 0]
-            if want_pred:
-                m, C = self._moments(Xn, Wprev, cov="P_pred" in out)
-                if "x_pred" in out:
-                    out["x_pred"][:, k] = m
-                if "P_pred" in out:
-                    out["P_pred"][:, k] = C
-            if want_h:
-                _store_measurement(out, k, *self._measurement_moments(Hx, Wprev, Y, S_noise))
-            redo = ess[:, k] <= self.ess_threshold * N
-            for r in range(Rr):
-                if not redo[r]:
-                    np.subtract(T[r], lse[r], out=logW[r])
-                    X[r] = Xn[r]
-                    continue
-                pts = resampling_points(self.resample, rngs[r], N)
-                u, pts_at = (float(pts[0]), None) if self.resample == "systematic" else (0.0, at(pts))
-                walk(e_at + r * N * 8, float(s[r]), pts_at, u, N, xn_at + r * N * row, x_at + r * N * row)
-                logW[r] = -math.log(N)
-                resampled[r, k] = True
+            if c == 2:
+                raise self._not_finite(int(fail[r]), r, bank)
+        loglik[np.isnan(Yb).all(axis=2)] = 0.0  # no measurement: log Σ W = 0 exactly
+        resampled[:] = res_f > 0
+        if truth is not None:
+            nees[:] = _nees(arr["x"], arr["P"], truth, ss.angle_states)
+        if want_h:
+            nu, S = self._innovation_moments(arr["hm"].reshape(Rr * K, n_y), arr["hS"].reshape(Rr * K, n_y, n_y),
+                                             Yb.reshape(Rr * K, n_y), S_noise)
+            for k in range(K):
+                _store_measurement(out, k, nu.reshape(Rr, K, n_y)[:, k], S.reshape(Rr, K, n_y, n_y)[:, k])
 
     def _proposal_step(self, X, y, p, rngs, k, bank, want):
         """One EKF/UKF-proposal step (module notes): the Gaussian filter's compiled step from
@@ -729,6 +736,20 @@ class ParticleFilter:
             y_hat = (np.where(np.isnan(Yrep[:, 0]), 0.0, Yrep[:, 0]) - out["innovation"][:, 0]).reshape(Rr, N, -1)
             S_i = out["S"][:, 0].reshape(Rr, N, ss.n_y, ss.n_y)
         return Xn, inc, fx.reshape(Rr, N, n), y_hat, S_i
+
+
+def _semidefinite_cholesky(C: np.ndarray) -> np.ndarray:
+    """The lower Cholesky factor L (L Lᵀ = C) of a positive semidefinite C, a zero column
+    where a pivot is not positive (the kernel's C twin, pf_kernel's ``_chol``)."""
+    n = C.shape[0]
+    L = np.zeros_like(C)
+    for j in range(n):
+        d = C[j, j] - L[j, :j] @ L[j, :j]
+        if not (d > 1e-14 * C[j, j] and d > 0):
+            continue
+        L[j, j] = math.sqrt(d)
+        L[j + 1:, j] = (C[j + 1:, j] - L[j + 1:, :j] @ L[j, :j]) / L[j, j]
+    return L
 
 
 def _circular_means(W: np.ndarray, A: np.ndarray) -> np.ndarray:
