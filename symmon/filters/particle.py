@@ -78,7 +78,7 @@ from .nonlinear import NonlinearKalmanFilter
 from .inputs import check_bank_size, check_keep, check_truth, kept_numbers, measurement_bank, param_values, refuse_inf
 from .results import KalmanResult, _nees
 from .simulation import check_count, check_prior
-from .pf_kernel import BootstrapKernel, bootstrap_kernel, whitening
+from .pf_kernel import BootstrapKernel, bootstrap_kernel
 from .pf_rng import CHUNK, stream_states
 from .statespace import StateSpace, rows_times
 
@@ -165,11 +165,18 @@ class ParticleResult(KalmanResult):
         Whether the particles were resampled after the update of that step.
     particles : int
         N.
+    final_particles : ndarray, shape (N, n) or (R, N, n)
+        The particles after the last step (after its resampling and regularisation, if
+        any), e.g. to count their distinct values or to continue from them.
+    final_log_weights : ndarray, shape (N,) or (R, N)
+        Their normalised log-weights (−log N after a resampling).
     """
 
     ess: np.ndarray | None = None
     resampled: np.ndarray | None = None
     particles: int = 0
+    final_particles: np.ndarray | None = None
+    final_log_weights: np.ndarray | None = None
 
     def __repr__(self) -> str:
         runs = "" if self.runs is None else f"runs={self.runs}, "
@@ -525,7 +532,8 @@ class ParticleFilter:
         kern = self._bootstrap_kernel
         loops = None if kern is None else kern.loops()
         if loops is not None:  # the compiled step (pf_kernel); the loop below is its NumPy twin
-            self._run_compiled(kern, loops, X, Yb, pv, rngs, names, out, loglik, ess, resampled, nees, truth, bank)
+            X, logW = self._run_compiled(kern, loops, X, Yb, pv, rngs, names, out, loglik, ess, resampled, nees,
+                                         truth, bank)
         replay = getattr(self, "_replay", None)  # a test's draws for both paths (test_particle_kernel)
         for k in range(K if loops is None else 0):
             y, p = Yb[:, k], (None if pv is None else pv[:, k])
@@ -593,7 +601,8 @@ class ParticleFilter:
         arrays = {k: v if bank is not None else v[0] for k, v in out.items()}
         if "nis" in arrays:
             arrays["nis_values"] = arrays.pop("nis")
-        extra = {"loglik": loglik, "ess": ess, "resampled": resampled}
+        extra = {"loglik": loglik, "ess": ess, "resampled": resampled, "final_particles": X,
+                 "final_log_weights": logW}
         if nees is not None:
             extra["nees_values"] = nees
         arrays.update({k: v if bank is not None else v[0] for k, v in extra.items()})
@@ -633,14 +642,7 @@ class ParticleFilter:
         G = np.eye(n_y) if self._noise_map is None else self._noise_map
         S_noise = G @ self.R @ G.T
         Lq = np.asarray(ss.Lq)
-        white: dict[tuple, tuple[np.ndarray, float]] = {}
-        P = np.empty((Rr, K, kern.n_p))
-        for r in range(Rr):
-            for k in range(K):
-                pattern = tuple(~np.isnan(Yb[r, k]))
-                if pattern not in white:
-                    white[pattern] = whitening(S_noise, np.array(pattern))
-                P[r, k] = kern.pack(None if pv is None else pv[r, k], Lq, Yb[r, k], *white[pattern])
+        P = kern.pack(pv, Lq, Yb, S_noise)
         want_h = any(a in names for a in ("innovation", "S", "nis"))
         need_x = "x" in names or truth is not None
         need_P = "P" in names or truth is not None
@@ -690,6 +692,7 @@ class ParticleFilter:
                                              Yb.reshape(Rr * K, n_y), S_noise)
             for k in range(K):
                 _store_measurement(out, k, nu.reshape(Rr, K, n_y)[:, k], S.reshape(Rr, K, n_y, n_y)[:, k])
+        return X, work[:, 2].copy()
 
     def _proposal_step(self, X, y, p, rngs, k, bank, want):
         """One EKF/UKF-proposal step (module notes): the Gaussian filter's compiled step from

@@ -115,7 +115,10 @@ static void {name}_chol(const casadi_real* C, casadi_real* L) {{
 /* symmon: count normals of stream s into out (tests of the generator). */
 CASADI_SYMBOL_EXPORT void {name}_normals(unsigned long long* s, casadi_int count, casadi_real* out) {{
   casadi_int i;
-  for (i = 0; i < count; ++i) out[i] = symmon_normal((uint64_t*) s);
+  uint64_t sl[4];
+  memcpy(sl, s, sizeof sl);  /* the state in registers, not memory, while it runs */
+  for (i = 0; i < count; ++i) out[i] = symmon_normal(sl);
+  memcpy(s, sl, sizeof sl);
 }}
 
 /* A barrier of the run's T threads (POSIX mutex and condition: macOS has no pthread_barrier). */
@@ -166,14 +169,15 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w) {
     arg[2] = c->P + k * {n_p};
     res[1] = &ll;
     for (q = c0; q < c1; ++q) {{  /* move and weigh, chunk q */
-      uint64_t* sg = (uint64_t*) c->st + 4 * q;
+      uint64_t* sg = (uint64_t*) c->st + 4 * q, sl[4];
+      memcpy(sl, sg, sizeof sl);  /* the state in registers, not memory, while it runs */
       end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
       m = -INFINITY;
       bad = 0;
       for (i = q * {chunk}; i < end; ++i) {{
         if (c->zext) zi = c->zext + (k * N + i) * {nq};
         else {{
-          for (j = 0; j < {nq}; ++j) zl[j] = symmon_normal(sg);
+          for (j = 0; j < {nq}; ++j) zl[j] = symmon_normal(sl);
           zi = zl;
         }}
         arg[0] = X + i * {nx};
@@ -187,6 +191,7 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w) {
         for (j = 0; j < {nx}; ++j) if (!isfinite(res[0][j])) bad |= 1;
         if (ti > m) m = ti;
       }}
+      memcpy(sg, sl, sizeof sl);
       c->part[q * {name}_PW] = m;
       c->part[q * {name}_PW + 1] = (casadi_real) bad;
     }}
@@ -284,13 +289,14 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w) {
     }}
     {name}_bwait(&c->bar);
     for (q = c0; q < c1; ++q) {{  /* regularisation: x += h L eps (Musso, Oudjane & Le Gland 2001) */
-      uint64_t* sg = (uint64_t*) c->st + 4 * q;
+      uint64_t* sg = (uint64_t*) c->st + 4 * q, sl[4];
+      memcpy(sl, sg, sizeof sl);
       end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
       for (i = q * {chunk}; i < end; ++i) {{
         c->lw[i] = -log_n;
         if (!reg) continue;
         if (c->jext) memcpy(eps, c->jext + (k * N + i) * {nx}, {nx} * sizeof(casadi_real));
-        else for (j = 0; j < {nx}; ++j) eps[j] = symmon_normal(sg);
+        else for (j = 0; j < {nx}; ++j) eps[j] = symmon_normal(sl);
         xi = X + i * {nx};
         for (a = 0; a < {nx}; ++a) {{
           ei = 0;
@@ -299,8 +305,10 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w) {
           if ({name}_ax[a]) xi[a] = {name}_wrap(xi[a]);
         }}
       }}
+      memcpy(sg, sl, sizeof sl);
     }}
   }}
+  if (X != c->X0) memcpy(c->X0 + a0 * {nx}, X + a0 * {nx}, (a1 - a0) * {nx} * sizeof(casadi_real));  /* own rows */
   return 0;
 }}
 
@@ -314,7 +322,8 @@ static void* {name}_thread(void* p) {{
 }}
 
 /* symmon: the K steps of the bootstrap filter for one run on T threads over particle chunks
-   (module notes).  P: K rows of the call's parameters; X holds the N initial particles; Xn,
+   (module notes).  P: K rows of the call's parameters; X holds the N initial particles (on
+   return: the final ones, and lw their normalised log-weights); Xn,
    t, e, lw, sc: work (N x n, N, N, N, N); hx: N x ny or NULL; part: ceil(N / CHUNK) x
    (4 + 2n); st: ceil(N / CHUNK) + 1 xoshiro states (the chunks', then the resampling
    stream); zext, uext, jext: replayed move normals (K x N x nq), resampling points (K x N,
@@ -453,20 +462,29 @@ class BootstrapKernel:
         compiler, or a background build running: the caller takes the NumPy path)."""
         return self._native.get()
 
-    def pack(self, theta: np.ndarray | None, Lq: np.ndarray, y: np.ndarray, A: np.ndarray, c: float) -> np.ndarray:
-        """The parameter vector of one run's call (class notes); y with NaN for missing."""
-        p = np.zeros(self.n_p)
+    def pack(self, theta: np.ndarray | None, Lq: np.ndarray, Y: np.ndarray, S: np.ndarray) -> np.ndarray:
+        """The parameter vectors (R, K, n_p) of every run and step (class notes): θ (R, K,
+        n_par) or None, L_Q, the measurements Y (R, K, n_y) with NaN for missing, and the
+        covariance S of y given x (Γ R Γᵀ), whitened once per pattern of missing components."""
+        R, K, ny = Y.shape
+        p = np.zeros((R, K, self.n_p))
         o = self.n_par
         if o:
-            p[:o] = theta
-        p[o:o + self._Lq_size] = Lq.T[self.Lq_pattern.T]
+            p[..., :o] = theta
+        p[..., o:o + self._Lq_size] = Lq.T[self.Lq_pattern.T]
         o += self._Lq_size
-        measured = ~np.isnan(y)
-        p[o:o + self.n_y] = np.where(measured, y, 0.0)
-        p[o + self.n_y:o + 2 * self.n_y] = measured
-        o += 2 * self.n_y
-        p[o:o + A.size] = A.ravel(order="F")
-        p[-1] = c
+        measured = ~np.isnan(Y)
+        p[..., o:o + ny] = np.where(measured, Y, 0.0)
+        p[..., o + ny:o + 2 * ny] = measured
+        o += 2 * ny
+        flat = measured.reshape(-1, ny)
+        patterns, which = np.unique(flat, axis=0, return_inverse=True)
+        for j, pattern in enumerate(patterns):
+            A, c = whitening(S, pattern)
+            rows = p.reshape(-1, self.n_p)[which.ravel() == j]
+            rows[:, o:o + ny * ny] = A.ravel(order="F")
+            rows[:, -1] = c
+            p.reshape(-1, self.n_p)[which.ravel() == j] = rows
         return p
 
     def work(self) -> tuple[int, int]:
