@@ -24,18 +24,25 @@ Each of N particles x^i carries a log-weight; a step
    (systematic, stratified or multinomial; Douc, Cappé & Moulines 2005) when the ESS falls
    to ``ess_threshold`` · N.
 
-The bootstrap step runs as three compiled row loops over the particles
-(:mod:`symmon.filters.pf_kernel`: the transition and the log-likelihood in one, the
-exponentials, sums, mean and ESS in the next, the resampling walk with its gather in the
-last; threads over row spans), with the same draws as the NumPy loop of :meth:`filter`,
-which remains for a measurement noise map Γ(x) that depends on the state and while no C
-is available.  The EKF/UKF proposal runs the filters' compiled predict + update step
+With ``regularise=True``, after each resampling every particle moves by h_opt · L ε,
+ε ~ N(0, I), L the Cholesky factor of the weighted covariance before the resampling (the
+post-regularised filter of Musso, Oudjane & Le Gland 2001).
+
+The K bootstrap steps of a run are one call of generated C (:mod:`symmon.filters.pf_kernel`:
+the transition and the log-likelihood, the exponentials, sums, mean and ESS, the kept
+moments, the resampling walk with its gather, the regularisation; threads over particle
+chunks), which draws its normals and uniforms itself (:mod:`symmon.filters.pf_rng`).  The
+NumPy loop of :meth:`filter` remains for the EKF/UKF proposals, a measurement noise map
+Γ(x) that depends on the state, and while no C is available; it draws from the runs'
+NumPy Generators (so the two paths give different particles for a seed, with the same
+law; fed the same draws, the same particles: tests/filters/test_particle_kernel.py).  The
+EKF/UKF proposal runs the filters' compiled predict + update step
 (:mod:`symmon.filters.step`) over the particles as a bank, and f and h as compiled C over
 all particles of all runs of a step at once
-(:meth:`~symmon.compile.CompiledModel.eval_g`).  A missing measurement (NaN) leaves its component out of the likelihood (a row of
-NaN: the step only predicts).  Every run of a bank has its own random stream
-(``SeedSequence(seed).spawn(runs)``), so run r of a bank is the same whatever the other
-runs.
+(:meth:`~symmon.compile.CompiledModel.eval_g`).  A missing measurement (NaN) leaves its
+component out of the likelihood (a row of NaN: the step only predicts).  Every run of a
+bank has its own random stream (``SeedSequence(seed).spawn(runs)``), so run r of a bank is
+the same whatever the other runs.
 
 References
 ----------
@@ -50,6 +57,9 @@ ISPA 2005. doi:10.1109/ISPA.2005.195385
 P. Del Moral, *Feynman–Kac Formulae*, Springer, 2004.
 C. Andrieu, A. Doucet, R. Holenstein, "Particle Markov chain Monte Carlo methods", JRSS B
 72(3), 2010. doi:10.1111/j.1467-9868.2009.00736.x
+C. Musso, N. Oudjane, F. Le Gland, "Improving regularised particle filters", in A. Doucet,
+N. de Freitas, N. Gordon (eds.), *Sequential Monte Carlo Methods in Practice*, Springer,
+2001, ch. 12. doi:10.1007/978-1-4757-3437-9_12
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The compiled step of the bootstrap particle filter: three C row loops over the particles.
+"""The compiled recursion of the bootstrap particle filter: the K steps of a run in one C call.
 
 For the bootstrap proposal (Gordon et al. 1993, §3) a step of :class:`~symmon.ParticleFilter`
 is, per particle i of a run with log-weight ℓ_i (normalised) and standard normal draws z_i,
@@ -9,26 +9,29 @@ is, per particle i of a run with log-weight ℓ_i (normalised) and standard norm
 then the log-sum-exp of t (the step's log-likelihood increment, Doucet et al. 2000, eq. (11)),
 the normalised weights W_i = exp(t_i − lse), the weighted mean Σ W_i x'_i, the effective
 sample size 1 / Σ W_i², and, when the ESS is low, a resampling with the gather of the
-chosen particles.  NumPy does this in about a dozen passes over the particle array; here it
-is three:
+chosen particles (and, for the regularised filter, the kernel jitter h L ε).
 
-1. ``NAME_prop``: one call of CasADi's generated function per row (the transition, the
-   measurement, the wrapped innovation, its whitening by the inverse Cholesky factor A of
-   the measured block of Γ R Γᵀ, embedded with zero rows and columns for the missing
-   components, and the log-density), writing x'_i and t_i, the running maximum of t and a
-   flag for a non-finite particle or weight;
-2. ``NAME_sums``: e_i = exp(t_i − max t), Σ e_i, Σ e_i² and Σ e_i x'_i (one pass, with
-   the maximum found in pass 1, so no exponential overflows);
-3. ``NAME_resample``: the walk of the resampling points along the cumulative weights
-   (points ascending: O(N), no binary search), copying each chosen row to the new array.
+``NAME_run`` does all K steps of one run without returning to Python.  Per step:
 
-Passes 1 and 2 run on row spans in threads (ctypes releases the GIL); the partial sums of
-the spans are merged in NumPy (a few numbers each).  The draws are NumPy's, in the order
-of the NumPy path (:mod:`symmon.filters.particle`), so a seed gives the same particles to
-rounding.
+1. move and weigh: for each particle, its normals from the xoshiro stream of its chunk of
+   :data:`~symmon.filters.pf_rng.CHUNK` particles (:mod:`symmon.filters.pf_rng`), then one
+   call of CasADi's generated function (the transition, the measurement, the wrapped
+   innovation, its whitening by the inverse Cholesky factor A of the measured block of
+   Γ R Γᵀ embedded with zero rows and columns for the missing components, and the
+   log-density), writing x'_i, t_i and each chunk's maximum of t and a flag for a
+   non-finite particle or weight;
+2. e_i = exp(t_i − max t), and per chunk Σ e_i, Σ e_i², Σ e_i x'_i (sines and cosines for
+   angle states), one pass, with the maximum of pass 1 so no exponential overflows; the
+   chunks' sums are added in chunk order, so the result does not depend on the threads;
+3. the covariance and the predicted moments when kept (a pass each);
+4. on resampling: the points (systematic, stratified, or sorted uniforms as normalised
+   sums of exponential spacings for multinomial: O(N), no sort), then the walk along the
+   cumulative weights (points ascending: O(N), no binary search), by input chunk, each
+   chunk finding its first point by bisection; the regularisation's jitter by output chunk.
 
-The covariance, the predicted moments and the innovation moments, when asked for, stay
-NumPy passes over the particles (the last needs h(x'_i), which pass 1 then writes).
+A single run runs on T threads (pthreads made by the call, a barrier at each reduction)
+over contiguous chunk ranges; the C of a run never waits on Python's thread pool.
+``_replay`` (tests) feeds given normals and points instead of drawing them.
 """
 
 from __future__ import annotations
