@@ -88,7 +88,7 @@ from .nonlinear import NonlinearKalmanFilter
 from .inputs import check_bank_size, check_keep, check_truth, kept_numbers, measurement_bank, param_values, refuse_inf
 from .results import KalmanResult, _nees
 from .simulation import check_count, check_prior
-from .pf_kernel import BootstrapKernel, bootstrap_kernel
+from .pf_kernel import BootstrapKernel, bootstrap_kernel, whitening
 from .pf_rng import CHUNK, stream_states
 from .statespace import StateSpace, rows_times
 
@@ -530,7 +530,7 @@ class ParticleFilter:
         pv = param_values(ss.params, params, bank, K, who="the models")
         rngs = run_streams(self.seed, Rr, first_run)
 
-        X = ss.wrap_states(np.stack([np.asarray(x0.sample(N, g), dtype=float) for g in rngs]))
+        X = ss.wrap_states(np.stack([_prior_particles(x0, N, g) for g in rngs]))
         logW = np.full((Rr, N), -math.log(N))
         want = lambda *k: any(a in names for a in k)  # noqa: E731
         out = {k: np.empty((Rr, K) + s) for k, s in (("x", (n,)), ("P", (n, n)), ("x_pred", (n,)),
@@ -626,6 +626,11 @@ class ParticleFilter:
                               method=self.method, particles=N)
 
     @cached_property
+    def _whitenings(self) -> dict:
+        """The compiled path's whitenings of Γ R Γᵀ by pattern of measured components."""
+        return {}
+
+    @cached_property
     def _bootstrap_kernel(self) -> BootstrapKernel | None:
         """The compiled bootstrap step (:mod:`symmon.filters.pf_kernel`), or None where it does
         not apply: another proposal, or a Γ(x) that depends on the state."""
@@ -652,7 +657,15 @@ class ParticleFilter:
         G = np.eye(n_y) if self._noise_map is None else self._noise_map
         S_noise = G @ self.R @ G.T
         Lq = np.asarray(ss.Lq)
-        P = kern.pack(pv, Lq, Yb, S_noise)
+        cache = self._whitenings  # (A, c) per pattern of measured components, once per filter
+
+        def white(mask: np.ndarray) -> tuple[np.ndarray, float]:
+            key = mask.tobytes()
+            if key not in cache:
+                cache[key] = whitening(S_noise, mask)
+            return cache[key]
+
+        P = kern.pack(pv, Lq, Yb, white)
         want_h = any(a in names for a in ("innovation", "S", "nis"))
         need_x = "x" in names or truth is not None
         need_P = "P" in names or truth is not None
@@ -749,6 +762,15 @@ class ParticleFilter:
             y_hat = (np.where(np.isnan(Yrep[:, 0]), 0.0, Yrep[:, 0]) - out["innovation"][:, 0]).reshape(Rr, N, -1)
             S_i = out["S"][:, 0].reshape(Rr, N, ss.n_y, ss.n_y)
         return Xn, inc, fx.reshape(Rr, N, n), y_hat, S_i
+
+
+def _prior_particles(x0: Gaussian | GaussianMixture | Empirical, N: int, g: np.random.Generator) -> np.ndarray:
+    """N draws of x0 from ``g``: ``x0.sample``, except that a Gaussian's rows are multiplied
+    by its square root without BLAS (the same normals; OpenBLAS would split the product
+    over threads that then spin against the compiled recursion's, statespace.rows_times)."""
+    if isinstance(x0, Gaussian):
+        return np.asarray(x0.mean, dtype=float) + rows_times(g.standard_normal((N, x0.dim)), x0.sqrt_cov())
+    return np.asarray(x0.sample(N, g), dtype=float)
 
 
 def _semidefinite_cholesky(C: np.ndarray) -> np.ndarray:

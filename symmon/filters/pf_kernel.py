@@ -465,10 +465,10 @@ class BootstrapKernel:
         compiler, or a background build running: the caller takes the NumPy path)."""
         return self._native.get()
 
-    def pack(self, theta: np.ndarray | None, Lq: np.ndarray, Y: np.ndarray, S: np.ndarray) -> np.ndarray:
+    def pack(self, theta: np.ndarray | None, Lq: np.ndarray, Y: np.ndarray, white) -> np.ndarray:
         """The parameter vectors (R, K, n_p) of every run and step (class notes): θ (R, K,
-        n_par) or None, L_Q, the measurements Y (R, K, n_y) with NaN for missing, and the
-        covariance S of y given x (Γ R Γᵀ), whitened once per pattern of missing components."""
+        n_par) or None, L_Q, the measurements Y (R, K, n_y) with NaN for missing, and
+        ``white(mask)`` → (A, c), the whitening of the measured components ``mask``."""
         R, K, ny = Y.shape
         p = np.zeros((R, K, self.n_p))
         o = self.n_par
@@ -480,14 +480,19 @@ class BootstrapKernel:
         p[..., o:o + ny] = np.where(measured, Y, 0.0)
         p[..., o + ny:o + 2 * ny] = measured
         o += 2 * ny
-        flat = measured.reshape(-1, ny)
-        patterns, which = np.unique(flat, axis=0, return_inverse=True)
-        for j, pattern in enumerate(patterns):
-            A, c = whitening(S, pattern)
-            rows = p.reshape(-1, self.n_p)[which.ravel() == j]
-            rows[:, o:o + ny * ny] = A.ravel(order="F")
-            rows[:, -1] = c
-            p.reshape(-1, self.n_p)[which.ravel() == j] = rows
+        flat = p.reshape(-1, self.n_p)
+        if measured.all():  # the common case: one pattern
+            A, c = white(np.ones(ny, dtype=bool))
+            flat[:, o:o + ny * ny] = A.ravel(order="F")
+            flat[:, -1] = c
+            return p
+        codes = np.packbits(measured.reshape(-1, ny), axis=1, bitorder="little")
+        codes = codes.view(np.dtype((np.void, codes.shape[1]))).ravel()
+        for code in np.unique(codes):
+            rows = codes == code
+            A, c = white(measured.reshape(-1, ny)[np.argmax(rows)])
+            flat[rows, o:o + ny * ny] = A.ravel(order="F")
+            flat[rows, -1] = c
         return p
 
     def work(self) -> tuple[int, int]:

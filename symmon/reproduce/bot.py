@@ -394,7 +394,11 @@ def _plot(st: dict[str, Any], path: Path, fmt: str = "png") -> Path:
     # The axis shows the band and the filters near it; larger values are drawn off the axis.
     top = ANEES_AXIS_TOP
     ax_a.set_ylim(1.0, top)
-    ax_a.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))  # 1, 10, 100, 1000: plain numbers
+    plain = FuncFormatter(lambda v, _: f"{v:g}")  # 1, 10, 100, 1000 and 0.03, 0.1, 0.2: plain numbers
+    ax_a.yaxis.set_major_formatter(plain)
+    ax_m.yaxis.set_major_formatter(plain)
+    ax_m.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}" if round(v / 10 ** math.floor(math.log10(v)))
+                                                 in (2, 3, 5) else ""))
     off = [LABELS[n] for n, d in st["filters"].items() if np.max(d["anees"].value) > top]
     if off:
         ax_a.text(0.02, 0.97, f"above {top:.0f} (off the axis): " + ", ".join(off), transform=ax_a.transAxes,
