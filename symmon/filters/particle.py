@@ -689,16 +689,22 @@ class ParticleFilter:
         opt = np.array([RESAMPLERS.index(self.resample), int(self.regularise)], dtype=np.int64)
         fl = np.array([self.ess_threshold * N, self.bandwidth])
         fail = np.zeros(Rr, dtype=np.int64)
-        at = lambda a, r=None: 0 if a is None else a.ctypes.data + (0 if r is None else r * a[0].nbytes)  # noqa: E731
+        # Per-run arrays: (address of run 0, bytes per run); 0 for an output not wanted.
+        per_run = [(a.ctypes.data, a.nbytes // Rr) if a is not None else (0, 0) for a in (
+            P, X, Xn, work[:, 0], work[:, 1], work[:, 2], work[:, 3], Hx, part, st)]
+        per_run[3:7] = [(work.ctypes.data + j * N * 8, 4 * N * 8) for j in range(4)]  # the rows of work
+        outs = [(a.ctypes.data, a.nbytes // Rr) if a is not None else (0, 0) for a in (
+            loglik, ess, res_f, arr["x"], arr["P"], arr["x_pred"], arr["P_pred"], arr["hm"], arr["hS"], iws, ws)]
+        shared = (opt.ctypes.data, fl.ctypes.data)
 
         def one(r: int) -> int:
-            rp = (None, None, None) if replay is None else tuple(
-                np.ascontiguousarray(replay[key][r], dtype=float) for key in ("z", "u", "j"))
-            return run(at(P, r), K, N, at(X, r), at(Xn, r), at(work[r, 0]), at(work[r, 1]), at(work[r, 2]),
-                       at(work[r, 3]), at(Hx, r), at(part, r), at(st, r), *(at(a) for a in rp), at(opt), at(fl),
-                       at(loglik, r), at(ess, r), at(res_f, r), at(arr["x"], r), at(arr["P"], r), at(arr["x_pred"], r),
-                       at(arr["P_pred"], r), at(arr["hm"], r), at(arr["hS"], r), at(iws, r), at(ws, r), isz, wsz, T,
-                       at(fail) + 8 * r)
+            rp = [0, 0, 0]
+            if replay is not None:  # kept alive by ``keep`` during the call
+                keep = [np.ascontiguousarray(replay[key][r], dtype=float) for key in ("z", "u", "j")]
+                rp = [a.ctypes.data for a in keep]
+            a = [base + r * step if base else 0 for base, step in per_run]
+            o = [base + r * step if base else 0 for base, step in outs]
+            return run(a[0], K, N, *a[1:], *rp, *shared, *o, isz, wsz, T, fail.ctypes.data + 8 * r)
 
         codes = in_threads(one, range(Rr)) if Rr > 1 else [one(0)]
         for r, c in enumerate(codes):
