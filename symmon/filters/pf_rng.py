@@ -86,13 +86,14 @@ static inline uint64_t symmon_next(uint64_t* s) {{
   s[2] ^= s[0]; s[3] ^= s[1]; s[1] ^= s[2]; s[0] ^= s[3]; s[2] ^= t; s[3] = symmon_rotl(s[3], 45);
   return r;
 }}
-static inline double symmon_uniform(uint64_t* s) {{ return (double) (symmon_next(s) >> 11) * 0x1.0p-53; }}
+/* (int64_t) first: a signed conversion is one instruction, an unsigned 64-bit one a branch */
+static inline double symmon_uniform(uint64_t* s) {{ return (double) (int64_t) (symmon_next(s) >> 11) * 0x1.0p-53; }}
 static inline double symmon_normal(uint64_t* s) {{
   for (;;) {{
     uint64_t r = symmon_next(s);
     const int i = (int) (r & 0xff), neg = (int) ((r >> 8) & 1);
     const uint64_t m = (r >> 9) & 0xfffffffffffffULL;
-    const double x = (double) m * symmon_zig_w[i];
+    const double x = (double) (int64_t) m * symmon_zig_w[i];
     if (m < symmon_zig_k[i]) return neg ? -x : x;  /* inside the layer's core */
     if (i == 0) {{  /* the tail beyond r (Marsaglia 1964) */
       double a, b;
