@@ -54,6 +54,7 @@ component filter by its short name)::
     particles = 2000
     proposal = "bootstrap"
     seed = 1
+    regularise = true             # the regularised PF (kernel jitter after resampling)
 
 **Units.**  An optional ``[units]`` table gives pint unit strings of states (by name) and
 measurements (``"measurements[i]"``); ``symmon filter`` prints them and its plot shows
@@ -114,7 +115,8 @@ MIXTURE_FILTERS = ("gsf", "pf")
 FILTER_SETTINGS = {
     "gsf": {"transform": str, "split": float, "max_components": int, "prune": float, "merge": str,
             "split_components": int},
-    "pf": {"particles": int, "proposal": str, "resample": str, "ess_threshold": float, "seed": int},
+    "pf": {"particles": int, "proposal": str, "resample": str, "ess_threshold": float, "seed": int,
+           "regularise": bool},
 }
 #: Largest number of steps of a scenario (the bank holds runs × steps × n² numbers).
 MAX_STEPS = 100_000
@@ -304,10 +306,11 @@ def _filter_settings(ctx: _Context, table: Any, kind: str) -> dict:
         if key not in known:
             raise ctx.error(f"[{kind}]", f"unknown setting {key!r}; known: {', '.join(known)}")
         want = known[key]
-        ok = isinstance(value, str) if want is str else (
+        ok = isinstance(value, want) if want in (str, bool) else (
             not isinstance(value, bool) and isinstance(value, (int, float) if want is float else int))
         if not ok:
-            raise ctx.error(f"[{kind}].{key}", f"must be {'a string' if want is str else 'a number' if want is float else 'an integer'}, got {value!r}")
+            what = {str: "a string", bool: "true or false", float: "a number"}.get(want, "an integer")
+            raise ctx.error(f"[{kind}].{key}", f"must be {what}, got {value!r}")
         out[key] = value
     return out
 

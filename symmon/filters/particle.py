@@ -24,18 +24,25 @@ Each of N particles x^i carries a log-weight; a step
    (systematic, stratified or multinomial; Douc, Cappé & Moulines 2005) when the ESS falls
    to ``ess_threshold`` · N.
 
-The bootstrap step runs as three compiled row loops over the particles
-(:mod:`symmon.filters.pf_kernel`: the transition and the log-likelihood in one, the
-exponentials, sums, mean and ESS in the next, the resampling walk with its gather in the
-last; threads over row spans), with the same draws as the NumPy loop of :meth:`filter`,
-which remains for a measurement noise map Γ(x) that depends on the state and while no C
-is available.  The EKF/UKF proposal runs the filters' compiled predict + update step
+With ``regularise=True``, after each resampling every particle moves by h_opt · L ε,
+ε ~ N(0, I), L the Cholesky factor of the weighted covariance before the resampling (the
+post-regularised filter of Musso, Oudjane & Le Gland 2001).
+
+The K bootstrap steps of a run are one call of generated C (:mod:`symmon.filters.pf_kernel`:
+the transition and the log-likelihood, the exponentials, sums, mean and ESS, the kept
+moments, the resampling walk with its gather, the regularisation; threads over particle
+chunks), which draws its normals and uniforms itself (:mod:`symmon.filters.pf_rng`).  The
+NumPy loop of :meth:`filter` remains for the EKF/UKF proposals, a measurement noise map
+Γ(x) that depends on the state, and while no C is available; it draws from the runs'
+NumPy Generators (so the two paths give different particles for a seed, with the same
+law; fed the same draws, the same particles: tests/filters/test_particle_kernel.py).  The
+EKF/UKF proposal runs the filters' compiled predict + update step
 (:mod:`symmon.filters.step`) over the particles as a bank, and f and h as compiled C over
 all particles of all runs of a step at once
-(:meth:`~symmon.compile.CompiledModel.eval_g`).  A missing measurement (NaN) leaves its component out of the likelihood (a row of
-NaN: the step only predicts).  Every run of a bank has its own random stream
-(``SeedSequence(seed).spawn(runs)``), so run r of a bank is the same whatever the other
-runs.
+(:meth:`~symmon.compile.CompiledModel.eval_g`).  A missing measurement (NaN) leaves its
+component out of the likelihood (a row of NaN: the step only predicts).  Every run of a
+bank has its own random stream (``SeedSequence(seed).spawn(runs)``), so run r of a bank is
+the same whatever the other runs.
 
 References
 ----------
@@ -50,6 +57,9 @@ ISPA 2005. doi:10.1109/ISPA.2005.195385
 P. Del Moral, *Feynman–Kac Formulae*, Springer, 2004.
 C. Andrieu, A. Doucet, R. Holenstein, "Particle Markov chain Monte Carlo methods", JRSS B
 72(3), 2010. doi:10.1111/j.1467-9868.2009.00736.x
+C. Musso, N. Oudjane, F. Le Gland, "Improving regularised particle filters", in A. Doucet,
+N. de Freitas, N. Gordon (eds.), *Sequential Monte Carlo Methods in Practice*, Springer,
+2001, ch. 12. doi:10.1007/978-1-4757-3437-9_12
 """
 
 from __future__ import annotations
@@ -79,6 +89,7 @@ from .inputs import check_bank_size, check_keep, check_truth, kept_numbers, meas
 from .results import KalmanResult, _nees
 from .simulation import check_count, check_prior
 from .pf_kernel import BootstrapKernel, bootstrap_kernel, whitening
+from .pf_rng import CHUNK, stream_states
 from .statespace import StateSpace, rows_times
 
 __all__ = ["ParticleFilter", "ParticleResult", "resample", "PROPOSALS", "RESAMPLERS", "DEGENERATE_ESS"]
@@ -121,14 +132,20 @@ def resample(weights: np.ndarray, method: str, rng: np.random.Generator | Iterab
     rngs = [rng] * R if isinstance(rng, np.random.Generator) else list(rng)
     if len(rngs) != R:
         raise ShapeError(f"resample needs one generator per row of weights ({R}), got {len(rngs)}")
-    u = np.stack([resampling_points(method, g, N) for g in rngs])
+    return pick(W, np.stack([resampling_points(method, g, N) for g in rngs])).reshape(np.shape(weights))
+
+
+def pick(W: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """The particle indices (R, N) picked by the ascending points u (R, N) on [0, N) from the
+    normalised weights W (R, N): the cumulative weight interval holding each point
+    (:func:`resample`)."""
+    R, N = W.shape
     cum = np.cumsum(W, axis=1) * N
     cum[:, -1] = N  # rounding must not leave the last point beyond the sum
     # One search over the runs side by side: row r's points and sums shifted by r·N.
     shift = (np.arange(R) * N)[:, None]
     idx = np.searchsorted((cum + shift).ravel(), (u + shift).ravel(), side="right").reshape(R, N) - shift
-    idx = np.minimum(idx, N - 1)
-    return idx.reshape(np.shape(weights))
+    return np.minimum(idx, N - 1)
 
 
 def resampling_points(method: str, rng: np.random.Generator, N: int) -> np.ndarray:
@@ -158,11 +175,18 @@ class ParticleResult(KalmanResult):
         Whether the particles were resampled after the update of that step.
     particles : int
         N.
+    final_particles : ndarray, shape (N, n) or (R, N, n)
+        The particles after the last step (after its resampling and regularisation, if
+        any), e.g. to count their distinct values or to continue from them.
+    final_log_weights : ndarray, shape (N,) or (R, N)
+        Their normalised log-weights (−log N after a resampling).
     """
 
     ess: np.ndarray | None = None
     resampled: np.ndarray | None = None
     particles: int = 0
+    final_particles: np.ndarray | None = None
+    final_log_weights: np.ndarray | None = None
 
     def __repr__(self) -> str:
         runs = "" if self.runs is None else f"runs={self.runs}, "
@@ -196,7 +220,18 @@ class ParticleFilter:
         Resample when ESS ≤ ``ess_threshold`` · N (1: at every step; 0: never).
     seed : int, default 0
         The seed of every ``filter`` call (``SeedSequence(seed).spawn(runs)``): the same
-        call gives the same numbers.
+        call gives the same numbers, whatever the number of threads or shards.  The
+        compiled bootstrap recursion draws its normals and resampling uniforms in C
+        (xoshiro256++ streams and a ziggurat, :mod:`symmon.filters.pf_rng`); the NumPy path
+        (the EKF/UKF proposals, a state-dependent Γ(x), no compiler) draws from NumPy's
+        Generator: the two give different particles for a seed, with the same law.
+    regularise : bool, default False
+        The post-regularised particle filter (Musso, Oudjane & Le Gland 2001):
+        after each resampling every particle moves by h_opt · L ε, ε ~ N(0, I), L the
+        Cholesky factor of the weighted particle covariance before the resampling and
+        h_opt = :attr:`bandwidth` (angle states wrapped): a draw from a Gaussian-kernel
+        density estimate of the posterior, which restores the diversity that resampling
+        removes when the process noise is small.
 
     Raises
     ------
@@ -229,6 +264,7 @@ class ParticleFilter:
     resample: str = "systematic"
     ess_threshold: float = 0.5
     seed: int = 0
+    regularise: bool = False
     space: StateSpace = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -247,6 +283,9 @@ class ParticleFilter:
         object.__setattr__(self, "ess_threshold", float(t))
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
             raise ArgumentError(f"seed must be a non-negative integer, got {self.seed!r}")
+        if not isinstance(self.regularise, (bool, np.bool_)):
+            raise ArgumentError(f"regularise must be True or False, got {self.regularise!r}")
+        object.__setattr__(self, "regularise", bool(self.regularise))
         _ = self._noise_map  # refuse an h not affine in its noise, and a singular likelihood, now
         if self.proposal != "bootstrap":
             if self.f_model.n_v:
@@ -263,7 +302,16 @@ class ParticleFilter:
     @property
     def method(self) -> str:
         """The filter's name, e.g. ``PF(bootstrap, N=1000, systematic)``."""
-        return f"PF({self.proposal}, N={self.particles}, {self.resample})"
+        reg = ", regularised" if self.regularise else ""
+        return f"PF({self.proposal}, N={self.particles}, {self.resample}{reg})"
+
+    @property
+    def bandwidth(self) -> float:
+        """h_opt = (4 / (N (n + 2)))^(1/(n+4)), the bandwidth of the Gaussian kernel that
+        minimises the mean integrated squared error for a Gaussian density (Musso, Oudjane &
+        Le Gland 2001, ch. 12 of Doucet et al., *Sequential Monte Carlo Methods in Practice*); the jitter of ``regularise=True`` is h_opt · L ε."""
+        n = self.space.n
+        return (4.0 / (self.particles * (n + 2))) ** (1.0 / (n + 4))
 
     @property
     def params(self) -> tuple:
@@ -377,7 +425,6 @@ class ParticleFilter:
         """The innovation y − ŷ and its covariance S of the predicted measurement mixture
         Σ_i W_i N(ŷ_i, S_i), ŷ_i = ``Hx[:, i]`` and S_i = ``S_noise`` (one for all, or per
         particle); missing components: 0 and a unit diagonal entry (as the Kalman filters)."""
-        missing = np.isnan(Y)
         mean = np.einsum("rn,rni->ri", W, Hx)
         ang = list(self.space.angle_outputs)
         if ang:
@@ -387,7 +434,16 @@ class ParticleFilter:
         if ang:
             D[..., ang] = wrap_angle(D[..., ang])
         noise = S_noise if S_noise.ndim == 2 else np.einsum("rn,rnij->rij", W, S_noise)
-        S = np.einsum("rni,rnj->rij", D * W[..., None], D) + noise
+        return self._innovation_moments(mean, np.einsum("rni,rnj->rij", D * W[..., None], D), Y, noise)
+
+    def _innovation_moments(self, mean: np.ndarray, spread: np.ndarray, Y: np.ndarray,
+                            noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The innovation y − ŷ (wrapped for angle outputs) and S = spread + noise, from the
+        mixture's mean ŷ (R, n_y) and the covariance of its means ``spread`` (R, n_y, n_y);
+        missing components: 0 and a unit diagonal entry (as the Kalman filters)."""
+        missing = np.isnan(Y)
+        ang = list(self.space.angle_outputs)
+        S = spread + noise
         nu = Y - mean
         if ang:
             nu[:, ang] = wrap_angle(nu[:, ang])
@@ -474,7 +530,7 @@ class ParticleFilter:
         pv = param_values(ss.params, params, bank, K, who="the models")
         rngs = run_streams(self.seed, Rr, first_run)
 
-        X = ss.wrap_states(np.stack([np.asarray(x0.sample(N, g), dtype=float) for g in rngs]))
+        X = ss.wrap_states(np.stack([_prior_particles(x0, N, g) for g in rngs]))
         logW = np.full((Rr, N), -math.log(N))
         want = lambda *k: any(a in names for a in k)  # noqa: E731
         out = {k: np.empty((Rr, K) + s) for k, s in (("x", (n,)), ("P", (n, n)), ("x_pred", (n,)),
@@ -486,13 +542,16 @@ class ParticleFilter:
         kern = self._bootstrap_kernel
         loops = None if kern is None else kern.loops()
         if loops is not None:  # the compiled step (pf_kernel); the loop below is its NumPy twin
-            self._run_compiled(kern, loops, X, Yb, pv, rngs, names, out, loglik, ess, resampled, nees, truth, bank)
+            X, logW = self._run_compiled(kern, loops, X, Yb, pv, rngs, names, out, loglik, ess, resampled, nees,
+                                         truth, bank)
+        replay = getattr(self, "_replay", None)  # a test's draws for both paths (test_particle_kernel)
         for k in range(K if loops is None else 0):
             y, p = Yb[:, k], (None if pv is None else pv[:, k])
             Wprev = np.exp(logW)
             with np.errstate(over="ignore", invalid="ignore"):  # a non-finite particle is refused below
                 if self._kf is None:
-                    Z = np.concatenate([g.standard_normal((N, nq)) for g in rngs])
+                    Z = (replay["z"][:, k].reshape(-1, nq) if replay is not None
+                         else np.concatenate([g.standard_normal((N, nq)) for g in rngs]))
                     X = ss.transition(X.reshape(-1, n), Z, None if p is None else np.repeat(p, N, axis=0))
                     X = X.reshape(Rr, N, n)
                     inc, prior_h, S_noise = self._loglik(X, y, p)
@@ -503,18 +562,16 @@ class ParticleFilter:
             top = total.max(axis=1)
             bad = ~np.isfinite(top) | ~np.isfinite(X).all(axis=(1, 2))
             if bad.any():
-                r = int(np.flatnonzero(bad)[0])
-                where = f"step {k}" if bank is None else f"run {r}, step {k}"
-                raise NonFiniteError(f"{self.method}: at {where} a particle or its weight is NaN or inf, or every "
-                                     "particle has zero likelihood (the model overflows there, or the measurement "
-                                     "is far from every particle: use more particles or another proposal)")
+                raise self._not_finite(k, int(np.flatnonzero(bad)[0]), bank)
             lse = top + np.log(np.exp(total - top[:, None]).sum(axis=1))
             loglik[:, k] = lse  # log Σ W_{k−1} exp(inc): logW is normalised
             logW = total - lse[:, None]
             W = np.exp(logW)
             ess[:, k] = 1.0 / (W * W).sum(axis=1)
-            if want("x", "P") or truth is not None:
-                m, C = self._moments(X, W, cov="P" in out or truth is not None)
+            redo = np.flatnonzero(ess[:, k] <= self.ess_threshold * N)
+            spread = None  # the weighted covariance, which the regularisation's kernel takes
+            if want("x", "P") or truth is not None or (self.regularise and redo.size):
+                m, C = spread = self._moments(X, W, cov="P" in out or truth is not None or self.regularise)
                 if "x" in out:
                     out["x"][:, k] = m
                 if "P" in out:
@@ -531,10 +588,15 @@ class ParticleFilter:
                     out["P_pred"][:, k] = C
             if want("innovation", "S", "nis"):
                 _store_measurement(out, k, *self._measurement_moments(prior_h, Wprev, y, S_noise))
-            redo = np.flatnonzero(ess[:, k] <= self.ess_threshold * N)
             if redo.size:
-                idx = resample(W[redo], self.resample, [rngs[r] for r in redo])
+                pts = (replay["u"][redo, k] if replay is not None
+                       else np.stack([resampling_points(self.resample, rngs[r], N) for r in redo]))
+                idx = pick(W[redo], pts)
                 X[redo] = np.take_along_axis(X[redo], idx[..., None], axis=1)
+                if self.regularise:
+                    for r in redo:
+                        eps = replay["j"][r, k] if replay is not None else rngs[r].standard_normal((N, n))
+                        X[r] = ss.wrap_states(X[r] + self.bandwidth * rows_times(eps, _semidefinite_cholesky(spread[1][r])))
                 logW[redo] = -math.log(N)
                 resampled[redo, k] = True
 
@@ -549,7 +611,8 @@ class ParticleFilter:
         arrays = {k: v if bank is not None else v[0] for k, v in out.items()}
         if "nis" in arrays:
             arrays["nis_values"] = arrays.pop("nis")
-        extra = {"loglik": loglik, "ess": ess, "resampled": resampled}
+        extra = {"loglik": loglik, "ess": ess, "resampled": resampled, "final_particles": X,
+                 "final_log_weights": logW}
         if nees is not None:
             extra["nees_values"] = nees
         arrays.update({k: v if bank is not None else v[0] for k, v in extra.items()})
@@ -561,6 +624,11 @@ class ParticleFilter:
             measured.flags.writeable = False
         return ParticleResult(**arrays, measured=measured, n_y=n_y, n_x=n, angle_states=ss.angle_states,
                               method=self.method, particles=N)
+
+    @cached_property
+    def _whitenings(self) -> dict:
+        """The compiled path's whitenings of Γ R Γᵀ by pattern of measured components."""
+        return {}
 
     @cached_property
     def _bootstrap_kernel(self) -> BootstrapKernel | None:
@@ -579,110 +647,81 @@ class ParticleFilter:
                               "is far from every particle: use more particles or another proposal)")
 
     def _run_compiled(self, kern, loops, X, Yb, pv, rngs, names, out, loglik, ess, resampled, nees, truth, bank):
-        """The bootstrap steps through the compiled loops (pf_kernel's module notes): the same
-        draws, in the same order, as the NumPy loop of :meth:`filter`, which it replaces."""
-        prop, sums, walk = loops
+        """The K bootstrap steps of each run in one compiled call (pf_kernel's module notes),
+        the runs of a bank on threads; the normals and resampling uniforms drawn in C from the
+        runs' xoshiro streams (:mod:`symmon.filters.pf_rng`), or replayed (``_replay``)."""
+        run = loops[0]
         ss, N = self.space, self.particles
         Rr, K, n_y = Yb.shape
-        n, nq = ss.n, kern.n_q
+        n = ss.n
         G = np.eye(n_y) if self._noise_map is None else self._noise_map
         S_noise = G @ self.R @ G.T
         Lq = np.asarray(ss.Lq)
-        want_pred = any(a in names for a in ("x_pred", "P_pred"))
+        cache = self._whitenings  # (A, c) per pattern of measured components, once per filter
+
+        def white(mask: np.ndarray) -> tuple[np.ndarray, float]:
+            key = mask.tobytes()
+            if key not in cache:
+                cache[key] = whitening(S_noise, mask)
+            return cache[key]
+
+        P = kern.pack(pv, Lq, Yb, white)
         want_h = any(a in names for a in ("innovation", "S", "nis"))
-        angles = list(ss.angle_states)
+        need_x = "x" in names or truth is not None
+        need_P = "P" in names or truth is not None
+        arr = {"x": out["x"] if "x" in out else (np.empty((Rr, K, n)) if need_x else None),
+               "P": out["P"] if "P" in out else (np.empty((Rr, K, n, n)) if need_P else None),
+               "x_pred": out.get("x_pred"), "P_pred": out.get("P_pred"),
+               "hm": np.empty((Rr, K, n_y)) if want_h else None, "hS": np.empty((Rr, K, n_y, n_y)) if want_h else None}
+        res_f = np.zeros((Rr, K))
         X = np.ascontiguousarray(X)
-        Xn, Z = np.empty_like(X), np.empty((Rr, N, nq))
-        T, E = np.empty((Rr, N)), np.empty((Rr, N))
+        Xn = np.empty_like(X)
+        work = np.empty((Rr, 4, N))  # t, e, lw, and the points
         Hx = np.empty((Rr, N, n_y)) if want_h else None
-        logW = np.full((Rr, N), -math.log(N))
-        spans = [(r, a, b) for r in range(Rr) for a, b in row_spans(N)]
-        top, acc = np.empty(len(spans)), np.empty((len(spans), 2 + n))
-        row, at = 8 * n, lambda a: a.ctypes.data  # noqa: E731
-        x_at, xn_at, z_at, t_at, e_at = at(X), at(Xn), at(Z), at(T), at(E)
-        lw_at, top_at, acc_at = at(logW), at(top), at(acc)
-        hx_at = None if Hx is None else at(Hx)
-        white: dict[tuple, tuple[np.ndarray, float]] = {}
-        for k in range(K):
-            Y = Yb[:, k]
-            for r, g in enumerate(rngs):
-                g.standard_normal(out=Z[r])  # the draws of the NumPy loop, in its order
-            P = []
-            for r in range(Rr):
-                pattern = tuple(~np.isnan(Y[r]))
-                if pattern not in white:
-                    white[pattern] = whitening(S_noise, np.array(pattern))
-                P.append(kern.pack(None if pv is None else pv[r, k], Lq, Y[r], *white[pattern]))
-            P = np.stack(P)
-            Wprev = np.exp(logW) if want_pred or want_h else None
+        chunks = -(-N // CHUNK)
+        part = np.empty((Rr, chunks, 4 + 2 * n))
+        st = np.stack([stream_states(g, chunks + 1) for g in rngs])
+        # threads over particle chunks for one run (in C), over runs for a bank (here)
+        T = 1 if Rr > 1 else len(row_spans(N, CHUNK))
+        isz, wsz = kern.f.sz_iw() + 1, kern.f.sz_w() + 1
+        iws, ws = np.empty((Rr, T, isz), dtype=np.int64), np.empty((Rr, T, wsz))
+        replay = getattr(self, "_replay", None)
+        opt = np.array([RESAMPLERS.index(self.resample), int(self.regularise)], dtype=np.int64)
+        fl = np.array([self.ess_threshold * N, self.bandwidth])
+        fail = np.zeros(Rr, dtype=np.int64)
+        # Per-run arrays: (address of run 0, bytes per run); 0 for an output not wanted.
+        per_run = [(a.ctypes.data, a.nbytes // Rr) if a is not None else (0, 0) for a in (
+            P, X, Xn, work[:, 0], work[:, 1], work[:, 2], work[:, 3], Hx, part, st)]
+        per_run[3:7] = [(work.ctypes.data + j * N * 8, 4 * N * 8) for j in range(4)]  # the rows of work
+        outs = [(a.ctypes.data, a.nbytes // Rr) if a is not None else (0, 0) for a in (
+            loglik, ess, res_f, arr["x"], arr["P"], arr["x_pred"], arr["P_pred"], arr["hm"], arr["hS"], iws, ws)]
+        shared = (opt.ctypes.data, fl.ctypes.data)
 
-            def first(j: int) -> int:
-                r, a, b = spans[j]
-                i = r * N + a
-                iw, w = kern.work()
-                return prop(x_at + i * row, z_at + i * 8 * nq, P[r].ctypes.data, lw_at + i * 8, xn_at + i * row,
-                            t_at + i * 8, None if hx_at is None else hx_at + i * 8 * n_y, b - a, top_at + j * 8,
-                            iw, w)
+        def one(r: int) -> int:
+            rp = [0, 0, 0]
+            if replay is not None:  # kept alive by ``keep`` during the call
+                keep = [np.ascontiguousarray(replay[key][r], dtype=float) for key in ("z", "u", "j")]
+                rp = [a.ctypes.data for a in keep]
+            a = [base + r * step if base else 0 for base, step in per_run]
+            o = [base + r * step if base else 0 for base, step in outs]
+            return run(a[0], K, N, *a[1:], *rp, *shared, *o, isz, wsz, T, fail.ctypes.data + 8 * r)
 
-            codes = in_threads(first, range(len(spans)))
-            if any(c == 1 for c in codes):
+        codes = in_threads(one, range(Rr)) if Rr > 1 else [one(0)]
+        for r, c in enumerate(codes):
+            if c == 1:
                 raise SymmonError(f"{self.method}: the compiled step {kern.f.name()} returned an error")
-            mx = np.full(Rr, -np.inf)
-            np.maximum.at(mx, [r for r, _, _ in spans], top)
-            for j, c in enumerate(codes):
-                if c == 2:
-                    raise self._not_finite(k, spans[j][0], bank)
-            if not np.isfinite(mx).all():
-                raise self._not_finite(k, int(np.flatnonzero(~np.isfinite(mx))[0]), bank)
-
-            def second(j: int) -> None:
-                r, a, b = spans[j]
-                i = r * N + a
-                sums(xn_at + i * row, t_at + i * 8, float(mx[r]), e_at + i * 8, b - a, acc_at + j * acc.shape[1] * 8)
-
-            in_threads(second, range(len(spans)))
-            tot = np.zeros((Rr, 2 + n))
-            np.add.at(tot, [r for r, _, _ in spans], acc)
-            s = tot[:, 0]
-            lse = mx + np.log(s)
-            loglik[:, k] = np.where(np.isnan(Y).all(axis=1), 0.0, lse)  # no measurement: log Σ W = 0 exactly
-            ess[:, k] = s * s / tot[:, 1]
-            W = None
-            if angles or any(a in names for a in ("P",)) or truth is not None:
-                W = E / s[:, None]
-            if "x" in names or "P" in names or truth is not None:
-                if "P" in names or truth is not None:
-                    m, C = self._moments(Xn, W)
-                else:
-                    m, C = tot[:, 2:] / s[:, None], None
-                    if angles:
-                        A = Xn[..., angles]
-                        m[:, angles] = _circular_means(W, A)
-                if "x" in out:
-                    out["x"][:, k] = m
-                if "P" in out:
-                    out["P"][:, k] = C
-                if truth is not None:
-                    nees[:, k] = _nees(m[:, None], C[:, None], truth[:, k:k + 1], ss.angle_states)[:, 0]
-            if want_pred:
-                m, C = self._moments(Xn, Wprev, cov="P_pred" in out)
-                if "x_pred" in out:
-                    out["x_pred"][:, k] = m
-                if "P_pred" in out:
-                    out["P_pred"][:, k] = C
-            if want_h:
-                _store_measurement(out, k, *self._measurement_moments(Hx, Wprev, Y, S_noise))
-            redo = ess[:, k] <= self.ess_threshold * N
-            for r in range(Rr):
-                if not redo[r]:
-                    np.subtract(T[r], lse[r], out=logW[r])
-                    X[r] = Xn[r]
-                    continue
-                pts = resampling_points(self.resample, rngs[r], N)
-                u, pts_at = (float(pts[0]), None) if self.resample == "systematic" else (0.0, at(pts))
-                walk(e_at + r * N * 8, float(s[r]), pts_at, u, N, xn_at + r * N * row, x_at + r * N * row)
-                logW[r] = -math.log(N)
-                resampled[r, k] = True
+            if c == 2:
+                raise self._not_finite(int(fail[r]), r, bank)
+        loglik[np.isnan(Yb).all(axis=2)] = 0.0  # no measurement: log Σ W = 0 exactly
+        resampled[:] = res_f > 0
+        if truth is not None:
+            nees[:] = _nees(arr["x"], arr["P"], truth, ss.angle_states)
+        if want_h:
+            nu, S = self._innovation_moments(arr["hm"].reshape(Rr * K, n_y), arr["hS"].reshape(Rr * K, n_y, n_y),
+                                             Yb.reshape(Rr * K, n_y), S_noise)
+            for k in range(K):
+                _store_measurement(out, k, nu.reshape(Rr, K, n_y)[:, k], S.reshape(Rr, K, n_y, n_y)[:, k])
+        return X, work[:, 2].copy()
 
     def _proposal_step(self, X, y, p, rngs, k, bank, want):
         """One EKF/UKF-proposal step (module notes): the Gaussian filter's compiled step from
@@ -729,6 +768,29 @@ class ParticleFilter:
             y_hat = (np.where(np.isnan(Yrep[:, 0]), 0.0, Yrep[:, 0]) - out["innovation"][:, 0]).reshape(Rr, N, -1)
             S_i = out["S"][:, 0].reshape(Rr, N, ss.n_y, ss.n_y)
         return Xn, inc, fx.reshape(Rr, N, n), y_hat, S_i
+
+
+def _prior_particles(x0: Gaussian | GaussianMixture | Empirical, N: int, g: np.random.Generator) -> np.ndarray:
+    """N draws of x0 from ``g``: ``x0.sample``, except that a Gaussian's rows are multiplied
+    by its square root without BLAS (the same normals; OpenBLAS would split the product
+    over threads that then spin against the compiled recursion's, statespace.rows_times)."""
+    if isinstance(x0, Gaussian):
+        return np.asarray(x0.mean, dtype=float) + rows_times(g.standard_normal((N, x0.dim)), x0.sqrt_cov())
+    return np.asarray(x0.sample(N, g), dtype=float)
+
+
+def _semidefinite_cholesky(C: np.ndarray) -> np.ndarray:
+    """The lower Cholesky factor L (L Lᵀ = C) of a positive semidefinite C, a zero column
+    where a pivot is not positive (the kernel's C twin, pf_kernel's ``_chol``)."""
+    n = C.shape[0]
+    L = np.zeros_like(C)
+    for j in range(n):
+        d = C[j, j] - L[j, :j] @ L[j, :j]
+        if not (d > 1e-14 * C[j, j] and d > 0):
+            continue
+        L[j, j] = math.sqrt(d)
+        L[j + 1:, j] = (C[j + 1:, j] - L[j + 1:, :j] @ L[j, :j]) / L[j, j]
+    return L
 
 
 def _circular_means(W: np.ndarray, A: np.ndarray) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""The compiled step of the bootstrap particle filter: three C row loops over the particles.
+"""The compiled recursion of the bootstrap particle filter: the K steps of a run in one C call.
 
 For the bootstrap proposal (Gordon et al. 1993, §3) a step of :class:`~symmon.ParticleFilter`
 is, per particle i of a run with log-weight ℓ_i (normalised) and standard normal draws z_i,
@@ -9,26 +9,29 @@ is, per particle i of a run with log-weight ℓ_i (normalised) and standard norm
 then the log-sum-exp of t (the step's log-likelihood increment, Doucet et al. 2000, eq. (11)),
 the normalised weights W_i = exp(t_i − lse), the weighted mean Σ W_i x'_i, the effective
 sample size 1 / Σ W_i², and, when the ESS is low, a resampling with the gather of the
-chosen particles.  NumPy does this in about a dozen passes over the particle array; here it
-is three:
+chosen particles (and, for the regularised filter, the kernel jitter h L ε).
 
-1. ``NAME_prop``: one call of CasADi's generated function per row (the transition, the
-   measurement, the wrapped innovation, its whitening by the inverse Cholesky factor A of
-   the measured block of Γ R Γᵀ, embedded with zero rows and columns for the missing
-   components, and the log-density), writing x'_i and t_i, the running maximum of t and a
-   flag for a non-finite particle or weight;
-2. ``NAME_sums``: e_i = exp(t_i − max t), Σ e_i, Σ e_i² and Σ e_i x'_i (one pass, with
-   the maximum found in pass 1, so no exponential overflows);
-3. ``NAME_resample``: the walk of the resampling points along the cumulative weights
-   (points ascending: O(N), no binary search), copying each chosen row to the new array.
+``NAME_run`` does all K steps of one run without returning to Python.  Per step:
 
-Passes 1 and 2 run on row spans in threads (ctypes releases the GIL); the partial sums of
-the spans are merged in NumPy (a few numbers each).  The draws are NumPy's, in the order
-of the NumPy path (:mod:`symmon.filters.particle`), so a seed gives the same particles to
-rounding.
+1. move and weigh: for each particle, its normals from the xoshiro stream of its chunk of
+   :data:`~symmon.filters.pf_rng.CHUNK` particles (:mod:`symmon.filters.pf_rng`), then one
+   call of CasADi's generated function (the transition, the measurement, the wrapped
+   innovation, its whitening by the inverse Cholesky factor A of the measured block of
+   Γ R Γᵀ embedded with zero rows and columns for the missing components, and the
+   log-density), writing x'_i, t_i and each chunk's maximum of t and a flag for a
+   non-finite particle or weight;
+2. e_i = exp(t_i − max t), and per chunk Σ e_i, Σ e_i², Σ e_i x'_i (sines and cosines for
+   angle states), one pass, with the maximum of pass 1 so no exponential overflows; the
+   chunks' sums are added in chunk order, so the result does not depend on the threads;
+3. the covariance and the predicted moments when kept (a pass each);
+4. on resampling: the points (systematic, stratified, or sorted uniforms as normalised
+   sums of exponential spacings for multinomial: O(N), no sort), then the walk along the
+   cumulative weights (points ascending: O(N), no binary search), by input chunk, each
+   chunk finding its first point by bisection; the regularisation's jitter by output chunk.
 
-The covariance, the predicted moments and the innovation moments, when asked for, stay
-NumPy passes over the particles (the last needs h(x'_i), which pass 1 then writes).
+A single run runs on T threads (pthreads made by the call, a barrier at each reduction)
+over contiguous chunk ranges; the C of a run never waits on Python's thread pool.
+``_replay`` (tests) feeds given normals and points instead of drawing them.
 """
 
 from __future__ import annotations
@@ -45,72 +48,334 @@ from ..compile import NativeLibrary, compiled_with_params
 from ..compile.compiled import WorkArrays, generated_c
 from ..core.angles import wrap_casadi
 from ..core.model import Model
+from .pf_rng import CHUNK, RNG_C
 
 __all__ = ["BootstrapKernel", "bootstrap_kernel"]
 
 _LOG_2PI = math.log(2 * math.pi)
 
-# The three loops.  casadi_int is long long (CasADi's default).
+# The recursion of one run.  casadi_int is long long (CasADi's default).
 _DRIVER = """
-#include <math.h>
 #include <string.h>
-/* symmon: pass 1 of the bootstrap particle filter (symmon.filters.pf_kernel). */
-CASADI_SYMBOL_EXPORT int {name}_prop(const casadi_real* x, const casadi_real* z, const casadi_real* p,
-    const casadi_real* lw, casadi_real* xn, casadi_real* t, casadi_real* hx, casadi_int n,
-    casadi_real* mx, casadi_int* iw, casadi_real* w) {{
+#include <pthread.h>
+static const int {name}_ax[{nx}] = {{{ax}}};
+static const int {name}_ay[{ny}] = {{{ay}}};
+
+static double {name}_wrap(double a) {{  /* wrap_angle: (-pi, pi] */
+  const double two_pi = 2 * 3.14159265358979311600, s = a + 3.14159265358979311600;
+  const double o = s - two_pi * floor(s / two_pi) - 3.14159265358979311600;
+  return o == -3.14159265358979311600 ? 3.14159265358979311600 : o;
+}}
+
+/* The weighted mean (circular for flagged components) and, with cov, the covariance of the
+   rows of X (N x d) with weights w summing to s (ParticleFilter._moments). */
+static void {name}_mom(const casadi_real* X, casadi_int N, int d, const casadi_real* w, casadi_real s,
+    const int* ang, casadi_real* mean, casadi_real* cov) {{
+  casadi_real a1[{dm}], a2[{dm}], dv[{dm}], wi;
+  casadi_int i;
+  int a, b;
+  const casadi_real* xi;
+  for (a = 0; a < d; ++a) a1[a] = a2[a] = 0;
+  for (i = 0; i < N; ++i) {{
+    wi = w[i];
+    xi = X + i * d;
+    for (a = 0; a < d; ++a) {{
+      if (ang[a]) {{ a1[a] += wi * sin(xi[a]); a2[a] += wi * cos(xi[a]); }}
+      else a1[a] += wi * xi[a];
+    }}
+  }}
+  for (a = 0; a < d; ++a) mean[a] = ang[a] ? atan2(a1[a], a2[a]) : a1[a] / s;
+  if (!cov) return;
+  for (a = 0; a < d * d; ++a) cov[a] = 0;
+  for (i = 0; i < N; ++i) {{
+    wi = w[i];
+    xi = X + i * d;
+    for (a = 0; a < d; ++a) dv[a] = ang[a] ? {name}_wrap(xi[a] - mean[a]) : xi[a] - mean[a];
+    for (a = 0; a < d; ++a) for (b = 0; b <= a; ++b) cov[a * d + b] += wi * dv[a] * dv[b];
+  }}
+  for (a = 0; a < d; ++a) for (b = 0; b <= a; ++b) cov[b * d + a] = cov[a * d + b] = cov[a * d + b] / s;
+}}
+
+/* The lower Cholesky factor of a positive semidefinite C (n x n): a pivot <= 0 gives a zero
+   column (the directions without spread get no kernel jitter). */
+static void {name}_chol(const casadi_real* C, casadi_real* L) {{
+  int i, j, k;
+  casadi_real d;
+  for (i = 0; i < {nx} * {nx}; ++i) L[i] = 0;
+  for (j = 0; j < {nx}; ++j) {{
+    d = C[j * {nx} + j];
+    for (k = 0; k < j; ++k) d -= L[j * {nx} + k] * L[j * {nx} + k];
+    if (!(d > 1e-14 * C[j * {nx} + j]) || !(d > 0)) continue;
+    L[j * {nx} + j] = sqrt(d);
+    for (i = j + 1; i < {nx}; ++i) {{
+      d = C[i * {nx} + j];
+      for (k = 0; k < j; ++k) d -= L[i * {nx} + k] * L[j * {nx} + k];
+      L[i * {nx} + j] = d / L[j * {nx} + j];
+    }}
+  }}
+}}
+
+/* symmon: count normals of stream s into out (tests of the generator). */
+CASADI_SYMBOL_EXPORT void {name}_normals(unsigned long long* s, casadi_int count, casadi_real* out) {{
+  casadi_int i;
+  uint64_t sl[4];
+  memcpy(sl, s, sizeof sl);  /* the state in registers, not memory, while it runs */
+  for (i = 0; i < count; ++i) out[i] = symmon_normal(sl);
+  memcpy(s, sl, sizeof sl);
+}}
+
+/* A barrier of the run's T threads (POSIX mutex and condition: macOS has no pthread_barrier). */
+typedef struct {{ pthread_mutex_t mu; pthread_cond_t cv; int count, gen, T; }} {name}_barrier;
+static void {name}_bwait({name}_barrier* b) {{
+  int g;
+  if (b->T == 1) return;
+  pthread_mutex_lock(&b->mu);
+  g = b->gen;
+  if (++b->count == b->T) {{ b->count = 0; b->gen++; pthread_cond_broadcast(&b->cv); }}
+  else while (g == b->gen) pthread_cond_wait(&b->cv, &b->mu);
+  pthread_mutex_unlock(&b->mu);
+}}
+
+/* Per chunk of CHUNK particles: [max t, bad, sum e, sum e^2, sum e x (or sin), sum e cos]. */
+#define {name}_PW (4 + 2 * {nx})
+
+typedef struct {{
+  const casadi_real* P; casadi_int K, N, nch; casadi_real *X0, *Xn0, *t, *e, *lw, *sc, *hx, *part;
+  unsigned long long* st; const casadi_real *zext, *uext, *jext; const casadi_int* opt; const casadi_real* fl;
+  casadi_real *o_ll, *o_ess, *o_res, *o_x, *o_P, *o_xp, *o_Pp, *o_hm, *o_hS, *cov, *L;
+  casadi_int* fail; {name}_barrier bar; int T; pthread_mutex_t gate;
+}} {name}_ctx;
+
+/* The lowest index in the ascending sc[0 .. N) with sc >= v. */
+static casadi_int {name}_lower(const casadi_real* sc, casadi_int N, casadi_real v) {{
+  casadi_int lo = 0, hi = N, mid;
+  while (lo < hi) {{ mid = (lo + hi) / 2; if (sc[mid] < v) lo = mid + 1; else hi = mid; }}
+  return lo;
+}}
+
+/* Thread tau's share of the K steps (chunks [c0, c1)); every reduction is by chunk, in chunk
+   order, so the numbers do not depend on T. */
+static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w) {{
+  const casadi_int N = c->N, nch = c->nch, c0 = nch * tau / c->T, c1 = nch * (tau + 1) / c->T;
+  const casadi_int a0 = c0 * {chunk}, a1 = c1 * {chunk} < N ? c1 * {chunk} : N;
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
-  casadi_real ll, ti, m = -INFINITY;
-  casadi_int i, j, bad = 0;
-  arg[2] = p;
-  res[1] = &ll;
-  for (i = 0; i < n; ++i) {{
-    arg[0] = x + i * {nx};
-    arg[1] = z + i * {nq};
-    res[0] = xn + i * {nx};
-    res[2] = hx ? hx + i * {ny} : 0;
-    if ({name}(arg, res, iw, w, 0)) return 1;
-    ti = lw[i] + ll;
-    t[i] = ti;
-    if (ti != ti || ti == INFINITY) bad = 1;
-    for (j = 0; j < {nx}; ++j) if (!isfinite(res[0][j])) bad = 1;
-    if (ti > m) m = ti;
+  casadi_real *X = c->X0, *Xn = c->Xn0, *tmp, *xi, *pc;
+  casadi_real ll, ti, m, s, s2, lse, ei, cum, scale, pt, off, zl[{nq}], eps[{nx}], sx[{nx}], sn[{nx}], cs[{nx}];
+  const casadi_real* zi;
+  const casadi_real log_n = log((casadi_real) N);
+  uint64_t* rs = (uint64_t*) c->st + 4 * nch;
+  casadi_int i, j, k, q, a, b, bad, redo, lo, hi, end;
+  const int want_pred = c->o_xp || c->o_Pp || c->o_hm, reg = (int) c->opt[1];
+  for (i = a0; i < a1; ++i) c->lw[i] = -log_n;
+  for (k = 0; k < c->K; ++k) {{
+    arg[2] = c->P + k * {n_p};
+    res[1] = &ll;
+    for (q = c0; q < c1; ++q) {{  /* move and weigh, chunk q */
+      uint64_t* sg = (uint64_t*) c->st + 4 * q, sl[4];
+      memcpy(sl, sg, sizeof sl);  /* the state in registers, not memory, while it runs */
+      end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
+      m = -INFINITY;
+      bad = 0;
+      for (i = q * {chunk}; i < end; ++i) {{
+        if (c->zext) zi = c->zext + (k * N + i) * {nq};
+        else {{
+          for (j = 0; j < {nq}; ++j) zl[j] = symmon_normal(sl);
+          zi = zl;
+        }}
+        arg[0] = X + i * {nx};
+        arg[1] = zi;
+        res[0] = Xn + i * {nx};
+        res[2] = c->hx ? c->hx + i * {ny} : 0;
+        if ({name}(arg, res, iw, w, 0)) bad = 2;
+        ti = c->lw[i] + ll;
+        c->t[i] = ti;
+        if (ti != ti || ti == INFINITY) bad |= 1;
+        for (j = 0; j < {nx}; ++j) if (!isfinite(res[0][j])) bad |= 1;
+        if (ti > m) m = ti;
+      }}
+      memcpy(sg, sl, sizeof sl);
+      c->part[q * {name}_PW] = m;
+      c->part[q * {name}_PW + 1] = (casadi_real) bad;
+    }}
+    {name}_bwait(&c->bar);
+    m = -INFINITY;
+    bad = 0;
+    for (q = 0; q < nch; ++q) {{
+      if (c->part[q * {name}_PW] > m) m = c->part[q * {name}_PW];
+      bad |= (casadi_int) c->part[q * {name}_PW + 1];
+    }}
+    if (bad & 2) return 1;
+    if (bad || !isfinite(m)) {{ if (tau == 0) *c->fail = k; return 2; }}
+    if (want_pred) {{  /* the predicted moments, with the weights before the update */
+      for (i = a0; i < a1; ++i) c->sc[i] = exp(c->lw[i]);
+      {name}_bwait(&c->bar);
+      if (tau == 0) {{
+        if (c->o_xp || c->o_Pp) {name}_mom(Xn, N, {nx}, c->sc, 1.0, {name}_ax, c->o_xp ? c->o_xp + k * {nx} : sn,
+                                           c->o_Pp ? c->o_Pp + k * {nx} * {nx} : 0);
+        if (c->o_hm) {name}_mom(c->hx, N, {ny}, c->sc, 1.0, {name}_ay, c->o_hm + k * {ny}, c->o_hS + k * {ny} * {ny});
+      }}
+    }}
+    for (q = c0; q < c1; ++q) {{  /* the exponentials, their sums and the weighted sums of x */
+      end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
+      s = 0; s2 = 0;
+      for (j = 0; j < {nx}; ++j) sx[j] = cs[j] = 0;
+      for (i = q * {chunk}; i < end; ++i) {{
+        ei = exp(c->t[i] - m);
+        c->e[i] = ei;
+        s += ei;
+        s2 += ei * ei;
+        xi = Xn + i * {nx};
+        for (j = 0; j < {nx}; ++j) {{
+          if ({name}_ax[j]) {{ sx[j] += ei * sin(xi[j]); cs[j] += ei * cos(xi[j]); }}
+          else sx[j] += ei * xi[j];
+        }}
+      }}
+      pc = c->part + q * {name}_PW;
+      pc[2] = s; pc[3] = s2;
+      for (j = 0; j < {nx}; ++j) {{ pc[4 + j] = sx[j]; pc[4 + {nx} + j] = cs[j]; }}
+    }}
+    {name}_bwait(&c->bar);
+    s = 0; s2 = 0;
+    for (j = 0; j < {nx}; ++j) sx[j] = cs[j] = 0;
+    for (q = 0; q < nch; ++q) {{
+      pc = c->part + q * {name}_PW;
+      s += pc[2]; s2 += pc[3];
+      for (j = 0; j < {nx}; ++j) {{ sx[j] += pc[4 + j]; cs[j] += pc[4 + {nx} + j]; }}
+    }}
+    lse = m + log(s);
+    redo = s * s / s2 <= c->fl[0];
+    if (tau == 0) {{
+      c->o_ll[k] = lse;
+      c->o_ess[k] = s * s / s2;
+      c->o_res[k] = (casadi_real) redo;
+      if (c->o_x) for (j = 0; j < {nx}; ++j) c->o_x[k * {nx} + j] = {name}_ax[j] ? atan2(sx[j], cs[j]) : sx[j] / s;
+      if (c->o_P || (redo && reg))  /* the covariance about the mean */
+        {name}_mom(Xn, N, {nx}, c->e, s, {name}_ax, sn, c->o_P ? c->o_P + k * {nx} * {nx} : c->cov);
+    }}
+    if (!redo) {{
+      for (i = a0; i < a1; ++i) c->lw[i] = c->t[i] - lse;
+      tmp = X; X = Xn; Xn = tmp;
+      continue;
+    }}
+    if (tau == 0) {{  /* resampling points, ascending on [0, N) */
+      casadi_real* sc = c->sc;
+      if (c->uext) memcpy(sc, c->uext + k * N, N * sizeof(casadi_real));
+      else if (c->opt[0] == 0) {{ pt = symmon_uniform(rs); for (i = 0; i < N; ++i) sc[i] = pt + (casadi_real) i; }}
+      else if (c->opt[0] == 1) {{ for (i = 0; i < N; ++i) sc[i] = symmon_uniform(rs) + (casadi_real) i; }}
+      else {{  /* sorted uniforms as normalised sums of exponential spacings */
+        cum = 0;
+        for (i = 0; i < N; ++i) {{ cum += -log1p(-symmon_uniform(rs)); sc[i] = cum; }}
+        cum += -log1p(-symmon_uniform(rs));
+        for (i = 0; i < N; ++i) sc[i] *= (casadi_real) N / cum;
+      }}
+      if (reg) {name}_chol(c->o_P ? c->o_P + k * {nx} * {nx} : c->cov, c->L);
+    }}
+    {name}_bwait(&c->bar);
+    /* the walk along the cumulative weights, by input chunk: chunk q holds the points in
+       [S_q, S_(q+1)) x N / s, S_q the sum of e over the chunks before it */
+    scale = (casadi_real) N / s;
+    off = 0;
+    for (q = 0; q < c0; ++q) off += c->part[q * {name}_PW + 2];
+    for (q = c0; q < c1; ++q) {{
+      end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
+      lo = q == 0 ? 0 : {name}_lower(c->sc, N, off * scale);
+      j = q * {chunk};
+      cum = (off + c->e[j]) * scale;
+      off += c->part[q * {name}_PW + 2];
+      hi = q == nch - 1 ? N : {name}_lower(c->sc, N, off * scale);
+      for (i = lo; i < hi; ++i) {{
+        pt = c->sc[i];
+        while (cum <= pt && j < end - 1) cum += c->e[++j] * scale;
+        memcpy(X + i * {nx}, Xn + j * {nx}, {nx} * sizeof(casadi_real));
+      }}
+    }}
+    {name}_bwait(&c->bar);
+    for (q = c0; q < c1; ++q) {{  /* regularisation: x += h L eps (Musso, Oudjane & Le Gland 2001) */
+      uint64_t* sg = (uint64_t*) c->st + 4 * q, sl[4];
+      memcpy(sl, sg, sizeof sl);
+      end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
+      for (i = q * {chunk}; i < end; ++i) {{
+        c->lw[i] = -log_n;
+        if (!reg) continue;
+        if (c->jext) memcpy(eps, c->jext + (k * N + i) * {nx}, {nx} * sizeof(casadi_real));
+        else for (j = 0; j < {nx}; ++j) eps[j] = symmon_normal(sl);
+        xi = X + i * {nx};
+        for (a = 0; a < {nx}; ++a) {{
+          ei = 0;
+          for (b = 0; b <= a; ++b) ei += c->L[a * {nx} + b] * eps[b];
+          xi[a] += c->fl[1] * ei;
+          if ({name}_ax[a]) xi[a] = {name}_wrap(xi[a]);
+        }}
+      }}
+      memcpy(sg, sl, sizeof sl);
+    }}
   }}
-  *mx = m;
-  return bad ? 2 : 0;
+  if (X != c->X0) memcpy(c->X0 + a0 * {nx}, X + a0 * {nx}, (a1 - a0) * {nx} * sizeof(casadi_real));  /* own rows */
+  return 0;
 }}
 
-/* symmon: pass 2: e = exp(t - m); acc += [sum e, sum e^2, sum e x]. */
-CASADI_SYMBOL_EXPORT void {name}_sums(const casadi_real* xn, const casadi_real* t, casadi_real m,
-    casadi_real* e, casadi_int n, casadi_real* acc) {{
-  casadi_real s = 0, s2 = 0, sx[{nx}], ei;
-  casadi_int i, j;
-  const casadi_real* xi;
-  for (j = 0; j < {nx}; ++j) sx[j] = 0;
-  for (i = 0; i < n; ++i) {{
-    ei = exp(t[i] - m);
-    e[i] = ei;
-    s += ei;
-    s2 += ei * ei;
-    xi = xn + i * {nx};
-    for (j = 0; j < {nx}; ++j) sx[j] += ei * xi[j];
-  }}
-  acc[0] = s;
-  acc[1] = s2;
-  for (j = 0; j < {nx}; ++j) acc[2 + j] = sx[j];
+typedef struct {{ {name}_ctx* c; int tau; casadi_int* iw; casadi_real* w; int ret; }} {name}_arg;
+static void* {name}_thread(void* p) {{
+  {name}_arg* a = ({name}_arg*) p;
+  pthread_mutex_lock(&a->c->gate);  /* wait until every thread is made and T is final */
+  pthread_mutex_unlock(&a->c->gate);
+  a->ret = {name}_body(a->c, a->tau, a->iw, a->w);
+  return 0;
 }}
 
-/* symmon: pass 3: row i of out is the row of x whose cumulative weight interval, on the
-   scale N / total, holds point i (pts ascending; NULL: the systematic points u + i). */
-CASADI_SYMBOL_EXPORT void {name}_resample(const casadi_real* e, casadi_real total, const casadi_real* pts,
-    casadi_real u, casadi_int n, const casadi_real* x, casadi_real* out) {{
-  casadi_real scale = (casadi_real) n / total, cum = e[0] * scale, pt;
-  casadi_int i, j = 0;
-  for (i = 0; i < n; ++i) {{
-    pt = pts ? pts[i] : u + (casadi_real) i;
-    while (cum <= pt && j < n - 1) cum += e[++j] * scale;
-    memcpy(out + i * {nx}, x + j * {nx}, {nx} * sizeof(casadi_real));
+/* symmon: the K steps of the bootstrap filter for one run on T threads over particle chunks
+   (module notes).  P: K rows of the call's parameters; X holds the N initial particles (on
+   return: the final ones, and lw their normalised log-weights); Xn,
+   t, e, lw, sc: work (N x n, N, N, N, N); hx: N x ny or NULL; part: ceil(N / CHUNK) x
+   (4 + 2n); st: ceil(N / CHUNK) + 1 xoshiro states (the chunks', then the resampling
+   stream); zext, uext, jext: replayed move normals (K x N x nq), resampling points (K x N,
+   ascending in [0, N)) and jitter normals (K x N x nx), or NULL to draw; opt = [scheme (0
+   systematic, 1 stratified, 2 multinomial), regularise]; fl = [ESS threshold x N,
+   bandwidth h]; outputs per step (NULL: not wanted); iw, w: T work arrays of isz, wsz. */
+CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_int N, casadi_real* X0,
+    casadi_real* Xn0, casadi_real* t, casadi_real* e, casadi_real* lw, casadi_real* sc, casadi_real* hx,
+    casadi_real* part, unsigned long long* st, const casadi_real* zext, const casadi_real* uext,
+    const casadi_real* jext, const casadi_int* opt, const casadi_real* fl, casadi_real* o_ll, casadi_real* o_ess,
+    casadi_real* o_res, casadi_real* o_x, casadi_real* o_P, casadi_real* o_xp, casadi_real* o_Pp,
+    casadi_real* o_hm, casadi_real* o_hS, casadi_int* iw, casadi_real* w, casadi_int isz, casadi_int wsz,
+    casadi_int T, casadi_int* fail) {{
+  {name}_ctx c;
+  {name}_arg args[64];
+  pthread_t th[64];
+  casadi_real cov[{nx} * {nx}], L[{nx} * {nx}];
+  int tau, ret = 0, started = 0;
+  c.P = P; c.K = K; c.N = N; c.nch = (N + {chunk} - 1) / {chunk};
+  c.X0 = X0; c.Xn0 = Xn0; c.t = t; c.e = e; c.lw = lw; c.sc = sc; c.hx = hx; c.part = part; c.st = st;
+  c.zext = zext; c.uext = uext; c.jext = jext; c.opt = opt; c.fl = fl; c.o_ll = o_ll; c.o_ess = o_ess;
+  c.o_res = o_res; c.o_x = o_x; c.o_P = o_P; c.o_xp = o_xp; c.o_Pp = o_Pp; c.o_hm = o_hm; c.o_hS = o_hS;
+  c.cov = cov; c.L = L; c.fail = fail;
+  if (T > c.nch) T = c.nch;
+  if (T > 64) T = 64;
+  if (T < 1) T = 1;
+  c.T = (int) T;
+  c.bar.T = (int) T; c.bar.count = 0; c.bar.gen = 0;
+  pthread_mutex_init(&c.bar.mu, 0);
+  pthread_cond_init(&c.bar.cv, 0);
+  pthread_mutex_init(&c.gate, 0);
+  pthread_mutex_lock(&c.gate);
+  for (tau = 0; tau < T; ++tau) {{
+    args[tau].c = &c; args[tau].tau = tau; args[tau].iw = iw + tau * isz; args[tau].w = w + tau * wsz;
+    args[tau].ret = 0;
   }}
+  for (tau = 1; tau < T; ++tau) {{
+    if (pthread_create(&th[tau], 0, {name}_thread, &args[tau])) break;
+    started = tau;
+  }}
+  c.T = c.bar.T = started + 1;  /* fewer threads if one could not be made */
+  pthread_mutex_unlock(&c.gate);
+  {name}_thread(&args[0]);
+  for (tau = 1; tau <= started; ++tau) pthread_join(th[tau], 0);
+  pthread_mutex_destroy(&c.bar.mu);
+  pthread_cond_destroy(&c.bar.cv);
+  pthread_mutex_destroy(&c.gate);
+  for (tau = 0; tau <= started; ++tau) if (args[tau].ret > ret) ret = args[tau].ret;
+  return ret;
 }}
 """
 
@@ -175,46 +440,59 @@ class BootstrapKernel:
                              ["xn", "ll", "hx"], {"cse": True})
         self.n_p = p.numel()
         self._work = WorkArrays(self.f)
-        code = generated_c(self.f) + _DRIVER.format(name=name, sz_arg=max(self.f.sz_arg(), 3),
-                                                    sz_res=max(self.f.sz_res(), 3), nx=n, nq=n_q, ny=ny)
+        self.angle_states = tuple(angle_states)
+        flags = lambda idx, d: ", ".join("1" if i in idx else "0" for i in range(d))  # noqa: E731
+        code = RNG_C + generated_c(self.f) + _DRIVER.format(
+            name=name, sz_arg=max(self.f.sz_arg(), 3), sz_res=max(self.f.sz_res(), 3), nx=n, nq=max(n_q, 1), ny=ny,
+            n_p=self.n_p, dm=max(n, ny), chunk=CHUNK, ax=flags(angle_states, n), ay=flags(angle_outputs, ny))
 
         def load(so):
             lib = ctypes.CDLL(str(so))
-            prop = getattr(lib, f"{name}_prop")
-            prop.argtypes = [ctypes.c_void_p] * 7 + [ctypes.c_longlong] + [ctypes.c_void_p] * 3
-            prop.restype = ctypes.c_int
-            sums = getattr(lib, f"{name}_sums")
-            sums.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double, ctypes.c_void_p,
-                             ctypes.c_longlong, ctypes.c_void_p]
-            sums.restype = None
-            res = getattr(lib, f"{name}_resample")
-            res.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_void_p, ctypes.c_double,
-                            ctypes.c_longlong, ctypes.c_void_p, ctypes.c_void_p]
-            res.restype = None
-            return prop, sums, res
+            run = getattr(lib, f"{name}_run")
+            run.argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_longlong] + [ctypes.c_void_p] * 25
+                            + [ctypes.c_longlong] * 3 + [ctypes.c_void_p])
+            run.restype = ctypes.c_int
+            normals = getattr(lib, f"{name}_normals")
+            normals.argtypes = [ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p]
+            normals.restype = None
+            return run, normals
 
         self._native: NativeLibrary = cf.native_library(code, name, load, stacklevel=4)
         self._Lq_size = nnz
 
     def loops(self):
-        """The three ctypes functions (prop, sums, resample), or None while the C is not there
-        (no compiler, or a background build running: the caller takes the NumPy path)."""
+        """The ctypes functions (run, normals), or None while the C is not there (no
+        compiler, or a background build running: the caller takes the NumPy path)."""
         return self._native.get()
 
-    def pack(self, theta: np.ndarray | None, Lq: np.ndarray, y: np.ndarray, A: np.ndarray, c: float) -> np.ndarray:
-        """The parameter vector of one run's call (class notes); y with NaN for missing."""
-        p = np.zeros(self.n_p)
+    def pack(self, theta: np.ndarray | None, Lq: np.ndarray, Y: np.ndarray, white) -> np.ndarray:
+        """The parameter vectors (R, K, n_p) of every run and step (class notes): θ (R, K,
+        n_par) or None, L_Q, the measurements Y (R, K, n_y) with NaN for missing, and
+        ``white(mask)`` → (A, c), the whitening of the measured components ``mask``."""
+        R, K, ny = Y.shape
+        p = np.zeros((R, K, self.n_p))
         o = self.n_par
         if o:
-            p[:o] = theta
-        p[o:o + self._Lq_size] = Lq.T[self.Lq_pattern.T]
+            p[..., :o] = theta
+        p[..., o:o + self._Lq_size] = Lq.T[self.Lq_pattern.T]
         o += self._Lq_size
-        measured = ~np.isnan(y)
-        p[o:o + self.n_y] = np.where(measured, y, 0.0)
-        p[o + self.n_y:o + 2 * self.n_y] = measured
-        o += 2 * self.n_y
-        p[o:o + A.size] = A.ravel(order="F")
-        p[-1] = c
+        measured = ~np.isnan(Y)
+        p[..., o:o + ny] = np.where(measured, Y, 0.0)
+        p[..., o + ny:o + 2 * ny] = measured
+        o += 2 * ny
+        flat = p.reshape(-1, self.n_p)
+        if measured.all():  # the common case: one pattern
+            A, c = white(np.ones(ny, dtype=bool))
+            flat[:, o:o + ny * ny] = A.ravel(order="F")
+            flat[:, -1] = c
+            return p
+        codes = np.packbits(measured.reshape(-1, ny), axis=1, bitorder="little")
+        codes = codes.view(np.dtype((np.void, codes.shape[1]))).ravel()
+        for code in np.unique(codes):
+            rows = codes == code
+            A, c = white(measured.reshape(-1, ny)[np.argmax(rows)])
+            flat[rows, o:o + ny * ny] = A.ravel(order="F")
+            flat[rows, -1] = c
         return p
 
     def work(self) -> tuple[int, int]:

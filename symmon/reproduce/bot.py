@@ -27,7 +27,11 @@ The filters, each on the same runs:
 * ``mon_gsf``: a :class:`symmon.GaussianSumFilter` of EKF components from the single
   Gaussian prior, a component split whenever its unitless MoN (W^full) exceeds
   :data:`SPLIT` (at most :data:`MAX_COMPONENTS` components);
-* ``pf``: the bootstrap :class:`symmon.ParticleFilter` (systematic resampling at ESS ≤ N/2).
+* ``pf``: the bootstrap :class:`symmon.ParticleFilter` (systematic resampling at ESS ≤ N/2);
+* ``rpf``: the same with ``regularise=True``, the post-regularised particle filter of Musso,
+  Oudjane & Le Gland (2001): after each resampling a Gaussian-kernel jitter h_opt · L ε
+  (L the Cholesky factor of the weighted particle covariance), which keeps the particles
+  distinct under this small process noise.
 
 Statistics against the scan k: the position RMSE over the runs, the ANEES (n = 4) with its
 two-sided 95 % χ² interval [χ²_{4R}(0.025), χ²_{4R}(0.975)]/R (Bar-Shalom, Li & Kirubarajan
@@ -47,6 +51,9 @@ M. S. Arulampalam, B. Ristic, "Comparison of the particle filter with range-para
 modified polar EKFs for angle-only tracking", Proc. SPIE 4048, 2000. doi:10.1117/12.391979
 B. Ristic, S. Arulampalam, N. Gordon, *Beyond the Kalman Filter: Particle Filters for
 Tracking Applications*, Artech House, 2004, ch. 6.
+C. Musso, N. Oudjane, F. Le Gland, "Improving regularised particle filters", in A. Doucet,
+N. de Freitas, N. Gordon (eds.), *Sequential Monte Carlo Methods in Practice*, Springer,
+2001, ch. 12.
 N. Peach, "Bearings-only tracking using a set of range-parameterised extended Kalman
 filters", IEE Proc. Control Theory Appl. 142(1), 1995.
 O. Straka, J. Havlík, "Design of unitless normalized measure of nonlinearity for state
@@ -85,10 +92,10 @@ __all__ = ["OUTPUTS", "FILTER_NAMES", "LABELS", "Scenario", "scenario", "prior",
 #: The files :func:`run` writes into its directory.
 OUTPUTS = ("bot.png", "bot_steps.csv")
 #: The filters, in the order of the tables and the legend.
-FILTER_NAMES = ("ekf", "ukf", "rp_gsf", "mon_gsf", "pf")
+FILTER_NAMES = ("ekf", "ukf", "rp_gsf", "mon_gsf", "pf", "rpf")
 #: Their names in the figure.
 LABELS = {"ekf": "EKF", "ukf": "UKF", "rp_gsf": "range-parameterised GSF", "mon_gsf": "MoN-split GSF",
-          "pf": "particle filter"}
+          "pf": "bootstrap PF", "rpf": "regularised PF"}
 #: Default Monte Carlo runs and particles per run.
 RUNS, PARTICLES = 200, 2000
 #: The MoN-split GSF splits a component whose MoN (W^full) exceeds this; at most this many components.
@@ -289,6 +296,8 @@ def study(runs: int = RUNS, particles: int = PARTICLES, seed: int = 0, steps: in
                                               max_components=MAX_COMPONENTS), sc.x0),
         "pf": lambda: (ParticleFilter(sc.f, sc.h, sc.Q, sc.R, particles=particles,
                                       seed=int(s_pf.generate_state(1)[0] % 2**31)), sc.truth),
+        "rpf": lambda: (ParticleFilter(sc.f, sc.h, sc.Q, sc.R, particles=particles, regularise=True,
+                                       seed=int(s_pf.generate_state(1)[0] % 2**31)), sc.truth),
     }
     out: dict[str, Any] = {"sc": sc, "xs": xs, "ys": ys, "runs": runs, "particles": particles, "seed": seed,
                            "filters": {}}
@@ -310,7 +319,7 @@ def study(runs: int = RUNS, particles: int = PARTICLES, seed: int = 0, steps: in
             d["components"] = res.components
         else:
             d["mon"] = mon_tt2(sc.h, sc.R, res.x_pred, res.P_pred)
-        if name == "pf":
+        if name in ("pf", "rpf"):
             d["ess"] = res.ess
         out["filters"][name] = d
     return out
@@ -335,13 +344,13 @@ def step_rows(st: dict[str, Any]) -> list[list]:
 
 STYLES = {"ekf": (OKABE_ITO["vermillion"], "-", "o"), "ukf": (OKABE_ITO["orange"], "--", "s"),
           "rp_gsf": (OKABE_ITO["blue"], "-.", "^"), "mon_gsf": (OKABE_ITO["bluish green"], "-", "D"),
-          "pf": (OKABE_ITO["black"], ":", None)}
+          "pf": (OKABE_ITO["black"], ":", None), "rpf": (OKABE_ITO["reddish purple"], "-", "v")}
 
 
 def caption(st: dict[str, Any]) -> str:
     """The figure's caption (PNG metadata and docs)."""
     return (f"Bearings-only tracking after Arulampalam & Ristic (2000): {st['runs']} Monte Carlo runs, seed "
-            f"{st['seed']}, particle filter with {st['particles']} particles. (a) observer and target tracks "
+            f"{st['seed']}, bootstrap and regularised particle filters with {st['particles']} particles. (a) observer and target tracks "
             "(nominal target; triangle: the observer at scan 0); (b) position RMSE; (c) ANEES with its two-sided 95 % chi-square interval (grey); "
             "values above 1000 are off the axis (the table has them); (d) unitless MoN (W^full, TT2) of the bearing at each filter's prior, median over the runs.")
 
@@ -349,6 +358,7 @@ def caption(st: dict[str, Any]) -> str:
 def _plot(st: dict[str, Any], path: Path, fmt: str = "png") -> Path:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+    from matplotlib.ticker import FuncFormatter
 
     sc = st["sc"]
     fig = Figure(figsize=(7.2, 6.0), layout="constrained")
@@ -384,9 +394,14 @@ def _plot(st: dict[str, Any], path: Path, fmt: str = "png") -> Path:
     # The axis shows the band and the filters near it; larger values are drawn off the axis.
     top = ANEES_AXIS_TOP
     ax_a.set_ylim(1.0, top)
+    plain = FuncFormatter(lambda v, _: f"{v:g}")  # 1, 10, 100, 1000 and 0.03, 0.1, 0.2: plain numbers
+    ax_a.yaxis.set_major_formatter(plain)
+    ax_m.yaxis.set_major_formatter(plain)
+    ax_m.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}" if round(v / 10 ** math.floor(math.log10(v)))
+                                                 in (2, 3, 5) else ""))
     off = [LABELS[n] for n, d in st["filters"].items() if np.max(d["anees"].value) > top]
     if off:
-        ax_a.text(0.02, 0.97, f"beyond {top:.0e} (off the axis): " + ", ".join(off), transform=ax_a.transAxes,
+        ax_a.text(0.02, 0.97, f"above {top:.0f} (off the axis): " + ", ".join(off), transform=ax_a.transAxes,
                   fontsize=7, va="top")
     for ax in (ax_r, ax_a, ax_m):
         ax.axvspan(13, 17, color=OKABE_ITO["sky blue"], alpha=0.15, lw=0)

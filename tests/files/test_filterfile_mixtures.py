@@ -40,13 +40,13 @@ def scenario(tmp_path):
 
 def test_settings_reach_the_filters(scenario) -> None:
     spec = load_filter_file(scenario('[gsf]\ntransform = "ekf"\nsplit = 0.05\nmax_components = 5\n'
-                                     '[pf]\nparticles = 300\nseed = 3\n'))
+                                     '[pf]\nparticles = 300\nseed = 3\nregularise = true\n'))
     assert spec.settings == {"gsf": {"transform": "ekf", "split": 0.05, "max_components": 5},
-                             "pf": {"particles": 300, "seed": 3}}
+                             "pf": {"particles": 300, "seed": 3, "regularise": True}}
     gsf = make_filter("gsf", spec.f, spec.h, spec.Q, spec.R, settings=spec.settings)
     assert isinstance(gsf, sm.GaussianSumFilter) and gsf.transform == sm.TT1() and gsf.split == 0.05
     pf = make_filter("pf", spec.f, spec.h, spec.Q, spec.R, settings=spec.settings)
-    assert isinstance(pf, sm.ParticleFilter) and pf.particles == 300 and pf.seed == 3
+    assert isinstance(pf, sm.ParticleFilter) and pf.particles == 300 and pf.seed == 3 and pf.regularise
     xs, ys = sm.simulate(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, runs=4, seed=1)
     rows = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, ["ekf", "gsf", "pf"], settings=spec.settings)
     assert all(r.error is None for r in rows), [r.error for r in rows]
@@ -57,6 +57,7 @@ def test_settings_reach_the_filters(scenario) -> None:
     ("[gsf]\nsplits = 0.1\n", "unknown setting"),
     ("[gsf]\nsplit = \"big\"\n", "a number"),
     ("[pf]\nparticles = 1.5\n", "an integer"),
+    ("[pf]\nregularise = 1\n", "true or false"),
     ("[gsf]\nsplit = 2.0\n", "split must be"),
     ("[gsf]\ntransform = \"kalman\"\n", "unknown filter"),
 ])

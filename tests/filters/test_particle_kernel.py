@@ -1,16 +1,21 @@
-"""The compiled bootstrap step of sm.ParticleFilter (symmon/filters/pf_kernel.py) against its
-NumPy twin, the loop of ParticleFilter.filter that runs for the other proposals.
+"""The compiled bootstrap recursion of sm.ParticleFilter (symmon/filters/pf_kernel.py) against
+its NumPy twin, the loop of ParticleFilter.filter that runs for the other proposals, and the
+C random numbers (symmon/filters/pf_rng.py).
 
-Both draw the same normals and resampling uniforms in the same order, so with the same seed
-they must give the same particles: every output agrees to rounding (1e-9 absolute on means
-of order 10, far below the Monte Carlo error of ~1e-2 at N = 400, and far above the 1e-13
-the two differ by in summation order), and the resampling decisions agree exactly.  The
-cases cover what the kernel compiles in: a full (non-diagonal) Q whose factor has every
-nonzero, f with noise symbols, a parameter per step, an angle state and an angle output,
-missing components and a missing step, a bank of runs, and each resampling scheme.
+The compiled path draws its normals and resampling uniforms in C; given the same draws
+(``_replay``: the move normals, the resampling points and the regularisation's normals, fed
+to both paths) the two must give the same particles: every output agrees to rounding (1e-9
+absolute on means of order 10, far below the Monte Carlo error of ~1e-2 at N = 400, and far
+above the 1e-13 the two differ by in summation order), and the resampling decisions agree
+exactly.  The cases cover what the kernel compiles in: a full (non-diagonal) Q whose factor
+has every nonzero, f with noise symbols, a parameter per step, an angle state and an angle
+output, missing components and a missing step, a bank of runs, each resampling scheme, and
+the regularisation.
 """
 
 from __future__ import annotations
+
+import threading
 
 import numpy as np
 import pytest
@@ -18,7 +23,9 @@ import sympy as sp
 
 import symmon as sm
 from symmon.compile import has_compiler
+from symmon.filters.particle import resampling_points
 from symmon.filters.pf_kernel import whitening
+from symmon.filters.pf_rng import CHUNK
 
 pytestmark = pytest.mark.skipif(not has_compiler(), reason="the compiled step needs a C compiler")
 
@@ -35,7 +42,8 @@ K = 6
 def numpy_twin(pf: sm.ParticleFilter) -> sm.ParticleFilter:
     """The same filter with the compiled step switched off (its cached kernel set to None)."""
     twin = sm.ParticleFilter(pf.f_model, pf.h_model, pf.Q, pf.R, particles=pf.particles,
-                             resample=pf.resample, ess_threshold=pf.ess_threshold, seed=pf.seed)
+                             resample=pf.resample, ess_threshold=pf.ess_threshold, seed=pf.seed,
+                             regularise=pf.regularise)
     twin.__dict__["_bootstrap_kernel"] = None
     return twin
 
@@ -49,19 +57,53 @@ def data():
     return xs, ys
 
 
-@pytest.mark.parametrize("method, threshold", [("systematic", 0.7), ("stratified", 1.0), ("multinomial", 0.5)])
-def test_the_compiled_step_equals_its_numpy_twin(data, method, threshold):
+def replay(pf: sm.ParticleFilter, runs: int, seed: int) -> dict:
+    """Draws for both paths: move normals, ascending resampling points of the filter's
+    scheme on [0, N), jitter normals."""
+    g = np.random.default_rng(seed)
+    N, nq, n = pf.particles, pf.space.Lq.shape[0], pf.space.n
+    z = g.standard_normal((runs, K, N, nq))
+    u = np.array([[resampling_points(pf.resample, g, N) for _ in range(K)] for _ in range(runs)])
+    return {"z": z, "u": u, "j": g.standard_normal((runs, K, N, n))}
+
+
+@pytest.mark.parametrize("method, threshold, reg", [("systematic", 0.7, False), ("stratified", 1.0, True),
+                                                     ("multinomial", 0.5, False)])
+def test_the_compiled_step_equals_its_numpy_twin(data, method, threshold, reg):
     xs, ys = data
-    pf = sm.ParticleFilter(F, H, Q, R, particles=400, resample=method, ess_threshold=threshold, seed=7)
+    pf = sm.ParticleFilter(F, H, Q, R, particles=400, resample=method, ess_threshold=threshold, seed=7,
+                           regularise=reg)
     assert pf._bootstrap_kernel is not None and pf._bootstrap_kernel.loops() is not None
+    twin = numpy_twin(pf)
+    draws = replay(pf, 2, 11)
+    object.__setattr__(pf, "_replay", draws)
+    object.__setattr__(twin, "_replay", draws)
     params = {"a": np.tile(np.linspace(0.4, 0.6, K), (2, 1))}
     got = pf.filter(ys, X0, params=params, x_true=xs)
-    ref = numpy_twin(pf).filter(ys, X0, params=params, x_true=xs)
+    ref = twin.filter(ys, X0, params=params, x_true=xs)
     np.testing.assert_array_equal(got.resampled, ref.resampled)
+    assert got.resampled.any() and (threshold == 1.0 or not got.resampled.all())
     for name in ("x", "P", "x_pred", "P_pred", "innovation", "S", "nis_values", "nees_values", "loglik", "ess"):
         np.testing.assert_allclose(getattr(got, name), getattr(ref, name), rtol=1e-9, atol=1e-9, err_msg=name)
     assert np.all(got.loglik[1, 4] == 0.0)  # no measurement: log Σ W = 0 exactly
     assert np.all(np.abs(got.x[..., 2]) <= np.pi)
+
+
+def test_the_numbers_of_a_seed_do_not_depend_on_the_threads():
+    """N = 3000 is three streams of CHUNK particles: on the main thread the run uses
+    min(CPUs, chunks) C threads, on another thread one (row_spans); the result is the same
+    bit for bit (every reduction is per chunk, in chunk order)."""
+    xs, ys = sm.simulate(F, H, Q, R, X0, K, params={"a": 0.5}, seed=4)
+    pf = sm.ParticleFilter(F, H, Q, R, particles=3 * CHUNK - 100, ess_threshold=0.8, seed=5, regularise=True)
+    main = pf.filter(ys, X0, params={"a": 0.5})
+    box = {}
+    t = threading.Thread(target=lambda: box.setdefault("r", pf.filter(ys, X0, params={"a": 0.5})))
+    t.start()
+    t.join()
+    other = box["r"]
+    for name in ("x", "P", "loglik", "ess", "innovation"):
+        np.testing.assert_array_equal(getattr(main, name), getattr(other, name), err_msg=name)
+    assert main.resampled.any()
 
 
 def test_keeping_only_the_mean_gives_the_same_mean(data):

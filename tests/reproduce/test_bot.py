@@ -64,7 +64,7 @@ def test_particle_and_component_columns(table):
     _, rows = table
     for r in rows:
         comps = float(r["components_mean"])
-        if r["filter"] == "pf":
+        if r["filter"] in ("pf", "rpf"):
             assert 1.0 <= float(r["ess_mean"]) <= PARTICLES and 0 <= int(r["collapsed_runs"]) <= RUNS
         else:
             assert r["ess_mean"] == r["collapsed_runs"] == ""

@@ -1,0 +1,89 @@
+"""The particle filter's C random numbers (symmon/filters/pf_rng.py): xoshiro256++ streams and
+a 256-layer ziggurat (Marsaglia & Tsang 2000), drawn through the kernel's ``normals`` entry.
+
+References that do not share the generator: the standard normal's moments and CDF (scipy),
+and the ziggurat's own defining property (layers of equal area).  Tolerances: 5 standard
+errors of the statistic at the fixed seed (mean: 1/√n, variance: √(2/n), fourth moment:
+√(96/n), tail fraction: √(p(1−p)/n)); the Kolmogorov–Smirnov statistic below its 0.1 %
+critical value 1.95/√n.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import sympy as sp
+from scipy import stats
+
+import symmon as sm
+from symmon.compile import has_compiler
+from symmon.filters.pf_rng import STREAM_TAG, stream_states, ziggurat_edges
+
+pytestmark = pytest.mark.skipif(not has_compiler(), reason="the generator is compiled C")
+DRAWS = 100_000
+
+
+@pytest.fixture(scope="module")
+def normals():
+    """The kernel's C function: count normals of one xoshiro state (advanced in place)."""
+    x = sp.Symbol("x", real=True)
+    f, h = sm.Model([x], [0.5 * x], name="pfr_f"), sm.Model([x], [x], name="pfr_h")
+    pf = sm.ParticleFilter(f, h, [[1.0]], [[1.0]], particles=10)
+    fn = pf._bootstrap_kernel.loops()[1]
+
+    def draw(state: np.ndarray, count: int) -> np.ndarray:
+        out = np.empty(count)
+        fn(state.ctypes.data, count, out.ctypes.data)
+        return out
+    return draw
+
+
+def states(seed: int, streams: int) -> np.ndarray:
+    return stream_states(np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0]), streams)
+
+
+def test_the_ziggurat_layers_have_equal_area_and_close():
+    x, v = ziggurat_edges()
+    f = np.exp(-0.5 * x**2)
+    assert x[0] * f[1] == pytest.approx(v, rel=1e-14)  # the base: rectangle to r plus the tail
+    areas = x[1:256] * (f[2:257] - f[1:256])  # layer i: width x_i, from f(x_i) up to f(x_(i+1))
+    np.testing.assert_allclose(areas, v, rtol=1e-9)
+    assert x[256] == 0.0 and np.all(np.diff(x) < 0)
+
+
+def test_moments_and_ks_of_the_normals(normals):
+    z = normals(states(1, 1)[0].copy(), DRAWS)
+    n = z.size
+    assert abs(z.mean()) < 5 / math.sqrt(n)
+    assert abs(z.var() - 1) < 5 * math.sqrt(2 / n)
+    assert abs((z**4).mean() - 3) < 5 * math.sqrt(96 / n)
+    assert abs(stats.skew(z)) < 5 * math.sqrt(6 / n)
+    assert stats.kstest(z, "norm").statistic < 1.95 / math.sqrt(n)
+    # the tail beyond the base layer's edge r (Marsaglia's method) has its normal mass
+    r = ziggurat_edges()[0][1]
+    p = 2 * stats.norm.sf(r)
+    assert abs(np.mean(np.abs(z) > r) - p) < 5 * math.sqrt(p * (1 - p) / n)
+
+
+def test_streams_are_reproducible_and_independent(normals):
+    st = states(2, 3)
+    a = normals(st[0].copy(), DRAWS)
+    np.testing.assert_array_equal(a, normals(states(2, 3)[0].copy(), DRAWS))  # the same seed, the same draws
+    b, c = normals(st[1].copy(), DRAWS), normals(states(3, 1)[0].copy(), DRAWS)
+    for u in (b, c):  # another chunk, another seed: uncorrelated, also lagged by one
+        assert abs(np.corrcoef(a, u)[0, 1]) < 5 / math.sqrt(DRAWS)
+        assert abs(np.corrcoef(a[1:], u[:-1])[0, 1]) < 5 / math.sqrt(DRAWS)
+    assert abs(np.corrcoef(a[1:], a[:-1])[0, 1]) < 5 / math.sqrt(DRAWS)  # serially uncorrelated
+    # two independent N(0, 1) samples: their difference / √2 is N(0, 1) too
+    assert stats.kstest((a - b) / math.sqrt(2), "norm").statistic < 1.95 / math.sqrt(DRAWS)
+
+
+def test_stream_states_do_not_depend_on_how_many_are_made():
+    np.testing.assert_array_equal(states(4, 2), states(4, 7)[:2])
+    assert len({tuple(s) for s in states(4, 50)}) == 50
+    g = np.random.default_rng(np.random.SeedSequence(4).spawn(1)[0])
+    ss = g.bit_generator.seed_seq
+    words = np.random.SeedSequence(ss.entropy, spawn_key=ss.spawn_key + (STREAM_TAG,)).generate_state(8, np.uint64)
+    np.testing.assert_array_equal(states(4, 2).ravel(), words)
