@@ -149,6 +149,16 @@ def ut_weights(n: int):
     return wm, wc, np.sqrt(n + lam)
 
 
+def batched_update(xp, Pp, yp, S, C, y, ang):
+    """The Kalman update of every run at once (gain by a batched solve, the angle outputs'
+    innovations wrapped, P⁺ symmetrised), shared by the NumPy UKF and EKF banks."""
+    G = np.linalg.solve(S, C.transpose(0, 2, 1)).transpose(0, 2, 1)
+    nu = y - yp
+    nu[:, ang] = wrap(nu[:, ang])
+    P = Pp - G @ S @ G.transpose(0, 2, 1)
+    return xp + np.einsum("rab,rb->ra", G, nu), 0.5 * (P + P.transpose(0, 2, 1))
+
+
 def numpy_ukf_bank(p, ys):
     """Every run at once: the UKF (``UT(1, 2, 0)``) of symmon with batched NumPy."""
     runs, K, _ = ys.shape
@@ -184,12 +194,7 @@ def numpy_ukf_bank(p, ys):
         dY[..., ang] = wrap(dY[..., ang])
         S = np.einsum("j,rja,rjb->rab", wc, dY, dY) + p.R
         C = np.einsum("j,rja,rjb->rab", wc, X - xp[:, None], dY)
-        G = np.linalg.solve(S, C.transpose(0, 2, 1)).transpose(0, 2, 1)
-        nu = ys[:, k] - yp
-        nu[:, ang] = wrap(nu[:, ang])
-        x = xp + np.einsum("rab,rb->ra", G, nu)
-        P = Pp - G @ S @ G.transpose(0, 2, 1)
-        P = 0.5 * (P + P.transpose(0, 2, 1))
+        x, P = batched_update(xp, Pp, yp, S, C, ys[:, k], ang)
         xs[:, k], Ps[:, k] = x, P
     return xs, Ps
 
@@ -215,12 +220,7 @@ def numpy_ekf_bank(p, ys):
         H = np.stack([np.broadcast_to(e, (runs,)) for e in Hx(*cols)], axis=-1).reshape(runs, p.n_y, n)
         C = Pp @ H.transpose(0, 2, 1)
         S = H @ C + p.R
-        G = np.linalg.solve(S, C.transpose(0, 2, 1)).transpose(0, 2, 1)
-        nu = ys[:, k] - yp
-        nu[:, ang] = wrap(nu[:, ang])
-        x = xp + np.einsum("rab,rb->ra", G, nu)
-        P = Pp - G @ S @ G.transpose(0, 2, 1)
-        P = 0.5 * (P + P.transpose(0, 2, 1))
+        x, P = batched_update(xp, Pp, yp, S, C, ys[:, k], ang)
         xs[:, k], Ps[:, k] = x, P
     return xs, Ps
 
