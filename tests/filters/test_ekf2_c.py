@@ -11,6 +11,8 @@ components).  The bank's threads each run whole runs, so a bank equals its runs 
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import sympy as sp
@@ -18,7 +20,7 @@ import sympy as sp
 import symmon as sm
 from helpers import assert_close_to_scale
 from symmon.filters.ekfstep import C_EKF_FROM, ekf_pieces
-from symmon.filters.step import _compiled_step
+from symmon.filters.step import _compiled_step, chunk_runs
 
 RTOL = 1e-10
 TARGETS = 2
@@ -137,6 +139,11 @@ def test_filter_runs_the_tt2_c_step(setup):
 
 def test_tt2_bank_threads_equal_one_run_at_a_time(setup):
     kf, step, x0, P0, Y, Q, Rm, params, truth = setup
+    # 24 runs (the 4 with 6 sensor positions): enough work for a thread per core.
+    Y, truth = np.tile(Y, (6, 1, 1)), np.tile(truth, (6, 1, 1))
+    params = np.tile(params, (6, 1, 1))
+    params[:, :, 1] += np.repeat(0.1 * np.arange(6), 4)[:, None]
+    assert len(chunk_runs(Y.shape[0], Y.shape[1], N)) == min(2, os.cpu_count() or 1)
     keep = frozenset(("x", "P", "loglik", "nis"))
     bank = step(x0, P0, Y, Q, Rm, keep=keep, params=params, truth=truth)
     for r in range(Y.shape[0]):
