@@ -79,7 +79,8 @@ def _hessian_columns(cm, n: int, z) -> tuple[ca.SX, list[int], list[int]]:
     blocks, sup, off = [], [], [0]
     for H in cm.H_sx:
         Hx = H[:n, :n]
-        cols = [j for j in range(n) if Hx.sparsity().colind()[j + 1] > Hx.sparsity().colind()[j]]
+        starts = Hx.sparsity().colind()
+        cols = [j for j in range(n) if starts[j + 1] > starts[j]]
         blocks.append(Hx[:, cols] if cols else ca.SX(n, 0))
         sup += cols
         off.append(off[-1] + len(cols))
@@ -455,7 +456,8 @@ def ekf_c(name: str, n: int, n_y: int, pattern: dict, iterations: int = 1) -> tu
         scratch += h2 + n * ns + nt + nt * nt + 2 * nt
     code = _STEP.format(name=name, n=n, n_y=n_y, f_col=_ints(pattern["f_col"]), f_row=_ints(pattern["f_row"]),
                         h_col=_ints(pattern["h_col"]), h_row=_ints(pattern["h_row"]), f_nnz=f_nnz, h_nnz=h_nnz,
-                        scratch=scratch, wrap_x=int(pattern["wrap_x"]), iterations=int(iterations), log_2pi=repr(float(np.log(2 * np.pi))),
+                        scratch=scratch, wrap_x=int(pattern["wrap_x"]), iterations=int(iterations),
+                        log_2pi=repr(float(np.log(2 * np.pi))),
                         tt2_f=int(tt2["f"]), tt2_h=int(tt2["h"]), ns=ns, H2=h2, NT=nt,
                         **{f"{tag}2_{key}": _ints(v) for tag in "fh" for key, v in second[tag].items()})
     return code, scratch
