@@ -31,10 +31,11 @@ N = len(X)
 KEYS = ("x", "P", "x_pred", "P_pred", "innovation", "S", "loglik", "nis", "nees", "nees_trace")
 
 
-def models(linear_f: bool = False):
+def models(linear_f: bool = False, coupled: bool = False):
     """Coordinated-turn targets (heading th an angle state; linear_f: constant heading, a
     linear f with the angle state), each with a range bias; range and bearing of each from a
-    sensor at (s, 0): f's parameter dt, h's s."""
+    sensor at (s, 0): f's parameter dt, h's s; coupled: also the distance between the first
+    two targets (a Hessian on both targets' positions, and a P that couples them)."""
     f_out, h_out = [], []
     for px, py, v, th, b in BLOCKS:
         if linear_f:
@@ -42,21 +43,25 @@ def models(linear_f: bool = False):
         else:
             f_out += [px + dt * v * sp.cos(th), py + dt * v * sp.sin(th), v, th + dt * v / 10, b]
         h_out += [sp.sqrt((px - s) ** 2 + py**2) + b, sp.atan2(py, px - s)]
+    if coupled:
+        (a, b), (c, d) = BLOCKS[0][:2], BLOCKS[1][:2]
+        h_out.append(sp.sqrt((a - c) ** 2 + (b - d) ** 2))
     f = sm.Model(X, f_out, angles=[5 * i + 3 for i in range(TARGETS)], params=[dt], name="ct2 targets")
     h = sm.Model(X, h_out, angles=[2 * i + 1 for i in range(TARGETS)], params=[s], name="rb2 targets")
     return f, h
 
 
-def data():
+def data(coupled: bool = False):
     rng = np.random.default_rng(11)
     runs, K = 4, 12
     x0 = np.concatenate([[6.0 + 4 * i, -2.0 + 3 * i, 1.5, 3.0 - 0.5 * i, 0.3] for i in range(TARGETS)])
     # Large heading and speed variances: second-order terms far from negligible.
     P0 = np.diag(np.tile([1.0, 1.0, 0.3, 0.4, 0.1], TARGETS))
     truth = x0 + rng.normal(size=(runs, K, N)) * 0.1
-    hf = sp.lambdify([X, s], models()[1].outputs)
-    Y = np.array([[hf(t, 0.5) for t in run] for run in truth]) + rng.normal(size=(runs, K, 2 * TARGETS)) * 0.05
-    Y[:, :, 1::2] = np.mod(Y[:, :, 1::2] + np.pi, 2 * np.pi) - np.pi
+    hf = sp.lambdify([X, s], models(coupled=coupled)[1].outputs)
+    Y = np.array([[hf(t, 0.5) for t in run] for run in truth])
+    Y += rng.normal(size=Y.shape) * 0.05
+    Y[:, :, 1:2 * TARGETS:2] = np.mod(Y[:, :, 1:2 * TARGETS:2] + np.pi, 2 * np.pi) - np.pi
     Y[0, 3, 2] = np.nan  # a missing range
     Y[1, 5, :] = np.nan  # nothing measured
     Y[2, 7, 1::2] = np.nan  # no bearing
@@ -66,12 +71,14 @@ def data():
     params[3, :, 1] = -0.25  # another sensor position in one run
     Q = np.kron(np.eye(TARGETS), np.diag([0.02, 0.02, 0.01, 1e-2, 1e-4]))
     Rm = np.kron(np.eye(TARGETS), np.diag([0.25, 1e-3]))
+    if coupled:
+        Rm = np.diag(np.append(np.diag(Rm), 0.01))
     return x0, P0, Y, Q, Rm, params, truth
 
 
-def built(linear_f: bool = False):
-    f, h = models(linear_f)
-    x0, P0, Y, Q, Rm, params, truth = data()
+def built(linear_f: bool = False, coupled: bool = False):
+    f, h = models(linear_f, coupled)
+    x0, P0, Y, Q, Rm, params, truth = data(coupled)
     kf = sm.NonlinearKalmanFilter(f, h, Q, Rm, sm.TT2())
     step = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)
     assert step.c_ekf and step._lib.wait(120)
@@ -152,12 +159,17 @@ def test_tt2_bank_threads_equal_one_run_at_a_time(setup):
             np.testing.assert_array_equal(bank[key][r], one[key][0])
 
 
-def test_tt2_c_step_with_an_affine_motion_equals_the_mx_step():
+@pytest.mark.parametrize("linear_f, coupled", [(True, False), (False, True)])
+def test_tt2_c_step_variants_equal_the_mx_step(linear_f, coupled):
     """An affine f with an angle state: no Hessian nonzeros in f (its TT1 part, wrapped),
-    h's second-order terms only."""
-    kf, step, x0, P0, Y, Q, Rm, params, truth = built(linear_f=True)
+    h's second-order terms only.  Coupled targets: an output whose Hessian spans both
+    targets' positions (supports of 2 and 4 states), and a P that couples the targets, so
+    that the terms between outputs of different targets are not zero."""
+    kf, step, x0, P0, Y, Q, Rm, params, truth = built(linear_f, coupled)
     c = step(x0, P0, Y, Q, Rm, params=params, truth=truth)
     vm = step(x0, P0, Y, Q, Rm, use_c=False, params=params, truth=truth)
     for key in KEYS:
         assert np.isfinite(c[key]).all(), key
         assert_close_to_scale(c[key], vm[key], RTOL)
+    if coupled:  # the targets are correlated: the off-block trace terms are exercised
+        assert np.abs(c["P_pred"][:, 1:, :5, 5:]).max() > 1e-3
