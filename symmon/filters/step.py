@@ -23,8 +23,8 @@ the points and solve are loops in C.  Its C code goes through the compile policy
 generated function (cached on disk, ``docs/compile.md``), and a C loop around it runs all
 the steps of all the runs of a filter bank in one call; without a compiler, or while a large
 step builds in the background, the step runs on CasADi's virtual machine.  From
-:data:`~symmon.filters.ekfstep.C_EKF_FROM` states on, the C loop of a TT1 step (EKF, IEKF) with
-additive noise calls the hand-written C step of :mod:`symmon.filters.ekfstep` around CasADi's
+:data:`~symmon.filters.ekfstep.C_EKF_FROM` states on, the C loop of a TT1 or TT2 step (EKF, IEKF, EKF2)
+with additive noise calls the hand-written C step of :mod:`symmon.filters.ekfstep` around CasADi's
 model pieces instead (the MX step remains the VM's).  :class:`symmon.NonlinearKalmanFilter` (:mod:`symmon.filters`)
 and the adaptive filter (:mod:`symmon.filters.adaptive`) run it.
 
@@ -415,15 +415,17 @@ class _CompiledStep(CompiledLoop):
         self.n_p = len(filter_params(f, h))
         self._shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n),
                         "innovation": (n_y,), "S": (n_y, n_y), "loglik": (), "nis": ()}
-        # A larger EKF or IEKF (TT1, additive noise) runs the C step of symmon.filters.ekfstep around
-        # CasADi's model pieces; the MX step fn stays for CasADi's VM (and the fit, the IMM).
-        self.c_ekf = (transform.taylor_order == 1 and not square_root and not f.n_v and not h.n_v
+        # A larger EKF, IEKF or EKF2 (TT1 or TT2, additive noise) runs the C step of
+        # symmon.filters.ekfstep around CasADi's model pieces; the MX step fn stays for CasADi's
+        # VM (and the fit, the IMM).
+        self.c_ekf = (transform.taylor_order in (1, 2) and not square_root and not f.n_v and not h.n_v
                       and n >= C_EKF_FROM)
         if self.c_ekf:
             names = filter_params(f, h)
             xs, ys, ps = ca.SX.sym("x", n), ca.SX.sym("y", n_y), ca.SX.sym("p", len(names))
             pieces, pattern = ekf_pieces(f, h, angle_states, select_params(f, names, ps),
-                                         select_params(h, names, ps), xs, ys, ps, name)
+                                         select_params(h, names, ps), xs, ys, ps, name,
+                                         transform.taylor_order)
             funcs = (self.nees_f,) + pieces
             ekf_code, scratch = ekf_c(name, n, n_y, pattern, iterations)
             code, call = generated_c(*funcs) + ekf_code, f"{name}_ekf(arg, res, iw, w, s)"
