@@ -104,13 +104,29 @@ def test_only_the_update_splits_with_a_single_output(monkeypatch) -> None:
     rng = np.random.default_rng(8)
     ys = np.arctan2(1.0, 2.0 + 0.3 * np.arange(8))[:, None] + rng.normal(0, 0.03, (8, 1))
     ys[3] = np.nan
-    for transform in (sm.UT.ut1(), sm.TT1()):
-        gsf = sm.GaussianSumFilter(CV, BEARING, Q2, R1, transform, split=0.02, max_components=6)
-        a, b = _both(gsf, ys, sm.Gaussian([2.0, 0.3], [[1.0, 0.2], [0.2, 0.5]]), monkeypatch)
-        _same(a, b)
-        a, b = _both(gsf, ys, sm.Gaussian([2.0, 0.3], np.eye(2)), monkeypatch, keep=("x",))
-        _same(a, b)
-        assert a.P is None and a.weights is None
+    gsf = sm.GaussianSumFilter(CV, BEARING, Q2, R1, sm.UT.ut1(), split=0.02, max_components=6)
+    a, b = _both(gsf, ys, sm.Gaussian([2.0, 0.3], [[1.0, 0.2], [0.2, 0.5]]), monkeypatch)
+    _same(a, b)
+    a, b = _both(gsf, ys, sm.Gaussian([2.0, 0.3], np.eye(2)), monkeypatch, keep=("x",))
+    _same(a, b)
+    assert a.P is None and a.weights is None
+
+
+ROOT = sm.Model([x1, x2], [sp.sqrt(x1)], name="gsfk_root")
+
+
+@pytest.fixture(scope="module")
+def root_gsf():
+    """EKF components (TT1) and a measurement sqrt(x1), NaN for x1 < 0."""
+    gsf = sm.GaussianSumFilter(CV, ROOT, Q2, R1, sm.TT1(), split=0.01, max_components=4, merge="salmond")
+    _compiled(gsf)
+    return gsf
+
+
+def test_ekf_components(root_gsf, monkeypatch) -> None:
+    ys = np.sqrt(2.0 + 0.5 * np.arange(6))[:, None] + 0.05
+    a, b = _both(root_gsf, ys, sm.Gaussian([2.0, 0.5], [[1.0, 0.2], [0.2, 0.5]]), monkeypatch)
+    _same(a, b)
 
 
 def test_every_component_split_and_merged_back(monkeypatch) -> None:
@@ -126,18 +142,17 @@ def test_every_component_split_and_merged_back(monkeypatch) -> None:
     assert (a.splits == M).all() and (a.components == M).all()
 
 
-def test_a_non_finite_component_is_the_same_error(monkeypatch) -> None:
-    root = sm.Model([x1, x2], [sp.sqrt(x1)], name="gsfk_root")
-    gsf = sm.GaussianSumFilter(CV, root, Q2, R1, sm.UT.ut1(), split=0.01)
-    _compiled(gsf)
+def test_a_non_finite_component_is_the_same_error(root_gsf, monkeypatch) -> None:
+    # Run 1's measurements (0) drive its components below x1 = 0 (sqrt: NaN); run 0's stay finite.
     ys = np.ones((2, 4, 1))
-    x0 = sm.Gaussian([0.05, 0.0], np.eye(2))  # sigma points at x1 < 0: sqrt is NaN
-    with pytest.raises(sm.SymmonError, match=r"NaN or inf at run 0, step 0") as compiled:
-        gsf.filter(ys, x0)
+    ys[1] = 0.0
+    x0 = sm.Gaussian([1.0, 0.0], [[0.01, 0.0], [0.0, 0.001]])
+    with pytest.raises(sm.SymmonError, match=r"NaN or inf at run 1, step 1") as compiled:
+        root_gsf.filter(ys, x0)
     with monkeypatch.context() as mp:
         mp.setattr(sm.GaussianSumFilter, "_recursion", lambda *args, **kwargs: None)
         with pytest.raises(sm.SymmonError) as stepwise:
-            gsf.filter(ys, x0)
+            root_gsf.filter(ys, x0)
     assert str(compiled.value) == str(stepwise.value)
 
 
