@@ -64,12 +64,16 @@ static void smg_eig(int n, const double* A, double* lam, double* V, double* a) {
     double off = 0, tot = 0;
     for (i = 0; i < n * n; ++i) tot += a[i] * a[i];
     for (i = 0; i < n; ++i) for (j = 0; j < n; ++j) if (i != j) off += a[i * n + j] * a[i * n + j];
+    int turned = 0;
     if (!(off > 1e-34 * tot)) break;
     for (p = 0; p < n - 1; ++p)
       for (q = p + 1; q < n; ++q) {
         const double apq = a[p * n + q];
         double theta, t, c, s;
-        if (apq == 0) continue;
+        /* an entry below the rounding of its diagonal changes nothing (Golub & Van Loan's
+           threshold Jacobi): zero it without a rotation */
+        if (fabs(apq) <= 1e-18 * (fabs(a[p * n + p]) + fabs(a[q * n + q]))) { a[p * n + q] = a[q * n + p] = 0; continue; }
+        turned = 1;
         theta = (a[q * n + q] - a[p * n + p]) / (2 * apq);
         t = 1 / (fabs(theta) + sqrt(theta * theta + 1));
         if (theta < 0) t = -t;
@@ -89,6 +93,7 @@ static void smg_eig(int n, const double* A, double* lam, double* V, double* a) {
           V[k * n + p] = c * vkp - s * vkq; V[k * n + q] = s * vkp + c * vkq;
         }
       }
+    if (!turned) break;
   }
   for (i = 0; i < n; ++i) lam[i] = a[i * n + i];
   for (i = 0; i < n - 1; ++i) {  /* ascending, stable */
@@ -130,9 +135,27 @@ static void smg_direction(smg_ctx* c, int ny, const double* P, const double* H, 
          *gl = G + ny * n * n, *gv = gl + n, *a = gv + n * n, *wl = a + n * n + ny * ny, *wv = wl + ny,
          *C = wv + ny * ny, *lead = C + ny * ny, *share = lead + ny * n, *vec = share + ny + n;
   int i, j, k, b, best;
-  smg_eig(n, P, lam, V, a);
-  for (i = 0; i < n; ++i)
-    for (j = 0; j < n; ++j) S[i * n + j] = V[i * n + j] * sqrt(lam[j] > 0 ? lam[j] : 0.0);
+  if (ny == 1) {
+    /* One output: d = S a does not depend on the square root S of P (S U, U orthogonal, gives
+       G' = U^T G U and a' = U^T a), so the Cholesky factor serves (zero columns past a
+       non-positive pivot); the axes of S are candidates only for several outputs. */
+    for (i = 0; i < n * n; ++i) S[i] = 0;
+    for (j = 0; j < n; ++j) {
+      double dj = P[j * n + j];
+      for (k = 0; k < j; ++k) dj -= S[j * n + k] * S[j * n + k];
+      if (!(dj > 0)) continue;
+      S[j * n + j] = sqrt(dj);
+      for (i = j + 1; i < n; ++i) {
+        double s = P[i * n + j];
+        for (k = 0; k < j; ++k) s -= S[i * n + k] * S[j * n + k];
+        S[i * n + j] = s / S[j * n + j];
+      }
+    }
+  } else {
+    smg_eig(n, P, lam, V, a);
+    for (i = 0; i < n; ++i)
+      for (j = 0; j < n; ++j) S[i * n + j] = V[i * n + j] * sqrt(lam[j] > 0 ? lam[j] : 0.0);
+  }
   for (k = 0; k < ny; ++k) {  /* (S^T H_k) S */
     const double* Hk = H + k * n * n;
     for (i = 0; i < n; ++i)
