@@ -60,17 +60,20 @@ _C = r"""
 static double sm_logdet(const double *A, long long n, double *L) {
   /* log det of the symmetric positive definite A (row-major, its lower triangle read) by L D Lᵀ (no square roots):
      log Π d_i, one log per factor of the product kept within the float range; -inf if A is
-     not positive definite.  L (n × n) is scratch: its lower triangle holds L, its diagonal D. */
+     not positive definite.  L (n × n) is scratch: its strict lower triangle holds L, its
+     upper triangle U_ki = L_ik d_k (one product per term, one reciprocal per pivot: the
+     O(M²) pair costs of a merge are mostly this). */
   double prod = 1.0, logs = 0.0;
   for (long long j = 0; j < n; ++j) {
     double d = A[j * n + j];
-    for (long long k = 0; k < j; ++k) d -= L[j * n + k] * L[j * n + k] * L[k * n + k];
+    for (long long k = 0; k < j; ++k) d -= L[k * n + j] * L[j * n + k];
     if (!(d > 0.0)) return -INFINITY;
-    L[j * n + j] = d;
+    const double r = 1.0 / d;
     for (long long i = j + 1; i < n; ++i) {
       double s = A[i * n + j];
-      for (long long k = 0; k < j; ++k) s -= L[i * n + k] * L[j * n + k] * L[k * n + k];
-      L[i * n + j] = s / d;
+      for (long long k = 0; k < j; ++k) s -= L[k * n + i] * L[j * n + k];
+      L[j * n + i] = s;
+      L[i * n + j] = s * r;
     }
     prod *= d;
     if (prod > 1e150 || prod < 1e-150) { logs += log(prod); prod = 1.0; }
@@ -89,10 +92,10 @@ static double sm_cost(long long i, long long j, long long n, int salmond, const 
     return wi * wj / ws * q;
   }
   const double *Pi = P + i * n * n, *Pj = P + j * n * n;
-  const double c = wi * wj / (ws * ws);
+  const double fi = wi / ws, fj = wj / ws, c = fi * fj;
   for (long long a = 0; a < n; ++a)  /* the lower triangle: all that sm_logdet reads */
     for (long long b = 0; b <= a; ++b)
-      A[a * n + b] = (wi * Pi[a * n + b] + wj * Pj[a * n + b]) / ws + c * (mi[a] - mj[a]) * (mi[b] - mj[b]);
+      A[a * n + b] = fi * Pi[a * n + b] + fj * Pj[a * n + b] + c * (mi[a] - mj[a]) * (mi[b] - mj[b]);
   return 0.5 * (ws * sm_logdet(A, n, L) - (wi * ld[i] + wj * ld[j]));
 }
 
