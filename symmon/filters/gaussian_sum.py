@@ -38,9 +38,10 @@ coordinates).  This is the eigen-direction of the curvature in the units of the 
 own spread: splitting along the largest eigen-direction of P alone would split a bearing's
 range uncertainty even when the bearing is linear in it.  Exact ties (a bearing's Hessian
 has eigenvalues ±λ, so an isotropic position spread has two equally curved directions) go
-to the first eigenvalue and candidate (:data:`TIE`), not to the last bits of rounding.  The
-directions and the splits of all components are stacked NumPy calls
-(:func:`split_directions`, :func:`split_components`).
+to the first eigenvalue and candidate (:data:`TIE`), not to the last bits of rounding; the
+sign of d (an eigenvector's sign is the eigensolver's choice, and −d lists the children in
+the opposite order) is fixed: its largest entry positive.  The directions and the splits of
+all components are stacked NumPy calls (:func:`split_directions`, :func:`split_components`).
 
 **What a split does to the MoN.**  Under a fixed weight (the parent's W, or Liu–Li's raw
 W = I) and a quadratic g, every child is less nonlinear than its parent along *any*
@@ -67,9 +68,15 @@ component, in one C call for all runs of a bank).
 **Without splitting** the number of components never grows: the components are independent
 Kalman filters and run as one bank through the compiled loop of
 :class:`~symmon.NonlinearKalmanFilter` (all steps of all components of all runs in one C
-call), their weights following from the per-step log-likelihoods.  With splitting the steps
-run in Python, each stage (the MoN with the Hessians, the prediction, the update, the merge)
-one compiled call over all components of all runs, the directions and splits stacked NumPy.
+call), their weights following from the per-step log-likelihoods.  **With splitting** all
+steps of all runs are one C call too (:mod:`symmon.filters.gsf_kernel`: the compiled stages
+below, the MoN's weight, the split decision, the directions by Jacobi eigen-decompositions,
+the splits, pruning and the merge, a thread per share of the runs).  Without a compiler, or
+while that C is built in the background, the steps run in Python (:meth:`GaussianSumFilter._stepwise`),
+each stage (the MoN with the Hessians, the prediction, the update, the merge) one compiled
+call over all components of all runs, the directions and splits stacked NumPy: the same
+results to rounding (the tests hold the two to 1e-10, with the same components and splits
+per step).
 
 References
 ----------
