@@ -49,7 +49,7 @@ def _both(gsf, ys, x0, monkeypatch, **kw):
     _compiled(gsf)
     a = gsf.filter(ys, x0, **kw)
     with monkeypatch.context() as mp:
-        mp.setattr(sm.GaussianSumFilter, "_recursion", lambda *args, **kwargs: None)
+        mp.setattr(gs.GaussianSumFilter, "_recursion", lambda *args, **kwargs: None)
         b = gsf.filter(ys, x0, **kw)
     return a, b
 
@@ -150,7 +150,7 @@ def test_a_non_finite_component_is_the_same_error(root_gsf, monkeypatch) -> None
     with pytest.raises(sm.SymmonError, match=r"NaN or inf at run 1, step 1") as compiled:
         root_gsf.filter(ys, x0)
     with monkeypatch.context() as mp:
-        mp.setattr(sm.GaussianSumFilter, "_recursion", lambda *args, **kwargs: None)
+        mp.setattr(gs.GaussianSumFilter, "_recursion", lambda *args, **kwargs: None)
         with pytest.raises(sm.SymmonError) as stepwise:
             root_gsf.filter(ys, x0)
     assert str(compiled.value) == str(stepwise.value)
