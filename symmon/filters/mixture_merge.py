@@ -99,6 +99,40 @@ static double sm_cost(long long i, long long j, long long n, int salmond, const 
   return 0.5 * (ws * sm_logdet(A, n, L) - (wi * ld[i] + wj * ld[j]));
 }
 
+/* An upper bound on the largest eigenvalue of the symmetric P: the least of its trace and its
+   largest absolute row sum (Gershgorin); NAN when P is not positive definite (ld not finite). */
+static double sm_top(const double *P, long long n, double ld) {
+  double tr = 0.0, row = 0.0;
+  if (!isfinite(ld)) return NAN;
+  for (long long a = 0; a < n; ++a) {
+    double s = 0.0;
+    tr += P[a * n + a];
+    for (long long b = 0; b < n; ++b) s += fabs(P[a * n + b]);
+    if (s > row) row = s;
+  }
+  return tr < row ? tr : row;
+}
+
+/* The key of the pair (i, j) in the cost matrix, and ex[i M + j] whether it is the cost.  For
+   Runnalls a lower bound that needs no log-determinant stands in for the cost until the pair
+   could be the least (Runnalls' B = ws/2 [log det(S + c d d^T) - (fi ld_i + fj ld_j)] with
+   S = fi P_i + fj P_j, c = fi fj: log det S >= fi ld_i + fj ld_j by the concavity of log det,
+   and log(1 + c d^T S^-1 d) >= x / (1 + x) with x = c |d|^2 / (fi g_i + fj g_j) <= c d^T S^-1 d,
+   g >= the largest eigenvalue); the merges are the same as with every cost computed. */
+static double sm_key(long long i, long long j, long long n, long long M, int salmond, const double *w,
+                     const double *m, const double *P, const double *ld, const double *g, const double *Pinv,
+                     double *A, double *L, unsigned char *ex) {
+  if (!salmond) {
+    const double ws = w[i] + w[j], fi = w[i] / ws, fj = w[j] / ws, den = fi * g[i] + fj * g[j];
+    double dd = 0.0;
+    for (long long a = 0; a < n; ++a) { const double t = m[i * n + a] - m[j * n + a]; dd += t * t; }
+    const double x = fi * fj * dd / den;
+    if (den > 0.0 && isfinite(x)) { ex[i * M + j] = 0; return 0.5 * ws * (x / (1.0 + x)) * (1.0 - 1e-9); }
+  }
+  ex[i * M + j] = 1;
+  return sm_cost(i, j, n, salmond, w, m, P, ld, Pinv, A, L);
+}
+
 /* a before b in the argmin order of NumPy: a NaN first (the first one), then the least. */
 static int sm_before(double a, double b) { return isnan(b) ? 0 : (isnan(a) || a < b); }
 
@@ -124,26 +158,37 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
   for (long long r = 0; r < R; ++r)
     if (start[r + 1] - start[r] > Mmax) Mmax = start[r + 1] - start[r];
   if (Mmax <= keep) return 0;
-  double *cost = malloc(sizeof(double) * (size_t)(Mmax * Mmax + 2 * Mmax + 2 * n * n));
+  double *cost = malloc(sizeof(double) * (size_t)(Mmax * Mmax + 3 * Mmax + 2 * n * n));
   long long *rarg = malloc(sizeof(long long) * (size_t)Mmax);
-  if (!cost || !rarg) { free(cost); free(rarg); return -1; }
-  double *ld = cost + Mmax * Mmax, *rmin = ld + Mmax, *A = rmin + Mmax, *L = A + n * n;
+  unsigned char *ex = malloc((size_t)(Mmax * Mmax));
+  if (!cost || !rarg || !ex) { free(cost); free(rarg); free(ex); return -1; }
+  double *ld = cost + Mmax * Mmax, *rmin = ld + Mmax, *g = rmin + Mmax, *A = g + Mmax, *L = A + n * n;
   for (long long r = 0; r < R; ++r) {
     const long long o = start[r], M = start[r + 1] - start[r];
     if (M <= keep) continue;
     double *wr = w + o, *mr = m + o * n, *Pr = P + o * n * n;
     unsigned char *al = alive + o;
     const double *Pv = Pinv + r * n * n;
-    for (long long i = 0; i < M; ++i) ld[i] = salmond ? 0.0 : sm_logdet(Pr + i * n * n, n, L);
     for (long long i = 0; i < M; ++i) {
-      for (long long j = i + 1; j < M; ++j) cost[i * M + j] = sm_cost(i, j, n, salmond, wr, mr, Pr, ld, Pv, A, L);
+      ld[i] = salmond ? 0.0 : sm_logdet(Pr + i * n * n, n, L);
+      g[i] = salmond ? 0.0 : sm_top(Pr + i * n * n, n, ld[i]);
+    }
+    for (long long i = 0; i < M; ++i) {
+      for (long long j = i + 1; j < M; ++j) cost[i * M + j] = sm_key(i, j, n, M, salmond, wr, mr, Pr, ld, g, Pv, A, L, ex);
       sm_row(i, M, cost, al, rmin, rarg);
     }
     for (long long left = M; left > keep; --left) {
-      long long bi = -1, bj = -1;
-      for (long long k = 0; k < M; ++k)
-        if (al[k] && rarg[k] >= 0 && (bi < 0 || sm_before(rmin[k], rmin[bi]))) bi = k;
-      if (bi >= 0 && rmin[bi] == INFINITY) bi = -1;
+      long long bi, bj = -1;
+      for (;;) {  /* the least key; while it is a bound, its cost in its place */
+        bi = -1;
+        for (long long k = 0; k < M; ++k)
+          if (al[k] && rarg[k] >= 0 && (bi < 0 || sm_before(rmin[k], rmin[bi]))) bi = k;
+        if (bi >= 0 && rmin[bi] == INFINITY) bi = -1;
+        if (bi < 0 || ex[bi * M + rarg[bi]]) break;
+        cost[bi * M + rarg[bi]] = sm_cost(bi, rarg[bi], n, salmond, wr, mr, Pr, ld, Pv, A, L);
+        ex[bi * M + rarg[bi]] = 1;
+        sm_row(bi, M, cost, al, rmin, rarg);
+      }
       if (bi >= 0) {
         bj = rarg[bi];
       } else {  /* every live pair costs inf: the first live pair */
@@ -165,10 +210,11 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
       }
       wr[i] = ws;
       al[j] = 0;
-      if (!salmond) ld[i] = sm_logdet(Pi, n, L);
+      if (!salmond) { ld[i] = sm_logdet(Pi, n, L); g[i] = sm_top(Pi, n, ld[i]); }
       for (long long k = 0; k < M; ++k) {
         if (!al[k] || k == i) continue;
-        cost[k < i ? k * M + i : i * M + k] = sm_cost(k < i ? k : i, k < i ? i : k, n, salmond, wr, mr, Pr, ld, Pv, A, L);
+        cost[k < i ? k * M + i : i * M + k] = sm_key(k < i ? k : i, k < i ? i : k, n, M, salmond, wr, mr, Pr, ld, g, Pv,
+                                                     A, L, ex);
       }
       sm_row(i, M, cost, al, rmin, rarg);
       for (long long k = 0; k < i; ++k) {  /* rows above i: their cost with i changed */
@@ -183,6 +229,7 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
   }
   free(cost);
   free(rarg);
+  free(ex);
   return 0;
 }
 """
