@@ -140,8 +140,12 @@ static int sm_before(double a, double b) { return isnan(b) ? 0 : (isnan(a) || a 
 static void sm_row(long long i, long long M, const double *cost, const unsigned char *al, double *rmin, long long *rarg) {
   double best = INFINITY;
   long long arg = -1;
-  for (long long j = i + 1; j < M; ++j)
-    if (al[j] && (arg < 0 || sm_before(cost[i * M + j], best))) { best = cost[i * M + j]; arg = j; }
+  for (long long j = i + 1; j < M; ++j) {  /* sm_before's order: the first NaN is final */
+    if (!al[j]) continue;
+    const double c = cost[i * M + j];
+    if (c != c) { best = c; arg = j; break; }
+    if (arg < 0 || c < best) { best = c; arg = j; }
+  }
   rmin[i] = best;
   rarg[i] = arg;
 }
@@ -178,16 +182,25 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
       sm_row(i, M, cost, al, rmin, rarg);
     }
     for (long long left = M; left > keep; --left) {
-      long long bi, bj = -1;
-      for (;;) {  /* the least key; while it is a bound, its cost in its place */
-        bi = -1;
-        for (long long k = 0; k < M; ++k)
-          if (al[k] && rarg[k] >= 0 && (bi < 0 || sm_before(rmin[k], rmin[bi]))) bi = k;
+      long long bi = -1, b2 = -1, bj = -1;
+      int scan = 1;
+      for (;;) {  /* the least key (the first row of least minimum); while it is a bound, the cost in its place */
+        if (scan) {  /* the best row and the runner-up */
+          bi = b2 = -1;
+          for (long long k = 0; k < M; ++k) {
+            if (!al[k] || rarg[k] < 0) continue;
+            if (bi < 0 || sm_before(rmin[k], rmin[bi])) { b2 = bi; bi = k; }
+            else if (b2 < 0 || sm_before(rmin[k], rmin[b2])) b2 = k;
+          }
+          scan = 0;
+        }
         if (bi >= 0 && rmin[bi] == INFINITY) bi = -1;
         if (bi < 0 || ex[bi * M + rarg[bi]]) break;
         cost[bi * M + rarg[bi]] = sm_cost(bi, rarg[bi], n, salmond, wr, mr, Pr, ld, Pv, A, L);
         ex[bi * M + rarg[bi]] = 1;
         sm_row(bi, M, cost, al, rmin, rarg);
+        /* row bi's minimum grew: it still leads unless the runner-up now comes first */
+        if (b2 >= 0 && (sm_before(rmin[b2], rmin[bi]) || (!sm_before(rmin[bi], rmin[b2]) && b2 < bi))) scan = 1;
       }
       if (bi >= 0) {
         bj = rarg[bi];
