@@ -150,11 +150,28 @@ static void sm_row(long long i, long long M, const double *cost, const unsigned 
   rarg[i] = arg;
 }
 
+/* The row of a and b (a's rows before b's; -1: none) whose minimum comes first in sm_before's
+   order, a dead row or one without a live pair never. */
+static long long sm_win(long long a, long long b, const double *rmin, const long long *rarg, const unsigned char *al) {
+  const int va = a >= 0 && al[a] && rarg[a] >= 0, vb = b >= 0 && al[b] && rarg[b] >= 0;
+  if (!va) return vb ? b : -1;
+  if (!vb) return a;
+  return sm_before(rmin[b], rmin[a]) ? b : a;
+}
+
+/* Row k's minimum changed: the tournament tree (T leaves, tree[1] the first row of least
+   minimum) updated from leaf k up. */
+static void sm_tree(long long k, long long T, long long *tree, const double *rmin, const long long *rarg,
+                    const unsigned char *al) {
+  for (long long p = (T + k) / 2; p >= 1; p /= 2) tree[p] = sm_win(tree[2 * p], tree[2 * p + 1], rmin, rarg, al);
+}
+
 /* Reduce each run r (components start[r] .. start[r + 1] - 1 of w (N), m (N, n), P (N, n, n),
    in place) to at most keep components; alive[k] = 0 for a component merged away.  Pinv:
    (R, n, n), Salmond's metric per run.  The least cost of each row of the pair-cost matrix is
-   kept, so finding the pair to merge is a scan of M row minima, and a merge rescans only the
-   rows whose minimum it touched.  Returns 0, or -1 if memory ran out. */
+   kept, and the rows in a tournament tree of their minima, so finding the pair to merge is a
+   look at its root, and a merge rescans only the rows whose minimum it touched.  Returns 0,
+   or -1 if memory ran out. */
 int sm_gsf_merge(long long R, const long long *start, long long n, long long keep, int salmond,
                  double *w, double *m, double *P, const double *Pinv, unsigned char *alive) {
   for (long long k = 0; k < start[R]; ++k) alive[k] = 1;
@@ -165,7 +182,10 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
   double *cost = malloc(sizeof(double) * (size_t)(Mmax * Mmax + 3 * Mmax + 2 * n * n));
   long long *rarg = malloc(sizeof(long long) * (size_t)Mmax);
   unsigned char *ex = malloc((size_t)(Mmax * Mmax));
-  if (!cost || !rarg || !ex) { free(cost); free(rarg); free(ex); return -1; }
+  long long T = 1;
+  while (T < Mmax) T *= 2;
+  long long *tree = malloc(sizeof(long long) * (size_t)(2 * T));
+  if (!cost || !rarg || !ex || !tree) { free(cost); free(rarg); free(ex); free(tree); return -1; }
   double *ld = cost + Mmax * Mmax, *rmin = ld + Mmax, *g = rmin + Mmax, *A = g + Mmax, *L = A + n * n;
   for (long long r = 0; r < R; ++r) {
     const long long o = start[r], M = start[r + 1] - start[r];
@@ -181,26 +201,18 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
       for (long long j = i + 1; j < M; ++j) cost[i * M + j] = sm_key(i, j, n, M, salmond, wr, mr, Pr, ld, g, Pv, A, L, ex);
       sm_row(i, M, cost, al, rmin, rarg);
     }
+    for (long long k = 0; k < T; ++k) tree[T + k] = k < M ? k : -1;
+    for (long long p = T - 1; p >= 1; --p) tree[p] = sm_win(tree[2 * p], tree[2 * p + 1], rmin, rarg, al);
     for (long long left = M; left > keep; --left) {
-      long long bi = -1, b2 = -1, bj = -1;
-      int scan = 1;
+      long long bi = -1, bj = -1;
       for (;;) {  /* the least key (the first row of least minimum); while it is a bound, the cost in its place */
-        if (scan) {  /* the best row and the runner-up */
-          bi = b2 = -1;
-          for (long long k = 0; k < M; ++k) {
-            if (!al[k] || rarg[k] < 0) continue;
-            if (bi < 0 || sm_before(rmin[k], rmin[bi])) { b2 = bi; bi = k; }
-            else if (b2 < 0 || sm_before(rmin[k], rmin[b2])) b2 = k;
-          }
-          scan = 0;
-        }
+        bi = tree[1];
         if (bi >= 0 && rmin[bi] == INFINITY) bi = -1;
         if (bi < 0 || ex[bi * M + rarg[bi]]) break;
         cost[bi * M + rarg[bi]] = sm_cost(bi, rarg[bi], n, salmond, wr, mr, Pr, ld, Pv, A, L);
         ex[bi * M + rarg[bi]] = 1;
         sm_row(bi, M, cost, al, rmin, rarg);
-        /* row bi's minimum grew: it still leads unless the runner-up now comes first */
-        if (b2 >= 0 && (sm_before(rmin[b2], rmin[bi]) || (!sm_before(rmin[bi], rmin[b2]) && b2 < bi))) scan = 1;
+        sm_tree(bi, T, tree, rmin, rarg, al);
       }
       if (bi >= 0) {
         bj = rarg[bi];
@@ -230,19 +242,24 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
                                                      A, L, ex);
       }
       sm_row(i, M, cost, al, rmin, rarg);
+      sm_tree(i, T, tree, rmin, rarg, al);
+      sm_tree(j, T, tree, rmin, rarg, al);
       for (long long k = 0; k < i; ++k) {  /* rows above i: their cost with i changed */
         if (!al[k]) continue;
         if (rarg[k] == i || rarg[k] == j) sm_row(k, M, cost, al, rmin, rarg);
         else if (sm_before(cost[k * M + i], rmin[k]) || (!sm_before(rmin[k], cost[k * M + i]) && i < rarg[k]))
           { rmin[k] = cost[k * M + i]; rarg[k] = i; }
+        else continue;
+        sm_tree(k, T, tree, rmin, rarg, al);
       }
       for (long long k = i + 1; k < j; ++k)  /* rows between: only j went away */
-        if (al[k] && rarg[k] == j) sm_row(k, M, cost, al, rmin, rarg);
+        if (al[k] && rarg[k] == j) { sm_row(k, M, cost, al, rmin, rarg); sm_tree(k, T, tree, rmin, rarg, al); }
     }
   }
   free(cost);
   free(rarg);
   free(ex);
+  free(tree);
   return 0;
 }
 """
