@@ -123,11 +123,12 @@ static double sm_key(long long i, long long j, long long n, long long M, int sal
                      const double *m, const double *P, const double *ld, const double *g, const double *Pinv,
                      double *A, double *L, unsigned char *ex) {
   if (!salmond) {
-    const double ws = w[i] + w[j], fi = w[i] / ws, fj = w[j] / ws, den = fi * g[i] + fj * g[j];
+    /* ws/2 x/(1 + x) = ws/2 N/(D + N), N = w_i w_j |d|^2, D = ws (w_i g_i + w_j g_j): one division */
+    const double ws = w[i] + w[j], q = w[i] * g[i] + w[j] * g[j];
     double dd = 0.0;
     for (long long a = 0; a < n; ++a) { const double t = m[i * n + a] - m[j * n + a]; dd += t * t; }
-    const double x = fi * fj * dd / den;
-    if (den > 0.0 && isfinite(x)) { ex[i * M + j] = 0; return 0.5 * ws * (x / (1.0 + x)) * (1.0 - 1e-9); }
+    const double N = w[i] * w[j] * dd, D = ws * q;
+    if (q > 0.0 && isfinite(N) && isfinite(D)) { ex[i * M + j] = 0; return 0.5 * ws * N / (D + N) * (1.0 - 1e-9); }
   }
   ex[i * M + j] = 1;
   return sm_cost(i, j, n, salmond, w, m, P, ld, Pinv, A, L);
