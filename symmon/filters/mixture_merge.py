@@ -27,6 +27,17 @@ available (symmon.compile's policy, ``SYMMON_COMPILE``).  Their costs differ by 
 (L D Lᵀ against LU), so they agree to rounding except where two pair costs tie to the
 last bits.
 
+The C kernel computes a Runnalls cost only for a pair that could be the least: until then a
+lower bound that needs no log-determinant stands in for it.  With S = f_i P_i + f_j P_j,
+f = w/(w_i + w_j) and c = f_i f_j, B_ij = ½ (w_i + w_j) [log det S − f_i log det P_i −
+f_j log det P_j + log(1 + c dᵀ S⁻¹ d)], d = m_i − m_j; the bracket's first three terms are
+≥ 0 (log det is concave) and log(1 + x) ≥ x/(1 + x), with x ≥ c |d|²/(f_i g_i + f_j g_j) for
+any g ≥ the largest eigenvalue of P (the least of its trace and its largest absolute row
+sum), so B_ij ≥ ½ (w_i + w_j) N/(D + N), N = w_i w_j |d|², D = (w_i + w_j)(w_i g_i + w_j g_j).
+The pair of least key is taken; while it is a bound, its cost replaces it and the search
+repeats, so the merges are those of every cost computed.  The rows' least keys sit in a
+tournament tree (the pair to merge at its root, a changed row updated in O(log M)).
+
 References
 ----------
 A. R. Runnalls, "Kullback–Leibler approach to Gaussian mixture reduction", IEEE Trans.
