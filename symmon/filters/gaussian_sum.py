@@ -38,9 +38,10 @@ coordinates).  This is the eigen-direction of the curvature in the units of the 
 own spread: splitting along the largest eigen-direction of P alone would split a bearing's
 range uncertainty even when the bearing is linear in it.  Exact ties (a bearing's Hessian
 has eigenvalues ±λ, so an isotropic position spread has two equally curved directions) go
-to the first eigenvalue and candidate (:data:`TIE`), not to the last bits of rounding.  The
-directions and the splits of all components are stacked NumPy calls
-(:func:`split_directions`, :func:`split_components`).
+to the first eigenvalue and candidate (:data:`TIE`), not to the last bits of rounding; the
+sign of d (an eigenvector's sign is the eigensolver's choice, and −d lists the children in
+the opposite order) is fixed: its largest entry positive.  The directions and the splits of
+all components are stacked NumPy calls (:func:`split_directions`, :func:`split_components`).
 
 **What a split does to the MoN.**  Under a fixed weight (the parent's W, or Liu–Li's raw
 W = I) and a quadratic g, every child is less nonlinear than its parent along *any*
@@ -67,9 +68,15 @@ component, in one C call for all runs of a bank).
 **Without splitting** the number of components never grows: the components are independent
 Kalman filters and run as one bank through the compiled loop of
 :class:`~symmon.NonlinearKalmanFilter` (all steps of all components of all runs in one C
-call), their weights following from the per-step log-likelihoods.  With splitting the steps
-run in Python, each stage (the MoN with the Hessians, the prediction, the update, the merge)
-one compiled call over all components of all runs, the directions and splits stacked NumPy.
+call), their weights following from the per-step log-likelihoods.  **With splitting** all
+steps of all runs are one C call too (:mod:`symmon.filters.gsf_kernel`: the compiled stages
+below, the MoN's weight, the split decision, the directions by Jacobi eigen-decompositions,
+the splits, pruning and the merge, a thread per share of the runs).  Without a compiler, or
+while that C is built in the background, the steps run in Python (:meth:`GaussianSumFilter._stepwise`),
+each stage (the MoN with the Hessians, the prediction, the update, the merge) one compiled
+call over all components of all runs, the directions and splits stacked NumPy: the same
+results to rounding (the tests hold the two to 1e-10, with the same components and splits
+per step).
 
 References
 ----------
@@ -99,7 +106,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..compile import batched, compiled, compiled_with_params
+from ..compile import batched, compiled, compiled_with_params, has_compiler
 from ..core.angles import wrap_angle
 from ..core.gaussian import Gaussian
 from ..core.checks import check_gaussian
@@ -110,6 +117,7 @@ from ..transforms import TT2, UT, Transform
 from ..transforms.registry import resolve
 from ..transforms.executor import Executor
 from .distributed import filter_bank
+from .gsf_kernel import SplitKernel
 from .nonlinear import NonlinearKalmanFilter
 from .mixture_merge import MERGE_RULES, merge_components, merge_runs
 from .inputs import check_bank_size, measurement_bank, param_values
@@ -198,7 +206,7 @@ def split_directions(covs: np.ndarray, hessians: np.ndarray, weights: np.ndarray
         G = np.sqrt(np.maximum(weights[:, 0, 0], 0.0))[:, None, None] * SHS[:, 0]
         gl, gv = np.linalg.eigh(0.5 * (G + np.swapaxes(G, 1, 2)))
         lead = gv[np.arange(N), :, _first_max(np.abs(gl), axis=1)]
-        return (S @ lead[:, :, None])[:, :, 0]
+        return _signed((S @ lead[:, :, None])[:, :, 0])
     wl, wv = np.linalg.eigh(0.5 * (weights + np.swapaxes(weights, 1, 2)))
     C = np.swapaxes(wv * np.sqrt(np.clip(wl, 0.0, None))[:, None, :], 1, 2)
     # G_k = Σ_i C_ki Sᵀ H_i S for every component: (N, n_y, n, n).
@@ -210,7 +218,16 @@ def split_directions(covs: np.ndarray, hessians: np.ndarray, weights: np.ndarray
     cands = np.concatenate([lead, np.broadcast_to(np.eye(n), (N, n, n))], axis=1)  # (N, n_y + n, n)
     quad = np.einsum("Nca,Nkab,Ncb->Nck", cands, G, cands)
     best = _first_max((quad**2).sum(axis=2), axis=1)
-    return np.einsum("Nab,Nb->Na", S, cands[np.arange(N), best])
+    return _signed(np.einsum("Nab,Nb->Na", S, cands[np.arange(N), best]))
+
+
+def _signed(d: np.ndarray) -> np.ndarray:
+    """The directions d (N, n) with their largest entry (the first within :data:`TIE`) positive:
+    an eigenvector's sign is LAPACK's choice, and −d orders the children of a split the other
+    way round (the merges that follow take the first of tied pairs), so the sign is fixed here
+    as in the compiled recursion (:mod:`symmon.filters.gsf_kernel`)."""
+    lead = d[np.arange(len(d)), _first_max(np.abs(d), axis=1)]
+    return np.where((lead < 0)[:, None], -d, d)
 
 
 def _corr_inverse(A: np.ndarray) -> np.ndarray:
@@ -269,19 +286,35 @@ class _ComponentSteps:
         z = kind.sym("z", n + n * n + n * n + n_p)
         x, P, Q, p = _rows(z, [(n, 1), (n, n), (n, n), (n_p, 1)])
         xp, Pp = predict_graph(f, transform, angle_states, x, P, Q, chol, select_params(f, names, p))
-        self.predict = batched(ca.Function(tag + "_p", [z], [ca.densify(xp), ca.densify(Pp)], {"cse": True}))
+        fp = ca.Function(tag + "_p", [z], [ca.densify(xp), ca.densify(Pp)], {"cse": True})
+        self.predict = batched(fp)
         z = kind.sym("z", n + n * n + n_y + n_y * n_y + n_y + n_p)
         x, P, y, R, mask, p = _rows(z, [(n, 1), (n, n), (n_y, 1), (n_y, n_y), (n_y, 1), (n_p, 1)])
         xn, Pn, _, _, ll, _ = update_graph(h, transform, angle_states, x, P, y, R, chol, mask,
                                            select_params(h, names, p))
-        self.update = batched(ca.Function(tag + "_u", [z], [ca.densify(a) for a in (xn, Pn, ll)], {"cse": True}))
-        self.mon = {}
+        fu = ca.Function(tag + "_u", [z], [ca.densify(a) for a in (xn, Pn, ll)], {"cse": True})
+        self.update = batched(fu)
+        self.mon, fm = {}, {}
         mon_kind = step_kind(f, h, TT2())[0]
         for which, mdl in (("f", f), ("h", h)):
             z = mon_kind.sym("z", n + n * n + n_p)
             x, P, p = _rows(z, [(n, 1), (n, n), (n_p, 1)])
-            self.mon[which] = batched(ca.Function(f"{tag}_m{which}", [z], _mon_graph(mdl, x, P, select_params(mdl, names, p)),
-                                                  {"cse": True}))
+            fm[which] = ca.Function(f"{tag}_m{which}", [z], _mon_graph(mdl, x, P, select_params(mdl, names, p)),
+                                    {"cse": True})
+            self.mon[which] = batched(fm[which])
+        self._graphs = (fp, fu, fm["f"], fm["h"], n, n_y, n_p, tag + "_run")
+        self._kernel: SplitKernel | None = None
+        self._kernel_lock = threading.Lock()
+
+    def kernel(self) -> SplitKernel | None:
+        """The compiled recursion of these steps (:mod:`symmon.filters.gsf_kernel`), built on
+        first use under the compile policy; None when compiled C is not wanted or there is no compiler."""
+        if not has_compiler():
+            return None
+        with self._kernel_lock:
+            if self._kernel is None:
+                self._kernel = SplitKernel(*self._graphs)
+            return self._kernel
 
 
 def _mon_graph(model: Model, x, P, p) -> list:
@@ -525,7 +558,9 @@ class GaussianSumFilter:
         if self.split is None:
             out = self._bank(Yb, w0, m0, P0, params, runs, kept)
         else:
-            out = self._stepwise(Yb, w0, m0, P0, pv, kept)
+            out = self._recursion(Yb, w0, m0, P0, pv, kept)
+            if out is None:  # no compiler, or its C still building: the stepwise filter
+                out = self._stepwise(Yb, w0, m0, P0, pv, kept)
         arrays = {k: (v if runs is not None else v[0]) for k, v in out.items()}
         for v in arrays.values():
             v.flags.writeable = False
@@ -622,6 +657,41 @@ class GaussianSumFilter:
             x[:, a] = wrap_angle(x[:, a])
         return run, w, x, P, p, splits
 
+    def _nonfinite(self, k: int, r: int, R: int) -> SymmonError:
+        where = f"step {k}" if R == 1 else f"run {r}, step {k}"
+        return SymmonError(f"{self.method}: a component's step produced NaN or inf at {where} (its "
+                           "innovation covariance is singular or a covariance lost positive definiteness)")
+
+    def _recursion(self, Y, w0, m0, P0, pv, kept, wait: bool = False) -> dict[str, np.ndarray] | None:
+        """With splitting: all steps of all runs in one compiled call
+        (:mod:`symmon.filters.gsf_kernel`), the same results as :meth:`_stepwise` to rounding;
+        None when that C is not available (``wait``: wait for a background build)."""
+        steps = _component_steps(self.f, self.h, self.transform, self.kf.angle_states)
+        kernel = steps.kernel()
+        if kernel is None:
+            return None
+        if wait:
+            kernel.native.wait()
+        fn = kernel.loop()
+        if fn is None:
+            return None
+        R, K, _ = Y.shape
+        n_p = steps.n_p
+        params = np.zeros((R, K, n_p)) if pv is None else np.broadcast_to(pv, (R, K, n_p))
+        out, fail = kernel.run(fn, Y, w0, m0, P0, params, np.asarray(self.Q), np.asarray(self.R), split=self.split,
+                               prune=self.prune, max_components=self.max_components, m=self.split_components,
+                               salmond=self.merge == "salmond", curved=self._curved,
+                               table=_split_table(self.split_components),
+                               angle_states=tuple(sorted(self.kf.angle_states)), kept=kept)
+        if (fail >= 0).any():
+            k = int(fail[fail >= 0].min())
+            raise self._nonfinite(k, int(np.argmax(fail == k)), R)
+        if "mixture" in kept:
+            M = max(int(out["components"].max()), 1)
+            for name in ("weights", "means", "covs"):
+                out[name] = np.ascontiguousarray(out[name][:, :, :M])
+        return out
+
     def _stepwise(self, Y, w0, m0, P0, pv, kept) -> dict[str, np.ndarray]:
         R, K, n_y = Y.shape
         n = self.f.n_u
@@ -665,10 +735,7 @@ class GaussianSumFilter:
             ll = ll[:, 0]
             bad = ~(np.isfinite(ll) & np.isfinite(x).all(axis=1) & np.isfinite(P).all(axis=(1, 2)))
             if bad.any():
-                r = int(run[np.argmax(bad)])
-                where = f"step {k}" if R == 1 else f"run {r}, step {k}"
-                raise SymmonError(f"{self.method}: a component's step produced NaN or inf at {where} (its "
-                                  "innovation covariance is singular or a covariance lost positive definiteness)")
+                raise self._nonfinite(k, int(run[np.argmax(bad)]), R)
             # log Σ_i w_i N(ν_i; 0, S_i) per run, in log space; then the normalised weights.
             # Every run keeps at least one component and its components are contiguous: the
             # per-run reductions are reduceat over the runs' first rows.

@@ -27,6 +27,17 @@ available (symmon.compile's policy, ``SYMMON_COMPILE``).  Their costs differ by 
 (L D Lᵀ against LU), so they agree to rounding except where two pair costs tie to the
 last bits.
 
+The C kernel computes a Runnalls cost only for a pair that could be the least: until then a
+lower bound that needs no log-determinant stands in for it.  With S = f_i P_i + f_j P_j,
+f = w/(w_i + w_j) and c = f_i f_j, B_ij = ½ (w_i + w_j) [log det S − f_i log det P_i −
+f_j log det P_j + log(1 + c dᵀ S⁻¹ d)], d = m_i − m_j; the bracket's first three terms are
+≥ 0 (log det is concave) and log(1 + x) ≥ x/(1 + x), with x ≥ c |d|²/(f_i g_i + f_j g_j) for
+any g ≥ the largest eigenvalue of P (the least of its trace and its largest absolute row
+sum), so B_ij ≥ ½ (w_i + w_j) N/(D + N), N = w_i w_j |d|², D = (w_i + w_j)(w_i g_i + w_j g_j).
+The pair of least key is taken; while it is a bound, its cost replaces it and the search
+repeats, so the merges are those of every cost computed.  The rows' least keys sit in a
+tournament tree (the pair to merge at its root, a changed row updated in O(log M)).
+
 References
 ----------
 A. R. Runnalls, "Kullback–Leibler approach to Gaussian mixture reduction", IEEE Trans.
@@ -60,17 +71,20 @@ _C = r"""
 static double sm_logdet(const double *A, long long n, double *L) {
   /* log det of the symmetric positive definite A (row-major, its lower triangle read) by L D Lᵀ (no square roots):
      log Π d_i, one log per factor of the product kept within the float range; -inf if A is
-     not positive definite.  L (n × n) is scratch: its lower triangle holds L, its diagonal D. */
+     not positive definite.  L (n × n) is scratch: its strict lower triangle holds L, its
+     upper triangle U_ki = L_ik d_k (one product per term, one reciprocal per pivot: the
+     O(M²) pair costs of a merge are mostly this). */
   double prod = 1.0, logs = 0.0;
   for (long long j = 0; j < n; ++j) {
     double d = A[j * n + j];
-    for (long long k = 0; k < j; ++k) d -= L[j * n + k] * L[j * n + k] * L[k * n + k];
+    for (long long k = 0; k < j; ++k) d -= L[k * n + j] * L[j * n + k];
     if (!(d > 0.0)) return -INFINITY;
-    L[j * n + j] = d;
+    const double r = 1.0 / d;
     for (long long i = j + 1; i < n; ++i) {
       double s = A[i * n + j];
-      for (long long k = 0; k < j; ++k) s -= L[i * n + k] * L[j * n + k] * L[k * n + k];
-      L[i * n + j] = s / d;
+      for (long long k = 0; k < j; ++k) s -= L[k * n + i] * L[j * n + k];
+      L[j * n + i] = s;
+      L[i * n + j] = s * r;
     }
     prod *= d;
     if (prod > 1e150 || prod < 1e-150) { logs += log(prod); prod = 1.0; }
@@ -89,11 +103,46 @@ static double sm_cost(long long i, long long j, long long n, int salmond, const 
     return wi * wj / ws * q;
   }
   const double *Pi = P + i * n * n, *Pj = P + j * n * n;
-  const double c = wi * wj / (ws * ws);
+  const double fi = wi / ws, fj = wj / ws, c = fi * fj;
   for (long long a = 0; a < n; ++a)  /* the lower triangle: all that sm_logdet reads */
     for (long long b = 0; b <= a; ++b)
-      A[a * n + b] = (wi * Pi[a * n + b] + wj * Pj[a * n + b]) / ws + c * (mi[a] - mj[a]) * (mi[b] - mj[b]);
+      A[a * n + b] = fi * Pi[a * n + b] + fj * Pj[a * n + b] + c * (mi[a] - mj[a]) * (mi[b] - mj[b]);
   return 0.5 * (ws * sm_logdet(A, n, L) - (wi * ld[i] + wj * ld[j]));
+}
+
+/* An upper bound on the largest eigenvalue of the symmetric P: the least of its trace and its
+   largest absolute row sum (Gershgorin); NAN when P is not positive definite (ld not finite). */
+static double sm_top(const double *P, long long n, double ld) {
+  double tr = 0.0, row = 0.0;
+  if (!isfinite(ld)) return NAN;
+  for (long long a = 0; a < n; ++a) {
+    double s = 0.0;
+    tr += P[a * n + a];
+    for (long long b = 0; b < n; ++b) s += fabs(P[a * n + b]);
+    if (s > row) row = s;
+  }
+  return tr < row ? tr : row;
+}
+
+/* The key of the pair (i, j) in the cost matrix, and ex[i M + j] whether it is the cost.  For
+   Runnalls a lower bound that needs no log-determinant stands in for the cost until the pair
+   could be the least (Runnalls' B = ws/2 [log det(S + c d d^T) - (fi ld_i + fj ld_j)] with
+   S = fi P_i + fj P_j, c = fi fj: log det S >= fi ld_i + fj ld_j by the concavity of log det,
+   and log(1 + c d^T S^-1 d) >= x / (1 + x) with x = c |d|^2 / (fi g_i + fj g_j) <= c d^T S^-1 d,
+   g >= the largest eigenvalue); the merges are the same as with every cost computed. */
+static double sm_key(long long i, long long j, long long n, long long M, int salmond, const double *w,
+                     const double *m, const double *P, const double *ld, const double *g, const double *Pinv,
+                     double *A, double *L, unsigned char *ex) {
+  if (!salmond) {
+    /* ws/2 x/(1 + x) = ws/2 N/(D + N), N = w_i w_j |d|^2, D = ws (w_i g_i + w_j g_j): one division */
+    const double ws = w[i] + w[j], q = w[i] * g[i] + w[j] * g[j];
+    double dd = 0.0;
+    for (long long a = 0; a < n; ++a) { const double t = m[i * n + a] - m[j * n + a]; dd += t * t; }
+    const double N = w[i] * w[j] * dd, D = ws * q;
+    if (q > 0.0 && isfinite(N) && isfinite(D)) { ex[i * M + j] = 0; return 0.5 * ws * N / (D + N) * (1.0 - 1e-9); }
+  }
+  ex[i * M + j] = 1;
+  return sm_cost(i, j, n, salmond, w, m, P, ld, Pinv, A, L);
 }
 
 /* a before b in the argmin order of NumPy: a NaN first (the first one), then the least. */
@@ -103,17 +152,38 @@ static int sm_before(double a, double b) { return isnan(b) ? 0 : (isnan(a) || a 
 static void sm_row(long long i, long long M, const double *cost, const unsigned char *al, double *rmin, long long *rarg) {
   double best = INFINITY;
   long long arg = -1;
-  for (long long j = i + 1; j < M; ++j)
-    if (al[j] && (arg < 0 || sm_before(cost[i * M + j], best))) { best = cost[i * M + j]; arg = j; }
+  for (long long j = i + 1; j < M; ++j) {  /* sm_before's order: the first NaN is final */
+    if (!al[j]) continue;
+    const double c = cost[i * M + j];
+    if (c != c) { best = c; arg = j; break; }
+    if (arg < 0 || c < best) { best = c; arg = j; }
+  }
   rmin[i] = best;
   rarg[i] = arg;
+}
+
+/* The row of a and b (a's rows before b's; -1: none) whose minimum comes first in sm_before's
+   order, a dead row or one without a live pair never. */
+static long long sm_win(long long a, long long b, const double *rmin, const long long *rarg, const unsigned char *al) {
+  const int va = a >= 0 && al[a] && rarg[a] >= 0, vb = b >= 0 && al[b] && rarg[b] >= 0;
+  if (!va) return vb ? b : -1;
+  if (!vb) return a;
+  return sm_before(rmin[b], rmin[a]) ? b : a;
+}
+
+/* Row k's minimum changed: the tournament tree (T leaves, tree[1] the first row of least
+   minimum) updated from leaf k up. */
+static void sm_tree(long long k, long long T, long long *tree, const double *rmin, const long long *rarg,
+                    const unsigned char *al) {
+  for (long long p = (T + k) / 2; p >= 1; p /= 2) tree[p] = sm_win(tree[2 * p], tree[2 * p + 1], rmin, rarg, al);
 }
 
 /* Reduce each run r (components start[r] .. start[r + 1] - 1 of w (N), m (N, n), P (N, n, n),
    in place) to at most keep components; alive[k] = 0 for a component merged away.  Pinv:
    (R, n, n), Salmond's metric per run.  The least cost of each row of the pair-cost matrix is
-   kept, so finding the pair to merge is a scan of M row minima, and a merge rescans only the
-   rows whose minimum it touched.  Returns 0, or -1 if memory ran out. */
+   kept, and the rows in a tournament tree of their minima, so finding the pair to merge is a
+   look at its root, and a merge rescans only the rows whose minimum it touched.  Returns 0,
+   or -1 if memory ran out. */
 int sm_gsf_merge(long long R, const long long *start, long long n, long long keep, int salmond,
                  double *w, double *m, double *P, const double *Pinv, unsigned char *alive) {
   for (long long k = 0; k < start[R]; ++k) alive[k] = 1;
@@ -121,26 +191,41 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
   for (long long r = 0; r < R; ++r)
     if (start[r + 1] - start[r] > Mmax) Mmax = start[r + 1] - start[r];
   if (Mmax <= keep) return 0;
-  double *cost = malloc(sizeof(double) * (size_t)(Mmax * Mmax + 2 * Mmax + 2 * n * n));
+  double *cost = malloc(sizeof(double) * (size_t)(Mmax * Mmax + 3 * Mmax + 2 * n * n));
   long long *rarg = malloc(sizeof(long long) * (size_t)Mmax);
-  if (!cost || !rarg) { free(cost); free(rarg); return -1; }
-  double *ld = cost + Mmax * Mmax, *rmin = ld + Mmax, *A = rmin + Mmax, *L = A + n * n;
+  unsigned char *ex = malloc((size_t)(Mmax * Mmax));
+  long long T = 1;
+  while (T < Mmax) T *= 2;
+  long long *tree = malloc(sizeof(long long) * (size_t)(2 * T));
+  if (!cost || !rarg || !ex || !tree) { free(cost); free(rarg); free(ex); free(tree); return -1; }
+  double *ld = cost + Mmax * Mmax, *rmin = ld + Mmax, *g = rmin + Mmax, *A = g + Mmax, *L = A + n * n;
   for (long long r = 0; r < R; ++r) {
     const long long o = start[r], M = start[r + 1] - start[r];
     if (M <= keep) continue;
     double *wr = w + o, *mr = m + o * n, *Pr = P + o * n * n;
     unsigned char *al = alive + o;
     const double *Pv = Pinv + r * n * n;
-    for (long long i = 0; i < M; ++i) ld[i] = salmond ? 0.0 : sm_logdet(Pr + i * n * n, n, L);
     for (long long i = 0; i < M; ++i) {
-      for (long long j = i + 1; j < M; ++j) cost[i * M + j] = sm_cost(i, j, n, salmond, wr, mr, Pr, ld, Pv, A, L);
+      ld[i] = salmond ? 0.0 : sm_logdet(Pr + i * n * n, n, L);
+      g[i] = salmond ? 0.0 : sm_top(Pr + i * n * n, n, ld[i]);
+    }
+    for (long long i = 0; i < M; ++i) {
+      for (long long j = i + 1; j < M; ++j) cost[i * M + j] = sm_key(i, j, n, M, salmond, wr, mr, Pr, ld, g, Pv, A, L, ex);
       sm_row(i, M, cost, al, rmin, rarg);
     }
+    for (long long k = 0; k < T; ++k) tree[T + k] = k < M ? k : -1;
+    for (long long p = T - 1; p >= 1; --p) tree[p] = sm_win(tree[2 * p], tree[2 * p + 1], rmin, rarg, al);
     for (long long left = M; left > keep; --left) {
       long long bi = -1, bj = -1;
-      for (long long k = 0; k < M; ++k)
-        if (al[k] && rarg[k] >= 0 && (bi < 0 || sm_before(rmin[k], rmin[bi]))) bi = k;
-      if (bi >= 0 && rmin[bi] == INFINITY) bi = -1;
+      for (;;) {  /* the least key (the first row of least minimum); while it is a bound, the cost in its place */
+        bi = tree[1];
+        if (bi >= 0 && rmin[bi] == INFINITY) bi = -1;
+        if (bi < 0 || ex[bi * M + rarg[bi]]) break;
+        cost[bi * M + rarg[bi]] = sm_cost(bi, rarg[bi], n, salmond, wr, mr, Pr, ld, Pv, A, L);
+        ex[bi * M + rarg[bi]] = 1;
+        sm_row(bi, M, cost, al, rmin, rarg);
+        sm_tree(bi, T, tree, rmin, rarg, al);
+      }
       if (bi >= 0) {
         bj = rarg[bi];
       } else {  /* every live pair costs inf: the first live pair */
@@ -162,24 +247,31 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
       }
       wr[i] = ws;
       al[j] = 0;
-      if (!salmond) ld[i] = sm_logdet(Pi, n, L);
+      if (!salmond) { ld[i] = sm_logdet(Pi, n, L); g[i] = sm_top(Pi, n, ld[i]); }
       for (long long k = 0; k < M; ++k) {
         if (!al[k] || k == i) continue;
-        cost[k < i ? k * M + i : i * M + k] = sm_cost(k < i ? k : i, k < i ? i : k, n, salmond, wr, mr, Pr, ld, Pv, A, L);
+        cost[k < i ? k * M + i : i * M + k] = sm_key(k < i ? k : i, k < i ? i : k, n, M, salmond, wr, mr, Pr, ld, g, Pv,
+                                                     A, L, ex);
       }
       sm_row(i, M, cost, al, rmin, rarg);
+      sm_tree(i, T, tree, rmin, rarg, al);
+      sm_tree(j, T, tree, rmin, rarg, al);
       for (long long k = 0; k < i; ++k) {  /* rows above i: their cost with i changed */
         if (!al[k]) continue;
         if (rarg[k] == i || rarg[k] == j) sm_row(k, M, cost, al, rmin, rarg);
         else if (sm_before(cost[k * M + i], rmin[k]) || (!sm_before(rmin[k], cost[k * M + i]) && i < rarg[k]))
           { rmin[k] = cost[k * M + i]; rarg[k] = i; }
+        else continue;
+        sm_tree(k, T, tree, rmin, rarg, al);
       }
       for (long long k = i + 1; k < j; ++k)  /* rows between: only j went away */
-        if (al[k] && rarg[k] == j) sm_row(k, M, cost, al, rmin, rarg);
+        if (al[k] && rarg[k] == j) { sm_row(k, M, cost, al, rmin, rarg); sm_tree(k, T, tree, rmin, rarg, al); }
     }
   }
   free(cost);
   free(rarg);
+  free(ex);
+  free(tree);
   return 0;
 }
 """
