@@ -10,7 +10,9 @@ cosines are appended before the 1 (for the circular mean).  The sufficient stati
 a chunk are AᵀA (count, sums, cross-products): one compiled call per chunk
 (:meth:`SampleKernel.stats`, ``{name}_stats``) computes the rows a block of
 :data:`BLOCK` at a time, by columns, and adds the block's cross-products, so no row
-leaves the L1 cache.  The rows themselves are written by :meth:`SampleKernel.__call__`.
+leaves the L1 cache; ``{name}_draw_stats`` (:meth:`ChunkStats.draw`) draws the block's
+normals too, from a stream of :mod:`symmon.compile.rng`, so no normal leaves it either.
+The rows themselves are written by :meth:`SampleKernel.__call__`.
 The calls go through ctypes, which releases the GIL: the groups' threads run in parallel.
 
 The row's arithmetic is a CasADi function built from the model's SX graph.  When all its

@@ -1,9 +1,12 @@
 """Monte Carlo moments: single-pass, chunked, compiled, with error bars.
 
 Samples are split into G independent *groups* (shards), each with its own stream from
-``numpy.random.SeedSequence(seed).spawn(G)``.  A group draws its samples chunk by chunk;
-one compiled C loop (:mod:`.mc_kernel`) maps the normals to w = m + L z, evaluates g and
-centres the rows, and one product AᵀA per chunk gives its count, sums and cross-products.
+``numpy.random.SeedSequence(seed).spawn(G)``: symmon's xoshiro256++ and ziggurat
+(:class:`~symmon.compile.rng.NormalStream`, tag :data:`MC_STREAM_TAG`) when a C compiler is
+in use, NumPy's SFC64 otherwise (:func:`normals_source`).  A group draws its samples chunk
+by chunk; one compiled C call per chunk (:mod:`.mc_kernel`) draws the normals, maps them to
+w = m + L z, evaluates g, centres the rows and sums AᵀA, the chunk's count, sums and
+cross-products.
 Only these sufficient statistics are kept, merged exactly with Chan's formula.  Memory is
 independent of n, the result does not depend on the chunk size (beyond rounding), and
 the groups can run on threads (the kernel releases the GIL) or on a Dask cluster with the
@@ -237,7 +240,8 @@ class MonteCarlo(Transform):
     seed : int or None
         Seed of ``numpy.random.SeedSequence``, a non-negative integer; the same seed gives
         the same result whatever the chunk size, the number of threads, or a Dask
-        cluster.  ``None`` draws a fresh seed from the OS, kept in ``seed`` (and shown by
+        cluster (its normals: :func:`group_normals`; without a C compiler another draw,
+        docs/compile.md).  ``None`` draws a fresh seed from the OS, kept in ``seed`` (and shown by
         ``repr``) so the run can be repeated.
     qmc : bool
         Scrambled Sobol' points through the inverse normal CDF instead of pseudo-random.
