@@ -456,8 +456,8 @@ def mc_lines(N_mc: int, floor: dict, smc: dict, nmc: dict | None, load: tuple[fl
                 f"`symmon.compile.rng`), at {floor['c_cpu'] / floor['cpu']:.2f} of NumPy's cost: the same 4N "
                 f"normals take {fmt(floor['c_cpu'])} of CPU there ({fmt(floor['c_wall'])} on {os.cpu_count()} "
                 f"cores), so against its own generator symmon's share by CPU is "
-                f"{floor['c_cpu'] / smc['cpu']:.0%}, and the NumPy floor is a target a generator "
-                "faster than NumPy's can pass." if "c_cpu" in floor else ""), "",
+                f"{floor['c_cpu'] / smc['cpu']:.0%}; the NumPy-normals limit is then no bound on symmon's run "
+                "(a generator faster than NumPy's can pass it)." if "c_cpu" in floor else ""), "",
              "| | first call | warm | CPU time | share of the limit (wall) | share by CPU | MoN |",
              "|---|---|---|---|---|---|---|",
              f"| symmon | {fmt(smc['first'])} | {fmt(smc['warm'])} | {fmt(smc['cpu'])} | {floor['wall'] / smc['warm']:.0%} "
