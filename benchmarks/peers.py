@@ -340,7 +340,16 @@ def mc_floor(N: int, repeat: int) -> dict:
     gen = np.random.Generator(np.random.SFC64(0))
     buf = np.empty((N // 4, 4))
     wall, cpu = timed(lambda: gen.standard_normal(out=buf), repeat)
-    return {"wall": 4 * wall / (os.cpu_count() or 1), "cpu": 4 * cpu}
+    out = {"wall": 4 * wall / (os.cpu_count() or 1), "cpu": 4 * cpu}
+    # symmon's own generator (symmon.compile.rng: xoshiro256++ and a ziggurat), the one its
+    # compiled chunk draws from, filling the same buffer: a lower floor than NumPy's.
+    from symmon.compile.rng import NormalStream
+
+    if NormalStream.available():
+        stream = NormalStream(np.random.SeedSequence(0), 0)
+        c_wall, c_cpu = timed(lambda: stream.fill(buf), repeat)
+        out.update(c_wall=4 * c_wall / (os.cpu_count() or 1), c_cpu=4 * c_cpu)
+    return out
 
 
 def symmon_mc(N: int, repeat: int):
@@ -426,7 +435,7 @@ def monte_carlo(N: int, repeat: int, rounds: int = 3):
     for _ in range(rounds - 1):
         again = [mc_floor(N, repeat), symmon_mc(N, repeat), numba_mc(N, repeat)]
         for old, new in zip(out, again):
-            for k in ("wall", "warm", "cpu"):
+            for k in ("wall", "warm", "cpu", "c_wall", "c_cpu"):
                 if old is not None and k in old:
                     old[k] = min(old[k], new[k])
     return out
@@ -442,7 +451,13 @@ def mc_lines(N_mc: int, floor: dict, smc: dict, nmc: dict | None, load: tuple[fl
              f"(CPU time of the normals: {fmt(floor['cpu'])}). Limit, symmon and numba run in turn, best of each; "
              f"load average before / after: {load[0]:.2f} / {load[1]:.2f}. *Share by CPU* is the normals' CPU "
              "time over the run's CPU time (all threads): the share of the limit on an idle machine, measured "
-             "without counting the time the threads wait for a core on a shared one.", "",
+             "without counting the time the threads wait for a core on a shared one."
+             + (f" symmon draws its normals itself, in the compiled chunk (xoshiro256++ and a ziggurat, "
+                f"`symmon.compile.rng`), at {floor['c_cpu'] / floor['cpu']:.2f} of NumPy's cost: the same 4N "
+                f"normals take {fmt(floor['c_cpu'])} of CPU there ({fmt(floor['c_wall'])} on {os.cpu_count()} "
+                f"cores), so against its own generator symmon's share by CPU is "
+                f"{floor['c_cpu'] / smc['cpu']:.0%}; the NumPy-normals limit is then no bound on symmon's run "
+                "(a generator faster than NumPy's can pass it)." if "c_cpu" in floor else ""), "",
              "| | first call | warm | CPU time | share of the limit (wall) | share by CPU | MoN |",
              "|---|---|---|---|---|---|---|",
              f"| symmon | {fmt(smc['first'])} | {fmt(smc['warm'])} | {fmt(smc['cpu'])} | {floor['wall'] / smc['warm']:.0%} "

@@ -14,7 +14,7 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
 ``NAME_run`` does all K steps of one run without returning to Python.  Per step:
 
 1. move and weigh: for each particle, its normals from the xoshiro stream of its chunk of
-   :data:`~symmon.filters.pf_rng.CHUNK` particles (:mod:`symmon.filters.pf_rng`), then one
+   :data:`~symmon.filters.pf_rng.CHUNK` particles (:mod:`symmon.compile.rng`), then one
    call of CasADi's generated function (the transition, the measurement, the wrapped
    innovation, its whitening by the inverse Cholesky factor A of the measured block of
    Γ R Γᵀ embedded with zero rows and columns for the missing components, and the
@@ -48,7 +48,8 @@ from ..compile import NativeLibrary, compiled_with_params
 from ..compile.compiled import WorkArrays, generated_c
 from ..core.angles import wrap_casadi
 from ..core.model import Model
-from .pf_rng import CHUNK, RNG_C
+from ..compile.rng import RNG_C
+from .pf_rng import CHUNK
 
 __all__ = ["BootstrapKernel", "bootstrap_kernel"]
 

@@ -10,7 +10,9 @@ cosines are appended before the 1 (for the circular mean).  The sufficient stati
 a chunk are AᵀA (count, sums, cross-products): one compiled call per chunk
 (:meth:`SampleKernel.stats`, ``{name}_stats``) computes the rows a block of
 :data:`BLOCK` at a time, by columns, and adds the block's cross-products, so no row
-leaves the L1 cache.  The rows themselves are written by :meth:`SampleKernel.__call__`.
+leaves the L1 cache; ``{name}_draw_stats`` (:meth:`ChunkStats.draw`) draws the block's
+normals too, from a stream of :mod:`symmon.compile.rng`, so no normal leaves it either.
+The rows themselves are written by :meth:`SampleKernel.__call__`.
 The calls go through ctypes, which releases the GIL: the groups' threads run in parallel.
 
 The row's arithmetic is a CasADi function built from the model's SX graph.  When all its
@@ -35,6 +37,7 @@ import numpy as np
 from ..core.angles import circle_point, wrap_casadi
 from ..compile.ccache import NativeLibrary
 from ..compile.compiled import CompiledModel, generated_c
+from ..compile.rng import RNG_C, NormalStream
 from ..compile.vecmath import VECMATH_C, vector_rows
 from ..errors import ShapeError, SymmonError
 
@@ -97,41 +100,77 @@ CASADI_SYMBOL_EXPORT int {name}_rows(const casadi_real* z, const casadi_real* p,
   }}
   return 0;
 }}
-/* symmon: S = the cross-products of the rows of n samples z (n_out × n_out); bad = (count, first index)
-   of the rows with a value that is not finite (x - x == 0 exactly when x is finite). */
-CASADI_SYMBOL_EXPORT int {name}_stats(const casadi_real* z, const casadi_real* p, casadi_int n,
-    casadi_real* S, long long* bad, casadi_int* iw, casadi_real* w) {{
+/* symmon: add the cross-products of the rows of m <= {block} samples z (rows b, b + 1, ...) to S
+   (upper triangle); count the rows with a value that is not finite in bad, and copy the first
+   one's z to zbad (x - x == 0 exactly when x is finite). */
+static int {name}_sums(const casadi_real* z, const casadi_real* p, casadi_int m, casadi_int b,
+    casadi_real* S, long long* bad, casadi_real* zbad, casadi_int* iw, casadi_real* w) {{
   casadi_real* blk = w + {sz_w};
   unsigned char fin[{block}];
-  casadi_int b, i, j, k, m, r;
-  bad[0] = 0; bad[1] = -1;
-  for (i = 0; i < {n_out} * {n_out}; ++i) S[i] = 0;
-  for (b = 0; b < n; b += {block}) {{
-    m = n - b < {block} ? n - b : {block};
-    if ({name}_block(z + b * {n_in}, p, m, blk, iw, w)) return 1;
-    for (r = 0; r < m; ++r) fin[r] = 1;
-    for (k = 0; k < {n_out}; ++k) {{
-      const casadi_real* c = blk + k * {block};
-      for (r = 0; r < m; ++r) fin[r] &= (c[r] - c[r] == 0);
+  casadi_int i, j, k, r;
+  if ({name}_block(z, p, m, blk, iw, w)) return 1;
+  for (r = 0; r < m; ++r) fin[r] = 1;
+  for (k = 0; k < {n_out}; ++k) {{
+    const casadi_real* c = blk + k * {block};
+    for (r = 0; r < m; ++r) fin[r] &= (c[r] - c[r] == 0);
+  }}
+  for (r = 0; r < m; ++r)
+    if (!fin[r]) {{
+      if (bad[1] < 0) {{ bad[1] = b + r; for (k = 0; k < {n_in}; ++k) zbad[k] = z[r * {n_in} + k]; }}
+      bad[0]++;
     }}
-    for (r = 0; r < m; ++r)
-      if (!fin[r]) {{ if (bad[1] < 0) bad[1] = b + r; bad[0]++; }}
-    for (r = m; r < (m + 15) / 16 * 16; ++r)  /* pad the last block to 16 rows with zeros */
-      for (k = 0; k < {n_out}; ++k) blk[k * {block} + r] = 0;
-    for (i = 0; i < {n_out}; ++i) {{
-      const casadi_real* ci = blk + i * {block};
-      for (j = i; j < {n_out}; ++j) {{
-        const casadi_real* cj = blk + j * {block};
-        casadi_real s[16] = {{0}}, t[8];
-        for (r = 0; r < m; r += 16)
-          for (k = 0; k < 16; ++k) s[k] += ci[r + k] * cj[r + k];
-        for (k = 0; k < 8; ++k) t[k] = s[k] + s[k + 8];
-        S[i * {n_out} + j] += ((t[0] + t[4]) + (t[2] + t[6])) + ((t[1] + t[5]) + (t[3] + t[7]));
-      }}
+  for (r = m; r < (m + 15) / 16 * 16; ++r)  /* pad the last block to 16 rows with zeros */
+    for (k = 0; k < {n_out}; ++k) blk[k * {block} + r] = 0;
+  for (i = 0; i < {n_out}; ++i) {{
+    const casadi_real* ci = blk + i * {block};
+    for (j = i; j < {n_out}; ++j) {{
+      const casadi_real* cj = blk + j * {block};
+      casadi_real s[16] = {{0}}, t[8];
+      for (r = 0; r < m; r += 16)
+        for (k = 0; k < 16; ++k) s[k] += ci[r + k] * cj[r + k];
+      for (k = 0; k < 8; ++k) t[k] = s[k] + s[k + 8];
+      S[i * {n_out} + j] += ((t[0] + t[4]) + (t[2] + t[6])) + ((t[1] + t[5]) + (t[3] + t[7]));
     }}
   }}
+  return 0;
+}}
+static void {name}_start(casadi_real* S, long long* bad) {{
+  casadi_int i;
+  bad[0] = 0; bad[1] = -1;
+  for (i = 0; i < {n_out} * {n_out}; ++i) S[i] = 0;
+}}
+static void {name}_symmetric(casadi_real* S) {{
+  casadi_int i, j;
   for (i = 0; i < {n_out}; ++i)
     for (j = 0; j < i; ++j) S[i * {n_out} + j] = S[j * {n_out} + i];
+}}
+/* symmon: S = the cross-products of the rows of n samples z (n_out × n_out); bad = (count, first
+   index) of the rows with a value that is not finite, zbad the first one's z. */
+CASADI_SYMBOL_EXPORT int {name}_stats(const casadi_real* z, const casadi_real* p, casadi_int n,
+    casadi_real* S, long long* bad, casadi_real* zbad, casadi_int* iw, casadi_real* w) {{
+  casadi_int b, m;
+  {name}_start(S, bad);
+  for (b = 0; b < n; b += {block}) {{
+    m = n - b < {block} ? n - b : {block};
+    if ({name}_sums(z + b * {n_in}, p, m, b, S, bad, zbad, iw, w)) return 1;
+  }}
+  {name}_symmetric(S);
+  return 0;
+}}
+/* symmon: {name}_stats of n samples drawn here, a block at a time, from the xoshiro256++ stream
+   s (symmon.compile.rng, advanced in place): the normals of a row in order, row after row,
+   as NormalStream.fill writes them; no normal leaves the L1 cache. */
+CASADI_SYMBOL_EXPORT int {name}_draw_stats(uint64_t* s, const casadi_real* p, casadi_int n,
+    casadi_real* S, long long* bad, casadi_real* zbad, casadi_int* iw, casadi_real* w) {{
+  casadi_real* z = w + {sz_w} + ({block} + 1) * {n_out};
+  casadi_int b, i, m;
+  {name}_start(S, bad);
+  for (b = 0; b < n; b += {block}) {{
+    m = n - b < {block} ? n - b : {block};
+    for (i = 0; i < m * {n_in}; ++i) z[i] = symmon_normal(s);
+    if ({name}_sums(z, p, m, b, S, bad, zbad, iw, w)) return 1;
+  }}
+  {name}_symmetric(S);
   return 0;
 }}
 """
@@ -208,15 +247,16 @@ class SampleKernel:
         fmt = dict(name=name, sz_arg=max(f.sz_arg(), 2), sz_res=max(f.sz_res(), 1), n_in=self.n_w,
                    n_out=self.n_out, block=BLOCK, sz_w=f.sz_w())
         fmt["fill"] = _BLOCK_FILL[self.vectorised].format(**fmt)
-        code = generated_c(f) + (VECMATH_C + vec if vec else "") + _CHUNK_DRIVER.format(**fmt)
+        code = RNG_C + generated_c(f) + (VECMATH_C + vec if vec else "") + _CHUNK_DRIVER.format(**fmt)
 
         def load(so):
             lib = ctypes.CDLL(str(so))
             rows, stats = getattr(lib, f"{name}_rows"), getattr(lib, f"{name}_stats")
+            draw = getattr(lib, f"{name}_draw_stats")
             rows.argtypes = [ctypes.c_void_p] * 3 + [ctypes.c_longlong] + [ctypes.c_void_p] * 2
-            stats.argtypes = [ctypes.c_void_p] * 2 + [ctypes.c_longlong] + [ctypes.c_void_p] * 4
-            rows.restype = stats.restype = ctypes.c_int
-            return rows, stats
+            stats.argtypes = draw.argtypes = [ctypes.c_void_p] * 2 + [ctypes.c_longlong] + [ctypes.c_void_p] * 5
+            rows.restype = stats.restype = draw.restype = ctypes.c_int
+            return rows, stats, draw
 
         return cm.native_library(code, name, load, stacklevel=5)
 
@@ -224,10 +264,14 @@ class SampleKernel:
         """Pack the parameters of a call."""
         return np.concatenate([mean, np.asarray(L, dtype=float).ravel(order="F"), shift, ref])
 
+    def _work_size(self) -> int:
+        # CasADi's work, a block of rows and one row, a block of normals (drawn in C).
+        return self.f.sz_w() + (BLOCK + 1) * self.n_out + BLOCK * self.n_w
+
     def workspace(self) -> tuple[np.ndarray, np.ndarray]:
-        """Work arrays for one thread (integer, real): CasADi's, then a block of rows."""
-        return (np.zeros(max(self.f.sz_iw(), 1), dtype=np.int64),
-                np.zeros(self.f.sz_w() + (BLOCK + 1) * self.n_out))
+        """Work arrays for one thread (integer, real): CasADi's, then a block of rows and
+        a block of normals."""
+        return (np.zeros(max(self.f.sz_iw(), 1), dtype=np.int64), np.zeros(self._work_size()))
 
     def _checked(self, Z: np.ndarray, p: np.ndarray, out: np.ndarray | None, work) -> tuple:
         """Z and p as the compiled loop takes them (the map w = m + L z done here above
@@ -255,7 +299,7 @@ class SampleKernel:
         if native is not None:
             iw, w = work if work is not None else self.workspace()
             if (iw.dtype != np.int64 or w.dtype != np.float64 or iw.size < self.f.sz_iw()
-                    or w.size < self.f.sz_w() + (BLOCK + 1) * self.n_out
+                    or w.size < self._work_size()
                     or not (iw.flags.c_contiguous and w.flags.c_contiguous)):
                 raise ShapeError("sampling kernel: the work arrays must come from workspace()")
             work = (iw, w)
@@ -284,10 +328,10 @@ class SampleKernel:
         ev()
 
     def stats(self, Z: np.ndarray, p: np.ndarray, work: tuple[np.ndarray, np.ndarray] | None = None
-              ) -> tuple[np.ndarray, int, int] | None:
+              ) -> tuple[np.ndarray, int, int, np.ndarray] | None:
         """S = AᵀA of the rows A for ``Z`` (as :meth:`__call__` writes them) in one compiled
-        call that keeps no rows, and the number of rows with a value that is not finite
-        and the index of the first (-1: none); None while the kernel is not compiled.
+        call that keeps no rows, the number of rows with a value that is not finite, the
+        index of the first (-1: none) and its z; None while the kernel is not compiled.
 
         The sums are in a fixed order (``_CHUNK_DRIVER``): the same numbers on any CPU
         whose C compiler gives IEEE double arithmetic, whatever its vector width.
@@ -295,7 +339,7 @@ class SampleKernel:
         Z, p, native, work = self._checked(Z, p, None, work)
         if native is None:
             return None
-        return ChunkStats(native[1], self.n_out, work)(Z, p)
+        return ChunkStats(native[1:], self.n_out, self.n_w, work)(Z, p)
 
     def chunk_stats(self, work: tuple[np.ndarray, np.ndarray]) -> "ChunkStats | None":
         """:meth:`stats` for the chunks of one thread, with its arguments checked once (the
@@ -304,7 +348,7 @@ class SampleKernel:
         if native is None or not self.fused:
             return None
         self._checked(np.zeros((0, self.n_w)), np.zeros(self.n_p), None, work)
-        return ChunkStats(native[1], self.n_out, work)
+        return ChunkStats(native[1:], self.n_out, self.n_w, work)
 
     def _mapped(self, N: int) -> ca.Function:
         with self._lock:
@@ -315,23 +359,34 @@ class SampleKernel:
 
 
 class ChunkStats:
-    """The compiled ``{name}_stats`` of one thread: (S, bad rows, first bad) of a chunk.
+    """The compiled ``{name}_stats`` and ``{name}_draw_stats`` of one thread: (S, bad rows,
+    first bad, its z) of a chunk, for given normals or for normals drawn in the kernel.
 
     The work arrays' addresses are taken once: per chunk, the Python cost is one ctypes
     call (NumPy's ``.ctypes`` of an array costs microseconds each).  Z and p must be
     C-contiguous float64 of the kernel's shapes (``SampleKernel._checked``)."""
 
-    def __init__(self, fn, n_out: int, work: tuple[np.ndarray, np.ndarray]) -> None:
-        self._fn, self._work = fn, work
+    def __init__(self, fns, n_out: int, n_in: int, work: tuple[np.ndarray, np.ndarray]) -> None:
+        self._stats, self._draw = fns
+        self._work = work  # the pointers below are into these arrays: keep them alive
         self._S = np.zeros((n_out, n_out))
         self._bad = np.zeros(2, dtype=np.int64)
-        self._ptrs = (self._S.ctypes.data, self._bad.ctypes.data, work[0].ctypes.data, work[1].ctypes.data)
+        self._zbad = np.zeros(n_in)
+        self._ptrs = (self._S.ctypes.data, self._bad.ctypes.data, self._zbad.ctypes.data,
+                      work[0].ctypes.data, work[1].ctypes.data)
 
-    def __call__(self, Z: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, int, int]:
-        S_ptr, bad_ptr, iw, w = self._ptrs
-        if self._fn(Z.ctypes.data, p.ctypes.data, Z.shape[0], S_ptr, bad_ptr, iw, w):
+    def _result(self, status: int) -> tuple[np.ndarray, int, int, np.ndarray]:
+        if status:
             raise SymmonError("the compiled sampling kernel returned an error")
-        return self._S.copy(), int(self._bad[0]), int(self._bad[1])
+        return self._S.copy(), int(self._bad[0]), int(self._bad[1]), self._zbad.copy()
+
+    def __call__(self, Z: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, int, int, np.ndarray]:
+        return self._result(self._stats(Z.ctypes.data, p.ctypes.data, Z.shape[0], *self._ptrs))
+
+    def draw(self, stream: NormalStream, p: np.ndarray, n: int) -> tuple[np.ndarray, int, int, np.ndarray]:
+        """The same for the next n samples of ``stream`` (n·n_w normals, drawn in the kernel
+        in the order :meth:`NormalStream.fill` writes them; the stream advances)."""
+        return self._result(self._draw(stream.state.ctypes.data, p.ctypes.data, n, *self._ptrs))
 
 
 _kernels: "weakref.WeakKeyDictionary[CompiledModel, dict[tuple[int, ...], SampleKernel]]" = weakref.WeakKeyDictionary()

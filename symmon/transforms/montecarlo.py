@@ -1,9 +1,12 @@
 """Monte Carlo moments: single-pass, chunked, compiled, with error bars.
 
 Samples are split into G independent *groups* (shards), each with its own stream from
-``numpy.random.SeedSequence(seed).spawn(G)``.  A group draws its samples chunk by chunk;
-one compiled C loop (:mod:`.mc_kernel`) maps the normals to w = m + L z, evaluates g and
-centres the rows, and one product AᵀA per chunk gives its count, sums and cross-products.
+``numpy.random.SeedSequence(seed).spawn(G)``: symmon's xoshiro256++ and ziggurat
+(:class:`~symmon.compile.rng.NormalStream`, tag :data:`MC_STREAM_TAG`) when a C compiler is
+in use, NumPy's SFC64 otherwise (:func:`normals_source`).  A group draws its samples chunk
+by chunk; one compiled C call per chunk (:mod:`.mc_kernel`) draws the normals, maps them to
+w = m + L z, evaluates g, centres the rows and sums AᵀA, the chunk's count, sums and
+cross-products.
 Only these sufficient statistics are kept, merged exactly with Chan's formula.  Memory is
 independent of n, the result does not depend on the chunk size (beyond rounding), and
 the groups can run on threads (the kernel releases the GIL) or on a Dask cluster with the
@@ -28,6 +31,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..compile.compiled import CompiledModel, compile_model
+from ..compile.rng import NormalStream
 from ..core.angles import wrap_angle
 from ..errors import SamplingError, SymmonError
 from .base import Moments, Transform, batch_sqrt, pilot_angle_cut
@@ -35,7 +39,7 @@ from .executor import Executor, _is_int, dask_compute, one_blas_thread, stop_poi
 from .mc_kernel import sample_kernel
 from .stats import Stats, _raw_stats, jackknife, merge, merge_all, moments_of
 
-__all__ = ["MonteCarlo", "group_generator", "group_sizes", "MC_INNER", "MAX_SAMPLES", "MAX_GROUPS", "MAX_CHUNK", "MC_CHUNK",
+__all__ = ["MonteCarlo", "group_generator", "group_normals", "group_sizes", "MC_STREAM_TAG", "normals_source", "MC_INNER", "MAX_SAMPLES", "MAX_GROUPS", "MAX_CHUNK", "MC_CHUNK",
            "MAX_QMC_GROUP"]
 
 #: Most samples in a run: counts and the sums of a chunk stay exact in double precision.
@@ -62,6 +66,27 @@ def group_generator(seed: np.random.SeedSequence) -> np.random.Generator:
     return np.random.Generator(np.random.SFC64(seed))
 
 
+#: The spawn-key entry that marks a Monte Carlo group's C normals among its seed's children.
+MC_STREAM_TAG = 0x4D43524E  # "MCRN"
+
+
+def normals_source(qmc: bool = False) -> str:
+    """Where a run's normals come from: ``"qmc"``; ``"c"``, symmon's C stream of each group
+    (:class:`~symmon.compile.rng.NormalStream`), when a C compiler is in use; else
+    ``"numpy"``, the group's SFC64 generator (:func:`group_generator`)."""
+    return "qmc" if qmc else ("c" if NormalStream.available() else "numpy")
+
+
+def group_normals(seed: np.random.SeedSequence, n: int, d: int) -> np.ndarray:
+    """The n × d normals that the group of ``seed`` draws with ``MonteCarlo(qmc=False)``, in
+    order: its xoshiro256++ stream (tag :data:`MC_STREAM_TAG`, drawn by the compiled
+    chunk itself) when a C compiler is in use, else its SFC64 generator.  For checks
+    that replay a run."""
+    if normals_source() == "c":
+        return NormalStream(seed, MC_STREAM_TAG).fill(np.empty((n, d)))
+    return group_generator(seed).standard_normal((n, d))
+
+
 def group_sizes(n: int, G: int) -> list[int]:
     """n split over G groups as evenly as possible (the first n mod G get one more)."""
     return [n // G + (1 if g < n % G else 0) for g in range(G)]
@@ -77,6 +102,7 @@ class _Job:
     chunk: int
     ref: np.ndarray  # reference output for angle unwrapping
     angles: tuple[int, ...]
+    normals: str = "c"  # "c": symmon's C stream (group_normals); "numpy": SFC64 (no compiler)
 
 
 def _sampling_error_count(n_bad: int, w_bad: np.ndarray | None, m: int, done: int) -> SamplingError:
@@ -108,21 +134,26 @@ def _run_group(cm: CompiledModel, job: _Job, stop: threading.Event | None = None
     digits, and with the centred rows the raw cross-products AᵀA of a chunk lose nothing
     in M2 = Σ zzᵀ − n z̄z̄ᵀ (|z̄| ≈ σ·√(2/chunk): σ/64 at the default chunk).
     Chunks are merged with Chan's formula.  ``stop`` (see :func:`~.executor.run_groups`) is checked
-    before each chunk.
+    before each chunk.  With symmon's C normals (``job.normals == "c"``) the compiled
+    chunk draws them itself (no normal is written to memory); on CasADi's VM, or above
+    :data:`~.mc_kernel.FUSE_MAX_NW` inputs, the same stream fills a NumPy array first.
     """
     d = job.mean.shape[0]
     ny = cm.n_y
     kernel = sample_kernel(cm, job.angles)
     work = kernel.workspace()
+    stream = None
     if job.qmc:
         from scipy.special import ndtri
         from scipy.stats import qmc
 
         engine = qmc.Sobol(d, scramble=True, seed=np.random.default_rng(job.seed))
+    elif job.normals == "c":
+        stream = NormalStream(job.seed, MC_STREAM_TAG)
     else:
         gen = group_generator(job.seed)
     rows = min(job.chunk, job.n)  # a group smaller than a chunk needs no more
-    Zbuf = np.empty((rows, d))
+    Zbuf: np.ndarray | None = None  # the normals, kept only when the kernel does not draw them
     Abuf: np.ndarray | None = None  # rows are kept only on CasADi's VM (no compiled kernel)
     fused = None
     shift = np.zeros(kernel.n_z)
@@ -132,27 +163,33 @@ def _run_group(cm: CompiledModel, job: _Job, stop: threading.Event | None = None
     while done < job.n:
         stop_point(stop)
         m = min(job.chunk, job.n - done)
-        Z = Zbuf[:m]
-        if job.qmc:
-            with warnings.catch_warnings():
-                # Chunks are powers of two and the total is one: the balance holds.
-                warnings.filterwarnings("ignore", message="The balance properties")
-                U = engine.random(m)
-            eps = np.finfo(float).eps
-            # ndtri is what norm.ppf evaluates (bit for bit), without its ~2x argument-checking overhead.
-            ndtri(np.clip(U, eps, 1 - eps, out=U), out=Z)
-        else:
-            gen.standard_normal(out=Z)
+        if fused is None:
+            fused = kernel.chunk_stats(work)
+        in_kernel = fused is not None and stream is not None  # the chunk draws its normals
+        if not in_kernel:
+            if Zbuf is None:
+                Zbuf = np.empty((rows, d))
+            Z = Zbuf[:m]
+            if job.qmc:
+                with warnings.catch_warnings():
+                    # Chunks are powers of two and the total is one: the balance holds.
+                    warnings.filterwarnings("ignore", message="The balance properties")
+                    U = engine.random(m)
+                eps = np.finfo(float).eps
+                # ndtri is what norm.ppf evaluates (bit for bit), without its ~2x argument-checking overhead.
+                ndtri(np.clip(U, eps, 1 - eps, out=U), out=Z)
+            elif stream is not None:
+                stream.fill(Z)
+            else:
+                gen.standard_normal(out=Z)
         if acc is None:
-            # The first chunk is centred on its first sample.
+            # The first chunk is centred on its first sample (not drawn yet when the kernel draws).
             first = np.empty((1, kernel.n_out))
-            kernel(Z[:1], p, first, work)
+            kernel(stream.peek(np.empty((1, d))) if in_kernel else Z[:1], p, first, work)
             shift = first[0, :-1].copy()
             if not np.isfinite(shift).all():
                 shift[:] = 0.0  # g fails at the first sample: leave the rows for the error count
             p = kernel.params(job.mean, job.L, shift, job.ref)
-        if fused is None:
-            fused = kernel.chunk_stats(work)
         if fused is None:  # CasADi's VM (or the map w = m + L z in NumPy): the rows, then one product
             if Abuf is None:
                 Abuf = np.empty((rows, kernel.n_out))
@@ -163,9 +200,9 @@ def _run_group(cm: CompiledModel, job: _Job, stop: threading.Event | None = None
             if not np.isfinite(S).all():
                 raise _sampling_error(A, shift, ny, d, m, done)
         else:  # one compiled call: the rows and their sums, no rows kept
-            S, n_bad, first_bad = fused(Z, p)
+            S, n_bad, _, z_bad = fused.draw(stream, p, m) if in_kernel else fused(Z, p)
             if n_bad or not np.isfinite(S).all():
-                w_bad = None if n_bad == 0 else job.mean + job.L @ Z[first_bad]
+                w_bad = None if n_bad == 0 else job.mean + job.L @ z_bad
                 raise _sampling_error_count(n_bad, w_bad, m, done)
         s = _raw_stats(S)
         if acc is None:
@@ -203,7 +240,8 @@ class MonteCarlo(Transform):
     seed : int or None
         Seed of ``numpy.random.SeedSequence``, a non-negative integer; the same seed gives
         the same result whatever the chunk size, the number of threads, or a Dask
-        cluster.  ``None`` draws a fresh seed from the OS, kept in ``seed`` (and shown by
+        cluster (its normals: :func:`group_normals`; without a C compiler another draw,
+        docs/compile.md).  ``None`` draws a fresh seed from the OS, kept in ``seed`` (and shown by
         ``repr``) so the run can be repeated.
     qmc : bool
         Scrambled Sobol' points through the inverse normal CDF instead of pseudo-random.
@@ -290,8 +328,9 @@ class MonteCarlo(Transform):
         chunk = int(self.chunk)
         if self.qmc:
             chunk = 1 << max(0, int(np.floor(np.log2(chunk))))  # powers of two keep Sobol' balanced
+        normals = normals_source(self.qmc)  # one source for every group, local or remote
         jobs = [
-            _Job(mean, L, n_g, s, self.qmc, chunk, ref, tuple(sorted(angles)))
+            _Job(mean, L, n_g, s, self.qmc, chunk, ref, tuple(sorted(angles)), normals)
             for n_g, s in zip(self.sizes(), seeds)
         ]
         if ex.distributed:

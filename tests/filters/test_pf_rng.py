@@ -19,7 +19,8 @@ from scipy import stats
 
 import symmon as sm
 from symmon.compile import has_compiler
-from symmon.filters.pf_rng import STREAM_TAG, stream_states, ziggurat_edges
+from symmon.compile.rng import NormalStream, ziggurat_edges
+from symmon.filters.pf_rng import STREAM_TAG, stream_states
 
 pytestmark = pytest.mark.skipif(not has_compiler(), reason="the generator is compiled C")
 DRAWS = 100_000
@@ -87,3 +88,12 @@ def test_stream_states_do_not_depend_on_how_many_are_made():
     ss = g.bit_generator.seed_seq
     words = np.random.SeedSequence(ss.entropy, spawn_key=ss.spawn_key + (STREAM_TAG,)).generate_state(8, np.uint64)
     np.testing.assert_array_equal(states(4, 2).ravel(), words)
+
+
+def test_the_filter_and_monte_carlo_share_one_generator(normals):
+    """symmon.compile.rng's NormalStream (Monte Carlo's normals) draws the same numbers from
+    a state as the particle filter's kernel: one generator, moved below both users."""
+    st = states(6, 1)[0]
+    stream = NormalStream(np.random.SeedSequence(0), 0)
+    stream.state[:] = st
+    np.testing.assert_array_equal(stream.fill(np.empty(5000)), normals(st.copy(), 5000))

@@ -138,12 +138,12 @@ def test_mc_and_deterministic_agree_at_the_cut(mc_moments):
 
 
 def _mc_samples(tr: sm.MonteCarlo, u: sm.Gaussian) -> np.ndarray:
-    """The inputs MonteCarlo draws: one SFC64 stream per group from SeedSequence.spawn."""
-    from symmon.transforms.montecarlo import group_generator
+    """The inputs MonteCarlo draws: one stream per group from SeedSequence.spawn (group_normals)."""
+    from symmon.transforms.montecarlo import group_normals
 
     L = np.linalg.cholesky(u.cov)
     seeds = np.random.SeedSequence(tr.seed).spawn(tr.groups)
-    Z = [group_generator(s).standard_normal((n, u.dim)) for n, s in zip(tr.sizes(), seeds)]
+    Z = [group_normals(s, n, u.dim) for n, s in zip(tr.sizes(), seeds)]
     return u.mean + np.concatenate(Z) @ L.T
 
 

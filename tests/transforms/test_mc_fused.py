@@ -1,7 +1,7 @@
 """Monte Carlo's fused chunk (rows and their sums in one compiled call, the row loop
 vectorised with symmon.compile.vecmath) on the shipped gmti.toml, its bearing an angle.
 
-Reference: the same normals (each group's SFC64 stream) through NumPy and libm (w = m +
+Reference: the same normals (each group's stream, ``group_normals``) through NumPy and libm (w = m +
 Z Lᵀ, np.arctan2, np.hypot, ``wrap_angle``), their moments by ``np.cov``: the kernel differs
 only by rounding (atan2 and hypot within 1 ulp of libm's, sums in another order), so the
 moments and the MoN agree to 1e-9 relative, far inside their standard errors (~1e-3
@@ -23,7 +23,7 @@ from symmon.core.angles import wrap_angle
 from symmon.errors import SamplingError
 from symmon.files.modelfile import load_model_file
 from symmon.transforms.mc_kernel import sample_kernel
-from symmon.transforms.montecarlo import group_generator
+from symmon.transforms.montecarlo import group_normals
 
 GMTI = Path(__file__).resolve().parents[2] / "examples" / "gmti.toml"
 N = 200_000
@@ -46,7 +46,7 @@ def numpy_moments(spec, mc: sm.MonteCarlo):
     """E y, Cov y, Cov(y, u) of gmti from the groups' own normals, by NumPy and libm."""
     m, P = np.asarray(spec.u.mean, float), np.asarray(spec.u.cov, float)
     L = np.linalg.cholesky(P)
-    W = np.concatenate([m + group_generator(s).standard_normal((n, 4)) @ L.T
+    W = np.concatenate([m + group_normals(s, n, 4) @ L.T
                         for n, s in zip(mc.sizes(), np.random.SeedSequence(mc.seed).spawn(mc.groups))])
     dx, dy = W[:, 0] - 1000.0, W[:, 1] - 1000.0
     r = np.sqrt(dx**2 + dy**2 + 1e6)
@@ -70,7 +70,7 @@ def test_the_chunk_sums_equal_the_product_of_its_rows(spec, kernel):
     Z = np.random.default_rng(0).standard_normal((1000, 4))  # not a multiple of the block or of 16
     A = np.empty((1000, kernel.n_out))
     kernel(Z, p, A)
-    S, n_bad, first = kernel.stats(Z, p)
+    S, n_bad, first, _ = kernel.stats(Z, p)
     np.testing.assert_allclose(S, A.T @ A, rtol=1e-12, atol=0)
     assert S[-1, -1] == 1000 and (n_bad, first) == (0, -1)
     assert np.array_equal(S, S.T)
@@ -113,7 +113,7 @@ def test_the_nonfinite_samples_are_counted(g):
     k = sample_kernel(compiled(model))
     assert k.vectorised == (g == "sqrt")
     mc = sm.MonteCarlo(1000, seed=0, groups=2)
-    w = 2.0 + group_generator(np.random.SeedSequence(0).spawn(2)[0]).standard_normal(500)
+    w = 2.0 + group_normals(np.random.SeedSequence(0).spawn(2)[0], 500, 1)[:, 0]
     bad = int((w < 0).sum())
     assert 0 < bad < 50
     first = re.escape(repr([float(w[w < 0][0])]))

@@ -27,7 +27,7 @@ from symmon.core.problems import gmti
 from symmon.compile import compiled
 from symmon.measures.sweep import sweep_alpha
 from symmon.transforms import montecarlo
-from symmon.transforms.montecarlo import group_generator
+from symmon.transforms.montecarlo import group_normals
 from symmon.transforms.stats import Stats, merge_all
 
 from helpers import ROOT
@@ -161,7 +161,7 @@ def test_merged_group_statistics_equal_the_concatenated_samples():
     L = np.linalg.cholesky(cov)
     parts = []
     for n_g, seed in zip(tr.sizes(), np.random.SeedSequence(7).spawn(5)):
-        W = mean + group_generator(seed).standard_normal((n_g, 2)) @ L.T
+        W = mean + group_normals(seed, n_g, 2) @ L.T
         parts.append(np.hstack([cm.eval_g(W), W]))
     whole = Stats.of(np.vstack(parts))
     merged = merge_all(groups)

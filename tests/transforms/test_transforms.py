@@ -17,7 +17,7 @@ from hypothesis.extra.numpy import arrays
 import symmon as sm
 from symmon.compile import CompiledModel
 from symmon.errors import QuadratureWarning, SamplingError
-from symmon.transforms.montecarlo import group_generator
+from symmon.transforms.montecarlo import group_normals
 from symmon.transforms.stats import Stats, merge, merge_all
 from symmon.transforms.nodes import standard_rule
 
@@ -403,7 +403,7 @@ def test_monte_carlo_nan_raises_with_the_count():
     tr = sm.MonteCarlo(n=2 * n_group, seed=3, groups=2, chunk=n_group)
     mean, sd = 0.5, 1.0
     # The count the first group must report: its samples are reproducible from the seed.
-    z = group_generator(np.random.SeedSequence(3).spawn(2)[0]).standard_normal((n_group, 1))
+    z = group_normals(np.random.SeedSequence(3).spawn(2)[0], n_group, 1)
     expected = int(np.sum(mean + sd * z[:, 0] <= 0.0))
     assert expected > 0
     with pytest.raises(SamplingError, match=rf"NaN or inf at {expected} of {n_group} samples"):
