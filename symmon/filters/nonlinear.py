@@ -268,7 +268,7 @@ class NonlinearKalmanFilter:
         checked = filter_inputs(self, ys, x0, P0, keep=forward, params=params,
                                 extra_per_step=n + (2 if self.square_root else 1) * n * n,
                                 what="smoother results", advice=_SMALLER)
-        fwd = self.filter(checked.Y if checked.runs is not None else checked.Y[0], x0, P0, keep=forward, params=params)
+        fwd = self._filter_checked(checked)  # the forward pass, on the inputs checked once
         bank = fwd.runs is not None
         X = fwd.x if bank else fwd.x[None]
         P = fwd.P if bank else fwd.P[None]
@@ -430,8 +430,13 @@ class NonlinearKalmanFilter:
         """
         if executor is not None:
             return filter_bank(self, executor, ys, x0=x0, P0=P0, keep=keep, params=params, x_true=x_true)
+        return self._filter_checked(filter_inputs(self, ys, x0, P0, keep=keep, params=params, x_true=x_true,
+                                                  advice=_SMALLER))
+
+    def _filter_checked(self, checked) -> KalmanResult:
+        """:meth:`filter` on its inputs as :func:`~symmon.filters.inputs.filter_inputs` checked
+        them (so that :meth:`smooth` checks them once)."""
         n_y = self.h_model.n_y
-        checked = filter_inputs(self, ys, x0, P0, keep=keep, params=params, x_true=x_true, advice=_SMALLER)
         Yb, runs, kept, truth = checked.Y, checked.runs, checked.keep, checked.truth
         extra = {} if checked.params is None else {"params": checked.params}  # a strategy without parameters needs no argument
         if truth is not None and self.strategy.nees_in_step:

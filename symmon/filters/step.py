@@ -39,6 +39,7 @@ models", FUSION 2015 (wrapped residuals).
 from __future__ import annotations
 
 import ctypes
+import functools
 import hashlib
 import math
 import os
@@ -587,10 +588,18 @@ def first_nonfinite(loglik: np.ndarray, x: np.ndarray | None, P: np.ndarray | No
 MIN_WORK_PER_THREAD = 2000 * 4**3
 
 
+@functools.cache
+def _cpus() -> int:
+    """The number of CPUs (os.cpu_count() costs tens of µs a call: read once)."""
+    return os.cpu_count() or 1
+
+
 def chunk_runs(runs: int, K: int, n: int) -> list[tuple[int, int]]:
     """The runs [a, b) of each thread: one per CPU, as long as each gets enough work
     (:data:`MIN_WORK_PER_THREAD`) for the runs × K steps of an n-state filter."""
-    threads = max(1, min(os.cpu_count() or 1, runs, (runs * K * n**3) // MIN_WORK_PER_THREAD))
+    threads = max(1, min(_cpus(), runs, (runs * K * n**3) // MIN_WORK_PER_THREAD))
+    if threads == 1:
+        return [(0, runs)]
     edges = np.linspace(0, runs, threads + 1).round().astype(int)
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
