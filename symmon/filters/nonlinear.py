@@ -67,7 +67,7 @@ import sympy as sp
 from numpy.typing import ArrayLike
 
 from ..errors import AngleWarning, ArgumentTypeError, SymmonError
-from ..core.checks import noise_cov, readonly
+from ..core.checks import all_finite, noise_cov, readonly
 from .diagnose import locate_nonfinite
 from .distributed import filter_bank
 from .export import export_filter_c
@@ -277,8 +277,10 @@ class NonlinearKalmanFilter:
         if self.square_root:  # the factors the filter propagated, not a new factorisation of P
             P = fwd.P_chol if bank else fwd.P_chol[None]
         xs, Ps, *chol = smoother(X, P, self.Q, params=checked.params)
-        bad = ~(np.isfinite(xs).all(axis=-1) & np.isfinite(Ps).all(axis=(-1, -2)))
-        if bad.any():
+        # One sum per array when all is finite (no boolean array of the size of P^s); the
+        # entry-by-entry test names the step otherwise.
+        bad = None if all_finite(xs, Ps) else ~(np.isfinite(xs).all(axis=-1) & np.isfinite(Ps).all(axis=(-1, -2)))
+        if bad is not None and bad.any():
             r, k = np.argwhere(bad)[-1]  # the backward pass runs from the end
             where = f"step {k}" if not bank else f"run {r}, step {k}"
             raise SymmonError(f"{self.method} smoother: NaN or inf at {where} (a predicted covariance is "
