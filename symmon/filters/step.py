@@ -39,7 +39,6 @@ models", FUSION 2015 (wrapped residuals).
 from __future__ import annotations
 
 import ctypes
-import functools
 import hashlib
 import math
 import os
@@ -357,15 +356,17 @@ class CompiledLoop:
         from here: the NativeLibrary gets one more).
     also : tuple of casadi.Function
         Other functions in ``code`` that the loop calls (their work arrays are shared).
+    background : bool
+        Build in the background whatever the size of ``code`` (``f`` on CasADi's VM meanwhile).
     """
 
     def __init__(self, f: ca.Function, code: str, argtypes: list, stacklevel: int = 4,
-                 also: tuple[ca.Function, ...] = ()) -> None:
+                 also: tuple[ca.Function, ...] = (), background: bool = False) -> None:
         self.f = f
         self._work = WorkArrays(f, *also)
         self._argtypes = argtypes
         # Without a compiler, compiled() has already warned (once) while the step was built.
-        self._lib = NativeLibrary(code, f.name(), self._load, stacklevel=stacklevel + 1)
+        self._lib = NativeLibrary(code, f.name(), self._load, stacklevel=stacklevel + 1, background=background)
 
     def _load(self, so):
         run = getattr(ctypes.CDLL(str(so)), f"{self.f.name()}_run")
@@ -588,10 +589,16 @@ def first_nonfinite(loglik: np.ndarray, x: np.ndarray | None, P: np.ndarray | No
 MIN_WORK_PER_THREAD = 2000 * 4**3
 
 
-@functools.cache
+_cpu_count: list = [None, 1]  # os.cpu_count and its value
+
+
 def _cpus() -> int:
-    """The number of CPUs (os.cpu_count() costs tens of µs a call: read once)."""
-    return os.cpu_count() or 1
+    """The number of CPUs: os.cpu_count() (which reads a file, tens of µs a call) read once,
+    and again when that function is replaced (a test's monkeypatch)."""
+    fn = os.cpu_count
+    if _cpu_count[0] is not fn:
+        _cpu_count[:] = [fn, fn() or 1]
+    return _cpu_count[1]
 
 
 def chunk_runs(runs: int, K: int, n: int) -> list[tuple[int, int]]:
