@@ -28,8 +28,9 @@ everything between "here is C source" and "here is a loaded library":
   it is killed at exit instead.
 - **Policy** (``$SYMMON_COMPILE``): ``auto`` (default) compiles C of up to
   :data:`BACKGROUND_BYTES` at once with -O3, and larger C in a background thread (-O3,
-  or -O0 above :data:`HUGE_BYTES`) while CasADi's virtual machine evaluates, then swaps
-  the library in; ``sync`` always waits for the compiler (-O3); ``background`` always
+  or -O0 above :data:`HUGE_BYTES` unless split into small functions,
+  :func:`background_level`) while CasADi's virtual machine evaluates, then swaps the
+  library in; ``sync`` always waits for the compiler (-O3); ``background`` always
   builds in the background; ``never`` uses the virtual machine only (as does
   ``SYMMON_NO_COMPILE=1``).  ``docs/compile.md`` gives the measurements behind the
   thresholds.
@@ -86,10 +87,33 @@ BACKGROUND_BYTES = 64_000
 #: -O0 takes seconds and still evaluates 3-4x faster than the VM: background at -O0.
 OPT_HUGE = "-O0"
 HUGE_BYTES = 300_000
+#: gcc's time grows faster than the code within one function, about linearly over many: C above
+#: HUGE_BYTES made of functions of at most this size each, and at most SPLIT_BYTES in all (the
+#: forward-over-reverse derivatives of an MX filter step, many functions of under 100 KB) is
+#: still built at -O3 in the background, in a few tens of seconds (docs/compile.md).
+SPLIT_FUNCTION_BYTES = 150_000
+SPLIT_BYTES = 1_500_000
 MODES = ("auto", "sync", "background", "never")
 
 _lock = threading.Lock()
 _warned: set[str] = set()
+
+
+def largest_function_bytes(code: str) -> int:
+    """The size in bytes of the largest top-level block of C ``code``: the text between two lines
+    that start with the ``}`` closing a function (or an array), CasADi's layout and symmon's.
+    C in another layout counts as one block, the whole file (the safe side)."""
+    return max(len(part.encode()) for part in re.split(r"\n}[^\n]*\n", code))
+
+
+def background_level(code: str) -> str:
+    """The optimisation of a background build of ``code``: -O3, or -O0 for C above
+    :data:`HUGE_BYTES` unless it is split into functions of at most
+    :data:`SPLIT_FUNCTION_BYTES` and is at most :data:`SPLIT_BYTES` in all."""
+    size = len(code.encode())
+    if size <= HUGE_BYTES or (size <= SPLIT_BYTES and largest_function_bytes(code) <= SPLIT_FUNCTION_BYTES):
+        return OPT_SYNC
+    return OPT_HUGE
 
 
 def _warn_once(key: str, message: str, stacklevel: int) -> None:
@@ -673,7 +697,7 @@ class NativeLibrary(Generic[T]):
             self._sync(code, OPT_SYNC, load, stacklevel + 1)
             self._done.set()
             return
-        opt = OPT_SYNC if self.code_bytes <= HUGE_BYTES else OPT_HUGE
+        opt = background_level(code)
         self._state = "building"
         catch_sigterm()
         log.info("symmon: %s: %d bytes of C; evaluating on CasADi's VM while it compiles (%s) "

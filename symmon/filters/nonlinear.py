@@ -67,7 +67,7 @@ import sympy as sp
 from numpy.typing import ArrayLike
 
 from ..errors import AngleWarning, ArgumentTypeError, SymmonError
-from ..core.checks import noise_cov, readonly
+from ..core.checks import all_finite, noise_cov, readonly
 from .diagnose import locate_nonfinite
 from .distributed import filter_bank
 from .export import export_filter_c
@@ -268,7 +268,7 @@ class NonlinearKalmanFilter:
         checked = filter_inputs(self, ys, x0, P0, keep=forward, params=params,
                                 extra_per_step=n + (2 if self.square_root else 1) * n * n,
                                 what="smoother results", advice=_SMALLER)
-        fwd = self.filter(checked.Y if checked.runs is not None else checked.Y[0], x0, P0, keep=forward, params=params)
+        fwd = self._filter_checked(checked)  # the forward pass, on the inputs checked once
         bank = fwd.runs is not None
         X = fwd.x if bank else fwd.x[None]
         P = fwd.P if bank else fwd.P[None]
@@ -277,8 +277,10 @@ class NonlinearKalmanFilter:
         if self.square_root:  # the factors the filter propagated, not a new factorisation of P
             P = fwd.P_chol if bank else fwd.P_chol[None]
         xs, Ps, *chol = smoother(X, P, self.Q, params=checked.params)
-        bad = ~(np.isfinite(xs).all(axis=-1) & np.isfinite(Ps).all(axis=(-1, -2)))
-        if bad.any():
+        # One sum per array when all is finite (no boolean array of the size of P^s); the
+        # entry-by-entry test names the step otherwise.
+        bad = None if all_finite(xs, Ps) else ~(np.isfinite(xs).all(axis=-1) & np.isfinite(Ps).all(axis=(-1, -2)))
+        if bad is not None and bad.any():
             r, k = np.argwhere(bad)[-1]  # the backward pass runs from the end
             where = f"step {k}" if not bank else f"run {r}, step {k}"
             raise SymmonError(f"{self.method} smoother: NaN or inf at {where} (a predicted covariance is "
@@ -430,8 +432,13 @@ class NonlinearKalmanFilter:
         """
         if executor is not None:
             return filter_bank(self, executor, ys, x0=x0, P0=P0, keep=keep, params=params, x_true=x_true)
+        return self._filter_checked(filter_inputs(self, ys, x0, P0, keep=keep, params=params, x_true=x_true,
+                                                  advice=_SMALLER))
+
+    def _filter_checked(self, checked) -> KalmanResult:
+        """:meth:`filter` on its inputs as :func:`~symmon.filters.inputs.filter_inputs` checked
+        them (so that :meth:`smooth` checks them once)."""
         n_y = self.h_model.n_y
-        checked = filter_inputs(self, ys, x0, P0, keep=keep, params=params, x_true=x_true, advice=_SMALLER)
         Yb, runs, kept, truth = checked.Y, checked.runs, checked.keep, checked.truth
         extra = {} if checked.params is None else {"params": checked.params}  # a strategy without parameters needs no argument
         if truth is not None and self.strategy.nees_in_step:

@@ -22,7 +22,11 @@ than storing C in the forward pass), and a C loop runs it over the steps and the
 a bank; it goes through the same compile policy as the filter step.  The gain comes from the
 Cholesky factor of the prediction, P⁻ = L Lᵀ, as G = (C L⁻ᵀ) L⁻¹ (the blocked factor and
 inverse of :mod:`symmon.codegen.symbolic`, whose products are loops in C), not from a
-general solve: the same G to rounding, several times faster at n = 30.
+general solve: the same G to rounding, several times faster at n = 30.  Where the time update
+is TT1's closed form with additive noise (the EKF; a UT on affine dynamics without angle
+states), from :data:`~symmon.filters.ekfstep.C_EKF_FROM` states on, the loop calls the C
+backward step of :mod:`symmon.filters.ekfsmooth` instead, around CasADi's pieces of f (the
+CasADi function stays for the VM).
 
 References
 ----------
@@ -47,6 +51,7 @@ from ..core.model import Model
 from ..errors import SymmonError
 from ..transforms import Transform
 from ..compile.ckernels import STOP_POLL
+from .ekfsmooth import backward_c, backward_in_c, backward_pieces
 from .sqrtstep import covariance_of, noise_factor, sqrt_predict_graph
 from .step import CompiledLoop, chunk_runs, predict_graph, select_params, sym
 
@@ -103,10 +108,11 @@ def sqrt_backward_graph(f: Model, transform: Transform, angle_states: frozenset[
 _DRIVER = """
 /* symmon: the RTS backward pass of {name} over a bank: x (runs*K*n), P (runs*K*n*n) filtered;
    xs, Ps smoothed, the same layout; stop (not null) is polled before each step, as in the
-   filter's loop. */
-CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x, const casadi_real* P, const casadi_real* Q,
+   filter's loop.  s: the scratch of a C backward step ({scratch} reals), one block per call. */
+#include <stdlib.h>
+static int {name}_loop(const casadi_real* x, const casadi_real* P, const casadi_real* Q,
     const casadi_real* p, casadi_real* xs, casadi_real* Ps, casadi_int runs, casadi_int K, casadi_int* iw,
-    casadi_real* w, const volatile int* stop) {{
+    casadi_real* w, const volatile int* stop, casadi_real* s) {{
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
   casadi_int r, k, i;
@@ -120,10 +126,21 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x, const casadi_real* P, 
       arg[0] = x + i * {n}; arg[1] = P + i * {nn}; arg[2] = xs + (i + 1) * {n};
       arg[3] = Ps + (i + 1) * {nn}; arg[4] = Q; arg[5] = p + (i + 1) * {n_p};
       res[0] = xs + i * {n}; res[1] = Ps + i * {nn};
-      if ({name}(arg, res, iw, w, 0)) return 1;
+      if ({call}) return 1;
     }}
   }}
   return 0;
+}}
+
+CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x, const casadi_real* P, const casadi_real* Q,
+    const casadi_real* p, casadi_real* xs, casadi_real* Ps, casadi_int runs, casadi_int K, casadi_int* iw,
+    casadi_real* w, const volatile int* stop) {{
+  casadi_real* s = 0;
+  int code;
+  if ({scratch} && !(s = (casadi_real*)malloc({scratch} * sizeof(casadi_real)))) return 1;
+  code = {name}_loop(x, P, Q, p, xs, Ps, runs, K, iw, w, stop, s);
+  free(s);
+  return code;
 }}
 """
 
@@ -138,9 +155,24 @@ class _CompiledSmoother(CompiledLoop):
         fn = _backward_function(f, transform, angle_states, names, name, square_root)
         self.square_root = square_root
         self.n, self.n_p = f.n_u, len(names)
-        code = generated_c(fn) + _DRIVER.format(name=name, sz_arg=max(fn.sz_arg(), 6), sz_res=max(fn.sz_res(), 2),
-                                                n=self.n, nn=self.n * self.n, n_p=self.n_p, stop_poll=STOP_POLL)
-        super().__init__(fn, code, [ctypes.c_void_p] * 6 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 3)
+        # A TT1 time update with additive noise from C_EKF_FROM states on: the C backward step of
+        # symmon.filters.ekfsmooth around CasADi's pieces of f; the MX step fn stays for the VM.
+        self.c_backward = backward_in_c(f, transform, angle_states, square_root)
+        if self.c_backward:
+            xs, ps = ca.SX.sym("x", self.n), ca.SX.sym("p", self.n_p)
+            funcs, pattern = backward_pieces(f, angle_states, select_params(f, names, ps), xs, ps, name)
+            step_code, scratch = backward_c(name, self.n, pattern)
+            code, call = generated_c(*funcs) + step_code, f"{name}_bwd(arg, res, iw, w, s)"
+        else:
+            funcs, scratch = (fn,), 0
+            code, call = generated_c(fn), f"{name}(arg, res, iw, w, 0)"
+        code += _DRIVER.format(name=name, sz_arg=max(max(g.sz_arg() for g in funcs), 6),
+                               sz_res=max(max(g.sz_res() for g in funcs), 2), n=self.n, nn=self.n * self.n,
+                               n_p=self.n_p, stop_poll=STOP_POLL, call=call, scratch=scratch)
+        # The C backward step is small (16-20 KB at n = 10-30) but its gcc run would still be most of
+        # a first call: it builds in the background while the MX step runs on the VM.
+        super().__init__(fn, code, [ctypes.c_void_p] * 6 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 3,
+                         also=funcs, background=self.c_backward)
 
     def __call__(self, x: np.ndarray, P: np.ndarray, Q: np.ndarray, use_c: bool = True,
                  params: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

@@ -356,15 +356,17 @@ class CompiledLoop:
         from here: the NativeLibrary gets one more).
     also : tuple of casadi.Function
         Other functions in ``code`` that the loop calls (their work arrays are shared).
+    background : bool
+        Build in the background whatever the size of ``code`` (``f`` on CasADi's VM meanwhile).
     """
 
     def __init__(self, f: ca.Function, code: str, argtypes: list, stacklevel: int = 4,
-                 also: tuple[ca.Function, ...] = ()) -> None:
+                 also: tuple[ca.Function, ...] = (), background: bool = False) -> None:
         self.f = f
         self._work = WorkArrays(f, *also)
         self._argtypes = argtypes
         # Without a compiler, compiled() has already warned (once) while the step was built.
-        self._lib = NativeLibrary(code, f.name(), self._load, stacklevel=stacklevel + 1)
+        self._lib = NativeLibrary(code, f.name(), self._load, stacklevel=stacklevel + 1, background=background)
 
     def _load(self, so):
         run = getattr(ctypes.CDLL(str(so)), f"{self.f.name()}_run")
@@ -589,10 +591,24 @@ def first_nonfinite(loglik: np.ndarray, x: np.ndarray | None, P: np.ndarray | No
 MIN_WORK_PER_THREAD = 2000 * 4**3
 
 
+_cpu_count: list = [None, 1]  # os.cpu_count and its value
+
+
+def _cpus() -> int:
+    """The number of CPUs: os.cpu_count() (which reads a file, tens of µs a call) read once,
+    and again when that function is replaced (a test's monkeypatch)."""
+    fn = os.cpu_count
+    if _cpu_count[0] is not fn:
+        _cpu_count[:] = [fn, fn() or 1]
+    return _cpu_count[1]
+
+
 def chunk_runs(runs: int, K: int, n: int) -> list[tuple[int, int]]:
     """The runs [a, b) of each thread: one per CPU, as long as each gets enough work
     (:data:`MIN_WORK_PER_THREAD`) for the runs × K steps of an n-state filter."""
-    threads = max(1, min(os.cpu_count() or 1, runs, (runs * K * n**3) // MIN_WORK_PER_THREAD))
+    threads = max(1, min(_cpus(), runs, (runs * K * n**3) // MIN_WORK_PER_THREAD))
+    if threads == 1:
+        return [(0, runs)]
     edges = np.linspace(0, runs, threads + 1).round().astype(int)
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
