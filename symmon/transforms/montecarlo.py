@@ -102,7 +102,7 @@ class _Job:
     chunk: int
     ref: np.ndarray  # reference output for angle unwrapping
     angles: tuple[int, ...]
-    normals: str = "c"  # "c": symmon's C stream (group_normals); "numpy": SFC64 (no compiler)
+    normals: str  # "c": symmon's C stream (group_normals); "numpy": SFC64 (no compiler); "qmc"
 
 
 def _sampling_error_count(n_bad: int, w_bad: np.ndarray | None, m: int, done: int) -> SamplingError:
