@@ -46,7 +46,7 @@ import numpy as np
 
 from ..compile import NativeLibrary, compiled_with_params
 from ..compile.compiled import WorkArrays, generated_c
-from ..core.angles import wrap_casadi
+from ..compile.vecmath import VECMATH_C, vector_rows
 from ..core.model import Model
 from .pf_rng import CHUNK, RNG_C
 
@@ -57,6 +57,7 @@ _LOG_2PI = math.log(2 * math.pi)
 # The recursion of one run.  casadi_int is long long (CasADi's default).
 _DRIVER = """
 #include <string.h>
+#include <stdlib.h>
 #include <pthread.h>
 static const int {name}_ax[{nx}] = {{{ax}}};
 static const int {name}_ay[{ny}] = {{{ay}}};
@@ -138,6 +139,8 @@ static void {name}_bwait({name}_barrier* b) {{
 
 /* Per chunk of CHUNK particles: [max t, bad, sum e, sum e^2, sum e x (or sin), sum e cos]. */
 #define {name}_PW (4 + 2 * {nx})
+/* Doubles of a thread's buffers (the body's notes). */
+#define {name}_BUF ({ld} * {nr} + {ld} * {no} + {no} + {block} / 8 + 1)
 
 typedef struct {{
   const casadi_real* P; casadi_int K, N, nch; casadi_real *X0, *Xn0, *t, *e, *lw, *sc, *hx, *part;
@@ -155,44 +158,49 @@ static casadi_int {name}_lower(const casadi_real* sc, casadi_int N, casadi_real 
 
 /* Thread tau's share of the K steps (chunks [c0, c1)); every reduction is by chunk, in chunk
    order, so the numbers do not depend on T. */
-static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w) {{
+static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_real* buf) {{
   const casadi_int N = c->N, nch = c->nch, c0 = nch * tau / c->T, c1 = nch * (tau + 1) / c->T;
   const casadi_int a0 = c0 * {chunk}, a1 = c1 * {chunk} < N ? c1 * {chunk} : N;
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
   casadi_real *X = c->X0, *Xn = c->Xn0, *tmp, *xi, *pc;
-  casadi_real ll, ti, m, s, s2, lse, ei, cum, scale, pt, off, zl[{nq}], eps[{nx}], sx[{nx}], sn[{nx}], cs[{nx}];
-  const casadi_real* zi;
+  casadi_real ti, m, s, s2, lse, ei, cum, scale, pt, off, zr[{nq}], eps[{nx}], sx[{nx}], sn[{nx}], cs[{nx}];
   const casadi_real log_n = log((casadi_real) N);
   uint64_t* rs = (uint64_t*) c->st + 4 * nch;
-  casadi_int i, j, k, q, a, b, bad, redo, lo, hi, end;
+  casadi_int i, j, k, q, a, b, bad, redo, lo, hi, end, b0, nb;
+  /* this thread's buffers: the rows [x, z] of a block, its outputs by columns, one row, the flags */
+  casadi_real *rb = buf, *blk = rb + {ld} * {nr}, *row = blk + {ld} * {no};
+  unsigned char* odd = (unsigned char*) (row + {no});
   const int want_pred = c->o_xp || c->o_Pp || c->o_hm, reg = (int) c->opt[1];
   for (i = a0; i < a1; ++i) c->lw[i] = -log_n;
   for (k = 0; k < c->K; ++k) {{
     arg[2] = c->P + k * {n_p};
-    res[1] = &ll;
-    for (q = c0; q < c1; ++q) {{  /* move and weigh, chunk q */
+    for (q = c0; q < c1; ++q) {{  /* move and weigh, chunk q, in blocks of {block} particles */
       uint64_t* sg = (uint64_t*) c->st + 4 * q, sl[4];
       memcpy(sl, sg, sizeof sl);  /* the state in registers, not memory, while it runs */
       end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
       m = -INFINITY;
       bad = 0;
-      for (i = q * {chunk}; i < end; ++i) {{
-        if (c->zext) zi = c->zext + (k * N + i) * {nq};
-        else {{
-          for (j = 0; j < {nq}; ++j) zl[j] = symmon_normal(sl);
-          zi = zl;
+      for (b0 = q * {chunk}; b0 < end; b0 += {block}) {{
+        nb = end - b0 < {block} ? end - b0 : {block};
+        /* the rows [x_i, z_i] by columns (rb[j * {ld} + i]: the vector loop's loads are
+           contiguous); the normals of the block in one tight loop, particle by particle, so
+           the stream is the one a draw per particle would give */
+        for (i = 0; i < nb; ++i) for (j = 0; j < {nx}; ++j) rb[j * {ld} + i] = X[(b0 + i) * {nx} + j];
+        if (c->zext) {{
+          for (i = 0; i < nb; ++i) for (j = 0; j < {nq}; ++j) rb[({nx} + j) * {ld} + i] = c->zext[(k * N + b0 + i) * {nq} + j];
+        }} else for (i = 0; i < nb; ++i) for (j = 0; j < {nq}; ++j) rb[({nx} + j) * {ld} + i] = symmon_normal(sl);
+        {fill}
+        for (i = 0; i < nb; ++i) {{
+          xi = Xn + (b0 + i) * {nx};
+          for (j = 0; j < {nx}; ++j) xi[j] = blk[j * {ld} + i];
+          if (c->hx) for (j = 0; j < {ny}; ++j) c->hx[(b0 + i) * {ny} + j] = blk[({nx} + 1 + j) * {ld} + i];
+          ti = c->lw[b0 + i] + blk[{nx} * {ld} + i];
+          c->t[b0 + i] = ti;
+          if (ti != ti || ti == INFINITY) bad |= 1;
+          for (j = 0; j < {nx}; ++j) if (!isfinite(xi[j])) bad |= 1;
+          if (ti > m) m = ti;
         }}
-        arg[0] = X + i * {nx};
-        arg[1] = zi;
-        res[0] = Xn + i * {nx};
-        res[2] = c->hx ? c->hx + i * {ny} : 0;
-        if ({name}(arg, res, iw, w, 0)) bad = 2;
-        ti = c->lw[i] + ll;
-        c->t[i] = ti;
-        if (ti != ti || ti == INFINITY) bad |= 1;
-        for (j = 0; j < {nx}; ++j) if (!isfinite(res[0][j])) bad |= 1;
-        if (ti > m) m = ti;
       }}
       memcpy(sg, sl, sizeof sl);
       c->part[q * {name}_PW] = m;
@@ -315,12 +323,12 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w) {
   return 0;
 }}
 
-typedef struct {{ {name}_ctx* c; int tau; casadi_int* iw; casadi_real* w; int ret; }} {name}_arg;
+typedef struct {{ {name}_ctx* c; int tau; casadi_int* iw; casadi_real* w; casadi_real* buf; int ret; }} {name}_arg;
 static void* {name}_thread(void* p) {{
   {name}_arg* a = ({name}_arg*) p;
   pthread_mutex_lock(&a->c->gate);  /* wait until every thread is made and T is final */
   pthread_mutex_unlock(&a->c->gate);
-  a->ret = {name}_body(a->c, a->tau, a->iw, a->w);
+  a->ret = {name}_body(a->c, a->tau, a->iw, a->w, a->buf);
   return 0;
 }}
 
@@ -345,6 +353,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
   pthread_t th[64];
   casadi_real cov[{nx} * {nx}], L[{nx} * {nx}];
   int tau, ret = 0, started = 0;
+  casadi_real* buf;
   c.P = P; c.K = K; c.N = N; c.nch = (N + {chunk} - 1) / {chunk};
   c.X0 = X0; c.Xn0 = Xn0; c.t = t; c.e = e; c.lw = lw; c.sc = sc; c.hx = hx; c.part = part; c.st = st;
   c.zext = zext; c.uext = uext; c.jext = jext; c.opt = opt; c.fl = fl; c.o_ll = o_ll; c.o_ess = o_ess;
@@ -354,6 +363,8 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
   if (T > 64) T = 64;
   if (T < 1) T = 1;
   c.T = (int) T;
+  buf = (casadi_real*) malloc(T * {name}_BUF * sizeof(casadi_real));
+  if (!buf) return 1;
   c.bar.T = (int) T; c.bar.count = 0; c.bar.gen = 0;
   pthread_mutex_init(&c.bar.mu, 0);
   pthread_cond_init(&c.bar.cv, 0);
@@ -361,7 +372,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
   pthread_mutex_lock(&c.gate);
   for (tau = 0; tau < T; ++tau) {{
     args[tau].c = &c; args[tau].tau = tau; args[tau].iw = iw + tau * isz; args[tau].w = w + tau * wsz;
-    args[tau].ret = 0;
+    args[tau].ret = 0; args[tau].buf = buf + tau * {name}_BUF;
   }}
   for (tau = 1; tau < T; ++tau) {{
     if (pthread_create(&th[tau], 0, {name}_thread, &args[tau])) break;
@@ -374,10 +385,34 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
   pthread_mutex_destroy(&c.bar.mu);
   pthread_cond_destroy(&c.bar.cv);
   pthread_mutex_destroy(&c.gate);
+  free(buf);
   for (tau = 0; tau <= started; ++tau) if (args[tau].ret > ret) ret = args[tau].ret;
   return ret;
 }}
 """
+
+
+#: Particles per block of the move and weigh (the rows of a block by columns fit in L2).
+BLOCK = 256
+#: The column stride of a block's buffers: not a power of two, so that the columns of a row
+#: (written one after another by the normals' loop) do not all fall in one set of the L1 cache.
+LD = BLOCK + 8
+# The move and weigh of a block of nb rows rb = [x_i, z_i] into blk (by columns: x'_i, the
+# log-density, h(x'_i)): by the vectorised loop {name}_vec when f and h have one
+# (symmon.compile.vecmath: arithmetic, sqrt, atan2, hypot, within 1 ulp), a row it flags
+# (an atan2 or hypot argument that is zero, inf, NaN or beyond 2^±500) recomputed by
+# CasADi's function (libm); else by CasADi's function row by row.
+_ROW = """
+          for (j = 0; j < {nq}; ++j) zr[j] = rb[({nx} + j) * {ld} + i];
+          arg[0] = X + (b0 + i) * {nx}; arg[1] = zr;
+          res[0] = row; res[1] = row + {nx}; res[2] = row + {nx} + 1;
+          if ({name}(arg, res, iw, w, 0)) bad = 2;
+          for (j = 0; j < {no}; ++j) blk[j * {ld} + i] = row[j];"""
+_FILL = {
+    True: "if ({name}_vec(rb, arg[2], blk, nb, odd)) for (i = 0; i < nb; ++i) {{\n          if (!odd[i]) continue;"
+          + _ROW + "\n        }}",
+    False: "for (i = 0; i < nb; ++i) {{" + _ROW + "\n        }}",
+}
 
 
 class BootstrapKernel:
@@ -390,6 +425,9 @@ class BootstrapKernel:
     Lq_pattern : bool (d, n_q), the structural nonzeros of L_Q (d: f's noise symbols, or n),
         n_q the draws per particle
     angle_states, angle_outputs : wrapped components
+    vectorise : bool, default True
+        Move and weigh through :func:`~symmon.compile.vecmath.vector_rows`'s loop where f
+        and h have one (False: CasADi's function per particle, for comparisons)
 
     Notes
     -----
@@ -400,7 +438,7 @@ class BootstrapKernel:
     """
 
     def __init__(self, f_model: Model, h_model: Model, params: Sequence, Lq_pattern: np.ndarray,
-                 angle_states: Sequence[int], angle_outputs: Sequence[int]) -> None:
+                 angle_states: Sequence[int], angle_outputs: Sequence[int], vectorise: bool = True) -> None:
         cf, ch = compiled_with_params(f_model), compiled_with_params(h_model)
         n, ny, npar = f_model.n_u, h_model.n_y, len(params)
         self.n, self.n_y, self.n_par = n, ny, npar
@@ -426,11 +464,11 @@ class BootstrapKernel:
 
         noise = ca.mtimes(Lq, z)
         xn = of(f_model, cf, x, [noise]) if f_model.n_v else of(f_model, cf, x, []) + noise
-        xn = ca.vertcat(*[wrap_casadi(xn[i]) if i in angle_states else xn[i] for i in range(n)])
+        xn = ca.vertcat(*[_wrap(xn[i]) if i in angle_states else xn[i] for i in range(n)])
         hx = of(h_model, ch, xn, [ca.SX.zeros(h_model.n_v)] if h_model.n_v else [])
-        hx = ca.vertcat(*[wrap_casadi(hx[i]) if i in angle_outputs else hx[i] for i in range(ny)])
+        hx = ca.vertcat(*[_wrap(hx[i]) if i in angle_outputs else hx[i] for i in range(ny)])
         nu = y - hx
-        nu = ca.vertcat(*[ca.if_else(mask[i], wrap_casadi(nu[i]) if i in angle_outputs else nu[i], 0)
+        nu = ca.vertcat(*[ca.if_else(mask[i], _wrap(nu[i]) if i in angle_outputs else nu[i], 0)
                           for i in range(ny)])
         wz = ca.mtimes(A, nu)
         ll = -0.5 * ca.dot(wz, wz) + c
@@ -441,10 +479,23 @@ class BootstrapKernel:
         self.n_p = p.numel()
         self._work = WorkArrays(self.f)
         self.angle_states = tuple(angle_states)
+        # The same map as one output [x', log-density, h(x')] of the rows [x, z] of a block
+        # stored by columns, for the vectorised loop (None: an operation without a vector
+        # form, e.g. sin): vector_rows reads input j of row i at z[i * n_in + j], so the
+        # row's input is a vector whose entry j * LD is the row's entry j, with n_in = 1.
+        cols = ca.SX.sym("r", (n + n_q - 1) * LD + 1)
+        at = ca.vertcat(*[cols[j * LD] for j in range(n + n_q)])
+        out = ca.substitute(ca.vertcat(xn, ll, hx), ca.vertcat(x, z), at)
+        row = ca.Function(f"{name}_row", [cols, p], [out], {"cse": True})
+        vec = vector_rows(row, f"{name}_vec", 1, LD) if vectorise else None
+        #: True when the move and weigh run through the vectorised loop (module notes).
+        self.vectorised = vec is not None
         flags = lambda idx, d: ", ".join("1" if i in idx else "0" for i in range(d))  # noqa: E731
-        code = RNG_C + generated_c(self.f) + _DRIVER.format(
-            name=name, sz_arg=max(self.f.sz_arg(), 3), sz_res=max(self.f.sz_res(), 3), nx=n, nq=max(n_q, 1), ny=ny,
-            n_p=self.n_p, dm=max(n, ny), chunk=CHUNK, ax=flags(angle_states, n), ay=flags(angle_outputs, ny))
+        fmt = dict(name=name, sz_arg=max(self.f.sz_arg(), 3), sz_res=max(self.f.sz_res(), 3), nx=n, nq=max(n_q, 1),
+                   ny=ny, n_p=self.n_p, dm=max(n, ny), chunk=CHUNK, ax=flags(angle_states, n),
+                   ay=flags(angle_outputs, ny), block=BLOCK, ld=LD, nr=n + max(n_q, 1), no=n + 1 + ny)
+        fmt["fill"] = _FILL[self.vectorised].format(**fmt)
+        code = RNG_C + generated_c(self.f) + (VECMATH_C + vec if vec else "") + _DRIVER.format(**fmt)
 
         def load(so):
             lib = ctypes.CDLL(str(so))
@@ -498,6 +549,21 @@ class BootstrapKernel:
     def work(self) -> tuple[int, int]:
         """This thread's work arrays (addresses)."""
         return self._work.addresses()
+
+
+def _wrap(a: ca.SX) -> ca.SX:
+    """:func:`symmon.core.angles.wrap_casadi` without its select, the same number to the bit.
+
+    o = (a + π) − 2π ⌊(a + π)/2π⌋ − π lies in [−π, π); d = o + π is exact (Sterbenz), so
+    d = 0 exactly where o = −π, and else 2⁻⁵³ ≤ d < 2π, where ⌈d/8⌉ = 1.  Hence
+    o + (1 − ⌈d/8⌉) 2π is o (o is never −0: x − π with x ≥ 0 is +0 at zero, so o + 0 = o)
+    or −π + 2π = π exactly (2π is π doubled); a NaN stays NaN.  gcc vectorises a loop with
+    this form, not one with a select on a comparison (symmon.compile.vecmath's row loop).
+    """
+    two_pi = 2 * np.pi
+    s = a + np.pi
+    out = s - two_pi * ca.floor(s / two_pi) - np.pi
+    return out + (1 - ca.ceil((out + np.pi) / 8)) * two_pi
 
 
 _kernels: dict[tuple, BootstrapKernel] = {}
