@@ -116,13 +116,19 @@ static void {name}_chol(const casadi_real* C, casadi_real* L) {{
   }}
 }}
 
-/* symmon: count normals of stream s into out (tests of the generator). */
-CASADI_SYMBOL_EXPORT void {name}_normals(unsigned long long* s, casadi_int count, casadi_real* out) {{
+/* count normals of the stream whose state is s into out, in a loop of its own (inlined into
+   the particle loop, the generator's state and tables spill out of the registers). */
+static __attribute__((noinline)) void {name}_draw(uint64_t* s, casadi_int count, casadi_real* out) {{
   casadi_int i;
   uint64_t sl[4];
   memcpy(sl, s, sizeof sl);  /* the state in registers, not memory, while it runs */
   for (i = 0; i < count; ++i) out[i] = symmon_normal(sl);
   memcpy(s, sl, sizeof sl);
+}}
+
+/* symmon: count normals of stream s into out (tests of the generator). */
+CASADI_SYMBOL_EXPORT void {name}_normals(unsigned long long* s, casadi_int count, casadi_real* out) {{
+  {name}_draw((uint64_t*) s, count, out);
 }}
 
 /* A barrier of the run's T threads (POSIX mutex and condition: macOS has no pthread_barrier). */
@@ -140,7 +146,7 @@ static void {name}_bwait({name}_barrier* b) {{
 /* Per chunk of CHUNK particles: [max t, bad, sum e, sum e^2, sum e x (or sin), sum e cos]. */
 #define {name}_PW (4 + 2 * {nx})
 /* Doubles of a thread's buffers (the body's notes). */
-#define {name}_BUF ({ld} * {nr} + {ld} * {no} + {no} + {block} / 8 + 1)
+#define {name}_BUF ({ld} * {nr} + {ld} * {no} + 2 * {ld} + {block} * {nq} + {no} + {block} / 8 + 1)
 
 typedef struct {{
   const casadi_real* P; casadi_int K, N, nch; casadi_real *X0, *Xn0, *t, *e, *lw, *sc, *hx, *part;
@@ -164,17 +170,18 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
   casadi_real *X = c->X0, *Xn = c->Xn0, *tmp, *xi, *pc;
+  const casadi_real* pk;
   casadi_real ti, m, s, s2, lse, ei, cum, scale, pt, off, zr[{nq}], eps[{nx}], sx[{nx}], sn[{nx}], cs[{nx}];
   const casadi_real log_n = log((casadi_real) N);
   uint64_t* rs = (uint64_t*) c->st + 4 * nch;
   casadi_int i, j, k, q, a, b, bad, redo, lo, hi, end, b0, nb;
   /* this thread's buffers: the rows [x, z] of a block, its outputs by columns, one row, the flags */
-  casadi_real *rb = buf, *blk = rb + {ld} * {nr}, *row = blk + {ld} * {no};
+  casadi_real *rb = buf, *blk = rb + {ld} * {nr}, *wz = blk + {ld} * {no}, *acc = wz + {ld}, *zt = acc + {ld}, *row = zt + {block} * {nq};
   unsigned char* odd = (unsigned char*) (row + {no});
   const int want_pred = c->o_xp || c->o_Pp || c->o_hm, reg = (int) c->opt[1];
   for (i = a0; i < a1; ++i) c->lw[i] = -log_n;
   for (k = 0; k < c->K; ++k) {{
-    arg[2] = c->P + k * {n_p};
+    arg[2] = pk = c->P + k * {n_p};
     for (q = c0; q < c1; ++q) {{  /* move and weigh, chunk q, in blocks of {block} particles */
       uint64_t* sg = (uint64_t*) c->st + 4 * q, sl[4];
       memcpy(sl, sg, sizeof sl);  /* the state in registers, not memory, while it runs */
@@ -189,13 +196,29 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
         for (i = 0; i < nb; ++i) for (j = 0; j < {nx}; ++j) rb[j * {ld} + i] = X[(b0 + i) * {nx} + j];
         if (c->zext) {{
           for (i = 0; i < nb; ++i) for (j = 0; j < {nq}; ++j) rb[({nx} + j) * {ld} + i] = c->zext[(k * N + b0 + i) * {nq} + j];
-        }} else for (i = 0; i < nb; ++i) for (j = 0; j < {nq}; ++j) rb[({nx} + j) * {ld} + i] = symmon_normal(sl);
+        }} else {{  /* drawn by a call of their own (its loop keeps the generator in registers), then transposed */
+          {name}_draw(sl, nb * {nq}, zt);
+          for (i = 0; i < nb; ++i) for (j = 0; j < {nq}; ++j) rb[({nx} + j) * {ld} + i] = zt[i * {nq} + j];
+        }}
         {fill}
+        /* the log-density c - |A nu|^2 / 2 of the measured components (another's nu, maybe
+           not finite, never enters), A = pk[o_A ...] by columns, by loops over the block */
+        for (i = 0; i < nb; ++i) acc[i] = 0;
+        for (a = 0; a < {ny}; ++a) {{
+          if (pk[{o_mask} + a] == 0) continue;
+          for (i = 0; i < nb; ++i) wz[i] = 0;
+          for (b = 0; b < {ny}; ++b) {{
+            const casadi_real A_ab = pk[{o_A} + b * {ny} + a], *nu = blk + ({nx} + b) * {ld};
+            if (pk[{o_mask} + b] == 0) continue;
+            for (i = 0; i < nb; ++i) wz[i] += A_ab * nu[i];
+          }}
+          for (i = 0; i < nb; ++i) acc[i] += wz[i] * wz[i];
+        }}
         for (i = 0; i < nb; ++i) {{
           xi = Xn + (b0 + i) * {nx};
           for (j = 0; j < {nx}; ++j) xi[j] = blk[j * {ld} + i];
-          if (c->hx) for (j = 0; j < {ny}; ++j) c->hx[(b0 + i) * {ny} + j] = blk[({nx} + 1 + j) * {ld} + i];
-          ti = c->lw[b0 + i] + blk[{nx} * {ld} + i];
+          if (c->hx) for (j = 0; j < {ny}; ++j) c->hx[(b0 + i) * {ny} + j] = blk[({nx} + {ny} + j) * {ld} + i];
+          ti = c->lw[b0 + i] + (-0.5 * acc[i] + pk[{n_p} - 1]);
           c->t[b0 + i] = ti;
           if (ti != ti || ti == INFINITY) bad |= 1;
           for (j = 0; j < {nx}; ++j) if (!isfinite(xi[j])) bad |= 1;
@@ -405,7 +428,7 @@ LD = BLOCK + 8
 _ROW = """
           for (j = 0; j < {nq}; ++j) zr[j] = rb[({nx} + j) * {ld} + i];
           arg[0] = X + (b0 + i) * {nx}; arg[1] = zr;
-          res[0] = row; res[1] = row + {nx}; res[2] = row + {nx} + 1;
+          res[0] = row; res[1] = row + {nx}; res[2] = row + {nx} + {ny};
           if ({name}(arg, res, iw, w, 0)) bad = 2;
           for (j = 0; j < {no}; ++j) blk[j * {ld} + i] = row[j];"""
 _FILL = {
@@ -453,10 +476,8 @@ class BootstrapKernel:
         col, row = np.nonzero(pattern.T)  # the nonzeros in column-major order, as CasADi stores them
         Lq = ca.SX(ca.Sparsity.triplet(d, n_q, row.tolist(), col.tolist()), p[npar:npar + nnz])
         o = npar + nnz
-        y, mask = p[o:o + ny], p[o + ny:o + 2 * ny]
-        o += 2 * ny
-        A = ca.reshape(p[o:o + ny * ny], ny, ny)
-        c = p[o + ny * ny]
+        y = p[o:o + ny]  # then the mask, vec(A) and c, which the C reads (pack's notes)
+        self._o_mask, self._o_A = o + ny, o + 2 * ny
 
         def of(model: Model, cm, state, noise):
             th = [theta[list(params).index(s)] for s in model.params]
@@ -467,15 +488,14 @@ class BootstrapKernel:
         xn = ca.vertcat(*[_wrap(xn[i]) if i in angle_states else xn[i] for i in range(n)])
         hx = of(h_model, ch, xn, [ca.SX.zeros(h_model.n_v)] if h_model.n_v else [])
         hx = ca.vertcat(*[_wrap(hx[i]) if i in angle_outputs else hx[i] for i in range(ny)])
+        # the innovation, wrapped; the C whitens its measured components (a select on the
+        # mask here would keep gcc from vectorising the row loop)
         nu = y - hx
-        nu = ca.vertcat(*[ca.if_else(mask[i], _wrap(nu[i]) if i in angle_outputs else nu[i], 0)
-                          for i in range(ny)])
-        wz = ca.mtimes(A, nu)
-        ll = -0.5 * ca.dot(wz, wz) + c
+        nu = ca.vertcat(*[_wrap(nu[i]) if i in angle_outputs else nu[i] for i in range(ny)])
         name = f"{cf.tag}_{ch.tag}_pfb" + "".join(f"_s{i}" for i in angle_states) + "".join(
             f"_o{i}" for i in angle_outputs)
-        self.f = ca.Function(name, [x, z, p], [ca.densify(xn), ll, ca.densify(hx)], ["x", "z", "p"],
-                             ["xn", "ll", "hx"], {"cse": True})
+        self.f = ca.Function(name, [x, z, p], [ca.densify(xn), ca.densify(nu), ca.densify(hx)], ["x", "z", "p"],
+                             ["xn", "nu", "hx"], {"cse": True})
         self.n_p = p.numel()
         self._work = WorkArrays(self.f)
         self.angle_states = tuple(angle_states)
@@ -485,7 +505,7 @@ class BootstrapKernel:
         # row's input is a vector whose entry j * LD is the row's entry j, with n_in = 1.
         cols = ca.SX.sym("r", (n + n_q - 1) * LD + 1)
         at = ca.vertcat(*[cols[j * LD] for j in range(n + n_q)])
-        out = ca.substitute(ca.vertcat(xn, ll, hx), ca.vertcat(x, z), at)
+        out = ca.substitute(ca.vertcat(xn, nu, hx), ca.vertcat(x, z), at)
         row = ca.Function(f"{name}_row", [cols, p], [out], {"cse": True})
         vec = vector_rows(row, f"{name}_vec", 1, LD) if vectorise else None
         #: True when the move and weigh run through the vectorised loop (module notes).
@@ -493,7 +513,8 @@ class BootstrapKernel:
         flags = lambda idx, d: ", ".join("1" if i in idx else "0" for i in range(d))  # noqa: E731
         fmt = dict(name=name, sz_arg=max(self.f.sz_arg(), 3), sz_res=max(self.f.sz_res(), 3), nx=n, nq=max(n_q, 1),
                    ny=ny, n_p=self.n_p, dm=max(n, ny), chunk=CHUNK, ax=flags(angle_states, n),
-                   ay=flags(angle_outputs, ny), block=BLOCK, ld=LD, nr=n + max(n_q, 1), no=n + 1 + ny)
+                   ay=flags(angle_outputs, ny), block=BLOCK, ld=LD, nr=n + max(n_q, 1), no=n + 2 * ny,
+                   o_mask=self._o_mask, o_A=self._o_A)
         fmt["fill"] = _FILL[self.vectorised].format(**fmt)
         code = RNG_C + generated_c(self.f) + (VECMATH_C + vec if vec else "") + _DRIVER.format(**fmt)
 
