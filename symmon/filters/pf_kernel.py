@@ -150,7 +150,7 @@ static void {name}_bwait({name}_barrier* b) {{
 
 typedef struct {{
   const casadi_real* P; casadi_int K, N, nch; casadi_real *X0, *Xn0, *t, *e, *lw, *sc, *hx, *part;
-  unsigned long long* st; const casadi_real *zext, *uext, *jext; const casadi_int* opt; const casadi_real* fl;
+  unsigned long long* st; const casadi_real *zext, *uext, *jext, *m0, *L0; const casadi_int* opt; const casadi_real* fl;
   casadi_real *o_ll, *o_ess, *o_res, *o_x, *o_P, *o_xp, *o_Pp, *o_hm, *o_hS, *cov, *L;
   casadi_int* fail; {name}_barrier bar; int T; pthread_mutex_t gate;
 }} {name}_ctx;
@@ -179,6 +179,20 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
   casadi_real *rb = buf, *blk = rb + {ld} * {nr}, *wz = blk + {ld} * {no}, *acc = wz + {ld}, *zt = acc + {ld}, *row = zt + {block} * {nq};
   unsigned char* odd = (unsigned char*) (row + {no});
   const int want_pred = c->o_xp || c->o_Pp || c->o_hm, reg = (int) c->opt[1];
+  if (c->m0) for (q = c0; q < c1; ++q) {{  /* the prior x0 = m + L z, z the first normals of chunk q's stream */
+    end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
+    {name}_draw((uint64_t*) c->st + 4 * q, (end - q * {chunk}) * {nx}, X + q * {chunk} * {nx});
+    for (i = q * {chunk}; i < end; ++i) {{
+      xi = X + i * {nx};
+      memcpy(eps, xi, sizeof eps);
+      for (a = 0; a < {nx}; ++a) {{
+        if (c->opt[2]) ei = c->L0[a * {nx} + a] * eps[a];  /* a diagonal L */
+        else for (ei = 0, b = 0; b < {nx}; ++b) ei += c->L0[a * {nx} + b] * eps[b];
+        xi[a] = ei + c->m0[a];
+        if ({name}_ax[a]) xi[a] = {name}_wrap(xi[a]);
+      }}
+    }}
+  }}
   for (i = a0; i < a1; ++i) c->lw[i] = -log_n;
   for (k = 0; k < c->K; ++k) {{
     arg[2] = pk = c->P + k * {n_p};
@@ -257,10 +271,7 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
         s += ei;
         s2 += ei * ei;
         xi = Xn + i * {nx};
-        for (j = 0; j < {nx}; ++j) {{
-          if ({name}_ax[j]) {{ sx[j] += ei * sin(xi[j]); cs[j] += ei * cos(xi[j]); }}
-          else sx[j] += ei * xi[j];
-        }}
+        {wsum}
       }}
       pc = c->part + q * {name}_PW;
       pc[2] = s; pc[3] = s2;
@@ -361,13 +372,15 @@ static void* {name}_thread(void* p) {{
    t, e, lw, sc: work (N x n, N, N, N, N); hx: N x ny or NULL; part: ceil(N / CHUNK) x
    (4 + 2n); st: ceil(N / CHUNK) + 1 xoshiro states (the chunks', then the resampling
    stream); zext, uext, jext: replayed move normals (K x N x nq), resampling points (K x N,
-   ascending in [0, N)) and jitter normals (K x N x nx), or NULL to draw; opt = [scheme (0
-   systematic, 1 stratified, 2 multinomial), regularise]; fl = [ESS threshold x N,
+   ascending in [0, N)) and jitter normals (K x N x nx), or NULL to draw; m0, L0: the mean
+   and square root (n x n, row-major) of a Gaussian prior to draw X from (the first normals
+   of each chunk's stream), or NULL (X given); opt = [scheme (0 systematic, 1 stratified,
+   2 multinomial), regularise, L0 diagonal]; fl = [ESS threshold x N,
    bandwidth h]; outputs per step (NULL: not wanted); iw, w: T work arrays of isz, wsz. */
 CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_int N, casadi_real* X0,
     casadi_real* Xn0, casadi_real* t, casadi_real* e, casadi_real* lw, casadi_real* sc, casadi_real* hx,
     casadi_real* part, unsigned long long* st, const casadi_real* zext, const casadi_real* uext,
-    const casadi_real* jext, const casadi_int* opt, const casadi_real* fl, casadi_real* o_ll, casadi_real* o_ess,
+    const casadi_real* jext, const casadi_real* m0, const casadi_real* L0, const casadi_int* opt, const casadi_real* fl, casadi_real* o_ll, casadi_real* o_ess,
     casadi_real* o_res, casadi_real* o_x, casadi_real* o_P, casadi_real* o_xp, casadi_real* o_Pp,
     casadi_real* o_hm, casadi_real* o_hS, casadi_int* iw, casadi_real* w, casadi_int isz, casadi_int wsz,
     casadi_int T, casadi_int* fail) {{
@@ -379,7 +392,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
   casadi_real* buf;
   c.P = P; c.K = K; c.N = N; c.nch = (N + {chunk} - 1) / {chunk};
   c.X0 = X0; c.Xn0 = Xn0; c.t = t; c.e = e; c.lw = lw; c.sc = sc; c.hx = hx; c.part = part; c.st = st;
-  c.zext = zext; c.uext = uext; c.jext = jext; c.opt = opt; c.fl = fl; c.o_ll = o_ll; c.o_ess = o_ess;
+  c.zext = zext; c.uext = uext; c.jext = jext; c.m0 = m0; c.L0 = L0; c.opt = opt; c.fl = fl; c.o_ll = o_ll; c.o_ess = o_ess;
   c.o_res = o_res; c.o_x = o_x; c.o_P = o_P; c.o_xp = o_xp; c.o_Pp = o_Pp; c.o_hm = o_hm; c.o_hS = o_hS;
   c.cov = cov; c.L = L; c.fail = fail;
   if (T > c.nch) T = c.nch;
@@ -431,6 +444,13 @@ _ROW = """
           res[0] = row; res[1] = row + {nx}; res[2] = row + {nx} + {ny};
           if ({name}(arg, res, iw, w, 0)) bad = 2;
           for (j = 0; j < {no}; ++j) blk[j * {ld} + i] = row[j];"""
+# The weighted sums of a particle's states (sines and cosines for angle states); without
+# angle states a loop without a branch, which gcc vectorises (the same operations).
+_WSUM = "for (j = 0; j < {nx}; ++j) sx[j] += ei * xi[j];"
+_WSUM_ANGLES = """for (j = 0; j < {nx}; ++j) {{
+          if ({name}_ax[j]) {{ sx[j] += ei * sin(xi[j]); cs[j] += ei * cos(xi[j]); }}
+          else sx[j] += ei * xi[j];
+        }}"""
 _FILL = {
     True: "if ({name}_vec(rb, arg[2], blk, nb, odd)) for (i = 0; i < nb; ++i) {{\n          if (!odd[i]) continue;"
           + _ROW + "\n        }}",
@@ -516,12 +536,13 @@ class BootstrapKernel:
                    ay=flags(angle_outputs, ny), block=BLOCK, ld=LD, nr=n + max(n_q, 1), no=n + 2 * ny,
                    o_mask=self._o_mask, o_A=self._o_A)
         fmt["fill"] = _FILL[self.vectorised].format(**fmt)
+        fmt["wsum"] = (_WSUM_ANGLES if angle_states else _WSUM).format(**fmt)
         code = RNG_C + generated_c(self.f) + (VECMATH_C + vec if vec else "") + _DRIVER.format(**fmt)
 
         def load(so):
             lib = ctypes.CDLL(str(so))
             run = getattr(lib, f"{name}_run")
-            run.argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_longlong] + [ctypes.c_void_p] * 25
+            run.argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_longlong] + [ctypes.c_void_p] * 27
                             + [ctypes.c_longlong] * 3 + [ctypes.c_void_p])
             run.restype = ctypes.c_int
             normals = getattr(lib, f"{name}_normals")
