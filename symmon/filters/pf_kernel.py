@@ -596,16 +596,17 @@ class BootstrapKernel:
 def _wrap(a: ca.SX) -> ca.SX:
     """:func:`symmon.core.angles.wrap_casadi` without its select, the same number to the bit.
 
-    o = (a + π) − 2π ⌊(a + π)/2π⌋ − π lies in [−π, π); d = o + π is exact (Sterbenz), so
-    d = 0 exactly where o = −π, and else 2⁻⁵³ ≤ d < 2π, where ⌈d/8⌉ = 1.  Hence
-    o + (1 − ⌈d/8⌉) 2π is o (o is never −0: x − π with x ≥ 0 is +0 at zero, so o + 0 = o)
-    or −π + 2π = π exactly (2π is π doubled); a NaN stays NaN.  gcc vectorises a loop with
-    this form, not one with a select on a comparison (symmon.compile.vecmath's row loop).
+    o = (a + π) − 2π ⌊(a + π)/2π⌋ − π lies in [−π, π] up to rounding (a little below −π
+    for large |a|); d = o + π is exact near −π (Sterbenz), so d = 0 exactly where o = −π,
+    and else 0 < |d| < 8, where ⌈|d|/8⌉ = 1.  Hence o + (1 − ⌈|d|/8⌉) 2π is o (o is never
+    −0: x − π is +0 at zero, so o + 0 = o) or −π + 2π = π exactly (2π is π doubled); a NaN
+    stays NaN.  gcc vectorises a loop with this form, not one with a select on a
+    comparison (symmon.compile.vecmath's row loop).
     """
     two_pi = 2 * np.pi
     s = a + np.pi
     out = s - two_pi * ca.floor(s / two_pi) - np.pi
-    return out + (1 - ca.ceil((out + np.pi) / 8)) * two_pi
+    return out + (1 - ca.ceil(ca.fabs(out + np.pi) / 8)) * two_pi
 
 
 _kernels: dict[tuple, BootstrapKernel] = {}
