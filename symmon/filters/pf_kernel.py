@@ -13,13 +13,17 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
 
 ``NAME_run`` does all K steps of one run without returning to Python.  Per step:
 
-1. move and weigh: for each particle, its normals from the xoshiro stream of its chunk of
-   :data:`~symmon.filters.pf_rng.CHUNK` particles (:mod:`symmon.filters.pf_rng`), then one
-   call of CasADi's generated function (the transition, the measurement, the wrapped
-   innovation, its whitening by the inverse Cholesky factor A of the measured block of
-   Γ R Γᵀ embedded with zero rows and columns for the missing components, and the
-   log-density), writing x'_i, t_i and each chunk's maximum of t and a flag for a
-   non-finite particle or weight;
+1. move and weigh, by blocks of :data:`BLOCK` particles: the block's normals from the
+   xoshiro stream of its chunk of :data:`~symmon.filters.pf_rng.CHUNK` particles
+   (:mod:`symmon.filters.pf_rng`) in one tight loop (particle by particle: the stream is
+   the one a draw per particle gives), the rows [x_i, z_i] stored by columns; then the
+   transition, the measurement and the wrapped innovation ν_i of every row, by the
+   vectorised loop of :func:`symmon.compile.vecmath.vector_rows` where f and h have one
+   (a row it flags recomputed by CasADi's function), else by CasADi's function per
+   particle; then the whitening A ν_i by the inverse Cholesky factor A of the measured
+   block of Γ R Γᵀ (embedded with zero rows and columns for the missing components, whose
+   ν_i, finite or not, never enter) and the log-density, by loops over the block; writing
+   x'_i, t_i and each chunk's maximum of t and a flag for a non-finite particle or weight;
 2. e_i = exp(t_i − max t), and per chunk Σ e_i, Σ e_i², Σ e_i x'_i (sines and cosines for
    angle states), one pass, with the maximum of pass 1 so no exponential overflows; the
    chunks' sums are added in chunk order, so the result does not depend on the threads;
@@ -31,7 +35,8 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
 
 A single run runs on T threads (pthreads made by the call, a barrier at each reduction)
 over contiguous chunk ranges; the C of a run never waits on Python's thread pool.
-``_replay`` (tests) feeds given normals and points instead of drawing them.
+``_replay`` (tests) feeds given normals and points instead of drawing them.  A Gaussian
+prior is drawn in C too, x_0 = m + L z from the first normals of each chunk's stream.
 """
 
 from __future__ import annotations
