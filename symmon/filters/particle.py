@@ -528,7 +528,6 @@ class ParticleFilter:
         if x_true is not None:
             truth = check_truth(x_true, Y.shape[:-1] + (n,)).reshape(Rr, K, n)
         pv = param_values(ss.params, params, bank, K, who="the models")
-        rngs = run_streams(self.seed, Rr, first_run)
 
         kern = self._bootstrap_kernel
         loops = None if kern is None else kern.loops()
@@ -536,6 +535,8 @@ class ParticleFilter:
         # The compiled path draws a Gaussian prior in C, from the runs' xoshiro streams (unless
         # replaying: the two paths then share NumPy's prior draws).
         prior_c = loops is not None and replay is None and isinstance(x0, Gaussian)
+        # NumPy's streams of the runs, where NumPy draws (the compiled path needs only their seeds)
+        rngs = None if prior_c else run_streams(self.seed, Rr, first_run)
         X = (np.empty((Rr, N, n)) if prior_c
              else ss.wrap_states(np.stack([_prior_particles(x0, N, g) for g in rngs])))
         logW = np.full((Rr, N), -math.log(N))
@@ -547,7 +548,7 @@ class ParticleFilter:
         nees = np.empty((Rr, K)) if truth is not None else None
         nq = ss.Lq.shape[0]
         if loops is not None:  # the compiled step (pf_kernel); the loop below is its NumPy twin
-            X, logW = self._run_compiled(kern, loops, X, Yb, pv, rngs, names, out, loglik, ess, resampled, nees,
+            X, logW = self._run_compiled(kern, loops, X, Yb, pv, first_run, names, out, loglik, ess, resampled, nees,
                                          truth, bank, x0 if prior_c else None)
         for k in range(K if loops is None else 0):
             y, p = Yb[:, k], (None if pv is None else pv[:, k])
@@ -630,6 +631,23 @@ class ParticleFilter:
                               method=self.method, particles=N)
 
     @cached_property
+    def _stream_cache(self) -> dict:
+        """The C streams' initial states by (runs, first run, streams), a few kept."""
+        return {}
+
+    def _stream_states(self, runs: int, first: int, streams: int) -> np.ndarray:
+        """A fresh copy of the xoshiro states (runs, streams, 4) of runs ``first`` … of
+        this filter's seed (:func:`~symmon.filters.pf_rng.stream_states`; the C advances
+        them in place).  Hashing the seeds takes a tenth of a millisecond a call: kept."""
+        key = (runs, first, streams)
+        st = self._stream_cache.get(key)
+        if st is None:
+            st = np.stack([stream_states(g, streams) for g in run_streams(self.seed, runs, first)])
+            if len(self._stream_cache) < 8:
+                self._stream_cache[key] = st
+        return st.copy()
+
+    @cached_property
     def _whitenings(self) -> dict:
         """The compiled path's whitenings of Γ R Γᵀ by pattern of measured components."""
         return {}
@@ -650,7 +668,7 @@ class ParticleFilter:
                               "particle has zero likelihood (the model overflows there, or the measurement "
                               "is far from every particle: use more particles or another proposal)")
 
-    def _run_compiled(self, kern, loops, X, Yb, pv, rngs, names, out, loglik, ess, resampled, nees, truth, bank,
+    def _run_compiled(self, kern, loops, X, Yb, pv, first_run, names, out, loglik, ess, resampled, nees, truth, bank,
                       prior=None):
         """The K bootstrap steps of each run in one compiled call (pf_kernel's module notes),
         the runs of a bank on threads; the normals and resampling uniforms drawn in C from the
@@ -686,7 +704,7 @@ class ParticleFilter:
         Hx = np.empty((Rr, N, n_y)) if want_h else None
         chunks = -(-N // CHUNK)
         part = np.empty((Rr, chunks, 4 + 2 * n))
-        st = np.stack([stream_states(g, chunks + 1) for g in rngs])
+        st = self._stream_states(Rr, first_run, chunks + 1)
         # threads over particle chunks for one run (in C), over runs for a bank (here)
         T = 1 if Rr > 1 else len(row_spans(N, CHUNK))
         isz, wsz = kern.f.sz_iw() + 1, kern.f.sz_w() + 1
