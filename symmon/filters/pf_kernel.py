@@ -180,7 +180,8 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
   const casadi_real log_n = log((casadi_real) N);
   uint64_t* rs = (uint64_t*) c->st + 4 * nch;
   casadi_int i, j, k, q, a, b, bad, redo, lo, hi, end, b0, nb;
-  /* this thread's buffers: the rows [x, z] of a block, its outputs by columns, one row, the flags */
+  /* this thread's buffers: the rows [x, z] of a block and its outputs [x', nu, h] by columns,
+     A nu and |A nu|^2 of one component, the block's normals, one row, the vector loop's flags */
   casadi_real *rb = buf, *blk = rb + {ld} * {nr}, *wz = blk + {ld} * {no}, *acc = wz + {ld}, *zt = acc + {ld}, *row = zt + {block} * {nq};
   unsigned char* odd = (unsigned char*) (row + {no});
   const int want_pred = c->o_xp || c->o_Pp || c->o_hm, reg = (int) c->opt[1];
@@ -438,8 +439,8 @@ BLOCK = 256
 #: The column stride of a block's buffers: not a power of two, so that the columns of a row
 #: (written one after another by the normals' loop) do not all fall in one set of the L1 cache.
 LD = BLOCK + 8
-# The move and weigh of a block of nb rows rb = [x_i, z_i] into blk (by columns: x'_i, the
-# log-density, h(x'_i)): by the vectorised loop {name}_vec when f and h have one
+# The move of a block of nb rows rb = [x_i, z_i] into blk (by columns: x'_i, the wrapped
+# innovation ν_i, h(x'_i)): by the vectorised loop {name}_vec when f and h have one
 # (symmon.compile.vecmath: arithmetic, sqrt, atan2, hypot, within 1 ulp), a row it flags
 # (an atan2 or hypot argument that is zero, inf, NaN or beyond 2^±500) recomputed by
 # CasADi's function (libm); else by CasADi's function row by row.
@@ -524,7 +525,7 @@ class BootstrapKernel:
         self.n_p = p.numel()
         self._work = WorkArrays(self.f)
         self.angle_states = tuple(angle_states)
-        # The same map as one output [x', log-density, h(x')] of the rows [x, z] of a block
+        # The same map as one output [x', ν, h(x')] of the rows [x, z] of a block
         # stored by columns, for the vectorised loop (None: an operation without a vector
         # form, e.g. sin): vector_rows reads input j of row i at z[i * n_in + j], so the
         # row's input is a vector whose entry j * LD is the row's entry j, with n_in = 1.
