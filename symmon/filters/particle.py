@@ -528,9 +528,17 @@ class ParticleFilter:
         if x_true is not None:
             truth = check_truth(x_true, Y.shape[:-1] + (n,)).reshape(Rr, K, n)
         pv = param_values(ss.params, params, bank, K, who="the models")
-        rngs = run_streams(self.seed, Rr, first_run)
 
-        X = ss.wrap_states(np.stack([_prior_particles(x0, N, g) for g in rngs]))
+        kern = self._bootstrap_kernel
+        loops = None if kern is None else kern.loops()
+        replay = getattr(self, "_replay", None)  # a test's draws for both paths (test_particle_kernel)
+        # The compiled path draws a Gaussian prior in C, from the runs' xoshiro streams (unless
+        # replaying: the two paths then share NumPy's prior draws).
+        prior_c = loops is not None and replay is None and isinstance(x0, Gaussian)
+        # NumPy's streams of the runs, where NumPy draws (the compiled path needs only their seeds)
+        rngs = None if prior_c else run_streams(self.seed, Rr, first_run)
+        X = (np.empty((Rr, N, n)) if prior_c
+             else ss.wrap_states(np.stack([_prior_particles(x0, N, g) for g in rngs])))
         logW = np.full((Rr, N), -math.log(N))
         want = lambda *k: any(a in names for a in k)  # noqa: E731
         out = {k: np.empty((Rr, K) + s) for k, s in (("x", (n,)), ("P", (n, n)), ("x_pred", (n,)),
@@ -539,12 +547,9 @@ class ParticleFilter:
         loglik, ess, resampled = np.empty((Rr, K)), np.empty((Rr, K)), np.zeros((Rr, K), dtype=bool)
         nees = np.empty((Rr, K)) if truth is not None else None
         nq = ss.Lq.shape[0]
-        kern = self._bootstrap_kernel
-        loops = None if kern is None else kern.loops()
         if loops is not None:  # the compiled step (pf_kernel); the loop below is its NumPy twin
-            X, logW = self._run_compiled(kern, loops, X, Yb, pv, rngs, names, out, loglik, ess, resampled, nees,
-                                         truth, bank)
-        replay = getattr(self, "_replay", None)  # a test's draws for both paths (test_particle_kernel)
+            X, logW = self._run_compiled(kern, loops, X, Yb, pv, first_run, names, out, loglik, ess, resampled, nees,
+                                         truth, bank, x0 if prior_c else None)
         for k in range(K if loops is None else 0):
             y, p = Yb[:, k], (None if pv is None else pv[:, k])
             Wprev = np.exp(logW)
@@ -626,6 +631,23 @@ class ParticleFilter:
                               method=self.method, particles=N)
 
     @cached_property
+    def _stream_cache(self) -> dict:
+        """The C streams' initial states by (runs, first run, streams), a few kept."""
+        return {}
+
+    def _stream_states(self, runs: int, first: int, streams: int) -> np.ndarray:
+        """A fresh copy of the xoshiro states (runs, streams, 4) of runs ``first`` … of
+        this filter's seed (:func:`~symmon.filters.pf_rng.stream_states`; the C advances
+        them in place).  Hashing the seeds takes a tenth of a millisecond a call: kept."""
+        key = (runs, first, streams)
+        st = self._stream_cache.get(key)
+        if st is None:
+            st = np.stack([stream_states(g, streams) for g in run_streams(self.seed, runs, first)])
+            if len(self._stream_cache) < 8:
+                self._stream_cache[key] = st
+        return st.copy()
+
+    @cached_property
     def _whitenings(self) -> dict:
         """The compiled path's whitenings of Γ R Γᵀ by pattern of measured components."""
         return {}
@@ -646,10 +668,12 @@ class ParticleFilter:
                               "particle has zero likelihood (the model overflows there, or the measurement "
                               "is far from every particle: use more particles or another proposal)")
 
-    def _run_compiled(self, kern, loops, X, Yb, pv, rngs, names, out, loglik, ess, resampled, nees, truth, bank):
+    def _run_compiled(self, kern, loops, X, Yb, pv, first_run, names, out, loglik, ess, resampled, nees, truth, bank,
+                      prior=None):
         """The K bootstrap steps of each run in one compiled call (pf_kernel's module notes),
         the runs of a bank on threads; the normals and resampling uniforms drawn in C from the
-        runs' xoshiro streams (:mod:`symmon.filters.pf_rng`), or replayed (``_replay``)."""
+        runs' xoshiro streams (:mod:`symmon.filters.pf_rng`), or replayed (``_replay``); with
+        a Gaussian ``prior``, X is drawn from it in C too (the first normals of the streams)."""
         run = loops[0]
         ss, N = self.space, self.particles
         Rr, K, n_y = Yb.shape
@@ -680,13 +704,17 @@ class ParticleFilter:
         Hx = np.empty((Rr, N, n_y)) if want_h else None
         chunks = -(-N // CHUNK)
         part = np.empty((Rr, chunks, 4 + 2 * n))
-        st = np.stack([stream_states(g, chunks + 1) for g in rngs])
+        st = self._stream_states(Rr, first_run, chunks + 1)
         # threads over particle chunks for one run (in C), over runs for a bank (here)
         T = 1 if Rr > 1 else len(row_spans(N, CHUNK))
         isz, wsz = kern.f.sz_iw() + 1, kern.f.sz_w() + 1
         iws, ws = np.empty((Rr, T, isz), dtype=np.int64), np.empty((Rr, T, wsz))
         replay = getattr(self, "_replay", None)
-        opt = np.array([RESAMPLERS.index(self.resample), int(self.regularise)], dtype=np.int64)
+        m0 = L0 = None
+        if prior is not None:
+            m0, L0 = np.ascontiguousarray(prior.mean, dtype=float), np.ascontiguousarray(prior.sqrt_cov(), dtype=float)
+        diag = L0 is not None and np.count_nonzero(L0) == np.count_nonzero(np.diag(L0))
+        opt = np.array([RESAMPLERS.index(self.resample), int(self.regularise), int(diag)], dtype=np.int64)
         fl = np.array([self.ess_threshold * N, self.bandwidth])
         fail = np.zeros(Rr, dtype=np.int64)
         # Per-run arrays: (address of run 0, bytes per run); 0 for an output not wanted.
@@ -695,7 +723,8 @@ class ParticleFilter:
         per_run[3:7] = [(work.ctypes.data + j * N * 8, 4 * N * 8) for j in range(4)]  # the rows of work
         outs = [(a.ctypes.data, a.nbytes // Rr) if a is not None else (0, 0) for a in (
             loglik, ess, res_f, arr["x"], arr["P"], arr["x_pred"], arr["P_pred"], arr["hm"], arr["hS"], iws, ws)]
-        shared = (opt.ctypes.data, fl.ctypes.data)
+        shared = (0 if m0 is None else m0.ctypes.data, 0 if L0 is None else L0.ctypes.data, opt.ctypes.data,
+                  fl.ctypes.data)
 
         def one(r: int) -> int:
             rp = [0, 0, 0]
@@ -772,11 +801,18 @@ class ParticleFilter:
 
 def _prior_particles(x0: Gaussian | GaussianMixture | Empirical, N: int, g: np.random.Generator) -> np.ndarray:
     """N draws of x0 from ``g``: ``x0.sample``, except that a Gaussian's rows are multiplied
-    by its square root without BLAS (the same normals; OpenBLAS would split the product
-    over threads that then spin against the compiled recursion's, statespace.rows_times)."""
-    if isinstance(x0, Gaussian):
-        return np.asarray(x0.mean, dtype=float) + rows_times(g.standard_normal((N, x0.dim)), x0.sqrt_cov())
-    return np.asarray(x0.sample(N, g), dtype=float)
+    by its square root L without BLAS (the same normals; OpenBLAS would split the product
+    over threads that then spin against the compiled recursion's, statespace.rows_times),
+    and by one broadcast product where L is diagonal (einsum's loop over the zeros of a
+    diagonal L of 20 states took most of a short filter call's Python time)."""
+    if not isinstance(x0, Gaussian):
+        return np.asarray(x0.sample(N, g), dtype=float)
+    Z, L = g.standard_normal((N, x0.dim)), x0.sqrt_cov()
+    d = np.diag(L)
+    if np.count_nonzero(L) == np.count_nonzero(d):  # diagonal
+        Z *= d
+        return Z + np.asarray(x0.mean, dtype=float)
+    return np.asarray(x0.mean, dtype=float) + rows_times(Z, L)
 
 
 def _semidefinite_cholesky(C: np.ndarray) -> np.ndarray:

@@ -13,13 +13,17 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
 
 ``NAME_run`` does all K steps of one run without returning to Python.  Per step:
 
-1. move and weigh: for each particle, its normals from the xoshiro stream of its chunk of
-   :data:`~symmon.filters.pf_rng.CHUNK` particles (:mod:`symmon.compile.rng`), then one
-   call of CasADi's generated function (the transition, the measurement, the wrapped
-   innovation, its whitening by the inverse Cholesky factor A of the measured block of
-   Γ R Γᵀ embedded with zero rows and columns for the missing components, and the
-   log-density), writing x'_i, t_i and each chunk's maximum of t and a flag for a
-   non-finite particle or weight;
+1. move and weigh, by blocks of :data:`BLOCK` particles: the block's normals from the
+   xoshiro stream of its chunk of :data:`~symmon.filters.pf_rng.CHUNK` particles
+   (:mod:`symmon.compile.rng`) in one tight loop (particle by particle: the stream is
+   the one a draw per particle gives), the rows [x_i, z_i] stored by columns; then the
+   transition, the measurement and the wrapped innovation ν_i of every row, by the
+   vectorised loop of :func:`symmon.compile.vecmath.vector_rows` where f and h have one
+   (a row it flags recomputed by CasADi's function), else by CasADi's function per
+   particle; then the whitening A ν_i by the inverse Cholesky factor A of the measured
+   block of Γ R Γᵀ (embedded with zero rows and columns for the missing components, whose
+   ν_i, finite or not, never enter) and the log-density, by loops over the block; writing
+   x'_i, t_i and each chunk's maximum of t and a flag for a non-finite particle or weight;
 2. e_i = exp(t_i − max t), and per chunk Σ e_i, Σ e_i², Σ e_i x'_i (sines and cosines for
    angle states), one pass, with the maximum of pass 1 so no exponential overflows; the
    chunks' sums are added in chunk order, so the result does not depend on the threads;
@@ -31,7 +35,8 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
 
 A single run runs on T threads (pthreads made by the call, a barrier at each reduction)
 over contiguous chunk ranges; the C of a run never waits on Python's thread pool.
-``_replay`` (tests) feeds given normals and points instead of drawing them.
+``_replay`` (tests) feeds given normals and points instead of drawing them.  A Gaussian
+prior is drawn in C too, x_0 = m + L z from the first normals of each chunk's stream.
 """
 
 from __future__ import annotations
@@ -46,7 +51,7 @@ import numpy as np
 
 from ..compile import NativeLibrary, compiled_with_params
 from ..compile.compiled import WorkArrays, generated_c
-from ..core.angles import wrap_casadi
+from ..compile.vecmath import VECMATH_C, vector_rows
 from ..core.model import Model
 from ..compile.rng import RNG_C
 from .pf_rng import CHUNK
@@ -58,6 +63,7 @@ _LOG_2PI = math.log(2 * math.pi)
 # The recursion of one run.  casadi_int is long long (CasADi's default).
 _DRIVER = """
 #include <string.h>
+#include <stdlib.h>
 #include <pthread.h>
 static const int {name}_ax[{nx}] = {{{ax}}};
 static const int {name}_ay[{ny}] = {{{ay}}};
@@ -116,13 +122,19 @@ static void {name}_chol(const casadi_real* C, casadi_real* L) {{
   }}
 }}
 
-/* symmon: count normals of stream s into out (tests of the generator). */
-CASADI_SYMBOL_EXPORT void {name}_normals(unsigned long long* s, casadi_int count, casadi_real* out) {{
+/* count normals of the stream whose state is s into out, in a loop of its own (inlined into
+   the particle loop, the generator's state and tables spill out of the registers). */
+static __attribute__((noinline)) void {name}_draw(uint64_t* s, casadi_int count, casadi_real* out) {{
   casadi_int i;
   uint64_t sl[4];
   memcpy(sl, s, sizeof sl);  /* the state in registers, not memory, while it runs */
   for (i = 0; i < count; ++i) out[i] = symmon_normal(sl);
   memcpy(s, sl, sizeof sl);
+}}
+
+/* symmon: count normals of stream s into out (tests of the generator). */
+CASADI_SYMBOL_EXPORT void {name}_normals(unsigned long long* s, casadi_int count, casadi_real* out) {{
+  {name}_draw((uint64_t*) s, count, out);
 }}
 
 /* A barrier of the run's T threads (POSIX mutex and condition: macOS has no pthread_barrier). */
@@ -139,10 +151,12 @@ static void {name}_bwait({name}_barrier* b) {{
 
 /* Per chunk of CHUNK particles: [max t, bad, sum e, sum e^2, sum e x (or sin), sum e cos]. */
 #define {name}_PW (4 + 2 * {nx})
+/* Doubles of a thread's buffers (the body's notes). */
+#define {name}_BUF ({ld} * {nr} + {ld} * {no} + 2 * {ld} + {block} * {nq} + {no} + {block} / 8 + 1)
 
 typedef struct {{
   const casadi_real* P; casadi_int K, N, nch; casadi_real *X0, *Xn0, *t, *e, *lw, *sc, *hx, *part;
-  unsigned long long* st; const casadi_real *zext, *uext, *jext; const casadi_int* opt; const casadi_real* fl;
+  unsigned long long* st; const casadi_real *zext, *uext, *jext, *m0, *L0; const casadi_int* opt; const casadi_real* fl;
   casadi_real *o_ll, *o_ess, *o_res, *o_x, *o_P, *o_xp, *o_Pp, *o_hm, *o_hS, *cov, *L;
   casadi_int* fail; {name}_barrier bar; int T; pthread_mutex_t gate;
 }} {name}_ctx;
@@ -156,44 +170,81 @@ static casadi_int {name}_lower(const casadi_real* sc, casadi_int N, casadi_real 
 
 /* Thread tau's share of the K steps (chunks [c0, c1)); every reduction is by chunk, in chunk
    order, so the numbers do not depend on T. */
-static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w) {{
+static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_real* buf) {{
   const casadi_int N = c->N, nch = c->nch, c0 = nch * tau / c->T, c1 = nch * (tau + 1) / c->T;
   const casadi_int a0 = c0 * {chunk}, a1 = c1 * {chunk} < N ? c1 * {chunk} : N;
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
   casadi_real *X = c->X0, *Xn = c->Xn0, *tmp, *xi, *pc;
-  casadi_real ll, ti, m, s, s2, lse, ei, cum, scale, pt, off, zl[{nq}], eps[{nx}], sx[{nx}], sn[{nx}], cs[{nx}];
-  const casadi_real* zi;
+  const casadi_real* pk;
+  casadi_real ti, m, s, s2, lse, ei, cum, scale, pt, off, zr[{nq}], eps[{nx}], sx[{nx}], sn[{nx}], cs[{nx}];
   const casadi_real log_n = log((casadi_real) N);
   uint64_t* rs = (uint64_t*) c->st + 4 * nch;
-  casadi_int i, j, k, q, a, b, bad, redo, lo, hi, end;
+  casadi_int i, j, k, q, a, b, bad, redo, lo, hi, end, b0, nb;
+  /* this thread's buffers: the rows [x, z] of a block and its outputs [x', nu, h] by columns,
+     A nu and |A nu|^2 of one component, the block's normals, one row, the vector loop's flags */
+  casadi_real *rb = buf, *blk = rb + {ld} * {nr}, *wz = blk + {ld} * {no}, *acc = wz + {ld}, *zt = acc + {ld}, *row = zt + {block} * {nq};
+  unsigned char* odd = (unsigned char*) (row + {no});
   const int want_pred = c->o_xp || c->o_Pp || c->o_hm, reg = (int) c->opt[1];
+  if (c->m0) for (q = c0; q < c1; ++q) {{  /* the prior x0 = m + L z, z the first normals of chunk q's stream */
+    end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
+    {name}_draw((uint64_t*) c->st + 4 * q, (end - q * {chunk}) * {nx}, X + q * {chunk} * {nx});
+    for (i = q * {chunk}; i < end; ++i) {{
+      xi = X + i * {nx};
+      memcpy(eps, xi, sizeof eps);
+      for (a = 0; a < {nx}; ++a) {{
+        if (c->opt[2]) ei = c->L0[a * {nx} + a] * eps[a];  /* a diagonal L */
+        else for (ei = 0, b = 0; b < {nx}; ++b) ei += c->L0[a * {nx} + b] * eps[b];
+        xi[a] = ei + c->m0[a];
+        if ({name}_ax[a]) xi[a] = {name}_wrap(xi[a]);
+      }}
+    }}
+  }}
   for (i = a0; i < a1; ++i) c->lw[i] = -log_n;
   for (k = 0; k < c->K; ++k) {{
-    arg[2] = c->P + k * {n_p};
-    res[1] = &ll;
-    for (q = c0; q < c1; ++q) {{  /* move and weigh, chunk q */
+    arg[2] = pk = c->P + k * {n_p};
+    for (q = c0; q < c1; ++q) {{  /* move and weigh, chunk q, in blocks of {block} particles */
       uint64_t* sg = (uint64_t*) c->st + 4 * q, sl[4];
       memcpy(sl, sg, sizeof sl);  /* the state in registers, not memory, while it runs */
       end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
       m = -INFINITY;
       bad = 0;
-      for (i = q * {chunk}; i < end; ++i) {{
-        if (c->zext) zi = c->zext + (k * N + i) * {nq};
-        else {{
-          for (j = 0; j < {nq}; ++j) zl[j] = symmon_normal(sl);
-          zi = zl;
+      for (b0 = q * {chunk}; b0 < end; b0 += {block}) {{
+        nb = end - b0 < {block} ? end - b0 : {block};
+        /* the rows [x_i, z_i] by columns (rb[j * {ld} + i]: the vector loop's loads are
+           contiguous); the normals of the block in one tight loop, particle by particle, so
+           the stream is the one a draw per particle would give */
+        for (i = 0; i < nb; ++i) for (j = 0; j < {nx}; ++j) rb[j * {ld} + i] = X[(b0 + i) * {nx} + j];
+        if (c->zext) {{
+          for (i = 0; i < nb; ++i) for (j = 0; j < {nq}; ++j) rb[({nx} + j) * {ld} + i] = c->zext[(k * N + b0 + i) * {nq} + j];
+        }} else {{  /* drawn by a call of their own (its loop keeps the generator in registers), then transposed */
+          {name}_draw(sl, nb * {nq}, zt);
+          for (i = 0; i < nb; ++i) for (j = 0; j < {nq}; ++j) rb[({nx} + j) * {ld} + i] = zt[i * {nq} + j];
         }}
-        arg[0] = X + i * {nx};
-        arg[1] = zi;
-        res[0] = Xn + i * {nx};
-        res[2] = c->hx ? c->hx + i * {ny} : 0;
-        if ({name}(arg, res, iw, w, 0)) bad = 2;
-        ti = c->lw[i] + ll;
-        c->t[i] = ti;
-        if (ti != ti || ti == INFINITY) bad |= 1;
-        for (j = 0; j < {nx}; ++j) if (!isfinite(res[0][j])) bad |= 1;
-        if (ti > m) m = ti;
+        {fill}
+        /* the log-density c - |A nu|^2 / 2 of the measured components (another's nu, maybe
+           not finite, never enters), A = pk[o_A ...] by columns, by loops over the block */
+        for (i = 0; i < nb; ++i) acc[i] = 0;
+        for (a = 0; a < {ny}; ++a) {{
+          if (pk[{o_mask} + a] == 0) continue;
+          for (i = 0; i < nb; ++i) wz[i] = 0;
+          for (b = 0; b < {ny}; ++b) {{
+            const casadi_real A_ab = pk[{o_A} + b * {ny} + a], *nu = blk + ({nx} + b) * {ld};
+            if (pk[{o_mask} + b] == 0) continue;
+            for (i = 0; i < nb; ++i) wz[i] += A_ab * nu[i];
+          }}
+          for (i = 0; i < nb; ++i) acc[i] += wz[i] * wz[i];
+        }}
+        for (i = 0; i < nb; ++i) {{
+          xi = Xn + (b0 + i) * {nx};
+          for (j = 0; j < {nx}; ++j) xi[j] = blk[j * {ld} + i];
+          if (c->hx) for (j = 0; j < {ny}; ++j) c->hx[(b0 + i) * {ny} + j] = blk[({nx} + {ny} + j) * {ld} + i];
+          ti = c->lw[b0 + i] + (-0.5 * acc[i] + pk[{n_p} - 1]);
+          c->t[b0 + i] = ti;
+          if (ti != ti || ti == INFINITY) bad |= 1;
+          for (j = 0; j < {nx}; ++j) if (!isfinite(xi[j])) bad |= 1;
+          if (ti > m) m = ti;
+        }}
       }}
       memcpy(sg, sl, sizeof sl);
       c->part[q * {name}_PW] = m;
@@ -227,10 +278,7 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w) {
         s += ei;
         s2 += ei * ei;
         xi = Xn + i * {nx};
-        for (j = 0; j < {nx}; ++j) {{
-          if ({name}_ax[j]) {{ sx[j] += ei * sin(xi[j]); cs[j] += ei * cos(xi[j]); }}
-          else sx[j] += ei * xi[j];
-        }}
+        {wsum}
       }}
       pc = c->part + q * {name}_PW;
       pc[2] = s; pc[3] = s2;
@@ -316,12 +364,12 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w) {
   return 0;
 }}
 
-typedef struct {{ {name}_ctx* c; int tau; casadi_int* iw; casadi_real* w; int ret; }} {name}_arg;
+typedef struct {{ {name}_ctx* c; int tau; casadi_int* iw; casadi_real* w; casadi_real* buf; int ret; }} {name}_arg;
 static void* {name}_thread(void* p) {{
   {name}_arg* a = ({name}_arg*) p;
   pthread_mutex_lock(&a->c->gate);  /* wait until every thread is made and T is final */
   pthread_mutex_unlock(&a->c->gate);
-  a->ret = {name}_body(a->c, a->tau, a->iw, a->w);
+  a->ret = {name}_body(a->c, a->tau, a->iw, a->w, a->buf);
   return 0;
 }}
 
@@ -331,13 +379,15 @@ static void* {name}_thread(void* p) {{
    t, e, lw, sc: work (N x n, N, N, N, N); hx: N x ny or NULL; part: ceil(N / CHUNK) x
    (4 + 2n); st: ceil(N / CHUNK) + 1 xoshiro states (the chunks', then the resampling
    stream); zext, uext, jext: replayed move normals (K x N x nq), resampling points (K x N,
-   ascending in [0, N)) and jitter normals (K x N x nx), or NULL to draw; opt = [scheme (0
-   systematic, 1 stratified, 2 multinomial), regularise]; fl = [ESS threshold x N,
+   ascending in [0, N)) and jitter normals (K x N x nx), or NULL to draw; m0, L0: the mean
+   and square root (n x n, row-major) of a Gaussian prior to draw X from (the first normals
+   of each chunk's stream), or NULL (X given); opt = [scheme (0 systematic, 1 stratified,
+   2 multinomial), regularise, L0 diagonal]; fl = [ESS threshold x N,
    bandwidth h]; outputs per step (NULL: not wanted); iw, w: T work arrays of isz, wsz. */
 CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_int N, casadi_real* X0,
     casadi_real* Xn0, casadi_real* t, casadi_real* e, casadi_real* lw, casadi_real* sc, casadi_real* hx,
     casadi_real* part, unsigned long long* st, const casadi_real* zext, const casadi_real* uext,
-    const casadi_real* jext, const casadi_int* opt, const casadi_real* fl, casadi_real* o_ll, casadi_real* o_ess,
+    const casadi_real* jext, const casadi_real* m0, const casadi_real* L0, const casadi_int* opt, const casadi_real* fl, casadi_real* o_ll, casadi_real* o_ess,
     casadi_real* o_res, casadi_real* o_x, casadi_real* o_P, casadi_real* o_xp, casadi_real* o_Pp,
     casadi_real* o_hm, casadi_real* o_hS, casadi_int* iw, casadi_real* w, casadi_int isz, casadi_int wsz,
     casadi_int T, casadi_int* fail) {{
@@ -346,15 +396,18 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
   pthread_t th[64];
   casadi_real cov[{nx} * {nx}], L[{nx} * {nx}];
   int tau, ret = 0, started = 0;
+  casadi_real* buf;
   c.P = P; c.K = K; c.N = N; c.nch = (N + {chunk} - 1) / {chunk};
   c.X0 = X0; c.Xn0 = Xn0; c.t = t; c.e = e; c.lw = lw; c.sc = sc; c.hx = hx; c.part = part; c.st = st;
-  c.zext = zext; c.uext = uext; c.jext = jext; c.opt = opt; c.fl = fl; c.o_ll = o_ll; c.o_ess = o_ess;
+  c.zext = zext; c.uext = uext; c.jext = jext; c.m0 = m0; c.L0 = L0; c.opt = opt; c.fl = fl; c.o_ll = o_ll; c.o_ess = o_ess;
   c.o_res = o_res; c.o_x = o_x; c.o_P = o_P; c.o_xp = o_xp; c.o_Pp = o_Pp; c.o_hm = o_hm; c.o_hS = o_hS;
   c.cov = cov; c.L = L; c.fail = fail;
   if (T > c.nch) T = c.nch;
   if (T > 64) T = 64;
   if (T < 1) T = 1;
   c.T = (int) T;
+  buf = (casadi_real*) malloc(T * {name}_BUF * sizeof(casadi_real));
+  if (!buf) return 1;
   c.bar.T = (int) T; c.bar.count = 0; c.bar.gen = 0;
   pthread_mutex_init(&c.bar.mu, 0);
   pthread_cond_init(&c.bar.cv, 0);
@@ -362,7 +415,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
   pthread_mutex_lock(&c.gate);
   for (tau = 0; tau < T; ++tau) {{
     args[tau].c = &c; args[tau].tau = tau; args[tau].iw = iw + tau * isz; args[tau].w = w + tau * wsz;
-    args[tau].ret = 0;
+    args[tau].ret = 0; args[tau].buf = buf + tau * {name}_BUF;
   }}
   for (tau = 1; tau < T; ++tau) {{
     if (pthread_create(&th[tau], 0, {name}_thread, &args[tau])) break;
@@ -375,10 +428,41 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
   pthread_mutex_destroy(&c.bar.mu);
   pthread_cond_destroy(&c.bar.cv);
   pthread_mutex_destroy(&c.gate);
+  free(buf);
   for (tau = 0; tau <= started; ++tau) if (args[tau].ret > ret) ret = args[tau].ret;
   return ret;
 }}
 """
+
+
+#: Particles per block of the move and weigh (the rows of a block by columns fit in L2).
+BLOCK = 256
+#: The column stride of a block's buffers: not a power of two, so that the columns of a row
+#: (written one after another by the normals' loop) do not all fall in one set of the L1 cache.
+LD = BLOCK + 8
+# The move of a block of nb rows rb = [x_i, z_i] into blk (by columns: x'_i, the wrapped
+# innovation ν_i, h(x'_i)): by the vectorised loop {name}_vec when f and h have one
+# (symmon.compile.vecmath: arithmetic, sqrt, atan2, hypot, within 1 ulp), a row it flags
+# (an atan2 or hypot argument that is zero, inf, NaN or beyond 2^±500) recomputed by
+# CasADi's function (libm); else by CasADi's function row by row.
+_ROW = """
+          for (j = 0; j < {nq}; ++j) zr[j] = rb[({nx} + j) * {ld} + i];
+          arg[0] = X + (b0 + i) * {nx}; arg[1] = zr;
+          res[0] = row; res[1] = row + {nx}; res[2] = row + {nx} + {ny};
+          if ({name}(arg, res, iw, w, 0)) bad = 2;
+          for (j = 0; j < {no}; ++j) blk[j * {ld} + i] = row[j];"""
+# The weighted sums of a particle's states (sines and cosines for angle states); without
+# angle states a loop without a branch, which gcc vectorises (the same operations).
+_WSUM = "for (j = 0; j < {nx}; ++j) sx[j] += ei * xi[j];"
+_WSUM_ANGLES = """for (j = 0; j < {nx}; ++j) {{
+          if ({name}_ax[j]) {{ sx[j] += ei * sin(xi[j]); cs[j] += ei * cos(xi[j]); }}
+          else sx[j] += ei * xi[j];
+        }}"""
+_FILL = {
+    True: "if ({name}_vec(rb, arg[2], blk, nb, odd)) for (i = 0; i < nb; ++i) {{\n          if (!odd[i]) continue;"
+          + _ROW + "\n        }}",
+    False: "for (i = 0; i < nb; ++i) {{" + _ROW + "\n        }}",
+}
 
 
 class BootstrapKernel:
@@ -391,6 +475,9 @@ class BootstrapKernel:
     Lq_pattern : bool (d, n_q), the structural nonzeros of L_Q (d: f's noise symbols, or n),
         n_q the draws per particle
     angle_states, angle_outputs : wrapped components
+    vectorise : bool, default True
+        Move and weigh through :func:`~symmon.compile.vecmath.vector_rows`'s loop where f
+        and h have one (False: CasADi's function per particle, for comparisons)
 
     Notes
     -----
@@ -401,7 +488,7 @@ class BootstrapKernel:
     """
 
     def __init__(self, f_model: Model, h_model: Model, params: Sequence, Lq_pattern: np.ndarray,
-                 angle_states: Sequence[int], angle_outputs: Sequence[int]) -> None:
+                 angle_states: Sequence[int], angle_outputs: Sequence[int], vectorise: bool = True) -> None:
         cf, ch = compiled_with_params(f_model), compiled_with_params(h_model)
         n, ny, npar = f_model.n_u, h_model.n_y, len(params)
         self.n, self.n_y, self.n_par = n, ny, npar
@@ -416,10 +503,8 @@ class BootstrapKernel:
         col, row = np.nonzero(pattern.T)  # the nonzeros in column-major order, as CasADi stores them
         Lq = ca.SX(ca.Sparsity.triplet(d, n_q, row.tolist(), col.tolist()), p[npar:npar + nnz])
         o = npar + nnz
-        y, mask = p[o:o + ny], p[o + ny:o + 2 * ny]
-        o += 2 * ny
-        A = ca.reshape(p[o:o + ny * ny], ny, ny)
-        c = p[o + ny * ny]
+        y = p[o:o + ny]  # then the mask, vec(A) and c, which the C reads (pack's notes)
+        self._o_mask, self._o_A = o + ny, o + 2 * ny
 
         def of(model: Model, cm, state, noise):
             th = [theta[list(params).index(s)] for s in model.params]
@@ -427,30 +512,44 @@ class BootstrapKernel:
 
         noise = ca.mtimes(Lq, z)
         xn = of(f_model, cf, x, [noise]) if f_model.n_v else of(f_model, cf, x, []) + noise
-        xn = ca.vertcat(*[wrap_casadi(xn[i]) if i in angle_states else xn[i] for i in range(n)])
+        xn = ca.vertcat(*[_wrap(xn[i]) if i in angle_states else xn[i] for i in range(n)])
         hx = of(h_model, ch, xn, [ca.SX.zeros(h_model.n_v)] if h_model.n_v else [])
-        hx = ca.vertcat(*[wrap_casadi(hx[i]) if i in angle_outputs else hx[i] for i in range(ny)])
+        hx = ca.vertcat(*[_wrap(hx[i]) if i in angle_outputs else hx[i] for i in range(ny)])
+        # the innovation, wrapped; the C whitens its measured components (a select on the
+        # mask here would keep gcc from vectorising the row loop)
         nu = y - hx
-        nu = ca.vertcat(*[ca.if_else(mask[i], wrap_casadi(nu[i]) if i in angle_outputs else nu[i], 0)
-                          for i in range(ny)])
-        wz = ca.mtimes(A, nu)
-        ll = -0.5 * ca.dot(wz, wz) + c
+        nu = ca.vertcat(*[_wrap(nu[i]) if i in angle_outputs else nu[i] for i in range(ny)])
         name = f"{cf.tag}_{ch.tag}_pfb" + "".join(f"_s{i}" for i in angle_states) + "".join(
             f"_o{i}" for i in angle_outputs)
-        self.f = ca.Function(name, [x, z, p], [ca.densify(xn), ll, ca.densify(hx)], ["x", "z", "p"],
-                             ["xn", "ll", "hx"], {"cse": True})
+        self.f = ca.Function(name, [x, z, p], [ca.densify(xn), ca.densify(nu), ca.densify(hx)], ["x", "z", "p"],
+                             ["xn", "nu", "hx"], {"cse": True})
         self.n_p = p.numel()
         self._work = WorkArrays(self.f)
         self.angle_states = tuple(angle_states)
+        # The same map as one output [x', ν, h(x')] of the rows [x, z] of a block
+        # stored by columns, for the vectorised loop (None: an operation without a vector
+        # form, e.g. sin): vector_rows reads input j of row i at z[i * n_in + j], so the
+        # row's input is a vector whose entry j * LD is the row's entry j, with n_in = 1.
+        cols = ca.SX.sym("r", (n + n_q - 1) * LD + 1)
+        at = ca.vertcat(*[cols[j * LD] for j in range(n + n_q)])
+        out = ca.substitute(ca.vertcat(xn, nu, hx), ca.vertcat(x, z), at)
+        row = ca.Function(f"{name}_row", [cols, p], [out], {"cse": True})
+        vec = vector_rows(row, f"{name}_vec", 1, LD) if vectorise else None
+        #: True when the move and weigh run through the vectorised loop (module notes).
+        self.vectorised = vec is not None
         flags = lambda idx, d: ", ".join("1" if i in idx else "0" for i in range(d))  # noqa: E731
-        code = RNG_C + generated_c(self.f) + _DRIVER.format(
-            name=name, sz_arg=max(self.f.sz_arg(), 3), sz_res=max(self.f.sz_res(), 3), nx=n, nq=max(n_q, 1), ny=ny,
-            n_p=self.n_p, dm=max(n, ny), chunk=CHUNK, ax=flags(angle_states, n), ay=flags(angle_outputs, ny))
+        fmt = dict(name=name, sz_arg=max(self.f.sz_arg(), 3), sz_res=max(self.f.sz_res(), 3), nx=n, nq=max(n_q, 1),
+                   ny=ny, n_p=self.n_p, dm=max(n, ny), chunk=CHUNK, ax=flags(angle_states, n),
+                   ay=flags(angle_outputs, ny), block=BLOCK, ld=LD, nr=n + max(n_q, 1), no=n + 2 * ny,
+                   o_mask=self._o_mask, o_A=self._o_A)
+        fmt["fill"] = _FILL[self.vectorised].format(**fmt)
+        fmt["wsum"] = (_WSUM_ANGLES if angle_states else _WSUM).format(**fmt)
+        code = RNG_C + generated_c(self.f) + (VECMATH_C + vec if vec else "") + _DRIVER.format(**fmt)
 
         def load(so):
             lib = ctypes.CDLL(str(so))
             run = getattr(lib, f"{name}_run")
-            run.argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_longlong] + [ctypes.c_void_p] * 25
+            run.argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_longlong] + [ctypes.c_void_p] * 27
                             + [ctypes.c_longlong] * 3 + [ctypes.c_void_p])
             run.restype = ctypes.c_int
             normals = getattr(lib, f"{name}_normals")
@@ -499,6 +598,22 @@ class BootstrapKernel:
     def work(self) -> tuple[int, int]:
         """This thread's work arrays (addresses)."""
         return self._work.addresses()
+
+
+def _wrap(a: ca.SX) -> ca.SX:
+    """:func:`symmon.core.angles.wrap_casadi` without its select, the same number to the bit.
+
+    o = (a + π) − 2π ⌊(a + π)/2π⌋ − π lies in [−π, π] up to rounding (a little below −π
+    for large |a|); d = o + π is exact near −π (Sterbenz), so d = 0 exactly where o = −π,
+    and else 0 < |d| < 8, where ⌈|d|/8⌉ = 1.  Hence o + (1 − ⌈|d|/8⌉) 2π is o (o is never
+    −0: x − π is +0 at zero, so o + 0 = o) or −π + 2π = π exactly (2π is π doubled); a NaN
+    stays NaN.  gcc vectorises a loop with this form, not one with a select on a
+    comparison (symmon.compile.vecmath's row loop).
+    """
+    two_pi = 2 * np.pi
+    s = a + np.pi
+    out = s - two_pi * ca.floor(s / two_pi) - np.pi
+    return out + (1 - ca.ceil(ca.fabs(out + np.pi) / 8)) * two_pi
 
 
 _kernels: dict[tuple, BootstrapKernel] = {}
