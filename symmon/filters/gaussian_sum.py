@@ -117,7 +117,7 @@ from ..transforms import TT2, UT, Transform
 from ..transforms.registry import resolve
 from ..transforms.executor import Executor
 from .distributed import filter_bank
-from .gsf_kernel import SplitKernel
+from .gsf_kernel import SplitKernel, bank_weights
 from .nonlinear import NonlinearKalmanFilter
 from .mixture_merge import MERGE_RULES, merge_components, merge_runs
 from .inputs import check_bank_size, measurement_bank, param_values
@@ -581,15 +581,7 @@ class GaussianSumFilter:
         res = self.kf.filter(Yr, np.tile(m0, (R, 1)), np.tile(P0, (R, 1, 1)), keep=("x", "P"), params=bank_params)
         ll = res.loglik.reshape(R, M, K)
         x, P = res.x.reshape(R, M, K, n := self.f.n_u), res.P.reshape(R, M, K, n, n)
-        logw = np.empty((R, K, M))
-        step_ll = np.empty((R, K))
-        prev = np.broadcast_to(np.log(w0), (R, M))
-        for k in range(K):
-            a = prev + ll[:, :, k]
-            top = a.max(axis=1, keepdims=True)
-            step_ll[:, k] = top[:, 0] + np.log(np.exp(a - top).sum(axis=1))
-            prev = a - step_ll[:, k:k + 1]  # log of the normalised weights
-            logw[:, k] = prev
+        logw, step_ll = bank_weights(np.log(w0), ll)  # log of the normalised weights
         w = np.exp(logw)
         w /= w.sum(axis=-1, keepdims=True)
         means, covs = np.moveaxis(x, 1, 2), np.moveaxis(P, 1, 2)  # (R, K, M, ...)

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import ctypes
 import re
+import threading
 
 import casadi as ca
 import numpy as np
@@ -37,7 +38,7 @@ from ..compile import NativeLibrary
 from ..compile.compiled import WorkArrays, generated_c, in_threads, row_spans
 from .mixture_merge import _C as MERGE_C
 
-__all__ = ["SplitKernel"]
+__all__ = ["SplitKernel", "bank_weights"]
 
 _BODY = r"""
 /* symmon: the Gaussian-sum filter's recursion with splitting (symmon.filters.gsf_kernel). */
@@ -566,3 +567,76 @@ class SplitKernel:
         if any(codes):
             raise RuntimeError("a compiled step of the Gaussian-sum filter returned an error")
         return out, fail
+
+
+# The weights of a Gaussian sum without splitting: its components are independent filters, and
+# only the normalised log-weights recur, step by step (Alspach & Sorenson 1972).
+_WEIGHTS_C = r"""
+#include <math.h>
+/* symmon: for each run r, prev = logw0; per step k: a_m = prev_m + ll[r, m, k],
+   lse = max a + log sum exp(a - max a) (the step's log-likelihood), prev = a - lse.
+   A NaN in a propagates to the max, as numpy's max does. */
+int sm_gsf_weights(long long R, long long M, long long K, const double* logw0, const double* ll,
+                   double* logw, double* step_ll) {
+  long long r, k, m;
+  for (r = 0; r < R; ++r) {
+    const double* l = ll + r * M * K;
+    double* out = logw + r * K * M;
+    const double* prev = logw0;
+    for (k = 0; k < K; ++k) {
+      double* a = out + k * M;
+      double top, sum = 0.0, lse;
+      for (m = 0; m < M; ++m) a[m] = prev[m] + l[m * K + k];
+      top = a[0];
+      for (m = 1; m < M; ++m) if (a[m] > top || isnan(a[m])) top = a[m];
+      for (m = 0; m < M; ++m) sum += exp(a[m] - top);
+      lse = top + log(sum);
+      step_ll[r * K + k] = lse;
+      for (m = 0; m < M; ++m) a[m] -= lse;
+      prev = a;
+    }
+  }
+  return 0;
+}
+"""
+
+_weights: NativeLibrary | None = None
+_weights_lock = threading.Lock()
+
+
+def _load_weights(so):
+    fn = ctypes.CDLL(str(so)).sm_gsf_weights
+    fn.argtypes = [ctypes.c_longlong] * 3 + [ctypes.c_void_p] * 4
+    fn.restype = ctypes.c_int
+    return fn
+
+
+def bank_weights(logw0: np.ndarray, ll: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The normalised log-weights (R, K, M) and the log-likelihood per step (R, K) of a
+    Gaussian sum whose M components are independent filters with the log-likelihood
+    increments ``ll`` (R, M, K) and the prior log-weights ``logw0`` (M,): per step,
+    a = prev + ll_k, ℓ_k = log Σ exp(a) (by its maximum), prev = a − ℓ_k.
+
+    One C loop (a few ns a component and step) when a compiler is available, else the same
+    recursion in NumPy, one step at a time; the two agree to rounding (exp and log of
+    the C library against NumPy's)."""
+    R, M, K = ll.shape
+    ll = np.ascontiguousarray(ll, dtype=float)
+    logw0 = np.ascontiguousarray(np.broadcast_to(logw0, (M,)), dtype=float)
+    global _weights
+    with _weights_lock:
+        if _weights is None:
+            _weights = NativeLibrary(_WEIGHTS_C, "sm_gsf_weights", _load_weights, stacklevel=3)
+    fn = _weights.get()
+    logw, step_ll = np.empty((R, K, M)), np.empty((R, K))
+    if fn is not None:
+        fn(R, M, K, logw0.ctypes.data, ll.ctypes.data, logw.ctypes.data, step_ll.ctypes.data)
+        return logw, step_ll
+    prev = np.broadcast_to(logw0, (R, M))
+    for k in range(K):
+        a = prev + ll[:, :, k]
+        top = a.max(axis=1, keepdims=True)
+        step_ll[:, k] = top[:, 0] + np.log(np.exp(a - top).sum(axis=1))
+        prev = a - step_ll[:, k:k + 1]
+        logw[:, k] = prev
+    return logw, step_ll
