@@ -158,7 +158,7 @@ typedef struct {{
   const casadi_real* P; casadi_int K, N, nch; casadi_real *X0, *Xn0, *t, *e, *lw, *sc, *hx, *part;
   unsigned long long* st; const casadi_real *zext, *uext, *jext, *m0, *L0; const casadi_int* opt; const casadi_real* fl;
   casadi_real *o_ll, *o_ess, *o_res, *o_x, *o_P, *o_xp, *o_Pp, *o_hm, *o_hS, *cov, *L;
-  casadi_int* fail; {name}_barrier bar; int T; pthread_mutex_t gate;
+  casadi_int *fail, *idx; {name}_barrier bar; int T; pthread_mutex_t gate;
 }} {name}_ctx;
 
 /* The lowest index in the ascending sc[0 .. N) with sc >= v. */
@@ -186,6 +186,9 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
   casadi_real *rb = buf, *blk = rb + {ld} * {nr}, *wz = blk + {ld} * {no}, *acc = wz + {ld}, *zt = acc + {ld}, *row = zt + {block} * {nq};
   unsigned char* odd = (unsigned char*) (row + {no});
   const int want_pred = c->o_xp || c->o_Pp || c->o_hm, reg = (int) c->opt[1];
+  /* gath: the particle i is X's row idx[i] (the last resampling's pick, not copied: the next
+     move reads through idx, which saves the gather's pass over memory) */
+  int gath = 0;
   if (c->m0) for (q = c0; q < c1; ++q) {{  /* the prior x0 = m + L z, z the first normals of chunk q's stream */
     end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
     {name}_draw((uint64_t*) c->st + 4 * q, (end - q * {chunk}) * {nx}, X + q * {chunk} * {nx});
@@ -214,7 +217,10 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
         /* the rows [x_i, z_i] by columns (rb[j * {ld} + i]: the vector loop's loads are
            contiguous); the normals of the block in one tight loop, particle by particle, so
            the stream is the one a draw per particle would give */
-        for (i = 0; i < nb; ++i) for (j = 0; j < {nx}; ++j) rb[j * {ld} + i] = X[(b0 + i) * {nx} + j];
+        for (i = 0; i < nb; ++i) {{
+          const casadi_real* xr = X + (gath ? c->idx[b0 + i] : b0 + i) * {nx};
+          for (j = 0; j < {nx}; ++j) rb[j * {ld} + i] = xr[j];
+        }}
         if (c->zext) {{
           for (i = 0; i < nb; ++i) for (j = 0; j < {nq}; ++j) rb[({nx} + j) * {ld} + i] = c->zext[(k * N + b0 + i) * {nq} + j];
         }} else {{  /* drawn by a call of their own (its loop keeps the generator in registers), then transposed */
@@ -305,6 +311,7 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
     if (!redo) {{
       for (i = a0; i < a1; ++i) c->lw[i] = c->t[i] - lse;
       tmp = X; X = Xn; Xn = tmp;
+      gath = 0;
       continue;
     }}
     if (tau == 0) {{  /* resampling points, ascending on [0, N) */
@@ -336,10 +343,15 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
       for (i = lo; i < hi; ++i) {{
         pt = c->sc[i];
         while (cum <= pt && j < end - 1) cum += c->e[++j] * scale;
-        memcpy(X + i * {nx}, Xn + j * {nx}, {nx} * sizeof(casadi_real));
+        if (reg) memcpy(X + i * {nx}, Xn + j * {nx}, {nx} * sizeof(casadi_real));
+        else c->idx[i] = j;
       }}
     }}
     {name}_bwait(&c->bar);
+    if (!reg) {{  /* the moved particles, read through idx by the next move */
+      tmp = X; X = Xn; Xn = tmp;
+      gath = 1;
+    }}
     for (q = c0; q < c1; ++q) {{  /* regularisation: x += h L eps (Musso, Oudjane & Le Gland 2001) */
       uint64_t* sg = (uint64_t*) c->st + 4 * q, sl[4];
       memcpy(sl, sg, sizeof sl);
@@ -359,6 +371,11 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
       }}
       memcpy(sg, sl, sizeof sl);
     }}
+  }}
+  if (gath) {{  /* the last pick, copied into the other buffer (other threads read X's rows) */
+    for (i = a0; i < a1; ++i) memcpy(Xn + i * {nx}, X + c->idx[i] * {nx}, {nx} * sizeof(casadi_real));
+    tmp = X; X = Xn; Xn = tmp;
+    {name}_bwait(&c->bar);
   }}
   if (X != c->X0) memcpy(c->X0 + a0 * {nx}, X + a0 * {nx}, (a1 - a0) * {nx} * sizeof(casadi_real));  /* own rows */
   return 0;
@@ -402,12 +419,14 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
   c.zext = zext; c.uext = uext; c.jext = jext; c.m0 = m0; c.L0 = L0; c.opt = opt; c.fl = fl; c.o_ll = o_ll; c.o_ess = o_ess;
   c.o_res = o_res; c.o_x = o_x; c.o_P = o_P; c.o_xp = o_xp; c.o_Pp = o_Pp; c.o_hm = o_hm; c.o_hS = o_hS;
   c.cov = cov; c.L = L; c.fail = fail;
+  c.idx = (casadi_int*) malloc((N > 0 ? N : 1) * sizeof(casadi_int));
+  if (!c.idx) return 1;
   if (T > c.nch) T = c.nch;
   if (T > 64) T = 64;
   if (T < 1) T = 1;
   c.T = (int) T;
   buf = (casadi_real*) malloc(T * {name}_BUF * sizeof(casadi_real));
-  if (!buf) return 1;
+  if (!buf) {{ free(c.idx); return 1; }}
   c.bar.T = (int) T; c.bar.count = 0; c.bar.gen = 0;
   pthread_mutex_init(&c.bar.mu, 0);
   pthread_cond_init(&c.bar.cv, 0);
@@ -429,6 +448,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
   pthread_cond_destroy(&c.bar.cv);
   pthread_mutex_destroy(&c.gate);
   free(buf);
+  free(c.idx);
   for (tau = 0; tau <= started; ++tau) if (args[tau].ret > ret) ret = args[tau].ret;
   return ret;
 }}
@@ -447,7 +467,7 @@ LD = BLOCK + 8
 # CasADi's function (libm); else by CasADi's function row by row.
 _ROW = """
           for (j = 0; j < {nq}; ++j) zr[j] = rb[({nx} + j) * {ld} + i];
-          arg[0] = X + (b0 + i) * {nx}; arg[1] = zr;
+          arg[0] = X + (gath ? c->idx[b0 + i] : b0 + i) * {nx}; arg[1] = zr;
           res[0] = row; res[1] = row + {nx}; res[2] = row + {nx} + {ny};
           if ({name}(arg, res, iw, w, 0)) bad = 2;
           for (j = 0; j < {no}; ++j) blk[j * {ld} + i] = row[j];"""
