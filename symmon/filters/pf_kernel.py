@@ -32,6 +32,9 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
    sums of exponential spacings for multinomial: O(N), no sort), then the walk along the
    cumulative weights (points ascending: O(N), no binary search), by input chunk, each
    chunk finding its first point by bisection; the regularisation's jitter by output chunk.
+   Without regularisation the pick is kept as indices and the next move reads the moved
+   particles through them (the rows are copied once, at the end of the run), which saves
+   the gather's read and write of the N x n particles each step.
 
 A single run runs on T threads (pthreads made by the call, a barrier at each reduction)
 over contiguous chunk ranges; the C of a run never waits on Python's thread pool.
