@@ -68,6 +68,7 @@ _DRIVER = """
 #include <string.h>
 #include <stdlib.h>
 #include <pthread.h>
+#include <time.h>
 static const int {name}_ax[{nx}] = {{{ax}}};
 static const int {name}_ay[{ny}] = {{{ay}}};
 
@@ -140,15 +141,41 @@ CASADI_SYMBOL_EXPORT void {name}_normals(unsigned long long* s, casadi_int count
   {name}_draw((uint64_t*) s, count, out);
 }}
 
-/* A barrier of the run's T threads (POSIX mutex and condition: macOS has no pthread_barrier). */
-typedef struct {{ pthread_mutex_t mu; pthread_cond_t cv; int count, gen, T; }} {name}_barrier;
+/* A barrier of the run's T threads: a short spin on the generation (a wait between two
+   passes is mostly a few microseconds, and a sleep and wake-up through the kernel costs more),
+   then a POSIX mutex and condition (macOS has no pthread_barrier).  The last thread to arrive
+   resets the count before it publishes the new generation, under the mutex (no lost wake-up). */
+#if defined(__x86_64__) || defined(__i386__)
+#define {name}_PAUSE() __builtin_ia32_pause()
+#else
+#define {name}_PAUSE() ((void) 0)
+#endif
+#define {name}_SPIN_NS 20000L
+typedef struct {{ pthread_mutex_t mu; pthread_cond_t cv; int count, T; unsigned gen; }} {name}_barrier;
 static void {name}_bwait({name}_barrier* b) {{
-  int g;
+  unsigned g;
+  long i;
+  struct timespec t0, t1;
   if (b->T == 1) return;
+  g = __atomic_load_n(&b->gen, __ATOMIC_ACQUIRE);
+  if (__atomic_add_fetch(&b->count, 1, __ATOMIC_ACQ_REL) == b->T) {{
+    __atomic_store_n(&b->count, 0, __ATOMIC_RELAXED);
+    pthread_mutex_lock(&b->mu);
+    __atomic_store_n(&b->gen, g + 1u, __ATOMIC_RELEASE);
+    pthread_cond_broadcast(&b->cv);
+    pthread_mutex_unlock(&b->mu);
+    return;
+  }}
+  clock_gettime(CLOCK_MONOTONIC, &t0);
+  for (i = 1;; ++i) {{  /* spin for at most {name}_SPIN_NS, reading the clock every 32 turns */
+    if (__atomic_load_n(&b->gen, __ATOMIC_ACQUIRE) != g) return;
+    {name}_PAUSE();
+    if (i % 32) continue;
+    clock_gettime(CLOCK_MONOTONIC, &t1);
+    if ((t1.tv_sec - t0.tv_sec) * 1000000000L + (t1.tv_nsec - t0.tv_nsec) > {name}_SPIN_NS) break;
+  }}
   pthread_mutex_lock(&b->mu);
-  g = b->gen;
-  if (++b->count == b->T) {{ b->count = 0; b->gen++; pthread_cond_broadcast(&b->cv); }}
-  else while (g == b->gen) pthread_cond_wait(&b->cv, &b->mu);
+  while (__atomic_load_n(&b->gen, __ATOMIC_ACQUIRE) == g) pthread_cond_wait(&b->cv, &b->mu);
   pthread_mutex_unlock(&b->mu);
 }}
 
