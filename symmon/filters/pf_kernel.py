@@ -24,7 +24,8 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
    block of Γ R Γᵀ (embedded with zero rows and columns for the missing components, whose
    ν_i, finite or not, never enter) and the log-density, by loops over the block; writing
    x'_i, t_i and each chunk's maximum of t and a flag for a non-finite particle or weight;
-2. e_i = exp(t_i − max t), and per chunk Σ e_i, Σ e_i², Σ e_i x'_i (sines and cosines for
+2. e_i = exp(t_i − max t) (by :mod:`symmon.compile.vecmath`'s vectorised exp, within 1 ulp),
+   and per chunk Σ e_i, Σ e_i², Σ e_i x'_i (sines and cosines for
    angle states), one pass, with the maximum of pass 1 so no exponential overflows; the
    chunks' sums are added in chunk order, so the result does not depend on the threads;
 3. the covariance and the predicted moments when kept (a pass each);
@@ -308,9 +309,15 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
       end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
       s = 0; s2 = 0;
       for (j = 0; j < {nx}; ++j) sx[j] = cs[j] = 0;
+      {{  /* by vecmath's sm_exp (within 1 ulp, vectorised); an argument beyond its range
+            (a weight below e^-708 of the largest, or -inf) by libm's exp, in the sums' loop */
+        const casadi_real* restrict tq = c->t;
+        casadi_real* restrict eq = c->e;
+        for (i = q * {chunk}; i < end; ++i) eq[i] = sm_exp(tq[i] - m);
+      }}
       for (i = q * {chunk}; i < end; ++i) {{
-        ei = exp(c->t[i] - m);
-        c->e[i] = ei;
+        ei = c->e[i];
+        if (!sm_exp_ordinary(c->t[i] - m)) c->e[i] = ei = exp(c->t[i] - m);
         s += ei;
         s2 += ei * ei;
         xi = Xn + i * {nx};
@@ -594,7 +601,7 @@ class BootstrapKernel:
                    o_mask=self._o_mask, o_A=self._o_A)
         fmt["fill"] = _FILL[self.vectorised].format(**fmt)
         fmt["wsum"] = (_WSUM_ANGLES if angle_states else _WSUM).format(**fmt)
-        code = RNG_C + generated_c(self.f) + (VECMATH_C + vec if vec else "") + _DRIVER.format(**fmt)
+        code = RNG_C + generated_c(self.f) + VECMATH_C + (vec or "") + _DRIVER.format(**fmt)
 
         def load(so):
             lib = ctypes.CDLL(str(so))
