@@ -24,7 +24,8 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
    block of Γ R Γᵀ (embedded with zero rows and columns for the missing components, whose
    ν_i, finite or not, never enter) and the log-density, by loops over the block; writing
    x'_i, t_i and each chunk's maximum of t and a flag for a non-finite particle or weight;
-2. e_i = exp(t_i − max t), and per chunk Σ e_i, Σ e_i², Σ e_i x'_i (sines and cosines for
+2. e_i = exp(t_i − max t) (by :mod:`symmon.compile.vecmath`'s vectorised exp, within 1 ulp),
+   and per chunk Σ e_i, Σ e_i², Σ e_i x'_i (sines and cosines for
    angle states), one pass, with the maximum of pass 1 so no exponential overflows; the
    chunks' sums are added in chunk order, so the result does not depend on the threads;
 3. the covariance and the predicted moments when kept (a pass each);
@@ -32,6 +33,9 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
    sums of exponential spacings for multinomial: O(N), no sort), then the walk along the
    cumulative weights (points ascending: O(N), no binary search), by input chunk, each
    chunk finding its first point by bisection; the regularisation's jitter by output chunk.
+   Without regularisation the pick is kept as indices and the next move reads the moved
+   particles through them (the rows are copied once, at the end of the run), which saves
+   the gather's read and write of the N x n particles each step.
 
 A single run runs on T threads (pthreads made by the call, a barrier at each reduction)
 over contiguous chunk ranges; the C of a run never waits on Python's thread pool.
@@ -65,6 +69,7 @@ _DRIVER = """
 #include <string.h>
 #include <stdlib.h>
 #include <pthread.h>
+#include <time.h>
 static const int {name}_ax[{nx}] = {{{ax}}};
 static const int {name}_ay[{ny}] = {{{ay}}};
 
@@ -137,15 +142,41 @@ CASADI_SYMBOL_EXPORT void {name}_normals(unsigned long long* s, casadi_int count
   {name}_draw((uint64_t*) s, count, out);
 }}
 
-/* A barrier of the run's T threads (POSIX mutex and condition: macOS has no pthread_barrier). */
-typedef struct {{ pthread_mutex_t mu; pthread_cond_t cv; int count, gen, T; }} {name}_barrier;
+/* A barrier of the run's T threads: a short spin on the generation (a wait between two
+   passes is mostly a few microseconds, and a sleep and wake-up through the kernel costs more),
+   then a POSIX mutex and condition (macOS has no pthread_barrier).  The last thread to arrive
+   resets the count before it publishes the new generation, under the mutex (no lost wake-up). */
+#if defined(__x86_64__) || defined(__i386__)
+#define {name}_PAUSE() __builtin_ia32_pause()
+#else
+#define {name}_PAUSE() ((void) 0)
+#endif
+#define {name}_SPIN_NS 20000L
+typedef struct {{ pthread_mutex_t mu; pthread_cond_t cv; int count, T; unsigned gen; }} {name}_barrier;
 static void {name}_bwait({name}_barrier* b) {{
-  int g;
+  unsigned g;
+  long i;
+  struct timespec t0, t1;
   if (b->T == 1) return;
+  g = __atomic_load_n(&b->gen, __ATOMIC_ACQUIRE);
+  if (__atomic_add_fetch(&b->count, 1, __ATOMIC_ACQ_REL) == b->T) {{
+    __atomic_store_n(&b->count, 0, __ATOMIC_RELAXED);
+    pthread_mutex_lock(&b->mu);
+    __atomic_store_n(&b->gen, g + 1u, __ATOMIC_RELEASE);
+    pthread_cond_broadcast(&b->cv);
+    pthread_mutex_unlock(&b->mu);
+    return;
+  }}
+  clock_gettime(CLOCK_MONOTONIC, &t0);
+  for (i = 1;; ++i) {{  /* spin for at most {name}_SPIN_NS, reading the clock every 32 turns */
+    if (__atomic_load_n(&b->gen, __ATOMIC_ACQUIRE) != g) return;
+    {name}_PAUSE();
+    if (i % 32) continue;
+    clock_gettime(CLOCK_MONOTONIC, &t1);
+    if ((t1.tv_sec - t0.tv_sec) * 1000000000L + (t1.tv_nsec - t0.tv_nsec) > {name}_SPIN_NS) break;
+  }}
   pthread_mutex_lock(&b->mu);
-  g = b->gen;
-  if (++b->count == b->T) {{ b->count = 0; b->gen++; pthread_cond_broadcast(&b->cv); }}
-  else while (g == b->gen) pthread_cond_wait(&b->cv, &b->mu);
+  while (__atomic_load_n(&b->gen, __ATOMIC_ACQUIRE) == g) pthread_cond_wait(&b->cv, &b->mu);
   pthread_mutex_unlock(&b->mu);
 }}
 
@@ -158,7 +189,7 @@ typedef struct {{
   const casadi_real* P; casadi_int K, N, nch; casadi_real *X0, *Xn0, *t, *e, *lw, *sc, *hx, *part;
   unsigned long long* st; const casadi_real *zext, *uext, *jext, *m0, *L0; const casadi_int* opt; const casadi_real* fl;
   casadi_real *o_ll, *o_ess, *o_res, *o_x, *o_P, *o_xp, *o_Pp, *o_hm, *o_hS, *cov, *L;
-  casadi_int* fail; {name}_barrier bar; int T; pthread_mutex_t gate;
+  casadi_int *fail, *idx; {name}_barrier bar; int T; pthread_mutex_t gate;
 }} {name}_ctx;
 
 /* The lowest index in the ascending sc[0 .. N) with sc >= v. */
@@ -186,6 +217,9 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
   casadi_real *rb = buf, *blk = rb + {ld} * {nr}, *wz = blk + {ld} * {no}, *acc = wz + {ld}, *zt = acc + {ld}, *row = zt + {block} * {nq};
   unsigned char* odd = (unsigned char*) (row + {no});
   const int want_pred = c->o_xp || c->o_Pp || c->o_hm, reg = (int) c->opt[1];
+  /* gath: the particle i is X's row idx[i] (the last resampling's pick, not copied: the next
+     move reads through idx, which saves the gather's pass over memory) */
+  int gath = 0;
   if (c->m0) for (q = c0; q < c1; ++q) {{  /* the prior x0 = m + L z, z the first normals of chunk q's stream */
     end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
     {name}_draw((uint64_t*) c->st + 4 * q, (end - q * {chunk}) * {nx}, X + q * {chunk} * {nx});
@@ -214,7 +248,10 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
         /* the rows [x_i, z_i] by columns (rb[j * {ld} + i]: the vector loop's loads are
            contiguous); the normals of the block in one tight loop, particle by particle, so
            the stream is the one a draw per particle would give */
-        for (i = 0; i < nb; ++i) for (j = 0; j < {nx}; ++j) rb[j * {ld} + i] = X[(b0 + i) * {nx} + j];
+        for (i = 0; i < nb; ++i) {{
+          const casadi_real* xr = X + (gath ? c->idx[b0 + i] : b0 + i) * {nx};
+          for (j = 0; j < {nx}; ++j) rb[j * {ld} + i] = xr[j];
+        }}
         if (c->zext) {{
           for (i = 0; i < nb; ++i) for (j = 0; j < {nq}; ++j) rb[({nx} + j) * {ld} + i] = c->zext[(k * N + b0 + i) * {nq} + j];
         }} else {{  /* drawn by a call of their own (its loop keeps the generator in registers), then transposed */
@@ -272,9 +309,15 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
       end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
       s = 0; s2 = 0;
       for (j = 0; j < {nx}; ++j) sx[j] = cs[j] = 0;
+      {{  /* by vecmath's sm_exp (within 1 ulp, vectorised); an argument beyond its range
+            (a weight below e^-708 of the largest, or -inf) by libm's exp, in the sums' loop */
+        const casadi_real* restrict tq = c->t;
+        casadi_real* restrict eq = c->e;
+        for (i = q * {chunk}; i < end; ++i) eq[i] = sm_exp(tq[i] - m);
+      }}
       for (i = q * {chunk}; i < end; ++i) {{
-        ei = exp(c->t[i] - m);
-        c->e[i] = ei;
+        ei = c->e[i];
+        if (!sm_exp_ordinary(c->t[i] - m)) c->e[i] = ei = exp(c->t[i] - m);
         s += ei;
         s2 += ei * ei;
         xi = Xn + i * {nx};
@@ -305,6 +348,7 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
     if (!redo) {{
       for (i = a0; i < a1; ++i) c->lw[i] = c->t[i] - lse;
       tmp = X; X = Xn; Xn = tmp;
+      gath = 0;
       continue;
     }}
     if (tau == 0) {{  /* resampling points, ascending on [0, N) */
@@ -336,10 +380,15 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
       for (i = lo; i < hi; ++i) {{
         pt = c->sc[i];
         while (cum <= pt && j < end - 1) cum += c->e[++j] * scale;
-        memcpy(X + i * {nx}, Xn + j * {nx}, {nx} * sizeof(casadi_real));
+        if (reg) memcpy(X + i * {nx}, Xn + j * {nx}, {nx} * sizeof(casadi_real));
+        else c->idx[i] = j;
       }}
     }}
     {name}_bwait(&c->bar);
+    if (!reg) {{  /* the moved particles, read through idx by the next move */
+      tmp = X; X = Xn; Xn = tmp;
+      gath = 1;
+    }}
     for (q = c0; q < c1; ++q) {{  /* regularisation: x += h L eps (Musso, Oudjane & Le Gland 2001) */
       uint64_t* sg = (uint64_t*) c->st + 4 * q, sl[4];
       memcpy(sl, sg, sizeof sl);
@@ -359,6 +408,11 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
       }}
       memcpy(sg, sl, sizeof sl);
     }}
+  }}
+  if (gath) {{  /* the last pick, copied into the other buffer (other threads read X's rows) */
+    for (i = a0; i < a1; ++i) memcpy(Xn + i * {nx}, X + c->idx[i] * {nx}, {nx} * sizeof(casadi_real));
+    tmp = X; X = Xn; Xn = tmp;
+    {name}_bwait(&c->bar);
   }}
   if (X != c->X0) memcpy(c->X0 + a0 * {nx}, X + a0 * {nx}, (a1 - a0) * {nx} * sizeof(casadi_real));  /* own rows */
   return 0;
@@ -402,12 +456,14 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
   c.zext = zext; c.uext = uext; c.jext = jext; c.m0 = m0; c.L0 = L0; c.opt = opt; c.fl = fl; c.o_ll = o_ll; c.o_ess = o_ess;
   c.o_res = o_res; c.o_x = o_x; c.o_P = o_P; c.o_xp = o_xp; c.o_Pp = o_Pp; c.o_hm = o_hm; c.o_hS = o_hS;
   c.cov = cov; c.L = L; c.fail = fail;
+  c.idx = (casadi_int*) malloc((N > 0 ? N : 1) * sizeof(casadi_int));
+  if (!c.idx) return 1;
   if (T > c.nch) T = c.nch;
   if (T > 64) T = 64;
   if (T < 1) T = 1;
   c.T = (int) T;
   buf = (casadi_real*) malloc(T * {name}_BUF * sizeof(casadi_real));
-  if (!buf) return 1;
+  if (!buf) {{ free(c.idx); return 1; }}
   c.bar.T = (int) T; c.bar.count = 0; c.bar.gen = 0;
   pthread_mutex_init(&c.bar.mu, 0);
   pthread_cond_init(&c.bar.cv, 0);
@@ -429,6 +485,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
   pthread_cond_destroy(&c.bar.cv);
   pthread_mutex_destroy(&c.gate);
   free(buf);
+  free(c.idx);
   for (tau = 0; tau <= started; ++tau) if (args[tau].ret > ret) ret = args[tau].ret;
   return ret;
 }}
@@ -447,7 +504,7 @@ LD = BLOCK + 8
 # CasADi's function (libm); else by CasADi's function row by row.
 _ROW = """
           for (j = 0; j < {nq}; ++j) zr[j] = rb[({nx} + j) * {ld} + i];
-          arg[0] = X + (b0 + i) * {nx}; arg[1] = zr;
+          arg[0] = X + (gath ? c->idx[b0 + i] : b0 + i) * {nx}; arg[1] = zr;
           res[0] = row; res[1] = row + {nx}; res[2] = row + {nx} + {ny};
           if ({name}(arg, res, iw, w, 0)) bad = 2;
           for (j = 0; j < {no}; ++j) blk[j * {ld} + i] = row[j];"""
@@ -544,7 +601,7 @@ class BootstrapKernel:
                    o_mask=self._o_mask, o_A=self._o_A)
         fmt["fill"] = _FILL[self.vectorised].format(**fmt)
         fmt["wsum"] = (_WSUM_ANGLES if angle_states else _WSUM).format(**fmt)
-        code = RNG_C + generated_c(self.f) + (VECMATH_C + vec if vec else "") + _DRIVER.format(**fmt)
+        code = RNG_C + generated_c(self.f) + VECMATH_C + (vec or "") + _DRIVER.format(**fmt)
 
         def load(so):
             lib = ctypes.CDLL(str(so))

@@ -131,3 +131,28 @@ def test_whitening_embeds_the_measured_block():
     assert np.all(A[1] == 0) and np.all(A[:, 1] == 0)
     np.testing.assert_allclose(c, -0.5 * (np.log(np.linalg.det(S[np.ix_(m, m)])) + 2 * np.log(2 * np.pi)), rtol=1e-14)
     assert whitening(S, np.zeros(3, dtype=bool))[1] == 0.0
+
+
+def test_the_pick_read_through_indices_gives_the_particles():
+    """Without regularisation the kernel keeps a resampling's pick as indices (the next move
+    reads through them) and copies the particles only at the end: with resampling at every
+    step (the last included) on three chunks, the final particles, the mean and the
+    log-likelihood equal the NumPy twin's (which gathers the rows) to rounding, and the
+    multi-threaded run equals the one-thread run bit for bit."""
+    xs, ys = sm.simulate(F, H, Q, R, X0, K, params={"a": 0.5}, seed=6)
+    pf = sm.ParticleFilter(F, H, Q, R, particles=3 * CHUNK - 100, ess_threshold=1.0, seed=8)
+    twin = numpy_twin(pf)
+    draws = {k: v[:1] for k, v in replay(pf, 1, 12).items()}
+    object.__setattr__(pf, "_replay", draws)
+    object.__setattr__(twin, "_replay", draws)
+    got = pf.filter(ys, X0, params={"a": 0.5})
+    ref = twin.filter(ys, X0, params={"a": 0.5})
+    assert got.resampled.all()
+    for name in ("final_particles", "final_log_weights", "x", "loglik"):
+        np.testing.assert_allclose(getattr(got, name), getattr(ref, name), rtol=1e-9, atol=1e-9, err_msg=name)
+    box = {}
+    t = threading.Thread(target=lambda: box.setdefault("r", pf.filter(ys, X0, params={"a": 0.5})))
+    t.start()
+    t.join()
+    for name in ("final_particles", "x", "loglik"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(box["r"], name), err_msg=name)
