@@ -172,7 +172,7 @@ def run(quick: bool) -> str:
              "symmon's first call is its first filter call, after `sm.simulate` compiled f and h into a fresh cache (it "
              "includes the C build of the PF's compiled step, once per model: the first N of each n). Ratios: peer / symmon (> 1: symmon faster). "
              "Targets (issue 35): NumPy / symmon ≥ 3 and Stone Soup / symmon ≥ 30 at every size. "
-             f"x86_64, {os.cpu_count()} cores shared with other jobs; load average before / after: "
+             f"x86_64, {os.cpu_count()} cores; load average before / after: "
              f"{load0:.2f} / {load1:.2f}.", "",
              "| n | N | symmon first call | symmon / step | NumPy / step | Stone Soup / step | NumPy / symmon | "
              "Stone Soup / symmon | CPU / step: symmon, NumPy (ratio) | |x̂_symmon − x̂_NumPy| (px, max over steps) |",
