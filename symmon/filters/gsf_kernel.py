@@ -302,6 +302,20 @@ static int smg_split(smg_ctx* c, int which, int N, const double* p, int* ns, int
   }
 }
 
+/* Keep the components i < N with alive[i], in order; returns how many. */
+static int smg_compact(smg_ctx* c, int n, int N) {
+  int i, o = 0;
+  for (i = 0; i < N; ++i) {
+    if (!c->alive[i]) continue;
+    if (o != i) {
+      c->w[o] = c->w[i];
+      memcpy(c->x + o * n, c->x + i * n, n * sizeof(double));
+      memcpy(c->P + o * n * n, c->P + i * n * n, n * n * sizeof(double));
+    }
+    ++o;
+  }
+  return o;
+}
 static int smg_finite(const double* a, int m) {
   int i;
   for (i = 0; i < m; ++i) if (!isfinite(a[i])) return 0;
@@ -398,19 +412,8 @@ CASADI_SYMBOL_EXPORT int sm_gsfk_run(casadi_int r0, casadi_int r1, casadi_int K,
       /* prune (the heaviest stays), merge down to Mk, renormalise */
       top = c.w[0];
       for (i = 1; i < N; ++i) if (c.w[i] > top) top = c.w[i];
-      {
-        int o = 0;
-        for (i = 0; i < N; ++i) {
-          if (!(c.w[i] >= c.prune || c.w[i] == top)) continue;
-          if (o != i) {
-            c.w[o] = c.w[i];
-            memcpy(c.x + o * n, c.x + i * n, n * sizeof(double));
-            memcpy(c.P + o * n * n, c.P + i * n * n, n * n * sizeof(double));
-          }
-          ++o;
-        }
-        N = o;
-      }
+      for (i = 0; i < N; ++i) c.alive[i] = c.w[i] >= c.prune || c.w[i] == top;
+      N = smg_compact(&c, n, N);
       if (N > c.Mk) {
         double* Pinv = c.sc + SMG_SC_DIR;
         if (c.salmond) {  /* _metric: the inverse of the mixture's covariance, by correlations */
@@ -432,19 +435,7 @@ CASADI_SYMBOL_EXPORT int sm_gsfk_run(casadi_int r0, casadi_int r1, casadi_int K,
         }
         c.start[0] = 0; c.start[1] = N;
         if (sm_gsf_merge(1, c.start, n, c.Mk, c.salmond, c.w, c.x, c.P, Pinv, c.alive)) { ret = -1; break; }
-        {
-          int o = 0;
-          for (i = 0; i < N; ++i) {
-            if (!c.alive[i]) continue;
-            if (o != i) {
-              c.w[o] = c.w[i];
-              memcpy(c.x + o * n, c.x + i * n, n * sizeof(double));
-              memcpy(c.P + o * n * n, c.P + i * n * n, n * n * sizeof(double));
-            }
-            ++o;
-          }
-          N = o;
-        }
+        N = smg_compact(&c, n, N);
       }
       tw = 0;
       for (i = 0; i < N; ++i) tw += c.w[i];
