@@ -55,3 +55,19 @@ def assert_close_to_scale(actual, expected, rtol: float) -> None:
     largest entry of ``expected`` (an absolute tolerance of rtol · max |expected|)."""
     expected = np.asarray(expected)
     np.testing.assert_allclose(actual, expected, rtol=rtol, atol=rtol * np.abs(expected).max())
+
+
+def turning_targets(targets: int, turn: sp.Rational, tag: str):
+    """Coordinated-turn targets (px, py, v, heading th an angle state, range bias b) turning at
+    ``turn`` rad per unit of dt, with range and bearing of each from a sensor at (s, 0): f's
+    parameter dt, h's s.  Returns (f, h, X, dt, s)."""
+    dt, s = sp.symbols("dt s", real=True)
+    blocks = [sp.symbols(f"px{i} py{i} v{i} th{i} b{i}", real=True) for i in range(targets)]
+    X = [v for blk in blocks for v in blk]
+    f_out, h_out = [], []
+    for px, py, v, th, b in blocks:
+        f_out += [px + dt * v * sp.cos(th), py + dt * v * sp.sin(th), v, th + dt * turn, b]
+        h_out += [sp.sqrt((px - s) ** 2 + py**2) + b, sp.atan2(py, px - s)]
+    f = sm.Model(X, f_out, angles=[5 * i + 3 for i in range(targets)], params=[dt], name=f"ct {tag}")
+    h = sm.Model(X, h_out, angles=[2 * i + 1 for i in range(targets)], params=[s], name=f"rb {tag}")
+    return f, h, X, dt, s

@@ -14,28 +14,19 @@ import pytest
 import sympy as sp
 
 import symmon as sm
-from helpers import assert_close_to_scale
+from helpers import assert_close_to_scale, turning_targets
 from symmon.filters.ekfstep import C_EKF_FROM
 from symmon.filters.step import _compiled_step, chunk_runs
 
 RTOL = 1e-10
 TARGETS = 4
-dt, s = sp.symbols("dt s", real=True)
-BLOCKS = [sp.symbols(f"px{i} py{i} v{i} th{i} b{i}", real=True) for i in range(TARGETS)]
-X = [v for blk in BLOCKS for v in blk]
+F, H, X, dt, s = turning_targets(TARGETS, sp.Rational(1, 10), "targets")
 N = len(X)
 
 
 def models():
-    """Four coordinated-turn targets (heading th an angle state), each with a range bias;
-    range and bearing of each from a sensor at (s, 0): f's parameter dt, h's s."""
-    f_out, h_out = [], []
-    for i, (px, py, v, th, b) in enumerate(BLOCKS):
-        f_out += [px + dt * v * sp.cos(th), py + dt * v * sp.sin(th), v, th + dt * sp.Rational(1, 10), b]
-        h_out += [sp.sqrt((px - s) ** 2 + py**2) + b, sp.atan2(py, px - s)]
-    f = sm.Model(X, f_out, angles=[5 * i + 3 for i in range(TARGETS)], params=[dt], name="ct targets")
-    h = sm.Model(X, h_out, angles=[2 * i + 1 for i in range(TARGETS)], params=[s], name="rb targets")
-    return f, h
+    """The targets' models (helpers.turning_targets)."""
+    return F, H
 
 
 @pytest.fixture(scope="module")
