@@ -103,7 +103,7 @@ def main() -> None:
         return
     sys.path.insert(0, str(HERE))
     import numpy as np
-    from filters import write_section
+    from filters import publish
 
     load0 = os.getloadavg()[0]
     print("load", load0, flush=True)
@@ -145,10 +145,7 @@ def main() -> None:
         lines.append(f"| {c.get('n', n)} | {us(c, 'cpu_loop')} ({us(c)}) | {us(mx, 'cpu_loop')} ({us(mx)}) | {ratio} "
                      f"| {us(e, 'cpu_loop')} ({us(e)}) | {first(c)} / {first(mx)} "
                      f"| {diff(c, mx)} |")
-    text = "\n".join(lines)
-    print(text)
-    if a.out:
-        write_section(a.out, text, HEADING)
+    publish(lines, a.out, HEADING)
 
 
 if __name__ == "__main__":

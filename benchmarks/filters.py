@@ -267,6 +267,16 @@ def report(steps: list[dict], b: dict, load: tuple[str, str]) -> str:
     return "\n".join(lines)
 
 
+def publish(lines: list[str], out: Path | None, heading: str) -> str:
+    """Print a section's lines and, with ``out``, write the section into that Markdown file
+    (ending in one blank line, so that the next heading stands apart)."""
+    text = "\n".join(lines).rstrip() + "\n"
+    print(text)
+    if out:
+        write_section(out, text, heading)
+    return text
+
+
 def write_section(path: Path, text: str, heading: str = HEADING) -> None:
     """Replace the section ``heading`` of ``path`` (or append it), leaving the others."""
     old = path.read_text() if path.exists() else ""

@@ -44,7 +44,7 @@ import numpy as np  # noqa: E402
 import sympy as sp  # noqa: E402
 
 import symmon as sm  # noqa: E402
-from filters import best, cv_range_bearing, targets, write_section  # noqa: E402
+from filters import best, cv_range_bearing, targets, publish  # noqa: E402
 
 HEADING = "## Maximum-likelihood fit"
 TRUTH = {"q": 1.0, "b": 1.5}
@@ -211,10 +211,7 @@ def main() -> None:
         lines.append(f"| {r['n']} | {fmt(r['s_first'])} ({fmt(r['s_built'])}) / {fmt(r['s_warm'])} | {fmt(r['d_first'])} / {fmt(r['d_warm'])} "
                      f"| {r['d_first'] / r['s_first']:.2f}×, {r['d_warm'] / r['s_warm']:.2f}× | {r['nit'][0]}, {r['nit'][1]} "
                      f"| {est} | {r['ll_start']:.1e}, {r['est']:.1e}, {r['se']:.1e}, {r['ll_opt']:.1e} |")
-    text = "\n".join(lines)
-    print(text)
-    if a.out:
-        write_section(a.out, text, HEADING)
+    publish(lines, a.out, HEADING)
 
 
 if __name__ == "__main__":

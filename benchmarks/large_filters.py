@@ -121,7 +121,7 @@ def main() -> None:
     import numpy as np
     from peers import exponent
     from smoothers import fmt, ratio
-    from filters import write_section
+    from filters import publish
 
     load0 = os.getloadavg()[0]
     res: dict[tuple[str, str, int], dict] = {}
@@ -190,10 +190,7 @@ def main() -> None:
                         cols.setdefault(f"{side} {key}", []).append((nn, r[key] / (K * (R if key == "bank" else 1))))
         lines += ["", "Growth exponent p of the cost per step ∝ nᵖ (n ≥ 10): "
                   + "; ".join(f"{k} {exponent([a for a, _ in v], [b for _, b in v])}" for k, v in cols.items()) + ".", ""]
-    text = "\n".join(lines).rstrip()
-    print(text)
-    if a.out:
-        write_section(a.out, text, HEADING)
+    publish(lines, a.out, HEADING)
 
 
 if __name__ == "__main__":

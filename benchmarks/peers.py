@@ -55,7 +55,7 @@ import sympy as sp  # noqa: E402
 import symmon as sm  # noqa: E402
 from symmon.compile import compiled  # noqa: E402
 from symmon.propagation.kernel import batch_kernel  # noqa: E402
-from filters import ALPHA, BETA, KAPPA, best, cv_range_bearing, rel_diff, targets, wrap, write_section  # noqa: E402
+from filters import ALPHA, BETA, KAPPA, best, cv_range_bearing, rel_diff, targets, wrap, publish  # noqa: E402
 from scale import sparse_model  # noqa: E402
 from smoothers import fmt, ratio  # noqa: E402
 
@@ -620,10 +620,7 @@ def main() -> None:
         lines += ["", "jax.vmap ran out of memory (XLA RESOURCE_EXHAUSTED: it holds the whole batch's Hessians) for "
                   + ", ".join(f"{k.upper()} at n = {n}" for n, k in oom) + ": those cells are empty."]
     lines += [""] + mc_lines(N_mc, floor, smc, nmc, mc_load)
-    text = "\n".join(lines)
-    print(text)
-    if a.out:
-        write_section(a.out, text, HEADING)
+    publish(lines, a.out, HEADING)
 
 
 if __name__ == "__main__":

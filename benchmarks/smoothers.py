@@ -38,7 +38,7 @@ os.environ.setdefault("SYMMON_CACHE", tempfile.mkdtemp(prefix="symmon-bench-smoo
 import numpy as np  # noqa: E402
 
 import symmon as sm  # noqa: E402
-from filters import ALPHA, BETA, KAPPA, best, cv_range_bearing, rel_diff, targets, write_section  # noqa: E402
+from filters import ALPHA, BETA, KAPPA, best, cv_range_bearing, rel_diff, targets, publish  # noqa: E402
 
 HEADING = "## Smoothers and log-likelihood"
 # A one-run call takes 0.3–50 ms: repeat it (both sides alike) for at least this long, so
@@ -199,10 +199,7 @@ def main() -> None:
             f"| {ratio(dd.get('one'), s['one'])}, {ratio(dd.get('bank'), s['bank'])}, "
             f"{ratio(dd.get('loglik_bank'), s['loglik_bank'])} | {ratio(None if fp is None else fp['one'], s['one'])} "
             f"| {agree_d}, {agree_f} |")
-    text = "\n".join(lines)
-    print(text)
-    if a.out:
-        write_section(a.out, text, HEADING)
+    publish(lines, a.out, HEADING)
 
 
 if __name__ == "__main__":
