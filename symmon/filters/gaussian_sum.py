@@ -117,7 +117,7 @@ from ..transforms import TT2, UT, Transform
 from ..transforms.registry import resolve
 from ..transforms.executor import Executor
 from .distributed import filter_bank
-from .gsf_kernel import SplitKernel, bank_weights
+from .gsf_kernel import SplitKernel, bank_weights, result_arrays
 from .nonlinear import NonlinearKalmanFilter
 from .mixture_merge import MERGE_RULES, merge_components, merge_runs
 from .inputs import check_bank_size, measurement_bank, param_values
@@ -327,7 +327,7 @@ def _mon_graph(model: Model, x, P, p) -> list:
     is D_ij = ½ tr(H_i P H_j P) (Gustafsson & Hendeby 2012): no inverse of P, and none of the
     cancellation of the difference when the MoN is small."""
     cm = _model_cm(model)
-    n, n_y = x.shape[0], model.n_y
+    n = x.shape[0]
     w = ca.vertcat(x, p) if model.n_p else x
     J, *H = ca.Function("jh", [cm.w_sx], [cm.J_sx, *cm.H_sx])(w)
     J = J[:, :n]
@@ -697,15 +697,7 @@ class GaussianSumFilter:
         measured = ~np.isnan(Y)
         Yz = np.where(measured, Y, 0.0)
         cap = self.max_components * self.split_components
-        Mk = self.max_components
-        out = {"loglik": np.empty((R, K)), "components": np.empty((R, K), dtype=int),
-               "splits": np.zeros((R, K), dtype=int)}
-        if "x" in kept:
-            out["x"] = np.empty((R, K, n))
-        if "P" in kept:
-            out["P"] = np.empty((R, K, n, n))
-        if "mixture" in kept:
-            out.update(weights=np.zeros((R, K, Mk)), means=np.zeros((R, K, Mk, n)), covs=np.zeros((R, K, Mk, n, n)))
+        out = result_arrays(R, K, n, self.max_components, kept)
         curved_f, curved_h = self._curved
         Q, Rn = np.asarray(self.Q), np.asarray(self.R)
         for k in range(K):

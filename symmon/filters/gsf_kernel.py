@@ -38,7 +38,7 @@ from ..compile import NativeLibrary
 from ..compile.compiled import WorkArrays, generated_c, in_threads, row_spans
 from .mixture_merge import _C as MERGE_C
 
-__all__ = ["SplitKernel", "bank_weights"]
+__all__ = ["SplitKernel", "bank_weights", "result_arrays"]
 
 _BODY = r"""
 /* symmon: the Gaussian-sum filter's recursion with splitting (symmon.filters.gsf_kernel). */
@@ -470,6 +470,21 @@ CASADI_SYMBOL_EXPORT int sm_gsfk_run(casadi_int r0, casadi_int r1, casadi_int K,
 """
 
 
+def result_arrays(R: int, K: int, n: int, Mk: int, kept) -> dict[str, np.ndarray]:
+    """The outputs of the splitting filter for R runs of K steps, n states and at most Mk
+    components, both paths alike: the log-likelihood, the components and splits per step,
+    and what ``kept`` names of x, P and the mixture (zero-padded to Mk components)."""
+    out = {"loglik": np.empty((R, K)), "components": np.empty((R, K), dtype=np.int64),
+           "splits": np.zeros((R, K), dtype=np.int64)}
+    if "x" in kept:
+        out["x"] = np.empty((R, K, n))
+    if "P" in kept:
+        out["P"] = np.empty((R, K, n, n))
+    if "mixture" in kept:
+        out.update(weights=np.zeros((R, K, Mk)), means=np.zeros((R, K, Mk, n)), covs=np.zeros((R, K, Mk, n, n)))
+    return out
+
+
 class SplitKernel:
     """The compiled recursion of the Gaussian-sum filter with splitting (module notes), for the
     four generated graphs of its stepwise filter: ``predict`` (x, P, Q, p) ↦ (x⁻, P⁻),
@@ -534,14 +549,7 @@ class SplitKernel:
         fl = np.array([split, prune, table[2]])
         tab = np.concatenate([table[0], table[1]])
         ang = np.array([int(i in angle_states) for i in range(n)], dtype=np.intc)
-        out = {"loglik": np.empty((Rr, K)), "components": np.empty((Rr, K), dtype=np.int64),
-               "splits": np.zeros((Rr, K), dtype=np.int64)}
-        if "x" in kept:
-            out["x"] = np.empty((Rr, K, n))
-        if "P" in kept:
-            out["P"] = np.empty((Rr, K, n, n))
-        if "mixture" in kept:
-            out.update(weights=np.zeros((Rr, K, Mk)), means=np.zeros((Rr, K, Mk, n)), covs=np.zeros((Rr, K, Mk, n, n)))
+        out = result_arrays(Rr, K, n, Mk, kept)
         fail = np.full(Rr, -1, dtype=np.int64)
         ptr = lambda name: out[name].ctypes.data if name in out else None  # noqa: E731
 
