@@ -29,7 +29,6 @@ import argparse
 import json
 import os
 import platform
-import subprocess
 import sys
 import tempfile
 import time
@@ -79,14 +78,9 @@ def worker(side: str, n: int, repeat: int) -> dict:
 
 
 def run_worker(side: str, n: int, repeat: int, timeout: float) -> dict:
-    cmd = [sys.executable, __file__, "--worker", side, str(n), str(repeat)]
-    try:
-        res = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=os.environ.copy())
-    except subprocess.TimeoutExpired:
-        return {"timeout": timeout}
-    if res.returncode != 0:
-        return {"error": res.stderr.strip().splitlines()[-1] if res.stderr.strip() else f"status {res.returncode}"}
-    return json.loads(res.stdout.strip().splitlines()[-1])
+    from filters import run_json_worker
+
+    return run_json_worker([__file__, "--worker", side, str(n), str(repeat)], timeout)
 
 
 def main() -> None:

@@ -23,9 +23,11 @@ machine may be shared.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import re
+import subprocess
 import sys
 import tempfile
 import time
@@ -265,6 +267,23 @@ def report(steps: list[dict], b: dict, load: tuple[str, str]) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def run_json_worker(args: list[str], timeout: float) -> dict:
+    """Run ``python <args>`` in a subprocess and return the JSON of its last line of output,
+    with its wall time as "wall"; {"timeout": timeout} or {"error": ...} when it does not
+    finish or fails."""
+    t0 = time.perf_counter()
+    try:
+        res = subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=timeout,
+                             env=os.environ.copy())
+    except subprocess.TimeoutExpired:
+        return {"timeout": timeout}
+    if res.returncode != 0:
+        return {"error": res.stderr.strip().splitlines()[-1] if res.stderr.strip() else f"status {res.returncode}"}
+    out = json.loads(res.stdout.strip().splitlines()[-1])
+    out["wall"] = time.perf_counter() - t0
+    return out
 
 
 def publish(lines: list[str], out: Path | None, heading: str) -> str:

@@ -28,7 +28,6 @@ import argparse
 import json
 import os
 import platform
-import subprocess
 import sys
 import tempfile
 import time
@@ -89,17 +88,9 @@ def worker(side: str, label: str, n: int, repeat: int) -> dict:
 
 
 def run_worker(side: str, label: str, n: int, repeat: int, timeout: float) -> dict:
-    cmd = [sys.executable, __file__, "--worker", side, label, str(n), str(repeat)]
-    t0 = time.perf_counter()
-    try:
-        res = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=os.environ.copy())
-    except subprocess.TimeoutExpired:
-        return {"timeout": timeout}
-    if res.returncode != 0:
-        return {"error": res.stderr.strip().splitlines()[-1] if res.stderr.strip() else f"status {res.returncode}"}
-    out = json.loads(res.stdout.strip().splitlines()[-1])
-    out["wall"] = time.perf_counter() - t0
-    return out
+    from filters import run_json_worker
+
+    return run_json_worker([__file__, "--worker", side, label, str(n), str(repeat)], timeout)
 
 
 def main() -> None:
