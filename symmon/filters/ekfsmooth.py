@@ -39,7 +39,7 @@ from ..codegen.symbolic import effective_order, wrap_entries
 from ..compile import compiled, compiled_with_params
 from ..core.model import Model
 from ..transforms import Transform
-from .ekfstep import C_EKF_FROM, _ints, _model_part, _pattern
+from .ekfstep import C_EKF_FROM, DENSE_C, _ints, _model_part, _pattern
 
 __all__ = ["backward_in_c", "backward_pieces", "backward_c"]
 
@@ -83,32 +83,7 @@ _BACKWARD = """
 static const casadi_int {name}_fcol[] = {f_col};
 static const casadi_int {name}_frow[] = {f_row};
 
-/* a[k] += sum_i c_i[k] (sg l_i) for k < len, the columns c_i = C + i ld_c (i < m) and the
-   coefficients l_i = l[i * ld]: four columns a pass (one load and store of a per four
-   products), each added in turn, so that it rounds as the plain loop over i.  sg = -1
-   subtracts (negation is exact). */
-static void {name}_add_cols(casadi_real* restrict a, const casadi_real* restrict C, casadi_int ld_c,
-    const casadi_real* l, casadi_int ld, casadi_int m, casadi_int len, casadi_real sg) {{
-  casadi_int i = 0, k;
-  for (; i + 4 <= m; i += 4) {{
-    const casadi_real *c0 = C + i * ld_c, *c1 = c0 + ld_c, *c2 = c1 + ld_c, *c3 = c2 + ld_c;
-    casadi_real l0 = sg * l[i * ld], l1 = sg * l[(i + 1) * ld], l2 = sg * l[(i + 2) * ld], l3 = sg * l[(i + 3) * ld];
-    for (k = 0; k < len; ++k) {{
-      casadi_real t = a[k];
-      t += c0[k] * l0;
-      t += c1[k] * l1;
-      t += c2[k] * l2;
-      t += c3[k] * l3;
-      a[k] = t;
-    }}
-  }}
-  for (; i < m; ++i) {{
-    const casadi_real* c0 = C + i * ld_c;
-    casadi_real l0 = sg * l[i * ld];
-    for (k = 0; k < len; ++k) a[k] += c0[k] * l0;
-  }}
-}}
-
+""" + DENSE_C + """
 /* A (n x n) = B Ft, Ft the transpose of the sparse F (CSC {name}_fcol/{name}_frow, nz):
    A[:, i] += F[i, c] B[:, c] over the nonzeros, contiguous column updates. */
 static void {name}_times_ft(casadi_real* restrict A, const casadi_real* restrict B, const casadi_real* nz) {{
@@ -157,19 +132,7 @@ static int {name}_bwd(const casadi_real** arg, casadi_real** res, casadi_int* iw
   /* L L^T = P-, right-looking (column j scaled, then subtracted from the columns after it). */
   for (j = 0; j < n; ++j)
     for (i = 0; i < n; ++i) L[i + j * n] = i >= j ? Pp[i + j * n] : 0;
-  for (j = 0; j < n; ++j) {{
-    casadi_real d = sqrt(L[j + j * n]);
-    casadi_real* lj = L + j * n;
-    if (!(d > 0)) ok = 0;  /* a zero, negative or NaN pivot: P- is singular */
-    for (i = j + 1; i < n; ++i) lj[i] = d > 0 ? lj[i] / d : 0;
-    lj[j] = d;
-    r[j] = d > 0 ? 1 / d : 0;
-    for (k = j + 1; k < n; ++k) {{
-      casadi_real l = lj[k];
-      casadi_real* lk = L + k * n;
-      for (i = k; i < n; ++i) lk[i] -= lj[i] * l;
-    }}
-  }}
+  ok = {name}_chol(L, n, r);  /* 0: a zero, negative or NaN pivot, P- is singular */
   /* W L^T = C: column i of W is (C[:, i] - sum_{{k<i}} W[:, k] L[i, k]) / L[i, i] ... */
   for (i = 0; i < n; ++i) {{
     casadi_real* c = G + i * n;

@@ -147,6 +147,60 @@ def _ints(values: list[int]) -> str:
 
 
 # The C step: column-major arrays (CasADi's layout), every dense product an axpy of columns.
+#: Dense kernels that the C EKF step and the C RTS backward step (:mod:`symmon.filters.ekfsmooth`)
+#: share, a template in ``{name}`` (column-major, as CasADi).
+DENSE_C = """
+/* a[k] += sum_i c_i[k] (sg l_i) for k < len, the columns c_i = C + i ld_c (i < m) and the
+   coefficients l_i = l[i * ld]: four columns a pass (one load and store of a per four
+   products), each added in turn, so that it rounds as the plain loop over i.  sg = -1
+   subtracts (negation is exact). */
+static void {name}_add_cols(casadi_real* restrict a, const casadi_real* restrict C, casadi_int ld_c,
+    const casadi_real* l, casadi_int ld, casadi_int m, casadi_int len, casadi_real sg) {{
+  casadi_int i = 0, k;
+  for (; i + 4 <= m; i += 4) {{
+    const casadi_real *c0 = C + i * ld_c, *c1 = c0 + ld_c, *c2 = c1 + ld_c, *c3 = c2 + ld_c;
+    casadi_real l0 = sg * l[i * ld], l1 = sg * l[(i + 1) * ld], l2 = sg * l[(i + 2) * ld], l3 = sg * l[(i + 3) * ld];
+    for (k = 0; k < len; ++k) {{
+      casadi_real t = a[k];
+      t += c0[k] * l0;
+      t += c1[k] * l1;
+      t += c2[k] * l2;
+      t += c3[k] * l3;
+      a[k] = t;
+    }}
+  }}
+  for (; i < m; ++i) {{
+    const casadi_real* c0 = C + i * ld_c;
+    casadi_real l0 = sg * l[i * ld];
+    for (k = 0; k < len; ++k) a[k] += c0[k] * l0;
+  }}
+}}
+
+/* L L^T = A in place (L holds A's lower triangle, m x m), right-looking: column j scaled,
+   then subtracted from the columns after it (contiguous updates; each entry sees the same
+   subtractions in the same order as the left-looking sums); r[j] = 1 / L[j, j].  A zero,
+   negative or NaN pivot gives a zero column and r[j] = 0 (a negative one NaN on the
+   diagonal), and the return value 0; else 1. */
+static int {name}_chol(casadi_real* L, casadi_int m, casadi_real* r) {{
+  casadi_int i, j, k;
+  int ok = 1;
+  for (j = 0; j < m; ++j) {{
+    casadi_real d = sqrt(L[j + j * m]);
+    casadi_real* lj = L + j * m;
+    if (!(d > 0)) ok = 0;
+    for (i = j + 1; i < m; ++i) lj[i] = d > 0 ? lj[i] / d : 0;
+    lj[j] = d;
+    r[j] = d > 0 ? 1 / d : 0;
+    for (k = j + 1; k < m; ++k) {{
+      casadi_real l = lj[k];
+      casadi_real* lk = L + k * m;
+      for (i = k; i < m; ++i) lk[i] -= lj[i] * l;
+    }}
+  }}
+  return ok;
+}}
+"""
+
 _STEP = """
 /* symmon: the EKF step {name}_ekf (TT1, or TT2 with {name}_TT2F/H, additive noise) around the
    CasADi pieces {name}_fpart, {name}_hpart, {name}_xwrap ({name}_innov); the linear algebra
@@ -181,7 +235,7 @@ static const casadi_int {name}_h2col[] = {h2_col};
 static const casadi_int {name}_h2row[] = {h2_row};
 static const casadi_int {name}_h2sup[] = {h2_sup};
 static const casadi_int {name}_h2off[] = {h2_off};
-
+""" + DENSE_C + """
 /* The lower triangle of the n x n matrix A mirrored into its upper one, in blocks. */
 static void {name}_mirror(casadi_real* A, casadi_int n) {{
   casadi_int i, j, i0, j0;
@@ -245,31 +299,6 @@ static void {name}_tt2(const casadi_real* restrict P, const casadi_int* col, con
   }}
 }}
 
-/* a[k] -= sum_i c_i[k] l_i for k < len, the columns c_i = C + i n (i < m) and coefficients
-   l_i = l[i * ld]: four columns a pass (one load and store of a per four products), each
-   subtracted in turn, so that it rounds as the plain loop over i. */
-static void {name}_sub_cols(casadi_real* restrict a, const casadi_real* restrict C, casadi_int n,
-    const casadi_real* l, casadi_int ld, casadi_int m, casadi_int len) {{
-  casadi_int i = 0, k;
-  for (; i + 4 <= m; i += 4) {{
-    const casadi_real *c0 = C + i * n, *c1 = c0 + n, *c2 = c1 + n, *c3 = c2 + n;
-    casadi_real l0 = l[i * ld], l1 = l[(i + 1) * ld], l2 = l[(i + 2) * ld], l3 = l[(i + 3) * ld];
-    for (k = 0; k < len; ++k) {{
-      casadi_real t = a[k];
-      t -= c0[k] * l0;
-      t -= c1[k] * l1;
-      t -= c2[k] * l2;
-      t -= c3[k] * l3;
-      a[k] = t;
-    }}
-  }}
-  for (; i < m; ++i) {{
-    const casadi_real* c0 = C + i * n;
-    casadi_real l0 = l[i * ld];
-    for (k = 0; k < len; ++k) a[k] -= c0[k] * l0;
-  }}
-}}
-
 /* The linearised update at xl (xl = x-: the EKF's; else an iteration of the IEKF, whose
    residual is y - h(xl) - H (x- - xl)): nu (masked), Ct -> W^T = P^xy L^-T, S (masked), L,
    r (reciprocal pivots), wh = L^-1 nu; adds |wh|^2, sum log L_ii and the measured count
@@ -329,23 +358,12 @@ static int {name}_linearised(const casadi_real* xl, const casadi_real* xp, const
      left-looking sums).  A zero pivot gives a zero column, a negative one NaN on the diagonal. */
   for (j = 0; j < ny; ++j)
     for (i = 0; i < ny; ++i) L[i + j * ny] = i >= j ? S[i + j * ny] : 0;
-  for (j = 0; j < ny; ++j) {{
-    casadi_real d = sqrt(L[j + j * ny]);
-    casadi_real* lj = L + j * ny;
-    for (i = j + 1; i < ny; ++i) lj[i] = d > 0 ? lj[i] / d : 0;
-    lj[j] = d;
-    r[j] = d > 0 ? 1 / d : 0;  /* a zero (or NaN) pivot: a zero row of the inverse */
-    for (k = j + 1; k < ny; ++k) {{
-      casadi_real l = lj[k];
-      casadi_real* lk = L + k * ny;
-      for (i = k; i < ny; ++i) lk[i] -= lj[i] * l;
-    }}
-  }}
+  {name}_chol(L, ny, r);  /* a zero (or NaN) pivot: a zero row of the inverse */
   /* W^T = Ct L^-T and L^-1 nu, by forward substitution, column by column. */
   for (i = 0; i < ny; ++i) {{
     casadi_real* c = Ct + i * n;
     casadi_real v = nu[i];
-    {name}_sub_cols(c, Ct, n, L + i, ny, i, n);
+    {name}_add_cols(c, Ct, n, L + i, ny, i, n, -1.0);
     for (k = 0; k < i; ++k) v -= L[i + k * ny] * wh[k];
     for (j = 0; j < n; ++j) c[j] *= r[i];
     wh[i] = r[i] * v;
@@ -427,7 +445,7 @@ static int {name}_ekf(const casadi_real** arg, casadi_real** res, casadi_int* iw
     casadi_real* pn = Pn + j * n;
     const casadi_real* pp = Pp + j * n;
     for (k = j; k < n; ++k) pn[k] = pp[k];
-    {name}_sub_cols(pn + j, Ct + j, n, Ct + j, n, ny, n - j);
+    {name}_add_cols(pn + j, Ct + j, n, Ct + j, n, ny, n - j, -1.0);
   }}
   {name}_mirror(Pn, n);
   if (res[6]) res[6][0] = -0.5 * (acc[0] + 2 * acc[1] + acc[2] * {log_2pi});
