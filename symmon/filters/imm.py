@@ -57,7 +57,7 @@ import sympy as sp
 from numpy.typing import ArrayLike
 
 from ..core.angles import wrap_angle
-from ..core.checks import readonly
+from ..core.arrays import readonly
 from ..core.gaussian import Gaussian, float_array
 from ..core.model import Model
 from ..compile.ccache import NativeLibrary
