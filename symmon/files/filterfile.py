@@ -100,7 +100,9 @@ from .modelfile import (
     read_toml,
     parse_expression,
 )
-from ..transforms import TT1, TT2, UT, GaussHermite
+from ..transforms.taylor import TT1, TT2
+from ..transforms.unscented import UT
+from ..transforms.quadrature import GaussHermite
 from ..transforms.executor import Executor
 
 __all__ = ["FilterSpec", "load_filter_file", "simulate", "check_bank", "FILTERS", "filter_transform", "run_bank", "BankSummary",

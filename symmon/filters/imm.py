@@ -64,7 +64,7 @@ from ..compile.ccache import NativeLibrary
 from ..compile.compiled import WorkArrays, generated_c, in_threads
 from ..errors import (ArgumentError, ArgumentTypeError, CovarianceError, ModelError, NonFiniteError, ShapeError,
                       SymmonError)
-from ..transforms import TT1
+from ..transforms.taylor import TT1
 from .linear import KalmanFilter
 from .nonlinear import NonlinearKalmanFilter
 from .inputs import check_bank_size, check_truth, initial_state, measurement_bank, param_values, refuse_inf

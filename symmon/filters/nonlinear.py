@@ -80,7 +80,8 @@ from .step import filter_params, first_nonfinite
 from .strategy import FilterStrategy, RuleStrategy
 from ..core.gaussian import Gaussian, as_covariance
 from ..core.model import Model
-from ..transforms import UT, Transform
+from ..transforms.unscented import UT
+from ..transforms.base import Transform
 from ..transforms.executor import Executor
 from ..transforms.registry import resolve
 

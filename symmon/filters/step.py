@@ -55,7 +55,7 @@ from ..errors import SymmonError
 from ..core.model import Model
 from ..compile import compiled, compiled_with_params
 from ..codegen.symbolic import graph_kind, moments, tril_inverse, wrap_entries
-from ..transforms import Transform
+from ..transforms.base import Transform
 from .ekfstep import C_EKF_FROM, ekf_c, ekf_pieces
 from .sqrtstep import covariance_of, factor_of, noise_factor, sqrt_nees_graph, sqrt_predict_graph, sqrt_update_graph
 

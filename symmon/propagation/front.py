@@ -16,7 +16,7 @@ from ..core.model import Model, with_param_values
 from .joint import JointMoments
 from .particles import propagate_empirical
 from .mixing import ComponentBatch, component_batch, is_mixture, mix_batch
-from ..transforms import Moments, Transform
+from ..transforms.base import Moments, Transform
 from .kernel import batch_kernel, kernel_moments
 from ..transforms.registry import default_transform, resolve
 

@@ -43,7 +43,7 @@ from ..core.angles import unwrap_near, wrap_components, wrap_angle
 from ..core.mixture import Empirical
 from ..core.model import Model
 from ..errors import ArgumentError, ArgumentTypeError, NonFiniteError, SampleSizeWarning, ShapeError
-from ..transforms import Moments, Transform
+from ..transforms.base import Moments, Transform
 from ..transforms.stats import jackknife_se
 from .joint import JointMoments
 from .mixing import parts
