@@ -19,7 +19,7 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..compile import compiled_with_params
+from ..compile.compiled import compiled_with_params
 from ..core.angles import wrap_angle
 from ..core.arrays import readonly
 from ..core.checks import noise_cov

@@ -43,11 +43,10 @@ from typing import Any, Sequence
 import numpy as np
 import sympy as sp
 
-from ..compile.compiled import compile_model
+from ..compile.compiled import compile_model, compiled
 from ..core.gaussian import Gaussian
 from ..core.mixture import Empirical, GaussianMixture, mixture_moments
 from ..core.model import Model
-from ..compile import compiled
 from ..propagation.particles import group_means, jackknife_groups
 from ..transforms.base import Transform
 from ..transforms.montecarlo import MC_INNER

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import block_diag
 
-from ..compile import compiled
+from ..compile.compiled import compiled
 from ..errors import ArgumentTypeError, ModelError, ShapeError
 from ..core.gaussian import Gaussian
 from ..core.mixture import Empirical, GaussianMixture

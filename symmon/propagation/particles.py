@@ -38,7 +38,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..compile import compiled
+from ..compile.compiled import compiled
 from ..core.angles import unwrap_near, wrap_components, wrap_angle
 from ..core.mixture import Empirical
 from ..core.model import Model

@@ -72,7 +72,7 @@ import numpy as np
 import sympy as sp
 from scipy import stats
 
-from ..compile import compiled
+from ..compile.compiled import compiled
 from ..core.gaussian import Gaussian
 from ..core.mixture import Empirical, GaussianMixture
 from ..core.model import Model

@@ -46,7 +46,7 @@ from ..core.gaussian import Gaussian
 from ..io import check_output_set, write_csv
 from ..core.model import Model
 from ..core.problems import radar_h, radar_hinv
-from ..compile import compiled
+from ..compile.compiled import compiled
 from ..transforms.taylor import TT1
 from ..transforms.unscented import UT
 from .common import figure_style, save_reproduced, with_format
