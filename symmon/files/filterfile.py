@@ -83,7 +83,10 @@ import sympy as sp
 
 from ..core.angles import wrap_angle
 from ..errors import SymmonError
-from ..filters import Adaptive, GaussianSumFilter, NonlinearKalmanFilter, ParticleFilter
+from ..filters.adaptive import Adaptive
+from ..filters.gaussian_sum import GaussianSumFilter
+from ..filters.nonlinear import NonlinearKalmanFilter
+from ..filters.particle import ParticleFilter
 from ..filters.inputs import KEEPABLE, MAX_BANK_NUMBERS, check_bank_size, kept_numbers
 from ..filters.simulation import simulate as simulate_models
 from ..measures.advice import DEFAULT_TOL

@@ -45,7 +45,7 @@ from ..core.gaussian import Gaussian
 from ..core.model import Model
 from ..latex import latex_text
 from ..errors import ArgumentError, ArgumentTypeError, ModelError, NonFiniteError, ResourceError
-from ..propagation import check_transform
+from ..propagation.front import check_transform
 from ..transforms.exact import Exact
 from ..transforms.base import Transform
 from .expectation import as_mean_cov, expect
