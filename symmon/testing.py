@@ -29,7 +29,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .errors import ArgumentError, UndecidedProofError
-from .verify import Verification, verify
+from .verify.verification import Verification, verify
 
 __all__ = ["assert_derivation", "assert_moments_close", "assert_unit_invariant", "MOMENT_PARTS"]
 
@@ -261,7 +261,7 @@ def assert_unit_invariant(model: Any, weight: Any = "full", transform: Any = "tt
     AssertionError: the measure of nonlinearity is not unit invariant:
     ...
     """
-    from .units import prove_invariance
+    from .units.proofs import prove_invariance
 
     try:
         proof = prove_invariance(model, weight, transform, **kwargs)

@@ -289,7 +289,7 @@ def _relative(stderr: float | None, value: float) -> float | None:
 def cmd_prove(args: argparse.Namespace) -> int:
     """``symmon prove-invariance``: the symbolic unit-invariance proof of the MoN."""
     from ..io import atomic_write_text
-    from ..units import prove_invariance
+    from ..units.proofs import prove_invariance
 
     spec = _load(args.file)
     # --numeric: the file's distributions, made exact: a proof for this u (and v) only.

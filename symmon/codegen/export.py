@@ -46,10 +46,11 @@ from ..compile.cnames import c_identifier, comment_text, is_casadi_name
 from ..errors import ArgumentTypeError, SymmonError
 from ..io import atomic_write_text, check_output_set
 from ..core.model import Model
-from ..compile import compiled
+from ..compile.compiled import compiled
 from .symbolic import point_moments, tt2_moments, unit_rule
 from ..transforms.registry import resolve
-from ..transforms import UT, Transform
+from ..transforms.unscented import UT
+from ..transforms.base import Transform
 
 __all__ = ["export_c", "moment_functions", "c_prefix", "strict_c", "generate_sources", "work_sizes", "HEADER_CLOSING"]
 

@@ -47,15 +47,17 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Iterable, NamedTuple
+from typing import TYPE_CHECKING, Iterable, NamedTuple
 
 import casadi as ca
 import numpy as np
 
-from ..compile.compiled import CompiledModel
 from ..errors import SymmonError
 from ..transforms.base import Transform
 from .symbolic import Sym, effective_order, point_values, tril_inverse, wrap_entries
+
+if TYPE_CHECKING:  # annotations only: the graphs are built from a compiled model handed in, never one made here
+    from ..compile.compiled import CompiledModel
 
 __all__ = ["tria", "chol_downdate", "JointColumns", "sqrt_moments", "gain_factor", "residual_factor", "check_sqrt_rule",
            "chol_scaled"]

@@ -37,15 +37,17 @@ models", FUSION 2015.
 from __future__ import annotations
 
 import functools
-from typing import Iterable, Union
+from typing import TYPE_CHECKING, Iterable, Union
 
 import casadi as ca
 import numpy as np
 
 from ..core.angles import wrap_casadi
-from ..compile.compiled import CompiledModel
 from ..errors import SymmonError
 from ..transforms.base import Transform
+
+if TYPE_CHECKING:  # annotations only: the graphs are built from a compiled model handed in, never one made here
+    from ..compile.compiled import CompiledModel
 
 __all__ = ["MX_FROM", "MAX_SX_POINTS", "graph_kind", "chol_lower", "chol_function", "tril_inverse_function", "chol_node", "tril_inverse", "jacobian_products", "affine_in", "effective_order", "tt1_moments", "tt2_moments", "point_values", "point_moments", "moments", "wrap_entries", "unit_rule"]
 

@@ -4,10 +4,10 @@ of units (docs/architecture.md).  Nothing here imports another symmon subpackage
 from . import affine as affine
 from . import angles as angles
 from . import problems as problems
+from .arrays import readonly as readonly
 from .checks import check_gaussian as check_gaussian
 from .checks import check_model as check_model
 from .checks import noise_cov as noise_cov
-from .checks import readonly as readonly
 from .gaussian import Gaussian as Gaussian
 from .gaussian import as_covariance as as_covariance
 from .gaussian import as_vector as as_vector

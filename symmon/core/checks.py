@@ -1,9 +1,9 @@
 """Checks of arguments shared by the estimators and the filters: a model, a Gaussian of
-the right dimension, a noise covariance that fits a model; and read-only result arrays."""
+the right dimension, a noise covariance that fits a model (the checks of plain arrays, which
+need neither, are :mod:`symmon.core.arrays`)."""
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -13,38 +13,7 @@ from ..errors import ArgumentTypeError, ShapeError
 from .gaussian import Gaussian, as_covariance
 from .model import Model
 
-__all__ = ["all_finite", "check_model", "check_gaussian", "noise_cov", "readonly"]
-
-
-#: Entries from which :func:`all_finite` sums an array instead of a dot product:
-#: OpenBLAS runs a longer dot product on its own threads (from 10⁴ entries), which then
-#: spin for a while and take the cores from the threads of symmon's next compiled call
-#: (a 10⁴-Gaussian batch kernel ran 1.6 times slower after one).
-DOT_MAX = 8192
-
-
-def all_finite(*arrays: np.ndarray) -> bool:
-    """Whether every entry of the float arrays is finite.
-
-    Σ a² (or, for arrays of more than :data:`DOT_MAX` entries, Σ a) is finite exactly
-    when every entry is, unless it overflows (entries beyond about 1e154), which the
-    entry-by-entry test then decides: one dot product per small array, a quarter of the
-    cost of ``np.isfinite(a).all()`` on the small arrays of one Gaussian."""
-    return all(math.isfinite(np.vdot(a, a) if a.size <= DOT_MAX else _sum(a)) or bool(np.isfinite(a).all())
-               for a in arrays)
-
-
-def _sum(a: np.ndarray) -> float:
-    with np.errstate(over="ignore", invalid="ignore"):  # an overflow or inf − inf: the entry test decides
-        return a.sum()
-
-
-def readonly(a: ArrayLike) -> np.ndarray:
-    """A read-only float copy of ``a`` (results expose their arrays; freezing a copy cannot
-    affect the caller's array)."""
-    arr = np.array(a, dtype=float)  # own copy: freezing it cannot affect the caller
-    arr.setflags(write=False)
-    return arr
+__all__ = ["check_model", "check_gaussian", "noise_cov"]
 
 
 def check_model(model: Any, name: str) -> Model:

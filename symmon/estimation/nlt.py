@@ -39,7 +39,8 @@ from ..core.checks import check_gaussian, check_model, noise_cov
 from ..core.model import Model
 from ..propagation.joint import JointMoments
 from ..propagation.front import propagate
-from ..transforms import UT, Transform
+from ..transforms.unscented import UT
+from ..transforms.base import Transform
 from ..transforms.registry import resolve
 
 

@@ -67,18 +67,9 @@ import sympy as sp
 
 from ..core.model import Model
 from ..errors import ExpectationNotClosedForm, ModelError, ModelFileError
-from ..verify import (
-    Expectation,
-    Verification,
-    expect,
-    verify,
-    verify_derivatives,
-    verify_estimator,
-    verify_moments,
-    verify_mon,
-    verify_weight,
-)
-from ..verify.verification import ASSUMPTIONS, VERDICTS
+from ..verify.claims import verify_derivatives, verify_estimator, verify_moments, verify_mon, verify_weight
+from ..verify.expectation import expect
+from ..verify.verification import ASSUMPTIONS, VERDICTS, Expectation, Verification, verify
 from .expressions import parse_expression
 from .modelfile import _check_keys, _check_name, _Context, _names, _short, read_toml
 

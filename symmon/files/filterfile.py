@@ -83,7 +83,10 @@ import sympy as sp
 
 from ..core.angles import wrap_angle
 from ..errors import SymmonError
-from ..filters import Adaptive, GaussianSumFilter, NonlinearKalmanFilter, ParticleFilter
+from ..filters.adaptive import Adaptive
+from ..filters.gaussian_sum import GaussianSumFilter
+from ..filters.nonlinear import NonlinearKalmanFilter
+from ..filters.particle import ParticleFilter
 from ..filters.inputs import KEEPABLE, MAX_BANK_NUMBERS, check_bank_size, kept_numbers
 from ..filters.simulation import simulate as simulate_models
 from ..measures.advice import DEFAULT_TOL
@@ -100,7 +103,9 @@ from .modelfile import (
     read_toml,
     parse_expression,
 )
-from ..transforms import TT1, TT2, UT, GaussHermite
+from ..transforms.taylor import TT1, TT2
+from ..transforms.unscented import UT
+from ..transforms.quadrature import GaussHermite
 from ..transforms.executor import Executor
 
 __all__ = ["FilterSpec", "load_filter_file", "simulate", "check_bank", "FILTERS", "filter_transform", "run_bank", "BankSummary",

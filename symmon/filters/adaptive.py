@@ -30,8 +30,11 @@ from .inputs import KEEPABLE, FilterSpec
 from .strategy import FilterStrategy
 from ..transforms.registry import resolve
 from ..core.model import Model
-from ..compile import compiled
-from ..transforms import TT1, TT2, UT, GaussHermite, Transform
+from ..compile.compiled import compiled
+from ..transforms.taylor import TT1, TT2
+from ..transforms.unscented import UT
+from ..transforms.quadrature import GaussHermite
+from ..transforms.base import Transform
 
 __all__ = ["Adaptive"]
 

@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.checks import readonly
+from ..core.arrays import readonly
 from ..errors import ArgumentError, ShapeError, SymmonError
 from ..transforms.executor import Executor, dask_compute, one_blas_thread
 from .inputs import real_measurements

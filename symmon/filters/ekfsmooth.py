@@ -36,9 +36,9 @@ from __future__ import annotations
 import casadi as ca
 
 from ..codegen.symbolic import effective_order, wrap_entries
-from ..compile import compiled, compiled_with_params
+from ..compile.compiled import compiled, compiled_with_params
 from ..core.model import Model
-from ..transforms import Transform
+from ..transforms.base import Transform
 from .ekfstep import C_EKF_FROM, DENSE_C, _ints, _model_part, _pattern
 
 __all__ = ["backward_in_c", "backward_pieces", "backward_c"]

@@ -52,7 +52,7 @@ import casadi as ca
 import numpy as np
 
 from ..codegen.symbolic import wrap_entries
-from ..compile import compiled, compiled_with_params
+from ..compile.compiled import compiled, compiled_with_params
 from ..core.model import Model
 
 #: From this many states on, a TT1 step with additive noise runs the C step of this module

@@ -57,14 +57,14 @@ import sympy as sp
 from numpy.typing import ArrayLike
 
 from ..core.angles import wrap_angle
-from ..core.checks import readonly
+from ..core.arrays import readonly
 from ..core.gaussian import Gaussian, float_array
 from ..core.model import Model
 from ..compile.ccache import NativeLibrary
 from ..compile.compiled import WorkArrays, generated_c, in_threads
 from ..errors import (ArgumentError, ArgumentTypeError, CovarianceError, ModelError, NonFiniteError, ShapeError,
                       SymmonError)
-from ..transforms import TT1
+from ..transforms.taylor import TT1
 from .linear import KalmanFilter
 from .nonlinear import NonlinearKalmanFilter
 from .inputs import check_bank_size, check_truth, initial_state, measurement_bank, param_values, refuse_inf

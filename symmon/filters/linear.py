@@ -27,7 +27,7 @@ from typing import Iterable
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..core.checks import readonly
+from ..core.arrays import readonly
 from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, NonFiniteError, ShapeError, SingularMatrixError
 from ..core.gaussian import Gaussian, as_covariance, float_array, matrix_sqrt
 from ..transforms.executor import Executor

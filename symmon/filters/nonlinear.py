@@ -67,7 +67,8 @@ import sympy as sp
 from numpy.typing import ArrayLike
 
 from ..errors import AngleWarning, ArgumentTypeError, SymmonError
-from ..core.checks import all_finite, noise_cov, readonly
+from ..core.arrays import all_finite, readonly
+from ..core.checks import noise_cov
 from .diagnose import locate_nonfinite
 from .distributed import filter_bank
 from .export import export_filter_c
@@ -79,7 +80,8 @@ from .step import filter_params, first_nonfinite
 from .strategy import FilterStrategy, RuleStrategy
 from ..core.gaussian import Gaussian, as_covariance
 from ..core.model import Model
-from ..transforms import UT, Transform
+from ..transforms.unscented import UT
+from ..transforms.base import Transform
 from ..transforms.executor import Executor
 from ..transforms.registry import resolve
 

@@ -25,7 +25,7 @@ from scipy import stats
 from ..core.angles import wrap_angle
 from ..errors import ArgumentError, NonFiniteError, ShapeError, SingularMatrixError, SymmonError
 from ..measures.weights import SINGULAR_CORR
-from ..core.checks import readonly
+from ..core.arrays import readonly
 from ..core.gaussian import Gaussian
 from .inputs import check_truth
 

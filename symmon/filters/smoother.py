@@ -49,7 +49,7 @@ from ..codegen.symbolic import graph_kind, tril_inverse, wrap_entries
 from ..compile.compiled import generated_c
 from ..core.model import Model
 from ..errors import SymmonError
-from ..transforms import Transform
+from ..transforms.base import Transform
 from ..compile.ckernels import STOP_POLL
 from .ekfsmooth import backward_c, backward_in_c, backward_pieces
 from .sqrtstep import covariance_of, noise_factor, sqrt_predict_graph

@@ -48,10 +48,10 @@ import numpy as np
 from ..codegen.sqrtform import (JointColumns, chol_scaled, downdate_all, gain_factor, residual_factor, sqrt_moments,
                                 tria)
 from ..codegen.symbolic import tril_inverse, wrap_entries
-from ..compile import compiled, compiled_with_params
+from ..compile.compiled import compiled, compiled_with_params
 from ..core.gaussian import matrix_sqrt
 from ..core.model import Model
-from ..transforms import Transform
+from ..transforms.base import Transform
 
 __all__ = ["sqrt_predict_graph", "sqrt_update_graph", "sqrt_nees_graph", "noise_factor", "factor_of",
            "covariance_of"]

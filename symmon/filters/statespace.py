@@ -19,9 +19,10 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..compile import compiled_with_params
+from ..compile.compiled import compiled_with_params
 from ..core.angles import wrap_angle
-from ..core.checks import noise_cov, readonly
+from ..core.arrays import readonly
+from ..core.checks import noise_cov
 from ..core.gaussian import as_covariance, matrix_sqrt
 from ..core.model import Model
 from .inputs import check_state_models

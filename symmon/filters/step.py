@@ -50,12 +50,11 @@ import numpy as np
 
 from ..compile.ccache import NativeLibrary
 from ..compile.ckernels import STOP_POLL, STOPPED
-from ..compile.compiled import WorkArrays, generated_c, in_threads, padded
+from ..compile.compiled import WorkArrays, compiled, compiled_with_params, generated_c, in_threads, padded
 from ..errors import SymmonError
 from ..core.model import Model
-from ..compile import compiled, compiled_with_params
 from ..codegen.symbolic import graph_kind, moments, tril_inverse, wrap_entries
-from ..transforms import Transform
+from ..transforms.base import Transform
 from .ekfstep import C_EKF_FROM, ekf_c, ekf_pieces
 from .sqrtstep import covariance_of, factor_of, noise_factor, sqrt_nees_graph, sqrt_predict_graph, sqrt_update_graph
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..codegen.sqrtform import check_sqrt_rule
 from ..errors import ArgumentTypeError, SymmonError
-from ..transforms import Transform
+from ..transforms.base import Transform
 from .inputs import KEEPABLE, FilterSpec
 from .step import _compiled_step, _filterable, check_dimensions
 

@@ -70,7 +70,11 @@ from ..core.model import Model, with_param_values
 from ..propagation.joint import JointMoments
 from .mon import nonlinearity
 from ..propagation.front import propagate
-from ..transforms import TT1, TT2, UT, GaussHermite, MonteCarlo, Transform
+from ..transforms.taylor import TT1, TT2
+from ..transforms.unscented import UT
+from ..transforms.quadrature import GaussHermite
+from ..transforms.montecarlo import MonteCarlo
+from ..transforms.base import Transform
 
 __all__ = ["advise", "Advice", "moment_error", "moment_distance", "whiteners", "CANDIDATES", "cost",
            "DEFAULT_TOL", "GAUSSIAN_MON_LIMIT", "MAX_GSF_COMPONENTS", "filter_advice"]

@@ -43,13 +43,12 @@ from typing import Any, Sequence
 import numpy as np
 import sympy as sp
 
-from ..compile.compiled import compile_model
+from ..compile.compiled import compile_model, compiled
 from ..core.gaussian import Gaussian
 from ..core.mixture import Empirical, GaussianMixture, mixture_moments
 from ..core.model import Model
-from ..compile import compiled
 from ..propagation.particles import group_means, jackknife_groups
-from ..transforms import Transform
+from ..transforms.base import Transform
 from ..transforms.montecarlo import MC_INNER
 from ..transforms.stats import Stats, leave_one_out, merge_all, moments_of
 

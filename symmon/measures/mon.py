@@ -32,7 +32,7 @@ from ..propagation.joint import JointMoments
 from ..propagation.front import check_noise_given, check_transform, propagate, propagate_mixture
 from ..propagation.mixing import is_mixture, mixed_leave_one_out
 from ..propagation.particles import propagate_empirical
-from ..transforms import Transform
+from ..transforms.base import Transform
 from ..transforms.stats import Stats, jackknife, jackknife_se, moments_of
 from ..transforms.registry import compare_set
 

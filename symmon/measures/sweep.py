@@ -39,7 +39,7 @@ from ..core.mixture import GaussianMixture
 from ..core.model import Model
 from .mon import mon_from_moments, nonlinearity
 from ..propagation.front import check_transform, input_batch, propagate_many
-from ..transforms import Transform
+from ..transforms.base import Transform
 from ..transforms.executor import Executor, dask_compute
 
 __all__ = ["SweepResult", "sweep_alpha", "sweep_states"]

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..transforms import GaussHermite
+from ..transforms.quadrature import GaussHermite
 from .front import propagate
 from .joint import JointMoments
 

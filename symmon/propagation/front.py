@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import block_diag
 
-from ..compile import compiled
+from ..compile.compiled import compiled
 from ..errors import ArgumentTypeError, ModelError, ShapeError
 from ..core.gaussian import Gaussian
 from ..core.mixture import Empirical, GaussianMixture
@@ -16,7 +16,7 @@ from ..core.model import Model, with_param_values
 from .joint import JointMoments
 from .particles import propagate_empirical
 from .mixing import ComponentBatch, component_batch, is_mixture, mix_batch
-from ..transforms import Moments, Transform
+from ..transforms.base import Moments, Transform
 from .kernel import batch_kernel, kernel_moments
 from ..transforms.registry import default_transform, resolve
 

@@ -41,7 +41,7 @@ from ..core.gaussian import Gaussian
 from ..core.mixture import GaussianMixture
 from ..core.model import Model
 from ..errors import ArgumentTypeError, ShapeError
-from ..transforms import Moments
+from ..transforms.base import Moments
 from ..transforms.stats import jackknife_se, leave_one_out_stack, moments_of
 
 __all__ = ["ComponentBatch", "component_batch", "mix", "mix_batch", "mixed_leave_one_out", "mixed_error", "mixed_input_mean",

@@ -38,12 +38,12 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..compile import compiled
+from ..compile.compiled import compiled
 from ..core.angles import unwrap_near, wrap_components, wrap_angle
 from ..core.mixture import Empirical
 from ..core.model import Model
 from ..errors import ArgumentError, ArgumentTypeError, NonFiniteError, SampleSizeWarning, ShapeError
-from ..transforms import Moments, Transform
+from ..transforms.base import Moments, Transform
 from ..transforms.stats import jackknife_se
 from .joint import JointMoments
 from .mixing import parts

@@ -72,7 +72,7 @@ import numpy as np
 import sympy as sp
 from scipy import stats
 
-from ..compile import compiled
+from ..compile.compiled import compiled
 from ..core.gaussian import Gaussian
 from ..core.mixture import Empirical, GaussianMixture
 from ..core.model import Model
@@ -82,7 +82,8 @@ from ..filters.nonlinear import NonlinearKalmanFilter
 from ..filters.particle import ParticleFilter
 from ..filters.simulation import simulate
 from ..io import check_output_set, write_csv
-from ..transforms import TT1, UT
+from ..transforms.taylor import TT1
+from ..transforms.unscented import UT
 from .common import OKABE_ITO, figure_style, progress_bar, save_reproduced, with_format
 
 __all__ = ["OUTPUTS", "FILTER_NAMES", "LABELS", "Scenario", "scenario", "prior", "range_parameterised_prior",

@@ -22,7 +22,9 @@ from ..io import check_output_set, write_csv
 from ..measures.formula import mon_from_moments
 from ..core.problems import GMTI_UNITS, RDCOS_UNITS, bot, gmti, rdcos
 from ..propagation.front import propagate
-from ..transforms import TT2, UT, MonteCarlo
+from ..transforms.taylor import TT2
+from ..transforms.unscented import UT
+from ..transforms.montecarlo import MonteCarlo
 from ..transforms.stats import jackknife, moments_of
 from .common import (OKABE_ITO, figure_style, progress_bar, pyplot, save_reproduced,
                      with_angles, with_format)

@@ -46,8 +46,9 @@ from ..core.gaussian import Gaussian
 from ..io import check_output_set, write_csv
 from ..core.model import Model
 from ..core.problems import radar_h, radar_hinv
-from ..compile import compiled
-from ..transforms import TT1, UT
+from ..compile.compiled import compiled
+from ..transforms.taylor import TT1
+from ..transforms.unscented import UT
 from .common import figure_style, save_reproduced, with_format
 
 __all__ = ["OUTPUTS", "run", "SENSORS", "RANGE_VAR", "BEARING_VAR", "PRIOR", "hinv_model", "h_model", "measurement"]

@@ -50,7 +50,7 @@ from ..core.gaussian import Gaussian
 from ..io import check_output_set, write_csv
 from ..core.model import Model
 from ..measures.mon import nonlinearity
-from ..compile import compiled
+from ..compile.compiled import compiled
 from .common import figure_style, progress_bar, save_reproduced, with_format
 
 __all__ = ["OUTPUTS", "run", "Scenario", "scenarios", "FILTER_NAMES", "MON_RUNS", "TOL"]

@@ -19,7 +19,7 @@ import numpy as np
 import sympy as sp
 
 from ..core import dag
-from ..core.checks import all_finite
+from ..core.arrays import all_finite
 from ..core.angles import wrap_angle  # re-exported: defined beside the other angle helpers
 from ..core.gaussian import PSD_RTOL, SYMMETRY_RTOL, as_covariance, as_vector, matrix_sqrt
 from ..errors import (AngleWarning, ArgumentError, ArgumentTypeError, IndefiniteCovarianceError, NonFiniteError,

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..compile.compiled import CompiledModel
 from ..core.angles import wrap_angle
-from ..core.checks import all_finite
+from ..core.arrays import all_finite
 from ..errors import DerivativeError, SymmonError
 from .base import Moments, Transform
 

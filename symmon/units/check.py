@@ -36,7 +36,10 @@ from ..core.affine import changed_parts, inverse
 from ..core.rescale import change_gaussian, change_units
 from ..measures.mon import nonlinearity
 from ..measures.weights import NAMED as WEIGHTS
-from ..transforms import TT2, UT, GaussHermite, MonteCarlo
+from ..transforms.taylor import TT2
+from ..transforms.unscented import UT
+from ..transforms.quadrature import GaussHermite
+from ..transforms.montecarlo import MonteCarlo
 
 #: Digits of the numeric evaluations (composition check, regularity, counterexamples).
 _DPS = 40

@@ -45,8 +45,9 @@ from ..core.gaussian import Gaussian
 from ..core.model import Model
 from ..latex import latex_text
 from ..errors import ArgumentError, ArgumentTypeError, ModelError, NonFiniteError, ResourceError
-from ..propagation import check_transform
-from ..transforms import Exact, Transform
+from ..propagation.front import check_transform
+from ..transforms.exact import Exact
+from ..transforms.base import Transform
 from .expectation import as_mean_cov, expect
 
 __all__ = ["SymbolicMoments", "symbolic_moments", "MAX_SYMBOLIC_BLOCK", "MAX_POINTS"]

@@ -1,7 +1,7 @@
 """The lean path of one propagate call: what each shortcut must keep.
 
 The per-call work of :func:`symmon.propagate` was cut (issue 21) by: finite tests by one
-dot product (``core.checks.all_finite``), array addresses from the buffer
+dot product (``core.arrays.all_finite``), array addresses from the buffer
 (``compile.compiled.address``), one compiled call for a small batch, and
 ``JointMoments.of`` taking the first Gaussian's blocks directly.  Each is tested here
 against the slower way it replaced.
@@ -16,7 +16,7 @@ import sympy as sp
 import symmon as sm
 from symmon.compile import compiled
 from symmon.compile.compiled import address
-from symmon.core.checks import DOT_MAX, all_finite
+from symmon.core.arrays import DOT_MAX, all_finite
 from symmon.errors import ArgumentError
 from symmon.propagation.joint import JointMoments
 
