@@ -509,7 +509,7 @@ class SplitKernel:
         # unrolled: the O(M²) pair costs are most of a step at M ≥ 16), the same operations in
         # the same order (no FMA contraction in symmon's builds), so the same merges to the bit.
         merge = re.sub(r"\nint sm_gsf_merge\(", "\nstatic int sm_gsf_merge(", MERGE_C)
-        assert merge.count("long long n,") == 5
+        assert merge.count("long long n,") == 8
         merge = f"#define n ((long long) {n})\n" + merge.replace("long long n,", "long long n_dim_,") + "#undef n\n"
         code = generated_c(*fns) + merge + defines + _BODY
         self._work = WorkArrays(*fns)

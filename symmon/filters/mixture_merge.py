@@ -65,6 +65,7 @@ MERGE_RULES = ("runnalls", "salmond")
 _C = r"""
 #include <math.h>
 #include <stdlib.h>
+#include <string.h>
 
 /* symmon: greedy Gaussian-mixture reduction (symmon.filters.mixture_merge). */
 
@@ -72,8 +73,7 @@ static double sm_logdet(const double *A, long long n, double *L) {
   /* log det of the symmetric positive definite A (row-major, its lower triangle read) by L D Lᵀ (no square roots):
      log Π d_i, one log per factor of the product kept within the float range; -inf if A is
      not positive definite.  L (n × n) is scratch: its strict lower triangle holds L, its
-     upper triangle U_ki = L_ik d_k (one product per term, one reciprocal per pivot: the
-     O(M²) pair costs of a merge are mostly this). */
+     upper triangle U_ki = L_ik d_k (one product per term, one reciprocal per pivot). */
   double prod = 1.0, logs = 0.0;
   for (long long j = 0; j < n; ++j) {
     double d = A[j * n + j];
@@ -110,162 +110,325 @@ static double sm_cost(long long i, long long j, long long n, int salmond, const 
   return 0.5 * (ws * sm_logdet(A, n, L) - (wi * ld[i] + wj * ld[j]));
 }
 
-/* An upper bound on the largest eigenvalue of the symmetric P: the least of its trace and its
-   largest absolute row sum (Gershgorin); NAN when P is not positive definite (ld not finite). */
-static double sm_top(const double *P, long long n, double ld) {
+/* Replace component i of (w, m, P) by the moment-matched merge of i and j.  A, L: n x n scratch. */
+static void sm_merge_pair(long long i, long long j, long long n, double *w, double *m, double *P, double *A, double *L) {
+  const double ws = w[i] + w[j], a = w[i] / ws, b = w[j] / ws;
+  double *mi = m + i * n, *mj = m + j * n, *Pi = P + i * n * n, *Pj = P + j * n * n;
+  for (long long u = 0; u < n; ++u) A[u] = a * mi[u] + b * mj[u];  /* the merged mean */
+  for (long long u = 0; u < n; ++u)
+    for (long long v = 0; v < n; ++v) {
+      const double di = (mi[u] - A[u]) * (mi[v] - A[v]), dj = (mj[u] - A[u]) * (mj[v] - A[v]);
+      L[u * n + v] = a * Pi[u * n + v] + b * Pj[u * n + v] + a * di + b * dj;
+    }
+  for (long long u = 0; u < n; ++u) {
+    mi[u] = A[u];
+    for (long long v = 0; v < n; ++v) Pi[u * n + v] = 0.5 * (L[u * n + v] + L[v * n + u]);
+  }
+  w[i] = ws;
+}
+
+/* The whitening W (n x n, lower triangular) of the bound's metric: W = L^-1 S, with T the
+   weighted mean of the covariances (their lower triangles) of the components whose bound
+   holds (ok), S = diag(T)^-1/2 and S T S = L L^T.  The diagonal S alone when S T S is
+   ill-conditioned (n |L^-1|_F^2, an upper bound on its condition number, above 1e4: the
+   rounding of W d and W P W^T then stays far below the bound's margin), the identity when
+   T is not positive definite.  C, Li: n x n scratch. */
+static void sm_whiten(long long M, long long n, const double *w, const double *P, const double *ok, double *W,
+                      double *C, double *Li) {
+  double sw = 0.0, fro = 0.0;
+  for (long long a = 0; a < n * n; ++a) { W[a] = 0.0; C[a] = 0.0; }
+  for (long long a = 0; a < n; ++a) W[a * n + a] = 1.0;
+  for (long long k = 0; k < M; ++k) {
+    if (!ok[k]) continue;
+    sw += w[k];
+    for (long long a = 0; a < n; ++a)
+      for (long long b = 0; b <= a; ++b) C[a * n + b] += w[k] * P[k * n * n + a * n + b];
+  }
+  if (!(sw > 0.0) || !isfinite(sw)) return;
+  for (long long a = 0; a < n; ++a) Li[a] = 1.0 / sqrt(C[a * n + a] / sw);  /* S, kept in Li's first row */
+  for (long long a = 0; a < n; ++a) if (!(Li[a] > 0.0) || !isfinite(Li[a])) return;
+  for (long long a = 0; a < n; ++a) W[a * n + a] = Li[a];
+  for (long long a = 0; a < n; ++a)  /* S T S, lower triangle, unit diagonal */
+    for (long long b = 0; b <= a; ++b) C[a * n + b] = Li[a] * (C[a * n + b] / sw) * Li[b];
+  for (long long j = 0; j < n; ++j) {  /* Cholesky in place: C's lower triangle becomes L */
+    double d = C[j * n + j];
+    for (long long k = 0; k < j; ++k) d -= C[j * n + k] * C[j * n + k];
+    if (!(d > 0.0)) return;
+    d = sqrt(d);
+    C[j * n + j] = d;
+    for (long long i = j + 1; i < n; ++i) {
+      double s = C[i * n + j];
+      for (long long k = 0; k < j; ++k) s -= C[i * n + k] * C[j * n + k];
+      C[i * n + j] = s / d;
+    }
+  }
+  for (long long a = 0; a < n; ++a)  /* Li = L^-1 (lower triangular), by columns */
+    for (long long b = 0; b < n; ++b) {
+      double s = a == b ? 1.0 : 0.0;
+      if (b > a) { Li[a * n + b] = 0.0; continue; }
+      for (long long k = b; k < a; ++k) s -= C[a * n + k] * Li[k * n + b];
+      Li[a * n + b] = s / C[a * n + a];
+      fro += Li[a * n + b] * Li[a * n + b];
+    }
+  if (!(n * fro <= 1e4)) return;  /* W = S */
+  for (long long a = 0; a < n; ++a)
+    for (long long b = 0; b <= a; ++b) Li[a * n + b] *= W[b * n + b];
+  for (long long a = 0; a < n; ++a)
+    for (long long b = 0; b < n; ++b) W[a * n + b] = b <= a ? Li[a * n + b] : 0.0;
+}
+
+/* An upper bound on the largest eigenvalue of W P W^T (P symmetric, its lower triangle read; W
+   lower triangular): the least of its trace and its largest absolute row sum (Gershgorin).
+   NAN when the bound does not hold for the component (!ok: P not positive definite, or its
+   weight negative or not finite).  T, Q: n x n scratch. */
+static double sm_top(const double *P, long long n, int ok, const double *W, double *T, double *Q) {
   double tr = 0.0, row = 0.0;
-  if (!isfinite(ld)) return NAN;
+  if (!ok) return NAN;
+  for (long long a = 0; a < n; ++a)  /* T = W P */
+    for (long long b = 0; b < n; ++b) {
+      double s = 0.0;
+      for (long long c = 0; c <= a; ++c) s += W[a * n + c] * (c >= b ? P[c * n + b] : P[b * n + c]);
+      T[a * n + b] = s;
+    }
+  for (long long a = 0; a < n; ++a)  /* Q = T W^T */
+    for (long long b = 0; b < n; ++b) {
+      double s = 0.0;
+      for (long long c = 0; c <= b; ++c) s += T[a * n + c] * W[b * n + c];
+      Q[a * n + b] = s;
+    }
   for (long long a = 0; a < n; ++a) {
     double s = 0.0;
-    tr += P[a * n + a];
-    for (long long b = 0; b < n; ++b) s += fabs(P[a * n + b]);
+    tr += Q[a * n + a];
+    for (long long b = 0; b < n; ++b) s += fabs(Q[a * n + b]);
     if (s > row) row = s;
   }
   return tr < row ? tr : row;
 }
 
-/* The key of the pair (i, j) in the cost matrix, and ex[i M + j] whether it is the cost.  For
-   Runnalls a lower bound that needs no log-determinant stands in for the cost until the pair
-   could be the least (Runnalls' B = ws/2 [log det(S + c d d^T) - (fi ld_i + fj ld_j)] with
-   S = fi P_i + fj P_j, c = fi fj: log det S >= fi ld_i + fj ld_j by the concavity of log det,
-   and log(1 + c d^T S^-1 d) >= x / (1 + x) with x = c |d|^2 / (fi g_i + fj g_j) <= c d^T S^-1 d,
-   g >= the largest eigenvalue); the merges are the same as with every cost computed. */
-static double sm_key(long long i, long long j, long long n, long long M, int salmond, const double *w,
-                     const double *m, const double *P, const double *ld, const double *g, const double *Pinv,
-                     double *A, double *L, unsigned char *ex) {
-  if (!salmond) {
-    /* ws/2 x/(1 + x) = ws/2 N/(D + N), N = w_i w_j |d|^2, D = ws (w_i g_i + w_j g_j): one division */
-    const double ws = w[i] + w[j], q = w[i] * g[i] + w[j] * g[j];
-    double dd = 0.0;
-    for (long long a = 0; a < n; ++a) { const double t = m[i * n + a] - m[j * n + a]; dd += t * t; }
-    const double N = w[i] * w[j] * dd, D = ws * q;
-    if (q > 0.0 && isfinite(N) && isfinite(D)) { ex[i * M + j] = 0; return 0.5 * ws * N / (D + N) * (1.0 - 1e-9); }
+/* The bound keys of the pairs (i, j), j0 <= j < j1, into out[j - j0] (NaN where the bound does
+   not hold: module notes).  mt: the means by columns (mt[a M + j]); ald = |log det P|.  One
+   loop over j, its inner loops over the state's dimension: with n a constant they unroll and
+   the compiler vectorises the loop over j. */
+static void sm_keys(long long i, long long j0, long long j1, long long n, long long M, const double *restrict mt,
+                    const double *restrict w, const double *restrict g, const double *restrict ald,
+                    const double *restrict W, double *restrict out) {
+  const double wi = w[i], gi = g[i], ai = ald[i];
+  for (long long j = j0; j < j1; ++j) {
+    double dd = 0.0;  /* |W (m_i - m_j)|^2, W lower triangular */
+#pragma GCC unroll 16
+    for (long long a = 0; a < n; ++a) {
+      double e = 0.0;
+#pragma GCC unroll 16
+      for (long long b = 0; b <= a; ++b) e += W[a * n + b] * (mt[b * M + i] - mt[b * M + j]);
+      dd += e * e;
+    }
+    /* ws N / (2 D + N), N = w_i w_j |W d|^2, D = ws (w_i g_i + w_j g_j), less the margin */
+    const double wj = w[j], ws = wi + wj, N = wi * wj * dd, D = ws * (wi * gi + wj * g[j]);
+    out[j - j0] = ws * N / (2.0 * D + N) * (1.0 - 1e-9) - 1e-9 * ws * ((double) n + (ai + ald[j]));
   }
-  ex[i * M + j] = 1;
-  return sm_cost(i, j, n, salmond, w, m, P, ld, Pinv, A, L);
 }
 
-/* a before b in the argmin order of NumPy: a NaN first (the first one), then the least. */
+/* a before b in the argmin order of NumPy: a NaN first, then the least. */
 static int sm_before(double a, double b) { return isnan(b) ? 0 : (isnan(a) || a < b); }
 
-/* The first least live cost of row i (columns j > i), into rmin[i], rarg[i] (-1: none). */
-static void sm_row(long long i, long long M, const double *cost, const unsigned char *al, double *rmin, long long *rarg) {
+typedef double sm_v4d __attribute__((vector_size(32)));
+typedef long long sm_v4l __attribute__((vector_size(32)));
+
+/* The first least valid key of row i into rmin[i], rarg[i]: the first NaN if there is one;
+   rarg[i] = -1 when none is below +inf.  The key of column j is valid when sig[j] < sig[i]
+   (sm_gsf_merge); columns before from are never valid.  Four lanes of running minima and their
+   first columns, then the least of the lanes (the first column on a tie). */
+static void sm_row(long long i, long long from, long long M, const double *cost, const double *sig, double *rmin,
+                   long long *rarg) {
+  const double *c = cost + i * M, si = sig[i];
   double best = INFINITY;
-  long long arg = -1;
-  for (long long j = i + 1; j < M; ++j) {  /* sm_before's order: the first NaN is final */
-    if (!al[j]) continue;
-    const double c = cost[i * M + j];
-    if (c != c) { best = c; arg = j; break; }
-    if (arg < 0 || c < best) { best = c; arg = j; }
+  long long arg = -1, j = from;
+  int nan = 0;
+  if (M - j >= 8) {
+    const sm_v4d inf = {INFINITY, INFINITY, INFINITY, INFINITY}, s4 = {si, si, si, si};
+    sm_v4d vb = inf;
+    sm_v4l vi = {-1, -1, -1, -1}, idx = {j, j + 1, j + 2, j + 3}, vn = {0, 0, 0, 0};
+    const sm_v4l four = {4, 4, 4, 4};
+    for (; j + 4 <= M; j += 4) {
+      sm_v4d x, s;
+      memcpy(&x, c + j, sizeof x);
+      memcpy(&s, sig + j, sizeof s);
+      const sm_v4l ok = (sm_v4l) (s < s4), lt = (sm_v4l) (x < vb) & ok;
+      vn |= (sm_v4l) (x != x) & ok;
+      vb = (sm_v4d) ((lt & (sm_v4l) x) | (~lt & (sm_v4l) vb));
+      vi = (lt & idx) | (~lt & vi);
+      idx += four;
+    }
+    for (int l = 0; l < 4; ++l) {
+      nan |= vn[l] != 0;
+      if (vi[l] >= 0 && (vb[l] < best || (vb[l] == best && vi[l] < arg))) { best = vb[l]; arg = vi[l]; }
+    }
   }
+  for (; j < M; ++j) {
+    const double x = c[j];
+    if (!(sig[j] < si)) continue;
+    if (x != x) nan = 1;
+    else if (x < best) { best = x; arg = j; }
+  }
+  if (nan)
+    for (j = from; j < M; ++j)
+      if (sig[j] < si && c[j] != c[j]) { best = c[j]; arg = j; break; }
   rmin[i] = best;
   rarg[i] = arg;
 }
 
-/* The row of a and b (a's rows before b's; -1: none) whose minimum comes first in sm_before's
-   order, a dead row or one without a live pair never. */
+/* The row of a and b (-1: none) whose least pair comes first: by key in sm_before's order,
+   then by the pair (the lesser index, then the greater); a dead row or one without a candidate
+   never. */
 static long long sm_win(long long a, long long b, const double *rmin, const long long *rarg, const unsigned char *al) {
   const int va = a >= 0 && al[a] && rarg[a] >= 0, vb = b >= 0 && al[b] && rarg[b] >= 0;
   if (!va) return vb ? b : -1;
   if (!vb) return a;
-  return sm_before(rmin[b], rmin[a]) ? b : a;
+  if (sm_before(rmin[b], rmin[a])) return b;
+  if (sm_before(rmin[a], rmin[b])) return a;
+  const long long a0 = a < rarg[a] ? a : rarg[a], a1 = a < rarg[a] ? rarg[a] : a;
+  const long long b0 = b < rarg[b] ? b : rarg[b], b1 = b < rarg[b] ? rarg[b] : b;
+  return b0 < a0 || (b0 == a0 && b1 < a1) ? b : a;
 }
 
-/* Row k's minimum changed: the tournament tree (T leaves, tree[1] the first row of least
-   minimum) updated from leaf k up. */
+/* Row k's minimum changed: the tournament tree (T leaves, tree[1] the row of the first least
+   pair) updated from leaf k up. */
 static void sm_tree(long long k, long long T, long long *tree, const double *rmin, const long long *rarg,
                     const unsigned char *al) {
   for (long long p = (T + k) / 2; p >= 1; p /= 2) tree[p] = sm_win(tree[2 * p], tree[2 * p + 1], rmin, rarg, al);
 }
 
+/* The reference the search must equal: every live pair's cost computed at every merge, the
+   first least (sm_before's order, pairs (i, j), i < j, in the order of i, then j) merged.
+   O(M^3): for tests. */
+static void sm_exhaustive(long long M, long long n, long long keep, int salmond, double *w, double *m, double *P,
+                          const double *Pinv, unsigned char *al, double *ld, double *A, double *L) {
+  for (long long i = 0; i < M; ++i) ld[i] = salmond ? 0.0 : sm_logdet(P + i * n * n, n, L);
+  for (long long left = M; left > keep; --left) {
+    long long bi = -1, bj = -1;
+    double best = INFINITY;
+    for (long long i = 0; i < M; ++i)
+      for (long long j = i + 1; j < M && al[i]; ++j) {
+        if (!al[j]) continue;
+        const double c = sm_cost(i, j, n, salmond, w, m, P, ld, Pinv, A, L);
+        if (bi < 0 || sm_before(c, best)) { best = c; bi = i; bj = j; }
+      }
+    sm_merge_pair(bi, bj, n, w, m, P, A, L);
+    al[bj] = 0;
+    if (!salmond) ld[bi] = sm_logdet(P + bi * n * n, n, L);
+  }
+}
+
 /* Reduce each run r (components start[r] .. start[r + 1] - 1 of w (N), m (N, n), P (N, n, n),
-   in place) to at most keep components; alive[k] = 0 for a component merged away.  Pinv:
-   (R, n, n), Salmond's metric per run.  The least cost of each row of the pair-cost matrix is
-   kept, and the rows in a tournament tree of their minima, so finding the pair to merge is a
-   look at its root, and a merge rescans only the rows whose minimum it touched.  Returns 0,
-   or -1 if memory ran out. */
-int sm_gsf_merge(long long R, const long long *start, long long n, long long keep, int salmond,
+   in place) to at most keep components; alive[k] = 0 for a component merged away.  flags: 1
+   Salmond (else Runnalls), 2 the exhaustive reference (sm_exhaustive).  Pinv: (R, n, n),
+   Salmond's metric per run.
+
+   The key of a pair is its cost or (Runnalls) a lower bound on it, and each pair's key sits in
+   one row of the M x M matrix cost: in row i of component i, whose row was computed last.  A
+   component's stamp sig (M - i at first, then a count from M + 1 when a merge changes it, +inf
+   when it is merged away) says when: the key in row i, column j is valid when sig[j] <
+   sig[i].  At first row i holds the pairs (i, j), j > i; a merge into i recomputes row i for
+   every j, one contiguous row, and rescans the rows whose least pair had i or j, nothing else.
+   Each row's first least valid key is kept, and the rows in a tournament tree ordered by key,
+   then by pair, so the first least pair is at its root; while its key is a bound, its cost
+   replaces it.  Returns 0, or -1 if memory ran out. */
+int sm_gsf_merge(long long R, const long long *start, long long n, long long keep, int flags,
                  double *w, double *m, double *P, const double *Pinv, unsigned char *alive) {
+  const int salmond = flags & 1, exhaustive = flags & 2;
   for (long long k = 0; k < start[R]; ++k) alive[k] = 1;
   long long Mmax = 0;
   for (long long r = 0; r < R; ++r)
     if (start[r + 1] - start[r] > Mmax) Mmax = start[r + 1] - start[r];
   if (Mmax <= keep) return 0;
-  double *cost = malloc(sizeof(double) * (size_t)(Mmax * Mmax + 3 * Mmax + 2 * n * n));
+  double *cost = malloc(sizeof(double) * (size_t)(Mmax * Mmax + (8 + n) * Mmax + 5 * n * n));
   long long *rarg = malloc(sizeof(long long) * (size_t)Mmax);
   unsigned char *ex = malloc((size_t)(Mmax * Mmax));
   long long T = 1;
   while (T < Mmax) T *= 2;
   long long *tree = malloc(sizeof(long long) * (size_t)(2 * T));
   if (!cost || !rarg || !ex || !tree) { free(cost); free(rarg); free(ex); free(tree); return -1; }
-  double *ld = cost + Mmax * Mmax, *rmin = ld + Mmax, *g = rmin + Mmax, *A = g + Mmax, *L = A + n * n;
+  double *ld = cost + Mmax * Mmax, *rmin = ld + Mmax, *g = rmin + Mmax, *ald = g + Mmax, *ok = ald + Mmax,
+         *sig = ok + Mmax, *from = sig + Mmax, *mt = from + Mmax, *A = mt + n * Mmax, *L = A + n * n, *W = L + n * n,
+         *C = W + n * n, *Li = C + n * n;
   for (long long r = 0; r < R; ++r) {
     const long long o = start[r], M = start[r + 1] - start[r];
     if (M <= keep) continue;
-    double *wr = w + o, *mr = m + o * n, *Pr = P + o * n * n;
+    double *wr = w + o, *mr = m + o * n, *Pr = P + o * n * n, stamp = (double) M;
     unsigned char *al = alive + o;
     const double *Pv = Pinv + r * n * n;
+    if (exhaustive) { sm_exhaustive(M, n, keep, salmond, wr, mr, Pr, Pv, al, ld, A, L); continue; }
     for (long long i = 0; i < M; ++i) {
       ld[i] = salmond ? 0.0 : sm_logdet(Pr + i * n * n, n, L);
-      g[i] = salmond ? 0.0 : sm_top(Pr + i * n * n, n, ld[i]);
+      ok[i] = isfinite(ld[i]) && wr[i] >= 0.0 && isfinite(wr[i]);
+      ald[i] = fabs(ld[i]);
+      sig[i] = (double) (M - i);
+      from[i] = (double) (i + 1);
+      for (long long a = 0; a < n; ++a) mt[a * M + i] = mr[i * n + a];
+    }
+    if (!salmond) {
+      sm_whiten(M, n, wr, Pr, ok, W, C, Li);
+      for (long long i = 0; i < M; ++i) g[i] = sm_top(Pr + i * n * n, n, ok[i] != 0.0, W, C, Li);
     }
     for (long long i = 0; i < M; ++i) {
-      for (long long j = i + 1; j < M; ++j) cost[i * M + j] = sm_key(i, j, n, M, salmond, wr, mr, Pr, ld, g, Pv, A, L, ex);
-      sm_row(i, M, cost, al, rmin, rarg);
+      if (salmond) {
+        for (long long j = i + 1; j < M; ++j) cost[i * M + j] = sm_cost(i, j, n, 1, wr, mr, Pr, ld, Pv, A, L);
+        memset(ex + i * M, 1, (size_t) M);
+      } else {
+        sm_keys(i, i + 1, M, n, M, mt, wr, g, ald, W, cost + i * M + i + 1);
+        memset(ex + i * M, 0, (size_t) M);
+      }
+      sm_row(i, i + 1, M, cost, sig, rmin, rarg);
     }
     for (long long k = 0; k < T; ++k) tree[T + k] = k < M ? k : -1;
     for (long long p = T - 1; p >= 1; --p) tree[p] = sm_win(tree[2 * p], tree[2 * p + 1], rmin, rarg, al);
     for (long long left = M; left > keep; --left) {
-      long long bi = -1, bj = -1;
-      for (;;) {  /* the least key (the first row of least minimum); while it is a bound, the cost in its place */
+      long long bi = -1, i = -1, j = -1;
+      for (;;) {  /* the first least pair; while its key is a bound, its cost in its place */
         bi = tree[1];
         if (bi >= 0 && rmin[bi] == INFINITY) bi = -1;
-        if (bi < 0 || ex[bi * M + rarg[bi]]) break;
-        cost[bi * M + rarg[bi]] = sm_cost(bi, rarg[bi], n, salmond, wr, mr, Pr, ld, Pv, A, L);
-        ex[bi * M + rarg[bi]] = 1;
-        sm_row(bi, M, cost, al, rmin, rarg);
+        if (bi < 0) break;
+        const long long bj = rarg[bi];
+        i = bi < bj ? bi : bj;
+        j = bi < bj ? bj : bi;
+        if (ex[bi * M + bj]) break;
+        cost[bi * M + bj] = sm_cost(i, j, n, salmond, wr, mr, Pr, ld, Pv, A, L);
+        ex[bi * M + bj] = 1;
+        sm_row(bi, (long long) from[bi], M, cost, sig, rmin, rarg);
         sm_tree(bi, T, tree, rmin, rarg, al);
       }
-      if (bi >= 0) {
-        bj = rarg[bi];
-      } else {  /* every live pair costs inf: the first live pair */
+      if (bi < 0) {  /* every live pair costs inf: the first live pair */
+        i = j = -1;
         for (long long k = 0; k < M; ++k)
-          if (al[k]) { if (bi < 0) bi = k; else { bj = k; break; } }
+          if (al[k]) { if (i < 0) i = k; else { j = k; break; } }
       }
-      const long long i = bi, j = bj;
-      const double ws = wr[i] + wr[j], a = wr[i] / ws, b = wr[j] / ws;
-      double *mi = mr + i * n, *mj = mr + j * n, *Pi = Pr + i * n * n, *Pj = Pr + j * n * n;
-      for (long long u = 0; u < n; ++u) A[u] = a * mi[u] + b * mj[u];  /* the merged mean */
-      for (long long u = 0; u < n; ++u)
-        for (long long v = 0; v < n; ++v) {
-          const double di = (mi[u] - A[u]) * (mi[v] - A[v]), dj = (mj[u] - A[u]) * (mj[v] - A[v]);
-          L[u * n + v] = a * Pi[u * n + v] + b * Pj[u * n + v] + a * di + b * dj;
-        }
-      for (long long u = 0; u < n; ++u) {
-        mi[u] = A[u];
-        for (long long v = 0; v < n; ++v) Pi[u * n + v] = 0.5 * (L[u * n + v] + L[v * n + u]);
-      }
-      wr[i] = ws;
+      sm_merge_pair(i, j, n, wr, mr, Pr, A, L);
       al[j] = 0;
-      if (!salmond) { ld[i] = sm_logdet(Pi, n, L); g[i] = sm_top(Pi, n, ld[i]); }
-      for (long long k = 0; k < M; ++k) {
-        if (!al[k] || k == i) continue;
-        cost[k < i ? k * M + i : i * M + k] = sm_key(k < i ? k : i, k < i ? i : k, n, M, salmond, wr, mr, Pr, ld, g, Pv,
-                                                     A, L, ex);
+      rarg[j] = -1;
+      sig[j] = INFINITY;
+      sig[i] = stamp += 1.0;
+      from[i] = 0.0;
+      for (long long a = 0; a < n; ++a) mt[a * M + i] = mr[i * n + a];
+      if (salmond) {
+        for (long long k = 0; k < M; ++k)
+          cost[i * M + k] = al[k] && k != i ? sm_cost(k < i ? k : i, k < i ? i : k, n, 1, wr, mr, Pr, ld, Pv, A, L)
+                                            : INFINITY;
+      } else {
+        ld[i] = sm_logdet(Pr + i * n * n, n, L);
+        ok[i] = isfinite(ld[i]) && wr[i] >= 0.0 && isfinite(wr[i]);
+        ald[i] = fabs(ld[i]);
+        g[i] = sm_top(Pr + i * n * n, n, ok[i] != 0.0, W, C, Li);
+        sm_keys(i, 0, M, n, M, mt, wr, g, ald, W, cost + i * M);
+        memset(ex + i * M, 0, (size_t) M);
       }
-      sm_row(i, M, cost, al, rmin, rarg);
+      sm_row(i, 0, M, cost, sig, rmin, rarg);
       sm_tree(i, T, tree, rmin, rarg, al);
       sm_tree(j, T, tree, rmin, rarg, al);
-      for (long long k = 0; k < i; ++k) {  /* rows above i: their cost with i changed */
-        if (!al[k]) continue;
-        if (rarg[k] == i || rarg[k] == j) sm_row(k, M, cost, al, rmin, rarg);
-        else if (sm_before(cost[k * M + i], rmin[k]) || (!sm_before(rmin[k], cost[k * M + i]) && i < rarg[k]))
-          { rmin[k] = cost[k * M + i]; rarg[k] = i; }
-        else continue;
-        sm_tree(k, T, tree, rmin, rarg, al);
-      }
-      for (long long k = i + 1; k < j; ++k)  /* rows between: only j went away */
-        if (al[k] && rarg[k] == j) { sm_row(k, M, cost, al, rmin, rarg); sm_tree(k, T, tree, rmin, rarg, al); }
+      for (long long k = 0; k < M; ++k)  /* the rows whose least pair had i or j (a dead row's rarg is -1) */
+        if ((rarg[k] == i) | (rarg[k] == j)) {
+          sm_row(k, (long long) from[k], M, cost, sig, rmin, rarg);
+          sm_tree(k, T, tree, rmin, rarg, al);
+        }
     }
   }
   free(cost);
