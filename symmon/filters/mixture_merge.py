@@ -66,6 +66,7 @@ _C = r"""
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <limits.h>
 
 /* symmon: greedy Gaussian-mixture reduction (symmon.filters.mixture_merge). */
 
@@ -277,25 +278,36 @@ static void sm_row(long long i, long long from, long long M, const double *cost,
   rarg[i] = arg;
 }
 
-/* The row of a and b (-1: none) whose least pair comes first: by key in sm_before's order,
-   then by the pair (the lesser index, then the greater); a dead row or one without a candidate
-   never. */
-static long long sm_win(long long a, long long b, const double *rmin, const long long *rarg, const unsigned char *al) {
-  const int va = a >= 0 && al[a] && rarg[a] >= 0, vb = b >= 0 && al[b] && rarg[b] >= 0;
-  if (!va) return vb ? b : -1;
-  if (!vb) return a;
-  if (sm_before(rmin[b], rmin[a])) return b;
-  if (sm_before(rmin[a], rmin[b])) return a;
-  const long long a0 = a < rarg[a] ? a : rarg[a], a1 = a < rarg[a] ? rarg[a] : a;
-  const long long b0 = b < rarg[b] ? b : rarg[b], b1 = b < rarg[b] ? rarg[b] : b;
-  return b0 < a0 || (b0 == a0 && b1 < a1) ? b : a;
+/* The tournament tree over the rows, T leaves (leaf T + k: row k) and at node p the least of the
+   leaves below it: its key nk[p], its pair's rank nr[p] (i M + j, i < j) and its row nw[p], in
+   the order of the key (sm_before's: a NaN first, as -inf with its rank less 2^62), then of the
+   pair; a dead row, or one without a candidate, as (+inf, LLONG_MAX). */
+static void sm_leaf(long long k, long long T, long long M, const double *rmin, const long long *rarg,
+                    const unsigned char *al, double *nk, long long *nr, long long *nw) {
+  const long long p = T + k, a = k < M ? rarg[k] : -1;
+  nw[p] = k;
+  if (a < 0 || !al[k]) { nk[p] = INFINITY; nr[p] = LLONG_MAX; return; }
+  const long long rank = k < a ? k * M + a : a * M + k;
+  if (rmin[k] != rmin[k]) { nk[p] = -INFINITY; nr[p] = rank - ((long long) 1 << 62); }
+  else { nk[p] = rmin[k]; nr[p] = rank; }
 }
 
-/* Row k's minimum changed: the tournament tree (T leaves, tree[1] the row of the first least
-   pair) updated from leaf k up. */
-static void sm_tree(long long k, long long T, long long *tree, const double *rmin, const long long *rarg,
-                    const unsigned char *al) {
-  for (long long p = (T + k) / 2; p >= 1; p /= 2) tree[p] = sm_win(tree[2 * p], tree[2 * p + 1], rmin, rarg, al);
+/* Node p from its children; returns whether it changed. */
+static int sm_node(long long p, double *nk, long long *nr, long long *nw) {
+  const long long l = 2 * p, r = l + 1;
+  const long long b = l + ((nk[r] < nk[l]) | ((nk[r] == nk[l]) & (nr[r] < nr[l])));
+  const int same = nk[p] == nk[b] && nr[p] == nr[b] && nw[p] == nw[b];
+  nk[p] = nk[b];
+  nr[p] = nr[b];
+  nw[p] = nw[b];
+  return !same;
+}
+
+/* Row k's minimum changed: its leaf and the nodes above it, up to the first that stays. */
+static void sm_tree(long long k, long long T, long long M, const double *rmin, const long long *rarg,
+                    const unsigned char *al, double *nk, long long *nr, long long *nw) {
+  sm_leaf(k, T, M, rmin, rarg, al, nk, nr, nw);
+  for (long long p = (T + k) / 2; p >= 1 && sm_node(p, nk, nr, nw); p /= 2) {}
 }
 
 /* The reference the search must equal: every live pair's cost computed at every merge, the
@@ -343,10 +355,11 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
   if (Mmax <= keep) return 0;
   double *cost = malloc(sizeof(double) * (size_t)(Mmax * Mmax + (8 + n) * Mmax + 5 * n * n));
   long long *rarg = malloc(sizeof(long long) * (size_t)Mmax);
-  unsigned char *ex = malloc((size_t)(Mmax * Mmax));
+  unsigned char *ex = malloc((size_t)(Mmax * Mmax + Mmax)), *stale = ex + Mmax * Mmax;
   long long T = 1;
   while (T < Mmax) T *= 2;
-  long long *tree = malloc(sizeof(long long) * (size_t)(2 * T));
+  long long *tree = malloc(sizeof(long long) * (size_t)(6 * T)), *nr = tree, *nw = tree + 2 * T;
+  double *nk = (double *) (tree + 4 * T);
   if (!cost || !rarg || !ex || !tree) { free(cost); free(rarg); free(ex); free(tree); return -1; }
   double *ld = cost + Mmax * Mmax, *rmin = ld + Mmax, *g = rmin + Mmax, *ald = g + Mmax, *ok = ald + Mmax,
          *sig = ok + Mmax, *from = sig + Mmax, *mt = from + Mmax, *A = mt + n * Mmax, *L = A + n * n, *W = L + n * n,
@@ -364,6 +377,7 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
       ald[i] = fabs(ld[i]);
       sig[i] = (double) (M - i);
       from[i] = (double) (i + 1);
+      stale[i] = 0;
       for (long long a = 0; a < n; ++a) mt[a * M + i] = mr[i * n + a];
     }
     if (!salmond) {
@@ -380,14 +394,19 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
       }
       sm_row(i, i + 1, M, cost, sig, rmin, rarg);
     }
-    for (long long k = 0; k < T; ++k) tree[T + k] = k < M ? k : -1;
-    for (long long p = T - 1; p >= 1; --p) tree[p] = sm_win(tree[2 * p], tree[2 * p + 1], rmin, rarg, al);
+    for (long long k = 0; k < T; ++k) sm_leaf(k, T, M, rmin, rarg, al, nk, nr, nw);
+    for (long long p = T - 1; p >= 1; --p) sm_node(p, nk, nr, nw);
     for (long long left = M; left > keep; --left) {
       long long bi = -1, i = -1, j = -1;
       for (;;) {  /* the first least pair; while its key is a bound, its cost in its place */
-        bi = tree[1];
-        if (bi >= 0 && rmin[bi] == INFINITY) bi = -1;
+        bi = nr[1] == LLONG_MAX ? -1 : nw[1];
         if (bi < 0) break;
+        if (stale[bi]) {  /* its least pair went away: a lower bound until now */
+          stale[bi] = 0;
+          sm_row(bi, (long long) from[bi], M, cost, sig, rmin, rarg);
+          sm_tree(bi, T, M, rmin, rarg, al, nk, nr, nw);
+          continue;
+        }
         const long long bj = rarg[bi];
         i = bi < bj ? bi : bj;
         j = bi < bj ? bj : bi;
@@ -395,7 +414,7 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
         cost[bi * M + bj] = sm_cost(i, j, n, salmond, wr, mr, Pr, ld, Pv, A, L);
         ex[bi * M + bj] = 1;
         sm_row(bi, (long long) from[bi], M, cost, sig, rmin, rarg);
-        sm_tree(bi, T, tree, rmin, rarg, al);
+        sm_tree(bi, T, M, rmin, rarg, al, nk, nr, nw);
       }
       if (bi < 0) {  /* every live pair costs inf: the first live pair */
         i = j = -1;
@@ -422,13 +441,11 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
         memset(ex + i * M, 0, (size_t) M);
       }
       sm_row(i, 0, M, cost, sig, rmin, rarg);
-      sm_tree(i, T, tree, rmin, rarg, al);
-      sm_tree(j, T, tree, rmin, rarg, al);
+      stale[i] = 0;
+      sm_tree(i, T, M, rmin, rarg, al, nk, nr, nw);
+      sm_tree(j, T, M, rmin, rarg, al, nk, nr, nw);
       for (long long k = 0; k < M; ++k)  /* the rows whose least pair had i or j (a dead row's rarg is -1) */
-        if ((rarg[k] == i) | (rarg[k] == j)) {
-          sm_row(k, (long long) from[k], M, cost, sig, rmin, rarg);
-          sm_tree(k, T, tree, rmin, rarg, al);
-        }
+        stale[k] |= (rarg[k] == i) | (rarg[k] == j);
     }
   }
   free(cost);
