@@ -206,24 +206,45 @@ static double sm_top(const double *P, long long n, int ok, const double *W, doub
   return tr < row ? tr : row;
 }
 
+/* Component k's whitened mean u[a M + k] = (W (m_k - c))_a, c a common centre, and du[k] >= the
+   Euclidean norm of its rounding error ((n + 2) eps |W| |m_k - c|, summed), so that
+   |u_i - u_j| - du_i - du_j <= |W (m_i - m_j)| (the keys' lower bound on it). */
+static void sm_wmean(long long k, long long n, long long M, const double *m, const double *c, const double *W,
+                     double *u, double *du) {
+  double err = 0.0;
+  for (long long a = 0; a < n; ++a) {
+    double s = 0.0, t = 0.0;
+    for (long long b = 0; b <= a; ++b) {
+      const double v = m[k * n + b] - c[b];
+      s += W[a * n + b] * v;
+      t += fabs(W[a * n + b]) * fabs(v);
+    }
+    u[a * M + k] = s;
+    err += t;
+  }
+  du[k] = (double) (n + 2) * 2.3e-16 * err;
+}
+
 /* The bound keys of the pairs (i, j), j0 <= j < j1, into out[j - j0] (NaN where the bound does
-   not hold: module notes).  mt: the means by columns (mt[a M + j]); ald = |log det P|.  One
-   loop over j, its inner loops over the state's dimension: with n a constant they unroll and
-   the compiler vectorises the loop over j. */
-static void sm_keys(long long i, long long j0, long long j1, long long n, long long M, const double *restrict mt,
-                    const double *restrict w, const double *restrict g, const double *restrict ald,
-                    const double *restrict W, double *restrict out) {
-  const double wi = w[i], gi = g[i], ai = ald[i];
+   not hold: module notes).  u, du: sm_wmean's; ald = |log det P|.  One loop over j, its inner
+   loop over the state's dimension: with n a constant it unrolls and the compiler vectorises the
+   loop over j. */
+static void sm_keys(long long i, long long j0, long long j1, long long n, long long M, const double *restrict u,
+                    const double *restrict du, const double *restrict w, const double *restrict g,
+                    const double *restrict ald, double *restrict out) {
+  const double wi = w[i], gi = g[i], ai = ald[i], di = du[i];
   for (long long j = j0; j < j1; ++j) {
-    double dd = 0.0;  /* |W (m_i - m_j)|^2, W lower triangular */
+    double dd = 0.0;  /* |u_i - u_j|^2, then a lower bound on |W (m_i - m_j)|^2: with e = du_i + du_j,
+                         (|x| - e)^2 >= (1 - 1e-9) |x|^2 - 1e9 e^2 */
 #pragma GCC unroll 16
     for (long long a = 0; a < n; ++a) {
-      double e = 0.0;
-#pragma GCC unroll 16
-      for (long long b = 0; b <= a; ++b) e += W[a * n + b] * (mt[b * M + i] - mt[b * M + j]);
-      dd += e * e;
+      const double x = u[a * M + i] - u[a * M + j];
+      dd += x * x;
     }
-    /* ws N / (2 D + N), N = w_i w_j |W d|^2, D = ws (w_i g_i + w_j g_j), less the margin */
+    const double err = di + du[j];
+    dd = dd * (1.0 - 1e-9) - 1e9 * (err * err);
+    dd = dd < 0.0 ? 0.0 : dd;
+    /* ws N / (2 D + N), N = w_i w_j dd, D = ws (w_i g_i + w_j g_j), less the margin */
     const double wj = w[j], ws = wi + wj, N = wi * wj * dd, D = ws * (wi * gi + wj * g[j]);
     out[j - j0] = ws * N / (2.0 * D + N) * (1.0 - 1e-9) - 1e-9 * ws * ((double) n + (ai + ald[j]));
   }
@@ -353,7 +374,7 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
   for (long long r = 0; r < R; ++r)
     if (start[r + 1] - start[r] > Mmax) Mmax = start[r + 1] - start[r];
   if (Mmax <= keep) return 0;
-  double *cost = malloc(sizeof(double) * (size_t)(Mmax * Mmax + (8 + n) * Mmax + 5 * n * n));
+  double *cost = malloc(sizeof(double) * (size_t)(Mmax * Mmax + (9 + n) * Mmax + 5 * n * n + n));
   long long *rarg = malloc(sizeof(long long) * (size_t)Mmax);
   unsigned char *ex = malloc((size_t)(Mmax * Mmax + Mmax)), *stale = ex + Mmax * Mmax;
   long long T = 1;
@@ -362,8 +383,8 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
   double *nk = (double *) (tree + 4 * T);
   if (!cost || !rarg || !ex || !tree) { free(cost); free(rarg); free(ex); free(tree); return -1; }
   double *ld = cost + Mmax * Mmax, *rmin = ld + Mmax, *g = rmin + Mmax, *ald = g + Mmax, *ok = ald + Mmax,
-         *sig = ok + Mmax, *from = sig + Mmax, *mt = from + Mmax, *A = mt + n * Mmax, *L = A + n * n, *W = L + n * n,
-         *C = W + n * n, *Li = C + n * n;
+         *sig = ok + Mmax, *from = sig + Mmax, *du = from + Mmax, *mt = du + Mmax, *A = mt + n * Mmax, *L = A + n * n, *W = L + n * n,
+         *C = W + n * n, *Li = C + n * n, *cen = Li + n * n;
   for (long long r = 0; r < R; ++r) {
     const long long o = start[r], M = start[r + 1] - start[r];
     if (M <= keep) continue;
@@ -378,18 +399,31 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
       sig[i] = (double) (M - i);
       from[i] = (double) (i + 1);
       stale[i] = 0;
-      for (long long a = 0; a < n; ++a) mt[a * M + i] = mr[i * n + a];
     }
     if (!salmond) {
+      double sw = 0.0;  /* the centre of the whitened means: the weighted mean of the ok means */
+      for (long long a = 0; a < n; ++a) cen[a] = 0.0;
+      for (long long i = 0; i < M; ++i) {
+        int fin = ok[i] != 0.0;
+        for (long long a = 0; a < n; ++a) fin &= isfinite(mr[i * n + a]);
+        if (!fin) continue;
+        sw += wr[i];
+        for (long long a = 0; a < n; ++a) cen[a] += wr[i] * mr[i * n + a];
+      }
+      for (long long a = 0; a < n; ++a) cen[a] = sw > 0.0 && isfinite(cen[a] / sw) ? cen[a] / sw : 0.0;
       sm_whiten(M, n, wr, Pr, ok, W, C, Li);
-      for (long long i = 0; i < M; ++i) g[i] = sm_top(Pr + i * n * n, n, ok[i] != 0.0, W, C, Li);
+      for (long long i = 0; i < M; ++i) {
+        g[i] = sm_top(Pr + i * n * n, n, ok[i] != 0.0, W, C, Li);
+        sm_wmean(i, n, M, mr, cen, W, mt, du);
+        sm_wmean(i, n, M, mr, cen, W, mt, du);
+      }
     }
     for (long long i = 0; i < M; ++i) {
       if (salmond) {
         for (long long j = i + 1; j < M; ++j) cost[i * M + j] = sm_cost(i, j, n, 1, wr, mr, Pr, ld, Pv, A, L);
         memset(ex + i * M, 1, (size_t) M);
       } else {
-        sm_keys(i, i + 1, M, n, M, mt, wr, g, ald, W, cost + i * M + i + 1);
+        sm_keys(i, i + 1, M, n, M, mt, du, wr, g, ald, cost + i * M + i + 1);
         memset(ex + i * M, 0, (size_t) M);
       }
       sm_row(i, i + 1, M, cost, sig, rmin, rarg);
@@ -427,7 +461,6 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
       sig[j] = INFINITY;
       sig[i] = stamp += 1.0;
       from[i] = 0.0;
-      for (long long a = 0; a < n; ++a) mt[a * M + i] = mr[i * n + a];
       if (salmond) {
         for (long long k = 0; k < M; ++k)
           cost[i * M + k] = al[k] && k != i ? sm_cost(k < i ? k : i, k < i ? i : k, n, 1, wr, mr, Pr, ld, Pv, A, L)
@@ -437,7 +470,8 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
         ok[i] = isfinite(ld[i]) && wr[i] >= 0.0 && isfinite(wr[i]);
         ald[i] = fabs(ld[i]);
         g[i] = sm_top(Pr + i * n * n, n, ok[i] != 0.0, W, C, Li);
-        sm_keys(i, 0, M, n, M, mt, wr, g, ald, W, cost + i * M);
+        sm_wmean(i, n, M, mr, cen, W, mt, du);
+        sm_keys(i, 0, M, n, M, mt, du, wr, g, ald, cost + i * M);
         memset(ex + i * M, 0, (size_t) M);
       }
       sm_row(i, 0, M, cost, sig, rmin, rarg);
