@@ -586,6 +586,12 @@ def merge_runs(run: np.ndarray, w: np.ndarray, m: np.ndarray, P: np.ndarray, kee
     mask of the components left (the merged ones hold the merged moments).  One call of the
     C kernel for all runs when it is available and ``native``; else :func:`merge_numpy` per
     run that needs it."""
+    return _merge_runs(run, w, m, P, keep, rule, native, exhaustive=False)
+
+
+def _merge_runs(run, w, m, P, keep, rule, native, exhaustive):
+    """:func:`merge_runs`; ``exhaustive``: the C kernel's reference search instead (every live
+    pair's cost at every merge, O(M³); module notes), the one the greedy search must equal."""
     _check_rule(rule)
     R = int(run[-1]) + 1 if len(run) else 0
     counts = np.bincount(run, minlength=R)
@@ -612,7 +618,8 @@ def merge_runs(run: np.ndarray, w: np.ndarray, m: np.ndarray, P: np.ndarray, kee
         if not (a.flags.c_contiguous and a.dtype == np.float64):
             raise SymmonError("merge_runs works in place on C-contiguous float64 arrays")
     ptr = lambda a: a.ctypes.data  # noqa: E731  (an int: c_void_p accepts it, cheaper than data_as)
-    if fn(R, ptr(start), n, keep, int(rule == "salmond"), ptr(w), ptr(m), ptr(P), ptr(Pinv), ptr(alive)):
+    flags = int(rule == "salmond") | (2 if exhaustive else 0)
+    if fn(R, ptr(start), n, keep, flags, ptr(w), ptr(m), ptr(P), ptr(Pinv), ptr(alive)):
         raise MemoryError("the mixture merge could not allocate its cost matrix")
     return alive.astype(bool)
 
