@@ -225,6 +225,15 @@ static void sm_wmean(long long k, long long n, long long M, const double *m, con
   du[k] = (double) (n + 2) * 2.3e-16 * err;
 }
 
+/* Whether component k's keys are finite: its bound holds (g finite) and its weight, whitened mean
+   and g are below 1e50, so that no product in a key overflows. */
+static int sm_sane(long long k, long long n, long long M, const double *w, const double *g, const double *u,
+                   const double *du) {
+  int ok = fabs(w[k]) < 1e50 && fabs(g[k]) < 1e50 && fabs(du[k]) < 1e50;
+  for (long long a = 0; a < n; ++a) ok &= fabs(u[a * M + k]) < 1e50;
+  return ok;
+}
+
 /* The bound keys of the pairs (i, j), j0 <= j < j1, into out[j - j0] (NaN where the bound does
    not hold: module notes).  u, du: sm_wmean's; ald = |log det P|.  One loop over j, its inner
    loop over the state's dimension: with n a constant it unrolls and the compiler vectorises the
@@ -256,12 +265,13 @@ static int sm_before(double a, double b) { return isnan(b) ? 0 : (isnan(a) || a 
 typedef double sm_v4d __attribute__((vector_size(32)));
 typedef long long sm_v4l __attribute__((vector_size(32)));
 
-/* The first least valid key of row i into rmin[i], rarg[i]: the first NaN if there is one;
-   rarg[i] = -1 when none is below +inf.  The key of column j is valid when sig[j] < sig[i]
-   (sm_gsf_merge); columns before from are never valid.  Four lanes of running minima and their
-   first columns, then the least of the lanes (the first column on a tie). */
+/* The first least valid key of row i into rmin[i], rarg[i]: the first NaN if there is one (when
+   nanm: the row may hold one); rarg[i] = -1 when none is below +inf.  The key of column j is
+   valid when sig[j] < sig[i] (sm_gsf_merge); columns before from are never valid.  Four lanes
+   of running minima and their first columns, then the least of the lanes (the first column on
+   a tie). */
 static void sm_row(long long i, long long from, long long M, const double *cost, const double *sig, double *rmin,
-                   long long *rarg) {
+                   long long *rarg, int nanm) {
   const double *c = cost + i * M, si = sig[i];
   double best = INFINITY;
   long long arg = -1, j = from;
@@ -276,7 +286,7 @@ static void sm_row(long long i, long long from, long long M, const double *cost,
       memcpy(&x, c + j, sizeof x);
       memcpy(&s, sig + j, sizeof s);
       const sm_v4l ok = (sm_v4l) (s < s4), lt = (sm_v4l) (x < vb) & ok;
-      vn |= (sm_v4l) (x != x) & ok;
+      if (nanm) vn |= (sm_v4l) (x != x) & ok;
       vb = (sm_v4d) ((lt & (sm_v4l) x) | (~lt & (sm_v4l) vb));
       vi = (lt & idx) | (~lt & vi);
       idx += four;
@@ -392,6 +402,9 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
     unsigned char *al = alive + o;
     const double *Pv = Pinv + r * n * n;
     if (exhaustive) { sm_exhaustive(M, n, keep, salmond, wr, mr, Pr, Pv, al, ld, A, L); continue; }
+    /* nanm: a key or cost may be NaN (Salmond's costs, a component whose bound does not hold or
+       whose numbers could overflow a key, a NaN cost), so that the rows' scans look for one */
+    int nanm = salmond;
     for (long long i = 0; i < M; ++i) {
       ld[i] = salmond ? 0.0 : sm_logdet(Pr + i * n * n, n, L);
       ok[i] = isfinite(ld[i]) && wr[i] >= 0.0 && isfinite(wr[i]);
@@ -415,7 +428,7 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
       for (long long i = 0; i < M; ++i) {
         g[i] = sm_top(Pr + i * n * n, n, ok[i] != 0.0, W, C, Li);
         sm_wmean(i, n, M, mr, cen, W, mt, du);
-        sm_wmean(i, n, M, mr, cen, W, mt, du);
+        nanm |= !sm_sane(i, n, M, wr, g, mt, du);
       }
     }
     for (long long i = 0; i < M; ++i) {
@@ -426,7 +439,7 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
         sm_keys(i, i + 1, M, n, M, mt, du, wr, g, ald, cost + i * M + i + 1);
         memset(ex + i * M, 0, (size_t) M);
       }
-      sm_row(i, i + 1, M, cost, sig, rmin, rarg);
+      sm_row(i, i + 1, M, cost, sig, rmin, rarg, nanm);
     }
     for (long long k = 0; k < T; ++k) sm_leaf(k, T, M, rmin, rarg, al, nk, nr, nw);
     for (long long p = T - 1; p >= 1; --p) sm_node(p, nk, nr, nw);
@@ -437,7 +450,7 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
         if (bi < 0) break;
         if (stale[bi]) {  /* its least pair went away: a lower bound until now */
           stale[bi] = 0;
-          sm_row(bi, (long long) from[bi], M, cost, sig, rmin, rarg);
+          sm_row(bi, (long long) from[bi], M, cost, sig, rmin, rarg, nanm);
           sm_tree(bi, T, M, rmin, rarg, al, nk, nr, nw);
           continue;
         }
@@ -445,9 +458,10 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
         i = bi < bj ? bi : bj;
         j = bi < bj ? bj : bi;
         if (ex[bi * M + bj]) break;
-        cost[bi * M + bj] = sm_cost(i, j, n, salmond, wr, mr, Pr, ld, Pv, A, L);
+        const double e = cost[bi * M + bj] = sm_cost(i, j, n, salmond, wr, mr, Pr, ld, Pv, A, L);
         ex[bi * M + bj] = 1;
-        sm_row(bi, (long long) from[bi], M, cost, sig, rmin, rarg);
+        nanm |= e != e;
+        sm_row(bi, (long long) from[bi], M, cost, sig, rmin, rarg, nanm);
         sm_tree(bi, T, M, rmin, rarg, al, nk, nr, nw);
       }
       if (bi < 0) {  /* every live pair costs inf: the first live pair */
@@ -471,10 +485,11 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
         ald[i] = fabs(ld[i]);
         g[i] = sm_top(Pr + i * n * n, n, ok[i] != 0.0, W, C, Li);
         sm_wmean(i, n, M, mr, cen, W, mt, du);
+        nanm |= !sm_sane(i, n, M, wr, g, mt, du);
         sm_keys(i, 0, M, n, M, mt, du, wr, g, ald, cost + i * M);
         memset(ex + i * M, 0, (size_t) M);
       }
-      sm_row(i, 0, M, cost, sig, rmin, rarg);
+      sm_row(i, 0, M, cost, sig, rmin, rarg, nanm);
       stale[i] = 0;
       sm_tree(i, T, M, rmin, rarg, al, nk, nr, nw);
       sm_tree(j, T, M, rmin, rarg, al, nk, nr, nw);
