@@ -28,15 +28,44 @@ available (symmon.compile's policy, ``SYMMON_COMPILE``).  Their costs differ by 
 last bits.
 
 The C kernel computes a Runnalls cost only for a pair that could be the least: until then a
-lower bound that needs no log-determinant stands in for it.  With S = f_i P_i + f_j P_j,
-f = w/(w_i + w_j) and c = f_i f_j, B_ij = ½ (w_i + w_j) [log det S − f_i log det P_i −
-f_j log det P_j + log(1 + c dᵀ S⁻¹ d)], d = m_i − m_j; the bracket's first three terms are
-≥ 0 (log det is concave) and log(1 + x) ≥ x/(1 + x), with x ≥ c |d|²/(f_i g_i + f_j g_j) for
-any g ≥ the largest eigenvalue of P (the least of its trace and its largest absolute row
-sum), so B_ij ≥ ½ (w_i + w_j) N/(D + N), N = w_i w_j |d|², D = (w_i + w_j)(w_i g_i + w_j g_j).
-The pair of least key is taken; while it is a bound, its cost replaces it and the search
-repeats, so the merges are those of every cost computed.  The rows' least keys sit in a
-tournament tree (the pair to merge at its root, a changed row updated in O(log M)).
+lower bound that needs no log-determinant stands in for it (its key).  With S = f_i P_i +
+f_j P_j, f = w/(w_i + w_j), c = f_i f_j and d = m_i − m_j,
+
+    B_ij = ½ (w_i + w_j) [log det S − f_i log det P_i − f_j log det P_j + log(1 + x)],
+    x = c dᵀ S⁻¹ d;
+
+the first three terms of the bracket are ≥ 0 (log det is concave), log(1 + x) ≥ 2x/(2 + x)
+(x ≥ 0; the derivative of the difference is x²/((1 + x)(2 + x)²)), and x ≥ c |W d|²/(f_i g_i +
+f_j g_j) for any invertible W with g ≥ the largest eigenvalue of W P Wᵀ (then S ≤ (f_i g_i +
+f_j g_j) (WᵀW)⁻¹).  W whitens the weighted mean T of the covariances (W = L⁻¹ diag(T)^-½ with
+L the Cholesky factor of the scaled T, the diagonal scaling alone when that is ill-conditioned),
+so that a pair's bound does not suffer from states in different units or correlated states;
+g is the least of the trace and the largest absolute row sum of W P Wᵀ.  So
+
+    B_ij ≥ (w_i + w_j) N/(2D + N),  N = w_i w_j |W d|²,  D = (w_i + w_j)(w_i g_i + w_j g_j),
+
+computed from whitened means W (m_k − c) stored once per component (with an allowance for
+their rounding) and lowered by a margin (1e-9 relative, and 1e-9 (w_i + w_j)(n + |log det P_i|
++ |log det P_j|) absolute) that covers the rounding of the key and of the cost.  At the size
+of a Gaussian-sum filter's bank (3 × 64 components merged to 64) about one pair in 50 then has
+its log-determinant computed.  A component whose bound does not hold (a covariance that is not
+positive definite, a weight that is not positive) gets NaN keys, which come first and so have
+their costs computed before any merge.
+
+The pair of least key (sm_before's order, then the first pair) is taken; while its key is a
+bound, its cost replaces it and the search repeats.  Every key is at most its pair's cost, so
+the merges are those of the exhaustive search, every live pair's cost computed at every merge
+(the kernel's reference mode, ``flags`` 2: O(M³), for the tests): the first pair of least cost
+is never passed over.  The keys sit in an M × M matrix, each pair's in one row: the row of the
+component whose row was computed last.  A component's stamp (M − i at first, a count from
+M + 1 when a merge changes it, +inf when it is merged away) says which: the key in row i,
+column j is valid when stamp_j < stamp_i.  At first row i holds the pairs (i, j), j > i; a
+merge into i recomputes row i for every j (one contiguous row, a loop the compiler vectorises)
+and nothing else is written.  Each row's first least valid key is kept (a vectorised scan); a
+row whose least pair went away keeps its old minimum as a lower bound until it comes to the
+top, and is rescanned then.  The rows sit in a tournament tree ordered by key, then by pair.
+Per merge that is O(M) keys and a few O(M) scans, O(M²) for the reduction, against the
+exhaustive search's O(M³) costs.
 
 References
 ----------
