@@ -134,9 +134,10 @@ static double sm_cost(long long i, long long j, long long n, int salmond, const 
   }
   const double *Pi = P + i * n * n, *Pj = P + j * n * n;
   const double fi = wi / ws, fj = wj / ws, c = fi * fj;
+  double d[n];
+  for (long long a = 0; a < n; ++a) d[a] = mi[a] - mj[a];
   for (long long a = 0; a < n; ++a)  /* the lower triangle: all that sm_logdet reads */
-    for (long long b = 0; b <= a; ++b)
-      A[a * n + b] = fi * Pi[a * n + b] + fj * Pj[a * n + b] + c * (mi[a] - mj[a]) * (mi[b] - mj[b]);
+    for (long long b = 0; b <= a; ++b) A[a * n + b] = fi * Pi[a * n + b] + fj * Pj[a * n + b] + c * d[a] * d[b];
   return 0.5 * (ws * sm_logdet(A, n, L) - (wi * ld[i] + wj * ld[j]));
 }
 
@@ -214,17 +215,19 @@ static void sm_whiten(long long M, long long n, const double *w, const double *P
 static double sm_top(const double *P, long long n, int ok, const double *W, double *T, double *Q) {
   double tr = 0.0, row = 0.0;
   if (!ok) return NAN;
+  for (long long a = 0; a < n; ++a)  /* Q = P, symmetric from its lower triangle */
+    for (long long b = 0; b <= a; ++b) Q[a * n + b] = Q[b * n + a] = P[a * n + b];
   for (long long a = 0; a < n; ++a)  /* T = W P */
     for (long long b = 0; b < n; ++b) {
       double s = 0.0;
-      for (long long c = 0; c <= a; ++c) s += W[a * n + c] * (c >= b ? P[c * n + b] : P[b * n + c]);
+      for (long long c = 0; c <= a; ++c) s += W[a * n + c] * Q[c * n + b];
       T[a * n + b] = s;
     }
-  for (long long a = 0; a < n; ++a)  /* Q = T W^T */
-    for (long long b = 0; b < n; ++b) {
+  for (long long a = 0; a < n; ++a)  /* Q = T W^T, its lower triangle, then mirrored */
+    for (long long b = 0; b <= a; ++b) {
       double s = 0.0;
       for (long long c = 0; c <= b; ++c) s += T[a * n + c] * W[b * n + c];
-      Q[a * n + b] = s;
+      Q[a * n + b] = Q[b * n + a] = s;
     }
   for (long long a = 0; a < n; ++a) {
     double s = 0.0;
