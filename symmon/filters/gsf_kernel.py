@@ -506,10 +506,11 @@ class SplitKernel:
                    f"#define SMG_SZ_RES {max(max(f.sz_res() for f in fns), 3)}\n"
                    f"#define SMG_ROW {row}\n#define SMG_SC_DIR {sc_dir}\n#define SMG_SC_MORE {sc_more}\n")
         # The merge kernel of mixture_merge with the state's dimension a constant (its loops
-        # unrolled: the O(M²) pair costs are most of a step at M ≥ 16), the same operations in
-        # the same order (no FMA contraction in symmon's builds), so the same merges to the bit.
+        # unrolled and its loops over the pairs vectorised: the merge is most of a step at
+        # M ≥ 16), the same operations in the same order (no FMA contraction in symmon's
+        # builds), so the same merges to the bit.  Every function takes n as "long long n,".
         merge = re.sub(r"\nint sm_gsf_merge\(", "\nstatic int sm_gsf_merge(", MERGE_C)
-        assert merge.count("long long n,") == 5
+        assert "long long n)" not in merge
         merge = f"#define n ((long long) {n})\n" + merge.replace("long long n,", "long long n_dim_,") + "#undef n\n"
         code = generated_c(*fns) + merge + defines + _BODY
         self._work = WorkArrays(*fns)

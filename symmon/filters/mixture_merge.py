@@ -28,15 +28,44 @@ available (symmon.compile's policy, ``SYMMON_COMPILE``).  Their costs differ by 
 last bits.
 
 The C kernel computes a Runnalls cost only for a pair that could be the least: until then a
-lower bound that needs no log-determinant stands in for it.  With S = f_i P_i + f_j P_j,
-f = w/(w_i + w_j) and c = f_i f_j, B_ij = ½ (w_i + w_j) [log det S − f_i log det P_i −
-f_j log det P_j + log(1 + c dᵀ S⁻¹ d)], d = m_i − m_j; the bracket's first three terms are
-≥ 0 (log det is concave) and log(1 + x) ≥ x/(1 + x), with x ≥ c |d|²/(f_i g_i + f_j g_j) for
-any g ≥ the largest eigenvalue of P (the least of its trace and its largest absolute row
-sum), so B_ij ≥ ½ (w_i + w_j) N/(D + N), N = w_i w_j |d|², D = (w_i + w_j)(w_i g_i + w_j g_j).
-The pair of least key is taken; while it is a bound, its cost replaces it and the search
-repeats, so the merges are those of every cost computed.  The rows' least keys sit in a
-tournament tree (the pair to merge at its root, a changed row updated in O(log M)).
+lower bound that needs no log-determinant stands in for it (its key).  With S = f_i P_i +
+f_j P_j, f = w/(w_i + w_j), c = f_i f_j and d = m_i − m_j,
+
+    B_ij = ½ (w_i + w_j) [log det S − f_i log det P_i − f_j log det P_j + log(1 + x)],
+    x = c dᵀ S⁻¹ d;
+
+the first three terms of the bracket are ≥ 0 (log det is concave), log(1 + x) ≥ 2x/(2 + x)
+(x ≥ 0; the derivative of the difference is x²/((1 + x)(2 + x)²)), and x ≥ c |W d|²/(f_i g_i +
+f_j g_j) for any invertible W with g ≥ the largest eigenvalue of W P Wᵀ (then S ≤ (f_i g_i +
+f_j g_j) (WᵀW)⁻¹).  W whitens the weighted mean T of the covariances (W = L⁻¹ diag(T)^-½ with
+L the Cholesky factor of the scaled T, the diagonal scaling alone when that is ill-conditioned),
+so that a pair's bound does not suffer from states in different units or correlated states;
+g is the least of the trace and the largest absolute row sum of W P Wᵀ.  So
+
+    B_ij ≥ (w_i + w_j) N/(2D + N),  N = w_i w_j |W d|²,  D = (w_i + w_j)(w_i g_i + w_j g_j),
+
+computed from whitened means W (m_k − c) stored once per component (with an allowance for
+their rounding) and lowered by a margin (1e-9 relative, and 1e-9 (w_i + w_j)(n + |log det P_i|
++ |log det P_j|) absolute) that covers the rounding of the key and of the cost.  At the size
+of a Gaussian-sum filter's bank (3 × 64 components merged to 64) about one pair in 50 then has
+its log-determinant computed.  A component whose bound does not hold (a covariance that is not
+positive definite, a weight that is not positive) gets NaN keys, which come first and so have
+their costs computed before any merge.
+
+The pair of least key (sm_before's order, then the first pair) is taken; while its key is a
+bound, its cost replaces it and the search repeats.  Every key is at most its pair's cost, so
+the merges are those of the exhaustive search, every live pair's cost computed at every merge
+(the kernel's reference mode, ``flags`` 2: O(M³), for the tests): the first pair of least cost
+is never passed over.  The keys sit in an M × M matrix, each pair's in one row: the row of the
+component whose row was computed last.  A component's stamp (M − i at first, a count from
+M + 1 when a merge changes it, +inf when it is merged away) says which: the key in row i,
+column j is valid when stamp_j < stamp_i.  At first row i holds the pairs (i, j), j > i; a
+merge into i recomputes row i for every j (one contiguous row, a loop the compiler vectorises)
+and nothing else is written.  Each row's first least valid key is kept (a vectorised scan); a
+row whose least pair went away keeps its old minimum as a lower bound until it comes to the
+top, and is rescanned then.  The rows sit in a tournament tree ordered by key, then by pair.
+Per merge that is O(M) keys and a few O(M) scans, O(M²) for the reduction, against the
+exhaustive search's O(M³) costs.
 
 References
 ----------
@@ -65,6 +94,8 @@ MERGE_RULES = ("runnalls", "salmond")
 _C = r"""
 #include <math.h>
 #include <stdlib.h>
+#include <string.h>
+#include <limits.h>
 
 /* symmon: greedy Gaussian-mixture reduction (symmon.filters.mixture_merge). */
 
@@ -72,8 +103,7 @@ static double sm_logdet(const double *A, long long n, double *L) {
   /* log det of the symmetric positive definite A (row-major, its lower triangle read) by L D Lᵀ (no square roots):
      log Π d_i, one log per factor of the product kept within the float range; -inf if A is
      not positive definite.  L (n × n) is scratch: its strict lower triangle holds L, its
-     upper triangle U_ki = L_ik d_k (one product per term, one reciprocal per pivot: the
-     O(M²) pair costs of a merge are mostly this). */
+     upper triangle U_ki = L_ik d_k (one product per term, one reciprocal per pivot). */
   double prod = 1.0, logs = 0.0;
   for (long long j = 0; j < n; ++j) {
     double d = A[j * n + j];
@@ -104,168 +134,399 @@ static double sm_cost(long long i, long long j, long long n, int salmond, const 
   }
   const double *Pi = P + i * n * n, *Pj = P + j * n * n;
   const double fi = wi / ws, fj = wj / ws, c = fi * fj;
+  double d[n];
+  for (long long a = 0; a < n; ++a) d[a] = mi[a] - mj[a];
   for (long long a = 0; a < n; ++a)  /* the lower triangle: all that sm_logdet reads */
-    for (long long b = 0; b <= a; ++b)
-      A[a * n + b] = fi * Pi[a * n + b] + fj * Pj[a * n + b] + c * (mi[a] - mj[a]) * (mi[b] - mj[b]);
+    for (long long b = 0; b <= a; ++b) A[a * n + b] = fi * Pi[a * n + b] + fj * Pj[a * n + b] + c * d[a] * d[b];
   return 0.5 * (ws * sm_logdet(A, n, L) - (wi * ld[i] + wj * ld[j]));
 }
 
-/* An upper bound on the largest eigenvalue of the symmetric P: the least of its trace and its
-   largest absolute row sum (Gershgorin); NAN when P is not positive definite (ld not finite). */
-static double sm_top(const double *P, long long n, double ld) {
+/* Replace component i of (w, m, P) by the moment-matched merge of i and j.  A, L: n x n scratch. */
+static void sm_merge_pair(long long i, long long j, long long n, double *w, double *m, double *P, double *A, double *L) {
+  const double ws = w[i] + w[j], a = w[i] / ws, b = w[j] / ws;
+  double *mi = m + i * n, *mj = m + j * n, *Pi = P + i * n * n, *Pj = P + j * n * n;
+  for (long long u = 0; u < n; ++u) A[u] = a * mi[u] + b * mj[u];  /* the merged mean */
+  for (long long u = 0; u < n; ++u)
+    for (long long v = 0; v < n; ++v) {
+      const double di = (mi[u] - A[u]) * (mi[v] - A[v]), dj = (mj[u] - A[u]) * (mj[v] - A[v]);
+      L[u * n + v] = a * Pi[u * n + v] + b * Pj[u * n + v] + a * di + b * dj;
+    }
+  for (long long u = 0; u < n; ++u) {
+    mi[u] = A[u];
+    for (long long v = 0; v < n; ++v) Pi[u * n + v] = 0.5 * (L[u * n + v] + L[v * n + u]);
+  }
+  w[i] = ws;
+}
+
+/* The whitening W (n x n, lower triangular) of the bound's metric: W = L^-1 S, with T the
+   weighted mean of the covariances (their lower triangles) of the components whose bound
+   holds (ok), S = diag(T)^-1/2 and S T S = L L^T.  The diagonal S alone when S T S is
+   ill-conditioned (n |L^-1|_F^2, an upper bound on its condition number, above 1e4: the
+   rounding of W d and W P W^T then stays far below the bound's margin), the identity when
+   T is not positive definite.  C, Li: n x n scratch. */
+static void sm_whiten(long long M, long long n, const double *w, const double *P, const double *ok, double *W,
+                      double *C, double *Li) {
+  double sw = 0.0, fro = 0.0;
+  for (long long a = 0; a < n * n; ++a) { W[a] = 0.0; C[a] = 0.0; }
+  for (long long a = 0; a < n; ++a) W[a * n + a] = 1.0;
+  for (long long k = 0; k < M; ++k) {
+    if (!ok[k]) continue;
+    sw += w[k];
+    for (long long a = 0; a < n; ++a)
+      for (long long b = 0; b <= a; ++b) C[a * n + b] += w[k] * P[k * n * n + a * n + b];
+  }
+  if (!(sw > 0.0) || !isfinite(sw)) return;
+  for (long long a = 0; a < n; ++a) Li[a] = 1.0 / sqrt(C[a * n + a] / sw);  /* S, kept in Li's first row */
+  for (long long a = 0; a < n; ++a) if (!(Li[a] > 0.0) || !isfinite(Li[a])) return;
+  for (long long a = 0; a < n; ++a) W[a * n + a] = Li[a];
+  for (long long a = 0; a < n; ++a)  /* S T S, lower triangle, unit diagonal */
+    for (long long b = 0; b <= a; ++b) C[a * n + b] = Li[a] * (C[a * n + b] / sw) * Li[b];
+  for (long long j = 0; j < n; ++j) {  /* Cholesky in place: C's lower triangle becomes L */
+    double d = C[j * n + j];
+    for (long long k = 0; k < j; ++k) d -= C[j * n + k] * C[j * n + k];
+    if (!(d > 0.0)) return;
+    d = sqrt(d);
+    C[j * n + j] = d;
+    for (long long i = j + 1; i < n; ++i) {
+      double s = C[i * n + j];
+      for (long long k = 0; k < j; ++k) s -= C[i * n + k] * C[j * n + k];
+      C[i * n + j] = s / d;
+    }
+  }
+  for (long long a = 0; a < n; ++a)  /* Li = L^-1 (lower triangular), by columns */
+    for (long long b = 0; b < n; ++b) {
+      double s = a == b ? 1.0 : 0.0;
+      if (b > a) { Li[a * n + b] = 0.0; continue; }
+      for (long long k = b; k < a; ++k) s -= C[a * n + k] * Li[k * n + b];
+      Li[a * n + b] = s / C[a * n + a];
+      fro += Li[a * n + b] * Li[a * n + b];
+    }
+  if (!(n * fro <= 1e4)) return;  /* W = S */
+  for (long long a = 0; a < n; ++a)
+    for (long long b = 0; b <= a; ++b) Li[a * n + b] *= W[b * n + b];
+  for (long long a = 0; a < n; ++a)
+    for (long long b = 0; b < n; ++b) W[a * n + b] = b <= a ? Li[a * n + b] : 0.0;
+}
+
+/* An upper bound on the largest eigenvalue of W P W^T (P symmetric, its lower triangle read; W
+   lower triangular): the least of its trace and its largest absolute row sum (Gershgorin).
+   NAN when the bound does not hold for the component (!ok: P not positive definite, or its
+   weight negative or not finite).  T, Q: n x n scratch. */
+static double sm_top(const double *P, long long n, int ok, const double *W, double *T, double *Q) {
   double tr = 0.0, row = 0.0;
-  if (!isfinite(ld)) return NAN;
+  if (!ok) return NAN;
+  for (long long a = 0; a < n; ++a)  /* Q = P, symmetric from its lower triangle */
+    for (long long b = 0; b <= a; ++b) Q[a * n + b] = Q[b * n + a] = P[a * n + b];
+  for (long long a = 0; a < n; ++a)  /* T = W P */
+    for (long long b = 0; b < n; ++b) {
+      double s = 0.0;
+      for (long long c = 0; c <= a; ++c) s += W[a * n + c] * Q[c * n + b];
+      T[a * n + b] = s;
+    }
+  for (long long a = 0; a < n; ++a)  /* Q = T W^T, its lower triangle, then mirrored */
+    for (long long b = 0; b <= a; ++b) {
+      double s = 0.0;
+      for (long long c = 0; c <= b; ++c) s += T[a * n + c] * W[b * n + c];
+      Q[a * n + b] = Q[b * n + a] = s;
+    }
   for (long long a = 0; a < n; ++a) {
     double s = 0.0;
-    tr += P[a * n + a];
-    for (long long b = 0; b < n; ++b) s += fabs(P[a * n + b]);
+    tr += Q[a * n + a];
+    for (long long b = 0; b < n; ++b) s += fabs(Q[a * n + b]);
     if (s > row) row = s;
   }
   return tr < row ? tr : row;
 }
 
-/* The key of the pair (i, j) in the cost matrix, and ex[i M + j] whether it is the cost.  For
-   Runnalls a lower bound that needs no log-determinant stands in for the cost until the pair
-   could be the least (Runnalls' B = ws/2 [log det(S + c d d^T) - (fi ld_i + fj ld_j)] with
-   S = fi P_i + fj P_j, c = fi fj: log det S >= fi ld_i + fj ld_j by the concavity of log det,
-   and log(1 + c d^T S^-1 d) >= x / (1 + x) with x = c |d|^2 / (fi g_i + fj g_j) <= c d^T S^-1 d,
-   g >= the largest eigenvalue); the merges are the same as with every cost computed. */
-static double sm_key(long long i, long long j, long long n, long long M, int salmond, const double *w,
-                     const double *m, const double *P, const double *ld, const double *g, const double *Pinv,
-                     double *A, double *L, unsigned char *ex) {
-  if (!salmond) {
-    /* ws/2 x/(1 + x) = ws/2 N/(D + N), N = w_i w_j |d|^2, D = ws (w_i g_i + w_j g_j): one division */
-    const double ws = w[i] + w[j], q = w[i] * g[i] + w[j] * g[j];
-    double dd = 0.0;
-    for (long long a = 0; a < n; ++a) { const double t = m[i * n + a] - m[j * n + a]; dd += t * t; }
-    const double N = w[i] * w[j] * dd, D = ws * q;
-    if (q > 0.0 && isfinite(N) && isfinite(D)) { ex[i * M + j] = 0; return 0.5 * ws * N / (D + N) * (1.0 - 1e-9); }
+/* Component k's whitened mean u[a M + k] = (W (m_k - c))_a, c a common centre, and du[k] >= the
+   Euclidean norm of its rounding error ((n + 2) eps |W| |m_k - c|, summed), so that
+   |u_i - u_j| - du_i - du_j <= |W (m_i - m_j)| (the keys' lower bound on it). */
+static void sm_wmean(long long k, long long n, long long M, const double *m, const double *c, const double *W,
+                     double *u, double *du) {
+  double err = 0.0;
+  for (long long a = 0; a < n; ++a) {
+    double s = 0.0, t = 0.0;
+    for (long long b = 0; b <= a; ++b) {
+      const double v = m[k * n + b] - c[b];
+      s += W[a * n + b] * v;
+      t += fabs(W[a * n + b]) * fabs(v);
+    }
+    u[a * M + k] = s;
+    err += t;
   }
-  ex[i * M + j] = 1;
-  return sm_cost(i, j, n, salmond, w, m, P, ld, Pinv, A, L);
+  du[k] = (double) (n + 2) * 2.3e-16 * err;
 }
 
-/* a before b in the argmin order of NumPy: a NaN first (the first one), then the least. */
+/* Whether component k's keys are finite: its bound holds (g finite) and its weight, whitened mean
+   and g are below 1e50, so that no product in a key overflows. */
+static int sm_sane(long long k, long long n, long long M, const double *w, const double *g, const double *u,
+                   const double *du) {
+  int ok = fabs(w[k]) < 1e50 && fabs(g[k]) < 1e50 && fabs(du[k]) < 1e50;
+  for (long long a = 0; a < n; ++a) ok &= fabs(u[a * M + k]) < 1e50;
+  return ok;
+}
+
+/* The bound keys of the pairs (i, j), j0 <= j < j1, into out[j - j0] (NaN where the bound does
+   not hold: module notes).  u, du: sm_wmean's; ald = |log det P|.  One loop over j, its inner
+   loop over the state's dimension: with n a constant it unrolls and the compiler vectorises the
+   loop over j. */
+static void sm_keys(long long i, long long j0, long long j1, long long n, long long M, const double *restrict u,
+                    const double *restrict du, const double *restrict w, const double *restrict g,
+                    const double *restrict ald, double *restrict out) {
+  const double wi = w[i], gi = g[i], ai = ald[i], di = du[i];
+  for (long long j = j0; j < j1; ++j) {
+    double dd = 0.0;  /* |u_i - u_j|^2, then a lower bound on |W (m_i - m_j)|^2: with e = du_i + du_j,
+                         (|x| - e)^2 >= (1 - 1e-9) |x|^2 - 1e9 e^2 */
+#pragma GCC unroll 16
+    for (long long a = 0; a < n; ++a) {
+      const double x = u[a * M + i] - u[a * M + j];
+      dd += x * x;
+    }
+    const double err = di + du[j];
+    dd = dd * (1.0 - 1e-9) - 1e9 * (err * err);
+    dd = dd < 0.0 ? 0.0 : dd;
+    /* ws N / (2 D + N), N = w_i w_j dd, D = ws (w_i g_i + w_j g_j), less the margin */
+    const double wj = w[j], ws = wi + wj, N = wi * wj * dd, D = ws * (wi * gi + wj * g[j]);
+    out[j - j0] = ws * N / (2.0 * D + N) * (1.0 - 1e-9) - 1e-9 * ws * ((double) n + (ai + ald[j]));
+  }
+}
+
+/* a before b in the argmin order of NumPy: a NaN first, then the least. */
 static int sm_before(double a, double b) { return isnan(b) ? 0 : (isnan(a) || a < b); }
 
-/* The first least live cost of row i (columns j > i), into rmin[i], rarg[i] (-1: none). */
-static void sm_row(long long i, long long M, const double *cost, const unsigned char *al, double *rmin, long long *rarg) {
+typedef double sm_v4d __attribute__((vector_size(32)));
+typedef long long sm_v4l __attribute__((vector_size(32)));
+
+/* The first least valid key of row i into rmin[i], rarg[i]: the first NaN if there is one (when
+   nanm: the row may hold one); rarg[i] = -1 when none is below +inf.  The key of column j is
+   valid when sig[j] < sig[i] (sm_gsf_merge); columns before from are never valid.  Four lanes
+   of running minima and their first columns, then the least of the lanes (the first column on
+   a tie). */
+static void sm_row(long long i, long long from, long long M, const double *cost, const double *sig, double *rmin,
+                   long long *rarg, int nanm) {
+  const double *c = cost + i * M, si = sig[i];
   double best = INFINITY;
-  long long arg = -1;
-  for (long long j = i + 1; j < M; ++j) {  /* sm_before's order: the first NaN is final */
-    if (!al[j]) continue;
-    const double c = cost[i * M + j];
-    if (c != c) { best = c; arg = j; break; }
-    if (arg < 0 || c < best) { best = c; arg = j; }
+  long long arg = -1, j = from;
+  int nan = 0;
+  if (M - j >= 8) {
+    const sm_v4d inf = {INFINITY, INFINITY, INFINITY, INFINITY}, s4 = {si, si, si, si};
+    sm_v4d vb = inf;
+    sm_v4l vi = {-1, -1, -1, -1}, idx = {j, j + 1, j + 2, j + 3}, vn = {0, 0, 0, 0};
+    const sm_v4l four = {4, 4, 4, 4};
+    for (; j + 4 <= M; j += 4) {
+      sm_v4d x, s;
+      memcpy(&x, c + j, sizeof x);
+      memcpy(&s, sig + j, sizeof s);
+      const sm_v4l ok = (sm_v4l) (s < s4), lt = (sm_v4l) (x < vb) & ok;
+      if (nanm) vn |= (sm_v4l) (x != x) & ok;
+      vb = (sm_v4d) ((lt & (sm_v4l) x) | (~lt & (sm_v4l) vb));
+      vi = (lt & idx) | (~lt & vi);
+      idx += four;
+    }
+    for (int l = 0; l < 4; ++l) {
+      nan |= vn[l] != 0;
+      if (vi[l] >= 0 && (vb[l] < best || (vb[l] == best && vi[l] < arg))) { best = vb[l]; arg = vi[l]; }
+    }
   }
+  for (; j < M; ++j) {
+    const double x = c[j];
+    if (!(sig[j] < si)) continue;
+    if (x != x) nan = 1;
+    else if (x < best) { best = x; arg = j; }
+  }
+  if (nan)
+    for (j = from; j < M; ++j)
+      if (sig[j] < si && c[j] != c[j]) { best = c[j]; arg = j; break; }
   rmin[i] = best;
   rarg[i] = arg;
 }
 
-/* The row of a and b (a's rows before b's; -1: none) whose minimum comes first in sm_before's
-   order, a dead row or one without a live pair never. */
-static long long sm_win(long long a, long long b, const double *rmin, const long long *rarg, const unsigned char *al) {
-  const int va = a >= 0 && al[a] && rarg[a] >= 0, vb = b >= 0 && al[b] && rarg[b] >= 0;
-  if (!va) return vb ? b : -1;
-  if (!vb) return a;
-  return sm_before(rmin[b], rmin[a]) ? b : a;
+/* The tournament tree over the rows, T leaves (leaf T + k: row k) and at node p the least of the
+   leaves below it: its key nk[p], its pair's rank nr[p] (i M + j, i < j) and its row nw[p], in
+   the order of the key (sm_before's: a NaN first, as -inf with its rank less 2^62), then of the
+   pair; a dead row, or one without a candidate, as (+inf, LLONG_MAX). */
+static void sm_leaf(long long k, long long T, long long M, const double *rmin, const long long *rarg,
+                    const unsigned char *al, double *nk, long long *nr, long long *nw) {
+  const long long p = T + k, a = k < M ? rarg[k] : -1;
+  nw[p] = k;
+  if (a < 0 || !al[k]) { nk[p] = INFINITY; nr[p] = LLONG_MAX; return; }
+  const long long rank = k < a ? k * M + a : a * M + k;
+  if (rmin[k] != rmin[k]) { nk[p] = -INFINITY; nr[p] = rank - ((long long) 1 << 62); }
+  else { nk[p] = rmin[k]; nr[p] = rank; }
 }
 
-/* Row k's minimum changed: the tournament tree (T leaves, tree[1] the first row of least
-   minimum) updated from leaf k up. */
-static void sm_tree(long long k, long long T, long long *tree, const double *rmin, const long long *rarg,
-                    const unsigned char *al) {
-  for (long long p = (T + k) / 2; p >= 1; p /= 2) tree[p] = sm_win(tree[2 * p], tree[2 * p + 1], rmin, rarg, al);
+/* Node p from its children; returns whether it changed. */
+static int sm_node(long long p, double *nk, long long *nr, long long *nw) {
+  const long long l = 2 * p, r = l + 1;
+  const long long b = l + ((nk[r] < nk[l]) | ((nk[r] == nk[l]) & (nr[r] < nr[l])));
+  const int same = nk[p] == nk[b] && nr[p] == nr[b] && nw[p] == nw[b];
+  nk[p] = nk[b];
+  nr[p] = nr[b];
+  nw[p] = nw[b];
+  return !same;
+}
+
+/* Row k's minimum changed: its leaf and the nodes above it, up to the first that stays. */
+static void sm_tree(long long k, long long T, long long M, const double *rmin, const long long *rarg,
+                    const unsigned char *al, double *nk, long long *nr, long long *nw) {
+  sm_leaf(k, T, M, rmin, rarg, al, nk, nr, nw);
+  for (long long p = (T + k) / 2; p >= 1 && sm_node(p, nk, nr, nw); p /= 2) {}
+}
+
+/* The reference the search must equal: every live pair's cost computed at every merge, the
+   first least (sm_before's order, pairs (i, j), i < j, in the order of i, then j) merged.
+   O(M^3): for tests. */
+static void sm_exhaustive(long long M, long long n, long long keep, int salmond, double *w, double *m, double *P,
+                          const double *Pinv, unsigned char *al, double *ld, double *A, double *L) {
+  for (long long i = 0; i < M; ++i) ld[i] = salmond ? 0.0 : sm_logdet(P + i * n * n, n, L);
+  for (long long left = M; left > keep; --left) {
+    long long bi = -1, bj = -1;
+    double best = INFINITY;
+    for (long long i = 0; i < M; ++i)
+      for (long long j = i + 1; j < M && al[i]; ++j) {
+        if (!al[j]) continue;
+        const double c = sm_cost(i, j, n, salmond, w, m, P, ld, Pinv, A, L);
+        if (bi < 0 || sm_before(c, best)) { best = c; bi = i; bj = j; }
+      }
+    sm_merge_pair(bi, bj, n, w, m, P, A, L);
+    al[bj] = 0;
+    if (!salmond) ld[bi] = sm_logdet(P + bi * n * n, n, L);
+  }
 }
 
 /* Reduce each run r (components start[r] .. start[r + 1] - 1 of w (N), m (N, n), P (N, n, n),
-   in place) to at most keep components; alive[k] = 0 for a component merged away.  Pinv:
-   (R, n, n), Salmond's metric per run.  The least cost of each row of the pair-cost matrix is
-   kept, and the rows in a tournament tree of their minima, so finding the pair to merge is a
-   look at its root, and a merge rescans only the rows whose minimum it touched.  Returns 0,
-   or -1 if memory ran out. */
-int sm_gsf_merge(long long R, const long long *start, long long n, long long keep, int salmond,
+   in place) to at most keep components; alive[k] = 0 for a component merged away.  flags: 1
+   Salmond (else Runnalls), 2 the exhaustive reference (sm_exhaustive).  Pinv: (R, n, n),
+   Salmond's metric per run.
+
+   The key of a pair is its cost or (Runnalls) a lower bound on it, and each pair's key sits in
+   one row of the M x M matrix cost: in row i of component i, whose row was computed last.  A
+   component's stamp sig (M - i at first, then a count from M + 1 when a merge changes it, +inf
+   when it is merged away) says when: the key in row i, column j is valid when sig[j] <
+   sig[i].  At first row i holds the pairs (i, j), j > i; a merge into i recomputes row i for
+   every j, one contiguous row, and rescans the rows whose least pair had i or j, nothing else.
+   Each row's first least valid key is kept, and the rows in a tournament tree ordered by key,
+   then by pair, so the first least pair is at its root; while its key is a bound, its cost
+   replaces it.  Returns 0, or -1 if memory ran out. */
+int sm_gsf_merge(long long R, const long long *start, long long n, long long keep, int flags,
                  double *w, double *m, double *P, const double *Pinv, unsigned char *alive) {
+  const int salmond = flags & 1, exhaustive = flags & 2;
   for (long long k = 0; k < start[R]; ++k) alive[k] = 1;
   long long Mmax = 0;
   for (long long r = 0; r < R; ++r)
     if (start[r + 1] - start[r] > Mmax) Mmax = start[r + 1] - start[r];
   if (Mmax <= keep) return 0;
-  double *cost = malloc(sizeof(double) * (size_t)(Mmax * Mmax + 3 * Mmax + 2 * n * n));
+  double *cost = malloc(sizeof(double) * (size_t)(Mmax * Mmax + (9 + n) * Mmax + 5 * n * n + n));
   long long *rarg = malloc(sizeof(long long) * (size_t)Mmax);
-  unsigned char *ex = malloc((size_t)(Mmax * Mmax));
+  unsigned char *ex = malloc((size_t)(Mmax * Mmax + Mmax)), *stale = ex + Mmax * Mmax;
   long long T = 1;
   while (T < Mmax) T *= 2;
-  long long *tree = malloc(sizeof(long long) * (size_t)(2 * T));
+  long long *tree = malloc(sizeof(long long) * (size_t)(6 * T)), *nr = tree, *nw = tree + 2 * T;
+  double *nk = (double *) (tree + 4 * T);
   if (!cost || !rarg || !ex || !tree) { free(cost); free(rarg); free(ex); free(tree); return -1; }
-  double *ld = cost + Mmax * Mmax, *rmin = ld + Mmax, *g = rmin + Mmax, *A = g + Mmax, *L = A + n * n;
+  double *ld = cost + Mmax * Mmax, *rmin = ld + Mmax, *g = rmin + Mmax, *ald = g + Mmax, *ok = ald + Mmax,
+         *sig = ok + Mmax, *from = sig + Mmax, *du = from + Mmax, *mt = du + Mmax, *A = mt + n * Mmax, *L = A + n * n, *W = L + n * n,
+         *C = W + n * n, *Li = C + n * n, *cen = Li + n * n;
   for (long long r = 0; r < R; ++r) {
     const long long o = start[r], M = start[r + 1] - start[r];
     if (M <= keep) continue;
-    double *wr = w + o, *mr = m + o * n, *Pr = P + o * n * n;
+    double *wr = w + o, *mr = m + o * n, *Pr = P + o * n * n, stamp = (double) M;
     unsigned char *al = alive + o;
     const double *Pv = Pinv + r * n * n;
+    if (exhaustive) { sm_exhaustive(M, n, keep, salmond, wr, mr, Pr, Pv, al, ld, A, L); continue; }
+    /* nanm: a key or cost may be NaN (Salmond's costs, a component whose bound does not hold or
+       whose numbers could overflow a key, a NaN cost), so that the rows' scans look for one */
+    int nanm = salmond;
     for (long long i = 0; i < M; ++i) {
       ld[i] = salmond ? 0.0 : sm_logdet(Pr + i * n * n, n, L);
-      g[i] = salmond ? 0.0 : sm_top(Pr + i * n * n, n, ld[i]);
+      ok[i] = isfinite(ld[i]) && wr[i] >= 0.0 && isfinite(wr[i]);
+      ald[i] = fabs(ld[i]);
+      sig[i] = (double) (M - i);
+      from[i] = (double) (i + 1);
+      stale[i] = 0;
+    }
+    if (!salmond) {
+      double sw = 0.0;  /* the centre of the whitened means: the weighted mean of the ok means */
+      for (long long a = 0; a < n; ++a) cen[a] = 0.0;
+      for (long long i = 0; i < M; ++i) {
+        int fin = ok[i] != 0.0;
+        for (long long a = 0; a < n; ++a) fin &= isfinite(mr[i * n + a]);
+        if (!fin) continue;
+        sw += wr[i];
+        for (long long a = 0; a < n; ++a) cen[a] += wr[i] * mr[i * n + a];
+      }
+      for (long long a = 0; a < n; ++a) cen[a] = sw > 0.0 && isfinite(cen[a] / sw) ? cen[a] / sw : 0.0;
+      sm_whiten(M, n, wr, Pr, ok, W, C, Li);
+      for (long long i = 0; i < M; ++i) {
+        g[i] = sm_top(Pr + i * n * n, n, ok[i] != 0.0, W, C, Li);
+        sm_wmean(i, n, M, mr, cen, W, mt, du);
+        nanm |= !sm_sane(i, n, M, wr, g, mt, du);
+      }
     }
     for (long long i = 0; i < M; ++i) {
-      for (long long j = i + 1; j < M; ++j) cost[i * M + j] = sm_key(i, j, n, M, salmond, wr, mr, Pr, ld, g, Pv, A, L, ex);
-      sm_row(i, M, cost, al, rmin, rarg);
+      if (salmond) {
+        for (long long j = i + 1; j < M; ++j) cost[i * M + j] = sm_cost(i, j, n, 1, wr, mr, Pr, ld, Pv, A, L);
+        memset(ex + i * M, 1, (size_t) M);
+      } else {
+        sm_keys(i, i + 1, M, n, M, mt, du, wr, g, ald, cost + i * M + i + 1);
+        memset(ex + i * M, 0, (size_t) M);
+      }
+      sm_row(i, i + 1, M, cost, sig, rmin, rarg, nanm);
     }
-    for (long long k = 0; k < T; ++k) tree[T + k] = k < M ? k : -1;
-    for (long long p = T - 1; p >= 1; --p) tree[p] = sm_win(tree[2 * p], tree[2 * p + 1], rmin, rarg, al);
+    for (long long k = 0; k < T; ++k) sm_leaf(k, T, M, rmin, rarg, al, nk, nr, nw);
+    for (long long p = T - 1; p >= 1; --p) sm_node(p, nk, nr, nw);
     for (long long left = M; left > keep; --left) {
-      long long bi = -1, bj = -1;
-      for (;;) {  /* the least key (the first row of least minimum); while it is a bound, the cost in its place */
-        bi = tree[1];
-        if (bi >= 0 && rmin[bi] == INFINITY) bi = -1;
-        if (bi < 0 || ex[bi * M + rarg[bi]]) break;
-        cost[bi * M + rarg[bi]] = sm_cost(bi, rarg[bi], n, salmond, wr, mr, Pr, ld, Pv, A, L);
-        ex[bi * M + rarg[bi]] = 1;
-        sm_row(bi, M, cost, al, rmin, rarg);
-        sm_tree(bi, T, tree, rmin, rarg, al);
-      }
-      if (bi >= 0) {
-        bj = rarg[bi];
-      } else {  /* every live pair costs inf: the first live pair */
-        for (long long k = 0; k < M; ++k)
-          if (al[k]) { if (bi < 0) bi = k; else { bj = k; break; } }
-      }
-      const long long i = bi, j = bj;
-      const double ws = wr[i] + wr[j], a = wr[i] / ws, b = wr[j] / ws;
-      double *mi = mr + i * n, *mj = mr + j * n, *Pi = Pr + i * n * n, *Pj = Pr + j * n * n;
-      for (long long u = 0; u < n; ++u) A[u] = a * mi[u] + b * mj[u];  /* the merged mean */
-      for (long long u = 0; u < n; ++u)
-        for (long long v = 0; v < n; ++v) {
-          const double di = (mi[u] - A[u]) * (mi[v] - A[v]), dj = (mj[u] - A[u]) * (mj[v] - A[v]);
-          L[u * n + v] = a * Pi[u * n + v] + b * Pj[u * n + v] + a * di + b * dj;
+      long long bi = -1, i = -1, j = -1;
+      for (;;) {  /* the first least pair; while its key is a bound, its cost in its place */
+        bi = nr[1] == LLONG_MAX ? -1 : nw[1];
+        if (bi < 0) break;
+        if (stale[bi]) {  /* its least pair went away: a lower bound until now */
+          stale[bi] = 0;
+          sm_row(bi, (long long) from[bi], M, cost, sig, rmin, rarg, nanm);
+          sm_tree(bi, T, M, rmin, rarg, al, nk, nr, nw);
+          continue;
         }
-      for (long long u = 0; u < n; ++u) {
-        mi[u] = A[u];
-        for (long long v = 0; v < n; ++v) Pi[u * n + v] = 0.5 * (L[u * n + v] + L[v * n + u]);
+        const long long bj = rarg[bi];
+        i = bi < bj ? bi : bj;
+        j = bi < bj ? bj : bi;
+        if (ex[bi * M + bj]) break;
+        const double e = cost[bi * M + bj] = sm_cost(i, j, n, salmond, wr, mr, Pr, ld, Pv, A, L);
+        ex[bi * M + bj] = 1;
+        nanm |= e != e;
+        sm_row(bi, (long long) from[bi], M, cost, sig, rmin, rarg, nanm);
+        sm_tree(bi, T, M, rmin, rarg, al, nk, nr, nw);
       }
-      wr[i] = ws;
+      if (bi < 0) {  /* every live pair costs inf: the first live pair */
+        i = j = -1;
+        for (long long k = 0; k < M; ++k)
+          if (al[k]) { if (i < 0) i = k; else { j = k; break; } }
+      }
+      sm_merge_pair(i, j, n, wr, mr, Pr, A, L);
       al[j] = 0;
-      if (!salmond) { ld[i] = sm_logdet(Pi, n, L); g[i] = sm_top(Pi, n, ld[i]); }
-      for (long long k = 0; k < M; ++k) {
-        if (!al[k] || k == i) continue;
-        cost[k < i ? k * M + i : i * M + k] = sm_key(k < i ? k : i, k < i ? i : k, n, M, salmond, wr, mr, Pr, ld, g, Pv,
-                                                     A, L, ex);
+      rarg[j] = -1;
+      sig[j] = INFINITY;
+      sig[i] = stamp += 1.0;
+      from[i] = 0.0;
+      if (salmond) {
+        for (long long k = 0; k < M; ++k)
+          cost[i * M + k] = al[k] && k != i ? sm_cost(k < i ? k : i, k < i ? i : k, n, 1, wr, mr, Pr, ld, Pv, A, L)
+                                            : INFINITY;
+      } else {
+        ld[i] = sm_logdet(Pr + i * n * n, n, L);
+        ok[i] = isfinite(ld[i]) && wr[i] >= 0.0 && isfinite(wr[i]);
+        ald[i] = fabs(ld[i]);
+        g[i] = sm_top(Pr + i * n * n, n, ok[i] != 0.0, W, C, Li);
+        sm_wmean(i, n, M, mr, cen, W, mt, du);
+        nanm |= !sm_sane(i, n, M, wr, g, mt, du);
+        sm_keys(i, 0, M, n, M, mt, du, wr, g, ald, cost + i * M);
+        memset(ex + i * M, 0, (size_t) M);
       }
-      sm_row(i, M, cost, al, rmin, rarg);
-      sm_tree(i, T, tree, rmin, rarg, al);
-      sm_tree(j, T, tree, rmin, rarg, al);
-      for (long long k = 0; k < i; ++k) {  /* rows above i: their cost with i changed */
-        if (!al[k]) continue;
-        if (rarg[k] == i || rarg[k] == j) sm_row(k, M, cost, al, rmin, rarg);
-        else if (sm_before(cost[k * M + i], rmin[k]) || (!sm_before(rmin[k], cost[k * M + i]) && i < rarg[k]))
-          { rmin[k] = cost[k * M + i]; rarg[k] = i; }
-        else continue;
-        sm_tree(k, T, tree, rmin, rarg, al);
-      }
-      for (long long k = i + 1; k < j; ++k)  /* rows between: only j went away */
-        if (al[k] && rarg[k] == j) { sm_row(k, M, cost, al, rmin, rarg); sm_tree(k, T, tree, rmin, rarg, al); }
+      sm_row(i, 0, M, cost, sig, rmin, rarg, nanm);
+      stale[i] = 0;
+      sm_tree(i, T, M, rmin, rarg, al, nk, nr, nw);
+      sm_tree(j, T, M, rmin, rarg, al, nk, nr, nw);
+      for (long long k = 0; k < M; ++k)  /* the rows whose least pair had i or j (a dead row's rarg is -1) */
+        stale[k] |= (rarg[k] == i) | (rarg[k] == j);
     }
   }
   free(cost);
@@ -372,6 +633,12 @@ def merge_runs(run: np.ndarray, w: np.ndarray, m: np.ndarray, P: np.ndarray, kee
     mask of the components left (the merged ones hold the merged moments).  One call of the
     C kernel for all runs when it is available and ``native``; else :func:`merge_numpy` per
     run that needs it."""
+    return _merge_runs(run, w, m, P, keep, rule, native, exhaustive=False)
+
+
+def _merge_runs(run, w, m, P, keep, rule, native, exhaustive):
+    """:func:`merge_runs`; ``exhaustive``: the C kernel's reference search instead (every live
+    pair's cost at every merge, O(M³); module notes), the one the greedy search must equal."""
     _check_rule(rule)
     R = int(run[-1]) + 1 if len(run) else 0
     counts = np.bincount(run, minlength=R)
@@ -398,7 +665,8 @@ def merge_runs(run: np.ndarray, w: np.ndarray, m: np.ndarray, P: np.ndarray, kee
         if not (a.flags.c_contiguous and a.dtype == np.float64):
             raise SymmonError("merge_runs works in place on C-contiguous float64 arrays")
     ptr = lambda a: a.ctypes.data  # noqa: E731  (an int: c_void_p accepts it, cheaper than data_as)
-    if fn(R, ptr(start), n, keep, int(rule == "salmond"), ptr(w), ptr(m), ptr(P), ptr(Pinv), ptr(alive)):
+    flags = int(rule == "salmond") | (2 if exhaustive else 0)
+    if fn(R, ptr(start), n, keep, flags, ptr(w), ptr(m), ptr(P), ptr(Pinv), ptr(alive)):
         raise MemoryError("the mixture merge could not allocate its cost matrix")
     return alive.astype(bool)
 
