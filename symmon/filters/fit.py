@@ -199,6 +199,62 @@ _HESSIAN = """
     }}
 """
 
+#: Forward mode for a filter of at most this many parameters (reverse mode above): each
+#: forward sweep carries a tangent per parameter, at about a third of the reverse sweep's cost
+#: per step each (30 states: 40 µs per tangent against 150 µs for the reverse product).
+FORWARD_MAX_PARAMS = 3
+
+# The same fold in forward mode: the tangents of the states along each parameter (and, for
+# the Hessian, their second-order tangents along each pair) carried through the steps with
+# the state, so that one forward sweep gives ℓ, ∇ℓ and ∇²ℓ (:class:`_CompiledLoglik`).
+_FORWARD = """
+/* symmon: the log-likelihood of a bank and its derivatives in the fitted rows of the step's
+   data, in forward mode.  D (runs*K*{nd}): the step's data per step; S0 (runs*{ns}):
+   [x0; vec(P0)] per run; rows (m <= {M}): the fitted rows of the data; order 0: the value,
+   1: + gradient, 2: + Hessian, added into out = [l, g (m), H (m*m, row-major)].
+   Z ({work}): work; T: unused.  Column j < m of zd is dz/dtheta_j = [T_j; e_{{rows[j]}}],
+   column i + {M} j of zdd is d2z/dtheta_i dtheta_j = [T_ij; 0] (columns of i or j >= m:
+   zero, and those of j >= m neither computed nor read); od and odd the same of o. */
+CASADI_SYMBOL_EXPORT int {name}_fit(const casadi_real* D, const casadi_real* S0, const casadi_real* Q,
+    const casadi_real* R, casadi_int runs, casadi_int K, casadi_int m, const casadi_int* rows,
+    casadi_int order, casadi_real* Z, casadi_real* T, casadi_real* out, casadi_int* iw, casadi_real* w) {{
+  const casadi_real* arg[{sz_arg}];
+  casadi_real* res[{sz_res}];
+  /* zd: M first-order tangents, then M*M second-order ones; od, odd: those of o */
+  casadi_real *z = Z, *zd = z + {nz}, *o = zd + {nz} * ({M} + {MM}), *od = o + {no}, *odd = od + {no} * {M};
+  casadi_int r, k, i, j;
+  (void)T;
+  if (m > {M} || order > {max_order} || (order > 1 && m < 1)) return 1;
+  for (r = 0; r < runs; ++r) {{
+    for (i = 0; i < {ns}; ++i) z[i] = S0[r * {ns} + i];
+    for (i = 0; i < {nz} * ({M} + {MM}); ++i) zd[i] = 0.0;
+    for (j = 0; j < m; ++j) zd[j * {nz} + {ns} + rows[j]] = 1.0;
+    for (k = 0; k < K; ++k) {{
+      for (i = 0; i < {nd}; ++i) z[{ns} + i] = D[(r * K + k) * {nd} + i];
+      arg[0] = z; arg[1] = Q; arg[2] = R; arg[3] = zd; res[0] = o; res[1] = od;
+{call}
+      out[0] += o[{ns}];
+      for (j = 0; j < m && order > 0; ++j) out[1 + j] += od[j * {no} + {ns}];
+      for (i = 0; i < m * m && order > 1; ++i) out[1 + m + i] += odd[(i / m + {M} * (i % m)) * {no} + {ns}];
+      if (k + 1 == K) break;
+      /* s_{{k+1}} and its tangents: the first {ns} rows of each output column */
+      for (i = 0; i < {ns}; ++i) z[i] = o[i];
+      for (j = 0; j < {M} * (order > 0) + {M} * m * (order > 1); ++j)
+        for (i = 0; i < {ns}; ++i) zd[j * {nz} + i] = od[j * {no} + i];
+    }}
+  }}
+  return 0;
+}}
+"""
+
+# The forward Hessian's calls in a step: one per fitted parameter j, each giving the columns
+# i + M j (i < M) of the second-order tangents (and the first-order ones, again).
+_HESSIAN_CALLS = """\
+      for (j = 0; j < m; ++j) {{
+        arg[4] = zd + j * {nz}; arg[5] = zd + {nz} * ({M} + j * {M}); res[2] = od + {no} * ({M} + j * {M});
+        if ({name}_hess(arg, res, iw, w, 0)) return 1;
+      }}"""
+
 
 class _CompiledLoglik:
     """ℓ and its exact gradient and Hessian in the fitted parameters, as one C loop over the
@@ -213,42 +269,84 @@ class _CompiledLoglik:
     policy (:class:`symmon.compile.ccache.NativeLibrary`, in the background: the VM graph
     :func:`_loglik_graph` is the fallback), as two libraries: ℓ and ∇ℓ, and with the Hessian."""
 
-    def __init__(self, kf: FilterSpec) -> None:
+    def __init__(self, kf: FilterSpec, forward: bool | None = None) -> None:
         step = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states, kf.iterations).f
         n, n_y = kf.f_model.n_u, kf.h_model.n_y
         self.ns = n + n * n
         self.n_p = step.size1_in(6)
         self.nd = 2 * n_y + self.n_p
-        nz = self.ns + self.nd
-        key = repr((step.name(), "fit"))
+        # Forward mode carries one tangent per parameter of the filter (fitted or not).
+        self.forward = self.n_p <= FORWARD_MAX_PARAMS if forward is None else bool(forward)
+        nz, no, M = self.ns + self.nd, self.ns + 1, self.n_p
+        key = repr((step.name(), "fit") + (("forward",) if self.forward else ()))
         name = "sm_fit_" + hashlib.sha1(key.encode()).hexdigest()[:12]
-        z, zd = ca.MX.sym("z", nz), ca.MX.sym("zd", nz)
+        z = ca.MX.sym("z", nz)
         Q, R = ca.MX.sym("Q", step.sparsity_in(3)), ca.MX.sym("R", step.sparsity_in(4))
-        lam, lamd = ca.MX.sym("lam", self.ns + 1), ca.MX.sym("lamd", self.ns + 1)
         s, d = z[:self.ns], z[self.ns:]
         out = step(s[:n], ca.reshape(s[n:], n, n), d[:n_y], Q, R, d[n_y:2 * n_y], d[2 * n_y:])
         o = ca.vertcat(out[0], ca.vec(out[1]), out[6])
+        # Two libraries: the value and gradient (every iteration) apart from the Hessian (once
+        # per fit, its code several times as large), so that the compile policy builds the
+        # first with full optimisation where the whole would be too large for it (docs/compile.md).
+        libs = self._forward_code(name, z, Q, R, o, M) if self.forward else self._reverse_code(name, z, Q, R, o)
+        self._libs = [NativeLibrary(code, pre, lambda so, pre=pre: self._load(so, pre), stacklevel=3, background=True)
+                      for pre, code, _ in libs]
+        self.name = name
+        self._work = WorkArrays(*(f for _, _, fs in libs for f in fs))
+        # The driver's real work array: [z, zd, zdd, o, od, odd] in forward mode (zdd and odd
+        # with M² columns), [z_k for each k] and the tangents [T_k] in reverse mode.
+        self._work_size = (lambda K: ((1 + M + M * M) * (nz + no), 1)) if self.forward \
+            else (lambda K: (K * nz, K * self.ns))
+
+    def _reverse_code(self, name: str, z: ca.MX, Q: ca.MX, R: ca.MX, o: ca.MX) -> list:
+        """[(library name, C, functions)] of the reverse-mode libraries (:data:`_DRIVER`)."""
+        nz = self.ns + self.nd
+        zd = ca.MX.sym("zd", nz)
+        lam, lamd = ca.MX.sym("lam", self.ns + 1), ca.MX.sym("lamd", self.ns + 1)
         vjp = ca.jtimes(o, z, lam, True)
         hvp = ca.jtimes(vjp, z, zd) + ca.jtimes(o, z, lamd, True)
-        self._work, self._libs = None, []
-        fns = []
-        # Two libraries: the value and gradient (every iteration) apart from the Hessian (once
-        # per fit, its code three times as large), so that the compile policy builds the first
-        # with full optimisation where the whole would be too large for it (docs/compile.md).
+        libs = []
         for part, hessian in (("g", ""), ("h", _HESSIAN)):
             pre = f"{name}{part}"
             fs = [ca.Function(f"{pre}_f", [z, Q, R], [o]), ca.Function(f"{pre}_vjp", [z, Q, R, lam], [vjp])]
             if hessian:
                 fs += [ca.Function(f"{pre}_jvp", [z, Q, R, zd], [ca.jtimes(o, z, zd)]),
                        ca.Function(f"{pre}_hvp", [z, Q, R, zd, lam, lamd], [vjp, hvp])]
-            fns += fs
             fmt = dict(name=pre, ns=self.ns, nd=self.nd, nz=nz, sz_arg=max(max(f.sz_arg() for f in fs), 6),
                        sz_res=max(max(f.sz_res() for f in fs), 2))
-            code = generated_c(*fs) + _DRIVER.format(hessian=hessian.format(**fmt), **fmt)
-            self._libs.append(NativeLibrary(code, pre, lambda so, pre=pre: self._load(so, pre), stacklevel=3,
-                                            background=True))
-        self.name = name
-        self._work = WorkArrays(*fns)
+            libs.append((pre, generated_c(*fs) + _DRIVER.format(hessian=hessian.format(**fmt), **fmt), fs))
+        return libs
+
+    def _forward_code(self, name: str, z: ca.MX, Q: ca.MX, R: ca.MX, o: ca.MX, M: int) -> list:
+        """[(library name, C, functions)] of the forward-mode libraries (:data:`_FORWARD`): the
+        step z ↦ o, its Jacobian times M tangents (z, Ż ↦ o, J Ż) and the forward derivative of
+        that along each tangent (z, Ż, Z̈ ↦ o, J Ż, with column i + M j the second-order
+        tangent J Z̈_{i+Mj} + ∇(J ż_i) ż_j)."""
+        nz = self.ns + self.nd
+        Zd, Zdd = ca.MX.sym("Zd", nz, M), ca.MX.sym("Zdd", nz, M * M)
+        libs = []
+        for part, order in (("g", 1), ("h", 2)):
+            pre = f"{name}{part}"
+            jvp = ca.Function(f"{pre}_jvp", [z, Q, R, Zd], [o, ca.jtimes(o, z, Zd)])
+            if order == 1:
+                fs = [ca.Function(f"{pre}_f", [z, Q, R], [o]), jvp]
+                call = f"      if ((order ? {pre}_jvp : {pre}_f)(arg, res, iw, w, 0)) return 1;"
+            else:
+                # CasADi's forward derivative of the jvp along one tangent ż_j, with Ż seeded by
+                # the second-order tangents Z̈_{·, M j : M j + M}: one call per fitted parameter
+                # (one call for all would be one C function twice as large, beyond the size the
+                # compile policy builds at -O3; docs/compile.md).
+                zdj, Zddj = ca.MX.sym("zdj", nz), ca.MX.sym("Zddj", nz, M)
+                oo, jT = jvp(z, Q, R, Zd)
+                zero = [ca.MX(v.size1(), v.size2()) for v in (Q, R)]
+                odd = jvp.forward(1)(z, Q, R, Zd, oo, jT, zdj, *zero, Zddj)[1]
+                fs = [ca.Function(f"{pre}_hess", [z, Q, R, Zd, zdj, Zddj], [oo, jT, odd])]
+                call = _HESSIAN_CALLS.format(name=pre, nz=nz, no=self.ns + 1, M=M)
+            fmt = dict(name=pre, ns=self.ns, nd=self.nd, nz=nz, no=self.ns + 1, M=M, MM=M * M, max_order=order,
+                       call=call, work=(1 + M + M * M) * (nz + self.ns + 1),
+                       sz_arg=max(max(f.sz_arg() for f in fs), 6), sz_res=max(max(f.sz_res() for f in fs), 3))
+            libs.append((pre, generated_c(*fs) + _FORWARD.format(**fmt), fs))
+        return libs
 
     @staticmethod
     def _load(so, pre: str):
@@ -277,7 +375,7 @@ class _CompiledLoglik:
         rows = np.ascontiguousarray(self.nd - self.n_p + np.asarray(fitted, dtype=np.int64))
         S0 = np.ascontiguousarray(S0, dtype=float)
         Qc, Rc = np.asfortranarray(Q, dtype=float).ravel(order="F"), np.asfortranarray(R, dtype=float).ravel(order="F")
-        Z, T = np.empty(K * (self.ns + self.nd)), np.empty(K * self.ns)
+        Z, T = (np.empty(size) for size in self._work_size(K))
         m = len(rows)
 
         def evaluate(theta: np.ndarray, order: int):
