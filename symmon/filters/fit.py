@@ -235,7 +235,9 @@ CASADI_SYMBOL_EXPORT int {name}_fit(const casadi_real* D, const casadi_real* S0,
 {call}
       out[0] += o[{ns}];
       for (j = 0; j < m && order > 0; ++j) out[1 + j] += od[j * {no} + {ns}];
-      for (i = 0; i < m * m && order > 1; ++i) out[1 + m + i] += odd[(i / m + {M} * (i % m)) * {no} + {ns}];
+      /* H_ij = H_ji from the column min(i, j) + {M} max(i, j): symmetric to the bit */
+      for (i = 0; i < m * m && order > 1; ++i)
+        out[1 + m + i] += odd[(i / m < i % m ? i / m + {M} * (i % m) : i % m + {M} * (i / m)) * {no} + {ns}];
       if (k + 1 == K) break;
       /* s_{{k+1}} and its tangents: the first {ns} rows of each output column */
       for (i = 0; i < {ns}; ++i) z[i] = o[i];
