@@ -4,14 +4,29 @@ The marginal log-likelihood of the measurements, ℓ(θ) = Σ_runs Σ_k log N(ν
 what the filter step computes (the prediction-error decomposition).  :func:`fit` evaluates ℓ
 and its exact gradient and Hessian in the named parameters θ by a C loop over the steps and
 runs of a bank (:class:`_CompiledLoglik`) around the filter's own step function (the same
-graph as :mod:`symmon.filters.step`) and CasADi's derivatives of it: a reverse sweep for the
-gradient, a forward-over-reverse sweep per parameter for the Hessian (algorithmic
-differentiation through every step; no finite differences).  It is built once per filter
-through the compile policy; until it is, the same ℓ is one CasADi graph of θ (the step
-folded over the K steps, ``mapaccum``, and mapped over the runs, :func:`_loglik_graph`)
-evaluated on CasADi's VM.  SciPy's quasi-Newton method (L-BFGS-B, with bounds) maximises ℓ;
-the standard errors are the square roots of the diagonal of the inverse observed
-information, I = −∇²ℓ(θ̂) (exact Hessian).
+graph as :mod:`symmon.filters.step`) and CasADi's derivatives of it (algorithmic
+differentiation through every step; no finite differences).
+
+Which mode: the fitted parameters are few and the step's state [x; vec(P)] is large (930
+numbers at 30 states), so for a filter of at most :data:`FORWARD_MAX_PARAMS` parameters
+the loop runs in **forward mode**: it carries the tangents ∂s_k/∂θ_j of the state along
+each parameter through the steps with the state itself, and ∇ℓ is the sum of the ℓ_k
+entries of those tangents (Griewank & Walther 2008, §3.1).  One sweep, no tape of the K
+states, and at 30 states a step with two tangents costs about 100 µs where the reverse
+product of the step (its vector-Jacobian product) costs 150 µs on top of the step.  The
+Hessian is the same forward mode applied to that tangent sweep (forward over forward): the
+second-order tangents ∂²s_k/∂θ_i∂θ_j, propagated by d²s_{k+1} = J d²z_k + ∇(J ż_i) ż_j with
+ż_j = [∂s_k/∂θ_j; e_j], one sweep for all pairs (0.1 s against 0.2 s forward over reverse
+at 30 states).  With more parameters the cost of forward mode grows with their number, and
+the loop runs in reverse mode: a reverse sweep for the gradient (ibid., §3.2) and a
+forward-over-reverse sweep per parameter for the Hessian (ibid., §5.2).  Both give the same
+numbers to rounding.
+
+The loop is built once per filter through the compile policy; until it is, the same ℓ is
+one CasADi graph of θ (the step folded over the K steps, ``mapaccum``, and mapped over the
+runs, :func:`_loglik_graph`) evaluated on CasADi's VM.  SciPy's quasi-Newton method
+(L-BFGS-B, with bounds) maximises ℓ; the standard errors are the square roots of the
+diagonal of the inverse observed information, I = −∇²ℓ(θ̂) (exact Hessian).
 
 References
 ----------
@@ -19,8 +34,9 @@ J. D. Hamilton, *Time Series Analysis*, Princeton University Press, 1994, §13.4
 prediction-error decomposition and maximum likelihood with a Kalman filter).
 S. Särkkä, *Bayesian Filtering and Smoothing*, Cambridge University Press, 2013, §12.2
 (parameter estimation with Gaussian filters).
-A. Griewank and A. Walther, *Evaluating Derivatives*, 2nd ed., SIAM, 2008, §3.2 (the reverse
-mode) and §5.2 (second derivatives by forward over reverse).
+A. Griewank and A. Walther, *Evaluating Derivatives*, 2nd ed., SIAM, 2008, §3.1 (the forward
+mode: tangent propagation), §3.2 (the reverse mode) and §5.2 (second derivatives by forward
+over reverse).
 """
 
 from __future__ import annotations
@@ -260,16 +276,26 @@ _HESSIAN_CALLS = """\
 
 class _CompiledLoglik:
     """ℓ and its exact gradient and Hessian in the fitted parameters, as one C loop over the
-    steps and runs (:data:`_DRIVER`) around the filter's step function and three of its
-    derivatives built by CasADi: with z = [x; vec(P); y; mask; p] and o = [x⁺; vec(P⁺); ℓ_k]
-    = step(z), the step (z ↦ o), its Jacobian-vector product (z, ż ↦ J ż), its
+    steps and runs around the filter's step function and derivatives of it built by CasADi,
+    with z = [x; vec(P); y; mask; p] and o = [x⁺; vec(P⁺); ℓ_k] = step(z).
+
+    Forward mode (:data:`_FORWARD`, a filter of at most :data:`FORWARD_MAX_PARAMS`
+    parameters, or ``forward=True``): the step (z ↦ o), the step with its Jacobian times one
+    tangent per parameter of the filter (z, Ż ↦ o, J Ż), and the forward derivative of that
+    along one tangent ż_j with Ż seeded by the second-order tangents (z, Ż, ż_j, Z̈_j ↦ o, J Ż,
+    J Z̈_j + ∇(J Ż) ż_j); the tangents of the states ride along with the states through the
+    K steps (Griewank & Walther 2008, §3.1), twice for ∇²ℓ (forward over forward).  Reverse
+    mode (:data:`_DRIVER`): the step, its Jacobian-vector product (z, ż ↦ J ż), its
     vector-Jacobian product (z, λ ↦ Jᵀλ) and the derivative of that along ż
-    (z, ż, λ, λ̇ ↦ (∇(Jᵀλ)) ż + Jᵀλ̇).  Reverse accumulation through the K steps gives ∇ℓ
-    (Griewank & Walther 2008, §3.2), the same sweep differentiated forward along each fitted
-    parameter gives ∇²ℓ (forward-over-reverse, ibid. §5.2).  It does not depend on the data,
-    the parameters fitted or the bank's shape: one build per filter, through the compile
-    policy (:class:`symmon.compile.ccache.NativeLibrary`, in the background: the VM graph
-    :func:`_loglik_graph` is the fallback), as two libraries: ℓ and ∇ℓ, and with the Hessian."""
+    (z, ż, λ, λ̇ ↦ (∇(Jᵀλ)) ż + Jᵀλ̇); reverse accumulation through the K steps gives ∇ℓ
+    (ibid. §3.2), the same sweep differentiated forward along each fitted parameter gives ∇²ℓ
+    (forward-over-reverse, ibid. §5.2).  The module docstring says why forward mode for few
+    parameters.
+
+    It does not depend on the data, the parameters fitted or the bank's shape: one build per
+    filter, through the compile policy (:class:`symmon.compile.ccache.NativeLibrary`, in the
+    background: the VM graph :func:`_loglik_graph` is the fallback), as two libraries: ℓ and
+    ∇ℓ, and with the Hessian."""
 
     def __init__(self, kf: FilterSpec, forward: bool | None = None) -> None:
         step = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states, kf.iterations).f
