@@ -55,6 +55,7 @@ import numpy as np
 from scipy import optimize
 
 from ..compile.ccache import NativeLibrary
+from ..compile.ckernels import faster_sparse_products
 from ..compile.compiled import WorkArrays, generated_c
 from ..core.gaussian import float_array
 from ..errors import IdentifiabilityWarning, ModelError, SymmonError
@@ -342,7 +343,8 @@ class _CompiledLoglik:
                        ca.Function(f"{pre}_hvp", [z, Q, R, zd, lam, lamd], [vjp, hvp])]
             fmt = dict(name=pre, ns=self.ns, nd=self.nd, nz=nz, sz_arg=max(max(f.sz_arg() for f in fs), 6),
                        sz_res=max(max(f.sz_res() for f in fs), 2))
-            libs.append((pre, generated_c(*fs) + _DRIVER.format(hessian=hessian.format(**fmt), **fmt), fs))
+            libs.append((pre, faster_sparse_products(generated_c(*fs)) + _DRIVER.format(hessian=hessian.format(**fmt), **fmt),
+                         fs))
         return libs
 
     def _forward_code(self, name: str, z: ca.MX, Q: ca.MX, R: ca.MX, o: ca.MX, M: int) -> list:
@@ -373,7 +375,7 @@ class _CompiledLoglik:
             fmt = dict(name=pre, ns=self.ns, nd=self.nd, nz=nz, no=self.ns + 1, M=M, MM=M * M, max_order=order,
                        call=call, work=(1 + M + M * M) * (nz + self.ns + 1),
                        sz_arg=max(max(f.sz_arg() for f in fs), 6), sz_res=max(max(f.sz_res() for f in fs), 3))
-            libs.append((pre, generated_c(*fs) + _FORWARD.format(**fmt), fs))
+            libs.append((pre, faster_sparse_products(generated_c(*fs)) + _FORWARD.format(**fmt), fs))
         return libs
 
     @staticmethod
