@@ -12,15 +12,15 @@ numbers at 30 states), so for a filter of at most :data:`FORWARD_MAX_PARAMS` par
 the loop runs in **forward mode**: it carries the tangents ∂s_k/∂θ_j of the state along
 each parameter through the steps with the state itself, and ∇ℓ is the sum of the ℓ_k
 entries of those tangents (Griewank & Walther 2008, §3.1).  One sweep, no tape of the K
-states, and at 30 states a step with two tangents costs about 100 µs where the reverse
-product of the step (its vector-Jacobian product) costs 150 µs on top of the step.  The
-Hessian is the same forward mode applied to that tangent sweep (forward over forward): the
-second-order tangents ∂²s_k/∂θ_i∂θ_j, propagated by d²s_{k+1} = J d²z_k + ∇(J ż_i) ż_j with
-ż_j = [∂s_k/∂θ_j; e_j], one sweep for all pairs (0.1 s against 0.2 s forward over reverse
-at 30 states).  With more parameters the cost of forward mode grows with their number, and
-the loop runs in reverse mode: a reverse sweep for the gradient (ibid., §3.2) and a
-forward-over-reverse sweep per parameter for the Hessian (ibid., §5.2).  Both give the same
-numbers to rounding.
+states; its cost grows with the number of tangents, the reverse sweep's does not, and at 30
+states the forward sweep is the cheaper up to three (:data:`FORWARD_MAX_PARAMS` gives the
+times).  For at most :data:`FORWARD_HESSIAN_MAX_PARAMS` parameters the Hessian is the same
+forward mode applied to that tangent sweep (forward over forward): the second-order
+tangents ∂²s_k/∂θ_i∂θ_j, propagated by d²s_{k+1} = J d²z_k + ∇(J ż_i) ż_j with
+ż_j = [∂s_k/∂θ_j; e_j], in one sweep.  Above those numbers the loop runs in reverse mode: a
+reverse sweep for the gradient (ibid., §3.2) and a forward-over-reverse sweep per
+parameter for the Hessian (ibid., §5.2), whose cost grows only linearly with the number of
+parameters.  All modes give the same numbers to rounding.
 
 The loop is built once per filter through the compile policy; until it is, the same ℓ is
 one CasADi graph of θ (the step folded over the K steps, ``mapaccum``, and mapped over the
@@ -216,10 +216,15 @@ _HESSIAN = """
     }}
 """
 
-#: Forward mode for a filter of at most this many parameters (reverse mode above): each
-#: forward sweep carries a tangent per parameter, at about a third of the reverse sweep's cost
-#: per step each (30 states: 40 µs per tangent against 150 µs for the reverse product).
+#: The gradient in forward mode for a filter of at most this many parameters (reverse mode
+#: above): each forward sweep carries a tangent per parameter.  At 30 states and K = 100, with
+#: two tangents 7.4 ms against 8.9 ms in reverse mode, with three 9.4 ms against 12.4 ms.
 FORWARD_MAX_PARAMS = 3
+#: The Hessian in forward mode (forward over forward) for a filter of at most this many
+#: parameters, forward over reverse above: its cost grows with the square of their number.
+#: At 30 states, with two parameters 63 ms against 83 ms; with three 0.73 s (its library is
+#: then built at -O0) against 0.12 s.
+FORWARD_HESSIAN_MAX_PARAMS = 2
 
 # The same fold in forward mode: the tangents of the states along each parameter (and, for
 # the Hessian, their second-order tangents along each pair) carried through the steps with
@@ -304,10 +309,14 @@ class _CompiledLoglik:
         self.ns = n + n * n
         self.n_p = step.size1_in(6)
         self.nd = 2 * n_y + self.n_p
-        # Forward mode carries one tangent per parameter of the filter (fitted or not).
+        # Forward mode carries one tangent per parameter of the filter (fitted or not): the
+        # gradient up to FORWARD_MAX_PARAMS, the Hessian (whose cost grows with their square)
+        # up to FORWARD_HESSIAN_MAX_PARAMS.
         self.forward = self.n_p <= FORWARD_MAX_PARAMS if forward is None else bool(forward)
+        self.forward_hessian = self.n_p <= FORWARD_HESSIAN_MAX_PARAMS if forward is None else bool(forward)
         nz, no, M = self.ns + self.nd, self.ns + 1, self.n_p
-        key = repr((step.name(), "fit") + (("forward",) if self.forward else ()))
+        key = repr((step.name(), "fit") + (("forward",) if self.forward else ())
+                   + (("forward hessian",) if self.forward_hessian else ()))
         name = "sm_fit_" + hashlib.sha1(key.encode()).hexdigest()[:12]
         z = ca.MX.sym("z", nz)
         Q, R = ca.MX.sym("Q", step.sparsity_in(3)), ca.MX.sym("R", step.sparsity_in(4))
@@ -317,66 +326,63 @@ class _CompiledLoglik:
         # Two libraries: the value and gradient (every iteration) apart from the Hessian (once
         # per fit, its code several times as large), so that the compile policy builds the
         # first with full optimisation where the whole would be too large for it (docs/compile.md).
-        libs = self._forward_code(name, z, Q, R, o, M) if self.forward else self._reverse_code(name, z, Q, R, o)
+        libs = [(self._forward_code if fwd else self._reverse_code)(f"{name}{part}", z, Q, R, o, part == "h")
+                for part, fwd in (("g", self.forward), ("h", self.forward_hessian))]
         self._libs = [NativeLibrary(code, pre, lambda so, pre=pre: self._load(so, pre), stacklevel=3, background=True)
                       for pre, code, _ in libs]
         self.name = name
         self._work = WorkArrays(*(f for _, _, fs in libs for f in fs))
-        # The driver's real work array: [z, zd, zdd, o, od, odd] in forward mode (zdd and odd
-        # with M² columns), [z_k for each k] and the tangents [T_k] in reverse mode.
-        self._work_size = (lambda K: ((1 + M + M * M) * (nz + no), 1)) if self.forward \
-            else (lambda K: (K * nz, K * self.ns))
+        # The drivers' real work arrays, for either library: [z, zd, zdd, o, od, odd] in
+        # forward mode (zdd and odd with M² columns); [z_k for each k] and the tangents [T_k]
+        # in reverse mode.
+        forward_work = (1 + M + M * M) * (nz + no) if self.forward or self.forward_hessian else 0
+        reverse = not (self.forward and self.forward_hessian)
+        self._work_size = lambda K: (max(forward_work, K * nz if reverse else 0), K * self.ns if reverse else 1)
 
-    def _reverse_code(self, name: str, z: ca.MX, Q: ca.MX, R: ca.MX, o: ca.MX) -> list:
-        """[(library name, C, functions)] of the reverse-mode libraries (:data:`_DRIVER`)."""
+    def _reverse_code(self, pre: str, z: ca.MX, Q: ca.MX, R: ca.MX, o: ca.MX, hessian: bool) -> tuple:
+        """(library name, C, functions) of a reverse-mode library (:data:`_DRIVER`): ℓ and
+        ∇ℓ, and with ``hessian`` also ∇²ℓ."""
         nz = self.ns + self.nd
         zd = ca.MX.sym("zd", nz)
         lam, lamd = ca.MX.sym("lam", self.ns + 1), ca.MX.sym("lamd", self.ns + 1)
         vjp = ca.jtimes(o, z, lam, True)
-        hvp = ca.jtimes(vjp, z, zd) + ca.jtimes(o, z, lamd, True)
-        libs = []
-        for part, hessian in (("g", ""), ("h", _HESSIAN)):
-            pre = f"{name}{part}"
-            fs = [ca.Function(f"{pre}_f", [z, Q, R], [o]), ca.Function(f"{pre}_vjp", [z, Q, R, lam], [vjp])]
-            if hessian:
-                fs += [ca.Function(f"{pre}_jvp", [z, Q, R, zd], [ca.jtimes(o, z, zd)]),
-                       ca.Function(f"{pre}_hvp", [z, Q, R, zd, lam, lamd], [vjp, hvp])]
-            fmt = dict(name=pre, ns=self.ns, nd=self.nd, nz=nz, sz_arg=max(max(f.sz_arg() for f in fs), 6),
-                       sz_res=max(max(f.sz_res() for f in fs), 2))
-            libs.append((pre, faster_sparse_products(generated_c(*fs)) + _DRIVER.format(hessian=hessian.format(**fmt), **fmt),
-                         fs))
-        return libs
+        fs = [ca.Function(f"{pre}_f", [z, Q, R], [o]), ca.Function(f"{pre}_vjp", [z, Q, R, lam], [vjp])]
+        if hessian:
+            hvp = ca.jtimes(vjp, z, zd) + ca.jtimes(o, z, lamd, True)
+            fs += [ca.Function(f"{pre}_jvp", [z, Q, R, zd], [ca.jtimes(o, z, zd)]),
+                   ca.Function(f"{pre}_hvp", [z, Q, R, zd, lam, lamd], [vjp, hvp])]
+        fmt = dict(name=pre, ns=self.ns, nd=self.nd, nz=nz, sz_arg=max(max(f.sz_arg() for f in fs), 6),
+                   sz_res=max(max(f.sz_res() for f in fs), 2))
+        driver = _DRIVER.format(hessian=_HESSIAN.format(**fmt) if hessian else "", **fmt)
+        return pre, faster_sparse_products(generated_c(*fs)) + driver, fs
 
-    def _forward_code(self, name: str, z: ca.MX, Q: ca.MX, R: ca.MX, o: ca.MX, M: int) -> list:
-        """[(library name, C, functions)] of the forward-mode libraries (:data:`_FORWARD`): the
-        step z ↦ o, its Jacobian times M tangents (z, Ż ↦ o, J Ż) and the forward derivative of
-        that along each tangent (z, Ż, Z̈ ↦ o, J Ż, with column i + M j the second-order
-        tangent J Z̈_{i+Mj} + ∇(J ż_i) ż_j)."""
-        nz = self.ns + self.nd
-        Zd, Zdd = ca.MX.sym("Zd", nz, M), ca.MX.sym("Zdd", nz, M * M)
-        libs = []
-        for part, order in (("g", 1), ("h", 2)):
-            pre = f"{name}{part}"
-            jvp = ca.Function(f"{pre}_jvp", [z, Q, R, Zd], [o, ca.jtimes(o, z, Zd)])
-            if order == 1:
-                fs = [ca.Function(f"{pre}_f", [z, Q, R], [o]), jvp]
-                call = f"      if ((order ? {pre}_jvp : {pre}_f)(arg, res, iw, w, 0)) return 1;"
-            else:
-                # CasADi's forward derivative of the jvp along one tangent ż_j, with Ż seeded by
-                # the second-order tangents Z̈_{·, M j : M j + M}: one call per fitted parameter
-                # (one call for all would be one C function twice as large, beyond the size the
-                # compile policy builds at -O3; docs/compile.md).
-                zdj, Zddj = ca.MX.sym("zdj", nz), ca.MX.sym("Zddj", nz, M)
-                oo, jT = jvp(z, Q, R, Zd)
-                zero = [ca.MX(v.size1(), v.size2()) for v in (Q, R)]
-                odd = jvp.forward(1)(z, Q, R, Zd, oo, jT, zdj, *zero, Zddj)[1]
-                fs = [ca.Function(f"{pre}_hess", [z, Q, R, Zd, zdj, Zddj], [oo, jT, odd])]
-                call = _HESSIAN_CALLS.format(name=pre, nz=nz, no=self.ns + 1, M=M)
-            fmt = dict(name=pre, ns=self.ns, nd=self.nd, nz=nz, no=self.ns + 1, M=M, MM=M * M, max_order=order,
-                       call=call, work=(1 + M + M * M) * (nz + self.ns + 1),
-                       sz_arg=max(max(f.sz_arg() for f in fs), 6), sz_res=max(max(f.sz_res() for f in fs), 3))
-            libs.append((pre, faster_sparse_products(generated_c(*fs)) + _FORWARD.format(**fmt), fs))
-        return libs
+    def _forward_code(self, pre: str, z: ca.MX, Q: ca.MX, R: ca.MX, o: ca.MX, hessian: bool) -> tuple:
+        """(library name, C, functions) of a forward-mode library (:data:`_FORWARD`) with M
+        tangents, one per parameter of the filter: the step z ↦ o and its Jacobian times the
+        tangents (z, Ż ↦ o, J Ż) for ℓ and ∇ℓ; with ``hessian``, the forward derivative of that
+        along one tangent ż_j with Ż seeded by second-order tangents (z, Ż, ż_j, Z̈_j ↦ o, J Ż,
+        whose column i is J Z̈_{i+Mj} + ∇(J ż_i) ż_j) for ℓ, ∇ℓ and ∇²ℓ."""
+        nz, M = self.ns + self.nd, self.n_p
+        Zd = ca.MX.sym("Zd", nz, M)
+        jvp = ca.Function(f"{pre}_jvp", [z, Q, R, Zd], [o, ca.jtimes(o, z, Zd)])
+        if not hessian:
+            fs = [ca.Function(f"{pre}_f", [z, Q, R], [o]), jvp]
+            call = f"      if ((order ? {pre}_jvp : {pre}_f)(arg, res, iw, w, 0)) return 1;"
+        else:
+            # CasADi's forward derivative of the jvp along one tangent ż_j, with Ż seeded by
+            # the second-order tangents Z̈_{·, M j : M j + M}: one call per fitted parameter
+            # (one call for all would be one C function twice as large, beyond the size the
+            # compile policy builds at -O3; docs/compile.md).
+            zdj, Zddj = ca.MX.sym("zdj", nz), ca.MX.sym("Zddj", nz, M)
+            oo, jT = jvp(z, Q, R, Zd)
+            zero = [ca.MX(v.size1(), v.size2()) for v in (Q, R)]
+            odd = jvp.forward(1)(z, Q, R, Zd, oo, jT, zdj, *zero, Zddj)[1]
+            fs = [ca.Function(f"{pre}_hess", [z, Q, R, Zd, zdj, Zddj], [oo, jT, odd])]
+            call = _HESSIAN_CALLS.format(name=pre, nz=nz, no=self.ns + 1, M=M)
+        fmt = dict(name=pre, ns=self.ns, nd=self.nd, nz=nz, no=self.ns + 1, M=M, MM=M * M, max_order=1 + hessian,
+                   call=call, work=(1 + M + M * M) * (nz + self.ns + 1),
+                   sz_arg=max(max(f.sz_arg() for f in fs), 6), sz_res=max(max(f.sz_res() for f in fs), 3))
+        return pre, faster_sparse_products(generated_c(*fs)) + _FORWARD.format(**fmt), fs
 
     @staticmethod
     def _load(so, pre: str):

@@ -39,7 +39,7 @@ def problem(request):
         compiled = fitmod._CompiledLoglik(k, forward=False)
     else:
         compiled = fitmod.compiled_loglik(k)
-        assert compiled.forward  # two parameters: forward mode
+        assert compiled.forward and compiled.forward_hessian  # two parameters: forward mode
     assert compiled.wait()  # both libraries built (the fit itself does not wait)
     return k, bank(), compiled
 
@@ -96,7 +96,8 @@ def both_modes():
     """The EKF's compiled log-likelihood in forward mode (its default) and in reverse mode."""
     k = kf()
     fwd, rev = fitmod.compiled_loglik(k), fitmod._CompiledLoglik(k, forward=False)
-    assert fwd.forward and not rev.forward and fwd.wait() and rev.wait()
+    assert fwd.forward and fwd.forward_hessian and not (rev.forward or rev.forward_hessian)
+    assert fwd.wait() and rev.wait()
     return k, fwd, rev
 
 
@@ -122,7 +123,29 @@ def test_forward_and_reverse_modes_agree(both_modes, fitted):
 def test_the_mode_follows_the_number_of_parameters(monkeypatch):
     k = kf()  # two parameters
     assert fitmod.compiled_loglik(k).forward
+    monkeypatch.setattr(fitmod, "FORWARD_HESSIAN_MAX_PARAMS", 1)
+    mixed = fitmod._CompiledLoglik(k)  # a forward gradient, the Hessian forward over reverse
+    assert mixed.forward and not mixed.forward_hessian
     monkeypatch.setattr(fitmod, "FORWARD_MAX_PARAMS", 1)
     rev = fitmod._CompiledLoglik(k)
-    assert not rev.forward and rev.name == fitmod._CompiledLoglik(k, forward=False).name
-    assert rev.name != fitmod.compiled_loglik(k).name
+    assert not (rev.forward or rev.forward_hessian) and rev.name == fitmod._CompiledLoglik(k, forward=False).name
+    assert len({rev.name, mixed.name, fitmod.compiled_loglik(k).name}) == 3
+
+
+def test_a_forward_gradient_with_a_reverse_hessian(both_modes, monkeypatch):
+    """The libraries of the two modes mixed (the default for three parameters): the same
+    numbers as either mode alone, the work arrays large enough for both drivers."""
+    k, fwd, rev = both_modes
+    monkeypatch.setattr(fitmod, "FORWARD_HESSIAN_MAX_PARAMS", 1)
+    mixed = fitmod._CompiledLoglik(k)
+    assert mixed.wait()
+    ys = bank()
+    checked = filter_inputs(k, ys, X0, None, params={"q": 0.25, "b": 1.0})
+    args = (fitmod._step_data(checked.Y, checked.params), fitmod._initial_states(checked.x0, checked.P0, ys.shape[0]),
+            k.Q, k.R, [1, 0])
+    t = np.array([0.7, 0.2])
+    ev, ev_f, ev_r = mixed.bind(*args), fwd.bind(*args), rev.bind(*args)
+    v1, g1, _ = ev(t, 1)
+    v2, g2, h2 = ev(t, 2)
+    assert v1 == ev_f(t, 1)[0] and np.array_equal(g1, ev_f(t, 1)[1])  # the forward library
+    assert v2 == ev_r(t, 2)[0] and np.array_equal(g2, ev_r(t, 2)[1]) and np.array_equal(h2, ev_r(t, 2)[2])
