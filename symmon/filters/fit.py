@@ -315,8 +315,7 @@ class _CompiledLoglik:
         self.forward = self.n_p <= FORWARD_MAX_PARAMS if forward is None else bool(forward)
         self.forward_hessian = self.n_p <= FORWARD_HESSIAN_MAX_PARAMS if forward is None else bool(forward)
         nz, no, M = self.ns + self.nd, self.ns + 1, self.n_p
-        key = repr((step.name(), "fit") + (("forward",) if self.forward else ())
-                   + (("forward hessian",) if self.forward_hessian else ()))
+        key = repr((step.name(), "fit"))
         name = "sm_fit_" + hashlib.sha1(key.encode()).hexdigest()[:12]
         z = ca.MX.sym("z", nz)
         Q, R = ca.MX.sym("Q", step.sparsity_in(3)), ca.MX.sym("R", step.sparsity_in(4))
@@ -326,7 +325,9 @@ class _CompiledLoglik:
         # Two libraries: the value and gradient (every iteration) apart from the Hessian (once
         # per fit, its code several times as large), so that the compile policy builds the
         # first with full optimisation where the whole would be too large for it (docs/compile.md).
-        libs = [(self._forward_code if fwd else self._reverse_code)(f"{name}{part}", z, Q, R, o, part == "h")
+        # Each named by its part and mode only, so that the modes mixed share both libraries.
+        libs = [(self._forward_code if fwd else self._reverse_code)(f"{name}{part}{'f' if fwd else ''}", z, Q, R, o,
+                                                                     part == "h")
                 for part, fwd in (("g", self.forward), ("h", self.forward_hessian))]
         self._libs = [NativeLibrary(code, pre, lambda so, pre=pre: self._load(so, pre), stacklevel=3, background=True)
                       for pre, code, _ in libs]
