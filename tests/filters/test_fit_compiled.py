@@ -153,3 +153,27 @@ def test_a_forward_gradient_with_a_reverse_hessian(both_modes, monkeypatch):
     v2, g2, h2 = ev(t, 2)
     assert v1 == ev_f(t, 1)[0] and np.array_equal(g1, ev_f(t, 1)[1])  # the forward library
     assert v2 == ev_r(t, 2)[0] and np.array_equal(g2, ev_r(t, 2)[1]) and np.array_equal(h2, ev_r(t, 2)[2])
+
+
+def test_the_optimiser_runs_on_one_blas_thread(monkeypatch):
+    """SciPy's L-BFGS-B runs under one BLAS thread (an OpenBLAS woken for its size-m algebra
+    spins beside the C loop), and the limit is lifted afterwards."""
+    import threadpoolctl
+
+    k = kf()
+    _, ys = data(7, runs=10)  # the fit of test_the_fit_on_the_compiled_loglik_is_the_fit_on_the_vm
+    before = [i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"]
+    seen = []
+    minimize = fitmod.optimize.minimize
+
+    def spy(*a, **kw):
+        seen.append([i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"])
+        return minimize(*a, **kw)
+
+    monkeypatch.setattr(fitmod.optimize, "minimize", spy)
+    with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):  # two threads, whatever the machine
+        k.fit(ys, X0, {"q": 0.2, "b": 0.5}, bounds={"q": (1e-6, None)})
+        after = [i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"]
+    assert seen and all(n == 1 for n in seen[0])
+    assert after == [2] * len(after)
+    assert [i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"] == before
