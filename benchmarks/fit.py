@@ -13,7 +13,7 @@ The data are simulated at q = 1, b = 1.5; both fits start at q = 0.5, b = 0.
   EKF (``TT1()``): L-BFGS-B on the exact gradient of the log-likelihood (CasADi), then the
   standard errors from its exact Hessian and a filter run at the estimates;
 - **dynamax**: the same L-BFGS-B (SciPy, the same start, bounds and ``gtol``) on
-  ``jax.jit(jax.value_and_grad(-loglik))`` with ``loglik(θ)`` the ``marginal_loglik`` of
+  ``jax.jit(jax.value_and_grad(-loglik))`` (the optimiser on one BLAS thread, as symmon's) with ``loglik(θ)`` the ``marginal_loglik`` of
   ``extended_kalman_filter`` (float64), then the standard errors from a central difference
   (step 1e-5) of that exact gradient at the optimum (symmon's come from its exact Hessian;
   ``jax.hessian`` through the scan takes 40 s to compile at n = 4, 4 min at n = 30).
@@ -41,6 +41,7 @@ sys.path.insert(0, str(HERE.parent))
 os.environ.setdefault("SYMMON_CACHE", tempfile.mkdtemp(prefix="symmon-bench-fit-"))
 
 import numpy as np  # noqa: E402
+import threadpoolctl  # noqa: E402
 import sympy as sp  # noqa: E402
 
 import symmon as sm  # noqa: E402
@@ -136,9 +137,12 @@ def dynamax_fit(fp: FitProblem, ys: np.ndarray):
             v, g = vg(jnp.asarray(t))
             return float(v), np.asarray(g, dtype=float)
 
-        res = optimize.minimize(obj, np.array([START["q"], START["b"]]), jac=True, method="L-BFGS-B",
-                                bounds=[(1e-6, None), (None, None)], options={"maxiter": 200, "gtol": GTOL})
-        info = np.asarray(hess(res.x))  # of −ℓ: the observed information
+        # One BLAS thread, as symmon's fit runs its optimiser: OpenBLAS's threads would wake for
+        # L-BFGS-B's size-2 algebra and spin beside the jitted calls, inflating dynamax's time.
+        with threadpoolctl.threadpool_limits(limits=1, user_api="blas"):
+            res = optimize.minimize(obj, np.array([START["q"], START["b"]]), jac=True, method="L-BFGS-B",
+                                    bounds=[(1e-6, None), (None, None)], options={"maxiter": 200, "gtol": GTOL})
+            info = np.asarray(hess(res.x))  # of −ℓ: the observed information
         se = np.sqrt(np.diag(np.linalg.inv(info)))
         return res.x, se, -res.fun, res.nit
 
