@@ -89,7 +89,7 @@ from .inputs import check_bank_size, check_keep, check_truth, kept_numbers, meas
 from .results import KalmanResult, _nees
 from .simulation import check_count, check_prior
 from .pf_kernel import BootstrapKernel, bootstrap_kernel, whitening
-from .pf_rng import CHUNK, stream_states
+from .pf_rng import CHUNK, lane_states, stream_states
 from .statespace import StateSpace, rows_times
 
 __all__ = ["ParticleFilter", "ParticleResult", "resample", "PROPOSALS", "RESAMPLERS", "DEGENERATE_ESS"]
@@ -635,14 +635,16 @@ class ParticleFilter:
         """The C streams' initial states by (runs, first run, streams), a few kept."""
         return {}
 
-    def _stream_states(self, runs: int, first: int, streams: int) -> np.ndarray:
-        """A fresh copy of the xoshiro states (runs, streams, 4) of runs ``first`` … of
-        this filter's seed (:func:`~symmon.filters.pf_rng.stream_states`; the C advances
-        them in place).  Hashing the seeds takes a tenth of a millisecond a call: kept."""
-        key = (runs, first, streams)
+    def _stream_states(self, runs: int, first: int, chunks: int) -> np.ndarray:
+        """A fresh copy of the xoshiro states of runs ``first`` … of this filter's seed, per run
+        the words of its chunks' streams, the resampling stream and the chunks' lanes
+        (:mod:`~symmon.filters.pf_rng`; the C advances them in place).  Hashing the seeds
+        takes a tenth of a millisecond a call: kept."""
+        key = (runs, first, chunks)
         st = self._stream_cache.get(key)
         if st is None:
-            st = np.stack([stream_states(g, streams) for g in run_streams(self.seed, runs, first)])
+            st = np.stack([np.concatenate([stream_states(g, chunks + 1).ravel(), lane_states(g, chunks).ravel()])
+                           for g in run_streams(self.seed, runs, first)])
             if len(self._stream_cache) < 8:
                 self._stream_cache[key] = st
         return st.copy()
@@ -704,7 +706,7 @@ class ParticleFilter:
         Hx = np.empty((Rr, N, n_y)) if want_h else None
         chunks = -(-N // CHUNK)
         part = np.empty((Rr, chunks, 4 + 2 * n))
-        st = self._stream_states(Rr, first_run, chunks + 1)
+        st = self._stream_states(Rr, first_run, chunks)
         # threads over particle chunks for one run (in C), over runs for a bank (here)
         T = 1 if Rr > 1 else len(row_spans(N, CHUNK))
         isz, wsz = kern.f.sz_iw() + 1, kern.f.sz_w() + 1
