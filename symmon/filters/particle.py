@@ -64,6 +64,7 @@ N. de Freitas, N. Gordon (eds.), *Sequential Monte Carlo Methods in Practice*, S
 
 from __future__ import annotations
 
+import itertools
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -539,7 +540,7 @@ class ParticleFilter:
         rngs = None if prior_c else run_streams(self.seed, Rr, first_run)
         X = (np.empty((Rr, N, n)) if prior_c
              else ss.wrap_states(np.stack([_prior_particles(x0, N, g) for g in rngs])))
-        logW = np.full((Rr, N), -math.log(N))
+        logW = np.full((Rr, N), -math.log(N)) if loops is None else None  # the compiled path returns its own
         want = lambda *k: any(a in names for a in k)  # noqa: E731
         out = {k: np.empty((Rr, K) + s) for k, s in (("x", (n,)), ("P", (n, n)), ("x_pred", (n,)),
                                                      ("P_pred", (n, n)), ("innovation", (n_y,)),
@@ -708,7 +709,7 @@ class ParticleFilter:
         # Xn (N x n); t, e, lw, the points (N each); Hx (N x n_y, when kept); part (chunks x
         # (4 + 2n)); the T threads' iw (int64) and w; the step's resampled flags (K).
         sizes = (N * n, N, N, N, N, N * n_y if want_h else 0, chunks * (4 + 2 * n), T * isz, T * wsz, K)
-        offs = np.concatenate([[0], np.cumsum(sizes)]).tolist()
+        offs = [0, *itertools.accumulate(sizes)]
         block = np.empty((Rr, offs[-1]))
         base, run_bytes = block.ctypes.data, 8 * offs[-1]
         at = lambda j: (base + 8 * offs[j], run_bytes) if sizes[j] else (0, 0)  # noqa: E731
