@@ -89,7 +89,7 @@ from .nonlinear import NonlinearKalmanFilter
 from .inputs import check_bank_size, check_keep, check_truth, kept_numbers, measurement_bank, param_values, refuse_inf
 from .results import KalmanResult, _nees
 from .simulation import check_count, check_prior
-from .pf_kernel import BootstrapKernel, bootstrap_kernel, whitening
+from .pf_kernel import MIN_THREAD_NUMBERS, BootstrapKernel, bootstrap_kernel, whitening
 from .pf_rng import CHUNK, lane_states, stream_states
 from .statespace import StateSpace, rows_times
 
@@ -702,8 +702,9 @@ class ParticleFilter:
         X = np.ascontiguousarray(X)
         chunks = -(-N // CHUNK)
         st = self._stream_states(Rr, first_run, chunks)
-        # threads over particle chunks for one run (in C), over runs for a bank (here)
-        T = 1 if Rr > 1 else len(row_spans(N, CHUNK))
+        # threads over particle chunks for one run (in C; for enough work a step), over runs
+        # for a bank (here)
+        T = 1 if Rr > 1 or N * (n + kern.n_q) < MIN_THREAD_NUMBERS else len(row_spans(N, CHUNK))
         isz, wsz = kern.f.sz_iw() + 1, kern.f.sz_w() + 1
         # The work arrays of a run, one block (one address to take, a few microseconds each):
         # Xn (N x n); t, e, lw, the points (N each); Hx (N x n_y, when kept); part (chunks x

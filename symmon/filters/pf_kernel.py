@@ -65,7 +65,7 @@ from ..core.model import Model
 from ..compile.rng import LANES, RNG_C
 from .pf_rng import CHUNK
 
-__all__ = ["BootstrapKernel", "bootstrap_kernel"]
+__all__ = ["BootstrapKernel", "bootstrap_kernel", "BLOCK", "MIN_THREAD_NUMBERS"]
 
 _LOG_2PI = math.log(2 * math.pi)
 
@@ -520,6 +520,10 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
 
 #: Particles per block of the move and weigh (the rows of a block by columns fit in L2).
 BLOCK = 256
+#: A run takes several threads (over its chunks) only from N (n + n_q) numbers drawn and
+#: moved a step on: below, a step is tens of microseconds, and the barriers and the
+#: threads' start would take a good part of what a second core saves.
+MIN_THREAD_NUMBERS = 1 << 15
 #: The column stride of a block's buffers: not a power of two, so that the columns of a row
 #: (written one after another by the rows' loop) do not all fall in one set of the L1 cache;
 #: at least BLOCK rounded up to LANES (the normals' last group of a block fills spare rows).

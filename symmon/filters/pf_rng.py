@@ -20,8 +20,10 @@ from ..compile.rng import LANES, xoshiro_states
 
 __all__ = ["CHUNK", "LANES", "LANE_TAG", "STREAM_TAG", "lane_states", "stream_states"]
 
-#: Particles per random stream (a fixed split, so threads do not change the numbers).
-CHUNK = 1024
+#: Particles per random stream (a fixed split, so threads do not change the numbers); one
+#: block of the kernel (:data:`~symmon.filters.pf_kernel.BLOCK`), so that 1000 particles are
+#: four chunks, which two threads can share (1024 until 2026-12-04).
+CHUNK = 256
 #: The spawn-key entry that marks the particle filter's C streams among a run's children.
 STREAM_TAG = 0x50465247  # "PFRG"
 #: The spawn-key entry of the lanes that draw the moves' normals.
