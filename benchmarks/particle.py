@@ -11,7 +11,7 @@ particles; K steps from a Gaussian prior; the bootstrap proposal with systematic
 at every step (``ess_threshold=1``; Stone Soup's ``SystematicResampler``).  symmon keeps only
 ``x`` (``keep=("x",)``); the NumPy filter computes the same weighted mean.  Times per step,
 best of the repeats after a warm-up, symmon and NumPy interleaved (wall time and process CPU time, all threads); symmon's first call apart (after ``sm.simulate``
-compiled f and h into a fresh cache).  Ratios: peer / symmon (> 1: symmon faster).  The load average is recorded: the
+compiled f and h into a fresh cache; ``SYMMON_COMPILE=sync``, so that it includes the C build of the compiled step).  Ratios: peer / symmon (> 1: symmon faster).  The load average is recorded: the
 machine may be shared.
 """
 
@@ -29,6 +29,9 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 os.environ.setdefault("SYMMON_CACHE", tempfile.mkdtemp(prefix="symmon-bench-particle-"))
+# The first call waits for the C (else a step larger than BACKGROUND_BYTES, n = 20 here, is
+# built in the background and the timed calls may run the NumPy path meanwhile).
+os.environ.setdefault("SYMMON_COMPILE", "sync")
 
 import numpy as np  # noqa: E402
 import sympy as sp  # noqa: E402

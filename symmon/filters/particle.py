@@ -64,6 +64,7 @@ N. de Freitas, N. Gordon (eds.), *Sequential Monte Carlo Methods in Practice*, S
 
 from __future__ import annotations
 
+import itertools
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -88,8 +89,8 @@ from .nonlinear import NonlinearKalmanFilter
 from .inputs import check_bank_size, check_keep, check_truth, kept_numbers, measurement_bank, param_values, refuse_inf
 from .results import KalmanResult, _nees
 from .simulation import check_count, check_prior
-from .pf_kernel import BootstrapKernel, bootstrap_kernel, whitening
-from .pf_rng import CHUNK, stream_states
+from .pf_kernel import MIN_THREAD_NUMBERS, BootstrapKernel, bootstrap_kernel, whitening
+from .pf_rng import CHUNK, lane_states, stream_states
 from .statespace import StateSpace, rows_times
 
 __all__ = ["ParticleFilter", "ParticleResult", "resample", "PROPOSALS", "RESAMPLERS", "DEGENERATE_ESS"]
@@ -539,7 +540,7 @@ class ParticleFilter:
         rngs = None if prior_c else run_streams(self.seed, Rr, first_run)
         X = (np.empty((Rr, N, n)) if prior_c
              else ss.wrap_states(np.stack([_prior_particles(x0, N, g) for g in rngs])))
-        logW = np.full((Rr, N), -math.log(N))
+        logW = np.full((Rr, N), -math.log(N)) if loops is None else None  # the compiled path returns its own
         want = lambda *k: any(a in names for a in k)  # noqa: E731
         out = {k: np.empty((Rr, K) + s) for k, s in (("x", (n,)), ("P", (n, n)), ("x_pred", (n,)),
                                                      ("P_pred", (n, n)), ("innovation", (n_y,)),
@@ -635,14 +636,16 @@ class ParticleFilter:
         """The C streams' initial states by (runs, first run, streams), a few kept."""
         return {}
 
-    def _stream_states(self, runs: int, first: int, streams: int) -> np.ndarray:
-        """A fresh copy of the xoshiro states (runs, streams, 4) of runs ``first`` … of
-        this filter's seed (:func:`~symmon.filters.pf_rng.stream_states`; the C advances
-        them in place).  Hashing the seeds takes a tenth of a millisecond a call: kept."""
-        key = (runs, first, streams)
+    def _stream_states(self, runs: int, first: int, chunks: int) -> np.ndarray:
+        """A fresh copy of the xoshiro states of runs ``first`` … of this filter's seed, per run
+        the words of its chunks' streams, the resampling stream and the chunks' lanes
+        (:mod:`~symmon.filters.pf_rng`; the C advances them in place).  Hashing the seeds
+        takes a tenth of a millisecond a call: kept."""
+        key = (runs, first, chunks)
         st = self._stream_cache.get(key)
         if st is None:
-            st = np.stack([stream_states(g, streams) for g in run_streams(self.seed, runs, first)])
+            st = np.stack([np.concatenate([stream_states(g, chunks + 1).ravel(), lane_states(g, chunks).ravel()])
+                           for g in run_streams(self.seed, runs, first)])
             if len(self._stream_cache) < 8:
                 self._stream_cache[key] = st
         return st.copy()
@@ -678,8 +681,7 @@ class ParticleFilter:
         ss, N = self.space, self.particles
         Rr, K, n_y = Yb.shape
         n = ss.n
-        G = np.eye(n_y) if self._noise_map is None else self._noise_map
-        S_noise = G @ self.R @ G.T
+        S_noise = self._noise_cov
         Lq = np.asarray(ss.Lq)
         cache = self._whitenings  # (A, c) per pattern of measured components, once per filter
 
@@ -697,34 +699,30 @@ class ParticleFilter:
                "P": out["P"] if "P" in out else (np.empty((Rr, K, n, n)) if need_P else None),
                "x_pred": out.get("x_pred"), "P_pred": out.get("P_pred"),
                "hm": np.empty((Rr, K, n_y)) if want_h else None, "hS": np.empty((Rr, K, n_y, n_y)) if want_h else None}
-        res_f = np.zeros((Rr, K))
         X = np.ascontiguousarray(X)
-        Xn = np.empty_like(X)
-        work = np.empty((Rr, 4, N))  # t, e, lw, and the points
-        Hx = np.empty((Rr, N, n_y)) if want_h else None
         chunks = -(-N // CHUNK)
-        part = np.empty((Rr, chunks, 4 + 2 * n))
-        st = self._stream_states(Rr, first_run, chunks + 1)
-        # threads over particle chunks for one run (in C), over runs for a bank (here)
-        T = 1 if Rr > 1 else len(row_spans(N, CHUNK))
+        st = self._stream_states(Rr, first_run, chunks)
+        # threads over particle chunks for one run (in C; for enough work a step), over runs
+        # for a bank (here)
+        T = 1 if Rr > 1 or N * (n + kern.n_q) < MIN_THREAD_NUMBERS else len(row_spans(N, CHUNK))
         isz, wsz = kern.f.sz_iw() + 1, kern.f.sz_w() + 1
-        iws, ws = np.empty((Rr, T, isz), dtype=np.int64), np.empty((Rr, T, wsz))
+        # The work arrays of a run, one block (one address to take, a few microseconds each):
+        # Xn (N x n); t, e, lw, the points (N each); Hx (N x n_y, when kept); part (chunks x
+        # (4 + 2n)); the T threads' iw (int64) and w; the step's resampled flags (K).
+        sizes = (N * n, N, N, N, N, N * n_y if want_h else 0, chunks * (4 + 2 * n), T * isz, T * wsz, K)
+        offs = [0, *itertools.accumulate(sizes)]
+        block = np.empty((Rr, offs[-1]))
+        base, run_bytes = block.ctypes.data, 8 * offs[-1]
+        at = lambda j: (base + 8 * offs[j], run_bytes) if sizes[j] else (0, 0)  # noqa: E731
         replay = getattr(self, "_replay", None)
-        m0 = L0 = None
-        if prior is not None:
-            m0, L0 = np.ascontiguousarray(prior.mean, dtype=float), np.ascontiguousarray(prior.sqrt_cov(), dtype=float)
-        diag = L0 is not None and np.count_nonzero(L0) == np.count_nonzero(np.diag(L0))
-        opt = np.array([RESAMPLERS.index(self.resample), int(self.regularise), int(diag)], dtype=np.int64)
-        fl = np.array([self.ess_threshold * N, self.bandwidth])
+        m0, L0, opt, fl = self._kernel_constants(prior)
         fail = np.zeros(Rr, dtype=np.int64)
         # Per-run arrays: (address of run 0, bytes per run); 0 for an output not wanted.
-        per_run = [(a.ctypes.data, a.nbytes // Rr) if a is not None else (0, 0) for a in (
-            P, X, Xn, work[:, 0], work[:, 1], work[:, 2], work[:, 3], Hx, part, st)]
-        per_run[3:7] = [(work.ctypes.data + j * N * 8, 4 * N * 8) for j in range(4)]  # the rows of work
-        outs = [(a.ctypes.data, a.nbytes // Rr) if a is not None else (0, 0) for a in (
-            loglik, ess, res_f, arr["x"], arr["P"], arr["x_pred"], arr["P_pred"], arr["hm"], arr["hS"], iws, ws)]
-        shared = (0 if m0 is None else m0.ctypes.data, 0 if L0 is None else L0.ctypes.data, opt.ctypes.data,
-                  fl.ctypes.data)
+        addr = lambda a: (a.ctypes.data, a.nbytes // Rr) if a is not None else (0, 0)  # noqa: E731
+        per_run = [addr(P), addr(X), *map(at, range(7)), addr(st)]
+        outs = [addr(loglik), addr(ess), at(9), *map(addr, (arr["x"], arr["P"], arr["x_pred"], arr["P_pred"],
+                                                            arr["hm"], arr["hS"])), at(7), at(8)]
+        shared = (m0, L0, opt.ctypes.data, fl.ctypes.data)
 
         def one(r: int) -> int:
             rp = [0, 0, 0]
@@ -742,7 +740,7 @@ class ParticleFilter:
             if c == 2:
                 raise self._not_finite(int(fail[r]), r, bank)
         loglik[np.isnan(Yb).all(axis=2)] = 0.0  # no measurement: log Σ W = 0 exactly
-        resampled[:] = res_f > 0
+        resampled[:] = block[:, offs[9]:offs[10]] > 0
         if truth is not None:
             nees[:] = _nees(arr["x"], arr["P"], truth, ss.angle_states)
         if want_h:
@@ -750,7 +748,31 @@ class ParticleFilter:
                                              Yb.reshape(Rr * K, n_y), S_noise)
             for k in range(K):
                 _store_measurement(out, k, nu.reshape(Rr, K, n_y)[:, k], S.reshape(Rr, K, n_y, n_y)[:, k])
-        return X, work[:, 2].copy()
+        return X, block[:, offs[3]:offs[4]].copy()
+
+    def _kernel_constants(self, prior: Gaussian | None) -> tuple[int, int, np.ndarray, np.ndarray]:
+        """The addresses of the prior's mean and square root (0 without a prior), and the
+        kernel's opt and fl (``NAME_run``'s notes), kept for the last prior (a Gaussian is
+        immutable: the same object has the same factor)."""
+        held = self.__dict__.get("_held_constants")
+        if held is None or held[0] is not prior:
+            m0 = L0 = None
+            if prior is not None:
+                m0 = np.ascontiguousarray(prior.mean, dtype=float)
+                L0 = np.ascontiguousarray(prior.sqrt_cov(), dtype=float)
+            diag = L0 is not None and np.count_nonzero(L0) == np.count_nonzero(np.diag(L0))
+            opt = np.array([RESAMPLERS.index(self.resample), int(self.regularise), int(diag)], dtype=np.int64)
+            fl = np.array([self.ess_threshold * self.particles, self.bandwidth])
+            held = (prior, m0, L0, opt, fl)
+            object.__setattr__(self, "_held_constants", held)  # a frozen dataclass: a cache, not state
+        _, m0, L0, opt, fl = held
+        return (0 if m0 is None else m0.ctypes.data, 0 if L0 is None else L0.ctypes.data, opt, fl)
+
+    @cached_property
+    def _noise_cov(self) -> np.ndarray:
+        """Γ R Γᵀ of the compiled path (Γ constant, or I)."""
+        G = np.eye(self.space.n_y) if self._noise_map is None else self._noise_map
+        return G @ self.R @ G.T
 
     def _proposal_step(self, X, y, p, rngs, k, bank, want):
         """One EKF/UKF-proposal step (module notes): the Gaussian filter's compiled step from

@@ -14,9 +14,13 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
 ``NAME_run`` does all K steps of one run without returning to Python.  Per step:
 
 1. move and weigh, by blocks of :data:`BLOCK` particles: the block's normals from the
-   xoshiro stream of its chunk of :data:`~symmon.filters.pf_rng.CHUNK` particles
-   (:mod:`symmon.compile.rng`) in one tight loop (particle by particle: the stream is
-   the one a draw per particle gives), the rows [x_i, z_i] stored by columns; then the
+   :data:`~symmon.compile.rng.LANES` interleaved xoshiro streams (lanes) of its chunk of
+   :data:`~symmon.filters.pf_rng.CHUNK` particles, drawn column by column, LANES particles
+   at a time, by the vectorised ziggurat ``symmon_normal_lanes`` of :mod:`symmon.compile.rng`
+   (particle i of a block takes lane i mod LANES; each lane's numbers are the scalar
+   generator's from its state; until 2026-12-04 one stream per chunk, particle by
+   particle, drew them: a seed's particles changed then), the rows [x_i, z_i] stored by
+   columns; then the
    transition, the measurement and the wrapped innovation ν_i of every row, by the
    vectorised loop of :func:`symmon.compile.vecmath.vector_rows` where f and h have one
    (a row it flags recomputed by CasADi's function), else by CasADi's function per
@@ -39,6 +43,7 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
 
 A single run runs on T threads (pthreads made by the call, a barrier at each reduction)
 over contiguous chunk ranges; the C of a run never waits on Python's thread pool.
+The chunk's own stream draws a Gaussian prior and the regularisation's jitter.
 ``_replay`` (tests) feeds given normals and points instead of drawing them.  A Gaussian
 prior is drawn in C too, x_0 = m + L z from the first normals of each chunk's stream.
 """
@@ -57,10 +62,10 @@ from ..compile import NativeLibrary, compiled_with_params
 from ..compile.compiled import WorkArrays, generated_c
 from ..compile.vecmath import VECMATH_C, vector_rows
 from ..core.model import Model
-from ..compile.rng import RNG_C
+from ..compile.rng import LANES, RNG_C
 from .pf_rng import CHUNK
 
-__all__ = ["BootstrapKernel", "bootstrap_kernel"]
+__all__ = ["BootstrapKernel", "bootstrap_kernel", "BLOCK", "MIN_THREAD_NUMBERS"]
 
 _LOG_2PI = math.log(2 * math.pi)
 
@@ -142,6 +147,27 @@ CASADI_SYMBOL_EXPORT void {name}_normals(unsigned long long* s, casadi_int count
   {name}_draw((uint64_t*) s, count, out);
 }}
 
+/* The lanes of a chunk: SYMMON_LANES states of 4 words, lane by lane (as stored in st), to
+   and from symmon_normal_lanes's order (word by word). */
+static void {name}_lanes_in(const uint64_t* st, uint64_t* ls) {{
+  int l, w;
+  for (l = 0; l < SYMMON_LANES; ++l) for (w = 0; w < 4; ++w) ls[w * SYMMON_LANES + l] = st[l * 4 + w];
+}}
+static void {name}_lanes_out(const uint64_t* ls, uint64_t* st) {{
+  int l, w;
+  for (l = 0; l < SYMMON_LANES; ++l) for (w = 0; w < 4; ++w) st[l * 4 + w] = ls[w * SYMMON_LANES + l];
+}}
+
+/* symmon: groups x SYMMON_LANES normals of the lanes s (advanced in place) into out, lane l's
+   at out[g * SYMMON_LANES + l] (tests of the generator). */
+CASADI_SYMBOL_EXPORT void {name}_lanes(unsigned long long* s, casadi_int groups, casadi_real* out) {{
+  uint64_t ls[4 * SYMMON_LANES];
+  casadi_int g;
+  {name}_lanes_in((uint64_t*) s, ls);
+  for (g = 0; g < groups; ++g) symmon_normal_lanes(ls, out + g * SYMMON_LANES);
+  {name}_lanes_out(ls, (uint64_t*) s);
+}}
+
 /* A barrier of the run's T threads: a short spin on the generation (a wait between two
    passes is mostly a few microseconds, and a sleep and wake-up through the kernel costs more),
    then a POSIX mutex and condition (macOS has no pthread_barrier).  The last thread to arrive
@@ -183,7 +209,7 @@ static void {name}_bwait({name}_barrier* b) {{
 /* Per chunk of CHUNK particles: [max t, bad, sum e, sum e^2, sum e x (or sin), sum e cos]. */
 #define {name}_PW (4 + 2 * {nx})
 /* Doubles of a thread's buffers (the body's notes). */
-#define {name}_BUF ({ld} * {nr} + {ld} * {no} + 2 * {ld} + {block} * {nq} + {no} + {block} / 8 + 1)
+#define {name}_BUF ({ld} * {nr} + {ld} * {no} + 2 * {ld} + {no} + {block} / 8 + 1)
 
 typedef struct {{
   const casadi_real* P; casadi_int K, N, nch; casadi_real *X0, *Xn0, *t, *e, *lw, *sc, *hx, *part;
@@ -210,11 +236,11 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
   const casadi_real* pk;
   casadi_real ti, m, s, s2, lse, ei, cum, scale, pt, off, zr[{nq}], eps[{nx}], sx[{nx}], sn[{nx}], cs[{nx}];
   const casadi_real log_n = log((casadi_real) N);
-  uint64_t* rs = (uint64_t*) c->st + 4 * nch;
+  uint64_t* rs = (uint64_t*) c->st + 4 * nch, ls[4 * SYMMON_LANES];
   casadi_int i, j, k, q, a, b, bad, redo, lo, hi, end, b0, nb;
   /* this thread's buffers: the rows [x, z] of a block and its outputs [x', nu, h] by columns,
-     A nu and |A nu|^2 of one component, the block's normals, one row, the vector loop's flags */
-  casadi_real *rb = buf, *blk = rb + {ld} * {nr}, *wz = blk + {ld} * {no}, *acc = wz + {ld}, *zt = acc + {ld}, *row = zt + {block} * {nq};
+     A nu and |A nu|^2 of one component, one row, the vector loop's flags */
+  casadi_real *rb = buf, *blk = rb + {ld} * {nr}, *wz = blk + {ld} * {no}, *acc = wz + {ld}, *row = acc + {ld};
   unsigned char* odd = (unsigned char*) (row + {no});
   const int want_pred = c->o_xp || c->o_Pp || c->o_hm, reg = (int) c->opt[1];
   /* gath: the particle i is X's row idx[i] (the last resampling's pick, not copied: the next
@@ -238,25 +264,25 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
   for (k = 0; k < c->K; ++k) {{
     arg[2] = pk = c->P + k * {n_p};
     for (q = c0; q < c1; ++q) {{  /* move and weigh, chunk q, in blocks of {block} particles */
-      uint64_t* sg = (uint64_t*) c->st + 4 * q, sl[4];
-      memcpy(sl, sg, sizeof sl);  /* the state in registers, not memory, while it runs */
+      uint64_t* lq = (uint64_t*) c->st + 4 * (nch + 1) + 4 * SYMMON_LANES * q;  /* chunk q's lanes */
+      {name}_lanes_in(lq, ls);
       end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
       m = -INFINITY;
       bad = 0;
       for (b0 = q * {chunk}; b0 < end; b0 += {block}) {{
         nb = end - b0 < {block} ? end - b0 : {block};
         /* the rows [x_i, z_i] by columns (rb[j * {ld} + i]: the vector loop's loads are
-           contiguous); the normals of the block in one tight loop, particle by particle, so
-           the stream is the one a draw per particle would give */
+           contiguous); the normals column by column, SYMMON_LANES particles at a time from
+           the chunk's lanes (particle i of the block from lane i mod SYMMON_LANES; a last
+           group past nb is drawn too, into the column's spare rows: ld >= 8 ceil(nb / 8)) */
         for (i = 0; i < nb; ++i) {{
           const casadi_real* xr = X + (gath ? c->idx[b0 + i] : b0 + i) * {nx};
           for (j = 0; j < {nx}; ++j) rb[j * {ld} + i] = xr[j];
         }}
         if (c->zext) {{
           for (i = 0; i < nb; ++i) for (j = 0; j < {nq}; ++j) rb[({nx} + j) * {ld} + i] = c->zext[(k * N + b0 + i) * {nq} + j];
-        }} else {{  /* drawn by a call of their own (its loop keeps the generator in registers), then transposed */
-          {name}_draw(sl, nb * {nq}, zt);
-          for (i = 0; i < nb; ++i) for (j = 0; j < {nq}; ++j) rb[({nx} + j) * {ld} + i] = zt[i * {nq} + j];
+        }} else {{
+          for (j = 0; j < {nq}; ++j) for (i = 0; i < nb; i += SYMMON_LANES) symmon_normal_lanes(ls, rb + ({nx} + j) * {ld} + i);
         }}
         {fill}
         /* the log-density c - |A nu|^2 / 2 of the measured components (another's nu, maybe
@@ -283,7 +309,7 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
           if (ti > m) m = ti;
         }}
       }}
-      memcpy(sg, sl, sizeof sl);
+      {name}_lanes_out(ls, lq);
       c->part[q * {name}_PW] = m;
       c->part[q * {name}_PW + 1] = (casadi_real) bad;
     }}
@@ -432,7 +458,7 @@ static void* {name}_thread(void* p) {{
    return: the final ones, and lw their normalised log-weights); Xn,
    t, e, lw, sc: work (N x n, N, N, N, N); hx: N x ny or NULL; part: ceil(N / CHUNK) x
    (4 + 2n); st: ceil(N / CHUNK) + 1 xoshiro states (the chunks', then the resampling
-   stream); zext, uext, jext: replayed move normals (K x N x nq), resampling points (K x N,
+   stream), then SYMMON_LANES per chunk (the move's normals, lane by lane); zext, uext, jext: replayed move normals (K x N x nq), resampling points (K x N,
    ascending in [0, N)) and jitter normals (K x N x nx), or NULL to draw; m0, L0: the mean
    and square root (n x n, row-major) of a Gaussian prior to draw X from (the first normals
    of each chunk's stream), or NULL (X given); opt = [scheme (0 systematic, 1 stratified,
@@ -494,9 +520,15 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
 
 #: Particles per block of the move and weigh (the rows of a block by columns fit in L2).
 BLOCK = 256
+#: A run takes several threads (over its chunks) only from N (n + n_q) numbers drawn and
+#: moved a step on: below, a step is tens of microseconds, and the barriers and the
+#: threads' start would take a good part of what a second core saves.
+MIN_THREAD_NUMBERS = 1 << 15
 #: The column stride of a block's buffers: not a power of two, so that the columns of a row
-#: (written one after another by the normals' loop) do not all fall in one set of the L1 cache.
+#: (written one after another by the rows' loop) do not all fall in one set of the L1 cache;
+#: at least BLOCK rounded up to LANES (the normals' last group of a block fills spare rows).
 LD = BLOCK + 8
+assert LD >= -(-BLOCK // LANES) * LANES
 # The move of a block of nb rows rb = [x_i, z_i] into blk (by columns: x'_i, the wrapped
 # innovation ν_i, h(x'_i)): by the vectorised loop {name}_vec when f and h have one
 # (symmon.compile.vecmath: arithmetic, sqrt, atan2, hypot, within 1 ulp), a row it flags
@@ -612,7 +644,10 @@ class BootstrapKernel:
             normals = getattr(lib, f"{name}_normals")
             normals.argtypes = [ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p]
             normals.restype = None
-            return run, normals
+            lanes = getattr(lib, f"{name}_lanes")
+            lanes.argtypes = [ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p]
+            lanes.restype = None
+            return run, normals, lanes
 
         self._native: NativeLibrary = cf.native_library(code, name, load, stacklevel=4)
         self._Lq_size = nnz

@@ -25,6 +25,7 @@ import symmon as sm
 from symmon.compile import has_compiler
 from symmon.filters.particle import resampling_points
 from symmon.filters.pf_kernel import whitening
+from symmon.filters.pf_kernel import MIN_THREAD_NUMBERS
 from symmon.filters.pf_rng import CHUNK
 
 pytestmark = pytest.mark.skipif(not has_compiler(), reason="the compiled step needs a C compiler")
@@ -37,6 +38,8 @@ Q = np.array([[0.2, 0.05], [0.05, 0.1]])
 R = np.diag([0.01, 0.5, 0.05])
 X0 = sm.Gaussian([0.0, 1.0, 3.0], np.diag([1.0, 0.5, 0.1]))
 K = 6
+# Enough particles for several C threads on the main thread (n + n_q = 5 numbers each), many chunks
+N_THREADS = max(3 * CHUNK, MIN_THREAD_NUMBERS // 5) + 100
 
 
 def numpy_twin(pf: sm.ParticleFilter) -> sm.ParticleFilter:
@@ -90,11 +93,11 @@ def test_the_compiled_step_equals_its_numpy_twin(data, method, threshold, reg):
 
 
 def test_the_numbers_of_a_seed_do_not_depend_on_the_threads():
-    """N = 3000 is three streams of CHUNK particles: on the main thread the run uses
-    min(CPUs, chunks) C threads, on another thread one (row_spans); the result is the same
-    bit for bit (every reduction is per chunk, in chunk order)."""
+    """N_THREADS particles are many streams of CHUNK particles: on the main thread the run
+    uses min(CPUs, chunks) C threads, on another thread one (row_spans); the result is the
+    same bit for bit (every reduction is per chunk, in chunk order)."""
     xs, ys = sm.simulate(F, H, Q, R, X0, K, params={"a": 0.5}, seed=4)
-    pf = sm.ParticleFilter(F, H, Q, R, particles=3 * CHUNK - 100, ess_threshold=0.8, seed=5, regularise=True)
+    pf = sm.ParticleFilter(F, H, Q, R, particles=N_THREADS, ess_threshold=0.8, seed=5, regularise=True)
     main = pf.filter(ys, X0, params={"a": 0.5})
     box = {}
     t = threading.Thread(target=lambda: box.setdefault("r", pf.filter(ys, X0, params={"a": 0.5})))
@@ -136,11 +139,11 @@ def test_whitening_embeds_the_measured_block():
 def test_the_pick_read_through_indices_gives_the_particles():
     """Without regularisation the kernel keeps a resampling's pick as indices (the next move
     reads through them) and copies the particles only at the end: with resampling at every
-    step (the last included) on three chunks, the final particles, the mean and the
+    step (the last included) on many chunks, the final particles, the mean and the
     log-likelihood equal the NumPy twin's (which gathers the rows) to rounding, and the
     multi-threaded run equals the one-thread run bit for bit."""
     xs, ys = sm.simulate(F, H, Q, R, X0, K, params={"a": 0.5}, seed=6)
-    pf = sm.ParticleFilter(F, H, Q, R, particles=3 * CHUNK - 100, ess_threshold=1.0, seed=8)
+    pf = sm.ParticleFilter(F, H, Q, R, particles=N_THREADS, ess_threshold=1.0, seed=8)
     twin = numpy_twin(pf)
     draws = {k: v[:1] for k, v in replay(pf, 1, 12).items()}
     object.__setattr__(pf, "_replay", draws)

@@ -3,9 +3,11 @@ Le Gland 2001, in Doucet et al., *Sequential Monte Carlo Methods in Practice*, c
 
 - Linear Gaussian model (the Kalman filter exact): the kernel jitter h_opt · L ε keeps the
   mean; its variance inflation h² C at a resampling biases the posterior by O(h²) of its
-  spread, below the Monte Carlo error of this bank: the mean of 24 independent runs within 5
-  standard errors of the KF's, and the covariance within 15 % (h² = 0.135 at N = 400, n = 2,
-  applied at about half the steps).
+  spread, about the Monte Carlo error of this bank: the mean of 24 independent runs within 5
+  standard errors of the KF's plus h² times the KF's standard deviation (without that
+  allowance the largest of the 16 |mean error| / SE is 3–6 over seeds 1–8, the same before
+  and after the 2026-12-04 change of streams: the bias is there), and the covariance
+  within 15 % (h² = 0.135 at N = 400, n = 2, applied at about half the steps).
 - A static state (Q = 0), where the bootstrap filter cannot recover what resampling removes:
   its final particles are a handful of copies (a fixed seed: mean 7 distinct of 200, the
   covariance collapsed to zero in some run), while the regularised filter keeps all N
@@ -45,7 +47,8 @@ def test_the_regularised_mean_agrees_with_the_kalman_filter(linear):
     assert res.resampled.any() and "regularised" in res.method
     err = res.x - kf.x
     se = err.std(axis=0, ddof=1) / np.sqrt(RUNS)
-    assert np.all(np.abs(err.mean(axis=0)) < 5 * se)
+    bias = pf.bandwidth**2 * np.sqrt(np.diagonal(kf.P, axis1=-2, axis2=-1))  # O(h²) of the spread (notes)
+    assert np.all(np.abs(err.mean(axis=0)) < 5 * se + bias)
     np.testing.assert_allclose(res.P.mean(axis=0), kf.P, rtol=0.15, atol=0.02 * kf.P.max())
 
 

@@ -39,7 +39,7 @@ Q = np.array([[0.2, 0.05], [0.05, 0.1]])
 R = np.diag([0.01, 0.5, 0.05])
 X0 = sm.Gaussian([0.0, 1.0, 3.0], np.diag([1.0, 0.5, 0.1]))
 K = 5
-N = 2 * CHUNK + 300  # three streams, blocks of 256 and a partial block
+N = 2 * CHUNK + 300  # several streams, blocks of 256 and a partial block
 
 
 def with_kernel(pf: sm.ParticleFilter, vectorise: bool) -> sm.ParticleFilter:

@@ -1,5 +1,7 @@
 """The particle filter's C random numbers (symmon/filters/pf_rng.py): xoshiro256++ streams and
-a 256-layer ziggurat (Marsaglia & Tsang 2000), drawn through the kernel's ``normals`` entry.
+a 256-layer ziggurat (Marsaglia & Tsang 2000), drawn through the kernel's ``normals`` entry,
+and the moves' interleaved lanes (``symmon_normal_lanes``, the kernel's ``lanes`` entry),
+each lane the stream NormalStream draws from its state.
 
 References that do not share the generator: the standard normal's moments and CDF (scipy),
 and the ziggurat's own defining property (layers of equal area).  Tolerances: 5 standard
@@ -19,24 +21,39 @@ from scipy import stats
 
 import symmon as sm
 from symmon.compile import has_compiler
-from symmon.compile.rng import NormalStream, ziggurat_edges
-from symmon.filters.pf_rng import STREAM_TAG, stream_states
+from symmon.compile.rng import LANES, NormalStream, ziggurat_edges
+from symmon.filters.pf_rng import LANE_TAG, STREAM_TAG, lane_states, stream_states
 
 pytestmark = pytest.mark.skipif(not has_compiler(), reason="the generator is compiled C")
 DRAWS = 100_000
 
 
 @pytest.fixture(scope="module")
-def normals():
-    """The kernel's C function: count normals of one xoshiro state (advanced in place)."""
+def loops():
     x = sp.Symbol("x", real=True)
     f, h = sm.Model([x], [0.5 * x], name="pfr_f"), sm.Model([x], [x], name="pfr_h")
     pf = sm.ParticleFilter(f, h, [[1.0]], [[1.0]], particles=10)
-    fn = pf._bootstrap_kernel.loops()[1]
+    return pf._bootstrap_kernel.loops()
 
+
+@pytest.fixture(scope="module")
+def normals(loops):
+    """The kernel's C function: count normals of one xoshiro state (advanced in place)."""
     def draw(state: np.ndarray, count: int) -> np.ndarray:
         out = np.empty(count)
-        fn(state.ctypes.data, count, out.ctypes.data)
+        loops[1](state.ctypes.data, count, out.ctypes.data)
+        return out
+    return draw
+
+
+@pytest.fixture(scope="module")
+def lanes(loops):
+    """The kernel's C function: groups x LANES normals of LANES states (LANES, 4), lane l's
+    in column l (the states advanced in place)."""
+    def draw(states: np.ndarray, groups: int) -> np.ndarray:
+        assert states.shape == (LANES, 4) and states.flags.c_contiguous
+        out = np.empty((groups, LANES))
+        loops[2](states.ctypes.data, groups, out.ctypes.data)
         return out
     return draw
 
@@ -97,3 +114,42 @@ def test_the_filter_and_monte_carlo_share_one_generator(normals):
     stream = NormalStream(np.random.SeedSequence(0), 0)
     stream.state[:] = st
     np.testing.assert_array_equal(stream.fill(np.empty(5000)), normals(st.copy(), 5000))
+
+
+def test_each_lane_draws_the_stream_of_its_state(lanes):
+    """The vectorised ziggurat (AVX2 where the build has it) gives lane l the numbers the
+    scalar generator draws from lane l's state, bit for bit, rejections included (2000
+    draws a lane: about 30 leave the layers' core), and leaves each lane's state where the
+    scalar generator leaves it."""
+    st = lane_states(np.random.default_rng(np.random.SeedSequence(7).spawn(1)[0]), 2)[1].copy()
+    ref = []
+    for l in range(LANES):
+        stream = NormalStream(np.random.SeedSequence(0), 0)
+        stream.state[:] = st[l]
+        ref.append(stream.fill(np.empty(2000)))
+        ref.append(stream.state.copy())
+    z = lanes(st, 2000)
+    for l in range(LANES):
+        np.testing.assert_array_equal(z[:, l], ref[2 * l])
+        np.testing.assert_array_equal(st[l], ref[2 * l + 1])
+
+
+def test_the_lanes_are_independent_normals(lanes):
+    st = lane_states(np.random.default_rng(np.random.SeedSequence(8).spawn(1)[0]), 1)[0].copy()
+    z = lanes(st, DRAWS // LANES)
+    flat = z.ravel()
+    n = flat.size
+    assert abs(flat.mean()) < 5 / math.sqrt(n)
+    assert abs(flat.var() - 1) < 5 * math.sqrt(2 / n)
+    assert stats.kstest(flat, "norm").statistic < 1.95 / math.sqrt(n)
+    c = np.corrcoef(z.T)[np.triu_indices(LANES, 1)]  # lanes against each other
+    assert np.abs(c).max() < 5 / math.sqrt(z.shape[0])
+
+
+def test_lane_states_are_the_words_of_their_tag():
+    g = lambda: np.random.default_rng(np.random.SeedSequence(4).spawn(1)[0])  # noqa: E731
+    np.testing.assert_array_equal(lane_states(g(), 2), lane_states(g(), 5)[:2])
+    ss = g().bit_generator.seed_seq
+    words = np.random.SeedSequence(ss.entropy, spawn_key=ss.spawn_key + (LANE_TAG,)).generate_state(8 * LANES, np.uint64)
+    np.testing.assert_array_equal(lane_states(g(), 2).ravel(), words)
+    assert not np.isin(lane_states(g(), 1), stream_states(g(), 4)).any()
