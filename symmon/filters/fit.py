@@ -45,6 +45,7 @@ import ctypes
 import dataclasses
 import hashlib
 import math
+import os
 import threading
 import warnings
 from dataclasses import dataclass
@@ -56,7 +57,7 @@ from scipy import optimize
 
 from ..compile.ccache import NativeLibrary
 from ..compile.ckernels import faster_sparse_products
-from ..compile.compiled import WorkArrays, generated_c
+from ..compile.compiled import WorkArrays, generated_c, in_threads
 from ..core.gaussian import float_array
 from ..errors import IdentifiabilityWarning, ModelError, SymmonError
 from ..transforms.executor import one_blas_thread
@@ -156,10 +157,13 @@ _DRIVER = """
 /* symmon: the log-likelihood of a bank and its derivatives in the fitted rows of the step's
    data.  D (runs*K*{nd}): the step's data per step; S0 (runs*{ns}): [x0; vec(P0)] per run;
    rows (m): the fitted rows of the data; order 0: the value, 1: + gradient, 2: + Hessian,
-   added into out = [l, g (m), H (m*m, row-major)].  Z (K*{nz}) and T (K*{ns}): work. */
+   added into out = [l, g (m), H (m*m, row-major)]; ℓ and g only when j0 = 0, and of H only
+   the columns j0 <= j < j1 (so that calls on parts of the columns add up to one call's out).
+   Z (K*{nz}) and T (K*{ns}): work. */
 CASADI_SYMBOL_EXPORT int {name}_fit(const casadi_real* D, const casadi_real* S0, const casadi_real* Q,
     const casadi_real* R, casadi_int runs, casadi_int K, casadi_int m, const casadi_int* rows,
-    casadi_int order, casadi_real* Z, casadi_real* T, casadi_real* out, casadi_int* iw, casadi_real* w) {{
+    casadi_int order, casadi_int j0, casadi_int j1, casadi_real* Z, casadi_real* T, casadi_real* out,
+    casadi_int* iw, casadi_real* w) {{
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
   casadi_real o[{ns} + 1], lam[{ns} + 1], lamd[{ns} + 1], a[{nz}], ad[{nz}], zd[{nz}];
@@ -171,14 +175,14 @@ CASADI_SYMBOL_EXPORT int {name}_fit(const casadi_real* D, const casadi_real* S0,
       for (i = 0; i < {nd}; ++i) Z[k * {nz} + {ns} + i] = D[(r * K + k) * {nd} + i];
       arg[0] = Z + k * {nz}; arg[1] = Q; arg[2] = R; res[0] = o;
       if ({name}_f(arg, res, iw, w, 0)) return 1;
-      out[0] += o[{ns}];
+      if (j0 == 0) out[0] += o[{ns}];
       if (k + 1 < K) for (i = 0; i < {ns}; ++i) Z[(k + 1) * {nz} + i] = o[i];
     }}
     if (order < 1) continue;
-    /* reverse: the adjoint [lambda_{{k+1}}; 1] of (s_{{k+1}}, l_k) gives that of z_k */
+    /* reverse (j0 = 0 only): the adjoint [lambda_{{k+1}}; 1] of (s_{{k+1}}, l_k) gives that of z_k */
     for (i = 0; i < {ns}; ++i) lam[i] = 0.0;
     lam[{ns}] = 1.0;
-    for (k = K - 1; k >= 0; --k) {{
+    for (k = K - 1; k >= 0 && j0 == 0; --k) {{
       arg[0] = Z + k * {nz}; arg[1] = Q; arg[2] = R; arg[3] = lam; res[0] = a;
       if ({name}_vjp(arg, res, iw, w, 0)) return 1;
       for (j = 0; j < m; ++j) out[1 + j] += a[{ns} + rows[j]];
@@ -192,7 +196,7 @@ CASADI_SYMBOL_EXPORT int {name}_fit(const casadi_real* D, const casadi_real* S0,
 # The Hessian's sweeps, in the second library only (:class:`_CompiledLoglik`).
 _HESSIAN = """
     if (order < 2) continue;
-    for (j = 0; j < m; ++j) {{
+    for (j = j0; j < j1 && j < m; ++j) {{
       /* forward tangent of the states along parameter j (T_k = ds_k/dtheta_j), then the
          reverse sweep of the adjoint and its tangent: column j of the Hessian */
       for (i = 0; i < {nz}; ++i) zd[i] = 0.0;
@@ -227,6 +231,12 @@ FORWARD_MAX_PARAMS = 3
 #: then built at -O0) against 0.12 s.
 FORWARD_HESSIAN_MAX_PARAMS = 2
 
+#: Entries of the states swept (runs × K × (n + n²)) from which the columns of the Hessian
+#: (and of a forward gradient) run on the cores, a part of the fitted parameters each: at 30
+#: states and 100 steps (93 000) a Hessian column costs about 25 ms and a gradient's 5 ms,
+#: against a thread's 50 µs; at 10 states (11 000) the whole Hessian takes a few milliseconds.
+THREAD_WORK = 1 << 15
+
 # The same fold in forward mode: the tangents of the states along each parameter (and, for
 # the Hessian, their second-order tangents along each pair) carried through the steps with
 # the state, so that one forward sweep gives ℓ, ∇ℓ and ∇²ℓ (:class:`_CompiledLoglik`).
@@ -234,13 +244,16 @@ _FORWARD = """
 /* symmon: the log-likelihood of a bank and its derivatives in the fitted rows of the step's
    data, in forward mode.  D (runs*K*{nd}): the step's data per step; S0 (runs*{ns}):
    [x0; vec(P0)] per run; rows (m <= {M}): the fitted rows of the data; order 0: the value,
-   1: + gradient, 2: + Hessian, added into out = [l, g (m), H (m*m, row-major)].
+   1: + gradient, 2: + Hessian, added into out = [l, g (m), H (m*m, row-major)]; ℓ only when
+   j0 = 0, of g only the entries j0 <= j < j1, of H only the entries (i, j) with
+   j0 <= max(i, j) < j1, the tangents computed (so that calls on parts add up to one call's out).
    Z ({work}): work; T: unused.  Column j < m of zd is dz/dtheta_j = [T_j; e_{{rows[j]}}],
    column i + {M} j of zdd is d2z/dtheta_i dtheta_j = [T_ij; 0] (columns of i or j >= m:
    zero, and those of j >= m neither computed nor read); od and odd the same of o. */
 CASADI_SYMBOL_EXPORT int {name}_fit(const casadi_real* D, const casadi_real* S0, const casadi_real* Q,
     const casadi_real* R, casadi_int runs, casadi_int K, casadi_int m, const casadi_int* rows,
-    casadi_int order, casadi_real* Z, casadi_real* T, casadi_real* out, casadi_int* iw, casadi_real* w) {{
+    casadi_int order, casadi_int j0, casadi_int j1, casadi_real* Z, casadi_real* T, casadi_real* out,
+    casadi_int* iw, casadi_real* w) {{
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
   /* zd: M first-order tangents, then M*M second-order ones; od, odd: those of o */
@@ -256,11 +269,13 @@ CASADI_SYMBOL_EXPORT int {name}_fit(const casadi_real* D, const casadi_real* S0,
       for (i = 0; i < {nd}; ++i) z[{ns} + i] = D[(r * K + k) * {nd} + i];
       arg[0] = z; arg[1] = Q; arg[2] = R; arg[3] = zd; res[0] = o; res[1] = od;
 {call}
-      out[0] += o[{ns}];
-      for (j = 0; j < m && order > 0; ++j) out[1 + j] += od[j * {no} + {ns}];
+      if (j0 == 0) out[0] += o[{ns}];
+      for (j = j0; j < j1 && j < m && order > 0; ++j) out[1 + j] += od[j * {no} + {ns}];
       /* H_ij = H_ji from the column min(i, j) + {M} max(i, j): symmetric to the bit */
-      for (i = 0; i < m * m && order > 1; ++i)
-        out[1 + m + i] += odd[(i / m < i % m ? i / m + {M} * (i % m) : i % m + {M} * (i / m)) * {no} + {ns}];
+      for (i = 0; i < m * m && order > 1; ++i) {{
+        casadi_int lo = i / m < i % m ? i / m : i % m, hi = i / m < i % m ? i % m : i / m;
+        if (hi >= j0 && hi < j1) out[1 + m + i] += odd[(lo + {M} * hi) * {no} + {ns}];
+      }}
       if (k + 1 == K) break;
       /* s_{{k+1}} and its tangents: the first {ns} rows of each output column */
       for (i = 0; i < {ns}; ++i) z[i] = o[i];
@@ -275,9 +290,24 @@ CASADI_SYMBOL_EXPORT int {name}_fit(const casadi_real* D, const casadi_real* S0,
 # The forward Hessian's calls in a step: one per fitted parameter j, each giving the columns
 # i + M j (i < M) of the second-order tangents (and the first-order ones, again).
 _HESSIAN_CALLS = """\
-      for (j = 0; j < m; ++j) {{
+      for (j = j0; j < j1 && j < m; ++j) {{
         arg[4] = zd + j * {nz}; arg[5] = zd + {nz} * ({M} + j * {M}); res[2] = od + {no} * ({M} + j * {M});
         if ({name}_hess(arg, res, iw, w, 0)) return 1;
+      }}"""
+
+
+# The forward gradient's calls in a step: the step, its Jacobian times all the tangents, or
+# (a part j0 <= j < j1 of them, on a thread) times one tangent per call.
+_GRADIENT_CALLS = """\
+      if (order == 0) {{
+        if ({name}_f(arg, res, iw, w, 0)) return 1;
+      }} else if (j0 == 0 && j1 >= m) {{
+        if ({name}_jvp(arg, res, iw, w, 0)) return 1;
+      }} else {{
+        for (j = j0; j < j1 && j < m; ++j) {{
+          arg[3] = zd + j * {nz}; res[1] = od + j * {no};
+          if ({name}_jvp1(arg, res, iw, w, 0)) return 1;
+        }}
       }}"""
 
 
@@ -368,8 +398,12 @@ class _CompiledLoglik:
         Zd = ca.MX.sym("Zd", nz, M)
         jvp = ca.Function(f"{pre}_jvp", [z, Q, R, Zd], [o, ca.jtimes(o, z, Zd)])
         if not hessian:
-            fs = [ca.Function(f"{pre}_f", [z, Q, R], [o]), jvp]
-            call = f"      if ((order ? {pre}_jvp : {pre}_f)(arg, res, iw, w, 0)) return 1;"
+            # All tangents in one call, or (a part of the columns on a thread) one call per
+            # tangent, each with the step again.
+            zd1 = ca.MX.sym("zd1", nz)
+            fs = [ca.Function(f"{pre}_f", [z, Q, R], [o]), jvp,
+                  ca.Function(f"{pre}_jvp1", [z, Q, R, zd1], [o, ca.jtimes(o, z, zd1)])]
+            call = _GRADIENT_CALLS.format(name=pre, nz=nz, no=self.ns + 1)
         else:
             # CasADi's forward derivative of the jvp along one tangent ż_j, with Ż seeded by
             # the second-order tangents Z̈_{·, M j : M j + M}: one call per fitted parameter
@@ -389,7 +423,7 @@ class _CompiledLoglik:
     @staticmethod
     def _load(so, pre: str):
         run = getattr(ctypes.CDLL(str(so)), f"{pre}_fit")
-        run.argtypes = [ctypes.c_void_p] * 4 + [ctypes.c_longlong] * 3 + [ctypes.c_void_p, ctypes.c_longlong] \
+        run.argtypes = [ctypes.c_void_p] * 4 + [ctypes.c_longlong] * 3 + [ctypes.c_void_p] + [ctypes.c_longlong] * 3 \
             + [ctypes.c_void_p] * 5
         run.restype = ctypes.c_int
         return run
@@ -413,8 +447,15 @@ class _CompiledLoglik:
         rows = np.ascontiguousarray(self.nd - self.n_p + np.asarray(fitted, dtype=np.int64))
         S0 = np.ascontiguousarray(S0, dtype=float)
         Qc, Rc = np.asfortranarray(Q, dtype=float).ravel(order="F"), np.asfortranarray(R, dtype=float).ravel(order="F")
-        Z, T = (np.empty(size) for size in self._work_size(K))
         m = len(rows)
+        # The columns of the Hessian and of a forward gradient on the cores (each part its own
+        # work arrays and out, summed), when the sweeps are long enough (THREAD_WORK).
+        threads = 1
+        if m > 1 and runs * K * self.ns >= THREAD_WORK and threading.current_thread() is threading.main_thread():
+            threads = min(m, os.cpu_count() or 1)
+        bounds = np.linspace(0, m, threads + 1).round().astype(int)
+        parts = [(int(j0), int(j1), *(np.empty(size) for size in self._work_size(K)), np.zeros(1 + m + m * m))
+                 for j0, j1 in zip(bounds[:-1], bounds[1:])]
 
         def evaluate(theta: np.ndarray, order: int):
             fn = run
@@ -423,12 +464,20 @@ class _CompiledLoglik:
                 if fn is None:
                     return None
             data[:, :, rows] = theta
-            out = np.zeros(1 + m + m * m)
-            iw, w = self._work.addresses()
-            if fn(data.ctypes.data, S0.ctypes.data, Qc.ctypes.data, Rc.ctypes.data, runs, K, m, rows.ctypes.data,
-                   order, Z.ctypes.data, T.ctypes.data, out.ctypes.data, iw, w):
+
+            def part(p: tuple) -> int:
+                j0, j1, Z, T, out = p
+                out[:] = 0.0
+                iw, w = self._work.addresses()
+                return fn(data.ctypes.data, S0.ctypes.data, Qc.ctypes.data, Rc.ctypes.data, runs, K, m, rows.ctypes.data,
+                          order, j0, j1, Z.ctypes.data, T.ctypes.data, out.ctypes.data, iw, w)
+
+            split = order == 2 or (order == 1 and self.forward)
+            if any(in_threads(part, parts if split else [(0, m, *parts[0][2:])])):
                 raise SymmonError(f"the compiled log-likelihood {self.name} returned an error")
-            return out[0], out[1:1 + m], out[1 + m:].reshape(m, m)
+            # Each entry comes from one part (the others add 0.0): the sum is one call's out.
+            out = parts[0][4] if not split or len(parts) == 1 else sum(p[4] for p in parts)
+            return out[0], out[1:1 + m].copy(), out[1 + m:].reshape(m, m).copy()
 
         return evaluate
 

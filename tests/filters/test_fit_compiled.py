@@ -177,3 +177,26 @@ def test_the_optimiser_runs_on_one_blas_thread(monkeypatch):
     assert seen and all(n == 1 for n in seen[0])
     assert after == [2] * len(after)
     assert [i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"] == before
+
+
+@pytest.mark.parametrize("mode", ["forward", "reverse"])
+def test_the_columns_on_threads_are_one_calls(both_modes, monkeypatch, mode):
+    """With the columns of the Hessian (and of a forward gradient) split over threads (each
+    part its own work and out), ℓ, ∇ℓ and ∇²ℓ are those of one call to the bit: every entry
+    comes from exactly one part, and a tangent's column is the same sums alone or with others."""
+    k, fwd, rev = both_modes
+    compiled = fwd if mode == "forward" else rev
+    ys = bank()
+    checked = filter_inputs(k, ys, X0, None, params={"q": 0.25, "b": 1.0})
+    args = (fitmod._step_data(checked.Y, checked.params), fitmod._initial_states(checked.x0, checked.P0, ys.shape[0]),
+            k.Q, k.R, [1, 0])
+    one = compiled.bind(*args)
+    monkeypatch.setattr(fitmod, "THREAD_WORK", 0)
+    monkeypatch.setattr(fitmod.os, "cpu_count", lambda: 2)
+    split = compiled.bind(*args)
+    t = np.array([0.7, 0.2])
+    for order in (0, 1, 2):
+        (v1, g1, h1), (v2, g2, h2) = one(t, order), split(t, order)
+        assert v1 == v2 and np.array_equal(g1, g2) and np.array_equal(h1, h2)
+    assert np.all(h2 != 0)  # both parts' columns are in
+    np.testing.assert_allclose(h2, h2.T, rtol=1e-10)
