@@ -20,7 +20,9 @@ tangents ∂²s_k/∂θ_i∂θ_j, propagated by d²s_{k+1} = J d²z_k + ∇(J ż
 ż_j = [∂s_k/∂θ_j; e_j], in one sweep.  Above those numbers the loop runs in reverse mode: a
 reverse sweep for the gradient (ibid., §3.2) and a forward-over-reverse sweep per
 parameter for the Hessian (ibid., §5.2), whose cost grows only linearly with the number of
-parameters.  All modes give the same numbers to rounding.
+parameters.  All modes give the same numbers to rounding.  When the sweeps are long
+(:data:`THREAD_WORK`), the columns of the Hessian and of a forward gradient run on the
+cores, a part of the fitted parameters each (every sum is that of one thread to the bit).
 
 The loop is built once per filter through the compile policy; until it is, the same ℓ is
 one CasADi graph of θ (the step folded over the K steps, ``mapaccum``, and mapped over the
