@@ -132,8 +132,7 @@ static void {name}_chol(const casadi_real* C, casadi_real* L) {{
   }}
 }}
 
-/* count normals of the stream whose state is s into out, in a loop of its own (inlined into
-   the particle loop, the generator's state and tables spill out of the registers). */
+/* count normals of stream s into out (a loop of its own: the state stays in registers). */
 static __attribute__((noinline)) void {name}_draw(uint64_t* s, casadi_int count, casadi_real* out) {{
   casadi_int i;
   uint64_t sl[4];
@@ -147,8 +146,7 @@ CASADI_SYMBOL_EXPORT void {name}_normals(unsigned long long* s, casadi_int count
   {name}_draw((uint64_t*) s, count, out);
 }}
 
-/* The lanes of a chunk: SYMMON_LANES states of 4 words, lane by lane (as stored in st), to
-   and from symmon_normal_lanes's order (word by word). */
+/* A chunk's lanes, lane by lane (as in st), to and from symmon_normal_lanes's word order. */
 static void {name}_lanes_in(const uint64_t* st, uint64_t* ls) {{
   int l, w;
   for (l = 0; l < SYMMON_LANES; ++l) for (w = 0; w < 4; ++w) ls[w * SYMMON_LANES + l] = st[l * 4 + w];
@@ -158,8 +156,7 @@ static void {name}_lanes_out(const uint64_t* ls, uint64_t* st) {{
   for (l = 0; l < SYMMON_LANES; ++l) for (w = 0; w < 4; ++w) st[l * 4 + w] = ls[w * SYMMON_LANES + l];
 }}
 
-/* symmon: groups x SYMMON_LANES normals of the lanes s (advanced in place) into out, lane l's
-   at out[g * SYMMON_LANES + l] (tests of the generator). */
+/* symmon: groups x SYMMON_LANES normals of lanes s into out, lane l's at out[g * LANES + l] (tests). */
 CASADI_SYMBOL_EXPORT void {name}_lanes(unsigned long long* s, casadi_int groups, casadi_real* out) {{
   uint64_t ls[4 * SYMMON_LANES];
   casadi_int g;
@@ -168,10 +165,9 @@ CASADI_SYMBOL_EXPORT void {name}_lanes(unsigned long long* s, casadi_int groups,
   {name}_lanes_out(ls, (uint64_t*) s);
 }}
 
-/* A barrier of the run's T threads: a short spin on the generation (a wait between two
-   passes is mostly a few microseconds, and a sleep and wake-up through the kernel costs more),
-   then a POSIX mutex and condition (macOS has no pthread_barrier).  The last thread to arrive
-   resets the count before it publishes the new generation, under the mutex (no lost wake-up). */
+/* A barrier of the T threads: a short spin (most waits are microseconds), then a mutex and
+   condition (macOS has no pthread_barrier); the last to arrive resets the count, then
+   publishes the new generation under the mutex (no lost wake-up). */
 #if defined(__x86_64__) || defined(__i386__)
 #define {name}_PAUSE() __builtin_ia32_pause()
 #else
@@ -194,7 +190,7 @@ static void {name}_bwait({name}_barrier* b) {{
     return;
   }}
   clock_gettime(CLOCK_MONOTONIC, &t0);
-  for (i = 1;; ++i) {{  /* spin for at most {name}_SPIN_NS, reading the clock every 32 turns */
+  for (i = 1;; ++i) {{  /* spin for at most {name}_SPIN_NS (the clock every 32 turns) */
     if (__atomic_load_n(&b->gen, __ATOMIC_ACQUIRE) != g) return;
     {name}_PAUSE();
     if (i % 32) continue;
@@ -215,13 +211,17 @@ typedef struct {{
   const casadi_real* P; casadi_int K, N, nch; casadi_real *X0, *Xn0, *t, *e, *lw, *sc, *hx, *part;
   unsigned long long* st; const casadi_real *zext, *uext, *jext, *m0, *L0; const casadi_int* opt; const casadi_real* fl;
   casadi_real *o_ll, *o_ess, *o_res, *o_x, *o_P, *o_xp, *o_Pp, *o_hm, *o_hS, *cov, *L;
-  casadi_int *fail, *idx; {name}_barrier bar; int T; pthread_mutex_t gate;
+  casadi_int *fail, *idx; {name}_barrier bar; int T; pthread_mutex_t gate; casadi_real pt;
 }} {name}_ctx;
 
-/* The lowest index in the ascending sc[0 .. N) with sc >= v. */
-static casadi_int {name}_lower(const casadi_real* sc, casadi_int N, casadi_real v) {{
+/* Resampling point i: pt + i for systematic resampling (not stored: the serial fill and the
+   walk's reads of N numbers saved), else sc[i] (sc NULL: systematic). */
+#define {name}_POINT(sc, pt, i) ((sc) ? (sc)[i] : (pt) + (casadi_real) (i))
+
+/* The lowest index i in [0, N) of the ascending points with point i >= v (N if none). */
+static casadi_int {name}_lower(const casadi_real* sc, casadi_real pt, casadi_int N, casadi_real v) {{
   casadi_int lo = 0, hi = N, mid;
-  while (lo < hi) {{ mid = (lo + hi) / 2; if (sc[mid] < v) lo = mid + 1; else hi = mid; }}
+  while (lo < hi) {{ mid = (lo + hi) / 2; if ({name}_POINT(sc, pt, mid) < v) lo = mid + 1; else hi = mid; }}
   return lo;
 }}
 
@@ -246,6 +246,9 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
   /* gath: the particle i is X's row idx[i] (the last resampling's pick, not copied: the next
      move reads through idx, which saves the gather's pass over memory) */
   int gath = 0;
+  /* uni: every log-weight is -log N (after a resampling, and at the start), not stored in lw:
+     the pass that wrote them and the move's reads saved; lw written at the end */
+  int uni = 1;
   if (c->m0) for (q = c0; q < c1; ++q) {{  /* the prior x0 = m + L z, z the first normals of chunk q's stream */
     end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
     {name}_draw((uint64_t*) c->st + 4 * q, (end - q * {chunk}) * {nx}, X + q * {chunk} * {nx});
@@ -260,7 +263,6 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
       }}
     }}
   }}
-  for (i = a0; i < a1; ++i) c->lw[i] = -log_n;
   for (k = 0; k < c->K; ++k) {{
     arg[2] = pk = c->P + k * {n_p};
     for (q = c0; q < c1; ++q) {{  /* move and weigh, chunk q, in blocks of {block} particles */
@@ -271,10 +273,9 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
       bad = 0;
       for (b0 = q * {chunk}; b0 < end; b0 += {block}) {{
         nb = end - b0 < {block} ? end - b0 : {block};
-        /* the rows [x_i, z_i] by columns (rb[j * {ld} + i]: the vector loop's loads are
-           contiguous); the normals column by column, SYMMON_LANES particles at a time from
-           the chunk's lanes (particle i of the block from lane i mod SYMMON_LANES; a last
-           group past nb is drawn too, into the column's spare rows: ld >= 8 ceil(nb / 8)) */
+        /* the rows [x_i, z_i] by columns; the normals column by column from the chunk's
+           lanes (particle i from lane i mod SYMMON_LANES; a last group past nb fills the
+           column's spare rows: ld >= 8 ceil(nb / 8)) */
         for (i = 0; i < nb; ++i) {{
           const casadi_real* xr = X + (gath ? c->idx[b0 + i] : b0 + i) * {nx};
           for (j = 0; j < {nx}; ++j) rb[j * {ld} + i] = xr[j];
@@ -302,7 +303,7 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
           xi = Xn + (b0 + i) * {nx};
           for (j = 0; j < {nx}; ++j) xi[j] = blk[j * {ld} + i];
           if (c->hx) for (j = 0; j < {ny}; ++j) c->hx[(b0 + i) * {ny} + j] = blk[({nx} + {ny} + j) * {ld} + i];
-          ti = c->lw[b0 + i] + (-0.5 * acc[i] + pk[{n_p} - 1]);
+          ti = (uni ? -log_n : c->lw[b0 + i]) + (-0.5 * acc[i] + pk[{n_p} - 1]);
           c->t[b0 + i] = ti;
           if (ti != ti || ti == INFINITY) bad |= 1;
           for (j = 0; j < {nx}; ++j) if (!isfinite(xi[j])) bad |= 1;
@@ -323,7 +324,7 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
     if (bad & 2) return 1;
     if (bad || !isfinite(m)) {{ if (tau == 0) *c->fail = k; return 2; }}
     if (want_pred) {{  /* the predicted moments, with the weights before the update */
-      for (i = a0; i < a1; ++i) c->sc[i] = exp(c->lw[i]);
+      for (i = a0; i < a1; ++i) c->sc[i] = exp(uni ? -log_n : c->lw[i]);
       {name}_bwait(&c->bar);
       if (tau == 0) {{
         if (c->o_xp || c->o_Pp) {name}_mom(Xn, N, {nx}, c->sc, 1.0, {name}_ax, c->o_xp ? c->o_xp + k * {nx} : sn,
@@ -373,6 +374,7 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
     }}
     if (!redo) {{
       for (i = a0; i < a1; ++i) c->lw[i] = c->t[i] - lse;
+      uni = 0;
       tmp = X; X = Xn; Xn = tmp;
       gath = 0;
       continue;
@@ -380,7 +382,7 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
     if (tau == 0) {{  /* resampling points, ascending on [0, N) */
       casadi_real* sc = c->sc;
       if (c->uext) memcpy(sc, c->uext + k * N, N * sizeof(casadi_real));
-      else if (c->opt[0] == 0) {{ pt = symmon_uniform(rs); for (i = 0; i < N; ++i) sc[i] = pt + (casadi_real) i; }}
+      else if (c->opt[0] == 0) c->pt = symmon_uniform(rs);  /* the points pt + i, not stored */
       else if (c->opt[0] == 1) {{ for (i = 0; i < N; ++i) sc[i] = symmon_uniform(rs) + (casadi_real) i; }}
       else {{  /* sorted uniforms as normalised sums of exponential spacings */
         cum = 0;
@@ -394,34 +396,35 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
     /* the walk along the cumulative weights, by input chunk: chunk q holds the points in
        [S_q, S_(q+1)) x N / s, S_q the sum of e over the chunks before it */
     scale = (casadi_real) N / s;
+    const casadi_real* pts = c->uext || c->opt[0] != 0 ? c->sc : 0;
     off = 0;
     for (q = 0; q < c0; ++q) off += c->part[q * {name}_PW + 2];
     for (q = c0; q < c1; ++q) {{
       end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
-      lo = q == 0 ? 0 : {name}_lower(c->sc, N, off * scale);
+      lo = q == 0 ? 0 : {name}_lower(pts, c->pt, N, off * scale);
       j = q * {chunk};
       cum = (off + c->e[j]) * scale;
       off += c->part[q * {name}_PW + 2];
-      hi = q == nch - 1 ? N : {name}_lower(c->sc, N, off * scale);
+      hi = q == nch - 1 ? N : {name}_lower(pts, c->pt, N, off * scale);
       for (i = lo; i < hi; ++i) {{
-        pt = c->sc[i];
+        pt = {name}_POINT(pts, c->pt, i);
         while (cum <= pt && j < end - 1) cum += c->e[++j] * scale;
         if (reg) memcpy(X + i * {nx}, Xn + j * {nx}, {nx} * sizeof(casadi_real));
         else c->idx[i] = j;
       }}
     }}
     {name}_bwait(&c->bar);
+    uni = 1;
     if (!reg) {{  /* the moved particles, read through idx by the next move */
       tmp = X; X = Xn; Xn = tmp;
       gath = 1;
+      continue;
     }}
     for (q = c0; q < c1; ++q) {{  /* regularisation: x += h L eps (Musso, Oudjane & Le Gland 2001) */
       uint64_t* sg = (uint64_t*) c->st + 4 * q, sl[4];
       memcpy(sl, sg, sizeof sl);
       end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
       for (i = q * {chunk}; i < end; ++i) {{
-        c->lw[i] = -log_n;
-        if (!reg) continue;
         if (c->jext) memcpy(eps, c->jext + (k * N + i) * {nx}, {nx} * sizeof(casadi_real));
         else for (j = 0; j < {nx}; ++j) eps[j] = symmon_normal(sl);
         xi = X + i * {nx};
@@ -435,6 +438,7 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
       memcpy(sg, sl, sizeof sl);
     }}
   }}
+  if (uni) for (i = a0; i < a1; ++i) c->lw[i] = -log_n;
   if (gath) {{  /* the last pick, copied into the other buffer (other threads read X's rows) */
     for (i = a0; i < a1; ++i) memcpy(Xn + i * {nx}, X + c->idx[i] * {nx}, {nx} * sizeof(casadi_real));
     tmp = X; X = Xn; Xn = tmp;
@@ -481,7 +485,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
   c.X0 = X0; c.Xn0 = Xn0; c.t = t; c.e = e; c.lw = lw; c.sc = sc; c.hx = hx; c.part = part; c.st = st;
   c.zext = zext; c.uext = uext; c.jext = jext; c.m0 = m0; c.L0 = L0; c.opt = opt; c.fl = fl; c.o_ll = o_ll; c.o_ess = o_ess;
   c.o_res = o_res; c.o_x = o_x; c.o_P = o_P; c.o_xp = o_xp; c.o_Pp = o_Pp; c.o_hm = o_hm; c.o_hS = o_hS;
-  c.cov = cov; c.L = L; c.fail = fail;
+  c.cov = cov; c.L = L; c.fail = fail; c.pt = 0;
   c.idx = (casadi_int*) malloc((N > 0 ? N : 1) * sizeof(casadi_int));
   if (!c.idx) return 1;
   if (T > c.nch) T = c.nch;
