@@ -204,6 +204,9 @@ static void {name}_bwait({name}_barrier* b) {{
 
 /* Per chunk of CHUNK particles: [max t, bad, sum e, sum e^2, sum e x (or sin), sum e cos]. */
 #define {name}_PW (4 + 2 * {nx})
+/* r_q = exp(m_q - m): a chunk's exponentials about its maximum m_q to the step's m (0 for a
+   chunk of zero weights, m_q = -inf) */
+#define {name}_RATIO(mq, m) ((mq) == -INFINITY ? 0.0 : exp((mq) - (m)))
 /* Doubles of a thread's buffers (the body's notes). */
 #define {name}_BUF ({ld} * {nr} + {ld} * {no} + 2 * {ld} + {no} + {block} / 8 + 1)
 
@@ -211,7 +214,7 @@ typedef struct {{
   const casadi_real* P; casadi_int K, N, nch; casadi_real *X0, *Xn0, *t, *e, *lw, *sc, *hx, *part;
   unsigned long long* st; const casadi_real *zext, *uext, *jext, *m0, *L0; const casadi_int* opt; const casadi_real* fl;
   casadi_real *o_ll, *o_ess, *o_res, *o_x, *o_P, *o_xp, *o_Pp, *o_hm, *o_hS, *cov, *L;
-  casadi_int *fail, *idx; {name}_barrier bar; int T; pthread_mutex_t gate; casadi_real pt;
+  casadi_int *fail, *idx; {name}_barrier bar; int T; pthread_mutex_t gate;
 }} {name}_ctx;
 
 /* Resampling point i: pt + i for systematic resampling (not stored: the serial fill and the
@@ -234,9 +237,11 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
   casadi_real* res[{sz_res}];
   casadi_real *X = c->X0, *Xn = c->Xn0, *tmp, *xi, *pc;
   const casadi_real* pk;
-  casadi_real ti, m, s, s2, lse, ei, cum, scale, pt, off, zr[{nq}], eps[{nx}], sx[{nx}], sn[{nx}], cs[{nx}];
+  casadi_real ti, m, mq, r, s, s2, lse, ei, cum, scale, pt, off, zr[{nq}], eps[{nx}], sx[{nx}], sn[{nx}], cs[{nx}];
   const casadi_real log_n = log((casadi_real) N);
-  uint64_t* rs = (uint64_t*) c->st + 4 * nch, ls[4 * SYMMON_LANES];
+  /* rsl: this thread's copy of the resampling stream; every thread draws a systematic
+     resampling's point from it (no barrier), tau 0 the others, and writes it back at the end */
+  uint64_t* rs = (uint64_t*) c->st + 4 * nch, ls[4 * SYMMON_LANES], rsl[4];
   casadi_int i, j, k, q, a, b, bad, redo, lo, hi, end, b0, nb;
   /* this thread's buffers: the rows [x, z] of a block and its outputs [x', nu, h] by columns,
      A nu and |A nu|^2 of one component, one row, the vector loop's flags */
@@ -246,9 +251,12 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
   /* gath: the particle i is X's row idx[i] (the last resampling's pick, not copied: the next
      move reads through idx, which saves the gather's pass over memory) */
   int gath = 0;
+  memcpy(rsl, rs, sizeof rsl);
   /* uni: every log-weight is -log N (after a resampling, and at the start), not stored in lw:
      the pass that wrote them and the move's reads saved; lw written at the end */
-  int uni = 1;
+  int uni = 1, esc, sysm = !c->uext && c->opt[0] == 0;
+  casadi_real psys = 0;
+  casadi_real* part;
   if (c->m0) for (q = c0; q < c1; ++q) {{  /* the prior x0 = m + L z, z the first normals of chunk q's stream */
     end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
     {name}_draw((uint64_t*) c->st + 4 * q, (end - q * {chunk}) * {nx}, X + q * {chunk} * {nx});
@@ -265,6 +273,8 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
   }}
   for (k = 0; k < c->K; ++k) {{
     arg[2] = pk = c->P + k * {n_p};
+    part = c->part + (k & 1) * nch * {name}_PW;  /* by parity: a thread's next move may write
+                                                     its chunks' sums while another reads these */
     for (q = c0; q < c1; ++q) {{  /* move and weigh, chunk q, in blocks of {block} particles */
       uint64_t* lq = (uint64_t*) c->st + 4 * (nch + 1) + 4 * SYMMON_LANES * q;  /* chunk q's lanes */
       {name}_lanes_in(lq, ls);
@@ -311,15 +321,39 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
         }}
       }}
       {name}_lanes_out(ls, lq);
-      c->part[q * {name}_PW] = m;
-      c->part[q * {name}_PW + 1] = (casadi_real) bad;
+      /* the chunk's exponentials e'_i = exp(t_i - m_q) about its own maximum m_q and their
+         sums, while its x' and t are in the cache (the step's maximum scales them after the
+         barrier, exactly as exp(m_q - max t)); by vecmath's sm_exp (within 1 ulp,
+         vectorised), an argument beyond its range by libm's exp */
+      b0 = q * {chunk};
+      mq = m == -INFINITY ? 0 : m;  /* every t_i = -inf: e' = 0 */
+      {{
+        const casadi_real* restrict tq = c->t;
+        casadi_real* restrict eq = c->e;
+        for (i = b0; i < end; ++i) eq[i] = sm_exp(tq[i] - mq);
+      }}
+      s = 0; s2 = 0;
+      for (j = 0; j < {nx}; ++j) sx[j] = cs[j] = 0;
+      for (i = b0; i < end; ++i) {{
+        ei = c->e[i];
+        if (!sm_exp_ordinary(c->t[i] - mq)) c->e[i] = ei = exp(c->t[i] - mq);
+        s += ei;
+        s2 += ei * ei;
+        xi = Xn + i * {nx};
+        {wsum}
+      }}
+      pc = part + q * {name}_PW;
+      pc[0] = m;
+      pc[1] = (casadi_real) bad;
+      pc[2] = s; pc[3] = s2;
+      for (j = 0; j < {nx}; ++j) {{ pc[4 + j] = sx[j]; pc[4 + {nx} + j] = cs[j]; }}
     }}
     {name}_bwait(&c->bar);
     m = -INFINITY;
     bad = 0;
     for (q = 0; q < nch; ++q) {{
-      if (c->part[q * {name}_PW] > m) m = c->part[q * {name}_PW];
-      bad |= (casadi_int) c->part[q * {name}_PW + 1];
+      if (part[q * {name}_PW] > m) m = part[q * {name}_PW];
+      bad |= (casadi_int) part[q * {name}_PW + 1];
     }}
     if (bad & 2) return 1;
     if (bad || !isfinite(m)) {{ if (tau == 0) *c->fail = k; return 2; }}
@@ -332,35 +366,23 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
         if (c->o_hm) {name}_mom(c->hx, N, {ny}, c->sc, 1.0, {name}_ay, c->o_hm + k * {ny}, c->o_hS + k * {ny} * {ny});
       }}
     }}
-    for (q = c0; q < c1; ++q) {{  /* the exponentials, their sums and the weighted sums of x */
-      end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
-      s = 0; s2 = 0;
-      for (j = 0; j < {nx}; ++j) sx[j] = cs[j] = 0;
-      {{  /* by vecmath's sm_exp (within 1 ulp, vectorised); an argument beyond its range
-            (a weight below e^-708 of the largest, or -inf) by libm's exp, in the sums' loop */
-        const casadi_real* restrict tq = c->t;
-        casadi_real* restrict eq = c->e;
-        for (i = q * {chunk}; i < end; ++i) eq[i] = sm_exp(tq[i] - m);
-      }}
-      for (i = q * {chunk}; i < end; ++i) {{
-        ei = c->e[i];
-        if (!sm_exp_ordinary(c->t[i] - m)) c->e[i] = ei = exp(c->t[i] - m);
-        s += ei;
-        s2 += ei * ei;
-        xi = Xn + i * {nx};
-        {wsum}
-      }}
-      pc = c->part + q * {name}_PW;
-      pc[2] = s; pc[3] = s2;
-      for (j = 0; j < {nx}; ++j) {{ pc[4 + j] = sx[j]; pc[4 + {nx} + j] = cs[j]; }}
-    }}
-    {name}_bwait(&c->bar);
+    /* the chunks' sums scaled by r_q = exp(m_q - m) (e_i = r_q e'_i), added in chunk order */
     s = 0; s2 = 0;
     for (j = 0; j < {nx}; ++j) sx[j] = cs[j] = 0;
     for (q = 0; q < nch; ++q) {{
-      pc = c->part + q * {name}_PW;
-      s += pc[2]; s2 += pc[3];
-      for (j = 0; j < {nx}; ++j) {{ sx[j] += pc[4 + j]; cs[j] += pc[4 + {nx} + j]; }}
+      pc = part + q * {name}_PW;
+      r = {name}_RATIO(pc[0], m);
+      s += r * pc[2]; s2 += r * r * pc[3];
+      for (j = 0; j < {nx}; ++j) {{ sx[j] += r * pc[4 + j]; cs[j] += r * pc[4 + {nx} + j]; }}
+    }}
+    esc = c->o_P || reg;
+    if (esc) {{  /* e_i itself, for the covariance about the mean (tau 0, after the barrier) */
+      for (q = c0; q < c1; ++q) {{
+        end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
+        r = {name}_RATIO(part[q * {name}_PW], m);
+        for (i = q * {chunk}; i < end; ++i) c->e[i] *= r;
+      }}
+      {name}_bwait(&c->bar);
     }}
     lse = m + log(s);
     redo = s * s / s2 <= c->fl[0];
@@ -372,6 +394,8 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
       if (c->o_P || (redo && reg))  /* the covariance about the mean */
         {name}_mom(Xn, N, {nx}, c->e, s, {name}_ax, sn, c->o_P ? c->o_P + k * {nx} * {nx} : c->cov);
     }}
+    /* tau 0 reads e, hx, sc of every chunk above: the next move writes them */
+    if (want_pred || esc) {name}_bwait(&c->bar);
     if (!redo) {{
       for (i = a0; i < a1; ++i) c->lw[i] = c->t[i] - lse;
       uni = 0;
@@ -379,36 +403,38 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
       gath = 0;
       continue;
     }}
+    if (sysm) psys = symmon_uniform(rsl);  /* the points psys + i, not stored */
     if (tau == 0) {{  /* resampling points, ascending on [0, N) */
       casadi_real* sc = c->sc;
       if (c->uext) memcpy(sc, c->uext + k * N, N * sizeof(casadi_real));
-      else if (c->opt[0] == 0) c->pt = symmon_uniform(rs);  /* the points pt + i, not stored */
-      else if (c->opt[0] == 1) {{ for (i = 0; i < N; ++i) sc[i] = symmon_uniform(rs) + (casadi_real) i; }}
-      else {{  /* sorted uniforms as normalised sums of exponential spacings */
+      else if (c->opt[0] == 1) {{ for (i = 0; i < N; ++i) sc[i] = symmon_uniform(rsl) + (casadi_real) i; }}
+      else if (c->opt[0] == 2) {{  /* sorted uniforms as normalised sums of exponential spacings */
         cum = 0;
-        for (i = 0; i < N; ++i) {{ cum += -log1p(-symmon_uniform(rs)); sc[i] = cum; }}
-        cum += -log1p(-symmon_uniform(rs));
+        for (i = 0; i < N; ++i) {{ cum += -log1p(-symmon_uniform(rsl)); sc[i] = cum; }}
+        cum += -log1p(-symmon_uniform(rsl));
         for (i = 0; i < N; ++i) sc[i] *= (casadi_real) N / cum;
       }}
       if (reg) {name}_chol(c->o_P ? c->o_P + k * {nx} * {nx} : c->cov, c->L);
     }}
-    {name}_bwait(&c->bar);
+    if (!sysm || reg) {name}_bwait(&c->bar);
     /* the walk along the cumulative weights, by input chunk: chunk q holds the points in
        [S_q, S_(q+1)) x N / s, S_q the sum of e over the chunks before it */
     scale = (casadi_real) N / s;
-    const casadi_real* pts = c->uext || c->opt[0] != 0 ? c->sc : 0;
+    const casadi_real* pts = sysm ? 0 : c->sc;
     off = 0;
-    for (q = 0; q < c0; ++q) off += c->part[q * {name}_PW + 2];
+    for (q = 0; q < c0; ++q) off += {name}_RATIO(part[q * {name}_PW], m) * part[q * {name}_PW + 2];
     for (q = c0; q < c1; ++q) {{
       end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
-      lo = q == 0 ? 0 : {name}_lower(pts, c->pt, N, off * scale);
+      r = esc ? 1 : {name}_RATIO(part[q * {name}_PW], m);  /* e_i = r e[i] */
+      lo = q == 0 ? 0 : {name}_lower(pts, psys, N, off * scale);
       j = q * {chunk};
-      cum = (off + c->e[j]) * scale;
-      off += c->part[q * {name}_PW + 2];
-      hi = q == nch - 1 ? N : {name}_lower(pts, c->pt, N, off * scale);
+      cum = (off + r * c->e[j]) * scale;
+      off += {name}_RATIO(part[q * {name}_PW], m) * part[q * {name}_PW + 2];
+      hi = q == nch - 1 ? N : {name}_lower(pts, psys, N, off * scale);
+      r *= scale;
       for (i = lo; i < hi; ++i) {{
-        pt = {name}_POINT(pts, c->pt, i);
-        while (cum <= pt && j < end - 1) cum += c->e[++j] * scale;
+        pt = {name}_POINT(pts, psys, i);
+        while (cum <= pt && j < end - 1) cum += c->e[++j] * r;
         if (reg) memcpy(X + i * {nx}, Xn + j * {nx}, {nx} * sizeof(casadi_real));
         else c->idx[i] = j;
       }}
@@ -445,6 +471,7 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
     {name}_bwait(&c->bar);
   }}
   if (X != c->X0) memcpy(c->X0 + a0 * {nx}, X + a0 * {nx}, (a1 - a0) * {nx} * sizeof(casadi_real));  /* own rows */
+  if (tau == 0) memcpy(rs, rsl, sizeof rsl);
   return 0;
 }}
 
@@ -460,7 +487,7 @@ static void* {name}_thread(void* p) {{
 /* symmon: the K steps of the bootstrap filter for one run on T threads over particle chunks
    (module notes).  P: K rows of the call's parameters; X holds the N initial particles (on
    return: the final ones, and lw their normalised log-weights); Xn,
-   t, e, lw, sc: work (N x n, N, N, N, N); hx: N x ny or NULL; part: ceil(N / CHUNK) x
+   t, e, lw, sc: work (N x n, N, N, N, N); hx: N x ny or NULL; part: 2 ceil(N / CHUNK) x
    (4 + 2n); st: ceil(N / CHUNK) + 1 xoshiro states (the chunks', then the resampling
    stream), then SYMMON_LANES per chunk (the move's normals, lane by lane); zext, uext, jext: replayed move normals (K x N x nq), resampling points (K x N,
    ascending in [0, N)) and jitter normals (K x N x nx), or NULL to draw; m0, L0: the mean
@@ -485,7 +512,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
   c.X0 = X0; c.Xn0 = Xn0; c.t = t; c.e = e; c.lw = lw; c.sc = sc; c.hx = hx; c.part = part; c.st = st;
   c.zext = zext; c.uext = uext; c.jext = jext; c.m0 = m0; c.L0 = L0; c.opt = opt; c.fl = fl; c.o_ll = o_ll; c.o_ess = o_ess;
   c.o_res = o_res; c.o_x = o_x; c.o_P = o_P; c.o_xp = o_xp; c.o_Pp = o_Pp; c.o_hm = o_hm; c.o_hS = o_hS;
-  c.cov = cov; c.L = L; c.fail = fail; c.pt = 0;
+  c.cov = cov; c.L = L; c.fail = fail;
   c.idx = (casadi_int*) malloc((N > 0 ? N : 1) * sizeof(casadi_int));
   if (!c.idx) return 1;
   if (T > c.nch) T = c.nch;
