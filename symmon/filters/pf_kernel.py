@@ -27,19 +27,25 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
    particle; then the whitening A ν_i by the inverse Cholesky factor A of the measured
    block of Γ R Γᵀ (embedded with zero rows and columns for the missing components, whose
    ν_i, finite or not, never enter) and the log-density, by loops over the block; writing
-   x'_i, t_i and each chunk's maximum of t and a flag for a non-finite particle or weight;
-2. e_i = exp(t_i − max t) (by :mod:`symmon.compile.vecmath`'s vectorised exp, within 1 ulp),
-   and per chunk Σ e_i, Σ e_i², Σ e_i x'_i (sines and cosines for
-   angle states), one pass, with the maximum of pass 1 so no exponential overflows; the
-   chunks' sums are added in chunk order, so the result does not depend on the threads;
+   x'_i, t_i and each chunk's maximum m_q of t and a flag for a non-finite particle or
+   weight; then, while the chunk's x' and t are in the cache, e'_i = exp(t_i − m_q) (by
+   :mod:`symmon.compile.vecmath`'s vectorised exp, within 1 ulp) and the chunk's Σ e'_i,
+   Σ e'_i², Σ e'_i x'_i (sines and cosines for angle states); no exponential overflows;
+2. after the barrier, with m = max t, e_i = r_q e'_i for r_q = exp(m_q − m): the chunks'
+   sums scaled by r_q (r_q² for Σ e²) are added in chunk order, so the result does not
+   depend on the threads (until 2026-12-04 a second pass over x' and t computed
+   exp(t_i − m) itself: the moments then differed by rounding); e itself is rescaled only
+   for the covariance and the regularisation;
 3. the covariance and the predicted moments when kept (a pass each);
-4. on resampling: the points (systematic, stratified, or sorted uniforms as normalised
-   sums of exponential spacings for multinomial: O(N), no sort), then the walk along the
+4. on resampling: the points (systematic: u + i, not stored, u drawn by every thread
+   from its copy of the resampling stream, so no barrier; stratified, or sorted uniforms
+   as normalised sums of exponential spacings for multinomial: O(N), no sort), then the walk along the
    cumulative weights (points ascending: O(N), no binary search), by input chunk, each
    chunk finding its first point by bisection; the regularisation's jitter by output chunk.
    Without regularisation the pick is kept as indices and the next move reads the moved
    particles through them (the rows are copied once, at the end of the run), which saves
-   the gather's read and write of the N x n particles each step.
+   the gather's read and write of the N x n particles each step.  After a resampling the
+   log-weights, all −log N, are a flag, not written.
 
 A single run runs on T threads (pthreads made by the call, a barrier at each reduction)
 over contiguous chunk ranges; the C of a run never waits on Python's thread pool.
