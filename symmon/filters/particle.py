@@ -708,8 +708,9 @@ class ParticleFilter:
         isz, wsz = kern.f.sz_iw() + 1, kern.f.sz_w() + 1
         # The work arrays of a run, one block (one address to take, a few microseconds each):
         # Xn (N x n); t, e, lw, the points (N each); Hx (N x n_y, when kept); part (chunks x
-        # (4 + 2n)); the T threads' iw (int64) and w; the step's resampled flags (K).
-        sizes = (N * n, N, N, N, N, N * n_y if want_h else 0, chunks * (4 + 2 * n), T * isz, T * wsz, K)
+        # (4 + 2n), twice: by step parity); the T threads' iw (int64) and w; the step's
+        # resampled flags (K).
+        sizes = (N * n, N, N, N, N, N * n_y if want_h else 0, 2 * chunks * (4 + 2 * n), T * isz, T * wsz, K)
         offs = [0, *itertools.accumulate(sizes)]
         block = np.empty((Rr, offs[-1]))
         base, run_bytes = block.ctypes.data, 8 * offs[-1]

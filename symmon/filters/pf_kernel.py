@@ -27,19 +27,25 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
    particle; then the whitening A ν_i by the inverse Cholesky factor A of the measured
    block of Γ R Γᵀ (embedded with zero rows and columns for the missing components, whose
    ν_i, finite or not, never enter) and the log-density, by loops over the block; writing
-   x'_i, t_i and each chunk's maximum of t and a flag for a non-finite particle or weight;
-2. e_i = exp(t_i − max t) (by :mod:`symmon.compile.vecmath`'s vectorised exp, within 1 ulp),
-   and per chunk Σ e_i, Σ e_i², Σ e_i x'_i (sines and cosines for
-   angle states), one pass, with the maximum of pass 1 so no exponential overflows; the
-   chunks' sums are added in chunk order, so the result does not depend on the threads;
+   x'_i, t_i and each chunk's maximum m_q of t and a flag for a non-finite particle or
+   weight; then, while the chunk's x' and t are in the cache, e'_i = exp(t_i − m_q) (by
+   :mod:`symmon.compile.vecmath`'s vectorised exp, within 1 ulp) and the chunk's Σ e'_i,
+   Σ e'_i², Σ e'_i x'_i (sines and cosines for angle states); no exponential overflows;
+2. after the barrier, with m = max t, e_i = r_q e'_i for r_q = exp(m_q − m): the chunks'
+   sums scaled by r_q (r_q² for Σ e²) are added in chunk order, so the result does not
+   depend on the threads (until 2026-12-04 a second pass over x' and t computed
+   exp(t_i − m) itself: the moments then differed by rounding); e itself is rescaled only
+   for the covariance and the regularisation;
 3. the covariance and the predicted moments when kept (a pass each);
-4. on resampling: the points (systematic, stratified, or sorted uniforms as normalised
-   sums of exponential spacings for multinomial: O(N), no sort), then the walk along the
+4. on resampling: the points (systematic: u + i, not stored, u drawn by every thread
+   from its copy of the resampling stream, so no barrier; stratified, or sorted uniforms
+   as normalised sums of exponential spacings for multinomial: O(N), no sort), then the walk along the
    cumulative weights (points ascending: O(N), no binary search), by input chunk, each
    chunk finding its first point by bisection; the regularisation's jitter by output chunk.
    Without regularisation the pick is kept as indices and the next move reads the moved
    particles through them (the rows are copied once, at the end of the run), which saves
-   the gather's read and write of the N x n particles each step.
+   the gather's read and write of the N x n particles each step.  After a resampling the
+   log-weights, all −log N, are a flag, not written.
 
 A single run runs on T threads (pthreads made by the call, a barrier at each reduction)
 over contiguous chunk ranges; the C of a run never waits on Python's thread pool.
@@ -132,8 +138,7 @@ static void {name}_chol(const casadi_real* C, casadi_real* L) {{
   }}
 }}
 
-/* count normals of the stream whose state is s into out, in a loop of its own (inlined into
-   the particle loop, the generator's state and tables spill out of the registers). */
+/* count normals of stream s into out (a loop of its own: the state stays in registers). */
 static __attribute__((noinline)) void {name}_draw(uint64_t* s, casadi_int count, casadi_real* out) {{
   casadi_int i;
   uint64_t sl[4];
@@ -147,8 +152,7 @@ CASADI_SYMBOL_EXPORT void {name}_normals(unsigned long long* s, casadi_int count
   {name}_draw((uint64_t*) s, count, out);
 }}
 
-/* The lanes of a chunk: SYMMON_LANES states of 4 words, lane by lane (as stored in st), to
-   and from symmon_normal_lanes's order (word by word). */
+/* A chunk's lanes, lane by lane (as in st), to and from symmon_normal_lanes's word order. */
 static void {name}_lanes_in(const uint64_t* st, uint64_t* ls) {{
   int l, w;
   for (l = 0; l < SYMMON_LANES; ++l) for (w = 0; w < 4; ++w) ls[w * SYMMON_LANES + l] = st[l * 4 + w];
@@ -158,8 +162,7 @@ static void {name}_lanes_out(const uint64_t* ls, uint64_t* st) {{
   for (l = 0; l < SYMMON_LANES; ++l) for (w = 0; w < 4; ++w) st[l * 4 + w] = ls[w * SYMMON_LANES + l];
 }}
 
-/* symmon: groups x SYMMON_LANES normals of the lanes s (advanced in place) into out, lane l's
-   at out[g * SYMMON_LANES + l] (tests of the generator). */
+/* symmon: groups x SYMMON_LANES normals of lanes s into out, lane l's at out[g * LANES + l] (tests). */
 CASADI_SYMBOL_EXPORT void {name}_lanes(unsigned long long* s, casadi_int groups, casadi_real* out) {{
   uint64_t ls[4 * SYMMON_LANES];
   casadi_int g;
@@ -168,10 +171,9 @@ CASADI_SYMBOL_EXPORT void {name}_lanes(unsigned long long* s, casadi_int groups,
   {name}_lanes_out(ls, (uint64_t*) s);
 }}
 
-/* A barrier of the run's T threads: a short spin on the generation (a wait between two
-   passes is mostly a few microseconds, and a sleep and wake-up through the kernel costs more),
-   then a POSIX mutex and condition (macOS has no pthread_barrier).  The last thread to arrive
-   resets the count before it publishes the new generation, under the mutex (no lost wake-up). */
+/* A barrier of the T threads: a short spin (most waits are microseconds), then a mutex and
+   condition (macOS has no pthread_barrier); the last to arrive resets the count, then
+   publishes the new generation under the mutex (no lost wake-up). */
 #if defined(__x86_64__) || defined(__i386__)
 #define {name}_PAUSE() __builtin_ia32_pause()
 #else
@@ -194,7 +196,7 @@ static void {name}_bwait({name}_barrier* b) {{
     return;
   }}
   clock_gettime(CLOCK_MONOTONIC, &t0);
-  for (i = 1;; ++i) {{  /* spin for at most {name}_SPIN_NS, reading the clock every 32 turns */
+  for (i = 1;; ++i) {{  /* spin for at most {name}_SPIN_NS (the clock every 32 turns) */
     if (__atomic_load_n(&b->gen, __ATOMIC_ACQUIRE) != g) return;
     {name}_PAUSE();
     if (i % 32) continue;
@@ -208,6 +210,9 @@ static void {name}_bwait({name}_barrier* b) {{
 
 /* Per chunk of CHUNK particles: [max t, bad, sum e, sum e^2, sum e x (or sin), sum e cos]. */
 #define {name}_PW (4 + 2 * {nx})
+/* r_q = exp(m_q - m): a chunk's exponentials about its maximum m_q to the step's m (0 for a
+   chunk of zero weights, m_q = -inf) */
+#define {name}_RATIO(mq, m) ((mq) == -INFINITY ? 0.0 : exp((mq) - (m)))
 /* Doubles of a thread's buffers (the body's notes). */
 #define {name}_BUF ({ld} * {nr} + {ld} * {no} + 2 * {ld} + {no} + {block} / 8 + 1)
 
@@ -218,10 +223,14 @@ typedef struct {{
   casadi_int *fail, *idx; {name}_barrier bar; int T; pthread_mutex_t gate;
 }} {name}_ctx;
 
-/* The lowest index in the ascending sc[0 .. N) with sc >= v. */
-static casadi_int {name}_lower(const casadi_real* sc, casadi_int N, casadi_real v) {{
+/* Resampling point i: pt + i for systematic resampling (not stored: the serial fill and the
+   walk's reads of N numbers saved), else sc[i] (sc NULL: systematic). */
+#define {name}_POINT(sc, pt, i) ((sc) ? (sc)[i] : (pt) + (casadi_real) (i))
+
+/* The lowest index i in [0, N) of the ascending points with point i >= v (N if none). */
+static casadi_int {name}_lower(const casadi_real* sc, casadi_real pt, casadi_int N, casadi_real v) {{
   casadi_int lo = 0, hi = N, mid;
-  while (lo < hi) {{ mid = (lo + hi) / 2; if (sc[mid] < v) lo = mid + 1; else hi = mid; }}
+  while (lo < hi) {{ mid = (lo + hi) / 2; if ({name}_POINT(sc, pt, mid) < v) lo = mid + 1; else hi = mid; }}
   return lo;
 }}
 
@@ -234,9 +243,11 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
   casadi_real* res[{sz_res}];
   casadi_real *X = c->X0, *Xn = c->Xn0, *tmp, *xi, *pc;
   const casadi_real* pk;
-  casadi_real ti, m, s, s2, lse, ei, cum, scale, pt, off, zr[{nq}], eps[{nx}], sx[{nx}], sn[{nx}], cs[{nx}];
+  casadi_real ti, m, mq, r, s, s2, lse, ei, cum, scale, pt, off, zr[{nq}], eps[{nx}], sx[{nx}], sn[{nx}], cs[{nx}];
   const casadi_real log_n = log((casadi_real) N);
-  uint64_t* rs = (uint64_t*) c->st + 4 * nch, ls[4 * SYMMON_LANES];
+  /* rsl: this thread's copy of the resampling stream; every thread draws a systematic
+     resampling's point from it (no barrier), tau 0 the others, and writes it back at the end */
+  uint64_t* rs = (uint64_t*) c->st + 4 * nch, ls[4 * SYMMON_LANES], rsl[4];
   casadi_int i, j, k, q, a, b, bad, redo, lo, hi, end, b0, nb;
   /* this thread's buffers: the rows [x, z] of a block and its outputs [x', nu, h] by columns,
      A nu and |A nu|^2 of one component, one row, the vector loop's flags */
@@ -246,6 +257,12 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
   /* gath: the particle i is X's row idx[i] (the last resampling's pick, not copied: the next
      move reads through idx, which saves the gather's pass over memory) */
   int gath = 0;
+  memcpy(rsl, rs, sizeof rsl);
+  /* uni: every log-weight is -log N (after a resampling, and at the start), not stored in lw:
+     the pass that wrote them and the move's reads saved; lw written at the end */
+  int uni = 1, esc, sysm = !c->uext && c->opt[0] == 0;
+  casadi_real psys = 0;
+  casadi_real* part;
   if (c->m0) for (q = c0; q < c1; ++q) {{  /* the prior x0 = m + L z, z the first normals of chunk q's stream */
     end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
     {name}_draw((uint64_t*) c->st + 4 * q, (end - q * {chunk}) * {nx}, X + q * {chunk} * {nx});
@@ -260,9 +277,10 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
       }}
     }}
   }}
-  for (i = a0; i < a1; ++i) c->lw[i] = -log_n;
   for (k = 0; k < c->K; ++k) {{
     arg[2] = pk = c->P + k * {n_p};
+    part = c->part + (k & 1) * nch * {name}_PW;  /* by parity: a thread's next move may write
+                                                     its chunks' sums while another reads these */
     for (q = c0; q < c1; ++q) {{  /* move and weigh, chunk q, in blocks of {block} particles */
       uint64_t* lq = (uint64_t*) c->st + 4 * (nch + 1) + 4 * SYMMON_LANES * q;  /* chunk q's lanes */
       {name}_lanes_in(lq, ls);
@@ -271,10 +289,9 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
       bad = 0;
       for (b0 = q * {chunk}; b0 < end; b0 += {block}) {{
         nb = end - b0 < {block} ? end - b0 : {block};
-        /* the rows [x_i, z_i] by columns (rb[j * {ld} + i]: the vector loop's loads are
-           contiguous); the normals column by column, SYMMON_LANES particles at a time from
-           the chunk's lanes (particle i of the block from lane i mod SYMMON_LANES; a last
-           group past nb is drawn too, into the column's spare rows: ld >= 8 ceil(nb / 8)) */
+        /* the rows [x_i, z_i] by columns; the normals column by column from the chunk's
+           lanes (particle i from lane i mod SYMMON_LANES; a last group past nb fills the
+           column's spare rows: ld >= 8 ceil(nb / 8)) */
         for (i = 0; i < nb; ++i) {{
           const casadi_real* xr = X + (gath ? c->idx[b0 + i] : b0 + i) * {nx};
           for (j = 0; j < {nx}; ++j) rb[j * {ld} + i] = xr[j];
@@ -302,7 +319,7 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
           xi = Xn + (b0 + i) * {nx};
           for (j = 0; j < {nx}; ++j) xi[j] = blk[j * {ld} + i];
           if (c->hx) for (j = 0; j < {ny}; ++j) c->hx[(b0 + i) * {ny} + j] = blk[({nx} + {ny} + j) * {ld} + i];
-          ti = c->lw[b0 + i] + (-0.5 * acc[i] + pk[{n_p} - 1]);
+          ti = (uni ? -log_n : c->lw[b0 + i]) + (-0.5 * acc[i] + pk[{n_p} - 1]);
           c->t[b0 + i] = ti;
           if (ti != ti || ti == INFINITY) bad |= 1;
           for (j = 0; j < {nx}; ++j) if (!isfinite(xi[j])) bad |= 1;
@@ -310,20 +327,44 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
         }}
       }}
       {name}_lanes_out(ls, lq);
-      c->part[q * {name}_PW] = m;
-      c->part[q * {name}_PW + 1] = (casadi_real) bad;
+      /* the chunk's exponentials e'_i = exp(t_i - m_q) about its own maximum m_q and their
+         sums, while its x' and t are in the cache (the step's maximum scales them after the
+         barrier, exactly as exp(m_q - max t)); by vecmath's sm_exp (within 1 ulp,
+         vectorised), an argument beyond its range by libm's exp */
+      b0 = q * {chunk};
+      mq = m == -INFINITY ? 0 : m;  /* every t_i = -inf: e' = 0 */
+      {{
+        const casadi_real* restrict tq = c->t;
+        casadi_real* restrict eq = c->e;
+        for (i = b0; i < end; ++i) eq[i] = sm_exp(tq[i] - mq);
+      }}
+      s = 0; s2 = 0;
+      for (j = 0; j < {nx}; ++j) sx[j] = cs[j] = 0;
+      for (i = b0; i < end; ++i) {{
+        ei = c->e[i];
+        if (!sm_exp_ordinary(c->t[i] - mq)) c->e[i] = ei = exp(c->t[i] - mq);
+        s += ei;
+        s2 += ei * ei;
+        xi = Xn + i * {nx};
+        {wsum}
+      }}
+      pc = part + q * {name}_PW;
+      pc[0] = m;
+      pc[1] = (casadi_real) bad;
+      pc[2] = s; pc[3] = s2;
+      for (j = 0; j < {nx}; ++j) {{ pc[4 + j] = sx[j]; pc[4 + {nx} + j] = cs[j]; }}
     }}
     {name}_bwait(&c->bar);
     m = -INFINITY;
     bad = 0;
     for (q = 0; q < nch; ++q) {{
-      if (c->part[q * {name}_PW] > m) m = c->part[q * {name}_PW];
-      bad |= (casadi_int) c->part[q * {name}_PW + 1];
+      if (part[q * {name}_PW] > m) m = part[q * {name}_PW];
+      bad |= (casadi_int) part[q * {name}_PW + 1];
     }}
     if (bad & 2) return 1;
     if (bad || !isfinite(m)) {{ if (tau == 0) *c->fail = k; return 2; }}
     if (want_pred) {{  /* the predicted moments, with the weights before the update */
-      for (i = a0; i < a1; ++i) c->sc[i] = exp(c->lw[i]);
+      for (i = a0; i < a1; ++i) c->sc[i] = exp(uni ? -log_n : c->lw[i]);
       {name}_bwait(&c->bar);
       if (tau == 0) {{
         if (c->o_xp || c->o_Pp) {name}_mom(Xn, N, {nx}, c->sc, 1.0, {name}_ax, c->o_xp ? c->o_xp + k * {nx} : sn,
@@ -331,35 +372,23 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
         if (c->o_hm) {name}_mom(c->hx, N, {ny}, c->sc, 1.0, {name}_ay, c->o_hm + k * {ny}, c->o_hS + k * {ny} * {ny});
       }}
     }}
-    for (q = c0; q < c1; ++q) {{  /* the exponentials, their sums and the weighted sums of x */
-      end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
-      s = 0; s2 = 0;
-      for (j = 0; j < {nx}; ++j) sx[j] = cs[j] = 0;
-      {{  /* by vecmath's sm_exp (within 1 ulp, vectorised); an argument beyond its range
-            (a weight below e^-708 of the largest, or -inf) by libm's exp, in the sums' loop */
-        const casadi_real* restrict tq = c->t;
-        casadi_real* restrict eq = c->e;
-        for (i = q * {chunk}; i < end; ++i) eq[i] = sm_exp(tq[i] - m);
-      }}
-      for (i = q * {chunk}; i < end; ++i) {{
-        ei = c->e[i];
-        if (!sm_exp_ordinary(c->t[i] - m)) c->e[i] = ei = exp(c->t[i] - m);
-        s += ei;
-        s2 += ei * ei;
-        xi = Xn + i * {nx};
-        {wsum}
-      }}
-      pc = c->part + q * {name}_PW;
-      pc[2] = s; pc[3] = s2;
-      for (j = 0; j < {nx}; ++j) {{ pc[4 + j] = sx[j]; pc[4 + {nx} + j] = cs[j]; }}
-    }}
-    {name}_bwait(&c->bar);
+    /* the chunks' sums scaled by r_q = exp(m_q - m) (e_i = r_q e'_i), added in chunk order */
     s = 0; s2 = 0;
     for (j = 0; j < {nx}; ++j) sx[j] = cs[j] = 0;
     for (q = 0; q < nch; ++q) {{
-      pc = c->part + q * {name}_PW;
-      s += pc[2]; s2 += pc[3];
-      for (j = 0; j < {nx}; ++j) {{ sx[j] += pc[4 + j]; cs[j] += pc[4 + {nx} + j]; }}
+      pc = part + q * {name}_PW;
+      r = {name}_RATIO(pc[0], m);
+      s += r * pc[2]; s2 += r * r * pc[3];
+      for (j = 0; j < {nx}; ++j) {{ sx[j] += r * pc[4 + j]; cs[j] += r * pc[4 + {nx} + j]; }}
+    }}
+    esc = c->o_P || reg;
+    if (esc) {{  /* e_i itself, for the covariance about the mean (tau 0, after the barrier) */
+      for (q = c0; q < c1; ++q) {{
+        end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
+        r = {name}_RATIO(part[q * {name}_PW], m);
+        for (i = q * {chunk}; i < end; ++i) c->e[i] *= r;
+      }}
+      {name}_bwait(&c->bar);
     }}
     lse = m + log(s);
     redo = s * s / s2 <= c->fl[0];
@@ -371,57 +400,63 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
       if (c->o_P || (redo && reg))  /* the covariance about the mean */
         {name}_mom(Xn, N, {nx}, c->e, s, {name}_ax, sn, c->o_P ? c->o_P + k * {nx} * {nx} : c->cov);
     }}
+    /* tau 0 reads e, hx, sc of every chunk above: the next move writes them */
+    if (want_pred || esc) {name}_bwait(&c->bar);
     if (!redo) {{
       for (i = a0; i < a1; ++i) c->lw[i] = c->t[i] - lse;
+      uni = 0;
       tmp = X; X = Xn; Xn = tmp;
       gath = 0;
       continue;
     }}
+    if (sysm) psys = symmon_uniform(rsl);  /* the points psys + i, not stored */
     if (tau == 0) {{  /* resampling points, ascending on [0, N) */
       casadi_real* sc = c->sc;
       if (c->uext) memcpy(sc, c->uext + k * N, N * sizeof(casadi_real));
-      else if (c->opt[0] == 0) {{ pt = symmon_uniform(rs); for (i = 0; i < N; ++i) sc[i] = pt + (casadi_real) i; }}
-      else if (c->opt[0] == 1) {{ for (i = 0; i < N; ++i) sc[i] = symmon_uniform(rs) + (casadi_real) i; }}
-      else {{  /* sorted uniforms as normalised sums of exponential spacings */
+      else if (c->opt[0] == 1) {{ for (i = 0; i < N; ++i) sc[i] = symmon_uniform(rsl) + (casadi_real) i; }}
+      else if (c->opt[0] == 2) {{  /* sorted uniforms as normalised sums of exponential spacings */
         cum = 0;
-        for (i = 0; i < N; ++i) {{ cum += -log1p(-symmon_uniform(rs)); sc[i] = cum; }}
-        cum += -log1p(-symmon_uniform(rs));
+        for (i = 0; i < N; ++i) {{ cum += -log1p(-symmon_uniform(rsl)); sc[i] = cum; }}
+        cum += -log1p(-symmon_uniform(rsl));
         for (i = 0; i < N; ++i) sc[i] *= (casadi_real) N / cum;
       }}
       if (reg) {name}_chol(c->o_P ? c->o_P + k * {nx} * {nx} : c->cov, c->L);
     }}
-    {name}_bwait(&c->bar);
+    if (!sysm || reg) {name}_bwait(&c->bar);
     /* the walk along the cumulative weights, by input chunk: chunk q holds the points in
        [S_q, S_(q+1)) x N / s, S_q the sum of e over the chunks before it */
     scale = (casadi_real) N / s;
+    const casadi_real* pts = sysm ? 0 : c->sc;
     off = 0;
-    for (q = 0; q < c0; ++q) off += c->part[q * {name}_PW + 2];
+    for (q = 0; q < c0; ++q) off += {name}_RATIO(part[q * {name}_PW], m) * part[q * {name}_PW + 2];
     for (q = c0; q < c1; ++q) {{
       end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
-      lo = q == 0 ? 0 : {name}_lower(c->sc, N, off * scale);
+      r = esc ? 1 : {name}_RATIO(part[q * {name}_PW], m);  /* e_i = r e[i] */
+      lo = q == 0 ? 0 : {name}_lower(pts, psys, N, off * scale);
       j = q * {chunk};
-      cum = (off + c->e[j]) * scale;
-      off += c->part[q * {name}_PW + 2];
-      hi = q == nch - 1 ? N : {name}_lower(c->sc, N, off * scale);
+      cum = (off + r * c->e[j]) * scale;
+      off += {name}_RATIO(part[q * {name}_PW], m) * part[q * {name}_PW + 2];
+      hi = q == nch - 1 ? N : {name}_lower(pts, psys, N, off * scale);
+      r *= scale;
       for (i = lo; i < hi; ++i) {{
-        pt = c->sc[i];
-        while (cum <= pt && j < end - 1) cum += c->e[++j] * scale;
+        pt = {name}_POINT(pts, psys, i);
+        while (cum <= pt && j < end - 1) cum += c->e[++j] * r;
         if (reg) memcpy(X + i * {nx}, Xn + j * {nx}, {nx} * sizeof(casadi_real));
         else c->idx[i] = j;
       }}
     }}
     {name}_bwait(&c->bar);
+    uni = 1;
     if (!reg) {{  /* the moved particles, read through idx by the next move */
       tmp = X; X = Xn; Xn = tmp;
       gath = 1;
+      continue;
     }}
     for (q = c0; q < c1; ++q) {{  /* regularisation: x += h L eps (Musso, Oudjane & Le Gland 2001) */
       uint64_t* sg = (uint64_t*) c->st + 4 * q, sl[4];
       memcpy(sl, sg, sizeof sl);
       end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
       for (i = q * {chunk}; i < end; ++i) {{
-        c->lw[i] = -log_n;
-        if (!reg) continue;
         if (c->jext) memcpy(eps, c->jext + (k * N + i) * {nx}, {nx} * sizeof(casadi_real));
         else for (j = 0; j < {nx}; ++j) eps[j] = symmon_normal(sl);
         xi = X + i * {nx};
@@ -435,12 +470,14 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
       memcpy(sg, sl, sizeof sl);
     }}
   }}
+  if (uni) for (i = a0; i < a1; ++i) c->lw[i] = -log_n;
   if (gath) {{  /* the last pick, copied into the other buffer (other threads read X's rows) */
     for (i = a0; i < a1; ++i) memcpy(Xn + i * {nx}, X + c->idx[i] * {nx}, {nx} * sizeof(casadi_real));
     tmp = X; X = Xn; Xn = tmp;
     {name}_bwait(&c->bar);
   }}
   if (X != c->X0) memcpy(c->X0 + a0 * {nx}, X + a0 * {nx}, (a1 - a0) * {nx} * sizeof(casadi_real));  /* own rows */
+  if (tau == 0) memcpy(rs, rsl, sizeof rsl);
   return 0;
 }}
 
@@ -456,7 +493,7 @@ static void* {name}_thread(void* p) {{
 /* symmon: the K steps of the bootstrap filter for one run on T threads over particle chunks
    (module notes).  P: K rows of the call's parameters; X holds the N initial particles (on
    return: the final ones, and lw their normalised log-weights); Xn,
-   t, e, lw, sc: work (N x n, N, N, N, N); hx: N x ny or NULL; part: ceil(N / CHUNK) x
+   t, e, lw, sc: work (N x n, N, N, N, N); hx: N x ny or NULL; part: 2 ceil(N / CHUNK) x
    (4 + 2n); st: ceil(N / CHUNK) + 1 xoshiro states (the chunks', then the resampling
    stream), then SYMMON_LANES per chunk (the move's normals, lane by lane); zext, uext, jext: replayed move normals (K x N x nq), resampling points (K x N,
    ascending in [0, N)) and jitter normals (K x N x nx), or NULL to draw; m0, L0: the mean

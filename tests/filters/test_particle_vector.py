@@ -47,6 +47,9 @@ def with_kernel(pf: sm.ParticleFilter, vectorise: bool) -> sm.ParticleFilter:
     ss = pf.space
     pf.__dict__["_bootstrap_kernel"] = BootstrapKernel(pf.f_model, pf.h_model, ss.params, np.asarray(ss.Lq) != 0,
                                                        ss.angle_states, ss.angle_outputs, vectorise=vectorise)
+    # built now: a C above ccache.BACKGROUND_BYTES builds in the background, and a call
+    # meanwhile takes the NumPy path (other draws)
+    assert pf.__dict__["_bootstrap_kernel"]._native.wait(600)
     return pf
 
 
