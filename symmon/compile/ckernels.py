@@ -155,31 +155,9 @@ void casadi_mtimes(const casadi_real* x, const casadi_int* sp_x, const casadi_re
 #: (a dense block: the covariances and their tangents in a filter step), which gcc
 #: vectorises, instead of the scatter through the row indices; every entry of w still
 #: receives its terms in the same order, one rounding after each (no FMA), so the numbers
-#: do not change.  The transposed product keeps CasADi's loop.
-MTIMES_SPARSE = """\
-void casadi_mtimes(const casadi_real* x, const casadi_int* sp_x, const casadi_real* y, const casadi_int* sp_y, casadi_real* z, const casadi_int* sp_z, casadi_real* w, casadi_int tr) {
-  casadi_int ncol_x, ncol_y, ncol_z, cc;
-  const casadi_int *colind_x, *row_x, *colind_y, *row_y, *colind_z, *row_z;
-  ncol_x = sp_x[1];
-  colind_x = sp_x+2; row_x = sp_x + 2 + ncol_x+1;
-  ncol_y = sp_y[1];
-  colind_y = sp_y+2; row_y = sp_y + 2 + ncol_y+1;
-  ncol_z = sp_z[1];
-  colind_z = sp_z+2; row_z = sp_z + 2 + ncol_z+1;
-  if (tr) {
-    for (cc=0; cc<ncol_z; ++cc) {
-      casadi_int kk;
-      for (kk=colind_y[cc]; kk<colind_y[cc+1]; ++kk) {
-        w[row_y[kk]] = y[kk];
-      }
-      for (kk=colind_z[cc]; kk<colind_z[cc+1]; ++kk) {
-        casadi_int kk1;
-        casadi_int rr = row_z[kk];
-        for (kk1=colind_x[rr]; kk1<colind_x[rr+1]; ++kk1) {
-          z[kk] += x[kk1] * w[row_x[kk1]];
-        }
-      }
-    }
+#: do not change.  The transposed product keeps CasADi's loop: the text is CasADi's up to its
+#: untransposed branch, which :data:`_DIRECT_PRODUCT` replaces.
+_DIRECT_PRODUCT = """\
   } else {
     for (cc=0; cc<ncol_y; ++cc) {
       casadi_int kk, z0 = colind_z[cc], nz = colind_z[cc+1] - z0;
@@ -214,6 +192,8 @@ void casadi_mtimes(const casadi_real* x, const casadi_int* sp_x, const casadi_re
   }
 }
 """
+#: CasADi's sparse product with the direct loops of :data:`_DIRECT_PRODUCT`.
+MTIMES_SPARSE = CASADI_MTIMES[:CASADI_MTIMES.index("  } else {\n")] + _DIRECT_PRODUCT
 
 
 def faster_sparse_products(code: str) -> str:
