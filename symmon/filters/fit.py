@@ -153,22 +153,27 @@ def _loglik_graph(kf: FilterSpec, Y: np.ndarray, x0: np.ndarray, P0: np.ndarray,
     return theta, total
 
 
-# The fold of the filter step over the steps and runs, with its exact gradient (one reverse
-# sweep) and Hessian (a forward-over-reverse sweep per fitted parameter), in one C loop.
-_DRIVER = """
-/* symmon: the log-likelihood of a bank and its derivatives in the fitted rows of the step's
-   data.  D (runs*K*{nd}): the step's data per step; S0 (runs*{ns}): [x0; vec(P0)] per run;
-   rows (m): the fitted rows of the data; order 0: the value, 1: + gradient, 2: + Hessian,
-   added into out = [l, g (m), H (m*m, row-major)]; ℓ and g only when j0 = 0, and of H only
-   the columns j0 <= j < j1 (so that calls on parts of the columns add up to one call's out).
-   Z (K*{nz}) and T (K*{ns}): work. */
+# The drivers' one signature (:meth:`_CompiledLoglik._load`): the ranks j0 <= j < j1 of the
+# fitted parameters whose columns a call computes (a part of them on each thread).
+_SIGNATURE = """\
 CASADI_SYMBOL_EXPORT int {name}_fit(const casadi_real* D, const casadi_real* S0, const casadi_real* Q,
     const casadi_real* R, casadi_int runs, casadi_int K, casadi_int m, const casadi_int* rows,
     casadi_int order, casadi_int j0, casadi_int j1, casadi_real* Z, casadi_real* T, casadi_real* out,
     casadi_int* iw, casadi_real* w) {{
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
-  casadi_real o[{ns} + 1], lam[{ns} + 1], lamd[{ns} + 1], a[{nz}], ad[{nz}], zd[{nz}];
+"""
+
+# The fold of the filter step over the steps and runs, with its exact gradient (one reverse
+# sweep) and Hessian (a forward-over-reverse sweep per fitted parameter), in one C loop.
+_DRIVER = """
+/* symmon: the log-likelihood of a bank and its derivatives in the fitted rows of the step's
+   data.  D (runs*K*{nd}): the step's data per step; S0 (runs*{ns}): [x0; vec(P0)] per run;
+   rows (m): the fitted rows of the data; order 0: the value, 1: + gradient, 2: + Hessian,
+   added into out = [l, g (m), H (m*m, row-major)]; l and g only when j0 = 0, and of H only
+   the columns j0 <= j < j1 (so that calls on parts of the columns add up to one call's out).
+   Z (K*{nz}) and T (K*{ns}): work. */
+""" + _SIGNATURE + """  casadi_real o[{ns} + 1], lam[{ns} + 1], lamd[{ns} + 1], a[{nz}], ad[{nz}], zd[{nz}];
   casadi_int r, k, i, j;
   for (r = 0; r < runs; ++r) {{
     /* forward: z_k = [s_k; d_k], s_{{k+1}}, l_k = step(z_k) */
@@ -246,19 +251,13 @@ _FORWARD = """
 /* symmon: the log-likelihood of a bank and its derivatives in the fitted rows of the step's
    data, in forward mode.  D (runs*K*{nd}): the step's data per step; S0 (runs*{ns}):
    [x0; vec(P0)] per run; rows (m <= {M}): the fitted rows of the data; order 0: the value,
-   1: + gradient, 2: + Hessian, added into out = [l, g (m), H (m*m, row-major)]; ℓ only when
+   1: + gradient, 2: + Hessian, added into out = [l, g (m), H (m*m, row-major)]; l only when
    j0 = 0, of g only the entries j0 <= j < j1, of H only the entries (i, j) with
    j0 <= max(i, j) < j1, the tangents computed (so that calls on parts add up to one call's out).
    Z ({work}): work; T: unused.  Column j < m of zd is dz/dtheta_j = [T_j; e_{{rows[j]}}],
    column i + {M} j of zdd is d2z/dtheta_i dtheta_j = [T_ij; 0] (columns of i or j >= m:
    zero, and those of j >= m neither computed nor read); od and odd the same of o. */
-CASADI_SYMBOL_EXPORT int {name}_fit(const casadi_real* D, const casadi_real* S0, const casadi_real* Q,
-    const casadi_real* R, casadi_int runs, casadi_int K, casadi_int m, const casadi_int* rows,
-    casadi_int order, casadi_int j0, casadi_int j1, casadi_real* Z, casadi_real* T, casadi_real* out,
-    casadi_int* iw, casadi_real* w) {{
-  const casadi_real* arg[{sz_arg}];
-  casadi_real* res[{sz_res}];
-  /* zd: M first-order tangents, then M*M second-order ones; od, odd: those of o */
+""" + _SIGNATURE + """  /* zd: M first-order tangents, then M*M second-order ones; od, odd: those of o */
   casadi_real *z = Z, *zd = z + {nz}, *o = zd + {nz} * ({M} + {MM}), *od = o + {no}, *odd = od + {no} * {M};
   casadi_int r, k, i, j;
   (void)T;
