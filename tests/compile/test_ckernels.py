@@ -65,16 +65,22 @@ int main(void) {{
 """
 
 
+def run_comparison(tmp_path, opt: str, code: str) -> tuple[int, int]:
+    """Compile ``code`` (a driver that compares a kernel with CasADi's and prints its cases
+    and mismatches) at ``opt`` without FMA contraction, run it: (cases, mismatches)."""
+    src, exe = tmp_path / "k.c", tmp_path / "k"
+    src.write_text(code)
+    subprocess.run(["gcc", "-std=c99", opt, "-fno-fast-math", "-ffp-contract=off", str(src), "-o", str(exe)],
+                   check=True)
+    cases, bad = map(int, subprocess.run([str(exe)], check=True, capture_output=True, text=True).stdout.split())
+    return cases, bad
+
+
 @needs_gcc
 @pytest.mark.parametrize("opt", ["-O0", "-O2"])
 def test_the_swapped_kernel_gives_casadis_products_to_the_bit(tmp_path, opt):
     orig = CASADI_MTIMES_DENSE.replace("casadi_mtimes_dense(", "orig_mtimes_dense(", 1)
-    src = tmp_path / "k.c"
-    src.write_text(_DRIVER.format(orig=orig, new=MTIMES_DENSE))
-    exe = tmp_path / "k"
-    subprocess.run(["gcc", "-std=c99", opt, "-fno-fast-math", "-ffp-contract=off", str(src), "-o", str(exe)],
-                   check=True)
-    cases, bad = map(int, subprocess.run([str(exe)], check=True, capture_output=True, text=True).stdout.split())
+    cases, bad = run_comparison(tmp_path, opt, _DRIVER.format(orig=orig, new=MTIMES_DENSE))
     assert cases == 2 * 11**3
     assert bad == 0
 

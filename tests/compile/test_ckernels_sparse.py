@@ -4,8 +4,6 @@ dense, partly dense and scattered columns, plain and transposed."""
 
 from __future__ import annotations
 
-import shutil
-import subprocess
 
 import casadi as ca
 import numpy as np
@@ -14,7 +12,8 @@ import pytest
 from symmon.compile.ckernels import CASADI_MTIMES, MTIMES_SPARSE, faster_sparse_products
 from symmon.compile.compiled import generated_c
 
-needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="no gcc")
+from test_ckernels import needs_gcc, run_comparison
+
 
 
 def sparse_product_function() -> ca.Function:
@@ -117,12 +116,7 @@ int main(void) {{
 @pytest.mark.parametrize("opt", ["-O0", "-O3"])
 def test_the_swapped_kernel_gives_casadis_products_to_the_bit(tmp_path, opt):
     orig = CASADI_MTIMES.replace("void casadi_mtimes(", "void orig_mtimes(", 1)
-    src = tmp_path / "k.c"
-    src.write_text(_DRIVER.format(orig=orig, new=MTIMES_SPARSE))
-    exe = tmp_path / "k"
-    subprocess.run(["gcc", "-std=c99", opt, "-fno-fast-math", "-ffp-contract=off", str(src), "-o", str(exe)],
-                   check=True)
-    cases, bad = map(int, subprocess.run([str(exe)], check=True, capture_output=True, text=True).stdout.split())
+    cases, bad = run_comparison(tmp_path, opt, _DRIVER.format(orig=orig, new=MTIMES_SPARSE))
     assert cases == 2 * 3 * 7**3
     assert bad == 0
 
