@@ -34,21 +34,27 @@ f_j P_j, f = w/(w_i + w_j), c = f_i f_j and d = m_i − m_j,
     B_ij = ½ (w_i + w_j) [log det S − f_i log det P_i − f_j log det P_j + log(1 + x)],
     x = c dᵀ S⁻¹ d;
 
-the first three terms of the bracket are ≥ 0 (log det is concave), log(1 + x) ≥ 2x/(2 + x)
-(x ≥ 0; the derivative of the difference is x²/((1 + x)(2 + x)²)), and x ≥ c |W d|²/(f_i g_i +
-f_j g_j) for any invertible W with g ≥ the largest eigenvalue of W P Wᵀ (then S ≤ (f_i g_i +
-f_j g_j) (WᵀW)⁻¹).  W whitens the weighted mean T of the covariances (W = L⁻¹ diag(T)^-½ with
-L the Cholesky factor of the scaled T, the diagonal scaling alone when that is ill-conditioned),
-so that a pair's bound does not suffer from states in different units or correlated states;
-g is the least of the trace and the largest absolute row sum of W P Wᵀ.  So
+the first three terms of the bracket (J) are ≥ n log(1 + y), y = f_i f_j (s_i − s_j)²/(f_i s_i +
+f_j s_j)², s_k = (det P_k)^(1/2n): Minkowski's determinant inequality, det(S)^(1/n) ≥ f_i
+det(P_i)^(1/n) + f_j det(P_j)^(1/n), and the weighted geometric mean below the power mean of
+order ½, (det P_i)^(f_i/n) (det P_j)^(f_j/n) ≤ (f_i s_i + f_j s_j)² (so pairs of components of
+very different sizes get a bound without a log-determinant); log(1 + x) ≥ 2x/(2 + x) (x ≥ 0;
+the derivative of the difference is x²/((1 + x)(2 + x)²)), and x ≥ c |W d|²/(f_i g_i + f_j g_j)
+for any invertible W with g ≥ the largest eigenvalue of W P Wᵀ (then S ≤ (f_i g_i + f_j g_j)
+(WᵀW)⁻¹).  W whitens the weighted mean T of the covariances (W = L⁻¹ diag(T)^-½ with L the
+Cholesky factor of the scaled T, the diagonal scaling alone when that is ill-conditioned), so
+that a pair's bound does not suffer from states in different units or correlated states; g is
+the least of the trace and the largest absolute row sum of W P Wᵀ.  So
 
-    B_ij ≥ (w_i + w_j) N/(2D + N),  N = w_i w_j |W d|²,  D = (w_i + w_j)(w_i g_i + w_j g_j),
+    B_ij ≥ (w_i + w_j) [N/(2D + N) + n E/F],  N = w_i w_j |W d|²,  D = (w_i + w_j)(w_i g_i + w_j g_j),
+    E = w_i w_j (s_i − s_j)²,  F = 2 (w_i s_i + w_j s_j)² + E,
 
 computed from whitened means W (m_k − c) stored once per component (with an allowance for
-their rounding) and lowered by a margin (1e-9 relative, and 1e-9 (w_i + w_j)(n + |log det P_i|
-+ |log det P_j|) absolute) that covers the rounding of the key and of the cost.  At the size
-of a Gaussian-sum filter's bank (3 × 64 components merged to 64) about one pair in 50 then has
-its log-determinant computed.  A component whose bound does not hold (a covariance that is not
+their rounding), the s relative to the run's mean log-determinant, and lowered by a margin
+(1e-9 relative, and 1e-9 (w_i + w_j)(n + |log det P_i| + |log det P_j|) absolute) that covers
+the rounding of the key and of the cost (n E/F moves by at most ½ per unit of error in a
+log-determinant).  At the size of a Gaussian-sum filter's bank (3 × 64 components merged to
+64) about one pair in 70 then has its log-determinant computed.  A component whose bound does not hold (a covariance that is not
 positive definite, a weight that is not positive) gets NaN keys, which come first and so have
 their costs computed before any merge.
 
@@ -257,23 +263,23 @@ static void sm_wmean(long long k, long long n, long long M, const double *m, con
   du[k] = (double) (n + 2) * 2.3e-16 * err;
 }
 
-/* Whether component k's keys are finite: its bound holds (g finite) and its weight, whitened mean
-   and g are below 1e50, so that no product in a key overflows. */
+/* Whether component k's keys are finite: its bound holds (g finite) and its weight, whitened mean,
+   g and s are below 1e50, so that no product in a key overflows. */
 static int sm_sane(long long k, long long n, long long M, const double *w, const double *g, const double *u,
-                   const double *du) {
-  int ok = fabs(w[k]) < 1e50 && fabs(g[k]) < 1e50 && fabs(du[k]) < 1e50;
+                   const double *du, const double *s) {
+  int ok = fabs(w[k]) < 1e50 && fabs(g[k]) < 1e50 && fabs(du[k]) < 1e50 && fabs(s[k]) < 1e50;
   for (long long a = 0; a < n; ++a) ok &= fabs(u[a * M + k]) < 1e50;
   return ok;
 }
 
 /* The bound keys of the pairs (i, j), j0 <= j < j1, into out[j - j0] (NaN where the bound does
-   not hold: module notes).  u, du: sm_wmean's; ald = |log det P|.  One loop over j, its inner
-   loop over the state's dimension: with n a constant it unrolls and the compiler vectorises the
-   loop over j. */
+   not hold: module notes).  u, du: sm_wmean's; ald = |log det P|; s = (det P / det P_ref)^(1/2n)
+   (Minkowski's term).  One loop over j, its inner loop over the state's dimension: with n a
+   constant it unrolls and the compiler vectorises the loop over j. */
 static void sm_keys(long long i, long long j0, long long j1, long long n, long long M, const double *restrict u,
                     const double *restrict du, const double *restrict w, const double *restrict g,
-                    const double *restrict ald, double *restrict out) {
-  const double wi = w[i], gi = g[i], ai = ald[i], di = du[i];
+                    const double *restrict ald, const double *restrict s, double *restrict out) {
+  const double wi = w[i], gi = g[i], ai = ald[i], di = du[i], si = s[i];
   for (long long j = j0; j < j1; ++j) {
     double dd = 0.0;  /* |u_i - u_j|^2, then a lower bound on |W (m_i - m_j)|^2: with e = du_i + du_j,
                          (|x| - e)^2 >= (1 - 1e-9) |x|^2 - 1e9 e^2 */
@@ -285,9 +291,12 @@ static void sm_keys(long long i, long long j0, long long j1, long long n, long l
     const double err = di + du[j];
     dd = dd * (1.0 - 1e-9) - 1e9 * (err * err);
     dd = dd < 0.0 ? 0.0 : dd;
-    /* ws N / (2 D + N), N = w_i w_j dd, D = ws (w_i g_i + w_j g_j), less the margin */
+    /* ws N / (2 D + N), N = w_i w_j dd, D = ws (w_i g_i + w_j g_j): the log(1 + x) term;
+       ws n E / F, E = w_i w_j (s_i - s_j)^2, F = 2 (w_i s_i + w_j s_j)^2 + E: Minkowski's term */
     const double wj = w[j], ws = wi + wj, N = wi * wj * dd, D = ws * (wi * gi + wj * g[j]);
-    out[j - j0] = ws * N / (2.0 * D + N) * (1.0 - 1e-9) - 1e-9 * ws * ((double) n + (ai + ald[j]));
+    const double ds = si - s[j], h = wi * si + wj * s[j], E = wi * wj * (ds * ds), F = 2.0 * (h * h) + E;
+    out[j - j0] = ws * (N / (2.0 * D + N) + (double) n * (E / F)) * (1.0 - 1e-9)
+                  - 1e-9 * ws * ((double) n + (ai + ald[j]));
   }
 }
 
@@ -416,7 +425,7 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
   for (long long r = 0; r < R; ++r)
     if (start[r + 1] - start[r] > Mmax) Mmax = start[r + 1] - start[r];
   if (Mmax <= keep) return 0;
-  double *cost = malloc(sizeof(double) * (size_t)(Mmax * Mmax + (9 + n) * Mmax + 5 * n * n + n));
+  double *cost = malloc(sizeof(double) * (size_t)(Mmax * Mmax + (10 + n) * Mmax + 5 * n * n + n));
   long long *rarg = malloc(sizeof(long long) * (size_t)Mmax);
   unsigned char *ex = malloc((size_t)(Mmax * Mmax + Mmax)), *stale = ex + Mmax * Mmax;
   long long T = 1;
@@ -425,7 +434,7 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
   double *nk = (double *) (tree + 4 * T);
   if (!cost || !rarg || !ex || !tree) { free(cost); free(rarg); free(ex); free(tree); return -1; }
   double *ld = cost + Mmax * Mmax, *rmin = ld + Mmax, *g = rmin + Mmax, *ald = g + Mmax, *ok = ald + Mmax,
-         *sig = ok + Mmax, *from = sig + Mmax, *du = from + Mmax, *mt = du + Mmax, *A = mt + n * Mmax, *L = A + n * n, *W = L + n * n,
+         *sig = ok + Mmax, *from = sig + Mmax, *du = from + Mmax, *sd = du + Mmax, *mt = sd + Mmax, *A = mt + n * Mmax, *L = A + n * n, *W = L + n * n,
          *C = W + n * n, *Li = C + n * n, *cen = Li + n * n;
   for (long long r = 0; r < R; ++r) {
     const long long o = start[r], M = start[r + 1] - start[r];
@@ -437,6 +446,7 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
     /* nanm: a key or cost may be NaN (Salmond's costs, a component whose bound does not hold or
        whose numbers could overflow a key, a NaN cost), so that the rows' scans look for one */
     int nanm = salmond;
+    double ldc = 0.0;
     for (long long i = 0; i < M; ++i) {
       ld[i] = salmond ? 0.0 : sm_logdet(Pr + i * n * n, n, L);
       ok[i] = isfinite(ld[i]) && wr[i] >= 0.0 && isfinite(wr[i]);
@@ -457,10 +467,16 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
       }
       for (long long a = 0; a < n; ++a) cen[a] = sw > 0.0 && isfinite(cen[a] / sw) ? cen[a] / sw : 0.0;
       sm_whiten(M, n, wr, Pr, ok, W, C, Li);
+      double nok = 0.0;  /* the reference of Minkowski's s: the mean log det of the ok components */
+      ldc = 0.0;
+      for (long long i = 0; i < M; ++i)
+        if (ok[i]) { ldc += ld[i]; nok += 1.0; }
+      ldc = nok > 0.0 ? ldc / nok : 0.0;
       for (long long i = 0; i < M; ++i) {
+        sd[i] = exp((ld[i] - ldc) / (double) (2 * n));
         g[i] = sm_top(Pr + i * n * n, n, ok[i] != 0.0, W, C, Li);
         sm_wmean(i, n, M, mr, cen, W, mt, du);
-        nanm |= !sm_sane(i, n, M, wr, g, mt, du);
+        nanm |= !sm_sane(i, n, M, wr, g, mt, du, sd);
       }
     }
     for (long long i = 0; i < M; ++i) {
@@ -468,7 +484,7 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
         for (long long j = i + 1; j < M; ++j) cost[i * M + j] = sm_cost(i, j, n, 1, wr, mr, Pr, ld, Pv, A, L);
         memset(ex + i * M, 1, (size_t) M);
       } else {
-        sm_keys(i, i + 1, M, n, M, mt, du, wr, g, ald, cost + i * M + i + 1);
+        sm_keys(i, i + 1, M, n, M, mt, du, wr, g, ald, sd, cost + i * M + i + 1);
         memset(ex + i * M, 0, (size_t) M);
       }
       sm_row(i, i + 1, M, cost, sig, rmin, rarg, nanm);
@@ -515,10 +531,11 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
         ld[i] = sm_logdet(Pr + i * n * n, n, L);
         ok[i] = isfinite(ld[i]) && wr[i] >= 0.0 && isfinite(wr[i]);
         ald[i] = fabs(ld[i]);
+        sd[i] = exp((ld[i] - ldc) / (double) (2 * n));
         g[i] = sm_top(Pr + i * n * n, n, ok[i] != 0.0, W, C, Li);
         sm_wmean(i, n, M, mr, cen, W, mt, du);
-        nanm |= !sm_sane(i, n, M, wr, g, mt, du);
-        sm_keys(i, 0, M, n, M, mt, du, wr, g, ald, cost + i * M);
+        nanm |= !sm_sane(i, n, M, wr, g, mt, du, sd);
+        sm_keys(i, 0, M, n, M, mt, du, wr, g, ald, sd, cost + i * M);
         memset(ex + i * M, 0, (size_t) M);
       }
       sm_row(i, 0, M, cost, sig, rmin, rarg, nanm);

@@ -71,6 +71,13 @@ def test_search_equals_the_reference_where_bounds_and_ties_are_delicate() -> Non
     w_zero[5] = 0.0
     cases["not positive definite"] = (base_w, base_m, P_bad)
     cases["zero weight"] = (w_zero, base_m, base_P)
+    # Covariances over six decades of size, means close or equal: Minkowski's term of the bound
+    # (the log-determinants' gap) is what keeps most pairs from their costs.
+    scale = 10.0 ** rng.uniform(-3, 3, 12)[:, None, None]
+    cases["sizes, near means"] = (base_w, 0.01 * base_m, base_P * scale)
+    cases["sizes, equal means"] = (base_w, np.repeat(base_m[:1], 12, axis=0), base_P * scale)
+    cases["sizes, duplicates"] = (np.r_[base_w, base_w[:6]], np.r_[base_m, base_m[:6]],
+                                  np.r_[base_P * scale, base_P[:6] * scale[6:]])
     for name, (w, m, P) in cases.items():
         for keep in (1, 4, len(w) - 1):
             for rule in ("runnalls", "salmond"):
