@@ -41,10 +41,12 @@ order ½, (det P_i)^(f_i/n) (det P_j)^(f_j/n) ≤ (f_i s_i + f_j s_j)² (so pair
 very different sizes get a bound without a log-determinant); log(1 + x) ≥ 2x/(2 + x) (x ≥ 0;
 the derivative of the difference is x²/((1 + x)(2 + x)²)), and x ≥ c |W d|²/(f_i g_i + f_j g_j)
 for any invertible W with g ≥ the largest eigenvalue of W P Wᵀ (then S ≤ (f_i g_i + f_j g_j)
-(WᵀW)⁻¹).  W whitens the weighted mean T of the covariances (W = L⁻¹ diag(T)^-½ with L the
-Cholesky factor of the scaled T, the diagonal scaling alone when that is ill-conditioned), so
-that a pair's bound does not suffer from states in different units or correlated states; g is
-the least of the trace and the largest absolute row sum of W P Wᵀ.  So
+(WᵀW)⁻¹).  W whitens the weighted harmonic mean T of the covariances, T⁻¹ = Σ_k w_k P_k⁻¹/Σ_k
+w_k (W = L⁻¹ diag(T)^-½ with L the Cholesky factor of the scaled T, the diagonal scaling alone
+when that is ill-conditioned), so that a pair's bound does not suffer from states in different
+units or correlated states, nor from a few wide components (which would inflate an arithmetic
+mean, so that the others' W P Wᵀ and the bound's S ≤ … shrink along the directions they
+widen); g is the least of the trace and the largest absolute row sum of W P Wᵀ.  So
 
     B_ij ≥ (w_i + w_j) [N/(2D + N) + n E/F],  N = w_i w_j |W d|²,  D = (w_i + w_j)(w_i g_i + w_j g_j),
     E = w_i w_j (s_i − s_j)²,  F = 2 (w_i s_i + w_j s_j)² + E,
@@ -164,23 +166,61 @@ static void sm_merge_pair(long long i, long long j, long long n, double *w, doub
   w[i] = ws;
 }
 
+/* The inverse X (full) of the symmetric positive definite A (its lower triangle read), by
+   Cholesky: A = G G^T, X = G^-T G^-1.  Returns 0 if A is not positive definite.  G: n x n scratch. */
+static int sm_spd_inverse(const double *A, long long n, double *X, double *G) {
+  for (long long j = 0; j < n; ++j) {  /* G lower triangular, then G^-1 in its place */
+    double d = A[j * n + j];
+    for (long long k = 0; k < j; ++k) d -= G[j * n + k] * G[j * n + k];
+    if (!(d > 0.0) || !isfinite(d)) return 0;
+    d = sqrt(d);
+    G[j * n + j] = d;
+    for (long long i = j + 1; i < n; ++i) {
+      double s = A[i * n + j];
+      for (long long k = 0; k < j; ++k) s -= G[i * n + k] * G[j * n + k];
+      G[i * n + j] = s / d;
+    }
+  }
+  for (long long b = 0; b < n; ++b)  /* X's column b: G^-1 e_b by forward substitution, in X's row b */
+    for (long long a = 0; a < n; ++a) {
+      double s = a == b ? 1.0 : 0.0;
+      for (long long k = b; k < a; ++k) s -= G[a * n + k] * X[b * n + k];
+      X[b * n + a] = a < b ? 0.0 : s / G[a * n + a];
+    }
+  for (long long a = 0; a < n; ++a)  /* X = (G^-1)^T G^-1 from the rows of G^-T kept in X: lower triangle into G */
+    for (long long b = 0; b <= a; ++b) {
+      double s = 0.0;
+      for (long long k = a; k < n; ++k) s += X[a * n + k] * X[b * n + k];
+      G[a * n + b] = s;
+    }
+  for (long long a = 0; a < n; ++a)
+    for (long long b = 0; b <= a; ++b) X[a * n + b] = X[b * n + a] = G[a * n + b];
+  return 1;
+}
+
 /* The whitening W (n x n, lower triangular) of the bound's metric: W = L^-1 S, with T the
-   weighted mean of the covariances (their lower triangles) of the components whose bound
-   holds (ok), S = diag(T)^-1/2 and S T S = L L^T.  The diagonal S alone when S T S is
-   ill-conditioned (n |L^-1|_F^2, an upper bound on its condition number, above 1e4: the
-   rounding of W d and W P W^T then stays far below the bound's margin), the identity when
-   T is not positive definite.  C, Li: n x n scratch. */
+   weighted harmonic mean of the covariances of the components whose bound holds (ok), T^-1 =
+   sum_k w_k P_k^-1 / sum_k w_k (a few wide components do not inflate it, so that the others'
+   W P W^T stay near the identity), S = diag(T)^-1/2 and S T S = L L^T.  The diagonal S alone
+   when S T S is ill-conditioned (n |L^-1|_F^2, an upper bound on its condition number, above
+   1e4: the rounding of W d and W P W^T then stays far below the bound's margin), the identity
+   when T is not positive definite.  C, Li, X, G: n x n scratch. */
 static void sm_whiten(long long M, long long n, const double *w, const double *P, const double *ok, double *W,
-                      double *C, double *Li) {
+                      double *C, double *Li, double *X, double *G) {
   double sw = 0.0, fro = 0.0;
   for (long long a = 0; a < n * n; ++a) { W[a] = 0.0; C[a] = 0.0; }
   for (long long a = 0; a < n; ++a) W[a * n + a] = 1.0;
   for (long long k = 0; k < M; ++k) {
-    if (!ok[k]) continue;
+    if (!ok[k] || !sm_spd_inverse(P + k * n * n, n, X, G)) continue;
     sw += w[k];
     for (long long a = 0; a < n; ++a)
-      for (long long b = 0; b <= a; ++b) C[a * n + b] += w[k] * P[k * n * n + a * n + b];
+      for (long long b = 0; b <= a; ++b) C[a * n + b] += w[k] * X[a * n + b];
   }
+  if (!(sw > 0.0) || !isfinite(sw)) return;
+  for (long long a = 0; a < n * n; ++a) C[a] /= sw;
+  if (!sm_spd_inverse(C, n, X, G)) return;
+  for (long long a = 0; a < n * n; ++a) C[a] = X[a];
+  sw = 1.0;
   if (!(sw > 0.0) || !isfinite(sw)) return;
   for (long long a = 0; a < n; ++a) Li[a] = 1.0 / sqrt(C[a * n + a] / sw);  /* S, kept in Li's first row */
   for (long long a = 0; a < n; ++a) if (!(Li[a] > 0.0) || !isfinite(Li[a])) return;
@@ -466,7 +506,7 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
         for (long long a = 0; a < n; ++a) cen[a] += wr[i] * mr[i * n + a];
       }
       for (long long a = 0; a < n; ++a) cen[a] = sw > 0.0 && isfinite(cen[a] / sw) ? cen[a] / sw : 0.0;
-      sm_whiten(M, n, wr, Pr, ok, W, C, Li);
+      sm_whiten(M, n, wr, Pr, ok, W, C, Li, A, L);
       double nok = 0.0;  /* the reference of Minkowski's s: the mean log det of the ok components */
       ldc = 0.0;
       for (long long i = 0; i < M; ++i)
