@@ -415,11 +415,31 @@ static int sm_node(long long p, double *nk, long long *nr, long long *nw) {
   return !same;
 }
 
-/* Row k's minimum changed: its leaf and the nodes above it, up to the first that stays. */
+/* Row k's minimum changed: its leaf and the nodes above it, up to the root (no test whether a
+   node stays: a branch that costs more than the levels it saves).  The climbing winner is
+   carried in registers and met only by the sibling at each level (sm_node's order: the left
+   child on a tie), so that a level's loads do not wait for the level below. */
 static void sm_tree(long long k, long long T, long long M, const double *rmin, const long long *rarg,
                     const unsigned char *al, double *nk, long long *nr, long long *nw) {
   sm_leaf(k, T, M, rmin, rarg, al, nk, nr, nw);
-  for (long long p = (T + k) / 2; p >= 1 && sm_node(p, nk, nr, nw); p /= 2) {}
+  long long p = T + k, rank = nr[p], who = k;
+  double key = nk[p];
+  for (; p > 1; p >>= 1) {
+    const long long s = p ^ 1, q = p >> 1, rs = nr[s];
+    const double ks = nk[s];
+    /* the sibling wins when before the climber: strictly, or on a tie when it is the left child */
+    const long long win = -(long long) ((ks < key) | ((ks == key) & ((rs < rank) | ((rs == rank) & (s < p)))));
+    long long kb, sb;  /* the selection by masks: a branch here is mispredicted half the time */
+    memcpy(&kb, &key, sizeof kb);
+    memcpy(&sb, &ks, sizeof sb);
+    kb = (sb & win) | (kb & ~win);
+    memcpy(&key, &kb, sizeof key);
+    rank = (rs & win) | (rank & ~win);
+    who = (nw[s] & win) | (who & ~win);
+    nk[q] = key;
+    nr[q] = rank;
+    nw[q] = who;
+  }
 }
 
 /* The reference the search must equal: every live pair's cost computed at every merge, the
