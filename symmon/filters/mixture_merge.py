@@ -393,47 +393,48 @@ static void sm_row(long long i, long long from, long long M, const double *cost,
 /* The tournament tree over the rows, T leaves (leaf T + k: row k) and at node p the least of the
    leaves below it: its key nk[p], its pair's rank nr[p] (i M + j, i < j) and its row nw[p], in
    the order of the key (sm_before's: a NaN first, as -inf with its rank less 2^62), then of the
-   pair; a dead row, or one without a candidate, as (+inf, LLONG_MAX). */
-static void sm_leaf(long long k, long long T, long long M, const double *rmin, const long long *rarg,
-                    const unsigned char *al, double *nk, long long *nr, long long *nw) {
-  const long long p = T + k, a = k < M ? rarg[k] : -1;
-  nw[p] = k;
-  if (a < 0 || !al[k]) { nk[p] = INFINITY; nr[p] = LLONG_MAX; return; }
-  const long long rank = k < a ? k * M + a : a * M + k;
-  if (rmin[k] != rmin[k]) { nk[p] = -INFINITY; nr[p] = rank - ((long long) 1 << 62); }
-  else { nk[p] = rmin[k]; nr[p] = rank; }
+   pair; a dead row, or one without a candidate, as (+inf, LLONG_MAX).  A key is kept as the
+   integer that orders as the double does (sm_ord), so that the tree compares only integers. */
+static long long sm_ord(double x) {
+  long long b;
+  x += 0.0;  /* -0 as +0: they compare equal as doubles */
+  memcpy(&b, &x, sizeof b);
+  return b < 0 ? b ^ LLONG_MAX : b;  /* a negative double's magnitude bits reversed */
 }
 
-/* Node p from its children; returns whether it changed. */
-static int sm_node(long long p, double *nk, long long *nr, long long *nw) {
+static void sm_leaf(long long k, long long T, long long M, const double *rmin, const long long *rarg,
+                    const unsigned char *al, long long *nk, long long *nr, long long *nw) {
+  const long long p = T + k, a = k < M ? rarg[k] : -1;
+  nw[p] = k;
+  if (a < 0 || !al[k]) { nk[p] = sm_ord(INFINITY); nr[p] = LLONG_MAX; return; }
+  const long long rank = k < a ? k * M + a : a * M + k;
+  if (rmin[k] != rmin[k]) { nk[p] = sm_ord(-INFINITY); nr[p] = rank - ((long long) 1 << 62); }
+  else { nk[p] = sm_ord(rmin[k]); nr[p] = rank; }
+}
+
+/* Node p from its children (the left one on a tie). */
+static void sm_node(long long p, long long *nk, long long *nr, long long *nw) {
   const long long l = 2 * p, r = l + 1;
   const long long b = l + ((nk[r] < nk[l]) | ((nk[r] == nk[l]) & (nr[r] < nr[l])));
-  const int same = nk[p] == nk[b] && nr[p] == nr[b] && nw[p] == nw[b];
   nk[p] = nk[b];
   nr[p] = nr[b];
   nw[p] = nw[b];
-  return !same;
 }
 
 /* Row k's minimum changed: its leaf and the nodes above it, up to the root (no test whether a
    node stays: a branch that costs more than the levels it saves).  The climbing winner is
    carried in registers and met only by the sibling at each level (sm_node's order: the left
-   child on a tie), so that a level's loads do not wait for the level below. */
+   child on a tie), so that a level's loads do not wait for the level below; the selection by
+   masks (a branch there is mispredicted half the time). */
 static void sm_tree(long long k, long long T, long long M, const double *rmin, const long long *rarg,
-                    const unsigned char *al, double *nk, long long *nr, long long *nw) {
+                    const unsigned char *al, long long *nk, long long *nr, long long *nw) {
   sm_leaf(k, T, M, rmin, rarg, al, nk, nr, nw);
-  long long p = T + k, rank = nr[p], who = k;
-  double key = nk[p];
+  long long p = T + k, key = nk[p], rank = nr[p], who = k;
   for (; p > 1; p >>= 1) {
-    const long long s = p ^ 1, q = p >> 1, rs = nr[s];
-    const double ks = nk[s];
+    const long long s = p ^ 1, q = p >> 1, ks = nk[s], rs = nr[s];
     /* the sibling wins when before the climber: strictly, or on a tie when it is the left child */
     const long long win = -(long long) ((ks < key) | ((ks == key) & ((rs < rank) | ((rs == rank) & (s < p)))));
-    long long kb, sb;  /* the selection by masks: a branch here is mispredicted half the time */
-    memcpy(&kb, &key, sizeof kb);
-    memcpy(&sb, &ks, sizeof sb);
-    kb = (sb & win) | (kb & ~win);
-    memcpy(&key, &kb, sizeof key);
+    key = (ks & win) | (key & ~win);
     rank = (rs & win) | (rank & ~win);
     who = (nw[s] & win) | (who & ~win);
     nk[q] = key;
@@ -491,7 +492,7 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
   long long T = 1;
   while (T < Mmax) T *= 2;
   long long *tree = malloc(sizeof(long long) * (size_t)(6 * T)), *nr = tree, *nw = tree + 2 * T;
-  double *nk = (double *) (tree + 4 * T);
+  long long *nk = tree + 4 * T;
   if (!cost || !rarg || !ex || !tree) { free(cost); free(rarg); free(ex); free(tree); return -1; }
   double *ld = cost + Mmax * Mmax, *rmin = ld + Mmax, *g = rmin + Mmax, *ald = g + Mmax, *ok = ald + Mmax,
          *sig = ok + Mmax, *from = sig + Mmax, *du = from + Mmax, *sd = du + Mmax, *mt = sd + Mmax, *A = mt + n * Mmax, *L = A + n * n, *W = L + n * n,
