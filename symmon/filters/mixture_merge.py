@@ -111,13 +111,15 @@ static double sm_logdet(const double *A, long long n, double *L) {
   /* log det of the symmetric positive definite A (row-major, its lower triangle read) by L D Lᵀ (no square roots):
      log Π d_i, one log per factor of the product kept within the float range; -inf if A is
      not positive definite.  L (n × n) is scratch: its strict lower triangle holds L, its
-     upper triangle U_ki = L_ik d_k (one product per term, one reciprocal per pivot). */
+     upper triangle U_ki = L_ik d_k (one product per term, one reciprocal per pivot), its
+     diagonal 1/d (for sm_add_inverse). */
   double prod = 1.0, logs = 0.0;
   for (long long j = 0; j < n; ++j) {
     double d = A[j * n + j];
     for (long long k = 0; k < j; ++k) d -= L[k * n + j] * L[j * n + k];
     if (!(d > 0.0)) return -INFINITY;
     const double r = 1.0 / d;
+    L[j * n + j] = r;
     for (long long i = j + 1; i < n; ++i) {
       double s = A[i * n + j];
       for (long long k = 0; k < j; ++k) s -= L[k * n + i] * L[j * n + k];
@@ -198,35 +200,46 @@ static int sm_spd_inverse(const double *A, long long n, double *X, double *G) {
   return 1;
 }
 
-/* The whitening W (n x n, lower triangular) of the bound's metric: W = L^-1 S, with T the
-   weighted harmonic mean of the covariances of the components whose bound holds (ok), T^-1 =
-   sum_k w_k P_k^-1 / sum_k w_k (a few wide components do not inflate it, so that the others'
-   W P W^T stay near the identity), S = diag(T)^-1/2 and S T S = L L^T.  The diagonal S alone
-   when S T S is ill-conditioned (n |L^-1|_F^2, an upper bound on its condition number, above
-   1e4: the rounding of W d and W P W^T then stays far below the bound's margin), the identity
-   when T is not positive definite.  C, Li, X, G: n x n scratch. */
-static void sm_whiten(long long M, long long n, const double *w, const double *P, const double *ok, double *W,
-                      double *C, double *Li, double *X, double *G) {
-  double sw = 0.0, fro = 0.0;
-  for (long long a = 0; a < n * n; ++a) { W[a] = 0.0; C[a] = 0.0; }
-  for (long long a = 0; a < n; ++a) W[a * n + a] = 1.0;
-  for (long long k = 0; k < M; ++k) {
-    if (!ok[k] || !sm_spd_inverse(P + k * n * n, n, X, G)) continue;
-    sw += w[k];
-    for (long long a = 0; a < n; ++a)
-      for (long long b = 0; b <= a; ++b) C[a * n + b] += w[k] * X[a * n + b];
+/* C += w P^-1 (its lower triangle), from sm_logdet's factors of P in L: P^-1 = Y^T D^-1 Y with
+   Y = L^-1 (L unit lower triangular, its strict lower triangle; D^-1 on its diagonal), so that
+   the harmonic mean of sm_whiten costs no factorisation of its own.  Y: n x n scratch. */
+static void sm_add_inverse(const double *L, long long n, double w, double *C, double *Y) {
+  for (long long a = 0; a < n; ++a) {  /* Y by forward substitution: L Y = I */
+    Y[a * n + a] = 1.0;
+    for (long long b = 0; b < a; ++b) {
+      double t = -L[a * n + b];
+      for (long long k = b + 1; k < a; ++k) t -= L[a * n + k] * Y[k * n + b];
+      Y[a * n + b] = t;
+    }
   }
+  for (long long a = 0; a < n; ++a)
+    for (long long b = 0; b <= a; ++b) {
+      double t = 0.0;
+      for (long long k = a; k < n; ++k) t += Y[k * n + a] * L[k * n + k] * Y[k * n + b];
+      C[a * n + b] += w * t;
+    }
+}
+
+/* The whitening W (n x n, lower triangular) of the bound's metric: W = L^-1 S, with T the
+   weighted harmonic mean of the covariances of the components whose bound holds, T^-1 = C/sw,
+   C = sum_k w_k P_k^-1 (its lower triangle, sm_add_inverse) and sw = sum_k w_k (a few wide
+   components do not inflate it, so that the others' W P W^T stay near the identity), S =
+   diag(T)^-1/2 and S T S = L L^T.  The diagonal S alone when S T S is ill-conditioned (n
+   |L^-1|_F^2, an upper bound on its condition number, above 1e4: the rounding of W d and W P W^T
+   then stays far below the bound's margin), the identity when T is not positive definite.  C
+   is overwritten; Li, X, G: n x n scratch. */
+static void sm_whiten(long long n, double sw, double *W, double *C, double *Li, double *X, double *G) {
+  double fro = 0.0;
+  for (long long a = 0; a < n * n; ++a) W[a] = 0.0;
+  for (long long a = 0; a < n; ++a) W[a * n + a] = 1.0;
   if (!(sw > 0.0) || !isfinite(sw)) return;
   for (long long a = 0; a < n * n; ++a) C[a] /= sw;
-  if (!sm_spd_inverse(C, n, X, G)) return;
-  for (long long a = 0; a < n * n; ++a) C[a] = X[a];
-  sw = 1.0;
-  if (!(sw > 0.0) || !isfinite(sw)) return;
-  for (long long a = 0; a < n; ++a) Li[a] = 1.0 / sqrt(C[a * n + a] / sw);  /* S, kept in Li's first row */
+  if (!sm_spd_inverse(C, n, X, G)) return;  /* X = T */
+  for (long long a = 0; a < n; ++a) Li[a] = 1.0 / sqrt(X[a * n + a]);  /* S, kept in Li's first row */
   for (long long a = 0; a < n; ++a) if (!(Li[a] > 0.0) || !isfinite(Li[a])) return;
   for (long long a = 0; a < n; ++a) W[a * n + a] = Li[a];
   for (long long a = 0; a < n; ++a)  /* S T S, lower triangle, unit diagonal */
-    for (long long b = 0; b <= a; ++b) C[a * n + b] = Li[a] * (C[a * n + b] / sw) * Li[b];
+    for (long long b = 0; b <= a; ++b) C[a * n + b] = Li[a] * X[a * n + b] * Li[b];
   for (long long j = 0; j < n; ++j) {  /* Cholesky in place: C's lower triangle becomes L */
     double d = C[j * n + j];
     for (long long k = 0; k < j; ++k) d -= C[j * n + k] * C[j * n + k];
@@ -507,10 +520,12 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
     /* nanm: a key or cost may be NaN (Salmond's costs, a component whose bound does not hold or
        whose numbers could overflow a key, a NaN cost), so that the rows' scans look for one */
     int nanm = salmond;
-    double ldc = 0.0;
+    double ldc = 0.0, swh = 0.0;
+    for (long long a = 0; a < n * n; ++a) C[a] = 0.0;
     for (long long i = 0; i < M; ++i) {
       ld[i] = salmond ? 0.0 : sm_logdet(Pr + i * n * n, n, L);
       ok[i] = isfinite(ld[i]) && wr[i] >= 0.0 && isfinite(wr[i]);
+      if (!salmond && ok[i]) { sm_add_inverse(L, n, wr[i], C, Li); swh += wr[i]; }
       ald[i] = fabs(ld[i]);
       sig[i] = (double) (M - i);
       from[i] = (double) (i + 1);
@@ -527,7 +542,7 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
         for (long long a = 0; a < n; ++a) cen[a] += wr[i] * mr[i * n + a];
       }
       for (long long a = 0; a < n; ++a) cen[a] = sw > 0.0 && isfinite(cen[a] / sw) ? cen[a] / sw : 0.0;
-      sm_whiten(M, n, wr, Pr, ok, W, C, Li, A, L);
+      sm_whiten(n, swh, W, C, Li, A, L);
       double nok = 0.0;  /* the reference of Minkowski's s: the mean log det of the ok components */
       ldc = 0.0;
       for (long long i = 0; i < M; ++i)
