@@ -372,9 +372,26 @@ static void sm_row(long long i, long long from, long long M, const double *cost,
   int nan = 0;
   if (M - j >= 8) {
     const sm_v4d inf = {INFINITY, INFINITY, INFINITY, INFINITY}, s4 = {si, si, si, si};
-    sm_v4d vb = inf;
-    sm_v4l vi = {-1, -1, -1, -1}, idx = {j, j + 1, j + 2, j + 3}, vn = {0, 0, 0, 0};
-    const sm_v4l four = {4, 4, 4, 4};
+    /* two sets of lanes (columns j..j+3 and j+4..j+7 of every 8), so that the compare-and-select
+       chain of one set overlaps the other's */
+    sm_v4d vb = inf, vb2 = inf;
+    sm_v4l vi = {-1, -1, -1, -1}, vi2 = vi, idx = {j, j + 1, j + 2, j + 3}, vn = {0, 0, 0, 0};
+    const sm_v4l four = {4, 4, 4, 4}, eight = {8, 8, 8, 8};
+    for (; j + 8 <= M; j += 8) {
+      sm_v4d x, s, x2, s2;
+      memcpy(&x, c + j, sizeof x);
+      memcpy(&s, sig + j, sizeof s);
+      memcpy(&x2, c + j + 4, sizeof x2);
+      memcpy(&s2, sig + j + 4, sizeof s2);
+      const sm_v4l ok = (sm_v4l) (s < s4), lt = (sm_v4l) (x < vb) & ok;
+      const sm_v4l ok2 = (sm_v4l) (s2 < s4), lt2 = (sm_v4l) (x2 < vb2) & ok2;
+      if (nanm) vn |= ((sm_v4l) (x != x) & ok) | ((sm_v4l) (x2 != x2) & ok2);
+      vb = (sm_v4d) ((lt & (sm_v4l) x) | (~lt & (sm_v4l) vb));
+      vi = (lt & idx) | (~lt & vi);
+      vb2 = (sm_v4d) ((lt2 & (sm_v4l) x2) | (~lt2 & (sm_v4l) vb2));
+      vi2 = (lt2 & (idx + four)) | (~lt2 & vi2);
+      idx += eight;
+    }
     for (; j + 4 <= M; j += 4) {
       sm_v4d x, s;
       memcpy(&x, c + j, sizeof x);
@@ -388,6 +405,7 @@ static void sm_row(long long i, long long from, long long M, const double *cost,
     for (int l = 0; l < 4; ++l) {
       nan |= vn[l] != 0;
       if (vi[l] >= 0 && (vb[l] < best || (vb[l] == best && vi[l] < arg))) { best = vb[l]; arg = vi[l]; }
+      if (vi2[l] >= 0 && (vb2[l] < best || (vb2[l] == best && vi2[l] < arg))) { best = vb2[l]; arg = vi2[l]; }
     }
   }
   for (; j < M; ++j) {
