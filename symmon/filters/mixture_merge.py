@@ -461,17 +461,18 @@ static void sm_node(long long p, long long *nk, long long *nr, long long *nw) {
 
 /* Row k's minimum changed: its leaf and the nodes above it, up to the root (no test whether a
    node stays: a branch that costs more than the levels it saves).  The climbing winner is
-   carried in registers and met only by the sibling at each level (sm_node's order: the left
-   child on a tie), so that a level's loads do not wait for the level below; the selection by
-   masks (a branch there is mispredicted half the time). */
+   carried in registers and met only by the sibling at each level (sm_node's order), so that a
+   level's loads do not wait for the level below; the selection by masks (a branch there is
+   mispredicted half the time). */
 static void sm_tree(long long k, long long T, long long M, const double *rmin, const long long *rarg,
                     const unsigned char *al, long long *nk, long long *nr, long long *nw) {
   sm_leaf(k, T, M, rmin, rarg, al, nk, nr, nw);
   long long p = T + k, key = nk[p], rank = nr[p], who = k;
   for (; p > 1; p >>= 1) {
     const long long s = p ^ 1, q = p >> 1, ks = nk[s], rs = nr[s];
-    /* the sibling wins when before the climber: strictly, or on a tie when it is the left child */
-    const long long win = -(long long) ((ks < key) | ((ks == key) & ((rs < rank) | ((rs == rank) & (s < p)))));
+    /* the sibling wins when before the climber (a pair lives in one row, so ranks differ but for
+       rows without a candidate, whose order does not matter) */
+    const long long win = -(long long) ((ks < key) | ((ks == key) & (rs < rank)));
     key = (ks & win) | (key & ~win);
     rank = (rs & win) | (rank & ~win);
     who = (nw[s] & win) | (who & ~win);
