@@ -384,7 +384,7 @@ static void sm_row(long long i, long long from, long long M, const double *cost,
     sm_v4d vb = inf, vb2 = inf;
     sm_v4l vi = {-1, -1, -1, -1}, vi2 = vi, idx = {j, j + 1, j + 2, j + 3}, vn = {0, 0, 0, 0};
     const sm_v4l four = {4, 4, 4, 4}, eight = {8, 8, 8, 8};
-    for (; j + 8 <= M; j += 8) {
+    for (; M - from >= 64 && j + 8 <= M; j += 8) {  /* a short row: one set (its second would not repay its lanes) */
       sm_v4d x, s, x2, s2;
       memcpy(&x, c + j, sizeof x);
       memcpy(&s, sig + j, sizeof s);
