@@ -534,7 +534,8 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
   long long *nk = tree + 4 * T;
   if (!cost || !rarg || !ex || !tree) { free(cost); free(rarg); free(ex); free(tree); return -1; }
   double *ld = cost + Mmax * Mmax, *rmin = ld + Mmax, *g = rmin + Mmax, *ald = g + Mmax, *ok = ald + Mmax,
-         *sig = ok + Mmax, *from = sig + Mmax, *du = from + Mmax, *sd = du + Mmax, *mt = sd + Mmax, *A = mt + n * Mmax, *L = A + n * n, *W = L + n * n,
+         *sig = ok + Mmax, *from = sig + Mmax, *du = from + Mmax, *sd = du + Mmax, *mt = sd + Mmax,
+         *A = mt + n * Mmax, *L = A + n * n, *W = L + n * n,
          *C = W + n * n, *Li = C + n * n, *cen = Li + n * n;
   for (long long r = 0; r < R; ++r) {
     const long long o = start[r], M = start[r + 1] - start[r];
