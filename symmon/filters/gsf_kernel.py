@@ -130,7 +130,7 @@ typedef struct {
 /* The direction d (n) to split N(., P) along for Hessians H (ny, n, n) and weight W (ny, ny):
    split_directions of one component (symmon.filters.gaussian_sum). */
 static void smg_direction(smg_ctx* c, int ny, const double* P, const double* H, const double* W, double* d) {
-  const int n = c->n;
+  const int n = SMG_N;  /* c->n as a constant: the small loops unrolled, the same operations */
   const int nm = n > ny ? n : ny;
   double *lam = c->sc, *V = lam + n, *S = V + n * n, *T = S + n * n, *SHS = T + nm * nm, *G = SHS + ny * n * n,
          *gl = G + ny * n * n, *gv = gl + n, *a = gv + n * n, *wl = a + n * n + ny * ny, *wv = wl + ny,
@@ -229,7 +229,7 @@ static int smg_mon_call(smg_ctx* c, int which, const double* z, double* cg, doub
 /* Split the N components of one run whose MoN of f (which 0, noise Q) or h (1, noise R) exceeds
    split (the largest first while there is room below cap): the new count; *ns the splits. */
 static int smg_split(smg_ctx* c, int which, int N, const double* p, int* ns, int* err) {
-  const int n = c->n, ny = which ? c->ny : c->n, ms = c->ms;
+  const int n = SMG_N, ny = which ? c->ny : SMG_N, ms = c->ms;
   const double* noise = which ? c->R : c->Q;
   double *A = c->sc + 0, *r, *corr, *pc;
   int i, j, a, b, nover = 0, allowed, count = 0;
@@ -504,7 +504,8 @@ class SplitKernel:
                    f"#define SMG_MON_F {mon_f.name()}\n#define SMG_MON_H {mon_h.name()}\n"
                    f"#define SMG_SZ_ARG {max(max(f.sz_arg() for f in fns), 1)}\n"
                    f"#define SMG_SZ_RES {max(max(f.sz_res() for f in fns), 3)}\n"
-                   f"#define SMG_ROW {row}\n#define SMG_SC_DIR {sc_dir}\n#define SMG_SC_MORE {sc_more}\n")
+                   f"#define SMG_ROW {row}\n#define SMG_SC_DIR {sc_dir}\n#define SMG_SC_MORE {sc_more}\n"
+                   f"#define SMG_N {n}\n")
         # The merge kernel of mixture_merge with the state's dimension a constant (its loops
         # unrolled and its loops over the pairs vectorised: the merge is most of a step at
         # M ≥ 16), the same operations in the same order (no FMA contraction in symmon's
