@@ -334,7 +334,8 @@ CASADI_SYMBOL_EXPORT int sm_gsfk_run(casadi_int r0, casadi_int r1, casadi_int K,
     const double* prm, double* o_ll, long long* o_comp, long long* o_split, double* o_x, double* o_P,
     double* o_w, double* o_m, double* o_C, long long* fail, casadi_int* iw, casadi_real* wk) {
   smg_ctx c;
-  const int n = (int) opt[0], ny = (int) opt[1], M0 = (int) opt[8], nym = n > ny ? n : ny;
+  /* n = opt[0], the dimension the kernel is built for: a constant, so that the loops over it unroll */
+  const int n = SMG_N, ny = (int) opt[1], M0 = (int) opt[8], nym = n > ny ? n : ny;
   int cap, ret = 0;
   casadi_int r, k;
   double* buf;
