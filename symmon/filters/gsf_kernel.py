@@ -19,6 +19,9 @@ LAPACK's; the direction d = S a does not depend on the choice of the square root
 or the signs of the eigenvectors except for its own sign, which both paths fix the same way
 (:func:`~symmon.filters.gaussian_sum.split_directions`: the entry of largest magnitude,
 the first within TIE, positive).  The results equal the stepwise NumPy path's to rounding.
+The C is built for the state's dimension (``SMG_N``, and the merge kernel's n): its small
+loops unroll, with the same operations in the same order (no FMA contraction in symmon's
+builds), so the results do not depend on it.
 
 References
 ----------
