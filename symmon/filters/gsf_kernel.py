@@ -19,6 +19,9 @@ LAPACK's; the direction d = S a does not depend on the choice of the square root
 or the signs of the eigenvectors except for its own sign, which both paths fix the same way
 (:func:`~symmon.filters.gaussian_sum.split_directions`: the entry of largest magnitude,
 the first within TIE, positive).  The results equal the stepwise NumPy path's to rounding.
+The C is built for the state's dimension (``SMG_N``, and the merge kernel's n): its small
+loops unroll, with the same operations in the same order (no FMA contraction in symmon's
+builds), so the results do not depend on it.
 
 References
 ----------
@@ -130,7 +133,7 @@ typedef struct {
 /* The direction d (n) to split N(., P) along for Hessians H (ny, n, n) and weight W (ny, ny):
    split_directions of one component (symmon.filters.gaussian_sum). */
 static void smg_direction(smg_ctx* c, int ny, const double* P, const double* H, const double* W, double* d) {
-  const int n = c->n;
+  const int n = SMG_N;  /* c->n as a constant: the small loops unrolled, the same operations */
   const int nm = n > ny ? n : ny;
   double *lam = c->sc, *V = lam + n, *S = V + n * n, *T = S + n * n, *SHS = T + nm * nm, *G = SHS + ny * n * n,
          *gl = G + ny * n * n, *gv = gl + n, *a = gv + n * n, *wl = a + n * n + ny * ny, *wv = wl + ny,
@@ -229,7 +232,7 @@ static int smg_mon_call(smg_ctx* c, int which, const double* z, double* cg, doub
 /* Split the N components of one run whose MoN of f (which 0, noise Q) or h (1, noise R) exceeds
    split (the largest first while there is room below cap): the new count; *ns the splits. */
 static int smg_split(smg_ctx* c, int which, int N, const double* p, int* ns, int* err) {
-  const int n = c->n, ny = which ? c->ny : c->n, ms = c->ms;
+  const int n = SMG_N, ny = which ? c->ny : SMG_N, ms = c->ms;
   const double* noise = which ? c->R : c->Q;
   double *A = c->sc + 0, *r, *corr, *pc;
   int i, j, a, b, nover = 0, allowed, count = 0;
@@ -334,7 +337,8 @@ CASADI_SYMBOL_EXPORT int sm_gsfk_run(casadi_int r0, casadi_int r1, casadi_int K,
     const double* prm, double* o_ll, long long* o_comp, long long* o_split, double* o_x, double* o_P,
     double* o_w, double* o_m, double* o_C, long long* fail, casadi_int* iw, casadi_real* wk) {
   smg_ctx c;
-  const int n = (int) opt[0], ny = (int) opt[1], M0 = (int) opt[8], nym = n > ny ? n : ny;
+  /* n = opt[0], the dimension the kernel is built for: a constant, so that the loops over it unroll */
+  const int n = SMG_N, ny = (int) opt[1], M0 = (int) opt[8], nym = n > ny ? n : ny;
   int cap, ret = 0;
   casadi_int r, k;
   double* buf;
@@ -504,7 +508,8 @@ class SplitKernel:
                    f"#define SMG_MON_F {mon_f.name()}\n#define SMG_MON_H {mon_h.name()}\n"
                    f"#define SMG_SZ_ARG {max(max(f.sz_arg() for f in fns), 1)}\n"
                    f"#define SMG_SZ_RES {max(max(f.sz_res() for f in fns), 3)}\n"
-                   f"#define SMG_ROW {row}\n#define SMG_SC_DIR {sc_dir}\n#define SMG_SC_MORE {sc_more}\n")
+                   f"#define SMG_ROW {row}\n#define SMG_SC_DIR {sc_dir}\n#define SMG_SC_MORE {sc_more}\n"
+                   f"#define SMG_N {n}\n")
         # The merge kernel of mixture_merge with the state's dimension a constant (its loops
         # unrolled and its loops over the pairs vectorised: the merge is most of a step at
         # M ≥ 16), the same operations in the same order (no FMA contraction in symmon's

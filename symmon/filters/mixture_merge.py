@@ -34,23 +34,34 @@ f_j P_j, f = w/(w_i + w_j), c = f_i f_j and d = m_i − m_j,
     B_ij = ½ (w_i + w_j) [log det S − f_i log det P_i − f_j log det P_j + log(1 + x)],
     x = c dᵀ S⁻¹ d;
 
-the first three terms of the bracket are ≥ 0 (log det is concave), log(1 + x) ≥ 2x/(2 + x)
-(x ≥ 0; the derivative of the difference is x²/((1 + x)(2 + x)²)), and x ≥ c |W d|²/(f_i g_i +
-f_j g_j) for any invertible W with g ≥ the largest eigenvalue of W P Wᵀ (then S ≤ (f_i g_i +
-f_j g_j) (WᵀW)⁻¹).  W whitens the weighted mean T of the covariances (W = L⁻¹ diag(T)^-½ with
-L the Cholesky factor of the scaled T, the diagonal scaling alone when that is ill-conditioned),
-so that a pair's bound does not suffer from states in different units or correlated states;
-g is the least of the trace and the largest absolute row sum of W P Wᵀ.  So
+the first three terms of the bracket (J) are ≥ n log(1 + y), y = f_i f_j (s_i − s_j)²/(f_i s_i +
+f_j s_j)², s_k = (det P_k)^(1/2n): Minkowski's determinant inequality, det(S)^(1/n) ≥ f_i
+det(P_i)^(1/n) + f_j det(P_j)^(1/n), and the weighted geometric mean below the power mean of
+order ½, (det P_i)^(f_i/n) (det P_j)^(f_j/n) ≤ (f_i s_i + f_j s_j)² (so pairs of components of
+very different sizes get a bound without a log-determinant); log(1 + x) ≥ 2x/(2 + x) (x ≥ 0;
+the derivative of the difference is x²/((1 + x)(2 + x)²)), and x ≥ c |W d|²/(f_i g_i + f_j g_j)
+for any invertible W with g ≥ the largest eigenvalue of W P Wᵀ (then S ≤ (f_i g_i + f_j g_j)
+(WᵀW)⁻¹).  W whitens the weighted harmonic mean T of the covariances, T⁻¹ = Σ_k w_k P_k⁻¹/Σ_k
+w_k (W = L⁻¹ diag(T)^-½ with L the Cholesky factor of the scaled T, the diagonal scaling alone
+when that is ill-conditioned), so that a pair's bound does not suffer from states in different
+units or correlated states, nor from a few wide components (an arithmetic mean, inflated along
+the directions in which they are wide, would shrink |W d| for every pair apart along those);
+the harmonic mean comes from the L D Lᵀ factors of the log-determinants.  g is the least of the
+trace and the largest absolute row sum of W P Wᵀ.  So
 
-    B_ij ≥ (w_i + w_j) N/(2D + N),  N = w_i w_j |W d|²,  D = (w_i + w_j)(w_i g_i + w_j g_j),
+    B_ij ≥ (w_i + w_j) [N/(2D + N) + n E/F],  N = w_i w_j |W d|²,  D = (w_i + w_j)(w_i g_i + w_j g_j),
+    E = w_i w_j (s_i − s_j)²,  F = 2 (w_i s_i + w_j s_j)² + E,
 
 computed from whitened means W (m_k − c) stored once per component (with an allowance for
-their rounding) and lowered by a margin (1e-9 relative, and 1e-9 (w_i + w_j)(n + |log det P_i|
-+ |log det P_j|) absolute) that covers the rounding of the key and of the cost.  At the size
-of a Gaussian-sum filter's bank (3 × 64 components merged to 64) about one pair in 50 then has
-its log-determinant computed.  A component whose bound does not hold (a covariance that is not
-positive definite, a weight that is not positive) gets NaN keys, which come first and so have
-their costs computed before any merge.
+their rounding), the s relative to the run's mean log-determinant, and lowered by a margin
+(1e-9 relative, and 1e-9 (w_i + w_j)(n + |log det P_i| + |log det P_j|) absolute) that covers
+the rounding of the key and of the cost (n E/F moves by at most ½ per unit of error in a
+log-determinant).  On the merges of a Gaussian-sum filter's bank (benchmarks/gsf.py, 192
+components merged to 64) about 430 pairs' costs are computed a call for the 128 merges, of the
+18 336 pairs at first (about 830 without Minkowski's term and with the arithmetic mean).  A
+component whose bound does not hold (a covariance that is not positive definite, a weight that
+is not positive) gets NaN keys, which come first and so have their costs computed before any
+merge.
 
 The pair of least key (sm_before's order, then the first pair) is taken; while its key is a
 bound, its cost replaces it and the search repeats.  Every key is at most its pair's cost, so
@@ -61,11 +72,15 @@ component whose row was computed last.  A component's stamp (M − i at first, a
 M + 1 when a merge changes it, +inf when it is merged away) says which: the key in row i,
 column j is valid when stamp_j < stamp_i.  At first row i holds the pairs (i, j), j > i; a
 merge into i recomputes row i for every j (one contiguous row, a loop the compiler vectorises)
-and nothing else is written.  Each row's first least valid key is kept (a vectorised scan); a
-row whose least pair went away keeps its old minimum as a lower bound until it comes to the
-top, and is rescanned then.  The rows sit in a tournament tree ordered by key, then by pair.
-Per merge that is O(M) keys and a few O(M) scans, O(M²) for the reduction, against the
-exhaustive search's O(M³) costs.
+and nothing else is written.  Each row's first least valid key is kept (a vectorised scan, two
+sets of lanes so that their compare-and-select chains overlap); a row whose least pair went
+away keeps its old minimum as a lower bound until it comes to the top, and is rescanned then.
+The rows sit in a tournament tree ordered by key, then by pair; a row's walk to the root
+carries its winner in registers and compares only integers (the keys as integers that order as
+the doubles do), with no branch on the data.  Per merge that is O(M) keys and a few O(M) scans,
+O(M²) for the reduction, against the exhaustive search's O(M³) costs.  What a merge call costs
+then (M = 64 above, per call): the keys ~1/4 (~36 000, vectorised), the row scans ~1/4 (~970
+over ~135 000 columns), the tree ~1/8 (~910 walks), the costs and log-determinants ~1/8.
 
 References
 ----------
@@ -103,13 +118,15 @@ static double sm_logdet(const double *A, long long n, double *L) {
   /* log det of the symmetric positive definite A (row-major, its lower triangle read) by L D Lᵀ (no square roots):
      log Π d_i, one log per factor of the product kept within the float range; -inf if A is
      not positive definite.  L (n × n) is scratch: its strict lower triangle holds L, its
-     upper triangle U_ki = L_ik d_k (one product per term, one reciprocal per pivot). */
+     upper triangle U_ki = L_ik d_k (one product per term, one reciprocal per pivot), its
+     diagonal 1/d (for sm_add_inverse). */
   double prod = 1.0, logs = 0.0;
   for (long long j = 0; j < n; ++j) {
     double d = A[j * n + j];
     for (long long k = 0; k < j; ++k) d -= L[k * n + j] * L[j * n + k];
     if (!(d > 0.0)) return -INFINITY;
     const double r = 1.0 / d;
+    L[j * n + j] = r;
     for (long long i = j + 1; i < n; ++i) {
       double s = A[i * n + j];
       for (long long k = 0; k < j; ++k) s -= L[k * n + i] * L[j * n + k];
@@ -158,29 +175,78 @@ static void sm_merge_pair(long long i, long long j, long long n, double *w, doub
   w[i] = ws;
 }
 
-/* The whitening W (n x n, lower triangular) of the bound's metric: W = L^-1 S, with T the
-   weighted mean of the covariances (their lower triangles) of the components whose bound
-   holds (ok), S = diag(T)^-1/2 and S T S = L L^T.  The diagonal S alone when S T S is
-   ill-conditioned (n |L^-1|_F^2, an upper bound on its condition number, above 1e4: the
-   rounding of W d and W P W^T then stays far below the bound's margin), the identity when
-   T is not positive definite.  C, Li: n x n scratch. */
-static void sm_whiten(long long M, long long n, const double *w, const double *P, const double *ok, double *W,
-                      double *C, double *Li) {
-  double sw = 0.0, fro = 0.0;
-  for (long long a = 0; a < n * n; ++a) { W[a] = 0.0; C[a] = 0.0; }
-  for (long long a = 0; a < n; ++a) W[a * n + a] = 1.0;
-  for (long long k = 0; k < M; ++k) {
-    if (!ok[k]) continue;
-    sw += w[k];
-    for (long long a = 0; a < n; ++a)
-      for (long long b = 0; b <= a; ++b) C[a * n + b] += w[k] * P[k * n * n + a * n + b];
+/* The inverse X (full) of the symmetric positive definite A (its lower triangle read), by
+   Cholesky: A = G G^T, X = G^-T G^-1.  Returns 0 if A is not positive definite.  G: n x n scratch. */
+static int sm_spd_inverse(const double *A, long long n, double *X, double *G) {
+  for (long long j = 0; j < n; ++j) {  /* G lower triangular, then G^-1 in its place */
+    double d = A[j * n + j];
+    for (long long k = 0; k < j; ++k) d -= G[j * n + k] * G[j * n + k];
+    if (!(d > 0.0) || !isfinite(d)) return 0;
+    d = sqrt(d);
+    G[j * n + j] = d;
+    for (long long i = j + 1; i < n; ++i) {
+      double s = A[i * n + j];
+      for (long long k = 0; k < j; ++k) s -= G[i * n + k] * G[j * n + k];
+      G[i * n + j] = s / d;
+    }
   }
+  for (long long b = 0; b < n; ++b)  /* X's column b: G^-1 e_b by forward substitution, in X's row b */
+    for (long long a = 0; a < n; ++a) {
+      double s = a == b ? 1.0 : 0.0;
+      for (long long k = b; k < a; ++k) s -= G[a * n + k] * X[b * n + k];
+      X[b * n + a] = a < b ? 0.0 : s / G[a * n + a];
+    }
+  for (long long a = 0; a < n; ++a)  /* X = (G^-1)^T G^-1 from the rows of G^-T kept in X: lower triangle into G */
+    for (long long b = 0; b <= a; ++b) {
+      double s = 0.0;
+      for (long long k = a; k < n; ++k) s += X[a * n + k] * X[b * n + k];
+      G[a * n + b] = s;
+    }
+  for (long long a = 0; a < n; ++a)
+    for (long long b = 0; b <= a; ++b) X[a * n + b] = X[b * n + a] = G[a * n + b];
+  return 1;
+}
+
+/* C += w P^-1 (its lower triangle), from sm_logdet's factors of P in L: P^-1 = Y^T D^-1 Y with
+   Y = L^-1 (L unit lower triangular, its strict lower triangle; D^-1 on its diagonal), so that
+   the harmonic mean of sm_whiten costs no factorisation of its own.  Y: n x n scratch. */
+static void sm_add_inverse(const double *L, long long n, double w, double *C, double *Y) {
+  for (long long a = 0; a < n; ++a) {  /* Y by forward substitution: L Y = I */
+    Y[a * n + a] = 1.0;
+    for (long long b = 0; b < a; ++b) {
+      double t = -L[a * n + b];
+      for (long long k = b + 1; k < a; ++k) t -= L[a * n + k] * Y[k * n + b];
+      Y[a * n + b] = t;
+    }
+  }
+  for (long long a = 0; a < n; ++a)
+    for (long long b = 0; b <= a; ++b) {
+      double t = 0.0;
+      for (long long k = a; k < n; ++k) t += Y[k * n + a] * L[k * n + k] * Y[k * n + b];
+      C[a * n + b] += w * t;
+    }
+}
+
+/* The whitening W (n x n, lower triangular) of the bound's metric: W = L^-1 S, with T the
+   weighted harmonic mean of the covariances of the components whose bound holds, T^-1 = C/sw,
+   C = sum_k w_k P_k^-1 (its lower triangle, sm_add_inverse) and sw = sum_k w_k (a few wide
+   components do not inflate it, so that the others' W P W^T stay near the identity), S =
+   diag(T)^-1/2 and S T S = L L^T.  The diagonal S alone when S T S is ill-conditioned (n
+   |L^-1|_F^2, an upper bound on its condition number, above 1e4: the rounding of W d and W P W^T
+   then stays far below the bound's margin), the identity when T is not positive definite.  C
+   is overwritten; Li, X, G: n x n scratch. */
+static void sm_whiten(long long n, double sw, double *W, double *C, double *Li, double *X, double *G) {
+  double fro = 0.0;
+  for (long long a = 0; a < n * n; ++a) W[a] = 0.0;
+  for (long long a = 0; a < n; ++a) W[a * n + a] = 1.0;
   if (!(sw > 0.0) || !isfinite(sw)) return;
-  for (long long a = 0; a < n; ++a) Li[a] = 1.0 / sqrt(C[a * n + a] / sw);  /* S, kept in Li's first row */
+  for (long long a = 0; a < n * n; ++a) C[a] /= sw;
+  if (!sm_spd_inverse(C, n, X, G)) return;  /* X = T */
+  for (long long a = 0; a < n; ++a) Li[a] = 1.0 / sqrt(X[a * n + a]);  /* S, kept in Li's first row */
   for (long long a = 0; a < n; ++a) if (!(Li[a] > 0.0) || !isfinite(Li[a])) return;
   for (long long a = 0; a < n; ++a) W[a * n + a] = Li[a];
   for (long long a = 0; a < n; ++a)  /* S T S, lower triangle, unit diagonal */
-    for (long long b = 0; b <= a; ++b) C[a * n + b] = Li[a] * (C[a * n + b] / sw) * Li[b];
+    for (long long b = 0; b <= a; ++b) C[a * n + b] = Li[a] * X[a * n + b] * Li[b];
   for (long long j = 0; j < n; ++j) {  /* Cholesky in place: C's lower triangle becomes L */
     double d = C[j * n + j];
     for (long long k = 0; k < j; ++k) d -= C[j * n + k] * C[j * n + k];
@@ -257,23 +323,23 @@ static void sm_wmean(long long k, long long n, long long M, const double *m, con
   du[k] = (double) (n + 2) * 2.3e-16 * err;
 }
 
-/* Whether component k's keys are finite: its bound holds (g finite) and its weight, whitened mean
-   and g are below 1e50, so that no product in a key overflows. */
+/* Whether component k's keys are finite: its bound holds (g finite) and its weight, whitened mean,
+   g and s are below 1e50, so that no product in a key overflows. */
 static int sm_sane(long long k, long long n, long long M, const double *w, const double *g, const double *u,
-                   const double *du) {
-  int ok = fabs(w[k]) < 1e50 && fabs(g[k]) < 1e50 && fabs(du[k]) < 1e50;
+                   const double *du, const double *s) {
+  int ok = fabs(w[k]) < 1e50 && fabs(g[k]) < 1e50 && fabs(du[k]) < 1e50 && fabs(s[k]) < 1e50;
   for (long long a = 0; a < n; ++a) ok &= fabs(u[a * M + k]) < 1e50;
   return ok;
 }
 
 /* The bound keys of the pairs (i, j), j0 <= j < j1, into out[j - j0] (NaN where the bound does
-   not hold: module notes).  u, du: sm_wmean's; ald = |log det P|.  One loop over j, its inner
-   loop over the state's dimension: with n a constant it unrolls and the compiler vectorises the
-   loop over j. */
+   not hold: module notes).  u, du: sm_wmean's; ald = |log det P|; s = (det P / det P_ref)^(1/2n)
+   (Minkowski's term).  One loop over j, its inner loop over the state's dimension: with n a
+   constant it unrolls and the compiler vectorises the loop over j. */
 static void sm_keys(long long i, long long j0, long long j1, long long n, long long M, const double *restrict u,
                     const double *restrict du, const double *restrict w, const double *restrict g,
-                    const double *restrict ald, double *restrict out) {
-  const double wi = w[i], gi = g[i], ai = ald[i], di = du[i];
+                    const double *restrict ald, const double *restrict s, double *restrict out) {
+  const double wi = w[i], gi = g[i], ai = ald[i], di = du[i], si = s[i];
   for (long long j = j0; j < j1; ++j) {
     double dd = 0.0;  /* |u_i - u_j|^2, then a lower bound on |W (m_i - m_j)|^2: with e = du_i + du_j,
                          (|x| - e)^2 >= (1 - 1e-9) |x|^2 - 1e9 e^2 */
@@ -285,9 +351,12 @@ static void sm_keys(long long i, long long j0, long long j1, long long n, long l
     const double err = di + du[j];
     dd = dd * (1.0 - 1e-9) - 1e9 * (err * err);
     dd = dd < 0.0 ? 0.0 : dd;
-    /* ws N / (2 D + N), N = w_i w_j dd, D = ws (w_i g_i + w_j g_j), less the margin */
+    /* ws N / (2 D + N), N = w_i w_j dd, D = ws (w_i g_i + w_j g_j): the log(1 + x) term;
+       ws n E / F, E = w_i w_j (s_i - s_j)^2, F = 2 (w_i s_i + w_j s_j)^2 + E: Minkowski's term */
     const double wj = w[j], ws = wi + wj, N = wi * wj * dd, D = ws * (wi * gi + wj * g[j]);
-    out[j - j0] = ws * N / (2.0 * D + N) * (1.0 - 1e-9) - 1e-9 * ws * ((double) n + (ai + ald[j]));
+    const double ds = si - s[j], h = wi * si + wj * s[j], E = wi * wj * (ds * ds), F = 2.0 * (h * h) + E;
+    out[j - j0] = ws * (N / (2.0 * D + N) + (double) n * (E / F)) * (1.0 - 1e-9)
+                  - 1e-9 * ws * ((double) n + (ai + ald[j]));
   }
 }
 
@@ -310,9 +379,26 @@ static void sm_row(long long i, long long from, long long M, const double *cost,
   int nan = 0;
   if (M - j >= 8) {
     const sm_v4d inf = {INFINITY, INFINITY, INFINITY, INFINITY}, s4 = {si, si, si, si};
-    sm_v4d vb = inf;
-    sm_v4l vi = {-1, -1, -1, -1}, idx = {j, j + 1, j + 2, j + 3}, vn = {0, 0, 0, 0};
-    const sm_v4l four = {4, 4, 4, 4};
+    /* two sets of lanes (columns j..j+3 and j+4..j+7 of every 8), so that the compare-and-select
+       chain of one set overlaps the other's */
+    sm_v4d vb = inf, vb2 = inf;
+    sm_v4l vi = {-1, -1, -1, -1}, vi2 = vi, idx = {j, j + 1, j + 2, j + 3}, vn = {0, 0, 0, 0};
+    const sm_v4l four = {4, 4, 4, 4}, eight = {8, 8, 8, 8};
+    for (; M - from >= 64 && j + 8 <= M; j += 8) {  /* a short row: one set (its second would not repay its lanes) */
+      sm_v4d x, s, x2, s2;
+      memcpy(&x, c + j, sizeof x);
+      memcpy(&s, sig + j, sizeof s);
+      memcpy(&x2, c + j + 4, sizeof x2);
+      memcpy(&s2, sig + j + 4, sizeof s2);
+      const sm_v4l ok = (sm_v4l) (s < s4), lt = (sm_v4l) (x < vb) & ok;
+      const sm_v4l ok2 = (sm_v4l) (s2 < s4), lt2 = (sm_v4l) (x2 < vb2) & ok2;
+      if (nanm) vn |= ((sm_v4l) (x != x) & ok) | ((sm_v4l) (x2 != x2) & ok2);
+      vb = (sm_v4d) ((lt & (sm_v4l) x) | (~lt & (sm_v4l) vb));
+      vi = (lt & idx) | (~lt & vi);
+      vb2 = (sm_v4d) ((lt2 & (sm_v4l) x2) | (~lt2 & (sm_v4l) vb2));
+      vi2 = (lt2 & (idx + four)) | (~lt2 & vi2);
+      idx += eight;
+    }
     for (; j + 4 <= M; j += 4) {
       sm_v4d x, s;
       memcpy(&x, c + j, sizeof x);
@@ -326,6 +412,7 @@ static void sm_row(long long i, long long from, long long M, const double *cost,
     for (int l = 0; l < 4; ++l) {
       nan |= vn[l] != 0;
       if (vi[l] >= 0 && (vb[l] < best || (vb[l] == best && vi[l] < arg))) { best = vb[l]; arg = vi[l]; }
+      if (vi2[l] >= 0 && (vb2[l] < best || (vb2[l] == best && vi2[l] < arg))) { best = vb2[l]; arg = vi2[l]; }
     }
   }
   for (; j < M; ++j) {
@@ -344,33 +431,55 @@ static void sm_row(long long i, long long from, long long M, const double *cost,
 /* The tournament tree over the rows, T leaves (leaf T + k: row k) and at node p the least of the
    leaves below it: its key nk[p], its pair's rank nr[p] (i M + j, i < j) and its row nw[p], in
    the order of the key (sm_before's: a NaN first, as -inf with its rank less 2^62), then of the
-   pair; a dead row, or one without a candidate, as (+inf, LLONG_MAX). */
-static void sm_leaf(long long k, long long T, long long M, const double *rmin, const long long *rarg,
-                    const unsigned char *al, double *nk, long long *nr, long long *nw) {
-  const long long p = T + k, a = k < M ? rarg[k] : -1;
-  nw[p] = k;
-  if (a < 0 || !al[k]) { nk[p] = INFINITY; nr[p] = LLONG_MAX; return; }
-  const long long rank = k < a ? k * M + a : a * M + k;
-  if (rmin[k] != rmin[k]) { nk[p] = -INFINITY; nr[p] = rank - ((long long) 1 << 62); }
-  else { nk[p] = rmin[k]; nr[p] = rank; }
+   pair; a dead row, or one without a candidate, as (+inf, LLONG_MAX).  A key is kept as the
+   integer that orders as the double does (sm_ord), so that the tree compares only integers. */
+static long long sm_ord(double x) {
+  long long b;
+  x += 0.0;  /* -0 as +0: they compare equal as doubles */
+  memcpy(&b, &x, sizeof b);
+  return b < 0 ? b ^ LLONG_MAX : b;  /* a negative double's magnitude bits reversed */
 }
 
-/* Node p from its children; returns whether it changed. */
-static int sm_node(long long p, double *nk, long long *nr, long long *nw) {
+static void sm_leaf(long long k, long long T, long long M, const double *rmin, const long long *rarg,
+                    const unsigned char *al, long long *nk, long long *nr, long long *nw) {
+  const long long p = T + k, a = k < M ? rarg[k] : -1;
+  nw[p] = k;
+  if (a < 0 || !al[k]) { nk[p] = sm_ord(INFINITY); nr[p] = LLONG_MAX; return; }
+  const long long rank = k < a ? k * M + a : a * M + k;
+  if (rmin[k] != rmin[k]) { nk[p] = sm_ord(-INFINITY); nr[p] = rank - ((long long) 1 << 62); }
+  else { nk[p] = sm_ord(rmin[k]); nr[p] = rank; }
+}
+
+/* Node p from its children (the left one on a tie). */
+static void sm_node(long long p, long long *nk, long long *nr, long long *nw) {
   const long long l = 2 * p, r = l + 1;
   const long long b = l + ((nk[r] < nk[l]) | ((nk[r] == nk[l]) & (nr[r] < nr[l])));
-  const int same = nk[p] == nk[b] && nr[p] == nr[b] && nw[p] == nw[b];
   nk[p] = nk[b];
   nr[p] = nr[b];
   nw[p] = nw[b];
-  return !same;
 }
 
-/* Row k's minimum changed: its leaf and the nodes above it, up to the first that stays. */
+/* Row k's minimum changed: its leaf and the nodes above it, up to the root (no test whether a
+   node stays: a branch that costs more than the levels it saves).  The climbing winner is
+   carried in registers and met only by the sibling at each level (sm_node's order), so that a
+   level's loads do not wait for the level below; the selection by masks (a branch there is
+   mispredicted half the time). */
 static void sm_tree(long long k, long long T, long long M, const double *rmin, const long long *rarg,
-                    const unsigned char *al, double *nk, long long *nr, long long *nw) {
+                    const unsigned char *al, long long *nk, long long *nr, long long *nw) {
   sm_leaf(k, T, M, rmin, rarg, al, nk, nr, nw);
-  for (long long p = (T + k) / 2; p >= 1 && sm_node(p, nk, nr, nw); p /= 2) {}
+  long long p = T + k, key = nk[p], rank = nr[p], who = k;
+  for (; p > 1; p >>= 1) {
+    const long long s = p ^ 1, q = p >> 1, ks = nk[s], rs = nr[s];
+    /* the sibling wins when before the climber (a pair lives in one row, so ranks differ but for
+       rows without a candidate, whose order does not matter) */
+    const long long win = -(long long) ((ks < key) | ((ks == key) & (rs < rank)));
+    key = (ks & win) | (key & ~win);
+    rank = (rs & win) | (rank & ~win);
+    who = (nw[s] & win) | (who & ~win);
+    nk[q] = key;
+    nr[q] = rank;
+    nw[q] = who;
+  }
 }
 
 /* The reference the search must equal: every live pair's cost computed at every merge, the
@@ -416,16 +525,17 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
   for (long long r = 0; r < R; ++r)
     if (start[r + 1] - start[r] > Mmax) Mmax = start[r + 1] - start[r];
   if (Mmax <= keep) return 0;
-  double *cost = malloc(sizeof(double) * (size_t)(Mmax * Mmax + (9 + n) * Mmax + 5 * n * n + n));
+  double *cost = malloc(sizeof(double) * (size_t)(Mmax * Mmax + (10 + n) * Mmax + 5 * n * n + n));
   long long *rarg = malloc(sizeof(long long) * (size_t)Mmax);
   unsigned char *ex = malloc((size_t)(Mmax * Mmax + Mmax)), *stale = ex + Mmax * Mmax;
   long long T = 1;
   while (T < Mmax) T *= 2;
   long long *tree = malloc(sizeof(long long) * (size_t)(6 * T)), *nr = tree, *nw = tree + 2 * T;
-  double *nk = (double *) (tree + 4 * T);
+  long long *nk = tree + 4 * T;
   if (!cost || !rarg || !ex || !tree) { free(cost); free(rarg); free(ex); free(tree); return -1; }
   double *ld = cost + Mmax * Mmax, *rmin = ld + Mmax, *g = rmin + Mmax, *ald = g + Mmax, *ok = ald + Mmax,
-         *sig = ok + Mmax, *from = sig + Mmax, *du = from + Mmax, *mt = du + Mmax, *A = mt + n * Mmax, *L = A + n * n, *W = L + n * n,
+         *sig = ok + Mmax, *from = sig + Mmax, *du = from + Mmax, *sd = du + Mmax, *mt = sd + Mmax,
+         *A = mt + n * Mmax, *L = A + n * n, *W = L + n * n,
          *C = W + n * n, *Li = C + n * n, *cen = Li + n * n;
   for (long long r = 0; r < R; ++r) {
     const long long o = start[r], M = start[r + 1] - start[r];
@@ -437,9 +547,12 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
     /* nanm: a key or cost may be NaN (Salmond's costs, a component whose bound does not hold or
        whose numbers could overflow a key, a NaN cost), so that the rows' scans look for one */
     int nanm = salmond;
+    double ldc = 0.0, swh = 0.0;
+    for (long long a = 0; a < n * n; ++a) C[a] = 0.0;
     for (long long i = 0; i < M; ++i) {
       ld[i] = salmond ? 0.0 : sm_logdet(Pr + i * n * n, n, L);
       ok[i] = isfinite(ld[i]) && wr[i] >= 0.0 && isfinite(wr[i]);
+      if (!salmond && ok[i]) { sm_add_inverse(L, n, wr[i], C, Li); swh += wr[i]; }
       ald[i] = fabs(ld[i]);
       sig[i] = (double) (M - i);
       from[i] = (double) (i + 1);
@@ -456,11 +569,17 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
         for (long long a = 0; a < n; ++a) cen[a] += wr[i] * mr[i * n + a];
       }
       for (long long a = 0; a < n; ++a) cen[a] = sw > 0.0 && isfinite(cen[a] / sw) ? cen[a] / sw : 0.0;
-      sm_whiten(M, n, wr, Pr, ok, W, C, Li);
+      sm_whiten(n, swh, W, C, Li, A, L);
+      double nok = 0.0;  /* the reference of Minkowski's s: the mean log det of the ok components */
+      ldc = 0.0;
+      for (long long i = 0; i < M; ++i)
+        if (ok[i]) { ldc += ld[i]; nok += 1.0; }
+      ldc = nok > 0.0 ? ldc / nok : 0.0;
       for (long long i = 0; i < M; ++i) {
+        sd[i] = exp((ld[i] - ldc) / (double) (2 * n));
         g[i] = sm_top(Pr + i * n * n, n, ok[i] != 0.0, W, C, Li);
         sm_wmean(i, n, M, mr, cen, W, mt, du);
-        nanm |= !sm_sane(i, n, M, wr, g, mt, du);
+        nanm |= !sm_sane(i, n, M, wr, g, mt, du, sd);
       }
     }
     for (long long i = 0; i < M; ++i) {
@@ -468,7 +587,7 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
         for (long long j = i + 1; j < M; ++j) cost[i * M + j] = sm_cost(i, j, n, 1, wr, mr, Pr, ld, Pv, A, L);
         memset(ex + i * M, 1, (size_t) M);
       } else {
-        sm_keys(i, i + 1, M, n, M, mt, du, wr, g, ald, cost + i * M + i + 1);
+        sm_keys(i, i + 1, M, n, M, mt, du, wr, g, ald, sd, cost + i * M + i + 1);
         memset(ex + i * M, 0, (size_t) M);
       }
       sm_row(i, i + 1, M, cost, sig, rmin, rarg, nanm);
@@ -515,10 +634,11 @@ int sm_gsf_merge(long long R, const long long *start, long long n, long long kee
         ld[i] = sm_logdet(Pr + i * n * n, n, L);
         ok[i] = isfinite(ld[i]) && wr[i] >= 0.0 && isfinite(wr[i]);
         ald[i] = fabs(ld[i]);
+        sd[i] = exp((ld[i] - ldc) / (double) (2 * n));
         g[i] = sm_top(Pr + i * n * n, n, ok[i] != 0.0, W, C, Li);
         sm_wmean(i, n, M, mr, cen, W, mt, du);
-        nanm |= !sm_sane(i, n, M, wr, g, mt, du);
-        sm_keys(i, 0, M, n, M, mt, du, wr, g, ald, cost + i * M);
+        nanm |= !sm_sane(i, n, M, wr, g, mt, du, sd);
+        sm_keys(i, 0, M, n, M, mt, du, wr, g, ald, sd, cost + i * M);
         memset(ex + i * M, 0, (size_t) M);
       }
       sm_row(i, 0, M, cost, sig, rmin, rarg, nanm);

@@ -71,6 +71,21 @@ def test_search_equals_the_reference_where_bounds_and_ties_are_delicate() -> Non
     w_zero[5] = 0.0
     cases["not positive definite"] = (base_w, base_m, P_bad)
     cases["zero weight"] = (w_zero, base_m, base_P)
+    # Covariances over six decades of size, means close or equal: Minkowski's term of the bound
+    # (the log-determinants' gap) is what keeps most pairs from their costs.
+    scale = 10.0 ** rng.uniform(-3, 3, 12)[:, None, None]
+    cases["sizes, near means"] = (base_w, 0.01 * base_m, base_P * scale)
+    cases["sizes, equal means"] = (base_w, np.repeat(base_m[:1], 12, axis=0), base_P * scale)
+    cases["sizes, duplicates"] = (np.r_[base_w, base_w[:6]], np.r_[base_m, base_m[:6]],
+                                  np.r_[base_P * scale, base_P[:6] * scale[6:]])
+    # Duplicates of other weights: costs of a few ulps of either sign, many of them negative and
+    # distinct, so that the order of negative keys and costs decides.
+    cases["duplicates, other weights"] = (np.r_[base_w, 0.37 * base_w], np.r_[base_m, base_m], np.r_[base_P, base_P])
+    # A few components wide along one state among narrow ones: the whitening's harmonic mean
+    # keeps to the narrow ones (an arithmetic mean would follow the wide ones).
+    wide = base_P.copy()
+    wide[[2, 7]] += np.diag([400.0, 0.0, 0.0])
+    cases["a few wide components"] = (base_w, base_m, wide)
     for name, (w, m, P) in cases.items():
         for keep in (1, 4, len(w) - 1):
             for rule in ("runnalls", "salmond"):
