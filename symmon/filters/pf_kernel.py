@@ -40,8 +40,14 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
 4. on resampling: the points (systematic: u + i, not stored, u drawn by every thread
    from its copy of the resampling stream, so no barrier; stratified, or sorted uniforms
    as normalised sums of exponential spacings for multinomial: O(N), no sort), then the walk along the
-   cumulative weights (points ascending: O(N), no binary search), by input chunk, each
-   chunk finding its first point by bisection; the regularisation's jitter by output chunk.
+   cumulative weights c_j by input chunk (points ascending: O(N), no binary search).  For
+   systematic points it goes by particle: particle j takes the points from the last one's
+   end to the first i with u + i >= c_j, i = ⌈c_j − u⌉ moved until the points' own
+   comparisons hold (a guess off by one only within rounding), so no branch depends on the
+   weights and no chain of dependences runs from one particle to the next (the walk went from
+   ~12 to ~6 ns a particle, 2026-12-04); other schemes go point by point, each chunk finding
+   its first point by bisection; both make the same picks (tested).  The regularisation's
+   jitter by output chunk.
    Without regularisation the pick is kept as indices and the next move reads the moved
    particles through them (the rows are copied once, at the end of the run), which saves
    the gather's read and write of the N x n particles each step.  After a resampling the
@@ -167,9 +173,8 @@ static void pfk_lanes_out(const uint64_t* ls, uint64_t* st) {{
 /* symmon: groups x SYMMON_LANES normals of lanes s into out, lane l's at out[g * LANES + l] (tests). */
 CASADI_SYMBOL_EXPORT void {name}_lanes(unsigned long long* s, casadi_int groups, casadi_real* out) {{
   uint64_t ls[4 * SYMMON_LANES];
-  casadi_int g;
   pfk_lanes_in((uint64_t*) s, ls);
-  for (g = 0; g < groups; ++g) symmon_normal_lanes(ls, out + g * SYMMON_LANES);
+  symmon_normal_lanes(ls, out, groups * SYMMON_LANES);
   pfk_lanes_out(ls, (uint64_t*) s);
 }}
 
@@ -373,7 +378,7 @@ static int pfk_body(pfk_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_
         if (c->zext) {{
           for (i = 0; i < nb; ++i) for (j = 0; j < {nq}; ++j) rb[({nx} + j) * {ld} + i] = c->zext[(k * N + b0 + i) * {nq} + j];
         }} else {{
-          for (j = 0; j < {nq}; ++j) for (i = 0; i < nb; i += SYMMON_LANES) symmon_normal_lanes(ls, rb + ({nx} + j) * {ld} + i);
+          for (j = 0; j < {nq}; ++j) symmon_normal_lanes(ls, rb + ({nx} + j) * {ld}, (nb + SYMMON_LANES - 1) / SYMMON_LANES * SYMMON_LANES);
         }}
         {fill}
         /* the log-density c - |A nu|^2 / 2 of the measured components (another's nu, maybe
