@@ -178,15 +178,18 @@ CASADI_SYMBOL_EXPORT void {name}_lanes(unsigned long long* s, casadi_int groups,
   pfk_lanes_out(ls, (uint64_t*) s);
 }}
 
-/* A barrier of the T threads: a short spin (most waits are microseconds), then a mutex and
-   condition (macOS has no pthread_barrier); the last to arrive resets the count, then
-   publishes the new generation under the mutex (no lost wake-up). */
+/* A barrier of the T threads: a spin of up to pfk_SPIN_NS, then a mutex and condition
+   (macOS has no pthread_barrier); the last to arrive resets the count, then publishes the
+   new generation under the mutex (no lost wake-up).  The spin outlasts a step's imbalance
+   between threads (tens of microseconds at 10^4 particles): a thread put to sleep wakes tens
+   of microseconds late in a virtual machine, and its core may go to another process
+   meanwhile (OpenMP runtimes spin for 0.2 ms and more before they sleep). */
 #if defined(__x86_64__) || defined(__i386__)
 #define pfk_PAUSE() __builtin_ia32_pause()
 #else
 #define pfk_PAUSE() ((void) 0)
 #endif
-#define pfk_SPIN_NS 20000L
+#define pfk_SPIN_NS 200000L
 typedef struct {{ pthread_mutex_t mu; pthread_cond_t cv; int count, T; unsigned gen; }} pfk_barrier;
 static void pfk_bwait(pfk_barrier* b) {{
   unsigned g;
