@@ -40,8 +40,14 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
 4. on resampling: the points (systematic: u + i, not stored, u drawn by every thread
    from its copy of the resampling stream, so no barrier; stratified, or sorted uniforms
    as normalised sums of exponential spacings for multinomial: O(N), no sort), then the walk along the
-   cumulative weights (points ascending: O(N), no binary search), by input chunk, each
-   chunk finding its first point by bisection; the regularisation's jitter by output chunk.
+   cumulative weights c_j by input chunk (points ascending: O(N), no binary search).  For
+   systematic points it goes by particle: particle j takes the points from the last one's
+   end to the first i with u + i >= c_j, i = ⌈c_j − u⌉ moved until the points' own
+   comparisons hold (a guess off by one only within rounding), so no branch depends on the
+   weights and no chain of dependences runs from one particle to the next (the walk went from
+   ~12 to ~6 ns a particle, 2026-12-04); other schemes go point by point, each chunk finding
+   its first point by bisection; both make the same picks (tested).  The regularisation's
+   jitter by output chunk.
    Without regularisation the pick is kept as indices and the next move reads the moved
    particles through them (the rows are copied once, at the end of the run), which saves
    the gather's read and write of the N x n particles each step.  After a resampling the
@@ -75,16 +81,18 @@ __all__ = ["BootstrapKernel", "bootstrap_kernel", "BLOCK", "MIN_THREAD_NUMBERS"]
 
 _LOG_2PI = math.log(2 * math.pi)
 
-# The recursion of one run.  casadi_int is long long (CasADi's default).
+# The recursion of one run.  casadi_int is long long (CasADi's default).  The library holds one
+# kernel: its static names are short (pfk_*; the C's size decides a background build), the
+# exported ones carry the kernel's name.
 _DRIVER = """
 #include <string.h>
 #include <stdlib.h>
 #include <pthread.h>
 #include <time.h>
-static const int {name}_ax[{nx}] = {{{ax}}};
-static const int {name}_ay[{ny}] = {{{ay}}};
+static const int pfk_ax[{nx}] = {{{ax}}};
+static const int pfk_ay[{ny}] = {{{ay}}};
 
-static double {name}_wrap(double a) {{  /* wrap_angle: (-pi, pi] */
+static double pfk_wrap(double a) {{  /* wrap_angle: (-pi, pi] */
   const double two_pi = 2 * 3.14159265358979311600, s = a + 3.14159265358979311600;
   const double o = s - two_pi * floor(s / two_pi) - 3.14159265358979311600;
   return o == -3.14159265358979311600 ? 3.14159265358979311600 : o;
@@ -92,7 +100,7 @@ static double {name}_wrap(double a) {{  /* wrap_angle: (-pi, pi] */
 
 /* The weighted mean (circular for flagged components) and, with cov, the covariance of the
    rows of X (N x d) with weights w summing to s (ParticleFilter._moments). */
-static void {name}_mom(const casadi_real* X, casadi_int N, int d, const casadi_real* w, casadi_real s,
+static void pfk_mom(const casadi_real* X, casadi_int N, int d, const casadi_real* w, casadi_real s,
     const int* ang, casadi_real* mean, casadi_real* cov) {{
   casadi_real a1[{dm}], a2[{dm}], dv[{dm}], wi;
   casadi_int i;
@@ -113,7 +121,7 @@ static void {name}_mom(const casadi_real* X, casadi_int N, int d, const casadi_r
   for (i = 0; i < N; ++i) {{
     wi = w[i];
     xi = X + i * d;
-    for (a = 0; a < d; ++a) dv[a] = ang[a] ? {name}_wrap(xi[a] - mean[a]) : xi[a] - mean[a];
+    for (a = 0; a < d; ++a) dv[a] = ang[a] ? pfk_wrap(xi[a] - mean[a]) : xi[a] - mean[a];
     for (a = 0; a < d; ++a) for (b = 0; b <= a; ++b) cov[a * d + b] += wi * dv[a] * dv[b];
   }}
   for (a = 0; a < d; ++a) for (b = 0; b <= a; ++b) cov[b * d + a] = cov[a * d + b] = cov[a * d + b] / s;
@@ -121,7 +129,7 @@ static void {name}_mom(const casadi_real* X, casadi_int N, int d, const casadi_r
 
 /* The lower Cholesky factor of a positive semidefinite C (n x n): a pivot <= 0 gives a zero
    column (the directions without spread get no kernel jitter). */
-static void {name}_chol(const casadi_real* C, casadi_real* L) {{
+static void pfk_chol(const casadi_real* C, casadi_real* L) {{
   int i, j, k;
   casadi_real d;
   for (i = 0; i < {nx} * {nx}; ++i) L[i] = 0;
@@ -139,7 +147,7 @@ static void {name}_chol(const casadi_real* C, casadi_real* L) {{
 }}
 
 /* count normals of stream s into out (a loop of its own: the state stays in registers). */
-static __attribute__((noinline)) void {name}_draw(uint64_t* s, casadi_int count, casadi_real* out) {{
+static __attribute__((noinline)) void pfk_draw(uint64_t* s, casadi_int count, casadi_real* out) {{
   casadi_int i;
   uint64_t sl[4];
   memcpy(sl, s, sizeof sl);  /* the state in registers, not memory, while it runs */
@@ -149,15 +157,15 @@ static __attribute__((noinline)) void {name}_draw(uint64_t* s, casadi_int count,
 
 /* symmon: count normals of stream s into out (tests of the generator). */
 CASADI_SYMBOL_EXPORT void {name}_normals(unsigned long long* s, casadi_int count, casadi_real* out) {{
-  {name}_draw((uint64_t*) s, count, out);
+  pfk_draw((uint64_t*) s, count, out);
 }}
 
 /* A chunk's lanes, lane by lane (as in st), to and from symmon_normal_lanes's word order. */
-static void {name}_lanes_in(const uint64_t* st, uint64_t* ls) {{
+static void pfk_lanes_in(const uint64_t* st, uint64_t* ls) {{
   int l, w;
   for (l = 0; l < SYMMON_LANES; ++l) for (w = 0; w < 4; ++w) ls[w * SYMMON_LANES + l] = st[l * 4 + w];
 }}
-static void {name}_lanes_out(const uint64_t* ls, uint64_t* st) {{
+static void pfk_lanes_out(const uint64_t* ls, uint64_t* st) {{
   int l, w;
   for (l = 0; l < SYMMON_LANES; ++l) for (w = 0; w < 4; ++w) st[l * 4 + w] = ls[w * SYMMON_LANES + l];
 }}
@@ -165,23 +173,25 @@ static void {name}_lanes_out(const uint64_t* ls, uint64_t* st) {{
 /* symmon: groups x SYMMON_LANES normals of lanes s into out, lane l's at out[g * LANES + l] (tests). */
 CASADI_SYMBOL_EXPORT void {name}_lanes(unsigned long long* s, casadi_int groups, casadi_real* out) {{
   uint64_t ls[4 * SYMMON_LANES];
-  casadi_int g;
-  {name}_lanes_in((uint64_t*) s, ls);
-  for (g = 0; g < groups; ++g) symmon_normal_lanes(ls, out + g * SYMMON_LANES);
-  {name}_lanes_out(ls, (uint64_t*) s);
+  pfk_lanes_in((uint64_t*) s, ls);
+  symmon_normal_lanes(ls, out, groups * SYMMON_LANES);
+  pfk_lanes_out(ls, (uint64_t*) s);
 }}
 
-/* A barrier of the T threads: a short spin (most waits are microseconds), then a mutex and
-   condition (macOS has no pthread_barrier); the last to arrive resets the count, then
-   publishes the new generation under the mutex (no lost wake-up). */
+/* A barrier of the T threads: a spin of up to pfk_SPIN_NS, then a mutex and condition
+   (macOS has no pthread_barrier); the last to arrive resets the count, then publishes the
+   new generation under the mutex (no lost wake-up).  The spin outlasts a step's imbalance
+   between threads (tens of microseconds at 10^4 particles): a thread put to sleep wakes tens
+   of microseconds late in a virtual machine, and its core may go to another process
+   meanwhile (OpenMP runtimes spin for 0.2 ms and more before they sleep). */
 #if defined(__x86_64__) || defined(__i386__)
-#define {name}_PAUSE() __builtin_ia32_pause()
+#define pfk_PAUSE() __builtin_ia32_pause()
 #else
-#define {name}_PAUSE() ((void) 0)
+#define pfk_PAUSE() ((void) 0)
 #endif
-#define {name}_SPIN_NS 20000L
-typedef struct {{ pthread_mutex_t mu; pthread_cond_t cv; int count, T; unsigned gen; }} {name}_barrier;
-static void {name}_bwait({name}_barrier* b) {{
+#define pfk_SPIN_NS 200000L
+typedef struct {{ pthread_mutex_t mu; pthread_cond_t cv; int count, T; unsigned gen; }} pfk_barrier;
+static void pfk_bwait(pfk_barrier* b) {{
   unsigned g;
   long i;
   struct timespec t0, t1;
@@ -196,12 +206,12 @@ static void {name}_bwait({name}_barrier* b) {{
     return;
   }}
   clock_gettime(CLOCK_MONOTONIC, &t0);
-  for (i = 1;; ++i) {{  /* spin for at most {name}_SPIN_NS (the clock every 32 turns) */
+  for (i = 1;; ++i) {{  /* spin for at most pfk_SPIN_NS (the clock every 32 turns) */
     if (__atomic_load_n(&b->gen, __ATOMIC_ACQUIRE) != g) return;
-    {name}_PAUSE();
+    pfk_PAUSE();
     if (i % 32) continue;
     clock_gettime(CLOCK_MONOTONIC, &t1);
-    if ((t1.tv_sec - t0.tv_sec) * 1000000000L + (t1.tv_nsec - t0.tv_nsec) > {name}_SPIN_NS) break;
+    if ((t1.tv_sec - t0.tv_sec) * 1000000000L + (t1.tv_nsec - t0.tv_nsec) > pfk_SPIN_NS) break;
   }}
   pthread_mutex_lock(&b->mu);
   while (__atomic_load_n(&b->gen, __ATOMIC_ACQUIRE) == g) pthread_cond_wait(&b->cv, &b->mu);
@@ -209,46 +219,118 @@ static void {name}_bwait({name}_barrier* b) {{
 }}
 
 /* Per chunk of CHUNK particles: [max t, bad, sum e, sum e^2, sum e x (or sin), sum e cos]. */
-#define {name}_PW (4 + 2 * {nx})
+#define pfk_PW (4 + 2 * {nx})
 /* r_q = exp(m_q - m): a chunk's exponentials about its maximum m_q to the step's m (0 for a
    chunk of zero weights, m_q = -inf) */
-#define {name}_RATIO(mq, m) ((mq) == -INFINITY ? 0.0 : exp((mq) - (m)))
+#define pfk_RATIO(mq, m) ((mq) == -INFINITY ? 0.0 : exp((mq) - (m)))
 /* Doubles of a thread's buffers (the body's notes). */
-#define {name}_BUF ({ld} * {nr} + {ld} * {no} + 2 * {ld} + {no} + {block} / 8 + 1)
+#define pfk_BUF ({ld} * {nr} + {ld} * {no} + 2 * {ld} + {no} + {block} / 8 + 1)
 
 typedef struct {{
   const casadi_real* P; casadi_int K, N, nch; casadi_real *X0, *Xn0, *t, *e, *lw, *sc, *hx, *part;
   unsigned long long* st; const casadi_real *zext, *uext, *jext, *m0, *L0; const casadi_int* opt; const casadi_real* fl;
   casadi_real *o_ll, *o_ess, *o_res, *o_x, *o_P, *o_xp, *o_Pp, *o_hm, *o_hS, *cov, *L;
-  casadi_int *fail, *idx; {name}_barrier bar; int T; pthread_mutex_t gate;
-}} {name}_ctx;
+  casadi_int *fail, *idx; pfk_barrier bar; int T; pthread_mutex_t gate;
+}} pfk_ctx;
 
-/* Resampling point i: pt + i for systematic resampling (not stored: the serial fill and the
-   walk's reads of N numbers saved), else sc[i] (sc NULL: systematic). */
-#define {name}_POINT(sc, pt, i) ((sc) ? (sc)[i] : (pt) + (casadi_real) (i))
+/* Systematic resampling's points are pt + i, i = 0 ... N - 1, not stored (the serial fill and
+   the walk's reads of N numbers saved); other schemes' are an array.
+   The lowest i in [p, hi) with the systematic point pt + i >= v (hi if none): the guess
+   ceil(v - pt), moved until the points' own comparisons hold on both sides (it is off by
+   one only where v is within rounding of a point), so the index a search by those
+   comparisons finds, without branches that depend on the weights. */
+static inline casadi_int pfk_first(casadi_real pt, casadi_real v, casadi_int p, casadi_int hi) {{
+  const casadi_real g = ceil(v - pt);
+  casadi_int i = g <= (casadi_real) p ? p : g >= (casadi_real) hi ? hi : (casadi_int) g;
+  while (i > p && pt + (casadi_real) (i - 1) >= v) --i;
+  while (i < hi && pt + (casadi_real) i < v) ++i;
+  return i;
+}}
 
 /* The lowest index i in [0, N) of the ascending points with point i >= v (N if none). */
-static casadi_int {name}_lower(const casadi_real* sc, casadi_real pt, casadi_int N, casadi_real v) {{
+static casadi_int pfk_lower(const casadi_real* sc, casadi_real pt, casadi_int N, casadi_real v) {{
   casadi_int lo = 0, hi = N, mid;
-  while (lo < hi) {{ mid = (lo + hi) / 2; if ({name}_POINT(sc, pt, mid) < v) lo = mid + 1; else hi = mid; }}
+  if (!sc) return pfk_first(pt, v, 0, N);
+  while (lo < hi) {{ mid = (lo + hi) / 2; if (sc[mid] < v) lo = mid + 1; else hi = mid; }}
   return lo;
+}}
+
+/* The picks of input chunks [c0, c1): chunk q holds the points in [S_q, S_(q+1)) x scale, S_q
+   the sum of e over the chunks before it (part: the chunks' [m_q, -, sum e', ...], e_i =
+   exp(m_q - m) e'_i, or e_i = e[i] when esc); point i (pts[i], or pt + i for systematic
+   points, pts NULL) takes the first particle j of its chunk whose cumulative weight exceeds
+   it (the chunk's last if none): idx[i] = j, or row j of Xn copied to row i of X (X not NULL).
+   Systematic points go by particle (its points [i, b) at once; b from lo, not from i, so
+   that no chain of dependences runs through i), other points by point; the same picks. */
+static void pfk_picks(const casadi_real* e, const casadi_real* part, casadi_real m, int esc, casadi_int N,
+    casadi_int nch, casadi_int c0, casadi_int c1, casadi_real scale, const casadi_real* pts, casadi_real pt,
+    casadi_int* restrict idx, casadi_real* X, const casadi_real* Xn) {{
+  casadi_real off = 0, r, cum;
+  casadi_int q, i, j, b, lo, hi, end;
+  for (q = 0; q < c0; ++q) off += pfk_RATIO(part[q * pfk_PW], m) * part[q * pfk_PW + 2];
+  for (q = c0; q < c1; ++q) {{
+    end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
+    r = esc ? 1 : pfk_RATIO(part[q * pfk_PW], m);  /* e_i = r e[i] */
+    lo = q == 0 ? 0 : pfk_lower(pts, pt, N, off * scale);
+    j = q * {chunk};
+    cum = (off + r * e[j]) * scale;
+    off += pfk_RATIO(part[q * pfk_PW], m) * part[q * pfk_PW + 2];
+    hi = q == nch - 1 ? N : pfk_lower(pts, pt, N, off * scale);
+    r *= scale;
+    if (pts) {{
+      for (i = lo; i < hi; ++i) {{
+        while (cum <= pts[i] && j < end - 1) cum += e[++j] * r;
+        if (X) memcpy(X + i * {nx}, Xn + j * {nx}, {nx} * sizeof(casadi_real));
+        else idx[i] = j;
+      }}
+      continue;
+    }}
+    for (i = lo; i < hi; cum += e[++j] * r) {{  /* b = hi at j = end - 1: j stays in the chunk */
+      b = j < end - 1 ? pfk_first(pt, cum, lo, hi) : hi;
+      if (X) for (; i < b; ++i) memcpy(X + i * {nx}, Xn + j * {nx}, {nx} * sizeof(casadi_real));
+      else if (b - i <= 4 && i + 4 <= hi) {{  /* four stores (one vector); later particles overwrite the extra */
+        idx[i] = idx[i + 1] = idx[i + 2] = idx[i + 3] = j;
+        i = b;
+      }} else for (; i < b; ++i) idx[i] = j;
+      if (i >= hi) break;
+    }}
+  }}
+}}
+
+/* symmon: the picks of N weights e (chunks of CHUNK, each chunk's sum in chunk order) for the
+   ascending points pts on [0, N), or pt + i when pts is NULL, into idx (tests: the two walks
+   give the same picks). */
+CASADI_SYMBOL_EXPORT int {name}_pick(const casadi_real* e, casadi_int N, const casadi_real* pts, casadi_real pt,
+    casadi_int* idx) {{
+  const casadi_int nch = (N + {chunk} - 1) / {chunk};
+  casadi_real* part = (casadi_real*) calloc(nch * pfk_PW, sizeof(casadi_real));
+  casadi_real s = 0;
+  casadi_int q, i;
+  if (!part) return 1;
+  for (q = 0; q < nch; ++q) {{
+    for (i = q * {chunk}; i < N && i < (q + 1) * {chunk}; ++i) part[q * pfk_PW + 2] += e[i];
+    s += part[q * pfk_PW + 2];
+  }}
+  pfk_picks(e, part, 0, 1, N, nch, 0, nch, (casadi_real) N / s, pts, pt, idx, 0, 0);
+  free(part);
+  return 0;
 }}
 
 /* Thread tau's share of the K steps (chunks [c0, c1)); every reduction is by chunk, in chunk
    order, so the numbers do not depend on T. */
-static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_real* buf) {{
+static int pfk_body(pfk_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_real* buf) {{
   const casadi_int N = c->N, nch = c->nch, c0 = nch * tau / c->T, c1 = nch * (tau + 1) / c->T;
   const casadi_int a0 = c0 * {chunk}, a1 = c1 * {chunk} < N ? c1 * {chunk} : N;
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
   casadi_real *X = c->X0, *Xn = c->Xn0, *tmp, *xi, *pc;
   const casadi_real* pk;
-  casadi_real ti, m, mq, r, s, s2, lse, ei, cum, scale, pt, off, zr[{nq}], eps[{nx}], sx[{nx}], sn[{nx}], cs[{nx}];
+  casadi_real ti, m, mq, r, s, s2, lse, ei, cum, zr[{nq}], eps[{nx}], sx[{nx}], sn[{nx}], cs[{nx}];
   const casadi_real log_n = log((casadi_real) N);
   /* rsl: this thread's copy of the resampling stream; every thread draws a systematic
      resampling's point from it (no barrier), tau 0 the others, and writes it back at the end */
   uint64_t* rs = (uint64_t*) c->st + 4 * nch, ls[4 * SYMMON_LANES], rsl[4];
-  casadi_int i, j, k, q, a, b, bad, redo, lo, hi, end, b0, nb;
+  casadi_int i, j, k, q, a, b, bad, redo, end, b0, nb;
   /* this thread's buffers: the rows [x, z] of a block and its outputs [x', nu, h] by columns,
      A nu and |A nu|^2 of one component, one row, the vector loop's flags */
   casadi_real *rb = buf, *blk = rb + {ld} * {nr}, *wz = blk + {ld} * {no}, *acc = wz + {ld}, *row = acc + {ld};
@@ -265,7 +347,7 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
   casadi_real* part;
   if (c->m0) for (q = c0; q < c1; ++q) {{  /* the prior x0 = m + L z, z the first normals of chunk q's stream */
     end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
-    {name}_draw((uint64_t*) c->st + 4 * q, (end - q * {chunk}) * {nx}, X + q * {chunk} * {nx});
+    pfk_draw((uint64_t*) c->st + 4 * q, (end - q * {chunk}) * {nx}, X + q * {chunk} * {nx});
     for (i = q * {chunk}; i < end; ++i) {{
       xi = X + i * {nx};
       memcpy(eps, xi, sizeof eps);
@@ -273,17 +355,17 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
         if (c->opt[2]) ei = c->L0[a * {nx} + a] * eps[a];  /* a diagonal L */
         else for (ei = 0, b = 0; b < {nx}; ++b) ei += c->L0[a * {nx} + b] * eps[b];
         xi[a] = ei + c->m0[a];
-        if ({name}_ax[a]) xi[a] = {name}_wrap(xi[a]);
+        if (pfk_ax[a]) xi[a] = pfk_wrap(xi[a]);
       }}
     }}
   }}
   for (k = 0; k < c->K; ++k) {{
     arg[2] = pk = c->P + k * {n_p};
-    part = c->part + (k & 1) * nch * {name}_PW;  /* by parity: a thread's next move may write
+    part = c->part + (k & 1) * nch * pfk_PW;  /* by parity: a thread's next move may write
                                                      its chunks' sums while another reads these */
     for (q = c0; q < c1; ++q) {{  /* move and weigh, chunk q, in blocks of {block} particles */
       uint64_t* lq = (uint64_t*) c->st + 4 * (nch + 1) + 4 * SYMMON_LANES * q;  /* chunk q's lanes */
-      {name}_lanes_in(lq, ls);
+      pfk_lanes_in(lq, ls);
       end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
       m = -INFINITY;
       bad = 0;
@@ -299,7 +381,7 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
         if (c->zext) {{
           for (i = 0; i < nb; ++i) for (j = 0; j < {nq}; ++j) rb[({nx} + j) * {ld} + i] = c->zext[(k * N + b0 + i) * {nq} + j];
         }} else {{
-          for (j = 0; j < {nq}; ++j) for (i = 0; i < nb; i += SYMMON_LANES) symmon_normal_lanes(ls, rb + ({nx} + j) * {ld} + i);
+          for (j = 0; j < {nq}; ++j) symmon_normal_lanes(ls, rb + ({nx} + j) * {ld}, (nb + SYMMON_LANES - 1) / SYMMON_LANES * SYMMON_LANES);
         }}
         {fill}
         /* the log-density c - |A nu|^2 / 2 of the measured components (another's nu, maybe
@@ -326,7 +408,7 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
           if (ti > m) m = ti;
         }}
       }}
-      {name}_lanes_out(ls, lq);
+      pfk_lanes_out(ls, lq);
       /* the chunk's exponentials e'_i = exp(t_i - m_q) about its own maximum m_q and their
          sums, while its x' and t are in the cache (the step's maximum scales them after the
          barrier, exactly as exp(m_q - max t)); by vecmath's sm_exp (within 1 ulp,
@@ -348,36 +430,36 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
         xi = Xn + i * {nx};
         {wsum}
       }}
-      pc = part + q * {name}_PW;
+      pc = part + q * pfk_PW;
       pc[0] = m;
       pc[1] = (casadi_real) bad;
       pc[2] = s; pc[3] = s2;
       for (j = 0; j < {nx}; ++j) {{ pc[4 + j] = sx[j]; pc[4 + {nx} + j] = cs[j]; }}
     }}
-    {name}_bwait(&c->bar);
+    pfk_bwait(&c->bar);
     m = -INFINITY;
     bad = 0;
     for (q = 0; q < nch; ++q) {{
-      if (part[q * {name}_PW] > m) m = part[q * {name}_PW];
-      bad |= (casadi_int) part[q * {name}_PW + 1];
+      if (part[q * pfk_PW] > m) m = part[q * pfk_PW];
+      bad |= (casadi_int) part[q * pfk_PW + 1];
     }}
     if (bad & 2) return 1;
     if (bad || !isfinite(m)) {{ if (tau == 0) *c->fail = k; return 2; }}
     if (want_pred) {{  /* the predicted moments, with the weights before the update */
       for (i = a0; i < a1; ++i) c->sc[i] = exp(uni ? -log_n : c->lw[i]);
-      {name}_bwait(&c->bar);
+      pfk_bwait(&c->bar);
       if (tau == 0) {{
-        if (c->o_xp || c->o_Pp) {name}_mom(Xn, N, {nx}, c->sc, 1.0, {name}_ax, c->o_xp ? c->o_xp + k * {nx} : sn,
+        if (c->o_xp || c->o_Pp) pfk_mom(Xn, N, {nx}, c->sc, 1.0, pfk_ax, c->o_xp ? c->o_xp + k * {nx} : sn,
                                            c->o_Pp ? c->o_Pp + k * {nx} * {nx} : 0);
-        if (c->o_hm) {name}_mom(c->hx, N, {ny}, c->sc, 1.0, {name}_ay, c->o_hm + k * {ny}, c->o_hS + k * {ny} * {ny});
+        if (c->o_hm) pfk_mom(c->hx, N, {ny}, c->sc, 1.0, pfk_ay, c->o_hm + k * {ny}, c->o_hS + k * {ny} * {ny});
       }}
     }}
     /* the chunks' sums scaled by r_q = exp(m_q - m) (e_i = r_q e'_i), added in chunk order */
     s = 0; s2 = 0;
     for (j = 0; j < {nx}; ++j) sx[j] = cs[j] = 0;
     for (q = 0; q < nch; ++q) {{
-      pc = part + q * {name}_PW;
-      r = {name}_RATIO(pc[0], m);
+      pc = part + q * pfk_PW;
+      r = pfk_RATIO(pc[0], m);
       s += r * pc[2]; s2 += r * r * pc[3];
       for (j = 0; j < {nx}; ++j) {{ sx[j] += r * pc[4 + j]; cs[j] += r * pc[4 + {nx} + j]; }}
     }}
@@ -385,10 +467,10 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
     if (esc) {{  /* e_i itself, for the covariance about the mean (tau 0, after the barrier) */
       for (q = c0; q < c1; ++q) {{
         end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
-        r = {name}_RATIO(part[q * {name}_PW], m);
+        r = pfk_RATIO(part[q * pfk_PW], m);
         for (i = q * {chunk}; i < end; ++i) c->e[i] *= r;
       }}
-      {name}_bwait(&c->bar);
+      pfk_bwait(&c->bar);
     }}
     lse = m + log(s);
     redo = s * s / s2 <= c->fl[0];
@@ -396,12 +478,12 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
       c->o_ll[k] = lse;
       c->o_ess[k] = s * s / s2;
       c->o_res[k] = (casadi_real) redo;
-      if (c->o_x) for (j = 0; j < {nx}; ++j) c->o_x[k * {nx} + j] = {name}_ax[j] ? atan2(sx[j], cs[j]) : sx[j] / s;
+      if (c->o_x) for (j = 0; j < {nx}; ++j) c->o_x[k * {nx} + j] = pfk_ax[j] ? atan2(sx[j], cs[j]) : sx[j] / s;
       if (c->o_P || (redo && reg))  /* the covariance about the mean */
-        {name}_mom(Xn, N, {nx}, c->e, s, {name}_ax, sn, c->o_P ? c->o_P + k * {nx} * {nx} : c->cov);
+        pfk_mom(Xn, N, {nx}, c->e, s, pfk_ax, sn, c->o_P ? c->o_P + k * {nx} * {nx} : c->cov);
     }}
     /* tau 0 reads e, hx, sc of every chunk above: the next move writes them */
-    if (want_pred || esc) {name}_bwait(&c->bar);
+    if (want_pred || esc) pfk_bwait(&c->bar);
     if (!redo) {{
       for (i = a0; i < a1; ++i) c->lw[i] = c->t[i] - lse;
       uni = 0;
@@ -420,32 +502,13 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
         cum += -log1p(-symmon_uniform(rsl));
         for (i = 0; i < N; ++i) sc[i] *= (casadi_real) N / cum;
       }}
-      if (reg) {name}_chol(c->o_P ? c->o_P + k * {nx} * {nx} : c->cov, c->L);
+      if (reg) pfk_chol(c->o_P ? c->o_P + k * {nx} * {nx} : c->cov, c->L);
     }}
-    if (!sysm || reg) {name}_bwait(&c->bar);
-    /* the walk along the cumulative weights, by input chunk: chunk q holds the points in
-       [S_q, S_(q+1)) x N / s, S_q the sum of e over the chunks before it */
-    scale = (casadi_real) N / s;
-    const casadi_real* pts = sysm ? 0 : c->sc;
-    off = 0;
-    for (q = 0; q < c0; ++q) off += {name}_RATIO(part[q * {name}_PW], m) * part[q * {name}_PW + 2];
-    for (q = c0; q < c1; ++q) {{
-      end = (q + 1) * {chunk} < N ? (q + 1) * {chunk} : N;
-      r = esc ? 1 : {name}_RATIO(part[q * {name}_PW], m);  /* e_i = r e[i] */
-      lo = q == 0 ? 0 : {name}_lower(pts, psys, N, off * scale);
-      j = q * {chunk};
-      cum = (off + r * c->e[j]) * scale;
-      off += {name}_RATIO(part[q * {name}_PW], m) * part[q * {name}_PW + 2];
-      hi = q == nch - 1 ? N : {name}_lower(pts, psys, N, off * scale);
-      r *= scale;
-      for (i = lo; i < hi; ++i) {{
-        pt = {name}_POINT(pts, psys, i);
-        while (cum <= pt && j < end - 1) cum += c->e[++j] * r;
-        if (reg) memcpy(X + i * {nx}, Xn + j * {nx}, {nx} * sizeof(casadi_real));
-        else c->idx[i] = j;
-      }}
-    }}
-    {name}_bwait(&c->bar);
+    if (!sysm || reg) pfk_bwait(&c->bar);
+    /* the walk along the cumulative weights, by input chunk */
+    pfk_picks(c->e, part, m, esc, N, nch, c0, c1, (casadi_real) N / s, sysm ? 0 : c->sc, psys, c->idx,
+                 reg ? X : 0, Xn);
+    pfk_bwait(&c->bar);
     uni = 1;
     if (!reg) {{  /* the moved particles, read through idx by the next move */
       tmp = X; X = Xn; Xn = tmp;
@@ -464,7 +527,7 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
           ei = 0;
           for (b = 0; b <= a; ++b) ei += c->L[a * {nx} + b] * eps[b];
           xi[a] += c->fl[1] * ei;
-          if ({name}_ax[a]) xi[a] = {name}_wrap(xi[a]);
+          if (pfk_ax[a]) xi[a] = pfk_wrap(xi[a]);
         }}
       }}
       memcpy(sg, sl, sizeof sl);
@@ -474,19 +537,19 @@ static int {name}_body({name}_ctx* c, int tau, casadi_int* iw, casadi_real* w, c
   if (gath) {{  /* the last pick, copied into the other buffer (other threads read X's rows) */
     for (i = a0; i < a1; ++i) memcpy(Xn + i * {nx}, X + c->idx[i] * {nx}, {nx} * sizeof(casadi_real));
     tmp = X; X = Xn; Xn = tmp;
-    {name}_bwait(&c->bar);
+    pfk_bwait(&c->bar);
   }}
   if (X != c->X0) memcpy(c->X0 + a0 * {nx}, X + a0 * {nx}, (a1 - a0) * {nx} * sizeof(casadi_real));  /* own rows */
   if (tau == 0) memcpy(rs, rsl, sizeof rsl);
   return 0;
 }}
 
-typedef struct {{ {name}_ctx* c; int tau; casadi_int* iw; casadi_real* w; casadi_real* buf; int ret; }} {name}_arg;
-static void* {name}_thread(void* p) {{
-  {name}_arg* a = ({name}_arg*) p;
+typedef struct {{ pfk_ctx* c; int tau; casadi_int* iw; casadi_real* w; casadi_real* buf; int ret; }} pfk_arg;
+static void* pfk_thread(void* p) {{
+  pfk_arg* a = (pfk_arg*) p;
   pthread_mutex_lock(&a->c->gate);  /* wait until every thread is made and T is final */
   pthread_mutex_unlock(&a->c->gate);
-  a->ret = {name}_body(a->c, a->tau, a->iw, a->w, a->buf);
+  a->ret = pfk_body(a->c, a->tau, a->iw, a->w, a->buf);
   return 0;
 }}
 
@@ -508,8 +571,8 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
     casadi_real* o_res, casadi_real* o_x, casadi_real* o_P, casadi_real* o_xp, casadi_real* o_Pp,
     casadi_real* o_hm, casadi_real* o_hS, casadi_int* iw, casadi_real* w, casadi_int isz, casadi_int wsz,
     casadi_int T, casadi_int* fail) {{
-  {name}_ctx c;
-  {name}_arg args[64];
+  pfk_ctx c;
+  pfk_arg args[64];
   pthread_t th[64];
   casadi_real cov[{nx} * {nx}], L[{nx} * {nx}];
   int tau, ret = 0, started = 0;
@@ -525,7 +588,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
   if (T > 64) T = 64;
   if (T < 1) T = 1;
   c.T = (int) T;
-  buf = (casadi_real*) malloc(T * {name}_BUF * sizeof(casadi_real));
+  buf = (casadi_real*) malloc(T * pfk_BUF * sizeof(casadi_real));
   if (!buf) {{ free(c.idx); return 1; }}
   c.bar.T = (int) T; c.bar.count = 0; c.bar.gen = 0;
   pthread_mutex_init(&c.bar.mu, 0);
@@ -534,15 +597,15 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* P, casadi_int K, casadi_i
   pthread_mutex_lock(&c.gate);
   for (tau = 0; tau < T; ++tau) {{
     args[tau].c = &c; args[tau].tau = tau; args[tau].iw = iw + tau * isz; args[tau].w = w + tau * wsz;
-    args[tau].ret = 0; args[tau].buf = buf + tau * {name}_BUF;
+    args[tau].ret = 0; args[tau].buf = buf + tau * pfk_BUF;
   }}
   for (tau = 1; tau < T; ++tau) {{
-    if (pthread_create(&th[tau], 0, {name}_thread, &args[tau])) break;
+    if (pthread_create(&th[tau], 0, pfk_thread, &args[tau])) break;
     started = tau;
   }}
   c.T = c.bar.T = started + 1;  /* fewer threads if one could not be made */
   pthread_mutex_unlock(&c.gate);
-  {name}_thread(&args[0]);
+  pfk_thread(&args[0]);
   for (tau = 1; tau <= started; ++tau) pthread_join(th[tau], 0);
   pthread_mutex_destroy(&c.bar.mu);
   pthread_cond_destroy(&c.bar.cv);
@@ -581,7 +644,7 @@ _ROW = """
 # angle states a loop without a branch, which gcc vectorises (the same operations).
 _WSUM = "for (j = 0; j < {nx}; ++j) sx[j] += ei * xi[j];"
 _WSUM_ANGLES = """for (j = 0; j < {nx}; ++j) {{
-          if ({name}_ax[j]) {{ sx[j] += ei * sin(xi[j]); cs[j] += ei * cos(xi[j]); }}
+          if (pfk_ax[j]) {{ sx[j] += ei * sin(xi[j]); cs[j] += ei * cos(xi[j]); }}
           else sx[j] += ei * xi[j];
         }}"""
 _FILL = {
@@ -684,13 +747,16 @@ class BootstrapKernel:
             lanes = getattr(lib, f"{name}_lanes")
             lanes.argtypes = [ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p]
             lanes.restype = None
-            return run, normals, lanes
+            pick = getattr(lib, f"{name}_pick")
+            pick.argtypes = [ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_double, ctypes.c_void_p]
+            pick.restype = ctypes.c_int
+            return run, normals, lanes, pick
 
         self._native: NativeLibrary = cf.native_library(code, name, load, stacklevel=4)
         self._Lq_size = nnz
 
     def loops(self):
-        """The ctypes functions (run, normals), or None while the C is not there (no
+        """The ctypes functions (run, normals, lanes, pick), or None while the C is not there (no
         compiler, or a background build running: the caller takes the NumPy path)."""
         return self._native.get()
 

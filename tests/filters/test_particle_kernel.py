@@ -159,3 +159,53 @@ def test_the_pick_read_through_indices_gives_the_particles():
     t.join()
     for name in ("final_particles", "x", "loglik"):
         np.testing.assert_array_equal(getattr(got, name), getattr(box["r"], name), err_msg=name)
+
+
+@pytest.fixture(scope="module")
+def pick():
+    """The kernel's resampling walk over N weights for given ascending points (``pts``), or
+    for the systematic points pt + i (``pts`` None: the walk by particle)."""
+    fn = sm.ParticleFilter(F, H, Q, R, particles=10)._bootstrap_kernel.loops()[3]
+
+    def walk(e: np.ndarray, pt: float, pts: np.ndarray | None = None) -> np.ndarray:
+        idx = np.full(len(e), -1, dtype=np.int64)
+        assert fn(e.ctypes.data, len(e), 0 if pts is None else pts.ctypes.data, pt, idx.ctypes.data) == 0
+        return idx
+    return walk
+
+
+def _weights(case: str, g: np.random.Generator) -> np.ndarray:
+    N = 3 * CHUNK + 77  # several chunks, the last one short
+    if case == "random":
+        return g.exponential(size=N)
+    if case == "sparse":  # most weights zero, whole chunks among them
+        e = np.where(g.random(N) < 0.05, g.exponential(size=N), 0.0)
+        e[CHUNK:2 * CHUNK] = 0.0
+        return e
+    if case == "one":  # degenerate: every point on one particle
+        e = np.zeros(N)
+        e[CHUNK + 5] = 1.0
+        return e
+    if case == "uniform":  # the cumulative weights fall exactly on the points (ties)
+        return np.ones(N)
+    if case == "spread":  # weights over 600 orders of magnitude
+        return np.exp(g.uniform(-700.0, 0.0, N))
+    return g.exponential(size=1)  # one particle
+
+
+@pytest.mark.parametrize("case", ["random", "sparse", "one", "uniform", "spread", "single"])
+@pytest.mark.parametrize("pt", [0.0, 0.37, 1.0 - 2.0**-53])
+def test_the_systematic_walk_by_particle_equals_the_search_by_point(pick, case, pt):
+    """Systematic points pt + i go by particle (each particle's points found at once), other
+    schemes' by point; given the points pt + i as an array the search by point must make
+    the same picks, ties included; and the picks are systematic resampling's: particle j is
+    drawn ⌊N W_j⌋ or ⌈N W_j⌉ times (to rounding) and the picks ascend."""
+    e = _weights(case, np.random.default_rng(len(case)))
+    N = len(e)
+    got = pick(e, pt)
+    ref = pick(e, pt, pt + np.arange(N, dtype=float))
+    np.testing.assert_array_equal(got, ref)
+    assert np.all(np.diff(got) >= 0) and got.min() >= 0 and got.max() < N
+    counts = np.bincount(got, minlength=N)
+    expected = N * e / e.sum()
+    assert np.all(np.abs(counts - expected) < 1 + 1e-9 * N)
