@@ -86,27 +86,31 @@ def test_the_compiled_step_equals_its_numpy_twin(data, method, threshold, reg):
     ref = twin.filter(ys, X0, params=params, x_true=xs)
     np.testing.assert_array_equal(got.resampled, ref.resampled)
     assert got.resampled.any() and (threshold == 1.0 or not got.resampled.all())
-    for name in ("x", "P", "x_pred", "P_pred", "innovation", "S", "nis_values", "nees_values", "loglik", "ess"):
+    for name in ("x", "P", "x_pred", "P_pred", "innovation", "S", "nis_values", "nees_values", "loglik", "ess",
+                 "final_particles", "final_log_weights"):
         np.testing.assert_allclose(getattr(got, name), getattr(ref, name), rtol=1e-9, atol=1e-9, err_msg=name)
     assert np.all(got.loglik[1, 4] == 0.0)  # no measurement: log Σ W = 0 exactly
     assert np.all(np.abs(got.x[..., 2]) <= np.pi)
 
 
-def test_the_numbers_of_a_seed_do_not_depend_on_the_threads():
+@pytest.mark.parametrize("reg", [True, False])
+def test_the_numbers_of_a_seed_do_not_depend_on_the_threads(reg):
     """N_THREADS particles are many streams of CHUNK particles: on the main thread the run
-    uses min(CPUs, chunks) C threads, on another thread one (row_spans); the result is the
-    same bit for bit (every reduction is per chunk, in chunk order)."""
+    uses min(CPUs, chunks) C threads, which claim the chunks of its moves and walks in turn,
+    on another thread one (row_spans); the result is the same bit for bit (every reduction is
+    per chunk, in chunk order), with and without regularisation, over steps with and without
+    a resampling (the log-weights then carried by the next move)."""
     xs, ys = sm.simulate(F, H, Q, R, X0, K, params={"a": 0.5}, seed=4)
-    pf = sm.ParticleFilter(F, H, Q, R, particles=N_THREADS, ess_threshold=0.8, seed=5, regularise=True)
+    pf = sm.ParticleFilter(F, H, Q, R, particles=N_THREADS, ess_threshold=0.5, seed=5, regularise=reg)
     main = pf.filter(ys, X0, params={"a": 0.5})
     box = {}
     t = threading.Thread(target=lambda: box.setdefault("r", pf.filter(ys, X0, params={"a": 0.5})))
     t.start()
     t.join()
     other = box["r"]
-    for name in ("x", "P", "loglik", "ess", "innovation"):
+    for name in ("x", "P", "x_pred", "P_pred", "loglik", "ess", "innovation", "final_particles", "final_log_weights"):
         np.testing.assert_array_equal(getattr(main, name), getattr(other, name), err_msg=name)
-    assert main.resampled.any()
+    assert main.resampled.any() and not main.resampled[-1]  # the last log-weights t - lse
 
 
 def test_keeping_only_the_mean_gives_the_same_mean(data):
