@@ -175,10 +175,10 @@ static void sm_merge_pair(long long i, long long j, long long n, double *w, doub
   w[i] = ws;
 }
 
-/* The inverse X (full) of the symmetric positive definite A (its lower triangle read), by
-   Cholesky: A = G G^T, X = G^-T G^-1.  Returns 0 if A is not positive definite.  G: n x n scratch. */
-static int sm_spd_inverse(const double *A, long long n, double *X, double *G) {
-  for (long long j = 0; j < n; ++j) {  /* G lower triangular, then G^-1 in its place */
+/* The lower Cholesky factor G of the symmetric A (lower triangles; G may be A: in place).
+   Returns 0 at a pivot that is not positive and finite (A not positive definite). */
+static int sm_cholesky(const double *A, long long n, double *G) {
+  for (long long j = 0; j < n; ++j) {
     double d = A[j * n + j];
     for (long long k = 0; k < j; ++k) d -= G[j * n + k] * G[j * n + k];
     if (!(d > 0.0) || !isfinite(d)) return 0;
@@ -190,6 +190,13 @@ static int sm_spd_inverse(const double *A, long long n, double *X, double *G) {
       G[i * n + j] = s / d;
     }
   }
+  return 1;
+}
+
+/* The inverse X (full) of the symmetric positive definite A (its lower triangle read), by
+   Cholesky: A = G G^T, X = G^-T G^-1.  Returns 0 if A is not positive definite.  G: n x n scratch. */
+static int sm_spd_inverse(const double *A, long long n, double *X, double *G) {
+  if (!sm_cholesky(A, n, G)) return 0;
   for (long long b = 0; b < n; ++b)  /* X's column b: G^-1 e_b by forward substitution, in X's row b */
     for (long long a = 0; a < n; ++a) {
       double s = a == b ? 1.0 : 0.0;
@@ -247,18 +254,7 @@ static void sm_whiten(long long n, double sw, double *W, double *C, double *Li, 
   for (long long a = 0; a < n; ++a) W[a * n + a] = Li[a];
   for (long long a = 0; a < n; ++a)  /* S T S, lower triangle, unit diagonal */
     for (long long b = 0; b <= a; ++b) C[a * n + b] = Li[a] * X[a * n + b] * Li[b];
-  for (long long j = 0; j < n; ++j) {  /* Cholesky in place: C's lower triangle becomes L */
-    double d = C[j * n + j];
-    for (long long k = 0; k < j; ++k) d -= C[j * n + k] * C[j * n + k];
-    if (!(d > 0.0)) return;
-    d = sqrt(d);
-    C[j * n + j] = d;
-    for (long long i = j + 1; i < n; ++i) {
-      double s = C[i * n + j];
-      for (long long k = 0; k < j; ++k) s -= C[i * n + k] * C[j * n + k];
-      C[i * n + j] = s / d;
-    }
-  }
+  if (!sm_cholesky(C, n, C)) return;  /* in place: C's lower triangle becomes L */
   for (long long a = 0; a < n; ++a)  /* Li = L^-1 (lower triangular), by columns */
     for (long long b = 0; b < n; ++b) {
       double s = a == b ? 1.0 : 0.0;
