@@ -96,6 +96,7 @@ _DRIVER = """
 #include <string.h>
 #include <stdlib.h>
 #include <pthread.h>
+#include <sched.h>
 #include <time.h>
 static const int pfk_ax[{nx}] = {{{ax}}};
 static const int pfk_ay[{ny}] = {{{ay}}};
@@ -218,6 +219,7 @@ static void pfk_bwait(pfk_barrier* b) {{
     if (__atomic_load_n(&b->gen, __ATOMIC_ACQUIRE) != g) return;
     pfk_PAUSE();
     if (i % 32) continue;
+    sched_yield();
     clock_gettime(CLOCK_MONOTONIC, &t1);
     if ((t1.tv_sec - t0.tv_sec) * 1000000000L + (t1.tv_nsec - t0.tv_nsec) > pfk_SPIN_NS) break;
   }}
