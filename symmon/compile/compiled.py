@@ -36,7 +36,7 @@ from ..core.model import Model
 from ..errors import ArgumentTypeError, ModelError, ShapeError, UnsupportedFunctionError
 
 __all__ = ["to_casadi", "CompiledModel", "compile_model", "model_key", "compiled", "compiled_with_params", "cache_dir", "has_compiler", "build_shared_library",
-           "generated_c", "rows_c", "row_spans", "MIN_ROWS_PER_THREAD", "in_threads", "WorkArrays", "padded", "address"]
+           "generated_c", "rows_c", "row_spans", "cpu_count", "MIN_ROWS_PER_THREAD", "in_threads", "WorkArrays", "padded", "address"]
 
 log = logging.getLogger(__name__)
 
@@ -325,15 +325,29 @@ def _load_rows(name: str) -> Callable[[Path], Callable]:
 MIN_ROWS_PER_THREAD = 4096
 
 
+_cpu_count: list = [None, 1]  # os.cpu_count and its value
+
+
+def cpu_count() -> int:
+    """The number of CPUs: ``os.cpu_count()`` (which reads a file, about 10 µs a call) read
+    once, and again when that function is replaced (a test's monkeypatch)."""
+    fn = os.cpu_count
+    if _cpu_count[0] is not fn:
+        _cpu_count[:] = [fn, fn() or 1]
+    return _cpu_count[1]
+
+
 def row_spans(N: int, least: int = MIN_ROWS_PER_THREAD) -> list[tuple[int, int]]:
     """The rows [a, b) of each thread for a compiled evaluation of N rows: one per CPU with
     at least ``least`` each, and one span off the main thread (inside a thread pool of
     symmon's, or of the caller's, the pool already uses the cores)."""
-    if N < 2 * least:  # the common small batch, without the CPU count (a system call)
+    if N < 2 * least:  # the common small batch
         return [(0, N)]
     threads = 1
     if threading.current_thread() is threading.main_thread():
-        threads = max(1, min(os.cpu_count() or 1, N // least))
+        threads = max(1, min(cpu_count(), N // least))
+    if threads == 1:
+        return [(0, N)]
     edges = np.linspace(0, N, threads + 1).round().astype(int)
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 

@@ -41,7 +41,6 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import math
-import os
 import threading
 from typing import Any, Iterable
 
@@ -50,7 +49,7 @@ import numpy as np
 
 from ..compile.ccache import NativeLibrary
 from ..compile.ckernels import STOP_POLL, STOPPED
-from ..compile.compiled import WorkArrays, compiled, compiled_with_params, generated_c, in_threads, padded
+from ..compile.compiled import WorkArrays, compiled, compiled_with_params, cpu_count, generated_c, in_threads, padded
 from ..errors import SymmonError
 from ..core.model import Model
 from ..codegen.symbolic import graph_kind, moments, tril_inverse, wrap_entries
@@ -590,22 +589,10 @@ def first_nonfinite(loglik: np.ndarray, x: np.ndarray | None, P: np.ndarray | No
 MIN_WORK_PER_THREAD = 2000 * 4**3
 
 
-_cpu_count: list = [None, 1]  # os.cpu_count and its value
-
-
-def _cpus() -> int:
-    """The number of CPUs: os.cpu_count() (which reads a file, tens of µs a call) read once,
-    and again when that function is replaced (a test's monkeypatch)."""
-    fn = os.cpu_count
-    if _cpu_count[0] is not fn:
-        _cpu_count[:] = [fn, fn() or 1]
-    return _cpu_count[1]
-
-
 def chunk_runs(runs: int, K: int, n: int) -> list[tuple[int, int]]:
     """The runs [a, b) of each thread: one per CPU, as long as each gets enough work
     (:data:`MIN_WORK_PER_THREAD`) for the runs × K steps of an n-state filter."""
-    threads = max(1, min(_cpus(), runs, (runs * K * n**3) // MIN_WORK_PER_THREAD))
+    threads = max(1, min(cpu_count(), runs, (runs * K * n**3) // MIN_WORK_PER_THREAD))
     if threads == 1:
         return [(0, runs)]
     edges = np.linspace(0, runs, threads + 1).round().astype(int)

@@ -163,6 +163,17 @@ def test_row_spans_split_a_large_batch_on_the_main_thread_only():
     t.join()
     assert inside == [[(0, N)]]  # a worker thread's pool already uses the cores
 
+def test_cpu_count_is_read_once_and_again_when_os_cpu_count_is_replaced(monkeypatch):
+    from symmon.compile.compiled import MIN_ROWS_PER_THREAD, cpu_count, row_spans
+
+    calls: list = []
+    monkeypatch.setattr(os, "cpu_count", lambda: calls.append(1) or 3)
+    assert cpu_count() == 3 and cpu_count() == 3 and len(calls) == 1
+    assert len(row_spans(8 * MIN_ROWS_PER_THREAD)) == 3 and len(calls) == 1
+    monkeypatch.setattr(os, "cpu_count", lambda: None)  # os.cpu_count's "unknown"
+    assert cpu_count() == 1
+
+
 
 def test_compiled_loops_share_one_pool_whose_threads_keep_their_work_arrays():
     """A call starts no thread: the pool's threads serve every call, so each keeps its work
