@@ -325,15 +325,22 @@ def _load_rows(name: str) -> Callable[[Path], Callable]:
 MIN_ROWS_PER_THREAD = 4096
 
 
-_cpu_count: list = [None, 1]  # os.cpu_count and its value
+_cpu_count: list = [None, 1]  # (os.cpu_count, os.sched_getaffinity) and their count
 
 
 def cpu_count() -> int:
-    """The number of CPUs: ``os.cpu_count()`` (which reads a file, about 10 µs a call) read
-    once, and again when that function is replaced (a test's monkeypatch)."""
-    fn = os.cpu_count
-    if _cpu_count[0] is not fn:
-        _cpu_count[:] = [fn, fn() or 1]
+    """The CPUs this process may run on: ``os.cpu_count()``, at most the CPUs of its affinity
+    mask where the system has one (``os.sched_getaffinity``: a container's or a batch job's
+    share of a larger machine, where ``os.cpu_count()`` counts the machine's), so that a
+    compiled loop starts no more threads than can run at once.  Read once (``os.cpu_count``
+    reads a file, about 10 µs a call), and again when either function is replaced (a test's
+    monkeypatch); a change of the affinity after the first call is not seen."""
+    fns = (os.cpu_count, getattr(os, "sched_getaffinity", None))
+    if _cpu_count[0] != fns:
+        n = fns[0]() or 1
+        if fns[1] is not None:
+            n = min(n, len(fns[1](0)) or 1)
+        _cpu_count[:] = [fns, n]
     return _cpu_count[1]
 
 
@@ -363,7 +370,7 @@ def _thread_pool() -> ThreadPoolExecutor:
     global _pool
     with _pool_lock:
         if _pool is None or _pool[0] != os.getpid():
-            _pool = (os.getpid(), ThreadPoolExecutor(os.cpu_count() or 1, thread_name_prefix="symmon-c"))
+            _pool = (os.getpid(), ThreadPoolExecutor(cpu_count(), thread_name_prefix="symmon-c"))
         return _pool[1]
 
 

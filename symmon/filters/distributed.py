@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from ..compile.compiled import cpu_count
 from ..core.arrays import readonly
 from ..errors import ArgumentError, ShapeError, SymmonError
 from ..transforms.executor import Executor, dask_compute, one_blas_thread
@@ -91,7 +92,7 @@ def default_shards(executor: Executor, runs: int) -> int:
         except Exception:  # the cluster's failures are reported by the run's own watch
             slots = 1
     elif executor.scheduler is not None:
-        slots = os.cpu_count() or 1
+        slots = cpu_count()
     else:
         slots = executor.threads(runs)
     return max(1, min(runs, slots))

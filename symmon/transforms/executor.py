@@ -13,7 +13,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import contextvars
-import os
 import queue
 import sys
 import threading
@@ -25,6 +24,7 @@ from typing import Any, Callable, Iterator, Sequence, TypeVar
 import numpy as np
 import threadpoolctl
 
+from ..compile.compiled import cpu_count
 from ..errors import SymmonError
 from ..progress import note, progress_bar
 
@@ -384,7 +384,7 @@ class Executor:
 
     def threads(self, jobs: int) -> int:
         """Threads for ``jobs`` replicates: ``workers``, or the number of CPUs, at most ``jobs``."""
-        return self.workers or min(os.cpu_count() or 1, int(jobs))
+        return self.workers or min(cpu_count(), int(jobs))
 
     def run(self, fn: Callable[[J, threading.Event], R], jobs: Sequence[J], desc: str) -> list[R]:
         """``fn(job, stop)`` for each job on this executor's threads (:func:`run_groups`)."""

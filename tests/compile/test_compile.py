@@ -150,12 +150,12 @@ def test_compiled_and_vm_agree(n_points, points_rng):
 def test_row_spans_split_a_large_batch_on_the_main_thread_only():
     import threading
 
-    from symmon.compile.compiled import MIN_ROWS_PER_THREAD, row_spans
+    from symmon.compile.compiled import MIN_ROWS_PER_THREAD, cpu_count, row_spans
 
     assert row_spans(10) == [(0, 10)]
     N = 4 * MIN_ROWS_PER_THREAD + 3
     spans = row_spans(N)
-    assert len(spans) == min(os.cpu_count() or 1, 4)
+    assert len(spans) == min(cpu_count(), 4)
     assert spans[0][0] == 0 and spans[-1][1] == N and all(a[1] == b[0] for a, b in zip(spans, spans[1:]))
     inside: list = []
     t = threading.Thread(target=lambda: inside.append(row_spans(N)))
@@ -163,15 +163,24 @@ def test_row_spans_split_a_large_batch_on_the_main_thread_only():
     t.join()
     assert inside == [[(0, N)]]  # a worker thread's pool already uses the cores
 
-def test_cpu_count_is_read_once_and_again_when_os_cpu_count_is_replaced(monkeypatch):
+def test_cpu_count_is_read_once_and_at_most_the_affinity_mask(monkeypatch):
+    """os.cpu_count() counts the machine's CPUs; a process confined to some (a container, a
+    batch job) gets at most those: a compiled loop starts no more threads than can run."""
     from symmon.compile.compiled import MIN_ROWS_PER_THREAD, cpu_count, row_spans
 
     calls: list = []
     monkeypatch.setattr(os, "cpu_count", lambda: calls.append(1) or 3)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 5}, raising=False)
     assert cpu_count() == 3 and cpu_count() == 3 and len(calls) == 1
     assert len(row_spans(8 * MIN_ROWS_PER_THREAD)) == 3 and len(calls) == 1
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {4}, raising=False)
+    assert cpu_count() == 1 and len(row_spans(8 * MIN_ROWS_PER_THREAD)) == 1
     monkeypatch.setattr(os, "cpu_count", lambda: None)  # os.cpu_count's "unknown"
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(8)), raising=False)
     assert cpu_count() == 1
+    monkeypatch.delattr(os, "sched_getaffinity", raising=False)  # macOS and Windows have none
+    monkeypatch.setattr(os, "cpu_count", lambda: 6)
+    assert cpu_count() == 6
 
 
 

@@ -11,14 +11,13 @@ components).  The bank's threads each run whole runs, so a bank equals its runs 
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import pytest
 import sympy as sp
 
 import symmon as sm
 from helpers import assert_close_to_scale
+from symmon.compile.compiled import cpu_count
 from symmon.filters.ekfstep import C_EKF_FROM, ekf_pieces
 from symmon.filters.step import _compiled_step, chunk_runs
 
@@ -150,7 +149,7 @@ def test_tt2_bank_threads_equal_one_run_at_a_time(setup):
     Y, truth = np.tile(Y, (6, 1, 1)), np.tile(truth, (6, 1, 1))
     params = np.tile(params, (6, 1, 1))
     params[:, :, 1] += np.repeat(0.1 * np.arange(6), 4)[:, None]
-    assert len(chunk_runs(Y.shape[0], Y.shape[1], N)) == min(2, os.cpu_count() or 1)
+    assert len(chunk_runs(Y.shape[0], Y.shape[1], N)) == min(2, cpu_count())
     keep = frozenset(("x", "P", "loglik", "nis"))
     bank = step(x0, P0, Y, Q, Rm, keep=keep, params=params, truth=truth)
     for r in range(Y.shape[0]):

@@ -15,6 +15,7 @@ import sympy as sp
 
 import symmon as sm
 from helpers import assert_close_to_scale, turning_targets
+from symmon.compile.compiled import cpu_count
 from symmon.filters.ekfstep import C_EKF_FROM
 from symmon.filters.step import _compiled_step, chunk_runs
 
@@ -98,7 +99,7 @@ def test_bank_threads_equal_one_run_at_a_time(setup):
         one = step(x0, P0, Y[r:r + 1], Q, Rm, keep=keep, params=params[r:r + 1])
         for key in keep:
             np.testing.assert_array_equal(bank[key][r], one[key][0])
-    assert len(chunk_runs(runs, K, N)) == min(2, __import__("os").cpu_count() or 1)
+    assert len(chunk_runs(runs, K, N)) == min(2, cpu_count())
 
 
 def test_non_positive_innovation_covariance_stops_the_run(setup):

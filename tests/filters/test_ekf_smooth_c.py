@@ -18,6 +18,7 @@ import sympy as sp
 
 import symmon as sm
 from helpers import assert_close_to_scale, turning_targets
+from symmon.compile.compiled import cpu_count
 from symmon.errors import SymmonError
 from symmon.filters.ekfsmooth import backward_in_c
 from symmon.filters.ekfstep import C_EKF_FROM
@@ -115,7 +116,7 @@ def test_bank_threads_equal_one_run_at_a_time(setup):
         x1, P1 = smoother(X[r:r + 1], P[r:r + 1], Q, params=pvals[r:r + 1])
         np.testing.assert_array_equal(xs[r], x1[0])
         np.testing.assert_array_equal(Ps[r], P1[0])
-    assert len(chunk_runs(runs, K, N)) == min(2, __import__("os").cpu_count() or 1)
+    assert len(chunk_runs(runs, K, N)) == min(2, cpu_count())
 
 
 def test_a_singular_prediction_gives_the_same_failures(setup):

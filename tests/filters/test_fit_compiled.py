@@ -192,7 +192,7 @@ def test_the_columns_on_threads_are_one_calls(both_modes, monkeypatch, mode):
             k.Q, k.R, [1, 0])
     one = compiled.bind(*args)
     monkeypatch.setattr(fitmod, "THREAD_WORK", 0)
-    monkeypatch.setattr(fitmod.os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(fitmod, "cpu_count", lambda: 2)
     split = compiled.bind(*args)
     t = np.array([0.7, 0.2])
     for order in (0, 1, 2):
