@@ -163,6 +163,7 @@ def test_row_spans_split_a_large_batch_on_the_main_thread_only():
     t.join()
     assert inside == [[(0, N)]]  # a worker thread's pool already uses the cores
 
+
 def test_cpu_count_is_read_once_and_at_most_the_affinity_mask(monkeypatch):
     """os.cpu_count() counts the machine's CPUs; a process confined to some (a container, a
     batch job) gets at most those: a compiled loop starts no more threads than can run."""
