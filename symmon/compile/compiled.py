@@ -36,7 +36,7 @@ from ..core.model import Model
 from ..errors import ArgumentTypeError, ModelError, ShapeError, UnsupportedFunctionError
 
 __all__ = ["to_casadi", "CompiledModel", "compile_model", "model_key", "compiled", "compiled_with_params", "cache_dir", "has_compiler", "build_shared_library",
-           "generated_c", "rows_c", "row_spans", "cpu_count", "MIN_ROWS_PER_THREAD", "in_threads", "WorkArrays", "padded", "address"]
+           "generated_c", "rows_c", "row_spans", "even_spans", "cpu_count", "MIN_ROWS_PER_THREAD", "in_threads", "WorkArrays", "padded", "address"]
 
 log = logging.getLogger(__name__)
 
@@ -352,10 +352,16 @@ def row_spans(N: int, least: int = MIN_ROWS_PER_THREAD) -> list[tuple[int, int]]
         return [(0, N)]
     threads = 1
     if threading.current_thread() is threading.main_thread():
-        threads = max(1, min(cpu_count(), N // least))
-    if threads == 1:
+        threads = min(cpu_count(), N // least)
+    return even_spans(N, threads)
+
+
+def even_spans(N: int, parts: int) -> list[tuple[int, int]]:
+    """[0, N) as ``parts`` contiguous spans [a, b) of near-equal length (the rows, runs or
+    columns of each thread)."""
+    if parts <= 1:
         return [(0, N)]
-    edges = np.linspace(0, N, threads + 1).round().astype(int)
+    edges = np.linspace(0, N, parts + 1).round().astype(int)
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
 

@@ -58,7 +58,7 @@ from scipy import optimize
 
 from ..compile.ccache import NativeLibrary
 from ..compile.ckernels import faster_sparse_products
-from ..compile.compiled import WorkArrays, cpu_count, generated_c, in_threads
+from ..compile.compiled import WorkArrays, cpu_count, even_spans, generated_c, in_threads
 from ..core.gaussian import float_array
 from ..errors import IdentifiabilityWarning, ModelError, SymmonError
 from ..transforms.executor import one_blas_thread
@@ -453,9 +453,8 @@ class _CompiledLoglik:
         threads = 1
         if m > 1 and runs * K * self.ns >= THREAD_WORK and threading.current_thread() is threading.main_thread():
             threads = min(m, cpu_count())
-        bounds = np.linspace(0, m, threads + 1).round().astype(int)
-        parts = [(int(j0), int(j1), *(np.empty(size) for size in self._work_size(K)), np.zeros(1 + m + m * m))
-                 for j0, j1 in zip(bounds[:-1], bounds[1:])]
+        parts = [(j0, j1, *(np.empty(size) for size in self._work_size(K)), np.zeros(1 + m + m * m))
+                 for j0, j1 in even_spans(m, threads)]
 
         def evaluate(theta: np.ndarray, order: int):
             fn = run

@@ -49,7 +49,7 @@ import numpy as np
 
 from ..compile.ccache import NativeLibrary
 from ..compile.ckernels import STOP_POLL, STOPPED
-from ..compile.compiled import WorkArrays, compiled, compiled_with_params, cpu_count, generated_c, in_threads, padded
+from ..compile.compiled import WorkArrays, compiled, compiled_with_params, cpu_count, even_spans, generated_c, in_threads, padded
 from ..errors import SymmonError
 from ..core.model import Model
 from ..codegen.symbolic import graph_kind, moments, tril_inverse, wrap_entries
@@ -592,11 +592,7 @@ MIN_WORK_PER_THREAD = 2000 * 4**3
 def chunk_runs(runs: int, K: int, n: int) -> list[tuple[int, int]]:
     """The runs [a, b) of each thread: one per CPU, as long as each gets enough work
     (:data:`MIN_WORK_PER_THREAD`) for the runs × K steps of an n-state filter."""
-    threads = max(1, min(cpu_count(), runs, (runs * K * n**3) // MIN_WORK_PER_THREAD))
-    if threads == 1:
-        return [(0, runs)]
-    edges = np.linspace(0, runs, threads + 1).round().astype(int)
-    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+    return even_spans(runs, min(cpu_count(), runs, (runs * K * n**3) // MIN_WORK_PER_THREAD))
 
 
 _steps: dict[tuple, _CompiledStep] = {}
