@@ -170,10 +170,21 @@ static inline int symmon_zig_core4(__m256i r, double* o) {{
   return _mm256_movemask_pd(_mm256_castsi256_pd(_mm256_cmpgt_epi64(k, m)));
 }}
 #endif
+/* The lanes flagged in miss (bit l: lane l), their first words rr[l] just drawn, finished alone
+   by symmon_normal_from into out[l], their states in s (word w of lane l at s[w * LANES + l]). */
+static inline void symmon_lanes_finish(uint64_t* s, const uint64_t* rr, uint64_t miss, double* out) {{
+  uint64_t t[4];
+  int l, h;
+  for (l = 0; miss; ++l, miss >>= 1) {{
+    if (!(miss & 1)) continue;
+    for (h = 0; h < 4; ++h) t[h] = s[h * SYMMON_LANES + l];
+    out[l] = symmon_normal_from(rr[l], t);
+    for (h = 0; h < 4; ++h) s[h * SYMMON_LANES + l] = t[h];
+  }}
+}}
 static inline void symmon_normal_lanes(uint64_t* restrict s, double* restrict out, long long count) {{
   long long g;
-  int l, h;
-  uint64_t rr[SYMMON_LANES], t[4], miss;
+  uint64_t rr[SYMMON_LANES], miss;
 #if defined(__AVX2__) && SYMMON_LANES == 8
   __m256i a0 = _mm256_loadu_si256((const __m256i*) s), b0 = _mm256_loadu_si256((const __m256i*) (s + 4));
   __m256i a1 = _mm256_loadu_si256((const __m256i*) (s + 8)), b1 = _mm256_loadu_si256((const __m256i*) (s + 12));
@@ -190,12 +201,7 @@ static inline void symmon_normal_lanes(uint64_t* restrict s, double* restrict ou
     _mm256_storeu_si256((__m256i*) (s + 16), a2); _mm256_storeu_si256((__m256i*) (s + 20), b2);
     _mm256_storeu_si256((__m256i*) (s + 24), a3); _mm256_storeu_si256((__m256i*) (s + 28), b3);
     _mm256_storeu_si256((__m256i*) rr, ra); _mm256_storeu_si256((__m256i*) (rr + 4), rb);
-    for (l = 0; miss; ++l, miss >>= 1) {{
-      if (!(miss & 1)) continue;
-      for (h = 0; h < 4; ++h) t[h] = s[h * SYMMON_LANES + l];
-      out[g + l] = symmon_normal_from(rr[l], t);
-      for (h = 0; h < 4; ++h) s[h * SYMMON_LANES + l] = t[h];
-    }}
+    symmon_lanes_finish(s, rr, miss, out + g);
     a0 = _mm256_loadu_si256((const __m256i*) s); b0 = _mm256_loadu_si256((const __m256i*) (s + 4));
     a1 = _mm256_loadu_si256((const __m256i*) (s + 8)); b1 = _mm256_loadu_si256((const __m256i*) (s + 12));
     a2 = _mm256_loadu_si256((const __m256i*) (s + 16)); b2 = _mm256_loadu_si256((const __m256i*) (s + 20));
@@ -206,6 +212,8 @@ static inline void symmon_normal_lanes(uint64_t* restrict s, double* restrict ou
   _mm256_storeu_si256((__m256i*) (s + 16), a2); _mm256_storeu_si256((__m256i*) (s + 20), b2);
   _mm256_storeu_si256((__m256i*) (s + 24), a3); _mm256_storeu_si256((__m256i*) (s + 28), b3);
 #else
+  uint64_t t[4];
+  int l, h;
   for (g = 0; g < count; g += SYMMON_LANES) {{
     miss = 0;
     for (l = 0; l < SYMMON_LANES; ++l) {{
@@ -218,12 +226,7 @@ static inline void symmon_normal_lanes(uint64_t* restrict s, double* restrict ou
         if (!(m < symmon_zig_kw[rr[l] & 0xff].k)) miss |= 1ULL << l;
       }}
     }}
-    for (l = 0; miss; ++l, miss >>= 1) {{  /* about 1 lane in 70 */
-      if (!(miss & 1)) continue;
-      for (h = 0; h < 4; ++h) t[h] = s[h * SYMMON_LANES + l];
-      out[g + l] = symmon_normal_from(rr[l], t);
-      for (h = 0; h < 4; ++h) s[h * SYMMON_LANES + l] = t[h];
-    }}
+    symmon_lanes_finish(s, rr, miss, out + g);  /* about 1 lane in 70 */
   }}
 #endif
 }}
