@@ -177,8 +177,8 @@ def main() -> None:
         s_first = time.perf_counter() - t0
         # The first fit runs on CasADi's VM while the compiled log-likelihood builds in the
         # background (the compile policy); the warm fits below use the C.
-        from symmon.filters.fit import compiled_loglik
-        from symmon.filters.step import _compiled_step
+        from symmon.filters.gaussian.fit import compiled_loglik
+        from symmon.filters.gaussian.step import _compiled_step
 
         kf = fp.kf()
         compiled_loglik(kf).wait()

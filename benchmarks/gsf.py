@@ -33,7 +33,7 @@ import numpy as np
 import sympy as sp
 
 import symmon as sm
-from symmon.filters import gaussian_sum as gs
+from symmon.filters.mixture import gaussian_sum as gs
 
 REPEATS = 5  # --repeats
 

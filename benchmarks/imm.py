@@ -47,7 +47,7 @@ def both(imm, ys, x0, P0=None):
     """(fused time, step-loop time, max relative difference of x)."""
     fused = best(lambda: imm.filter(ys, x0, P0))
     a = imm.filter(ys, x0, P0)
-    with mock.patch("symmon.filters.imm._FusedLoop.native", lambda self: None):
+    with mock.patch("symmon.filters.mixture.imm._FusedLoop.native", lambda self: None):
         steps = best(lambda: imm.filter(ys, x0, P0))
         b = imm.filter(ys, x0, P0)
     return fused, steps, float(np.abs(a.x - b.x).max() / np.abs(a.x).max()), a

@@ -73,7 +73,7 @@ TRANSFORMS = {"ukf": lambda: sm.UT(ALPHA, BETA, KAPPA), "ekf": sm.TT1}
 
 
 def symmon_filters(p, ys, repeat, labels=("ukf", "ekf"), wait=None):
-    from symmon.filters.step import _compiled_step
+    from symmon.filters.gaussian.step import _compiled_step
 
     x0 = sm.Gaussian(p.x0, p.P0)
     out = {}

@@ -53,8 +53,8 @@ def symmon_times(p, transform, ys1, ysR, repeat):
     first = time.perf_counter() - t0
     # A large step runs on CasADi's VM while its C builds in the background (the compile
     # policy): the warm times below are of the compiled C, once the builds are done.
-    from symmon.filters.smoother import compiled_smoother
-    from symmon.filters.step import _compiled_step
+    from symmon.filters.gaussian.smoother import compiled_smoother
+    from symmon.filters.gaussian.step import _compiled_step
 
     t0 = time.perf_counter()
     for lib in (_compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)._lib,

@@ -36,7 +36,7 @@ import sympy as sp  # noqa: E402
 
 import symmon as sm  # noqa: E402
 from filters import best, write_section  # noqa: E402  (benchmarks/filters.py)
-from symmon.filters.step import _compiled_step  # noqa: E402
+from symmon.filters.gaussian.step import _compiled_step  # noqa: E402
 
 HEADING = "## Square-root filters"
 

@@ -101,7 +101,7 @@ sphinx_gallery_conf = {
 #
 # Classes and functions get one autosummary page each (reference/generated/symmon.NAME).
 # The modules of sm.__all__ are public under names of the public face whose homes lie deeper
-# in the tree (sm.kalman is symmon.filters.linear, sm.weights symmon.measures.weights):
+# in the tree (sm.kalman is symmon.filters.gaussian.linear, sm.weights symmon.measures.weights):
 # ``import symmon.kalman`` does not work, so each module is documented under its home's
 # importable name, on a page that conf.py writes (reference/modules/<home>.rst) with the
 # public name in its title.  Each object is described on one page only: a name re-exported

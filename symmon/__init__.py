@@ -19,7 +19,7 @@ from .core import angles as angles
 from .core import problems as problems
 from .estimation import mmse as mmse
 from .files import modelfile as modelfile
-from .filters import linear as kalman
+from .filters.gaussian import linear as kalman
 from .measures import sweep as sweep
 from .measures import weights as weights
 from .codegen import export_c as export_c

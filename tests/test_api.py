@@ -24,7 +24,7 @@ def test_implementation_modules_stay_importable():
 
 def test_public_modules_are_their_homes():
     """The module names of ``sm.__all__`` are the subpackage modules that define the names."""
-    homes = {"angles": "symmon.core.angles", "problems": "symmon.core.problems", "kalman": "symmon.filters.linear",
+    homes = {"angles": "symmon.core.angles", "problems": "symmon.core.problems", "kalman": "symmon.filters.gaussian.linear",
              "modelfile": "symmon.files.modelfile", "mmse": "symmon.estimation.mmse",
              "sweep": "symmon.measures.sweep", "weights": "symmon.measures.weights", "units": "symmon.units",
              "estimation": "symmon.estimation", "filters": "symmon.filters", "codegen": "symmon.codegen",

@@ -385,7 +385,7 @@ def cmd_codegen(args: argparse.Namespace) -> int:
 def cmd_fit(args: argparse.Namespace) -> int:
     """``symmon fit``: maximum-likelihood estimates of a scenario's parameters from simulated runs."""
     from ..files.filterfile import check_bank, filter_transform, load_filter_file, simulate
-    from ..filters.nonlinear import NonlinearKalmanFilter
+    from ..filters.gaussian.nonlinear import NonlinearKalmanFilter
 
     start = dict(args.param)
     if len(start) != len(args.param):
@@ -418,7 +418,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     """``symmon export``: one filter of a scenario file as standalone C (docs/export.md)."""
     from ..files.filterfile import filter_transform, load_filter_file
     from ..compile.cnames import c_identifier
-    from ..filters.nonlinear import NonlinearKalmanFilter
+    from ..filters.gaussian.nonlinear import NonlinearKalmanFilter
 
     spec = load_filter_file(args.file)
     kf = NonlinearKalmanFilter(spec.f, spec.h, spec.Q, spec.R, filter_transform(args.filter))

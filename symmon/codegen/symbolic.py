@@ -6,7 +6,7 @@ Each function takes the mean m and covariance P as CasADi symbols and returns
 - :func:`export_c <symmon.codegen.export_c>` builds them in **MX**: the products with P,
   the Cholesky factor and the map over the points are matrix nodes, so the C code has
   loops and grows with the nonzeros of the derivatives, not with n_y² n²;
-- the compiled filter step (:mod:`symmon.filters.step`) builds them in **SX** for small
+- the compiled filter step (:mod:`symmon.filters.gaussian.step`) builds them in **SX** for small
   filters: the same helper functions are then inlined, the constant one-hot selections
   fold away, and the whole predict + update step is one straight-line SX function; from
   ``MX_FROM`` variables on it builds them in MX too, with the blocked factor

@@ -41,7 +41,7 @@ MAX_SHOWN = 6
 
 
 #: The univariate splits of N(0, 1) into m narrower components Σ ω_j N(μ_j, σ²), for the
-#: Gaussian-sum filter's splitting (:mod:`symmon.filters.gaussian_sum`) and the component
+#: Gaussian-sum filter's splitting (:mod:`symmon.filters.mixture.gaussian_sum`) and the component
 #: counts of :func:`symmon.advise`: m ↦ (σ, the outer weights of one side, nearest first),
 #: computed by ``derivations/gaussian_split.py`` (L2 distance + 10⁻³ σ, after DeMars, Bishop &
 #: Jah 2013, with the variance kept exactly); the centre weight and the spacing δ follow from

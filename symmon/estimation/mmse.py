@@ -1,7 +1,7 @@
 """Closed-form MMSE estimators of distance functions of a Gaussian state.
 
 Given the Kalman estimate :math:`\\hat x` and its error covariance :math:`P` (the first stage,
-e.g. :class:`symmon.filters.linear.KalmanFilter`), the MMSE estimate of a function :math:`f(x)` is the
+e.g. :class:`symmon.filters.gaussian.linear.KalmanFilter`), the MMSE estimate of a function :math:`f(x)` is the
 conditional mean :math:`E[f(x)]` with :math:`x \\sim N(\\hat x, P)` (the second stage). For the
 functions below that mean has a closed form:
 
@@ -525,7 +525,7 @@ def bilinear(B: ArrayLike, xhat: ArrayLike, yhat: ArrayLike, Pxy: ArrayLike) -> 
     xhat : array_like, shape (..., n_x)
     yhat : array_like, shape (..., n_y)
     Pxy : array_like, shape (..., n_x, n_y)
-        Error cross-covariance (e.g. :meth:`symmon.filters.linear.KalmanResult.cross_cov`).
+        Error cross-covariance (e.g. :meth:`symmon.filters.gaussian.linear.KalmanResult.cross_cov`).
 
     Returns
     -------

@@ -83,10 +83,10 @@ import sympy as sp
 
 from ..core.angles import wrap_angle
 from ..errors import SymmonError
-from ..filters.adaptive import Adaptive
-from ..filters.gaussian_sum import GaussianSumFilter
-from ..filters.nonlinear import NonlinearKalmanFilter
-from ..filters.particle import ParticleFilter
+from ..filters.gaussian.adaptive import Adaptive
+from ..filters.mixture.gaussian_sum import GaussianSumFilter
+from ..filters.gaussian.nonlinear import NonlinearKalmanFilter
+from ..filters.particle.particle_filter import ParticleFilter
 from ..filters.inputs import KEEPABLE, MAX_BANK_NUMBERS, check_bank_size, kept_numbers
 from ..filters.simulation import simulate as simulate_models
 from ..measures.advice import DEFAULT_TOL
@@ -424,7 +424,7 @@ def run_bank(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, xs:
     Gaussian-sum filter has no ANIS, its ``anis`` is None).  A filter that fails (NaN: it diverged), or whose
     statistics do (a state known exactly has no NEES), is reported with its error instead of
     stopping the others.  With ``executor`` each filter's bank runs in shards there
-    (:func:`symmon.filters.distributed.filter_bank`: the same numbers); the smoothers'
+    (:func:`symmon.filters.bank.filter_bank`: the same numbers); the smoothers'
     backward passes run here.
     """
     out = []

@@ -7,23 +7,23 @@
 (:mod:`.gaussian_sum`), interacting multiple models over them (:mod:`.imm`), and the checks of a
 filter call's inputs (:mod:`.inputs`, which the others import and which imports none of them)."""
 
-from .adaptive import Adaptive as Adaptive
-from .linear import KalmanFilter as KalmanFilter
-from .nonlinear import NonlinearKalmanFilter as NonlinearKalmanFilter
+from .gaussian.adaptive import Adaptive as Adaptive
+from .gaussian.linear import KalmanFilter as KalmanFilter
+from .gaussian.nonlinear import NonlinearKalmanFilter as NonlinearKalmanFilter
 from .results import ConsistencyTest as ConsistencyTest
 from .results import KalmanResult as KalmanResult
 from .results import NonlinearKalmanResult as NonlinearKalmanResult
 from .results import SmootherResult as SmootherResult
-from .fit import FitResult as FitResult
-from .gaussian_sum import GaussianSumFilter as GaussianSumFilter
-from .gaussian_sum import GaussianSumResult as GaussianSumResult
-from .imm import IMM as IMM
-from .imm import IMMResult as IMMResult
-from .strategy import FilterStrategy as FilterStrategy
+from .gaussian.fit import FitResult as FitResult
+from .mixture.gaussian_sum import GaussianSumFilter as GaussianSumFilter
+from .mixture.gaussian_sum import GaussianSumResult as GaussianSumResult
+from .mixture.imm import IMM as IMM
+from .mixture.imm import IMMResult as IMMResult
+from .gaussian.strategy import FilterStrategy as FilterStrategy
 from .simulation import simulate as simulate
-from .particle import ParticleFilter as ParticleFilter
-from .particle import ParticleResult as ParticleResult
-from .strategy import RuleStrategy as RuleStrategy
+from .particle.particle_filter import ParticleFilter as ParticleFilter
+from .particle.particle_filter import ParticleResult as ParticleResult
+from .gaussian.strategy import RuleStrategy as RuleStrategy
 
 __all__ = ["KalmanFilter", "KalmanResult", "NonlinearKalmanFilter", "NonlinearKalmanResult", "SmootherResult", "FitResult", "ConsistencyTest",
            "Adaptive", "FilterStrategy", "RuleStrategy", "simulate", "IMM", "IMMResult",

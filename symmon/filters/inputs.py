@@ -6,7 +6,7 @@ a bank's results, the true states, the initial state and the models' parameter v
 its fit; the linear filter and the filter files use the single checks.  It is the bottom of
 :mod:`symmon.filters`: the results, the filter, its strategies, its fit and its export import
 it, and it imports none of them.  :class:`FilterSpec` is what they read from a filter, so that
-none of them needs the filter's class (nor imports :mod:`symmon.filters.nonlinear`, which
+none of them needs the filter's class (nor imports :mod:`symmon.filters.gaussian.nonlinear`, which
 imports them).
 """
 
@@ -40,7 +40,7 @@ class FilterSpec(Protocol):
     transform: Any
     iterations: int
     square_root: bool
-    strategy: Any  # a FilterStrategy (symmon.filters.strategy imports this module)
+    strategy: Any  # a FilterStrategy (symmon.filters.gaussian.strategy imports this module)
 
     @property
     def params(self) -> tuple: ...
@@ -351,3 +351,12 @@ def filter_inputs(kf: FilterSpec, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: A
         truth = check_truth(x_true, Y.shape[:-1] + (n,)).reshape(Yb.shape[:2] + (-1,))
     pv = param_values(kf.params, params, runs, Y.shape[-2])
     return FilterInputs(Yb, runs, kept, m0, C0, truth, pv)
+
+def filter_params(f: Model, h: Model) -> tuple:
+    """The parameters of a filter: f's, then h's whose names f does not have.
+
+    One name is one parameter: a ``b`` of h declared as another sympy symbol than f's ``b``
+    (other assumptions, or made apart) is the same parameter, as ``filter(params={"b": …})``
+    sets it, so that a fit varies the one value both models use."""
+    names = {str(s) for s in f.params}
+    return tuple(f.params) + tuple(s for s in h.params if str(s) not in names)

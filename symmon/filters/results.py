@@ -223,7 +223,7 @@ def _nees(x: np.ndarray, P: np.ndarray, x_true: ArrayLike, angle_states: Sequenc
 
 def step_nees(values: np.ndarray, trace: np.ndarray) -> np.ndarray:
     """The NEES computed inside a compiled filter step, checked: ``values`` (R, K) or (K,) and
-    ``trace`` = tr Ρ⁻¹ of each step's correlation matrix Ρ (:func:`symmon.filters.step.nees_graph`).
+    ``trace`` = tr Ρ⁻¹ of each step's correlation matrix Ρ (:func:`symmon.filters.gaussian.step.nees_graph`).
 
     A covariance counts as singular when tr Ρ⁻¹ ≥ 1 / :data:`~symmon.measures.weights.SINGULAR_CORR`
     (infinite for a failed factor, NaN for a zero variance): every Ρ whose smallest eigenvalue is

@@ -3,7 +3,7 @@ compiled evaluation over batches of states (simulated runs, particles).
 
 x_{k+1} = f(x_k, w_k), y_k = h(x_k, e_k), w_k ~ N(0, Q), e_k ~ N(0, R); without noise symbols
 the noises are additive, x_{k+1} = f(x_k) + w_k and y_k = h(x_k) + e_k (the convention of
-:class:`~symmon.filters.nonlinear.NonlinearKalmanFilter`).  Noise is drawn as L z with L Lᵀ
+:class:`~symmon.filters.gaussian.nonlinear.NonlinearKalmanFilter`).  Noise is drawn as L z with L Lᵀ
 the covariance and z standard normal rows, so that a caller fixes the order of the draws.
 f and h are evaluated on all rows of a batch at once by their compiled C
 (:func:`~symmon.compile.compiled_with_params`, threads over row spans for large batches),
@@ -25,8 +25,7 @@ from ..core.arrays import readonly
 from ..core.checks import noise_cov
 from ..core.gaussian import as_covariance, matrix_sqrt
 from ..core.model import Model
-from .inputs import check_state_models
-from .step import filter_params
+from .inputs import check_state_models, filter_params
 
 __all__ = ["StateSpace", "rows_times"]
 

@@ -77,9 +77,9 @@ from ..core.gaussian import Gaussian
 from ..core.mixture import Empirical, GaussianMixture
 from ..core.model import Model
 from ..errors import ArgumentError, DegeneracyWarning
-from ..filters.gaussian_sum import GaussianSumFilter
-from ..filters.nonlinear import NonlinearKalmanFilter
-from ..filters.particle import ParticleFilter
+from ..filters.mixture.gaussian_sum import GaussianSumFilter
+from ..filters.gaussian.nonlinear import NonlinearKalmanFilter
+from ..filters.particle.particle_filter import ParticleFilter
 from ..filters.simulation import simulate
 from ..io import check_output_set, write_csv
 from ..transforms.taylor import TT1

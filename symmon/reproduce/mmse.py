@@ -1,7 +1,7 @@
 """Reproduce the simulations of the distance paper (Sections 4.3.1, 4.3.2 and 7).
 
 Each experiment is two-stage, as in the paper: a Kalman filter
-(:class:`symmon.filters.linear.KalmanFilter`) gives :math:`\\hat x_k, P_k`, and a second stage turns them
+(:class:`symmon.filters.gaussian.linear.KalmanFilter`) gives :math:`\\hat x_k, P_k`, and a second stage turns them
 into a distance or angle estimate. The optimal (MMSE, :mod:`symmon.estimation.mmse`) or composite estimator
 is compared with the simple plug-in estimator :math:`f(\\hat x_k)` by the RMSE over Monte Carlo
 runs at each time step, and by the average of that RMSE over a time interval (the paper's
@@ -86,7 +86,7 @@ import numpy as np
 from ..errors import ArgumentError
 from ..estimation import mmse
 from ..io import check_output_set, write_csv
-from ..filters.linear import KalmanFilter
+from ..filters.gaussian.linear import KalmanFilter
 from .common import figure_style, save_reproduced, with_format
 
 __all__ = [

@@ -45,7 +45,7 @@ import sympy as sp
 from ..core.angles import wrap_angle
 from ..errors import SymmonError
 from ..files.filterfile import filter_transform
-from ..filters.nonlinear import NonlinearKalmanFilter, NonlinearKalmanResult
+from ..filters.gaussian.nonlinear import NonlinearKalmanFilter, NonlinearKalmanResult
 from ..core.gaussian import Gaussian
 from ..io import check_output_set, write_csv
 from ..core.model import Model

@@ -15,7 +15,7 @@ import sympy as sp
 import symmon as sm
 from symmon.estimation import nlt as est
 from symmon.errors import ModelError, ShapeError, SingularMatrixError
-from symmon.filters.linear import KalmanFilter
+from symmon.filters.gaussian.linear import KalmanFilter
 from symmon.reproduce import radar
 
 from helpers import REFERENCE_DIR

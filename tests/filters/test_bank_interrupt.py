@@ -22,7 +22,7 @@ import sympy as sp
 
 import symmon as sm
 from symmon.compile.ckernels import STOPPED
-from symmon.filters import smoother, step
+from symmon.filters.gaussian import smoother, step
 
 x = sp.Symbol("x", real=True)
 F = sm.Model([x], [0.9 * x + 0.1 * sp.sin(x)], name="f_interrupt")

@@ -18,7 +18,7 @@ import sympy as sp
 import symmon as sm
 from symmon import cli
 from symmon.errors import ArgumentError, DegeneracyWarning, ShapeError, SymmonError
-from symmon.filters.distributed import filter_bank, run_streams, shard_bounds
+from symmon.filters.bank import filter_bank, run_streams, shard_bounds
 
 distributed = pytest.importorskip("dask.distributed")
 

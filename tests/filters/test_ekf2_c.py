@@ -1,4 +1,4 @@
-"""The C step of the second-order EKF (TT2, symmon.filters.ekfstep) against the MX step on CasADi's VM.
+"""The C step of the second-order EKF (TT2, symmon.filters.gaussian._ekfstep) against the MX step on CasADi's VM.
 
 Both run the TT2 moments of Gustafsson & Hendeby (2012): x⁻ = f(x) + ½[tr(H_i P)],
 P⁻ = F P Fᵀ + ½[tr(H_i P H_j P)] + Q, and the same for h in the update; the C sums the trace
@@ -18,8 +18,8 @@ import sympy as sp
 import symmon as sm
 from helpers import assert_close_to_scale
 from symmon.compile.compiled import cpu_count
-from symmon.filters.ekfstep import C_EKF_FROM, ekf_pieces
-from symmon.filters.step import _compiled_step, chunk_runs
+from symmon.filters.gaussian._ekfstep import C_EKF_FROM, ekf_pieces
+from symmon.filters.gaussian.step import _compiled_step, chunk_runs
 
 RTOL = 1e-10
 TARGETS = 2

@@ -1,4 +1,4 @@
-"""The C EKF and IEKF step of larger filters (symmon.filters.ekfstep) against the MX step on CasADi's VM.
+"""The C EKF and IEKF step of larger filters (symmon.filters.gaussian._ekfstep) against the MX step on CasADi's VM.
 
 Both run the same formulas (TT1, Lemma 7.1 of Gustafsson & Hendeby 2012); they differ in the
 order of the sums only, so every output agrees to rounding: 1e-10 relative to its scale over
@@ -16,8 +16,8 @@ import sympy as sp
 import symmon as sm
 from helpers import assert_close_to_scale, turning_targets
 from symmon.compile.compiled import cpu_count
-from symmon.filters.ekfstep import C_EKF_FROM
-from symmon.filters.step import _compiled_step, chunk_runs
+from symmon.filters.gaussian._ekfstep import C_EKF_FROM
+from symmon.filters.gaussian.step import _compiled_step, chunk_runs
 
 RTOL = 1e-10
 TARGETS = 4

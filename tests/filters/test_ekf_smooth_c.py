@@ -1,4 +1,4 @@
-"""The C backward step of the extended RTS smoother (symmon.filters.ekfsmooth) against the MX
+"""The C backward step of the extended RTS smoother (symmon.filters.gaussian._ekfsmooth) against the MX
 backward step on CasADi's VM.
 
 Both run the same formulas (the RTS step with TT1's closed-form time update); they differ in
@@ -20,10 +20,10 @@ import symmon as sm
 from helpers import assert_close_to_scale, turning_targets
 from symmon.compile.compiled import cpu_count
 from symmon.errors import SymmonError
-from symmon.filters.ekfsmooth import backward_in_c
-from symmon.filters.ekfstep import C_EKF_FROM
-from symmon.filters.smoother import compiled_smoother
-from symmon.filters.step import chunk_runs
+from symmon.filters.gaussian._ekfsmooth import backward_in_c
+from symmon.filters.gaussian._ekfstep import C_EKF_FROM
+from symmon.filters.gaussian.smoother import compiled_smoother
+from symmon.filters.gaussian.step import chunk_runs
 
 RTOL = 1e-10
 TARGETS = 2

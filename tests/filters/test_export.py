@@ -1,4 +1,4 @@
-"""The exported filter (symmon.filters.export): C99 built with gcc, run on a recorded track.
+"""The exported filter (symmon.filters.gaussian.export): C99 built with gcc, run on a recorded track.
 
 Each filter family is exported, built with ``-std=c99 -O2 -Wall -Wextra -Werror -pedantic``
 (and with clang where it is installed), and its example program is driven over a recorded
@@ -22,7 +22,7 @@ import sympy as sp
 import symmon as sm
 from symmon.codegen.export import strict_c
 from symmon.errors import OutputPathError, SymmonError
-from symmon.filters.export import ERROR_CODES
+from symmon.filters.gaussian.export import ERROR_CODES
 
 GCC = shutil.which("gcc")
 CLANG = shutil.which("clang")
@@ -339,7 +339,7 @@ def test_strict_c_casts_only_unused_parameters():
 
 def test_export_needs_a_filter(tmp_path):
     from symmon.errors import ArgumentTypeError
-    from symmon.filters.export import export_filter_c
+    from symmon.filters.gaussian.export import export_filter_c
 
     with pytest.raises(ArgumentTypeError, match="NonlinearKalmanFilter"):
         export_filter_c(sm.TT1(), tmp_path)

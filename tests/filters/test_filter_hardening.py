@@ -17,7 +17,7 @@ import sympy as sp
 import symmon as sm
 from symmon.errors import AngleWarning, NonFiniteError, ResourceError, SingularMatrixError, SymmonError
 from symmon.filters import inputs, results
-from symmon.filters.adaptive import _adaptive_run
+from symmon.filters.gaussian.adaptive import _adaptive_run
 from symmon.filters.inputs import MAX_BANK_NUMBERS
 from symmon.filters.results import _quadratic_forms
 

@@ -14,7 +14,7 @@ import symmon as sm
 from symmon.estimation import nlt as est
 from symmon.errors import ShapeError, SymmonError
 from symmon.filters.results import NonlinearKalmanResult
-from symmon.filters.step import _compiled_step
+from symmon.filters.gaussian.step import _compiled_step
 from symmon.filters.results import _quadratic_forms
 
 #: Two implementations of the same filter in double precision, over tens of steps: the
@@ -647,7 +647,7 @@ def test_the_mx_step_equals_the_sx_step(transform, monkeypatch):
     """From MX_FROM variables on the step is built in MX (loops in C, the blocked Cholesky
     factor); it computes what the unrolled SX step computes, up to rounding."""
     from symmon.codegen import symbolic
-    from symmon.filters import step
+    from symmon.filters.gaussian import step
 
     T = 1 if isinstance(transform, sm.GaussHermite) else 3  # GH3 on 9 states would be 3^11 points
     xs, fo, ho, angles = [], [], [], []
@@ -700,7 +700,7 @@ def test_a_rule_is_checked_at_the_filter_dimensions_not_at_one():
 def test_a_rule_with_many_points_is_built_in_mx_at_any_size():
     """Gauss–Hermite of order 10 on 4 states (10⁴ points): one map in MX, not 10⁴ unrolled
     copies of h (that SX step ran gcc for minutes)."""
-    from symmon.filters import step
+    from symmon.filters.gaussian import step
 
     xs = sp.symbols("px py vx vy", real=True)
     f = sm.Model(list(xs), [xs[0] + 0.5 * xs[2], xs[1] + 0.5 * xs[3], xs[2], xs[3]], name="gh10_f")
@@ -790,7 +790,7 @@ def test_keep_names_are_checked():
 def test_a_bank_split_over_threads_equals_one_call(bank, keep, monkeypatch):
     """The runs of a bank split over threads (the GIL is released in the C call) give the
     numbers of one call bit for bit, kept arrays and log-likelihoods alike."""
-    from symmon.filters import step
+    from symmon.filters.gaussian import step
 
     _, ys = bank
     f, h = cv_models()

@@ -1,4 +1,4 @@
-"""Maximum-likelihood fit of model parameters (symmon.filters.fit).
+"""Maximum-likelihood fit of model parameters (symmon.filters.gaussian.fit).
 
 A range bias b and a process-noise intensity q are recovered from simulated banks (a target
 far from the sensor, where the EKF's likelihood is close to exact). Statistical checks are
@@ -79,7 +79,7 @@ def test_the_gradient_is_the_derivative_of_the_filters_log_likelihood():
     central difference of it (step 1e-5: truncation and rounding below 1e-6 relative)."""
     import casadi as ca
 
-    from symmon.filters.fit import _loglik_graph
+    from symmon.filters.gaussian.fit import _loglik_graph
     from symmon.filters.inputs import filter_inputs
 
     _, ys = data(3, runs=3, K=20)

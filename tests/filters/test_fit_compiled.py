@@ -1,4 +1,4 @@
-"""The compiled log-likelihood of the fit (symmon.filters.fit._CompiledLoglik).
+"""The compiled log-likelihood of the fit (symmon.filters.gaussian.fit._CompiledLoglik).
 
 The C loop folds the same step function as the VM graph (_loglik_graph) over the steps and
 runs, so its value agrees to rounding (1e-12 relative); its gradient and Hessian are CasADi's
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import symmon as sm
-from symmon.filters import fit as fitmod
+from symmon.filters.gaussian import fit as fitmod
 from symmon.filters.inputs import filter_inputs
 
 from test_fit import X0, data, kf

@@ -11,7 +11,7 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import ArgumentError, ArgumentTypeError, ShapeError
-from symmon.filters.gaussian_sum import (SPLITS, component_mon, merge_components, split_component, split_direction,
+from symmon.filters.mixture.gaussian_sum import (SPLITS, component_mon, merge_components, split_component, split_direction,
                                          split_weights)
 from symmon.core.mixture import mixture_moments
 

@@ -11,8 +11,8 @@ import sympy as sp
 
 import symmon as sm
 from symmon.core.mixture import mixture_moments
-from symmon.filters import gaussian_sum as gs
-from symmon.filters.mixture_merge import merge_components, merge_kernel, merge_numpy, merge_runs
+from symmon.filters.mixture import gaussian_sum as gs
+from symmon.filters.mixture.merge import merge_components, merge_kernel, merge_numpy, merge_runs
 
 from helpers import random_spd
 

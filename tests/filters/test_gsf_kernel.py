@@ -1,4 +1,4 @@
-"""The Gaussian-sum filter's compiled recursion with splitting (symmon.filters.gsf_kernel)
+"""The Gaussian-sum filter's compiled recursion with splitting (symmon.filters.mixture._kernel)
 against the stepwise NumPy filter it replaces: the same mixtures, log-likelihoods, component
 counts and splits, for every option (prediction and update splits, Runnalls and Salmond,
 pruning, 3 or 5 children, angles, missing measurements, parameters, banks of runs, what is
@@ -11,7 +11,7 @@ import pytest
 import sympy as sp
 
 import symmon as sm
-from symmon.filters import gaussian_sum as gs
+from symmon.filters.mixture import gaussian_sum as gs
 
 px, py, th = sp.symbols("px py th", real=True)
 x1, x2 = sp.symbols("x1 x2", real=True)

@@ -6,7 +6,7 @@ import pytest
 from scipy.special import logsumexp
 
 from symmon.compile import has_compiler
-from symmon.filters import gsf_kernel
+from symmon.filters.mixture import _kernel as gsf_kernel
 
 
 class _NoCompiler:

@@ -27,7 +27,7 @@ import symmon as sm
 from symmon.core.problems import TURN_SERIES, coordinated_turn
 from symmon.errors import (ArgumentError, ArgumentTypeError, CovarianceError, ModelError, NonFiniteError,
                            ShapeError)
-from symmon.filters.imm import _as_nonlinear
+from symmon.filters.mixture.imm import _as_nonlinear
 from helpers import REFERENCE_DIR, assert_close_to_scale
 
 REF = json.loads((REFERENCE_DIR / "filterpy_imm.json").read_text())
@@ -263,7 +263,7 @@ def test_a_failing_mode_is_named_with_its_run_and_step(monkeypatch):
     ys = np.log(np.array([[[100.0]] * 3, [[3.0]] * 3]))
     with pytest.raises(NonFiniteError, match=r"mode 1 \(EKF\(fall\)\) produced NaN or inf at run 1, step 0"):
         imm.filter(ys, np.array([[100.0], [3.0]]), np.array([[1e-6]]))
-    monkeypatch.setattr("symmon.filters.imm._FusedLoop.native", lambda self: None)  # the loop over steps
+    monkeypatch.setattr("symmon.filters.mixture.imm._FusedLoop.native", lambda self: None)  # the loop over steps
     with pytest.raises(NonFiniteError, match=r"mode 1 \(EKF\(fall\)\) produced NaN or inf at run 1, step 0"):
         imm.filter(ys, np.array([[100.0], [3.0]]), np.array([[1e-6]]))
     with pytest.raises(NonFiniteError, match=r"mode 1 \(EKF\(fall\)\) produced NaN or inf at step 0"):
@@ -324,7 +324,7 @@ def test_the_compiled_loop_equals_the_loop_over_steps(modes, monkeypatch):
     cases = [(imm, ys, X0), (heading_imm(), np.full((2, 6, 1), np.pi), sm.Gaussian([np.pi - 0.01], [[0.04]]))]
     fused = [m.filter(y, x0) for m, y, x0 in cases]
     assert all(m._fused_loop().native() is not None for m, _, _ in cases)
-    monkeypatch.setattr("symmon.filters.imm._FusedLoop.native", lambda self: None)
+    monkeypatch.setattr("symmon.filters.mixture.imm._FusedLoop.native", lambda self: None)
     for (m, y, x0), a in zip(cases, fused):
         b = m.filter(y, x0)
         for name in ("x", "P", "x_pred", "P_pred", "innovation", "S", "loglik", "mode_probabilities",

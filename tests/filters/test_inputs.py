@@ -23,12 +23,21 @@ from symmon.filters.inputs import FilterInputs, filter_inputs
 FILTERS = Path(inputs.__file__).parent
 
 
-def _imports(path: Path) -> set[str]:
-    """The modules of symmon.filters that ``path`` imports (relative, any scope, annotations too)."""
+def _path(module: str) -> Path:
+    """The file of ``module``, a dotted name under symmon.filters (``gaussian.nonlinear``)."""
+    return FILTERS.joinpath(*module.split(".")).with_suffix(".py")
+
+
+def _imports(module: str) -> set[str]:
+    """The modules of symmon.filters that ``module`` imports (relative, any scope, annotations
+    too), as dotted names under symmon.filters."""
+    package = module.split(".")[:-1]
     found = set()
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-        if isinstance(node, ast.ImportFrom) and node.level == 1:
-            found |= {node.module} if node.module else {a.name for a in node.names}
+    for node in ast.walk(ast.parse(_path(module).read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom) and node.level and node.level <= len(package) + 1:
+            base = package[: len(package) - node.level + 1]
+            names = [node.module] if node.module else [a.name for a in node.names]
+            found |= {".".join(base + n.split(".")) for n in names if _path(".".join(base + n.split("."))).exists()}
     return found
 
 
@@ -36,22 +45,23 @@ def _reached(module: str) -> set[str]:
     """The modules of symmon.filters that ``module`` imports, directly or through others."""
     seen, todo = set(), [module]
     while todo:
-        for m in _imports(FILTERS / f"{todo.pop()}.py") - seen:
+        for m in _imports(todo.pop()) - seen:
             seen.add(m)
             todo.append(m)
     return seen
 
 
 def test_no_module_the_filter_imports_imports_it_back():
-    reached = _reached("nonlinear")
-    assert {"export", "fit", "strategy", "inputs"} <= reached   # what the filter's methods delegate to
-    assert "nonlinear" not in reached
-    back = sorted(m for m in reached if "nonlinear" in _imports(FILTERS / f"{m}.py"))
+    reached = _reached("gaussian.nonlinear")
+    # what the filter's methods delegate to
+    assert {"gaussian.export", "gaussian.fit", "gaussian.strategy", "inputs"} <= reached
+    assert "gaussian.nonlinear" not in reached
+    back = sorted(m for m in reached if "gaussian.nonlinear" in _imports(m))
     assert back == []
 
 
 def test_the_input_checks_import_no_other_filter_module():
-    assert _imports(FILTERS / "inputs.py") == set()
+    assert _imports("inputs") == set()
 
 
 def test_results_hold_no_input_check():

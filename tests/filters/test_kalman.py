@@ -1,4 +1,4 @@
-"""Tests of symmon.filters.linear.KalmanFilter.
+"""Tests of symmon.filters.gaussian.linear.KalmanFilter.
 
 - A scalar case computed by hand (fractions).
 - Steady state against the discrete algebraic Riccati equation (scipy) and Remark 2 of the
@@ -19,7 +19,7 @@ import pytest
 from scipy.linalg import solve_discrete_are
 
 from symmon.errors import CovarianceError, ShapeError
-from symmon.filters.linear import KalmanFilter
+from symmon.filters.gaussian.linear import KalmanFilter
 
 EXACT_RTOL = 1e-12  # hand-computed fractions: rounding only
 RICCATI_RTOL = 1e-10  # brief: steady state to 1e-10

@@ -83,7 +83,7 @@ def test_a_partly_measured_row_updates_on_the_measured_block(transform, kept):
 
 
 def test_a_bank_with_missing_rows_equals_its_runs_and_the_vm():
-    from symmon.filters.step import _compiled_step
+    from symmon.filters.gaussian.step import _compiled_step
 
     kf, d = cv_filter(sm.UT.ut1())
     ys = np.array(d["ys"])

@@ -1,4 +1,4 @@
-"""The C mixture reduction's greedy search (symmon.filters.mixture_merge) against its exhaustive
+"""The C mixture reduction's greedy search (symmon.filters.mixture.merge) against its exhaustive
 reference, which computes every live pair's cost at every merge: the same pairs merged in the
 same order, so the same output to the bit, on random mixtures and on the cases where a lower
 bound or a tie could go wrong (duplicates, equal means, symmetric ties, weights over many
@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from symmon.filters import mixture_merge as mmg
+from symmon.filters.mixture import merge as mmg
 from tests.helpers import random_spd
 
 pytestmark = pytest.mark.skipif(mmg.merge_kernel() is None, reason="no C compiler: no C merge kernel")

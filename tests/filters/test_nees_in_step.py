@@ -14,7 +14,7 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import ShapeError, SingularMatrixError, SymmonError
-from symmon.filters.step import _compiled_step
+from symmon.filters.gaussian.step import _compiled_step
 
 #: The step's NEES and NumPy's from the same x and P: the same quadratic form through two
 #: factorisations, so they agree to a few condition numbers of the correlation matrix times

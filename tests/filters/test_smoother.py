@@ -1,4 +1,4 @@
-"""The RTS smoothers (symmon.filters.smoother) against FilterPy's, and their consistency.
+"""The RTS smoothers (symmon.filters.gaussian.smoother) against FilterPy's, and their consistency.
 
 FilterPy's smoothers ran on the same recorded measurements, stored with their results in
 tests/reference/filterpy_rts.json by tests/reference/make_smoother_reference.py. The UKF and
@@ -102,7 +102,7 @@ def test_a_bank_smooths_each_run_as_alone():
 
 
 def test_compiled_backward_pass_equals_casadi_vm():
-    from symmon.filters.smoother import compiled_smoother
+    from symmon.filters.gaussian.smoother import compiled_smoother
 
     kf, d = heading_filter(sm.UT.ut1())
     fwd = kf.filter(d["ys"], d["x0"], d["P0"])

@@ -1,4 +1,4 @@
-"""The smoother's gain through the Cholesky factor of the prediction (symmon.filters.smoother).
+"""The smoother's gain through the Cholesky factor of the prediction (symmon.filters.gaussian.smoother).
 
 G = C P⁻⁻¹ is computed as (C L⁻ᵀ) L⁻¹ with P⁻ = L Lᵀ (blocked factor and inverse, loops in
 C) where it was a general solve; on linear dynamics the backward pass is the textbook RTS

@@ -239,7 +239,7 @@ def test_square_root_mx_step_equals_the_standard_form_and_the_vm():
     sr = sm.NonlinearKalmanFilter(f, h, Q3, R3, sm.UT.cubature(), square_root=True)
     a = sr.filter(ys, x0)
     assert_same(a, std.filter(ys, x0))
-    from symmon.filters.step import _compiled_step
+    from symmon.filters.gaussian.step import _compiled_step
 
     step = _compiled_step(f, h, sm.UT.cubature(), sr.angle_states, 1, True)
     vm = step(np.asarray(x0.mean), np.asarray(x0.cov), ys[None], sr.Q, sr.R, use_c=False)
@@ -319,7 +319,7 @@ def test_the_bank_size_limit_counts_the_factors():
 
 
 def test_the_fitted_filter_of_a_square_root_filter_is_square_root():
-    from symmon.filters.fit import FitResult
+    from symmon.filters.gaussian.fit import FitResult
 
     sr = sm.NonlinearKalmanFilter(F_PAR, H_RB, Q, R, sm.TT1(), square_root=True)
     fit = FitResult({"om": 0.1}, {"om": 0.01}, np.eye(1), 0.0, 1, {"dt": 1.0, "om": 0.1}, None, kf=sr)

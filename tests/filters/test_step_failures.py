@@ -1,7 +1,7 @@
 """A filter that fails (a NaN or inf in x, P or the log-likelihood) is an error naming the
 first step that failed and its run.  The compiled loop tests every step as it goes
 (``check_finite``) and stops a run that failed; CasADi's VM path reports the same steps from
-its arrays (:func:`~symmon.filters.step.first_nonfinite`)."""
+its arrays (:func:`~symmon.filters.gaussian.step.first_nonfinite`)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import SymmonError
-from symmon.filters.step import _compiled_step, first_nonfinite
+from symmon.filters.gaussian.step import _compiled_step, first_nonfinite
 
 HUGE = 1.7e308  # its square overflows: the log-likelihood of that step is -inf
 

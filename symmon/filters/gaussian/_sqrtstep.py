@@ -1,7 +1,7 @@
 """The square-root form of the compiled filter step: the Cholesky factor S of P (P = S Sᵀ)
 propagated through the time and the measurement update.
 
-The standard step (:mod:`symmon.filters.step`) forms P⁻ = Cov f + Q and P⁺ = P⁻ − K S Kᵀ;
+The standard step (:mod:`symmon.filters.gaussian.step`) forms P⁻ = Cov f + Q and P⁺ = P⁻ − K S Kᵀ;
 the difference loses positive definiteness in floating point when a measurement is much
 more precise than the prior (R = 1e-16 against P⁻ ≈ 1: P⁺ is rounding, of either sign), or
 when a noise-free state's variance shrinks over many steps.  Here every covariance is a
@@ -20,7 +20,7 @@ arithmetic, so the filter is the standard one; the factors have a non-negative d
 so on a positive definite P they are the Cholesky factors the standard form takes its
 sigma points from.
 
-Missing components (``mask``, as :func:`symmon.filters.step.update_graph`): their rows of the
+Missing components (``mask``, as :func:`symmon.filters.gaussian.step.update_graph`): their rows of the
 y columns are zero and the columns of I − D are appended to S_y's, so S_y S_yᵀ = D S D + (I − D)
 and the gain's columns of the missing components are zero.
 The iterated EKF relinearises at x_i: its residual y − h(x_i) − J_i (x⁻ − x_i) takes J_i
@@ -45,13 +45,13 @@ import math
 import casadi as ca
 import numpy as np
 
-from ..codegen.sqrtform import (JointColumns, chol_scaled, downdate_all, gain_factor, residual_factor, sqrt_moments,
+from ...codegen.sqrtform import (JointColumns, chol_scaled, downdate_all, gain_factor, residual_factor, sqrt_moments,
                                 tria)
-from ..codegen.symbolic import tril_inverse, wrap_entries
-from ..compile.compiled import compiled, compiled_with_params
-from ..core.gaussian import matrix_sqrt
-from ..core.model import Model
-from ..transforms.base import Transform
+from ...codegen.symbolic import tril_inverse, wrap_entries
+from ...compile.compiled import compiled, compiled_with_params
+from ...core.gaussian import matrix_sqrt
+from ...core.model import Model
+from ...transforms.base import Transform
 
 __all__ = ["sqrt_predict_graph", "sqrt_update_graph", "sqrt_nees_graph", "noise_factor", "factor_of",
            "covariance_of"]
@@ -124,7 +124,7 @@ def sqrt_update_graph(h: Model, transform: Transform, angle_states: frozenset[in
                       mask=None, p=None, iterations: int = 1):
     """The measurement update in square-root form: (x⁺, S⁺, ν, S_y, log N(ν; 0, S), NIS), with
     S = S_y S_yᵀ the innovation covariance (module notes; the mask and the iterations as
-    :func:`symmon.filters.step.update_graph`)."""
+    :func:`symmon.filters.gaussian.step.update_graph`)."""
     n_y = h.n_y
     y_angles = frozenset(h.angle_outputs)
 
@@ -164,7 +164,7 @@ def sqrt_update_graph(h: Model, transform: Transform, angle_states: frozenset[in
 
 
 def sqrt_nees_graph(x, S, truth, angle_states):
-    """(ε, t) of :func:`symmon.filters.step.nees_graph` from the factor S: the correlation
+    """(ε, t) of :func:`symmon.filters.gaussian.step.nees_graph` from the factor S: the correlation
     matrix's factor is diag(r) S (:func:`symmon.codegen.sqrtform.chol_scaled`), so no second
     factorisation."""
     e = wrap_entries(truth - x, angle_states)

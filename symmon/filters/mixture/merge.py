@@ -97,9 +97,9 @@ import threading
 
 import numpy as np
 
-from ..compile import NativeLibrary
-from ..core.mixture import mixture_moments
-from ..errors import ArgumentError, SymmonError
+from ...compile import NativeLibrary
+from ...core.mixture import mixture_moments
+from ...errors import ArgumentError, SymmonError
 
 __all__ = ["MERGE_RULES", "merge_components", "merge_numpy", "merge_runs", "pair_costs", "merge_kernel"]
 
@@ -112,7 +112,7 @@ _C = r"""
 #include <string.h>
 #include <limits.h>
 
-/* symmon: greedy Gaussian-mixture reduction (symmon.filters.mixture_merge). */
+/* symmon: greedy Gaussian-mixture reduction (symmon.filters.mixture.merge). */
 
 static double sm_logdet(const double *A, long long n, double *L) {
   /* log det of the symmetric positive definite A (row-major, its lower triangle read) by L D Lᵀ (no square roots):

@@ -2,7 +2,7 @@
 
 The posterior is a mixture p(x_k | y_1:k) ≈ Σ_i w_i N(x; m_i, P_i) (Sorenson & Alspach 1971;
 Alspach & Sorenson 1972).  Each component runs the compiled step of one Gaussian filter (the
-EKF, UKF, CKF, ... of :class:`~symmon.NonlinearKalmanFilter`, :mod:`symmon.filters.step`), and
+EKF, UKF, CKF, ... of :class:`~symmon.NonlinearKalmanFilter`, :mod:`symmon.filters.gaussian.step`), and
 its weight is multiplied by the likelihood of its innovation, w_i ← w_i N(ν_i; 0, S_i), then
 renormalised; the log-likelihood of a step is log Σ_i w_i N(ν_i; 0, S_i) with the weights
 before the update.
@@ -62,14 +62,14 @@ merged into its moment-matched Gaussian (which keeps the mixture's mean and cova
 Runnalls' (2007) upper bound on the Kullback–Leibler discrimination,
 B = ½[(w_i + w_j) log det P_ij − w_i log det P_i − w_j log det P_j], or Salmond's (1990)
 distance w_i w_j/(w_i + w_j) (m_i − m_j)ᵀ P⁻¹ (m_i − m_j) with P the mixture's covariance
-(:mod:`symmon.filters.mixture_merge`: the pair costs once, then only those of the merged
+(:mod:`symmon.filters.mixture.merge`: the pair costs once, then only those of the merged
 component, in one C call for all runs of a bank).
 
 **Without splitting** the number of components never grows: the components are independent
 Kalman filters and run as one bank through the compiled loop of
 :class:`~symmon.NonlinearKalmanFilter` (all steps of all components of all runs in one C
 call), their weights following from the per-step log-likelihoods.  **With splitting** all
-steps of all runs are one C call too (:mod:`symmon.filters.gsf_kernel`: the compiled stages
+steps of all runs are one C call too (:mod:`symmon.filters.mixture._kernel`: the compiled stages
 below, the MoN's weight, the split decision, the directions by Jacobi eigen-decompositions,
 the splits, pruning and the merge, a thread per share of the runs).  Without a compiler, or
 while that C is built in the background, the steps run in Python (:meth:`GaussianSumFilter._stepwise`),
@@ -106,23 +106,23 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..compile import batched, compiled, compiled_with_params, has_compiler
-from ..core.angles import wrap_angle
-from ..core.gaussian import Gaussian
-from ..core.checks import check_gaussian
-from ..core.mixture import SPLITS, GaussianMixture, split_weights
-from ..core.model import Model
-from ..errors import ArgumentError, ArgumentTypeError, ShapeError, SymmonError
-from ..transforms import TT2, UT, Transform
-from ..transforms.registry import resolve
-from ..transforms.executor import Executor
-from .distributed import filter_bank
-from .gsf_kernel import SplitKernel, bank_weights, result_arrays
-from .nonlinear import NonlinearKalmanFilter
-from .mixture_merge import MERGE_RULES, merge_components, merge_runs
-from .inputs import check_bank_size, measurement_bank, param_values
-from .results import KalmanResult
-from .step import (_filterable, filter_params, predict_graph, select_params, step_kind, sym,
+from ...compile import batched, compiled, compiled_with_params, has_compiler
+from ...core.angles import wrap_angle
+from ...core.gaussian import Gaussian
+from ...core.checks import check_gaussian
+from ...core.mixture import SPLITS, GaussianMixture, split_weights
+from ...core.model import Model
+from ...errors import ArgumentError, ArgumentTypeError, ShapeError, SymmonError
+from ...transforms import TT2, UT, Transform
+from ...transforms.registry import resolve
+from ...transforms.executor import Executor
+from ..bank import filter_bank
+from ._kernel import SplitKernel, bank_weights, result_arrays
+from ..gaussian.nonlinear import NonlinearKalmanFilter
+from .merge import MERGE_RULES, merge_components, merge_runs
+from ..inputs import check_bank_size, measurement_bank, param_values
+from ..results import KalmanResult
+from ..gaussian.step import (_filterable, filter_params, predict_graph, select_params, step_kind, sym,
                    update_graph)
 
 __all__ = ["GaussianSumFilter", "GaussianSumResult", "SPLITS", "split_component", "split_components",
@@ -225,7 +225,7 @@ def _signed(d: np.ndarray) -> np.ndarray:
     """The directions d (N, n) with their largest entry (the first within :data:`TIE`) positive:
     an eigenvector's sign is LAPACK's choice, and −d orders the children of a split the other
     way round (the merges that follow take the first of tied pairs), so the sign is fixed here
-    as in the compiled recursion (:mod:`symmon.filters.gsf_kernel`)."""
+    as in the compiled recursion (:mod:`symmon.filters.mixture._kernel`)."""
     lead = d[np.arange(len(d)), _first_max(np.abs(d), axis=1)]
     return np.where((lead < 0)[:, None], -d, d)
 
@@ -307,7 +307,7 @@ class _ComponentSteps:
         self._kernel_lock = threading.Lock()
 
     def kernel(self) -> SplitKernel | None:
-        """The compiled recursion of these steps (:mod:`symmon.filters.gsf_kernel`), built on
+        """The compiled recursion of these steps (:mod:`symmon.filters.mixture._kernel`), built on
         first use under the compile policy; None when compiled C is not wanted or there is no compiler."""
         if not has_compiler():
             return None
@@ -526,7 +526,7 @@ class GaussianSumFilter:
             every step); default all.  The per-step log-likelihood is always kept.
         executor : Executor, optional
             Filter the runs of a bank in shards on threads, a local Dask scheduler or a
-            Dask cluster (:func:`symmon.filters.distributed.filter_bank`, docs/scale-out.md):
+            Dask cluster (:func:`symmon.filters.bank.filter_bank`, docs/scale-out.md):
             the same result bit for bit.
 
         Returns
@@ -656,7 +656,7 @@ class GaussianSumFilter:
 
     def _recursion(self, Y, w0, m0, P0, pv, kept, wait: bool = False) -> dict[str, np.ndarray] | None:
         """With splitting: all steps of all runs in one compiled call
-        (:mod:`symmon.filters.gsf_kernel`), the same results as :meth:`_stepwise` to rounding;
+        (:mod:`symmon.filters.mixture._kernel`), the same results as :meth:`_stepwise` to rounding;
         None when that C is not available (``wait``: wait for a background build)."""
         steps = _component_steps(self.f, self.h, self.transform, self.kf.angle_states)
         kernel = steps.kernel()

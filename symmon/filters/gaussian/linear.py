@@ -27,13 +27,13 @@ from typing import Iterable
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..core.arrays import readonly
-from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, NonFiniteError, ShapeError, SingularMatrixError
-from ..core.gaussian import Gaussian, as_covariance, float_array, matrix_sqrt
-from ..transforms.executor import Executor
-from .distributed import filter_bank
-from .inputs import check_bank_size, check_keep, real_measurements, refuse_inf
-from .results import KalmanResult  # the one result type of the filters
+from ...core.arrays import readonly
+from ...errors import ArgumentError, ArgumentTypeError, CovarianceError, NonFiniteError, ShapeError, SingularMatrixError
+from ...core.gaussian import Gaussian, as_covariance, float_array, matrix_sqrt
+from ...transforms.executor import Executor
+from ..bank import filter_bank
+from ..inputs import check_bank_size, check_keep, real_measurements, refuse_inf
+from ..results import KalmanResult  # the one result type of the filters
 
 __all__ = ["KalmanFilter", "KalmanResult"]
 
@@ -207,7 +207,7 @@ class KalmanFilter:
             The arrays to return (as :meth:`symmon.NonlinearKalmanFilter.filter`; default all).
         executor : Executor, optional
             Filter the runs of a bank in shards on threads, a local Dask scheduler or a
-            Dask cluster (:func:`symmon.filters.distributed.filter_bank`, docs/scale-out.md):
+            Dask cluster (:func:`symmon.filters.bank.filter_bank`, docs/scale-out.md):
             the same result bit for bit.
 
         Returns

@@ -1,6 +1,6 @@
 """The EKF and EKF2 step of larger filters in hand-written C around CasADi's model pieces.
 
-For the Taylor-1 rule (TT1) with additive noise, the step of :mod:`symmon.filters.step` is
+For the Taylor-1 rule (TT1) with additive noise, the step of :mod:`symmon.filters.gaussian.step` is
 
     x⁻ = f(x),  P⁻ = F P Fᵀ + Q,  ŷ = h(x⁻),  S = H P⁻ Hᵀ + R,  P^{xy} = P⁻ Hᵀ,
     L Lᵀ = S,  Wᵀ = P^{xy} L⁻ᵀ,  x⁺ = x⁻ + Wᵀ L⁻¹ ν,  P⁺ = P⁻ − Wᵀ W
@@ -17,7 +17,7 @@ linear algebra is a C function written here:
   (column-major, as CasADi), which the compiler vectorises;
 - S is factored by a Cholesky factor (n_y³/6), Wᵀ = P^{xy} L⁻ᵀ and L⁻¹ ν by forward
   substitution (n n_y²/2), and P⁺ = P⁻ − Wᵀ W is computed on its lower triangle only
-  (n² n_y / 2) and mirrored, the rule of :func:`symmon.filters.step.sym`.
+  (n² n_y / 2) and mirrored, the rule of :func:`symmon.filters.gaussian.step.sym`.
 
 For the Taylor-2 rule (TT2, the second-order EKF) the moments gain the second-order terms
 (the TT2 of Gustafsson & Hendeby 2012; :mod:`symmon.transforms.taylor`)
@@ -38,7 +38,7 @@ products with P.
 The results are those of the MX step to rounding: the same formulas, the same zero-pivot
 rule (a zero pivot of S gives a zero column of L and a zero row and column of L⁻¹; a
 negative one a NaN log-likelihood), the same masking of missing components
-(:func:`symmon.filters.step.update_graph`).
+(:func:`symmon.filters.gaussian.step.update_graph`).
 
 References
 ----------
@@ -51,9 +51,9 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ..codegen.symbolic import wrap_entries
-from ..compile.compiled import compiled, compiled_with_params
-from ..core.model import Model
+from ...codegen.symbolic import wrap_entries
+from ...compile.compiled import compiled, compiled_with_params
+from ...core.model import Model
 
 #: From this many states on, a TT1 step with additive noise runs the C step of this module
 #: (below, the straight-line SX step is as fast and its compile policy is unchanged).
@@ -147,7 +147,7 @@ def _ints(values: list[int]) -> str:
 
 
 # The C step: column-major arrays (CasADi's layout), every dense product an axpy of columns.
-#: Dense kernels that the C EKF step and the C RTS backward step (:mod:`symmon.filters.ekfsmooth`)
+#: Dense kernels that the C EKF step and the C RTS backward step (:mod:`symmon.filters.gaussian._ekfsmooth`)
 #: share, a template in ``{name}`` (column-major, as CasADi).
 DENSE_C = """
 /* a[k] += sum_i c_i[k] (sg l_i) for k < len, the columns c_i = C + i ld_c (i < m) and the
@@ -204,7 +204,7 @@ static int {name}_chol(casadi_real* L, casadi_int m, casadi_real* r) {{
 _STEP = """
 /* symmon: the EKF step {name}_ekf (TT1, or TT2 with {name}_TT2F/H, additive noise) around the
    CasADi pieces {name}_fpart, {name}_hpart, {name}_xwrap ({name}_innov); the linear algebra
-   of symmon.filters.ekfstep.
+   of symmon.filters.gaussian._ekfstep.
    arg: x, P, y, Q, R, mask, p; res: x+, P+, x-, P-, nu, S, loglik, nis (null: not kept; then
    scratch).  s: scratch of {name}_ekf_scratch reals. */
 #include <math.h>
@@ -457,7 +457,7 @@ static int {name}_ekf(const casadi_real** arg, casadi_real** res, casadi_int* iw
 
 def ekf_c(name: str, n: int, n_y: int, pattern: dict, iterations: int = 1) -> tuple[str, int]:
     """The C of ``{name}_ekf`` (after the pieces' generated C) and its scratch size in reals;
-    ``iterations`` > 1: the iterated EKF's update (:func:`symmon.filters.step.update_graph`);
+    ``iterations`` > 1: the iterated EKF's update (:func:`symmon.filters.gaussian.step.update_graph`);
     ``pattern`` with ``tt2_f`` or ``tt2_h`` (:func:`ekf_pieces` of order 2): the TT2 terms of
     f or h in the step."""
     f_nnz, h_nnz = max(len(pattern["f_row"]), 1), max(len(pattern["h_row"]), 1)

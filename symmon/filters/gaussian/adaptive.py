@@ -1,10 +1,10 @@
 """The adaptive nonlinear Kalman filter: at each step of each run, the cheapest adequate transform.
 
-:class:`Adaptive` is a filter strategy (:mod:`symmon.filters.strategy`), passed as the
+:class:`Adaptive` is a filter strategy (:mod:`symmon.filters.gaussian.strategy`), passed as the
 ``transform`` of :class:`symmon.NonlinearKalmanFilter`: at every step, for the time update and then for the
 measurement update, the candidates are taken in the order of their cost and the first whose
 estimated error (the unitless measure of :func:`symmon.measures.advice.moment_error`) is within the
-tolerance is chosen; the step itself is the compiled step (:mod:`symmon.filters.step`) of
+tolerance is chosen; the step itself is the compiled step (:mod:`symmon.filters.gaussian.step`) of
 the more expensive of the two choices.  The errors are estimated against TT2 (for TT1) and
 against a Gauss–Hermite reference (Ito & Xiong 2000), as in :func:`symmon.quadrature_error`.
 
@@ -22,19 +22,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..measures.advice import DEFAULT_TOL, cost, moment_distance, whiteners
-from ..core.angles import wrap_angle
-from ..errors import SymmonError
+from ...measures.advice import DEFAULT_TOL, cost, moment_distance, whiteners
+from ...core.angles import wrap_angle
+from ...errors import SymmonError
 from .step import _compiled_step, _filterable, check_dimensions
-from .inputs import KEEPABLE, FilterSpec
+from ..inputs import KEEPABLE, FilterSpec
 from .strategy import FilterStrategy
-from ..transforms.registry import resolve
-from ..core.model import Model
-from ..compile.compiled import compiled
-from ..transforms.taylor import TT1, TT2
-from ..transforms.unscented import UT
-from ..transforms.quadrature import GaussHermite
-from ..transforms.base import Transform
+from ...transforms.registry import resolve
+from ...core.model import Model
+from ...compile.compiled import compiled
+from ...transforms.taylor import TT1, TT2
+from ...transforms.unscented import UT
+from ...transforms.quadrature import GaussHermite
+from ...transforms.base import Transform
 
 __all__ = ["Adaptive"]
 

@@ -25,12 +25,12 @@ measurement (NaN) skips every mode's update on the missing components (as in
 :meth:`symmon.NonlinearKalmanFilter.filter`); a row of NaN leaves μ = c̄.
 
 Each mode-matched step is the mode's own compiled predict + update step
-(:mod:`symmon.filters.step`).  When every mode runs one compiled rule, the recursion of a
+(:mod:`symmon.filters.gaussian.step`).  When every mode runs one compiled rule, the recursion of a
 whole bank (mixing, the modes' steps, the mode probabilities) is one generated C loop around
 those steps (``_FusedLoop``), and the combination is vectorised over the runs and steps
 afterwards; otherwise (an adaptive mode, a square-root mode, no compiler) each mode's step
 is called per time step on all the runs, NumPy between the calls.  A square-root mode
-(``square_root=True``, :mod:`symmon.filters.sqrtstep`) takes the lower Cholesky factor of
+(``square_root=True``, :mod:`symmon.filters.gaussian._sqrtstep`) takes the lower Cholesky factor of
 its mixed P⁰_j (refused, naming the mode, run and step, when P⁰_j is not positive definite)
 and its step's factor S_j gives P_j = S_j S_jᵀ for the mixing and the combination.
 
@@ -56,21 +56,21 @@ import numpy as np
 import sympy as sp
 from numpy.typing import ArrayLike
 
-from ..core.angles import wrap_angle
-from ..core.arrays import readonly
-from ..core.gaussian import Gaussian, float_array
-from ..core.model import Model
-from ..compile.ccache import NativeLibrary
-from ..compile.compiled import WorkArrays, generated_c, in_threads
-from ..errors import (ArgumentError, ArgumentTypeError, CovarianceError, ModelError, NonFiniteError, ShapeError,
+from ...core.angles import wrap_angle
+from ...core.arrays import readonly
+from ...core.gaussian import Gaussian, float_array
+from ...core.model import Model
+from ...compile.ccache import NativeLibrary
+from ...compile.compiled import WorkArrays, generated_c, in_threads
+from ...errors import (ArgumentError, ArgumentTypeError, CovarianceError, ModelError, NonFiniteError, ShapeError,
                       SymmonError)
-from ..transforms.taylor import TT1
-from .linear import KalmanFilter
-from .nonlinear import NonlinearKalmanFilter
-from .inputs import check_bank_size, check_truth, initial_state, measurement_bank, param_values, refuse_inf
-from .results import KalmanResult, _nees, _quadratic_forms
-from .step import _compiled_step, chunk_runs
-from .strategy import RuleStrategy
+from ...transforms.taylor import TT1
+from ..gaussian.linear import KalmanFilter
+from ..gaussian.nonlinear import NonlinearKalmanFilter
+from ..inputs import check_bank_size, check_truth, initial_state, measurement_bank, param_values, refuse_inf
+from ..results import KalmanResult, _nees, _quadratic_forms
+from ..gaussian.step import _compiled_step, chunk_runs
+from ..gaussian.strategy import RuleStrategy
 
 __all__ = ["IMM", "IMMResult"]
 
@@ -625,7 +625,7 @@ CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step, c
 
 class _FusedLoop:
     """The IMM recursion over the steps and runs of a bank in one compiled C loop, with the
-    modes' compiled steps (:mod:`symmon.filters.step`) inside it: the mixing (circular means
+    modes' compiled steps (:mod:`symmon.filters.gaussian.step`) inside it: the mixing (circular means
     for angle states), each mode's predict + update and the mode probabilities run in C; the
     combination of the modes' outputs is done afterwards, vectorised (:func:`_combine`).
     Built by the compile policy of every generated function (docs/compile.md); while it is

@@ -21,7 +21,7 @@ parameters (``Model(params=...)``) the function whose model uses them takes ``co
 *p`` after the state (``NAME_NP`` values, f's then h's), and a non-finite one returns
 ``NAME_ERR_PARAM``.
 
-The step is the filter's own (:mod:`symmon.filters.step`): the same CasADi graphs of the
+The step is the filter's own (:mod:`symmon.filters.gaussian.step`): the same CasADi graphs of the
 time update and of the measurement update (Lemma 7.1 of Gustafsson & Hendeby), with Q and
 R fixed at export, angle states and angle measurements wrapped as in the filter, and the
 filter's choice of graph: straight-line SX for small filters (below ``MX_FROM`` variables
@@ -38,7 +38,7 @@ A file of these names that symmon's export did not write (it carries :data:`STAM
 replaced.
 
 A square-root filter (``square_root=True``) exports its square-root step
-(:mod:`symmon.filters.sqrtstep`): ``NAME_predict(x, S)`` and ``NAME_update(x, S, y,
+(:mod:`symmon.filters.gaussian._sqrtstep`): ``NAME_predict(x, S)`` and ``NAME_update(x, S, y,
 &loglik)`` (NaN components of y missing, as in the standard export) carry the lower Cholesky factor S of P (P = S Sᵀ, row-major) in place of P, √Q
 and √R are fixed, and definiteness is a positive diagonal of the factors.
 
@@ -57,14 +57,14 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from ..codegen.export import HEADER_CLOSING, c_prefix, generate_sources, work_sizes
-from ..compile.cnames import c_identifier, comment_text
-from ..errors import ArgumentTypeError, OutputPathError, SymmonError
-from ..io import atomic_write_text, check_output_set
-from ..version import __version__
-from .sqrtstep import noise_factor, sqrt_predict_graph, sqrt_update_graph
+from ...codegen.export import HEADER_CLOSING, c_prefix, generate_sources, work_sizes
+from ...compile.cnames import c_identifier, comment_text
+from ...errors import ArgumentTypeError, OutputPathError, SymmonError
+from ...io import atomic_write_text, check_output_set
+from ...version import __version__
+from ._sqrtstep import noise_factor, sqrt_predict_graph, sqrt_update_graph
 from .step import predict_graph, select_params, step_kind, update_graph
-from .inputs import FilterSpec
+from ..inputs import FilterSpec
 from .strategy import RuleStrategy
 
 __all__ = ["export_filter_c", "filter_functions", "ERROR_CODES", "STAMP"]
@@ -106,14 +106,14 @@ def filter_functions(kf: FilterSpec, name: str) -> dict[str, ca.Function]:
     dict
         ``"predict"``: (x, P) ↦ (x⁻, P⁻, P⁻ positive definite); ``"update"``: (x⁻, P⁻, y, mask) ↦
         (x⁺, P⁺, log N(ν; 0, S), S positive definite, P⁺ positive definite), on the components
-        of y whose mask is 1 (the filter step's :func:`~symmon.filters.step.update_graph`).  Q
+        of y whose mask is 1 (the filter step's :func:`~symmon.filters.gaussian.step.update_graph`).  Q
         and R are the filter's, fixed.  "Positive definite" is 1 when every pivot of the matrix's Cholesky
         factor is > 0, else 0.
     """
     transform = _transform(kf)
     f, h = kf.f_model, kf.h_model
     n, n_y = f.n_u, h.n_y
-    # The filter step's own choice (symmon.filters.step.step_kind): straight-line SX for small
+    # The filter step's own choice (symmon.filters.gaussian.step.step_kind): straight-line SX for small
     # filters (the fastest C, and short), MX with loops from MX_FROM variables on.
     kind, chol = step_kind(f, h, transform)
     x, P, y, mask = kind.sym("x", n), kind.sym("P", n, n), kind.sym("y", n_y), kind.sym("mask", n_y)
@@ -147,7 +147,7 @@ def _sqrt_functions(kf: FilterSpec, transform, name: str, x, U, y, mask, p) -> d
     """:func:`filter_functions` of a square-root filter: (x, S) ↦ (x⁻, S⁻, S⁻ nonsingular) and
     (x⁻, S⁻, y, mask) ↦ (x⁺, S⁺, log N(ν; 0, S), S_y nonsingular, S⁺ nonsingular), with S the lower
     Cholesky factor of P stored row-major (so the graph reads its column-major argument U as
-    S = Uᵀ and writes Sᵀ); √Q and √R fixed (:mod:`symmon.filters.sqrtstep`)."""
+    S = Uᵀ and writes Sᵀ); √Q and √R fixed (:mod:`symmon.filters.gaussian._sqrtstep`)."""
     f, h, names = kf.f_model, kf.h_model, kf.params
     Qs, Rs = (ca.DM(noise_factor(np.asarray(C, dtype=float))) for C in (kf.Q, kf.R))
     S = U.T

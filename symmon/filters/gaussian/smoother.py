@@ -1,6 +1,6 @@
 """The Rauch–Tung–Striebel smoother of the nonlinear Kalman filters, compiled to C.
 
-After the forward pass of a filter (:mod:`symmon.filters.step`) gives the filtered
+After the forward pass of a filter (:mod:`symmon.filters.gaussian.step`) gives the filtered
 N(x_k, P_k), k = 1 … K, the backward pass of the Gaussian RTS smoother (Särkkä 2008, the
 unscented RTS smoother; Särkkä 2013, Algorithm 9.3 for any Gaussian filter) reads, from
 x^s_K = x_K, P^s_K = P_K down to k = 1:
@@ -24,8 +24,8 @@ Cholesky factor of the prediction, P⁻ = L Lᵀ, as G = (C L⁻ᵀ) L⁻¹ (the
 inverse of :mod:`symmon.codegen.symbolic`, whose products are loops in C), not from a
 general solve: the same G to rounding, several times faster at n = 30.  Where the time update
 is TT1's closed form with additive noise (the EKF; a UT on affine dynamics without angle
-states), from :data:`~symmon.filters.ekfstep.C_EKF_FROM` states on, the loop calls the C
-backward step of :mod:`symmon.filters.ekfsmooth` instead, around CasADi's pieces of f (the
+states), from :data:`~symmon.filters.gaussian._ekfstep.C_EKF_FROM` states on, the loop calls the C
+backward step of :mod:`symmon.filters.gaussian._ekfsmooth` instead, around CasADi's pieces of f (the
 CasADi function stays for the VM).
 
 References
@@ -44,15 +44,15 @@ import threading
 import casadi as ca
 import numpy as np
 
-from ..codegen.sqrtform import gain_factor, residual_factor
-from ..codegen.symbolic import graph_kind, tril_inverse, wrap_entries
-from ..compile.compiled import generated_c
-from ..core.model import Model
-from ..errors import SymmonError
-from ..transforms.base import Transform
-from ..compile.ckernels import STOP_POLL
-from .ekfsmooth import backward_c, backward_in_c, backward_pieces
-from .sqrtstep import covariance_of, noise_factor, sqrt_predict_graph
+from ...codegen.sqrtform import gain_factor, residual_factor
+from ...codegen.symbolic import graph_kind, tril_inverse, wrap_entries
+from ...compile.compiled import generated_c
+from ...core.model import Model
+from ...errors import SymmonError
+from ...transforms.base import Transform
+from ...compile.ckernels import STOP_POLL
+from ._ekfsmooth import backward_c, backward_in_c, backward_pieces
+from ._sqrtstep import covariance_of, noise_factor, sqrt_predict_graph
 from .step import CompiledLoop, chunk_runs, predict_graph, select_params, sym
 
 __all__ = ["compiled_smoother", "sqrt_backward_graph"]
@@ -92,7 +92,7 @@ def sqrt_backward_graph(f: Model, transform: Transform, angle_states: frozenset[
     """One backward step in square-root form: (x^s_k, S^s_k) from the factors S_k, S^s_{k+1}.
 
     The joint columns (Y, X) of [x_{k+1}; x_k] (the time update's,
-    :func:`symmon.filters.sqrtstep.sqrt_predict_graph`) give the gain as the measurement
+    :func:`symmon.filters.gaussian._sqrtstep.sqrt_predict_graph`) give the gain as the measurement
     update does with f for h and Q for R: S⁻ = tria(Y), G = C S⁻⁻ᵀ S⁻⁻¹ = C (P⁻)⁻¹
     (:func:`symmon.codegen.sqrtform.gain_factor`), and (X − G Y)(X − G Y)ᵀ = P − G P⁻ Gᵀ, so
     P^s = P + G (P^s_{k+1} − P⁻) Gᵀ (Särkkä 2013, eq. (8.6)) is the sum of squares
@@ -156,7 +156,7 @@ class _CompiledSmoother(CompiledLoop):
         self.square_root = square_root
         self.n, self.n_p = f.n_u, len(names)
         # A TT1 time update with additive noise from C_EKF_FROM states on: the C backward step of
-        # symmon.filters.ekfsmooth around CasADi's pieces of f; the MX step fn stays for the VM.
+        # symmon.filters.gaussian._ekfsmooth around CasADi's pieces of f; the MX step fn stays for the VM.
         self.c_backward = backward_in_c(f, transform, angle_states, square_root)
         if self.c_backward:
             xs, ps = ca.SX.sym("x", self.n), ca.SX.sym("p", self.n_p)
@@ -238,7 +238,7 @@ _lock = threading.Lock()
 def compiled_smoother(f: Model, transform: Transform, angle_states: frozenset[int],
                       names: tuple = (), square_root: bool = False) -> _CompiledSmoother:
     """The compiled backward step of (f, transform), built once per process (C cached on disk);
-    ``names`` are the filter's parameters (:func:`symmon.filters.step.filter_params`);
+    ``names`` are the filter's parameters (:func:`symmon.filters.gaussian.step.filter_params`);
     ``square_root``: the square-root smoother (:func:`sqrt_backward_graph`)."""
     key = (f, transform, angle_states, tuple(names), square_root)
     with _lock:

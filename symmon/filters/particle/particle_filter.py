@@ -28,16 +28,16 @@ With ``regularise=True``, after each resampling every particle moves by h_opt ·
 ε ~ N(0, I), L the Cholesky factor of the weighted covariance before the resampling (the
 post-regularised filter of Musso, Oudjane & Le Gland 2001).
 
-The K bootstrap steps of a run are one call of generated C (:mod:`symmon.filters.pf_kernel`:
+The K bootstrap steps of a run are one call of generated C (:mod:`symmon.filters.particle._kernel`:
 the transition and the log-likelihood, the exponentials, sums, mean and ESS, the kept
 moments, the resampling walk with its gather, the regularisation; threads over particle
-chunks), which draws its normals and uniforms itself (:mod:`symmon.filters.pf_rng`).  The
+chunks), which draws its normals and uniforms itself (:mod:`symmon.filters.particle._rng`).  The
 NumPy loop of :meth:`filter` remains for the EKF/UKF proposals, a measurement noise map
 Γ(x) that depends on the state, and while no C is available; it draws from the runs'
 NumPy Generators (so the two paths give different particles for a seed, with the same
 law; fed the same draws, the same particles: tests/filters/test_particle_kernel.py).  The
 EKF/UKF proposal runs the filters' compiled predict + update step
-(:mod:`symmon.filters.step`) over the particles as a bank, and f and h as compiled C over
+(:mod:`symmon.filters.gaussian.step`) over the particles as a bank, and f and h as compiled C over
 all particles of all runs of a step at once
 (:meth:`~symmon.compile.CompiledModel.eval_g`).  A missing measurement (NaN) leaves its
 component out of the likelihood (a row of NaN: the step only predicts).  Every run of a
@@ -75,23 +75,23 @@ import numpy as np
 import sympy as sp
 from numpy.typing import ArrayLike
 
-from ..compile import compiled_with_params
-from ..compile.compiled import in_threads, row_spans
-from ..core.angles import wrap_angle
-from ..core.gaussian import Gaussian
-from ..core.mixture import Empirical, GaussianMixture
-from ..core.model import Model
-from ..errors import ArgumentError, DegeneracyWarning, ModelError, NonFiniteError, ShapeError, SymmonError
-from ..transforms import TT1, UT
-from ..transforms.executor import Executor
-from .distributed import filter_bank, run_streams
-from .nonlinear import NonlinearKalmanFilter
-from .inputs import check_bank_size, check_keep, check_truth, kept_numbers, measurement_bank, param_values, refuse_inf
-from .results import KalmanResult, _nees
-from .simulation import check_count, check_prior
-from .pf_kernel import MIN_THREAD_NUMBERS, BootstrapKernel, bootstrap_kernel, whitening
-from .pf_rng import CHUNK, lane_states, stream_states
-from .statespace import StateSpace, rows_times
+from ...compile import compiled_with_params
+from ...compile.compiled import in_threads, row_spans
+from ...core.angles import wrap_angle
+from ...core.gaussian import Gaussian
+from ...core.mixture import Empirical, GaussianMixture
+from ...core.model import Model
+from ...errors import ArgumentError, DegeneracyWarning, ModelError, NonFiniteError, ShapeError, SymmonError
+from ...transforms import TT1, UT
+from ...transforms.executor import Executor
+from ..bank import filter_bank, run_streams
+from ..gaussian.nonlinear import NonlinearKalmanFilter
+from ..inputs import check_bank_size, check_keep, check_truth, kept_numbers, measurement_bank, param_values, refuse_inf
+from ..results import KalmanResult, _nees
+from ..simulation import check_count, check_prior
+from ._kernel import MIN_THREAD_NUMBERS, BootstrapKernel, bootstrap_kernel, whitening
+from ._rng import CHUNK, lane_states, stream_states
+from ..statespace import StateSpace, rows_times
 
 __all__ = ["ParticleFilter", "ParticleResult", "resample", "PROPOSALS", "RESAMPLERS", "DEGENERATE_ESS"]
 
@@ -223,7 +223,7 @@ class ParticleFilter:
         The seed of every ``filter`` call (``SeedSequence(seed).spawn(runs)``): the same
         call gives the same numbers, whatever the number of threads or shards.  The
         compiled bootstrap recursion draws its normals and resampling uniforms in C
-        (xoshiro256++ streams and a ziggurat, :mod:`symmon.filters.pf_rng`); the NumPy path
+        (xoshiro256++ streams and a ziggurat, :mod:`symmon.filters.particle._rng`); the NumPy path
         (the EKF/UKF proposals, a state-dependent Γ(x), no compiler) draws from NumPy's
         Generator: the two give different particles for a seed, with the same law.
     regularise : bool, default False
@@ -482,11 +482,11 @@ class ParticleFilter:
             The true states: each step's NEES against the weighted mean and covariance.
         executor : Executor, optional
             Filter the runs of a bank in shards on threads, a local Dask scheduler or a
-            Dask cluster (:func:`symmon.filters.distributed.filter_bank`, docs/scale-out.md):
+            Dask cluster (:func:`symmon.filters.bank.filter_bank`, docs/scale-out.md):
             the same result bit for bit.
         first_run : int, default 0
             The index of the first run of ``ys`` in a larger bank: run r draws from the
-            stream of run ``first_run + r`` (:func:`~symmon.filters.distributed.run_streams`),
+            stream of run ``first_run + r`` (:func:`~symmon.filters.bank.run_streams`),
             so a bank filtered in pieces gives the numbers of the whole bank.
 
         Returns
@@ -639,7 +639,7 @@ class ParticleFilter:
     def _stream_states(self, runs: int, first: int, chunks: int) -> np.ndarray:
         """A fresh copy of the xoshiro states of runs ``first`` … of this filter's seed, per run
         the words of its chunks' streams, the resampling stream and the chunks' lanes
-        (:mod:`~symmon.filters.pf_rng`; the C advances them in place).  Hashing the seeds
+        (:mod:`~symmon.filters.particle._rng`; the C advances them in place).  Hashing the seeds
         takes a tenth of a millisecond a call: kept."""
         key = (runs, first, chunks)
         st = self._stream_cache.get(key)
@@ -657,7 +657,7 @@ class ParticleFilter:
 
     @cached_property
     def _bootstrap_kernel(self) -> BootstrapKernel | None:
-        """The compiled bootstrap step (:mod:`symmon.filters.pf_kernel`), or None where it does
+        """The compiled bootstrap step (:mod:`symmon.filters.particle._kernel`), or None where it does
         not apply: another proposal, or a Γ(x) that depends on the state."""
         h = self.h_model
         if self.proposal != "bootstrap" or (h.n_v and self._noise_map is None):
@@ -675,7 +675,7 @@ class ParticleFilter:
                       prior=None):
         """The K bootstrap steps of each run in one compiled call (pf_kernel's module notes),
         the runs of a bank on threads; the normals and resampling uniforms drawn in C from the
-        runs' xoshiro streams (:mod:`symmon.filters.pf_rng`), or replayed (``_replay``); with
+        runs' xoshiro streams (:mod:`symmon.filters.particle._rng`), or replayed (``_replay``); with
         a Gaussian ``prior``, X is drawn from it in C too (the first normals of the streams)."""
         run = loops[0]
         ss, N = self.space, self.particles

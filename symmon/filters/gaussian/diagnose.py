@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import sympy as sp
 
-from ..core.model import Model
+from ...core.model import Model
 
 __all__ = ["locate_nonfinite", "MAX_NODES"]
 

@@ -26,13 +26,13 @@ or h declared as angles) get the same treatment in the time update, and x⁺ is 
 This module holds the filter, :class:`NonlinearKalmanFilter`; the parts are in their own
 modules, and their public names are re-exported here:
 
-- :mod:`symmon.filters.step`: one predict + update step as a CasADi function, compiled to C
+- :mod:`symmon.filters.gaussian.step`: one predict + update step as a CasADi function, compiled to C
   once (cached on disk), with a C loop that runs all the steps of all the runs of a filter
   bank in one call;
 - :mod:`symmon.filters.results`: :class:`KalmanResult` (the one result type of the linear
   and nonlinear filters, also named NonlinearKalmanResult), NEES and NIS, and
   :class:`ConsistencyTest` (their χ² acceptance intervals);
-- :mod:`symmon.filters.adaptive`: :class:`Adaptive`, the filter that picks the cheapest adequate
+- :mod:`symmon.filters.gaussian.adaptive`: :class:`Adaptive`, the filter that picks the cheapest adequate
   transform at each step of each run.
 
 References
@@ -66,24 +66,24 @@ import numpy as np
 import sympy as sp
 from numpy.typing import ArrayLike
 
-from ..errors import AngleWarning, ArgumentTypeError, SymmonError
-from ..core.arrays import all_finite, readonly
-from ..core.checks import noise_cov
+from ...errors import AngleWarning, ArgumentTypeError, SymmonError
+from ...core.arrays import all_finite, readonly
+from ...core.checks import noise_cov
 from .diagnose import locate_nonfinite
-from .distributed import filter_bank
+from ..bank import filter_bank
 from .export import export_filter_c
 from .fit import FitResult, fit_parameters
-from .inputs import check_keep, check_state_models, filter_inputs
-from .results import ConsistencyTest, KalmanResult, NonlinearKalmanResult, SmootherResult, step_nees, _nees
+from ..inputs import check_keep, check_state_models, filter_inputs
+from ..results import ConsistencyTest, KalmanResult, NonlinearKalmanResult, SmootherResult, step_nees, _nees
 from .smoother import compiled_smoother
 from .step import filter_params, first_nonfinite
 from .strategy import FilterStrategy, RuleStrategy
-from ..core.gaussian import Gaussian, as_covariance
-from ..core.model import Model
-from ..transforms.unscented import UT
-from ..transforms.base import Transform
-from ..transforms.executor import Executor
-from ..transforms.registry import resolve
+from ...core.gaussian import Gaussian, as_covariance
+from ...core.model import Model
+from ...transforms.unscented import UT
+from ...transforms.base import Transform
+from ...transforms.executor import Executor
+from ...transforms.registry import resolve
 
 __all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest", "MAX_ITERATIONS"]
 
@@ -141,7 +141,7 @@ class NonlinearKalmanFilter:
     transform : TT1, TT2, UT, GaussHermite, a registered name, or a FilterStrategy, default ``UT.ut1()``
         A name is resolved as in :func:`symmon.propagate` (``"tt1"``, ``"ut1"``, ``"gh5"``).
         A transform is used for both updates of every step (the strategy
-        :class:`~symmon.filters.strategy.RuleStrategy`); :class:`Adaptive` picks one per
+        :class:`~symmon.filters.gaussian.strategy.RuleStrategy`); :class:`Adaptive` picks one per
         step and run.
     iterations : int, default 1
         With ``TT1()``, the number of linearisations of the measurement update: 1 is the EKF,
@@ -149,14 +149,14 @@ class NonlinearKalmanFilter:
         Cathey 1993; docs/filters.md, "Iterated EKF"), from 1 to :data:`MAX_ITERATIONS`.
     square_root : bool, default False
         Propagate the lower Cholesky factor S of P (P = S Sᵀ) instead of P: the square-root
-        form of the same filter (:mod:`symmon.filters.sqrtstep`), whose covariances stay
+        form of the same filter (:mod:`symmon.filters.gaussian._sqrtstep`), whose covariances stay
         positive semidefinite where P⁻ − K S Kᵀ loses definiteness to rounding.  Its results
         also hold the factors (:attr:`KalmanResult.P_chol`).
 
     Attributes
     ----------
     strategy : FilterStrategy
-        How the steps run (:mod:`symmon.filters.strategy`).
+        How the steps run (:mod:`symmon.filters.gaussian.strategy`).
 
     Examples
     --------
@@ -230,11 +230,11 @@ class NonlinearKalmanFilter:
                keep: Iterable[str] | None = None, params: dict | None = None) -> SmootherResult:
         """The RTS smoother of this filter: a forward pass, then the backward pass in C.
 
-        The smoother of the filter's family (:mod:`symmon.filters.smoother`): TT1 gives the
+        The smoother of the filter's family (:mod:`symmon.filters.gaussian.smoother`): TT1 gives the
         extended RTS smoother, TT2 the second-order one, a UT the unscented RTS smoother
         (Särkkä 2008), Gauss–Hermite the Gauss–Hermite smoother; angle states are wrapped.
         A square-root filter has the square-root smoother
-        (:func:`symmon.filters.smoother.sqrt_backward_graph`), whose result also holds the
+        (:func:`symmon.filters.gaussian.smoother.sqrt_backward_graph`), whose result also holds the
         smoothed factors (``P_chol``).
 
         Parameters
@@ -296,7 +296,7 @@ class NonlinearKalmanFilter:
 
     def fit(self, ys: ArrayLike, x0: Gaussian | ArrayLike, start: dict, P0: ArrayLike | None = None, *,
             params: dict | None = None, bounds: dict | None = None, max_iter: int = 200) -> FitResult:
-        """Maximum-likelihood estimates of model parameters (:mod:`symmon.filters.fit`).
+        """Maximum-likelihood estimates of model parameters (:mod:`symmon.filters.gaussian.fit`).
 
         Maximises the marginal log-likelihood of ``ys`` (summed over the runs of a bank) over
         the parameters named in ``start``, with its exact gradient: CasADi differentiates
@@ -344,7 +344,7 @@ class NonlinearKalmanFilter:
         as :meth:`filter` skips it; the parameter values of each step before its
         measurement), and ``NAME_README.md`` states the interface, the sizes and the model's
         hash; a file of these names that the export did not write is not replaced.  See
-        :func:`symmon.filters.export.export_filter_c` for the parameters and errors.
+        :func:`symmon.filters.gaussian.export.export_filter_c` for the parameters and errors.
 
         Returns
         -------
@@ -354,7 +354,7 @@ class NonlinearKalmanFilter:
         return export_filter_c(self, directory, name)
 
     def _nan_cause(self, checked, r: int, k: int) -> str:
-        """Where step ``k`` of run ``r`` turned NaN (:mod:`symmon.filters.diagnose`): f at the last
+        """Where step ``k`` of run ``r`` turned NaN (:mod:`symmon.filters.gaussian.diagnose`): f at the last
         finite estimate, else h at the prediction; "" when neither shows it."""
         x0 = checked.x0 if checked.x0.ndim == 1 else checked.x0[r]
         P0 = checked.P0 if checked.P0.ndim == 2 else checked.P0[r]
@@ -410,7 +410,7 @@ class NonlinearKalmanFilter:
             NEES test (``keep=("nis",)`` with ``x_true`` stores two numbers per step).
         executor : Executor, optional
             Filter the runs of a bank in shards on threads, a local Dask scheduler or a
-            Dask cluster (:func:`symmon.filters.distributed.filter_bank`, docs/scale-out.md):
+            Dask cluster (:func:`symmon.filters.bank.filter_bank`, docs/scale-out.md):
             the same result bit for bit.
 
         Returns

@@ -4,7 +4,7 @@ The marginal log-likelihood of the measurements, ℓ(θ) = Σ_runs Σ_k log N(ν
 what the filter step computes (the prediction-error decomposition).  :func:`fit` evaluates ℓ
 and its exact gradient and Hessian in the named parameters θ by a C loop over the steps and
 runs of a bank (:class:`_CompiledLoglik`) around the filter's own step function (the same
-graph as :mod:`symmon.filters.step`) and CasADi's derivatives of it (algorithmic
+graph as :mod:`symmon.filters.gaussian.step`) and CasADi's derivatives of it (algorithmic
 differentiation through every step; no finite differences).
 
 Which mode: the fitted parameters are few and the step's state [x; vec(P)] is large (930
@@ -56,14 +56,14 @@ import casadi as ca
 import numpy as np
 from scipy import optimize
 
-from ..compile.ccache import NativeLibrary
-from ..compile.ckernels import faster_sparse_products
-from ..compile.compiled import WorkArrays, cpu_count, even_spans, generated_c, in_threads
-from ..core.gaussian import float_array
-from ..errors import IdentifiabilityWarning, ModelError, SymmonError
-from ..transforms.executor import one_blas_thread
-from .inputs import FilterSpec, filter_inputs
-from .results import KalmanResult
+from ...compile.ccache import NativeLibrary
+from ...compile.ckernels import faster_sparse_products
+from ...compile.compiled import WorkArrays, cpu_count, even_spans, generated_c, in_threads
+from ...core.gaussian import float_array
+from ...errors import IdentifiabilityWarning, ModelError, SymmonError
+from ...transforms.executor import one_blas_thread
+from ..inputs import FilterSpec, filter_inputs
+from ..results import KalmanResult
 from .step import _compiled_step
 
 __all__ = ["FitResult", "fit_parameters", "MAX_ITER"]

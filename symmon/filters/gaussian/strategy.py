@@ -1,9 +1,9 @@
 """How a nonlinear Kalman filter runs its steps: a strategy.
 
-:class:`NonlinearKalmanFilter <symmon.filters.nonlinear.NonlinearKalmanFilter>` hands a bank
+:class:`NonlinearKalmanFilter <symmon.filters.gaussian.nonlinear.NonlinearKalmanFilter>` hands a bank
 of measurements to its strategy.  A transform given to the filter becomes a
-:class:`RuleStrategy`: the one compiled step (:mod:`symmon.filters.step`) of that rule for
-every step of every run.  :class:`~symmon.filters.adaptive.Adaptive` is the other built-in
+:class:`RuleStrategy`: the one compiled step (:mod:`symmon.filters.gaussian.step`) of that rule for
+every step of every run.  :class:`~symmon.filters.gaussian.adaptive.Adaptive` is the other built-in
 strategy: it chooses a rule per step and per run.
 """
 
@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..codegen.sqrtform import check_sqrt_rule
-from ..errors import ArgumentTypeError, SymmonError
-from ..transforms.base import Transform
-from .inputs import KEEPABLE, FilterSpec
+from ...codegen.sqrtform import check_sqrt_rule
+from ...errors import ArgumentTypeError, SymmonError
+from ...transforms.base import Transform
+from ..inputs import KEEPABLE, FilterSpec
 from .step import _compiled_step, _filterable, check_dimensions
 
 __all__ = ["FilterStrategy", "RuleStrategy"]

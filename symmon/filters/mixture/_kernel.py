@@ -1,14 +1,14 @@
 """The Gaussian-sum filter's recursion with splitting, the K steps of a run in one C call.
 
 :meth:`GaussianSumFilter.filter <symmon.GaussianSumFilter.filter>` with ``split`` set runs,
-per step and run, the stages of :mod:`symmon.filters.gaussian_sum` (its module notes give the
+per step and run, the stages of :mod:`symmon.filters.mixture.gaussian_sum` (its module notes give the
 formulas): the MoN of f at every component (TT2, W^full; Straka & Havlík 2024, eqs. (25),
 (29), (43)), the split of those above ``split`` along their most curved direction, the
 prediction, the MoN of h at the predicted components and their split, the update, the
 log-likelihood, pruning and the greedy Runnalls or Salmond merge.  ``sm_gsfk_run`` does all
 of that for all K steps of a range of runs without returning to Python: the four compiled
 graphs of the stepwise filter (prediction, update, the MoN of f and of h with the Hessians,
-CasADi's generated C), the merge kernel of :mod:`symmon.filters.mixture_merge`, and in C
+CasADi's generated C), the merge kernel of :mod:`symmon.filters.mixture.merge`, and in C
 here the MoN's weight (the inverse of the correlation matrix of Σ_yy, a pseudo-inverse
 through its eigen-decomposition, as ``numpy.linalg.pinv(..., hermitian=True)``), the split
 decision, the direction and the split.
@@ -17,7 +17,7 @@ The eigen-decompositions (of P, of the weight and of the whitened curvatures G_k
 dozen) are cyclic Jacobi rotations (Golub & Van Loan 2013, §8.5), eigenvalues ascending as
 LAPACK's; the direction d = S a does not depend on the choice of the square root S of P
 or the signs of the eigenvectors except for its own sign, which both paths fix the same way
-(:func:`~symmon.filters.gaussian_sum.split_directions`: the entry of largest magnitude,
+(:func:`~symmon.filters.mixture.gaussian_sum.split_directions`: the entry of largest magnitude,
 the first within TIE, positive).  The results equal the stepwise NumPy path's to rounding.
 The C is built for the state's dimension (``SMG_N``, and the merge kernel's n): its small
 loops unroll, with the same operations in the same order (no FMA contraction in symmon's
@@ -37,14 +37,14 @@ import threading
 import casadi as ca
 import numpy as np
 
-from ..compile import NativeLibrary
-from ..compile.compiled import WorkArrays, generated_c, in_threads, row_spans
-from .mixture_merge import _C as MERGE_C
+from ...compile import NativeLibrary
+from ...compile.compiled import WorkArrays, generated_c, in_threads, row_spans
+from .merge import _C as MERGE_C
 
 __all__ = ["SplitKernel", "bank_weights", "result_arrays"]
 
 _BODY = r"""
-/* symmon: the Gaussian-sum filter's recursion with splitting (symmon.filters.gsf_kernel). */
+/* symmon: the Gaussian-sum filter's recursion with splitting (symmon.filters.mixture._kernel). */
 #include <string.h>
 #define SMG_TIE 1e-9
 #define SMG_PI 3.141592653589793115997963468544
@@ -131,7 +131,7 @@ typedef struct {
 } smg_ctx;
 
 /* The direction d (n) to split N(., P) along for Hessians H (ny, n, n) and weight W (ny, ny):
-   split_directions of one component (symmon.filters.gaussian_sum). */
+   split_directions of one component (symmon.filters.mixture.gaussian_sum). */
 static void smg_direction(smg_ctx* c, int ny, const double* P, const double* H, const double* W, double* d) {
   const int n = SMG_N;  /* c->n as a constant: the small loops unrolled, the same operations */
   const int nm = n > ny ? n : ny;

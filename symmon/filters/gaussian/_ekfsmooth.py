@@ -2,14 +2,14 @@
 
 Where the time update is TT1's closed form with additive noise — the EKF, and any rule exact
 to degree 2 on an affine f without angle states (:func:`symmon.codegen.symbolic.effective_order`:
-the UKF on linear dynamics) — the backward step of :mod:`symmon.filters.smoother` reads
+the UKF on linear dynamics) — the backward step of :mod:`symmon.filters.gaussian.smoother` reads
 (Särkkä 2013, Algorithm 9.3 with the TT1 moments; F the Jacobian of f at x_k)
 
     x⁻ = f(x_k),  C = P_k Fᵀ,  P⁻ = F P_k Fᵀ + Q,  L Lᵀ = P⁻,  G = C L⁻ᵀ L⁻¹,
     x^s_k = x_k + G (x^s_{k+1} − x⁻),  P^s_k = P_k + G (P^s_{k+1} − P⁻) Gᵀ,
 
 with the angle states of the difference and of x^s_k wrapped.  As in the EKF's C step
-(:mod:`symmon.filters.ekfstep`), CasADi generates the elementwise pieces (f with the angle
+(:mod:`symmon.filters.gaussian._ekfstep`), CasADi generates the elementwise pieces (f with the angle
 states wrapped and the nonzeros of F; the wrapping of a state vector) and the dense linear
 algebra is C written here, on CasADi's column-major layout:
 
@@ -18,7 +18,7 @@ algebra is C written here, on CasADi's column-major layout:
 - P⁻ is factored right-looking (n³/6), and G by two triangular solves in place of C
   (W Lᵀ = C forward, G L = W backward, n³/2 each), with no inverse of L formed;
 - G (P^s_{k+1} − P⁻) is n³ and its product with Gᵀ is computed on the lower triangle only
-  (n³/2), then mirrored (the rule of :func:`symmon.filters.step.sym`);
+  (n³/2), then mirrored (the rule of :func:`symmon.filters.gaussian.step.sym`);
 - every dense loop is a contiguous column update, four columns a pass.
 
 About 2.7 n³ multiply-adds a step, against the ~6 n³ of the MX graph's products with the
@@ -35,11 +35,11 @@ from __future__ import annotations
 
 import casadi as ca
 
-from ..codegen.symbolic import effective_order, wrap_entries
-from ..compile.compiled import compiled, compiled_with_params
-from ..core.model import Model
-from ..transforms.base import Transform
-from .ekfstep import C_EKF_FROM, DENSE_C, _ints, _model_part, _pattern
+from ...codegen.symbolic import effective_order, wrap_entries
+from ...compile.compiled import compiled, compiled_with_params
+from ...core.model import Model
+from ...transforms.base import Transform
+from ._ekfstep import C_EKF_FROM, DENSE_C, _ints, _model_part, _pattern
 
 __all__ = ["backward_in_c", "backward_pieces", "backward_c"]
 
@@ -47,7 +47,7 @@ __all__ = ["backward_in_c", "backward_pieces", "backward_c"]
 def backward_in_c(f: Model, transform: Transform, angle_states: frozenset[int], square_root: bool = False) -> bool:
     """Whether the smoother of (f, transform) runs the C backward step of this module: a time
     update that is TT1's closed form (:func:`~symmon.codegen.symbolic.effective_order` 1) with
-    additive noise, in the standard form, from :data:`~symmon.filters.ekfstep.C_EKF_FROM`
+    additive noise, in the standard form, from :data:`~symmon.filters.gaussian._ekfstep.C_EKF_FROM`
     states on (below, the straight-line SX step is as fast)."""
     n = f.n_u
     if square_root or f.n_v or n < C_EKF_FROM:
@@ -75,7 +75,7 @@ def backward_pieces(f: Model, angle_states: frozenset[int], p_f, x, p, name: str
 # The backward step: column-major arrays (CasADi's layout), every dense product an axpy of columns.
 _BACKWARD = """
 /* symmon: the RTS backward step {name}_bwd (TT1 time update, additive noise) around the CasADi
-   pieces {name}_fpart and {name}_xwrap; the linear algebra of symmon.filters.ekfsmooth.
+   pieces {name}_fpart and {name}_xwrap; the linear algebra of symmon.filters.gaussian._ekfsmooth.
    arg: x_k, P_k, xs_{{k+1}}, Ps_{{k+1}}, Q, p_{{k+1}}; res: xs_k, Ps_k.  s: scratch of
    {scratch} reals. */
 #include <math.h>

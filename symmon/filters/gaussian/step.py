@@ -23,10 +23,10 @@ the points and solve are loops in C.  Its C code goes through the compile policy
 generated function (cached on disk, ``docs/compile.md``), and a C loop around it runs all
 the steps of all the runs of a filter bank in one call; without a compiler, or while a large
 step builds in the background, the step runs on CasADi's virtual machine.  From
-:data:`~symmon.filters.ekfstep.C_EKF_FROM` states on, the C loop of a TT1 or TT2 step (EKF, IEKF, EKF2)
-with additive noise calls the hand-written C step of :mod:`symmon.filters.ekfstep` around CasADi's
+:data:`~symmon.filters.gaussian._ekfstep.C_EKF_FROM` states on, the C loop of a TT1 or TT2 step (EKF, IEKF, EKF2)
+with additive noise calls the hand-written C step of :mod:`symmon.filters.gaussian._ekfstep` around CasADi's
 model pieces instead (the MX step remains the VM's).  :class:`symmon.NonlinearKalmanFilter` (:mod:`symmon.filters`)
-and the adaptive filter (:mod:`symmon.filters.adaptive`) run it.
+and the adaptive filter (:mod:`symmon.filters.gaussian.adaptive`) run it.
 
 References
 ----------
@@ -47,15 +47,16 @@ from typing import Any, Iterable
 import casadi as ca
 import numpy as np
 
-from ..compile.ccache import NativeLibrary
-from ..compile.ckernels import STOP_POLL, STOPPED
-from ..compile.compiled import WorkArrays, compiled, compiled_with_params, cpu_count, even_spans, generated_c, in_threads, padded
-from ..errors import SymmonError
-from ..core.model import Model
-from ..codegen.symbolic import graph_kind, moments, tril_inverse, wrap_entries
-from ..transforms.base import Transform
-from .ekfstep import C_EKF_FROM, ekf_c, ekf_pieces
-from .sqrtstep import covariance_of, factor_of, noise_factor, sqrt_nees_graph, sqrt_predict_graph, sqrt_update_graph
+from ...compile.ccache import NativeLibrary
+from ...compile.ckernels import STOP_POLL, STOPPED
+from ...compile.compiled import WorkArrays, compiled, compiled_with_params, cpu_count, even_spans, generated_c, in_threads, padded
+from ...errors import SymmonError
+from ...core.model import Model
+from ...codegen.symbolic import graph_kind, moments, tril_inverse, wrap_entries
+from ...transforms.base import Transform
+from ..inputs import filter_params
+from ._ekfstep import C_EKF_FROM, ekf_c, ekf_pieces
+from ._sqrtstep import covariance_of, factor_of, noise_factor, sqrt_nees_graph, sqrt_predict_graph, sqrt_update_graph
 
 #: Names of the outputs of the step function, in order.
 _OUTPUTS = ("x", "P", "x_pred", "P_pred", "innovation", "S", "loglik", "nis")
@@ -186,14 +187,6 @@ def update_graph(h: Model, transform: Transform, angle_states: frozenset[int], x
     return x_new, P_new, nu, S, loglik, nis
 
 
-def filter_params(f: Model, h: Model) -> tuple:
-    """The parameters of a filter: f's, then h's whose names f does not have.
-
-    One name is one parameter: a ``b`` of h declared as another sympy symbol than f's ``b``
-    (other assumptions, or made apart) is the same parameter, as ``filter(params={"b": …})``
-    sets it, so that a fit varies the one value both models use."""
-    names = {str(s) for s in f.params}
-    return tuple(f.params) + tuple(s for s in h.params if str(s) not in names)
 
 
 def _step_function(f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
@@ -201,7 +194,7 @@ def _step_function(f: Model, h: Model, transform: Transform, angle_states: froze
     """(x, P, y, Q, R, mask, p) ↦ (x⁺, P⁺, x⁻, P⁻, ν, S, log-likelihood, NIS): one predict + update
     step, on the measured components of y (``mask``, :func:`update_graph`), with the values p
     of the parameters (:func:`filter_params`; size 0 without).  With ``square_root``, P, Q, R,
-    P⁺ and P⁻ are lower Cholesky factors (:mod:`symmon.filters.sqrtstep`); S is still the
+    P⁺ and P⁻ are lower Cholesky factors (:mod:`symmon.filters.gaussian._sqrtstep`); S is still the
     innovation covariance."""
     n, n_y = f.n_u, h.n_y
     nq, nr = f.n_v or n, h.n_v or n_y
@@ -416,7 +409,7 @@ class _CompiledStep(CompiledLoop):
         self._shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n),
                         "innovation": (n_y,), "S": (n_y, n_y), "loglik": (), "nis": ()}
         # A larger EKF, IEKF or EKF2 (TT1 or TT2, additive noise) runs the C step of
-        # symmon.filters.ekfstep around CasADi's model pieces; the MX step fn stays for CasADi's
+        # symmon.filters.gaussian._ekfstep around CasADi's model pieces; the MX step fn stays for CasADi's
         # VM (and the fit, the IMM).
         self.c_ekf = (transform.taylor_order in (1, 2) and not square_root and not f.n_v and not h.n_v
                       and n >= C_EKF_FROM)
@@ -458,7 +451,7 @@ class _CompiledStep(CompiledLoop):
         x, P or log-likelihood is not finite, or -1 (the C loop tests every step as it goes,
         and stops a run that failed, so the kept arrays need no second pass).
 
-        A square-root step (:mod:`symmon.filters.sqrtstep`) reads P0, Q and R as covariances
+        A square-root step (:mod:`symmon.filters.gaussian._sqrtstep`) reads P0, Q and R as covariances
         and factors them once (with ``factored``, P0 is already the lower factor S₀ of P0); its
         kept ``P`` and ``P_pred`` are S Sᵀ, with the factors S themselves as ``P_chol`` and
         ``P_pred_chol``."""
@@ -603,7 +596,7 @@ def _compiled_step(f: Model, h: Model, transform: Transform, angle_states: froze
                    iterations: int = 1, square_root: bool = False) -> _CompiledStep:
     """The compiled step of (f, h, transform), built once per process (C cached on disk);
     ``iterations`` > 1: the iterated EKF's update (:func:`update_graph`); ``square_root``:
-    the square-root form (:mod:`symmon.filters.sqrtstep`)."""
+    the square-root form (:mod:`symmon.filters.gaussian._sqrtstep`)."""
     key = (f, h, transform, angle_states, iterations, square_root)
     with _steps_lock:
         step = _steps.get(key)

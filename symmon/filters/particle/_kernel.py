@@ -15,7 +15,7 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
 
 1. move and weigh, by blocks of :data:`BLOCK` particles: the block's normals from the
    :data:`~symmon.compile.rng.LANES` interleaved xoshiro streams (lanes) of its chunk of
-   :data:`~symmon.filters.pf_rng.CHUNK` particles, drawn column by column, LANES particles
+   :data:`~symmon.filters.particle._rng.CHUNK` particles, drawn column by column, LANES particles
    at a time, by the vectorised ziggurat ``symmon_normal_lanes`` of :mod:`symmon.compile.rng`
    (particle i of a block takes lane i mod LANES; each lane's numbers are the scalar
    generator's from its state; until 2026-12-04 one stream per chunk, particle by
@@ -78,12 +78,12 @@ from typing import Sequence
 import casadi as ca
 import numpy as np
 
-from ..compile import NativeLibrary, compiled_with_params
-from ..compile.compiled import WorkArrays, generated_c
-from ..compile.vecmath import VECMATH_C, vector_rows
-from ..core.model import Model
-from ..compile.rng import LANES, RNG_C
-from .pf_rng import CHUNK
+from ...compile import NativeLibrary, compiled_with_params
+from ...compile.compiled import WorkArrays, generated_c
+from ...compile.vecmath import VECMATH_C, vector_rows
+from ...core.model import Model
+from ...compile.rng import LANES, RNG_C
+from ._rng import CHUNK
 
 __all__ = ["BootstrapKernel", "bootstrap_kernel", "BLOCK", "MIN_THREAD_NUMBERS"]
 
