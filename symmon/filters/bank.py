@@ -25,7 +25,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import hashlib
-import inspect
 import os
 import pickle
 import re
@@ -37,20 +36,14 @@ from typing import Any
 import numpy as np
 
 from ..compile.compiled import cpu_count
-from ..core.arrays import readonly
-from ..errors import ArgumentError, ShapeError, SymmonError
+from ..errors import ArgumentError, SymmonError
 from ..transforms.executor import Executor, dask_compute, one_blas_thread
-from .inputs import real_measurements
+from .inputs import FilterCall, check_call
 
 __all__ = ["filter_bank", "run_streams", "shard_bounds", "default_shards", "MAX_SHARDS"]
 
 #: Most shards of one bank (each is one task; more only adds scheduling).
 MAX_SHARDS = 10_000
-#: Result fields that the linear filter shares between the runs (no run axis: (K, ·, ·)).
-_SHARED = ("P", "P_pred", "S", "gain")
-#: Result fields with a component axis (axis 2) as long as the most components of any run of
-#: the bank, zero beyond a run's own (the Gaussian-sum filter's mixtures).
-_COMPONENTS = ("weights", "means", "covs")
 #: Filters rebuilt in this process, by the hash of their constructor arguments.
 _FILTERS: OrderedDict[str, Any] = OrderedDict()
 _FILTERS_LOCK = threading.Lock()
@@ -119,13 +112,11 @@ def _rebuilt(kind: type, init: dict, key: str) -> Any:
     return filt
 
 
-def _run_shard(kind: type, init: dict, key: str, call: dict, first: int, streams: bool,
+def _run_shard(kind: type, init: dict, key: str, call: FilterCall, first: int,
                home: int) -> tuple[Any, list[tuple[type, str]]]:
-    """Filter one shard (runs ``first`` …) with the rebuilt filter; its result and, in
-    another process than the caller's (``home``), the warnings it raised."""
+    """Filter one shard (runs ``first`` … of the bank) with the rebuilt filter; its result
+    and, in another process than the caller's (``home``), the warnings it raised."""
     filt = _rebuilt(kind, init, key)
-    if streams:
-        call = {**call, "first_run": first}
     caught: list = []
     # A worker of another process keeps its warnings in its log: they come back with the
     # result.  In the caller's process they are the caller's already (catch_warnings is
@@ -135,7 +126,7 @@ def _run_shard(kind: type, init: dict, key: str, call: dict, first: int, streams
         if away:
             warnings.simplefilter("always")
         try:
-            res = filt.filter(**call)
+            res = filt._filter(call)
         except SymmonError as exc:
             message = _renumber(str(exc), first)
             if message == str(exc):
@@ -153,77 +144,6 @@ def _run_shard(kind: type, init: dict, key: str, call: dict, first: int, streams
 def _init_args(filt: Any) -> dict:
     """The constructor arguments of a dataclass filter (its ``init`` fields)."""
     return {f.name: getattr(filt, f.name) for f in dataclasses.fields(filt) if f.init}
-
-
-def _per_run(name: str, value: Any, runs: int) -> bool:
-    """Whether the filter argument ``name`` holds one value per run (an array whose leading
-    axis is the bank's): x0 as (R, n) means, P0 as (R, n, n), x_true (R, K, n); a ShapeError
-    when its leading axis is another number of runs."""
-    if not isinstance(value, (np.ndarray, list, tuple)):
-        return False  # a Gaussian, a mixture, None, ...
-    ndim = {"x0": 2, "P0": 3, "x_true": 3}.get(name)
-    if ndim is None or np.ndim(value) != ndim:
-        return False
-    if len(value) != runs:
-        raise ShapeError(f"{name} has {len(value)} runs (its leading axis) but ys has {runs}")
-    return True
-
-
-def _slice_call(call: dict, runs: int) -> tuple[dict, list[str], list[str]]:
-    """The per-run arguments of ``call`` (names, and names of per-run parameters), checked."""
-    per_run = [k for k, v in call.items() if k != "ys" and _per_run(k, v, runs)]
-    per_run_params = []
-    params = call.get("params")
-    if isinstance(params, dict):
-        for k, v in params.items():
-            if isinstance(v, (np.ndarray, list, tuple)) and np.ndim(v) == 2:
-                if len(v) != runs:
-                    raise ShapeError(f"parameter {str(k)!r} has {len(v)} runs (its leading axis) but ys has {runs}")
-                per_run_params.append(k)
-    return call, per_run, per_run_params
-
-
-def _shard_call(call: dict, per_run: list[str], per_run_params: list, a: int, b: int) -> dict:
-    out = {k: (np.asarray(v)[a:b] if k in per_run else v) for k, v in call.items()}
-    out["ys"] = call["ys"][a:b]
-    if per_run_params:
-        out["params"] = {k: (np.asarray(v)[a:b] if k in per_run_params else v) for k, v in call["params"].items()}
-    return out
-
-
-def _merge(results: list[Any], measured_full: int) -> Any:
-    """The shards' results joined along the run axis: one result of the whole bank."""
-    first = results[0]
-    fields = {}
-    for f in dataclasses.fields(first):
-        if not f.init:
-            continue
-        values = [getattr(r, f.name) for r in results]
-        v0 = values[0]
-        if f.name == "measured":
-            if all(v is None for v in values):
-                fields[f.name] = None
-                continue
-            # A shard without a missing measurement has none: every component counted.
-            like = next(v for v in values if v is not None)
-            values = [np.full(r.loglik.shape, measured_full, dtype=like.dtype) if v is None else v
-                      for v, r in zip(values, results)]
-            fields[f.name] = readonly(np.concatenate(values))
-        elif isinstance(v0, np.ndarray):
-            if f.name in _SHARED and v0.ndim == 3:  # the linear filter's, the same for every run
-                v0.flags.writeable = False  # (a worker's result arrives writeable)
-                fields[f.name] = v0
-            else:
-                if f.name in _COMPONENTS:  # the shards' longest: zeros beyond, as in one bank
-                    M = max(v.shape[2] for v in values)
-                    values = [np.pad(v, [(0, 0), (0, 0), (0, M - v.shape[2])] + [(0, 0)] * (v.ndim - 3))
-                              for v in values]
-                joined = np.concatenate(values)
-                joined.flags.writeable = False
-                fields[f.name] = joined
-        else:
-            fields[f.name] = v0  # method, dimensions, angle states, particle count: the filter's
-    return type(first)(**fields)
 
 
 def filter_bank(filt: Any, executor: Executor, ys: Any, shards: int | None = None, **call: Any) -> Any:
@@ -269,36 +189,41 @@ def filter_bank(filt: Any, executor: Executor, ys: Any, shards: int | None = Non
     """
     if not isinstance(executor, Executor):
         raise ArgumentError(f"executor must be a symmon.Executor, got {type(executor).__name__}")
-    Y = real_measurements(ys)
-    runs = Y.shape[0] if Y.ndim == 3 else None
+    if isinstance(ys, FilterCall):
+        if call:
+            raise ArgumentError(f"a checked call takes no other arguments, got {sorted(call)}")
+        checked = ys
+    else:
+        checked = check_call(filt, ys, **call)
+    runs = checked.runs
     if shards is not None and (isinstance(shards, bool) or not isinstance(shards, (int, np.integer))
                                or not 1 <= shards <= min(runs or 1, MAX_SHARDS)):
         raise ArgumentError(f"shards must be an integer from 1 to {min(runs or 1, MAX_SHARDS)} "
                             f"(the runs of the bank, at most {MAX_SHARDS}), got {shards!r}")
-    streams = "first_run" in inspect.signature(filt.filter).parameters
-    call = {"ys": Y, **call}
     if runs is None:
-        bounds, per_run, per_run_params = [(0, 1)], [], []
+        bounds = [(0, 1)]
     else:
-        call, per_run, per_run_params = _slice_call(call, runs)
         bounds = shard_bounds(runs, int(shards) if shards is not None else default_shards(executor, runs))
     kind, init = type(filt), _init_args(filt)
     key = hashlib.sha256(pickle.dumps((kind, init))).hexdigest()
     with _FILTERS_LOCK:  # in this process (threads, an in-process cluster): this very filter
         _FILTERS[key] = filt
         _FILTERS.move_to_end(key)
-    jobs = [(call if runs is None else _shard_call(call, per_run, per_run_params, a, b), a) for a, b in bounds]
+    jobs = [(checked.shard(a, b), a) for a, b in bounds]
     home = os.getpid()
     desc = f"{getattr(filt, 'method', kind.__name__)} shards of runs"
     if executor.distributed:
         import dask
 
-        tasks = [dask.delayed(_run_shard, pure=False)(kind, init, key, c, a, streams, home) for c, a in jobs]
+        tasks = [dask.delayed(_run_shard, pure=False)(kind, init, key, job, a, home) for job, a in jobs]
         outs = dask_compute(tasks, executor.client, executor.scheduler, desc, executor.progress,
                             executor.worker_timeout)
     else:
-        outs = executor.run(lambda job, stop: _run_shard(kind, init, key, job[0], job[1], streams, home), jobs, desc)
+        outs = executor.run(lambda job, stop: _run_shard(kind, init, key, job[0], job[1], home), jobs, desc)
     for _, caught in outs:
         for category, message in caught:
             warnings.warn(message, category, stacklevel=3)
-    return _merge([r for r, _ in outs], Y.shape[-1])
+    results = [r for r, _ in outs]
+    if runs is None:
+        return results[0]
+    return type(results[0]).concat(results, checked.Y.shape[-1])

@@ -12,6 +12,7 @@ imports them).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from decimal import Decimal
 from typing import Any, Iterable, Protocol
@@ -24,7 +25,7 @@ from ..core.gaussian import Gaussian, as_covariance, float_array
 from ..core.model import Model
 from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, ModelError, ResourceError, ShapeError
 
-__all__ = ["FilterSpec", "FilterInputs", "filter_inputs", "KEEPABLE", "check_keep", "real_measurements",
+__all__ = ["FilterSpec", "FilterInputs", "filter_inputs", "FilterCall", "check_call", "KEEPABLE", "check_keep", "real_measurements",
            "check_truth", "check_state_models", "measurement_bank", "refuse_inf", "MAX_BANK_NUMBERS",
            "check_bank_size", "kept_numbers", "initial_state", "param_values"]
 
@@ -100,25 +101,28 @@ def refuse_inf(Y: np.ndarray) -> None:
         raise ShapeError(f"ys contains inf (at index {where}); a missing measurement is NaN")
 
 
-def check_keep(keep: Iterable[str] | None) -> frozenset[str] | None:
-    """``keep`` of a filter call as a set of names of :data:`KEEPABLE` (None: all).
+def check_keep(keep: Iterable[str] | str | None, allowed: Iterable[str] = KEEPABLE) -> frozenset[str] | None:
+    """``keep`` of a filter call as a set of names of ``allowed`` (None: all); a string is
+    one name.
 
     Raises
     ------
     ArgumentError
-        For an unknown name, or a string where a collection of names is wanted.
+        For an unknown name, or a ``keep`` that is not a name or a collection of names.
     """
     if keep is None:
         return None
+    allowed = tuple(allowed)
     if isinstance(keep, str):
-        raise ArgumentError(f"keep must be a collection of names, e.g. ({keep!r},), not the string {keep!r}")
+        keep = (keep,)
     try:
         names = frozenset(keep)
     except TypeError:
-        raise ArgumentError(f"keep must be a collection of names among {list(KEEPABLE)}, got {keep!r}") from None
-    unknown = sorted(names - set(KEEPABLE), key=repr)
+        raise ArgumentError(f"keep must be a name or a collection of names among {list(allowed)}, "
+                            f"got {keep!r}") from None
+    unknown = sorted(names - set(allowed), key=repr)
     if unknown:
-        raise ArgumentError(f"keep names {unknown} are not results of a filter; use some of {list(KEEPABLE)}")
+        raise ArgumentError(f"keep names {unknown} are not results of this filter; use some of {list(allowed)}")
     return names
 
 
@@ -360,3 +364,136 @@ def filter_params(f: Model, h: Model) -> tuple:
     sets it, so that a fit varies the one value both models use."""
     names = {str(s) for s in f.params}
     return tuple(f.params) + tuple(s for s in h.params if str(s) not in names)
+
+
+@dataclass(frozen=True)
+class FilterCall:
+    """The checked inputs of one call of :meth:`Filter.filter`.
+
+    Attributes
+    ----------
+    Y : ndarray, shape (R, K, n_y)
+        The measurements as a bank (R = 1 for a single run); NaN marks a missing one.
+    runs : int or None
+        R for a bank, None for a single run (the results then have no run axis).
+    keep : frozenset of str, or None
+        The arrays to keep (None: all).
+    x0 : object
+        The prior as the filter's :meth:`Filter._check_prior` returned it: a mean (n,) or
+        (R, n) and a covariance (n, n) or (R, n, n) for the Gaussian filters
+        (``x0`` and ``P0``), a distribution for the particle and Gaussian-sum filters.
+    P0 : ndarray or None
+        The covariance(s) of a Gaussian filter's prior (None for the others).
+    params : dict or None
+        The parameter values as given (the shards of a bank slice their per-run values).
+    pv : object
+        The parameter values as the filter's :meth:`Filter._check_params` returned them
+        (for one set of models: (R, K, n_p), or None without parameters).
+    truth : ndarray, shape (R, K, n), or None
+        The true states, when given: each step's NEES is computed against them.
+    first_run : int
+        The index of the first run in a larger bank (a random filter draws run r from the
+        stream of run ``first_run + r``).
+    """
+
+    Y: np.ndarray
+    runs: int | None
+    keep: frozenset[str] | None
+    x0: Any
+    P0: np.ndarray | None
+    params: dict | None
+    pv: Any
+    truth: np.ndarray | None
+    first_run: int = 0
+
+    @property
+    def steps(self) -> int:
+        """K, the number of steps."""
+        return int(self.Y.shape[1])
+
+    @property
+    def measurements(self) -> np.ndarray:
+        """The measurements as given: (K, n_y) for one run, (R, K, n_y) for a bank."""
+        return self.Y if self.runs is not None else self.Y[0]
+
+    def shard(self, a: int, b: int) -> FilterCall:
+        """The runs ``a`` … ``b - 1`` of a bank, as a call of their own (a shard of
+        :func:`~symmon.filters.bank.filter_bank`)."""
+        if self.runs is None:
+            if (a, b) != (0, 1):
+                raise ArgumentError(f"a single run has no runs {a} … {b - 1}")
+            return self
+        if not 0 <= a < b <= self.runs:
+            raise ArgumentError(f"runs {a} … {b - 1} are not runs of a bank of {self.runs}")
+
+        def cut(v: Any, ndim: int) -> Any:
+            return v[a:b] if isinstance(v, np.ndarray) and v.ndim == ndim else v
+
+        params = self.params
+        if isinstance(params, dict):
+            params = {k: (np.asarray(v)[a:b] if np.ndim(v) == 2 else v) for k, v in params.items()}
+        return dataclasses.replace(
+            self, Y=self.Y[a:b], runs=b - a, x0=cut(self.x0, 2) if self.P0 is not None else self.x0,
+            P0=cut(self.P0, 3), params=params, pv=_cut_values(self.pv, a, b),
+            truth=None if self.truth is None else self.truth[a:b], first_run=self.first_run + a)
+
+
+def _cut_values(pv: Any, a: int, b: int) -> Any:
+    """Parameter values (R, K, n_p), or a list of them (one per mode), cut to runs a … b − 1."""
+    if isinstance(pv, np.ndarray):
+        return pv[a:b]
+    if isinstance(pv, (list, tuple)):
+        return type(pv)(_cut_values(v, a, b) for v in pv)
+    return pv
+
+
+def _check_runs(runs: int, **values: tuple[Any, int]) -> None:
+    """Refuse a per-run value (an array of its ``ndim`` whose leading axis is the runs') with
+    another number of runs than the bank's."""
+    for name, (value, ndim) in values.items():
+        if isinstance(value, (np.ndarray, list, tuple)) and np.ndim(value) == ndim and len(value) != runs:
+            raise ShapeError(f"{name} has {len(value)} runs (its leading axis) but ys has {runs}")
+
+
+def check_call(filt: Any, ys: ArrayLike, x0: Any, P0: ArrayLike | None = None, *,
+               keep: Iterable[str] | str | None = None, params: dict | None = None,
+               x_true: ArrayLike | None = None, first_run: int = 0) -> FilterCall:
+    """Every check of a filter call's inputs, in the order a caller meets them.
+
+    Raises
+    ------
+    ShapeError
+        ``ys`` not (K, n_y) or (R, K, n_y), not real, or holding inf; a bad ``x_true``.
+    ArgumentError
+        A bad ``keep`` or ``first_run``; ``P0`` given to a filter whose prior is a distribution.
+    ArgumentTypeError, CovarianceError, ModelError
+        A bad prior or parameters.
+    """
+    n, n_y = filt.sizes
+    kept = check_keep(keep, filt.keepable)
+    if isinstance(first_run, bool) or not isinstance(first_run, (int, np.integer)) or first_run < 0:
+        raise ArgumentError(f"first_run must be a non-negative integer, got {first_run!r}")
+    if first_run and not filt.random:
+        raise ArgumentError(f"first_run is for a filter that draws random numbers; {filt.method} draws none")
+    Y, runs = measurement_bank(ys, n_y)
+    Yb = Y.reshape((runs or 1,) + Y.shape[-2:])
+    if runs is not None:
+        _check_runs(runs, x0=(x0, 2), P0=(P0, 3), x_true=(x_true, 3))
+        if isinstance(params, dict):
+            _check_runs(runs, **{f"parameter {str(k)!r}": (v, 2) for k, v in params.items()})
+    per_step, shared = filt._numbers(kept)
+    check_bank_size(runs or 1, Yb.shape[1], per_step, f"{filt.method} results",
+                    "keep fewer arrays, or filter the runs in smaller banks", shared=shared)
+    refuse_inf(Y)
+    if filt.takes_covariance:
+        m0, C0 = filt._check_prior(x0, P0, runs)
+    else:
+        if P0 is not None:
+            raise ArgumentError(f"{filt.method} takes a distribution as x0 (a Gaussian or a mixture), not P0")
+        m0, C0 = filt._check_prior(x0, None, runs)
+    truth = None
+    if x_true is not None:
+        truth = check_truth(x_true, Y.shape[:-1] + (n,)).reshape(Yb.shape[:2] + (n,))
+    pv = filt._check_params(params, runs, Y.shape[-2])
+    return FilterCall(Y=Yb, runs=runs, keep=kept, x0=m0, P0=C0, params=params, pv=pv, truth=truth,
+                      first_run=int(first_run))

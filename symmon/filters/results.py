@@ -15,8 +15,9 @@ Navigation*, Wiley, 2001, §5.4 (NEES, NIS and their χ² tests).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
-from typing import Sequence, Union
+from typing import ClassVar, Sequence, Union
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -153,7 +154,7 @@ def _where(index: tuple[int, ...], batch_ndim: int) -> str:
 
 
 @np.errstate(over="ignore", invalid="ignore")  # a non-finite form is refused below
-def _quadratic_forms(e: np.ndarray, C: np.ndarray, what: str = "covariance") -> np.ndarray:
+def quadratic_forms(e: np.ndarray, C: np.ndarray, what: str = "covariance") -> np.ndarray:
     """eᵀ C⁻¹ e for batches e (..., d), C (..., d, d), in the same way in any units.
 
     The form is computed on the correlation matrix, (e/σ)ᵀ Ρ⁻¹ (e/σ) with σ = √diag C and
@@ -212,13 +213,13 @@ def _finite_forms(q: np.ndarray) -> np.ndarray:
     return q
 
 
-def _nees(x: np.ndarray, P: np.ndarray, x_true: ArrayLike, angle_states: Sequence[int]) -> np.ndarray:
+def nees_of(x: np.ndarray, P: np.ndarray, x_true: ArrayLike, angle_states: Sequence[int]) -> np.ndarray:
     """(x_true − x)ᵀ P⁻¹ (x_true − x) per step, the angle components of the error wrapped."""
     e = check_truth(x_true, x.shape) - x
     if angle_states:
         idx = list(angle_states)
         e[..., idx] = wrap_angle(e[..., idx])
-    return _quadratic_forms(e, P, "state covariance P")
+    return quadratic_forms(e, P, "state covariance P")
 
 
 def step_nees(values: np.ndarray, trace: np.ndarray) -> np.ndarray:
@@ -327,6 +328,49 @@ class KalmanResult:
     n_x: int | None = None
     P_chol: np.ndarray | None = None
     P_pred_chol: np.ndarray | None = None
+
+    #: Fields that a filter may share between the runs of a bank (no run axis: (K, ·, ·)).
+    shared_fields: ClassVar[tuple[str, ...]] = ("P", "P_pred", "S", "gain")
+    #: Fields with a component axis (axis 2) as long as the most components of any run, zero
+    #: beyond a run's own (a Gaussian-sum filter's mixtures).
+    component_fields: ClassVar[tuple[str, ...]] = ()
+
+    @classmethod
+    def concat(cls, results: Sequence[KalmanResult], n_y: int) -> KalmanResult:
+        """The results of consecutive shards of a bank's runs, joined along the run axis:
+        the result of the whole bank (``n_y`` components count as measured in a shard
+        without a missing measurement)."""
+        first = results[0]
+        fields = {}
+        for f in dataclasses.fields(first):
+            if not f.init:
+                continue
+            values = [getattr(r, f.name) for r in results]
+            v0 = values[0]
+            if f.name == "measured":
+                if all(v is None for v in values):
+                    fields[f.name] = None
+                    continue
+                # A shard without a missing measurement has none: every component counted.
+                like = next(v for v in values if v is not None)
+                values = [np.full(r.loglik.shape, n_y, dtype=like.dtype) if v is None else v
+                          for v, r in zip(values, results)]
+                fields[f.name] = readonly(np.concatenate(values))
+            elif isinstance(v0, np.ndarray):
+                if f.name in cls.shared_fields and v0.ndim == 3:  # the same for every run
+                    v0.flags.writeable = False  # (a worker's result arrives writeable)
+                    fields[f.name] = v0
+                else:
+                    if f.name in cls.component_fields:  # the shards' longest: zeros beyond
+                        M = max(v.shape[2] for v in values)
+                        values = [np.pad(v, [(0, 0), (0, 0), (0, M - v.shape[2])] + [(0, 0)] * (v.ndim - 3))
+                                  for v in values]
+                    joined = np.concatenate(values)  # its own dtype (booleans stay booleans)
+                    joined.flags.writeable = False
+                    fields[f.name] = joined
+            else:
+                fields[f.name] = v0  # method, dimensions, angle states: the filter's
+        return type(first)(**fields)
 
     def _need(self, *names: str) -> None:
         missing = [k for k in names if getattr(self, k) is None]
@@ -457,7 +501,7 @@ class KalmanResult:
                 raise SymmonError("give x_true, or filter with x_true= to have the NEES computed in the step")
             return self.nees_values
         self._need("x", "P")
-        return _nees(self.x, self.P, x_true, self.angle_states)
+        return nees_of(self.x, self.P, x_true, self.angle_states)
 
     def nis(self) -> np.ndarray:
         """Normalised innovation squared ν_kᵀ S_k⁻¹ ν_k, shape (K,) or (R, K): from the compiled
@@ -465,7 +509,7 @@ class KalmanResult:
         if self.nis_values is not None:
             return self.nis_values
         self._need("innovation", "S")
-        return _quadratic_forms(self.innovation, self.S, "innovation covariance S")
+        return quadratic_forms(self.innovation, self.S, "innovation covariance S")
 
     def anees(self, x_true: ArrayLike | None = None, confidence: float = 0.95) -> ConsistencyTest:
         """Average NEES with its χ² interval: per step over the runs of a bank, or over the
@@ -571,7 +615,7 @@ class SmootherResult:
     def nees(self, x_true: ArrayLike) -> np.ndarray:
         """NEES of the smoothed estimates, (x_k − x̂_{k|K})ᵀ P_{k|K}⁻¹ (x_k − x̂_{k|K}),
         shape (K,) or (R, K)."""
-        return _nees(self.x, self.P, x_true, self.angle_states)
+        return nees_of(self.x, self.P, x_true, self.angle_states)
 
     def anees(self, x_true: ArrayLike, confidence: float = 0.95) -> ConsistencyTest:
         """Average smoothed NEES with its χ² interval, averaged as :meth:`KalmanResult.anees`

@@ -19,7 +19,7 @@ from symmon.errors import AngleWarning, NonFiniteError, ResourceError, SingularM
 from symmon.filters import inputs, results
 from symmon.filters.gaussian.adaptive import _adaptive_run
 from symmon.filters.inputs import MAX_BANK_NUMBERS
-from symmon.filters.results import _quadratic_forms
+from symmon.filters.results import quadratic_forms
 
 #: A quadratic form computed two ways (scaled and unscaled) in double precision.
 FORM_RTOL = 1e-12
@@ -110,7 +110,7 @@ def test_normalised_errors_are_the_same_in_any_units(scale):
     e = rng.standard_normal((5, 3))
     s = np.array([scale, 1.0, 1.0 / scale])
     plain = np.einsum("ki,ki->k", e, np.linalg.solve(C, e[..., None])[..., 0])
-    scaled = _quadratic_forms(e * s, s[:, None] * C * s[None, :])
+    scaled = quadratic_forms(e * s, s[:, None] * C * s[None, :])
     np.testing.assert_allclose(scaled, plain, rtol=FORM_RTOL)
 
 

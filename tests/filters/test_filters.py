@@ -15,7 +15,7 @@ from symmon.estimation import nlt as est
 from symmon.errors import ShapeError, SymmonError
 from symmon.filters.results import NonlinearKalmanResult
 from symmon.filters.gaussian.step import _compiled_step
-from symmon.filters.results import _quadratic_forms
+from symmon.filters.results import quadratic_forms
 
 #: Two implementations of the same filter in double precision, over tens of steps: the
 #: order of the sums differs, so rounding (1e-16 per operation) grows by the conditioning
@@ -357,7 +357,7 @@ def scalar_models():
         (lambda m: sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]]).filter([[1.0]], [0.0]), TypeError,
          "together with P0"),
         (lambda m: sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]]).filter(np.ones((3, 2, 1)), np.zeros((2, 1)), [[1.0]]),
-         ShapeError, r"x0 must have shape \(1,\) or \(3, 1\)"),
+         ShapeError, r"x0 has 2 runs \(its leading axis\) but ys has 3"),
         (lambda m: sm.NonlinearKalmanFilter(m, m, [[0.0]], [[0.0]], sm.TT1()).filter([[1.0], [2.0]], sm.Gaussian([0.0], [[0.0]])),
          SymmonError, "NaN or inf at step 0"),
         (lambda m: sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]]).filter([[1.0]], sm.Gaussian([0.0], [[1.0]])).nees([1.0]),
@@ -742,13 +742,13 @@ def test_the_nis_computed_in_the_step_equals_the_one_from_the_innovations(bank):
     full = kf.filter(ys, X0)
     lean = kf.filter(ys, X0, keep=("nis",))
     assert lean.innovation is None and lean.S is None and lean.x is None
-    np.testing.assert_allclose(lean.nis(), _quadratic_forms(full.innovation, full.S), rtol=1e-10)
+    np.testing.assert_allclose(lean.nis(), quadratic_forms(full.innovation, full.S), rtol=1e-10)
     np.testing.assert_allclose(lean.anis().value, full.anis().value, rtol=1e-10)
     assert lean.anis().dof == full.anis().dof
     lin = sm.KalmanFilter(np.eye(2), np.eye(2), np.eye(2), np.eye(2))
     a, b = lin.filter(np.ones((3, 2)), np.zeros(2), np.eye(2)), lin.filter(np.ones((3, 2)), np.zeros(2), np.eye(2),
                                                                            keep=("nis",))
-    np.testing.assert_allclose(b.nis(), _quadratic_forms(a.innovation, a.S), rtol=1e-12)
+    np.testing.assert_allclose(b.nis(), quadratic_forms(a.innovation, a.S), rtol=1e-12)
     assert b.anis().dof == a.anis().dof
 
 
@@ -782,8 +782,10 @@ def test_keep_names_are_checked():
     kf = sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]], sm.TT1())
     with pytest.raises(SymmonError, match=r"keep names \['gain'\]"):
         kf.filter([[1.0]], sm.Gaussian([0.0], [[1.0]]), keep=("x", "gain"))
-    with pytest.raises(SymmonError, match="not the string"):
-        kf.filter([[1.0]], sm.Gaussian([0.0], [[1.0]]), keep="x")
+    # A string is one name (issue 47, item 8), never its letters.
+    assert kf.filter([[1.0]], sm.Gaussian([0.0], [[1.0]]), keep="x").P is None
+    with pytest.raises(SymmonError, match=r"keep names \['xP'\]"):
+        kf.filter([[1.0]], sm.Gaussian([0.0], [[1.0]]), keep="xP")
 
 
 @pytest.mark.parametrize("keep", [None, ("x",)])

@@ -27,7 +27,7 @@ import symmon as sm
 from symmon.core.problems import TURN_SERIES, coordinated_turn
 from symmon.errors import (ArgumentError, ArgumentTypeError, CovarianceError, ModelError, NonFiniteError,
                            ShapeError)
-from symmon.filters.mixture.imm import _as_nonlinear
+
 from helpers import REFERENCE_DIR, assert_close_to_scale
 
 REF = json.loads((REFERENCE_DIR / "filterpy_imm.json").read_text())
@@ -347,7 +347,7 @@ def test_an_adaptive_mode_runs_step_by_step(modes):
 def square_root(kf):
     """The square-root form of a mode (a linear KalmanFilter as the EKF of its model)."""
     if isinstance(kf, sm.KalmanFilter):
-        kf = _as_nonlinear(kf)
+        kf = kf.as_gaussian_mode()
     return sm.NonlinearKalmanFilter(kf.f_model, kf.h_model, kf.Q, kf.R, kf.strategy.transform, square_root=True)
 
 

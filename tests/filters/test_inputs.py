@@ -93,7 +93,7 @@ def test_filter_inputs_checks_and_shapes_a_call(kf):
 @pytest.mark.parametrize("call, error, match", [
     (dict(ys=np.ones((3, 2))), ShapeError, r"ys must have shape \(K, 1\)"),
     (dict(ys=[[1.0], [np.inf]]), ShapeError, "ys contains inf"),
-    (dict(keep="x"), ArgumentError, "not the string"),
+    (dict(keep="xP"), ArgumentError, r"keep names \['xP'\]"),
     (dict(params={}), ModelError, "missing"),
     (dict(x_true=np.zeros((2, 1))), ShapeError, "x_true must have the shape"),
 ])

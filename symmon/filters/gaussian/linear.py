@@ -23,17 +23,16 @@ P. S. Maybeck, *Stochastic Models, Estimation and Control*, vol. 1 (Joseph form)
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterable
+from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ...core.arrays import readonly
 from ...errors import ArgumentError, ArgumentTypeError, CovarianceError, NonFiniteError, ShapeError, SingularMatrixError
 from ...core.gaussian import Gaussian, as_covariance, float_array, matrix_sqrt
-from ...transforms.executor import Executor
-from ..bank import filter_bank
-from ..inputs import check_bank_size, check_keep, real_measurements, refuse_inf
-from ..results import KalmanResult  # the one result type of the filters
+from ..base import Filter, FilterCall
+from ..inputs import check_bank_size
+from ..results import KalmanResult, nees_of  # the one result type of the filters
 
 __all__ = ["KalmanFilter", "KalmanResult"]
 
@@ -105,7 +104,7 @@ def _check_finite(x: np.ndarray, P: np.ndarray, loglik: np.ndarray, group: np.nd
 
 
 @dataclass(frozen=True, eq=False, repr=False)
-class KalmanFilter:
+class KalmanFilter(Filter):
     """Kalman filter for a linear-Gaussian state-space model (eqs. (1), (3) of the paper).
 
     Parameters
@@ -178,78 +177,60 @@ class KalmanFilter:
     def __repr__(self) -> str:
         return f"KalmanFilter(n={self.n}, n_y={self.n_y})"
 
-    def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None, *,
-               keep: Iterable[str] | None = None, executor: Executor | None = None) -> KalmanResult:
-        """Run the filter over the measurements ``ys``.
+    gaussian_mode: ClassVar[bool] = True
 
-        Each step predicts, then updates with the Joseph form
-        :math:`P = (I - KH) P^- (I - KH)^T + K R K^T`, which stays symmetric PSD under
-        rounding (the short form :math:`(I - KH)P^-` does not).
+    @property
+    def sizes(self) -> tuple[int, int]:
+        """(n, n_y)."""
+        return self.n, self.n_y
 
-        Parameters
-        ----------
-        ys : array_like, shape (K, n_y) or (N, K, n_y)
-            Measurements :math:`y_1, \\dots, y_K`; a leading axis filters N independent runs.
-            NaN means "not measured", as in :meth:`symmon.NonlinearKalmanFilter.filter`: a
-            row of NaN skips the update (the step only predicts, with log-likelihood 0), a
-            row with some NaN updates on the measured components (with D = diag(measured),
-            S̃ = D S D + (I − D) and the rows of H of the missing components zeroed, the gain
-            has zero columns there).  A missing component has innovation 0 and a unit
-            diagonal entry in S, so the NIS is that of the measured block, and
-            :attr:`KalmanResult.measured` counts the measured components per step.
-        x0 : Gaussian, or array_like of shape (n,) or (N, n)
-            The initial state :math:`x_0` (before the first prediction), or its mean with ``P0``
-            (the signature of :meth:`symmon.NonlinearKalmanFilter.filter`).
-        P0 : array_like, shape (n, n), optional
-            Covariance of :math:`x_0` when ``x0`` is a mean, symmetric PSD (zero for a known
-            initial state).
-        keep : iterable of str, optional
-            The arrays to return (as :meth:`symmon.NonlinearKalmanFilter.filter`; default all).
-        executor : Executor, optional
-            Filter the runs of a bank in shards on threads, a local Dask scheduler or a
-            Dask cluster (:func:`symmon.filters.bank.filter_bank`, docs/scale-out.md):
-            the same result bit for bit.
+    @property
+    def method(self) -> str:
+        """"KF"."""
+        return "KF"
 
-        Returns
-        -------
-        KalmanResult
-            The covariances (P, P_pred, S) and gains do not depend on the data: a bank's runs
-            share them ((K, n, n)) when they have the same missing measurements, and each run
-            has its own ((N, K, n, n)) when they differ.
+    def as_gaussian_mode(self) -> Any:
+        """This filter as the EKF of its linear model (equal to rounding), a mode of :class:`~symmon.IMM`."""
+        from .nonlinear import NonlinearKalmanFilter  # the linear filter runs in NumPy without it
+        from ...core.model import Model
+        from ...transforms.taylor import TT1
+        import sympy as sp
 
-        Raises
-        ------
-        ShapeError, CovarianceError
-            Bad inputs, or an infinite measurement (a missing one is NaN).
-        ResourceError
-            The results would exceed :data:`~symmon.filters.inputs.MAX_BANK_NUMBERS` numbers.
-        NonFiniteError, SingularMatrixError
-            The state or a covariance overflows double precision, or S rounds to a singular
-            matrix, naming the step (and run).
-        """
-        if executor is not None:
-            return filter_bank(self, executor, ys, x0=x0, P0=P0, keep=keep)
-        kept = check_keep(keep)
-        Y = real_measurements(ys)
-        if Y.ndim not in (2, 3) or Y.shape[-1] != self.n_y or Y.shape[-2] == 0:
-            raise ShapeError(
-                f"ys must have shape (K, {self.n_y}) or (N, K, {self.n_y}) with K >= 1, got {Y.shape}"
-            )
-        batch = Y.shape[0] if Y.ndim == 3 else None
-        n, n_y = self.n, self.n_y
+        xs = sp.Matrix(sp.symbols(f"x0:{self.n}", real=True))
+        f = Model(list(xs), list(sp.Matrix(self.F) * xs), name="linear_F")
+        h = Model(list(xs), list(sp.Matrix(self.H) * xs), name="linear_H")
+        return NonlinearKalmanFilter(f, h, self.Q, self.R, TT1())
+
+    def _numbers(self, keep: frozenset[str] | None) -> tuple[int, int]:
         # Per run and step: x, x_pred, the innovation, its whitened form, NIS, log-likelihood;
-        # the covariances and gains are shared by the runs.  Checked before ys is read whole.
-        shared = 2 * n * n + n_y * n_y + n * n_y
-        check_bank_size(batch or 1, Y.shape[-2], 2 * n + 2 * n_y + 2, "KF results",
-                        "filter the runs in smaller banks, or fewer steps at a time", shared=shared)
-        refuse_inf(Y)
+        # the covariances and gains are shared by the runs.
+        n, n_y = self.n, self.n_y
+        return 2 * n + 2 * n_y + 2, 2 * n * n + n_y * n_y + n * n_y
+
+    def _check_prior(self, x0: Any, P0: ArrayLike | None, runs: int | None) -> tuple[np.ndarray, np.ndarray]:
         if isinstance(x0, Gaussian) == (P0 is not None):
             raise ShapeError("give x0 as a Gaussian, or its mean together with P0")
         if isinstance(x0, Gaussian):
             x0, P0 = x0.mean, x0.cov
-        x = self._initial_mean(x0, batch)
-        P0 = as_covariance(P0, "P0", dim=self.n)
+        return self._initial_mean(x0, runs), as_covariance(P0, "P0", dim=self.n)
 
+    def _filter(self, call: FilterCall) -> KalmanResult:
+        """The recursion (eq. (3)), each step predicting, then updating with the Joseph form
+        :math:`P = (I - KH) P^- (I - KH)^T + K R K^T`, which stays symmetric PSD under
+        rounding (the short form :math:`(I - KH)P^-` does not).
+
+        A row of NaN in ``ys`` skips the update (the step only predicts, with log-likelihood
+        0), a row with some NaN updates on the measured components (with D = diag(measured),
+        S̃ = D S D + (I − D) and the rows of H of the missing components zeroed, the gain has
+        zero columns there).  The covariances (P, P_pred, S) and gains do not depend on the
+        data: a bank's runs share them ((K, n, n)) when they have the same missing
+        measurements, and each run has its own ((N, K, n, n)) when they differ.
+        """
+        kept, batch = call.keep, call.runs
+        n, n_y = self.n, self.n_y
+        shared = 2 * n * n + n_y * n_y + n * n_y
+        x, P0 = call.x0, call.P0
+        Y = call.measurements
         K = Y.shape[-2]
         Yb = Y.reshape((batch or 1, K, n_y))
         runs = Yb.shape[0]
@@ -310,15 +291,18 @@ class KalmanFilter:
         else:
             Ps, Pps, Ss, gains = Ps[group], Pps[group], Ss[group], gains[group]
         measured = (~missing).sum(axis=-1) if missing.any() else None
+        nees = None if call.truth is None else nees_of(xs, np.broadcast_to(Ps[group], xs.shape + (n,)), call.truth, ())
         if batch is None:
             xs, xps, innovs, nis, loglik = xs[0], xps[0], innovs[0], nis[0], loglik[0]
+            nees = None if nees is None else nees[0]
             measured = None if measured is None else measured[0]
         arrays = {"x": xs, "P": Ps, "x_pred": xps, "P_pred": Pps, "innovation": innovs, "S": Ss,
                   "nis_values": nis}
         arrays = {k: readonly(v) if kept is None or k.removesuffix("_values") in kept else None
                   for k, v in arrays.items()}
         return KalmanResult(**arrays, gain=readonly(gains), loglik=readonly(loglik), n_y=n_y, method="KF",
-                            measured=None if measured is None else readonly(measured))
+                            measured=None if measured is None else readonly(measured),
+                            nees_values=None if nees is None else readonly(nees))
 
     def simulate(
         self,

@@ -59,7 +59,7 @@ import os
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable
+from typing import Any, ClassVar, Iterable
 from functools import cached_property
 
 import numpy as np
@@ -70,11 +70,11 @@ from ...errors import AngleWarning, ArgumentTypeError, SymmonError
 from ...core.arrays import all_finite, readonly
 from ...core.checks import noise_cov
 from .diagnose import locate_nonfinite
-from ..bank import filter_bank
+from ..base import Filter
 from .export import export_filter_c
 from .fit import FitResult, fit_parameters
-from ..inputs import check_keep, check_state_models, filter_inputs
-from ..results import ConsistencyTest, KalmanResult, NonlinearKalmanResult, SmootherResult, step_nees, _nees
+from ..inputs import FilterCall, FilterInputs, check_keep, check_state_models, filter_inputs, kept_numbers
+from ..results import ConsistencyTest, KalmanResult, NonlinearKalmanResult, SmootherResult, step_nees, nees_of
 from .smoother import compiled_smoother
 from .step import filter_params, first_nonfinite
 from .strategy import FilterStrategy, RuleStrategy
@@ -120,7 +120,7 @@ def _warn_undeclared_angle_outputs(h: Model, angle_states: frozenset[int]) -> No
 
 
 @dataclass(frozen=True, eq=False)
-class NonlinearKalmanFilter:
+class NonlinearKalmanFilter(Filter):
     """A Kalman filter whose prediction and update are NLTs, compiled to C.
 
     x_{k+1} = f(x_k, w_k), y_k = h(x_k, e_k); without noise symbols the noises are additive.
@@ -209,6 +209,30 @@ class NonlinearKalmanFilter:
         """The dimensions the two updates integrate over: [x; w] for f and [x; e] for h
         (the state alone for additive noise)."""
         return self.f_model.n_u + self.f_model.n_v, self.h_model.n_u + self.h_model.n_v
+
+    gaussian_mode: ClassVar[bool] = True
+    has_smoother: ClassVar[bool] = True
+    exportable: ClassVar[bool] = True
+
+    @property
+    def sizes(self) -> tuple[int, int]:
+        """(n, n_y): the state's and the measurement's dimensions."""
+        return self.f_model.n_u, self.h_model.n_y
+
+    def as_gaussian_mode(self) -> NonlinearKalmanFilter:
+        """Itself: a mode of :class:`~symmon.IMM`."""
+        return self
+
+    def _numbers(self, keep: frozenset[str] | None) -> tuple[int, int]:
+        n, n_y = self.sizes
+        names = self.strategy.stores(keep)
+        # A square-root filter keeps the factors of P and P⁻ beside them.
+        factors = n * n * len(names & {"P", "P_pred"}) if self.square_root else 0
+        return kept_numbers(n, n_y, names) + factors, 0
+
+    def _filter(self, call: FilterCall) -> KalmanResult:
+        """The compiled recursion over the checked ``call`` (its strategy's steps)."""
+        return self._filter_checked(FilterInputs(call.Y, call.runs, call.keep, call.x0, call.P0, call.truth, call.pv))
 
     @cached_property
     def params(self) -> tuple:
@@ -372,71 +396,6 @@ class NonlinearKalmanFilter:
         except (SymmonError, KeyError, IndexError):  # the diagnosis must not hide the failure itself
             return ""
 
-    def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None, *,
-               keep: Iterable[str] | None = None, params: dict | None = None,
-               x_true: ArrayLike | None = None, executor: Executor | None = None) -> KalmanResult:
-        """Predict, then update, for each measurement (the convention of :class:`KalmanFilter`).
-
-        Parameters
-        ----------
-        ys : array_like, shape (K, n_y) or (R, K, n_y)
-            Measurements y_1 … y_K; a leading axis filters R independent runs (a bank) in
-            one compiled call.  NaN means "not measured": a row of NaN skips the update
-            (the step only predicts, FilterPy's ``update(None)``), a row with some NaN
-            updates on the measured components (angles still wrapped, S and the gain on the
-            measured block).  For a missing component the result's innovation is 0 and S has
-            a unit diagonal entry (no correlation), so NIS is that of the measured block, and
-            :attr:`KalmanResult.measured` counts the measured components per step.
-        x0 : Gaussian, or array_like of shape (n,) or (R, n)
-            The state x_0 before the first prediction: a Gaussian, or its mean (one for all
-            runs, or one per run) with ``P0``.
-        P0 : array_like, shape (n, n) or (R, n, n), optional
-            Covariance of x_0 when ``x0`` is a mean (one for all runs, or one per run: a
-            bank continued after a known jump of the state, e.g. an observer's manoeuvre).
-        keep : iterable of str, optional
-            The arrays to return, among ``"x"``, ``"P"``, ``"x_pred"``, ``"P_pred"``,
-            ``"innovation"``, ``"S"`` and ``"nis"`` (νᵀ S⁻¹ ν, computed in the compiled step;
-            default: all); the others are not stored, which bounds the memory of a large
-            bank.  The per-step log-likelihood is always kept.
-        params : dict, optional
-            The values of the models' parameters (:attr:`params`), by name: a number, an array
-            of one per step (K,) (an irregular time step dt, a control input), or for a bank
-            one per run and step (R, K).  They are inputs of the compiled step: a new value
-            costs no recompile.
-        x_true : array_like, shape (K, n) or (R, K, n), optional
-            The true states (of a simulation): each step's NEES against them is computed
-            inside the compiled step, right after it (:attr:`KalmanResult.nees_values`,
-            ``res.nees()``, ``res.anees()``), so that a bank need not keep x and P for its
-            NEES test (``keep=("nis",)`` with ``x_true`` stores two numbers per step).
-        executor : Executor, optional
-            Filter the runs of a bank in shards on threads, a local Dask scheduler or a
-            Dask cluster (:func:`symmon.filters.bank.filter_bank`, docs/scale-out.md):
-            the same result bit for bit.
-
-        Returns
-        -------
-        KalmanResult
-            Arrays with a leading axis R for a bank.
-
-        Raises
-        ------
-        ShapeError
-            Bad shapes, or an infinite measurement.
-        ResourceError
-            The arrays kept would exceed :data:`~symmon.filters.inputs.MAX_BANK_NUMBERS`
-            numbers (checked before any work).
-        SymmonError
-            The filter produced NaN or inf (a singular S, or a covariance that lost
-            positive definiteness), naming the first step that failed and its run.
-        SingularMatrixError
-            With ``x_true``: a filtered covariance P is singular, so its NEES is undefined
-            (:func:`~symmon.filters.results.step_nees`).
-        """
-        if executor is not None:
-            return filter_bank(self, executor, ys, x0=x0, P0=P0, keep=keep, params=params, x_true=x_true)
-        return self._filter_checked(filter_inputs(self, ys, x0, P0, keep=keep, params=params, x_true=x_true,
-                                                  advice=_SMALLER))
-
     def _filter_checked(self, checked) -> KalmanResult:
         """:meth:`filter` on its inputs as :func:`~symmon.filters.inputs.filter_inputs` checked
         them (so that :meth:`smooth` checks them once)."""
@@ -468,7 +427,7 @@ class NonlinearKalmanFilter:
         if nees:  # after the check above: a NaN state is a failed filter, not a singular P
             nees = {k: v if runs is not None else v[0] for k, v in nees.items()}  # a single run's errors name no run
             arrays["nees_values"] = (step_nees(nees["nees"], nees["nees_trace"]) if "nees" in nees
-                                     else _nees(nees["x"], nees["P"], nees["truth"], sorted(self.angle_states)))
+                                     else nees_of(nees["x"], nees["P"], nees["truth"], sorted(self.angle_states)))
         for v in arrays.values():
             v.flags.writeable = False  # fresh arrays of this call: frozen, not copied
         if choices is not None:

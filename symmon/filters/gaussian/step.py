@@ -254,7 +254,7 @@ _DRIVER = """
    strides[j] its size per step; a stride of 0 means "not kept": the step does not write it
    (a null result), but x and P, which the next step reads, go to two slots, alternately,
    so that a step never writes what it reads.  With the true states (truth, not null), each
-   step's NEES and its singularity test go to outs[8] and outs[9] ({name}_nees).  With
+   step's NEES and its singularity test go to outs[8] and outs[9] ({name}nees_of).  With
    failed (not null), failed[r] is the first step of run r whose x, P or log-likelihood is
    not finite (the run stops there), or -1.  Before each step it polls stop (not null): set
    by the thread that waits for the bank when that is interrupted, it ends the loop. */
@@ -305,7 +305,7 @@ static int {name}_loop(const casadi_real* x0, casadi_int x0_step,
       if (truth) {{
         arg[0] = x; arg[1] = P; arg[2] = truth + i * {n};
         res2[0] = outs[8] + i; res2[1] = outs[9] + i;
-        if ({name}_nees(arg, res2, iw, w, 0)) return 1;
+        if ({name}nees_of(arg, res2, iw, w, 0)) return 1;
       }}
     }}
   }}
@@ -402,7 +402,7 @@ class _CompiledStep(CompiledLoop):
                    + ((iterations,) if iterations > 1 else ()) + (("square_root",) if square_root else ()))
         name = "sm_nkf_" + hashlib.sha1(key.encode()).hexdigest()[:12]
         fn = _step_function(f, h, transform, angle_states, name, iterations, square_root)
-        self.nees_f = _nees_function(f, h, transform, angle_states, name + "_nees", square_root)
+        self.nees_f = _nees_function(f, h, transform, angle_states, name + "nees_of", square_root)
         self.square_root = square_root
         self.n, self.n_y = n, n_y = f.n_u, h.n_y
         self.n_p = len(filter_params(f, h))

@@ -100,28 +100,30 @@ import hashlib
 import threading
 from dataclasses import dataclass, field
 from functools import cached_property, lru_cache
-from typing import Iterable
+from typing import Any, ClassVar, Iterable
 
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ...compile import batched, compiled, compiled_with_params, has_compiler
+from ...compile.compiled import batched, compiled, compiled_with_params
+from ...compile.ccache import has_compiler
 from ...core.angles import wrap_angle
 from ...core.gaussian import Gaussian
 from ...core.checks import check_gaussian
 from ...core.mixture import SPLITS, GaussianMixture, split_weights
 from ...core.model import Model
 from ...errors import ArgumentError, ArgumentTypeError, ShapeError, SymmonError
-from ...transforms import TT2, UT, Transform
+from ...transforms.base import Transform
+from ...transforms.taylor import TT2
+from ...transforms.unscented import UT
 from ...transforms.registry import resolve
-from ...transforms.executor import Executor
-from ..bank import filter_bank
+from ..base import Filter
 from ._kernel import SplitKernel, bank_weights, result_arrays
 from ..gaussian.nonlinear import NonlinearKalmanFilter
 from .merge import MERGE_RULES, merge_components, merge_runs
-from ..inputs import check_bank_size, measurement_bank, param_values
-from ..results import KalmanResult
+from ..inputs import FilterCall
+from ..results import KalmanResult, nees_of
 from ..gaussian.step import (_filterable, filter_params, predict_graph, select_params, step_kind, sym,
                    update_graph)
 
@@ -378,6 +380,8 @@ class GaussianSumResult(KalmanResult):
     components: np.ndarray | None = None
     splits: np.ndarray | None = None
 
+    component_fields: ClassVar[tuple[str, ...]] = ("weights", "means", "covs")
+
     def mixture(self, k: int, run: int | None = None) -> GaussianMixture:
         """The posterior mixture at step k (0-based), of run ``run`` for a bank."""
         if (run is None) != (self.runs is None):
@@ -398,7 +402,7 @@ GSF_KEEPABLE = ("x", "P", "mixture")
 
 
 @dataclass(frozen=True, eq=False)
-class GaussianSumFilter:
+class GaussianSumFilter(Filter):
     """A Gaussian-sum filter whose components run a compiled Gaussian filter, split by the MoN.
 
     x_{k+1} = f(x_k) + w_k, y_k = h(x_k) + e_k (or with noise symbols, as
@@ -509,58 +513,56 @@ class GaussianSumFilter:
             return np.ones(1), np.asarray(x0.mean, dtype=float)[None], np.asarray(x0.cov, dtype=float)[None]
         raise ArgumentTypeError(f"x0 must be a symmon.Gaussian or GaussianMixture, got {type(x0).__name__}")
 
-    def filter(self, ys: ArrayLike, x0: Gaussian | GaussianMixture, *, params: dict | None = None,
-               keep: Iterable[str] | None = None, executor: Executor | None = None) -> GaussianSumResult:
-        """Predict, then update, for each measurement, every component.
+    keepable: ClassVar[tuple[str, ...]] = GSF_KEEPABLE
+    takes_covariance: ClassVar[bool] = False
 
-        Parameters
-        ----------
-        ys : array_like, shape (K, n_y) or (R, K, n_y)
-            As for :meth:`NonlinearKalmanFilter.filter` (NaN: not measured).
-        x0 : Gaussian or GaussianMixture
-            The prior before the first prediction (a mixture: e.g. a range-parameterised prior).
-        params : dict, optional
-            The models' parameters, as for :meth:`NonlinearKalmanFilter.filter`.
-        keep : iterable of str, optional
-            Among ``"x"``, ``"P"`` and ``"mixture"`` (the weights, means and covariances of
-            every step); default all.  The per-step log-likelihood is always kept.
-        executor : Executor, optional
-            Filter the runs of a bank in shards on threads, a local Dask scheduler or a
-            Dask cluster (:func:`symmon.filters.bank.filter_bank`, docs/scale-out.md):
-            the same result bit for bit.
+    @property
+    def sizes(self) -> tuple[int, int]:
+        """(n, n_y): the state's and the measurement's dimensions."""
+        return self.f.n_u, self.h.n_y
 
-        Returns
-        -------
-        GaussianSumResult
+    @property
+    def params(self) -> tuple:
+        """The parameters of the component filter's models."""
+        return self.kf.params
+
+    def _check_prior(self, x0: Any, P0: None, runs: int | None) -> tuple[tuple, None]:
+        return self._prior(x0), None
+
+    def _numbers(self, keep: frozenset[str] | None) -> tuple[int, int]:
+        n = self.f.n_u
+        kept = set(self.keepable) if keep is None else keep
+        mixture_numbers = self.max_components * (1 + n + n * n) if "mixture" in kept else 0
+        return 2 + n + n * n + mixture_numbers, 0
+
+    def _filter(self, call: FilterCall) -> GaussianSumResult:
+        """Predict, then update, for each measurement, every component, over the checked
+        ``call`` (:meth:`filter`).  The prior is a Gaussian or a GaussianMixture (e.g. a
+        range-parameterised prior); ``keep`` names some of ``"x"``, ``"P"`` and ``"mixture"``
+        (the weights, means and covariances of every step); the per-step log-likelihood is
+        always kept.
 
         Raises
         ------
-        ShapeError, ArgumentTypeError
-            Bad measurements or prior.
         SymmonError
             A component's step produced NaN or inf (naming the step and run).
         """
-        if executor is not None:
-            return filter_bank(self, executor, ys, x0=x0, params=params, keep=keep)
-        kept = set(GSF_KEEPABLE) if keep is None else set(keep)
-        if not kept <= set(GSF_KEEPABLE):
-            raise ArgumentError(f"keep must name some of {GSF_KEEPABLE}, got {sorted(kept - set(GSF_KEEPABLE))}")
-        w0, m0, P0 = self._prior(x0)
+        kept = set(self.keepable) if call.keep is None else set(call.keep)
+        inner = kept | ({"x", "P"} if call.truth is not None else set())  # the NEES reads x and P
+        w0, m0, P0 = call.x0
         if len(w0) > self.max_components:
             w0, m0, P0 = merge_components(w0, m0, P0, self.max_components, self.merge)
-        n, n_y = self.f.n_u, self.h.n_y
-        Y, runs = measurement_bank(ys, n_y)
-        Yb = Y.reshape((runs or 1,) + Y.shape[-2:])
-        mixture_numbers = self.max_components * (1 + n + n * n) if "mixture" in kept else 0
-        check_bank_size(runs or 1, Yb.shape[1], 2 + n + n * n + mixture_numbers, f"{self.method} results",
-                        "keep fewer arrays (keep=('x',)) or filter the runs in smaller banks")
-        pv = param_values(self.kf.params, params, runs, Yb.shape[1])
+        n, n_y = self.sizes
+        runs, Yb, pv = call.runs, call.Y, call.pv
         if self.split is None:
-            out = self._bank(Yb, w0, m0, P0, params, runs, kept)
+            out = self._bank(Yb, w0, m0, P0, call.params, runs, inner)
         else:
-            out = self._recursion(Yb, w0, m0, P0, pv, kept)
+            out = self._recursion(Yb, w0, m0, P0, pv, inner)
             if out is None:  # no compiler, or its C still building: the stepwise filter
-                out = self._stepwise(Yb, w0, m0, P0, pv, kept)
+                out = self._stepwise(Yb, w0, m0, P0, pv, inner)
+        if call.truth is not None:
+            out["nees_values"] = nees_of(out["x"], out["P"], call.truth, sorted(self.kf.angle_states))
+            out = {k: v for k, v in out.items() if k not in ("x", "P") or k in kept}
         arrays = {k: (v if runs is not None else v[0]) for k, v in out.items()}
         for v in arrays.values():
             v.flags.writeable = False

@@ -50,25 +50,22 @@ import ctypes
 import hashlib
 import threading
 from dataclasses import dataclass
-from typing import Iterable, Sequence
+from typing import Any, Iterable, Sequence
 
 import numpy as np
-import sympy as sp
 from numpy.typing import ArrayLike
 
 from ...core.angles import wrap_angle
 from ...core.arrays import readonly
 from ...core.gaussian import Gaussian, float_array
-from ...core.model import Model
 from ...compile.ccache import NativeLibrary
 from ...compile.compiled import WorkArrays, generated_c, in_threads
 from ...errors import (ArgumentError, ArgumentTypeError, CovarianceError, ModelError, NonFiniteError, ShapeError,
                       SymmonError)
-from ...transforms.taylor import TT1
-from ..gaussian.linear import KalmanFilter
+from ..base import Filter
 from ..gaussian.nonlinear import NonlinearKalmanFilter
-from ..inputs import check_bank_size, check_truth, initial_state, measurement_bank, param_values, refuse_inf
-from ..results import KalmanResult, _nees, _quadratic_forms
+from ..inputs import FilterCall, param_values
+from ..results import KalmanResult, nees_of, quadratic_forms
 from ..gaussian.step import _compiled_step, chunk_runs
 from ..gaussian.strategy import RuleStrategy
 
@@ -116,14 +113,6 @@ class IMMResult(KalmanResult):
         return f"IMMResult({', '.join(self.modes)}; {runs}steps={self.steps}, n={self.n})"
 
 
-def _as_nonlinear(kf: KalmanFilter) -> NonlinearKalmanFilter:
-    """The EKF of a linear model, f(x) = F x, h(x) = H x: the Kalman filter to rounding."""
-    xs = sp.Matrix(sp.symbols(f"x0:{kf.n}", real=True))
-    f = Model(list(xs), list(sp.Matrix(kf.F) * xs), name="linear_F")
-    h = Model(list(xs), list(sp.Matrix(kf.H) * xs), name="linear_H")
-    return NonlinearKalmanFilter(f, h, kf.Q, kf.R, TT1())
-
-
 def _probabilities(p: ArrayLike, name: str, shape: tuple[int, ...]) -> np.ndarray:
     """``p`` as finite, non-negative probabilities of ``shape`` whose last axis sums to 1
     (within :data:`PROBABILITY_ATOL`), normalised exactly."""
@@ -160,7 +149,7 @@ def _mix(w: np.ndarray, xs: np.ndarray, Ps: np.ndarray, angles: list[int]) -> tu
 
 
 @dataclass(frozen=True, eq=False)
-class IMM:
+class IMM(Filter):
     """Interacting multiple models (Blom & Bar-Shalom 1988) over symmon's Kalman filters.
 
     Parameters
@@ -205,19 +194,17 @@ class IMM:
     probabilities: np.ndarray
 
     def __post_init__(self) -> None:
-        if isinstance(self.filters, (KalmanFilter, NonlinearKalmanFilter)) or not isinstance(self.filters, Iterable):
+        if isinstance(self.filters, Filter) or not isinstance(self.filters, Iterable):
             raise ArgumentTypeError("filters must be a sequence of filters, one per mode")
         filters = tuple(self.filters)
         if not filters:
             raise ArgumentError("filters must hold at least one filter (one per mode)")
         modes = []
         for j, kf in enumerate(filters):
-            if isinstance(kf, KalmanFilter):
-                kf = _as_nonlinear(kf)
-            elif not isinstance(kf, NonlinearKalmanFilter):
+            if not getattr(type(kf), "gaussian_mode", False):
                 raise ArgumentTypeError(f"mode {j}: filters must be symmon KalmanFilter or NonlinearKalmanFilter "
-                                        f"objects, got {type(kf).__name__}")
-            modes.append(kf)
+                                        f"objects (a Gaussian filter that IMM can mix), got {type(kf).__name__}")
+            modes.append(kf.as_gaussian_mode())
         first = modes[0]
         n, n_y = first.f_model.n_u, first.h_model.n_y
         for j, kf in enumerate(modes[1:], start=1):
@@ -285,39 +272,26 @@ class IMM:
                 raise type(err)(f"mode {j} ({self.modes[j]}): {err}") from None
         return out
 
-    def filter(self, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None = None, *,
-               params: dict | Sequence[dict | None] | None = None, x_true: ArrayLike | None = None) -> IMMResult:
-        """Run the IMM over the measurements ``ys`` (predict, then update, at each step).
+    @property
+    def sizes(self) -> tuple[int, int]:
+        """(n, n_y): the state's and the measurement's dimensions."""
+        return self.n, self.n_y
 
-        Parameters
-        ----------
-        ys : array_like, shape (K, n_y) or (R, K, n_y)
-            Measurements y_1 … y_K; a leading axis filters R independent runs (a bank).  NaN
-            marks a missing measurement (a row, or single components), as for
-            :meth:`symmon.NonlinearKalmanFilter.filter`.
-        x0 : Gaussian, or array_like of shape (n,) or (R, n)
-            The state before the first step, the same in every mode: a Gaussian, or its mean
-            with ``P0``.
-        P0 : array_like, shape (n, n) or (R, n, n), optional
-            Its covariance when ``x0`` is a mean.
-        params : dict, or sequence of dict, optional
-            The values of the modes' parameters: one dict by name, each mode taking the
-            names its models declare (a name two modes declare has one value), or one dict
-            (or None) per mode.  Values as for :meth:`symmon.NonlinearKalmanFilter.filter`.
-        x_true : array_like, shape (K, n) or (R, K, n), optional
-            The true states: the NEES of the combined estimate is computed
-            (:attr:`IMMResult.nees_values`).
+    def _check_params(self, params: Any, runs: int | None, steps: int) -> list:
+        return self._mode_params(params, runs, steps)
 
-        Returns
-        -------
-        IMMResult
+    def _numbers(self, keep: frozenset[str] | None) -> tuple[int, int]:
+        n, n_y, M = self.n, self.n_y, len(self.filters)
+        # Combined x, P, x_pred, P_pred, ν, S, NIS, log c; per mode μ, c̄, log Λ, x, P, x⁻, P⁻, ν, S.
+        return 2 * (n + n * n) + n_y + n_y * n_y + 2 + M * (3 + 2 * (n + n * n) + n_y + n_y * n_y), 0
+
+    def _filter(self, call: FilterCall) -> IMMResult:
+        """Run the IMM over the checked ``call`` (predict, then update, at each step): the
+        state before the first step is the same in every mode; ``params`` is one dict by
+        name (each mode taking the names its models declare) or one dict (or None) per mode.
 
         Raises
         ------
-        ShapeError
-            Bad shapes, or an infinite measurement.
-        ResourceError
-            The results would exceed :data:`~symmon.filters.results.MAX_BANK_NUMBERS` numbers.
         NonFiniteError
             A mode-matched filter produced NaN or inf, naming the mode, the run and the step.
         CovarianceError
@@ -326,17 +300,11 @@ class IMM:
         SingularMatrixError
             With ``x_true``: a combined P is singular.
         """
-        n, n_y, M = self.n, self.n_y, len(self.filters)
-        Y, runs = measurement_bank(ys, n_y)
-        R, K = runs or 1, Y.shape[-2]
-        # Combined x, P, x_pred, P_pred, ν, S, NIS, log c; per mode μ, c̄, log Λ, x, P, x⁻, P⁻, ν, S.
-        per_step = 2 * (n + n * n) + n_y + n_y * n_y + 2 + M * (3 + 2 * (n + n * n) + n_y + n_y * n_y)
-        check_bank_size(R, K, per_step, "IMM results", "filter the runs in smaller banks, or fewer steps at a time")
-        refuse_inf(Y)
-        m0, C0 = initial_state(n, x0, P0, runs)
-        truth = None if x_true is None else check_truth(x_true, Y.shape[:-1] + (n,))
-        pvs = self._mode_params(params, runs, K)
-        Yb = Y.reshape(R, K, n_y)
+        n, n_y = self.n, self.n_y
+        runs, K = call.runs, call.steps
+        R = runs or 1
+        m0, C0, truth, pvs = call.x0, call.P0, call.truth, call.pv
+        Yb = call.Y
         angles = sorted(self.angle_states)
         loop = self._fused_loop()
         run = None if loop is None else loop.native()
@@ -356,11 +324,11 @@ class IMM:
                 "derivative is undefined there)")
         out = _combine(modes, angles)
         # The combined NIS, on the measured block (a missing component has ν = 0, a unit S entry).
-        out["nis"] = _quadratic_forms(out["innovation"], out["S"], "combined innovation covariance S")
+        out["nis"] = quadratic_forms(out["innovation"], out["S"], "combined innovation covariance S")
         measured = readonly((~np.isnan(Yb)).sum(axis=-1)) if np.isnan(Yb).any() else None
         nees = None
         if truth is not None:
-            nees = _nees(out["x"], out["P"], truth.reshape(R, K, n), angles)
+            nees = nees_of(out["x"], out["P"], truth, angles)
         if runs is None:
             out = {k: v[0] for k, v in out.items()}
             measured = None if measured is None else measured[0]

@@ -69,25 +69,26 @@ import math
 import warnings
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Iterable
+from typing import Any, ClassVar, Iterable
 
 import numpy as np
 import sympy as sp
 from numpy.typing import ArrayLike
 
-from ...compile import compiled_with_params
+from ...compile.compiled import compiled_with_params
 from ...compile.compiled import in_threads, row_spans
 from ...core.angles import wrap_angle
 from ...core.gaussian import Gaussian
 from ...core.mixture import Empirical, GaussianMixture
 from ...core.model import Model
 from ...errors import ArgumentError, DegeneracyWarning, ModelError, NonFiniteError, ShapeError, SymmonError
-from ...transforms import TT1, UT
-from ...transforms.executor import Executor
-from ..bank import filter_bank, run_streams
+from ...transforms.taylor import TT1
+from ...transforms.unscented import UT
+from ..bank import run_streams
+from ..base import Filter
 from ..gaussian.nonlinear import NonlinearKalmanFilter
-from ..inputs import check_bank_size, check_keep, check_truth, kept_numbers, measurement_bank, param_values, refuse_inf
-from ..results import KalmanResult, _nees
+from ..inputs import FilterCall, check_bank_size, kept_numbers, param_values
+from ..results import KalmanResult, nees_of
 from ..simulation import check_count, check_prior
 from ._kernel import MIN_THREAD_NUMBERS, BootstrapKernel, bootstrap_kernel, whitening
 from ._rng import CHUNK, lane_states, stream_states
@@ -196,7 +197,7 @@ class ParticleResult(KalmanResult):
 
 
 @dataclass(frozen=True, eq=False)
-class ParticleFilter:
+class ParticleFilter(Filter):
     """A particle filter (sequential importance resampling) on the compiled models.
 
     Parameters
@@ -456,79 +457,60 @@ class ParticleFilter:
         return nu, 0.5 * (S + S.transpose(0, 2, 1))
 
     # ------------------------------------------------------------------ the filter
-    def filter(self, ys: ArrayLike, x0: Gaussian | GaussianMixture | Empirical, *, params: dict | None = None,
-               keep: Iterable[str] | None = None, x_true: ArrayLike | None = None,
-               executor: Executor | None = None, first_run: int = 0) -> ParticleResult:
-        """Filter the measurements ``ys`` from the prior ``x0`` (the convention of
-        :meth:`NonlinearKalmanFilter.filter <symmon.NonlinearKalmanFilter.filter>`: predict,
-        then update, for each measurement; ``ys[k]`` is y_{k+1}).
+    random: ClassVar[bool] = True
+    takes_covariance: ClassVar[bool] = False
 
-        Parameters
-        ----------
-        ys : array_like, shape (K, n_y) or (R, K, n_y)
-            Measurements, a leading axis for a bank of R runs; NaN marks a missing
-            component (a row of NaN: the step only predicts).
-        x0 : Gaussian, GaussianMixture or Empirical
-            The prior of x_0: the N particles of each run are drawn from it (an Empirical
-            is resampled by its weights).
-        params : dict, optional
-            The models' parameters by name: a number, one per step (K,), or one per run and
-            step (R, K).
-        keep : iterable of str, optional
-            The arrays to return among ``"x"``, ``"P"``, ``"x_pred"``, ``"P_pred"``,
-            ``"innovation"``, ``"S"`` and ``"nis"`` (default all); the log-likelihood and
-            the ESS are always kept.  The predicted moments cost a pass over the particles.
-        x_true : array_like, shape (K, n) or (R, K, n), optional
-            The true states: each step's NEES against the weighted mean and covariance.
-        executor : Executor, optional
-            Filter the runs of a bank in shards on threads, a local Dask scheduler or a
-            Dask cluster (:func:`symmon.filters.bank.filter_bank`, docs/scale-out.md):
-            the same result bit for bit.
-        first_run : int, default 0
-            The index of the first run of ``ys`` in a larger bank: run r draws from the
-            stream of run ``first_run + r`` (:func:`~symmon.filters.bank.run_streams`),
-            so a bank filtered in pieces gives the numbers of the whole bank.
+    @property
+    def sizes(self) -> tuple[int, int]:
+        """(n, n_y): the state's and the measurement's dimensions."""
+        return self.space.n, self.space.n_y
 
-        Returns
-        -------
-        ParticleResult
+    def _check_prior(self, x0: Any, P0: None, runs: int | None) -> tuple[Any, None]:
+        return check_prior(x0, self.space.n), None
+
+    def _check_params(self, params: dict | None, runs: int | None, steps: int) -> np.ndarray | None:
+        return param_values(self.space.params, params, runs, steps, who="the models")
+
+    def _numbers(self, keep: frozenset[str] | None) -> tuple[int, int]:
+        n, n_y = self.sizes
+        return kept_numbers(n, n_y, self.keepable if keep is None else keep) + 2, 0  # and the ESS
+
+    def _filter(self, call: FilterCall) -> ParticleResult:
+        """The recursion over the checked ``call`` (:meth:`filter`; predict, then update,
+        for each measurement; ``ys[k]`` is y_{k+1}).
+
+        The prior x0 is a Gaussian, a GaussianMixture or an Empirical: the N particles of
+        each run are drawn from it (an Empirical is resampled by its weights).  ``keep``
+        names arrays among ``"x"``, ``"P"``, ``"x_pred"``, ``"P_pred"``, ``"innovation"``,
+        ``"S"`` and ``"nis"``; the log-likelihood and the ESS are always kept, and the
+        predicted moments cost a pass over the particles.  Run r draws from the stream of
+        run ``call.first_run + r`` (:func:`~symmon.filters.bank.run_streams`), so a bank
+        filtered in pieces gives the numbers of the whole bank.
 
         Raises
         ------
-        ShapeError
-            Bad shapes, an infinite measurement, bad parameters.
         NonFiniteError
             A particle or weight became NaN or inf (the model overflows), or every particle
             of a run has zero likelihood, naming the run and step.
         SymmonError
             An EKF/UKF proposal step failed (a singular covariance).
         ResourceError
-            The particles or the kept arrays would exceed
-            :data:`~symmon.filters.results.MAX_BANK_NUMBERS` numbers.
+            The particles would exceed :data:`~symmon.filters.inputs.MAX_BANK_NUMBERS` numbers.
 
         Warns
         -----
         DegeneracyWarning
             When the ESS fell below :data:`DEGENERATE_ESS` (about one particle) at some step.
         """
-        if executor is not None:
-            return filter_bank(self, executor, ys, x0=x0, params=params, keep=keep, x_true=x_true)
         ss, N = self.space, self.particles
         n, n_y = ss.n, ss.n_y
-        Y, bank = measurement_bank(ys, n_y)
-        refuse_inf(Y)
-        Rr, K = bank or 1, Y.shape[-2]
-        Yb = Y.reshape(Rr, K, n_y)
-        kept = check_keep(keep)
-        names = frozenset(("x", "P", "x_pred", "P_pred", "innovation", "S", "nis")) if kept is None else kept
-        check_bank_size(Rr, K, kept_numbers(n, n_y, names) + 2, f"{self.method} results", "keep fewer arrays")
+        Y, bank, first_run = call.measurements, call.runs, call.first_run
+        Rr, K = bank or 1, call.steps
+        Yb = call.Y
+        names = frozenset(self.keepable) if call.keep is None else call.keep
         carried = n + (n * n + 2 * n_y + n_y * n_y if self._kf is not None else 0)  # and the proposal's step
         check_bank_size(Rr, N, 3 * carried + n_y + 2, f"{self.method} particles", "use fewer particles or runs")
-        x0 = check_prior(x0, n)
-        truth = None
-        if x_true is not None:
-            truth = check_truth(x_true, Y.shape[:-1] + (n,)).reshape(Rr, K, n)
-        pv = param_values(ss.params, params, bank, K, who="the models")
+        x0, truth, pv = call.x0, call.truth, call.pv
 
         kern = self._bootstrap_kernel
         loops = None if kern is None else kern.loops()
@@ -583,7 +565,7 @@ class ParticleFilter:
                 if "P" in out:
                     out["P"][:, k] = C
                 if truth is not None:
-                    nees[:, k] = _nees(m[:, None], C[:, None], truth[:, k:k + 1], ss.angle_states)[:, 0]
+                    nees[:, k] = nees_of(m[:, None], C[:, None], truth[:, k:k + 1], ss.angle_states)[:, 0]
             if want("x_pred", "P_pred"):
                 m, C = self._moments(prior_x, Wprev, cov="P_pred" in out)
                 if C is not None and self._kf is not None:
@@ -743,7 +725,7 @@ class ParticleFilter:
         loglik[np.isnan(Yb).all(axis=2)] = 0.0  # no measurement: log Σ W = 0 exactly
         resampled[:] = block[:, offs[9]:offs[10]] > 0
         if truth is not None:
-            nees[:] = _nees(arr["x"], arr["P"], truth, ss.angle_states)
+            nees[:] = nees_of(arr["x"], arr["P"], truth, ss.angle_states)
         if want_h:
             nu, S = self._innovation_moments(arr["hm"].reshape(Rr * K, n_y), arr["hS"].reshape(Rr * K, n_y, n_y),
                                              Yb.reshape(Rr * K, n_y), S_noise)
