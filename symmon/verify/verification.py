@@ -12,10 +12,21 @@ side of which may be a Gaussian expectation (:class:`Expectation`, in closed for
   difference, the exact difference when it is short, and an independent re-check in 100
   digits (the two sides evaluated apart, by mpmath). With a numeric reference (no closed
   form), a difference beyond the reference's error bound, confirmed by an independent
-  refined reference (:mod:`symmon.verify.numeric`).
+  refined reference (:mod:`symmon.verify.numeric`). A near miss that agrees in 50 digits is
+  refuted when the exact difference at a point is provably not 0 (a nonzero rational, or a
+  number sympy's ``evalf(strict=True)`` finds nonzero), re-checked with each side apart in
+  exact arithmetic or in as many digits as the difference needs.
 - **consistent**: no proof was found, and the claim agrees at every random point of the
   domain within the reference's own error: 1e-35 relative for exact expressions in 50
   digits, the quadrature's error estimate, or Monte Carlo's standard errors.
+
+No verdict (:class:`~symmon.errors.UndecidedProofError`) when the check cannot decide: no
+point where both sides are defined, a re-check that does not confirm a difference, a
+numeric reference that cannot bound its error (a ``DiracDelta``, a jump no sample crosses).
+Every simplification runs within the claim's time ``budget`` (:func:`symmon.timelimit.deadline`);
+a proof not found in time leaves the points to decide, and the certificate says so. A
+variable of an :class:`Expectation` takes every real value and may carry no assumption
+(``positive=True`` would make sympy turn ``Abs(x)`` into ``x``): it is refused.
 
 Every :class:`Verification` states the claim, the method, the assumptions and the evidence,
 prints as a short certificate and converts to JSON.
@@ -170,7 +181,8 @@ class Expectation:
     ----------
     expr : sympy expression or matrix
     over : symbol or sequence of symbols
-        The Gaussian vector x.
+        The Gaussian vector x: symbols with no assumption or ``real=True`` (x takes every
+        real value; a symbol declared positive, integer, ... is refused, naming it).
     mean : expression or sequence
         E x (symbols allowed).
     cov : expression or matrix
@@ -923,8 +935,13 @@ def verify(lhs: Any, rhs: Any, assumptions: Any = None, domain: Any = None, *, p
     ShapeError
         The sides have different shapes.
     UndecidedProofError
-        No random point of the domain has both sides defined, or a 50-digit difference
-        is not confirmed by the 100-digit re-check.
+        No random point of the domain has both sides defined, a difference is not
+        confirmed by its re-check, or a numeric reference cannot bound its error (an
+        expectation of a ``DiracDelta``, a function whose jumps no sample crosses, a
+        number too long for Python's conversion of integers to text).
+    ArgumentError
+        An assumption or a domain on a variable of an :class:`Expectation` (it takes every
+        real value), or a budget that is not a positive number.
 
     Examples
     --------
