@@ -16,21 +16,16 @@ Estimation", FUSION 2024, arXiv:2410.13539, Sections III–IV, eqs. (18)–(21),
 
 from __future__ import annotations
 
-import os
-import signal
-import sys
-import threading
 import time
-from contextlib import contextmanager
 from dataclasses import replace
 from functools import lru_cache
-from typing import Any, Callable, Iterator
+from typing import Any, Callable
 
-import mpmath
 import numpy as np
 import sympy as sp
 
 from ..errors import NonSmoothModelError, SymmonError, UndecidedProofError
+from ..timelimit import OutOfTime, deadline
 from .check import SCALE_SETS, _numeric_check
 from .kinks import UNDIFFERENTIATED, kink_text, localize, nonsmooth_atoms
 from .proof import InvarianceProof, _say
@@ -102,46 +97,6 @@ def _decide(diff: sp.Expr, seed: int = 0) -> tuple[sp.Expr, bool, dict | None]:
         f"where it is nonzero was found ({sp.count_ops(d)} operations)"
     )
 
-#: Code the direct route's alarm may interrupt: sympy, mpmath and symmon itself.
-_INTERRUPTIBLE = tuple(os.path.dirname(m.__file__) + os.sep for m in (sp, mpmath, sys.modules[__package__]))
-
-
-class _OutOfTime(BaseException):
-    """The budget is spent. A BaseException: sympy catches Exception in places, and must
-    not swallow the alarm."""
-
-
-@contextmanager
-def _deadline(seconds: float) -> Iterator[Callable[[], None]]:
-    """A wall-clock limit: SIGALRM in the main thread (it interrupts a long sympy call), and
-    a check between steps everywhere."""
-    end = time.perf_counter() + seconds
-
-    def check() -> None:
-        if time.perf_counter() > end:
-            raise _OutOfTime
-
-    use_alarm = threading.current_thread() is threading.main_thread() and hasattr(signal, "setitimer")
-    if not use_alarm:
-        yield check
-        return
-
-    def handler(signum, frame):  # noqa: ARG001 - the signal handler signature
-        # Interrupt only the proof's own code: raised elsewhere (e.g. in a garbage-collector
-        # callback) the exception would be ignored and the alarm lost.
-        if frame is not None and frame.f_code.co_filename.startswith(_INTERRUPTIBLE):
-            raise _OutOfTime
-
-    old = signal.signal(signal.SIGALRM, handler)
-    # Repeat the alarm every 0.1 s until it is cleared: a skipped one comes again.
-    signal.setitimer(signal.ITIMER_REAL, seconds, 0.1)
-    try:
-        yield check
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
-
-
 def direct_size(model: Model) -> int:
     """Σ count_ops(g_i) · n_w²: how much the direct route has to differentiate and simplify."""
     nw = model.n_u + model.n_v
@@ -165,9 +120,9 @@ def _prove_direct(model: Model, weight: Any, label: str, mu: sp.Matrix, P: sp.Ma
     numeric = not (mu.free_symbols or P.free_symbols or R.free_symbols)
     smooth, extra = _smooth_model(model, mu, numeric)
     try:
-        with _deadline(float(budget)) as check:
+        with deadline(float(budget)) as check:
             proof = _direct(smooth, weight, label, mu, P, R, progress, check, t0)
-    except _OutOfTime:
+    except OutOfTime:
         raise SymmonError(
             f"the direct symbolic proof of {model.name!r} did not finish in {budget:g} s (size {size}): "
             f"{hint}; or raise the budget (--budget SECONDS)"

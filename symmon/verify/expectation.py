@@ -54,7 +54,7 @@ import sympy as sp
 
 from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, ExpectationNotClosedForm, ShapeError
 
-__all__ = ["expect", "gaussian_polynomial_mean", "normal_cdf", "normal_pdf", "as_mean_cov"]
+__all__ = ["expect", "gaussian_polynomial_mean", "normal_cdf", "normal_pdf", "as_mean_cov", "check_variables"]
 
 #: Longest text of a subexpression quoted in an error message.
 _QUOTE = 80
@@ -90,6 +90,37 @@ def _symbols(over: Any) -> tuple[sp.Symbol, ...]:
     if len(set(items)) != len(items):
         raise ArgumentError(f"over lists a symbol twice: {[str(s) for s in items]}")
     return tuple(items)
+
+
+#: The assumptions a variable's refusal names, the most telling first.
+_NAMED_ASSUMPTIONS = ("positive", "negative", "zero", "nonnegative", "nonpositive", "nonzero", "integer",
+                      "rational", "irrational", "imaginary")
+
+
+def check_variables(over: Sequence[sp.Symbol]) -> None:
+    """Refuse a Gaussian variable that carries an assumption a real Gaussian does not meet.
+
+    A variable of a Gaussian expectation takes every real value. sympy uses a symbol's
+    assumptions as soon as an expression is built (``Abs(x)`` is ``x`` for a positive x,
+    ``sin(pi*x)`` is 0 for an integer x), so E|x| = 0 would follow: a variable declared
+    positive, negative, nonzero, integer, ... is refused, naming it. A plain ``Symbol`` and
+    ``Symbol(name, real=True)`` are accepted.
+
+    Raises
+    ------
+    ArgumentError
+        A variable has such an assumption.
+    """
+    for s in over:
+        plain = sp.Symbol(s.name, real=True).assumptions0
+        extra = sorted(k for k, v in s.assumptions0.items() if plain.get(k, v if k == "commutative" else None) != v)
+        if extra:
+            named = [k for k in _NAMED_ASSUMPTIONS if s.assumptions0.get(k) is True] or \
+                [f"{k}={s.assumptions0[k]}" for k in extra[:3]]
+            raise ArgumentError(
+                f"over: the Gaussian variable {s} is declared {named[0]}, but a variable of a Gaussian expectation "
+                f"takes every real value, and sympy has already used the assumption on the expression (Abs({s}) "
+                f"becomes {s} for a positive {s}): declare it sp.Symbol({s.name!r}, real=True)")
 
 
 def _entries(a: Any) -> list:
@@ -471,6 +502,7 @@ def expect(expr: Any, over: Any, mean: Any, cov: Any) -> sp.Expr:
     sqrt(2)/sqrt(pi)
     """
     x = _symbols(over)
+    check_variables(x)
     e = _as_sympy(expr, "expr")
     if not isinstance(e, sp.Expr):
         raise ArgumentTypeError(f"expr must be a scalar sympy expression, got {type(e).__name__}")

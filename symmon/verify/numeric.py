@@ -3,14 +3,28 @@
 When :func:`symmon.expect` cannot give E[f(x)] in closed form (``ExpectationNotClosedForm``),
 a claim about it can still be checked at points, against a reference whose error is known:
 
-- one dimension: mpmath's adaptive quadrature in 30 digits, split at the kinks of f (the zeros
-  of the arguments of ``Abs``, ``Max``, ``Min``, ``sign``, ``Heaviside``), with its own error
-  estimate;
-- two or three dimensions: tensor Gauss–Hermite rules of two orders, the error the
+- one dimension: mpmath's adaptive quadrature in 30 digits, split at every kink and jump of f
+  (the real zeros of the arguments of ``Abs``, ``sign``, ``Heaviside``, of the differences
+  of the arguments of ``Max`` and ``Min``, of the two sides of each relation of a
+  ``Piecewise``), with its own error estimate;
+- two or three dimensions, f smooth: tensor Gauss–Hermite rules of two orders, the error the
   difference of the two times :data:`GH_SAFETY` (the estimate of
   :class:`symmon.GaussHermite`'s ``error_estimate``);
-- more dimensions: Monte Carlo with a seeded ``numpy.random.Generator``, the error
-  :data:`MC_SIGMAS` standard errors.
+- more dimensions, and f not smooth (:data:`NONSMOOTH`) where the quadrature cannot be split
+  at all its jumps (two or more dimensions, ``floor``, a kink of a non-polynomial argument):
+  Monte Carlo with a seeded ``numpy.random.Generator``. Its error is :data:`MC_SIGMAS`
+  standard errors plus the second term of the empirical Bernstein bound (Maurer & Pontil
+  2009), (7/3) ln(2/δ) R/(N − 1) with ln(2/δ) = MC_SIGMAS²/2 and R the range of f over the
+  samples and over probe points out to 12 standard deviations along each axis: a jump that
+  the samples rarely cross is not hidden by a small sample variance. When f took one value
+  at every sample and probe though it has jumps, the reference cannot tell where they are,
+  and no verdict is given (:class:`~symmon.errors.UndecidedProofError`); so is it for
+  ``DiracDelta``, which no numeric rule integrates.
+
+A Gauss–Hermite rule's two orders agree on a jump they do not straddle (E sign(x₁x₂) with no
+node where sign(x₁) changes is 0 to 1e-13 by both), so its "error" is no bound there and it is
+never used for a function with a kink or a jump. A Monte Carlo reference, like any sampling,
+cannot see a feature of f of probability much below 1/N that no sample or probe meets.
 
 Every result is a value and an error bound per function; a reference is never a proof, and
 :mod:`symmon.verify.verification` says "consistent", never "proved", from it.
@@ -25,10 +39,12 @@ import mpmath
 import numpy as np
 import sympy as sp
 
-from ..errors import NonFiniteError, SingularMatrixError
+from ..errors import NonFiniteError, SingularMatrixError, UndecidedProofError
 from ..transforms.nodes import standard_rule
+from ..units.kinks import NONSMOOTH as KINKS
 
-__all__ = ["Reference", "gaussian_integrals", "GH_ORDERS", "GH_SAFETY", "MC_SAMPLES", "MC_SIGMAS", "QUAD_DPS"]
+__all__ = ["Reference", "gaussian_integrals", "nonsmooth", "GH_ORDERS", "GH_SAFETY", "MC_SAMPLES", "MC_SIGMAS",
+           "QUAD_DPS", "NONSMOOTH"]
 
 #: Digits of the one-dimensional quadrature.
 QUAD_DPS = 30
@@ -45,7 +61,14 @@ MC_SIGMAS = 5.0
 #: Relative rounding of a double-precision sum of many terms, added to the GH and MC bounds.
 DOUBLE_RTOL = 1e-13
 
-_KINKS = (sp.Abs, sp.Max, sp.Min, sp.sign, sp.Heaviside)
+#: Standard deviations out to which the probe points of a Monte Carlo reference go along each axis.
+PROBE_SIGMAS = 12
+#: Highest degree of a polynomial kink argument whose real zeros split the 1-D quadrature.
+MAX_KINK_DEGREE = 20
+#: The functions with a kink or a jump: sympy's (``Abs``, ``sign``, ``Max``, ``Min``,
+#: ``Heaviside``, ``DiracDelta``, ``floor``, ``ceiling``, ``frac``, ``Mod``, ``Piecewise``), and
+#: ``atan2`` and ``arg``, which jump across a half-line.
+NONSMOOTH = (*KINKS, sp.atan2, sp.arg)
 
 
 @dataclass(frozen=True)
@@ -58,36 +81,78 @@ class Reference:
     method: str
 
 
-def _kink_points(funcs: Sequence[sp.Expr], x: sp.Symbol) -> list[sp.Expr]:
-    """Real zeros in x of the arguments of the kinks of the functions (1-D breakpoints)."""
-    args: list[sp.Expr] = []
+def nonsmooth(funcs: Sequence[sp.Expr]) -> list[sp.Expr]:
+    """The calls of :data:`NONSMOOTH` functions in ``funcs`` (their kinks and jumps), no repeats."""
+    found: list[sp.Expr] = []
     for f in funcs:
-        for atom in f.atoms(*_KINKS):
-            if isinstance(atom, (sp.Max, sp.Min)):
-                a = list(atom.args)
-                args += [a[i] - a[j] for i in range(len(a)) for j in range(i + 1, len(a))]
-            else:
-                args.append(atom.args[0])
-    zeros: list[sp.Expr] = []
+        for node in sp.preorder_traversal(sp.sympify(f)):
+            if isinstance(node, NONSMOOTH) and node not in found:
+                found.append(node)
+    return found
+
+
+def _kink_arguments(atom: sp.Expr) -> list[sp.Expr] | None:
+    """Expressions whose real zeros hold every kink and jump of ``atom``, or None for a function
+    whose jumps are not the zeros of finitely many expressions (``floor``, ...)."""
+    if isinstance(atom, (sp.Abs, sp.sign, sp.Heaviside, sp.arg)):
+        return [atom.args[0]]
+    if isinstance(atom, (sp.Max, sp.Min)):
+        a = list(atom.args)
+        return [a[i] - a[j] for i in range(len(a)) for j in range(i + 1, len(a))]
+    if isinstance(atom, sp.atan2):
+        return list(atom.args)
+    if isinstance(atom, sp.Piecewise):
+        out = []
+        for _, cond in atom.args:
+            rels = cond.atoms(sp.core.relational.Relational)
+            # only relations joined by and, or, not: anything else (Contains, ...) is refused
+            if not isinstance(cond.xreplace({r: sp.true for r in rels}), sp.logic.boolalg.BooleanAtom):
+                return None
+            out += [r.lhs - r.rhs for r in rels]
+        return out
+    return None
+
+
+def _kink_points(funcs: Sequence[sp.Expr], x: sp.Symbol) -> list[float] | None:
+    """Every real point where a function of x alone has a kink or a jump (a superset: the real
+    parts of nearly real roots too), or None when they cannot all be found: a jump of ``floor``,
+    an argument that is no polynomial in x (or of degree above :data:`MAX_KINK_DEGREE`)."""
+    args: list[sp.Expr] = []
+    for atom in nonsmooth(funcs):
+        a = _kink_arguments(atom)
+        if a is None:
+            return None
+        args += a
+    zeros: list[float] = []
     for a in args:
+        a = sp.sympify(a)
         if not a.has(x):
             continue
         try:
             poly = sp.Poly(a, x)
         except sp.PolynomialError:
+            return None
+        if poly.degree() > MAX_KINK_DEGREE or poly.free_symbols - {x}:
+            return None
+        try:
+            coeffs = [complex(sp.N(c, 30)) for c in poly.all_coeffs()]
+        except TypeError:
+            return None
+        if poly.degree() < 1:
             continue
-        if poly.degree() > 4:
-            continue
-        zeros += [r for r in sp.roots(poly, filter="R")]
+        for r in np.roots(coeffs):
+            if abs(r.imag) <= 1e-4 * (1 + abs(r.real)):
+                zeros.append(float(r.real))
     return zeros
 
 
-def _quad_1d(funcs: Sequence[sp.Expr], x: sp.Symbol, m: sp.Expr, var: sp.Expr, dps: int) -> Reference:
+def _quad_1d(funcs: Sequence[sp.Expr], x: sp.Symbol, m: sp.Expr, var: sp.Expr, dps: int,
+             kinks: Sequence[float]) -> Reference:
     with mpmath.workdps(dps):
         mm, sd = mpmath.mpf(sp.N(m, dps + 5)), mpmath.sqrt(mpmath.mpf(sp.N(var, dps + 5)))
         if sd == 0:
             raise SingularMatrixError("the variance of the expectation is 0: no Gaussian integral to take")
-        breaks = sorted({float(sp.N((z - m), 20)) / float(sd) for z in _kink_points(funcs, x)})
+        breaks = sorted({(z - float(sp.N(m, 20))) / float(sd) for z in kinks})
         pts = [-mpmath.inf, *[mpmath.mpf(b) for b in breaks], mpmath.inf]
         vals, errs = [], []
         norm = 1 / mpmath.sqrt(2 * mpmath.pi)
@@ -133,15 +198,29 @@ def _gauss_hermite(funcs: Sequence[sp.Expr], over: Sequence[sp.Symbol], m: np.nd
 
 
 def _monte_carlo(funcs: Sequence[sp.Expr], over: Sequence[sp.Symbol], m: np.ndarray, L: np.ndarray,
-                 samples: int, seed: int) -> Reference:
+                 samples: int, seed: int, jumps: bool = False) -> Reference:
     rng = np.random.default_rng(seed)
-    Z = rng.standard_normal((samples, len(over)))
+    n = len(over)
+    Z = rng.standard_normal((samples, n))
     F = _evaluate(funcs, over, m + Z @ L.T)
     mean = F.mean(axis=1)
     se = F.std(axis=1, ddof=1) / np.sqrt(samples)
-    err = MC_SIGMAS * se + DOUBLE_RTOL * np.abs(F).mean(axis=1)
+    # the range of f: the samples, and probes out to PROBE_SIGMAS along each axis of z
+    t = np.arange(1, PROBE_SIGMAS + 1, dtype=float)
+    probes = np.concatenate([np.outer(sgn * t, np.eye(n)[i]) for i in range(n) for sgn in (-1, 1)])
+    G = _evaluate(funcs, over, m + probes @ L.T)
+    R = np.maximum(F.max(axis=1), G.max(axis=1)) - np.minimum(F.min(axis=1), G.min(axis=1))
+    if jumps and np.any(R == 0):
+        k = int(np.argmax(R == 0))
+        raise UndecidedProofError(
+            f"E[{funcs[k]}]: the function has kinks or jumps ({', '.join(map(str, nonsmooth([funcs[k]])))}) but took "
+            f"one value at all {samples} samples and {len(probes)} probe points, so no numeric reference can bound "
+            "where it changes: no verdict")
+    err = (MC_SIGMAS * se + (7 / 3) * (MC_SIGMAS**2 / 2) * R / (samples - 1)
+           + DOUBLE_RTOL * np.abs(F).mean(axis=1))
     return Reference(tuple(mpmath.mpf(float(v)) for v in mean), tuple(mpmath.mpf(float(e)) for e in err),
-                     f"Monte Carlo, {samples} samples, seed {seed} (error: {MC_SIGMAS:g} standard errors)")
+                     f"Monte Carlo, {samples} samples, seed {seed} (error: {MC_SIGMAS:g} standard errors and the "
+                     "empirical Bernstein range term)")
 
 
 def gaussian_integrals(funcs: Sequence[sp.Expr], over: Sequence[sp.Symbol], mean: Sequence[sp.Expr],
@@ -172,17 +251,25 @@ def gaussian_integrals(funcs: Sequence[sp.Expr], over: Sequence[sp.Symbol], mean
         extra = f.free_symbols - set(over)
         if extra:
             raise SingularMatrixError(f"E[{f}]: symbols {sorted(map(str, extra))} have no value at this point")
+    atoms = nonsmooth(funcs)
+    deltas = [a for a in atoms if isinstance(a, sp.DiracDelta)] + [d for f in funcs for d in f.atoms(sp.Derivative)]
+    if deltas:
+        raise UndecidedProofError(f"E[...] of {deltas[0]}: a point mass (or an unevaluated derivative) has no numeric "
+                                  "reference: no verdict")
     if n == 1:
-        return _quad_1d(funcs, over[0], sp.sympify(mean[0]), cov[0, 0], 2 * QUAD_DPS if refine else QUAD_DPS)
+        kinks = _kink_points(funcs, over[0]) if atoms else []
+        if kinks is not None:
+            return _quad_1d(funcs, over[0], sp.sympify(mean[0]), cov[0, 0], 2 * QUAD_DPS if refine else QUAD_DPS,
+                            kinks)
     m = np.array([float(sp.N(v, 20)) for v in mean])
     P = np.array(cov.evalf(20).tolist(), dtype=float)
     try:
         L = np.linalg.cholesky(P + 0.0)
     except np.linalg.LinAlgError:
         raise SingularMatrixError(f"the covariance of the expectation is not positive definite: {P.tolist()}") from None
-    if n in GH_ORDERS and not refine:
+    if not atoms and n in GH_ORDERS and not refine:
         return _gauss_hermite(funcs, over, m, L, GH_ORDERS[n])
-    if n == 2:  # the re-check in 2-D: higher orders
+    if not atoms and n == 2:  # the re-check in 2-D: higher orders
         return _gauss_hermite(funcs, over, m, L, GH_REFINED)
     samples = MC_SAMPLES * (4 if refine else 1)
-    return _monte_carlo(funcs, over, m, L, samples, seed + (1 if refine else 0))
+    return _monte_carlo(funcs, over, m, L, samples, seed + (1 if refine else 0), jumps=bool(atoms))

@@ -12,10 +12,21 @@ side of which may be a Gaussian expectation (:class:`Expectation`, in closed for
   difference, the exact difference when it is short, and an independent re-check in 100
   digits (the two sides evaluated apart, by mpmath). With a numeric reference (no closed
   form), a difference beyond the reference's error bound, confirmed by an independent
-  refined reference (:mod:`symmon.verify.numeric`).
+  refined reference (:mod:`symmon.verify.numeric`). A near miss that agrees in 50 digits is
+  refuted when the exact difference at a point is provably not 0 (a nonzero rational, or a
+  number sympy's ``evalf(strict=True)`` finds nonzero), re-checked with each side apart in
+  exact arithmetic or in as many digits as the difference needs.
 - **consistent**: no proof was found, and the claim agrees at every random point of the
   domain within the reference's own error: 1e-35 relative for exact expressions in 50
   digits, the quadrature's error estimate, or Monte Carlo's standard errors.
+
+No verdict (:class:`~symmon.errors.UndecidedProofError`) when the check cannot decide: no
+point where both sides are defined, a re-check that does not confirm a difference, a
+numeric reference that cannot bound its error (a ``DiracDelta``, a jump no sample crosses).
+Every simplification runs within the claim's time ``budget`` (:func:`symmon.timelimit.deadline`);
+a proof not found in time leaves the points to decide, and the certificate says so. A
+variable of an :class:`Expectation` takes every real value and may carry no assumption
+(``positive=True`` would make sympy turn ``Abs(x)`` into ``x``): it is refused.
 
 Every :class:`Verification` states the claim, the method, the assumptions and the evidence,
 prints as a short certificate and converts to JSON.
@@ -34,6 +45,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import mpmath
 import numpy as np
 import sympy as sp
+from sympy.printing.str import StrPrinter
 
 from ..errors import (
     ArgumentError,
@@ -44,6 +56,8 @@ from ..errors import (
     SingularMatrixError,
     UndecidedProofError,
 )
+from ..timelimit import OutOfTime, deadline
+from .expectation import check_variables
 from .numeric import Reference, gaussian_integrals
 
 __all__ = ["Verification", "Expectation", "verify", "VERDICTS", "ASSUMPTIONS", "DEFAULT_POINTS",
@@ -68,6 +82,13 @@ DIGITS, RECHECK_DIGITS = 50, 100
 EXACT_RTOL = sp.Float("1e-35")
 #: sympy's simplify is tried on differences of at most this many operations.
 SIMPLIFY_MAX_OPS = 600
+#: Seconds the exact work on a claim may take by default (the proof's simplifications and the
+#: exact differences at the points), every attempt bounded (:func:`symmon.timelimit.deadline`).
+BUDGET_S = 20.0
+#: The share of the budget each rewrite tried before ``simplify`` may take at most.
+REWRITE_SHARE = 0.25
+#: Most digits of the re-check of an exact nonzero difference far below the sides' size.
+MAX_RECHECK_DIGITS = 20000
 #: Points drawn per point asked for, before giving up on a domain (constraints, definiteness).
 TRIES_PER_POINT = 40
 
@@ -160,7 +181,8 @@ class Expectation:
     ----------
     expr : sympy expression or matrix
     over : symbol or sequence of symbols
-        The Gaussian vector x.
+        The Gaussian vector x: symbols with no assumption or ``real=True`` (x takes every
+        real value; a symbol declared positive, integer, ... is refused, naming it).
     mean : expression or sequence
         E x (symbols allowed).
     cov : expression or matrix
@@ -180,6 +202,7 @@ class Expectation:
         self.over = tuple(over) if isinstance(over, (list, tuple, sp.MatrixBase)) else (over,)
         if not self.over or not all(isinstance(s, sp.Symbol) for s in self.over):
             raise ArgumentTypeError(f"over must be a sympy Symbol or a sequence of them, got {over!r}")
+        check_variables(self.over)
         n = len(self.over)
         self.mean = as_matrix(mean, "mean").reshape(n, 1) if _size(mean) == n else None
         if self.mean is None:
@@ -210,7 +233,7 @@ class Expectation:
     def __repr__(self) -> str:
         body = self.expr[0] if self.expr.shape == (1, 1) else self.expr.tolist()
         names = ", ".join(map(str, self.over))
-        return f"E[{body}], ({names}) ~ N({list(self.mean)}, {self.cov.tolist()})"
+        return f"E[{_text(body)}], ({names}) ~ N({_text(list(self.mean))}, {_text(self.cov.tolist())})"
 
 
 def _size(x: Any) -> int:
@@ -328,9 +351,11 @@ def prepare(objects: Iterable[Any], assumptions: Any, domain: Any) -> tuple[list
     """
     objects = list(objects)
     syms: set[sp.Symbol] = set()
+    variables: set[sp.Symbol] = set()
     for o in objects:
         if isinstance(o, Expectation):
             syms |= o.free_symbols | set(o.over)
+            variables |= set(o.over)
         else:
             syms |= as_matrix(o, "claim").free_symbols
     syms = {s for s in syms if isinstance(s, sp.Symbol)}
@@ -344,6 +369,7 @@ def prepare(objects: Iterable[Any], assumptions: Any, domain: Any) -> tuple[list
     elif isinstance(assumptions, Mapping):
         for key, words in assumptions.items():
             s = _symbol_key(key, by_name, "assumptions")
+            _not_a_variable(s, variables, "assumptions", f"{words!r}")
             for w in [words] if isinstance(words, str) else list(words):
                 if w not in ASSUMPTIONS:
                     raise ArgumentError(f"assumptions: {w!r} for {s} is not one of {', '.join(ASSUMPTIONS)}")
@@ -353,6 +379,8 @@ def prepare(objects: Iterable[Any], assumptions: Any, domain: Any) -> tuple[list
             if not isinstance(rel, sp.core.relational.Relational):
                 raise ArgumentTypeError(f"assumptions must be a mapping or a sequence of sympy relations "
                                         f"(sigma > 0), got {rel!r}")
+            for v in sorted(rel.free_symbols & variables, key=str):
+                _not_a_variable(v, variables, "assumptions", str(rel))
             word = _sign_word(rel)
             if word is not None:
                 s, w = word
@@ -384,6 +412,7 @@ def prepare(objects: Iterable[Any], assumptions: Any, domain: Any) -> tuple[list
                 raise ArgumentError(f"domain: a matrix key takes 'spd' (symmetric positive definite), got {value!r}")
             spd.append(sp.ImmutableMatrix(key).xreplace(rule))
             continue
+        _not_a_variable(_symbol_key(key, by_name, "domain"), variables, "domain", f"{value!r}")
         s = rule[_symbol_key(key, by_name, "domain")]
         try:
             lo, hi = (sp.Rational(repr(float(v))) if isinstance(v, float) else sp.Rational(v) for v in value)
@@ -396,6 +425,15 @@ def prepare(objects: Iterable[Any], assumptions: Any, domain: Any) -> tuple[list
     texts += [f"{sp.Matrix(M).tolist()} symmetric positive definite (random points)" for M in spd]
     out = [o.xreplace(rule) if isinstance(o, Expectation) else as_matrix(o, "claim").xreplace(rule) for o in objects]
     return out, Prepared(rule, texts, constraints, intervals, spd)
+
+
+def _not_a_variable(s: sp.Symbol, variables: set, what: str, given: str) -> None:
+    """Refuse an assumption or a domain on a variable of a Gaussian expectation."""
+    if s in variables:
+        raise ArgumentError(
+            f"{what}: {s} is a variable of a Gaussian expectation, which takes every real value; "
+            f"{given} cannot be assumed of it (sympy would use it, e.g. Abs({s}) -> {s}, and E|{s}| = 0 would follow). "
+            f"Drop it, or rename the variable if {s} is also a parameter")
 
 
 def domain_items(domain: Any) -> list[tuple[Any, Any]]:
@@ -504,25 +542,52 @@ def _admissible(pt: Mapping, prep: Prepared, covs: Sequence[sp.Matrix]) -> bool:
 
 
 # --------------------------------------------------------------------------- deciding
-def _zero_by(e: sp.Expr) -> str | None:
-    """The exact simplification that takes ``e`` to 0, or None when none does."""
+class _Clock:
+    """The budget of a claim's exact work: each attempt runs within what is left of it."""
+
+    def __init__(self, seconds: float) -> None:
+        self.seconds = seconds
+        self.end = time.perf_counter() + seconds
+        self.stopped: list[str] = []
+
+    def left(self) -> float:
+        return self.end - time.perf_counter()
+
+    def run(self, name: str, f: Callable[[], Any], share: float = 1.0) -> Any:
+        """``f()`` within ``share`` of the budget (and what is left of it), or None when it ran
+        out of time (noted) or sympy failed."""
+        seconds = min(self.left(), share * self.seconds)
+        if seconds <= 0:
+            self.stopped.append(name)
+            return None
+        try:
+            with deadline(seconds):
+                return f()
+        except OutOfTime:
+            self.stopped.append(name)
+            return None
+        except (TypeError, ValueError, ArithmeticError, RecursionError, sp.PolynomialError):
+            return None
+
+
+def _zero_by(e: sp.Expr, clock: _Clock) -> str | None:
+    """The exact simplification that takes ``e`` to 0, or None when none does (in the time left)."""
     if e == 0:
         return "identical"
     syms = list(e.free_symbols)
     if e.is_rational_function(*syms):
-        return "cancel" if sp.cancel(sp.together(e)) == 0 else None
-    ex = sp.expand(e)
-    if ex == 0:
+        return "cancel" if clock.run("cancel", lambda: sp.cancel(sp.together(e))) == 0 else None
+    ex = clock.run("expand", lambda: sp.expand(e), REWRITE_SHARE)
+    if ex is None:
+        ex = e
+    elif ex == 0:
         return "expand"
     for name, f in (("rewrite(erf), expand", lambda t: sp.expand(t.rewrite(sp.erf))),
                     ("expand_trig", lambda t: sp.expand(sp.expand_trig(t))),
                     ("powsimp, cancel", lambda t: sp.cancel(sp.powsimp(sp.expand(t), force=False)))):
-        try:
-            if f(ex) == 0:
-                return name
-        except (TypeError, ValueError, sp.PolynomialError):
-            pass
-    if sp.count_ops(ex) <= SIMPLIFY_MAX_OPS and sp.simplify(ex) == 0:
+        if clock.run(name, lambda f=f: f(ex), REWRITE_SHARE) == 0:
+            return name
+    if sp.count_ops(ex) <= SIMPLIFY_MAX_OPS and clock.run("simplify", lambda: sp.simplify(ex)) == 0:
         return "simplify"
     return None
 
@@ -562,13 +627,55 @@ def _recheck(le: sp.Expr, re_: sp.Expr, pt: Mapping, d50: sp.Expr, scale: sp.Exp
                     f"rhs = {mpmath.nstr(rv, 30)}, difference = {mpmath.nstr(d, 20)}")
 
 
-def _exact_text(value: sp.Expr) -> str | None:
-    """The exact difference at a point, simplified, when it is short and holds no float."""
+def _exact_text(value: sp.Expr, clock: _Clock) -> str | None:
+    """The exact difference at a point, simplified (within the budget), when it is short and holds no float."""
     if value.free_symbols or value.atoms(sp.Float) or sp.count_ops(value) > 60:
         return None
-    value = sp.radsimp(sp.simplify(value)) if sp.count_ops(value) > 1 else value
-    text = str(value)
+    if sp.count_ops(value) > 1:
+        value = clock.run("the exact difference's text", lambda: sp.radsimp(sp.simplify(value)), REWRITE_SHARE)
+        if value is None:
+            return None
+    text = _text(value)
     return text if len(text) <= 120 and not value.atoms(sp.Float) else None
+
+
+class _Printer(StrPrinter):
+    """sympy's str printer, with integers too long for Python's text conversion (4300 digits
+    by default) shown by their first and last digits and their length."""
+
+    def _print_Integer(self, expr: sp.Integer) -> str:
+        return _int_text(int(expr.p))
+
+    def _print_int(self, expr: int) -> str:
+        return _int_text(expr)
+
+    def _print_Rational(self, expr: sp.Rational) -> str:
+        if expr.q == 1:
+            return _int_text(int(expr.p))
+        return f"{_int_text(int(expr.p))}/{_int_text(int(expr.q))}"
+
+
+#: Integers of at most this many bits are printed in full (Python converts up to 4300 digits).
+_FULL_INT_BITS = 14000
+
+
+def _int_text(n: int) -> str:
+    if abs(n).bit_length() <= _FULL_INT_BITS:
+        return str(n)
+    a = abs(n)
+    digits = int(a.bit_length() * 0.30102999566398120) + 1
+    while digits > 1 and 10 ** (digits - 1) > a:
+        digits -= 1
+    while 10 ** digits <= a:
+        digits += 1
+    head, tail = a // 10 ** (digits - 20), a % 10 ** 6
+    return f"{'-' if n < 0 else ''}{head}...{tail:06d} ({digits} digits)"
+
+
+def _text(e: Any, limit: int | None = None) -> str:
+    """``str(e)`` that never fails on a long integer; cut to ``limit`` characters."""
+    text = _Printer().doprint(e)
+    return text if limit is None or len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _entry(M: sp.Matrix, i: int) -> str | None:
@@ -582,26 +689,73 @@ def _point_text(pt: Mapping) -> dict:
     return {s.name: str(v) for s, v in sorted(pt.items(), key=lambda kv: kv[0].name)}
 
 
+def _exact_nonzero(le: sp.Expr, re_: sp.Expr, d: sp.Expr, clock: _Clock) -> tuple[sp.Expr, str] | None:
+    """The exact difference ``d = le - re_`` at a point when it is provably nonzero, with its
+    independent re-check (the sides apart: in exact rational arithmetic when both are rational,
+    else by mpmath in as many digits as the difference needs), or None.
+
+    Nonzero is proved by a rational value, or by sympy's ``evalf`` with ``strict=True`` (its
+    error control: a nonzero value with all its digits correct); 0 and undecided numbers
+    return None, so a near miss is refuted only when its difference is certain."""
+    if d.free_symbols or d.atoms(sp.Float):
+        return None
+    if d.is_Rational:
+        if d == 0:
+            return None
+        value = d
+    else:
+        value = clock.run("the exact difference at a point", lambda: sp.N(d, 20, strict=True, maxn=MAX_RECHECK_DIGITS),
+                          REWRITE_SHARE)
+        if value is None or value == 0 or not value.is_real:
+            return None
+    lx, rx = le, re_
+    if lx.is_Rational and rx.is_Rational:
+        if lx - rx != d:
+            return None
+        return d, (f"exact rational arithmetic, each side apart: lhs = {_fmt(lx)}, rhs = {_fmt(rx)}, "
+                   f"lhs - rhs = {_text(lx - rx, 120)}")
+    scale = max(abs(sp.N(lx, 15)), abs(sp.N(rx, 15)), 1)
+    digits = int(sp.ceiling(sp.log(scale / abs(sp.N(value, 15)), 10))) + 40
+    if digits > MAX_RECHECK_DIGITS:
+        return None
+    digits = max(digits, RECHECK_DIGITS)
+    with mpmath.workdps(digits):
+        try:
+            lv, rv = (mpmath.mpmathify(sp.N(x, digits)._to_mpmath(mpmath.mp.prec)) for x in (lx, rx))
+        except (TypeError, ValueError, AttributeError):
+            return None
+        diff = lv - rv
+        if not abs(diff - mpmath.mpf(str(sp.N(value, 20)))) <= abs(diff) * mpmath.mpf("1e-10"):
+            return None
+        return d, (f"in {digits} digits, each side apart: lhs = {mpmath.nstr(lv, 30)}, rhs = {mpmath.nstr(rv, 30)}, "
+                   f"difference = {mpmath.nstr(diff, 20)}")
+
+
 def decide(claim: str, lhs: Side, rhs: Side, prep: Prepared, *, points: int = DEFAULT_POINTS, seed: int = 0,
-           notes: Sequence[str] = (), t0: float | None = None, labels: Sequence[str] | None = None) -> Verification:
+           notes: Sequence[str] = (), t0: float | None = None, labels: Sequence[str] | None = None,
+           budget: float = BUDGET_S) -> Verification:
     """The verdict on ``lhs = rhs`` (sides of the same shape) over the prepared domain; ``labels``
-    name the entries (in row-major order) in a counterexample."""
+    name the entries (in row-major order) in a counterexample; ``budget`` bounds the seconds of
+    the exact work (each simplification attempt within what is left of it)."""
+    if isinstance(budget, bool) or not isinstance(budget, (int, float)) or not budget > 0:
+        raise ArgumentError(f"budget must be a positive number of seconds, got {budget!r}")
     t0 = time.perf_counter() if t0 is None else t0
     if lhs.shape != rhs.shape:
         raise ShapeError(f"the two sides of the claim have different shapes: {lhs.shape} and {rhs.shape}")
     notes = [*lhs.notes, *rhs.notes, *notes]
     texts = list(prep.texts)
     if lhs.exact is not None and rhs.exact is not None:
-        return _decide_exact(claim, lhs, rhs, prep, points, seed, notes, texts, t0, labels)
+        return _decide_exact(claim, lhs, rhs, prep, points, seed, notes, texts, t0, labels, _Clock(float(budget)))
     return _decide_numeric(claim, lhs, rhs, prep, min(points, NUMERIC_POINTS), seed, notes, texts, t0, labels)
 
 
-def _decide_exact(claim, lhs, rhs, prep, count, seed, notes, texts, t0, labels) -> Verification:
+def _decide_exact(claim, lhs, rhs, prep, count, seed, notes, texts, t0, labels, clock) -> Verification:
     L, R = lhs.exact, rhs.exact
     D = L - R
     symbols = L.free_symbols | R.free_symbols | lhs.symbols | rhs.symbols
     pts, refused = _points(symbols, prep, lhs.covs + rhs.covs, count, seed) if symbols else ([{}], 0)
     checked, skipped, worst = 0, 0, sp.Integer(0)
+    defined = []
     for pt in pts:
         vals = []
         for i in range(len(D)):
@@ -614,6 +768,7 @@ def _decide_exact(claim, lhs, rhs, prep, count, seed, notes, texts, t0, labels) 
             skipped += 1
             continue
         checked += 1
+        defined.append((pt, vals))
         for i, (lv, rv) in enumerate(vals):
             scale = sp.Max(1, abs(lv), abs(rv))
             diff = lv - rv
@@ -624,7 +779,7 @@ def _decide_exact(claim, lhs, rhs, prep, count, seed, notes, texts, t0, labels) 
                     raise UndecidedProofError(
                         f"{claim}: the sides differ by {_fmt(diff, 10)} at {_point_text(pt)} in {DIGITS} digits, "
                         f"but the re-check does not confirm it ({recheck})")
-                exact_text = _exact_text(D[i].xreplace(pt))
+                exact_text = _exact_text(D[i].xreplace(pt), clock)
                 cex = {"point": _point_text(pt), "entry": labels[i] if labels else _entry(D, i), "lhs": _fmt(lv), "rhs": _fmt(rv),
                        "difference": _fmt(diff, 20), "exact_difference": exact_text, "recheck": recheck}
                 return Verification(
@@ -633,21 +788,44 @@ def _decide_exact(claim, lhs, rhs, prep, count, seed, notes, texts, t0, labels) 
                     "exact expressions), re-checked apart in mpmath",
                     tuple(texts), {"notes": notes, "points_checked_before": checked - 1}, cex,
                     time.perf_counter() - t0)
-    how = [_zero_by(e) for e in D]
+    how = [_zero_by(e, clock) for e in D]
     if all(h is not None for h in how):
         return Verification(
             claim, "proved", "exact: lhs - rhs simplifies to 0 (sympy: " + ", ".join(sorted(set(how))) + ")",
             tuple(texts), {"difference": "0", "notes": notes,
                            "also_zero_at_random_points": checked, "digits": DIGITS}, None, time.perf_counter() - t0)
+    # A near miss: equal in 50 digits, but the exact difference at a point is not 0.
+    for k, (pt, vals) in enumerate(defined):
+        for i, (lv, rv) in enumerate(vals):
+            if how[i] is not None:
+                continue
+            le, re_ = L[i].xreplace(pt), R[i].xreplace(pt)
+            found = _exact_nonzero(le, re_, D[i].xreplace(pt), clock)
+            if found is None:
+                continue
+            d, recheck = found
+            cex = {"point": _point_text(pt), "entry": labels[i] if labels else _entry(D, i), "lhs": _fmt(lv),
+                   "rhs": _fmt(rv), "difference": _fmt(sp.N(d, DIGITS), 20), "exact_difference": _text(d, 120),
+                   "recheck": recheck}
+            return Verification(
+                claim, "refuted",
+                f"counterexample at an exact rational point: the sides agree to {DIGITS} digits, but their exact "
+                "difference there is not 0 (exact arithmetic), re-checked with each side apart",
+                tuple(texts), {"notes": notes, "points_checked_before": k}, cex, time.perf_counter() - t0)
     if checked == 0:
         raise UndecidedProofError(f"{claim}: no proof found, and no random point of the domain where both sides are "
                                   f"defined ({skipped} undefined, {refused} refused): give a domain")
+    evidence = {"points": checked, "max_relative_difference": _fmt(worst, 5), "notes": notes,
+                "unsimplified_entries": sum(h is None for h in how)}
+    if clock.stopped:
+        evidence["out_of_time"] = (f"stopped within the budget of {clock.seconds:g} s: "
+                                   + ", ".join(sorted(set(clock.stopped))))
     return Verification(
         claim, "consistent",
         f"no exact proof found; equal at {checked} random exact points within {EXACT_RTOL} relative "
-        f"({DIGITS}-digit evaluation)",
-        tuple(texts), {"points": checked, "max_relative_difference": _fmt(worst, 5), "notes": notes,
-                       "unsimplified_entries": sum(h is None for h in how)}, None, time.perf_counter() - t0)
+        f"({DIGITS}-digit evaluation)" + (f"; the proof search stopped at its budget of {clock.seconds:g} s"
+                                          if clock.stopped else ""),
+        tuple(texts), evidence, None, time.perf_counter() - t0)
 
 
 def _side_values(side: Side, pt: Mapping, refine: bool, seed: int) -> tuple[list, list, str] | None:
@@ -716,7 +894,7 @@ def _numeric_points(claim, lhs, rhs, pts, refused, seed, notes, texts, t0, label
 
 # --------------------------------------------------------------------------- the front end
 def verify(lhs: Any, rhs: Any, assumptions: Any = None, domain: Any = None, *, points: int = DEFAULT_POINTS,
-           seed: int = 0, claim: str | None = None) -> Verification:
+           seed: int = 0, claim: str | None = None, budget: float = BUDGET_S) -> Verification:
     """Verify the claim ``lhs = rhs``: proved, refuted (with a counterexample) or consistent.
 
     Parameters
@@ -742,6 +920,11 @@ def verify(lhs: Any, rhs: Any, assumptions: Any = None, domain: Any = None, *, p
         Seed of the random points (``numpy.random.default_rng``).
     claim : str, optional
         The statement as printed in the certificate (default: ``lhs = rhs``).
+    budget : float, default 20
+        Seconds the exact work may take: every simplification attempt of the proof (and of
+        an exact difference at a point) stops within what is left of it (each rewrite before
+        ``simplify`` within a quarter of it). A proof not found in time leaves the points to
+        decide: refuted or consistent, and the certificate says the search stopped.
 
     Returns
     -------
@@ -752,8 +935,13 @@ def verify(lhs: Any, rhs: Any, assumptions: Any = None, domain: Any = None, *, p
     ShapeError
         The sides have different shapes.
     UndecidedProofError
-        No random point of the domain has both sides defined, or a 50-digit difference
-        is not confirmed by the 100-digit re-check.
+        No random point of the domain has both sides defined, a difference is not
+        confirmed by its re-check, or a numeric reference cannot bound its error (an
+        expectation of a ``DiracDelta``, a function whose jumps no sample crosses, a
+        number too long for Python's conversion of integers to text).
+    ArgumentError
+        An assumption or a domain on a variable of an :class:`Expectation` (it takes every
+        real value), or a budget that is not a positive number.
 
     Examples
     --------
@@ -772,11 +960,18 @@ def verify(lhs: Any, rhs: Any, assumptions: Any = None, domain: Any = None, *, p
         raise ArgumentError(f"points must be a positive integer, got {points!r}")
     (lhs_p, rhs_p), prep = prepare([lhs, rhs], assumptions, domain)
     text = claim if claim is not None else f"{_show(lhs_p)} = {_show(rhs_p)}"
-    return decide(text, side_of(lhs_p), side_of(rhs_p), prep, points=points, seed=seed, t0=t0)
+    try:
+        return decide(text, side_of(lhs_p), side_of(rhs_p), prep, points=points, seed=seed, t0=t0, budget=budget)
+    except ValueError as exc:
+        if "string conversion" not in str(exc):
+            raise
+        raise UndecidedProofError(
+            f"{_text(text, 200)}: a number of the claim is too long for Python's conversion of integers to text "
+            f"({exc}), which a step of the check needs: no verdict") from None
 
 
 def _show(x: Any) -> str:
     if isinstance(x, Expectation):
         return repr(x)
     M = as_matrix(x, "claim")
-    return str(M[0]) if M.shape == (1, 1) else str(M.tolist())
+    return _text(M[0]) if M.shape == (1, 1) else _text(M.tolist())

@@ -85,3 +85,31 @@ def test_a_bad_file_exits_1_and_a_bad_option_2(capsys, tmp_path, good):
     assert code == 1 and "not found" in err
     code, _, err = run(capsys, "verify", str(good), "--points", "0")
     assert code == 2
+
+
+SIGN = """
+title = "a jump in two dimensions (issue 47)"
+[gaussian]
+variables = ["x1", "x2"]
+mean = ["1/3", "18/5"]
+cov = [["100/9", 0], [0, "1/9"]]
+[[claims]]
+name = "E sign(x1 x2) = E sign(x1) E sign(x2)"
+lhs = "expect(sign(x1*x2))"
+rhs = "(2*Phi(1/10) - 1)*(2*Phi(54/5) - 1)"
+[[claims]]
+name = "E sign(x1 x2) = 0, false"
+lhs = "expect(sign(x1*x2))"
+rhs = "0"
+expect = "refuted"
+"""
+
+
+def test_a_jump_is_checked_against_an_honest_reference(capsys, tmp_path):
+    path = tmp_path / "sign.toml"
+    path.write_text(textwrap.dedent(SIGN), encoding="utf-8")
+    code, out, _ = run(capsys, "verify", str(path), "--points", "2")
+    assert code == 0, out
+    assert "PASS  E sign(x1 x2) = E sign(x1) E sign(x2): consistent" in out
+    assert "PASS  E sign(x1 x2) = 0, false: refuted, expected refuted" in out
+    assert "Gauss-Hermite" not in out
