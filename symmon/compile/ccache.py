@@ -865,7 +865,8 @@ def _load_or_build(code: str, stem: str, opt: str, load: Callable[[Path], T], wa
         warn(f"symmon: the cached library {so} is damaged ({why}); rebuilding it")
         _remove_entry(so)
     _build(code, so, opt)
-    obj = load(so)
+    with cache_lock(so.parent):  # no eviction between the install and the load
+        obj = load(so)
     with _lock:
         _loaded.add(so)
     try:
