@@ -20,6 +20,7 @@ from ..errors import ModelError, UsageError
 from .options import FIGURES, executor_of, transform_from_name, transform_names
 from .output import (
     _bank_json,
+    _bytes_text,
     _filter_plot,
     _finite,
     _finite_measure,
@@ -512,3 +513,42 @@ def cmd_advise(args: argparse.Namespace) -> int:
               "the candidates below are ranked on its moment-matched Gaussian N(mean, cov)")
     print(f"{spec.model.name}: {a}")
     return 0
+
+
+def cmd_cache(args: argparse.Namespace) -> int:
+    """``symmon cache``: the compiled-code cache's directory, size, entries and cap; ``clear``."""
+    from ..compile.ccache import cache_info, cache_limit, clear_cache
+
+    if args.action == "clear":
+        cache_limit()  # a bad SYMMON_CACHE_MAX_MB is reported here too
+        removed, freed, builds = clear_cache()
+        directory = cache_info().directory
+        if args.json:
+            _print_json({"directory": str(directory), "removed": removed, "bytes_freed": freed,
+                         "builds_running": builds})
+            return 0
+        running = f"; {builds} build(s) running now left to finish" if builds else ""
+        print(f"removed {removed} entries ({_bytes_text(freed)}) from {directory}{running}")
+        return 0
+    info = cache_info()
+    if args.json:
+        _print_json({"directory": str(info.directory), "entries": len(info.entries), "size_bytes": info.size,
+                     "limit_bytes": info.limit, "builds_running": info.builds,
+                     "libraries": [{"name": e.path.name, "bytes": e.size, "last_used": _utc(e.last_used)}
+                                   for e in info.entries]})
+        return 0
+    cap = ("none (SYMMON_CACHE_MAX_MB=0)" if info.limit is None else
+           f"{_bytes_text(info.limit)} (SYMMON_CACHE_MAX_MB; the least recently used entries go first)")
+    print(f"directory  {info.directory}")
+    print(f"size       {_bytes_text(info.size)}")
+    print(f"entries    {len(info.entries)}")
+    print(f"cap        {cap}")
+    print(f"builds     {info.builds} running")
+    return 0
+
+
+def _utc(t: float) -> str:
+    """Seconds since the epoch as an ISO 8601 UTC time, to the second."""
+    import datetime
+
+    return datetime.datetime.fromtimestamp(t, datetime.timezone.utc).isoformat(timespec="seconds")

@@ -45,6 +45,17 @@ def _finite(name: str, value: Any) -> Any:
     return value
 
 
+def _bytes_text(n: int) -> str:
+    """A size in bytes, in B, KiB, MiB or GiB with three significant digits."""
+    if n < 1024:
+        return f"{n} B"
+    for unit in ("KiB", "MiB", "GiB"):
+        n /= 1024
+        if n < 1024 or unit == "GiB":
+            return f"{n:.3g} {unit}"
+    raise AssertionError("unreachable")
+
+
 def _print_json(obj: dict) -> None:
     print(json.dumps(obj, indent=2, allow_nan=False))
 

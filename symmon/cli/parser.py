@@ -100,6 +100,7 @@ _EXAMPLES = {
     "filter": ["symmon filter examples/rb_close.toml --runs 500 --plot nees.png",
                "symmon filter examples/rb_close.toml --filters ekf,ukf,adaptive --tol 0.01 --json",
                "symmon filter examples/rb_close.toml --filters ekf,ukf --smooth"],
+    "cache": ["symmon cache", "symmon cache --json", "symmon cache clear"],
     "advise": ["symmon advise examples/bot.toml --tol 0.001",
                "symmon advise examples/bot.toml --samples-file particles.csv",
                "symmon advise examples/polar.toml --weight diag --json"],
@@ -502,6 +503,15 @@ def _parser() -> argparse.ArgumentParser:
                 "the one a Kalman-type filter would carry")
     sp.add_argument("--json", action="store_true", help="print JSON")
     sp.set_defaults(func=commands.cmd_advise)
+
+    sp = add("cache", "the cache of compiled C code: its directory, size, entries and size cap "
+             "(SYMMON_CACHE, SYMMON_CACHE_MAX_MB; docs/compile.md), or clear it")
+    sp.add_argument("action", nargs="?", choices=("show", "clear"), default="show",
+                    help="show (default): the directory, size, number of entries and the cap; clear: remove "
+                    "every entry (builds running now are left to finish; a library loaded by a running "
+                    "program stays in use there)")
+    sp.add_argument("--json", action="store_true", help="print JSON")
+    sp.set_defaults(func=commands.cmd_cache)
     return p
 
 

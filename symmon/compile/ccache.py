@@ -19,6 +19,12 @@ everything between "here is C source" and "here is a loaded library":
   directory instead, with a warning.  Then its sha256 is checked against the file beside
   it (which names the entry, so a pair copied under another key fails too); a mismatch,
   a missing checksum or a load failure gives a warning and a rebuild.
+- **Size**: at most ``$SYMMON_CACHE_MAX_MB`` MiB (:data:`CACHE_MAX_MB` by default, 0 for no
+  cap).  A load records the entry's use (its modification time); after a build the least
+  recently used entries are evicted (:func:`evict`), never the new one nor a library this
+  process loaded.  Installs, loads and removals take the directory's ``flock``
+  (:func:`symmon.compile.ccbuild.cache_lock`): shared to install or load, exclusive to
+  remove.  :func:`cache_info` and :func:`clear_cache` are ``symmon cache [clear]``.
 - **Builds**: each runs as one build process (:mod:`symmon.compile.ccbuild`: the compiler, then
   the checksum and the atomic install) in a new session (process group) and in a
   temporary directory inside the cache.  On KeyboardInterrupt or SIGTERM the whole group
@@ -53,18 +59,21 @@ import tempfile
 import threading
 import time
 import warnings
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Callable, Generic, TypeVar
+from typing import Callable, Generic, Iterable, TypeVar
 
 import casadi as ca
 
 from . import ccbuild
-from .ccbuild import checksum_path, sha256_file
+from .ccbuild import cache_lock, checksum_path, sha256_file
 from ..errors import BuildError, SymmonError
 
 __all__ = ["cache_dir", "has_compiler", "compile_mode", "build_shared_library", "NativeLibrary",
-           "catch_sigterm", "build_limits", "BACKGROUND_BYTES", "CFLAGS", "native_target"]
+           "catch_sigterm", "build_limits", "BACKGROUND_BYTES", "CFLAGS", "native_target",
+           "CACHE_MAX_MB", "cache_limit", "CacheEntry", "CacheInfo", "cache_entries", "cache_info",
+           "evict", "clear_cache", "cache_refusal"]
 
 log = logging.getLogger(__name__)
 
@@ -266,9 +275,13 @@ def _parent_refusal(d: Path) -> str | None:
     return None
 
 
-def _refusal(d: Path) -> str | None:
+def cache_refusal(d: Path) -> str | None:
     """Why the resolved directory ``d`` cannot hold the cache (None if it can); creates it
-    mode 0700, unless it is a system directory of root's."""
+    mode 0700, unless it is a system directory of root's.
+
+    :func:`cache_dir` falls back to a private directory, with a warning, for such a
+    directory; a caller that chooses ``$SYMMON_CACHE`` (a test suite) can ask first.
+    """
     if os.geteuid() == 0 and is_system_path(d):
         return "it is a system directory, where symmon running as root caches nothing"
     try:
@@ -302,7 +315,7 @@ def cache_dir() -> Path:
     if d is None:
         return _private_dir()
     d = d.resolve()
-    why = _refusal(d)
+    why = cache_refusal(d)
     if why is None:
         return d
     fallback = _private_dir()
@@ -348,11 +361,243 @@ def _verify(so: Path) -> str | None:
 
 
 def _remove_entry(so: Path) -> None:
-    for p in (so, checksum_path(so)):
+    """Remove the entry ``so``: its checksum first, then the library.  A file already gone
+    (another process removed it) is no error.  An entry cut in two by a concurrent install
+    can then only be a checksum without its library, which the next build replaces; a
+    library without its checksum would be reported as damaged."""
+    for p in (checksum_path(so), so):
         try:
             p.unlink()
         except FileNotFoundError:
             pass
+
+
+#: Libraries loaded by this process (resolved paths): eviction leaves them in place.
+_loaded: set[Path] = set()
+
+
+def _open_entry(so: Path, load: Callable[[Path], T]) -> tuple[T | None, str | None]:
+    """Check and load the entry ``so`` under the cache's shared lock, and record its use.
+
+    Returns ``(object, None)`` when loaded, ``(None, None)`` when there is no such entry (or
+    another process removed it meanwhile: a build follows, without a warning), and
+    ``(None, why)`` when it is damaged.  A loaded entry's modification time is set to now:
+    the least recently used entries are evicted first (:func:`evict`), and access times
+    are not reliable (``noatime``, ``relatime``).
+    """
+    if not so.exists():
+        return None, None
+    with cache_lock(so.parent):
+        if not so.exists():
+            return None, None
+        why = _verify(so)
+        if why is None:
+            try:
+                obj = load(so)
+            except (OSError, RuntimeError) as exc:
+                why = f"loading it failed ({exc})"
+            else:
+                _touch(so)
+                with _lock:
+                    _loaded.add(so)
+                return obj, None
+        if not so.exists():  # gone meanwhile: only where the file system has no locks
+            return None, None
+        return None, why
+
+
+def _touch(so: Path) -> None:
+    """Record a use of the entry ``so`` (its modification time); a read-only cache is no error."""
+    try:
+        os.utime(so)
+    except OSError:
+        pass
+
+
+# --------------------------------------------------------------------------- size and eviction
+#: The default cap of the cache's size in MiB (``$SYMMON_CACHE_MAX_MB``): a small model's
+#: entries take tens of KiB, a run of symmon's own test suite leaves about 40 MB.
+CACHE_MAX_MB = 500
+
+
+def cache_limit() -> int | None:
+    """The cap of the cache's size in bytes: ``$SYMMON_CACHE_MAX_MB`` MiB (default
+    :data:`CACHE_MAX_MB`), or None for no cap (``SYMMON_CACHE_MAX_MB=0``).
+
+    Raises
+    ------
+    SymmonError
+        If ``SYMMON_CACHE_MAX_MB`` is not a whole number >= 0.
+    """
+    text = os.environ.get("SYMMON_CACHE_MAX_MB", "").strip()
+    if not text:
+        return CACHE_MAX_MB << 20
+    if not re.fullmatch(r"[0-9]+", text):
+        raise SymmonError(f"SYMMON_CACHE_MAX_MB must be a whole number of MiB (0: no limit), got {text!r}")
+    mb = int(text)
+    return None if mb == 0 else mb << 20
+
+
+@dataclass(frozen=True)
+class CacheEntry:
+    """One entry of the cache: a library and its checksum file.
+
+    Attributes
+    ----------
+    path : Path
+        The library (``STEM_KEY.so``).
+    size : int
+        Bytes of the library and its checksum file.
+    last_used : float
+        When it was built or last loaded (its modification time, seconds since the epoch).
+    """
+
+    path: Path
+    size: int
+    last_used: float
+
+
+@dataclass(frozen=True)
+class CacheInfo:
+    """What :func:`cache_info` reports: the directory, its entries, their size and the cap.
+
+    Attributes
+    ----------
+    directory : Path
+        The cache directory (:func:`cache_dir`).
+    entries : tuple of CacheEntry
+        The entries, most recently used first.
+    size : int
+        Bytes of all entries.
+    limit : int or None
+        The cap in bytes (:func:`cache_limit`), None for none.
+    builds : int
+        Builds running now (their ``.build-*`` directories, which are not entries).
+    """
+
+    directory: Path
+    entries: tuple[CacheEntry, ...]
+    size: int
+    limit: int | None
+    builds: int
+
+
+def cache_entries(d: Path) -> list[CacheEntry]:
+    """The entries of the cache directory ``d``, least recently used first.
+
+    A library is an entry when it is a regular file named ``*.so``; its checksum file counts
+    in its size.  A file that vanishes while it is listed (another process evicted it) is
+    skipped.
+    """
+    out = []
+    try:
+        names = [e.name for e in os.scandir(d) if e.name.endswith(".so") and not e.name.startswith(".")]
+    except FileNotFoundError:
+        return []
+    for name in names:
+        so = d / name
+        try:
+            st = so.lstat()
+        except FileNotFoundError:
+            continue
+        if not stat.S_ISREG(st.st_mode):
+            continue
+        try:
+            extra = checksum_path(so).lstat().st_size
+        except FileNotFoundError:
+            extra = 0
+        out.append(CacheEntry(so, st.st_size + extra, st.st_mtime))
+    out.sort(key=lambda e: (e.last_used, e.path.name))
+    return out
+
+
+def cache_info() -> CacheInfo:
+    """The cache directory, its entries (most recently used first), their size and the cap.
+
+    Raises
+    ------
+    SymmonError
+        If ``SYMMON_CACHE_MAX_MB`` is invalid (:func:`cache_limit`).
+    """
+    limit = cache_limit()
+    d = cache_dir()
+    entries = cache_entries(d)
+    builds = sum(1 for p in d.glob(".build-*") if p.is_dir())
+    return CacheInfo(d, tuple(reversed(entries)), sum(e.size for e in entries), limit, builds)
+
+
+def evict(d: Path, limit: int | None, keep: Iterable[Path] = ()) -> list[Path]:
+    """Remove the least recently used entries of ``d`` until their size is at most ``limit``.
+
+    Never removes an entry of ``keep`` (the one just built) nor a library loaded by this
+    process.  Runs under the cache's exclusive lock, without waiting: when another process
+    is installing or loading an entry, nothing is evicted now (the next build tries again).
+    An entry that another process removes meanwhile counts as removed.
+
+    Parameters
+    ----------
+    d : Path
+        The cache directory.
+    limit : int or None
+        The cap in bytes; None: no cap, nothing is removed.
+    keep : iterable of Path
+        Entries (libraries) that must stay.
+
+    Returns
+    -------
+    list of Path
+        The libraries removed, least recently used first.
+    """
+    if limit is None:
+        return []
+    kept = set(keep)
+    with _lock:
+        kept |= _loaded
+    removed: list[Path] = []
+    with cache_lock(d, exclusive=True, wait=False) as held:
+        if not held:
+            return removed
+        entries = cache_entries(d)
+        total = sum(e.size for e in entries)
+        for e in entries:
+            if total <= limit:
+                break
+            if e.path in kept:
+                continue
+            _remove_entry(e.path)
+            total -= e.size
+            removed.append(e.path)
+    if removed:
+        log.info("symmon: evicted %d least recently used entries from %s (cap %d MiB)", len(removed), d,
+                 limit >> 20)
+    return removed
+
+
+def clear_cache() -> tuple[int, int, int]:
+    """Remove every entry of the cache directory, and the directories of builds killed
+    long ago (older than :data:`STALE_BUILD_SECONDS`).
+
+    Waits for the cache's exclusive lock, so that no entry is removed while another process
+    installs it or checks it before loading it.  Builds running now are left alone: they
+    install their entries when they end.  A library another process has loaded stays mapped
+    in that process (removing a file does not unmap it).
+
+    Returns
+    -------
+    tuple of int
+        (entries removed, bytes freed, builds running left alone).
+    """
+    d = cache_dir()
+    with cache_lock(d, exclusive=True):
+        entries = cache_entries(d)
+        for e in entries:
+            _remove_entry(e.path)
+        for orphan in d.glob("*.so.sha256"):  # a checksum whose library was removed
+            if not orphan.with_suffix("").exists():
+                orphan.unlink(missing_ok=True)
+        _remove_stale_builds(d)
+        builds = sum(1 for p in d.glob(".build-*") if p.is_dir())
+    return len(entries), sum(e.size for e in entries), builds
 
 
 # --------------------------------------------------------------------------- compiler runs
@@ -603,24 +848,32 @@ def _entry(code: str, stem: str, opt: str, warn: Callable[[str], None]) -> Path:
 T = TypeVar("T")
 
 
-def _load_or_build(code: str, stem: str, opt: str, load: Callable[[Path], T], warn: Callable[[str], None]) -> T:
+def _load_or_build(code: str, stem: str, opt: str, load: Callable[[Path], T], warn: Callable[[str], None],
+                   limit: int | None = None) -> T:
     """Load the verified cache entry of ``code``; build it when missing or bad.
 
     A bad entry (checksum or load failure) is reported through ``warn``, removed and
-    rebuilt once.  Raises BuildError, or OSError/RuntimeError from ``load``.
+    rebuilt once.  After a build, the least recently used entries beyond ``limit`` bytes
+    are evicted (:func:`evict`; None: no cap).  Raises BuildError, or OSError/RuntimeError
+    from ``load``.
     """
     so = _entry(code, stem, opt, warn)
-    if so.exists():
-        why = _verify(so)
-        if why is None:
-            try:
-                return load(so)
-            except (OSError, RuntimeError) as exc:
-                why = f"loading it failed ({exc})"
+    obj, why = _open_entry(so, load)
+    if obj is not None:
+        return obj
+    if why is not None:
         warn(f"symmon: the cached library {so} is damaged ({why}); rebuilding it")
         _remove_entry(so)
     _build(code, so, opt)
-    return load(so)
+    with cache_lock(so.parent):  # no eviction between the install and the load
+        obj = load(so)
+    with _lock:
+        _loaded.add(so)
+    try:
+        evict(so.parent, limit, keep=[so])
+    except OSError as exc:  # a full cache is no reason to fail a build
+        log.warning("symmon: could not evict old entries from %s: %s", so.parent, exc)
+    return obj
 
 
 def build_shared_library(code: str, stem: str, stacklevel: int = 2) -> Path | None:
@@ -628,14 +881,20 @@ def build_shared_library(code: str, stem: str, stacklevel: int = 2) -> Path | No
 
     Returns its path, or None after a warning when no compiler is available or the
     build fails (``stacklevel`` as in ``warnings.warn``, counted from this function).
+
+    Raises
+    ------
+    SymmonError
+        If ``SYMMON_COMPILE`` or ``SYMMON_CACHE_MAX_MB`` is invalid.
     """
     if not has_compiler():
         warn_no_compiler(stacklevel=stacklevel + 1)
         return None
+    limit = cache_limit()
     catch_sigterm()
     try:
         return _load_or_build(code, stem, OPT_SYNC, lambda p: p,
-                              lambda msg: warnings.warn(msg, RuntimeWarning, stacklevel=stacklevel + 2))
+                              lambda msg: warnings.warn(msg, RuntimeWarning, stacklevel=stacklevel + 2), limit)
     except BuildError as exc:
         warnings.warn(f"symmon: compiling {stem} failed, using the CasADi VM:\n{exc}", RuntimeWarning,
                       stacklevel=stacklevel)
@@ -675,6 +934,7 @@ class NativeLibrary(Generic[T]):
         self._lock = threading.Lock()
         self._done = threading.Event()  # set when no build is pending
         mode = compile_mode()
+        self._limit = cache_limit()
         if mode == "never" or _compiler() is None:
             log.info("symmon: %s: evaluating on CasADi's VM (SYMMON_COMPILE=%s, compiler %s)",
                      stem, mode, "found" if _compiler() else "not found")
@@ -684,11 +944,9 @@ class NativeLibrary(Generic[T]):
         for opt in (OPT_SYNC, OPT_HUGE):
             so = _entry(code, stem, opt,
                         lambda msg: warnings.warn(msg, RuntimeWarning, stacklevel=stacklevel + 2))
-            if so.exists() and _verify(so) is None:
-                try:
-                    self._obj, self._state = load(so), "compiled"
-                except (OSError, RuntimeError):
-                    continue  # rebuilt below, with a warning
+            obj, _ = _open_entry(so, load)
+            if obj is not None:  # a damaged -O3 entry is rebuilt below, with a warning
+                self._obj, self._state = obj, "compiled"
                 log.info("symmon: %s: compiled C (%s) loaded from the cache", stem, opt)
                 self._done.set()
                 return
@@ -713,7 +971,8 @@ class NativeLibrary(Generic[T]):
         t0 = time.perf_counter()
         try:
             obj = _load_or_build(code, self.stem, opt, load,
-                                 lambda msg: warnings.warn(msg, RuntimeWarning, stacklevel=stacklevel + 2))
+                                 lambda msg: warnings.warn(msg, RuntimeWarning, stacklevel=stacklevel + 2),
+                                 self._limit)
         except (BuildError, OSError, RuntimeError) as exc:
             warnings.warn(f"symmon: compiling {self.stem} failed, using the CasADi VM:\n{exc}",
                           RuntimeWarning, stacklevel=stacklevel + 1)
@@ -724,7 +983,7 @@ class NativeLibrary(Generic[T]):
     def _background(self, code: str, opt: str, load: Callable[[Path], T]) -> None:
         t0 = time.perf_counter()
         try:
-            obj = _load_or_build(code, self.stem, opt, load, log.warning)
+            obj = _load_or_build(code, self.stem, opt, load, log.warning, self._limit)
         except BaseException as exc:  # a thread must not die with a traceback on stderr
             with self._lock:
                 self._state = "vm"

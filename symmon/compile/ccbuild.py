@@ -25,8 +25,13 @@ keeps symmon's own directory off ``sys.path`` (``symmon/io.py`` would shadow ``i
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+try:
+    import fcntl
+except ImportError:  # not on Windows: no locks there
+    fcntl = None  # type: ignore[assignment]
 try:
     import resource
 except ImportError:  # not on Windows: no limits there
@@ -37,6 +42,7 @@ import stat
 import subprocess
 import sys
 from pathlib import Path
+from typing import Iterator
 
 #: Characters of the compiler's output kept in the failure message.
 OUTPUT_TAIL = 2000
@@ -56,6 +62,51 @@ def checksum_path(so: Path) -> Path:
     return so.with_name(so.name + ".sha256")
 
 
+@contextlib.contextmanager
+def cache_lock(directory: Path, exclusive: bool = False, wait: bool = True) -> Iterator[bool]:
+    """Hold the lock of the cache ``directory`` (``flock`` on the directory itself, no file).
+
+    Shared (``exclusive=False``) while an entry is installed, or checked and loaded; exclusive
+    while entries are removed (eviction, ``symmon cache clear``), so that no entry is removed
+    between its checksum and its library, nor between a reader's check and its load.
+
+    Parameters
+    ----------
+    directory : Path
+        The cache directory.
+    exclusive : bool
+        An exclusive lock instead of a shared one.
+    wait : bool
+        Wait for the lock; with False, yield False at once when another process holds it.
+
+    Yields
+    ------
+    bool
+        True while the lock is held (or the system has none: no ``fcntl``, or a file system
+        that refuses ``flock``, where the readers' own checks are all that is left); False
+        only when ``wait`` is False and the lock is taken.
+    """
+    fd = -1
+    held = True
+    if fcntl is not None:
+        try:
+            fd = os.open(directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0))
+        except OSError:
+            fd = -1
+    try:
+        if fd >= 0:
+            try:
+                fcntl.flock(fd, (fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH) | (0 if wait else fcntl.LOCK_NB))
+            except BlockingIOError:
+                held = False
+            except OSError:
+                pass  # no locks on this file system: go on unlocked
+        yield held
+    finally:
+        if fd >= 0:
+            os.close(fd)  # releases the lock
+
+
 def install(built: Path, so: Path) -> None:
     """Move the library ``built`` to the cache entry ``so``, with its checksum, atomically.
 
@@ -63,13 +114,16 @@ def install(built: Path, so: Path) -> None:
     into place first: a reader that sees the new library sees its checksum.  Neither is
     left group- or world-writable (a umask of 002 would make them so).  Two
     processes installing the same entry each move complete files, the last one wins.
+    Both moves happen under the cache's shared lock (:func:`cache_lock`), so that an
+    eviction cannot remove the new checksum between them.
     """
     staged = checksum_path(built)
     staged.write_text(f"{sha256_file(built)}  {so.name}\n")
     for path in (built, staged):  # whatever the umask: an entry others can write is not loaded
         os.chmod(path, stat.S_IMODE(os.stat(path).st_mode) & ~0o022)
-    os.replace(staged, checksum_path(so))
-    os.replace(built, so)
+    with cache_lock(so.parent):
+        os.replace(staged, checksum_path(so))
+        os.replace(built, so)
 
 
 def _report(message: str) -> None:

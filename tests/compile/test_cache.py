@@ -271,7 +271,7 @@ def test_a_parent_others_can_write_is_refused(tmp_path, mode, refused):
     parent = tmp_path / "parent"
     parent.mkdir()
     parent.chmod(mode)
-    why = cc._refusal(parent / "cache")
+    why = cc.cache_refusal(parent / "cache")
     if refused:
         assert why == f"its parent {parent} is {'world' if mode & 0o002 else 'group'}-writable " \
                       "(someone else could replace the cache)"
@@ -290,7 +290,7 @@ def test_root_refuses_a_system_directory(tmp_path, monkeypatch, configured):
         configured = str(link)
     created = not Path(configured).exists()
     monkeypatch.setattr(cc.os, "geteuid", lambda: 0)
-    assert cc._refusal(Path(configured).resolve()) == \
+    assert cc.cache_refusal(Path(configured).resolve()) == \
         "it is a system directory, where symmon running as root caches nothing"
     assert not created or not Path(configured).exists()
 

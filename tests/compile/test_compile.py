@@ -322,13 +322,14 @@ def test_disk_cache_is_keyed_by_content_and_reused(tmp_path):
     env = {"SYMMON_CACHE": str(tmp_path)}
     first = _run(script, env, "first")
     assert first.returncode == 0, first.stderr
-    libs = {p.name: p.stat().st_mtime_ns for p in tmp_path.glob("*.so")}
+    # The file (inode) and its bytes: a load sets the modification time (the entry's last use).
+    libs = {p.name: (p.stat().st_ino, p.read_bytes()) for p in tmp_path.glob("*.so")}
     assert libs, "no shared library in the cache"
     second = _run(script, env, "second")
     assert second.returncode == 0, second.stderr
     assert second.stdout == first.stdout
-    after = {p.name: p.stat().st_mtime_ns for p in tmp_path.glob("*.so")}
-    assert {k: after[k] for k in libs} == libs  # reused, not rewritten
+    after = {p.name: (p.stat().st_ino, p.read_bytes()) for p in tmp_path.glob("*.so")}
+    assert {k: after[k] for k in libs} == libs  # reused, not rewritten (an install is a new file)
     assert len(after) > len(libs)
 
 
