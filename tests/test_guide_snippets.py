@@ -102,8 +102,8 @@ HANG_TIMEOUT_S = 600
 # The runner: each block compiled with the page's name and its own line numbers, all the
 # blocks of the page in one namespace, in order.
 RUNNER = """
-import json, sys
-page, blocks = sys.argv[1], json.loads(open(sys.argv[2], encoding="utf-8").read())
+import json, pathlib, sys
+page, blocks = sys.argv[1], json.loads(pathlib.Path(sys.argv[2]).read_text(encoding="utf-8"))
 namespace = {"__name__": "__main__"}
 for line, code in blocks:
     exec(compile("\\n" * (line - 1) + code, page, "exec"), namespace)
