@@ -81,7 +81,7 @@ from ..core.angles import wrap_angle
 from ..core.gaussian import Gaussian
 from ..core.mixture import Empirical, GaussianMixture
 from ..core.model import Model
-from ..errors import ArgumentError, DegeneracyWarning, ModelError, NonFiniteError, ShapeError, SymmonError
+from ..errors import ArgumentError, DegeneracyWarning, ModelError, NonFiniteError, ShapeError, SymmonError, plain_repr
 from ..transforms import TT1, UT
 from ..transforms.executor import Executor
 from .distributed import filter_bank, run_streams
@@ -280,7 +280,7 @@ class ParticleFilter:
             raise ArgumentError(f"resample must be one of {RESAMPLERS}, got {self.resample!r}")
         t = self.ess_threshold
         if isinstance(t, bool) or not isinstance(t, (int, float, np.floating, np.integer)) or not 0 <= t <= 1:
-            raise ArgumentError(f"ess_threshold must be a number in [0, 1], got {t!r}")
+            raise ArgumentError(f"ess_threshold must be a number in [0, 1], got {plain_repr(t)}")
         object.__setattr__(self, "ess_threshold", float(t))
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
             raise ArgumentError(f"seed must be a non-negative integer, got {self.seed!r}")

@@ -63,7 +63,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..core.angles import wrap_angle
-from ..errors import ArgumentTypeError, SymmonError
+from ..errors import ArgumentTypeError, SymmonError, plain_repr
 from ..core.gaussian import Gaussian
 from ..core.mixture import SPLITS, Empirical, GaussianMixture
 from ..core.model import Model, with_param_values
@@ -466,7 +466,7 @@ def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = DE
         raise ArgumentTypeError("advise ranks transforms for a Gaussian or a GaussianMixture; particles need none: "
                                 "use nonlinearity(model, particles), or advise on particles.as_gaussian()")
     if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not (0 < tol < 1):
-        raise SymmonError(f"tol must be a number in (0, 1), got {tol!r}")
+        raise SymmonError(f"tol must be a number in (0, 1), got {plain_repr(tol)}")
     cands = list(CANDIDATES if candidates is None else candidates)
     if not cands:
         raise SymmonError("candidates is empty")

@@ -43,6 +43,7 @@ from ..errors import (
     ShapeError,
     SingularMatrixError,
     UndecidedProofError,
+    plain_repr,
 )
 from .numeric import Reference, gaussian_integrals
 
@@ -183,7 +184,7 @@ class Expectation:
         n = len(self.over)
         self.mean = as_matrix(mean, "mean").reshape(n, 1) if _size(mean) == n else None
         if self.mean is None:
-            raise ShapeError(f"mean must have {n} entries (one per variable of over), got {mean!r}")
+            raise ShapeError(f"mean must have {n} entries (one per variable of over), got {plain_repr(mean)}")
         self.cov = as_matrix(cov, "cov")
         if self.cov.shape != (n, n):
             raise ShapeError(f"cov must be {n}x{n}, got shape {self.cov.shape}")
@@ -769,7 +770,7 @@ def verify(lhs: Any, rhs: Any, assumptions: Any = None, domain: Any = None, *, p
     """
     t0 = time.perf_counter()
     if not isinstance(points, int) or isinstance(points, bool) or points < 1:
-        raise ArgumentError(f"points must be a positive integer, got {points!r}")
+        raise ArgumentError(f"points must be a positive integer, got {plain_repr(points)}")
     (lhs_p, rhs_p), prep = prepare([lhs, rhs], assumptions, domain)
     text = claim if claim is not None else f"{_show(lhs_p)} = {_show(rhs_p)}"
     return decide(text, side_of(lhs_p), side_of(rhs_p), prep, points=points, seed=seed, t0=t0)
