@@ -1,4 +1,4 @@
-"""Exception types of symmon.
+"""Exception types of symmon, and :func:`plain_repr`, how their messages show a value.
 
 Every error symmon raises on bad input is a :class:`SymmonError`, which is also a
 :class:`ValueError`, so ``except ValueError`` keeps working for callers that do not
@@ -7,7 +7,10 @@ know symmon's types.
 
 from __future__ import annotations
 
+from typing import Any
+
 __all__ = [
+    "plain_repr",
     "SymmonError",
     "ShapeError",
     "CovarianceError",
@@ -36,6 +39,36 @@ __all__ = [
     "IdentifiabilityWarning",
     "DegeneracyWarning",
 ]
+
+#: An array of more entries is shown by its shape only in a message.
+PLAIN_MAX_ENTRIES = 12
+
+
+def plain_repr(value: Any) -> str:
+    """``value`` as an error message shows it: its ``repr``, with NumPy numbers plain.
+
+    Under NumPy ≥ 2 the ``repr`` of a NumPy scalar is ``np.float64(0.9)`` and that of an
+    array ``array([...])``; a message shows the number ``0.9`` and the list ``[0.5, 0.4]``
+    instead (an array of more than :data:`PLAIN_MAX_ENTRIES` entries by its shape).  Any
+    other value is shown by its ``repr`` (a string with its quotes, ``None``, a tuple).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> plain_repr(np.float64(0.9)), plain_repr(np.int64(-1)), plain_repr(np.array([0.5, 0.4]))
+    ('0.9', '-1', '[0.5, 0.4]')
+    >>> plain_repr("ukf"), plain_repr(2.5), plain_repr(np.zeros((20, 3)))
+    ("'ukf'", '2.5', 'an array of shape (20, 3)')
+    """
+    tolist = getattr(value, "tolist", None)
+    if callable(tolist) and hasattr(value, "dtype") and hasattr(value, "shape"):   # NumPy, without importing it
+        if getattr(value, "size", 1) > PLAIN_MAX_ENTRIES:
+            return f"an array of shape {tuple(value.shape)}"
+        return repr(tolist())
+    if isinstance(value, (tuple, list)):
+        inner = ", ".join(plain_repr(v) for v in value)
+        return f"[{inner}]" if isinstance(value, list) else f"({inner}{',' * (len(value) == 1)})"
+    return repr(value)
 
 
 class SymmonError(ValueError):

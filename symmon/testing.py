@@ -28,7 +28,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .errors import ArgumentError, UndecidedProofError
+from .errors import ArgumentError, UndecidedProofError, plain_repr
 from .verify.verification import Verification, verify
 
 __all__ = ["assert_derivation", "assert_moments_close", "assert_unit_invariant", "MOMENT_PARTS"]
@@ -122,7 +122,7 @@ def _numbers(x: Any, what: str) -> np.ndarray:
     try:
         arr = np.asarray(x, dtype=float)
     except (TypeError, ValueError):
-        raise ArgumentError(f"{what} must be numbers (evaluate symbolic moments at a point first), got {x!r}") from None
+        raise ArgumentError(f"{what} must be numbers (evaluate symbolic moments at a point first), got {plain_repr(x)}") from None
     if not np.all(np.isfinite(arr)):
         raise ArgumentError(f"{what} is not finite: {arr.tolist()}")
     return arr

@@ -8,6 +8,7 @@ module is. Fixtures are in tests/conftest.py.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,13 @@ EXAMPLES = ROOT / "examples"
 DERIVATIONS = ROOT / "derivations"
 #: Printed reference numbers of the lecture (tests/reference/*.json).
 REFERENCE_DIR = ROOT / "tests" / "reference"
+
+
+def checkout_environment() -> dict[str, str]:
+    """The environment of a subprocess that imports the package of this checkout and draws
+    nothing on screen (the runs of the README's and the docs' code blocks)."""
+    path = os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH")) if p)
+    return {**os.environ, "MPLBACKEND": "Agg", "PYTHONPATH": path}
 
 
 def radar_model(sensor: tuple[float, float]) -> sm.Model:

@@ -5,15 +5,23 @@ namespace, as a reader runs them when copying them one after another. Nothing is
 of sight: ``docs/conf.py``'s ``doctest_global_setup`` binds none of the names the snippets
 use, and the first snippet of each page imports every one of ``np``, ``sp`` and ``sm`` that
 the page uses. (That the snippets pass is the doctest build's job; this test keeps the rule.)
+
+The plain ```python blocks of every page under docs/ (issue 47, item 16) run here, page by
+page: the blocks of one page in order, in one namespace, in a fresh interpreter whose working
+directory is an empty temporary one, with warnings as errors. So a fragment that uses a name
+no block of its page defines fails with its NameError, at the page's own line number.
 """
 
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
-from helpers import ROOT
+from helpers import ROOT, checkout_environment
 
 DOCS = ROOT / "docs"
 #: The conventional names of the snippets and the module each stands for.
@@ -84,3 +92,87 @@ def test_the_docs_build_shows_symmons_warnings_only():
         assert not logging.getLogger("symmon.compile.ccache").isEnabledFor(logging.INFO)
     finally:
         logging.getLogger("symmon").setLevel(before)
+
+
+# --------------------------------------------------------------------------- ```python blocks
+#: The info strings of a fence whose block is Python to run (MyST's directives included).
+PYTHON_FENCES = re.compile(r"(python3?|py|\{code-block\}\s+python3?|\{code\}\s+python3?)")
+#: Generous wall-clock bound per page, so that a hang fails (not a timing test).
+HANG_TIMEOUT_S = 600
+# The runner: each block compiled with the page's name and its own line numbers, all the
+# blocks of the page in one namespace, in order.
+RUNNER = """
+import json, pathlib, sys
+page, blocks = sys.argv[1], json.loads(pathlib.Path(sys.argv[2]).read_text(encoding="utf-8"))
+namespace = {"__name__": "__main__"}
+for line, code in blocks:
+    exec(compile("\\n" * (line - 1) + code, page, "exec"), namespace)
+"""
+
+
+def python_blocks(text: str) -> list[tuple[int, str]]:
+    """(first code line, 1-based; code) of each fenced Python block of a Markdown page.
+
+    A fence is three or more backticks or tildes, closed by a line of the same character at
+    least as long (CommonMark); blocks inside another fence (a ````` ````markdown ````` example)
+    are not code to run.
+    """
+    out, fence, start, body, is_python = [], None, 0, [], False
+    for number, line in enumerate(text.splitlines(), start=1):
+        if fence is None:
+            m = re.fullmatch(r"\s{0,3}(`{3,}|~{3,})\s*(.*?)\s*", line)
+            if m:
+                fence, start, body = m.group(1), number + 1, []
+                is_python = bool(PYTHON_FENCES.fullmatch(m.group(2)))
+        elif re.fullmatch(rf"\s{{0,3}}{fence[0]}{{{len(fence)},}}\s*", line):
+            if is_python:
+                out.append((start, "\n".join(body) + "\n"))
+            fence = None
+        else:
+            body.append(line)
+    assert fence is None, f"the fence opened at line {start - 1} is not closed"
+    return out
+
+
+def run_blocks(page: Path, blocks: list[tuple[int, str]], cwd: Path) -> subprocess.CompletedProcess:
+    """Run the blocks of ``page`` in one fresh interpreter, from ``cwd``, warnings as errors."""
+    import json
+
+    listing = cwd.parent / f"{cwd.name}-blocks.json"
+    listing.write_text(json.dumps(blocks), encoding="utf-8")
+    return subprocess.run([sys.executable, "-W", "error", "-c", RUNNER, str(page), str(listing)],
+                          cwd=cwd, env=checkout_environment(), capture_output=True, text=True,
+                          timeout=HANG_TIMEOUT_S, check=False)
+
+
+CODE_PAGES = sorted(p for p in DOCS.rglob("*.md")
+                    if "_build" not in p.parts and python_blocks(p.read_text(encoding="utf-8")))
+
+
+def test_every_python_block_is_found():
+    text = "a\n```python\nx = 1\n```\n~~~py\ny = 2\n~~~\n````markdown\n```python\nz\n```\n````\n" \
+           "```text\nw\n```\n```{code-block} python\nv = 3\n```\n"
+    assert python_blocks(text) == [(3, "x = 1\n"), (6, "y = 2\n"), (17, "v = 3\n")]
+    assert CODE_PAGES
+
+
+def test_a_fragment_fails(tmp_path):
+    """The runner reports a block that uses a name no earlier block of its page defines,
+    with the page's line number, and shares the namespace of a page's blocks."""
+    page = tmp_path / "page.md"
+    page.write_text("intro\n```python\nx = 1\n```\ntext\n```python\nprint(x + 1)\nprint(y)\n```\n",
+                    encoding="utf-8")
+    (tmp_path / "cwd").mkdir()
+    proc = run_blocks(page, python_blocks(page.read_text(encoding="utf-8")), tmp_path / "cwd")
+    assert proc.returncode != 0 and proc.stdout == "2\n"
+    assert "NameError: name 'y' is not defined" in proc.stderr and f'"{page}", line 8' in proc.stderr
+
+
+@pytest.mark.parametrize("page", CODE_PAGES, ids=lambda p: str(p.relative_to(DOCS)))
+def test_python_blocks_of_a_page_run(page, tmp_path):
+    """Issue 47, item 16: every ```python block of docs/ runs as written."""
+    run = tmp_path / "cwd"
+    run.mkdir()
+    proc = run_blocks(page, python_blocks(page.read_text(encoding="utf-8")), run)
+    if proc.returncode != 0:
+        pytest.fail(f"{page.relative_to(ROOT)}: a Python block fails:\n{proc.stderr[-3000:]}", pytrace=False)

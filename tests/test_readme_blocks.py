@@ -20,7 +20,6 @@ the command prints now.
 
 from __future__ import annotations
 
-import os
 import re
 import shlex
 import subprocess
@@ -30,7 +29,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import ROOT
+from helpers import ROOT, checkout_environment
 
 README = ROOT / "README.md"
 #: Generous wall-clock bound per block or command, so that a hang fails (not a timing test).
@@ -78,12 +77,6 @@ def blocks(lang: str) -> list[Block]:
     return out
 
 
-def environment() -> dict[str, str]:
-    """The subprocesses import the package of this checkout, and draw nothing on screen."""
-    path = os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH")) if p)
-    return {**os.environ, "MPLBACKEND": "Agg", "PYTHONPATH": path}
-
-
 def shown(block: Block) -> list[tuple[int, str]]:
     """(README line, TEXT) of each ``# -> TEXT`` comment of a block."""
     out = []
@@ -119,7 +112,7 @@ def test_python_block_runs_on_its_own(block, tmp_path):
     run = tmp_path / "cwd"
     run.mkdir()
     proc = subprocess.run([sys.executable, "-W", "error", "-c", RUNNER, str(source), str(README)],
-                          cwd=run, env=environment(), capture_output=True, text=True,
+                          cwd=run, env=checkout_environment(), capture_output=True, text=True,
                           timeout=HANG_TIMEOUT_S, check=False)
     if proc.returncode != 0:
         pytest.fail(f"README.md, the Python block at line {block.line} fails:\n{proc.stderr[-3000:]}",
@@ -187,7 +180,7 @@ def symmon(command: str, cwd: Path) -> subprocess.CompletedProcess:
     for d in made_directories():  # what `mkdir -p results && symmon ...` makes first
         (cwd / d).mkdir(parents=True, exist_ok=True)
     argv = [sys.executable, "-W", "error", "-m", "symmon.cli", *shlex.split(command)[1:]]
-    return subprocess.run(argv, cwd=cwd, env=environment(), capture_output=True, text=True,
+    return subprocess.run(argv, cwd=cwd, env=checkout_environment(), capture_output=True, text=True,
                           timeout=HANG_TIMEOUT_S, check=False)
 
 

@@ -23,6 +23,7 @@ from ..errors import (
     ShapeError,
     SingularMatrixError,
     SymmonError,
+    plain_repr,
 )
 from ..latex import latex_number
 
@@ -263,7 +264,7 @@ class Gaussian:
     def sample(self, n: int, rng: np.random.Generator | int | None = None) -> np.ndarray:
         """Draw ``n`` samples, shape (n, dim), from a seeded generator."""
         if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
-            raise ArgumentError(f"n must be a positive integer, got {n!r}")
+            raise ArgumentError(f"n must be a positive integer, got {plain_repr(n)}")
         gen = as_generator(rng)
         z = gen.standard_normal((int(n), self.dim))
         return self._mean + z @ self.sqrt_cov().T
@@ -368,7 +369,7 @@ def as_generator(rng: np.random.Generator | int | None, name: str = "rng") -> np
     if isinstance(rng, np.random.Generator):
         return rng
     if rng is not None and (isinstance(rng, (bool, np.bool_)) or not isinstance(rng, (int, np.integer)) or rng < 0):
-        raise ArgumentError(f"{name} must be a numpy Generator, a non-negative integer seed or None, got {rng!r}")
+        raise ArgumentError(f"{name} must be a numpy Generator, a non-negative integer seed or None, got {plain_repr(rng)}")
     return np.random.default_rng(rng)
 
 

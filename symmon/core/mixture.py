@@ -27,7 +27,7 @@ from typing import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import ArgumentError, ArgumentTypeError, ShapeError, WeightError
+from ..errors import ArgumentError, ArgumentTypeError, ShapeError, WeightError, plain_repr
 from .gaussian import Gaussian, float_array, _fmt, _frozen_reduce, as_covariance, as_generator, as_vector, check_indices, matrix_sqrt
 
 __all__ = ["GaussianMixture", "Empirical", "mixture_moments", "WEIGHT_SUM_ATOL", "MAX_SHOWN", "SPLITS", "split_weights"]
@@ -147,7 +147,7 @@ class _WeightedMeasure:
 
 def _draws(n: int) -> int:
     if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
-        raise ArgumentError(f"n must be a positive integer, got {n!r}")
+        raise ArgumentError(f"n must be a positive integer, got {plain_repr(n)}")
     return int(n)
 
 

@@ -21,7 +21,7 @@ import numpy as np
 import sympy as sp
 from sympy.ntheory.multinomial import multinomial_coefficients
 
-from ..errors import ModelError
+from ..errors import ModelError, plain_repr
 from . import dag
 from .affine import changed_model, offset_vector, scale_matrix
 from .symbols import as_symbols
@@ -329,7 +329,7 @@ class Model:
                 in_idx.add(self._u.index(a))
             else:
                 raise ModelError(
-                    f"angles must be output indices or input symbols, got {a!r}"
+                    f"angles must be output indices or input symbols, got {plain_repr(a)}"
                 )
         return frozenset(out_idx), frozenset(in_idx)
 

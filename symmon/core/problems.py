@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import sympy as sp
 
-from ..errors import SymmonError
+from ..errors import SymmonError, plain_repr
 from .gaussian import Gaussian
 from .model import Model
 
@@ -48,7 +48,7 @@ class Problem:
 def _check_alpha(alpha: float) -> float:
     a = float(alpha)
     if not np.isfinite(a) or a <= 0:
-        raise SymmonError(f"alpha must be positive and finite, got {alpha!r}")
+        raise SymmonError(f"alpha must be positive and finite, got {plain_repr(alpha)}")
     return a
 
 

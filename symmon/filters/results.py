@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike
 from scipy import stats
 
 from ..core.angles import wrap_angle
-from ..errors import ArgumentError, NonFiniteError, ShapeError, SingularMatrixError, SymmonError
+from ..errors import ArgumentError, NonFiniteError, ShapeError, SingularMatrixError, SymmonError, plain_repr
 from ..measures.weights import SINGULAR_CORR
 from ..core.arrays import readonly
 from ..core.gaussian import Gaussian
@@ -100,7 +100,7 @@ def _consistency(stat: np.ndarray, d: int | np.ndarray, confidence: float, note:
     average and of N, so the value is the mean over the terms measured, and the degrees of
     freedom are the sum of their dimensions; a step with none measured is refused."""
     if not 0.0 < confidence < 1.0:
-        raise SymmonError(f"confidence must lie in (0, 1), got {confidence!r}")
+        raise SymmonError(f"confidence must lie in (0, 1), got {plain_repr(confidence)}")
     N = stat.shape[0]
     if np.ndim(d) == 0:
         value = stat.mean(axis=0)

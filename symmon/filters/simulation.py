@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike
 from ..core.gaussian import Gaussian
 from ..core.mixture import Empirical, GaussianMixture
 from ..core.model import Model
-from ..errors import ArgumentError, ArgumentTypeError, NonFiniteError, ShapeError
+from ..errors import ArgumentError, ArgumentTypeError, NonFiniteError, ShapeError, plain_repr
 from .inputs import check_bank_size, param_values
 from .statespace import StateSpace
 
@@ -33,7 +33,7 @@ def check_count(value, name: str, optional: bool = False) -> int | None:
     if value is None and optional:
         return None
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ArgumentError(f"{name} must be a positive integer{' or None' if optional else ''}, got {value!r}")
+        raise ArgumentError(f"{name} must be a positive integer{' or None' if optional else ''}, got {plain_repr(value)}")
     return int(value)
 
 

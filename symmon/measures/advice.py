@@ -63,7 +63,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..core.angles import wrap_angle
-from ..errors import ArgumentTypeError, SymmonError
+from ..errors import ArgumentTypeError, SymmonError, plain_repr
 from ..core.gaussian import Gaussian
 from ..core.mixture import SPLITS, Empirical, GaussianMixture
 from ..core.model import Model, with_param_values
@@ -75,6 +75,7 @@ from ..transforms.unscented import UT
 from ..transforms.quadrature import GaussHermite
 from ..transforms.montecarlo import MonteCarlo
 from ..transforms.base import Transform
+from ..transforms.registry import names as transform_names, resolve
 
 __all__ = ["advise", "Advice", "moment_error", "moment_distance", "whiteners", "CANDIDATES", "cost",
            "DEFAULT_TOL", "GAUSSIAN_MON_LIMIT", "MAX_GSF_COMPONENTS", "filter_advice"]
@@ -334,6 +335,23 @@ def _gauss_hermite(order: int, n_w: int, error_estimate: bool = False) -> GaussH
     return GaussHermite(order, error_estimate=error_estimate).for_dimension(n_w, MAX_REFERENCE_NODES)[0]
 
 
+def _candidate(item: Any, i: int) -> tuple[str, Transform]:
+    """``candidates[i]`` of :func:`advise` as a (name, Transform) pair: a registered name,
+    a Transform or such a pair."""
+    if isinstance(item, str):
+        try:
+            return item, resolve(item)
+        except SymmonError:
+            raise SymmonError(f"candidates[{i}]: unknown transform name {item!r}; the names are "
+                              f"{', '.join(transform_names())} (or gh<order>, e.g. 'gh5')") from None
+    if isinstance(item, Transform):
+        return repr(item), item
+    if isinstance(item, tuple) and len(item) == 2 and isinstance(item[0], str) and isinstance(item[1], Transform):
+        return item
+    raise ArgumentTypeError(f"candidates[{i}] must be a transform name (e.g. 'ut1'), a Transform or a "
+                            f"(name, Transform) pair, got {plain_repr(item)}")
+
+
 def _explicit(name: str, t: Transform, n_w: int) -> tuple[str, Transform]:
     """A candidate with its dimension-dependent choices made (:meth:`Transform.for_dimension`:
     Gauss–Hermite's grid), the choice named in its name, e.g. " (sparse)"."""
@@ -408,7 +426,7 @@ def _timed(model: Model, u: Gaussian, v: Gaussian | None, t: Transform) -> tuple
 
 
 def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = DEFAULT_TOL, weight: Any = "full",
-           candidates: Sequence[tuple[str, Transform]] | None = None, samples: int = 10**6,
+           candidates: Sequence[str | Transform | tuple[str, Transform]] | None = None, samples: int = 10**6,
            seed: int = 0, params: dict | None = None) -> Advice:
     """Estimate the error of each candidate transform's moments and pick the cheapest within ``tol``.
 
@@ -432,8 +450,11 @@ def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = DE
     weight : str or ndarray, default "full"
         The weight of the reference's MoN (as in :func:`symmon.nonlinearity`): W^full (43)
         by default.
-    candidates : sequence of (name, Transform), optional
-        Default :data:`CANDIDATES`.  A Gauss–Hermite candidate with ``sparse=None`` runs on
+    candidates : sequence of str, Transform or (name, Transform), optional
+        Default :data:`CANDIDATES`.  Each is a transform's registered name (``"ut1"``,
+        ``"gh5"``: :func:`symmon.transforms.registry.resolve`; the table names it so), a
+        Transform (named by its ``repr``), or a pair of a table name and a Transform.  A
+        Gauss–Hermite candidate with ``sparse=None`` runs on
         the tensor grid while it has at most :data:`MAX_REFERENCE_NODES` nodes, else on the
         sparse grid (its name then ends in " (sparse)").
     samples, seed : int
@@ -466,8 +487,8 @@ def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = DE
         raise ArgumentTypeError("advise ranks transforms for a Gaussian or a GaussianMixture; particles need none: "
                                 "use nonlinearity(model, particles), or advise on particles.as_gaussian()")
     if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not (0 < tol < 1):
-        raise SymmonError(f"tol must be a number in (0, 1), got {tol!r}")
-    cands = list(CANDIDATES if candidates is None else candidates)
+        raise SymmonError(f"tol must be a number in (0, 1), got {plain_repr(tol)}")
+    cands = list(CANDIDATES) if candidates is None else [_candidate(c, i) for i, c in enumerate(candidates)]
     if not cands:
         raise SymmonError("candidates is empty")
     n_w = model.n_u + model.n_v

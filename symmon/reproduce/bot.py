@@ -76,7 +76,7 @@ from ..compile.compiled import compiled
 from ..core.gaussian import Gaussian
 from ..core.mixture import Empirical, GaussianMixture
 from ..core.model import Model
-from ..errors import ArgumentError, DegeneracyWarning
+from ..errors import ArgumentError, DegeneracyWarning, plain_repr
 from ..filters.mixture.gaussian_sum import GaussianSumFilter
 from ..filters.gaussian.nonlinear import NonlinearKalmanFilter
 from ..filters.particle.particle_filter import ParticleFilter
@@ -195,7 +195,7 @@ def range_parameterised_prior(x0: Gaussian, components: int = RP_COMPONENTS, r_m
     """
     n = int(components)
     if n < 2:
-        raise ArgumentError(f"components must be an integer >= 2, got {components!r}")
+        raise ArgumentError(f"components must be an integer >= 2, got {plain_repr(components)}")
     m, P = np.asarray(x0.mean, dtype=float), np.asarray(x0.cov, dtype=float)
     r0 = float(np.hypot(*m[:2]))
     u = m[:2] / r0  # the line of sight
@@ -419,7 +419,7 @@ def _plot(st: dict[str, Any], path: Path, fmt: str = "png") -> Path:
 
 def _count(value, name: str, least: int) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
-        raise ArgumentError(f"{name} must be an integer >= {least}, got {value!r}")
+        raise ArgumentError(f"{name} must be an integer >= {least}, got {plain_repr(value)}")
     return int(value)
 
 

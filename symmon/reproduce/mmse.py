@@ -83,7 +83,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ArgumentError
+from ..errors import ArgumentError, plain_repr
 from ..estimation import mmse
 from ..io import check_output_set, write_csv
 from ..filters.gaussian.linear import KalmanFilter
@@ -338,9 +338,9 @@ def run(outdir: Path, runs: int = 1000, seed: int = 0, progress: bool = True,
         The files written: four CSV tables and three PNG figures.
     """
     if isinstance(runs, bool) or not isinstance(runs, (int, np.integer)) or runs < 2:
-        raise ArgumentError(f"runs must be an integer >= 2, got {runs!r}")
+        raise ArgumentError(f"runs must be an integer >= 2, got {plain_repr(runs)}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ArgumentError(f"seed must be a non-negative integer, got {seed!r}")
+        raise ArgumentError(f"seed must be a non-negative integer, got {plain_repr(seed)}")
     import matplotlib
 
     matplotlib.use("Agg")  # files only; never open a window

@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ArgumentError
+from ..errors import ArgumentError, plain_repr
 from ..estimation import nlt as estimation
 from ..core.gaussian import Gaussian
 from ..io import check_output_set, write_csv
@@ -139,9 +139,9 @@ def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = Tru
         ``radar_estimates.csv``.
     """
     if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 2:
-        raise ArgumentError(f"samples must be an integer >= 2, got {samples!r}")
+        raise ArgumentError(f"samples must be an integer >= 2, got {plain_repr(samples)}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ArgumentError(f"seed must be a non-negative integer, got {seed!r}")
+        raise ArgumentError(f"seed must be a non-negative integer, got {plain_repr(seed)}")
     from tqdm import tqdm
 
     outdir = Path(outdir)

@@ -43,7 +43,7 @@ import numpy as np
 import sympy as sp
 
 from ..core.angles import wrap_angle
-from ..errors import SymmonError
+from ..errors import SymmonError, plain_repr
 from ..files.filterfile import filter_transform
 from ..filters.gaussian.nonlinear import NonlinearKalmanFilter, NonlinearKalmanResult
 from ..core.gaussian import Gaussian
@@ -315,9 +315,9 @@ def run(outdir: Path, runs: int = 500, seed: int = 0, progress: bool = True,
     list of Path
     """
     if isinstance(runs, bool) or not isinstance(runs, (int, np.integer)) or runs < 2:
-        raise SymmonError(f"runs must be an integer >= 2, got {runs!r}")
+        raise SymmonError(f"runs must be an integer >= 2, got {plain_repr(runs)}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise SymmonError(f"seed must be a non-negative integer, got {seed!r}")
+        raise SymmonError(f"seed must be a non-negative integer, got {plain_repr(seed)}")
     outdir = Path(outdir)
     check_output_set(outdir, with_format(OUTPUTS, fmt))  # a read-only file refuses the run before its work
     outdir.mkdir(parents=True, exist_ok=True)

@@ -25,7 +25,7 @@ import numpy as np
 import threadpoolctl
 
 from ..compile.compiled import cpu_count
-from ..errors import SymmonError
+from ..errors import SymmonError, plain_repr
 from ..progress import note, progress_bar
 
 __all__ = ["Executor", "run_groups", "stop_point", "dask_compute", "connect_dask", "one_blas_thread",
@@ -366,14 +366,14 @@ class Executor:
 
     def __post_init__(self) -> None:
         if self.workers is not None and (not _is_int(self.workers) or self.workers < 1):
-            raise SymmonError(f"workers must be >= 1, got {self.workers!r}")
+            raise SymmonError(f"workers must be >= 1, got {plain_repr(self.workers)}")
         if self.client is not None and self.scheduler is not None:
             raise SymmonError("pass either client or scheduler, not both")
         t = self.worker_timeout
         if not (isinstance(t, (int, float, np.integer, np.floating)) and not isinstance(t, (bool, np.bool_))
                 and 0 < t <= MAX_WORKER_TIMEOUT):
             raise SymmonError(f"worker_timeout must be seconds, > 0 and at most {MAX_WORKER_TIMEOUT:g}, "
-                              f"got {t!r}")
+                              f"got {plain_repr(t)}")
         if self.scheduler is not None and not isinstance(self.scheduler, str):
             raise SymmonError(f"scheduler must be a Dask scheduler name such as 'processes', got {self.scheduler!r}")
 

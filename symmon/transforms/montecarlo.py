@@ -33,7 +33,7 @@ import numpy as np
 from ..compile.compiled import CompiledModel, compile_model
 from ..compile.rng import NormalStream
 from ..core.angles import wrap_angle
-from ..errors import SamplingError, SymmonError
+from ..errors import SamplingError, SymmonError, plain_repr
 from .base import Moments, Transform, batch_sqrt, pilot_angle_cut
 from .executor import Executor, _is_int, dask_compute, one_blas_thread, stop_point
 from .mc_kernel import sample_kernel
@@ -284,7 +284,7 @@ class MonteCarlo(Transform):
                 v = int(v)
                 object.__setattr__(self, k, v)
             if not _is_int(v) or v < 1:
-                raise SymmonError(f"MonteCarlo {k} must be a positive integer, got {v!r}")
+                raise SymmonError(f"MonteCarlo {k} must be a positive integer, got {plain_repr(v)}")
             if v > most:
                 raise SymmonError(f"MonteCarlo {k} = {v} is above the limit {why}")
         if self.groups < 2:
@@ -298,7 +298,7 @@ class MonteCarlo(Transform):
             # Fresh entropy, kept: the run can be repeated with the seed that repr shows.
             object.__setattr__(self, "seed", int(np.random.SeedSequence().entropy))
         elif not _is_int(self.seed) or self.seed < 0:
-            raise SymmonError(f"MonteCarlo seed must be a non-negative integer or None, got {self.seed!r}")
+            raise SymmonError(f"MonteCarlo seed must be a non-negative integer or None, got {plain_repr(self.seed)}")
         else:
             object.__setattr__(self, "seed", int(self.seed))  # numpy integers too: one repr, one hash
 

@@ -28,7 +28,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..core.angles import wrap_angle
-from ..errors import QuadratureWarning, SymmonError
+from ..errors import QuadratureWarning, SymmonError, plain_repr
 from .nodes import MAX_NODES, SPARSE_ABOVE, rule_size, standard_rule
 from .base import _WARNED, Moments, Transform, batch_sqrt, evaluate_points, weighted_moments
 
@@ -83,7 +83,7 @@ class GaussHermite(Transform):
 
     def __post_init__(self) -> None:
         if not isinstance(self.order, (int, np.integer)) or self.order < 1:
-            raise SymmonError(f"GaussHermite order must be a positive integer, got {self.order!r}")
+            raise SymmonError(f"GaussHermite order must be a positive integer, got {plain_repr(self.order)}")
         if not isinstance(self.error_estimate, (bool, np.bool_)):
             raise SymmonError(f"GaussHermite error_estimate must be True or False, got {self.error_estimate!r}")
 

@@ -116,7 +116,7 @@ def _prove_direct(model: Model, weight: Any, label: str, mu: sp.Matrix, P: sp.Ma
             f"> {max_size}): {hint}"
         )
     if not (isinstance(budget, (int, float)) and budget > 0):
-        raise SymmonError(f"budget must be a positive number of seconds, got {budget!r}")
+        raise SymmonError(f"budget must be a positive number of seconds, got {plain_repr(budget)}")
     numeric = not (mu.free_symbols or P.free_symbols or R.free_symbols)
     smooth, extra = _smooth_model(model, mu, numeric)
     try:

@@ -18,7 +18,7 @@ import time
 import numpy as np
 import sympy as sp
 
-from ..errors import ShapeError, SymmonError
+from ..errors import ShapeError, SymmonError, plain_repr
 from .proof import InvarianceProof
 from .lemmas import _reduce, _sym_matrix
 from ..measures.weights import NAMED as WEIGHTS
@@ -87,7 +87,7 @@ def prove_matrix_invariance(n_u: int, n_y: int, weight: str = "full", scales: st
     t0 = time.perf_counter()
     for n, name in ((n_u, "n_u"), (n_y, "n_y")):
         if not isinstance(n, (int, np.integer)) or not 1 <= n <= 4:
-            raise ShapeError(f"{name} must be an integer from 1 to 4, got {n!r}")
+            raise ShapeError(f"{name} must be an integer from 1 to 4, got {plain_repr(n)}")
     if weight not in WEIGHTS:
         raise SymmonError(f"weight must be one of {WEIGHTS}, got {weight!r}")
     if scales is None:

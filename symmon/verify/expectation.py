@@ -52,7 +52,7 @@ from typing import Any, Sequence
 import numpy as np
 import sympy as sp
 
-from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, ExpectationNotClosedForm, ShapeError
+from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, ExpectationNotClosedForm, ShapeError, plain_repr
 
 __all__ = ["expect", "gaussian_polynomial_mean", "normal_cdf", "normal_pdf", "as_mean_cov", "check_variables"]
 
@@ -151,7 +151,7 @@ def as_mean_cov(mean: Any, cov: Any, n: int, avoid: Sequence[sp.Symbol] = ()) ->
     if mu_items and all(isinstance(r, list) for r in mu_items):  # a column or row matrix
         mu_items = [e for r in mu_items for e in r]
     if len(mu_items) != n or any(isinstance(m, list) for m in mu_items):
-        raise ShapeError(f"mean must have {n} entries (one per variable), got {mean!r}")
+        raise ShapeError(f"mean must have {n} entries (one per variable), got {plain_repr(mean)}")
     mu = sp.Matrix([_as_sympy(m, "mean") for m in mu_items])
     rows = _entries(cov)
     if not isinstance(rows, list):
@@ -159,7 +159,7 @@ def as_mean_cov(mean: Any, cov: Any, n: int, avoid: Sequence[sp.Symbol] = ()) ->
     if n == 1 and len(rows) == 1 and not isinstance(rows[0], list):
         rows = [rows]
     if len(rows) != n or any(not isinstance(r, list) or len(r) != n for r in rows):
-        raise ShapeError(f"cov must be {n} x {n} (one row and column per variable), got {cov!r}")
+        raise ShapeError(f"cov must be {n} x {n} (one row and column per variable), got {plain_repr(cov)}")
     P = sp.Matrix([[_as_sympy(c, "cov") for c in r] for r in rows])
     bad = (mu.free_symbols | P.free_symbols) & set(avoid)
     if bad:

@@ -55,6 +55,7 @@ from ..errors import (
     ShapeError,
     SingularMatrixError,
     UndecidedProofError,
+    plain_repr,
 )
 from ..timelimit import OutOfTime, deadline
 from .expectation import check_variables
@@ -206,7 +207,7 @@ class Expectation:
         n = len(self.over)
         self.mean = as_matrix(mean, "mean").reshape(n, 1) if _size(mean) == n else None
         if self.mean is None:
-            raise ShapeError(f"mean must have {n} entries (one per variable of over), got {mean!r}")
+            raise ShapeError(f"mean must have {n} entries (one per variable of over), got {plain_repr(mean)}")
         self.cov = as_matrix(cov, "cov")
         if self.cov.shape != (n, n):
             raise ShapeError(f"cov must be {n}x{n}, got shape {self.cov.shape}")
@@ -957,7 +958,7 @@ def verify(lhs: Any, rhs: Any, assumptions: Any = None, domain: Any = None, *, p
     """
     t0 = time.perf_counter()
     if not isinstance(points, int) or isinstance(points, bool) or points < 1:
-        raise ArgumentError(f"points must be a positive integer, got {points!r}")
+        raise ArgumentError(f"points must be a positive integer, got {plain_repr(points)}")
     (lhs_p, rhs_p), prep = prepare([lhs, rhs], assumptions, domain)
     text = claim if claim is not None else f"{_show(lhs_p)} = {_show(rhs_p)}"
     try:

@@ -133,6 +133,31 @@ def test_bad_model():
         sm.advise("x**2", sm.Gaussian([0.0], [[1.0]]))
 
 
+def test_candidates_by_name_transform_or_pair():
+    """Issue 47, item 9: ``candidates=["ut1"]`` ended in an AttributeError (or a failed
+    unpacking); a registered name (the CLI's), a Transform and a (name, Transform) pair are
+    all candidates, named in the table by the name, the repr and the given name."""
+    a = sm.advise(sm.Model([x, y], [x * y]), sm.Gaussian([1.0, 2.0], [[0.5, 0.1], [0.1, 1.0]]),
+                  candidates=["ut1", "gh5", sm.TT2(), ("cubature", sm.UT.cubature())])
+    assert [r["name"] for r in a.rows] == ["ut1", "gh5", "TT2()", "cubature"]
+    assert [r["transform"] for r in a.rows] == [sm.UT.ut1(), sm.GaussHermite(5, sparse=False), sm.TT2(), sm.UT.cubature()]
+    assert a.choice_name == "TT2()" and a.choice == sm.TT2()     # exact on x y, the cheapest
+
+
+def test_unknown_candidate_name_lists_the_names():
+    from symmon.transforms.registry import names
+
+    with pytest.raises(SymmonError, match=r"candidates\[1\]: unknown transform name 'ukf'") as info:
+        sm.advise(sm.Model([x], [x**2]), sm.Gaussian([1.0], [[0.3]]), candidates=["tt1", "ukf"])
+    assert all(name in str(info.value) for name in names())
+
+
+@pytest.mark.parametrize("bad", [3, ("TT1",), ("TT1", "tt1"), None])
+def test_bad_candidate(bad):
+    with pytest.raises(TypeError, match=r"candidates\[0\] must be a transform name"):
+        sm.advise(sm.Model([x], [x**2]), sm.Gaussian([1.0], [[0.3]]), candidates=[bad])
+
+
 # --------------------------------------------------------------------------- advise and Adaptive
 # A constant-velocity target seen by a range–bearing sensor at the origin. The filter adds R
 # to Cov h; advise sees the same noise as noise symbols, so that Cov y = Cov h + R is the

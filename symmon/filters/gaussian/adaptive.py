@@ -24,7 +24,7 @@ import numpy as np
 
 from ...measures.advice import DEFAULT_TOL, cost, moment_distance, whiteners
 from ...core.angles import wrap_angle
-from ...errors import SymmonError
+from ...errors import SymmonError, plain_repr
 from .step import _compiled_step, _filterable, check_dimensions
 from ..inputs import KEEPABLE, FilterSpec
 from .strategy import FilterStrategy
@@ -93,7 +93,7 @@ class Adaptive(FilterStrategy):
 
     def __post_init__(self) -> None:
         if isinstance(self.tol, bool) or not isinstance(self.tol, (int, float)) or not 0 < self.tol < 1:
-            raise SymmonError(f"tol must be a number in (0, 1), got {self.tol!r}")
+            raise SymmonError(f"tol must be a number in (0, 1), got {plain_repr(self.tol)}")
         cands = tuple(resolve(t) for t in self.candidates)
         object.__setattr__(self, "reference", resolve(self.reference))
         if not cands:

@@ -66,7 +66,7 @@ import numpy as np
 import sympy as sp
 from numpy.typing import ArrayLike
 
-from ...errors import AngleWarning, ArgumentTypeError, SymmonError
+from ...errors import AngleWarning, ArgumentTypeError, SymmonError, plain_repr
 from ...core.arrays import all_finite, readonly
 from ...core.checks import noise_cov
 from .diagnose import locate_nonfinite
@@ -187,7 +187,7 @@ class NonlinearKalmanFilter(Filter):
         strategy = transform if isinstance(transform, FilterStrategy) else RuleStrategy(transform)
         it = self.iterations
         if isinstance(it, bool) or not isinstance(it, (int, np.integer)) or not 1 <= it <= MAX_ITERATIONS:
-            raise SymmonError(f"iterations must be an integer from 1 to {MAX_ITERATIONS}, got {it!r}")
+            raise SymmonError(f"iterations must be an integer from 1 to {MAX_ITERATIONS}, got {plain_repr(it)}")
         if it > 1 and not (isinstance(strategy, RuleStrategy) and strategy.transform.taylor_order == 1):
             raise SymmonError(f"iterations > 1 is the iterated EKF: it needs transform TT1(), got {self.transform!r}")
         if not isinstance(self.square_root, (bool, np.bool_)):

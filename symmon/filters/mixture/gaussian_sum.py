@@ -113,7 +113,7 @@ from ...core.gaussian import Gaussian
 from ...core.checks import check_gaussian
 from ...core.mixture import SPLITS, GaussianMixture, split_weights
 from ...core.model import Model
-from ...errors import ArgumentError, ArgumentTypeError, ShapeError, SymmonError
+from ...errors import ArgumentError, ArgumentTypeError, ShapeError, SymmonError, plain_repr
 from ...transforms.base import Transform
 from ...transforms.taylor import TT2
 from ...transforms.unscented import UT
@@ -464,7 +464,7 @@ class GaussianSumFilter(Filter):
         object.__setattr__(self, "R", kf.R)
         s = self.split
         if s is not None and (isinstance(s, bool) or not isinstance(s, (int, float)) or not 0 < s < 1):
-            raise ArgumentError(f"split must be None or a MoN level in (0, 1) (W^full's MoN lies in [0, 1]), got {s!r}")
+            raise ArgumentError(f"split must be None or a MoN level in (0, 1) (W^full's MoN lies in [0, 1]), got {plain_repr(s)}")
         if s is not None and (kf.f_model.n_v or kf.h_model.n_v):
             raise ArgumentError("split needs additive noises: the models have noise symbols, whose MoN needs "
                                 "nested integration per component; use split=None")
@@ -473,7 +473,7 @@ class GaussianSumFilter(Filter):
             raise ArgumentError(f"max_components must be a positive integer, got {mc!r}")
         p = self.prune
         if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0 <= p < 1:
-            raise ArgumentError(f"prune must be a weight in [0, 1), got {p!r}")
+            raise ArgumentError(f"prune must be a weight in [0, 1), got {plain_repr(p)}")
         if self.merge not in MERGE_RULES:
             raise ArgumentError(f"merge must be one of {MERGE_RULES}, got {self.merge!r}")
         if self.split_components not in SPLITS:

@@ -125,7 +125,7 @@ def _probabilities(p: ArrayLike, name: str, shape: tuple[int, ...]) -> np.ndarra
     bad = np.flatnonzero(np.abs(np.atleast_1d(sums) - 1.0) > PROBABILITY_ATOL)
     if bad.size:
         where = f"row {bad[0]} of {name}" if arr.ndim == 2 else name
-        raise ArgumentError(f"{where} sums to {np.atleast_1d(sums)[bad[0]]!r}, not 1: give probabilities "
+        raise ArgumentError(f"{where} sums to {float(np.atleast_1d(sums)[bad[0]]):.12g}, not 1: give probabilities "
                             + ("P(mode j at k | mode i at k−1) in row i" if arr.ndim == 2 else "of the modes"))
     return readonly(arr / sums[..., None] if arr.ndim == 2 else arr / sums)
 
