@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import re
 
+import numpy as np
 import pytest
 
 from symmon.reproduce import fig1, fig2
@@ -66,6 +67,18 @@ def test_figure1_liu_li_at_alpha_017():
     (row,) = [r for r in rows("fig1.csv") if float(r["alpha"]) == 0.17]
     assert printed(float(row["liu_rad"]), m.group(1)) == m.group(1)
     assert printed(float(row["liu_deg"]), m.group(2)) == m.group(2)
+
+
+def test_figure1_printed_block_is_what_the_command_prints():
+    """The README's block of what ``symmon reproduce fig1`` prints: the headline of the
+    committed run (``fig1.headline`` of docs/data/fig1.csv), then the files it wrote."""
+    text = README.read_text(encoding="utf-8")
+    m = re.search(r"```text\n(Figure 1 \(Sec\. II-B\).*?)```", text, re.S)
+    assert m, "the block of what symmon reproduce fig1 prints was not found in README.md"
+    data = rows("fig1.csv")
+    c = {k: np.array([float(r[k]) for r in data]) for k in fig1.COLUMNS}
+    want = fig1.headline(c, 10**6, 0) + ["wrote results/fig1.png", "wrote results/fig1.csv"]
+    assert m.group(1).splitlines() == want
 
 
 def test_figure1_declared_bearing_at_alpha_10():

@@ -196,9 +196,13 @@ def _bank_json(r) -> dict:
 
 
 def _filter_plot(spec, rows, states: list[str], path: str) -> Path:
-    """NEES, NIS (log scale, with the χ² intervals) and RMSE per step, one line per filter."""
-    from ..io import save_figure
-    from ..reproduce.common import curve_styles, figure_style, pyplot
+    """NEES, NIS (log scale, with the χ² intervals) and RMSE per step, one line per filter,
+    in the package's figure style (:mod:`symmon.reproduce.common`): each filter one colour,
+    marker and line style in every panel, the legends right of the axes, no title."""
+    from matplotlib.lines import Line2D
+
+    from ..reproduce.common import (figure_style, filter_style, label_panels, legend_outside, plain_log_ticks,
+                                    pyplot, save_plot)
 
     # One RMSE panel per unit: a norm over components is only meaningful in one unit.
     # Without [units], one panel over all the states, as the scenario declares no units.
@@ -208,35 +212,44 @@ def _filter_plot(spec, rows, states: list[str], path: str) -> Path:
     groups = list(by_unit.items()) if spec.units else [(None, list(range(len(states))))]
     plt = pyplot()
     with figure_style():
-        fig, axes = plt.subplots(2 + len(groups), 1, figsize=(7, 5 + 2.5 * len(groups)), sharex=True)
+        fig, axes = plt.subplots(2 + len(groups), 1, figsize=(8, 5 + 2.5 * len(groups)), sharex=True,
+                                 layout="constrained")
         try:
             k = np.arange(1, spec.steps + 1)
-            # Filters often coincide (the adaptive one on the rule it chose): each its own
-            # colour, line style, markers and layer (reproduce.common.curve_styles).
-            styles = curve_styles(len(rows), len(k))
-            for r, st in zip(rows, styles):
+            for r in rows:
                 if r.result is None:
                     continue
+                st = filter_style(r.name, len(k))
                 axes[0].semilogy(k, r.anees.value, label=r.name, **st)
                 if r.anis is not None:  # a Gaussian-sum filter has none
-                    axes[1].semilogy(k, r.anis.value, label=r.name, **st)
+                    axes[1].semilogy(k, r.anis.value, **st)
                 for ax, (_, idx) in zip(axes[2:], groups):
-                    ax.semilogy(k, np.sqrt(np.sum(r.rmse[:, idx] ** 2, axis=1)), label=r.name, **st)
+                    ax.semilogy(k, np.sqrt(np.sum(r.rmse[:, idx] ** 2, axis=1)), **st)
                     if r.smoothed is not None:  # the smoother thin, in its filter's colour, no markers
                         ax.semilogy(k, np.sqrt(np.sum(r.smoothed_rmse[:, idx] ** 2, axis=1)), ls=(0, (1, 1)),
-                                    color=st["color"], lw=0.8, zorder=st["zorder"], label=f"{r.name} smoothed")
+                                    color=st["color"], lw=0.8, zorder=st["zorder"])
             ok = [r for r in rows if r.result is not None and r.anis is not None]
             if ok:
                 for ax, t, what in ((axes[0], ok[0].anees, "NEES"), (axes[1], ok[0].anis, "NIS")):
                     ax.axhspan(t.lower, t.upper, color="0.85", label=f"{t.confidence:.0%} interval")
                     ax.set_ylabel(f"average {what}")
-            axes[0].set_title(f"{spec.name}: {ok[0].result.runs if ok else 0} Monte Carlo runs")
             for ax, (unit, idx) in zip(axes[2:], groups):
                 unit_text = f" [{unit}]" if unit else ("" if spec.units else " (no units declared)")
                 ax.set_ylabel(f"RMSE of ({', '.join(states[i] for i in idx)}){unit_text}\n(norm over components)")
             axes[-1].set_xlabel("step k")
-            axes[0].legend(ncol=3)
-            fig.tight_layout()
-            return save_figure(fig, path)
+            # The filters' legend once, beside the first panel (their looks are the same in
+            # every panel); the NIS panel's legend has its interval, the RMSE panels' the smoother.
+            legend_outside(axes[0])
+            if ok:
+                legend_outside(axes[1], handles=[axes[1].patches[0]])
+            if any(r.smoothed is not None for r in rows):
+                legend_outside(axes[2], handles=[Line2D([], [], color="0.35", lw=1.2, label="filter"),
+                                                 Line2D([], [], color="0.35", lw=0.8, ls=(0, (1, 1)),
+                                                        label="its RTS smoother")])
+            for ax in axes:
+                if ax.get_yscale() == "log":
+                    plain_log_ticks(ax)
+            label_panels(axes)
+            return save_plot(fig, path)
         finally:
             plt.close(fig)

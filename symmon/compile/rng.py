@@ -2,7 +2,7 @@
 
 Compiled kernels draw their own numbers in C, inside the loop that uses them, instead of
 reading normals that NumPy drew in a separate pass: the particle filter's bootstrap
-recursion (:mod:`symmon.filters.particle.particle_filter._kernel`) and Monte Carlo's fused chunk
+recursion (:mod:`symmon.filters.particle._kernel`) and Monte Carlo's fused chunk
 (:mod:`symmon.transforms.mc_kernel`).
 
 * **uniforms**: xoshiro256++ (Blackman & Vigna 2021, §4: a 256-bit state, period 2²⁵⁶ − 1),

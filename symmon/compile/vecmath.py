@@ -32,7 +32,7 @@ and atan u = u − u³/3 + … + u¹⁵/15 (the next term is below 2⁻⁶⁴ u)
 table of double-doubles (mpmath at import).  Then π/2 − · when |y| > |x| and π − · when
 x < 0, in double-double, one rounding at the end, and the sign of y.
 
-exp (x), for the particle filter's weights (:mod:`symmon.filters.particle.particle_filter._kernel`): x = k ln 2 + r
+exp (x), for the particle filter's weights (:mod:`symmon.filters.particle._kernel`): x = k ln 2 + r
 with k = round(x / ln 2) and r a double-double (Cody and Waite's split of ln 2, k ln2_hi
 exact), exp r = 1 + r + r² (1/2! + … + r¹¹/13!) with 1 + r_h summed exactly, and 2^k from
 the bits of the rounding constant: within 0.64 ulp (measured against long double on 10⁶

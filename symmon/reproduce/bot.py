@@ -84,7 +84,8 @@ from ..filters.simulation import simulate
 from ..io import check_output_set, write_csv
 from ..transforms.taylor import TT1
 from ..transforms.unscented import UT
-from .common import OKABE_ITO, figure_style, progress_bar, save_reproduced, with_format
+from .common import (figure_style, filter_style, label_panels, plain_log_ticks, progress_bar,
+                     save_reproduced, with_format)
 
 __all__ = ["OUTPUTS", "FILTER_NAMES", "LABELS", "Scenario", "scenario", "prior", "range_parameterised_prior",
            "mon_tt2", "chi2_band", "study", "run", "RUNS", "PARTICLES", "SPLIT", "MAX_COMPONENTS",
@@ -343,23 +344,19 @@ def step_rows(st: dict[str, Any]) -> list[list]:
     return rows
 
 
-STYLES = {"ekf": (OKABE_ITO["vermillion"], "-", "o"), "ukf": (OKABE_ITO["orange"], "--", "s"),
-          "rp_gsf": (OKABE_ITO["blue"], "-.", "^"), "mon_gsf": (OKABE_ITO["bluish green"], "-", "D"),
-          "pf": (OKABE_ITO["black"], ":", None), "rpf": (OKABE_ITO["reddish purple"], "-", "v")}
-
 
 def caption(st: dict[str, Any]) -> str:
     """The figure's caption (PNG metadata and docs)."""
     return (f"Bearings-only tracking after Arulampalam & Ristic (2000): {st['runs']} Monte Carlo runs, seed "
             f"{st['seed']}, bootstrap and regularised particle filters with {st['particles']} particles. (a) observer and target tracks "
             "(nominal target; triangle: the observer at scan 0); (b) position RMSE; (c) ANEES with its two-sided 95 % chi-square interval (grey); "
-            "values above 1000 are off the axis (the table has them); (d) unitless MoN (W^full, TT2) of the bearing at each filter's prior, median over the runs.")
+            "values above 1000 are off the axis (the table has them); (d) unitless MoN (W^full, TT2) of the bearing at each filter's prior, median over the runs. "
+            "Each filter has one colour, marker and line style in every panel; grey span: the observer's turn.")
 
 
 def _plot(st: dict[str, Any], path: Path, fmt: str = "png") -> Path:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-    from matplotlib.ticker import FuncFormatter
 
     sc = st["sc"]
     fig = Figure(figsize=(7.2, 6.0), layout="constrained")
@@ -370,18 +367,16 @@ def _plot(st: dict[str, Any], path: Path, fmt: str = "png") -> Path:
     # The nominal target: the prior's mean range and bearing, the reference's speed and course.
     t = sc.T * np.arange(sc.steps + 1)[:, None]
     tgt = (np.array([0.0, 5000.0]) + t * _course(4 * KNOT, -140.0)) / 1000
-    ax_g.plot(obs[:, 0], obs[:, 1], color=OKABE_ITO["blue"], marker=".", ms=3, label="observer")
-    ax_g.plot(tgt[:, 0], tgt[:, 1], color=OKABE_ITO["vermillion"], ls="--", marker=".", ms=3,
-              label="target (nominal)")
-    ax_g.plot(*tgt[0], "o", color=OKABE_ITO["vermillion"], ms=4)
+    # The tracks in greys: the Okabe–Ito colours are the filters'.
+    ax_g.plot(obs[:, 0], obs[:, 1], color="0.2", marker=".", ms=3, label="observer")
+    ax_g.plot(tgt[:, 0], tgt[:, 1], color="0.55", ls="--", marker=".", ms=3, label="target (nominal)")
+    ax_g.plot(*tgt[0], "o", color="0.55", ms=4)
     ax_g.plot(*obs[0], "k^", ms=5)
     ax_g.set_xlabel("east [km]")
     ax_g.set_ylabel("north [km]")
     ax_g.set_aspect("equal", adjustable="datalim")
-    ax_g.legend(loc="best")
     for name, d in st["filters"].items():
-        color, ls, marker = STYLES[name]
-        kw = {"color": color, "ls": ls, "marker": marker, "ms": 3, "markevery": 5, "lw": 1.3, "label": LABELS[name]}
+        kw = {**filter_style(name, sc.steps), "ms": 3.5, "label": LABELS[name]}
         ax_r.plot(k, d["rmse"] / 1000, **kw)
         ax_a.semilogy(k, d["anees"].value, **kw)
         ax_m.semilogy(k, np.maximum(np.median(d["mon"], axis=0), 1e-4), **kw)
@@ -389,31 +384,29 @@ def _plot(st: dict[str, Any], path: Path, fmt: str = "png") -> Path:
     lo, hi = np.broadcast_to(a.lower, k.shape), np.broadcast_to(a.upper, k.shape)
     ax_a.fill_between(k, lo, hi, color="0.8", zorder=0, label="95 % χ² interval")
     ax_a.axhline(4.0, color="0.5", lw=0.8)
-    ax_m.axhline(SPLIT, color=OKABE_ITO["bluish green"], lw=0.8, ls=":")
-    ax_m.text(sc.steps, SPLIT * 1.04, "split level", fontsize=7, color=OKABE_ITO["bluish green"], ha="right",
+    ax_m.axhline(SPLIT, color="0.3", lw=0.8, ls=(0, (4, 2)))
+    ax_m.text(sc.steps, SPLIT * 1.04, "split level", fontsize=7, color="0.3", ha="right",
               va="bottom")
     # The axis shows the band and the filters near it; larger values are drawn off the axis.
     top = ANEES_AXIS_TOP
     ax_a.set_ylim(1.0, top)
-    plain = FuncFormatter(lambda v, _: f"{v:g}")  # 1, 10, 100, 1000 and 0.03, 0.1, 0.2: plain numbers
-    ax_a.yaxis.set_major_formatter(plain)
-    ax_m.yaxis.set_major_formatter(plain)
-    ax_m.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}" if round(v / 10 ** math.floor(math.log10(v)))
-                                                 in (2, 3, 5) else ""))
+    plain_log_ticks(ax_a)  # 1, 10, 100, 1000 and 0.03, 0.1, 0.2: plain numbers
+    plain_log_ticks(ax_m)
     off = [LABELS[n] for n, d in st["filters"].items() if np.max(d["anees"].value) > top]
     if off:
         ax_a.text(0.02, 0.97, f"above {top:.0f} (off the axis): " + ", ".join(off), transform=ax_a.transAxes,
                   fontsize=7, va="top")
     for ax in (ax_r, ax_a, ax_m):
-        ax.axvspan(13, 17, color=OKABE_ITO["sky blue"], alpha=0.15, lw=0)
+        ax.axvspan(13, 17, color="0.5", alpha=0.12, lw=0)
         ax.set_xlabel("scan k (T = 1 min)")
     ax_r.set_ylabel("position RMSE [km]")
     ax_r.set_ylim(bottom=0)
     ax_a.set_ylabel("ANEES (n = 4)")
     ax_m.set_ylabel("MoN of the bearing at the prior")
-    ax_r.legend(loc="best")
-    for ax, tag in zip((ax_g, ax_r, ax_a, ax_m), "abcd"):
-        ax.set_title(f"({tag})", loc="left")
+    # One legend under the panels: the tracks, the filters (one look each in every panel), the band.
+    handles = ax_g.get_legend_handles_labels()[0] + ax_a.get_legend_handles_labels()[0]
+    fig.legend(handles=handles, loc="outside lower center", ncol=3, frameon=False)
+    label_panels((ax_g, ax_r, ax_a, ax_m))
     return save_reproduced(fig, path, fmt, "Bearings-only tracking", caption(st))
 
 

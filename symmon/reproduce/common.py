@@ -1,10 +1,15 @@
 """Shared pieces of the reproduction commands: progress bars, the plotting backend and style.
 
-The figures are drawn as a journal prints them: no title (the caption, :data:`fig1.CAPTION`
-and :data:`fig2.CAPTION`, goes into the PNG's metadata and the documentation), the legend
-inside the axes or below them, and colours from the Okabe–Ito palette, which stays distinct
-under the common colour-vision deficiencies; each curve also differs by its line style or
-marker, so that no distinction rests on colour alone.
+Every figure the package draws (``symmon reproduce`` and the ``--plot`` of the other
+commands) follows one style, kept here: no title (the caption, ``fig1.caption()``
+and ``fig2.caption()``, goes into the PNG's metadata and the documentation); PNGs at
+:data:`PNG_DPI` dpi; the legend outside the axes (:func:`legend_outside`), so that it never
+covers a curve; plain tick labels on log axes (0.2, 3, 100, not 2×10⁻¹:
+:func:`plain_log_ticks`); panel letters (:func:`label_panels`); colours from the Okabe–Ito
+palette, which stays distinct under the common colour-vision deficiencies, each curve also
+differing by its line style or marker, so that no distinction rests on colour alone; and one
+colour, marker and line style per filter (:data:`FILTER_STYLES`), the same in every panel
+and every figure.
 
 References
 ----------
@@ -80,23 +85,100 @@ def png_metadata(title: str, caption: str) -> dict[str, str]:
     return {"Title": title, "Description": caption}
 
 
-#: Line styles and markers of curves drawn on one axes, cycled with the colours: two
-#: curves that coincide (a filter the adaptive one chose throughout) still show both.
-LINESTYLES = ("-", "--", "-.", ":")
-MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")
+#: One look per filter, by its name in ``symmon filter`` and the reproductions: an
+#: Okabe–Ito colour, a marker and a line style, the same in every panel and figure. Two
+#: filters share a colour only with another marker and line style (``gsf`` is the MoN-split
+#: Gaussian-sum filter of ``symmon filter``, ``mon_gsf`` of ``symmon reproduce bot``).
+FILTER_STYLES: dict[str, tuple[str, str, str]] = {
+    "ekf": ("vermillion", "o", "-"),
+    "ekf2": ("orange", "s", "--"),
+    "ukf": ("blue", "^", "-."),
+    "ckf": ("sky blue", "D", ":"),
+    "gh": ("reddish purple", "v", "--"),
+    "adaptive": ("black", "*", "-"),
+    "gsf": ("bluish green", "h", "-"),
+    "mon_gsf": ("bluish green", "h", "-"),
+    "rp_gsf": ("sky blue", "<", "-."),
+    "pf": ("black", "x", ":"),
+    "rpf": ("orange", ">", "--"),
+}
+#: The filters' labels (``filter_label`` of a transform, the adaptive filter's choices) by
+#: their short names in :data:`FILTER_STYLES`.
+FILTER_LABELS = {"ghkf": "gh"}
+#: The look of a filter name not in :data:`FILTER_STYLES` (a custom rule of the adaptive filter).
+OTHER_FILTER = ("grey", ".", (0, (3, 1, 1, 1)))
 
 
-def curve_styles(n: int, points: int) -> list[dict]:
-    """Keyword arguments of ``plot`` for n curves of ``points`` points on one axes: Okabe–Ito
-    colours, line styles and open markers in turn; each curve's markers at its own points
-    (every max(n, points/10)-th, offset by its index, so the markers of coinciding curves
-    never fall on each other), and each later curve drawn above the earlier ones with a
-    thinner line, so that a curve under another still shows at its edges."""
-    colours = [c for name, c in OKABE_ITO.items() if name != "yellow"]  # yellow is faint on white
-    step = max(n, points // 10, 1)
-    return [{"color": colours[i % len(colours)], "ls": LINESTYLES[i % len(LINESTYLES)],
-             "marker": MARKERS[i % len(MARKERS)], "ms": 4.5, "mfc": "none",
-             "markevery": (i % step, step), "lw": max(0.8, 2.6 - 0.3 * i), "zorder": 3 + i} for i in range(n)]
+def filter_key(name: str) -> str | None:
+    """The key of :data:`FILTER_STYLES` of a filter ``name`` (``"EKF"``, ``"ukf"``,
+    ``"GHKF(order=3)"``, ``"UKF(alpha=1, …)"``), or None when it has none."""
+    key = str(name).split("(", 1)[0].strip().lower()
+    key = FILTER_LABELS.get(key, key)
+    return key if key in FILTER_STYLES else None
+
+
+def filter_style(name: str, points: int) -> dict:
+    """Keyword arguments of ``plot`` for the filter ``name`` on a curve of ``points`` points:
+    its colour, marker and line style (:data:`FILTER_STYLES`), open markers at every
+    max(11, points/10)-th point, offset by the filter's place in the table (the markers of two
+    curves that coincide, the adaptive filter on the rule it chose, never fall on each
+    other), and each later filter drawn above the earlier ones with a thinner line, so that a
+    curve under another still shows at its edges. A name not in the table gets
+    :data:`OTHER_FILTER`."""
+    key = filter_key(name)
+    i = list(FILTER_STYLES).index(key) if key is not None else len(FILTER_STYLES)
+    colour, marker, ls = FILTER_STYLES[key] if key is not None else OTHER_FILTER
+    step = max(len(FILTER_STYLES) + 1, points // 10, 1)
+    return {"color": OKABE_ITO.get(colour, colour), "ls": ls, "marker": marker, "ms": 4.5, "mfc": "none",
+            "markevery": (i % step, step), "lw": max(0.8, 2.4 - 0.12 * i), "zorder": 3 + i}
+
+
+def legend_outside(ax, **kwargs):
+    """The legend of ``ax`` to the right of its axes, top-aligned: outside the data area, so
+    that it covers no curve (``kwargs`` go to ``ax.legend``)."""
+    opts = {"loc": "upper left", "bbox_to_anchor": (1.01, 1.0), "borderaxespad": 0.0}
+    return ax.legend(**{**opts, **kwargs})
+
+
+def plain_log_ticks(ax, axis: str = "y") -> None:
+    """Plain numbers (0.2, 3, 100; 1e-05 far from 1) on the log ``axis`` of ``ax``, not
+    matplotlib's 2×10⁻¹: the major ticks all labelled, the minor ones where matplotlib would
+    label them (some of 2 … 9 when the axis spans less than a decade)."""
+    from matplotlib.ticker import LogFormatter
+
+    class Plain(LogFormatter):
+        def __call__(self, x, pos=None):
+            return f"{x:g}" if super().__call__(x, pos) else ""
+
+    target = ax.yaxis if axis == "y" else ax.xaxis
+    target.set_major_formatter(Plain(labelOnlyBase=False))
+    target.set_minor_formatter(Plain(labelOnlyBase=False, minor_thresholds=(1, 0.4)))
+
+
+def legend_below(fig, handles, ncol: int, height: float):
+    """One legend of ``handles`` under all the axes of ``fig``, in ``ncol`` columns: the axes
+    are laid out above the bottom ``height`` (a fraction of the figure), the legend in it."""
+    fig.tight_layout(rect=(0, height, 1, 1))
+    return fig.legend(handles=handles, loc="lower center", ncol=ncol, frameon=False, bbox_to_anchor=(0.5, 0.0))
+
+
+def label_panels(axes, names: Iterable[str] = (), size: float = 9) -> None:
+    """Panel letters (a), (b), … above the top left corner of each of ``axes``, in order,
+    each followed by its name in ``names``, if given (what a title would say)."""
+    names = list(names)
+    for i, (letter, ax) in enumerate(zip("abcdefghijklmnopqrstuvwxyz", axes)):
+        name = f" {names[i]}" if i < len(names) else ""
+        ax.text(0.0, 1.03, f"({letter})", transform=ax.transAxes, fontsize=size, fontweight="bold",
+                ha="left", va="bottom")
+        if name:
+            ax.annotate(name, (0.0, 1.03), xycoords="axes fraction", xytext=(2.2 * size, 0),
+                        textcoords="offset points", fontsize=size - 1, ha="left", va="bottom")
+
+
+def save_plot(fig, path) -> Path:
+    """Save a figure of a command's ``--plot`` (any format of :func:`symmon.io.save_figure`),
+    a raster one at :data:`PNG_DPI` dpi."""
+    return save_figure(fig, path, dpi=PNG_DPI)
 
 
 def check_format(fmt: str) -> str:

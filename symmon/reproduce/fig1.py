@@ -11,11 +11,16 @@ The bearing is declared an angle (:data:`MODEL`): its mean is circular and its d
 are wrapped, so that at large α, where the samples straddle the cut at ±π, a sample just
 past the cut counts as a small deviation, not as one of almost 2π.  Where no sample
 reaches the cut (α ≲ 0.3, the α = 0.17 of Sec. II-B included) this changes nothing.
+
+:func:`headline` gives the numbers that Sec. II-B quotes, beside the paper's (the normalised
+MoN at α = 0.17 in rad and in deg), and the range of the unitless MoN; ``symmon reproduce
+fig1`` prints them before the files it wrote.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any, Callable
 
 import numpy as np
 
@@ -27,10 +32,11 @@ from ..transforms.taylor import TT2
 from ..transforms.unscented import UT
 from ..transforms.montecarlo import MonteCarlo
 from ..transforms.stats import jackknife, moments_of
-from .common import (ALPHA_LABEL, OKABE_ITO, figure_style, progress_bar, pyplot, save_reproduced,
-                     with_angles, with_format)
+from .common import (ALPHA_LABEL, OKABE_ITO, figure_style, label_panels, legend_below, plain_log_ticks,
+                     progress_bar, pyplot, save_reproduced, with_angles, with_format)
 
-__all__ = ["OUTPUTS", "run", "curves", "caption", "ALPHAS", "UNIT_SIZES", "COLUMNS", "MODEL"]
+__all__ = ["OUTPUTS", "run", "curves", "caption", "headline", "ALPHAS", "UNIT_SIZES", "COLUMNS", "MODEL",
+           "PAPER_ALPHA", "PAPER_LIU_LI"]
 
 #: The files :func:`run` writes into its directory, checked before any work
 #: (:func:`symmon.io.check_output_set`; the command line checks them with its other outputs).
@@ -40,6 +46,11 @@ OUTPUTS = ("fig1.png", "fig1.csv")
 #: the deg curve rises from 0.08 to its peak near α = 0.25 and falls again, and the α = 0.17
 #: that the text quotes.
 ALPHAS = np.unique(np.concatenate([np.logspace(-4, 2, 37), np.logspace(-2, 0, 49), [0.17]]).round(12))
+
+#: The α at which Sec. II-B quotes the normalised MoN (17), and the values it quotes there
+#: (Straka & Havlík 2024, Sec. II-B: "10 %" with the bearing in rad, "80 %" in deg).
+PAPER_ALPHA = 0.17
+PAPER_LIU_LI = {"rad": 0.10, "deg": 0.80}
 
 #: The polar model (16), bearing in rad, with the bearing declared an angle (module notes).
 MODEL = with_angles(polar().model, [1])
@@ -117,14 +128,54 @@ def caption(samples: int = 10**6, seed: int = 0) -> str:
             "in every unit. Solid lines: Monte Carlo with "
             f"{samples:,} samples per α (seed {seed}, common random numbers across α), with their ±2 SE "
             "bands, whose width the lower panel shows; dashed: TT2; dotted: the unscented transform ut1 "
-            "(open markers). The bearing is declared an angle (circular mean, wrapped deviations). The "
-            "dash-dotted line marks α = 0.17, where Sec. II-B quotes 10 % (rad) and 80 % (deg).")
+            "(open markers). Panel (a): the MoNs; (b): the Monte Carlo 2 SE. The bearing is declared an "
+            "angle (circular mean, wrapped deviations). The dash-dotted line marks α = 0.17, where Sec. II-B "
+            "quotes 10 % (rad) and 80 % (deg).")
+
+
+def headline(c: dict[str, np.ndarray], samples: int = 10**6, seed: int = 0) -> list[str]:
+    """The numbers of Figure 1 that Sec. II-B quotes, beside the paper's, as lines of text.
+
+    At the α of the curves ``c`` nearest :data:`PAPER_ALPHA` (0.17 on :data:`ALPHAS`): the
+    normalised Liu–Li MoN (17) with the bearing in rad and in deg, with their Monte Carlo
+    2 SE, beside :data:`PAPER_LIU_LI`, and its range over every bearing unit; then the range
+    of the unitless MoN with W^full (43) over the α of ``c``, the same in every unit (the
+    paper's Figure 1 does not show it).
+
+    Parameters
+    ----------
+    c : dict of numpy.ndarray
+        The curves of :func:`curves`.
+    samples, seed : int
+        The Monte Carlo samples per α and the seed of ``c`` (named in the first line).
+
+    Returns
+    -------
+    list of str
+    """
+    a = np.asarray(c["alpha"], dtype=float)
+    i = int(np.argmin(np.abs(np.log(a / PAPER_ALPHA))))
+    at = "" if a[i] == PAPER_ALPHA else f" (the grid's nearest to the paper's {PAPER_ALPHA:g})"
+    lines = [f"Figure 1 (Sec. II-B) at alpha = {a[i]:.4g}{at}: Monte Carlo, {samples:,} samples per alpha, "
+             f"seed {seed}"]
+    for unit in ("rad", "deg"):
+        value, se = c[f"liu_{unit}"][i], c[f"liu_{unit}_se"][i]
+        lines.append(f"  normalised Liu-Li MoN (17), bearing in {unit}: {value:.3f} ± {2 * se:.3f} (2 SE); "
+                     f"paper: {100 * PAPER_LIU_LI[unit]:.0f} %")
+    lines.append(f"  normalised Liu-Li MoN (17), any bearing unit from 0.1 nrad to 10 Grad: {c['band_lo'][i]:.3f} "
+                 f"to {c['band_hi'][i]:.3f}")
+    lines.append(f"  unitless MoN with W^full (43), any unit: {c['full'][i]:.3f} ± {2 * c['full_se'][i]:.3f} (2 SE)")
+    full = c["full"]
+    lines.append(f"unitless MoN with W^full (43) over alpha in [{a.min():g}, {a.max():g}]: {full.min():.3f} to "
+                 f"{full.max():.3f}, the same in every unit (the paper's Figure 1 does not show it)")
+    return lines
 
 
 def run(outdir: str | Path = "results", samples: int = 10**6, seed: int = 0, progress: bool = True,
-        alphas=ALPHAS, fmt: str = "png") -> list[Path]:
+        alphas=ALPHAS, fmt: str = "png", report: Callable[[str], Any] | None = None) -> list[Path]:
     """Reproduce Figure 1: write ``fig1.png`` (or ``.pdf``, ``.svg``: ``fmt``) and
-    ``fig1.csv`` into ``outdir``."""
+    ``fig1.csv`` into ``outdir``; ``report`` (``print`` on the command line), if given, is
+    called with each line of :func:`headline`, after the files are written."""
     outdir = Path(outdir)
     check_output_set(outdir, with_format(OUTPUTS, fmt))  # a read-only file refuses the run before its work
     outdir.mkdir(parents=True, exist_ok=True)
@@ -137,6 +188,9 @@ def run(outdir: str | Path = "results", samples: int = 10**6, seed: int = 0, pro
                           "Figure 1: the MSE-based MoN and the bearing unit",
                           caption(samples, seed))
     plt.close(fig)
+    if report is not None:
+        for line in headline(c, samples, seed):
+            report(line)
     return [png, csv]
 
 
@@ -145,7 +199,7 @@ def _plot(plt, c: dict[str, np.ndarray]):
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
-    fig, (ax, ax_se) = plt.subplots(2, 1, figsize=(7.0, 5.6), sharex=True, height_ratios=[3.2, 1])
+    fig, (ax, ax_se) = plt.subplots(2, 1, figsize=(7.0, 6.5), sharex=True, height_ratios=[3.2, 1])
     a = c["alpha"]
     ax.fill_between(a, c["band_lo"], c["band_hi"], color="0.87", lw=0)
     quantities = (("liu_rad", OKABE_ITO["blue"], "o", "Liu–Li (8), bearing in rad"),
@@ -167,19 +221,20 @@ def _plot(plt, c: dict[str, np.ndarray]):
     handles = [Patch(color="0.87", label="Liu–Li (8), any bearing unit, 0.1 nrad to 10 Grad")]
     handles += [Line2D([], [], color=col, marker=mk, ms=3.5, lw=1.8 if mk is None else 1.2, label=lab)
                 for _, col, mk, lab in quantities]
-    # Two legends in the two empty corners: what is drawn (upper left), and by which rule.
-    ax.add_artist(ax.legend(handles=handles, loc="upper left"))
-    rules = [Line2D([], [], color="0.35", ls="-", lw=1.2, label="Monte Carlo, band ±2 SE"),
+    # One legend under both panels: what is drawn, and by which rule.
+    handles += [Line2D([], [], color="0.35", ls="-", lw=1.2, label="Monte Carlo, band ±2 SE"),
              Line2D([], [], color="0.35", ls="--", lw=1.1, mfc="white", marker="o", ms=3.5, label="TT2"),
              Line2D([], [], color="0.35", ls=":", lw=1.1, mfc="white", marker="o", ms=3.5,
                     label="unscented transform (ut1)")]
-    ax.legend(handles=rules, loc="lower right", bbox_to_anchor=(1.0, 0.25))
     ax.set_ylabel("normalised MoN (0 = affine)")
     ax.set_ylim(0, 1.02)
     ax_se.set_yscale("log")
+    plain_log_ticks(ax_se)
+    plain_log_ticks(ax_se, "x")
     ax_se.set_ylabel("2 SE (Monte Carlo)")
     ax_se.set_xlabel(ALPHA_LABEL + r", $P_0 = \mathrm{diag}(1, 100)$ km$^2$")
     ax.set_xlim(a.min(), a.max())
+    label_panels((ax, ax_se))
     fig.align_ylabels()
-    fig.tight_layout()
+    legend_below(fig, handles, ncol=2, height=0.13)
     return fig

@@ -26,8 +26,8 @@ from ..transforms.taylor import TT2
 from ..transforms.unscented import UT
 from ..transforms.montecarlo import MonteCarlo
 from ..transforms.stats import jackknife, moments_of
-from .common import (OKABE_ITO, figure_style, progress_bar, pyplot, save_reproduced,
-                     with_angles, with_format)
+from .common import (OKABE_ITO, figure_style, label_panels, legend_below, plain_log_ticks, progress_bar,
+                     pyplot, save_reproduced, with_angles, with_format)
 
 __all__ = ["OUTPUTS", "run", "curves", "caption", "ALPHAS", "PROBLEMS", "COLUMNS", "ANGLES"]
 
@@ -171,7 +171,6 @@ def caption(samples: int = 10**6, seed: int = 0) -> str:
 def _plot(plt, c: dict[str, dict[str, np.ndarray]]):
     """Figure 2: one column per problem, MoNs above and the Monte Carlo 2 SE below; no title."""
     from matplotlib.lines import Line2D
-    from matplotlib.ticker import NullFormatter
 
     fig, axes = plt.subplots(2, 3, figsize=(7.2, 4.4), sharex=True, sharey="row", height_ratios=[3, 1])
     # Curves that coincide (BOT's three MoNs, a scalar output) put their markers at
@@ -203,7 +202,8 @@ def _plot(plt, c: dict[str, dict[str, np.ndarray]]):
         ax.set_title({"BOT": "BOT (45)", "GMTI": "GMTI (46)", "RDCOS": "RDCOS (47)"}[name], fontsize=9)
         ax.set_ylim(bottom=0)
         ax_se.set_yscale("log")
-        ax_se.yaxis.set_minor_formatter(NullFormatter())  # decades only: the minor labels overlapped
+        plain_log_ticks(ax_se)
+        plain_log_ticks(ax_se, "x")
         ax_se.set_xlabel(r"$\alpha$: scale of $P$ (44)")
         if name == "BOT":
             ax.text(0.04, 0.96, "scalar output:\nthe three MoNs coincide", transform=ax.transAxes, fontsize=7,
@@ -218,10 +218,7 @@ def _plot(plt, c: dict[str, dict[str, np.ndarray]]):
                        ms=4, label="$W^{full}$ by TT2"),
                 Line2D([], [], color=OTHER_RULES["ut"][0], ls=":", lw=1.3, marker=OTHER_RULES["ut"][1], mfc="none",
                        ms=4, label="$W^{full}$ by the UT (ut1)")]
-    for letter, ax in zip("abcdef", axes.ravel()):  # panel letters, row by row
-        ax.text(-0.04, 1.04, f"({letter})", transform=ax.transAxes, fontsize=9, fontweight="bold", ha="right",
-                va="bottom")
+    label_panels(axes.ravel())  # row by row
     fig.align_ylabels()
-    fig.tight_layout(rect=(0, 0.1, 1, 1))
-    fig.legend(handles=handles, loc="lower center", ncol=4, frameon=False, bbox_to_anchor=(0.5, 0.0))
+    legend_below(fig, handles, ncol=4, height=0.1)
     return fig

@@ -87,7 +87,7 @@ from ..errors import ArgumentError, plain_repr
 from ..estimation import mmse
 from ..io import check_output_set, write_csv
 from ..filters.gaussian.linear import KalmanFilter
-from .common import figure_style, save_reproduced, with_format
+from .common import OKABE_ITO, figure_style, label_panels, pyplot, save_reproduced, with_format
 
 __all__ = [
     "OUTPUTS",
@@ -272,47 +272,66 @@ def _per_step_rows(name: str, data: dict[str, np.ndarray], keys: tuple[str, ...]
     return [[name, k + 1, *(float(data[key][k]) for key in keys)] for k in range(K)]
 
 
-def _figure_abs(plt: Any, title: str, cases: tuple, results: dict[str, dict[str, np.ndarray]]) -> Any:
-    fig, axes = plt.subplots(2, 2, figsize=(10, 7), sharex=True)
+#: The estimators' looks in every MMSE figure: (colour, line style, marker).
+LOOKS = {"optimal": (OKABE_ITO["blue"], "-", "o"), "composite": (OKABE_ITO["blue"], "-", "o"),
+         "simple": (OKABE_ITO["vermillion"], "--", "s"), "predicted": ("0.45", ":", None),
+         "true": (OKABE_ITO["black"], "-", None)}
+
+
+def _look(name: str, points: int, label: str) -> dict:
+    colour, ls, marker = LOOKS[name]
+    return {"color": colour, "ls": ls, "marker": marker, "ms": 3.5, "mfc": "none",
+            # the simple estimator's markers between the others': the curves often coincide
+            "markevery": (max(1, points // 10) // 2 if name == "simple" else 0, max(1, points // 10)), "label": label}
+
+
+def _figure_abs(plt: Any, cases: tuple, results: dict[str, dict[str, np.ndarray]]) -> Any:
+    fig, axes = plt.subplots(2, 2, figsize=(10, 7.4), sharex=True)
     # Fixed margins: a layout engine would draw every figure twice.
-    fig.subplots_adjust(left=0.08, right=0.98, top=0.90, bottom=0.08, hspace=0.25, wspace=0.22)
+    fig.subplots_adjust(left=0.08, right=0.98, top=0.94, bottom=0.14, hspace=0.25, wspace=0.22)
     for ax, case in zip(axes.ravel(), cases):
         data = results[case.name]
         k = np.arange(1, data["rmse_optimal"].shape[0] + 1)
-        ax.plot(k, data["rmse_optimal"], label="optimal (MMSE)")
-        ax.plot(k, data["rmse_simple"], "--", label="simple |plug-in|")
-        ax.plot(k, data["rmse_optimal_predicted"], ":", color="gray", label="optimal, predicted")
-        ax.set_title(f"case {case.name}: {case.params}", fontsize=8)
+        ax.plot(k, data["rmse_optimal"], **_look("optimal", k.size, "optimal (MMSE)"))
+        ax.plot(k, data["rmse_simple"], **_look("simple", k.size, "simple |plug-in|"))
+        ax.plot(k, data["rmse_optimal_predicted"], **_look("predicted", k.size, "optimal, predicted"))
         ax.set_xlabel("time step k")
         ax.set_ylabel("RMSE of the distance estimate\n(over the Monte Carlo runs)")
-    axes.ravel()[0].legend(fontsize=8)
-    fig.suptitle(title)
+    label_panels(axes.ravel(), [f"case {c.name}" for c in cases])
+    fig.legend(handles=axes.ravel()[0].get_lines(), loc="lower center", ncol=3, frameon=False)
     return fig
+
+
+def _caption_abs(title: str, cases: tuple) -> str:
+    return f"{title}. " + "; ".join(f"({x}) case {c.name}: {c.params}" for x, c in zip("abcd", cases)) + "."
 
 
 def _figure_sec7(plt: Any, results: dict[str, dict[str, np.ndarray]]) -> Any:
-    fig, axes = plt.subplots(len(SEC7_CASES), 4, figsize=(15, 3.6 * len(SEC7_CASES)))
-    fig.subplots_adjust(left=0.05, right=0.99, top=0.88, bottom=0.08, hspace=0.4, wspace=0.25)
+    fig, axes = plt.subplots(len(SEC7_CASES), 4, figsize=(15, 3.8 * len(SEC7_CASES)))
+    fig.subplots_adjust(left=0.05, right=0.99, top=0.93, bottom=0.14, hspace=0.4, wspace=0.25)
     axes = np.atleast_2d(axes)
+    names = []
     for row, case in zip(axes, SEC7_CASES):
         data = results[case.name]
         k = np.arange(1, case.K + 1)
-        row[0].plot(k, data["example_true_range"], "k", label="true")
-        row[0].plot(k, data["example_range_composite"], label="composite")
-        row[0].plot(k, data["example_range_simple"], "--", label="simple")
-        row[0].set_title(f"{case.name}: range, one run", fontsize=9)
+        row[0].plot(k, data["example_true_range"], **_look("true", k.size, "true"))
+        row[0].plot(k, data["example_range_composite"], **_look("composite", k.size, "composite"))
+        row[0].plot(k, data["example_range_simple"], **_look("simple", k.size, "simple"))
+        names.append(f"{case.name}: range, one run")
         row[0].set_ylabel("range to the origin")
         for ax, q, label in zip(row[1:], ("range", "bearing", "cosine"), ("range", "bearing [rad]", "cos angle(x_k, x_{k-1})")):
-            ax.plot(k, data[f"{q}_composite"], label="composite")
-            ax.plot(k, data[f"{q}_simple"], "--", label="simple")
-            ax.set_title(f"{case.name}: RMSE of {label}", fontsize=9)
+            ax.plot(k, data[f"{q}_composite"], **_look("composite", k.size, "composite"))
+            ax.plot(k, data[f"{q}_simple"], **_look("simple", k.size, "simple"))
+            names.append(f"{case.name}: RMSE of {label}")
             ax.set_ylabel(f"RMSE of the {label} estimate")
         for ax in row:
             ax.set_xlabel("time step k")
-        row[0].legend(fontsize=8)
-        row[1].legend(fontsize=8)
-    fig.suptitle("Section 7: motion in a plane; " + "; ".join(f"{c.name}: {c.params}" for c in SEC7_CASES), fontsize=9)
+    label_panels(axes.ravel(), names)
+    fig.legend(handles=axes[0, 0].get_lines(), loc="lower center", ncol=3, frameon=False)
     return fig
+
+
+SEC7_CAPTION = "Section 7: motion in a plane; " + "; ".join(f"{c.name}: {c.params}" for c in SEC7_CASES) + "."
 
 
 @figure_style()
@@ -341,10 +360,7 @@ def run(outdir: Path, runs: int = 1000, seed: int = 0, progress: bool = True,
         raise ArgumentError(f"runs must be an integer >= 2, got {plain_repr(runs)}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ArgumentError(f"seed must be a non-negative integer, got {plain_repr(seed)}")
-    import matplotlib
-
-    matplotlib.use("Agg")  # files only; never open a window
-    import matplotlib.pyplot as plt
+    plt = pyplot()  # files only; never open a window
     from tqdm import tqdm
 
     outdir = Path(outdir)
@@ -374,8 +390,9 @@ def run(outdir: Path, runs: int = 1000, seed: int = 0, progress: bool = True,
                                 float(d["rmse_simple"].mean()), c.params])
             title = {"4.3.1": "Section 4.3.1: |x_k|, scalar random walk",
                      "4.3.2": "Section 4.3.2: |x1_k - x2_k|, two points on a line"}[section]
-            fig = _figure_abs(plt, f"{title} ({runs} runs)", section_cases, results[section])
-            written.append(save_reproduced(fig, outdir / f"mmse_{tag}.png", fmt))
+            fig = _figure_abs(plt, section_cases, results[section])
+            written.append(save_reproduced(fig, outdir / f"mmse_{tag}.png", fmt, title,
+                                           _caption_abs(f"{title} ({runs} runs)", section_cases)))
             plt.close(fig)
             bar.update()
 
@@ -391,7 +408,8 @@ def run(outdir: Path, runs: int = 1000, seed: int = 0, progress: bool = True,
                     summary.append(["7", c.name, q, lo, hi, float(d[f"{q}_composite"][lo - 1:hi].mean()),
                                     float(d[f"{q}_simple"][lo - 1:hi].mean()), c.params])
         fig = _figure_sec7(plt, results["7"])
-        written.append(save_reproduced(fig, outdir / "mmse_sec7.png", fmt))
+        written.append(save_reproduced(fig, outdir / "mmse_sec7.png", fmt, "Section 7: motion in a plane",
+                                       f"{SEC7_CAPTION} {runs} runs."))
         plt.close(fig)
         bar.update()
 

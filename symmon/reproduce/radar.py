@@ -49,7 +49,7 @@ from ..core.problems import radar_h, radar_hinv
 from ..compile.compiled import compiled
 from ..transforms.taylor import TT1
 from ..transforms.unscented import UT
-from .common import figure_style, save_reproduced, with_format
+from .common import OKABE_ITO, figure_style, label_panels, legend_outside, save_reproduced, with_format
 
 __all__ = ["OUTPUTS", "run", "SENSORS", "RANGE_VAR", "BEARING_VAR", "PRIOR", "hinv_model", "h_model", "measurement"]
 
@@ -100,8 +100,13 @@ def _row(name: str, method: str, g: Gaussian) -> list:
             float(g.cov[0, 0]), float(g.cov[0, 1]), float(g.cov[1, 1])]
 
 
+#: The colours of the two sensors' quantities, and of the fused or conditioned estimate.
+COLOURS = (OKABE_ITO["blue"], OKABE_ITO["vermillion"])
+FUSED = OKABE_ITO["black"]
+
+
 def _sensors(ax) -> None:
-    for (px, py), c, label in zip(SENSORS, ("b", "g"), ("S1", "S2")):
+    for (px, py), c, label in zip(SENSORS, COLOURS, ("S1", "S2")):
         ax.plot(px, py, ".", color=c, markersize=15)
         ax.annotate(label, (px, py), textcoords="offset points", xytext=(4, 4))
 
@@ -110,7 +115,7 @@ def _figure(ncols: int = 1):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(5.5 * ncols, 5.0))
+    fig = Figure(figsize=(5.5 * ncols, 5.0), layout="constrained")
     FigureCanvasAgg(fig)  # the Agg backend, without pyplot's global state
     axes = [fig.add_subplot(1, ncols, i + 1) for i in range(ncols)]
     return fig, axes
@@ -150,7 +155,7 @@ def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = Tru
     ys = [measurement(0), measurement(1)]
     hinvs = [hinv_model(p) for p in SENSORS]
     hs = [h_model(p) for p in SENSORS]
-    colors = ("b", "g")
+    colors = COLOURS
     rows: list[list] = []
     written: list[Path] = []
     disable = (not progress) or not sys.stderr.isatty()
@@ -165,9 +170,10 @@ def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = Tru
         _sensors(ax)
         for X, c in zip(x_samples, colors):
             ax.plot(X[:, 0], X[:, 1], ".", color=c, markersize=1, alpha=0.3)
-        ax.set(title=f"Monte Carlo samples of x = h⁻¹(y), {samples:,} per sensor", xlabel="position x₁ (length unit of r)",
-               ylabel="position x₂ (length unit of r)", aspect="equal")
-        written.append(save_reproduced(fig, outdir / "radar_mc.png", fmt))
+        ax.set(xlabel="position x₁ (length unit of r)", ylabel="position x₂ (length unit of r)", aspect="equal")
+        written.append(save_reproduced(fig, outdir / "radar_mc.png", fmt, "Radar example: Monte Carlo",
+                                       f"Monte Carlo samples of x = h⁻¹(y), {samples:,} per sensor (S1 blue, S2 "
+                                       "vermillion)."))
         bar.update()
 
         # Direct approach with UT (ut1), as SigSys uteval(y, hinv, 'ut1', [], p).
@@ -183,19 +189,21 @@ def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = Tru
             e = _ellipse(y)
             ax_y.plot(e[:, 0], e[:, 1], "-", color=c)
             ax_y.plot(S[:, 0], S[:, 1], mk, color=c)
-        ax_y.set(title=f"y = (r, φ), {ELLIPSE_LEVEL:.0%} confidence ellipses and sigma points", xlabel="range r (the lecture gives no unit)",
-                 ylabel="bearing φ [rad]")
+        ax_y.set(xlabel="range r (the lecture gives no unit)", ylabel="bearing φ [rad]")
         _sensors(ax_x)
         for g, fS, c, mk in zip(res_d.estimates, images, colors, ("x", "d")):
             e = _ellipse(g)
             ax_x.plot(e[:, 0], e[:, 1], "-", color=c)
             ax_x.plot(fS[:, 0], fS[:, 1], mk, color=c)
         e = _ellipse(res_d.fused)
-        ax_x.plot(e[:, 0], e[:, 1], "-", color="r")
-        ax_x.set(title=f"h⁻¹ of the sigma points, N(x̂ₖ, Pₖ), fused (red); {ELLIPSE_LEVEL:.0%} ellipses",
-                 xlabel="position x₁ (length unit of r)", ylabel="position x₂ (length unit of r)",
-                 aspect="equal")
-        written.append(save_reproduced(fig, outdir / "radar_direct_ut.png", fmt))
+        ax_x.plot(e[:, 0], e[:, 1], "--", color=FUSED)
+        ax_x.set(xlabel="position x₁ (length unit of r)", ylabel="position x₂ (length unit of r)", aspect="equal")
+        label_panels((ax_y, ax_x))
+        written.append(save_reproduced(
+            fig, outdir / "radar_direct_ut.png", fmt, "Radar example: direct approach with the UT",
+            f"(a) y = (r, φ) of each sensor (S1 blue, crosses; S2 vermillion, diamonds): {ELLIPSE_LEVEL:.0%} "
+            f"confidence ellipses and the sigma points; (b) h⁻¹ of the sigma points, N(x̂ₖ, Pₖ) and their "
+            f"fusion (black, dashed), {ELLIPSE_LEVEL:.0%} ellipses."))
         bar.update()
 
         # Indirect approach with TT1 and exact measurement statistics: e_k = N(0, Cov y_k),
@@ -215,14 +223,17 @@ def run(outdir: Path, samples: int = 10_000, seed: int = 0, progress: bool = Tru
                  _row("Xhat2_sampled", "indirect tt1, sampled y statistics", res_s.posteriors[1])]
         fig, (ax,) = _figure()
         _sensors(ax)
-        for g, c, label in zip((PRIOR, Xhat1, Xhat2), ("b", "g", "r"), ("prior", "prior + left", "prior + all")):
+        looks = (("0.45", "-"), (COLOURS[0], "--"), (FUSED, "-."))
+        for g, (c, ls), label in zip((PRIOR, Xhat1, Xhat2), looks, ("prior", "prior + left", "prior + all")):
             e = _ellipse(g)
-            ax.plot(e[:, 0], e[:, 1], "-", color=c, label=label)
+            ax.plot(e[:, 0], e[:, 1], ls, color=c, label=label)
             ax.plot(*g.mean, "+", color=c)
-        ax.legend(loc="lower center")
-        ax.set(title=f"Indirect approach with TT1: {ELLIPSE_LEVEL:.0%} confidence ellipses",
-               xlabel="position x₁ (length unit of r)", ylabel="position x₂ (length unit of r)", aspect="equal")
-        written.append(save_reproduced(fig, outdir / "radar_indirect_tt1.png", fmt))
+        legend_outside(ax)
+        ax.set(xlabel="position x₁ (length unit of r)", ylabel="position x₂ (length unit of r)", aspect="equal")
+        written.append(save_reproduced(fig, outdir / "radar_indirect_tt1.png", fmt,
+                                       "Radar example: indirect approach with TT1",
+                                       f"Indirect approach with TT1: {ELLIPSE_LEVEL:.0%} confidence ellipses of the "
+                                       "prior and of the posteriors given the left and both sensors."))
         bar.update()
 
         header = ["name", "method", "x1", "x2", "P11", "P12", "P22"]

@@ -20,7 +20,7 @@ prior N(x̂_{k|k−1}, P_{k|k−1}) and e ~ N(0, R), over the first :data:`MON_R
 (median and 10–90 % band); the same without the noise e is shown beside.
 
 Files written to ``outdir``: ``tracking_bot.png``, ``tracking_rb.png`` (ANEES, ANIS,
-position RMSE (and the smoothed RMSE of each filter's RTS smoother, dashed), MoN and the adaptive
+position RMSE (and the smoothed RMSE of each filter's RTS smoother, dotted), MoN and the adaptive
 filter's choices on one time axis),
 ``tracking_summary.csv`` (one row per scenario and filter), ``tracking_steps.csv``
 (one row per scenario and step) and ``tracking_events.csv``: each run whose EKF NEES
@@ -51,9 +51,10 @@ from ..io import check_output_set, write_csv
 from ..core.model import Model
 from ..measures.mon import nonlinearity
 from ..compile.compiled import compiled
-from .common import figure_style, progress_bar, save_reproduced, with_format
+from .common import (figure_style, filter_style, label_panels, legend_outside, plain_log_ticks,
+                     progress_bar, save_reproduced, with_format)
 
-__all__ = ["OUTPUTS", "run", "Scenario", "scenarios", "FILTER_NAMES", "MON_RUNS", "TOL"]
+__all__ = ["OUTPUTS", "run", "Scenario", "scenarios", "FILTER_NAMES", "MON_RUNS", "TOL", "LABELS", "caption"]
 
 #: The files :func:`run` writes into its directory, checked before any work
 #: (:func:`symmon.io.check_output_set`; the command line checks them with its other outputs).
@@ -243,51 +244,83 @@ def _events(sc: Scenario, ekf: NonlinearKalmanResult, xs: np.ndarray, adaptive: 
     return rows
 
 
-def _plot(sc: Scenario, st: dict[str, Any], runs: int, path: Path, fmt: str = "png") -> Path:
+#: The filters' names in the figures' legends.
+LABELS = {"ekf": "EKF", "ekf2": "EKF2", "ukf": "UKF", "ckf": "CKF", "gh": "GH", "adaptive": "adaptive"}
+#: The MoN along the trajectory, with and without the noise: (key, colour, marker, line style,
+#: label); in greys, as the Okabe–Ito colours are the filters'.
+MON_CURVES = (("mon", "0.15", "o", "-", "MoN of h(x) + e"),
+              ("mon_clean", "0.45", "s", "--", "MoN of h(x), no noise"))
+
+
+def caption(sc: Scenario, runs: int) -> str:
+    """The caption of a tracking figure (saved in the PNG's metadata; docs/tracking.md)."""
+    return (f"{sc.title}: {runs} Monte Carlo runs. (a) average NEES and (b) average NIS with their two-sided "
+            "95 % chi-square intervals (grey); (c) position RMSE, each filter's RTS smoother dotted in its colour; "
+            "(d) full-weight MoN (Straka & Havlík 2024, (43), TT2) of the measurement at each run's EKF prior, "
+            "median and 10-90 % of the runs; (e) the adaptive filter's choices, share of runs. Each filter has one "
+            "colour, marker and line style in every panel; dotted vertical lines: the observer's turns.")
+
+
+def _figure(sc: Scenario, st: dict[str, Any]):
+    """The figure of one scenario: five panels on one time axis, legends right of them."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
 
-    fig = Figure(figsize=(7.5, 10.5))
+    fig = Figure(figsize=(7.5, 10.5), layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(5, 1, sharex=True)
     k = np.arange(1, sc.steps + 1)
     filters = st["filters"]
     for name, d in filters.items():
-        style = {"lw": 2.0, "color": "k"} if name == "adaptive" else {"lw": 1.2}
-        axes[0].semilogy(k, d["anees"].value, label=name.upper() if name != "adaptive" else "adaptive", **style)
+        style = filter_style(name, sc.steps)
+        label = LABELS.get(name, name)
+        axes[0].semilogy(k, d["anees"].value, label=label, **style)
         axes[1].semilogy(k, d["anis"].value, **style)
-        line, = axes[2].semilogy(k, d["rmse"], **style)
-        if d["rmse_smoothed"] is not None:  # its RTS smoother, dashed in the same colour
-            axes[2].semilogy(k, d["rmse_smoothed"], ls="--", lw=1.0, color=line.get_color())
+        axes[2].semilogy(k, d["rmse"], **style)
+        if d["rmse_smoothed"] is not None:  # its RTS smoother: thin, dotted, in the filter's colour
+            axes[2].semilogy(k, d["rmse_smoothed"], ls=(0, (1, 1)), lw=0.8, color=style["color"],
+                             zorder=style["zorder"])
     if filters:
         any_ = next(iter(filters.values()))
         for ax, t in ((axes[0], any_["anees"]), (axes[1], any_["anis"])):
             ax.axhspan(t.lower, t.upper, color="0.85", zorder=0, label="95 % χ² interval")
     axes[0].set_ylabel("average NEES\n(expected 4)")
     axes[1].set_ylabel(f"average NIS\n(expected {sc.h.n_y})")
-    axes[2].set_ylabel("position RMSE [m]\n(dashed: smoothed)")
-    axes[0].legend(ncol=4, fontsize=7)
+    axes[2].set_ylabel("position RMSE [m]")
+    legend_outside(axes[0])
+    legend_outside(axes[1])
+    legend_outside(axes[2], handles=[Line2D([], [], color="0.35", lw=1.2, label="filter"),
+                                     Line2D([], [], color="0.35", lw=0.8, ls=(0, (1, 1)), label="its RTS smoother")])
     if "mon" in st:
-        for key, color, label in (("mon", "C3", "MoN of h(x) + e"), ("mon_clean", "C0", "MoN of h(x), no noise")):
+        for key, color, marker, ls, label in MON_CURVES:
             q10, q50, q90 = np.percentile(st[key], [10, 50, 90], axis=0)
-            axes[3].plot(k, q50, color=color, label=f"{label}: median")
-            axes[3].fill_between(k, q10, q90, color=color, alpha=0.2, label="10–90 % of runs")
+            axes[3].plot(k, q50, color=color, ls=ls, marker=marker, ms=3.5, mfc="none", markevery=5,
+                         label=f"{label}: median")
+            axes[3].fill_between(k, q10, q90, color=color, alpha=0.2, lw=0, label="10–90 % of runs")
         axes[3].set_yscale("log")
         axes[3].set_ylabel("MoN (full weight)\nat the EKF prior")
-        axes[3].legend(fontsize=7)
+        legend_outside(axes[3])
     if "adaptive" in filters:
         ch = filters["adaptive"]["result"].choices
         for name in np.unique(ch):
-            axes[4].plot(k, np.mean(ch == name, axis=0), label=name)
+            if name:  # "": a step not run
+                axes[4].plot(k, np.mean(ch == name, axis=0), label=str(name), **filter_style(str(name), sc.steps))
         axes[4].set_ylabel("adaptive filter:\nshare of runs")
-        axes[4].legend(fontsize=7, ncol=3)
+        legend_outside(axes[4], title="its choice")
+    for ax in axes[:4]:
+        if ax.get_yscale() == "log":
+            plain_log_ticks(ax)
     for kk in sorted(sc.shifts):
         for ax in axes:
             ax.axvline(kk + 0.5, color="0.5", ls=":", lw=1)
     axes[-1].set_xlabel("step k")
-    axes[0].set_title(f"{sc.title}\n{runs} Monte Carlo runs")
-    fig.tight_layout()
-    return save_reproduced(fig, path, fmt)
+    label_panels(axes)
+    return fig
+
+
+def _plot(sc: Scenario, st: dict[str, Any], runs: int, path: Path, fmt: str = "png") -> Path:
+    return save_reproduced(_figure(sc, st), path, fmt, f"Tracking: {sc.title}", caption(sc, runs))
 
 
 def _rms(rmse: np.ndarray | None) -> float | None:

@@ -119,16 +119,16 @@ def test_bad_noise_symbols_and_units_name_the_fault(tmp_path, edit, match):
 
 
 def test_cli_filter_prints_units_and_plots_one_rmse_panel_per_unit(capsys, monkeypatch, noisy, tmp_path):
-    import symmon.io as io
+    from symmon.reproduce import common
 
     figures = []
-    real = io.save_figure
+    real = common.save_plot  # every --plot figure is saved by it (300 dpi)
 
-    def keep(fig, path, **kw):
+    def keep(fig, path):
         figures.append([ax.get_ylabel() for ax in fig.axes])
-        return real(fig, path, **kw)
+        return real(fig, path)
 
-    monkeypatch.setattr(io, "save_figure", keep)
+    monkeypatch.setattr(common, "save_plot", keep)
     png = tmp_path / "nees.png"
     assert cli.main(["filter", str(noisy), "--runs", "10", "--filters", "ekf,ukf", "--plot", str(png)]) == 0
     out = capsys.readouterr().out

@@ -25,7 +25,7 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import ArgumentError, ArgumentTypeError, DegeneracyWarning, ModelError, ShapeError
-from symmon.filters.particle.particle_filter.particle_filter import resample
+from symmon.filters.particle.particle_filter import resample
 
 x1, x2, dt, kk, w, e = sp.symbols("x1 x2 dt kk w e", real=True)
 F_LIN = sm.Model([x1, x2], [x1 + 0.5 * x2, 0.9 * x2], name="pf_lin_f")

@@ -23,10 +23,10 @@ import sympy as sp
 
 import symmon as sm
 from symmon.compile import has_compiler
-from symmon.filters.particle.particle_filter.particle_filter import resampling_points
-from symmon.filters.particle.particle_filter._kernel import whitening
-from symmon.filters.particle.particle_filter._kernel import MIN_THREAD_NUMBERS
-from symmon.filters.particle.particle_filter._rng import CHUNK
+from symmon.filters.particle.particle_filter import resampling_points
+from symmon.filters.particle._kernel import whitening
+from symmon.filters.particle._kernel import MIN_THREAD_NUMBERS
+from symmon.filters.particle._rng import CHUNK
 
 pytestmark = pytest.mark.skipif(not has_compiler(), reason="the compiled step needs a C compiler")
 

@@ -22,8 +22,8 @@ import sympy as sp
 import symmon as sm
 from symmon.compile import has_compiler
 from symmon.core.angles import wrap_casadi
-from symmon.filters.particle.particle_filter._kernel import BootstrapKernel, _wrap
-from symmon.filters.particle.particle_filter._rng import CHUNK
+from symmon.filters.particle._kernel import BootstrapKernel, _wrap
+from symmon.filters.particle._rng import CHUNK
 
 pytestmark = pytest.mark.skipif(not has_compiler(), reason="the compiled step needs a C compiler")
 

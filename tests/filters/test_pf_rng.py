@@ -22,7 +22,7 @@ from scipy import stats
 import symmon as sm
 from symmon.compile import has_compiler
 from symmon.compile.rng import LANES, NormalStream, ziggurat_edges
-from symmon.filters.particle.particle_filter._rng import LANE_TAG, STREAM_TAG, lane_states, stream_states
+from symmon.filters.particle._rng import LANE_TAG, STREAM_TAG, lane_states, stream_states
 
 pytestmark = pytest.mark.skipif(not has_compiler(), reason="the generator is compiled C")
 DRAWS = 100_000

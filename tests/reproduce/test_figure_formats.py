@@ -1,6 +1,6 @@
 """Figures for a journal (issue 38, item 17): ``reproduce --format png|pdf|svg`` with a
 300 dpi PNG, Figure 2's unit sets and panel letters, and curves that never hide each other
-(TT2 over Monte Carlo in Figure 2, ``gh`` under ``adaptive`` in the filter plot)."""
+(TT2 over Monte Carlo in Figure 2, ``gh`` under ``adaptive`` in the filter plots)."""
 
 from __future__ import annotations
 
@@ -90,12 +90,12 @@ def test_figure2_names_its_unit_sets_has_panel_letters_and_draws_tt2_above_mc():
         plt.close(fig)
 
 
-def test_curves_on_one_axes_never_share_a_style_or_a_marker_position():
-    n, points = 6, 40
-    styles = common.curve_styles(n, points)
-    assert len({(s["color"], s["ls"], s["marker"]) for s in styles}) == n
+def test_filters_on_one_axes_never_share_a_style_or_a_marker_position():
+    names, points = ("ekf", "ekf2", "ukf", "ckf", "gh", "adaptive"), 40
+    styles = [common.filter_style(n, points) for n in names]
+    assert len({(s["color"], s["ls"], s["marker"]) for s in styles}) == len(names)
     marked = [set(range(points)[s["markevery"][0]::s["markevery"][1]]) for s in styles]
     assert all(m for m in marked)
-    assert all(not (marked[i] & marked[j]) for i in range(n) for j in range(i + 1, n))
-    # Each later curve above the earlier, thinner: a coinciding earlier one shows at its edges.
+    assert all(not (marked[i] & marked[j]) for i in range(len(names)) for j in range(i + 1, len(names)))
+    # Each later filter above the earlier, thinner: a coinciding earlier one shows at its edges.
     assert all(b["zorder"] > a["zorder"] and b["lw"] < a["lw"] for a, b in zip(styles, styles[1:]))

@@ -184,16 +184,14 @@ def test_okabe_ito_colours_and_never_colour_alone(module, alphas):
         plt.close(fig)
 
 
-def test_fig1_legends_are_inside_the_axes():
+def test_fig1_legend_is_below_the_axes():
     plt, fig = drawn(fig1, FIG1_ALPHAS)
     try:
-        ax = fig.axes[0]
-        box = ax.get_window_extent()
-        legends = [a for a in ax.get_children() if type(a).__name__ == "Legend"]
-        assert len(legends) == 2 and not fig.legends
-        for leg in legends:
-            e = leg.get_window_extent()
-            assert box.x0 <= e.x0 and e.x1 <= box.x1 and box.y0 <= e.y0 and e.y1 <= box.y1
+        (leg,) = fig.legends
+        e = leg.get_window_extent()
+        assert e.y1 <= min(ax.get_window_extent().y0 for ax in fig.axes)
+        assert 0 <= e.x0 and e.x1 <= fig.bbox.x1 and e.y0 >= 0
+        assert not [a for ax in fig.axes for a in ax.get_children() if type(a).__name__ == "Legend"]
     finally:
         plt.close(fig)
 

@@ -15,7 +15,7 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
 
 1. move and weigh, by blocks of :data:`BLOCK` particles: the block's normals from the
    :data:`~symmon.compile.rng.LANES` interleaved xoshiro streams (lanes) of its chunk of
-   :data:`~symmon.filters.particle.particle_filter._rng.CHUNK` particles, drawn column by column, LANES particles
+   :data:`~symmon.filters.particle._rng.CHUNK` particles, drawn column by column, LANES particles
    at a time, by the vectorised ziggurat ``symmon_normal_lanes`` of :mod:`symmon.compile.rng`
    (particle i of a block takes lane i mod LANES; each lane's numbers are the scalar
    generator's from its state; until 2026-12-04 one stream per chunk, particle by

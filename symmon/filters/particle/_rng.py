@@ -1,6 +1,6 @@
 """The particle filter's C random streams (the generator itself: :mod:`symmon.compile.rng`).
 
-The compiled bootstrap recursion (:mod:`symmon.filters.particle.particle_filter._kernel`) draws its own numbers in
+The compiled bootstrap recursion (:mod:`symmon.filters.particle._kernel`) draws its own numbers in
 C, inside the loop that moves the particles, with the xoshiro256++ streams and the
 256-layer ziggurat of :mod:`symmon.compile.rng`.
 
@@ -21,7 +21,7 @@ from ...compile.rng import LANES, xoshiro_states
 __all__ = ["CHUNK", "LANES", "LANE_TAG", "STREAM_TAG", "lane_states", "stream_states"]
 
 #: Particles per random stream (a fixed split, so threads do not change the numbers); one
-#: block of the kernel (:data:`~symmon.filters.particle.particle_filter._kernel.BLOCK`), so that 1000 particles are
+#: block of the kernel (:data:`~symmon.filters.particle._kernel.BLOCK`), so that 1000 particles are
 #: four chunks, which two threads can share (1024 until 2026-12-04).
 CHUNK = 256
 #: The spawn-key entry that marks the particle filter's C streams among a run's children.

@@ -28,10 +28,10 @@ With ``regularise=True``, after each resampling every particle moves by h_opt ·
 ε ~ N(0, I), L the Cholesky factor of the weighted covariance before the resampling (the
 post-regularised filter of Musso, Oudjane & Le Gland 2001).
 
-The K bootstrap steps of a run are one call of generated C (:mod:`symmon.filters.particle.particle_filter._kernel`:
+The K bootstrap steps of a run are one call of generated C (:mod:`symmon.filters.particle._kernel`:
 the transition and the log-likelihood, the exponentials, sums, mean and ESS, the kept
 moments, the resampling walk with its gather, the regularisation; threads over particle
-chunks), which draws its normals and uniforms itself (:mod:`symmon.filters.particle.particle_filter._rng`).  The
+chunks), which draws its normals and uniforms itself (:mod:`symmon.filters.particle._rng`).  The
 NumPy loop of :meth:`filter` remains for the EKF/UKF proposals, a measurement noise map
 Γ(x) that depends on the state, and while no C is available; it draws from the runs'
 NumPy Generators (so the two paths give different particles for a seed, with the same
@@ -224,7 +224,7 @@ class ParticleFilter(Filter):
         The seed of every ``filter`` call (``SeedSequence(seed).spawn(runs)``): the same
         call gives the same numbers, whatever the number of threads or shards.  The
         compiled bootstrap recursion draws its normals and resampling uniforms in C
-        (xoshiro256++ streams and a ziggurat, :mod:`symmon.filters.particle.particle_filter._rng`); the NumPy path
+        (xoshiro256++ streams and a ziggurat, :mod:`symmon.filters.particle._rng`); the NumPy path
         (the EKF/UKF proposals, a state-dependent Γ(x), no compiler) draws from NumPy's
         Generator: the two give different particles for a seed, with the same law.
     regularise : bool, default False
@@ -621,7 +621,7 @@ class ParticleFilter(Filter):
     def _stream_states(self, runs: int, first: int, chunks: int) -> np.ndarray:
         """A fresh copy of the xoshiro states of runs ``first`` … of this filter's seed, per run
         the words of its chunks' streams, the resampling stream and the chunks' lanes
-        (:mod:`~symmon.filters.particle.particle_filter._rng`; the C advances them in place).  Hashing the seeds
+        (:mod:`~symmon.filters.particle._rng`; the C advances them in place).  Hashing the seeds
         takes a tenth of a millisecond a call: kept."""
         key = (runs, first, chunks)
         st = self._stream_cache.get(key)
@@ -639,7 +639,7 @@ class ParticleFilter(Filter):
 
     @cached_property
     def _bootstrap_kernel(self) -> BootstrapKernel | None:
-        """The compiled bootstrap step (:mod:`symmon.filters.particle.particle_filter._kernel`), or None where it does
+        """The compiled bootstrap step (:mod:`symmon.filters.particle._kernel`), or None where it does
         not apply: another proposal, or a Γ(x) that depends on the state."""
         h = self.h_model
         if self.proposal != "bootstrap" or (h.n_v and self._noise_map is None):
@@ -657,7 +657,7 @@ class ParticleFilter(Filter):
                       prior=None):
         """The K bootstrap steps of each run in one compiled call (pf_kernel's module notes),
         the runs of a bank on threads; the normals and resampling uniforms drawn in C from the
-        runs' xoshiro streams (:mod:`symmon.filters.particle.particle_filter._rng`), or replayed (``_replay``); with
+        runs' xoshiro streams (:mod:`symmon.filters.particle._rng`), or replayed (``_replay``); with
         a Gaussian ``prior``, X is drawn from it in C too (the first normals of the streams)."""
         run = loops[0]
         ss, N = self.space, self.particles
