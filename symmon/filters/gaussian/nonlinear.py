@@ -83,7 +83,7 @@ from ...core.model import Model
 from ...transforms.unscented import UT
 from ...transforms.base import Transform
 from ...transforms.executor import Executor
-from ...transforms.registry import resolve
+from ..names import filter_rule
 
 __all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest", "MAX_ITERATIONS"]
 
@@ -139,7 +139,9 @@ class NonlinearKalmanFilter(Filter):
     R : array_like
         Measurement noise covariance (Cov e, or additive (n_y, n_y)).
     transform : TT1, TT2, UT, GaussHermite, a registered name, or a FilterStrategy, default ``UT.ut1()``
-        A name is resolved as in :func:`symmon.propagate` (``"tt1"``, ``"ut1"``, ``"gh5"``).
+        A name is a filter name (``"ekf"``, ``"ekf2"``, ``"ukf"``, ``"ckf"``, ``"ghkf"``:
+        :func:`symmon.filters.names.filter_rule`) or a rule name as in :func:`symmon.propagate`
+        (``"tt1"``, ``"ut1"``, ``"gh5"``).
         A transform is used for both updates of every step (the strategy
         :class:`~symmon.filters.gaussian.strategy.RuleStrategy`); :class:`Adaptive` picks one per
         step and run.
@@ -183,7 +185,7 @@ class NonlinearKalmanFilter(Filter):
         f, h = check_state_models(self.f_model, self.h_model)
         Q = as_covariance(self.Q, "Q", dim=f.n_v if f.n_v else f.n_u)
         R = noise_cov(h, self.R, "R")
-        transform = UT.ut1() if self.transform is None else resolve(self.transform)
+        transform = UT.ut1() if self.transform is None else filter_rule(self.transform)
         strategy = transform if isinstance(transform, FilterStrategy) else RuleStrategy(transform)
         it = self.iterations
         if isinstance(it, bool) or not isinstance(it, (int, np.integer)) or not 1 <= it <= MAX_ITERATIONS:

@@ -117,7 +117,7 @@ from ...errors import ArgumentError, ArgumentTypeError, ShapeError, SymmonError,
 from ...transforms.base import Transform
 from ...transforms.taylor import TT2
 from ...transforms.unscented import UT
-from ...transforms.registry import resolve
+from ..names import filter_rule
 from ..base import Filter
 from ._kernel import SplitKernel, bank_weights, result_arrays
 from ..gaussian.nonlinear import NonlinearKalmanFilter
@@ -453,7 +453,7 @@ class GaussianSumFilter(Filter):
     kf: NonlinearKalmanFilter = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        transform = UT.ut1() if self.transform is None else resolve(self.transform)
+        transform = UT.ut1() if self.transform is None else filter_rule(self.transform)
         if not _filterable(transform):
             raise ArgumentTypeError(f"transform must be TT1, TT2, UT or GaussHermite (one rule for every component), "
                                     f"got {self.transform!r}")

@@ -1,0 +1,248 @@
+"""The registry of filters by name, as :mod:`symmon.transforms.registry` is for rules.
+
+One entry per filter: its name and aliases, a summary, the settings a scenario file's table of
+that name may give (with their types), and how to build it from the models f and h and the
+noise covariances Q and R.  Filter scenario files (:mod:`symmon.files.filterfile`),
+``symmon filter --filters``, ``symmon export --filter``, ``symmon fit --filter`` and the CLI's
+help read it, so a new filter appears everywhere by registering once (:func:`register`).  The
+rule filters' names (``"ekf"`` … ``"ghkf"``) are those of :mod:`symmon.filters.names`, which
+:class:`~symmon.NonlinearKalmanFilter` accepts too.
+
+Examples
+--------
+>>> from symmon.filters.registry import filter_entry
+>>> filter_entry("tt1").name, filter_entry("ukf").summary
+('ekf', 'unscented Kalman filter, UT.ut1()')
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping
+
+import numpy as np
+import sympy as sp
+
+from ..core.model import Model
+from ..errors import ModelError, SymmonError
+from ..measures.advice import DEFAULT_TOL
+from ..transforms.quadrature import GaussHermite
+from .base import Filter
+from .gaussian.adaptive import Adaptive
+from .gaussian.linear import KalmanFilter
+from .gaussian.nonlinear import NonlinearKalmanFilter
+from .mixture.gaussian_sum import GaussianSumFilter
+from .mixture.imm import IMM
+from .names import RULE_FILTERS, filter_rule
+from .particle.particle_filter import ParticleFilter
+
+__all__ = ["FilterEntry", "register", "filter_entry", "filter_names", "make_filter"]
+
+#: A builder: (f, h, Q, R, tol, settings) → the filter.
+Builder = Callable[[Model, Model, np.ndarray, np.ndarray, float, dict], Filter]
+
+
+@dataclass(frozen=True)
+class FilterEntry:
+    """One registered filter.
+
+    Attributes
+    ----------
+    name : str
+        The filter's name (lower case).
+    summary : str
+        What it is, in a few words (the CLI's help).
+    kind : type
+        The class it builds (a subclass of :class:`~symmon.filters.base.Filter`), whose class
+        variables declare its capabilities (``has_smoother``, ``exportable``, ...).
+    build : callable
+        ``build(f, h, Q, R, tol, settings)`` → the filter.
+    settings : mapping of str to type
+        The settings a scenario file's table ``[name]`` may give, by name, with their types
+        (``int``, ``float``, ``str`` or ``bool``).
+    aliases : tuple of str
+        Other names of the same filter (``"tt1"`` for ``"ekf"``, ``"gh"`` for ``"ghkf"``).
+    scenario : bool
+        Whether a filter scenario file (f, h, Q, R) is enough to build it (IMM needs modes).
+    """
+
+    name: str
+    summary: str
+    kind: type
+    build: Builder = field(repr=False)
+    settings: Mapping[str, type] = field(default_factory=dict)
+    aliases: tuple[str, ...] = ()
+    scenario: bool = True
+
+    @property
+    def exportable(self) -> bool:
+        """Whether the filter it builds exports standalone C (a single-rule Gaussian filter)."""
+        return bool(self.kind.exportable) and self.name in RULE_FILTERS | {"iekf": "tt1"}
+
+    @property
+    def has_smoother(self) -> bool:
+        """Whether the filter it builds has a smoother (the adaptive filter has no one rule to smooth with)."""
+        return bool(self.kind.has_smoother) and self.name != "adaptive"
+
+
+_ENTRIES: dict[str, FilterEntry] = {}
+_ALIASES: dict[str, str] = {}
+
+
+def register(entry: FilterEntry) -> FilterEntry:
+    """Register ``entry`` under its name and aliases.
+
+    Raises
+    ------
+    SymmonError
+        A name or alias that another filter holds, or a kind that is not a Filter.
+    """
+    if not (isinstance(entry.kind, type) and issubclass(entry.kind, Filter)):
+        raise SymmonError(f"filter {entry.name!r}: kind must be a subclass of symmon.filters.base.Filter")
+    for name in (entry.name, *entry.aliases):
+        if name != name.lower() or not name.isidentifier():
+            raise SymmonError(f"filter names are lower-case identifiers, got {name!r}")
+        holder = _ALIASES.get(name)
+        if holder is not None and holder != entry.name:
+            raise SymmonError(f"filter name {name!r} is {holder!r}'s already")
+    _ENTRIES[entry.name] = entry
+    for name in (entry.name, *entry.aliases):
+        _ALIASES[name] = entry.name
+    return entry
+
+
+def filter_entry(name: str) -> FilterEntry:
+    """The entry of a filter by its name or an alias (case and spaces ignored).
+
+    Raises
+    ------
+    SymmonError
+        For an unknown name, listing the known ones.
+    """
+    key = name.strip().lower() if isinstance(name, str) else name
+    if key not in _ALIASES:
+        raise SymmonError(f"unknown filter {name!r}; known: {', '.join(filter_names(aliases=True))}")
+    return _ENTRIES[_ALIASES[key]]
+
+
+def filter_names(*, aliases: bool = False, scenario: bool | None = None, exportable: bool | None = None) -> tuple[str, ...]:
+    """The registered names, in the order of registration (with ``aliases``, each followed
+    by its aliases); only those a scenario file can build (``scenario=True``) or that export
+    C (``exportable=True``) when asked."""
+    out: list[str] = []
+    for e in _ENTRIES.values():
+        if scenario is not None and e.scenario != scenario:
+            continue
+        if exportable is not None and e.exportable != exportable:
+            continue
+        out += [e.name, *e.aliases] if aliases else [e.name]
+    return tuple(out)
+
+
+def make_filter(name: str, f: Model, h: Model, Q: Any, R: Any, *, tol: float = DEFAULT_TOL,
+                settings: Mapping[str, Any] | None = None) -> Filter:
+    """The filter ``name`` on the models f, h with noise covariances Q, R, and ``settings``
+    (those of its entry: :attr:`FilterEntry.settings`).
+
+    Raises
+    ------
+    SymmonError
+        An unknown name or setting, a setting of the wrong type, or a filter that the
+        models cannot give (the linear ``"kf"`` of a nonlinear model, ``"imm"`` without modes).
+    """
+    entry = filter_entry(name)
+    settings = dict(settings or {})
+    unknown = sorted(set(settings) - set(entry.settings))
+    if unknown:
+        raise SymmonError(f"filter {entry.name!r}: unknown settings {unknown}; known: "
+                          f"{', '.join(entry.settings) or 'none'}")
+    for key, value in settings.items():
+        want = entry.settings[key]
+        ok = isinstance(value, want) if want in (str, bool) else (
+            not isinstance(value, bool) and isinstance(value, (int, float) if want is float else int))
+        if not ok:
+            raise SymmonError(f"filter {entry.name!r}: setting {key!r} must be {want.__name__}, got {value!r}")
+    return entry.build(f, h, Q, R, tol, settings)
+
+
+# ------------------------------------------------------------------------- the builders
+def _rule(name: str) -> Builder:
+    def build(f, h, Q, R, tol, settings):
+        return NonlinearKalmanFilter(f, h, Q, R, filter_rule(name), **settings)
+    return build
+
+
+def _gauss_hermite(f, h, Q, R, tol, settings):
+    return NonlinearKalmanFilter(f, h, Q, R, GaussHermite(settings.get("order", 3)))
+
+
+def _iterated(f, h, Q, R, tol, settings):
+    return NonlinearKalmanFilter(f, h, Q, R, filter_rule("ekf"), iterations=settings.get("iterations", 5))
+
+
+def _adaptive(f, h, Q, R, tol, settings):
+    return NonlinearKalmanFilter(f, h, Q, R, Adaptive(tol=settings.get("tol", tol)))
+
+
+def _linear_matrix(model: Model, what: str) -> np.ndarray:
+    """The constant matrix M of a linear model g(x) = M x (no noise symbols, no parameters)."""
+    if model.n_v or model.params:
+        raise ModelError(f"'kf' needs a linear {what} without noise symbols or parameters; use 'ekf'")
+    x = list(model.inputs)
+    J = sp.Matrix(model.outputs).jacobian(x)
+    offset = sp.Matrix(model.outputs).subs({s: 0 for s in x})
+    if J.free_symbols or any(e != 0 for e in offset):
+        raise ModelError(f"'kf' needs a linear {what} g(x) = M x (constant M, no offset); use 'ekf'")
+    return np.array(J.tolist(), dtype=float)
+
+
+def _linear(f, h, Q, R, tol, settings):
+    return KalmanFilter(_linear_matrix(f, "dynamics"), Q, _linear_matrix(h, "measurement"), R)
+
+
+def _gsf(f, h, Q, R, tol, settings):
+    kw = dict(settings)
+    if "transform" in kw:
+        kw["transform"] = filter_entry(kw["transform"]).build(f, h, Q, R, tol, {}).transform
+    return GaussianSumFilter(f, h, Q, R, **kw)
+
+
+def _particle(regularise: bool | None) -> Builder:
+    def build(f, h, Q, R, tol, settings):
+        kw = dict(settings)
+        if regularise is not None:
+            kw["regularise"] = regularise
+        return ParticleFilter(f, h, Q, R, **kw)
+    return build
+
+
+def _imm(f, h, Q, R, tol, settings):
+    raise SymmonError("'imm' mixes several models: build sm.IMM([filter_1, filter_2, ...], transition, "
+                      "probabilities) from one filter per mode")
+
+
+_PF_SETTINGS = {"particles": int, "proposal": str, "resample": str, "ess_threshold": float, "seed": int}
+
+register(FilterEntry("kf", "Kalman filter of a linear model (F, H from f and h)", KalmanFilter, _linear))
+register(FilterEntry("ekf", "extended Kalman filter, TT1", NonlinearKalmanFilter, _rule("ekf"), aliases=("tt1",)))
+register(FilterEntry("iekf", "iterated extended Kalman filter, TT1 with Gauss–Newton iterations",
+                     NonlinearKalmanFilter, _iterated, {"iterations": int}))
+register(FilterEntry("ekf2", "second-order extended Kalman filter, TT2", NonlinearKalmanFilter, _rule("ekf2"),
+                     aliases=("tt2",)))
+register(FilterEntry("ukf", "unscented Kalman filter, UT.ut1()", NonlinearKalmanFilter, _rule("ukf"),
+                     aliases=("ut1",)))
+register(FilterEntry("ckf", "cubature Kalman filter, UT.cubature()", NonlinearKalmanFilter, _rule("ckf"),
+                     aliases=("ct",)))
+register(FilterEntry("ghkf", "Gauss–Hermite Kalman filter (order 3)", NonlinearKalmanFilter, _gauss_hermite,
+                     {"order": int}, aliases=("gh",)))
+register(FilterEntry("adaptive", "the rule chosen per step by its moment error (Adaptive)", NonlinearKalmanFilter,
+                     _adaptive, {"tol": float}))
+register(FilterEntry("gsf", "Gaussian-sum filter, split by the measure of nonlinearity", GaussianSumFilter, _gsf,
+                     {"transform": str, "split": float, "max_components": int, "prune": float, "merge": str,
+                      "split_components": int}))
+register(FilterEntry("pf", "particle filter (bootstrap or EKF/UKF proposal)", ParticleFilter, _particle(None),
+                     {**_PF_SETTINGS, "regularise": bool}))
+register(FilterEntry("rpf", "regularised particle filter (Musso, Oudjane & Le Gland 2001)", ParticleFilter,
+                     _particle(True), _PF_SETTINGS))
+register(FilterEntry("imm", "interacting multiple models over Gaussian filters (one per mode)", IMM, _imm,
+                     scenario=False))
