@@ -18,8 +18,7 @@ recursion (:mod:`symmon.filters.particle._kernel`) and Monte Carlo's fused chunk
   the lanes' states stay in registers for the column, the xoshiro steps and the layer's
   core test run four lanes per instruction, and a layer's k and w come in one 16-byte load;
   a lane whose word falls outside its layer's core (about 1.5 %) finishes alone by the
-  scalar code (1.8 against 2.0 ns a normal before the states stayed in registers and the
-  tables were interleaved, 2026-12-04; the same numbers).  Lane l
+  scalar code.  Lane l
   gives exactly the numbers ``symmon_normal`` draws from its state (tested), so the
   vector width changes nothing.
 

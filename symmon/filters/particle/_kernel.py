@@ -18,10 +18,7 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
    :data:`~symmon.filters.particle._rng.CHUNK` particles, drawn column by column, LANES particles
    at a time, by the vectorised ziggurat ``symmon_normal_lanes`` of :mod:`symmon.compile.rng`
    (particle i of a block takes lane i mod LANES; each lane's numbers are the scalar
-   generator's from its state; until 2026-12-04 one stream per chunk, particle by
-   particle, drew them: a seed's particles changed then), the rows [x_i, z_i] stored by
-   columns; then the
-   transition, the measurement and the wrapped innovation ν_i of every row, by the
+   generator's from its state), the rows [x_i, z_i] stored by columns; then the transition, the measurement and the wrapped innovation ν_i of every row, by the
    vectorised loop of :func:`symmon.compile.vecmath.vector_rows` where f and h have one
    (a row it flags recomputed by CasADi's function), else by CasADi's function per
    particle; then the whitening A ν_i by the inverse Cholesky factor A of the measured
@@ -33,8 +30,7 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
    Σ e'_i², Σ e'_i x'_i (sines and cosines for angle states); no exponential overflows;
 2. after the barrier, with m = max t, e_i = r_q e'_i for r_q = exp(m_q − m): the chunks'
    sums scaled by r_q (r_q² for Σ e²) are added in chunk order, so the result does not
-   depend on the threads (until 2026-12-04 a second pass over x' and t computed
-   exp(t_i − m) itself: the moments then differed by rounding); e itself is rescaled only
+   depend on the threads, and no second pass over x' and t is needed; e itself is rescaled only
    for the covariance and the regularisation;
 3. the covariance and the predicted moments when kept (a pass each);
 4. on resampling: the points (systematic: u + i, not stored, u drawn by every thread
@@ -44,8 +40,7 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
    systematic points it goes by particle: particle j takes the points from the last one's
    end to the first i with u + i >= c_j, i = ⌈c_j − u⌉ moved until the points' own
    comparisons hold (a guess off by one only within rounding), so no branch depends on the
-   weights and no chain of dependences runs from one particle to the next (the walk went from
-   ~12 to ~6 ns a particle, 2026-12-04); other schemes go point by point, each chunk finding
+   weights and no chain of dependences runs from one particle to the next; other schemes go point by point, each chunk finding
    its first point by bisection; both make the same picks (tested).  The regularisation's
    jitter by output chunk.
    Without regularisation the pick is kept as indices and the next move reads the moved
@@ -56,10 +51,8 @@ chosen particles (and, for the regularised filter, the kernel jitter h L ε).
 A single run runs on T threads (pthreads made by the call, a barrier at each reduction);
 the moves and the walks go by chunks that the threads claim in turn from a counter (a
 thread that is ahead takes more: the two cores of a virtual machine need not run at one
-speed, and a walk's chunk holds as many points as its share of the weight; with fixed
-ranges a step of 10⁵ particles of 4 states spent ~10 % of its threads' time at the barriers,
-and the best of four runs went from 2.3 to 1.85 ms a step, 10⁴ of 20 states 687 → 571 µs), the
-other passes by fixed contiguous chunk ranges; the C of a run never waits on Python's
+speed, and a walk's chunk holds as many points as its share of the weight: fixed ranges
+left threads waiting at the barriers), the other passes by fixed contiguous chunk ranges; the C of a run never waits on Python's
 thread pool.  After a step without resampling the log-weights t_i − lse are written by the
 next move (which reads t_i before it overwrites it), or at the end.
 The chunk's own stream draws a Gaussian prior and the regularisation's jitter.

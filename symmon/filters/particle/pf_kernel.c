@@ -141,8 +141,7 @@ CASADI_SYMBOL_EXPORT void PFK_LANES(unsigned long long* s, casadi_int groups, ca
    meanwhile (OpenMP runtimes spin for 0.2 ms and more before they sleep).  The spin yields
    the CPU every 32 turns: when the kernel puts both threads on one CPU (as it may after the
    process slept), a spin that did not yield kept the other thread off the CPU for the whole
-   0.2 ms at every barrier (the median step of 10^3 particles of 20 states after a 16 ms
-   sleep: 0.56 ms without the yield, 0.17 ms with it; 2026-12-04). */
+   0.2 ms at every barrier (benchmarks/RESULTS.md, "Particle filter kernel"). */
 #if defined(__x86_64__) || defined(__i386__)
 #define pfk_PAUSE() __builtin_ia32_pause()
 #else
