@@ -30,6 +30,7 @@ from sympy.functions.elementary.piecewise import ExprCondPair
 from .ccache import NativeLibrary, build_shared_library, cache_dir, has_compiler, warn_no_compiler
 from .ckernels import STOPPED, faster_kernels
 from .cnames import c_identifier
+from .csource import c_defines, c_file
 from ..core.angles import circle_point
 from ..core.dag import Canonical, digest, postorder
 from ..core.model import Model
@@ -283,31 +284,13 @@ def generated_c(f: ca.Function, *more: ca.Function) -> str:
     return faster_kernels(gen.dump())
 
 
-# The row loop around CasADi's generated function: row i of x in, row i of each output
-# out (outputs are dense, so each has a fixed number of nonzeros per row).
-_ROWS = """
-/* symmon: f on each row of x; out[k] holds output k of row i at i * nnz_k. */
-CASADI_SYMBOL_EXPORT int {name}_rows(const casadi_real* x, casadi_real** out, casadi_int n,
-    casadi_int* iw, casadi_real* w) {{
-  const casadi_real* arg[{sz_arg}];
-  casadi_real* res[{sz_res}];
-  casadi_int i;
-  for (i = 0; i < n; ++i) {{
-    arg[0] = x + i * {n_in};
-{set_res}
-    if ({name}(arg, res, iw, w, 0)) return 1;
-  }}
-  return 0;
-}}
-"""
-
-
 def rows_c(f: ca.Function) -> str:
-    """C source of ``f`` plus ``NAME_rows``, which evaluates f on each row of a batch."""
-    set_res = "\n".join(f"    res[{k}] = out[{k}] + i * {f.nnz_out(k)};" for k in range(f.n_out()))
-    return generated_c(f) + _ROWS.format(name=f.name(), sz_arg=max(f.sz_arg(), 1),
-                                         sz_res=max(f.sz_res(), f.n_out()), n_in=f.nnz_in(0),
-                                         set_res=set_res)
+    """C source of ``f`` plus ``NAME_rows``, which evaluates f on each row of a batch
+    (``rows.c``: row i of x in, row i of each output out)."""
+    return generated_c(f) + c_defines(
+        ROWS_F=f.name(), ROWS_RUN=f"{f.name()}_rows", ROWS_SZ_ARG=max(f.sz_arg(), 1),
+        ROWS_SZ_RES=max(f.sz_res(), f.n_out()), ROWS_N_IN=f.nnz_in(0), ROWS_N_OUT=f.n_out(),
+        ROWS_NNZ_OUT=[f.nnz_out(k) for k in range(f.n_out())]) + c_file(__package__, "rows.c")
 
 
 def _load_rows(name: str) -> Callable[[Path], Callable]:

@@ -34,6 +34,7 @@ import numpy as np
 
 from ..codegen.symbolic import graph_kind, moments
 from ..compile.ccache import NativeLibrary
+from ..compile.csource import c_defines, c_file
 from ..compile.compiled import CompiledModel, WorkArrays, generated_c, in_threads, model_key, row_spans
 from ..core.gaussian import SYMMETRY_RTOL
 from ..transforms.base import Moments, Transform, likely_angles
@@ -45,51 +46,8 @@ MIN_BATCH = 64
 #: Gaussians per thread, at least.
 MIN_PER_THREAD = 32
 
-_LOOP = """
-/* symmon: {name} on each of K Gaussians: m (K, n) and P (K, n, n) in, the moments out, and
-   per Gaussian three checks (check[3k], check[3k + 1], check[3k + 2]): its smallest pivot,
-   its asymmetry max |P - P'| / max(max |P|, DBL_MIN) (the test of symmon.Gaussian, here in
-   plain C: in the graph, each max was a call of libm's fmax, 8 % of the batch) and 1 when
-   every input and output of that Gaussian is finite, else 0 (x - x == 0 exactly when x is
-   finite; in C, not by a NumPy pass whose dot product would wake BLAS's threads). */
-#include <float.h>
-static int {name}_finite(const casadi_real* a, casadi_int n) {{
-  int ok = 1;
-  casadi_int i;
-  for (i = 0; i < n; ++i) ok &= (a[i] - a[i] == 0);
-  return ok;
-}}
-CASADI_SYMBOL_EXPORT int {name}_batch(const casadi_real* m, const casadi_real* P, casadi_real* mean,
-    casadi_real* cov, casadi_real* cross, casadi_real* check, casadi_int K, casadi_int* iw, casadi_real* w) {{
-  const casadi_real* arg[{sz_arg}];
-  casadi_real* res[{sz_res}];
-  const casadi_real* Pk;
-  casadi_real big, asym, a;
-  casadi_int k, i, j;
-  int ok;
-  for (k = 0; k < K; ++k) {{
-    arg[0] = m + k * {n}; arg[1] = Pk = P + k * {nn};
-    res[0] = mean + k * {n_y}; res[1] = cov + k * {nyy}; res[2] = cross + k * {nny}; res[3] = check + 3 * k;
-    if ({name}(arg, res, iw, w, 0)) return 1;
-    big = DBL_MIN;
-    asym = 0;
-    for (i = 0; i < {nn}; ++i) {{
-      a = fabs(Pk[i]);
-      if (a > big) big = a;
-    }}
-    for (j = 0; j < {n}; ++j)
-      for (i = j + 1; i < {n}; ++i) {{
-        a = fabs(Pk[i + j * {n}] - Pk[j + i * {n}]);
-        if (a > asym) asym = a;
-      }}
-    check[3 * k + 1] = asym / big;
-    ok = {name}_finite(arg[0], {n}) & {name}_finite(Pk, {nn}) & {name}_finite(res[0], {n_y})
-        & {name}_finite(res[1], {nyy}) & {name}_finite(res[2], {nny});
-    check[3 * k + 2] = ok;
-  }}
-  return 0;
-}}
-"""
+#: The loop over a batch of Gaussians (batch_kernel.c) after the rule's generated C.
+_LOOP = c_file(__package__, "batch_kernel.c")
 
 
 def _moment_function(cm: CompiledModel, transform: Transform, angles: frozenset[int], name: str) -> ca.Function:
@@ -137,8 +95,9 @@ class BatchKernel:
         self.n, self.n_y = cm.n_w, cm.n_y
         self.points = len(transform.unit_rule(cm.n_w)[0])
         n, n_y = self.n, self.n_y
-        code = generated_c(f) + _LOOP.format(name=name, sz_arg=max(f.sz_arg(), 2), sz_res=max(f.sz_res(), 4), n=n,
-                                             nn=n * n, n_y=n_y, nyy=n_y * n_y, nny=n * n_y)
+        code = generated_c(f) + c_defines(
+            PBK_F=name, PBK_FINITE=f"{name}_finite", PBK_BATCH=f"{name}_batch", PBK_SZ_ARG=max(f.sz_arg(), 2),
+            PBK_SZ_RES=max(f.sz_res(), 4), PBK_N=n, PBK_NN=n * n, PBK_N_Y=n_y, PBK_NYY=n_y * n_y, PBK_NNY=n * n_y) + _LOOP
         self._lib = NativeLibrary(code, name, _load(name), stacklevel=4, background=True)
         self._work = WorkArrays(f)
 

@@ -37,6 +37,7 @@ import numpy as np
 from ..core.angles import circle_point, wrap_casadi
 from ..compile.ccache import NativeLibrary
 from ..compile.compiled import CompiledModel, generated_c
+from ..compile.csource import c_defines, c_file
 from ..compile.rng import RNG_C, NormalStream
 from ..compile.vecmath import VECMATH_C, vector_rows
 from ..errors import ShapeError, SymmonError
@@ -46,134 +47,10 @@ __all__ = ["SampleKernel", "ChunkStats", "sample_kernel", "FUSE_MAX_NW", "BLOCK"
 #: Largest n_w whose affine map w = m + L z is compiled into the kernel (its C grows as n_w²).
 FUSE_MAX_NW = 16
 
-# The compiled chunk: blocks of BLOCK rows, each computed into a block by columns (blk,
-# BLOCK × n_out, after CasADi's work array w), by the vectorised loop {name}_vec when g has
-# one (symmon.compile.vecmath; a row it flags, an atan2 or hypot argument that is zero, inf,
-# NaN or beyond 2^±500, is recomputed by CasADi's function, that is, by libm) or else by
-# CasADi's function row by row.  {name}_rows writes the rows out; {name}_stats sums the
-# blocks' cross-products into S (n_out × n_out, symmetric): per entry, sixteen
-# partial sums over the rows i ≡ 0, 1, …, 15 (mod 16) added in a fixed order (four
-# vectors of AVX2: their additions do not wait for each other), so the numbers
-# do not depend on the vector width, and gcc vectorises them.  Rows with a value that is
-# not finite are counted (bad[0]) and the first is named (bad[1]).
+#: Rows per block of the compiled chunk (mc_kernel.c).
 BLOCK = 256
-_BLOCK_FILL = {
-    True: """
-  if ({name}_vec(z, p, blk, m, odd) == 0) return 0;
-  for (i = 0; i < m; ++i) {{
-    if (!odd[i]) continue;
-    arg[0] = z + i * {n_in}; res[0] = row;
-    if ({name}(arg, res, iw, w, 0)) return 1;
-    for (k = 0; k < {n_out}; ++k) blk[k * {block} + i] = row[k];
-  }}""",
-    False: """
-  for (i = 0; i < m; ++i) {{
-    arg[0] = z + i * {n_in}; res[0] = row;
-    if ({name}(arg, res, iw, w, 0)) return 1;
-    for (k = 0; k < {n_out}; ++k) blk[k * {block} + i] = row[k];
-  }}""",
-}
-_CHUNK_DRIVER = """
-/* symmon: the rows of m <= {block} samples z into blk (by columns); p is shared by every row. */
-static int {name}_block(const casadi_real* z, const casadi_real* p, casadi_int m, casadi_real* blk,
-    casadi_int* iw, casadi_real* w) {{
-  const casadi_real* arg[{sz_arg}];
-  casadi_real* res[{sz_res}];
-  casadi_real* row = blk + {block} * {n_out};
-  unsigned char odd[{block}];
-  casadi_int i, k;
-  (void) odd;
-  arg[1] = p;
-  {fill}
-  return 0;
-}}
-/* symmon: the rows of n samples z (n × {n_in}) into out (n × {n_out}). */
-CASADI_SYMBOL_EXPORT int {name}_rows(const casadi_real* z, const casadi_real* p,
-    casadi_real* out, casadi_int n, casadi_int* iw, casadi_real* w) {{
-  casadi_real* blk = w + {sz_w};
-  casadi_int b, i, k, m;
-  for (b = 0; b < n; b += {block}) {{
-    m = n - b < {block} ? n - b : {block};
-    if ({name}_block(z + b * {n_in}, p, m, blk, iw, w)) return 1;
-    for (i = 0; i < m; ++i)
-      for (k = 0; k < {n_out}; ++k) out[(b + i) * {n_out} + k] = blk[k * {block} + i];
-  }}
-  return 0;
-}}
-/* symmon: add the cross-products of the rows of m <= {block} samples z (rows b, b + 1, ...) to S
-   (upper triangle); count the rows with a value that is not finite in bad, and copy the first
-   one's z to zbad (x - x == 0 exactly when x is finite). */
-static int {name}_sums(const casadi_real* z, const casadi_real* p, casadi_int m, casadi_int b,
-    casadi_real* S, long long* bad, casadi_real* zbad, casadi_int* iw, casadi_real* w) {{
-  casadi_real* blk = w + {sz_w};
-  unsigned char fin[{block}];
-  casadi_int i, j, k, r;
-  if ({name}_block(z, p, m, blk, iw, w)) return 1;
-  for (r = 0; r < m; ++r) fin[r] = 1;
-  for (k = 0; k < {n_out}; ++k) {{
-    const casadi_real* c = blk + k * {block};
-    for (r = 0; r < m; ++r) fin[r] &= (c[r] - c[r] == 0);
-  }}
-  for (r = 0; r < m; ++r)
-    if (!fin[r]) {{
-      if (bad[1] < 0) {{ bad[1] = b + r; for (k = 0; k < {n_in}; ++k) zbad[k] = z[r * {n_in} + k]; }}
-      bad[0]++;
-    }}
-  for (r = m; r < (m + 15) / 16 * 16; ++r)  /* pad the last block to 16 rows with zeros */
-    for (k = 0; k < {n_out}; ++k) blk[k * {block} + r] = 0;
-  for (i = 0; i < {n_out}; ++i) {{
-    const casadi_real* ci = blk + i * {block};
-    for (j = i; j < {n_out}; ++j) {{
-      const casadi_real* cj = blk + j * {block};
-      casadi_real s[16] = {{0}}, t[8];
-      for (r = 0; r < m; r += 16)
-        for (k = 0; k < 16; ++k) s[k] += ci[r + k] * cj[r + k];
-      for (k = 0; k < 8; ++k) t[k] = s[k] + s[k + 8];
-      S[i * {n_out} + j] += ((t[0] + t[4]) + (t[2] + t[6])) + ((t[1] + t[5]) + (t[3] + t[7]));
-    }}
-  }}
-  return 0;
-}}
-static void {name}_start(casadi_real* S, long long* bad) {{
-  casadi_int i;
-  bad[0] = 0; bad[1] = -1;
-  for (i = 0; i < {n_out} * {n_out}; ++i) S[i] = 0;
-}}
-static void {name}_symmetric(casadi_real* S) {{
-  casadi_int i, j;
-  for (i = 0; i < {n_out}; ++i)
-    for (j = 0; j < i; ++j) S[i * {n_out} + j] = S[j * {n_out} + i];
-}}
-/* symmon: S = the cross-products of the rows of n samples z (n_out × n_out); bad = (count, first
-   index) of the rows with a value that is not finite, zbad the first one's z. */
-CASADI_SYMBOL_EXPORT int {name}_stats(const casadi_real* z, const casadi_real* p, casadi_int n,
-    casadi_real* S, long long* bad, casadi_real* zbad, casadi_int* iw, casadi_real* w) {{
-  casadi_int b, m;
-  {name}_start(S, bad);
-  for (b = 0; b < n; b += {block}) {{
-    m = n - b < {block} ? n - b : {block};
-    if ({name}_sums(z + b * {n_in}, p, m, b, S, bad, zbad, iw, w)) return 1;
-  }}
-  {name}_symmetric(S);
-  return 0;
-}}
-/* symmon: {name}_stats of n samples drawn here, a block at a time, from the xoshiro256++ stream
-   s (symmon.compile.rng, advanced in place): the normals of a row in order, row after row,
-   as NormalStream.fill writes them; no normal leaves the L1 cache. */
-CASADI_SYMBOL_EXPORT int {name}_draw_stats(uint64_t* s, const casadi_real* p, casadi_int n,
-    casadi_real* S, long long* bad, casadi_real* zbad, casadi_int* iw, casadi_real* w) {{
-  casadi_real* z = w + {sz_w} + ({block} + 1) * {n_out};
-  casadi_int b, i, m;
-  {name}_start(S, bad);
-  for (b = 0; b < n; b += {block}) {{
-    m = n - b < {block} ? n - b : {block};
-    for (i = 0; i < m * {n_in}; ++i) z[i] = symmon_normal(s);
-    if ({name}_sums(z, p, m, b, S, bad, zbad, iw, w)) return 1;
-  }}
-  {name}_symmetric(S);
-  return 0;
-}}
-"""
+#: The chunk's C (mc_kernel.c, whose opening comment describes it).
+_CHUNK_DRIVER = c_file(__package__, "mc_kernel.c")
 
 
 class SampleKernel:
@@ -244,10 +121,13 @@ class SampleKernel:
         #: True when the rows run through the vectorised loop (every operation of g in
         #: :data:`~symmon.compile.vecmath.VECTOR_OPS`), False when through CasADi's C per row.
         self.vectorised = vec is not None
-        fmt = dict(name=name, sz_arg=max(f.sz_arg(), 2), sz_res=max(f.sz_res(), 1), n_in=self.n_w,
-                   n_out=self.n_out, block=BLOCK, sz_w=f.sz_w())
-        fmt["fill"] = _BLOCK_FILL[self.vectorised].format(**fmt)
-        code = RNG_C + generated_c(f) + (VECMATH_C + vec if vec else "") + _CHUNK_DRIVER.format(**fmt)
+        defines = c_defines(
+            MCK_F=name, MCK_VEC=f"{name}_vec", MCK_BLOCK_FN=f"{name}_block", MCK_ROWS=f"{name}_rows",
+            MCK_SUMS=f"{name}_sums", MCK_START=f"{name}_start", MCK_SYMMETRIC=f"{name}_symmetric",
+            MCK_STATS=f"{name}_stats", MCK_DRAW_STATS=f"{name}_draw_stats", MCK_VECTORISED=self.vectorised,
+            MCK_BLOCK=BLOCK, MCK_N_IN=self.n_w, MCK_N_OUT=self.n_out, MCK_SZ_ARG=max(f.sz_arg(), 2),
+            MCK_SZ_RES=max(f.sz_res(), 1), MCK_SZ_W=f.sz_w())
+        code = RNG_C + generated_c(f) + (VECMATH_C + vec if vec else "") + defines + _CHUNK_DRIVER
 
         def load(so):
             lib = ctypes.CDLL(str(so))
