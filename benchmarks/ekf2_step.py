@@ -61,7 +61,7 @@ def worker(side: str, n: int, repeat: int) -> dict:
     t0 = time.perf_counter()
     kf.filter(ys[0, :K], x0, keep=("x", "P"))
     first = time.perf_counter() - t0
-    step = step_module._compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)
+    step = step_module.compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)
     step._lib.wait(None)
     built = time.perf_counter() - t0
     times, loop = [], []

@@ -107,9 +107,9 @@ def one(p: Problem, family: str, K: int, repeat: int, tmp: Path) -> dict:
     ref = kf.filter(ys, p.x0, p.P0)
     t_first = time.perf_counter() - t0
     # A large step runs on CasADi's VM while its C builds in the background: time the C.
-    from symmon.filters.gaussian.step import _compiled_step
+    from symmon.filters.gaussian.step import compiled_step
 
-    _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)._lib.wait()
+    compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)._lib.wait()
     t_py = best(lambda: kf.filter(ys, p.x0, p.P0), repeat) / K
     Kp = min(K, 200)  # FilterPy is a Python loop: fewer steps
     fp = p.filterpy_ukf if family == "UKF" else p.filterpy_ekf

@@ -178,11 +178,11 @@ def main() -> None:
         # The first fit runs on CasADi's VM while the compiled log-likelihood builds in the
         # background (the compile policy); the warm fits below use the C.
         from symmon.filters.gaussian.fit import compiled_loglik
-        from symmon.filters.gaussian.step import _compiled_step
+        from symmon.filters.gaussian.step import compiled_step
 
         kf = fp.kf()
         compiled_loglik(kf).wait()
-        _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)._lib.wait()
+        compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)._lib.wait()
         s_built = time.perf_counter() - t0
         t0 = time.perf_counter()
         run, ll = dynamax_fit(fp, ys)

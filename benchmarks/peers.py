@@ -73,7 +73,7 @@ TRANSFORMS = {"ukf": lambda: sm.UT(ALPHA, BETA, KAPPA), "ekf": sm.TT1}
 
 
 def symmon_filters(p, ys, repeat, labels=("ukf", "ekf"), wait=None):
-    from symmon.filters.gaussian.step import _compiled_step
+    from symmon.filters.gaussian.step import compiled_step
 
     x0 = sm.Gaussian(p.x0, p.P0)
     out = {}
@@ -83,7 +83,7 @@ def symmon_filters(p, ys, repeat, labels=("ukf", "ekf"), wait=None):
         t0 = time.perf_counter()
         kf.filter(ys[0], x0, keep=("x", "P"))
         first = time.perf_counter() - t0
-        lib = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)._lib
+        lib = compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)._lib
         if not lib.wait(wait):
             out[label] = {"first": first, "built": None}
             continue

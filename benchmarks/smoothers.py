@@ -54,10 +54,10 @@ def symmon_times(p, transform, ys1, ysR, repeat):
     # A large step runs on CasADi's VM while its C builds in the background (the compile
     # policy): the warm times below are of the compiled C, once the builds are done.
     from symmon.filters.gaussian.smoother import compiled_smoother
-    from symmon.filters.gaussian.step import _compiled_step
+    from symmon.filters.gaussian.step import compiled_step
 
     t0 = time.perf_counter()
-    for lib in (_compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)._lib,
+    for lib in (compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)._lib,
                 compiled_smoother(kf.f_model, kf.transform, kf.angle_states)._lib):
         lib.wait()
     built = time.perf_counter() - t0

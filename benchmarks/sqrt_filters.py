@@ -36,7 +36,7 @@ import sympy as sp  # noqa: E402
 
 import symmon as sm  # noqa: E402
 from filters import best, write_section  # noqa: E402  (benchmarks/filters.py)
-from symmon.filters.gaussian.step import _compiled_step  # noqa: E402
+from symmon.filters.gaussian.step import compiled_step  # noqa: E402
 
 HEADING = "## Square-root filters"
 
@@ -80,7 +80,7 @@ def row(n_targets: int, name: str, transform, K: int, repeat: int) -> dict:
         kf = sm.NonlinearKalmanFilter(f, h, Q, R, transform, square_root=sr)
         t0 = time.perf_counter()
         kf.filter(ys[:1], g)
-        _compiled_step(f, h, kf.strategy.transform, kf.angle_states, 1, sr)._lib.wait()
+        compiled_step(f, h, kf.strategy.transform, kf.angle_states, 1, sr)._lib.wait()
         out[f"first_{sr}"] = time.perf_counter() - t0
         out[f"step_{sr}"] = best(lambda: kf.filter(ys, g, keep=("x", "P")), repeat, 0.5) / K
         res[sr] = kf.filter(ys, g, keep=("x", "P"))

@@ -438,6 +438,40 @@ def test_no_private_names_across_subpackages():
         f"  {u.where} (line {u.line}) uses {u.full}" for u in bad)
 
 
+#: The family rooms of symmon.filters: each is a unit of its own for private names (no family
+#: reaches into another's internals, nor the floor into a family's), below the subpackage's.
+FAMILIES = ("symmon.filters.gaussian", "symmon.filters.particle", "symmon.filters.mixture", "symmon.filters.ensemble")
+
+
+def room(module: str) -> str:
+    """A module's family room of symmon.filters, else its unit."""
+    return next((f for f in FAMILIES if module == f or module.startswith(f + ".")), unit(module))
+
+
+def test_no_private_names_across_filter_families():
+    mods = package_modules()
+    bad = [use for name, mod in mods.items() if name.startswith("symmon.filters")
+           for use in private_uses(_tree(mod.path), name, mod)
+           if room(use.where) != room(use.module) and use.module.startswith("symmon.filters")]
+    assert not bad, "private names used across the filter families (or by the floor from a family):\n" + "\n".join(
+        f"  {u.where} (line {u.line}) uses {u.full}" for u in bad)
+
+
+def test_no_import_goes_through_a_subpackages_init():
+    """A name is imported from the module that defines it: an import through a subpackage's
+    ``__init__`` imports every module it gathers (docs/architecture.md)."""
+    mods = package_modules()
+    bad = []
+    for imp in package_imports():
+        target = mods.get(imp.target)
+        if imp.importer == FACE or target is None or not target.is_package or imp.name is None:
+            continue
+        if imp.target == imp.importer or imp.importer.startswith(imp.target + ".") and mods[imp.importer].is_package:
+            continue  # a subpackage's __init__ gathering its own modules
+        bad.append(f"  {imp.importer} (line {imp.line}) imports {imp.name} through {imp.target}")
+    assert not bad, "imports through a subpackage's __init__:\n" + "\n".join(sorted(set(bad)))
+
+
 def test_every_unit_has_a_layer():
     units = sorted({unit(m) for m in package_modules()} - {FACE})
     missing = [u for u in units if layer(u) is None]

@@ -403,8 +403,7 @@ def cmd_codegen(args: argparse.Namespace) -> int:
 
 def cmd_fit(args: argparse.Namespace) -> int:
     """``symmon fit``: maximum-likelihood estimates of a scenario's parameters from simulated runs."""
-    from ..files.filterfile import check_bank, filter_transform, load_filter_file, simulate
-    from ..filters.gaussian.nonlinear import NonlinearKalmanFilter
+    from ..files.filterfile import check_bank, load_filter_file, make_filter, simulate_scenario
 
     start = dict(args.param)
     if len(start) != len(args.param):
@@ -413,8 +412,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     check_bank(spec, args.runs, [args.filter])  # the simulation and the fit's filter at its estimates
     truth = {n: spec.params[n] for n in start}
     f_true, h_true = (m.with_params({str(s): truth[str(s)] for s in m.params}) for m in (spec.f, spec.h))
-    _, ys = simulate(f_true, h_true, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
-    kf = NonlinearKalmanFilter(spec.f, spec.h, spec.Q, spec.R, filter_transform(args.filter))
+    _, ys = simulate_scenario(f_true, h_true, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
+    kf = make_filter(args.filter, spec.f, spec.h, spec.Q, spec.R, settings=spec.settings)
     res = kf.fit(ys, spec.x0, start, bounds=dict(args.bound))
     if args.json:
         _print_json({"scenario": spec.name, "filter": kf.method, "runs": args.runs, "steps": spec.steps,
@@ -435,12 +434,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 def cmd_export(args: argparse.Namespace) -> int:
     """``symmon export``: one filter of a scenario file as standalone C (docs/export.md)."""
-    from ..files.filterfile import filter_transform, load_filter_file
+    from ..files.filterfile import load_filter_file, make_filter
     from ..compile.cnames import c_identifier
-    from ..filters.gaussian.nonlinear import NonlinearKalmanFilter
 
     spec = load_filter_file(args.file)
-    kf = NonlinearKalmanFilter(spec.f, spec.h, spec.Q, spec.R, filter_transform(args.filter))
+    kf = make_filter(args.filter, spec.f, spec.h, spec.Q, spec.R, settings=spec.settings)
     name = args.name or f"{c_identifier(spec.name, hashed=False)}_{args.filter}"
     for p in kf.export_c(args.out, name):
         print(f"wrote {p}")
@@ -449,11 +447,11 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def cmd_filter(args: argparse.Namespace) -> int:
     """``symmon filter``: a bank of runs of each filter on a scenario; ANEES, ANIS, RMSE."""
-    from ..files.filterfile import check_bank, load_filter_file, run_bank, simulate
+    from ..files.filterfile import check_bank, load_filter_file, run_bank, simulate_scenario
 
     spec = load_filter_file(args.file)
     check_bank(spec, args.runs, args.filters, args.smooth)  # before anything is simulated
-    xs, ys = simulate(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
+    xs, ys = simulate_scenario(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
     with executor_of(args) as ex:  # --dask: the banks in shards on Dask, the same numbers
         rows = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, args.filters, args.tol, args.confidence,
                         smooth=args.smooth, settings=spec.settings, executor=ex if args.dask else None)

@@ -47,7 +47,7 @@ import numpy as np
 from ..version import __version__
 from ..compile.ccache import catch_sigterm
 from ..errors import OutputPathError, SymmonError, UsageError
-from ..files.filterfile import FILTERS, MIXTURE_FILTERS
+from ..filters.registry import filter_entry, filter_names
 from ..measures.advice import DEFAULT_TOL  # one default for advise and the adaptive filter
 from ..io import plot_format
 from ..reproduce.common import FORMATS
@@ -246,12 +246,33 @@ def _param_bound(text: str) -> tuple[str, tuple[float | None, float | None]]:
 
 def _filter_names(text: str) -> list[str]:
     """argparse type of ``--filters``: known, distinct short names."""
-    names = [t.strip() for t in text.split(",") if t.strip()]
-    known = tuple(FILTERS) + ("adaptive",) + MIXTURE_FILTERS
+    names = [t.strip().lower() for t in text.split(",") if t.strip()]
+    known = filter_names(aliases=True, scenario=True)
     bad = [t for t in names if t not in known]
-    if not names or bad or len(set(names)) != len(names):
-        raise argparse.ArgumentTypeError(f"must be distinct names among {', '.join(known)}, got {text!r}")
+    # "ekf" and "tt1" are one filter: distinct filters, not distinct spellings
+    if not names or bad or len({filter_entry(t).name for t in names}) != len(names):
+        raise argparse.ArgumentTypeError(f"must be distinct filters among {', '.join(known)}, got {text!r}")
     return names
+
+
+def _filter_help() -> str:
+    """The filters of a scenario file, each with its aliases and summary (the registry's)."""
+    parts = []
+    for name in filter_names(scenario=True):
+        e = filter_entry(name)
+        alias = f" ({'/'.join(e.aliases)})" if e.aliases else ""
+        table = f"; settings in [{name}]" if e.settings else ""
+        parts.append(f"{name}{alias}: {e.summary}{table}")
+    return "; ".join(parts)
+
+
+def _rule_filter(text: str) -> str:
+    """argparse type of ``--filter`` of export and fit: a Gaussian filter of one rule."""
+    name = text.strip().lower()
+    if name not in filter_names(aliases=True, exportable=True):
+        raise argparse.ArgumentTypeError(f"must be one of {', '.join(filter_names(aliases=True, exportable=True))}, "
+                                         f"got {text!r}")
+    return name
 
 
 def _unit_interval(text: str) -> float:
@@ -454,7 +475,8 @@ def _parser() -> argparse.ArgumentParser:
                     "values are the truth of the simulated runs")
     sp.add_argument("--bound", type=_param_bound, action="append", default=[], metavar="NAME=LOW:HIGH",
                     help="bounds of a fitted parameter; either side may be empty (q=1e-6:)")
-    sp.add_argument("--filter", choices=sorted(FILTERS), default="ekf", help="the filter (default ekf)")
+    sp.add_argument("--filter", type=_rule_filter, default="ekf",
+                    help=f"the filter: {', '.join(filter_names(aliases=True, exportable=True))} (default ekf)")
     sp.add_argument("--runs", type=_int_in(1, MAX_RUNS), default=20, help="simulated runs (default 20)")
     sp.add_argument("--seed", type=_seed, default=0, help="seed of the simulation, >= 0 (default 0)")
     sp.add_argument("--json", action="store_true", help="print JSON")
@@ -463,7 +485,8 @@ def _parser() -> argparse.ArgumentParser:
     sp = add("export", "export a filter of a filter scenario file as standalone C99 for an embedded "
              "target: NAME.c, NAME.h, an example program and NAME_README.md (docs/export.md)")
     sp.add_argument("file", help="TOML filter scenario (see symmon.files.filterfile)")
-    sp.add_argument("--filter", choices=sorted(FILTERS), default="ukf", help="the filter (default ukf)")
+    sp.add_argument("--filter", type=_rule_filter, default="ukf",
+                    help=f"the filter: {', '.join(filter_names(aliases=True, exportable=True))} (default ukf)")
     output_opt(sp, "--out", kind="dir", required=True, metavar="DIR", help="output directory (created if missing)")
     sp.add_argument("--name", default=None,
                     help="C prefix and file name, a C identifier (default: the measurement model's name and the filter)")
@@ -475,7 +498,7 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("--runs", type=_int_in(1, MAX_RUNS), default=100, help="Monte Carlo runs (default 100)")
     sp.add_argument("--seed", type=_seed, default=0, help="seed of the truth and measurements, >= 0 (default 0)")
     sp.add_argument("--filters", type=_filter_names, default=_filter_names(_DEFAULT_FILTERS),
-                    help=f"comma-separated: ekf, ekf2, ukf, ckf, gh, adaptive, gsf (Gaussian-sum), pf (particle; their settings: the scenario's [gsf] and [pf] tables) (default {_DEFAULT_FILTERS})")
+                    help=f"comma-separated names: {_filter_help()} (default {_DEFAULT_FILTERS})")
     sp.add_argument("--tol", type=_unit_interval, default=DEFAULT_TOL,
                     help=f"the adaptive filter's tolerance (unitless moment error, default {DEFAULT_TOL:g}, "
                          "as symmon advise)")

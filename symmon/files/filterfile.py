@@ -83,10 +83,8 @@ import sympy as sp
 
 from ..core.angles import wrap_angle
 from ..errors import SymmonError
-from ..filters.gaussian.adaptive import Adaptive
-from ..filters.mixture.gaussian_sum import GaussianSumFilter
-from ..filters.gaussian.nonlinear import NonlinearKalmanFilter
-from ..filters.particle.particle_filter import ParticleFilter
+from ..filters.registry import filter_entry, filter_names
+from ..filters.registry import make_filter as make_registered
 from ..filters.inputs import KEEPABLE, MAX_BANK_NUMBERS, check_bank_size, kept_numbers
 from ..filters.simulation import simulate as simulate_models
 from ..measures.advice import DEFAULT_TOL
@@ -108,21 +106,18 @@ from ..transforms.unscented import UT
 from ..transforms.quadrature import GaussHermite
 from ..transforms.executor import Executor
 
-__all__ = ["FilterSpec", "load_filter_file", "simulate", "check_bank", "FILTERS", "filter_transform", "run_bank", "BankSummary",
-           "make_filter", "MIXTURE_FILTERS", "FILTER_SETTINGS"]
+__all__ = ["FilterScenario", "FilterSpec", "load_filter_file", "simulate_scenario", "simulate", "check_bank",
+           "FILTERS", "filter_transform", "run_bank", "BankSummary", "make_filter", "settings_tables"]
 
-#: The filters of ``symmon filter`` and ``symmon reproduce tracking``, by short name.
+#: The single-rule Gaussian filters of ``symmon filter`` and ``symmon reproduce tracking``, by
+#: short name (the rules of :mod:`symmon.filters.registry`'s entries; ``"gh"`` is ``"ghkf"``).
 FILTERS = {"ekf": TT1(), "ekf2": TT2(), "ukf": UT.ut1(), "ckf": UT.cubature(), "gh": GaussHermite(3)}
-#: The filters beyond the Gaussian ones, by short name: their settings come from the
-#: scenario's table of the same name.
-MIXTURE_FILTERS = ("gsf", "pf")
-#: The settings each may take, with their types (numbers: int or float).
-FILTER_SETTINGS = {
-    "gsf": {"transform": str, "split": float, "max_components": int, "prune": float, "merge": str,
-            "split_components": int},
-    "pf": {"particles": int, "proposal": str, "resample": str, "ess_threshold": float, "seed": int,
-           "regularise": bool},
-}
+
+
+def settings_tables() -> tuple[str, ...]:
+    """The filters whose settings a scenario may give in a table of their name (``[gsf]``,
+    ``[pf]``, ...): every registered filter that a scenario can build and that has settings."""
+    return tuple(n for n in filter_names(scenario=True) if filter_entry(n).settings)
 #: Largest number of steps of a scenario (the bank holds runs × steps × n² numbers).
 MAX_STEPS = 100_000
 #: The most numbers :func:`simulate` holds (truth and measurements of every run and step):
@@ -131,21 +126,31 @@ MAX_STEPS = 100_000
 MAX_SIMULATED = MAX_BANK_NUMBERS
 
 _KEYS = ("name", "states", "dynamics", "measurements", "angles", "state_angles", "steps", "params", "Q", "R", "x0",
-         "process_noise", "measurement_noise", "units", "gsf", "pf")
+         "process_noise", "measurement_noise", "units")
 _REQUIRED = ("name", "states", "dynamics", "measurements", "steps", "Q", "R", "x0")
 
 
 def filter_transform(name: str, tol: float = DEFAULT_TOL):
-    """The transform of a filter by short name: a key of :data:`FILTERS`, or ``"adaptive"``."""
-    if name == "adaptive":
-        return Adaptive(tol=tol)
-    if name not in FILTERS:
-        raise ModelFileError(f"unknown filter {name!r}; known: {', '.join(FILTERS)}, adaptive")
-    return FILTERS[name]
+    """The transform (or strategy) of a Gaussian filter by a registered name
+    (:mod:`symmon.filters.registry`: ``"ekf"`` or ``"tt1"``, ``"ukf"``, ``"gh"``, ``"adaptive"``, ...).
+
+    Raises
+    ------
+    ModelFileError
+        For an unknown name, or a filter that is not one Gaussian filter of a rule.
+    """
+    try:
+        entry = filter_entry(name)
+    except SymmonError as exc:
+        raise ModelFileError(str(exc)) from None
+    if entry.rule is None:
+        raise ModelFileError(f"{name!r} is not a Gaussian filter of one rule; use one of "
+                             f"{', '.join(n for n in filter_names() if filter_entry(n).rule)}")
+    return entry.rule(tol, {})
 
 
 @dataclass(frozen=True)
-class FilterSpec:
+class FilterScenario:
     """A filter scenario read by :func:`load_filter_file`.
 
     Attributes
@@ -167,7 +172,8 @@ class FilterSpec:
         The values of the ``[params]`` table (those kept free are model parameters of ``f``
         and ``h``, :func:`load_filter_file`).
     settings : dict
-        The ``[gsf]`` and ``[pf]`` tables: ``{"gsf": {...}, "pf": {...}}`` (empty: defaults).
+        The filters' tables by filter name (:func:`settings_tables`: ``{"gsf": {...}, "pf": {...}}``;
+        empty: defaults).
     """
 
     name: str
@@ -217,7 +223,7 @@ def _uses(table: Any, name: str) -> bool:
     return False
 
 
-def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> FilterSpec:
+def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> FilterScenario:
     """Read a filter scenario (module notes).
 
     Parameters
@@ -237,7 +243,7 @@ def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> Filte
         use (they are numbers).
     """
     path, ctx, doc = read_toml(path, "scenario files")
-    _check_keys(ctx, doc, _KEYS, _REQUIRED, "")
+    _check_keys(ctx, doc, _KEYS + settings_tables(), _REQUIRED, "")
     name = doc["name"]
     if not isinstance(name, str) or not name.strip():
         raise ctx.error("name", f"must be a non-empty string, got {name!r}")
@@ -291,21 +297,22 @@ def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> Filte
     R = _noise(ctx, doc, "R", len(E) or len(meas), params)
     x0 = _gaussian(ctx, doc["x0"], "x0", len(X), params, "states")
     units = _units(ctx, doc.get("units", {}), len(meas), state_names, indexed="measurements", named="state names")
-    settings = {kind: _filter_settings(ctx, doc.get(kind, {}), kind) for kind in MIXTURE_FILTERS}
+    settings = {kind: _filter_settings(ctx, doc[kind], kind) for kind in settings_tables() if kind in doc}
     for kind, table in settings.items():  # the filters' own checks, with the file's name
         try:
             make_filter(kind, f, h, Q, R, settings=settings)
         except SymmonError as exc:
             raise ctx.error(f"[{kind}]", str(exc)) from None
-    return FilterSpec(name, f, h, Q, R, x0, int(steps), path, units, {k: float(v) for k, v in params.items()},
+    return FilterScenario(name, f, h, Q, R, x0, int(steps), path, units, {k: float(v) for k, v in params.items()},
                       settings)
 
 
 def _filter_settings(ctx: _Context, table: Any, kind: str) -> dict:
-    """A ``[gsf]`` or ``[pf]`` table: known keys of the right types (:data:`FILTER_SETTINGS`)."""
+    """A filter's table (``[gsf]``, ``[pf]``, ...): known keys of the right types
+    (:attr:`symmon.filters.registry.FilterEntry.settings`)."""
     if not isinstance(table, dict):
         raise ctx.error(f"[{kind}]", f"must be a table, got {table!r}")
-    known = FILTER_SETTINGS[kind]
+    known = filter_entry(kind).settings
     out = {}
     for key, value in table.items():
         if key not in known:
@@ -322,16 +329,10 @@ def _filter_settings(ctx: _Context, table: Any, kind: str) -> dict:
 
 def make_filter(name: str, f: Model, h: Model, Q: np.ndarray, R: np.ndarray, tol: float = DEFAULT_TOL,
                 settings: dict | None = None):
-    """The filter of a short name: a Gaussian one (:func:`filter_transform`), or ``"gsf"`` /
-    ``"pf"`` with the scenario's settings (a component ``transform`` by its short name)."""
-    if name not in MIXTURE_FILTERS:
-        return NonlinearKalmanFilter(f, h, Q, R, filter_transform(name, tol))
-    kw = dict((settings or {}).get(name, {}))
-    if name == "gsf":
-        if "transform" in kw:
-            kw["transform"] = filter_transform(kw["transform"], tol)
-        return GaussianSumFilter(f, h, Q, R, **kw)
-    return ParticleFilter(f, h, Q, R, **kw)
+    """The registered filter ``name`` (:func:`symmon.filters.registry.make_filter`) with the
+    scenario's table of its name from ``settings`` (a component ``transform`` by its name)."""
+    entry = filter_entry(name)
+    return make_registered(name, f, h, Q, R, tol=tol, settings=(settings or {}).get(entry.name))
 
 
 def check_bank(spec: FilterSpec, runs: int, filters: Iterable[str], smooth: bool = False) -> None:
@@ -346,14 +347,14 @@ def check_bank(spec: FilterSpec, runs: int, filters: Iterable[str], smooth: bool
     """
     n, n_y = spec.f.n_u, spec.h.n_y
     names = list(filters)
-    smoothed = sum(smooth and name not in ("adaptive",) + MIXTURE_FILTERS for name in names)
+    smoothed = sum(smooth and filter_entry(name).has_smoother for name in names)
     per_step = n + n_y + len(names) * kept_numbers(n, n_y, KEEPABLE) + smoothed * (n + n * n)
     check_bank_size(runs, spec.steps, per_step, f"a bank of {len(names)} filter(s) on {spec.name!r}",
                     "use fewer runs, steps or filters")
 
 
-def simulate(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, steps: int, runs: int,
-             seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def simulate_scenario(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, steps: int, runs: int,
+                      seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """True states and measurements of ``runs`` independent runs: :func:`symmon.simulate`
     with a bank of ``runs`` (shapes (runs, steps, n) and (runs, steps, n_y)).
 
@@ -431,14 +432,9 @@ def run_bank(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, xs:
     for name in names:
         smoothed = None
         try:
+            entry = filter_entry(name)
             kf = make_filter(name, f, h, Q, R, tol, settings)
-            if name in MIXTURE_FILTERS:  # no smoother; the NIS of a mixture's innovation is not kept
-                res = kf.filter(ys, x0, executor=executor)
-                out.append(BankSummary(name, res, res.anees(xs, confidence),
-                                       res.anis(confidence) if res.nis_values is not None else None,
-                                       _rmse(xs, res.x, res.angle_states)))
-                continue
-            if smooth and name != "adaptive":
+            if smooth and entry.has_smoother:
                 smoothed = kf.smooth(ys, x0)
                 res = smoothed.filtered
             else:
@@ -448,9 +444,17 @@ def run_bank(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, xs:
             if smoothed is not None:
                 extra = {"smoothed": smoothed, "smoothed_anees": smoothed.anees(xs, confidence),
                          "smoothed_rmse": _rmse(xs, smoothed.x, res.angle_states)}
-            summary = BankSummary(name, res, res.anees(xs, confidence), res.anis(confidence),
-                                  _rmse(xs, res.x, res.angle_states), **extra)
+            # A mixture's innovation has no one covariance: no NIS, no ANIS.
+            anis = res.anis(confidence) if res.nis_values is not None else None
+            summary = BankSummary(name, res, res.anees(xs, confidence), anis, _rmse(xs, res.x, res.angle_states),
+                                  **extra)
         except SymmonError as exc:
             summary = BankSummary(name, None, None, None, None, str(exc))
         out.append(summary)
     return out
+
+
+#: The scenario's former names, kept: :class:`FilterScenario` (not the filters' ``FilterSpec``
+#: protocol) and :func:`simulate_scenario` (not :func:`symmon.simulate`).
+FilterSpec = FilterScenario
+simulate = simulate_scenario

@@ -14,6 +14,7 @@ declares (docs/architecture.md, "Adding a filter").
 from __future__ import annotations
 
 import abc
+import dataclasses
 from typing import Any, ClassVar, Iterable
 
 import numpy as np
@@ -83,6 +84,13 @@ class Filter(abc.ABC):
         if not getattr(cls, "__abstractmethods__", None) and not getattr(_filter_hook(cls), "__isabstractmethod__",
                                                                           False):
             _CLASSES[cls.__name__] = cls
+
+    def __reduce__(self) -> tuple:
+        """A filter pickles as its class and constructor arguments: it is rebuilt, and its
+        compiled code comes back from the cache on disk (no compiled object travels)."""
+        if not dataclasses.is_dataclass(self):
+            return super().__reduce__()
+        return _rebuild, (type(self), {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.init})
 
     # -------------------------------------------------------------- what the template reads
     @property
@@ -179,6 +187,11 @@ class Filter(abc.ABC):
     def _check_params(self, params: dict | None, runs: int | None, steps: int) -> Any:
         """The parameter values, checked (:func:`~symmon.filters.inputs.param_values`)."""
         return param_values(self.params, params, runs, steps)
+
+
+def _rebuild(kind: type, init: dict) -> Filter:
+    """``kind(**init)``: a pickled filter, rebuilt."""
+    return kind(**init)
 
 
 def _filter_hook(cls: type) -> Any:

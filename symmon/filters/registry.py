@@ -33,7 +33,7 @@ from .gaussian.linear import KalmanFilter
 from .gaussian.nonlinear import NonlinearKalmanFilter
 from .mixture.gaussian_sum import GaussianSumFilter
 from .mixture.imm import IMM
-from .names import RULE_FILTERS, filter_rule
+from .names import filter_rule
 from .particle.particle_filter import ParticleFilter
 
 __all__ = ["FilterEntry", "register", "filter_entry", "filter_names", "make_filter"]
@@ -64,6 +64,9 @@ class FilterEntry:
         Other names of the same filter (``"tt1"`` for ``"ekf"``, ``"gh"`` for ``"ghkf"``).
     scenario : bool
         Whether a filter scenario file (f, h, Q, R) is enough to build it (IMM needs modes).
+    rule : callable or None
+        For a Gaussian filter of one rule (or the adaptive strategy): ``rule(tol, settings)``,
+        the transform (or strategy) its :class:`~symmon.NonlinearKalmanFilter` runs.
     """
 
     name: str
@@ -73,11 +76,12 @@ class FilterEntry:
     settings: Mapping[str, type] = field(default_factory=dict)
     aliases: tuple[str, ...] = ()
     scenario: bool = True
+    rule: Callable[[float, dict], Any] | None = field(default=None, repr=False)
 
     @property
     def exportable(self) -> bool:
         """Whether the filter it builds exports standalone C (a single-rule Gaussian filter)."""
-        return bool(self.kind.exportable) and self.name in RULE_FILTERS | {"iekf": "tt1"}
+        return bool(self.kind.exportable) and self.rule is not None and self.name != "adaptive"
 
     @property
     def has_smoother(self) -> bool:
@@ -166,22 +170,24 @@ def make_filter(name: str, f: Model, h: Model, Q: Any, R: Any, *, tol: float = D
 
 
 # ------------------------------------------------------------------------- the builders
-def _rule(name: str) -> Builder:
+def _gaussian(rule: Callable[[float, dict], Any], iterated: bool = False) -> Builder:
+    """The builder of a NonlinearKalmanFilter running ``rule(tol, settings)``."""
     def build(f, h, Q, R, tol, settings):
-        return NonlinearKalmanFilter(f, h, Q, R, filter_rule(name), **settings)
+        extra = {"iterations": settings.get("iterations", 5)} if iterated else {}
+        return NonlinearKalmanFilter(f, h, Q, R, rule(tol, settings), **extra)
     return build
 
 
-def _gauss_hermite(f, h, Q, R, tol, settings):
-    return NonlinearKalmanFilter(f, h, Q, R, GaussHermite(settings.get("order", 3)))
+def _named(name: str) -> Callable[[float, dict], Any]:
+    return lambda tol, settings: filter_rule(name)
 
 
-def _iterated(f, h, Q, R, tol, settings):
-    return NonlinearKalmanFilter(f, h, Q, R, filter_rule("ekf"), iterations=settings.get("iterations", 5))
+def _gauss_hermite(tol: float, settings: dict) -> Any:
+    return GaussHermite(settings.get("order", 3))
 
 
-def _adaptive(f, h, Q, R, tol, settings):
-    return NonlinearKalmanFilter(f, h, Q, R, Adaptive(tol=settings.get("tol", tol)))
+def _adaptive(tol: float, settings: dict) -> Any:
+    return Adaptive(tol=settings.get("tol", tol))
 
 
 def _linear_matrix(model: Model, what: str) -> np.ndarray:
@@ -203,7 +209,11 @@ def _linear(f, h, Q, R, tol, settings):
 def _gsf(f, h, Q, R, tol, settings):
     kw = dict(settings)
     if "transform" in kw:
-        kw["transform"] = filter_entry(kw["transform"]).build(f, h, Q, R, tol, {}).transform
+        component = filter_entry(kw["transform"])
+        if component.rule is None:
+            raise SymmonError(f"gsf: transform must name a Gaussian filter (one of "
+                              f"{', '.join(n for n in filter_names() if filter_entry(n).rule)}), got {kw['transform']!r}")
+        kw["transform"] = component.rule(tol, {})
     return GaussianSumFilter(f, h, Q, R, **kw)
 
 
@@ -224,19 +234,19 @@ def _imm(f, h, Q, R, tol, settings):
 _PF_SETTINGS = {"particles": int, "proposal": str, "resample": str, "ess_threshold": float, "seed": int}
 
 register(FilterEntry("kf", "Kalman filter of a linear model (F, H from f and h)", KalmanFilter, _linear))
-register(FilterEntry("ekf", "extended Kalman filter, TT1", NonlinearKalmanFilter, _rule("ekf"), aliases=("tt1",)))
+for _name, _summary, _aliases in (("ekf", "extended Kalman filter, TT1", ("tt1",)),
+                                  ("ekf2", "second-order extended Kalman filter, TT2", ("tt2",)),
+                                  ("ukf", "unscented Kalman filter, UT.ut1()", ("ut1",)),
+                                  ("ckf", "cubature Kalman filter, UT.cubature()", ("ct",))):
+    register(FilterEntry(_name, _summary, NonlinearKalmanFilter, _gaussian(_named(_name)), aliases=_aliases,
+                         rule=_named(_name)))
 register(FilterEntry("iekf", "iterated extended Kalman filter, TT1 with Gauss–Newton iterations",
-                     NonlinearKalmanFilter, _iterated, {"iterations": int}))
-register(FilterEntry("ekf2", "second-order extended Kalman filter, TT2", NonlinearKalmanFilter, _rule("ekf2"),
-                     aliases=("tt2",)))
-register(FilterEntry("ukf", "unscented Kalman filter, UT.ut1()", NonlinearKalmanFilter, _rule("ukf"),
-                     aliases=("ut1",)))
-register(FilterEntry("ckf", "cubature Kalman filter, UT.cubature()", NonlinearKalmanFilter, _rule("ckf"),
-                     aliases=("ct",)))
-register(FilterEntry("ghkf", "Gauss–Hermite Kalman filter (order 3)", NonlinearKalmanFilter, _gauss_hermite,
-                     {"order": int}, aliases=("gh",)))
+                     NonlinearKalmanFilter, _gaussian(_named("ekf"), iterated=True), {"iterations": int},
+                     rule=_named("ekf")))
+register(FilterEntry("ghkf", "Gauss–Hermite Kalman filter (order 3)", NonlinearKalmanFilter,
+                     _gaussian(_gauss_hermite), {"order": int}, aliases=("gh",), rule=_gauss_hermite))
 register(FilterEntry("adaptive", "the rule chosen per step by its moment error (Adaptive)", NonlinearKalmanFilter,
-                     _adaptive, {"tol": float}))
+                     _gaussian(_adaptive), {"tol": float}, rule=_adaptive))
 register(FilterEntry("gsf", "Gaussian-sum filter, split by the measure of nonlinearity", GaussianSumFilter, _gsf,
                      {"transform": str, "split": float, "max_components": int, "prune": float, "merge": str,
                       "split_components": int}))

@@ -388,8 +388,23 @@ def test_export_writes_a_filter(capsys, tmp_path, name):
 
 def test_export_refuses_an_unknown_filter(capsys, tmp_path):
     code, _, err = run(capsys, "export", EXAMPLES / "rb_close.toml", "--filter", "adaptive", "--out", tmp_path / "o")
-    assert code == 2 and "invalid choice: 'adaptive'" in err
+    assert code == 2 and "must be one of ekf, tt1" in err and "'adaptive'" in err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_filter_and_its_rule_are_one_name_on_the_command_line(capsys, tmp_path):
+    """``ut1`` exports the UKF as ``ukf`` does, and ``--filters`` takes rule names (issue 47, item 11)."""
+    texts = []
+    for name in ("ukf", "ut1"):
+        code, _, _ = run(capsys, "export", EXAMPLES / "rb_close.toml", "--filter", name, "--out", tmp_path / name,
+                         "--name", "rb")
+        assert code == 0
+        texts.append((tmp_path / name / "rb.c").read_text())
+    assert texts[0] == texts[1]
+    code, out, _ = run(capsys, "filter", EXAMPLES / "rb_close.toml", "--runs", "3", "--filters", "tt1,ukf", "--json")
+    assert code == 0 and json.loads(out)
+    code, _, err = run(capsys, "filter", EXAMPLES / "rb_close.toml", "--runs", "3", "--filters", "ekf,tt1")
+    assert code == 2 and "distinct filters" in err
 
 
 @pytest.mark.parametrize(("weight", "verdict"), [("full", "holds"), ("diag", "holds"), ("liu-li-raw", "fails")])

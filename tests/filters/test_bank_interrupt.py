@@ -34,7 +34,7 @@ RUNS, K = 2, 1000
 @pytest.fixture(scope="module")
 def compiled_step():
     kf = sm.NonlinearKalmanFilter(F, H, Q, R, sm.TT1())
-    st = step._compiled_step(F, H, kf.transform, kf.angle_states)
+    st = step.compiled_step(F, H, kf.transform, kf.angle_states)
     if not (st._lib.wait(600) and st.is_compiled):
         pytest.skip("no C compiler: the bank runs on CasADi's VM, step by step in Python")
     return st

@@ -19,7 +19,7 @@ import symmon as sm
 from helpers import assert_close_to_scale
 from symmon.compile.compiled import cpu_count
 from symmon.filters.gaussian._ekfstep import C_EKF_FROM, ekf_pieces
-from symmon.filters.gaussian.step import _compiled_step, chunk_runs
+from symmon.filters.gaussian.step import compiled_step, chunk_runs
 
 RTOL = 1e-10
 TARGETS = 2
@@ -79,7 +79,7 @@ def built(linear_f: bool = False, coupled: bool = False):
     f, h = models(linear_f, coupled)
     x0, P0, Y, Q, Rm, params, truth = data(coupled)
     kf = sm.NonlinearKalmanFilter(f, h, Q, Rm, sm.TT2())
-    step = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)
+    step = compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)
     assert step.c_ekf and step._lib.wait(120)
     return kf, step, x0, P0, Y, Q, Rm, params, truth
 
@@ -129,7 +129,7 @@ def test_tt2_c_step_equals_the_mx_step(setup):
     for key in ("P", "P_pred", "S"):
         np.testing.assert_array_equal(c[key], np.swapaxes(c[key], -1, -2))
     # The second-order terms matter here: the EKF's estimates are far from the EKF2's.
-    ekf = _compiled_step(kf.f_model, kf.h_model, sm.TT1(), kf.angle_states)
+    ekf = compiled_step(kf.f_model, kf.h_model, sm.TT1(), kf.angle_states)
     one = ekf(x0, P0, Y, Q, Rm, use_c=False, params=params)
     assert np.abs(one["P_pred"] - c["P_pred"]).max() > 1e-3 * np.abs(c["P_pred"]).max()
     assert np.abs(one["x_pred"] - c["x_pred"]).max() > 1e-3

@@ -17,7 +17,7 @@ import symmon as sm
 from helpers import assert_close_to_scale, turning_targets
 from symmon.compile.compiled import cpu_count
 from symmon.filters.gaussian._ekfstep import C_EKF_FROM
-from symmon.filters.gaussian.step import _compiled_step, chunk_runs
+from symmon.filters.gaussian.step import compiled_step, chunk_runs
 
 RTOL = 1e-10
 TARGETS = 4
@@ -36,7 +36,7 @@ def setup():
     Q = np.kron(np.eye(TARGETS), np.diag([0.02, 0.02, 0.01, 1e-3, 1e-4]))
     Rm = np.kron(np.eye(TARGETS), np.diag([0.25, 1e-4]))
     kf = sm.NonlinearKalmanFilter(f, h, Q, Rm, sm.TT1())
-    step = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)
+    step = compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)
     assert step.c_ekf and step._lib.wait(120)
     rng = np.random.default_rng(7)
     runs, K = 5, 12
@@ -57,10 +57,10 @@ def setup():
 def test_the_step_is_the_c_step_from_its_size_on():
     f, h = models()
     assert N >= C_EKF_FROM
-    assert not _compiled_step(f, h, sm.UT(1, 2, 0), frozenset(f.angle_outputs)).c_ekf
-    assert _compiled_step(f, h, sm.TT2(), frozenset(f.angle_outputs)).c_ekf  # the EKF2: test_ekf2_c.py
-    assert _compiled_step(f, h, sm.TT1(), frozenset(f.angle_outputs), 3).c_ekf
-    assert not _compiled_step(f, h, sm.TT1(), frozenset(f.angle_outputs), square_root=True).c_ekf
+    assert not compiled_step(f, h, sm.UT(1, 2, 0), frozenset(f.angle_outputs)).c_ekf
+    assert compiled_step(f, h, sm.TT2(), frozenset(f.angle_outputs)).c_ekf  # the EKF2: test_ekf2_c.py
+    assert compiled_step(f, h, sm.TT1(), frozenset(f.angle_outputs), 3).c_ekf
+    assert not compiled_step(f, h, sm.TT1(), frozenset(f.angle_outputs), square_root=True).c_ekf
 
 
 def test_c_step_equals_the_mx_step(setup):
@@ -118,7 +118,7 @@ def test_iterated_c_step_equals_the_mx_step(setup):
     """The IEKF (3 Gauss–Newton steps): H_i (x⁻ − x_i) from H's nonzeros in C, through a solve
     with P⁻ in the MX graph; the same to rounding."""
     kf, step, x0, P0, Y, Q, Rm, params, truth = setup
-    iekf = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states, 3)
+    iekf = compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states, 3)
     assert iekf.c_ekf and iekf._lib.wait(120)
     c = iekf(x0, P0, Y, Q, Rm, params=params)
     vm = iekf(x0, P0, Y, Q, Rm, use_c=False, params=params)

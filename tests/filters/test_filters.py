@@ -14,7 +14,7 @@ import symmon as sm
 from symmon.estimation import nlt as est
 from symmon.errors import ShapeError, SymmonError
 from symmon.filters.results import NonlinearKalmanResult
-from symmon.filters.gaussian.step import _compiled_step
+from symmon.filters.gaussian.step import compiled_step
 from symmon.filters.results import quadratic_forms
 
 #: Two implementations of the same filter in double precision, over tens of steps: the
@@ -265,7 +265,7 @@ def test_compiled_step_equals_casadi_vm(bank):
     _, ys = bank
     f, h = cv_models()
     nkf = sm.NonlinearKalmanFilter(f, h, Q_CV, R_RB, sm.UT.ut1())
-    step = _compiled_step(f, h, nkf.transform, nkf.angle_states)
+    step = compiled_step(f, h, nkf.transform, nkf.angle_states)
     assert step.is_compiled
     c = step(X0.mean, X0.cov, ys, Q_CV, R_RB)
     vm = step(X0.mean, X0.cov, ys, Q_CV, R_RB, use_c=False)

@@ -83,7 +83,7 @@ def test_a_partly_measured_row_updates_on_the_measured_block(transform, kept):
 
 
 def test_a_bank_with_missing_rows_equals_its_runs_and_the_vm():
-    from symmon.filters.gaussian.step import _compiled_step
+    from symmon.filters.gaussian.step import compiled_step
 
     kf, d = cv_filter(sm.UT.ut1())
     ys = np.array(d["ys"])
@@ -94,7 +94,7 @@ def test_a_bank_with_missing_rows_equals_its_runs_and_the_vm():
         np.testing.assert_array_equal(res.x[r], one.x)
         np.testing.assert_array_equal(res.loglik[r], one.loglik)
     assert res.measured.shape == (3, 40) and res.measured[1, 3] == 0 and res.measured[2, 20] == 1
-    step = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)
+    step = compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)
     c = step(np.array(d["x0"]), np.array(d["P0"]), bank, kf.Q, kf.R)
     vm = step(np.array(d["x0"]), np.array(d["P0"]), bank, kf.Q, kf.R, use_c=False)
     for name in c:

@@ -14,7 +14,7 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import ShapeError, SingularMatrixError, SymmonError
-from symmon.filters.gaussian.step import _compiled_step
+from symmon.filters.gaussian.step import compiled_step
 
 #: The step's NEES and NumPy's from the same x and P: the same quadratic form through two
 #: factorisations, so they agree to a few condition numbers of the correlation matrix times
@@ -78,7 +78,7 @@ def test_step_nees_equals_nees_from_x_and_p(problem, transform):
 def test_step_nees_of_the_vm_equals_the_c_loop(problem):
     f, h, Q, R, x0, xs, ys = problem
     kf = sm.NonlinearKalmanFilter(f, h, Q, R, sm.TT1())
-    step = _compiled_step(f, h, kf.transform, kf.angle_states)
+    step = compiled_step(f, h, kf.transform, kf.angle_states)
     assert step._lib.wait(600) and step.is_compiled  # a large step builds in the background
     c = step(x0.mean, x0.cov, ys, Q, R, truth=xs)
     vm = step(x0.mean, x0.cov, ys, Q, R, use_c=False, truth=xs)

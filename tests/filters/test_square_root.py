@@ -239,9 +239,9 @@ def test_square_root_mx_step_equals_the_standard_form_and_the_vm():
     sr = sm.NonlinearKalmanFilter(f, h, Q3, R3, sm.UT.cubature(), square_root=True)
     a = sr.filter(ys, x0)
     assert_same(a, std.filter(ys, x0))
-    from symmon.filters.gaussian.step import _compiled_step
+    from symmon.filters.gaussian.step import compiled_step
 
-    step = _compiled_step(f, h, sm.UT.cubature(), sr.angle_states, 1, True)
+    step = compiled_step(f, h, sm.UT.cubature(), sr.angle_states, 1, True)
     vm = step(np.asarray(x0.mean), np.asarray(x0.cov), ys[None], sr.Q, sr.R, use_c=False)
     np.testing.assert_allclose(vm["x"][0], a.x, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(vm["P_chol"][0], a.P_chol, rtol=1e-12, atol=1e-14)

@@ -11,7 +11,7 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import SymmonError
-from symmon.filters.gaussian.step import _compiled_step, first_nonfinite
+from symmon.filters.gaussian.step import compiled_step, first_nonfinite
 
 HUGE = 1.7e308  # its square overflows: the log-likelihood of that step is -inf
 
@@ -34,7 +34,7 @@ def bank(fail_at: dict[int, int], runs: int = 4, K: int = 12) -> np.ndarray:
 @pytest.mark.parametrize("transform", [sm.TT1(), sm.UT(1, 2, 0)], ids=["ekf", "ukf"])
 def test_compiled_loop_and_vm_report_the_same_first_failures(transform):
     kf = scalar_filter(transform)
-    step = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)
+    step = compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states)
     step._lib.wait()
     Y = bank({1: 3, 3: 7})
     args = (np.zeros(1), np.eye(1), Y, kf.Q, kf.R)

@@ -25,7 +25,7 @@ import numpy as np
 from ...measures.advice import DEFAULT_TOL, cost, moment_distance, whiteners
 from ...core.angles import wrap_angle
 from ...errors import SymmonError, plain_repr
-from .step import _compiled_step, _filterable, check_dimensions
+from .step import compiled_step, filterable, check_dimensions
 from ..inputs import KEEPABLE, FilterSpec
 from .strategy import FilterStrategy
 from ...transforms.registry import resolve
@@ -99,7 +99,7 @@ class Adaptive(FilterStrategy):
         if not cands:
             raise SymmonError("candidates is empty")
         for t in cands + (self.reference,):
-            if not _filterable(t):
+            if not filterable(t):
                 raise SymmonError(f"Adaptive candidates and reference must be TT1, TT2, UT or GaussHermite "
                                   f"(a Taylor or point rule), got {t!r}")
         object.__setattr__(self, "candidates", cands)
@@ -171,7 +171,7 @@ def _adaptive_run(ad: Adaptive, kf: FilterSpec, Y: np.ndarray, x0: np.ndarray, P
 
     order = sorted(ad.candidates, key=lambda t: cost(t, n))  # stable: ties keep the given order
     names = np.array([t.filter_label() for t in order])
-    steps = [_compiled_step(f, h, t, kf.angle_states) for t in order]
+    steps = [compiled_step(f, h, t, kf.angle_states) for t in order]
     shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n), "innovation": (n_y,), "S": (n_y, n_y),
               "loglik": (), "nis": ()}
     out = {key: np.full((runs, K) + s, np.nan) for key, s in shapes.items()}  # NaN after a failure

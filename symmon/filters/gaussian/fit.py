@@ -64,7 +64,7 @@ from ...errors import IdentifiabilityWarning, ModelError, SymmonError
 from ...transforms.executor import one_blas_thread
 from ..inputs import FilterSpec, filter_inputs
 from ..results import KalmanResult
-from .step import _compiled_step
+from .step import compiled_step
 
 __all__ = ["FitResult", "fit_parameters", "MAX_ITER"]
 
@@ -128,7 +128,7 @@ class FitResult:
 def _loglik_graph(kf: FilterSpec, Y: np.ndarray, x0: np.ndarray, P0: np.ndarray,
                   base: np.ndarray, fitted: list[int]) -> tuple[ca.MX, ca.MX]:
     """θ (the fitted parameters) and ℓ(θ) as an MX graph: the step folded over K, mapped over R."""
-    step = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states, kf.iterations).f
+    step = compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states, kf.iterations).f
     runs, K, n_y = Y.shape
     n, n_p = kf.f_model.n_u, base.shape[-1]
     s = ca.MX.sym("s", n + n * n)
@@ -335,7 +335,7 @@ class _CompiledLoglik:
     ∇ℓ, and with the Hessian."""
 
     def __init__(self, kf: FilterSpec, forward: bool | None = None) -> None:
-        step = _compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states, kf.iterations).f
+        step = compiled_step(kf.f_model, kf.h_model, kf.transform, kf.angle_states, kf.iterations).f
         n, n_y = kf.f_model.n_u, kf.h_model.n_y
         self.ns = n + n * n
         self.n_p = step.size1_in(6)

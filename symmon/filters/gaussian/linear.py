@@ -291,7 +291,7 @@ class KalmanFilter(Filter):
         else:
             Ps, Pps, Ss, gains = Ps[group], Pps[group], Ss[group], gains[group]
         measured = (~missing).sum(axis=-1) if missing.any() else None
-        nees = None if call.truth is None else nees_of(xs, np.broadcast_to(Ps[group], xs.shape + (n,)), call.truth, ())
+        nees = None if call.truth is None else nees_of(xs, np.broadcast_to(Ps, xs.shape + (n,)), call.truth, ())
         if batch is None:
             xs, xps, innovs, nis, loglik = xs[0], xps[0], innovs[0], nis[0], loglik[0]
             nees = None if nees is None else nees[0]

@@ -592,7 +592,7 @@ _steps: dict[tuple, _CompiledStep] = {}
 _steps_lock = threading.Lock()
 
 
-def _compiled_step(f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
+def compiled_step(f: Model, h: Model, transform: Transform, angle_states: frozenset[int],
                    iterations: int = 1, square_root: bool = False) -> _CompiledStep:
     """The compiled step of (f, h, transform), built once per process (C cached on disk);
     ``iterations`` > 1: the iterated EKF's update (:func:`update_graph`); ``square_root``:
@@ -605,7 +605,7 @@ def _compiled_step(f: Model, h: Model, transform: Transform, angle_states: froze
         return step
 
 
-def _filterable(transform: Any) -> bool:
+def filterable(transform: Any) -> bool:
     """A rule a filter can compile: a Taylor rule or a point rule (declared capabilities)."""
     return isinstance(transform, Transform) and (transform.taylor_order is not None or transform.point_rule)
 

@@ -18,7 +18,7 @@ from ...codegen.sqrtform import check_sqrt_rule
 from ...errors import ArgumentTypeError, SymmonError
 from ...transforms.base import Transform
 from ..inputs import KEEPABLE, FilterSpec
-from .step import _compiled_step, _filterable, check_dimensions
+from .step import compiled_step, filterable, check_dimensions
 
 __all__ = ["FilterStrategy", "RuleStrategy"]
 
@@ -75,7 +75,7 @@ class RuleStrategy(FilterStrategy):
     def __post_init__(self) -> None:
         if not isinstance(self.transform, Transform):
             raise ArgumentTypeError(f"transform must be a symmon transform or a filter strategy, got {self.transform!r}")
-        if not _filterable(self.transform):
+        if not filterable(self.transform):
             raise SymmonError(
                 f"transform must be TT1, TT2, UT or GaussHermite (a Taylor or point rule) for a Kalman filter, "
                 f"got {self.transform!r}"
@@ -91,7 +91,7 @@ class RuleStrategy(FilterStrategy):
                 check_sqrt_rule(self.transform, n)
 
     def run(self, kf, Y, x0, P0, keep=None, params=None, truth=None):
-        step = _compiled_step(kf.f_model, kf.h_model, self.transform, kf.angle_states, kf.iterations,
+        step = compiled_step(kf.f_model, kf.h_model, self.transform, kf.angle_states, kf.iterations,
                               kf.square_root)
         return step(x0, P0, Y, kf.Q, kf.R, keep=None if keep is None else keep | {"loglik"}, params=params,
                     truth=truth, check_finite=True), None

@@ -36,7 +36,7 @@ import threading
 import casadi as ca
 import numpy as np
 
-from ...compile import NativeLibrary
+from ...compile.ccache import NativeLibrary
 from ...compile.compiled import WorkArrays, generated_c, in_threads, row_spans
 from ...compile.csource import c_defines, c_file
 from .merge import MERGE_C

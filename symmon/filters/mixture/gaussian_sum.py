@@ -124,7 +124,7 @@ from ..gaussian.nonlinear import NonlinearKalmanFilter
 from .merge import MERGE_RULES, merge_components, merge_runs
 from ..inputs import FilterCall
 from ..results import KalmanResult, nees_of
-from ..gaussian.step import (_filterable, filter_params, predict_graph, select_params, step_kind, sym,
+from ..gaussian.step import (filterable, filter_params, predict_graph, select_params, step_kind, sym,
                    update_graph)
 
 __all__ = ["GaussianSumFilter", "GaussianSumResult", "SPLITS", "split_component", "split_components",
@@ -454,7 +454,7 @@ class GaussianSumFilter(Filter):
 
     def __post_init__(self) -> None:
         transform = UT.ut1() if self.transform is None else filter_rule(self.transform)
-        if not _filterable(transform):
+        if not filterable(transform):
             raise ArgumentTypeError(f"transform must be TT1, TT2, UT or GaussHermite (one rule for every component), "
                                     f"got {self.transform!r}")
         kf = NonlinearKalmanFilter(self.f_model, self.h_model, self.Q, self.R, transform)

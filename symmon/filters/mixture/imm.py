@@ -66,7 +66,7 @@ from ..base import Filter
 from ..gaussian.nonlinear import NonlinearKalmanFilter
 from ..inputs import FilterCall, param_values
 from ..results import KalmanResult, nees_of, quadratic_forms
-from ..gaussian.step import _compiled_step, chunk_runs
+from ..gaussian.step import compiled_step, chunk_runs
 from ..gaussian.strategy import RuleStrategy
 
 __all__ = ["IMM", "IMMResult"]
@@ -334,6 +334,9 @@ class IMM(Filter):
             measured = None if measured is None else measured[0]
             nees = None if nees is None else nees[0]
         out = {k: readonly(v) for k, v in out.items()}
+        for k in ("x", "P", "x_pred", "P_pred", "innovation", "S", "nis"):  # what keep= leaves out
+            if call.keep is not None and k not in call.keep:
+                out[k] = None
         return IMMResult(x=out["x"], P=out["P"], x_pred=out["x_pred"], P_pred=out["P_pred"],
                          innovation=out["innovation"], S=out["S"], loglik=out["loglik"],
                          angle_states=tuple(angles), method="IMM(" + ", ".join(self.modes) + ")",
@@ -348,7 +351,7 @@ class IMM(Filter):
         square-root mode, which run in :meth:`_python_loop`)."""
         if not all(isinstance(kf.strategy, RuleStrategy) and not kf.square_root for kf in self.filters):
             return None
-        steps = tuple(_compiled_step(kf.f_model, kf.h_model, kf.strategy.transform, kf.angle_states, kf.iterations)
+        steps = tuple(compiled_step(kf.f_model, kf.h_model, kf.strategy.transform, kf.angle_states, kf.iterations)
                       for kf in self.filters)
         key = (tuple(st.f.name() for st in steps), tuple(sorted(self.angle_states)))
         with _loops_lock:
@@ -383,7 +386,7 @@ class IMM(Filter):
             for j, kf in enumerate(self.filters):
                 pv = None if pvs[j] is None else np.ascontiguousarray(pvs[j][:, k:k + 1])
                 if kf.square_root:
-                    step = _compiled_step(kf.f_model, kf.h_model, kf.strategy.transform, kf.angle_states,
+                    step = compiled_step(kf.f_model, kf.h_model, kf.strategy.transform, kf.angle_states,
                                           kf.iterations, True)
                     S0 = self._mixed_factor(P_mix[:, j], j, k, bank)
                     res = step(x_mix[:, j], S0, Yk, kf.Q, kf.R, params=pv, check_finite=True, factored=True)

@@ -97,7 +97,7 @@ import threading
 
 import numpy as np
 
-from ...compile import NativeLibrary
+from ...compile.ccache import NativeLibrary
 from ...compile.csource import c_file
 from ...core.mixture import mixture_moments
 from ...errors import ArgumentError, SymmonError

@@ -71,7 +71,8 @@ from typing import Sequence
 import casadi as ca
 import numpy as np
 
-from ...compile import NativeLibrary, compiled_with_params
+from ...compile.ccache import NativeLibrary
+from ...compile.compiled import compiled_with_params
 from ...compile.compiled import WorkArrays, generated_c
 from ...compile.csource import c_defines, c_file
 from ...compile.vecmath import VECMATH_C, vector_rows

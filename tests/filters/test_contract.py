@@ -1,0 +1,229 @@
+"""The filter contract (issue 49): every filter subclasses ``symmon.filters.base.Filter``, whose
+final ``filter`` checks the inputs once, hands banks to an executor once and calls the family's
+``_filter``; the registry names every filter once, for Python, scenario files and the CLI.
+
+The generic checks run every registered filter class through the same calls: shapes of a single
+run and of a bank, missing rows, parameters, bad input, pickling, and a bank in shards equal bit
+for bit to the whole bank.
+"""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import symmon as sm
+from symmon.errors import ArgumentError, ModelError, ShapeError, SymmonError
+from symmon.filters.base import Filter, filter_classes
+from symmon.filters.names import RULE_FILTERS, filter_rule
+from symmon.filters.registry import FilterEntry, filter_entry, filter_names, make_filter, register
+
+x, v, a = sp.symbols("x v a", real=True)
+#: A constant-velocity target with a gain parameter a in its dynamics, and its position measured.
+F_MODEL = sm.Model([x, v], [x + a * v, v], params=[a], name="contract_f")
+H_MODEL = sm.Model([x, v], [x], name="contract_h")
+Q, R = 0.01 * np.eye(2), np.array([[0.5]])
+PRIOR = sm.Gaussian([0.0, 1.0], np.eye(2))
+K, RUNS = 6, 4
+
+
+def _filters() -> dict[str, Filter]:
+    """One filter of each registered class (the linear one without parameters)."""
+    lin_f = sm.Model([x, v], [x + v, v], name="contract_lin_f")
+    kf = sm.KalmanFilter([[1.0, 1.0], [0.0, 1.0]], Q, [[1.0, 0.0]], R)
+    ekf = sm.NonlinearKalmanFilter(F_MODEL, H_MODEL, Q, R, "ekf")
+    quiet = sm.NonlinearKalmanFilter(lin_f, H_MODEL, 1e-4 * np.eye(2), R, "ekf")
+    return {
+        "KalmanFilter": kf,
+        "NonlinearKalmanFilter": ekf,
+        "ParticleFilter": sm.ParticleFilter(F_MODEL, H_MODEL, Q, R, particles=200, seed=3),
+        "GaussianSumFilter": sm.GaussianSumFilter(F_MODEL, H_MODEL, Q, R, "ekf"),
+        "IMM": sm.IMM([quiet, kf], [[0.9, 0.1], [0.1, 0.9]], [0.5, 0.5]),
+    }
+
+
+FILTERS = _filters()
+NAMES = sorted(FILTERS)
+
+
+def _params(filt: Filter, runs: int | None = None) -> dict | None:
+    if not filt.params:
+        return None
+    return {"a": np.linspace(0.9, 1.1, K) if runs is None else np.linspace(0.9, 1.1, runs * K).reshape(runs, K)}
+
+
+def _data(runs: int | None, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    xs, ys = sm.simulate(F_MODEL.with_params({"a": 1.0}), H_MODEL, Q, R, PRIOR, K, runs=runs, seed=seed)
+    return np.asarray(xs), np.asarray(ys)
+
+
+def test_every_filter_class_is_covered_here():
+    """A filter added to symmon is added to these checks (or this test says which is missing)."""
+    assert set(filter_classes()) - {"EnsembleKalmanFilter"} <= set(FILTERS)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_a_single_run_and_a_bank_have_the_shapes_of_the_contract(name):
+    filt = FILTERS[name]
+    n, n_y = filt.sizes
+    xs, ys = _data(None)
+    one = filt.filter(ys, PRIOR, params=_params(filt), x_true=xs)
+    assert one.x.shape == (K, n) and one.loglik.shape == (K,) and one.runs is None
+    assert np.all(np.isfinite(one.nees())) and one.nees().shape == (K,)
+    xb, yb = _data(RUNS)
+    bank = filt.filter(yb, PRIOR, params=_params(filt, RUNS), x_true=xb)
+    assert bank.x.shape == (RUNS, K, n) and bank.runs == RUNS and bank.nees().shape == (RUNS, K)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_a_row_of_nan_only_predicts(name):
+    filt = FILTERS[name]
+    xs, ys = _data(None)
+    ys = ys.copy()
+    ys[2] = np.nan
+    res = filt.filter(ys, PRIOR, params=_params(filt))
+    assert res.loglik[2] == 0.0 and np.all(np.isfinite(res.x))
+
+
+@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("call, error, match", [
+    (dict(ys=np.ones((K, 3))), ShapeError, r"ys must have shape"),
+    (dict(ys=np.full((K, 1), np.inf)), ShapeError, "ys contains inf"),
+    (dict(keep="gain"), ArgumentError, r"keep names \['gain'\]"),
+    (dict(x_true=np.zeros((K + 1, 2))), ShapeError, "x_true"),
+    (dict(first_run=-1), ArgumentError, "first_run must be a non-negative integer"),
+    (dict(params={"b": 1.0}), ModelError, "params|parameters"),
+])
+def test_bad_input_gets_the_same_clear_error_from_every_filter(name, call, error, match):
+    filt = FILTERS[name]
+    _, ys = _data(None)
+    kw = {"ys": ys, "params": _params(filt), **call}
+    with pytest.raises(error, match=match):
+        filt.filter(kw.pop("ys"), PRIOR, **kw)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_a_string_keeps_one_array(name):
+    filt = FILTERS[name]
+    _, ys = _data(None)
+    res = filt.filter(ys, PRIOR, params=_params(filt), keep="x")
+    assert res.x is not None and res.P is None
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_a_bank_in_shards_is_the_whole_bank_bit_for_bit(name):
+    filt = FILTERS[name]
+    xb, yb = _data(RUNS)
+    whole = filt.filter(yb, PRIOR, params=_params(filt, RUNS), x_true=xb)
+    shards = filt.filter(yb, PRIOR, params=_params(filt, RUNS), x_true=xb,
+                         executor=sm.Executor(scheduler="synchronous"))
+    assert type(shards) is type(whole)
+    for field in ("x", "loglik", "nees_values"):
+        np.testing.assert_array_equal(getattr(shards, field), getattr(whole, field))
+
+
+def test_a_random_filter_continues_a_larger_bank_from_first_run():
+    """The pieces of a bank, each from its first run, are the whole bank (issue 47, item 6),
+    with an executor too."""
+    pf = FILTERS["ParticleFilter"]
+    _, yb = _data(RUNS)
+    p = _params(pf, RUNS)
+    whole = pf.filter(yb, PRIOR, params=p)
+    tail = {"a": p["a"][1:]}
+    alone = pf.filter(yb[1:], PRIOR, params=tail, first_run=1)
+    sharded = pf.filter(yb[1:], PRIOR, params=tail, first_run=1, executor=sm.Executor(scheduler="synchronous"))
+    np.testing.assert_array_equal(alone.x, whole.x[1:])
+    np.testing.assert_array_equal(sharded.x, whole.x[1:])
+    with pytest.raises(ArgumentError, match="draws none"):
+        FILTERS["NonlinearKalmanFilter"].filter(yb, PRIOR, params=p, first_run=1)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_a_filter_pickles_to_the_same_numbers(name):
+    filt = FILTERS[name]
+    _, ys = _data(None)
+    again = pickle.loads(pickle.dumps(filt))
+    np.testing.assert_array_equal(again.filter(ys, PRIOR, params=_params(filt)).x,
+                                  filt.filter(ys, PRIOR, params=_params(filt)).x)
+
+
+def test_capabilities_are_declared_not_discovered():
+    assert FILTERS["ParticleFilter"].random and not FILTERS["NonlinearKalmanFilter"].random
+    assert sm.NonlinearKalmanFilter.has_smoother and sm.NonlinearKalmanFilter.exportable
+    assert sm.KalmanFilter.gaussian_mode and not sm.ParticleFilter.gaussian_mode
+    assert sm.GaussianSumFilter.keepable == ("x", "P", "mixture")
+    with pytest.raises(ArgumentError, match="not P0"):
+        FILTERS["ParticleFilter"].filter(_data(None)[1], PRIOR.mean, PRIOR.cov, params=_params(FILTERS["ParticleFilter"]))
+
+
+def test_a_filter_that_overrides_the_template_or_misdeclares_is_refused_at_its_class_statement():
+    with pytest.raises(TypeError, match="overrides Filter.filter"):
+        class Bad(Filter):  # noqa: F841
+            def filter(self, ys, x0):
+                return None
+    with pytest.raises(TypeError, match="has_smoother but has no smooth"):
+        class NoSmoother(Filter):  # noqa: F841
+            has_smoother = True
+    with pytest.raises(TypeError, match="random must be a bool"):
+        class NotBool(Filter):  # noqa: F841
+            random = 1
+
+
+def test_imm_takes_any_gaussian_mode_by_its_declaration():
+    with pytest.raises(TypeError, match="Gaussian filter that IMM can mix"):
+        sm.IMM([FILTERS["ParticleFilter"], FILTERS["KalmanFilter"]], np.eye(2), [0.5, 0.5])
+
+
+# ------------------------------------------------------------------------- the registry
+@pytest.mark.parametrize("filter_name, rule_name", sorted(RULE_FILTERS.items()))
+def test_a_filter_name_and_its_rule_name_are_one_filter_in_python(filter_name, rule_name):
+    by_filter = sm.NonlinearKalmanFilter(F_MODEL, H_MODEL, Q, R, filter_name)
+    by_rule = sm.NonlinearKalmanFilter(F_MODEL, H_MODEL, Q, R, rule_name)
+    assert by_filter.transform == by_rule.transform == filter_rule(rule_name)
+    assert by_filter.method == by_rule.method
+
+
+def test_an_unknown_name_lists_filters_and_rules():
+    with pytest.raises(SymmonError, match=r"unknown filter or rule 'kalman'; filters: ekf.*rules: tt1"):
+        filter_rule("kalman")
+    with pytest.raises(SymmonError, match=r"unknown filter 'kalman'; known: kf, ekf, tt1"):
+        filter_entry("kalman")
+
+
+@pytest.mark.parametrize("name", filter_names(scenario=True))
+def test_every_scenario_filter_builds_from_its_name_and_aliases(name):
+    entry = filter_entry(name)
+    lin_f = sm.Model([x, v], [x + v, v], name="contract_lin_f")
+    for alias in (name, *entry.aliases, name.upper()):
+        filt = make_filter(alias, lin_f, H_MODEL, Q, R)
+        assert isinstance(filt, entry.kind) and isinstance(filt, Filter)
+
+
+def test_the_registry_checks_settings_and_what_a_model_can_give():
+    with pytest.raises(SymmonError, match=r"unknown settings \['speed'\]"):
+        make_filter("pf", F_MODEL, H_MODEL, Q, R, settings={"speed": 1})
+    with pytest.raises(SymmonError, match="setting 'particles' must be int"):
+        make_filter("pf", F_MODEL, H_MODEL, Q, R, settings={"particles": 2.5})
+    assert make_filter("rpf", F_MODEL, H_MODEL, Q, R).regularise
+    assert make_filter("iekf", F_MODEL, H_MODEL, Q, R, settings={"iterations": 3}).iterations == 3
+    with pytest.raises(ModelError, match="'kf' needs a linear dynamics"):
+        make_filter("kf", sm.Model([x, v], [x + v**2, v]), H_MODEL, Q, R)
+    with pytest.raises(SymmonError, match="one filter per mode"):
+        make_filter("imm", F_MODEL, H_MODEL, Q, R)
+
+
+def test_the_linear_kf_entry_is_the_kalman_filter_of_the_model():
+    lin_f = sm.Model([x, v], [x + v, v], name="contract_lin_f")
+    kf = make_filter("kf", lin_f, H_MODEL, Q, R)
+    np.testing.assert_array_equal(kf.F, [[1.0, 1.0], [0.0, 1.0]])
+    np.testing.assert_array_equal(kf.H, [[1.0, 0.0]])
+
+
+def test_a_name_is_registered_once():
+    with pytest.raises(SymmonError, match="'tt1' is 'ekf''s already"):
+        register(FilterEntry("other", "clash", sm.NonlinearKalmanFilter, lambda *a: None, aliases=("tt1",)))
+    with pytest.raises(SymmonError, match="subclass of symmon.filters.base.Filter"):
+        register(FilterEntry("other", "not a filter", dict, lambda *a: None))
