@@ -59,7 +59,7 @@ import os
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar, Iterable
+from typing import ClassVar, Iterable
 from functools import cached_property
 
 import numpy as np
@@ -82,7 +82,6 @@ from ...core.gaussian import Gaussian, as_covariance
 from ...core.model import Model
 from ...transforms.unscented import UT
 from ...transforms.base import Transform
-from ...transforms.executor import Executor
 from ..names import filter_rule
 
 __all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest", "MAX_ITERATIONS"]

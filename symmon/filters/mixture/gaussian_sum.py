@@ -100,7 +100,7 @@ import hashlib
 import threading
 from dataclasses import dataclass, field
 from functools import cached_property, lru_cache
-from typing import Any, ClassVar, Iterable
+from typing import Any, ClassVar
 
 import casadi as ca
 import numpy as np

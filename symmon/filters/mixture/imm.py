@@ -50,20 +50,19 @@ import ctypes
 import hashlib
 import threading
 from dataclasses import dataclass
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ...core.angles import wrap_angle
 from ...core.arrays import readonly
-from ...core.gaussian import Gaussian, float_array
+from ...core.gaussian import float_array
 from ...compile.ccache import NativeLibrary
 from ...compile.compiled import WorkArrays, generated_c, in_threads
 from ...errors import (ArgumentError, ArgumentTypeError, CovarianceError, ModelError, NonFiniteError, ShapeError,
                       SymmonError)
 from ..base import Filter
-from ..gaussian.nonlinear import NonlinearKalmanFilter
 from ..inputs import FilterCall, param_values
 from ..results import KalmanResult, nees_of, quadratic_forms
 from ..gaussian.step import compiled_step, chunk_runs
@@ -301,8 +300,7 @@ class IMM(Filter):
             With ``x_true``: a combined P is singular.
         """
         n, n_y = self.n, self.n_y
-        runs, K = call.runs, call.steps
-        R = runs or 1
+        runs = call.runs
         m0, C0, truth, pvs = call.x0, call.P0, call.truth, call.pv
         Yb = call.Y
         angles = sorted(self.angle_states)

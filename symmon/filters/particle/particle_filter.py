@@ -73,13 +73,11 @@ from typing import Any, ClassVar, Iterable
 
 import numpy as np
 import sympy as sp
-from numpy.typing import ArrayLike
 
 from ...compile.compiled import compiled_with_params
 from ...compile.compiled import in_threads, row_spans
 from ...core.angles import wrap_angle
 from ...core.gaussian import Gaussian
-from ...core.mixture import Empirical, GaussianMixture
 from ...core.model import Model
 from ...errors import ArgumentError, DegeneracyWarning, ModelError, NonFiniteError, ShapeError, SymmonError, plain_repr
 from ...transforms.taylor import TT1
@@ -89,6 +87,7 @@ from ..base import Filter
 from ..gaussian.nonlinear import NonlinearKalmanFilter
 from ..inputs import FilterCall, check_bank_size, kept_numbers, param_values
 from ..results import KalmanResult, nees_of
+from ..samples import circular_means, prior_samples, semidefinite_cholesky, weighted_moments
 from ..simulation import check_count, check_prior
 from ._kernel import MIN_THREAD_NUMBERS, BootstrapKernel, bootstrap_kernel, whitening
 from ._rng import CHUNK, lane_states, stream_states
@@ -407,20 +406,9 @@ class ParticleFilter(Filter):
         return ll, Hx, S_all
 
     def _moments(self, X: np.ndarray, W: np.ndarray, cov: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
-        """The weighted mean (circular for angle states) and covariance (deviations
-        wrapped; None without ``cov``) of particles X (R, N, n) with normalised weights W (R, N)."""
-        mean = np.matmul(W[:, None, :], X)[:, 0]
-        angles = list(self.space.angle_states)
-        if angles:
-            A = X[..., angles]
-            mean[:, angles] = _circular_means(W, A)
-        if not cov:
-            return mean, None
-        D = X - mean[:, None, :]
-        if angles:
-            D[..., angles] = wrap_angle(D[..., angles])
-        C = np.einsum("rni,rnj->rij", D * W[..., None], D)
-        return mean, 0.5 * (C + C.transpose(0, 2, 1))
+        """The weighted mean and covariance of particles X (R, N, n) with weights W (R, N)
+        (:func:`~symmon.filters.samples.weighted_moments`, angle states circular)."""
+        return weighted_moments(X, W, self.space.angle_states, cov)
 
     def _measurement_moments(self, Hx: np.ndarray, W: np.ndarray, Y: np.ndarray,
                              S_noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -431,7 +419,7 @@ class ParticleFilter(Filter):
         ang = list(self.space.angle_outputs)
         if ang:
             A = Hx[..., ang]
-            mean[:, ang] = _circular_means(W, A)
+            mean[:, ang] = circular_means(W, A)
         D = Hx - mean[:, None, :]
         if ang:
             D[..., ang] = wrap_angle(D[..., ang])
@@ -521,7 +509,7 @@ class ParticleFilter(Filter):
         # NumPy's streams of the runs, where NumPy draws (the compiled path needs only their seeds)
         rngs = None if prior_c else run_streams(self.seed, Rr, first_run)
         X = (np.empty((Rr, N, n)) if prior_c
-             else ss.wrap_states(np.stack([_prior_particles(x0, N, g) for g in rngs])))
+             else ss.wrap_states(np.stack([prior_samples(x0, N, g) for g in rngs])))
         logW = np.full((Rr, N), -math.log(N)) if loops is None else None  # the compiled path returns its own
         want = lambda *k: any(a in names for a in k)  # noqa: E731
         out = {k: np.empty((Rr, K) + s) for k, s in (("x", (n,)), ("P", (n, n)), ("x_pred", (n,)),
@@ -584,7 +572,7 @@ class ParticleFilter(Filter):
                 if self.regularise:
                     for r in redo:
                         eps = replay["j"][r, k] if replay is not None else rngs[r].standard_normal((N, n))
-                        X[r] = ss.wrap_states(X[r] + self.bandwidth * rows_times(eps, _semidefinite_cholesky(spread[1][r])))
+                        X[r] = ss.wrap_states(X[r] + self.bandwidth * rows_times(eps, semidefinite_cholesky(spread[1][r])))
                 logW[redo] = -math.log(N)
                 resampled[redo, k] = True
 
@@ -802,43 +790,6 @@ class ParticleFilter(Filter):
             y_hat = (np.where(np.isnan(Yrep[:, 0]), 0.0, Yrep[:, 0]) - out["innovation"][:, 0]).reshape(Rr, N, -1)
             S_i = out["S"][:, 0].reshape(Rr, N, ss.n_y, ss.n_y)
         return Xn, inc, fx.reshape(Rr, N, n), y_hat, S_i
-
-
-def _prior_particles(x0: Gaussian | GaussianMixture | Empirical, N: int, g: np.random.Generator) -> np.ndarray:
-    """N draws of x0 from ``g``: ``x0.sample``, except that a Gaussian's rows are multiplied
-    by its square root L without BLAS (the same normals; OpenBLAS would split the product
-    over threads that then spin against the compiled recursion's, statespace.rows_times),
-    and by one broadcast product where L is diagonal (einsum's loop over the zeros of a
-    diagonal L of 20 states took most of a short filter call's Python time)."""
-    if not isinstance(x0, Gaussian):
-        return np.asarray(x0.sample(N, g), dtype=float)
-    Z, L = g.standard_normal((N, x0.dim)), x0.sqrt_cov()
-    d = np.diag(L)
-    if np.count_nonzero(L) == np.count_nonzero(d):  # diagonal
-        Z *= d
-        return Z + np.asarray(x0.mean, dtype=float)
-    return np.asarray(x0.mean, dtype=float) + rows_times(Z, L)
-
-
-def _semidefinite_cholesky(C: np.ndarray) -> np.ndarray:
-    """The lower Cholesky factor L (L Lᵀ = C) of a positive semidefinite C, a zero column
-    where a pivot is not positive (the kernel's C twin, pf_kernel's ``_chol``)."""
-    n = C.shape[0]
-    L = np.zeros_like(C)
-    for j in range(n):
-        d = C[j, j] - L[j, :j] @ L[j, :j]
-        if not (d > 1e-14 * C[j, j] and d > 0):
-            continue
-        L[j, j] = math.sqrt(d)
-        L[j + 1:, j] = (C[j + 1:, j] - L[j + 1:, :j] @ L[j, :j]) / L[j, j]
-    return L
-
-
-def _circular_means(W: np.ndarray, A: np.ndarray) -> np.ndarray:
-    """The weighted mean directions atan2(Σ W sin A, Σ W cos A) of angles A (R, N, i) with
-    weights W (R, N), per run: :func:`symmon.core.angles.circular_mean` with one weight
-    vector per run."""
-    return np.arctan2(np.einsum("rn,rni->ri", W, np.sin(A)), np.einsum("rn,rni->ri", W, np.cos(A)))
 
 
 def _store_measurement(out: dict, k: int, nu: np.ndarray, S: np.ndarray) -> None:
