@@ -22,7 +22,7 @@ __all__ = ["CHUNK", "LANES", "LANE_TAG", "STREAM_TAG", "lane_states", "stream_st
 
 #: Particles per random stream (a fixed split, so threads do not change the numbers); one
 #: block of the kernel (:data:`~symmon.filters.particle._kernel.BLOCK`), so that 1000 particles are
-#: four chunks, which two threads can share (1024 until 2026-12-04).
+#: four chunks, which two threads can share.
 CHUNK = 256
 #: The spawn-key entry that marks the particle filter's C streams among a run's children.
 STREAM_TAG = 0x50465247  # "PFRG"
