@@ -25,7 +25,7 @@ import re
 from functools import lru_cache
 from importlib import resources
 
-__all__ = ["c_file", "c_defines", "fill", "C_IDENTIFIER"]
+__all__ = ["c_file", "c_text", "c_defines", "fill", "C_IDENTIFIER"]
 
 #: A C identifier (ASCII): what a name put into symmon's C may be.
 C_IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -47,6 +47,24 @@ def c_file(package: str, name: str) -> str:
     if not re.fullmatch(r"[A-Za-z0-9_]+\.[ch]", name):
         raise ValueError(f"name must be a .c or .h file name without a directory, got {name!r}")
     return resources.files(package).joinpath(name).read_text(encoding="utf-8")
+
+
+def c_text(package: str, name: str) -> str:
+    """The text of the C file ``name`` of ``package`` after its guarded block (its first
+    ``#if`` line up to the next ``#endif`` line, and the comments before them): C that is put
+    into other C word for word (CasADi's generated code), and compiles alone only with the
+    block's definitions.
+
+    Raises
+    ------
+    ValueError
+        If ``name`` is not a plain file name, or the file has no ``#if`` block.
+    """
+    text = c_file(package, name)
+    m = re.search(r"^#if.*?^#endif[^\n]*\n", text, flags=re.S | re.M)
+    if m is None:
+        raise ValueError(f"{name} has no guarded block (#if ... #endif) to skip")
+    return text[m.end():]
 
 
 def _c_value(key: str, value: object) -> str:
