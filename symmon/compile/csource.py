@@ -25,10 +25,11 @@ import re
 from functools import lru_cache
 from importlib import resources
 
-__all__ = ["c_file", "c_text", "c_defines", "fill", "C_IDENTIFIER"]
+__all__ = ["c_file", "c_text", "c_source", "c_defines", "fill", "C_IDENTIFIER"]
 
 #: A C identifier (ASCII): what a name put into symmon's C may be.
 C_IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+_INCLUDE = re.compile(r'^#include "([A-Za-z0-9_]+\.[ch])"\n', flags=re.M)
 _PLACEHOLDER = re.compile(r"@([A-Za-z_][A-Za-z0-9_]*)@")
 
 
@@ -65,6 +66,21 @@ def c_text(package: str, name: str) -> str:
     if m is None:
         raise ValueError(f"{name} has no guarded block (#if ... #endif) to skip")
     return text[m.end():]
+
+
+def c_source(package: str, name: str) -> str:
+    """The text of the C file ``name`` of ``package`` with each of its lines
+    ``#include "OTHER"`` (a file of the same package, named without a directory) replaced by
+    the text of that file, as the preprocessor would: C that two kernels share stays one
+    file, and a file that includes it compiles alone.  (Includes with a directory, such as
+    the ``../../compile/casadi_alone.h`` of a guarded block, are left as they are.)
+
+    Raises
+    ------
+    ValueError
+        If ``name`` or an included name is not a plain ``.c`` or ``.h`` file name.
+    """
+    return _INCLUDE.sub(lambda m: c_source(package, m.group(1)), c_file(package, name))
 
 
 def _c_value(key: str, value: object) -> str:
