@@ -12,6 +12,10 @@ A file that needs such definitions states them in a block guarded by its first m
 example values and the prototypes of what the assembled source puts before it, so that each
 file compiles alone (``tests/compile/test_c_files.py`` compiles every file with
 ``-std=c99 -Wall -Wextra -Werror -pedantic``); in a kernel's source the block is skipped.
+C that two kernels share is a file of its own that each includes (``#include "name.c"``):
+:func:`c_source` puts its text in place of the line, as the preprocessor would.  C that is
+put into other C word for word (symmon's products in CasADi's generated code, and CasADi's
+own text they replace) is read by :func:`c_text`, after the file's guarded block.
 
 The standalone C of :func:`symmon.export_c` is a template instead (it is read by people, and
 built by their tool chains, not symmon's): :func:`fill` replaces its ``@NAME@`` placeholders
