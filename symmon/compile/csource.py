@@ -12,6 +12,10 @@ A file that needs such definitions states them in a block guarded by its first m
 example values and the prototypes of what the assembled source puts before it, so that each
 file compiles alone (``tests/compile/test_c_files.py`` compiles every file with
 ``-std=c99 -Wall -Wextra -Werror -pedantic``); in a kernel's source the block is skipped.
+C that two kernels share is a file of its own that each includes (``#include "name.c"``):
+:func:`c_source` puts its text in place of the line, as the preprocessor would.  C that is
+put into other C word for word (symmon's products in CasADi's generated code, and CasADi's
+own text they replace) is read by :func:`c_text`, after the file's guarded block.
 
 The standalone C of :func:`symmon.export_c` is a template instead (it is read by people, and
 built by their tool chains, not symmon's): :func:`fill` replaces its ``@NAME@`` placeholders
@@ -25,10 +29,11 @@ import re
 from functools import lru_cache
 from importlib import resources
 
-__all__ = ["c_file", "c_defines", "fill", "C_IDENTIFIER"]
+__all__ = ["c_file", "c_text", "c_source", "c_defines", "fill", "C_IDENTIFIER"]
 
 #: A C identifier (ASCII): what a name put into symmon's C may be.
 C_IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+_INCLUDE = re.compile(r'^#include "([A-Za-z0-9_]+\.[ch])"\n', flags=re.M)
 _PLACEHOLDER = re.compile(r"@([A-Za-z_][A-Za-z0-9_]*)@")
 
 
@@ -47,6 +52,39 @@ def c_file(package: str, name: str) -> str:
     if not re.fullmatch(r"[A-Za-z0-9_]+\.[ch]", name):
         raise ValueError(f"name must be a .c or .h file name without a directory, got {name!r}")
     return resources.files(package).joinpath(name).read_text(encoding="utf-8")
+
+
+def c_text(package: str, name: str) -> str:
+    """The text of the C file ``name`` of ``package`` after its guarded block (its first
+    ``#if`` line up to the next ``#endif`` line, and the comments before them): C that is put
+    into other C word for word (CasADi's generated code), and compiles alone only with the
+    block's definitions.
+
+    Raises
+    ------
+    ValueError
+        If ``name`` is not a plain file name, or the file has no ``#if`` block.
+    """
+    text = c_file(package, name)
+    m = re.search(r"^#if.*?^#endif[^\n]*\n", text, flags=re.S | re.M)
+    if m is None:
+        raise ValueError(f"{name} has no guarded block (#if ... #endif) to skip")
+    return text[m.end():]
+
+
+def c_source(package: str, name: str) -> str:
+    """The text of the C file ``name`` of ``package`` with each of its lines
+    ``#include "OTHER"`` (a file of the same package, named without a directory) replaced by
+    the text of that file, as the preprocessor would: C that two kernels share stays one
+    file, and a file that includes it compiles alone.  (Includes with a directory, such as
+    the ``../../compile/casadi_alone.h`` of a guarded block, are left as they are.)
+
+    Raises
+    ------
+    ValueError
+        If ``name`` or an included name is not a plain ``.c`` or ``.h`` file name.
+    """
+    return _INCLUDE.sub(lambda m: c_source(package, m.group(1)), c_file(package, name))
 
 
 def _c_value(key: str, value: object) -> str:

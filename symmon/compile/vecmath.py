@@ -4,8 +4,9 @@ The Monte Carlo kernel (:mod:`symmon.transforms.mc_kernel`) evaluates one compil
 per sample.  CasADi's generated C calls its function once per row, and libm's ``atan2``
 and ``hypot`` are scalar calls, so the loop runs one sample at a time.  Here:
 
-- :data:`VECMATH_C`: ``sm_atan2`` and ``sm_hypot`` in plain C without branches, written
-  for this package (no vendored library), so that gcc vectorises a loop that calls them.
+- :data:`VECMATH_C`: ``sm_atan2`` and ``sm_hypot`` in plain C without branches
+  (``vecmath.c``, its numbers computed here as ``SM_`` macros), written for this package
+  (no vendored library), so that gcc vectorises a loop that calls them.
   Both work in double-double arithmetic with explicit ``fma`` (an exact operation, not
   a contraction: the builds keep ``-ffp-contract=off``), and their results are the
   exact value rounded once more, within 1 ulp of the true value (measured against
@@ -47,6 +48,8 @@ from __future__ import annotations
 import casadi as ca
 import mpmath
 
+from .csource import c_defines, c_file
+
 __all__ = ["VECMATH_C", "VECTOR_OPS", "vector_rows", "ORDINARY_EXP", "EXP_LOW", "EXP_HIGH"]
 
 #: Arguments with |a| in [2^-ORDINARY_EXP, 2^ORDINARY_EXP] are ordinary: no product of the
@@ -68,99 +71,30 @@ def _tables() -> tuple[list[tuple[float, float]], tuple[float, float], tuple[flo
         return table, _dd(mpmath.pi / 2), _dd(mpmath.pi)
 
 
-def _select(var: str, values: list[float]) -> str:
-    """C statements that set ``var`` to values[k] for k = kd in 0, 1, ..., 8: one select
-    after another (gcc does not if-convert the nested form, nor vectorise a table load)."""
-    out = [f"double {var} = {values[-1].hex()};"]
-    out += [f"{var} = kd < {k + 0.5} ? {values[k].hex()} : {var};" for k in range(len(values) - 2, -1, -1)]
-    return "\n  ".join(out)
-
-
-def _vecmath_c() -> str:
+def _constants() -> dict[str, float]:
+    """The numbers of ``vecmath.c``, its ``SM_`` macros: the table of atan(k/8) for k = 0 ... 8
+    and π/2, π as double-doubles, the Taylor coefficients of atan (−1/3, 1/5, ..., −1/15) and of
+    exp (1/2!, ..., 1/13!), Cody and Waite's split of ln 2, and the ranges of the ordinary
+    arguments."""
     table, (p2h, p2l), (pih, pil) = _tables()
-    hi, lo = (_select(var, [v[j] for v in table]) for j, var in ((0, "ch"), (1, "cl")))
-    coeffs = [(-1) ** j / (2 * j + 1) for j in range(1, 8)]  # -1/3, 1/5, ..., -1/15
-    poly = "0.0"
-    for c in reversed(coeffs):
-        poly = f"({c.hex()} + u2 * {poly})" if poly != "0.0" else c.hex()
-    big, small = f"0x1p+{ORDINARY_EXP}", f"0x1p-{ORDINARY_EXP}"
-    epoly = "0.0"
-    for j in range(13, 1, -1):  # 1/2! + r/3! + ... + r^11/13!, by Horner
-        c = (1 / mpmath.factorial(j))
-        epoly = float(c).hex() if epoly == "0.0" else f"({float(c).hex()} + rh * {epoly})"
     with mpmath.workprec(256):
         ln2 = mpmath.log(2)
         ln2_hi = float(mpmath.floor(ln2 * 2**32) / 2**32)  # 32 bits: k ln2_hi exact for |k| < 2^21
         ln2_lo = float(ln2 - ln2_hi)
         log2e = float(1 / ln2)
-    return f"""
-/* symmon.compile.vecmath: atan2, hypot and exp within 1 ulp, branch-free for vectorised loops. */
-#include <math.h>
-#include <string.h>
-static inline int sm_ordinary(double a) {{ a = fabs(a); return (a >= {small}) & (a <= {big}); }}
-static inline double sm_atan2(double y, double x) {{
-  double ax = fabs(x), ay = fabs(y);
-  int swap = ay > ax;
-  double n = swap ? ax : ay, d = swap ? ay : ax;
-  /* Two divisions, by reciprocals: the residuals (fma, exact) carry each quotient's error. */
-  double rd = 1.0 / d, t = n * rd, tl = fma(-t, d, n) * rd;
-  /* t is NaN or outside [0, 1] only where the arguments are not ordinary: index 0 there. */
-  double kd = floor((((t >= 0.0) & (t <= 1.0)) ? t : 0.0) * 8.0 + 0.5);
-  double c = kd * 0.125;
-  /* t - c is exact (Sterbenz: c/2 <= t <= 2c when k >= 1). */
-  double nh = t - c, numh = nh + tl, bv = numh - nh;
-  double numl = (nh - (numh - bv)) + (tl - bv);
-  double pr = t * c, pe = fma(t, c, -pr);
-  double dh = 1.0 + pr, dl = ((1.0 - dh) + pr) + (pe + tl * c);
-  double rdh = 1.0 / dh, uh = numh * rdh, ul = ((fma(-uh, dh, numh) + numl) - uh * dl) * rdh;
-  double u2 = uh * uh;
-  double tail = ul + uh * (u2 * {poly});
-  /* atan(k/8) by selects, not a table: gcc does not vectorise the table's load. */
-  {hi}
-  {lo}
-  double rh = ch + uh, b2 = rh - ch;
-  double rl = ((ch - (rh - b2)) + (uh - b2)) + (cl + tail);
-  /* pi/2 - r when |y| > |x|, then pi - r when x < 0; the head differences are exact. */
-  double sh = {p2h.hex()} - rh, sl = (({p2h.hex()} - sh) - rh) + ({p2l.hex()} - rl);
-  rh = swap ? sh : rh; rl = swap ? sl : rl;
-  sh = {pih.hex()} - rh; sl = (({pih.hex()} - sh) - rh) + ({pil.hex()} - rl);
-  int neg = x < 0;
-  rh = neg ? sh : rh; rl = neg ? sl : rl;
-  return copysign(rh + rl, y);
-}}
-/* exp(x) for x in [-EXP_LOW, EXP_HIGH] (a normal result; sm_exp_ordinary): x = k ln 2 + r,
-   |r| <= ln2/2 + tiny, r as a double-double (Cody and Waite: k ln2_hi exact), then
-   exp r = 1 + r + r^2 (1/2! + ... + r^11/13!) (the next term is below 2^-60 of the result),
-   1 + r_h summed exactly, and the scale 2^k made from the bits of the rounding constant. */
-static inline int sm_exp_ordinary(double x) {{ return (x >= {-EXP_LOW}) & (x <= {EXP_HIGH}); }}
-static inline double sm_exp(double x) {{
-  double kd = x * {log2e.hex()} + 0x1.8p52;  /* k = round(x / ln 2) in kd's low bits */
-  double k = kd - 0x1.8p52;
-  double r0 = x - k * {ln2_hi.hex()}, kl = k * {ln2_lo.hex()};  /* r0 exact */
-  double rh = r0 - kl, rl = (r0 - rh) - kl;
-  double q = rh * rh * {epoly} + rl * (1.0 + rh);
-  double sh = 1.0 + rh, se = (1.0 - sh) + rh;  /* exact: |rh| < 1 */
-  unsigned long long bits;
-  double scale;
-  memcpy(&bits, &kd, sizeof bits);
-  bits = (bits + 1023ULL) << 52;  /* kd's low 12 bits hold k + 2^51: the exponent k + 1023 */
-  memcpy(&scale, &bits, sizeof scale);
-  return (sh + (se + q)) * scale;
-}}
-static inline double sm_hypot(double x, double y) {{
-  double ax = fabs(x), ay = fabs(y);
-  double x2 = ax * ax, x2e = fma(ax, ax, -x2), y2 = ay * ay, y2e = fma(ay, ay, -y2);
-  double s = x2 + y2, bv = s - x2, se = (x2 - (s - bv)) + (y2 - bv);
-  double h = sqrt(s), hh = h * h, he = fma(h, h, -hh);
-  /* s - hh is exact (Sterbenz); the residual x^2 + y^2 - h^2 to about 2^-104 relative. */
-  double r = (s - hh) + ((se + x2e + y2e) - he);
-  return h + r / (2.0 * h);
-}}
-"""
+    out = {"SM_SMALL": 2.0 ** -ORDINARY_EXP, "SM_BIG": 2.0 ** ORDINARY_EXP}
+    out.update({f"SM_ATAN_HI{k}": hi for k, (hi, _) in enumerate(table)})
+    out.update({f"SM_ATAN_LO{k}": lo for k, (_, lo) in enumerate(table)})
+    out.update({f"SM_ATAN_C{2 * j + 1}": (-1) ** j / (2 * j + 1) for j in range(1, 8)})
+    out.update(SM_PI2_HI=p2h, SM_PI2_LO=p2l, SM_PI_HI=pih, SM_PI_LO=pil, SM_EXP_MIN=-EXP_LOW,
+               SM_EXP_MAX=EXP_HIGH, SM_LOG2E=log2e, SM_LN2_HI=ln2_hi, SM_LN2_LO=ln2_lo)
+    out.update({f"SM_EXP_C{j}": float(1 / mpmath.factorial(j)) for j in range(2, 14)})
+    return out
 
 
-#: The C of ``sm_atan2`` and ``sm_hypot`` (see the module docstring).
-VECMATH_C = _vecmath_c()
+#: The C of ``sm_atan2``, ``sm_exp`` and ``sm_hypot`` (``vecmath.c`` after its ``SM_`` macros;
+#: see the module docstring).
+VECMATH_C = c_defines(**_constants()) + c_file(__package__, "vecmath.c")
 
 #: CasADi SX operations the vector loop writes out, as C of their operands (strings).
 VECTOR_OPS = {

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 import symmon
-from symmon.compile import ccache
-from symmon.compile.csource import c_defines, c_file, fill
+from symmon.compile import ccache, csource
+from symmon.compile.csource import c_defines, c_file, c_source, c_text, fill
 
 PACKAGE = Path(symmon.__file__).parent
 C_FILES = sorted(PACKAGE.rglob("*.c"))
@@ -23,9 +23,7 @@ STRICT = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-fsyntax-only
 MAX_C_LINES = 10
 #: Modules whose C has not moved into files yet (issue 49, item 3, still open for these): the test
 #: fails when one of them no longer holds C, so that the list only shrinks.
-PENDING = {"compile/ckernels.py", "compile/vecmath.py", "filters/gaussian/_ekfsmooth.py",
-           "filters/gaussian/_ekfstep.py", "filters/gaussian/export.py", "filters/gaussian/fit.py",
-           "filters/gaussian/smoother.py", "filters/gaussian/step.py", "filters/mixture/imm.py"}
+PENDING = {"filters/gaussian/export.py", "filters/gaussian/fit.py", "filters/mixture/imm.py"}
 _C_LINE = re.compile(r"[;{}]\s*(//.*|/\*.*\*/)?$")
 
 
@@ -110,6 +108,25 @@ def test_the_cache_key_covers_the_c_text(monkeypatch, tmp_path):
 def test_c_file_refuses_a_path():
     with pytest.raises(ValueError, match="name"):
         c_file("symmon.compile", "../compile/rows.c")
+
+
+def test_c_text_is_the_file_after_its_guarded_block(monkeypatch):
+    text = c_file("symmon.compile", "mtimes_dense.c")
+    body = c_text("symmon.compile", "mtimes_dense.c")
+    assert text.endswith(body) and body.startswith("void casadi_mtimes_dense(")
+    assert "#endif" not in body and "casadi_alone.h" not in body
+    monkeypatch.setattr(csource, "c_file", lambda package, name: "int f(void);\n")
+    with pytest.raises(ValueError, match="f.c has no guarded block"):
+        c_text("symmon.compile", "f.c")
+
+
+def test_c_source_puts_the_included_files_of_the_package_in_place():
+    step = c_file("symmon.filters.gaussian", "ekf_step.c")
+    assert '#include "ekf_dense.c"\n' in step
+    text = c_source("symmon.filters.gaussian", "ekf_step.c")
+    assert '#include "ekf_dense.c"' not in text
+    assert c_file("symmon.filters.gaussian", "ekf_dense.c") in text
+    assert '#include "../../compile/casadi_alone.h"' in text  # a path: the guarded block's, kept
 
 
 def test_c_defines_takes_numbers_and_identifiers_only():

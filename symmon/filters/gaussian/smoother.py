@@ -50,7 +50,8 @@ from ...compile.compiled import generated_c
 from ...core.model import Model
 from ...errors import SymmonError
 from ...transforms.base import Transform
-from ...compile.ckernels import STOP_POLL
+from ...compile.ckernels import STOPPED
+from ...compile.csource import c_defines, c_file
 from ._ekfsmooth import backward_c, backward_in_c, backward_pieces
 from ._sqrtstep import covariance_of, noise_factor, sqrt_predict_graph
 from .step import CompiledLoop, chunk_runs, predict_graph, select_params, sym
@@ -104,47 +105,6 @@ def sqrt_backward_graph(f: Model, transform: Transform, angle_states: frozenset[
     return x_s, residual_factor(cols.W, cols.Y, gain, cols.Wn, cols.Yn, extra=ca.mtimes(gain, Ss))
 
 
-# The backward loop: for each run, x^s_K = x_K, then K − 1 steps down to the first.
-_DRIVER = """
-/* symmon: the RTS backward pass of {name} over a bank: x (runs*K*n), P (runs*K*n*n) filtered;
-   xs, Ps smoothed, the same layout; stop (not null) is polled before each step, as in the
-   filter's loop.  s: the scratch of a C backward step ({scratch} reals), one block per call. */
-#include <stdlib.h>
-static int {name}_loop(const casadi_real* x, const casadi_real* P, const casadi_real* Q,
-    const casadi_real* p, casadi_real* xs, casadi_real* Ps, casadi_int runs, casadi_int K, casadi_int* iw,
-    casadi_real* w, const volatile int* stop, casadi_real* s) {{
-  const casadi_real* arg[{sz_arg}];
-  casadi_real* res[{sz_res}];
-  casadi_int r, k, i;
-  for (r = 0; r < runs; ++r) {{
-    i = r * K + K - 1;
-    for (k = 0; k < {n}; ++k) xs[i * {n} + k] = x[i * {n} + k];
-    for (k = 0; k < {nn}; ++k) Ps[i * {nn} + k] = P[i * {nn} + k];
-    for (k = K - 2; k >= 0; --k) {{
-      {stop_poll}
-      i = r * K + k;
-      arg[0] = x + i * {n}; arg[1] = P + i * {nn}; arg[2] = xs + (i + 1) * {n};
-      arg[3] = Ps + (i + 1) * {nn}; arg[4] = Q; arg[5] = p + (i + 1) * {n_p};
-      res[0] = xs + i * {n}; res[1] = Ps + i * {nn};
-      if ({call}) return 1;
-    }}
-  }}
-  return 0;
-}}
-
-CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x, const casadi_real* P, const casadi_real* Q,
-    const casadi_real* p, casadi_real* xs, casadi_real* Ps, casadi_int runs, casadi_int K, casadi_int* iw,
-    casadi_real* w, const volatile int* stop) {{
-  casadi_real* s = 0;
-  int code;
-  if ({scratch} && !(s = (casadi_real*)malloc({scratch} * sizeof(casadi_real)))) return 1;
-  code = {name}_loop(x, P, Q, p, xs, Ps, runs, K, iw, w, stop, s);
-  free(s);
-  return code;
-}}
-"""
-
-
 class _CompiledSmoother(CompiledLoop):
     """The backward step of one (f, transform), as C with its loop or on CasADi's VM."""
 
@@ -162,13 +122,15 @@ class _CompiledSmoother(CompiledLoop):
             xs, ps = ca.SX.sym("x", self.n), ca.SX.sym("p", self.n_p)
             funcs, pattern = backward_pieces(f, angle_states, select_params(f, names, ps), xs, ps, name)
             step_code, scratch = backward_c(name, self.n, pattern)
-            code, call = generated_c(*funcs) + step_code, f"{name}_bwd(arg, res, iw, w, s)"
+            code, step, s = generated_c(*funcs) + step_code, f"{name}_bwd", "s"
         else:
             funcs, scratch = (fn,), 0
-            code, call = generated_c(fn), f"{name}(arg, res, iw, w, 0)"
-        code += _DRIVER.format(name=name, sz_arg=max(max(g.sz_arg() for g in funcs), 6),
-                               sz_res=max(max(g.sz_res() for g in funcs), 2), n=self.n, nn=self.n * self.n,
-                               n_p=self.n_p, stop_poll=STOP_POLL, call=call, scratch=scratch)
+            code, step, s = generated_c(fn), name, 0
+        # The backward loop (rts_loop.c): for each run, x^s_K = x_K, then K − 1 steps down to the first.
+        code += c_defines(
+            RTL_NAME=name, RTL_STEP=step, RTL_S=s, RTL_SZ_ARG=max(max(g.sz_arg() for g in funcs), 6),
+            RTL_SZ_RES=max(max(g.sz_res() for g in funcs), 2), RTL_N=self.n, RTL_NN=self.n * self.n,
+            RTL_N_P=self.n_p, RTL_SCRATCH=scratch, RTL_STOPPED=STOPPED) + c_file(__package__, "rts_loop.c")
         # The C backward step is small (16-20 KB at n = 10-30) but its gcc run would still be most of
         # a first call: it builds in the background while the MX step runs on the VM.
         super().__init__(fn, code, [ctypes.c_void_p] * 6 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 3,

@@ -48,7 +48,8 @@ import casadi as ca
 import numpy as np
 
 from ...compile.ccache import NativeLibrary
-from ...compile.ckernels import STOP_POLL, STOPPED
+from ...compile.ckernels import STOPPED
+from ...compile.csource import c_defines, c_file
 from ...compile.compiled import WorkArrays, compiled, compiled_with_params, cpu_count, even_spans, generated_c, in_threads, padded
 from ...errors import SymmonError
 from ...core.model import Model
@@ -247,88 +248,6 @@ def _nees_function(f: Model, h: Model, transform: Transform, angle_states: froze
     return ca.Function(name, [x, P, t], list(outs), ["x", "P", "truth"], ["nees", "trace"], {"cse": True})
 
 
-# The run loop: for each run, K steps, each reading the previous step's output.  casadi_int
-# is CasADi's default, long long.  x0/P0 advance by x0_step/P0_step per run (0: shared).
-_DRIVER = """
-/* symmon: a bank of runs of the filter step {name}.  outs[j] is output j's block and
-   strides[j] its size per step; a stride of 0 means "not kept": the step does not write it
-   (a null result), but x and P, which the next step reads, go to two slots, alternately,
-   so that a step never writes what it reads.  With the true states (truth, not null), each
-   step's NEES and its singularity test go to outs[8] and outs[9] ({name}nees_of).  With
-   failed (not null), failed[r] is the first step of run r whose x, P or log-likelihood is
-   not finite (the run stops there), or -1.  Before each step it polls stop (not null): set
-   by the thread that waits for the bank when that is interrupted, it ends the loop. */
-#include <stdlib.h>
-#include <string.h>
-static int {name}_nonfinite(const casadi_real* a, casadi_int n) {{
-  /* An exponent of all ones is inf or NaN; an integer test, so that the loop vectorises. */
-  unsigned long long u, bad = 0;
-  casadi_int j;
-  for (j = 0; j < n; ++j) {{
-    memcpy(&u, a + j, sizeof u);
-    bad |= (u & 0x7ff0000000000000ULL) == 0x7ff0000000000000ULL;
-  }}
-  return bad != 0;
-}}
-
-static int {name}_loop(const casadi_real* x0, casadi_int x0_step,
-    const casadi_real* P0, casadi_int P0_step, const casadi_real* y,
-    const casadi_real* Q, const casadi_real* R, const casadi_real* mask, const casadi_real* p,
-    const casadi_real* truth, casadi_real* const* outs, const casadi_int* strides, casadi_int runs,
-    casadi_int K, casadi_int* iw, casadi_real* w, casadi_int* failed, const volatile int* stop,
-    casadi_real* s) {{
-  const casadi_real* arg[{sz_arg}];
-  casadi_real* res[{sz_res}];
-  casadi_real* res2[{sz_res}];
-  casadi_real ll;
-  casadi_int r, k, i, j;
-  for (r = 0; r < runs; ++r) {{
-    if (failed) failed[r] = -1;
-    const casadi_real* x = x0 + r * x0_step;
-    const casadi_real* P = P0 + r * P0_step;
-    for (k = 0; k < K; ++k) {{
-      {stop_poll}
-      i = r * K + k;
-      arg[0] = x; arg[1] = P; arg[2] = y + i * {n_y}; arg[3] = Q; arg[4] = R; arg[5] = mask + i * {n_y};
-      arg[6] = p + i * {n_p};
-      for (j = 0; j < 8; ++j) res[j] = strides[j] ? outs[j] + i * strides[j] : 0;
-      if (!strides[0]) res[0] = outs[0] + (k & 1) * {n};
-      if (!strides[1]) res[1] = outs[1] + (k & 1) * {nn};
-      if (failed && !res[6]) res[6] = &ll;
-      if ({call}) return 1;
-      x = res[0];
-      P = res[1];
-      if (failed && ({name}_nonfinite(res[6], 1) || {name}_nonfinite(x, {n}) || {name}_nonfinite(P, {nn}))) {{
-        failed[r] = k;
-        break;
-      }}
-      if (truth) {{
-        arg[0] = x; arg[1] = P; arg[2] = truth + i * {n};
-        res2[0] = outs[8] + i; res2[1] = outs[9] + i;
-        if ({name}nees_of(arg, res2, iw, w, 0)) return 1;
-      }}
-    }}
-  }}
-  return 0;
-}}
-
-/* The loop with its scratch ({scratch} reals: the C EKF step's work, one block per call). */
-CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step,
-    const casadi_real* P0, casadi_int P0_step, const casadi_real* y,
-    const casadi_real* Q, const casadi_real* R, const casadi_real* mask, const casadi_real* p,
-    const casadi_real* truth, casadi_real* const* outs, const casadi_int* strides, casadi_int runs,
-    casadi_int K, casadi_int* iw, casadi_real* w, casadi_int* failed, const volatile int* stop) {{
-  casadi_real* s = 0;
-  int code;
-  if ({scratch} && !(s = (casadi_real*)malloc({scratch} * sizeof(casadi_real)))) return 1;
-  code = {name}_loop(x0, x0_step, P0, P0_step, y, Q, R, mask, p, truth, outs, strides, runs, K, iw, w,
-                     failed, stop, s);
-  free(s);
-  return code;
-}}
-"""
-
-
 class CompiledLoop:
     """A step function ``f`` with its C loop ``{name}_run`` over the steps and runs of a bank,
     built by the compile policy of every generated function (docs/compile.md): a small one now,
@@ -377,7 +296,7 @@ class CompiledLoop:
     def run_chunks(self, part, chunks: list, what: str) -> None:
         """``part(chunk, stop)`` for each chunk of runs, on one thread per chunk (ctypes
         releases the GIL in the C call, so they run in parallel); ``stop`` is the address of
-        the flag the C loops poll between steps (:data:`~symmon.compile.ckernels.STOP_POLL`).
+        the flag the C loops poll between steps (its ``stop`` argument, ``step_loop.c``).
         A Ctrl-C (KeyboardInterrupt) of the waiting thread sets it and waits for the loops,
         which end at their next step, before it propagates: no loop of an interrupted bank
         keeps running in the shared pool for the next call to queue behind.
@@ -421,15 +340,16 @@ class _CompiledStep(CompiledLoop):
                                          transform.taylor_order)
             funcs = (self.nees_f,) + pieces
             ekf_code, scratch = ekf_c(name, n, n_y, pattern, iterations)
-            code, call = generated_c(*funcs) + ekf_code, f"{name}_ekf(arg, res, iw, w, s)"
+            code, step, s = generated_c(*funcs) + ekf_code, f"{name}_ekf", "s"
         else:
             funcs, scratch = (fn, self.nees_f), 0
-            code, call = generated_c(*funcs), f"{name}(arg, res, iw, w, 0)"
-        code += _DRIVER.format(
-            name=name, sz_arg=max(max(g.sz_arg() for g in funcs), 7), sz_res=max(max(g.sz_res() for g in funcs), 8),
-            n=self.n, nn=self.n * self.n, n_y=self.n_y, nyy=self.n_y * self.n_y, n_p=self.n_p,
-            stop_poll=STOP_POLL, call=call, scratch=scratch,
-        )
+            code, step, s = generated_c(*funcs), name, 0
+        # The run loop (step_loop.c): for each run, K steps, each reading the previous step's output.
+        code += c_defines(
+            KFL_NAME=name, KFL_STEP=step, KFL_S=s, KFL_NEES=f"{name}nees_of",
+            KFL_SZ_ARG=max(max(g.sz_arg() for g in funcs), 7), KFL_SZ_RES=max(max(g.sz_res() for g in funcs), 8),
+            KFL_N=self.n, KFL_NN=self.n * self.n, KFL_N_Y=self.n_y, KFL_N_P=self.n_p, KFL_SCRATCH=scratch,
+            KFL_STOPPED=STOPPED) + c_file(__package__, "step_loop.c")
         argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_longlong]
                     + [ctypes.c_void_p] * 8 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 4)
         super().__init__(fn, code, argtypes, also=funcs)
