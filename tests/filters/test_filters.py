@@ -637,8 +637,10 @@ def test_a_rule_without_a_filter_step_is_refused():
         sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]], sm.MonteCarlo(100))
     with pytest.raises(TypeError, match="transform or a filter strategy"):
         sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]], 3)
-    with pytest.raises(SymmonError, match="unknown transform 'ukf'"):
-        sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]], "ukf")
+    with pytest.raises(SymmonError, match="unknown filter or rule 'kalman'"):
+        sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]], "kalman")
+    # a filter's name is its rule (issue 47, item 11)
+    assert sm.NonlinearKalmanFilter(m, m, [[1.0]], [[1.0]], "ukf").transform == sm.UT.ut1()
 
 
 # --------------------------------------------------------------------------- the MX step
