@@ -582,7 +582,7 @@ def test_cli_filter_smooth_reports_the_smoother_as_the_api(capsys, tmp_path):
     assert " smoothed" in text and "no RTS smoother for the adaptive filter" in text and png.exists()
 
 
-@pytest.mark.parametrize("argv, match", [(["--filters", "ekf,foo"], "must be distinct names"),
+@pytest.mark.parametrize("argv, match", [(["--filters", "ekf,foo"], "must be distinct filters"),
                                          (["--runs", "0"], "positive integer"),
                                          (["--tol", "1.5"], "number in \\(0, 1\\)"),
                                          (["--seed", "-1"], "must be an integer >= 0")])
