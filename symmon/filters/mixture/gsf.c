@@ -388,7 +388,8 @@ CASADI_SYMBOL_EXPORT int sm_gsfk_run(casadi_int r0, casadi_int r1, casadi_int K,
       /* prune (the heaviest stays), merge down to Mk, renormalise */
       top = c.w[0];
       for (i = 1; i < N; ++i) if (c.w[i] > top) top = c.w[i];
-      for (i = 0; i < N; ++i) c.alive[i] = c.w[i] >= c.prune || c.w[i] == top;
+      /* weight 0: dropped even at prune 0 (a merge of two would divide by their total) */
+      for (i = 0; i < N; ++i) c.alive[i] = (c.w[i] >= c.prune && c.w[i] > 0) || c.w[i] == top;
       N = smg_compact(&c, n, N);
       if (N > c.Mk) {
         double* Pinv = c.sc + SMG_SC_DIR;
