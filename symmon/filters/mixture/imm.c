@@ -3,7 +3,8 @@
    the modes' x, P, x-, P-, nu, S, log Lambda (run, step, mode, ...), outs[7] mu and outs[8]
    cbar.  A mode's previous x and P are its outputs of the step before.  _FusedLoop puts
    before this file the generated C of the modes' steps (IMM_STEP_0 ... IMM_STEP_<M-1>, at most
-   IMM_MAX_MODES) and the IMM_ macros. */
+   IMM_MAX_MODES) and the IMM_ macros.  Before each step it polls stop (NULL: never), a flag
+   another thread may set (a Ctrl-C of the waiting thread), and returns IMM_STOPPED. */
 #ifndef IMM_M  /* checked alone: example macros (_FusedLoop defines them), and what comes before */
 #include "../../compile/casadi_alone.h"
 #define IMM_BAD imm_model_bad
@@ -19,6 +20,7 @@
 #define IMM_ANGLES 2
 #define IMM_SZ_ARG 7
 #define IMM_SZ_RES 8
+#define IMM_STOPPED 2
 int IMM_STEP_0(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int IMM_STEP_1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 #endif
@@ -104,7 +106,7 @@ CASADI_SYMBOL_EXPORT int IMM_RUN(const casadi_real* x0, casadi_int x0_step, cons
     casadi_int P0_step, const casadi_real* y, const casadi_real* mask, const casadi_real* const* Qs,
     const casadi_real* const* Rs, const casadi_real* const* ps, const casadi_int* p_sizes, const casadi_real* T,
     const casadi_real* mu0, casadi_real* const* outs, casadi_int runs, casadi_int K, casadi_int* iw,
-    casadi_real* w, casadi_int* failed) {
+    casadi_real* w, casadi_int* failed, const volatile int* stop) {
   const casadi_real* arg[IMM_SZ_ARG];
   casadi_real* res[IMM_SZ_RES];
   const casadi_real* xprev[IMM_M];
@@ -117,6 +119,7 @@ CASADI_SYMBOL_EXPORT int IMM_RUN(const casadi_real* x0, casadi_int x0_step, cons
     failed[2 * r + 1] = -1;
     for (j = 0; j < IMM_M; ++j) mu[j] = mu0[j];
     for (k = 0; k < K; ++k) {
+      if (stop && *stop) return IMM_STOPPED;
       t = r * K + k;
       for (i = 0; i < IMM_M; ++i) {
         xprev[i] = k ? outs[0] + ((t - 1) * IMM_M + i) * IMM_N : x0 + r * x0_step;

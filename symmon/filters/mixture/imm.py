@@ -59,7 +59,8 @@ from ...core.angles import wrap_angle
 from ...core.arrays import readonly
 from ...core.gaussian import Gaussian, float_array
 from ...compile.ccache import NativeLibrary
-from ...compile.compiled import WorkArrays, generated_c, in_threads
+from ...compile.ckernels import STOPPED
+from ...compile.compiled import WorkArrays, generated_c, run_stoppable
 from ...compile.csource import c_defines, c_file
 from ...errors import (ArgumentError, ArgumentTypeError, CovarianceError, ModelError, NonFiniteError, ShapeError,
                       SymmonError)
@@ -67,7 +68,7 @@ from ..base import Filter
 from ..gaussian.nonlinear import NonlinearKalmanFilter
 from ..inputs import FilterCall, param_values
 from ..results import KalmanResult, nees_of, quadratic_forms
-from ..gaussian.step import _compiled_step, chunk_runs
+from ..gaussian.step import _compiled_step, chunk_runs, long_bank
 from ..gaussian.strategy import RuleStrategy
 
 __all__ = ["IMM", "IMMResult"]
@@ -499,7 +500,8 @@ class _FusedLoop:
             IMM_BAD=f"{name}_bad", IMM_WRAP=f"{name}_wrap", IMM_STEP=f"{name}_step", IMM_RUN=f"{name}_run",
             **{f"IMM_STEP_{j}": nm for j, nm in enumerate(names)}, IMM_M=self.M, IMM_N=self.n, IMM_NY=self.n_y,
             IMM_N_ANG=len(angles), IMM_ANGLES=tuple(angles or [0]),
-            IMM_SZ_ARG=max(max(f.sz_arg() for f in fns), 7), IMM_SZ_RES=max(max(f.sz_res() for f in fns), 8))
+            IMM_SZ_ARG=max(max(f.sz_arg() for f in fns), 7), IMM_SZ_RES=max(max(f.sz_res() for f in fns), 8),
+            IMM_STOPPED=STOPPED)
         code = generated_c(*fns) + defines + _DRIVER_C
         self._work = WorkArrays(*fns)
         self._name = name
@@ -508,7 +510,7 @@ class _FusedLoop:
     def _load(self, so):
         run = getattr(ctypes.CDLL(str(so)), f"{self._name}_run")
         run.argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_longlong]
-                        + [ctypes.c_void_p] * 9 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 3)
+                        + [ctypes.c_void_p] * 9 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 4)
         run.restype = ctypes.c_int
         return run
 
@@ -519,7 +521,13 @@ class _FusedLoop:
     def __call__(self, run, m0: np.ndarray, C0: np.ndarray, Yb: np.ndarray, Qs: list, Rs: list, pvs: list,
                  T: np.ndarray, mu0: np.ndarray):
         """The modes' arrays (R, K, M, ...) and (R, 2) the first failed step of each run and
-        its mode (−1: none) of the bank Yb (R, K, n_y), NaN for a missing measurement."""
+        its mode (−1: none) of the bank Yb (R, K, n_y), NaN for a missing measurement.
+
+        Raises
+        ------
+        KeyboardInterrupt
+            On a Ctrl-C while the loops run: they stop before their next step
+            (:func:`~symmon.compile.compiled.run_stoppable`), and no result is returned."""
         R, K, _ = Yb.shape
         n, n_y, M = self.n, self.n_y, self.M
         measured = ~np.isnan(Yb)
@@ -541,16 +549,17 @@ class _FusedLoop:
 
         Qp, Rp = pointers(Qs), pointers(Rs)
 
-        def part(c: int) -> int:
+        def part(c: int, stop: int) -> int:
             a, b = chunks[c]
             outs = (ctypes.c_void_p * len(blocks))(*[blk[a].ctypes.data for blk in blocks])
             iw, w = self._work.addresses()
             return run(x0.ctypes.data + 8 * a * x_step, x_step, P0.ctypes.data + 8 * a * P_step, P_step,
                        Y[a].ctypes.data, mask[a].ctypes.data, Qp, Rp, pointers([p[a] for p in ps]),
                        self.p_sizes.ctypes.data, T.ctypes.data, mu0.ctypes.data, outs, b - a, K, iw, w,
-                       failed[a].ctypes.data)
+                       failed[a].ctypes.data, stop)
 
-        if any(in_threads(part, list(range(len(chunks))))):
+        # a Ctrl-C stops the loops before their next step (run_stoppable: KeyboardInterrupt)
+        if any(run_stoppable(part, list(range(len(chunks))), long_bank(R, K * M, n))):
             raise SymmonError(f"the compiled IMM loop {self._name} returned an error")
         return modes, failed
 
