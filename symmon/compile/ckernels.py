@@ -14,9 +14,11 @@ made only when CasADi's definition is the one this was written against (its text
 compared in full): any other CasADi keeps its own kernel.
 
 :data:`STOP_POLL` is the check that symmon's own run loops (the filter bank's steps, the
-smoother's backward pass) make between two steps: an interrupt of the thread waiting for
-them sets the flag (:func:`symmon.compile.compiled.in_threads`), and each loop returns
-:data:`STOPPED` at its next step instead of running to its end.
+smoother's backward pass) make between two steps; the loops kept in ``.c`` files (the
+particle filter's, the Gaussian-sum filter's, the IMM's) make the same check, with
+:data:`STOPPED` given as a macro.  An interrupt of the thread waiting for them sets the
+flag (:func:`symmon.compile.compiled.in_threads`, :func:`~symmon.compile.compiled.run_stoppable`),
+and each loop returns :data:`STOPPED` at its next step instead of running to its end.
 """
 
 from __future__ import annotations

@@ -54,7 +54,7 @@ from ...compile.ckernels import STOPPED
 from ...compile.csource import c_defines, c_file
 from ._ekfsmooth import backward_c, backward_in_c, backward_pieces
 from ._sqrtstep import covariance_of, noise_factor, sqrt_predict_graph
-from .step import CompiledLoop, chunk_runs, predict_graph, select_params, sym
+from .step import CompiledLoop, chunk_runs, long_bank, predict_graph, select_params, sym
 
 __all__ = ["compiled_smoother", "sqrt_backward_graph"]
 
@@ -170,7 +170,7 @@ class _CompiledSmoother(CompiledLoop):
             return run(x[a].ctypes.data, P[a].ctypes.data, Q.ctypes.data, params[a].ctypes.data, xs[a].ctypes.data,
                        Ps[a].ctypes.data, b - a, K, iw, w, stop)
 
-        self.run_chunks(part, chunk_runs(runs, K, self.n), "smoother step")
+        self.run_chunks(part, chunk_runs(runs, K, self.n), "smoother step", long_bank(runs, K, self.n))
         return xs, Ps
 
     def _vm(self, x, P, Q, params, xs, Ps):

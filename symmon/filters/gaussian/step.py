@@ -50,7 +50,8 @@ import numpy as np
 from ...compile.ccache import NativeLibrary
 from ...compile.ckernels import STOPPED
 from ...compile.csource import c_defines, c_file
-from ...compile.compiled import WorkArrays, compiled, compiled_with_params, cpu_count, even_spans, generated_c, in_threads, padded
+from ...compile.compiled import (WorkArrays, compiled, compiled_with_params, cpu_count, even_spans, generated_c,
+                                 padded, run_stoppable)
 from ...errors import SymmonError
 from ...core.model import Model
 from ...codegen.symbolic import graph_kind, moments, tril_inverse, wrap_entries
@@ -293,22 +294,23 @@ class CompiledLoop:
         """``"compiled"``, ``"vm"`` or ``"vm (C build running)"`` (docs/compile.md)."""
         return self._lib.evaluator
 
-    def run_chunks(self, part, chunks: list, what: str) -> None:
+    def run_chunks(self, part, chunks: list, what: str, long: bool = False) -> None:
         """``part(chunk, stop)`` for each chunk of runs, on one thread per chunk (ctypes
         releases the GIL in the C call, so they run in parallel); ``stop`` is the address of
         the flag the C loops poll between steps (its ``stop`` argument, ``step_loop.c``).
         A Ctrl-C (KeyboardInterrupt) of the waiting thread sets it and waits for the loops,
         which end at their next step, before it propagates: no loop of an interrupted bank
-        keeps running in the shared pool for the next call to queue behind.
+        keeps running in the shared pool for the next call to queue behind.  ``long``
+        (:func:`long_bank`): a single chunk on the main thread runs on the pool too, so that
+        a Ctrl-C stops it (:func:`~symmon.compile.compiled.run_stoppable`).
 
         Raises
         ------
         SymmonError
             If a chunk's C loop returned an error, naming ``what``.
         """
-        stop = np.zeros(1, dtype=np.intc)
-        codes = in_threads(lambda c: part(c, stop.ctypes.data), chunks, stop=stop)
-        if any(code not in (0, STOPPED) for code in codes):
+        codes = run_stoppable(part, chunks, long)
+        if any(codes):
             raise SymmonError(f"the compiled {what} {self.f.name()} returned an error")
 
 
@@ -442,7 +444,7 @@ class _CompiledStep(CompiledLoop):
                        params[a].ctypes.data, None if truth is None else truth[a].ctypes.data, outs,
                        strides.ctypes.data, b - a, K, iw, w, None if failed is None else failed[a:].ctypes.data, stop)
 
-        self.run_chunks(part, list(range(len(chunks))), "filter step")
+        self.run_chunks(part, list(range(len(chunks))), "filter step", long_bank(runs, K, n))
         out = {k: b for k, b in blocks.items() if k in kept}
         if failed is not None:
             out["first_nonfinite"] = failed
@@ -506,6 +508,14 @@ def chunk_runs(runs: int, K: int, n: int) -> list[tuple[int, int]]:
     """The runs [a, b) of each thread: one per CPU, as long as each gets enough work
     (:data:`MIN_WORK_PER_THREAD`) for the runs × K steps of an n-state filter."""
     return even_spans(runs, min(cpu_count(), runs, (runs * K * n**3) // MIN_WORK_PER_THREAD))
+
+
+def long_bank(runs: int, K: int, n: int) -> bool:
+    """Whether the runs × K steps of an n-state filter take long enough (tens of
+    milliseconds: 50 threads' :data:`MIN_WORK_PER_THREAD`, a state of fewer than 4 counted as
+    4, the cost of a small step being its overhead) that a single chunk on the main thread
+    is worth handing to the pool, for a Ctrl-C to stop it (:meth:`CompiledLoop.run_chunks`)."""
+    return runs * K * max(n, 4) ** 3 >= 50 * MIN_WORK_PER_THREAD
 
 
 _steps: dict[tuple, _CompiledStep] = {}

@@ -37,7 +37,8 @@ import casadi as ca
 import numpy as np
 
 from ...compile.ccache import NativeLibrary
-from ...compile.compiled import WorkArrays, generated_c, in_threads, row_spans
+from ...compile.ckernels import STOPPED
+from ...compile.compiled import WorkArrays, generated_c, row_spans, run_stoppable
 from ...compile.csource import c_defines, c_file
 from .merge import MERGE_C
 
@@ -62,6 +63,12 @@ def result_arrays(R: int, K: int, n: int, Mk: int, kept) -> dict[str, np.ndarray
     return out
 
 
+#: Steps × components (the runs' K steps of at most ``max_components``) from which a single
+#: run of the recursion, on the main thread, goes to the thread pool, so that a Ctrl-C stops
+#: it at once (a few tens of milliseconds of steps and more).
+LONG_STEPS = 10_000
+
+
 class SplitKernel:
     """The compiled recursion of the Gaussian-sum filter with splitting (module notes), for the
     four generated graphs of its stepwise filter: ``predict`` (x, P, Q, p) ↦ (x⁻, P⁻),
@@ -80,7 +87,7 @@ class SplitKernel:
         defines = c_defines(SMG_PREDICT=predict.name(), SMG_UPDATE=update.name(), SMG_MON_F=mon_f.name(),
                             SMG_MON_H=mon_h.name(), SMG_SZ_ARG=max(max(f.sz_arg() for f in fns), 1),
                             SMG_SZ_RES=max(max(f.sz_res() for f in fns), 3), SMG_ROW=row, SMG_SC_DIR=sc_dir,
-                            SMG_SC_MORE=sc_more, SMG_N=n)
+                            SMG_SC_MORE=sc_more, SMG_N=n, SMG_STOPPED=STOPPED)
         # The merge kernel of mixture_merge with the state's dimension a constant (its loops
         # unrolled and its loops over the pairs vectorised: the merge is most of a step at
         # M ≥ 16), the same operations in the same order (no FMA contraction in symmon's
@@ -91,7 +98,7 @@ class SplitKernel:
 
         def load(so):
             fn = ctypes.CDLL(str(so)).sm_gsfk_run
-            fn.argtypes = [ctypes.c_longlong] * 3 + [ctypes.c_void_p] * 23
+            fn.argtypes = [ctypes.c_longlong] * 3 + [ctypes.c_void_p] * 24
             fn.restype = ctypes.c_int
             return fn
 
@@ -108,7 +115,13 @@ class SplitKernel:
         """All steps of all runs: Y (R, K, n_y) with NaN for missing, the prior (w0, m0, P0),
         params (R, K, n_p); the outputs of :meth:`GaussianSumFilter._stepwise
         <symmon.GaussianSumFilter>` and fail (R,), the step of each run where a component
-        turned non-finite (-1: none).  The runs are shared among threads."""
+        turned non-finite (-1: none).  The runs are shared among threads.
+
+        Raises
+        ------
+        KeyboardInterrupt
+            On a Ctrl-C while the loops run: they stop before their next step
+            (:func:`~symmon.compile.compiled.run_stoppable`), and no result is returned."""
         Rr, K, n_y = Y.shape
         n, Mk = self.n, max_components
         measured = ~np.isnan(Y)
@@ -128,14 +141,16 @@ class SplitKernel:
         fail = np.full(Rr, -1, dtype=np.int64)
         ptr = lambda name: out[name].ctypes.data if name in out else None  # noqa: E731
 
-        def part(span: tuple[int, int]) -> int:
+        def part(span: tuple[int, int], stop: int) -> int:
             iw, wk = self._work.addresses()
             return fn(span[0], span[1], K, opt.ctypes.data, fl.ctypes.data, tab.ctypes.data, ang.ctypes.data,
                       Q.ctypes.data, R.ctypes.data, w0.ctypes.data, m0.ctypes.data, P0.ctypes.data, Yz.ctypes.data,
                       mask.ctypes.data, prm.ctypes.data, ptr("loglik"), ptr("components"), ptr("splits"), ptr("x"),
-                      ptr("P"), ptr("weights"), ptr("means"), ptr("covs"), fail.ctypes.data, iw, wk)
+                      ptr("P"), ptr("weights"), ptr("means"), ptr("covs"), fail.ctypes.data, iw, wk, stop)
 
-        codes = in_threads(part, row_spans(Rr, 1))
+        # a Ctrl-C stops the loops before their next step; one run of many steps goes to the
+        # pool too (a step of a few components takes tens of microseconds)
+        codes = run_stoppable(part, row_spans(Rr, 1), long=Rr * K * Mk >= LONG_STEPS)
         if any(code < 0 for code in codes):
             raise MemoryError("the Gaussian-sum filter's compiled recursion could not allocate its components")
         if any(codes):

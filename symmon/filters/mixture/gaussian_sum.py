@@ -56,7 +56,8 @@ holds is that the children's weighted mean MoN is lower.  Splitting again the ch
 the threshold does not converge either (after 5 levels a chain of children toward the
 sensor or the stationary point keeps a MoN of 0.64–0.70).  docs/filters.md has the numbers.
 
-**Merging and pruning.**  After each update, components with weight below ``prune`` are
+**Merging and pruning.**  After each update, components with weight below ``prune``, and
+those of weight 0 whatever ``prune`` (a merge of two would divide by their total weight), are
 dropped, and while a run has more than ``max_components``, the pair with the least cost is
 merged into its moment-matched Gaussian (which keeps the mixture's mean and covariance):
 Runnalls' (2007) upper bound on the Kullback–Leibler discrimination,
@@ -423,7 +424,9 @@ class GaussianSumFilter(Filter):
         limited to ``max_components`` × ``split_components`` components.
     prune : float, default 1e-6
         Components whose weight falls below this after an update are dropped (the heaviest
-        is always kept).
+        is always kept).  A component of weight 0 is dropped with ``prune=0`` too, and a
+        prior's components of weight 0 before the first step: it carries nothing, and two
+        of them would merge to a NaN.
     merge : {"runnalls", "salmond"}, default "runnalls"
         The cost by which pairs are merged (module notes).
     split_components : {3, 5}, default 3
@@ -507,7 +510,8 @@ class GaussianSumFilter(Filter):
         if isinstance(x0, GaussianMixture):
             if x0.dim != n:
                 raise ShapeError(f"x0 has dimension {x0.dim} but the state has {n}")
-            return np.array(x0.weights), np.array(x0.means), np.array(x0.covs)
+            some = np.asarray(x0.weights) > 0  # a component of weight 0 is dropped (class notes)
+            return np.array(x0.weights[some]), np.array(x0.means[some]), np.array(x0.covs[some])
         if isinstance(x0, Gaussian):
             check_gaussian(x0, "x0", dim=n)
             return np.ones(1), np.asarray(x0.mean, dtype=float)[None], np.asarray(x0.cov, dtype=float)[None]
@@ -725,7 +729,8 @@ class GaussianSumFilter(Filter):
             # log Σ_i w_i N(ν_i; 0, S_i) per run, in log space; then the normalised weights.
             # Every run keeps at least one component and its components are contiguous: the
             # per-run reductions are reduceat over the runs' first rows.
-            a = np.log(w) + ll
+            with np.errstate(divide="ignore"):  # a child's weight that underflowed: -inf, as in C
+                a = np.log(w) + ll
             first = np.searchsorted(run, np.arange(R))
             top = np.maximum.reduceat(a, first)
             tot = top + np.log(np.add.reduceat(np.exp(a - top[run]), first))
@@ -757,7 +762,7 @@ class GaussianSumFilter(Filter):
         ``max_components``; weights renormalised per run."""
         R = int(run[-1]) + 1
         top = np.maximum.reduceat(w, np.searchsorted(run, np.arange(R)))
-        keep = (w >= self.prune) | (w == top[run])
+        keep = ((w >= self.prune) & (w > 0)) | (w == top[run])  # weight 0: dropped, even at prune=0
         run, w, x, P = run[keep], w[keep], x[keep], P[keep]
         if (np.bincount(run, minlength=R) > self.max_components).any():
             w, x, P = (np.ascontiguousarray(a, dtype=float) for a in (w, x, P))

@@ -12,6 +12,7 @@
 #define SMG_SC_DIR 400
 #define SMG_SC_MORE 200
 #define SMG_N 2
+#define SMG_STOPPED 2
 int SMG_PREDICT(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int SMG_UPDATE(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int SMG_MON_F(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
@@ -301,13 +302,15 @@ static int smg_finite(const double* a, int m) {
    0 and 0); prm: (R, K, np); w0, m0, P0: the M0 prior components; opt = [n, ny, np, ms, Mk,
    salmond, curved_f, curved_h, M0]; fl = [split, prune, sigma]; table = [omega (ms), mu (ms)];
    ang: (n) flags of the angle states; outputs (R, K, ...) or NULL; fail (R): the step of a
-   non-finite component (-1: none).  Returns 0, 1 when a generated function failed, -1 out of
-   memory. */
+   non-finite component (-1: none); stop: a flag another thread may set (NULL: none), polled
+   before each step.  Returns 0, 1 when a generated function failed, -1 out of memory,
+   SMG_STOPPED when the flag stopped the runs (their outputs part way). */
 CASADI_SYMBOL_EXPORT int sm_gsfk_run(casadi_int r0, casadi_int r1, casadi_int K, const casadi_int* opt,
     const double* fl, const double* table, const int* ang, const double* Q, const double* R,
     const double* w0, const double* m0, const double* P0, const double* Y, const double* mask,
     const double* prm, double* o_ll, long long* o_comp, long long* o_split, double* o_x, double* o_P,
-    double* o_w, double* o_m, double* o_C, long long* fail, casadi_int* iw, casadi_real* wk) {
+    double* o_w, double* o_m, double* o_C, long long* fail, casadi_int* iw, casadi_real* wk,
+    const volatile int* stop) {
   smg_ctx c;
   /* n = opt[0], the dimension the kernel is built for: a constant, so that the loops over it unroll */
   const int n = SMG_N, ny = (int) opt[1], M0 = (int) opt[8], nym = n > ny ? n : ny;
@@ -344,6 +347,7 @@ CASADI_SYMBOL_EXPORT int sm_gsfk_run(casadi_int r0, casadi_int r1, casadi_int K,
       casadi_real* res[SMG_SZ_RES];
       int ns, err = 0, bad = 0;
       double top, s, tw;
+      if (stop && *stop) { ret = SMG_STOPPED; break; }
       o_split[r * K + k] = 0;
       if (c.curved[0]) {
         N = smg_split(&c, 0, N, p, &ns, &err);
@@ -388,7 +392,8 @@ CASADI_SYMBOL_EXPORT int sm_gsfk_run(casadi_int r0, casadi_int r1, casadi_int K,
       /* prune (the heaviest stays), merge down to Mk, renormalise */
       top = c.w[0];
       for (i = 1; i < N; ++i) if (c.w[i] > top) top = c.w[i];
-      for (i = 0; i < N; ++i) c.alive[i] = c.w[i] >= c.prune || c.w[i] == top;
+      /* weight 0: dropped even at prune 0 (a merge of two would divide by their total) */
+      for (i = 0; i < N; ++i) c.alive[i] = (c.w[i] >= c.prune && c.w[i] > 0) || c.w[i] == top;
       N = smg_compact(&c, n, N);
       if (N > c.Mk) {
         double* Pinv = c.sc + SMG_SC_DIR;

@@ -59,13 +59,15 @@ from ...core.angles import wrap_angle
 from ...core.arrays import readonly
 from ...core.gaussian import float_array
 from ...compile.ccache import NativeLibrary
-from ...compile.compiled import WorkArrays, generated_c, in_threads
+from ...compile.ckernels import STOPPED
+from ...compile.compiled import WorkArrays, generated_c, run_stoppable
+from ...compile.csource import c_defines, c_file
 from ...errors import (ArgumentError, ArgumentTypeError, CovarianceError, ModelError, NonFiniteError, ShapeError,
                       SymmonError)
 from ..base import Filter
 from ..inputs import FilterCall, param_values
 from ..results import KalmanResult, nees_of, quadratic_forms
-from ..gaussian.step import compiled_step, chunk_runs
+from ..gaussian.step import compiled_step, chunk_runs, long_bank
 from ..gaussian.strategy import RuleStrategy
 
 __all__ = ["IMM", "IMMResult"]
@@ -346,8 +348,10 @@ class IMM(Filter):
     def _fused_loop(self) -> "_FusedLoop | None":
         """The compiled loop over the steps and runs of a bank with every mode's step inside
         it, when every mode runs one compiled standard step (None: an adaptive or a
-        square-root mode, which run in :meth:`_python_loop`)."""
-        if not all(isinstance(kf.strategy, RuleStrategy) and not kf.square_root for kf in self.filters):
+        square-root mode, or more than :data:`FUSED_MAX_MODES` modes, which run in
+        :meth:`_python_loop`)."""
+        if (len(self.filters) > FUSED_MAX_MODES
+                or not all(isinstance(kf.strategy, RuleStrategy) and not kf.square_root for kf in self.filters)):
             return None
         steps = tuple(compiled_step(kf.f_model, kf.h_model, kf.strategy.transform, kf.angle_states, kf.iterations)
                       for kf in self.filters)
@@ -471,125 +475,11 @@ def _combine(modes: dict[str, np.ndarray], angles: list[int]) -> dict[str, np.nd
     return out
 
 
-# The fused loop: for each run, K steps of the IMM recursion, each calling the modes' steps.
-# outs[0..6] are the modes' x, P, x⁻, P⁻, ν, S, log Λ (run, step, mode, ...), outs[7] μ and
-# outs[8] c̄.  A mode's previous x and P are its outputs of the step before.
-_DRIVER = """
-/* symmon: an IMM over the filter steps {steps}. */
-#include <math.h>
-#include <string.h>
-static int {name}_bad(const casadi_real* a, casadi_int n) {{
-  unsigned long long u, bad = 0;
-  casadi_int j;
-  for (j = 0; j < n; ++j) {{
-    memcpy(&u, a + j, sizeof u);
-    bad |= (u & 0x7ff0000000000000ULL) == 0x7ff0000000000000ULL;
-  }}
-  return bad != 0;
-}}
-static casadi_real {name}_wrap(casadi_real a) {{
-  casadi_real r = fmod(a + M_PI, 2 * M_PI);
-  if (r < 0) r += 2 * M_PI;
-  r -= M_PI;
-  return r == -M_PI ? M_PI : r;
-}}
-static int {name}_step(casadi_int j, const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w) {{
-  switch (j) {{
-{cases}
-  }}
-  return 1;
-}}
-
-CASADI_SYMBOL_EXPORT int {name}_run(const casadi_real* x0, casadi_int x0_step, const casadi_real* P0,
-    casadi_int P0_step, const casadi_real* y, const casadi_real* mask, const casadi_real* const* Qs,
-    const casadi_real* const* Rs, const casadi_real* const* ps, const casadi_int* p_sizes, const casadi_real* T,
-    const casadi_real* mu0, casadi_real* const* outs, casadi_int runs, casadi_int K, casadi_int* iw,
-    casadi_real* w, casadi_int* failed) {{
-  const casadi_real* arg[{sz_arg}];
-  casadi_real* res[{sz_res}];
-  const casadi_real* xprev[M_];
-  const casadi_real* Pprev[M_];
-  casadi_real mu[M_], cbar[M_], wm[M_ * M_], xmix[M_ * N_], Pmix[M_ * N_ * N_], d[N_], nis, top, tot, s, c;
-  casadi_int r, k, i, j, a, b, t;
-  static const casadi_int angles[] = {{{angles}}};
-  for (r = 0; r < runs; ++r) {{
-    failed[2 * r] = -1;
-    failed[2 * r + 1] = -1;
-    for (j = 0; j < M_; ++j) mu[j] = mu0[j];
-    for (k = 0; k < K; ++k) {{
-      t = r * K + k;
-      for (i = 0; i < M_; ++i) {{
-        xprev[i] = k ? outs[0] + ((t - 1) * M_ + i) * N_ : x0 + r * x0_step;
-        Pprev[i] = k ? outs[1] + ((t - 1) * M_ + i) * N_ * N_ : P0 + r * P0_step;
-      }}
-      /* 1: c̄_j = Σ_i p_ij μ_i, μ_(i|j) = p_ij μ_i / c̄_j (a mode nothing reaches keeps its own) */
-      for (j = 0; j < M_; ++j) {{
-        cbar[j] = 0;
-        for (i = 0; i < M_; ++i) cbar[j] += mu[i] * T[i * M_ + j];
-        for (i = 0; i < M_; ++i) wm[i * M_ + j] = cbar[j] > 0 ? mu[i] * T[i * M_ + j] / cbar[j] : (i == j);
-      }}
-      /* 2: the mixed Gaussians, angle states by circular means and wrapped deviations */
-      for (j = 0; j < M_; ++j) {{
-        casadi_real* xj = xmix + j * N_;
-        casadi_real* Pj = Pmix + j * N_ * N_;
-        for (a = 0; a < N_; ++a) {{
-          xj[a] = 0;
-          for (i = 0; i < M_; ++i) xj[a] += wm[i * M_ + j] * xprev[i][a];
-        }}
-        for (b = 0; b < N_ANG; ++b) {{
-          a = angles[b];
-          s = c = 0;
-          for (i = 0; i < M_; ++i) {{
-            s += wm[i * M_ + j] * sin(xprev[i][a]);
-            c += wm[i * M_ + j] * cos(xprev[i][a]);
-          }}
-          xj[a] = atan2(s, c);
-        }}
-        for (a = 0; a < N_ * N_; ++a) Pj[a] = 0;
-        for (i = 0; i < M_; ++i) {{
-          casadi_real wi = wm[i * M_ + j];
-          for (a = 0; a < N_; ++a) d[a] = xprev[i][a] - xj[a];
-          for (b = 0; b < N_ANG; ++b) d[angles[b]] = {name}_wrap(d[angles[b]]);
-          for (b = 0; b < N_; ++b)
-            for (a = 0; a < N_; ++a) Pj[a + b * N_] += wi * (Pprev[i][a + b * N_] + d[a] * d[b]);
-        }}
-        for (b = 0; b < N_; ++b)
-          for (a = 0; a < b; ++a) Pj[a + b * N_] = Pj[b + a * N_] = 0.5 * (Pj[a + b * N_] + Pj[b + a * N_]);
-      }}
-      /* 3: each mode's predict + update step from its mixed Gaussian */
-      for (j = 0; j < M_; ++j) {{
-        casadi_int o = t * M_ + j;
-        arg[0] = xmix + j * N_; arg[1] = Pmix + j * N_ * N_; arg[2] = y + t * NY_; arg[3] = Qs[j]; arg[4] = Rs[j];
-        arg[5] = mask + t * NY_; arg[6] = ps[j] + t * p_sizes[j];
-        res[0] = outs[0] + o * N_; res[1] = outs[1] + o * N_ * N_; res[2] = outs[2] + o * N_;
-        res[3] = outs[3] + o * N_ * N_; res[4] = outs[4] + o * NY_; res[5] = outs[5] + o * NY_ * NY_;
-        res[6] = outs[6] + o; res[7] = &nis;
-        if ({name}_step(j, arg, res, iw, w)) return 1;
-        if ({name}_bad(res[6], 1) || {name}_bad(res[0], N_) || {name}_bad(res[1], N_ * N_)) {{
-          failed[2 * r] = k;
-          failed[2 * r + 1] = j;
-          break;
-        }}
-      }}
-      if (failed[2 * r] >= 0) break;
-      /* 4: μ_j ∝ c̄_j Λ_j, the Λ_j scaled by the largest */
-      top = outs[6][t * M_];
-      for (j = 1; j < M_; ++j) if (outs[6][t * M_ + j] > top) top = outs[6][t * M_ + j];
-      tot = 0;
-      for (j = 0; j < M_; ++j) {{
-        mu[j] = cbar[j] * exp(outs[6][t * M_ + j] - top);
-        tot += mu[j];
-      }}
-      for (j = 0; j < M_; ++j) {{
-        mu[j] /= tot;
-        outs[7][t * M_ + j] = mu[j];
-        outs[8][t * M_ + j] = cbar[j];
-      }}
-    }}
-  }}
-  return 0;
-}}
-"""
+# The fused loop (imm.c): for each run, K steps of the IMM recursion, each calling the modes' steps.
+_DRIVER_C = c_file(__package__, "imm.c")
+#: The modes of the fused loop at most (imm.c's switch over the modes' steps); an IMM of more
+#: modes runs in :meth:`IMM._python_loop`.
+FUSED_MAX_MODES = 16
 
 
 class _FusedLoop:
@@ -607,12 +497,13 @@ class _FusedLoop:
         self.p_sizes = np.array([max(st.n_p, 1) for st in steps], dtype=np.int64)
         key = repr((names, angles))
         name = "sm_imm_" + hashlib.sha1(key.encode()).hexdigest()[:12]
-        cases = "\n".join(f"    case {j}: return {nm}(arg, res, iw, w, 0);" for j, nm in enumerate(names))
-        defines = (f"#define M_ {self.M}\n#define N_ {self.n}\n#define NY_ {self.n_y}\n#define N_ANG {len(angles)}\n"
-                   "#ifndef M_PI\n#define M_PI 3.14159265358979323846\n#endif\n")
-        code = generated_c(*fns) + defines + _DRIVER.format(
-            name=name, steps=", ".join(names), cases=cases, angles=", ".join(map(str, angles or [0])),
-            sz_arg=max(max(f.sz_arg() for f in fns), 7), sz_res=max(max(f.sz_res() for f in fns), 8))
+        defines = c_defines(
+            IMM_BAD=f"{name}_bad", IMM_WRAP=f"{name}_wrap", IMM_STEP=f"{name}_step", IMM_RUN=f"{name}_run",
+            **{f"IMM_STEP_{j}": nm for j, nm in enumerate(names)}, IMM_M=self.M, IMM_N=self.n, IMM_NY=self.n_y,
+            IMM_N_ANG=len(angles), IMM_ANGLES=tuple(angles or [0]),
+            IMM_SZ_ARG=max(max(f.sz_arg() for f in fns), 7), IMM_SZ_RES=max(max(f.sz_res() for f in fns), 8),
+            IMM_STOPPED=STOPPED)
+        code = generated_c(*fns) + defines + _DRIVER_C
         self._work = WorkArrays(*fns)
         self._name = name
         self._lib = NativeLibrary(code, name, self._load, stacklevel=5)
@@ -620,7 +511,7 @@ class _FusedLoop:
     def _load(self, so):
         run = getattr(ctypes.CDLL(str(so)), f"{self._name}_run")
         run.argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_longlong]
-                        + [ctypes.c_void_p] * 9 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 3)
+                        + [ctypes.c_void_p] * 9 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 4)
         run.restype = ctypes.c_int
         return run
 
@@ -631,7 +522,13 @@ class _FusedLoop:
     def __call__(self, run, m0: np.ndarray, C0: np.ndarray, Yb: np.ndarray, Qs: list, Rs: list, pvs: list,
                  T: np.ndarray, mu0: np.ndarray):
         """The modes' arrays (R, K, M, ...) and (R, 2) the first failed step of each run and
-        its mode (−1: none) of the bank Yb (R, K, n_y), NaN for a missing measurement."""
+        its mode (−1: none) of the bank Yb (R, K, n_y), NaN for a missing measurement.
+
+        Raises
+        ------
+        KeyboardInterrupt
+            On a Ctrl-C while the loops run: they stop before their next step
+            (:func:`~symmon.compile.compiled.run_stoppable`), and no result is returned."""
         R, K, _ = Yb.shape
         n, n_y, M = self.n, self.n_y, self.M
         measured = ~np.isnan(Yb)
@@ -653,16 +550,17 @@ class _FusedLoop:
 
         Qp, Rp = pointers(Qs), pointers(Rs)
 
-        def part(c: int) -> int:
+        def part(c: int, stop: int) -> int:
             a, b = chunks[c]
             outs = (ctypes.c_void_p * len(blocks))(*[blk[a].ctypes.data for blk in blocks])
             iw, w = self._work.addresses()
             return run(x0.ctypes.data + 8 * a * x_step, x_step, P0.ctypes.data + 8 * a * P_step, P_step,
                        Y[a].ctypes.data, mask[a].ctypes.data, Qp, Rp, pointers([p[a] for p in ps]),
                        self.p_sizes.ctypes.data, T.ctypes.data, mu0.ctypes.data, outs, b - a, K, iw, w,
-                       failed[a].ctypes.data)
+                       failed[a].ctypes.data, stop)
 
-        if any(in_threads(part, list(range(len(chunks))))):
+        # a Ctrl-C stops the loops before their next step (run_stoppable: KeyboardInterrupt)
+        if any(run_stoppable(part, list(range(len(chunks))), long_bank(R, K * M, n))):
             raise SymmonError(f"the compiled IMM loop {self._name} returned an error")
         return modes, failed
 

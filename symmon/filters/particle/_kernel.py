@@ -56,6 +56,10 @@ left threads waiting at the barriers), the other passes by fixed contiguous chun
 thread pool.  After a step without resampling the log-weights t_i − lse are written by the
 next move (which reads t_i before it overwrites it), or at the end.
 The chunk's own stream draws a Gaussian prior and the regularisation's jitter.
+A flag that another thread may set (a Ctrl-C of the waiting thread:
+:func:`~symmon.compile.compiled.run_stoppable`) is polled before each chunk of the moves, and
+every thread sees it at the barrier after them: a run stops within a chunk's move, every
+thread leaving at that barrier.
 ``_replay`` (tests) feeds given normals and points instead of drawing them.  A Gaussian
 prior is drawn in C too, x_0 = m + L z from the first normals of each chunk's stream.
 """
@@ -72,6 +76,7 @@ import casadi as ca
 import numpy as np
 
 from ...compile.ccache import NativeLibrary
+from ...compile.ckernels import STOPPED
 from ...compile.compiled import compiled_with_params
 from ...compile.compiled import WorkArrays, generated_c
 from ...compile.csource import c_defines, c_file
@@ -184,14 +189,15 @@ class BootstrapKernel:
             PFK_ANGLES=bool(angle_states), PFK_NX=n, PFK_NQ=max(n_q, 1), PFK_NY=ny, PFK_N_P=self.n_p,
             PFK_DM=max(n, ny), PFK_CHUNK=CHUNK, PFK_AX=flags(angle_states, n), PFK_AY=flags(angle_outputs, ny),
             PFK_BLOCK=BLOCK, PFK_LD=LD, PFK_NR=n + max(n_q, 1), PFK_NO=n + 2 * ny, PFK_O_MASK=self._o_mask,
-            PFK_O_A=self._o_A, PFK_SZ_ARG=max(self.f.sz_arg(), 3), PFK_SZ_RES=max(self.f.sz_res(), 3))
+            PFK_O_A=self._o_A, PFK_SZ_ARG=max(self.f.sz_arg(), 3), PFK_SZ_RES=max(self.f.sz_res(), 3),
+            PFK_STOPPED=STOPPED)
         code = RNG_C + generated_c(self.f) + VECMATH_C + (vec or "") + defines + _DRIVER_C
 
         def load(so):
             lib = ctypes.CDLL(str(so))
             run = getattr(lib, f"{name}_run")
             run.argtypes = ([ctypes.c_void_p, ctypes.c_longlong, ctypes.c_longlong] + [ctypes.c_void_p] * 27
-                            + [ctypes.c_longlong] * 3 + [ctypes.c_void_p])
+                            + [ctypes.c_longlong] * 3 + [ctypes.c_void_p] * 2)
             run.restype = ctypes.c_int
             normals = getattr(lib, f"{name}_normals")
             normals.argtypes = [ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p]

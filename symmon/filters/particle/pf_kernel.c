@@ -33,6 +33,7 @@
 #define PFK_O_A 4
 #define PFK_SZ_ARG 3
 #define PFK_SZ_RES 3
+#define PFK_STOPPED 2
 int PFK_F(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int PFK_VEC(const double* restrict z, const double* restrict p, double* restrict out, long long n,
             unsigned char* restrict odd);
@@ -141,31 +142,38 @@ CASADI_SYMBOL_EXPORT void PFK_LANES(unsigned long long* s, casadi_int groups, ca
    meanwhile (OpenMP runtimes spin for 0.2 ms and more before they sleep).  The spin yields
    the CPU every 32 turns: when the kernel puts both threads on one CPU (as it may after the
    process slept), a spin that did not yield kept the other thread off the CPU for the whole
-   0.2 ms at every barrier (benchmarks/RESULTS.md, "Particle filter kernel"). */
+   0.2 ms at every barrier (benchmarks/RESULTS.md, "Particle filter kernel").
+   It returns whether the run is to stop: the last thread to arrive reads the stop flag
+   (NULL: never) and publishes it with the new generation, so every thread leaves a barrier
+   with the same answer (a thread reads it before it arrives at the next barrier, which
+   cannot open before, so no later generation overwrites it first). */
 #if defined(__x86_64__) || defined(__i386__)
 #define pfk_PAUSE() __builtin_ia32_pause()
 #else
 #define pfk_PAUSE() ((void) 0)
 #endif
 #define pfk_SPIN_NS 200000L
-typedef struct { pthread_mutex_t mu; pthread_cond_t cv; int count, T; unsigned gen; } pfk_barrier;
-static void pfk_bwait(pfk_barrier* b) {
+typedef struct {
+  pthread_mutex_t mu; pthread_cond_t cv; int count, T, halt; unsigned gen; const volatile int* stop;
+} pfk_barrier;
+static int pfk_bwait(pfk_barrier* b) {
   unsigned g;
   long i;
   struct timespec t0, t1;
-  if (b->T == 1) return;
+  if (b->T == 1) return b->stop && *b->stop;
   g = __atomic_load_n(&b->gen, __ATOMIC_ACQUIRE);
   if (__atomic_add_fetch(&b->count, 1, __ATOMIC_ACQ_REL) == b->T) {
     __atomic_store_n(&b->count, 0, __ATOMIC_RELAXED);
+    b->halt = b->stop && *b->stop;  /* published by the release of gen below */
     pthread_mutex_lock(&b->mu);
     __atomic_store_n(&b->gen, g + 1u, __ATOMIC_RELEASE);
     pthread_cond_broadcast(&b->cv);
     pthread_mutex_unlock(&b->mu);
-    return;
+    return b->halt;
   }
   clock_gettime(CLOCK_MONOTONIC, &t0);
   for (i = 1;; ++i) {  /* spin for at most pfk_SPIN_NS (the clock every 32 turns) */
-    if (__atomic_load_n(&b->gen, __ATOMIC_ACQUIRE) != g) return;
+    if (__atomic_load_n(&b->gen, __ATOMIC_ACQUIRE) != g) return b->halt;
     pfk_PAUSE();
     if (i % 32) continue;
     sched_yield();
@@ -175,6 +183,7 @@ static void pfk_bwait(pfk_barrier* b) {
   pthread_mutex_lock(&b->mu);
   while (__atomic_load_n(&b->gen, __ATOMIC_ACQUIRE) == g) pthread_cond_wait(&b->cv, &b->mu);
   pthread_mutex_unlock(&b->mu);
+  return b->halt;
 }
 
 /* Per chunk of CHUNK particles: [max t, bad, sum e, sum e^2, sum e x (or sin), sum e cos]. */
@@ -335,6 +344,7 @@ static int pfk_body(pfk_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_
                                                      its chunks' sums while another reads these */
     for (;;) {  /* move and weigh, chunk q (claimed), in blocks of PFK_BLOCK particles */
       uint64_t* lq;
+      if (c->bar.stop && *c->bar.stop) break;  /* no more chunks: the barrier below stops the run */
       q = __atomic_fetch_add(&c->cnt[k & 1][0], 1, __ATOMIC_RELAXED);
       if (q >= nch) break;
       lq = (uint64_t*) c->st + 4 * (nch + 1) + 4 * SYMMON_LANES * q;  /* chunk q's lanes */
@@ -434,7 +444,9 @@ static int pfk_body(pfk_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_
       pc[2] = s; pc[3] = s2;
       for (j = 0; j < PFK_NX; ++j) { pc[4 + j] = sx[j]; pc[4 + PFK_NX + j] = cs[j]; }
     }
-    pfk_bwait(&c->bar);
+    /* the step's stop: seen by every thread at this barrier (a thread that stopped claiming
+       chunks saw the flag set, and the last to arrive reads it after that) */
+    if (pfk_bwait(&c->bar)) return PFK_STOPPED;
     if (tau == 0) c->cnt[k & 1][0] = 0;  /* every claim of this step is over; the next is at k + 2 */
     m = -INFINITY;
     bad = 0;
@@ -443,7 +455,7 @@ static int pfk_body(pfk_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_
       bad |= (casadi_int) part[q * pfk_PW + 1];
     }
     if (bad & 2) return 1;
-    if (bad || !isfinite(m)) { if (tau == 0) *c->fail = k; return 2; }
+    if (bad || !isfinite(m)) { if (tau == 0) *c->fail = k; return 3; }
     if (want_pred) {  /* the predicted moments, with the weights before the update */
       for (i = a0; i < a1; ++i) c->sc[i] = exp(uni ? -log_n : c->lw[i]);
       pfk_bwait(&c->bar);
@@ -568,14 +580,18 @@ static void* pfk_thread(void* p) {
    and square root (n x n, row-major) of a Gaussian prior to draw X from (the first normals
    of each chunk's stream), or NULL (X given); opt = [scheme (0 systematic, 1 stratified,
    2 multinomial), regularise, L0 diagonal]; fl = [ESS threshold x N,
-   bandwidth h]; outputs per step (NULL: not wanted); iw, w: T work arrays of isz, wsz. */
+   bandwidth h]; outputs per step (NULL: not wanted); iw, w: T work arrays of isz, wsz; stop:
+   a flag another thread may set (NULL: none), polled between chunks of the moves and seen
+   by every thread at the step's first barrier.  Returns 0; 1 when a generated function
+   failed; 3 when a particle or weight turned non-finite (fail: the step); PFK_STOPPED when
+   the flag stopped the run (its outputs part way). */
 CASADI_SYMBOL_EXPORT int PFK_RUN(const casadi_real* P, casadi_int K, casadi_int N, casadi_real* X0,
     casadi_real* Xn0, casadi_real* t, casadi_real* e, casadi_real* lw, casadi_real* sc, casadi_real* hx,
     casadi_real* part, unsigned long long* st, const casadi_real* zext, const casadi_real* uext,
     const casadi_real* jext, const casadi_real* m0, const casadi_real* L0, const casadi_int* opt, const casadi_real* fl, casadi_real* o_ll, casadi_real* o_ess,
     casadi_real* o_res, casadi_real* o_x, casadi_real* o_P, casadi_real* o_xp, casadi_real* o_Pp,
     casadi_real* o_hm, casadi_real* o_hS, casadi_int* iw, casadi_real* w, casadi_int isz, casadi_int wsz,
-    casadi_int T, casadi_int* fail) {
+    casadi_int T, casadi_int* fail, const volatile int* stop) {
   pfk_ctx c;
   pfk_arg args[64];
   pthread_t th[64];
@@ -596,7 +612,7 @@ CASADI_SYMBOL_EXPORT int PFK_RUN(const casadi_real* P, casadi_int K, casadi_int 
   c.T = (int) T;
   buf = (casadi_real*) malloc(T * (pfk_BUF + c.nch) * sizeof(casadi_real));
   if (!buf) { free(c.idx); return 1; }
-  c.bar.T = (int) T; c.bar.count = 0; c.bar.gen = 0;
+  c.bar.T = (int) T; c.bar.count = 0; c.bar.gen = 0; c.bar.halt = 0; c.bar.stop = stop;
   pthread_mutex_init(&c.bar.mu, 0);
   pthread_cond_init(&c.bar.cv, 0);
   pthread_mutex_init(&c.gate, 0);
