@@ -18,8 +18,10 @@ put into other C word for word (symmon's products in CasADi's generated code, an
 own text they replace) is read by :func:`c_text`, after the file's guarded block.
 
 The standalone C of :func:`symmon.export_c` is a template instead (it is read by people, and
-built by their tool chains, not symmon's): :func:`fill` replaces its ``@NAME@`` placeholders
-with checked C identifiers and integers, nothing else.
+built by their tool chains, not symmon's), a ``.c.in`` or ``.h.in`` file (not C alone: the
+strict check skips it): :func:`choose` keeps or drops its optional parts ``@?FLAG:text?@``
+(an argument ``const double *p`` where a model has parameters), and :func:`fill` replaces its
+``@NAME@`` placeholders with checked C identifiers and integers, nothing else.
 """
 
 from __future__ import annotations
@@ -29,28 +31,30 @@ import re
 from functools import lru_cache
 from importlib import resources
 
-__all__ = ["c_file", "c_text", "c_source", "c_defines", "fill", "C_IDENTIFIER"]
+__all__ = ["c_file", "c_text", "c_source", "c_defines", "fill", "choose", "C_IDENTIFIER"]
 
 #: A C identifier (ASCII): what a name put into symmon's C may be.
 C_IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _INCLUDE = re.compile(r'^#include "([A-Za-z0-9_]+\.[ch])"\n', flags=re.M)
 _PLACEHOLDER = re.compile(r"@([A-Za-z_][A-Za-z0-9_]*)@")
+_OPTIONAL = re.compile(r"@\?([A-Za-z_][A-Za-z0-9_]*):(.*?)\?@", flags=re.S)
 
 
 @lru_cache(maxsize=None)
 def c_file(package: str, name: str) -> str:
     """The text of the C file ``name`` of the package ``package`` (``__package__`` of the
-    module that builds it), read once per process.
+    module that builds it), read once per process; ``name`` may also be a template,
+    ``.c.in`` or ``.h.in`` (see :func:`choose` and :func:`fill`).
 
     Raises
     ------
     ValueError
-        If ``name`` is not a plain ``.c`` or ``.h`` file name.
+        If ``name`` is not a plain ``.c``, ``.h``, ``.c.in`` or ``.h.in`` file name.
     FileNotFoundError
         If the package has no such file (an installation without its package data).
     """
-    if not re.fullmatch(r"[A-Za-z0-9_]+\.[ch]", name):
-        raise ValueError(f"name must be a .c or .h file name without a directory, got {name!r}")
+    if not re.fullmatch(r"[A-Za-z0-9_]+\.[ch](\.in)?", name):
+        raise ValueError(f"name must be a .c, .h, .c.in or .h.in file name without a directory, got {name!r}")
     return resources.files(package).joinpath(name).read_text(encoding="utf-8")
 
 
@@ -164,3 +168,32 @@ def fill(template: str, **values: object) -> str:
     if unused:
         raise ValueError(f"no placeholder for the values {', '.join(unused)}")
     return _PLACEHOLDER.sub(lambda m: text[m.group(1)], template)
+
+
+def choose(template: str, **flags: bool) -> str:
+    """``template`` with each optional part ``@?FLAG:text?@`` replaced by ``text`` where the
+    flag ``FLAG`` is true, and removed where it is false (``text`` may hold ``@NAME@``
+    placeholders for :func:`fill`, and not ``?@``; parts do not nest).
+
+    Raises
+    ------
+    ValueError
+        If a part has no flag, a flag has no part, or a flag is not a bool.
+
+    Examples
+    --------
+    >>> choose("int f(double *x@?P:, const double *p?@);", P=False)
+    'int f(double *x);'
+    >>> fill(choose("int @F@(double *x@?P:, const double *p?@);", P=True), F="kf_predict")
+    'int kf_predict(double *x, const double *p);'
+    """
+    for key, value in flags.items():
+        if not isinstance(value, bool):
+            raise ValueError(f"{key} must be a bool, got {value!r}")
+    used = set(m.group(1) for m in _OPTIONAL.finditer(template))
+    missing, unused = sorted(used - flags.keys()), sorted(flags.keys() - used)
+    if missing:
+        raise ValueError(f"no flag for the optional parts {', '.join(missing)}")
+    if unused:
+        raise ValueError(f"no optional part for the flags {', '.join(unused)}")
+    return _OPTIONAL.sub(lambda m: m.group(2) if flags[m.group(1)] else "", template)

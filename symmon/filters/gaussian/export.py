@@ -30,6 +30,12 @@ P, Cholesky factors, map over the points and gain solve are matrix nodes around 
 functions of f, h and their derivatives' nonzeros, so the C has loops and grows with the
 nonzeros, not with n³ (docs/export.md).
 Positive definiteness is tested by the pivots of a Cholesky factor of S and of the new P.
+The interface's C, the prototypes, the work-size macros and the example program are templates
+beside this module (``export_filter.c.in``, ``export_api.h.in``, ``export_work.h.in``,
+``export_example.c.in``): :func:`~symmon.compile.csource.choose` keeps the parameter argument
+where a model has parameters, and :func:`~symmon.compile.csource.fill` puts in the prefix (a
+checked C identifier) and the sizes; user text reaches the files only through
+:func:`~symmon.compile.cnames.comment_text`.
 
 Also written: ``NAME_example.c``, a program that reads x0, P0 and per step the parameter
 values and a measurement from stdin and prints the estimates, and ``NAME_README.md``
@@ -59,6 +65,7 @@ import numpy as np
 
 from ...codegen.export import HEADER_CLOSING, c_prefix, generate_sources, work_sizes
 from ...compile.cnames import c_identifier, comment_text
+from ...compile.csource import c_file, choose, fill
 from ...errors import ArgumentTypeError, OutputPathError, SymmonError
 from ...io import atomic_write_text, check_output_set
 from ...version import __version__
@@ -171,150 +178,31 @@ def _sqrt_functions(kf: FilterSpec, transform, name: str, x, U, y, mask, p) -> d
 
 
 def _work_macros(P: str, fname: str, key: str, f: ca.Function, extra_reals: int) -> list[str]:
-    """The work-array sizes of one function and the stack they take."""
+    """The work-array sizes of one function and the stack they take (``export_work.h.in``)."""
     s = work_sizes(f)
-    K = f"{P}_{key}"
-    return [
-        f"#define {K}_SZ_ARG {s['arg']}",
-        f"#define {K}_SZ_RES {s['res']}",
-        f"#define {K}_SZ_IW {s['iw']}",
-        f"#define {K}_SZ_W {s['w'] + extra_reals}",
-        f"/* stack bytes of {fname}: its work arrays and a copy of the new state */",
-        f"#define {K}_STACK_BYTES ({K}_SZ_W * sizeof(double) + {K}_SZ_IW * sizeof(long long) \\",
-        f"    + ({K}_SZ_ARG + {K}_SZ_RES) * sizeof(void *))",
-    ]
+    return fill(c_file(__package__, "export_work.h.in"), K=f"{P}_{key}", FNAME=fname, ARG=s["arg"],
+                RES=s["res"], IW=s["iw"], W=s["w"] + extra_reals).splitlines()
 
 
-_C_FUNCTIONS = r"""
-/* ---- The filter interface (symmon): see {P}.h. ---- */
-
-/* y (NY) as the step reads it: a NaN component (missing) becomes 0 with mask 0, as in
-   symmon's kf.filter; returns the count measured, or -1 for an infinite component. */
-static int {P}_measured(const double *y, casadi_real *y_in, casadi_real *mask) {{
-  int i, count = 0;
-  for (i = 0; i < {P_}_NY; ++i) {{
-    if (isnan(y[i])) {{ y_in[i] = 0; mask[i] = 0; continue; }}
-    if (!isfinite(y[i])) return -1;
-    y_in[i] = y[i]; mask[i] = 1; ++count;
-  }}
-  return count;
-}}
-
-static int {P}_all_finite(const double *a, int n) {{
-  int i;
-  for (i = 0; i < n; ++i) if (!isfinite(a[i])) return 0;
-  return 1;
-}}
-
-int {P}_predict(double *x, double *{cov}{f_sig}) {{
-  const casadi_real *arg[{P_}_PREDICT_SZ_ARG];
-  casadi_real *res[{P_}_PREDICT_SZ_RES];
-  casadi_int iw[{P_}_PREDICT_SZ_IW];
-  casadi_real w[{P_}_PREDICT_SZ_W];
-  casadi_real *x_new = w, *P_new = w + {P_}_NX, pd = 0;
-  casadi_real *work = w + {P_}_NX + {P_}_NX * {P_}_NX;
-  if (!{P}_all_finite(x, {P_}_NX) || !{P}_all_finite({cov}, {P_}_NX * {P_}_NX)) return {P_}_ERR_STATE;{f_check}
-  arg[0] = x; arg[1] = {cov};{f_arg}
-  res[0] = x_new; res[1] = P_new; res[2] = &pd;
-  if ({P}_predict_step(arg, res, iw, work, 0)) return {P_}_ERR_EVAL;
-  if (!(pd > 0) || !{P}_all_finite(x_new, {P_}_NX)) return {P_}_ERR_P;
-  memcpy(x, x_new, sizeof(double) * {P_}_NX);
-  memcpy({cov}, P_new, sizeof(double) * {P_}_NX * {P_}_NX);
-  return {P_}_OK;
-}}
-
-int {P}_update(double *x, double *{cov}{h_sig}, const double *y, double *loglik) {{
-  const casadi_real *arg[{P_}_UPDATE_SZ_ARG];
-  casadi_real *res[{P_}_UPDATE_SZ_RES];
-  casadi_int iw[{P_}_UPDATE_SZ_IW];
-  casadi_real w[{P_}_UPDATE_SZ_W];
-  casadi_real *x_new = w, *P_new = w + {P_}_NX, ll = 0, pd_S = 0, pd_P = 0;
-  casadi_real *y_in = w + {P_}_NX + {P_}_NX * {P_}_NX, *mask = y_in + {P_}_NY;
-  casadi_real *work = mask + {P_}_NY;
-  int measured;
-  if (!{P}_all_finite(x, {P_}_NX) || !{P}_all_finite({cov}, {P_}_NX * {P_}_NX)) return {P_}_ERR_STATE;
-  measured = {P}_measured(y, y_in, mask);
-  if (measured < 0) return {P_}_ERR_MEASUREMENT;{h_check}
-  if (measured == 0) return {P_}_OK;  /* nothing measured: x and P stay as predicted, loglik + 0 */
-  arg[0] = x; arg[1] = {cov};{h_arg} arg[{y_at}] = y_in; arg[{y_at} + 1] = mask;
-  res[0] = x_new; res[1] = P_new; res[2] = &ll; res[3] = &pd_S; res[4] = &pd_P;
-  if ({P}_update_step(arg, res, iw, work, 0)) return {P_}_ERR_EVAL;
-  if (!(pd_S > 0) || !isfinite(ll)) return {P_}_ERR_S;
-  if (!(pd_P > 0) || !{P}_all_finite(x_new, {P_}_NX)) return {P_}_ERR_P;
-  memcpy(x, x_new, sizeof(double) * {P_}_NX);
-  memcpy({cov}, P_new, sizeof(double) * {P_}_NX * {P_}_NX);
-  *loglik += ll;
-  return {P_}_OK;
-}}
-"""
-
-_EXAMPLE = r"""/* {P}_example.c: run the exported filter {P} on measurements read from stdin.
-   ({stamp})
-
-   Input (whitespace-separated numbers): x0 ({P_}_NX numbers), {cov_doc},
-   then per step{ex_doc} one measurement of {P_}_NY numbers, until the end of the input.
-   A measurement component written nan is missing: {P}_update skips it (a row of nan only
-   predicts), as symmon's kf.filter does.
-   Output: one line per step, "k code x[0..NX-1] {cov}[0..NX*NX-1] loglik" (%.17g), where code is
-   the return code of {P}_predict, or else of {P}_update (0 = OK).  The program stops at
-   the first error, with exit status 1 (status 2: the input ends inside a step).
-   Build: cc -std=c99 -O2 {P}.c {P}_example.c -lm -o {P}_example */
-#include <stdio.h>
-#include "{P}.h"
-
-int main(void) {{
-  double x[{P_}_NX], {cov}[{P_}_NX * {P_}_NX], y[{P_}_NY], loglik = 0;{ex_decl}
-  int i, k, code, got;
-  for (i = 0; i < {P_}_NX; ++i) if (scanf("%lf", &x[i]) != 1) return 2;
-  for (i = 0; i < {P_}_NX * {P_}_NX; ++i) if (scanf("%lf", &{cov}[i]) != 1) return 2;
-  for (k = 0;; ++k) {{
-    got = 0;{ex_read}
-    for (i = 0; i < {P_}_NY && scanf("%lf", &y[i]) == 1; ++i) ++got;
-    if (got == 0) break;
-    if (got < {ex_count}{P_}_NY) return 2;
-    code = {P}_predict(x, {cov}{f_call});
-    if (code == {P_}_OK) code = {P}_update(x, {cov}{h_call}, y, &loglik);
-    printf("%d %d", k, code);
-    for (i = 0; i < {P_}_NX; ++i) printf(" %.17g", x[i]);
-    for (i = 0; i < {P_}_NX * {P_}_NX; ++i) printf(" %.17g", {cov}[i]);
-    printf(" %.17g\n", loglik);
-    if (code != {P_}_OK) return 1;
-  }}
-  return 0;
-}}
-"""
-
-
-def _fill(P: str, kf) -> dict[str, str]:
-    """The template's fields: the prefix, and the parameter argument of the functions whose
-    model has parameters."""
-    P_ = P.upper()
+def _template(name: str, P: str, kf) -> str:
+    """The template ``name`` of this package filled for the prefix ``P`` and the filter: its
+    optional parts chosen by whether f and h have parameters (FP, HP), the filter has any
+    (NP), and its form (SQRT, or FULL: the covariance itself); the placeholders the prefix,
+    its upper case P_, the covariance's name COV (S or P) and the update's argument of y,
+    Y_AT (after p where h has parameters).  Only the flags and placeholders the template
+    has are passed (:func:`choose` and :func:`fill` refuse others)."""
     fp, hp = bool(kf.f_model.n_p), bool(kf.h_model.n_p)
-    check = f"\n  if (!{P}_all_finite(p, {P_}_NP)) return {P_}_ERR_PARAM;"
-    n_p = len(kf.params)
-    return {
-        "P": P, "P_": P_, "cov": "S" if kf.square_root else "P",
-        "cov_doc": (f"S0 (the lower Cholesky factor of P0, {P_}_NX * {P_}_NX, row-major)" if kf.square_root
-                    else f"P0 ({P_}_NX * {P_}_NX, row-major)"),
-        "f_sig": ", const double *p" if fp else "", "f_check": check if fp else "", "f_arg": " arg[2] = p;" if fp else "",
-        "h_sig": ", const double *p" if hp else "", "h_check": check if hp else "", "h_arg": " arg[2] = p;" if hp else "",
-        "y_at": "3" if hp else "2",
-        "f_call": ", p" if fp else "", "h_call": ", p" if hp else "",
-        "ex_doc": f" the {P_}_NP parameter values of the step (a time step, a bias: they may change) and" if n_p else "",
-        "ex_decl": f"\n  double p[{P_}_NP];" if n_p else "",
-        "ex_read": f"\n    for (i = 0; i < {P_}_NP && scanf(\"%lf\", &p[i]) == 1; ++i) ++got;" if n_p else "",
-        "ex_count": f"{P_}_NP + " if n_p else "",
-        "stamp": STAMP,
-    }
+    text = c_file(__package__, name)
+    flags = dict(FP=fp, HP=hp, NP=bool(kf.params), SQRT=bool(kf.square_root), FULL=not kf.square_root)
+    values = dict(P=P, P_=P.upper(), COV="S" if kf.square_root else "P", Y_AT=3 if hp else 2)
+    text = choose(text, **{k: v for k, v in flags.items() if f"@?{k}:" in text})
+    return fill(text, **{k: v for k, v in values.items() if f"@{k}@" in text})
 
 
 def _signatures(P: str, kf) -> tuple[str, str]:
-    """The C prototypes of the two functions."""
-    fp = ", const double *p" if kf.f_model.n_p else ""
-    hp = ", const double *p" if kf.h_model.n_p else ""
-    cov = "S" if kf.square_root else "P"
-    return (f"int {P}_predict(double *x, double *{cov}{fp});",
-            f"int {P}_update(double *x, double *{cov}{hp}, const double *y, double *loglik);")
+    """The C prototypes of the two functions (``export_api.h.in``)."""
+    predict, update = _template("export_api.h.in", P, kf).splitlines()
+    return predict, update
 
 
 def _model_hash(kf: FilterSpec, transform) -> str:
@@ -484,11 +372,10 @@ def export_filter_c(kf: FilterSpec, directory: str | Path, name: str | None = No
     protos = "\n".join(_signatures(P, kf)) + "\n"
     h_src = (comment + f"#ifndef {guard}\n#define {guard}\n\n" + macros + "\n\n" + head
              + "/* The filter interface (symmon). */\n" + protos + HEADER_CLOSING + tail + f"#endif /* {guard} */\n")
-    fill = _fill(P, kf)
     c_src = (f"/* {P}.c: the {comment_text(_label(kf, transform))} filter ({STAMP}, symmon {__version__}). */\n"
-             + c_src.rstrip("\n") + "\n\n#include <string.h>\n#include \"" + P + ".h\"\n"
-             + _C_FUNCTIONS.format(**fill))
-    example = _EXAMPLE.format(**fill)
+             + c_src.rstrip("\n") + "\n\n#include <string.h>\n#include \"" + P + ".h\"\n\n"
+             + _template("export_filter.c.in", P, kf))
+    example = _template("export_example.c.in", P, kf)
     readme = _readme(kf, P, fs, transform, digest)
     return [atomic_write_text(outdir / f"{P}.c", c_src), atomic_write_text(outdir / f"{P}.h", h_src),
             atomic_write_text(outdir / f"{P}_example.c", example), atomic_write_text(outdir / f"{P}_README.md", readme)]

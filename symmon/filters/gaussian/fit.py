@@ -58,6 +58,7 @@ from scipy import optimize
 
 from ...compile.ccache import NativeLibrary
 from ...compile.ckernels import faster_sparse_products
+from ...compile.csource import c_defines, c_source
 from ...compile.compiled import WorkArrays, cpu_count, even_spans, generated_c, in_threads
 from ...core.gaussian import float_array
 from ...errors import IdentifiabilityWarning, ModelError, SymmonError
@@ -152,81 +153,6 @@ def _loglik_graph(kf: FilterSpec, Y: np.ndarray, x0: np.ndarray, P0: np.ndarray,
     return theta, total
 
 
-# The drivers' one signature (:meth:`_CompiledLoglik._load`): the ranks j0 <= j < j1 of the
-# fitted parameters whose columns a call computes (a part of them on each thread).
-_SIGNATURE = """\
-CASADI_SYMBOL_EXPORT int {name}_fit(const casadi_real* D, const casadi_real* S0, const casadi_real* Q,
-    const casadi_real* R, casadi_int runs, casadi_int K, casadi_int m, const casadi_int* rows,
-    casadi_int order, casadi_int j0, casadi_int j1, casadi_real* Z, casadi_real* T, casadi_real* out,
-    casadi_int* iw, casadi_real* w) {{
-  const casadi_real* arg[{sz_arg}];
-  casadi_real* res[{sz_res}];
-"""
-
-# The fold of the filter step over the steps and runs, with its exact gradient (one reverse
-# sweep) and Hessian (a forward-over-reverse sweep per fitted parameter), in one C loop.
-_DRIVER = """
-/* symmon: the log-likelihood of a bank and its derivatives in the fitted rows of the step's
-   data.  D (runs*K*{nd}): the step's data per step; S0 (runs*{ns}): [x0; vec(P0)] per run;
-   rows (m): the fitted rows of the data; order 0: the value, 1: + gradient, 2: + Hessian,
-   added into out = [l, g (m), H (m*m, row-major)]; l and g only when j0 = 0, and of H only
-   the columns j0 <= j < j1 (so that calls on parts of the columns add up to one call's out).
-   Z (K*{nz}) and T (K*{ns}): work. */
-""" + _SIGNATURE + """  casadi_real o[{ns} + 1], lam[{ns} + 1], lamd[{ns} + 1], a[{nz}], ad[{nz}], zd[{nz}];
-  casadi_int r, k, i, j;
-  for (r = 0; r < runs; ++r) {{
-    /* forward: z_k = [s_k; d_k], s_{{k+1}}, l_k = step(z_k) */
-    for (i = 0; i < {ns}; ++i) Z[i] = S0[r * {ns} + i];
-    for (k = 0; k < K; ++k) {{
-      for (i = 0; i < {nd}; ++i) Z[k * {nz} + {ns} + i] = D[(r * K + k) * {nd} + i];
-      arg[0] = Z + k * {nz}; arg[1] = Q; arg[2] = R; res[0] = o;
-      if ({name}_f(arg, res, iw, w, 0)) return 1;
-      if (j0 == 0) out[0] += o[{ns}];
-      if (k + 1 < K) for (i = 0; i < {ns}; ++i) Z[(k + 1) * {nz} + i] = o[i];
-    }}
-    if (order < 1) continue;
-    /* reverse (j0 = 0 only): the adjoint [lambda_{{k+1}}; 1] of (s_{{k+1}}, l_k) gives that of z_k */
-    for (i = 0; i < {ns}; ++i) lam[i] = 0.0;
-    lam[{ns}] = 1.0;
-    for (k = K - 1; k >= 0 && j0 == 0; --k) {{
-      arg[0] = Z + k * {nz}; arg[1] = Q; arg[2] = R; arg[3] = lam; res[0] = a;
-      if ({name}_vjp(arg, res, iw, w, 0)) return 1;
-      for (j = 0; j < m; ++j) out[1 + j] += a[{ns} + rows[j]];
-      for (i = 0; i < {ns}; ++i) lam[i] = a[i];
-    }}
-{hessian}  }}
-  return 0;
-}}
-"""
-
-# The Hessian's sweeps, in the second library only (:class:`_CompiledLoglik`).
-_HESSIAN = """
-    if (order < 2) continue;
-    for (j = j0; j < j1 && j < m; ++j) {{
-      /* forward tangent of the states along parameter j (T_k = ds_k/dtheta_j), then the
-         reverse sweep of the adjoint and its tangent: column j of the Hessian */
-      for (i = 0; i < {nz}; ++i) zd[i] = 0.0;
-      zd[{ns} + rows[j]] = 1.0;
-      for (i = 0; i < {ns}; ++i) T[i] = 0.0;
-      for (k = 0; k + 1 < K; ++k) {{
-        for (i = 0; i < {ns}; ++i) zd[i] = T[k * {ns} + i];
-        arg[0] = Z + k * {nz}; arg[1] = Q; arg[2] = R; arg[3] = zd; res[0] = o;
-        if ({name}_jvp(arg, res, iw, w, 0)) return 1;
-        for (i = 0; i < {ns}; ++i) T[(k + 1) * {ns} + i] = o[i];
-      }}
-      for (i = 0; i <= {ns}; ++i) lam[i] = lamd[i] = 0.0;
-      lam[{ns}] = 1.0;
-      for (k = K - 1; k >= 0; --k) {{
-        for (i = 0; i < {ns}; ++i) zd[i] = T[k * {ns} + i];
-        arg[0] = Z + k * {nz}; arg[1] = Q; arg[2] = R; arg[3] = zd; arg[4] = lam; arg[5] = lamd;
-        res[0] = a; res[1] = ad;
-        if ({name}_hvp(arg, res, iw, w, 0)) return 1;
-        for (i = 0; i < m; ++i) out[1 + m + i * m + j] += ad[{ns} + rows[i]];
-        for (i = 0; i < {ns}; ++i) {{ lam[i] = a[i]; lamd[i] = ad[i]; }}
-      }}
-    }}
-"""
-
 #: The gradient in forward mode for a filter of at most this many parameters (reverse mode
 #: above): each forward sweep carries a tangent per parameter.  At 30 states and K = 100, with
 #: two tangents 7.4 ms against 8.9 ms in reverse mode, with three 9.4 ms against 12.4 ms.
@@ -243,86 +169,18 @@ FORWARD_HESSIAN_MAX_PARAMS = 2
 #: against a thread's 50 µs; at 10 states (11 000) the whole Hessian takes a few milliseconds.
 THREAD_WORK = 1 << 15
 
-# The same fold in forward mode: the tangents of the states along each parameter (and, for
-# the Hessian, their second-order tangents along each pair) carried through the steps with
-# the state, so that one forward sweep gives ℓ, ∇ℓ and ∇²ℓ (:class:`_CompiledLoglik`).
-_FORWARD = """
-/* symmon: the log-likelihood of a bank and its derivatives in the fitted rows of the step's
-   data, in forward mode.  D (runs*K*{nd}): the step's data per step; S0 (runs*{ns}):
-   [x0; vec(P0)] per run; rows (m <= {M}): the fitted rows of the data; order 0: the value,
-   1: + gradient, 2: + Hessian, added into out = [l, g (m), H (m*m, row-major)]; l only when
-   j0 = 0, of g only the entries j0 <= j < j1, of H only the entries (i, j) with
-   j0 <= max(i, j) < j1, the tangents computed (so that calls on parts add up to one call's out).
-   Z ({work}): work; T: unused.  Column j < m of zd is dz/dtheta_j = [T_j; e_{{rows[j]}}],
-   column i + {M} j of zdd is d2z/dtheta_i dtheta_j = [T_ij; 0] (columns of i or j >= m:
-   zero, and those of j >= m neither computed nor read); od and odd the same of o. */
-""" + _SIGNATURE + """  /* zd: M first-order tangents, then M*M second-order ones; od, odd: those of o */
-  casadi_real *z = Z, *zd = z + {nz}, *o = zd + {nz} * ({M} + {MM}), *od = o + {no}, *odd = od + {no} * {M};
-  casadi_int r, k, i, j;
-  (void)T;
-  if (m > {M} || order > {max_order} || (order > 1 && m < 1)) return 1;
-  for (r = 0; r < runs; ++r) {{
-    for (i = 0; i < {ns}; ++i) z[i] = S0[r * {ns} + i];
-    for (i = 0; i < {nz} * ({M} + {MM}); ++i) zd[i] = 0.0;
-    for (j = 0; j < m; ++j) zd[j * {nz} + {ns} + rows[j]] = 1.0;
-    for (k = 0; k < K; ++k) {{
-      for (i = 0; i < {nd}; ++i) z[{ns} + i] = D[(r * K + k) * {nd} + i];
-      arg[0] = z; arg[1] = Q; arg[2] = R; arg[3] = zd; res[0] = o; res[1] = od;
-{call}
-      if (j0 == 0) out[0] += o[{ns}];
-      for (j = j0; j < j1 && j < m && order > 0; ++j) out[1 + j] += od[j * {no} + {ns}];
-      /* H_ij = H_ji from the column min(i, j) + {M} max(i, j): symmetric to the bit */
-      for (i = 0; i < m * m && order > 1; ++i) {{
-        casadi_int lo = i / m < i % m ? i / m : i % m, hi = i / m < i % m ? i % m : i / m;
-        if (hi >= j0 && hi < j1) out[1 + m + i] += odd[(lo + {M} * hi) * {no} + {ns}];
-      }}
-      if (k + 1 == K) break;
-      /* s_{{k+1}} and its tangents: the first {ns} rows of each output column */
-      for (i = 0; i < {ns}; ++i) z[i] = o[i];
-      for (j = 0; j < {M} * (order > 0) + {M} * m * (order > 1); ++j)
-        for (i = 0; i < {ns}; ++i) zd[j * {nz} + i] = od[j * {no} + i];
-    }}
-  }}
-  return 0;
-}}
-"""
-
-# The forward Hessian's calls in a step: one per fitted parameter j, each giving the columns
-# i + M j (i < M) of the second-order tangents (and the first-order ones, again).
-_HESSIAN_CALLS = """\
-      for (j = j0; j < j1 && j < m; ++j) {{
-        arg[4] = zd + j * {nz}; arg[5] = zd + {nz} * ({M} + j * {M}); res[2] = od + {no} * ({M} + j * {M});
-        if ({name}_hess(arg, res, iw, w, 0)) return 1;
-      }}"""
-
-
-# The forward gradient's calls in a step: the step, its Jacobian times all the tangents, or
-# (a part j0 <= j < j1 of them, on a thread) times one tangent per call.
-_GRADIENT_CALLS = """\
-      if (order == 0) {{
-        if ({name}_f(arg, res, iw, w, 0)) return 1;
-      }} else if (j0 == 0 && j1 >= m) {{
-        if ({name}_jvp(arg, res, iw, w, 0)) return 1;
-      }} else {{
-        for (j = j0; j < j1 && j < m; ++j) {{
-          arg[3] = zd + j * {nz}; res[1] = od + j * {no};
-          if ({name}_jvp1(arg, res, iw, w, 0)) return 1;
-        }}
-      }}"""
-
-
 class _CompiledLoglik:
     """ℓ and its exact gradient and Hessian in the fitted parameters, as one C loop over the
     steps and runs around the filter's step function and derivatives of it built by CasADi,
     with z = [x; vec(P); y; mask; p] and o = [x⁺; vec(P⁺); ℓ_k] = step(z).
 
-    Forward mode (:data:`_FORWARD`, a filter of at most :data:`FORWARD_MAX_PARAMS`
+    Forward mode (``fit_forward.c``, a filter of at most :data:`FORWARD_MAX_PARAMS`
     parameters, or ``forward=True``): the step (z ↦ o), the step with its Jacobian times one
     tangent per parameter of the filter (z, Ż ↦ o, J Ż), and the forward derivative of that
     along one tangent ż_j with Ż seeded by the second-order tangents (z, Ż, ż_j, Z̈_j ↦ o, J Ż,
     J Z̈_j + ∇(J Ż) ż_j); the tangents of the states ride along with the states through the
     K steps (Griewank & Walther 2008, §3.1), twice for ∇²ℓ (forward over forward).  Reverse
-    mode (:data:`_DRIVER`): the step, its Jacobian-vector product (z, ż ↦ J ż), its
+    mode (``fit_reverse.c``): the step, its Jacobian-vector product (z, ż ↦ J ż), its
     vector-Jacobian product (z, λ ↦ Jᵀλ) and the derivative of that along ż
     (z, ż, λ, λ̇ ↦ (∇(Jᵀλ)) ż + Jᵀλ̇); reverse accumulation through the K steps gives ∇ℓ
     (ibid. §3.2), the same sweep differentiated forward along each fitted parameter gives ∇²ℓ
@@ -372,7 +230,7 @@ class _CompiledLoglik:
         self._work_size = lambda K: (max(forward_work, K * nz if reverse else 0), K * self.ns if reverse else 1)
 
     def _reverse_code(self, pre: str, z: ca.MX, Q: ca.MX, R: ca.MX, o: ca.MX, hessian: bool) -> tuple:
-        """(library name, C, functions) of a reverse-mode library (:data:`_DRIVER`): ℓ and
+        """(library name, C, functions) of a reverse-mode library (``fit_reverse.c``): ℓ and
         ∇ℓ, and with ``hessian`` also ∇²ℓ."""
         nz = self.ns + self.nd
         zd = ca.MX.sym("zd", nz)
@@ -383,13 +241,13 @@ class _CompiledLoglik:
             hvp = ca.jtimes(vjp, z, zd) + ca.jtimes(o, z, lamd, True)
             fs += [ca.Function(f"{pre}_jvp", [z, Q, R, zd], [ca.jtimes(o, z, zd)]),
                    ca.Function(f"{pre}_hvp", [z, Q, R, zd, lam, lamd], [vjp, hvp])]
-        fmt = dict(name=pre, ns=self.ns, nd=self.nd, nz=nz, sz_arg=max(max(f.sz_arg() for f in fs), 6),
-                   sz_res=max(max(f.sz_res() for f in fs), 2))
-        driver = _DRIVER.format(hessian=_HESSIAN.format(**fmt) if hessian else "", **fmt)
+        driver = c_defines(FIT_NAME=pre, FIT_HESSIAN=hessian, FIT_NS=self.ns, FIT_ND=self.nd, FIT_NZ=nz,
+                           FIT_SZ_ARG=max(max(f.sz_arg() for f in fs), 6),
+                           FIT_SZ_RES=max(max(f.sz_res() for f in fs), 2)) + c_source(__package__, "fit_reverse.c")
         return pre, faster_sparse_products(generated_c(*fs)) + driver, fs
 
     def _forward_code(self, pre: str, z: ca.MX, Q: ca.MX, R: ca.MX, o: ca.MX, hessian: bool) -> tuple:
-        """(library name, C, functions) of a forward-mode library (:data:`_FORWARD`) with M
+        """(library name, C, functions) of a forward-mode library (``fit_forward.c``) with M
         tangents, one per parameter of the filter: the step z ↦ o and its Jacobian times the
         tangents (z, Ż ↦ o, J Ż) for ℓ and ∇ℓ; with ``hessian``, the forward derivative of that
         along one tangent ż_j with Ż seeded by second-order tangents (z, Ż, ż_j, Z̈_j ↦ o, J Ż,
@@ -403,7 +261,6 @@ class _CompiledLoglik:
             zd1 = ca.MX.sym("zd1", nz)
             fs = [ca.Function(f"{pre}_f", [z, Q, R], [o]), jvp,
                   ca.Function(f"{pre}_jvp1", [z, Q, R, zd1], [o, ca.jtimes(o, z, zd1)])]
-            call = _GRADIENT_CALLS.format(name=pre, nz=nz, no=self.ns + 1)
         else:
             # CasADi's forward derivative of the jvp along one tangent ż_j, with Ż seeded by
             # the second-order tangents Z̈_{·, M j : M j + M}: one call per fitted parameter
@@ -414,11 +271,11 @@ class _CompiledLoglik:
             zero = [ca.MX(v.size1(), v.size2()) for v in (Q, R)]
             odd = jvp.forward(1)(z, Q, R, Zd, oo, jT, zdj, *zero, Zddj)[1]
             fs = [ca.Function(f"{pre}_hess", [z, Q, R, Zd, zdj, Zddj], [oo, jT, odd])]
-            call = _HESSIAN_CALLS.format(name=pre, nz=nz, no=self.ns + 1, M=M)
-        fmt = dict(name=pre, ns=self.ns, nd=self.nd, nz=nz, no=self.ns + 1, M=M, MM=M * M, max_order=1 + hessian,
-                   call=call, work=(1 + M + M * M) * (nz + self.ns + 1),
-                   sz_arg=max(max(f.sz_arg() for f in fs), 6), sz_res=max(max(f.sz_res() for f in fs), 3))
-        return pre, faster_sparse_products(generated_c(*fs)) + _FORWARD.format(**fmt), fs
+        driver = c_defines(FIT_NAME=pre, FIT_HESSIAN=hessian, FIT_NS=self.ns, FIT_ND=self.nd, FIT_NZ=nz,
+                           FIT_NO=self.ns + 1, FIT_M=M, FIT_MM=M * M, FIT_MAX_ORDER=1 + hessian,
+                           FIT_SZ_ARG=max(max(f.sz_arg() for f in fs), 6),
+                           FIT_SZ_RES=max(max(f.sz_res() for f in fs), 3)) + c_source(__package__, "fit_forward.c")
+        return pre, faster_sparse_products(generated_c(*fs)) + driver, fs
 
     @staticmethod
     def _load(so, pre: str):

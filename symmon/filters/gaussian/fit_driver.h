@@ -1,0 +1,15 @@
+/* symmon: what the two drivers of the fit's log-likelihood share (fit_reverse.c and
+   fit_forward.c, symmon.filters.gaussian.fit): the name pasting FIT_(x) (the library's name
+   FIT_NAME followed by _x) and their one signature, FIT_SIGNATURE.  A call computes the
+   columns of the ranks j0 <= j < j1 of the fitted parameters (a part of them on each thread);
+   arg and res hold FIT_SZ_ARG and FIT_SZ_RES pointers, for the calls of CasADi's functions. */
+#define FIT_CAT2(a, b) a##_##b
+#define FIT_CAT(a, b) FIT_CAT2(a, b)
+#define FIT_(s) FIT_CAT(FIT_NAME, s)  /* FIT_(f): the library's name, _f */
+#define FIT_SIGNATURE \
+CASADI_SYMBOL_EXPORT int FIT_(fit)(const casadi_real* D, const casadi_real* S0, const casadi_real* Q, \
+    const casadi_real* R, casadi_int runs, casadi_int K, casadi_int m, const casadi_int* rows, \
+    casadi_int order, casadi_int j0, casadi_int j1, casadi_real* Z, casadi_real* T, casadi_real* out, \
+    casadi_int* iw, casadi_real* w) { \
+  const casadi_real* arg[FIT_SZ_ARG]; \
+  casadi_real* res[FIT_SZ_RES];
