@@ -39,6 +39,8 @@ from .filters import KalmanFilter as KalmanFilter
 from .filters import NonlinearKalmanFilter as NonlinearKalmanFilter
 from .filters import ParticleFilter as ParticleFilter
 from .filters import simulate as simulate
+from .filters import FilterAdvice as FilterAdvice
+from .filters import advise_filter as advise_filter
 from .measures import Advice as Advice
 from .measures import MonParts as MonParts
 from .measures import NonlinearityMeasure as NonlinearityMeasure
@@ -80,7 +82,7 @@ __all__ = [
     "load_model_file", "load_samples_file",
     "SymmonError", "Gaussian", "GaussianMixture", "Empirical", "fuse", "KalmanFilter", "Model", "JointMoments",
     "NonlinearityMeasure", "MonParts", "mon_from_moments", "nonlinearity", "compare",
-    "propagate", "propagate_many", "advise", "Advice",
+    "propagate", "propagate_many", "advise", "Advice", "advise_filter", "FilterAdvice",
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Cubature5", "Transform", "Moments", "Executor",
     "NonlinearKalmanFilter", "Adaptive", "IMM", "simulate", "ParticleFilter", "GaussianSumFilter", "GaussianSumResult",
     "expect", "symbolic_moments", "SymbolicMoments",

@@ -506,6 +506,8 @@ def cmd_advise(args: argparse.Namespace) -> int:
     from ..measures.advice import advise
     from ..measures.mon import nonlinearity
 
+    if args.filter:
+        return _advise_filter(args)
     spec = _load(args.file)
     u = _inputs(args, spec)
     cloud = None
@@ -528,6 +530,23 @@ def cmd_advise(args: argparse.Namespace) -> int:
         print(f"{spec.model.name}: MoN[{args.weight}] over {cloud.moments.input!r} = {cloud.value:.4f}{se}; "
               "the candidates below are ranked on its moment-matched Gaussian N(mean, cov)")
     print(f"{spec.model.name}: {a}")
+    return 0
+
+
+def _advise_filter(args: argparse.Namespace) -> int:
+    """``symmon advise FILE --filter``: :func:`symmon.advise_filter` on a filter scenario file."""
+    from ..files.filterfile import load_filter_file
+    from ..filters.selection import advise_filter
+
+    if args.samples_file is not None:
+        raise SymmonError("--samples-file is for a model file; --filter simulates the scenario's own runs")
+    spec = load_filter_file(args.file)
+    a = advise_filter(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, tol=args.tol, runs=args.runs,
+                      budget=args.budget, seed=args.seed)
+    if args.json:
+        _print_json({"scenario": spec.name, **a.as_dict()})
+        return 0
+    print(f"{spec.name}: {a}")
     return 0
 
 

@@ -102,6 +102,7 @@ _EXAMPLES = {
                "symmon filter examples/rb_close.toml --filters ekf,ukf --smooth"],
     "cache": ["symmon cache", "symmon cache --json", "symmon cache clear"],
     "advise": ["symmon advise examples/bot.toml --tol 0.001",
+               "symmon advise examples/rb_close.toml --filter --runs 32",
                "symmon advise examples/bot.toml --samples-file particles.csv",
                "symmon advise examples/polar.toml --weight diag --json"],
 }
@@ -273,6 +274,17 @@ def _rule_filter(text: str) -> str:
         raise argparse.ArgumentTypeError(f"must be one of {', '.join(filter_names(aliases=True, exportable=True))}, "
                                          f"got {text!r}")
     return name
+
+
+def _seconds(text: str) -> float:
+    """argparse type of a positive, finite number of seconds."""
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text!r}") from None
+    if not (x > 0 and x < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text!r}")
+    return x
 
 
 def _unit_interval(text: str) -> float:
@@ -514,14 +526,23 @@ def _parser() -> argparse.ArgumentParser:
     sp.set_defaults(func=commands.cmd_filter)
 
     sp = add("advise", "which transform is good enough for a model file: every candidate's moment "
-             "error against a reference, its cost and times, the reference's MoN, and the cheapest within tol")
-    sp.add_argument("file", help="TOML model file")
+             "error against a reference, its cost and times, the reference's MoN, and the cheapest within tol; "
+             "with --filter, which filter for a filter scenario file's track (symmon.advise_filter: the MoN "
+             "along the track, a pilot study, the cheapest credible filter within 10 %% of the best RMSE)")
+    sp.add_argument("file", help="TOML model file, or with --filter a TOML filter scenario (see symmon.files.filterfile)")
+    sp.add_argument("--filter", action="store_true",
+                    help="FILE is a filter scenario: advise the filter for its track (table and one recommendation)")
+    sp.add_argument("--runs", type=_int_in(2, MAX_RUNS), default=64,
+                    help="with --filter: simulated runs of the pilot study (default 64)")
+    sp.add_argument("--budget", type=_seconds, default=None, metavar="SECONDS",
+                    help="with --filter: seconds for the pilot; fewer runs when its cost estimate exceeds them")
     sp.add_argument("--tol", type=_unit_interval, default=DEFAULT_TOL,
                     help=f"largest unitless moment error (default {DEFAULT_TOL:g}, as the adaptive filter)")
     weight_opt(sp)
     sp.add_argument("--samples", type=_samples, default=10**6,
                     help="samples of the Monte Carlo reference, when Gauss-Hermite does not converge (default 10^6)")
-    sp.add_argument("--seed", type=_seed, default=0, help="seed of the Monte Carlo reference, >= 0 (default 0)")
+    sp.add_argument("--seed", type=_seed, default=0,
+                    help="seed of the Monte Carlo reference, or with --filter of the simulated runs, >= 0 (default 0)")
     samples_opt(sp, "the MoN over them, and the candidates ranked on their moment-matched Gaussian, "
                 "the one a Kalman-type filter would carry")
     sp.add_argument("--json", action="store_true", help="print JSON")

@@ -23,8 +23,13 @@ from .gaussian.strategy import FilterStrategy as FilterStrategy
 from .simulation import simulate as simulate
 from .particle.particle_filter import ParticleFilter as ParticleFilter
 from .particle.particle_filter import ParticleResult as ParticleResult
+from .results import Credibility as Credibility
+from .selection import FilterAdvice as FilterAdvice
+from .selection import FilterCandidate as FilterCandidate
+from .selection import advise_filter as advise_filter
 from .gaussian.strategy import RuleStrategy as RuleStrategy
 
 __all__ = ["KalmanFilter", "KalmanResult", "NonlinearKalmanFilter", "NonlinearKalmanResult", "SmootherResult", "FitResult", "ConsistencyTest",
            "Adaptive", "FilterStrategy", "RuleStrategy", "simulate", "IMM", "IMMResult",
-           "ParticleFilter", "ParticleResult", "GaussianSumFilter", "GaussianSumResult"]
+           "ParticleFilter", "ParticleResult", "GaussianSumFilter", "GaussianSumResult", "Credibility",
+           "FilterAdvice", "FilterCandidate", "advise_filter"]

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from functools import cached_property
 from typing import ClassVar, Sequence, Union
 
 import numpy as np
@@ -30,7 +31,8 @@ from ..core.arrays import readonly
 from ..core.gaussian import Gaussian
 from .inputs import check_truth
 
-__all__ = ["KalmanResult", "NonlinearKalmanResult", "SmootherResult", "ConsistencyTest", "step_nees"]
+__all__ = ["KalmanResult", "NonlinearKalmanResult", "SmootherResult", "ConsistencyTest", "Credibility", "step_nees",
+           "windowed_nis", "moving_sum", "CREDIBILITY_WINDOW", "CREDIBILITY_CONFIDENCE"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -246,6 +248,121 @@ def step_nees(values: np.ndarray, trace: np.ndarray) -> np.ndarray:
             f"correlation matrix whose inverse has trace {trace[idx]:.3g} ≥ {1 / SINGULAR_CORR:.0e}): a "
             "combination of components is known exactly, so the normalised error squared is undefined")
     return _finite_forms(values)
+
+
+#: The sliding window, in steps, of :attr:`KalmanResult.credibility`: long enough that a
+#: consistent filter's windowed NIS rarely leaves its band, short enough to follow a track.
+CREDIBILITY_WINDOW = 10
+#: The two-sided confidence of the windowed NIS band of :attr:`KalmanResult.credibility`: a
+#: consistent filter flags about 1 % of its steps.
+CREDIBILITY_CONFIDENCE = 0.99
+
+
+@dataclass(frozen=True, eq=False)
+class Credibility:
+    """A filter's credibility, flagged online: the steps where a statistic over a sliding
+    window leaves the band a credible filter keeps it in (:attr:`KalmanResult.credibility`).
+
+    The statistic is the mean NIS over the last ``window`` steps (fewer at the start): for a
+    consistent filter its sum is χ² with the summed measured dimensions as degrees of
+    freedom (Bar-Shalom, Li & Kirubarajan 2001, §5.4.2), so the band is the two-sided
+    ``confidence`` interval of that χ² divided by the steps in the window.  Above the band
+    the filter is overconfident (its covariance too small for its errors), below it too
+    cautious.  A particle filter also flags the steps where its mean effective sample size
+    over the window falls below ``ess_floor`` particles (a degenerate cloud, whatever its NIS).
+
+    Attributes
+    ----------
+    steps : ndarray of bool, shape (K,) or (R, K)
+        True at each step (of each run) where the filter is flagged as not credible.
+    statistic : ndarray, shape (K,) or (R, K)
+        The windowed mean NIS (unitless; NaN where the window measured nothing).
+    band : tuple of two ndarrays, shape of ``statistic``
+        Its lower and upper bounds.
+    window : int
+        Steps in the sliding window.
+    confidence : float
+        Of the χ² band.
+    ess : ndarray or None
+        A particle filter's windowed mean ESS (particles); None for the others.
+    ess_floor : float or None
+        The ESS below which a particle filter's step is flagged.
+    """
+
+    steps: np.ndarray
+    statistic: np.ndarray
+    band: tuple[np.ndarray, np.ndarray]
+    window: int
+    confidence: float
+    ess: np.ndarray | None = None
+    ess_floor: float | None = None
+
+    @property
+    def fraction(self) -> float:
+        """The share of steps (over all runs) flagged, in [0, 1]."""
+        return float(np.mean(self.steps))
+
+    @property
+    def flagged(self) -> np.ndarray:
+        """The indices of the flagged steps: (k,) for one run, (run, k) rows for a bank."""
+        return np.flatnonzero(self.steps) if self.steps.ndim == 1 else np.argwhere(self.steps)
+
+    def __repr__(self) -> str:
+        what = "NIS" if self.ess is None else f"NIS and ESS (floor {self.ess_floor:.3g} particles)"
+        return (f"Credibility({what}, window {self.window} steps, {self.confidence:.0%} band: "
+                f"{self.fraction:.1%} of {self.steps.size} steps flagged)")
+
+
+def moving_sum(a: np.ndarray, window: int) -> np.ndarray:
+    """The sum of ``a`` over the last ``window`` entries of its last axis, ending at each
+    entry (fewer at the start)."""
+    c = np.cumsum(a, axis=-1)
+    out = c.copy()
+    out[..., window:] -= c[..., :-window]
+    return out
+
+
+def windowed_nis(nis: np.ndarray, dof: int | np.ndarray, window: int, confidence: float
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The mean NIS over a sliding window of ``window`` steps ending at each step, and its
+    χ² band (:class:`Credibility`).
+
+    Parameters
+    ----------
+    nis : ndarray, shape (K,) or (R, K)
+    dof : int or ndarray of the shape of ``nis``
+        The measured dimension of each step (0: nothing measured, left out).
+    window : int
+    confidence : float in (0, 1)
+
+    Returns
+    -------
+    statistic, lower, upper : ndarray, shape of ``nis``
+        NaN where the window measured nothing.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> s, lo, hi = windowed_nis(np.array([1.0, 3.0, 2.0]), 1, 2, 0.95)
+    >>> s.tolist(), bool(lo[1] < 1 < hi[1])
+    ([1.0, 2.0, 2.5], True)
+    """
+    if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 1:
+        raise ArgumentError(f"window must be a positive integer of steps, got {plain_repr(window)}")
+    if not 0.0 < confidence < 1.0:
+        raise ArgumentError(f"confidence must lie in (0, 1), got {plain_repr(confidence)}")
+    d = np.broadcast_to(np.asarray(dof, dtype=float), nis.shape)
+    measured = d > 0
+    total = moving_sum(np.where(measured, nis, 0.0), window)
+    dofs = moving_sum(d, window)
+    count = moving_sum(measured.astype(float), window)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        stat = np.where(count > 0, total / np.where(count > 0, count, 1.0), np.nan)
+        alpha = 1.0 - confidence
+        lo = np.where(count > 0, stats.chi2.ppf(alpha / 2, np.where(dofs > 0, dofs, 1.0)) / np.maximum(count, 1.0), np.nan)
+        hi = np.where(count > 0, stats.chi2.ppf(1 - alpha / 2, np.where(dofs > 0, dofs, 1.0)) / np.maximum(count, 1.0),
+                      np.nan)
+    return stat, lo, hi
 
 
 #: Which state components a block of :meth:`KalmanResult.cross_cov` selects.
@@ -529,18 +646,50 @@ class KalmanResult:
         that measured something (a missing row counts neither as a zero nor in N), and the
         degrees of freedom are the components measured; a single run's NIS are independent
         for a consistent filter (white innovations), so its interval holds."""
-        nis = self.nis()
+        return _consistency(self.nis(), self.measured_dims(), confidence)
+
+    def measured_dims(self) -> int | np.ndarray:
+        """The measured dimension of each step: :attr:`measured`, or n_y when every component was."""
         if self.measured is not None:
-            d = self.measured
-        elif self.innovation is not None:
-            d = self.innovation.shape[-1]
-        elif self.S is not None:
-            d = self.S.shape[-1]
-        elif self.n_y is not None:
-            d = self.n_y
-        else:
-            raise SymmonError("this result does not hold the measurement dimension: keep innovation or S too")
-        return _consistency(nis, d, confidence)
+            return self.measured
+        for a in (self.innovation, self.S):
+            if a is not None:
+                return int(a.shape[-1])
+        if self.n_y is not None:
+            return self.n_y
+        raise SymmonError("this result does not hold the measurement dimension: keep innovation or S too")
+
+    def check_credibility(self, window: int = CREDIBILITY_WINDOW,
+                          confidence: float = CREDIBILITY_CONFIDENCE) -> Credibility:
+        """The steps where the filter leaves its credibility (:class:`Credibility`): where the
+        mean NIS over the last ``window`` steps leaves its two-sided χ² band.
+        :attr:`credibility` is this with the defaults.
+
+        Raises
+        ------
+        SymmonError
+            When the result holds no innovations (a filter that reports none, or one run with
+            ``keep=`` without ``"nis"`` or ``"innovation"`` and ``"S"``).
+        ArgumentError
+            For a bad ``window`` or ``confidence``.
+        """
+        if self.nis_values is None and (self.innovation is None or self.S is None):
+            raise SymmonError(f"{self.method or 'this filter'}: the result holds no innovations, so its NIS and "
+                              "its credibility cannot be checked; keep 'nis' (or 'innovation' and 'S') when "
+                              "filtering")
+        stat, lo, hi = windowed_nis(np.asarray(self.nis(), dtype=float), self.measured_dims(), window, confidence)
+        with np.errstate(invalid="ignore"):
+            flags = (stat < lo) | (stat > hi)
+        flags.flags.writeable = False
+        return Credibility(flags, readonly(stat), (readonly(lo), readonly(hi)), int(window),
+                           float(confidence))
+
+    @cached_property
+    def credibility(self) -> Credibility:
+        """The steps flagged as not credible, computed once from the result's arrays:
+        :meth:`check_credibility` with a window of :data:`CREDIBILITY_WINDOW` steps and a
+        :data:`CREDIBILITY_CONFIDENCE` band."""
+        return self.check_credibility()
 
     def __repr__(self) -> str:
         runs = "" if self.runs is None else f"runs={self.runs}, "

@@ -37,7 +37,13 @@ scalar quadratic g the EKF's (TT1's) error in this measure is exactly M/√2 (it
 ½ tr(H P); its variance is off by M² relative), so the default keeps the EKF where
 M ≤ √2 · 0.01 ≈ 0.014.  Why 0.01 and not tighter or looser: docs/guide/advise.md.
 
-**Beyond Gaussian filters.**  The advice also names a *filter* (:attr:`Advice.filter`).  A
+**The transform question only.**  :func:`advise` answers which rule carries this prior's
+moments within ``tol``; which *filter* to run along a track is the question of
+:func:`symmon.advise_filter`, which measures the MoN along a simulated track and confirms
+its choice by a pilot study (the printout of :func:`advise` names no filter).
+
+**Beyond Gaussian filters.**  The advice keeps, as data, a first guess at a filter for this
+one prior (:attr:`Advice.filter`, not printed; :func:`symmon.advise_filter` decides).  A
 Gaussian filter with the chosen rule while a candidate is within ``tol`` and the reference's
 MoN is at most :data:`GAUSSIAN_MON_LIMIT` (0.15: in the tracking study of docs/tracking.md,
 the EKF lost consistency at a closest approach at MoN 0.15–0.59, and never below 0.045).
@@ -282,8 +288,7 @@ class Advice:
                 f"MoN (weight {_weight_text(self.weight)}) by the reference: {self.reference_mon:.4f}{se}\n")
         choice = (f"choice: {self.choice_name}" if self.choice_name is not None
                   else "choice: none of the candidates is within tol")
-        advised = f"\nfilter: {self.filter_name} ({self.filter['reason']})" if self.filter else ""
-        return head + self.table + "\n" + choice + advised + "".join(f"\nnote: {n}" for n in self.notes)
+        return head + self.table + "\n" + choice + "".join(f"\nnote: {n}" for n in self.notes)
 
     def __repr__(self) -> str:
         return f"Advice(choice={self.choice_name!r}, tol={self.tol:g}, reference={self.reference!r})"
@@ -467,10 +472,10 @@ def advise(model: Model, u: Gaussian, v: Gaussian | None = None, tol: float = DE
     Returns
     -------
     Advice
-        ``str(advice)`` prints the reference, its MoN and the table (error, cost, first-call
-        and warm time of each candidate); ``advice.filter`` and ``advice.filter_name`` name
-        the filter advised: a Gaussian filter, a Gaussian-sum filter with its components, or
-        a particle filter (module notes).
+        ``str(advice)`` prints the reference, its MoN, the table (error, cost, first-call
+        and warm time of each candidate) and the choice of transform: the transform question
+        only.  For the filter to run along a track use :func:`symmon.advise_filter`;
+        ``advice.filter`` keeps this one prior's first guess (module notes).
 
     Examples
     --------

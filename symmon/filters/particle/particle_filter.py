@@ -86,14 +86,15 @@ from ..bank import run_streams
 from ..base import Filter
 from ..gaussian.nonlinear import NonlinearKalmanFilter
 from ..inputs import FilterCall, check_bank_size, kept_numbers, param_values
-from ..results import KalmanResult, nees_of
+from ..results import CREDIBILITY_CONFIDENCE, CREDIBILITY_WINDOW, Credibility, KalmanResult, moving_sum, nees_of
 from ..samples import circular_means, prior_samples, semidefinite_cholesky, weighted_moments
 from ..simulation import check_count, check_prior
 from ._kernel import MIN_THREAD_NUMBERS, BootstrapKernel, bootstrap_kernel, whitening
 from ._rng import CHUNK, lane_states, stream_states
 from ..statespace import StateSpace, rows_times
 
-__all__ = ["ParticleFilter", "ParticleResult", "resample", "PROPOSALS", "RESAMPLERS", "DEGENERATE_ESS"]
+__all__ = ["ParticleFilter", "ParticleResult", "resample", "PROPOSALS", "RESAMPLERS", "DEGENERATE_ESS",
+           "DEGENERATE_FRACTION"]
 
 #: The proposals: the transition (bootstrap), or one EKF / UKF step per particle.
 PROPOSALS = ("bootstrap", "ekf", "ukf")
@@ -105,6 +106,9 @@ RESAMPLERS = ("systematic", "stratified", "multinomial")
 LONG_RUN_NUMBERS = 1 << 22
 #: An effective sample size below this counts as a collapse to one particle (a DegeneracyWarning).
 DEGENERATE_ESS = 1.5
+#: The share of the particles below which a particle filter's windowed mean ESS flags its
+#: step as degenerate (:meth:`ParticleResult.check_credibility`; at least :data:`DEGENERATE_ESS`).
+DEGENERATE_FRACTION = 0.02
 _LOG_2PI = math.log(2 * math.pi)
 
 
@@ -192,6 +196,20 @@ class ParticleResult(KalmanResult):
     particles: int = 0
     final_particles: np.ndarray | None = None
     final_log_weights: np.ndarray | None = None
+
+    def check_credibility(self, window: int = CREDIBILITY_WINDOW,
+                          confidence: float = CREDIBILITY_CONFIDENCE) -> Credibility:
+        """The steps flagged as not credible (:meth:`KalmanResult.check_credibility`): where
+        the windowed mean NIS leaves its χ² band, or the mean effective sample size over the
+        same window falls below max(:data:`DEGENERATE_ESS`, :data:`DEGENERATE_FRACTION` · N)
+        particles, a cloud degenerating to a few particles."""
+        base = super().check_credibility(window, confidence)
+        ess = moving_sum(np.asarray(self.ess, dtype=float), window) / np.minimum(np.arange(1, self.steps + 1), window)
+        floor = max(DEGENERATE_ESS, DEGENERATE_FRACTION * self.particles)
+        flags = base.steps | (ess < floor)
+        flags.flags.writeable = False
+        ess.flags.writeable = False
+        return Credibility(flags, base.statistic, base.band, base.window, base.confidence, ess, float(floor))
 
     def __repr__(self) -> str:
         runs = "" if self.runs is None else f"runs={self.runs}, "

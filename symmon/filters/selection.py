@@ -1,0 +1,792 @@
+"""Which filter for this track?  Advice led by the measure of nonlinearity, confirmed by a pilot study.
+
+:func:`advise_filter` answers the filter question for a whole track, where
+:func:`symmon.advise` answers the transform question for one prior.  It
+
+1. simulates ``runs`` tracks of the model from ``x0`` (:func:`symmon.simulate`) and runs the
+   EKF on a few of them (the *screening*);
+2. measures the MoN (W^full, unitless, by TT2: :func:`symmon.nonlinearity`) of the
+   transition f and of the measurement h along the track, at :data:`MON_STEPS` steps: at
+   the screening filter's own prior (f at its posterior N(x̂_{k|k}, P_{k|k}), h at its
+   prediction N(x̂_{k|k−1}, P_{k|k−1})), and at the truth's spread (the same, centred on
+   the true state, with the covariance of the screening filter's actual errors over the
+   runs), so that a filter whose covariance collapsed cannot hide a nonlinear model;
+3. prunes the candidates by that MoN, M = the largest of the four along the track
+   (:func:`candidate_menu`): the Kalman filter of a linear model; the EKF always; the
+   iterated EKF where h's MoN exceeds √2 · tol (where the EKF is no longer within ``tol``
+   on a quadratic: :mod:`symmon.measures.advice`); the UKF, CKF and Gauss–Hermite where
+   M exceeds √2 · tol; a square-root form where the screening's covariance is
+   ill-conditioned; the Gaussian-sum filter split by the MoN with the component count
+   that brings each component's MoN to √2 · tol (:func:`~symmon.measures.advice.filter_advice`)
+   where M exceeds √2 · tol; the particle filter, with its particle count, proposal and
+   regularisation, where M exceeds :data:`~symmon.measures.advice.GAUSSIAN_MON_LIMIT`;
+   an IMM over the given ``modes``;
+4. runs the kept candidates on the same simulated tracks (a pilot study: each candidate one
+   compiled bank over the runs) and measures each one's RMSE, its time-mean ANEES (the mean
+   over the steps of the mean NEES over the runs), whether a run's covariance collapsed
+   (singular or non-finite: the filter raises, and the candidate is not credible), and the
+   share of its steps flagged by its online credibility (:attr:`KalmanResult.credibility
+   <symmon.filters.results.KalmanResult.credibility>`); when none is credible, the pruned
+   Gaussian-sum and particle filters are run too;
+5. chooses the **cheapest credible candidate whose RMSE is within** :data:`RMSE_MARGIN`
+   **(10 %) of the best credible one**.  Credible: the time-mean ANEES lies in
+   [0.3 n, 1.5 n] (:data:`ANEES_BAND`) for n states, and no run's covariance collapsed.
+   Cheapest: a deterministic cost per step, in model evaluations as
+   :func:`symmon.advise` counts them (:meth:`symmon.Transform.cost` of f's and of h's
+   input dimension), times the components of a Gaussian-sum filter or the modes of an IMM,
+   or 2 per particle; ties go to the earlier candidate, so the choice is the same for the
+   same seed.  When none is credible, the advice says so and chooses the most accurate.
+
+The RMSE that the choice compares is unitless: each state's error in units of its prior
+standard deviation √(P0)_ii, then the root mean square over the states, runs and steps;
+each state's own RMSE, in its units, is in :attr:`FilterCandidate.rmse_states`.  The
+ANEES interval reported beside it is the 95 % two-sided χ² interval of one step's ANEES
+over the R independent runs, [χ²_{Rn}(0.025), χ²_{Rn}(0.975)] / R (Bar-Shalom, Li &
+Kirubarajan 2001, §5.4.2): the time mean varies less than one step's value, so a
+consistent filter's time mean lies inside it.
+
+``budget`` (seconds) bounds the pilot by running fewer tracks: the runs are
+budget / (steps · Σ cost · :data:`SECONDS_PER_EVALUATION`), at least :data:`MIN_RUNS`
+and at most ``runs``, decided from the cost estimate (never from a clock), so that the
+choice stays reproducible.  Compilation is not in the estimate: a filter's first call
+compiles its C once (cached on disk).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+import sympy as sp
+from scipy import stats
+
+from ..core.angles import wrap_angle
+from ..core.gaussian import Gaussian
+from ..core.model import Model, with_param_values
+from ..errors import ArgumentError, ArgumentTypeError, SymmonError, plain_repr
+from ..measures.advice import DEFAULT_TOL, GAUSSIAN_MON_LIMIT, MAX_GSF_COMPONENTS, cost as transform_cost, filter_advice
+from ..measures.mon import nonlinearity
+from ..transforms.taylor import TT1, TT2
+from .base import Filter
+from .gaussian.nonlinear import NonlinearKalmanFilter
+from .mixture.gaussian_sum import GaussianSumFilter
+from .mixture.imm import IMM
+from .particle.particle_filter import ParticleFilter
+from .registry import filter_entry, make_filter
+from .simulation import simulate
+
+__all__ = ["advise_filter", "FilterAdvice", "FilterCandidate", "candidate_menu", "ANEES_BAND", "RMSE_MARGIN",
+           "MON_STEPS", "MIN_RUNS", "SECONDS_PER_EVALUATION", "ILL_CONDITIONED", "SCREENING_RUNS"]
+
+#: Credible: the time-mean ANEES within these multiples of the state dimension n.
+ANEES_BAND = (0.3, 1.5)
+#: The choice is the cheapest credible candidate whose RMSE is within this share of the best credible one.
+RMSE_MARGIN = 0.10
+#: The steps of the track (evenly spaced, first and last included) where the MoN is evaluated.
+MON_STEPS = 12
+#: The fewest pilot runs that ``budget`` may leave.
+MIN_RUNS = 8
+#: The runs of the screening EKF (the first of the pilot's).
+SCREENING_RUNS = 16
+#: The seconds one model evaluation of a compiled bank is estimated to take, for ``budget``
+#: (measured on the banks of a 4-state range–bearing tracker: 0.07–0.4 µs).
+SECONDS_PER_EVALUATION = 3e-7
+#: A covariance whose correlation matrix has a condition number above this is ill-conditioned:
+#: a square-root form joins the candidates.
+ILL_CONDITIONED = 1e8
+#: The probability that an IMM stays in its mode from one step to the next.
+IMM_STAY = 0.95
+#: The particle filter's particles: this many per state, within [PF_MIN, PF_MAX].
+PF_PER_STATE, PF_MIN, PF_MAX = 500, 1000, 10_000
+#: The process noise, relative to the prior covariance (mean eigenvalue of P0⁻¹ Q), below which the
+#: particle filter is regularised: little noise would let resampling collapse the cloud.
+PF_REGULARISE_BELOW = 1e-2
+#: The Gauss–Hermite filter is a candidate while its 3^n_w points per model cost at most this.
+GH_MAX_POINTS = 5000
+
+
+@dataclass(frozen=True, eq=False)
+class FilterCandidate:
+    """One row of :attr:`FilterAdvice.candidates`.
+
+    Attributes
+    ----------
+    name : str
+        The candidate: a registered filter name (:func:`symmon.filters.registry.filter_names`),
+        ``"ukf (square root)"`` or ``"imm"``.
+    method : str
+        The filter's own name (``"EKF"``, ``"PF(bootstrap, N=2000, systematic)"``, ...).
+    settings : dict
+        Its settings (those of its registry entry, or ``square_root``, ``modes``).
+    kept : bool
+        Whether the pilot ran it.
+    reason : str
+        Why it was kept or dropped.
+    cost : int
+        Model evaluations per step (module notes).
+    mon_f, mon_h : float or None
+        The MoN (W^full, unitless) of f and of h at the candidate's own prior, the largest
+        along the track; None when not run (or NaN where its covariance was unusable).
+    rmse : float or None
+        The pilot's RMSE, unitless (each state's error in units of its prior standard deviation).
+    rmse_states : ndarray or None
+        Each state's RMSE, in its own units.
+    anees : float or None
+        The time-mean ANEES (unitless).
+    anees_interval : tuple of float or None
+        Its 95 % χ² interval (module notes).
+    credible : bool or None
+        ANEES in [0.3 n, 1.5 n] and no covariance collapsed; None when not run.
+    failure : str
+        Why not credible ("" when credible or not run).
+    flagged : float or None
+        The share of the pilot's steps flagged by the online credibility (windowed NIS, and
+        ESS for a particle filter); None when the filter reports no innovations.
+    seconds_per_step : float or None
+        Measured: the pilot's time divided by runs × steps (its first call compiles too).
+    """
+
+    name: str
+    method: str
+    settings: dict
+    kept: bool
+    reason: str
+    cost: int
+    mon_f: float | None = None
+    mon_h: float | None = None
+    rmse: float | None = None
+    rmse_states: np.ndarray | None = None
+    anees: float | None = None
+    anees_interval: tuple[float, float] | None = None
+    credible: bool | None = None
+    failure: str = ""
+    flagged: float | None = None
+    seconds_per_step: float | None = None
+
+    def as_dict(self) -> dict:
+        """The row as plain numbers and strings (JSON)."""
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        out["settings"] = {k: (v if isinstance(v, (int, float, str, bool)) else repr(v))
+                           for k, v in self.settings.items()}
+        if self.rmse_states is not None:
+            out["rmse_states"] = [float(v) for v in self.rmse_states]
+        if self.anees_interval is not None:
+            out["anees_interval"] = [float(v) for v in self.anees_interval]
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class FilterAdvice:
+    """The result of :func:`advise_filter`.
+
+    Attributes
+    ----------
+    filter : Filter
+        The chosen filter, built and ready: ``advice.filter.filter(ys, x0)``.
+    choice : str
+        Its candidate name.
+    credible : bool
+        Whether the choice is credible (False: no candidate was, and the choice is the most accurate).
+    recommendation : str
+        The one recommendation, in a sentence.
+    candidates : tuple of FilterCandidate
+        One row per candidate, kept or dropped, in the order of the menu.
+    mon : dict
+        The screening MoN along the track (unitless, the largest over the steps):
+        ``{"f": {"prior": …, "truth": …}, "h": {"prior": …, "truth": …}}``.
+    n, steps, runs : int
+        States, steps, and the pilot's runs (fewer than asked under ``budget``).
+    runs_asked : int
+    budget : float or None
+    estimated_seconds : float
+        The pilot's estimated time (module notes), from which ``runs`` was chosen.
+    tol : float
+    seed : int
+    notes : tuple of str
+    """
+
+    filter: Filter
+    choice: str
+    credible: bool
+    recommendation: str
+    candidates: tuple[FilterCandidate, ...]
+    mon: dict
+    n: int
+    steps: int
+    runs: int
+    runs_asked: int
+    budget: float | None
+    estimated_seconds: float
+    tol: float
+    seed: int
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def chosen(self) -> FilterCandidate:
+        """The chosen candidate's row."""
+        return next(c for c in self.candidates if c.name == self.choice)
+
+    @property
+    def table(self) -> str:
+        """The candidates' table, every number with its unit (or unitless)."""
+        lines = [" ".join(f"{name:{'<' if i == 0 else '>'}{w}}" for i, (name, _, w) in enumerate(_COLUMNS)) + "  verdict",
+                 " ".join(f"{unit:{'<' if i == 0 else '>'}{w}}" for i, (_, unit, w) in enumerate(_COLUMNS))]
+        for c in self.candidates:
+            mark = "  <- choice" if c.name == self.choice else ""
+            if not c.kept:
+                cells = [c.name] + ["—"] * 6 + [f"{c.cost:,d}" if c.cost else "—", "—"]
+                verdict = f"dropped: {c.reason}"
+            else:
+                interval = "—" if c.anees_interval is None else f"[{c.anees_interval[0]:.3g}, {c.anees_interval[1]:.3g}]"
+                cells = [c.name, _num(c.mon_f, ".3f"), _num(c.mon_h, ".3f"), _num(c.rmse, ".4g"), _num(c.anees, ".4g"),
+                         interval, _num(None if c.flagged is None else 100 * c.flagged, ".1f"), f"{c.cost:,d}",
+                         _num(None if c.seconds_per_step is None else 1e6 * c.seconds_per_step, ".3g")]
+                verdict = "credible" if c.credible else f"not credible: {c.failure}"
+            lines.append(" ".join(f"{cell:{'<' if i == 0 else '>'}{w}}" for i, (cell, (_, _, w))
+                                  in enumerate(zip(cells, _COLUMNS))) + f"  {verdict}{mark}")
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        lo, hi = ANEES_BAND
+        m = self.mon
+        budget = "" if self.budget is None else (f", budget {self.budget:g} s (estimated {self.estimated_seconds:.3g} s; "
+                                                  f"{self.runs_asked} runs asked)")
+        head = (f"filter advice: n = {self.n} states, {self.steps} steps, pilot of {self.runs} simulated runs "
+                f"(seed {self.seed}){budget}, tol {self.tol:g} (unitless)\n"
+                f"MoN along the track (W^full, unitless, largest over {MON_STEPS} steps): "
+                f"f {m['f']['prior']:.3g} at the EKF's prior, {m['f']['truth']:.3g} at the truth's spread; "
+                f"h {m['h']['prior']:.3g} at the EKF's prior, {m['h']['truth']:.3g} at the truth's spread\n"
+                f"credible: time-mean ANEES in [{lo * self.n:.3g}, {hi * self.n:.3g}] ({lo:g} n, {hi:g} n) and no "
+                "run's covariance collapsed; RMSE in prior standard deviations\n")
+        notes = "".join(f"\nnote: {n}" for n in self.notes)
+        return head + self.table + f"\nrecommendation: {self.recommendation}" + notes
+
+    def __repr__(self) -> str:
+        return f"FilterAdvice(choice={self.choice!r}, credible={self.credible}, runs={self.runs}, tol={self.tol:g})"
+
+    def as_dict(self) -> dict:
+        """The advice as plain numbers and strings (``symmon advise --filter --json``)."""
+        return {"choice": self.choice, "method": self.filter.method, "credible": self.credible,
+                "recommendation": self.recommendation, "mon": self.mon, "n": self.n, "steps": self.steps,
+                "runs": self.runs, "runs_asked": self.runs_asked, "budget": self.budget,
+                "estimated_seconds": self.estimated_seconds, "tol": self.tol, "seed": self.seed,
+                "anees_band": [ANEES_BAND[0] * self.n, ANEES_BAND[1] * self.n], "rmse_margin": RMSE_MARGIN,
+                "units": {"mon": "unitless", "rmse": "unitless (prior standard deviations)", "anees": "unitless",
+                          "flagged": "share of steps", "cost": "model evaluations per step",
+                          "seconds_per_step": "seconds per step and run"},
+                "candidates": [c.as_dict() for c in self.candidates], "notes": list(self.notes)}
+
+
+#: The table's columns: name, unit, width.
+_COLUMNS = (("filter", "", 19), ("MoN f", "(unitless)", 10), ("MoN h", "(unitless)", 10), ("RMSE", "(unitless)", 10),
+            ("ANEES", "(unitless)", 10), ("95% interval", "(unitless)", 16), ("NIS flagged", "(% steps)", 11),
+            ("cost", "(evals/step)", 12), ("time/step", "(µs/run)", 9))
+
+
+def _num(v: float | None, fmt: str) -> str:
+    if v is None:
+        return "—"
+    return "nan" if not np.isfinite(v) else format(v, fmt)
+
+
+# --------------------------------------------------------------------------- the menu
+@dataclass(frozen=True)
+class _Option:
+    """A candidate before the pilot: how to build it, its cost, and the pruning's verdict."""
+
+    name: str
+    build: Callable[[], Filter] = field(repr=False)
+    settings: dict
+    cost: int
+    kept: bool
+    reason: str
+    readmit: bool = False  # run it when no kept candidate is credible
+
+
+def _is_linear(f: Model, h: Model) -> bool:
+    """f and h are g(x) = M x with constant M, no noise symbols, no parameters (the ``kf`` entry)."""
+    for g in (f, h):
+        if g.n_v or g.params:
+            return False
+        x = list(g.inputs)
+        J = sp.Matrix(g.outputs).jacobian(x)
+        if J.free_symbols or any(e != 0 for e in sp.Matrix(g.outputs).subs({s: 0 for s in x})):
+            return False
+    return True
+
+
+def _gaussian_cost(rule: Any, f: Model, h: Model, h_times: int = 1) -> int:
+    return transform_cost(rule, f.n_u + f.n_v) + h_times * transform_cost(rule, h.n_u + h.n_v)
+
+
+def candidate_menu(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, P0: np.ndarray, mon_f: float, mon_h: float,
+                   tol: float, *, modes: Sequence[Any] | None = None, ill_conditioned: bool = False,
+                   seed: int = 0) -> list[_Option]:
+    """The candidates for a track whose MoN along it is ``mon_f`` (f) and ``mon_h`` (h), each
+    with the pruning's verdict (module notes).
+
+    Returns
+    -------
+    list
+        One option per candidate, in the order of the table, with its name, settings, cost,
+        whether it is kept and why.
+    """
+    n = f.n_u
+    mon = max(mon_f, mon_h)
+    lin = math.sqrt(2.0) * tol
+    out: list[_Option] = []
+    small = f"the MoN {mon:.3g} <= sqrt(2) tol = {lin:.3g} along the track: the EKF's moments are within tol"
+
+    def gaussian(name: str, settings: dict | None = None) -> Callable[[], Filter]:
+        return lambda: make_filter(name, f, h, Q, R, tol=tol, settings=settings)
+
+    ekf_cost = _gaussian_cost(TT1(), f, h)
+    if _is_linear(f, h):
+        out.append(_Option("kf", gaussian("kf"), {}, ekf_cost, True,
+                           "f and h are linear: the Kalman filter is exact (its F and H counted as the EKF's Jacobians)"))
+    out.append(_Option("ekf", gaussian("ekf"), {}, ekf_cost, True, "the cheapest nonlinear filter (the baseline)"))
+    iters = 5
+    out.append(_Option("iekf", gaussian("iekf", {"iterations": iters}), {"iterations": iters},
+                       _gaussian_cost(TT1(), f, h, iters), mon_h > lin,
+                       f"h's MoN {mon_h:.3g} > sqrt(2) tol: iterating the update relinearises h" if mon_h > lin else
+                       f"h's MoN {mon_h:.3g} <= sqrt(2) tol: iterating the update cannot help"))
+    for name in ("ukf", "ckf", "ghkf"):
+        rule = filter_entry(name).rule(tol, {})
+        c = _gaussian_cost(rule, f, h)
+        if name == "ghkf" and 3 ** (n + max(f.n_v, h.n_v)) > GH_MAX_POINTS:
+            out.append(_Option(name, gaussian(name), {}, c, False, f"its 3^n points cost more than {GH_MAX_POINTS}"))
+            continue
+        out.append(_Option(name, gaussian(name), {}, c, mon > lin,
+                           f"the MoN {mon:.3g} > sqrt(2) tol: sigma points follow the curvature" if mon > lin else
+                           small + ", at a higher cost"))
+    if ill_conditioned:
+        base = "ukf" if mon > lin else "ekf"
+        rule = filter_entry(base).rule(tol, {})
+        out.append(_Option(f"{base} (square root)", lambda: NonlinearKalmanFilter(f, h, Q, R, rule, square_root=True),
+                           {"square_root": True}, _gaussian_cost(rule, f, h), True,
+                           f"the screening covariance is ill-conditioned (condition number > {ILL_CONDITIONED:.0e})"))
+    # The Gaussian-sum filter: split by the MoN, as many components as bring each one's MoN to sqrt(2) tol.
+    gsf = filter_advice(max(mon, lin * 1.0000001), None, tol)
+    if f.n_v or h.n_v:
+        out.append(_Option("gsf", lambda: None, {}, 0, False, "splitting needs additive noises (no noise symbols)"))
+    else:
+        components = int(gsf.get("max_components", MAX_GSF_COMPONENTS))
+        settings = {"transform": "ekf", "split": float(lin), "max_components": components}
+        levels = (f"{gsf['levels']} level(s) of 3-splits bring each component's to {lin:.3g}" if gsf["filter"] == "gsf"
+                  else f"at most {MAX_GSF_COMPONENTS} components (bringing each one's to {lin:.3g} would need more)")
+        out.append(_Option("gsf", gaussian("gsf", settings), settings,
+                           components * ekf_cost + _gaussian_cost(TT2(), f, h), mon > lin,
+                           f"the MoN {mon:.3g} > sqrt(2) tol: {levels}" if mon > lin else small, readmit=True))
+    particles = int(min(PF_MAX, max(PF_MIN, PF_PER_STATE * n)))
+    regularise = _little_process_noise(f, Q, P0)
+    settings = {"particles": particles, "proposal": "bootstrap", "regularise": regularise, "seed": int(seed)}
+    out.append(_Option("pf", gaussian("pf", settings), settings, 2 * particles, mon > GAUSSIAN_MON_LIMIT,
+                       (f"the MoN {mon:.3g} > {GAUSSIAN_MON_LIMIT}, where Gaussian filters lose consistency"
+                        if mon > GAUSSIAN_MON_LIMIT else
+                        f"the MoN {mon:.3g} <= {GAUSSIAN_MON_LIMIT}: Gaussian filters keep their consistency here")
+                       + ("; regularised: little process noise" if regularise else ""), readmit=True))
+    if modes:
+        rule = filter_entry("ukf" if mon > lin else "ekf").rule(tol, {})
+        models = [(f, Q)] + [_mode(m, i, Q) for i, m in enumerate(modes)]
+        M = len(models)
+        P = np.full((M, M), (1 - IMM_STAY) / (M - 1)) + np.eye(M) * (IMM_STAY - (1 - IMM_STAY) / (M - 1))
+
+        def imm() -> Filter:
+            return IMM([NonlinearKalmanFilter(fm, h, Qm, R, rule) for fm, Qm in models], P, np.full(M, 1.0 / M))
+
+        out.append(_Option("imm", imm, {"modes": M, "rule": rule.filter_label(), "stay": IMM_STAY},
+                           M * _gaussian_cost(rule, f, h), True, f"{M} modes given (f and {M - 1} alternative(s))"))
+    return out
+
+
+def _mode(m: Any, i: int, Q: np.ndarray) -> tuple[Model, np.ndarray]:
+    """``modes[i]``: a Model (with the Q of f) or a (Model, Q) pair."""
+    if isinstance(m, Model):
+        return m, Q
+    if isinstance(m, tuple) and len(m) == 2 and isinstance(m[0], Model):
+        return m[0], np.asarray(m[1], dtype=float)
+    raise ArgumentTypeError(f"modes[{i}] must be a Model (a transition) or a (Model, Q) pair, got {plain_repr(m)}")
+
+
+def _little_process_noise(f: Model, Q: np.ndarray, P0: np.ndarray) -> bool:
+    """Whether Q is small against the prior (mean eigenvalue of P0⁻¹ Q below
+    :data:`PF_REGULARISE_BELOW`) or singular: then the particle filter is regularised."""
+    Q = np.asarray(Q, dtype=float)
+    if np.linalg.eigvalsh(Q)[0] <= 0:
+        return True
+    if f.n_v or Q.shape != P0.shape:
+        return False
+    try:
+        return float(np.trace(np.linalg.solve(P0, Q))) / len(Q) < PF_REGULARISE_BELOW
+    except np.linalg.LinAlgError:
+        return False
+
+
+# --------------------------------------------------------------------------- the MoN along the track
+def _mon_steps(K: int) -> np.ndarray:
+    return np.unique(np.linspace(0, K - 1, min(K, MON_STEPS)).round().astype(int))
+
+
+def _mon(model: Model, m: np.ndarray, C: np.ndarray, v: Gaussian | None) -> float:
+    """The MoN (W^full, TT2) of ``model`` at N(m, C); NaN where C is unusable."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            return float(nonlinearity(model, Gaussian(m, 0.5 * (C + C.T)), v, weight="full", transform=TT2()).value)
+        except (SymmonError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+            return float("nan")
+
+
+def _track_mon(model: Model, means: np.ndarray, covs: np.ndarray, v: Gaussian | None, ks: np.ndarray) -> float:
+    """The largest MoN of ``model`` at N(means[k], covs[k]) over the steps ``ks`` (NaN ignored; NaN if all are)."""
+    vals = [_mon(model, means[k], covs[k], v) for k in ks]
+    finite = [x for x in vals if np.isfinite(x)]
+    return max(finite) if finite else float("nan")
+
+
+def _errors(x: np.ndarray, xs: np.ndarray, angle_states: Sequence[int]) -> np.ndarray:
+    e = xs - x
+    if angle_states:
+        idx = list(angle_states)
+        e[..., idx] = wrap_angle(e[..., idx])
+    return e
+
+
+def _ill_conditioned(P: np.ndarray) -> bool:
+    d = np.sqrt(np.clip(np.einsum("...ii->...i", P), 1e-300, None))
+    corr = P / (d[..., :, None] * d[..., None, :])
+    with np.errstate(all="ignore"):
+        c = np.linalg.cond(corr)
+    return bool(np.any(~(c < ILL_CONDITIONED)))
+
+
+# --------------------------------------------------------------------------- checks
+def _check(f: Any, h: Any, x0: Any, steps: Any, tol: Any, runs: Any, budget: Any, seed: Any) -> None:
+    for name, m in (("f", f), ("h", h)):
+        if not isinstance(m, Model):
+            raise ArgumentTypeError(f"{name} must be a symmon.Model, got {plain_repr(m)}")
+    if not isinstance(x0, Gaussian):
+        raise ArgumentTypeError(f"x0 must be a Gaussian prior (symmon.Gaussian), got {type(x0).__name__}")
+    for name, v, least in (("steps", steps, 2), ("runs", runs, 2)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < least:
+            raise ArgumentError(f"{name} must be an integer of at least {least}, got {plain_repr(v)}")
+    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0 < tol < 1:
+        raise ArgumentError(f"tol must be a number in (0, 1), got {plain_repr(tol)}")
+    if budget is not None and (isinstance(budget, bool) or not isinstance(budget, (int, float))
+                               or not np.isfinite(budget) or budget <= 0):
+        raise ArgumentError(f"budget must be a positive number of seconds (or None), got {plain_repr(budget)}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ArgumentError(f"seed must be a non-negative integer, got {plain_repr(seed)}")
+
+
+def _given(candidates: Sequence[Any], f: Model, h: Model, Q: np.ndarray, R: np.ndarray, tol: float) -> list[_Option]:
+    """The caller's ``candidates``: registered names or (name, settings) pairs, all kept."""
+    out = []
+    for i, c in enumerate(candidates):
+        name, settings = (c, {}) if isinstance(c, str) else c if (
+            isinstance(c, tuple) and len(c) == 2 and isinstance(c[0], str) and isinstance(c[1], Mapping)) else (None, None)
+        if name is None:
+            raise ArgumentTypeError(f"candidates[{i}] must be a filter name (e.g. 'ukf') or a (name, settings) pair, "
+                                    f"got {plain_repr(c)}")
+        entry = filter_entry(name)  # an unknown name: SymmonError listing the known ones
+        settings = dict(settings)
+        flt = make_filter(entry.name, f, h, Q, R, tol=tol, settings=settings)
+        out.append(_Option(entry.name if not any(o.name == entry.name for o in out) else f"{entry.name} #{i}",
+                           (lambda flt=flt: flt), settings, _filter_cost(flt, f, h), True, "given by the caller"))
+    if not out:
+        raise ArgumentError("candidates is empty")
+    return out
+
+
+def _filter_cost(flt: Filter, f: Model, h: Model) -> int:
+    """The cost per step (module notes) of a built filter."""
+    if isinstance(flt, ParticleFilter):
+        return 2 * flt.particles
+    if isinstance(flt, GaussianSumFilter):
+        return flt.max_components * _gaussian_cost(flt.transform, f, h)
+    if isinstance(flt, IMM):
+        return sum(_filter_cost(m, f, h) for m in flt.filters)
+    if isinstance(flt, NonlinearKalmanFilter) and not _adaptive(flt):
+        return _gaussian_cost(flt.transform, f, h, flt.iterations)
+    return _gaussian_cost(TT1(), f, h)
+
+
+def _adaptive(flt: NonlinearKalmanFilter) -> bool:
+    try:
+        transform_cost(flt.transform, 1)
+        return False
+    except (SymmonError, AttributeError):
+        return True
+
+
+# --------------------------------------------------------------------------- the pilot
+def _run(flt: Filter, ys: np.ndarray, xs: np.ndarray, x0: Gaussian, params: dict | None
+         ) -> tuple[Any, float, list[str]]:
+    """``flt`` over the bank ``ys`` with the truth ``xs``: (result, seconds, warnings)."""
+    keep = tuple(k for k in ("x", "P", "x_pred", "P_pred", "nis") if k in flt.keepable)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        t0 = time.perf_counter()
+        res = flt.filter(ys, x0, keep=keep, params=params, x_true=xs)
+        seconds = time.perf_counter() - t0
+    return res, seconds, sorted({f"{w.category.__name__}: {w.message}" for w in caught})
+
+
+def _pilot_row(opt: _Option, xs: np.ndarray, ys: np.ndarray, x0: Gaussian, params: dict | None, scale: np.ndarray,
+               models: tuple[Model, Model, Gaussian | None, Gaussian | None], ks: np.ndarray, notes: list[str]
+               ) -> tuple[FilterCandidate, Filter | None]:
+    """One candidate's pilot: its row (and the built filter)."""
+    Rr, K, n = xs.shape
+    base = dict(name=opt.name, settings=opt.settings, kept=True, reason=opt.reason, cost=opt.cost)
+    try:
+        flt = opt.build()
+    except SymmonError as exc:
+        return FilterCandidate(method=opt.name, **{**base, "kept": False, "reason": f"cannot be built: {exc}"}), None
+    try:
+        res, seconds, caught = _run(flt, ys, xs, x0, params)
+    except (SymmonError, np.linalg.LinAlgError, FloatingPointError) as exc:
+        return FilterCandidate(method=flt.method, **base, credible=False,
+                               failure=f"a run failed ({type(exc).__name__}: {exc})"), flt
+    notes += [f"{opt.name}: {w}" for w in caught]
+    e = _errors(np.asarray(res.x, dtype=float), xs, res.angle_states)
+    rmse_states = np.sqrt(np.mean(e**2, axis=(0, 1)))
+    rmse = float(np.sqrt(np.mean(np.sum((e / scale) ** 2, axis=-1)) / n))
+    nees = np.asarray(res.nees(), dtype=float)
+    anees = float(nees.mean())
+    interval = tuple(float(q) / Rr for q in stats.chi2.ppf([0.025, 0.975], Rr * n))
+    lo, hi = ANEES_BAND[0] * n, ANEES_BAND[1] * n
+    failure = ""
+    if not np.isfinite(e).all() or (res.P is not None and not np.isfinite(res.P).all()):
+        failure = "non-finite estimates"
+    elif not lo <= anees <= hi:
+        failure = f"ANEES {anees:.3g} {'>' if anees > hi else '<'} {hi if anees > hi else lo:.3g}"
+    try:
+        flagged = res.credibility.fraction
+    except SymmonError:
+        flagged = None
+    f_model, h_model, v_f, v_h = models
+    mon_f = mon_h = None
+    if res.x is not None and res.P is not None:
+        mon_f = _track_mon(f_model, res.x[0], _first(res.P), v_f, ks)
+        xp, Pp = (res.x_pred, res.P_pred) if res.x_pred is not None and res.P_pred is not None else (res.x, res.P)
+        mon_h = _track_mon(h_model, xp[0], _first(Pp), v_h, ks)
+    return FilterCandidate(method=flt.method, **base, mon_f=mon_f, mon_h=mon_h, rmse=rmse, rmse_states=rmse_states,
+                           anees=anees, anees_interval=interval, credible=not failure, failure=failure,
+                           flagged=flagged, seconds_per_step=seconds / (Rr * K)), flt
+
+
+def _first(P: np.ndarray) -> np.ndarray:
+    """The covariances (K, n, n) of the first run of a bank's (R, K, n, n), or those the runs share."""
+    return P[0] if P.ndim == 4 else P
+
+
+def _choose(rows: list[FilterCandidate]) -> tuple[FilterCandidate, bool, str]:
+    """The choice (module notes): (row, credible, the recommendation)."""
+    ran = [(i, r) for i, r in enumerate(rows) if r.kept and r.rmse is not None and np.isfinite(r.rmse)]
+    credible = [(i, r) for i, r in ran if r.credible]
+    if credible:
+        best = min(credible, key=lambda t: (t[1].rmse, t[0]))[1]
+        within = [(r.cost, i, r) for i, r in credible if r.rmse <= (1 + RMSE_MARGIN) * best.rmse]
+        choice = min(within, key=lambda t: (t[0], t[1]))[2]
+        if choice is best:
+            why = (f"the most accurate credible filter (RMSE {best.rmse:.4g}), and the cheapest within "
+                   f"{RMSE_MARGIN:.0%} of it ({choice.cost:,d} evaluations per step)")
+        else:
+            why = (f"the cheapest credible filter ({choice.cost:,d} evaluations per step) whose RMSE {choice.rmse:.4g} "
+                   f"is within {RMSE_MARGIN:.0%} of the best credible one ({best.name}: {best.rmse:.4g}, "
+                   f"{best.cost:,d} evaluations per step)")
+        return choice, True, f"{choice.name} ({choice.method}): {why}"
+    if ran:
+        choice = min(ran, key=lambda t: (t[1].rmse, t[0]))[1]
+        return choice, False, (f"none of the candidates is credible on this track; {choice.name} ({choice.method}) "
+                               f"is the most accurate (RMSE {choice.rmse:.4g}, ANEES {choice.anees:.3g}): do not "
+                               "trust its covariance")
+    return rows[0], False, "none of the candidates ran on this track: every one failed"
+
+
+# --------------------------------------------------------------------------- the advice
+def advise_filter(f: Model, h: Model, Q: Any, R: Any, x0: Gaussian, steps: int, params: dict | None = None, *,
+                  modes: Sequence[Any] | None = None, tol: float = DEFAULT_TOL, runs: int = 64,
+                  budget: float | None = None, seed: int = 0,
+                  candidates: Sequence[str | tuple[str, Mapping[str, Any]]] | None = None) -> FilterAdvice:
+    """The filter for a whole track: candidates pruned by the MoN along it, chosen by a pilot study.
+
+    Module notes: the MoN along the track, the candidates and their pruning, the pilot, the
+    choice (the cheapest credible candidate whose RMSE is within 10 % of the best credible
+    one), the cost, and ``budget``.  :func:`symmon.advise` answers the transform question
+    for one prior; this answers the filter question.
+
+    Parameters
+    ----------
+    f, h : Model
+        The dynamics (n → n) and the measurement (n → n_y), as for
+        :class:`~symmon.NonlinearKalmanFilter`.
+    Q, R : array_like
+        Process and measurement noise covariances.
+    x0 : Gaussian
+        The prior of x_0: the truth of each pilot run is drawn from it, and every filter starts from it.
+    steps : int
+        K, the steps of a track (at least 2).
+    params : dict, optional
+        The models' parameter values by name, as for ``filter`` (a number, one per step, or
+        one per run and step); the MoN uses each parameter's mean value.
+    modes : sequence of Model or (Model, Q), optional
+        Alternative transitions: an IMM over f and these joins the candidates.
+    tol : float, default 0.01
+        The unitless moment tolerance of :func:`symmon.advise`: the MoN above √2 · tol
+        brings in the sigma-point filters and the Gaussian-sum filter.
+    runs : int, default 64
+        The pilot's simulated tracks (at least 2).
+    budget : float, optional
+        Seconds for the pilot: fewer runs when the cost estimate exceeds it (module notes).
+    seed : int, default 0
+        Of the simulated tracks (and of the particle filter): the same seed, the same advice.
+    candidates : sequence of str or (str, dict), optional
+        Filters to compare instead of the menu: registered names (``"ukf"``) or
+        (name, settings) pairs (``("pf", {"particles": 500})``); all are run, whatever the MoN.
+
+    Returns
+    -------
+    FilterAdvice
+        ``print(advice)`` shows the table and one recommendation; ``advice.filter`` is the
+        chosen filter, built.
+
+    Raises
+    ------
+    ArgumentError, ArgumentTypeError
+        A bad argument, named.
+    SymmonError
+        Models that do not fit together, bad covariances, an unknown candidate, or a
+        simulated truth that diverges (:func:`symmon.simulate`).
+
+    Examples
+    --------
+    >>> import numpy as np, sympy as sp, symmon as sm
+    >>> p, v = sp.symbols("p v")
+    >>> f = sm.Model([p, v], [p + v, v])
+    >>> h = sm.Model([p, v], [p])
+    >>> a = sm.advise_filter(f, h, 0.01 * np.eye(2), [[1.0]], sm.Gaussian([0.0, 1.0], np.eye(2)), 20, runs=16)
+    >>> a.choice, a.credible
+    ('kf', True)
+    """
+    _check(f, h, x0, steps, tol, runs, budget, seed)
+    tol, K = float(tol), int(steps)
+    Q, R = np.atleast_2d(np.asarray(Q, dtype=float)), np.atleast_2d(np.asarray(R, dtype=float))
+    n = f.n_u
+    xs_all, ys_all = simulate(f, h, Q, R, x0, K, runs=int(runs), params=params, seed=int(seed))
+    notes: list[str] = []
+    P0 = np.asarray(x0.cov, dtype=float)
+    scale = np.sqrt(np.diag(P0)).copy()
+    spread = xs_all.reshape(-1, n).std(axis=0)
+    scale[~(scale > 0)] = np.where(spread > 0, spread, 1.0)[~(scale > 0)]
+
+    # The models for the MoN: parameters at their mean values, noises as N(0, Q) and N(0, R).
+    mean_params = None if not params else {k: float(np.mean(v)) for k, v in params.items()}
+
+    def own(model: Model) -> Model:
+        if not mean_params or not model.params:
+            return model
+        names = {str(s) for s in model.params}
+        return with_param_values(model, {k: v for k, v in mean_params.items() if k in names})
+
+    f_m, h_m = own(f), own(h)
+    v_f = Gaussian(np.zeros(f.n_v), Q) if f.n_v else None
+    v_h = Gaussian(np.zeros(h.n_v), R) if h.n_v else None
+    ks = _mon_steps(K)
+
+    # The screening: the EKF (else the UKF) on the first runs; the MoN at its prior and at the truth's spread.
+    Rs = min(int(runs), SCREENING_RUNS)
+    xs_s, ys_s = xs_all[:Rs], ys_all[:Rs]
+    screen = None
+    for name in ("ekf", "ukf"):
+        try:
+            flt = make_filter(name, f, h, Q, R, tol=tol)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                screen = flt.filter(ys_s, x0, keep=("x", "P", "x_pred", "P_pred"), params=_sliced(params, Rs, runs))
+            break
+        except (SymmonError, np.linalg.LinAlgError):
+            continue
+    if screen is not None:
+        e_post = _errors(np.asarray(screen.x), xs_s, screen.angle_states)
+        e_pred = _errors(np.asarray(screen.x_pred), xs_s, screen.angle_states)
+        C_post = np.einsum("rki,rkj->kij", e_post, e_post) / Rs
+        C_pred = np.einsum("rki,rkj->kij", e_pred, e_pred) / Rs
+        mon = {"f": {"prior": _track_mon(f_m, screen.x[0], screen.P[0], v_f, ks),
+                     "truth": _track_mon(f_m, xs_s[0], C_post, v_f, ks)},
+               "h": {"prior": _track_mon(h_m, screen.x_pred[0], screen.P_pred[0], v_h, ks),
+                     "truth": _track_mon(h_m, xs_s[0], C_pred, v_h, ks)}}
+        ill = _ill_conditioned(np.asarray(screen.P)) or _ill_conditioned(np.asarray(screen.P_pred))
+    else:
+        notes.append("the screening EKF and UKF both failed: the MoN is at the truth's spread over the runs only")
+        C = np.einsum("rki,rkj->kij", xs_s - xs_s.mean(0), xs_s - xs_s.mean(0)) / Rs
+        m = xs_s.mean(0)
+        mon = {"f": {"prior": float("nan"), "truth": _track_mon(f_m, m, C, v_f, ks)},
+               "h": {"prior": float("nan"), "truth": _track_mon(h_m, m, C, v_h, ks)}}
+        ill = True
+    mon_f = float(np.nanmax([mon["f"]["prior"], mon["f"]["truth"], 0.0]))
+    mon_h = float(np.nanmax([mon["h"]["prior"], mon["h"]["truth"], 0.0]))
+    if candidates is None:
+        options = candidate_menu(f, h, Q, R, P0, mon_f, mon_h, tol, modes=modes, ill_conditioned=ill,
+                                 seed=int(seed))
+    else:
+        if modes:
+            raise ArgumentError("give modes or candidates, not both (an IMM is built from modes)")
+        options = _given(candidates, f, h, Q, R, tol)
+
+    # The pilot's runs: as many as the budget's cost estimate allows.
+    per_run = K * sum(o.cost for o in options if o.kept) * SECONDS_PER_EVALUATION
+    Rp = int(runs)
+    if budget is not None:
+        Rp = int(min(int(runs), max(MIN_RUNS, math.floor(budget / per_run) if per_run > 0 else int(runs))))
+        if Rp * per_run > budget:
+            notes.append(f"even the fewest runs ({MIN_RUNS}) are estimated at {Rp * per_run:.3g} s > budget {budget:g} s")
+    xs, ys = xs_all[:Rp], ys_all[:Rp]
+    pv = _sliced(params, Rp, runs)
+    rows: list[FilterCandidate | None] = [None] * len(options)
+    built: dict[str, Filter] = {}
+
+    def pilot(i: int) -> None:
+        row, flt = _pilot_row(options[i], xs, ys, x0, pv, scale, (f_m, h_m, v_f, v_h), ks, notes)
+        rows[i] = row
+        if flt is not None:
+            built[row.name] = flt
+
+    for i, o in enumerate(options):
+        if o.kept:
+            pilot(i)
+        else:
+            rows[i] = FilterCandidate(name=o.name, method=o.name, settings=o.settings, kept=False, reason=o.reason,
+                                      cost=o.cost)
+    if not any(r.kept and r.credible for r in rows):
+        again = [i for i, o in enumerate(options) if not o.kept and o.readmit]
+        if again:
+            notes.append("no kept candidate was credible: the pruned " + ", ".join(options[i].name for i in again)
+                         + " ran too")
+        for i in again:
+            options[i] = dataclasses.replace(options[i], kept=True,
+                                             reason=options[i].reason + "; run as no kept candidate was credible")
+            pilot(i)
+    final = [r for r in rows if r is not None]
+    choice, credible, recommendation = _choose(final)
+    flt = built.get(choice.name)
+    if flt is None:  # nothing ran: the EKF, built
+        flt = make_filter("ekf", f, h, Q, R, tol=tol)
+    return FilterAdvice(flt, choice.name, credible, recommendation, tuple(final), mon, n, K, Rp, int(runs),
+                        None if budget is None else float(budget), Rp * per_run, tol, int(seed), tuple(notes))
+
+
+def _sliced(params: dict | None, R: int, runs: int) -> dict | None:
+    """``params`` for the first R of ``runs`` runs (a per-run-and-step array sliced)."""
+    if not params:
+        return params
+    out = {}
+    for k, v in params.items():
+        a = np.asarray(v, dtype=float)
+        out[k] = a[:R] if a.ndim == 2 and a.shape[0] == runs else v
+    return out

@@ -1,0 +1,162 @@
+"""advise_filter (issue 48, item 1): the MoN along the track prunes the candidates, a pilot
+study confirms, and the choice is the cheapest credible filter within 10 % of the best RMSE."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import symmon as sm
+from symmon.errors import ArgumentError, ArgumentTypeError, SymmonError
+from symmon.filters.selection import ANEES_BAND, MIN_RUNS, RMSE_MARGIN, SECONDS_PER_EVALUATION
+
+p, v, x = sp.symbols("p v x", real=True)
+# A constant-velocity model measured in position: linear and Gaussian.
+CV_F = sm.Model([p, v], [p + v, v], name="adv_cv_f")
+CV_H = sm.Model([p, v], [p], name="adv_cv_h")
+CV_Q, CV_R = 0.01 * np.eye(2), [[1.0]]
+CV_X0 = sm.Gaussian([0.0, 1.0], np.eye(2))
+# A random walk measured through exp(x): the EKF is overconfident, its RMSE close to the UKF's.
+EXP_F, EXP_H = sm.Model([x], [x], name="adv_rw"), sm.Model([x], [sp.exp(x)], name="adv_exp")
+EXP = (EXP_F, EXP_H, [[0.05]], [[0.1]], sm.Gaussian([0.0], [[1.0]]), 30)
+# A random walk measured through x²/5 from x0 = 2: no Gaussian filter is credible (the sign is lost).
+SQ = (sm.Model([x], [0.9 * x], name="adv_ar"), sm.Model([x], [x**2 / 5], name="adv_sq"), [[0.5]], [[0.1]],
+      sm.Gaussian([2.0], [[1.0]]), 30)
+
+
+@pytest.fixture(scope="module")
+def linear():
+    return sm.advise_filter(CV_F, CV_H, CV_Q, CV_R, CV_X0, 20, runs=32, seed=3)
+
+
+def test_a_linear_gaussian_model_gets_the_kalman_filter_and_its_anees_sits_in_its_interval(linear) -> None:
+    a = linear
+    assert a.choice in ("kf", "ekf") and a.credible
+    row = a.chosen
+    lo, hi = row.anees_interval
+    assert lo <= row.anees <= hi
+    assert ANEES_BAND[0] * 2 <= row.anees <= ANEES_BAND[1] * 2
+    # the MoN is zero along the track: no sigma points, mixtures or particles are run
+    assert max(a.mon["h"].values()) < 1e-6 and max(a.mon["f"].values()) < 1e-6
+    dropped = {c.name for c in a.candidates if not c.kept}
+    assert {"ukf", "ckf", "ghkf", "gsf", "pf", "iekf"} <= dropped
+    # the chosen filter is built and ready, with its settings
+    xs, ys = sm.simulate(CV_F, CV_H, CV_Q, CV_R, CV_X0, 5, seed=9)
+    assert a.filter.filter(ys, CV_X0).x.shape == (5, 2)
+    assert a.filter.method == row.method
+
+
+def test_the_kalman_filter_and_the_ekf_give_the_same_numbers_on_a_linear_model(linear) -> None:
+    kf, ekf = (next(c for c in linear.candidates if c.name == name) for name in ("kf", "ekf"))
+    assert kf.rmse == pytest.approx(ekf.rmse, rel=1e-9) and kf.anees == pytest.approx(ekf.anees, rel=1e-9)
+
+
+def test_the_table_shows_every_candidate_with_units_and_one_recommendation(linear) -> None:
+    text = str(linear)
+    assert text.count("recommendation:") == 1 and text.count("<- choice") == 1
+    header, units = linear.table.splitlines()[:2]
+    for name in ("MoN f", "MoN h", "RMSE", "ANEES", "95% interval", "NIS flagged", "cost", "time/step"):
+        assert name in header
+    assert units.count("(unitless)") == 5 and "(evals/step)" in units and "(µs/run)" in units and "(% steps)" in units
+    assert "W^full, unitless" in text and "tol 0.01 (unitless)" in text
+    assert len(linear.table.splitlines()) == 2 + len(linear.candidates)
+    d = linear.as_dict()
+    assert d["choice"] == linear.choice and len(d["candidates"]) == len(linear.candidates)
+    assert d["units"]["rmse"].startswith("unitless")
+
+
+def test_the_advice_is_reproducible_per_seed() -> None:
+    a = sm.advise_filter(*EXP, runs=16, seed=5, candidates=["ekf", "ukf"])
+    b = sm.advise_filter(*EXP, runs=16, seed=5, candidates=["ekf", "ukf"])
+    c = sm.advise_filter(*EXP, runs=16, seed=6, candidates=["ekf", "ukf"])
+    assert a.choice == b.choice
+    assert [(r.rmse, r.anees, r.cost, r.mon_h) for r in a.candidates] == [(r.rmse, r.anees, r.cost, r.mon_h)
+                                                                           for r in b.candidates]
+    assert [r.rmse for r in a.candidates] != [r.rmse for r in c.candidates]
+
+
+def test_never_a_filter_its_pilot_found_not_credible_when_a_credible_one_exists() -> None:
+    a = sm.advise_filter(*EXP, runs=32, seed=0, candidates=["ekf", "ukf", ("pf", {"particles": 10})])
+    rows = {c.name: c for c in a.candidates}
+    ekf, ukf, pf = rows["ekf"], rows["ukf"], rows["pf"]
+    # the EKF is cheaper and within 10 % of the best RMSE: only its credibility keeps it out
+    assert ekf.cost < ukf.cost and ekf.rmse <= (1 + RMSE_MARGIN) * ukf.rmse
+    assert not ekf.credible and "ANEES" in ekf.failure
+    assert not pf.credible  # ten particles collapse
+    assert ukf.credible and a.choice == "ukf" and a.credible
+    assert "ukf" in a.recommendation and "credible" in a.recommendation
+
+
+def test_it_says_plainly_when_no_candidate_is_credible() -> None:
+    a = sm.advise_filter(*SQ, runs=16, seed=0, candidates=["ekf", "ukf"])
+    assert not any(c.credible for c in a.candidates)
+    assert not a.credible
+    best = min(a.candidates, key=lambda c: c.rmse)
+    assert a.choice == best.name
+    assert a.recommendation.startswith("none of the candidates is credible")
+    assert "none of the candidates is credible" in str(a)
+
+
+def _estimate(a) -> float:
+    """The pilot's estimated seconds per run, from the kept candidates' costs (module notes)."""
+    return a.steps * sum(c.cost for c in a.candidates if c.kept) * SECONDS_PER_EVALUATION
+
+
+@pytest.mark.parametrize("budget, runs", [(None, 24), (1e-9, MIN_RUNS), (1e3, 24), ("mid", None)])
+def test_budget_bounds_the_pilot_by_its_runs(budget, runs) -> None:
+    if budget == "mid":  # room for 12 of the 24 runs by the cost estimate
+        per_run = _estimate(sm.advise_filter(CV_F, CV_H, CV_Q, CV_R, CV_X0, 20, runs=24, budget=1e-9))
+        budget, runs = 12.5 * per_run, 12
+    a = sm.advise_filter(CV_F, CV_H, CV_Q, CV_R, CV_X0, 20, runs=24, budget=budget)
+    assert a.runs == runs and a.runs_asked == 24
+    assert a.estimated_seconds == pytest.approx(a.runs * _estimate(a))
+    assert f"pilot of {runs} simulated runs" in str(a)
+    if budget == 1e-9:
+        assert any("budget" in n for n in a.notes)
+
+
+def test_modes_add_an_imm() -> None:
+    quick = sm.Model([p, v], [p + 2 * v, v], name="adv_cv_fast")
+    a = sm.advise_filter(CV_F, CV_H, CV_Q, CV_R, CV_X0, 15, runs=8, modes=[quick])
+    imm = next(c for c in a.candidates if c.name == "imm")
+    assert imm.kept and imm.settings["modes"] == 2 and imm.rmse is not None
+    assert imm.cost == 2 * next(c for c in a.candidates if c.name == "ekf").cost
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    ({"runs": 1}, ArgumentError, "runs"),
+    ({"budget": -1.0}, ArgumentError, "budget"),
+    ({"tol": 0.0}, ArgumentError, "tol"),
+    ({"seed": -1}, ArgumentError, "seed"),
+    ({"modes": [3]}, ArgumentTypeError, r"modes\[0\]"),
+    ({"candidates": ["nope"]}, SymmonError, "unknown filter"),
+    ({"candidates": [3]}, ArgumentTypeError, r"candidates\[0\]"),
+])
+def test_bad_arguments_are_named(kwargs, error, match) -> None:
+    with pytest.raises(error, match=match):
+        sm.advise_filter(CV_F, CV_H, CV_Q, CV_R, CV_X0, 10, **{"runs": 4, **kwargs})
+
+
+def test_the_prior_must_be_a_gaussian() -> None:
+    with pytest.raises(ArgumentTypeError, match="x0"):
+        sm.advise_filter(CV_F, CV_H, CV_Q, CV_R, [0.0, 1.0], 10, runs=4)
+
+
+@pytest.mark.slow
+def test_a_near_linear_range_bearing_tracker_gets_the_ekf() -> None:
+    """A constant-velocity target passing 1 km from a range-bearing sensor: the MoN of h stays
+    small along the track, every Gaussian filter is credible and about as accurate, so the
+    cheapest, the EKF, is the advice."""
+    px, py, vx, vy = sp.symbols("px py vx vy", real=True)
+    cv = sm.Model([px, py, vx, vy], [px + vx, py + vy, vx, vy], name="adv_rb_f")
+    rb = sm.Model([px, py, vx, vy], [sp.sqrt(px**2 + py**2), sp.atan2(py, px)], angles=[1], name="adv_rb_h")
+    Q = 0.01 * np.kron([[1 / 3, 1 / 2], [1 / 2, 1.0]], np.eye(2))
+    x0 = sm.Gaussian([-200.0, 1000.0, 0.0, -5.0], np.diag([25.0, 25.0, 0.25, 0.25]))
+    a = sm.advise_filter(cv, rb, Q, np.diag([4.0, 0.02**2]), x0, 40, runs=32)
+    assert a.mon["h"]["prior"] < 0.15
+    assert a.choice == "ekf" and a.credible
+    assert all(c.credible for c in a.candidates if c.kept)
+    assert not next(c for c in a.candidates if c.name == "pf").kept
