@@ -37,7 +37,7 @@ them).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 import scipy.linalg
@@ -48,8 +48,8 @@ from ..timelimit import OutOfTime, deadline
 from . import dag
 from .model import Model
 
-if TYPE_CHECKING:
-    from .sde import SDE
+# The SDE (:class:`symmon.core.sde.SDE`) is read through its public attributes: sde.py
+# imports this module, so this one does not import it back.
 
 __all__ = ["METHODS", "SERIES_TERMS", "CLOSED_FORM_SECONDS", "default_dt", "discretize", "exact_transition",
            "expm_closed_form", "van_loan", "van_loan_numeric", "factor"]
@@ -183,7 +183,7 @@ def van_loan_numeric(A, B, dt: float) -> tuple[np.ndarray, np.ndarray]:
     return F, (Q + Q.T) / 2
 
 
-def exact_transition(sde: "SDE", dt: sp.Expr) -> tuple[sp.Matrix, sp.Matrix, sp.Matrix]:
+def exact_transition(sde: Any, dt: sp.Expr) -> tuple[sp.Matrix, sp.Matrix, sp.Matrix]:
     """(F, c, Q) of the exact discretisation x_{k+1} = F x_k + c + e, e ~ N(0, Q), of a linear
     SDE (cached on the SDE per step symbol).
 
@@ -261,7 +261,7 @@ def _noise_symbols(count: int, substeps: int, taken: set[str]) -> list[list[sp.S
     return [[sp.Symbol(f"{prefix}{s}_{i}", real=True) for i in range(count)] for s in range(substeps)]
 
 
-def _step(sde: "SDE", method: str, h: sp.Expr) -> tuple[sp.Matrix, int]:
+def _step(sde: Any, method: str, h: sp.Expr) -> tuple[sp.Matrix, int]:
     """One sub-step's map of the states and r template noise symbols ``_w0 …`` (Dummies)."""
     x = sp.Matrix(sde.states)
     a = sde.drift
@@ -304,7 +304,7 @@ def _step(sde: "SDE", method: str, h: sp.Expr) -> tuple[sp.Matrix, int]:
     return mean + G * w, list(w)
 
 
-def discretize(sde: "SDE", method: str = "exact", dt: sp.Expr | None = None, substeps: int = 1) -> Model:
+def discretize(sde: Any, method: str = "exact", dt: sp.Expr | None = None, substeps: int = 1) -> Model:
     """The transition of ``sde`` over a step dt: a Model f(x, w; dt), w ~ N(0, I).
 
     Parameters
@@ -343,7 +343,7 @@ def discretize(sde: "SDE", method: str = "exact", dt: sp.Expr | None = None, sub
     >>> p, v = sp.symbols("p v", real=True)
     >>> f = discretize(SDE([p, v], [v, 0], [0, 1]), "exact")
     >>> f.outputs[0]
-    dt*v + p + sqrt(3)*dt**(3/2)*w0/3
+    sqrt(3)*dt**(3/2)*w0/3 + dt*v + p
     """
     if method not in METHODS:
         raise ModelError(f"method must be one of {list(METHODS)}, got {method!r}")
