@@ -27,6 +27,7 @@ from .core import Empirical as Empirical
 from .core import Gaussian as Gaussian
 from .core import GaussianMixture as GaussianMixture
 from .core import Model as Model
+from .core import SDE as SDE
 from .core import fuse as fuse
 from .errors import SymmonError as SymmonError
 from .files import load_model_file as load_model_file
@@ -80,7 +81,7 @@ __all__ = [
     "angles", "errors", "estimation", "filters", "sweep", "units", "quadrature_error", "kalman",
     "modelfile", "mmse", "problems", "transforms", "weights", "codegen", "export_c",
     "load_model_file", "load_samples_file",
-    "SymmonError", "Gaussian", "GaussianMixture", "Empirical", "fuse", "KalmanFilter", "Model", "JointMoments",
+    "SymmonError", "Gaussian", "GaussianMixture", "Empirical", "fuse", "KalmanFilter", "Model", "SDE", "JointMoments",
     "NonlinearityMeasure", "MonParts", "mon_from_moments", "nonlinearity", "compare",
     "propagate", "propagate_many", "advise", "Advice", "advise_filter", "FilterAdvice",
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Cubature5", "Transform", "Moments", "Executor",

@@ -17,6 +17,7 @@ __all__ = [
     "IndefiniteCovarianceError",
     "ModelError",
     "UnsupportedFunctionError",
+    "DiscretizationError",
     "NonSmoothModelError",
     "UndecidedProofError",
     "ExpectationNotClosedForm",
@@ -96,6 +97,13 @@ class SingularMatrixError(SymmonError):
 
 class ModelError(SymmonError):
     """A model is ill-formed: unknown, duplicate or missing symbols."""
+
+
+class DiscretizationError(ModelError):
+    """A stochastic differential equation cannot be discretised by the method asked for: a
+    nonlinear drift or a state-dependent diffusion for ``"exact"``, a state-dependent
+    diffusion for ``"taylor1.5"`` or ``"local_linear"``, or a matrix exponential or Van Loan
+    integral that sympy cannot give in closed form within the time limit."""
 
 
 class UnsupportedFunctionError(ModelError):

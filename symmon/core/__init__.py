@@ -15,12 +15,14 @@ from .gaussian import fuse as fuse
 from .mixture import Empirical as Empirical
 from .mixture import GaussianMixture as GaussianMixture
 from .model import Model as Model
+from .sde import SDE as SDE
+from . import discretize as discretize
 from .rescale import change_units as change_units
 from .rescale import changed_relation as changed_relation
 from .rescale import change_gaussian as change_gaussian
 from .tracing import SUPPORTED as SUPPORTED
 from .tracing import trace as trace
 
-__all__ = ["Gaussian", "GaussianMixture", "Empirical", "Model", "fuse", "as_covariance", "as_vector", "check_gaussian", "check_model",
+__all__ = ["Gaussian", "GaussianMixture", "Empirical", "Model", "SDE", "discretize", "fuse", "as_covariance", "as_vector", "check_gaussian", "check_model",
            "noise_cov", "readonly", "change_units", "changed_relation", "change_gaussian", "trace",
            "SUPPORTED", "affine", "angles", "problems"]
