@@ -38,6 +38,7 @@ from .filters import GaussianSumFilter as GaussianSumFilter
 from .filters import GaussianSumResult as GaussianSumResult
 from .filters import KalmanFilter as KalmanFilter
 from .filters import NonlinearKalmanFilter as NonlinearKalmanFilter
+from .filters import ContinuousDiscreteKalmanFilter as ContinuousDiscreteKalmanFilter
 from .filters import ParticleFilter as ParticleFilter
 from .filters import simulate as simulate
 from .filters import FilterAdvice as FilterAdvice
@@ -85,7 +86,7 @@ __all__ = [
     "NonlinearityMeasure", "MonParts", "mon_from_moments", "nonlinearity", "compare",
     "propagate", "propagate_many", "advise", "Advice", "advise_filter", "FilterAdvice",
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Cubature5", "Transform", "Moments", "Executor",
-    "NonlinearKalmanFilter", "Adaptive", "IMM", "simulate", "ParticleFilter", "GaussianSumFilter", "GaussianSumResult",
+    "NonlinearKalmanFilter", "ContinuousDiscreteKalmanFilter", "Adaptive", "IMM", "simulate", "ParticleFilter", "GaussianSumFilter", "GaussianSumResult",
     "expect", "symbolic_moments", "SymbolicMoments",
     "testing", "verify", "Verification", "Expectation", "verify_moments", "verify_derivatives", "verify_mon",
     "verify_weight", "verify_estimator",

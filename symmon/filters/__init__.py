@@ -1,5 +1,6 @@
 """Kalman filters: the linear filter (:mod:`.linear`) and the nonlinear family compiled to C
-(:mod:`.nonlinear`: EKF, second-order EKF, UKF, CKF, Gauss–Hermite), their compiled step
+(:mod:`.nonlinear`: EKF, second-order EKF, UKF, CKF, Gauss–Hermite), the continuous-discrete
+filters of an SDE (:mod:`.gaussian.continuous`), their compiled step
 (:mod:`.step`), their RTS smoothers (:mod:`.smoother`), their export as standalone C
 (:mod:`.export`), the truth of a filter study (:func:`.simulation.simulate`), the particle filter
 (:mod:`.particle`), results with NEES/NIS (:mod:`.results`), the strategies that run the steps
@@ -10,6 +11,7 @@ filter call's inputs (:mod:`.inputs`, which the others import and which imports 
 from .gaussian.adaptive import Adaptive as Adaptive
 from .gaussian.linear import KalmanFilter as KalmanFilter
 from .gaussian.nonlinear import NonlinearKalmanFilter as NonlinearKalmanFilter
+from .gaussian.continuous import ContinuousDiscreteKalmanFilter as ContinuousDiscreteKalmanFilter
 from .results import ConsistencyTest as ConsistencyTest
 from .results import KalmanResult as KalmanResult
 from .results import NonlinearKalmanResult as NonlinearKalmanResult
@@ -29,7 +31,7 @@ from .selection import FilterCandidate as FilterCandidate
 from .selection import advise_filter as advise_filter
 from .gaussian.strategy import RuleStrategy as RuleStrategy
 
-__all__ = ["KalmanFilter", "KalmanResult", "NonlinearKalmanFilter", "NonlinearKalmanResult", "SmootherResult", "FitResult", "ConsistencyTest",
+__all__ = ["KalmanFilter", "KalmanResult", "NonlinearKalmanFilter", "ContinuousDiscreteKalmanFilter", "NonlinearKalmanResult", "SmootherResult", "FitResult", "ConsistencyTest",
            "Adaptive", "FilterStrategy", "RuleStrategy", "simulate", "IMM", "IMMResult",
            "ParticleFilter", "ParticleResult", "GaussianSumFilter", "GaussianSumResult", "Credibility",
            "FilterAdvice", "FilterCandidate", "advise_filter"]

@@ -29,6 +29,7 @@ from ..measures.advice import DEFAULT_TOL
 from ..transforms.quadrature import GaussHermite
 from .base import Filter
 from .gaussian.adaptive import Adaptive
+from .gaussian.continuous import ContinuousDiscreteKalmanFilter
 from .gaussian.linear import KalmanFilter
 from .gaussian.nonlinear import NonlinearKalmanFilter
 from .mixture.gaussian_sum import GaussianSumFilter
@@ -254,5 +255,14 @@ register(FilterEntry("pf", "particle filter (bootstrap or EKF/UKF proposal)", Pa
                      {**_PF_SETTINGS, "regularise": bool}))
 register(FilterEntry("rpf", "regularised particle filter (Musso, Oudjane & Le Gland 2001)", ParticleFilter,
                      _particle(True), _PF_SETTINGS))
+def _cdkf(f, h, Q, R, tol, settings):
+    raise SymmonError("'cdkf' integrates the moment equations of an SDE: build "
+                      "sm.ContinuousDiscreteKalmanFilter(sde, h, R, transform) from a symmon.SDE (a scenario file's "
+                      "f is already discrete)")
+
+
 register(FilterEntry("imm", "interacting multiple models over Gaussian filters (one per mode)", IMM, _imm,
                      scenario=False))
+register(FilterEntry("cdkf", "continuous-discrete Kalman filter of an SDE (CD-EKF, CD-UKF, CD-CKF, CD-GHKF)",
+                     ContinuousDiscreteKalmanFilter, _cdkf,
+                     {"transform": str, "rtol": float, "atol": float, "max_evaluations": int}, scenario=False))

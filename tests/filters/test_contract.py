@@ -42,6 +42,9 @@ def _filters() -> dict[str, Filter]:
         "ParticleFilter": sm.ParticleFilter(F_MODEL, H_MODEL, Q, R, particles=200, seed=3),
         "GaussianSumFilter": sm.GaussianSumFilter(F_MODEL, H_MODEL, Q, R, "ekf"),
         "IMM": sm.IMM([quiet, kf], [[0.9, 0.1], [0.1, 0.9]], [0.5, 0.5]),
+        # The SDE of F_MODEL: dx = a v dt, dv = dβ; its interval dt is a per-step parameter.
+        "ContinuousDiscreteKalmanFilter": sm.ContinuousDiscreteKalmanFilter(
+            sm.SDE([x, v], [a * v, 0], diffusion=[0, 1], spectral_density=0.01, params=[a]), H_MODEL, R, "ekf"),
     }
 
 
@@ -52,7 +55,10 @@ NAMES = sorted(FILTERS)
 def _params(filt: Filter, runs: int | None = None) -> dict | None:
     if not filt.params:
         return None
-    return {"a": np.linspace(0.9, 1.1, K) if runs is None else np.linspace(0.9, 1.1, runs * K).reshape(runs, K)}
+    values = {"a": np.linspace(0.9, 1.1, K) if runs is None else np.linspace(0.9, 1.1, runs * K).reshape(runs, K)}
+    if "dt" in {str(s) for s in filt.params}:  # a continuous-discrete filter: the intervals, irregular
+        values["dt"] = np.linspace(0.5, 1.5, K)
+    return values
 
 
 def _data(runs: int | None, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
