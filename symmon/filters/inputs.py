@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike
 from ..core.checks import check_gaussian, check_model
 from ..core.gaussian import Gaussian, as_covariance, float_array
 from ..core.model import Model
+from ..core.sde import SDE
 from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, ModelError, ResourceError, ShapeError
 
 __all__ = ["FilterSpec", "FilterInputs", "filter_inputs", "FilterCall", "check_call", "KEEPABLE", "check_keep", "real_measurements",
@@ -65,9 +66,17 @@ def check_state_models(f_model: Model, h_model: Model) -> tuple[Model, Model]:
 
     Raises
     ------
+    ArgumentTypeError
+        f is an :class:`~symmon.SDE` (the message points to its discretisation and to the
+        continuous-discrete filter).
     ShapeError
         f's outputs are not its inputs in number, or h's inputs are not f's states.
     """
+    if isinstance(f_model, SDE):
+        raise ArgumentTypeError(
+            f"f_model is an SDE ({f_model.name!r}): a discrete filter needs its transition, "
+            "sde.discretize('exact' or 'taylor1.5', ...) with Q = I and dt a parameter, or filter the SDE "
+            "itself with sm.ContinuousDiscreteKalmanFilter(sde, h, R, transform)")
     f = check_model(f_model, "f_model")
     h = check_model(h_model, "h_model")
     if f.n_y != f.n_u:

@@ -215,7 +215,7 @@ class ContinuousDiscreteKalmanFilter(Filter):
             r, k = (int(i) for i in np.argwhere(~(dts > 0))[0])
             where = f"step {k}" if runs is None else f"run {r}, step {k}"
             raise ShapeError(f"parameter {DT!r} (the interval before each measurement) must be strictly positive, "
-                             f"got {dts[r, k]!r} at {where}")
+                             f"got {float(dts[r, k])!r} at {where}")
         return pv
 
     # ----------------------------------------------------------------- the moments

@@ -1,0 +1,232 @@
+"""The continuous-discrete Gaussian filters (issue 50, item 3): the moment ODEs of an SDE between
+measurement times, against what does not share their approximation.
+
+- Linear SDE: the CD filter is the Kalman filter of the exact discretisation (Van Loan in
+  closed form), to the integrator's tolerance, with irregular times, a missing measurement and
+  a bank; its log-likelihood likewise.
+- Nonlinear SDE: one interval of the moment ODEs equals the same equations, written here in
+  plain numpy, solved by ``scipy.integrate.solve_ivp`` at rtol 1e-12.
+- Validation, a stiff and a diverging drift (a clear error, bounded work), the registry.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.integrate
+import sympy as sp
+
+import symmon as sm
+from symmon.errors import ArgumentTypeError, ModelError, ShapeError, SymmonError
+from symmon.filters.registry import filter_entry, filter_names, make_filter
+
+p, v = sp.symbols("p v", real=True)
+q = sp.Symbol("q", positive=True)
+theta = sp.Symbol("theta", positive=True)
+#: A position with an Ornstein–Uhlenbeck velocity: dp = v dt, dv = −θ v dt + dβ, E dβ² = q dt.
+#: Its moments are exponentials in t, which an explicit Runge–Kutta method does not integrate
+#: exactly (white-noise acceleration would be: its moments are cubic polynomials of t).
+IOU = sm.SDE([p, v], [v, -theta * v], diffusion=[0, 1], spectral_density=q, params=[q, theta], name="iou")
+H = sm.Model([p, v], [p], name="cd_h")
+R = np.array([[4.0]])
+X0 = sm.Gaussian([0.0, 10.0], np.diag([25.0, 4.0]))
+STEPS = np.random.default_rng(0).uniform(0.2, 3.0, size=25)  # irregular intervals t_k − t_{k−1}
+PARAMS = {"q": 0.5, "theta": 0.7, "dt": STEPS}
+
+
+@pytest.fixture(scope="module")
+def exact():
+    """The exact discretisation, simulated data with a missing measurement, and the Kalman
+    filter of the discretised model (its EKF is exact: the model is linear in x and w)."""
+    f = IOU.discretize("exact")
+    xs, ys = sm.simulate(f, H, np.eye(f.n_v), R, X0, steps=len(STEPS), params=PARAMS, runs=3, seed=4)
+    ys = np.array(ys)
+    ys[1, 6] = np.nan
+    kf = sm.NonlinearKalmanFilter(f, H, np.eye(f.n_v), R, "ekf")
+    return f, np.asarray(xs), ys, kf.filter(ys, X0, params=PARAMS, x_true=xs)
+
+
+@pytest.mark.parametrize("transform", ["ekf", "ckf", "ukf", "ghkf"])
+def test_on_a_linear_sde_it_is_the_kalman_filter_of_the_exact_discretisation(exact, transform):
+    """To the integrator's tolerance: solve_ivp keeps each interval's local error below
+    rtol·|z| + atol per component (atol = rtol/1000 here, below every moment's scale), and the
+    filter's recursion forgets old errors, so the errors of 25 intervals stay of the order of
+    rtol relative to each array's scale.  Measured (x, P, P⁻, log-likelihood, relative to
+    their largest entry): 0.8e-10, 8e-10, 1.6e-10, 1.2e-10 at rtol 1e-8, and 100 000 times
+    more at rtol 1e-3, for every rule.  The test allows 10·rtol, and checks that the same
+    comparison fails at rtol = 1e-3 (the tolerance is what sets the agreement)."""
+    _, xs, ys, ref = exact
+    cd = sm.ContinuousDiscreteKalmanFilter(IOU, H, R, transform, rtol=1e-8, atol=1e-11)
+    res = cd.filter(ys, X0, params=PARAMS, x_true=xs)
+    tol = 10 * cd.rtol
+    for name in ("x", "P", "x_pred", "P_pred", "innovation", "S"):
+        a, b = getattr(res, name), getattr(ref, name)
+        assert np.abs(a - b).max() <= tol * np.abs(b).max(), name
+    np.testing.assert_allclose(res.loglik, ref.loglik, rtol=0, atol=tol * np.abs(ref.loglik).max())
+    np.testing.assert_allclose(res.nees_values, ref.nees_values, rtol=tol, atol=tol)
+    assert res.loglik[1, 6] == 0.0 and np.array_equal(res.measured, ref.measured)
+    coarse = sm.ContinuousDiscreteKalmanFilter(IOU, H, R, transform, rtol=1e-3, atol=1e-6)
+    err = np.abs(coarse.filter(ys, X0, params=PARAMS).x - ref.x).max()
+    assert err > tol * np.abs(ref.x).max()
+
+
+def test_a_bank_is_its_runs_filtered_alone(exact):
+    _, xs, ys, _ = exact
+    cd = sm.ContinuousDiscreteKalmanFilter(IOU, H, R, "ckf")
+    bank = cd.filter(ys, X0, params=PARAMS)
+    for r in range(ys.shape[0]):
+        one = cd.filter(ys[r], X0, params=PARAMS)
+        np.testing.assert_array_equal(one.x, bank.x[r])
+        np.testing.assert_array_equal(one.loglik, bank.loglik[r])
+
+
+def test_per_run_intervals_and_a_missing_row_only_predicts():
+    cd = sm.ContinuousDiscreteKalmanFilter(IOU, H, R, "ekf")
+    ys = np.array([[[1.0], [np.nan], [3.0]], [[1.0], [np.nan], [3.0]]])
+    dts = np.array([[0.5, 1.0, 0.25], [0.5, 0.5, 0.25]])
+    res = cd.filter(ys, X0, params={"q": 0.5, "theta": 0.7, "dt": dts})
+    np.testing.assert_array_equal(res.x[:, 1], res.x_pred[:, 1])
+    assert np.all(res.loglik[:, 1] == 0.0)
+    assert not np.allclose(res.x_pred[0, 2], res.x_pred[1, 2])  # the runs' own intervals
+    m, P = cd.predict(res.x[0, 0], res.P[0, 0], 1.0, [0.5, 0.7])
+    np.testing.assert_allclose(m, res.x_pred[0, 1], rtol=1e-12)
+    np.testing.assert_allclose(P, res.P_pred[0, 1], rtol=1e-12)
+
+
+# ------------------------------------------------------------------ nonlinear: one interval
+x1, x2 = sp.symbols("x1 x2", real=True)
+MU, SIGMA = 1.5, 0.4
+#: Van der Pol with a state-dependent diffusion: E[L Q_c Lᵀ] is not L Q_c Lᵀ at the mean.
+VDP = sm.SDE([x1, x2], [x2, MU * (1 - x1**2) * x2 - x1], diffusion=[0, SIGMA * (1 + x1**2 / 4)], name="vdp")
+
+
+def _vdp_drift(x):
+    return np.array([x[..., 1], MU * (1 - x[..., 0] ** 2) * x[..., 1] - x[..., 0]]).T
+
+
+def _vdp_jacobian(x):
+    return np.array([[0.0, 1.0], [-2 * MU * x[0] * x[1] - 1.0, MU * (1 - x[0] ** 2)]])
+
+
+def _vdp_noise(x):
+    """L Q_c Lᵀ at each point (Q_c = 1): only the (1, 1) entry."""
+    out = np.zeros(np.shape(x)[:-1] + (2, 2))
+    out[..., 1, 1] = (SIGMA * (1 + x[..., 0] ** 2 / 4)) ** 2
+    return out
+
+
+def _reference_rhs(rule):
+    """The moment equations in plain numpy: TT1 (the CD-EKF), or the sigma-point form with the
+    unscented weights of (alpha, beta, kappa) written out (Särkkä 2007)."""
+    n = 2
+
+    def rhs(t, z):
+        m, P = z[:n], z[n:].reshape(n, n)
+        P = (P + P.T) / 2
+        if rule == "tt1":
+            A = _vdp_jacobian(m)
+            dP = A @ P + P @ A.T + _vdp_noise(m)
+            return np.concatenate([_vdp_drift(m), dP.ravel()])
+        alpha, beta, kappa = rule
+        lam = alpha**2 * (n + kappa) - n
+        wm = np.full(2 * n + 1, 1 / (2 * (n + lam)))
+        wm[0] = lam / (n + lam)
+        wc = wm.copy()
+        wc[0] += 1 - alpha**2 + beta
+        S = np.linalg.cholesky(P) * np.sqrt(n + lam)
+        X = np.vstack([m, m + S.T, m - S.T])  # rows: m, m + columns of S, m − columns
+        a = _vdp_drift(X)
+        dm = wm @ a
+        C = sum(wc[i] * np.outer(X[i] - m, a[i] - dm) for i in range(2 * n + 1))
+        D = sum(wm[i] * _vdp_noise(X[i]) for i in range(2 * n + 1))
+        return np.concatenate([dm, (C + C.T + D).ravel()])
+
+    return rhs
+
+
+@pytest.mark.parametrize("transform, rule", [("ekf", "tt1"), ("ckf", (1.0, 0.0, 0.0)),
+                                             (sm.UT(0.5, 2.0, 1.0), (0.5, 2.0, 1.0))])
+def test_one_interval_of_the_moment_odes_matches_an_independent_solution(transform, rule):
+    m0, P0, dt = np.array([1.2, -0.3]), np.array([[0.09, 0.02], [0.02, 0.16]]), 0.8
+    ref = scipy.integrate.solve_ivp(_reference_rhs(rule), (0, dt), np.concatenate([m0, P0.ravel()]),
+                                    method="DOP853", rtol=1e-12, atol=1e-14).y[:, -1]
+    cd = sm.ContinuousDiscreteKalmanFilter(VDP, sm.Model([x1, x2], [x1]), [[0.1]], transform, rtol=1e-10,
+                                           atol=1e-13)
+    m, P = cd.predict(m0, P0, dt)
+    # rtol 1e-10 on moments of size ~1: 1e-8 leaves two orders for the accumulation over the steps.
+    np.testing.assert_allclose(m, ref[:2], rtol=0, atol=1e-8)
+    np.testing.assert_allclose(P, ref[2:].reshape(2, 2), rtol=0, atol=1e-8)
+    assert np.abs(P - ref[2:].reshape(2, 2)).max() < 1e-3 * np.abs(P - P0).max()  # not trivially small
+
+
+def test_the_rules_differ_on_a_nonlinear_drift():
+    m0, P0 = np.array([1.2, -0.3]), np.array([[0.09, 0.02], [0.02, 0.16]])
+    h = sm.Model([x1, x2], [x1])
+    ekf = sm.ContinuousDiscreteKalmanFilter(VDP, h, [[0.1]], "ekf").predict(m0, P0, 0.8)
+    ckf = sm.ContinuousDiscreteKalmanFilter(VDP, h, [[0.1]], "ckf").predict(m0, P0, 0.8)
+    assert np.abs(ekf[0] - ckf[0]).max() > 1e-3
+
+
+# ------------------------------------------------------------------ failures
+def test_a_stiff_drift_raises_naming_the_step_and_the_state_with_bounded_work():
+    y = sp.Symbol("y", real=True)
+    stiff = sm.SDE([y], [-1e5 * (y - sp.cos(y))], diffusion=[1])
+    cd = sm.ContinuousDiscreteKalmanFilter(stiff, sm.Model([y], [y]), [[1.0]], "ekf", max_evaluations=600)
+    with pytest.raises(SymmonError, match=r"step 1 .*dt = 1.*mean \[.*max_evaluations = 600.*stiff"):
+        cd.filter([[0.0], [0.0]], [0.5], [[1.0]], params={"dt": [1e-6, 1.0]})
+
+
+def test_a_diverging_drift_raises_naming_the_run_and_the_step():
+    y = sp.Symbol("y", real=True)
+    blowup = sm.SDE([y], [y**2], diffusion=[0.1])  # y(t) = 1 / (1 − t) from 1: infinite at t = 1
+    cd = sm.ContinuousDiscreteKalmanFilter(blowup, sm.Model([y], [y]), [[1.0]], "ekf")
+    with pytest.raises(SymmonError, match=r"step 0 of run 1 .*stopped at t = "):
+        cd.filter([[[0.0]], [[0.0]]], [[0.1], [1.0]], [[0.01]], params={"dt": 2.0})
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    (dict(sde=sm.Model([p, v], [v, 0])), ArgumentTypeError, "sde must be a symmon.SDE"),
+    (dict(h=sm.Model([p], [p])), ShapeError, "h has 1 inputs but the SDE has 2"),
+    (dict(transform="ekf2"), SymmonError, "transform must be TT1"),
+    (dict(transform=sm.MonteCarlo(100)), SymmonError, "transform must be TT1"),
+    (dict(transform="adaptive"), SymmonError, "unknown filter or rule|transform must be"),
+    (dict(rtol=0.0), SymmonError, "rtol must be a positive"),
+    (dict(atol=float("nan")), SymmonError, "atol must be a positive"),
+    (dict(max_step=-1.0), SymmonError, "max_step must be a positive"),
+    (dict(max_evaluations=2.5), SymmonError, "max_evaluations must be an integer"),
+    (dict(R=[[-1.0]]), SymmonError, "R"),
+])
+def test_bad_settings_are_refused_by_name(kwargs, error, match):
+    args = {"sde": IOU, "h": H, "R": R, **kwargs}
+    with pytest.raises(error, match=match):
+        sm.ContinuousDiscreteKalmanFilter(**args)
+
+
+def test_the_interval_is_a_required_strictly_positive_parameter():
+    cd = sm.ContinuousDiscreteKalmanFilter(IOU, H, R)
+    assert [str(s) for s in cd.params] == ["q", "theta", "dt"]
+    with pytest.raises(ModelError, match=r"missing \['dt'\]"):
+        cd.filter([[1.0]], X0, params={"q": 0.5, "theta": 0.7})
+    with pytest.raises(ShapeError, match=r"'dt' .*strictly positive, got 0.0 at step 1"):
+        cd.filter([[1.0], [2.0]], X0, params={"q": 0.5, "theta": 0.7, "dt": [1.0, 0.0]})
+    named_dt = sm.SDE([p], [-p], params=[sp.Symbol("dt")])
+    with pytest.raises(ModelError, match="parameter named 'dt'"):
+        sm.ContinuousDiscreteKalmanFilter(named_dt, sm.Model([p], [p]), R)
+
+
+def test_the_discrete_filter_points_an_sde_to_the_continuous_discrete_one():
+    with pytest.raises(ArgumentTypeError, match="ContinuousDiscreteKalmanFilter"):
+        sm.NonlinearKalmanFilter(IOU, H, None, R, "ekf")
+
+
+def test_the_registry_names_it_but_a_scenario_file_cannot_build_it():
+    entry = filter_entry("cdkf")
+    assert entry.kind is sm.ContinuousDiscreteKalmanFilter and not entry.scenario
+    assert "cdkf" in filter_names() and "cdkf" not in filter_names(scenario=True)
+    with pytest.raises(SymmonError, match="ContinuousDiscreteKalmanFilter"):
+        make_filter("cdkf", sm.Model([p, v], [p + v, v]), H, np.eye(2), R, settings={"transform": "ckf"})
+
+
+def test_its_name_says_continuous_discrete():
+    assert sm.ContinuousDiscreteKalmanFilter(IOU, H, R, "ckf").method == "CD-CKF"
+    assert sm.ContinuousDiscreteKalmanFilter(IOU, H, R).method == "CD-EKF"
