@@ -18,6 +18,7 @@ The papers are those of :mod:`symmon.measures.formula` (Straka & Havlík 2024; L
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Any, Sequence
 
 import numpy as np
@@ -28,6 +29,7 @@ from ..core.gaussian import Gaussian
 from ..core.mixture import Empirical, GaussianMixture
 from .formula import MonParts, NonlinearityMeasure, mon_from_moments
 from ..core.model import Model, with_param_values
+from ..core.sde import SDE
 from ..propagation.joint import JointMoments
 from ..propagation.front import check_noise_given, check_transform, propagate, propagate_mixture
 from ..propagation.mixing import is_mixture, mixed_leave_one_out
@@ -36,18 +38,22 @@ from ..transforms.base import Transform
 from ..transforms.stats import Stats, jackknife, jackknife_se, moments_of
 from ..transforms.registry import compare_set
 
-__all__ = ["NonlinearityMeasure", "MonParts", "nonlinearity", "compare", "format_table", "mon_from_moments"]
+__all__ = ["NonlinearityMeasure", "MonParts", "nonlinearity", "flow_model", "FLOW_SUBSTEPS", "compare", "format_table", "mon_from_moments"]
 
 
 # --------------------------------------------------------------------------- public API
-def nonlinearity(model: Model, u: Gaussian | GaussianMixture, v: Gaussian | GaussianMixture | None = None, *,
+def nonlinearity(model: Model | SDE, u: Gaussian | GaussianMixture, v: Gaussian | GaussianMixture | None = None, *,
                  weight: Any = "full", transform: Transform | None = None, executor: Any = None,
-                 params: dict | None = None) -> NonlinearityMeasure:
+                 params: dict | None = None, dt: float | None = None, method: str | None = None,
+                 substeps: int | None = None) -> NonlinearityMeasure:
     """The measure of nonlinearity of y = g(u, v).
 
     Parameters
     ----------
-    model : Model
+    model : Model or SDE
+        For an :class:`~symmon.SDE`, the MoN of its flow map over a step ``dt``, x(t) ↦ x(t + dt)
+        with its noise: of the discretisation :func:`flow_model` (``u`` is the law of x(t),
+        ``v`` is not given: the noise is the SDE's Brownian motion).
     u : Gaussian, GaussianMixture or Empirical
         For particles (:class:`~symmon.Empirical`) the MoN of the empirical measure,
         from the weighted sample moments of :func:`symmon.propagate` and Σ_c with the
@@ -80,6 +86,11 @@ def nonlinearity(model: Model, u: Gaussian | GaussianMixture, v: Gaussian | Gaus
     params : dict, optional
         Values of the model's parameters (``Model(params=...)``), substituted before the
         model is compiled (:meth:`symmon.Model.with_params`).
+    dt, method, substeps
+        For an SDE only: the step (a positive number, in the SDE's time unit), and the
+        discretisation of the flow (:func:`flow_model`: by default the order-1.5
+        Itô–Taylor scheme for additive noise, Euler–Maruyama otherwise, on
+        :data:`FLOW_SUBSTEPS` sub-steps).
 
     Returns
     -------
@@ -92,6 +103,13 @@ def nonlinearity(model: Model, u: Gaussian | GaussianMixture, v: Gaussian | Gaus
     >>> round(float(sm.nonlinearity(sm.Model([x], [x**2]), sm.Gaussian([0.0], [[1.0]]))), 12)
     1.0
     """
+    if isinstance(model, SDE):
+        if v is not None:
+            raise ArgumentError("v must not be given for an SDE: the noise of its flow is its Brownian motion")
+        model, params = flow_model(model, dt, params, method=method, substeps=substeps)
+        v = Gaussian(np.zeros(model.n_v), np.eye(model.n_v))
+    elif dt is not None or method is not None or substeps is not None:
+        raise ArgumentError("dt, method and substeps are for the flow of an SDE; a Model is one step already")
     model = with_param_values(model, params)
     tr = check_transform(transform)
     if isinstance(u, Empirical):
@@ -112,6 +130,50 @@ def nonlinearity(model: Model, u: Gaussian | GaussianMixture, v: Gaussian | Gaus
     if stderr is not None and not np.isfinite(stderr):
         raise NonFiniteError(f"{tr!r}: the standard error of the MoN is {stderr}")
     return NonlinearityMeasure.of(parts, transform=tr, structure=model.structure, moments=m, stderr=stderr)
+
+
+#: The sub-steps of the discretisation of an SDE's flow in :func:`nonlinearity`.
+FLOW_SUBSTEPS = 4
+
+
+@lru_cache(maxsize=32)
+def _discretized(sde: SDE, method: str, substeps: int) -> Model:
+    return sde.discretize(method, substeps=substeps)
+
+
+def flow_model(sde: SDE, dt: float, params: dict | None = None, *, method: str | None = None,
+               substeps: int | None = None) -> tuple[Model, dict]:
+    """The flow of ``sde`` over a step ``dt`` as a model x(t + dt) = f(x(t), w), w ~ N(0, I),
+    and the parameter values (``params`` with ``dt``) that make it one step.
+
+    Parameters
+    ----------
+    sde : SDE
+    dt : float
+        The step, positive, in the SDE's time unit.
+    params : dict, optional
+        The values of the SDE's parameters.
+    method : str, optional
+        The discretisation (:meth:`SDE.discretize`): default ``"taylor1.5"`` (strong order 1.5)
+        for additive noise, ``"euler"`` otherwise.
+    substeps : int, optional
+        Sub-steps of the discretisation, default :data:`FLOW_SUBSTEPS`.
+
+    Raises
+    ------
+    ArgumentError
+        A ``dt`` that is not a positive finite number, or ``params`` naming ``dt``.
+    """
+    if isinstance(dt, (bool, np.bool_)) or not isinstance(dt, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(dt) or dt <= 0:
+        raise ArgumentError(f"dt (the step of the SDE's flow) must be a positive finite number, got {dt!r}")
+    if method is None:
+        method = "taylor1.5" if sde.additive else "euler"
+    model = _discretized(sde, method, FLOW_SUBSTEPS if substeps is None else substeps)
+    given = dict(params or {})
+    if "dt" in {str(k) for k in given}:
+        raise ArgumentError("params must not give 'dt': the step is the argument dt")
+    return model, {**given, "dt": float(dt)}
 
 
 def _empirical_nonlinearity(model: Model, u: Empirical, v: Any, weight: Any, tr: Transform, executor: Any
