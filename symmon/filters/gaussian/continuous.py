@@ -59,7 +59,7 @@ from ...core.model import Model
 from ...core.sde import SDE
 from ...errors import ArgumentTypeError, ModelError, ShapeError, SymmonError, plain_repr
 from ...transforms.base import batch_sqrt
-from ...transforms.taylor import TT1
+from ...transforms.base import Transform
 from ..base import Filter
 from ..inputs import FilterCall, filter_params, param_values
 from ..names import filter_rule
@@ -144,6 +144,7 @@ class ContinuousDiscreteKalmanFilter(Filter):
     max_evaluations: int = MAX_EVALUATIONS
     update: NonlinearKalmanFilter = field(init=False, repr=False)
     drift_model: Model = field(init=False, repr=False)
+    points: tuple | None = field(init=False, repr=False)
 
     has_smoother: ClassVar[bool] = False
     exportable: ClassVar[bool] = False
@@ -161,7 +162,7 @@ class ContinuousDiscreteKalmanFilter(Filter):
             raise ModelError(f"the SDE declares a parameter named {DT!r}, the name of the filter's interval "
                              "between measurements: rename it")
         tr = filter_rule(self.transform)
-        if not isinstance(tr, TT1) and (not hasattr(tr, "unit_rule") or tr.unit_rule(1) is None):
+        if not isinstance(tr, Transform) or (tr.taylor_order != 1 and tr.unit_rule(1) is None):
             raise SymmonError(f"transform must be TT1 ('ekf') or a rule with points ('ukf', 'ckf', 'ghkf', "
                               f"UT(...), GaussHermite(...)), got {self.transform!r}")
         for name in ("rtol", "atol"):
@@ -183,6 +184,8 @@ class ContinuousDiscreteKalmanFilter(Filter):
         object.__setattr__(self, "R", update.R)
         object.__setattr__(self, "update", update)
         object.__setattr__(self, "drift_model", drift)
+        # A point rule's unit points and weights, made once (None for TT1).
+        object.__setattr__(self, "points", None if tr.taylor_order == 1 else tr.unit_rule(sde.n))
 
     # ----------------------------------------------------------------- the contract
     @property
@@ -229,13 +232,13 @@ class ContinuousDiscreteKalmanFilter(Filter):
         filter's rule (module notes)."""
         n = self.sde.n
         cm = self.compiled_drift
-        if isinstance(self.transform, TT1):
+        if self.transform.taylor_order == 1:  # TT1: a(m) and its Jacobian
             W = np.concatenate([m, theta])[None]
             g, J_nz, _ = cm.eval_derivatives(W)
             A = cm.dense_jacobian(J_nz)[0, :n, :n]
             dP = A @ P
             return g[0, :n], dP + dP.T + g[0, n:].reshape(n, n)
-        Z, wm, wc = self.transform.unit_rule(n)
+        Z, wm, wc = self.points
         X = m + Z @ batch_sqrt(P[None])[0].T
         W = np.concatenate([X, np.broadcast_to(theta, (X.shape[0], theta.shape[0]))], axis=1)
         G = cm.eval_g(np.ascontiguousarray(W))
