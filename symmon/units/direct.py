@@ -24,7 +24,7 @@ from typing import Any, Callable
 import numpy as np
 import sympy as sp
 
-from ..errors import NonSmoothModelError, SymmonError, UndecidedProofError
+from ..errors import NonSmoothModelError, SymmonError, UndecidedProofError, plain_repr
 from ..timelimit import OutOfTime, deadline
 from .check import SCALE_SETS, _numeric_check
 from .kinks import UNDIFFERENTIATED, kink_text, localize, nonsmooth_atoms
