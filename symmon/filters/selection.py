@@ -810,7 +810,9 @@ class Confirmation:
     rows : tuple of FilterCandidate
         One row per candidate that could be built, over all the fresh runs, in the order of
         the menu (its ``reason`` is the pilot's pruning verdict, its MoN columns None): RMSE
-        (unitless), ANEES with its 95 % χ² interval, credible, time per step.
+        (unitless), ANEES with its 95 % χ² interval, credible, time per step.  A batch that
+        failed (a filter raised) makes the candidate not credible, and its runs are left out
+        of the RMSE and ANEES (the ``failure`` says which).
     batches : dict
         Per candidate name, one (runs, rmse, anees, credible) tuple per batch of
         :data:`BATCH_RUNS` runs.
@@ -832,20 +834,27 @@ class Confirmation:
 
     @property
     def best(self) -> FilterCandidate | None:
-        """The credible candidate of the least RMSE (None when none is credible)."""
-        credible = [r for r in self.rows if r.credible]
-        return min(credible, key=lambda r: r.rmse) if credible else None
+        """The credible candidate of the least RMSE; when none is credible, the most accurate
+        (:attr:`any_credible` says which); None when none ran."""
+        ran = [r for r in self.rows if r.rmse is not None]
+        credible = [r for r in ran if r.credible]
+        return min(credible or ran, key=lambda r: r.rmse) if ran else None
+
+    @property
+    def any_credible(self) -> bool:
+        """Whether a candidate is credible on the fresh runs."""
+        return any(r.credible for r in self.rows)
 
     @property
     def ratio(self) -> float:
-        """The advised RMSE over the best credible one's (NaN when none is credible)."""
+        """The advised RMSE over :attr:`best`'s (NaN when the advice did not run)."""
         best = self.best
-        return float("nan") if best is None else float(self.advised.rmse / best.rmse)
+        return float("nan") if best is None or self.advised.rmse is None else float(self.advised.rmse / best.rmse)
 
     @property
     def confirmed(self) -> bool:
         """The advice is credible and its RMSE within :data:`RMSE_MARGIN` of the best credible one's."""
-        return bool(self.advised.credible) and self.ratio <= 1 + RMSE_MARGIN
+        return bool(self.advised.credible) and bool(self.ratio <= 1 + RMSE_MARGIN)
 
     def share(self, name: str | None = None) -> float:
         """The share of the batches in which ``name`` (default: the advice) is credible and
@@ -934,27 +943,30 @@ def confirm_advice(advice: FilterAdvice, f: Model, h: Model, Q: Any, R: Any, x0:
     n = f.n_u
     rows, batches = [], {}
     for name, parts in per.items():
-        first = parts[0][0]
         batches[name] = [(w, r.rmse, r.anees, bool(r.credible)) for r, w in parts]
-        if any(r.rmse is None for r, _ in parts):
-            failed = next(r for r, _ in parts if r.rmse is None)
-            rows.append(dataclasses.replace(failed, mon_f=None, mon_h=None))
+        ran = [(r, v) for r, v in parts if r.rmse is not None]
+        if not ran:  # every batch failed
+            rows.append(dataclasses.replace(parts[0][0], mon_f=None, mon_h=None))
             continue
-        w = np.array([v for _, v in parts], dtype=float)
-        rmse = float(np.sqrt(np.sum(w * np.array([r.rmse for r, _ in parts]) ** 2) / w.sum()))
-        states = np.sqrt(np.sum(w[:, None] * np.array([r.rmse_states for r, _ in parts]) ** 2, axis=0) / w.sum())
-        anees = float(np.sum(w * np.array([r.anees for r, _ in parts])) / w.sum())
+        w = np.array([v for _, v in ran], dtype=float)
+        rmse = float(np.sqrt(np.sum(w * np.array([r.rmse for r, _ in ran]) ** 2) / w.sum()))
+        states = np.sqrt(np.sum(w[:, None] * np.array([r.rmse_states for r, _ in ran]) ** 2, axis=0) / w.sum())
+        anees = float(np.sum(w * np.array([r.anees for r, _ in ran])) / w.sum())
         lo, hi = ANEES_BAND[0] * n, ANEES_BAND[1] * n
-        failure = next((r.failure for r, _ in parts if r.failure == "non-finite estimates"), "")
+        failed = [(b, r.failure) for b, (r, _) in enumerate(parts)
+                  if r.rmse is None or r.failure == "non-finite estimates"]
+        failure = "" if not failed else (f"batch {failed[0][0] + 1} of {len(parts)}: {failed[0][1]}" +
+                                          (" (its runs left out of the RMSE and ANEES)" if len(ran) < len(parts) else ""))
         if not failure and not lo <= anees <= hi:
             failure = f"ANEES {anees:.3g} {'>' if anees > hi else '<'} {hi if anees > hi else lo:.3g}"
-        flagged = [r.flagged for r, _ in parts]
+        flagged = [r.flagged for r, _ in ran]
+        Rr = int(w.sum())
         rows.append(dataclasses.replace(
-            first, mon_f=None, mon_h=None, rmse=rmse, rmse_states=states, anees=anees,
-            anees_interval=tuple(float(q) / runs for q in stats.chi2.ppf([0.025, 0.975], runs * n)),
+            ran[0][0], mon_f=None, mon_h=None, rmse=rmse, rmse_states=states, anees=anees,
+            anees_interval=tuple(float(q) / Rr for q in stats.chi2.ppf([0.025, 0.975], Rr * n)),
             credible=not failure, failure=failure,
             flagged=None if None in flagged else float(np.sum(w * np.array(flagged)) / w.sum()),
-            seconds_per_step=float(sum(r.seconds_per_step * v for r, v in parts) / w.sum())))
+            seconds_per_step=float(sum(r.seconds_per_step * v for r, v in ran) / w.sum())))
     if advice.choice not in per:
         raise SymmonError(f"the advised filter {advice.choice!r} is not on the menu rebuilt from the advice")
     return Confirmation(advice.choice, tuple(rows), batches, runs, K, int(seed))
