@@ -250,9 +250,14 @@ def caption(st: dict[str, Any]) -> str:
     """The figure's caption (PNG metadata and docs)."""
     return (f"The filter advised by symmon.advise_filter (pilot of {st['pilot']} runs, seed {st['seed']}) against every "
             f"candidate on {st['runs']} fresh runs (seed {st['seed'] + FRESH_SEED}), per scenario. (a) RMSE over the "
-            "best credible candidate's (dashed: 1.1, the 10 % margin); (b) time-mean ANEES over the state dimension n, "
-            "with the credible band [0.3, 1.5] (grey); (c) measured time per step and run. Ringed: the advice; open "
-            "markers: not credible on the fresh runs.")
+            "best credible candidate's (*: none is credible on the fresh runs; over the most accurate one's); dashed: "
+            "1.1, the 10 % margin; (b) time-mean ANEES over the state dimension n, with the credible band [0.3, 1.5] "
+            f"(grey); values above {ANEES_AXIS_TOP:g} drawn at the axis' end as triangles; (c) measured time per step "
+            "and run, compilation excluded. Ringed: the advice; open and faded markers: not credible on the fresh runs.")
+
+
+#: The right end of the figure's ANEES axis (over n); larger values are drawn at it, as a triangle.
+ANEES_AXIS_TOP = 1e3
 
 
 def _plot(st: dict[str, Any], path: Path, fmt: str = "png") -> Path:
@@ -261,53 +266,58 @@ def _plot(st: dict[str, Any], path: Path, fmt: str = "png") -> Path:
     from matplotlib.lines import Line2D
 
     names = list(st["scenarios"])
-    fig = Figure(figsize=(7.2, 1.2 + 0.55 * len(names)), layout="constrained")
+    fig = Figure(figsize=(7.2, 1.3 + 0.6 * len(names)), layout="constrained")
     FigureCanvasAgg(fig)
     ax_r, ax_a, ax_t = fig.subplots(1, 3, sharey=True)
     seen: dict[str, Line2D] = {}
     for j, name in enumerate(names):
         c: Confirmation = st["scenarios"][name]["confirmation"]
-        best = c.best
-        n = st["scenarios"][name]["advice"].n
-        y0 = len(names) - 1 - j
-        m = len(c.rows)
+        best, n = c.best, st["scenarios"][name]["advice"].n
+        y0, m = len(names) - 1 - j, len(c.rows)
         for i, r in enumerate(c.rows):
-            if r.rmse is None:
+            if r.rmse is None or best is None:
                 continue
-            y = y0 + 0.3 * (i - (m - 1) / 2) / max(m - 1, 1) * 2
-            st_ = filter_style(r.name.split(" ")[0], 1)
-            kw = dict(color=st_["color"], marker=st_["marker"], ms=5, ls="none",
-                      mfc=st_["color"] if r.credible else "none", zorder=4)
-            ratio = r.rmse / best.rmse if best is not None else np.nan
-            for ax, x in ((ax_r, ratio), (ax_a, r.anees / n),
-                          (ax_t, 1e6 * r.seconds_per_step)):
-                if np.isfinite(x):
-                    ax.plot([x], [y], **kw)
-                    if r.name == c.choice:
-                        ax.plot([x], [y], marker="o", ms=11, mfc="none", mec="0.15", mew=1.0, ls="none", zorder=5)
+            y = y0 + 0.6 * (i - (m - 1) / 2) / max(m - 1, 1)
+            look = filter_style(r.name.split(" ")[0], 1)
+            kw = dict(color=look["color"], marker=look["marker"], ms=5, ls="none", zorder=4,
+                      mfc=look["color"] if r.credible else "none", alpha=1.0 if r.credible else 0.45)
+            anees = r.anees / n
+            for ax, x, off in ((ax_r, r.rmse / best.rmse, False), (ax_a, min(anees, ANEES_AXIS_TOP), anees > ANEES_AXIS_TOP),
+                               (ax_t, 1e6 * r.seconds_per_step, False)):
+                ax.plot([x], [y], **({**kw, "marker": ">"} if off else kw), clip_on=False)
+                if r.name == c.choice:
+                    ax.plot([x], [y], marker="o", ms=11, mfc="none", mec="0.15", mew=1.0, ls="none", zorder=5,
+                            clip_on=False)
             key = r.name.split(" ")[0]
             if key not in seen:
-                seen[key] = Line2D([], [], color=kw["color"], marker=kw["marker"], ls="none", ms=5, label=key.upper()
-                                   if key != "ghkf" else "GHKF")
-    seen["advice"] = Line2D([], [], marker="o", ms=10, mfc="none", mec="0.15", ls="none", label="advice")
-    seen["open"] = Line2D([], [], marker="s", ms=5, mfc="none", mec="0.4", ls="none", label="not credible")
+                seen[key] = Line2D([], [], color=kw["color"], marker=look["marker"], ls="none", ms=5,
+                                   label=_LEGEND.get(key, key.upper()))
+    seen["advice"] = Line2D([], [], marker="o", ms=10, mfc="none", mec="0.15", ls="none", label="the advice")
+    seen["open"] = Line2D([], [], marker="s", ms=5, mfc="none", mec="0.4", alpha=0.45, ls="none",
+                          label="open, faded: not credible")
     ax_r.axvline(1 + RMSE_MARGIN, color="0.3", lw=0.8, ls=(0, (4, 2)))
     ax_r.axvline(1.0, color="0.6", lw=0.6)
     ax_a.axvspan(*ANEES_BAND, color="0.85", zorder=0, lw=0)
+    ax_a.set_xlim(right=ANEES_AXIS_TOP)
     for ax in (ax_r, ax_a, ax_t):
         ax.set_xscale("log")
         plain_log_ticks(ax, "x")
         ax.grid(axis="y", visible=False)
         for j in range(len(names) - 1):
             ax.axhline(j + 0.5, color="0.85", lw=0.6)
-    ax_r.set_yticks(range(len(names)), [LABELS[n] for n in reversed(names)])
+    none = {n for n in names if not st["scenarios"][n]["confirmation"].any_credible}
+    ax_r.set_yticks(range(len(names)), [LABELS[n] + (" *" if n in none else "") for n in reversed(names)])
     ax_r.set_ylim(-0.6, len(names) - 0.4)
     ax_r.set_xlabel("RMSE / best credible RMSE")
-    ax_a.set_xlabel("ANEES / n")
-    ax_t.set_xlabel("time per step [µs]")
-    fig.legend(handles=list(seen.values()), loc="outside lower center", ncol=min(6, len(seen)), frameon=False)
+    ax_a.set_xlabel("time-mean ANEES / n")
+    ax_t.set_xlabel("time per step and run [µs]")
+    fig.legend(handles=list(seen.values()), loc="outside lower center", ncol=6, frameon=False)
     label_panels((ax_r, ax_a, ax_t))
     return save_reproduced(fig, path, fmt, "Choosing the filter", caption(st))
+
+
+#: The legend's names of the candidates, where not their upper-case names.
+_LEGEND = {"ghkf": "GHKF", "gsf": "GSF (MoN split)", "pf": "PF"}
 
 
 def _count(value: Any, name: str, least: int) -> int:
