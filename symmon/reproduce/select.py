@@ -258,6 +258,8 @@ def caption(st: dict[str, Any]) -> str:
 
 #: The right end of the figure's ANEES axis (over n); larger values are drawn at it, as a triangle.
 ANEES_AXIS_TOP = 1e3
+#: The left end of the figure's ANEES axis (over n).
+ANEES_AXIS_BOTTOM = 0.1
 
 
 def _plot(st: dict[str, Any], path: Path, fmt: str = "png") -> Path:
@@ -282,7 +284,7 @@ def _plot(st: dict[str, Any], path: Path, fmt: str = "png") -> Path:
             kw = dict(color=look["color"], marker=look["marker"], ms=5, ls="none", zorder=4,
                       mfc=look["color"] if r.credible else "none", alpha=1.0 if r.credible else 0.45)
             anees = r.anees / n
-            for ax, x, off in ((ax_r, r.rmse / best.rmse, False), (ax_a, min(anees, ANEES_AXIS_TOP), anees > ANEES_AXIS_TOP),
+            for ax, x, off in ((ax_r, r.rmse / best.rmse, False), (ax_a, min(max(anees, ANEES_AXIS_BOTTOM), ANEES_AXIS_TOP), anees > ANEES_AXIS_TOP),
                                (ax_t, 1e6 * r.seconds_per_step, False)):
                 ax.plot([x], [y], **({**kw, "marker": ">"} if off else kw), clip_on=False)
                 if r.name == c.choice:
@@ -298,9 +300,10 @@ def _plot(st: dict[str, Any], path: Path, fmt: str = "png") -> Path:
     ax_r.axvline(1 + RMSE_MARGIN, color="0.3", lw=0.8, ls=(0, (4, 2)))
     ax_r.axvline(1.0, color="0.6", lw=0.6)
     ax_a.axvspan(*ANEES_BAND, color="0.85", zorder=0, lw=0)
-    ax_a.set_xlim(right=ANEES_AXIS_TOP)
     for ax in (ax_r, ax_a, ax_t):
         ax.set_xscale("log")
+    ax_a.set_xlim(ANEES_AXIS_BOTTOM, ANEES_AXIS_TOP)
+    for ax in (ax_r, ax_a, ax_t):
         plain_log_ticks(ax, "x")
         ax.grid(axis="y", visible=False)
         for j in range(len(names) - 1):
