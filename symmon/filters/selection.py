@@ -897,11 +897,13 @@ def confirm_advice(advice: FilterAdvice, f: Model, h: Model, Q: Any, R: Any, x0:
     ------
     ArgumentError
         For ``runs`` < 2 or a ``seed`` that is the pilot's.
+    ArgumentTypeError
+        For an ``advice`` that is not a FilterAdvice.
     """
-    K = advice.steps
-    _check(f, h, x0, K, advice.tol, runs, None, seed)
     if not isinstance(advice, FilterAdvice):
         raise ArgumentTypeError(f"advice must be a FilterAdvice (advise_filter's answer), got {plain_repr(advice)}")
+    K = advice.steps
+    _check(f, h, x0, K, advice.tol, runs, None, seed)
     if int(seed) == advice.seed:
         raise ArgumentError(f"seed must differ from the pilot's ({advice.seed}): fresh runs, not the pilot's")
     Q, R = np.atleast_2d(np.asarray(Q, dtype=float)), np.atleast_2d(np.asarray(R, dtype=float))

@@ -218,3 +218,5 @@ def test_confirm_advice_refuses_the_pilots_runs(confirmed) -> None:
         confirm_advice(a, CV_F, CV_H, CV_Q, CV_R, CV_X0, runs=4, seed=a.seed)
     with pytest.raises(ArgumentError, match="runs"):
         confirm_advice(a, CV_F, CV_H, CV_Q, CV_R, CV_X0, runs=1, seed=9)
+    with pytest.raises(ArgumentTypeError, match="advice"):
+        confirm_advice("ekf", CV_F, CV_H, CV_Q, CV_R, CV_X0, runs=4, seed=9)
