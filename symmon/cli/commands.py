@@ -332,9 +332,9 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     for name in which:
         mod = importlib.import_module(f"symmon.reproduce.{name}")
         kwargs: dict[str, Any] = {"seed": args.seed, "progress": not args.no_progress, "fmt": args.format}
-        if args.samples is not None and name not in ("tracking", "bot"):
+        if args.samples is not None and name not in ("tracking", "bot", "select"):
             kwargs["runs" if name == "mmse" else "samples"] = args.samples
-        if args.runs is not None and name in ("mmse", "tracking", "bot"):
+        if args.runs is not None and name in ("mmse", "tracking", "bot", "select"):
             kwargs["runs"] = args.runs
         if args.particles is not None and name == "bot":
             kwargs["particles"] = args.particles

@@ -18,7 +18,7 @@ __all__ = ["transform_from_name", "transform_names", "executor_of", "WEIGHT_NAME
 #: The paper whose equation numbers the help cites.
 SH24 = "Straka & Havlík 2024"
 WEIGHT_NAMES = ("full", "diag", "liu-li", "liu-li-raw")
-FIGURES = ("fig1", "fig2", "radar", "mmse", "tracking", "bot")
+FIGURES = ("fig1", "fig2", "radar", "mmse", "tracking", "bot", "select")
 
 def transform_from_name(name: str, samples: int = 10**6, seed: int = 0, order: int = 5, groups: int = 16):
     """A transform from its registered short name (:mod:`symmon.transforms.registry`).

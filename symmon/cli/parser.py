@@ -439,7 +439,8 @@ def _parser() -> argparse.ArgumentParser:
              "radar example of Gustafsson & Hendeby's lecture 'Parameter Estimation using Nonlinear "
              "Transformations'; mmse: Shin et al. 2020, Sections 4.3 and 7; tracking: EKF consistency against "
              "the MoN (docs/tracking.md); bot: bearings-only tracking after Arulampalam & Ristic 2000 with the "
-             "EKF, UKF, Gaussian-sum and particle filters (docs/bot.md)")
+             "EKF, UKF, Gaussian-sum and particle filters (docs/bot.md); select: sm.advise_filter on six scenarios of the "
+             "literature, its advice against every candidate on fresh runs (docs/select.md)")
     sp.add_argument("figure", choices=FIGURES + ("all",))
     sp.add_argument("--samples", type=_int_in(REPRODUCE_MIN_SAMPLES, MAX_SAMPLES), default=None,
                     help=f"Monte Carlo samples, at least {REPRODUCE_MIN_SAMPLES} (default 10^6; the paper "
@@ -448,7 +449,8 @@ def _parser() -> argparse.ArgumentParser:
     output_opt(sp, "--out", kind="dir", default="results", help="output directory (default ./results)")
     quiet_opt(sp)
     sp.add_argument("--runs", type=_int_in(1, MAX_RUNS), default=None,
-                    help="Monte Carlo runs of mmse, tracking and bot (default: theirs, 1000, 500 and 200)")
+                    help="Monte Carlo runs of mmse, tracking and bot, fresh runs per scenario of select "
+                         "(default: theirs, 1000, 500, 200 and 200)")
     sp.add_argument("--particles", type=_int_in(10, MAX_PARTICLES), default=None,
                     help="particles per run of bot's particle filter, at least 10 (default 2000)")
     sp.add_argument("--format", choices=FORMATS, default="png",

@@ -250,7 +250,7 @@ register(FilterEntry("adaptive", "the rule chosen per step by its moment error (
                      _gaussian(_adaptive), {"tol": float}, rule=_adaptive))
 register(FilterEntry("gsf", "Gaussian-sum filter, split by the measure of nonlinearity", GaussianSumFilter, _gsf,
                      {"transform": str, "split": float, "max_components": int, "prune": float, "merge": str,
-                      "split_components": int}))
+                      "split_components": int, "merge_back": float}))
 register(FilterEntry("pf", "particle filter (bootstrap or EKF/UKF proposal)", ParticleFilter, _particle(None),
                      {**_PF_SETTINGS, "regularise": bool}))
 register(FilterEntry("rpf", "regularised particle filter (Musso, Oudjane & Le Gland 2001)", ParticleFilter,

@@ -71,6 +71,7 @@ from ..core.model import Model, with_param_values
 from ..errors import ArgumentError, ArgumentTypeError, SymmonError, plain_repr
 from ..measures.advice import DEFAULT_TOL, GAUSSIAN_MON_LIMIT, MAX_GSF_COMPONENTS, cost as transform_cost, filter_advice
 from ..measures.mon import nonlinearity
+from ..transforms.quadrature import GaussHermite
 from ..transforms.taylor import TT1, TT2
 from .base import Filter
 from .gaussian.nonlinear import NonlinearKalmanFilter
@@ -81,7 +82,8 @@ from .registry import filter_entry, make_filter
 from .simulation import simulate
 
 __all__ = ["advise_filter", "FilterAdvice", "FilterCandidate", "candidate_menu", "ANEES_BAND", "RMSE_MARGIN",
-           "MON_STEPS", "MIN_RUNS", "SECONDS_PER_EVALUATION", "ILL_CONDITIONED", "SCREENING_RUNS"]
+           "MON_STEPS", "MIN_RUNS", "SECONDS_PER_EVALUATION", "ILL_CONDITIONED", "SCREENING_RUNS", "confirm_advice",
+           "Confirmation", "BATCH_RUNS"]
 
 #: Credible: the time-mean ANEES within these multiples of the state dimension n.
 ANEES_BAND = (0.3, 1.5)
@@ -357,11 +359,17 @@ def candidate_menu(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, P0: np.ndar
                        f"h's MoN {mon_h:.3g} <= sqrt(2) tol: iterating the update cannot help"))
     for name in ("ukf", "ckf", "ghkf"):
         rule = filter_entry(name).rule(tol, {})
+        build, settings = gaussian(name), {}
+        if name == "ghkf":
+            # The tensor grid of order 3 (3^n points), never the sparse grid that GaussHermite
+            # falls to, with a warning, above 4 dimensions.
+            rule = GaussHermite(3, sparse=False)
+            build, settings = (lambda rule=rule: NonlinearKalmanFilter(f, h, Q, R, rule)), {"order": 3, "sparse": False}
         c = _gaussian_cost(rule, f, h)
         if name == "ghkf" and 3 ** (n + max(f.n_v, h.n_v)) > GH_MAX_POINTS:
-            out.append(_Option(name, gaussian(name), {}, c, False, f"its 3^n points cost more than {GH_MAX_POINTS}"))
+            out.append(_Option(name, build, settings, c, False, f"its 3^n points cost more than {GH_MAX_POINTS}"))
             continue
-        out.append(_Option(name, gaussian(name), {}, c, mon > lin,
+        out.append(_Option(name, build, settings, c, mon > lin,
                            f"the MoN {mon:.3g} > sqrt(2) tol: sigma points follow the curvature" if mon > lin else
                            small + ", at a higher cost"))
     if ill_conditioned:
@@ -783,10 +791,195 @@ def advise_filter(f: Model, h: Model, Q: Any, R: Any, x0: Gaussian, steps: int, 
 
 def _sliced(params: dict | None, R: int, runs: int) -> dict | None:
     """``params`` for the first R of ``runs`` runs (a per-run-and-step array sliced)."""
+    return _rows(params, 0, R, runs)
+
+
+# --------------------------------------------------------------------------- the advice confirmed on fresh runs
+#: The runs of one batch of :func:`confirm_advice` (about a pilot's worth).
+BATCH_RUNS = 20
+
+
+@dataclass(frozen=True, eq=False)
+class Confirmation:
+    """The result of :func:`confirm_advice`: every candidate of the menu on fresh runs.
+
+    Attributes
+    ----------
+    choice : str
+        The advised candidate's name.
+    rows : tuple of FilterCandidate
+        One row per candidate that could be built, over all the fresh runs, in the order of
+        the menu (its ``reason`` is the pilot's pruning verdict, its MoN columns None): RMSE
+        (unitless), ANEES with its 95 % χ² interval, credible, time per step.  A batch that
+        failed (a filter raised) makes the candidate not credible, and its runs are left out
+        of the RMSE and ANEES (the ``failure`` says which).
+    batches : dict
+        Per candidate name, one (runs, rmse, anees, credible) tuple per batch of
+        :data:`BATCH_RUNS` runs.
+    runs, steps, seed : int
+        The fresh runs (never the pilot's: another seed), their steps, and their seed.
+    """
+
+    choice: str
+    rows: tuple[FilterCandidate, ...]
+    batches: dict
+    runs: int
+    steps: int
+    seed: int
+
+    @property
+    def advised(self) -> FilterCandidate:
+        """The advised candidate's row."""
+        return next(r for r in self.rows if r.name == self.choice)
+
+    @property
+    def best(self) -> FilterCandidate | None:
+        """The credible candidate of the least RMSE; when none is credible, the most accurate
+        (:attr:`any_credible` says which); None when none ran."""
+        ran = [r for r in self.rows if r.rmse is not None]
+        credible = [r for r in ran if r.credible]
+        return min(credible or ran, key=lambda r: r.rmse) if ran else None
+
+    @property
+    def any_credible(self) -> bool:
+        """Whether a candidate is credible on the fresh runs."""
+        return any(r.credible for r in self.rows)
+
+    @property
+    def ratio(self) -> float:
+        """The advised RMSE over :attr:`best`'s (NaN when the advice did not run)."""
+        best = self.best
+        return float("nan") if best is None or self.advised.rmse is None else float(self.advised.rmse / best.rmse)
+
+    @property
+    def confirmed(self) -> bool:
+        """The advice is credible and its RMSE within :data:`RMSE_MARGIN` of the best credible one's."""
+        return bool(self.advised.credible) and bool(self.ratio <= 1 + RMSE_MARGIN)
+
+    def share(self, name: str | None = None) -> float:
+        """The share of the batches in which ``name`` (default: the advice) is credible and
+        within :data:`RMSE_MARGIN` of the batch's best credible RMSE."""
+        name = self.choice if name is None else name
+        hits = 0
+        for b, (_, rmse, _, ok) in enumerate(self.batches[name]):
+            best = [v[b][1] for v in self.batches.values() if v[b][3]]
+            hits += bool(ok and best and rmse <= (1 + RMSE_MARGIN) * min(best))
+        return hits / len(self.batches[name])
+
+
+def confirm_advice(advice: FilterAdvice, f: Model, h: Model, Q: Any, R: Any, x0: Gaussian, params: dict | None = None,
+                   *, modes: Sequence[Any] | None = None, runs: int = 200, seed: int = 1) -> Confirmation:
+    """Check an advice on fresh runs: the advised filter against every candidate of its menu.
+
+    The menu is the one :func:`advise_filter` built for ``advice`` (the same MoN along the
+    track, the same square-root option), every candidate that can be built, pruned or not;
+    each runs on ``runs`` tracks simulated with ``seed`` (which must differ from the
+    pilot's), in batches of :data:`BATCH_RUNS` runs (the particle filter's seed changes
+    per batch), each filter once on one run before (its compilation is not in its time).
+    RMSE, ANEES and credibility are those of the pilot (module notes), over all runs and
+    per batch.
+
+    Parameters
+    ----------
+    advice : FilterAdvice
+        What :func:`advise_filter` answered for the same ``f``, ``h``, ``Q``, ``R``, ``x0``,
+        ``params`` and ``modes`` (its steps, tol and seed are read from it).
+    runs : int, default 200
+        Fresh runs (at least 2).
+    seed : int, default 1
+        Of the fresh runs; not the advice's.
+
+    Returns
+    -------
+    Confirmation
+
+    Raises
+    ------
+    ArgumentError
+        For ``runs`` < 2 or a ``seed`` that is the pilot's.
+    ArgumentTypeError
+        For an ``advice`` that is not a FilterAdvice.
+    """
+    if not isinstance(advice, FilterAdvice):
+        raise ArgumentTypeError(f"advice must be a FilterAdvice (advise_filter's answer), got {plain_repr(advice)}")
+    K = advice.steps
+    _check(f, h, x0, K, advice.tol, runs, None, seed)
+    if int(seed) == advice.seed:
+        raise ArgumentError(f"seed must differ from the pilot's ({advice.seed}): fresh runs, not the pilot's")
+    Q, R = np.atleast_2d(np.asarray(Q, dtype=float)), np.atleast_2d(np.asarray(R, dtype=float))
+    runs = int(runs)
+    xs_all, ys_all = simulate(f, h, Q, R, x0, K, runs=runs, params=params, seed=int(seed))
+    P0 = np.asarray(x0.cov, dtype=float)
+    scale = np.sqrt(np.diag(P0)).copy()
+    spread = xs_all.reshape(-1, f.n_u).std(axis=0)
+    scale[~(scale > 0)] = np.where(spread > 0, spread, 1.0)[~(scale > 0)]
+    mon_f = float(np.nanmax([advice.mon["f"]["prior"], advice.mon["f"]["truth"], 0.0]))
+    mon_h = float(np.nanmax([advice.mon["h"]["prior"], advice.mon["h"]["truth"], 0.0]))
+    ill = any(c.name.endswith("(square root)") for c in advice.candidates)
+    size = min(BATCH_RUNS, runs)
+    edges = list(range(0, runs - size + 1, size))[1:] + [runs]
+    spans = list(zip([0] + edges[:-1], edges))
+    none = np.array([], dtype=int)
+    per: dict[str, list[tuple[FilterCandidate, float]]] = {}
+    menus = [candidate_menu(f, h, Q, R, P0, mon_f, mon_h, advice.tol, modes=modes, ill_conditioned=ill,
+                            seed=int(np.random.SeedSequence([int(seed), b]).generate_state(1)[0] % 2**31))
+             for b in range(len(spans))]
+    for i, opt in enumerate(menus[0]):
+        try:
+            warm = opt.build()
+        except SymmonError:
+            continue
+        if warm is None:
+            continue
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                warm.filter(ys_all[:1], x0, params=_rows(params, 0, 1, runs))
+            except (SymmonError, np.linalg.LinAlgError, FloatingPointError):
+                pass
+        per[opt.name] = []
+        for b, (lo, hi) in enumerate(spans):
+            row, _ = _pilot_row(menus[b][i], xs_all[lo:hi], ys_all[lo:hi], x0, _rows(params, lo, hi, runs), scale,
+                                (f, h, None, None), none, [])
+            per[opt.name].append((row, hi - lo))
+    n = f.n_u
+    rows, batches = [], {}
+    for name, parts in per.items():
+        batches[name] = [(w, r.rmse, r.anees, bool(r.credible)) for r, w in parts]
+        ran = [(r, v) for r, v in parts if r.rmse is not None]
+        if not ran:  # every batch failed
+            rows.append(dataclasses.replace(parts[0][0], mon_f=None, mon_h=None))
+            continue
+        w = np.array([v for _, v in ran], dtype=float)
+        rmse = float(np.sqrt(np.sum(w * np.array([r.rmse for r, _ in ran]) ** 2) / w.sum()))
+        states = np.sqrt(np.sum(w[:, None] * np.array([r.rmse_states for r, _ in ran]) ** 2, axis=0) / w.sum())
+        anees = float(np.sum(w * np.array([r.anees for r, _ in ran])) / w.sum())
+        lo, hi = ANEES_BAND[0] * n, ANEES_BAND[1] * n
+        failed = [(b, r.failure) for b, (r, _) in enumerate(parts)
+                  if r.rmse is None or r.failure == "non-finite estimates"]
+        failure = "" if not failed else (f"batch {failed[0][0] + 1} of {len(parts)}: {failed[0][1]}" +
+                                          (" (its runs left out of the RMSE and ANEES)" if len(ran) < len(parts) else ""))
+        if not failure and not lo <= anees <= hi:
+            failure = f"ANEES {anees:.3g} {'>' if anees > hi else '<'} {hi if anees > hi else lo:.3g}"
+        flagged = [r.flagged for r, _ in ran]
+        Rr = int(w.sum())
+        rows.append(dataclasses.replace(
+            ran[0][0], mon_f=None, mon_h=None, rmse=rmse, rmse_states=states, anees=anees,
+            anees_interval=tuple(float(q) / Rr for q in stats.chi2.ppf([0.025, 0.975], Rr * n)),
+            credible=not failure, failure=failure,
+            flagged=None if None in flagged else float(np.sum(w * np.array(flagged)) / w.sum()),
+            seconds_per_step=float(sum(r.seconds_per_step * v for r, v in ran) / w.sum())))
+    if advice.choice not in per:
+        raise SymmonError(f"the advised filter {advice.choice!r} is not on the menu rebuilt from the advice")
+    return Confirmation(advice.choice, tuple(rows), batches, runs, K, int(seed))
+
+
+def _rows(params: dict | None, lo: int, hi: int, runs: int) -> dict | None:
+    """``params`` for the runs lo … hi − 1 of ``runs`` (a per-run-and-step array sliced)."""
     if not params:
         return params
     out = {}
     for k, v in params.items():
         a = np.asarray(v, dtype=float)
-        out[k] = a[:R] if a.ndim == 2 and a.shape[0] == runs else v
+        out[k] = a[lo:hi] if a.ndim == 2 and a.shape[0] == runs else v
     return out

@@ -101,6 +101,8 @@ FILTER_STYLES: dict[str, tuple[str, str, str]] = {
     "rp_gsf": ("sky blue", "<", "-."),
     "pf": ("black", "x", ":"),
     "rpf": ("orange", ">", "--"),
+    "iekf": ("orange", "P", ":"),
+    "imm": ("reddish purple", "X", "-"),
 }
 #: The filters' labels (``filter_label`` of a transform, the adaptive filter's choices) by
 #: their short names in :data:`FILTER_STYLES`.

@@ -11,7 +11,8 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import ArgumentError, ArgumentTypeError, SymmonError
-from symmon.filters.selection import ANEES_BAND, MIN_RUNS, RMSE_MARGIN, SECONDS_PER_EVALUATION
+from symmon.filters.selection import (ANEES_BAND, BATCH_RUNS, MIN_RUNS, RMSE_MARGIN, SECONDS_PER_EVALUATION,
+                                      confirm_advice)
 
 p, v, x = sp.symbols("p v x", real=True)
 # A constant-velocity model measured in position: linear and Gaussian.
@@ -160,3 +161,62 @@ def test_a_near_linear_range_bearing_tracker_gets_the_ekf() -> None:
     assert a.choice == "ekf" and a.credible
     assert all(c.credible for c in a.candidates if c.kept)
     assert not next(c for c in a.candidates if c.name == "pf").kept
+
+
+def test_the_gauss_hermite_candidate_of_a_five_state_model_is_its_tensor_grid() -> None:
+    """Above 4 dimensions GaussHermite falls to a sparse grid with a QuadratureWarning (an
+    error under pytest); the menu's GH filter is the tensor grid, costed as 3^n points."""
+    from symmon.filters.selection import candidate_menu
+
+    s = sp.symbols("a0:5", real=True)
+    f = sm.Model(list(s), [s[0] + s[1], s[1], s[2] + s[3], s[3], s[4]], name="adv_five_f")
+    h = sm.Model(list(s), [sp.sqrt(s[0] ** 2 + s[2] ** 2) + s[4]], name="adv_five_h")
+    menu = candidate_menu(f, h, 0.01 * np.eye(5), np.eye(1), np.eye(5), 0.5, 0.5, 0.01)
+    gh = next(o for o in menu if o.name == "ghkf")
+    assert gh.kept and gh.settings == {"order": 3, "sparse": False}
+    assert gh.cost == 2 * 3**5
+    flt = gh.build()  # no QuadratureWarning
+    assert flt.transform.sparse is False
+
+
+@pytest.fixture(scope="module")
+def confirmed():
+    a = sm.advise_filter(CV_F, CV_H, CV_Q, CV_R, CV_X0, 12, runs=16, seed=3)
+    return a, confirm_advice(a, CV_F, CV_H, CV_Q, CV_R, CV_X0, runs=45, seed=4)
+
+
+def test_confirm_advice_runs_every_candidate_of_the_menu_on_fresh_runs(confirmed) -> None:
+    a, c = confirmed
+    assert c.choice == a.choice == "kf" and c.runs == 45 and c.steps == 12
+    # every candidate of the menu, the pruned ones too (the particle filter, the sigma-point filters)
+    assert [r.name for r in c.rows] == [r.name for r in a.candidates]
+    assert all(r.rmse is not None and r.mon_f is None for r in c.rows)
+    # batches of BATCH_RUNS runs, the remainder in the last
+    assert [b[0] for b in c.batches["kf"]] == [BATCH_RUNS, 45 - BATCH_RUNS]
+    # over all runs: the runs-weighted batch statistics
+    w = np.array([b[0] for b in c.batches["ekf"]], dtype=float)
+    ekf = next(r for r in c.rows if r.name == "ekf")
+    assert ekf.anees == pytest.approx(np.sum(w * [b[2] for b in c.batches["ekf"]]) / w.sum(), rel=1e-12)
+    assert ekf.rmse == pytest.approx(np.sqrt(np.sum(w * np.square([b[1] for b in c.batches["ekf"]])) / w.sum()),
+                                     rel=1e-12)
+    lo, hi = c.advised.anees_interval
+    assert lo <= c.advised.anees <= hi
+    # fresh runs: other numbers than the pilot's
+    assert c.advised.rmse != a.chosen.rmse
+
+
+def test_the_advice_on_a_linear_model_is_confirmed(confirmed) -> None:
+    _, c = confirmed
+    assert c.confirmed and c.advised.credible and c.ratio <= 1 + RMSE_MARGIN
+    assert c.best.credible and c.ratio >= 1.0
+    assert c.share() == 1.0
+
+
+def test_confirm_advice_refuses_the_pilots_runs(confirmed) -> None:
+    a, _ = confirmed
+    with pytest.raises(ArgumentError, match="seed must differ"):
+        confirm_advice(a, CV_F, CV_H, CV_Q, CV_R, CV_X0, runs=4, seed=a.seed)
+    with pytest.raises(ArgumentError, match="runs"):
+        confirm_advice(a, CV_F, CV_H, CV_Q, CV_R, CV_X0, runs=1, seed=9)
+    with pytest.raises(ArgumentTypeError, match="advice"):
+        confirm_advice("ekf", CV_F, CV_H, CV_Q, CV_R, CV_X0, runs=4, seed=9)

@@ -19,7 +19,7 @@ from symmon.errors import OutputPathError
 
 #: The first expensive step of each module's run: replaced by one that fails the test.
 HEAVY = {"fig1": "curves", "fig2": "curves", "radar": "measurement", "mmse": "_sec431", "tracking": "study",
-         "bot": "study"}
+         "bot": "study", "select": "study"}
 
 
 @pytest.fixture

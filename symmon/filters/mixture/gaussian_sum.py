@@ -66,6 +66,19 @@ distance w_i w_j/(w_i + w_j) (m_i − m_j)ᵀ P⁻¹ (m_i − m_j) with P the mi
 (:mod:`symmon.filters.mixture.merge`: the pair costs once, then only those of the merged
 component, in one C call for all runs of a bank).
 
+**Merging back.**  Splitting follows the MoN up; with ``merge_back`` the filter follows it
+down too.  After each update (and the pruning and merging above), a component is *calm* when
+its MoN of f and of h, at the posterior component with the next step's parameters, are below
+``split``/2 (a hysteresis: a component split at ``split`` is not merged back at the next
+step's small wobble of its MoN), and pairs of calm components of a run are merged, the pair
+of least Runnalls cost B_ij first, while that cost is below ``merge_back``
+(:func:`~symmon.filters.mixture.merge.merge_below`; each merge moment-matched, so the
+mixture's mean and covariance are kept).  On a linear stretch every component is calm and the
+updates draw the components' means together, so the mixture falls back to one component;
+``components`` reports the count per step.  A merge-back filter runs the stepwise filter
+below (the compiled recursion does not merge back), so the default's numbers are those of
+the compiled recursion, bit for bit, as before.
+
 **Without splitting** the number of components never grows: the components are independent
 Kalman filters and run as one bank through the compiled loop of
 :class:`~symmon.NonlinearKalmanFilter` (all steps of all components of all runs in one C
@@ -122,7 +135,7 @@ from ..names import filter_rule
 from ..base import Filter
 from ._kernel import SplitKernel, bank_weights, result_arrays
 from ..gaussian.nonlinear import NonlinearKalmanFilter
-from .merge import MERGE_RULES, merge_components, merge_runs
+from .merge import MERGE_RULES, merge_below, merge_components, merge_runs
 from ..inputs import FilterCall
 from ..results import KalmanResult, nees_of
 from ..gaussian.step import (filterable, filter_params, predict_graph, select_params, step_kind, sym,
@@ -431,6 +444,13 @@ class GaussianSumFilter(Filter):
         The cost by which pairs are merged (module notes).
     split_components : {3, 5}, default 3
         Components per split (:data:`SPLITS`).
+    merge_back : float or None, default None
+        Merge back, after each update, pairs of *calm* components (whose MoN of f and of h
+        at the posterior component, with the next step's parameters, are below ``split``/2:
+        a hysteresis below the split level) while their least Runnalls (2007) cost is below
+        this (module notes, "Merging back"); needs ``split``.  None: never (the default,
+        whose numbers do not change).  It runs the stepwise filter (compiled stages, NumPy
+        between them), not the compiled recursion.
 
     Examples
     --------
@@ -453,6 +473,7 @@ class GaussianSumFilter(Filter):
     prune: float = 1e-6
     merge: str = "runnalls"
     split_components: int = 3
+    merge_back: float | None = None
     kf: NonlinearKalmanFilter = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -481,6 +502,12 @@ class GaussianSumFilter(Filter):
             raise ArgumentError(f"merge must be one of {MERGE_RULES}, got {self.merge!r}")
         if self.split_components not in SPLITS:
             raise ArgumentError(f"split_components must be one of {sorted(SPLITS)}, got {self.split_components!r}")
+        b = self.merge_back
+        if b is not None:
+            if isinstance(b, bool) or not isinstance(b, (int, float)) or not (np.isfinite(b) and b > 0):
+                raise ArgumentError(f"merge_back must be None or a positive Runnalls cost, got {plain_repr(b)}")
+            if s is None:
+                raise ArgumentError("merge_back needs split: components merge back when their MoN falls below split/2")
 
     @property
     def f(self) -> Model:
@@ -494,7 +521,8 @@ class GaussianSumFilter(Filter):
     def method(self) -> str:
         """``GSF(<component filter>, split=...)``."""
         s = "" if self.split is None else f", split={self.split:g}"
-        return f"GSF({self.kf.method}{s})"
+        b = "" if self.merge_back is None else f", merge_back={self.merge_back:g}"
+        return f"GSF({self.kf.method}{s}{b})"
 
     @cached_property
     def _curved(self) -> tuple[bool, bool]:
@@ -561,7 +589,7 @@ class GaussianSumFilter(Filter):
         if self.split is None:
             out = self._bank(Yb, w0, m0, P0, call.params, runs, inner)
         else:
-            out = self._recursion(Yb, w0, m0, P0, pv, inner)
+            out = None if self.merge_back is not None else self._recursion(Yb, w0, m0, P0, pv, inner)
             if out is None:  # no compiler, or its C still building: the stepwise filter
                 out = self._stepwise(Yb, w0, m0, P0, pv, inner)
         if call.truth is not None:
@@ -737,6 +765,8 @@ class GaussianSumFilter(Filter):
             out["loglik"][:, k] = tot
             w = np.exp(a - tot[run])
             run, w, x, P = self._reduce(run, w, x, P)
+            if self.merge_back is not None:
+                run, w, x, P = self._merge_back(steps, run, w, x, P, params[run, min(k + 1, K - 1)], Q, Rn)
             starts = np.searchsorted(run, np.arange(R))
             out["components"][:, k] = np.diff(starts, append=len(run))
             xm = np.add.reduceat(w[:, None] * x, starts, axis=0)
@@ -756,6 +786,28 @@ class GaussianSumFilter(Filter):
             for name in ("weights", "means", "covs"):
                 out[name] = np.ascontiguousarray(out[name][:, :, :M])
         return out
+
+    def _merge_back(self, steps: _ComponentSteps, run, w, x, P, p, Q, Rn):
+        """Merge back the calm components of each run (``merge_back``; module notes)."""
+        calm = np.ones(len(w), dtype=bool)
+        for which, noise, curved in (("f", Q, self._curved[0]), ("h", Rn, self._curved[1])):
+            if curved:
+                calm &= self._mons(which, steps, x, P, p, noise)[0] < 0.5 * self.split
+        R = int(run[-1]) + 1
+        starts = np.searchsorted(run, np.arange(R + 1))
+        parts = []
+        for r in range(R):
+            a, b = starts[r], starts[r + 1]
+            if np.count_nonzero(calm[a:b]) < 2:
+                parts.append((np.full(b - a, r), w[a:b], x[a:b], P[a:b]))
+                continue
+            wr, xr, Pr, _ = merge_below(w[a:b], x[a:b], P[a:b], self.merge_back, calm[a:b])
+            parts.append((np.full(len(wr), r), wr, xr, Pr))
+        run, w, x, P = (np.concatenate([q[i] for q in parts]) for i in range(4))
+        if self.kf.angle_states:
+            ang = sorted(self.kf.angle_states)
+            x[:, ang] = wrap_angle(x[:, ang])
+        return run, w, x, P
 
     def _reduce(self, run, w, x, P):
         """Prune below ``prune`` (keeping each run's heaviest) and merge each run down to

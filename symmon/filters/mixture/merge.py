@@ -102,7 +102,8 @@ from ...compile.csource import c_file
 from ...core.mixture import mixture_moments
 from ...errors import ArgumentError, SymmonError
 
-__all__ = ["MERGE_C", "MERGE_RULES", "merge_components", "merge_numpy", "merge_runs", "pair_costs", "merge_kernel"]
+__all__ = ["MERGE_C", "MERGE_RULES", "merge_components", "merge_numpy", "merge_runs", "pair_costs", "merge_kernel",
+           "merge_below"]
 
 #: The merging criteria.
 MERGE_RULES = ("runnalls", "salmond")
@@ -161,6 +162,16 @@ def pair_costs(w: np.ndarray, m: np.ndarray, P: np.ndarray, ld: np.ndarray | Non
     return wi * wj / ws * np.einsum("ka,ab,kb->k", d, Pinv, d)
 
 
+def _merge_pair(w: np.ndarray, m: np.ndarray, P: np.ndarray, i: int, j: int) -> None:
+    """Component i becomes the moment-matched Gaussian of the pair (i, j), in place."""
+    ws = w[i] + w[j]
+    a, b = w[i] / ws, w[j] / ws
+    mm = a * m[i] + b * m[j]
+    di, dj = m[i] - mm, m[j] - mm
+    PP = a * P[i] + b * P[j] + a * np.outer(di, di) + b * np.outer(dj, dj)
+    w[i], m[i], P[i] = ws, mm, 0.5 * (PP + PP.T)
+
+
 def merge_numpy(w: np.ndarray, m: np.ndarray, P: np.ndarray, keep: int, rule: str = "runnalls"
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One mixture reduced to at most ``keep`` components in NumPy (module notes): the pair
@@ -181,12 +192,7 @@ def merge_numpy(w: np.ndarray, m: np.ndarray, P: np.ndarray, keep: int, rule: st
         if not i < j or cost[i, j] == np.inf:
             # Every live pair costs inf (the argmin landed on a filler inf): the first live pair.
             i, j = (int(a) for a in np.flatnonzero(alive)[:2])
-        ws = w[i] + w[j]
-        a, b = w[i] / ws, w[j] / ws
-        mm = a * m[i] + b * m[j]
-        di, dj = m[i] - mm, m[j] - mm
-        PP = a * P[i] + b * P[j] + a * np.outer(di, di) + b * np.outer(dj, dj)
-        w[i], m[i], P[i] = ws, mm, 0.5 * (PP + PP.T)
+        _merge_pair(w, m, P, i, j)
         alive[j] = False
         cost[j, :] = cost[:, j] = np.inf
         if ld is not None:
@@ -254,3 +260,36 @@ def merge_components(w: np.ndarray, m: np.ndarray, P: np.ndarray, keep: int, rul
     w, m, P = (np.array(a, dtype=float, order="C") for a in (w, m, P))
     alive = merge_runs(np.zeros(len(w), dtype=np.intp), w, m, P, keep, rule, native)
     return w[alive], m[alive], P[alive]
+
+
+def merge_below(w: np.ndarray, m: np.ndarray, P: np.ndarray, threshold: float, calm: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Merge pairs of the ``calm`` components of one mixture while the least Runnalls (2007)
+    cost B_ij among them is below ``threshold`` (the first pair of least cost first; the
+    merged component is calm), each merge the moment-matched Gaussian of the pair (which
+    keeps the mixture's mean and covariance).  The inputs are not changed.
+
+    Returns
+    -------
+    w (M',), m (M', n), P (M', n, n), calm (M',)
+        The mixture after the merges, in the order of its first components.
+    """
+    w, m, P = (np.array(a, dtype=float) for a in (w, m, P))
+    calm = np.array(calm, dtype=bool)
+    alive = np.ones(len(w), dtype=bool)
+    ld = np.linalg.slogdet(P)[1]
+    while True:
+        idx = np.flatnonzero(alive & calm)
+        if len(idx) < 2:
+            break
+        iu, ju = np.triu_indices(len(idx), 1)
+        a, b = idx[iu], idx[ju]
+        cost = pair_costs(w, m, P, ld, a, b, "runnalls", None)
+        best = int(np.argmin(cost))
+        if not cost[best] < threshold:
+            break
+        i, j = int(a[best]), int(b[best])
+        _merge_pair(w, m, P, i, j)
+        ld[i] = np.linalg.slogdet(P[i])[1]
+        alive[j] = False
+    return w[alive], m[alive], P[alive], calm[alive]

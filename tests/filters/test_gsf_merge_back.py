@@ -1,0 +1,102 @@
+"""The Gaussian-sum filter follows the MoN down as well as up (issue 48, item 2): it splits
+where a component's MoN exceeds ``split`` and, with ``merge_back``, merges calm components
+(MoN below split/2) back while their Runnalls cost is below the threshold."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import symmon as sm
+from symmon.core.mixture import mixture_moments
+from symmon.errors import ArgumentError
+from symmon.filters.mixture.gaussian_sum import split_components, split_directions
+from symmon.filters.mixture.merge import merge_below, pair_costs
+
+x, c = sp.symbols("x c", real=True)
+# A random walk measured through x + c x²: curved while c ≠ 0, linear once c = 0.
+F = sm.Model([x], [x], name="mb_rw")
+H = sm.Model([x], [x + c * x**2], params=[c], name="mb_quad")
+K, BEND = 30, 8
+CURVE = np.where(np.arange(K) < BEND, 0.4, 0.0)
+PRIOR = sm.Gaussian([0.0], [[4.0]])
+
+
+def _gsf(merge_back=None):
+    return sm.GaussianSumFilter(F, H, [[0.01]], [[0.25]], sm.TT1(), split=0.05, max_components=16,
+                                merge_back=merge_back)
+
+
+@pytest.fixture(scope="module")
+def track():
+    return sm.simulate(F, H, [[0.01]], [[0.25]], PRIOR, K, runs=6, params={"c": CURVE}, seed=2)
+
+
+def test_the_mixture_falls_back_to_one_component_on_the_linear_stretch(track):
+    xs, ys = track
+    back = _gsf(1e-3).filter(ys, PRIOR, params={"c": CURVE}, keep=("x", "P", "mixture"))
+    kept = _gsf().filter(ys, PRIOR, params={"c": CURVE}, keep=("x", "P", "mixture"))
+    # it split on the curved stretch, as without merging back ...
+    assert (back.splits[:, :BEND].sum(axis=1) > 0).all()
+    assert (back.components[:, :BEND].max(axis=1) > 1).sum() >= 4
+    # ... and is one Gaussian again well into the linear stretch, where the other keeps its components
+    assert (back.components[:, -5:] == 1).all()
+    assert (kept.components[:, -1] > 1).sum() >= 3
+    assert "merge_back=0.001" in back.method and "merge_back" not in kept.method
+    # one Gaussian of the same moments: the estimates agree with the unmerged filter's
+    np.testing.assert_allclose(back.x[:, -1], kept.x[:, -1], rtol=0, atol=1e-3)
+
+
+def test_a_split_keeps_the_mixtures_mean_and_covariance_to_1e_12() -> None:
+    rng = np.random.default_rng(4)
+    n, N = 3, 20
+    A = rng.standard_normal((N, n, n))
+    covs = A @ np.swapaxes(A, 1, 2) + 0.1 * np.eye(n)
+    means = rng.standard_normal((N, n))
+    H2 = rng.standard_normal((N, 2, n, n))
+    H2 = H2 + np.swapaxes(H2, 2, 3)
+    d = split_directions(covs, H2, np.broadcast_to(np.eye(2), (N, 2, 2)).copy())
+    for m in (3, 5):
+        w, mu, P = split_components(means, covs, d, m)
+        for i in range(N):
+            mean, cov = mixture_moments(w, mu[i], P[i])
+            np.testing.assert_allclose(mean, means[i], rtol=0, atol=1e-12 * (1 + np.abs(means[i]).max()))
+            np.testing.assert_allclose(cov, covs[i], rtol=0, atol=1e-12 * np.abs(covs[i]).max())
+
+
+def test_merging_back_keeps_the_mixtures_mean_and_covariance_and_only_merges_calm_pairs() -> None:
+    rng = np.random.default_rng(5)
+    M, n = 6, 2
+    w = rng.uniform(0.5, 1.0, M)
+    w /= w.sum()
+    m = 0.01 * rng.standard_normal((M, n))
+    m[0] += 5.0  # far from the others: costly to merge
+    A = rng.standard_normal((M, n, n))
+    P = A @ np.swapaxes(A, 1, 2) + np.eye(n)
+    calm = np.array([True, True, True, True, True, False])
+    w2, m2, P2, calm2 = merge_below(w, m, P, 0.05, calm)
+    before, after = mixture_moments(w, m, P), mixture_moments(w2, m2, P2)
+    np.testing.assert_allclose(after[0], before[0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(after[1], before[1], rtol=0, atol=1e-12)
+    assert len(w2) < M and not calm2[-1] and np.array_equal(m2[-1], m[-1])  # the restless one untouched
+    assert np.array_equal(m2[0], m[0])  # the far one too: its cost is above the threshold
+    # what is left of the calm ones costs at least the threshold to merge
+    idx = np.flatnonzero(calm2)
+    a, b = np.triu_indices(len(idx), 1)
+    ld = np.linalg.slogdet(P2)[1]
+    assert (pair_costs(w2, m2, P2, ld, idx[a], idx[b], "runnalls", None) >= 0.05).all()
+
+
+@pytest.mark.parametrize("kwargs, match", [({"merge_back": -1.0}, "merge_back"), ({"merge_back": True}, "merge_back"),
+                                           ({"merge_back": 1e-3, "split": None}, "needs split")])
+def test_bad_merge_back_is_named(kwargs, match) -> None:
+    with pytest.raises(ArgumentError, match=match):
+        sm.GaussianSumFilter(F, H, [[0.01]], [[0.25]], sm.TT1(), **{"split": 0.05, **kwargs})
+
+
+def test_the_registry_builds_a_merge_back_filter() -> None:
+    from symmon.filters.registry import make_filter
+
+    flt = make_filter("gsf", F, H, [[0.01]], [[0.25]], settings={"transform": "ekf", "split": 0.05, "merge_back": 1e-3})
+    assert flt.merge_back == 1e-3
