@@ -38,6 +38,8 @@ from .filters import GaussianSumResult as GaussianSumResult
 from .filters import KalmanFilter as KalmanFilter
 from .filters import NonlinearKalmanFilter as NonlinearKalmanFilter
 from .filters import ParticleFilter as ParticleFilter
+from .filters import EnsembleKalmanFilter as EnsembleKalmanFilter
+from .filters import EnsembleResult as EnsembleResult
 from .filters import simulate as simulate
 from .measures import Advice as Advice
 from .measures import MonParts as MonParts
@@ -82,7 +84,7 @@ __all__ = [
     "NonlinearityMeasure", "MonParts", "mon_from_moments", "nonlinearity", "compare",
     "propagate", "propagate_many", "advise", "Advice",
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Cubature5", "Transform", "Moments", "Executor",
-    "NonlinearKalmanFilter", "Adaptive", "IMM", "simulate", "ParticleFilter", "GaussianSumFilter", "GaussianSumResult",
+    "NonlinearKalmanFilter", "Adaptive", "IMM", "simulate", "ParticleFilter", "EnsembleKalmanFilter", "EnsembleResult", "GaussianSumFilter", "GaussianSumResult",
     "expect", "symbolic_moments", "SymbolicMoments",
     "testing", "verify", "Verification", "Expectation", "verify_moments", "verify_derivatives", "verify_mon",
     "verify_weight", "verify_estimator",
