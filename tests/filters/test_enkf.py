@@ -79,7 +79,7 @@ def test_bad_models_and_noise_are_refused():
 def test_an_overflowing_model_names_the_step():
     x = sp.Symbol("x", real=True)
     filt = sm.EnsembleKalmanFilter(sm.Model([x], [1e200 * x * x]), sm.Model([x], [x]), [[0.0]], [[1.0]], members=4)
-    with pytest.raises(NonFiniteError, match="step 1"):
+    with pytest.raises(NonFiniteError, match="at step 0 .* overflows"):
         filt.filter(np.zeros((4, 1)), [1.0], [[0.01]])
 
 
@@ -191,9 +191,14 @@ def test_nees_nis_and_log_likelihood_of_a_large_ensemble_are_the_kalman_filters(
     xs, ys = sm.simulate(f, h, Q2, R2, PRIOR2, 15, runs=200, seed=7)
     res = sm.EnsembleKalmanFilter(f, h, Q2, R2, members=400, kind="stochastic").filter(ys, PRIOR2, x_true=xs)
     kf = sm.KalmanFilter(F2, Q2, H2, R2).filter(ys, np.broadcast_to(PRIOR2.mean, (200, 2)), PRIOR2.cov)
-    assert res.anees().inside.mean() > 0.8 and res.anis().inside.mean() > 0.8
-    # log-likelihood per step within 0.05 nats of the KF's on average (N = 400 Monte Carlo)
-    assert np.abs(res.log_likelihood - kf.log_likelihood).mean() / 15 < 0.05
+    # N = 400: the moments differ from the KF's by about 1/√400 = 5 % (Monte Carlo), so each
+    # NIS (mean 1) by about 0.04 and each NEES (mean 2) by about 0.17, the log-likelihood terms
+    # by about 0.02 nats (measured with seed 0); twice that is allowed
+    assert np.abs(res.nis() - kf.nis()).mean() < 0.08
+    assert np.abs(res.nees() - kf.nees(xs)).mean() < 0.35
+    assert np.abs(res.loglik - kf.loglik).mean() < 0.04
+    assert abs(res.anis().value.mean() / kf.anis().value.mean() - 1) < 0.05
+    assert abs(res.anees().value.mean() / kf.anees(xs).value.mean() - 1) < 0.05
     np.testing.assert_allclose(res.nees(), res.nees(xs))  # in the step = from the stored x and P
 
 
@@ -220,8 +225,7 @@ def test_missing_measurements_predict_only_or_update_the_measured_components():
         assert np.all(res.loglik[:, 2] == 0.0) and np.all(res.nis()[:, 2] == 0.0)
         assert res.measured[1, 5] == 1 and res.measured[0, 5] == 2 and res.measured[0, 2] == 0
         assert res.innovation[1, 5, 1] == 0.0 and res.S[1, 5, 1, 1] == 1.0 and res.S[1, 5, 0, 1] == 0.0
-        # the partly measured run equals a filter of the first component alone at that step
-        assert np.all(np.isfinite(res.x)) and res.anis().value.shape == (10,)
+        assert np.all(np.isfinite(res.x))  # the partial update's values: the exactness test against the KF
 
 
 def test_parameters_per_step_and_per_run_are_the_values_of_the_models():

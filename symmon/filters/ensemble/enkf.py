@@ -377,7 +377,7 @@ class EnsembleKalmanFilter(Filter):
     def _run(self, call: FilterCall, store: bool) -> tuple[EnsembleResult, np.ndarray | None, np.ndarray | None]:
         """The forward pass; with ``store``, also every step's analysis and (inflated)
         forecast ensembles, (R, K, N, n) each, for the smoother."""
-        ss, N, lam = self.space, self.members, self.inflation
+        ss, N = self.space, self.members
         n, n_y = ss.n, ss.n_y
         bank, Yb, pv, truth = call.runs, call.Y, call.pv, call.truth
         Rr, K = Yb.shape[0], call.steps
@@ -394,74 +394,9 @@ class EnsembleKalmanFilter(Filter):
         nees = np.empty((Rr, K)) if truth is not None else None
         Ea = np.empty((Rr, K, N, n)) if store else None
         Ef = np.empty((Rr, K, N, n)) if store else None
-        noisy = bool(np.any(np.asarray(ss.Lq)))
-        nq = ss.Lq.shape[0]
-        Rn = self._noise_cov
-        rho = self.localisation
-        angle_y = list(ss.angle_outputs)
-        measured_all = ~np.isnan(Yb)
         for k in range(K):
-            y = Yb[:, k]
-            prow = None if pv is None else np.repeat(pv[:, k], N, axis=0)
-            Z = np.concatenate([g.standard_normal((N, nq)) for g in rngs]) if noisy else None
-            with np.errstate(over="ignore", invalid="ignore"):
-                Xf = ss.transition(X.reshape(-1, n), Z, prow).reshape(Rr, N, n)
-            self._check_finite(Xf, "a forecast member is NaN or inf", k, bank)
-            mf, Af = self._moments(Xf, ss.angle_states)
-            if lam != 1.0:
-                Af *= lam
-                Xf = ss.wrap_states(mf[:, None, :] + Af)
-            if store:
-                Ef[:, k] = Xf
-            if "x_pred" in out:
-                out["x_pred"][:, k] = mf
-            if "P_pred" in out:
-                out["P_pred"][:, k] = self._covariance(Af)
-            with np.errstate(over="ignore", invalid="ignore"):
-                HX = ss.measure(Xf.reshape(-1, n), None, prow).reshape(Rr, N, n_y)
-            self._check_finite(HX, "a member's predicted measurement is NaN or inf", k, bank)
-            ym, Ay = self._moments(HX, ss.angle_outputs)
-            nu = y - ym
-            if angle_y:
-                nu[:, angle_y] = wrap_angle(nu[:, angle_y])
-            Xa = Xf.copy()
-            want_S = "S" in out or "nis" in out
-            S_full = self._covariance(Ay) + Rn if want_S else None
-            measured = measured_all[:, k]
-            for pattern in np.unique(measured, axis=0):
-                runs = np.flatnonzero((measured == pattern).all(axis=1))
-                m = np.flatnonzero(pattern)
-                if m.size == 0:
-                    if "nis" in out:
-                        out["nis"][runs, k] = 0.0
-                    continue
-                Xa[runs] = self._update(Xf[runs], mf[runs], Af[runs], HX[runs][..., m], Ay[runs][..., m], y[runs][:, m],
-                                        nu[runs][:, m], m, Rn[np.ix_(m, m)], None if rho is None else rho[:, m],
-                                        [rngs[r] for r in runs], loglik, out.get("nis"), runs, k, bank)
-            Xa = ss.wrap_states(Xa)
-            self._check_finite(Xa, "an analysed member is NaN or inf", k, bank)
-            if store:
-                Ea[:, k] = Xa
-            if "innovation" in out or "S" in out:
-                missing = ~measured
-                v = np.where(missing, 0.0, nu)
-                if "innovation" in out:
-                    out["innovation"][:, k] = v
-                if "S" in out:
-                    S = np.where(missing[:, :, None] | missing[:, None, :], 0.0, S_full)
-                    r_, i_ = np.nonzero(missing)
-                    S[r_, i_, i_] = 1.0
-                    out["S"][:, k] = S
-            if any(a in names for a in ("x", "P")) or truth is not None:
-                ma, Aa = self._moments(Xa, ss.angle_states)
-                Pa = self._covariance(Aa) if ("P" in out or truth is not None) else None
-                if "x" in out:
-                    out["x"][:, k] = ma
-                if "P" in out:
-                    out["P"][:, k] = Pa
-                if truth is not None:
-                    nees[:, k] = nees_of(ma[:, None], Pa[:, None], truth[:, k:k + 1], ss.angle_states)[:, 0]
-            X = Xa
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # non-finite: refused below
+                X = self._step(k, X, Yb, pv, rngs, out, loglik, nees, truth, Ea, Ef, names, bank)
         arrays = {k: v if bank is not None else v[0] for k, v in out.items()}
         if "nis" in arrays:
             arrays["nis_values"] = arrays.pop("nis")
@@ -472,6 +407,7 @@ class EnsembleKalmanFilter(Filter):
         for v in arrays.values():
             v.flags.writeable = False
         measured_n = None
+        measured_all = ~np.isnan(Yb)
         if not measured_all.all():
             measured_n = measured_all.sum(axis=-1)
             measured_n = measured_n if bank is not None else measured_n[0]
@@ -480,10 +416,90 @@ class EnsembleKalmanFilter(Filter):
                              method=self.method, members=N)
         return res, Ea, Ef
 
-    def _check_finite(self, X: np.ndarray, what: str, k: int, bank: int | None) -> None:
+    def _step(self, k, X, Yb, pv, rngs, out, loglik, nees, truth, Ea, Ef, names, bank) -> np.ndarray:
+        """Step ``k`` of the recursion for every run: forecast, inflate, update; writes the
+        kept arrays; returns the analysed members."""
+        ss, N, lam = self.space, self.members, self.inflation
+        n, n_y = ss.n, ss.n_y
+        Rr = Yb.shape[0]
+        noisy = bool(np.any(np.asarray(ss.Lq)))
+        nq = ss.Lq.shape[0]
+        Rn = self._noise_cov
+        rho = self.localisation
+        angle_y = list(ss.angle_outputs)
+        store = Ea is not None
+        y = Yb[:, k]
+        prow = None if pv is None else np.repeat(pv[:, k], N, axis=0)
+        Z = np.concatenate([g.standard_normal((N, nq)) for g in rngs]) if noisy else None
+        Xf = ss.transition(X.reshape(-1, n), Z, prow).reshape(Rr, N, n)
+        self._check_finite(Xf, "a forecast member is NaN or inf", k, bank)
+        mf, Af = self._moments(Xf, ss.angle_states)
+        if lam != 1.0:
+            Af *= lam
+            Xf = ss.wrap_states(mf[:, None, :] + Af)
+            self._check_finite(Xf, "an inflated forecast member is NaN or inf", k, bank)
+        if store:
+            Ef[:, k] = Xf
+        if "x_pred" in out:
+            out["x_pred"][:, k] = mf
+        if "P_pred" in out:
+            out["P_pred"][:, k] = C = self._covariance(Af)
+            self._check_finite(C, "the forecast covariance overflows", k, bank)
+        HX = ss.measure(Xf.reshape(-1, n), None, prow).reshape(Rr, N, n_y)
+        self._check_finite(HX, "a member's predicted measurement is NaN or inf", k, bank)
+        ym, Ay = self._moments(HX, ss.angle_outputs)
+        nu = y - ym
+        if angle_y:
+            nu[:, angle_y] = wrap_angle(nu[:, angle_y])
+        Xa = Xf.copy()
+        want_S = "S" in out or "nis" in out
+        S_full = self._covariance(Ay) + Rn if want_S else None
+        measured = ~np.isnan(y)
+        for pattern in np.unique(measured, axis=0):
+            runs = np.flatnonzero((measured == pattern).all(axis=1))
+            m = np.flatnonzero(pattern)
+            if m.size == 0:
+                if "nis" in out:
+                    out["nis"][runs, k] = 0.0
+                continue
+            Xa[runs] = self._update(Xf[runs], mf[runs], Af[runs], HX[runs][..., m], Ay[runs][..., m], y[runs][:, m],
+                                    nu[runs][:, m], m, Rn[np.ix_(m, m)], None if rho is None else rho[:, m],
+                                    [rngs[r] for r in runs], loglik, out.get("nis"), runs, k, bank)
+        Xa = ss.wrap_states(Xa)
+        self._check_finite(Xa, "an analysed member is NaN or inf", k, bank)
+        if store:
+            Ea[:, k] = Xa
+        if "innovation" in out or "S" in out:
+            missing = ~measured
+            v = np.where(missing, 0.0, nu)
+            if "innovation" in out:
+                out["innovation"][:, k] = v
+            if "S" in out:
+                S = np.where(missing[:, :, None] | missing[:, None, :], 0.0, S_full)
+                r_, i_ = np.nonzero(missing)
+                S[r_, i_, i_] = 1.0
+                out["S"][:, k] = S
+        if any(a in names for a in ("x", "P")) or truth is not None:
+            ma, Aa = self._moments(Xa, ss.angle_states)
+            Pa = self._covariance(Aa) if ("P" in out or truth is not None) else None
+            if "x" in out:
+                out["x"][:, k] = ma
+            if Pa is not None:
+                self._check_finite(Pa, "the analysis covariance overflows", k, bank)
+            if "P" in out:
+                out["P"][:, k] = Pa
+            if truth is not None:
+                nees[:, k] = nees_of(ma[:, None], Pa[:, None], truth[:, k:k + 1], ss.angle_states)[:, 0]
+        return Xa
+
+    def _check_finite(self, X: np.ndarray, what: str, k: int, bank: int | None,
+                      runs: np.ndarray | None = None) -> None:
+        """Refuse NaN or inf in X (R, ...) at step k, naming the first such run (of ``runs``
+        when X holds those runs only)."""
         bad = ~np.isfinite(X).all(axis=tuple(range(1, X.ndim)))
         if bad.any():
-            raise self._not_finite(what, k, int(np.flatnonzero(bad)[0]), bank)
+            r = int(np.flatnonzero(bad)[0])
+            raise self._not_finite(what, k, r if runs is None else int(runs[r]), bank)
 
     def _update(self, Xf, mf, Af, HX, Ay, y, nu, m, Rm, rho, rngs, loglik, nis, runs, k, bank) -> np.ndarray:
         """The analysis of the runs ``runs`` that measured the components ``m`` (module notes);
@@ -491,6 +507,7 @@ class EnsembleKalmanFilter(Filter):
         N = self.members
         S = np.matmul(Ay.transpose(0, 2, 1), Ay) / (N - 1) + Rm
         S = 0.5 * (S + S.transpose(0, 2, 1))
+        self._check_finite(S, "the innovation covariance S overflows", k, bank, runs)
         try:
             Ls = np.linalg.cholesky(S)
         except np.linalg.LinAlgError:
@@ -519,7 +536,7 @@ class EnsembleKalmanFilter(Filter):
         # ETKF (Hunt et al. 2007, §2.3), in the members' space
         Lr = np.linalg.cholesky(Rm)
         Yw = np.linalg.solve(Lr, Ay.transpose(0, 2, 1)) / math.sqrt(N - 1)  # L_R⁻¹ Y / √(N − 1), (r, d, N)
-        vw = np.linalg.solve(Lr, nu.T).T  # L_R⁻¹ ν, (r, d)
+        vw = np.linalg.solve(Lr, nu[..., None])[..., 0]  # L_R⁻¹ ν, (r, d), run by run
         # Ỹ = U Σ Wᵀ (thin): P̃ = I − W diag(σ²/(1+σ²)) Wᵀ and P̃^{1/2} = I + W diag(1/√(1+σ²) − 1) Wᵀ,
         # O(d² N) for d ≤ N measured components instead of the N × N eigenproblem
         U, sig, Wt = np.linalg.svd(Yw, full_matrices=False)
