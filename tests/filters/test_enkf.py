@@ -168,6 +168,18 @@ def test_the_etkf_analysis_is_the_kalman_update_exactly(H):
 
 
 @pytest.mark.parametrize("kind", ["stochastic", "sqrt"])
+def test_the_analysis_mean_is_the_kalman_update_of_the_forecast_mean_with_the_ensembles_gain(data, kind):
+    """Both analyses move the mean by K (y − H x̄) with K = P Hᵀ (H P Hᵀ + R)⁻¹ from the
+    forecast's sample covariance P (the stochastic filter's perturbations are centred)."""
+    f, h, _, ys = data
+    res = sm.EnsembleKalmanFilter(f, h, Q2, R2, members=8, kind=kind, inflation=1.1).filter(ys, PRIOR2)
+    P = res.P_pred
+    K = P @ H2.T / (H2 @ P @ H2.T + R2)
+    want = res.x_pred + (K @ (ys - res.x_pred @ H2.T)[..., None])[..., 0]
+    np.testing.assert_allclose(res.x, want, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("kind", ["stochastic", "sqrt"])
 def test_mean_and_covariance_converge_to_the_kalman_filter_as_one_over_root_n(kind):
     """The RMS difference from the KF's x and P over 50 runs of 15 steps, at N = 16 … 1024:
     the slope of log error against log N is −1/2 (Monte Carlo).  Over seeds 0–3 the slopes

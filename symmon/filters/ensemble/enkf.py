@@ -88,7 +88,7 @@ from ...core.model import Model
 from ...errors import ArgumentError, CovarianceError, ModelError, NonFiniteError, ShapeError, plain_repr
 from ..bank import run_streams
 from ..base import Filter
-from ..inputs import FilterCall, check_bank_size, check_call, initial_state, kept_numbers, param_values
+from ..inputs import FilterCall, check_bank_size, check_call, initial_state, param_values
 from ..results import KalmanResult, SmootherResult, nees_of
 from ..statespace import StateSpace
 
@@ -316,10 +316,6 @@ class EnsembleKalmanFilter(Filter):
 
     def _check_params(self, params: dict | None, runs: int | None, steps: int) -> np.ndarray | None:
         return param_values(self.space.params, params, runs, steps, who="the models")
-
-    def _numbers(self, keep: frozenset[str] | None) -> tuple[int, int]:
-        n, n_y = self.sizes
-        return kept_numbers(n, n_y, self.keepable if keep is None else keep), 0
 
     def _filter(self, call: FilterCall) -> EnsembleResult:
         """The recursion over the checked ``call`` (:meth:`filter`; module notes): forecast,
