@@ -451,16 +451,16 @@ class EnsembleKalmanFilter(Filter):
         want_S = "S" in out or "nis" in out
         S_full = self._covariance(Ay) + Rn if want_S else None
         measured = ~np.isnan(y)
-        for pattern in np.unique(measured, axis=0):
-            runs = np.flatnonzero((measured == pattern).all(axis=1))
-            m = np.flatnonzero(pattern)
+        for runs, m in _groups(measured):
             if m.size == 0:
                 if "nis" in out:
                     out["nis"][runs, k] = 0.0
                 continue
-            Xa[runs] = self._update(Xf[runs], mf[runs], Af[runs], HX[runs][..., m], Ay[runs][..., m], y[runs][:, m],
-                                    nu[runs][:, m], m, Rn[np.ix_(m, m)], None if rho is None else rho[:, m],
-                                    [rngs[r] for r in runs], loglik, out.get("nis"), runs, k, bank)
+            c = slice(None) if m.size == n_y else m  # the measured components (a view when all are)
+            Xa[runs] = self._update(Xf[runs], mf[runs], Af[runs], HX[runs][..., c], Ay[runs][..., c], y[runs][:, c],
+                                    nu[runs][:, c], m, Rn[np.ix_(m, m)], None if rho is None else rho[:, c],
+                                    [rngs[r] for r in np.arange(Rr)[runs]], loglik, out.get("nis"),
+                                    np.arange(Rr)[runs], k, bank)
         Xa = ss.wrap_states(Xa)
         self._check_finite(Xa, "an analysed member is NaN or inf", k, bank)
         if store:
@@ -592,6 +592,17 @@ class EnsembleKalmanFilter(Filter):
             xs, Ps = xs[0], Ps[0]
         return SmootherResult(readonly(xs), readonly(Ps), filtered, angle_states=angles,
                               method=f"{self.method} RTS smoother")
+
+
+def _groups(measured: np.ndarray) -> list[tuple[slice | np.ndarray, np.ndarray]]:
+    """The runs that measured the same components, and those components, from the mask
+    (R, n_y) of one step; all runs at once (a slice: no copies) when every one measured all."""
+    if measured.all():
+        return [(slice(None), np.arange(measured.shape[1]))]
+    out = []
+    for pattern in np.unique(measured, axis=0):
+        out.append((np.flatnonzero((measured == pattern).all(axis=1)), np.flatnonzero(pattern)))
+    return out
 
 
 def _with_keep(call: FilterCall, keep: frozenset[str]) -> FilterCall:
