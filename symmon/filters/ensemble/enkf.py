@@ -505,47 +505,70 @@ class EnsembleKalmanFilter(Filter):
         """The analysis of the runs ``runs`` that measured the components ``m`` (module notes);
         writes their log-likelihood terms (and NIS) at step ``k``; returns their members."""
         N = self.members
-        S = np.matmul(Ay.transpose(0, 2, 1), Ay) / (N - 1) + Rm
-        S = 0.5 * (S + S.transpose(0, 2, 1))
-        self._check_finite(S, "the innovation covariance S overflows", k, bank, runs)
-        try:
-            Ls = np.linalg.cholesky(S)
-        except np.linalg.LinAlgError:
-            bad = [r for r in range(len(runs)) if np.linalg.eigvalsh(S[r])[0] <= 0 or not np.isfinite(S[r]).all()]
-            raise self._not_finite("the innovation covariance S is not positive definite",
-                                   k, int(runs[bad[0] if bad else 0]), bank) from None
-        z = np.linalg.solve(Ls, nu[..., None])[..., 0]
-        q = (z * z).sum(axis=1)
-        loglik[runs, k] = -0.5 * (q + 2 * np.log(np.diagonal(Ls, axis1=-2, axis2=-1)).sum(axis=1)
-                                  + m.size * _LOG_2PI)
-        if nis is not None:
-            nis[runs, k] = q
+        Lr, Li, logdet_r = self._whitening(m, Rm)
         angle_y = [j for j, c in enumerate(m) if c in self.space.angle_outputs]
+        Yw = np.matmul(Li, Ay.transpose(0, 2, 1)) / math.sqrt(N - 1)  # Ỹ = L_R⁻¹ Y / √(N − 1), (r, d, N)
+        vw = np.matmul(Li, nu[..., None])[..., 0]  # L_R⁻¹ ν, (r, d)
+        self._check_finite(Yw, "the spread of the predicted measurements overflows", k, bank, runs)
+        # Ỹ = U Σ Wᵀ (thin): S = L_R (I + Ỹ Ỹᵀ) L_Rᵀ, so S⁻¹ = L_R⁻ᵀ (I − U diag(σ²/(1+σ²)) Uᵀ) L_R⁻¹,
+        # νᵀ S⁻¹ ν = |L_R⁻¹ν|² − Σ σ²/(1+σ²) (Uᵀ L_R⁻¹ν)² and log det S = log det R + Σ log(1 + σ²)
+        # (the matrix determinant lemma): O(d² N) for d ≤ N, no d × d factor per run
+        U, sig, Wt = np.linalg.svd(Yw, full_matrices=False)
+        s2 = sig * sig
+        b = np.matmul(U.transpose(0, 2, 1), vw[..., None])[..., 0]  # Uᵀ L_R⁻¹ ν
+        self._likelihood(loglik, nis, runs, k, (vw * vw).sum(axis=1) - (s2 / (1.0 + s2) * b * b).sum(axis=1),
+                         logdet_r + np.log1p(s2).sum(axis=1), m.size, bank)
         if self.kind == "stochastic":
-            Lr = np.linalg.cholesky(Rm)
             E = np.stack([g.standard_normal((N, m.size)) for g in rngs]) @ Lr.T
             E -= E.mean(axis=1, keepdims=True)
             D = y[:, None, :] + E - HX  # each member's innovation
             if angle_y:
                 D[..., angle_y] = wrap_angle(D[..., angle_y])
-            C = np.matmul(Af.transpose(0, 2, 1), Ay) / (N - 1)  # P Hᵀ (r, n, d)
-            Kg = np.linalg.solve(S, C.transpose(0, 2, 1)).transpose(0, 2, 1)
-            if rho is not None:
-                Kg = Kg * rho
-            return Xf + np.matmul(D, Kg.transpose(0, 2, 1))
-        # ETKF (Hunt et al. 2007, §2.3), in the members' space
-        Lr = np.linalg.cholesky(Rm)
-        Yw = np.linalg.solve(Lr, Ay.transpose(0, 2, 1)) / math.sqrt(N - 1)  # L_R⁻¹ Y / √(N − 1), (r, d, N)
-        vw = np.linalg.solve(Lr, nu[..., None])[..., 0]  # L_R⁻¹ ν, (r, d), run by run
-        # Ỹ = U Σ Wᵀ (thin): P̃ = I − W diag(σ²/(1+σ²)) Wᵀ and P̃^{1/2} = I + W diag(1/√(1+σ²) − 1) Wᵀ,
-        # O(d² N) for d ≤ N measured components instead of the N × N eigenproblem
-        U, sig, Wt = np.linalg.svd(Yw, full_matrices=False)
-        b = np.matmul(U.transpose(0, 2, 1), vw[..., None])[..., 0]  # Uᵀ L_R⁻¹ ν
-        w = np.matmul(Wt.transpose(0, 2, 1), (sig / (1.0 + sig * sig) * b)[..., None])[..., 0]  # P̃ Ỹᵀ L_R⁻¹ ν
-        shrink = 1.0 / np.sqrt(1.0 + sig * sig) - 1.0
+            Ut = U.transpose(0, 2, 1)
+
+            def s_inv(V: np.ndarray) -> np.ndarray:  # S⁻¹ V for V (r, d, c)
+                Vw = np.matmul(Li, V)
+                Vw = Vw - np.matmul(U, (s2 / (1.0 + s2))[..., None] * np.matmul(Ut, Vw))
+                return np.matmul(Li.T, Vw)
+
+            if rho is None:  # in the members' space: D S⁻¹ Yᵀ A / (N − 1), Y the anomalies of h
+                G = np.matmul(s_inv(D.transpose(0, 2, 1)).transpose(0, 2, 1), Ay.transpose(0, 2, 1))
+                return Xf + np.matmul(G, Af) / (N - 1)
+            Kg = np.matmul(s_inv(Ay.transpose(0, 2, 1)), Af).transpose(0, 2, 1) / (N - 1)  # K = P Hᵀ S⁻¹ (r, n, d)
+            return Xf + np.matmul(D, (Kg * rho).transpose(0, 2, 1))
+        # ETKF (Hunt et al. 2007, §2.3), in the members' space: P̃ = I − W diag(σ²/(1+σ²)) Wᵀ and
+        # P̃^{1/2} = I + W diag(1/√(1+σ²) − 1) Wᵀ, not the N × N eigenproblem
+        w = np.matmul(Wt.transpose(0, 2, 1), (sig / (1.0 + s2) * b)[..., None])[..., 0]  # P̃ Ỹᵀ L_R⁻¹ ν
+        shrink = 1.0 / np.sqrt(1.0 + s2) - 1.0
         TA = Af + np.matmul(Wt.transpose(0, 2, 1), shrink[..., None] * np.matmul(Wt, Af))  # P̃^{1/2} A
         mean = mf + np.matmul(w[:, None, :], Af)[:, 0] / math.sqrt(N - 1)
         return mean[:, None, :] + TA
+
+    def _likelihood(self, loglik, nis, runs, k, q, logdet, d, bank) -> None:
+        """Write log N(ν; 0, S) from q = νᵀ S⁻¹ ν and log det S (and the NIS q) at step k;
+        refuse one that is not finite (S overflows)."""
+        ll = -0.5 * (q + logdet + d * _LOG_2PI)
+        self._check_finite(ll[:, None], "the innovation covariance S overflows", k, bank, runs)
+        loglik[runs, k] = ll
+        if nis is not None:
+            nis[runs, k] = q
+
+    @cached_property
+    def _whitenings(self) -> dict:
+        """(L_R, L_R⁻¹, log det R) by the measured components' pattern, a few kept."""
+        return {}
+
+    def _whitening(self, m: np.ndarray, Rm: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """L_R with L_R L_Rᵀ = R of the components ``m``, its inverse and log det R (made once
+        per pattern: R is constant)."""
+        key = m.tobytes()
+        got = self._whitenings.get(key)
+        if got is None:
+            Lr = np.linalg.cholesky(Rm)
+            got = (Lr, np.linalg.inv(Lr), float(2 * np.log(np.diag(Lr)).sum()))
+            if len(self._whitenings) < 64:
+                self._whitenings[key] = got
+        return got
 
     # ------------------------------------------------------------------ the smoother
     def smooth(self, ys: ArrayLike, x0: Any, P0: ArrayLike | None = None, *, keep: Iterable[str] | str | None = None,
