@@ -25,10 +25,16 @@ N members x^i carry the distribution; a step
      2001, in the symmetric form of Hunt, Kostelich & Szunyogh 2007, §2.3): with
      Ỹ = L_R⁻¹ Y/√(N − 1), P̃ = (I + ỸᵀỸ)⁻¹ (N × N), the mean moves by A P̃ ỸᵀL_R⁻¹ν/√(N − 1)
      and the anomalies become P̃^{1/2} A (the symmetric square root, which keeps their mean
-     at zero), both from the thin singular value decomposition of Ỹ (O(d² N) for d ≤ N
-     measured components, not the N × N eigenproblem).  No random number is drawn in the update.  When the forecast ensemble's
+     at zero).  No random number is drawn in the update.  When the forecast ensemble's
      sample mean and covariance are a Kalman prior and h is linear, the analysis mean and
      sample covariance are the Kalman update exactly (tests/filters/test_enkf.py).
+
+   Both work from the thin singular value decomposition Ỹ = U Σ Wᵀ of the whitened spread
+   (L_R⁻¹ made once per pattern of measured components): S⁻¹ = L_R⁻ᵀ (I − U Σ²(I + Σ²)⁻¹ Uᵀ)
+   L_R⁻¹, and the NIS and log det S = log det R + Σ log(1 + σ²) by the matrix determinant
+   lemma, O(d² N) a run for d ≤ N measured components, with no d × d factor and no N × N
+   eigenproblem; without localisation the stochastic update is the members' N × N
+   combination D S⁻¹ Yᵀ A/(N − 1) of the anomalies.
 
 The filtered moments are the members' sample mean (circular for angle states) and sample
 covariance (divisor N − 1, deviations wrapped); so P is singular when N ≤ n, and the NEES
