@@ -286,6 +286,21 @@ def test_a_unit_taper_is_no_localisation_and_a_zero_taper_no_update(data):
     assert np.all(res.x[..., 1] == res.x_pred[..., 1]) and not np.all(res.x[..., 0] == res.x_pred[..., 0])
 
 
+def test_the_members_space_update_is_the_gain_update():
+    """With fewer members than states and outputs the stochastic filter updates in the
+    members' space; a unit taper forces the explicit gain: the same members to rounding."""
+    X6 = sp.symbols("u0:6", real=True)
+    f = sm.Model(X6, [0.9 * v + 0.1 * X6[i - 1] for i, v in enumerate(X6)], name="ring6")
+    h = sm.Model(X6, list(X6), name="all6")
+    prior = sm.Gaussian(np.zeros(6), np.eye(6))
+    _, ys = sm.simulate(f, h, 0.1 * np.eye(6), np.eye(6), prior, 5, runs=2, seed=0)
+    ys[0, 2, 3] = np.nan
+    a = sm.EnsembleKalmanFilter(f, h, 0.1 * np.eye(6), np.eye(6), members=4).filter(ys, prior)
+    b = sm.EnsembleKalmanFilter(f, h, 0.1 * np.eye(6), np.eye(6), members=4, localisation=np.ones((6, 6))).filter(ys, prior)
+    np.testing.assert_allclose(a.final_ensemble, b.final_ensemble, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(a.loglik, b.loglik, rtol=0, atol=1e-10)
+
+
 def test_gaspari_cohn_taper():
     r = np.linspace(0, 3, 301)
     g = gaspari_cohn(r, 1.0)

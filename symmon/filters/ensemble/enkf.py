@@ -537,11 +537,15 @@ class EnsembleKalmanFilter(Filter):
                 Vw = Vw - np.matmul(U, (s2 / (1.0 + s2))[..., None] * np.matmul(Ut, Vw))
                 return np.matmul(Li.T, Vw)
 
-            if rho is None:  # in the members' space: D S⁻¹ Yᵀ A / (N − 1), Y the anomalies of h
+            d, n = m.size, Af.shape[2]
+            if rho is None and N * (d + n) < d * d + 2 * d * n:  # fewer members than states and outputs:
+                # in the members' space, D S⁻¹ Yᵀ A / (N − 1) (Y the anomalies of h), O(N² (d + n))
                 G = np.matmul(s_inv(D.transpose(0, 2, 1)).transpose(0, 2, 1), Ay.transpose(0, 2, 1))
                 return Xf + np.matmul(G, Af) / (N - 1)
             Kg = np.matmul(s_inv(Ay.transpose(0, 2, 1)), Af).transpose(0, 2, 1) / (N - 1)  # K = P Hᵀ S⁻¹ (r, n, d)
-            return Xf + np.matmul(D, (Kg * rho).transpose(0, 2, 1))
+            if rho is not None:
+                Kg = Kg * rho
+            return Xf + np.matmul(D, Kg.transpose(0, 2, 1))
         # ETKF (Hunt et al. 2007, §2.3), in the members' space: P̃ = I − W diag(σ²/(1+σ²)) Wᵀ and
         # P̃^{1/2} = I + W diag(1/√(1+σ²) − 1) Wᵀ, not the N × N eigenproblem
         w = np.matmul(Wt.transpose(0, 2, 1), (sig / (1.0 + s2) * b)[..., None])[..., 0]  # P̃ Ỹᵀ L_R⁻¹ ν
