@@ -40,6 +40,8 @@ from .filters import KalmanFilter as KalmanFilter
 from .filters import NonlinearKalmanFilter as NonlinearKalmanFilter
 from .filters import ContinuousDiscreteKalmanFilter as ContinuousDiscreteKalmanFilter
 from .filters import ParticleFilter as ParticleFilter
+from .filters import EnsembleKalmanFilter as EnsembleKalmanFilter
+from .filters import EnsembleResult as EnsembleResult
 from .filters import simulate as simulate
 from .filters import FilterAdvice as FilterAdvice
 from .filters import advise_filter as advise_filter
@@ -86,7 +88,7 @@ __all__ = [
     "NonlinearityMeasure", "MonParts", "mon_from_moments", "nonlinearity", "compare",
     "propagate", "propagate_many", "advise", "Advice", "advise_filter", "FilterAdvice",
     "TT1", "TT2", "UT", "GaussHermite", "MonteCarlo", "Exact", "Cubature5", "Transform", "Moments", "Executor",
-    "NonlinearKalmanFilter", "ContinuousDiscreteKalmanFilter", "Adaptive", "IMM", "simulate", "ParticleFilter", "GaussianSumFilter", "GaussianSumResult",
+    "NonlinearKalmanFilter", "ContinuousDiscreteKalmanFilter", "Adaptive", "IMM", "simulate", "ParticleFilter", "EnsembleKalmanFilter", "EnsembleResult", "GaussianSumFilter", "GaussianSumResult",
     "expect", "symbolic_moments", "SymbolicMoments",
     "testing", "verify", "Verification", "Expectation", "verify_moments", "verify_derivatives", "verify_mon",
     "verify_weight", "verify_estimator",

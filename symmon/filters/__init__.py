@@ -5,7 +5,7 @@ filters of an SDE (:mod:`.gaussian.continuous`), their compiled step
 (:mod:`.export`), the truth of a filter study (:func:`.simulation.simulate`), the particle filter
 (:mod:`.particle`), results with NEES/NIS (:mod:`.results`), the strategies that run the steps
 (:mod:`.strategy`: one rule, or :class:`Adaptive`, :mod:`.adaptive`), the Gaussian-sum filter
-(:mod:`.gaussian_sum`), interacting multiple models over them (:mod:`.imm`), and the checks of a
+(:mod:`.gaussian_sum`), the ensemble Kalman filters (:mod:`.ensemble`), interacting multiple models over them (:mod:`.imm`), and the checks of a
 filter call's inputs (:mod:`.inputs`, which the others import and which imports none of them)."""
 
 from .gaussian.adaptive import Adaptive as Adaptive
@@ -30,8 +30,10 @@ from .selection import FilterAdvice as FilterAdvice
 from .selection import FilterCandidate as FilterCandidate
 from .selection import advise_filter as advise_filter
 from .gaussian.strategy import RuleStrategy as RuleStrategy
+from .ensemble.enkf import EnsembleKalmanFilter as EnsembleKalmanFilter
+from .ensemble.enkf import EnsembleResult as EnsembleResult
 
 __all__ = ["KalmanFilter", "KalmanResult", "NonlinearKalmanFilter", "ContinuousDiscreteKalmanFilter", "NonlinearKalmanResult", "SmootherResult", "FitResult", "ConsistencyTest",
            "Adaptive", "FilterStrategy", "RuleStrategy", "simulate", "IMM", "IMMResult",
-           "ParticleFilter", "ParticleResult", "GaussianSumFilter", "GaussianSumResult", "Credibility",
-           "FilterAdvice", "FilterCandidate", "advise_filter"]
+           "ParticleFilter", "ParticleResult", "EnsembleKalmanFilter", "EnsembleResult", "GaussianSumFilter", "GaussianSumResult",
+           "Credibility", "FilterAdvice", "FilterCandidate", "advise_filter"]

@@ -32,6 +32,7 @@ from .gaussian.adaptive import Adaptive
 from .gaussian.continuous import ContinuousDiscreteKalmanFilter
 from .gaussian.linear import KalmanFilter
 from .gaussian.nonlinear import NonlinearKalmanFilter
+from .ensemble.enkf import EnsembleKalmanFilter
 from .mixture.gaussian_sum import GaussianSumFilter
 from .mixture.imm import IMM
 from .names import filter_rule
@@ -261,6 +262,9 @@ def _cdkf(f, h, Q, R, tol, settings):
                       "f is already discrete)")
 
 
+register(FilterEntry("enkf", "ensemble Kalman filter (perturbed observations, or the square-root ETKF)",
+                     EnsembleKalmanFilter, lambda f, h, Q, R, tol, s: EnsembleKalmanFilter(f, h, Q, R, **s),
+                     {"members": int, "kind": str, "inflation": float, "seed": int}))
 register(FilterEntry("imm", "interacting multiple models over Gaussian filters (one per mode)", IMM, _imm,
                      scenario=False))
 register(FilterEntry("cdkf", "continuous-discrete Kalman filter of an SDE (CD-EKF, CD-UKF, CD-CKF, CD-GHKF)",
