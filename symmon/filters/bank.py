@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from ..compile.compiled import cpu_count
-from ..errors import ArgumentError, SymmonError
+from ..errors import ArgumentError, SymmonError, plain_repr
 from ..transforms.executor import Executor, dask_compute, one_blas_thread
 from .inputs import FilterCall, check_call
 
@@ -65,7 +65,7 @@ def run_streams(seed: int, runs: int, first: int = 0) -> list[np.random.Generato
         ``first`` is not a non-negative integer.
     """
     if isinstance(first, (bool, np.bool_)) or not isinstance(first, (int, np.integer)) or first < 0:
-        raise ArgumentError(f"first_run must be a non-negative integer (a run's index in its bank), got {first!r}")
+        raise ArgumentError(f"first_run must be a non-negative integer (a run's index in its bank), got {plain_repr(first)}")
     return [np.random.Generator(np.random.PCG64(s))
             for s in np.random.SeedSequence(seed, n_children_spawned=first).spawn(runs)]
 
@@ -199,7 +199,7 @@ def filter_bank(filt: Any, executor: Executor, ys: Any, shards: int | None = Non
     if shards is not None and (isinstance(shards, bool) or not isinstance(shards, (int, np.integer))
                                or not 1 <= shards <= min(runs or 1, MAX_SHARDS)):
         raise ArgumentError(f"shards must be an integer from 1 to {min(runs or 1, MAX_SHARDS)} "
-                            f"(the runs of the bank, at most {MAX_SHARDS}), got {shards!r}")
+                            f"(the runs of the bank, at most {MAX_SHARDS}), got {plain_repr(shards)}")
     if runs is None:
         bounds = [(0, 1)]
     else:

@@ -24,7 +24,7 @@ from ..core.checks import check_gaussian, check_model
 from ..core.gaussian import Gaussian, as_covariance, float_array
 from ..core.model import Model
 from ..core.sde import SDE
-from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, ModelError, ResourceError, ShapeError
+from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, ModelError, ResourceError, ShapeError, plain_repr
 
 __all__ = ["FilterSpec", "FilterInputs", "filter_inputs", "FilterCall", "check_call", "KEEPABLE", "check_keep", "real_measurements",
            "check_truth", "check_state_models", "measurement_bank", "refuse_inf", "MAX_BANK_NUMBERS",
@@ -481,7 +481,7 @@ def check_call(filt: Any, ys: ArrayLike, x0: Any, P0: ArrayLike | None = None, *
     n, n_y = filt.sizes
     kept = check_keep(keep, filt.keepable)
     if isinstance(first_run, bool) or not isinstance(first_run, (int, np.integer)) or first_run < 0:
-        raise ArgumentError(f"first_run must be a non-negative integer, got {first_run!r}")
+        raise ArgumentError(f"first_run must be a non-negative integer, got {plain_repr(first_run)}")
     if first_run and not filt.random:
         raise ArgumentError(f"first_run is for a filter that draws random numbers; {filt.method} draws none")
     Y, runs = measurement_bank(ys, n_y)

@@ -61,7 +61,7 @@ from ...compile.ckernels import faster_sparse_products
 from ...compile.csource import c_defines, c_source
 from ...compile.compiled import WorkArrays, cpu_count, even_spans, generated_c, in_threads
 from ...core.gaussian import float_array
-from ...errors import IdentifiabilityWarning, ModelError, SymmonError
+from ...errors import IdentifiabilityWarning, ModelError, SymmonError, plain_repr
 from ...transforms.executor import one_blas_thread
 from ..inputs import FilterSpec, filter_inputs
 from ..results import KalmanResult
@@ -374,7 +374,7 @@ def _number(v: Any, what: str) -> float:
     """``v`` as a real number (not NaN), or a ModelError naming ``what``."""
     x = float_array(v, what, ModelError)
     if x.ndim != 0 or np.isnan(x):
-        raise ModelError(f"{what} must be a number, got {v!r}")
+        raise ModelError(f"{what} must be a number, got {plain_repr(v)}")
     return float(x)
 
 
@@ -391,7 +391,7 @@ def fit_parameters(kf: FilterSpec, ys, x0, start: dict, P0=None, *, params: dict
         if d is not None and not isinstance(d, dict):
             raise ModelError(f"{what} must be a dict by parameter name, got {type(d).__name__}")
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or not 1 <= max_iter <= MAX_ITER:
-        raise ModelError(f"max_iter must be an integer from 1 to {MAX_ITER}, got {max_iter!r}")
+        raise ModelError(f"max_iter must be an integer from 1 to {MAX_ITER}, got {plain_repr(max_iter)}")
     fitted_names = [str(k) for k in start]
     unknown = sorted(set(fitted_names) - set(names))
     if unknown:
@@ -408,11 +408,11 @@ def fit_parameters(kf: FilterSpec, ys, x0, start: dict, P0=None, *, params: dict
         if str(k) not in fitted_names:
             raise ModelError(f"a bound for {k!r}, which is not fitted (fitted: {fitted_names})")
         if not isinstance(b, (tuple, list)) or len(b) != 2:
-            raise ModelError(f"the bound of {k!r} must be a pair (low, high), got {b!r}")
+            raise ModelError(f"the bound of {k!r} must be a pair (low, high), got {plain_repr(b)}")
         a, c = (-np.inf if b[0] is None else _number(b[0], f"the low bound of {k!r}"),
                 np.inf if b[1] is None else _number(b[1], f"the high bound of {k!r}"))
         if not a < c:
-            raise ModelError(f"the bound of {k!r} must have low < high, got {b!r}")
+            raise ModelError(f"the bound of {k!r} must have low < high, got {plain_repr(b)}")
         j = fitted_names.index(str(k))
         lo[j], hi[j] = a, c
     if np.any(theta0 < lo) or np.any(theta0 > hi):

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ...core.arrays import readonly
-from ...errors import ArgumentError, ArgumentTypeError, CovarianceError, NonFiniteError, ShapeError, SingularMatrixError
+from ...errors import ArgumentError, ArgumentTypeError, CovarianceError, NonFiniteError, ShapeError, SingularMatrixError, plain_repr
 from ...core.gaussian import Gaussian, as_covariance, float_array, matrix_sqrt
 from ..base import Filter, FilterCall
 from ..inputs import check_bank_size
@@ -345,7 +345,7 @@ class KalmanFilter(Filter):
         if isinstance(K, bool) or not isinstance(K, (int, np.integer)) or K < 1:
             raise ArgumentError(f"K must be a positive integer, got {K!r}")
         if runs is not None and (isinstance(runs, bool) or not isinstance(runs, (int, np.integer)) or runs < 1):
-            raise ArgumentError(f"runs must be a positive integer or None, got {runs!r}")
+            raise ArgumentError(f"runs must be a positive integer or None, got {plain_repr(runs)}")
         if not isinstance(rng, np.random.Generator):
             raise ArgumentTypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
         x = self._initial_mean(x0, None)

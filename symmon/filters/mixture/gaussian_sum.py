@@ -167,7 +167,7 @@ def split_component(mean: ArrayLike, cov: ArrayLike, direction: ArrayLike, m: in
 def _split_table(m: int) -> tuple[np.ndarray, np.ndarray, float]:
     """:func:`~symmon.core.mixture.split_weights` of m, computed once (read-only arrays)."""
     if m not in SPLITS:
-        raise ArgumentError(f"a split has {sorted(SPLITS)} components, got {m!r}")
+        raise ArgumentError(f"a split has {sorted(SPLITS)} components, got {plain_repr(m)}")
     w, mu, sigma = split_weights(m)
     w.flags.writeable = mu.flags.writeable = False
     return w, mu, sigma
@@ -494,7 +494,7 @@ class GaussianSumFilter(Filter):
                                 "nested integration per component; use split=None")
         mc = self.max_components
         if isinstance(mc, bool) or not isinstance(mc, (int, np.integer)) or mc < 1:
-            raise ArgumentError(f"max_components must be a positive integer, got {mc!r}")
+            raise ArgumentError(f"max_components must be a positive integer, got {plain_repr(mc)}")
         p = self.prune
         if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0 <= p < 1:
             raise ArgumentError(f"prune must be a weight in [0, 1), got {plain_repr(p)}")

@@ -305,7 +305,7 @@ class ParticleFilter(Filter):
             raise ArgumentError(f"ess_threshold must be a number in [0, 1], got {plain_repr(t)}")
         object.__setattr__(self, "ess_threshold", float(t))
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
-            raise ArgumentError(f"seed must be a non-negative integer, got {self.seed!r}")
+            raise ArgumentError(f"seed must be a non-negative integer, got {plain_repr(self.seed)}")
         if not isinstance(self.regularise, (bool, np.bool_)):
             raise ArgumentError(f"regularise must be True or False, got {self.regularise!r}")
         object.__setattr__(self, "regularise", bool(self.regularise))
