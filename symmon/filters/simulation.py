@@ -11,6 +11,14 @@ x_{k+1}, the state after the (k+1)-th transition (x_0 itself is not returned), `
 measurement, and ``filter(ys, x0, x_true=xs)`` compares each estimate with its own state.
 The parameters of step k (an irregular time step dt_k, a control input) enter both the
 transition to ``xs[k]`` and the measurement ``ys[k]``, as in the filters' step k.
+
+**Continuous-time dynamics.**  ``f`` may be an :class:`~symmon.core.sde.SDE`: the truth is
+then drawn by the exact transition of a linear time-invariant SDE (``sde.discretize("exact")``:
+e^{A dt} and Van Loan's Q(dt), whatever the step) and otherwise by the strong order-1.5
+Itô–Taylor scheme (``"taylor1.5"``) with ``substeps`` sub-steps per interval (default
+:data:`TRUTH_SUBSTEPS`).  The measurement times are ``times`` (strictly increasing, after
+``t0``, the time of x_0), so step k lasts dt_k = t_k − t_{k−1}; without ``times`` the step is
+the parameter ``dt`` of ``params``.  ``Q`` is None: the noise comes from the SDE.
 """
 
 from __future__ import annotations
@@ -18,14 +26,27 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
+import weakref
+
 from ..core.gaussian import Gaussian
 from ..core.mixture import Empirical, GaussianMixture
 from ..core.model import Model
+from ..core.sde import SDE
+from ..errors import DiscretizationError
 from ..errors import ArgumentError, ArgumentTypeError, NonFiniteError, ShapeError, plain_repr
 from .inputs import check_bank_size, param_values
 from .statespace import StateSpace
 
-__all__ = ["simulate", "check_count", "check_prior"]
+__all__ = ["simulate", "check_count", "check_prior", "check_times", "truth_model", "TRUTH_SUBSTEPS"]
+
+#: Sub-steps per interval of the order-1.5 scheme that simulates a nonlinear SDE's truth.
+TRUTH_SUBSTEPS = 4
+#: The name of the step parameter of a discretised SDE (``symmon.core.discretize.default_dt``).
+DT = "dt"
+
+# The discretised models of an SDE by (method, substeps), kept while the SDE lives: sympy
+# derives a model once per SDE, not once per call.
+_TRUTH_MODELS: "weakref.WeakKeyDictionary[SDE, dict]" = weakref.WeakKeyDictionary()
 
 
 def check_count(value, name: str, optional: bool = False) -> int | None:
@@ -47,6 +68,110 @@ def check_prior(x0, n: int, name: str = "x0") -> Gaussian | GaussianMixture | Em
     return x0
 
 
+def check_times(times, t0: float = 0.0, name: str = "times") -> np.ndarray:
+    """The steps dt_k = t_k − t_{k−1} (t_{-1} = t0) of measurement times, shape (K,).
+
+    Raises
+    ------
+    ArgumentError
+        For times that are not a non-empty 1-D sequence of finite numbers, strictly
+        increasing and after ``t0``, or a ``t0`` that is not a finite number.
+    """
+    if isinstance(t0, (bool, np.bool_)) or not isinstance(t0, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(t0):
+        raise ArgumentError(f"t0 must be a finite number (the time of x_0), got {plain_repr(t0)}")
+    try:
+        t = np.asarray(times, dtype=float)
+    except (TypeError, ValueError):
+        raise ArgumentError(f"{name} must be a 1-D sequence of numbers, got {plain_repr(times)}") from None
+    if t.ndim != 1 or t.size == 0:
+        raise ArgumentError(f"{name} must be a non-empty 1-D sequence of times, got shape {t.shape}")
+    if not np.all(np.isfinite(t)):
+        raise ArgumentError(f"{name} must be finite")
+    dt = np.diff(np.concatenate([[float(t0)], t]))
+    if dt[0] <= 0:
+        raise ArgumentError(f"{name} must be after t0 = {float(t0):g} (the time of x_0): the first is {t[0]:g}")
+    bad = np.flatnonzero(dt <= 0)
+    if bad.size:
+        k = int(bad[0])
+        raise ArgumentError(f"{name} must be strictly increasing: {name}[{k}] = {t[k]:g} follows "
+                            f"{name}[{k - 1}] = {t[k - 1]:g}")
+    return dt
+
+
+def truth_model(sde: SDE) -> Model:
+    """The discretised SDE that :func:`simulate` draws the truth with, its step the parameter
+    ``dt``: ``"exact"`` for a linear time-invariant SDE whose closed form sympy gives, else one
+    sub-step of ``"taylor1.5"``, which :func:`simulate` applies ``substeps`` times per interval
+    (the same draws as ``sde.discretize("taylor1.5", substeps=substeps)``, whose expression
+    grows with each composed sub-step, at a cost linear in ``substeps``).
+
+    Raises
+    ------
+    DiscretizationError
+        For a nonlinear SDE whose diffusion depends on the states (the order-1.5 scheme
+        needs additive noise).
+    """
+    models = _TRUTH_MODELS.setdefault(sde, {})
+    if sde.is_linear:
+        if "exact" not in models:
+            try:
+                models["exact"] = sde.discretize("exact")
+            except DiscretizationError:
+                models["exact"] = None  # no closed form: the order-1.5 scheme below
+        if models["exact"] is not None:
+            return models["exact"]
+    if "taylor1.5" not in models:
+        models["taylor1.5"] = sde.discretize("taylor1.5")
+    return models["taylor1.5"]
+
+
+def _sde_inputs(f, Q, steps, params, times, t0, substeps):
+    """(model, Q, steps, params, sub-steps) for :func:`simulate`: an SDE discretised with its
+    steps from ``times``, or a Model with ``times`` as its ``dt`` parameter."""
+    sub = 1
+    if isinstance(f, SDE):
+        if Q is not None:
+            raise ArgumentError("Q must be None when f is an SDE: the process noise comes from its diffusion "
+                                "and spectral density")
+        substeps = TRUTH_SUBSTEPS if substeps is None else check_count(substeps, "substeps")
+        model = truth_model(f)
+        sub = 1 if model is _TRUTH_MODELS[f].get("exact") else substeps
+        Q = np.eye(model.n_v) if model.n_v else np.zeros((model.n_u, model.n_u))
+    else:
+        if substeps is not None:
+            raise ArgumentError("substeps applies to an SDE as f (its order-1.5 truth), not to a Model")
+        model = f
+    if times is None:
+        if t0 != 0.0:
+            raise ArgumentError("t0 applies only with times")
+        if isinstance(f, SDE):
+            _check_steps(params)
+        return model, Q, steps, params, sub
+    if not isinstance(model, Model) or DT not in {str(s) for s in model.params}:
+        raise ArgumentError(f"times needs an SDE as f, or a Model with a parameter {DT!r} (a discretised SDE)")
+    dts = check_times(times, t0)
+    if steps is not None and check_count(steps, "steps") != dts.size:
+        raise ArgumentError(f"steps ({steps}) must be len(times) ({dts.size}) when times are given")
+    if params is not None and not isinstance(params, dict):
+        raise ArgumentTypeError(f"params must be a dict of parameter values by name, got {type(params).__name__}")
+    if params and DT in params:
+        raise ArgumentError(f"give the steps by times or by params[{DT!r}], not both")
+    return model, Q, int(dts.size), {**(params or {}), DT: dts}, sub
+
+
+def _check_steps(params) -> None:
+    """An SDE without ``times``: ``params["dt"]`` must give its steps, positive and finite."""
+    if not isinstance(params, dict) or DT not in params:
+        raise ArgumentError(f"an SDE as f needs its steps: times=[t_1, ..., t_K], or params[{DT!r}]")
+    try:
+        dt = np.asarray(params[DT], dtype=float)
+    except (TypeError, ValueError):
+        return  # the parameters' own check names the fault
+    if not np.all(np.isfinite(dt) & (dt > 0)):
+        raise ArgumentError(f"params[{DT!r}] must be positive and finite (the steps), got {plain_repr(params[DT])}")
+
+
 def _generator(seed) -> np.random.Generator:
     if isinstance(seed, np.random.Generator):
         return seed
@@ -55,9 +180,10 @@ def _generator(seed) -> np.random.Generator:
     return np.random.default_rng(int(seed))
 
 
-def simulate(f: Model, h: Model, Q: ArrayLike, R: ArrayLike, x0: Gaussian | GaussianMixture | Empirical,
-             steps: int, runs: int | None = None, params: dict | None = None,
-             seed: int | np.random.Generator = 0) -> tuple[np.ndarray, np.ndarray]:
+def simulate(f: Model | SDE, h: Model, Q: ArrayLike | None, R: ArrayLike,
+             x0: Gaussian | GaussianMixture | Empirical, steps: int | None = None, runs: int | None = None,
+             params: dict | None = None, seed: int | np.random.Generator = 0, *, times: ArrayLike | None = None,
+             t0: float = 0.0, substeps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """True states and measurements of the state-space model (f, h, Q, R).
 
     The noise conventions are those of :class:`~symmon.NonlinearKalmanFilter`: Q and R are
@@ -68,15 +194,19 @@ def simulate(f: Model, h: Model, Q: ArrayLike, R: ArrayLike, x0: Gaussian | Gaus
 
     Parameters
     ----------
-    f, h : Model
-        The dynamics (n → n) and the measurement (n → n_y).
+    f : Model or SDE
+        The dynamics (n → n), or a continuous-time SDE (module notes).
+    h : Model
+        The measurement (n → n_y).
     Q, R : array_like
-        Process and measurement noise covariances (positive semi-definite).
+        Process and measurement noise covariances (positive semi-definite); ``Q`` is None
+        for an SDE.
     x0 : Gaussian, GaussianMixture or Empirical
-        The distribution of the initial state x_0, drawn once per run (an Empirical is
-        resampled by its weights); pass the same ``x0`` to ``filter``.
-    steps : int
-        K, the number of transitions and measurements.
+        The distribution of the initial state x_0 (at ``t0``), drawn once per run (an
+        Empirical is resampled by its weights); pass the same ``x0`` to ``filter``.
+    steps : int, optional
+        K, the number of transitions and measurements; required unless ``times`` are given
+        (then K = len(times), and a ``steps`` given must equal it).
     runs : int, optional
         R independent runs (a bank): a leading axis on the results.  Default: one run.
     params : dict, optional
@@ -87,6 +217,15 @@ def simulate(f: Model, h: Model, Q: ArrayLike, R: ArrayLike, x0: Gaussian | Gaus
         The same seed gives the same runs.  The draws are, in order: x_0 of every run, then
         for each step the process noise of every run and the measurement noise of every run
         (standard normal rows times a square root of Q, resp. R).
+    times : array_like, shape (K,), optional
+        Measurement times t_1 < … < t_K after ``t0``, in the SDE's time unit: step k lasts
+        t_k − t_{k−1}.  For an SDE, or a Model with a parameter ``dt`` (a discretised SDE);
+        instead of ``params["dt"]``.
+    t0 : float, default 0
+        The time of x_0 (with ``times``).
+    substeps : int, optional
+        Sub-steps per interval of the order-1.5 truth of a nonlinear SDE (default
+        :data:`TRUTH_SUBSTEPS`; the exact transition of a linear SDE has none).
 
     Returns
     -------
@@ -98,7 +237,10 @@ def simulate(f: Model, h: Model, Q: ArrayLike, R: ArrayLike, x0: Gaussian | Gaus
     Raises
     ------
     ArgumentError
-        For ``steps`` or ``runs`` that are not positive integers, or a bad ``seed``.
+        For ``steps`` or ``runs`` that are not positive integers, or a bad ``seed``; for
+        ``times`` that are not strictly increasing after ``t0``, a ``steps`` other than
+        their number, a ``dt`` given twice, a ``Q`` with an SDE, or ``times`` or
+        ``substeps`` where they do not apply.
     ArgumentTypeError
         For a model that is not a Model, or an ``x0`` that is not a distribution.
     ShapeError, CovarianceError, ModelError
@@ -118,7 +260,15 @@ def simulate(f: Model, h: Model, Q: ArrayLike, R: ArrayLike, x0: Gaussian | Gaus
     ...                      sm.Gaussian([1.0], [[0.0]]), steps=5, runs=3, seed=1)
     >>> xs.shape, ys.shape
     ((3, 5, 1), (3, 5, 1))
+    >>> ou = sm.SDE([x], [-x], diffusion=[0.5])
+    >>> xs, ys = sm.simulate(ou, sm.Model([x], [x]), None, [[0.01]], sm.Gaussian([1.0], [[0.0]]),
+    ...                      times=[0.5, 1.25, 3.0], seed=1)
+    >>> xs.shape
+    (3, 1)
     """
+    sub = 1
+    if isinstance(f, SDE) or times is not None or substeps is not None or t0 != 0.0:
+        f, Q, steps, params, sub = _sde_inputs(f, Q, steps, params, times, t0, substeps)
     ss = StateSpace(f, h, Q, R)
     K = check_count(steps, "steps")
     bank = check_count(runs, "runs", optional=True)
@@ -130,10 +280,19 @@ def simulate(f: Model, h: Model, Q: ArrayLike, R: ArrayLike, x0: Gaussian | Gaus
     nq, nr = ss.Lq.shape[0], ss.Lr.shape[0]
     xs, ys = np.empty((N, K, ss.n)), np.empty((N, K, ss.n_y))
     x = ss.wrap_states(np.array(x0.sample(N, rng), dtype=float))
+    if sub > 1:  # an SDE's order-1.5 truth: sub-steps of dt/sub, the noise of all drawn at once
+        i_dt = [str(s) for s in ss.params].index(DT)
     for k in range(K):
         p = None if pv is None else pv[:, k]
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging truth is refused below
-            x = ss.transition(x, rng.standard_normal((N, nq)), p)
+            if sub == 1:
+                x = ss.transition(x, rng.standard_normal((N, nq)), p)
+            else:
+                Z = rng.standard_normal((N, sub * nq))
+                ph = p.copy()
+                ph[:, i_dt] /= sub
+                for j in range(sub):
+                    x = ss.transition(x, Z[:, j * nq:(j + 1) * nq], ph)
             y = ss.measure(x, rng.standard_normal((N, nr)), p)
         xs[:, k], ys[:, k] = x, y
         bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(y).all(axis=1))
