@@ -60,11 +60,37 @@ component filter by its short name)::
 measurements (``"measurements[i]"``); ``symmon filter`` prints them and its plot shows
 the RMSE of the states of each unit on its own axis.
 
+**Continuous-time dynamics.**  An ``[sde]`` table declares the dynamics as a stochastic
+differential equation dx = a(x) dt + L dβ, E[dβ dβᵀ] = Q_c dt (:class:`symmon.SDE`), and the
+file's ``dynamics`` and ``[Q]`` are then derived from it by discretisation over the step
+``dt`` (:meth:`symmon.SDE.discretize`: f(x, w) with w ~ N(0, I), so Q is the identity);
+``dynamics``, ``process_noise`` and ``[Q]`` must then be absent::
+
+    name = "wna"
+    states = ["p", "v"]
+    measurements = ["p"]
+    steps = 50
+    [params]
+    q = 0.5                       # the acceleration noise density, in (m/s²)²/(1/s) = m²/s³
+    [sde]
+    drift = ["v", "0"]            # a(x), one expression per state
+    diffusion = [["0"], ["1"]]    # L, one row per state (a flat list is one column); default I
+    spectral_density = "q"        # Q_c: a scalar (times I) or rows of a matrix; default I
+    method = "exact"              # a discretisation method (default "exact")
+    dt = 1.0                      # the step, in the time unit
+    substeps = 1                  # optional: sub-steps of the approximate methods
+    time_unit = "s"               # optional: the unit of dt (Q_c is a density per time unit)
+
+The ``[params]`` stay symbols in the SDE (``symmon discretize`` prints F and Q(dt) in them)
+and take their values in the derived ``dynamics``; the drift, L and Q_c may use the states
+and ``[params]`` (Q_c only ``[params]``), and Q_c must be symmetric positive semi-definite.
+
 Every expression and number is read by the same whitelist parser as a model file
 (:func:`symmon.files.modelfile.parse_expression`): nothing in the file is executed.  Keys:
 ``name``, ``states``, ``dynamics``, ``measurements``, ``steps``, ``[Q]``, ``[R]`` and
-``[x0]`` are required; ``angles``, ``state_angles``, ``process_noise``,
-``measurement_noise``, ``[params]``, ``[units]``, ``[gsf]`` and ``[pf]`` are optional.
+``[x0]`` are required (with ``[sde]`` instead of ``dynamics`` and ``[Q]``); ``angles``,
+``state_angles``, ``process_noise``, ``measurement_noise``, ``[params]``, ``[units]``,
+``[gsf]`` and ``[pf]`` are optional.
 
 :func:`simulate` draws the true states and the measurements of a bank of runs with a
 seed, and :data:`FILTERS` names the filters that ``symmon filter`` runs.
@@ -90,9 +116,12 @@ from ..filters.simulation import simulate as simulate_models
 from ..measures.advice import DEFAULT_TOL
 from ..core.gaussian import Gaussian
 from ..core.model import Model
+from ..core.sde import SDE
+from ..core.discretize import METHODS as SDE_METHODS
 from .modelfile import (
     ModelFileError,
     _check_keys,
+    _number,
     _Context,
     _gaussian,
     _names,
@@ -106,7 +135,7 @@ from ..transforms.unscented import UT
 from ..transforms.quadrature import GaussHermite
 from ..transforms.executor import Executor
 
-__all__ = ["FilterScenario", "FilterSpec", "load_filter_file", "simulate_scenario", "simulate", "check_bank",
+__all__ = ["FilterScenario", "ScenarioSDE", "FilterSpec", "load_filter_file", "simulate_scenario", "simulate", "check_bank",
            "FILTERS", "filter_transform", "run_bank", "BankSummary", "make_filter", "settings_tables"]
 
 #: The single-rule Gaussian filters of ``symmon filter`` and ``symmon reproduce tracking``, by
@@ -124,10 +153,17 @@ MAX_STEPS = 100_000
 #: 2·10⁸, 1.5 GiB, so that runs × steps is bounded jointly before any memory is taken; the
 #: same bound as a filter bank's results (:data:`symmon.filters.inputs.MAX_BANK_NUMBERS`).
 MAX_SIMULATED = MAX_BANK_NUMBERS
+#: Most sub-steps of an ``[sde]`` table (each composes the step's expression once more).
+MAX_SUBSTEPS = 8
 
 _KEYS = ("name", "states", "dynamics", "measurements", "angles", "state_angles", "steps", "params", "Q", "R", "x0",
          "process_noise", "measurement_noise", "units")
 _REQUIRED = ("name", "states", "dynamics", "measurements", "steps", "Q", "R", "x0")
+#: The keys of an ``[sde]`` table, and those it requires.
+_SDE_KEYS = ("drift", "diffusion", "spectral_density", "method", "dt", "substeps", "time_unit")
+_SDE_REQUIRED = ("drift", "dt")
+#: Keys that an ``[sde]`` table replaces.
+_SDE_DERIVED = ("dynamics", "process_noise", "Q")
 
 
 def filter_transform(name: str, tol: float = DEFAULT_TOL):
@@ -147,6 +183,30 @@ def filter_transform(name: str, tol: float = DEFAULT_TOL):
         raise ModelFileError(f"{name!r} is not a Gaussian filter of one rule; use one of "
                              f"{', '.join(n for n in filter_names() if filter_entry(n).rule)}")
     return entry.rule(tol, {})
+
+
+@dataclass(frozen=True)
+class ScenarioSDE:
+    """The ``[sde]`` table of a scenario (module notes).
+
+    Attributes
+    ----------
+    sde : SDE
+        The equation, its ``[params]`` kept as symbols.
+    method : str
+        The discretisation method of the scenario's dynamics.
+    dt : float
+        The step, in ``time_unit``.
+    substeps : int
+    time_unit : str or None
+        The unit of dt, if declared.
+    """
+
+    sde: SDE
+    method: str
+    dt: float
+    substeps: int = 1
+    time_unit: str | None = None
 
 
 @dataclass(frozen=True)
@@ -174,6 +234,8 @@ class FilterScenario:
     settings : dict
         The filters' tables by filter name (:func:`settings_tables`: ``{"gsf": {...}, "pf": {...}}``;
         empty: defaults).
+    sde : ScenarioSDE or None
+        The ``[sde]`` table, from which ``f`` and ``Q`` were derived (None: none).
     """
 
     name: str
@@ -187,6 +249,7 @@ class FilterScenario:
     units: dict[str, str] = field(default_factory=dict)
     params: dict[str, float] = field(default_factory=dict)
     settings: dict[str, dict] = field(default_factory=dict)
+    sde: ScenarioSDE | None = None
 
     def unit(self, key: str) -> str | None:
         """The unit of a state name or of ``"measurements[i]"``, if declared."""
@@ -243,7 +306,14 @@ def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> Filte
         use (they are numbers).
     """
     path, ctx, doc = read_toml(path, "scenario files")
-    _check_keys(ctx, doc, _KEYS + settings_tables(), _REQUIRED, "")
+    with_sde = "sde" in doc
+    required = tuple(k for k in _REQUIRED if not (with_sde and k in _SDE_DERIVED))
+    _check_keys(ctx, doc, _KEYS + ("sde",) + settings_tables(), required, "")
+    if with_sde:
+        for key in _SDE_DERIVED:
+            if key in doc:
+                raise ctx.error(key, "must be absent with an [sde] table: the dynamics and their noise are "
+                                     "derived from the SDE by discretisation")
     name = doc["name"]
     if not isinstance(name, str) or not name.strip():
         raise ctx.error("name", f"must be a non-empty string, got {name!r}")
@@ -268,7 +338,17 @@ def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> Filte
     X = [sp.Symbol(s, real=True) for s in state_names]
     env: dict[str, Any] = {**params, **free_syms, **{s.name: s for s in X}}
     # Each noise is visible only where it belongs: w in the dynamics, e in the measurements.
-    dyn = _expressions(ctx, doc, "dynamics", {**env, **{s.name: s for s in W}}, path)
+    sde = None
+    if with_sde:
+        sde = _sde_table(ctx, doc["sde"], X, params, free_syms, [a for a in doc.get("state_angles", [])
+                                                                 if a in state_names], name)
+        model = sde.sde.discretize(sde.method, substeps=sde.substeps)
+        values = {s: (sp.Float(sde.dt) if str(s) == "dt" else params[str(s)])
+                  for s in model.params if str(s) not in free_syms}
+        dyn = [e.xreplace(values) for e in model.outputs]
+        W = list(model.noise)
+    else:
+        dyn = _expressions(ctx, doc, "dynamics", {**env, **{s.name: s for s in W}}, path)
     if len(dyn) != len(X):
         raise ctx.error("dynamics", f"must have one expression per state ({len(X)}), got {len(dyn)}")
     meas = _expressions(ctx, doc, "measurements", {**env, **{s.name: s for s in E}}, path)
@@ -293,7 +373,10 @@ def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> Filte
     unused = [n for n in free if free_syms[n] not in set(f.params) | set(h.params)]
     if unused:
         raise ctx.error("params", f"{unused} appear in neither the dynamics nor the measurements: nothing to fit")
-    Q = _noise(ctx, doc, "Q", len(W) or len(X), params)
+    if with_sde:
+        Q = np.eye(len(W)) if W else np.zeros((len(X), len(X)))
+    else:
+        Q = _noise(ctx, doc, "Q", len(W) or len(X), params)
     R = _noise(ctx, doc, "R", len(E) or len(meas), params)
     x0 = _gaussian(ctx, doc["x0"], "x0", len(X), params, "states")
     units = _units(ctx, doc.get("units", {}), len(meas), state_names, indexed="measurements", named="state names")
@@ -304,7 +387,86 @@ def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> Filte
         except SymmonError as exc:
             raise ctx.error(f"[{kind}]", str(exc)) from None
     return FilterScenario(name, f, h, Q, R, x0, int(steps), path, units, {k: float(v) for k, v in params.items()},
-                      settings)
+                          settings, sde)
+
+
+def _matrix_entries(ctx: _Context, value: Any, key: str, env: dict, what: str) -> list:
+    """A scalar, a flat list (a column) or a list of rows of numbers and expression strings,
+    parsed (nested lists kept)."""
+    where = f"[sde].{key}"
+
+    def entry(v: Any, label: str) -> sp.Expr:
+        if isinstance(v, bool) or not isinstance(v, (int, float, str)):
+            raise ctx.error(where, f"{label} must be a number or an expression string, got {v!r}")
+        if isinstance(v, str):
+            line_off, col_off = ctx.locate(v, rf"^\s*{key}\s*=")
+            return parse_expression(v, env, source=f"{ctx.path}: {where}{label}", line_offset=line_off,
+                                    col_offset=col_off)
+        if isinstance(v, float) and not np.isfinite(v):
+            raise ctx.error(where, f"{label} must be finite, got {v!r}")
+        return sp.Integer(v) if isinstance(v, int) else sp.Float(v)
+
+    if not isinstance(value, list):
+        return entry(value, "")
+    if not value:
+        raise ctx.error(where, f"must be {what}, got an empty list")
+    if all(isinstance(r, list) for r in value):
+        widths = {len(r) for r in value}
+        if len(widths) != 1 or 0 in widths:
+            raise ctx.error(where, f"must be {what}: rows of one non-zero length, got lengths {[len(r) for r in value]}")
+        return [[entry(v, f"[{i}][{j}]") for j, v in enumerate(r)] for i, r in enumerate(value)]
+    if any(isinstance(r, list) for r in value):
+        raise ctx.error(where, f"must be {what}: a list of rows (lists) or of entries, not both")
+    return [entry(v, f"[{i}]") for i, v in enumerate(value)]
+
+
+def _sde_table(ctx: _Context, table: Any, X: list, params: dict, free_syms: dict, angles: list,
+               name: str) -> ScenarioSDE:
+    """The ``[sde]`` table as a :class:`ScenarioSDE`: its expressions through the whitelist
+    parser, the SDE's own checks reported with the file's name and the key."""
+    if not isinstance(table, dict):
+        raise ctx.error("[sde]", f"must be a table, got {table!r}")
+    _check_keys(ctx, table, _SDE_KEYS, _SDE_REQUIRED, "[sde]")
+    # The [params] stay symbols (positive where their value is): F and Q(dt) print in them.
+    syms = {n: free_syms[n] if n in free_syms else sp.Symbol(n, positive=True) if float(v) > 0
+            else sp.Symbol(n, real=True) for n, v in params.items()}
+    env = {**syms, **{s.name: s for s in X}}
+    drift = table["drift"]
+    if not isinstance(drift, list) or not drift or isinstance(drift[0], list):
+        raise ctx.error("[sde].drift", f"must be a list of expressions, one per state, got {drift!r}")
+    a = _matrix_entries(ctx, drift, "drift", env, "one expression per state")
+    L = _matrix_entries(ctx, table["diffusion"], "diffusion", env, "a matrix L (rows)") if "diffusion" in table else None
+    Qc = (_matrix_entries(ctx, table["spectral_density"], "spectral_density", syms, "a scalar or a matrix Q_c (rows)")
+          if "spectral_density" in table else None)
+    method = table.get("method", "exact")
+    if method not in SDE_METHODS:
+        raise ctx.error("[sde].method", f"must be one of {', '.join(SDE_METHODS)}, got {method!r}")
+    dt = _number(ctx, table["dt"], "[sde].dt", params, r"^\s*dt\s*=")
+    if dt <= 0:
+        raise ctx.error("[sde].dt", f"must be positive (the step), got {table['dt']!r}")
+    substeps = table.get("substeps", 1)
+    if isinstance(substeps, bool) or not isinstance(substeps, int) or not 1 <= substeps <= MAX_SUBSTEPS:
+        raise ctx.error("[sde].substeps", f"must be an integer in [1, {MAX_SUBSTEPS}], got {substeps!r}")
+    if method == "exact" and substeps != 1:
+        raise ctx.error("[sde].substeps", "does not apply to the 'exact' method (it is exact for any dt)")
+    unit = table.get("time_unit")
+    if unit is not None and (not isinstance(unit, str) or not unit.strip()):
+        raise ctx.error("[sde].time_unit", f"must be a non-empty unit string, got {unit!r}")
+    if isinstance(Qc, list) and not isinstance(Qc[0], list):
+        raise ctx.error("[sde].spectral_density", "must be a scalar or a list of rows (a matrix), not a flat list")
+    try:
+        sde = SDE(X, a, diffusion=L, spectral_density=Qc, params=list(syms.values()),
+                  angles=[s for s in X if s.name in angles], name=name)
+    except SymmonError as exc:
+        text = str(exc)
+        key = next((k for k in ("spectral_density", "diffusion", "drift") if k in text.split(":")[0]), None)
+        raise ctx.error(f"[sde].{key}" if key else "[sde]", text) from None
+    if method == "exact" and not sde.is_linear:
+        raise ctx.error("[sde].method", "'exact' needs a linear drift and a constant diffusion; this SDE is "
+                                        "nonlinear: use 'taylor1.5' or 'local_linear' with substeps")
+    if method in ("taylor1.5", "local_linear") and not sde.additive:
+        raise ctx.error("[sde].method", f"{method!r} needs a diffusion free of the states: use 'euler' or 'rk4'")
+    return ScenarioSDE(sde, method, dt, substeps, unit)
 
 
 def _filter_settings(ctx: _Context, table: Any, kind: str) -> dict:
