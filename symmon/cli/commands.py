@@ -496,6 +496,83 @@ def cmd_filter(args: argparse.Namespace) -> int:
     return 0
 
 
+def _matrix_rows(M) -> list[list[str]]:
+    return [[str(M[i, j]) for j in range(M.shape[1])] for i in range(M.shape[0])]
+
+
+def cmd_discretize(args: argparse.Namespace) -> int:
+    """``symmon discretize``: F(dt) and Q(dt) of a scenario's [sde] table, symbolic and at its dt."""
+    import sympy as sp
+
+    from ..core.discretize import default_dt, exact_transition
+    from ..files.filterfile import load_filter_file
+
+    spec = load_filter_file(args.file)
+    if spec.sde is None:
+        raise ModelError(f"{spec.path}: has no [sde] table: nothing to discretize (its dynamics are discrete)")
+    table, sde = spec.sde, spec.sde.sde
+    method = args.method or table.method
+    dt = default_dt()
+    states = [str(s) for s in sde.states]
+    unit = table.time_unit
+    values = {s: spec.params[str(s)] for s in sde.params}
+    values[dt] = table.dt
+
+    def numeric(M) -> list[list[float]]:
+        return np.array(M.subs(values).evalf(), dtype=float).tolist()
+
+    out: dict[str, Any] = {
+        "scenario": spec.name, "file": str(spec.path), "method": method, "dt_symbol": str(dt), "dt": table.dt,
+        "time_unit": unit, "states": states, "units": {s: spec.unit(s) for s in states if spec.unit(s)},
+        "params": {str(s): spec.params[str(s)] for s in sde.params},
+        "drift": [str(e) for e in sde.drift], "diffusion": _matrix_rows(sde.diffusion),
+        "spectral_density": _matrix_rows(sde.spectral_density)}
+    if method == "exact":
+        F, c, Q = exact_transition(sde, dt)
+        out.update(F=_matrix_rows(F), c=[str(e) for e in c], Q=_matrix_rows(Q),
+                   latex={"F": sp.latex(F), "c": sp.latex(c), "Q": sp.latex(Q)},
+                   F_at_dt=numeric(F), c_at_dt=[r[0] for r in numeric(c)], Q_at_dt=numeric(Q))
+    else:
+        f = sde.discretize(method, dt=dt, substeps=table.substeps)
+        g = sp.Matrix(f.outputs)
+        out.update(transition=[str(e) for e in f.outputs], noise=[str(w) for w in f.noise],
+                   substeps=table.substeps, latex={"transition": sp.latex(g)})
+    per = unit or "time unit"
+    scale = (f"the time unit scales Q_c: Q_c is a density per {per}, so the same process with dt in a unit "
+             "1000 times smaller (ms for s) has a Q_c 1000 times smaller, and its F and Q(dt) at the same "
+             "physical step are unchanged")
+    out["time_unit_note"] = scale
+    if args.json:
+        _print_json(out)
+        return 0
+    labelled = [f"{s} [{spec.unit(s)}]" if spec.unit(s) else s for s in states]
+    print(f"{spec.name}: {method!r} discretisation of dx = a(x) dt + L dβ, E[dβ dβᵀ] = Q_c dt, over a step dt")
+    print(f"states: {', '.join(labelled)}"
+          + (f"; params: {', '.join(f'{k} = {v:g}' for k, v in out['params'].items())}" if out["params"] else ""))
+    print(f"time unit: {unit or 'not declared ([sde].time_unit)'}; {scale}")
+    if method == "exact":
+        for label, M, key in (("F(dt) = e^{A dt}", F, "F"), ("c(dt) = ∫₀^dt e^{A s} ds b", c, "c"),
+                              ("Q(dt) = ∫₀^dt e^{A s} L Q_c Lᵀ e^{Aᵀ s} ds (Van Loan)", Q, "Q")):
+            if key == "c" and all(e == 0 for e in c):
+                continue
+            print(f"\n{label}:")
+            print("  " + sp.pretty(M, use_unicode=True).replace("\n", "\n  "))
+            print(f"  LaTeX: {out['latex'][key]}")
+        print(f"\nat dt = {table.dt:g}{' ' + unit if unit else ''} with the file's params:")
+        for key in ("F", "Q"):
+            text = np.array2string(np.array(out[f"{key}_at_dt"]), precision=6, separator=", ")
+            print(f"  {key} = " + text.replace("\n", "\n      "))
+        if out["units"]:
+            print("units: F[i, j] has the unit of state i over that of state j, Q[i, j] the unit of state i "
+                  "times that of state j")
+    else:
+        print(f"\nx(t + dt) = f(x, w; dt), w = ({', '.join(out['noise'])}) ~ N(0, I), {table.substeps} sub-step(s):")
+        for s_, e in zip(states, out["transition"]):
+            print(f"  {s_}: {e}")
+        print(f"  LaTeX: {out['latex']['transition']}")
+    return 0
+
+
 def cmd_advise(args: argparse.Namespace) -> int:
     """``symmon advise``: the advice of :func:`symmon.advise` for a model file.
 

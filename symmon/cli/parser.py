@@ -48,6 +48,7 @@ from ..version import __version__
 from ..compile.ccache import catch_sigterm
 from ..errors import OutputPathError, SymmonError, UsageError
 from ..filters.registry import filter_entry, filter_names
+from ..core.discretize import METHODS as SDE_METHODS
 from ..measures.advice import DEFAULT_TOL  # one default for advise and the adaptive filter
 from ..io import plot_format
 from ..reproduce.common import FORMATS
@@ -100,6 +101,8 @@ _EXAMPLES = {
     "filter": ["symmon filter examples/rb_close.toml --runs 500 --plot nees.png",
                "symmon filter examples/rb_close.toml --filters ekf,ukf,adaptive --tol 0.01 --json",
                "symmon filter examples/rb_close.toml --filters ekf,ukf --smooth"],
+    "discretize": ["symmon discretize examples/wna_sde.toml --method exact",
+                   "symmon discretize examples/wna_sde.toml --json"],
     "cache": ["symmon cache", "symmon cache --json", "symmon cache clear"],
     "advise": ["symmon advise examples/bot.toml --tol 0.001",
                "symmon advise examples/rb_close.toml --filter --runs 32",
@@ -526,6 +529,15 @@ def _parser() -> argparse.ArgumentParser:
     output_opt(sp, "--plot", kind="figure", metavar="PNG", help="write NEES, NIS and RMSE over time (atomically)")
     sp.add_argument("--json", action="store_true", help="print JSON")
     sp.set_defaults(func=commands.cmd_filter)
+
+    sp = add("discretize", "the discretisation of a filter scenario's [sde] table: F(dt) = e^{A dt} and Q(dt) by "
+             "Van Loan's integral for the exact method (symbolic, in LaTeX too, and at the file's dt), or the "
+             "transition f(x, w; dt) of an approximate method; with the time unit, which scales Q_c")
+    sp.add_argument("file", help="TOML filter scenario with an [sde] table (see symmon.files.filterfile)")
+    sp.add_argument("--method", choices=SDE_METHODS, default=None,
+                    help="the discretisation (default: the file's [sde].method)")
+    sp.add_argument("--json", action="store_true", help="print JSON")
+    sp.set_defaults(func=commands.cmd_discretize)
 
     sp = add("advise", "which transform is good enough for a model file: every candidate's moment "
              "error against a reference, its cost and times, the reference's MoN, and the cheapest within tol; "
