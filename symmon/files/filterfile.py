@@ -431,6 +431,9 @@ def _sde_table(ctx: _Context, table: Any, X: list, params: dict, free_syms: dict
     syms = {n: free_syms[n] if n in free_syms else sp.Symbol(n, positive=True) if float(v) > 0
             else sp.Symbol(n, real=True) for n, v in params.items()}
     env = {**syms, **{s.name: s for s in X}}
+    if "dt" in env:
+        raise ctx.error("[sde]", "'dt' is the step of the discretisation: a state or a [params] entry cannot "
+                                 "have that name")
     drift = table["drift"]
     if not isinstance(drift, list) or not drift or isinstance(drift[0], list):
         raise ctx.error("[sde].drift", f"must be a list of expressions, one per state, got {drift!r}")

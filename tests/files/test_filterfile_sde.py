@@ -1,0 +1,117 @@
+"""The ``[sde]`` table of filter scenario files: the dynamics and Q derived by discretisation."""
+
+import re
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import symmon as sm
+from symmon.files.filterfile import load_filter_file
+from symmon.files.modelfile import ModelFileError
+
+from helpers import EXAMPLES
+
+BASE = """
+name = "wna"
+states = ["p", "v"]
+measurements = ["p"]
+steps = 10
+[params]
+q = 0.5
+[R]
+std = [2.0]
+[x0]
+mean = [0, 10]
+std = [5, 2]
+"""
+WNA_SDE = """
+[sde]
+drift = ["v", "0"]
+diffusion = [["0"], ["1"]]
+spectral_density = "q"
+dt = 0.5
+time_unit = "s"
+"""
+
+
+def write(tmp_path, text, name="s.toml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_the_dynamics_and_q_are_the_exact_discretisation(tmp_path):
+    spec = load_filter_file(write(tmp_path, BASE + WNA_SDE))
+    assert spec.sde is not None and spec.sde.method == "exact" and spec.sde.dt == 0.5
+    assert spec.sde.time_unit == "s" and spec.sde.substeps == 1
+    assert [str(s) for s in spec.sde.sde.params] == ["q"] and spec.sde.sde.params[0].is_positive
+    assert spec.f.n_v == 2 and np.array_equal(spec.Q, np.eye(2)) and not spec.f.params
+    # the derived f: F x + G w with G Gᵀ = Q(0.5) of q = 0.5
+    p, v = spec.f.inputs
+    J = sp.Matrix(spec.f.outputs).jacobian(list(spec.f.noise))
+    G = np.array(J, dtype=float)
+    dt, q = 0.5, 0.5
+    np.testing.assert_allclose(G @ G.T, q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]]), rtol=1e-14)
+    mean = [e.subs({w: 0 for w in spec.f.noise}) for e in spec.f.outputs]
+    assert sp.simplify(mean[0] - (p + 0.5 * v)) == 0 and mean[1] == v
+
+
+def test_approximate_methods_and_defaults(tmp_path):
+    text = BASE.replace('"p", "v"]', '"x"]').replace('mean = [0, 10]\nstd = [5, 2]', 'mean = [1]\nstd = [0.1]')
+    text = text.replace('measurements = ["p"]', 'measurements = ["x"]')
+    sde = '\n[sde]\ndrift = ["sin(x) - x**3/2"]\nmethod = "taylor1.5"\nsubsteps = 2\ndt = 0.1\n'
+    spec = load_filter_file(write(tmp_path, text + sde))
+    assert spec.f.n_v == 4 and spec.Q.shape == (4, 4)  # ξ₁, ξ₂ of 2 sub-steps; L and Q_c default to I
+    assert spec.sde.sde.diffusion == sp.eye(1) and spec.sde.time_unit is None
+
+
+def test_a_scalar_and_a_matrix_spectral_density_agree(tmp_path):
+    scalar = load_filter_file(write(tmp_path, BASE + WNA_SDE, "a.toml"))
+    matrix = load_filter_file(write(tmp_path, BASE + WNA_SDE.replace('"q"', '[["q"]]'), "b.toml"))
+    flat = load_filter_file(write(tmp_path, BASE + WNA_SDE.replace('[["0"], ["1"]]', '[0, 1]'), "c.toml"))
+    assert scalar.f.outputs == matrix.f.outputs == flat.f.outputs
+
+
+def test_the_example_runs_the_filters(tmp_path):
+    spec = load_filter_file(EXAMPLES / "wna_sde.toml")
+    assert spec.sde.method == "exact" and spec.sde.time_unit == "s"
+    xs, ys = sm.simulate(spec.f, spec.h, spec.Q, spec.R, spec.x0, steps=5, runs=2, seed=0)
+    assert xs.shape == (2, 5, 2)
+
+
+@pytest.mark.parametrize("change, key, message", [
+    (lambda t: t.replace('drift = ["v", "0"]', 'drift = ["v"]'), "[sde].drift", "one expression per state"),
+    (lambda t: t.replace('drift = ["v", "0"]', 'drift = ["v", "u"]'), "[sde].drift[1]", "u"),
+    (lambda t: t.replace('drift = ["v", "0"]', 'drift = "v"'), "[sde].drift", "a list of expressions"),
+    (lambda t: t.replace('[["0"], ["1"]]', '[["0"], ["1"], ["0"]]'), "[sde].diffusion", "one row per state"),
+    (lambda t: t.replace('[["0"], ["1"]]', '[["0", "1"], ["1"]]'), "[sde].diffusion", "rows of one"),
+    (lambda t: t.replace('[["0"], ["1"]]', '[["0"], ["p"]]') + 'method = "taylor1.5"\n', "[sde].method",
+     "free of the states"),
+    (lambda t: t.replace('"q"', '[["q", 0], [0, "q"]]'), "[sde].spectral_density", "columns"),
+    (lambda t: t.replace('"q"', '"-q"'), "[sde].spectral_density", "negative"),
+    (lambda t: t.replace('"q"', '[[1, 2], [2, 1]]').replace('[["0"], ["1"]]', '[["0", "0"], ["1", "1"]]'),
+     "[sde].spectral_density", "positive semi-definite"),
+    (lambda t: t.replace('"q"', '"p*q"'), "[sde].spectral_density", "p"),
+    (lambda t: t.replace('"q"', '[1, 2]'), "[sde].spectral_density", "flat list"),
+    (lambda t: t.replace("dt = 0.5", "dt = -1"), "[sde].dt", "positive"),
+    (lambda t: t.replace("dt = 0.5", ""), "[sde]", "missing key(s) ['dt']"),
+    (lambda t: t.replace("dt = 0.5", "dt = 0.5\nsubsteps = 2"), "[sde].substeps", "does not apply"),
+    (lambda t: t.replace("dt = 0.5", "dt = 0.5\nmethod = \"magic\""), "[sde].method", "must be one of"),
+    (lambda t: t.replace('drift = ["v", "0"]', 'drift = ["v", "-v**3"]'), "[sde].method", "linear drift"),
+    (lambda t: t + "colour = 1\n", "[sde]", "unknown key(s) ['colour']"),
+    (lambda t: t.replace("steps = 10", 'steps = 10\ndynamics = ["p", "v"]'), "dynamics", "must be absent"),
+    (lambda t: t.replace("[sde]", "[Q]\nstd = [1, 1]\n[sde]"), "Q", "must be absent"),
+    (lambda t: t.replace("q = 0.5", "q = 0.5\ndt = 2"), "[sde]", "'dt' is the step"),
+])
+def test_bad_sde_tables_name_the_file_and_the_key(tmp_path, change, key, message):
+    path = write(tmp_path, change(BASE + WNA_SDE))
+    with pytest.raises(ModelFileError) as info:
+        load_filter_file(path)
+    text = str(info.value)
+    assert str(path) in text and key in text and message in text, text
+
+
+def test_without_sde_dynamics_and_q_are_still_required(tmp_path):
+    with pytest.raises(ModelFileError, match=re.escape("missing key(s) ['dynamics', 'Q']")):
+        load_filter_file(write(tmp_path, BASE))
