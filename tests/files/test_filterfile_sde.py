@@ -115,3 +115,16 @@ def test_bad_sde_tables_name_the_file_and_the_key(tmp_path, change, key, message
 def test_without_sde_dynamics_and_q_are_still_required(tmp_path):
     with pytest.raises(ModelFileError, match=re.escape("missing key(s) ['dynamics', 'Q']")):
         load_filter_file(write(tmp_path, BASE))
+
+
+def test_a_free_parameter_stays_a_parameter_of_the_derived_dynamics(tmp_path):
+    """``symmon fit`` keeps [params] free: the SDE's q is then a parameter of f, and f at the
+    file's value is the fixed scenario's f."""
+    path = write(tmp_path, BASE + WNA_SDE)
+    free = load_filter_file(path, free=["q"])
+    fixed = load_filter_file(path)
+    assert [str(s) for s in free.f.params] == ["q"]
+    at = free.f.with_params({"q": 0.5})
+    point = {s: 0.3 for s in (*at.inputs, *at.noise)}
+    for a, b in zip(at.outputs, fixed.f.outputs):
+        assert float(a.subs(point)) == pytest.approx(float(b.subs(point)), rel=1e-14)
