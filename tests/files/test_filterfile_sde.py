@@ -97,6 +97,8 @@ def test_the_example_runs_the_filters(tmp_path):
     (lambda t: t.replace("dt = 0.5", "dt = -1"), "[sde].dt", "positive"),
     (lambda t: t.replace("dt = 0.5", ""), "[sde]", "missing key(s) ['dt']"),
     (lambda t: t.replace("dt = 0.5", "dt = 0.5\nsubsteps = 2"), "[sde].substeps", "does not apply"),
+    (lambda t: t.replace("dt = 0.5", "dt = 0.5\nsubsteps = 5\nmethod = \"euler\""), "[sde].substeps",
+     "integer in [1, 4]"),
     (lambda t: t.replace("dt = 0.5", "dt = 0.5\nmethod = \"magic\""), "[sde].method", "must be one of"),
     (lambda t: t.replace('drift = ["v", "0"]', 'drift = ["v", "-v**3"]'), "[sde].method", "linear drift"),
     (lambda t: t + "colour = 1\n", "[sde]", "unknown key(s) ['colour']"),
