@@ -510,10 +510,14 @@ def test_the_stated_longest_chain_is_the_measured_one():
     text = ARCHITECTURE.read_text(encoding="utf-8")
     stated = re.search(r"The longest chain of imports.*?:\n(.*?), (\d+) modules", text, re.S)
     assert stated, "docs/architecture.md states no longest chain ('The longest chain of imports … N modules')"
-    chain = longest_chain(graph(), exclude=[FACE])
+    edges = graph()
+    chain = longest_chain(edges, exclude=[FACE])
     names = [s.strip().strip("`") for s in re.split(r"→", stated.group(1).replace("\n", " "))]
+    names = ["symmon." + n if not n.startswith("symmon") else n for n in names]
+    # Several chains may be longest: the stated one must be one of them, a path of real imports.
     assert int(stated.group(2)) == len(chain) == len(names)
-    assert ["symmon." + n if not n.startswith("symmon") else n for n in names] == chain
+    missing = [f"{a} → {b}" for a, b in zip(names, names[1:]) if b not in edges.get(a, ())]
+    assert not missing, f"the stated chain has steps that are no imports: {missing}"
 
 
 def test_every_unit_has_a_layer():
