@@ -98,6 +98,13 @@ class Filter(abc.ABC):
     def sizes(self) -> tuple[int, int]:
         """(n, n_y): the dimensions of the state and of the measurement."""
 
+    @abc.abstractmethod
+    def step_cost(self) -> int:
+        """Evaluations of the models per step of one run, as :func:`symmon.advise` counts a
+        rule's (its declared ``cost``), times the components, particles or members: the
+        deterministic cost by which a choice between filters compares them
+        (:func:`~symmon.filters.selection.advise_filter`)."""
+
     @property
     def params(self) -> tuple:
         """The models' parameters (sympy symbols), whose values ``filter(params=...)`` gives."""

@@ -75,9 +75,7 @@ from ..transforms.quadrature import GaussHermite
 from ..transforms.taylor import TT1, TT2
 from .base import Filter
 from .gaussian.nonlinear import NonlinearKalmanFilter
-from .mixture.gaussian_sum import GaussianSumFilter
 from .mixture.imm import IMM
-from .particle.particle_filter import ParticleFilter
 from .registry import filter_entry, make_filter
 from .simulation import simulate
 
@@ -505,31 +503,10 @@ def _given(candidates: Sequence[Any], f: Model, h: Model, Q: np.ndarray, R: np.n
         settings = dict(settings)
         flt = make_filter(entry.name, f, h, Q, R, tol=tol, settings=settings)
         out.append(_Option(entry.name if not any(o.name == entry.name for o in out) else f"{entry.name} #{i}",
-                           (lambda flt=flt: flt), settings, _filter_cost(flt, f, h), True, "given by the caller"))
+                           (lambda flt=flt: flt), settings, flt.step_cost(), True, "given by the caller"))
     if not out:
         raise ArgumentError("candidates is empty")
     return out
-
-
-def _filter_cost(flt: Filter, f: Model, h: Model) -> int:
-    """The cost per step (module notes) of a built filter."""
-    if isinstance(flt, ParticleFilter):
-        return 2 * flt.particles
-    if isinstance(flt, GaussianSumFilter):
-        return flt.max_components * _gaussian_cost(flt.transform, f, h)
-    if isinstance(flt, IMM):
-        return sum(_filter_cost(m, f, h) for m in flt.filters)
-    if isinstance(flt, NonlinearKalmanFilter) and not _adaptive(flt):
-        return _gaussian_cost(flt.transform, f, h, flt.iterations)
-    return _gaussian_cost(TT1(), f, h)
-
-
-def _adaptive(flt: NonlinearKalmanFilter) -> bool:
-    try:
-        transform_cost(flt.transform, 1)
-        return False
-    except (SymmonError, AttributeError):
-        return True
 
 
 # --------------------------------------------------------------------------- the pilot

@@ -234,3 +234,21 @@ def test_a_name_is_registered_once():
         register(FilterEntry("other", "clash", sm.NonlinearKalmanFilter, lambda *a: None, aliases=("tt1",)))
     with pytest.raises(SymmonError, match="subclass of symmon.filters.base.Filter"):
         register(FilterEntry("other", "not a filter", dict, lambda *a: None))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_every_filter_declares_its_cost_per_step(name):
+    """The deterministic cost a choice between filters compares (advise_filter), declared by
+    each filter, never read off its class."""
+    cost = FILTERS[name].step_cost()
+    assert isinstance(cost, int) and cost > 0
+
+
+def test_the_costs_order_the_families_as_their_work():
+    ekf = FILTERS["NonlinearKalmanFilter"]
+    assert FILTERS["ParticleFilter"].step_cost() == 2 * 200
+    assert FILTERS["EnsembleKalmanFilter"].step_cost() == 2 * 50
+    assert FILTERS["GaussianSumFilter"].step_cost() >= FILTERS["GaussianSumFilter"].max_components * ekf.step_cost()
+    assert FILTERS["IMM"].step_cost() == sum(m.step_cost() for m in FILTERS["IMM"].filters)
+    ukf = sm.NonlinearKalmanFilter(F_MODEL, H_MODEL, Q, R, "ukf")
+    assert ukf.step_cost() == sm.UT.ut1().cost(2) + sm.UT.ut1().cost(2) > ekf.step_cost()

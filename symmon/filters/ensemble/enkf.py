@@ -274,6 +274,10 @@ class EnsembleKalmanFilter(Filter):
         """(n, n_y): the state's and the measurement's dimensions."""
         return self.space.n, self.space.n_y
 
+    def step_cost(self) -> int:
+        """f and h at each member."""
+        return 2 * self.members
+
     @property
     def params(self) -> tuple:
         """The parameters of the models (f's, then h's that f does not have)."""

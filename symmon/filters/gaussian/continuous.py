@@ -193,6 +193,11 @@ class ContinuousDiscreteKalmanFilter(Filter):
         """(n, n_y): the state's and the measurement's dimensions."""
         return self.sde.n, self.h.n_y
 
+    def step_cost(self) -> int:
+        """The rule's cost for one evaluation of the moment equations and for the update: a
+        lower bound (the adaptive integrator evaluates them as often as its tolerance needs)."""
+        return int(self.transform.cost(self.sizes[0])) + int(self.transform.cost(self.sizes[0]))
+
     @property
     def params(self) -> tuple:
         """The SDE's parameters, then ``dt``, then h's that the SDE has not."""

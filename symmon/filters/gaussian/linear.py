@@ -184,6 +184,12 @@ class KalmanFilter(Filter):
         """(n, n_y)."""
         return self.n, self.n_y
 
+    def step_cost(self) -> int:
+        """The EKF's: TT1's cost for the prediction and for the update."""
+        from ...transforms.taylor import TT1
+
+        return TT1().cost(self.n) + TT1().cost(self.n)
+
     @property
     def method(self) -> str:
         """"KF"."""

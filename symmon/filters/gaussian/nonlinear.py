@@ -82,6 +82,7 @@ from ...core.gaussian import Gaussian, as_covariance
 from ...core.model import Model
 from ...transforms.unscented import UT
 from ...transforms.base import Transform
+from ...transforms.taylor import TT1
 from ..names import filter_rule
 
 __all__ = ["NonlinearKalmanFilter", "NonlinearKalmanResult", "ConsistencyTest", "MAX_ITERATIONS"]
@@ -219,6 +220,13 @@ class NonlinearKalmanFilter(Filter):
     def sizes(self) -> tuple[int, int]:
         """(n, n_y): the state's and the measurement's dimensions."""
         return self.f_model.n_u, self.h_model.n_y
+
+    def step_cost(self) -> int:
+        """The rule's cost on [x; w] for the prediction and on [x; e] for each update's
+        iteration (an adaptive strategy counts as the EKF, its cheapest rule)."""
+        rule = self.transform if isinstance(self.transform, Transform) else TT1()
+        n_f, n_h = self.dimensions
+        return int(rule.cost(n_f)) + self.iterations * int(rule.cost(n_h))
 
     def as_gaussian_mode(self) -> NonlinearKalmanFilter:
         """Itself: a mode of :class:`~symmon.IMM`."""

@@ -553,6 +553,12 @@ class GaussianSumFilter(Filter):
         """(n, n_y): the state's and the measurement's dimensions."""
         return self.f.n_u, self.h.n_y
 
+    def step_cost(self) -> int:
+        """The component filter's cost at each of at most ``max_components`` components, and
+        with ``split`` the MoN's (TT2 on f and h) that decides the splits."""
+        mon = 0 if self.split is None else TT2().cost(self.f.n_u + self.f.n_v) + TT2().cost(self.h.n_u + self.h.n_v)
+        return self.max_components * self.kf.step_cost() + mon
+
     @property
     def params(self) -> tuple:
         """The parameters of the component filter's models."""

@@ -278,6 +278,10 @@ class IMM(Filter):
         """(n, n_y): the state's and the measurement's dimensions."""
         return self.n, self.n_y
 
+    def step_cost(self) -> int:
+        """The modes' costs, summed."""
+        return sum(kf.step_cost() for kf in self.filters)
+
     def _check_params(self, params: Any, runs: int | None, steps: int) -> list:
         return self._mode_params(params, runs, steps)
 

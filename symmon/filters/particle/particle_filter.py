@@ -475,6 +475,10 @@ class ParticleFilter(Filter):
         """(n, n_y): the state's and the measurement's dimensions."""
         return self.space.n, self.space.n_y
 
+    def step_cost(self) -> int:
+        """f and h at each particle."""
+        return 2 * self.particles
+
     def _check_prior(self, x0: Any, P0: None, runs: int | None) -> tuple[Any, None]:
         return check_prior(x0, self.space.n), None
 
