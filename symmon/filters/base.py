@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import inspect
 from typing import Any, ClassVar, Iterable
 
 import numpy as np
@@ -59,6 +60,11 @@ class Filter(abc.ABC):
     takes_covariance : bool
         ``x0`` may be a mean given with ``P0`` (the Gaussian filters); otherwise ``x0`` is a
         distribution and ``P0`` is refused.
+    continuous_time : bool
+        The filter's model runs in continuous time: :meth:`filter` takes the measurement
+        ``times`` (and ``t0``, the time of ``x0``), and :meth:`_check_params` receives their
+        intervals (``intervals=``).  A discrete-time filter (the default) refuses ``times``:
+        its steps are its model's transitions.
     """
 
     random: ClassVar[bool] = False
@@ -67,6 +73,7 @@ class Filter(abc.ABC):
     exportable: ClassVar[bool] = False
     gaussian_mode: ClassVar[bool] = False
     takes_covariance: ClassVar[bool] = True
+    continuous_time: ClassVar[bool] = False
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -74,13 +81,16 @@ class Filter(abc.ABC):
             raise TypeError(f"{cls.__name__} overrides Filter.filter; a filter implements the hook _filter, "
                             "and Filter.filter checks the inputs and hands banks to executors for it")
         for name, kind in (("random", bool), ("has_smoother", bool), ("exportable", bool),
-                           ("gaussian_mode", bool), ("takes_covariance", bool), ("keepable", tuple)):
+                           ("gaussian_mode", bool), ("takes_covariance", bool), ("continuous_time", bool),
+                           ("keepable", tuple)):
             if not isinstance(getattr(cls, name), kind):
                 raise TypeError(f"{cls.__name__}.{name} must be a {kind.__name__}")
         if cls.has_smoother and not callable(getattr(cls, "smooth", None)):
             raise TypeError(f"{cls.__name__} declares has_smoother but has no smooth method")
         if cls.exportable and not callable(getattr(cls, "export_c", None)):
             raise TypeError(f"{cls.__name__} declares exportable but has no export_c method")
+        if cls.continuous_time and "intervals" not in inspect.signature(cls._check_params).parameters:
+            raise TypeError(f"{cls.__name__} declares continuous_time but its _check_params takes no intervals")
         if not getattr(cls, "__abstractmethods__", None) and not getattr(_filter_hook(cls), "__isabstractmethod__",
                                                                           False):
             _CLASSES[cls.__name__] = cls
@@ -123,7 +133,7 @@ class Filter(abc.ABC):
     # ------------------------------------------------------------------ the template
     def filter(self, ys: ArrayLike, x0: Any, P0: ArrayLike | None = None, *, keep: Iterable[str] | str | None = None,
                params: dict | None = None, x_true: ArrayLike | None = None, executor: Executor | None = None,
-               first_run: int = 0) -> Any:
+               first_run: int = 0, times: ArrayLike | None = None, t0: float = 0.0) -> Any:
         """Filter the measurements ``ys`` from the prior ``x0``: for each measurement,
         predict, then update (``ys[k]`` is y_{k+1}).
 
@@ -154,6 +164,14 @@ class Filter(abc.ABC):
         first_run : int, default 0
             For a random filter: the index of the first run of ``ys`` in a larger bank, so
             that a bank filtered in pieces gives the numbers of the whole bank.
+        times : array_like, shape (K,) or (R, K), optional
+            For a continuous-time filter (``continuous_time``, e.g.
+            :class:`~symmon.ContinuousDiscreteKalmanFilter`): the times t_1 < … < t_K of the
+            measurements, after ``t0``, in the model's time unit; irregular allowed, and one
+            row per run for a bank whose runs have their own times.  A discrete-time filter
+            refuses them (its steps are its model's transitions).
+        t0 : float, default 0
+            The time of the prior ``x0`` (with ``times`` only).
 
         Returns
         -------
@@ -164,13 +182,16 @@ class Filter(abc.ABC):
         Raises
         ------
         ShapeError, ArgumentError, ArgumentTypeError, CovarianceError, ModelError
-            Bad inputs (:func:`check_call`).
+            Bad inputs (:func:`check_call`), among them ``times`` given to a discrete-time
+            filter, or times that are not strictly increasing after ``t0`` (naming the first
+            bad index).
         ResourceError
             The results would exceed :data:`~symmon.filters.inputs.MAX_BANK_NUMBERS` numbers.
         SymmonError
             The filter produced NaN or inf, naming the step (and run).
         """
-        call = check_call(self, ys, x0, P0, keep=keep, params=params, x_true=x_true, first_run=first_run)
+        call = check_call(self, ys, x0, P0, keep=keep, params=params, x_true=x_true, first_run=first_run,
+                          times=times, t0=t0)
         if executor is not None:
             return filter_bank(self, executor, call)
         return self._filter(call)
@@ -192,7 +213,9 @@ class Filter(abc.ABC):
         return kept_numbers(n, n_y, self.keepable if keep is None else keep), 0
 
     def _check_params(self, params: dict | None, runs: int | None, steps: int) -> Any:
-        """The parameter values, checked (:func:`~symmon.filters.inputs.param_values`)."""
+        """The parameter values, checked (:func:`~symmon.filters.inputs.param_values`).  A
+        ``continuous_time`` filter's hook takes a keyword ``intervals`` too: the intervals
+        t_k − t_{k−1} of ``times``, (K,) or (R, K), or None without times."""
         return param_values(self.params, params, runs, steps)
 
 

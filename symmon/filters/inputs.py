@@ -27,6 +27,7 @@ from ..core.sde import SDE
 from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, ModelError, ResourceError, ShapeError, plain_repr
 
 __all__ = ["FilterSpec", "FilterInputs", "filter_inputs", "FilterCall", "check_call", "KEEPABLE", "check_keep", "real_measurements",
+           "check_t0", "measurement_times", "time_intervals",
            "check_truth", "check_state_models", "measurement_bank", "refuse_inf", "MAX_BANK_NUMBERS",
            "check_bank_size", "kept_numbers", "initial_state", "param_values"]
 
@@ -172,6 +173,75 @@ def real_measurements(ys: ArrayLike) -> np.ndarray:
         raise ShapeError("ys holds text, not real numbers: convert it explicitly (np.asarray(ys, dtype=float) once "
                          "you know its format), so that a number is never read from a string unseen")
     return float_array(raw, "ys", ShapeError)
+
+
+def check_t0(t0: Any) -> float:
+    """``t0``, the time of the prior x_0, as a float.
+
+    Raises
+    ------
+    ArgumentError
+        ``t0`` is not a finite real number.
+    """
+    if isinstance(t0, (bool, np.bool_)) or not isinstance(t0, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(t0):
+        raise ArgumentError(f"t0 must be a finite number (the time of x_0), got {plain_repr(t0)}")
+    return float(t0)
+
+
+def measurement_times(times: ArrayLike, t0: float = 0.0, runs: int | None = None, steps: int | None = None,
+                      name: str = "times") -> np.ndarray:
+    """Measurement times, checked: a 1-D array of strictly increasing finite times after
+    ``t0`` (shape (K,) when ``steps`` = K is given), or for a bank of ``runs`` runs one row
+    of them per run, shape (R, K).
+
+    Raises
+    ------
+    ArgumentError
+        Times that are not real numbers, of another shape, not finite, not after ``t0`` or
+        not strictly increasing, naming the first bad index; a bad ``t0``.
+    """
+    t0 = check_t0(t0)
+    try:
+        t = np.asarray(times, dtype=float)
+    except (TypeError, ValueError):
+        raise ArgumentError(f"{name} must be a 1-D sequence of numbers, got {plain_repr(times)}") from None
+    shapes = ["(K,)" if steps is None else f"({steps},)"]
+    if runs is not None:
+        shapes.append(f"({runs}, {'K' if steps is None else steps})")
+    ok_1d = t.ndim == 1 and t.size > 0 and (steps is None or t.shape[0] == steps)
+    ok_2d = runs is not None and t.ndim == 2 and t.shape[0] == runs and t.shape[1] > 0 and (
+        steps is None or t.shape[1] == steps)
+    if not (ok_1d or ok_2d):
+        raise ArgumentError(f"{name} must be a non-empty 1-D array of one time per measurement, shape {shapes[0]}"
+                            + (f", or one row of them per run, shape {shapes[1]}" if runs is not None else "")
+                            + f"; got shape {t.shape}")
+    rows = t.reshape(-1, t.shape[-1])
+
+    def at(r: int, k: int) -> str:
+        return f"{name}[{k}]" if t.ndim == 1 else f"{name}[{r}, {k}]"
+
+    bad = np.argwhere(~np.isfinite(rows))
+    if bad.size:
+        r, k = (int(i) for i in bad[0])
+        raise ArgumentError(f"{name} must be finite: {at(r, k)} = {float(rows[r, k])!r}")
+    dt = time_intervals(rows, t0)
+    bad = np.argwhere(~(dt > 0))
+    if bad.size:
+        r, k = (int(i) for i in bad[0])
+        if k == 0:
+            raise ArgumentError(f"{name} must be after t0 = {t0:g} (the time of x_0): {at(r, 0)} = {rows[r, 0]:g}")
+        raise ArgumentError(f"{name} must be strictly increasing: {at(r, k)} = {rows[r, k]:g} follows "
+                            f"{at(r, k - 1)} = {rows[r, k - 1]:g}")
+    return t
+
+
+def time_intervals(times: np.ndarray, t0: float = 0.0) -> np.ndarray:
+    """The intervals t_k − t_{k−1} (t_{−1} = ``t0``) of times (K,) or (R, K), along the last
+    axis (the shape of ``times``)."""
+    t = np.asarray(times, dtype=float)
+    start = np.full(t.shape[:-1] + (1,), float(t0))
+    return np.diff(np.concatenate([start, t], axis=-1), axis=-1)
 
 
 def check_truth(x_true: ArrayLike, shape: tuple[int, ...]) -> np.ndarray:
@@ -403,6 +473,12 @@ class FilterCall:
     first_run : int
         The index of the first run in a larger bank (a random filter draws run r from the
         stream of run ``first_run + r``).
+    times : ndarray, shape (K,) or (R, K), or None
+        The measurement times of a continuous-time filter (``filter(times=...)``), checked:
+        strictly increasing after ``t0``; one row per run for a bank with its own times
+        (the shards of a bank cut them).  None without times.
+    t0 : float
+        The time of the prior x_0 (0 unless given with ``times``).
     """
 
     Y: np.ndarray
@@ -414,11 +490,19 @@ class FilterCall:
     pv: Any
     truth: np.ndarray | None
     first_run: int = 0
+    times: np.ndarray | None = None
+    t0: float = 0.0
 
     @property
     def steps(self) -> int:
         """K, the number of steps."""
         return int(self.Y.shape[1])
+
+    @property
+    def intervals(self) -> np.ndarray | None:
+        """The intervals t_k − t_{k−1} before each measurement (t_{−1} = ``t0``), of the shape of
+        ``times`` ((K,), or (R, K) per run); None without times."""
+        return None if self.times is None else time_intervals(self.times, self.t0)
 
     @property
     def measurements(self) -> np.ndarray:
@@ -444,7 +528,8 @@ class FilterCall:
         return dataclasses.replace(
             self, Y=self.Y[a:b], runs=b - a, x0=cut(self.x0, 2) if self.P0 is not None else self.x0,
             P0=cut(self.P0, 3), params=params, pv=_cut_values(self.pv, a, b),
-            truth=None if self.truth is None else self.truth[a:b], first_run=self.first_run + a)
+            truth=None if self.truth is None else self.truth[a:b], first_run=self.first_run + a,
+            times=cut(self.times, 2))
 
 
 def _cut_values(pv: Any, a: int, b: int) -> Any:
@@ -466,18 +551,35 @@ def _check_runs(runs: int, **values: tuple[Any, int]) -> None:
 
 def check_call(filt: Any, ys: ArrayLike, x0: Any, P0: ArrayLike | None = None, *,
                keep: Iterable[str] | str | None = None, params: dict | None = None,
-               x_true: ArrayLike | None = None, first_run: int = 0) -> FilterCall:
+               x_true: ArrayLike | None = None, first_run: int = 0, times: ArrayLike | None = None,
+               t0: float = 0.0) -> FilterCall:
     """Every check of a filter call's inputs, in the order a caller meets them.
+
+    ``times`` (and ``t0``) are for a filter that declares ``continuous_time``: K measurement
+    times (K,), or (R, K) per run for a bank (:func:`measurement_times`); its
+    ``_check_params`` hook then receives their intervals (``intervals=``; None without times).
 
     Raises
     ------
     ShapeError
         ``ys`` not (K, n_y) or (R, K, n_y), not real, or holding inf; a bad ``x_true``.
     ArgumentError
-        A bad ``keep`` or ``first_run``; ``P0`` given to a filter whose prior is a distribution.
+        A bad ``keep``, ``first_run``, ``times`` or ``t0``; ``P0`` given to a filter whose prior
+        is a distribution; ``times`` (or ``t0``) given to a discrete-time filter, or ``t0``
+        without ``times``.
     ArgumentTypeError, CovarianceError, ModelError
         A bad prior or parameters.
     """
+    default_t0 = not isinstance(t0, (bool, np.bool_)) and isinstance(t0, (int, float, np.integer, np.floating)) \
+        and t0 == 0
+    if not filt.continuous_time and (times is not None or not default_t0):
+        given = "times" if times is not None else "t0"
+        raise ArgumentError(
+            f"{filt.method} is a discrete-time filter: it takes no {given} (its steps are its model's "
+            "transitions); filter an SDE at irregular times with sm.ContinuousDiscreteKalmanFilter(sde, h, R, ...) "
+            "and times=..., or give a discretised model (sde.discretize(...)) a per-step dt in params")
+    if times is None and not default_t0:
+        raise ArgumentError(f"t0 (the time of x_0) applies only with times; got t0 = {plain_repr(t0)} without times")
     n, n_y = filt.sizes
     kept = check_keep(keep, filt.keepable)
     if isinstance(first_run, bool) or not isinstance(first_run, (int, np.integer)) or first_run < 0:
@@ -494,6 +596,7 @@ def check_call(filt: Any, ys: ArrayLike, x0: Any, P0: ArrayLike | None = None, *
     check_bank_size(runs or 1, Yb.shape[1], per_step, f"{filt.method} results",
                     "keep fewer arrays, or filter the runs in smaller banks", shared=shared)
     refuse_inf(Y)
+    T = None if times is None else measurement_times(times, t0, runs, Yb.shape[1])
     if filt.takes_covariance:
         m0, C0 = filt._check_prior(x0, P0, runs)
     else:
@@ -503,6 +606,9 @@ def check_call(filt: Any, ys: ArrayLike, x0: Any, P0: ArrayLike | None = None, *
     truth = None
     if x_true is not None:
         truth = check_truth(x_true, Y.shape[:-1] + (n,)).reshape(Yb.shape[:2] + (n,))
-    pv = filt._check_params(params, runs, Y.shape[-2])
+    if filt.continuous_time:
+        pv = filt._check_params(params, runs, Y.shape[-2], intervals=None if T is None else time_intervals(T, t0))
+    else:
+        pv = filt._check_params(params, runs, Y.shape[-2])
     return FilterCall(Y=Yb, runs=runs, keep=kept, x0=m0, P0=C0, params=params, pv=pv, truth=truth,
-                      first_run=int(first_run))
+                      first_run=int(first_run), times=T, t0=0.0 if T is None else float(t0))

@@ -34,7 +34,7 @@ from ..core.model import Model
 from ..core.sde import SDE
 from ..errors import DiscretizationError
 from ..errors import ArgumentError, ArgumentTypeError, NonFiniteError, ShapeError, plain_repr
-from .inputs import check_bank_size, param_values
+from .inputs import check_bank_size, measurement_times, param_values, time_intervals
 from .statespace import StateSpace
 
 __all__ = ["simulate", "check_count", "check_prior", "check_times", "truth_model", "TRUTH_SUBSTEPS"]
@@ -69,7 +69,8 @@ def check_prior(x0, n: int, name: str = "x0") -> Gaussian | GaussianMixture | Em
 
 
 def check_times(times, t0: float = 0.0, name: str = "times") -> np.ndarray:
-    """The steps dt_k = t_k − t_{k−1} (t_{-1} = t0) of measurement times, shape (K,).
+    """The steps dt_k = t_k − t_{k−1} (t_{-1} = t0) of measurement times, shape (K,)
+    (:func:`~symmon.filters.inputs.measurement_times`, then its intervals).
 
     Raises
     ------
@@ -77,26 +78,7 @@ def check_times(times, t0: float = 0.0, name: str = "times") -> np.ndarray:
         For times that are not a non-empty 1-D sequence of finite numbers, strictly
         increasing and after ``t0``, or a ``t0`` that is not a finite number.
     """
-    if isinstance(t0, (bool, np.bool_)) or not isinstance(t0, (int, float, np.integer, np.floating)) \
-            or not np.isfinite(t0):
-        raise ArgumentError(f"t0 must be a finite number (the time of x_0), got {plain_repr(t0)}")
-    try:
-        t = np.asarray(times, dtype=float)
-    except (TypeError, ValueError):
-        raise ArgumentError(f"{name} must be a 1-D sequence of numbers, got {plain_repr(times)}") from None
-    if t.ndim != 1 or t.size == 0:
-        raise ArgumentError(f"{name} must be a non-empty 1-D sequence of times, got shape {t.shape}")
-    if not np.all(np.isfinite(t)):
-        raise ArgumentError(f"{name} must be finite")
-    dt = np.diff(np.concatenate([[float(t0)], t]))
-    if dt[0] <= 0:
-        raise ArgumentError(f"{name} must be after t0 = {float(t0):g} (the time of x_0): the first is {t[0]:g}")
-    bad = np.flatnonzero(dt <= 0)
-    if bad.size:
-        k = int(bad[0])
-        raise ArgumentError(f"{name} must be strictly increasing: {name}[{k}] = {t[k]:g} follows "
-                            f"{name}[{k - 1}] = {t[k - 1]:g}")
-    return dt
+    return time_intervals(measurement_times(times, t0, name=name), t0)
 
 
 def truth_model(sde: SDE) -> Model:

@@ -17,7 +17,7 @@ import scipy.integrate
 import sympy as sp
 
 import symmon as sm
-from symmon.errors import ArgumentTypeError, ModelError, ShapeError, SymmonError
+from symmon.errors import ArgumentError, ArgumentTypeError, ModelError, ShapeError, SymmonError
 from symmon.filters.registry import filter_entry, filter_names, make_filter
 
 p, v = sp.symbols("p v", real=True)
@@ -78,6 +78,41 @@ def test_a_bank_is_its_runs_filtered_alone(exact):
         one = cd.filter(ys[r], X0, params=PARAMS)
         np.testing.assert_array_equal(one.x, bank.x[r])
         np.testing.assert_array_equal(one.loglik, bank.loglik[r])
+
+
+@pytest.mark.parametrize("t0", [0.0, 1000.0])
+def test_irregular_times_after_t0_are_the_kalman_filter_of_their_intervals(exact, t0):
+    """times=t0 + cumsum(STEPS): the intervals of the exact discretisation's dt up to the
+    rounding of the sums (an ulp of t: 2.3e-13 at t0 = 1000, 1e-12 of the shortest interval),
+    far below the integrator's tolerance; so the filter agrees with the Kalman filter of the exact
+    discretisation as the dt route does, and its numbers are the dt route's on the same
+    intervals bit for bit.  The SDE is time-invariant: t0 shifts nothing."""
+    _, xs, ys, ref = exact
+    cd = sm.ContinuousDiscreteKalmanFilter(IOU, H, R, "ckf", rtol=1e-8, atol=1e-11)
+    times = t0 + np.cumsum(STEPS)
+    res = cd.filter(ys, X0, params={"q": 0.5, "theta": 0.7}, x_true=xs, times=times, t0=t0)
+    tol = 10 * cd.rtol
+    for name in ("x", "P", "x_pred", "P_pred"):
+        a, b = getattr(res, name), getattr(ref, name)
+        assert np.abs(a - b).max() <= tol * np.abs(b).max(), name
+    np.testing.assert_allclose(res.loglik, ref.loglik, rtol=0, atol=tol * np.abs(ref.loglik).max())
+    same = cd.filter(ys, X0, params={"q": 0.5, "theta": 0.7, "dt": np.diff(times, prepend=t0)}, x_true=xs)
+    for name in ("x", "P", "loglik", "nees_values"):
+        np.testing.assert_array_equal(getattr(res, name), getattr(same, name))
+
+
+def test_each_run_of_a_bank_takes_its_own_times():
+    cd = sm.ContinuousDiscreteKalmanFilter(IOU, H, R, "ekf")
+    ys = np.array([[[1.0], [2.0], [3.0]], [[1.0], [2.0], [3.0]]])
+    times = np.array([[0.5, 1.5, 1.75], [0.5, 1.0, 1.25]])
+    bank = cd.filter(ys, X0, params={"q": 0.5, "theta": 0.7}, times=times, t0=-0.5)
+    for r in range(2):
+        one = cd.filter(ys[r], X0, params={"q": 0.5, "theta": 0.7}, times=times[r], t0=-0.5)
+        np.testing.assert_array_equal(one.x, bank.x[r])
+    assert not np.allclose(bank.x[0, 1], bank.x[1, 1])
+    m, P = cd.predict(X0.mean, X0.cov, 1.0, [0.5, 0.7])  # the first interval: 0.5 − (−0.5)
+    np.testing.assert_allclose(m, bank.x_pred[0, 0], rtol=1e-12)
+    np.testing.assert_allclose(P, bank.P_pred[0, 0], rtol=1e-12)
 
 
 def test_per_run_intervals_and_a_missing_row_only_predicts():
@@ -205,13 +240,31 @@ def test_bad_settings_are_refused_by_name(kwargs, error, match):
 def test_the_interval_is_a_required_strictly_positive_parameter():
     cd = sm.ContinuousDiscreteKalmanFilter(IOU, H, R)
     assert [str(s) for s in cd.params] == ["q", "theta", "dt"]
-    with pytest.raises(ModelError, match=r"missing \['dt'\]"):
+    with pytest.raises(ModelError, match=r"CD-EKF needs the measurement times: filter\(ys, x0, times=.*or the "
+                                         r"intervals params\['dt'\]"):
         cd.filter([[1.0]], X0, params={"q": 0.5, "theta": 0.7})
+    with pytest.raises(ModelError, match=r"missing \['theta'\]"):  # times give dt, not the SDE's parameters
+        cd.filter([[1.0]], X0, params={"q": 0.5}, times=[1.0])
     with pytest.raises(ShapeError, match=r"'dt' .*strictly positive, got 0.0 at step 1"):
         cd.filter([[1.0], [2.0]], X0, params={"q": 0.5, "theta": 0.7, "dt": [1.0, 0.0]})
     named_dt = sm.SDE([p], [-p], params=[sp.Symbol("dt")])
     with pytest.raises(ModelError, match="parameter named 'dt'"):
         sm.ContinuousDiscreteKalmanFilter(named_dt, sm.Model([p], [p]), R)
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(params={"q": 0.5, "theta": 0.7, "dt": [1.0, 1.0]}, times=[1.0, 2.0]), "by times or by params.* not both"),
+    (dict(times=[1.0, 0.5]), r"times must be strictly increasing: times\[1\] = 0.5 follows times\[0\] = 1"),
+    (dict(times=[1.0, 2.0], t0=1.0), r"times must be after t0 = 1 \(the time of x_0\): times\[0\] = 1"),
+    (dict(times=[1.0, float("nan")]), r"times must be finite: times\[1\] = nan"),
+    (dict(times=[1.0, 2.0], t0=float("inf")), "t0 must be a finite number"),
+    (dict(params={"q": 0.5, "theta": 0.7, "dt": 1.0}, t0=1.0), "t0 .*applies only with times"),
+])
+def test_bad_times_are_refused_by_name(kw, match):
+    cd = sm.ContinuousDiscreteKalmanFilter(IOU, H, R)
+    kw = {"params": {"q": 0.5, "theta": 0.7}, **kw}
+    with pytest.raises(ArgumentError, match=match):
+        cd.filter([[1.0], [2.0]], X0, **kw)
 
 
 def test_the_discrete_filter_points_an_sde_to_the_continuous_discrete_one():

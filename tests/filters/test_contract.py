@@ -10,6 +10,7 @@ for bit to the whole bank.
 from __future__ import annotations
 
 import pickle
+import re
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import ArgumentError, ModelError, ShapeError, SymmonError
+from symmon.filters.bank import filter_bank
 from symmon.filters.base import Filter, filter_classes
 from symmon.filters.names import RULE_FILTERS, filter_rule
 from symmon.filters.registry import FilterEntry, filter_entry, filter_names, make_filter, register
@@ -157,6 +159,93 @@ def test_a_filter_pickles_to_the_same_numbers(name):
                                   filt.filter(ys, PRIOR, params=_params(filt)).x)
 
 
+# ------------------------------------------------------------------ measurement times
+#: Irregular measurement times after T0, and a bank's own times (one row per run).
+T0 = 0.25
+TIMES = T0 + np.cumsum(np.linspace(0.5, 1.5, K))
+RUN_TIMES = T0 + np.cumsum(np.linspace(0.4, 1.6, RUNS * K).reshape(RUNS, K), axis=1)
+
+
+def _no_dt(params: dict | None) -> dict | None:
+    return None if params is None else {k: v for k, v in params.items() if k != "dt"}
+
+
+@pytest.mark.parametrize("name", [n for n in NAMES if not FILTERS[n].continuous_time])
+@pytest.mark.parametrize("kw, given", [(dict(times=TIMES), "times"), (dict(t0=1.0), "t0"),
+                                       (dict(times=TIMES, t0=T0), "times")])
+def test_a_discrete_filter_refuses_times_saying_it_is_discrete(name, kw, given):
+    filt = FILTERS[name]
+    _, ys = _data(None)
+    with pytest.raises(ArgumentError, match=rf"{re.escape(filt.method)} is a discrete-time filter: it takes no "
+                                            rf"{given}.*ContinuousDiscreteKalmanFilter.*per-step dt"):
+        filt.filter(ys, PRIOR, params=_params(filt), **kw)
+
+
+def test_only_the_continuous_discrete_filter_takes_times():
+    assert [n for n in NAMES if FILTERS[n].continuous_time] == ["ContinuousDiscreteKalmanFilter"]
+    assert not Filter.continuous_time
+
+
+@pytest.mark.parametrize("name", [n for n in NAMES if FILTERS[n].continuous_time])
+def test_times_give_the_numbers_of_their_intervals_bit_for_bit(name):
+    """``times`` after ``t0`` and ``params["dt"]`` = their intervals are one call: one run, and
+    a bank with one row of times per run, whole and in shards."""
+    filt = FILTERS[name]
+    xs, ys = _data(None)
+    by_dt = filt.filter(ys, PRIOR, params={**_params(filt), "dt": np.diff(TIMES, prepend=T0)}, x_true=xs)
+    by_times = filt.filter(ys, PRIOR, params=_no_dt(_params(filt)), x_true=xs, times=TIMES, t0=T0)
+    for field in ("x", "P", "loglik", "nees_values"):
+        np.testing.assert_array_equal(getattr(by_times, field), getattr(by_dt, field))
+    xb, yb = _data(RUNS)
+    p = _no_dt(_params(filt, RUNS))
+    whole_dt = filt.filter(yb, PRIOR, params={**p, "dt": np.diff(RUN_TIMES, axis=1, prepend=T0)}, x_true=xb)
+    whole = filt.filter(yb, PRIOR, params=p, x_true=xb, times=RUN_TIMES, t0=T0)
+    for shards in (2, RUNS):
+        sharded = filter_bank(filt, sm.Executor(scheduler="synchronous"), yb, shards=shards, x0=PRIOR, params=p,
+                              x_true=xb, times=RUN_TIMES, t0=T0)
+        for field in ("x", "P", "loglik", "nees_values"):
+            np.testing.assert_array_equal(getattr(sharded, field), getattr(whole, field))
+    for field in ("x", "P", "loglik", "nees_values"):
+        np.testing.assert_array_equal(getattr(whole, field), getattr(whole_dt, field))
+    assert not np.allclose(whole.x[0], whole.x[1])  # the runs' own times (and data) matter
+    shared = filt.filter(yb, PRIOR, params=p, times=TIMES, t0=T0)  # one row of times for all runs
+    np.testing.assert_array_equal(shared.x[2], filt.filter(yb[2], PRIOR, params={"a": p["a"][2]}, times=TIMES,
+                                                           t0=T0).x)
+
+
+@pytest.mark.parametrize("name", [n for n in NAMES if FILTERS[n].continuous_time])
+@pytest.mark.parametrize("kw, match", [
+    (dict(times=TIMES[::-1]), r"times must be strictly increasing: times\[1\] = .* follows times\[0\]"),
+    (dict(times=TIMES, t0=TIMES[0]), r"times must be after t0 = .*: times\[0\]"),
+    (dict(times=np.where(np.arange(K) == 3, np.nan, TIMES)), r"times must be finite: times\[3\] = nan"),
+    (dict(times=TIMES[:-1]), rf"times must be .* shape \({K},\); got shape \({K - 1},\)"),
+    (dict(times=TIMES[None]), r"times must be .* 1-D"),
+    (dict(times=TIMES, t0="0"), "t0 must be a finite number"),
+    (dict(t0=1.0), "t0 .* applies only with times"),
+    (dict(times=TIMES, params_dt=True), r"times or by params\['dt'\], not both"),
+])
+def test_bad_times_are_refused_naming_the_argument_and_the_index(name, kw, match):
+    filt = FILTERS[name]
+    _, ys = _data(None)
+    params = _params(filt) if kw.pop("params_dt", False) else _no_dt(_params(filt))
+    with pytest.raises(ArgumentError, match=match):
+        filt.filter(ys, PRIOR, params=params, **kw)
+
+
+@pytest.mark.parametrize("name", [n for n in NAMES if FILTERS[n].continuous_time])
+def test_a_bank_s_times_are_refused_by_run_and_index(name):
+    filt = FILTERS[name]
+    _, yb = _data(RUNS)
+    p = _no_dt(_params(filt, RUNS))
+    bad = RUN_TIMES.copy()
+    bad[2, 4] = bad[2, 3]
+    with pytest.raises(ArgumentError, match=r"strictly increasing: times\[2, 4\] = .* follows times\[2, 3\]"):
+        filt.filter(yb, PRIOR, params=p, times=bad)
+    with pytest.raises(ArgumentError, match=rf"or one row of them per run, shape \({RUNS}, {K}\); got shape "
+                                            rf"\({RUNS - 1}, {K}\)"):
+        filt.filter(yb, PRIOR, params=p, times=RUN_TIMES[1:])
+
+
 def test_capabilities_are_declared_not_discovered():
     assert FILTERS["ParticleFilter"].random and not FILTERS["NonlinearKalmanFilter"].random
     assert sm.NonlinearKalmanFilter.has_smoother and sm.NonlinearKalmanFilter.exportable
@@ -177,6 +266,9 @@ def test_a_filter_that_overrides_the_template_or_misdeclares_is_refused_at_its_c
     with pytest.raises(TypeError, match="random must be a bool"):
         class NotBool(Filter):  # noqa: F841
             random = 1
+    with pytest.raises(TypeError, match="continuous_time but its _check_params takes no intervals"):
+        class NoIntervals(Filter):  # noqa: F841
+            continuous_time = True
 
 
 def test_imm_takes_any_gaussian_mode_by_its_declaration():

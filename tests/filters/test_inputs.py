@@ -104,3 +104,46 @@ def test_the_filter_raises_what_filter_inputs_raises(kf, call, error, match):
                       x_true=args["x_true"])
     with pytest.raises(error, match=match):
         kf.filter(args["ys"], np.zeros(1), np.eye(1), keep=args["keep"], params=args["params"], x_true=args["x_true"])
+
+
+# ------------------------------------------------------------------ measurement times
+def test_measurement_times_are_checked_and_give_their_intervals():
+    t = inputs.measurement_times([1.0, 1.5, 4.0], t0=0.5, steps=3)
+    np.testing.assert_array_equal(t, [1.0, 1.5, 4.0])
+    np.testing.assert_array_equal(inputs.time_intervals(t, 0.5), [0.5, 0.5, 2.5])
+    rows = inputs.measurement_times([[1.0, 2.0], [0.5, 3.0]], runs=2, steps=2)
+    np.testing.assert_array_equal(inputs.time_intervals(rows, 0.0), [[1.0, 1.0], [0.5, 2.5]])
+
+
+@pytest.mark.parametrize("times, kw, match", [
+    ([1.0, 1.0], {}, r"strictly increasing: times\[1\] = 1 follows times\[0\] = 1"),
+    ([[1.0, 2.0], [1.0, 0.5]], dict(runs=2), r"strictly increasing: times\[1, 1\] = 0.5 follows times\[1, 0\]"),
+    ([[1.0, 2.0], [0.0, 0.5]], dict(runs=2), r"after t0 = 0 .*: times\[1, 0\] = 0"),
+    ([1.0, np.inf], {}, r"finite: times\[1\] = inf"),
+    ([1.0, 2.0], dict(steps=3), r"shape \(3,\); got shape \(2,\)"),
+    ([[1.0, 2.0]], {}, r"1-D .*shape \(K,\); got shape \(1, 2\)"),
+    ([[1.0, 2.0]], dict(runs=2), r"or one row of them per run, shape \(2, K\); got shape \(1, 2\)"),
+    ([], {}, "non-empty"),
+    ([1.0], dict(t0=True), "t0 must be a finite number"),
+])
+def test_bad_measurement_times_name_the_first_bad_index(times, kw, match):
+    with pytest.raises(ArgumentError, match=match):
+        inputs.measurement_times(times, **kw)
+
+
+def test_a_call_keeps_its_times_and_a_shard_cuts_per_run_times():
+    x = sp.Symbol("x", real=True)
+    cd = sm.ContinuousDiscreteKalmanFilter(sm.SDE([x], [-x], diffusion=[1]), sm.Model([x], [x]), [[1.0]])
+    ys, prior = np.zeros((3, 2, 1)), sm.Gaussian([0.0], [[1.0]])
+    own = np.array([[1.0, 2.0], [0.5, 0.75], [3.0, 4.0]])
+    call = inputs.check_call(cd, ys, prior, times=own, t0=0.25)
+    assert call.t0 == 0.25
+    np.testing.assert_array_equal(call.intervals, [[0.75, 1.0], [0.25, 0.25], [2.75, 1.0]])
+    np.testing.assert_array_equal(call.pv[..., 0], call.intervals)  # the dt column
+    part = call.shard(1, 3)
+    np.testing.assert_array_equal(part.times, own[1:])
+    np.testing.assert_array_equal(part.pv[..., 0], call.intervals[1:])
+    shared = inputs.check_call(cd, ys, prior, times=[1.0, 2.0])
+    assert shared.shard(1, 2).times is shared.times and shared.t0 == 0.0
+    plain = inputs.check_call(cd, ys, prior, params={"dt": 1.0})
+    assert plain.times is None and plain.intervals is None and plain.shard(0, 1).times is None

@@ -26,10 +26,14 @@ side (a stiff or diverging drift), or whose moments turn NaN or inf, raises
 update at each t_k is that of :class:`~symmon.NonlinearKalmanFilter` with the same rule
 (missing components, angles and the log-likelihood as there).
 
-Measurement times.  :meth:`~symmon.filters.base.Filter.filter` takes no times: the interval
-before each measurement is the per-step parameter ``dt`` (``params={"dt": steps}``, steps
-t_k − t_{k−1} with t_0 = 0 the time of ``x0``; a number for regular sampling, one per step
-(K,) or one per run and step (R, K) for irregular times), strictly positive.
+Measurement times.  The filter declares ``continuous_time``: ``filter(ys, x0, times=ts)``
+takes the measurement times t_1 < … < t_K (after ``t0``, the time of ``x0``, default 0; (K,),
+or (R, K) per run for a bank), and the interval before measurement k is t_k − t_{k−1}
+(t_0 = ``t0``).  The alternative is the per-step parameter ``dt`` (``params={"dt": steps}``:
+a number for regular sampling, one per step (K,) or one per run and step (R, K) for
+irregular times, strictly positive; ``x0`` is then at t = 0); the two routes give the same
+numbers bit for bit for the same intervals, and giving both is refused.  The SDE is
+time-invariant, so an interval's moments depend on its length only.
 
 Banks: each run is integrated on its own (its own adaptive steps, so that a bank filtered in
 shards gives the whole bank's numbers bit for bit); the measurement updates of all the runs
@@ -57,7 +61,7 @@ from ...core.arrays import readonly
 from ...core.checks import check_model
 from ...core.model import Model
 from ...core.sde import SDE
-from ...errors import ArgumentTypeError, ModelError, ShapeError, SymmonError, plain_repr
+from ...errors import ArgumentError, ArgumentTypeError, ModelError, ShapeError, SymmonError, plain_repr
 from ...transforms.base import batch_sqrt
 from ...transforms.base import Transform
 from ..base import Filter
@@ -120,8 +124,9 @@ class ContinuousDiscreteKalmanFilter(Filter):
     Notes
     -----
     The parameters are the SDE's, then ``dt`` (the interval before each measurement,
-    strictly positive, irregular allowed), then h's that the SDE has not; ``x0`` is the
-    state at t = 0.
+    strictly positive, irregular allowed), then h's that the SDE has not.  The intervals
+    come from ``filter(..., times=ts, t0=...)`` (``x0`` is the state at ``t0``, default 0)
+    or from ``params={"dt": ...}`` (``x0`` at t = 0), not from both.
 
     Examples
     --------
@@ -129,9 +134,12 @@ class ContinuousDiscreteKalmanFilter(Filter):
     >>> x = sp.Symbol("x", real=True)
     >>> ou = sm.SDE([x], [-x], diffusion=[1])
     >>> cd = sm.ContinuousDiscreteKalmanFilter(ou, sm.Model([x], [x]), [[1.0]])
-    >>> res = cd.filter([[1.0], [0.5]], [0.0], [[1.0]], params={"dt": [0.5, 1.5]})
+    >>> res = cd.filter([[1.0], [0.5]], [0.0], [[1.0]], times=[0.5, 2.0])
     >>> res.x.shape, cd.params
     ((2, 1), (dt,))
+    >>> same = cd.filter([[1.0], [0.5]], [0.0], [[1.0]], params={"dt": [0.5, 1.5]})
+    >>> bool((same.x == res.x).all())
+    True
     """
 
     sde: SDE
@@ -149,6 +157,7 @@ class ContinuousDiscreteKalmanFilter(Filter):
     has_smoother: ClassVar[bool] = False
     exportable: ClassVar[bool] = False
     gaussian_mode: ClassVar[bool] = False
+    continuous_time: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.sde, SDE):
@@ -215,7 +224,30 @@ class ContinuousDiscreteKalmanFilter(Filter):
         """The SDE's angle states and h's angle inputs."""
         return self.update.angle_states
 
-    def _check_params(self, params: dict | None, runs: int | None, steps: int) -> Any:
+    def _check_params(self, params: dict | None, runs: int | None, steps: int,
+                      intervals: np.ndarray | None = None) -> Any:
+        """The parameter values (R, K, n_p), with the ``dt`` column the intervals of
+        ``times`` when they are given (``intervals``), else ``params["dt"]``.
+
+        Raises
+        ------
+        ArgumentError
+            ``dt`` given in ``params`` together with ``times``.
+        ModelError, ShapeError
+            Missing or unknown parameters (without times, ``dt`` is one), bad values, or an
+            interval that is not strictly positive (naming the step and run).
+        """
+        mapping = params is None or isinstance(params, dict)  # otherwise param_values names the fault
+        has_dt = isinstance(params, dict) and DT in {str(k) for k in params}
+        if intervals is not None and has_dt:
+            raise ArgumentError(f"give the intervals by times or by params[{DT!r}], not both (times gives "
+                                f"{DT} = t_k − t_(k−1), with t0 the time of x0)")
+        if intervals is not None and mapping:
+            params = {**(params or {}), DT: intervals}
+        elif intervals is None and mapping and not has_dt:
+            raise ModelError(f"{self.method} needs the measurement times: filter(ys, x0, times=[t_1, ..., t_K]) "
+                             f"(x0 at t0, default 0), or the intervals params[{DT!r}] = t_k − t_(k−1); "
+                             f"its parameters are {[str(s) for s in self.params]}")
         pv = param_values(self.params, params, runs, steps)
         j = [str(s) for s in self.params].index(DT)
         dts = pv[..., j]
