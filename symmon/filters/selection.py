@@ -26,11 +26,18 @@
    over the steps of the mean NEES over the runs), whether a run's covariance collapsed
    (singular or non-finite: the filter raises, and the candidate is not credible), and the
    share of its steps flagged by its online credibility (:attr:`KalmanResult.credibility
-   <symmon.filters.results.KalmanResult.credibility>`); when none is credible, the pruned
-   Gaussian-sum and particle filters are run too;
+   <symmon.filters.results.KalmanResult.credibility>`); when none is credible (or every
+   credible one is at risk, below), the pruned Gaussian-sum and particle filters are run too;
 5. chooses the **cheapest credible candidate whose RMSE is within** :data:`RMSE_MARGIN`
    **(10 %) of the best credible one**.  Credible: the time-mean ANEES lies in
    [0.3 n, 1.5 n] (:data:`ANEES_BAND`) for n states, and no run's covariance collapsed.
+   The choice also asks the pilot's verdict to hold on a fresh bank: a credible candidate
+   whose :func:`predictive credibility <predictive_credibility>` (the bootstrap probability,
+   over the pilot's runs, that a fresh bank of as many runs would be credible) is below
+   :data:`CREDIBLE_PROBABILITY` is *at risk* (one divergent run among the pilot's carries
+   its time-mean ANEES): the best RMSE and the choice are then taken over the credible
+   candidates not at risk, or over all the credible ones when every one is at risk.  The
+   reported ``credible`` keeps the definition above.
    Cheapest: a deterministic cost per step, in model evaluations as
    :func:`symmon.advise` counts them (:meth:`symmon.Transform.cost` of f's and of h's
    input dimension), times the components of a Gaussian-sum filter or the modes of an IMM,
@@ -81,10 +88,14 @@ from .simulation import simulate
 
 __all__ = ["advise_filter", "FilterAdvice", "FilterCandidate", "candidate_menu", "ANEES_BAND", "RMSE_MARGIN",
            "MON_STEPS", "MIN_RUNS", "SECONDS_PER_EVALUATION", "ILL_CONDITIONED", "SCREENING_RUNS", "confirm_advice",
-           "Confirmation", "BATCH_RUNS"]
+           "Confirmation", "BATCH_RUNS", "predictive_credibility", "CREDIBLE_PROBABILITY", "BOOTSTRAP_SAMPLES"]
 
 #: Credible: the time-mean ANEES within these multiples of the state dimension n.
 ANEES_BAND = (0.3, 1.5)
+#: A credible candidate whose predictive credibility is below this is at risk (module notes).
+CREDIBLE_PROBABILITY = 0.8
+#: The bootstrap banks of :func:`predictive_credibility`.
+BOOTSTRAP_SAMPLES = 2000
 #: The choice is the cheapest credible candidate whose RMSE is within this share of the best credible one.
 RMSE_MARGIN = 0.10
 #: The steps of the track (evenly spaced, first and last included) where the MoN is evaluated.
@@ -142,6 +153,10 @@ class FilterCandidate:
         Its 95 % χ² interval (module notes).
     credible : bool or None
         ANEES in [0.3 n, 1.5 n] and no covariance collapsed; None when not run.
+    credibility : float or None
+        The predictive credibility (:func:`predictive_credibility`): the probability that a
+        fresh bank of as many runs would be credible, by bootstrap over the runs; None when
+        not run (0 when a run failed or its NEES is not finite).
     failure : str
         Why not credible ("" when credible or not run).
     flagged : float or None
@@ -149,6 +164,8 @@ class FilterCandidate:
         ESS for a particle filter); None when the filter reports no innovations.
     seconds_per_step : float or None
         Measured: the pilot's time divided by runs × steps (its first call compiles too).
+    run_nees : ndarray or None
+        Each run's time-mean NEES (unitless), from which :attr:`credibility` is estimated.
     """
 
     name: str
@@ -167,6 +184,13 @@ class FilterCandidate:
     failure: str = ""
     flagged: float | None = None
     seconds_per_step: float | None = None
+    run_nees: np.ndarray | None = field(default=None, repr=False)
+    credibility: float | None = None
+
+    @property
+    def at_risk(self) -> bool:
+        """Credible, but its predictive credibility is below :data:`CREDIBLE_PROBABILITY`."""
+        return bool(self.credible) and (self.credibility is None or self.credibility < CREDIBLE_PROBABILITY)
 
     def as_dict(self) -> dict:
         """The row as plain numbers and strings (JSON)."""
@@ -177,6 +201,9 @@ class FilterCandidate:
             out["rmse_states"] = [float(v) for v in self.rmse_states]
         if self.anees_interval is not None:
             out["anees_interval"] = [float(v) for v in self.anees_interval]
+        if self.run_nees is not None:
+            out["run_nees"] = [float(v) for v in self.run_nees]
+        out["at_risk"] = self.at_risk
         return out
 
 
@@ -239,14 +266,17 @@ class FilterAdvice:
         for c in self.candidates:
             mark = "  <- choice" if c.name == self.choice else ""
             if not c.kept:
-                cells = [c.name] + ["—"] * 6 + [f"{c.cost:,d}" if c.cost else "—", "—"]
+                cells = [c.name] + ["—"] * 7 + [f"{c.cost:,d}" if c.cost else "—", "—"]
                 verdict = f"dropped: {c.reason}"
             else:
                 interval = "—" if c.anees_interval is None else f"[{c.anees_interval[0]:.3g}, {c.anees_interval[1]:.3g}]"
                 cells = [c.name, _num(c.mon_f, ".3f"), _num(c.mon_h, ".3f"), _num(c.rmse, ".4g"), _num(c.anees, ".4g"),
-                         interval, _num(None if c.flagged is None else 100 * c.flagged, ".1f"), f"{c.cost:,d}",
+                         interval, _num(c.credibility, ".2f"),
+                         _num(None if c.flagged is None else 100 * c.flagged, ".1f"), f"{c.cost:,d}",
                          _num(None if c.seconds_per_step is None else 1e6 * c.seconds_per_step, ".3g")]
-                verdict = "credible" if c.credible else f"not credible: {c.failure}"
+                verdict = ("not credible: " + c.failure if not c.credible else
+                           f"credible, at risk: P(credible) {_num(c.credibility, '.2f')} < {CREDIBLE_PROBABILITY:g}"
+                           if c.at_risk else "credible")
             lines.append(" ".join(f"{cell:{'<' if i == 0 else '>'}{w}}" for i, (cell, (_, _, w))
                                   in enumerate(zip(cells, _COLUMNS))) + f"  {verdict}{mark}")
         return "\n".join(lines)
@@ -262,7 +292,9 @@ class FilterAdvice:
                 f"f {m['f']['prior']:.3g} at the EKF's prior, {m['f']['truth']:.3g} at the truth's spread; "
                 f"h {m['h']['prior']:.3g} at the EKF's prior, {m['h']['truth']:.3g} at the truth's spread\n"
                 f"credible: time-mean ANEES in [{lo * self.n:.3g}, {hi * self.n:.3g}] ({lo:g} n, {hi:g} n) and no "
-                "run's covariance collapsed; RMSE in prior standard deviations\n")
+                "run's covariance collapsed; RMSE in prior standard deviations\n"
+                f"P(credible): the probability, by bootstrap over the pilot's runs, that a fresh bank of {self.runs} "
+                f"runs would be credible; below {CREDIBLE_PROBABILITY:g} a credible candidate is at risk\n")
         notes = "".join(f"\nnote: {n}" for n in self.notes)
         return head + self.table + f"\nrecommendation: {self.recommendation}" + notes
 
@@ -276,7 +308,9 @@ class FilterAdvice:
                 "runs": self.runs, "runs_asked": self.runs_asked, "budget": self.budget,
                 "estimated_seconds": self.estimated_seconds, "tol": self.tol, "seed": self.seed,
                 "anees_band": [ANEES_BAND[0] * self.n, ANEES_BAND[1] * self.n], "rmse_margin": RMSE_MARGIN,
+                "credible_probability": CREDIBLE_PROBABILITY,
                 "units": {"mon": "unitless", "rmse": "unitless (prior standard deviations)", "anees": "unitless",
+                          "run_nees": "unitless", "credibility": "probability",
                           "flagged": "share of steps", "cost": "model evaluations per step",
                           "seconds_per_step": "seconds per step and run"},
                 "candidates": [c.as_dict() for c in self.candidates], "notes": list(self.notes)}
@@ -284,7 +318,8 @@ class FilterAdvice:
 
 #: The table's columns: name, unit, width.
 _COLUMNS = (("filter", "", 19), ("MoN f", "(unitless)", 10), ("MoN h", "(unitless)", 10), ("RMSE", "(unitless)", 10),
-            ("ANEES", "(unitless)", 10), ("95% interval", "(unitless)", 16), ("NIS flagged", "(% steps)", 11),
+            ("ANEES", "(unitless)", 10), ("95% interval", "(unitless)", 16), ("P(credible)", "(prob.)", 11),
+            ("NIS flagged", "(% steps)", 11),
             ("cost", "(evals/step)", 12), ("time/step", "(µs/run)", 9))
 
 
@@ -535,7 +570,7 @@ def _pilot_row(opt: _Option, xs: np.ndarray, ys: np.ndarray, x0: Gaussian, param
     try:
         res, seconds, caught = _run(flt, ys, xs, x0, params)
     except (SymmonError, np.linalg.LinAlgError, FloatingPointError) as exc:
-        return FilterCandidate(method=flt.method, **base, credible=False,
+        return FilterCandidate(method=flt.method, **base, credible=False, credibility=0.0,
                                failure=f"a run failed ({type(exc).__name__}: {exc})"), flt
     notes += [f"{opt.name}: {w}" for w in caught]
     e = _errors(np.asarray(res.x, dtype=float), xs, res.angle_states)
@@ -543,6 +578,7 @@ def _pilot_row(opt: _Option, xs: np.ndarray, ys: np.ndarray, x0: Gaussian, param
     rmse = float(np.sqrt(np.mean(np.sum((e / scale) ** 2, axis=-1)) / n))
     nees = np.asarray(res.nees(), dtype=float)
     anees = float(nees.mean())
+    run_nees = nees.reshape(Rr, -1).mean(axis=1) if nees.size else None
     interval = tuple(float(q) / Rr for q in stats.chi2.ppf([0.025, 0.975], Rr * n))
     lo, hi = ANEES_BAND[0] * n, ANEES_BAND[1] * n
     failure = ""
@@ -562,7 +598,67 @@ def _pilot_row(opt: _Option, xs: np.ndarray, ys: np.ndarray, x0: Gaussian, param
         mon_h = _track_mon(h_model, xp[0], _first(Pp), v_h, ks)
     return FilterCandidate(method=flt.method, **base, mon_f=mon_f, mon_h=mon_h, rmse=rmse, rmse_states=rmse_states,
                            anees=anees, anees_interval=interval, credible=not failure, failure=failure,
-                           flagged=flagged, seconds_per_step=seconds / (Rr * K)), flt
+                           flagged=flagged, seconds_per_step=seconds / (Rr * K), run_nees=run_nees,
+                           credibility=0.0 if failure == "non-finite estimates" or run_nees is None
+                           else predictive_credibility(run_nees, n)), flt
+
+
+def predictive_credibility(run_nees: Any, n: int, *, samples: int = BOOTSTRAP_SAMPLES, seed: int = 0) -> float:
+    """The probability that a fresh bank of as many runs would be credible, by bootstrap over the runs.
+
+    The time-mean ANEES of a bank is the mean of its runs' time-mean NEES; a pilot's verdict
+    on it rests on its R runs, and one divergent run among them carries it.  This draws
+    ``samples`` banks of R runs with replacement from the pilot's runs and returns the share
+    whose time-mean ANEES lies in the credible band [0.3 n, 1.5 n] (:data:`ANEES_BAND`): near
+    1 when every run is consistent, well below when the verdict hangs on a few runs (one run
+    with a huge NEES among 64 is left out of only (1 − 1/64)^64 ≈ 37 % of the banks).  It
+    cannot see a divergence the pilot never met: a failure rarer than about 1/R may be absent
+    from R runs (``docs/select.md``).
+
+    Parameters
+    ----------
+    run_nees : array_like, shape (R,)
+        Each run's time-mean NEES (unitless), R >= 1.
+    n : int
+        The state dimension.
+    samples : int, default :data:`BOOTSTRAP_SAMPLES`
+        Bootstrap banks (at least 1).
+    seed : int, default 0
+        Of the bootstrap: the same runs, the same probability.
+
+    Returns
+    -------
+    float
+        In [0, 1]; 0 when a run's NEES is not finite (its covariance collapsed).
+
+    Raises
+    ------
+    ArgumentError
+        For an empty or not one-dimensional ``run_nees``, or ``n`` or ``samples`` below 1.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> predictive_credibility(np.full(64, 2.0), 2)
+    1.0
+    >>> predictive_credibility(np.r_[np.full(63, 2.0), 1000.0], 2) < 0.5
+    True
+    """
+    v = np.asarray(run_nees, dtype=float)
+    if v.ndim != 1 or v.size == 0:
+        raise ArgumentError(f"run_nees must be a non-empty 1-D array of per-run time-mean NEES, got shape {v.shape}")
+    for name, k in (("n", n), ("samples", samples)):
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+            raise ArgumentError(f"{name} must be a positive integer, got {plain_repr(k)}")
+    if not np.isfinite(v).all():
+        return 0.0
+    lo, hi = ANEES_BAND[0] * n, ANEES_BAND[1] * n
+    rng = np.random.default_rng(int(seed))
+    R, hits, chunk = v.size, 0, max(1, 2_000_000 // v.size)
+    for start in range(0, int(samples), chunk):
+        m = v[rng.integers(0, R, (min(chunk, int(samples) - start), R))].mean(axis=1)
+        hits += int(np.count_nonzero((m >= lo) & (m <= hi)))
+    return hits / int(samples)
 
 
 def _first(P: np.ndarray) -> np.ndarray:
@@ -574,6 +670,10 @@ def _choose(rows: list[FilterCandidate]) -> tuple[FilterCandidate, bool, str]:
     """The choice (module notes): (row, credible, the recommendation)."""
     ran = [(i, r) for i, r in enumerate(rows) if r.kept and r.rmse is not None and np.isfinite(r.rmse)]
     credible = [(i, r) for i, r in ran if r.credible]
+    steady = [(i, r) for i, r in credible if not r.at_risk]
+    risky = [r.name for _, r in credible if r.at_risk]
+    if steady:
+        credible = steady
     if credible:
         best = min(credible, key=lambda t: (t[1].rmse, t[0]))[1]
         within = [(r.cost, i, r) for i, r in credible if r.rmse <= (1 + RMSE_MARGIN) * best.rmse]
@@ -585,6 +685,12 @@ def _choose(rows: list[FilterCandidate]) -> tuple[FilterCandidate, bool, str]:
             why = (f"the cheapest credible filter ({choice.cost:,d} evaluations per step) whose RMSE {choice.rmse:.4g} "
                    f"is within {RMSE_MARGIN:.0%} of the best credible one ({best.name}: {best.rmse:.4g}, "
                    f"{best.cost:,d} evaluations per step)")
+        if risky and steady:
+            why += (f"; at risk, so not compared: {', '.join(risky)} (credible in the pilot, P(credible) on a fresh "
+                    f"bank below {CREDIBLE_PROBABILITY:g})")
+        elif risky:
+            why += (f"; every credible candidate is at risk (P(credible) on a fresh bank below "
+                    f"{CREDIBLE_PROBABILITY:g}): a rare run diverges, check it online")
         return choice, True, f"{choice.name} ({choice.method}): {why}"
     if ran:
         choice = min(ran, key=lambda t: (t[1].rmse, t[0]))[1]
@@ -748,14 +854,14 @@ def advise_filter(f: Model, h: Model, Q: Any, R: Any, x0: Gaussian, steps: int, 
         else:
             rows[i] = FilterCandidate(name=o.name, method=o.name, settings=o.settings, kept=False, reason=o.reason,
                                       cost=o.cost)
-    if not any(r.kept and r.credible for r in rows):
+    if not any(r.kept and r.credible and not r.at_risk for r in rows):
         again = [i for i, o in enumerate(options) if not o.kept and o.readmit]
+        why = ("no kept candidate was credible" if not any(r.kept and r.credible for r in rows) else
+               "every credible kept candidate was at risk")
         if again:
-            notes.append("no kept candidate was credible: the pruned " + ", ".join(options[i].name for i in again)
-                         + " ran too")
+            notes.append(f"{why}: the pruned " + ", ".join(options[i].name for i in again) + " ran too")
         for i in again:
-            options[i] = dataclasses.replace(options[i], kept=True,
-                                             reason=options[i].reason + "; run as no kept candidate was credible")
+            options[i] = dataclasses.replace(options[i], kept=True, reason=options[i].reason + f"; run as {why}")
             pilot(i)
     final = [r for r in rows if r is not None]
     choice, credible, recommendation = _choose(final)
@@ -940,12 +1046,14 @@ def confirm_advice(advice: FilterAdvice, f: Model, h: Model, Q: Any, R: Any, x0:
             failure = f"ANEES {anees:.3g} {'>' if anees > hi else '<'} {hi if anees > hi else lo:.3g}"
         flagged = [r.flagged for r, _ in ran]
         Rr = int(w.sum())
+        run_nees = None if any(r.run_nees is None for r, _ in ran) else np.concatenate([r.run_nees for r, _ in ran])
         rows.append(dataclasses.replace(
             ran[0][0], mon_f=None, mon_h=None, rmse=rmse, rmse_states=states, anees=anees,
             anees_interval=tuple(float(q) / Rr for q in stats.chi2.ppf([0.025, 0.975], Rr * n)),
             credible=not failure, failure=failure,
             flagged=None if None in flagged else float(np.sum(w * np.array(flagged)) / w.sum()),
-            seconds_per_step=float(sum(r.seconds_per_step * v for r, v in ran) / w.sum())))
+            seconds_per_step=float(sum(r.seconds_per_step * v for r, v in ran) / w.sum()), run_nees=run_nees,
+            credibility=0.0 if failure or run_nees is None else predictive_credibility(run_nees, n)))
     if advice.choice not in per:
         raise SymmonError(f"the advised filter {advice.choice!r} is not on the menu rebuilt from the advice")
     return Confirmation(advice.choice, tuple(rows), batches, runs, K, int(seed))

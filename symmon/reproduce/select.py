@@ -5,7 +5,8 @@ a pilot of ``pilot`` simulated runs, seed ``seed``); then the advised filter and
 candidate of the advice's menu, pruned or not, run on ``runs`` **fresh** runs, simulated
 with another seed (:func:`symmon.filters.selection.confirm_advice`), and the table says
 whether the advice is credible there (time-mean ANEES in [0.3 n, 1.5 n], no covariance
-collapsed), how its RMSE compares with the best credible candidate's (within 10 %?), in how
+collapsed; the pilot's predictive credibility, the bootstrap probability that a fresh bank
+would be credible, :func:`symmon.filters.selection.predictive_credibility`, is in the CSV), how its RMSE compares with the best credible candidate's (within 10 %?), in how
 many batches of 20 fresh runs both hold, and what it cost (model evaluations per step, and
 the measured time per step and run, compilation excluded; the pilot's own wall time).
 
@@ -108,7 +109,7 @@ RUNS, PILOT_RUNS = 200, 64
 FRESH_SEED = 1000
 #: The columns of ``select.csv``.
 COLUMNS = ("scenario", "candidate", "method", "advised", "pilot_kept", "pilot_rmse", "pilot_anees", "pilot_credible",
-           "pilot_seconds", "runs", "rmse", "rmse_ratio", "anees", "anees_lower", "anees_upper", "anees_band_lower",
+           "pilot_credibility", "pilot_seconds", "runs", "rmse", "rmse_ratio", "anees", "anees_lower", "anees_upper", "anees_band_lower",
            "anees_band_upper", "credible", "failure", "reference_credible", "within_margin", "batches", "batch_share", "cost_evals_per_step",
            "seconds_per_step", "advice_credible", "advice_confirmed")
 
@@ -238,7 +239,7 @@ def rows(st: dict[str, Any]) -> list[list]:
             interval = r.anees_interval or (None, None)
             out.append([name, r.name, r.method, int(r.name == c.choice), int(ran),
                         p.rmse if ran else None, p.anees if ran else None,
-                        None if not ran else int(bool(p.credible)), d["pilot_seconds"], c.runs, r.rmse, ratio,
+                        None if not ran else int(bool(p.credible)), p.credibility if ran else None, d["pilot_seconds"], c.runs, r.rmse, ratio,
                         r.anees, interval[0], interval[1], lo, hi, int(bool(r.credible)), r.failure,
                         int(c.any_credible),
                         None if ratio is None else int(ratio <= 1 + RMSE_MARGIN), len(c.batches[r.name]),

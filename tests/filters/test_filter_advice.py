@@ -11,8 +11,9 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import ArgumentError, ArgumentTypeError, SymmonError
-from symmon.filters.selection import (ANEES_BAND, BATCH_RUNS, MIN_RUNS, RMSE_MARGIN, SECONDS_PER_EVALUATION,
-                                      confirm_advice)
+from symmon.filters.selection import (ANEES_BAND, BATCH_RUNS, CREDIBLE_PROBABILITY, MIN_RUNS, RMSE_MARGIN,
+                                      SECONDS_PER_EVALUATION, FilterCandidate, _choose, confirm_advice,
+                                      predictive_credibility)
 
 p, v, x = sp.symbols("p v x", real=True)
 # A constant-velocity model measured in position: linear and Gaussian.
@@ -62,6 +63,8 @@ def test_the_table_shows_every_candidate_with_units_and_one_recommendation(linea
     for name in ("MoN f", "MoN h", "RMSE", "ANEES", "95% interval", "NIS flagged", "cost", "time/step"):
         assert name in header
     assert units.count("(unitless)") == 5 and "(evals/step)" in units and "(µs/run)" in units and "(% steps)" in units
+    assert "P(credible)" in header and "(prob.)" in units and "P(credible): the probability, by bootstrap" in text
+    assert linear.chosen.credibility == 1.0 and not linear.chosen.at_risk
     assert "W^full, unitless" in text and "tol 0.01 (unitless)" in text
     assert len(linear.table.splitlines()) == 2 + len(linear.candidates)
     d = linear.as_dict()
@@ -220,3 +223,55 @@ def test_confirm_advice_refuses_the_pilots_runs(confirmed) -> None:
         confirm_advice(a, CV_F, CV_H, CV_Q, CV_R, CV_X0, runs=1, seed=9)
     with pytest.raises(ArgumentTypeError, match="advice"):
         confirm_advice("ekf", CV_F, CV_H, CV_Q, CV_R, CV_X0, runs=4, seed=9)
+
+
+# --------------------------------------------------------------------------- robust to a rare divergent run
+def _clean_runs(n: int = 2, K: int = 20, R: int = 64, seed: int = 0) -> np.ndarray:
+    """Per-run time-mean NEES of a consistent filter: chi2 with nK degrees of freedom over K."""
+    return np.random.default_rng(seed).chisquare(n * K, R) / K
+
+
+def test_one_huge_nees_run_among_64_makes_a_credible_candidate_at_risk_and_a_clean_one_is_not() -> None:
+    n, lo, hi = 2, ANEES_BAND[0] * 2, ANEES_BAND[1] * 2
+    clean = _clean_runs(n)
+    assert predictive_credibility(clean, n) >= 0.99
+    # the same runs with one diverged: the pilot's ANEES is still in the band (credible by the definition) ...
+    spoilt = clean.copy()
+    spoilt[17] = 60.0
+    assert lo <= spoilt.mean() <= hi
+    # ... but a fresh bank of 64 runs holds two such runs about one time in four: not credible there
+    p = predictive_credibility(spoilt, n)
+    assert p < CREDIBLE_PROBABILITY and p > 0.5
+    # a run whose covariance collapsed (non-finite NEES): never credible
+    spoilt[17] = np.inf
+    assert predictive_credibility(spoilt, n) == 0.0
+    # reproducible: the same runs, the same probability
+    assert predictive_credibility(clean + 0.0, n) == predictive_credibility(clean, n)
+
+
+@pytest.mark.parametrize("args, match", [((np.zeros((2, 3)), 2), "run_nees"), ((np.array([]), 2), "run_nees"),
+                                          ((np.ones(4), 0), "n must"), ((np.ones(4), 2, 0), "samples")])
+def test_predictive_credibility_names_a_bad_argument(args, match) -> None:
+    with pytest.raises(ArgumentError, match=match):
+        predictive_credibility(*args[:2], **({"samples": args[2]} if len(args) > 2 else {}))
+
+
+def _row(name: str, cost: int, rmse: float, runs: np.ndarray, n: int = 2) -> FilterCandidate:
+    lo, hi = ANEES_BAND[0] * n, ANEES_BAND[1] * n
+    anees = float(runs.mean())
+    return FilterCandidate(name=name, method=name.upper(), settings={}, kept=True, reason="", cost=cost, rmse=rmse,
+                           anees=anees, credible=lo <= anees <= hi, run_nees=runs,
+                           credibility=predictive_credibility(runs, n))
+
+
+def test_a_cheap_candidate_at_risk_is_not_chosen_over_a_steady_one() -> None:
+    spoilt = _clean_runs(seed=1)
+    spoilt[3] = 60.0
+    cheap, steady = _row("gsf", 500, 0.62, spoilt), _row("pf", 2000, 0.65, _clean_runs(seed=2))
+    assert cheap.credible and cheap.at_risk and steady.credible and not steady.at_risk
+    choice, credible, text = _choose([cheap, steady])
+    assert choice is steady and credible
+    assert "at risk, so not compared: gsf" in text
+    # without the steady one, the credible candidate at risk is still the choice, and said to be at risk
+    choice, credible, text = _choose([cheap, _row("ekf", 6, 0.9, np.full(64, 40.0))])
+    assert choice is cheap and credible and "every credible candidate is at risk" in text

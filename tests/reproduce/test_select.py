@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from symmon.errors import ArgumentError
-from symmon.filters.selection import ANEES_BAND, BATCH_RUNS, RMSE_MARGIN
+from symmon.filters.selection import ANEES_BAND, BATCH_RUNS, CREDIBLE_PROBABILITY, RMSE_MARGIN
 from symmon.reproduce import select
 
 #: The reduced setting: 40 fresh runs (2 batches), a pilot of 24 runs, 20 steps per scenario.
@@ -80,11 +80,21 @@ def test_the_near_linear_tracker_gets_the_ekf(table):
     assert _advised(rows, "range_bearing")["candidate"] == "ekf"
 
 
+def test_the_pilots_predictive_credibility_is_a_probability_where_the_pilot_ran(table):
+    _, rows = table
+    for r in rows:
+        if r["pilot_kept"] == "1":
+            assert 0.0 <= float(r["pilot_credibility"]) <= 1.0
+        else:
+            assert r["pilot_credibility"] == ""
+
+
 @pytest.mark.parametrize("name", ROBUST)
 def test_the_advice_is_credible_and_within_the_margin_on_fresh_runs(table, name):
     _, rows = table
     a = _advised(rows, name)
     assert a["pilot_credible"] == "1" and a["credible"] == "1"
+    assert float(a["pilot_credibility"]) >= CREDIBLE_PROBABILITY  # not at risk in the pilot
     assert float(a["rmse_ratio"]) <= 1 + RMSE_MARGIN and a["advice_confirmed"] == "1"
     assert float(a["batch_share"]) == 1.0
 
