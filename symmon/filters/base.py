@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-import inspect
 from typing import Any, ClassVar, Iterable
 
 import numpy as np
@@ -89,8 +88,6 @@ class Filter(abc.ABC):
             raise TypeError(f"{cls.__name__} declares has_smoother but has no smooth method")
         if cls.exportable and not callable(getattr(cls, "export_c", None)):
             raise TypeError(f"{cls.__name__} declares exportable but has no export_c method")
-        if cls.continuous_time and "intervals" not in inspect.signature(cls._check_params).parameters:
-            raise TypeError(f"{cls.__name__} declares continuous_time but its _check_params takes no intervals")
         if not getattr(cls, "__abstractmethods__", None) and not getattr(_filter_hook(cls), "__isabstractmethod__",
                                                                           False):
             _CLASSES[cls.__name__] = cls

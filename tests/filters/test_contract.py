@@ -266,9 +266,6 @@ def test_a_filter_that_overrides_the_template_or_misdeclares_is_refused_at_its_c
     with pytest.raises(TypeError, match="random must be a bool"):
         class NotBool(Filter):  # noqa: F841
             random = 1
-    with pytest.raises(TypeError, match="continuous_time but its _check_params takes no intervals"):
-        class NoIntervals(Filter):  # noqa: F841
-            continuous_time = True
 
 
 def test_imm_takes_any_gaussian_mode_by_its_declaration():
