@@ -209,3 +209,29 @@ def test_bad_calls_name_the_fault(linear):
         pf.filter(ys, X0, keep=("gain",))
     with pytest.raises(ModelError, match="declare no parameters"):
         pf.filter(ys, X0, params={"dt": 1.0})
+
+
+def test_a_seeds_particles_do_not_depend_on_the_builds_timing(tmp_path):
+    """A fresh cache under the background policy: the first call waits for the compiled step
+    instead of taking the NumPy path, whose streams are others, so the first and the second
+    call give the same numbers (a cold and a warm machine agree)."""
+    import os
+    import subprocess
+    import sys
+
+    script = (
+        "import numpy as np, sympy as sp, symmon as sm\n"
+        "x1, x2 = sp.symbols('x1 x2', real=True)\n"
+        "f = sm.Model([x1, x2], [x1 + 0.5 * x2, 0.9 * x2], name='pf_timing_f')\n"
+        "h = sm.Model([x1, x2], [x1], name='pf_timing_h')\n"
+        "x0 = sm.Gaussian([0.0, 1.0], np.eye(2))\n"
+        "_, ys = sm.simulate(f, h, 0.1 * np.eye(2), [[0.5]], x0, 6, seed=2)\n"
+        "pf = sm.ParticleFilter(f, h, 0.1 * np.eye(2), [[0.5]], particles=300, seed=5)\n"
+        "a = pf.filter(ys, x0).x\n"
+        "pf._bootstrap_kernel._native.wait()\n"
+        "b = pf.filter(ys, x0).x\n"
+        "print(pf._bootstrap_kernel._native.evaluator, bool(np.array_equal(a, b)))\n")
+    env = {**os.environ, "SYMMON_CACHE": str(tmp_path / "cache"), "SYMMON_COMPILE": "background"}
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["compiled", "True"]

@@ -218,6 +218,14 @@ class BootstrapKernel:
         compiler, or a background build running: the caller takes the NumPy path)."""
         return self._native.get()
 
+    def built_loops(self):
+        """:meth:`loops` after a running build has ended: the NumPy path draws other numbers
+        than the C (its own streams), so a seed's particles must not depend on whether the
+        build had finished at the call; None only without compiled code (no compiler, the
+        ``never`` policy, a failed build)."""
+        self._native.wait()
+        return self.loops()
+
     def pack(self, theta: np.ndarray | None, Lq: np.ndarray, Y: np.ndarray, white) -> np.ndarray:
         """The parameter vectors (R, K, n_p) of every run and step (class notes): θ (R, K,
         n_par) or None, L_Q, the measurements Y (R, K, n_y) with NaN for missing, and

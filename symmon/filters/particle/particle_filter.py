@@ -247,7 +247,9 @@ class ParticleFilter(Filter):
         compiled bootstrap recursion draws its normals and resampling uniforms in C
         (xoshiro256++ streams and a ziggurat, :mod:`symmon.filters.particle._rng`); the NumPy path
         (the EKF/UKF proposals, a state-dependent Γ(x), no compiler) draws from NumPy's
-        Generator: the two give different particles for a seed, with the same law.
+        Generator: the two give different particles for a seed, with the same law.  So a call
+        waits for a background build of its compiled step rather than take the NumPy path
+        meanwhile: a seed's particles do not depend on whether the build had finished.
     regularise : bool, default False
         The post-regularised particle filter (Musso, Oudjane & Le Gland 2001):
         after each resampling every particle moves by h_opt · L ε, ε ~ N(0, I), L the
@@ -527,7 +529,7 @@ class ParticleFilter(Filter):
         x0, truth, pv = call.x0, call.truth, call.pv
 
         kern = self._bootstrap_kernel
-        loops = None if kern is None else kern.loops()
+        loops = None if kern is None else kern.built_loops()  # a seed's numbers whatever the build's timing
         replay = getattr(self, "_replay", None)  # a test's draws for both paths (test_particle_kernel)
         # The compiled path draws a Gaussian prior in C, from the runs' xoshiro streams (unless
         # replaying: the two paths then share NumPy's prior draws).
