@@ -47,7 +47,7 @@ keyword arguments of :class:`symmon.GaussianSumFilter` and :class:`symmon.Partic
 component filter by its short name)::
 
     [gsf]
-    transform = "ukf"             # the filter of each component (a key of FILTERS)
+    transform = "ukf"             # the filter of each component (a name of symmon.filters.registry)
     split = 0.05                  # split where a component's MoN (W^full) exceeds this
     max_components = 16
     [pf]
@@ -93,7 +93,7 @@ Every expression and number is read by the same whitelist parser as a model file
 ``[gsf]`` and ``[pf]`` are optional.
 
 :func:`simulate` draws the true states and the measurements of a bank of runs with a
-seed, and :data:`FILTERS` names the filters that ``symmon filter`` runs.
+seed, and the filters that ``symmon filter`` runs are those of :mod:`symmon.filters.registry`.
 """
 
 from __future__ import annotations
@@ -109,7 +109,7 @@ import sympy as sp
 
 from ..core.angles import wrap_angle
 from ..errors import SymmonError
-from ..filters.registry import filter_entry, filter_names
+from ..filters.registry import filter_entry, filter_names, setting_fits
 from ..filters.registry import make_filter as make_registered
 from ..filters.inputs import KEEPABLE, MAX_BANK_NUMBERS, check_bank_size, kept_numbers
 from ..filters.simulation import simulate as simulate_models
@@ -130,18 +130,10 @@ from .modelfile import (
     read_toml,
     parse_expression,
 )
-from ..transforms.taylor import TT1, TT2
-from ..transforms.unscented import UT
-from ..transforms.quadrature import GaussHermite
 from ..transforms.executor import Executor
 
 __all__ = ["FilterScenario", "ScenarioSDE", "FilterSpec", "load_filter_file", "simulate_scenario", "simulate", "check_bank",
-           "FILTERS", "filter_transform", "run_bank", "BankSummary", "make_filter", "settings_tables"]
-
-#: The single-rule Gaussian filters of ``symmon filter`` and ``symmon reproduce tracking``, by
-#: short name (the rules of :mod:`symmon.filters.registry`'s entries; ``"gh"`` is ``"ghkf"``).
-FILTERS = {"ekf": TT1(), "ekf2": TT2(), "ukf": UT.ut1(), "ckf": UT.cubature(), "gh": GaussHermite(3)}
-
+           "filter_transform", "run_bank", "BankSummary", "make_filter", "settings_tables"]
 
 def settings_tables() -> tuple[str, ...]:
     """The filters whose settings a scenario may give in a table of their name (``[gsf]``,
@@ -485,9 +477,7 @@ def _filter_settings(ctx: _Context, table: Any, kind: str) -> dict:
         if key not in known:
             raise ctx.error(f"[{kind}]", f"unknown setting {key!r}; known: {', '.join(known)}")
         want = known[key]
-        ok = isinstance(value, want) if want in (str, bool) else (
-            not isinstance(value, bool) and isinstance(value, (int, float) if want is float else int))
-        if not ok:
+        if not setting_fits(value, want):
             what = {str: "a string", bool: "true or false", float: "a number"}.get(want, "an integer")
             raise ctx.error(f"[{kind}].{key}", f"must be {what}, got {value!r}")
         out[key] = value

@@ -40,7 +40,7 @@ from ..errors import ArgumentError, SymmonError, plain_repr
 from ..transforms.executor import Executor, dask_compute, one_blas_thread
 from .inputs import FilterCall, check_call
 
-__all__ = ["filter_bank", "run_streams", "shard_bounds", "default_shards", "MAX_SHARDS"]
+__all__ = ["filter_bank", "constructor_args", "run_streams", "shard_bounds", "default_shards", "MAX_SHARDS"]
 
 #: Most shards of one bank (each is one task; more only adds scheduling).
 MAX_SHARDS = 10_000
@@ -141,7 +141,7 @@ def _run_shard(kind: type, init: dict, key: str, call: FilterCall, first: int,
     return res, caught
 
 
-def _init_args(filt: Any) -> dict:
+def constructor_args(filt: Any) -> dict:
     """The constructor arguments of a dataclass filter (its ``init`` fields)."""
     return {f.name: getattr(filt, f.name) for f in dataclasses.fields(filt) if f.init}
 
@@ -204,7 +204,7 @@ def filter_bank(filt: Any, executor: Executor, ys: Any, shards: int | None = Non
         bounds = [(0, 1)]
     else:
         bounds = shard_bounds(runs, int(shards) if shards is not None else default_shards(executor, runs))
-    kind, init = type(filt), _init_args(filt)
+    kind, init = type(filt), constructor_args(filt)
     key = hashlib.sha256(pickle.dumps((kind, init))).hexdigest()
     with _FILTERS_LOCK:  # in this process (threads, an in-process cluster): this very filter
         _FILTERS[key] = filt

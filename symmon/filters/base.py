@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..transforms.executor import Executor
-from .bank import filter_bank
+from .bank import constructor_args, filter_bank
 from .inputs import KEEPABLE, FilterCall, check_call, initial_state, kept_numbers, param_values
 
 __all__ = ["Filter", "filter_classes"]
@@ -97,7 +97,7 @@ class Filter(abc.ABC):
         compiled code comes back from the cache on disk (no compiled object travels)."""
         if not dataclasses.is_dataclass(self):
             return super().__reduce__()
-        return _rebuild, (type(self), {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.init})
+        return _rebuild, (type(self), constructor_args(self))
 
     # -------------------------------------------------------------- what the template reads
     @property

@@ -38,7 +38,7 @@ from .mixture.imm import IMM
 from .names import filter_rule
 from .particle.particle_filter import ParticleFilter
 
-__all__ = ["FilterEntry", "register", "filter_entry", "filter_names", "make_filter"]
+__all__ = ["FilterEntry", "register", "filter_entry", "filter_names", "make_filter", "setting_fits"]
 
 #: A builder: (f, h, Q, R, tol, settings) → the filter.
 Builder = Callable[[Model, Model, np.ndarray, np.ndarray, float, dict], Filter]
@@ -145,6 +145,15 @@ def filter_names(*, aliases: bool = False, scenario: bool | None = None, exporta
     return tuple(out)
 
 
+def setting_fits(value: Any, want: type) -> bool:
+    """Whether ``value`` is a setting of type ``want`` (:attr:`FilterEntry.settings`): a
+    ``str`` or ``bool`` as itself, a ``float`` any real number but a bool, an ``int`` an
+    integer but a bool."""
+    if want in (str, bool):
+        return isinstance(value, want)
+    return not isinstance(value, bool) and isinstance(value, (int, float) if want is float else int)
+
+
 def make_filter(name: str, f: Model, h: Model, Q: Any, R: Any, *, tol: float = DEFAULT_TOL,
                 settings: Mapping[str, Any] | None = None) -> Filter:
     """The filter ``name`` on the models f, h with noise covariances Q, R, and ``settings``
@@ -164,9 +173,7 @@ def make_filter(name: str, f: Model, h: Model, Q: Any, R: Any, *, tol: float = D
                           f"{', '.join(entry.settings) or 'none'}")
     for key, value in settings.items():
         want = entry.settings[key]
-        ok = isinstance(value, want) if want in (str, bool) else (
-            not isinstance(value, bool) and isinstance(value, (int, float) if want is float else int))
-        if not ok:
+        if not setting_fits(value, want):
             raise SymmonError(f"filter {entry.name!r}: setting {key!r} must be {want.__name__}, got {value!r}")
     return entry.build(f, h, Q, R, tol, settings)
 

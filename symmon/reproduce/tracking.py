@@ -61,7 +61,7 @@ __all__ = ["OUTPUTS", "run", "Scenario", "scenarios", "FILTER_NAMES", "MON_RUNS"
 OUTPUTS = ("tracking_bot.png", "tracking_rb.png", "tracking_summary.csv", "tracking_steps.csv",
            "tracking_events.csv")
 
-#: The filters compared, by their names in :data:`symmon.files.filterfile.FILTERS`.
+#: The filters compared, by their names in :mod:`symmon.filters.registry`.
 FILTER_NAMES = ("ekf", "ekf2", "ukf", "ckf", "gh", "adaptive")
 #: The adaptive filter's tolerance (unitless moment error).
 TOL = 1e-2

@@ -236,10 +236,8 @@ class KalmanFilter(Filter):
         n, n_y = self.n, self.n_y
         shared = 2 * n * n + n_y * n_y + n * n_y
         x, P0 = call.x0, call.P0
-        Y = call.measurements
-        K = Y.shape[-2]
-        Yb = Y.reshape((batch or 1, K, n_y))
-        runs = Yb.shape[0]
+        Yb = call.Y
+        runs, K = Yb.shape[0], call.steps
         # The covariances depend on which components are measured, not on the values: one
         # recursion per distinct pattern of missing measurements ("group"), shared by its runs.
         missing = np.isnan(Yb)
