@@ -1,7 +1,7 @@
 """The Gaussian-sum filter's compiled recursion with splitting (symmon.filters.mixture._kernel)
 against the stepwise NumPy filter it replaces: the same mixtures, log-likelihoods, component
 counts and splits, for every option (prediction and update splits, Runnalls and Salmond,
-pruning, 3 or 5 children, angles, missing measurements, parameters, banks of runs, what is
+pruning, 3 or 5 children, merging back, angles, missing measurements, parameters, banks of runs, what is
 kept) and the same error for a component that turns non-finite."""
 
 from __future__ import annotations
@@ -98,6 +98,20 @@ def test_both_stages_split_as_the_stepwise_filter(merge, m, prune, mc, turn_data
     # One run alone is that run of the bank (the runs run on separate threads).
     c = gsf.filter(ys[2], x0, params={"w": 0.1, "b": params["b"]})
     np.testing.assert_array_equal(c.x, a.x[2])
+
+
+def test_merging_back_as_the_stepwise_filter(turn_data, monkeypatch) -> None:
+    """merge_back in the compiled recursion (gsf.c): the same calm components merged back, with
+    both stages splitting, an angle state, a parameter per step and missing measurements."""
+    ys, _, params = turn_data
+    wide = sm.GaussianMixture([0.6, 0.4], [[3.0, 2.0, 0.3], [2.5, 2.5, -0.2]],
+                              [np.diag([2.4, 1.5, 0.9]), np.diag([0.5, 0.9, 0.2])])
+    kw = dict(split=0.24, max_components=8)
+    gsf = sm.GaussianSumFilter(TURN, RB, Q3, R2, sm.UT.ut1(), merge_back=1.0, **kw)
+    a, b = _both(gsf, ys, wide, monkeypatch, params=params, keep=("x", "P", "mixture"))
+    _same(a, b)
+    plain = sm.GaussianSumFilter(TURN, RB, Q3, R2, sm.UT.ut1(), **kw).filter(ys, wide, params=params)
+    assert (a.components < plain.components).any() and (a.components <= plain.components).all()
 
 
 def test_only_the_update_splits_with_a_single_output(monkeypatch) -> None:

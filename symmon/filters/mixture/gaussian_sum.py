@@ -75,9 +75,10 @@ of least Runnalls cost B_ij first, while that cost is below ``merge_back``
 (:func:`~symmon.filters.mixture.merge.merge_below`; each merge moment-matched, so the
 mixture's mean and covariance are kept).  On a linear stretch every component is calm and the
 updates draw the components' means together, so the mixture falls back to one component;
-``components`` reports the count per step.  A merge-back filter runs the stepwise filter
-below (the compiled recursion does not merge back), so the default's numbers are those of
-the compiled recursion, bit for bit, as before.
+``components`` reports the count per step.  Both paths below merge back alike (the compiled
+recursion in C, the stepwise filter by :func:`~symmon.filters.mixture.merge.merge_below`;
+the tests hold them to 1e-12 on a scalar model), and without ``merge_back`` the numbers are
+those of before, bit for bit.
 
 **Without splitting** the number of components never grows: the components are independent
 Kalman filters and run as one bank through the compiled loop of
@@ -449,8 +450,7 @@ class GaussianSumFilter(Filter):
         at the posterior component, with the next step's parameters, are below ``split``/2:
         a hysteresis below the split level) while their least Runnalls (2007) cost is below
         this (module notes, "Merging back"); needs ``split``.  None: never (the default,
-        whose numbers do not change).  It runs the stepwise filter (compiled stages, NumPy
-        between them), not the compiled recursion.
+        whose numbers do not change).  ``components`` of the result counts them per step.
 
     Examples
     --------
@@ -595,7 +595,7 @@ class GaussianSumFilter(Filter):
         if self.split is None:
             out = self._bank(Yb, w0, m0, P0, call.params, runs, inner)
         else:
-            out = None if self.merge_back is not None else self._recursion(Yb, w0, m0, P0, pv, inner)
+            out = self._recursion(Yb, w0, m0, P0, pv, inner)
             if out is None:  # no compiler, or its C still building: the stepwise filter
                 out = self._stepwise(Yb, w0, m0, P0, pv, inner)
         if call.truth is not None:
@@ -714,7 +714,8 @@ class GaussianSumFilter(Filter):
                                prune=self.prune, max_components=self.max_components, m=self.split_components,
                                salmond=self.merge == "salmond", curved=self._curved,
                                table=_split_table(self.split_components),
-                               angle_states=tuple(sorted(self.kf.angle_states)), kept=kept)
+                               angle_states=tuple(sorted(self.kf.angle_states)), kept=kept,
+                               merge_back=self.merge_back)
         if (fail >= 0).any():
             k = int(fail[fail >= 0].min())
             raise self._nonfinite(k, int(np.argmax(fail == k)), R)
