@@ -86,12 +86,14 @@ Kalman filters and run as one bank through the compiled loop of
 call), their weights following from the per-step log-likelihoods.  **With splitting** all
 steps of all runs are one C call too (:mod:`symmon.filters.mixture._kernel`: the compiled stages
 below, the MoN's weight, the split decision, the directions by Jacobi eigen-decompositions,
-the splits, pruning and the merge, a thread per share of the runs).  Without a compiler, or
-while that C is built in the background, the steps run in Python (:meth:`GaussianSumFilter._stepwise`),
+the splits, pruning and the merge, a thread per share of the runs).  Without a compiler the
+steps run in Python (:meth:`GaussianSumFilter._stepwise`),
 each stage (the MoN with the Hessians, the prediction, the update, the merge) one compiled
 call over all components of all runs, the directions and splits stacked NumPy: the same
 results to rounding (the tests hold the two to 1e-10, with the same components and splits
-per step).
+per step).  A call waits for a running background build of that C rather than take the
+stepwise filter meanwhile, so that its numbers do not depend on the build's timing (a cold
+and a warm machine agree bit for bit).
 
 References
 ----------
@@ -595,8 +597,10 @@ class GaussianSumFilter(Filter):
         if self.split is None:
             out = self._bank(Yb, w0, m0, P0, call.params, runs, inner)
         else:
-            out = self._recursion(Yb, w0, m0, P0, pv, inner)
-            if out is None:  # no compiler, or its C still building: the stepwise filter
+            # a running build of the recursion is waited for: the stepwise filter agrees with it
+            # to rounding, not to the bit, so a call's numbers must not depend on the build's timing
+            out = self._recursion(Yb, w0, m0, P0, pv, inner, wait=True)
+            if out is None:  # no compiled code (no compiler, the never policy, a failed build)
                 out = self._stepwise(Yb, w0, m0, P0, pv, inner)
         if call.truth is not None:
             out["nees_values"] = nees_of(out["x"], out["P"], call.truth, sorted(self.kf.angle_states))
