@@ -240,7 +240,8 @@ def _imm(f, h, Q, R, tol, settings):
                       "probabilities) from one filter per mode")
 
 
-_PF_SETTINGS = {"particles": int, "proposal": str, "resample": str, "ess_threshold": float, "seed": int}
+_PF_SETTINGS = {"particles": int, "proposal": str, "resample": str, "ess_threshold": float, "seed": int,
+                "on_collapse": str, "collapse_fraction": float}
 
 register(FilterEntry("kf", "Kalman filter of a linear model (F, H from f and h)", KalmanFilter, _linear))
 for _name, _summary, _aliases in (("ekf", "extended Kalman filter, TT1", ("tt1",)),
