@@ -122,7 +122,7 @@ from ._sqrtstep import noise_factor
 from .nonlinear import NonlinearKalmanFilter
 from .step import compiled_step
 
-__all__ = ["ContinuousDiscreteKalmanFilter", "DT", "MAX_EVALUATIONS"]
+__all__ = ["ContinuousDiscreteKalmanFilter", "DT", "MAX_EVALUATIONS", "continuous_filter", "continuous_kalman_filter"]
 
 #: The name of the per-step parameter that gives the interval before each measurement.
 DT = "dt"
@@ -680,3 +680,56 @@ def _tria(A: np.ndarray) -> np.ndarray:
     r = np.linalg.qr(A.T, mode="r")
     L = r[:A.shape[0]].T
     return L * np.where(np.diag(L) < 0, -1.0, 1.0)
+
+
+def continuous_filter(sde: SDE, h_model: Model, Q: Any = None, R: Any = None, transform: Any = None,
+                      iterations: int = 1, square_root: bool = False, **settings: Any) -> ContinuousDiscreteKalmanFilter:
+    """``sm.NonlinearKalmanFilter(sde, h, None, R, transform)``: the continuous-discrete filter
+    of the SDE with the discrete filter's spelling (its default rule, ``UT.ut1()``; the
+    integrator's settings, ``rtol=`` …, as keywords).
+
+    Raises
+    ------
+    ArgumentError
+        ``Q`` given (the SDE's diffusion and spectral density give the noise), or
+        ``iterations`` other than 1 (no iterated update of an SDE).
+    """
+    if Q is not None:
+        raise ArgumentError(f"Q must be None for an SDE: its noise is the SDE's diffusion and spectral density "
+                            f"(SDE {sde.name!r}), integrated over each interval; got Q = {plain_repr(Q)}")
+    if not (isinstance(iterations, (int, np.integer)) and not isinstance(iterations, bool) and iterations == 1):
+        raise ArgumentError(f"iterations must be 1 for an SDE (the continuous-discrete filters have no iterated "
+                            f"update), got {plain_repr(iterations)}")
+    if transform is None:
+        from ...transforms.unscented import UT  # the discrete filter's default rule
+        transform = UT.ut1()
+    return ContinuousDiscreteKalmanFilter(sde, h_model, R, transform, square_root=square_root, **settings)
+
+
+def continuous_kalman_filter(sde: SDE, Q: Any = None, H: Any = None, R: Any = None,
+                             **settings: Any) -> ContinuousDiscreteKalmanFilter:
+    """``sm.KalmanFilter(sde, None, H, R)``: the Kalman filter of a linear SDE measured by the
+    matrix H, by the exact transition over each interval (eq. (4); ``exact=True``, TT1).
+
+    Raises
+    ------
+    ArgumentError
+        ``Q`` given (the SDE gives the noise).
+    ModelError
+        A nonlinear SDE (its CD-EKF is ``sm.NonlinearKalmanFilter(sde, h, None, R, "ekf")``).
+    ShapeError
+        H not (n_y, n) with n the SDE's states.
+    """
+    if Q is not None:
+        raise ArgumentError(f"Q must be None for an SDE: its noise is the SDE's diffusion and spectral density "
+                            f"(SDE {sde.name!r}), Q(dt) by Van Loan at each interval; got Q = {plain_repr(Q)}")
+    if not sde.is_linear:
+        raise ModelError(f"KalmanFilter needs a linear SDE (a = A x + b, L constant); SDE {sde.name!r} is not: its "
+                         "continuous-discrete EKF is sm.NonlinearKalmanFilter(sde, h, None, R, 'ekf')")
+    Hm = np.atleast_2d(np.asarray(H, dtype=float)) if H is not None else None
+    if Hm is None or Hm.ndim != 2 or Hm.shape[1] != sde.n or not np.all(np.isfinite(Hm)):
+        raise ShapeError(f"H must be a finite (n_y, {sde.n}) matrix for an SDE of {sde.n} states, got "
+                         f"{plain_repr(H)}")
+    states = sp.Matrix(sde.states)
+    h = Model(list(sde.states), list(sp.Matrix(Hm.tolist()) * states), name=f"{sde.name}_H")
+    return ContinuousDiscreteKalmanFilter(sde, h, R, "ekf", exact=True, **settings)

@@ -30,6 +30,7 @@ from numpy.typing import ArrayLike
 from ...core.arrays import readonly
 from ...errors import ArgumentError, ArgumentTypeError, CovarianceError, NonFiniteError, ShapeError, SingularMatrixError, plain_repr
 from ...core.gaussian import Gaussian, as_covariance, float_array, matrix_sqrt
+from ...core.sde import SDE
 from ..base import Filter, FilterCall
 from ..inputs import check_bank_size
 from ..results import KalmanResult, nees_of  # the one result type of the filters
@@ -109,8 +110,12 @@ class KalmanFilter(Filter):
 
     Parameters
     ----------
-    F : array_like, shape (n, n)
-        State transition matrix.
+    F : array_like, shape (n, n), or SDE
+        State transition matrix.  A linear :class:`~symmon.SDE` (with ``Q=None``) gives its
+        Kalman filter at measurement times instead: a
+        :class:`~symmon.ContinuousDiscreteKalmanFilter` with the exact transition e^{A dt}
+        and Van Loan's Q(dt) over each interval (``exact=True``), whose ``filter`` takes
+        ``times=``.
     Q : array_like, shape (n, n)
         Process noise covariance, symmetric positive semi-definite (singular allowed: a
         component without process noise is a fixed point).
@@ -139,6 +144,17 @@ class KalmanFilter(Filter):
     Q: np.ndarray
     H: np.ndarray
     R: np.ndarray
+
+    def __new__(cls, F: Any = None, *args, **kwargs):
+        """A linear :class:`~symmon.SDE` as F (with ``Q=None``) builds its Kalman filter at the
+        measurement times, by the exact transition over each interval
+        (:func:`symmon.filters.gaussian.continuous.continuous_kalman_filter`); a matrix F, this
+        filter."""
+        if isinstance(F, SDE):
+            from .continuous import continuous_kalman_filter  # that module builds on the nonlinear filter
+
+            return continuous_kalman_filter(F, *args, **kwargs)
+        return super().__new__(cls)
 
     def __post_init__(self) -> None:
         F = _as_matrix(self.F, "F", (None, None))
