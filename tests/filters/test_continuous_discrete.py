@@ -205,12 +205,17 @@ def test_the_rules_differ_on_a_nonlinear_drift():
 
 
 # ------------------------------------------------------------------ failures
-def test_a_stiff_drift_raises_naming_the_step_and_the_state_with_bounded_work():
+@pytest.mark.parametrize("transform, square_root, call", [("ekf", False, "filter"), ("ekf", True, "filter"),
+                                                         ("ckf", True, "filter"), ("ekf", False, "smooth"),
+                                                         ("ckf", False, "smooth")])
+def test_a_stiff_drift_raises_naming_the_step_and_the_state_with_bounded_work(transform, square_root, call):
+    """In every form (the square-root ODE, the smoother's pass with the transitions)."""
     y = sp.Symbol("y", real=True)
     stiff = sm.SDE([y], [-1e5 * (y - sp.cos(y))], diffusion=[1])
-    cd = sm.ContinuousDiscreteKalmanFilter(stiff, sm.Model([y], [y]), [[1.0]], "ekf", max_evaluations=600)
+    cd = sm.ContinuousDiscreteKalmanFilter(stiff, sm.Model([y], [y]), [[1.0]], transform, max_evaluations=600,
+                                           square_root=square_root)
     with pytest.raises(SymmonError, match=r"step 1 .*dt = 1.*mean \[.*max_evaluations = 600.*stiff"):
-        cd.filter([[0.0], [0.0]], [0.5], [[1.0]], params={"dt": [1e-6, 1.0]})
+        getattr(cd, call)([[0.0], [0.0]], [0.5], [[1.0]], params={"dt": [1e-6, 1.0]})
 
 
 def test_a_diverging_drift_raises_naming_the_run_and_the_step():

@@ -348,7 +348,7 @@ class ContinuousDiscreteKalmanFilter(Filter):
         if self.transform.taylor_order == 1:  # TT1: a(m) and its Jacobian
             g, J_nz, _ = cm.eval_derivatives(np.concatenate([m, theta])[None])
             A = cm.dense_jacobian(J_nz)[0, :n, :n]
-            C = (A @ P).T if S is None else (A @ S @ S.T).T
+            C = (A @ P).T if P is not None else (A @ S @ S.T).T
             return g[0, :n], C, g[0, n:].reshape(n, n), A, None
         Z, wm, wc = self.points
         if S is None:
@@ -397,13 +397,17 @@ class ContinuousDiscreteKalmanFilter(Filter):
         return dm, S @ Phi, Y, Z
 
     @staticmethod
-    def _linear_drift(P: np.ndarray | None, S: np.ndarray | None, Y: np.ndarray, Z: np.ndarray | None) -> np.ndarray:
-        """Â = E[(a − ā)(x − m)ᵀ] P⁻¹ of eq. (3): A (= Y) for TT1, Yᵀ Z S⁻¹ for a point rule."""
+    def _linear_drift(S: np.ndarray | None, Y: np.ndarray, Z: np.ndarray | None) -> np.ndarray:
+        """Â = E[(a − ā)(x − m)ᵀ] P⁻¹ of eq. (3): A (= Y) for TT1, Yᵀ Z S⁻¹ for a point rule
+        (χᵢ − m = S zᵢ with the points' square root S of P, any one; a pseudo-inverse where an
+        integrator's trial step made P singular, whose step its error control then rejects)."""
         if Z is None:
             return Y
-        if S is None:
-            S = np.linalg.cholesky(P)
-        return Y.T @ Z @ np.linalg.inv(S)
+        try:
+            Si = np.linalg.inv(S)
+        except np.linalg.LinAlgError:
+            Si = np.linalg.pinv(S)
+        return Y.T @ Z @ Si
 
     def predict(self, m: np.ndarray, P: np.ndarray, dt: float, theta: np.ndarray | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
@@ -476,13 +480,13 @@ class ContinuousDiscreteKalmanFilter(Filter):
                     parts = [dm, dS[tril]]
                     Pt = None
                 else:
-                    St = None
                     Pt = z[n:n + n_cov].reshape(n, n)
                     Pt = 0.5 * (Pt + Pt.T)
-                    dm, C, D, Y, Z = self._rule(mt, None, Pt, theta)
+                    St = None if self.points is None else batch_sqrt(Pt[None])[0]  # the points' square root
+                    dm, C, D, Y, Z = self._rule(mt, St, Pt, theta)
                     parts = [dm, (C + C.T + D).ravel()]
                 if transition:
-                    parts.append((self._linear_drift(Pt, St, Y, Z) @ z[n + n_cov:].reshape(n, n)).ravel())
+                    parts.append((self._linear_drift(St, Y, Z) @ z[n + n_cov:].reshape(n, n)).ravel())
             except (np.linalg.LinAlgError, SymmonError) as exc:
                 raise _Stop(f"the covariance is no longer one ({exc})", t, mt) from None
             out = np.concatenate(parts)
