@@ -465,6 +465,7 @@ def test_the_kalman_filter_of_a_linear_sde_is_exact_at_irregular_times(exact):
     _, xs, ys, ref = exact
     kf = sm.KalmanFilter(IOU, None, [[1.0, 0.0]], R)
     assert isinstance(kf, sm.ContinuousDiscreteKalmanFilter) and kf.exact and kf.method == "CD-KF"
+    assert sm.KalmanFilter(F=IOU, Q=None, H=[[1.0, 0.0]], R=R).exact  # by keyword too
     res = kf.filter(ys, X0, params={"q": 0.5, "theta": 0.7}, times=np.cumsum(STEPS), x_true=xs)
     _close(res, ref, ("x", "P", "x_pred", "P_pred"), 1e-12)
     np.testing.assert_allclose(res.nees_values, ref.nees_values, rtol=1e-10)

@@ -114,7 +114,7 @@ from ...errors import (ArgumentError, ArgumentTypeError, CovarianceError, ModelE
                        plain_repr)
 from ...transforms.base import batch_sqrt
 from ...transforms.base import Transform
-from ..base import Filter
+from ..base import Filter, register_sde_builder
 from ..inputs import FilterCall, check_call, filter_params, param_values
 from ..names import filter_rule
 from ..results import KalmanResult, SmootherResult, nees_of
@@ -737,3 +737,8 @@ def continuous_kalman_filter(sde: SDE, Q: Any = None, H: Any = None, R: Any = No
     states = sp.Matrix(sde.states)
     h = Model(list(sde.states), list(sp.Matrix(Hm.tolist()) * states), name=f"{sde.name}_H")
     return ContinuousDiscreteKalmanFilter(sde, h, R, "ekf", exact=True, **settings)
+
+
+# NonlinearKalmanFilter(sde, ...) and KalmanFilter(sde, ...) build these (Filter.__new__).
+register_sde_builder("NonlinearKalmanFilter", continuous_filter)
+register_sde_builder("KalmanFilter", continuous_kalman_filter)

@@ -30,7 +30,6 @@ from numpy.typing import ArrayLike
 from ...core.arrays import readonly
 from ...errors import ArgumentError, ArgumentTypeError, CovarianceError, NonFiniteError, ShapeError, SingularMatrixError, plain_repr
 from ...core.gaussian import Gaussian, as_covariance, float_array, matrix_sqrt
-from ...core.sde import SDE
 from ..base import Filter, FilterCall
 from ..inputs import check_bank_size
 from ..results import KalmanResult, nees_of  # the one result type of the filters
@@ -144,17 +143,6 @@ class KalmanFilter(Filter):
     Q: np.ndarray
     H: np.ndarray
     R: np.ndarray
-
-    def __new__(cls, F: Any = None, *args, **kwargs):
-        """A linear :class:`~symmon.SDE` as F (with ``Q=None``) builds its Kalman filter at the
-        measurement times, by the exact transition over each interval
-        (:func:`symmon.filters.gaussian.continuous.continuous_kalman_filter`); a matrix F, this
-        filter."""
-        if isinstance(F, SDE):
-            from .continuous import continuous_kalman_filter  # that module builds on the nonlinear filter
-
-            return continuous_kalman_filter(F, *args, **kwargs)
-        return super().__new__(cls)
 
     def __post_init__(self) -> None:
         F = _as_matrix(self.F, "F", (None, None))

@@ -80,7 +80,6 @@ from .step import filter_params, first_nonfinite
 from .strategy import FilterStrategy, RuleStrategy
 from ...core.gaussian import Gaussian, as_covariance
 from ...core.model import Model
-from ...core.sde import SDE
 from ...transforms.unscented import UT
 from ...transforms.base import Transform
 from ...transforms.taylor import TT1
@@ -183,16 +182,6 @@ class NonlinearKalmanFilter(Filter):
     iterations: int = 1
     square_root: bool = False
     strategy: FilterStrategy = field(init=False, repr=False)
-
-    def __new__(cls, f_model: Model | None = None, *args, **kwargs):
-        """An :class:`~symmon.SDE` as f builds its continuous-discrete filter
-        (:func:`symmon.filters.gaussian.continuous.continuous_filter`: Q must be None, the
-        moments are integrated between the measurement times); any other f, this filter."""
-        if isinstance(f_model, SDE):
-            from .continuous import continuous_filter  # that module builds on this one
-
-            return continuous_filter(f_model, *args, **kwargs)
-        return super().__new__(cls)
 
     def __post_init__(self) -> None:
         f, h = check_state_models(self.f_model, self.h_model)
