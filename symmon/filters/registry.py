@@ -277,4 +277,5 @@ register(FilterEntry("imm", "interacting multiple models over Gaussian filters (
                      scenario=False))
 register(FilterEntry("cdkf", "continuous-discrete Kalman filter of an SDE (CD-EKF, CD-UKF, CD-CKF, CD-GHKF)",
                      ContinuousDiscreteKalmanFilter, _cdkf,
-                     {"transform": str, "rtol": float, "atol": float, "max_evaluations": int}, scenario=False))
+                     {"transform": str, "rtol": float, "atol": float, "max_evaluations": int, "square_root": bool,
+                      "exact": bool}, scenario=False))
