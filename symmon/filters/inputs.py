@@ -1,9 +1,9 @@
 """The checks of a filter call's inputs, in one module: the measurements, ``keep``, the size of
 a bank's results, the true states, the initial state and the models' parameter values.
 
-:func:`filter_inputs` runs them all, in the order a caller meets them, for
-:meth:`NonlinearKalmanFilter.filter <symmon.NonlinearKalmanFilter.filter>`, its smoother and
-its fit; the linear filter and the filter files use the single checks.  It is the bottom of
+:func:`check_call` runs them all, in the order a caller meets them, for every filter's
+:meth:`~symmon.filters.base.Filter.filter` (a :class:`FilterCall`), and for the nonlinear
+filter's smoother and fit; the filter files use the single checks.  It is the bottom of
 :mod:`symmon.filters`: the results, the filter, its strategies, its fit and its export import
 it, and it imports none of them.  :class:`FilterSpec` is what they read from a filter, so that
 none of them needs the filter's class (nor imports :mod:`symmon.filters.gaussian.nonlinear`, which
@@ -26,7 +26,7 @@ from ..core.model import Model
 from ..core.sde import SDE
 from ..errors import ArgumentError, ArgumentTypeError, CovarianceError, ModelError, ResourceError, ShapeError, plain_repr
 
-__all__ = ["FilterSpec", "FilterInputs", "filter_inputs", "FilterCall", "check_call", "KEEPABLE", "check_keep", "real_measurements",
+__all__ = ["FilterSpec", "FilterCall", "check_call", "KEEPABLE", "check_keep", "real_measurements",
            "check_t0", "measurement_times", "time_intervals",
            "check_truth", "check_state_models", "measurement_bank", "refuse_inf", "MAX_BANK_NUMBERS",
            "check_bank_size", "kept_numbers", "initial_state", "param_values"]
@@ -366,75 +366,6 @@ def param_values(names: tuple, params: dict | None, runs: int | None, K: int,
     return out
 
 
-@dataclass(frozen=True)
-class FilterInputs:
-    """The checked inputs of one filter call.
-
-    Attributes
-    ----------
-    Y : ndarray, shape (R, K, n_y)
-        The measurements as a bank (R = 1 for a single run); NaN marks a missing one.
-    runs : int or None
-        R for a bank, None for a single run.
-    keep : frozenset of str, or None
-        The arrays to keep (None: all).
-    x0, P0 : ndarray
-        The initial mean(s) (n,) or (R, n) and covariance(s) (n, n) or (R, n, n).
-    truth : ndarray, shape (R, K, n), or None
-        The true states, when given.
-    params : ndarray, shape (R, K, n_p), or None
-        The parameter values, when the models have parameters.
-    """
-
-    Y: np.ndarray
-    runs: int | None
-    keep: frozenset[str] | None
-    x0: np.ndarray
-    P0: np.ndarray
-    truth: np.ndarray | None
-    params: np.ndarray | None
-
-    @property
-    def steps(self) -> int:
-        return int(self.Y.shape[1])
-
-
-def filter_inputs(kf: FilterSpec, ys: ArrayLike, x0: Gaussian | ArrayLike, P0: ArrayLike | None, *,
-                  keep: Iterable[str] | None = None, params: dict | None = None, x_true: ArrayLike | None = None,
-                  extra_per_step: int = 0, what: str = "results", advice: str = "") -> FilterInputs:
-    """Every check of a nonlinear filter call's inputs, in the order a caller meets them.
-
-    ``extra_per_step`` numbers per run and step are added to the arrays the filter's strategy
-    stores (a smoother's x and P; a square-root filter's factors of P and P⁻ are counted too),
-    and ``what`` names them in the bound's message.
-
-    Raises
-    ------
-    ShapeError
-        ``ys`` not (K, n_y) or (R, K, n_y) with K ≥ 1, not real numbers, or holding inf.
-    ArgumentError
-        A bad ``keep``.
-    ResourceError
-        The arrays would exceed :data:`MAX_BANK_NUMBERS` numbers (checked before ys is
-        read whole: a broadcast bank may be larger than memory).
-    """
-    n, n_y = kf.f_model.n_u, kf.h_model.n_y
-    Y, runs = measurement_bank(ys, n_y)
-    kept = check_keep(keep)
-    names = kf.strategy.stores(kept)
-    # A square-root filter keeps the factors of P and P⁻ beside them.
-    factors = n * n * len(names & {"P", "P_pred"}) if kf.square_root else 0
-    check_bank_size(runs or 1, Y.shape[-2], kept_numbers(n, n_y, names) + factors + extra_per_step,
-                    f"{kf.method} {what}", advice)
-    refuse_inf(Y)
-    m0, C0 = initial_state(n, x0, P0, runs)
-    Yb = Y.reshape((runs or 1,) + Y.shape[-2:])
-    truth = None
-    if x_true is not None:
-        truth = check_truth(x_true, Y.shape[:-1] + (n,)).reshape(Yb.shape[:2] + (-1,))
-    pv = param_values(kf.params, params, runs, Y.shape[-2])
-    return FilterInputs(Yb, runs, kept, m0, C0, truth, pv)
-
 def filter_params(f: Model, h: Model) -> tuple:
     """The parameters of a filter: f's, then h's whose names f does not have.
 
@@ -552,12 +483,15 @@ def _check_runs(runs: int, **values: tuple[Any, int]) -> None:
 def check_call(filt: Any, ys: ArrayLike, x0: Any, P0: ArrayLike | None = None, *,
                keep: Iterable[str] | str | None = None, params: dict | None = None,
                x_true: ArrayLike | None = None, first_run: int = 0, times: ArrayLike | None = None,
-               t0: float = 0.0) -> FilterCall:
+               t0: float = 0.0, extra_per_step: int = 0, what: str = "results",
+               advice: str = "keep fewer arrays, or filter the runs in smaller banks") -> FilterCall:
     """Every check of a filter call's inputs, in the order a caller meets them.
 
     ``times`` (and ``t0``) are for a filter that declares ``continuous_time``: K measurement
     times (K,), or (R, K) per run for a bank (:func:`measurement_times`); its
     ``_check_params`` hook then receives their intervals (``intervals=``; None without times).
+    ``extra_per_step`` numbers per run and step are added to those the filter keeps (a
+    smoother's x and P), ``what`` names them, and ``advice`` ends the size bound's message.
 
     Raises
     ------
@@ -593,8 +527,7 @@ def check_call(filt: Any, ys: ArrayLike, x0: Any, P0: ArrayLike | None = None, *
         if isinstance(params, dict):
             _check_runs(runs, **{f"parameter {str(k)!r}": (v, 2) for k, v in params.items()})
     per_step, shared = filt._numbers(kept)
-    check_bank_size(runs or 1, Yb.shape[1], per_step, f"{filt.method} results",
-                    "keep fewer arrays, or filter the runs in smaller banks", shared=shared)
+    check_bank_size(runs or 1, Yb.shape[1], per_step + extra_per_step, f"{filt.method} {what}", advice, shared=shared)
     refuse_inf(Y)
     T = None if times is None else measurement_times(times, t0, runs, Yb.shape[1])
     if filt.takes_covariance:

@@ -80,13 +80,13 @@ def test_the_gradient_is_the_derivative_of_the_filters_log_likelihood():
     import casadi as ca
 
     from symmon.filters.gaussian.fit import _loglik_graph
-    from symmon.filters.inputs import filter_inputs
+    from symmon.filters.inputs import check_call
 
     _, ys = data(3, runs=3, K=20)
     k = kf(sm.UT.ut1())
     theta = np.array([0.25, 1.0])
-    checked = filter_inputs(k, ys, X0, None, params={"q": 0.25, "b": 1.0})
-    t, total = _loglik_graph(k, checked.Y, checked.x0, checked.P0, checked.params, [0, 1])
+    checked = check_call(k, ys, X0, None, params={"q": 0.25, "b": 1.0})
+    t, total = _loglik_graph(k, checked.Y, checked.x0, checked.P0, checked.pv, [0, 1])
     fn = ca.Function("f", [t], [total, ca.gradient(total, t)])
     value, grad = (np.asarray(a, dtype=float).ravel() for a in fn(theta))
 

@@ -19,7 +19,7 @@ import pytest
 
 import symmon as sm
 from symmon.filters.gaussian import fit as fitmod
-from symmon.filters.inputs import filter_inputs
+from symmon.filters.inputs import check_call
 
 from test_fit import X0, data, kf
 
@@ -48,10 +48,10 @@ def problem(request):
 def test_value_gradient_and_hessian_are_the_vm_graphs(problem, fitted):
     k, ys, compiled = problem
     values = {"q": 0.25, "b": 1.0}
-    checked = filter_inputs(k, ys, X0, None, params=values)
-    ev = compiled.bind(fitmod._step_data(checked.Y, checked.params),
+    checked = check_call(k, ys, X0, None, params=values)
+    ev = compiled.bind(fitmod._step_data(checked.Y, checked.pv),
                        fitmod._initial_states(checked.x0, checked.P0, ys.shape[0]), k.Q, k.R, fitted)
-    theta, total = fitmod._loglik_graph(k, checked.Y, checked.x0, checked.P0, checked.params, fitted)
+    theta, total = fitmod._loglik_graph(k, checked.Y, checked.x0, checked.P0, checked.pv, fitted)
     vm = ca.Function("vm", [theta], [total, ca.gradient(total, theta), ca.hessian(total, theta)[0]])
     names = [str(s) for s in k.params]
     for t in ([values[names[j]] for j in fitted], [0.31 + 0.2 * j for j in range(len(fitted))]):
@@ -107,8 +107,8 @@ def test_forward_and_reverse_modes_agree(both_modes, fitted):
     fitted parameters (a tangent per parameter of the filter: the unfitted ones carry zeros)."""
     k, fwd, rev = both_modes
     ys = bank()
-    checked = filter_inputs(k, ys, X0, None, params={"q": 0.25, "b": 1.0})
-    args = (fitmod._step_data(checked.Y, checked.params), fitmod._initial_states(checked.x0, checked.P0, ys.shape[0]),
+    checked = check_call(k, ys, X0, None, params={"q": 0.25, "b": 1.0})
+    args = (fitmod._step_data(checked.Y, checked.pv), fitmod._initial_states(checked.x0, checked.P0, ys.shape[0]),
             k.Q, k.R, fitted)
     ev_f, ev_r = fwd.bind(*args), rev.bind(*args)
     for t in (np.full(len(fitted), 0.4), np.linspace(0.2, 1.3, len(fitted))):
@@ -144,8 +144,8 @@ def test_a_forward_gradient_with_a_reverse_hessian(both_modes, monkeypatch):
     mixed = fitmod._CompiledLoglik(k)
     assert mixed.wait()
     ys = bank()
-    checked = filter_inputs(k, ys, X0, None, params={"q": 0.25, "b": 1.0})
-    args = (fitmod._step_data(checked.Y, checked.params), fitmod._initial_states(checked.x0, checked.P0, ys.shape[0]),
+    checked = check_call(k, ys, X0, None, params={"q": 0.25, "b": 1.0})
+    args = (fitmod._step_data(checked.Y, checked.pv), fitmod._initial_states(checked.x0, checked.P0, ys.shape[0]),
             k.Q, k.R, [1, 0])
     t = np.array([0.7, 0.2])
     ev, ev_f, ev_r = mixed.bind(*args), fwd.bind(*args), rev.bind(*args)
@@ -187,8 +187,8 @@ def test_the_columns_on_threads_are_one_calls(both_modes, monkeypatch, mode):
     k, fwd, rev = both_modes
     compiled = fwd if mode == "forward" else rev
     ys = bank()
-    checked = filter_inputs(k, ys, X0, None, params={"q": 0.25, "b": 1.0})
-    args = (fitmod._step_data(checked.Y, checked.params), fitmod._initial_states(checked.x0, checked.P0, ys.shape[0]),
+    checked = check_call(k, ys, X0, None, params={"q": 0.25, "b": 1.0})
+    args = (fitmod._step_data(checked.Y, checked.pv), fitmod._initial_states(checked.x0, checked.P0, ys.shape[0]),
             k.Q, k.R, [1, 0])
     one = compiled.bind(*args)
     monkeypatch.setattr(fitmod, "THREAD_WORK", 0)

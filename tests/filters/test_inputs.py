@@ -1,7 +1,7 @@
 """The checks of a filter call's inputs live in one module, below the filter (issue 38, item 19).
 
 symmon.filters.inputs holds every check of ys, keep, the bank's size, x_true, x0/P0 and the
-parameter values; the filter, its smoother and its fit delegate to :func:`filter_inputs`, and no
+parameter values; the filter, its smoother and its fit delegate to :func:`check_call`, and no
 module that the filter imports, directly or through others, imports the filter back. The filters
 built on it (the particle and Gaussian-sum filters) may import it: it imports none of them.
 """
@@ -18,7 +18,7 @@ import sympy as sp
 import symmon as sm
 from symmon.errors import ArgumentError, ModelError, ShapeError
 from symmon.filters import inputs, results
-from symmon.filters.inputs import FilterInputs, filter_inputs
+from symmon.filters.inputs import FilterCall, check_call
 
 FILTERS = Path(inputs.__file__).parent
 
@@ -79,15 +79,15 @@ def kf():
     return sm.NonlinearKalmanFilter(f, h, [[0.1]], [[1.0]], sm.TT1())
 
 
-def test_filter_inputs_checks_and_shapes_a_call(kf):
+def test_check_call_checks_and_shapes_a_call(kf):
     ys = np.array([[1.0], [np.nan], [2.0]])
-    c = filter_inputs(kf, ys, np.zeros(1), np.eye(1), keep=("x",), params={"b": [0.0, 1.0, 2.0]},
-                      x_true=np.zeros((3, 1)))
-    assert isinstance(c, FilterInputs) and c.runs is None and c.steps == 3
+    c = check_call(kf, ys, np.zeros(1), np.eye(1), keep=("x",), params={"b": [0.0, 1.0, 2.0]},
+                   x_true=np.zeros((3, 1)))
+    assert isinstance(c, FilterCall) and c.runs is None and c.Y.shape[1] == 3
     assert c.Y.shape == (1, 3, 1) and np.isnan(c.Y[0, 1, 0]) and c.keep == frozenset({"x"})
-    assert c.truth.shape == (1, 3, 1) and c.params[0, :, 0].tolist() == [0.0, 1.0, 2.0]
-    bank = filter_inputs(kf, np.ones((2, 3, 1)), np.zeros((2, 1)), np.eye(1), params={"b": 1.0})
-    assert bank.runs == 2 and bank.x0.shape == (2, 1) and bank.params.shape == (2, 3, 1)
+    assert c.truth.shape == (1, 3, 1) and c.pv[0, :, 0].tolist() == [0.0, 1.0, 2.0]
+    bank = check_call(kf, np.ones((2, 3, 1)), np.zeros((2, 1)), np.eye(1), params={"b": 1.0})
+    assert bank.runs == 2 and bank.x0.shape == (2, 1) and bank.pv.shape == (2, 3, 1)
 
 
 @pytest.mark.parametrize("call, error, match", [
@@ -97,11 +97,11 @@ def test_filter_inputs_checks_and_shapes_a_call(kf):
     (dict(params={}), ModelError, "missing"),
     (dict(x_true=np.zeros((2, 1))), ShapeError, "x_true must have the shape"),
 ])
-def test_the_filter_raises_what_filter_inputs_raises(kf, call, error, match):
+def test_the_filter_raises_what_check_call_raises(kf, call, error, match):
     args = dict(ys=np.ones((3, 1)), keep=None, params={"b": 0.0}, x_true=None) | call
     with pytest.raises(error, match=match):
-        filter_inputs(kf, args["ys"], np.zeros(1), np.eye(1), keep=args["keep"], params=args["params"],
-                      x_true=args["x_true"])
+        check_call(kf, args["ys"], np.zeros(1), np.eye(1), keep=args["keep"], params=args["params"],
+                   x_true=args["x_true"])
     with pytest.raises(error, match=match):
         kf.filter(args["ys"], np.zeros(1), np.eye(1), keep=args["keep"], params=args["params"], x_true=args["x_true"])
 

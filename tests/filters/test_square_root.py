@@ -307,13 +307,13 @@ def test_exported_square_root_c_equals_the_filter(tmp_path, family):
 
 def test_the_bank_size_limit_counts_the_factors():
     from symmon.errors import ResourceError
-    from symmon.filters.inputs import MAX_BANK_NUMBERS, filter_inputs
+    from symmon.filters.inputs import MAX_BANK_NUMBERS, check_call
 
     # (1 + 4 + 16 + 16) numbers per step with P and its factor: 37; without the factor, 21.
     steps = MAX_BANK_NUMBERS // 30
     ys = np.broadcast_to(np.zeros(2), (steps, 2))
     std = sm.NonlinearKalmanFilter(F_FIX, H_RB, Q, R, sm.TT1())
-    filter_inputs(std, ys, X0, None, keep=("x", "P"))  # the standard form's arrays fit
+    check_call(std, ys, X0, None, keep=("x", "P"))  # the standard form's arrays fit
     with pytest.raises(ResourceError, match="37"):
         sm.NonlinearKalmanFilter(F_FIX, H_RB, Q, R, sm.TT1(), square_root=True).filter(ys, X0, keep=("x", "P"))
 

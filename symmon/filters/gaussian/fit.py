@@ -63,7 +63,7 @@ from ...compile.compiled import WorkArrays, cpu_count, even_spans, generated_c, 
 from ...core.gaussian import float_array
 from ...errors import IdentifiabilityWarning, ModelError, SymmonError, plain_repr
 from ...transforms.executor import one_blas_thread
-from ..inputs import FilterSpec, filter_inputs
+from ..inputs import FilterSpec, check_call
 from ..results import KalmanResult
 from .step import compiled_step
 
@@ -419,19 +419,19 @@ def fit_parameters(kf: FilterSpec, ys, x0, start: dict, P0=None, *, params: dict
         raise ModelError("the starting values must lie within their bounds")
 
     # The filter's checks of ys, x0, P0 and the parameters, and a run at the starting values.
-    checked = filter_inputs(kf, ys, x0, P0, params={**fixed, **start}, keep=("x",))
+    checked = check_call(kf, ys, x0, P0, params={**fixed, **start}, keep=("x",))
     kf.filter(ys, x0, P0, params={**fixed, **start}, keep=("x",))
     fitted = [names.index(k) for k in fitted_names]
-    evaluate = compiled_loglik(kf).bind(_step_data(checked.Y, checked.params),
+    evaluate = compiled_loglik(kf).bind(_step_data(checked.Y, checked.pv),
                                         _initial_states(checked.x0, checked.P0, checked.Y.shape[0]), kf.Q, kf.R, fitted)
 
     def vm_hess(t):
-        theta, total = _loglik_graph(kf, checked.Y, checked.x0, checked.P0, checked.params, fitted)
+        theta, total = _loglik_graph(kf, checked.Y, checked.x0, checked.P0, checked.pv, fitted)
         return ca.Function("loglik_hess", [theta], [ca.hessian(total, theta)[0]])(t)
 
     hess = vm_hess
     if evaluate is None:  # no compiled C (yet): the same ℓ as one CasADi graph on its VM
-        theta, total = _loglik_graph(kf, checked.Y, checked.x0, checked.P0, checked.params, fitted)
+        theta, total = _loglik_graph(kf, checked.Y, checked.x0, checked.P0, checked.pv, fitted)
         value_grad = ca.Function("loglik_grad", [theta], [total, ca.gradient(total, theta)])
     else:
         def value_grad(t):

@@ -73,7 +73,7 @@ from .diagnose import locate_nonfinite
 from ..base import Filter
 from .export import export_filter_c
 from .fit import FitResult, fit_parameters
-from ..inputs import FilterCall, FilterInputs, check_keep, check_state_models, filter_inputs, kept_numbers
+from ..inputs import FilterCall, check_call, check_keep, check_state_models, kept_numbers
 from ..results import ConsistencyTest, KalmanResult, NonlinearKalmanResult, SmootherResult, step_nees, nees_of
 from .smoother import compiled_smoother
 from .step import filter_params, first_nonfinite
@@ -243,7 +243,7 @@ class NonlinearKalmanFilter(Filter):
 
     def _filter(self, call: FilterCall) -> KalmanResult:
         """The compiled recursion over the checked ``call`` (its strategy's steps)."""
-        return self._filter_checked(FilterInputs(call.Y, call.runs, call.keep, call.x0, call.P0, call.truth, call.pv))
+        return self._filter_checked(call)
 
     @cached_property
     def params(self) -> tuple:
@@ -298,13 +298,12 @@ class NonlinearKalmanFilter(Filter):
         """
         if not isinstance(self.strategy, RuleStrategy):
             raise SymmonError(f"smooth needs one transform for every step; {self.method} chooses one per step")
-        n = self.f_model.n_u
         kept = check_keep(keep)
         forward = None if kept is None else kept | {"x", "P"}
         n = self.f_model.n_u
-        checked = filter_inputs(self, ys, x0, P0, keep=forward, params=params,
-                                extra_per_step=n + (2 if self.square_root else 1) * n * n,
-                                what="smoother results", advice=_SMALLER)
+        checked = check_call(self, ys, x0, P0, keep=forward, params=params,
+                             extra_per_step=n + (2 if self.square_root else 1) * n * n,
+                             what="smoother results", advice=_SMALLER)
         fwd = self._filter_checked(checked)  # the forward pass, on the inputs checked once
         bank = fwd.runs is not None
         X = fwd.x if bank else fwd.x[None]
@@ -313,7 +312,7 @@ class NonlinearKalmanFilter(Filter):
                                      self.square_root)
         if self.square_root:  # the factors the filter propagated, not a new factorisation of P
             P = fwd.P_chol if bank else fwd.P_chol[None]
-        xs, Ps, *chol = smoother(X, P, self.Q, params=checked.params)
+        xs, Ps, *chol = smoother(X, P, self.Q, params=checked.pv)
         # One sum per array when all is finite (no boolean array of the size of P^s); the
         # entry-by-entry test names the step otherwise.
         bad = None if all_finite(xs, Ps) else ~(np.isfinite(xs).all(axis=-1) & np.isfinite(Ps).all(axis=(-1, -2)))
@@ -388,12 +387,12 @@ class NonlinearKalmanFilter(Filter):
         """
         return export_filter_c(self, directory, name)
 
-    def _nan_cause(self, checked, r: int, k: int) -> str:
+    def _nan_cause(self, checked: FilterCall, r: int, k: int) -> str:
         """Where step ``k`` of run ``r`` turned NaN (:mod:`symmon.filters.gaussian.diagnose`): f at the last
         finite estimate, else h at the prediction; "" when neither shows it."""
         x0 = checked.x0 if checked.x0.ndim == 1 else checked.x0[r]
         P0 = checked.P0 if checked.P0.ndim == 2 else checked.P0[r]
-        pv = None if checked.params is None else checked.params[r:r + 1, :k + 1]
+        pv = None if checked.pv is None else checked.pv[r:r + 1, :k + 1]
         values = {} if pv is None else dict(zip((str(s) for s in self.params), pv[0, k]))
         try:
             out, _ = self.strategy.run(self, checked.Y[r:r + 1, :k + 1], x0, P0, None,
@@ -407,12 +406,12 @@ class NonlinearKalmanFilter(Filter):
         except (SymmonError, KeyError, IndexError):  # the diagnosis must not hide the failure itself
             return ""
 
-    def _filter_checked(self, checked) -> KalmanResult:
-        """:meth:`filter` on its inputs as :func:`~symmon.filters.inputs.filter_inputs` checked
+    def _filter_checked(self, checked: FilterCall) -> KalmanResult:
+        """:meth:`filter` on its inputs as :func:`~symmon.filters.inputs.check_call` checked
         them (so that :meth:`smooth` checks them once)."""
         n_y = self.h_model.n_y
         Yb, runs, kept, truth = checked.Y, checked.runs, checked.keep, checked.truth
-        extra = {} if checked.params is None else {"params": checked.params}  # a strategy without parameters needs no argument
+        extra = {} if checked.pv is None else {"params": checked.pv}  # a strategy without parameters needs no argument
         if truth is not None and self.strategy.nees_in_step:
             extra["truth"] = truth
         out, choices = self.strategy.run(self, Yb, checked.x0, checked.P0, kept, **extra)
