@@ -88,7 +88,8 @@ from .simulation import simulate
 
 __all__ = ["advise_filter", "FilterAdvice", "FilterCandidate", "candidate_menu", "ANEES_BAND", "RMSE_MARGIN",
            "MON_STEPS", "MIN_RUNS", "SECONDS_PER_EVALUATION", "ILL_CONDITIONED", "SCREENING_RUNS", "confirm_advice",
-           "Confirmation", "BATCH_RUNS", "predictive_credibility", "CREDIBLE_PROBABILITY", "BOOTSTRAP_SAMPLES"]
+           "Confirmation", "BATCH_RUNS", "predictive_credibility", "CREDIBLE_PROBABILITY", "BOOTSTRAP_SAMPLES",
+           "PF_GROWTH", "PF_GROWTH_STEPS", "SECOND_LOOK"]
 
 #: Credible: the time-mean ANEES within these multiples of the state dimension n.
 ANEES_BAND = (0.3, 1.5)
@@ -117,6 +118,11 @@ PF_PER_STATE, PF_MIN, PF_MAX = 500, 1000, 10_000
 #: The process noise, relative to the prior covariance (mean eigenvalue of P0⁻¹ Q), below which the
 #: particle filter is regularised: little noise would let resampling collapse the cloud.
 PF_REGULARISE_BELOW = 1e-2
+#: The particle filter grown where the pilot finds it not credible (or at risk): its particles times
+#: this, at most this many times (module notes, "The particle filter grown").
+PF_GROWTH, PF_GROWTH_STEPS = 4, 2
+#: The second look runs the choice on up to this many times the pilot's runs more (module notes).
+SECOND_LOOK = 5
 #: The Gauss–Hermite filter is a candidate while its 3^n_w points per model cost at most this.
 GH_MAX_POINTS = 5000
 
@@ -166,6 +172,9 @@ class FilterCandidate:
         Measured: the pilot's time divided by runs × steps (its first call compiles too).
     run_nees : ndarray or None
         Each run's time-mean NEES (unitless), from which :attr:`credibility` is estimated.
+    runs : int or None
+        The runs its numbers are over: the pilot's, and those of its second look (module
+        notes); None when not run.
     """
 
     name: str
@@ -186,6 +195,7 @@ class FilterCandidate:
     seconds_per_step: float | None = None
     run_nees: np.ndarray | None = field(default=None, repr=False)
     credibility: float | None = None
+    runs: int | None = None
 
     @property
     def at_risk(self) -> bool:
@@ -235,6 +245,9 @@ class FilterAdvice:
     tol : float
     seed : int
     notes : tuple of str
+    second_look : int
+        The runs of the second look (module notes) that the choice (and any choice it
+        overturned) ran on beyond the pilot's; 0 when there was none.
     """
 
     filter: Filter
@@ -252,6 +265,7 @@ class FilterAdvice:
     tol: float
     seed: int
     notes: tuple[str, ...] = field(default_factory=tuple)
+    second_look: int = 0
 
     @property
     def chosen(self) -> FilterCandidate:
@@ -284,10 +298,11 @@ class FilterAdvice:
     def __str__(self) -> str:
         lo, hi = ANEES_BAND
         m = self.mon
+        look = "" if not self.second_look else f", a second look at the choice on {self.second_look} more"
         budget = "" if self.budget is None else (f", budget {self.budget:g} s (estimated {self.estimated_seconds:.3g} s; "
                                                   f"{self.runs_asked} runs asked)")
         head = (f"filter advice: n = {self.n} states, {self.steps} steps, pilot of {self.runs} simulated runs "
-                f"(seed {self.seed}){budget}, tol {self.tol:g} (unitless)\n"
+                f"(seed {self.seed}){look}{budget}, tol {self.tol:g} (unitless)\n"
                 f"MoN along the track (W^full, unitless, largest over {MON_STEPS} steps): "
                 f"f {m['f']['prior']:.3g} at the EKF's prior, {m['f']['truth']:.3g} at the truth's spread; "
                 f"h {m['h']['prior']:.3g} at the EKF's prior, {m['h']['truth']:.3g} at the truth's spread\n"
@@ -305,7 +320,7 @@ class FilterAdvice:
         """The advice as plain numbers and strings (``symmon advise --filter --json``)."""
         return {"choice": self.choice, "method": self.filter.method, "credible": self.credible,
                 "recommendation": self.recommendation, "mon": self.mon, "n": self.n, "steps": self.steps,
-                "runs": self.runs, "runs_asked": self.runs_asked, "budget": self.budget,
+                "runs": self.runs, "runs_asked": self.runs_asked, "second_look": self.second_look, "budget": self.budget,
                 "estimated_seconds": self.estimated_seconds, "tol": self.tol, "seed": self.seed,
                 "anees_band": [ANEES_BAND[0] * self.n, ANEES_BAND[1] * self.n], "rmse_margin": RMSE_MARGIN,
                 "credible_probability": CREDIBLE_PROBABILITY,
@@ -598,7 +613,7 @@ def _pilot_row(opt: _Option, xs: np.ndarray, ys: np.ndarray, x0: Gaussian, param
         mon_h = _track_mon(h_model, xp[0], _first(Pp), v_h, ks)
     return FilterCandidate(method=flt.method, **base, mon_f=mon_f, mon_h=mon_h, rmse=rmse, rmse_states=rmse_states,
                            anees=anees, anees_interval=interval, credible=not failure, failure=failure,
-                           flagged=flagged, seconds_per_step=seconds / (Rr * K), run_nees=run_nees,
+                           flagged=flagged, seconds_per_step=seconds / (Rr * K), run_nees=run_nees, runs=Rr,
                            credibility=0.0 if failure == "non-finite estimates" or run_nees is None
                            else predictive_credibility(run_nees, n)), flt
 
@@ -863,13 +878,110 @@ def advise_filter(f: Model, h: Model, Q: Any, R: Any, x0: Gaussian, steps: int, 
         for i in again:
             options[i] = dataclasses.replace(options[i], kept=True, reason=options[i].reason + f"; run as {why}")
             pilot(i)
-    final = [r for r in rows if r is not None]
-    choice, credible, recommendation = _choose(final)
+    spent = Rp * per_run
+
+    def affordable(cost: int, R_: int) -> bool:
+        """Whether R_ runs of a candidate of ``cost`` fit in what is left of ``budget`` (by the estimate)."""
+        return budget is None or spent + R_ * K * cost * SECONDS_PER_EVALUATION <= budget
+
+    # The particle filter grown where the pilot (or the second look) found it not credible or at risk.
+    menu_pf = next((o for o in options if o.name == "pf"), None)
+    most = 0 if candidates is not None or menu_pf is None else \
+        int(menu_pf.settings["particles"]) * PF_GROWTH ** PF_GROWTH_STEPS
+
+    def grow(i: int) -> int | None:
+        """Pilot the particle filter of row i with PF_GROWTH times its particles: its row's index, or None."""
+        nonlocal spent
+        row, o = rows[i], options[i]
+        N = PF_GROWTH * int(o.settings["particles"])
+        if not o.name.startswith("pf") or N > most:
+            return None
+        if not affordable(2 * N, Rp):
+            notes.append(f"{row.name} was not grown to {N} particles: the budget would not hold")
+            return None
+        settings = {**o.settings, "particles": N}
+        why = ("not credible" if not row.credible else "at risk") + f" with {o.settings['particles']} particles"
+        grown = _Option(f"pf (N={N})", (lambda st=settings: make_filter("pf", f, h, Q, R, tol=tol, settings=st)),
+                        settings, 2 * N, True, f"{row.name} {why}: {PF_GROWTH} times the particles")
+        options.insert(i + 1, grown)
+        rows.insert(i + 1, None)
+        spent += Rp * K * grown.cost * SECONDS_PER_EVALUATION
+        pilot(i + 1)
+        return i + 1
+
+    i = next((j for j, o in enumerate(options) if o.name == "pf" and rows[j] is not None and rows[j].kept), None)
+    while i is not None and rows[i] is not None and not (rows[i].credible and not rows[i].at_risk):
+        i = grow(i)
+    pilot_spent = spent
+
+    # The second look: the choice on more runs, the next one where it fails (module notes).
+    looked: set[str] = set()
+    extra = 0
+    xs2 = ys2 = None
+    per_run_params = any(np.ndim(v) == 2 and np.shape(v)[0] == int(runs) for v in (params or {}).values())
+    while True:
+        final = [r for r in rows if r is not None]
+        choice, credible, recommendation = _choose(final)
+        if not credible or choice.name in looked or choice.run_nees is None:
+            break
+        j = next(k for k, r in enumerate(rows) if r is choice)
+        R2 = int(min(SECOND_LOOK * Rp, math.floor(pilot_spent / (K * choice.cost * SECONDS_PER_EVALUATION))))
+        if R2 < MIN_RUNS or not affordable(choice.cost, R2):
+            notes.append(f"no second look at {choice.name}: "
+                         + ("its runs would cost more than the pilot" if R2 < MIN_RUNS else "the budget would not hold"))
+            break
+        if per_run_params:
+            notes.append("no second look: a parameter has values per run, unknown for runs beyond the pilot's")
+            break
+        if xs2 is None:
+            look_seed = int(np.random.SeedSequence([int(seed), 2]).generate_state(1)[0] % 2**31)
+            xs2, ys2 = simulate(f, h, Q, R, x0, K, runs=SECOND_LOOK * Rp, params=params, seed=look_seed)
+        looked.add(choice.name)
+        extra = max(extra, R2)
+        spent += R2 * K * choice.cost * SECONDS_PER_EVALUATION
+        more, _ = _pilot_row(options[j], xs2[:R2], ys2[:R2], x0, params, scale, (f_m, h_m, v_f, v_h),
+                             np.array([], dtype=int), notes)
+        rows[j] = _merged(choice, more, n)
+        if not (rows[j].credible and not rows[j].at_risk):
+            notes.append(f"the second look ({R2} more runs) found {choice.name} "
+                         + ("not credible: " + rows[j].failure if not rows[j].credible else "at risk")
+                         + ": the choice was taken again")
+            g = j
+            while g is not None and rows[g] is not None and not (rows[g].credible and not rows[g].at_risk):
+                g = grow(g)
     flt = built.get(choice.name)
     if flt is None:  # nothing ran: the EKF, built
         flt = make_filter("ekf", f, h, Q, R, tol=tol)
     return FilterAdvice(flt, choice.name, credible, recommendation, tuple(final), mon, n, K, Rp, int(runs),
-                        None if budget is None else float(budget), Rp * per_run, tol, int(seed), tuple(notes))
+                        None if budget is None else float(budget), spent, tol, int(seed), tuple(notes), extra)
+
+
+def _merged(a: FilterCandidate, b: FilterCandidate, n: int) -> FilterCandidate:
+    """Candidate ``a``'s pilot row and ``b``, its second look on more runs, as one row over both."""
+    if b.rmse is None or a.rmse is None:  # the second look failed: a run raised
+        return dataclasses.replace(a, credible=False, credibility=0.0,
+                                   failure=f"second look: {b.failure}", runs=(a.runs or 0) + (b.runs or 0))
+    w = np.array([a.runs, b.runs], dtype=float)
+    mean = lambda u, v: float((w[0] * u + w[1] * v) / w.sum())  # noqa: E731
+    rmse = math.sqrt(mean(a.rmse**2, b.rmse**2))
+    states = np.sqrt((w[0] * a.rmse_states**2 + w[1] * b.rmse_states**2) / w.sum())
+    anees = mean(a.anees, b.anees)
+    Rr = int(w.sum())
+    lo, hi = ANEES_BAND[0] * n, ANEES_BAND[1] * n
+    failure = next((f"second look: {r.failure}" if r is b else r.failure for r in (a, b)
+                    if r.failure == "non-finite estimates"), "")
+    if not failure and not lo <= anees <= hi:
+        failure = (f"ANEES {anees:.3g} {'>' if anees > hi else '<'} {hi if anees > hi else lo:.3g} "
+                   f"over the pilot's and the second look's {Rr} runs")
+    run_nees = None if a.run_nees is None or b.run_nees is None else np.concatenate([a.run_nees, b.run_nees])
+    return dataclasses.replace(
+        a, rmse=rmse, rmse_states=states, anees=anees,
+        anees_interval=tuple(float(q) / Rr for q in stats.chi2.ppf([0.025, 0.975], Rr * n)),
+        credible=not failure, failure=failure,
+        flagged=None if a.flagged is None or b.flagged is None else mean(a.flagged, b.flagged),
+        seconds_per_step=mean(a.seconds_per_step, b.seconds_per_step), run_nees=run_nees, runs=Rr,
+        credibility=0.0 if failure == "non-finite estimates" or run_nees is None
+        else predictive_credibility(run_nees, n))
 
 
 def _sliced(params: dict | None, R: int, runs: int) -> dict | None:
@@ -1007,6 +1119,13 @@ def confirm_advice(advice: FilterAdvice, f: Model, h: Model, Q: Any, R: Any, x0:
     menus = [candidate_menu(f, h, Q, R, P0, mon_f, mon_h, advice.tol, modes=modes, ill_conditioned=ill,
                             seed=int(np.random.SeedSequence([int(seed), b]).generate_state(1)[0] % 2**31))
              for b in range(len(spans))]
+    grown = [c for c in advice.candidates if c.kept and c.name.startswith("pf (N=")]
+    for menu in menus:  # the particle filters the advice grew, after the menu's, with each batch's seed
+        base = next((o for o in menu if o.name == "pf"), None)
+        for c in grown:
+            st = {**c.settings, "seed": base.settings["seed"] if base is not None else c.settings.get("seed", 0)}
+            menu.append(_Option(c.name, (lambda st=st: make_filter("pf", f, h, Q, R, tol=advice.tol, settings=st)),
+                                st, c.cost, True, c.reason))
     for i, opt in enumerate(menus[0]):
         try:
             warm = opt.build()
