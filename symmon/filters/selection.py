@@ -962,7 +962,10 @@ def _merged(a: FilterCandidate, b: FilterCandidate, n: int) -> FilterCandidate:
         return dataclasses.replace(a, credible=False, credibility=0.0,
                                    failure=f"second look: {b.failure}", runs=(a.runs or 0) + (b.runs or 0))
     w = np.array([a.runs, b.runs], dtype=float)
-    mean = lambda u, v: float((w[0] * u + w[1] * v) / w.sum())  # noqa: E731
+
+    def mean(u: float | None, v: float | None) -> float | None:
+        return None if u is None or v is None else float((w[0] * u + w[1] * v) / w.sum())
+
     rmse = math.sqrt(mean(a.rmse**2, b.rmse**2))
     states = np.sqrt((w[0] * a.rmse_states**2 + w[1] * b.rmse_states**2) / w.sum())
     anees = mean(a.anees, b.anees)
@@ -978,7 +981,7 @@ def _merged(a: FilterCandidate, b: FilterCandidate, n: int) -> FilterCandidate:
         a, rmse=rmse, rmse_states=states, anees=anees,
         anees_interval=tuple(float(q) / Rr for q in stats.chi2.ppf([0.025, 0.975], Rr * n)),
         credible=not failure, failure=failure,
-        flagged=None if a.flagged is None or b.flagged is None else mean(a.flagged, b.flagged),
+        flagged=mean(a.flagged, b.flagged),
         seconds_per_step=mean(a.seconds_per_step, b.seconds_per_step), run_nees=run_nees, runs=Rr,
         credibility=0.0 if failure == "non-finite estimates" or run_nees is None
         else predictive_credibility(run_nees, n))
