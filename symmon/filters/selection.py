@@ -122,7 +122,7 @@ PF_REGULARISE_BELOW = 1e-2
 #: this, at most this many times (module notes, "The particle filter grown").
 PF_GROWTH, PF_GROWTH_STEPS = 4, 2
 #: The second look runs the choice on up to this many times the pilot's runs more (module notes).
-SECOND_LOOK = 5
+SECOND_LOOK = 3
 #: The Gauss–Hermite filter is a candidate while its 3^n_w points per model cost at most this.
 GH_MAX_POINTS = 5000
 
@@ -893,8 +893,10 @@ def advise_filter(f: Model, h: Model, Q: Any, R: Any, x0: Gaussian, steps: int, 
         """Pilot the particle filter of row i with PF_GROWTH times its particles: its row's index, or None."""
         nonlocal spent
         row, o = rows[i], options[i]
+        if not o.name.startswith("pf") or "particles" not in o.settings:
+            return None
         N = PF_GROWTH * int(o.settings["particles"])
-        if not o.name.startswith("pf") or N > most:
+        if N > most:
             return None
         if not affordable(2 * N, Rp):
             notes.append(f"{row.name} was not grown to {N} particles: the budget would not hold")
@@ -909,8 +911,17 @@ def advise_filter(f: Model, h: Model, Q: Any, R: Any, x0: Gaussian, steps: int, 
         pilot(i + 1)
         return i + 1
 
+    def needed(i: int | None) -> bool:
+        """Row i is a particle filter not credible (or at risk) whose accuracy no steady credible
+        candidate matches within RMSE_MARGIN: more particles are worth a try."""
+        r = rows[i] if i is not None else None
+        if r is None or r.rmse is None or not np.isfinite(r.rmse) or (r.credible and not r.at_risk):
+            return r is not None and r.rmse is None  # a run raised: try more particles
+        return not any(c is not None and c is not r and c.credible and not c.at_risk and c.rmse is not None
+                       and c.rmse <= (1 + RMSE_MARGIN) * r.rmse for c in rows)
+
     i = next((j for j, o in enumerate(options) if o.name == "pf" and rows[j] is not None and rows[j].kept), None)
-    while i is not None and rows[i] is not None and not (rows[i].credible and not rows[i].at_risk):
+    while needed(i):
         i = grow(i)
     pilot_spent = spent
 
@@ -947,7 +958,7 @@ def advise_filter(f: Model, h: Model, Q: Any, R: Any, x0: Gaussian, steps: int, 
                          + ("not credible: " + rows[j].failure if not rows[j].credible else "at risk")
                          + ": the choice was taken again")
             g = j
-            while g is not None and rows[g] is not None and not (rows[g].credible and not rows[g].at_risk):
+            while needed(g):
                 g = grow(g)
     flt = built.get(choice.name)
     if flt is None:  # nothing ran: the EKF, built
