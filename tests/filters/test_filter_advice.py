@@ -364,6 +364,9 @@ def test_the_second_look_runs_the_choice_on_more_runs(linear) -> None:
         others[0].anees_interval[1] - others[0].anees_interval[0]
     assert len(linear.chosen.run_nees) == linear.chosen.runs
     assert f"a second look at the choice on {linear.second_look} more" in str(linear)
+    # the one recommendation says so; its reasons are the pilot's
+    assert linear.recommendation.endswith(f"a second look on {linear.second_look} more runs confirms it "
+                                          f"(ANEES {linear.chosen.anees:.3g} over {linear.chosen.runs} runs)")
 
 
 def test_a_second_look_that_meets_a_divergent_run_overturns_the_choice() -> None:
