@@ -770,9 +770,12 @@ def advise_filter(f: Model, h: Model, Q: Any, R: Any, x0: Gaussian, steps: int, 
         The unitless moment tolerance of :func:`symmon.advise`: the MoN above √2 · tol
         brings in the sigma-point filters and the Gaussian-sum filter.
     runs : int, default 64
-        The pilot's simulated tracks (at least 2).
+        The pilot's simulated tracks (at least 2); the choice's second look runs on up to
+        :data:`SECOND_LOOK` times as many more.
     budget : float, optional
-        Seconds for the pilot: fewer runs when the cost estimate exceeds it (module notes).
+        Seconds for the pilot: fewer runs when the cost estimate exceeds it, and a grown
+        particle filter or a second look only where the estimate of what is left holds them
+        (module notes).
     seed : int, default 0
         Of the simulated tracks (and of the particle filter): the same seed, the same advice.
     candidates : sequence of str or (str, dict), optional
