@@ -43,6 +43,27 @@
    input dimension), times the components of a Gaussian-sum filter or the modes of an IMM,
    or 2 per particle; ties go to the earlier candidate, so the choice is the same for the
    same seed.  When none is credible, the advice says so and chooses the most accurate.
+6. **grows the particle filter** where its accuracy is needed: when the pilot finds the
+   menu's particle filter not credible (or at risk, or a run raised) and no steady credible
+   candidate has an RMSE within :data:`RMSE_MARGIN` of its own, a particle filter of
+   :data:`PF_GROWTH` (4) times the particles joins the candidates (``"pf (N=4000)"``) and
+   runs the pilot, at most :data:`PF_GROWTH_STEPS` (2) times (16 times the menu's count).
+   A consistent particle filter is credible in expectation (for the exact posterior
+   E[NEES] = n); a bootstrap filter of too few particles is not, because in a few runs its
+   weights collapse onto one particle and its covariance onto a point, and those runs carry
+   the time-mean ANEES (the growth model: N = 1000 gives an ANEES of 10¹⁸ on 200 fresh runs,
+   N = 16 000 gives 1.0).  Neither a proposal nor a kernel replaces the particles there: the
+   UKF proposal of 1000 particles still has a run of time-mean NEES 45 among 64 (ANEES 1.7,
+   n = 1), and the regularisation (its jitter after resampling) does not change the
+   covariance at the update where the weights collapse;
+7. takes a **second look** at the choice: it runs on :data:`SECOND_LOOK` (3) times the
+   pilot's runs more (fresh tracks of another seed drawn from ``seed``; at most as many as
+   cost the pilot's estimated evaluations, and within ``budget``), and its row is then over
+   all its runs.  Where it is not credible there (or at risk), the choice is taken again
+   (a particle filter grown as in 6), and the next choice gets its second look too.  A
+   failure in one run of M is seen by R runs with probability 1 − (1 − 1/M)^R: the pilot of
+   64 runs and its second look of 192 see a failure in one run of 200 with probability 0.72,
+   the pilot alone with 0.27 (``docs/select.md``: rarer failures stay unseen).
 
 The RMSE that the choice compares is unitless: each state's error in units of its prior
 standard deviation √(P0)_ii, then the root mean square over the states, runs and steps;
@@ -55,7 +76,8 @@ consistent filter's time mean lies inside it.
 ``budget`` (seconds) bounds the pilot by running fewer tracks: the runs are
 budget / (steps · Σ cost · :data:`SECONDS_PER_EVALUATION`), at least :data:`MIN_RUNS`
 and at most ``runs``, decided from the cost estimate (never from a clock), so that the
-choice stays reproducible.  Compilation is not in the estimate: a filter's first call
+choice stays reproducible; a grown particle filter and the second look run only where the
+estimate of what is left holds them (:attr:`FilterAdvice.estimated_seconds` counts them).  Compilation is not in the estimate: a filter's first call
 compiles its C once (cached on disk).
 """
 
@@ -88,7 +110,8 @@ from .simulation import simulate
 
 __all__ = ["advise_filter", "FilterAdvice", "FilterCandidate", "candidate_menu", "ANEES_BAND", "RMSE_MARGIN",
            "MON_STEPS", "MIN_RUNS", "SECONDS_PER_EVALUATION", "ILL_CONDITIONED", "SCREENING_RUNS", "confirm_advice",
-           "Confirmation", "BATCH_RUNS", "predictive_credibility", "CREDIBLE_PROBABILITY", "BOOTSTRAP_SAMPLES"]
+           "Confirmation", "BATCH_RUNS", "predictive_credibility", "CREDIBLE_PROBABILITY", "BOOTSTRAP_SAMPLES",
+           "PF_GROWTH", "PF_GROWTH_STEPS", "SECOND_LOOK"]
 
 #: Credible: the time-mean ANEES within these multiples of the state dimension n.
 ANEES_BAND = (0.3, 1.5)
@@ -117,6 +140,11 @@ PF_PER_STATE, PF_MIN, PF_MAX = 500, 1000, 10_000
 #: The process noise, relative to the prior covariance (mean eigenvalue of P0⁻¹ Q), below which the
 #: particle filter is regularised: little noise would let resampling collapse the cloud.
 PF_REGULARISE_BELOW = 1e-2
+#: The particle filter grown where the pilot finds it not credible (or at risk): its particles times
+#: this, at most this many times (module notes, "The particle filter grown").
+PF_GROWTH, PF_GROWTH_STEPS = 4, 2
+#: The second look runs the choice on up to this many times the pilot's runs more (module notes).
+SECOND_LOOK = 3
 #: The Gauss–Hermite filter is a candidate while its 3^n_w points per model cost at most this.
 GH_MAX_POINTS = 5000
 
@@ -166,6 +194,9 @@ class FilterCandidate:
         Measured: the pilot's time divided by runs × steps (its first call compiles too).
     run_nees : ndarray or None
         Each run's time-mean NEES (unitless), from which :attr:`credibility` is estimated.
+    runs : int or None
+        The runs its numbers are over: the pilot's, and those of its second look (module
+        notes); None when not run.
     """
 
     name: str
@@ -186,6 +217,7 @@ class FilterCandidate:
     seconds_per_step: float | None = None
     run_nees: np.ndarray | None = field(default=None, repr=False)
     credibility: float | None = None
+    runs: int | None = None
 
     @property
     def at_risk(self) -> bool:
@@ -231,10 +263,14 @@ class FilterAdvice:
     runs_asked : int
     budget : float or None
     estimated_seconds : float
-        The pilot's estimated time (module notes), from which ``runs`` was chosen.
+        The pilot's estimated time (module notes), from which ``runs`` was chosen, with its
+        grown particle filters and its second look.
     tol : float
     seed : int
     notes : tuple of str
+    second_look : int
+        The runs of the second look (module notes) that the choice (and any choice it
+        overturned) ran on beyond the pilot's; 0 when there was none.
     """
 
     filter: Filter
@@ -252,6 +288,7 @@ class FilterAdvice:
     tol: float
     seed: int
     notes: tuple[str, ...] = field(default_factory=tuple)
+    second_look: int = 0
 
     @property
     def chosen(self) -> FilterCandidate:
@@ -284,10 +321,11 @@ class FilterAdvice:
     def __str__(self) -> str:
         lo, hi = ANEES_BAND
         m = self.mon
+        look = "" if not self.second_look else f", a second look at the choice on {self.second_look} more"
         budget = "" if self.budget is None else (f", budget {self.budget:g} s (estimated {self.estimated_seconds:.3g} s; "
                                                   f"{self.runs_asked} runs asked)")
         head = (f"filter advice: n = {self.n} states, {self.steps} steps, pilot of {self.runs} simulated runs "
-                f"(seed {self.seed}){budget}, tol {self.tol:g} (unitless)\n"
+                f"(seed {self.seed}){look}{budget}, tol {self.tol:g} (unitless)\n"
                 f"MoN along the track (W^full, unitless, largest over {MON_STEPS} steps): "
                 f"f {m['f']['prior']:.3g} at the EKF's prior, {m['f']['truth']:.3g} at the truth's spread; "
                 f"h {m['h']['prior']:.3g} at the EKF's prior, {m['h']['truth']:.3g} at the truth's spread\n"
@@ -305,7 +343,7 @@ class FilterAdvice:
         """The advice as plain numbers and strings (``symmon advise --filter --json``)."""
         return {"choice": self.choice, "method": self.filter.method, "credible": self.credible,
                 "recommendation": self.recommendation, "mon": self.mon, "n": self.n, "steps": self.steps,
-                "runs": self.runs, "runs_asked": self.runs_asked, "budget": self.budget,
+                "runs": self.runs, "runs_asked": self.runs_asked, "second_look": self.second_look, "budget": self.budget,
                 "estimated_seconds": self.estimated_seconds, "tol": self.tol, "seed": self.seed,
                 "anees_band": [ANEES_BAND[0] * self.n, ANEES_BAND[1] * self.n], "rmse_margin": RMSE_MARGIN,
                 "credible_probability": CREDIBLE_PROBABILITY,
@@ -598,7 +636,7 @@ def _pilot_row(opt: _Option, xs: np.ndarray, ys: np.ndarray, x0: Gaussian, param
         mon_h = _track_mon(h_model, xp[0], _first(Pp), v_h, ks)
     return FilterCandidate(method=flt.method, **base, mon_f=mon_f, mon_h=mon_h, rmse=rmse, rmse_states=rmse_states,
                            anees=anees, anees_interval=interval, credible=not failure, failure=failure,
-                           flagged=flagged, seconds_per_step=seconds / (Rr * K), run_nees=run_nees,
+                           flagged=flagged, seconds_per_step=seconds / (Rr * K), run_nees=run_nees, runs=Rr,
                            credibility=0.0 if failure == "non-finite estimates" or run_nees is None
                            else predictive_credibility(run_nees, n)), flt
 
@@ -732,9 +770,12 @@ def advise_filter(f: Model, h: Model, Q: Any, R: Any, x0: Gaussian, steps: int, 
         The unitless moment tolerance of :func:`symmon.advise`: the MoN above √2 · tol
         brings in the sigma-point filters and the Gaussian-sum filter.
     runs : int, default 64
-        The pilot's simulated tracks (at least 2).
+        The pilot's simulated tracks (at least 2); the choice's second look runs on up to
+        :data:`SECOND_LOOK` times as many more.
     budget : float, optional
-        Seconds for the pilot: fewer runs when the cost estimate exceeds it (module notes).
+        Seconds for the pilot: fewer runs when the cost estimate exceeds it, and a grown
+        particle filter or a second look only where the estimate of what is left holds them
+        (module notes).
     seed : int, default 0
         Of the simulated tracks (and of the particle filter): the same seed, the same advice.
     candidates : sequence of str or (str, dict), optional
@@ -863,13 +904,130 @@ def advise_filter(f: Model, h: Model, Q: Any, R: Any, x0: Gaussian, steps: int, 
         for i in again:
             options[i] = dataclasses.replace(options[i], kept=True, reason=options[i].reason + f"; run as {why}")
             pilot(i)
-    final = [r for r in rows if r is not None]
-    choice, credible, recommendation = _choose(final)
+    spent = Rp * per_run
+
+    def affordable(cost: int, R_: int) -> bool:
+        """Whether R_ runs of a candidate of ``cost`` fit in what is left of ``budget`` (by the estimate)."""
+        return budget is None or spent + R_ * K * cost * SECONDS_PER_EVALUATION <= budget
+
+    # The particle filter grown where the pilot (or the second look) found it not credible or at risk.
+    menu_pf = next((o for o in options if o.name == "pf"), None)
+    most = 0 if candidates is not None or menu_pf is None else \
+        int(menu_pf.settings["particles"]) * PF_GROWTH ** PF_GROWTH_STEPS
+
+    def grow(i: int) -> int | None:
+        """Pilot the particle filter of row i with PF_GROWTH times its particles: its row's index, or None."""
+        nonlocal spent
+        row, o = rows[i], options[i]
+        if not o.name.startswith("pf") or "particles" not in o.settings:
+            return None
+        N = PF_GROWTH * int(o.settings["particles"])
+        if N > most:
+            return None
+        if not affordable(2 * N, Rp):
+            notes.append(f"{row.name} was not grown to {N} particles: the budget would not hold")
+            return None
+        settings = {**o.settings, "particles": N}
+        why = ("not credible" if not row.credible else "at risk") + f" with {o.settings['particles']} particles"
+        grown = _Option(f"pf (N={N})", (lambda st=settings: make_filter("pf", f, h, Q, R, tol=tol, settings=st)),
+                        settings, 2 * N, True, f"{row.name} {why}: {PF_GROWTH} times the particles")
+        options.insert(i + 1, grown)
+        rows.insert(i + 1, None)
+        spent += Rp * K * grown.cost * SECONDS_PER_EVALUATION
+        pilot(i + 1)
+        return i + 1
+
+    def needed(i: int | None) -> bool:
+        """Row i is a particle filter not credible (or at risk) whose accuracy no steady credible
+        candidate matches within RMSE_MARGIN: more particles are worth a try."""
+        r = rows[i] if i is not None else None
+        if r is None or r.rmse is None or not np.isfinite(r.rmse) or (r.credible and not r.at_risk):
+            return r is not None and r.rmse is None  # a run raised: try more particles
+        return not any(c is not None and c is not r and c.credible and not c.at_risk and c.rmse is not None
+                       and c.rmse <= (1 + RMSE_MARGIN) * r.rmse for c in rows)
+
+    i = next((j for j, o in enumerate(options) if o.name == "pf" and rows[j] is not None and rows[j].kept), None)
+    while needed(i):
+        i = grow(i)
+    pilot_spent = spent
+
+    # The second look: the choice on more runs, the next one where it fails (module notes).
+    looked: set[str] = set()
+    extra = 0
+    xs2 = ys2 = None
+    per_run_params = any(np.ndim(v) == 2 and np.shape(v)[0] == int(runs) for v in (params or {}).values())
+    while True:
+        final = [r for r in rows if r is not None]
+        choice, credible, recommendation = _choose(final)
+        if not credible or choice.name in looked or choice.run_nees is None:
+            break
+        j = next(k for k, r in enumerate(rows) if r is choice)
+        R2 = int(min(SECOND_LOOK * Rp, math.floor(pilot_spent / (K * choice.cost * SECONDS_PER_EVALUATION))))
+        if R2 < MIN_RUNS or not affordable(choice.cost, R2):
+            notes.append(f"no second look at {choice.name}: "
+                         + ("its runs would cost more than the pilot" if R2 < MIN_RUNS else "the budget would not hold"))
+            break
+        if per_run_params:
+            notes.append("no second look: a parameter has values per run, unknown for runs beyond the pilot's")
+            break
+        if xs2 is None:
+            look_seed = int(np.random.SeedSequence([int(seed), 2]).generate_state(1)[0] % 2**31)
+            xs2, ys2 = simulate(f, h, Q, R, x0, K, runs=SECOND_LOOK * Rp, params=params, seed=look_seed)
+        looked.add(choice.name)
+        extra = max(extra, R2)
+        spent += R2 * K * choice.cost * SECONDS_PER_EVALUATION
+        more, _ = _pilot_row(options[j], xs2[:R2], ys2[:R2], x0, params, scale, (f_m, h_m, v_f, v_h),
+                             np.array([], dtype=int), notes)
+        rows[j] = _merged(choice, more, n)
+        if rows[j].credible and not rows[j].at_risk:
+            # the choice and its reasons stand as the pilot's runs gave them; its row is over all its runs
+            final = [r for r in rows if r is not None]
+            recommendation += (f"; a second look on {R2} more runs confirms it (ANEES {rows[j].anees:.3g} "
+                               f"over {rows[j].runs} runs)")
+            choice = rows[j]
+            break
+        notes.append(f"the second look ({R2} more runs) found {choice.name} "
+                     + ("not credible: " + rows[j].failure if not rows[j].credible else "at risk")
+                     + ": the choice was taken again")
+        g = j
+        while needed(g):
+            g = grow(g)
     flt = built.get(choice.name)
     if flt is None:  # nothing ran: the EKF, built
         flt = make_filter("ekf", f, h, Q, R, tol=tol)
     return FilterAdvice(flt, choice.name, credible, recommendation, tuple(final), mon, n, K, Rp, int(runs),
-                        None if budget is None else float(budget), Rp * per_run, tol, int(seed), tuple(notes))
+                        None if budget is None else float(budget), spent, tol, int(seed), tuple(notes), extra)
+
+
+def _merged(a: FilterCandidate, b: FilterCandidate, n: int) -> FilterCandidate:
+    """Candidate ``a``'s pilot row and ``b``, its second look on more runs, as one row over both."""
+    if b.rmse is None or a.rmse is None:  # the second look failed: a run raised
+        return dataclasses.replace(a, credible=False, credibility=0.0,
+                                   failure=f"second look: {b.failure}", runs=(a.runs or 0) + (b.runs or 0))
+    w = np.array([a.runs, b.runs], dtype=float)
+
+    def mean(u: float | None, v: float | None) -> float | None:
+        return None if u is None or v is None else float((w[0] * u + w[1] * v) / w.sum())
+
+    rmse = math.sqrt(mean(a.rmse**2, b.rmse**2))
+    states = np.sqrt((w[0] * a.rmse_states**2 + w[1] * b.rmse_states**2) / w.sum())
+    anees = mean(a.anees, b.anees)
+    Rr = int(w.sum())
+    lo, hi = ANEES_BAND[0] * n, ANEES_BAND[1] * n
+    failure = next((f"second look: {r.failure}" if r is b else r.failure for r in (a, b)
+                    if r.failure == "non-finite estimates"), "")
+    if not failure and not lo <= anees <= hi:
+        failure = (f"ANEES {anees:.3g} {'>' if anees > hi else '<'} {hi if anees > hi else lo:.3g} "
+                   f"over the pilot's and the second look's {Rr} runs")
+    run_nees = None if a.run_nees is None or b.run_nees is None else np.concatenate([a.run_nees, b.run_nees])
+    return dataclasses.replace(
+        a, rmse=rmse, rmse_states=states, anees=anees,
+        anees_interval=tuple(float(q) / Rr for q in stats.chi2.ppf([0.025, 0.975], Rr * n)),
+        credible=not failure, failure=failure,
+        flagged=mean(a.flagged, b.flagged),
+        seconds_per_step=mean(a.seconds_per_step, b.seconds_per_step), run_nees=run_nees, runs=Rr,
+        credibility=0.0 if failure == "non-finite estimates" or run_nees is None
+        else predictive_credibility(run_nees, n))
 
 
 def _sliced(params: dict | None, R: int, runs: int) -> dict | None:
@@ -1007,6 +1165,13 @@ def confirm_advice(advice: FilterAdvice, f: Model, h: Model, Q: Any, R: Any, x0:
     menus = [candidate_menu(f, h, Q, R, P0, mon_f, mon_h, advice.tol, modes=modes, ill_conditioned=ill,
                             seed=int(np.random.SeedSequence([int(seed), b]).generate_state(1)[0] % 2**31))
              for b in range(len(spans))]
+    grown = [c for c in advice.candidates if c.kept and c.name.startswith("pf (N=")]
+    for menu in menus:  # the particle filters the advice grew, after the menu's, with each batch's seed
+        base = next((o for o in menu if o.name == "pf"), None)
+        for c in grown:
+            st = {**c.settings, "seed": base.settings["seed"] if base is not None else c.settings.get("seed", 0)}
+            menu.append(_Option(c.name, (lambda st=st: make_filter("pf", f, h, Q, R, tol=advice.tol, settings=st)),
+                                st, c.cost, True, c.reason))
     for i, opt in enumerate(menus[0]):
         try:
             warm = opt.build()

@@ -10,10 +10,11 @@ import pytest
 import sympy as sp
 
 import symmon as sm
+from symmon.reproduce import select
 from symmon.errors import ArgumentError, ArgumentTypeError, SymmonError
-from symmon.filters.selection import (ANEES_BAND, BATCH_RUNS, CREDIBLE_PROBABILITY, MIN_RUNS, RMSE_MARGIN,
-                                      SECONDS_PER_EVALUATION, FilterCandidate, _choose, confirm_advice,
-                                      predictive_credibility)
+from symmon.filters.selection import (ANEES_BAND, BATCH_RUNS, CREDIBLE_PROBABILITY, MIN_RUNS, PF_GROWTH,
+                                      PF_GROWTH_STEPS, RMSE_MARGIN, SECOND_LOOK, SECONDS_PER_EVALUATION,
+                                      FilterCandidate, _choose, _merged, confirm_advice, predictive_credibility)
 
 p, v, x = sp.symbols("p v x", real=True)
 # A constant-velocity model measured in position: linear and Gaussian.
@@ -53,7 +54,10 @@ def test_a_linear_gaussian_model_gets_the_kalman_filter_and_its_anees_sits_in_it
 
 def test_the_kalman_filter_and_the_ekf_give_the_same_numbers_on_a_linear_model(linear) -> None:
     kf, ekf = (next(c for c in linear.candidates if c.name == name) for name in ("kf", "ekf"))
-    assert kf.rmse == pytest.approx(ekf.rmse, rel=1e-9) and kf.anees == pytest.approx(ekf.anees, rel=1e-9)
+    # the pilot's runs, which both ran (the KF, chosen, had a second look on more)
+    R = linear.runs
+    assert ekf.runs == R and kf.runs == R + linear.second_look
+    np.testing.assert_allclose(kf.run_nees[:R], ekf.run_nees, rtol=1e-9)
 
 
 def test_the_table_shows_every_candidate_with_units_and_one_recommendation(linear) -> None:
@@ -116,7 +120,12 @@ def test_budget_bounds_the_pilot_by_its_runs(budget, runs) -> None:
         budget, runs = 12.5 * per_run, 12
     a = sm.advise_filter(CV_F, CV_H, CV_Q, CV_R, CV_X0, 20, runs=24, budget=budget)
     assert a.runs == runs and a.runs_asked == 24
-    assert a.estimated_seconds == pytest.approx(a.runs * _estimate(a))
+    # the pilot's runs, and the second look's at the choice where the budget holds them
+    look = a.second_look * a.steps * a.chosen.cost * SECONDS_PER_EVALUATION
+    assert a.estimated_seconds == pytest.approx(a.runs * _estimate(a) + look)
+    if budget is not None and a.runs > MIN_RUNS:
+        assert a.estimated_seconds <= budget
+    assert (a.second_look > 0) == (budget in (None, 1e3))
     assert f"pilot of {runs} simulated runs" in str(a)
     if budget == 1e-9:
         assert any("budget" in n for n in a.notes)
@@ -275,3 +284,105 @@ def test_a_cheap_candidate_at_risk_is_not_chosen_over_a_steady_one() -> None:
     # without the steady one, the credible candidate at risk is still the choice, and said to be at risk
     choice, credible, text = _choose([cheap, _row("ekf", 6, 0.9, np.full(64, 40.0))])
     assert choice is cheap and credible and "every credible candidate is at risk" in text
+
+
+# --------------------------------------------------------------------------- the particle filter grown
+# The growth model of Kitagawa (1996) (the study's scenario), 20 steps: with seed 0 a bootstrap filter
+# of the menu's 1000 particles collapses to one particle in a pilot run (ANEES far above the band).
+_UNGM = select.scenario("ungm", 20)
+UNGM = (_UNGM.f, _UNGM.h, _UNGM.Q, _UNGM.R, _UNGM.x0, _UNGM.steps)
+UNGM_PARAMS = _UNGM.params
+
+
+@pytest.fixture(scope="module")
+def grown():
+    return sm.advise_filter(*UNGM, UNGM_PARAMS, runs=16, seed=0)
+
+
+def test_a_particle_filter_the_pilot_finds_not_credible_is_grown(grown) -> None:
+    rows = {c.name: c for c in grown.candidates}
+    pfs = [c for c in grown.candidates if c.name.startswith("pf")]
+    assert pfs[0].name == "pf" and not (pfs[0].credible and not pfs[0].at_risk)
+    assert len(pfs) > 1  # grown
+    assert len(pfs) <= 1 + PF_GROWTH_STEPS
+    for a, b in zip(pfs, pfs[1:]):
+        assert b.settings["particles"] == PF_GROWTH * a.settings["particles"]
+        assert b.cost == 2 * b.settings["particles"] and b.kept and b.name == f"pf (N={b.settings['particles']})"
+        assert not (a.credible and not a.at_risk)  # grown only from one not credible or at risk
+        assert a.name in b.reason and "times the particles" in b.reason
+    assert rows[grown.choice] is grown.chosen
+    # the menu's particle filter keeps its settings beside the grown one's
+    assert {k_: v_ for k_, v_ in pfs[-1].settings.items() if k_ != "particles"} == \
+        {k_: v_ for k_, v_ in pfs[0].settings.items() if k_ != "particles"}
+
+
+def test_a_particle_filter_the_pilot_finds_credible_is_not_grown() -> None:
+    a = sm.advise_filter(*UNGM, UNGM_PARAMS, runs=16, seed=2)
+    pfs = [c for c in a.candidates if c.name.startswith("pf")]
+    assert [c.name for c in pfs] == ["pf"] and pfs[0].credible and not pfs[0].at_risk
+
+
+def test_the_growth_is_reproducible_per_seed(grown) -> None:
+    again = sm.advise_filter(*UNGM, UNGM_PARAMS, runs=16, seed=0)
+    assert [(c.name, c.rmse, c.anees, c.runs) for c in again.candidates] == \
+        [(c.name, c.rmse, c.anees, c.runs) for c in grown.candidates]
+    assert again.choice == grown.choice and again.second_look == grown.second_look
+
+
+def test_a_budget_too_small_for_more_particles_stops_the_growth() -> None:
+    # room for the pilot's menu (by the cost estimate), not for four times the particles
+    menu = sm.advise_filter(*UNGM, UNGM_PARAMS, runs=MIN_RUNS, seed=0, budget=1e-9)
+    kept = sum(c.cost for c in menu.candidates if c.kept and not c.name.startswith("pf ("))
+    budget = MIN_RUNS * UNGM[-1] * (kept + 1000) * SECONDS_PER_EVALUATION  # less than a grown PF's 8000
+    a = sm.advise_filter(*UNGM, UNGM_PARAMS, runs=MIN_RUNS, seed=0, budget=budget)
+    assert a.runs == MIN_RUNS
+    assert not any(c.name.startswith("pf (") for c in a.candidates)
+    assert any("was not grown" in n and "budget" in n for n in a.notes)
+    assert a.estimated_seconds <= budget
+
+
+def test_confirm_advice_runs_the_grown_particle_filters(grown) -> None:
+    check = confirm_advice(grown, *UNGM[:5], UNGM_PARAMS, runs=20, seed=7)
+    names = [r.name for r in check.rows]
+    assert [c.name for c in grown.candidates if c.name.startswith("pf (")] == [m for m in names if m.startswith("pf (")]
+    row = next(r for r in check.rows if r.name.startswith("pf ("))
+    assert row.runs == 20
+
+
+# --------------------------------------------------------------------------- the second look
+def test_the_second_look_runs_the_choice_on_more_runs(linear) -> None:
+    # up to SECOND_LOOK times the pilot's runs, at most what the pilot cost (by the estimate)
+    pilot = linear.runs * _estimate(linear)
+    assert linear.second_look == min(SECOND_LOOK * linear.runs,
+                                     math.floor(pilot / (linear.steps * linear.chosen.cost * SECONDS_PER_EVALUATION)))
+    assert linear.second_look >= MIN_RUNS
+    assert linear.chosen.runs == linear.runs + linear.second_look
+    others = [c for c in linear.candidates if c.kept and c.name != linear.choice]
+    assert others and all(c.runs == linear.runs for c in others)
+    # its interval is that of all its runs
+    assert linear.chosen.anees_interval[1] - linear.chosen.anees_interval[0] < \
+        others[0].anees_interval[1] - others[0].anees_interval[0]
+    assert len(linear.chosen.run_nees) == linear.chosen.runs
+    assert f"a second look at the choice on {linear.second_look} more" in str(linear)
+    # the one recommendation says so; its reasons are the pilot's
+    assert linear.recommendation.endswith(f"a second look on {linear.second_look} more runs confirms it "
+                                          f"(ANEES {linear.chosen.anees:.3g} over {linear.chosen.runs} runs)")
+
+
+def test_a_second_look_that_meets_a_divergent_run_overturns_the_choice() -> None:
+    n = 2
+    clean = 2.0 + 0.1 * np.random.default_rng(0).standard_normal(64)
+    pilot = _row("gsf", 500, 0.62, clean)
+    pilot = FilterCandidate(**{**pilot.__dict__, "runs": 64, "rmse_states": np.array([1.0, 1.0])})
+    look = np.r_[2.0 + 0.1 * np.random.default_rng(1).standard_normal(319), 1500.0]
+    more = FilterCandidate(**{**_row("gsf", 500, 0.7, look).__dict__, "runs": 320,
+                              "rmse_states": np.array([2.0, 2.0])})
+    both = _merged(pilot, more, n)
+    assert pilot.credible and not pilot.at_risk
+    assert not both.credible and "second look" in both.failure and both.runs == 384
+    assert both.anees == pytest.approx((64 * pilot.anees + 320 * more.anees) / 384)
+    assert both.rmse == pytest.approx(math.sqrt((64 * 0.62**2 + 320 * 0.7**2) / 384))
+    assert np.array_equal(both.run_nees, np.r_[pilot.run_nees, more.run_nees])
+    # the choice then falls to the next credible candidate
+    steady = _row("pf", 2000, 0.64, clean)
+    assert _choose([pilot, steady])[0] is pilot and _choose([both, steady])[0] is steady
