@@ -50,7 +50,7 @@ import mpmath
 
 from .csource import c_defines, c_file
 
-__all__ = ["VECMATH_C", "VECTOR_OPS", "vector_rows", "ORDINARY_EXP", "EXP_LOW", "EXP_HIGH"]
+__all__ = ["VECMATH_C", "VECTOR_OPS", "PARAMETER_OPS", "vector_rows", "ORDINARY_EXP", "EXP_LOW", "EXP_HIGH"]
 
 #: Arguments with |a| in [2^-ORDINARY_EXP, 2^ORDINARY_EXP] are ordinary: no product of the
 #: double-double steps overflows or underflows.  Others go to libm (CasADi's C).
@@ -106,6 +106,15 @@ VECTOR_OPS = {
     ca.OP_IF_ELSE_ZERO: "({0}?{1}:0)", ca.OP_COPYSIGN: "copysign({0},{1})",
     ca.OP_ATAN2: "sm_atan2({0},{1})", ca.OP_HYPOT: "sm_hypot({0},{1})",
 }
+#: Operations of libm that the vector loop evaluates once per call where their arguments depend
+#: on the parameters and constants only (:func:`vector_rows`), as CasADi's C writes them.
+PARAMETER_OPS = {
+    ca.OP_SIN: "sin({0})", ca.OP_COS: "cos({0})", ca.OP_TAN: "tan({0})", ca.OP_ASIN: "asin({0})",
+    ca.OP_ACOS: "acos({0})", ca.OP_ATAN: "atan({0})", ca.OP_SINH: "sinh({0})", ca.OP_COSH: "cosh({0})",
+    ca.OP_TANH: "tanh({0})", ca.OP_ASINH: "asinh({0})", ca.OP_ACOSH: "acosh({0})", ca.OP_ATANH: "atanh({0})",
+    ca.OP_EXP: "exp({0})", ca.OP_LOG: "log({0})", ca.OP_ERF: "erf({0})", ca.OP_POW: "pow({0},{1})",
+    ca.OP_CONSTPOW: "pow({0},{1})", ca.OP_FMOD: "fmod({0},{1})",
+}
 #: Operations whose arguments must be ordinary (:data:`ORDINARY_EXP`) for the vector result.
 _CHECKED = (ca.OP_ATAN2, ca.OP_HYPOT)
 
@@ -126,42 +135,60 @@ def vector_rows(f: ca.Function, name: str, n_in: int, ld: int) -> str | None:
     are then to be recomputed by CasADi's C); returns the number of such rows.
 
     ``f`` is an SX function of two dense inputs (a row, parameters shared by every row) and
-    one dense output.  Returns None when f has an operation outside :data:`VECTOR_OPS`.
+    one dense output.  The instructions that depend on the parameters and constants only
+    (a ``cos(1.2 k)`` of a per-step parameter k) are evaluated once per call, before the
+    loop, by the same C operations (:data:`VECTOR_OPS`, or libm's function for those of
+    :data:`PARAMETER_OPS`, as CasADi's C calls it): the same numbers as per row.  Returns
+    None when an instruction that depends on the row has an operation outside
+    :data:`VECTOR_OPS`.
     """
     if not f.is_a("SXFunction") or f.n_in() != 2 or f.n_out() != 1:
         return None
-    body, used = [], [0]
+    pre, body, used = [], [], set()
+    at: dict[int, str] = {}  # work variable -> the C name of the value it holds now
     for k in range(f.n_instructions()):
         op, ins, outs = f.instruction_id(k), f.instruction_input(k), f.instruction_output(k)
-        used += [j for j in ins if op != ca.OP_INPUT] + [j for j in outs if op != ca.OP_OUTPUT]
+        if op == ca.OP_OUTPUT:
+            body.append(f"out[{outs[1]}*{ld}+i] = {at[ins[0]]};")
+            continue
         if op == ca.OP_CONST:
-            body.append(f"v{outs[0]} = {_literal(float(f.instruction_constant(k)))};")
+            code, row = _literal(float(f.instruction_constant(k))), False
         elif op == ca.OP_INPUT:
-            src = f"z[i*{n_in}+{ins[1]}]" if ins[0] == 0 else f"p[{ins[1]}]"
-            body.append(f"v{outs[0]} = {src};")
-        elif op == ca.OP_OUTPUT:
-            body.append(f"out[{outs[1]}*{ld}+i] = v{ins[0]};")
-        elif op in VECTOR_OPS:
-            args = [f"v{j}" for j in ins]
-            if op in _CHECKED:  # at this point: work variables are reused later
-                body.append(f"ok &= sm_ordinary({args[0]}) & sm_ordinary({args[1]});")
-            body.append(f"v{outs[0]} = {VECTOR_OPS[op].format(*args)};")
+            row = ins[0] == 0
+            code = f"z[i*{n_in}+{ins[1]}]" if row else f"p[{ins[1]}]"
         else:
-            return None
-    decl = f"double {', '.join(f'v{j}' for j in range(max(used) + 1))};"
+            args = [at[j] for j in ins]
+            row = any(a.startswith("v") for a in args)  # else a function of the parameters only
+            form = VECTOR_OPS.get(op) if row else VECTOR_OPS.get(op, PARAMETER_OPS.get(op))
+            if form is None:
+                return None
+            if op in _CHECKED:  # at this point: work variables are reused later
+                (body if row else pre).append(f"ok{'' if row else '0'} &= sm_ordinary({args[0]}) & sm_ordinary({args[1]});")
+            code = form.format(*args)
+        if row:
+            body.append(f"v{outs[0]} = {code};")
+            at[outs[0]] = f"v{outs[0]}"
+            used.add(outs[0])
+        else:  # once per call, before the loop
+            pre.append(f"const double h{k} = {code};")
+            at[outs[0]] = f"h{k}"
+    decl = f"double {', '.join(f'v{j}' for j in sorted(used))};" if used else ""
     lines = "\n    ".join(body)
+    hoisted = "\n  ".join(pre)
     return f"""
 static int {name}(const double* restrict z, const double* restrict p, double* restrict out,
     long long n, unsigned char* restrict odd) {{
   long long i;
-  int bad = 0;
+  int bad = 0, ok0 = 1;
+  {hoisted}
   for (i = 0; i < n; ++i) {{
     {decl}
-    int ok = 1;
+    int ok = ok0;
     {lines}
     odd[i] = !ok;
     bad += odd[i];
   }}
+  (void) p;
   return bad;
 }}
 """

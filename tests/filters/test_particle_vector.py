@@ -77,6 +77,25 @@ def test_a_model_with_another_operation_has_no_vector_loop():
     assert not sm.ParticleFilter(F, h, Q, np.eye(2), particles=10)._bootstrap_kernel.vectorised
 
 
+def test_a_libm_function_of_the_parameters_keeps_the_vector_loop_bit_for_bit():
+    """The growth model's 8 cos(1.2 k), k a per-step parameter, is evaluated once per step
+    before the vector loop (symmon.compile.vecmath.vector_rows): the model has a vector loop,
+    and with no atan2 or hypot in it its numbers are those of CasADi's function per particle,
+    bit for bit."""
+    x, k = sp.symbols("x k", real=True)
+    f = sm.Model([x], [x / 2 + 25 * x / (1 + x**2) + 8 * sp.cos(sp.Rational(6, 5) * k)], params=[k], name="pfv_ungm_f")
+    h = sm.Model([x], [x**2 / 20], name="pfv_ungm_h")
+    steps, prior = 12, sm.Gaussian([0.0], [[5.0]])
+    params = {"k": np.arange(1, steps + 1, dtype=float)}
+    _, y = sm.simulate(f, h, [[10.0]], [[1.0]], prior, steps, params=params, seed=4)
+    pfs = [with_kernel(sm.ParticleFilter(f, h, [[10.0]], [[1.0]], particles=N, ess_threshold=0.6, seed=9), v)
+           for v in (True, False)]
+    assert pfs[0]._bootstrap_kernel.vectorised and not pfs[1]._bootstrap_kernel.vectorised
+    vec, ref = (pf.filter(y, prior, params=params, keep=("x", "P")) for pf in pfs)
+    for name in ("x", "P", "loglik", "ess", "resampled", "final_particles"):
+        np.testing.assert_array_equal(getattr(vec, name), getattr(ref, name), err_msg=name)
+
+
 def test_flagged_rows_are_recomputed_by_casadi():
     """With b = 0 every row's atan2 has a zero argument: the vector loop flags them all and
     CasADi's function (libm) recomputes them, so the result is the per-particle path's, bit
