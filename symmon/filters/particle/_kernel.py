@@ -53,7 +53,10 @@ the moves and the walks go by chunks that the threads claim in turn from a count
 thread that is ahead takes more: the two cores of a virtual machine need not run at one
 speed, and a walk's chunk holds as many points as its share of the weight: fixed ranges
 left threads waiting at the barriers), the other passes by fixed contiguous chunk ranges; the C of a run never waits on Python's
-thread pool.  After a step without resampling the log-weights t_i − lse are written by the
+thread pool.  Where the other core is busy two threads are slower than one (a thread taken
+off its CPU with a chunk keeps the other at the barriers), so each thread measures its CPU time
+over the wall time of its moves, and after two steps in which some thread had less than 3/4
+of its CPU the run goes on in one thread (``pfk_solo``; the numbers are the same).  After a step without resampling the log-weights t_i − lse are written by the
 next move (which reads t_i before it overwrites it), or at the end.
 The chunk's own stream draws a Gaussian prior and the regularisation's jitter.
 A flag that another thread may set (a Ctrl-C of the waiting thread:
@@ -185,7 +188,7 @@ class BootstrapKernel:
         # without a branch, which gcc vectorises.
         defines = c_defines(
             PFK_F=name, PFK_VEC=f"{name}_vec", PFK_NORMALS=f"{name}_normals", PFK_LANES=f"{name}_lanes",
-            PFK_RUN=f"{name}_run", PFK_PICK=f"{name}_pick", PFK_VECTORISED=self.vectorised,
+            PFK_RUN=f"{name}_run", PFK_PICK=f"{name}_pick", PFK_SOLO=f"{name}_solo", PFK_VECTORISED=self.vectorised,
             PFK_ANGLES=bool(angle_states), PFK_NX=n, PFK_NQ=max(n_q, 1), PFK_NY=ny, PFK_N_P=self.n_p,
             PFK_DM=max(n, ny), PFK_CHUNK=CHUNK, PFK_AX=flags(angle_states, n), PFK_AY=flags(angle_outputs, ny),
             PFK_BLOCK=BLOCK, PFK_LD=LD, PFK_NR=n + max(n_q, 1), PFK_NO=n + 2 * ny, PFK_O_MASK=self._o_mask,
@@ -208,13 +211,16 @@ class BootstrapKernel:
             pick = getattr(lib, f"{name}_pick")
             pick.argtypes = [ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_double, ctypes.c_void_p]
             pick.restype = ctypes.c_int
-            return run, normals, lanes, pick
+            solo = getattr(lib, f"{name}_solo")
+            solo.argtypes = [ctypes.c_double]
+            solo.restype = ctypes.c_double
+            return run, normals, lanes, pick, solo
 
         self._native: NativeLibrary = cf.native_library(code, name, load, stacklevel=4)
         self._Lq_size = nnz
 
     def loops(self):
-        """The ctypes functions (run, normals, lanes, pick), or None while the C is not there (no
+        """The ctypes functions (run, normals, lanes, pick, solo), or None while the C is not there (no
         compiler, or a background build running: the caller takes the NumPy path)."""
         return self._native.get()
 

@@ -15,6 +15,7 @@
 #define PFK_LANES pfk_model_lanes
 #define PFK_RUN pfk_model_run
 #define PFK_PICK pfk_model_pick
+#define PFK_SOLO pfk_model_solo
 #define PFK_VECTORISED 1
 #define PFK_ANGLES 1
 #define PFK_NX 2
@@ -186,6 +187,41 @@ static int pfk_bwait(pfk_barrier* b) {
   return b->halt;
 }
 
+/* The fallback to one thread.  Two threads are slower than one where the other core is busy:
+   a thread taken off its CPU holding a chunk keeps the other waiting at the step's barriers
+   (benchmarks/RESULTS.md, "Particle filter: two threads").  So each thread measures its
+   CPU time over the wall time of its moves in each step; when in pfk_SOLO_STEPS steps some
+   thread had less than pfk_solo_busy (3/4) of its CPU, the run goes on in thread 0 alone (the
+   others leave after the step's first barrier).  Every thread reads the same numbers after
+   that barrier, so all take the same decision; the numbers of a run depend neither on T
+   nor on who took which chunk, so neither on the fallback.  Moves of less than pfk_SOLO_NS
+   (a thread that found no chunk left) count as on the CPU. */
+static double pfk_solo_busy = 0.75;  /* pfk_SOLO_BUSY; PFK_SOLO sets it (tests) */
+#define pfk_SOLO_STEPS 2
+#define pfk_SOLO_NS 20000.0
+static double pfk_busy(const struct timespec* w0, const struct timespec* u0) {
+  struct timespec w1, u1;
+  double wall, cpu;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &u1);
+  clock_gettime(CLOCK_MONOTONIC, &w1);
+  wall = (double) (w1.tv_sec - w0->tv_sec) * 1e9 + (double) (w1.tv_nsec - w0->tv_nsec);
+  cpu = (double) (u1.tv_sec - u0->tv_sec) * 1e9 + (double) (u1.tv_nsec - u0->tv_nsec);
+  return wall < pfk_SOLO_NS ? 1.0 : cpu / wall;
+}
+static int pfk_solo(const double* busy, int T, int* slow) {
+  int tau;
+  for (tau = 0; tau < T; ++tau) if (busy[tau] < pfk_solo_busy) { ++*slow; break; }
+  return *slow >= pfk_SOLO_STEPS;
+}
+
+/* symmon: the CPU share below which a step counts as slow (tests: above 1, every run of
+   several threads goes on alone from its second step; 0, never); returns the former. */
+CASADI_SYMBOL_EXPORT double PFK_SOLO(double busy) {
+  const double was = pfk_solo_busy;
+  pfk_solo_busy = busy;
+  return was;
+}
+
 /* Per chunk of CHUNK particles: [max t, bad, sum e, sum e^2, sum e x (or sin), sum e cos]. */
 #define pfk_PW (4 + 2 * PFK_NX)
 /* r_q = exp(m_q - m): a chunk's exponentials about its maximum m_q to the step's m (0 for a
@@ -199,6 +235,9 @@ typedef struct {
   unsigned long long* st; const casadi_real *zext, *uext, *jext, *m0, *L0; const casadi_int* opt; const casadi_real* fl;
   casadi_real *o_ll, *o_ess, *o_res, *o_x, *o_P, *o_xp, *o_Pp, *o_hm, *o_hS, *cov, *L;
   casadi_int *fail, *idx; pfk_barrier bar; int T; pthread_mutex_t gate;
+  /* each thread's CPU time over wall time in its moves of a step, by step parity (a thread
+     writes step k + 2's only after every thread has read step k's at step k + 1's barrier) */
+  double busy[2][64];
   casadi_int cnt[2][2];  /* the next chunk to claim, by step parity: the moves', the walks' */
 } pfk_ctx;
 
@@ -297,8 +336,11 @@ CASADI_SYMBOL_EXPORT int PFK_PICK(const casadi_real* e, casadi_int N, const casa
    reduction is by chunk, in chunk order, so the numbers depend neither on T nor on who took
    which chunk.  offs: nch numbers, the sum of e over the chunks before each. */
 static int pfk_body(pfk_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_real* buf, casadi_real* offs) {
-  const casadi_int N = c->N, nch = c->nch, c0 = nch * tau / c->T, c1 = nch * (tau + 1) / c->T;
-  const casadi_int a0 = c0 * PFK_CHUNK, a1 = c1 * PFK_CHUNK < N ? c1 * PFK_CHUNK : N;
+  const casadi_int N = c->N, nch = c->nch;
+  casadi_int c0 = nch * tau / c->T, c1 = nch * (tau + 1) / c->T;
+  casadi_int a0 = c0 * PFK_CHUNK, a1 = c1 * PFK_CHUNK < N ? c1 * PFK_CHUNK : N;
+  int slow = 0, T = c->T;  /* steps whose moves some thread ran off its CPU; the threads (pfk_solo) */
+  struct timespec w0, u0;
   const casadi_real* arg[PFK_SZ_ARG];
   casadi_real* res[PFK_SZ_RES];
   casadi_real *X = c->X0, *Xn = c->Xn0, *tmp, *xi, *pc;
@@ -339,6 +381,7 @@ static int pfk_body(pfk_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_
   }
   if (c->m0) pfk_bwait(&c->bar);  /* the moves read any chunk's prior */
   for (k = 0; k < c->K; ++k) {
+    if (T > 1) { clock_gettime(CLOCK_MONOTONIC, &w0); clock_gettime(CLOCK_THREAD_CPUTIME_ID, &u0); }
     arg[2] = pk = c->P + k * PFK_N_P;
     part = c->part + (k & 1) * nch * pfk_PW;  /* by parity: a thread's next move may write
                                                      its chunks' sums while another reads these */
@@ -446,7 +489,13 @@ static int pfk_body(pfk_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_
     }
     /* the step's stop: seen by every thread at this barrier (a thread that stopped claiming
        chunks saw the flag set, and the last to arrive reads it after that) */
+    if (T > 1) c->busy[k & 1][tau] = pfk_busy(&w0, &u0);
     if (pfk_bwait(&c->bar)) return PFK_STOPPED;
+    if (T > 1 && pfk_solo(c->busy[k & 1], T, &slow)) {  /* one thread from here on (pfk_solo) */
+      if (tau > 0) return 0;
+      T = c->bar.T = 1;
+      c0 = 0; c1 = nch; a0 = 0; a1 = N;
+    }
     if (tau == 0) c->cnt[k & 1][0] = 0;  /* every claim of this step is over; the next is at k + 2 */
     m = -INFINITY;
     bad = 0;
