@@ -188,7 +188,6 @@ static int {name}(const double* restrict z, const double* restrict p, double* re
     odd[i] = !ok;
     bad += odd[i];
   }}
-  (void) p;
   return bad;
 }}
 """

@@ -168,22 +168,26 @@ def test_a_missing_component_that_is_not_finite_is_ignored():
 
 def test_the_fallback_to_one_thread_keeps_the_numbers(ys):
     """A run of several threads that falls back to one (pf_kernel.c's pfk_solo: forced here
-    from its second step by a CPU share above 1) gives the numbers of the run that never
-    falls back, bit for bit: the final particles and log-weights of every chunk too."""
+    after the first step's moves by an efficiency above 1), or whose threads find it closed
+    (no wait for them to join: it may run alone from the start), gives the numbers of the run
+    that never falls back, bit for bit: the final particles and log-weights of every chunk
+    too."""
     n_two = 32 * CHUNK  # N (n + n_q) >= MIN_THREAD_NUMBERS: two threads (on a machine of two CPUs or more)
     assert n_two * 5 >= MIN_THREAD_NUMBERS
     pf = sm.ParticleFilter(F, H, Q, R, particles=n_two, ess_threshold=0.5, seed=5)
     solo = pf._bootstrap_kernel.built_loops()[4]
     runs = []
-    # never; another run's streams (other numbers in the work arrays); from the second step
-    for share, first in ((0.0, 0), (0.0, 3), (2.0, 0)):
-        was = solo(share)
+    # never (and a wait of 10 s to join); another run's streams (other numbers in the work
+    # arrays); from the second step; no wait to join
+    for share, wait, first in ((0.0, 1e10, 0), (0.0, 2e5, 3), (2.0, 2e5, 0), (0.0, 2e5, 3), (0.0, 0.0, 0)):
+        was = solo(share, wait)
         try:
             runs.append(pf.filter(ys[0], X0, params={"a": 0.5}, keep=("x", "P"), first_run=first))
         finally:
-            solo(was)
-    del runs[1]
-    assert runs[0].resampled.any() and not runs[0].resampled.all()
-    assert was == 0.75
-    for name in ("x", "P", "loglik", "ess", "resampled", "final_particles", "final_log_weights"):
-        np.testing.assert_array_equal(getattr(runs[0], name), getattr(runs[1], name), err_msg=name)
+            solo(was, 2e5)
+        assert was == 0.6
+    ref = runs[0]
+    assert ref.resampled.any() and not ref.resampled.all()
+    for run in (runs[2], runs[4]):
+        for name in ("x", "P", "loglik", "ess", "resampled", "final_particles", "final_log_weights"):
+            np.testing.assert_array_equal(getattr(run, name), getattr(ref, name), err_msg=name)
