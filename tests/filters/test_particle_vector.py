@@ -177,14 +177,14 @@ def test_the_fallback_to_one_thread_keeps_the_numbers(ys):
     pf = sm.ParticleFilter(F, H, Q, R, particles=n_two, ess_threshold=0.5, seed=5)
     solo = pf._bootstrap_kernel.built_loops()[4]
     runs = []
-    # never (and a wait of 10 s to join); another run's streams (other numbers in the work
-    # arrays); from the second step; no wait to join
-    for share, wait, first in ((0.0, 1e10, 0), (0.0, 2e5, 3), (2.0, 2e5, 0), (0.0, 2e5, 3), (0.0, 0.0, 0)):
-        was = solo(share, wait)
+    # two threads (a wait of 10 s to join, busy CPUs or not) and never alone; another run's
+    # streams (other numbers in the work arrays); alone from the second step; no wait to join
+    for share, wait, first in ((0.0, 1e10, 0), (0.0, 1e10, 3), (2.0, 1e10, 0), (0.0, 1e10, 3), (0.0, 0.0, 0)):
+        was = solo(share, wait, 0)
         try:
             runs.append(pf.filter(ys[0], X0, params={"a": 0.5}, keep=("x", "P"), first_run=first))
         finally:
-            solo(was, 2e5)
+            solo(was, 2e5, 1)
         assert was == 0.6
     ref = runs[0]
     assert ref.resampled.any() and not ref.resampled.all()

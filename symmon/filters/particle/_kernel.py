@@ -219,7 +219,7 @@ class BootstrapKernel:
             pick.argtypes = [ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_double, ctypes.c_void_p]
             pick.restype = ctypes.c_int
             solo = getattr(lib, f"{name}_solo")
-            solo.argtypes = [ctypes.c_double, ctypes.c_double]
+            solo.argtypes = [ctypes.c_double, ctypes.c_double, ctypes.c_int]
             solo.restype = ctypes.c_double
             return run, normals, lanes, pick, solo
 

@@ -41,8 +41,10 @@ int PFK_VEC(const double* restrict z, const double* restrict p, double* restrict
 double sm_exp(double x);
 int sm_exp_ordinary(double x);
 #endif
+#include <stdio.h>
 #include <string.h>
 #include <stdlib.h>
+#include <unistd.h>
 #include <pthread.h>
 #include <sched.h>
 #include <time.h>
@@ -217,17 +219,36 @@ static int pfk_solo(const double (*notes)[3], int T, double* sums) {
   return sums[0] < pfk_solo_eff * T * sums[1];
 }
 
-static double pfk_join_ns = 200000;  /* pfk_JOIN_NS, how long thread 0 waits for the others to join */
+static double pfk_join_ns = 200000;  /* how long thread 0 waits for the others to join (pfk_join) */
+static int pfk_check_idle = 1;  /* whether a run looks for idle CPUs first (pfk_idle_cpus) */
 
-/* symmon: the efficiency below which a run goes on in one thread (tests: above 1, every
-   run of several threads goes on alone after its first step's moves; 0, never), and how
-   long thread 0 waits for the threads it made to join (ns; tests: 0); returns the former
-   efficiency. */
-CASADI_SYMBOL_EXPORT double PFK_SOLO(double eff, double join_ns) {
+/* symmon (tests, benchmarks): the efficiency below which a run goes on in one thread (above
+   1: every run of several threads goes on alone after its first step's moves; 0: never), how
+   long thread 0 waits for the threads it made to join (ns), and whether a run looks for idle
+   CPUs first; returns the former efficiency. */
+CASADI_SYMBOL_EXPORT double PFK_SOLO(double eff, double join_ns, int check_idle) {
   const double was = pfk_solo_eff;
   pfk_solo_eff = eff;
   pfk_join_ns = join_ns;
+  pfk_check_idle = check_idle;
   return was;
+}
+
+/* The CPUs idle now, by the machine's CPUs less its runnable tasks (this thread one of them;
+   /proc/loadavg's fourth field, an instant count), or -1 where that is not known: a run takes
+   a thread more than this only where a CPU is free, else it starts none (~10 us a call; a run
+   of several threads is at least tens of microseconds a step).  pfk_join and pfk_solo catch
+   what this instant misses. */
+static long pfk_idle_cpus(void) {
+#ifdef __linux__
+  FILE* f = fopen("/proc/loadavg", "r");
+  long running = 0, cpus = sysconf(_SC_NPROCESSORS_ONLN);
+  int got = f ? fscanf(f, "%*f %*f %*f %ld", &running) : 0;
+  if (f) fclose(f);
+  return got == 1 && cpus > 0 ? (cpus > running ? cpus - running : 0) : -1;
+#else
+  return -1;
+#endif
 }
 
 /* Per chunk of CHUNK particles: [max t, bad, sum e, sum e^2, sum e x (or sin), sum e cos]. */
@@ -694,6 +715,10 @@ CASADI_SYMBOL_EXPORT int PFK_RUN(const casadi_real* P, casadi_int K, casadi_int 
   if (!c.idx) return 1;
   if (T > c.nch) T = c.nch;
   if (T > 64) T = 64;
+  if (T > 1 && pfk_check_idle) {  /* no threads where the other CPUs are busy */
+    const long idle = pfk_idle_cpus();
+    if (idle >= 0 && T > idle + 1) T = idle + 1;
+  }
   if (T < 1) T = 1;
   c.T = (int) T;
   buf = (casadi_real*) malloc(T * (pfk_BUF + c.nch) * sizeof(casadi_real));
