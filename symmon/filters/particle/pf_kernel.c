@@ -278,7 +278,11 @@ typedef struct {
    comparisons finds, without branches that depend on the weights. */
 static inline casadi_int pfk_first(casadi_real pt, casadi_real v, casadi_int p, casadi_int hi) {
   const casadi_real g = ceil(v - pt);
-  casadi_int i = g <= (casadi_real) p ? p : g >= (casadi_real) hi ? hi : (casadi_int) g;
+  casadi_int i;
+  /* the guess inside (p, hi) and both comparisons holding: the loops below would keep it
+     (g - 1 is exact, the double of i - 1), without the conversions of i */
+  if (g > (casadi_real) p && g < (casadi_real) hi && !(pt + (g - 1) >= v) && !(pt + g < v)) return (casadi_int) g;
+  i = g <= (casadi_real) p ? p : g >= (casadi_real) hi ? hi : (casadi_int) g;
   while (i > p && pt + (casadi_real) (i - 1) >= v) --i;
   while (i < hi && pt + (casadi_real) i < v) ++i;
   return i;
