@@ -50,7 +50,7 @@ import mpmath
 
 from .csource import c_defines, c_file
 
-__all__ = ["VECMATH_C", "VECTOR_OPS", "PARAMETER_OPS", "vector_rows", "ORDINARY_EXP", "EXP_LOW", "EXP_HIGH"]
+__all__ = ["VECMATH_C", "VECTOR_OPS", "PARAMETER_OPS", "vector_rows", "split_parameters", "ORDINARY_EXP", "EXP_LOW", "EXP_HIGH"]
 
 #: Arguments with |a| in [2^-ORDINARY_EXP, 2^ORDINARY_EXP] are ordinary: no product of the
 #: double-double steps overflows or underflows.  Others go to libm (CasADi's C).
@@ -191,3 +191,62 @@ static int {name}(const double* restrict z, const double* restrict p, double* re
   return bad;
 }}
 """
+
+
+#: The operations :func:`split_parameters` takes out of the rows: libm's functions.
+_SPLIT_OPS = frozenset(PARAMETER_OPS) | {ca.OP_ATAN2, ca.OP_HYPOT}
+
+
+def split_parameters(f: ca.Function, n_row: int) -> tuple[ca.Function, ca.Function] | None:
+    """f(z) with z = [w; p] split into ``pre`` and ``row``: ``pre(p)`` = q, the values of the
+    functions of :data:`PARAMETER_OPS` (libm's ``cos``, ``exp``, ...) whose arguments depend on
+    p (and constants) only, and ``row(w, p, q)`` = f([w; p]), with those values read from q.
+
+    For a batch of rows w that share p (the points of a point rule), q is computed once for
+    the batch instead of once per row; every operation is the same, in the same order, so
+    the numbers are f's, bit for bit.  ``f``: an SX function of one dense input (w its first
+    ``n_row`` entries) and dense outputs.  None when f has no such function (nothing to
+    gain) or is not an SX function.
+    """
+    if not f.is_a("SXFunction") or f.n_in() != 1:
+        return None
+    n_p = f.nnz_in(0) - n_row
+    w, p = ca.SX.sym("w", n_row), ca.SX.sym("p", n_p)
+    row_val: dict[int, ca.SX] = {}
+    pre_val: dict[int, ca.SX | None] = {}  # the value as an expression of p, for a function of p only
+    outs: list[list[ca.SX]] = [[ca.SX(0)] * f.nnz_out(i) for i in range(f.n_out())]
+    q_exprs: list[ca.SX] = []
+    q_syms: list[ca.SX] = []
+    for k in range(f.n_instructions()):
+        op, ins, res = f.instruction_id(k), f.instruction_input(k), f.instruction_output(k)
+        if op == ca.OP_OUTPUT:
+            outs[res[0]][res[1]] = row_val[ins[0]]
+            continue
+        if op == ca.OP_CONST:
+            v = ca.SX(float(f.instruction_constant(k)))
+            row_val[res[0]], pre_val[res[0]] = v, v
+            continue
+        if op == ca.OP_INPUT:
+            j = ins[1]
+            row_val[res[0]] = w[j] if j < n_row else p[j - n_row]
+            pre_val[res[0]] = None if j < n_row else p[j - n_row]
+            continue
+        args = [row_val[j] for j in ins]
+        pre = [pre_val[j] for j in ins]
+        fixed = all(a is not None for a in pre)
+        make = (lambda a: ca.SX.unary(op, *a)) if len(ins) == 1 else (lambda a: ca.SX.binary(op, *a))
+        if fixed and op in _SPLIT_OPS:  # once per batch: read from q
+            q = ca.SX.sym(f"q{len(q_syms)}")
+            q_exprs.append(make(pre))
+            q_syms.append(q)
+            row_val[res[0]], pre_val[res[0]] = q, q_exprs[-1]
+        else:
+            row_val[res[0]] = make(args)
+            pre_val[res[0]] = make(pre) if fixed else None
+    if not q_syms:
+        return None
+    name = f.name()
+    pre_f = ca.Function(f"{name}_pre", [p], [ca.vertcat(*q_exprs)], {"cse": True})
+    qs = ca.vertcat(*q_syms)
+    row_f = ca.Function(f"{name}_row", [w, p, qs], [ca.vertcat(*o) for o in outs], {"cse": True})
+    return pre_f, row_f
