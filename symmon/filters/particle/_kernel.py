@@ -54,9 +54,12 @@ thread that is ahead takes more: the two cores of a virtual machine need not run
 speed, and a walk's chunk holds as many points as its share of the weight: fixed ranges
 left threads waiting at the barriers), the other passes by fixed contiguous chunk ranges; the C of a run never waits on Python's
 thread pool.  Where the other core is busy two threads are slower than one (a thread waiting
-for a CPU keeps the other at the barriers), so the threads note the CPU time and the span of
-their moves, and when their efficiency so far (CPU time / (T x span)) falls below 0.6 the
-run goes on in one thread (``pfk_solo``; the numbers are the same).  After a step without resampling the log-weights t_i − lse are written by the
+for a CPU keeps the other at the barriers), so a run takes no more threads than
+``/proc/loadavg`` leaves CPUs idle at the call (``pfk_idle_cpus``), a thread that has not
+started 0.2 ms after the call does not join (``pfk_join``), and the threads note the CPU time
+and the span of their moves: when their efficiency so far (CPU time / (T x span)) falls below
+0.6 the run goes on in one thread (``pfk_solo``).  The numbers are the same whatever the
+threads.  After a step without resampling the log-weights t_i − lse are written by the
 next move (which reads t_i before it overwrites it), or at the end.
 The chunk's own stream draws a Gaussian prior and the regularisation's jitter.
 A flag that another thread may set (a Ctrl-C of the waiting thread:
