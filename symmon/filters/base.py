@@ -15,19 +15,32 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-from typing import Any, ClassVar, Iterable
+from typing import Any, Callable, ClassVar, Iterable
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..core.sde import SDE
 from ..transforms.executor import Executor
 from .bank import constructor_args, filter_bank
 from .inputs import KEEPABLE, FilterCall, check_call, initial_state, kept_numbers, param_values
 
-__all__ = ["Filter", "filter_classes"]
+__all__ = ["Filter", "filter_classes", "register_sde_builder"]
 
 #: Every concrete filter class, by its name, in the order they were defined.
 _CLASSES: dict[str, type] = {}
+#: What a filter class's constructor builds when its first argument is an SDE (by class name,
+#: as :func:`filter_classes` names the classes).
+_SDE_BUILDERS: dict[str, Callable[..., Any]] = {}
+
+
+def register_sde_builder(kind: str, builder: Callable[..., Any]) -> None:
+    """Make the filter class named ``kind`` return ``builder(sde, ...)`` when its first argument
+    (positional or by its first field's name) is an :class:`~symmon.SDE`: the discrete filters'
+    spelling of the continuous-discrete filter (:mod:`symmon.filters.gaussian.continuous`
+    registers ``NonlinearKalmanFilter`` and ``KalmanFilter``; it builds on the first, so
+    neither names it)."""
+    _SDE_BUILDERS[kind] = builder
 
 
 def filter_classes() -> dict[str, type]:
@@ -91,6 +104,17 @@ class Filter(abc.ABC):
         if not getattr(cls, "__abstractmethods__", None) and not getattr(_filter_hook(cls), "__isabstractmethod__",
                                                                           False):
             _CLASSES[cls.__name__] = cls
+
+    def __new__(cls, *args: Any, **kwargs: Any) -> Any:
+        """The filter; or, for a class with a registered builder (:func:`register_sde_builder`)
+        given an SDE as its first argument, what the builder returns."""
+        builder = _SDE_BUILDERS.get(cls.__name__) if _CLASSES.get(cls.__name__) is cls else None
+        if builder is not None:
+            name = dataclasses.fields(cls)[0].name
+            first = args[0] if args else kwargs.get(name)
+            if isinstance(first, SDE):  # the builder takes it first, whatever the class calls it
+                return builder(first, *args[1:], **{k: v for k, v in kwargs.items() if k != name})
+        return super().__new__(cls)
 
     def __reduce__(self) -> tuple:
         """A filter pickles as its class and constructor arguments: it is rebuilt, and its

@@ -240,7 +240,8 @@ def _imm(f, h, Q, R, tol, settings):
                       "probabilities) from one filter per mode")
 
 
-_PF_SETTINGS = {"particles": int, "proposal": str, "resample": str, "ess_threshold": float, "seed": int}
+_PF_SETTINGS = {"particles": int, "proposal": str, "resample": str, "ess_threshold": float, "seed": int,
+                "on_collapse": str, "collapse_fraction": float}
 
 register(FilterEntry("kf", "Kalman filter of a linear model (F, H from f and h)", KalmanFilter, _linear))
 for _name, _summary, _aliases in (("ekf", "extended Kalman filter, TT1", ("tt1",)),
@@ -276,4 +277,5 @@ register(FilterEntry("imm", "interacting multiple models over Gaussian filters (
                      scenario=False))
 register(FilterEntry("cdkf", "continuous-discrete Kalman filter of an SDE (CD-EKF, CD-UKF, CD-CKF, CD-GHKF)",
                      ContinuousDiscreteKalmanFilter, _cdkf,
-                     {"transform": str, "rtol": float, "atol": float, "max_evaluations": int}, scenario=False))
+                     {"transform": str, "rtol": float, "atol": float, "max_evaluations": int, "square_root": bool,
+                      "exact": bool}, scenario=False))

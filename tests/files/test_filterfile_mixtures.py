@@ -53,6 +53,18 @@ def test_settings_reach_the_filters(scenario) -> None:
     assert rows[1].anis is None and rows[1].anees.value.shape == (spec.steps,)
 
 
+def test_the_adaptive_settings_reach_the_filters(scenario) -> None:
+    """Issue 48, item 2: the GSF's merge-back and the particle filter's action on a collapse,
+    from a scenario file through the registry."""
+    spec = load_filter_file(scenario('[gsf]\nsplit = 0.05\nmerge_back = 0.001\n'
+                                     '[pf]\non_collapse = "shrink"\ncollapse_fraction = 0.3\n'))
+    gsf = make_filter("gsf", spec.f, spec.h, spec.Q, spec.R, settings=spec.settings)
+    pf = make_filter("pf", spec.f, spec.h, spec.Q, spec.R, settings=spec.settings)
+    assert gsf.merge_back == 0.001 and pf.on_collapse == "shrink" and pf.collapse_fraction == 0.3
+    with pytest.raises(ModelFileError, match="on_collapse must be"):
+        load_filter_file(scenario('[pf]\non_collapse = "inflate"\n'))
+
+
 @pytest.mark.parametrize("extra, match", [
     ("[gsf]\nsplits = 0.1\n", "unknown setting"),
     ("[gsf]\nsplit = \"big\"\n", "a number"),

@@ -341,3 +341,30 @@ def test_the_costs_order_the_families_as_their_work():
     assert FILTERS["IMM"].step_cost() == sum(m.step_cost() for m in FILTERS["IMM"].filters)
     ukf = sm.NonlinearKalmanFilter(F_MODEL, H_MODEL, Q, R, "ukf")
     assert ukf.step_cost() == sm.UT.ut1().cost(2) + sm.UT.ut1().cost(2) > ekf.step_cost()
+
+
+# ------------------------------------------------------------------------- the smoothers
+@pytest.mark.parametrize("name", [n for n in NAMES if FILTERS[n].has_smoother])
+def test_a_smoother_ends_at_the_filter_and_smooths_a_bank_run_by_run(name):
+    """Every filter that declares ``has_smoother``: ``smooth`` takes the filter's call, its
+    last step is the filtered one, and a bank's runs are smoothed alone."""
+    filt = FILTERS[name]
+    n = filt.sizes[0]
+    _, ys = _data(None)
+    one = filt.smooth(ys, PRIOR, params=_params(filt))
+    assert one.x.shape == (K, n) and one.P.shape == (K, n, n)
+    np.testing.assert_allclose(one.x[-1], one.filtered.x[-1], rtol=1e-12)
+    assert np.abs(one.x[0] - one.filtered.x[0]).max() > 0  # the backward pass moved the first step
+    _, yb = _data(RUNS)
+    p = _params(filt, RUNS)
+    bank = filt.smooth(yb, PRIOR, params=p)
+    assert bank.x.shape == (RUNS, K, n)
+    more = {"first_run": 2} if filt.random else {}  # a random filter's run 2 draws from stream 2
+    alone = filt.smooth(yb[2], PRIOR, params=None if p is None else {k: (v[2] if np.ndim(v) == 2 else v)
+                                                                     for k, v in p.items()}, **more)
+    np.testing.assert_allclose(alone.x, bank.x[2], rtol=1e-12, atol=1e-12)
+
+
+def test_the_smoothers_are_declared():
+    assert [n for n in NAMES if FILTERS[n].has_smoother] == ["ContinuousDiscreteKalmanFilter",
+                                                             "EnsembleKalmanFilter", "NonlinearKalmanFilter"]

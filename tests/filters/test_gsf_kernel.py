@@ -1,7 +1,7 @@
 """The Gaussian-sum filter's compiled recursion with splitting (symmon.filters.mixture._kernel)
 against the stepwise NumPy filter it replaces: the same mixtures, log-likelihoods, component
 counts and splits, for every option (prediction and update splits, Runnalls and Salmond,
-pruning, 3 or 5 children, angles, missing measurements, parameters, banks of runs, what is
+pruning, 3 or 5 children, merging back, angles, missing measurements, parameters, banks of runs, what is
 kept) and the same error for a component that turns non-finite."""
 
 from __future__ import annotations
@@ -100,6 +100,20 @@ def test_both_stages_split_as_the_stepwise_filter(merge, m, prune, mc, turn_data
     np.testing.assert_array_equal(c.x, a.x[2])
 
 
+def test_merging_back_as_the_stepwise_filter(turn_data, monkeypatch) -> None:
+    """merge_back in the compiled recursion (gsf.c): the same calm components merged back, with
+    both stages splitting, an angle state, a parameter per step and missing measurements."""
+    ys, _, params = turn_data
+    wide = sm.GaussianMixture([0.6, 0.4], [[3.0, 2.0, 0.3], [2.5, 2.5, -0.2]],
+                              [np.diag([2.4, 1.5, 0.9]), np.diag([0.5, 0.9, 0.2])])
+    kw = dict(split=0.24, max_components=8)
+    gsf = sm.GaussianSumFilter(TURN, RB, Q3, R2, sm.UT.ut1(), merge_back=1.0, **kw)
+    a, b = _both(gsf, ys, wide, monkeypatch, params=params, keep=("x", "P", "mixture"))
+    _same(a, b)
+    plain = sm.GaussianSumFilter(TURN, RB, Q3, R2, sm.UT.ut1(), **kw).filter(ys, wide, params=params)
+    assert (a.components < plain.components).any() and (a.components <= plain.components).all()
+
+
 def test_only_the_update_splits_with_a_single_output(monkeypatch) -> None:
     rng = np.random.default_rng(8)
     ys = np.arctan2(1.0, 2.0 + 0.3 * np.arange(8))[:, None] + rng.normal(0, 0.03, (8, 1))
@@ -164,3 +178,36 @@ def test_directions_have_their_largest_entry_positive() -> None:
     for W in (np.ones((20, 1, 1)), np.stack([np.eye(2)] * 20)):
         d = gs.split_directions(P, H[:, :W.shape[1]], W)
         assert (d[np.arange(20), np.abs(d).argmax(axis=1)] > 0).all()
+
+
+def test_a_calls_numbers_do_not_depend_on_the_builds_timing(tmp_path):
+    """A fresh cache under the background policy: the first call waits for the compiled
+    recursion instead of running the stepwise filter, which agrees with it to rounding only,
+    so the first and a later call give the same numbers bit for bit (the cluster's workers,
+    cold, and the client, warm, agree: tests/filters/test_distributed.py)."""
+    import os
+    import subprocess
+    import sys
+
+    from symmon.compile import has_compiler
+
+    if not has_compiler():
+        pytest.skip("no C compiler: the stepwise filter is the only path")
+    script = (
+        "import numpy as np, sympy as sp, symmon as sm\n"
+        "from symmon.filters.mixture import gaussian_sum as gs\n"
+        "x1, x2 = sp.symbols('x1 x2', real=True)\n"
+        "f = sm.Model([x1, x2], [x1 + 0.5 * x2, 0.9 * x2], name='gsf_timing_f')\n"
+        "h = sm.Model([x1, x2], [sp.atan2(x2 + 1, x1)], angles=[0], name='gsf_timing_h')\n"
+        "x0 = sm.Gaussian([2.0, 0.3], np.eye(2))\n"
+        "_, ys = sm.simulate(f, h, 0.05 * np.eye(2), [[1e-3]], x0, 6, seed=2)\n"
+        "g = sm.GaussianSumFilter(f, h, 0.05 * np.eye(2), [[1e-3]], sm.UT.ut1(), split=0.02, max_components=6)\n"
+        "a = g.filter(ys, x0).x\n"
+        "k = gs._component_steps(g.f, g.h, g.transform, g.kf.angle_states).kernel()\n"
+        "k.native.wait()\n"
+        "b = g.filter(ys, x0).x\n"
+        "print(k.native.evaluator, bool(np.array_equal(a, b)))\n")
+    env = {**os.environ, "SYMMON_CACHE": str(tmp_path / "cache"), "SYMMON_COMPILE": "background"}
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["compiled", "True"]

@@ -9,8 +9,8 @@ absolute on means of order 10, far below the Monte Carlo error of ~1e-2 at N = 4
 above the 1e-13 the two differ by in summation order), and the resampling decisions agree
 exactly.  The cases cover what the kernel compiles in: a full (non-diagonal) Q whose factor
 has every nonzero, f with noise symbols, a parameter per step, an angle state and an angle
-output, missing components and a missing step, a bank of runs, each resampling scheme, and
-the regularisation.
+output, missing components and a missing step, a bank of runs, each resampling scheme, the
+regularisation, and the kernels of ``on_collapse`` (Liu & West's shrink, the jitter).
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ import sympy as sp
 
 import symmon as sm
 from symmon.compile import has_compiler
+from symmon.filters.bank import constructor_args
 from symmon.filters.particle.particle_filter import resampling_points
 from symmon.filters.particle._kernel import whitening
 from symmon.filters.particle._kernel import MIN_THREAD_NUMBERS
@@ -44,9 +45,7 @@ N_THREADS = max(3 * CHUNK, MIN_THREAD_NUMBERS // 5) + 100
 
 def numpy_twin(pf: sm.ParticleFilter) -> sm.ParticleFilter:
     """The same filter with the compiled step switched off (its cached kernel set to None)."""
-    twin = sm.ParticleFilter(pf.f_model, pf.h_model, pf.Q, pf.R, particles=pf.particles,
-                             resample=pf.resample, ess_threshold=pf.ess_threshold, seed=pf.seed,
-                             regularise=pf.regularise)
+    twin = sm.ParticleFilter(**constructor_args(pf))
     twin.__dict__["_bootstrap_kernel"] = None
     return twin
 
@@ -70,12 +69,16 @@ def replay(pf: sm.ParticleFilter, runs: int, seed: int) -> dict:
     return {"z": z, "u": u, "j": g.standard_normal((runs, K, N, n))}
 
 
-@pytest.mark.parametrize("method, threshold, reg", [("systematic", 0.7, False), ("stratified", 1.0, True),
-                                                     ("multinomial", 0.5, False)])
-def test_the_compiled_step_equals_its_numpy_twin(data, method, threshold, reg):
+@pytest.mark.parametrize("method, threshold, reg, collapse", [("systematic", 0.7, False, None),
+                                                               ("stratified", 1.0, True, None),
+                                                               ("multinomial", 0.5, False, None),
+                                                               ("systematic", 0.3, False, "shrink"),
+                                                               ("stratified", 0.3, True, "shrink"),
+                                                               ("systematic", 0.3, False, "jitter")])
+def test_the_compiled_step_equals_its_numpy_twin(data, method, threshold, reg, collapse):
     xs, ys = data
     pf = sm.ParticleFilter(F, H, Q, R, particles=400, resample=method, ess_threshold=threshold, seed=7,
-                           regularise=reg)
+                           regularise=reg, on_collapse=collapse, collapse_fraction=0.5)
     # built now: a C above ccache.BACKGROUND_BYTES builds in the background (a fresh cache)
     assert pf._bootstrap_kernel is not None and pf._bootstrap_kernel._native.wait(600)
     assert pf._bootstrap_kernel.loops() is not None
@@ -87,7 +90,10 @@ def test_the_compiled_step_equals_its_numpy_twin(data, method, threshold, reg):
     got = pf.filter(ys, X0, params=params, x_true=xs)
     ref = twin.filter(ys, X0, params=params, x_true=xs)
     np.testing.assert_array_equal(got.resampled, ref.resampled)
+    np.testing.assert_array_equal(got.rejuvenated, ref.rejuvenated)
     assert got.resampled.any() and (threshold == 1.0 or not got.resampled.all())
+    # with on_collapse, some steps below the floor moved by the kernel, some above it not
+    assert got.rejuvenated.any() == (collapse is not None) and not got.rejuvenated.all()
     for name in ("x", "P", "x_pred", "P_pred", "innovation", "S", "nis_values", "nees_values", "loglik", "ess",
                  "final_particles", "final_log_weights"):
         np.testing.assert_allclose(getattr(got, name), getattr(ref, name), rtol=1e-9, atol=1e-9, err_msg=name)

@@ -7,7 +7,7 @@ measurements the filter integrates the moment equations of the Gaussian approxim
 N(m(t), P(t)) (Särkkä 2007; Särkkä & Solin 2019, §9.1),
 
     dm/dt = E[a(x)],
-    dP/dt = E[a(x) (x − m)ᵀ] + E[(x − m) a(x)ᵀ] + E[L(x) Q_c L(x)ᵀ],
+    dP/dt = E[a(x) (x − m)ᵀ] + E[(x − m) a(x)ᵀ] + E[L(x) Q_c L(x)ᵀ],                   (1)
 
 with the expectations over N(m, P) by the filter's rule:
 
@@ -16,6 +16,46 @@ with the expectations over N(m, P) by the filter's rule:
 - a point rule (``"ukf"``, ``"ckf"``, ``"ghkf"``, any rule with a unit rule): the sigma-point
   form, points χᵢ = m + S zᵢ (S Sᵀ = P), dm/dt = Σ wᵢᵐ a(χᵢ),
   dP/dt = C + Cᵀ + Σ wᵢᵐ L Q_c Lᵀ(χᵢ) with C = Σ wᵢᶜ (χᵢ − m)(a(χᵢ) − dm/dt)ᵀ.
+
+Square-root form (``square_root=True``).  The lower Cholesky factor S of P follows
+
+    dS/dt = S Φ(S⁻¹ (dP/dt) S⁻ᵀ),   Φ(M) = the lower triangle of M with half its diagonal,    (2)
+
+(Särkkä 2007, §IV; Kulikov & Kulikova 2014): S Φ(M) + Φ(M)ᵀ Sᵀ = S M Sᵀ = dP/dt, and S stays
+lower triangular.  S⁻¹ (dP/dt) S⁻ᵀ is formed from S alone (the points are m + S zᵢ, so
+S⁻¹ C S⁻ᵀ = Σ wᵢᶜ zᵢ (S⁻¹(a(χᵢ) − dm/dt))ᵀ; for TT1, S⁻¹ A S), so P is never formed nor factored
+again; the update is the compiled square-root step of
+:class:`~symmon.NonlinearKalmanFilter` (``square_root=True``) on that factor, and the results
+hold the factors (``P_chol``, ``P_pred_chol``).  It needs P > 0 (S invertible).
+
+Transitions and the smoother.  For the smoother, the forward pass also integrates the
+transition Φ(t) of the interval from t_{k−1},
+
+    dΦ/dt = Â(t) Φ,  Φ(t_{k−1}) = I,  Â = E[(a(x) − dm/dt)(x − m)ᵀ] P⁻¹,                   (3)
+
+Â the statistical linearisation of the drift (A = ∂a/∂x at m for TT1, Σ wᵢᶜ (a(χᵢ) − dm/dt) zᵢᵀ S⁻¹
+for a point rule), so that C_k = Cov(x(t_{k−1}), x(t_k)) = P_{k−1} Φᵀ in the Gaussian
+approximation (Särkkä & Sarmavuori 2013; Särkkä & Solin 2019, §10.3).  On a linear SDE,
+Φ = e^{A dt} exactly.
+
+Exact prediction (``exact=True``, the :class:`~symmon.KalmanFilter` of a linear SDE).  With
+a = A x + b and L constant, the moments over an interval dt are the exact discretisation
+
+    m⁻ = F m + c,  P⁻ = F P Fᵀ + Q(dt),  F = e^{A dt},  c = ∫₀^dt e^{A s} b ds,
+    Q(dt) = ∫₀^dt e^{A s} L Q_c Lᵀ e^{Aᵀ s} ds,                                           (4)
+
+F and c from one matrix exponential of [[A, b], [0, 0]] dt, Q(dt) by Van Loan's
+(:func:`symmon.core.discretize.van_loan_numeric`), at the parameters' values of each step;
+in square-root form S⁻ = tria([F S, √Q(dt)]).  No integrator runs.
+
+The RTS smoother (:meth:`ContinuousDiscreteKalmanFilter.smooth`).  From x^s_K = x_K,
+P^s_K = P_K down to k = 1, with the stored x⁻, P⁻ and Φ of each interval,
+
+    G_k = P_k Φ_{k+1}ᵀ (P⁻_{k+1})⁻¹,
+    x^s_k = x_k + G_k (x^s_{k+1} − x⁻_{k+1}),  P^s_k = P_k + G_k (P^s_{k+1} − P⁻_{k+1}) G_kᵀ,  (5)
+
+the discrete-time Gaussian RTS smoother (Särkkä 2013, Algorithm 9.3) with the cross-covariance
+of (3); on a linear SDE, that of the exact discretisation.
 
 a(x), its Jacobian and L Q_c Lᵀ are one compiled CasADi model of the SDE's symbols
 (:func:`symmon.compile.compiled.compiled_with_params`).  The equations are integrated by
@@ -45,32 +85,44 @@ S. Särkkä, "On unscented Kalman filtering for state estimation of continuous-t
 systems", IEEE Trans. Autom. Control 52(9), 2007. doi:10.1109/TAC.2007.904453
 S. Särkkä, A. Solin, *Applied Stochastic Differential Equations*, Cambridge University Press,
 2019, ch. 9 and 10.
+S. Särkkä, J. Sarmavuori, "Gaussian filtering and smoothing for continuous-discrete dynamic
+systems", Signal Processing 93(2), 2013. doi:10.1016/j.sigpro.2012.09.002
+S. Särkkä, *Bayesian Filtering and Smoothing*, Cambridge University Press, 2013, ch. 9.
+G. Yu. Kulikov, M. V. Kulikova, "Accurate numerical implementation of the continuous-discrete
+extended Kalman filter", IEEE Trans. Autom. Control 59(1), 2014. doi:10.1109/TAC.2013.2272136
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Iterable
 
 import numpy as np
 import scipy.integrate
+import scipy.linalg
 import sympy as sp
+from numpy.typing import ArrayLike
 
 from ...compile.compiled import CompiledModel, compiled_with_params
-from ...core.arrays import readonly
+from ...core.angles import wrap_components
+from ...core.arrays import all_finite, readonly
 from ...core.checks import check_model
 from ...core.model import Model
+from ...core.discretize import van_loan_numeric
 from ...core.sde import SDE
-from ...errors import ArgumentError, ArgumentTypeError, ModelError, ShapeError, SymmonError, plain_repr
+from ...errors import (ArgumentError, ArgumentTypeError, CovarianceError, ModelError, ShapeError, SymmonError,
+                       plain_repr)
 from ...transforms.base import batch_sqrt
 from ...transforms.base import Transform
-from ..base import Filter
-from ..inputs import FilterCall, filter_params, param_values
+from ..base import Filter, register_sde_builder
+from ..inputs import FilterCall, check_call, filter_params, param_values
 from ..names import filter_rule
-from ..results import KalmanResult, nees_of
+from ..results import KalmanResult, SmootherResult, nees_of
+from ._sqrtstep import noise_factor
 from .nonlinear import NonlinearKalmanFilter
+from .step import compiled_step
 
-__all__ = ["ContinuousDiscreteKalmanFilter", "DT", "MAX_EVALUATIONS"]
+__all__ = ["ContinuousDiscreteKalmanFilter", "DT", "MAX_EVALUATIONS", "continuous_filter", "continuous_kalman_filter"]
 
 #: The name of the per-step parameter that gives the interval before each measurement.
 DT = "dt"
@@ -120,6 +172,15 @@ class ContinuousDiscreteKalmanFilter(Filter):
     max_evaluations : int, default :data:`MAX_EVALUATIONS`
         The most evaluations of the right-hand side in one interval; beyond it the filter
         raises (a stiff or diverging drift) instead of running on.
+    square_root : bool, default False
+        Propagate the lower Cholesky factor S of P (eq. (2) of the module notes) and update
+        it by the square-root step of :class:`~symmon.NonlinearKalmanFilter`: the same filter
+        to the integrator's tolerance, whose covariances stay positive definite; the results
+        also hold the factors (``P_chol``, ``P_pred_chol``).  P0 must be positive definite.
+    exact : bool, default False
+        For a linear SDE (a = A x + b, L constant): predict by the exact transition (eq. (4):
+        e^{A dt} and Van Loan's Q(dt) at each interval) instead of integrating; with TT1 this
+        is the Kalman filter of the SDE (``sm.KalmanFilter(sde, None, H, R)`` builds it).
 
     Notes
     -----
@@ -150,11 +211,13 @@ class ContinuousDiscreteKalmanFilter(Filter):
     atol: float = 1e-9
     max_step: float | None = None
     max_evaluations: int = MAX_EVALUATIONS
+    square_root: bool = False
+    exact: bool = False
     update: NonlinearKalmanFilter = field(init=False, repr=False)
     drift_model: Model = field(init=False, repr=False)
     points: tuple | None = field(init=False, repr=False)
 
-    has_smoother: ClassVar[bool] = False
+    has_smoother: ClassVar[bool] = True
     exportable: ClassVar[bool] = False
     gaussian_mode: ClassVar[bool] = False
     continuous_time: ClassVar[bool] = True
@@ -181,12 +244,19 @@ class ContinuousDiscreteKalmanFilter(Filter):
         if isinstance(me, (bool, np.bool_)) or not isinstance(me, (int, np.integer)) or me < 10:
             raise SymmonError(f"max_evaluations must be an integer of at least 10, got {plain_repr(me)}")
         object.__setattr__(self, "max_evaluations", int(me))
+        for name in ("square_root", "exact"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ArgumentTypeError(f"{name} must be True or False, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, bool(getattr(self, name)))
+        if self.exact and not sde.is_linear:
+            raise ModelError(f"exact=True needs a linear time-invariant SDE (a = A x + b, L constant); SDE {sde.name!r} "
+                             "is not: integrate its moment equations (exact=False)")
         states = list(sde.states)
         # The update: the NonlinearKalmanFilter of the same rule whose prediction is the identity
         # without noise (exact for every rule), so that its update, likelihood, missing
         # components and angles are the discrete filter's.
         ident = Model(states, states, name=f"{sde.name}_identity", angles=sorted(sde.angles))
-        update = NonlinearKalmanFilter(ident, h, np.zeros((sde.n, sde.n)), self.R, tr)
+        update = NonlinearKalmanFilter(ident, h, np.zeros((sde.n, sde.n)), self.R, tr, square_root=self.square_root)
         D = sde.diffusion * sde.spectral_density * sde.diffusion.T
         drift = Model(states, list(sde.drift) + list(D), name=f"{sde.name}_moments", params=list(sde.params))
         object.__setattr__(self, "transform", tr)
@@ -216,8 +286,12 @@ class ContinuousDiscreteKalmanFilter(Filter):
 
     @property
     def method(self) -> str:
-        """``CD-`` and the discrete filter's name: CD-EKF, CD-CKF, CD-UKF(…), CD-GHKF(…)."""
-        return "CD-" + self.update.method
+        """``CD-`` and the discrete filter's name: CD-EKF, CD-CKF, CD-UKF(…), CD-GHKF(…), with
+        ``SR-`` in the square-root form (CD-SR-EKF); CD-KF for the exact prediction with TT1."""
+        label = self.update.method
+        if self.exact and self.transform.taylor_order == 1:
+            label = label.replace("EKF", "KF")
+        return "CD-" + label
 
     @property
     def angle_states(self) -> frozenset[int]:
@@ -264,29 +338,81 @@ class ContinuousDiscreteKalmanFilter(Filter):
         """a(x) and L Q_c Lᵀ (row by row) as one compiled model of [x; θ]."""
         return compiled_with_params(self.drift_model)
 
-    def moment_derivatives(self, m: np.ndarray, P: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(dm/dt, dP/dt) at the Gaussian N(m, P) with the SDE's parameters ``theta``, by the
-        filter's rule (module notes)."""
+    def _rule(self, m: np.ndarray, S: np.ndarray | None, P: np.ndarray | None, theta: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """(dm/dt, C, D, Y, Z) at N(m, S Sᵀ) (or N(m, P)): C = E[(x − m)(a − dm/dt)ᵀ], D = E[L Q_c Lᵀ],
+        and for a point rule the weighted deviations Y = wᶜ (a(χᵢ) − dm/dt) and the unit points
+        Z (χᵢ = m + S zᵢ); for TT1, Y = A = ∂a/∂x at m and Z = None."""
         n = self.sde.n
         cm = self.compiled_drift
         if self.transform.taylor_order == 1:  # TT1: a(m) and its Jacobian
-            W = np.concatenate([m, theta])[None]
-            g, J_nz, _ = cm.eval_derivatives(W)
+            g, J_nz, _ = cm.eval_derivatives(np.concatenate([m, theta])[None])
             A = cm.dense_jacobian(J_nz)[0, :n, :n]
-            dP = A @ P
-            return g[0, :n], dP + dP.T + g[0, n:].reshape(n, n)
+            C = (A @ P).T if P is not None else (A @ S @ S.T).T
+            return g[0, :n], C, g[0, n:].reshape(n, n), A, None
         Z, wm, wc = self.points
-        X = m + Z @ batch_sqrt(P[None])[0].T
-        W = np.concatenate([X, np.broadcast_to(theta, (X.shape[0], theta.shape[0]))], axis=1)
-        G = cm.eval_g(np.ascontiguousarray(W))
+        if S is None:
+            S = batch_sqrt(P[None])[0]
+        X = m + Z @ S.T
+        G = cm.eval_g(np.ascontiguousarray(np.concatenate([X, np.broadcast_to(theta, (X.shape[0], theta.shape[0]))],
+                                                          axis=1)))
         a = G[:, :n]
         dm = wm @ a
-        C = (X - m).T @ (wc[:, None] * (a - dm))
-        return dm, C + C.T + (wm @ G[:, n:]).reshape(n, n)
+        Y = wc[:, None] * (a - dm)
+        return dm, (X - m).T @ Y, (wm @ G[:, n:]).reshape(n, n), Y, Z
+
+    def moment_derivatives(self, m: np.ndarray, P: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(dm/dt, dP/dt) of eq. (1) at the Gaussian N(m, P) with the SDE's parameters
+        ``theta``, by the filter's rule (module notes)."""
+        dm, C, D, _, _ = self._rule(np.asarray(m, float), None, np.asarray(P, float), np.asarray(theta, float))
+        return dm, C + C.T + D
+
+    def factor_derivative(self, m: np.ndarray, S: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(dm/dt, dS/dt) of the square-root form, eq. (2): dS/dt = S Φ(S⁻¹ (dP/dt) S⁻ᵀ) with Φ the
+        lower triangle and half the diagonal, S lower triangular with a positive diagonal.
+
+        S⁻¹ (dP/dt) S⁻ᵀ is formed from the factor without P: S⁻¹ A S + (S⁻¹ A S)ᵀ + S⁻¹ D S⁻ᵀ
+        for TT1, Zᵀ (S⁻¹ Y)ᵀ + its transpose + S⁻¹ D S⁻ᵀ for a point rule (χᵢ − m = S zᵢ).
+
+        Raises
+        ------
+        numpy.linalg.LinAlgError
+            S is singular (a state without variance: the square-root form needs P > 0)."""
+        dm, dS, _, _ = self._factor_rates(*(np.asarray(a, float) for a in (m, S, theta)))
+        return dm, dS
+
+    def _factor_rates(self, m: np.ndarray, S: np.ndarray, theta: np.ndarray) -> tuple:
+        """(dm/dt, dS/dt, Y, Z): :meth:`factor_derivative` and the rule's Y and Z (:meth:`_rule`)."""
+        dm, _, D, Y, Z = self._rule(m, S, None, theta)
+        if np.any(np.diag(S) <= 0):
+            raise np.linalg.LinAlgError("the factor S has a zero on its diagonal (P is singular)")
+        # S⁻¹ by numpy (a small dense inverse: scipy's triangular solve calls cost milliseconds
+        # each through its own BLAS threads on a busy machine).
+        Si = np.linalg.inv(S)
+        Dw = Si @ D @ Si.T
+        Cw = Si @ Y @ S if Z is None else Z.T @ (Y @ Si.T)
+        N = Cw + Cw.T + 0.5 * (Dw + Dw.T)
+        Phi = np.tril(N)
+        Phi[np.diag_indices_from(Phi)] *= 0.5
+        return dm, S @ Phi, Y, Z
+
+    @staticmethod
+    def _linear_drift(S: np.ndarray | None, Y: np.ndarray, Z: np.ndarray | None) -> np.ndarray:
+        """Â = E[(a − ā)(x − m)ᵀ] P⁻¹ of eq. (3): A (= Y) for TT1, Yᵀ Z S⁻¹ for a point rule
+        (χᵢ − m = S zᵢ with the points' square root S of P, any one; a pseudo-inverse where an
+        integrator's trial step made P singular, whose step its error control then rejects)."""
+        if Z is None:
+            return Y
+        try:
+            Si = np.linalg.inv(S)
+        except np.linalg.LinAlgError:
+            Si = np.linalg.pinv(S)
+        return Y.T @ Z @ Si
 
     def predict(self, m: np.ndarray, P: np.ndarray, dt: float, theta: np.ndarray | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
-        """The moments (m, P) integrated over an interval ``dt`` from (m, P).
+        """The moments (m, P) after an interval ``dt`` from (m, P): eq. (1) integrated (eq. (2)
+        with ``square_root``), or the exact transition (4) with ``exact``.
 
         Raises
         ------
@@ -294,14 +420,48 @@ class ContinuousDiscreteKalmanFilter(Filter):
             More than ``max_evaluations`` evaluations (a stiff or diverging drift), a failed
             step-size control, or moments that turn NaN or inf, naming the time and the mean.
         """
+        m, P = np.asarray(m, float), np.asarray(P, float)
         try:
-            return self._integrate(np.asarray(m, float), np.asarray(P, float), float(dt),
-                                   np.zeros(0) if theta is None else np.asarray(theta, float))
+            th = np.zeros(0) if theta is None else np.asarray(theta, float)
+            m1, P1, S1, _ = self._predict(m, P, np.linalg.cholesky(P) if self.square_root else None, float(dt), th)
+            return m1, P1
+        except np.linalg.LinAlgError as exc:
+            raise SymmonError(self._stopped(_Stop(f"the covariance is not positive definite ({exc})", 0.0, m),
+                                            dt, "")) from None
         except _Stop as stop:
             raise SymmonError(self._stopped(stop, dt, "")) from None
 
-    def _integrate(self, m: np.ndarray, P: np.ndarray, dt: float, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _predict(self, m: np.ndarray, P: np.ndarray, S: np.ndarray | None, dt: float, theta: np.ndarray,
+                 transition: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """(m, P, S, Φ) after ``dt``: S the factor (square-root form, else None), Φ the
+        transition of eq. (3) when ``transition`` (else None)."""
+        if self.exact:
+            return self._exact(m, P, S, dt, theta)
+        return self._integrate(m, P, S, dt, theta, transition)
+
+    def _exact(self, m, P, S, dt, theta):
+        """Eq. (4): F = e^{A dt}, c = ∫₀^dt e^{A s} b ds from one exponential, Q(dt) by Van Loan."""
         n = self.sde.n
+        cm = self.compiled_drift
+        g, J_nz, _ = cm.eval_derivatives(np.concatenate([np.zeros(n), theta])[None])
+        A, b, D = cm.dense_jacobian(J_nz)[0, :n, :n], g[0, :n], g[0, n:].reshape(n, n)
+        M = np.zeros((n + 1, n + 1))
+        M[:n, :n], M[:n, n] = A, b
+        E = scipy.linalg.expm(M * dt)
+        F, c = E[:n, :n], E[:n, n]
+        _, Q = van_loan_numeric(A, D, dt)
+        m1 = F @ m + c
+        if S is not None:  # S⁻ = tria([F S, √Q(dt)]): the factor of F P Fᵀ + Q(dt), no difference formed
+            S1 = _tria(np.hstack([F @ S, noise_factor(Q)]))
+            return m1, S1 @ S1.T, S1, F
+        P1 = F @ P @ F.T + Q
+        return m1, 0.5 * (P1 + P1.T), None, F
+
+    def _integrate(self, m, P, S, dt, theta, transition=False):
+        n = self.sde.n
+        sqrt = S is not None
+        tril = np.tril_indices(n)
+        n_cov = len(tril[0]) if sqrt else n * n
         count = [0]
 
         def rhs(t: float, z: np.ndarray) -> np.ndarray:
@@ -310,28 +470,47 @@ class ContinuousDiscreteKalmanFilter(Filter):
             if count[0] > self.max_evaluations:
                 raise _Stop(f"more than max_evaluations = {self.max_evaluations} evaluations of the moment "
                             "equations (a stiff or diverging drift)", t, mt)
-            Pt = z[n:].reshape(n, n)
             if not np.all(np.isfinite(z)):
                 raise _Stop("the moments turned NaN or inf", t, mt)
             try:
-                dm, dP = self.moment_derivatives(mt, 0.5 * (Pt + Pt.T), theta)
+                if sqrt:
+                    St = np.zeros((n, n))
+                    St[tril] = z[n:n + n_cov]
+                    dm, dS, Y, Z = self._factor_rates(mt, St, theta)
+                    parts = [dm, dS[tril]]
+                    Pt = None
+                else:
+                    Pt = z[n:n + n_cov].reshape(n, n)
+                    Pt = 0.5 * (Pt + Pt.T)
+                    St = None if self.points is None else batch_sqrt(Pt[None])[0]  # the points' square root
+                    dm, C, D, Y, Z = self._rule(mt, St, Pt, theta)
+                    parts = [dm, (C + C.T + D).ravel()]
+                if transition:
+                    parts.append((self._linear_drift(St, Y, Z) @ z[n + n_cov:].reshape(n, n)).ravel())
             except (np.linalg.LinAlgError, SymmonError) as exc:
                 raise _Stop(f"the covariance is no longer one ({exc})", t, mt) from None
-            out = np.concatenate([dm, dP.ravel()])
+            out = np.concatenate(parts)
             if not np.all(np.isfinite(out)):
                 raise _Stop("the drift or its Jacobian is NaN or inf", t, mt)
             return out
 
-        z0 = np.concatenate([m, P.ravel()])
-        sol = scipy.integrate.solve_ivp(rhs, (0.0, dt), z0, method="RK45", rtol=self.rtol, atol=self.atol,
-                                        max_step=np.inf if self.max_step is None else self.max_step)
+        z0 = [m, S[tril] if sqrt else P.ravel()] + ([np.eye(n).ravel()] if transition else [])
+        sol = scipy.integrate.solve_ivp(rhs, (0.0, dt), np.concatenate(z0), method="RK45", rtol=self.rtol,
+                                        atol=self.atol, max_step=np.inf if self.max_step is None else self.max_step)
         if not sol.success:
             raise _Stop(f"the integrator failed: {sol.message}", float(sol.t[-1]), sol.y[:n, -1])
         z = sol.y[:, -1]
         if not np.all(np.isfinite(z)):
             raise _Stop("the moments turned NaN or inf", float(sol.t[-1]), z[:n])
-        P1 = z[n:].reshape(n, n)
-        return z[:n], 0.5 * (P1 + P1.T)
+        Phi = z[n + n_cov:].reshape(n, n) if transition else None
+        if sqrt:
+            S1 = np.zeros((n, n))
+            S1[tril] = z[n:n + n_cov]
+            if np.any(np.diag(S1) <= 0):
+                raise _Stop("the factor S lost its positive diagonal", float(sol.t[-1]), z[:n])
+            return z[:n], S1 @ S1.T, S1, Phi
+        P1 = z[n:n + n_cov].reshape(n, n)
+        return z[:n], 0.5 * (P1 + P1.T), None, Phi
 
     def _stopped(self, stop: _Stop, dt: float, where: str) -> str:
         state = np.array2string(np.asarray(stop.m), precision=6)
@@ -341,6 +520,11 @@ class ContinuousDiscreteKalmanFilter(Filter):
 
     # ----------------------------------------------------------------- the recursion
     def _filter(self, call: FilterCall) -> KalmanResult:
+        return self._recursion(call)[0]
+
+    def _recursion(self, call: FilterCall, transition: bool = False) -> tuple[KalmanResult, np.ndarray | None]:
+        """The filter's result, and with ``transition`` the transitions Φ (R, K, n, n) of eq. (3)
+        over each interval (for the smoother)."""
         n, n_y = self.sizes
         Y, runs, pv = call.Y, call.runs, call.pv
         R, K = Y.shape[0], Y.shape[1]
@@ -351,26 +535,47 @@ class ContinuousDiscreteKalmanFilter(Filter):
         h_cols = [names.index(s) for s in h_names]
         m = np.broadcast_to(call.x0, (R, n)).copy()
         P = np.broadcast_to(call.P0, (R, n, n)).copy()
-        out = {k: np.empty((R, K) + s) for k, s in (("x", (n,)), ("P", (n, n)), ("x_pred", (n,)),
-                                                     ("P_pred", (n, n)), ("innovation", (n_y,)),
-                                                     ("S", (n_y, n_y)), ("nis", ()), ("loglik", ()))}
+        S = None
+        if self.square_root:
+            S = np.empty((R, n, n))
+            for r in range(R):
+                try:
+                    S[r] = np.linalg.cholesky(P[r])
+                except np.linalg.LinAlgError:
+                    raise CovarianceError(f"{self.method}: P0{'' if runs is None else f' of run {r}'} must be positive "
+                                          "definite (the square-root form integrates its Cholesky factor)") from None
+        shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n), "innovation": (n_y,),
+                  "S": (n_y, n_y), "nis": (), "loglik": ()}
+        if self.square_root:
+            shapes.update(P_chol=(n, n), P_pred_chol=(n, n))
+        out = {k: np.empty((R, K) + s) for k, s in shapes.items()}
+        Phi = np.empty((R, K, n, n)) if transition else None
         for k in range(K):
             for r in range(R):
                 dt = float(pv[r, k, j_dt])
                 try:
-                    m[r], P[r] = self._integrate(m[r], P[r], dt, pv[r, k, :n_theta])
-                except _Stop as stop:
+                    m[r], P[r], S_r, Phi_r = self._predict(m[r], P[r], None if S is None else S[r], dt,
+                                                           pv[r, k, :n_theta], transition)
+                except (_Stop, np.linalg.LinAlgError) as stop:
+                    if not isinstance(stop, _Stop):
+                        stop = _Stop(f"the covariance is not positive definite ({stop})", 0.0, m[r])
                     where = f"to step {k} " if runs is None else f"to step {k} of run {r} "
                     raise SymmonError(self._stopped(stop, dt, where)) from None
+                if S is not None:
+                    S[r] = S_r
+                if transition:
+                    Phi[r, k] = Phi_r
             params = {s: pv[:, k, c][:, None] for s, c in zip(h_names, h_cols)} or None
-            step = self.update.filter(Y[:, k:k + 1], m, P, params=params)
+            step = self._update(Y[:, k:k + 1], m, P if S is None else S, params, k, runs)
             for key in out:
-                value = step.nis_values if key == "nis" else getattr(step, key)
-                out[key][:, k] = value[:, 0]
+                out[key][:, k] = step[key][:, 0]
             m, P = out["x"][:, k].copy(), out["P"][:, k].copy()
+            if S is not None:
+                S = out["P_chol"][:, k].copy()
         nees = None if call.truth is None else nees_of(out["x"], out["P"], call.truth, sorted(self.angle_states))
         kept = call.keep
-        arrays = {key: v for key, v in out.items() if key == "loglik" or kept is None or key in kept}
+        arrays = {key: v for key, v in out.items()
+                  if key == "loglik" or kept is None or key.removesuffix("_chol") in kept}
         if nees is not None:
             arrays["nees_values"] = nees
         if runs is None:
@@ -382,4 +587,158 @@ class ContinuousDiscreteKalmanFilter(Filter):
             measured = readonly((~np.isnan(Y if runs is not None else Y[0])).sum(axis=-1))
         arrays["nis_values"] = arrays.pop("nis", None)
         return KalmanResult(**arrays, measured=measured, n_y=n_y, n_x=n, angle_states=tuple(sorted(self.angle_states)),
-                            method=self.method)
+                            method=self.method), Phi
+
+    def _update(self, Y: np.ndarray, m: np.ndarray, P: np.ndarray, params: dict | None, k: int,
+                runs: int | None) -> dict[str, np.ndarray]:
+        """The measurement update of every run at step ``k`` (the identity's prediction, then
+        the discrete filter's update); ``P`` the factors S in the square-root form, which the
+        compiled square-root step reads as they are (no covariance formed and factored again)."""
+        upd = self.update
+        if not self.square_root:
+            step = upd.filter(Y, m, P, params=params)
+            return {key: (step.nis_values if key == "nis" else getattr(step, key)) for key in
+                    ("x", "P", "x_pred", "P_pred", "innovation", "S", "nis", "loglik")}
+        compiled = compiled_step(upd.f_model, upd.h_model, upd.transform, upd.angle_states, 1, True)
+        pv = None
+        if upd.params:
+            pv = np.stack([np.asarray(params[str(s)], float) for s in upd.params], axis=-1)
+        out = compiled(m, P, Y, upd.Q, upd.R, params=pv, check_finite=True, factored=True)
+        bad = out.pop("first_nonfinite")
+        if (bad >= 0).any():
+            r = int(np.argmax(bad >= 0))
+            where = f"step {k}" if runs is None else f"run {r}, step {k}"
+            raise SymmonError(f"{self.method}: the update produced NaN or inf at {where} (the innovation covariance "
+                              "is singular, or h is undefined at the prediction)")
+        return out
+
+    # ----------------------------------------------------------------- the smoother
+    def smooth(self, ys: ArrayLike, x0: Any, P0: ArrayLike | None = None, *, keep: Iterable[str] | str | None = None,
+               params: dict | None = None, times: ArrayLike | None = None, t0: float = 0.0) -> SmootherResult:
+        """The Rauch–Tung–Striebel smoother of this filter: a forward pass that integrates the
+        transition Φ of each interval with the moments (eq. (3)), then the discrete backward
+        pass (5) on the stored x, P, x⁻, P⁻ and Φ.
+
+        On a linear SDE, Φ is e^{A dt} and C = P Φᵀ the exact cross-covariance, so this is the
+        RTS smoother of the exact discretisation (to the integrator's tolerance); on a
+        nonlinear one it is the Gaussian smoother with the statistically linearised flow
+        (the CD-EKF's Jacobian for TT1).  The forward pass integrates Φ beside the moments,
+        so its adaptive steps (and its numbers, within the tolerance) can differ from
+        :meth:`filter`'s; ``filtered`` holds that pass.
+
+        Parameters
+        ----------
+        ys, x0, P0, params, times, t0
+            As for :meth:`filter`.
+        keep : str or iterable of str, optional
+            What the forward pass keeps, as for :meth:`filter` (default: all); ``x``, ``P``,
+            ``x_pred`` and ``P_pred`` are always kept, since the backward pass reads them.
+
+        Returns
+        -------
+        SmootherResult
+            ``x`` (K, n) and ``P`` (K, n, n) smoothed ((R, K, ...) for a bank), and
+            ``filtered``, the forward pass.
+
+        Raises
+        ------
+        SymmonError
+            A singular predicted covariance (naming the run and step), and the errors of
+            :meth:`filter`.
+        """
+        kept = None if keep is None else frozenset([keep] if isinstance(keep, str) else keep)
+        forward = None if kept is None else kept | {"x", "P", "x_pred", "P_pred"}
+        call = check_call(self, ys, x0, P0, keep=forward, params=params, times=times, t0=t0)
+        fwd, Phi = self._recursion(call, transition=True)
+        bank = fwd.runs is not None
+        x, P, xp, Pp = (getattr(fwd, a) if bank else getattr(fwd, a)[None] for a in ("x", "P", "x_pred", "P_pred"))
+        angles = sorted(self.angle_states)
+        xs, Ps = x.copy(), P.copy()
+        K = x.shape[1]
+        for r in range(x.shape[0]):
+            for k in range(K - 2, -1, -1):
+                C = P[r, k] @ Phi[r, k + 1].T  # Cov(x_k, x_{k+1}⁻) of eq. (5)
+                try:
+                    G = np.linalg.solve(Pp[r, k + 1], C.T).T
+                except np.linalg.LinAlgError:
+                    where = f"step {k}" if not bank else f"run {r}, step {k}"
+                    raise SymmonError(f"{self.method} smoother: the predicted covariance of step {k + 1} is singular "
+                                      f"(at {where})") from None
+                d = wrap_components(xs[r, k + 1] - xp[r, k + 1], angles) if angles else xs[r, k + 1] - xp[r, k + 1]
+                xs[r, k] = x[r, k] + G @ d
+                if angles:
+                    xs[r, k] = wrap_components(xs[r, k], angles)
+                Psk = P[r, k] + G @ (Ps[r, k + 1] - Pp[r, k + 1]) @ G.T
+                Ps[r, k] = 0.5 * (Psk + Psk.T)
+        if not all_finite(xs, Ps):
+            raise SymmonError(f"{self.method} smoother: NaN or inf in the backward pass")
+        if not bank:
+            xs, Ps = xs[0], Ps[0]
+        for a in (xs, Ps):
+            a.flags.writeable = False
+        return SmootherResult(xs, Ps, fwd, angle_states=tuple(angles), method=self.method)
+
+
+def _tria(A: np.ndarray) -> np.ndarray:
+    """The lower triangular L with L Lᵀ = A Aᵀ and a non-negative diagonal (a QR of Aᵀ)."""
+    r = np.linalg.qr(A.T, mode="r")
+    L = r[:A.shape[0]].T
+    return L * np.where(np.diag(L) < 0, -1.0, 1.0)
+
+
+def continuous_filter(sde: SDE, h_model: Model, Q: Any = None, R: Any = None, transform: Any = None,
+                      iterations: int = 1, square_root: bool = False, **settings: Any) -> ContinuousDiscreteKalmanFilter:
+    """``sm.NonlinearKalmanFilter(sde, h, None, R, transform)``: the continuous-discrete filter
+    of the SDE with the discrete filter's spelling (its default rule, ``UT.ut1()``; the
+    integrator's settings, ``rtol=`` …, as keywords).
+
+    Raises
+    ------
+    ArgumentError
+        ``Q`` given (the SDE's diffusion and spectral density give the noise), or
+        ``iterations`` other than 1 (no iterated update of an SDE).
+    """
+    if Q is not None:
+        raise ArgumentError(f"Q must be None for an SDE: its noise is the SDE's diffusion and spectral density "
+                            f"(SDE {sde.name!r}), integrated over each interval; got Q = {plain_repr(Q)}")
+    if not (isinstance(iterations, (int, np.integer)) and not isinstance(iterations, bool) and iterations == 1):
+        raise ArgumentError(f"iterations must be 1 for an SDE (the continuous-discrete filters have no iterated "
+                            f"update), got {plain_repr(iterations)}")
+    if transform is None:
+        from ...transforms.unscented import UT  # the discrete filter's default rule
+        transform = UT.ut1()
+    return ContinuousDiscreteKalmanFilter(sde, h_model, R, transform, square_root=square_root, **settings)
+
+
+def continuous_kalman_filter(sde: SDE, Q: Any = None, H: Any = None, R: Any = None,
+                             **settings: Any) -> ContinuousDiscreteKalmanFilter:
+    """``sm.KalmanFilter(sde, None, H, R)``: the Kalman filter of a linear SDE measured by the
+    matrix H, by the exact transition over each interval (eq. (4); ``exact=True``, TT1).
+
+    Raises
+    ------
+    ArgumentError
+        ``Q`` given (the SDE gives the noise).
+    ModelError
+        A nonlinear SDE (its CD-EKF is ``sm.NonlinearKalmanFilter(sde, h, None, R, "ekf")``).
+    ShapeError
+        H not (n_y, n) with n the SDE's states.
+    """
+    if Q is not None:
+        raise ArgumentError(f"Q must be None for an SDE: its noise is the SDE's diffusion and spectral density "
+                            f"(SDE {sde.name!r}), Q(dt) by Van Loan at each interval; got Q = {plain_repr(Q)}")
+    if not sde.is_linear:
+        raise ModelError(f"KalmanFilter needs a linear SDE (a = A x + b, L constant); SDE {sde.name!r} is not: its "
+                         "continuous-discrete EKF is sm.NonlinearKalmanFilter(sde, h, None, R, 'ekf')")
+    Hm = np.atleast_2d(np.asarray(H, dtype=float)) if H is not None else None
+    if Hm is None or Hm.ndim != 2 or Hm.shape[1] != sde.n or not np.all(np.isfinite(Hm)):
+        raise ShapeError(f"H must be a finite (n_y, {sde.n}) matrix for an SDE of {sde.n} states, got "
+                         f"{plain_repr(H)}")
+    states = sp.Matrix(sde.states)
+    h = Model(list(sde.states), list(sp.Matrix(Hm.tolist()) * states), name=f"{sde.name}_H")
+    return ContinuousDiscreteKalmanFilter(sde, h, R, "ekf", exact=True, **settings)
+
+
+# NonlinearKalmanFilter(sde, ...) and KalmanFilter(sde, ...) build these (Filter.__new__).
+register_sde_builder("NonlinearKalmanFilter", continuous_filter)
+register_sde_builder("KalmanFilter", continuous_kalman_filter)

@@ -31,16 +31,16 @@
 #define FIT_MAX_ORDER 1
 #define FIT_SZ_ARG 6
 #define FIT_SZ_RES 3
-int model_f(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int model_jvp(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int model_jvp1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int model_hess(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int model_fit(const casadi_real* D, const casadi_real* S0, const casadi_real* Q,
-    const casadi_real* R, casadi_int runs, casadi_int K, casadi_int m, const casadi_int* rows,
-    casadi_int order, casadi_int j0, casadi_int j1, casadi_real* Z, casadi_real* T, casadi_real* out,
-    casadi_int* iw, casadi_real* w);
+#define FIT_ALONE
 #endif
 #include "fit_driver.h"
+FIT_PROTOTYPE;
+#ifdef FIT_ALONE
+FIT_FUNCTION(f);
+FIT_FUNCTION(jvp);
+FIT_FUNCTION(jvp1);
+FIT_FUNCTION(hess);
+#endif
 FIT_SIGNATURE
   /* zd: M first-order tangents, then M*M second-order ones; od, odd: those of o */
   casadi_real *z = Z, *zd = z + FIT_NZ, *o = zd + FIT_NZ * (FIT_M + FIT_MM), *od = o + FIT_NO, *odd = od + FIT_NO * FIT_M;

@@ -21,16 +21,16 @@
 #define FIT_NZ 11
 #define FIT_SZ_ARG 6
 #define FIT_SZ_RES 2
-int model_f(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int model_vjp(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int model_jvp(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int model_hvp(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int model_fit(const casadi_real* D, const casadi_real* S0, const casadi_real* Q,
-    const casadi_real* R, casadi_int runs, casadi_int K, casadi_int m, const casadi_int* rows,
-    casadi_int order, casadi_int j0, casadi_int j1, casadi_real* Z, casadi_real* T, casadi_real* out,
-    casadi_int* iw, casadi_real* w);
+#define FIT_ALONE
 #endif
 #include "fit_driver.h"
+FIT_PROTOTYPE;
+#ifdef FIT_ALONE
+FIT_FUNCTION(f);
+FIT_FUNCTION(vjp);
+FIT_FUNCTION(jvp);
+FIT_FUNCTION(hvp);
+#endif
 FIT_SIGNATURE
   casadi_real o[FIT_NS + 1], lam[FIT_NS + 1], lamd[FIT_NS + 1], a[FIT_NZ], ad[FIT_NZ], zd[FIT_NZ];
   casadi_int r, k, i, j;

@@ -109,8 +109,12 @@ class KalmanFilter(Filter):
 
     Parameters
     ----------
-    F : array_like, shape (n, n)
-        State transition matrix.
+    F : array_like, shape (n, n), or SDE
+        State transition matrix.  A linear :class:`~symmon.SDE` (with ``Q=None``) gives its
+        Kalman filter at measurement times instead: a
+        :class:`~symmon.ContinuousDiscreteKalmanFilter` with the exact transition e^{A dt}
+        and Van Loan's Q(dt) over each interval (``exact=True``), whose ``filter`` takes
+        ``times=``.
     Q : array_like, shape (n, n)
         Process noise covariance, symmetric positive semi-definite (singular allowed: a
         component without process noise is a fixed point).

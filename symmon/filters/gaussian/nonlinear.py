@@ -129,9 +129,11 @@ class NonlinearKalmanFilter(Filter):
 
     Parameters
     ----------
-    f_model : Model
+    f_model : Model or SDE
         The dynamics (n inputs, n outputs).  Outputs or inputs declared as angles are angle
-        states.
+        states.  An :class:`~symmon.SDE` (with ``Q=None``) gives its continuous-discrete
+        filter instead, a :class:`~symmon.ContinuousDiscreteKalmanFilter` of the same rule
+        and ``square_root`` (its ``filter`` takes the measurement ``times=``).
     h_model : Model
         The measurement model (n inputs, n_y outputs; angle outputs wrap the innovation).
     Q : array_like

@@ -5,7 +5,9 @@ per step and run, the stages of :mod:`symmon.filters.mixture.gaussian_sum` (its 
 formulas): the MoN of f at every component (TT2, W^full; Straka & Havlík 2024, eqs. (25),
 (29), (43)), the split of those above ``split`` along their most curved direction, the
 prediction, the MoN of h at the predicted components and their split, the update, the
-log-likelihood, pruning and the greedy Runnalls or Salmond merge.  ``sm_gsfk_run`` does all
+log-likelihood, pruning and the greedy Runnalls or Salmond merge, and with ``merge_back``
+the merging back of the calm components (their MoN of f and h below split/2 with the next
+step's parameters; the first pair of least Runnalls cost while it is below ``merge_back``).  ``sm_gsfk_run`` does all
 of that for all K steps of a range of runs without returning to Python: the four compiled
 graphs of the stepwise filter (prediction, update, the MoN of f and of h with the Hessians,
 CasADi's generated C), the merge kernel of :mod:`symmon.filters.mixture.merge`, and in C
@@ -111,9 +113,11 @@ class SplitKernel:
     def run(self, fn, Y: np.ndarray, w0: np.ndarray, m0: np.ndarray, P0: np.ndarray, params: np.ndarray,
             Q: np.ndarray, R: np.ndarray, *, split: float, prune: float, max_components: int, m: int,
             salmond: bool, curved: tuple[bool, bool], table: tuple[np.ndarray, np.ndarray, float],
-            angle_states: tuple[int, ...], kept: set[str]) -> tuple[dict[str, np.ndarray], np.ndarray]:
+            angle_states: tuple[int, ...], kept: set[str], merge_back: float | None = None
+            ) -> tuple[dict[str, np.ndarray], np.ndarray]:
         """All steps of all runs: Y (R, K, n_y) with NaN for missing, the prior (w0, m0, P0),
-        params (R, K, n_p); the outputs of :meth:`GaussianSumFilter._stepwise
+        params (R, K, n_p), ``merge_back`` the Runnalls cost below which calm components merge
+        back after each step (None: never); the outputs of :meth:`GaussianSumFilter._stepwise
         <symmon.GaussianSumFilter>` and fail (R,), the step of each run where a component
         turned non-finite (-1: none).  The runs are shared among threads.
 
@@ -134,7 +138,7 @@ class SplitKernel:
         w0, m0, P0, Q, R = c(w0), c(m0), c(P0), c(Q), c(R)
         opt = np.array([n, n_y, self.n_p, m, Mk, int(salmond), int(curved[0]), int(curved[1]), len(w0)],
                        dtype=np.int64)
-        fl = np.array([split, prune, table[2]])
+        fl = np.array([split, prune, table[2], 0.0 if merge_back is None else merge_back])
         tab = np.concatenate([table[0], table[1]])
         ang = np.array([int(i in angle_states) for i in range(n)], dtype=np.intc)
         out = result_arrays(Rr, K, n, Mk, kept)

@@ -75,9 +75,10 @@ of least Runnalls cost B_ij first, while that cost is below ``merge_back``
 (:func:`~symmon.filters.mixture.merge.merge_below`; each merge moment-matched, so the
 mixture's mean and covariance are kept).  On a linear stretch every component is calm and the
 updates draw the components' means together, so the mixture falls back to one component;
-``components`` reports the count per step.  A merge-back filter runs the stepwise filter
-below (the compiled recursion does not merge back), so the default's numbers are those of
-the compiled recursion, bit for bit, as before.
+``components`` reports the count per step.  Both paths below merge back alike (the compiled
+recursion in C, the stepwise filter by :func:`~symmon.filters.mixture.merge.merge_below`;
+the tests hold them to 1e-12 on a scalar model), and without ``merge_back`` the numbers are
+those of before, bit for bit.
 
 **Without splitting** the number of components never grows: the components are independent
 Kalman filters and run as one bank through the compiled loop of
@@ -85,12 +86,14 @@ Kalman filters and run as one bank through the compiled loop of
 call), their weights following from the per-step log-likelihoods.  **With splitting** all
 steps of all runs are one C call too (:mod:`symmon.filters.mixture._kernel`: the compiled stages
 below, the MoN's weight, the split decision, the directions by Jacobi eigen-decompositions,
-the splits, pruning and the merge, a thread per share of the runs).  Without a compiler, or
-while that C is built in the background, the steps run in Python (:meth:`GaussianSumFilter._stepwise`),
+the splits, pruning and the merge, a thread per share of the runs).  Without a compiler the
+steps run in Python (:meth:`GaussianSumFilter._stepwise`),
 each stage (the MoN with the Hessians, the prediction, the update, the merge) one compiled
 call over all components of all runs, the directions and splits stacked NumPy: the same
 results to rounding (the tests hold the two to 1e-10, with the same components and splits
-per step).
+per step).  A call waits for a running background build of that C rather than take the
+stepwise filter meanwhile, so that its numbers do not depend on the build's timing (a cold
+and a warm machine agree bit for bit).
 
 References
 ----------
@@ -449,8 +452,7 @@ class GaussianSumFilter(Filter):
         at the posterior component, with the next step's parameters, are below ``split``/2:
         a hysteresis below the split level) while their least Runnalls (2007) cost is below
         this (module notes, "Merging back"); needs ``split``.  None: never (the default,
-        whose numbers do not change).  It runs the stepwise filter (compiled stages, NumPy
-        between them), not the compiled recursion.
+        whose numbers do not change).  ``components`` of the result counts them per step.
 
     Examples
     --------
@@ -595,8 +597,10 @@ class GaussianSumFilter(Filter):
         if self.split is None:
             out = self._bank(Yb, w0, m0, P0, call.params, runs, inner)
         else:
-            out = None if self.merge_back is not None else self._recursion(Yb, w0, m0, P0, pv, inner)
-            if out is None:  # no compiler, or its C still building: the stepwise filter
+            # a running build of the recursion is waited for: the stepwise filter agrees with it
+            # to rounding, not to the bit, so a call's numbers must not depend on the build's timing
+            out = self._recursion(Yb, w0, m0, P0, pv, inner, wait=True)
+            if out is None:  # no compiled code (no compiler, the never policy, a failed build)
                 out = self._stepwise(Yb, w0, m0, P0, pv, inner)
         if call.truth is not None:
             out["nees_values"] = nees_of(out["x"], out["P"], call.truth, sorted(self.kf.angle_states))
@@ -714,7 +718,8 @@ class GaussianSumFilter(Filter):
                                prune=self.prune, max_components=self.max_components, m=self.split_components,
                                salmond=self.merge == "salmond", curved=self._curved,
                                table=_split_table(self.split_components),
-                               angle_states=tuple(sorted(self.kf.angle_states)), kept=kept)
+                               angle_states=tuple(sorted(self.kf.angle_states)), kept=kept,
+                               merge_back=self.merge_back)
         if (fail >= 0).any():
             k = int(fail[fail >= 0].min())
             raise self._nonfinite(k, int(np.argmax(fail == k)), R)

@@ -93,12 +93,13 @@ static int smg_first_max(int n, const double* a) {
 
 typedef struct {
   int n, ny, np, ms, Mk, cap, salmond, curved[2];
-  double split, prune, sigma;
+  double split, prune, sigma, back;
   const double *omega, *mu, *Q, *R;
   const int* ang;
   double *w, *x, *P, *w2, *x2, *P2, *mon, *W, *H, *ll, *z, *cg, *D, *sc;
   long long *start;
-  unsigned char* alive;
+  unsigned char *alive, *calm;
+  double* ld;
   casadi_int* iw;
   casadi_real* wk;
 } smg_ctx;
@@ -202,21 +203,21 @@ static int smg_mon_call(smg_ctx* c, int which, const double* z, double* cg, doub
   return which ? SMG_MON_H(arg, res, c->iw, c->wk, 0) : SMG_MON_F(arg, res, c->iw, c->wk, 0);
 }
 
-/* Split the N components of one run whose MoN of f (which 0, noise Q) or h (1, noise R) exceeds
-   split (the largest first while there is room below cap): the new count; *ns the splits. */
-static int smg_split(smg_ctx* c, int which, int N, const double* p, int* ns, int* err) {
-  const int n = SMG_N, ny = which ? c->ny : SMG_N, ms = c->ms;
+/* The MoN of f (which 0, noise Q) or h (1, noise R) at the N components of one run into
+   c->mon, their weights into c->W and Hessians into c->H (GaussianSumFilter._mons); returns
+   how many exceed split (*err: a generated function failed). */
+static int smg_mons(smg_ctx* c, int which, int N, const double* p, int* err) {
+  const int n = SMG_N, ny = which ? c->ny : SMG_N;
   const double* noise = which ? c->R : c->Q;
-  double *A = c->sc + 0, *r, *corr, *pc;
-  int i, j, a, b, nover = 0, allowed, count = 0;
-  *ns = 0;
+  double *A, *r, *corr, *pc;
+  int i, a, b, nover = 0;
   for (i = 0; i < N; ++i) {
     double m2 = 0;
     double* Wi = c->W + i * ny * ny;
     memcpy(c->z, c->x + i * n, n * sizeof(double));
     memcpy(c->z + n, c->P + i * n * n, n * n * sizeof(double));
     if (c->np) memcpy(c->z + n + n * n, p, c->np * sizeof(double));
-    if (smg_mon_call(c, which, c->z, c->cg, c->D, c->H + i * ny * n * n)) { *err = 1; return N; }
+    if (smg_mon_call(c, which, c->z, c->cg, c->D, c->H + i * ny * n * n)) { *err = 1; return 0; }
     /* the weight W = Sigma_yy^-1 / ny through the correlation matrix (_corr_inverse) */
     A = c->sc + SMG_SC_DIR;  /* clear of smg_pinv's scratch at c->sc */
     r = A + ny * ny; corr = r + ny; pc = corr + ny * ny;
@@ -232,7 +233,17 @@ static int smg_split(smg_ctx* c, int which, int N, const double* p, int* ns, int
     c->mon[i] = m2 > 0 ? sqrt(m2) : (m2 != m2 ? m2 : 0.0);
     if (c->mon[i] > c->split) ++nover;
   }
-  if (!nover) return N;
+  return nover;
+}
+
+/* Split the N components of one run whose MoN of f (which 0, noise Q) or h (1, noise R) exceeds
+   split (the largest first while there is room below cap): the new count; *ns the splits. */
+static int smg_split(smg_ctx* c, int which, int N, const double* p, int* ns, int* err) {
+  const int n = SMG_N, ny = which ? c->ny : SMG_N, ms = c->ms;
+  int i, j, a, b, nover, allowed, count = 0;
+  *ns = 0;
+  nover = smg_mons(c, which, N, p, err);
+  if (*err || !nover) return N;
   allowed = N + nover * (ms - 1) <= c->cap ? nover : (c->cap >= N ? (c->cap - N) / (ms - 1) : 0);
   for (i = 0; i < N; ++i) {  /* chosen: among the allowed largest MoNs (ties: the first) */
     int rank = 0;
@@ -292,6 +303,52 @@ static int smg_compact(smg_ctx* c, int n, int N) {
   }
   return o;
 }
+/* Merge back the calm components of one run (GaussianSumFilter._merge_back, merge.merge_below):
+   calm where the MoN of f and of h (those curved) at the component, with the next step's
+   parameters p, are below split / 2; then, while two calm components are left, the first pair
+   (i, j), i < j, of least Runnalls cost is merged into i if that cost is below back (a NaN
+   cost stops, as numpy's argmin takes the first NaN).  Returns the new count. */
+static int smg_merge_back(smg_ctx* c, int N, const double* p, int* err) {
+  const int n = SMG_N;
+  double *A = c->sc + SMG_SC_DIR, *L = A + n * n;
+  int i, j, a, ncalm = 0;
+  for (i = 0; i < N; ++i) c->calm[i] = 1;
+  for (a = 0; a < 2; ++a) {
+    if (!c->curved[a]) continue;
+    smg_mons(c, a, N, p, err);
+    if (*err) return N;
+    for (i = 0; i < N; ++i) c->calm[i] &= c->mon[i] < 0.5 * c->split;
+  }
+  for (i = 0; i < N; ++i) ncalm += c->calm[i];
+  if (ncalm < 2) return N;
+  for (i = 0; i < N; ++i) {
+    c->alive[i] = 1;
+    c->ld[i] = c->calm[i] ? sm_logdet(c->P + i * n * n, n, L) : 0.0;
+  }
+  for (; ncalm >= 2; --ncalm) {
+    int bi = -1, bj = -1, nan = 0;
+    double best = INFINITY;
+    for (i = 0; i < N && !nan; ++i) {
+      if (!c->alive[i] || !c->calm[i]) continue;
+      for (j = i + 1; j < N; ++j) {
+        double cost;
+        if (!c->alive[j] || !c->calm[j]) continue;
+        cost = sm_cost(i, j, n, 0, c->w, c->x, c->P, c->ld, 0, A, L);
+        if (cost != cost) { nan = 1; break; }
+        if (bi < 0 || cost < best) { best = cost; bi = i; bj = j; }
+      }
+    }
+    if (nan || bi < 0 || !(best < c->back)) break;
+    sm_merge_pair(bi, bj, n, c->w, c->x, c->P, A, L);
+    c->ld[bi] = sm_logdet(c->P + bi * n * n, n, L);
+    c->alive[bj] = 0;
+  }
+  N = smg_compact(c, n, N);
+  for (i = 0; i < N; ++i)
+    for (a = 0; a < n; ++a) if (c->ang[a]) c->x[i * n + a] = smg_wrap(c->x[i * n + a]);
+  return N;
+}
+
 static int smg_finite(const double* a, int m) {
   int i;
   for (i = 0; i < m; ++i) if (!isfinite(a[i])) return 0;
@@ -300,7 +357,7 @@ static int smg_finite(const double* a, int m) {
 
 /* symmon: the K steps of the runs r0 .. r1 - 1 (module notes).  Y, mask: (R, K, ny) (missing:
    0 and 0); prm: (R, K, np); w0, m0, P0: the M0 prior components; opt = [n, ny, np, ms, Mk,
-   salmond, curved_f, curved_h, M0]; fl = [split, prune, sigma]; table = [omega (ms), mu (ms)];
+   salmond, curved_f, curved_h, M0]; fl = [split, prune, sigma, merge_back (0: none)]; table = [omega (ms), mu (ms)];
    ang: (n) flags of the angle states; outputs (R, K, ...) or NULL; fail (R): the step of a
    non-finite component (-1: none); stop: a flag another thread may set (NULL: none), polled
    before each step.  Returns 0, 1 when a generated function failed, -1 out of memory,
@@ -320,7 +377,7 @@ CASADI_SYMBOL_EXPORT int sm_gsfk_run(casadi_int r0, casadi_int r1, casadi_int K,
   size_t tot;
   c.n = n; c.ny = ny; c.np = (int) opt[2]; c.ms = (int) opt[3]; c.Mk = (int) opt[4]; c.salmond = (int) opt[5];
   c.curved[0] = (int) opt[6]; c.curved[1] = (int) opt[7];
-  c.split = fl[0]; c.prune = fl[1]; c.sigma = fl[2];
+  c.split = fl[0]; c.prune = fl[1]; c.sigma = fl[2]; c.back = fl[3];
   c.omega = table; c.mu = table + c.ms; c.Q = Q; c.R = R; c.ang = ang; c.iw = iw; c.wk = wk;
   c.cap = cap = c.Mk * c.ms;
   if (M0 > cap) cap = M0;
@@ -329,7 +386,12 @@ CASADI_SYMBOL_EXPORT int sm_gsfk_run(casadi_int r0, casadi_int r1, casadi_int K,
   buf = malloc(sizeof(double) * tot);
   c.start = malloc(sizeof(long long) * 2);
   c.alive = malloc((size_t) cap + 1);
-  if (!buf || !c.start || !c.alive) { free(buf); free(c.start); free(c.alive); return -1; }
+  c.calm = malloc((size_t) cap + 1);
+  c.ld = malloc(sizeof(double) * ((size_t) cap + 1));
+  if (!buf || !c.start || !c.alive || !c.calm || !c.ld) {
+    free(buf); free(c.start); free(c.alive); free(c.calm); free(c.ld);
+    return -1;
+  }
   c.w = buf; c.w2 = c.w + cap; c.x = c.w2 + cap; c.x2 = c.x + cap * n; c.P = c.x2 + cap * n;
   c.P2 = c.P + cap * n * n; c.mon = c.P2 + cap * n * n; c.ll = c.mon + cap; c.W = c.ll + cap;
   c.H = c.W + cap * nym * nym; c.z = c.H + cap * nym * n * n; c.cg = c.z + SMG_ROW; c.D = c.cg + nym * nym;
@@ -421,6 +483,10 @@ CASADI_SYMBOL_EXPORT int sm_gsfk_run(casadi_int r0, casadi_int r1, casadi_int K,
       tw = 0;
       for (i = 0; i < N; ++i) tw += c.w[i];
       for (i = 0; i < N; ++i) c.w[i] /= tw;
+      if (c.back > 0 && N >= 2) {  /* merge back, with the next step's parameters */
+        N = smg_merge_back(&c, N, prm + (r * K + (k + 1 < K ? k + 1 : K - 1)) * c.np, &err);
+        if (err) { ret = 1; break; }
+      }
       /* the step's outputs: the moment-matched mean and covariance, the mixture */
       o_comp[r * K + k] = N;
       {
@@ -445,6 +511,6 @@ CASADI_SYMBOL_EXPORT int sm_gsfk_run(casadi_int r0, casadi_int r1, casadi_int K,
       }
     }
   }
-  free(buf); free(c.start); free(c.alive);
+  free(buf); free(c.start); free(c.alive); free(c.calm); free(c.ld);
   return ret;
 }

@@ -28,6 +28,25 @@ With ``regularise=True``, after each resampling every particle moves by h_opt ·
 ε ~ N(0, I), L the Cholesky factor of the weighted covariance before the resampling (the
 post-regularised filter of Musso, Oudjane & Le Gland 2001).
 
+**Acting on a collapse.**  The ESS of each step is the filter's own degeneracy flag: below
+the floor max(:data:`DEGENERATE_ESS`, ``collapse_fraction`` · N) the cloud is collapsing onto
+a few particles (the per-step, earlier form of :meth:`ParticleResult.check_credibility`'s ESS
+band: by the time the windowed ESS is below 2 % of N, the weighted covariance that the kernel
+spreads the copies by no longer spans the posterior; :data:`COLLAPSE_FRACTION`).
+Resampling then only copies those few (the bootstrap move adds the process noise, which
+does not spread them when Q is small), so with ``on_collapse`` the filter resamples at such
+a step (whatever ``ess_threshold``) and moves the copies by a kernel, with m and C the
+weighted mean and covariance before the resampling, L Lᵀ = C and h = h_opt:
+
+- ``"shrink"`` (Liu & West 2001, §10.3.3): x ← m + a (x − m) + h L ε, a = √(1 − h²).  Each
+  copy is shrunk towards the mean before its jitter, so the cloud keeps its mean and
+  covariance, a² C + h² C = C (in expectation over the resampling and ε; exactly for a cloud
+  whose ε have zero mean, unit covariance and no correlation with x − m,
+  :func:`shrink_kernel`), where the plain jitter inflates C by (1 + h²) at every collapse;
+- ``"jitter"``: x ← x + h L ε, the regularisation's move at the collapsing steps only.
+
+:attr:`ParticleResult.rejuvenated` says at which steps (``ess`` the ESS of every step).
+
 The K bootstrap steps of a run are one call of generated C (:mod:`symmon.filters.particle._kernel`:
 the transition and the log-likelihood, the exponentials, sums, mean and ESS, the kept
 moments, the resampling walk with its gather, the regularisation; threads over particle
@@ -60,6 +79,9 @@ C. Andrieu, A. Doucet, R. Holenstein, "Particle Markov chain Monte Carlo methods
 C. Musso, N. Oudjane, F. Le Gland, "Improving regularised particle filters", in A. Doucet,
 N. de Freitas, N. Gordon (eds.), *Sequential Monte Carlo Methods in Practice*, Springer,
 2001, ch. 12. doi:10.1007/978-1-4757-3437-9_12
+J. Liu, M. West, "Combined parameter and state estimation in simulation-based filtering", in
+A. Doucet, N. de Freitas, N. Gordon (eds.), *Sequential Monte Carlo Methods in Practice*,
+Springer, 2001, ch. 10. doi:10.1007/978-1-4757-3437-9_10
 """
 
 from __future__ import annotations
@@ -94,7 +116,7 @@ from ._rng import CHUNK, lane_states, stream_states
 from ..statespace import StateSpace, rows_times
 
 __all__ = ["ParticleFilter", "ParticleResult", "resample", "PROPOSALS", "RESAMPLERS", "DEGENERATE_ESS",
-           "DEGENERATE_FRACTION"]
+           "DEGENERATE_FRACTION", "ON_COLLAPSE", "COLLAPSE_FRACTION", "shrink_kernel"]
 
 #: The proposals: the transition (bootstrap), or one EKF / UKF step per particle.
 PROPOSALS = ("bootstrap", "ekf", "ukf")
@@ -109,6 +131,14 @@ DEGENERATE_ESS = 1.5
 #: The share of the particles below which a particle filter's windowed mean ESS flags its
 #: step as degenerate (:meth:`ParticleResult.check_credibility`; at least :data:`DEGENERATE_ESS`).
 DEGENERATE_FRACTION = 0.02
+#: What a particle filter does at a step whose ESS says the cloud is collapsing (module notes):
+#: nothing (None), or resample and move the copies by one of these kernels.
+ON_COLLAPSE = ("shrink", "jitter")
+#: The default share of the particles below which one step's ESS counts as a collapse for
+#: ``on_collapse`` (module notes): above the credibility band's floor, which flags a cloud
+#: already down to a few particles (a windowed mean below 2 % of N), because the kernel needs a
+#: weighted covariance that still spans the posterior; half the default resampling threshold.
+COLLAPSE_FRACTION = 0.25
 _LOG_2PI = math.log(2 * math.pi)
 
 
@@ -142,6 +172,35 @@ def resample(weights: np.ndarray, method: str, rng: np.random.Generator | Iterab
     if len(rngs) != R:
         raise ShapeError(f"resample needs one generator per row of weights ({R}), got {len(rngs)}")
     return pick(W, np.stack([resampling_points(method, g, N) for g in rngs])).reshape(np.shape(weights))
+
+
+def shrink_kernel(X: np.ndarray, mean: np.ndarray, chol: np.ndarray, bandwidth: float, eps: np.ndarray,
+                  angle_states: Iterable[int] = ()) -> np.ndarray:
+    """Liu & West's (2001) shrink-then-jitter move of particles X (N, n): x ← m + a (x − m) + h L ε,
+    a = √(1 − h²), for the mean m (n,), the Cholesky factor L (n, n) of the covariance C the
+    cloud is to keep, h = ``bandwidth`` in [0, 1] and the normals ε = ``eps`` (N, n); angle
+    states' deviations and results wrapped to (−π, π].
+
+    The moved cloud's mean is m + a (x̄ − m) + h L ε̄ and its covariance a² Cov x + h² L Cov ε Lᵀ
+    plus the cross terms: m and C exactly when the cloud has mean m and covariance C and the ε
+    have zero mean, unit covariance and no correlation with x (in expectation otherwise).
+
+    Returns
+    -------
+    ndarray, shape (N, n): a new array.
+    """
+    X, m, L, eps = (np.asarray(a, dtype=float) for a in (X, mean, chol, eps))
+    h = float(bandwidth)
+    if not 0 <= h <= 1:
+        raise ArgumentError(f"bandwidth must lie in [0, 1] (a² = 1 − h²), got {plain_repr(bandwidth)}")
+    ang = sorted(angle_states)
+    d = X - m
+    if ang:
+        d[:, ang] = wrap_angle(d[:, ang])
+    out = m + math.sqrt(1.0 - h * h) * d + h * rows_times(eps, L)
+    if ang:
+        out[:, ang] = wrap_angle(out[:, ang])
+    return out
 
 
 def pick(W: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -182,6 +241,9 @@ class ParticleResult(KalmanResult):
         The effective sample size 1 / Σ_i W_i² after each update (before resampling).
     resampled : ndarray of bool, shape (K,) or (R, K)
         Whether the particles were resampled after the update of that step.
+    rejuvenated : ndarray of bool, shape (K,) or (R, K)
+        Whether that step's ESS fell below the collapse floor and the filter, with
+        ``on_collapse``, resampled and moved the particles by its kernel (all False without).
     particles : int
         N.
     final_particles : ndarray, shape (N, n) or (R, N, n)
@@ -193,6 +255,7 @@ class ParticleResult(KalmanResult):
 
     ess: np.ndarray | None = None
     resampled: np.ndarray | None = None
+    rejuvenated: np.ndarray | None = None
     particles: int = 0
     final_particles: np.ndarray | None = None
     final_log_weights: np.ndarray | None = None
@@ -257,6 +320,16 @@ class ParticleFilter(Filter):
         h_opt = :attr:`bandwidth` (angle states wrapped): a draw from a Gaussian-kernel
         density estimate of the posterior, which restores the diversity that resampling
         removes when the process noise is small.
+    on_collapse : {None, "shrink", "jitter"}, default None
+        At a step whose ESS falls below max(:data:`DEGENERATE_ESS`, ``collapse_fraction`` · N),
+        resample and move the copies by Liu & West's (2001) shrink-then-jitter kernel, which
+        keeps the cloud's mean and covariance (``"shrink"``), or by the regularisation's
+        jitter, which inflates it (``"jitter"``); None: nothing beyond the usual resampling
+        (module notes, "Acting on a collapse").  At such a step ``"shrink"`` replaces the
+        jitter of ``regularise``.
+    collapse_fraction : float in (0, 1), default :data:`COLLAPSE_FRACTION`
+        The share of N below which a step's ESS counts as a collapse (``on_collapse`` acts
+        there; ``collapse_floor``).
 
     Raises
     ------
@@ -290,6 +363,8 @@ class ParticleFilter(Filter):
     ess_threshold: float = 0.5
     seed: int = 0
     regularise: bool = False
+    on_collapse: str | None = None
+    collapse_fraction: float = COLLAPSE_FRACTION
     space: StateSpace = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -311,6 +386,14 @@ class ParticleFilter(Filter):
         if not isinstance(self.regularise, (bool, np.bool_)):
             raise ArgumentError(f"regularise must be True or False, got {self.regularise!r}")
         object.__setattr__(self, "regularise", bool(self.regularise))
+        if self.on_collapse is not None and self.on_collapse not in ON_COLLAPSE:
+            raise ArgumentError(f"on_collapse must be None or one of {ON_COLLAPSE}, got {self.on_collapse!r}")
+        c = self.collapse_fraction
+        if isinstance(c, bool) or not isinstance(c, (int, float, np.floating, np.integer)) or not 0 < c < 1:
+            raise ArgumentError(f"collapse_fraction must be a share of the particles in (0, 1), got {plain_repr(c)}")
+        object.__setattr__(self, "collapse_fraction", float(c))
+        if self.on_collapse == "shrink" and self.bandwidth > 1:  # N = 1, n = 1: h_opt > 1, no a² = 1 − h²
+            raise ArgumentError("on_collapse='shrink' needs at least 2 particles (a kernel bandwidth below 1)")
         _ = self._noise_map  # refuse an h not affine in its noise, and a singular likelihood, now
         if self.proposal != "bootstrap":
             if self.f_model.n_v:
@@ -328,7 +411,8 @@ class ParticleFilter(Filter):
     def method(self) -> str:
         """The filter's name, e.g. ``PF(bootstrap, N=1000, systematic)``."""
         reg = ", regularised" if self.regularise else ""
-        return f"PF({self.proposal}, N={self.particles}, {self.resample}{reg})"
+        col = "" if self.on_collapse is None else f", on_collapse={self.on_collapse}"
+        return f"PF({self.proposal}, N={self.particles}, {self.resample}{reg}{col})"
 
     @property
     def bandwidth(self) -> float:
@@ -337,6 +421,12 @@ class ParticleFilter(Filter):
         Le Gland 2001, ch. 12 of Doucet et al., *Sequential Monte Carlo Methods in Practice*); the jitter of ``regularise=True`` is h_opt · L ε."""
         n = self.space.n
         return (4.0 / (self.particles * (n + 2))) ** (1.0 / (n + 4))
+
+    @property
+    def collapse_floor(self) -> float:
+        """The ESS below which a step counts as a collapse: max(:data:`DEGENERATE_ESS`,
+        ``collapse_fraction`` · N) (``on_collapse`` acts there)."""
+        return max(DEGENERATE_ESS, self.collapse_fraction * self.particles)
 
     @property
     def params(self) -> tuple:
@@ -544,11 +634,12 @@ class ParticleFilter(Filter):
                                                      ("P_pred", (n, n)), ("innovation", (n_y,)),
                                                      ("S", (n_y, n_y)), ("nis", ())) if k in names}
         loglik, ess, resampled = np.empty((Rr, K)), np.empty((Rr, K)), np.zeros((Rr, K), dtype=bool)
+        rejuvenated = np.zeros((Rr, K), dtype=bool)
         nees = np.empty((Rr, K)) if truth is not None else None
         nq = ss.Lq.shape[0]
         if loops is not None:  # the compiled step (pf_kernel); the loop below is its NumPy twin
-            X, logW = self._run_compiled(kern, loops, X, Yb, pv, first_run, names, out, loglik, ess, resampled, nees,
-                                         truth, bank, x0 if prior_c else None)
+            X, logW = self._run_compiled(kern, loops, X, Yb, pv, first_run, names, out, loglik, ess, resampled,
+                                         rejuvenated, nees, truth, bank, x0 if prior_c else None)
         for k in range(K if loops is None else 0):
             y, p = Yb[:, k], (None if pv is None else pv[:, k])
             Wprev = np.exp(logW)
@@ -572,10 +663,13 @@ class ParticleFilter(Filter):
             logW = total - lse[:, None]
             W = np.exp(logW)
             ess[:, k] = 1.0 / (W * W).sum(axis=1)
-            redo = np.flatnonzero(ess[:, k] <= self.ess_threshold * N)
-            spread = None  # the weighted covariance, which the regularisation's kernel takes
-            if want("x", "P") or truth is not None or (self.regularise and redo.size):
-                m, C = spread = self._moments(X, W, cov="P" in out or truth is not None or self.regularise)
+            if self.on_collapse is not None:
+                rejuvenated[:, k] = ess[:, k] < self.collapse_floor
+            redo = np.flatnonzero((ess[:, k] <= self.ess_threshold * N) | rejuvenated[:, k])
+            moved = self.regularise or rejuvenated[:, k].any()  # a kernel moves some run's particles
+            spread = None  # the weighted mean and covariance, which the kernels take
+            if want("x", "P") or truth is not None or (moved and redo.size):
+                m, C = spread = self._moments(X, W, cov="P" in out or truth is not None or moved)
                 if "x" in out:
                     out["x"][:, k] = m
                 if "P" in out:
@@ -597,10 +691,14 @@ class ParticleFilter(Filter):
                        else np.stack([resampling_points(self.resample, rngs[r], N) for r in redo]))
                 idx = pick(W[redo], pts)
                 X[redo] = np.take_along_axis(X[redo], idx[..., None], axis=1)
-                if self.regularise:
-                    for r in redo:
-                        eps = replay["j"][r, k] if replay is not None else rngs[r].standard_normal((N, n))
-                        X[r] = ss.wrap_states(X[r] + self.bandwidth * rows_times(eps, semidefinite_cholesky(spread[1][r])))
+                for r in redo:
+                    if not (self.regularise or rejuvenated[r, k]):
+                        continue
+                    eps = replay["j"][r, k] if replay is not None else rngs[r].standard_normal((N, n))
+                    L = semidefinite_cholesky(spread[1][r])
+                    X[r] = (shrink_kernel(X[r], spread[0][r], L, self.bandwidth, eps, ss.angle_states)
+                            if rejuvenated[r, k] and self.on_collapse == "shrink"
+                            else ss.wrap_states(X[r] + self.bandwidth * rows_times(eps, L)))
                 logW[redo] = -math.log(N)
                 resampled[redo, k] = True
 
@@ -615,7 +713,7 @@ class ParticleFilter(Filter):
         arrays = {k: v if bank is not None else v[0] for k, v in out.items()}
         if "nis" in arrays:
             arrays["nis_values"] = arrays.pop("nis")
-        extra = {"loglik": loglik, "ess": ess, "resampled": resampled, "final_particles": X,
+        extra = {"loglik": loglik, "ess": ess, "resampled": resampled, "rejuvenated": rejuvenated, "final_particles": X,
                  "final_log_weights": logW}
         if nees is not None:
             extra["nees_values"] = nees
@@ -669,8 +767,8 @@ class ParticleFilter(Filter):
                               "particle has zero likelihood (the model overflows there, or the measurement "
                               "is far from every particle: use more particles or another proposal)")
 
-    def _run_compiled(self, kern, loops, X, Yb, pv, first_run, names, out, loglik, ess, resampled, nees, truth, bank,
-                      prior=None):
+    def _run_compiled(self, kern, loops, X, Yb, pv, first_run, names, out, loglik, ess, resampled, rejuvenated, nees,
+                      truth, bank, prior=None):
         """The K bootstrap steps of each run in one compiled call (pf_kernel's module notes),
         the runs of a bank on threads; the normals and resampling uniforms drawn in C from the
         runs' xoshiro streams (:mod:`symmon.filters.particle._rng`), or replayed (``_replay``); with
@@ -741,6 +839,7 @@ class ParticleFilter(Filter):
                 raise self._not_finite(int(fail[r]), r, bank)
         loglik[np.isnan(Yb).all(axis=2)] = 0.0  # no measurement: log Σ W = 0 exactly
         resampled[:] = block[:, offs[9]:offs[10]] > 0
+        rejuvenated[:] = block[:, offs[9]:offs[10]] == 2  # resampled at a collapse, moved by its kernel
         if truth is not None:
             nees[:] = nees_of(arr["x"], arr["P"], truth, ss.angle_states)
         if want_h:
@@ -761,8 +860,10 @@ class ParticleFilter(Filter):
                 m0 = np.ascontiguousarray(prior.mean, dtype=float)
                 L0 = np.ascontiguousarray(prior.sqrt_cov(), dtype=float)
             diag = L0 is not None and np.count_nonzero(L0) == np.count_nonzero(np.diag(L0))
-            opt = np.array([RESAMPLERS.index(self.resample), int(self.regularise), int(diag)], dtype=np.int64)
-            fl = np.array([self.ess_threshold * self.particles, self.bandwidth])
+            oc = {None: 0, "jitter": 1, "shrink": 2}[self.on_collapse]  # pf_kernel's opt[3]
+            h = self.bandwidth
+            opt = np.array([RESAMPLERS.index(self.resample), int(self.regularise), int(diag), oc], dtype=np.int64)
+            fl = np.array([self.ess_threshold * self.particles, h, self.collapse_floor, math.sqrt(1.0 - h * h)])
             held = (prior, m0, L0, opt, fl)
             object.__setattr__(self, "_held_constants", held)  # a frozen dataclass: a cache, not state
         _, m0, L0, opt, fl = held

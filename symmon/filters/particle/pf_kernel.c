@@ -263,6 +263,7 @@ typedef struct {
   const casadi_real* P; casadi_int K, N, nch; casadi_real *X0, *Xn0, *t, *e, *lw, *sc, *hx, *part;
   unsigned long long* st; const casadi_real *zext, *uext, *jext, *m0, *L0; const casadi_int* opt; const casadi_real* fl;
   casadi_real *o_ll, *o_ess, *o_res, *o_x, *o_P, *o_xp, *o_Pp, *o_hm, *o_hS, *cov, *L;
+  casadi_real mu[PFK_NX];  /* the weighted mean the shrink kernel shrinks towards */
   casadi_int *fail, *idx; pfk_barrier bar; int T; pthread_mutex_t gate;
   /* each thread's notes of its moves of a step (pfk_solo), by step parity (a thread writes
      step k + 2's only after every thread has read step k's at step k + 1's barrier) */
@@ -388,7 +389,7 @@ static int pfk_body(pfk_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_
      A nu and |A nu|^2 of one component, one row, the vector loop's flags */
   casadi_real *rb = buf, *blk = rb + PFK_LD * PFK_NR, *wz = blk + PFK_LD * PFK_NO, *acc = wz + PFK_LD, *row = acc + PFK_LD;
   unsigned char* odd = (unsigned char*) (row + PFK_NO);
-  const int want_pred = c->o_xp || c->o_Pp || c->o_hm, reg = (int) c->opt[1];
+  const int want_pred = c->o_xp || c->o_Pp || c->o_hm, reg = (int) c->opt[1], oc = (int) c->opt[3];
   /* gath: the particle i is X's row idx[i] (the last resampling's pick, not copied: the next
      move reads through idx, which saves the gather's pass over memory) */
   int gath = 0;
@@ -396,6 +397,9 @@ static int pfk_body(pfk_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_
   /* uni: every log-weight is -log N (after a resampling, and at the start), not stored in lw:
      the pass that wrote them and the move's reads saved; lw written at the end */
   int uni = 1, esc, sysm = !c->uext && c->opt[0] == 0;
+  /* col: the step's ESS below the collapse floor (with on_collapse: resampled, then moved by its
+     kernel); jit: the particles move by a kernel after this step's resampling */
+  int col, jit;
   casadi_real psys = 0;
   casadi_real* part;
   if (c->m0) for (q = c0; q < c1; ++q) {  /* the prior x0 = m + L z, z the first normals of chunk q's stream */
@@ -561,7 +565,9 @@ static int pfk_body(pfk_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_
       s += r * pc[2]; s2 += r * r * pc[3];
       for (j = 0; j < PFK_NX; ++j) { sx[j] += r * pc[4 + j]; cs[j] += r * pc[4 + PFK_NX + j]; }
     }
-    esc = c->o_P || reg;
+    col = oc && s * s / s2 < c->fl[2];
+    jit = reg || col;
+    esc = c->o_P || jit;
     if (esc) {  /* e_i itself, for the covariance about the mean (tau 0, after the barrier) */
       for (q = c0; q < c1; ++q) {
         end = (q + 1) * PFK_CHUNK < N ? (q + 1) * PFK_CHUNK : N;
@@ -571,14 +577,14 @@ static int pfk_body(pfk_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_
       pfk_bwait(&c->bar);
     }
     lse = m + log(s);
-    redo = s * s / s2 <= c->fl[0];
+    redo = s * s / s2 <= c->fl[0] || col;
     if (tau == 0) {
       c->o_ll[k] = lse;
       c->o_ess[k] = s * s / s2;
-      c->o_res[k] = (casadi_real) redo;
+      c->o_res[k] = redo ? (col ? 2 : 1) : 0;  /* 2: resampled and moved by the collapse's kernel */
       if (c->o_x) for (j = 0; j < PFK_NX; ++j) c->o_x[k * PFK_NX + j] = pfk_ax[j] ? atan2(sx[j], cs[j]) : sx[j] / s;
-      if (c->o_P || (redo && reg))  /* the covariance about the mean */
-        pfk_mom(Xn, N, PFK_NX, c->e, s, pfk_ax, sn, c->o_P ? c->o_P + k * PFK_NX * PFK_NX : c->cov);
+      if (c->o_P || (redo && jit))  /* the covariance about the mean */
+        pfk_mom(Xn, N, PFK_NX, c->e, s, pfk_ax, c->mu, c->o_P ? c->o_P + k * PFK_NX * PFK_NX : c->cov);
     }
     /* tau 0 reads e, hx, sc of every chunk above: the next move writes them */
     if (want_pred || esc) pfk_bwait(&c->bar);
@@ -600,24 +606,26 @@ static int pfk_body(pfk_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_
         cum += -log1p(-symmon_uniform(rsl));
         for (i = 0; i < N; ++i) sc[i] *= (casadi_real) N / cum;
       }
-      if (reg) pfk_chol(c->o_P ? c->o_P + k * PFK_NX * PFK_NX : c->cov, c->L);
+      if (jit) pfk_chol(c->o_P ? c->o_P + k * PFK_NX * PFK_NX : c->cov, c->L);
     }
-    if (!sysm || reg) pfk_bwait(&c->bar);
+    if (!sysm || jit) pfk_bwait(&c->bar);
     for (;;) {  /* the walk along the cumulative weights, by input chunk (claimed) */
       q = __atomic_fetch_add(&c->cnt[k & 1][1], 1, __ATOMIC_RELAXED);
       if (q >= nch) break;
       pfk_pick_chunk(c->e, part, m, esc, N, nch, q, offs[q], (casadi_real) N / s, sysm ? 0 : c->sc, psys, c->idx,
-                     reg ? X : 0, Xn);
+                     jit ? X : 0, Xn);
     }
     pfk_bwait(&c->bar);
     if (tau == 0) c->cnt[k & 1][1] = 0;
     uni = 1;
-    if (!reg) {  /* the moved particles, read through idx by the next move */
+    if (!jit) {  /* the moved particles, read through idx by the next move */
       tmp = X; X = Xn; Xn = tmp;
       gath = 1;
       continue;
     }
-    for (q = c0; q < c1; ++q) {  /* regularisation: x += h L eps (Musso, Oudjane & Le Gland 2001) */
+    /* regularisation: x += h L eps (Musso, Oudjane & Le Gland 2001); at a collapse with the
+       shrink kernel (Liu & West 2001) x = mu + a (x - mu) + h L eps, a^2 + h^2 = 1 */
+    for (q = c0; q < c1; ++q) {
       uint64_t* sg = (uint64_t*) c->st + 4 * q, sl[4];
       memcpy(sl, sg, sizeof sl);
       end = (q + 1) * PFK_CHUNK < N ? (q + 1) * PFK_CHUNK : N;
@@ -628,7 +636,10 @@ static int pfk_body(pfk_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_
         for (a = 0; a < PFK_NX; ++a) {
           ei = 0;
           for (b = 0; b <= a; ++b) ei += c->L[a * PFK_NX + b] * eps[b];
-          xi[a] += c->fl[1] * ei;
+          if (col && oc == 2) {
+            cum = pfk_ax[a] ? pfk_wrap(xi[a] - c->mu[a]) : xi[a] - c->mu[a];
+            xi[a] = c->mu[a] + c->fl[3] * cum + c->fl[1] * ei;
+          } else xi[a] += c->fl[1] * ei;
           if (pfk_ax[a]) xi[a] = pfk_wrap(xi[a]);
         }
       }
@@ -686,8 +697,9 @@ static void* pfk_thread(void* p) {
    ascending in [0, N)) and jitter normals (K x N x nx), or NULL to draw; m0, L0: the mean
    and square root (n x n, row-major) of a Gaussian prior to draw X from (the first normals
    of each chunk's stream), or NULL (X given); opt = [scheme (0 systematic, 1 stratified,
-   2 multinomial), regularise, L0 diagonal]; fl = [ESS threshold x N,
-   bandwidth h]; outputs per step (NULL: not wanted); iw, w: T work arrays of isz, wsz; stop:
+   2 multinomial), regularise, L0 diagonal, on_collapse (0 none, 1 jitter, 2 shrink)]; fl = [ESS
+   threshold x N, bandwidth h, the collapse's ESS floor, the shrink a]; o_res: 1 resampled, 2
+   resampled at a collapse and moved by its kernel; outputs per step (NULL: not wanted); iw, w: T work arrays of isz, wsz; stop:
    a flag another thread may set (NULL: none), polled between chunks of the moves and seen
    by every thread at the step's first barrier.  Returns 0; 1 when a generated function
    failed; 3 when a particle or weight turned non-finite (fail: the step); PFK_STOPPED when
