@@ -42,6 +42,7 @@ from typing import TYPE_CHECKING, Iterable, Union
 import casadi as ca
 import numpy as np
 
+from ..compile.vecmath import split_parameters
 from ..core.angles import wrap_casadi
 from ..errors import SymmonError
 from ..transforms.base import Transform
@@ -375,8 +376,15 @@ def point_values(g: ca.Function, m: Sym, L: Sym, transform: Transform, angles: I
     c = _ut_scale(Z)
     D = _offsets(L, Z, c)
     W = ca.repmat(m, 1, N) + D
-    # With parameters p, g is a function of [w; p]: the same p at every point.
-    Y = g.map(N)(W if p is None else ca.vertcat(W, ca.repmat(p, 1, N)))
+    # With parameters p, g is a function of [w; p]: the same p at every point.  In MX (a loop
+    # over the points) the libm functions of p alone run once, not once per point
+    # (split_parameters: the same numbers); SX straight-line code already shares them.
+    split = split_parameters(g, n) if p is not None and isinstance(W, ca.MX) else None
+    if split is not None:
+        pre, row = split
+        Y = row.map(N)(W, p, pre(p))
+    else:
+        Y = g.map(N)(W if p is None else ca.vertcat(W, ca.repmat(p, 1, N)))
     rows = sorted(angles)
     if circle and rows:
         k = len(rows)

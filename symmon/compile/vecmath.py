@@ -50,7 +50,7 @@ import mpmath
 
 from .csource import c_defines, c_file
 
-__all__ = ["VECMATH_C", "VECTOR_OPS", "vector_rows", "ORDINARY_EXP", "EXP_LOW", "EXP_HIGH"]
+__all__ = ["VECMATH_C", "VECTOR_OPS", "PARAMETER_OPS", "vector_rows", "split_parameters", "ORDINARY_EXP", "EXP_LOW", "EXP_HIGH"]
 
 #: Arguments with |a| in [2^-ORDINARY_EXP, 2^ORDINARY_EXP] are ordinary: no product of the
 #: double-double steps overflows or underflows.  Others go to libm (CasADi's C).
@@ -106,6 +106,15 @@ VECTOR_OPS = {
     ca.OP_IF_ELSE_ZERO: "({0}?{1}:0)", ca.OP_COPYSIGN: "copysign({0},{1})",
     ca.OP_ATAN2: "sm_atan2({0},{1})", ca.OP_HYPOT: "sm_hypot({0},{1})",
 }
+#: Operations of libm that the vector loop evaluates once per call where their arguments depend
+#: on the parameters and constants only (:func:`vector_rows`), as CasADi's C writes them.
+PARAMETER_OPS = {
+    ca.OP_SIN: "sin({0})", ca.OP_COS: "cos({0})", ca.OP_TAN: "tan({0})", ca.OP_ASIN: "asin({0})",
+    ca.OP_ACOS: "acos({0})", ca.OP_ATAN: "atan({0})", ca.OP_SINH: "sinh({0})", ca.OP_COSH: "cosh({0})",
+    ca.OP_TANH: "tanh({0})", ca.OP_ASINH: "asinh({0})", ca.OP_ACOSH: "acosh({0})", ca.OP_ATANH: "atanh({0})",
+    ca.OP_EXP: "exp({0})", ca.OP_LOG: "log({0})", ca.OP_ERF: "erf({0})", ca.OP_POW: "pow({0},{1})",
+    ca.OP_CONSTPOW: "pow({0},{1})", ca.OP_FMOD: "fmod({0},{1})",
+}
 #: Operations whose arguments must be ordinary (:data:`ORDINARY_EXP`) for the vector result.
 _CHECKED = (ca.OP_ATAN2, ca.OP_HYPOT)
 
@@ -126,38 +135,55 @@ def vector_rows(f: ca.Function, name: str, n_in: int, ld: int) -> str | None:
     are then to be recomputed by CasADi's C); returns the number of such rows.
 
     ``f`` is an SX function of two dense inputs (a row, parameters shared by every row) and
-    one dense output.  Returns None when f has an operation outside :data:`VECTOR_OPS`.
+    one dense output.  The instructions that depend on the parameters and constants only
+    (a ``cos(1.2 k)`` of a per-step parameter k) are evaluated once per call, before the
+    loop, by the same C operations (:data:`VECTOR_OPS`, or libm's function for those of
+    :data:`PARAMETER_OPS`, as CasADi's C calls it): the same numbers as per row.  Returns
+    None when an instruction that depends on the row has an operation outside
+    :data:`VECTOR_OPS`.
     """
     if not f.is_a("SXFunction") or f.n_in() != 2 or f.n_out() != 1:
         return None
-    body, used = [], [0]
+    pre, body, used = [], [], set()
+    at: dict[int, str] = {}  # work variable -> the C name of the value it holds now
     for k in range(f.n_instructions()):
         op, ins, outs = f.instruction_id(k), f.instruction_input(k), f.instruction_output(k)
-        used += [j for j in ins if op != ca.OP_INPUT] + [j for j in outs if op != ca.OP_OUTPUT]
+        if op == ca.OP_OUTPUT:
+            body.append(f"out[{outs[1]}*{ld}+i] = {at[ins[0]]};")
+            continue
         if op == ca.OP_CONST:
-            body.append(f"v{outs[0]} = {_literal(float(f.instruction_constant(k)))};")
+            code, row = _literal(float(f.instruction_constant(k))), False
         elif op == ca.OP_INPUT:
-            src = f"z[i*{n_in}+{ins[1]}]" if ins[0] == 0 else f"p[{ins[1]}]"
-            body.append(f"v{outs[0]} = {src};")
-        elif op == ca.OP_OUTPUT:
-            body.append(f"out[{outs[1]}*{ld}+i] = v{ins[0]};")
-        elif op in VECTOR_OPS:
-            args = [f"v{j}" for j in ins]
-            if op in _CHECKED:  # at this point: work variables are reused later
-                body.append(f"ok &= sm_ordinary({args[0]}) & sm_ordinary({args[1]});")
-            body.append(f"v{outs[0]} = {VECTOR_OPS[op].format(*args)};")
+            row = ins[0] == 0
+            code = f"z[i*{n_in}+{ins[1]}]" if row else f"p[{ins[1]}]"
         else:
-            return None
-    decl = f"double {', '.join(f'v{j}' for j in range(max(used) + 1))};"
+            args = [at[j] for j in ins]
+            row = any(a.startswith("v") for a in args)  # else a function of the parameters only
+            form = VECTOR_OPS.get(op) if row else VECTOR_OPS.get(op, PARAMETER_OPS.get(op))
+            if form is None:
+                return None
+            if op in _CHECKED:  # at this point: work variables are reused later
+                (body if row else pre).append(f"ok{'' if row else '0'} &= sm_ordinary({args[0]}) & sm_ordinary({args[1]});")
+            code = form.format(*args)
+        if row:
+            body.append(f"v{outs[0]} = {code};")
+            at[outs[0]] = f"v{outs[0]}"
+            used.add(outs[0])
+        else:  # once per call, before the loop
+            pre.append(f"const double h{k} = {code};")
+            at[outs[0]] = f"h{k}"
+    decl = f"double {', '.join(f'v{j}' for j in sorted(used))};" if used else ""
     lines = "\n    ".join(body)
+    hoisted = "\n  ".join(pre)
     return f"""
 static int {name}(const double* restrict z, const double* restrict p, double* restrict out,
     long long n, unsigned char* restrict odd) {{
   long long i;
-  int bad = 0;
+  int bad = 0, ok0 = 1;
+  {hoisted}
   for (i = 0; i < n; ++i) {{
     {decl}
-    int ok = 1;
+    int ok = ok0;
     {lines}
     odd[i] = !ok;
     bad += odd[i];
@@ -165,3 +191,62 @@ static int {name}(const double* restrict z, const double* restrict p, double* re
   return bad;
 }}
 """
+
+
+#: The operations :func:`split_parameters` takes out of the rows: libm's functions.
+_SPLIT_OPS = frozenset(PARAMETER_OPS) | {ca.OP_ATAN2, ca.OP_HYPOT}
+
+
+def split_parameters(f: ca.Function, n_row: int) -> tuple[ca.Function, ca.Function] | None:
+    """f(z) with z = [w; p] split into ``pre`` and ``row``: ``pre(p)`` = q, the values of the
+    functions of :data:`PARAMETER_OPS` (libm's ``cos``, ``exp``, ...) whose arguments depend on
+    p (and constants) only, and ``row(w, p, q)`` = f([w; p]), with those values read from q.
+
+    For a batch of rows w that share p (the points of a point rule), q is computed once for
+    the batch instead of once per row; every operation is the same, in the same order, so
+    the numbers are f's, bit for bit.  ``f``: an SX function of one dense input (w its first
+    ``n_row`` entries) and dense outputs.  None when f has no such function (nothing to
+    gain) or is not an SX function.
+    """
+    if not f.is_a("SXFunction") or f.n_in() != 1:
+        return None
+    n_p = f.nnz_in(0) - n_row
+    w, p = ca.SX.sym("w", n_row), ca.SX.sym("p", n_p)
+    row_val: dict[int, ca.SX] = {}
+    pre_val: dict[int, ca.SX | None] = {}  # the value as an expression of p, for a function of p only
+    outs: list[list[ca.SX]] = [[ca.SX(0)] * f.nnz_out(i) for i in range(f.n_out())]
+    q_exprs: list[ca.SX] = []
+    q_syms: list[ca.SX] = []
+    for k in range(f.n_instructions()):
+        op, ins, res = f.instruction_id(k), f.instruction_input(k), f.instruction_output(k)
+        if op == ca.OP_OUTPUT:
+            outs[res[0]][res[1]] = row_val[ins[0]]
+            continue
+        if op == ca.OP_CONST:
+            v = ca.SX(float(f.instruction_constant(k)))
+            row_val[res[0]], pre_val[res[0]] = v, v
+            continue
+        if op == ca.OP_INPUT:
+            j = ins[1]
+            row_val[res[0]] = w[j] if j < n_row else p[j - n_row]
+            pre_val[res[0]] = None if j < n_row else p[j - n_row]
+            continue
+        args = [row_val[j] for j in ins]
+        pre = [pre_val[j] for j in ins]
+        fixed = all(a is not None for a in pre)
+        make = (lambda a: ca.SX.unary(op, *a)) if len(ins) == 1 else (lambda a: ca.SX.binary(op, *a))
+        if fixed and op in _SPLIT_OPS:  # once per batch: read from q
+            q = ca.SX.sym(f"q{len(q_syms)}")
+            q_exprs.append(make(pre))
+            q_syms.append(q)
+            row_val[res[0]], pre_val[res[0]] = q, q_exprs[-1]
+        else:
+            row_val[res[0]] = make(args)
+            pre_val[res[0]] = make(pre) if fixed else None
+    if not q_syms:
+        return None
+    name = f.name()
+    pre_f = ca.Function(f"{name}_pre", [p], [ca.vertcat(*q_exprs)], {"cse": True})
+    qs = ca.vertcat(*q_syms)
+    row_f = ca.Function(f"{name}_row", [w, p, qs], [ca.vertcat(*o) for o in outs], {"cse": True})
+    return pre_f, row_f

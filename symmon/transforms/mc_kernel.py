@@ -16,8 +16,9 @@ The rows themselves are written by :meth:`SampleKernel.__call__`.
 The calls go through ctypes, which releases the GIL: the groups' threads run in parallel.
 
 The row's arithmetic is a CasADi function built from the model's SX graph.  When all its
-operations have vector forms (:func:`symmon.compile.vecmath.vector_rows`: arithmetic,
-sqrt, floor, comparisons, selects, and atan2 and hypot within 1 ulp), the block is one
+operations that depend on the row have vector forms (:func:`symmon.compile.vecmath.vector_rows`:
+arithmetic, sqrt, floor, comparisons, selects, and atan2 and hypot within 1 ulp; those of
+the chunk's parameters alone run once, before the loop), the block is one
 loop that gcc vectorises; otherwise (sin, exp, pow, ...) CasADi's generated C runs per
 row, with libm.  Without a C compiler, and while a large kernel is compiled in the
 background (docs/compile.md), the same CasADi function is evaluated by CasADi's virtual

@@ -298,3 +298,35 @@ def test_the_circle_function_gives_g_and_the_sines_and_cosines_of_its_angles():
             ya = g[angles]
             np.testing.assert_allclose(out[model.n_y:model.n_y + k], np.sin(ya), rtol=0, atol=4e-16)
             np.testing.assert_allclose(out[model.n_y + k:], np.cos(ya), rtol=0, atol=4e-16)
+
+
+def test_functions_of_the_parameters_run_once_per_batch_of_points_in_mx(monkeypatch):
+    """In MX the points are one map; a libm function of the parameters alone (the growth
+    model's cos 1.2k) is split out of it (symmon.compile.vecmath.split_parameters) and
+    evaluated once: the moments are the unsplit graph's, bit for bit, on 10 states."""
+    import symmon.codegen.symbolic as symbolic
+    from symmon.compile.compiled import compiled_with_params
+    from symmon.compile.vecmath import split_parameters
+
+    n = 10
+    xs = sp.symbols(f"x0:{n}", real=True)
+    k, a = sp.symbols("k a", real=True)
+    outs = [x / 2 + 25 * x / (1 + x**2) + 8 * sp.cos(sp.Rational(6, 5) * k) + sp.exp(a) * xs[(i + 1) % n]
+            for i, x in enumerate(xs)] + [sp.atan2(xs[0], xs[1] + a)]
+    model = sm.Model(list(xs), outs, params=[k, a], name="sym_split")
+    cm = compiled_with_params(model)
+    assert split_parameters(cm.g, n) is not None and split_parameters(compiled_with_params(
+        sm.Model(list(xs), list(xs), params=[k], name="sym_nosplit")).g, n) is None
+    m, P, p = ca.MX.sym("m", n), ca.MX.sym("P", n, n), ca.MX.sym("p", 2)
+    built = {}
+    for name, fn in (("split", split_parameters), ("whole", lambda g, n_row: None)):
+        monkeypatch.setattr(symbolic, "split_parameters", fn)
+        out = moments(cm, m, P, sm.transforms.UT(), (), chol_node, p)
+        built[name] = ca.Function(f"mom_{name}", [m, P, p], list(out))
+    rng = np.random.default_rng(4)
+    A = rng.standard_normal((n, n))
+    args = [rng.standard_normal(n) * 2, A @ A.T + n * np.eye(n), np.array([7.0, 0.3])]
+    got, want = built["split"](*args), built["whole"](*args)
+    assert [str(f) for f in built.values()] and built["split"].n_nodes() != built["whole"].n_nodes()
+    for g_, w_ in zip(got, want):
+        np.testing.assert_array_equal(np.array(g_), np.array(w_))

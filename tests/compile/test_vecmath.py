@@ -161,3 +161,60 @@ def test_exp_range_flag(vec):
     fallback), where sm_exp's scale would leave the normal numbers."""
     x = np.array([-EXP_LOW, EXP_HIGH, 0.0, -EXP_LOW - 1e-9, EXP_HIGH + 1e-9, -np.inf, np.inf, np.nan, -1e5])
     np.testing.assert_array_equal(_call(vec["expok"], x, x), [1, 1, 1, 0, 0, 0, 0, 0, 0])
+
+
+def _rows_of(f: ca.Function, n_in: int, ld: int, tag: str):
+    """The vector loop of f, built, as a function of the rows Z (n, n_in) and p."""
+    code = vector_rows(f, f"{tag}_vec", n_in, ld)
+    assert code is not None
+    so = build_shared_library(VECMATH_C + code.replace(f"static int {tag}_vec", f"int {tag}_vec"), tag)
+    fn = getattr(ctypes.CDLL(str(so)), f"{tag}_vec")
+    fn.argtypes = [ctypes.c_void_p] * 3 + [ctypes.c_longlong, ctypes.c_void_p]
+    fn.restype = ctypes.c_int
+
+    def call(Z, p):
+        Z, p = np.ascontiguousarray(Z, dtype=float), np.ascontiguousarray(p, dtype=float)
+        out, odd = np.zeros((f.nnz_out(0), ld)), np.zeros(ld, dtype=np.uint8)
+        bad = fn(Z.ctypes.data, p.ctypes.data, out.ctypes.data, Z.shape[0], odd.ctypes.data)
+        return out[:, :Z.shape[0]].T, odd[:Z.shape[0]].astype(bool), bad
+
+    return code, call
+
+
+def test_vector_rows_evaluates_the_parameters_functions_once_before_the_loop():
+    """cos(1.2 p0), p1^2.5 and atan2(p0, p1), functions of the parameters only, are computed
+    before the row loop (by libm's cos and pow, as CasADi's C), so a row with a libm function
+    of the parameters has a vector loop; a libm function of the row still has none."""
+    z, p = ca.SX.sym("z", 2), ca.SX.sym("p", 2)
+    out = ca.vertcat(z[0] / 2 + 25 * z[0] / (1 + z[0] ** 2) + 8 * ca.cos(1.2 * p[0]),
+                     z[1] * p[1] ** 2.5 + ca.atan2(p[0], p[1]), ca.sqrt(p[0] * p[0]), ca.exp(p[1]))
+    f = ca.Function("hoist", [z, p], [out], {"cse": True})
+    code = vector_rows(f, "hoist_vec", 2, 16)
+    assert code is not None
+    loop = code.index("for (i = 0;")
+    for call in ("cos(", "pow(", "sm_atan2(", "exp("):
+        assert call in code[:loop] and call not in code[loop:], call
+    assert "ok0 &= sm_ordinary" in code[:loop]
+    assert vector_rows(ca.Function("no", [z, p], [ca.cos(z[0]) + ca.cos(p[0])]), "no_vec", 2, 16) is None
+
+
+@needs_gcc
+def test_vector_rows_hoisted_are_the_numbers_of_casadi_per_row():
+    """The numbers of the loop with the hoisted functions: CasADi's, bit for bit (libm's
+    cos, exp and pow once instead of per row; arithmetic in the same order); a parameter
+    that makes the hoisted atan2's argument zero flags every row."""
+    z, p = ca.SX.sym("z", 2), ca.SX.sym("p", 3)
+    out = ca.vertcat(z[0] / 2 + 25 * z[0] / (1 + z[0] ** 2) + 8 * ca.cos(1.2 * p[0]),
+                     z[1] * ca.exp(p[1]) - p[1] ** 2.5, ca.atan2(p[2], p[1]) * z[0], ca.hypot(z[0], z[1]))
+    f = ca.Function("hoistn", [z, p], [out], {"cse": True})
+    _, call = _rows_of(f, 2, 16, "hoistn")
+    rng = np.random.default_rng(1)
+    Z = rng.standard_normal((13, 2)) * 5
+    for pv in ([3.0, 0.7, 1.5], [17.0, 2.5, -0.3]):
+        got, odd, bad = call(Z, pv)
+        want = np.array(f.map(13)(Z.T, ca.DM(pv))).T
+        np.testing.assert_array_equal(got[:, :3], want[:, :3])
+        np.testing.assert_allclose(got[:, 3], want[:, 3], rtol=2.3e-16)  # sm_hypot: within 1 ulp
+        assert bad == 0 and not odd.any()
+    _, odd, bad = call(Z, [1.0, 0.7, 0.0])
+    assert bad == 13 and odd.all()

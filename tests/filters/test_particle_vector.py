@@ -22,7 +22,7 @@ import sympy as sp
 import symmon as sm
 from symmon.compile import has_compiler
 from symmon.core.angles import wrap_casadi
-from symmon.filters.particle._kernel import BootstrapKernel, _wrap
+from symmon.filters.particle._kernel import MIN_THREAD_NUMBERS, BootstrapKernel, _wrap
 from symmon.filters.particle._rng import CHUNK
 
 pytestmark = pytest.mark.skipif(not has_compiler(), reason="the compiled step needs a C compiler")
@@ -75,6 +75,25 @@ def test_the_vector_loop_agrees_with_casadi_per_particle(ys):
 def test_a_model_with_another_operation_has_no_vector_loop():
     h = sm.Model([x1, x2, th], [sp.cos(th), x1], name="pfv_hcos")
     assert not sm.ParticleFilter(F, h, Q, np.eye(2), particles=10)._bootstrap_kernel.vectorised
+
+
+def test_a_libm_function_of_the_parameters_keeps_the_vector_loop_bit_for_bit():
+    """The growth model's 8 cos(1.2 k), k a per-step parameter, is evaluated once per step
+    before the vector loop (symmon.compile.vecmath.vector_rows): the model has a vector loop,
+    and with no atan2 or hypot in it its numbers are those of CasADi's function per particle,
+    bit for bit."""
+    x, k = sp.symbols("x k", real=True)
+    f = sm.Model([x], [x / 2 + 25 * x / (1 + x**2) + 8 * sp.cos(sp.Rational(6, 5) * k)], params=[k], name="pfv_ungm_f")
+    h = sm.Model([x], [x**2 / 20], name="pfv_ungm_h")
+    steps, prior = 12, sm.Gaussian([0.0], [[5.0]])
+    params = {"k": np.arange(1, steps + 1, dtype=float)}
+    _, y = sm.simulate(f, h, [[10.0]], [[1.0]], prior, steps, params=params, seed=4)
+    pfs = [with_kernel(sm.ParticleFilter(f, h, [[10.0]], [[1.0]], particles=N, ess_threshold=0.6, seed=9), v)
+           for v in (True, False)]
+    assert pfs[0]._bootstrap_kernel.vectorised and not pfs[1]._bootstrap_kernel.vectorised
+    vec, ref = (pf.filter(y, prior, params=params, keep=("x", "P")) for pf in pfs)
+    for name in ("x", "P", "loglik", "ess", "resampled", "final_particles"):
+        np.testing.assert_array_equal(getattr(vec, name), getattr(ref, name), err_msg=name)
 
 
 def test_flagged_rows_are_recomputed_by_casadi():
@@ -145,3 +164,30 @@ def test_a_missing_component_that_is_not_finite_is_ignored():
     one = sm.ParticleFilter(f, h1, Qa, [[0.1]], particles=500, seed=3).filter(y[:, :1], prior, keep=("x",))
     for name in ("x", "loglik", "ess", "final_particles"):
         np.testing.assert_array_equal(getattr(both, name), getattr(one, name), err_msg=name)
+
+
+def test_the_fallback_to_one_thread_keeps_the_numbers(ys):
+    """A run of several threads that falls back to one (pf_kernel.c's pfk_solo: forced here
+    after the first step's moves by an efficiency above 1), or whose threads find it closed
+    (no wait for them to join: it may run alone from the start), gives the numbers of the run
+    that never falls back, bit for bit: the final particles and log-weights of every chunk
+    too."""
+    n_two = 32 * CHUNK  # N (n + n_q) >= MIN_THREAD_NUMBERS: two threads (on a machine of two CPUs or more)
+    assert n_two * 5 >= MIN_THREAD_NUMBERS
+    pf = sm.ParticleFilter(F, H, Q, R, particles=n_two, ess_threshold=0.5, seed=5)
+    solo = pf._bootstrap_kernel.built_loops()[4]
+    runs = []
+    # two threads (a wait of 10 s to join, busy CPUs or not) and never alone; another run's
+    # streams (other numbers in the work arrays); alone from the second step; no wait to join
+    for share, wait, first in ((0.0, 1e10, 0), (0.0, 1e10, 3), (2.0, 1e10, 0), (0.0, 1e10, 3), (0.0, 0.0, 0)):
+        was = solo(share, wait, 0)
+        try:
+            runs.append(pf.filter(ys[0], X0, params={"a": 0.5}, keep=("x", "P"), first_run=first))
+        finally:
+            solo(was, 2e5, 1)
+        assert was == 0.6
+    ref = runs[0]
+    assert ref.resampled.any() and not ref.resampled.all()
+    for run in (runs[2], runs[4]):
+        for name in ("x", "P", "loglik", "ess", "resampled", "final_particles", "final_log_weights"):
+            np.testing.assert_array_equal(getattr(run, name), getattr(ref, name), err_msg=name)

@@ -53,7 +53,13 @@ the moves and the walks go by chunks that the threads claim in turn from a count
 thread that is ahead takes more: the two cores of a virtual machine need not run at one
 speed, and a walk's chunk holds as many points as its share of the weight: fixed ranges
 left threads waiting at the barriers), the other passes by fixed contiguous chunk ranges; the C of a run never waits on Python's
-thread pool.  After a step without resampling the log-weights t_i − lse are written by the
+thread pool.  Where the other core is busy two threads are slower than one (a thread waiting
+for a CPU keeps the other at the barriers), so a run takes no more threads than
+``/proc/loadavg`` leaves CPUs idle at the call (``pfk_idle_cpus``), a thread that has not
+started 0.2 ms after the call does not join (``pfk_join``), and the threads note the CPU time
+and the span of their moves: when their efficiency so far (CPU time / (T x span)) falls below
+0.6 the run goes on in one thread (``pfk_solo``).  The numbers are the same whatever the
+threads.  After a step without resampling the log-weights t_i − lse are written by the
 next move (which reads t_i before it overwrites it), or at the end.
 The chunk's own stream draws a Gaussian prior and the regularisation's jitter.
 A flag that another thread may set (a Ctrl-C of the waiting thread:
@@ -89,9 +95,16 @@ __all__ = ["BootstrapKernel", "bootstrap_kernel", "BLOCK", "MIN_THREAD_NUMBERS"]
 
 _LOG_2PI = math.log(2 * math.pi)
 
-# The recursion of one run (pf_kernel.c), without its comments: they are for its reader, and the
-# library's size, which decides a background build, is the code's.
-_DRIVER_C = re.sub(r"/\*.*?\*/", "", c_file(__package__, "pf_kernel.c"), flags=re.S)
+
+
+def _compact(code: str) -> str:
+    """C without its comments and indentation: they are for its reader, and the library's
+    size, which decides a background build (a gcc time), is the code's."""
+    return re.sub(r"^[ \t]+", "", re.sub(r"/\*.*?\*/", "", code, flags=re.S), flags=re.M)
+
+
+# The recursion of one run (pf_kernel.c).
+_DRIVER_C = c_file(__package__, "pf_kernel.c")
 
 #: Particles per block of the move and weigh (the rows of a block by columns fit in L2).
 BLOCK = 256
@@ -185,13 +198,13 @@ class BootstrapKernel:
         # without a branch, which gcc vectorises.
         defines = c_defines(
             PFK_F=name, PFK_VEC=f"{name}_vec", PFK_NORMALS=f"{name}_normals", PFK_LANES=f"{name}_lanes",
-            PFK_RUN=f"{name}_run", PFK_PICK=f"{name}_pick", PFK_VECTORISED=self.vectorised,
+            PFK_RUN=f"{name}_run", PFK_PICK=f"{name}_pick", PFK_SOLO=f"{name}_solo", PFK_VECTORISED=self.vectorised,
             PFK_ANGLES=bool(angle_states), PFK_NX=n, PFK_NQ=max(n_q, 1), PFK_NY=ny, PFK_N_P=self.n_p,
             PFK_DM=max(n, ny), PFK_CHUNK=CHUNK, PFK_AX=flags(angle_states, n), PFK_AY=flags(angle_outputs, ny),
             PFK_BLOCK=BLOCK, PFK_LD=LD, PFK_NR=n + max(n_q, 1), PFK_NO=n + 2 * ny, PFK_O_MASK=self._o_mask,
             PFK_O_A=self._o_A, PFK_SZ_ARG=max(self.f.sz_arg(), 3), PFK_SZ_RES=max(self.f.sz_res(), 3),
             PFK_STOPPED=STOPPED)
-        code = RNG_C + generated_c(self.f) + VECMATH_C + (vec or "") + defines + _DRIVER_C
+        code = _compact(RNG_C + generated_c(self.f) + VECMATH_C + (vec or "") + defines + _DRIVER_C)
 
         def load(so):
             lib = ctypes.CDLL(str(so))
@@ -208,13 +221,16 @@ class BootstrapKernel:
             pick = getattr(lib, f"{name}_pick")
             pick.argtypes = [ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_double, ctypes.c_void_p]
             pick.restype = ctypes.c_int
-            return run, normals, lanes, pick
+            solo = getattr(lib, f"{name}_solo")
+            solo.argtypes = [ctypes.c_double, ctypes.c_double, ctypes.c_int]
+            solo.restype = ctypes.c_double
+            return run, normals, lanes, pick, solo
 
         self._native: NativeLibrary = cf.native_library(code, name, load, stacklevel=4)
         self._Lq_size = nnz
 
     def loops(self):
-        """The ctypes functions (run, normals, lanes, pick), or None while the C is not there (no
+        """The ctypes functions (run, normals, lanes, pick, solo), or None while the C is not there (no
         compiler, or a background build running: the caller takes the NumPy path)."""
         return self._native.get()
 

@@ -15,6 +15,7 @@
 #define PFK_LANES pfk_model_lanes
 #define PFK_RUN pfk_model_run
 #define PFK_PICK pfk_model_pick
+#define PFK_SOLO pfk_model_solo
 #define PFK_VECTORISED 1
 #define PFK_ANGLES 1
 #define PFK_NX 2
@@ -40,8 +41,10 @@ int PFK_VEC(const double* restrict z, const double* restrict p, double* restrict
 double sm_exp(double x);
 int sm_exp_ordinary(double x);
 #endif
+#include <stdio.h>
 #include <string.h>
 #include <stdlib.h>
+#include <unistd.h>
 #include <pthread.h>
 #include <sched.h>
 #include <time.h>
@@ -186,6 +189,68 @@ static int pfk_bwait(pfk_barrier* b) {
   return b->halt;
 }
 
+/* The fallback to one thread.  Two threads are slower than one where the other core is busy:
+   a thread made by the call may wait milliseconds for a CPU while the other waits for it at
+   the step's first barrier, and a thread taken off its CPU holding a chunk keeps the other
+   waiting (benchmarks/RESULTS.md, "Particle filter: two threads").  So each thread notes,
+   for its moves of a step, when it started (wall), the CPU time they took and when it
+   reached the barrier; after the barrier every thread reads the same notes and computes the
+   efficiency so far, E = sum of the threads' CPU times / (T x sum of the spans from thread
+   0's start to the last arrival), over the steps so far (a speed-up of T E at most: E < 1/2
+   is slower than one thread); when E < pfk_solo_eff (0.6) the run goes on in thread 0 alone
+   (the others leave after that barrier).  All threads take the same decision from the same
+   numbers, and the numbers of a run depend neither on T nor on who took which chunk, so
+   neither on the fallback. */
+static double pfk_solo_eff = 0.6;  /* PFK_SOLO sets it (tests) */
+static double pfk_now(clockid_t clk) {
+  struct timespec t;
+  clock_gettime(clk, &t);
+  return (double) t.tv_sec * 1e9 + (double) t.tv_nsec;
+}
+/* notes: per thread [start, CPU, arrival] (ns); sums: [CPU, spans] of the steps so far */
+static int pfk_solo(const double (*notes)[3], int T, double* sums) {
+  double last = notes[0][2];
+  int tau;
+  for (tau = 0; tau < T; ++tau) {
+    sums[0] += notes[tau][1];
+    if (notes[tau][2] > last) last = notes[tau][2];
+  }
+  sums[1] += last - notes[0][0];
+  return sums[0] < pfk_solo_eff * T * sums[1];
+}
+
+static double pfk_join_ns = 200000;  /* how long thread 0 waits for the others to join (pfk_join) */
+static int pfk_check_idle = 1;  /* whether a run looks for idle CPUs first (pfk_idle_cpus) */
+
+/* symmon (tests, benchmarks): the efficiency below which a run goes on in one thread (above
+   1: every run of several threads goes on alone after its first step's moves; 0: never), how
+   long thread 0 waits for the threads it made to join (ns), and whether a run looks for idle
+   CPUs first; returns the former efficiency. */
+CASADI_SYMBOL_EXPORT double PFK_SOLO(double eff, double join_ns, int check_idle) {
+  const double was = pfk_solo_eff;
+  pfk_solo_eff = eff;
+  pfk_join_ns = join_ns;
+  pfk_check_idle = check_idle;
+  return was;
+}
+
+/* The CPUs idle now, by the machine's CPUs less its runnable tasks (this thread one of them;
+   /proc/loadavg's fourth field, an instant count), or -1 where that is not known: a run takes
+   a thread more than this only where a CPU is free, else it starts none (~10 us a call; a run
+   of several threads is at least tens of microseconds a step).  pfk_join and pfk_solo catch
+   what this instant misses. */
+static long pfk_idle_cpus(void) {
+#ifdef __linux__
+  FILE* f = fopen("/proc/loadavg", "r");
+  long running = 0, cpus = sysconf(_SC_NPROCESSORS_ONLN);
+  int got = f ? fscanf(f, "%*f %*f %*f %ld", &running) : 0;
+  if (f) fclose(f);
+  return got == 1 && cpus > 0 ? (cpus > running ? cpus - running : 0) : -1;
+#else
+  return -1;
+#endif
+}
+
 /* Per chunk of CHUNK particles: [max t, bad, sum e, sum e^2, sum e x (or sin), sum e cos]. */
 #define pfk_PW (4 + 2 * PFK_NX)
 /* r_q = exp(m_q - m): a chunk's exponentials about its maximum m_q to the step's m (0 for a
@@ -200,6 +265,9 @@ typedef struct {
   casadi_real *o_ll, *o_ess, *o_res, *o_x, *o_P, *o_xp, *o_Pp, *o_hm, *o_hS, *cov, *L;
   casadi_real mu[PFK_NX];  /* the weighted mean the shrink kernel shrinks towards */
   casadi_int *fail, *idx; pfk_barrier bar; int T; pthread_mutex_t gate;
+  /* each thread's notes of its moves of a step (pfk_solo), by step parity (a thread writes
+     step k + 2's only after every thread has read step k's at step k + 1's barrier) */
+  double notes[2][64][3];
   casadi_int cnt[2][2];  /* the next chunk to claim, by step parity: the moves', the walks' */
 } pfk_ctx;
 
@@ -211,7 +279,11 @@ typedef struct {
    comparisons finds, without branches that depend on the weights. */
 static inline casadi_int pfk_first(casadi_real pt, casadi_real v, casadi_int p, casadi_int hi) {
   const casadi_real g = ceil(v - pt);
-  casadi_int i = g <= (casadi_real) p ? p : g >= (casadi_real) hi ? hi : (casadi_int) g;
+  casadi_int i;
+  /* the guess inside (p, hi) and both comparisons holding: the loops below would keep it
+     (g - 1 is exact, the double of i - 1), without the conversions of i */
+  if (g > (casadi_real) p && g < (casadi_real) hi && !(pt + (g - 1) >= v) && !(pt + g < v)) return (casadi_int) g;
+  i = g <= (casadi_real) p ? p : g >= (casadi_real) hi ? hi : (casadi_int) g;
   while (i > p && pt + (casadi_real) (i - 1) >= v) --i;
   while (i < hi && pt + (casadi_real) i < v) ++i;
   return i;
@@ -298,8 +370,11 @@ CASADI_SYMBOL_EXPORT int PFK_PICK(const casadi_real* e, casadi_int N, const casa
    reduction is by chunk, in chunk order, so the numbers depend neither on T nor on who took
    which chunk.  offs: nch numbers, the sum of e over the chunks before each. */
 static int pfk_body(pfk_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_real* buf, casadi_real* offs) {
-  const casadi_int N = c->N, nch = c->nch, c0 = nch * tau / c->T, c1 = nch * (tau + 1) / c->T;
-  const casadi_int a0 = c0 * PFK_CHUNK, a1 = c1 * PFK_CHUNK < N ? c1 * PFK_CHUNK : N;
+  const casadi_int N = c->N, nch = c->nch;
+  casadi_int c0 = nch * tau / c->T, c1 = nch * (tau + 1) / c->T;
+  casadi_int a0 = c0 * PFK_CHUNK, a1 = c1 * PFK_CHUNK < N ? c1 * PFK_CHUNK : N;
+  int T = c->T;  /* the threads now (pfk_solo) */
+  double sums[2] = {0, 0}, w0 = 0, u0 = 0;
   const casadi_real* arg[PFK_SZ_ARG];
   casadi_real* res[PFK_SZ_RES];
   casadi_real *X = c->X0, *Xn = c->Xn0, *tmp, *xi, *pc;
@@ -343,6 +418,7 @@ static int pfk_body(pfk_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_
   }
   if (c->m0) pfk_bwait(&c->bar);  /* the moves read any chunk's prior */
   for (k = 0; k < c->K; ++k) {
+    if (T > 1) { w0 = pfk_now(CLOCK_MONOTONIC); u0 = pfk_now(CLOCK_THREAD_CPUTIME_ID); }
     arg[2] = pk = c->P + k * PFK_N_P;
     part = c->part + (k & 1) * nch * pfk_PW;  /* by parity: a thread's next move may write
                                                      its chunks' sums while another reads these */
@@ -450,7 +526,17 @@ static int pfk_body(pfk_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_
     }
     /* the step's stop: seen by every thread at this barrier (a thread that stopped claiming
        chunks saw the flag set, and the last to arrive reads it after that) */
+    if (T > 1) {
+      c->notes[k & 1][tau][0] = w0;
+      c->notes[k & 1][tau][1] = pfk_now(CLOCK_THREAD_CPUTIME_ID) - u0;
+      c->notes[k & 1][tau][2] = pfk_now(CLOCK_MONOTONIC);
+    }
     if (pfk_bwait(&c->bar)) return PFK_STOPPED;
+    if (T > 1 && pfk_solo((const double (*)[3]) c->notes[k & 1], T, sums)) {  /* one thread from here on (pfk_solo) */
+      if (tau > 0) return 0;
+      T = c->bar.T = 1;
+      c0 = 0; c1 = nch; a0 = 0; a1 = N;
+    }
     if (tau == 0) c->cnt[k & 1][0] = 0;  /* every claim of this step is over; the next is at k + 2 */
     m = -INFINITY;
     bad = 0;
@@ -573,11 +659,32 @@ static int pfk_body(pfk_ctx* c, int tau, casadi_int* iw, casadi_real* w, casadi_
 }
 
 typedef struct { pfk_ctx* c; int tau; casadi_int* iw; casadi_real* w; casadi_real* buf; casadi_real* offs; int ret; } pfk_arg;
+
+/* The threads a run makes join it only if they start in time: on a busy machine a new thread
+   may wait milliseconds for a CPU, and thread 0 would wait for it at the first barrier.  So
+   thread 0 waits at most pfk_join_ns (0.2 ms) for them, then closes the run: a thread that starts
+   later leaves at once, and the run goes on with those that joined (the numbers do not
+   depend on T).  The threads are detached; what a latecomer reads is this struct on the heap
+   (not the run's frame, which may be gone), freed by the last of its users; thread 0 waits
+   for the threads that joined to count themselves done. */
+#define pfk_CLOSED 0x40000000
+typedef struct { int state, refs, done; pfk_ctx* c; pfk_arg* args; } pfk_join;
+static void pfk_release(pfk_join* js) {
+  if (__atomic_sub_fetch(&js->refs, 1, __ATOMIC_ACQ_REL) == 0) free(js);
+}
 static void* pfk_thread(void* p) {
-  pfk_arg* a = (pfk_arg*) p;
-  pthread_mutex_lock(&a->c->gate);  /* wait until every thread is made and T is final */
-  pthread_mutex_unlock(&a->c->gate);
+  pfk_join* js = (pfk_join*) p;
+  pfk_arg* a;
+  int s = __atomic_load_n(&js->state, __ATOMIC_ACQUIRE);
+  do {
+    if (s & pfk_CLOSED) { pfk_release(js); return 0; }  /* too late: the run goes on without it */
+  } while (!__atomic_compare_exchange_n(&js->state, &s, s + 1, 0, __ATOMIC_ACQ_REL, __ATOMIC_ACQUIRE));
+  a = js->args + s + 1;  /* the j-th to join is thread j */
+  pthread_mutex_lock(&js->c->gate);  /* wait until T is final */
+  pthread_mutex_unlock(&js->c->gate);
   a->ret = pfk_body(a->c, a->tau, a->iw, a->w, a->buf, a->offs);
+  __atomic_add_fetch(&js->done, 1, __ATOMIC_RELEASE);  /* its last use of the run's frame */
+  pfk_release(js);
   return 0;
 }
 
@@ -608,8 +715,12 @@ CASADI_SYMBOL_EXPORT int PFK_RUN(const casadi_real* P, casadi_int K, casadi_int 
   pfk_arg args[64];
   pthread_t th[64];
   casadi_real cov[PFK_NX * PFK_NX], L[PFK_NX * PFK_NX];
-  int tau, ret = 0, started = 0;
+  int tau, ret = 0, started = 0, joined;
   casadi_real* buf;
+  pfk_join* js;
+  pthread_attr_t attr;
+  struct timespec t0, t1;
+  long spin;
   c.P = P; c.K = K; c.N = N; c.nch = (N + PFK_CHUNK - 1) / PFK_CHUNK;
   c.X0 = X0; c.Xn0 = Xn0; c.t = t; c.e = e; c.lw = lw; c.sc = sc; c.hx = hx; c.part = part; c.st = st;
   c.zext = zext; c.uext = uext; c.jext = jext; c.m0 = m0; c.L0 = L0; c.opt = opt; c.fl = fl; c.o_ll = o_ll; c.o_ess = o_ess;
@@ -620,10 +731,15 @@ CASADI_SYMBOL_EXPORT int PFK_RUN(const casadi_real* P, casadi_int K, casadi_int 
   if (!c.idx) return 1;
   if (T > c.nch) T = c.nch;
   if (T > 64) T = 64;
+  if (T > 1 && pfk_check_idle) {  /* no threads where the other CPUs are busy */
+    const long idle = pfk_idle_cpus();
+    if (idle >= 0 && T > idle + 1) T = idle + 1;
+  }
   if (T < 1) T = 1;
   c.T = (int) T;
   buf = (casadi_real*) malloc(T * (pfk_BUF + c.nch) * sizeof(casadi_real));
-  if (!buf) { free(c.idx); return 1; }
+  js = (pfk_join*) calloc(1, sizeof(pfk_join));
+  if (!buf || !js) { free(buf); free(js); free(c.idx); return 1; }
   c.bar.T = (int) T; c.bar.count = 0; c.bar.gen = 0; c.bar.halt = 0; c.bar.stop = stop;
   pthread_mutex_init(&c.bar.mu, 0);
   pthread_cond_init(&c.bar.cv, 0);
@@ -633,19 +749,33 @@ CASADI_SYMBOL_EXPORT int PFK_RUN(const casadi_real* P, casadi_int K, casadi_int 
     args[tau].c = &c; args[tau].tau = tau; args[tau].iw = iw + tau * isz; args[tau].w = w + tau * wsz;
     args[tau].ret = 0; args[tau].buf = buf + tau * pfk_BUF; args[tau].offs = buf + T * pfk_BUF + tau * c.nch;
   }
+  js->c = &c; js->args = args; js->refs = (int) T;  /* the T - 1 threads and this one */
+  pthread_attr_init(&attr);
+  pthread_attr_setdetachstate(&attr, PTHREAD_CREATE_DETACHED);
   for (tau = 1; tau < T; ++tau) {
-    if (pthread_create(&th[tau], 0, pfk_thread, &args[tau])) break;
+    if (pthread_create(&th[tau], &attr, pfk_thread, js)) break;
     started = tau;
   }
-  c.T = c.bar.T = started + 1;  /* fewer threads if one could not be made */
+  pthread_attr_destroy(&attr);
+  if (started < T - 1) __atomic_sub_fetch(&js->refs, (int) (T - 1 - started), __ATOMIC_ACQ_REL);
+  clock_gettime(CLOCK_MONOTONIC, &t0);
+  for (spin = 1; __atomic_load_n(&js->state, __ATOMIC_ACQUIRE) < started; ++spin) {  /* pfk_join_ns at most */
+    pfk_PAUSE();
+    if (spin % 32) continue;
+    clock_gettime(CLOCK_MONOTONIC, &t1);
+    if ((double) (t1.tv_sec - t0.tv_sec) * 1e9 + (double) (t1.tv_nsec - t0.tv_nsec) >= pfk_join_ns) break;
+  }
+  joined = __atomic_fetch_or(&js->state, pfk_CLOSED, __ATOMIC_ACQ_REL) & ~pfk_CLOSED;
+  c.T = c.bar.T = joined + 1;  /* those that joined in time (and could be made) */
   pthread_mutex_unlock(&c.gate);
-  pfk_thread(&args[0]);
-  for (tau = 1; tau <= started; ++tau) pthread_join(th[tau], 0);
+  args[0].ret = pfk_body(&c, 0, args[0].iw, args[0].w, args[0].buf, args[0].offs);
+  while (__atomic_load_n(&js->done, __ATOMIC_ACQUIRE) < joined) sched_yield();
+  pfk_release(js);
   pthread_mutex_destroy(&c.bar.mu);
   pthread_cond_destroy(&c.bar.cv);
   pthread_mutex_destroy(&c.gate);
   free(buf);
   free(c.idx);
-  for (tau = 0; tau <= started; ++tau) if (args[tau].ret > ret) ret = args[tau].ret;
+  for (tau = 0; tau <= joined; ++tau) if (args[tau].ret > ret) ret = args[tau].ret;
   return ret;
 }
