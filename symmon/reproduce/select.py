@@ -109,7 +109,7 @@ RUNS, PILOT_RUNS = 200, 64
 FRESH_SEED = 1000
 #: The columns of ``select.csv``.
 COLUMNS = ("scenario", "candidate", "method", "advised", "pilot_kept", "pilot_rmse", "pilot_anees", "pilot_credible",
-           "pilot_credibility", "pilot_runs", "pilot_seconds", "runs", "rmse", "rmse_ratio", "anees", "anees_lower", "anees_upper", "anees_band_lower",
+           "pilot_credibility", "pilot_lost_rate", "pilot_runs", "pilot_seconds", "runs", "rmse", "rmse_ratio", "anees", "anees_lower", "anees_upper", "anees_band_lower",
            "anees_band_upper", "credible", "failure", "reference_credible", "within_margin", "batches", "batch_share", "cost_evals_per_step",
            "seconds_per_step", "advice_credible", "advice_confirmed")
 
@@ -239,7 +239,8 @@ def rows(st: dict[str, Any]) -> list[list]:
             interval = r.anees_interval or (None, None)
             out.append([name, r.name, r.method, int(r.name == c.choice), int(ran),
                         p.rmse if ran else None, p.anees if ran else None,
-                        None if not ran else int(bool(p.credible)), p.credibility if ran else None, p.runs if ran else None,
+                        None if not ran else int(bool(p.credible)), p.credibility if ran else None,
+                        p.lost_rate if ran else None, p.runs if ran else None,
                         d["pilot_seconds"], c.runs, r.rmse, ratio,
                         r.anees, interval[0], interval[1], lo, hi, int(bool(r.credible)), r.failure,
                         int(c.any_credible),

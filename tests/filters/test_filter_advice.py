@@ -3,6 +3,7 @@ study confirms, and the choice is the cheapest credible filter within 10 % of th
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -14,7 +15,9 @@ from symmon.reproduce import select
 from symmon.errors import ArgumentError, ArgumentTypeError, SymmonError
 from symmon.filters.selection import (ANEES_BAND, BATCH_RUNS, CREDIBLE_PROBABILITY, MIN_RUNS, PF_GROWTH,
                                       PF_GROWTH_STEPS, RMSE_MARGIN, SECOND_LOOK, SECONDS_PER_EVALUATION,
-                                      FilterCandidate, _choose, _merged, confirm_advice, predictive_credibility)
+                                      FilterCandidate, _choose, _merged, confirm_advice, predictive_credibility,
+                                      LOST_ALPHA, LOST_BANK_PROBABILITY, TAIL_SHARE, TAIL_WIDTH, _tail_bank,
+                                      lost_track_threshold, tail_weights)
 
 p, v, x = sp.symbols("p v x", real=True)
 # A constant-velocity model measured in position: linear and Gaussian.
@@ -122,7 +125,10 @@ def test_budget_bounds_the_pilot_by_its_runs(budget, runs) -> None:
     assert a.runs == runs and a.runs_asked == 24
     # the pilot's runs, and the second look's at the choice where the budget holds them
     look = a.second_look * a.steps * a.chosen.cost * SECONDS_PER_EVALUATION
-    assert a.estimated_seconds == pytest.approx(a.runs * _estimate(a) + look)
+    # and the tail look's, of the credible candidates
+    tail = a.tail_look * a.steps * sum(c.cost for c in a.candidates if c.lost_rate is not None) * SECONDS_PER_EVALUATION
+    assert (a.tail_look > 0) == any(c.lost_rate is not None for c in a.candidates)
+    assert a.estimated_seconds == pytest.approx(a.runs * _estimate(a) + tail + look)
     if budget is not None and a.runs > MIN_RUNS:
         assert a.estimated_seconds <= budget
     assert (a.second_look > 0) == (budget in (None, 1e3))
@@ -386,3 +392,95 @@ def test_a_second_look_that_meets_a_divergent_run_overturns_the_choice() -> None
     # the choice then falls to the next credible candidate
     steady = _row("pf", 2000, 0.64, clean)
     assert _choose([pilot, steady])[0] is pilot and _choose([both, steady])[0] is steady
+
+
+# --------------------------------------------------------------------------- the tail look
+def test_the_lost_track_threshold_is_one_steps_chi_square_quantile() -> None:
+    from scipy import stats
+    for n in (1, 2, 5):
+        assert lost_track_threshold(n) == pytest.approx(stats.chi2.isf(LOST_ALPHA, n))
+    assert lost_track_threshold(2) > 25 * 1.0  # far above a consistent run's time mean, n = 2
+    with pytest.raises(ArgumentError, match="n must be"):
+        lost_track_threshold(0)
+
+
+def test_the_tail_weights_are_the_prior_over_the_defensive_mixture() -> None:
+    x0 = sm.Gaussian([1.0, -2.0], np.diag([4.0, 9.0]))
+    mix = sm.GaussianMixture.from_components([1 - TAIL_SHARE, TAIL_SHARE],
+                                             [x0, sm.Gaussian([1.0, -2.0], TAIL_WIDTH**2 * np.diag([4.0, 9.0]))])
+    X = mix.sample(200_000, np.random.default_rng(5))
+    w = tail_weights(X, x0)
+    from scipy import stats
+    p = stats.multivariate_normal([1.0, -2.0], np.diag([4.0, 9.0])).pdf(X[:5])
+    q = stats.multivariate_normal([1.0, -2.0], TAIL_WIDTH**2 * np.diag([4.0, 9.0])).pdf(X[:5])
+    assert w[:5] == pytest.approx(p / ((1 - TAIL_SHARE) * p + TAIL_SHARE * q), rel=1e-10)
+    assert w.max() <= 1 / (1 - TAIL_SHARE) and w.min() > 0
+    assert w.mean() == pytest.approx(1.0, abs=0.01)  # unbiased for the prior's expectations
+    # the prior's tail probability P(d² > 9) = exp(−4.5), estimated from the mixture's draws
+    d2 = ((X - [1.0, -2.0]) ** 2 / [4.0, 9.0]).sum(axis=1)
+    assert np.mean(w * (d2 > 9)) == pytest.approx(math.exp(-4.5), rel=0.1)
+    with pytest.raises(ArgumentError, match="share"):
+        tail_weights(X[:2], x0, share=1.0)
+    with pytest.raises(ArgumentError, match="width"):
+        tail_weights(X[:2], x0, width=0.5)
+    with pytest.raises(ArgumentError, match="x0s"):
+        tail_weights(np.zeros((2, 3)), x0)
+
+
+def test_the_tail_looks_weights_are_those_of_its_runs_initial_truths() -> None:
+    # a random walk without process noise keeps x_0: the bank's first states are its initial truths
+    f = sm.Model([p, v], [p, v], name="adv_still")
+    xs, _, x0s, w = _tail_bank(f, CV_H, np.zeros((2, 2)), CV_R, CV_X0, 3, 40, None, 11)
+    assert np.allclose(xs[:, 0], x0s) and np.allclose(xs[:, -1], x0s)
+    assert np.array_equal(w, tail_weights(x0s, CV_X0))
+    assert np.max(np.sum((x0s - [0.0, 1.0]) ** 2, axis=1)) > 9  # the tail is drawn
+
+
+# Range-only localisation (the study's scenario): with seed 0 the Gaussian-sum filter is credible in
+# the pilot and steady there (no lost track among the pilot's runs), but loses a truth that starts
+# far below the sensor's line to the mirror mode; the particle filter keeps it.
+_RO = select.scenario("range_only")
+RO = (_RO.f, _RO.h, _RO.Q, _RO.R, _RO.x0, _RO.steps)
+
+
+@pytest.fixture(scope="module")
+def range_only():
+    return sm.advise_filter(*RO, _RO.params, runs=64, seed=0)
+
+
+def test_a_candidate_that_loses_tail_runs_is_at_risk_where_the_plain_pilot_would_not_see_it(range_only) -> None:
+    gsf, pf = range_only.candidates[[c.name for c in range_only.candidates].index("gsf")], \
+        range_only.candidates[[c.name for c in range_only.candidates].index("pf")]
+    bound = lost_track_threshold(2)
+    pilot_runs = gsf.run_nees[:range_only.runs]
+    # the plain pilot: credible, steady, no lost track among its runs, and cheaper than the particle filter
+    assert gsf.credible and gsf.credibility >= CREDIBLE_PROBABILITY and pilot_runs.max() < bound
+    assert gsf.cost < pf.cost
+    # the tail look: its lost tracks make a bank of the advice's runs likely to hold one; the PF's do not
+    bank = (1 + SECOND_LOOK) * range_only.runs
+    assert 1 - (1 - gsf.lost_rate) ** bank >= LOST_BANK_PROBABILITY > 1 - (1 - pf.lost_rate) ** bank
+    assert gsf.tail_risk and gsf.at_risk and not pf.tail_risk
+    assert range_only.choice == "pf" and range_only.credible
+    assert "loses tracks in the prior's tail" in range_only.table and "lost" in range_only.table.splitlines()[0]
+    assert range_only.as_dict()["candidates"][[c.name for c in range_only.candidates].index("gsf")]["lost_rate"] \
+        == gsf.lost_rate
+
+
+def test_the_tail_look_is_reproducible_per_seed(range_only) -> None:
+    again = sm.advise_filter(*RO, _RO.params, runs=64, seed=0)
+    assert [c.lost_rate for c in again.candidates] == [c.lost_rate for c in range_only.candidates]
+    assert again.choice == range_only.choice
+
+
+def test_a_consistent_filter_loses_no_track_in_the_tail(linear) -> None:
+    # the linear model: every credible candidate runs the tail look, and none loses a track there
+    looked = [c for c in linear.candidates if c.lost_rate is not None]
+    assert looked and all(c.lost_rate == 0.0 and not c.tail_risk for c in looked)
+
+
+def test_the_tail_risk_needs_another_candidate_without_it() -> None:
+    # a lone candidate with lost tracks is not made at risk by them: nothing safer to compare
+    row = FilterCandidate(name="gsf", method="GSF", settings={}, kept=True, reason="", cost=10, credible=True,
+                          credibility=1.0, lost_rate=0.01, tail_risk=False)
+    assert not row.at_risk
+    assert dataclasses.replace(row, tail_risk=True).at_risk
