@@ -257,6 +257,22 @@ def test_square_root_nees_in_the_step_equals_the_nees_of_its_p():
     np.testing.assert_allclose(res.nees_values, direct, rtol=1e-9)
 
 
+def test_square_root_nees_on_the_vm_equals_the_nees_of_its_p():
+    """The VM's NEES pass reads each step's factor S as CasADi wrote it (column-major), not
+    its transpose: the same NEES as the C loop's and as eᵀ P⁻¹ e."""
+    from symmon.filters.gaussian.step import compiled_step
+
+    sr = sm.NonlinearKalmanFilter(F_FIX, H_RB, Q, R, sm.TT1(), square_root=True)
+    step = compiled_step(F_FIX, H_RB, sm.TT1(), sr.angle_states, 1, True)
+    ys = np.nan_to_num(YS[:1])
+    truth = np.broadcast_to(np.asarray(X0.mean), (1, K, 4)).copy()
+    vm = step(np.asarray(X0.mean), np.asarray(X0.cov), ys, sr.Q, sr.R, use_c=False, truth=truth)
+    e = truth - vm["x"]
+    e[..., 2] = (e[..., 2] + np.pi) % (2 * np.pi) - np.pi
+    direct = np.einsum("rki,rki->rk", e, np.linalg.solve(vm["P"], e[..., None])[..., 0])
+    np.testing.assert_allclose(vm["nees"], direct, rtol=1e-9)
+
+
 def test_square_root_refusals():
     with pytest.raises(ArgumentTypeError, match="square_root must be True or False"):
         sm.NonlinearKalmanFilter(F_FIX, H_RB, Q, R, sm.TT1(), square_root="yes")

@@ -481,8 +481,10 @@ class _CompiledStep(CompiledLoop):
         if truth is not None:
             N = runs * K
             gm = self.nees_f.map(N, "serial")
-            # A mapped matrix input is the matrices side by side, n × (N n).
-            Ps = out["P"].reshape(N, n, n).transpose(1, 0, 2).reshape(n, N * n)
+            # A mapped matrix input is the matrices side by side, n × (N n), each the step's
+            # output as CasADi wrote it (column-major: the transpose of the C-order block; the
+            # same for a symmetric P, the factor S itself for a square-root step).
+            Ps = out["P"].reshape(N, n, n).transpose(2, 0, 1).reshape(n, N * n)
             vals = gm(out["x"].reshape(N, n).T, Ps, truth.reshape(N, n).T)
             out["nees"], out["nees_trace"] = (np.asarray(v).reshape(runs, K) for v in vals)
         return out
