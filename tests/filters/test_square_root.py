@@ -303,6 +303,33 @@ def test_c_square_root_ekf_step_equals_the_standard_form_and_the_vm(iterations):
     assert np.all(np.triu(c["P_chol"], 1) == 0) and np.all(np.triu(c["P_pred_chol"], 1) == 0)
 
 
+def test_c_square_root_ekf_step_with_a_singular_p0_and_an_exact_measurement():
+    """A zero variance in P0 and a zero one in R (singular factors, zero rows in the
+    reflections): the C step's x, P = S Sᵀ, S and log-likelihood equal the MX step's to
+    rounding; the factor of a singular P is one of several, so S itself may differ."""
+    from symmon.filters.gaussian.step import compiled_step
+
+    f, h, Qk, Rk, x0 = stacked_unicycles(3)
+    P0 = np.array(x0.cov)
+    P0[:, 3] = P0[3, :] = 0
+    Rk = Rk.copy()
+    Rk[2, 2] = 0.0
+    rng = np.random.default_rng(2)
+    hx = sp.lambdify(f.inputs, h.outputs, "numpy")
+    ys = (np.array([hx(*x0.mean) for _ in range(8)]) + 0.05 * rng.standard_normal((8, 6)))[None]
+    sr = sm.NonlinearKalmanFilter(f, h, Qk, Rk, sm.TT1(), square_root=True)
+    step = compiled_step(f, h, sm.TT1(), sr.angle_states, 1, True)
+    assert step.c_sqrt_ekf and step._lib.wait(120)
+    pv = np.broadcast_to(np.stack([np.ones(8), np.full(8, 0.07)], axis=1), (1, 8, 2)).copy()
+    c = step(np.asarray(x0.mean), P0, ys, sr.Q, sr.R, params=pv)
+    vm = step(np.asarray(x0.mean), P0, ys, sr.Q, sr.R, use_c=False, params=pv)
+    for key in ("x", "P", "S", "loglik"):
+        assert np.all(np.isfinite(c[key]))
+        scale = np.maximum(np.abs(vm[key]), 1.0)
+        assert np.all(np.abs(c[key] - vm[key]) <= 1e-12 * scale), key
+    assert np.all(np.triu(c["P_chol"], 1) == 0) and np.all(np.diagonal(c["P_chol"], axis1=-2, axis2=-1) >= 0)
+
+
 def test_the_c_square_root_step_is_the_ekf_and_iekf_from_its_size_on():
     from symmon.filters.gaussian.step import compiled_step
 
