@@ -368,6 +368,23 @@ def test_square_root_nees_on_the_vm_equals_the_nees_of_its_p():
     np.testing.assert_allclose(vm["nees"], direct, rtol=1e-9)
 
 
+def test_the_sx_square_root_step_reads_the_lower_triangle_of_its_factor_only():
+    """The straight-line step takes the factors' upper triangles as structural zeros (no
+    product or reflection works on them): an upper triangle of garbage changes nothing."""
+    from symmon.filters.gaussian.step import compiled_step
+
+    sr = sm.NonlinearKalmanFilter(F_FIX, H_RB, Q, R, sm.TT1(), square_root=True)
+    step = compiled_step(F_FIX, H_RB, sm.TT1(), sr.angle_states, 1, True)
+    S0 = np.linalg.cholesky(X0.cov)
+    dirty = S0 + np.triu(np.full((4, 4), 7.0), 1)
+    ys = np.nan_to_num(YS[:1])
+    for use_c in (True, False):
+        a = step(np.asarray(X0.mean), S0, ys, sr.Q, sr.R, use_c=use_c, factored=True)
+        b = step(np.asarray(X0.mean), dirty, ys, sr.Q, sr.R, use_c=use_c, factored=True)
+        for key in ("x", "P", "loglik"):
+            np.testing.assert_array_equal(a[key], b[key])
+
+
 def test_square_root_refusals():
     with pytest.raises(ArgumentTypeError, match="square_root must be True or False"):
         sm.NonlinearKalmanFilter(F_FIX, H_RB, Q, R, sm.TT1(), square_root="yes")

@@ -208,8 +208,11 @@ def _step_function(f: Model, h: Model, transform: Transform, angle_states: froze
     Q, R, mask = kind.sym("Q", nq, nq), kind.sym("R", nr, nr), kind.sym("mask", n_y)
     p = kind.sym("p", len(names))
     if square_root:
-        x_pred, P_pred = sqrt_predict_graph(f, transform, angle_states, x, P, Q, select_params(f, names, p))
-        x_new, P_new, nu, Sy, loglik, nis = sqrt_update_graph(h, transform, angle_states, x_pred, P_pred, y, R,
+        # SX: the factors' upper triangles are structural zeros (the loop's factors are lower
+        # triangular), so that no product or reflection works on them.
+        Sf, Qf, Rf = (ca.tril(a) for a in (P, Q, R)) if kind is ca.SX else (P, Q, R)
+        x_pred, P_pred = sqrt_predict_graph(f, transform, angle_states, x, Sf, Qf, select_params(f, names, p))
+        x_new, P_new, nu, Sy, loglik, nis = sqrt_update_graph(h, transform, angle_states, x_pred, P_pred, y, Rf,
                                                               mask, select_params(h, names, p), iterations)
         S = ca.mtimes(Sy, Sy.T)
     else:
