@@ -83,9 +83,43 @@ def tria(A: Sym) -> Sym:
     n, m = A.shape
     if m < n:  # fewer columns than rows: zero columns change nothing
         A = ca.horzcat(A, kind.zeros(n, n - m))
-    T = ca.densify(A)  # the trailing block, rows j…n−1 and columns j…m−1
+        m = n
+    T = ca.densify(A)
+    if kind is not ca.MX:
+        return _reflect(T, n)[0]
+    # MX: the rows in parts of at most TRIA_PART, each one function of the generated C, so
+    # that a large step's functions stay small enough for an optimised build
+    # (symmon.compile.ccache.background_level); the same operations in the same order.
+    parts, j = [], 0
+    while j < n:
+        k = min(TRIA_PART, n - j)
+        outs = _tria_part(n - j, m - j, k).call([T])
+        parts.append(ca.vertcat(kind.zeros(j, k), outs[0]) if j else outs[0])
+        T = outs[1] if k < n - j else None
+        j += k
+    return ca.horzcat(*parts)
+
+
+#: Rows of a part of an MX :func:`tria` (one function of the generated C each).
+TRIA_PART = 24
+
+
+@functools.lru_cache(maxsize=128)
+def _tria_part(n: int, m: int, k: int) -> ca.Function:
+    """The first k reflections of :func:`tria` on an n × m MX block: (the k columns of L,
+    n × k; the trailing block after them, (n − k) × (m − k), when k < n)."""
+    T = ca.MX.sym("T", n, m)
+    L, rest = _reflect(T, k)
+    return ca.Function(f"tria{n}x{m}p{k}", [T], [L] + ([rest] if k < n else []))
+
+
+def _reflect(T: Sym, k: int) -> tuple[Sym, Sym | None]:
+    """The first k reflections of :func:`tria` on the dense n × m block T (m ≥ n): the k
+    columns of L (n × k), and the trailing block after them (None when k = n)."""
+    kind = type(T)
+    n = T.shape[0]
     cols = []
-    for j in range(n):
+    for j in range(k):
         x = T[0, :].T
         sigma = ca.norm_2(x)
         s = ca.if_else(x[0] >= 0, 1, -1)
@@ -94,13 +128,13 @@ def tria(A: Sym) -> Sym:
         beta = ca.if_else(vv > 0, 2 / vv, 0)
         if j == n - 1:
             cols.append(ca.vertcat(kind.zeros(j, 1), sigma))
-            break
+            return ca.horzcat(*cols), None
         # The rows below: w = T v (without row 0), column 0 is their new column j, and the
         # trailing block T[1:, 1:] − β w v[1:]ᵀ accumulates into the copy of its slice.
         w = beta * ca.mtimes(T, v)[1:, :]
         cols.append(ca.vertcat(kind.zeros(j, 1), sigma, -s * (T[1:, 0] - w * v[0])))
         T = ca.mac(-w, v[1:, :].T, T[1:, 1:])
-    return ca.horzcat(*cols)
+    return ca.horzcat(*cols), T
 
 
 def chol_downdate(L: Sym, b: Sym) -> Sym:

@@ -74,3 +74,29 @@ def test_gain_and_joseph_factor_equal_the_kalman_update(kind):
     np.testing.assert_allclose(K, K_ref, atol=1e-12)
     np.testing.assert_allclose(Sp @ Sp.T, P - K_ref @ Sc @ K_ref.T, atol=1e-13)
     assert np.all(np.triu(Sp, 1) == 0) and np.all(np.diag(Sp) > 0)
+
+
+@pytest.mark.parametrize("n, m", [(30, 70), (53, 60), (24, 24)])
+def test_mx_tria_in_parts_equals_the_sx_tria_to_the_bit(n, m):
+    """The MX tria runs its rows in parts of TRIA_PART, each a function of its own: the same
+    operations in the same order as the SX tria (one sequence of reflections)."""
+    A = np.random.default_rng(n + m).standard_normal((n, m))
+    A[3] = 0  # a zero row: no reflection
+    (Ls,) = evaluate(ca.SX, tria, ((n, m), A))
+    (Lm,) = evaluate(ca.MX, tria, ((n, m), A))
+    np.testing.assert_array_equal(Lm, Ls)
+    np.testing.assert_allclose(Lm @ Lm.T, A @ A.T, atol=1e-12)
+
+
+def test_a_large_mx_tria_is_c_of_small_functions():
+    """A 64-row tria (a 64-state square-root UKF's time update) generates C whose largest
+    function stays below SPLIT_FUNCTION_BYTES, so that a step holding it is built optimised
+    (symmon.compile.ccache.background_level), where one function of its 64 reflections was
+    too large for that."""
+    from symmon.codegen.sqrtform import TRIA_PART
+    from symmon.compile.ccache import SPLIT_FUNCTION_BYTES, largest_function_bytes
+    from symmon.compile.compiled import generated_c
+
+    A = ca.MX.sym("A", 64, 193)
+    code = generated_c(ca.Function("big_tria", [A], [tria(A)]))
+    assert TRIA_PART < 64 and largest_function_bytes(code) <= SPLIT_FUNCTION_BYTES

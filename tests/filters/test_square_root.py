@@ -247,6 +247,101 @@ def test_square_root_mx_step_equals_the_standard_form_and_the_vm():
     np.testing.assert_allclose(vm["P_chol"][0], a.P_chol, rtol=1e-12, atol=1e-14)
 
 
+def stacked_unicycles(k: int):
+    """k unicycles (heading an angle state; dt and om parameters) in range and bearing: 4k
+    states, with a rank-deficient Q (the speeds noise-free) and a dense P0."""
+    X, fo, ho, angles = [], [], [], []
+    for i in range(k):
+        a, b, c, d = sp.symbols(f"ux{i} uy{i} uth{i} uv{i}", real=True)
+        X += [a, b, c, d]
+        fo += [a + dt * d * sp.cos(c), b + dt * d * sp.sin(c), c + dt * om, d]
+        ho += [sp.sqrt(a**2 + b**2), sp.atan2(b, a)]
+        angles.append(4 * i + 2)
+    f = sm.Model(X, fo, angles=angles, params=[dt, om], name=f"sr_uni{k}")
+    h = sm.Model(X, ho, angles=list(range(1, 2 * k, 2)), name=f"sr_unirb{k}")
+    mean = np.concatenate([[30.0 + 6 * i, 10.0 - 4 * i, 0.5 + 0.2 * i, 2.0] for i in range(k)])
+    A = np.random.default_rng(11).standard_normal((4 * k, 4 * k))
+    P0 = np.kron(np.eye(k), np.diag([1.0, 1.0, 0.05, 0.1])) + 0.01 * A @ A.T
+    Qk = np.kron(np.eye(k), np.diag([0.05, 0.05, 0.01, 0.0]))
+    return f, h, Qk, np.kron(np.eye(k), R), sm.Gaussian(mean, P0)
+
+
+@pytest.mark.parametrize("iterations", [1, 3])
+def test_c_square_root_ekf_step_equals_the_standard_form_and_the_vm(iterations):
+    """From C_SQRT_EKF_FROM states on, the square-root EKF and IEKF run the C step of
+    sqrt_ekf_step.c (its update by the array form, one triangularisation of the pre-array):
+    equal to the MX step on CasADi's VM (the Joseph-form factor) to 1e-12, and to the
+    standard form to the tolerance of assert_same, with parameters, angle states, missing
+    components and rows, a dense P0 and a rank-deficient Q."""
+    from symmon.filters.gaussian._ekfstep import C_SQRT_EKF_FROM
+    from symmon.filters.gaussian.step import compiled_step
+
+    f, h, Qk, Rk, x0 = stacked_unicycles(3)
+    assert f.n_u >= C_SQRT_EKF_FROM
+    rng = np.random.default_rng(2)
+    hx = sp.lambdify(f.inputs, h.outputs, "numpy")
+    ys = np.array([hx(*x0.mean) for _ in range(8)]) + 0.05 * rng.standard_normal((8, 6))
+    ys = np.stack([ys, ys + 0.02 * rng.standard_normal(ys.shape)])
+    ys[0, 2, 3] = np.nan
+    ys[1, 4] = np.nan
+    ys[1, 6, ::2] = np.nan
+    params = {"dt": 1.0, "om": np.linspace(0.05, 0.1, 8)}
+    std = sm.NonlinearKalmanFilter(f, h, Qk, Rk, sm.TT1(), iterations=iterations)
+    sr = sm.NonlinearKalmanFilter(f, h, Qk, Rk, sm.TT1(), iterations=iterations, square_root=True)
+    a = sr.filter(ys, x0, params=params)
+    assert_same(a, std.filter(ys, x0, params=params))
+    assert_definite_factor(a)
+    step = compiled_step(f, h, sm.TT1(), sr.angle_states, iterations, True)
+    assert step.c_sqrt_ekf and not step.c_ekf and step._lib.wait(120)
+    pv = np.broadcast_to(np.stack([np.ones(8), params["om"]], axis=1), (2, 8, 2)).copy()
+    truth = np.broadcast_to(np.asarray(x0.mean), (2, 8, 12)).copy()
+    c = step(np.asarray(x0.mean), np.asarray(x0.cov), ys, sr.Q, sr.R, params=pv, truth=truth)
+    vm = step(np.asarray(x0.mean), np.asarray(x0.cov), ys, sr.Q, sr.R, use_c=False, params=pv, truth=truth)
+    for key in ("x", "P_chol", "x_pred", "P_pred_chol", "innovation", "S", "loglik", "nis", "nees"):
+        scale = np.maximum(np.abs(vm[key]), 1.0)
+        assert np.all(np.abs(c[key] - vm[key]) <= 1e-12 * scale), (key, np.max(np.abs(c[key] - vm[key]) / scale))
+    assert np.all(np.triu(c["P_chol"], 1) == 0) and np.all(np.triu(c["P_pred_chol"], 1) == 0)
+
+
+def test_c_square_root_ekf_step_with_a_singular_p0_and_an_exact_measurement():
+    """A zero variance in P0 and a zero one in R (singular factors, zero rows in the
+    reflections): the C step's x, P = S Sᵀ, S and log-likelihood equal the MX step's to
+    rounding; the factor of a singular P is one of several, so S itself may differ."""
+    from symmon.filters.gaussian.step import compiled_step
+
+    f, h, Qk, Rk, x0 = stacked_unicycles(3)
+    P0 = np.array(x0.cov)
+    P0[:, 3] = P0[3, :] = 0
+    Rk = Rk.copy()
+    Rk[2, 2] = 0.0
+    rng = np.random.default_rng(2)
+    hx = sp.lambdify(f.inputs, h.outputs, "numpy")
+    ys = (np.array([hx(*x0.mean) for _ in range(8)]) + 0.05 * rng.standard_normal((8, 6)))[None]
+    sr = sm.NonlinearKalmanFilter(f, h, Qk, Rk, sm.TT1(), square_root=True)
+    step = compiled_step(f, h, sm.TT1(), sr.angle_states, 1, True)
+    assert step.c_sqrt_ekf and step._lib.wait(120)
+    pv = np.broadcast_to(np.stack([np.ones(8), np.full(8, 0.07)], axis=1), (1, 8, 2)).copy()
+    c = step(np.asarray(x0.mean), P0, ys, sr.Q, sr.R, params=pv)
+    vm = step(np.asarray(x0.mean), P0, ys, sr.Q, sr.R, use_c=False, params=pv)
+    for key in ("x", "P", "S", "loglik"):
+        assert np.all(np.isfinite(c[key]))
+        scale = np.maximum(np.abs(vm[key]), 1.0)
+        assert np.all(np.abs(c[key] - vm[key]) <= 1e-12 * scale), key
+    assert np.all(np.triu(c["P_chol"], 1) == 0) and np.all(np.diagonal(c["P_chol"], axis1=-2, axis2=-1) >= 0)
+
+
+def test_the_c_square_root_step_is_the_ekf_and_iekf_from_its_size_on():
+    from symmon.filters.gaussian.step import compiled_step
+
+    f, h, *_ = stacked_unicycles(3)
+    ang = frozenset(f.angle_outputs)
+    assert compiled_step(f, h, sm.TT1(), ang, 3, True).c_sqrt_ekf
+    assert not compiled_step(f, h, sm.TT1(), ang).c_sqrt_ekf  # the standard form: the C EKF step
+    assert not compiled_step(f, h, sm.UT.cubature(), ang, 1, True).c_sqrt_ekf
+    assert not compiled_step(f, h, sm.TT2(), ang, 1, True).c_sqrt_ekf
+    assert not compiled_step(F_FIX, H_RB, sm.TT1(), frozenset(F_FIX.angle_outputs), 1, True).c_sqrt_ekf
+
+
 def test_square_root_nees_in_the_step_equals_the_nees_of_its_p():
     sr = sm.NonlinearKalmanFilter(F_PAR, H_RB, Q, R, sm.TT1(), square_root=True)
     truth = np.repeat(np.asarray(X0.mean)[None, None], K, axis=1).repeat(2, axis=0)
@@ -255,6 +350,39 @@ def test_square_root_nees_in_the_step_equals_the_nees_of_its_p():
     e[..., 2] = (e[..., 2] + np.pi) % (2 * np.pi) - np.pi
     direct = np.einsum("rki,rki->rk", e, np.linalg.solve(res.P, e[..., None])[..., 0])
     np.testing.assert_allclose(res.nees_values, direct, rtol=1e-9)
+
+
+def test_square_root_nees_on_the_vm_equals_the_nees_of_its_p():
+    """The VM's NEES pass reads each step's factor S as CasADi wrote it (column-major), not
+    its transpose: the same NEES as the C loop's and as eᵀ P⁻¹ e."""
+    from symmon.filters.gaussian.step import compiled_step
+
+    sr = sm.NonlinearKalmanFilter(F_FIX, H_RB, Q, R, sm.TT1(), square_root=True)
+    step = compiled_step(F_FIX, H_RB, sm.TT1(), sr.angle_states, 1, True)
+    ys = np.nan_to_num(YS[:1])
+    truth = np.broadcast_to(np.asarray(X0.mean), (1, K, 4)).copy()
+    vm = step(np.asarray(X0.mean), np.asarray(X0.cov), ys, sr.Q, sr.R, use_c=False, truth=truth)
+    e = truth - vm["x"]
+    e[..., 2] = (e[..., 2] + np.pi) % (2 * np.pi) - np.pi
+    direct = np.einsum("rki,rki->rk", e, np.linalg.solve(vm["P"], e[..., None])[..., 0])
+    np.testing.assert_allclose(vm["nees"], direct, rtol=1e-9)
+
+
+def test_the_sx_square_root_step_reads_the_lower_triangle_of_its_factor_only():
+    """The straight-line step takes the factors' upper triangles as structural zeros (no
+    product or reflection works on them): an upper triangle of garbage changes nothing."""
+    from symmon.filters.gaussian.step import compiled_step
+
+    sr = sm.NonlinearKalmanFilter(F_FIX, H_RB, Q, R, sm.TT1(), square_root=True)
+    step = compiled_step(F_FIX, H_RB, sm.TT1(), sr.angle_states, 1, True)
+    S0 = np.linalg.cholesky(X0.cov)
+    dirty = S0 + np.triu(np.full((4, 4), 7.0), 1)
+    ys = np.nan_to_num(YS[:1])
+    for use_c in (True, False):
+        a = step(np.asarray(X0.mean), S0, ys, sr.Q, sr.R, use_c=use_c, factored=True)
+        b = step(np.asarray(X0.mean), dirty, ys, sr.Q, sr.R, use_c=use_c, factored=True)
+        for key in ("x", "P", "loglik"):
+            np.testing.assert_array_equal(a[key], b[key])
 
 
 def test_square_root_refusals():

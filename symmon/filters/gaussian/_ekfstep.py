@@ -60,6 +60,10 @@ from ...core.model import Model
 #: (below, the straight-line SX step is as fast and its compile policy is unchanged).
 C_EKF_FROM = 10
 
+#: From this many states on, a square-root TT1 step with additive noise runs the C step of
+#: :func:`sqrt_ekf_c` (below, the straight-line SX step).
+C_SQRT_EKF_FROM = 10
+
 
 def _model_part(model: Model, m, p, second: bool = False):
     """g(m) and its Jacobian in m (sparse SX), with the parameters ``p`` (None: none) fixed;
@@ -173,3 +177,28 @@ def ekf_c(name: str, n: int, n_y: int, pattern: dict, iterations: int = 1) -> tu
         EKF_F_NNZ=f_nnz, EKF_H_NNZ=h_nnz, EKF_WRAP_X=bool(pattern["wrap_x"]), EKF_ITERATIONS=int(iterations),
         EKF_LOG_2PI=float(np.log(2 * np.pi)), EKF_H2=h2, EKF_NT=nt)
     return defines + c_source(__package__, "ekf_step.c"), scratch
+
+
+def sqrt_ekf_c(name: str, n: int, n_y: int, pattern: dict, iterations: int = 1) -> tuple[str, int]:
+    """The C of ``{name}_sqrt_ekf``, the square-root EKF step (TT1, additive noise; after the
+    pieces' generated C, :func:`ekf_pieces` of order 1), and its scratch size in reals;
+    ``iterations`` > 1: the iterated EKF's update.
+
+    The factor arithmetic of :mod:`symmon.filters.gaussian._sqrtstep`: S⁻ = tria([F S, √Q]),
+    S_y = tria([D √R, I − D, D H S⁻]), K̄ = S⁻ (D H S⁻)ᵀ S_y⁻ᵀ, x⁺ = x⁻ + K̄ S_y⁻¹ ν and
+    S⁺ = tria([S⁻ − K D H S⁻, −K D √R]) with K = K̄ S_y⁻¹.  The products with F and H run over
+    their nonzeros and over those of the factors, and the Householder triangularisation skips
+    the columns whose entry in the reflected row is zero (the reflection leaves them as they
+    are), so a factor that stays sparse (block-diagonal for independent targets) keeps its
+    cost low; a dense factor costs the O(n³) of the dense reflections.
+    """
+    f_nnz, h_nnz = max(len(pattern["f_row"]), 1), max(len(pattern["h_row"]), 1)
+    m_a = max(2 * n * n, (n + n_y) * (n + 2 * n_y))  # the time update's and the update's pre-arrays
+    m_v = max(2 * n, n + 2 * n_y)  # a row of either (and a column: n + n_y ≤ that)
+    scratch = (n + n * n + m_a + f_nnz + h_nnz + n_y * n + (n + n_y) ** 2 + 3 * n_y + 3 * n + 2 * m_v + n_y)
+    defines = c_defines(
+        EKF_NAME=name, EKF_N=n, EKF_NY=n_y, EKF_F_COL=_ints(pattern["f_col"]), EKF_F_ROW=_ints(pattern["f_row"]),
+        EKF_H_COL=_ints(pattern["h_col"]), EKF_H_ROW=_ints(pattern["h_row"]), EKF_F_NNZ=f_nnz, EKF_H_NNZ=h_nnz,
+        EKF_WRAP_X=bool(pattern["wrap_x"]), EKF_ITERATIONS=int(iterations), EKF_LOG_2PI=float(np.log(2 * np.pi)),
+        EKF_SCRATCH=scratch, EKF_MA=m_a, EKF_MV=m_v)
+    return defines + c_source(__package__, "sqrt_ekf_step.c"), scratch

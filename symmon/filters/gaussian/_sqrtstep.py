@@ -23,6 +23,13 @@ sigma points from.
 Missing components (``mask``, as :func:`symmon.filters.gaussian.step.update_graph`): their rows of the
 y columns are zero and the columns of I − D are appended to S_y's, so S_y S_yᵀ = D S D + (I − D)
 and the gain's columns of the missing components are zero.
+From :data:`~symmon.filters.gaussian._ekfstep.C_SQRT_EKF_FROM` states on, the TT1 step with
+additive noise runs in hand-written C (:func:`symmon.filters.gaussian._ekfstep.sqrt_ekf_c`): the
+products over the nonzeros of F, H and the factors, a triangularisation that skips the
+columns a reflection leaves as they are, and the update as one triangularisation of the
+pre-array [[D √R, I − D, D H S⁻], [0, 0, S⁻]] → [[S_y, 0], [K̄, S⁺]] (the array form: the same
+S_y, K̄ and S⁺ in exact arithmetic, S⁺ from reflections of the factors rather than from the
+Joseph columns; to rounding, 1e-12 relative in the tests, the MX step's).
 The iterated EKF relinearises at x_i: its residual y − h(x_i) − J_i (x⁻ − x_i) takes J_i
 from the model's Jacobian (no solve with P⁻), and S⁺ is that of the last linearisation.
 

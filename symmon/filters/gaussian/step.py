@@ -25,7 +25,9 @@ the steps of all the runs of a filter bank in one call; without a compiler, or w
 step builds in the background, the step runs on CasADi's virtual machine.  From
 :data:`~symmon.filters.gaussian._ekfstep.C_EKF_FROM` states on, the C loop of a TT1 or TT2 step (EKF, IEKF, EKF2)
 with additive noise calls the hand-written C step of :mod:`symmon.filters.gaussian._ekfstep` around CasADi's
-model pieces instead (the MX step remains the VM's).  :class:`symmon.NonlinearKalmanFilter` (:mod:`symmon.filters`)
+model pieces instead (the MX step remains the VM's); from
+:data:`~symmon.filters.gaussian._ekfstep.C_SQRT_EKF_FROM` states on, a square-root TT1 step (SR-EKF, SR-IEKF)
+with additive noise likewise calls the C square-root step of :func:`~symmon.filters.gaussian._ekfstep.sqrt_ekf_c`.  :class:`symmon.NonlinearKalmanFilter` (:mod:`symmon.filters`)
 and the adaptive filter (:mod:`symmon.filters.gaussian.adaptive`) run it.
 
 References
@@ -57,7 +59,7 @@ from ...core.model import Model
 from ...codegen.symbolic import graph_kind, moments, tril_inverse, wrap_entries
 from ...transforms.base import Transform
 from ..inputs import filter_params
-from ._ekfstep import C_EKF_FROM, ekf_c, ekf_pieces
+from ._ekfstep import C_EKF_FROM, C_SQRT_EKF_FROM, ekf_c, ekf_pieces, sqrt_ekf_c
 from ._sqrtstep import covariance_of, factor_of, noise_factor, sqrt_nees_graph, sqrt_predict_graph, sqrt_update_graph
 
 #: Names of the outputs of the step function, in order.
@@ -206,8 +208,11 @@ def _step_function(f: Model, h: Model, transform: Transform, angle_states: froze
     Q, R, mask = kind.sym("Q", nq, nq), kind.sym("R", nr, nr), kind.sym("mask", n_y)
     p = kind.sym("p", len(names))
     if square_root:
-        x_pred, P_pred = sqrt_predict_graph(f, transform, angle_states, x, P, Q, select_params(f, names, p))
-        x_new, P_new, nu, Sy, loglik, nis = sqrt_update_graph(h, transform, angle_states, x_pred, P_pred, y, R,
+        # SX: the factors' upper triangles are structural zeros (the loop's factors are lower
+        # triangular), so that no product or reflection works on them.
+        Sf, Qf, Rf = (ca.tril(a) for a in (P, Q, R)) if kind is ca.SX else (P, Q, R)
+        x_pred, P_pred = sqrt_predict_graph(f, transform, angle_states, x, Sf, Qf, select_params(f, names, p))
+        x_new, P_new, nu, Sy, loglik, nis = sqrt_update_graph(h, transform, angle_states, x_pred, P_pred, y, Rf,
                                                               mask, select_params(h, names, p), iterations)
         S = ca.mtimes(Sy, Sy.T)
     else:
@@ -334,15 +339,24 @@ class _CompiledStep(CompiledLoop):
         # VM (and the fit, the IMM).
         self.c_ekf = (transform.taylor_order in (1, 2) and not square_root and not f.n_v and not h.n_v
                       and n >= C_EKF_FROM)
-        if self.c_ekf:
+        # The square-root EKF (TT1, additive noise) likewise, the factor arithmetic of
+        # _sqrtstep in C (sqrt_ekf_step.c).
+        self.c_sqrt_ekf = (transform.taylor_order == 1 and square_root and not f.n_v and not h.n_v
+                           and n >= C_SQRT_EKF_FROM)
+        if self.c_ekf or self.c_sqrt_ekf:
             names = filter_params(f, h)
             xs, ys, ps = ca.SX.sym("x", n), ca.SX.sym("y", n_y), ca.SX.sym("p", len(names))
             pieces, pattern = ekf_pieces(f, h, angle_states, select_params(f, names, ps),
                                          select_params(h, names, ps), xs, ys, ps, name,
                                          transform.taylor_order)
             funcs = (self.nees_f,) + pieces
-            ekf_code, scratch = ekf_c(name, n, n_y, pattern, iterations)
-            code, step, s = generated_c(*funcs) + ekf_code, f"{name}_ekf", "s"
+            if self.c_sqrt_ekf:
+                ekf_code, scratch = sqrt_ekf_c(name, n, n_y, pattern, iterations)
+                step = f"{name}_sqrt_ekf"
+            else:
+                ekf_code, scratch = ekf_c(name, n, n_y, pattern, iterations)
+                step = f"{name}_ekf"
+            code, s = generated_c(*funcs) + ekf_code, "s"
         else:
             funcs, scratch = (fn, self.nees_f), 0
             code, step, s = generated_c(*funcs), name, 0
@@ -481,8 +495,10 @@ class _CompiledStep(CompiledLoop):
         if truth is not None:
             N = runs * K
             gm = self.nees_f.map(N, "serial")
-            # A mapped matrix input is the matrices side by side, n × (N n).
-            Ps = out["P"].reshape(N, n, n).transpose(1, 0, 2).reshape(n, N * n)
+            # A mapped matrix input is the matrices side by side, n × (N n), each the step's
+            # output as CasADi wrote it (column-major: the transpose of the C-order block; the
+            # same for a symmetric P, the factor S itself for a square-root step).
+            Ps = out["P"].reshape(N, n, n).transpose(2, 0, 1).reshape(n, N * n)
             vals = gm(out["x"].reshape(N, n).T, Ps, truth.reshape(N, n).T)
             out["nees"], out["nees_trace"] = (np.asarray(v).reshape(runs, K) for v in vals)
         return out

@@ -1,0 +1,255 @@
+/* symmon: the square-root EKF step EKF_(sqrt_ekf) (TT1, additive noise) around the CasADi
+   pieces EKF_(fpart), EKF_(hpart), EKF_(xwrap) of the C EKF step (ekf_step.c); the factor
+   arithmetic of symmon.filters.gaussian._sqrtstep (its notes), column-major as CasADi.
+   _ekfstep.sqrt_ekf_c puts before this file the pieces' generated C and the EKF_ macros (the
+   kernel's name EKF_NAME, its sizes and the sparsity patterns of the Jacobians).
+   arg: x, S, y, sqrt Q, sqrt R, mask, p (S, sqrt Q, sqrt R lower factors); res: x+, S+, x-, S-,
+   nu, S_y S_y^T, loglik, nis (null: not kept; then scratch).  s: scratch of EKF_SCRATCH reals. */
+#ifndef EKF_NAME  /* checked alone: example macros, and the pieces' prototypes */
+#include "../../compile/casadi_alone.h"
+#define EKF_NAME model
+#define EKF_N 2
+#define EKF_NY 1
+#define EKF_F_COL 0, 1, 2
+#define EKF_F_ROW 0, 1
+#define EKF_H_COL 0, 1, 2
+#define EKF_H_ROW 0, 0
+#define EKF_F_NNZ 2
+#define EKF_H_NNZ 2
+#define EKF_WRAP_X 1
+#define EKF_ITERATIONS 1
+#define EKF_LOG_2PI 1.8378770664093453
+#define EKF_SCRATCH 64
+#define EKF_MA 4
+#define EKF_MV 4
+#define EKF_CHECK_ALONE 1
+#endif
+#define EKF_CAT2(a, b) a##_##b
+#define EKF_CAT(a, b) EKF_CAT2(a, b)
+#define EKF_(s) EKF_CAT(EKF_NAME, s)  /* EKF_(tria): the kernel's name, _tria */
+#ifdef EKF_CHECK_ALONE
+int EKF_(fpart)(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int EKF_(hpart)(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int EKF_(xwrap)(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+#endif
+#include <math.h>
+/* The loops below are a few KB of C: optimised even when the whole file is large enough (the
+   NEES function of a large filter) for the compile policy's -O0 build.  No FMA contraction,
+   as every build (the same results at any level). */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC optimize ("O3", "fp-contract=off")
+#endif
+static const casadi_int EKF_(fcol)[] = {EKF_F_COL};
+static const casadi_int EKF_(frow)[] = {EKF_F_ROW};
+static const casadi_int EKF_(hcol)[] = {EKF_H_COL};
+static const casadi_int EKF_(hrow)[] = {EKF_H_ROW};
+
+/* L (n x n, lower, diag >= 0) with L L^T = A A^T, A (n x m, n <= m <= EKF_MV) overwritten:
+   the Householder triangularisation of codegen.sqrtform.tria, row j of the trailing columns
+   j..m-1 reflected onto column j.  A column whose entry in row j is zero has a zero entry in
+   the reflection's vector, so the reflection leaves it as it is: it is skipped; and the rows
+   below the last nonzero of every column the reflection touches are zero in all of them, so
+   they are skipped too (last[c]: the last row where column c may be nonzero).  Row j then
+   costs 4 (rows it reaches) times (its nonzeros): block-diagonal factors and Jacobians stay
+   sparse through the steps, and a dense A costs the 2 n^2 m of the MX step.  v: m reals,
+   w: n reals of scratch. */
+static void EKF_(tria)(casadi_real* restrict A, casadi_int n, casadi_int m, casadi_real* restrict L,
+    casadi_real* restrict v, casadi_real* restrict w) {
+  casadi_int i, j, c, t, cnt, top, last[EKF_MV], idx[EKF_MV];
+  /* The last nonzero of each column: a pass without an early exit (no mispredicted branch). */
+  for (c = 0; c < m; ++c) {
+    const casadi_real* a = A + c * n;
+    casadi_int l = -1;
+    for (i = 0; i < n; ++i) l = a[i] != 0 ? i : l;
+    last[c] = l;
+  }
+  for (i = 0; i < n * n; ++i) L[i] = 0;
+  for (j = 0; j < n; ++j) {
+    casadi_real sum, vv, sigma, x0, sg, beta, vj;
+    casadi_real* lj = L + j * n;
+    const casadi_real* aj = A + j * n;
+    casadi_int hi = j;
+    /* Row j: the pivot x0, then the nonzeros of the other columns (idx, their values v),
+       the list appended to without a branch; the sums over the nonzeros only (a zero adds
+       nothing), in the columns' order. */
+    x0 = aj[j];
+    cnt = 0;
+    for (c = j + 1; c < m; ++c) {
+      casadi_real x = A[j + c * n];
+      idx[cnt] = c;
+      v[cnt] = x;
+      cnt += x != 0;
+    }
+    sum = x0 * x0;
+    for (t = 0; t < cnt; ++t) sum += v[t] * v[t];
+    sigma = sqrt(sum);
+    sg = x0 >= 0 ? 1 : -1;
+    vj = x0 + sg * sigma;
+    vv = vj * vj;
+    if (vj != 0 && last[j] > hi) hi = last[j];
+    for (t = 0; t < cnt; ++t) {
+      vv += v[t] * v[t];
+      if (last[idx[t]] > hi) hi = last[idx[t]];
+    }
+    /* vv = 2 sigma (sigma + |x0|): zero only for a zero row, which needs no reflection. */
+    beta = vv > 0 ? 2 / vv : 0;
+    lj[j] = sigma;
+    if (j == n - 1) break;
+    for (i = j + 1; i <= hi; ++i) w[i] = aj[i] * vj;
+    for (t = 0; t < cnt; ++t) {
+      casadi_real vc = v[t];
+      const casadi_real* a = A + idx[t] * n;
+      for (i = j + 1; i <= hi; ++i) w[i] += a[i] * vc;
+    }
+    for (i = j + 1; i <= hi; ++i) {
+      w[i] *= beta;
+      lj[i] = -sg * (aj[i] - w[i] * vj);
+    }
+    /* Below hi, w is zero: the pivot column as it is (nonzero there only for a zero row). */
+    top = last[j] > hi ? last[j] : hi;
+    for (i = hi + 1; i <= top; ++i) lj[i] = -sg * aj[i];
+    for (t = 0; t < cnt; ++t) {
+      casadi_real vc = v[t];
+      casadi_real* a = A + idx[t] * n;
+      c = idx[t];
+      for (i = j + 1; i <= hi; ++i) a[i] -= w[i] * vc;
+      if (hi > last[c]) last[c] = hi;
+    }
+  }
+}
+
+/* B (m x n) = J S, J sparse (m x k, CSC col/row/nz), S lower triangular (k x n, column-major;
+   its upper triangle is not read): one scatter of each S[a, c] through column a of J, from
+   the diagonal down to the last nonzero of the column (found first: a test of each entry
+   would mispredict at every nonzero of a block-diagonal factor). */
+static void EKF_(times_lower)(casadi_real* restrict B, const casadi_int* col, const casadi_int* row,
+    const casadi_real* nz, const casadi_real* restrict S, casadi_int m, casadi_int n) {
+  casadi_int c, a, e, i, hi;
+  for (i = 0; i < m * n; ++i) B[i] = 0;
+  for (c = 0; c < n; ++c) {
+    casadi_real* b = B + c * m;
+    const casadi_real* sc = S + c * n;
+    for (hi = n - 1; hi > c && sc[hi] == 0; --hi) {}
+    for (a = c; a <= hi; ++a) {
+      casadi_real s = sc[a];
+      for (e = col[a]; e < col[a + 1]; ++e) b[row[e]] += nz[e] * s;
+    }
+  }
+}
+
+/* The update at xl (xl = x-: the EKF's; else an iteration of the IEKF, whose residual is
+   y - h(xl) - H (x- - xl)) by one triangularisation of the pre-array (rows y, then x)
+
+       [ D sqrt R   I - D   D H S- ]        [ Sy   0  ]
+       [    0         0       S-   ]   ->   [ Kb   S+ ]   (L, (ny + n) x (ny + n)),
+
+   whose Gram matrices agree: Sy Sy^T = D H P- H^T D + D R D + (I - D) (the masked innovation
+   covariance of sqrt_update_graph), Kb Sy^T = P- H^T D = P^xy and Kb Kb^T + S+ S+^T = P-, so
+   that Kb = P^xy Sy^-T and S+ S+^T = P- - P^xy S^-1 P^yx: the gain factor and the updated
+   factor of sqrt_update_graph, both from orthogonal reflections (the array form of the
+   square-root covariance filter; equal to the MX step's Joseph-form factor in exact
+   arithmetic).  nu (masked) and wh = Sy^-1 nu (0 for a zero pivot: the zero row of the
+   inverse); adds |wh|^2, sum log Sy_ii and the measured count into acc[0..2]. */
+static int EKF_(update)(const casadi_real* xl, const casadi_real* xp, const casadi_real* Sp,
+    const casadi_real* y, const casadi_real* Rs, const casadi_real* mask, const casadi_real* p,
+    casadi_int* iw, casadi_real* w, casadi_real* nu, casadi_real* Hz, casadi_real* Y, casadi_real* A,
+    casadi_real* L, casadi_real* wh, casadi_real* dx, casadi_real* vt, casadi_real* wt, casadi_real* acc) {
+  const casadi_int n = EKF_N, ny = EKF_NY, N2 = EKF_N + EKF_NY;
+  const casadi_real* a2[3];
+  casadi_real* r2[2];
+  casadi_int i, j, k, e;
+  a2[0] = xl; a2[1] = y; a2[2] = p; r2[0] = nu; r2[1] = Hz;
+  if (EKF_(hpart)(a2, r2, iw, w, 0)) return 1;
+  if (xl != xp) {
+    for (j = 0; j < n; ++j) dx[j] = xp[j] - xl[j];
+    for (j = 0; j < n; ++j)
+      for (e = EKF_(hcol)[j]; e < EKF_(hcol)[j + 1]; ++e) nu[EKF_(hrow)[e]] -= Hz[e] * dx[j];
+  }
+  EKF_(times_lower)(Y, EKF_(hcol), EKF_(hrow), Hz, Sp, ny, n);
+  for (i = 0; i < ny; ++i) {
+    acc[2] += mask[i];
+    nu[i] *= mask[i];
+  }
+  /* The pre-array, column-major (N2 rows): the noise's triangle first, so that row j's
+     reflection pivots on a column of its own block. */
+  for (j = 0; j < ny; ++j) {
+    casadi_real* a = A + j * N2;
+    casadi_real* d = A + (ny + j) * N2;
+    for (i = 0; i < N2; ++i) {
+      a[i] = i >= j && i < ny ? mask[i] * Rs[i + j * ny] : 0;
+      d[i] = i == j ? 1 - mask[i] : 0;
+    }
+  }
+  for (j = 0; j < n; ++j) {
+    casadi_real* a = A + (2 * ny + j) * N2;
+    const casadi_real* sp = Sp + j * n;
+    for (i = 0; i < ny; ++i) a[i] = mask[i] * Y[i + j * ny];
+    for (k = 0; k < n; ++k) a[ny + k] = k >= j ? sp[k] : 0;
+  }
+  EKF_(tria)(A, N2, 2 * ny + n, L, vt, wt);
+  for (i = 0; i < ny; ++i) {
+    casadi_real d = L[i + i * N2], v = nu[i];
+    for (k = 0; k < i; ++k) v -= L[i + k * N2] * wh[k];
+    wh[i] = d > 0 ? v / d : 0;
+    acc[0] += wh[i] * wh[i];
+    acc[1] += log(d);
+  }
+  return 0;
+}
+
+static int EKF_(sqrt_ekf)(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+    casadi_real* s) {
+  const casadi_int n = EKF_N, ny = EKF_NY, N2 = EKF_N + EKF_NY;
+  const casadi_real *x = arg[0], *S = arg[1], *y = arg[2], *Qs = arg[3], *Rs = arg[4], *mask = arg[5];
+  const casadi_real* p = arg[6];
+  casadi_real *xp = res[2] ? res[2] : s, *Sp = res[3] ? res[3] : s + n;
+  casadi_real *A = s + n + n * n, *Fz = A + EKF_MA, *Hz = Fz + EKF_F_NNZ, *Y = Hz + EKF_H_NNZ;
+  casadi_real *L = Y + ny * n, *wh = L + N2 * N2, *wh2 = wh + ny, *nu2 = wh2 + ny, *xn = nu2 + ny;
+  casadi_real *xl = xn + n, *dx = xl + n, *vt = dx + n, *wt = vt + EKF_MV, *nus = wt + EKF_MV;
+  casadi_real *nu = res[4] ? res[4] : nus, *wx = wh, acc[3] = {0, 0, 0}, acc2[3] = {0, 0, 0};
+  const casadi_real* a2[2];
+  casadi_real* r2[2];
+  casadi_int i, j, k, it;
+  /* x- = f(x) (angle states wrapped), F's nonzeros; S- = tria([F S, sqrt Q]). */
+  a2[0] = x; a2[1] = p; r2[0] = xp; r2[1] = Fz;
+  if (EKF_(fpart)(a2, r2, iw, w, 0)) return 1;
+  EKF_(times_lower)(A, EKF_(fcol), EKF_(frow), Fz, S, n, n);
+  for (j = 0; j < n; ++j)
+    for (i = 0; i < n; ++i) A[n * n + i + j * n] = i >= j ? Qs[i + j * n] : 0;
+  EKF_(tria)(A, n, 2 * n, Sp, vt, wt);
+  /* The update at x-: its nu, S = Sy Sy^T, NIS and log-likelihood are the step's. */
+  if (EKF_(update)(xp, xp, Sp, y, Rs, mask, p, iw, w, nu, Hz, Y, A, L, wh, dx, vt, wt, acc)) return 1;
+  if (res[5])
+    for (j = 0; j < ny; ++j)
+      for (i = j; i < ny; ++i) {
+        casadi_real v = 0;
+        for (k = 0; k <= j; ++k) v += L[i + k * N2] * L[j + k * N2];
+        res[5][i + j * ny] = v;
+        res[5][j + i * ny] = v;
+      }
+  /* x+ = x- + Kb (Sy^-1 nu); the IEKF's Gauss-Newton steps relinearise h at x+. */
+  for (it = 0; it < EKF_ITERATIONS; ++it) {
+    if (it) {
+      for (j = 0; j < n; ++j) xl[j] = xn[j];
+      if (EKF_(update)(xl, xp, Sp, y, Rs, mask, p, iw, w, nu2, Hz, Y, A, L, wh2, dx, vt, wt, acc2)) return 1;
+      wx = wh2;
+    }
+    for (j = 0; j < n; ++j) xn[j] = xp[j];
+    for (i = 0; i < ny; ++i) {
+      const casadi_real* c = L + ny + i * N2;
+      for (j = 0; j < n; ++j) xn[j] += c[j] * wx[i];
+    }
+  }
+  if (EKF_WRAP_X) {
+    a2[0] = xn; r2[0] = res[0];
+    if (EKF_(xwrap)(a2, r2, iw, w, 0)) return 1;
+  } else {
+    for (j = 0; j < n; ++j) res[0][j] = xn[j];
+  }
+  /* S+: the last linearisation's. */
+  for (j = 0; j < n; ++j)
+    for (i = 0; i < n; ++i) res[1][i + j * n] = L[ny + i + (ny + j) * N2];
+  if (res[6]) res[6][0] = -0.5 * (acc[0] + 2 * acc[1] + acc[2] * EKF_LOG_2PI);
+  if (res[7]) res[7][0] = acc[0];
+  return 0;
+}
