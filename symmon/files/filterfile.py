@@ -145,10 +145,10 @@ MAX_STEPS = 100_000
 #: 2·10⁸, 1.5 GiB, so that runs × steps is bounded jointly before any memory is taken; the
 #: same bound as a filter bank's results (:data:`symmon.filters.inputs.MAX_BANK_NUMBERS`).
 MAX_SIMULATED = MAX_BANK_NUMBERS
-#: Most sub-steps of an ``[sde]`` table: each composes the step's expression once more, and
-#: the expression tree of a nonlinear drift grows geometrically with them (sin(x) − x³/2 by
-#: ``"taylor1.5"``: 636 operations at 2 sub-steps, 68 808 at 4, no model within minutes at 8).
-MAX_SUBSTEPS = 4
+#: Most sub-steps of an ``[sde]`` table: the composed model's nodes and its compile time grow
+#: linearly with them (:func:`symmon.core.discretize.compose`), and each sub-step adds its
+#: noise symbols to the filters' noise (n_v grows with the sub-steps).
+MAX_SUBSTEPS = 256
 
 _KEYS = ("name", "states", "dynamics", "measurements", "angles", "state_angles", "steps", "params", "Q", "R", "x0",
          "process_noise", "measurement_noise", "units")

@@ -66,6 +66,15 @@ def test_approximate_methods_and_defaults(tmp_path):
     assert spec.sde.sde.diffusion == sp.eye(1) and spec.sde.time_unit is None
 
 
+def test_a_nonlinear_sde_takes_more_than_four_substeps(tmp_path):
+    """8 sub-steps of taylor1.5 (the cap was 4: the composed expression grew geometrically)."""
+    text = BASE.replace('"p", "v"]', '"x"]').replace('mean = [0, 10]\nstd = [5, 2]', 'mean = [1]\nstd = [0.1]')
+    text = text.replace('measurements = ["p"]', 'measurements = ["x"]')
+    sde = '\n[sde]\ndrift = ["sin(x) - x**3/2"]\nmethod = "taylor1.5"\nsubsteps = 8\ndt = 0.4\n'
+    spec = load_filter_file(write(tmp_path, text + sde))
+    assert spec.f.n_v == 16 and spec.sde.substeps == 8
+
+
 def test_a_scalar_and_a_matrix_spectral_density_agree(tmp_path):
     scalar = load_filter_file(write(tmp_path, BASE + WNA_SDE, "a.toml"))
     matrix = load_filter_file(write(tmp_path, BASE + WNA_SDE.replace('"q"', '[["q"]]'), "b.toml"))
@@ -97,8 +106,8 @@ def test_the_example_runs_the_filters(tmp_path):
     (lambda t: t.replace("dt = 0.5", "dt = -1"), "[sde].dt", "positive"),
     (lambda t: t.replace("dt = 0.5", ""), "[sde]", "missing key(s) ['dt']"),
     (lambda t: t.replace("dt = 0.5", "dt = 0.5\nsubsteps = 2"), "[sde].substeps", "does not apply"),
-    (lambda t: t.replace("dt = 0.5", "dt = 0.5\nsubsteps = 5\nmethod = \"euler\""), "[sde].substeps",
-     "integer in [1, 4]"),
+    (lambda t: t.replace("dt = 0.5", "dt = 0.5\nsubsteps = 257\nmethod = \"euler\""), "[sde].substeps",
+     "integer in [1, 256]"),
     (lambda t: t.replace("dt = 0.5", "dt = 0.5\nmethod = \"magic\""), "[sde].method", "must be one of"),
     (lambda t: t.replace('drift = ["v", "0"]', 'drift = ["v", "-v**3"]'), "[sde].method", "linear drift"),
     (lambda t: t + "colour = 1\n", "[sde]", "unknown key(s) ['colour']"),
