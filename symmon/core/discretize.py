@@ -39,9 +39,9 @@ sympy would distribute numbers over the sums and ask the assumptions of sin(·) 
 previous state, rebuilding the tree: its size grew geometrically (sin x − x³/2 by
 ``"taylor1.5"`` had no model within minutes at 8 sub-steps).  Every consumer walks the
 outputs as a DAG (:mod:`symmon.core.dag`), and the compiled CasADi function evaluates the
-sub-steps in sequence, each once.  With ``substeps="auto"`` (:func:`symmon.SDE.discretize`
-with a prior) the number is chosen by the step's measure of nonlinearity
-(:func:`symmon.measures.mon.choose_substeps`).
+sub-steps in sequence, each once.  :func:`symmon.measures.mon.choose_substeps` chooses their
+number by the sub-step's measure of nonlinearity (as :func:`symmon.advise_filter` does for an
+SDE).
 """
 
 from __future__ import annotations

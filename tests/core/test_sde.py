@@ -370,3 +370,20 @@ def test_composed_nonlinear_substeps_stay_linear_in_size_and_converge(substeps):
     coarse = _run(one, *_coarsen(dW, dZ, fine // 16, d), T / 16, 1.0)
     err_one = np.sqrt(np.mean((coarse - ref) ** 2))
     assert err < err_one * substeps ** -1.5 * 3, (err, err_one)   # order 1.5, within a factor 3
+
+
+def test_with_params_of_composed_substeps_keeps_the_dag():
+    """Substituting dt into 32 composed sub-steps rebuilds each node once (xreplace rebuilt
+    the tree, 10³⁴ nodes: advise_filter on a nonlinear SDE hung there); the values are those
+    of the model with dt as an input."""
+    from symmon.compile.compiled import compiled, compiled_with_params
+    from symmon.core import dag
+    from symmon.timelimit import deadline
+
+    model = NONLINEAR.discretize("taylor1.5", substeps=32)
+    with deadline(120):
+        fixed = model.with_params({"dt": 0.5})
+    assert fixed.params == () and dag.measure(fixed.outputs)[0] <= dag.measure(model.outputs)[0]
+    W = np.random.default_rng(0).standard_normal((5, 1 + model.n_v))
+    with_dt = compiled_with_params(model).eval_g(np.column_stack([W, np.full(5, 0.5)]))
+    np.testing.assert_allclose(compiled(fixed).eval_g(W), with_dt, rtol=1e-13, atol=1e-14)
