@@ -122,6 +122,7 @@ from ..filters.simulation import check_times, simulate as simulate_models
 from ..measures.advice import DEFAULT_TOL
 from ..core.gaussian import Gaussian
 from ..core.model import Model
+from ..core import dag
 from ..core.sde import SDE
 from ..core.discretize import METHODS as SDE_METHODS
 from .modelfile import (
@@ -363,7 +364,9 @@ def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> Filte
         values = {s: (sp.Float(sde.dt) if str(s) == "dt" else params[str(s)])
                   for s in model.params if str(s) not in free_syms and not (str(s) == "dt" and sde.intervals)}
         step_symbols = [s for s in model.params if str(s) == "dt" and sde.intervals]
-        dyn = [e.xreplace(values) for e in model.outputs]
+        # Composed sub-steps are a DAG: substituted node by node, not as a tree.
+        dyn = (list(dag.substitute(model.outputs, values)) if not dag.is_small(model.outputs)
+               else [e.xreplace(values) for e in model.outputs])
         W = list(model.noise)
     else:
         dyn = _expressions(ctx, doc, "dynamics", {**env, **{s.name: s for s in W}}, path)
@@ -388,7 +391,7 @@ def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> Filte
         raise ctx.error("state_angles", f"must be a list of state names ({', '.join(state_names)}), got {state_angles!r}")
     by_name = dict(zip(state_names, X))
     def used(exprs):
-        syms = set().union(*(e.free_symbols for e in exprs))
+        syms = dag.free_symbols(exprs)  # a DAG walk: composed sub-steps are a tree of billions of nodes
         return [s for s in free_syms.values() if s in syms] or None
 
     f_params = (used(dyn) or []) + (step_symbols if with_sde else [])
