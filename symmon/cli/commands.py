@@ -411,10 +411,15 @@ def cmd_fit(args: argparse.Namespace) -> int:
     spec = load_filter_file(args.file, free=list(start))
     check_bank(spec, args.runs, [args.filter])  # the simulation and the fit's filter at its estimates
     truth = {n: spec.params[n] for n in start}
-    f_true, h_true = (m.with_params({str(s): truth[str(s)] for s in m.params}) for m in (spec.f, spec.h))
-    _, ys = simulate_scenario(f_true, h_true, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
+    steps = spec.step_params or None  # the intervals of irregular [sde] times
+    if steps:  # the truth's values and the intervals, as the parameters of the simulation
+        _, ys = simulate_scenario(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed,
+                                  params={**truth, **steps})
+    else:
+        f_true, h_true = (m.with_params({str(s): truth[str(s)] for s in m.params}) for m in (spec.f, spec.h))
+        _, ys = simulate_scenario(f_true, h_true, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
     kf = make_filter(args.filter, spec.f, spec.h, spec.Q, spec.R, settings=spec.settings)
-    res = kf.fit(ys, spec.x0, start, bounds=dict(args.bound))
+    res = kf.fit(ys, spec.x0, start, params=steps, bounds=dict(args.bound))
     if args.json:
         _print_json({"scenario": spec.name, "filter": kf.method, "runs": args.runs, "steps": spec.steps,
                      "seed": args.seed, "start": start, "truth": truth, "estimates": res.estimates,
@@ -451,10 +456,12 @@ def cmd_filter(args: argparse.Namespace) -> int:
 
     spec = load_filter_file(args.file)
     check_bank(spec, args.runs, args.filters, args.smooth)  # before anything is simulated
-    xs, ys = simulate_scenario(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed)
+    xs, ys = simulate_scenario(spec.f, spec.h, spec.Q, spec.R, spec.x0, spec.steps, args.runs, args.seed,
+                               params=spec.step_params)  # the intervals of irregular [sde] times
     with executor_of(args) as ex:  # --dask: the banks in shards on Dask, the same numbers
         rows = run_bank(spec.f, spec.h, spec.Q, spec.R, spec.x0, xs, ys, args.filters, args.tol, args.confidence,
-                        smooth=args.smooth, settings=spec.settings, executor=ex if args.dask else None)
+                        smooth=args.smooth, settings=spec.settings, executor=ex if args.dask else None,
+                        params=spec.step_params)
     states = [str(s) for s in spec.f.inputs]
     written = [_filter_plot(spec, rows, states, args.plot)] if args.plot else []
     if args.json:
@@ -558,7 +565,8 @@ def cmd_discretize(args: argparse.Namespace) -> int:
             print(f"\n{label}:")
             print("  " + sp.pretty(M, use_unicode=True).replace("\n", "\n  "))
             print(f"  LaTeX: {out['latex'][key]}")
-        print(f"\nat dt = {table.dt:g}{' ' + unit if unit else ''} with the file's params:")
+        longest = " (the longest of the file's intervals)" if table.intervals else ""
+        print(f"\nat dt = {table.dt:g}{' ' + unit if unit else ''}{longest} with the file's params:")
         for key in ("F", "Q"):
             text = np.array2string(np.array(out[f"{key}_at_dt"]), precision=6, separator=", ")
             print(f"  {key} = " + text.replace("\n", "\n      "))

@@ -15,7 +15,8 @@ their depth is unbounded.
   sympy walk of it would cost), :func:`is_small` whether sympy may walk it;
 - :func:`digest`: a structural hash, stable across processes, that keys the caches of
   compiled models;
-- :func:`bounded_str`: ``str(e)``, or a summary when the printed tree would be too large.
+- :func:`bounded_str`: ``str(e)``, or a summary when the printed tree would be too large;
+- :func:`substitute`: ``xreplace`` that rebuilds each distinct node once.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import sympy as sp
 from sympy.functions.elementary.piecewise import ExprCondPair
 
 __all__ = ["postorder", "Canonical", "free_symbols", "contains", "measure", "is_small", "digest", "bounded_str",
-           "MAX_TREE", "MAX_DEPTH"]
+           "substitute", "MAX_TREE", "MAX_DEPTH"]
 
 #: Largest tree (counted with repetitions) that sympy's recursive walks are given.
 MAX_TREE = 20000
@@ -109,6 +110,39 @@ def contains(expr: sp.Basic, func: type) -> bool:
     """Whether a node of ``expr`` is an instance of ``func`` (sympy's ``expr.has(func)``
     for a class)."""
     return any(isinstance(node, func) for node in postorder([expr]))
+
+
+def substitute(exprs: Iterable[sp.Basic], mapping: dict) -> list[sp.Basic]:
+    """``[e.xreplace(mapping) for e in exprs]``, each distinct node rebuilt once.
+
+    sympy's ``xreplace`` rebuilds the tree: a node shared by many parents is rebuilt once per
+    path to it, exponential on a traced loop or a composition of sub-steps
+    (:func:`symmon.core.discretize.compose`).  Here the nodes are rebuilt in
+    :func:`postorder` with sympy's evaluation off, so the result keeps the sharing (and
+    folds nothing: a substituted number stays a leaf of its operation).
+
+    Examples
+    --------
+    >>> x, b = sp.symbols("x b")
+    >>> e = x + b
+    >>> for _ in range(200):
+    ...     e = e * e + b
+    >>> out = substitute([e], {b: sp.Float(2.0)})[0]
+    >>> measure([out])[0] == measure([e])[0], free_symbols([out]) == {x}   # the same DAG, b now 2.0
+    (True, True)
+    """
+    done: dict[int, sp.Basic] = {}
+    roots = [sp.sympify(e) for e in exprs]
+    with sp.evaluate(False):
+        for node in postorder(roots):
+            if node in mapping:
+                done[id(node)] = mapping[node]
+            elif not node.args:
+                done[id(node)] = node
+            else:
+                args = [done[id(a)] for a in node.args]
+                done[id(node)] = node if all(a is b for a, b in zip(args, node.args)) else node.func(*args)
+    return [done[id(e)] for e in roots]
 
 
 def measure(exprs: Iterable[sp.Basic]) -> tuple[int, int, int]:

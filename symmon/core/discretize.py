@@ -32,7 +32,16 @@ symbols w ~ N(0, I) entering through a factor of the step's noise covariance: ev
 
 ``substeps=N`` divides each step into N sub-steps of h = dt/N, each with its own noise
 symbols (n_w grows N-fold: the model is the composition of the sub-steps, nonlinear between
-them).
+them).  The composition is an expression DAG: each sub-step's expression refers to the
+previous sub-step's state (one shared node per state), built with sympy's evaluation off,
+so that it has as many distinct nodes as the sub-steps' operations, linear in N.  Evaluated,
+sympy would distribute numbers over the sums and ask the assumptions of sin(·) of the whole
+previous state, rebuilding the tree: its size grew geometrically (sin x − x³/2 by
+``"taylor1.5"`` had no model within minutes at 8 sub-steps).  Every consumer walks the
+outputs as a DAG (:mod:`symmon.core.dag`), and the compiled CasADi function evaluates the
+sub-steps in sequence, each once.  :func:`symmon.measures.mon.choose_substeps` chooses their
+number by the sub-step's measure of nonlinearity (as :func:`symmon.advise_filter` does for an
+SDE).
 """
 
 from __future__ import annotations
@@ -52,7 +61,7 @@ from .model import Model
 # imports this module, so this one does not import it back.
 
 __all__ = ["METHODS", "SERIES_TERMS", "CLOSED_FORM_SECONDS", "default_dt", "discretize", "exact_transition",
-           "expm_closed_form", "van_loan", "van_loan_numeric", "factor"]
+           "expm_closed_form", "van_loan", "van_loan_numeric", "factor", "compose"]
 
 #: The discretisation methods, by name.
 METHODS = ("exact", "local_linear", "taylor1.5", "euler", "rk4")
@@ -304,6 +313,40 @@ def _step(sde: Any, method: str, h: sp.Expr) -> tuple[sp.Matrix, int]:
     return mean + G * w, list(w)
 
 
+def compose(template: sp.Matrix | list, states: list, template_noise: list, noise: list[list[sp.Symbol]]
+            ) -> list[sp.Expr]:
+    """The sub-step map ``template`` (of the states and the template noise symbols) applied
+    once per list of ``noise`` symbols, each application to the previous one's result.
+
+    One sub-step alone is substituted with sympy's evaluation (a readable expression); more
+    are composed with the evaluation off, so that each application refers to the previous
+    state as one shared node: an expression DAG of as many distinct nodes as the
+    applications' operations (linear in their number), walked once per node by every
+    consumer (:mod:`symmon.core.dag`) and compiled to CasADi as the sub-steps in sequence.
+
+    Examples
+    --------
+    >>> import sympy as sp
+    >>> from symmon.core import dag
+    >>> x, w = sp.symbols("x w", real=True)
+    >>> ws = [[sp.Symbol(f"w{i}", real=True)] for i in range(64)]
+    >>> out = compose([x + sp.sin(x) / 10 + w], [x], [w], ws)
+    >>> dag.measure(out)[0] < 64 * 8       # distinct nodes: linear in the sub-steps
+    True
+    """
+    cur = list(states)
+    if len(noise) == 1:
+        sub = dict(zip(states, cur))
+        sub.update(zip(template_noise, noise[0]))
+        return [e.xreplace(sub) for e in template]
+    with sp.evaluate(False):
+        for ws in noise:
+            sub = dict(zip(states, cur))
+            sub.update(zip(template_noise, ws))
+            cur = [e.xreplace(sub) for e in template]
+    return cur
+
+
 def discretize(sde: Any, method: str = "exact", dt: sp.Expr | None = None, substeps: int = 1) -> Model:
     """The transition of ``sde`` over a step dt: a Model f(x, w; dt), w ~ N(0, I).
 
@@ -384,10 +427,6 @@ def discretize(sde: Any, method: str = "exact", dt: sp.Expr | None = None, subst
     h = dt / substeps
     template, tw = _step(sde, method, h)
     noise = _noise_symbols(len(tw), substeps, taken)
-    cur = list(x)
-    for ws in noise:
-        sub = dict(zip(sde.states, cur))
-        sub.update(zip(tw, ws))
-        cur = [e.xreplace(sub) for e in template]
+    cur = compose(template, sde.states, tw, noise)
     flat = [s for ws in noise for s in ws]
     return Model(sde.states, cur, flat or None, sde.name, angles, params)

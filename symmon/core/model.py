@@ -378,7 +378,10 @@ class Model:
                 raise ModelError(f"model {self.name!r} declares no parameters, got params {sorted(map(str, values))}")
             return self
         vals = check_param_values(self._p, values, self.name)
-        g = [e.xreplace({s: sp.Float(vals[str(s)]) for s in self._p}) for e in self._g]
+        mapping = {s: sp.Float(vals[str(s)]) for s in self._p}
+        # A large DAG (a traced loop, composed sub-steps) is rebuilt node by node: xreplace
+        # would rebuild it as a tree.
+        g = [e.xreplace(mapping) for e in self._g] if dag.is_small(self._g) else dag.substitute(self._g, mapping)
         return Model(self._u, g, self._v, self._name, self._angle_args())
 
     @property

@@ -81,6 +81,12 @@ file's ``dynamics`` and ``[Q]`` are then derived from it by discretisation over 
     substeps = 1                  # optional: sub-steps of the approximate methods
     time_unit = "s"               # optional: the unit of dt (Q_c is a density per time unit)
 
+Irregular sampling: instead of one ``dt``, ``times = [t_1, ..., t_K]`` (strictly increasing,
+after ``t0``, the time of x_0, default 0) or ``dt = [dt_1, ..., dt_K]`` (one positive interval
+per step).  The derived ``dynamics`` then keep ``dt`` as a parameter whose per-step values,
+the intervals t_k − t_{k−1}, are :attr:`FilterScenario.step_params`; ``symmon filter`` and
+``symmon fit`` simulate and filter with them, and ``steps`` may be left out (it is K).
+
 The ``[params]`` stay symbols in the SDE (``symmon discretize`` prints F and Q(dt) in them)
 and take their values in the derived ``dynamics``; the drift, L and Q_c may use the states
 and ``[params]`` (Q_c only ``[params]``), and Q_c must be symmetric positive semi-definite.
@@ -112,10 +118,11 @@ from ..errors import SymmonError
 from ..filters.registry import filter_entry, filter_names, setting_fits
 from ..filters.registry import make_filter as make_registered
 from ..filters.inputs import KEEPABLE, MAX_BANK_NUMBERS, check_bank_size, kept_numbers
-from ..filters.simulation import simulate as simulate_models
+from ..filters.simulation import check_times, simulate as simulate_models
 from ..measures.advice import DEFAULT_TOL
 from ..core.gaussian import Gaussian
 from ..core.model import Model
+from ..core import dag
 from ..core.sde import SDE
 from ..core.discretize import METHODS as SDE_METHODS
 from .modelfile import (
@@ -145,17 +152,17 @@ MAX_STEPS = 100_000
 #: 2·10⁸, 1.5 GiB, so that runs × steps is bounded jointly before any memory is taken; the
 #: same bound as a filter bank's results (:data:`symmon.filters.inputs.MAX_BANK_NUMBERS`).
 MAX_SIMULATED = MAX_BANK_NUMBERS
-#: Most sub-steps of an ``[sde]`` table: each composes the step's expression once more, and
-#: the expression tree of a nonlinear drift grows geometrically with them (sin(x) − x³/2 by
-#: ``"taylor1.5"``: 636 operations at 2 sub-steps, 68 808 at 4, no model within minutes at 8).
-MAX_SUBSTEPS = 4
+#: Most sub-steps of an ``[sde]`` table: the composed model's nodes and its compile time grow
+#: linearly with them (:func:`symmon.core.discretize.compose`), and each sub-step adds its
+#: noise symbols to the filters' noise (n_v grows with the sub-steps).
+MAX_SUBSTEPS = 256
 
 _KEYS = ("name", "states", "dynamics", "measurements", "angles", "state_angles", "steps", "params", "Q", "R", "x0",
          "process_noise", "measurement_noise", "units")
 _REQUIRED = ("name", "states", "dynamics", "measurements", "steps", "Q", "R", "x0")
 #: The keys of an ``[sde]`` table, and those it requires.
-_SDE_KEYS = ("drift", "diffusion", "spectral_density", "method", "dt", "substeps", "time_unit")
-_SDE_REQUIRED = ("drift", "dt")
+_SDE_KEYS = ("drift", "diffusion", "spectral_density", "method", "dt", "times", "t0", "substeps", "time_unit")
+_SDE_REQUIRED = ("drift",)
 #: Keys that an ``[sde]`` table replaces.
 _SDE_DERIVED = ("dynamics", "process_noise", "Q")
 
@@ -190,10 +197,16 @@ class ScenarioSDE:
     method : str
         The discretisation method of the scenario's dynamics.
     dt : float
-        The step, in ``time_unit``.
+        The step, in ``time_unit``: the regular one, or with irregular intervals the
+        longest (where ``symmon discretize`` evaluates F and Q).
     substeps : int
     time_unit : str or None
         The unit of dt, if declared.
+    intervals : tuple of float or None
+        Irregular sampling: the interval before each measurement, t_k − t_{k−1} (from
+        ``times`` and ``t0``, or a list ``dt``); None for a regular step.
+    t0 : float
+        The time of x_0 (with ``times``; default 0).
     """
 
     sde: SDE
@@ -201,6 +214,8 @@ class ScenarioSDE:
     dt: float
     substeps: int = 1
     time_unit: str | None = None
+    intervals: tuple[float, ...] | None = None
+    t0: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -230,6 +245,10 @@ class FilterScenario:
         empty: defaults).
     sde : ScenarioSDE or None
         The ``[sde]`` table, from which ``f`` and ``Q`` were derived (None: none).
+    step_params : dict of str to ndarray
+        Per-step parameter values that simulation and every filter take (``params=``):
+        ``{"dt": intervals}`` for an ``[sde]`` table with irregular times, whose ``f`` keeps
+        ``dt`` as a parameter; empty otherwise.
     """
 
     name: str
@@ -244,6 +263,7 @@ class FilterScenario:
     params: dict[str, float] = field(default_factory=dict)
     settings: dict[str, dict] = field(default_factory=dict)
     sde: ScenarioSDE | None = None
+    step_params: dict[str, np.ndarray] = field(default_factory=dict)
 
     def unit(self, key: str) -> str | None:
         """The unit of a state name or of ``"measurements[i]"``, if declared."""
@@ -301,7 +321,10 @@ def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> Filte
     """
     path, ctx, doc = read_toml(path, "scenario files")
     with_sde = "sde" in doc
-    required = tuple(k for k in _REQUIRED if not (with_sde and k in _SDE_DERIVED))
+    # Irregular times give the number of steps: steps may be left out.
+    irregular = with_sde and isinstance(doc["sde"], dict) and ("times" in doc["sde"]
+                                                               or isinstance(doc["sde"].get("dt"), list))
+    required = tuple(k for k in _REQUIRED if not (with_sde and k in _SDE_DERIVED) and not (irregular and k == "steps"))
     _check_keys(ctx, doc, _KEYS + ("sde",) + settings_tables(), required, "")
     if with_sde:
         for key in _SDE_DERIVED:
@@ -337,18 +360,28 @@ def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> Filte
         sde = _sde_table(ctx, doc["sde"], X, params, free_syms, [a for a in doc.get("state_angles", [])
                                                                  if a in state_names], name)
         model = sde.sde.discretize(sde.method, substeps=sde.substeps)
+        # A regular step is substituted; irregular intervals keep dt a per-step parameter.
         values = {s: (sp.Float(sde.dt) if str(s) == "dt" else params[str(s)])
-                  for s in model.params if str(s) not in free_syms}
-        dyn = [e.xreplace(values) for e in model.outputs]
+                  for s in model.params if str(s) not in free_syms and not (str(s) == "dt" and sde.intervals)}
+        step_symbols = [s for s in model.params if str(s) == "dt" and sde.intervals]
+        # Composed sub-steps are a DAG: substituted node by node, not as a tree.
+        dyn = (list(dag.substitute(model.outputs, values)) if not dag.is_small(model.outputs)
+               else [e.xreplace(values) for e in model.outputs])
         W = list(model.noise)
     else:
         dyn = _expressions(ctx, doc, "dynamics", {**env, **{s.name: s for s in W}}, path)
     if len(dyn) != len(X):
         raise ctx.error("dynamics", f"must have one expression per state ({len(X)}), got {len(dyn)}")
     meas = _expressions(ctx, doc, "measurements", {**env, **{s.name: s for s in E}}, path)
-    steps = doc["steps"]
+    steps = doc.get("steps", len(sde.intervals) if sde is not None and sde.intervals else None)
     if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= MAX_STEPS:
         raise ctx.error("steps", f"must be an integer in [1, {MAX_STEPS}], got {steps!r}")
+    step_params: dict[str, np.ndarray] = {}
+    if sde is not None and sde.intervals:
+        if steps != len(sde.intervals):
+            raise ctx.error("steps", f"must be the number of measurement times of [sde] ({len(sde.intervals)}), "
+                                     f"got {steps!r} (or leave it out)")
+        step_params = {"dt": np.array(sde.intervals)}
     angles = doc.get("angles", [])
     if not isinstance(angles, list) or not all(isinstance(a, int) and not isinstance(a, bool)
                                                and 0 <= a < len(meas) for a in angles):
@@ -358,11 +391,12 @@ def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> Filte
         raise ctx.error("state_angles", f"must be a list of state names ({', '.join(state_names)}), got {state_angles!r}")
     by_name = dict(zip(state_names, X))
     def used(exprs):
-        syms = set().union(*(e.free_symbols for e in exprs))
+        syms = dag.free_symbols(exprs)  # a DAG walk: composed sub-steps are a tree of billions of nodes
         return [s for s in free_syms.values() if s in syms] or None
 
+    f_params = (used(dyn) or []) + (step_symbols if with_sde else [])
     f = Model(X, dyn, noise=W or None, name=f"{name}_f", angles=[by_name[a] for a in state_angles] or None,
-              params=used(dyn))
+              params=f_params or None)
     h = Model(X, meas, noise=E or None, name=f"{name}_h", angles=list(angles) or None, params=used(meas))
     unused = [n for n in free if free_syms[n] not in set(f.params) | set(h.params)]
     if unused:
@@ -381,7 +415,7 @@ def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> Filte
         except SymmonError as exc:
             raise ctx.error(f"[{kind}]", str(exc)) from None
     return FilterScenario(name, f, h, Q, R, x0, int(steps), path, units, {k: float(v) for k, v in params.items()},
-                          settings, sde)
+                          settings, sde, step_params)
 
 
 def _matrix_entries(ctx: _Context, value: Any, key: str, env: dict, what: str) -> list:
@@ -438,9 +472,7 @@ def _sde_table(ctx: _Context, table: Any, X: list, params: dict, free_syms: dict
     method = table.get("method", "exact")
     if method not in SDE_METHODS:
         raise ctx.error("[sde].method", f"must be one of {', '.join(SDE_METHODS)}, got {method!r}")
-    dt = _number(ctx, table["dt"], "[sde].dt", params, r"^\s*dt\s*=")
-    if dt <= 0:
-        raise ctx.error("[sde].dt", f"must be positive (the step), got {table['dt']!r}")
+    dt, intervals, t0 = _sde_steps(ctx, table, params)
     substeps = table.get("substeps", 1)
     if isinstance(substeps, bool) or not isinstance(substeps, int) or not 1 <= substeps <= MAX_SUBSTEPS:
         raise ctx.error("[sde].substeps", f"must be an integer in [1, {MAX_SUBSTEPS}], got {substeps!r}")
@@ -463,7 +495,40 @@ def _sde_table(ctx: _Context, table: Any, X: list, params: dict, free_syms: dict
                                         "nonlinear: use 'taylor1.5' or 'local_linear' with substeps")
     if method in ("taylor1.5", "local_linear") and not sde.additive:
         raise ctx.error("[sde].method", f"{method!r} needs a diffusion free of the states: use 'euler' or 'rk4'")
-    return ScenarioSDE(sde, method, dt, substeps, unit)
+    return ScenarioSDE(sde, method, dt, substeps, unit, intervals, t0)
+
+
+def _sde_steps(ctx: _Context, table: dict, params: dict) -> tuple[float, tuple[float, ...] | None, float]:
+    """(dt, intervals, t0) of an ``[sde]`` table: one regular ``dt``, a list ``dt`` (one
+    interval per step) or measurement ``times`` after ``t0``, exactly one of them."""
+    if ("dt" in table) == ("times" in table):
+        raise ctx.error("[sde]", "give the step dt (a number, or a list: one interval per step) or the measurement "
+                                 "times, exactly one of them")
+    if "t0" in table and "times" not in table:
+        raise ctx.error("[sde].t0", "applies only with times (the time of x0)")
+    t0 = _number(ctx, table["t0"], "[sde].t0", params, r"^\s*t0\s*=") if "t0" in table else 0.0
+    raw = table.get("dt", table.get("times"))
+    key = "dt" if "dt" in table else "times"
+    if key == "dt" and not isinstance(raw, list):
+        dt = _number(ctx, raw, "[sde].dt", params, r"^\s*dt\s*=")
+        if dt <= 0:
+            raise ctx.error("[sde].dt", f"must be positive (the step), got {raw!r}")
+        return dt, None, 0.0
+    if not isinstance(raw, list) or not raw or len(raw) > MAX_STEPS:
+        raise ctx.error(f"[sde].{key}", f"must be a non-empty list of at most {MAX_STEPS} numbers, got {raw!r}")
+    values = [_number(ctx, v, f"[sde].{key}[{i}]", params, rf"^\s*{key}\s*=") for i, v in enumerate(raw)]
+    if key == "dt":
+        bad = next((i for i, v in enumerate(values) if v <= 0), None)
+        if bad is not None:
+            raise ctx.error(f"[sde].dt[{bad}]", f"must be positive (the interval before measurement {bad}), "
+                                                f"got {raw[bad]!r}")
+        intervals = np.array(values)
+    else:
+        try:
+            intervals = check_times(values, t0, name="times")
+        except SymmonError as exc:
+            raise ctx.error("[sde].times", str(exc)) from None
+    return float(intervals.max()), tuple(float(d) for d in intervals), t0
 
 
 def _filter_settings(ctx: _Context, table: Any, kind: str) -> dict:
@@ -511,14 +576,15 @@ def check_bank(spec: FilterSpec, runs: int, filters: Iterable[str], smooth: bool
 
 
 def simulate_scenario(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, steps: int, runs: int,
-                      seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+                      seed: int = 0, params: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """True states and measurements of ``runs`` independent runs: :func:`symmon.simulate`
     with a bank of ``runs`` (shapes (runs, steps, n) and (runs, steps, n_y)).
 
     x_0 ~ x0, x_k = f(x_{k−1}) + w_k, y_k = h(x_k) + e_k for k = 1 … ``steps``, with
     w_k ~ N(0, Q) and e_k ~ N(0, R); for a model with noise symbols the noise is its
     argument instead, x_k = f(x_{k−1}, w_k) and y_k = h(x_k, e_k).  Angle states and
-    angle measurements are wrapped to (−π, π].
+    angle measurements are wrapped to (−π, π].  ``params`` are the models' parameter values
+    (a scenario's :attr:`FilterScenario.step_params`: the intervals of irregular times).
 
     Raises
     ------
@@ -526,7 +592,7 @@ def simulate_scenario(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaus
         If runs × steps × (n + n_y) exceeds :data:`MAX_SIMULATED`, or the truth diverges (a
         non-finite state or measurement, naming the run and step).
     """
-    return simulate_models(f, h, Q, R, x0, steps, runs, seed=seed)
+    return simulate_models(f, h, Q, R, x0, steps, runs, params=params or None, seed=seed)
 
 
 @dataclass(frozen=True)
@@ -573,7 +639,7 @@ def _rmse(xs: np.ndarray, x: np.ndarray, angle_states) -> np.ndarray:
 def run_bank(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, xs: np.ndarray, ys: np.ndarray,
              names: list[str], tol: float = DEFAULT_TOL, confidence: float = 0.95,
              smooth: bool = False, settings: dict | None = None,
-             executor: Executor | None = None) -> list[BankSummary]:
+             executor: Executor | None = None, params: dict | None = None) -> list[BankSummary]:
     """Run the named filters (:func:`filter_transform`) on the bank ``ys`` with truth ``xs``.
 
     With ``smooth``, each filter's RTS smoother runs too (:meth:`NonlinearKalmanFilter.smooth`),
@@ -583,7 +649,8 @@ def run_bank(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, xs:
     statistics do (a state known exactly has no NEES), is reported with its error instead of
     stopping the others.  With ``executor`` each filter's bank runs in shards there
     (:func:`symmon.filters.bank.filter_bank`: the same numbers); the smoothers'
-    backward passes run here.
+    backward passes run here.  ``params`` go to every filter (a scenario's
+    :attr:`FilterScenario.step_params`).
     """
     out = []
     for name in names:
@@ -592,10 +659,10 @@ def run_bank(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, x0: Gaussian, xs:
             entry = filter_entry(name)
             kf = make_filter(name, f, h, Q, R, tol, settings)
             if smooth and entry.has_smoother:
-                smoothed = kf.smooth(ys, x0)
+                smoothed = kf.smooth(ys, x0, params=params or None)
                 res = smoothed.filtered
             else:
-                res = kf.filter(ys, x0, executor=executor)
+                res = kf.filter(ys, x0, executor=executor, params=params or None)
             # Its statistics may fail too (a state known exactly has no NEES): the same report.
             extra = {}
             if smoothed is not None:

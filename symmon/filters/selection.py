@@ -144,6 +144,7 @@ from ..core.angles import wrap_angle
 from ..core.gaussian import Gaussian
 from ..core.mixture import GaussianMixture
 from ..core.model import Model, with_param_values
+from ..core.sde import SDE
 from ..errors import ArgumentError, ArgumentTypeError, SymmonError, plain_repr
 from ..measures.advice import DEFAULT_TOL, GAUSSIAN_MON_LIMIT, MAX_GSF_COMPONENTS, cost as transform_cost, filter_advice
 from ..measures.mon import nonlinearity
@@ -153,6 +154,7 @@ from .base import Filter
 from .gaussian.nonlinear import NonlinearKalmanFilter
 from .mixture.imm import IMM
 from .registry import filter_entry, make_filter
+from .sde_advice import discretize_track
 from .simulation import simulate
 
 __all__ = ["advise_filter", "FilterAdvice", "FilterCandidate", "candidate_menu", "ANEES_BAND", "RMSE_MARGIN",
@@ -939,10 +941,11 @@ def _choose(rows: list[FilterCandidate]) -> tuple[FilterCandidate, bool, str]:
 
 
 # --------------------------------------------------------------------------- the advice
-def advise_filter(f: Model, h: Model, Q: Any, R: Any, x0: Gaussian, steps: int, params: dict | None = None, *,
+def advise_filter(f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian, steps: int | None, params: dict | None = None, *,
                   modes: Sequence[Any] | None = None, tol: float = DEFAULT_TOL, runs: int = 64,
                   budget: float | None = None, seed: int = 0,
-                  candidates: Sequence[str | tuple[str, Mapping[str, Any]]] | None = None) -> FilterAdvice:
+                  candidates: Sequence[str | tuple[str, Mapping[str, Any]]] | None = None,
+                  times: Any = None, t0: float = 0.0) -> FilterAdvice:
     """The filter for a whole track: candidates pruned by the MoN along it, chosen by a pilot study.
 
     Module notes: the MoN along the track, the candidates and their pruning, the pilot, the
@@ -954,7 +957,11 @@ def advise_filter(f: Model, h: Model, Q: Any, R: Any, x0: Gaussian, steps: int, 
     ----------
     f, h : Model
         The dynamics (n → n) and the measurement (n → n_y), as for
-        :class:`~symmon.NonlinearKalmanFilter`.
+        :class:`~symmon.NonlinearKalmanFilter`.  f may be an :class:`~symmon.SDE` (with
+        ``Q=None``, and ``times`` or ``params["dt"]``): it is discretised over the intervals,
+        its sub-steps chosen by the MoN within ``tol``
+        (:func:`symmon.filters.sde_advice.discretize_track`), and the advice is for that
+        model, its ``dt`` a per-step parameter (a note says which discretisation).
     Q, R : array_like
         Process and measurement noise covariances.
     x0 : Gaussian
@@ -981,6 +988,8 @@ def advise_filter(f: Model, h: Model, Q: Any, R: Any, x0: Gaussian, steps: int, 
     candidates : sequence of str or (str, dict), optional
         Filters to compare instead of the menu: registered names (``"ukf"``) or
         (name, settings) pairs (``("pf", {"particles": 500})``); all are run, whatever the MoN.
+    times, t0 : array_like and float, optional
+        With an SDE as f: the measurement times t_1 < … < t_K after ``t0`` (the time of x0).
 
     Returns
     -------
@@ -1006,12 +1015,20 @@ def advise_filter(f: Model, h: Model, Q: Any, R: Any, x0: Gaussian, steps: int, 
     >>> a.choice, a.credible
     ('kf', True)
     """
+    track = None
+    if isinstance(f, SDE):  # an SDE: discretised over the intervals (symmon.filters.sde_advice)
+        track = discretize_track(f, Q, x0, steps, params, times, t0, tol)
+        f, Q, steps, params = track.f, track.Q, track.steps, track.params
+    elif times is not None or t0 != 0.0:
+        raise ArgumentError("times and t0 apply to an SDE as f; a discrete f takes its intervals as a parameter")
     _check(f, h, x0, steps, tol, runs, budget, seed)
     tol, K = float(tol), int(steps)
     Q, R = np.atleast_2d(np.asarray(Q, dtype=float)), np.atleast_2d(np.asarray(R, dtype=float))
     n = f.n_u
     xs_all, ys_all = simulate(f, h, Q, R, x0, K, runs=int(runs), params=params, seed=int(seed))
-    notes: list[str] = []
+    notes: list[str] = [] if track is None else [
+        f"the SDE is discretised by {track.method!r} with {track.substeps} sub-step(s) per interval (the MoN of a "
+        f"sub-step within tol from x0); filter with params={{'dt': intervals}}"]
     P0 = np.asarray(x0.cov, dtype=float)
     scale = np.sqrt(np.diag(P0)).copy()
     spread = xs_all.reshape(-1, n).std(axis=0)

@@ -85,8 +85,8 @@ def truth_model(sde: SDE) -> Model:
     """The discretised SDE that :func:`simulate` draws the truth with, its step the parameter
     ``dt``: ``"exact"`` for a linear time-invariant SDE whose closed form sympy gives, else one
     sub-step of ``"taylor1.5"``, which :func:`simulate` applies ``substeps`` times per interval
-    (the same draws as ``sde.discretize("taylor1.5", substeps=substeps)``, whose expression
-    grows with each composed sub-step, at a cost linear in ``substeps``).
+    (the same draws as ``sde.discretize("taylor1.5", substeps=substeps)``, here without
+    compiling a model per number of sub-steps).
 
     Raises
     ------

@@ -38,7 +38,8 @@ from ..transforms.base import Transform
 from ..transforms.stats import Stats, jackknife, jackknife_se, moments_of
 from ..transforms.registry import compare_set
 
-__all__ = ["NonlinearityMeasure", "MonParts", "nonlinearity", "flow_model", "FLOW_SUBSTEPS", "compare", "format_table", "mon_from_moments"]
+__all__ = ["NonlinearityMeasure", "MonParts", "nonlinearity", "flow_model", "FLOW_SUBSTEPS", "compare", "format_table",
+           "mon_from_moments", "choose_substeps", "MAX_CHOSEN_SUBSTEPS"]
 
 
 # --------------------------------------------------------------------------- public API
@@ -174,6 +175,82 @@ def flow_model(sde: SDE, dt: float, params: dict | None = None, *, method: str |
     if "dt" in {str(k) for k in given}:
         raise ArgumentError("params must not give 'dt': the step is the argument dt")
     return model, {**given, "dt": float(dt)}
+
+
+#: The most sub-steps :func:`choose_substeps` gives (and so the shortest sub-step, dt/256).
+MAX_CHOSEN_SUBSTEPS = 256
+
+
+def choose_substeps(sde: SDE, prior: Gaussian, dt: float, tol: float = 0.01, params: dict | None = None, *,
+                    transform: Transform | None = None, max_substeps: int = MAX_CHOSEN_SUBSTEPS) -> int:
+    """The fewest sub-steps N (a power of two) whose sub-step's flow is nearly affine: the MoN
+    of the flow map over dt/N (:func:`nonlinearity` of the SDE from ``prior``) at most ``tol``.
+
+    A discretisation that linearises the drift on each sub-step (``"local_linear"``, the
+    noise of ``"rk4"``), and a Gaussian filter of it, are then accurate to about ``tol`` on
+    each sub-step.  N doubles from 1 until the MoN is within ``tol``.  The sub-step's flow is
+    one step of :func:`flow_model`'s scheme (order-1.5 Itô–Taylor for additive noise,
+    Euler–Maruyama otherwise: one compiled model per N tried); the MoN is taken from
+    ``prior``, the law of x at the step's start (the later sub-steps start from the
+    propagated law: for a long step whose spread grows much, take the prior of the largest
+    spread).
+
+    Parameters
+    ----------
+    sde : SDE
+    prior : Gaussian
+        The law of x(t) at the step's start.
+    dt : float
+        The step, positive, in the SDE's time unit.
+    tol : float, default 0.01
+        The MoN (unitless, in [0, 1]) one sub-step may have: :func:`symmon.advise`'s
+        tolerance (:data:`symmon.measures.advice.DEFAULT_TOL`).
+    params : dict, optional
+        The SDE's parameter values.
+    transform : Transform, optional
+        The rule of the MoN (:func:`nonlinearity`'s default, TT2).
+    max_substeps : int, default :data:`MAX_CHOSEN_SUBSTEPS`
+        The most sub-steps to try.
+
+    Returns
+    -------
+    int
+        N ≥ 1; 1 for a linear SDE (its flow is affine: MoN 0).
+
+    Raises
+    ------
+    ArgumentError
+        A bad ``tol`` or ``max_substeps``, or a ``dt`` that is not a positive finite number.
+    SymmonError
+        No N up to ``max_substeps`` brings the MoN within ``tol``, naming the MoN reached.
+
+    Examples
+    --------
+    >>> import sympy as sp, symmon as sm
+    >>> x = sp.Symbol("x", real=True)
+    >>> well = sm.SDE([x], [x - x**3], diffusion=[0.5])
+    >>> choose_substeps(well, sm.Gaussian([0.5], [[0.1]]), 1.0, tol=0.1)
+    16
+    """
+    from ..errors import SymmonError
+
+    if isinstance(tol, (bool, np.bool_)) or not isinstance(tol, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(tol) or tol <= 0:
+        raise ArgumentError(f"tol must be a positive finite number, got {tol!r}")
+    if isinstance(max_substeps, (bool, np.bool_)) or not isinstance(max_substeps, (int, np.integer)) or max_substeps < 1:
+        raise ArgumentError(f"max_substeps must be a positive integer, got {max_substeps!r}")
+    flow_model(sde, dt)  # checks dt
+    if sde.is_linear:
+        return 1
+    N, mon = 1, float("nan")
+    while N <= max_substeps:
+        mon = float(nonlinearity(sde, prior, dt=float(dt) / N, params=params, transform=transform, substeps=1))
+        if mon <= tol:
+            return N
+        N *= 2
+    raise SymmonError(f"the MoN of {sde.name!r}'s flow over dt/{N // 2} = {float(dt) / (N // 2):.6g} is {mon:.3g}, "
+                      f"above tol = {tol:g} at max_substeps = {max_substeps}: the flow is nonlinear at every "
+                      "sub-step (a larger tol, or a narrower prior)")
 
 
 def _empirical_nonlinearity(model: Model, u: Empirical, v: Any, weight: Any, tr: Transform, executor: Any

@@ -8,8 +8,8 @@ import pytest
 import sympy as sp
 
 import symmon as sm
-from symmon.errors import ArgumentError
-from symmon.measures.mon import FLOW_SUBSTEPS, flow_model
+from symmon.errors import ArgumentError, SymmonError
+from symmon.measures.mon import FLOW_SUBSTEPS, choose_substeps, flow_model
 
 p, v = sp.symbols("p v", real=True)
 q = sp.Symbol("q", positive=True)
@@ -59,3 +59,33 @@ def test_bad_flow_arguments_are_refused(kwargs, match):
 def test_a_model_takes_no_step():
     with pytest.raises(ArgumentError, match="for the flow of an SDE"):
         sm.nonlinearity(sm.Model([x1], [x1**2]), sm.Gaussian([0.0], [[1.0]]), dt=0.1)
+
+
+# --------------------------------------------------------------------------- sub-steps by the MoN
+def test_choose_substeps_gives_the_fewest_that_bring_a_sub_step_within_tol():
+    """N is the smallest power of two with the sub-step's MoN ≤ tol: N/2 sub-steps exceed it."""
+    tol, dt = 0.1, 0.8
+    N = choose_substeps(VDP, VDP_PRIOR, dt, tol)
+    assert N >= 2
+    assert float(sm.nonlinearity(VDP, VDP_PRIOR, dt=dt / N, substeps=1)) <= tol
+    assert float(sm.nonlinearity(VDP, VDP_PRIOR, dt=dt / (N // 2), substeps=1)) > tol
+    # a stricter tolerance or a longer step needs more sub-steps
+    assert choose_substeps(VDP, VDP_PRIOR, dt, tol / 4) > N
+    assert choose_substeps(VDP, VDP_PRIOR, 2 * dt, tol) == 2 * N
+
+
+def test_choose_substeps_of_a_linear_sde_is_one():
+    prior = sm.Gaussian([0.0, 1.0], np.diag([1.0, 0.5]))
+    assert choose_substeps(IOU, prior, 5.0, 1e-6, {"q": 0.5, "theta": 0.7}) == 1
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    ({"tol": 0.0}, ArgumentError, "tol must be a positive"),
+    ({"max_substeps": 0}, ArgumentError, "max_substeps must be"),
+    ({"dt": -1.0}, ArgumentError, "dt"),
+    ({"tol": 1e-6, "max_substeps": 2}, SymmonError, "above tol"),
+])
+def test_choose_substeps_refuses_bad_arguments_and_says_when_no_n_is_enough(kwargs, error, match):
+    args = {"dt": 0.8, **kwargs}
+    with pytest.raises(error, match=match):
+        choose_substeps(VDP, VDP_PRIOR, **args)
