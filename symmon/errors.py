@@ -25,6 +25,7 @@ __all__ = [
     "SingularMatrixError",
     "DerivativeError",
     "NonFiniteError",
+    "InconsistentMomentsError",
     "ResourceError",
     "ArgumentError",
     "ArgumentTypeError",
@@ -145,6 +146,13 @@ class DerivativeError(SymmonError):
 class NonFiniteError(SymmonError):
     """A moment or a measure would be NaN or inf: g is not finite at a point a rule
     evaluates, or the moments themselves overflow.  Never returned as a number."""
+
+
+class InconsistentMomentsError(SymmonError):
+    """A deterministic transform's moments that no distribution has: a residual covariance
+    of the MoN, Σ_gg − Σ_gu Σ_uu⁻¹ Σ_ug − Σ_c, clearly negative where it is a variance.  The
+    approximation has failed for this model and prior, and its MoN is no number (clamped at
+    0 it would read as "linear")."""
 
 
 class ResourceError(SymmonError):

@@ -24,7 +24,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .conditional import conditional_cov, conditional_cov_replicates, empirical_conditional_cov
-from ..errors import ArgumentError, NonFiniteError
+from ..errors import ArgumentError, InconsistentMomentsError, NonFiniteError
 from ..core.gaussian import Gaussian
 from ..core.mixture import Empirical, GaussianMixture
 from .formula import MonParts, NonlinearityMeasure, mon_from_moments
@@ -97,6 +97,16 @@ def nonlinearity(model: Model | SDE, u: Gaussian | GaussianMixture, v: Gaussian 
     -------
     NonlinearityMeasure
 
+    Raises
+    ------
+    InconsistentMomentsError
+        A deterministic transform whose moments give M² clearly below 0 (beyond
+        :data:`NEGATIVE_MON_RTOL`): no distribution has them, the approximation has failed,
+        and a MoN clamped at 0 would read as "linear".  A Monte Carlo M² below 0 is noise,
+        and is clamped.
+    NonFiniteError
+        Moments or a MoN that are NaN or inf.
+
     Examples
     --------
     >>> import sympy as sp, symmon as sm
@@ -128,9 +138,29 @@ def nonlinearity(model: Model | SDE, u: Gaussian | GaussianMixture, v: Gaussian 
         parts = mon_from_moments(m.cov, m.cross_cov, m.input_cov, weight, Sc, m.mean)
     except NonFiniteError as exc:
         raise NonFiniteError(f"{tr!r}: {exc}") from None
+    if not tr.stochastic:
+        _check_consistent(parts, m.cov, tr)
     if stderr is not None and not np.isfinite(stderr):
         raise NonFiniteError(f"{tr!r}: the standard error of the MoN is {stderr}")
     return NonlinearityMeasure.of(parts, transform=tr, structure=model.structure, moments=m, stderr=stderr)
+
+
+#: A deterministic transform's M² below −this × (|tr(W Σ_gg)| + |tr(W Σ_c)|), the terms it is
+#: the difference of, is no rounding (M² is a weighted residual variance, never negative for
+#: a distribution's moments).
+NEGATIVE_MON_RTOL = 1e-8
+
+
+def _check_consistent(parts: MonParts, Sgg: np.ndarray, tr: Transform) -> None:
+    """Refuse a clearly negative M² of a deterministic transform (:class:`InconsistentMomentsError`)."""
+    WSc = parts.J_Ab - parts.squared
+    scale = abs(float(np.trace(parts.weight @ np.atleast_2d(Sgg)))) + abs(WSc)
+    if parts.squared < -NEGATIVE_MON_RTOL * scale:
+        raise InconsistentMomentsError(
+            f"{tr!r}: its moments give M² = {parts.squared:.3g} < 0 (J_Ab = {parts.J_Ab:.3g}, tr(W Σ_c) = "
+            f"{WSc:.3g}), which no distribution has: the approximation fails for this model and prior, and "
+            "its MoN would read as 0 (linear). Use a rule of higher degree (UT, GaussHermite) or Monte Carlo, "
+            "or a smaller prior spread (for an SDE, a shorter dt or more sub-steps)")
 
 
 #: The sub-steps of the discretisation of an SDE's flow in :func:`nonlinearity`.
