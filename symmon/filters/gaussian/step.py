@@ -60,6 +60,7 @@ from ...codegen.symbolic import graph_kind, moments, tril_inverse, wrap_entries
 from ...transforms.base import Transform
 from ..inputs import filter_params
 from ._ekfstep import C_EKF_FROM, C_SQRT_EKF_FROM, ekf_c, ekf_pieces, sqrt_ekf_c
+from ._ukfstep import c_sqrt_ukf_applies, sqrt_ukf_c, sqrt_ukf_pieces
 from ._sqrtstep import covariance_of, factor_of, noise_factor, sqrt_nees_graph, sqrt_predict_graph, sqrt_update_graph
 
 #: Names of the outputs of the step function, in order.
@@ -343,7 +344,18 @@ class _CompiledStep(CompiledLoop):
         # _sqrtstep in C (sqrt_ekf_step.c).
         self.c_sqrt_ekf = (transform.taylor_order == 1 and square_root and not f.n_v and not h.n_v
                            and n >= C_SQRT_EKF_FROM)
-        if self.c_ekf or self.c_sqrt_ekf:
+        # The square-root UKF (a point rule with non-negative weights, additive noise): the
+        # factor arithmetic in C around CasADi's sigma-point pieces (sqrt_ukf_step.c).
+        self.c_sqrt_ukf = square_root and c_sqrt_ukf_applies(f, h, transform, iterations)
+        if self.c_sqrt_ukf:
+            names = filter_params(f, h)
+            xs, ys, ps = ca.SX.sym("x", n), ca.SX.sym("y", n_y), ca.SX.sym("p", len(names))
+            pieces, k = sqrt_ukf_pieces(f, h, transform, angle_states, select_params(f, names, ps),
+                                        select_params(h, names, ps), xs, ys, ps, name)
+            funcs = (self.nees_f,) + pieces
+            ukf_code, scratch = sqrt_ukf_c(name, n, n_y, k, bool(angle_states))
+            code, step, s = generated_c(*funcs) + ukf_code, f"{name}_sqrt_ukf", "s"
+        elif self.c_ekf or self.c_sqrt_ekf:
             names = filter_params(f, h)
             xs, ys, ps = ca.SX.sym("x", n), ca.SX.sym("y", n_y), ca.SX.sym("p", len(names))
             pieces, pattern = ekf_pieces(f, h, angle_states, select_params(f, names, ps),

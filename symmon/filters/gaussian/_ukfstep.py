@@ -1,0 +1,91 @@
+"""The square-root step of a point rule (the UKF, the cubature rule) in hand-written C around
+CasADi's sigma-point pieces.
+
+CasADi generates, as straight-line SX, what depends on the model: the points of N(x, S Sᵀ),
+f (resp. h) at them, the weighted mean (angle rows by their circular mean, wrapped) and the
+weighted deviations √wᶜ_k (g(χ_k) − ḡ), √wᶜ_k (χ_k − x) (:func:`symmon.codegen.sqrtform.sqrt_moments`);
+the factor arithmetic is the C of ``sqrt_ukf_step.c``, which shares the Householder
+triangularisation of the square-root EKF (``sqrt_tria.c``): S⁻ = tria([√Q, Y₊]) with the noise's
+triangle first (its reflections skip the triangle's zeros), and the update as one
+triangularisation of the pre-array [[D √R, I − D, D Y], [0, 0, X]] → [[S_y, 0], [K̄, S⁺]] (the
+array form: the same S_y, K̄ and S⁺ as the MX step in exact arithmetic, S⁺ from reflections of
+the points rather than from the Joseph columns; to rounding, 1e-12 relative in the tests, the
+MX step's).  In place, with no copies of trailing blocks, the reflections cost about half the
+MX step's for the same flops.
+
+Only rules with non-negative covariance weights run it (a negative weight needs a downdate, which
+the MX step does), and only the plain update (no iterations).
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from ...codegen.sqrtform import sqrt_moments
+from ...codegen.symbolic import unit_rule, wrap_entries
+from ...compile.compiled import compiled, compiled_with_params
+from ...compile.csource import c_defines, c_source
+from ...core.model import Model
+from ...transforms.base import Transform
+
+#: From this many states on, a square-root point-rule step with additive noise and non-negative
+#: weights runs the C step of :func:`sqrt_ukf_c` (below, the straight-line SX step).
+C_SQRT_UKF_FROM = 10
+
+
+def c_sqrt_ukf_applies(f: Model, h: Model, transform: Transform, iterations: int) -> bool:
+    """Whether the square-root step of (f, h, transform) runs the C step of this module: a
+    point rule with non-negative covariance weights in n = f.n_u dimensions, additive noise,
+    no iterations, n ≥ :data:`C_SQRT_UKF_FROM`."""
+    n = f.n_u
+    if not transform.point_rule or f.n_v or h.n_v or iterations != 1 or n < C_SQRT_UKF_FROM:
+        return False
+    return bool(np.all(np.asarray(unit_rule(transform, n)[2], dtype=float) >= 0))
+
+
+def _moments(model: Model, m, S, transform: Transform, angles, p):
+    cm = compiled_with_params(model) if model.n_p else compiled(model)
+    return sqrt_moments(cm, m, S, transform, angles, p if model.n_p else None)
+
+
+def sqrt_ukf_pieces(f: Model, h: Model, transform: Transform, angle_states: frozenset[int], p_f, p_h,
+                    x, y, p, name: str) -> tuple[tuple[ca.Function, ...], tuple[int, int]]:
+    """The SX pieces of the C step and the numbers of columns (k_f, k_h) of f's and h's
+    deviations (the points', or n for a model the rule takes exactly by its Jacobian: an affine f).
+
+    ``{name}_upred``: (x, S, p) ↦ (x⁻, Y₊ (n × k_f)), x⁻ the rule's mean of f with the angle
+    states wrapped; ``{name}_uupd``: (x⁻, S⁻, y, p) ↦ (ν, Y (n_y × k_h), X (n × k_h)), ν = y − ŷ
+    wrapped on the angle outputs; ``{name}_xwrap``: x ↦ x with the angle states wrapped.
+    ``p_f``, ``p_h``: the entries of the filter's parameter symbol ``p`` that f and h use (None:
+    none); x, y, p are SX symbols, S and S⁻ lower triangular (their upper triangles structural
+    zeros).
+    """
+    n = x.shape[0]
+    S = ca.SX.sym("S", n, n)  # dense, as the C passes it; the products read its lower triangle
+    mean, cols = _moments(f, x, ca.tril(S), transform, angle_states, p_f)
+    x_pred = wrap_entries(mean, angle_states)
+    y_hat, hcols = _moments(h, x, ca.tril(S), transform, frozenset(h.angle_outputs), p_h)
+    y_angles = frozenset(h.angle_outputs)
+    nu = wrap_entries(y - y_hat, y_angles)
+    if cols.Yn is not None or hcols.Yn is not None:
+        raise ValueError(f"transform: {transform!r} has negative weights in {n} dimensions; the C square-root "
+                         "step needs none (c_sqrt_ukf_applies)")
+    opts = {"cse": True}
+    upred = ca.Function(f"{name}_upred", [x, S, p], [x_pred, ca.densify(cols.Y)], opts)
+    uupd = ca.Function(f"{name}_uupd", [x, S, y, p], [nu, ca.densify(hcols.Y), ca.densify(hcols.W)], opts)
+    xwrap = ca.Function(f"{name}_xwrap", [x], [wrap_entries(x, angle_states)], opts)
+    return (upred, uupd, xwrap), (cols.Y.shape[1], hcols.Y.shape[1])
+
+
+def sqrt_ukf_c(name: str, n: int, n_y: int, k: tuple[int, int], wrap_x: bool) -> tuple[str, int]:
+    """The C of ``{name}_sqrt_ukf`` (after the pieces' generated C, :func:`sqrt_ukf_pieces`
+    with (k_f, k_h) columns of deviations) and its scratch size in reals; ``wrap_x``: the step wraps angle
+    states."""
+    n2, (kf, kh) = n + n_y, k
+    m_a = max(n * (n + kf), n2 * (2 * n_y + kh))  # the time update's and the update's pre-arrays
+    m_v = max(n + kf, 2 * n_y + kh, n2)  # a row of either, and a column
+    scratch = n + n * n + m_a + n_y * kh + n * kh + n2 * n2 + n_y + n + 2 * m_v + n_y
+    defines = c_defines(EKF_NAME=name, EKF_N=n, EKF_NY=n_y, EKF_KF=kf, EKF_KH=kh, EKF_WRAP_X=bool(wrap_x),
+                        EKF_LOG_2PI=float(np.log(2 * np.pi)), EKF_SCRATCH=scratch, EKF_MA=m_a, EKF_MV=m_v)
+    return defines + c_source(__package__, "sqrt_ukf_step.c"), scratch
