@@ -23,7 +23,7 @@ import casadi as ca
 import numpy as np
 
 from ...codegen.sqrtform import sqrt_moments
-from ...codegen.symbolic import unit_rule, wrap_entries
+from ...codegen.symbolic import effective_order, unit_rule, wrap_entries
 from ...compile.compiled import compiled, compiled_with_params
 from ...compile.csource import c_defines, c_source
 from ...core.model import Model
@@ -50,13 +50,13 @@ def _moments(model: Model, m, S, transform: Transform, angles, p):
 
 
 def sqrt_ukf_pieces(f: Model, h: Model, transform: Transform, angle_states: frozenset[int], p_f, p_h,
-                    x, y, p, name: str) -> tuple[tuple[ca.Function, ...], tuple[int, int]]:
-    """The SX pieces of the C step and the numbers of columns (k_f, k_h) of f's and h's
-    deviations (the points', or n for a model the rule takes exactly by its Jacobian: an affine f).
+                    x, y, p, name: str) -> tuple[tuple[ca.Function, ...], tuple[int, int, int]]:
+    """The SX pieces of the C step and the numbers of columns (k_f, k_0, k_d) of f's and h's
+    deviations (k_f: the points', or n for a model the rule takes exactly by its Jacobian, an affine f).
 
     ``{name}_upred``: (x, S, p) ↦ (x⁻, Y₊ (n × k_f)), x⁻ the rule's mean of f with the angle
-    states wrapped; ``{name}_uupd``: (x⁻, S⁻, y, p) ↦ (ν, Y (n_y × k_h), X (n × k_h)), ν = y − ŷ
-    wrapped on the angle outputs; ``{name}_xwrap``: x ↦ x with the angle states wrapped.
+    states wrapped; ``{name}_uupd``: (x⁻, S⁻, y, p) ↦ (ν, Y₀ (n_y × k_0), Y_d (n_y × k_d), X_d
+    (n × k_d)), ν = y − ŷ wrapped on the angle outputs and the columns of :func:`_paired`; ``{name}_xwrap``: x ↦ x with the angle states wrapped.
     ``p_f``, ``p_h``: the entries of the filter's parameter symbol ``p`` that f and h use (None:
     none); x, y, p are SX symbols, S and S⁻ lower triangular (their upper triangles structural
     zeros).
@@ -71,21 +71,62 @@ def sqrt_ukf_pieces(f: Model, h: Model, transform: Transform, angle_states: froz
     if cols.Yn is not None or hcols.Yn is not None:
         raise ValueError(f"transform: {transform!r} has negative weights in {n} dimensions; the C square-root "
                          "step needs none (c_sqrt_ukf_applies)")
+    Y0, Yd, Xd = _paired(hcols, h, n, transform, y_angles)
     opts = {"cse": True}
     upred = ca.Function(f"{name}_upred", [x, S, p], [x_pred, ca.densify(cols.Y)], opts)
-    uupd = ca.Function(f"{name}_uupd", [x, S, y, p], [nu, ca.densify(hcols.Y), ca.densify(hcols.W)], opts)
+    uupd = ca.Function(f"{name}_uupd", [x, S, y, p], [nu, ca.densify(Y0), ca.densify(Yd), ca.densify(Xd)], opts)
     xwrap = ca.Function(f"{name}_xwrap", [x], [wrap_entries(x, angle_states)], opts)
-    return (upred, uupd, xwrap), (cols.Y.shape[1], hcols.Y.shape[1])
+    return (upred, uupd, xwrap), (cols.Y.shape[1], Y0.shape[1], Yd.shape[1])
 
 
-def sqrt_ukf_c(name: str, n: int, n_y: int, k: tuple[int, int], wrap_x: bool) -> tuple[str, int]:
+def _paired(cols, h: Model, n: int, transform: Transform, y_angles) -> tuple:
+    """(Y₀, Y_d, X_d): the joint columns [Y; X] of h's points after an orthogonal rotation of
+    each pair of points ±z of equal weight, (a, b) ↦ ((a + b)/√2, (a − b)/√2): the pair's X
+    deviations are exact negatives (the offsets ±S z), so the sum's X part is zero, and the
+    columns whose X part is zero (those, and the centre's) are Y₀ (with X₀ = 0); the others
+    Y_d over X_d.  The Gram matrix of the columns is unchanged; the C update triangularises Y₀
+    alone first (rows y only), then the rest (module notes)."""
+    cm = compiled_with_params(h) if h.n_p else compiled(h)
+    k = cols.Y.shape[1]
+    kind = type(cols.Y)
+    if effective_order(cm, n, transform, y_angles) in (1, 2):  # the Jacobian's columns: none paired
+        return kind.zeros(cols.Y.shape[0], 0), cols.Y, cols.W
+    Z, _, wc = unit_rule(transform, n)
+    Z, wc = np.asarray(Z, dtype=float), np.asarray(wc, dtype=float)
+    pos = np.flatnonzero(wc > 0).tolist()
+    where = {pt: i for i, pt in enumerate(pos)}
+    zero, pairs, single, used = [], [], [], set()
+    for a in pos:
+        if a in used:
+            continue
+        if not np.any(Z[a]):
+            zero.append(where[a])
+            continue
+        b = next((b for b in pos if b > a and b not in used and wc[b] == wc[a] and np.array_equal(Z[b], -Z[a])),
+                 None)
+        if b is None:
+            single.append(where[a])
+        else:
+            used.add(b)
+            pairs.append((where[a], where[b]))
+    assert len(zero) + 2 * len(pairs) + len(single) == k
+    r = 1 / np.sqrt(2.0)
+    Y, X = cols.Y, cols.W
+    y0 = [Y[:, i] for i in zero] + [(Y[:, a] + Y[:, b]) * r for a, b in pairs]
+    yd = [(Y[:, a] - Y[:, b]) * r for a, b in pairs] + [Y[:, i] for i in single]
+    xd = [(X[:, a] - X[:, b]) * r for a, b in pairs] + [X[:, i] for i in single]
+    return (ca.horzcat(*y0) if y0 else kind.zeros(Y.shape[0], 0), ca.horzcat(*yd), ca.horzcat(*xd))
+
+
+def sqrt_ukf_c(name: str, n: int, n_y: int, k: tuple[int, int, int], wrap_x: bool) -> tuple[str, int]:
     """The C of ``{name}_sqrt_ukf`` (after the pieces' generated C, :func:`sqrt_ukf_pieces`
-    with (k_f, k_h) columns of deviations) and its scratch size in reals; ``wrap_x``: the step wraps angle
+    with (k_f, k_0, k_d) columns of deviations) and its scratch size in reals; ``wrap_x``: the step wraps angle
     states."""
-    n2, (kf, kh) = n + n_y, k
-    m_a = max(n * (n + kf), n2 * (2 * n_y + kh))  # the time update's and the update's pre-arrays
-    m_v = max(n + kf, 2 * n_y + kh, n2)  # a row of either, and a column
-    scratch = n + n * n + m_a + n_y * kh + n * kh + n2 * n2 + n_y + n + 2 * m_v + n_y
-    defines = c_defines(EKF_NAME=name, EKF_N=n, EKF_NY=n_y, EKF_KF=kf, EKF_KH=kh, EKF_WRAP_X=bool(wrap_x),
+    n2, (kf, k0, kd) = n + n_y, k
+    m2 = max(n_y + kd, n2)  # the update's second pre-array's columns (zeros beyond n_y + k_d)
+    m_a = max(n * (n + kf), n_y * (2 * n_y + k0), n2 * m2)  # the time update's and the update's pre-arrays
+    m_v = max(n + kf, 2 * n_y + k0, m2)  # a row of any, and a column
+    scratch = n + n * n + m_a + n_y * (k0 + kd) + n * kd + n2 * n2 + n_y * n_y + n_y + n + 2 * m_v + n_y
+    defines = c_defines(EKF_NAME=name, EKF_N=n, EKF_NY=n_y, EKF_KF=kf, EKF_K0=k0, EKF_KD=kd, EKF_M2=m2, EKF_WRAP_X=bool(wrap_x),
                         EKF_LOG_2PI=float(np.log(2 * np.pi)), EKF_SCRATCH=scratch, EKF_MA=m_a, EKF_MV=m_v)
     return defines + c_source(__package__, "sqrt_ukf_step.c"), scratch

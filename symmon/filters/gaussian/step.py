@@ -350,10 +350,10 @@ class _CompiledStep(CompiledLoop):
         if self.c_sqrt_ukf:
             names = filter_params(f, h)
             xs, ys, ps = ca.SX.sym("x", n), ca.SX.sym("y", n_y), ca.SX.sym("p", len(names))
-            pieces, k = sqrt_ukf_pieces(f, h, transform, angle_states, select_params(f, names, ps),
+            pieces, ks = sqrt_ukf_pieces(f, h, transform, angle_states, select_params(f, names, ps),
                                         select_params(h, names, ps), xs, ys, ps, name)
             funcs = (self.nees_f,) + pieces
-            ukf_code, scratch = sqrt_ukf_c(name, n, n_y, k, bool(angle_states))
+            ukf_code, scratch = sqrt_ukf_c(name, n, n_y, ks, bool(angle_states))
             code, step, s = generated_c(*funcs) + ukf_code, f"{name}_sqrt_ukf", "s"
         elif self.c_ekf or self.c_sqrt_ekf:
             names = filter_params(f, h)
