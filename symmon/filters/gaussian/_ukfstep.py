@@ -58,11 +58,11 @@ def sqrt_ukf_pieces(f: Model, h: Model, transform: Transform, angle_states: froz
     states wrapped; ``{name}_uupd``: (x⁻, S⁻, y, p) ↦ (ν, Y₀ (n_y × k_0), Y_d (n_y × k_d), X_d
     (n × k_d)), ν = y − ŷ wrapped on the angle outputs and the columns of :func:`_paired`; ``{name}_xwrap``: x ↦ x with the angle states wrapped.
     ``p_f``, ``p_h``: the entries of the filter's parameter symbol ``p`` that f and h use (None:
-    none); x, y, p are SX symbols, S and S⁻ lower triangular (their upper triangles structural
-    zeros).
+    none); x, y, p are MX symbols (the points' evaluations one loop: C small enough for an
+    optimised build, where straight-line SX of 2n + 1 points is not), S and S⁻ lower triangular.
     """
     n = x.shape[0]
-    S = ca.SX.sym("S", n, n)  # dense, as the C passes it; the products read its lower triangle
+    S = type(x).sym("S", n, n)  # dense, as the C passes it; the products read its lower triangle
     mean, cols = _moments(f, x, ca.tril(S), transform, angle_states, p_f)
     x_pred = wrap_entries(mean, angle_states)
     y_hat, hcols = _moments(h, x, ca.tril(S), transform, frozenset(h.angle_outputs), p_h)
@@ -110,23 +110,32 @@ def _paired(cols, h: Model, n: int, transform: Transform, y_angles) -> tuple:
             used.add(b)
             pairs.append((where[a], where[b]))
     assert len(zero) + 2 * len(pairs) + len(single) == k
+    # The rotation as sparse constant products (MX: one product each, no slices).
     r = 1 / np.sqrt(2.0)
-    Y, X = cols.Y, cols.W
-    y0 = [Y[:, i] for i in zero] + [(Y[:, a] + Y[:, b]) * r for a, b in pairs]
-    yd = [(Y[:, a] - Y[:, b]) * r for a, b in pairs] + [Y[:, i] for i in single]
-    xd = [(X[:, a] - X[:, b]) * r for a, b in pairs] + [X[:, i] for i in single]
-    return (ca.horzcat(*y0) if y0 else kind.zeros(Y.shape[0], 0), ca.horzcat(*yd), ca.horzcat(*xd))
+    rot0, rotd = np.zeros((k, len(zero) + len(pairs))), np.zeros((k, len(pairs) + len(single)))
+    for c, i in enumerate(zero):
+        rot0[i, c] = 1.0
+    for c, (a, b) in enumerate(pairs):
+        rot0[a, len(zero) + c] = rot0[b, len(zero) + c] = r
+        rotd[a, c], rotd[b, c] = r, -r
+    for c, i in enumerate(single):
+        rotd[i, len(pairs) + c] = 1.0
+    rot0, rotd = ca.sparsify(ca.DM(rot0)), ca.sparsify(ca.DM(rotd))
+    return ca.mtimes(cols.Y, rot0), ca.mtimes(cols.Y, rotd), ca.mtimes(cols.W, rotd)
 
 
-def sqrt_ukf_c(name: str, n: int, n_y: int, k: tuple[int, int, int], wrap_x: bool) -> tuple[str, int]:
+def sqrt_ukf_c(name: str, n: int, n_y: int, k: tuple[int, int, int], wrap_x: bool,
+               pieces: tuple[ca.Function, ...]) -> tuple[str, int]:
     """The C of ``{name}_sqrt_ukf`` (after the pieces' generated C, :func:`sqrt_ukf_pieces`
     with (k_f, k_0, k_d) columns of deviations) and its scratch size in reals; ``wrap_x``: the step wraps angle
-    states."""
+    states; ``pieces``: the functions it calls (the sizes of their argument arrays)."""
     n2, (kf, k0, kd) = n + n_y, k
     m2 = max(n_y + kd, n2)  # the update's second pre-array's columns (zeros beyond n_y + k_d)
     m_a = max(n * (n + kf), n_y * (2 * n_y + k0), n2 * m2)  # the time update's and the update's pre-arrays
     m_v = max(n + kf, 2 * n_y + k0, m2)  # a row of any, and a column
     scratch = n + n * n + m_a + n_y * (k0 + kd) + n * kd + n2 * n2 + n_y * n_y + n_y + n + 2 * m_v + n_y
-    defines = c_defines(EKF_NAME=name, EKF_N=n, EKF_NY=n_y, EKF_KF=kf, EKF_K0=k0, EKF_KD=kd, EKF_M2=m2, EKF_WRAP_X=bool(wrap_x),
+    defines = c_defines(EKF_NAME=name, EKF_N=n, EKF_NY=n_y, EKF_KF=kf, EKF_K0=k0, EKF_KD=kd, EKF_M2=m2,
+                        EKF_SZ_ARG=max(max(g.sz_arg() for g in pieces), 4),
+                        EKF_SZ_RES=max(max(g.sz_res() for g in pieces), 4), EKF_WRAP_X=bool(wrap_x),
                         EKF_LOG_2PI=float(np.log(2 * np.pi)), EKF_SCRATCH=scratch, EKF_MA=m_a, EKF_MV=m_v)
     return defines + c_source(__package__, "sqrt_ukf_step.c"), scratch

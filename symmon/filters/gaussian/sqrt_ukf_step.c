@@ -3,7 +3,8 @@
    EKF_(xwrap); the factor arithmetic of symmon.filters.gaussian._sqrtstep (its notes),
    column-major as CasADi.  _ukfstep.sqrt_ukf_c puts before this file the pieces' generated C
    and the EKF_ macros (the kernel's name EKF_NAME, its sizes, EKF_KF, EKF_K0, EKF_KD the
-   columns of f's and h's deviations, EKF_M2 those of the second pre-array).
+   columns of f's and h's deviations, EKF_M2 those of the second pre-array,
+   EKF_SZ_ARG and EKF_SZ_RES the pieces' argument and result arrays (MX: their calls' scratch)).
    arg: x, S, y, sqrt Q, sqrt R, mask, p (S, sqrt Q, sqrt R lower factors); res: x+, S+, x-, S-,
    nu, S_y S_y^T, loglik, nis (null: not kept; then scratch).  s: scratch of EKF_SCRATCH reals. */
 #ifndef EKF_NAME  /* checked alone: example macros, and the pieces' prototypes */
@@ -15,6 +16,8 @@
 #define EKF_K0 1
 #define EKF_KD 2
 #define EKF_M2 3
+#define EKF_SZ_ARG 4
+#define EKF_SZ_RES 4
 #define EKF_WRAP_X 1
 #define EKF_LOG_2PI 1.8378770664093453
 #define EKF_SCRATCH 160
@@ -60,8 +63,8 @@ static int EKF_(sqrt_ukf)(const casadi_real** arg, casadi_real** res, casadi_int
   casadi_real *A = s + n + n * n, *Y0 = A + EKF_MA, *Yd = Y0 + ny * k0, *Xd = Yd + ny * kd, *L = Xd + n * kd;
   casadi_real *Ly = L + N2 * N2, *wh = Ly + ny * ny, *xn = wh + ny, *vt = xn + n, *wt = vt + EKF_MV;
   casadi_real *nus = wt + EKF_MV, *nu = res[4] ? res[4] : nus, nis = 0, logdet = 0, measured = 0;
-  const casadi_real* a4[4];
-  casadi_real* r4[4];
+  const casadi_real* a4[EKF_SZ_ARG];
+  casadi_real* r4[EKF_SZ_RES];
   casadi_int i, j, k;
   a4[0] = x; a4[1] = S; a4[2] = p; r4[0] = xp; r4[1] = A + n * n;
   if (EKF_(upred)(a4, r4, iw, w, 0)) return 1;

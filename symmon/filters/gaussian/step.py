@@ -349,11 +349,11 @@ class _CompiledStep(CompiledLoop):
         self.c_sqrt_ukf = square_root and c_sqrt_ukf_applies(f, h, transform, iterations)
         if self.c_sqrt_ukf:
             names = filter_params(f, h)
-            xs, ys, ps = ca.SX.sym("x", n), ca.SX.sym("y", n_y), ca.SX.sym("p", len(names))
+            xs, ys, ps = ca.MX.sym("x", n), ca.MX.sym("y", n_y), ca.MX.sym("p", len(names))
             pieces, ks = sqrt_ukf_pieces(f, h, transform, angle_states, select_params(f, names, ps),
                                         select_params(h, names, ps), xs, ys, ps, name)
             funcs = (self.nees_f,) + pieces
-            ukf_code, scratch = sqrt_ukf_c(name, n, n_y, ks, bool(angle_states))
+            ukf_code, scratch = sqrt_ukf_c(name, n, n_y, ks, bool(angle_states), pieces)
             code, step, s = generated_c(*funcs) + ukf_code, f"{name}_sqrt_ukf", "s"
         elif self.c_ekf or self.c_sqrt_ekf:
             names = filter_params(f, h)
