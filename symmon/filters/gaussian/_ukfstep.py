@@ -1,17 +1,23 @@
 """The square-root step of a point rule (the UKF, the cubature rule) in hand-written C around
 CasADi's sigma-point pieces.
 
-CasADi generates, as straight-line SX, what depends on the model: the points of N(x, S Sᵀ),
+CasADi generates what depends on the model (straight-line SX below :data:`MX_PIECES_FROM` states,
+MX with the points one loop from it on): the points of N(x, S Sᵀ),
 f (resp. h) at them, the weighted mean (angle rows by their circular mean, wrapped) and the
 weighted deviations √wᶜ_k (g(χ_k) − ḡ), √wᶜ_k (χ_k − x) (:func:`symmon.codegen.sqrtform.sqrt_moments`);
 the factor arithmetic is the C of ``sqrt_ukf_step.c``, which shares the Householder
 triangularisation of the square-root EKF (``sqrt_tria.c``): S⁻ = tria([√Q, Y₊]) with the noise's
-triangle first (its reflections skip the triangle's zeros), and the update as one
+triangle first (its reflections skip the triangle's zeros), and the update as the
 triangularisation of the pre-array [[D √R, I − D, D Y], [0, 0, X]] → [[S_y, 0], [K̄, S⁺]] (the
 array form: the same S_y, K̄ and S⁺ as the MX step in exact arithmetic, S⁺ from reflections of
 the points rather than from the Joseph columns; to rounding, 1e-12 relative in the tests, the
-MX step's).  In place, with no copies of trailing blocks, the reflections cost about half the
-MX step's for the same flops.
+MX step's).  Each pair of points ±z (the UT's, the cubature rule's) is first rotated,
+(a, b) ↦ ((a + b)/√2, (a − b)/√2), which leaves the Gram matrix as it is and makes the x part of
+the sums exactly zero (the offsets ±S z are exact negatives): those columns are triangularised
+on the y rows alone, then the n differences with the result, about half the flops of the whole
+pre-array.  With the reflections in place (no copies of trailing blocks), the square-root UKF
+costs 1.7–1.9× the standard one at 16–64 states (benchmarks/RESULTS.md, "Square-root
+filters"), where the MX step cost 2.8–3.9×.
 
 Only rules with non-negative covariance weights run it (a negative weight needs a downdate, which
 the MX step does), and only the plain update (no iterations).
@@ -30,8 +36,17 @@ from ...core.model import Model
 from ...transforms.base import Transform
 
 #: From this many states on, a square-root point-rule step with additive noise and non-negative
-#: weights runs the C step of :func:`sqrt_ukf_c` (below, the straight-line SX step).
-C_SQRT_UKF_FROM = 10
+#: weights runs the C step of :func:`sqrt_ukf_c` (below, the straight-line SX step: at 4 states it is as fast).
+C_SQRT_UKF_FROM = 8
+
+#: From this many states on, the sigma-point pieces are MX (the points one loop: C small enough
+#: for an optimised build); below, straight-line SX (as fast, and no loop overhead).
+MX_PIECES_FROM = 16
+
+
+def sqrt_ukf_kind(n: int) -> type:
+    """``ca.SX`` or ``ca.MX``: the kind of the symbols of :func:`sqrt_ukf_pieces` for n states."""
+    return ca.MX if n >= MX_PIECES_FROM else ca.SX
 
 
 def c_sqrt_ukf_applies(f: Model, h: Model, transform: Transform, iterations: int) -> bool:
@@ -51,15 +66,16 @@ def _moments(model: Model, m, S, transform: Transform, angles, p):
 
 def sqrt_ukf_pieces(f: Model, h: Model, transform: Transform, angle_states: frozenset[int], p_f, p_h,
                     x, y, p, name: str) -> tuple[tuple[ca.Function, ...], tuple[int, int, int]]:
-    """The SX pieces of the C step and the numbers of columns (k_f, k_0, k_d) of f's and h's
+    """The pieces of the C step (SX or MX, the kind of ``x``) and the numbers of columns (k_f, k_0, k_d) of f's and h's
     deviations (k_f: the points', or n for a model the rule takes exactly by its Jacobian, an affine f).
 
     ``{name}_upred``: (x, S, p) ↦ (x⁻, Y₊ (n × k_f)), x⁻ the rule's mean of f with the angle
     states wrapped; ``{name}_uupd``: (x⁻, S⁻, y, p) ↦ (ν, Y₀ (n_y × k_0), Y_d (n_y × k_d), X_d
     (n × k_d)), ν = y − ŷ wrapped on the angle outputs and the columns of :func:`_paired`; ``{name}_xwrap``: x ↦ x with the angle states wrapped.
     ``p_f``, ``p_h``: the entries of the filter's parameter symbol ``p`` that f and h use (None:
-    none); x, y, p are MX symbols (the points' evaluations one loop: C small enough for an
-    optimised build, where straight-line SX of 2n + 1 points is not), S and S⁻ lower triangular.
+    none); x, y, p are symbols of the kind :func:`sqrt_ukf_kind` (MX: the points' evaluations one
+    loop, C small enough for an optimised build, where straight-line SX of 2n + 1 points at 64
+    states is not), S and S⁻ lower triangular (their upper triangles not read).
     """
     n = x.shape[0]
     S = type(x).sym("S", n, n)  # dense, as the C passes it; the products read its lower triangle
