@@ -150,15 +150,18 @@ NOTES = [
     "pre-arrays), against about a quarter of a million for the standard step's sparse products with F and "
     "H, its rank-n_y update of P and the factor of S; the ratio grows with n. A factorisation of a dense covariance is O(n³) whatever "
     "the sparsity of F and H, which the standard form needs only in products.",
-    "- The UKF: both forms are CasADi graphs (SX below 10 states, MX above; the MX reflections in functions "
-    "of 24 rows, built at -O3). The square-root form triangularises the n × 3n columns of the sigma points "
-    "and the noise (about 5 n³ flops, and the update's two triangularisations more), where the standard form "
-    "sums the points' outer products and factors P once (about 2.3 n³). The target (≤ 2×) holds at 4 states, about "
-    "at 8, and not from 16 on; a hand-written C square-root UKF step (the sigma points around CasADi's f and h, as the EKF's) is "
-    "what remains to try.",
+    "- The UKF from 8 states on runs the C square-root step (`_ukfstep.sqrt_ukf_c`): CasADi evaluates the sigma "
+    "points (straight-line SX below 16 states, MX with the points one loop from 16 on, so that the C is built at "
+    "-O3), and the triangularisations are those of the EKF's C step, in place. The time update triangularises "
+    "[√Q, the points' columns] with the noise's triangle first; the update is the array form, each pair of points "
+    "±z first rotated into its sum and difference: the sums' x parts are exactly zero, so they are triangularised "
+    "on the y rows alone and only the n differences reach the x rows (about half the flops of the whole "
+    "pre-array). The estimates equal the MX step's to 1e-12 (relative, tests/filters/test_square_root.py).",
     "- Before the C step (issue 51): the square-root EKF took 18× the standard one at 16 states and 55× at 64 "
     "(the MX step's dense reflections), the square-root UKF 12–59× at 64 (its step one function of 470 KB of C, "
-    "built at -O0).",
+    "built at -O0); then, as an MX graph with its reflections in functions of 24 rows built at -O3 (about 5 n³ "
+    "flops for the time update's n × 3n columns where the standard form needs about 2.3 n³), 1.67× at 4 states, "
+    "1.88× at 8, 2.78× at 16, 3.05× at 32 and 3.94× at 64 on a near-idle machine.",
     "- On a shared machine a thread gets a fraction of a core: the wall times then exceed the CPU times, "
     "unevenly; the ratios are by CPU time. For idle-machine numbers run the command above with the machine "
     "otherwise idle (the load column records it).",

@@ -3,6 +3,7 @@ well-conditioned problems, and a positive definite P where the standard form los
 
 from __future__ import annotations
 
+import casadi as ca
 import numpy as np
 import pytest
 import sympy as sp
@@ -340,6 +341,58 @@ def test_the_c_square_root_step_is_the_ekf_and_iekf_from_its_size_on():
     assert not compiled_step(f, h, sm.UT.cubature(), ang, 1, True).c_sqrt_ekf
     assert not compiled_step(f, h, sm.TT2(), ang, 1, True).c_sqrt_ekf
     assert not compiled_step(F_FIX, H_RB, sm.TT1(), frozenset(F_FIX.angle_outputs), 1, True).c_sqrt_ekf
+
+
+@pytest.mark.parametrize("transform, k", [(sm.UT(1.0, 2.0, 0.0), 3), (sm.UT.cubature(), 3), (sm.UT(1.0, 2.0, 0.0), 4)],
+                         ids=["ut-sx", "cubature-sx", "ut-mx"])
+def test_c_square_root_ukf_step_equals_the_standard_form_and_the_vm(transform, k):
+    """From C_SQRT_UKF_FROM states on, the square-root UKF (non-negative weights) runs the C
+    step of sqrt_ukf_step.c (the sigma points from CasADi, the update by the array form): equal
+    to the MX step on CasADi's VM (the Joseph-form factor) to 1e-12 relative, and to the
+    standard form to the tolerance of assert_same, with parameters, angle states and outputs,
+    missing components and rows, a dense P0 and a rank-deficient Q; the sigma-point pieces in
+    SX (12 states) and in MX (16)."""
+    from symmon.filters.gaussian._ukfstep import C_SQRT_UKF_FROM, sqrt_ukf_kind
+    from symmon.filters.gaussian.step import compiled_step
+
+    f, h, Qk, Rk, x0 = stacked_unicycles(k)
+    assert f.n_u >= C_SQRT_UKF_FROM and sqrt_ukf_kind(f.n_u) is (ca.SX if k == 3 else ca.MX)
+    rng = np.random.default_rng(4)
+    hx = sp.lambdify(f.inputs, h.outputs, "numpy")
+    ys = np.array([hx(*x0.mean) for _ in range(8)]) + 0.05 * rng.standard_normal((8, 2 * k))
+    ys = np.stack([ys, ys + 0.02 * rng.standard_normal(ys.shape)])
+    ys[0, 2, 3] = np.nan
+    ys[1, 4] = np.nan
+    ys[1, 6, ::2] = np.nan
+    params = {"dt": 1.0, "om": np.linspace(0.05, 0.1, 8)}
+    std = sm.NonlinearKalmanFilter(f, h, Qk, Rk, transform)
+    sr = sm.NonlinearKalmanFilter(f, h, Qk, Rk, transform, square_root=True)
+    a = sr.filter(ys, x0, params=params)
+    assert_same(a, std.filter(ys, x0, params=params))
+    assert_definite_factor(a)
+    step = compiled_step(f, h, sr.strategy.transform, sr.angle_states, 1, True)
+    assert step.c_sqrt_ukf and not step.c_sqrt_ekf and step._lib.wait(300)
+    pv = np.broadcast_to(np.stack([np.ones(8), params["om"]], axis=1), (2, 8, 2)).copy()
+    truth = np.broadcast_to(np.asarray(x0.mean), (2, 8, 4 * k)).copy()
+    c = step(np.asarray(x0.mean), np.asarray(x0.cov), ys, sr.Q, sr.R, params=pv, truth=truth)
+    vm = step(np.asarray(x0.mean), np.asarray(x0.cov), ys, sr.Q, sr.R, use_c=False, params=pv, truth=truth)
+    for key in ("x", "P_chol", "x_pred", "P_pred_chol", "innovation", "S", "loglik", "nis", "nees"):
+        scale = np.maximum(np.abs(vm[key]), 1.0)
+        assert np.all(np.abs(c[key] - vm[key]) <= 1e-12 * scale), (key, np.max(np.abs(c[key] - vm[key]) / scale))
+    assert np.all(np.triu(c["P_chol"], 1) == 0) and np.all(np.triu(c["P_pred_chol"], 1) == 0)
+
+
+def test_the_c_square_root_ukf_step_is_a_plain_rule_without_negative_weights_from_its_size_on():
+    from symmon.filters.gaussian.step import compiled_step
+
+    f, h, *_ = stacked_unicycles(3)
+    ang = frozenset(f.angle_outputs)
+    assert compiled_step(f, h, sm.UT.cubature(), ang, 1, True).c_sqrt_ukf
+    assert not compiled_step(f, h, sm.UT.cubature(), ang).c_sqrt_ukf  # the standard form
+    assert not compiled_step(f, h, sm.UT.cubature(), ang, 3, True).c_sqrt_ukf  # iterations: the MX step
+    assert not compiled_step(f, h, sm.UT(0.5, 2.0, 0.0), ang, 1, True).c_sqrt_ukf  # a negative centre weight
+    assert not compiled_step(f, h, sm.TT1(), ang, 1, True).c_sqrt_ukf
+    assert not compiled_step(F_FIX, H_RB, sm.UT.cubature(), frozenset(F_FIX.angle_outputs), 1, True).c_sqrt_ukf
 
 
 def test_square_root_nees_in_the_step_equals_the_nees_of_its_p():

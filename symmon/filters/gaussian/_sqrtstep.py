@@ -30,6 +30,10 @@ columns a reflection leaves as they are, and the update as one triangularisation
 pre-array [[D √R, I − D, D H S⁻], [0, 0, S⁻]] → [[S_y, 0], [K̄, S⁺]] (the array form: the same
 S_y, K̄ and S⁺ in exact arithmetic, S⁺ from reflections of the factors rather than from the
 Joseph columns; to rounding, 1e-12 relative in the tests, the MX step's).
+From :data:`~symmon.filters.gaussian._ukfstep.C_SQRT_UKF_FROM` states on, a point rule with
+non-negative weights and additive noise (the SR-UKF, the square-root cubature filter) likewise
+runs in C (:mod:`symmon.filters.gaussian._ukfstep`): CasADi's sigma points, the same
+triangularisations, the update by the array form after a rotation of each pair of points.
 The iterated EKF relinearises at x_i: its residual y − h(x_i) − J_i (x⁻ − x_i) takes J_i
 from the model's Jacobian (no solve with P⁻), and S⁺ is that of the last linearisation.
 

@@ -27,7 +27,9 @@ step builds in the background, the step runs on CasADi's virtual machine.  From
 with additive noise calls the hand-written C step of :mod:`symmon.filters.gaussian._ekfstep` around CasADi's
 model pieces instead (the MX step remains the VM's); from
 :data:`~symmon.filters.gaussian._ekfstep.C_SQRT_EKF_FROM` states on, a square-root TT1 step (SR-EKF, SR-IEKF)
-with additive noise likewise calls the C square-root step of :func:`~symmon.filters.gaussian._ekfstep.sqrt_ekf_c`.  :class:`symmon.NonlinearKalmanFilter` (:mod:`symmon.filters`)
+with additive noise likewise calls the C square-root step of :func:`~symmon.filters.gaussian._ekfstep.sqrt_ekf_c`, and
+from :data:`~symmon.filters.gaussian._ukfstep.C_SQRT_UKF_FROM` states on a square-root point-rule step (SR-UKF,
+square-root cubature) with additive noise and non-negative weights that of :func:`~symmon.filters.gaussian._ukfstep.sqrt_ukf_c`.  :class:`symmon.NonlinearKalmanFilter` (:mod:`symmon.filters`)
 and the adaptive filter (:mod:`symmon.filters.gaussian.adaptive`) run it.
 
 References
@@ -60,6 +62,7 @@ from ...codegen.symbolic import graph_kind, moments, tril_inverse, wrap_entries
 from ...transforms.base import Transform
 from ..inputs import filter_params
 from ._ekfstep import C_EKF_FROM, C_SQRT_EKF_FROM, ekf_c, ekf_pieces, sqrt_ekf_c
+from ._ukfstep import c_sqrt_ukf_applies, sqrt_ukf_c, sqrt_ukf_kind, sqrt_ukf_pieces
 from ._sqrtstep import covariance_of, factor_of, noise_factor, sqrt_nees_graph, sqrt_predict_graph, sqrt_update_graph
 
 #: Names of the outputs of the step function, in order.
@@ -343,7 +346,19 @@ class _CompiledStep(CompiledLoop):
         # _sqrtstep in C (sqrt_ekf_step.c).
         self.c_sqrt_ekf = (transform.taylor_order == 1 and square_root and not f.n_v and not h.n_v
                            and n >= C_SQRT_EKF_FROM)
-        if self.c_ekf or self.c_sqrt_ekf:
+        # The square-root UKF (a point rule with non-negative weights, additive noise): the
+        # factor arithmetic in C around CasADi's sigma-point pieces (sqrt_ukf_step.c).
+        self.c_sqrt_ukf = square_root and c_sqrt_ukf_applies(f, h, transform, iterations)
+        if self.c_sqrt_ukf:
+            names = filter_params(f, h)
+            kind = sqrt_ukf_kind(n)
+            xs, ys, ps = kind.sym("x", n), kind.sym("y", n_y), kind.sym("p", len(names))
+            pieces, ks = sqrt_ukf_pieces(f, h, transform, angle_states, select_params(f, names, ps),
+                                        select_params(h, names, ps), xs, ys, ps, name)
+            funcs = (self.nees_f,) + pieces
+            ukf_code, scratch = sqrt_ukf_c(name, n, n_y, ks, bool(angle_states), pieces)
+            code, step, s = generated_c(*funcs) + ukf_code, f"{name}_sqrt_ukf", "s"
+        elif self.c_ekf or self.c_sqrt_ekf:
             names = filter_params(f, h)
             xs, ys, ps = ca.SX.sym("x", n), ca.SX.sym("y", n_y), ca.SX.sym("p", len(names))
             pieces, pattern = ekf_pieces(f, h, angle_states, select_params(f, names, ps),

@@ -1,0 +1,92 @@
+/* symmon: the Householder triangularisation EKF_(tria) of the square-root steps in C
+   (sqrt_ekf_step.c, sqrt_ukf_step.c include it): the kernel's name EKF_NAME and the longest
+   row EKF_MV are defined before it. */
+#ifndef EKF_NAME  /* checked alone: example macros */
+#include "../../compile/casadi_alone.h"
+#include <math.h>
+#define EKF_NAME model
+#define EKF_MV 4
+#define EKF_CAT2(a, b) a##_##b
+#define EKF_CAT(a, b) EKF_CAT2(a, b)
+#define EKF_(s) EKF_CAT(EKF_NAME, s)
+void EKF_(tria_check)(casadi_real* A, casadi_real* L, casadi_real* v, casadi_real* w);
+#endif
+/* L (n x n, lower, diag >= 0) with L L^T = A A^T, A (n x m, n <= m <= EKF_MV) overwritten:
+   the Householder triangularisation of codegen.sqrtform.tria, row j of the trailing columns
+   j..m-1 reflected onto column j.  A column whose entry in row j is zero has a zero entry in
+   the reflection's vector, so the reflection leaves it as it is: it is skipped; and the rows
+   below the last nonzero of every column the reflection touches are zero in all of them, so
+   they are skipped too (last[c]: the last row where column c may be nonzero).  Row j then
+   costs 4 (rows it reaches) times (its nonzeros): block-diagonal factors and Jacobians stay
+   sparse through the steps, and a dense A costs the 2 n^2 m of the MX step.  v: m reals,
+   w: n reals of scratch. */
+static void EKF_(tria)(casadi_real* restrict A, casadi_int n, casadi_int m, casadi_real* restrict L,
+    casadi_real* restrict v, casadi_real* restrict w) {
+  casadi_int i, j, c, t, cnt, top, last[EKF_MV], idx[EKF_MV];
+  /* The last nonzero of each column: a pass without an early exit (no mispredicted branch). */
+  for (c = 0; c < m; ++c) {
+    const casadi_real* a = A + c * n;
+    casadi_int l = -1;
+    for (i = 0; i < n; ++i) l = a[i] != 0 ? i : l;
+    last[c] = l;
+  }
+  for (i = 0; i < n * n; ++i) L[i] = 0;
+  for (j = 0; j < n; ++j) {
+    casadi_real sum, vv, sigma, x0, sg, beta, vj;
+    casadi_real* lj = L + j * n;
+    const casadi_real* aj = A + j * n;
+    casadi_int hi = j;
+    /* Row j: the pivot x0, then the nonzeros of the other columns (idx, their values v),
+       the list appended to without a branch; the sums over the nonzeros only (a zero adds
+       nothing), in the columns' order. */
+    x0 = aj[j];
+    cnt = 0;
+    for (c = j + 1; c < m; ++c) {
+      casadi_real x = A[j + c * n];
+      idx[cnt] = c;
+      v[cnt] = x;
+      cnt += x != 0;
+    }
+    sum = x0 * x0;
+    for (t = 0; t < cnt; ++t) sum += v[t] * v[t];
+    sigma = sqrt(sum);
+    sg = x0 >= 0 ? 1 : -1;
+    vj = x0 + sg * sigma;
+    vv = vj * vj;
+    if (vj != 0 && last[j] > hi) hi = last[j];
+    for (t = 0; t < cnt; ++t) {
+      vv += v[t] * v[t];
+      if (last[idx[t]] > hi) hi = last[idx[t]];
+    }
+    /* vv = 2 sigma (sigma + |x0|): zero only for a zero row, which needs no reflection. */
+    beta = vv > 0 ? 2 / vv : 0;
+    lj[j] = sigma;
+    if (j == n - 1) break;
+    for (i = j + 1; i <= hi; ++i) w[i] = aj[i] * vj;
+    for (t = 0; t < cnt; ++t) {
+      casadi_real vc = v[t];
+      const casadi_real* a = A + idx[t] * n;
+      for (i = j + 1; i <= hi; ++i) w[i] += a[i] * vc;
+    }
+    for (i = j + 1; i <= hi; ++i) {
+      w[i] *= beta;
+      lj[i] = -sg * (aj[i] - w[i] * vj);
+    }
+    /* Below hi, w is zero: the pivot column as it is (nonzero there only for a zero row). */
+    top = last[j] > hi ? last[j] : hi;
+    for (i = hi + 1; i <= top; ++i) lj[i] = -sg * aj[i];
+    for (t = 0; t < cnt; ++t) {
+      casadi_real vc = v[t];
+      casadi_real* a = A + idx[t] * n;
+      c = idx[t];
+      for (i = j + 1; i <= hi; ++i) a[i] -= w[i] * vc;
+      if (hi > last[c]) last[c] = hi;
+    }
+  }
+}
+
+#ifndef EKF_N  /* checked alone: the kernel used */
+void EKF_(tria_check)(casadi_real* A, casadi_real* L, casadi_real* v, casadi_real* w) {
+  EKF_(tria)(A, 2, 4, L, v, w);
+}
+#endif
