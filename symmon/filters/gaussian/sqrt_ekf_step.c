@@ -137,7 +137,7 @@ static int EKF_(sqrt_ekf)(const casadi_real** arg, casadi_real** res, casadi_int
   casadi_real *nu = res[4] ? res[4] : nus, *wx = wh, acc[3] = {0, 0, 0}, acc2[3] = {0, 0, 0};
   const casadi_real* a2[2];
   casadi_real* r2[2];
-  casadi_int i, j, k, it;
+  casadi_int i, j, it;
   /* x- = f(x) (angle states wrapped), F's nonzeros; S- = tria([F S, sqrt Q]). */
   a2[0] = x; a2[1] = p; r2[0] = xp; r2[1] = Fz;
   if (EKF_(fpart)(a2, r2, iw, w, 0)) return 1;
@@ -147,14 +147,7 @@ static int EKF_(sqrt_ekf)(const casadi_real** arg, casadi_real** res, casadi_int
   EKF_(tria)(A, n, 2 * n, Sp, vt, wt);
   /* The update at x-: its nu, S = Sy Sy^T, NIS and log-likelihood are the step's. */
   if (EKF_(update)(xp, xp, Sp, y, Rs, mask, p, iw, w, nu, Hz, Y, A, L, wh, dx, vt, wt, acc)) return 1;
-  if (res[5])
-    for (j = 0; j < ny; ++j)
-      for (i = j; i < ny; ++i) {
-        casadi_real v = 0;
-        for (k = 0; k <= j; ++k) v += L[i + k * N2] * L[j + k * N2];
-        res[5][i + j * ny] = v;
-        res[5][j + i * ny] = v;
-      }
+  if (res[5]) EKF_(array_s)(L, N2, ny, res[5]);
   /* x+ = x- + Kb (Sy^-1 nu); the IEKF's Gauss-Newton steps relinearise h at x+. */
   for (it = 0; it < EKF_ITERATIONS; ++it) {
     if (it) {
@@ -162,11 +155,7 @@ static int EKF_(sqrt_ekf)(const casadi_real** arg, casadi_real** res, casadi_int
       if (EKF_(update)(xl, xp, Sp, y, Rs, mask, p, iw, w, nu2, Hz, Y, A, L, wh2, dx, vt, wt, acc2)) return 1;
       wx = wh2;
     }
-    for (j = 0; j < n; ++j) xn[j] = xp[j];
-    for (i = 0; i < ny; ++i) {
-      const casadi_real* c = L + ny + i * N2;
-      for (j = 0; j < n; ++j) xn[j] += c[j] * wx[i];
-    }
+    EKF_(array_x)(L, N2, n, ny, xp, wx, xn);
   }
   if (EKF_WRAP_X) {
     a2[0] = xn; r2[0] = res[0];
@@ -175,8 +164,7 @@ static int EKF_(sqrt_ekf)(const casadi_real** arg, casadi_real** res, casadi_int
     for (j = 0; j < n; ++j) res[0][j] = xn[j];
   }
   /* S+: the last linearisation's. */
-  for (j = 0; j < n; ++j)
-    for (i = 0; i < n; ++i) res[1][i + j * n] = L[ny + i + (ny + j) * N2];
+  EKF_(array_sp)(L, N2, n, ny, res[1]);
   if (res[6]) res[6][0] = -0.5 * (acc[0] + 2 * acc[1] + acc[2] * EKF_LOG_2PI);
   if (res[7]) res[7][0] = acc[0];
   return 0;

@@ -1,6 +1,7 @@
 /* symmon: the Householder triangularisation EKF_(tria) of the square-root steps in C
-   (sqrt_ekf_step.c, sqrt_ukf_step.c include it): the kernel's name EKF_NAME and the longest
-   row EKF_MV are defined before it. */
+   (sqrt_ekf_step.c, sqrt_ukf_step.c include it), and what both read from an update's
+   triangularised pre-array (EKF_(array_s), EKF_(array_x), EKF_(array_sp)): the kernel's name
+   EKF_NAME and the longest row EKF_MV are defined before it. */
 #ifndef EKF_NAME  /* checked alone: example macros */
 #include "../../compile/casadi_alone.h"
 #include <math.h>
@@ -85,8 +86,42 @@ static void EKF_(tria)(casadi_real* restrict A, casadi_int n, casadi_int m, casa
   }
 }
 
+/* The update's pre-array triangularised, L (N2 = ny + n rows, lower): [[Sy, 0], [Kb, S+]].
+   S = Sy Sy^T, both triangles (ny x ny). */
+static void EKF_(array_s)(const casadi_real* L, casadi_int N2, casadi_int ny, casadi_real* S) {
+  casadi_int i, j, k;
+  for (j = 0; j < ny; ++j)
+    for (i = j; i < ny; ++i) {
+      casadi_real v = 0;
+      for (k = 0; k <= j; ++k) v += L[i + k * N2] * L[j + k * N2];
+      S[i + j * ny] = v;
+      S[j + i * ny] = v;
+    }
+}
+
+/* x+ = x- + Kb wh (wh = Sy^-1 nu), into xn (n). */
+static void EKF_(array_x)(const casadi_real* L, casadi_int N2, casadi_int n, casadi_int ny,
+    const casadi_real* xp, const casadi_real* wh, casadi_real* xn) {
+  casadi_int i, j;
+  for (j = 0; j < n; ++j) xn[j] = xp[j];
+  for (i = 0; i < ny; ++i) {
+    const casadi_real* c = L + ny + i * N2;
+    for (j = 0; j < n; ++j) xn[j] += c[j] * wh[i];
+  }
+}
+
+/* S+ (n x n), the trailing block of L. */
+static void EKF_(array_sp)(const casadi_real* L, casadi_int N2, casadi_int n, casadi_int ny, casadi_real* Sn) {
+  casadi_int i, j;
+  for (j = 0; j < n; ++j)
+    for (i = 0; i < n; ++i) Sn[i + j * n] = L[ny + i + (ny + j) * N2];
+}
+
 #ifndef EKF_N  /* checked alone: the kernel used */
 void EKF_(tria_check)(casadi_real* A, casadi_real* L, casadi_real* v, casadi_real* w) {
   EKF_(tria)(A, 2, 4, L, v, w);
+  EKF_(array_s)(L, 2, 1, v);
+  EKF_(array_x)(L, 2, 1, 1, v, v + 1, w);
+  EKF_(array_sp)(L, 2, 1, 1, w);
 }
 #endif

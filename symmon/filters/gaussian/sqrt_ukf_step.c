@@ -110,27 +110,15 @@ static int EKF_(sqrt_ukf)(const casadi_real** arg, casadi_real** res, casadi_int
     nis += wh[i] * wh[i];
     logdet += log(d);
   }
-  if (res[5])
-    for (j = 0; j < ny; ++j)
-      for (i = j; i < ny; ++i) {
-        casadi_real v = 0;
-        for (k = 0; k <= j; ++k) v += L[i + k * N2] * L[j + k * N2];
-        res[5][i + j * ny] = v;
-        res[5][j + i * ny] = v;
-      }
-  for (j = 0; j < n; ++j) xn[j] = xp[j];
-  for (i = 0; i < ny; ++i) {
-    const casadi_real* c = L + ny + i * N2;
-    for (j = 0; j < n; ++j) xn[j] += c[j] * wh[i];
-  }
+  if (res[5]) EKF_(array_s)(L, N2, ny, res[5]);
+  EKF_(array_x)(L, N2, n, ny, xp, wh, xn);
   if (EKF_WRAP_X) {
     a4[0] = xn; r4[0] = res[0];
     if (EKF_(xwrap)(a4, r4, iw, w, 0)) return 1;
   } else {
     for (j = 0; j < n; ++j) res[0][j] = xn[j];
   }
-  for (j = 0; j < n; ++j)
-    for (i = 0; i < n; ++i) res[1][i + j * n] = L[ny + i + (ny + j) * N2];
+  EKF_(array_sp)(L, N2, n, ny, res[1]);
   if (res[6]) res[6][0] = -0.5 * (nis + 2 * logdet + measured * EKF_LOG_2PI);
   if (res[7]) res[7][0] = nis;
   return 0;
