@@ -320,6 +320,8 @@ def _mixture_nonlinearity(model: Model, u: Any, v: Any, weight: Any, tr: Transfo
         parts = mon_from_moments(m.cov, m.cross_cov, m.input_cov, weight, Sc, m.mean)
     except NonFiniteError as exc:
         raise NonFiniteError(f"{tr!r}: {exc}") from None
+    if not tr.stochastic:
+        _check_consistent(parts, m.cov, tr)
     stderr = None
     if tr.stochastic:
         # Group g left out of every component at once, mixed, and the MoN of each.

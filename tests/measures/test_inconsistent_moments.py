@@ -47,3 +47,10 @@ def test_choose_substeps_measures_one_sub_step_and_is_unaffected():
     n = choose_substeps(SDE, PRIOR, 2.0, tol=0.5)
     assert n >= 2 and float(sm.nonlinearity(SDE, PRIOR, dt=2.0 / n, substeps=1)) <= 0.5
     assert np.isfinite(float(sm.nonlinearity(SDE, PRIOR, dt=2.0, substeps=1)))
+
+
+def test_a_mixture_prior_is_checked_too():
+    # The same flow from a two-component prior around 0.5: TT2's moments again give M² < 0.
+    prior = sm.GaussianMixture([0.5, 0.5], [[0.4], [0.6]], [[[0.1]], [[0.1]]])
+    with pytest.raises(InconsistentMomentsError, match="M² = "):
+        sm.nonlinearity(SDE, prior, dt=2.0, substeps=2)
