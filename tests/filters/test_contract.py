@@ -341,6 +341,12 @@ def test_the_costs_order_the_families_as_their_work():
     assert FILTERS["IMM"].step_cost() == sum(m.step_cost() for m in FILTERS["IMM"].filters)
     ukf = sm.NonlinearKalmanFilter(F_MODEL, H_MODEL, Q, R, "ukf")
     assert ukf.step_cost() == sm.UT.ut1().cost(2) + sm.UT.ut1().cost(2) > ekf.step_cost()
+    # A continuous-discrete filter evaluates its moment equations at least 8 times an interval
+    # (RK45: the start, the first step's choice, six stages): more than its discrete twin.
+    from symmon.filters.gaussian.continuous import MIN_EVALUATIONS
+    cd = FILTERS["ContinuousDiscreteKalmanFilter"]
+    rule = int(cd.transform.cost(cd.sizes[0]))
+    assert MIN_EVALUATIONS == 8 and cd.step_cost() == 9 * rule > 2 * rule
 
 
 # ------------------------------------------------------------------------- the smoothers

@@ -128,6 +128,9 @@ __all__ = ["ContinuousDiscreteKalmanFilter", "DT", "MAX_EVALUATIONS", "continuou
 DT = "dt"
 #: The default bound on the evaluations of the moment equations' right-hand side per interval.
 MAX_EVALUATIONS = 20_000
+#: The fewest evaluations of the right-hand side in an interval: solve_ivp's RK45 evaluates it
+#: at the start, once more to choose its first step, and six times per accepted step.
+MIN_EVALUATIONS = 8
 
 
 class _Stop(Exception):
@@ -273,9 +276,13 @@ class ContinuousDiscreteKalmanFilter(Filter):
         return self.sde.n, self.h.n_y
 
     def step_cost(self) -> int:
-        """The rule's cost for one evaluation of the moment equations and for the update: a
-        lower bound (the adaptive integrator evaluates them as often as its tolerance needs)."""
-        return int(self.transform.cost(self.sizes[0])) + int(self.transform.cost(self.sizes[0]))
+        """The rule's cost for the evaluations of the moment equations over one interval and for
+        the update: a lower bound, :data:`MIN_EVALUATIONS` evaluations (one accepted step of the
+        Runge–Kutta 4(5) pair, its first evaluation and the initial step's choice); the adaptive
+        integrator evaluates them as often as its tolerance needs.  With ``exact`` (a linear SDE,
+        no integrator) one evaluation."""
+        rule = int(self.transform.cost(self.sizes[0]))
+        return (1 if self.exact else MIN_EVALUATIONS) * rule + rule
 
     @property
     def params(self) -> tuple:
