@@ -35,14 +35,12 @@
 #define EKF_NT 2
 #define EKF_CHECK_ALONE 1
 #endif
-#define EKF_CAT2(a, b) a##_##b
-#define EKF_CAT(a, b) EKF_CAT2(a, b)
-#define EKF_(s) EKF_CAT(EKF_NAME, s)  /* EKF_(chol): the kernel's name, _chol */
+#include "ekf_names.h"
 #ifdef EKF_CHECK_ALONE
-int EKF_(fpart)(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int EKF_(hpart)(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int EKF_(xwrap)(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int EKF_(innov)(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+EKF_PIECE(fpart);
+EKF_PIECE(hpart);
+EKF_PIECE(xwrap);
+EKF_PIECE(innov);
 #endif
 #include <math.h>
 #include <stdlib.h>

@@ -24,13 +24,11 @@
 #define EKF_MV 4
 #define EKF_CHECK_ALONE 1
 #endif
-#define EKF_CAT2(a, b) a##_##b
-#define EKF_CAT(a, b) EKF_CAT2(a, b)
-#define EKF_(s) EKF_CAT(EKF_NAME, s)  /* EKF_(tria): the kernel's name, _tria */
+#include "ekf_names.h"
 #ifdef EKF_CHECK_ALONE
-int EKF_(fpart)(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int EKF_(hpart)(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int EKF_(xwrap)(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+EKF_PIECE(fpart);
+EKF_PIECE(hpart);
+EKF_PIECE(xwrap);
 #endif
 #include <math.h>
 /* The loops below are a few KB of C: optimised even when the whole file is large enough (the

@@ -7,9 +7,7 @@
 #include <math.h>
 #define EKF_NAME model
 #define EKF_MV 4
-#define EKF_CAT2(a, b) a##_##b
-#define EKF_CAT(a, b) EKF_CAT2(a, b)
-#define EKF_(s) EKF_CAT(EKF_NAME, s)
+#include "ekf_names.h"
 void EKF_(tria_check)(casadi_real* A, casadi_real* L, casadi_real* v, casadi_real* w);
 #endif
 /* L (n x n, lower, diag >= 0) with L L^T = A A^T, A (n x m, n <= m <= EKF_MV) overwritten:

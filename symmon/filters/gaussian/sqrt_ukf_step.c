@@ -25,13 +25,11 @@
 #define EKF_MV 8
 #define EKF_CHECK_ALONE 1
 #endif
-#define EKF_CAT2(a, b) a##_##b
-#define EKF_CAT(a, b) EKF_CAT2(a, b)
-#define EKF_(s) EKF_CAT(EKF_NAME, s)  /* EKF_(tria): the kernel's name, _tria */
+#include "ekf_names.h"
 #ifdef EKF_CHECK_ALONE
-int EKF_(upred)(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int EKF_(uupd)(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int EKF_(xwrap)(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+EKF_PIECE(upred);
+EKF_PIECE(uupd);
+EKF_PIECE(xwrap);
 #endif
 #include <math.h>
 /* A few KB of C: optimised whatever the size of the file around it; no FMA contraction. */
