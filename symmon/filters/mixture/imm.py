@@ -311,6 +311,10 @@ class IMM(Filter):
         Yb = call.Y
         angles = sorted(self.angle_states)
         loop = self._fused_loop()
+        # a running build of the loop is waited for (as the PF and the GSF do): the fallback agrees
+        # with it to rounding, not to the bit, so a call's numbers must not depend on the build's timing
+        if loop is not None:
+            loop.wait()
         run = None if loop is None else loop.native()
         if run is not None:
             modes, failed = loop(run, m0, C0, Yb, [kf.Q for kf in self.filters], [kf.R for kf in self.filters], pvs,
@@ -491,8 +495,9 @@ class _FusedLoop:
     modes' compiled steps (:mod:`symmon.filters.gaussian.step`) inside it: the mixing (circular means
     for angle states), each mode's predict + update and the mode probabilities run in C; the
     combination of the modes' outputs is done afterwards, vectorised (:func:`_combine`).
-    Built by the compile policy of every generated function (docs/compile.md); while it is
-    not compiled (no compiler, or a background build) :meth:`native` is None."""
+    Built by the compile policy of every generated function (docs/compile.md); without
+    compiled code (no compiler, the never policy, a failed build, or while a background build
+    runs) :meth:`native` is None; :meth:`wait` waits for that build."""
 
     def __init__(self, steps: tuple, angles: list[int]) -> None:
         fns = list({st.f.name(): st.f for st in steps}.values())  # a step two modes share: once
@@ -518,6 +523,10 @@ class _FusedLoop:
                         + [ctypes.c_void_p] * 9 + [ctypes.c_longlong] * 2 + [ctypes.c_void_p] * 4)
         run.restype = ctypes.c_int
         return run
+
+    def wait(self) -> None:
+        """Wait for a running background build of the loop (return at once without one)."""
+        self._lib.wait()
 
     def native(self):
         """The compiled loop, or None while it is not (evaluate with the modes' steps)."""
