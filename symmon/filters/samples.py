@@ -47,7 +47,7 @@ def weighted_moments(X: np.ndarray, W: np.ndarray, angles: Sequence[int] = (),
     D = X - mean[:, None, :]
     if angles:
         D[..., angles] = wrap_angle(D[..., angles])
-    C = np.einsum("rni,rnj->rij", D * W[..., None], D)
+    C = np.matmul((D * W[..., None]).transpose(0, 2, 1), D)  # BLAS: einsum's loop took 10x as long
     return mean, 0.5 * (C + C.transpose(0, 2, 1))
 
 

@@ -43,9 +43,28 @@ weighted mean and covariance before the resampling, L Lᵀ = C and h = h_opt:
   covariance, a² C + h² C = C (in expectation over the resampling and ε; exactly for a cloud
   whose ε have zero mean, unit covariance and no correlation with x − m,
   :func:`shrink_kernel`), where the plain jitter inflates C by (1 + h²) at every collapse;
-- ``"jitter"``: x ← x + h L ε, the regularisation's move at the collapsing steps only.
+- ``"jitter"``: x ← x + h L ε, the regularisation's move at the collapsing steps only;
+- ``"temper"``, a tempered update (progressive correction, Oudjane & Musso 2000, with the
+  moves of an SMC sampler, Del Moral, Doucet & Jasra 2006, §3.3): where the step's likelihood
+  would collapse the cloud, it is applied in stages p(y | x)^{δ_1}, p(y | x)^{δ_2}, …,
+  δ_1 + δ_2 + … = 1, each δ_j the largest that keeps the ESS at :data:`TEMPER_ESS` · N
+  (bisection; Jasra et al. 2011); after each stage the cloud is resampled and moved by
+  :data:`TEMPER_MOVES` random-walk Metropolis steps (proposal x + (2.38/√n) L ε, L L ᵀ the
+  stage's weighted covariance; Roberts & Rosenthal 2001) invariant for the tempered
+  posterior N(x; x̂⁻, P⁻) p(y | x)^{δ_1 + … + δ_j}, with x̂⁻, P⁻ the predicted cloud's
+  weighted mean and covariance; the rest of the power re-weights the moved particles, and
+  after :data:`TEMPER_STAGES` stages the last takes what remains.  A measurement far in the
+  tail of the predicted cloud (a truth several standard deviations out) then draws the
+  cloud to it, where a single update leaves all the weight on one particle.  At such a step
+  the predicted density is thus taken as its Gaussian moment match (exact from a Gaussian
+  prior at the first step, and for a Gaussian predicted density; a kernel that keeps only
+  the cloud's moments, as ``"shrink"``, drifts from the tempered posterior stage by stage:
+  tests/filters/test_particle_temper.py).  The step's log-likelihood is the sum of the
+  stages' log mean weights.  The bootstrap proposal only; this option runs the NumPy
+  recursion (the compiled kernel has no staged update).
 
-:attr:`ParticleResult.rejuvenated` says at which steps (``ess`` the ESS of every step).
+:attr:`ParticleResult.rejuvenated` says at which steps (``ess`` the ESS of every step, before
+the resampling: for ``"temper"``, that of the last stage's weights).
 
 The K bootstrap steps of a run are one call of generated C (:mod:`symmon.filters.particle._kernel`:
 the transition and the log-likelihood, the exponentials, sums, mean and ESS, the kept
@@ -79,6 +98,14 @@ C. Andrieu, A. Doucet, R. Holenstein, "Particle Markov chain Monte Carlo methods
 C. Musso, N. Oudjane, F. Le Gland, "Improving regularised particle filters", in A. Doucet,
 N. de Freitas, N. Gordon (eds.), *Sequential Monte Carlo Methods in Practice*, Springer,
 2001, ch. 12. doi:10.1007/978-1-4757-3437-9_12
+N. Oudjane, C. Musso, "Progressive correction for regularized particle filters", Proc. 3rd
+Int. Conf. on Information Fusion (FUSION 2000), 2000.
+P. Del Moral, A. Doucet, A. Jasra, "Sequential Monte Carlo samplers", JRSS B 68(3), 2006.
+doi:10.1111/j.1467-9868.2006.00553.x
+A. Jasra, D. A. Stephens, A. Doucet, T. Tsagaris, "Inference for Lévy-driven stochastic
+volatility models via adaptive sequential Monte Carlo", Scand. J. Stat. 38(1), 2011.
+G. O. Roberts, J. S. Rosenthal, "Optimal scaling for various Metropolis–Hastings
+algorithms", Statistical Science 16(4), 2001.
 J. Liu, M. West, "Combined parameter and state estimation in simulation-based filtering", in
 A. Doucet, N. de Freitas, N. Gordon (eds.), *Sequential Monte Carlo Methods in Practice*,
 Springer, 2001, ch. 10. doi:10.1007/978-1-4757-3437-9_10
@@ -94,6 +121,7 @@ from functools import cached_property
 from typing import Any, ClassVar, Iterable
 
 import numpy as np
+import scipy.linalg
 import sympy as sp
 
 from ...compile.compiled import compiled_with_params
@@ -116,7 +144,8 @@ from ._rng import CHUNK, lane_states, stream_states
 from ..statespace import StateSpace, rows_times
 
 __all__ = ["ParticleFilter", "ParticleResult", "resample", "PROPOSALS", "RESAMPLERS", "DEGENERATE_ESS",
-           "DEGENERATE_FRACTION", "ON_COLLAPSE", "COLLAPSE_FRACTION", "shrink_kernel"]
+           "DEGENERATE_FRACTION", "ON_COLLAPSE", "COLLAPSE_FRACTION", "TEMPER_ESS", "TEMPER_STAGES", "TEMPER_MOVES",
+           "shrink_kernel"]
 
 #: The proposals: the transition (bootstrap), or one EKF / UKF step per particle.
 PROPOSALS = ("bootstrap", "ekf", "ukf")
@@ -133,12 +162,19 @@ DEGENERATE_ESS = 1.5
 DEGENERATE_FRACTION = 0.02
 #: What a particle filter does at a step whose ESS says the cloud is collapsing (module notes):
 #: nothing (None), or resample and move the copies by one of these kernels.
-ON_COLLAPSE = ("shrink", "jitter")
+ON_COLLAPSE = ("shrink", "jitter", "temper")
 #: The default share of the particles below which one step's ESS counts as a collapse for
 #: ``on_collapse`` (module notes): above the credibility band's floor, which flags a cloud
 #: already down to a few particles (a windowed mean below 2 % of N), because the kernel needs a
 #: weighted covariance that still spans the posterior; half the default resampling threshold.
 COLLAPSE_FRACTION = 0.25
+#: The share of the particles whose ESS each stage of ``on_collapse="temper"`` keeps
+#: (module notes): the default resampling threshold, so a stage's resampling is an ordinary one.
+TEMPER_ESS = 0.5
+#: The most stages of one tempered update; the last applies the rest of the likelihood.
+TEMPER_STAGES = 64
+#: The random-walk Metropolis steps after each stage of a tempered update.
+TEMPER_MOVES = 5
 _LOG_2PI = math.log(2 * math.pi)
 
 
@@ -320,13 +356,15 @@ class ParticleFilter(Filter):
         h_opt = :attr:`bandwidth` (angle states wrapped): a draw from a Gaussian-kernel
         density estimate of the posterior, which restores the diversity that resampling
         removes when the process noise is small.
-    on_collapse : {None, "shrink", "jitter"}, default None
+    on_collapse : {None, "shrink", "jitter", "temper"}, default None
         At a step whose ESS falls below max(:data:`DEGENERATE_ESS`, ``collapse_fraction`` · N),
         resample and move the copies by Liu & West's (2001) shrink-then-jitter kernel, which
         keeps the cloud's mean and covariance (``"shrink"``), or by the regularisation's
-        jitter, which inflates it (``"jitter"``); None: nothing beyond the usual resampling
-        (module notes, "Acting on a collapse").  At such a step ``"shrink"`` replaces the
-        jitter of ``regularise``.
+        jitter, which inflates it (``"jitter"``); or apply that step's likelihood in stages,
+        moving the cloud by Metropolis steps between them (``"temper"``, a tempered update;
+        the bootstrap proposal only, on the NumPy recursion); None: nothing beyond
+        the usual resampling (module notes, "Acting on a collapse").  At such a step
+        ``"shrink"`` replaces the jitter of ``regularise``.
     collapse_fraction : float in (0, 1), default :data:`COLLAPSE_FRACTION`
         The share of N below which a step's ESS counts as a collapse (``on_collapse`` acts
         there; ``collapse_floor``).
@@ -394,6 +432,9 @@ class ParticleFilter(Filter):
         object.__setattr__(self, "collapse_fraction", float(c))
         if self.on_collapse == "shrink" and self.bandwidth > 1:  # N = 1, n = 1: h_opt > 1, no a² = 1 − h²
             raise ArgumentError("on_collapse='shrink' needs at least 2 particles (a kernel bandwidth below 1)")
+        if self.on_collapse == "temper" and self.proposal != "bootstrap":
+            raise ArgumentError("on_collapse='temper' tempers the likelihood of the bootstrap proposal; with "
+                                f"proposal={self.proposal!r} use on_collapse='shrink' or None")
         _ = self._noise_map  # refuse an h not affine in its noise, and a singular likelihood, now
         if self.proposal != "bootstrap":
             if self.f_model.n_v:
@@ -523,6 +564,60 @@ class ParticleFilter(Filter):
         """The weighted mean and covariance of particles X (R, N, n) with weights W (R, N)
         (:func:`~symmon.filters.samples.weighted_moments`, angle states circular)."""
         return weighted_moments(X, W, self.space.angle_states, cov)
+
+    def _tempered(self, X: np.ndarray, logW: np.ndarray, inc: np.ndarray, y: np.ndarray, p: np.ndarray | None,
+                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, float]:
+        """One run's tempered update (module notes): the predicted particles X (N, n) with the
+        normalised log-weights ``logW`` and the log-likelihoods ``inc`` of the measurement
+        ``y`` (parameters ``p``) → the moved particles, their unnormalised log-weights for
+        the rest of the likelihood, and the sum of the stages' log mean weights."""
+        N, n, ang = self.particles, self.space.n, sorted(self.space.angle_states)
+        target = TEMPER_ESS * N
+        m0, C0 = (a[0] for a in weighted_moments(X[None], np.exp(logW)[None], ang))
+        L0 = semidefinite_cholesky(C0)  # the predicted cloud's Gaussian (pseudo-inverse where singular)
+        keep = np.abs(np.diag(L0)) > 0
+        lik = lambda Z: self._loglik(Z[None], y[None], None if p is None else p[None])[0][0]  # noqa: E731
+
+        def log_prior(Z: np.ndarray) -> np.ndarray:
+            d = Z - m0
+            if ang:
+                d[:, ang] = wrap_angle(d[:, ang])
+            u = scipy.linalg.solve_triangular(L0[np.ix_(keep, keep)], d[:, keep].T, lower=True)
+            return -0.5 * (u * u).sum(axis=0)
+
+        def ess(t: np.ndarray) -> float:
+            e = np.exp(t - t.max())
+            return float(e.sum() ** 2 / (e @ e))
+
+        done, staged = 0.0, 0.0
+        for _ in range(TEMPER_STAGES):
+            rest = 1.0 - done
+            if ess(logW + rest * inc) >= target:
+                break
+            lo, hi = 0.0, rest  # the largest power whose weights keep the target ESS
+            for _ in range(40):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if ess(logW + mid * inc) >= target else (lo, mid)
+            power = max(lo, rest * 2.0**-40)  # a step forward even where one particle dominates at once
+            t = logW + power * inc
+            top = t.max()
+            lse = top + math.log(np.exp(t - top).sum())
+            W = np.exp(t - lse)
+            staged += lse
+            done += power
+            _, C = weighted_moments(X[None], W[None], ang)
+            step = 2.38 / math.sqrt(n) * semidefinite_cholesky(C[0])
+            idx = pick(W[None], resampling_points(self.resample, rng, N)[None])[0]
+            X, inc = X[idx], inc[idx]
+            lp = log_prior(X)
+            for _ in range(TEMPER_MOVES):  # random-walk Metropolis for N(m0, C0) p(y | x)^done
+                Z = self.space.wrap_states(X + rows_times(rng.standard_normal((N, n)), step))
+                inc_z, lp_z = lik(Z), log_prior(Z)
+                with np.errstate(invalid="ignore"):  # -inf - -inf: a proposal of zero likelihood, refused
+                    take = np.log(rng.random(N)) < lp_z - lp + done * (inc_z - inc)
+                X[take], inc[take], lp[take] = Z[take], inc_z[take], lp_z[take]
+            logW = np.full(N, -math.log(N))
+        return X, logW + (1.0 - done) * inc, staged
 
     def _measurement_moments(self, Hx: np.ndarray, W: np.ndarray, Y: np.ndarray,
                              S_noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -658,15 +753,29 @@ class ParticleFilter(Filter):
             bad = ~np.isfinite(top) | ~np.isfinite(X).all(axis=(1, 2))
             if bad.any():
                 raise self._not_finite(k, int(np.flatnonzero(bad)[0]), bank)
+            staged = np.zeros(Rr)  # the log mean weights of a tempered update's stages
+            if self.on_collapse == "temper":
+                e = np.exp(total - top[:, None])
+                tempered = np.flatnonzero(e.sum(axis=1) ** 2 / (e * e).sum(axis=1) < self.collapse_floor)
+                if tempered.size:
+                    X = X.copy()  # prior_x keeps the predicted cloud
+                for r in tempered:
+                    X[r], total[r], staged[r] = self._tempered(X[r], logW[r], inc[r], y[r],
+                                                               None if p is None else p[r], rngs[r])
+                    rejuvenated[r, k] = True
+                top = total.max(axis=1)
+                if not np.isfinite(top).all():  # the moved cloud far from the measurement again
+                    raise self._not_finite(k, int(np.flatnonzero(~np.isfinite(top))[0]), bank)
             lse = top + np.log(np.exp(total - top[:, None]).sum(axis=1))
-            loglik[:, k] = lse  # log Σ W_{k−1} exp(inc): logW is normalised
+            loglik[:, k] = lse + staged  # log Σ W_{k−1} exp(inc): logW is normalised
             logW = total - lse[:, None]
             W = np.exp(logW)
             ess[:, k] = 1.0 / (W * W).sum(axis=1)
-            if self.on_collapse is not None:
-                rejuvenated[:, k] = ess[:, k] < self.collapse_floor
-            redo = np.flatnonzero((ess[:, k] <= self.ess_threshold * N) | rejuvenated[:, k])
-            moved = self.regularise or rejuvenated[:, k].any()  # a kernel moves some run's particles
+            collapsed = np.zeros(Rr, dtype=bool)  # resampled and moved by the collapse's kernel now
+            if self.on_collapse in ("shrink", "jitter"):
+                collapsed = rejuvenated[:, k] = ess[:, k] < self.collapse_floor
+            redo = np.flatnonzero((ess[:, k] <= self.ess_threshold * N) | collapsed)
+            moved = self.regularise or collapsed.any()  # a kernel moves some run's particles
             spread = None  # the weighted mean and covariance, which the kernels take
             if want("x", "P") or truth is not None or (moved and redo.size):
                 m, C = spread = self._moments(X, W, cov="P" in out or truth is not None or moved)
@@ -692,12 +801,12 @@ class ParticleFilter(Filter):
                 idx = pick(W[redo], pts)
                 X[redo] = np.take_along_axis(X[redo], idx[..., None], axis=1)
                 for r in redo:
-                    if not (self.regularise or rejuvenated[r, k]):
+                    if not (self.regularise or collapsed[r]):
                         continue
                     eps = replay["j"][r, k] if replay is not None else rngs[r].standard_normal((N, n))
                     L = semidefinite_cholesky(spread[1][r])
                     X[r] = (shrink_kernel(X[r], spread[0][r], L, self.bandwidth, eps, ss.angle_states)
-                            if rejuvenated[r, k] and self.on_collapse == "shrink"
+                            if collapsed[r] and self.on_collapse == "shrink"
                             else ss.wrap_states(X[r] + self.bandwidth * rows_times(eps, L)))
                 logW[redo] = -math.log(N)
                 resampled[redo, k] = True
@@ -754,9 +863,10 @@ class ParticleFilter(Filter):
     @cached_property
     def _bootstrap_kernel(self) -> BootstrapKernel | None:
         """The compiled bootstrap step (:mod:`symmon.filters.particle._kernel`), or None where it does
-        not apply: another proposal, or a Γ(x) that depends on the state."""
+        not apply: another proposal, a Γ(x) that depends on the state, or a tempered
+        update (no staged update in C)."""
         h = self.h_model
-        if self.proposal != "bootstrap" or (h.n_v and self._noise_map is None):
+        if self.proposal != "bootstrap" or (h.n_v and self._noise_map is None) or self.on_collapse == "temper":
             return None
         ss = self.space
         return bootstrap_kernel(self.f_model, h, ss.params, ss.Lq, ss.angle_states, ss.angle_outputs)
