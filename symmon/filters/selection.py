@@ -553,11 +553,14 @@ def candidate_menu(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, P0: np.ndar
     particles = int(min(PF_MAX, max(PF_MIN, PF_PER_STATE * n)))
     regularise = _little_process_noise(f, Q, P0)
     settings = {"particles": particles, "proposal": "bootstrap", "regularise": regularise, "seed": int(seed)}
+    if regularise:  # little process noise: a collapsed cloud cannot spread again, so a collapsing update is tempered
+        settings["on_collapse"] = "temper"
     out.append(_Option("pf", gaussian("pf", settings), settings, 2 * particles, mon > GAUSSIAN_MON_LIMIT,
                        (f"the MoN {mon:.3g} > {GAUSSIAN_MON_LIMIT}, where Gaussian filters lose consistency"
                         if mon > GAUSSIAN_MON_LIMIT else
                         f"the MoN {mon:.3g} <= {GAUSSIAN_MON_LIMIT}: Gaussian filters keep their consistency here")
-                       + ("; regularised: little process noise" if regularise else ""), readmit=True))
+                       + ("; regularised, its collapsing updates tempered: little process noise" if regularise
+                          else ""), readmit=True))
     if modes:
         rule = filter_entry("ukf" if mon > lin else "ekf").rule(tol, {})
         models = [(f, Q)] + [_mode(m, i, Q) for i, m in enumerate(modes)]
