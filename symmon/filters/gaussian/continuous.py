@@ -57,6 +57,25 @@ P^s_K = P_K down to k = 1, with the stored x⁻, P⁻ and Φ of each interval,
 the discrete-time Gaussian RTS smoother (Särkkä 2013, Algorithm 9.3) with the cross-covariance
 of (3); on a linear SDE, that of the exact discretisation.
 
+The square-root smoother (``square_root=True``).  Φ and P follow the same Â: for every rule
+dP/dt = Â P + P Âᵀ + D with D = E[L Q_c Lᵀ] (for a point rule C = E[(x − m)(a − ā)ᵀ] = P Âᵀ), so
+the interval's effective noise Q̃ = P⁻ − Φ P Φᵀ solves
+
+    dQ̃/dt = Â Q̃ + Q̃ Âᵀ + D,  Q̃(t_{k−1}) = 0,  i.e.  Q̃ = ∫ Φ(t_k, s) D(s) Φ(t_k, s)ᵀ ds ⪰ 0,    (6)
+
+and the forward pass integrates it beside Φ (no difference P⁻ − Φ P Φᵀ is formed; with
+``exact`` it is Van Loan's Q(dt)).  The joint Gaussian of (x_k, x_{k+1}) then has the factor
+columns X = [S_k, 0] and Y = [Φ S_k, Q̃^{1/2}] (P⁻ = Y Yᵀ, C = X Yᵀ = P_k Φᵀ), and the backward
+step is the residual form of the discrete square-root smoother
+(:func:`symmon.filters.gaussian.smoother.sqrt_backward_graph`): with S⁻ = tria(Y) and
+G = C S⁻⁻ᵀ S⁻⁻¹ (two triangular solves),
+
+    S^s_k = tria([(I − G Φ) S_k,  −G Q̃^{1/2},  G S^s_{k+1}]),                                (7)
+
+the factor of (I − G Φ) P_k (I − G Φ)ᵀ + G Q̃ Gᵀ + G P^s_{k+1} Gᵀ = P_k + G (P^s_{k+1} − P⁻) Gᵀ, a
+sum of squares where (5) adds a difference.  The result holds the factors (``P_chol``), as the
+discrete square-root smoother's does.
+
 a(x), its Jacobian and L Q_c Lᵀ are one compiled CasADi model of the SDE's symbols
 (:func:`symmon.compile.compiled.compiled_with_params`).  The equations are integrated by
 ``scipy.integrate.solve_ivp`` (explicit Runge–Kutta 4(5), adaptive steps, ``rtol`` and
@@ -113,6 +132,7 @@ from numpy.typing import ArrayLike
 from ...compile.compiled import CompiledModel, compiled_with_params
 from ...core.angles import wrap_components
 from ...core.arrays import all_finite, readonly
+from ...core.gaussian import matrix_sqrt
 from ...core.checks import check_model
 from ...core.model import Model
 from ...core.discretize import van_loan_numeric
@@ -417,11 +437,11 @@ class ContinuousDiscreteKalmanFilter(Filter):
         numpy.linalg.LinAlgError
             S is singular (a state without variance: the square-root form needs P > 0)."""
         th = self._theta(theta, t, "factor_derivative")
-        dm, dS, _, _ = self._factor_rates(np.asarray(m, float), np.asarray(S, float), th)
+        dm, dS, _, _, _ = self._factor_rates(np.asarray(m, float), np.asarray(S, float), th)
         return dm, dS
 
     def _factor_rates(self, m: np.ndarray, S: np.ndarray, theta: np.ndarray) -> tuple:
-        """(dm/dt, dS/dt, Y, Z): :meth:`factor_derivative` and the rule's Y and Z (:meth:`_rule`)."""
+        """(dm/dt, dS/dt, Y, Z, D): :meth:`factor_derivative` and the rule's Y, Z and D (:meth:`_rule`)."""
         dm, _, D, Y, Z = self._rule(m, S, None, theta)
         if np.any(np.diag(S) <= 0):
             raise np.linalg.LinAlgError("the factor S has a zero on its diagonal (P is singular)")
@@ -433,7 +453,7 @@ class ContinuousDiscreteKalmanFilter(Filter):
         N = Cw + Cw.T + 0.5 * (Dw + Dw.T)
         Phi = np.tril(N)
         Phi[np.diag_indices_from(Phi)] *= 0.5
-        return dm, S @ Phi, Y, Z
+        return dm, S @ Phi, Y, Z, D
 
     @staticmethod
     def _linear_drift(S: np.ndarray | None, Y: np.ndarray, Z: np.ndarray | None) -> np.ndarray:
@@ -467,7 +487,7 @@ class ContinuousDiscreteKalmanFilter(Filter):
         if not self.time_invariant:
             th = th[:-1]  # _integrate appends the running time
         try:
-            m1, P1, S1, _ = self._predict(m, P, np.linalg.cholesky(P) if self.square_root else None, float(dt), th,
+            m1, P1, S1, _, _ = self._predict(m, P, np.linalg.cholesky(P) if self.square_root else None, float(dt), th,
                                           t_start=0.0 if t is None else float(t))
             return m1, P1
         except np.linalg.LinAlgError as exc:
@@ -477,17 +497,18 @@ class ContinuousDiscreteKalmanFilter(Filter):
             raise SymmonError(self._stopped(stop, dt, "")) from None
 
     def _predict(self, m: np.ndarray, P: np.ndarray, S: np.ndarray | None, dt: float, theta: np.ndarray,
-                 transition: bool = False, t_start: float = 0.0
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-        """(m, P, S, Φ) after ``dt`` from the time ``t_start`` (read for a time-varying SDE
+                 transition: bool = False, t_start: float = 0.0) -> tuple:
+        """(m, P, S, Φ, Q̃) after ``dt`` from the time ``t_start`` (read for a time-varying SDE
         only): S the factor (square-root form, else None), Φ the transition of eq. (3) when
-        ``transition`` (else None)."""
+        ``transition`` (else None), and in the square-root form with ``transition`` the
+        interval's effective noise Q̃ = P⁻ − Φ P Φᵀ of eq. (6) (else None)."""
         if self.exact:
             return self._exact(m, P, S, dt, theta)
         return self._integrate(m, P, S, dt, theta, transition, t_start)
 
     def _exact(self, m, P, S, dt, theta):
-        """Eq. (4): F = e^{A dt}, c = ∫₀^dt e^{A s} b ds from one exponential, Q(dt) by Van Loan."""
+        """Eq. (4): F = e^{A dt}, c = ∫₀^dt e^{A s} b ds from one exponential, Q(dt) by Van Loan
+        (Q̃ of eq. (6) in the square-root form)."""
         n = self.sde.n
         cm = self.compiled_drift
         g, J_nz, _ = cm.eval_derivatives(np.concatenate([np.zeros(n), theta])[None])
@@ -500,9 +521,9 @@ class ContinuousDiscreteKalmanFilter(Filter):
         m1 = F @ m + c
         if S is not None:  # S⁻ = tria([F S, √Q(dt)]): the factor of F P Fᵀ + Q(dt), no difference formed
             S1 = _tria(np.hstack([F @ S, noise_factor(Q)]))
-            return m1, S1 @ S1.T, S1, F
+            return m1, S1 @ S1.T, S1, F, Q
         P1 = F @ P @ F.T + Q
-        return m1, 0.5 * (P1 + P1.T), None, F
+        return m1, 0.5 * (P1 + P1.T), None, F, None
 
     def _integrate(self, m, P, S, dt, theta, transition=False, t_start=0.0):
         n = self.sde.n
@@ -533,7 +554,7 @@ class ContinuousDiscreteKalmanFilter(Filter):
                 if sqrt:
                     St = np.zeros((n, n))
                     St[tril] = z[n:n + n_cov]
-                    dm, dS, Y, Z = self._factor_rates(mt, St, theta)
+                    dm, dS, Y, Z, D = self._factor_rates(mt, St, theta)
                     parts = [dm, dS[tril]]
                     Pt = None
                 else:
@@ -543,7 +564,11 @@ class ContinuousDiscreteKalmanFilter(Filter):
                     dm, C, D, Y, Z = self._rule(mt, St, Pt, theta)
                     parts = [dm, (C + C.T + D).ravel()]
                 if transition:
-                    parts.append((self._linear_drift(St, Y, Z) @ z[n + n_cov:].reshape(n, n)).ravel())
+                    Ahat = self._linear_drift(St, Y, Z)
+                    parts.append((Ahat @ z[n + n_cov:n + n_cov + n * n].reshape(n, n)).ravel())
+                    if sqrt:  # eq. (6): dQ̃/dt = Â Q̃ + Q̃ Âᵀ + D, from Q̃ = 0
+                        Qt = z[n + n_cov + n * n:].reshape(n, n)
+                        parts.append((Ahat @ Qt + Qt @ Ahat.T + D).ravel())
             except (np.linalg.LinAlgError, SymmonError) as exc:
                 raise _Stop(f"the covariance is no longer one ({exc})", t, mt) from None
             out = np.concatenate(parts)
@@ -551,7 +576,8 @@ class ContinuousDiscreteKalmanFilter(Filter):
                 raise _Stop("the drift or its Jacobian is NaN or inf", t, mt)
             return out
 
-        z0 = [m, S[tril] if sqrt else P.ravel()] + ([np.eye(n).ravel()] if transition else [])
+        z0 = [m, S[tril] if sqrt else P.ravel()] + ([np.eye(n).ravel()] if transition else []) \
+            + ([np.zeros(n * n)] if transition and sqrt else [])
         sol = scipy.integrate.solve_ivp(rhs, (t_lo, t_lo + dt), np.concatenate(z0), method="RK45", rtol=self.rtol,
                                         atol=self.atol, max_step=np.inf if self.max_step is None else self.max_step)
         if not sol.success:
@@ -559,15 +585,16 @@ class ContinuousDiscreteKalmanFilter(Filter):
         z = sol.y[:, -1]
         if not np.all(np.isfinite(z)):
             raise _Stop("the moments turned NaN or inf", float(sol.t[-1]) - t_lo, z[:n])
-        Phi = z[n + n_cov:].reshape(n, n) if transition else None
+        Phi = z[n + n_cov:n + n_cov + n * n].reshape(n, n) if transition else None
         if sqrt:
             S1 = np.zeros((n, n))
             S1[tril] = z[n:n + n_cov]
             if np.any(np.diag(S1) <= 0):
                 raise _Stop("the factor S lost its positive diagonal", float(sol.t[-1]) - t_lo, z[:n])
-            return z[:n], S1 @ S1.T, S1, Phi
+            Qt = z[n + n_cov + n * n:].reshape(n, n) if transition else None
+            return z[:n], S1 @ S1.T, S1, Phi, None if Qt is None else 0.5 * (Qt + Qt.T)
         P1 = z[n:n + n_cov].reshape(n, n)
-        return z[:n], 0.5 * (P1 + P1.T), None, Phi
+        return z[:n], 0.5 * (P1 + P1.T), None, Phi, None
 
     def _stopped(self, stop: _Stop, dt: float, where: str) -> str:
         state = np.array2string(np.asarray(stop.m), precision=6)
@@ -579,9 +606,10 @@ class ContinuousDiscreteKalmanFilter(Filter):
     def _filter(self, call: FilterCall) -> KalmanResult:
         return self._recursion(call)[0]
 
-    def _recursion(self, call: FilterCall, transition: bool = False) -> tuple[KalmanResult, np.ndarray | None]:
+    def _recursion(self, call: FilterCall, transition: bool = False) -> tuple:
         """The filter's result, and with ``transition`` the transitions Φ (R, K, n, n) of eq. (3)
-        over each interval (for the smoother)."""
+        over each interval and, in the square-root form, their effective noises Q̃ of eq. (6)
+        (for the smoother; else None)."""
         n, n_y = self.sizes
         Y, runs, pv = call.Y, call.runs, call.pv
         R, K = Y.shape[0], Y.shape[1]
@@ -607,12 +635,13 @@ class ContinuousDiscreteKalmanFilter(Filter):
             shapes.update(P_chol=(n, n), P_pred_chol=(n, n))
         out = {k: np.empty((R, K) + s) for k, s in shapes.items()}
         Phi = np.empty((R, K, n, n)) if transition else None
+        Qt = np.empty((R, K, n, n)) if transition and self.square_root else None
         starts = self._starts(call, pv[..., j_dt])
         for k in range(K):
             for r in range(R):
                 dt = float(pv[r, k, j_dt])
                 try:
-                    m[r], P[r], S_r, Phi_r = self._predict(m[r], P[r], None if S is None else S[r], dt,
+                    m[r], P[r], S_r, Phi_r, Qt_r = self._predict(m[r], P[r], None if S is None else S[r], dt,
                                                            pv[r, k, :n_theta], transition, float(starts[r, k]))
                 except (_Stop, np.linalg.LinAlgError) as stop:
                     if not isinstance(stop, _Stop):
@@ -623,6 +652,8 @@ class ContinuousDiscreteKalmanFilter(Filter):
                     S[r] = S_r
                 if transition:
                     Phi[r, k] = Phi_r
+                    if Qt is not None:
+                        Qt[r, k] = Qt_r
             params = {s: pv[:, k, c][:, None] for s, c in zip(h_names, h_cols)} or None
             step = self._update(Y[:, k:k + 1], m, P if S is None else S, params, k, runs)
             for key in out:
@@ -645,7 +676,7 @@ class ContinuousDiscreteKalmanFilter(Filter):
             measured = readonly((~np.isnan(Y if runs is not None else Y[0])).sum(axis=-1))
         arrays["nis_values"] = arrays.pop("nis", None)
         return KalmanResult(**arrays, measured=measured, n_y=n_y, n_x=n, angle_states=tuple(sorted(self.angle_states)),
-                            method=self.method), Phi
+                            method=self.method), Phi, Qt
 
     def _starts(self, call: FilterCall, dts: np.ndarray) -> np.ndarray:
         """The start time t_{k−1} of each interval, (R, K): ``t0`` and the measurement times
@@ -695,7 +726,10 @@ class ContinuousDiscreteKalmanFilter(Filter):
         nonlinear one it is the Gaussian smoother with the statistically linearised flow
         (the CD-EKF's Jacobian for TT1).  The forward pass integrates Φ beside the moments,
         so its adaptive steps (and its numbers, within the tolerance) can differ from
-        :meth:`filter`'s; ``filtered`` holds that pass.
+        :meth:`filter`'s; ``filtered`` holds that pass.  In the square-root form the forward
+        pass also integrates each interval's effective noise Q̃ (eq. (6)) and the backward
+        pass is eq. (7) on the factors, returning them (``P_chol``) as
+        :meth:`NonlinearKalmanFilter.smooth <symmon.NonlinearKalmanFilter.smooth>` does.
 
         Parameters
         ----------
@@ -708,8 +742,9 @@ class ContinuousDiscreteKalmanFilter(Filter):
         Returns
         -------
         SmootherResult
-            ``x`` (K, n) and ``P`` (K, n, n) smoothed ((R, K, ...) for a bank), and
-            ``filtered``, the forward pass.
+            ``x`` (K, n) and ``P`` (K, n, n) smoothed ((R, K, ...) for a bank),
+            ``filtered``, the forward pass, and in the square-root form ``P_chol``, the
+            smoothed lower factors (P = S Sᵀ; None otherwise).
 
         Raises
         ------
@@ -720,14 +755,28 @@ class ContinuousDiscreteKalmanFilter(Filter):
         kept = None if keep is None else frozenset([keep] if isinstance(keep, str) else keep)
         forward = None if kept is None else kept | {"x", "P", "x_pred", "P_pred"}
         call = check_call(self, ys, x0, P0, keep=forward, params=params, times=times, t0=t0)
-        fwd, Phi = self._recursion(call, transition=True)
+        fwd, Phi, Qt = self._recursion(call, transition=True)
         bank = fwd.runs is not None
         x, P, xp, Pp = (getattr(fwd, a) if bank else getattr(fwd, a)[None] for a in ("x", "P", "x_pred", "P_pred"))
         angles = sorted(self.angle_states)
         xs, Ps = x.copy(), P.copy()
         K = x.shape[1]
+        Ss = None
+        if self.square_root:
+            S = fwd.P_chol if bank else fwd.P_chol[None]
+            Ss = S.copy()
         for r in range(x.shape[0]):
             for k in range(K - 2, -1, -1):
+                if Ss is not None:
+                    try:
+                        xs[r, k], Ss[r, k] = self._sqrt_backward(x[r, k], S[r, k], xp[r, k + 1], Phi[r, k + 1],
+                                                                 Qt[r, k + 1], xs[r, k + 1], Ss[r, k + 1], angles)
+                    except (np.linalg.LinAlgError, CovarianceError):
+                        where = f"step {k}" if not bank else f"run {r}, step {k}"
+                        raise SymmonError(f"{self.method} smoother: the predicted covariance of step {k + 1} is "
+                                          f"singular (at {where})") from None
+                    Ps[r, k] = Ss[r, k] @ Ss[r, k].T
+                    continue
                 C = P[r, k] @ Phi[r, k + 1].T  # Cov(x_k, x_{k+1}⁻) of eq. (5)
                 try:
                     G = np.linalg.solve(Pp[r, k + 1], C.T).T
@@ -744,10 +793,38 @@ class ContinuousDiscreteKalmanFilter(Filter):
         if not all_finite(xs, Ps):
             raise SymmonError(f"{self.method} smoother: NaN or inf in the backward pass")
         if not bank:
-            xs, Ps = xs[0], Ps[0]
-        for a in (xs, Ps):
-            a.flags.writeable = False
-        return SmootherResult(xs, Ps, fwd, angle_states=tuple(angles), method=self.method)
+            xs, Ps, Ss = xs[0], Ps[0], None if Ss is None else Ss[0]
+        for a in (xs, Ps, Ss):
+            if a is not None:
+                a.flags.writeable = False
+        return SmootherResult(xs, Ps, fwd, angle_states=tuple(angles), method=self.method, P_chol=Ss)
+
+    @staticmethod
+    def _sqrt_backward(x: np.ndarray, S: np.ndarray, x_pred: np.ndarray, Phi: np.ndarray, Qt: np.ndarray,
+                       xs_next: np.ndarray, Ss_next: np.ndarray, angles: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        """One backward step of eq. (7): (x^s_k, S^s_k) from the filtered factor S_k, the
+        interval's Φ and Q̃, and the next smoothed (x^s_{k+1}, S^s_{k+1}).
+
+        Raises
+        ------
+        numpy.linalg.LinAlgError
+            A singular predicted factor tria(Y)."""
+        A = Phi @ S
+        Qf = matrix_sqrt(Qt)
+        Y = np.hstack([A, Qf])  # the joint columns of x_{k+1}; those of x_k are [S, 0]
+        Sy = _tria(Y)
+        if np.any(np.diag(Sy) <= 0):
+            raise np.linalg.LinAlgError("the predicted factor has a zero on its diagonal")
+        # G = C (Sy Syᵀ)⁻¹ with C = S Aᵀ = P Φᵀ: two triangular solves, no inverse of P⁻.
+        G = scipy.linalg.solve_triangular(Sy, scipy.linalg.solve_triangular(Sy, A @ S.T, lower=True),
+                                          lower=True, trans="T").T
+        d = xs_next - x_pred
+        if angles:
+            d = wrap_components(d, angles)
+        xs = x + G @ d
+        if angles:
+            xs = wrap_components(xs, angles)
+        return xs, _tria(np.hstack([S - G @ A, -G @ Qf, G @ Ss_next]))
 
 
 def _tria(A: np.ndarray) -> np.ndarray:
