@@ -79,3 +79,26 @@ def turning_targets(targets: int, turn: sp.Rational, tag: str):
     f = sm.Model(X, f_out, angles=[5 * i + 3 for i in range(targets)], params=[dt], name=f"ct {tag}")
     h = sm.Model(X, h_out, angles=[2 * i + 1 for i in range(targets)], params=[s], name=f"rb {tag}")
     return f, h, X, dt, s
+
+
+#: σ of :func:`forced_sde`.
+FORCED_SIGMA = 0.3
+
+
+def forced_sde() -> sm.SDE:
+    """dx = (−x + sin t) dt + σ (1 + t) dβ: a linear time-varying SDE with a closed form
+    (:func:`forced_moments`)."""
+    x, t = sp.symbols("x t", real=True)
+    return sm.SDE([x], [-x + sp.sin(t)], diffusion=[FORCED_SIGMA * (1 + t)], time=t, name="forced")
+
+
+def forced_moments(m0: float, P0: float, a: float, b: float) -> tuple[float, float]:
+    """The mean and variance at b of :func:`forced_sde` from (m0, P0) at a:
+    m(b) = e^{−(b−a)} m0 + ∫_a^b e^{−(b−s)} sin s ds, P(b) = e^{−2(b−a)} P0 + σ² ∫_a^b
+    e^{−2(b−s)} (1 + s)² ds, by their antiderivatives (tests/core/test_sde_time.py checks
+    them by differentiation)."""
+    c = (np.sin(b) - np.cos(b)) / 2 - np.exp(-(b - a)) * (np.sin(a) - np.cos(a)) / 2
+    def E(s):
+        return np.exp(2 * s) * ((1 + s) ** 2 / 2 - (1 + s) / 2 + 0.25)
+    return (np.exp(-(b - a)) * m0 + c,
+            np.exp(-2 * (b - a)) * P0 + FORCED_SIGMA ** 2 * np.exp(-2 * b) * (E(b) - E(a)))

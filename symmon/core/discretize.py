@@ -1,9 +1,15 @@
-"""Discretisation of an SDE dx = a(x) dt + L(x) dβ, E[dβ dβᵀ] = Q_c dt, into a Model.
+"""Discretisation of an SDE dx = a(x, t) dt + L(x, t) dβ, E[dβ dβᵀ] = Q_c dt, into a Model.
 
 The result is a :class:`~symmon.core.model.Model` x_{k+1} = f(x_k, w; dt) with the step dt a
 parameter (so irregular steps are per-step parameter values, as for any model) and noise
 symbols w ~ N(0, I) entering through a factor of the step's noise covariance: every filter,
-``simulate``, ``propagate`` and ``nonlinearity`` take it with Q = I.  The methods:
+``simulate``, ``propagate`` and ``nonlinearity`` take it with Q = I.
+
+A time-varying SDE (a time symbol t in a or L, :attr:`SDE.is_time_invariant` false) gives
+f(x_k, w; t, dt), the start time t of the step a parameter too (before dt), named after
+the SDE's time symbol; sub-step j of N starts at t + j dt/N.  ``"exact"`` refuses it (a
+time-varying linear SDE has no single e^{A dt}); the other methods take the time as
+follows.  The methods:
 
 - ``"exact"``: a linear time-invariant SDE, a = A x + b, L constant.  F = e^{A dt},
   c = ∫₀^dt e^{A s} ds b and Q(dt) = ∫₀^dt e^{A s} L Q_c Lᵀ e^{Aᵀ s} ds (Van Loan 1978), in
@@ -16,19 +22,27 @@ symbols w ~ N(0, I) entering through a factor of the step's noise covariance: ev
   ``"local_linear"`` or ``"taylor1.5"`` with ``substeps`` instead.
 - ``"local_linear"`` (Ozaki 1992; Jimenez & Biscay 2002) for additive noise: on each
   sub-step h, x + h φ₁(J h) a(x) with J = ∂a/∂x at the sub-step's start and the noise of
-  covariance ∫₀^h e^{J s} L Q_c Lᵀ e^{Jᵀ s} ds.  For a linear drift it is ``"exact"``; for a
-  nonlinear drift φ₁ and the integral are their Taylor series in J h to
+  covariance ∫₀^h e^{J s} L Q_c Lᵀ e^{Jᵀ s} ds.  For a linear time-invariant drift it is
+  ``"exact"``; otherwise φ₁ and the integral are their Taylor series in J h to
   :data:`SERIES_TERMS` terms (a local error O(h^{SERIES_TERMS+1}) while ‖J h‖ < 1, far
-  below the scheme's own: take ``substeps`` so that ‖J h‖ stays small).
+  below the scheme's own: take ``substeps`` so that ‖J h‖ stays small).  With time, the
+  drift is linearised in t as well, a + J (x − x_n) + (∂a/∂t) s, whose flow adds
+  h² φ₂(J h) ∂a/∂t, φ₂(z) = Σ_k z^k/(k+2)! (Jimenez & Biscay 2002, the non-autonomous
+  local linearisation); L Q_c Lᵀ is taken at the sub-step's mid-time t + h/2 (the midpoint
+  rule of ∫₀^h e^{J s} L Q_c Lᵀ(t + h − s) e^{Jᵀ s} ds: a local error O(h³) in the
+  covariance, where the start time would leave O(h²)).
 - ``"taylor1.5"``: the strong order-1.5 Itô–Taylor scheme for additive noise (Kloeden &
-  Platen 1992, eq. 10.4.3 with constant diffusion): x + a h + b ΔW + (∂a/∂x) b ΔZ
-  + ½ L⁰a h² with b = L S (S Sᵀ = Q_c), ΔW = √h ξ₁ and the iterated integral
-  ΔZ = ½ h^{3/2} (ξ₁ + ξ₂/√3); its noise symbols are ξ₁ and ξ₂ of every sub-step.
+  Platen 1992, §10.4, the scheme (10.4.1) for additive noise, ΔZ by (10.4.3)):
+  x + a h + b ΔW + (∂a/∂x) b ΔZ + ½ L⁰a h² + L⁰b (ΔW h − ΔZ) with b = L S (S Sᵀ = Q_c),
+  L⁰ = ∂/∂t + Σ_k a_k ∂/∂x_k + ½ Σ_kl (b bᵀ)_kl ∂²/∂x_k∂x_l (so L⁰b = ∂b/∂t, zero for a
+  time-invariant L), ΔW = √h ξ₁ and the iterated integral ΔZ = ½ h^{3/2} (ξ₁ + ξ₂/√3);
+  its noise symbols are ξ₁ and ξ₂ of every sub-step.
 - ``"euler"``: Euler–Maruyama, x + a h + L(x) S √h ξ (strong order 1 for additive noise,
-  1/2 otherwise).
-- ``"rk4"``: the classical Runge–Kutta step for the mean and, for the noise, the covariance
-  of the flow linearised at the sub-step's start (the series of ``"local_linear"``) with
-  L(x) evaluated there.
+  1/2 otherwise), a and L at the sub-step's start time.
+- ``"rk4"``: the classical Runge–Kutta step for the mean (its stages at t, t + h/2 and
+  t + h) and, for the noise, the covariance of the flow linearised at the sub-step's start
+  (the series of ``"local_linear"``) with L(x) evaluated there (at the mid-time t + h/2, as
+  ``"local_linear"``, for a time-varying L).
 
 ``substeps=N`` divides each step into N sub-steps of h = dt/N, each with its own noise
 symbols (n_w grows N-fold: the model is the composition of the sub-steps, nonlinear between
@@ -199,8 +213,9 @@ def exact_transition(sde: Any, dt: sp.Expr) -> tuple[sp.Matrix, sp.Matrix, sp.Ma
     Raises
     ------
     DiscretizationError
-        If the SDE is not linear time-invariant or sympy finds no closed form.
+        If the SDE is not linear, is time-varying, or sympy finds no closed form.
     """
+    sde.check_time_invariant("the exact transition (e^(A dt), Van Loan's Q(dt))")
     cache = sde.__dict__.setdefault("_exact_cache", {})
     if dt not in cache:
         A, b = sde.linear_parts
@@ -251,6 +266,16 @@ def _series_phi1(J: sp.Matrix, v: sp.Matrix, h: sp.Expr) -> sp.Matrix:
     return out
 
 
+def _series_phi2(J: sp.Matrix, v: sp.Matrix, h: sp.Expr) -> sp.Matrix:
+    """h² φ₂(J h) v = ∫₀^h e^{J (h − s)} s ds v = Σ_k h^{k+2} J^k v / (k+2)!, SERIES_TERMS terms."""
+    term = v * h ** 2 / 2
+    out = term
+    for k in range(1, SERIES_TERMS):
+        term = J * term * h / (k + 2)
+        out = out + term
+    return out
+
+
 def _series_cov(J: sp.Matrix, B: sp.Matrix, h: sp.Expr) -> sp.Matrix:
     """∫₀^h e^{J s} B e^{Jᵀ s} ds = Σ_k C_k h^{k+1}/(k+1)!, C₀ = B, C_k = J C_{k-1} + C_{k-1} Jᵀ."""
     C = B
@@ -271,10 +296,12 @@ def _noise_symbols(count: int, substeps: int, taken: set[str]) -> list[list[sp.S
 
 
 def _step(sde: Any, method: str, h: sp.Expr) -> tuple[sp.Matrix, int]:
-    """One sub-step's map of the states and r template noise symbols ``_w0 …`` (Dummies)."""
+    """One sub-step's map of the states (and the time symbol, the sub-step's start) and r
+    template noise symbols ``_w0 …`` (Dummies)."""
     x = sp.Matrix(sde.states)
     a = sde.drift
     L = sde.diffusion
+    t = None if sde.is_time_invariant else sde.time
     S = factor(sde.spectral_density)
     r = S.shape[1]
     if method in ("taylor1.5", "local_linear") and not sde.additive:
@@ -296,27 +323,41 @@ def _step(sde: Any, method: str, h: sp.Expr) -> tuple[sp.Matrix, int]:
             sp.Integer(0)) for i in range(sde.n)])
         dW = xi1 * sp.sqrt(h)
         dZ = (xi1 + xi2 / sp.sqrt(3)) * h ** sp.Rational(3, 2) / 2
-        return x + a * h + b * dW + J * b * dZ + L0a * h ** 2 / 2, list(xi1) + list(xi2)
+        step = x + a * h + b * dW + J * b * dZ
+        if t is not None:  # L⁰ has ∂/∂t: ∂a/∂t in L⁰a, and L⁰b = ∂b/∂t (b free of x)
+            L0a = L0a + a.diff(t)
+            step = step + b.diff(t) * (dW * h - dZ)
+        return step + L0a * h ** 2 / 2, list(xi1) + list(xi2)
     B = L * sde.spectral_density * L.T
     if method == "local_linear":
         mean = x + _series_phi1(J, a, h)
+        if t is not None:  # the drift linearised in t too: + h² φ₂(J h) ∂a/∂t
+            mean = mean + _series_phi2(J, a.diff(t), h)
     else:  # rk4
-        def at(point):
-            return a.xreplace(dict(zip(sde.states, point)))
+        def at(point, dt_stage):
+            sub = dict(zip(sde.states, point))
+            if t is not None:
+                sub[t] = t + dt_stage
+            return a.xreplace(sub)
         k1 = a
-        k2 = at(x + k1 * h / 2)
-        k3 = at(x + k2 * h / 2)
-        k4 = at(x + k3 * h)
+        k2 = at(x + k1 * h / 2, h / 2)
+        k3 = at(x + k2 * h / 2, h / 2)
+        k4 = at(x + k3 * h, h)
         mean = x + (k1 + 2 * k2 + 2 * k3 + k4) * h / 6
+    if t is not None:  # L Q_c Lᵀ at the mid-time: the midpoint rule of ∫ e^{J s} B(t + h − s) e^{Jᵀ s} ds
+        B = B.xreplace({t: t + h / 2})
     G = factor(_series_cov(J, B, h), simplify=False)
     w = sp.Matrix([sp.Dummy(f"w{i}") for i in range(G.shape[1])])
     return mean + G * w, list(w)
 
 
-def compose(template: sp.Matrix | list, states: list, template_noise: list, noise: list[list[sp.Symbol]]
-            ) -> list[sp.Expr]:
+def compose(template: sp.Matrix | list, states: list, template_noise: list, noise: list[list[sp.Symbol]],
+            time: sp.Symbol | None = None, h: sp.Expr | None = None) -> list[sp.Expr]:
     """The sub-step map ``template`` (of the states and the template noise symbols) applied
     once per list of ``noise`` symbols, each application to the previous one's result.
+
+    With ``time`` (the symbol of a sub-step's start time in ``template``) and the sub-step
+    ``h``, application j starts at time + j h.
 
     One sub-step alone is substituted with sympy's evaluation (a readable expression); more
     are composed with the evaluation off, so that each application refers to the previous
@@ -339,16 +380,20 @@ def compose(template: sp.Matrix | list, states: list, template_noise: list, nois
         sub = dict(zip(states, cur))
         sub.update(zip(template_noise, noise[0]))
         return [e.xreplace(sub) for e in template]
+    starts = [time + j * h for j in range(len(noise))] if time is not None else None
     with sp.evaluate(False):
-        for ws in noise:
+        for j, ws in enumerate(noise):
             sub = dict(zip(states, cur))
             sub.update(zip(template_noise, ws))
+            if starts is not None:
+                sub[time] = starts[j]
             cur = [e.xreplace(sub) for e in template]
     return cur
 
 
 def discretize(sde: Any, method: str = "exact", dt: sp.Expr | None = None, substeps: int = 1) -> Model:
-    """The transition of ``sde`` over a step dt: a Model f(x, w; dt), w ~ N(0, I).
+    """The transition of ``sde`` over a step dt: a Model f(x, w; dt), w ~ N(0, I), or
+    f(x, w; t, dt) for a time-varying SDE, t the start time of the step.
 
     Parameters
     ----------
@@ -367,17 +412,18 @@ def discretize(sde: Any, method: str = "exact", dt: sp.Expr | None = None, subst
     Model
         Inputs: the states; outputs: the states after dt; noise: w, whose covariance is the
         identity (pass ``Q = np.eye(f.n_v)`` to the filters and ``simulate``); params: the
-        SDE's, then dt; angles: the SDE's angle states, as inputs and outputs.
+        SDE's, then its time symbol if it is time-varying (the step's start time), then dt;
+        angles: the SDE's angle states, as inputs and outputs.
 
     Raises
     ------
     ModelError
-        For an unknown method, a bad ``substeps`` or ``dt``, or a dt whose name is a state's
-        or a parameter's.
+        For an unknown method, a bad ``substeps`` or ``dt``, or a dt whose name is a state's,
+        a parameter's or the time symbol's.
     DiscretizationError
-        For a method that does not apply (``"exact"`` on a nonlinear SDE, an order-1.5 or
-        local-linear scheme with a state-dependent diffusion) or a closed form that sympy
-        cannot give.
+        For a method that does not apply (``"exact"`` on a nonlinear or a time-varying SDE,
+        an order-1.5 or local-linear scheme with a state-dependent diffusion) or a closed
+        form that sympy cannot give.
 
     Examples
     --------
@@ -397,11 +443,13 @@ def discretize(sde: Any, method: str = "exact", dt: sp.Expr | None = None, subst
         raise ModelError("substeps does not apply to the 'exact' method (it is exact for any dt)")
     if dt is None:
         dt = default_dt()
-    params = list(sde.params)
-    taken = {str(s) for s in (*sde.states, *sde.params)}
+    varying = not sde.is_time_invariant
+    params = list(sde.params) + ([sde.time] if varying else [])
+    taken = {str(s) for s in (*sde.states, *sde.params)} | ({str(sde.time)} if sde.time is not None else set())
     if isinstance(dt, sp.Symbol):
         if str(dt) in taken:
-            raise ModelError(f"dt: the step symbol {dt} has the name of a state or parameter of {sde.name!r}")
+            raise ModelError(f"dt: the step symbol {dt} has the name of a state or parameter (or the time symbol) "
+                             f"of {sde.name!r}")
         params.append(dt)
     else:
         try:
@@ -413,7 +461,9 @@ def discretize(sde: Any, method: str = "exact", dt: sp.Expr | None = None, subst
     taken |= {str(dt)}
     angles = sorted(sde.angles) + [sde.states[i] for i in sorted(sde.angles)]
     x = sp.Matrix(sde.states)
-    if method == "local_linear" and sde.is_linear:
+    if method == "exact":
+        sde.check_time_invariant("the 'exact' discretisation")
+    if method == "local_linear" and sde.is_linear and not varying:
         try:
             return discretize(sde, "exact", dt)
         except DiscretizationError:
@@ -427,6 +477,6 @@ def discretize(sde: Any, method: str = "exact", dt: sp.Expr | None = None, subst
     h = dt / substeps
     template, tw = _step(sde, method, h)
     noise = _noise_symbols(len(tw), substeps, taken)
-    cur = compose(template, sde.states, tw, noise)
+    cur = compose(template, sde.states, tw, noise, sde.time if varying else None, h)
     flat = [s for ws in noise for s in ws]
     return Model(sde.states, cur, flat or None, sde.name, angles, params)

@@ -1,4 +1,4 @@
-"""Stochastic differential equations dx = a(x, θ) dt + L(x, θ) dβ, declared with sympy.
+"""Stochastic differential equations dx = a(x, t, θ) dt + L(x, t, θ) dβ, declared with sympy.
 
 β is a Brownian motion with spectral density (diffusion matrix) Q_c: E[dβ dβᵀ] = Q_c dt.
 The declaration is validated as a :class:`~symmon.core.model.Model` is: the shapes, the
@@ -6,9 +6,11 @@ symbols, a symmetric positive semi-definite Q_c and a diffusion L with as many c
 Its discretisation into a ``Model`` x_{k+1} = f(x_k, w_k; dt), w_k ~ N(0, I), is
 :mod:`symmon.core.discretize` (:meth:`SDE.discretize`, :meth:`SDE.noise_cov`).
 
-The equations are time-invariant: a(·) and L(·) do not depend on t.  The time unit is the
-user's: Q_c is a density per unit of time, so measuring dt in seconds or in milliseconds
-changes Q_c by the same factor.
+The equations are time-invariant unless a time symbol is declared (``time=t``) and a(·) or
+L(·) use it; Q_c never depends on t.  A time-varying SDE is discretised with the start time
+of each step as a parameter (its "exact" discretisation is refused: a time-varying linear
+SDE has no single e^{A dt}).  The time unit is the user's: Q_c is a density per unit of
+time, so measuring dt in seconds or in milliseconds changes Q_c by the same factor.
 """
 
 from __future__ import annotations
@@ -46,16 +48,16 @@ def _as_matrix(value, what: str) -> sp.Matrix:
 
 
 class SDE:
-    """A time-invariant stochastic differential equation dx = a(x, θ) dt + L(x, θ) dβ.
+    """A stochastic differential equation dx = a(x, t, θ) dt + L(x, t, θ) dβ.
 
     Parameters
     ----------
     states : sequence of sympy.Symbol or str
         The state x, n symbols.
     drift : sequence of sympy.Expr
-        a(x, θ), n expressions in the states and the parameters.
+        a(x, t, θ), n expressions in the states, the parameters and the time symbol.
     diffusion : matrix-like, optional
-        L(x, θ), shape (n, m); a 1-D sequence is one column.  Default: the identity (m = n).
+        L(x, t, θ), shape (n, m); a 1-D sequence is one column.  Default: the identity (m = n).
     spectral_density : matrix-like or scalar, optional
         Q_c, shape (m, m), symmetric positive semi-definite, constant (parameters allowed,
         states not); a scalar q stands for q I.  Default: the identity.
@@ -65,13 +67,17 @@ class SDE:
     angles : iterable of sympy.Symbol or int, optional
         States that are angles (symbols or indices): wrapped by the filters.
     name : str, optional
+    time : sympy.Symbol, optional
+        The time symbol t, which the drift and L may use (a time-varying SDE); neither a
+        state nor a parameter, and not in Q_c.  Default None: no time symbol.
 
     Raises
     ------
     ModelError
-        For duplicate or unknown symbols (the drift, L and Q_c may use only the states and
-        the parameters; Q_c not the states), a drift of another length than the states, or
-        a text where an expression is expected.
+        For duplicate or unknown symbols (the drift and L may use only the states, the
+        parameters and the time symbol, Q_c only the parameters), a time symbol that is not a
+        sympy Symbol or is a state or a parameter, a drift of another length than the states,
+        or a text where an expression is expected.
     ShapeError
         For an L with another number of rows than states or of columns than Q_c, or a
         non-square Q_c.
@@ -86,6 +92,10 @@ class SDE:
     >>> wna = SDE([p, v], [v, 0], diffusion=[0, 1], spectral_density=q, params=[q])
     >>> wna.is_linear, wna.n, wna.m
     (True, 2, 1)
+    >>> t = sp.Symbol("t", real=True)
+    >>> forced = SDE([p], [-p + sp.sin(t)], diffusion=[q], params=[q], time=t)
+    >>> forced.is_time_invariant, forced.is_linear
+    (False, True)
     """
 
     def __init__(
@@ -97,9 +107,13 @@ class SDE:
         params: Sequence[sp.Symbol] = (),
         angles: Iterable = (),
         name: str | None = None,
+        time: sp.Symbol | None = None,
     ) -> None:
         x = as_symbols(states, "states")
         p = as_symbols(params, "params")
+        if time is not None and not isinstance(time, sp.Symbol):
+            raise ModelError(f"time must be a sympy Symbol (the time t of a(x, t) and L(x, t)) or None, "
+                             f"got {plain_repr(time)}")
         if not x:
             raise ModelError("an SDE needs at least one state symbol")
         for group, what in ((x, "states"), (p, "params")):
@@ -109,6 +123,9 @@ class SDE:
         both = set(x) & set(p)
         if both:
             raise ModelError(f"symbols declared both as states and params: {sorted(map(str, both))}")
+        if time is not None and (time in x or time in p or str(time) in {str(s) for s in (*x, *p)}):
+            raise ModelError(f"the time symbol {time} is also a state or a parameter (or has the name of one): "
+                             "it must be its own symbol")
         n = len(x)
         a = _as_matrix(drift, "drift")
         if a.shape[1] != 1 and a.shape[0] == 1:
@@ -133,17 +150,20 @@ class SDE:
             raise ShapeError(
                 f"diffusion has {m} columns but spectral_density is {Qc.shape[0]}x{Qc.shape[1]}: "
                 "L needs one column per component of the Brownian motion")
-        known = set(x) | set(p)
+        known = set(x) | set(p) | ({time} if time is not None else set())
         for what, mat, allowed in (("drift", a, known), ("diffusion", L, known), ("spectral_density", Qc, set(p))):
             for e in mat:
                 unknown = dag.free_symbols(e) - allowed
                 if unknown:
-                    extra = " (Q_c must be constant: states are not allowed)" if what == "spectral_density" else ""
+                    extra = " (Q_c must be constant: states and time are not allowed)" \
+                        if what == "spectral_density" else ""
+                    declared = f", time {time}" if time is not None else ""
                     raise ModelError(
                         f"{what} entry {dag.bounded_str(e)} uses unknown symbols {sorted(map(str, unknown))}; "
-                        f"declared states {[str(s) for s in x]}, params {[str(s) for s in p]}{extra}")
+                        f"declared states {[str(s) for s in x]}, params {[str(s) for s in p]}{declared}{extra}")
         _check_psd(Qc)
         self._x, self._p, self._a, self._L, self._Qc, self._name = x, p, a, L, Qc, name
+        self._t = time
         self._angles = self._resolve_angles(angles)
 
     def _resolve_angles(self, angles) -> frozenset[int]:
@@ -173,13 +193,39 @@ class SDE:
         return self._p
 
     @property
+    def time(self) -> sp.Symbol | None:
+        """The declared time symbol t (None if there is none)."""
+        return self._t
+
+    @property
+    def is_time_invariant(self) -> bool:
+        """Whether a(·) and L(·) are free of the time symbol (always, without one)."""
+        t = self._t
+        return t is None or not any(t in dag.free_symbols(e) for e in (*self._a, *self._L))
+
+    def check_time_invariant(self, what: str) -> None:
+        """Refuse a time-varying SDE where ``what`` (a method, a route) needs a time-invariant one.
+
+        Raises
+        ------
+        DiscretizationError
+            Naming ``what`` and the time symbol.
+        """
+        if not self.is_time_invariant:
+            raise DiscretizationError(
+                f"{what} needs a time-invariant SDE, but {self.name!r} depends on its time symbol {self._t} "
+                "(a time-varying linear SDE has no single e^(A dt)): discretise it by 'local_linear', 'rk4', "
+                "'taylor1.5' or 'euler' (the start time of each step a parameter), or filter it with "
+                "sm.ContinuousDiscreteKalmanFilter(sde, h, R, 'ekf'), which integrates with the absolute time")
+
+    @property
     def drift(self) -> sp.Matrix:
-        """a(x, θ), shape (n, 1)."""
+        """a(x, t, θ), shape (n, 1)."""
         return self._a
 
     @property
     def diffusion(self) -> sp.Matrix:
-        """L(x, θ), shape (n, m)."""
+        """L(x, t, θ), shape (n, m)."""
         return self._L
 
     @property
@@ -219,14 +265,15 @@ class SDE:
     @property
     def is_linear(self) -> bool:
         """Whether the drift is affine in x (a = A x + b with A, b free of x) and L is constant
-        in x: the case of the ``"exact"`` discretisation."""
+        in x.  A, b and L may depend on the time symbol: the ``"exact"`` discretisation needs
+        a linear *and* time-invariant SDE (:attr:`is_time_invariant`)."""
         J = self.jacobian
         xs = set(self._x)
         return self.additive and not any(dag.free_symbols(e) & xs for e in J)
 
     @property
     def linear_parts(self) -> tuple[sp.Matrix, sp.Matrix]:
-        """(A, b) of a linear drift a = A x + b.
+        """(A, b) of a linear drift a = A x + b (functions of t for a time-varying SDE).
 
         Raises
         ------
@@ -235,7 +282,7 @@ class SDE:
         """
         if not self.is_linear:
             raise DiscretizationError(
-                f"SDE {self.name!r} is not linear time-invariant (its drift is not affine in the states "
+                f"SDE {self.name!r} is not linear (its drift is not affine in the states "
                 "or its diffusion depends on them)")
         A = self.jacobian
         b = self._a.subs({s: 0 for s in self._x})
@@ -253,8 +300,8 @@ class SDE:
         Raises
         ------
         DiscretizationError
-            For an SDE that is not linear time-invariant, or an integral that sympy cannot
-            give in closed form within the time limit.
+            For an SDE that is not linear and time-invariant, or an integral that sympy
+            cannot give in closed form within the time limit.
 
         Examples
         --------
@@ -283,13 +330,17 @@ class SDE:
         >>> f = SDE([x], [-theta * x], params=[theta]).discretize("exact")
         >>> f.params
         (theta, dt)
+        >>> t = sp.Symbol("t", real=True)
+        >>> SDE([x], [-theta * x + sp.cos(t)], params=[theta], time=t).discretize("euler").params
+        (theta, t, dt)
         """
         return discretize(self, method, dt=dt, substeps=substeps)
 
     def __repr__(self) -> str:
         return (f"SDE({self.name!r}, states={[str(s) for s in self._x]}, "
                 f"drift={[dag.bounded_str(e) for e in self._a]}, m={self.m}"
-                + (f", params={[str(s) for s in self._p]}" if self._p else "") + ")")
+                + (f", params={[str(s) for s in self._p]}" if self._p else "")
+                + (f", time={self._t}" if self._t is not None else "") + ")")
 
 
 def _check_psd(Qc: sp.Matrix) -> None:

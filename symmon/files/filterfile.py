@@ -87,6 +87,12 @@ per step).  The derived ``dynamics`` then keep ``dt`` as a parameter whose per-s
 the intervals t_k − t_{k−1}, are :attr:`FilterScenario.step_params`; ``symmon filter`` and
 ``symmon fit`` simulate and filter with them, and ``steps`` may be left out (it is K).
 
+A time-varying SDE names its time symbol, ``time = "t"``, which the drift and the diffusion
+may use (not Q_c); ``method`` must then be an approximate one (not ``"exact"``), and the
+derived ``dynamics`` keep the time as a parameter whose per-step values, the start time of
+each step (``t0`` and the times before each, or the sums of the steps from 0), are in
+:attr:`FilterScenario.step_params`.
+
 The ``[params]`` stay symbols in the SDE (``symmon discretize`` prints F and Q(dt) in them)
 and take their values in the derived ``dynamics``; the drift, L and Q_c may use the states
 and ``[params]`` (Q_c only ``[params]``), and Q_c must be symmetric positive semi-definite.
@@ -126,6 +132,7 @@ from ..core import dag
 from ..core.sde import SDE
 from ..core.discretize import METHODS as SDE_METHODS
 from .modelfile import (
+    _check_name,
     ModelFileError,
     _check_keys,
     _number,
@@ -161,7 +168,7 @@ _KEYS = ("name", "states", "dynamics", "measurements", "angles", "state_angles",
          "process_noise", "measurement_noise", "units")
 _REQUIRED = ("name", "states", "dynamics", "measurements", "steps", "Q", "R", "x0")
 #: The keys of an ``[sde]`` table, and those it requires.
-_SDE_KEYS = ("drift", "diffusion", "spectral_density", "method", "dt", "times", "t0", "substeps", "time_unit")
+_SDE_KEYS = ("drift", "diffusion", "spectral_density", "method", "dt", "times", "t0", "substeps", "time_unit", "time")
 _SDE_REQUIRED = ("drift",)
 #: Keys that an ``[sde]`` table replaces.
 _SDE_DERIVED = ("dynamics", "process_noise", "Q")
@@ -358,12 +365,16 @@ def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> Filte
     sde = None
     if with_sde:
         sde = _sde_table(ctx, doc["sde"], X, params, free_syms, [a for a in doc.get("state_angles", [])
-                                                                 if a in state_names], name)
+                                                                 if a in state_names], name, seen)
         model = sde.sde.discretize(sde.method, substeps=sde.substeps)
-        # A regular step is substituted; irregular intervals keep dt a per-step parameter.
+        # A regular step is substituted; irregular intervals keep dt a per-step parameter, and a
+        # time-varying SDE its time (the start of each step).
+        time_name = None if sde.sde.is_time_invariant else str(sde.sde.time)
+        per_step = {"dt"} if sde.intervals else set()
+        per_step |= {time_name} if time_name else set()
         values = {s: (sp.Float(sde.dt) if str(s) == "dt" else params[str(s)])
-                  for s in model.params if str(s) not in free_syms and not (str(s) == "dt" and sde.intervals)}
-        step_symbols = [s for s in model.params if str(s) == "dt" and sde.intervals]
+                  for s in model.params if str(s) not in free_syms and str(s) not in per_step}
+        step_symbols = [s for s in model.params if str(s) in per_step]
         # Composed sub-steps are a DAG: substituted node by node, not as a tree.
         dyn = (list(dag.substitute(model.outputs, values)) if not dag.is_small(model.outputs)
                else [e.xreplace(values) for e in model.outputs])
@@ -382,6 +393,10 @@ def load_filter_file(path: str | os.PathLike, free: Iterable[str] = ()) -> Filte
             raise ctx.error("steps", f"must be the number of measurement times of [sde] ({len(sde.intervals)}), "
                                      f"got {steps!r} (or leave it out)")
         step_params = {"dt": np.array(sde.intervals)}
+    if sde is not None and not sde.sde.is_time_invariant:
+        # The start time of each step: t0 and the times before each, or the sums of the steps.
+        dts = np.array(sde.intervals) if sde.intervals else np.full(steps, sde.dt)
+        step_params[str(sde.sde.time)] = sde.t0 + np.concatenate([[0.0], np.cumsum(dts)[:-1]])
     angles = doc.get("angles", [])
     if not isinstance(angles, list) or not all(isinstance(a, int) and not isinstance(a, bool)
                                                and 0 <= a < len(meas) for a in angles):
@@ -449,7 +464,7 @@ def _matrix_entries(ctx: _Context, value: Any, key: str, env: dict, what: str) -
 
 
 def _sde_table(ctx: _Context, table: Any, X: list, params: dict, free_syms: dict, angles: list,
-               name: str) -> ScenarioSDE:
+               name: str, seen: dict[str, str]) -> ScenarioSDE:
     """The ``[sde]`` table as a :class:`ScenarioSDE`: its expressions through the whitelist
     parser, the SDE's own checks reported with the file's name and the key."""
     if not isinstance(table, dict):
@@ -462,6 +477,15 @@ def _sde_table(ctx: _Context, table: Any, X: list, params: dict, free_syms: dict
     if "dt" in env:
         raise ctx.error("[sde]", "'dt' is the step of the discretisation: a state or a [params] entry cannot "
                                  "have that name")
+    time = None
+    if "time" in table:  # the time symbol of a time-varying drift or diffusion
+        if not isinstance(table["time"], str):
+            raise ctx.error("[sde].time", f"must be a name (a string), got {table['time']!r}")
+        if table["time"] == "dt":
+            raise ctx.error("[sde].time", "'dt' is the step of the discretisation, not the time")
+        _check_name(ctx, table["time"], "[sde].time", seen)
+        time = sp.Symbol(table["time"], real=True)
+        env = {**env, time.name: time}
     drift = table["drift"]
     if not isinstance(drift, list) or not drift or isinstance(drift[0], list):
         raise ctx.error("[sde].drift", f"must be a list of expressions, one per state, got {drift!r}")
@@ -485,7 +509,7 @@ def _sde_table(ctx: _Context, table: Any, X: list, params: dict, free_syms: dict
         raise ctx.error("[sde].spectral_density", "must be a scalar or a list of rows (a matrix), not a flat list")
     try:
         sde = SDE(X, a, diffusion=L, spectral_density=Qc, params=list(syms.values()),
-                  angles=[s for s in X if s.name in angles], name=name)
+                  angles=[s for s in X if s.name in angles], name=name, time=time)
     except SymmonError as exc:
         text = str(exc)
         key = next((k for k in ("spectral_density", "diffusion", "drift") if k in text.split(":")[0]), None)
@@ -493,6 +517,9 @@ def _sde_table(ctx: _Context, table: Any, X: list, params: dict, free_syms: dict
     if method == "exact" and not sde.is_linear:
         raise ctx.error("[sde].method", "'exact' needs a linear drift and a constant diffusion; this SDE is "
                                         "nonlinear: use 'taylor1.5' or 'local_linear' with substeps")
+    if method == "exact" and not sde.is_time_invariant:
+        raise ctx.error("[sde].method", f"'exact' needs a time-invariant SDE; this one depends on {time} (no single "
+                                        "e^(A dt)): use 'rk4', 'taylor1.5' or 'local_linear' with substeps")
     if method in ("taylor1.5", "local_linear") and not sde.additive:
         raise ctx.error("[sde].method", f"{method!r} needs a diffusion free of the states: use 'euler' or 'rk4'")
     return ScenarioSDE(sde, method, dt, substeps, unit, intervals, t0)

@@ -117,7 +117,17 @@ def discretize_track(sde: SDE, Q: Any, x0: Gaussian, steps: int | None, params: 
     ------
     ArgumentError
         A Q that is not None, bad times or intervals, or both given.
+    DiscretizationError
+        A time-varying SDE: the sub-steps are chosen by the MoN of the flow, which does not
+        see how fast a(x, t) changes with t.
     """
+    if not sde.is_time_invariant:
+        raise DiscretizationError(
+            f"the advice discretises an SDE with the sub-steps its measure of nonlinearity asks for, which does not "
+            f"see the time variation of {sde.name!r} (its drift or diffusion uses {sde.time}): discretise it yourself "
+            "(sde.discretize('rk4' or 'taylor1.5', substeps=...), whose parameters include the start time "
+            f"{sde.time} of each step) and advise on that model, or filter the SDE with "
+            "sm.ContinuousDiscreteKalmanFilter")
     if Q is not None:
         raise ArgumentError("Q must be None when f is an SDE: the process noise comes from its diffusion and "
                             "spectral density")
@@ -126,7 +136,7 @@ def discretize_track(sde: SDE, Q: Any, x0: Gaussian, steps: int | None, params: 
     K, params = _intervals(steps, params, times, t0)
     own = {k: float(np.mean(v)) for k, v in params.items() if k in {str(s) for s in sde.params}}
     f, method, N = None, "exact", 1
-    if sde.is_linear:
+    if sde.is_linear:  # time-invariant here
         try:
             f = sde.discretize("exact")
         except DiscretizationError:

@@ -18,7 +18,10 @@ e^{A dt} and Van Loan's Q(dt), whatever the step) and otherwise by the strong or
 Itô–Taylor scheme (``"taylor1.5"``) with ``substeps`` sub-steps per interval (default
 :data:`TRUTH_SUBSTEPS`).  The measurement times are ``times`` (strictly increasing, after
 ``t0``, the time of x_0), so step k lasts dt_k = t_k − t_{k−1}; without ``times`` the step is
-the parameter ``dt`` of ``params``.  ``Q`` is None: the noise comes from the SDE.
+the parameter ``dt`` of ``params``.  ``Q`` is None: the noise comes from the SDE.  A
+time-varying SDE (a time symbol in its drift or diffusion) is drawn by the order-1.5 scheme
+at the absolute time: step k starts at t_{k−1} (``t0``, then the times; without ``times``,
+the cumulative sum of the steps from 0) and its sub-step j at t_{k−1} + j dt_k/substeps.
 """
 
 from __future__ import annotations
@@ -83,8 +86,9 @@ def check_times(times, t0: float = 0.0, name: str = "times") -> np.ndarray:
 
 def truth_model(sde: SDE) -> Model:
     """The discretised SDE that :func:`simulate` draws the truth with, its step the parameter
-    ``dt``: ``"exact"`` for a linear time-invariant SDE whose closed form sympy gives, else one
-    sub-step of ``"taylor1.5"``, which :func:`simulate` applies ``substeps`` times per interval
+    ``dt`` (and, for a time-varying SDE, its time symbol, the step's start): ``"exact"`` for
+    a linear time-invariant SDE whose closed form sympy gives, else one sub-step of
+    ``"taylor1.5"``, which :func:`simulate` applies ``substeps`` times per interval
     (the same draws as ``sde.discretize("taylor1.5", substeps=substeps)``, here without
     compiling a model per number of sub-steps).
 
@@ -95,7 +99,7 @@ def truth_model(sde: SDE) -> Model:
         needs additive noise).
     """
     models = _TRUTH_MODELS.setdefault(sde, {})
-    if sde.is_linear:
+    if sde.is_linear and sde.is_time_invariant:
         if "exact" not in models:
             try:
                 models["exact"] = sde.discretize("exact")
@@ -129,6 +133,7 @@ def _sde_inputs(f, Q, steps, params, times, t0, substeps):
             raise ArgumentError("t0 applies only with times")
         if isinstance(f, SDE):
             _check_steps(params)
+            params = _with_starts(f, params, None, 0.0, steps)
         return model, Q, steps, params, sub
     if not isinstance(model, Model) or DT not in {str(s) for s in model.params}:
         raise ArgumentError(f"times needs an SDE as f, or a Model with a parameter {DT!r} (a discretised SDE)")
@@ -139,7 +144,37 @@ def _sde_inputs(f, Q, steps, params, times, t0, substeps):
         raise ArgumentTypeError(f"params must be a dict of parameter values by name, got {type(params).__name__}")
     if params and DT in params:
         raise ArgumentError(f"give the steps by times or by params[{DT!r}], not both")
-    return model, Q, int(dts.size), {**(params or {}), DT: dts}, sub
+    params = {**(params or {}), DT: dts}
+    if isinstance(f, SDE):
+        params = _with_starts(f, params, np.asarray(times, dtype=float), float(t0), int(dts.size))
+    return model, Q, int(dts.size), params, sub
+
+
+def _with_starts(sde: SDE, params: dict, times: np.ndarray | None, t0: float, steps) -> dict:
+    """``params`` with the start time of each step under the name of a time-varying SDE's
+    time symbol: ``t0`` and the times before each, or (without times) the cumulative sums
+    of ``params["dt"]`` from 0 (k dt for one number and ``steps``); ``params`` itself for a
+    time-invariant SDE.
+
+    Raises
+    ------
+    ArgumentError
+        ``params`` giving the time itself.
+    """
+    if sde.is_time_invariant:
+        return params
+    name = str(sde.time)
+    if name in params:
+        raise ArgumentError(f"params must not give {name!r}, the time of the SDE: it is the start of each step, "
+                            "from times (and t0) or the cumulative sum of the steps")
+    if times is not None:
+        starts = np.concatenate([[t0], times[:-1]])
+    else:
+        dt = np.asarray(params[DT], dtype=float)
+        if dt.ndim == 0:
+            dt = np.full(check_count(steps, "steps"), float(dt))
+        starts = np.concatenate([np.zeros(dt.shape[:-1] + (1,)), np.cumsum(dt, axis=-1)[..., :-1]], axis=-1)
+    return {**params, name: starts}
 
 
 def _check_steps(params) -> None:
@@ -249,6 +284,7 @@ def simulate(f: Model | SDE, h: Model, Q: ArrayLike | None, R: ArrayLike,
     (3, 1)
     """
     sub = 1
+    f_sde = f if isinstance(f, SDE) else None
     if isinstance(f, SDE) or times is not None or substeps is not None or t0 != 0.0:
         f, Q, steps, params, sub = _sde_inputs(f, Q, steps, params, times, t0, substeps)
     ss = StateSpace(f, h, Q, R)
@@ -263,7 +299,10 @@ def simulate(f: Model | SDE, h: Model, Q: ArrayLike | None, R: ArrayLike,
     xs, ys = np.empty((N, K, ss.n)), np.empty((N, K, ss.n_y))
     x = ss.wrap_states(np.array(x0.sample(N, rng), dtype=float))
     if sub > 1:  # an SDE's order-1.5 truth: sub-steps of dt/sub, the noise of all drawn at once
-        i_dt = [str(s) for s in ss.params].index(DT)
+        names = [str(s) for s in ss.params]
+        i_dt = names.index(DT)
+        # A time-varying SDE's sub-step j starts at t + j dt/sub.
+        i_t = names.index(str(f_sde.time)) if f_sde is not None and not f_sde.is_time_invariant else None
     for k in range(K):
         p = None if pv is None else pv[:, k]
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging truth is refused below
@@ -274,6 +313,8 @@ def simulate(f: Model | SDE, h: Model, Q: ArrayLike | None, R: ArrayLike,
                 ph = p.copy()
                 ph[:, i_dt] /= sub
                 for j in range(sub):
+                    if i_t is not None:
+                        ph[:, i_t] = p[:, i_t] + j * ph[:, i_dt]
                     x = ss.transition(x, Z[:, j * nq:(j + 1) * nq], ph)
             y = ss.measure(x, rng.standard_normal((N, nr)), p)
         xs[:, k], ys[:, k] = x, y

@@ -46,7 +46,7 @@ __all__ = ["NonlinearityMeasure", "MonParts", "nonlinearity", "flow_model", "FLO
 def nonlinearity(model: Model | SDE, u: Gaussian | GaussianMixture, v: Gaussian | GaussianMixture | None = None, *,
                  weight: Any = "full", transform: Transform | None = None, executor: Any = None,
                  params: dict | None = None, dt: float | None = None, method: str | None = None,
-                 substeps: int | None = None) -> NonlinearityMeasure:
+                 substeps: int | None = None, t: float | None = None) -> NonlinearityMeasure:
     """The measure of nonlinearity of y = g(u, v).
 
     Parameters
@@ -87,11 +87,12 @@ def nonlinearity(model: Model | SDE, u: Gaussian | GaussianMixture, v: Gaussian 
     params : dict, optional
         Values of the model's parameters (``Model(params=...)``), substituted before the
         model is compiled (:meth:`symmon.Model.with_params`).
-    dt, method, substeps
+    dt, method, substeps, t
         For an SDE only: the step (a positive number, in the SDE's time unit), and the
         discretisation of the flow (:func:`flow_model`: by default the order-1.5
         Itô–Taylor scheme for additive noise, Euler–Maruyama otherwise, on
-        :data:`FLOW_SUBSTEPS` sub-steps).
+        :data:`FLOW_SUBSTEPS` sub-steps); ``t``, the step's start time, which a
+        time-varying SDE needs (x(t) ↦ x(t + dt) depends on it).
 
     Returns
     -------
@@ -117,10 +118,10 @@ def nonlinearity(model: Model | SDE, u: Gaussian | GaussianMixture, v: Gaussian 
     if isinstance(model, SDE):
         if v is not None:
             raise ArgumentError("v must not be given for an SDE: the noise of its flow is its Brownian motion")
-        model, params = flow_model(model, dt, params, method=method, substeps=substeps)
+        model, params = flow_model(model, dt, params, method=method, substeps=substeps, t=t)
         v = Gaussian(np.zeros(model.n_v), np.eye(model.n_v))
-    elif dt is not None or method is not None or substeps is not None:
-        raise ArgumentError("dt, method and substeps are for the flow of an SDE; a Model is one step already")
+    elif dt is not None or method is not None or substeps is not None or t is not None:
+        raise ArgumentError("dt, method, substeps and t are for the flow of an SDE; a Model is one step already")
     model = with_param_values(model, params)
     tr = check_transform(transform)
     if isinstance(u, Empirical):
@@ -173,9 +174,10 @@ def _discretized(sde: SDE, method: str, substeps: int) -> Model:
 
 
 def flow_model(sde: SDE, dt: float, params: dict | None = None, *, method: str | None = None,
-               substeps: int | None = None) -> tuple[Model, dict]:
+               substeps: int | None = None, t: float | None = None) -> tuple[Model, dict]:
     """The flow of ``sde`` over a step ``dt`` as a model x(t + dt) = f(x(t), w), w ~ N(0, I),
-    and the parameter values (``params`` with ``dt``) that make it one step.
+    and the parameter values (``params`` with ``dt``, and ``t`` for a time-varying SDE)
+    that make it one step.
 
     Parameters
     ----------
@@ -189,11 +191,15 @@ def flow_model(sde: SDE, dt: float, params: dict | None = None, *, method: str |
         for additive noise, ``"euler"`` otherwise.
     substeps : int, optional
         Sub-steps of the discretisation, default :data:`FLOW_SUBSTEPS`.
+    t : float, optional
+        The step's start time: required for a time-varying SDE (:attr:`SDE.is_time_invariant`
+        false), whose flow depends on it; not read for a time-invariant one.
 
     Raises
     ------
     ArgumentError
-        A ``dt`` that is not a positive finite number, or ``params`` naming ``dt``.
+        A ``dt`` that is not a positive finite number, ``params`` naming ``dt`` or the time,
+        or a time-varying SDE without a finite ``t``.
     """
     if isinstance(dt, (bool, np.bool_)) or not isinstance(dt, (int, float, np.integer, np.floating)) \
             or not np.isfinite(dt) or dt <= 0:
@@ -204,7 +210,16 @@ def flow_model(sde: SDE, dt: float, params: dict | None = None, *, method: str |
     given = dict(params or {})
     if "dt" in {str(k) for k in given}:
         raise ArgumentError("params must not give 'dt': the step is the argument dt")
-    return model, {**given, "dt": float(dt)}
+    if sde.is_time_invariant:
+        return model, {**given, "dt": float(dt)}
+    name = str(sde.time)
+    if name in {str(k) for k in given}:
+        raise ArgumentError(f"params must not give {name!r}: the start time is the argument t")
+    if isinstance(t, (bool, np.bool_)) or not isinstance(t, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(t):
+        raise ArgumentError(f"the SDE {sde.name!r} is time-varying (its drift or diffusion uses {name}), so its flow "
+                            f"over dt depends on when the step starts: give t=... (a finite number), got {t!r}")
+    return model, {**given, name: float(t), "dt": float(dt)}
 
 
 #: The most sub-steps :func:`choose_substeps` gives (and so the shortest sub-step, dt/256).
@@ -212,7 +227,8 @@ MAX_CHOSEN_SUBSTEPS = 256
 
 
 def choose_substeps(sde: SDE, prior: Gaussian, dt: float, tol: float = 0.01, params: dict | None = None, *,
-                    transform: Transform | None = None, max_substeps: int = MAX_CHOSEN_SUBSTEPS) -> int:
+                    transform: Transform | None = None, max_substeps: int = MAX_CHOSEN_SUBSTEPS,
+                    t: float | None = None) -> int:
     """The fewest sub-steps N (a power of two) whose sub-step's flow is nearly affine: the MoN
     of the flow map over dt/N (:func:`nonlinearity` of the SDE from ``prior``) at most ``tol``.
 
@@ -241,6 +257,9 @@ def choose_substeps(sde: SDE, prior: Gaussian, dt: float, tol: float = 0.01, par
         The rule of the MoN (:func:`nonlinearity`'s default, TT2).
     max_substeps : int, default :data:`MAX_CHOSEN_SUBSTEPS`
         The most sub-steps to try.
+    t : float, optional
+        The step's start time, which a time-varying SDE needs (:func:`flow_model`); its
+        sub-step's flow is taken from there.
 
     Returns
     -------
@@ -269,12 +288,12 @@ def choose_substeps(sde: SDE, prior: Gaussian, dt: float, tol: float = 0.01, par
         raise ArgumentError(f"tol must be a positive finite number, got {tol!r}")
     if isinstance(max_substeps, (bool, np.bool_)) or not isinstance(max_substeps, (int, np.integer)) or max_substeps < 1:
         raise ArgumentError(f"max_substeps must be a positive integer, got {max_substeps!r}")
-    flow_model(sde, dt)  # checks dt
+    flow_model(sde, dt, t=t)  # checks dt (and t)
     if sde.is_linear:
         return 1
     N, mon = 1, float("nan")
     while N <= max_substeps:
-        mon = float(nonlinearity(sde, prior, dt=float(dt) / N, params=params, transform=transform, substeps=1))
+        mon = float(nonlinearity(sde, prior, dt=float(dt) / N, params=params, transform=transform, substeps=1, t=t))
         if mon <= tol:
             return N
         N *= 2

@@ -1,7 +1,7 @@
 """The continuous-discrete Gaussian filters: an SDE between measurement times, discrete
 measurements at them.
 
-The state follows dx = a(x) dt + L(x) dβ, E[dβ dβᵀ] = Q_c dt (:class:`~symmon.SDE`), and is
+The state follows dx = a(x, t) dt + L(x, t) dβ, E[dβ dβᵀ] = Q_c dt (:class:`~symmon.SDE`), and is
 measured at times t_1 < t_2 < … as y_k = h(x(t_k), e_k), e_k ~ N(0, R).  Between two
 measurements the filter integrates the moment equations of the Gaussian approximation
 N(m(t), P(t)) (Särkkä 2007; Särkkä & Solin 2019, §9.1),
@@ -57,6 +57,25 @@ P^s_K = P_K down to k = 1, with the stored x⁻, P⁻ and Φ of each interval,
 the discrete-time Gaussian RTS smoother (Särkkä 2013, Algorithm 9.3) with the cross-covariance
 of (3); on a linear SDE, that of the exact discretisation.
 
+The square-root smoother (``square_root=True``).  Φ and P follow the same Â: for every rule
+dP/dt = Â P + P Âᵀ + D with D = E[L Q_c Lᵀ] (for a point rule C = E[(x − m)(a − ā)ᵀ] = P Âᵀ), so
+the interval's effective noise Q̃ = P⁻ − Φ P Φᵀ solves
+
+    dQ̃/dt = Â Q̃ + Q̃ Âᵀ + D,  Q̃(t_{k−1}) = 0,  i.e.  Q̃ = ∫ Φ(t_k, s) D(s) Φ(t_k, s)ᵀ ds ⪰ 0,    (6)
+
+and the forward pass integrates it beside Φ (no difference P⁻ − Φ P Φᵀ is formed; with
+``exact`` it is Van Loan's Q(dt)).  The joint Gaussian of (x_k, x_{k+1}) then has the factor
+columns X = [S_k, 0] and Y = [Φ S_k, Q̃^{1/2}] (P⁻ = Y Yᵀ, C = X Yᵀ = P_k Φᵀ), and the backward
+step is the residual form of the discrete square-root smoother
+(:func:`symmon.filters.gaussian.smoother.sqrt_backward_graph`): with S⁻ = tria(Y) and
+G = C S⁻⁻ᵀ S⁻⁻¹ (two triangular solves),
+
+    S^s_k = tria([(I − G Φ) S_k,  −G Q̃^{1/2},  G S^s_{k+1}]),                                (7)
+
+the factor of (I − G Φ) P_k (I − G Φ)ᵀ + G Q̃ Gᵀ + G P^s_{k+1} Gᵀ = P_k + G (P^s_{k+1} − P⁻) Gᵀ, a
+sum of squares where (5) adds a difference.  The result holds the factors (``P_chol``), as the
+discrete square-root smoother's does.
+
 a(x), its Jacobian and L Q_c Lᵀ are one compiled CasADi model of the SDE's symbols
 (:func:`symmon.compile.compiled.compiled_with_params`).  The equations are integrated by
 ``scipy.integrate.solve_ivp`` (explicit Runge–Kutta 4(5), adaptive steps, ``rtol`` and
@@ -71,9 +90,16 @@ takes the measurement times t_1 < … < t_K (after ``t0``, the time of ``x0``, d
 or (R, K) per run for a bank), and the interval before measurement k is t_k − t_{k−1}
 (t_0 = ``t0``).  The alternative is the per-step parameter ``dt`` (``params={"dt": steps}``:
 a number for regular sampling, one per step (K,) or one per run and step (R, K) for
-irregular times, strictly positive; ``x0`` is then at t = 0); the two routes give the same
-numbers bit for bit for the same intervals, and giving both is refused.  The SDE is
-time-invariant, so an interval's moments depend on its length only.
+irregular times, strictly positive; ``x0`` is then at t = 0); giving both is refused.
+
+Time.  For a time-invariant SDE an interval's moments depend on its length only: each is
+integrated over [0, dt], and the two routes give the same numbers bit for bit for the same
+intervals.  A time-varying SDE (a(x, t), L(x, t): :attr:`SDE.is_time_invariant` false) is
+integrated over the absolute interval [t_{k−1}, t_k], t the compiled drift's last parameter:
+its start is ``t0`` and the measurement times before it with ``times`` (per run for a bank),
+and the cumulative sum of the intervals from 0 on the ``dt`` route, so the two routes agree
+to the rounding of that sum.  The exact prediction (4) and ``sm.KalmanFilter(sde, ...)``
+refuse a time-varying SDE: it has no single e^{A dt}.
 
 Banks: each run is integrated on its own (its own adaptive steps, so that a bank filtered in
 shards gives the whole bank's numbers bit for bit); the measurement updates of all the runs
@@ -106,6 +132,7 @@ from numpy.typing import ArrayLike
 from ...compile.compiled import CompiledModel, compiled_with_params
 from ...core.angles import wrap_components
 from ...core.arrays import all_finite, readonly
+from ...core.gaussian import matrix_sqrt
 from ...core.checks import check_model
 from ...core.model import Model
 from ...core.discretize import van_loan_numeric
@@ -158,8 +185,9 @@ class ContinuousDiscreteKalmanFilter(Filter):
     Parameters
     ----------
     sde : SDE
-        The dynamics dx = a(x) dt + L(x) dβ with spectral density Q_c; its angle states are
-        the filter's.
+        The dynamics dx = a(x, t) dt + L(x, t) dβ with spectral density Q_c; its angle states
+        are the filter's.  A time-varying SDE is integrated with the absolute time (module
+        notes).
     h : Model
         The measurement model, with the SDE's states as inputs (n inputs, n_y outputs).
     R : array_like
@@ -181,7 +209,7 @@ class ContinuousDiscreteKalmanFilter(Filter):
         to the integrator's tolerance, whose covariances stay positive definite; the results
         also hold the factors (``P_chol``, ``P_pred_chol``).  P0 must be positive definite.
     exact : bool, default False
-        For a linear SDE (a = A x + b, L constant): predict by the exact transition (eq. (4):
+        For a linear time-invariant SDE (a = A x + b, L constant): predict by the exact transition (eq. (4):
         e^{A dt} and Van Loan's Q(dt) at each interval) instead of integrating; with TT1 this
         is the Kalman filter of the SDE (``sm.KalmanFilter(sde, None, H, R)`` builds it).
 
@@ -251,7 +279,7 @@ class ContinuousDiscreteKalmanFilter(Filter):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ArgumentTypeError(f"{name} must be True or False, got {getattr(self, name)!r}")
             object.__setattr__(self, name, bool(getattr(self, name)))
-        if self.exact and not sde.is_linear:
+        if self.exact and not (sde.is_linear and sde.is_time_invariant):
             raise ModelError(f"exact=True needs a linear time-invariant SDE (a = A x + b, L constant); SDE {sde.name!r} "
                              "is not: integrate its moment equations (exact=False)")
         states = list(sde.states)
@@ -261,7 +289,9 @@ class ContinuousDiscreteKalmanFilter(Filter):
         ident = Model(states, states, name=f"{sde.name}_identity", angles=sorted(sde.angles))
         update = NonlinearKalmanFilter(ident, h, np.zeros((sde.n, sde.n)), self.R, tr, square_root=self.square_root)
         D = sde.diffusion * sde.spectral_density * sde.diffusion.T
-        drift = Model(states, list(sde.drift) + list(D), name=f"{sde.name}_moments", params=list(sde.params))
+        # A time-varying SDE's time is the compiled drift's last parameter.
+        tparams = list(sde.params) + ([] if sde.is_time_invariant else [sde.time])
+        drift = Model(states, list(sde.drift) + list(D), name=f"{sde.name}_moments", params=tparams)
         object.__setattr__(self, "transform", tr)
         object.__setattr__(self, "R", update.R)
         object.__setattr__(self, "update", update)
@@ -368,15 +398,36 @@ class ContinuousDiscreteKalmanFilter(Filter):
         Y = wc[:, None] * (a - dm)
         return dm, (X - m).T @ Y, (wm @ G[:, n:]).reshape(n, n), Y, Z
 
-    def moment_derivatives(self, m: np.ndarray, P: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _theta(self, theta: Any, t: float | None, who: str) -> np.ndarray:
+        """The compiled drift's parameters: the SDE's ``theta``, and the time ``t`` after them
+        for a time-varying SDE (which needs it)."""
+        th = np.zeros(0) if theta is None else np.asarray(theta, float).ravel()
+        if self.time_invariant:
+            return th
+        if t is None or isinstance(t, (bool, np.bool_)) or not np.isfinite(t):
+            raise ArgumentError(f"{who}: the SDE {self.sde.name!r} depends on its time {self.sde.time}, so the time "
+                                f"is needed: t=... (a finite number), got {plain_repr(t)}")
+        return np.append(th, float(t))
+
+    @property
+    def time_invariant(self) -> bool:
+        """Whether the SDE is time-invariant (else the moment equations take the absolute time)."""
+        return self.sde.is_time_invariant
+
+    def moment_derivatives(self, m: np.ndarray, P: np.ndarray, theta: np.ndarray | None = None,
+                           t: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(dm/dt, dP/dt) of eq. (1) at the Gaussian N(m, P) with the SDE's parameters
-        ``theta``, by the filter's rule (module notes)."""
-        dm, C, D, _, _ = self._rule(np.asarray(m, float), None, np.asarray(P, float), np.asarray(theta, float))
+        ``theta`` (at the time ``t``, needed for a time-varying SDE), by the filter's rule
+        (module notes)."""
+        th = self._theta(theta, t, "moment_derivatives")
+        dm, C, D, _, _ = self._rule(np.asarray(m, float), None, np.asarray(P, float), th)
         return dm, C + C.T + D
 
-    def factor_derivative(self, m: np.ndarray, S: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def factor_derivative(self, m: np.ndarray, S: np.ndarray, theta: np.ndarray | None = None,
+                          t: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(dm/dt, dS/dt) of the square-root form, eq. (2): dS/dt = S Φ(S⁻¹ (dP/dt) S⁻ᵀ) with Φ the
-        lower triangle and half the diagonal, S lower triangular with a positive diagonal.
+        lower triangle and half the diagonal, S lower triangular with a positive diagonal
+        (at the time ``t``, needed for a time-varying SDE).
 
         S⁻¹ (dP/dt) S⁻ᵀ is formed from the factor without P: S⁻¹ A S + (S⁻¹ A S)ᵀ + S⁻¹ D S⁻ᵀ
         for TT1, Zᵀ (S⁻¹ Y)ᵀ + its transpose + S⁻¹ D S⁻ᵀ for a point rule (χᵢ − m = S zᵢ).
@@ -385,11 +436,12 @@ class ContinuousDiscreteKalmanFilter(Filter):
         ------
         numpy.linalg.LinAlgError
             S is singular (a state without variance: the square-root form needs P > 0)."""
-        dm, dS, _, _ = self._factor_rates(*(np.asarray(a, float) for a in (m, S, theta)))
+        th = self._theta(theta, t, "factor_derivative")
+        dm, dS, _, _, _ = self._factor_rates(np.asarray(m, float), np.asarray(S, float), th)
         return dm, dS
 
     def _factor_rates(self, m: np.ndarray, S: np.ndarray, theta: np.ndarray) -> tuple:
-        """(dm/dt, dS/dt, Y, Z): :meth:`factor_derivative` and the rule's Y and Z (:meth:`_rule`)."""
+        """(dm/dt, dS/dt, Y, Z, D): :meth:`factor_derivative` and the rule's Y, Z and D (:meth:`_rule`)."""
         dm, _, D, Y, Z = self._rule(m, S, None, theta)
         if np.any(np.diag(S) <= 0):
             raise np.linalg.LinAlgError("the factor S has a zero on its diagonal (P is singular)")
@@ -401,7 +453,7 @@ class ContinuousDiscreteKalmanFilter(Filter):
         N = Cw + Cw.T + 0.5 * (Dw + Dw.T)
         Phi = np.tril(N)
         Phi[np.diag_indices_from(Phi)] *= 0.5
-        return dm, S @ Phi, Y, Z
+        return dm, S @ Phi, Y, Z, D
 
     @staticmethod
     def _linear_drift(S: np.ndarray | None, Y: np.ndarray, Z: np.ndarray | None) -> np.ndarray:
@@ -416,21 +468,27 @@ class ContinuousDiscreteKalmanFilter(Filter):
             Si = np.linalg.pinv(S)
         return Y.T @ Z @ Si
 
-    def predict(self, m: np.ndarray, P: np.ndarray, dt: float, theta: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
+    def predict(self, m: np.ndarray, P: np.ndarray, dt: float, theta: np.ndarray | None = None,
+                t: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The moments (m, P) after an interval ``dt`` from (m, P): eq. (1) integrated (eq. (2)
-        with ``square_root``), or the exact transition (4) with ``exact``.
+        with ``square_root``), or the exact transition (4) with ``exact``.  For a time-varying
+        SDE, ``t`` is the interval's start time (required): it is integrated over [t, t + dt].
 
         Raises
         ------
+        ArgumentError
+            A time-varying SDE without ``t``.
         SymmonError
             More than ``max_evaluations`` evaluations (a stiff or diverging drift), a failed
             step-size control, or moments that turn NaN or inf, naming the time and the mean.
         """
         m, P = np.asarray(m, float), np.asarray(P, float)
+        th = self._theta(theta, t, "predict")
+        if not self.time_invariant:
+            th = th[:-1]  # _integrate appends the running time
         try:
-            th = np.zeros(0) if theta is None else np.asarray(theta, float)
-            m1, P1, S1, _ = self._predict(m, P, np.linalg.cholesky(P) if self.square_root else None, float(dt), th)
+            m1, P1, S1, _, _ = self._predict(m, P, np.linalg.cholesky(P) if self.square_root else None, float(dt), th,
+                                          t_start=0.0 if t is None else float(t))
             return m1, P1
         except np.linalg.LinAlgError as exc:
             raise SymmonError(self._stopped(_Stop(f"the covariance is not positive definite ({exc})", 0.0, m),
@@ -439,15 +497,18 @@ class ContinuousDiscreteKalmanFilter(Filter):
             raise SymmonError(self._stopped(stop, dt, "")) from None
 
     def _predict(self, m: np.ndarray, P: np.ndarray, S: np.ndarray | None, dt: float, theta: np.ndarray,
-                 transition: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-        """(m, P, S, Φ) after ``dt``: S the factor (square-root form, else None), Φ the
-        transition of eq. (3) when ``transition`` (else None)."""
+                 transition: bool = False, t_start: float = 0.0) -> tuple:
+        """(m, P, S, Φ, Q̃) after ``dt`` from the time ``t_start`` (read for a time-varying SDE
+        only): S the factor (square-root form, else None), Φ the transition of eq. (3) when
+        ``transition`` (else None), and in the square-root form with ``transition`` the
+        interval's effective noise Q̃ = P⁻ − Φ P Φᵀ of eq. (6) (else None)."""
         if self.exact:
             return self._exact(m, P, S, dt, theta)
-        return self._integrate(m, P, S, dt, theta, transition)
+        return self._integrate(m, P, S, dt, theta, transition, t_start)
 
     def _exact(self, m, P, S, dt, theta):
-        """Eq. (4): F = e^{A dt}, c = ∫₀^dt e^{A s} b ds from one exponential, Q(dt) by Van Loan."""
+        """Eq. (4): F = e^{A dt}, c = ∫₀^dt e^{A s} b ds from one exponential, Q(dt) by Van Loan
+        (Q̃ of eq. (6) in the square-root form)."""
         n = self.sde.n
         cm = self.compiled_drift
         g, J_nz, _ = cm.eval_derivatives(np.concatenate([np.zeros(n), theta])[None])
@@ -460,19 +521,29 @@ class ContinuousDiscreteKalmanFilter(Filter):
         m1 = F @ m + c
         if S is not None:  # S⁻ = tria([F S, √Q(dt)]): the factor of F P Fᵀ + Q(dt), no difference formed
             S1 = _tria(np.hstack([F @ S, noise_factor(Q)]))
-            return m1, S1 @ S1.T, S1, F
+            return m1, S1 @ S1.T, S1, F, Q
         P1 = F @ P @ F.T + Q
-        return m1, 0.5 * (P1 + P1.T), None, F
+        return m1, 0.5 * (P1 + P1.T), None, F, None
 
-    def _integrate(self, m, P, S, dt, theta, transition=False):
+    def _integrate(self, m, P, S, dt, theta, transition=False, t_start=0.0):
         n = self.sde.n
         sqrt = S is not None
         tril = np.tril_indices(n)
         n_cov = len(tril[0]) if sqrt else n * n
         count = [0]
+        # A time-invariant SDE is integrated over [0, dt] (its moments depend on dt alone, and
+        # the times and dt routes give the same numbers bit for bit); a time-varying one over
+        # [t_start, t_start + dt], the time the drift's last parameter.
+        varying = not self.time_invariant
+        t_lo = float(t_start) if varying else 0.0
+        theta_t = np.append(theta, t_lo) if varying else theta
 
-        def rhs(t: float, z: np.ndarray) -> np.ndarray:
+        def rhs(t_abs: float, z: np.ndarray) -> np.ndarray:
             count[0] += 1
+            t = t_abs - t_lo  # the time into the interval, for the messages
+            if varying:
+                theta_t[-1] = t_abs
+            theta = theta_t
             mt = z[:n]
             if count[0] > self.max_evaluations:
                 raise _Stop(f"more than max_evaluations = {self.max_evaluations} evaluations of the moment "
@@ -483,7 +554,7 @@ class ContinuousDiscreteKalmanFilter(Filter):
                 if sqrt:
                     St = np.zeros((n, n))
                     St[tril] = z[n:n + n_cov]
-                    dm, dS, Y, Z = self._factor_rates(mt, St, theta)
+                    dm, dS, Y, Z, D = self._factor_rates(mt, St, theta)
                     parts = [dm, dS[tril]]
                     Pt = None
                 else:
@@ -493,7 +564,11 @@ class ContinuousDiscreteKalmanFilter(Filter):
                     dm, C, D, Y, Z = self._rule(mt, St, Pt, theta)
                     parts = [dm, (C + C.T + D).ravel()]
                 if transition:
-                    parts.append((self._linear_drift(St, Y, Z) @ z[n + n_cov:].reshape(n, n)).ravel())
+                    Ahat = self._linear_drift(St, Y, Z)
+                    parts.append((Ahat @ z[n + n_cov:n + n_cov + n * n].reshape(n, n)).ravel())
+                    if sqrt:  # eq. (6): dQ̃/dt = Â Q̃ + Q̃ Âᵀ + D, from Q̃ = 0
+                        Qt = z[n + n_cov + n * n:].reshape(n, n)
+                        parts.append((Ahat @ Qt + Qt @ Ahat.T + D).ravel())
             except (np.linalg.LinAlgError, SymmonError) as exc:
                 raise _Stop(f"the covariance is no longer one ({exc})", t, mt) from None
             out = np.concatenate(parts)
@@ -501,23 +576,25 @@ class ContinuousDiscreteKalmanFilter(Filter):
                 raise _Stop("the drift or its Jacobian is NaN or inf", t, mt)
             return out
 
-        z0 = [m, S[tril] if sqrt else P.ravel()] + ([np.eye(n).ravel()] if transition else [])
-        sol = scipy.integrate.solve_ivp(rhs, (0.0, dt), np.concatenate(z0), method="RK45", rtol=self.rtol,
+        z0 = [m, S[tril] if sqrt else P.ravel()] + ([np.eye(n).ravel()] if transition else []) \
+            + ([np.zeros(n * n)] if transition and sqrt else [])
+        sol = scipy.integrate.solve_ivp(rhs, (t_lo, t_lo + dt), np.concatenate(z0), method="RK45", rtol=self.rtol,
                                         atol=self.atol, max_step=np.inf if self.max_step is None else self.max_step)
         if not sol.success:
-            raise _Stop(f"the integrator failed: {sol.message}", float(sol.t[-1]), sol.y[:n, -1])
+            raise _Stop(f"the integrator failed: {sol.message}", float(sol.t[-1]) - t_lo, sol.y[:n, -1])
         z = sol.y[:, -1]
         if not np.all(np.isfinite(z)):
-            raise _Stop("the moments turned NaN or inf", float(sol.t[-1]), z[:n])
-        Phi = z[n + n_cov:].reshape(n, n) if transition else None
+            raise _Stop("the moments turned NaN or inf", float(sol.t[-1]) - t_lo, z[:n])
+        Phi = z[n + n_cov:n + n_cov + n * n].reshape(n, n) if transition else None
         if sqrt:
             S1 = np.zeros((n, n))
             S1[tril] = z[n:n + n_cov]
             if np.any(np.diag(S1) <= 0):
-                raise _Stop("the factor S lost its positive diagonal", float(sol.t[-1]), z[:n])
-            return z[:n], S1 @ S1.T, S1, Phi
+                raise _Stop("the factor S lost its positive diagonal", float(sol.t[-1]) - t_lo, z[:n])
+            Qt = z[n + n_cov + n * n:].reshape(n, n) if transition else None
+            return z[:n], S1 @ S1.T, S1, Phi, None if Qt is None else 0.5 * (Qt + Qt.T)
         P1 = z[n:n + n_cov].reshape(n, n)
-        return z[:n], 0.5 * (P1 + P1.T), None, Phi
+        return z[:n], 0.5 * (P1 + P1.T), None, Phi, None
 
     def _stopped(self, stop: _Stop, dt: float, where: str) -> str:
         state = np.array2string(np.asarray(stop.m), precision=6)
@@ -529,9 +606,10 @@ class ContinuousDiscreteKalmanFilter(Filter):
     def _filter(self, call: FilterCall) -> KalmanResult:
         return self._recursion(call)[0]
 
-    def _recursion(self, call: FilterCall, transition: bool = False) -> tuple[KalmanResult, np.ndarray | None]:
+    def _recursion(self, call: FilterCall, transition: bool = False) -> tuple:
         """The filter's result, and with ``transition`` the transitions Φ (R, K, n, n) of eq. (3)
-        over each interval (for the smoother)."""
+        over each interval and, in the square-root form, their effective noises Q̃ of eq. (6)
+        (for the smoother; else None)."""
         n, n_y = self.sizes
         Y, runs, pv = call.Y, call.runs, call.pv
         R, K = Y.shape[0], Y.shape[1]
@@ -557,12 +635,14 @@ class ContinuousDiscreteKalmanFilter(Filter):
             shapes.update(P_chol=(n, n), P_pred_chol=(n, n))
         out = {k: np.empty((R, K) + s) for k, s in shapes.items()}
         Phi = np.empty((R, K, n, n)) if transition else None
+        Qt = np.empty((R, K, n, n)) if transition and self.square_root else None
+        starts = self._starts(call, pv[..., j_dt])
         for k in range(K):
             for r in range(R):
                 dt = float(pv[r, k, j_dt])
                 try:
-                    m[r], P[r], S_r, Phi_r = self._predict(m[r], P[r], None if S is None else S[r], dt,
-                                                           pv[r, k, :n_theta], transition)
+                    m[r], P[r], S_r, Phi_r, Qt_r = self._predict(m[r], P[r], None if S is None else S[r], dt,
+                                                           pv[r, k, :n_theta], transition, float(starts[r, k]))
                 except (_Stop, np.linalg.LinAlgError) as stop:
                     if not isinstance(stop, _Stop):
                         stop = _Stop(f"the covariance is not positive definite ({stop})", 0.0, m[r])
@@ -572,6 +652,8 @@ class ContinuousDiscreteKalmanFilter(Filter):
                     S[r] = S_r
                 if transition:
                     Phi[r, k] = Phi_r
+                    if Qt is not None:
+                        Qt[r, k] = Qt_r
             params = {s: pv[:, k, c][:, None] for s, c in zip(h_names, h_cols)} or None
             step = self._update(Y[:, k:k + 1], m, P if S is None else S, params, k, runs)
             for key in out:
@@ -594,7 +676,20 @@ class ContinuousDiscreteKalmanFilter(Filter):
             measured = readonly((~np.isnan(Y if runs is not None else Y[0])).sum(axis=-1))
         arrays["nis_values"] = arrays.pop("nis", None)
         return KalmanResult(**arrays, measured=measured, n_y=n_y, n_x=n, angle_states=tuple(sorted(self.angle_states)),
-                            method=self.method), Phi
+                            method=self.method), Phi, Qt
+
+    def _starts(self, call: FilterCall, dts: np.ndarray) -> np.ndarray:
+        """The start time t_{k−1} of each interval, (R, K): ``t0`` and the measurement times
+        before each when the call has times, else the cumulative sums of the intervals ``dts``
+        (R, K) from 0 (the ``dt`` route: x0 at t = 0).  Zeros for a time-invariant SDE, whose
+        moments do not read them."""
+        R, K = dts.shape
+        if self.time_invariant:
+            return np.zeros((R, K))
+        if call.times is not None:
+            T = np.broadcast_to(np.asarray(call.times, float), (R, K))
+            return np.concatenate([np.full((R, 1), float(call.t0)), T[:, :-1]], axis=1)
+        return np.concatenate([np.zeros((R, 1)), np.cumsum(dts, axis=1)[:, :-1]], axis=1)
 
     def _update(self, Y: np.ndarray, m: np.ndarray, P: np.ndarray, params: dict | None, k: int,
                 runs: int | None) -> dict[str, np.ndarray]:
@@ -631,7 +726,10 @@ class ContinuousDiscreteKalmanFilter(Filter):
         nonlinear one it is the Gaussian smoother with the statistically linearised flow
         (the CD-EKF's Jacobian for TT1).  The forward pass integrates Φ beside the moments,
         so its adaptive steps (and its numbers, within the tolerance) can differ from
-        :meth:`filter`'s; ``filtered`` holds that pass.
+        :meth:`filter`'s; ``filtered`` holds that pass.  In the square-root form the forward
+        pass also integrates each interval's effective noise Q̃ (eq. (6)) and the backward
+        pass is eq. (7) on the factors, returning them (``P_chol``) as
+        :meth:`NonlinearKalmanFilter.smooth <symmon.NonlinearKalmanFilter.smooth>` does.
 
         Parameters
         ----------
@@ -644,8 +742,9 @@ class ContinuousDiscreteKalmanFilter(Filter):
         Returns
         -------
         SmootherResult
-            ``x`` (K, n) and ``P`` (K, n, n) smoothed ((R, K, ...) for a bank), and
-            ``filtered``, the forward pass.
+            ``x`` (K, n) and ``P`` (K, n, n) smoothed ((R, K, ...) for a bank),
+            ``filtered``, the forward pass, and in the square-root form ``P_chol``, the
+            smoothed lower factors (P = S Sᵀ; None otherwise).
 
         Raises
         ------
@@ -656,14 +755,28 @@ class ContinuousDiscreteKalmanFilter(Filter):
         kept = None if keep is None else frozenset([keep] if isinstance(keep, str) else keep)
         forward = None if kept is None else kept | {"x", "P", "x_pred", "P_pred"}
         call = check_call(self, ys, x0, P0, keep=forward, params=params, times=times, t0=t0)
-        fwd, Phi = self._recursion(call, transition=True)
+        fwd, Phi, Qt = self._recursion(call, transition=True)
         bank = fwd.runs is not None
         x, P, xp, Pp = (getattr(fwd, a) if bank else getattr(fwd, a)[None] for a in ("x", "P", "x_pred", "P_pred"))
         angles = sorted(self.angle_states)
         xs, Ps = x.copy(), P.copy()
         K = x.shape[1]
+        Ss = None
+        if self.square_root:
+            S = fwd.P_chol if bank else fwd.P_chol[None]
+            Ss = S.copy()
         for r in range(x.shape[0]):
             for k in range(K - 2, -1, -1):
+                if Ss is not None:
+                    try:
+                        xs[r, k], Ss[r, k] = self._sqrt_backward(x[r, k], S[r, k], xp[r, k + 1], Phi[r, k + 1],
+                                                                 Qt[r, k + 1], xs[r, k + 1], Ss[r, k + 1], angles)
+                    except (np.linalg.LinAlgError, CovarianceError):
+                        where = f"step {k}" if not bank else f"run {r}, step {k}"
+                        raise SymmonError(f"{self.method} smoother: the predicted covariance of step {k + 1} is "
+                                          f"singular (at {where})") from None
+                    Ps[r, k] = Ss[r, k] @ Ss[r, k].T
+                    continue
                 C = P[r, k] @ Phi[r, k + 1].T  # Cov(x_k, x_{k+1}⁻) of eq. (5)
                 try:
                     G = np.linalg.solve(Pp[r, k + 1], C.T).T
@@ -680,10 +793,38 @@ class ContinuousDiscreteKalmanFilter(Filter):
         if not all_finite(xs, Ps):
             raise SymmonError(f"{self.method} smoother: NaN or inf in the backward pass")
         if not bank:
-            xs, Ps = xs[0], Ps[0]
-        for a in (xs, Ps):
-            a.flags.writeable = False
-        return SmootherResult(xs, Ps, fwd, angle_states=tuple(angles), method=self.method)
+            xs, Ps, Ss = xs[0], Ps[0], None if Ss is None else Ss[0]
+        for a in (xs, Ps, Ss):
+            if a is not None:
+                a.flags.writeable = False
+        return SmootherResult(xs, Ps, fwd, angle_states=tuple(angles), method=self.method, P_chol=Ss)
+
+    @staticmethod
+    def _sqrt_backward(x: np.ndarray, S: np.ndarray, x_pred: np.ndarray, Phi: np.ndarray, Qt: np.ndarray,
+                       xs_next: np.ndarray, Ss_next: np.ndarray, angles: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        """One backward step of eq. (7): (x^s_k, S^s_k) from the filtered factor S_k, the
+        interval's Φ and Q̃, and the next smoothed (x^s_{k+1}, S^s_{k+1}).
+
+        Raises
+        ------
+        numpy.linalg.LinAlgError
+            A singular predicted factor tria(Y)."""
+        A = Phi @ S
+        Qf = matrix_sqrt(Qt)
+        Y = np.hstack([A, Qf])  # the joint columns of x_{k+1}; those of x_k are [S, 0]
+        Sy = _tria(Y)
+        if np.any(np.diag(Sy) <= 0):
+            raise np.linalg.LinAlgError("the predicted factor has a zero on its diagonal")
+        # G = C (Sy Syᵀ)⁻¹ with C = S Aᵀ = P Φᵀ: two triangular solves, no inverse of P⁻.
+        G = scipy.linalg.solve_triangular(Sy, scipy.linalg.solve_triangular(Sy, A @ S.T, lower=True),
+                                          lower=True, trans="T").T
+        d = xs_next - x_pred
+        if angles:
+            d = wrap_components(d, angles)
+        xs = x + G @ d
+        if angles:
+            xs = wrap_components(xs, angles)
+        return xs, _tria(np.hstack([S - G @ A, -G @ Qf, G @ Ss_next]))
 
 
 def _tria(A: np.ndarray) -> np.ndarray:
@@ -737,6 +878,11 @@ def continuous_kalman_filter(sde: SDE, Q: Any = None, H: Any = None, R: Any = No
     if not sde.is_linear:
         raise ModelError(f"KalmanFilter needs a linear SDE (a = A x + b, L constant); SDE {sde.name!r} is not: its "
                          "continuous-discrete EKF is sm.NonlinearKalmanFilter(sde, h, None, R, 'ekf')")
+    if not sde.is_time_invariant:
+        raise ModelError(f"KalmanFilter of an SDE takes the exact transition e^(A dt), which a time-varying SDE "
+                         f"({sde.name!r} depends on {sde.time}) has not: its continuous-discrete EKF, "
+                         "sm.NonlinearKalmanFilter(sde, h, None, R, 'ekf'), integrates the moment equations with the "
+                         "absolute time (exact for a linear SDE to the integrator's tolerance)")
     Hm = np.atleast_2d(np.asarray(H, dtype=float)) if H is not None else None
     if Hm is None or Hm.ndim != 2 or Hm.shape[1] != sde.n or not np.all(np.isfinite(Hm)):
         raise ShapeError(f"H must be a finite (n_y, {sde.n}) matrix for an SDE of {sde.n} states, got "
