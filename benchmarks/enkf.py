@@ -38,6 +38,7 @@ import numpy as np  # noqa: E402
 import sympy as sp  # noqa: E402
 
 import symmon as sm  # noqa: E402
+from report import fmt, write_section  # noqa: E402
 
 HEADING = "## Ensemble Kalman filters"
 FORCING, DT, MEMBERS, RUNS = 8.0, 0.05, 40, 10
@@ -158,8 +159,6 @@ def dapper_times(python: str, n: int, K: int) -> dict | None:
         return None
 
 
-def fmt(t: float) -> str:
-    return f"{t * 1e6:.0f} µs" if t < 1e-3 else (f"{t * 1e3:.1f} ms" if t < 1 else f"{t:.2f} s")
 
 
 def run(quick: bool, dapper: str | None) -> str:
@@ -215,16 +214,6 @@ def run(quick: bool, dapper: str | None) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_section(path: Path, text: str) -> None:
-    """Replace the section under HEADING in ``path`` (or append it)."""
-    old = path.read_text(encoding="utf-8") if path.exists() else ""
-    start = old.find(HEADING + "\n")
-    if start < 0:
-        new = old.rstrip("\n") + "\n\n" + text
-    else:
-        end = old.find("\n## ", start + len(HEADING))
-        new = old[:start] + text + ("" if end < 0 else old[end:])
-    path.write_text(new, encoding="utf-8")
 
 
 def main() -> None:

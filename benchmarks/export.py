@@ -38,7 +38,8 @@ os.environ.setdefault("SYMMON_CACHE", tempfile.mkdtemp(prefix="symmon-bench-expo
 import numpy as np  # noqa: E402
 
 import symmon as sm  # noqa: E402
-from filters import Problem, best, cv_range_bearing, rel_diff, targets, write_section  # noqa: E402
+from filters import Problem, best, cv_range_bearing, rel_diff, targets  # noqa: E402
+from report import write_section  # noqa: E402
 
 HEADING = "## Exported C filter"
 

@@ -26,7 +26,6 @@ import argparse
 import json
 import os
 import platform
-import re
 import subprocess
 import sys
 import tempfile
@@ -44,7 +43,7 @@ import sympy as sp  # noqa: E402
 from filterpy.kalman import ExtendedKalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter  # noqa: E402
 
 import symmon as sm  # noqa: E402
-from symmon.io import atomic_write_text  # noqa: E402
+from report import write_section  # noqa: E402
 
 ALPHA, BETA, KAPPA = 1.0, 2.0, 0.0
 HEADING = "## Nonlinear filters"
@@ -296,12 +295,6 @@ def publish(lines: list[str], out: Path | None, heading: str) -> str:
     return text
 
 
-def write_section(path: Path, text: str, heading: str = HEADING) -> None:
-    """Replace the section ``heading`` of ``path`` (or append it), leaving the others."""
-    old = path.read_text() if path.exists() else ""
-    pat = re.compile(rf"^{re.escape(heading)}\n.*?(?=^## |\Z)", re.S | re.M)
-    new = pat.sub(lambda _: text + "\n", old) if pat.search(old) else old.rstrip("\n") + "\n\n" + text + "\n"
-    atomic_write_text(path, new)
 
 
 def main() -> None:

@@ -45,6 +45,7 @@ import numpy as np  # noqa: E402
 import sympy as sp  # noqa: E402
 
 import symmon as sm  # noqa: E402
+from report import best_wall_cpu, fmt, write_section  # noqa: E402
 
 HEADING = "## Particle filter"
 # The NumPy and Stone Soup filters run on one OpenBLAS thread (threadpoolctl): their products
@@ -278,20 +279,8 @@ def best(fn, repeats: int) -> float:
     return best_wall_cpu(fn, repeats)[0]
 
 
-def best_wall_cpu(fn, repeats: int) -> tuple[float, float]:
-    """The least wall time and the least process CPU time (all threads) of ``repeats`` calls,
-    """
-    wall, cpu = [], []
-    for _ in range(repeats):
-        t, c = time.perf_counter(), time.process_time()
-        fn()
-        wall.append(time.perf_counter() - t)
-        cpu.append(time.process_time() - c)
-    return min(wall), min(cpu)
 
 
-def fmt(s: float) -> str:
-    return f"{s * 1e6:.0f} µs" if s < 1e-3 else f"{s * 1e3:.1f} ms" if s < 1 else f"{s:.2f} s"
 
 
 def run(quick: bool) -> str:
@@ -349,18 +338,6 @@ def run(quick: bool) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_section(path: Path, text: str) -> None:
-    """Replace the section under the heading of ``text`` (its first line) in ``path`` (or
-    append it)."""
-    heading = text.split("\n", 1)[0]
-    old = path.read_text(encoding="utf-8") if path.exists() else ""
-    start = old.find(heading + "\n")
-    if start < 0:
-        new = old.rstrip("\n") + "\n\n" + text
-    else:
-        end = old.find("\n## ", start + len(heading))
-        new = old[:start] + text + ("" if end < 0 else old[end:])
-    path.write_text(new, encoding="utf-8")
 
 
 def main() -> None:

@@ -38,6 +38,7 @@ os.environ.setdefault("SYMMON_CACHE", tempfile.mkdtemp(prefix="symmon-bench-smoo
 import numpy as np  # noqa: E402
 
 import symmon as sm  # noqa: E402
+from report import fmt  # noqa: E402
 from filters import ALPHA, BETA, KAPPA, best, cv_range_bearing, rel_diff, targets, publish  # noqa: E402
 
 HEADING = "## Smoothers and log-likelihood"
@@ -149,10 +150,6 @@ def filterpy_times(p, ys1, repeat):
     return {"one": best(run, max(1, repeat // 3)), "x": xs}
 
 
-def fmt(t):
-    if t is None:
-        return "—"
-    return f"{t * 1e6:.0f} µs" if t < 1e-3 else f"{t * 1e3:.1f} ms" if t < 1 else f"{t:.2f} s"
 
 
 def ratio(a, b):

@@ -38,7 +38,7 @@ import numpy as np  # noqa: E402
 import sympy as sp  # noqa: E402
 
 import symmon as sm  # noqa: E402
-from filters import write_section  # noqa: E402  (benchmarks/filters.py)
+from report import write_section  # noqa: E402
 from symmon.filters.gaussian.step import compiled_step  # noqa: E402
 
 HEADING = "## Square-root filters"
