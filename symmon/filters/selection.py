@@ -145,7 +145,7 @@ from ..core.gaussian import Gaussian
 from ..core.mixture import GaussianMixture
 from ..core.model import Model, with_param_values
 from ..core.sde import SDE
-from ..errors import ArgumentError, ArgumentTypeError, SymmonError, plain_repr
+from ..errors import ArgumentError, ArgumentTypeError, NonFiniteError, SingularMatrixError, SymmonError, plain_repr
 from ..measures.advice import DEFAULT_TOL, GAUSSIAN_MON_LIMIT, MAX_GSF_COMPONENTS, cost as transform_cost, filter_advice
 from ..measures.mon import nonlinearity
 from ..transforms.quadrature import GaussHermite
@@ -154,6 +154,7 @@ from .base import Filter
 from .gaussian.nonlinear import NonlinearKalmanFilter
 from .mixture.imm import IMM
 from .registry import filter_entry, make_filter
+from .results import quadratic_forms
 from .sde_advice import discretize_track
 from .simulation import simulate
 
@@ -890,17 +891,14 @@ def _last_nees(flt: Filter | None, xs: np.ndarray, ys: np.ndarray, x0: Gaussian,
 
 
 def _nees_or_inf(e: np.ndarray, P: np.ndarray) -> float:
-    """eᵀ P⁻¹ e, +inf where e or P is not finite or P is not positive definite."""
-    if not (np.isfinite(e).all() and np.isfinite(P).all()):
-        return math.inf
-    d = np.sqrt(np.diag(P))
-    if not (d > 0).all():
+    """eᵀ P⁻¹ e as the filters' NEES computes it (:func:`~symmon.filters.results.quadratic_forms`),
+    +inf where e is not finite or P is singular or not finite: a lost track."""
+    if not np.isfinite(e).all():
         return math.inf
     try:
-        z = np.linalg.solve(np.linalg.cholesky(P / np.outer(d, d)), e / d)
-    except np.linalg.LinAlgError:
+        v = float(quadratic_forms(np.asarray(e, dtype=float), np.asarray(P, dtype=float))[()])
+    except (SingularMatrixError, NonFiniteError):
         return math.inf
-    v = float(z @ z)
     return v if math.isfinite(v) else math.inf
 
 
