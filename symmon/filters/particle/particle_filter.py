@@ -663,7 +663,8 @@ class ParticleFilter(Filter):
         return self.space.n, self.space.n_y
 
     def step_cost(self) -> int:
-        """f and h at each particle."""
+        """f and h at each particle (a tempered update's stages, which depend on the data, not
+        counted: 5 evaluations of h per particle and stage, at the collapsing steps only)."""
         return 2 * self.particles
 
     def _check_prior(self, x0: Any, P0: None, runs: int | None) -> tuple[Any, None]:
