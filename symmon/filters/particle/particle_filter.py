@@ -574,16 +574,17 @@ class ParticleFilter(Filter):
         N, n, ang = self.particles, self.space.n, sorted(self.space.angle_states)
         target = TEMPER_ESS * N
         m0, C0 = (a[0] for a in weighted_moments(X[None], np.exp(logW)[None], ang))
-        L0 = semidefinite_cholesky(C0)  # the predicted cloud's Gaussian (pseudo-inverse where singular)
+        L0 = semidefinite_cholesky(C0)  # the predicted cloud's Gaussian (on the span of its factor)
         keep = np.abs(np.diag(L0)) > 0
+        white = scipy.linalg.solve_triangular(L0[np.ix_(keep, keep)], np.eye(int(keep.sum())), lower=True)
         lik = lambda Z: self._loglik(Z[None], y[None], None if p is None else p[None])[0][0]  # noqa: E731
 
         def log_prior(Z: np.ndarray) -> np.ndarray:
             d = Z - m0
             if ang:
                 d[:, ang] = wrap_angle(d[:, ang])
-            u = scipy.linalg.solve_triangular(L0[np.ix_(keep, keep)], d[:, keep].T, lower=True)
-            return -0.5 * (u * u).sum(axis=0)
+            u = rows_times(d[:, keep], white)  # a solve per call took 5 ms for 2000 rows
+            return -0.5 * (u * u).sum(axis=1)
 
         def ess(t: np.ndarray) -> float:
             e = np.exp(t - t.max())
