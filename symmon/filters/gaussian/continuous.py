@@ -77,11 +77,16 @@ sum of squares where (5) adds a difference.  The result holds the factors (``P_c
 discrete square-root smoother's does.
 
 a(x), its Jacobian and L Q_c Lᵀ are one compiled CasADi model of the SDE's symbols
-(:func:`symmon.compile.compiled.compiled_with_params`).  The equations are integrated by
-``scipy.integrate.solve_ivp`` (explicit Runge–Kutta 4(5), adaptive steps, ``rtol`` and
-``atol``); an interval that needs more than ``max_evaluations`` evaluations of the right-hand
-side (a stiff or diverging drift), or whose moments turn NaN or inf, raises
-:class:`~symmon.errors.SymmonError` naming the step, the run and the state.  The measurement
+(:func:`symmon.compile.compiled.compiled_with_params`).  The equations are integrated by the
+Dormand–Prince 5(4) pair with adaptive steps (``rtol`` and ``atol``): with a C compiler, in one
+C call for the whole bank (:mod:`symmon.filters.gaussian._cdkernel`, ``cd_loop.c``: the
+intervals and the updates of every run, with the step-size control of
+``scipy.integrate.solve_ivp``'s RK45 step for step, so that the two take the same steps up to
+rounding); else, with ``integrator="solve_ivp"``, and for a run the C hands back (an interval
+it could not integrate, an update that is not finite) from that step on, by
+``scipy.integrate.solve_ivp`` (RK45).  An interval that needs more than ``max_evaluations``
+evaluations of the right-hand side (a stiff or diverging drift), or whose moments turn NaN or
+inf, raises :class:`~symmon.errors.SymmonError` naming the step, the run and the state.  The measurement
 update at each t_k is that of :class:`~symmon.NonlinearKalmanFilter` with the same rule
 (missing components, angles and the log-likelihood as there).
 
@@ -102,8 +107,8 @@ to the rounding of that sum.  The exact prediction (4) and ``sm.KalmanFilter(sde
 refuse a time-varying SDE: it has no single e^{A dt}.
 
 Banks: each run is integrated on its own (its own adaptive steps, so that a bank filtered in
-shards gives the whole bank's numbers bit for bit); the measurement updates of all the runs
-are one compiled call per step.
+shards gives the whole bank's numbers bit for bit); in C the runs are spread over threads, on
+solve_ivp the measurement updates of all the runs are one compiled call per step.
 
 References
 ----------
@@ -203,7 +208,8 @@ class ContinuousDiscreteKalmanFilter(Filter):
         ``"ukf"``, ``"ckf"``, ``"ghkf"``, or a rule with points (``UT(...)``,
         ``GaussHermite(order)``).
     rtol, atol : float, default 1e-6 and 1e-9
-        The tolerances of the adaptive integrator (``scipy.integrate.solve_ivp``) on m and P.
+        The tolerances of the adaptive integrator (Dormand–Prince 5(4), in C or by
+        ``scipy.integrate.solve_ivp``) on m and P.
     max_step : float, optional
         The largest integration step (default: unbounded).
     max_evaluations : int, default :data:`MAX_EVALUATIONS`
@@ -218,6 +224,10 @@ class ContinuousDiscreteKalmanFilter(Filter):
         For a linear time-invariant SDE (a = A x + b, L constant): predict by the exact transition (eq. (4):
         e^{A dt} and Van Loan's Q(dt) at each interval) instead of integrating; with TT1 this
         is the Kalman filter of the SDE (``sm.KalmanFilter(sde, None, H, R)`` builds it).
+    integrator : {"auto", "solve_ivp"}, default ``"auto"``
+        ``"auto"``: the compiled Dormand–Prince loop where the compile policy gives C (module
+        notes), else ``scipy.integrate.solve_ivp``; ``"solve_ivp"``: always the latter.  Both
+        take the same steps, up to rounding.
 
     Notes
     -----
