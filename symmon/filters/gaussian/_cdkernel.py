@@ -126,6 +126,10 @@ class CompiledCD(CompiledLoop):
         argtypes = [vp, ll, vp, ll] + [vp] * 13 + [ll, ll, vp, ll, ll] + [vp] * 4
         super().__init__(upd, code, argtypes, also=funcs)
 
+    def wait(self, timeout: float | None = None) -> bool:
+        """Wait for a background C build; True when the compiled loop is in use."""
+        return self._lib.wait(timeout)
+
     def __call__(self, m0: np.ndarray, P0: np.ndarray, Y: np.ndarray, th: np.ndarray, p: np.ndarray,
                  dts: np.ndarray, starts: np.ndarray, R: np.ndarray, out: dict, tol: tuple[float, float, float],
                  max_evaluations: int, transition: bool) -> np.ndarray | None:

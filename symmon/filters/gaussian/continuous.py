@@ -766,6 +766,14 @@ class ContinuousDiscreteKalmanFilter(Filter):
             return "solve_ivp"
         return {"compiled": "compiled", "vm": "solve_ivp"}.get(kernel.evaluator, "solve_ivp (C build running)")
 
+    def wait_compiled(self, timeout: float | None = None) -> str:
+        """Wait for the compiled loop's C build, if one runs in the background (at most
+        ``timeout`` seconds); :attr:`evaluator` then."""
+        kernel = self._kernel()
+        if kernel is not None:
+            kernel.wait(timeout)
+        return self.evaluator
+
     def _compiled_pass(self, m: np.ndarray, P: np.ndarray, Y: np.ndarray, pv: np.ndarray, starts: np.ndarray,
                        out: dict, Phi: np.ndarray | None, Qt: np.ndarray | None, transition: bool) -> np.ndarray | None:
         """Every run and step in the compiled loop, written into ``out``, ``Phi`` and ``Qt``
