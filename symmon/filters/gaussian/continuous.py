@@ -77,11 +77,16 @@ sum of squares where (5) adds a difference.  The result holds the factors (``P_c
 discrete square-root smoother's does.
 
 a(x), its Jacobian and L Q_c Lᵀ are one compiled CasADi model of the SDE's symbols
-(:func:`symmon.compile.compiled.compiled_with_params`).  The equations are integrated by
-``scipy.integrate.solve_ivp`` (explicit Runge–Kutta 4(5), adaptive steps, ``rtol`` and
-``atol``); an interval that needs more than ``max_evaluations`` evaluations of the right-hand
-side (a stiff or diverging drift), or whose moments turn NaN or inf, raises
-:class:`~symmon.errors.SymmonError` naming the step, the run and the state.  The measurement
+(:func:`symmon.compile.compiled.compiled_with_params`).  The equations are integrated by the
+Dormand–Prince 5(4) pair with adaptive steps (``rtol`` and ``atol``): with a C compiler, in one
+C call for the whole bank (:mod:`symmon.filters.gaussian._cdkernel`, ``cd_loop.c``: the
+intervals and the updates of every run, with the step-size control of
+``scipy.integrate.solve_ivp``'s RK45 step for step, so that the two take the same steps up to
+rounding); else, with ``integrator="solve_ivp"``, and for a run the C hands back (an interval
+it could not integrate, an update that is not finite) from that step on, by
+``scipy.integrate.solve_ivp`` (RK45).  An interval that needs more than ``max_evaluations``
+evaluations of the right-hand side (a stiff or diverging drift), or whose moments turn NaN or
+inf, raises :class:`~symmon.errors.SymmonError` naming the step, the run and the state.  The measurement
 update at each t_k is that of :class:`~symmon.NonlinearKalmanFilter` with the same rule
 (missing components, angles and the log-likelihood as there).
 
@@ -102,8 +107,8 @@ to the rounding of that sum.  The exact prediction (4) and ``sm.KalmanFilter(sde
 refuse a time-varying SDE: it has no single e^{A dt}.
 
 Banks: each run is integrated on its own (its own adaptive steps, so that a bank filtered in
-shards gives the whole bank's numbers bit for bit); the measurement updates of all the runs
-are one compiled call per step.
+shards gives the whole bank's numbers bit for bit); in C the runs are spread over threads, on
+solve_ivp the measurement updates of all the runs are one compiled call per step.
 
 References
 ----------
@@ -129,6 +134,7 @@ import scipy.linalg
 import sympy as sp
 from numpy.typing import ArrayLike
 
+from ...compile.ccache import has_compiler
 from ...compile.compiled import CompiledModel, compiled_with_params
 from ...core.angles import wrap_components
 from ...core.arrays import all_finite, readonly
@@ -147,12 +153,17 @@ from ..names import filter_rule
 from ..results import KalmanResult, SmootherResult, nees_of
 from ._sqrtstep import noise_factor
 from .nonlinear import NonlinearKalmanFilter
+from ._cdkernel import CompiledCD, compiled_cd
 from .step import compiled_step
 
-__all__ = ["ContinuousDiscreteKalmanFilter", "DT", "MAX_EVALUATIONS", "continuous_filter", "continuous_kalman_filter"]
+__all__ = ["ContinuousDiscreteKalmanFilter", "DT", "INTEGRATORS", "MAX_EVALUATIONS", "continuous_filter",
+           "continuous_kalman_filter"]
 
 #: The name of the per-step parameter that gives the interval before each measurement.
 DT = "dt"
+#: The integrators: ``"auto"``, the compiled Dormand–Prince loop in C where the compile policy
+#: gives C (else solve_ivp), or ``"solve_ivp"`` always.
+INTEGRATORS = ("auto", "solve_ivp")
 #: The default bound on the evaluations of the moment equations' right-hand side per interval.
 MAX_EVALUATIONS = 20_000
 #: The fewest evaluations of the right-hand side in an interval: solve_ivp's RK45 evaluates it
@@ -197,7 +208,8 @@ class ContinuousDiscreteKalmanFilter(Filter):
         ``"ukf"``, ``"ckf"``, ``"ghkf"``, or a rule with points (``UT(...)``,
         ``GaussHermite(order)``).
     rtol, atol : float, default 1e-6 and 1e-9
-        The tolerances of the adaptive integrator (``scipy.integrate.solve_ivp``) on m and P.
+        The tolerances of the adaptive integrator (Dormand–Prince 5(4), in C or by
+        ``scipy.integrate.solve_ivp``) on m and P.
     max_step : float, optional
         The largest integration step (default: unbounded).
     max_evaluations : int, default :data:`MAX_EVALUATIONS`
@@ -212,6 +224,10 @@ class ContinuousDiscreteKalmanFilter(Filter):
         For a linear time-invariant SDE (a = A x + b, L constant): predict by the exact transition (eq. (4):
         e^{A dt} and Van Loan's Q(dt) at each interval) instead of integrating; with TT1 this
         is the Kalman filter of the SDE (``sm.KalmanFilter(sde, None, H, R)`` builds it).
+    integrator : {"auto", "solve_ivp"}, default ``"auto"``
+        ``"auto"``: the compiled Dormand–Prince loop where the compile policy gives C (module
+        notes), else ``scipy.integrate.solve_ivp``; ``"solve_ivp"``: always the latter.  Both
+        take the same steps, up to rounding.
 
     Notes
     -----
@@ -244,6 +260,7 @@ class ContinuousDiscreteKalmanFilter(Filter):
     max_evaluations: int = MAX_EVALUATIONS
     square_root: bool = False
     exact: bool = False
+    integrator: str = "auto"
     update: NonlinearKalmanFilter = field(init=False, repr=False)
     drift_model: Model = field(init=False, repr=False)
     points: tuple | None = field(init=False, repr=False)
@@ -279,6 +296,9 @@ class ContinuousDiscreteKalmanFilter(Filter):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ArgumentTypeError(f"{name} must be True or False, got {getattr(self, name)!r}")
             object.__setattr__(self, name, bool(getattr(self, name)))
+        if self.integrator not in INTEGRATORS:
+            raise ArgumentError(f"integrator must be one of {', '.join(map(repr, INTEGRATORS))}, "
+                                f"got {plain_repr(self.integrator)}")
         if self.exact and not (sde.is_linear and sde.is_time_invariant):
             raise ModelError(f"exact=True needs a linear time-invariant SDE (a = A x + b, L constant); SDE {sde.name!r} "
                              "is not: integrate its moment equations (exact=False)")
@@ -486,6 +506,11 @@ class ContinuousDiscreteKalmanFilter(Filter):
         th = self._theta(theta, t, "predict")
         if not self.time_invariant:
             th = th[:-1]  # _integrate appends the running time
+        # The compiled loop over one interval with nothing measured (its x⁻ wraps angle states,
+        # which this method does not: those stay on solve_ivp); a failure is named below.
+        moments = None if self.angle_states else self._compiled_interval(m, P, float(dt), th, t)
+        if moments is not None:
+            return moments
         try:
             m1, P1, S1, _, _ = self._predict(m, P, np.linalg.cholesky(P) if self.square_root else None, float(dt), th,
                                           t_start=0.0 if t is None else float(t))
@@ -495,6 +520,33 @@ class ContinuousDiscreteKalmanFilter(Filter):
                                             dt, "")) from None
         except _Stop as stop:
             raise SymmonError(self._stopped(stop, dt, "")) from None
+
+    def _compiled_interval(self, m: np.ndarray, P: np.ndarray, dt: float, theta: np.ndarray,
+                           t: float | None) -> tuple[np.ndarray, np.ndarray] | None:
+        """:meth:`predict` by the compiled loop (a step whose measurement is missing), or None
+        (no compiled loop, a bad argument, or a stopped interval: :meth:`predict` goes on)."""
+        n, n_y = self.sizes
+        names = [str(s) for s in self.params]
+        if self._kernel() is None or m.shape != (n,) or P.shape != (n, n) or theta.shape != (len(self.sde.params),) \
+                or not (np.isfinite(dt) and dt > 0):
+            return None
+        pv = np.zeros((1, 1, len(names)))
+        pv[0, 0, :len(theta)] = theta
+        pv[0, 0, names.index(DT)] = dt
+        try:
+            cov = np.linalg.cholesky(P)[None] if self.square_root else P[None].copy()
+        except np.linalg.LinAlgError:
+            return None
+        shapes = {"x": (n,), "P": (n, n), "x_pred": (n,), "P_pred": (n, n), "innovation": (n_y,), "S": (n_y, n_y),
+                  "nis": (), "loglik": ()}
+        if self.square_root:
+            shapes.update(P_chol=(n, n), P_pred_chol=(n, n))
+        out = {k: np.empty((1, 1) + v) for k, v in shapes.items()}
+        failed = self._compiled_pass(m[None].copy(), cov, np.full((1, 1, n_y), np.nan), pv,
+                                     np.array([[0.0 if t is None else float(t)]]), out, None, None, False)
+        if failed is None or failed[0] >= 0:
+            return None
+        return out["x_pred"][0, 0], out["P_pred"][0, 0]
 
     def _predict(self, m: np.ndarray, P: np.ndarray, S: np.ndarray | None, dt: float, theta: np.ndarray,
                  transition: bool = False, t_start: float = 0.0) -> tuple:
@@ -637,8 +689,20 @@ class ContinuousDiscreteKalmanFilter(Filter):
         Phi = np.empty((R, K, n, n)) if transition else None
         Qt = np.empty((R, K, n, n)) if transition and self.square_root else None
         starts = self._starts(call, pv[..., j_dt])
-        for k in range(K):
-            for r in range(R):
+        # The compiled loop runs the whole bank; a run it hands back (failed[r] = k) goes on in
+        # Python from step k, from the state its step k − 1 left (which names a failure).
+        first = np.zeros(R, dtype=np.int64)
+        failed = self._compiled_pass(m, S if S is not None else P, Y, pv, starts, out, Phi, Qt, transition)
+        if failed is not None:
+            first = np.where(failed < 0, K, failed)
+            for r in np.flatnonzero((failed > 0)):
+                k = failed[r] - 1
+                m[r], P[r] = out["x"][r, k], out["P"][r, k]
+                if S is not None:
+                    S[r] = out["P_chol"][r, k]
+        for k in range(int(first.min()) if R else K, K):
+            rows = np.flatnonzero(first <= k)
+            for r in rows:
                 dt = float(pv[r, k, j_dt])
                 try:
                     m[r], P[r], S_r, Phi_r, Qt_r = self._predict(m[r], P[r], None if S is None else S[r], dt,
@@ -654,13 +718,13 @@ class ContinuousDiscreteKalmanFilter(Filter):
                     Phi[r, k] = Phi_r
                     if Qt is not None:
                         Qt[r, k] = Qt_r
-            params = {s: pv[:, k, c][:, None] for s, c in zip(h_names, h_cols)} or None
-            step = self._update(Y[:, k:k + 1], m, P if S is None else S, params, k, runs)
+            params = {s: pv[rows, k, c][:, None] for s, c in zip(h_names, h_cols)} or None
+            step = self._update(Y[rows, k:k + 1], m[rows], (P if S is None else S)[rows], params, k, runs, rows)
             for key in out:
-                out[key][:, k] = step[key][:, 0]
-            m, P = out["x"][:, k].copy(), out["P"][:, k].copy()
+                out[key][rows, k] = step[key][:, 0]
+            m[rows], P[rows] = out["x"][rows, k], out["P"][rows, k]
             if S is not None:
-                S = out["P_chol"][:, k].copy()
+                S[rows] = out["P_chol"][rows, k]
         nees = None if call.truth is None else nees_of(out["x"], out["P"], call.truth, sorted(self.angle_states))
         kept = call.keep
         arrays = {key: v for key, v in out.items()
@@ -678,6 +742,61 @@ class ContinuousDiscreteKalmanFilter(Filter):
         return KalmanResult(**arrays, measured=measured, n_y=n_y, n_x=n, angle_states=tuple(sorted(self.angle_states)),
                             method=self.method), Phi, Qt
 
+    def _kernel(self) -> CompiledCD | None:
+        """The compiled loop of this filter (:mod:`symmon.filters.gaussian._cdkernel`), or None:
+        ``integrator="solve_ivp"``, the exact prediction, or no compiler (the compile policy)."""
+        if self.integrator == "solve_ivp" or self.exact or not has_compiler():
+            return None
+        sde, upd = self.sde, self.update
+        tparams = list(self.drift_model.params)
+        key = (self.drift_model, self.h, self.transform, self.angle_states, self.square_root)
+        return compiled_cd(key, list(sde.states), list(sde.drift), list(self.drift_model.outputs[sde.n:]), tparams,
+                           upd.f_model, upd.h_model, self.transform, self.angle_states, tuple(upd.params),
+                           self.square_root, not self.time_invariant, self.points)
+
+    @property
+    def evaluator(self) -> str:
+        """What integrates the moment equations: ``"compiled"`` (the Dormand–Prince loop in C
+        over the whole bank), ``"solve_ivp"`` (Python: ``integrator="solve_ivp"``, no compiler,
+        or the exact prediction, ``"exact"``) or ``"solve_ivp (C build running)"``."""
+        if self.exact:
+            return "exact"
+        kernel = self._kernel()
+        if kernel is None:
+            return "solve_ivp"
+        return {"compiled": "compiled", "vm": "solve_ivp"}.get(kernel.evaluator, "solve_ivp (C build running)")
+
+    def wait_compiled(self, timeout: float | None = None) -> str:
+        """Wait for the compiled loop's C build, if one runs in the background (at most
+        ``timeout`` seconds); :attr:`evaluator` then."""
+        kernel = self._kernel()
+        if kernel is not None:
+            kernel.wait(timeout)
+        return self.evaluator
+
+    def _compiled_pass(self, m: np.ndarray, P: np.ndarray, Y: np.ndarray, pv: np.ndarray, starts: np.ndarray,
+                       out: dict, Phi: np.ndarray | None, Qt: np.ndarray | None, transition: bool) -> np.ndarray | None:
+        """Every run and step in the compiled loop, written into ``out``, ``Phi`` and ``Qt``
+        (``P``: the factors in the square-root form); the step at which each run stopped
+        (or -1), or None when there is no compiled loop (yet)."""
+        kernel = self._kernel()
+        if kernel is None:
+            return None
+        names = [str(s) for s in self.params]
+        n_theta = len(self.sde.params)
+        h_cols = [names.index(str(s)) for s in self.update.params]
+        arrays = dict(out, Phi=Phi, Qt=Qt)
+        if self.square_root:
+            arrays["P"] = arrays["P_pred"] = None  # formed from the factors below
+        tol = (self.rtol, self.atol, np.inf if self.max_step is None else self.max_step)
+        failed = kernel(m, P, Y, pv[..., :n_theta], pv[..., h_cols], pv[..., names.index(DT)], starts, self.update.R,
+                        arrays, tol, self.max_evaluations, transition)
+        if failed is not None and self.square_root:
+            for key in ("P", "P_pred"):
+                Sk = out[key + "_chol"]
+                out[key][...] = np.matmul(Sk, np.swapaxes(Sk, -1, -2))
+        return failed
+
     def _starts(self, call: FilterCall, dts: np.ndarray) -> np.ndarray:
         """The start time t_{k−1} of each interval, (R, K): ``t0`` and the measurement times
         before each when the call has times, else the cumulative sums of the intervals ``dts``
@@ -692,9 +811,9 @@ class ContinuousDiscreteKalmanFilter(Filter):
         return np.concatenate([np.zeros((R, 1)), np.cumsum(dts, axis=1)[:, :-1]], axis=1)
 
     def _update(self, Y: np.ndarray, m: np.ndarray, P: np.ndarray, params: dict | None, k: int,
-                runs: int | None) -> dict[str, np.ndarray]:
-        """The measurement update of every run at step ``k`` (the identity's prediction, then
-        the discrete filter's update); ``P`` the factors S in the square-root form, which the
+                runs: int | None, rows: np.ndarray) -> dict[str, np.ndarray]:
+        """The measurement update of the runs ``rows`` at step ``k`` (the identity's prediction,
+        then the discrete filter's update); ``P`` the factors S in the square-root form, which the
         compiled square-root step reads as they are (no covariance formed and factored again)."""
         upd = self.update
         if not self.square_root:
@@ -708,7 +827,7 @@ class ContinuousDiscreteKalmanFilter(Filter):
         out = compiled(m, P, Y, upd.Q, upd.R, params=pv, check_finite=True, factored=True)
         bad = out.pop("first_nonfinite")
         if (bad >= 0).any():
-            r = int(np.argmax(bad >= 0))
+            r = int(rows[np.argmax(bad >= 0)])
             where = f"step {k}" if runs is None else f"run {r}, step {k}"
             raise SymmonError(f"{self.method}: the update produced NaN or inf at {where} (the innovation covariance "
                               "is singular, or h is undefined at the prediction)")
