@@ -158,14 +158,15 @@ is good enough for the continuous-discrete ones.
 
 Their time.  The continuous-discrete filter integrates each run on its own in Python
 (``scipy.integrate.solve_ivp``): measured about 80 evaluations of the moment equations per
-interval at rtol 1e-6 where ``step_cost()`` counts 8, 1.3 to 6 ms per step and run against
+interval at rtol 1e-6 where ``step_cost()`` counts 8, 1 to 6 ms per step and run against
 0.4 to 3 µs for the compiled discrete EKF, so the budget's estimate counts its cost at
 :data:`CD_SECONDS_PER_COST` per unit.  Without a budget the pilot runs them on every run:
-the default advice (64 runs, a tail look and a second look) measured 2.7 s on white-noise
-acceleration with 12 intervals (0.16 s without the CD rows), 16 s on Van der Pol with 6
-(1.6 s) and 53 s with 24 (2.2 s), nearly all in the CD-EKF's and CD-CKF's pilot and tail
-look; ``budget=`` bounds it by the estimate, and ``candidates=`` without the ``"cd-"`` names
-leaves them out.
+the default advice (64 runs, a tail look and a second look; two runs each on a shared
+two-core machine) took 1.7 to 2.7 s on white-noise acceleration with 12 intervals (0.07 to
+0.16 s without the CD rows), 6 to 16 s on Van der Pol with 6 (0.9 to 1.6 s) and 30 to 53 s
+with 24 (1.8 to 2.2 s), nearly all in the CD-EKF's and CD-CKF's pilot and tail look, where
+:attr:`FilterAdvice.estimated_seconds` said 4.2, 6.0 and 24 s; ``budget=`` bounds it by
+that estimate, and ``candidates=`` without the ``"cd-"`` names leaves them out.
 """
 
 from __future__ import annotations
@@ -528,9 +529,13 @@ class _Option:
     seconds_per_cost: float = SECONDS_PER_EVALUATION  # the budget's estimate per unit of cost (module notes)
 
 
-def _step_seconds(o: _Option) -> float:
-    """The estimated seconds of one step of one run of option ``o``, for ``budget``."""
-    return o.cost * o.seconds_per_cost
+def _estimate(runs: int, steps: int, options: Sequence[_Option]) -> float:
+    """The estimated seconds of ``runs`` runs of ``steps`` steps of each of ``options``, for
+    ``budget``: runs · steps · Σ cost · seconds per unit of cost, the costs summed per rate."""
+    by_rate: dict[float, int] = {}
+    for o in options:
+        by_rate[o.seconds_per_cost] = by_rate.get(o.seconds_per_cost, 0) + o.cost
+    return float(sum(runs * steps * c * rate for rate, c in by_rate.items()))
 
 
 def _is_linear(f: Model, h: Model) -> bool:
@@ -1214,7 +1219,7 @@ def advise_filter(f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian, steps:
         options = _given(candidates, f, h, Q, R, tol, track)
 
     # The pilot's runs: as many as the budget's cost estimate allows.
-    per_run = K * sum(_step_seconds(o) for o in options if o.kept)
+    per_run = _estimate(1, K, [o for o in options if o.kept])
     Rp = int(runs)
     if budget is not None:
         Rp = int(min(int(runs), max(MIN_RUNS, math.floor(budget / per_run) if per_run > 0 else int(runs))))
@@ -1248,9 +1253,9 @@ def advise_filter(f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian, steps:
             pilot(i)
     spent = Rp * per_run
 
-    def affordable(seconds: float, R_: int) -> bool:
-        """Whether R_ runs of candidates of ``seconds`` per step fit in what is left of ``budget`` (by the estimate)."""
-        return budget is None or spent + R_ * K * seconds <= budget
+    def affordable(opts: Sequence[_Option], R_: int) -> bool:
+        """Whether R_ runs of the options ``opts`` fit in what is left of ``budget`` (by the estimate)."""
+        return budget is None or spent + _estimate(R_, K, opts) <= budget
 
     # The particle filter grown where the pilot (or the second look) found it not credible or at risk.
     menu_pf = next((o for o in options if o.name == "pf"), None)
@@ -1266,16 +1271,16 @@ def advise_filter(f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian, steps:
         N = PF_GROWTH * int(o.settings["particles"])
         if N > most:
             return None
-        if not affordable(2 * N * SECONDS_PER_EVALUATION, Rp):
-            notes.append(f"{row.name} was not grown to {N} particles: the budget would not hold")
-            return None
         settings = {**o.settings, "particles": N}
         why = ("not credible" if not row.credible else "at risk") + f" with {o.settings['particles']} particles"
         grown = _Option(f"pf (N={N})", (lambda st=settings: make_filter("pf", f, h, Q, R, tol=tol, settings=st)),
                         settings, 2 * N, True, f"{row.name} {why}: {PF_GROWTH} times the particles")
+        if not affordable([grown], Rp):
+            notes.append(f"{row.name} was not grown to {N} particles: the budget would not hold")
+            return None
         options.insert(i + 1, grown)
         rows.insert(i + 1, None)
-        spent += Rp * K * _step_seconds(grown)
+        spent += _estimate(Rp, K, [grown])
         pilot(i + 1)
         return i + 1
 
@@ -1295,17 +1300,17 @@ def advise_filter(f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian, steps:
 
     # The tail look: the credible candidates on runs whose truths start in the prior's tail (module notes).
     looking = [j for j, r in enumerate(rows) if r is not None and r.kept and r.credible and r.run_nees is not None]
-    tail_seconds = sum(_step_seconds(options[j]) for j in looking)
+    tail_options = [options[j] for j in looking]
     tail_runs = 0
     tail = None
-    if len(looking) >= 2 and affordable(tail_seconds, Rp):
+    if len(looking) >= 2 and affordable(tail_options, Rp):
         tail_seed = int(np.random.SeedSequence([int(seed), 3]).generate_state(1)[0] % 2**31)
         try:
             tail = _tail_bank(f, h, Q, R, x0, K, Rp, pv, tail_seed)
         except SymmonError as exc:  # a truth from the widened prior left the model's domain
             notes.append(f"no tail look: {exc}")
     if tail is not None:
-        spent += Rp * K * tail_seconds
+        spent += _estimate(Rp, K, tail_options)
         tail_runs = Rp
         xs_t, ys_t, _, w_tail = tail
         bound = lost_track_threshold(n)
@@ -1361,9 +1366,8 @@ def advise_filter(f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian, steps:
         if not credible or choice.name in looked or choice.run_nees is None:
             break
         j = next(k for k, r in enumerate(rows) if r is choice)
-        step = _step_seconds(options[j])
-        R2 = int(min(SECOND_LOOK * Rp, math.floor(pilot_spent / (K * step))))
-        if R2 < MIN_RUNS or not affordable(step, R2):
+        R2 = int(min(SECOND_LOOK * Rp, math.floor(pilot_spent / _estimate(1, K, [options[j]]))))
+        if R2 < MIN_RUNS or not affordable([options[j]], R2):
             notes.append(f"no second look at {choice.name}: "
                          + ("its runs would cost more than the pilot" if R2 < MIN_RUNS else "the budget would not hold"))
             break
@@ -1375,7 +1379,7 @@ def advise_filter(f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian, steps:
             xs2, ys2 = simulate(f, h, Q, R, x0, K, runs=SECOND_LOOK * Rp, params=params, seed=look_seed)
         looked.add(choice.name)
         extra = max(extra, R2)
-        spent += R2 * K * step
+        spent += _estimate(R2, K, [options[j]])
         more, _ = _pilot_row(options[j], xs2[:R2], ys2[:R2], x0, params, scale, (f_m, h_m, v_f, v_h),
                              np.array([], dtype=int), notes)
         rows[j] = _merged(choice, more, n)
