@@ -20,7 +20,9 @@
    that brings each component's MoN to √2 · tol (:func:`~symmon.measures.advice.filter_advice`)
    where M exceeds √2 · tol; the particle filter, with its particle count, proposal and
    regularisation, where M exceeds :data:`~symmon.measures.advice.GAUSSIAN_MON_LIMIT`;
-   an IMM over the given ``modes``;
+   an IMM over the given ``modes``; with an SDE as f, its continuous-discrete filters
+   (:data:`CD_CANDIDATES`: the CD-EKF always, the CD-CKF where M exceeds √2 · tol; "An SDE
+   as f" below);
 4. runs the kept candidates on the same simulated tracks (a pilot study: each candidate one
    compiled bank over the runs) and measures each one's RMSE, its time-mean ANEES (the mean
    over the steps of the mean NEES over the runs), whether a run's covariance collapsed
@@ -128,11 +130,51 @@ every candidate loses carries each rate), so it is not grown there.  The other f
 are unchanged, with the same numbers on the fresh runs (``docs/select.md``).
 
 ``budget`` (seconds) bounds the pilot by running fewer tracks: the runs are
-budget / (steps · Σ cost · :data:`SECONDS_PER_EVALUATION`), at least :data:`MIN_RUNS`
-and at most ``runs``, decided from the cost estimate (never from a clock), so that the
-choice stays reproducible; a grown particle filter, the tail look and the second look run only
-where the estimate of what is left holds them (:attr:`FilterAdvice.estimated_seconds` counts them).  Compilation is not in the estimate: a filter's first call
-compiles its C once (cached on disk).
+budget / (steps · Σ cost · seconds per unit of cost), at least :data:`MIN_RUNS` and at most
+``runs``, decided from the cost estimate (never from a clock), so that the choice stays
+reproducible; a unit of cost is :data:`SECONDS_PER_EVALUATION` for the compiled filters and
+:data:`CD_SECONDS_PER_COST` for the continuous-discrete ones (below); a grown particle filter,
+the tail look and the second look run only where the estimate of what is left holds them
+(:attr:`FilterAdvice.estimated_seconds` counts them).  Compilation is not in the estimate: a
+filter's first call compiles its C once (cached on disk).
+
+**An SDE as f** (``times=`` or ``params["dt"]``, ``Q=None``).  The SDE is discretised over
+the measurement intervals (:mod:`symmon.filters.sde_advice`: exact for a linear SDE, else
+order 1.5 with the sub-steps that bring a sub-step's MoN within ``tol``), and the menu's
+discrete filters filter that model f(x, w; θ, dt), ``dt`` a per-step parameter.  Beside them
+the SDE's continuous-discrete filters (:class:`~symmon.ContinuousDiscreteKalmanFilter`: the
+moment ODEs integrated between measurements, no discretisation) are candidates: ``"cd-ekf"``
+(TT1) always, ``"cd-ckf"`` (the cubature points of the menu's CKF) where M exceeds
+√2 · tol, as the sigma-point filters; the caller's ``candidates``
+may name ``"cd-"`` and any rule of the class (``"cd-ukf"``, with its integrator's settings).
+They filter the same measurements with the same ``params``, the intervals by the ``dt``
+route (the same numbers, bit for bit, as ``times=``), and are scored, chosen, looked at in
+the tail and a second time, and counted in the budget by the same rules as every candidate:
+their cost is their ``step_cost()`` (at least 8 evaluations of the moment equations per
+interval and the update), their MoN columns are their own priors' through the discretised
+step, as every row's.  On a linear SDE the CD-EKF's moment ODEs are those of the exact
+discretisation: its pilot numbers are the Kalman filter's to the integrator's tolerance,
+and the cheaper discrete filter of the same RMSE is chosen; where the CD-EKF's RMSE is
+within :data:`RMSE_MARGIN` of the best and it is cheaper (the UKF of an 8-sub-step
+discretisation of Van der Pol: 42 against its 27), it is chosen, and ``advice.filter`` is
+the built continuous-discrete filter (``filter(ys, x0, times=...)`` or
+``params={"dt": ...}``).  :attr:`FilterAdvice.sde` holds the discretisation and the MoN of
+the flow over the longest interval from x0 (``sm.nonlinearity(sde, x0, dt=...)``) and of
+one sub-step, which the head of the table and the CD rows' reasons repeat.  The pilot's truth
+is the discretised model's for every candidate; :mod:`symmon.filters.sde_advice` says why that
+is good enough for the continuous-discrete ones.
+
+Their time.  The continuous-discrete filter integrates each run on its own in Python
+(``scipy.integrate.solve_ivp``): measured about 80 evaluations of the moment equations per
+interval at rtol 1e-6 where ``step_cost()`` counts 8, 1 to 6 ms per step and run against
+0.4 to 3 µs for the compiled discrete EKF, so the budget's estimate counts its cost at
+:data:`CD_SECONDS_PER_COST` per unit.  Without a budget the pilot runs them on every run:
+the default advice (64 runs, a tail look and a second look; two runs each on a shared
+two-core machine) took 1.7 to 2.7 s on white-noise acceleration with 12 intervals (0.07 to
+0.16 s without the CD rows), 6 to 16 s on Van der Pol with 6 (0.9 to 1.6 s) and 30 to 53 s
+with 24 (1.8 to 2.2 s), nearly all in the CD-EKF's and CD-CKF's pilot and tail look, where
+:attr:`FilterAdvice.estimated_seconds` said 4.2, 6.0 and 24 s; ``budget=`` bounds it by
+that estimate, and ``candidates=`` without the ``"cd-"`` names leaves them out.
 """
 
 from __future__ import annotations
@@ -159,18 +201,20 @@ from ..measures.mon import nonlinearity
 from ..transforms.quadrature import GaussHermite
 from ..transforms.taylor import TT1, TT2
 from .base import Filter
+from .gaussian.continuous import ContinuousDiscreteKalmanFilter
 from .gaussian.nonlinear import NonlinearKalmanFilter
 from .mixture.imm import IMM
 from .registry import filter_entry, make_filter
 from .results import quadratic_forms
-from .sde_advice import discretize_track
+from .sde_advice import DiscretizedTrack, discretize_track
 from .simulation import simulate
 
 __all__ = ["advise_filter", "FilterAdvice", "FilterCandidate", "candidate_menu", "ANEES_BAND", "RMSE_MARGIN",
            "MON_STEPS", "MIN_RUNS", "SECONDS_PER_EVALUATION", "ILL_CONDITIONED", "SCREENING_RUNS", "confirm_advice",
            "Confirmation", "BATCH_RUNS", "predictive_credibility", "CREDIBLE_PROBABILITY", "BOOTSTRAP_SAMPLES",
            "PF_GROWTH", "PF_GROWTH_STEPS", "COLLAPSED_ESS", "SECOND_LOOK", "TAIL_SHARE", "TAIL_WIDTH", "LOST_ALPHA",
-           "LOST_BANK_PROBABILITY", "LOST_RATE_RATIO", "lost_track_threshold", "tail_weights"]
+           "LOST_BANK_PROBABILITY", "LOST_RATE_RATIO", "lost_track_threshold", "tail_weights", "CD_CANDIDATES",
+           "CD_SECONDS_PER_COST"]
 
 #: Credible: the time-mean ANEES within these multiples of the state dimension n.
 ANEES_BAND = (0.3, 1.5)
@@ -367,6 +411,11 @@ class FilterAdvice:
     tail_look : int
         The runs of the tail look (module notes) that the credible candidates ran on; 0 when
         there was none (fewer than two credible candidates, or the budget would not hold it).
+    sde : dict or None
+        With an SDE as f: its discretisation (``method``, ``substeps`` per interval), the
+        ``longest_interval`` (in the SDE's time unit) and the MoN (W^full, unitless) of the
+        flow over it from x0 (``flow_mon``) and of one sub-step (``substep_mon``)
+        (:class:`~symmon.filters.sde_advice.DiscretizedTrack`); None for a discrete f.
     """
 
     filter: Filter
@@ -386,6 +435,7 @@ class FilterAdvice:
     notes: tuple[str, ...] = field(default_factory=tuple)
     second_look: int = 0
     tail_look: int = 0
+    sde: dict | None = None
 
     @property
     def chosen(self) -> FilterCandidate:
@@ -439,6 +489,12 @@ class FilterAdvice:
                 f"runs would be credible; below {CREDIBLE_PROBABILITY:g} a credible candidate is at risk\n"
                 f"lost: the tail look's rate of lost tracks per run (NEES at the last step above the χ²_n quantile of "
                 f"1 − {LOST_ALPHA:g}), weighted back to the prior\n")
+        if self.sde is not None:
+            s = self.sde
+            head += (f"SDE: the MoN of its flow over the longest interval ({s['longest_interval']:.3g}) from x0 "
+                     f"{s['flow_mon']:.3g}, of one of the discretisation's sub-steps {s['substep_mon']:.3g} "
+                     f"({s['method']!r}, {s['substeps']} per interval); the cd- rows integrate the SDE's moment "
+                     "equations\n")
         notes = "".join(f"\nnote: {n}" for n in self.notes)
         return head + self.table + f"\nrecommendation: {self.recommendation}" + notes
 
@@ -450,14 +506,15 @@ class FilterAdvice:
         return {"choice": self.choice, "method": self.filter.method, "credible": self.credible,
                 "recommendation": self.recommendation, "mon": self.mon, "n": self.n, "steps": self.steps,
                 "runs": self.runs, "runs_asked": self.runs_asked, "second_look": self.second_look,
-                "tail_look": self.tail_look, "budget": self.budget,
+                "tail_look": self.tail_look, "budget": self.budget, "sde": self.sde,
                 "estimated_seconds": self.estimated_seconds, "tol": self.tol, "seed": self.seed,
                 "anees_band": [ANEES_BAND[0] * self.n, ANEES_BAND[1] * self.n], "rmse_margin": RMSE_MARGIN,
                 "credible_probability": CREDIBLE_PROBABILITY,
                 "units": {"mon": "unitless", "rmse": "unitless (prior standard deviations)", "anees": "unitless",
                           "run_nees": "unitless", "credibility": "probability", "lost_rate": "probability per run",
                           "flagged": "share of steps", "cost": "model evaluations per step",
-                          "seconds_per_step": "seconds per step and run"},
+                          "seconds_per_step": "seconds per step and run", "flow_mon": "unitless",
+                          "substep_mon": "unitless", "longest_interval": "the SDE's time unit"},
                 "candidates": [c.as_dict() for c in self.candidates], "notes": list(self.notes)}
 
 
@@ -487,6 +544,16 @@ class _Option:
     kept: bool
     reason: str
     readmit: bool = False  # run it when no kept candidate is credible
+    seconds_per_cost: float = SECONDS_PER_EVALUATION  # the budget's estimate per unit of cost (module notes)
+
+
+def _estimate(runs: int, steps: int, options: Sequence[_Option]) -> float:
+    """The estimated seconds of ``runs`` runs of ``steps`` steps of each of ``options``, for
+    ``budget``: runs · steps · Σ cost · seconds per unit of cost, the costs summed per rate."""
+    by_rate: dict[float, int] = {}
+    for o in options:
+        by_rate[o.seconds_per_cost] = by_rate.get(o.seconds_per_cost, 0) + o.cost
+    return float(sum(runs * steps * c * rate for rate, c in by_rate.items()))
 
 
 def _is_linear(f: Model, h: Model) -> bool:
@@ -507,9 +574,12 @@ def _gaussian_cost(rule: Any, f: Model, h: Model, h_times: int = 1) -> int:
 
 def candidate_menu(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, P0: np.ndarray, mon_f: float, mon_h: float,
                    tol: float, *, modes: Sequence[Any] | None = None, ill_conditioned: bool = False,
-                   seed: int = 0) -> list[_Option]:
+                   seed: int = 0, track: DiscretizedTrack | None = None) -> list[_Option]:
     """The candidates for a track whose MoN along it is ``mon_f`` (f) and ``mon_h`` (h), each
     with the pruning's verdict (module notes).
+
+    With ``track`` (an SDE discretised over the measurement intervals, f its model), the
+    continuous-discrete filters of the SDE join the menu (module notes).
 
     Returns
     -------
@@ -551,6 +621,8 @@ def candidate_menu(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, P0: np.ndar
         out.append(_Option(name, build, settings, c, mon > lin,
                            f"the MoN {mon:.3g} > sqrt(2) tol: sigma points follow the curvature" if mon > lin else
                            small + ", at a higher cost"))
+    if track is not None:  # an SDE: its continuous-discrete filters, on the SDE itself
+        out += _continuous_options(track, h, R, tol, mon, lin, small)
     if ill_conditioned:
         base = "ukf" if mon > lin else "ekf"
         rule = filter_entry(base).rule(tol, {})
@@ -591,6 +663,42 @@ def candidate_menu(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, P0: np.ndar
 
         out.append(_Option("imm", imm, {"modes": M, "rule": rule.filter_label(), "stay": IMM_STAY},
                            M * _gaussian_cost(rule, f, h), True, f"{M} modes given (f and {M - 1} alternative(s))"))
+    return out
+
+
+#: The continuous-discrete candidates of an SDE: name, the rule of its moment equations and update.
+CD_CANDIDATES = (("cd-ekf", "ekf"), ("cd-ckf", "ckf"))
+#: The budget's estimate of a continuous-discrete candidate's seconds per unit of its ``step_cost()``
+#: (module notes): its integrator runs in Python, each run on its own, about 80 evaluations of the moment
+#: equations per interval at rtol 1e-6 where ``step_cost()`` counts 8, each some 40 µs (measured 0.5e-4 to
+#: 1.3e-4 s per unit on white-noise acceleration and Van der Pol).
+CD_SECONDS_PER_COST = 1e-4
+
+
+def _continuous_filter(track: DiscretizedTrack, h: Model, R: np.ndarray, rule: str,
+                       settings: Mapping[str, Any] | None = None) -> ContinuousDiscreteKalmanFilter:
+    """The continuous-discrete filter of ``track``'s SDE by ``rule`` ("ekf", "ckf", ...), with
+    the integrator's ``settings`` (rtol, atol, max_evaluations, square_root)."""
+    return ContinuousDiscreteKalmanFilter(track.sde, h, R, rule, **dict(settings or {}))
+
+
+def _continuous_options(track: DiscretizedTrack, h: Model, R: np.ndarray, tol: float, mon: float, lin: float,
+                        small: str) -> list[_Option]:
+    """The continuous-discrete candidates of the SDE (module notes): the CD-EKF always, the
+    CD-CKF where the MoN brings in the sigma-point filters; their cost is their own
+    ``step_cost()``."""
+    out = []
+    flow = (f"the flow's MoN over the longest interval ({track.longest:.3g}) from x0 {track.flow_mon:.3g}, the "
+            f"discretisation's {track.substeps} sub-step(s) not used")
+    for name, rule in CD_CANDIDATES:
+        flt = _continuous_filter(track, h, R, rule)
+        what = (f"the SDE's moment ODEs integrated between measurements (adaptive RK45, rtol {flt.rtol:g}) by "
+                f"{'TT1' if rule == 'ekf' else rule.upper() + ' points'}, no discretisation; {flow}")
+        keep = rule == "ekf" or mon > lin
+        why = what if rule == "ekf" else (f"the MoN {mon:.3g} > sqrt(2) tol: {what}" if keep else
+                                          small + f", at a higher cost ({what})")
+        out.append(_Option(name, (lambda flt=flt: flt), {"transform": rule, "rtol": flt.rtol, "atol": flt.atol},
+                           flt.step_cost(), keep, why, seconds_per_cost=CD_SECONDS_PER_COST))
     return out
 
 
@@ -674,8 +782,15 @@ def _check(f: Any, h: Any, x0: Any, steps: Any, tol: Any, runs: Any, budget: Any
         raise ArgumentError(f"seed must be a non-negative integer, got {plain_repr(seed)}")
 
 
-def _given(candidates: Sequence[Any], f: Model, h: Model, Q: np.ndarray, R: np.ndarray, tol: float) -> list[_Option]:
-    """The caller's ``candidates``: registered names or (name, settings) pairs, all kept."""
+#: The settings a continuous-discrete candidate given by the caller may have.
+_CD_SETTINGS = ("rtol", "atol", "max_step", "max_evaluations", "square_root")
+
+
+def _given(candidates: Sequence[Any], f: Model, h: Model, Q: np.ndarray, R: np.ndarray, tol: float,
+           track: DiscretizedTrack | None = None) -> list[_Option]:
+    """The caller's ``candidates``: registered names or (name, settings) pairs, all kept; with
+    an SDE (``track``) also ``"cd-"`` and a rule (``"cd-ekf"``, ``"cd-ckf"``, ``"cd-ukf"``,
+    ``"cd-ghkf"``), its continuous-discrete filter."""
     out = []
     for i, c in enumerate(candidates):
         name, settings = (c, {}) if isinstance(c, str) else c if (
@@ -683,8 +798,20 @@ def _given(candidates: Sequence[Any], f: Model, h: Model, Q: np.ndarray, R: np.n
         if name is None:
             raise ArgumentTypeError(f"candidates[{i}] must be a filter name (e.g. 'ukf') or a (name, settings) pair, "
                                     f"got {plain_repr(c)}")
-        entry = filter_entry(name)  # an unknown name: SymmonError listing the known ones
         settings = dict(settings)
+        if name.startswith("cd-"):
+            if track is None:
+                raise ArgumentError(f"candidates[{i}] = {name!r} is a continuous-discrete filter: it needs an SDE as f")
+            unknown = sorted(set(settings) - set(_CD_SETTINGS))
+            if unknown:
+                raise ArgumentError(f"candidates[{i}] = {name!r}: unknown settings {unknown}; known: "
+                                    f"{', '.join(_CD_SETTINGS)}")
+            flt = _continuous_filter(track, h, R, name[3:], settings)  # an unknown rule: SymmonError
+            out.append(_Option(name if not any(o.name == name for o in out) else f"{name} #{i}",
+                               (lambda flt=flt: flt), settings, flt.step_cost(), True, "given by the caller",
+                               seconds_per_cost=CD_SECONDS_PER_COST))
+            continue
+        entry = filter_entry(name)  # an unknown name: SymmonError listing the known ones
         flt = make_filter(entry.name, f, h, Q, R, tol=tol, settings=settings)
         out.append(_Option(entry.name if not any(o.name == entry.name for o in out) else f"{entry.name} #{i}",
                            (lambda flt=flt: flt), settings, flt.step_cost(), True, "given by the caller"))
@@ -982,8 +1109,9 @@ def advise_filter(f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian, steps:
         :class:`~symmon.NonlinearKalmanFilter`.  f may be an :class:`~symmon.SDE` (with
         ``Q=None``, and ``times`` or ``params["dt"]``): it is discretised over the intervals,
         its sub-steps chosen by the MoN within ``tol``
-        (:func:`symmon.filters.sde_advice.discretize_track`), and the advice is for that
-        model, its ``dt`` a per-step parameter (a note says which discretisation).
+        (:func:`symmon.filters.sde_advice.discretize_track`), the discrete candidates filter
+        that model, its ``dt`` a per-step parameter (a note says which discretisation), and
+        the SDE's continuous-discrete filters join them (module notes, "An SDE as f").
     Q, R : array_like
         Process and measurement noise covariances.
     x0 : Gaussian
@@ -1010,6 +1138,8 @@ def advise_filter(f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian, steps:
     candidates : sequence of str or (str, dict), optional
         Filters to compare instead of the menu: registered names (``"ukf"``) or
         (name, settings) pairs (``("pf", {"particles": 500})``); all are run, whatever the MoN.
+        With an SDE as f also ``"cd-"`` and a rule (``"cd-ekf"``, ``"cd-ckf"``, ...), with
+        the settings ``rtol``, ``atol``, ``max_step``, ``max_evaluations``, ``square_root``.
     times, t0 : array_like and float, optional
         With an SDE as f: the measurement times t_1 < … < t_K after ``t0`` (the time of x0).
 
@@ -1037,12 +1167,9 @@ def advise_filter(f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian, steps:
     >>> a.choice, a.credible
     ('kf', True)
     """
-    track = None
-    if isinstance(f, SDE):  # an SDE: discretised over the intervals (symmon.filters.sde_advice)
-        track = discretize_track(f, Q, x0, steps, params, times, t0, tol)
+    track = _sde_track(f, Q, x0, steps, params, times, t0, tol)
+    if track is not None:  # an SDE: discretised over the intervals (symmon.filters.sde_advice)
         f, Q, steps, params = track.f, track.Q, track.steps, track.params
-    elif times is not None or t0 != 0.0:
-        raise ArgumentError("times and t0 apply to an SDE as f; a discrete f takes its intervals as a parameter")
     _check(f, h, x0, steps, tol, runs, budget, seed)
     tol, K = float(tol), int(steps)
     Q, R = np.atleast_2d(np.asarray(Q, dtype=float)), np.atleast_2d(np.asarray(R, dtype=float))
@@ -1050,7 +1177,9 @@ def advise_filter(f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian, steps:
     xs_all, ys_all = simulate(f, h, Q, R, x0, K, runs=int(runs), params=params, seed=int(seed))
     notes: list[str] = [] if track is None else [
         f"the SDE is discretised by {track.method!r} with {track.substeps} sub-step(s) per interval (the MoN of a "
-        f"sub-step within tol from x0); filter with params={{'dt': intervals}}"]
+        f"sub-step within tol from x0: {track.substep_mon:.3g}; of the flow over the longest interval "
+        f"{track.longest:.3g}: {track.flow_mon:.3g}); its filters take params={{'dt': intervals}}, the cd- rows "
+        "integrate the SDE's moment equations (params={'dt': intervals} or times=)"]
     P0 = np.asarray(x0.cov, dtype=float)
     scale = np.sqrt(np.diag(P0)).copy()
     spread = xs_all.reshape(-1, n).std(axis=0)
@@ -1104,14 +1233,14 @@ def advise_filter(f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian, steps:
     mon_h = float(np.nanmax([mon["h"]["prior"], mon["h"]["truth"], 0.0]))
     if candidates is None:
         options = candidate_menu(f, h, Q, R, P0, mon_f, mon_h, tol, modes=modes, ill_conditioned=ill,
-                                 seed=int(seed))
+                                 seed=int(seed), track=track)
     else:
         if modes:
             raise ArgumentError("give modes or candidates, not both (an IMM is built from modes)")
-        options = _given(candidates, f, h, Q, R, tol)
+        options = _given(candidates, f, h, Q, R, tol, track)
 
     # The pilot's runs: as many as the budget's cost estimate allows.
-    per_run = K * sum(o.cost for o in options if o.kept) * SECONDS_PER_EVALUATION
+    per_run = _estimate(1, K, [o for o in options if o.kept])
     Rp = int(runs)
     if budget is not None:
         Rp = int(min(int(runs), max(MIN_RUNS, math.floor(budget / per_run) if per_run > 0 else int(runs))))
@@ -1145,9 +1274,9 @@ def advise_filter(f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian, steps:
             pilot(i)
     spent = Rp * per_run
 
-    def affordable(cost: int, R_: int) -> bool:
-        """Whether R_ runs of a candidate of ``cost`` fit in what is left of ``budget`` (by the estimate)."""
-        return budget is None or spent + R_ * K * cost * SECONDS_PER_EVALUATION <= budget
+    def affordable(opts: Sequence[_Option], R_: int) -> bool:
+        """Whether R_ runs of the options ``opts`` fit in what is left of ``budget`` (by the estimate)."""
+        return budget is None or spent + _estimate(R_, K, opts) <= budget
 
     # The particle filter grown where the pilot (or the second look) found it not credible or at risk.
     menu_pf = next((o for o in options if o.name == "pf"), None)
@@ -1167,16 +1296,16 @@ def advise_filter(f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian, steps:
         had = next((k for k, p in enumerate(options) if p.name == name), None)
         if had is not None:  # grown and piloted before (the second look came back to a smaller one)
             return had
-        if not affordable(2 * N, Rp):
-            notes.append(f"{row.name} was not grown to {N} particles: the budget would not hold")
-            return None
         settings = {**o.settings, "particles": N}
         why = ("not credible" if not row.credible else "at risk") + f" with {o.settings['particles']} particles"
         grown = _Option(name, (lambda st=settings: make_filter("pf", f, h, Q, R, tol=tol, settings=st)),
                         settings, 2 * N, True, f"{row.name} {why}: {PF_GROWTH} times the particles")
+        if not affordable([grown], Rp):
+            notes.append(f"{row.name} was not grown to {N} particles: the budget would not hold")
+            return None
         options.insert(i + 1, grown)
         rows.insert(i + 1, None)
-        spent += Rp * K * grown.cost * SECONDS_PER_EVALUATION
+        spent += _estimate(Rp, K, [grown])
         pilot(i + 1)
         return i + 1
 
@@ -1196,17 +1325,17 @@ def advise_filter(f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian, steps:
 
     # The tail look: the credible candidates on runs whose truths start in the prior's tail (module notes).
     looking = [j for j, r in enumerate(rows) if r is not None and r.kept and r.credible and r.run_nees is not None]
-    tail_cost = sum(options[j].cost for j in looking)
+    tail_options = [options[j] for j in looking]
     tail_runs = 0
     tail = None
-    if len(looking) >= 2 and affordable(tail_cost, Rp):
+    if len(looking) >= 2 and affordable(tail_options, Rp):
         tail_seed = int(np.random.SeedSequence([int(seed), 3]).generate_state(1)[0] % 2**31)
         try:
             tail = _tail_bank(f, h, Q, R, x0, K, Rp, pv, tail_seed)
         except SymmonError as exc:  # a truth from the widened prior left the model's domain
             notes.append(f"no tail look: {exc}")
     if tail is not None:
-        spent += Rp * K * tail_cost * SECONDS_PER_EVALUATION
+        spent += _estimate(Rp, K, tail_options)
         tail_runs = Rp
         xs_t, ys_t, _, w_tail = tail
         bound = lost_track_threshold(n)
@@ -1262,8 +1391,8 @@ def advise_filter(f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian, steps:
         if not credible or choice.name in looked or choice.run_nees is None:
             break
         j = next(k for k, r in enumerate(rows) if r is choice)
-        R2 = int(min(SECOND_LOOK * Rp, math.floor(pilot_spent / (K * choice.cost * SECONDS_PER_EVALUATION))))
-        if R2 < MIN_RUNS or not affordable(choice.cost, R2):
+        R2 = int(min(SECOND_LOOK * Rp, math.floor(pilot_spent / _estimate(1, K, [options[j]]))))
+        if R2 < MIN_RUNS or not affordable([options[j]], R2):
             notes.append(f"no second look at {choice.name}: "
                          + ("its runs would cost more than the pilot" if R2 < MIN_RUNS else "the budget would not hold"))
             break
@@ -1275,7 +1404,7 @@ def advise_filter(f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian, steps:
             xs2, ys2 = simulate(f, h, Q, R, x0, K, runs=SECOND_LOOK * Rp, params=params, seed=look_seed)
         looked.add(choice.name)
         extra = max(extra, R2)
-        spent += R2 * K * choice.cost * SECONDS_PER_EVALUATION
+        spent += _estimate(R2, K, [options[j]])
         more, _ = _pilot_row(options[j], xs2[:R2], ys2[:R2], x0, params, scale, (f_m, h_m, v_f, v_h),
                              np.array([], dtype=int), notes)
         rows[j] = _merged(choice, more, n)
@@ -1296,7 +1425,25 @@ def advise_filter(f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian, steps:
     if flt is None:  # nothing ran: the EKF, built
         flt = make_filter("ekf", f, h, Q, R, tol=tol)
     return FilterAdvice(flt, choice.name, credible, recommendation, tuple(final), mon, n, K, Rp, int(runs),
-                        None if budget is None else float(budget), spent, tol, int(seed), tuple(notes), extra, tail_runs)
+                        None if budget is None else float(budget), spent, tol, int(seed), tuple(notes), extra, tail_runs,
+                        None if track is None else _flow_summary(track))
+
+
+def _sde_track(f: Any, Q: Any, x0: Any, steps: Any, params: Any, times: Any, t0: float, tol: float
+               ) -> DiscretizedTrack | None:
+    """An SDE as f discretised over the intervals (:func:`~symmon.filters.sde_advice.discretize_track`);
+    None for a discrete f, which takes no ``times`` nor ``t0``."""
+    if isinstance(f, SDE):
+        return discretize_track(f, Q, x0, steps, params, times, t0, tol)
+    if times is not None or t0 != 0.0:
+        raise ArgumentError("times and t0 apply to an SDE as f; a discrete f takes its intervals as a parameter")
+    return None
+
+
+def _flow_summary(track: DiscretizedTrack) -> dict:
+    """:attr:`FilterAdvice.sde`: the discretisation and the MoN of the flow."""
+    return {"method": track.method, "substeps": track.substeps, "longest_interval": track.longest,
+            "flow_mon": track.flow_mon, "substep_mon": track.substep_mon}
 
 
 def _merged(a: FilterCandidate, b: FilterCandidate, n: int) -> FilterCandidate:
@@ -1409,8 +1556,9 @@ class Confirmation:
         return hits / len(self.batches[name])
 
 
-def confirm_advice(advice: FilterAdvice, f: Model, h: Model, Q: Any, R: Any, x0: Gaussian, params: dict | None = None,
-                   *, modes: Sequence[Any] | None = None, runs: int = 200, seed: int = 1) -> Confirmation:
+def confirm_advice(advice: FilterAdvice, f: Model | SDE, h: Model, Q: Any, R: Any, x0: Gaussian,
+                   params: dict | None = None, *, modes: Sequence[Any] | None = None, runs: int = 200, seed: int = 1,
+                   times: Any = None, t0: float = 0.0) -> Confirmation:
     """Check an advice on fresh runs: the advised filter against every candidate of its menu.
 
     The menu is the one :func:`advise_filter` built for ``advice`` (the same MoN along the
@@ -1419,17 +1567,21 @@ def confirm_advice(advice: FilterAdvice, f: Model, h: Model, Q: Any, R: Any, x0:
     pilot's), in batches of :data:`BATCH_RUNS` runs (the particle filter's seed changes
     per batch), each filter once on one run before (its compilation is not in its time).
     RMSE, ANEES and credibility are those of the pilot (module notes), over all runs and
-    per batch.
+    per batch.  With an SDE as f (and ``times`` or ``params["dt"]`` as for
+    :func:`advise_filter`), the SDE is discretised as the advice did, the fresh runs are
+    drawn from that model, and the continuous-discrete candidates are on the menu.
 
     Parameters
     ----------
     advice : FilterAdvice
         What :func:`advise_filter` answered for the same ``f``, ``h``, ``Q``, ``R``, ``x0``,
-        ``params`` and ``modes`` (its steps, tol and seed are read from it).
+        ``params``, ``modes``, ``times`` and ``t0`` (its steps, tol and seed are read from it).
     runs : int, default 200
         Fresh runs (at least 2).
     seed : int, default 1
         Of the fresh runs; not the advice's.
+    times, t0 : array_like and float, optional
+        With an SDE as f: the measurement times, as for :func:`advise_filter`.
 
     Returns
     -------
@@ -1445,6 +1597,11 @@ def confirm_advice(advice: FilterAdvice, f: Model, h: Model, Q: Any, R: Any, x0:
     if not isinstance(advice, FilterAdvice):
         raise ArgumentTypeError(f"advice must be a FilterAdvice (advise_filter's answer), got {plain_repr(advice)}")
     K = advice.steps
+    track = _sde_track(f, Q, x0, None if times is not None else K, params, times, t0, advice.tol)
+    if track is not None:
+        if track.steps != K:
+            raise ArgumentError(f"the times give {track.steps} steps, the advice has {K}")
+        f, Q, params = track.f, track.Q, track.params
     _check(f, h, x0, K, advice.tol, runs, None, seed)
     if int(seed) == advice.seed:
         raise ArgumentError(f"seed must differ from the pilot's ({advice.seed}): fresh runs, not the pilot's")
@@ -1464,7 +1621,8 @@ def confirm_advice(advice: FilterAdvice, f: Model, h: Model, Q: Any, R: Any, x0:
     none = np.array([], dtype=int)
     per: dict[str, list[tuple[FilterCandidate, float]]] = {}
     menus = [candidate_menu(f, h, Q, R, P0, mon_f, mon_h, advice.tol, modes=modes, ill_conditioned=ill,
-                            seed=int(np.random.SeedSequence([int(seed), b]).generate_state(1)[0] % 2**31))
+                            seed=int(np.random.SeedSequence([int(seed), b]).generate_state(1)[0] % 2**31),
+                            track=track)
              for b in range(len(spans))]
     grown = [c for c in advice.candidates if c.kept and c.name.startswith("pf (N=")]
     for menu in menus:  # the particle filters the advice grew, after the menu's, with each batch's seed
