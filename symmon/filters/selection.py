@@ -130,10 +130,9 @@ every candidate loses carries each rate), so it is not grown there.  The other f
 are unchanged, with the same numbers on the fresh runs (``docs/select.md``).
 
 ``budget`` (seconds) bounds the pilot by running fewer tracks: the runs are
-budget / (steps · Σ cost · seconds per unit of cost), at least :data:`MIN_RUNS` and at most
-``runs``, decided from the cost estimate (never from a clock), so that the choice stays
-reproducible; a unit of cost is :data:`SECONDS_PER_EVALUATION` for the compiled filters and
-:data:`CD_SECONDS_PER_COST` for the continuous-discrete ones (below); a grown particle filter,
+budget / (steps · Σ cost · :data:`SECONDS_PER_EVALUATION`), at least :data:`MIN_RUNS` and at
+most ``runs``, decided from the cost estimate (never from a clock), so that the choice stays
+reproducible; a grown particle filter,
 the tail look and the second look run only where the estimate of what is left holds them
 (:attr:`FilterAdvice.estimated_seconds` counts them).  Compilation is not in the estimate: a
 filter's first call compiles its C once (cached on disk).
@@ -164,17 +163,14 @@ one sub-step, which the head of the table and the CD rows' reasons repeat.  The 
 is the discretised model's for every candidate; :mod:`symmon.filters.sde_advice` says why that
 is good enough for the continuous-discrete ones.
 
-Their time.  The continuous-discrete filter integrates each run on its own in Python
-(``scipy.integrate.solve_ivp``): measured about 80 evaluations of the moment equations per
-interval at rtol 1e-6 where ``step_cost()`` counts 8, 1 to 6 ms per step and run against
-0.4 to 3 µs for the compiled discrete EKF, so the budget's estimate counts its cost at
-:data:`CD_SECONDS_PER_COST` per unit.  Without a budget the pilot runs them on every run:
-the default advice (64 runs, a tail look and a second look; two runs each on a shared
-two-core machine) took 1.7 to 2.7 s on white-noise acceleration with 12 intervals (0.07 to
-0.16 s without the CD rows), 6 to 16 s on Van der Pol with 6 (0.9 to 1.6 s) and 30 to 53 s
-with 24 (1.8 to 2.2 s), nearly all in the CD-EKF's and CD-CKF's pilot and tail look, where
-:attr:`FilterAdvice.estimated_seconds` said 4.2, 6.0 and 24 s; ``budget=`` bounds it by
-that estimate, and ``candidates=`` without the ``"cd-"`` names leaves them out.
+Their time.  The continuous-discrete filter's intervals and updates are one compiled call
+per bank (Dormand–Prince 5(4) with scipy's step control, :mod:`symmon.filters.gaussian.continuous`):
+measured on white-noise acceleration (12 intervals) and Van der Pol (24), 1.0–1.6·10⁻⁷ s per
+unit of ``step_cost()`` against the discrete filters' 0.4–1.2·10⁻⁷ (the adaptive steps take
+about 80 evaluations of the moment equations per interval at rtol 1e-6, ``step_cost()``
+counts 8, but an evaluation is a few hundred flops in C), so the budget's estimate takes one
+rate for all; the default advice took 0.11 s and 1.2 s there (it was 1.7–2.7 s and 30–53 s
+while the integrator ran in Python).
 """
 
 from __future__ import annotations
@@ -213,8 +209,7 @@ __all__ = ["advise_filter", "FilterAdvice", "FilterCandidate", "candidate_menu",
            "MON_STEPS", "MIN_RUNS", "SECONDS_PER_EVALUATION", "ILL_CONDITIONED", "SCREENING_RUNS", "confirm_advice",
            "Confirmation", "BATCH_RUNS", "predictive_credibility", "CREDIBLE_PROBABILITY", "BOOTSTRAP_SAMPLES",
            "PF_GROWTH", "PF_GROWTH_STEPS", "COLLAPSED_ESS", "SECOND_LOOK", "TAIL_SHARE", "TAIL_WIDTH", "LOST_ALPHA",
-           "LOST_BANK_PROBABILITY", "LOST_RATE_RATIO", "lost_track_threshold", "tail_weights", "CD_CANDIDATES",
-           "CD_SECONDS_PER_COST"]
+           "LOST_BANK_PROBABILITY", "LOST_RATE_RATIO", "lost_track_threshold", "tail_weights", "CD_CANDIDATES"]
 
 #: Credible: the time-mean ANEES within these multiples of the state dimension n.
 ANEES_BAND = (0.3, 1.5)
@@ -544,16 +539,12 @@ class _Option:
     kept: bool
     reason: str
     readmit: bool = False  # run it when no kept candidate is credible
-    seconds_per_cost: float = SECONDS_PER_EVALUATION  # the budget's estimate per unit of cost (module notes)
 
 
 def _estimate(runs: int, steps: int, options: Sequence[_Option]) -> float:
     """The estimated seconds of ``runs`` runs of ``steps`` steps of each of ``options``, for
-    ``budget``: runs · steps · Σ cost · seconds per unit of cost, the costs summed per rate."""
-    by_rate: dict[float, int] = {}
-    for o in options:
-        by_rate[o.seconds_per_cost] = by_rate.get(o.seconds_per_cost, 0) + o.cost
-    return float(sum(runs * steps * c * rate for rate, c in by_rate.items()))
+    ``budget``: runs · steps · Σ cost · :data:`SECONDS_PER_EVALUATION`."""
+    return float(runs * steps * sum(o.cost for o in options) * SECONDS_PER_EVALUATION)
 
 
 def _is_linear(f: Model, h: Model) -> bool:
@@ -668,11 +659,6 @@ def candidate_menu(f: Model, h: Model, Q: np.ndarray, R: np.ndarray, P0: np.ndar
 
 #: The continuous-discrete candidates of an SDE: name, the rule of its moment equations and update.
 CD_CANDIDATES = (("cd-ekf", "ekf"), ("cd-ckf", "ckf"))
-#: The budget's estimate of a continuous-discrete candidate's seconds per unit of its ``step_cost()``
-#: (module notes): its integrator runs in Python, each run on its own, about 80 evaluations of the moment
-#: equations per interval at rtol 1e-6 where ``step_cost()`` counts 8, each some 40 µs (measured 0.5e-4 to
-#: 1.3e-4 s per unit on white-noise acceleration and Van der Pol).
-CD_SECONDS_PER_COST = 1e-4
 
 
 def _continuous_filter(track: DiscretizedTrack, h: Model, R: np.ndarray, rule: str,
@@ -698,7 +684,7 @@ def _continuous_options(track: DiscretizedTrack, h: Model, R: np.ndarray, tol: f
         why = what if rule == "ekf" else (f"the MoN {mon:.3g} > sqrt(2) tol: {what}" if keep else
                                           small + f", at a higher cost ({what})")
         out.append(_Option(name, (lambda flt=flt: flt), {"transform": rule, "rtol": flt.rtol, "atol": flt.atol},
-                           flt.step_cost(), keep, why, seconds_per_cost=CD_SECONDS_PER_COST))
+                           flt.step_cost(), keep, why))
     return out
 
 
@@ -808,8 +794,7 @@ def _given(candidates: Sequence[Any], f: Model, h: Model, Q: np.ndarray, R: np.n
                                     f"{', '.join(_CD_SETTINGS)}")
             flt = _continuous_filter(track, h, R, name[3:], settings)  # an unknown rule: SymmonError
             out.append(_Option(name if not any(o.name == name for o in out) else f"{name} #{i}",
-                               (lambda flt=flt: flt), settings, flt.step_cost(), True, "given by the caller",
-                               seconds_per_cost=CD_SECONDS_PER_COST))
+                               (lambda flt=flt: flt), settings, flt.step_cost(), True, "given by the caller",))
             continue
         entry = filter_entry(name)  # an unknown name: SymmonError listing the known ones
         flt = make_filter(entry.name, f, h, Q, R, tol=tol, settings=settings)

@@ -12,7 +12,7 @@ import sympy as sp
 
 import symmon as sm
 from symmon.errors import ArgumentError
-from symmon.filters.selection import CD_SECONDS_PER_COST, MIN_RUNS, SECONDS_PER_EVALUATION, confirm_advice
+from symmon.filters.selection import MIN_RUNS, SECONDS_PER_EVALUATION, confirm_advice
 from symmon.filters.sde_advice import discretize_track
 
 p, v = sp.symbols("p v", real=True)
@@ -130,21 +130,20 @@ def test_a_chosen_cd_filter_is_built_and_takes_the_intervals_either_way() -> Non
 
 
 def test_the_budget_counts_the_cd_filters_cost(linear) -> None:
-    """The pilot's runs are budget / (steps · Σ cost · seconds per unit of cost) over the kept
-    candidates, the CD-EKF's step_cost among them at CD_SECONDS_PER_COST (its integrator's
-    estimate), the discrete filters' at SECONDS_PER_EVALUATION."""
+    """The pilot's runs are budget / (steps · Σ cost · SECONDS_PER_EVALUATION) over the kept
+    candidates, the CD-EKF's step_cost among them (its integrator is compiled: one rate)."""
     kept = [c for c in linear.candidates if c.kept]
     assert "cd-ekf" in [c.name for c in kept]
 
     def seconds(c):
-        return c.cost * (CD_SECONDS_PER_COST if c.name.startswith("cd-") else SECONDS_PER_EVALUATION)
+        return c.cost * SECONDS_PER_EVALUATION
 
     per_run = linear.steps * sum(seconds(c) for c in kept)
     budget = 20.5 * per_run
     a = sm.advise_filter(WNA, H, None, R_WNA, X0, None, {"q": 0.3}, times=TIMES, runs=64, seed=1, budget=budget)
     assert a.runs == 20 >= MIN_RUNS and _row(a, "cd-ekf").runs == 20
-    # what is left holds the EKF's second look, not a tail look that runs the CD-EKF again
-    assert a.estimated_seconds <= budget and a.second_look == 60 and a.choice == "ekf"
+    # what is left (half a run's worth) holds neither a tail look nor a second look
+    assert a.estimated_seconds <= budget and a.second_look == 0 and a.choice == "ekf"
     assert _row(a, "cd-ekf").credible and _row(a, "ekf").credible and a.tail_look == 0
     without = linear.steps * sum(seconds(c) for c in kept if c.name != "cd-ekf")
     assert math.floor(budget / without) > 64  # without the CD-EKF's cost the pilot would run all it was asked
