@@ -225,7 +225,8 @@ def main() -> None:
     import numpy as np
     from filters import publish
     from peers import exponent
-    from smoothers import fmt, ratio
+    from report import fmt
+    from smoothers import ratio
 
     load0 = os.getloadavg()[0]
     plan = [(lab, "vdp", 2) for lab in ("ekf", "ukf")]
