@@ -135,8 +135,10 @@ def dynamax_worker(label: str, problem: str, n: int, repeat: int) -> dict:
     import numpy as np
     from cd_dynamax import ContDiscreteNonlinearGaussianSSM, EKFHyperParams, UKFHyperParams, cdnlgssm_filter
     from cd_dynamax.dynamax.parameters import ParameterProperties
-    from cd_dynamax.src.continuous_discrete_nonlinear_gaussian_ssm.cdnlgssm_utils import (
-        LearnableLinear, LearnableMatrix, LearnableVector)
+    from cd_dynamax.src.continuous_discrete_nonlinear_gaussian_ssm.cdnlgssm_utils import LearnableLinear
+
+    sys.path.insert(0, str(HERE.parent / "tests" / "reference"))
+    from make_cd_dynamax_reference import nonlinear_params  # the stored reference's builder, one copy
 
     times, ys, m0, P0 = data(problem, n)
     w0, c0 = time.perf_counter(), _cpu()
@@ -157,20 +159,7 @@ def dynamax_worker(label: str, problem: str, n: int, repeat: int) -> dict:
         L, Qc, H = np.eye(2), 0.05 * np.eye(2), np.array([[1.0, 0.0]])
     R = 0.1 * np.eye(H.shape[0])
     model = ContDiscreteNonlinearGaussianSSM(state_dim=n, emission_dim=H.shape[0])
-    params, _ = model.initialize(
-        jr.PRNGKey(0),
-        initial_mean={"params": LearnableVector(params=jnp.asarray(m0)), "props": LearnableVector(params=props)},
-        initial_cov={"params": LearnableMatrix(params=jnp.asarray(P0)), "props": LearnableMatrix(params=props)},
-        dynamics_drift=drift,
-        dynamics_diffusion_coefficient={"params": LearnableMatrix(params=jnp.asarray(L)),
-                                        "props": LearnableMatrix(params=props)},
-        dynamics_diffusion_cov={"params": LearnableMatrix(params=jnp.asarray(Qc)),
-                                "props": LearnableMatrix(params=props)},
-        dynamics_approx_order=1.0,
-        emission_function={"params": LearnableLinear(weights=jnp.asarray(H), bias=jnp.zeros(H.shape[0])),
-                           "props": LearnableLinear(weights=props, bias=props)},
-        emission_cov={"params": LearnableMatrix(params=jnp.asarray(R)), "props": LearnableMatrix(params=props)},
-    )
+    params = nonlinear_params(model, jr.PRNGKey(0), m0, P0, drift, L, Qc, H, R)
     s = {"solver": dfx.Dopri5(), "stepsize_controller": dfx.PIDController(rtol=RTOL, atol=ATOL), "dt0": 1e-3,
          "max_steps": 100_000}
     hyper = (EKFHyperParams(state_order="first", emission_order="first", diffeqsolve_settings=s) if label == "ekf"

@@ -54,7 +54,10 @@ def _posterior(post) -> dict:
             "marginal_loglik": float(post.marginal_loglik)}
 
 
-def _nonlinear_params(model, key, m0, P0, drift, L, Qc, H, R):
+def nonlinear_params(model, key, m0, P0, drift, L, Qc, H, R):
+    """cd-dynamax's parameters of a nonlinear model: the prior N(m0, P0), ``drift`` (its params/props
+    dict), the diffusion L with spectral density Qc, a linear emission H with noise R, all fixed
+    (benchmarks/continuous.py builds its peer with it too)."""
     from cd_dynamax.dynamax.parameters import ParameterProperties
     from cd_dynamax.src.continuous_discrete_nonlinear_gaussian_ssm.cdnlgssm_utils import (
         LearnableLinear, LearnableMatrix, LearnableVector)
@@ -125,7 +128,7 @@ def linear_case() -> dict:
     nl = ContDiscreteNonlinearGaussianSSM(state_dim=n, emission_dim=n_y)
     drift = {"params": LearnableLinear(weights=jnp.asarray(A), bias=jnp.zeros(n)),
              "props": LearnableLinear(weights=props, bias=props)}
-    nl_params = _nonlinear_params(nl, key1, np.zeros(n), np.eye(n), drift, L, Qc, H, R)
+    nl_params = nonlinear_params(nl, key1, np.zeros(n), np.eye(n), drift, L, Qc, H, R)
     return {"A": A.tolist(), "L": L.tolist(), "Qc": Qc.tolist(), "H": H.tolist(), "R": R.tolist(),
             "m0": [0.0] * n, "P0": np.eye(n).tolist(), "times": times.tolist(),
             "emissions": np.asarray(ys).tolist(), "kf": _posterior(kf), **_ekf_ukf(nl_params, ys, t)}
@@ -156,7 +159,7 @@ def vanderpol_case() -> dict:
     props = ParameterProperties()
     drift = {"params": LearnableVanDerPol(mu=jnp.asarray(mu)), "props": LearnableVanDerPol(mu=props)}
     model = ContDiscreteNonlinearGaussianSSM(state_dim=2, emission_dim=1)
-    params = _nonlinear_params(model, jr.PRNGKey(0), m0, P0, drift, np.eye(2), q * np.eye(2), H, R)
+    params = nonlinear_params(model, jr.PRNGKey(0), m0, P0, drift, np.eye(2), q * np.eye(2), H, R)
     return {"mu": mu, "Qc": (q * np.eye(2)).tolist(), "H": H.tolist(), "R": R.tolist(), "m0": m0.tolist(),
             "P0": P0.tolist(), "times": times.tolist(), "emissions": np.asarray(ys).tolist(),
             **_ekf_ukf(params, ys, jnp.asarray(times)[:, None])}
