@@ -33,6 +33,7 @@ import numpy as np
 import sympy as sp
 
 import symmon as sm
+from report import best_wall_cpu
 from symmon.filters.mixture import gaussian_sum as gs
 
 REPEATS = 5  # --repeats
@@ -50,13 +51,7 @@ def _timed(fn) -> tuple[float, float]:
     where a short one is not, so the wall-clock ratio of a long GSF call to a short base call
     overstates the cost; the CPU time does not see the other processes (the calls here run
     on one thread)."""
-    wall, cpu = [], []
-    for _ in range(REPEATS):
-        t0, c0 = time.perf_counter(), time.process_time()
-        fn()
-        wall.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
-    return min(wall), min(cpu)
+    return best_wall_cpu(fn, REPEATS)
 
 
 def _stepwise(gsf, ys, prior):

@@ -53,6 +53,7 @@ import numpy as np  # noqa: E402
 import sympy as sp  # noqa: E402
 
 import symmon as sm  # noqa: E402
+from report import best_wall_cpu  # noqa: E402
 from symmon.compile import compiled  # noqa: E402
 from symmon.propagation.kernel import batch_kernel  # noqa: E402
 from filters import ALPHA, BETA, KAPPA, best, cv_range_bearing, rel_diff, targets, wrap, publish  # noqa: E402
@@ -324,13 +325,7 @@ def timed(fn, repeat: int) -> tuple[float, float]:
     after one warm-up call.  On a machine shared with other jobs the CPU time is the steadier
     measure: it does not count the time the threads wait for a core."""
     fn()
-    walls, cpus = [], []
-    for _ in range(repeat):
-        c0, t0 = time.process_time(), time.perf_counter()
-        fn()
-        walls.append(time.perf_counter() - t0)
-        cpus.append(time.process_time() - c0)
-    return min(walls), min(cpus)
+    return best_wall_cpu(fn, repeat)
 
 
 def mc_floor(N: int, repeat: int) -> dict:
